@@ -1,0 +1,27 @@
+"""User-facing errors: one line that names the offending file or key and the fix."""
+
+from __future__ import annotations
+
+
+class FlylibError(Exception):
+    """Base class for errors a user can act on (bad config, footage, weights, results)."""
+
+
+class ConfigError(FlylibError, ValueError):
+    """A config value is missing, unknown, of the wrong type or inconsistent."""
+
+
+class FootageError(FlylibError, ValueError):
+    """Footage is missing, unreadable, corrupt or inconsistent across cameras."""
+
+
+class WeightsError(FlylibError, RuntimeError):
+    """Detector weights are missing, unreachable or do not fit the network."""
+
+
+class ResultsError(FlylibError, ValueError):
+    """A results or stage-artifact file is missing, of the wrong version or incomplete."""
+
+
+class ImportFormatError(FlylibError, ValueError):
+    """A 2D-keypoint or calibration file from another tool cannot be used as given."""

@@ -1,0 +1,44 @@
+"""Shared fixtures: the location of ``../shared/data`` and helpers to skip without it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+
+
+def _shared_subdir(name: str) -> Path:
+    path = SHARED_DATA / name
+    if not path.is_dir():
+        pytest.skip(f"{path} is absent: real-data tests need ../shared/data beside the repo")
+    return path
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The repository root."""
+    return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def df3d_sample_dir() -> Path:
+    """``../shared/data/deepfly3d-sample`` (7 cameras, 960x480, 15 frames), or skip."""
+    return _shared_subdir("deepfly3d-sample")
+
+
+@pytest.fixture(scope="session")
+def deeperfly_example_dir() -> Path:
+    """``../shared/data/deeperfly-example`` (7 cameras, 960x480, 64 frames), or skip."""
+    return _shared_subdir("deeperfly-example")
+
+
+@pytest.fixture(scope="session")
+def df3d_pickle(df3d_sample_dir: Path) -> Path:
+    """DeepFly3D's own 2D output for the sample recording, or skip."""
+    path = df3d_sample_dir / "df3d_result_2d.pkl"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    return path
