@@ -25,6 +25,18 @@ _EXPORTS: dict[str, str] = {
     "Config": "config",
     "STAGES": "config",
     "STAGE_DEFAULTS": "config",
+    "PARAM_STAGES": "config",
+    "Pose2dParams": "config",
+    "BundleAdjustmentParams": "config",
+    "TriangulationParams": "config",
+    "PictorialParams": "config",
+    "IoParams": "config",
+    "FORMAT_VERSION": "results",
+    "Pose2dData": "results",
+    "write_stage": "results",
+    "read_stage": "results",
+    "assemble_results": "results",
+    "atomic_path": "results",
     # cameras / skeleton / results
     "Camera": "cameras",
     "CameraGroup": "cameras",
@@ -75,6 +87,20 @@ _EXPORTS: dict[str, str] = {
     "VideoReader": "io",
     "ImageSequenceReader": "io",
     "VideoWriter": "io",
+    # visualization
+    "render_videos": "visualization",
+    "summary_figure": "visualization",
+    "read_video_specs": "visualization",
+    # interoperability: 2D import, calibration files, exports
+    "import_points2d": "interop",
+    "load_calibration": "interop",
+    "read_anipose_toml": "interop",
+    "write_anipose_toml": "interop",
+    "export_result": "interop",
+    "write_points3d_csv": "interop",
+    "read_dlc_csv": "interop",
+    "write_dlc_csv": "interop",
+    "read_sleap_analysis": "interop",
 }
 
 

@@ -1,0 +1,36 @@
+# flylib: markerless 3D pose estimation of tethered Drosophila from a 7-camera rig.
+#
+#   snakemake --cores 2                      # the recordings listed in config/config.yaml
+#   snakemake --cores 2 --configfile my.yaml # another config
+#   snakemake --profile profiles/slurm       # on a SLURM cluster
+#   snakemake --report report.html           # HTML report with figures and videos
+#
+# Each rule runs one thin command script from scripts/ (runnable by hand, see --help)
+# and writes one artifact; a rule's `params` is exactly the config subset that
+# affects its result, so after editing the config a plain re-run recomputes only
+# what changed and everything downstream of it.
+
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/demo.smk"
+include: "workflow/rules/pose2d.smk"
+include: "workflow/rules/reconstruction.smk"
+include: "workflow/rules/results.smk"
+include: "workflow/rules/visualization.smk"
+
+
+localrules:
+    all,
+
+
+rule all:
+    input:
+        all_targets(),
+    default_target: True

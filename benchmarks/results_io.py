@@ -1,0 +1,126 @@
+"""results.h5 size and speed for a long recording on the default 7-camera, 38-point rig.
+
+Writes the pose2d artifact and a triangulation artifact for T frames, assembles
+results.h5 and loads it back, with flylib's chunked gzip storage and, as the baseline
+measured in the same run, plain contiguous float64 datasets. Two kinds of 2D:
+
+* ``grid``: arg-max detections on the 64x128 heatmap grid (7.5 px steps, as DeepFly2D
+  stores them), NaN where the detection plan gives a (view, point) no pathway;
+* ``subpixel``: continuous coordinates (the worst case for compression).
+
+Targets: results.h5 at most 50% of the raw float64 bytes for grid 2D (random
+confidences and errors do not compress, so subpixel 2D sits near that bound), and
+loading it at most 5x slower than reading the same arrays uncompressed.
+
+Run: ``.venv/bin/python benchmarks/results_io.py [--frames 20000]``
+(``--frames 100000`` needs about 3 GB of memory.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from flylib.config import Config
+from flylib.results import PoseResult, Pose2dData, assemble_results, write_stage
+
+
+def visibility(config: Config) -> np.ndarray:
+    """``(V, P)``: which (view, point) the default detection plan fills."""
+    views, points = config.view_names(), config.skeleton().point_names
+    seen = np.zeros((len(views), len(points)), bool)
+    for view, table in config.data["pose2d"]["output_points"].items():
+        for point in table:
+            seen[views.index(view), points.index(point)] = True
+    return seen
+
+
+def make_arrays(config: Config, n_frames: int, kind: str, rng: np.random.Generator) -> dict:
+    seen = visibility(config)
+    v, p = seen.shape
+    pts2d = rng.uniform([0, 0], [960, 480], size=(v, n_frames, p, 2))
+    if kind == "grid":
+        pts2d = np.round(pts2d / 7.5) * 7.5
+    pts2d[~np.broadcast_to(seen[:, None, :], (v, n_frames, p))] = np.nan
+    conf = np.where(np.isnan(pts2d[..., 0]), np.nan, rng.uniform(size=(v, n_frames, p)))
+    pts3d = rng.normal(size=(n_frames, p, 3))
+    reproj = np.where(np.isnan(conf), np.nan, rng.gamma(2.0, 2.0, size=conf.shape))
+    return {"pts2d": pts2d, "conf": conf, "pts3d": pts3d, "reproj": reproj}
+
+
+def write_plain(path: Path, arrays: dict) -> None:
+    with h5py.File(path, "w") as f:
+        for name, arr in arrays.items():
+            f.create_dataset(name, data=arr)
+
+
+def read_plain(path: Path) -> None:
+    with h5py.File(path, "r") as f:
+        for name in f:
+            f[name][()]
+
+
+def run(n_frames: int, kind: str, workdir: Path) -> None:
+    config = Config.default()
+    skeleton, rig = config.skeleton(), config.camera_group({v: (480, 960) for v in config.view_names()})
+    arrays = make_arrays(config, n_frames, kind, np.random.default_rng(0))
+    raw_bytes = sum(a.nbytes for a in arrays.values()) + arrays["pts2d"].nbytes  # 2D stored twice
+
+    plain = workdir / f"plain_{kind}.h5"
+    t0 = time.perf_counter()
+    write_plain(plain, {**arrays, "pts2d_clean": arrays["pts2d"]})
+    plain_write = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    read_plain(plain)
+    plain_read = time.perf_counter() - t0
+
+    stages = workdir / kind
+    t0 = time.perf_counter()
+    Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(stages / "pose2d.h5", skeleton)
+    write_stage(
+        stages / "triangulation.h5",
+        "triangulation",
+        {"points": arrays["pts2d"], "points3d": arrays["pts3d"], "reproj_error": arrays["reproj"]},
+    )
+    stage_write = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    assemble_results(
+        stages / "results.h5",
+        skeleton=skeleton,
+        config_rig=rig,
+        stage_files={"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
+    )
+    assemble = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = PoseResult.load(stages / "results.h5")
+    load = time.perf_counter() - t0
+    assert np.array_equal(result.pts2d, arrays["pts2d"], equal_nan=True)
+
+    size = (stages / "results.h5").stat().st_size
+    ratio, slowdown = size / raw_bytes, load / max(plain_read, 1e-9)
+    ok = (ratio <= 0.5 or kind != "grid") and slowdown <= 5.0
+    print(
+        f"[{'PASS' if ok else 'MISS'}] {kind:9s} T={n_frames:>7,d}  raw {raw_bytes / 2**20:8.1f} MiB"
+        f" | plain h5 {plain.stat().st_size / 2**20:8.1f} MiB, write {plain_write:5.2f} s, read {plain_read:5.2f} s"
+        f" | flylib results.h5 {size / 2**20:8.1f} MiB ({ratio:5.1%} of raw),"
+        f" stage writes {stage_write:5.2f} s, assemble {assemble:5.2f} s,"
+        f" load {load:5.2f} s ({slowdown:4.1f}x plain read)"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20000)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in ("grid", "subpixel"):
+            run(args.frames, kind, Path(tmp))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,39 @@
+#!/usr/bin/env python
+"""assemble: results.h5 from the stage artifacts, plus summary.json, summary.png and
+calibration.toml (the final rig as an Anipose calibration)."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import ARTIFACTS, run_assemble, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    for stage in ARTIFACTS:
+        parser.add_argument(f"--{stage.replace('_', '-')}", type=Path, default=None,
+                            help=f"{stage} artifact (.h5), if that stage ran")
+    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
+    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+    parser.add_argument("--truth", type=Path, default=None,
+                        help="demo truth.h5: report the 3D error against it")
+
+    def run(args, config):
+        files = {stage: getattr(args, stage) for stage in ARTIFACTS}
+        summary = run_assemble(config, files, args.outdir, recording_dir=args.recording,
+                               truth_path=args.truth)
+        error = summary.get("error_vs_truth")
+        if error:
+            print(f"[{args.recording or args.outdir}] 3D error against the demo truth: "
+                  f"median {error['median']:.4f}, p95 {error['p95']:.4f} world units "
+                  f"(body length {error['body_length']:.2f}); after similarity alignment "
+                  f"median {error['median_aligned']:.4f}; "
+                  f"{100 * error['reconstructed']:.1f}% of points reconstructed")
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

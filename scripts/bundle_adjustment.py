@@ -1,0 +1,26 @@
+#!/usr/bin/env python
+"""bundle_adjustment stage: refine the camera rig against the recording's 2D keypoints."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import run_bundle_adjustment, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
+    parser.add_argument("--out", required=True, type=Path, help="bundle-adjustment artifact to write")
+    parser.add_argument("--recording", type=Path, default=None,
+                        help="recording directory (resolves a per-session calibration file)")
+
+    def run(args, config):
+        run_bundle_adjustment(config, args.pose2d, args.out, recording_dir=args.recording)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

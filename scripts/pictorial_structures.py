@@ -1,0 +1,28 @@
+#!/usr/bin/env python
+"""pictorial_structures stage: recover joints from the detector's candidate peaks."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import run_pictorial_structures, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact with candidates")
+    parser.add_argument("--bundle-adjustment", type=Path, default=None,
+                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
+    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+
+    def run(args, config):
+        run_pictorial_structures(config, args.pose2d, args.out, ba_path=args.bundle_adjustment,
+                                 recording_dir=args.recording)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

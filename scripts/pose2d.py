@@ -1,0 +1,29 @@
+#!/usr/bin/env python
+"""pose2d stage: 2D keypoints of one recording (detector, or another tool's files)."""
+
+import json
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import run_pose2d, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--recording", required=True, type=Path, help="recording directory")
+    parser.add_argument("--out", required=True, type=Path, help="pose2d artifact to write (.h5)")
+    parser.add_argument("--import-spec", type=json.loads, default=None,
+                        help="JSON pose2d.import spec for this recording (default: the config's)")
+    parser.add_argument("--progress", action="store_true", help="show a progress bar")
+
+    def run(args, config):
+        run_pose2d(config, args.recording, args.out, import_spec=args.import_spec,
+                   progress=args.progress)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

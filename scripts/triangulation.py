@@ -1,0 +1,30 @@
+#!/usr/bin/env python
+"""triangulation stage: lift the 2D keypoints to 3D."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import run_triangulation, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
+    parser.add_argument("--pictorial-structures", type=Path, default=None,
+                        help="pictorial-structures artifact: triangulate its corrected 2D instead")
+    parser.add_argument("--bundle-adjustment", type=Path, default=None,
+                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
+    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+
+    def run(args, config):
+        run_triangulation(config, args.pose2d, args.out, pictorial_path=args.pictorial_structures,
+                          ba_path=args.bundle_adjustment, recording_dir=args.recording)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,26 @@
+#!/usr/bin/env python
+"""visualization stage: render the configured videos of one recording."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import run_visualization, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    parser.add_argument("--recording", required=True, type=Path, help="recording directory (footage)")
+    parser.add_argument("--outdir", required=True, type=Path, help="where the videos go")
+    parser.add_argument("--progress", action="store_true", help="show a progress bar")
+
+    def run(args, config):
+        run_visualization(config, args.results, args.recording, args.outdir, progress=args.progress)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

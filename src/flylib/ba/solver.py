@@ -1,0 +1,214 @@
+"""The least-squares core: residuals, the JAX Jacobian assembled as a sparse matrix.
+
+Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m``
+(view ``v``, point ``n``) contributes two residual rows
+``w_m * (project(X_n; camera_v) - xy_m)``; its Jacobian block is ``jax.jacfwd`` of
+:func:`flylib.geometry.project_full_one` with respect to the point and the camera row,
+``vmap``-ed over observations and jitted once per padded batch size. Camera columns go
+through :class:`~flylib.ba.params.ParamLayout` (fixed entries dropped, tied entries
+summed into one column). An optional bone-length prior adds one row per (frame, bone).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse
+from scipy.optimize import OptimizeResult, least_squares
+
+from .params import ParamLayout
+
+_MIN_BUCKET = 256
+
+
+@lru_cache(maxsize=None)
+def _kernels():
+    """Jitted ``(points (M,3), camera rows (M,C)) -> projections`` and their Jacobians."""
+    from .. import geometry  # enables float64 on the CPU before anything is traced
+    import jax
+
+    def project_row(pt, row):
+        return geometry.project_full_one(pt, row[0:3], row[3:6], row[6:10], row[10:])
+
+    def project_with_jac(pt, row):
+        value = project_row(pt, row)
+        jpt, jrow = jax.jacfwd(project_row, argnums=(0, 1))(pt, row)
+        return value, jpt, jrow
+
+    project = jax.jit(jax.vmap(project_row))
+    project_jac = jax.jit(jax.vmap(project_with_jac))
+    return project, project_jac
+
+
+def _bucket(m: int) -> int:
+    return max(_MIN_BUCKET, 1 << int(np.ceil(np.log2(max(m, 1)))))
+
+
+def _pad(a: np.ndarray, size: int) -> np.ndarray:
+    if a.shape[0] == size:
+        return a
+    pad = np.repeat(a[:1], size - a.shape[0], axis=0)
+    return np.concatenate([a, pad], axis=0)
+
+
+def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``."""
+    m = pts.shape[0]
+    if m == 0:
+        return np.zeros((0, 2))
+    project, _ = _kernels()
+    size = _bucket(m)
+    return np.asarray(project(_pad(pts, size), _pad(rows, size)))[:m]
+
+
+def project_rows_with_jac(pts: np.ndarray, rows: np.ndarray):
+    """Projections ``(M, 2)`` and Jacobians ``(M, 2, 3)`` / ``(M, 2, C)``."""
+    m = pts.shape[0]
+    _, project_jac = _kernels()
+    size = _bucket(m)
+    value, jpt, jrow = project_jac(_pad(pts, size), _pad(rows, size))
+    return np.asarray(value)[:m], np.asarray(jpt)[:m], np.asarray(jrow)[:m]
+
+
+@dataclass
+class Problem:
+    """One bundle-adjustment problem over ``N`` points and ``M`` observations.
+
+    Attributes
+    ----------
+    table0
+        ``(V, C)`` initial camera table (rvec, tvec, intr, dist).
+    layout
+        Which table entries are free / tied.
+    view, point
+        ``(M,)`` observation indices into the views / points.
+    xy
+        ``(M, 2)`` observed pixels.
+    weight
+        ``(M,)`` residual scale (``sqrt(conf)`` or 1).
+    n_points
+        ``N``.
+    bone_i, bone_j, bone_target
+        ``(B,)`` bone-prior endpoints (point indices) and target lengths.
+    bone_weight
+        Residual scale of the prior: pixels per unit of relative length deviation
+        (``bone_weight * (|Xi - Xj| - L) / L``).
+    """
+
+    table0: np.ndarray
+    layout: ParamLayout
+    view: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+    weight: np.ndarray
+    n_points: int
+    bone_i: np.ndarray
+    bone_j: np.ndarray
+    bone_target: np.ndarray
+    bone_weight: float = 0.0
+
+    def __post_init__(self):
+        self.n_cam = self.layout.n_free
+        self.n_obs = self.view.size
+        self.n_bones = self.bone_i.size if self.bone_weight > 0 else 0
+        self.shape = (2 * self.n_obs + self.n_bones, self.n_cam + 3 * self.n_points)
+        self._build_structure()
+
+    # -- packing ------------------------------------------------------------
+
+    def pack(self, table: np.ndarray, pts3d: np.ndarray) -> np.ndarray:
+        return np.concatenate([self.layout.pack(table), np.asarray(pts3d, float).ravel()])
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        table = self.layout.unpack(x[: self.n_cam], self.table0)
+        return table, x[self.n_cam:].reshape(self.n_points, 3)
+
+    # -- residuals and Jacobian ----------------------------------------------
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        table, pts = self.unpack(x)
+        proj = project_rows(pts[self.point], table[self.view])
+        r_obs = (self.weight[:, None] * (proj - self.xy)).ravel()
+        if not self.n_bones:
+            return r_obs
+        return np.concatenate([r_obs, self._bone_residuals(pts)])
+
+    def _bone_residuals(self, pts: np.ndarray) -> np.ndarray:
+        length = np.linalg.norm(pts[self.bone_i] - pts[self.bone_j], axis=1)
+        return self.bone_weight * (length - self.bone_target) / self.bone_target
+
+    def jacobian(self, x: np.ndarray) -> scipy.sparse.csr_matrix:
+        table, pts = self.unpack(x)
+        _, jpt, jrow = project_rows_with_jac(pts[self.point], table[self.view])
+        w = self.weight[:, None, None]
+        parts = [(w * jpt).ravel(), (w * jrow)[self._cam_m, :, self._cam_c].T.ravel()
+                 if self._cam_m.size else np.zeros(0)]
+        if self.n_bones:
+            diff = pts[self.bone_i] - pts[self.bone_j]
+            length = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
+            g = (self.bone_weight / self.bone_target / length)[:, None] * diff
+            parts += [g.ravel(), (-g).ravel()]
+        data = np.concatenate(parts)[self._order]
+        data = np.add.reduceat(data, self._starts) if data.size else data
+        return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=self.shape)
+
+    def sparsity(self) -> scipy.sparse.csr_matrix:
+        """The Jacobian's structural non-zeros (for ``jac_sparsity`` with finite differences)."""
+        ones = np.ones(self._indices.size)
+        return scipy.sparse.csr_matrix((ones, self._indices, self._indptr), shape=self.shape)
+
+    def _build_structure(self):
+        m = np.arange(self.n_obs)
+        # point block: rows 2m + a, columns n_cam + 3 * point + b, in (m, a, b) order
+        rows_pt = (2 * m[:, None, None] + np.arange(2)[None, :, None]).repeat(3, axis=2)
+        cols_pt = np.broadcast_to(
+            self.n_cam + 3 * self.point[:, None, None] + np.arange(3)[None, None, :],
+            (self.n_obs, 2, 3))
+        # camera block: every free column of the observation's view, (entry, a) order
+        var = self.layout.var_index[self.view]  # (M, C)
+        self._cam_m, self._cam_c = np.nonzero(var >= 0)
+        cam_var = var[self._cam_m, self._cam_c]
+        rows_cam = np.stack([2 * self._cam_m, 2 * self._cam_m + 1], axis=0).ravel()
+        cols_cam = np.concatenate([cam_var, cam_var])
+        rows = [rows_pt.ravel(), rows_cam]
+        cols = [cols_pt.ravel(), cols_cam]
+        if self.n_bones:
+            b = 2 * self.n_obs + np.arange(self.n_bones)
+            rows += [np.repeat(b, 3), np.repeat(b, 3)]
+            cols += [(self.n_cam + 3 * self.bone_i[:, None] + np.arange(3)).ravel(),
+                     (self.n_cam + 3 * self.bone_j[:, None] + np.arange(3)).ravel()]
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        key = rows.astype(np.int64) * self.shape[1] + cols
+        self._order = np.argsort(key, kind="stable")
+        unique, self._starts = np.unique(key[self._order], return_index=True)
+        self._indices = (unique % self.shape[1]).astype(np.int64)
+        counts = np.bincount((unique // self.shape[1]).astype(np.int64), minlength=self.shape[0])
+        self._indptr = np.concatenate([[0], np.cumsum(counts)])
+
+    # -- solve ----------------------------------------------------------------
+
+    def solve(self, table: np.ndarray, pts3d: np.ndarray, **kwargs) -> OptimizeResult:
+        """``scipy.optimize.least_squares`` from ``(table, pts3d)``; kwargs pass through.
+
+        ``jac`` defaults to the analytic JAX Jacobian; pass ``jac="2-point"`` (or
+        ``"3-point"``) for finite differences, which then get ``jac_sparsity``.
+        """
+        options = {"method": "trf", "x_scale": "jac", "tr_solver": "lsmr"}
+        options.update(kwargs)
+        if options.get("jac", "jax") == "jax":
+            options["jac"] = self.jacobian
+        elif options["jac"] in ("2-point", "3-point", "cs"):
+            options.setdefault("jac_sparsity", self.sparsity())
+        if options["method"] == "lm":  # MINPACK cannot take a sparse Jacobian
+            options.pop("tr_solver", None)
+            jac = options["jac"]
+            if callable(jac):
+                options["jac"] = lambda x: jac(x).toarray()
+        return least_squares(self.residuals, self.pack(table, pts3d), **options)
+
+    def observation_errors(self, table: np.ndarray, pts3d: np.ndarray, view, point, xy):
+        """Unweighted reprojection error (pixels) of arbitrary observations."""
+        proj = project_rows(pts3d[point], table[view])
+        return np.linalg.norm(proj - xy, axis=1)

@@ -1,0 +1,549 @@
+"""Cameras and camera rigs: building them from the config and using them.
+
+Orbit convention (``look_at``, ``distance``, ``azimuth_deg``, ``elevation_deg``,
+``roll_deg``), world up = +z:
+
+* the camera centre is ``look_at + distance * (cos e cos a, cos e sin a, sin e)``:
+  azimuth 0 puts the camera on the +x axis, azimuth +90 on +y (counter-clockwise
+  seen from above), positive elevation above the ``look_at`` plane;
+* the optical axis (camera +z) points from the centre at ``look_at``;
+* image x (camera +x) is the horizontal ``(-sin a, cos a, 0)``; image y (camera
+  +y, pointing down in the image) is ``z_cam x x_cam``, so world +z appears
+  above the image centre at every azimuth and any elevation below 90 degrees;
+* ``roll_deg`` then rotates the camera frame about its optical axis
+  (``R = Rz(roll) @ R_orbit``): the scene appears turned clockwise on screen.
+
+With the fly facing +x, +y is its left: the default rig's right-side cameras
+(rh, rm, rf) sit at negative azimuths, the front camera at azimuth 0.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import geometry
+from .errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+ORBIT_KEYS = ("look_at", "distance", "azimuth_deg", "elevation_deg", "roll_deg")
+EXPLICIT_KEYS = ("rvec", "tvec")
+INTRINSIC_KEYS = ("focal_length_px", "principal_point_px", "distortion_coefficients")
+CAMERA_KEYS = frozenset(ORBIT_KEYS + EXPLICIT_KEYS + INTRINSIC_KEYS)
+
+
+# -- config parsing -----------------------------------------------------------------
+
+
+def _vector(spec: Mapping, key: str, size: int | None, where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(spec[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}.{key} must be a list of numbers, got {spec[key]!r}") from None
+    if arr.ndim != 1 or (size is not None and arr.size != size) or not np.all(np.isfinite(arr)):
+        want = f"{size} finite numbers" if size is not None else "a flat list of finite numbers"
+        raise ConfigError(f"{where}.{key} must be {want}, got {spec[key]!r}")
+    return arr
+
+
+def _number(spec: Mapping, key: str, default: float | None, where: str) -> float:
+    if key not in spec:
+        if default is None:
+            raise ConfigError(f"{where}.{key} is required for the orbit parameterization")
+        return default
+    value = spec[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ConfigError(f"{where}.{key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def orbit_extrinsics(
+    look_at=(0.0, 0.0, 0.0),
+    distance: float = 1.0,
+    azimuth_deg: float = 0.0,
+    elevation_deg: float = 0.0,
+    roll_deg: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(rvec, tvec)`` of a camera orbiting ``look_at`` (see the module docstring).
+
+    Parameters
+    ----------
+    look_at
+        World point on the optical axis, ``(3,)``.
+    distance
+        Camera centre to ``look_at`` (> 0).
+    azimuth_deg, elevation_deg, roll_deg
+        Orbit angles in degrees.
+
+    Returns
+    -------
+    rvec, tvec : np.ndarray
+        World-to-camera extrinsics, ``(3,)`` each.
+    """
+    az, el, roll = np.deg2rad([azimuth_deg, elevation_deg, roll_deg])
+    outward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    centre = np.asarray(look_at, dtype=np.float64) + distance * outward
+    z_cam = -outward
+    x_cam = np.array([-np.sin(az), np.cos(az), 0.0])
+    y_cam = np.cross(z_cam, x_cam)
+    c, s = np.cos(roll), np.sin(roll)
+    roll_mat = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rmat = roll_mat @ np.stack([x_cam, y_cam, z_cam])
+    rvec = np.asarray(geometry.rmat_to_rvec_one(rmat))
+    return rvec, -rmat @ centre
+
+
+def resolve_extrinsics(spec: Mapping, where: str = "cameras") -> tuple[np.ndarray, np.ndarray]:
+    """``(rvec, tvec)`` from a camera spec: explicit ``rvec``/``tvec`` or orbit keys.
+
+    Parameters
+    ----------
+    spec
+        Camera spec (defaults already merged in).
+    where
+        Config path used in error messages, e.g. ``"cameras.rh"``.
+
+    Returns
+    -------
+    rvec, tvec : np.ndarray
+
+    Raises
+    ------
+    ConfigError
+        On a lone ``rvec`` or ``tvec``, or missing/invalid orbit keys.
+    """
+    has_r, has_t = "rvec" in spec, "tvec" in spec
+    if has_r != has_t:
+        raise ConfigError(f"{where}: give both rvec and tvec, or neither (use the orbit keys)")
+    if has_r:
+        return _vector(spec, "rvec", 3, where), _vector(spec, "tvec", 3, where)
+    look_at = _vector(spec, "look_at", 3, where) if "look_at" in spec else np.zeros(3)
+    distance = _number(spec, "distance", None, where)
+    if distance <= 0:
+        raise ConfigError(f"{where}.distance must be positive, got {distance}")
+    return orbit_extrinsics(
+        look_at=look_at,
+        distance=distance,
+        azimuth_deg=_number(spec, "azimuth_deg", None, where),
+        elevation_deg=_number(spec, "elevation_deg", 0.0, where),
+        roll_deg=_number(spec, "roll_deg", 0.0, where),
+    )
+
+
+def resolve_intrinsics(
+    spec: Mapping, image_size: tuple[int, int] | None = None, where: str = "cameras"
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(intr, dist)`` from a camera spec.
+
+    ``focal_length_px`` is a number or ``[fx, fy]``; ``principal_point_px`` is
+    ``[cx, cy]``, or, when absent, the centre ``(w / 2, h / 2)`` of ``image_size``
+    ``(h, w)``; ``distortion_coefficients`` is an OpenCV-ordered list (<= 12).
+
+    Raises
+    ------
+    ConfigError
+        If a key is missing or malformed, or no principal point can be found.
+    """
+    if "focal_length_px" not in spec:
+        raise ConfigError(f"{where}.focal_length_px is required (a number or [fx, fy])")
+    focal = np.atleast_1d(np.asarray(spec["focal_length_px"], dtype=object))
+    try:
+        focal = focal.astype(np.float64)
+    except (TypeError, ValueError):
+        focal = np.array([np.nan])
+    if focal.ndim != 1 or focal.size not in (1, 2) or not np.all(np.isfinite(focal) & (focal > 0)):
+        raise ConfigError(
+            f"{where}.focal_length_px must be a positive number or [fx, fy], "
+            f"got {spec['focal_length_px']!r}"
+        )
+    fx, fy = (focal[0], focal[0]) if focal.size == 1 else focal
+    if "principal_point_px" in spec:
+        cx, cy = _vector(spec, "principal_point_px", 2, where)
+    elif image_size is not None:
+        height, width = image_size
+        cx, cy = width / 2.0, height / 2.0
+    else:
+        raise ConfigError(
+            f"{where}.principal_point_px is not set and the image size is unknown: "
+            "set principal_point_px = [cx, cy] or pass image_sizes"
+        )
+    dist = (
+        _vector(spec, "distortion_coefficients", None, where)
+        if spec.get("distortion_coefficients") not in (None, [])
+        else np.zeros(0)
+    )
+    if dist.size > geometry.N_DIST_COEFFS:
+        raise ConfigError(
+            f"{where}.distortion_coefficients has {dist.size} values; at most "
+            f"{geometry.N_DIST_COEFFS} (OpenCV k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4)"
+        )
+    return np.array([fx, fy, cx, cy], dtype=np.float64), dist
+
+
+# -- one camera ----------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class Camera:
+    """One pinhole camera with OpenCV distortion.
+
+    Attributes
+    ----------
+    rvec, tvec
+        World-to-camera rotation (axis-angle) and translation, ``(3,)`` each.
+    intr
+        ``[fx, fy, cx, cy]`` in raw-footage pixels.
+    dist
+        OpenCV distortion coefficients ``(K,)``, ``K <= 12`` (may be empty).
+    name
+        The view's name, or ``None``.
+    """
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    intr: np.ndarray
+    dist: np.ndarray
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        self.rvec = np.asarray(self.rvec, dtype=np.float64).reshape(3)
+        self.tvec = np.asarray(self.tvec, dtype=np.float64).reshape(3)
+        intr = np.asarray(self.intr, dtype=np.float64).reshape(-1)
+        if intr.size == 3:  # [f, cx, cy]
+            intr = np.array([intr[0], intr[0], intr[1], intr[2]])
+        if intr.size != 4:
+            raise ValueError(f"camera {self.name!r}: intr must be [fx, fy, cx, cy], got {intr}")
+        self.intr = intr
+        self.dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
+        if self.dist.size > geometry.N_DIST_COEFFS:
+            raise ValueError(
+                f"camera {self.name!r}: at most {geometry.N_DIST_COEFFS} distortion "
+                f"coefficients, got {self.dist.size}"
+            )
+
+    @classmethod
+    def from_spec(
+        cls, spec: Mapping, name: str | None = None, image_size: tuple[int, int] | None = None
+    ) -> Camera:
+        """Build a camera from a config spec (defaults already merged in).
+
+        Parameters
+        ----------
+        spec
+            Extrinsics (orbit keys or ``rvec``/``tvec``) and intrinsics keys.
+        name
+            Stored on the camera and used in error messages.
+        image_size
+            Raw-footage ``(height, width)``, used for the principal point when the
+            spec has no ``principal_point_px``.
+
+        Returns
+        -------
+        Camera
+
+        Raises
+        ------
+        ConfigError
+            On an unknown, missing or malformed key.
+        """
+        where = f"cameras.{name}" if name else "cameras"
+        unknown = sorted(set(spec) - CAMERA_KEYS)
+        if unknown:
+            raise ConfigError(
+                f"{where}: unknown key(s) {unknown}; allowed: {sorted(CAMERA_KEYS)}"
+            )
+        rvec, tvec = resolve_extrinsics(spec, where)
+        intr, dist = resolve_intrinsics(spec, image_size, where)
+        return cls(rvec=rvec, tvec=tvec, intr=intr, dist=dist, name=name)
+
+    @property
+    def rmat(self) -> np.ndarray:
+        """World-to-camera rotation matrix ``(3, 3)``."""
+        return np.asarray(geometry.rvec_to_rmat(self.rvec))
+
+    @property
+    def kmat(self) -> np.ndarray:
+        """Camera matrix ``K`` ``(3, 3)``."""
+        return np.asarray(geometry.intr_to_kmat(self.intr))
+
+    @property
+    def pmat(self) -> np.ndarray:
+        """Projection matrix ``K [R | t]`` ``(3, 4)`` (ignores distortion)."""
+        return self.kmat @ np.concatenate([self.rmat, self.tvec[:, None]], axis=1)
+
+    @property
+    def position(self) -> np.ndarray:
+        """Camera centre in world coordinates, ``-R^T t``."""
+        return -self.rmat.T @ self.tvec
+
+    def project(self, pts3d) -> np.ndarray:
+        """Project world points ``(*pts, 3)`` to pixels ``(*pts, 2)``."""
+        return project_points(
+            np.asarray(pts3d, dtype=np.float64),
+            self.rmat[None],
+            self.tvec[None],
+            self.intr[None],
+            self.dist[None],
+        )[0]
+
+    def backproject_ray(self, pixel) -> tuple[np.ndarray, np.ndarray]:
+        """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre."""
+        origin, direction = geometry.backproject_ray_one(
+            np.asarray(pixel, dtype=np.float64), self.rvec, self.tvec, self.intr, self.dist
+        )
+        return np.asarray(origin), np.asarray(direction)
+
+
+def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
+    """NumPy projection through stacked cameras (same model as ``geometry.project_full``).
+
+    Parameters
+    ----------
+    pts3d
+        ``(*pts, 3)``.
+    rmats
+        ``(V, 3, 3)`` rotation matrices.
+    tvecs, intrs, dists
+        ``(V, 3)``, ``(V, 4)``, ``(V, K)``.
+
+    Returns
+    -------
+    np.ndarray
+        ``(V, *pts, 2)``.
+    """
+    pts3d = np.asarray(pts3d, dtype=np.float64)
+    flat = pts3d.reshape(-1, 3)
+    cam = np.einsum("vij,nj->vin", rmats, flat) + tvecs[:, :, None]  # (V, 3, N)
+    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    dists = np.asarray(dists, dtype=np.float64)
+    if dists.shape[-1] and np.any(dists):
+        d = np.asarray(geometry.pad_dist(dists)).T[:, :, None]  # (12, V, 1)
+        radial, add_x, add_y = geometry._distortion_terms(x, y, d)
+        x, y = x * radial + add_x, y * radial + add_y
+    u = intrs[:, 0, None] * x + intrs[:, 2, None]
+    v = intrs[:, 1, None] * y + intrs[:, 3, None]
+    return np.stack([u, v], axis=-1).reshape(len(rmats), *pts3d.shape[:-1], 2)
+
+
+# -- a rig -----------------------------------------------------------------------
+
+
+class CameraGroup:
+    """An ordered collection of named cameras (the rig; the V axis of every array).
+
+    Parameters
+    ----------
+    cameras
+        ``name -> Camera`` in view order, or an iterable of named cameras.
+    """
+
+    def __init__(self, cameras: Mapping[str, Camera] | Iterable[Camera]):
+        if isinstance(cameras, Mapping):
+            items = dict(cameras)
+        else:
+            items = {}
+            for cam in cameras:
+                if cam.name is None:
+                    raise ValueError("CameraGroup needs named cameras (Camera.name is None)")
+                items[cam.name] = cam
+        for name, cam in items.items():
+            if cam.name is None:
+                cam.name = name
+        self.cameras: dict[str, Camera] = items
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self.cameras.values())
+
+    def __getitem__(self, key: str | int) -> Camera:
+        if isinstance(key, (int, np.integer)):
+            return list(self.cameras.values())[key]
+        try:
+            return self.cameras[key]
+        except KeyError:
+            raise KeyError(f"no camera {key!r} in the rig; cameras: {self.names}") from None
+
+    def __repr__(self) -> str:
+        return f"CameraGroup({self.names})"
+
+    @property
+    def names(self) -> list[str]:
+        """Camera names in view order."""
+        return list(self.cameras)
+
+    # -- construction ------------------------------------------------------------
+
+    @classmethod
+    def from_config(
+        cls, config, image_sizes: Mapping[str, tuple[int, int]] | None = None
+    ) -> CameraGroup:
+        """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``.
+
+        Each camera's spec is merged over ``defaults``. A camera that sets its own
+        ``rvec``/``tvec`` ignores orbit keys inherited from the defaults; setting
+        both in the camera's own table is an error.
+
+        Parameters
+        ----------
+        config
+            A :class:`flylib.config.Config` (anything with ``camera_table()``).
+        image_sizes
+            ``view name -> (height, width)`` of the raw footage, for principal
+            points the config leaves out.
+
+        Returns
+        -------
+        CameraGroup
+
+        Raises
+        ------
+        ConfigError
+            If no cameras are defined or a camera spec is invalid.
+        """
+        defaults, specs = config.camera_table()
+        defaults = dict(defaults or {})
+        image_sizes = image_sizes or {}
+        if not specs:
+            raise ConfigError("cameras: the config defines no cameras (add [cameras.<name>] tables)")
+        cameras = {}
+        for name, own in specs.items():
+            own = dict(own or {})
+            explicit = [k for k in EXPLICIT_KEYS if k in own]
+            orbit = [k for k in ORBIT_KEYS if k in own]
+            if explicit and orbit:
+                raise ConfigError(
+                    f"cameras.{name}: sets both {explicit} and orbit keys {orbit}; use one"
+                )
+            base = defaults
+            if explicit:
+                base = {k: v for k, v in defaults.items() if k not in ORBIT_KEYS}
+            elif orbit:
+                base = {k: v for k, v in defaults.items() if k not in EXPLICIT_KEYS}
+            cameras[name] = Camera.from_spec({**base, **own}, name=name, image_size=image_sizes.get(name))
+        return cls(cameras)
+
+    @classmethod
+    def from_arrays(cls, names, rvecs, tvecs, intrs, dists) -> CameraGroup:
+        """Build a rig from stacked arrays ``(V, 3)``, ``(V, 3)``, ``(V, 4)``, ``(V, K)``."""
+        names = list(names)
+        arrays = [np.asarray(a, dtype=np.float64) for a in (rvecs, tvecs, intrs, dists)]
+        for a in arrays:
+            if a.shape[0] != len(names):
+                raise ValueError(f"{len(names)} names but an array has shape {a.shape}")
+        rvecs, tvecs, intrs, dists = arrays
+        return cls(
+            {
+                name: Camera(rvec=rvecs[i], tvec=tvecs[i], intr=intrs[i], dist=dists[i], name=name)
+                for i, name in enumerate(names)
+            }
+        )
+
+    def subset(self, names: Iterable[str]) -> CameraGroup:
+        """A new rig with the cameras ``names``, in that order (cameras are shared)."""
+        return CameraGroup({name: self[name] for name in names})
+
+    # -- stacked parameters ------------------------------------------------------
+
+    @property
+    def rvecs(self) -> np.ndarray:
+        """``(V, 3)``."""
+        return np.stack([c.rvec for c in self])
+
+    @property
+    def tvecs(self) -> np.ndarray:
+        """``(V, 3)``."""
+        return np.stack([c.tvec for c in self])
+
+    @property
+    def intrs(self) -> np.ndarray:
+        """``(V, 4)`` as ``[fx, fy, cx, cy]``."""
+        return np.stack([c.intr for c in self])
+
+    @property
+    def dists(self) -> np.ndarray:
+        """``(V, K)``, zero-padded to the longest camera's ``K``."""
+        k = max((c.dist.size for c in self), default=0)
+        out = np.zeros((len(self), k))
+        for i, c in enumerate(self):
+            out[i, : c.dist.size] = c.dist
+        return out
+
+    @property
+    def rmats(self) -> np.ndarray:
+        """``(V, 3, 3)``."""
+        return np.asarray(geometry.rvec_to_rmat(self.rvecs))
+
+    @property
+    def pmats(self) -> np.ndarray:
+        """``(V, 3, 4)`` projection matrices ``K [R | t]`` (ignore distortion)."""
+        kmats = np.asarray(geometry.intr_to_kmat(self.intrs))
+        return kmats @ np.concatenate([self.rmats, self.tvecs[:, :, None]], axis=2)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(V, 3)`` camera centres."""
+        return np.stack([c.position for c in self])
+
+    # -- geometry --------------------------------------------------------------------
+
+    def project(self, pts3d) -> np.ndarray:
+        """Project world points ``(*pts, 3)`` through every camera -> ``(V, *pts, 2)``."""
+        return project_points(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
+
+    def undistort_points(self, pts2d) -> np.ndarray:
+        """Remove lens distortion from pixels ``(V, *pts, 2)`` (same intrinsics, no distortion)."""
+        pts2d = np.asarray(pts2d, dtype=np.float64)
+        if not np.any(self.dists):
+            return pts2d
+        out = np.array(pts2d)
+        for v, cam in enumerate(self):
+            if not np.any(cam.dist):
+                continue
+            fx, fy, cx, cy = cam.intr
+            flat = pts2d[v].reshape(-1, 2)
+            norm = (flat - [cx, cy]) / [fx, fy]
+            und = geometry.undistort_normalized(norm, cam.dist)
+            out[v] = (und * [fx, fy] + [cx, cy]).reshape(pts2d[v].shape)
+        return out
+
+    def triangulate(self, pts2d, weights=None) -> np.ndarray:
+        """Weighted NaN-aware DLT (see :func:`flylib.geometry.triangulate_dlt`).
+
+        Distorted cameras are handled by undistorting the observations first.
+
+        Parameters
+        ----------
+        pts2d
+            ``(V, *pts, 2)`` pixels, NaN = missing.
+        weights
+            Optional ``(V, *pts)``.
+
+        Returns
+        -------
+        np.ndarray
+            ``(*pts, 3)``; NaN below two views.
+        """
+        pts2d = self.undistort_points(pts2d)
+        self._check_views(pts2d)
+        return geometry.dlt_solve(np, pts2d, self.pmats, weights)
+
+    def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
+        """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        self._check_views(pixels)
+        rays = [cam.backproject_ray(p) for cam, p in zip(self, pixels)]
+        return np.stack([r[0] for r in rays]), np.stack([r[1] for r in rays])
+
+    def _check_views(self, arr: np.ndarray) -> None:
+        if arr.shape[0] != len(self):
+            raise ValueError(
+                f"array has {arr.shape[0]} views on axis 0 but the rig has {len(self)} "
+                f"cameras {self.names}"
+            )
+

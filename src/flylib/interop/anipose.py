@@ -1,0 +1,309 @@
+"""Camera rigs from calibration files: Anipose TOML, DeepFly3D pickle, calibrations.csv.
+
+Anipose TOML (seed 003): one ``[cam_N]`` table per camera with ``name``,
+``size = [width, height]``, ``matrix`` (3x3 K), ``distortions`` (OpenCV order
+``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to camera) and
+``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
+``cv2.projectPoints`` with the same numbers gives the same pixels as
+:meth:`flylib.cameras.CameraGroup.project`.
+
+Config (top-level ``calibration`` table) -- take the rig from a file instead of the
+orbit parameters::
+
+    calibration:
+      file: calibration.toml     # or a DeepFly3D calib pickle
+      format: anipose            # anipose | deepfly3d (default: from the suffix)
+      names: {rh: cam_a, ...}    # optional: view -> camera name (anipose) or index (deepfly3d)
+    # or, resolving a recording's file by its session name:
+    calibration:
+      index: calibrations.csv    # rows "<...>/<session>/<image>,<toml path>"
+      session: null              # default: the recording directory's name
+
+Views are matched by name (an Anipose camera whose ``name`` is the view name); a
+DeepFly3D pickle's cameras are matched by index to the views in config order.
+Relative paths resolve against the recording directory when the file is there, else
+against the config file's directory, else the working directory; paths inside
+``calibrations.csv`` are relative to the CSV.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tomllib
+from pathlib import Path, PurePosixPath, PureWindowsPath
+
+import numpy as np
+
+from ..errors import ImportFormatError
+from . import views as _views
+
+log = logging.getLogger(__name__)
+
+CALIBRATION_FORMATS = ("anipose", "deepfly3d")
+
+
+def read_anipose_toml(path: Path) -> dict[str, dict]:
+    """Read an Anipose calibration TOML.
+
+    Returns
+    -------
+    dict
+        ``camera name -> {"size": (width, height), "kmat" (3, 3), "dist" (K,),
+        "rvec" (3,), "tvec" (3,)}`` in ``cam_N`` order (float64).
+
+    Raises
+    ------
+    ImportFormatError
+        A missing key, a wrong shape, a K whose last row is not ``[0, 0, 1]`` or that
+        has skew, or two cameras with the same name.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImportFormatError(f"{path}: no such Anipose calibration file; check calibration.file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ImportFormatError(f"{path}: not valid TOML ({exc})") from exc
+    tables = {k: v for k, v in data.items() if k.startswith("cam_") and isinstance(v, dict)}
+
+    def order(key: str):
+        suffix = key[4:]
+        return (0, int(suffix), "") if suffix.isdigit() else (1, 0, suffix)
+
+    out: dict[str, dict] = {}
+    for key in sorted(tables, key=order):
+        table = tables[key]
+        where = f"{path} [{key}]"
+        missing = [k for k in ("matrix", "distortions", "rotation", "translation") if k not in table]
+        if missing:
+            raise ImportFormatError(f"{where}: lacks {missing}; see the Anipose calibration format")
+        try:
+            kmat = np.asarray(table["matrix"], dtype=np.float64).reshape(3, 3)
+            rvec = np.asarray(table["rotation"], dtype=np.float64).reshape(3)
+            tvec = np.asarray(table["translation"], dtype=np.float64).reshape(3)
+            dist = np.asarray(table["distortions"], dtype=np.float64).ravel()
+        except ValueError as exc:
+            raise ImportFormatError(f"{where}: bad array shape ({exc})") from exc
+        skewed = abs(kmat[0, 1]) > 1e-12 * abs(kmat[0, 0]) or kmat[1, 0] != 0
+        if skewed or not np.allclose(kmat[2], [0.0, 0.0, 1.0]):
+            raise ImportFormatError(
+                f"{where}: matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {kmat.tolist()}"
+            )
+        name = str(table.get("name", key))
+        if name in out:
+            raise ImportFormatError(f"{where}: camera name {name!r} used twice; names must be unique")
+        size = table.get("size")
+        out[name] = {
+            "size": None if size is None else (int(size[0]), int(size[1])),
+            "kmat": kmat,
+            "dist": dist,
+            "rvec": rvec,
+            "tvec": tvec,
+        }
+    if not out:
+        raise ImportFormatError(f"{path}: no [cam_N] tables; not an Anipose calibration")
+    return out
+
+
+def write_anipose_toml(
+    cameras, path: Path, image_sizes: dict | None = None, metadata: dict | None = None
+) -> Path:
+    """Write a camera rig as an Anipose calibration TOML (atomically).
+
+    Parameters
+    ----------
+    cameras
+        A :class:`flylib.cameras.CameraGroup` (``names``, ``rvecs``, ``tvecs``,
+        ``intrs`` ``[fx, fy, cx, cy]``, ``dists``).
+    path
+        Destination ``.toml``.
+    image_sizes
+        ``view -> (height, width)`` of the raw frames; written as ``size = [w, h]``.
+        A camera without one gets ``size = [2 cx, 2 cy]`` (the principal point at the
+        image centre), the best guess Anipose can use.
+    metadata
+        Extra ``[metadata]`` entries (TOML-able values).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import tomli_w
+
+    image_sizes = image_sizes or {}
+    names = list(cameras.names)
+    rvecs, tvecs, intrs = (
+        np.asarray(a, dtype=np.float64) for a in (cameras.rvecs, cameras.tvecs, cameras.intrs)
+    )
+    dists = np.asarray(cameras.dists, dtype=np.float64).reshape(len(names), -1)
+    doc: dict = {}
+    for i, name in enumerate(names):
+        fx, fy, cx, cy = (float(v) for v in intrs[i])
+        if name in image_sizes:
+            h, w = (int(v) for v in image_sizes[name])
+        else:
+            w, h = int(round(2 * cx)), int(round(2 * cy))
+        dist = [float(v) for v in dists[i]]
+        dist += [0.0] * (5 - len(dist))  # Anipose reads exactly k1 k2 p1 p2 k3
+        doc[f"cam_{i}"] = {
+            "name": str(name),
+            "size": [w, h],
+            "matrix": [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]],
+            "distortions": dist,
+            "rotation": [float(v) for v in rvecs[i]],
+            "translation": [float(v) for v in tvecs[i]],
+        }
+    doc["metadata"] = {"written_by": "flylib", **(metadata or {})}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(tomli_w.dumps(doc).encode())
+    os.replace(tmp, path)
+    return path
+
+
+def _resolve(path_text: str, recording_dir: Path | None, config) -> Path:
+    path = Path(os.path.expanduser(str(path_text)))
+    if path.is_absolute():
+        return path
+    bases = []
+    if recording_dir is not None:
+        bases.append(Path(recording_dir))
+    source = getattr(config, "source", None)
+    if source is not None:
+        bases.append(Path(source).parent)
+    for base in bases:
+        if (base / path).exists():
+            return base / path
+    return path
+
+
+def _session_parts(text: str) -> tuple[str, ...]:
+    """Path components of a calibrations.csv first-column entry (either separator)."""
+    return PureWindowsPath(text).parts if "\\" in text else PurePosixPath(text).parts
+
+
+def calibration_from_index(index_csv: Path, session: str) -> Path:
+    """The calibration file ``calibrations.csv`` gives for a recording session.
+
+    A row belongs to ``session`` when its first column is the session name or a path
+    with ``session`` as a directory component (``labeled-data/<session>/img.png``).
+
+    Raises
+    ------
+    ImportFormatError
+        When the index is missing or malformed, or lists no file or several
+        different files for the session.
+    """
+    import pandas as pd
+
+    index_csv = Path(index_csv)
+    if not index_csv.is_file():
+        raise ImportFormatError(f"{index_csv}: no such calibrations index; check calibration.index")
+    table = pd.read_csv(index_csv, index_col=0, dtype=str)
+    if "file" not in table.columns:
+        raise ImportFormatError(
+            f"{index_csv}: needs a 'file' column (header ',file'); see the calibrations.csv format"
+        )
+    found = []
+    for image, file in zip(table.index.astype(str), table["file"]):
+        parts = _session_parts(image)
+        if image == session or session in parts[:-1]:
+            found.append(file)
+    unique = list(dict.fromkeys(found))
+    if not unique:
+        raise ImportFormatError(
+            f"{index_csv}: no row for session {session!r}; add '<...>/{session}/<image>,<calibration.toml>' "
+            "or set calibration.session"
+        )
+    if len(unique) > 1:
+        raise ImportFormatError(
+            f"{index_csv}: session {session!r} maps to several files {unique}; keep one per session"
+        )
+    return index_csv.parent / unique[0]
+
+
+def load_calibration(config, recording_dir: Path | None = None):
+    """The camera rig from the config's ``calibration`` table (module docstring).
+
+    Parameters
+    ----------
+    config
+        The run's :class:`flylib.config.Config`; its views are ``cameras`` in order.
+    recording_dir
+        The recording; relative paths may resolve against it, and it names the
+        session for ``calibration.index``.
+
+    Returns
+    -------
+    flylib.cameras.CameraGroup
+        One camera per configured view, in config order.
+
+    Raises
+    ------
+    ImportFormatError
+        No ``calibration`` table, an unknown format, or a view with no camera in the file.
+    """
+    from ..cameras import CameraGroup
+
+    spec = _views.config_data(config).get("calibration")
+    if not isinstance(spec, dict) or not ({"file", "index"} & set(spec)):
+        raise ImportFormatError(
+            f"config 'calibration' is {spec!r}; give {{file: path, format: anipose|deepfly3d}} "
+            "or {index: calibrations.csv}"
+        )
+    if "index" in spec:
+        index = _resolve(spec["index"], recording_dir, config)
+        session = spec.get("session") or (Path(recording_dir).name if recording_dir else None)
+        if not session:
+            raise ImportFormatError("calibration.index needs a recording directory or calibration.session")
+        path = calibration_from_index(index, str(session))
+    else:
+        path = _resolve(spec["file"], recording_dir, config)
+    fmt = spec.get("format") or ("deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose")
+    if fmt not in CALIBRATION_FORMATS:
+        raise ImportFormatError(f"calibration.format is {fmt!r}; use one of {list(CALIBRATION_FORMATS)}")
+    views = _views.view_names(config, required=False)
+    names = spec.get("names") or {}
+    if fmt == "anipose":
+        cams = read_anipose_toml(path)
+        views = views or list(cams)  # no views configured: the file's cameras, in order
+        chosen = [cams.get(str(names.get(v, v))) for v in views]
+    else:
+        from .df3d import read_df3d_calibration
+
+        cams_by_index = read_df3d_calibration(path)
+        views = views or [str(i) for i in cams_by_index]
+        chosen = [cams_by_index.get(int(names.get(v, i))) for i, v in enumerate(views)]
+        cams = {str(k): c for k, c in cams_by_index.items()}
+    absent = [v for v, c in zip(views, chosen) if c is None]
+    if absent:
+        raise ImportFormatError(
+            f"{path}: no camera for views {absent} (file has {list(cams)}); "
+            "set calibration.names {view: camera name or index}"
+        )
+    kmats = np.stack([c["kmat"] for c in chosen])
+    intrs = np.stack([kmats[:, 0, 0], kmats[:, 1, 1], kmats[:, 0, 2], kmats[:, 1, 2]], axis=-1)
+    width = max(c["dist"].size for c in chosen)
+    dists = np.zeros((len(chosen), width))
+    for i, c in enumerate(chosen):
+        dists[i, : c["dist"].size] = c["dist"]
+    log.info("camera rig for %d views from %s (%s)", len(views), path, fmt)
+    return CameraGroup.from_arrays(
+        list(views),
+        np.stack([c["rvec"] for c in chosen]),
+        np.stack([c["tvec"] for c in chosen]),
+        intrs,
+        dists,
+    )
+
+
+def calibration_image_sizes(path: Path) -> dict[str, tuple[int, int]]:
+    """``camera name -> (height, width)`` recorded in an Anipose TOML (cameras with a size)."""
+    return {
+        name: (cam["size"][1], cam["size"][0])
+        for name, cam in read_anipose_toml(path).items()
+        if cam["size"] is not None
+    }

@@ -1,0 +1,196 @@
+"""DeepFly3D files: the 2D result pickle and the calibration pickle.
+
+2D (``df3d_result*.pkl``, a pickled dict):
+
+- ``points2d`` ``(C, T, J, 2)``, normalized: ``[..., 0]`` is row / height (y),
+  ``[..., 1]`` is column / width (x). An undetected joint is stored as ``(0, 0)``,
+  and as ``(0, 1)`` in the mirrored cameras (the flip maps column 0 to 1). Values
+  are quantized to the heatmap grid, so pixels are ``x = col * width``,
+  ``y = row * height`` (no half-cell shift: that is how DeepFly3D scales them back).
+- ``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per output channel.
+  DeepFly3D's network has ``K = J / 2`` channels, run on one side of the fly at a
+  time, so joint ``j`` takes channel ``j mod K``.
+- ``camera_ordering`` ``(C,)``: DeepFly3D's ``cidread2cid``. Row ``i`` of
+  ``points2d`` is canonical camera ``i``; here it is placed on the ``i``-th
+  configured view (or ``views[i]``), which is right for the default rig.
+
+Joint order. DeepFly3D joints 0-18 are the side seen by cameras 0-2 and joints 19-37
+the side seen by cameras 4-6; within a side: front, middle, hind leg (thorax-coxa,
+coxa-trochanter, femur-tibia, tibia-tarsus, claw), antenna, abdomen 0-2. Cameras 0-2
+(views rh, rm, rf) film the fly's right flank, so DeepFly3D joint ``j`` is fly38
+point ``(j + 19) mod 38``. Checked by eye on the deepfly3d-sample recording (frame 7,
+points drawn over the decoded H.264 frames): in camera_1 the fly faces right with its
+dorsum up (its right flank toward the camera) and the mapped r_antenna sits on the
+head, r_abdomen0-2 along the abdomen, the rf leg points run down the front leg and
+the rh ones down the hind leg; cameras 4-6 show the mirror image with the l* labels
+on the matching left-side parts. Pinned in ``tests/test_interop.py``.
+
+Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3
+world-to-camera rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5,
+OpenCV order); projecting with OpenCV conventions gives raw-frame (x, y) pixels.
+Other keys are ignored.
+"""
+
+from __future__ import annotations
+
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ImportFormatError
+
+def _fly38_names() -> tuple[str, ...]:
+    names: list[str] = []
+    for side in ("l", "r"):
+        for limb in ("f", "m", "h"):
+            names += [
+                f"{side}{limb}_{j}"
+                for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")
+            ]
+        names += [f"{side}_antenna", f"{side}_abdomen0", f"{side}_abdomen1", f"{side}_abdomen2"]
+    return tuple(names)
+
+
+#: fly38 point names, in fly38 order (``../shared/spec/fly38-rig.yaml``).
+FLY38_POINT_NAMES: tuple[str, ...] = _fly38_names()
+
+
+def df3d_joint_to_fly38(joint: int) -> str:
+    """The fly38 point name of DeepFly3D joint ``joint`` (``(joint + 19) mod 38``)."""
+    return FLY38_POINT_NAMES[(int(joint) + 19) % 38]
+
+
+@dataclass
+class Df3dPoints2d:
+    """DeepFly3D 2D output converted to raw-frame pixels.
+
+    Attributes
+    ----------
+    xy
+        ``(C, T, J, 2)`` pixel ``(x, y)``, NaN where the joint was not detected.
+    conf
+        ``(C, T, J)`` heatmap peak of the joint's channel, NaN where not detected.
+    camera_ordering
+        DeepFly3D's ``camera_ordering`` (``cidread2cid``), ``(C,)``.
+    """
+
+    xy: np.ndarray
+    conf: np.ndarray
+    camera_ordering: np.ndarray
+
+
+def _load_pickle(path: Path, what: str) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ImportFormatError(f"{path}: no such {what}; check the path in the config")
+    try:
+        with path.open("rb") as fh:
+            data = pickle.load(fh)
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError) as exc:
+        raise ImportFormatError(f"{path}: not a readable {what} pickle ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ImportFormatError(f"{path}: a {what} pickle must hold a dict, got {type(data).__name__}")
+    return data
+
+
+def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPoints2d:
+    """Read a DeepFly3D 2D result pickle into raw-frame pixels.
+
+    Parameters
+    ----------
+    path
+        The ``df3d_result*.pkl`` file.
+    image_sizes
+        ``(height, width)`` of each camera row's raw frames (the normalization base).
+
+    Returns
+    -------
+    Df3dPoints2d
+        Pixels, confidences and the camera ordering.
+
+    Raises
+    ------
+    ImportFormatError
+        When the pickle lacks ``points2d`` or its shape does not fit.
+    """
+    data = _load_pickle(path, "DeepFly3D 2D result")
+    if "points2d" not in data:
+        raise ImportFormatError(
+            f"{path}: no 'points2d' key (keys: {sorted(map(str, data))}); "
+            "pass DeepFly3D's df3d_result*.pkl"
+        )
+    norm = np.asarray(data["points2d"], dtype=np.float64)
+    if norm.ndim != 4 or norm.shape[-1] != 2:
+        raise ImportFormatError(f"{path}: 'points2d' has shape {norm.shape}, expected (C, T, J, 2)")
+    n_cams, n_frames, n_joints, _ = norm.shape
+    if len(image_sizes) != n_cams:
+        raise ImportFormatError(
+            f"{path}: holds {n_cams} cameras but {len(image_sizes)} views are configured; "
+            "set pose2d.import.views to name the view of each pickle camera"
+        )
+    row, col = norm[..., 0], norm[..., 1]
+    missing = (row == 0) & ((col == 0) | (col == 1)) | ~np.isfinite(norm).all(-1)
+    sizes = np.asarray(image_sizes, dtype=np.float64)  # (C, 2) = (h, w)
+    xy = np.stack([col * sizes[:, 1, None, None], row * sizes[:, 0, None, None]], axis=-1)
+    xy[missing] = np.nan
+
+    conf = np.ones((n_cams, n_frames, n_joints))
+    if "heatmap_confidence" in data:
+        heat = np.asarray(data["heatmap_confidence"], dtype=np.float64)
+        heat = heat.reshape(heat.shape[:3])
+        if heat.shape[:2] != (n_cams, n_frames) or n_joints % heat.shape[2]:
+            raise ImportFormatError(
+                f"{path}: 'heatmap_confidence' shape {heat.shape} does not fit 'points2d' {norm.shape}"
+            )
+        conf = heat[:, :, np.arange(n_joints) % heat.shape[2]]
+    conf[missing] = np.nan
+    ordering = np.asarray(data.get("camera_ordering", np.arange(n_cams))).astype(int)
+    return Df3dPoints2d(xy=xy, conf=conf, camera_ordering=ordering)
+
+
+def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
+    """Read a DeepFly3D calibration pickle.
+
+    Returns
+    -------
+    dict
+        ``camera index -> {"rvec", "tvec", "kmat", "dist"}`` (float64; ``rvec`` from
+        ``R`` by :func:`cv2.Rodrigues`), sorted by index.
+
+    Raises
+    ------
+    ImportFormatError
+        When no camera entry is present or one lacks ``R``/``tvec``/``intr``.
+    """
+    import cv2
+
+    data = _load_pickle(path, "DeepFly3D calibration")
+    out: dict[int, dict[str, np.ndarray]] = {}
+    for key, entry in data.items():
+        try:
+            index = int(key)
+        except (TypeError, ValueError):
+            continue  # DeepFly3D stores extra, non-camera keys beside the cameras
+        if not isinstance(entry, dict):
+            continue
+        missing = [k for k in ("R", "tvec", "intr") if k not in entry]
+        if missing:
+            raise ImportFormatError(
+                f"{path}: camera {index} lacks {missing}; a DeepFly3D calibration needs "
+                "R (3x3), tvec (3), intr (3x3) and distort (5) per camera"
+            )
+        rmat = np.asarray(entry["R"], dtype=np.float64).reshape(3, 3)
+        kmat = np.asarray(entry["intr"], dtype=np.float64).reshape(3, 3)
+        dist = np.asarray(entry.get("distort", np.zeros(5)), dtype=np.float64).ravel()
+        rvec, _ = cv2.Rodrigues(rmat)
+        out[index] = {
+            "rvec": rvec.ravel(),
+            "tvec": np.asarray(entry["tvec"], dtype=np.float64).ravel(),
+            "kmat": kmat,
+            "dist": dist,
+        }
+    if not out:
+        raise ImportFormatError(f"{path}: no per-camera entries (integer keys) in the calibration pickle")
+    return dict(sorted(out.items()))

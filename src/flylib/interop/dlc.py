@@ -1,0 +1,301 @@
+"""DeepLabCut-layout 2D keypoints (CSV and HDF5), which Lightning Pose also writes.
+
+One file per camera view. The columns are a header MultiIndex
+``scorer / bodyparts / coords`` (multi-animal files add ``individuals`` between scorer
+and bodyparts) with ``coords`` in ``x, y, likelihood``; the first column is the row
+index (a frame number, or an image path for labelled data). Rows are frames in order.
+Missing detections are empty cells (NaN).
+"""
+
+from __future__ import annotations
+
+import io
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pandas as pd
+
+from ..errors import ImportFormatError
+
+
+@dataclass
+class ViewKeypoints:
+    """2D keypoints of one camera view as another tool wrote them.
+
+    Attributes
+    ----------
+    names
+        The file's keypoint (body part / node) names, length ``K``.
+    xy
+        ``(T, K, 2)`` pixel ``(x, y)``, NaN = missing.
+    conf
+        ``(T, K)`` likelihood / score, NaN where the file gives none for a missing point.
+    source
+        The file it came from (for error messages).
+    """
+
+    names: list[str]
+    xy: np.ndarray
+    conf: np.ndarray
+    source: Path
+
+
+# pandas 3 parses floats exactly by default (and deprecates the option); pandas 2's
+# default parser may be off by an ulp, so ask it for round-trip parsing explicitly.
+_EXACT_FLOATS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
+
+def _header_depth(path: Path) -> int:
+    """Number of header rows: the leading rows whose first cell is a level name."""
+    levels = {"scorer", "individuals", "bodyparts", "coords"}
+    depth = 0
+    with path.open(newline="") as fh:
+        for line in fh:
+            if line.split(",", 1)[0].strip().strip('"') in levels:
+                depth += 1
+            else:
+                break
+    return depth
+
+
+def _floats(values: np.ndarray, path: Path) -> np.ndarray:
+    """The frame's cells as float64; text cells (a column pandas could not parse) via float()."""
+    if values.dtype != object:
+        return values.astype(np.float64)
+    values = values.copy()
+    values[pd.isna(values)] = np.nan
+    try:
+        return values.astype(np.float64)
+    except ValueError as exc:
+        raise ImportFormatError(f"{path}: a keypoint column has a non-numeric cell ({exc})") from exc
+
+
+def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> ViewKeypoints:
+    columns = frame.columns
+    names = list(columns.names)
+    if "bodyparts" not in names or "coords" not in names:
+        raise ImportFormatError(
+            f"{path}: header has levels {names}; expected DeepLabCut's scorer/bodyparts/coords"
+        )
+    if "individuals" in names:
+        found = list(dict.fromkeys(columns.get_level_values("individuals")))
+        if individual is None and len(found) > 1:
+            raise ImportFormatError(
+                f"{path}: holds individuals {found}; set pose2d.import.individual to pick one"
+            )
+        chosen = individual if individual is not None else found[0]
+        if chosen not in found:
+            raise ImportFormatError(f"{path}: no individual {chosen!r} (has {found})")
+        frame = frame.xs(chosen, axis=1, level="individuals")
+        columns = frame.columns
+    scorers = list(dict.fromkeys(columns.get_level_values("scorer")))
+    if len(scorers) > 1:
+        raise ImportFormatError(f"{path}: several scorers {scorers}; keep one per file")
+    parts = [str(b) for b in columns.get_level_values("bodyparts")]
+    coords = [str(c) for c in columns.get_level_values("coords")]
+    column_of = {(b, c): i for i, (b, c) in enumerate(zip(parts, coords))}
+    bodyparts = list(dict.fromkeys(parts))
+    values = _floats(frame.to_numpy(), path)
+    n_frames = len(frame)
+    xy = np.full((n_frames, len(bodyparts), 2), np.nan)
+    conf = np.full((n_frames, len(bodyparts)), np.nan)
+    for k, part in enumerate(bodyparts):
+        for c, coord in enumerate(("x", "y")):
+            if (part, coord) not in column_of:
+                raise ImportFormatError(f"{path}: body part {part!r} has no {coord!r} column")
+            xy[:, k, c] = values[:, column_of[(part, coord)]]
+        if (part, "likelihood") in column_of:
+            conf[:, k] = values[:, column_of[(part, "likelihood")]]
+        else:
+            conf[:, k] = np.where(np.isfinite(xy[:, k]).all(-1), 1.0, np.nan)
+    return ViewKeypoints(names=bodyparts, xy=xy, conf=conf, source=path)
+
+
+def read_dlc_csv(path: Path, individual: str | None = None) -> ViewKeypoints:
+    """Read a DeepLabCut / Lightning Pose per-view CSV.
+
+    Parameters
+    ----------
+    path
+        The CSV file.
+    individual
+        For multi-animal files, which individual to read (required when several).
+
+    Returns
+    -------
+    ViewKeypoints
+        Names, ``(T, K, 2)`` pixels and ``(T, K)`` likelihoods.
+
+    Raises
+    ------
+    ImportFormatError
+        When the file is missing or its header is not the DeepLabCut layout.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImportFormatError(f"{path}: no such DeepLabCut CSV; check pose2d.import.files")
+    depth = _header_depth(path)
+    if depth < 3:
+        raise ImportFormatError(
+            f"{path}: not a DeepLabCut CSV (expected header rows scorer/bodyparts/coords)"
+        )
+    frame = pd.read_csv(path, header=list(range(depth)), index_col=0, **_EXACT_FLOATS)
+    return _frame_to_view(frame, path, individual)
+
+
+class _PlainUnpickler(pickle.Unpickler):
+    """Unpickles only containers, strings and numbers: pandas' HDF5 metadata, nothing else."""
+
+    def find_class(self, module, name):  # noqa: D102 - refuse every global
+        raise pickle.UnpicklingError(f"refusing to load {module}.{name}")
+
+
+def _plain_pickle(value) -> object:
+    raw = value.tobytes() if isinstance(value, np.ndarray) else bytes(value)
+    return _PlainUnpickler(io.BytesIO(raw)).load()
+
+
+def _text(values) -> list[str]:
+    return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
+
+
+def _pandas_group(fh: h5py.File, path: Path) -> h5py.Group:
+    """The group pandas wrote the DataFrame to (DeepLabCut: ``df_with_missing``)."""
+    if "df_with_missing" in fh:
+        return fh["df_with_missing"]
+    for key in fh:
+        if isinstance(fh[key], h5py.Group) and "pandas_type" in fh[key].attrs:
+            return fh[key]
+    raise ImportFormatError(f"{path}: holds no pandas DataFrame; not a DeepLabCut .h5")
+
+
+def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
+    """pandas ``format="fixed"``: level arrays + codes for the columns, one value block."""
+    nlevels = int(group.attrs.get("block0_items_nlevels", 1))
+    if int(group.attrs.get("nblocks", 1)) != 1 or nlevels < 3:
+        raise ValueError("expected one float block with scorer/bodyparts/coords columns")
+    levels, codes, names = [], [], []
+    for i in range(nlevels):
+        level = group[f"block0_items_level{i}"]
+        levels.append(_text(level[()]))
+        codes.append(np.asarray(group[f"block0_items_label{i}"][()], dtype=int))
+        names.append(_text([level.attrs["name"]])[0])
+    columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
+    return pd.DataFrame(np.asarray(group["block0_values"][()], dtype=np.float64), columns=columns)
+
+
+def _table_frame(group: h5py.Group) -> pd.DataFrame:
+    """pandas ``format="table"`` (what DeepLabCut writes): a PyTables table of value blocks."""
+    table = group["table"]
+    info = _plain_pickle(group.attrs["info"])
+    names = list((info.get(1) or {}).get("names") or [])
+    data = table[()]
+    blocks, columns = [], []
+    for field in data.dtype.names:
+        if not field.startswith("values_block_"):
+            continue
+        values = np.asarray(data[field], dtype=np.float64).reshape(len(data), -1)
+        blocks.append(values)
+        columns += [tuple(c) for c in _plain_pickle(table.attrs[f"{field}_kind"])]
+    index = pd.MultiIndex.from_tuples(columns, names=names or None)
+    return pd.DataFrame(np.concatenate(blocks, axis=1), columns=index)
+
+
+def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
+    """Read a DeepLabCut per-view HDF5 (a pandas DataFrame, key ``df_with_missing``).
+
+    Read with h5py (no PyTables needed), for both pandas layouts: ``format="table"``
+    (DeepLabCut's) and ``format="fixed"``. pandas keeps the column names as protocol-0
+    pickles of plain lists/tuples; those are loaded with an unpickler that refuses
+    every class, so a crafted file cannot run code.
+
+    Raises
+    ------
+    ImportFormatError
+        When the file is missing or holds no DeepLabCut-layout DataFrame.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImportFormatError(f"{path}: no such DeepLabCut .h5; check pose2d.import.files")
+    try:
+        fh = h5py.File(path, "r")
+    except OSError as exc:
+        raise ImportFormatError(f"{path}: not an HDF5 file ({exc})") from exc
+    with fh:
+        group = _pandas_group(fh, path)
+        kind = _text([group.attrs.get("pandas_type", b"")])[0]
+        try:
+            if kind == "frame_table":
+                frame = _table_frame(group)
+            elif kind == "frame":
+                frame = _fixed_frame(group)
+            else:
+                raise ValueError(f"pandas_type {kind!r} is not a DataFrame")
+        except (KeyError, ValueError, TypeError, pickle.UnpicklingError) as exc:
+            raise ImportFormatError(
+                f"{path}: not a DeepLabCut DataFrame ({exc}); or import the CSV beside it (format: dlc_csv)"
+            ) from exc
+    return _frame_to_view(frame, path, individual)
+
+
+def dlc_frame(
+    xy: np.ndarray,
+    likelihood: np.ndarray | None,
+    bodyparts: list[str],
+    scorer: str = "flylib",
+) -> pd.DataFrame:
+    """A DeepLabCut-layout DataFrame of one view's ``(T, K, 2)`` points.
+
+    ``likelihood`` ``(T, K)`` defaults to 1 where a point is present and NaN elsewhere.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    n_frames, n_parts, _ = xy.shape
+    if len(bodyparts) != n_parts:
+        raise ValueError(f"{len(bodyparts)} body part names for {n_parts} points")
+    if likelihood is None:
+        likelihood = np.where(np.isfinite(xy).all(-1), 1.0, np.nan)
+    likelihood = np.asarray(likelihood, dtype=np.float64)
+    values = np.concatenate([xy, likelihood[..., None]], axis=-1).reshape(n_frames, n_parts * 3)
+    columns = pd.MultiIndex.from_product(
+        [[scorer], list(bodyparts), ["x", "y", "likelihood"]],
+        names=["scorer", "bodyparts", "coords"],
+    )
+    return pd.DataFrame(values, columns=columns, index=pd.RangeIndex(n_frames))
+
+
+def write_dlc_csv(
+    path: Path,
+    xy: np.ndarray,
+    likelihood: np.ndarray | None,
+    bodyparts: list[str],
+    scorer: str = "flylib",
+) -> Path:
+    """Write one view's points as a DeepLabCut CSV (readable by DLC, Lightning Pose, Anipose).
+
+    Parameters
+    ----------
+    path
+        Destination ``.csv``.
+    xy
+        ``(T, K, 2)`` pixel ``(x, y)``, NaN = missing (written as empty cells).
+    likelihood
+        ``(T, K)`` confidences, or ``None`` for 1 where present.
+    bodyparts
+        ``K`` names.
+    scorer
+        The ``scorer`` header value.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    dlc_frame(xy, likelihood, bodyparts, scorer).to_csv(tmp)
+    tmp.replace(path)
+    return path

@@ -1,0 +1,171 @@
+"""Exports for other tools: a tidy 3D CSV and per-view DeepLabCut CSVs.
+
+3D CSV (like Anipose's ``pose-3d`` output): one row per frame, a ``frame`` column,
+then per skeleton point ``<point>_x``, ``_y``, ``_z`` (world units), ``_error`` (mean
+reprojection error in pixels over the views that observed it) and ``_ncams`` (how
+many views' 2D observations it rests on). A point that was not reconstructed has NaN
+coordinates and error.
+
+2D: one ``<view>.csv`` per view in the DeepLabCut layout with the skeleton point names
+as body parts and the detection confidence as ``likelihood``; these import back with
+``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .dlc import write_dlc_csv
+
+
+def points3d_table(
+    pts3d: np.ndarray,
+    point_names: list[str],
+    reproj_error: np.ndarray | None = None,
+    pts2d: np.ndarray | None = None,
+) -> pd.DataFrame:
+    """The tidy per-frame 3D table.
+
+    Parameters
+    ----------
+    pts3d
+        ``(T, P, 3)`` world points, NaN = not reconstructed.
+    point_names
+        ``P`` skeleton point names.
+    reproj_error
+        ``(V, T, P)`` reprojection errors in pixels, or ``None`` (``_error`` is NaN).
+    pts2d
+        ``(V, T, P, 2)`` the 2D observations the 3D rests on, or ``None``
+        (``_ncams`` is then the views with a finite reprojection error, else 0).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``T`` rows: ``frame`` and five columns per point.
+    """
+    pts3d = np.asarray(pts3d, dtype=np.float64)
+    n_frames, n_points, _ = pts3d.shape
+    if len(point_names) != n_points:
+        raise ValueError(f"{len(point_names)} point names for {n_points} points")
+    reconstructed = np.isfinite(pts3d).all(-1)
+    if reproj_error is not None:
+        err = np.asarray(reproj_error, dtype=np.float64)
+        counts = np.isfinite(err).sum(0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            error = np.where(counts > 0, np.nansum(err, 0) / np.maximum(counts, 1), np.nan)
+    else:
+        error = np.full((n_frames, n_points), np.nan)
+        counts = np.zeros((n_frames, n_points), dtype=int)
+    if pts2d is not None:
+        counts = np.isfinite(np.asarray(pts2d, dtype=np.float64)).all(-1).sum(0)
+    error = np.where(reconstructed, error, np.nan)
+    columns: dict[str, np.ndarray] = {"frame": np.arange(n_frames)}
+    for p, name in enumerate(point_names):
+        for c, axis in enumerate("xyz"):
+            columns[f"{name}_{axis}"] = pts3d[:, p, c]
+        columns[f"{name}_error"] = error[:, p]
+        columns[f"{name}_ncams"] = np.asarray(counts[:, p], dtype=np.int64)
+    return pd.DataFrame(columns)
+
+
+def write_points3d_csv(
+    path: Path,
+    pts3d: np.ndarray,
+    point_names: list[str],
+    reproj_error: np.ndarray | None = None,
+    pts2d: np.ndarray | None = None,
+) -> Path:
+    """Write :func:`points3d_table` to ``path`` as CSV (atomically); returns ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    points3d_table(pts3d, point_names, reproj_error, pts2d).to_csv(tmp, index=False)
+    os.replace(tmp, path)
+    return path
+
+
+def write_dlc_views(
+    directory: Path,
+    pts2d: np.ndarray,
+    conf: np.ndarray | None,
+    view_names: list[str],
+    point_names: list[str],
+    scorer: str = "flylib",
+) -> list[Path]:
+    """Write one DeepLabCut CSV per view, ``<directory>/<view>.csv``.
+
+    Parameters
+    ----------
+    directory
+        Output folder (created).
+    pts2d
+        ``(V, T, P, 2)`` pixels, NaN = missing.
+    conf
+        ``(V, T, P)`` confidences, or ``None`` (1 where present).
+    view_names, point_names
+        Labels of the V and P axes.
+    scorer
+        DeepLabCut ``scorer`` header value.
+
+    Returns
+    -------
+    list of Path
+        The files written, in view order.
+    """
+    pts2d = np.asarray(pts2d, dtype=np.float64)
+    if len(view_names) != pts2d.shape[0]:
+        raise ValueError(f"{len(view_names)} view names for {pts2d.shape[0]} views")
+    directory = Path(directory)
+    return [
+        write_dlc_csv(
+            directory / f"{view}.csv",
+            pts2d[v],
+            None if conf is None else np.asarray(conf, dtype=np.float64)[v],
+            list(point_names),
+            scorer,
+        )
+        for v, view in enumerate(view_names)
+    ]
+
+
+def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None) -> list[Path]:
+    """Export a :class:`flylib.results.PoseResult`: 3D CSV and/or per-view DLC CSVs.
+
+    Parameters
+    ----------
+    result
+        The loaded result (``pts2d``, ``conf``, ``pts3d``, ``reproj_error``,
+        ``cameras.names``, ``skeleton.point_names``).
+    csv3d
+        Where to write the 3D CSV, or ``None``.
+    dlc_dir
+        Folder for the per-view 2D CSVs, or ``None``.
+
+    Returns
+    -------
+    list of Path
+        Files written.
+
+    Raises
+    ------
+    flylib.errors.ResultsError
+        When a 3D CSV is asked for but the result has no 3D points.
+    """
+    from ..errors import ResultsError
+
+    written: list[Path] = []
+    names = list(result.skeleton.point_names)
+    if csv3d is not None:
+        if result.pts3d is None:
+            raise ResultsError(
+                "the results file has no 3D points (no triangulation or pictorial_structures "
+                "group); enable a 3D stage and re-run, or export only the 2D CSVs"
+            )
+        written.append(write_points3d_csv(csv3d, result.pts3d, names, result.reproj_error, result.pts2d))
+    if dlc_dir is not None:
+        written += write_dlc_views(dlc_dir, result.pts2d, result.conf, list(result.cameras.names), names)
+    return written

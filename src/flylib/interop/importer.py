@@ -1,0 +1,335 @@
+"""``pose2d.import``: take 2D keypoints from another tool instead of running the detector.
+
+The result is the same :class:`flylib.results.Pose2dData` the detector produces
+(raw-frame pixels ``(V, T, P, 2)``, confidences ``(V, T, P)``, view names, frame sizes),
+so every later stage and the workflow run unchanged.
+
+Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
+
+    pose2d:
+      import:
+        format: deepfly3d        # deepfly3d | dlc_csv | dlc_h5 | deeplabcut | lightning_pose | sleap
+        files: "{view}.csv"      # relative to the recording directory; see below
+        keypoint_map: {}         # file keypoint name -> skeleton point name (null = drop)
+        likelihood_threshold: 0.0  # confidence below it -> point missing (NaN)
+        image_size: [480, 960]   # (height, width) fallback for views without footage
+        views: [rh, rm, ...]     # deepfly3d only: the view of each pickle camera (null = skip)
+        individual: null         # dlc multi-animal: which individual
+        track: null              # sleap: track index or name when several
+
+``files``:
+
+- ``deepfly3d``: one pickle for all views; a glob, default ``df3d_result*.pkl`` looked
+  up in the recording directory, then in its ``df3d/`` folder. It must match one file.
+- per-view formats: a pattern with ``{view}`` (view name), ``{index}`` (its position
+  in the config), ``{source}`` (its footage source name) or ``{stem}`` (its footage
+  file name without extension, e.g. ``camera_0``) placeholders, globbing allowed (one
+  match per view) -- DeepLabCut's own naming is ``"{stem}DLC_*.csv"``; or a mapping
+  ``{view: path}``. Every configured view needs a file (a view observed by nothing can
+  be mapped to ``null``). Default ``{view}.csv`` / ``{view}.h5`` / ``{view}.analysis.h5``.
+  ``deeplabcut`` reads each file as CSV or HDF5 by its suffix.
+
+``keypoint_map``: without it a file name must equal a skeleton point name; DeepFly3D
+joints (keys are joint indices) default to fly38 point ``(j + 19) mod 38``
+(see :mod:`flylib.interop.df3d`). A file keypoint that maps to nothing is an error, so
+a renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
+
+Frame sizes come from each view's footage header (see :mod:`flylib.interop.views`),
+else ``image_size``. All views must have the same number of frames, and as many
+frames as their footage when its count is known.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ImportFormatError
+from . import views as _views
+from .df3d import FLY38_POINT_NAMES, df3d_joint_to_fly38, read_df3d_points2d
+from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
+from .sleap import read_sleap_analysis
+
+log = logging.getLogger(__name__)
+
+FORMATS = ("deepfly3d", "dlc_csv", "dlc_h5", "deeplabcut", "lightning_pose", "sleap")
+_DEFAULT_FILES = {
+    "dlc_csv": "{view}.csv",
+    "deeplabcut": "{view}.csv",
+    "lightning_pose": "{view}.csv",
+    "dlc_h5": "{view}.h5",
+    "sleap": "{view}.analysis.h5",
+}
+_KNOWN_KEYS = {
+    "format", "files", "keypoint_map", "likelihood_threshold", "image_size",
+    "views", "individual", "track",
+}
+
+
+def import_spec(config, spec: dict | None = None) -> dict:
+    """The import spec in force: ``spec`` when given, else ``pose2d.import``, validated."""
+    if spec is None:
+        spec = (_views.config_data(config).get("pose2d") or {}).get("import")
+    where = "pose2d.import"
+    if not isinstance(spec, dict):
+        raise ImportFormatError(f"{where} must be a mapping with at least 'format', got {spec!r}")
+    unknown = sorted(set(spec) - _KNOWN_KEYS)
+    if unknown:
+        raise ImportFormatError(f"{where}: unknown keys {unknown}; allowed: {sorted(_KNOWN_KEYS)}")
+    fmt = spec.get("format")
+    if fmt not in FORMATS:
+        raise ImportFormatError(f"{where}.format is {fmt!r}; use one of {list(FORMATS)}")
+    size = spec.get("image_size")
+    if size is not None and (
+        not isinstance(size, (list, tuple)) or len(size) != 2 or not all(int(v) > 0 for v in size)
+    ):
+        raise ImportFormatError(f"{where}.image_size must be [height, width] in pixels, got {size!r}")
+    threshold = spec.get("likelihood_threshold")
+    if threshold is not None and not isinstance(threshold, (int, float)):
+        raise ImportFormatError(f"{where}.likelihood_threshold must be a number, got {threshold!r}")
+    return dict(spec)
+
+
+def _skeleton_points(config) -> list[str]:
+    skeleton = _views.config_data(config).get("skeleton") or {}
+    names = skeleton.get("point_names")
+    return [str(n) for n in names] if names else list(FLY38_POINT_NAMES)
+
+
+def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
+    path = Path(pattern)
+    if path.is_absolute():
+        matches = sorted(path.parent.glob(path.name)) if any(c in path.name for c in "*?[") else [path]
+    else:
+        matches = sorted(recording_dir.glob(pattern))
+    matches = [m for m in matches if m.is_file()]
+    if not matches:
+        raise ImportFormatError(
+            f"{recording_dir}: no file matches {pattern!r} for {what}; "
+            "set pose2d.import.files to the file's path relative to the recording directory"
+        )
+    if len(matches) > 1:
+        raise ImportFormatError(
+            f"{recording_dir}: {pattern!r} matches {len(matches)} files for {what} "
+            f"({', '.join(m.name for m in matches[:4])}); make pose2d.import.files select one"
+        )
+    return matches[0]
+
+
+def _view_files(spec: dict, config, recording_dir: Path, views: list[str]) -> dict[str, Path | None]:
+    files = spec.get("files", _DEFAULT_FILES[spec["format"]])
+    if isinstance(files, dict):
+        missing = [v for v in views if v not in files]
+        if missing:
+            raise ImportFormatError(
+                f"pose2d.import.files has no file for views {missing}; add '<view>: path' "
+                "entries (or '<view>: null' for a view nothing observes)"
+            )
+        return {
+            v: None if files[v] is None else _glob_one(recording_dir, str(files[v]), f"view {v!r}")
+            for v in views
+        }
+    placeholders = ("{view}", "{index}", "{source}", "{stem}")
+    if not isinstance(files, str) or not any(k in files for k in placeholders):
+        raise ImportFormatError(
+            f"pose2d.import.files is {files!r}; give a pattern with a {{view}}, {{index}}, "
+            "{source} or {stem} placeholder, or a mapping {view: path}"
+        )
+    sources = _views.view_sources(config)
+    patterns = {
+        s.get("name"): s.get("filename", s.get("name"))
+        for s in _views.config_data(config).get("sources") or []
+        if isinstance(s, dict)
+    }
+    out = {}
+    for i, v in enumerate(views):
+        source = sources.get(v, v)
+        stem = Path(str(patterns.get(source) or source)).stem
+        pattern = files.format(view=v, index=i, source=source, stem=stem)
+        out[v] = _glob_one(recording_dir, pattern, f"view {v!r}")
+    return out
+
+
+def _point_targets(names: list, keypoint_map: dict, points: list[str], origin: str, default=None):
+    """For each file keypoint, its skeleton point index or ``None`` (dropped)."""
+    index = {p: i for i, p in enumerate(points)}
+    lookup = {str(k): v for k, v in keypoint_map.items()}
+    targets: list[int | None] = []
+    seen: dict[int, str] = {}
+    for name in names:
+        key = str(name)
+        if key in lookup:
+            target = lookup[key]
+        elif default is not None:
+            target = default(name)
+        else:
+            target = key
+        if target is None:
+            targets.append(None)
+            continue
+        if target not in index:
+            raise ImportFormatError(
+                f"{origin}: keypoint {key!r} maps to {target!r}, which is not a skeleton point; "
+                f"add it to pose2d.import.keypoint_map (a skeleton point name, or null to drop it)"
+            )
+        p = index[target]
+        if p in seen:
+            raise ImportFormatError(
+                f"{origin}: keypoints {seen[p]!r} and {key!r} both map to {target!r}; "
+                "fix pose2d.import.keypoint_map"
+            )
+        seen[p] = key
+        targets.append(p)
+    return targets
+
+
+def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None], origin: dict) -> int:
+    values = set(counts.values())
+    if len(values) > 1:
+        detail = ", ".join(f"{v}: {n} ({origin[v]})" for v, n in counts.items())
+        raise ImportFormatError(
+            f"imported views have different frame counts ({detail}); export every view "
+            "from the same frames"
+        )
+    n_frames = values.pop()
+    for view, n in footage_counts.items():
+        if n is not None and view in counts and n != n_frames:
+            raise ImportFormatError(
+                f"{origin[view]}: {n_frames} frames but view {view!r} footage has {n}; "
+                "import the file made from this recording's footage"
+            )
+    return n_frames
+
+
+def _import_deepfly3d(spec, config, recording_dir, views, points):
+    pattern = spec.get("files")
+    if pattern is None:
+        pattern = "df3d_result*.pkl"
+        if not list(recording_dir.glob(pattern)) and list(recording_dir.glob("df3d/" + pattern)):
+            pattern = "df3d/" + pattern
+    path = _glob_one(recording_dir, str(pattern), "the DeepFly3D 2D pickle")
+    pickle_views = spec.get("views") or views
+    known = set(views)
+    bad = [v for v in pickle_views if v is not None and v not in known]
+    if bad:
+        raise ImportFormatError(f"pose2d.import.views names unknown views {bad}; configured: {views}")
+    sized = [v for v in pickle_views if v is not None]
+    sizes = _views.image_sizes(config, recording_dir, sized, spec.get("image_size"), origin=str(path))
+    default_size = next(iter(sizes.values())) if sizes else (480, 960)
+    data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
+    if not np.array_equal(data.camera_ordering, np.arange(len(data.camera_ordering))):
+        log.warning(
+            "%s: DeepFly3D camera_ordering is %s; its rows are placed on views %s in order "
+            "(set pose2d.import.views to change that)",
+            path, data.camera_ordering.tolist(), pickle_views,
+        )
+    n_joints = data.xy.shape[2]
+    default = df3d_joint_to_fly38 if n_joints == 38 else None
+    targets = _point_targets(
+        list(range(n_joints)), spec.get("keypoint_map") or {}, points, str(path), default
+    )
+    n_frames = data.xy.shape[1]
+    footage = _views.footage_files(config, recording_dir)
+    _check_frames(
+        {v: n_frames for v in sized},
+        {v: _views.read_frame_count(footage.get(v, [])) for v in sized},
+        {v: path for v in sized},
+    )
+    pts = np.full((len(views), n_frames, len(points), 2), np.nan)
+    conf = np.full((len(views), n_frames, len(points)), np.nan)
+    keep = [(j, p) for j, p in enumerate(targets) if p is not None]
+    src_j = [j for j, _ in keep]
+    dst_p = [p for _, p in keep]
+    for row, view in enumerate(pickle_views):
+        if view is None:
+            continue
+        v = views.index(view)
+        pts[v][:, dst_p] = data.xy[row][:, src_j]
+        conf[v][:, dst_p] = data.conf[row][:, src_j]
+    return pts, conf, {v: sizes[v] for v in sized}
+
+
+def _read_view(fmt: str, path: Path, spec: dict) -> ViewKeypoints:
+    if fmt in ("dlc_csv", "lightning_pose"):
+        return read_dlc_csv(path, spec.get("individual"))
+    if fmt == "dlc_h5" or (fmt == "deeplabcut" and path.suffix.lower() in (".h5", ".hdf5")):
+        return read_dlc_h5(path, spec.get("individual"))
+    if fmt == "deeplabcut":
+        return read_dlc_csv(path, spec.get("individual"))
+    return read_sleap_analysis(path, spec.get("track"))
+
+
+def _import_per_view(spec, config, recording_dir, views, points):
+    files = _view_files(spec, config, recording_dir, views)
+    present = [v for v in views if files[v] is not None]
+    read = {v: _read_view(spec["format"], files[v], spec) for v in present}
+    keypoint_map = spec.get("keypoint_map") or {}
+    footage = _views.footage_files(config, recording_dir)
+    n_frames = _check_frames(
+        {v: read[v].xy.shape[0] for v in present},
+        {v: _views.read_frame_count(footage.get(v, [])) for v in present},
+        {v: files[v] for v in present},
+    ) if present else 0
+    pts = np.full((len(views), n_frames, len(points), 2), np.nan)
+    conf = np.full((len(views), n_frames, len(points)), np.nan)
+    for view in present:
+        kp = read[view]
+        targets = _point_targets(kp.names, keypoint_map, points, str(kp.source))
+        v = views.index(view)
+        for k, p in enumerate(targets):
+            if p is not None:
+                pts[v, :, p] = kp.xy[:, k]
+                conf[v, :, p] = kp.conf[:, k]
+    sizes = _views.image_sizes(
+        config, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
+    )
+    return pts, conf, sizes
+
+
+def import_points2d(config, recording_dir: Path, spec: dict | None = None):
+    """Read another tool's 2D keypoints for one recording as the pose2d stage output.
+
+    Parameters
+    ----------
+    config
+        The run's :class:`flylib.config.Config` (views, skeleton, sources).
+    recording_dir
+        The recording directory; relative ``files`` resolve against it.
+    spec
+        The import spec (module docstring); defaults to the config's ``pose2d.import``.
+
+    Returns
+    -------
+    flylib.results.Pose2dData
+        ``pts2d`` ``(V, T, P, 2)`` raw-frame pixels and ``conf`` ``(V, T, P)`` over the
+        configured views and skeleton points, NaN where a view has no observation.
+
+    Raises
+    ------
+    ImportFormatError
+        Unknown format or keys, a missing file, a keypoint that maps to no skeleton
+        point, or mismatched frame counts -- one line naming the file and the fix.
+    """
+    from ..results import Pose2dData
+
+    spec = import_spec(config, spec)
+    recording_dir = Path(recording_dir)
+    views = _views.view_names(config)
+    points = _skeleton_points(config)
+    if spec["format"] == "deepfly3d":
+        pts, conf, sizes = _import_deepfly3d(spec, config, recording_dir, views, points)
+    else:
+        pts, conf, sizes = _import_per_view(spec, config, recording_dir, views, points)
+    threshold = spec.get("likelihood_threshold")
+    if threshold is not None:
+        low = ~(conf >= float(threshold))  # NaN confidences count as below
+        pts[low] = np.nan
+        conf[low] = np.nan
+    pts[~np.isfinite(pts).all(-1)] = np.nan
+    log.info(
+        "imported %s 2D for %d views x %d frames x %d points from %s",
+        spec["format"], pts.shape[0], pts.shape[1], pts.shape[2], recording_dir,
+    )
+    return Pose2dData(pts2d=pts, conf=conf, view_names=list(views), image_sizes=sizes)

@@ -1,0 +1,93 @@
+"""SLEAP analysis HDF5 (``sleap-convert --format analysis``), one file per camera view.
+
+Datasets used: ``node_names`` (K,), ``tracks`` and, when present, ``point_scores``.
+SLEAP writes its matrices transposed for MATLAB by default, so ``tracks`` is stored as
+``(n_tracks, 2, K, T)`` and ``point_scores`` as ``(n_tracks, K, T)``; files written
+without the transpose hold ``(T, K, 2, n_tracks)`` and ``(T, K, n_tracks)``. Both are
+accepted (told apart by where the length-2 coordinate axis sits).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..errors import ImportFormatError
+from .dlc import ViewKeypoints
+
+
+def _decode(names) -> list[str]:
+    return [n.decode() if isinstance(n, bytes) else str(n) for n in np.asarray(names).ravel()]
+
+
+def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypoints:
+    """Read one track of a SLEAP analysis HDF5.
+
+    Parameters
+    ----------
+    path
+        The ``.analysis.h5`` file.
+    track
+        Track index or name; required when the file holds several tracks.
+
+    Returns
+    -------
+    ViewKeypoints
+        Node names, ``(T, K, 2)`` pixels and ``(T, K)`` point scores (1 where the file
+        has no scores and the point is present).
+
+    Raises
+    ------
+    ImportFormatError
+        When the file is missing, lacks ``tracks``/``node_names``, or the track is ambiguous.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImportFormatError(f"{path}: no such SLEAP analysis file; check pose2d.import.files")
+    try:
+        fh = h5py.File(path, "r")
+    except OSError as exc:
+        raise ImportFormatError(f"{path}: not an HDF5 file ({exc})") from exc
+    with fh:
+        if "tracks" not in fh or "node_names" not in fh:
+            raise ImportFormatError(
+                f"{path}: lacks 'tracks'/'node_names'; export it with sleap-convert --format analysis"
+            )
+        names = _decode(fh["node_names"][()])
+        tracks = np.asarray(fh["tracks"][()], dtype=np.float64)
+        scores = np.asarray(fh["point_scores"][()], dtype=np.float64) if "point_scores" in fh else None
+        track_names = _decode(fh["track_names"][()]) if "track_names" in fh else []
+    n_nodes = len(names)
+    if tracks.ndim != 4:
+        raise ImportFormatError(f"{path}: 'tracks' has shape {tracks.shape}, expected 4 axes")
+    if tracks.shape[1] == 2 and tracks.shape[2] == n_nodes:  # MATLAB-transposed layout
+        tracks = tracks.T  # -> (T, K, 2, n_tracks)
+        scores = None if scores is None else scores.T  # -> (T, K, n_tracks)
+    elif not (tracks.shape[1] == n_nodes and tracks.shape[2] == 2):
+        raise ImportFormatError(
+            f"{path}: 'tracks' shape {tracks.shape} does not fit {n_nodes} nodes"
+        )
+    n_tracks = tracks.shape[-1]
+    if track is None:
+        if n_tracks > 1:
+            raise ImportFormatError(
+                f"{path}: holds {n_tracks} tracks {track_names or ''}; set pose2d.import.track"
+            )
+        index = 0
+    elif isinstance(track, str) and not track.isdigit():
+        if track not in track_names:
+            raise ImportFormatError(f"{path}: no track named {track!r} (has {track_names})")
+        index = track_names.index(track)
+    else:
+        index = int(track)
+        if not 0 <= index < n_tracks:
+            raise ImportFormatError(f"{path}: track {index} out of range (0..{n_tracks - 1})")
+    xy = np.ascontiguousarray(tracks[..., index])
+    present = np.isfinite(xy).all(-1)
+    if scores is None:
+        conf = np.where(present, 1.0, np.nan)
+    else:
+        conf = np.where(present, scores[..., index], np.nan)
+    return ViewKeypoints(names=names, xy=xy, conf=conf, source=path)

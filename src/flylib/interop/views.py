@@ -1,0 +1,159 @@
+"""Which footage belongs to which configured view, and the raw frame size it has.
+
+Imported 2D keypoints are placed on the configured views (the ``cameras`` table, in
+config order). A view's footage is found through the detection plan: the pathways
+that fill the view (``pose2d.output_points.<view>``) name a source, and the source's
+``filename`` glob is matched in the recording directory. Only the container/image
+header is read, never the pixels of a whole video.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from ..errors import ImportFormatError
+
+_VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg"}
+
+
+def config_data(config) -> dict:
+    """The raw config mapping of a ``flylib.config.Config`` (or a plain dict)."""
+    return config if isinstance(config, dict) else config.data
+
+
+def view_names(config, *, required: bool = True) -> list[str]:
+    """The configured views in config order: ``cameras`` entries except ``defaults``.
+
+    A config whose rig comes from a calibration file may name no cameras; the views
+    are then the ``pose2d.output_points`` keys (as ``Config.view_names`` does).
+
+    Raises
+    ------
+    ImportFormatError
+        When ``required`` and the config names no views at all.
+    """
+    data = config_data(config)
+    names = [name for name in (data.get("cameras") or {}) if name != "defaults"]
+    if not names:
+        names = list(((data.get("pose2d") or {}).get("output_points") or {}))
+    if required and not names:
+        raise ImportFormatError(
+            "config names no views (no cameras entries, no pose2d.output_points); define the rig's views"
+        )
+    return names
+
+
+def view_sources(config) -> dict[str, str]:
+    """Map each view to the footage source that feeds it.
+
+    The first pathway listed for the view in ``pose2d.output_points`` decides; a view
+    without output points falls back to a source named ``vid_<view>`` or ``<view>``,
+    then to the source at the same position in ``sources``.
+    """
+    data = config_data(config)
+    pose2d = data.get("pose2d") or {}
+    pathway_source = {
+        p.get("name"): p.get("source") for p in pose2d.get("pathways") or [] if isinstance(p, dict)
+    }
+    source_names = [s.get("name") for s in data.get("sources") or [] if isinstance(s, dict)]
+    out: dict[str, str] = {}
+    for i, view in enumerate(view_names(config)):
+        points = (pose2d.get("output_points") or {}).get(view) or {}
+        source = None
+        for entry in points.values():
+            if isinstance(entry, dict) and pathway_source.get(entry.get("pathway")):
+                source = pathway_source[entry["pathway"]]
+                break
+        if source is None:
+            for candidate in (f"vid_{view}", view):
+                if candidate in source_names:
+                    source = candidate
+                    break
+        if source is None and i < len(source_names):
+            source = source_names[i]
+        if source is not None:
+            out[view] = source
+    return out
+
+
+def _natural_key(path: Path) -> list:
+    return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", path.name)]
+
+
+def footage_files(config, recording_dir: Path) -> dict[str, list[Path]]:
+    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none)."""
+    data = config_data(config)
+    patterns = {
+        s.get("name"): s.get("filename", s.get("name"))
+        for s in data.get("sources") or []
+        if isinstance(s, dict)
+    }
+    out: dict[str, list[Path]] = {}
+    for view, source in view_sources(config).items():
+        pattern = patterns.get(source)
+        files = sorted(Path(recording_dir).glob(pattern), key=_natural_key) if pattern else []
+        out[view] = [f for f in files if f.is_file()]
+    return out
+
+
+def read_frame_size(path: Path) -> tuple[int, int]:
+    """``(height, width)`` of a video (from its stream header) or an image file."""
+    path = Path(path)
+    if path.suffix.lower() in _VIDEO_SUFFIXES:
+        import av
+
+        try:
+            with av.open(str(path)) as container:
+                ctx = container.streams.video[0].codec_context
+                return int(ctx.height), int(ctx.width)
+        except (av.error.FFmpegError, IndexError) as exc:
+            raise ImportFormatError(f"{path}: cannot read the video header ({exc})") from exc
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ImportFormatError(f"{path}: cannot read the image to get its frame size")
+    return int(image.shape[0]), int(image.shape[1])
+
+
+def read_frame_count(files: list[Path]) -> int | None:
+    """Frame count of a view's footage: the number of images, or the video's header count.
+
+    ``None`` when the container does not report one (it is then not checked).
+    """
+    if not files:
+        return None
+    if len(files) > 1 or files[0].suffix.lower() not in _VIDEO_SUFFIXES:
+        return len(files)
+    import av
+
+    with av.open(str(files[0])) as container:
+        frames = int(container.streams.video[0].frames or 0)
+    return frames or None
+
+
+def image_sizes(
+    config, recording_dir: Path | None, views: list[str], fallback=None, *, origin: str
+) -> dict[str, tuple[int, int]]:
+    """Raw frame ``(height, width)`` per view: from the footage, else ``fallback``.
+
+    Raises
+    ------
+    ImportFormatError
+        When a view has no footage in ``recording_dir`` and no fallback size is set.
+    """
+    files = footage_files(config, recording_dir) if recording_dir is not None else {}
+    out: dict[str, tuple[int, int]] = {}
+    for view in views:
+        if files.get(view):
+            out[view] = read_frame_size(files[view][0])
+        elif fallback is not None:
+            h, w = (int(v) for v in fallback)
+            out[view] = (h, w)
+        else:
+            raise ImportFormatError(
+                f"{origin}: view {view!r} has no footage in {recording_dir} to read its frame "
+                "size from; set pose2d.import.image_size: [height, width]"
+            )
+    return out

@@ -1,0 +1,145 @@
+"""Image sequences through OpenCV: naturally sorted files, decoded on a thread pool."""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FootageError
+from .base import IMAGE_EXTS, FrameReader, as_rgb_uint8
+
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(path: str | Path) -> tuple:
+    """Sort key that orders embedded numbers by value (``img_2`` before ``img_10``)."""
+    parts = _DIGITS.split(str(path))
+    return tuple((0, int(p), p) if p.isdigit() else (1, 0, p.lower()) for p in parts)
+
+
+def list_image_files(pattern: str | Path) -> list[Path]:
+    """Image files of a directory or glob pattern, in natural order.
+
+    Parameters
+    ----------
+    pattern
+        A directory of images, or a glob pattern such as ``"cam0/*.png"``.
+
+    Returns
+    -------
+    list of Path
+        The matching image files, naturally sorted (``2`` before ``10``).
+
+    Raises
+    ------
+    FootageError
+        If nothing matches.
+    """
+    p = Path(pattern)
+    if p.is_dir():
+        files = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTS]
+    else:
+        files = [Path(f) for f in glob.glob(str(pattern)) if Path(f).is_file()]
+    if not files:
+        raise FootageError(f"{pattern}: no image files found; check the directory or glob pattern")
+    return sorted(files, key=natural_key)
+
+
+def _default_workers() -> int:
+    return max(1, min(8, os.cpu_count() or 1))
+
+
+class ImageSequenceReader(FrameReader):
+    """An ordered image sequence, one frame per file, decoded by OpenCV.
+
+    Gray images are broadcast to three channels and alpha is dropped, so frames are
+    always ``(H, W, 3)`` uint8 RGB. Blocks are decoded on a pool of ``workers``
+    threads (OpenCV releases the GIL while decoding). Image sequences carry no
+    frame rate, so :meth:`fps` is ``None``.
+
+    Parameters
+    ----------
+    files
+        The image files in frame order (use :meth:`from_pattern` to list a directory
+        or glob in natural order).
+    workers
+        Decode threads; ``0`` or ``None`` picks ``min(8, cpu_count)``.
+    """
+
+    def __init__(self, files, *, workers: int | None = None) -> None:
+        self.files = [Path(f) for f in files]
+        if not self.files:
+            raise FootageError("ImageSequenceReader got an empty file list; check the footage pattern")
+        self.workers = int(workers) if workers else _default_workers()
+        self._pool: ThreadPoolExecutor | None = None
+
+    @classmethod
+    def from_pattern(cls, pattern: str | Path, *, workers: int | None = None) -> ImageSequenceReader:
+        """A reader over a directory or glob pattern, in natural order."""
+        return cls(list_image_files(pattern), workers=workers)
+
+    @property
+    def name(self) -> str:
+        first = self.files[0]
+        return str(first) if len(self.files) == 1 else f"{first.parent}/{first.name}...({len(self.files)} images)"
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def _decode_one(self, index: int) -> np.ndarray:
+        import cv2
+
+        path = self.files[index]
+        if not path.is_file():
+            raise FootageError(f"{path}: image file of frame {index} not found")
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)  # gray -> 3 channels, alpha dropped, 8-bit
+        if image is None:
+            raise FootageError(
+                f"{path}: cannot decode frame {index} (OpenCV could not read it); the image is "
+                "corrupt, truncated or of an unsupported format"
+            )
+        return as_rgb_uint8(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+
+    def _decode(self, indices: list[int]) -> np.ndarray:
+        if len(indices) == 1 or self.workers == 1:
+            return np.stack([self._decode_one(i) for i in indices])
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="flylib-imread")
+        frames = list(self._pool.map(self._decode_one, indices))
+        shapes = {f.shape for f in frames}
+        if len(shapes) > 1:
+            raise FootageError(f"{self.name}: images of different sizes in one sequence: {sorted(shapes)}")
+        return np.stack(frames)
+
+    def _read_indices(self, indices: list[int]) -> np.ndarray:
+        n = len(self.files)
+        bad = [i for i in indices if not 0 <= i < n]
+        if bad:
+            raise IndexError(f"{self.name}: frame {bad[0]} is out of range (the sequence has {n} images)")
+        return self._decode(indices)
+
+    def stream_frames(
+        self, *, start: int = 0, stop: int | None = None, step: int = 1
+    ) -> Iterator[np.ndarray]:
+        for block in self.stream_blocks(start=start, stop=stop, step=step, block_size=self.workers):
+            yield from block
+
+    def stream_blocks(
+        self, *, start: int = 0, stop: int | None = None, step: int = 1, block_size: int = 64
+    ) -> Iterator[np.ndarray]:
+        if block_size < 1:
+            raise ValueError(f"block_size must be >= 1, got {block_size}")
+        indices = list(range(len(self.files)))[start:stop:step]
+        for pos in range(0, len(indices), block_size):
+            yield self._decode(indices[pos : pos + block_size])
+
+    def count(self) -> int:
+        return len(self.files)

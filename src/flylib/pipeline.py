@@ -1,0 +1,134 @@
+"""Library one-shot: 2D detections -> (bundle adjustment) -> (pictorial structures) -> 3D."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .cameras import CameraGroup
+    from .pictorial import Candidates
+    from .results import PoseResult
+    from .skeleton import Skeleton
+
+log = logging.getLogger(__name__)
+
+TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
+BUNDLE_ADJUST_DEFAULTS = {"fixed": ("*.intr",), "max_frames": 200, "frame_sampling": "even"}
+
+
+def run_from_points2d(
+    cameras,
+    skeleton,
+    pts2d,
+    conf: np.ndarray | None = None,
+    *,
+    do_bundle_adjust: bool = True,
+    bundle_adjust_kwargs: dict | None = None,
+    triangulation: str = "ransac",
+    weigh_by_confidence: bool = False,
+    do_pictorial: bool = False,
+    candidates: "Candidates | None" = None,
+    ps_kwargs: dict | None = None,
+    ransac_threshold: float = 15.0,
+    min_inliers: int = 2,
+    reproj_threshold: float = 40.0,
+    max_drops: int = 5,
+    fps: float = 100.0,
+    meta: dict | None = None,
+    do_bundle_adjustment: bool | None = None,
+) -> "PoseResult":
+    """Run the 2D-to-3D pipeline on detections and return a :class:`PoseResult`.
+
+    Steps: optionally bundle-adjust the rig (on the arg-max ``pts2d``), optionally run
+    pictorial structures over the detector's top-K ``candidates``, then triangulate.
+
+    Parameters
+    ----------
+    cameras, skeleton, pts2d, conf
+        The rig, skeleton, detections ``(V, T, P, 2)`` (NaN = missing) and confidences
+        ``(V, T, P)`` or ``None``. The order ``(pts2d, cameras, skeleton, conf)`` is
+        accepted too.
+    do_bundle_adjust
+        Refine the rig first (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`).
+        ``do_bundle_adjustment`` is an alias.
+    bundle_adjust_kwargs
+        Keyword arguments for the adjustment (``fixed``, ``shared``, ``points_to_use``,
+        ``max_frames``, ``frame_sampling``, ``weigh_by_confidence``, ``least_squares``
+        options ...); defaults: intrinsics fixed, 200 evenly spaced frames.
+    triangulation
+        ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
+        ``min_inliers``), ``"greedy"`` (drop the worst view; ``reproj_threshold``,
+        ``max_drops``) or ``"dlt"`` (plain least squares).
+    weigh_by_confidence
+        Confidence-weighted triangulation (``sqrt(conf)`` per view).
+    do_pictorial, candidates, ps_kwargs
+        Pictorial-structures peak recovery (:func:`flylib.pictorial.reconstruct`, with
+        ``ps_kwargs`` such as ``temporal``, ``lam``, ``max_hyp``) over ``candidates``;
+        its committed 2D feeds the triangulation.
+    fps, meta
+        Recorded in the result's ``meta``.
+
+    Returns
+    -------
+    PoseResult
+        Refined rig, committed 2D, 3D points and reprojection errors; ``meta`` holds
+        ``fps``, ``triangulation``, ``pictorial`` and, after bundle adjustment, its
+        ``bundle_adjustment`` summary.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown ``triangulation`` method, or ``do_pictorial`` without
+        ``candidates``.
+    """
+    from .cameras import CameraGroup
+    from .results import PoseResult
+    from .triangulation import reconstruct
+
+    if not isinstance(cameras, CameraGroup) and isinstance(skeleton, CameraGroup):
+        cameras, skeleton, pts2d = skeleton, pts2d, cameras  # (pts2d, cameras, skeleton)
+    if do_bundle_adjustment is not None:
+        do_bundle_adjust = do_bundle_adjustment
+    if triangulation not in TRIANGULATION_METHODS:
+        raise ConfigError(f"triangulation: unknown method {triangulation!r}; "
+                          f"use one of {', '.join(TRIANGULATION_METHODS)}")
+    if do_pictorial and candidates is None:
+        raise ConfigError("do_pictorial=True needs candidates=... (the detector's top-K "
+                          "peaks); 2D imported from another tool has none")
+    pts2d = np.asarray(pts2d, dtype=np.float64)
+    conf = None if conf is None else np.asarray(conf, dtype=np.float64)
+    run_meta: dict = {"fps": float(fps), "triangulation": triangulation,
+                      "pictorial": bool(do_pictorial)}
+
+    if do_bundle_adjust:
+        from .bundle_adjustment import bundle_adjust_sequence
+
+        kwargs = {**BUNDLE_ADJUST_DEFAULTS, **(bundle_adjust_kwargs or {})}
+        kwargs.update(kwargs.pop("least_squares", None) or {})
+        result, cameras, _ = bundle_adjust_sequence(cameras, pts2d, conf, skeleton, **kwargs)
+        run_meta["bundle_adjustment"] = {
+            "initial_median_px": result.initial_median_px,
+            "final_median_px": result.final_median_px,
+            "cost": float(result.cost), "nfev": int(result.nfev),
+            "message": str(result.message)}
+
+    tri_input = pts2d
+    if do_pictorial:
+        from .pictorial import reconstruct as ps_reconstruct
+
+        _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d,
+                                         **(ps_kwargs or {}))
+
+    params = {"dlt": {}, "ransac": {"threshold": ransac_threshold, "min_inliers": min_inliers},
+              "greedy": {"reproj_threshold": reproj_threshold, "max_drops": max_drops}}
+    pts3d, pts2d_out, reproj = reconstruct(
+        tri_input, cameras, method=triangulation, conf=conf,
+        weigh_by_confidence=bool(weigh_by_confidence and conf is not None),
+        **params[triangulation])
+    return PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d_out, conf=conf,
+                      pts3d=pts3d, reproj_error=reproj, meta={**run_meta, **(meta or {})})

@@ -1,0 +1,202 @@
+"""Running a detector model on frames: device and precision choice, torch
+preprocessing, the forward pass and on-device heatmap decoding."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from . import decode
+from .model import HourglassNet
+from .plan import DetectionPlan, ModelSpec, Op, Resize
+from .weights import load_hourglass, resolve_weights
+
+log = logging.getLogger(__name__)
+
+PRECISIONS = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
+#: ``compile: auto`` wraps the forward in torch.compile on CUDA from this batch size on.
+COMPILE_MIN_BATCH = 8
+
+
+def select_device(requested: str | torch.device | None = "auto") -> torch.device:
+    """The torch device to detect on: ``auto`` picks CUDA, then Apple MPS, then the CPU."""
+    if isinstance(requested, torch.device):
+        return requested
+    if requested in (None, "", "auto"):
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        mps = getattr(torch.backends, "mps", None)
+        if mps is not None and mps.is_available():
+            return torch.device("mps")
+        return torch.device("cpu")
+    try:
+        device = torch.device(requested)
+    except RuntimeError:
+        raise ConfigError(f"pose2d.device: {requested!r} is not a torch device (use auto, cpu, cuda, cuda:1, mps)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("pose2d.device: cuda was asked for but torch sees no CUDA GPU; use auto or cpu")
+    return device
+
+
+def _autocast(device: torch.device, precision: str):
+    dtype = PRECISIONS[precision]
+    if dtype == torch.float32 or device.type == "cpu":
+        return contextlib.nullcontext()
+    return torch.autocast(device_type=device.type, dtype=dtype)
+
+
+@dataclass
+class LoadedModel:
+    """A detector network ready for inference on one device.
+
+    Attributes
+    ----------
+    spec
+        The model's plan entry (input size, normalisation, channels).
+    net
+        The network (eval mode, on ``device``).
+    device
+        Where it runs.
+    precision
+        Forward precision; float32 on the CPU whatever was asked.
+    batch_size
+        The forward batch; with ``compiled``, shorter batches are padded to it so
+        the compiled graph never re-specialises.
+    compiled
+        Whether the forward is wrapped in ``torch.compile``.
+    """
+
+    spec: ModelSpec
+    net: HourglassNet
+    device: torch.device
+    precision: str = "float32"
+    batch_size: int = 16
+    compiled: bool = False
+    _forward: Any = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.device.type == "cpu" and self.precision != "float32":
+            log.debug("CPU inference runs in float32 (asked for %s)", self.precision)
+            self.precision = "float32"
+        self.net = self.net.to(self.device).eval()
+        if self.device.type == "cuda":
+            torch.backends.cudnn.benchmark = True
+            self.net = self.net.to(memory_format=torch.channels_last)
+        self._forward = torch.compile(self.net, dynamic=False) if self.compiled else self.net
+
+    @property
+    def heatmap_size(self) -> tuple[int, int]:
+        """``(height, width)`` of the output heatmaps."""
+        stride = self.net.output_stride()
+        return self.spec.input_size[0] // stride, self.spec.input_size[1] // stride
+
+    def preprocess(self, frames: torch.Tensor, ops: tuple[Op, ...] = ()) -> torch.Tensor:
+        """``(N, H, W, 3)`` uint8 frames (on ``device``) -> normalised ``(N, 3, h, w)`` model input.
+
+        Applies ``ops`` (the pathway's preprocessor), resizes to the model input,
+        scales to ``[0, 1]`` and subtracts the mean (divides by ``std``).
+        """
+        x = frames.permute(0, 3, 1, 2).float()
+        for op in ops:
+            x = op.apply(x)
+        x = Resize(*self.spec.input_size).apply(x)
+        x = (x * (1.0 / (255.0 * self.spec.std)) - self.spec.mean / self.spec.std)
+        if self.device.type == "cuda":
+            x = x.contiguous(memory_format=torch.channels_last)
+        return x
+
+    def heatmaps(self, x: torch.Tensor) -> torch.Tensor:
+        """Last-stack heatmaps ``(N, C, h/4, w/4)`` in float32 for a model-input batch."""
+        n = x.shape[0]
+        outputs = []
+        for start in range(0, n, self.batch_size):
+            chunk = x[start : start + self.batch_size]
+            short = chunk.shape[0]
+            if self.compiled and short < self.batch_size:
+                chunk = torch.cat([chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])])
+            with torch.inference_mode(), _autocast(self.device, self.precision):
+                hm = self._forward(chunk)[-1]
+            outputs.append(hm[:short].float())
+        return outputs[0] if len(outputs) == 1 else torch.cat(outputs)
+
+    def detect(
+        self, frames: torch.Tensor, ops: tuple[Op, ...] = (), *, k: int | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+        """Detect on raw frames: heatmap-pixel ``xy (N, C, 2)``, ``conf (N, C)`` and,
+        with ``k``, the top-``k`` candidates ``(xy (N, C, k, 2), score (N, C, k))``."""
+        with torch.inference_mode():
+            hm = self.heatmaps(self.preprocess(frames, ops))
+            xy, conf = decode.decode_argmax(hm)
+            candidates = None
+            if k:
+                from ..pictorial import DEFAULT_PEAK_RADIUS, DEFAULT_PEAK_THRESHOLD
+
+                candidates = decode.topk_peaks(hm, k, radius=DEFAULT_PEAK_RADIUS, threshold=DEFAULT_PEAK_THRESHOLD)
+        return xy, conf, candidates
+
+
+def _pose2d_setting(config, key: str, default):
+    params = getattr(config, "pose2d", None)
+    if params is not None and hasattr(params, key):
+        return getattr(params, key)
+    data = getattr(config, "data", config) or {}
+    return (data.get("pose2d") or {}).get(key, default)
+
+
+def load_models(
+    plan: DetectionPlan,
+    config=None,
+    *,
+    device: str | torch.device | None = None,
+    precision: str | None = None,
+    batch_size: int | None = None,
+    compile: bool | str | None = None,
+    allow_download: bool = True,
+) -> dict[str, LoadedModel]:
+    """Load every model the plan's active pathways use, with the config's settings.
+
+    Parameters
+    ----------
+    plan
+        The detection plan.
+    config
+        The run config (``pose2d.device``, ``precision``, ``batch_size``, ``compile``);
+        the keyword arguments override it.
+    allow_download
+        Whether an empty weights cache may be filled from the network.
+
+    Raises
+    ------
+    WeightsError
+        If a model's weights cannot be found, downloaded or loaded.
+    """
+    dev = select_device(device if device is not None else _pose2d_setting(config, "device", "auto"))
+    precision = precision or _pose2d_setting(config, "precision", "bfloat16")
+    if precision not in PRECISIONS:
+        raise ConfigError(f"pose2d.precision: {precision!r} is not one of {sorted(PRECISIONS)}")
+    batch = int(batch_size or _pose2d_setting(config, "batch_size", 16))
+    want_compile = compile if compile is not None else _pose2d_setting(config, "compile", "auto")
+    compiled = dev.type == "cuda" and (want_compile is True or (want_compile == "auto" and batch >= COMPILE_MIN_BATCH))
+    models = {}
+    for name in dict.fromkeys(p.model for p in plan.active_pathways()):
+        spec = plan.models[name]
+        path = resolve_weights(
+            spec.weights, model_name=name, model_class=spec.model_class,
+            url=spec.url, sha256=spec.sha256, allow_download=allow_download,
+        )
+        net = load_hourglass(path, num_classes=spec.n_out_channels)
+        models[name] = LoadedModel(spec, net, dev, precision=precision, batch_size=batch, compiled=compiled)
+        log.info("model %s on %s (%s, batch %d%s)", name, dev, models[name].precision, batch,
+                 ", compiled" if compiled else "")
+    return models
+
+
+def heatmaps_to_numpy(t: torch.Tensor) -> np.ndarray:
+    """A device tensor as float64 NumPy."""
+    return t.detach().to("cpu", torch.float64).numpy()

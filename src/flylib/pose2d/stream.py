@@ -1,0 +1,402 @@
+"""Streaming 2D detection over a recording's sources.
+
+Each source is decoded once, on its own background thread, into a bounded queue
+of ``batch_size``-frame blocks (``decode_buffer`` blocks deep), so decoding runs in
+parallel with the forward passes and frame memory is bounded by
+``sources x (decode_buffer + 2) x batch_size`` frames whatever the recording length.
+Every pathway reading a source is fed from the same block (moved to the device
+once). Results are copied back one block late, so the GPU is never idle waiting
+for the host.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import io
+from ..errors import FootageError
+from .inference import LoadedModel, _pose2d_setting, load_models
+from .plan import DetectionPlan, Pathway
+
+log = logging.getLogger(__name__)
+
+_END = object()
+
+
+class _Failure:
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+class BlockPrefetcher(threading.Thread):
+    """Decode one source into a bounded queue of ``(T, H, W, 3)`` uint8 torch blocks.
+
+    Parameters
+    ----------
+    name
+        The source's name (for messages).
+    files
+        What :func:`flylib.io.open_reader` reads (a video, or an image list).
+    block_size
+        Frames per block.
+    depth
+        Queue depth in blocks (>= 1, so memory stays bounded).
+    workers
+        Image-sequence decode threads.
+    pin
+        Put blocks in page-locked memory (for fast, asynchronous GPU copies).
+    """
+
+    def __init__(self, name: str, files, *, block_size: int, depth: int, workers: int | None = None, pin: bool = False):
+        super().__init__(name=f"flylib-decode-{name}", daemon=True)
+        self.source = name
+        self.reader = io.open_reader(files, workers=workers)
+        self.block_size = block_size
+        self.pin = pin
+        self.blocks: queue.Queue = queue.Queue(maxsize=max(1, depth))
+        self._stop_event = threading.Event()
+
+    def run(self) -> None:
+        try:
+            for block in self.reader.stream_blocks(block_size=self.block_size):
+                tensor = torch.from_numpy(block)
+                if self.pin:
+                    tensor = tensor.pin_memory()
+                if not self._put(tensor):
+                    return
+            self._put(_END)
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            self._put(_Failure(exc))
+        finally:
+            self.reader.close()
+
+    def _put(self, item) -> bool:
+        while not self._stop_event.is_set():
+            try:
+                self.blocks.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def get(self):
+        """The next block, or the end marker; re-raises a decode error here."""
+        item = self.blocks.get()
+        if isinstance(item, _Failure):
+            raise item.exc
+        return item
+
+    def stop(self) -> None:
+        """Ask the thread to finish and drop what it queued."""
+        self._stop_event.set()
+        while True:
+            try:
+                self.blocks.get_nowait()
+            except queue.Empty:
+                break
+        self.join(timeout=10)
+
+
+@dataclass
+class DetectionOutput:
+    """What a detection run produces (the arrays plus the raw frame sizes)."""
+
+    pts2d: np.ndarray  # (V, T, P, 2)
+    conf: np.ndarray  # (V, T, P)
+    candidates_xy: np.ndarray | None  # (V, T, P, K, 2)
+    candidates_score: np.ndarray | None  # (V, T, P, K)
+    frame_sizes: dict[str, tuple[int, int]]  # source -> (height, width)
+
+
+@dataclass
+class _Pending:
+    start: int
+    n: int
+    results: list  # (pathway, source, xy, conf, candidates) on the device
+
+
+def _make_progress(progress, total: int | None):
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="detect 2D", unit="frame", dynamic_ncols=True)
+
+
+def _to_raw(pathway: Pathway, xy: np.ndarray, raw_size, model: LoadedModel) -> np.ndarray:
+    return pathway.heatmap_to_raw(xy, raw_size, model.spec, model.heatmap_size)
+
+
+def run_detection(
+    plan: DetectionPlan,
+    models: dict[str, LoadedModel],
+    sources: dict[str, list[Path] | str | Path],
+    *,
+    batch_size: int = 16,
+    decode_buffer: int = 4,
+    workers: int | None = None,
+    k: int | None = None,
+    progress=False,
+) -> DetectionOutput:
+    """Stream every active source through its pathways and scatter the points.
+
+    Parameters
+    ----------
+    plan
+        The detection plan.
+    models
+        ``name -> LoadedModel`` for every model the active pathways use.
+    sources
+        Source name -> footage (file list, video, directory or glob).
+    batch_size
+        Frames per decoded block (and per forward).
+    decode_buffer
+        Blocks queued ahead per source.
+    workers
+        Image-sequence decode threads.
+    k
+        Top-``k`` candidates per (view, point) when given.
+    progress
+        Show a tqdm bar (frames/s).
+
+    Raises
+    ------
+    FootageError
+        If a source is missing, unreadable, or the sources differ in length or
+        change frame size.
+    """
+    active = plan.active_sources()
+    missing = [s for s in active if s not in sources or not sources[s]]
+    if missing:
+        raise FootageError(
+            f"no footage for source(s) {missing}: each [[sources]] pattern must match a video or images "
+            f"(patterns: {[plan.sources[s] for s in missing]})"
+        )
+    device = next(iter(models.values())).device if models else torch.device("cpu")
+    n_views, n_points = len(plan.view_names), len(plan.point_names)
+    pin = device.type == "cuda"
+    prefetchers = {
+        s: BlockPrefetcher(s, sources[s], block_size=batch_size, depth=decode_buffer, workers=workers, pin=pin)
+        for s in active
+    }
+    total = prefetchers[active[0]].reader.count() if active else None
+    bar = _make_progress(progress, total)
+    frame_sizes: dict[str, tuple[int, int]] = {}
+    pts_parts, conf_parts, cxy_parts, cscore_parts = [], [], [], []
+
+    def finalize(pending: _Pending) -> None:
+        pts = np.full((n_views, pending.n, n_points, 2), np.nan)
+        conf = np.full((n_views, pending.n, n_points), np.nan)
+        cxy = np.full((n_views, pending.n, n_points, k, 2), np.nan) if k else None
+        cscore = np.full((n_views, pending.n, n_points, k), np.nan) if k else None
+        for pathway, source, xy, cf, cand in pending.results:
+            model = models[pathway.model]
+            raw = _to_raw(pathway, xy.to("cpu", torch.float64).numpy()[:, pathway.channels], frame_sizes[source], model)
+            pts[pathway.views, :, pathway.points] = raw.transpose(1, 0, 2)
+            conf[pathway.views, :, pathway.points] = cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
+            if k:
+                cand_xy = cand[0].to("cpu", torch.float64).numpy()[:, pathway.channels]
+                cand_raw = _to_raw(pathway, cand_xy, frame_sizes[source], model)  # NaN stays NaN
+                cxy[pathway.views, :, pathway.points] = cand_raw.transpose(1, 0, 2, 3)
+                cscore[pathway.views, :, pathway.points] = (
+                    cand[1].to("cpu", torch.float64).numpy()[:, pathway.channels].transpose(1, 0, 2)
+                )
+        pts_parts.append(pts)
+        conf_parts.append(conf)
+        if k:
+            cxy_parts.append(cxy)
+            cscore_parts.append(cscore)
+        if bar is not None:
+            bar.update(pending.n)
+
+    for p in prefetchers.values():
+        p.start()
+    pending: _Pending | None = None
+    start = 0
+    try:
+        while True:
+            blocks = {s: prefetchers[s].get() for s in active}
+            ended = [s for s, b in blocks.items() if b is _END]
+            if ended:
+                if len(ended) != len(blocks):
+                    going = [s for s in blocks if s not in ended]
+                    raise FootageError(
+                        f"sources differ in length: {ended} end after {start} frames while {going} go on; "
+                        "every camera must have the same number of frames"
+                    )
+                break
+            lengths = {s: int(b.shape[0]) for s, b in blocks.items()}
+            if len(set(lengths.values())) > 1:
+                raise FootageError(
+                    f"sources differ in length around frame {start}: block sizes {lengths}; every camera "
+                    "must have the same number of frames"
+                )
+            n = next(iter(lengths.values()))
+            results = []
+            for source, block in blocks.items():
+                size = (int(block.shape[1]), int(block.shape[2]))
+                if frame_sizes.setdefault(source, size) != size:
+                    raise FootageError(
+                        f"source {source}: frame {start} is {size[1]}x{size[0]} but earlier frames are "
+                        f"{frame_sizes[source][1]}x{frame_sizes[source][0]}"
+                    )
+                frames = block.to(device, non_blocking=True)
+                for pathway in plan.pathways_on(source):
+                    if start == 0:
+                        pathway.check_frame(size)
+                    xy, cf, cand = models[pathway.model].detect(frames, pathway.ops, k=k)
+                    results.append((pathway, source, xy, cf, cand))
+            if pending is not None:
+                finalize(pending)
+            pending = _Pending(start, n, results)
+            start += n
+            del blocks
+        if pending is not None:
+            finalize(pending)
+    finally:
+        for p in prefetchers.values():
+            p.stop()
+        if bar is not None:
+            bar.close()
+    if not pts_parts:
+        raise FootageError(f"the detector received no frames from sources {active}; check the footage")
+    return DetectionOutput(
+        pts2d=np.concatenate(pts_parts, axis=1),
+        conf=np.concatenate(conf_parts, axis=1),
+        candidates_xy=np.concatenate(cxy_parts, axis=1) if k else None,
+        candidates_score=np.concatenate(cscore_parts, axis=1) if k else None,
+        frame_sizes=frame_sizes,
+    )
+
+
+def _io_workers(config) -> int | None:
+    params = getattr(config, "io", None)
+    if params is not None and hasattr(params, "image_workers"):
+        return params.image_workers
+    data = getattr(config, "data", config) or {}
+    return ((data.get("io") or {}).get("image") or {}).get("workers") or None
+
+
+def _candidates(xy: np.ndarray, score: np.ndarray):
+    from ..pictorial import Candidates
+
+    return Candidates(xy=xy, score=score)
+
+
+def detect_2d(
+    config,
+    plan: DetectionPlan,
+    models: dict[str, LoadedModel],
+    *,
+    sources: dict[str, list[Path] | str | Path],
+    want_candidates: bool = False,
+    k: int | None = None,
+    progress=False,
+):
+    """Stream 2D detection over a recording -> ``(pts2d, conf, candidates)``.
+
+    Parameters
+    ----------
+    config
+        The run config (``pose2d.batch_size``, ``pose2d.decode_buffer``,
+        ``io.image.workers``, ``pictorial_structures.k``).
+    plan
+        The detection plan (:meth:`DetectionPlan.from_config`).
+    models
+        ``name -> LoadedModel`` (:func:`load_models`).
+    sources
+        Source name -> footage (the resolved file list of each ``[[sources]]`` entry).
+    want_candidates
+        Also return the top-``k`` heatmap peaks per (view, point) for pictorial structures.
+    k
+        Candidates per (view, point); default ``pictorial_structures.k`` (5).
+    progress
+        Show a progress bar with frames/s.
+
+    Returns
+    -------
+    pts2d : np.ndarray
+        ``(V, T, P, 2)`` raw-frame pixels, NaN where the plan fills nothing.
+    conf : np.ndarray
+        ``(V, T, P)`` heatmap peak values, NaN likewise.
+    candidates : Candidates or None
+        ``xy (V, T, P, K, 2)`` and ``score (V, T, P, K)`` when ``want_candidates``.
+    """
+    out = _detect(config, plan, models, sources, want_candidates=want_candidates, k=k, progress=progress)
+    cands = _candidates(out.candidates_xy, out.candidates_score) if want_candidates else None
+    return out.pts2d, out.conf, cands
+
+
+def _detect(config, plan, models, sources, *, want_candidates, k, progress) -> DetectionOutput:
+    if want_candidates and not k:
+        pictorial = (getattr(config, "data", config) or {}).get("pictorial_structures") or {}
+        k = int(pictorial.get("k", 5))
+    return run_detection(
+        plan,
+        models,
+        sources,
+        batch_size=int(_pose2d_setting(config, "batch_size", 16)),
+        decode_buffer=int(_pose2d_setting(config, "decode_buffer", 4)),
+        workers=_io_workers(config),
+        k=k if want_candidates else None,
+        progress=progress,
+    )
+
+
+def detect_recording(
+    config,
+    sources: dict[str, list[Path]],
+    *,
+    want_candidates: bool = False,
+    progress: bool = True,
+    models: dict[str, LoadedModel] | None = None,
+):
+    """The pose2d stage: run the configured detection plan over one recording.
+
+    Parameters
+    ----------
+    config
+        The run config.
+    sources
+        Source name -> resolved footage files (see :mod:`flylib.recordings`).
+    want_candidates
+        Also keep the top-K peaks (when pictorial structures is enabled).
+    progress
+        Show a progress bar.
+    models
+        Already-loaded models (default: load them from the config's weights,
+        downloading the published checkpoint on first use).
+
+    Returns
+    -------
+    flylib.results.Pose2dData
+        Points, confidences, view names, raw image sizes and optional candidates.
+
+    Raises
+    ------
+    WeightsError
+        If the weights cannot be found or downloaded (never runs an untrained network).
+    FootageError
+        If the footage is missing, corrupt or inconsistent across cameras.
+    """
+    plan = DetectionPlan.from_config(config)
+    models = models if models is not None else load_models(plan, config)
+    out = _detect(config, plan, models, sources, want_candidates=want_candidates, k=None, progress=progress)
+    view_sources = plan.view_sources()
+    image_sizes = {v: out.frame_sizes[s] for v, s in view_sources.items() if s in out.frame_sizes}
+    from ..results import Pose2dData
+
+    return Pose2dData(
+        pts2d=out.pts2d,
+        conf=out.conf,
+        view_names=list(plan.view_names),
+        image_sizes=image_sizes,
+        candidates=_candidates(out.candidates_xy, out.candidates_score) if want_candidates else None,
+    )

@@ -1,0 +1,280 @@
+"""Detector checkpoints: locate (cache or download), verify, load strictly, save.
+
+A checkpoint is what DeepFly3D publishes: a torch ``.tar`` holding
+``{"state_dict": {...}}`` whose keys may carry ``module.`` (DataParallel) or
+``model.`` (Lightning) prefixes. The network's shape (number of stacks, output
+channels, widths) is read from the checkpoint itself, so an ``sh8`` and an ``sh2``
+both load, and any key or shape mismatch is a :class:`~flylib.errors.WeightsError`
+rather than a silently half-initialised network.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import re
+import tempfile
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import torch
+
+from ..errors import WeightsError
+from .model import HourglassNet
+
+log = logging.getLogger(__name__)
+
+#: The published DeepFly2D ``sh8`` checkpoint (the DeepFly2D project's download link).
+PUBLISHED_WEIGHTS = {
+    "hourglass": {
+        "url": "https://www.dropbox.com/s/csgon8uojr3gdd9/sh8_front_j8.tar?dl=1",
+        "filename": "sh8_deepfly.tar",
+        "sha256": None,
+    }
+}
+_PREFIXES = ("module.", "model.")
+_STACK_KEY = re.compile(r"^hg\.(\d+)\.")
+_RES_KEY = re.compile(r"^res\.0\.(\d+)\.")
+
+
+def cache_dir() -> Path:
+    """The per-user weights cache: ``$FLYLIB_CACHE`` or ``~/.cache/flylib``."""
+    env = os.environ.get("FLYLIB_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "flylib"
+
+
+def sha256sum(path: str | Path) -> str:
+    """Hex SHA-256 of a file."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _verify(path: Path, sha256: str | None, what: str) -> None:
+    if sha256 and sha256sum(path).lower() != sha256.lower():
+        raise WeightsError(
+            f"{path}: checksum mismatch for {what} (expected sha256 {sha256}); delete the file "
+            "and let it download again, or fix the model's sha256"
+        )
+
+
+def download(url: str, dest: Path, *, sha256: str | None = None, timeout: float = 60.0) -> Path:
+    """Download ``url`` to ``dest`` atomically (temporary sibling, verified, renamed).
+
+    Raises
+    ------
+    WeightsError
+        If the download fails (offline, HTTP error) or the checksum does not match;
+        the message says where to put the file by hand.
+    """
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=dest.name + ".", suffix=".part", dir=dest.parent)
+    tmp = Path(tmp_name)
+    try:
+        log.info("downloading detector weights %s -> %s", url, dest)
+        with os.fdopen(fd, "wb") as out, urllib.request.urlopen(url, timeout=timeout) as response:
+            while chunk := response.read(1 << 20):
+                out.write(chunk)
+        _verify(tmp, sha256, url)
+        os.replace(tmp, dest)
+    except (urllib.error.URLError, OSError, TimeoutError) as exc:
+        raise WeightsError(
+            f"could not download the detector weights from {url} ({exc}); on a machine without "
+            f"network, download that file elsewhere and put it at {dest} (or set the model's "
+            "weights to its path, or FLYLIB_CACHE to the folder holding it)"
+        ) from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    return dest
+
+
+def resolve_weights(
+    weights: str | Path | None,
+    *,
+    model_name: str = "deepfly2d",
+    model_class: str = "hourglass",
+    url: str | None = None,
+    sha256: str | None = None,
+    allow_download: bool = True,
+) -> Path:
+    """The checkpoint file a model uses, downloading the published one on first use.
+
+    Parameters
+    ----------
+    weights
+        A local checkpoint path, or empty/``None`` for the per-user cache.
+    model_name
+        The model's name in the config (for messages).
+    model_class
+        The model class, which selects the published checkpoint.
+    url, sha256
+        Override the download address / expected checksum.
+    allow_download
+        Whether an empty cache may be filled from the network.
+
+    Returns
+    -------
+    Path
+        An existing checkpoint file.
+
+    Raises
+    ------
+    WeightsError
+        If a given path does not exist, or the cache is empty and cannot be filled.
+    """
+    if weights:
+        path = Path(weights).expanduser()
+        if not path.is_file():
+            raise WeightsError(
+                f"pose2d.models[{model_name}].weights: {path} does not exist; point it at the "
+                "checkpoint file, or leave it empty to use the downloaded published weights"
+            )
+        _verify(path, sha256, f"model {model_name!r}")
+        return path
+    published = PUBLISHED_WEIGHTS.get(model_class, {})
+    url = url or published.get("url")
+    sha256 = sha256 or published.get("sha256")
+    filename = published.get("filename") or (Path(url.split("?")[0]).name if url else f"{model_name}.tar")
+    path = cache_dir() / filename
+    if path.is_file():
+        _verify(path, sha256, f"model {model_name!r}")
+        return path
+    if not url:
+        raise WeightsError(
+            f"pose2d.models[{model_name}]: no weights given and no published checkpoint for class "
+            f"{model_class!r}; set the model's weights to a checkpoint file"
+        )
+    if not allow_download:
+        raise WeightsError(
+            f"pose2d.models[{model_name}]: the weights cache {path} is empty and downloading is off; "
+            f"download {url} and put it there"
+        )
+    return download(url, path, sha256=sha256)
+
+
+def strip_prefixes(state_dict: dict) -> dict:
+    """Drop ``module.`` / ``model.`` key prefixes (any nesting, as DataParallel/Lightning add)."""
+    out = {}
+    for key, value in state_dict.items():
+        while key.startswith(_PREFIXES):
+            key = key.split(".", 1)[1]
+        out[key] = value
+    return out
+
+
+def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
+    """The network parameters of a checkpoint file, prefixes stripped.
+
+    Accepts ``{"state_dict": ...}`` (the published format) or a bare state dict.
+    """
+    path = Path(path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a bad file
+        raise WeightsError(
+            f"{path}: cannot read the checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0]}); "
+            "it must be a torch file holding {'state_dict': ...}"
+        ) from None
+    state = payload.get("state_dict", payload) if isinstance(payload, dict) else None
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise WeightsError(f"{path}: not a network checkpoint (expected a dict with a 'state_dict' of tensors)")
+    return strip_prefixes(state)
+
+
+def infer_hourglass_config(state_dict: dict[str, torch.Tensor], *, source: str = "checkpoint") -> dict:
+    """Read the hourglass's shape (stacks, classes, widths, blocks) from its parameters."""
+    try:
+        stacks = 1 + max(int(m.group(1)) for k in state_dict if (m := _STACK_KEY.match(k)))
+        blocks = 1 + max(int(m.group(1)) for k in state_dict if (m := _RES_KEY.match(k)))
+        return dict(
+            num_stacks=stacks,
+            num_blocks=blocks,
+            num_classes=int(state_dict["score.0.weight"].shape[0]),
+            inplanes=int(state_dict["conv1.weight"].shape[0]),
+            num_feats=int(state_dict["layer3.0.conv1.weight"].shape[0]),
+        )
+    except (ValueError, KeyError) as exc:
+        raise WeightsError(
+            f"{source}: not a stacked-hourglass checkpoint (missing {exc}); expected DeepFly2D "
+            "'hg' parameter names (conv1, layer1..3, hg.N..., score.N...)"
+        ) from None
+
+
+def load_hourglass(
+    path: str | Path,
+    *,
+    num_classes: int | None = None,
+    num_stacks: int | None = None,
+    device: str | torch.device = "cpu",
+) -> HourglassNet:
+    """Build the hourglass a checkpoint describes and load it strictly.
+
+    Parameters
+    ----------
+    path
+        Checkpoint file.
+    num_classes
+        Expected output channels (the model's ``n_out_channels``), checked.
+    num_stacks
+        Expected number of stacks, checked when given.
+    device
+        Where to put the network.
+
+    Returns
+    -------
+    HourglassNet
+        The network in eval mode.
+
+    Raises
+    ------
+    WeightsError
+        If the file is unreadable, is not an hourglass, or any key/shape differs.
+    """
+    state = read_state_dict(path)
+    arch = infer_hourglass_config(state, source=str(path))
+    if num_classes is not None and arch["num_classes"] != num_classes:
+        raise WeightsError(
+            f"{path}: the checkpoint outputs {arch['num_classes']} channels but the model's "
+            f"n_out_channels is {num_classes}; fix n_out_channels or use the matching weights"
+        )
+    if num_stacks is not None and arch["num_stacks"] != num_stacks:
+        raise WeightsError(
+            f"{path}: the checkpoint has {arch['num_stacks']} stacks, expected {num_stacks}"
+        )
+    net = HourglassNet(**arch)
+    try:
+        net.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        first = next((ln.strip() for ln in str(exc).splitlines()[1:] if ln.strip()), str(exc))
+        raise WeightsError(
+            f"{path}: the checkpoint does not fit a {arch['num_stacks']}-stack hourglass ({first}); "
+            "use a DeepFly2D hourglass checkpoint"
+        ) from None
+    log.info("loaded %d-stack hourglass (%d outputs) from %s", arch["num_stacks"], arch["num_classes"], path)
+    return net.to(device).eval()
+
+
+def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "module.") -> Path:
+    """Save a network in the published checkpoint format, atomically.
+
+    Parameters
+    ----------
+    net
+        The network.
+    path
+        Output file (``.tar`` by convention).
+    prefix
+        Key prefix (``"module."`` as DataParallel-trained checkpoints carry; ``""`` for none).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {prefix + k: v.detach().cpu() for k, v in net.state_dict().items()}
+    tmp = path.with_name(path.name + ".part")
+    torch.save({"state_dict": state}, tmp)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,343 @@
+"""The tracked skeleton: ordered point names, limb chains and the plotting palette.
+
+A limb is an ordered chain of points (e.g. the five joints of a leg, body to claw);
+its bones are the consecutive pairs along the chain. Every point belongs to at most
+one limb, so each limb is a simple path and ``limb_id`` is well defined. Which view
+sees which point is not stored here: it lives in the detection plan, and an
+unobserved ``(view, point)`` is simply NaN in the points arrays.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .config import Config
+
+_HEX_COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
+_SKELETON_KEYS = ("name", "point_names", "limb_points", "limb_palette")
+
+
+def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
+    """Every problem with a ``skeleton`` config table, one line each.
+
+    Parameters
+    ----------
+    spec
+        The parsed ``skeleton`` table.
+    path
+        Key path used to prefix each message.
+
+    Returns
+    -------
+    list of str
+        ``"<key path>: <problem>"`` lines; empty when the table is valid.
+    """
+    if not isinstance(spec, Mapping):
+        return [f"{path}: expected a mapping, got {type(spec).__name__}"]
+    problems = [
+        f"{path}.{key}: unknown key (known: {', '.join(_SKELETON_KEYS)})"
+        for key in spec
+        if key not in _SKELETON_KEYS
+    ]
+    if "name" in spec and not isinstance(spec["name"], str):
+        problems.append(f"{path}.name: expected a string, got {spec['name']!r}")
+    names = spec.get("point_names")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        problems.append(f"{path}.point_names: expected a non-empty list of point-name strings")
+        return problems
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            problems.append(f"{path}.point_names: point {name!r} is listed twice")
+        seen.add(name)
+
+    limbs = spec.get("limb_points", {}) or {}
+    if not isinstance(limbs, Mapping):
+        problems.append(f"{path}.limb_points: expected a mapping limb -> list of points")
+        limbs = {}
+    owner: dict[str, str] = {}
+    for limb, points in limbs.items():
+        where = f"{path}.limb_points.{limb}"
+        if not isinstance(points, list) or not points:
+            problems.append(f"{where}: expected a non-empty list of point names")
+            continue
+        for point in points:
+            if point not in seen:
+                problems.append(
+                    f"{where}: unknown point {point!r} (known: {', '.join(names)})"
+                )
+            elif point in owner:
+                problems.append(
+                    f"{where}: point {point!r} already belongs to limb {owner[point]!r}"
+                    " (a point can be in one limb only)"
+                )
+            else:
+                owner[point] = str(limb)
+
+    palette = spec.get("limb_palette", {}) or {}
+    if not isinstance(palette, Mapping):
+        problems.append(f"{path}.limb_palette: expected a mapping limb -> '#rrggbb'")
+        palette = {}
+    for limb, color in palette.items():
+        where = f"{path}.limb_palette.{limb}"
+        if limb not in limbs:
+            problems.append(f"{where}: unknown limb {limb!r} (known: {', '.join(map(str, limbs))})")
+        if not isinstance(color, str) or not _HEX_COLOR.match(color):
+            problems.append(f"{where}: expected a hex colour like '#1a8daf', got {color!r}")
+    return problems
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """An ordered set of tracked points with limb chains and a plotting palette.
+
+    Attributes
+    ----------
+    point_names
+        Name of each tracked point, in order (length ``n_points``).
+    limbs
+        ``limb name -> ordered chain of point names`` (config order).
+    palette
+        ``limb name -> '#rrggbb'``; limbs absent from it use a default colormap in the
+        plotting code.
+    name
+        Identifier of the skeleton (e.g. ``"fly38"``).
+    """
+
+    point_names: tuple[str, ...]
+    limbs: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    palette: dict[str, str] = field(default_factory=dict)
+    name: str = "skeleton"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "point_names", tuple(str(p) for p in self.point_names))
+        object.__setattr__(
+            self, "limbs", {str(k): tuple(str(p) for p in v) for k, v in self.limbs.items()}
+        )
+        object.__setattr__(self, "palette", {str(k): str(v) for k, v in self.palette.items()})
+        problems = skeleton_problems(
+            {
+                "name": self.name,
+                "point_names": list(self.point_names),
+                "limb_points": {k: list(v) for k, v in self.limbs.items()},
+                "limb_palette": self.palette,
+            }
+        )
+        if problems:
+            raise ConfigError("; ".join(problems))
+
+    # -- construction --------------------------------------------------------
+
+    @classmethod
+    def fly(cls) -> Skeleton:
+        """The default 38-point Drosophila skeleton, read from the packaged default config."""
+        from .config import Config
+
+        return cls.from_config(Config.default())
+
+    @classmethod
+    def from_config(cls, config: Config) -> Skeleton:
+        """Build the skeleton of a config's ``skeleton`` table.
+
+        Parameters
+        ----------
+        config
+            A :class:`~flylib.config.Config` with a ``skeleton`` table.
+
+        Returns
+        -------
+        Skeleton
+            The configured skeleton.
+
+        Raises
+        ------
+        ConfigError
+            If the config has no ``skeleton`` table or the table is invalid.
+        """
+        if "skeleton" not in config.data:
+            raise ConfigError(
+                f"{config.source or 'config'}: no 'skeleton' table; add one or use Skeleton.fly()"
+            )
+        return cls.from_spec(config.data["skeleton"])
+
+    @classmethod
+    def from_spec(cls, spec: Mapping) -> Skeleton:
+        """Build a skeleton from a parsed ``skeleton`` table.
+
+        Parameters
+        ----------
+        spec
+            Mapping with ``point_names`` and optional ``name``, ``limb_points``,
+            ``limb_palette``.
+
+        Returns
+        -------
+        Skeleton
+            The skeleton the table describes.
+
+        Raises
+        ------
+        ConfigError
+            Listing every problem with the table.
+        """
+        problems = skeleton_problems(spec)
+        if problems:
+            raise ConfigError("; ".join(problems))
+        return cls(
+            point_names=tuple(spec["point_names"]),
+            limbs={k: tuple(v) for k, v in (spec.get("limb_points") or {}).items()},
+            palette=dict(spec.get("limb_palette") or {}),
+            name=spec.get("name", "skeleton"),
+        )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        point_names: Sequence[str],
+        limb_names: Sequence[str],
+        limb_id: np.ndarray,
+        bones: np.ndarray,
+        palette: Mapping[str, str] | None = None,
+        name: str = "skeleton",
+    ) -> Skeleton:
+        """Rebuild a skeleton from its stored arrays (the ``skeleton/`` HDF5 group).
+
+        Each limb's chain order is recovered by walking its bones from the end that
+        no bone points into; a limb without bones keeps its points in index order.
+
+        Parameters
+        ----------
+        point_names, limb_names
+            Point and limb names.
+        limb_id
+            ``(P,)`` limb index per point, ``-1`` for a point in no limb.
+        bones
+            ``(B, 2)`` point-index pairs along the limb chains.
+        palette
+            ``limb -> '#rrggbb'``.
+        name
+            Skeleton identifier.
+
+        Returns
+        -------
+        Skeleton
+            The skeleton the arrays describe.
+        """
+        limb_id = np.asarray(limb_id, dtype=int).reshape(-1)
+        bones = np.asarray(bones, dtype=int).reshape(-1, 2)
+        next_point = {int(a): int(b) for a, b in bones}
+        has_parent = {int(b) for _, b in bones}
+        limbs: dict[str, tuple[str, ...]] = {}
+        for index, limb in enumerate(limb_names):
+            members = [int(i) for i in np.flatnonzero(limb_id == index)]
+            starts = [i for i in members if i not in has_parent]
+            chain = [starts[0]] if len(starts) == 1 else []
+            while chain and chain[-1] in next_point and len(chain) < len(members):
+                chain.append(next_point[chain[-1]])
+            order = chain if sorted(chain) == members else members
+            limbs[str(limb)] = tuple(point_names[i] for i in order)
+        return cls(
+            point_names=tuple(point_names), limbs=limbs, palette=dict(palette or {}), name=name
+        )
+
+    # -- basic views ---------------------------------------------------------
+
+    @property
+    def n_points(self) -> int:
+        """Number of tracked points ``P``."""
+        return len(self.point_names)
+
+    @property
+    def n_limbs(self) -> int:
+        """Number of limbs."""
+        return len(self.limbs)
+
+    def __len__(self) -> int:
+        return self.n_points
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Skeleton):
+            return NotImplemented
+        return (
+            self.point_names == other.point_names
+            and list(self.limbs.items()) == list(other.limbs.items())
+            and self.palette == other.palette
+            and self.name == other.name
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable-dict fields: not hashable
+
+    @property
+    def limb_names(self) -> tuple[str, ...]:
+        """Limb names in config order."""
+        return tuple(self.limbs)
+
+    def index(self, name: str) -> int:
+        """Index of point ``name``.
+
+        Raises
+        ------
+        KeyError
+            If the skeleton has no such point (the message lists the known ones).
+        """
+        try:
+            return self._index_of[name]
+        except KeyError:
+            raise KeyError(
+                f"unknown point {name!r} (known: {', '.join(self.point_names)})"
+            ) from None
+
+    # -- derived structure ---------------------------------------------------
+
+    @cached_property
+    def _index_of(self) -> dict[str, int]:
+        return {n: i for i, n in enumerate(self.point_names)}
+
+    @cached_property
+    def limb_id(self) -> np.ndarray:
+        """``(P,)`` int array: the limb index of each point, ``-1`` if in no limb."""
+        out = np.full(self.n_points, -1, dtype=np.int64)
+        for li, chain in enumerate(self.limbs.values()):
+            out[[self._index_of[p] for p in chain]] = li
+        out.flags.writeable = False
+        return out
+
+    @cached_property
+    def bones(self) -> np.ndarray:
+        """``(B, 2)`` int array of point-index pairs: consecutive points of each limb chain."""
+        pairs = [
+            (self._index_of[a], self._index_of[b])
+            for chain in self.limbs.values()
+            for a, b in zip(chain[:-1], chain[1:])
+        ]
+        out = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        out.flags.writeable = False
+        return out
+
+    @property
+    def n_bones(self) -> int:
+        """Number of bones ``B``."""
+        return int(self.bones.shape[0])
+
+    def bone_index_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Endpoint index arrays ``(i, j)`` for vectorised bone-length maths.
+
+        Returns
+        -------
+        i, j : np.ndarray
+            First and second endpoint index of each bone, shape ``(B,)`` each.
+        """
+        return self.bones[:, 0], self.bones[:, 1]
+
+    def limb_color(self, limb: str, default: str = "#808080") -> str:
+        """The palette colour of ``limb``, or ``default`` when it has none."""
+        return self.palette.get(limb, default)

@@ -1,0 +1,312 @@
+"""One function per workflow stage: read the upstream artifact(s) and the config, call
+the library, write the stage's artifact atomically.
+
+These are what the command scripts in ``scripts/`` (and so the Snakemake rules) run,
+and what a library user can call to reproduce one step by hand. Every function takes
+paths and a :class:`~flylib.config.Config`; none decides *whether* it should run (the
+workflow does, from the rule's params and inputs).
+
+=====================  ==========================================  ===============================
+stage                  reads                                       writes
+=====================  ==========================================  ===============================
+``demo``               config (rig, skeleton, ``demo``)            footage, DLC CSVs, ``truth.h5``
+``pose2d``             footage, or another tool's 2D files          ``stages/pose2d.h5``
+``bundle_adjustment``  ``pose2d.h5``, config rig                    ``stages/bundle_adjustment.h5``
+``pictorial``          ``pose2d.h5`` (candidates), rig              ``stages/pictorial_structures.h5``
+``triangulation``      2D (PS if on, else pose2d), rig              ``stages/triangulation.h5``
+``assemble``           the stage artifacts                          ``results.h5``, ``summary.json``,
+                                                                    ``summary.png``, ``calibration.toml``
+``visualization``      ``results.h5``, footage                      ``<video_name>.mp4``
+=====================  ==========================================  ===============================
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable, Mapping
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import FlylibError, ResultsError
+
+log = logging.getLogger(__name__)
+
+#: Stage-artifact file names inside ``<outdir>/stages/``.
+ARTIFACTS = {
+    "pose2d": "pose2d.h5",
+    "bundle_adjustment": "bundle_adjustment.h5",
+    "pictorial_structures": "pictorial_structures.h5",
+    "triangulation": "triangulation.h5",
+}
+SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml")
+
+
+def artifact_path(outdir: str | Path, stage: str) -> Path:
+    """``<outdir>/stages/<stage>.h5``."""
+    return Path(outdir) / "stages" / ARTIFACTS[stage]
+
+
+# -- helpers -------------------------------------------------------------------
+
+
+def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
+    return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
+
+
+def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
+               recording_dir: str | Path | None = None):
+    """The rig the config describes: its ``calibration`` file when set, else the orbit
+    parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
+    if config.data.get("calibration"):
+        from .interop.anipose import load_calibration
+
+        return load_calibration(config, Path(recording_dir) if recording_dir else None)
+    return config.camera_group(image_sizes=dict(image_sizes or {}))
+
+
+def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
+    """The bundle-adjusted rig when that artifact is given, else the config rig."""
+    if ba_path:
+        from .results import read_stage
+
+        return read_stage(ba_path, "bundle_adjustment")["cameras"]
+    return config_rig(config, _image_sizes(pose2d), recording_dir)
+
+
+# -- stages --------------------------------------------------------------------
+
+
+def run_demo(config, directory: str | Path):
+    """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`)."""
+    from .demo import make_demo
+
+    return make_demo(config, directory)
+
+
+def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
+               import_spec: Mapping | None = None, progress: bool = False) -> Path:
+    """2D keypoints of one recording: the detector over its footage, or another
+    tool's files when an import spec is in force (``import_spec``, else
+    ``pose2d.import``).
+
+    Candidate peaks are kept when pictorial structures is enabled.
+
+    Raises
+    ------
+    FootageError
+        The recording's footage is missing, unreadable or inconsistent (naming it).
+    """
+    recording_dir = Path(recording_dir)
+    spec = dict(import_spec) if import_spec else config.import_spec
+    if spec:
+        from .interop import import_points2d
+
+        data = import_points2d(config, recording_dir, spec)
+    else:
+        from .pose2d import detect_recording
+        from .recordings import find_recording
+
+        sources = find_recording(recording_dir, config, strict=True)
+        want = config.stage_flags()["pictorial_structures"]
+        data = detect_recording(config, sources, want_candidates=want, progress=progress)
+    data.save(out_path, config.skeleton())
+    return Path(out_path)
+
+
+def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path, *,
+                          recording_dir: str | Path | None = None) -> Path:
+    """Refine the config rig against the recording's 2D keypoints."""
+    from .bundle_adjustment import bundle_adjust_from_config
+    from .results import Pose2dData, write_stage
+
+    pose2d = Pose2dData.load(pose2d_path)
+    cameras = config_rig(config, _image_sizes(pose2d), recording_dir)
+    started = time.perf_counter()
+    result, refined, _ = bundle_adjust_from_config(config, cameras, pose2d.pts2d, pose2d.conf)
+    summary = {
+        "success": bool(getattr(result, "success", True)),
+        "message": str(getattr(result, "message", "")),
+        "cost": float(getattr(result, "cost", np.nan)),
+        "nfev": int(getattr(result, "nfev", 0) or 0),
+        "seconds": round(time.perf_counter() - started, 3),
+    }
+    write_stage(out_path, "bundle_adjustment", {}, cameras=refined,
+                attrs={"summary": json.dumps(summary)})
+    log.info("bundle adjustment: %s", summary)
+    return Path(out_path)
+
+
+def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Path, *,
+                             ba_path: str | Path | None = None,
+                             recording_dir: str | Path | None = None) -> Path:
+    """Peak recovery over the detector's candidate peaks (pictorial structures).
+
+    Raises
+    ------
+    ResultsError
+        If the 2D artifact holds no candidate peaks (2D imported from another tool).
+    """
+    from .pictorial import reconstruct_from_config
+    from .results import Pose2dData, write_stage
+
+    pose2d = Pose2dData.load(pose2d_path)
+    if pose2d.candidates is None:
+        raise ResultsError(
+            f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
+            "they come only from the detector (set pipeline.do_pictorial_structures: false "
+            "for 2D imported from another tool)")
+    cameras = _rig_for(config, pose2d, ba_path, recording_dir)
+    pts3d, pts2d, error = reconstruct_from_config(config, pose2d.candidates, cameras)
+    write_stage(out_path, "pictorial_structures",
+                {"points": pts2d, "points3d": pts3d, "reproj_error": error})
+    return Path(out_path)
+
+
+def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
+                      pictorial_path: str | Path | None = None,
+                      ba_path: str | Path | None = None,
+                      recording_dir: str | Path | None = None) -> Path:
+    """Lift the 2D keypoints (pictorial-structures-corrected when given, else pose2d's)
+    to 3D with the bundle-adjusted rig when given, else the config rig."""
+    from .results import Pose2dData, read_stage, write_stage
+    from .triangulation import reconstruct_from_config
+
+    pose2d = Pose2dData.load(pose2d_path)
+    pts2d = pose2d.pts2d
+    if pictorial_path:
+        pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
+    cameras = _rig_for(config, pose2d, ba_path, recording_dir)
+    pts3d, pts2d_clean, error = reconstruct_from_config(config, pts2d, cameras, pose2d.conf)
+    write_stage(out_path, "triangulation",
+                {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error})
+    return Path(out_path)
+
+
+def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
+                 recording_dir: str | Path | None = None,
+                 truth_path: str | Path | None = None) -> dict:
+    """Assemble ``results.h5`` from the stage artifacts, then write the recording's
+    summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format) and
+    ``summary.json``. With ``truth_path`` (the demo) the 3D error against the truth is
+    computed, logged and stored in the summary.
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``.
+    """
+    from .interop.anipose import write_anipose_toml
+    from .results import FORMAT_VERSION, PoseResult, Pose2dData, assemble_results
+    from .visualization import summary_figure
+
+    outdir = Path(outdir)
+    stage_files = {k: Path(v) for k, v in stage_files.items() if v}
+    if "pose2d" not in stage_files:
+        raise ResultsError("assemble: no pose2d artifact given; every result starts from 2D keypoints")
+    pose2d = Pose2dData.load(stage_files["pose2d"])
+    sizes = _image_sizes(pose2d)
+    rig = config_rig(config, sizes, recording_dir)
+    meta = {"recording": str(recording_dir) if recording_dir else None, "stages": sorted(stage_files)}
+    results_path = outdir / "results.h5"
+    assemble_results(results_path, skeleton=config.skeleton(), config_rig=rig,
+                     stage_files=stage_files, meta=meta)
+    result = PoseResult.load(results_path)
+    summary_figure(result, outdir / "summary.png")
+    write_anipose_toml(result.cameras, outdir / "calibration.toml", image_sizes=sizes,
+                       metadata={"recording": str(recording_dir or "")})
+    summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
+    if truth_path:
+        from .demo import demo_error, load_truth
+
+        truth = load_truth(truth_path)
+        if result.pts3d is not None:
+            summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
+    _write_json(outdir / "summary.json", summary)
+    return summary
+
+
+def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
+    pts2d = np.asarray(result.pts2d, float)
+    summary: dict[str, Any] = {
+        "recording": str(recording_dir) if recording_dir else None,
+        "outdir": str(outdir),
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "format_version": version,
+        "stages": sorted(stage_files),
+        "views": list(result.cameras.names),
+        "frames": int(pts2d.shape[1]),
+        "points": int(pts2d.shape[2]),
+        "observed_2d_fraction": float(np.isfinite(pts2d).all(-1).mean()),
+    }
+    if result.pts3d is not None:
+        pts3d = np.asarray(result.pts3d, float)
+        summary["reconstructed_3d_fraction"] = float(np.isfinite(pts3d).all(-1).mean())
+    error = getattr(result, "reproj_error", None)
+    if error is not None and np.isfinite(error).any():
+        error = np.asarray(error, float)
+        summary["reprojection_error_px"] = {
+            "median": float(np.nanmedian(error)),
+            "p95": float(np.nanpercentile(error, 95)),
+            "per_view_median": {name: (float(np.nanmedian(e)) if np.isfinite(e).any() else None)
+                                for name, e in zip(result.cameras.names, error)},
+        }
+    return summary
+
+
+def _write_json(path: Path, payload: Mapping) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
+    tmp.replace(path)
+
+
+def run_visualization(config, results_path: str | Path, recording_dir: str | Path,
+                      outdir: str | Path, *, progress: bool = False) -> list[Path]:
+    """Render the configured videos of one recording into ``outdir``."""
+    from .interop.views import footage_files
+    from .results import PoseResult
+    from .visualization import render_videos
+
+    result = PoseResult.load(results_path)
+    footage = footage_files(config, Path(recording_dir))
+    return render_videos(config, result, footage, outdir, progress=progress)
+
+
+# -- command-line plumbing shared by scripts/*.py ----------------------------------
+
+
+def script_parser(description: str) -> argparse.ArgumentParser:
+    """An argument parser with the options every stage script shares."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--config", required=True, type=Path,
+                        help="config file (.yaml/.toml) of the run, e.g. config/config.yaml")
+    parser.add_argument("--snapshot-dir", type=Path, default=None,
+                        help="output directory that receives a byte-for-byte copy of the config")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    return parser
+
+
+def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace, Any], Any],
+                argv: list[str] | None = None) -> int:
+    """Parse arguments, load the config, run a stage; a user-facing error is printed as
+    one line on stderr and exits with status 1."""
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    from .config import Config
+
+    try:
+        config = Config.from_file(args.config)
+        run(args, config)
+        if args.snapshot_dir is not None:
+            config.save_snapshot(args.snapshot_dir)
+    except FlylibError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0

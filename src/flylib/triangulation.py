@@ -1,0 +1,557 @@
+"""Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
+
+All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for a
+recording), NaN = missing, and return ``(*pts, 3)``. The work is vectorized NumPy
+over chunks of flattened points (memory stays bounded on long recordings) using
+the same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`.
+Cameras with lens distortion are handled exactly: observations are undistorted
+before the linear solve, and reprojection errors are measured in the raw image.
+
+Confidence weighting: with ``weigh_by_confidence=True`` each view's DLT rows are
+scaled by ``sqrt(conf)`` and observations with non-positive or non-finite
+confidence are treated as missing. RANSAC's inlier vote is never weighted.
+
+The functions take ``(pts2d, cameras, ...)``; the seed's ``(cameras, pts2d, ...)``
+order is accepted too.
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import partial
+from itertools import combinations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import geometry
+from .cameras import CameraGroup
+from .errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+METHODS = ("ransac", "greedy", "dlt")
+DEFAULT_CHUNK_POINTS = 4096
+
+
+# -- input handling --------------------------------------------------------------
+
+
+def _points_and_cameras(a, b):
+    """Accept ``(pts2d, cameras)`` or the seed's ``(cameras, pts2d)``."""
+    if isinstance(a, CameraGroup):
+        a, b = b, a
+    if not isinstance(b, CameraGroup):
+        raise TypeError(f"expected a CameraGroup, got {type(b).__name__}")
+    return np.asarray(a, dtype=np.float64), b
+
+
+def _check_inputs(pts2d: np.ndarray, cameras: CameraGroup, weights) -> np.ndarray | None:
+    if pts2d.ndim < 2 or pts2d.shape[-1] != 2:
+        raise ValueError(f"pts2d must be (V, *pts, 2), got shape {pts2d.shape}")
+    if pts2d.shape[0] != len(cameras):
+        raise ValueError(
+            f"pts2d has {pts2d.shape[0]} views but the rig has {len(cameras)} cameras "
+            f"{cameras.names}"
+        )
+    if weights is None:
+        return None
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != pts2d.shape[:-1]:
+        raise ValueError(
+            f"conf/weights must have shape {pts2d.shape[:-1]} (V, *pts), got {weights.shape}"
+        )
+    return weights
+
+
+def _weights(conf, weigh_by_confidence: bool, weights):
+    if weights is not None:
+        return weights
+    return conf if (weigh_by_confidence and conf is not None) else None
+
+
+def _pad_to(n: int, chunk_points: int) -> int:
+    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it.
+
+    Kernels are compiled once per chunk length, so lengths come from a short list.
+    """
+    size = 64
+    while size < min(n, chunk_points):
+        size *= 2
+    return min(size, max(chunk_points, 1))
+
+
+class _Rig:
+    """A camera group's arrays in the form the jitted kernels take."""
+
+    def __init__(self, cameras: CameraGroup):
+        self.n_views = len(cameras)
+        self.distorted = bool(np.any(cameras.dists))
+        self.pmats = cameras.pmats
+        quad, norm = geometry.dlt_camera_constants(np, self.pmats)
+        dists = np.zeros((self.n_views, geometry.N_DIST_COEFFS))
+        dists[:, : cameras.dists.shape[1]] = cameras.dists
+        self.arrays = {
+            "pmats": self.pmats,
+            "quad": quad,
+            "norm": norm,
+            "rmats": cameras.rmats,
+            "tvecs": cameras.tvecs,
+            "intrs": cameras.intrs,
+            "dists": dists,
+        }
+
+
+# -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
+# Arrays are component-major with the point axis last, so XLA fuses each kernel into
+# vectorized loops over points.
+
+
+def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
+    """Squared pixel error in view ``k`` of points ``(x, y, z)`` against ``raw_u/v``."""
+    if distorted:
+        r, t = rig["rmats"][k], rig["tvecs"][k]
+        cx_ = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
+        cy_ = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
+        cz_ = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
+        xn, yn = cx_ / cz_, cy_ / cz_
+        radial, add_x, add_y = geometry._distortion_terms(xn, yn, rig["dists"][k])
+        intr = rig["intrs"][k]
+        u = intr[0] * (xn * radial + add_x) + intr[2]
+        v = intr[1] * (yn * radial + add_y) + intr[3]
+    else:
+        p = rig["pmats"][k]
+        inv_depth = 1.0 / (p[2, 0] * x + p[2, 1] * y + p[2, 2] * z + p[2, 3])
+        u = (p[0, 0] * x + p[0, 1] * y + p[0, 2] * z + p[0, 3]) * inv_depth
+        v = (p[1, 0] * x + p[1, 1] * y + p[1, 2] * z + p[1, 3]) * inv_depth
+    du, dv = u - raw_u, v - raw_v
+    return du * du + dv * dv
+
+
+def _view_terms(rig, und, weights):
+    """Per-view normal-equation terms ``(9, V, N)`` and the valid mask ``(V, N)``."""
+    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)  # (6, V, N)
+    quad = rig["quad"]  # (V, 6, 9)
+    terms = sum(feats[f][None] * quad[:, f, :].T[:, :, None] for f in range(6))
+    return terms, valid
+
+
+def _solve_kept(terms, kept, min_views=2):
+    summed = (terms * kept[None]).sum(axis=1)  # (9, N)
+    return geometry.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
+
+
+@jax.jit
+def _dlt_chunk(rig, raw, und, weights):
+    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)
+    terms = jnp.einsum("fvn,vfk->kn", feats, rig["quad"])
+    return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
+
+
+@partial(jax.jit, static_argnames=("distorted",))
+def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
+    terms, valid = _view_terms(rig, und, weights)
+    n_views = valid.shape[0]
+    threshold_sq = threshold * threshold
+    scale = 1.0 / (n_views * threshold + 1.0)
+    n = valid.shape[1]
+    best_score = jnp.full(n, -jnp.inf)
+    best_inliers = jnp.zeros((n_views, n), dtype=bool)
+    # Exhaustive two-view hypotheses, unrolled over the (static) pairs with a running
+    # arg-max, so nothing of size pairs x views x points is ever stored.
+    for i, j in combinations(range(n_views), 2):
+        x, y, z = geometry.dlt_solve_components(
+            jnp, terms[:, i] + terms[:, j], valid[i].astype(int) + valid[j]
+        )
+        err_sq = jnp.stack(
+            [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
+        )
+        inlier = err_sq < threshold_sq  # NaN (missing view / no candidate) never passes
+        count = inlier.sum(axis=0)
+        total = jnp.where(inlier, jnp.sqrt(err_sq), 0.0).sum(axis=0)
+        # Lexicographic (most inliers, then least total inlier error): the total is
+        # below count * threshold, so scaling it under 1 never flips a count.
+        score = count - total * scale
+        better = score > best_score
+        best_score = jnp.where(better, score, best_score)
+        best_inliers = jnp.where(better[None], inlier, best_inliers)
+    pts3d = _solve_kept(terms, best_inliers, jnp.maximum(min_inliers, 2))
+    accepted = jnp.isfinite(pts3d).all(axis=-1)
+    return pts3d, best_inliers & accepted[None]
+
+
+@partial(jax.jit, static_argnames=("distorted",))
+def _greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
+    terms, kept = _view_terms(rig, und, weights)
+    n_views = kept.shape[0]
+
+    def drop_worst(_, state):
+        pts3d, kept = state
+        x, y, z = pts3d[:, 0], pts3d[:, 1], pts3d[:, 2]
+        err_sq = jnp.stack(
+            [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
+        )
+        err_sq = jnp.where(kept & jnp.isfinite(err_sq), err_sq, -jnp.inf)
+        worst = jnp.argmax(err_sq, axis=0)
+        offending = jnp.max(err_sq, axis=0) > threshold * threshold
+        drop = (jnp.arange(n_views)[:, None] == worst[None, :]) & offending[None, :]
+        kept = kept & ~drop
+        return _solve_kept(terms, kept), kept
+
+    pts3d, kept = jax.lax.fori_loop(0, max_drops, drop_worst, (_solve_kept(terms, kept), kept))
+    accepted = jnp.isfinite(pts3d).all(axis=-1)
+    return pts3d, kept & accepted[None]
+
+
+def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
+    """Flatten ``(V, *pts, 2)``, run a jitted kernel on fixed-length chunks, reshape back.
+
+    Returns ``(pts3d (*pts, 3), kept (V, *pts) bool)``.
+    """
+    rig = _Rig(cameras)
+    n_views = pts2d.shape[0]
+    pts_shape = pts2d.shape[1:-1]
+    raw_all = pts2d.reshape(n_views, -1, 2)
+    und_all = cameras.undistort_points(raw_all) if rig.distorted else raw_all
+    n = raw_all.shape[1]
+    w_all = np.ones((n_views, n)) if weights is None else weights.reshape(n_views, -1)
+    size = _pad_to(n, chunk_points)
+    pts3d = np.full((n, 3), np.nan)
+    kept = np.zeros((n_views, n), dtype=bool)
+    for start in range(0, n, size):
+        stop = min(start + size, n)
+        raw = np.full((n_views, size, 2), np.nan)
+        und = np.full((n_views, size, 2), np.nan)
+        w = np.zeros((n_views, size))
+        raw[:, : stop - start] = raw_all[:, start:stop]
+        und[:, : stop - start] = und_all[:, start:stop]
+        w[:, : stop - start] = w_all[:, start:stop]
+        # A dropped observation (zero / bad weight) is missing everywhere, vote included.
+        drop = ~(np.isfinite(w) & (w > 0))
+        raw[drop] = np.nan
+        und[drop] = np.nan
+        x, k = kernel(rig.arrays, raw, und, np.where(drop, 0.0, w), **params)
+        pts3d[start:stop] = np.asarray(x)[: stop - start]
+        kept[:, start:stop] = np.asarray(k)[:, : stop - start]
+    return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
+
+
+# -- public API ----------------------------------------------------------------------
+
+
+def triangulate(
+    pts2d,
+    cameras,
+    conf=None,
+    weigh_by_confidence: bool = False,
+    *,
+    weights=None,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
+) -> np.ndarray:
+    """NaN-aware (optionally confidence-weighted) DLT triangulation.
+
+    Parameters
+    ----------
+    pts2d
+        ``(V, *pts, 2)`` pixels, NaN = missing.
+    cameras
+        The rig (:class:`~flylib.cameras.CameraGroup`).
+    conf
+        Optional confidences ``(V, *pts)``; used when ``weigh_by_confidence``.
+    weigh_by_confidence
+        Scale each view's rows by ``sqrt(conf)``.
+    weights
+        Explicit per-observation weights ``(V, *pts)`` (overrides ``conf``).
+    chunk_points
+        Points per vectorized chunk.
+
+    Returns
+    -------
+    np.ndarray
+        ``(*pts, 3)``; NaN where fewer than two views observe the point.
+    """
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
+    return _run_chunked(_dlt_chunk, pts2d, cameras, w, chunk_points)[0]
+
+
+def reprojection_error(pts3d, pts2d, cameras) -> np.ndarray:
+    """Per-observation reprojection error in pixels.
+
+    Parameters
+    ----------
+    pts3d
+        ``(*pts, 3)``.
+    pts2d
+        ``(V, *pts, 2)``.
+    cameras
+        The rig. (The seed's order ``(cameras, pts3d, pts2d)`` is accepted too.)
+
+    Returns
+    -------
+    np.ndarray
+        ``(V, *pts)``; NaN where the observation or the 3D point is missing.
+    """
+    if isinstance(pts3d, CameraGroup):
+        pts3d, pts2d, cameras = pts2d, cameras, pts3d
+    pts3d = np.asarray(pts3d, dtype=np.float64)
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    _check_inputs(pts2d, cameras, None)
+    if pts3d.shape[:-1] != pts2d.shape[1:-1]:
+        raise ValueError(f"pts3d shape {pts3d.shape} does not match pts2d shape {pts2d.shape}")
+    diff = cameras.project(pts3d) - pts2d
+    return np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2)
+
+
+def triangulate_ransac(
+    pts2d,
+    cameras,
+    threshold: float = 15.0,
+    min_inliers: int = 2,
+    conf=None,
+    weigh_by_confidence: bool = False,
+    *,
+    weights=None,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Robust triangulation from the largest set of mutually consistent views.
+
+    Every two-view hypothesis (all ``C(V, 2)`` pairs: the deterministic limit of
+    RANSAC for a handful of cameras) is triangulated and scored by the number of
+    views that reproject within ``threshold`` pixels (unweighted; NaN views never
+    count); ties go to the smaller total inlier error. The point is refitted from
+    the winning inliers (confidence-weighted when asked).
+
+    Parameters
+    ----------
+    pts2d, cameras, conf, weigh_by_confidence, weights, chunk_points
+        As in :func:`triangulate`.
+    threshold
+        Inlier reprojection-error cutoff in pixels.
+    min_inliers
+        Fewest agreeing views to accept a point (>= 2).
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(*pts, 3)``; NaN below ``min_inliers``.
+    inliers : np.ndarray
+        ``(V, *pts)`` bool, the views the accepted point was fitted from (all
+        False for a rejected point).
+
+    Raises
+    ------
+    ValueError
+        If ``min_inliers < 2`` or ``threshold <= 0``.
+    """
+    if int(min_inliers) < 2:
+        raise ValueError(f"min_inliers must be >= 2, got {min_inliers}")
+    if not threshold > 0:
+        raise ValueError(f"threshold must be a positive number of pixels, got {threshold}")
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
+    rig = _Rig(cameras)
+    return _run_chunked(
+        _ransac_chunk,
+        pts2d,
+        cameras,
+        w,
+        chunk_points,
+        threshold=float(threshold),
+        min_inliers=int(min_inliers),
+        distorted=rig.distorted,
+    )
+
+
+def triangulate_greedy(
+    pts2d,
+    cameras,
+    reproj_threshold: float = 40.0,
+    max_drops: int = 5,
+    conf=None,
+    weigh_by_confidence: bool = False,
+    *,
+    weights=None,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """DLT, then repeatedly drop each offending point's worst-reprojecting view.
+
+    While a point's largest reprojection error exceeds ``reproj_threshold``, its
+    worst view is removed and the point re-triangulated from the rest, at most
+    ``max_drops`` times. A point left with fewer than two views becomes NaN.
+
+    Parameters
+    ----------
+    pts2d, cameras, conf, weigh_by_confidence, weights, chunk_points
+        As in :func:`triangulate`.
+    reproj_threshold
+        Pixels.
+    max_drops
+        Most views removed per point.
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(*pts, 3)``.
+    kept : np.ndarray
+        ``(V, *pts)`` bool, the views the final point was fitted from.
+    """
+    if int(max_drops) < 0:
+        raise ValueError(f"max_drops must be >= 0, got {max_drops}")
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
+    return _run_chunked(
+        _greedy_chunk,
+        pts2d,
+        cameras,
+        w,
+        chunk_points,
+        threshold=float(reproj_threshold),
+        max_drops=int(max_drops),
+        distorted=bool(np.any(cameras.dists)),
+    )
+
+
+def _finish(pts3d, pts2d, cameras, kept):
+    clean = pts2d if kept is None else np.where(kept[..., None], pts2d, np.nan)
+    return pts3d, clean, reprojection_error(pts3d, clean, cameras)
+
+
+def reconstruct_dlt(pts2d, cameras, conf=None, weigh_by_confidence: bool = False, **kwargs):
+    """Plain DLT reconstruction.
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(*pts, 3)``.
+    pts2d : np.ndarray
+        The input ``(V, *pts, 2)`` (no view is rejected).
+    reproj_error : np.ndarray
+        ``(V, *pts)`` pixels.
+    """
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    pts3d = triangulate(pts2d, cameras, conf, weigh_by_confidence, **kwargs)
+    return _finish(pts3d, pts2d, cameras, None)
+
+
+def reconstruct_ransac(
+    pts2d,
+    cameras,
+    threshold: float = 15.0,
+    min_inliers: int = 2,
+    conf=None,
+    weigh_by_confidence: bool = False,
+    **kwargs,
+):
+    """:func:`triangulate_ransac` plus cleaned 2D (outlier views NaN) and errors.
+
+    Returns
+    -------
+    pts3d, pts2d_clean, reproj_error
+        ``(*pts, 3)``, ``(V, *pts, 2)`` keeping only the inlier views of accepted
+        points, and ``(V, *pts)`` errors against the cleaned 2D.
+    """
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    pts3d, inliers = triangulate_ransac(
+        pts2d, cameras, threshold, min_inliers, conf, weigh_by_confidence, **kwargs
+    )
+    return _finish(pts3d, pts2d, cameras, inliers)
+
+
+def reconstruct_greedy(
+    pts2d,
+    cameras,
+    reproj_threshold: float = 40.0,
+    max_drops: int = 5,
+    conf=None,
+    weigh_by_confidence: bool = False,
+    **kwargs,
+):
+    """:func:`triangulate_greedy` plus cleaned 2D (dropped views NaN) and errors."""
+    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    pts3d, kept = triangulate_greedy(
+        pts2d, cameras, reproj_threshold, max_drops, conf, weigh_by_confidence, **kwargs
+    )
+    return _finish(pts3d, pts2d, cameras, kept)
+
+
+_PARAMS = {
+    "ransac": ("threshold", "min_inliers"),
+    "greedy": ("reproj_threshold", "max_drops"),
+    "dlt": (),
+}
+
+
+def reconstruct(pts2d, cameras, method: str = "ransac", conf=None, **params):
+    """Dispatch to :func:`reconstruct_ransac`, :func:`reconstruct_greedy` or :func:`reconstruct_dlt`.
+
+    Parameters
+    ----------
+    pts2d, cameras, conf
+        As in :func:`triangulate`.
+    method
+        ``"ransac"``, ``"greedy"`` or ``"dlt"``.
+    **params
+        ``weigh_by_confidence``, ``chunk_points`` and the method's own knobs:
+        ``threshold`` (alias ``ransac_threshold``) and ``min_inliers`` for ransac,
+        ``reproj_threshold`` and ``max_drops`` for greedy. Knobs of the other
+        methods are ignored.
+
+    Returns
+    -------
+    pts3d, pts2d_clean, reproj_error
+    """
+    if method not in _PARAMS:
+        raise ValueError(f"unknown triangulation method {method!r}; use one of {METHODS}")
+    if "ransac_threshold" in params:
+        params.setdefault("threshold", params.pop("ransac_threshold"))
+    common = {k: params[k] for k in ("weigh_by_confidence", "chunk_points", "weights") if k in params}
+    own = {k: params[k] for k in _PARAMS[method] if k in params}
+    func = {"ransac": reconstruct_ransac, "greedy": reconstruct_greedy, "dlt": reconstruct_dlt}[method]
+    return func(pts2d, cameras, conf=conf, **own, **common)
+
+
+def reconstruct_from_config(config, pts2d, cameras, conf=None):
+    """Run the triangulation stage as ``config.triangulation`` says.
+
+    Reads ``method``, ``ransac_threshold``, ``min_inliers``, ``weigh_by_confidence``,
+    ``reproj_threshold`` and ``max_drops`` (attributes of the params object, or
+    keys of a mapping); missing ones take the defaults of :func:`reconstruct`.
+
+    Returns
+    -------
+    pts3d, pts2d_clean, reproj_error
+        ``(T, P, 3)``, ``(V, T, P, 2)``, ``(V, T, P)``.
+
+    Raises
+    ------
+    ConfigError
+        If ``triangulation.method`` is not one of ``ransac``, ``greedy``, ``dlt``.
+    """
+    params = getattr(config, "triangulation", None)
+    if params is None and isinstance(config, dict):
+        params = config.get("triangulation")
+
+    def get(name, default):
+        if params is None:
+            return default
+        if isinstance(params, dict):
+            return params.get(name, default)
+        return getattr(params, name, default)
+
+    method = get("method", "ransac")
+    if method not in METHODS:
+        raise ConfigError(f"triangulation.method must be one of {list(METHODS)}, got {method!r}")
+    log.info("triangulating with %s", method)
+    return reconstruct(
+        pts2d,
+        cameras,
+        method=method,
+        conf=conf,
+        threshold=float(get("ransac_threshold", 15.0)),
+        min_inliers=int(get("min_inliers", 2)),
+        weigh_by_confidence=bool(get("weigh_by_confidence", False)),
+        reproj_threshold=float(get("reproj_threshold", 40.0)),
+        max_drops=int(get("max_drops", 5)),
+    )

@@ -1,0 +1,495 @@
+"""Panel compositor and the streaming video renderer.
+
+:class:`Compositor` draws one video's panels, in order, onto a preallocated canvas
+from one frame's worth of inputs (plain NumPy: frames, 2D points, reprojected 3D
+points). :func:`render_videos` streams a whole recording through every video's
+compositor in a single pass: each camera's footage is decoded once per frame (in a
+background thread, a few frames ahead), every video's canvas is drawn and handed to
+its H.264 encoder, and nothing scales with the recording's length except the result
+arrays themselves.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import threading
+import warnings
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from .draw import (color_tuples, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
+                   to_panel_coords)
+from .specs import (PanelSpec, VideoSpec, read_video_specs, resolve_output_fps,
+                    visualization_table)
+
+log = logging.getLogger(__name__)
+
+#: Frames decoded ahead of the drawing loop (bounded: memory stays flat).
+PREFETCH_FRAMES = 8
+#: Frames reprojected per call to the camera model for ``skeleton_3d`` panels.
+PROJECT_CHUNK = 256
+#: Converted canvases waiting for each encoder thread.
+ENCODE_QUEUE = 4
+#: libx264 settings: a fast preset keeps encoding from dominating the render.
+X264_SETTINGS = {"preset": "superfast", "crf": 20}
+
+
+class _Panel:
+    """A panel resolved against the frame size: its canvas rectangle and colours."""
+
+    def __init__(self, spec: PanelSpec, image_hw: tuple[int, int], skeleton,
+                 video_background: tuple[int, int, int]):
+        self.spec = spec
+        self.image_hw = image_hw
+        self.width, self.height = spec.size(image_hw)
+        self.slices = (slice(spec.y0, spec.y0 + self.height),
+                       slice(spec.x0, spec.x0 + self.width))
+        # solid fills are prebuilt: copying an array is ~50x faster than broadcasting a colour
+        self.fill = None if spec.background is None else self._solid(spec.background)
+        self.empty_fill = self._solid(spec.background or video_background)  # imshow, no footage
+        if spec.plot != "imshow":
+            point_colors, bone_colors = skeleton_colors(skeleton, spec.palette)
+            self.point_colors = color_tuples(point_colors)
+            self.bone_colors = color_tuples(bone_colors)
+            self.bones = np.asarray(skeleton.bones, dtype=int).reshape(-1, 2)
+
+    def _solid(self, color) -> np.ndarray:
+        return np.full((self.height, self.width, 3), color, np.uint8)
+
+
+class Compositor:
+    """Draws the panels of one :class:`VideoSpec` onto a reused canvas.
+
+    Parameters
+    ----------
+    spec
+        The video spec.
+    skeleton
+        The :class:`flylib.Skeleton` (bones, limbs, palette).
+    image_sizes
+        ``view -> (height, width)`` of each used view's raw frames: sizes the panels
+        and maps raw-frame pixel coordinates into them.
+
+    Raises
+    ------
+    ConfigError
+        If a panel runs off an explicitly sized canvas.
+    """
+
+    def __init__(self, spec: VideoSpec, skeleton, image_sizes: Mapping[str, tuple[int, int]]):
+        self.spec = spec
+        self.width, self.height = spec.canvas_size(image_sizes)
+        self._blank = np.full((self.height, self.width, 3), spec.background, np.uint8)
+        self.canvas = self._blank.copy()
+        self.panels = [_Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background)
+                       for p in spec.panels]
+
+    def compose(self, frames: Mapping[str, np.ndarray | None],
+                points2d: Mapping[str, np.ndarray],
+                points3d: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                resized: dict | None = None) -> np.ndarray:
+        """Draw one output frame.
+
+        Parameters
+        ----------
+        frames
+            ``view -> (H, W, 3)`` uint8 RGB frame (any size: resized to the panel), or
+            ``None``/absent (an ``imshow`` panel then shows its background).
+        points2d
+            ``view -> (P, 2)`` 2D points in raw-frame pixels, NaN = missing.
+        points3d
+            ``view -> (xy (P, 2), depth (P,))``: the 3D points projected into the view
+            (raw-frame pixels) and their camera-frame depths.
+        resized
+            Cache of resized frames for this output frame, keyed ``(view, width,
+            height)``; share one dict between compositors drawing the same frame so
+            each view is resized once.
+
+        Returns
+        -------
+        np.ndarray
+            The canvas ``(height, width, 3)`` uint8 (reused: copy it to keep it).
+        """
+        canvas = self.canvas
+        np.copyto(canvas, self._blank)
+        if resized is None:
+            resized = {}
+        for panel in self.panels:
+            spec = panel.spec
+            region = canvas[panel.slices]
+            if spec.plot == "imshow":
+                frame = frames.get(spec.view)
+                if frame is None:
+                    np.copyto(region, panel.empty_fill)
+                    continue
+                key = (spec.view, panel.width, panel.height)
+                if key not in resized:
+                    resized[key] = _fit(frame, panel.width, panel.height)
+                np.copyto(region, resized[key])
+                continue
+            if panel.fill is not None:
+                np.copyto(region, panel.fill)
+            if spec.plot == "skeleton_2d":
+                xy = points2d.get(spec.view)
+                if xy is None:
+                    continue
+                draw_skeleton_2d(region, to_panel_coords(xy, panel.image_hw,
+                                                         (panel.width, panel.height)),
+                                 panel.bones, panel.point_colors, panel.bone_colors,
+                                 radius=spec.point_radius, thickness=spec.line_thickness)
+            else:
+                proj = points3d.get(spec.view)
+                if proj is None:
+                    continue
+                xy, depth = proj
+                draw_skeleton_3d(region, to_panel_coords(xy, panel.image_hw,
+                                                         (panel.width, panel.height)),
+                                 depth, panel.bones, panel.point_colors, panel.bone_colors,
+                                 radius=spec.point_radius, thickness=spec.line_thickness)
+        return canvas
+
+
+def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resize an RGB frame to ``width x height`` (area averaging when shrinking)."""
+    frame = np.asarray(frame)
+    if frame.ndim == 2:
+        frame = cv2.cvtColor(frame, cv2.COLOR_GRAY2RGB)
+    if frame.shape[0] == height and frame.shape[1] == width:
+        return frame
+    shrink = width < frame.shape[1] and height < frame.shape[0]
+    return cv2.resize(frame, (width, height),
+                      interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+# -- footage ------------------------------------------------------------------
+
+
+class _Footage:
+    """One view's footage: its frame size and rate, streamed forward once."""
+
+    def __init__(self, view: str, files: Sequence[Path]):
+        from ..io import open_reader
+
+        self.view = view
+        self.reader = open_reader([Path(f) for f in files])
+        self.image_hw = tuple(self.reader.frame_size())
+        self.fps = self.reader.fps()
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return iter(self.reader.stream_frames())
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
+    """Yield ``{view: frame or None}`` for frames ``0..n_frames-1`` (``None`` once a
+    view's footage has ended)."""
+    iters = {view: iter(src) for view, src in sources.items()}
+    for _ in range(n_frames):
+        bundle = {}
+        for view in list(iters):
+            frame = next(iters[view], None)
+            if frame is None:
+                del iters[view]
+            bundle[view] = frame
+        yield bundle
+
+
+@contextlib.contextmanager
+def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
+    """Iterate ``items`` in a background thread, at most ``depth`` ahead of the consumer."""
+    buffer: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def produce():
+        try:
+            for item in items:
+                while not stop.is_set():
+                    try:
+                        buffer.put(("item", item), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            buffer.put(("end", done))
+        except BaseException as exc:  # forwarded to the consumer
+            buffer.put(("error", exc))
+
+    worker = threading.Thread(target=produce, name="flylib-decode", daemon=True)
+    worker.start()
+
+    def consume():
+        while True:
+            kind, item = buffer.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                raise item
+            yield item
+
+    try:
+        yield consume()
+    finally:
+        stop.set()
+        worker.join(timeout=5)
+
+
+# -- 3D reprojection ----------------------------------------------------------
+
+
+class _Reprojector:
+    """Chunked projection of ``pts3d`` into the views of ``skeleton_3d`` panels.
+
+    Yields raw-frame pixel coordinates and camera-frame depths (z along the optical
+    axis) per view, computing :data:`PROJECT_CHUNK` frames at a time.
+    """
+
+    def __init__(self, cameras, pts3d: np.ndarray, views: Sequence[str],
+                 chunk: int = PROJECT_CHUNK):
+        self._views = list(views)
+        self._rig = cameras.subset(self._views)
+        rmats = np.asarray(self._rig.rmats, float)
+        self._axis = rmats[:, 2, :]                      # (V, 3) optical axes
+        self._offset = np.asarray(self._rig.tvecs, float)[:, 2]
+        self._pts3d = pts3d
+        self._chunk = chunk
+        self._start = -1
+        self._xy = self._depth = None
+
+    def at(self, t: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        start = (t // self._chunk) * self._chunk
+        if start != self._start:
+            block = self._pts3d[start:start + self._chunk]             # (Tc, P, 3)
+            self._xy = np.asarray(self._rig.project(block), float)     # (V, Tc, P, 2)
+            self._depth = np.einsum("vk,tpk->vtp", self._axis, block) \
+                + self._offset[:, None, None]
+            self._start = start
+        k = t - start
+        return {v: (self._xy[i, k], self._depth[i, k]) for i, v in enumerate(self._views)}
+
+
+# -- output files -------------------------------------------------------------
+
+
+class _CanvasEncoder:
+    """Streams RGB canvases into an H.264 MP4 (libx264, :data:`X264_SETTINGS`).
+
+    Same container and codec as :class:`flylib.io.VideoWriter`, with two differences
+    that matter for throughput. The RGB -> YUV 4:2:0 conversion runs in OpenCV
+    (``COLOR_RGB2YUV_I420``, BT.601 limited range like FFmpeg's own) instead of
+    swscale, about 9x cheaper on a 960x960 canvas. And encoding runs in a worker
+    thread (PyAV releases the GIL inside x264), at most :data:`ENCODE_QUEUE` frames
+    behind, so it overlaps decoding and drawing.
+    """
+
+    def __init__(self, path: Path, fps: float, width: int, height: int):
+        import av
+
+        self._av = av
+        self.width, self.height = width & ~1, height & ~1  # 4:2:0 needs even sizes
+        if self.width == 0 or self.height == 0:
+            raise ValueError(f"{path}: a {width}x{height} canvas is too small to encode")
+        self._container = av.open(str(path), mode="w", format="mp4")
+        rate = Fraction(fps).limit_denominator(1_000_000)
+        options = {k: str(v) for k, v in X264_SETTINGS.items()}
+        self._stream = self._container.add_stream("libx264", rate=rate, options=options)
+        self._stream.width, self._stream.height = self.width, self.height
+        self._stream.pix_fmt = "yuv420p"
+        self._queue: queue.Queue = queue.Queue(maxsize=ENCODE_QUEUE)
+        self._error: BaseException | None = None
+        self._worker = threading.Thread(target=self._encode_loop, name="flylib-encode",
+                                         daemon=True)
+        self._worker.start()
+
+    def _encode_loop(self) -> None:
+        while True:
+            yuv = self._queue.get()
+            if yuv is None:
+                return
+            if self._error is not None:
+                continue  # drain after a failure so the producer never blocks
+            try:
+                frame = self._av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+                self._container.mux(self._stream.encode(frame))
+            except BaseException as exc:  # re-raised in the caller's thread
+                self._error = exc
+
+    def write_frame(self, canvas: np.ndarray) -> None:
+        """Queue one ``(H, W, 3)`` RGB canvas (converted now, so it may be reused)."""
+        if self._error is not None:
+            raise self._error
+        rgb = canvas[:self.height, :self.width]
+        if not rgb.flags.c_contiguous:
+            rgb = np.ascontiguousarray(rgb)
+        self._queue.put(cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420))
+
+    def close(self) -> None:
+        """Finish the queued frames, flush the encoder and close the file."""
+        self._queue.put(None)
+        self._worker.join()
+        try:
+            if self._error is not None:
+                raise self._error
+            self._container.mux(self._stream.encode(None))
+        finally:
+            self._container.close()
+
+
+@contextlib.contextmanager
+def _atomic_video(path: Path):
+    """Yield a temporary sibling (same suffix); rename it to ``path`` on success.
+
+    Unlike :func:`flylib.results.atomic_path` the temporary name keeps the ``.mp4``
+    suffix: FFmpeg picks the container format from it.
+    """
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        yield tmp
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+# -- entry point --------------------------------------------------------------
+
+
+def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> dict:
+    """``view -> (height, width)``: from footage, the result's stored sizes, or the
+    principal point."""
+    meta_sizes = {**((getattr(result, "meta", None) or {}).get("image_sizes") or {}),
+                  **(getattr(result, "image_sizes", None) or {})}
+    names = list(result.cameras.names)
+    sizes = {}
+    for view in views:
+        if view in sources:
+            sizes[view] = sources[view].image_hw
+        elif view in meta_sizes:
+            sizes[view] = tuple(int(s) for s in meta_sizes[view])
+        else:
+            # principal point at the image centre: cx = (W - 1) / 2
+            _, _, cx, cy = np.asarray(result.cameras.intrs, float)[names.index(view)][:4]
+            sizes[view] = (max(2, int(round(2 * cy + 1))), max(2, int(round(2 * cx + 1))))
+            log.info("view %s: no footage or stored image size; assuming %dx%d from its "
+                     "principal point", view, sizes[view][1], sizes[view][0])
+    return sizes
+
+
+def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir, *,
+                  progress: bool = True) -> list[Path]:
+    """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
+
+    All videos are rendered in one pass over the footage: each frame of each used
+    camera is decoded once, drawn into every video's canvas and streamed to that
+    video's encoder, so memory does not grow with the recording's length.
+
+    Parameters
+    ----------
+    config
+        A :class:`flylib.Config` (or its data dict) with a ``visualization`` table.
+    result
+        The :class:`flylib.PoseResult` to draw (``cameras``, ``skeleton``, ``pts2d``,
+        ``pts3d``).
+    footage
+        ``view name -> footage files`` (one video file, or an ordered image sequence)
+        for ``imshow`` panels. A view without footage draws the background, with a
+        warning.
+    outdir
+        Directory for ``<video_name>.mp4`` (created if needed).
+    progress
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    list of Path
+        The written videos, in spec order.
+
+    Raises
+    ------
+    ConfigError
+        For an invalid video spec (unknown plot, view not in the rig, panel off the
+        canvas), naming ``visualization.videos[i].panels[j]``.
+    FootageError
+        If a footage file is missing or unreadable.
+    """
+    from tqdm.auto import tqdm
+
+    _, table = visualization_table(config)
+    names = list(result.cameras.names)
+    specs = read_video_specs(config, view_names=names)
+    if not specs:
+        return []
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    used_views = list(dict.fromkeys(v for s in specs for v in s.views))
+    imshow_views = [v for v in used_views
+                    if any(p.plot == "imshow" and p.view == v for s in specs for p in s.panels)]
+    views_3d = [v for v in used_views
+                if any(p.plot == "skeleton_3d" and p.view == v for s in specs for p in s.panels)]
+    pts3d = getattr(result, "pts3d", None)
+    if views_3d and pts3d is None:
+        warnings.warn("the result has no 3D points; skeleton_3d panels stay empty "
+                      "(run triangulation)", stacklevel=2)
+        views_3d = []
+    index = {v: names.index(v) for v in used_views}
+    n_frames = int(result.pts2d.shape[1])
+    paths = [outdir / f"{spec.name}.mp4" for spec in specs]
+
+    with contextlib.ExitStack() as stack:
+        sources = {}
+        for view in imshow_views:
+            files = footage.get(view) if footage else None
+            if isinstance(files, (str, Path)):
+                files = [files]
+            if files:
+                source = _Footage(view, files)
+                stack.callback(source.close)
+                sources[view] = source
+        lacking = [v for v in imshow_views if v not in sources]
+        if lacking:
+            warnings.warn(f"no footage for view{'s' * (len(lacking) > 1)} "
+                          f"{', '.join(map(repr, lacking))}: imshow panels show the "
+                          "background", stacklevel=2)
+        image_sizes = _image_sizes(result, sources, used_views)
+        input_fps = next((s.fps for s in sources.values() if s.fps), None)
+        if input_fps is None:
+            input_fps = (getattr(result, "meta", None) or {}).get("fps")
+        compositors = [Compositor(spec, result.skeleton, image_sizes) for spec in specs]
+        writers = []
+        for spec, comp, path in zip(specs, compositors, paths):
+            fps = resolve_output_fps(spec, table, input_fps)
+            tmp = stack.enter_context(_atomic_video(path))
+            writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
+            stack.callback(writer.close)
+            writers.append(writer)
+            log.info("rendering %s: %dx%d, %d frames at %g fps", path.name, comp.width,
+                     comp.height, n_frames, fps)
+        reprojector = _Reprojector(result.cameras, np.asarray(pts3d, float), views_3d) \
+            if views_3d else None
+        pts2d = result.pts2d
+        bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
+        bar = stack.enter_context(tqdm(total=n_frames, unit="frame", disable=not progress,
+                                       desc="render " + ", ".join(s.name for s in specs)))
+        ended: set[str] = set()
+        for t, frames in enumerate(bundles):
+            for view in sources:
+                if frames.get(view) is None and view not in ended:
+                    ended.add(view)
+                    warnings.warn(f"footage of view {view!r} ends after {t} frames but the "
+                                  f"result has {n_frames}; its imshow panels show the "
+                                  "background from there on", stacklevel=2)
+            points2d = {v: pts2d[i, t] for v, i in index.items()}
+            points3d = reprojector.at(t) if reprojector else {}
+            resized: dict = {}
+            for comp, writer in zip(compositors, writers):
+                writer.write_frame(comp.compose(frames, points2d, points3d, resized))
+            bar.update(1)
+    return paths

@@ -1,0 +1,190 @@
+"""Drawing primitives: 2D skeleton overlays and depth-ordered 3D skeletons, with OpenCV.
+
+All functions draw in place on an ``(H, W, 3)`` uint8 image (a panel's region of the
+canvas, which may be a strided view) in that image's pixel coordinates, where an
+integer coordinate is a pixel centre (OpenCV's convention). Colours are given in
+the image's channel order (RGB throughout flylib). Points with a NaN coordinate,
+and bones with a NaN endpoint, are skipped.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+#: Fractional bits of the fixed-point coordinates passed to OpenCV (1/16 px).
+_SHIFT = 4
+_ONE = 1 << _SHIFT
+#: Coordinates beyond this (degenerate projections) are not drawn: they would
+#: overflow OpenCV's fixed-point integers.
+_MAX_COORD = 1e6
+
+
+def limb_colors(skeleton, overrides: dict | None = None) -> np.ndarray:
+    """RGB colour per limb: the skeleton palette, then ``overrides``, then a colormap.
+
+    Parameters
+    ----------
+    skeleton
+        A :class:`flylib.Skeleton` (``limb_names`` and ``palette`` limb -> hex).
+    overrides
+        ``limb -> (r, g, b)`` taking precedence over the skeleton's palette.
+
+    Returns
+    -------
+    np.ndarray
+        ``(n_limbs, 3)`` uint8; limbs without a colour get ``tab10`` colours.
+    """
+    from matplotlib import colormaps
+    from matplotlib.colors import to_rgb
+
+    overrides = overrides or {}
+    palette = dict(getattr(skeleton, "palette", {}) or {})
+    cmap = colormaps["tab10"]
+    out = np.zeros((len(skeleton.limb_names), 3), np.uint8)
+    for i, limb in enumerate(skeleton.limb_names):
+        if limb in overrides:
+            out[i] = overrides[limb]
+        elif limb in palette:
+            out[i] = np.round(np.array(to_rgb(palette[limb])) * 255)
+        else:
+            out[i] = np.round(np.array(cmap(i % 10)[:3]) * 255)
+    return out
+
+
+def skeleton_colors(skeleton, overrides: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point and per-bone RGB colours from the limb palette.
+
+    Returns
+    -------
+    point_colors : np.ndarray
+        ``(P, 3)`` uint8, the colour of each point's limb (grey for a point in no limb).
+    bone_colors : np.ndarray
+        ``(B, 3)`` uint8, the colour of the limb of each bone's first endpoint.
+    """
+    # a point in no limb (limb_id -1) indexes the grey row appended last
+    limbs = np.vstack([limb_colors(skeleton, overrides), [[128, 128, 128]]]).astype(np.uint8)
+    limb_id = np.asarray(skeleton.limb_id, dtype=int)
+    bones = np.asarray(skeleton.bones, dtype=int).reshape(-1, 2)
+    return limbs[limb_id], limbs[limb_id[bones[:, 0]]]
+
+
+def _fixed(xy: np.ndarray) -> np.ndarray:
+    """Fixed-point integer coordinates for OpenCV's ``shift`` argument."""
+    scaled = np.round(np.asarray(xy, float) * _ONE)
+    return np.where(np.isfinite(scaled), scaled, 0).astype(np.int64)
+
+
+def _drawable(xy: np.ndarray) -> np.ndarray:
+    """Mask of points with finite, non-degenerate coordinates."""
+    return np.isfinite(xy).all(axis=-1) & (np.abs(xy) < _MAX_COORD).all(axis=-1)
+
+
+def color_tuples(colors) -> list[tuple[int, int, int]]:
+    """``(N, 3)`` colours as the list of int tuples OpenCV takes (a list passes through,
+    so callers drawing many frames convert once)."""
+    if isinstance(colors, list):
+        return colors
+    return [(int(c[0]), int(c[1]), int(c[2])) for c in np.asarray(colors)]
+
+
+def draw_points(img: np.ndarray, xy: np.ndarray, colors: np.ndarray, radius: int) -> None:
+    """Draw filled, anti-aliased discs at ``xy`` ``(P, 2)`` in ``colors`` ``(P, 3)``."""
+    if radius <= 0:
+        return
+    colors = color_tuples(colors)
+    fixed = _fixed(xy).tolist()
+    for p in np.flatnonzero(_drawable(xy)).tolist():
+        cv2.circle(img, fixed[p], radius * _ONE, colors[p], -1, cv2.LINE_AA, _SHIFT)
+
+
+def draw_bones(img: np.ndarray, xy: np.ndarray, bones: np.ndarray, colors: np.ndarray,
+               thickness: int) -> None:
+    """Draw anti-aliased segments between ``xy[bones[:, 0]]`` and ``xy[bones[:, 1]]``."""
+    colors = color_tuples(colors)
+    bones = np.asarray(bones, dtype=int).reshape(-1, 2)
+    ok = _drawable(xy)
+    fixed = _fixed(xy).tolist()
+    for b in np.flatnonzero(ok[bones[:, 0]] & ok[bones[:, 1]]).tolist():
+        i, j = bones[b]
+        cv2.line(img, fixed[i], fixed[j], colors[b], thickness, cv2.LINE_AA, _SHIFT)
+
+
+def draw_skeleton_2d(img: np.ndarray, xy: np.ndarray, bones: np.ndarray,
+                     point_colors: np.ndarray, bone_colors: np.ndarray, *,
+                     radius: int = 3, thickness: int = 2) -> None:
+    """Draw a 2D skeleton: bones first, joints on top.
+
+    Parameters
+    ----------
+    img
+        ``(H, W, 3)`` uint8 image, drawn in place.
+    xy
+        ``(P, 2)`` point coordinates in ``img`` pixels; NaN = missing.
+    bones
+        ``(B, 2)`` point-index pairs.
+    point_colors, bone_colors
+        ``(P, 3)`` and ``(B, 3)`` colours in ``img``'s channel order.
+    radius, thickness
+        Joint radius (0: no joints) and bone thickness in pixels.
+    """
+    draw_bones(img, xy, bones, bone_colors, thickness)
+    draw_points(img, xy, point_colors, radius)
+
+
+def draw_skeleton_3d(img: np.ndarray, xy: np.ndarray, depth: np.ndarray, bones: np.ndarray,
+                     point_colors: np.ndarray, bone_colors: np.ndarray, *,
+                     radius: int = 3, thickness: int = 2) -> None:
+    """Draw a reprojected 3D skeleton back to front, so nearer parts cover farther ones.
+
+    Bones (at the mean depth of their endpoints) and joints (at their own depth) are
+    painted in order of decreasing camera-frame depth; a joint is painted after a bone
+    at the same depth. Points behind the camera (depth <= 0) are not drawn.
+
+    Parameters
+    ----------
+    img
+        ``(H, W, 3)`` uint8 image, drawn in place.
+    xy
+        ``(P, 2)`` projected coordinates in ``img`` pixels; NaN = missing.
+    depth
+        ``(P,)`` camera-frame z of each point (distance along the optical axis).
+    bones, point_colors, bone_colors, radius, thickness
+        As in :func:`draw_skeleton_2d`.
+    """
+    ok = _drawable(xy) & np.isfinite(depth) & (depth > 0)
+    fixed = _fixed(xy).tolist()
+    point_colors, bone_colors = color_tuples(point_colors), color_tuples(bone_colors)
+    bones = np.asarray(bones, dtype=int).reshape(-1, 2)
+    visible_bones = np.flatnonzero(ok[bones[:, 0]] & ok[bones[:, 1]])
+    joints = np.flatnonzero(ok) if radius > 0 else np.zeros(0, int)
+    # one list of primitives, bones (kind 0) then joints (kind 1); a stable sort on
+    # decreasing depth paints far to near and, at equal depth, bones before joints
+    depths = np.concatenate([0.5 * (depth[bones[visible_bones, 0]]
+                                    + depth[bones[visible_bones, 1]]), depth[joints]])
+    order = np.argsort(-depths, kind="stable")
+    n_bones = len(visible_bones)
+    for k in order.tolist():
+        if k < n_bones:
+            b = visible_bones[k]
+            i, j = bones[b]
+            cv2.line(img, fixed[i], fixed[j], bone_colors[b], thickness, cv2.LINE_AA, _SHIFT)
+        else:
+            p = joints[k - n_bones]
+            cv2.circle(img, fixed[p], radius * _ONE, point_colors[p], -1, cv2.LINE_AA, _SHIFT)
+
+
+def to_panel_coords(xy: np.ndarray, image_hw: tuple[int, int],
+                    panel_wh: tuple[int, int]) -> np.ndarray:
+    """Map raw-frame pixel coordinates into a panel showing that frame resized.
+
+    With pixel centres at integer coordinates, resizing a ``W``-wide frame to ``w``
+    pixels maps ``x`` to ``(x + 0.5) * w / W - 0.5`` (the alignment ``cv2.resize`` uses).
+    """
+    img_h, img_w = image_hw
+    w, h = panel_wh
+    sx, sy = w / img_w, h / img_h
+    out = np.empty_like(xy, dtype=float)
+    out[..., 0] = (xy[..., 0] + 0.5) * sx - 0.5
+    out[..., 1] = (xy[..., 1] + 0.5) * sy - 0.5
+    return out

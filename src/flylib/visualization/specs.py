@@ -1,0 +1,482 @@
+"""Video and panel specs: parsing and validating ``[visualization]``, merging draw kwargs.
+
+A video is an ordered list of panels drawn onto one canvas. Each panel names a
+``plot`` (``imshow``, ``skeleton_2d`` or ``skeleton_3d``), the ``view`` (camera) it
+shows, its top-left corner ``x0, y0`` on the canvas and optional draw kwargs. The
+draw kwargs merge over five levels, the most specific winning::
+
+    [visualization.kwargs]                 flat keys: every plot
+    [visualization.kwargs.<plot>]          one plot type
+    [[visualization.videos]].kwargs        flat keys: every panel of that video
+    [[visualization.videos]].kwargs.<plot> one plot type in that video
+    the panel's own keys
+
+``palette`` tables merge key by key (limb -> colour) instead of replacing each other.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+from ..errors import ConfigError
+
+PLOTS = ("imshow", "skeleton_2d", "skeleton_3d")
+
+#: Draw kwargs and their values when no level sets them.
+DEFAULT_DRAW_KWARGS: dict[str, Any] = {
+    "point_radius": 3,
+    "line_thickness": 2,
+    "scale": 1.0,
+    "width": None,
+    "height": None,
+    "palette": {},
+    "background": None,
+}
+
+#: Output rate used when neither the config nor the footage gives a plausible one.
+DEFAULT_FPS = 30.0
+#: Container frame rates outside this range are treated as metadata errors.
+PLAUSIBLE_FPS = (1.0, 10_000.0)
+
+_TOP_KEYS = {"background", "kwargs", "videos", "output_fps", "speed", "default_fps"}
+_VIDEO_KEYS = {"video_name", "name", "panels", "kwargs", "width", "height", "background",
+               "output_fps", "speed"}
+_PANEL_KEYS = {"plot", "view", "x0", "y0"} | set(DEFAULT_DRAW_KWARGS)
+
+RGB = tuple[int, int, int]
+
+
+def parse_color(value: Any, where: str) -> RGB:
+    """Turn a colour name, ``#rrggbb`` string or ``[r, g, b]`` (0-255) into an RGB tuple.
+
+    Parameters
+    ----------
+    value
+        Any colour matplotlib understands (``"black"``, ``"#ba1e31"``, ``"C3"``), or a
+        sequence of three 0-255 numbers.
+    where
+        Config key named in the error message.
+
+    Raises
+    ------
+    ConfigError
+        If the value is not a colour.
+    """
+    if isinstance(value, (list, tuple)):
+        if len(value) == 3 and all(isinstance(c, (int, float)) and 0 <= c <= 255 for c in value):
+            return tuple(int(round(c)) for c in value)  # type: ignore[return-value]
+        raise ConfigError(f"{where}: {value!r} is not a colour; give [r, g, b] with values 0-255")
+    from matplotlib.colors import to_rgb
+
+    try:
+        r, g, b = to_rgb(value)
+    except (ValueError, TypeError):
+        raise ConfigError(
+            f"{where}: {value!r} is not a colour; use a name ('black'), '#rrggbb' or [r, g, b]"
+        ) from None
+    return (int(round(r * 255)), int(round(g * 255)), int(round(b * 255)))
+
+
+@dataclass(frozen=True)
+class PanelSpec:
+    """One panel of a video: what to draw, from which view, where, and how.
+
+    Attributes
+    ----------
+    plot
+        ``"imshow"`` (the view's frame), ``"skeleton_2d"`` (the view's 2D points and
+        bones) or ``"skeleton_3d"`` (the 3D skeleton reprojected into the view).
+    view
+        Camera name in the rig.
+    x0, y0
+        Top-left corner on the canvas, in pixels.
+    point_radius, line_thickness
+        Joint disc radius (0 draws no joints) and bone thickness, in canvas pixels.
+    scale
+        Zoom applied after ``width``/``height`` are resolved (see :meth:`size`).
+    width, height
+        Panel size in pixels; one alone keeps the view's aspect ratio.
+    palette
+        ``limb -> RGB`` overrides of the skeleton's palette.
+    background
+        RGB fill of the panel rectangle before drawing, or ``None`` (transparent
+        overlay; an ``imshow`` panel without footage then uses the video background).
+    where
+        The config key of this panel, for error messages.
+    """
+
+    plot: str
+    view: str
+    x0: int
+    y0: int
+    point_radius: int = 3
+    line_thickness: int = 2
+    scale: float = 1.0
+    width: int | None = None
+    height: int | None = None
+    palette: dict[str, RGB] = field(default_factory=dict)
+    background: RGB | None = None
+    where: str = "panel"
+
+    def size(self, image_hw: tuple[int, int]) -> tuple[int, int]:
+        """Panel ``(width, height)`` in pixels for a view whose frames are ``image_hw``.
+
+        ``width`` and ``height`` both given: that size. One given: the other follows the
+        frame's aspect ratio. Neither: the frame size. ``scale`` then multiplies both.
+        """
+        img_h, img_w = image_hw
+        if self.width is not None and self.height is not None:
+            w, h = float(self.width), float(self.height)
+        elif self.width is not None:
+            w, h = float(self.width), self.width * img_h / img_w
+        elif self.height is not None:
+            w, h = self.height * img_w / img_h, float(self.height)
+        else:
+            w, h = float(img_w), float(img_h)
+        return max(1, int(round(w * self.scale))), max(1, int(round(h * self.scale)))
+
+    def static_size(self) -> tuple[int, int] | None:
+        """The panel size when it does not depend on the frame size, else ``None``."""
+        if self.width is None or self.height is None:
+            return None
+        return self.size((self.height, self.width))
+
+
+@dataclass(frozen=True)
+class VideoSpec:
+    """One output video: its panels in drawing order, canvas and output rate.
+
+    Attributes
+    ----------
+    name
+        File stem of the video (``<outdir>/<name>.mp4``).
+    panels
+        Panels in drawing order (later panels draw over earlier ones).
+    width, height
+        Canvas size; ``None`` sizes the canvas to the union of the panels.
+    background
+        RGB canvas fill.
+    output_fps, speed
+        Output rate in frames/s, or a multiple of the input rate; at most one is set
+        (``None`` both: the recording's own rate).
+    where
+        The config key of this video, for error messages.
+    """
+
+    name: str
+    panels: tuple[PanelSpec, ...]
+    width: int | None = None
+    height: int | None = None
+    background: RGB = (0, 0, 0)
+    output_fps: float | None = None
+    speed: float | None = None
+    where: str = "video"
+
+    @property
+    def views(self) -> list[str]:
+        """Views used by any panel, in first-use order."""
+        return list(dict.fromkeys(p.view for p in self.panels))
+
+    def canvas_size(self, image_sizes: Mapping[str, tuple[int, int]]) -> tuple[int, int]:
+        """Canvas ``(width, height)``, checking every panel lies on it.
+
+        Parameters
+        ----------
+        image_sizes
+            ``view -> (height, width)`` of the raw frames.
+
+        Raises
+        ------
+        ConfigError
+            If a panel reaches past an explicitly given canvas size.
+        """
+        rects = [(p, *p.size(image_sizes[p.view])) for p in self.panels]
+        width = self.width or max((p.x0 + w for p, w, _ in rects), default=2)
+        height = self.height or max((p.y0 + h for p, _, h in rects), default=2)
+        for p, w, h in rects:
+            if p.x0 + w > width or p.y0 + h > height:
+                raise ConfigError(
+                    f"{p.where}: panel {w}x{h} at ({p.x0}, {p.y0}) runs off the "
+                    f"{width}x{height} canvas; move it, shrink it or enlarge "
+                    f"{self.where}.width/height"
+                )
+        return width, height
+
+
+def merge_draw_kwargs(*levels: Mapping[str, Any]) -> dict[str, Any]:
+    """Merge draw kwargs, later levels winning; ``palette`` tables merge key by key."""
+    out = dict(DEFAULT_DRAW_KWARGS)
+    out["palette"] = {}
+    for level in levels:
+        for key, value in level.items():
+            if key == "palette":
+                out["palette"] = {**out["palette"], **dict(value)}
+            else:
+                out[key] = value
+    return out
+
+
+def _split_kwargs(table: Any, where: str) -> tuple[dict, dict[str, dict]]:
+    """Split a kwargs table into flat draw kwargs and per-plot subtables, validating keys."""
+    if table is None:
+        return {}, {}
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{where} must be a table of draw kwargs, got {type(table).__name__}")
+    flat: dict = {}
+    per_plot: dict[str, dict] = {}
+    for key, value in table.items():
+        if key in PLOTS:
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"{where}.{key} must be a table of draw kwargs")
+            for sub in value:
+                _check_draw_key(sub, f"{where}.{key}")
+            _check_palette(value, f"{where}.{key}")
+            per_plot[key] = dict(value)
+        else:
+            _check_draw_key(key, where)
+            flat[key] = value
+    _check_palette(flat, where)
+    return flat, per_plot
+
+
+def _check_draw_key(key: str, where: str) -> None:
+    if key not in DEFAULT_DRAW_KWARGS:
+        raise ConfigError(
+            f"{where}: unknown key {key!r}; plot names are {', '.join(PLOTS)} and draw "
+            f"kwargs are {', '.join(DEFAULT_DRAW_KWARGS)}"
+        )
+
+
+def _check_palette(table: Mapping, where: str) -> None:
+    if "palette" in table and not isinstance(table["palette"], Mapping):
+        raise ConfigError(f"{where}.palette must be a table limb -> colour")
+
+
+def _number(value: Any, where: str, *, integer: bool, minimum: float, allow_none: bool = False):
+    if value is None and allow_none:
+        return None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and integer:
+        ok = float(value).is_integer()
+    if not ok or value < minimum:
+        kind = "an integer" if integer else "a number"
+        raise ConfigError(f"{where} must be {kind} >= {minimum:g}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
+    fps = _number(table.get("output_fps"), f"{where}.output_fps", integer=False,
+                  minimum=1e-9, allow_none=True)
+    speed = _number(table.get("speed"), f"{where}.speed", integer=False, minimum=1e-9,
+                    allow_none=True)
+    if fps is not None and speed is not None:
+        raise ConfigError(f"{where}: give output_fps or speed, not both")
+    return fps, speed
+
+
+def _rig_views(data: Mapping) -> list[str] | None:
+    cameras = data.get("cameras")
+    if not isinstance(cameras, Mapping):
+        return None
+    return [k for k in cameras if k != "defaults"]
+
+
+def visualization_table(config: Any) -> tuple[Mapping, Mapping]:
+    """Return ``(whole config dict, visualization table)`` from a Config, dict or table."""
+    data = getattr(config, "data", config)
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"expected a Config or a config dict, got {type(config).__name__}")
+    if "visualization" in data:
+        table = data["visualization"] or {}
+    elif data and set(data) <= _TOP_KEYS:  # the visualization table itself
+        data, table = {}, data
+    else:
+        table = {}
+    if not isinstance(table, Mapping):
+        raise ConfigError("visualization must be a table")
+    return data, table
+
+
+def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> list[VideoSpec]:
+    """Parse and validate ``[[visualization.videos]]`` into :class:`VideoSpec` objects.
+
+    Parameters
+    ----------
+    config
+        A :class:`flylib.Config`, its ``data`` dict, or the raw ``visualization`` table.
+    view_names
+        Camera names of the rig; by default the views of the config's ``cameras``
+        table (every key but ``defaults``). When neither is known, views are not
+        checked.
+
+    Returns
+    -------
+    list of VideoSpec
+        One per video, in config order, with draw kwargs merged into each panel.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``visualization.videos[i].panels[j]`` for an unknown plot, a view not in
+        the rig, a panel off the canvas, or any malformed key.
+    """
+    data, table = visualization_table(config)
+    if view_names is None:
+        view_names = _rig_views(data)
+    for key in table:
+        if key not in _TOP_KEYS:
+            raise ConfigError(f"visualization: unknown key {key!r}; known: {sorted(_TOP_KEYS)}")
+    background = parse_color(table.get("background", "black"), "visualization.background")
+    global_flat, global_plot = _split_kwargs(table.get("kwargs"), "visualization.kwargs")
+    default_fps(table)  # validate early
+    _rate(table, "visualization")
+    videos = table.get("videos", []) or []
+    if not isinstance(videos, Sequence) or isinstance(videos, (str, bytes)):
+        raise ConfigError("visualization.videos must be a list of video tables")
+    specs: list[VideoSpec] = []
+    seen: set[str] = set()
+    for i, video in enumerate(videos):
+        spec = _read_video(video, f"visualization.videos[{i}]", background, global_flat,
+                           global_plot, view_names)
+        if spec.name in seen:
+            raise ConfigError(f"{spec.where}: video_name {spec.name!r} is used twice; "
+                              "each video needs its own name")
+        seen.add(spec.name)
+        specs.append(spec)
+    return specs
+
+
+def _read_video(video: Any, where: str, background: RGB, global_flat: dict,
+                global_plot: dict, view_names: Sequence[str] | None) -> VideoSpec:
+    if not isinstance(video, Mapping):
+        raise ConfigError(f"{where} must be a table with video_name and panels")
+    for key in video:
+        if key not in _VIDEO_KEYS:
+            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_VIDEO_KEYS)}")
+    name = video.get("video_name", video.get("name"))
+    if not isinstance(name, str) or not name or "/" in name or "\\" in name:
+        raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
+    width = _number(video.get("width"), f"{where}.width", integer=True, minimum=2,
+                    allow_none=True)
+    height = _number(video.get("height"), f"{where}.height", integer=True, minimum=2,
+                     allow_none=True)
+    if "background" in video:
+        background = parse_color(video["background"], f"{where}.background")
+    fps, speed = _rate(video, where)
+    video_flat, video_plot = _split_kwargs(video.get("kwargs"), f"{where}.kwargs")
+    panels_raw = video.get("panels")
+    if not isinstance(panels_raw, Sequence) or isinstance(panels_raw, (str, bytes)) \
+            or not panels_raw:
+        raise ConfigError(f"{where}.panels must be a non-empty list of panel tables")
+    panels = []
+    for j, raw in enumerate(panels_raw):
+        pwhere = f"{where}.panels[{j}]"
+        panel = _read_panel(raw, pwhere, view_names, global_flat, global_plot, video_flat,
+                            video_plot)
+        _check_static_bounds(panel, width, height)
+        panels.append(panel)
+    return VideoSpec(name=name, panels=tuple(panels), width=width, height=height,
+                     background=background, output_fps=fps, speed=speed, where=where)
+
+
+def _read_panel(raw: Any, where: str, view_names, global_flat, global_plot, video_flat,
+                video_plot) -> PanelSpec:
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"{where} must be a table {{plot, view, x0, y0, ...}}")
+    for key in raw:
+        if key not in _PANEL_KEYS:
+            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_PANEL_KEYS)}")
+    plot = raw.get("plot")
+    if plot not in PLOTS:
+        raise ConfigError(f"{where}.plot: unknown plot {plot!r}; use one of {', '.join(PLOTS)}")
+    view = raw.get("view")
+    if not isinstance(view, str):
+        raise ConfigError(f"{where}.view must name a camera of the rig, got {view!r}")
+    if view_names is not None and view not in view_names:
+        raise ConfigError(f"{where}.view: {view!r} is not a view of the rig; "
+                          f"use one of {', '.join(view_names)}")
+    own = {k: v for k, v in raw.items() if k in DEFAULT_DRAW_KWARGS}
+    _check_palette(own, where)
+    kw = merge_draw_kwargs(global_flat, global_plot.get(plot, {}), video_flat,
+                           video_plot.get(plot, {}), own)
+    x0 = raw.get("x0", 0)
+    y0 = raw.get("y0", 0)
+    for key, value in (("x0", x0), ("y0", y0)):
+        if not (isinstance(value, int) and not isinstance(value, bool)):
+            raise ConfigError(f"{where}.{key} must be an integer pixel offset, got {value!r}")
+        if value < 0:
+            raise ConfigError(f"{where}: panel is off the canvas ({key} = {value} < 0); "
+                              "use offsets >= 0")
+    palette = {str(limb): parse_color(c, f"{where}.palette.{limb}")
+               for limb, c in kw["palette"].items()}
+    bg = None if kw["background"] is None else parse_color(kw["background"],
+                                                           f"{where}.background")
+    return PanelSpec(
+        plot=plot, view=view, x0=x0, y0=y0,
+        point_radius=_number(kw["point_radius"], f"{where}.point_radius", integer=True,
+                             minimum=0),
+        line_thickness=_number(kw["line_thickness"], f"{where}.line_thickness", integer=True,
+                               minimum=1),
+        scale=_number(kw["scale"], f"{where}.scale", integer=False, minimum=1e-6),
+        width=_number(kw["width"], f"{where}.width", integer=True, minimum=1, allow_none=True),
+        height=_number(kw["height"], f"{where}.height", integer=True, minimum=1,
+                       allow_none=True),
+        palette=palette, background=bg, where=where,
+    )
+
+
+def _check_static_bounds(panel: PanelSpec, width: int | None, height: int | None) -> None:
+    """Reject panels that are off an explicitly sized canvas before any footage is read."""
+    size = panel.static_size() or (1, 1)
+    for origin, extent, limit, axis in ((panel.x0, size[0], width, "width"),
+                                        (panel.y0, size[1], height, "height")):
+        if limit is not None and origin + extent > limit:
+            raise ConfigError(
+                f"{panel.where}: panel is off the canvas ({origin} + {extent} > {axis} "
+                f"{limit}); move or shrink it, or enlarge the video's {axis}"
+            )
+
+
+def default_fps(table: Mapping) -> float:
+    """``visualization.default_fps`` (30 unless set), validated."""
+    return _number(table.get("default_fps", DEFAULT_FPS), "visualization.default_fps",
+                   integer=False, minimum=1e-9)
+
+
+def resolve_output_fps(video: VideoSpec, table: Mapping, input_fps: float | None) -> float:
+    """The frame rate to encode ``video`` at.
+
+    Precedence: the video's ``output_fps``/``speed``, then the global ones, then the
+    recording's own rate. ``speed`` multiplies the input rate. An input rate outside
+    :data:`PLAUSIBLE_FPS` (the DeepFly3D sample's container says 0.2 fps) or unknown is
+    replaced by ``visualization.default_fps`` with a warning.
+
+    Parameters
+    ----------
+    video
+        The video spec.
+    table
+        The raw ``visualization`` table (for the global ``output_fps``, ``speed`` and
+        ``default_fps``).
+    input_fps
+        The footage's frame rate from its container, or ``None`` when unknown.
+    """
+    fps, speed = video.output_fps, video.speed
+    if fps is None and speed is None:
+        fps, speed = _rate(table, "visualization")
+    if fps is not None:
+        return fps
+    base = input_fps
+    if base is None or not (PLAUSIBLE_FPS[0] <= base <= PLAUSIBLE_FPS[1]):
+        fallback = default_fps(table)
+        reason = "unknown" if base is None else f"{base:g} fps, not plausible"
+        warnings.warn(
+            f"{video.where} ({video.name}): the footage frame rate is {reason}; writing at "
+            f"visualization.default_fps = {fallback:g} fps (set output_fps to choose)",
+            stacklevel=2,
+        )
+        base = fallback
+    return base * (speed if speed is not None else 1.0)

@@ -1,0 +1,161 @@
+"""Static summary figure of one recording's result: the first thing to look at after a run.
+
+Four panels (matplotlib, Agg backend, no pyplot state):
+
+- reprojection error per view (box plots of the per-point pixel error, median printed),
+- fraction of frames with a reconstructed 3D point, per keypoint, coloured by limb
+  (the fraction of views with a 2D detection when there is no 3D result),
+- median reprojection error per frame over time (where in the recording it went wrong),
+- 3D trajectories of the leg tips, over a faint skeleton at the middle frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .draw import skeleton_colors
+
+#: Leg tips and other chain ends drawn in the trajectory panel, at most this many.
+MAX_TRAJECTORIES = 6
+
+
+def summary_figure(result, path, *, dpi: int = 100) -> Path:
+    """Write the summary PNG of a pose result.
+
+    Parameters
+    ----------
+    result
+        A :class:`flylib.PoseResult` (``pts2d`` is required; ``pts3d`` and
+        ``reproj_error`` are used when present).
+    path
+        Output PNG path (parent directories are created). Written to a temporary
+        sibling and renamed, so a crash leaves no truncated file.
+    dpi
+        Resolution of the PNG.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    from matplotlib.figure import Figure
+
+    from ..results import atomic_path
+
+    path = Path(path)
+    fig = Figure(figsize=(14, 9.5), dpi=dpi, layout="constrained")
+    grid = fig.add_gridspec(2, 2)
+    skeleton = result.skeleton
+    point_colors, _ = skeleton_colors(skeleton)
+    point_colors = point_colors / 255.0
+    names = list(result.cameras.names)
+    error = getattr(result, "reproj_error", None)
+    pts3d = getattr(result, "pts3d", None)
+
+    _error_per_view(fig.add_subplot(grid[0, 0]), error, names)
+    _coverage(fig.add_subplot(grid[0, 1]), result.pts2d, pts3d, skeleton, point_colors)
+    _error_over_time(fig.add_subplot(grid[1, 0]), error)
+    _trajectories(fig.add_subplot(grid[1, 1], projection="3d"), pts3d, skeleton,
+                  point_colors)
+
+    n_views, n_frames, n_points = result.pts2d.shape[:3]
+    title = f"{n_frames} frames, {n_views} views, {n_points} points"
+    if error is not None and np.isfinite(error).any():
+        title += f"; median reprojection error {np.nanmedian(error):.2f} px"
+    fig.suptitle(title)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return path
+
+
+def _no_data(ax, message: str) -> None:
+    ax.text(0.5, 0.5, message, ha="center", va="center", transform=ax.transAxes)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def _error_per_view(ax, error, names) -> None:
+    ax.set_title("Reprojection error per view")
+    if error is None or not np.isfinite(error).any():
+        _no_data(ax, "no reprojection error (no 3D result)")
+        return
+    per_view = [e[np.isfinite(e)] for e in error.reshape(error.shape[0], -1)]
+    shown = [(n, e) for n, e in zip(names, per_view) if e.size]
+    ax.boxplot([e for _, e in shown], tick_labels=[n for n, _ in shown], showfliers=True,
+               flierprops={"markersize": 2, "alpha": 0.3})
+    for k, (_, e) in enumerate(shown, start=1):
+        ax.annotate(f"{np.median(e):.1f}", (k, np.median(e)), xytext=(12, 0),
+                    textcoords="offset points", fontsize=8, va="center")
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_ylabel("pixels")
+    ax.set_xlabel("view")
+
+
+def _coverage(ax, pts2d, pts3d, skeleton, colors) -> None:
+    n_points = pts2d.shape[2]
+    if pts3d is not None:
+        frac = np.isfinite(pts3d).all(axis=-1).mean(axis=0)
+        ax.set_title("Frames with a reconstructed 3D point")
+    else:
+        frac = np.isfinite(pts2d).all(axis=-1).mean(axis=(0, 1))
+        ax.set_title("Fraction of (view, frame) with a 2D detection")
+    ax.bar(np.arange(n_points), frac, color=colors)
+    ax.set_xticks(np.arange(n_points), skeleton.point_names, rotation=90, fontsize=6)
+    ax.set_ylim(0, 1.02)
+    ax.set_ylabel("fraction")
+
+
+def _error_over_time(ax, error) -> None:
+    ax.set_title("Median reprojection error per frame")
+    if error is None or not np.isfinite(error).any():
+        _no_data(ax, "no reprojection error (no 3D result)")
+        return
+    flat = error.transpose(1, 0, 2).reshape(error.shape[1], -1)
+    has = np.isfinite(flat).any(axis=1)
+    median = np.full(flat.shape[0], np.nan)
+    median[has] = np.nanmedian(flat[has], axis=1)
+    ax.plot(np.arange(flat.shape[0]), median, lw=0.8)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("pixels")
+
+
+def trajectory_points(skeleton) -> list[int]:
+    """Indices of the points whose 3D trajectories the summary draws: the last point of
+    each of the longest limb chains (the leg tips of the fly), at most
+    :data:`MAX_TRAJECTORIES`, spread over the limbs."""
+    chains = [chain for chain in skeleton.limbs.values() if len(chain) >= 2]
+    if not chains:
+        return []
+    longest = max(len(chain) for chain in chains)
+    tips = [skeleton.point_names.index(chain[-1]) for chain in chains if len(chain) == longest]
+    if len(tips) > MAX_TRAJECTORIES:
+        keep = np.linspace(0, len(tips) - 1, MAX_TRAJECTORIES).round().astype(int)
+        tips = [tips[k] for k in keep]
+    return tips
+
+
+def _trajectories(ax, pts3d, skeleton, colors) -> None:
+    ax.set_title("3D trajectories of the leg tips")
+    if pts3d is None or not np.isfinite(pts3d).any():
+        ax.text2D(0.5, 0.5, "no 3D result", ha="center", transform=ax.transAxes)
+        return
+    valid_frames = np.flatnonzero(np.isfinite(pts3d).any(axis=(1, 2)))
+    mid = pts3d[valid_frames[len(valid_frames) // 2]]
+    for i, j in np.asarray(skeleton.bones).reshape(-1, 2):
+        ax.plot(*zip(mid[i], mid[j]), color="0.6", lw=1)
+    for p in trajectory_points(skeleton):
+        track = pts3d[:, p]
+        ax.plot(track[:, 0], track[:, 1], track[:, 2], color=colors[p], lw=0.8,
+                label=skeleton.point_names[p])
+    finite = pts3d[np.isfinite(pts3d).all(axis=-1)]
+    lo, hi = finite.min(axis=0), finite.max(axis=0)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-9)
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+    ax.legend(fontsize=7, loc="upper left")

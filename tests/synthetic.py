@@ -1,0 +1,223 @@
+"""Synthetic tethered fly for tests and benchmarks: 3D truth and what the rig would see.
+
+``synthetic_fly`` makes a moving 38-point fly (the ``fly38`` skeleton order) in world
+coordinates: head towards +x (the front camera ``f`` at azimuth 0), its left side
+towards +y (cameras ``lf/lm/lh``), up +z, sized so the default rig (focal 22388 px,
+distance 107.463, 960x480 frames) sees it filling a good part of the frame.
+``observe`` projects it through a camera rig (OpenCV ``projectPoints``, independent of
+flylib's own projection), adds pixel noise and gross outliers, and applies the rig's
+real visibility pattern: the side cameras see their own side only, the front camera
+the distal leg points of both sides and the antennae (the spec's ``output_points``).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+POINT_NAMES = [
+    *(f"{leg}_{j}" for leg in ("lf", "lm", "lh")
+      for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")),
+    "l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2",
+    *(f"{leg}_{j}" for leg in ("rf", "rm", "rh")
+      for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")),
+    "r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2",
+]
+
+# Leg geometry (world units of the default rig, about millimetres).
+_SEGMENTS = np.array([0.30, 0.70, 0.65, 0.55])  # coxa, femur, tibia, tarsus
+_PITCH_DEG = np.array([65.0, -10.0, 55.0, 80.0])  # below horizontal, per segment
+_COXA_X = {"f": 0.35, "m": 0.0, "h": -0.30}
+_COXA_Y = {"f": 0.14, "m": 0.20, "h": 0.17}
+_YAW_DEG = {"f": 45.0, "m": 0.0, "h": -40.0}  # from lateral towards the head
+_GAIT_PHASE = {"lf": 0.0, "rm": 0.0, "lh": 0.0, "rf": np.pi, "lm": np.pi, "rh": np.pi}
+_BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the frame
+
+# Which points each default view sees: the spec's [pose2d.output_points] tables.
+_SIDE = [f"{leg}_{j}" for leg in ("f", "m", "h")
+         for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")]
+_DISTAL = [f"{leg}_{j}" for leg in ("f", "m") for j in ("femur_tibia", "tibia_tarsus", "claw")]
+RIG_VISIBILITY = {
+    "rh": [f"r{p}" for p in _SIDE] + ["r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2"],
+    "rm": [f"r{p}" for p in _SIDE] + ["r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2"],
+    "rf": [f"r{p}" for p in _SIDE] + ["r_antenna"],
+    "f": [f"r{p}" for p in _DISTAL] + ["r_antenna"] + [f"l{p}" for p in _DISTAL] + ["l_antenna"],
+    "lf": [f"l{p}" for p in _SIDE] + ["l_antenna"],
+    "lm": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
+    "lh": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
+}
+
+
+def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> np.ndarray:
+    """A walking tethered fly: ``(n_frames, 38, 3)`` float64 world points (fly38 order).
+
+    Six legs swing in a tripod gait (femur and tibia pitch, leg yaw) at a random
+    step frequency around 8 Hz; antennae and abdomen move slightly. Segment lengths
+    are constant, so every bone of the skeleton keeps its length exactly.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) / fps
+    freq = rng.uniform(6.0, 10.0)
+    phase0 = rng.uniform(0, 2 * np.pi)
+    out = np.zeros((n_frames, len(POINT_NAMES), 3))
+    index = {n: i for i, n in enumerate(POINT_NAMES)}
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        for pos in ("f", "m", "h"):
+            leg = f"{side}{pos}"
+            wave = np.sin(2 * np.pi * freq * t + phase0 + _GAIT_PHASE[leg])
+            wave2 = np.cos(2 * np.pi * freq * t + phase0 + _GAIT_PHASE[leg])
+            yaw = np.deg2rad(_YAW_DEG[pos] + 18.0 * wave)
+            pitch = np.deg2rad(_PITCH_DEG)[None, :] + np.deg2rad(
+                np.stack([5 * wave2, 15 * wave2, -15 * wave, 8 * wave], axis=1))
+            lateral = np.stack([np.sin(yaw), sign * np.cos(yaw), np.zeros_like(yaw)], -1)
+            joint = np.tile([_COXA_X[pos], sign * _COXA_Y[pos], _BODY_Z - 0.12], (n_frames, 1))
+            names = [f"{leg}_{j}" for j in
+                     ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")]
+            out[:, index[names[0]]] = joint
+            for s, length in enumerate(_SEGMENTS):
+                direction = np.cos(pitch[:, s:s + 1]) * lateral
+                direction[:, 2] = -np.sin(pitch[:, s])
+                joint = joint + length * direction
+                out[:, index[names[s + 1]]] = joint
+        antenna_wiggle = 0.03 * np.sin(2 * np.pi * 3.0 * t + sign)[:, None]
+        out[:, index[f"{side}_antenna"]] = [0.80, sign * 0.12, _BODY_Z + 0.30] + antenna_wiggle
+        bend = 0.05 * np.sin(2 * np.pi * 1.5 * t + phase0)[:, None]
+        for k, (x, y, z) in enumerate([(-0.45, 0.22, 0.05), (-0.85, 0.20, 0.0), (-1.25, 0.12, -0.05)]):
+            out[:, index[f"{side}_abdomen{k}"]] = [x, sign * y, _BODY_Z + z] + k * bend * [0, 0, 1]
+    return out
+
+
+def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:
+    """``(V, P)`` bool: which point each view observes in the default rig.
+
+    A view whose name is not one of the default rig's sees every point.
+    """
+    vis = np.ones((len(view_names), len(point_names)), bool)
+    for v, name in enumerate(view_names):
+        if name in RIG_VISIBILITY:
+            vis[v] = [p in RIG_VISIBILITY[name] for p in point_names]
+    return vis
+
+
+def project_opencv(cameras, pts3d: np.ndarray) -> np.ndarray:
+    """Project ``(..., 3)`` world points through every camera with ``cv2.projectPoints``.
+
+    Returns ``(V, ..., 2)`` pixels. Independent of flylib's JAX projection, so
+    tests can use it as a reference.
+    """
+    pts3d = np.asarray(pts3d, float)
+    flat = pts3d.reshape(-1, 3)
+    out = []
+    for rvec, tvec, intr, dist in zip(cameras.rvecs, cameras.tvecs, cameras.intrs, cameras.dists):
+        kmat = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1.0]])
+        dist5 = np.zeros(max(5, dist.size)) if dist.size else np.zeros(5)
+        dist5[: dist.size] = dist
+        ok = np.isfinite(flat).all(axis=1)
+        proj = np.full((flat.shape[0], 2), np.nan)
+        if ok.any():
+            img, _ = cv2.projectPoints(flat[ok], np.asarray(rvec, float), np.asarray(tvec, float),
+                                       kmat, dist5)
+            proj[ok] = img.reshape(-1, 2)
+        out.append(proj.reshape(*pts3d.shape[:-1], 2))
+    return np.stack(out)
+
+
+def observe(
+    pts3d: np.ndarray,
+    cameras,
+    noise_px: float = 1.0,
+    outlier_frac: float = 0.0,
+    visibility="rig",
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the rig's detector would report for ``pts3d`` ``(T, P, 3)``.
+
+    Parameters
+    ----------
+    pts3d
+        World points ``(T, P, 3)``.
+    cameras
+        A ``CameraGroup`` (anything with ``names``, ``rvecs``, ``tvecs``, ``intrs``,
+        ``dists``).
+    noise_px
+        Standard deviation of the isotropic Gaussian pixel noise per coordinate.
+    outlier_frac
+        Fraction of visible observations replaced by a gross outlier: a uniformly
+        random position in the image (image size taken as twice the principal point).
+    visibility
+        ``"rig"`` (the default rig's pattern, by view name), ``None`` (every view
+        sees every point) or a ``(V, P)`` bool array.
+    seed
+        Random seed.
+
+    Returns
+    -------
+    pts2d : np.ndarray
+        ``(V, T, P, 2)`` pixels, NaN where the view does not see the point.
+    conf : np.ndarray
+        ``(V, T, P)`` confidences: inliers in [0.6, 1], outliers in [0.2, 0.7],
+        0 where unseen.
+    """
+    rng = np.random.default_rng(seed)
+    pts2d = project_opencv(cameras, pts3d)  # (V, T, P, 2)
+    n_views, n_frames, n_points, _ = pts2d.shape
+    if isinstance(visibility, str) and visibility == "rig":
+        names = POINT_NAMES if n_points == len(POINT_NAMES) else [str(i) for i in range(n_points)]
+        vis = rig_visibility(list(cameras.names), names)
+    elif visibility is None:
+        vis = np.ones((n_views, n_points), bool)
+    else:
+        vis = np.asarray(visibility, bool)
+    pts2d = pts2d + rng.normal(0.0, noise_px, pts2d.shape)
+    conf = rng.uniform(0.6, 1.0, pts2d.shape[:3])
+    outlier = (rng.random(pts2d.shape[:3]) < outlier_frac) & vis[:, None, :]
+    size = 2.0 * np.asarray(cameras.intrs)[:, 2:4]  # (V, 2) = (width, height)
+    random_xy = rng.random(pts2d.shape) * size[:, None, None, :]
+    pts2d = np.where(outlier[..., None], random_xy, pts2d)
+    conf = np.where(outlier, rng.uniform(0.2, 0.7, conf.shape), conf)
+    seen = np.broadcast_to(vis[:, None, :], conf.shape)
+    pts2d = np.where(seen[..., None], pts2d, np.nan)
+    conf = np.where(seen, conf, 0.0)
+    return pts2d, conf
+
+
+def perturb_rig(cameras, *, rot_deg: float = 3.0, dist_frac: float = 0.03, seed: int = 0):
+    """A copy of ``cameras`` with each camera rotated about the world origin by up to
+    ``rot_deg`` (random axis) and its distance to the origin scaled by up to ``dist_frac``,
+    its own orientation otherwise following (an orbit-parameter perturbation)."""
+    from flylib.cameras import CameraGroup
+
+    rng = np.random.default_rng(seed)
+    rvecs, tvecs = [], []
+    for rvec, tvec in zip(cameras.rvecs, cameras.tvecs):
+        rmat = cv2.Rodrigues(np.asarray(rvec, float))[0]
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        delta = cv2.Rodrigues(axis * np.deg2rad(rng.uniform(0.5, 1.0) * rot_deg))[0]
+        scale = 1.0 + rng.choice([-1, 1]) * rng.uniform(0.5, 1.0) * dist_frac
+        center = -rmat.T @ tvec
+        new_center = scale * (delta @ center)
+        new_rmat = rmat @ delta.T  # world -> camera after rotating the camera by delta
+        rvecs.append(cv2.Rodrigues(new_rmat)[0].ravel())
+        tvecs.append(-new_rmat @ new_center)
+    return CameraGroup.from_arrays(list(cameras.names), np.array(rvecs), np.array(tvecs),
+                                   cameras.intrs, cameras.dists)
+
+
+DEFAULT_AZIMUTHS = {"rh": -120.0, "rm": -90.0, "rf": -45.0, "f": 0.0, "lf": 45.0,
+                    "lm": 90.0, "lh": 120.0}
+
+
+def default_rig(focal: float = 22388.125, distance: float = 107.463,
+                image_size: tuple[int, int] = (480, 960)):
+    """The default 7-view orbit rig (spec ``fly38-rig.yaml``), principal point at the
+    image centre, no distortion; built directly so tests need no config file."""
+    from flylib.cameras import CameraGroup, orbit_extrinsics
+
+    height, width = image_size
+    rvecs, tvecs = zip(*(orbit_extrinsics((0.0, 0.0, 0.0), distance, az)
+                         for az in DEFAULT_AZIMUTHS.values()))
+    n = len(DEFAULT_AZIMUTHS)
+    intrs = np.tile([focal, focal, width / 2.0, height / 2.0], (n, 1))
+    return CameraGroup.from_arrays(list(DEFAULT_AZIMUTHS), np.array(rvecs), np.array(tvecs),
+                                   intrs, np.zeros((n, 0)))

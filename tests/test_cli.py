@@ -1,0 +1,116 @@
+"""The ``flylib`` console script: inspect, export, calibration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from flylib.cameras import CameraGroup
+from flylib.cli import main, summarize_results
+from flylib.interop import import_points2d, load_calibration, read_anipose_toml
+from flylib.results import PoseResult
+from flylib.skeleton import Skeleton
+
+VIEWS = ["a", "b", "c"]
+
+
+@pytest.fixture
+def result_file(tmp_path):
+    """A small results.h5: 3 cameras, 5 frames, a 3-point chain, one point lost in frame 2."""
+    skeleton = Skeleton(
+        point_names=("p0", "p1", "p2"), limbs={"leg": ("p0", "p1", "p2")}, palette={}, name="t"
+    )
+    angles = np.deg2rad([-30.0, 0.0, 30.0])
+    rvecs = np.stack([[0.0, a, 0.0] for a in angles])
+    cameras = CameraGroup.from_arrays(
+        VIEWS, rvecs, np.tile([0.0, 0.0, 20.0], (3, 1)), np.tile([800.0, 810.0, 320.0, 240.0], (3, 1)),
+        np.tile([0.01, 0.0, 0.0, 0.0, 0.0], (3, 1)),
+    )
+    t = np.arange(5, dtype=float)
+    pts3d = np.stack([np.stack([t * 0.1, np.zeros(5), np.zeros(5)], -1),
+                      np.stack([t * 0.1 + 1.0, np.zeros(5), np.zeros(5)], -1),
+                      np.stack([t * 0.1 + 1.0, 2.0 + 0.5 * (t == 4), np.zeros(5)], -1)], axis=1)
+    pts3d[2, 1] = np.nan
+    pts2d = cameras.project(np.nan_to_num(pts3d))
+    pts2d[:, 2, 1] = np.nan
+    err = np.where(np.isfinite(pts2d).all(-1), 0.5, np.nan)
+    err[0, :, 0] = 1.5
+    conf = np.where(np.isfinite(pts2d).all(-1), 0.75, np.nan)
+    result = PoseResult(
+        cameras=cameras, skeleton=skeleton, pts2d=pts2d, conf=conf, pts3d=pts3d, reproj_error=err,
+        image_sizes={v: (480, 640) for v in VIEWS},
+    )
+    path = tmp_path / "results.h5"
+    result.save(path)
+    return path, result
+
+
+def test_summary_figures(result_file):
+    path, _ = result_file
+    summary = summarize_results(path)
+    assert [s["stage"] for s in summary["stages"]] == ["pose2d", "triangulation"]
+    tri = summary["stages"][1]
+    assert tri["frames"] == 5 and tri["reconstructed"] == pytest.approx(14 / 15)
+    points = {p["point"]: p for p in summary["points"]}
+    assert points["p1"]["reconstructed"] == pytest.approx(0.8)
+    assert points["p0"]["err_median"] == pytest.approx(0.5) and points["p0"]["err_p95"] == pytest.approx(1.5)
+    bones = {b["bone"]: b for b in summary["bones"]}
+    assert bones["p0-p1"]["median_length"] == pytest.approx(1.0) and bones["p0-p1"]["spread"] == pytest.approx(0.0)
+    assert bones["p1-p2"]["frames"] == 4  # p1 lost in frame 2
+    # lengths 2, 2, 2.5 over frames 0, 1, 3, 4 -> IQR 0.125 over median 2
+    assert bones["p1-p2"]["spread"] == pytest.approx(0.0625)
+
+
+def test_inspect_prints_tables(result_file, capsys):
+    path, _ = result_file
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    for text in ("triangulation", "pose2d", "p0-p1", "p2", "0.933"):
+        assert text in out
+
+
+def test_export_writes_3d_and_dlc_csv_that_import_back(result_file, tmp_path, capsys):
+    path, result = result_file
+    csv3d, dlc_dir = tmp_path / "out" / "points3d.csv", tmp_path / "dlc"
+    assert main(["export", str(path), "--csv3d", str(csv3d), "--dlc-dir", str(dlc_dir)]) == 0
+    table = pd.read_csv(csv3d)
+    assert len(table) == 5
+    assert table.loc[2, ["p1_x", "p1_y", "p1_z"]].isna().all() and table.loc[2, "p1_ncams"] == 0
+    np.testing.assert_allclose(table[["p2_x", "p2_y", "p2_z"]].to_numpy(), result.pts3d[:, 2], atol=0)
+    assert table.loc[0, "p0_error"] == pytest.approx((1.5 + 0.5 + 0.5) / 3)
+    config = {"cameras": {v: {} for v in VIEWS}, "skeleton": {"point_names": ["p0", "p1", "p2"]}}
+    back = import_points2d(config, dlc_dir, {"format": "dlc_csv", "image_size": [480, 640]})
+    np.testing.assert_array_equal(back.pts2d, result.pts2d)
+    np.testing.assert_array_equal(back.conf, result.conf)
+
+
+def test_calibration_writes_reusable_anipose_toml(result_file, tmp_path):
+    path, result = result_file
+    toml = tmp_path / "rig.toml"
+    assert main(["calibration", str(path), "-o", str(toml)]) == 0
+    assert read_anipose_toml(toml)["a"]["size"] == (640, 480)
+    cams = load_calibration({"cameras": {v: {} for v in VIEWS}, "calibration": {"file": str(toml)}})
+    pts = np.random.default_rng(0).uniform(-1, 1, size=(7, 3))
+    np.testing.assert_allclose(cams.project(pts), result.cameras.project(pts), rtol=0, atol=1e-9)
+
+
+def test_errors_are_one_line_exit_1(tmp_path, capsys):
+    assert main(["inspect", str(tmp_path / "missing.h5")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "missing.h5" in err and "\n" not in err
+    assert main(["export", str(tmp_path / "missing.h5")]) == 1
+    assert "nothing to do" in capsys.readouterr().err
+
+
+def test_inspect_plain_text_without_rich(result_file, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rich.console", None)
+    path, _ = result_file
+    assert main(["inspect", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = next(line for line in lines if line.startswith("stage "))
+    row = next(line for line in lines if line.startswith("triangulation "))
+    assert row.split() == ["triangulation", "3", "5", "0.933", "0.933", "0.5", "1.5", "-"]
+    assert len(header) >= len(row.rstrip())  # columns aligned under their headers

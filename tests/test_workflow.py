@@ -1,0 +1,240 @@
+"""The Snakemake workflow, driven through its CLI on tiny synthetic recordings.
+
+One real run of two 6-frame recordings (2D imported from DeepLabCut CSVs), then dry
+runs after config edits: each edit must schedule exactly the stages it affects, for
+exactly the recordings it affects.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = Path(sys.executable).parent / "snakemake"
+FRAMES = 6
+
+pytestmark = pytest.mark.slow
+
+
+def base_config() -> dict:
+    return yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+
+
+def snakemake(workdir: Path, *args: str, config: dict | None = None, check: bool = True,
+              timeout: float = 600) -> subprocess.CompletedProcess:
+    """Run the repo's workflow in ``workdir`` (with ``config`` written to config.yaml)."""
+    if config is not None:
+        (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
+           "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake failed ({proc.returncode}):\n{proc.stdout[-4000:]}\n"
+                             f"{proc.stderr[-6000:]}")
+    return proc
+
+
+_JOB = re.compile(r"^(?:local)?rule (\w+):\n((?:    .*\n?)*)", re.MULTILINE)
+
+
+def planned(workdir: Path, config: dict) -> set[tuple[str, str]]:
+    """``(rule, recording directory name)`` of every job a dry run schedules."""
+    proc = snakemake(workdir, "--dry-run", config=config)
+    jobs = set()
+    for rule, body in _JOB.findall(proc.stdout + proc.stderr):
+        if rule == "all":
+            continue
+        match = re.search(r"wildcards: outdir=(\S+)", body)
+        jobs.add((rule, Path(match.group(1)).parent.name if match else ""))
+    return jobs
+
+
+def make_recording(config: dict, directory: Path, seed: int) -> dict:
+    """A tiny synthetic recording (footage + DLC CSVs); returns its recordings entry."""
+    from flylib.config import Config
+    from flylib.demo import demo_import_spec, make_demo
+
+    cfg = Config.from_dict(config)
+    make_demo(cfg, directory, frames=FRAMES, seed=seed)
+    return {"path": str(directory), "import": demo_import_spec(cfg)}
+
+
+def jobs(rules, recordings) -> set[tuple[str, str]]:
+    return {(r, rec) for r in rules for rec in recordings}
+
+
+ALL_STAGES = ("pose2d", "bundle_adjustment", "triangulation", "assemble", "visualization")
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    """A work dir with recordings recA, recB (run once to completion) and recC (not yet listed)."""
+    root = tmp_path_factory.mktemp("workflow")
+    config = base_config()
+    config["bundle_adjustment"]["max_nfev"] = 20
+    entries = {name: make_recording(config, root / name, seed)
+               for seed, name in enumerate(("recA", "recB", "recC"))}
+    config["recordings"] = [entries["recA"], entries["recB"]]
+    proc = snakemake(root, config=config)
+    return {"root": root, "config": config, "entries": entries, "run": proc}
+
+
+def test_run_writes_every_artifact_and_a_byte_for_byte_config_snapshot(workspace):
+    from flylib.results import PoseResult
+
+    root = workspace["root"]
+    for name in ("recA", "recB"):
+        out = root / name / "flylib_outputs"
+        result = PoseResult.load(out / "results.h5")
+        assert result.pts3d.shape == (FRAMES, 38, 3)
+        assert np.isfinite(result.pts3d).mean() > 0.9
+        for f in ("summary.png", "summary.json", "calibration.toml", "pose2d.mp4", "pose3d.mp4",
+                  "stages/pose2d.h5", "stages/bundle_adjustment.h5", "stages/triangulation.h5"):
+            assert (out / f).stat().st_size > 0, f
+        assert (out / "config.yaml").read_bytes() == (root / "config.yaml").read_bytes()
+        assert (out / "benchmarks" / "triangulation.tsv").is_file()
+        assert (out / "logs" / "pose2d.log").is_file()
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["frames"] == FRAMES and summary["views"][0] == "rh"
+        with h5py.File(out / "results.h5") as f:
+            assert {"pose2d", "bundle_adjustment", "triangulation", "skeleton"} <= set(f)
+    assert not list(root.rglob("*.tmp*")), "a temporary file was left behind"
+
+
+def test_unchanged_config_plans_nothing(workspace):
+    assert planned(workspace["root"], workspace["config"]) == set()
+
+
+@pytest.mark.parametrize("section,key,value", [
+    ("pose2d", "batch_size", 3),
+    ("pose2d", "decode_buffer", 9),
+    ("io", "image", {"workers": 3}),
+])
+def test_performance_knobs_plan_nothing(workspace, section, key, value):
+    config = copy.deepcopy(workspace["config"])
+    config[section][key] = value
+    assert planned(workspace["root"], config) == set()
+
+
+def test_triangulation_threshold_reruns_triangulation_and_downstream_only(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["triangulation"]["ransac_threshold"] = 9.5
+    expected = jobs(("triangulation", "assemble", "visualization"), ("recA", "recB"))
+    assert planned(workspace["root"], config) == expected
+
+
+def test_rig_edit_reruns_bundle_adjustment_and_after_but_not_pose2d(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["cameras"]["defaults"]["distance"] = 107.0
+    expected = jobs(("bundle_adjustment", "triangulation", "assemble", "visualization"), ("recA", "recB"))
+    assert planned(workspace["root"], config) == expected
+
+
+def test_skeleton_edit_reruns_bundle_adjustment_and_after(workspace):
+    config = copy.deepcopy(workspace["config"])
+    limbs = config["skeleton"]["limb_points"]
+    limbs["l_abdomen"] = limbs["l_abdomen"][:2]
+    limbs["l_abdomen_tip"] = ["l_abdomen2"]
+    planned_jobs = planned(workspace["root"], config)
+    assert ("pose2d", "recA") not in planned_jobs
+    assert jobs(("bundle_adjustment", "triangulation", "assemble"), ("recA", "recB")) <= planned_jobs
+
+
+def test_new_recording_plans_only_its_own_jobs(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["recordings"].append(workspace["entries"]["recC"])
+    assert planned(workspace["root"], config) == jobs(ALL_STAGES, ("recC",))
+
+
+def test_stage_toggles_shape_the_dag(workspace):
+    root, base = workspace["root"], workspace["config"]
+    config = copy.deepcopy(base)
+    config["pipeline"]["do_bundle_adjustment"] = False
+    plan = planned(root, config)
+    assert not any(rule == "bundle_adjustment" for rule, _ in plan)
+    assert jobs(("triangulation", "assemble", "visualization"), ("recA", "recB")) == plan
+
+    config = copy.deepcopy(base)
+    config["pipeline"]["do_pose2d"] = False  # reconstruct from the existing 2D artifact
+    assert planned(root, config) == set()
+
+    config = copy.deepcopy(base)
+    config["pipeline"]["do_visualization"] = False
+    assert planned(root, config) == set()
+
+    config = copy.deepcopy(base)
+    config["pipeline"]["do_pictorial_structures"] = True  # pose2d re-runs once, for candidates
+    plan = planned(root, config)
+    assert jobs(("pose2d", "pictorial_structures", "triangulation"), ("recA", "recB")) <= plan
+
+
+def test_lint_is_clean():
+    proc = subprocess.run([str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--lint"],
+                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Congratulations" in proc.stdout + proc.stderr
+
+
+def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_path):
+    config = base_config()
+    config["bundle_adjustment"]["max_nfev"] = 20
+    config["pipeline"]["do_visualization"] = False
+    good = make_recording(config, tmp_path / "good", 0)
+    bad = make_recording(config, tmp_path / "bad", 1)
+    csv = tmp_path / "bad" / bad["import"]["files"]["rm"]
+    original = csv.read_bytes()
+    csv.write_text("not,a\ndeeplabcut,file\n")
+    config["recordings"] = [good, bad]
+    proc = snakemake(tmp_path, "--keep-going", config=config, check=False)
+    assert proc.returncode != 0
+    assert (tmp_path / "good" / "flylib_outputs" / "results.h5").is_file()
+    assert not (tmp_path / "bad" / "flylib_outputs" / "stages" / "pose2d.h5").exists()
+    assert csv.name in (tmp_path / "bad" / "flylib_outputs" / "logs" / "pose2d.log").read_text()
+
+    csv.write_bytes(original)
+    assert planned(tmp_path, config) == jobs(("pose2d", "bundle_adjustment", "triangulation", "assemble"),
+                                             ("bad",))
+
+
+def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
+    config = base_config()
+    config["pipeline"]["do_visualization"] = False
+    rec = tmp_path / "broken"
+    make_recording(config, rec, 0)
+    (rec / "camera_3.mp4").write_bytes(b"this is not a video")
+    config["recordings"] = [str(rec)]  # detector path: footage is decoded
+    proc = snakemake(tmp_path, config=config, check=False)
+    assert proc.returncode != 0
+    log = (rec / "flylib_outputs" / "logs" / "pose2d.log").read_text()
+    assert "camera_3.mp4" in log.strip().splitlines()[-1]
+    assert not (rec / "flylib_outputs" / "stages" / "pose2d.h5").exists()
+
+
+def test_invalid_config_is_one_clear_error_before_any_job(tmp_path):
+    config = base_config()
+    config["triangulation"]["method"] = "magic"
+    proc = snakemake(tmp_path, "--dry-run", config=config, check=False)
+    assert proc.returncode != 0
+    assert "triangulation.method" in proc.stdout + proc.stderr
+    assert not (tmp_path / "demo").exists()
+
+
+def test_empty_batch_is_one_clear_error(tmp_path):
+    config = base_config()
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    config["recordings"] = [str(tmp_path / "a"), str(tmp_path / "b")]
+    proc = snakemake(tmp_path, "--dry-run", config=config, check=False)
+    assert proc.returncode != 0
+    assert "no valid recording" in (proc.stdout + proc.stderr).lower() or \
+        "none of" in (proc.stdout + proc.stderr)

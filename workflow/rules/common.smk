@@ -1,0 +1,221 @@
+# Shared set-up: validate the config, resolve the recordings, and the helpers the
+# rules use. Runs once per Snakemake invocation, before any job starts.
+
+import copy
+import hashlib
+import json
+import os
+import re
+import sys
+from pathlib import Path
+
+import yaml
+from snakemake.exceptions import WorkflowError
+from snakemake.logging import logger
+from snakemake.utils import validate
+
+REPO = Path(workflow.basedir)
+if not (REPO / "src" / "flylib").is_dir():
+    raise WorkflowError(f"{REPO}: not a flylib checkout (src/flylib is missing)")
+sys.path.insert(0, str(REPO / "src"))
+
+from flylib.config import Config  # noqa: E402
+from flylib.errors import FlylibError  # noqa: E402
+from flylib.recordings import plan_recordings  # noqa: E402
+from flylib.stages import ARTIFACTS  # noqa: E402
+
+# Structural validation against the JSON schema, then flylib's own (cross-references,
+# one message per problem). A copy is validated so the schema's defaults do not
+# leak into the config that the stage scripts read.
+validate(copy.deepcopy(config), str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
+
+# The config the jobs read: the config file's own bytes when Snakemake's config is
+# exactly that file (so every output directory gets a byte-for-byte snapshot), else
+# a YAML dump of the merged config (--configfile/--config overrides). Named by its
+# content, so a dry run with another config never changes what running jobs read.
+
+
+def _effective_config_text() -> str:
+    files = [Path(f) for f in workflow.configfiles]
+    if len(files) == 1 and files[0].is_file():
+        text = files[0].read_text()
+        if yaml.safe_load(text) == config:
+            return text
+    return yaml.safe_dump(dict(config), sort_keys=False, default_flow_style=None)
+
+
+def _write_effective_config(text: str) -> Path:
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    path = Path(".snakemake") / "flylib" / f"config-{digest}.yaml"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return path
+
+
+EFFECTIVE_CONFIG = _write_effective_config(_effective_config_text())
+
+try:
+    CONFIG = Config.from_yaml(EFFECTIVE_CONFIG)
+    FLAGS = CONFIG.stage_flags()
+    RECORDINGS = plan_recordings(CONFIG)
+except FlylibError as exc:
+    raise WorkflowError(str(exc)) from None
+
+if sum(r.demo for r in RECORDINGS) > 1:
+    raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")
+
+# The interpreter the scripts run with: this one, unless jobs run in per-rule conda
+# environments (--sdm conda), where `python` is the environment's.
+PYTHON = "python" if "conda" in str(workflow.deployment_settings.deployment_method).lower() else sys.executable
+SCRIPTS = REPO / "scripts"
+
+
+def command(script: str):
+    """A rule's `params.run`: interpreter, stage script and config file.
+
+    How a job is run is not what it computes, so this is a *derived* param (a function
+    of the job's input), which Snakemake leaves out of its re-run provenance: moving
+    the checkout or switching to conda environments re-runs nothing.
+    """
+    import shlex
+
+    text = " ".join(shlex.quote(str(p)) for p in (PYTHON, SCRIPTS / script))
+    text += f" --config {shlex.quote(str(EFFECTIVE_CONFIG))}"
+    return lambda wildcards, input: text
+
+BY_OUTDIR = {str(r.outdir): r for r in RECORDINGS}
+
+
+wildcard_constraints:
+    outdir="|".join(re.escape(o) for o in sorted(BY_OUTDIR, key=len, reverse=True)),
+
+
+def recording(wildcards):
+    """The Recording whose output directory is this job's ``{outdir}``."""
+    return BY_OUTDIR[wildcards.outdir]
+
+
+_PARAMS_CACHE: dict[str, str] = {}
+
+
+def stage_params(stage: str) -> str:
+    """The rule's `params`: the stage's result-affecting config subset, as canonical JSON
+    (Snakemake re-runs a job when it changes)."""
+    if stage not in _PARAMS_CACHE:
+        _PARAMS_CACHE[stage] = json.dumps(CONFIG.stage_params(stage), sort_keys=True)
+    return _PARAMS_CACHE[stage]
+
+
+def artifact(stage: str) -> str:
+    """The `{outdir}` pattern of a stage artifact."""
+    return f"{{outdir}}/stages/{ARTIFACTS[stage]}"
+
+
+def recording_inputs(wildcards) -> list[str]:
+    """What pose2d reads: the footage (for the demo, everything the demo rule writes)."""
+    rec = recording(wildcards)
+    if rec.demo:
+        return DEMO_OUTPUTS
+    return [str(f) for f in rec.footage]
+
+
+def footage_inputs(wildcards) -> list[str]:
+    """The recording's footage files (for the demo, the videos the demo rule writes)."""
+    rec = recording(wildcards)
+    if rec.demo:
+        return DEMO_FOOTAGE
+    return [str(f) for f in rec.footage]
+
+
+VIDEO_NAMES = [
+    str(v.get("video_name"))
+    for v in (CONFIG.data.get("visualization") or {}).get("videos") or []
+    if isinstance(v, dict) and v.get("video_name")
+]
+
+
+def _missing_pose2d(rec) -> bool:
+    return not FLAGS["pose2d"] and not (rec.outdir / "stages" / ARTIFACTS["pose2d"]).is_file()
+
+
+for _rec in RECORDINGS:
+    if _missing_pose2d(_rec):
+        logger.warning(
+            f"{_rec.id}: pipeline.do_pose2d is false and {_rec.outdir}/stages/pose2d.h5 does "
+            "not exist; skipping this recording (turn pose2d on to create it)"
+        )
+
+
+def recording_targets(rec) -> list[str]:
+    """Every final output of one recording."""
+    out = str(rec.outdir)
+    targets = [f"{out}/results.h5", f"{out}/summary.json", f"{out}/summary.png", f"{out}/calibration.toml"]
+    if FLAGS["visualization"]:
+        targets += [f"{out}/{name}.mp4" for name in VIDEO_NAMES]
+    return targets
+
+
+def all_targets() -> list[str]:
+    return [t for rec in RECORDINGS if not _missing_pose2d(rec) for t in recording_targets(rec)]
+
+
+# -- per-rule input and argument helpers ---------------------------------------
+
+
+def pose2d_import(wildcards) -> str:
+    """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
+    return json.dumps(recording(wildcards).import_spec, sort_keys=True)
+
+
+def pose2d_gpus(wildcards) -> int:
+    """A GPU only when the detector runs (imported 2D needs none)."""
+    rec = recording(wildcards)
+    return 0 if (rec.import_spec or CONFIG.import_spec) else 1
+
+
+def reconstruction_inputs(stage: str):
+    """Inputs of a geometry rule: pose2d, plus the bundle-adjusted rig while that stage
+    is on, plus (triangulation) pictorial-structures 2D while that stage is on."""
+
+    def inputs(wildcards) -> dict[str, str]:
+        files = {"pose2d": artifact("pose2d")}
+        if FLAGS["bundle_adjustment"]:
+            files["bundle_adjustment"] = artifact("bundle_adjustment")
+        if stage == "triangulation" and FLAGS["pictorial_structures"]:
+            files["pictorial_structures"] = artifact("pictorial_structures")
+        return {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+
+    return inputs
+
+
+def optional_arg(flag: str, key: str):
+    """`--flag path` when the job has input `key`, else nothing."""
+    return lambda wildcards, input: f"{flag} {shell_quote(input[key])}" if key in input.keys() else ""
+
+
+def shell_quote(text: str) -> str:
+    import shlex
+
+    return shlex.quote(str(text))
+
+
+def assemble_inputs(wildcards) -> dict[str, str]:
+    files = {"pose2d": artifact("pose2d")}
+    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation"):
+        if FLAGS[stage]:
+            files[stage] = artifact(stage)
+    files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+    if recording(wildcards).demo:
+        files["truth"] = str(DEMO.path / "truth.h5")
+    return files
+
+
+def assemble_args(wildcards, input) -> str:
+    args = []
+    for key in (*ARTIFACTS, "truth"):
+        if key in input.keys():
+            args.append(f"--{key.replace('_', '-')} {shell_quote(input[key])}")
+    return " ".join(args)

@@ -1,0 +1,46 @@
+# The embedded demo recording: synthetic footage of a walking fly rendered through the
+# configured rig, its 2D keypoints as DeepLabCut CSVs, and the 3D truth. Generated
+# only when the recordings list holds a {path: ..., demo: true} entry.
+
+from flylib.demo import demo_files, demo_settings
+
+DEMO = next((r for r in RECORDINGS if r.demo), None)
+DEMO_OUTPUTS: list[str] = []
+DEMO_FOOTAGE: list[str] = []
+
+if DEMO is not None:
+    try:
+        _demo_names = demo_files(CONFIG)
+        _demo_params = json.dumps(
+            {
+                "demo": demo_settings(CONFIG),
+                "sources": CONFIG.data.get("sources"),
+                "rig": CONFIG.stage_params("assemble")["rig"],
+                "skeleton": CONFIG.stage_params("assemble")["skeleton"],
+                "output_points": (CONFIG.data.get("pose2d") or {}).get("output_points"),
+            },
+            sort_keys=True,
+        )
+    except FlylibError as exc:
+        raise WorkflowError(str(exc)) from None
+    DEMO_OUTPUTS = [str(DEMO.path / name) for names in _demo_names.values() for name in names]
+    DEMO_FOOTAGE = [str(DEMO.path / name) for name in _demo_names["footage"]]
+
+    rule demo:
+        output:
+            DEMO_OUTPUTS,
+        params:
+            run=command("demo.py"),
+            demo=_demo_params,
+            directory=lambda wildcards, output: str(Path(output[0]).parent),
+        log:
+            "logs/demo.log",
+        benchmark:
+            "benchmarks/demo.tsv"
+        resources:
+            mem_mb=2000,
+            runtime=15,
+        conda:
+            "../../envs/visualization.yaml"
+        shell:
+            "{params.run} --out {params.directory:q} 2> {log:q}"

@@ -1,0 +1,37 @@
+# assemble: results.h5 (schema v2, readable by PoseResult.load) from the stage
+# artifacts of the enabled stages, plus the per-recording summary: summary.png,
+# calibration.toml (the final rig in Anipose format) and summary.json. For the demo
+# it also prints the 3D error against the truth.
+
+
+rule assemble:
+    input:
+        unpack(assemble_inputs),
+    output:
+        results="{outdir}/results.h5",
+        summary="{outdir}/summary.json",
+        figure=report(
+            "{outdir}/summary.png",
+            caption="../report/summary.rst",
+            category="Summary figures",
+            labels={"recording": "{outdir}", "figure": "summary"},
+        ),
+        calibration="{outdir}/calibration.toml",
+    params:
+        run=command("assemble.py"),
+        stage=stage_params("assemble"),
+        recording=lambda w: str(recording(w).path),
+        args=assemble_args,
+    log:
+        "{outdir}/logs/assemble.log",
+    benchmark:
+        "{outdir}/benchmarks/assemble.tsv"
+    resources:
+        mem_mb=2000,
+        runtime=15,
+    conda:
+        "../../envs/visualization.yaml"
+    shell:
+        "{params.run} {params.args}"
+        " --recording {params.recording:q} --outdir {wildcards.outdir:q}"
+        " --snapshot-dir {wildcards.outdir:q} 2> {log:q}"

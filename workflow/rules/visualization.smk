@@ -1,0 +1,37 @@
+# visualization: the configured videos ([[visualization.videos]]) of one recording,
+# drawn over its footage from results.h5.
+
+if FLAGS["visualization"] and VIDEO_NAMES:
+
+    rule visualization:
+        input:
+            results="{outdir}/results.h5",
+            footage=footage_inputs,
+        output:
+            [
+                report(
+                    f"{{outdir}}/{name}.mp4",
+                    caption="../report/video.rst",
+                    category="Videos",
+                    labels={"recording": "{outdir}", "video": name},
+                )
+                for name in VIDEO_NAMES
+            ],
+        params:
+            run=command("visualization.py"),
+            stage=stage_params("visualization"),
+            recording=lambda w: str(recording(w).path),
+        log:
+            "{outdir}/logs/visualization.log",
+        benchmark:
+            "{outdir}/benchmarks/visualization.tsv"
+        threads: 2
+        resources:
+            mem_mb=4000,
+            runtime=60,
+        conda:
+            "../../envs/visualization.yaml"
+        shell:
+            "{params.run}"
+            " --results {input.results:q} --recording {params.recording:q}"
+            " --outdir {wildcards.outdir:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
