@@ -69,13 +69,13 @@ def synthetic(rig: CameraGroup, frames: int, visibility: str, seed: int = 0):
 
 
 def _svd_dlt(obs: np.ndarray, pmats: np.ndarray) -> np.ndarray:
-    """One point, textbook DLT: Hartley-normalized rows, SVD."""
+    """One point, textbook linear least squares: normalized rows, SVD-based lstsq."""
     rows = []
     for (u, v), p in zip(obs, pmats):
         for r in (u * p[2] - p[0], v * p[2] - p[1]):
             rows.append(r / np.linalg.norm(r[:3]))
-    x = np.linalg.svd(np.asarray(rows))[2][-1]
-    return x[:3] / x[3]
+    rows = np.asarray(rows)
+    return np.linalg.lstsq(rows[:, :3], -rows[:, 3], rcond=None)[0]
 
 
 def loop_dlt(pts2d, pmats):

@@ -251,6 +251,7 @@ INVALID = [
     (_set("bundle_adjustment.points_to_use.0", "lf_thorax"), "bundle_adjustment.points_to_use: unknown point 'lf_thorax'"),
     (_rename_key("pose2d.output_points.f", "rf_claw", "rf_clow"), "pose2d.output_points.f.rf_clow: unknown point 'rf_clow'"),
     (_set("pose2d.pathways.0.source", "vid_rhh"), "pose2d.pathways.rh.source: unknown source 'vid_rhh' (known: vid_rh,"),
+    (_set("pose2d.pathways.0.source", ["vid_rh"]), "pose2d.pathways.rh.source: unknown source ['vid_rh']"),
     (_set("pose2d.pathways.4.preprocessor", "flop"), "pose2d.pathways.f_flip.preprocessor: unknown preprocessor 'flop' (known: flip)"),
     (_set("pose2d.pathways.1.model", "sh8"), "pose2d.pathways.rm.model: unknown model 'sh8' (known: deepfly2d)"),
     (_set("pose2d.output_points.f.rf_claw.pathway", "front"), "pose2d.output_points.f.rf_claw.pathway: unknown pathway 'front'"),
@@ -391,6 +392,9 @@ def test_dict_config_snapshot_round_trips(data, tmp_path):
     data["triangulation"]["ransac_threshold"] = 11.5
     out = Config.from_dict(data).save_snapshot(tmp_path)
     assert Config.from_file(out).data == data
+    data["cameras"]["defaults"]["look_at"] = (0.0, 0.0, 1.0)  # library users pass tuples
+    out = Config.from_dict(data).save_snapshot(tmp_path)
+    assert Config.from_file(out).data["cameras"]["defaults"]["look_at"] == [0.0, 0.0, 1.0]
 
 
 # -- JSON schema for Snakemake -----------------------------------------------------
@@ -399,14 +403,14 @@ def test_dict_config_snapshot_round_trips(data, tmp_path):
 @pytest.fixture(scope="module")
 def schema() -> dict:
     schema = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
-    jsonschema.Draft7Validator.check_schema(schema)
+    jsonschema.Draft202012Validator.check_schema(schema)
     return schema
 
 
 def schema_errors(schema: dict, data: dict) -> list[str]:
     return [
         ".".join(map(str, e.absolute_path)) + ": " + e.message
-        for e in jsonschema.Draft7Validator(schema).iter_errors(data)
+        for e in jsonschema.Draft202012Validator(schema).iter_errors(data)
     ]
 
 
@@ -479,3 +483,10 @@ def test_pictorial_params_are_keywords_of_the_reconstructor(data):
     kwargs = Config.from_dict(data).pictorial.solver_kwargs()
     assert set(kwargs) == {"temporal", "lam", "bone_max_frames", "max_hyp", "inlier_px", "huber", "mu", "nms"}
     assert set(kwargs) <= set(inspect.signature(pictorial.reconstruct).parameters)
+
+
+def test_videos_and_detection_plan_delegate_to_their_modules(default):
+    assert [video.name for video in default.videos] == ["pose2d", "pose3d"]
+    plan = default.detection_plan()
+    assert list(plan.view_names) == default.view_names()
+    assert list(plan.point_names) == list(Skeleton.fly().point_names)

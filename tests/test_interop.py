@@ -479,3 +479,15 @@ def test_calibration_without_configured_views_takes_the_file_order(tmp_path):
     path.write_text(ANIPOSE_TOML)
     cams = load_calibration({"calibration": {"file": "calibration.toml"}}, recording_dir=tmp_path)
     assert cams.names == ["left", "right"]
+
+
+def test_import_spec_validation(tmp_path):
+    config = rig_config(["a"], ["p0"])
+    with pytest.raises(ImportFormatError, match=r"pose2d.import must be a mapping"):
+        import_points2d(config, tmp_path)  # no pose2d.import in the config
+    with pytest.raises(ImportFormatError, match=r"unknown keys \['file'\]"):
+        import_points2d(config, tmp_path, {"format": "dlc_csv", "file": "a.csv"})
+    with pytest.raises(ImportFormatError, match=r"image_size must be \[height, width\]"):
+        import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": ["480", 960]})
+    with pytest.raises(ImportFormatError, match=r"placeholder"):
+        import_points2d(config, tmp_path, {"format": "dlc_csv", "files": "camera_*.csv"})

@@ -351,3 +351,12 @@ def test_stage_file_of_wrong_version_stops_assembly(tmp_path, skeleton, stage_fi
 def test_bare_pose2d_artifact_has_no_rig_for_pose_result(tmp_path, skeleton, stage_files):
     with pytest.raises(ResultsError, match="has no cameras"):
         PoseResult.load(stage_files["pose2d"])
+
+
+def test_hdf5_file_without_flylib_meta_is_rejected(tmp_path):
+    path = tmp_path / "foreign.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("pose2d/points", data=np.zeros((V, T, P, 2)))
+    with pytest.raises(ResultsError, match="foreign.h5: not a flylib file"):
+        PoseResult.load(path)
+    assert read_meta(path) == {}

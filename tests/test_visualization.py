@@ -108,6 +108,9 @@ def test_panel_size_keeps_aspect_when_one_side_is_given():
     assert p[1].size(frame) == (200, 100)
     assert p[2].size(frame) == (240, 120)
     assert p[3].size(frame) == (200, 200)
+    # the automatic canvas covers every panel and is rounded up to even sizes
+    odd = read_video_specs(config_dict(vis_table(kwargs={"width": 101, "height": 51})))[0]
+    assert odd.canvas_size({"f": (480, 960), "rf": (480, 960)}) == (342, 292)
 
 
 @pytest.mark.parametrize(
@@ -434,3 +437,32 @@ def test_canvas_encoder_keeps_colours_and_crops_to_even_size(tmp_path):
     # away from the chroma-subsampled edge, colours survive RGB -> I420 -> H.264 -> RGB
     assert np.abs(frames[:, :, 4:40].astype(int) - (186, 30, 49)).max() <= 4
     assert np.abs(frames[:, :, 56:92].astype(int) - (117, 190, 203)).max() <= 4
+
+
+def test_missing_footage_raises_footage_error_and_leaves_no_file(tmp_path, df3d_result):
+    from flylib.errors import FootageError
+
+    config, result = df3d_result
+    footage = {"f": [tmp_path / "nope" / "camera_3.mp4"]}
+    with pytest.raises(FootageError, match="camera_3.mp4"):
+        render_videos(config, result, footage, tmp_path / "out", progress=False)
+    assert not any((tmp_path / "out").iterdir())
+
+
+def test_image_sequence_footage_renders_at_the_default_rate(tmp_path, df3d_sample_dir,
+                                                            df3d_result):
+    from flylib.io import natural_key
+
+    config, result = df3d_result
+    images = sorted(df3d_sample_dir.glob("camera_2_img_*.jpg"), key=natural_key)
+    table = {"default_fps": 12, "videos": [{"video_name": "rf", "panels": [
+        {"plot": "imshow", "view": "rf", "scale": 0.25},
+        {"plot": "skeleton_2d", "view": "rf", "scale": 0.25, "point_radius": 1}]}]}
+    with pytest.warns(UserWarning, match="frame rate is unknown.*default_fps = 12"):
+        (path,) = render_videos({**config.data, "visualization": table}, result,
+                                {"rf": images}, tmp_path, progress=False)
+    frames, rate = decoded_video(path)
+    assert frames.shape == (15, 120, 240, 3) and rate == 12
+    first = cv2.cvtColor(cv2.imread(str(images[0])), cv2.COLOR_BGR2RGB)
+    small = cv2.resize(first, (240, 120), interpolation=cv2.INTER_AREA).astype(int)
+    assert np.median(np.abs(frames[0].astype(int) - small)) < 6

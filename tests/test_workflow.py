@@ -178,6 +178,19 @@ def test_stage_toggles_shape_the_dag(workspace):
     assert jobs(("pose2d", "pictorial_structures", "triangulation"), ("recA", "recB")) <= plan
 
 
+def test_report_holds_every_recordings_figure_and_videos(workspace):
+    root = workspace["root"]
+    snakemake(root, "--report", str(root / "report.zip"), config=workspace["config"])
+    import zipfile
+
+    report = zipfile.ZipFile(root / "report.zip")
+    names = report.namelist()
+    for f in ("summary.png", "pose2d.mp4", "pose3d.mp4"):
+        assert sum(n.endswith(f"/{f}") for n in names) == 2, f  # one per recording
+    html = report.read(next(n for n in names if n.endswith(".html"))).decode()
+    assert "recA/flylib_outputs" in html and "recB/flylib_outputs" in html
+
+
 def test_lint_is_clean():
     proc = subprocess.run([str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--lint"],
                           capture_output=True, text=True, cwd=REPO, timeout=300)
@@ -238,3 +251,57 @@ def test_empty_batch_is_one_clear_error(tmp_path):
     assert proc.returncode != 0
     assert "no valid recording" in (proc.stdout + proc.stderr).lower() or \
         "none of" in (proc.stdout + proc.stderr)
+
+
+@pytest.mark.shared
+def test_batch_of_the_two_real_recordings(tmp_path, df3d_sample_dir, df3d_pickle, deeperfly_example_dir):
+    """deepfly3d-sample with DeepFly3D's own 2D imported; deeperfly-example through the
+    detector with a randomly initialised network saved in the published checkpoint
+    format (its keypoints are meaningless, but every stage runs on real footage)."""
+    import torch
+
+    from flylib.pose2d.model import HourglassNet
+    from flylib.pose2d.weights import save_checkpoint
+    from flylib.results import PoseResult
+
+    torch.manual_seed(0)
+    checkpoint = save_checkpoint(HourglassNet(num_stacks=1, num_feats=8, inplanes=8),
+                                 tmp_path / "sh1_random.tar")
+    config = base_config()
+    model = config["pose2d"]["models"][0]
+    model.update(weights=str(checkpoint), input_size=[64, 128])
+    config["pose2d"].update(device="cpu", batch_size=16)
+    config["bundle_adjustment"]["max_nfev"] = 10
+    config["recordings"] = [
+        {"path": str(df3d_sample_dir), "import": {"format": "deepfly3d", "files": df3d_pickle.name}},
+        {"path": str(deeperfly_example_dir)},
+    ]
+    config["outdir"] = str(tmp_path / "out" / "{id}")  # the shared data is read-only
+    snakemake(tmp_path, config=config)
+    for name, frames in (("deepfly3d-sample", 15), ("deeperfly-example", 64)):
+        out = tmp_path / "out" / name
+        result = PoseResult.load(out / "results.h5")
+        assert result.pts2d.shape == (7, frames, 38, 2)
+        assert result.pts3d.shape == (frames, 38, 3)
+        assert (out / "pose3d.mp4").stat().st_size > 0 and (out / "summary.png").is_file()
+    imported = PoseResult.load(tmp_path / "out" / "deepfly3d-sample" / "results.h5")
+    assert np.isfinite(imported.pts3d).mean() > 0.5
+
+
+@pytest.mark.parametrize("script", ["demo", "pose2d", "bundle_adjustment", "pictorial_structures",
+                                    "triangulation", "assemble", "visualization"])
+def test_stage_scripts_have_help(script):
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / f"{script}.py"), "--help"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "--config" in proc.stdout
+
+
+def test_stage_script_reports_a_missing_artifact_in_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "triangulation.py"),
+                           "--config", str(REPO / "config" / "config.yaml"),
+                           "--pose2d", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "t.h5")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: ") and "missing.h5" in last
+    assert not (tmp_path / "t.h5").exists()

@@ -46,6 +46,9 @@ _EXPORTS: dict[str, str] = {
     "Recording": "recordings",
     "resolve_recordings": "recordings",
     "find_recording": "recordings",
+    "plan_recordings": "recordings",
+    "make_demo": "demo",
+    "synthetic_fly": "demo",
     # geometry
     "rvec_to_rmat": "geometry",
     "rmat_to_rvec": "geometry",

@@ -8,10 +8,10 @@ throughout. See :mod:`flylib.ba.params` for the ``fixed`` / ``shared`` grammar a
 
 Robustness and gauge, beyond a plain least-squares fit:
 
-- the starting 3D points come from a RANSAC triangulation; its outlying observations
-  sit out the first round, and after every round observations reprojecting worse than
-  ``outlier_factor`` times the median error (at least ``outlier_min_px``) are dropped
-  and the fit repeated, so gross detector errors do not bend the rig;
+- the starting 3D points come from a two-view consensus triangulation; its outlying
+  observations sit out the first round (a short one); after every round observations reprojecting worse than ``outlier_factor`` times the
+  median error (at least ``outlier_min_px``) are dropped and the fit repeated with the
+  caller's loss, so gross detector errors do not bend the rig;
 - an optional bone-length prior (one residual per frame and bone, relative to
   :func:`flylib.pictorial.bone_length_targets`) keeps limbs at a plausible length;
 - when no rotation or translation is fixed, the world frame is a free similarity
@@ -49,10 +49,11 @@ __all__ = [
 ]
 
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
-DEFAULT_INIT_THRESHOLD = 40.0  # px, RANSAC threshold of the starting triangulation
+DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
 DEFAULT_OUTLIER_FACTOR = 5.0
 DEFAULT_OUTLIER_MIN_PX = 3.0
 DEFAULT_MAX_ROUNDS = 3
+_SORTING_NFEV = 15
 
 
 def camera_table(cameras: "CameraGroup") -> np.ndarray:
@@ -102,7 +103,7 @@ def bundle_adjust(
     fixed, shared
         Parameter references held constant / tied together (:mod:`flylib.ba.params`).
     pts3d
-        Initial 3D points ``(N, 3)``; RANSAC-triangulated from ``cameras`` if omitted.
+        Initial 3D points ``(N, 3)``; consensus-triangulated from ``cameras`` if omitted.
     conf, weigh_by_confidence
         With ``weigh_by_confidence`` and ``conf`` ``(V, N)``, residuals are scaled by
         ``sqrt(conf)``; non-positive or non-finite confidences drop the observation.
@@ -179,7 +180,13 @@ def bundle_adjust(
         x0 = problem.pack(table, pts[keep_points])
         if initial_median is None:
             initial_median = _median_error(problem, x0)
-        result = problem.solve(table, pts[keep_points], **solver_kwargs)
+        # The first of several rounds only sorts inliers from outliers: a few
+        # iterations do, the last round gets the caller's full budget.
+        sorting = reject_outliers and rounds == 1 and max_rounds > 1
+        kwargs = dict(solver_kwargs)
+        if sorting:
+            kwargs["max_nfev"] = min(kwargs.get("max_nfev") or _SORTING_NFEV, _SORTING_NFEV)
+        result = problem.solve(table, pts[keep_points], **kwargs)
         table, sub = problem.unpack(result.x)
         pts = np.full((n_points, 3), np.nan)
         pts[keep_points] = sub
@@ -190,7 +197,7 @@ def bundle_adjust(
         threshold = max(outlier_min_px, outlier_factor * med)
         new_active = np.zeros_like(active)
         new_active[view_idx, point_idx] = np.nan_to_num(err, nan=np.inf) <= threshold
-        if np.array_equal(new_active, active):
+        if np.array_equal(new_active, active) and not sorting:
             break
         log.info("bundle adjustment round %d: %d observations beyond %.1f px set aside",
                  rounds, int(usable.sum() - new_active.sum()), threshold)
@@ -221,10 +228,10 @@ def _valid_bones(bones):
 
 
 def _ransac_start(cameras, pts2d, usable, threshold):
-    from .triangulation import triangulate_ransac
+    from .pictorial import consensus_triangulate
 
     masked = np.where(usable[..., None], pts2d, np.nan)
-    pts3d, inliers = triangulate_ransac(masked, cameras, threshold=threshold, min_inliers=2)
+    pts3d, inliers = consensus_triangulate(cameras, masked, threshold=threshold)
     inliers = np.asarray(inliers, bool) & usable
     return np.asarray(pts3d, float), inliers
 

@@ -171,7 +171,7 @@ def _string_list(nullable: bool = False) -> Check:
     def check(value: Any) -> str | None:
         if value is None and nullable:
             return None
-        if isinstance(value, list) and all(isinstance(v, str) for v in value):
+        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
             return None
         return f"expected a list of strings{' or null' if nullable else ''}, {_got(value)}"
 
@@ -179,8 +179,8 @@ def _string_list(nullable: bool = False) -> Check:
 
 
 def _string_groups(value: Any) -> str | None:
-    if isinstance(value, list) and all(
-        isinstance(g, list) and all(isinstance(s, str) for s in g) for g in value
+    if isinstance(value, (list, tuple)) and all(
+        isinstance(g, (list, tuple)) and all(isinstance(s, str) for s in g) for g in value
     ):
         return None
     return f"expected a list of lists of strings, {_got(value)}"
@@ -413,7 +413,7 @@ def _build_params(cls: type, table: Mapping) -> Any:
         if value is not None and kind is float:
             value = float(value)
         elif value is not None and kind is tuple:
-            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+            value = tuple(tuple(v) if isinstance(v, (list, tuple)) else v for v in value)
         kwargs[f.name] = value
     return cls(**kwargs)
 
@@ -438,6 +438,9 @@ def _duplicate_key_problems(node: yaml.Node | None, path: str = "") -> list[str]
     if isinstance(node, yaml.MappingNode):
         first_line: dict[Any, int] = {}
         for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):
+                problems += _duplicate_key_problems(value_node, f"{path}.<complex key>")
+                continue
             key = key_node.value
             where = f"{path}.{key}" if path else str(key)
             line = key_node.start_mark.line + 1
@@ -512,7 +515,7 @@ def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, di
 
 
 def _reference(value: Any, known: Mapping, what: str, where: str, problems: list[str]) -> bool:
-    if value in known:
+    if isinstance(value, str) and value in known:
         return True
     problems.append(f"{where}: unknown {what} {value!r} (known: {', '.join(known) or 'none'})")
     return False
@@ -571,7 +574,7 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
             continue
         for point, slot in table.items():
             where = f"{where_view}.{point}"
-            if point not in known_points:
+            if known_points and point not in known_points:
                 problems.append(f"{where}: unknown point {point!r} (known: {', '.join(point_names)})")
             if not isinstance(slot, Mapping):
                 problems.append(f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}")
@@ -701,7 +704,7 @@ def validate_config(data: Any) -> list[str]:
     problems += _table_problems(
         {k: v for k, v in ba.items() if k in ba_fields}, BundleAdjustmentParams, "bundle_adjustment"
     )
-    if isinstance(ba.get("points_to_use"), list) and point_names:
+    if isinstance(ba.get("points_to_use"), (list, tuple)) and point_names:
         for point in ba["points_to_use"]:
             if isinstance(point, str) and point not in point_names:
                 problems.append(
@@ -734,6 +737,17 @@ def _canonical(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_canonical(v) for v in value]
     if hasattr(value, "item") and callable(value.item):  # numpy scalar
+        return value.item()
+    return value
+
+
+def _plain(value: Any) -> Any:
+    """YAML-dumpable copy: tuples become lists, numpy scalars Python numbers; key order kept."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):
         return value.item()
     return value
 
@@ -914,6 +928,19 @@ class Config:
         return self.data.get("visualization") or {}
 
     @property
+    def videos(self) -> list:
+        """The parsed output-video specs (``flylib.visualization.specs.read_video_specs``)."""
+        from .visualization.specs import read_video_specs
+
+        return read_video_specs(self)
+
+    def detection_plan(self) -> Any:
+        """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_config``)."""
+        from .pose2d.plan import DetectionPlan
+
+        return DetectionPlan.from_config(self)
+
+    @property
     def import_spec(self) -> dict | None:
         """The ``pose2d.import`` table (read 2D from another tool), or ``None``."""
         return (self.data.get("pose2d") or {}).get("import")
@@ -1089,7 +1116,7 @@ class Config:
         """The text :meth:`save_snapshot` writes: the source text, or a YAML dump for a dict."""
         if self.text is not None:
             return self.text
-        return yaml.safe_dump(self.data, sort_keys=False, default_flow_style=None, allow_unicode=True)
+        return yaml.safe_dump(_plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True)
 
     def save_snapshot(self, outdir: str | Path) -> Path:
         """Write the config that drives this run to ``<outdir>/config.yaml`` (or ``.toml``).

@@ -65,7 +65,7 @@ _COXA_X = {"f": 0.35, "m": 0.0, "h": -0.30}
 _COXA_Y = {"f": 0.14, "m": 0.20, "h": 0.17}
 _YAW_DEG = {"f": 45.0, "m": 0.0, "h": -40.0}  # from lateral towards the head
 _GAIT_PHASE = {"lf": 0.0, "rm": 0.0, "lh": 0.0, "rf": np.pi, "lm": np.pi, "rh": np.pi}
-_BODY_Z = 0.45  # lifts the fly so that legs and antennae are centred in the frame
+_BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the frame
 
 
 def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> np.ndarray:

@@ -231,9 +231,7 @@ def bone_length_targets(cameras: "CameraGroup", pts2d: np.ndarray, skeleton: "Sk
     targets : np.ndarray
         ``(B,)`` median lengths, NaN for a bone never triangulated.
     """
-    from .triangulation import triangulate_ransac
-
-    pts3d, _ = triangulate_ransac(np.asarray(pts2d, float), cameras)
+    pts3d, _ = consensus_triangulate(cameras, pts2d)
     i, j = skeleton.bone_index_pairs()
     lengths = np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)
     with warnings.catch_warnings():  # an all-NaN bone gives a NaN target, on purpose
@@ -455,6 +453,40 @@ def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_rad
             full[:, np.arange(len(joints))[:, None], :, views] = asg.transpose(1, 3, 0, 2)
             hyp.assign[t, joints, :s] = full
     return hyp
+
+
+def consensus_triangulate(cameras: "CameraGroup", pts2d: np.ndarray,
+                          threshold: float = DEFAULT_INLIER_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Exhaustive two-view consensus triangulation in NumPy (no JIT), for robust starts.
+
+    Every pair of views seeds a hypothesis; the one with the most views reprojecting
+    within ``threshold`` pixels wins and is refitted from them (linear least squares).
+
+    Parameters
+    ----------
+    cameras
+        The rig.
+    pts2d
+        ``(V, *pts, 2)`` pixels, NaN = missing.
+    threshold
+        Inlier radius in pixels.
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(*pts, 3)``, NaN where fewer than two views agree.
+    inliers : np.ndarray
+        ``(V, *pts)`` bool.
+    """
+    pts2d = np.asarray(pts2d, float)
+    n_v, lead = pts2d.shape[0], pts2d.shape[1:-1]
+    flat = pts2d.reshape(n_v, 1, -1, 1, 2)
+    hyp = _all_hypotheses(cameras, flat, np.isfinite(flat).all(-1).astype(float),
+                          inlier_px=threshold, max_hyp=1, nms_radius=0.0)
+    ok = np.isfinite(hyp.evidence[0, :, 0])
+    pts3d = np.where(ok[:, None], hyp.pos[0, :, 0], np.nan)
+    inliers = (hyp.assign[0, :, 0] >= 0) & ok[:, None]  # (N, V)
+    return pts3d.reshape(*lead, 3), inliers.T.reshape(n_v, *lead)
 
 
 # -- chain dynamic programming ---------------------------------------------------------

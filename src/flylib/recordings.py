@@ -503,15 +503,18 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
             found.append((path, {}, entry))
             continue
         rec_recursive = bool(entry.get("recursive", recursive))
-        if batch or rec_recursive:
+        is_pattern = bool(_GLOB_CHARS.search(str(entry["path"])))
+        if batch and not rec_recursive and not is_pattern:
+            path = Path(os.path.expanduser(str(entry["path"])))
+            src = find_recording(path, config, check_frames=check_frames)  # warns when skipped
+            hits = [(path, src)] if src is not None else []
+        elif batch or rec_recursive:
             try:
                 hits = resolve_recordings([entry["path"]], recursive=rec_recursive, config=config,
                                           check_frames=check_frames)
             except FootageError as exc:
                 log.warning("%s", exc)
                 continue
-            if len(hits) == 1 and not hits[0][1] and not rec_recursive:
-                continue  # a batch member that is not a recording: already warned about
         else:
             hits = resolve_recordings([entry["path"]], recursive=False, config=config,
                                       check_frames=check_frames)

@@ -160,6 +160,8 @@ def _open_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
         raise ResultsError(f"{path}: not a readable HDF5 file ({err}); {rerun}") from None
     with f:
         version = read_meta_from(f).get("deeperfly_format_version")
+        if version is None:
+            raise ResultsError(f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it")
         if version != FORMAT_VERSION:
             raise ResultsError(
                 f"{path}: format version {version!r}, expected {FORMAT_VERSION}; {rerun} to regenerate it"
@@ -192,7 +194,11 @@ def read_meta(path: str | Path) -> dict:
     dict
         The parsed meta; empty if the file has none.
     """
-    with h5py.File(path, "r") as f:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:
+        raise ResultsError(f"{path}: not a readable HDF5 file ({err})") from None
+    with f:
         return read_meta_from(f)
 
 
@@ -414,6 +420,8 @@ class PoseResult:
         with _open_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
+            if "skeleton" not in f:
+                raise ResultsError(f"{path}: has no skeleton group; {rerun}")
             meta = read_meta_from(f)
             meta.pop("deeperfly_format_version", None)
             skeleton = _read_skeleton(f["skeleton"])

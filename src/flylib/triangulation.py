@@ -18,6 +18,7 @@ order is accepted too.
 from __future__ import annotations
 
 import logging
+from collections import deque
 from functools import partial
 from itertools import combinations
 
@@ -33,6 +34,10 @@ log = logging.getLogger(__name__)
 
 METHODS = ("ransac", "greedy", "dlt")
 DEFAULT_CHUNK_POINTS = 4096
+_CHUNKS_IN_FLIGHT = 4
+# Full-size chunks unroll the pair loop (faster, ~5 s to compile once); short inputs
+# keep it rolled (compiles in ~2 s).
+_RANSAC_UNROLL = 7
 
 
 # -- input handling --------------------------------------------------------------
@@ -144,26 +149,31 @@ def _solve_kept(terms, kept, min_views=2):
 
 @jax.jit
 def _dlt_chunk(rig, raw, und, weights):
+    und = raw if und is None else und
     feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)
     terms = jnp.einsum("fvn,vfk->kn", feats, rig["quad"])
     return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
-@partial(jax.jit, static_argnames=("distorted",))
-def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
+@partial(jax.jit, static_argnames=("distorted", "unroll"))
+def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted, unroll=1):
+    und = raw if und is None else und
     terms, valid = _view_terms(rig, und, weights)
     n_views = valid.shape[0]
     threshold_sq = threshold * threshold
     scale = 1.0 / (n_views * threshold + 1.0)
     n = valid.shape[1]
-    best_score = jnp.full(n, -jnp.inf)
-    best_inliers = jnp.zeros((n_views, n), dtype=bool)
-    # Exhaustive two-view hypotheses, unrolled over the (static) pairs with a running
-    # arg-max, so nothing of size pairs x views x points is ever stored.
-    for i, j in combinations(range(n_views), 2):
-        x, y, z = geometry.dlt_solve_components(
-            jnp, terms[:, i] + terms[:, j], valid[i].astype(int) + valid[j]
-        )
+    pairs = np.array(list(combinations(range(n_views), 2)), dtype=np.int32)
+    pairs_i, pairs_j = jnp.asarray(pairs[:, 0]), jnp.asarray(pairs[:, 1])
+
+    # Exhaustive two-view hypotheses with a running arg-max: nothing of size
+    # pairs x views x points is ever stored, and the loop body compiles once.
+    def try_pair(h, state):
+        best_score, best_inliers = state
+        i, j = pairs_i[h], pairs_j[h]
+        pair_terms = jnp.take(terms, i, axis=1) + jnp.take(terms, j, axis=1)
+        pair_valid = jnp.take(valid, i, axis=0).astype(int) + jnp.take(valid, j, axis=0)
+        x, y, z = geometry.dlt_solve_components(jnp, pair_terms, pair_valid)
         err_sq = jnp.stack(
             [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
         )
@@ -174,8 +184,10 @@ def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
         # below count * threshold, so scaling it under 1 never flips a count.
         score = count - total * scale
         better = score > best_score
-        best_score = jnp.where(better, score, best_score)
-        best_inliers = jnp.where(better[None], inlier, best_inliers)
+        return jnp.where(better, score, best_score), jnp.where(better[None], inlier, best_inliers)
+
+    init = (jnp.full(n, -jnp.inf), jnp.zeros((n_views, n), dtype=bool))
+    _, best_inliers = jax.lax.fori_loop(0, len(pairs), try_pair, init, unroll=unroll)
     pts3d = _solve_kept(terms, best_inliers, jnp.maximum(min_inliers, 2))
     accepted = jnp.isfinite(pts3d).all(axis=-1)
     return pts3d, best_inliers & accepted[None]
@@ -183,6 +195,7 @@ def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
 
 @partial(jax.jit, static_argnames=("distorted",))
 def _greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
+    und = raw if und is None else und
     terms, kept = _view_terms(rig, und, weights)
     n_views = kept.shape[0]
 
@@ -204,6 +217,15 @@ def _greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
     return pts3d, kept & accepted[None]
 
 
+def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
+    """``arr`` (V, n, ...) extended along axis 1 to ``size`` with ``fill``."""
+    if arr.shape[1] == size:
+        return arr
+    out = np.full((arr.shape[0], size, *arr.shape[2:]), fill)
+    out[:, : arr.shape[1]] = arr
+    return out
+
+
 def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
     """Flatten ``(V, *pts, 2)``, run a jitted kernel on fixed-length chunks, reshape back.
 
@@ -215,25 +237,37 @@ def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
     raw_all = pts2d.reshape(n_views, -1, 2)
     und_all = cameras.undistort_points(raw_all) if rig.distorted else raw_all
     n = raw_all.shape[1]
-    w_all = np.ones((n_views, n)) if weights is None else weights.reshape(n_views, -1)
+    w_all = None if weights is None else weights.reshape(n_views, -1)
     size = _pad_to(n, chunk_points)
     pts3d = np.full((n, 3), np.nan)
     kept = np.zeros((n_views, n), dtype=bool)
-    for start in range(0, n, size):
-        stop = min(start + size, n)
-        raw = np.full((n_views, size, 2), np.nan)
-        und = np.full((n_views, size, 2), np.nan)
-        w = np.zeros((n_views, size))
-        raw[:, : stop - start] = raw_all[:, start:stop]
-        und[:, : stop - start] = und_all[:, start:stop]
-        w[:, : stop - start] = w_all[:, start:stop]
-        # A dropped observation (zero / bad weight) is missing everywhere, vote included.
-        drop = ~(np.isfinite(w) & (w > 0))
-        raw[drop] = np.nan
-        und[drop] = np.nan
-        x, k = kernel(rig.arrays, raw, und, np.where(drop, 0.0, w), **params)
+    in_flight: deque = deque()
+    if kernel is _ransac_chunk:  # unroll the pair loop only where it repays its compile time
+        params["unroll"] = _RANSAC_UNROLL if size >= DEFAULT_CHUNK_POINTS else 1
+
+    def collect() -> None:
+        start, stop, (x, k) = in_flight.popleft()
         pts3d[start:stop] = np.asarray(x)[: stop - start]
         kept[:, start:stop] = np.asarray(k)[:, : stop - start]
+
+    for start in range(0, n, size):
+        stop = min(start + size, n)
+        raw = _padded(raw_all[:, start:stop], size, np.nan)
+        und = _padded(und_all[:, start:stop], size, np.nan) if rig.distorted else None
+        w = None if w_all is None else _padded(w_all[:, start:stop], size, 0.0)
+        if w is not None:
+            # A dropped observation (zero / bad weight) is missing everywhere, vote included.
+            drop = ~(np.isfinite(w) & (w > 0))
+            raw = np.where(drop[..., None], np.nan, raw)
+            und = None if und is None else np.where(drop[..., None], np.nan, und)
+            w = np.where(drop, 0.0, w)
+        # JAX dispatches asynchronously: keep a few chunks in flight so the kernels
+        # overlap with this loop (and with each other on several cores).
+        in_flight.append((start, stop, kernel(rig.arrays, raw, und, w, **params)))
+        if len(in_flight) > _CHUNKS_IN_FLIGHT:
+            collect()
+    while in_flight:
+        collect()
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 

@@ -24,9 +24,13 @@ from flylib.errors import FlylibError  # noqa: E402
 from flylib.recordings import plan_recordings  # noqa: E402
 from flylib.stages import ARTIFACTS  # noqa: E402
 
-# Structural validation against the JSON schema, then flylib's own (cross-references,
-# one message per problem). A copy is validated so the schema's defaults do not
-# leak into the config that the stage scripts read.
+# Validate before any job starts: flylib's own checks first (one line per problem,
+# naming the key and the fix), then the JSON schema as a structural safety net. A
+# copy is validated so the schema's defaults do not leak into what the jobs read.
+try:
+    Config.from_dict(config)
+except FlylibError as exc:
+    raise WorkflowError(str(exc)) from None
 validate(copy.deepcopy(config), str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
 
 # The config the jobs read: the config file's own bytes when Snakemake's config is

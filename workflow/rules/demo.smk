@@ -36,7 +36,7 @@ if DEMO is not None:
         log:
             "logs/demo.log",
         benchmark:
-            "benchmarks/demo.tsv"
+            "logs/demo.benchmark.tsv"
         resources:
             mem_mb=2000,
             runtime=15,

@@ -83,7 +83,9 @@ def import_spec(config, spec: dict | None = None) -> dict:
         raise ImportFormatError(f"{where}.format is {fmt!r}; use one of {list(FORMATS)}")
     size = spec.get("image_size")
     if size is not None and (
-        not isinstance(size, (list, tuple)) or len(size) != 2 or not all(int(v) > 0 for v in size)
+        not isinstance(size, (list, tuple))
+        or len(size) != 2
+        or not all(isinstance(v, int) and v > 0 for v in size)
     ):
         raise ImportFormatError(f"{where}.image_size must be [height, width] in pixels, got {size!r}")
     threshold = spec.get("likelihood_threshold")

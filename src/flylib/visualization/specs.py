@@ -183,6 +183,9 @@ class VideoSpec:
     def canvas_size(self, image_sizes: Mapping[str, tuple[int, int]]) -> tuple[int, int]:
         """Canvas ``(width, height)``, checking every panel lies on it.
 
+        Without an explicit size the canvas is the union of the panels (from the
+        origin), rounded up to even sizes.
+
         Parameters
         ----------
         image_sizes
@@ -194,8 +197,9 @@ class VideoSpec:
             If a panel reaches past an explicitly given canvas size.
         """
         rects = [(p, *p.size(image_sizes[p.view])) for p in self.panels]
-        width = self.width or max((p.x0 + w for p, w, _ in rects), default=2)
-        height = self.height or max((p.y0 + h for p, _, h in rects), default=2)
+        # an automatic size is rounded up to even: H.264 in 4:2:0 needs even sizes
+        width = self.width or _even_up(max((p.x0 + w for p, w, _ in rects), default=2))
+        height = self.height or _even_up(max((p.y0 + h for p, _, h in rects), default=2))
         for p, w, h in rects:
             if p.x0 + w > width or p.y0 + h > height:
                 raise ConfigError(
@@ -204,6 +208,10 @@ class VideoSpec:
                     f"{self.where}.width/height"
                 )
         return width, height
+
+
+def _even_up(n: int) -> int:
+    return n + (n & 1)
 
 
 def merge_draw_kwargs(*levels: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,322 @@
+"""2D detector throughput and memory: decode, forward and end-to-end, CPU or CUDA.
+
+Generates its own synthetic 960x480 H.264 clip (moving blobs on a textured
+background, like the rig's footage) and measures, on the default plan's shape
+(7 sources, 8 pathways, the flip preprocessor, one 19-channel stacked hourglass
+at 256x512):
+
+* decode frames/s: one source alone, and 7 sources on flylib's background decode
+  threads (what detection uses);
+* forward images/s per precision and batch size (random weights), with GFLOP per
+  image, the TFLOP/s reached and its fraction of the H100's dense bf16 peak
+  (989 TFLOP/s, SXM);
+* end-to-end images/s (7 sources decoded -> 8 pathways -> points in the raw
+  frame), i.e. ``flylib.pose2d.run_detection``, per precision and batch size; and
+  whether decoding or the network is the bottleneck;
+* peak memory (RSS, sampled every 10 ms) of streaming a 5,000-frame clip against a
+  500-frame clip (target: within 2x); on the CPU the network is replaced by the
+  torch preprocessing so this stays quick (``--memory-mode full`` forces it).
+
+Targets (H100): end-to-end >= 1,500 images/s in bf16, decode never the bottleneck.
+
+Run: ``python benchmarks/detector.py [--device cuda] [--precision bfloat16,float16]
+[--batch-sizes 32,64,128] [--stacks 8] [--frames 1000] [--compile auto|on|off|both]``.
+Imports only torch, numpy, av, cv2 and flylib (from ``src/``), no network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from flylib import io  # noqa: E402
+from flylib.pose2d import stream  # noqa: E402
+from flylib.pose2d.inference import LoadedModel, select_device  # noqa: E402
+from flylib.pose2d.model import HourglassNet  # noqa: E402
+from flylib.pose2d.plan import DetectionPlan  # noqa: E402
+
+H100_BF16_PEAK_TFLOPS = 989.0
+FRAME_H, FRAME_W = 480, 960
+N_SOURCES = 7
+
+
+# --- synthetic footage and plan ---------------------------------------------------
+
+
+def make_clip(path: Path, n_frames: int, seed: int = 0) -> Path:
+    """A 960x480 clip of drifting Gaussian blobs on static texture, H.264 (x264 'fast')."""
+    rng = np.random.default_rng(seed)
+    background = (rng.normal(70, 12, size=(FRAME_H, FRAME_W)).clip(0, 255)).astype(np.float32)
+    yy, xx = np.mgrid[0:FRAME_H, 0:FRAME_W].astype(np.float32)
+    centres = rng.uniform([100, 80], [860, 400], size=(12, 2)).astype(np.float32)
+    speeds = rng.normal(0, 3, size=(12, 2)).astype(np.float32)
+    with io.VideoWriter(path, fps=100, crf=20, preset="fast") as writer:
+        for t in range(n_frames):
+            frame = background.copy()
+            for (cx, cy), (vx, vy) in zip(centres, speeds):
+                x0 = (cx + vx * t) % FRAME_W
+                y0 = (cy + vy * t) % FRAME_H
+                sl = (slice(max(0, int(y0) - 30), int(y0) + 30), slice(max(0, int(x0) - 30), int(x0) + 30))
+                frame[sl] += 150 * np.exp(-((xx[sl] - x0) ** 2 + (yy[sl] - y0) ** 2) / 200.0)
+            gray = frame.clip(0, 255).astype(np.uint8)
+            writer.write_frame(np.repeat(gray[..., None], 3, axis=-1))
+    return path
+
+
+def plan_data(checkpoint: Path, batch_size: int, precision: str, device: str) -> dict:
+    """The default fly plan's shape: 7 sources, 8 pathways (4 mirrored), 19 channels."""
+    points = [f"l{i}" for i in range(19)] + [f"r{i}" for i in range(19)]
+    views = [f"cam{i}" for i in range(N_SOURCES)]
+    pathways = [{"name": f"p{i}", "source": f"vid{i}", "model": "hg"} for i in range(4)]
+    pathways += [{"name": f"p{i}_flip", "source": f"vid{i}", "preprocessor": "flip", "model": "hg"} for i in range(3, 7)]
+    output_points = {v: {} for v in views}
+    for p in pathways:
+        view = f"cam{p['source'][3:]}"
+        side = "l" if "flip" in p["name"] else "r"
+        output_points[view].update({f"{side}{c}": {"pathway": p["name"], "out_channel": c} for c in range(19)})
+    return {
+        "sources": [{"name": f"vid{i}", "filename": f"camera_{i}.mp4"} for i in range(N_SOURCES)],
+        "skeleton": {"point_names": points},
+        "cameras": {v: {} for v in views},
+        "pose2d": {
+            "precision": precision, "batch_size": batch_size, "decode_buffer": 4, "device": device,
+            "preprocessors": [{"name": "flip", "ops": [{"op": "fliplr"}]}],
+            "models": [{"name": "hg", "class": "hourglass", "weights": str(checkpoint),
+                        "input_size": [256, 512], "mean": 0.22, "n_out_channels": 19}],
+            "pathways": pathways,
+            "output_points": output_points,
+        },
+    }
+
+
+# --- measurements -------------------------------------------------------------------
+
+
+class RssSampler(threading.Thread):
+    """Peak resident memory of this process, sampled every ``interval`` s (Linux /proc)."""
+
+    def __init__(self, interval: float = 0.01):
+        super().__init__(daemon=True)
+        self.interval, self.peak, self._halt = interval, 0, threading.Event()
+        self.page = os.sysconf("SC_PAGE_SIZE")
+
+    def rss(self) -> int:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * self.page
+
+    def run(self):
+        while not self._halt.is_set():
+            self.peak = max(self.peak, self.rss())
+            time.sleep(self.interval)
+
+    def stop(self) -> int:
+        self._halt.set()
+        self.join()
+        self.peak = max(self.peak, self.rss())
+        return self.peak
+
+
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def bench_decode(clip: Path, frames: int, block: int) -> tuple[float, float]:
+    """Frames/s of one reader alone, and aggregate frames/s of 7 prefetch threads."""
+    reader = io.open_reader(clip)
+    t = time.perf_counter()
+    n = sum(len(b) for b in reader.stream_blocks(block_size=block))
+    single = n / (time.perf_counter() - t)
+    prefetchers = [stream.BlockPrefetcher(f"s{i}", [clip], block_size=block, depth=4) for i in range(N_SOURCES)]
+    t = time.perf_counter()
+    for p in prefetchers:
+        p.start()
+    total = 0
+    for p in prefetchers:
+        while (b := p.get()) is not stream._END:
+            total += len(b)
+    parallel = total / (time.perf_counter() - t)
+    assert n == frames and total == frames * N_SOURCES, (n, total)
+    return single, parallel
+
+
+def flops_per_image(stacks: int) -> float:
+    """Forward FLOPs (2 x multiply-adds) of one 256x512 image."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    net = HourglassNet(num_stacks=stacks).eval()
+    with FlopCounterMode(display=False) as counter, torch.inference_mode():
+        net(torch.zeros(1, 3, 256, 512))
+    return float(counter.get_total_flops())
+
+
+def bench_forward(model: LoadedModel, batch: int, seconds: float) -> float:
+    """Images/s of the network alone on preprocessed input."""
+    x = model.preprocess(torch.randint(0, 255, (batch, FRAME_H, FRAME_W, 3), dtype=torch.uint8, device=model.device))
+    for _ in range(3):
+        model.heatmaps(x)
+    sync(model.device)
+    n, t = 0, time.perf_counter()
+    while time.perf_counter() - t < seconds or n < 3:
+        model.heatmaps(x)
+        n += 1
+    sync(model.device)
+    return n * batch / (time.perf_counter() - t)
+
+
+def bench_end_to_end(plan, model, clip: Path, frames: int, batch: int) -> tuple[float, float, np.ndarray]:
+    sources = {s: [clip] for s in plan.sources}
+    # warm-up on a short prefix is not possible with whole files; the first block
+    # carries compile/cudnn autotuning, so time from the second run
+    t = time.perf_counter()
+    out = stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4)
+    sync(model.device)
+    dt = time.perf_counter() - t
+    n_images = frames * len(plan.active_pathways())
+    return n_images / dt, frames / dt, out.pts2d
+
+
+def bench_memory(plan, model, clips: dict[int, Path], batch: int, full: bool) -> dict[int, tuple[int, int]]:
+    """Peak RSS (and its rise over the pre-run RSS) streaming each clip length."""
+    out = {}
+    for n, clip in clips.items():
+        sources = {s: [clip] for s in plan.sources}
+        sampler = RssSampler()
+        base = sampler.rss()
+        sampler.start()
+        if full:
+            stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4)
+        else:  # decode threads + torch preprocessing of every pathway, no network
+            prefetchers = {s: stream.BlockPrefetcher(s, sources[s], block_size=batch, depth=4) for s in plan.sources}
+            for p in prefetchers.values():
+                p.start()
+            while True:
+                blocks = {s: p.get() for s, p in prefetchers.items()}
+                if any(b is stream._END for b in blocks.values()):
+                    break
+                for s, block in blocks.items():
+                    for pathway in plan.pathways_on(s):
+                        model.preprocess(block.to(model.device), pathway.ops)
+        peak = sampler.stop()
+        out[n] = (peak, peak - base)
+    return out
+
+
+# --- driver ---------------------------------------------------------------------------
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="auto", help="auto, cpu, cuda, mps")
+    ap.add_argument("--precision", default=None, help="comma list (default: bfloat16,float16,float32 on CUDA; float32 on CPU)")
+    ap.add_argument("--batch-sizes", default=None, help="comma list (default: 32,64,128 on CUDA; 4 on CPU)")
+    ap.add_argument("--stacks", type=int, default=None, help="hourglass stacks (default 8 on CUDA, 1 on CPU)")
+    ap.add_argument("--frames", type=int, default=None, help="clip length for decode/end-to-end (default 1000 CUDA, 16 CPU)")
+    ap.add_argument("--compile", default="auto", choices=["auto", "on", "off", "both"])
+    ap.add_argument("--forward-seconds", type=float, default=3.0)
+    ap.add_argument("--memory-frames", default="500,5000", help="the two clip lengths compared ('' to skip)")
+    ap.add_argument("--memory-mode", default="auto", choices=["auto", "full", "decode"])
+    ap.add_argument("--workdir", default=None, help="where to write the synthetic clips (default: a temp dir)")
+    args = ap.parse_args(argv)
+
+    device = select_device(args.device)
+    cuda = device.type == "cuda"
+    precisions = (args.precision or ("bfloat16,float16,float32" if cuda else "float32")).split(",")
+    batches = [int(b) for b in (args.batch_sizes or ("32,64,128" if cuda else "4")).split(",")]
+    stacks = args.stacks or (8 if cuda else 1)
+    frames = args.frames or (1000 if cuda else 16)
+    compile_modes = {"auto": [cuda], "on": [True], "off": [False], "both": [False, True]}[args.compile]
+    if cuda:
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+        print(f"device: {torch.cuda.get_device_name()}  torch {torch.__version__}")
+    else:
+        print(f"device: {device} ({torch.get_num_threads()} torch threads, {os.cpu_count()} cpus)  torch {torch.__version__}")
+    print(f"hourglass: {stacks} stacks, 256x512 input, 19 channels; plan: {N_SOURCES} sources, 8 pathways")
+
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="flylib-bench-"))
+    work.mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    clip = make_clip(work / f"clip_{frames}.mp4", frames)
+    print(f"synthetic clip: {frames} frames 960x480 in {time.perf_counter() - t:.1f} s")
+
+    single, parallel = bench_decode(clip, frames, block=max(batches))
+    print(f"\ndecode: {single:8.0f} frames/s one source | {parallel:8.0f} frames/s total over {N_SOURCES} "
+          f"parallel sources = {parallel / N_SOURCES:.0f} recording frames/s "
+          f"= {parallel / N_SOURCES * 8:.0f} pathway images/s")
+
+    gflop = flops_per_image(stacks) / 1e9
+    print(f"forward cost: {gflop:.1f} GFLOP per 256x512 image")
+
+    torch.manual_seed(0)
+    checkpoint = work / "random.tar"
+    from flylib.pose2d.weights import save_checkpoint
+
+    save_checkpoint(HourglassNet(num_stacks=stacks), checkpoint)
+    from flylib.pose2d.weights import load_hourglass
+
+    print("\n precision  batch compile | forward img/s  TFLOP/s  %bf16peak | end-to-end img/s  frames/s  bound")
+    best = (0.0, None)
+    reference = None
+    for precision in precisions:
+        for batch in batches:
+            for compiled in compile_modes:
+                plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precision, str(device)))
+                model = LoadedModel(plan.models["hg"], load_hourglass(checkpoint), device,
+                                    precision=precision, batch_size=batch, compiled=compiled and cuda)
+                try:
+                    fwd = bench_forward(model, batch, args.forward_seconds)
+                    bench_end_to_end(plan, model, clip, frames, batch) if compiled else None  # warm compile
+                    e2e, fps, pts = bench_end_to_end(plan, model, clip, frames, batch)
+                except torch.OutOfMemoryError:
+                    print(f" {precision:9s} {batch:6d} {str(compiled):7s} | out of memory")
+                    torch.cuda.empty_cache()
+                    continue
+                tflops = fwd * gflop / 1e3
+                bound = "decode" if parallel / N_SOURCES * 8 < 1.15 * e2e else "network"
+                print(f" {precision:9s} {batch:6d} {str(compiled):7s} | {fwd:13.1f} {tflops:8.2f} {100 * tflops / H100_BF16_PEAK_TFLOPS:9.2f}"
+                      f"  | {e2e:16.1f} {fps:9.1f}  {bound}")
+                if reference is None and precision == "float32":
+                    reference = pts
+                elif reference is not None:
+                    moved = np.nanmedian(np.linalg.norm(pts - reference, axis=-1))
+                    print(f"{'':26s}median shift vs float32 points: {moved:.2f} px")
+                if e2e > best[0]:
+                    best = (e2e, (precision, batch, compiled))
+                del model
+                if cuda:
+                    torch.cuda.empty_cache()
+    print(f"\nbest end-to-end: {best[0]:.0f} images/s with {best[1]} (target on H100: >= 1500 bf16)")
+
+    if args.memory_frames:
+        lengths = [int(n) for n in args.memory_frames.split(",")]
+        full = args.memory_mode == "full" or (args.memory_mode == "auto" and cuda)
+        clips = {}
+        for n in lengths:
+            t = time.perf_counter()
+            clips[n] = make_clip(work / f"mem_{n}.mp4", n, seed=1)
+            print(f"memory clip {n} frames written in {time.perf_counter() - t:.1f} s")
+        batch = batches[0]
+        plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precisions[0], str(device)))
+        model = LoadedModel(plan.models["hg"], load_hourglass(checkpoint), device,
+                            precision=precisions[0], batch_size=batch, compiled=False)
+        result = bench_memory(plan, model, clips, batch, full)
+        print(f"\nmemory ({'full detection' if full else 'decode + preprocessing'}, batch {batch}, buffer 4):")
+        for n, (peak, rise) in result.items():
+            print(f"  {n:6d} frames: peak RSS {peak / 2**20:8.0f} MiB (+{rise / 2**20:6.0f} MiB over the start)")
+        small, large = result[lengths[0]][0], result[lengths[-1]][0]
+        print(f"  ratio {lengths[-1]}/{lengths[0]} frames: {large / small:.2f}x (target <= 2x)")
+
+
+if __name__ == "__main__":
+    main()

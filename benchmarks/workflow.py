@@ -1,0 +1,141 @@
+"""Workflow benchmarks: planning time for many recordings, and the workflow's overhead.
+
+1. Dry-run planning of N recordings (default 200, tiny 2-frame videos, 7 cameras):
+   wall-clock of ``snakemake --dry-run`` against a 1-recording dry run measured in the
+   same session (the fixed start-up cost), and of :func:`flylib.recordings.plan_recordings`
+   alone. Target: < 10 s for 200 recordings.
+2. Overhead of running the demo through Snakemake (one process per job) over calling
+   the stage functions directly in one process. Target: < 30 %.
+
+    python benchmarks/workflow.py [--recordings 200] [--frames 60] [--skip-overhead]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = Path(sys.executable).parent / "snakemake"
+sys.path.insert(0, str(REPO / "src"))
+
+
+def _snakemake(workdir: Path, *args: str) -> float:
+    cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
+           "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    elapsed = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise SystemExit(f"snakemake failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return elapsed
+
+
+def _tiny_recordings(root: Path, count: int, sources: list[dict]) -> list[str]:
+    from flylib.io import VideoWriter
+
+    template = root / "template"
+    template.mkdir(parents=True)
+    for s in sources:
+        with VideoWriter(template / s["filename"], fps=10) as writer:
+            writer.write_frames(np.zeros((2, 16, 16, 3), np.uint8))
+    dirs = []
+    for i in range(count):
+        rec = root / f"rec{i:03d}"
+        shutil.copytree(template, rec)
+        dirs.append(str(rec))
+    return dirs
+
+
+def bench_planning(n: int) -> dict:
+    from flylib.config import Config
+    from flylib.recordings import plan_recordings
+
+    base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        dirs = _tiny_recordings(root / "data", n, base["sources"])
+        results = {}
+        for label, recs in (("1 recording", dirs[:1]), (f"{n} recordings", dirs)):
+            config = {**base, "recordings": recs}
+            (root / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+            _snakemake(root, "--dry-run")  # warm the file cache and the effective config
+            results[label] = min(_snakemake(root, "--dry-run") for _ in range(2))
+        cfg = Config.from_dict({**base, "recordings": dirs})
+        start = time.perf_counter()
+        plan_recordings(cfg)
+        results["plan_recordings alone"] = time.perf_counter() - start
+    return results
+
+
+def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
+    from flylib import stages
+    from flylib.demo import demo_import_spec
+
+    p2d = stages.artifact_path(out, "pose2d")
+    ba = stages.artifact_path(out, "bundle_adjustment")
+    tri = stages.artifact_path(out, "triangulation")
+    stages.run_pose2d(config, rec_dir, p2d, import_spec=demo_import_spec(config))
+    stages.run_bundle_adjustment(config, p2d, ba, recording_dir=rec_dir)
+    stages.run_triangulation(config, p2d, tri, ba_path=ba, recording_dir=rec_dir)
+    stages.run_assemble(config, {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri}, out,
+                        recording_dir=rec_dir, truth_path=truth)
+    stages.run_visualization(config, out / "results.h5", rec_dir, out)
+
+
+def bench_overhead(frames: int) -> dict:
+    from flylib.config import Config
+
+    base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    base["demo"] = {**(base.get("demo") or {}), "frames": frames}
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        config_path = root / "config.yaml"
+        config_path.write_text(yaml.safe_dump(base, sort_keys=False))
+        _snakemake(root, "--cores", "1", "demo")  # the demo recording, made by its rule
+        config = Config.from_yaml(config_path)
+        (root / "direct").mkdir()
+        start = time.perf_counter()
+        _direct_pipeline(config, root / "demo", root / "direct", root / "demo" / "truth.h5")
+        direct = time.perf_counter() - start
+        start = time.perf_counter()
+        _snakemake(root, "--cores", "1")
+        workflow = time.perf_counter() - start
+    return {"direct (one process)": direct, "workflow (--cores 1)": workflow}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--recordings", type=int, default=200)
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--skip-overhead", action="store_true")
+    args = parser.parse_args()
+
+    plan = bench_planning(args.recordings)
+    fixed = plan["1 recording"]
+    many = plan[f"{args.recordings} recordings"]
+    print(f"dry run, 1 recording:              {fixed:6.2f} s  (Snakemake start-up and parse)")
+    print(f"dry run, {args.recordings} recordings:          {many:6.2f} s  "
+          f"(target < 10 s: {'ok' if many < 10 else 'MISSED'}); "
+          f"{(many - fixed) / max(args.recordings - 1, 1) * 1000:.1f} ms per extra recording")
+    print(f"plan_recordings alone:             {plan['plan_recordings alone']:6.2f} s")
+    if args.skip_overhead:
+        return
+    over = bench_overhead(args.frames)
+    direct, workflow = over["direct (one process)"], over["workflow (--cores 1)"]
+    ratio = workflow / direct - 1
+    print(f"demo ({args.frames} frames), stage functions in one process: {direct:6.2f} s")
+    print(f"demo ({args.frames} frames), snakemake --cores 1:            {workflow:6.2f} s")
+    print(f"workflow overhead: {100 * ratio:.0f} % (target < 30 %: {'ok' if ratio < 0.3 else 'MISSED'})")
+
+
+if __name__ == "__main__":
+    main()

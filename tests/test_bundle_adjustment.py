@@ -1,0 +1,232 @@
+"""Bundle adjustment: parameter grammar, frame sampling, Jacobian, gauge, recovery."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flylib.ba.params import build_layout
+from flylib.ba.sampling import select_frames
+from flylib.ba.solver import Problem
+from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
+from flylib.errors import ConfigError
+
+from synthetic import default_rig, observe, perturb_rig, project_opencv, synthetic_fly
+
+NAMES = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
+
+
+# -- parameter grammar ---------------------------------------------------------------
+
+
+def test_fixed_references_select_exact_entries():
+    layout = build_layout(NAMES, 2, fixed=["*.intr", "f.rvec", "rm.tvec[2]", "*.dist[0]"])
+    fixed = layout.var_index < 0
+    expected = np.zeros((7, 12), bool)
+    expected[:, 6:10] = True  # intrinsics everywhere
+    expected[3, 0:3] = True  # f.rvec
+    expected[1, 5] = True  # rm.tvec[2]
+    expected[:, 10] = True  # dist[0]
+    np.testing.assert_array_equal(fixed, expected)
+    free = layout.var_index[~fixed]
+    assert sorted(free) == list(range(layout.n_free)) and layout.n_free == (~expected).sum()
+
+
+def test_shared_group_is_one_variable_per_slot():
+    layout = build_layout(NAMES, 0, fixed=[], shared=[["*.intr"], ["rm.tvec[2]", "lm.tvec[2]"]])
+    intr = layout.var_index[:, 6:10]
+    assert (intr == intr[0]).all() and len(set(intr[0])) == 4
+    assert layout.var_index[1, 5] == layout.var_index[5, 5]
+    assert layout.var_index[1, 4] != layout.var_index[5, 4]
+    assert layout.n_free == 7 * 6 - 1 + 4
+
+
+def test_tied_slot_with_a_fixed_member_is_fixed():
+    layout = build_layout(NAMES, 0, fixed=["f.intr"], shared=[["*.intr"]])
+    assert (layout.var_index[:, 6:10] < 0).all()
+
+
+@pytest.mark.parametrize("ref, match", [
+    ("xx.rvec", "unknown camera 'xx'"),
+    ("f.focal", "unknown parameter 'focal'"),
+    ("f.tvec[3]", "index 3 out of range"),
+    ("f-rvec", "cannot parse"),
+    ("*.dist[0]", "index 0 out of range"),
+])
+def test_bad_reference_is_a_config_error_naming_it(ref, match):
+    with pytest.raises(ConfigError, match=match) as info:
+        build_layout(NAMES, 0, fixed=[ref])
+    assert ref in str(info.value)
+
+
+def test_shared_group_of_unequal_lengths_is_rejected():
+    with pytest.raises(ConfigError, match="different numbers"):
+        build_layout(NAMES, 0, shared=[["f.rvec", "rm.tvec[0]"]])
+
+
+def test_pack_unpack_roundtrip_averages_ties():
+    layout = build_layout(NAMES[:2], 0, fixed=["rh.tvec"], shared=[["*.intr[0]"]])
+    table = np.arange(20, dtype=float).reshape(2, 10)
+    x = layout.pack(table)
+    back = layout.unpack(x, table)
+    assert back[0, 6] == back[1, 6] == (table[0, 6] + table[1, 6]) / 2
+    np.testing.assert_array_equal(back[:, 7:], table[:, 7:])
+    np.testing.assert_array_equal(back[0, 3:6], table[0, 3:6])
+
+
+# -- frame sampling --------------------------------------------------------------------
+
+
+def _toy_sequence(n_frames=50, seed=0):
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(3, n_frames, 4, 2))
+    conf = rng.uniform(0.5, 1.0, (3, n_frames, 4))
+    return pts, conf
+
+
+def test_even_sampling():
+    pts, _ = _toy_sequence(101)
+    np.testing.assert_array_equal(select_frames(pts, None, 5, "even"), [0, 25, 50, 75, 100])
+    np.testing.assert_array_equal(select_frames(pts, None, None, "even"), np.arange(101))
+
+
+def test_confidence_sampling_picks_the_surest_frames():
+    pts, conf = _toy_sequence()
+    conf[:, [7, 30, 41]] = 1.0
+    conf[:, [7, 30, 41], 0] = 0.999
+    np.testing.assert_array_equal(select_frames(pts, conf, 3, "confidence"), [7, 30, 41])
+
+
+def test_coverage_sampling_prefers_complete_frames():
+    pts, _ = _toy_sequence()
+    pts[:, :, 2:] = np.nan
+    pts[:, [3, 44], 2:] = 1.0
+    np.testing.assert_array_equal(select_frames(pts, None, 2, "coverage"), [3, 44])
+
+
+def test_diversity_sampling_skips_repeated_postures():
+    pts = np.zeros((2, 40, 3, 2))
+    pts[:, 10] = 5.0
+    pts[:, 25] = -5.0
+    chosen = select_frames(pts, None, 3, "diversity")
+    assert {10, 25} <= set(chosen) and len(chosen) == 3
+
+
+def test_unknown_sampling_is_a_config_error():
+    pts, _ = _toy_sequence()
+    with pytest.raises(ConfigError, match="frame_sampling"):
+        select_frames(pts, None, 3, "random")
+
+
+# -- Jacobian --------------------------------------------------------------------------
+
+
+def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0):
+    rig = default_rig()
+    table = camera_table(rig)
+    table = np.concatenate([table, np.tile([0.05, -0.02], (7, 1))[:, :n_dist]], axis=1)
+    layout = build_layout(NAMES, n_dist, fixed, shared)
+    pts3d = synthetic_fly(2, seed=3)[:, :6].reshape(-1, 3)
+    view, point = np.nonzero(np.ones((7, len(pts3d)), bool))
+    rng = np.random.default_rng(0)
+    problem = Problem(table0=table, layout=layout, view=view, point=point,
+                      xy=rng.uniform(0, 500, (view.size, 2)), weight=rng.uniform(0.5, 1, view.size),
+                      n_points=len(pts3d), bone_i=np.array([0, 1, 6]), bone_j=np.array([1, 2, 7]),
+                      bone_target=np.array([0.3, 0.7, 0.3]), bone_weight=bone_weight)
+    return problem, problem.pack(table, pts3d)
+
+
+def test_jacobian_matches_central_differences():
+    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]])
+    jac = problem.jacobian(x).toarray()
+    numeric = np.empty_like(jac)
+    step = 1e-6 * np.maximum(1.0, np.abs(x))
+    for k in range(x.size):
+        e = np.zeros_like(x)
+        e[k] = step[k]
+        numeric[:, k] = (problem.residuals(x + e) - problem.residuals(x - e)) / (2 * step[k])
+    scale = np.abs(numeric).max(axis=0, keepdims=True) + 1e-9
+    np.testing.assert_allclose(jac / scale, numeric / scale, atol=1e-6)
+    assert jac.shape == (2 * problem.n_obs + 3, problem.layout.n_free + 3 * problem.n_points)
+
+
+def test_jacobian_sparsity_covers_the_jacobian():
+    problem, x = _small_problem()
+    jac = problem.jacobian(x).toarray()
+    pattern = problem.sparsity().toarray() > 0
+    assert not (np.abs(jac) > 0)[~pattern].any()
+    # each observation touches its 3 point columns and its camera's free columns only
+    assert pattern[0].sum() == 3 + (problem.layout.var_index[problem.view[0]] >= 0).sum()
+
+
+# -- solving ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def clean_scene():
+    rig = default_rig()
+    pts3d = synthetic_fly(40, seed=1)
+    pts2d, conf = observe(pts3d, rig, noise_px=0.5, outlier_frac=0.0, seed=2)
+    return rig, pts3d, pts2d, conf
+
+
+def test_fixed_and_shared_parameters_are_respected(clean_scene):
+    rig, pts3d, pts2d, _ = clean_scene
+    start = perturb_rig(rig, rot_deg=1.0, dist_frac=0.01, seed=4)
+    flat = pts2d[:, ::4].reshape(7, -1, 2)
+    _, refined, _ = bundle_adjust(start, flat, fixed=["*.intr", "f.rvec", "rm.tvec[2]"],
+                                  shared=[["rh.tvec[0]", "lh.tvec[0]"]], max_nfev=30)
+    before, after = camera_table(start), camera_table(refined)
+    np.testing.assert_array_equal(after[:, 6:10], before[:, 6:10])
+    np.testing.assert_array_equal(after[3, 0:3], before[3, 0:3])
+    assert after[1, 5] == before[1, 5]
+    assert after[0, 3] == after[6, 3]
+    assert not np.allclose(after[1, 3:5], before[1, 3:5])  # free entries did move
+
+
+def test_gauge_free_fit_stays_put_and_finite(clean_scene):
+    rig, pts3d, pts2d, _ = clean_scene
+    flat = pts2d[:, ::4].reshape(7, -1, 2)
+    result, refined, pts = bundle_adjust(rig, flat, fixed=[], max_nfev=40)
+    table = camera_table(refined)
+    assert np.isfinite(table).all() and np.isfinite(pts[np.isfinite(pts).all(1)]).all()
+    centres = -np.einsum("vji,vj->vi", refined.rmats, refined.tvecs)
+    true_centres = -np.einsum("vji,vj->vi", rig.rmats, rig.tvecs)
+    # canonical frame = closest similarity to the initial rig, which was the truth
+    assert np.abs(centres - true_centres).max() < 0.02 * 107.463
+    assert result.final_median_px < 1.0
+
+
+def test_recovers_perturbed_rig_with_outliers(clean_scene):
+    rig, _, _, _ = clean_scene
+    pts3d = synthetic_fly(60, seed=5)
+    pts2d, conf = observe(pts3d, rig, noise_px=1.0, outlier_frac=0.05, seed=6)
+    start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=7)
+    result, refined, _ = bundle_adjust_sequence(start, pts2d, conf, None, max_frames=30,
+                                                fixed=["*.intr"])
+    truth2d = project_opencv(refined, pts3d)  # refined rig, true points: frame-dependent
+    assert result.final_median_px < 1.2
+    assert result.initial_median_px > 3 * result.final_median_px
+    assert result.inliers.sum() < np.isfinite(pts2d[:, result.frames]).all(-1).sum()
+    assert np.isfinite(truth2d).all()
+
+
+def test_bad_reference_raises_before_solving(clean_scene):
+    rig, _, pts2d, _ = clean_scene
+    with pytest.raises(ConfigError, match="nope"):
+        bundle_adjust(rig, pts2d[:, 0], fixed=["nope.rvec"])
+
+
+def test_points_to_use_restricts_points_by_name(clean_scene):
+    from flylib.skeleton import Skeleton
+
+    rig, _, pts2d, conf = clean_scene
+    skeleton = Skeleton.fly()
+    names = ["rf_thorax_coxa", "rf_coxa_trochanter", "rf_femur_tibia", "rm_claw"]
+    result, _, pts = bundle_adjust_sequence(rig, pts2d, conf, skeleton, points_to_use=names,
+                                            max_frames=5, max_nfev=5)
+    used = np.isfinite(pts).all(-1).any(0)
+    assert set(np.flatnonzero(used)) == {skeleton.point_names.index(n) for n in names}
+    assert len(result.frames) == 5
+    with pytest.raises(ConfigError, match="unknown point"):
+        bundle_adjust_sequence(rig, pts2d, conf, skeleton, points_to_use=["wing"])

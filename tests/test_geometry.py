@@ -1,0 +1,264 @@
+"""flylib.geometry against OpenCV, SciPy and finite differences."""
+
+from __future__ import annotations
+
+import cv2
+import jax
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from flylib import geometry as g
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _unit(rng):
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)
+
+
+# -- rotations -------------------------------------------------------------------------
+
+
+def test_rvec_to_rmat_matches_opencv_and_matrix_exponential():
+    rng = np.random.default_rng(0)
+    rvecs = rng.normal(size=(20, 3))
+    got = np.asarray(g.rvec_to_rmat(rvecs))
+    for rvec, rmat in zip(rvecs, got):
+        np.testing.assert_allclose(rmat, cv2.Rodrigues(rvec)[0], atol=1e-14)
+        np.testing.assert_allclose(rmat, expm(_skew(rvec)), atol=1e-14)
+
+
+def test_rvec_to_rmat_batched_shape_and_single():
+    rvecs = np.random.default_rng(1).normal(size=(2, 4, 3))
+    out = np.asarray(g.rvec_to_rmat(rvecs))
+    assert out.shape == (2, 4, 3, 3)
+    np.testing.assert_allclose(out[1, 2], np.asarray(g.rvec_to_rmat_one(rvecs[1, 2])), atol=1e-15)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-8, 1e-4, 1e-2])
+def test_rotations_near_zero_are_exact(angle):
+    rvec = _unit(np.random.default_rng(2)) * angle
+    rmat = np.asarray(g.rvec_to_rmat_one(rvec))
+    np.testing.assert_allclose(rmat, expm(_skew(rvec)), atol=1e-16)
+    np.testing.assert_allclose(rmat @ rmat.T, np.eye(3), atol=1e-15)
+    back = np.asarray(g.rmat_to_rvec_one(rmat))
+    np.testing.assert_allclose(back, rvec, rtol=1e-9, atol=1e-20)
+
+
+def test_rodrigues_jacobian_at_zero_is_the_skew_generators():
+    jac = np.asarray(jax.jacfwd(g.rvec_to_rmat_one)(np.zeros(3)))  # (3, 3, 3)
+    assert np.all(np.isfinite(jac))
+    for k in range(3):
+        np.testing.assert_allclose(jac[..., k], _skew(np.eye(3)[k]), atol=1e-15)
+
+
+@pytest.mark.parametrize("delta", [0.0, 1e-12, 1e-9, 1e-6, 1e-3, 0.5])
+def test_rotations_near_pi_round_trip(delta):
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        rvec = _unit(rng) * (np.pi - delta)
+        rmat = expm(_skew(rvec))
+        back = np.asarray(g.rmat_to_rvec_one(rmat))
+        # The same rotation (at exactly pi, rvec and -rvec both are).
+        np.testing.assert_allclose(np.asarray(g.rvec_to_rmat_one(back)), rmat, atol=1e-14)
+        if delta > 1e-6:
+            np.testing.assert_allclose(back, rvec, atol=1e-9)
+        assert np.linalg.norm(back) <= np.pi + 1e-12
+
+
+def test_rmat_to_rvec_matches_opencv_on_generic_rotations():
+    rng = np.random.default_rng(4)
+    rvecs = np.stack([_unit(rng) * a for a in rng.uniform(0.01, 3.1, size=20)])
+    rmats = np.stack([cv2.Rodrigues(r)[0] for r in rvecs])
+    got = np.asarray(g.rmat_to_rvec(rmats))
+    ref = np.stack([cv2.Rodrigues(m)[0][:, 0] for m in rmats])
+    np.testing.assert_allclose(got, ref, atol=1e-12)
+
+
+# -- projection and distortion ----------------------------------------------------------
+
+
+def _random_camera(rng, n_dist):
+    rvec = rng.normal(size=3) * 0.5
+    tvec = np.array([0.1, -0.2, 6.0]) + rng.normal(size=3) * 0.1
+    intr = np.array([900.0, 880.0, 330.0, 250.0]) + rng.normal(size=4) * 5
+    dist = rng.normal(size=n_dist) * 0.02
+    return rvec, tvec, intr, dist
+
+
+@pytest.mark.parametrize("n_dist", [0, 4, 5, 8, 12])
+def test_project_full_matches_cv2_projectpoints(n_dist):
+    rng = np.random.default_rng(10 + n_dist)
+    pts = rng.normal(size=(4, 10, 3))
+    cams = [_random_camera(rng, n_dist) for _ in range(3)]
+    rvecs, tvecs, intrs, dists = (np.stack(a) for a in zip(*cams))
+    got = np.asarray(g.project_full(pts, rvecs, tvecs, intrs, dists))
+    assert got.shape == (3, 4, 10, 2)
+    for v, (rvec, tvec, intr, dist) in enumerate(cams):
+        kmat = np.asarray(g.intr_to_kmat(intr))
+        ref = cv2.projectPoints(pts.reshape(-1, 3), rvec, tvec, kmat, dist if n_dist else None)[0]
+        np.testing.assert_allclose(got[v].reshape(-1, 2), ref[:, 0], rtol=1e-9)
+
+
+def test_short_distortion_vectors_are_zero_padded():
+    rng = np.random.default_rng(5)
+    xy = rng.normal(size=2) * 0.3
+    short = np.array([0.1, -0.05])
+    np.testing.assert_allclose(
+        np.asarray(g.distort_one(xy, short)),
+        np.asarray(g.distort_one(xy, np.concatenate([short, np.zeros(10)]))),
+        atol=0,
+    )
+    with pytest.raises(ValueError, match="at most 12"):
+        g.distort_one(xy, np.zeros(13))
+
+
+@pytest.mark.parametrize("n_dist", [4, 5, 8, 12])
+def test_undistort_matches_cv2_and_inverts_distort(n_dist):
+    rng = np.random.default_rng(20 + n_dist)
+    _, _, intr, dist = _random_camera(rng, n_dist)
+    kmat = np.asarray(g.intr_to_kmat(intr))
+    undist = rng.uniform(-0.3, 0.3, size=(25, 2))
+    distorted = np.asarray(jax.jit(jax.vmap(g.distort_one, in_axes=(0, None)))(undist, dist))
+    pixels = distorted * intr[:2] + intr[2:]
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-16)
+    ref = cv2.undistortPoints(pixels[:, None], kmat, dist, None, None, None, criteria)[:, 0]
+    ours = np.asarray(jax.jit(jax.vmap(g.undistort_one, in_axes=(0, None)))(distorted, dist))
+    np.testing.assert_allclose(ours, ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ours, undist, atol=1e-13)
+    np.testing.assert_allclose(g.undistort_normalized(distorted, dist), undist, atol=1e-13)
+
+
+def test_project_full_one_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(6)
+    rvec, tvec, intr, dist = _random_camera(rng, 8)
+    pt = rng.normal(size=3)
+    args = [pt, rvec, tvec, intr, dist]
+    jacs = jax.jit(jax.jacfwd(g.project_full_one, argnums=(0, 1, 2, 3, 4)))(*args)
+    project = jax.jit(g.project_full_one)
+    eps = 1e-6
+    for k, arg in enumerate(args):
+        num = np.zeros((2, arg.size))
+        for i in range(arg.size):
+            hi = [a.copy() for a in args]
+            lo = [a.copy() for a in args]
+            hi[k][i] += eps
+            lo[k][i] -= eps
+            num[:, i] = (np.asarray(project(*hi)) - np.asarray(project(*lo))) / (2 * eps)
+        np.testing.assert_allclose(np.asarray(jacs[k]), num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
+
+
+def test_project_full_one_composes_with_vmap():
+    rng = np.random.default_rng(7)
+    rvec, tvec, intr, dist = _random_camera(rng, 5)
+    pts = rng.normal(size=(6, 3))
+    batched = jax.vmap(g.project_full_one, in_axes=(0, None, None, None, None))(pts, rvec, tvec, intr, dist)
+    np.testing.assert_allclose(
+        np.asarray(batched), np.asarray(g.project_full(pts, rvec[None], tvec[None], intr[None], dist[None]))[0]
+    )
+
+
+def test_project_pmat_equals_pinhole_projection_and_intr_forms():
+    rng = np.random.default_rng(8)
+    rvec, tvec, intr, _ = _random_camera(rng, 0)
+    kmat = np.asarray(g.intr_to_kmat(intr))
+    np.testing.assert_array_equal(
+        kmat, [[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]]
+    )
+    np.testing.assert_array_equal(
+        np.asarray(g.intr_to_kmat(np.array([500.0, 10.0, 20.0]))), [[500, 0, 10], [0, 500, 20], [0, 0, 1]]
+    )
+    pmat = kmat @ np.column_stack([cv2.Rodrigues(rvec)[0], tvec])
+    pts = rng.normal(size=(5, 3))
+    np.testing.assert_allclose(
+        np.asarray(g.project_pmat(pts, pmat[None]))[0],
+        np.asarray(g.project_full(pts, rvec[None], tvec[None], intr[None], np.zeros((1, 0))))[0],
+        rtol=1e-12,
+    )
+
+
+# -- triangulation and rays ---------------------------------------------------------------
+
+
+def _orbit_pmats(focal=22388.125, distance=107.463, azimuths=(-120, -90, -45, 0, 45, 90, 120)):
+    """Look-at cameras built here with cv2 (independent of flylib.cameras)."""
+    pmats = []
+    for az in np.deg2rad(azimuths):
+        out = np.array([np.cos(az), np.sin(az), 0.0])
+        z = -out
+        x = np.array([-np.sin(az), np.cos(az), 0.0])
+        rmat = np.stack([x, np.cross(z, x), z])
+        kmat = np.array([[focal, 0, 480.0], [0, focal, 240.0], [0, 0, 1]])
+        pmats.append(kmat @ np.column_stack([rmat, -rmat @ (distance * out)]))
+    return np.stack(pmats)
+
+
+def test_triangulate_dlt_is_exact_with_long_focal_length():
+    pmats = _orbit_pmats()
+    pts = np.random.default_rng(9).uniform(-1.5, 1.5, size=(50, 3))
+    obs = np.asarray(g.project_pmat(pts, pmats))
+    got = np.asarray(g.triangulate_dlt(obs, pmats))
+    np.testing.assert_allclose(got, pts, rtol=1e-9, atol=1e-9 * np.abs(pts).max())
+    # Any two views suffice, and the other views being NaN changes nothing.
+    obs2 = np.full_like(obs, np.nan)
+    obs2[[1, 4]] = obs[[1, 4]]
+    np.testing.assert_allclose(np.asarray(g.triangulate_dlt(obs2, pmats)), pts, atol=1e-9)
+
+
+def test_triangulate_dlt_nan_and_weights():
+    pmats = _orbit_pmats()
+    rng = np.random.default_rng(10)
+    pts = rng.uniform(-1, 1, size=(8, 3))
+    obs = np.asarray(g.project_pmat(pts, pmats)) + rng.normal(scale=3.0, size=(7, 8, 2))
+    plain = np.asarray(g.triangulate_dlt(obs, pmats))
+    # A uniform weight changes nothing; a zero weight is the same as a missing view.
+    np.testing.assert_allclose(np.asarray(g.triangulate_dlt(obs, pmats, np.full((7, 8), 0.3))), plain, atol=1e-12)
+    weights = np.ones((7, 8))
+    weights[2] = 0.0
+    dropped = obs.copy()
+    dropped[2] = np.nan
+    np.testing.assert_allclose(
+        np.asarray(g.triangulate_dlt(obs, pmats, weights)), np.asarray(g.triangulate_dlt(dropped, pmats)), atol=1e-12
+    )
+    # Non-uniform weights pull the point: the result differs from the plain fit.
+    weights = rng.uniform(0.1, 1.0, size=(7, 8))
+    assert np.abs(np.asarray(g.triangulate_dlt(obs, pmats, weights)) - plain).max() > 1e-6
+    # One view only -> NaN.
+    single = np.full_like(obs, np.nan)
+    single[3] = obs[3]
+    assert np.isnan(np.asarray(g.triangulate_dlt(single, pmats))).all()
+
+
+def test_triangulate_dlt_matches_independent_least_squares():
+    pmats = _orbit_pmats()
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-1, 1, size=(10, 3))
+    obs = np.asarray(g.project_pmat(pts, pmats)) + rng.normal(scale=5.0, size=(7, 10, 2))
+    got = np.asarray(g.triangulate_dlt(obs, pmats))
+    for n in range(10):
+        rows = []
+        for (u, v), p in zip(obs[:, n], pmats):
+            for r in (u * p[2] - p[0], v * p[2] - p[1]):
+                rows.append(r / np.linalg.norm(r[:3]))
+        rows = np.array(rows)
+        ref = np.linalg.lstsq(rows[:, :3], -rows[:, 3], rcond=None)[0]
+        np.testing.assert_allclose(got[n], ref, rtol=1e-9, atol=1e-12)
+
+
+def test_backprojected_ray_projects_onto_the_pixel():
+    rng = np.random.default_rng(12)
+    rvec, tvec, intr, dist = _random_camera(rng, 5)
+    pixel = np.array([400.0, 200.0])
+    origin, direction = (np.asarray(a) for a in jax.jit(g.backproject_ray_one)(pixel, rvec, tvec, intr, dist))
+    np.testing.assert_allclose(origin, -cv2.Rodrigues(rvec)[0].T @ tvec, atol=1e-12)
+    along = origin + np.array([0.5, 3.0, 10.0])[:, None] * direction
+    reproj = np.asarray(g.project_full(along, rvec[None], tvec[None], intr[None], dist[None]))[0]
+    np.testing.assert_allclose(reproj, np.broadcast_to(pixel, (3, 2)), atol=1e-8)
+    target = rng.normal(size=3)
+    closest = np.asarray(g.closest_point_on_ray(origin, direction, target))
+    assert abs(np.dot(target - closest, direction)) < 1e-12 * np.linalg.norm(direction) * 10
+    np.testing.assert_allclose(np.cross(closest - origin, direction), 0, atol=1e-12)

@@ -1,0 +1,170 @@
+"""Recording discovery: footage matching, batches, ids, output directories, sheets."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from flylib.errors import ConfigError, FootageError
+from flylib.io import VideoWriter
+from flylib.recordings import find_recording, plan_recordings, resolve_recordings
+
+SOURCES = {"sources": [{"name": "left", "filename": "cam_0*"}, {"name": "right", "filename": "cam_1*"}]}
+
+
+def write_video(path: Path, frames: int) -> Path:
+    with VideoWriter(path, fps=10) as writer:
+        writer.write_frames(np.zeros((frames, 16, 16, 3), np.uint8))
+    return path
+
+
+def write_images(directory: Path, stem: str, frames: int) -> list[Path]:
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = [directory / f"{stem}_img_{i}.png" for i in range(frames)]
+    for p in paths:
+        cv2.imwrite(str(p), np.zeros((8, 8, 3), np.uint8))
+    return paths
+
+
+def make_video_recording(directory: Path, frames=(3, 3)) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    for i, n in enumerate(frames):
+        write_video(directory / f"cam_{i}.mp4", n)
+    return directory
+
+
+def test_image_sequences_are_naturally_sorted(tmp_path):
+    write_images(tmp_path, "cam_0", 12)
+    write_images(tmp_path, "cam_1", 12)
+    sources = find_recording(tmp_path, SOURCES)
+    names = [p.name for p in sources["left"]]
+    assert names[:3] == ["cam_0_img_0.png", "cam_0_img_1.png", "cam_0_img_2.png"]
+    assert names[-2:] == ["cam_0_img_10.png", "cam_0_img_11.png"]
+
+
+def test_one_extension_per_source_prefers_the_video(tmp_path):
+    make_video_recording(tmp_path)
+    write_images(tmp_path, "cam_0", 3)
+    write_images(tmp_path, "cam_1", 3)
+    sources = find_recording(tmp_path, SOURCES)
+    assert sources == {"left": [tmp_path / "cam_0.mp4"], "right": [tmp_path / "cam_1.mp4"]}
+
+
+def test_images_are_used_when_not_every_source_has_a_video(tmp_path):
+    write_video(tmp_path / "cam_0.mp4", 3)
+    write_images(tmp_path, "cam_0", 3)
+    write_images(tmp_path, "cam_1", 3)
+    sources = find_recording(tmp_path, SOURCES)
+    assert all(p.suffix == ".png" for files in sources.values() for p in files)
+
+
+def test_unequal_frame_counts_are_rejected_with_the_counts(tmp_path, caplog):
+    make_video_recording(tmp_path, frames=(3, 5))
+    with caplog.at_level(logging.WARNING):
+        assert find_recording(tmp_path, SOURCES) is None
+    assert "different frame counts" in caplog.text and "'right': 5" in caplog.text
+    with pytest.raises(FootageError, match="frame counts"):
+        find_recording(tmp_path, SOURCES, strict=True)
+    assert find_recording(tmp_path, SOURCES, check_frames=False) is not None
+
+
+def test_missing_source_and_unreadable_video_are_named(tmp_path):
+    write_video(tmp_path / "cam_0.mp4", 3)
+    with pytest.raises(FootageError, match=r"no footage for source\(s\) right"):
+        find_recording(tmp_path, SOURCES, strict=True)
+    (tmp_path / "cam_1.mp4").write_bytes(b"garbage")
+    with pytest.raises(FootageError, match="cam_1.mp4"):
+        find_recording(tmp_path, SOURCES, strict=True)
+
+
+def test_batch_skips_malformed_directories_and_an_empty_batch_is_an_error(tmp_path, caplog):
+    good = make_video_recording(tmp_path / "good")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "notes.txt").write_text("not a recording")
+    with caplog.at_level(logging.WARNING):
+        found = resolve_recordings([tmp_path / "*"], recursive=False, config=SOURCES)
+    assert [p for p, _ in found] == [good]
+    assert "empty" in caplog.text
+    with pytest.raises(FootageError, match="none of"):
+        resolve_recordings([tmp_path / "empty", tmp_path / "notes.txt"], recursive=False, config=SOURCES)
+
+
+def test_single_literal_path_is_kept_even_without_footage(tmp_path):
+    (tmp_path / "rec").mkdir()
+    assert resolve_recordings([tmp_path / "rec"], recursive=False, config=SOURCES) == [(tmp_path / "rec", {})]
+
+
+def test_recursive_search_finds_nested_recordings_but_not_outputs(tmp_path):
+    a = make_video_recording(tmp_path / "day1" / "fly1")
+    b = make_video_recording(tmp_path / "day2" / "fly10")
+    c = make_video_recording(tmp_path / "day2" / "fly2")
+    make_video_recording(tmp_path / "day2" / "fly2" / "flylib_outputs")
+    found = [p for p, _ in resolve_recordings([tmp_path], recursive=True, config=SOURCES)]
+    assert found == [a, c, b]  # natural order within a parent
+    with pytest.raises(FootageError, match="recursively"):
+        resolve_recordings([tmp_path / "day1" / "nothing"], recursive=True, config=SOURCES)
+
+
+def test_ids_are_unique_and_outdirs_follow_the_template(tmp_path):
+    a = make_video_recording(tmp_path / "x" / "session")
+    b = make_video_recording(tmp_path / "y" / "session")
+    c = make_video_recording(tmp_path / "y" / "other")
+    config = {**SOURCES, "recordings": [str(a), str(b), str(c)]}
+    recs = plan_recordings(config)
+    assert [r.id for r in recs] == ["x-session", "y-session", "other"]
+    assert [r.outdir for r in recs] == [p / "flylib_outputs" for p in (a, b, c)]
+    assert plan_recordings(config) == recs  # stable
+
+    config["outdir"] = str(tmp_path / "results" / "{id}")
+    assert plan_recordings(config)[1].outdir == tmp_path / "results" / "y-session"
+    config["outdir"] = str(tmp_path / "results" / "{name}")  # both sessions -> one dir
+    with pytest.raises(ConfigError, match="distinct outdirs"):
+        plan_recordings(config)
+
+
+def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
+    a = make_video_recording(tmp_path / "a")
+    b = make_video_recording(tmp_path / "b")
+    sheet = tmp_path / "recordings.tsv"
+    sheet.write_text("path\toutdir\timport_format\timport_files\n"
+                     f"a\t{tmp_path / 'out_a'}\tdlc_csv\tleft=l.csv;right=r.csv\n"
+                     "b\t\t\t\n")
+    recs = plan_recordings({**SOURCES, "recordings": str(sheet)})
+    assert [r.path for r in recs] == [a, b]
+    assert recs[0].outdir == tmp_path / "out_a" and recs[1].outdir == b / "flylib_outputs"
+    assert recs[0].import_spec == {"format": "dlc_csv", "files": {"left": "l.csv", "right": "r.csv"}}
+    assert recs[1].import_spec is None
+
+    recs = plan_recordings({**SOURCES, "recordings": [{"path": str(a), "import": {"format": "sleap"}}]})
+    assert recs[0].import_spec == {"format": "sleap"}
+    with pytest.raises(ConfigError, match="unknown key"):
+        plan_recordings({**SOURCES, "recordings": [{"path": str(a), "colour": "red"}]})
+    with pytest.raises(ConfigError, match="sheet"):
+        plan_recordings({**SOURCES, "recordings": str(tmp_path / "missing.tsv")})
+
+
+def test_demo_entry_needs_no_footage_yet(tmp_path):
+    from flylib.config import Config
+
+    config = Config.default().data
+    config = {**config, "recordings": [{"path": str(tmp_path / "demo"), "demo": True}]}
+    (rec,) = plan_recordings(config)
+    assert rec.demo and rec.id == "demo" and rec.sources == {}
+    assert rec.import_spec["format"] == "dlc_csv"
+    assert set(rec.import_spec["files"]) == {"rh", "rm", "rf", "f", "lf", "lm", "lh"}
+
+
+def test_real_sample_resolves_to_its_videos_or_its_image_sequences(df3d_sample_dir):
+    from flylib.config import Config
+
+    config = Config.default()
+    sources = find_recording(df3d_sample_dir, config)
+    assert sources["vid_rh"] == [df3d_sample_dir / "camera_0.mp4"]
+    images = {"sources": [{"name": f"cam{i}", "filename": f"camera_{i}_img_*.jpg"} for i in range(7)]}
+    sources = find_recording(df3d_sample_dir, images)
+    assert len(sources["cam3"]) == 15
+    assert sources["cam3"][2].name == "camera_3_img_2.jpg" and sources["cam3"][-1].name == "camera_3_img_14.jpg"
