@@ -11,7 +11,7 @@ from flylib.ba.solver import Problem
 from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.errors import ConfigError
 
-from synthetic import default_rig, observe, perturb_rig, project_opencv, synthetic_fly
+from synthetic import default_rig, observe, perturb_rig, synthetic_fly
 
 NAMES = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
 
@@ -121,7 +121,7 @@ def test_unknown_sampling_is_a_config_error():
 # -- Jacobian --------------------------------------------------------------------------
 
 
-def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0):
+def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0, bone_group=None):
     rig = default_rig()
     table = camera_table(rig)
     table = np.concatenate([table, np.tile([0.05, -0.02], (7, 1))[:, :n_dist]], axis=1)
@@ -132,22 +132,47 @@ def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0):
     problem = Problem(table0=table, layout=layout, view=view, point=point,
                       xy=rng.uniform(0, 500, (view.size, 2)), weight=rng.uniform(0.5, 1, view.size),
                       n_points=len(pts3d), bone_i=np.array([0, 1, 6]), bone_j=np.array([1, 2, 7]),
-                      bone_target=np.array([0.3, 0.7, 0.3]), bone_weight=bone_weight)
+                      bone_target=np.array([0.3, 0.7, 0.3]), bone_weight=bone_weight,
+                      bone_group=bone_group)
     return problem, problem.pack(table, pts3d)
 
 
-def test_jacobian_matches_central_differences():
-    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]])
+@pytest.mark.parametrize("bone_group", [None, np.array([0, 1, 0])])
+def test_jacobian_matches_central_differences(bone_group):
+    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
     jac = problem.jacobian(x).toarray()
     numeric = np.empty_like(jac)
-    step = 1e-6 * np.maximum(1.0, np.abs(x))
+    # steps that move the residuals by ~1e-3 px: distortion barely acts in this narrow
+    # field of view, so a fixed step would drown its derivative in rounding error
+    step = 1e-3 / (np.abs(jac).max(axis=0) + 1e-12)
     for k in range(x.size):
         e = np.zeros_like(x)
         e[k] = step[k]
         numeric[:, k] = (problem.residuals(x + e) - problem.residuals(x - e)) / (2 * step[k])
     scale = np.abs(numeric).max(axis=0, keepdims=True) + 1e-9
     np.testing.assert_allclose(jac / scale, numeric / scale, atol=1e-6)
-    assert jac.shape == (2 * problem.n_obs + 3, problem.layout.n_free + 3 * problem.n_points)
+    n_len = 0 if bone_group is None else 2
+    assert jac.shape == (2 * problem.n_obs + 3,
+                         problem.layout.n_free + 3 * problem.n_points + n_len)
+
+
+def test_numpy_and_jax_projections_agree_with_opencv():
+    import cv2
+
+    from flylib.ba.solver import project_rows, project_rows_with_jac
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(64, 3))
+    rows = np.concatenate([rng.normal(size=(64, 3)) * 0.5, rng.normal(size=(64, 3)) + [0, 0, 10],
+                           np.tile([1000.0, 1100.0, 300.0, 200.0], (64, 1)),
+                           rng.normal(size=(64, 5)) * 0.05], axis=1)
+    rows[:4, :3] = 1e-5  # the small-angle branch
+    reference = np.stack([
+        cv2.projectPoints(p[None], r[:3], r[3:6], np.array([[r[6], 0, r[8]], [0, r[7], r[9]],
+                                                             [0, 0, 1]]), r[10:])[0].ravel()
+        for p, r in zip(pts, rows)])
+    np.testing.assert_allclose(project_rows(pts, rows), reference, atol=1e-8)
+    np.testing.assert_allclose(project_rows_with_jac(pts, rows)[0], reference, atol=1e-8)
 
 
 def test_jacobian_sparsity_covers_the_jacobian():
@@ -192,8 +217,12 @@ def test_gauge_free_fit_stays_put_and_finite(clean_scene):
     assert np.isfinite(table).all() and np.isfinite(pts[np.isfinite(pts).all(1)]).all()
     centres = -np.einsum("vji,vj->vi", refined.rmats, refined.tvecs)
     true_centres = -np.einsum("vji,vj->vi", rig.rmats, rig.tvecs)
-    # canonical frame = closest similarity to the initial rig, which was the truth
-    assert np.abs(centres - true_centres).max() < 0.02 * 107.463
+    # canonical frame = the similarity closest to the initial rig (here the truth): the
+    # rig's centroid stays put ...
+    assert np.linalg.norm(centres.mean(0) - true_centres.mean(0)) < 0.5
+    # (with free intrinsics, focal vs distance and principal point vs rotation trade off
+    # along near-null directions of a 22000 px lens: only the gauge is pinned here)
+    assert np.abs(centres - true_centres).max() < 0.2 * 107.463
     assert result.final_median_px < 1.0
 
 
@@ -204,11 +233,18 @@ def test_recovers_perturbed_rig_with_outliers(clean_scene):
     start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=7)
     result, refined, _ = bundle_adjust_sequence(start, pts2d, conf, None, max_frames=30,
                                                 fixed=["*.intr"])
-    truth2d = project_opencv(refined, pts3d)  # refined rig, true points: frame-dependent
     assert result.final_median_px < 1.2
     assert result.initial_median_px > 3 * result.final_median_px
     assert result.inliers.sum() < np.isfinite(pts2d[:, result.frames]).all(-1).sum()
-    assert np.isfinite(truth2d).all()
+
+    def shape_error(cams):  # similarity-invariant: normalized camera-centre distances
+        centres = -np.einsum("vji,vj->vi", cams.rmats, cams.tvecs)
+        dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+        return dist / dist.mean()
+
+    truth_shape = shape_error(rig)
+    assert (np.abs(shape_error(refined) - truth_shape).max()
+            < 0.2 * np.abs(shape_error(start) - truth_shape).max())
 
 
 def test_bad_reference_raises_before_solving(clean_scene):
@@ -230,3 +266,22 @@ def test_points_to_use_restricts_points_by_name(clean_scene):
     assert len(result.frames) == 5
     with pytest.raises(ConfigError, match="unknown point"):
         bundle_adjust_sequence(rig, pts2d, conf, skeleton, points_to_use=["wing"])
+
+
+def test_from_config_uses_the_table(clean_scene):
+    from flylib.bundle_adjustment import bundle_adjust_from_config
+    from flylib.config import Config
+
+    rig, _, pts2d, conf = clean_scene
+    base = Config.default().data
+    config = Config.from_dict({**base, "bundle_adjustment": {
+        "points_to_use": ["rf_femur_tibia", "rf_tibia_tarsus", "rf_claw", "rm_claw"],
+        "fixed": ["*.intr", "f.tvec"], "weigh_by_confidence": True, "max_frames": 4,
+        "frame_sampling": "confidence", "max_nfev": 4}})
+    result, refined, pts3d = bundle_adjust_from_config(config, rig, pts2d, conf)
+    assert len(result.frames) == 4 and result.nfev <= 4 + 15  # sorting round + final round
+    np.testing.assert_array_equal(refined.tvecs[3], rig.tvecs[3])
+    assert np.isfinite(pts3d).all(-1).sum() <= 4 * 4
+    bad = Config.from_dict({**base, "bundle_adjustment": {"fixed": ["f.rot"]}})
+    with pytest.raises(ConfigError, match="f.rot"):
+        bundle_adjust_from_config(bad, rig, pts2d, conf)

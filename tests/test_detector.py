@@ -296,3 +296,39 @@ def test_prefetch_queue_stays_bounded(tmp_path):
     prefetcher.join(timeout=5)
     values = torch.cat(blocks)[:, 0, 0, 0].tolist()
     assert values == list(range(40)) and max(len(b) for b in blocks) == 3
+
+
+def test_gpu_side_yuv_conversion_matches_the_decoder(df3d_sample_dir, tmp_path):
+    from flylib.pose2d.inference import yuv420p_to_rgb
+
+    rng = np.random.default_rng(5)
+    smooth = torch.nn.functional.interpolate(
+        torch.from_numpy(rng.uniform(20, 235, size=(4, 3, 6, 8))), size=(48, 64), mode="bilinear"
+    ).permute(0, 2, 3, 1).numpy().astype(np.uint8)
+    with io.VideoWriter(tmp_path / "colour.mp4", fps=10, crf=0) as writer:
+        writer.write_frames(smooth)
+    # grey fly footage: within a grey level; colour: FFmpeg's fixed-point chroma path differs slightly
+    for path, tol, mean_tol in ((df3d_sample_dir / "camera_1.mp4", 1, 0.5), (tmp_path / "colour.mp4", 4, 1.5)):
+        reader = io.VideoReader(path)
+        assert reader.pixel_format() == "yuv420p" and reader.color_tags() == ("bt601", "limited")
+        planes = np.stack(list(reader.stream_frames(stop=3, format="yuv420p")))
+        rgb = yuv420p_to_rgb(torch.from_numpy(planes)).numpy().astype(int)
+        diff = np.abs(rgb - reader[:3].astype(int))
+        assert diff.max() <= tol and diff.mean() < mean_tol
+
+
+def test_yuv_streaming_path_gives_the_same_detections(default_data, tiny_checkpoint, tmp_path):
+    frames = np.repeat(np.linspace(30, 220, 96 * 128).reshape(1, 96, 128, 1), 3, axis=-1)
+    frames = (frames + np.arange(4)[:, None, None, None] * 5).astype(np.uint8)
+    with io.VideoWriter(tmp_path / "cam.mp4", fps=10, crf=0) as writer:
+        writer.write_frames(frames)
+    data = _config(default_data, tiny_checkpoint, batch_size=3)
+    plan = DetectionPlan.from_config(data)
+    models = load_models(plan, data)
+    sources = {s: [tmp_path / "cam.mp4"] for s in plan.sources}
+    rgb = stream.run_detection(plan, models, sources, batch_size=3, raw_yuv=False)
+    yuv = stream.run_detection(plan, models, sources, batch_size=3, raw_yuv=True)
+    assert yuv.frame_sizes == rgb.frame_sizes == {s: (96, 128) for s in plan.sources}
+    np.testing.assert_allclose(yuv.conf, rgb.conf, rtol=0.05, atol=1e-3)
+    close = np.linalg.norm(yuv.pts2d - rgb.pts2d, axis=-1) < 1.0
+    assert close[~np.isnan(rgb.conf)].mean() > 0.95

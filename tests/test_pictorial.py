@@ -142,7 +142,7 @@ def test_bone_prior_resolves_a_two_view_ambiguity(scene):
     views = np.flatnonzero(np.isfinite(pts2d[:, frame, joint, 0]))
     assert len(views) == 2
     xy, score = cand.xy.copy(), cand.score.copy()
-    xy[views, frame, joint, 1] = xy[views, frame, joint, 0] + [[0.0, 60.0], [0.0, 60.0]]
+    xy[views, frame, joint, 1] = xy[views, frame, joint, 0] + [[0.0, 150.0], [0.0, 150.0]]
     score[views, frame, joint, 1] = 1.0  # a strong, consistent but anatomically wrong pair
     pts3d, _, _ = ps.reconstruct(rig, skeleton, ps.Candidates(xy, score), lam=5.0)
     assert np.linalg.norm(pts3d[frame, joint] - truth[frame, joint]) < 0.02
@@ -153,3 +153,14 @@ def test_bone_prior_resolves_a_two_view_ambiguity(scene):
 def test_candidates_validate_shapes():
     with pytest.raises(ValueError, match="Candidates"):
         ps.Candidates(np.zeros((2, 3, 4, 2)), np.zeros((2, 3, 4)))
+
+
+def test_reconstruct_from_config(scene):
+    from flylib.config import Config
+
+    rig, _, _, pts2d, cand = scene
+    config = Config.from_dict({**Config.default().data,
+                               "pictorial_structures": {"k": 3, "temporal": True, "lam": 2.0}})
+    pts3d, committed, reproj = ps.reconstruct_from_config(config, cand, rig)
+    np.testing.assert_array_equal(committed, pts2d)
+    assert pts3d.shape == (24, 38, 3) and reproj.shape == (7, 24, 38)

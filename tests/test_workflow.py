@@ -200,8 +200,7 @@ def test_lint_is_clean():
 
 def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_path):
     config = base_config()
-    config["bundle_adjustment"]["max_nfev"] = 20
-    config["pipeline"]["do_visualization"] = False
+    config["pipeline"].update(do_visualization=False, do_bundle_adjustment=False)
     good = make_recording(config, tmp_path / "good", 0)
     bad = make_recording(config, tmp_path / "bad", 1)
     csv = tmp_path / "bad" / bad["import"]["files"]["rm"]
@@ -215,8 +214,7 @@ def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_pat
     assert csv.name in (tmp_path / "bad" / "flylib_outputs" / "logs" / "pose2d.log").read_text()
 
     csv.write_bytes(original)
-    assert planned(tmp_path, config) == jobs(("pose2d", "bundle_adjustment", "triangulation", "assemble"),
-                                             ("bad",))
+    assert planned(tmp_path, config) == jobs(("pose2d", "triangulation", "assemble"), ("bad",))
 
 
 def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):

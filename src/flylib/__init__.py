@@ -40,6 +40,8 @@ _EXPORTS: dict[str, str] = {
     # cameras / skeleton / results
     "Camera": "cameras",
     "CameraGroup": "cameras",
+    "orbit_extrinsics": "cameras",
+    "resolve_extrinsics": "cameras",
     "Skeleton": "skeleton",
     "PoseResult": "results",
     # recordings
@@ -81,6 +83,10 @@ _EXPORTS: dict[str, str] = {
     "skeleton_chains": "pictorial",
     "solve_frame": "pictorial",
     "run_from_points2d": "pipeline",
+    "bundle_adjust_sequence": "bundle_adjustment",
+    "select_frames": "bundle_adjustment",
+    "consensus_triangulate": "pictorial",
+    "solve_frames": "pictorial",
     # detector (torch is imported only when these are used)
     "load_detector": "pose2d",
     "detect_2d": "pose2d",

@@ -12,8 +12,10 @@ Robustness and gauge, beyond a plain least-squares fit:
   observations sit out the first round (a short one); after every round observations reprojecting worse than ``outlier_factor`` times the
   median error (at least ``outlier_min_px``) are dropped and the fit repeated with the
   caller's loss, so gross detector errors do not bend the rig;
-- an optional bone-length prior (one residual per frame and bone, relative to
-  :func:`flylib.pictorial.bone_length_targets`) keeps limbs at a plausible length;
+- an optional (``bone_prior``), weak bone-length prior (one residual per frame and bone, relative to
+  :func:`flylib.pictorial.bone_length_targets`) keeps limbs at a plausible length and
+  pins the near-affine depth ambiguity of the long-focal rig (letting the lengths
+  float instead, ``bones=(i, j, target, group)``, leaves that ambiguity open);
 - when no rotation or translation is fixed, the world frame is a free similarity
   (gauge): the refined rig and points are mapped by the similarity that best aligns
   the refined camera centres onto the initial ones, so the result does not drift.
@@ -108,8 +110,11 @@ def bundle_adjust(
         With ``weigh_by_confidence`` and ``conf`` ``(V, N)``, residuals are scaled by
         ``sqrt(conf)``; non-positive or non-finite confidences drop the observation.
     bones
-        Optional bone-length prior ``(i, j, target)``: point indices into ``N`` and
-        target lengths; pairs with a non-finite or non-positive target are ignored.
+        Optional bone-length prior ``(i, j, target)`` or ``(i, j, target, group)``:
+        point indices into ``N``, target lengths and, optionally, which rows share one
+        unknown length (the same bone in different frames); with groups the prior asks
+        for constant lengths (initialized at the targets) instead of the targets
+        themselves. Pairs with a non-finite or non-positive target are ignored.
     bone_weight
         Residual scale of the prior, pixels per 100 % relative length deviation.
     reject_outliers, init_threshold, outlier_factor, outlier_min_px, max_rounds
@@ -165,7 +170,7 @@ def bundle_adjust(
     if not reject_outliers:
         active = usable.copy()
 
-    bone_i, bone_j, bone_t = _valid_bones(bones)
+    bone_i, bone_j, bone_t, bone_g = _valid_bones(bones)
     view_idx, point_idx = np.nonzero(usable)
     table, pts = table0, start
     initial_median = None
@@ -173,7 +178,8 @@ def bundle_adjust(
     rounds = 0
     for rounds in range(1, max(int(max_rounds), 1) + 1):
         problem, keep_points = _make_problem(
-            table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t, bone_weight)
+            table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t, bone_g,
+            bone_weight)
         if problem is None:
             raise ValueError("bundle adjustment: no point is seen by two or more views; "
                              "nothing to fit")
@@ -221,10 +227,12 @@ def bundle_adjust(
 
 def _valid_bones(bones):
     if bones is None:
-        return (np.zeros(0, int),) * 2 + (np.zeros(0),)
-    i, j, t = (np.asarray(a) for a in bones)
+        return np.zeros(0, int), np.zeros(0, int), np.zeros(0), None
+    i, j, t = (np.asarray(a) for a in bones[:3])
+    group = np.asarray(bones[3]).astype(int) if len(bones) > 3 and bones[3] is not None else None
     ok = np.isfinite(t) & (t > 0)
-    return i[ok].astype(int), j[ok].astype(int), t[ok].astype(float)
+    return (i[ok].astype(int), j[ok].astype(int), t[ok].astype(float),
+            None if group is None else group[ok])
 
 
 def _ransac_start(cameras, pts2d, usable, threshold):
@@ -236,7 +244,7 @@ def _ransac_start(cameras, pts2d, usable, threshold):
     return np.asarray(pts3d, float), inliers
 
 
-def _make_problem(table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t,
+def _make_problem(table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t, bone_g,
                   bone_weight):
     """The problem over points with >= 2 active views and a finite start."""
     keep_points = (active.sum(axis=0) >= 2) & np.isfinite(pts).all(axis=1)
@@ -250,7 +258,9 @@ def _make_problem(table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bo
         table0=table0, layout=layout, view=view, point=compact[point],
         xy=pts2d[view, point], weight=weight[view, point], n_points=int(keep_points.sum()),
         bone_i=compact[bone_i[bones_ok]], bone_j=compact[bone_j[bones_ok]],
-        bone_target=bone_t[bones_ok], bone_weight=float(bone_weight))
+        bone_target=bone_t[bones_ok], bone_weight=float(bone_weight),
+        bone_group=None if bone_g is None else np.unique(bone_g[bones_ok],
+                                                         return_inverse=True)[1])
     return problem, keep_points
 
 
@@ -316,7 +326,7 @@ def bundle_adjust_sequence(
     weigh_by_confidence: bool = False,
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
-    bone_prior: bool = True,
+    bone_prior: bool = False,
     **kwargs,
 ) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
@@ -336,7 +346,9 @@ def bundle_adjust_sequence(
     points_to_use, max_frames, frame_sampling, weigh_by_confidence, fixed, shared
         As in the ``bundle_adjustment`` config table.
     bone_prior
-        Whether to add the bone-length prior.
+        Add the bone-length prior (off by default: its targets come from the starting
+        rig, and on the synthetic benchmark it costs accuracy, 3D error 1.9 % vs 1.2 %
+        of a bone, for no gain in robustness).
     **kwargs
         Forwarded to :func:`bundle_adjust` (and from there to ``least_squares``).
 

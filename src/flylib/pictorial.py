@@ -5,7 +5,8 @@ detector's top-K heatmap peaks per (view, point) (DeepFly3D, Gunel et al. 2019):
 
 1. :func:`peak_candidates` turns heatmaps into the top-K local maxima with sub-pixel
    refinement (the detector calls it; :class:`Candidates` holds them in raw pixels).
-2. Per joint and frame, every pair of candidate peaks from two views is triangulated;
+2. Per joint and frame, every pair of candidate peaks (the ``SEED_K`` strongest per
+   view) from two views is triangulated;
    each view then contributes its candidate nearest the hypothesis' reprojection when
    within ``inlier_px``, the hypothesis is refitted from those inliers and its evidence
    is the summed peak score. Hypotheses with the same inlier set are merged, the rest
@@ -51,6 +52,7 @@ DEFAULT_LAMBDA = 1.0
 DEFAULT_HUBER = 0.25  # relative bone-length deviation where the cost turns linear
 DEFAULT_MU = 1.0
 DEFAULT_NMS = 0.1  # NMS radius, fraction of the median bone length
+SEED_K = 3  # peaks per view that seed two-view hypotheses (all K may join as inliers)
 _CHUNK_FRAMES = 64
 
 
@@ -348,10 +350,12 @@ def _frame_hypotheses(rt: np.ndarray, focal: np.ndarray, norm: np.ndarray, score
     valid = np.isfinite(norm).all(-1)  # (T, J, n, K)
 
     pairs = np.array(list(combinations(range(n_v), 2)))  # (Q, 2)
-    ka, kb = np.meshgrid(np.arange(n_k), np.arange(n_k), indexing="ij")
+    # Only the strongest SEED_K peaks of a view seed hypotheses; all K can join one.
+    n_seed = min(n_k, SEED_K)
+    ka, kb = np.meshgrid(np.arange(n_seed), np.arange(n_seed), indexing="ij")
     ka, kb = ka.ravel(), kb.ravel()
-    va = np.repeat(pairs[:, 0], n_k * n_k)
-    vb = np.repeat(pairs[:, 1], n_k * n_k)
+    va = np.repeat(pairs[:, 0], n_seed * n_seed)
+    vb = np.repeat(pairs[:, 1], n_seed * n_seed)
     ka, kb = np.tile(ka, len(pairs)), np.tile(kb, len(pairs))  # (H,)
     x0 = _solve3(lhs[:, :, va, ka] + lhs[:, :, vb, kb], rhs[:, :, va, ka] + rhs[:, :, vb, kb])
     seed_ok = valid[:, :, va, ka] & valid[:, :, vb, kb]  # (T, J, H)

@@ -13,7 +13,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from .cameras import CameraGroup
     from .pictorial import Candidates
     from .results import PoseResult
-    from .skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 

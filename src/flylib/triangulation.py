@@ -1,9 +1,10 @@
 """Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
 
 All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for a
-recording), NaN = missing, and return ``(*pts, 3)``. The work is vectorized NumPy
-over chunks of flattened points (memory stays bounded on long recordings) using
-the same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`.
+recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
+processed in fixed-length chunks (memory stays bounded on long recordings) by
+jitted JAX kernels, compiled once per chunk length, that use the same closed-form,
+row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`.
 Cameras with lens distortion are handled exactly: observations are undistorted
 before the linear solve, and reprojection errors are measured in the raw image.
 
@@ -35,9 +36,6 @@ log = logging.getLogger(__name__)
 METHODS = ("ransac", "greedy", "dlt")
 DEFAULT_CHUNK_POINTS = 4096
 _CHUNKS_IN_FLIGHT = 4
-# Full-size chunks unroll the pair loop (faster, ~5 s to compile once); short inputs
-# keep it rolled (compiles in ~2 s).
-_RANSAC_UNROLL = 7
 
 
 # -- input handling --------------------------------------------------------------
@@ -155,8 +153,8 @@ def _dlt_chunk(rig, raw, und, weights):
     return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
-@partial(jax.jit, static_argnames=("distorted", "unroll"))
-def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted, unroll=1):
+@partial(jax.jit, static_argnames=("distorted",))
+def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
     und = raw if und is None else und
     terms, valid = _view_terms(rig, und, weights)
     n_views = valid.shape[0]
@@ -165,29 +163,37 @@ def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted, unr
     n = valid.shape[1]
     pairs = np.array(list(combinations(range(n_views), 2)), dtype=np.int32)
     pairs_i, pairs_j = jnp.asarray(pairs[:, 0]), jnp.asarray(pairs[:, 1])
+    raw_u, raw_v = raw[..., 0], raw[..., 1]
 
-    # Exhaustive two-view hypotheses with a running arg-max: nothing of size
-    # pairs x views x points is ever stored, and the loop body compiles once.
+    # Exhaustive two-view hypotheses with a running arg-max, so nothing of size
+    # pairs x views x points is stored and the loop body compiles once.
     def try_pair(h, state):
         best_score, best_inliers = state
         i, j = pairs_i[h], pairs_j[h]
-        pair_terms = jnp.take(terms, i, axis=1) + jnp.take(terms, j, axis=1)
         pair_valid = jnp.take(valid, i, axis=0).astype(int) + jnp.take(valid, j, axis=0)
-        x, y, z = geometry.dlt_solve_components(jnp, pair_terms, pair_valid)
-        err_sq = jnp.stack(
-            [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
-        )
-        inlier = err_sq < threshold_sq  # NaN (missing view / no candidate) never passes
-        count = inlier.sum(axis=0)
-        total = jnp.where(inlier, jnp.sqrt(err_sq), 0.0).sum(axis=0)
-        # Lexicographic (most inliers, then least total inlier error): the total is
-        # below count * threshold, so scaling it under 1 never flips a count.
-        score = count - total * scale
-        better = score > best_score
-        return jnp.where(better, score, best_score), jnp.where(better[None], inlier, best_inliers)
+
+        def score_pair(state):
+            best_score, best_inliers = state
+            pair_terms = jnp.take(terms, i, axis=1) + jnp.take(terms, j, axis=1)
+            x, y, z = geometry.dlt_solve_components(jnp, pair_terms, pair_valid)
+            err_sq = jnp.stack(
+                [_view_sq_error(rig, k, x, y, z, raw_u[k], raw_v[k], distorted) for k in range(n_views)]
+            )
+            inlier = err_sq < threshold_sq  # NaN (missing view / no candidate) never passes
+            count = inlier.sum(axis=0)
+            total = jnp.where(inlier, jnp.sqrt(err_sq), 0.0).sum(axis=0)
+            # Lexicographic (most inliers, then least total inlier error): the total is
+            # below count * threshold, so scaling it under 1 never flips a count.
+            score = count - total * scale
+            better = score > best_score
+            return jnp.where(better, score, best_score), jnp.where(better[None], inlier, best_inliers)
+
+        # A pair that no point of the chunk sees in both views cannot win anywhere
+        # (the fly's two sides share only the front camera): skip its work.
+        return jax.lax.cond(jnp.any(pair_valid == 2), score_pair, lambda state: state, state)
 
     init = (jnp.full(n, -jnp.inf), jnp.zeros((n_views, n), dtype=bool))
-    _, best_inliers = jax.lax.fori_loop(0, len(pairs), try_pair, init, unroll=unroll)
+    _, best_inliers = jax.lax.fori_loop(0, len(pairs), try_pair, init)
     pts3d = _solve_kept(terms, best_inliers, jnp.maximum(min_inliers, 2))
     accepted = jnp.isfinite(pts3d).all(axis=-1)
     return pts3d, best_inliers & accepted[None]
@@ -242,8 +248,6 @@ def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
     pts3d = np.full((n, 3), np.nan)
     kept = np.zeros((n_views, n), dtype=bool)
     in_flight: deque = deque()
-    if kernel is _ransac_chunk:  # unroll the pair loop only where it repays its compile time
-        params["unroll"] = _RANSAC_UNROLL if size >= DEFAULT_CHUNK_POINTS else 1
 
     def collect() -> None:
         start, stop, (x, k) = in_flight.popleft()

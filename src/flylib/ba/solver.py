@@ -4,9 +4,12 @@ Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m
 (view ``v``, point ``n``) contributes two residual rows
 ``w_m * (project(X_n; camera_v) - xy_m)``; its Jacobian block is ``jax.jacfwd`` of
 :func:`flylib.geometry.project_full_one` with respect to the point and the camera row,
-``vmap``-ed over observations and jitted once per padded batch size. Camera columns go
+``vmap``-ed over observations and jitted once per padded batch size (residuals alone
+use a NumPy twin of the same model, so they cost no compilation). Camera columns go
 through :class:`~flylib.ba.params.ParamLayout` (fixed entries dropped, tied entries
-summed into one column). An optional bone-length prior adds one row per (frame, bone).
+summed into one column). An optional bone-length prior adds one row per (frame, bone):
+with ``bone_group`` the lengths are unknowns shared by every frame of a bone (rigid
+segments, no bias from the targets), else the targets are fixed.
 """
 
 from __future__ import annotations
@@ -24,8 +27,8 @@ _MIN_BUCKET = 256
 
 
 @lru_cache(maxsize=None)
-def _kernels():
-    """Jitted ``(points (M,3), camera rows (M,C)) -> projections`` and their Jacobians."""
+def _jacobian_kernel():
+    """Jitted ``(points (M,3), camera rows (M,C)) -> (projections, d/dpoint, d/drow)``."""
     from .. import geometry  # enables float64 on the CPU before anything is traced
     import jax
 
@@ -37,9 +40,7 @@ def _kernels():
         jpt, jrow = jax.jacfwd(project_row, argnums=(0, 1))(pt, row)
         return value, jpt, jrow
 
-    project = jax.jit(jax.vmap(project_row))
-    project_jac = jax.jit(jax.vmap(project_with_jac))
-    return project, project_jac
+    return jax.jit(jax.vmap(project_with_jac))
 
 
 def _bucket(m: int) -> int:
@@ -53,20 +54,45 @@ def _pad(a: np.ndarray, size: int) -> np.ndarray:
     return np.concatenate([a, pad], axis=0)
 
 
+def _rodrigues(rvecs: np.ndarray) -> np.ndarray:
+    """``(M, 3)`` rotation vectors -> ``(M, 3, 3)`` matrices (Taylor terms near 0)."""
+    theta_sq = np.einsum("mi,mi->m", rvecs, rvecs)
+    small = theta_sq < 1e-6
+    theta = np.sqrt(np.where(small, 1.0, theta_sq))
+    a = np.where(small, 1.0 - theta_sq / 6.0 + theta_sq ** 2 / 120.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta_sq / 24.0 + theta_sq ** 2 / 720.0,
+                 (1.0 - np.cos(theta)) / np.where(small, 1.0, theta_sq))
+    x, y, z = rvecs.T
+    zero = np.zeros_like(x)
+    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
+    return np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
+
+
 def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``."""
-    m = pts.shape[0]
-    if m == 0:
+    """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``.
+
+    The NumPy twin of :func:`flylib.geometry.project_full_one` (same pinhole + OpenCV
+    distortion model): residuals need no JIT compilation, only the Jacobian does.
+    """
+    from .. import geometry
+
+    if pts.shape[0] == 0:
         return np.zeros((0, 2))
-    project, _ = _kernels()
-    size = _bucket(m)
-    return np.asarray(project(_pad(pts, size), _pad(rows, size)))[:m]
+    cam = np.einsum("mij,mj->mi", _rodrigues(rows[:, 0:3]), pts) + rows[:, 3:6]
+    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    dist = rows[:, 10:]
+    if dist.shape[1] and np.any(dist):
+        d = np.zeros((len(rows), geometry.N_DIST_COEFFS))
+        d[:, : dist.shape[1]] = dist
+        radial, add_x, add_y = geometry._distortion_terms(x, y, d.T)
+        x, y = x * radial + add_x, y * radial + add_y
+    return np.stack([rows[:, 6] * x + rows[:, 8], rows[:, 7] * y + rows[:, 9]], axis=-1)
 
 
 def project_rows_with_jac(pts: np.ndarray, rows: np.ndarray):
     """Projections ``(M, 2)`` and Jacobians ``(M, 2, 3)`` / ``(M, 2, C)``."""
     m = pts.shape[0]
-    _, project_jac = _kernels()
+    project_jac = _jacobian_kernel()
     size = _bucket(m)
     value, jpt, jrow = project_jac(_pad(pts, size), _pad(rows, size))
     return np.asarray(value)[:m], np.asarray(jpt)[:m], np.asarray(jrow)[:m]
@@ -94,7 +120,10 @@ class Problem:
         ``(B,)`` bone-prior endpoints (point indices) and target lengths.
     bone_weight
         Residual scale of the prior: pixels per unit of relative length deviation
-        (``bone_weight * (|Xi - Xj| - L) / L``).
+        (``bone_weight * (|Xi - Xj| - L) / target``).
+    bone_group
+        ``(B,)`` index of the shared length unknown each row uses, or ``None`` for
+        fixed lengths ``L = target``.
     """
 
     table0: np.ndarray
@@ -108,22 +137,35 @@ class Problem:
     bone_j: np.ndarray
     bone_target: np.ndarray
     bone_weight: float = 0.0
+    bone_group: np.ndarray | None = None
 
     def __post_init__(self):
         self.n_cam = self.layout.n_free
         self.n_obs = self.view.size
         self.n_bones = self.bone_i.size if self.bone_weight > 0 else 0
-        self.shape = (2 * self.n_obs + self.n_bones, self.n_cam + 3 * self.n_points)
+        free_lengths = self.n_bones and self.bone_group is not None
+        self.n_len = int(self.bone_group.max()) + 1 if free_lengths else 0
+        self.shape = (2 * self.n_obs + self.n_bones,
+                      self.n_cam + 3 * self.n_points + self.n_len)
         self._build_structure()
 
     # -- packing ------------------------------------------------------------
 
     def pack(self, table: np.ndarray, pts3d: np.ndarray) -> np.ndarray:
-        return np.concatenate([self.layout.pack(table), np.asarray(pts3d, float).ravel()])
+        parts = [self.layout.pack(table), np.asarray(pts3d, float).ravel()]
+        if self.n_len:
+            sums = np.bincount(self.bone_group, self.bone_target, self.n_len)
+            parts.append(sums / np.maximum(np.bincount(self.bone_group, minlength=self.n_len), 1))
+        return np.concatenate(parts)
 
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         table = self.layout.unpack(x[: self.n_cam], self.table0)
-        return table, x[self.n_cam:].reshape(self.n_points, 3)
+        return table, x[self.n_cam:self.n_cam + 3 * self.n_points].reshape(self.n_points, 3)
+
+    def _lengths(self, x: np.ndarray) -> np.ndarray:
+        if self.n_len:
+            return x[self.n_cam + 3 * self.n_points:][self.bone_group]
+        return self.bone_target
 
     # -- residuals and Jacobian ----------------------------------------------
 
@@ -133,11 +175,11 @@ class Problem:
         r_obs = (self.weight[:, None] * (proj - self.xy)).ravel()
         if not self.n_bones:
             return r_obs
-        return np.concatenate([r_obs, self._bone_residuals(pts)])
+        return np.concatenate([r_obs, self._bone_residuals(pts, self._lengths(x))])
 
-    def _bone_residuals(self, pts: np.ndarray) -> np.ndarray:
+    def _bone_residuals(self, pts: np.ndarray, target: np.ndarray) -> np.ndarray:
         length = np.linalg.norm(pts[self.bone_i] - pts[self.bone_j], axis=1)
-        return self.bone_weight * (length - self.bone_target) / self.bone_target
+        return self.bone_weight * (length - target) / self.bone_target
 
     def jacobian(self, x: np.ndarray) -> scipy.sparse.csr_matrix:
         table, pts = self.unpack(x)
@@ -150,6 +192,8 @@ class Problem:
             length = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
             g = (self.bone_weight / self.bone_target / length)[:, None] * diff
             parts += [g.ravel(), (-g).ravel()]
+            if self.n_len:
+                parts.append(np.full(self.n_bones, -1.0) * self.bone_weight / self.bone_target)
         data = np.concatenate(parts)[self._order]
         data = np.add.reduceat(data, self._starts) if data.size else data
         return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=self.shape)
@@ -179,6 +223,9 @@ class Problem:
             rows += [np.repeat(b, 3), np.repeat(b, 3)]
             cols += [(self.n_cam + 3 * self.bone_i[:, None] + np.arange(3)).ravel(),
                      (self.n_cam + 3 * self.bone_j[:, None] + np.arange(3)).ravel()]
+            if self.n_len:
+                rows.append(b)
+                cols.append(self.n_cam + 3 * self.n_points + self.bone_group)
         rows, cols = np.concatenate(rows), np.concatenate(cols)
         key = rows.astype(np.int64) * self.shape[1] + cols
         self._order = np.argsort(key, kind="stable")

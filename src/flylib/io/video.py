@@ -110,9 +110,19 @@ class VideoReader(FrameReader):
     # -- decoding --------------------------------------------------------------
 
     def stream_frames(
-        self, *, start: int = 0, stop: int | None = None, step: int = 1
+        self, *, start: int = 0, stop: int | None = None, step: int = 1, format: str = "rgb24"
     ) -> Iterator[np.ndarray]:
-        """Yield ``(H, W, 3)`` uint8 RGB frames of ``range(start, stop, step)`` in one pass."""
+        """Yield frames of ``range(start, stop, step)`` in one forward pass.
+
+        Parameters
+        ----------
+        start, stop, step
+            Frame range, like ``range(start, stop, step)``.
+        format
+            ``"rgb24"``: ``(H, W, 3)`` uint8 RGB. ``"yuv420p"``: the decoder's planes
+            as one ``(3 H / 2, W)`` uint8 array (Y, then U, then V), skipping the
+            colour conversion so it can run on the GPU (see :meth:`color_tags`).
+        """
         if step < 1:
             raise ValueError(f"step must be >= 1, got {step}")
         if stop is not None and stop <= start:
@@ -150,7 +160,7 @@ class VideoReader(FrameReader):
                 if stop is not None and i >= stop:
                     return
                 if (i - start) % step == 0:
-                    yield frame.to_ndarray(format="rgb24")
+                    yield frame.to_ndarray(format=format)
 
     def _read_indices(self, indices: list[int]) -> np.ndarray:
         wanted = sorted(set(indices))
@@ -220,6 +230,24 @@ class VideoReader(FrameReader):
         with container:
             rate = stream.average_rate or stream.guessed_rate
         return float(rate) if rate else None
+
+    def pixel_format(self) -> str | None:
+        """The decoder's pixel format (e.g. ``"yuv420p"``), or ``None`` when unknown."""
+        container, stream = self._open()
+        with container:
+            fmt = stream.codec_context.pix_fmt
+        return str(fmt) if fmt else None
+
+    def color_tags(self) -> tuple[str, str]:
+        """``(matrix, range)`` of the YUV data: ``"bt709"``/``"bt601"``, ``"full"``/``"limited"``.
+
+        Untagged streams are BT.601 limited range, as FFmpeg assumes.
+        """
+        container, stream = self._open()
+        with container:
+            cc = stream.codec_context
+            space, rng = int(getattr(cc, "colorspace", 2) or 2), int(getattr(cc, "color_range", 0) or 0)
+        return ("bt709" if space == 1 else "bt601"), ("full" if rng == 2 else "limited")
 
     def frame_size(self) -> tuple[int, int]:
         """``(height, width)`` from the stream header."""

@@ -44,6 +44,35 @@ def select_device(requested: str | torch.device | None = "auto") -> torch.device
     return device
 
 
+# (Y scale, V->R, U->G, V->G, U->B) per colour matrix and range
+_YUV_COEFFS = {
+    ("bt601", "limited"): (255 / 219, 1.596027, 0.391762, 0.812968, 2.017232),
+    ("bt709", "limited"): (255 / 219, 1.792741, 0.213249, 0.532909, 2.112402),
+    ("bt601", "full"): (1.0, 1.402, 0.344136, 0.714136, 1.772),
+    ("bt709", "full"): (1.0, 1.5748, 0.187324, 0.468124, 1.8556),
+}
+
+
+def yuv420p_to_rgb(planes: torch.Tensor, matrix: str = "bt601", value_range: str = "limited") -> torch.Tensor:
+    """Planar YUV 4:2:0 ``(N, 3H/2, W)`` uint8 -> ``(N, H, W, 3)`` uint8 RGB, on the tensor's device.
+
+    Chroma is upsampled by pixel repetition, as FFmpeg's default converter does;
+    the result matches :meth:`flylib.io.VideoReader` RGB frames to within one grey
+    level.
+    """
+    n, rows, w = planes.shape
+    h = rows * 2 // 3
+    y = planes[:, :h].float()
+    chroma = planes[:, h:].reshape(n, 2, h // 2, w // 2).float() - 128.0
+    chroma = chroma.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)
+    u, v = chroma[:, 0], chroma[:, 1]
+    ys, vr, ug, vg, ub = _YUV_COEFFS[(matrix, value_range)]
+    if value_range == "limited":
+        y = (y - 16.0) * ys
+    rgb = torch.stack([y + vr * v, y - ug * u - vg * v, y + ub * u], dim=-1)
+    return rgb.round_().clamp_(0, 255).to(torch.uint8)
+
+
 def _autocast(device: torch.device, precision: str):
     dtype = PRECISIONS[precision]
     if dtype == torch.float32 or device.type == "cpu":
@@ -88,7 +117,10 @@ class LoadedModel:
         if self.device.type == "cuda":
             torch.backends.cudnn.benchmark = True
             self.net = self.net.to(memory_format=torch.channels_last)
-        self._forward = torch.compile(self.net, dynamic=False) if self.compiled else self.net
+        # CUDA graphs ("reduce-overhead") replay the whole forward in one launch, so the
+        # Python decode threads competing for the GIL cannot starve kernel launches.
+        mode = "reduce-overhead" if self.device.type == "cuda" else None
+        self._forward = torch.compile(self.net, dynamic=False, mode=mode) if self.compiled else self.net
 
     @property
     def heatmap_size(self) -> tuple[int, int]:
@@ -122,7 +154,8 @@ class LoadedModel:
                 chunk = torch.cat([chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])])
             with torch.inference_mode(), _autocast(self.device, self.precision):
                 hm = self._forward(chunk)[-1]
-            outputs.append(hm[:short].float())
+            # a copy: a CUDA-graph replay reuses its output buffer
+            outputs.append(hm[:short].to(torch.float32, copy=True))
         return outputs[0] if len(outputs) == 1 else torch.cat(outputs)
 
     def detect(
