@@ -168,3 +168,14 @@ def test_real_sample_resolves_to_its_videos_or_its_image_sequences(df3d_sample_d
     sources = find_recording(df3d_sample_dir, images)
     assert len(sources["cam3"]) == 15
     assert sources["cam3"][2].name == "camera_3_img_2.jpg" and sources["cam3"][-1].name == "camera_3_img_14.jpg"
+
+
+def test_plan_skips_a_malformed_batch_member_with_a_warning(tmp_path, caplog):
+    good = make_video_recording(tmp_path / "good")
+    bad = make_video_recording(tmp_path / "bad", frames=(3, 4))
+    with caplog.at_level(logging.WARNING):
+        recs = plan_recordings({**SOURCES, "recordings": [str(good), str(bad)]})
+    assert [r.path for r in recs] == [good]
+    assert f"skipping {bad}" in caplog.text and "frame counts" in caplog.text
+    with pytest.raises(FootageError, match="none of"):
+        plan_recordings({**SOURCES, "recordings": [str(bad), str(tmp_path / "absent")]})

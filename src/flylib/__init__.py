@@ -90,6 +90,11 @@ _EXPORTS: dict[str, str] = {
     # detector (torch is imported only when these are used)
     "load_detector": "pose2d",
     "detect_2d": "pose2d",
+    "detect_recording": "pose2d",
+    "HourglassNet": "pose2d",
+    "DetectionPlan": "pose2d",
+    "is_video_file": "io",
+    "list_image_files": "io",
     # frame I/O
     "open_reader": "io",
     "FrameReader": "io",

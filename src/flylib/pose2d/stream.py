@@ -154,7 +154,25 @@ class DetectionOutput:
 class _Pending:
     start: int
     n: int
-    results: list  # (pathway, source, xy, conf, candidates) on the device
+    results: list  # (pathway, source, xy, conf, candidates), host copies in flight on CUDA
+    ready: object = None  # a CUDA event recorded after the copies
+
+
+def _start_download(results: list, device: torch.device):
+    """Queue device->host copies of a block's results; return them and an event to wait on.
+
+    Waiting on the event (not on the whole stream) lets the next block's forwards run
+    while this block's points are scattered on the host.
+    """
+    if device.type != "cuda":
+        return results, None
+    host = []
+    for pathway, source, xy, cf, cand in results:
+        cand = None if cand is None else tuple(c.to("cpu", non_blocking=True) for c in cand)
+        host.append((pathway, source, xy.to("cpu", non_blocking=True), cf.to("cpu", non_blocking=True), cand))
+    event = torch.cuda.Event()
+    event.record()
+    return host, event
 
 
 def _make_progress(progress, total: int | None):
@@ -233,6 +251,8 @@ def run_detection(
     pts_parts, conf_parts, cxy_parts, cscore_parts = [], [], [], []
 
     def finalize(pending: _Pending) -> None:
+        if pending.ready is not None:
+            pending.ready.synchronize()
         pts = np.full((n_views, pending.n, n_points, 2), np.nan)
         conf = np.full((n_views, pending.n, n_points), np.nan)
         cxy = np.full((n_views, pending.n, n_points, k, 2), np.nan) if k else None
@@ -296,9 +316,10 @@ def run_detection(
                         pathway.check_frame(size)
                     xy, cf, cand = models[pathway.model].detect(frames, pathway.ops, k=k)
                     results.append((pathway, source, xy, cf, cand))
+            results, ready = _start_download(results, device)
             if pending is not None:
                 finalize(pending)
-            pending = _Pending(start, n, results)
+            pending = _Pending(start, n, results, ready)
             start += n
             del blocks
         if pending is not None:
