@@ -152,8 +152,8 @@ def memory(short: int, long: int) -> None:
             out = subprocess.run([sys.executable, __file__, "--memory-child", str(n), str(clip)],
                                  check=True, capture_output=True, text=True)
             rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    print(f"memory: default videos from synthetic footage (320x160 clip upscaled), "
-          f"fresh process per run")
+    print("memory: default videos from synthetic footage (320x160 clip upscaled), "
+          "fresh process per run")
     for r in rows:
         print(f"  {r['frames']:6d} frames: peak RSS {r['peak_kib'] / 1024:7.1f} MiB "
               f"(before render {r['before_kib'] / 1024:7.1f} MiB), "

@@ -15,23 +15,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-POINT_NAMES = [
-    *(f"{leg}_{j}" for leg in ("lf", "lm", "lh")
-      for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")),
-    "l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2",
-    *(f"{leg}_{j}" for leg in ("rf", "rm", "rh")
-      for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")),
-    "r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2",
-]
+from flylib.demo import FLY38_POINTS, synthetic_fly  # noqa: F401  (one motion model)
 
-# Leg geometry (world units of the default rig, about millimetres).
-_SEGMENTS = np.array([0.30, 0.70, 0.65, 0.55])  # coxa, femur, tibia, tarsus
-_PITCH_DEG = np.array([65.0, -10.0, 55.0, 80.0])  # below horizontal, per segment
-_COXA_X = {"f": 0.35, "m": 0.0, "h": -0.30}
-_COXA_Y = {"f": 0.14, "m": 0.20, "h": 0.17}
-_YAW_DEG = {"f": 45.0, "m": 0.0, "h": -40.0}  # from lateral towards the head
-_GAIT_PHASE = {"lf": 0.0, "rm": 0.0, "lh": 0.0, "rf": np.pi, "lm": np.pi, "rh": np.pi}
-_BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the frame
+POINT_NAMES = list(FLY38_POINTS)
 
 # Which points each default view sees: the spec's [pose2d.output_points] tables.
 _SIDE = [f"{leg}_{j}" for leg in ("f", "m", "h")
@@ -46,45 +32,6 @@ RIG_VISIBILITY = {
     "lm": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
     "lh": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
 }
-
-
-def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> np.ndarray:
-    """A walking tethered fly: ``(n_frames, 38, 3)`` float64 world points (fly38 order).
-
-    Six legs swing in a tripod gait (femur and tibia pitch, leg yaw) at a random
-    step frequency around 8 Hz; antennae and abdomen move slightly. Segment lengths
-    are constant, so every bone of the skeleton keeps its length exactly.
-    """
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_frames) / fps
-    freq = rng.uniform(6.0, 10.0)
-    phase0 = rng.uniform(0, 2 * np.pi)
-    out = np.zeros((n_frames, len(POINT_NAMES), 3))
-    index = {n: i for i, n in enumerate(POINT_NAMES)}
-    for side, sign in (("l", 1.0), ("r", -1.0)):
-        for pos in ("f", "m", "h"):
-            leg = f"{side}{pos}"
-            wave = np.sin(2 * np.pi * freq * t + phase0 + _GAIT_PHASE[leg])
-            wave2 = np.cos(2 * np.pi * freq * t + phase0 + _GAIT_PHASE[leg])
-            yaw = np.deg2rad(_YAW_DEG[pos] + 18.0 * wave)
-            pitch = np.deg2rad(_PITCH_DEG)[None, :] + np.deg2rad(
-                np.stack([5 * wave2, 15 * wave2, -15 * wave, 8 * wave], axis=1))
-            lateral = np.stack([np.sin(yaw), sign * np.cos(yaw), np.zeros_like(yaw)], -1)
-            joint = np.tile([_COXA_X[pos], sign * _COXA_Y[pos], _BODY_Z - 0.12], (n_frames, 1))
-            names = [f"{leg}_{j}" for j in
-                     ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")]
-            out[:, index[names[0]]] = joint
-            for s, length in enumerate(_SEGMENTS):
-                direction = np.cos(pitch[:, s:s + 1]) * lateral
-                direction[:, 2] = -np.sin(pitch[:, s])
-                joint = joint + length * direction
-                out[:, index[names[s + 1]]] = joint
-        antenna_wiggle = 0.03 * np.sin(2 * np.pi * 3.0 * t + sign)[:, None]
-        out[:, index[f"{side}_antenna"]] = [0.80, sign * 0.12, _BODY_Z + 0.30] + antenna_wiggle
-        bend = 0.05 * np.sin(2 * np.pi * 1.5 * t + phase0)[:, None]
-        for k, (x, y, z) in enumerate([(-0.45, 0.22, 0.05), (-0.85, 0.20, 0.0), (-1.25, 0.12, -0.05)]):
-            out[:, index[f"{side}_abdomen{k}"]] = [x, sign * y, _BODY_Z + z] + k * bend * [0, 0, 1]
-    return out
 
 
 def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:

@@ -563,7 +563,7 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
     if output_points is None:
         return problems
     if not isinstance(output_points, Mapping):
-        return [*problems, f"pose2d.output_points: expected a mapping view -> point -> {{pathway, out_channel}}"]
+        return [*problems, "pose2d.output_points: expected a mapping view -> point -> {pathway, out_channel}"]
     known_points = set(point_names)
     for view, table in output_points.items():
         where_view = f"pose2d.output_points.{view}"

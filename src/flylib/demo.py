@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ConfigError
+from .paths import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -364,10 +365,10 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
         if source in footage:
             continue  # one source feeding several views is rendered once
         path = directory / patterns[source]
-        tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-        with VideoWriter(tmp, fps=float(settings["fps"]), preset="ultrafast", crf=23) as writer:
+        with atomic_path(path) as tmp, VideoWriter(
+            tmp, fps=float(settings["fps"]), preset="ultrafast", crf=23
+        ) as writer:
             writer.write_frames(render_frames(clean2d[v], bones, colors, image_size))
-        tmp.replace(path)
         footage[source] = path
     dlc: dict[str, Path] = {}
     for v, (view, name) in enumerate(zip(views, files["dlc"])):
@@ -392,13 +393,11 @@ def _check_in_frame(clean2d: np.ndarray, image_size: tuple[int, int], views: lis
 def _write_truth(path: Path, pts3d, clean2d, views, points, settings) -> Path:
     import h5py
 
-    tmp = path.with_name(f".{path.name}.tmp")
-    with h5py.File(tmp, "w") as f:
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         f.create_dataset("points3d", data=pts3d)
         f.create_dataset("points2d", data=clean2d)
         f.attrs["meta"] = json.dumps({"views": list(views), "point_names": list(points),
                                       "settings": settings})
-    tmp.replace(path)
     return path
 
 

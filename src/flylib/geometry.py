@@ -18,10 +18,19 @@ The ``*_one`` functions handle one point / one camera and compose with
 
 from __future__ import annotations
 
+import os
+
 import jax
+
+from .paths import cache_dir
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")
+if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
+    # Every workflow job is a fresh process: keep compiled kernels on disk so only the
+    # first job ever pays for XLA compilation (seconds per kernel on a small machine).
+    jax.config.update("jax_compilation_cache_dir", str(cache_dir() / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402

@@ -10,7 +10,6 @@ import numpy as np
 from .errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .cameras import CameraGroup
     from .pictorial import Candidates
     from .results import PoseResult
 

@@ -14,8 +14,6 @@ Every write goes to a temporary sibling first and is renamed into place on succe
 from __future__ import annotations
 
 import json
-import os
-import uuid
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -27,6 +25,7 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError
+from .paths import atomic_path
 from .skeleton import Skeleton
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -62,35 +61,6 @@ _CHUNK_BYTES = 1024 * 1024
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
 
 
-# -- atomic writes -------------------------------------------------------------
-
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path``; rename it to ``path`` on success.
-
-    The temporary file lives in the same directory (so the final ``os.replace`` is
-    atomic) and is removed if the block raises, leaving any previous ``path``
-    untouched. The parent directory is created if missing.
-
-    Parameters
-    ----------
-    path
-        The final destination.
-
-    Yields
-    ------
-    Path
-        Where to write; it does not exist yet.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 # -- low-level helpers ---------------------------------------------------------

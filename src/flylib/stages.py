@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .errors import FlylibError, ResultsError
+from .paths import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -261,9 +262,8 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
 
 
 def _write_json(path: Path, payload: Mapping) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
 
 
 def run_visualization(config, results_path: str | Path, recording_dir: str | Path,

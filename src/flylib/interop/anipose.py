@@ -36,6 +36,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 import numpy as np
 
 from ..errors import ImportFormatError
+from ..paths import atomic_path
 from . import views as _views
 
 log = logging.getLogger(__name__)
@@ -157,10 +158,8 @@ def write_anipose_toml(
         }
     doc["metadata"] = {"written_by": "flylib", **(metadata or {})}
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(tomli_w.dumps(doc).encode())
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(tomli_w.dumps(doc).encode())
     return path
 
 

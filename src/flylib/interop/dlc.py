@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ImportFormatError
+from ..paths import atomic_path
 
 
 @dataclass
@@ -294,8 +295,6 @@ def write_dlc_csv(
         ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    dlc_frame(xy, likelihood, bodyparts, scorer).to_csv(tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        dlc_frame(xy, likelihood, bodyparts, scorer).to_csv(tmp)
     return path

@@ -13,13 +13,13 @@ as body parts and the detection confidence as ``likelihood``; these import back 
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .dlc import write_dlc_csv
+from ..paths import atomic_path
 
 
 def points3d_table(
@@ -81,10 +81,8 @@ def write_points3d_csv(
 ) -> Path:
     """Write :func:`points3d_table` to ``path`` as CSV (atomically); returns ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    points3d_table(pts3d, point_names, reproj_error, pts2d).to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        points3d_table(pts3d, point_names, reproj_error, pts2d).to_csv(tmp, index=False)
     return path
 
 

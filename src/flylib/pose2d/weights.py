@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 
 from ..errors import WeightsError
+from ..paths import cache_dir
 from .model import HourglassNet
 
 log = logging.getLogger(__name__)
@@ -37,12 +38,6 @@ PUBLISHED_WEIGHTS = {
 _PREFIXES = ("module.", "model.")
 _STACK_KEY = re.compile(r"^hg\.(\d+)\.")
 _RES_KEY = re.compile(r"^res\.0\.(\d+)\.")
-
-
-def cache_dir() -> Path:
-    """The per-user weights cache: ``$FLYLIB_CACHE`` or ``~/.cache/flylib``."""
-    env = os.environ.get("FLYLIB_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "flylib"
 
 
 def sha256sum(path: str | Path) -> str:

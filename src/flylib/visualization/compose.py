@@ -23,6 +23,7 @@ from typing import Any, Iterable, Iterator, Mapping, Sequence
 import cv2
 import numpy as np
 
+from ..paths import atomic_path
 from .draw import (color_tuples, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
                    to_panel_coords)
 from .specs import (PanelSpec, VideoSpec, read_video_specs, resolve_output_fps,
@@ -344,21 +345,6 @@ class _CanvasEncoder:
             self._container.close()
 
 
-@contextlib.contextmanager
-def _atomic_video(path: Path):
-    """Yield a temporary sibling (same suffix); rename it to ``path`` on success.
-
-    Unlike :func:`flylib.results.atomic_path` the temporary name keeps the ``.mp4``
-    suffix: FFmpeg picks the container format from it.
-    """
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    try:
-        yield tmp
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 # -- entry point --------------------------------------------------------------
 
 
@@ -466,7 +452,7 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
         writers = []
         for spec, comp, path in zip(specs, compositors, paths):
             fps = resolve_output_fps(spec, table, input_fps)
-            tmp = stack.enter_context(_atomic_video(path))
+            tmp = stack.enter_context(atomic_path(path))
             writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
             stack.callback(writer.close)
             writers.append(writer)
