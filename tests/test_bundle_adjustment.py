@@ -217,12 +217,27 @@ def test_gauge_free_fit_stays_put_and_finite(clean_scene):
     assert np.isfinite(table).all() and np.isfinite(pts[np.isfinite(pts).all(1)]).all()
     centres = -np.einsum("vji,vj->vi", refined.rmats, refined.tvecs)
     true_centres = -np.einsum("vji,vj->vi", rig.rmats, rig.tvecs)
-    # canonical frame = the similarity closest to the initial rig (here the truth): the
-    # rig's centroid stays put ...
-    assert np.linalg.norm(centres.mean(0) - true_centres.mean(0)) < 0.5
+    # canonical frame = the similarity closest to the initial rig (here the truth), fitted
+    # on camera centres and viewing targets: the rig stays put ...
+    assert np.linalg.norm(centres.mean(0) - true_centres.mean(0)) < 2.0
     # (with free intrinsics, focal vs distance and principal point vs rotation trade off
     # along near-null directions of a 22000 px lens: only the gauge is pinned here)
     assert np.abs(centres - true_centres).max() < 0.2 * 107.463
+    assert result.final_median_px < 1.0
+
+
+def test_fixed_intrinsics_fit_keeps_the_fly_in_place():
+    # Long lenses far away: sliding the fly sideways while every camera turns to follow it
+    # barely changes any image. The canonical frame pins where the rig looks, so a fit
+    # that starts from the true rig leaves the fly where it was (aligning camera centres
+    # alone let it slide by 0.14 units here, 5% of the body length).
+    rig = default_rig()
+    pts3d = synthetic_fly(60, seed=1)
+    pts2d, conf = observe(pts3d, rig, noise_px=1.0, outlier_frac=0.0, seed=1)
+    result, _, pts = bundle_adjust_sequence(rig, pts2d, conf, None, max_frames=30,
+                                            fixed=["*.intr"])
+    ok = np.isfinite(pts).all(-1)
+    assert np.linalg.norm(pts[ok].mean(0) - pts3d[ok].mean(0)) < 0.1
     assert result.final_median_px < 1.0
 
 

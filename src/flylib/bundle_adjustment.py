@@ -278,24 +278,36 @@ def _median_error(problem: Problem, x: np.ndarray) -> float:
                                                       problem.xy)))
 
 
-def _camera_centres(table: np.ndarray) -> np.ndarray:
+def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """Each camera's centre and the point ``depths[v]`` ahead on its optical axis.
+
+    Returns ``(2V, 3)``: centres first, then the viewing targets.
+    """
     import cv2
 
-    return np.stack([-cv2.Rodrigues(r)[0].T @ t for r, t in zip(table[:, 0:3], table[:, 3:6])])
+    rmats = [cv2.Rodrigues(r)[0] for r in table[:, 0:3]]
+    centres = np.stack([-rm.T @ t for rm, t in zip(rmats, table[:, 3:6])])
+    targets = np.stack([c + d * rm[2] for c, d, rm in zip(centres, depths, rmats)])
+    return np.concatenate([centres, targets])
 
 
 def _align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
-    """Map the refined rig + points by the similarity taking refined centres to the initial.
+    """Map the refined rig + points by the similarity that best restores the initial rig.
 
-    Umeyama's least-squares similarity between the two sets of camera centres;
+    Umeyama's least-squares similarity between the two rigs' camera centres *and*
+    viewing targets (a point at the initial camera distance along each optical axis).
+    Centres alone leave a near-gauge free: with long lenses far from the fly, moving
+    the fly sideways while every camera turns to follow it barely changes any image,
+    so the solution would drift; the targets pin where the rig looks.
     ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
     ``t_c' = s t_c - R_c' t`` (projections are unchanged).
     """
     import cv2
 
-    src, dst = _camera_centres(table), _camera_centres(table0)
-    if len(src) < 3:
+    if len(table) < 2:
         return table, pts
+    depths = np.linalg.norm(table0[:, 3:6], axis=1)
+    src, dst = _camera_anchors(table, depths), _camera_anchors(table0, depths)
     mu_s, mu_d = src.mean(0), dst.mean(0)
     a, b = src - mu_s, dst - mu_d
     u, sig, vt = np.linalg.svd(b.T @ a / len(src))
