@@ -24,6 +24,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from . import geometry
 from .errors import ConfigError
@@ -93,7 +94,9 @@ def orbit_extrinsics(
     c, s = np.cos(roll), np.sin(roll)
     roll_mat = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     rmat = roll_mat @ np.stack([x_cam, y_cam, z_cam])
-    rvec = np.asarray(geometry.rmat_to_rvec_one(rmat))
+    # SciPy, not the JAX primitive: this runs once per camera at config time, where
+    # JAX's op-by-op dispatch would compile dozens of tiny kernels (seconds per process).
+    rvec = Rotation.from_matrix(rmat).as_rotvec()
     return rvec, -rmat @ centre
 
 

@@ -154,52 +154,6 @@ def _dlt_chunk(rig, raw, und, weights):
 
 
 @partial(jax.jit, static_argnames=("distorted",))
-def _ransac_chunk(rig, raw, und, weights, threshold, min_inliers, distorted):
-    und = raw if und is None else und
-    terms, valid = _view_terms(rig, und, weights)
-    n_views = valid.shape[0]
-    threshold_sq = threshold * threshold
-    scale = 1.0 / (n_views * threshold + 1.0)
-    n = valid.shape[1]
-    pairs = np.array(list(combinations(range(n_views), 2)), dtype=np.int32)
-    pairs_i, pairs_j = jnp.asarray(pairs[:, 0]), jnp.asarray(pairs[:, 1])
-    raw_u, raw_v = raw[..., 0], raw[..., 1]
-
-    # Exhaustive two-view hypotheses with a running arg-max, so nothing of size
-    # pairs x views x points is stored and the loop body compiles once.
-    def try_pair(h, state):
-        best_score, best_inliers = state
-        i, j = pairs_i[h], pairs_j[h]
-        pair_valid = jnp.take(valid, i, axis=0).astype(int) + jnp.take(valid, j, axis=0)
-
-        def score_pair(state):
-            best_score, best_inliers = state
-            pair_terms = jnp.take(terms, i, axis=1) + jnp.take(terms, j, axis=1)
-            x, y, z = geometry.dlt_solve_components(jnp, pair_terms, pair_valid)
-            err_sq = jnp.stack(
-                [_view_sq_error(rig, k, x, y, z, raw_u[k], raw_v[k], distorted) for k in range(n_views)]
-            )
-            inlier = err_sq < threshold_sq  # NaN (missing view / no candidate) never passes
-            count = inlier.sum(axis=0)
-            total = jnp.where(inlier, jnp.sqrt(err_sq), 0.0).sum(axis=0)
-            # Lexicographic (most inliers, then least total inlier error): the total is
-            # below count * threshold, so scaling it under 1 never flips a count.
-            score = count - total * scale
-            better = score > best_score
-            return jnp.where(better, score, best_score), jnp.where(better[None], inlier, best_inliers)
-
-        # A pair that no point of the chunk sees in both views cannot win anywhere
-        # (the fly's two sides share only the front camera): skip its work.
-        return jax.lax.cond(jnp.any(pair_valid == 2), score_pair, lambda state: state, state)
-
-    init = (jnp.full(n, -jnp.inf), jnp.zeros((n_views, n), dtype=bool))
-    _, best_inliers = jax.lax.fori_loop(0, len(pairs), try_pair, init)
-    pts3d = _solve_kept(terms, best_inliers, jnp.maximum(min_inliers, 2))
-    accepted = jnp.isfinite(pts3d).all(axis=-1)
-    return pts3d, best_inliers & accepted[None]
-
-
-@partial(jax.jit, static_argnames=("distorted",))
 def _greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
     und = raw if und is None else und
     terms, kept = _view_terms(rig, und, weights)
@@ -272,6 +226,140 @@ def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
             collect()
     while in_flight:
         collect()
+    return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
+
+
+# -- RANSAC in NumPy: each hypothesis only where both its views see the point -------
+# Real recordings see each point in only 2-4 of the views, so most of the C(V, 2)
+# pairs have nothing to do for most points. The points are sorted by the set of views
+# that observe them; a run of points with the same set is one dense block, in which
+# every pair of its views is tried and errors are measured in its views only. No
+# gathers in the inner loop, no wasted pairs, and no XLA compile per chunk length.
+
+
+class _RansacRig:
+    """A rig's per-view constants for :func:`_ransac_block`."""
+
+    def __init__(self, cameras: CameraGroup):
+        self.n_views = len(cameras)
+        self.distorted = bool(np.any(cameras.dists))
+        pmats = cameras.pmats
+        quad, self.norm = geometry.dlt_camera_constants(np, pmats)
+        self.quad_t = np.ascontiguousarray(quad.transpose(0, 2, 1))  # (V, 9, 6)
+        if self.distorted:
+            # Reprojection goes through the camera frame [R | t] and the lens model.
+            self.rows = np.concatenate([cameras.rmats, cameras.tvecs[:, :, None]], axis=2)
+            dists = np.zeros((self.n_views, geometry.N_DIST_COEFFS))
+            dists[:, : cameras.dists.shape[1]] = cameras.dists
+            self.dists = dists
+            self.intrs = cameras.intrs
+        else:
+            self.rows = pmats  # (V, 3, 4)
+
+    def sq_errors(self, views, pts4, raw_u, raw_v):
+        """Squared pixel errors ``(K, n)`` in ``views`` (K,) of homogeneous ``pts4`` (4, n)."""
+        n_sel = len(views)
+        rows = self.rows[views].transpose(1, 0, 2).reshape(3 * n_sel, 4)
+        hom = np.einsum("rc,cn->rn", rows, pts4)  # c_einsum: no multi-threaded BLAS call
+        inv_depth = 1.0 / hom[2 * n_sel :]
+        u, v = hom[:n_sel] * inv_depth, hom[n_sel : 2 * n_sel] * inv_depth
+        if self.distorted:
+            radial, add_x, add_y = geometry._distortion_terms(u, v, self.dists[views].T[:, :, None])
+            intr = self.intrs[views].T[:, :, None]
+            u = intr[0] * (u * radial + add_x) + intr[2]
+            v = intr[1] * (v * radial + add_y) + intr[3]
+        u -= raw_u
+        v -= raw_v
+        u *= u
+        v *= v
+        u += v
+        return u
+
+
+def _ransac_block(rig: _RansacRig, raw, und, weights, views, threshold, min_inliers):
+    """Exhaustive-pair RANSAC for points observed in (at most) ``views`` ``(K,)``.
+
+    ``raw`` / ``und`` ``(K, n, 2)`` raw and undistorted pixels in those views (NaN =
+    missing), ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
+    """
+    n_sel, n = raw.shape[:2]
+    feats, valid = geometry.dlt_features(np, und, rig.norm[views], weights)  # (6, K, n)
+    terms = np.einsum("kcf,fkn->kcn", rig.quad_t[views], feats)  # (K, 9, n)
+    valid = valid.astype(np.uint8)
+    raw_u, raw_v = np.ascontiguousarray(raw[..., 0]), np.ascontiguousarray(raw[..., 1])
+    threshold_sq = threshold * threshold
+    # Lexicographic (most inliers, then least total inlier error) as one number,
+    # count - total * scale: the total is below count * threshold, so the scaled
+    # total stays under 1 and never flips a count.
+    scale = 1.0 / (rig.n_views * threshold + 1.0)
+    bits = np.exp2(np.arange(n_sel))[:, None]
+    pts4 = np.ones((4, n))
+    best_score = np.full(n, -np.inf)
+    best_code = np.zeros(n)  # the winning hypothesis' inliers, as bits over ``views``
+    for i, j in combinations(np.flatnonzero(valid.any(axis=1)), 2):
+        pts4[:3] = geometry.dlt_solve_terms(np, terms[i] + terms[j], valid[i] + valid[j]).T
+        err_sq = rig.sq_errors(views, pts4, raw_u, raw_v)
+        np.fmin(err_sq, threshold_sq, out=err_sq)  # NaN (missing view, no hypothesis) fails
+        inlier = err_sq < threshold_sq
+        contrib = np.sqrt(err_sq, out=err_sq)
+        contrib *= -scale
+        contrib += 1.0
+        contrib *= inlier
+        score = contrib.sum(axis=0)
+        better = score > best_score
+        best_score = np.where(better, score, best_score)
+        best_code = np.where(better, (inlier * bits).sum(axis=0), best_code)
+    inliers = (best_code.astype(np.int64) >> np.arange(n_sel)[:, None]) & 1 == 1
+    summed = np.einsum("kcn,kn->cn", terms, inliers)
+    pts3d = geometry.dlt_solve_terms(np, summed, inliers.sum(axis=0), max(min_inliers, 2))
+    return pts3d, inliers & np.isfinite(pts3d).all(axis=-1)[None]
+
+
+def _finite(pts2d):
+    """``(..., 2)`` -> ``(...)``: both coordinates finite (faster than ``.all(-1)``)."""
+    return np.isfinite(pts2d[..., 0]) & np.isfinite(pts2d[..., 1])
+
+
+def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers):
+    """:func:`triangulate_ransac` on flattened points, by runs of equally seen points."""
+    rig = _RansacRig(cameras)
+    n_views = rig.n_views
+    pts_shape = pts2d.shape[1:-1]
+    raw_all = pts2d.reshape(n_views, -1, 2)
+    und_all = cameras.undistort_points(raw_all) if rig.distorted else raw_all
+    n = raw_all.shape[1]
+    w_all = None if weights is None else weights.reshape(n_views, -1)
+    # A dropped observation (zero / bad weight) is missing everywhere, vote included.
+    usable = True if w_all is None else np.isfinite(w_all) & (w_all > 0)
+    vote = _finite(raw_all) & usable
+    valid_count = (_finite(und_all) & usable).sum(axis=0)
+    # Points with fewer than two usable views stay NaN. The rest are sorted by the
+    # set of views observing them and processed in runs of one set (beyond 62 views
+    # the key ignores the later ones: runs are then less uniform, which costs time,
+    # not correctness).
+    todo = np.flatnonzero(valid_count >= 2)
+    key = np.zeros(len(todo), dtype=np.int64)
+    for v in range(min(n_views, 62)):
+        key |= vote[v, todo].astype(np.int64) << v
+    order = np.argsort(key, kind="stable")
+    todo, key = todo[order], key[order]
+    runs = np.flatnonzero(np.diff(key)) + 1
+    size = max(int(chunk_points), 1)
+    pts3d = np.full((n, 3), np.nan)
+    kept = np.zeros((n_views, n), dtype=bool)
+    with np.errstate(all="ignore"):
+        for run_start, run_stop in zip([0, *runs], [*runs, len(todo)]):
+            for start in range(run_start, run_stop, size):
+                sel = todo[start : min(start + size, run_stop)]
+                seen = vote.take(sel, axis=1)
+                views = np.flatnonzero(seen.any(axis=1))
+                raw = np.where(seen[views, :, None], raw_all.take(sel, axis=1)[views], np.nan)
+                und = und_all.take(sel, axis=1)[views] if rig.distorted else raw
+                w = None if w_all is None else w_all.take(sel, axis=1)[views]
+                pts3d[sel], inliers = _ransac_block(rig, raw, und, w, views, threshold, min_inliers)
+                seen[:] = False
+                seen[views] = inliers
+                kept[:, sel] = seen
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
@@ -389,17 +477,7 @@ def triangulate_ransac(
         raise ValueError(f"threshold must be a positive number of pixels, got {threshold}")
     pts2d, cameras = _points_and_cameras(pts2d, cameras)
     w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
-    rig = _Rig(cameras)
-    return _run_chunked(
-        _ransac_chunk,
-        pts2d,
-        cameras,
-        w,
-        chunk_points,
-        threshold=float(threshold),
-        min_inliers=int(min_inliers),
-        distorted=rig.distorted,
-    )
+    return _ransac_numpy(pts2d, cameras, w, chunk_points, float(threshold), int(min_inliers))
 
 
 def triangulate_greedy(
