@@ -1,9 +1,10 @@
 """Triangulation throughput on the default 7-camera rig (T = 10,000 frames x P = 38).
 
-Prints frames/s for dlt, ransac and greedy, each warmed up first (the kernels are
-jitted once per chunk length), and the speed-up over a straightforward per-point
-loop (Hartley-normalized SVD DLT; for RANSAC that DLT over every view pair)
-measured in the same run on a small subset. Two visibility patterns:
+Prints frames/s for dlt, ransac and greedy, each warmed up first (dlt and greedy
+are JAX kernels jitted once per chunk length; ransac is NumPy and compiles nothing:
+the first-call column shows what a fresh process pays), and the speed-up over a
+straightforward per-point loop (Hartley-normalized SVD DLT; for RANSAC that DLT over
+every view pair) measured in the same run on a small subset. Two visibility patterns:
 
 * ``all``: every point in all 7 views (the worst case for RANSAC: 21 pairs);
 * ``plan``: what the default detection plan gives (each side's points in its 3
@@ -108,15 +109,17 @@ def loop_ransac(pts2d, pmats, threshold=15.0):
 
 
 def _time(func, *args, repeat=3, **kwargs):
-    """Best wall time and best CPU time (all threads) of ``repeat`` warm runs."""
+    """Best wall time and best CPU time (all threads) of ``repeat`` warm runs, first-call time."""
+    start = time.perf_counter()
     func(*args, **kwargs)  # warm-up: compile
+    first = time.perf_counter() - start
     wall = cpu = np.inf
     for _ in range(repeat):
         start, start_cpu = time.perf_counter(), time.process_time()
         func(*args, **kwargs)
         wall = min(wall, time.perf_counter() - start)
         cpu = min(cpu, time.process_time() - start_cpu)
-    return wall, cpu
+    return wall, cpu, first
 
 
 def main() -> None:
@@ -138,9 +141,13 @@ def main() -> None:
             ("ransac", triangulate_ransac, loop_ransac_s, "20,000"),
             ("greedy", triangulate_greedy, None, "-"),
         ):
-            wall, cpu = (t / args.frames for t in _time(func, pts2d, rig))
+            wall, cpu, first = _time(func, pts2d, rig)
+            wall, cpu = wall / args.frames, cpu / args.frames
             vs_loop = f"{loop_s / wall:7.0f}x the per-point loop" if loop_s else " " * 27
-            print(f"  {name:7s}{1 / wall:10,.0f} frames/s ({1 / cpu:8,.0f})  {vs_loop}   target {target}")
+            print(
+                f"  {name:7s}{1 / wall:10,.0f} frames/s ({1 / cpu:8,.0f})  {vs_loop}   "
+                f"first call {first:5.2f} s   target {target}"
+            )
         print(f"  per-point loop: dlt {1 / loop_dlt_s:,.0f} frames/s, ransac {1 / loop_ransac_s:,.1f} frames/s")
         # Agreement with the loop on the subset (independent SVD reference).
         ref = loop_dlt(small, pmats)

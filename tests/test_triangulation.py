@@ -11,7 +11,7 @@ import pytest
 
 from flylib import geometry
 from flylib import triangulation as tri
-from flylib.cameras import CameraGroup
+from flylib.cameras import CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
@@ -197,6 +197,65 @@ def test_ransac_matches_a_brute_force_reference(rig):
     got, inliers = tri.triangulate_ransac(pts2d, rig, threshold=15.0)
     ref, ref_inliers = _brute_force_ransac(pts2d, rig, 15.0)
     np.testing.assert_array_equal(inliers, ref_inliers)
+    np.testing.assert_allclose(got, ref, rtol=1e-8, atol=1e-10)
+
+
+def test_ransac_pieces_threads_and_dropped_views(rig):
+    # Points are processed in runs of equally seen points, split into pieces that run
+    # on threads: tiny pieces give the same answer as the default ones.
+    rng = np.random.default_rng(7)
+    pts3d = rng.uniform(-1.5, 1.5, size=(40, 6, 3))
+    pts2d = rig.project(pts3d) + rng.normal(scale=2.0, size=(7, 40, 6, 2))
+    pts2d[rng.random(pts2d.shape[:-1]) < 0.4] = np.nan
+    bad = rng.random(pts2d.shape[:-1]) < 0.15
+    pts2d[bad] += rng.uniform(-200, 200, size=(int(bad.sum()), 2))
+    whole, whole_inliers = tri.triangulate_ransac(pts2d, rig)
+    pieces, pieces_inliers = tri.triangulate_ransac(pts2d, rig, chunk_points=5)
+    np.testing.assert_array_equal(pieces_inliers, whole_inliers)
+    np.testing.assert_allclose(pieces, whole, rtol=1e-12)
+    ref, ref_inliers = _brute_force_ransac(pts2d, rig, 15.0)
+    np.testing.assert_array_equal(whole_inliers, ref_inliers)
+    np.testing.assert_allclose(whole, ref, rtol=1e-8, atol=1e-10)
+    # A zero-confidence observation is a missing one, in the vote too.
+    conf = rng.uniform(0.5, 1.0, size=pts2d.shape[:-1])
+    zero = rng.random(conf.shape) < 0.2
+    conf[zero] = 0.0
+    got, inliers = tri.triangulate_ransac(pts2d, rig, conf=conf, weigh_by_confidence=True)
+    dropped = np.where(zero[..., None], np.nan, pts2d)
+    want, want_inliers = tri.triangulate_ransac(dropped, rig, conf=conf, weigh_by_confidence=True)
+    assert not inliers[zero].any()
+    np.testing.assert_array_equal(inliers, want_inliers)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_ransac_with_more_views_than_the_run_key_holds(rig):
+    # 64 cameras: points are grouped by their first 62 views only, so one run mixes
+    # points seen by different later views.
+    n_views = 64
+    extrinsics = [
+        orbit_extrinsics(distance=107.463, azimuth_deg=360.0 * k / n_views, elevation_deg=20.0 * (-1) ** k)
+        for k in range(n_views)
+    ]
+    big = CameraGroup.from_arrays(
+        [f"c{k}" for k in range(n_views)],
+        np.array([e[0] for e in extrinsics]),
+        np.array([e[1] for e in extrinsics]),
+        np.tile(rig.intrs[:1], (n_views, 1)),
+        np.zeros((n_views, 5)),
+    )
+    pts3d = np.array([[0.2, -0.3, 0.4], [-0.5, 0.1, 0.0], [0.3, 0.3, -0.6]])
+    pts2d = np.full((n_views, 3, 2), np.nan)
+    exact = big.project(pts3d) + np.random.default_rng(3).normal(scale=2.0, size=(n_views, 3, 2))
+    seen = np.zeros((n_views, 3), dtype=bool)
+    seen[[0, 1, 2]] = True
+    seen[62, [0, 2]] = True
+    seen[63, [1, 2]] = True
+    pts2d[seen] = exact[seen]
+    pts2d[63, 2] += 120.0  # an outlier
+    got, inliers = tri.triangulate_ransac(pts2d, big)
+    ref, ref_inliers = _brute_force_ransac(pts2d, big, 15.0)
+    np.testing.assert_array_equal(inliers, ref_inliers)
+    assert inliers[62, 0] and inliers[63, 1] and not inliers[63, 2]
     np.testing.assert_allclose(got, ref, rtol=1e-8, atol=1e-10)
 
 

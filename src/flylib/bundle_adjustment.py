@@ -236,10 +236,10 @@ def _valid_bones(bones):
 
 
 def _ransac_start(cameras, pts2d, usable, threshold):
-    from .pictorial import consensus_triangulate
+    from .triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
-    pts3d, inliers = consensus_triangulate(cameras, masked, threshold=threshold)
+    pts3d, inliers = triangulate_ransac(masked, cameras, threshold=threshold)
     inliers = np.asarray(inliers, bool) & usable
     return np.asarray(pts3d, float), inliers
 

@@ -461,10 +461,12 @@ def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_rad
 
 def consensus_triangulate(cameras: "CameraGroup", pts2d: np.ndarray,
                           threshold: float = DEFAULT_INLIER_PX) -> tuple[np.ndarray, np.ndarray]:
-    """Exhaustive two-view consensus triangulation in NumPy (no JIT), for robust starts.
+    """Exhaustive two-view consensus triangulation, for robust starts.
 
-    Every pair of views seeds a hypothesis; the one with the most views reprojecting
-    within ``threshold`` pixels wins and is refitted from them (linear least squares).
+    :func:`flylib.triangulation.triangulate_ransac` (NumPy, no compile) with
+    ``(cameras, pts2d)`` argument order: every pair of views seeds a hypothesis; the
+    one with the most views reprojecting within ``threshold`` pixels (ties: the
+    smaller total error) wins and is refitted from them.
 
     Parameters
     ----------
@@ -482,15 +484,9 @@ def consensus_triangulate(cameras: "CameraGroup", pts2d: np.ndarray,
     inliers : np.ndarray
         ``(V, *pts)`` bool.
     """
-    pts2d = np.asarray(pts2d, float)
-    n_v, lead = pts2d.shape[0], pts2d.shape[1:-1]
-    flat = pts2d.reshape(n_v, 1, -1, 1, 2)
-    hyp = _all_hypotheses(cameras, flat, np.isfinite(flat).all(-1).astype(float),
-                          inlier_px=threshold, max_hyp=1, nms_radius=0.0)
-    ok = np.isfinite(hyp.evidence[0, :, 0])
-    pts3d = np.where(ok[:, None], hyp.pos[0, :, 0], np.nan)
-    inliers = (hyp.assign[0, :, 0] >= 0) & ok[:, None]  # (N, V)
-    return pts3d.reshape(*lead, 3), inliers.T.reshape(n_v, *lead)
+    from .triangulation import triangulate_ransac
+
+    return triangulate_ransac(np.asarray(pts2d, float), cameras, threshold=threshold)
 
 
 # -- chain dynamic programming ---------------------------------------------------------

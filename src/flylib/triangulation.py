@@ -2,9 +2,10 @@
 
 All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for a
 recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
-processed in fixed-length chunks (memory stays bounded on long recordings) by
-jitted JAX kernels, compiled once per chunk length, that use the same closed-form,
-row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`.
+processed in bounded chunks (memory stays bounded on long recordings), all with the
+same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`: DLT
+and greedy by jitted JAX kernels compiled once per chunk length, RANSAC in NumPy
+(no compile) on runs of points seen by the same views, on a few threads.
 Cameras with lens distortion are handled exactly: observations are undistorted
 before the linear solve, and reprojection errors are measured in the raw image.
 
@@ -19,9 +20,11 @@ order is accepted too.
 from __future__ import annotations
 
 import logging
+import os
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from itertools import combinations
+from itertools import combinations, pairwise
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +38,9 @@ log = logging.getLogger(__name__)
 
 METHODS = ("ransac", "greedy", "dlt")
 DEFAULT_CHUNK_POINTS = 4096
+RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
 _CHUNKS_IN_FLIGHT = 4
+_RANSAC_THREADS = min(4, os.cpu_count() or 1)
 
 
 # -- input handling --------------------------------------------------------------
@@ -229,43 +234,41 @@ def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
-# -- RANSAC in NumPy: each hypothesis only where both its views see the point -------
-# Real recordings see each point in only 2-4 of the views, so most of the C(V, 2)
-# pairs have nothing to do for most points. The points are sorted by the set of views
-# that observe them; a run of points with the same set is one dense block, in which
-# every pair of its views is tried and errors are measured in its views only. No
-# gathers in the inner loop, no wasted pairs, and no XLA compile per chunk length.
+# -- RANSAC in NumPy: each hypothesis only where both its views see the point ---------
+# Real recordings see each point in only 2-4 of the views (the default rig's side
+# cameras see one side of the fly), so most of the C(V, 2) pairs have nothing to do
+# for most points. The points are sorted by the set of views observing them; a run
+# of points with one set is a dense block in which every pair of its views is tried
+# and errors are measured in its views only: no wasted pairs, no gathers in the inner
+# loop, and no XLA compile per input size (short workflow jobs pay nothing up front).
 
 
-class _RansacRig:
-    """A rig's per-view constants for :func:`_ransac_block`."""
+class _RansacViews:
+    """Reprojection constants of a subset ``views`` ``(K,)`` of a rig."""
 
-    def __init__(self, cameras: CameraGroup):
-        self.n_views = len(cameras)
-        self.distorted = bool(np.any(cameras.dists))
-        pmats = cameras.pmats
-        quad, self.norm = geometry.dlt_camera_constants(np, pmats)
-        self.quad_t = np.ascontiguousarray(quad.transpose(0, 2, 1))  # (V, 9, 6)
+    def __init__(self, cameras: CameraGroup, pmats: np.ndarray, views: np.ndarray):
+        self.n_sel = len(views)
+        self.distorted = bool(np.any(cameras.dists[views]))
         if self.distorted:
-            # Reprojection goes through the camera frame [R | t] and the lens model.
-            self.rows = np.concatenate([cameras.rmats, cameras.tvecs[:, :, None]], axis=2)
-            dists = np.zeros((self.n_views, geometry.N_DIST_COEFFS))
-            dists[:, : cameras.dists.shape[1]] = cameras.dists
-            self.dists = dists
-            self.intrs = cameras.intrs
+            # Through the camera frame [R | t] and the lens model, as in ``project``.
+            rows = np.concatenate([cameras.rmats[views], cameras.tvecs[views, :, None]], axis=2)
+            dists = np.zeros((self.n_sel, geometry.N_DIST_COEFFS))
+            dists[:, : cameras.dists.shape[1]] = cameras.dists[views]
+            self.dists = dists.T[:, :, None]  # (12, K, 1)
+            self.intrs = cameras.intrs[views].T[:, :, None]  # (4, K, 1)
         else:
-            self.rows = pmats  # (V, 3, 4)
+            rows = pmats[views]
+        self.rows = np.ascontiguousarray(rows.transpose(1, 0, 2).reshape(3 * self.n_sel, 4))
 
-    def sq_errors(self, views, pts4, raw_u, raw_v):
-        """Squared pixel errors ``(K, n)`` in ``views`` (K,) of homogeneous ``pts4`` (4, n)."""
-        n_sel = len(views)
-        rows = self.rows[views].transpose(1, 0, 2).reshape(3 * n_sel, 4)
-        hom = np.einsum("rc,cn->rn", rows, pts4)  # c_einsum: no multi-threaded BLAS call
-        inv_depth = 1.0 / hom[2 * n_sel :]
-        u, v = hom[:n_sel] * inv_depth, hom[n_sel : 2 * n_sel] * inv_depth
+    def sq_errors(self, pts4, raw_u, raw_v):
+        """Squared pixel errors ``(K, n)`` of homogeneous points ``(4, n)`` against ``raw_u/v`` ``(K, n)``."""
+        k = self.n_sel
+        hom = np.einsum("rc,cn->rn", self.rows, pts4)  # no multi-threaded BLAS call
+        inv_depth = 1.0 / hom[2 * k :]
+        u, v = hom[:k] * inv_depth, hom[k : 2 * k] * inv_depth
         if self.distorted:
-            radial, add_x, add_y = geometry._distortion_terms(u, v, self.dists[views].T[:, :, None])
-            intr = self.intrs[views].T[:, :, None]
+            radial, add_x, add_y = geometry._distortion_terms(u, v, self.dists)
+            intr = self.intrs
             u = intr[0] * (u * radial + add_x) + intr[2]
             v = intr[1] * (v * radial + add_y) + intr[3]
         u -= raw_u
@@ -276,29 +279,31 @@ class _RansacRig:
         return u
 
 
-def _ransac_block(rig: _RansacRig, raw, und, weights, views, threshold, min_inliers):
+def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inliers):
     """Exhaustive-pair RANSAC for points observed in (at most) ``views`` ``(K,)``.
 
-    ``raw`` / ``und`` ``(K, n, 2)`` raw and undistorted pixels in those views (NaN =
-    missing), ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
+    ``raw`` / ``und`` ``(K, n, 2)``: raw and undistorted pixels in those views (NaN =
+    missing); ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
     """
     n_sel, n = raw.shape[:2]
-    feats, valid = geometry.dlt_features(np, und, rig.norm[views], weights)  # (6, K, n)
-    terms = np.einsum("kcf,fkn->kcn", rig.quad_t[views], feats)  # (K, 9, n)
+    quad, norm = geometry.dlt_camera_constants(np, pmats[views])
+    feats, valid = geometry.dlt_features(np, und, norm, weights)  # (6, K, n)
+    terms = np.einsum("kfc,fkn->kcn", quad, feats)  # (K, 9, n) normal-equation terms
     valid = valid.astype(np.uint8)
     raw_u, raw_v = np.ascontiguousarray(raw[..., 0]), np.ascontiguousarray(raw[..., 1])
+    project = _RansacViews(cameras, pmats, views)
     threshold_sq = threshold * threshold
     # Lexicographic (most inliers, then least total inlier error) as one number,
     # count - total * scale: the total is below count * threshold, so the scaled
     # total stays under 1 and never flips a count.
-    scale = 1.0 / (rig.n_views * threshold + 1.0)
+    scale = 1.0 / (len(cameras) * threshold + 1.0)
     bits = np.exp2(np.arange(n_sel))[:, None]
     pts4 = np.ones((4, n))
     best_score = np.full(n, -np.inf)
     best_code = np.zeros(n)  # the winning hypothesis' inliers, as bits over ``views``
     for i, j in combinations(np.flatnonzero(valid.any(axis=1)), 2):
-        pts4[:3] = geometry.dlt_solve_terms(np, terms[i] + terms[j], valid[i] + valid[j]).T
-        err_sq = rig.sq_errors(views, pts4, raw_u, raw_v)
+        pts4[0], pts4[1], pts4[2] = geometry.dlt_solve_components(np, terms[i] + terms[j], valid[i] + valid[j])
+        err_sq = project.sq_errors(pts4, raw_u, raw_v)
         np.fmin(err_sq, threshold_sq, out=err_sq)  # NaN (missing view, no hypothesis) fails
         inlier = err_sq < threshold_sq
         contrib = np.sqrt(err_sq, out=err_sq)
@@ -306,7 +311,7 @@ def _ransac_block(rig: _RansacRig, raw, und, weights, views, threshold, min_inli
         contrib += 1.0
         contrib *= inlier
         score = contrib.sum(axis=0)
-        better = score > best_score
+        better = score > best_score  # the first of equal hypotheses wins, in pair order
         best_score = np.where(better, score, best_score)
         best_code = np.where(better, (inlier * bits).sum(axis=0), best_code)
     inliers = (best_code.astype(np.int64) >> np.arange(n_sel)[:, None]) & 1 == 1
@@ -322,44 +327,55 @@ def _finite(pts2d):
 
 def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers):
     """:func:`triangulate_ransac` on flattened points, by runs of equally seen points."""
-    rig = _RansacRig(cameras)
-    n_views = rig.n_views
+    n_views = len(cameras)
+    pmats = cameras.pmats
     pts_shape = pts2d.shape[1:-1]
     raw_all = pts2d.reshape(n_views, -1, 2)
-    und_all = cameras.undistort_points(raw_all) if rig.distorted else raw_all
+    und_all = cameras.undistort_points(raw_all)
     n = raw_all.shape[1]
     w_all = None if weights is None else weights.reshape(n_views, -1)
     # A dropped observation (zero / bad weight) is missing everywhere, vote included.
     usable = True if w_all is None else np.isfinite(w_all) & (w_all > 0)
     vote = _finite(raw_all) & usable
-    valid_count = (_finite(und_all) & usable).sum(axis=0)
-    # Points with fewer than two usable views stay NaN. The rest are sorted by the
-    # set of views observing them and processed in runs of one set (beyond 62 views
-    # the key ignores the later ones: runs are then less uniform, which costs time,
-    # not correctness).
+    valid = vote if und_all is raw_all else _finite(und_all) & usable
+    valid_count = valid.sum(axis=0)
+    # Points with fewer than two usable views stay NaN. The rest are sorted by the set
+    # of views observing them and processed in runs of one set, in pieces of at most
+    # ``chunk_points`` (beyond 62 views the key ignores the later ones: runs are then
+    # less uniform, which costs time, not correctness).
+    key_views = min(n_views, 62)
+    key = np.zeros(n, dtype=np.min_scalar_type((1 << key_views) - 1))
+    for v in range(key_views):
+        key |= vote[v].astype(key.dtype) << v
     todo = np.flatnonzero(valid_count >= 2)
-    key = np.zeros(len(todo), dtype=np.int64)
-    for v in range(min(n_views, 62)):
-        key |= vote[v, todo].astype(np.int64) << v
-    order = np.argsort(key, kind="stable")
-    todo, key = todo[order], key[order]
-    runs = np.flatnonzero(np.diff(key)) + 1
+    todo = todo[np.argsort(key[todo], kind="stable")]
+    key = key[todo]
+    bounds = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1), len(todo)]
     size = max(int(chunk_points), 1)
+    pieces = [
+        todo[start : min(start + size, stop)]
+        for first, stop in pairwise(bounds)
+        for start in range(first, stop, size)
+    ]
     pts3d = np.full((n, 3), np.nan)
     kept = np.zeros((n_views, n), dtype=bool)
-    with np.errstate(all="ignore"):
-        for run_start, run_stop in zip([0, *runs], [*runs, len(todo)]):
-            for start in range(run_start, run_stop, size):
-                sel = todo[start : min(start + size, run_stop)]
-                seen = vote.take(sel, axis=1)
-                views = np.flatnonzero(seen.any(axis=1))
-                raw = np.where(seen[views, :, None], raw_all.take(sel, axis=1)[views], np.nan)
-                und = und_all.take(sel, axis=1)[views] if rig.distorted else raw
-                w = None if w_all is None else w_all.take(sel, axis=1)[views]
-                pts3d[sel], inliers = _ransac_block(rig, raw, und, w, views, threshold, min_inliers)
-                seen[:] = False
-                seen[views] = inliers
-                kept[:, sel] = seen
+
+    def run(sel):
+        seen = vote.take(sel, axis=1)
+        views = np.flatnonzero(seen.any(axis=1))
+        raw = np.where(seen[views, :, None], raw_all.take(sel, axis=1)[views], np.nan)
+        und = raw if und_all is raw_all else und_all.take(sel, axis=1)[views]
+        w = None if w_all is None else w_all.take(sel, axis=1)[views]
+        with np.errstate(all="ignore"):
+            pts3d[sel], inliers = _ransac_block(cameras, pmats, raw, und, w, views, threshold, min_inliers)
+        seen[:] = False
+        seen[views] = inliers
+        kept[:, sel] = seen
+
+    # NumPy releases the GIL in its loops: pieces run on a few threads (disjoint outputs).
+    with ThreadPoolExecutor(max_workers=max(1, min(_RANSAC_THREADS, len(pieces)))) as pool:
+        for _ in pool.map(run, pieces):
+            pass
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
@@ -439,7 +455,7 @@ def triangulate_ransac(
     weigh_by_confidence: bool = False,
     *,
     weights=None,
-    chunk_points: int = DEFAULT_CHUNK_POINTS,
+    chunk_points: int = RANSAC_CHUNK_POINTS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robust triangulation from the largest set of mutually consistent views.
 
