@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ImportFormatError
+from ._h5 import open_foreign_h5
 from ..paths import atomic_path
 
 
@@ -219,13 +220,7 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
         When the file is missing or holds no DeepLabCut-layout DataFrame.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImportFormatError(f"{path}: no such DeepLabCut .h5; check pose2d.import.files")
-    try:
-        fh = h5py.File(path, "r")
-    except OSError as exc:
-        raise ImportFormatError(f"{path}: not an HDF5 file ({exc})") from exc
-    with fh:
+    with open_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:
         group = _pandas_group(fh, path)
         kind = _text([group.attrs.get("pandas_type", b"")])[0]
         try:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from ..errors import ImportFormatError
+from ._h5 import open_foreign_h5
 from .dlc import ViewKeypoints
 
 
@@ -44,13 +44,7 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
         When the file is missing, lacks ``tracks``/``node_names``, or the track is ambiguous.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImportFormatError(f"{path}: no such SLEAP analysis file; check pose2d.import.files")
-    try:
-        fh = h5py.File(path, "r")
-    except OSError as exc:
-        raise ImportFormatError(f"{path}: not an HDF5 file ({exc})") from exc
-    with fh:
+    with open_foreign_h5(path, "SLEAP analysis file", "check pose2d.import.files") as fh:
         if "tracks" not in fh or "node_names" not in fh:
             raise ImportFormatError(
                 f"{path}: lacks 'tracks'/'node_names'; export it with sleap-convert --format analysis"
