@@ -72,16 +72,6 @@ def test_bone_targets_are_true_lengths_despite_outliers():
     np.testing.assert_allclose(targets, truth, rtol=0.03)
 
 
-def test_consensus_triangulation_drops_a_gross_outlier():
-    rig = default_rig()
-    pts3d = synthetic_fly(3, seed=4)
-    pts2d = project_opencv(rig, pts3d)
-    pts2d[0, 1, 20] += [150.0, -90.0]
-    est, inliers = ps.consensus_triangulate(rig, pts2d)
-    np.testing.assert_allclose(est, pts3d, atol=1e-6)
-    assert not inliers[0, 1, 20] and inliers[:, 1, 20].sum() == 6
-
-
 # -- peak recovery -------------------------------------------------------------------------
 
 

@@ -85,7 +85,6 @@ _EXPORTS: dict[str, str] = {
     "run_from_points2d": "pipeline",
     "bundle_adjust_sequence": "bundle_adjustment",
     "select_frames": "bundle_adjustment",
-    "consensus_triangulate": "pictorial",
     "solve_frames": "pictorial",
     # detector (torch is imported only when these are used)
     "load_detector": "pose2d",

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import FlylibError, ResultsError
+from .results import open_checked
 
 _STAGES_2D = ("pose2d", "pictorial_structures", "triangulation")
 _STAGES_3D = ("pictorial_structures", "triangulation")
@@ -28,18 +29,6 @@ _STAGES_3D = ("pictorial_structures", "triangulation")
 
 def _decode(values) -> list[str]:
     return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
-
-
-def _open_results(path: Path):
-    import h5py
-
-    path = Path(path)
-    if not path.is_file():
-        raise ResultsError(f"{path}: no such results file; pass the results.h5 a run wrote")
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise ResultsError(f"{path}: not an HDF5 results file ({exc})") from exc
 
 
 def _percentile(values: np.ndarray, q: float) -> float:
@@ -58,7 +47,7 @@ def summarize_results(path: Path) -> dict:
         errors are in pixels; the bone spread is the interquartile range of the
         bone's length over frames divided by its median (0 for a rigid bone).
     """
-    with _open_results(path) as f:
+    with open_checked(path, "pass the results.h5 a run wrote") as f:
         meta = json.loads(f.attrs["meta"]) if "meta" in f.attrs else {}
         if "skeleton/point_names" not in f:
             raise ResultsError(f"{path}: no skeleton/point_names; not a flylib results file")
@@ -183,7 +172,6 @@ def _cmd_inspect(args) -> int:
 def _load_result(path: Path):
     from .results import PoseResult
 
-    _open_results(path).close()  # a clear error for a missing/non-HDF5 file
     return PoseResult.load(path)
 
 
@@ -201,7 +189,7 @@ def _cmd_calibration(args) -> int:
     from .interop.anipose import write_anipose_toml
 
     result = _load_result(args.results)
-    with _open_results(args.results) as f:
+    with open_checked(args.results) as f:
         stage = "bundle_adjustment" if "bundle_adjustment/cameras" in f else "pose2d"
     path = write_anipose_toml(
         result.cameras, args.output, result.image_sizes or {},

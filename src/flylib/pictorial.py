@@ -233,7 +233,9 @@ def bone_length_targets(cameras: "CameraGroup", pts2d: np.ndarray, skeleton: "Sk
     targets : np.ndarray
         ``(B,)`` median lengths, NaN for a bone never triangulated.
     """
-    pts3d, _ = consensus_triangulate(cameras, pts2d)
+    from .triangulation import triangulate_ransac
+
+    pts3d, _ = triangulate_ransac(np.asarray(pts2d, float), cameras, threshold=DEFAULT_INLIER_PX)
     i, j = skeleton.bone_index_pairs()
     lengths = np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)
     with warnings.catch_warnings():  # an all-NaN bone gives a NaN target, on purpose
@@ -457,36 +459,6 @@ def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_rad
             full[:, np.arange(len(joints))[:, None], :, views] = asg.transpose(1, 3, 0, 2)
             hyp.assign[t, joints, :s] = full
     return hyp
-
-
-def consensus_triangulate(cameras: "CameraGroup", pts2d: np.ndarray,
-                          threshold: float = DEFAULT_INLIER_PX) -> tuple[np.ndarray, np.ndarray]:
-    """Exhaustive two-view consensus triangulation, for robust starts.
-
-    :func:`flylib.triangulation.triangulate_ransac` (NumPy, no compile) with
-    ``(cameras, pts2d)`` argument order: every pair of views seeds a hypothesis; the
-    one with the most views reprojecting within ``threshold`` pixels (ties: the
-    smaller total error) wins and is refitted from them.
-
-    Parameters
-    ----------
-    cameras
-        The rig.
-    pts2d
-        ``(V, *pts, 2)`` pixels, NaN = missing.
-    threshold
-        Inlier radius in pixels.
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(*pts, 3)``, NaN where fewer than two views agree.
-    inliers : np.ndarray
-        ``(V, *pts)`` bool.
-    """
-    from .triangulation import triangulate_ransac
-
-    return triangulate_ransac(np.asarray(pts2d, float), cameras, threshold=threshold)
 
 
 # -- chain dynamic programming ---------------------------------------------------------

@@ -38,6 +38,7 @@ __all__ = [
     "Pose2dData",
     "assemble_results",
     "atomic_path",
+    "open_checked",
     "read_cameras",
     "read_meta",
     "read_skeleton",
@@ -119,8 +120,21 @@ def _read_json_attrs(group: h5py.Group) -> dict:
 
 
 @contextmanager
-def _open_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
-    """Open a flylib HDF5 file for reading, checking its format version."""
+def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterator[h5py.File]:
+    """Open a flylib HDF5 file (results or stage artifact) read-only, checking its version.
+
+    Parameters
+    ----------
+    path
+        The file.
+    rerun
+        What the user should do when the file is missing or stale, for the message.
+
+    Raises
+    ------
+    ResultsError
+        Missing, not HDF5, not a flylib file, or a different format version.
+    """
     path = Path(path)
     if not path.is_file():
         raise ResultsError(f"{path}: file not found; {rerun}")
@@ -226,7 +240,7 @@ def read_skeleton(path: str | Path) -> Skeleton:
     ResultsError
         If the file is missing, of another version, or has no skeleton.
     """
-    with _open_checked(path, "re-run the pipeline") as f:
+    with open_checked(path, "re-run the pipeline") as f:
         if "skeleton" not in f:
             raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
         return _read_skeleton(f["skeleton"])
@@ -247,7 +261,7 @@ def read_cameras(path: str | Path, group: str) -> CameraGroup:
     ResultsError
         If the file is missing, of another version, or has no such rig.
     """
-    with _open_checked(path, f"re-run {group}") as f:
+    with open_checked(path, f"re-run {group}") as f:
         if f"{group}/cameras" not in f:
             raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")
         return _read_cameras(f[f"{group}/cameras"])
@@ -387,7 +401,7 @@ class PoseResult:
             or no rig.
         """
         rerun = "re-run the pipeline"
-        with _open_checked(path, rerun) as f:
+        with open_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
             if "skeleton" not in f:
@@ -527,7 +541,7 @@ class Pose2dData:
             If the file is missing, of another version, or has no pose2d group.
         """
         rerun = "re-run the pose2d stage"
-        with _open_checked(path, rerun) as f:
+        with open_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group; {rerun}")
             group = f["pose2d"]
@@ -609,7 +623,7 @@ def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
         If the file is missing, of another version, or lacks the group.
     """
     rerun = f"re-run the {stage} stage"
-    with _open_checked(path, rerun) as f:
+    with open_checked(path, rerun) as f:
         if stage not in f:
             raise ResultsError(f"{path}: has no {stage} group; {rerun}")
         group = f[stage]
@@ -667,7 +681,7 @@ def assemble_results(
             if stage not in stage_files:
                 continue
             src_path = stage_files[stage]
-            with _open_checked(src_path, f"re-run the {stage} stage") as src:
+            with open_checked(src_path, f"re-run the {stage} stage") as src:
                 if stage not in src:
                     raise ResultsError(f"{src_path}: has no {stage} group; re-run the {stage} stage")
                 src.copy(src[stage], dst, name=stage)
