@@ -7,7 +7,7 @@ import pytest
 
 from flylib.ba.params import build_layout
 from flylib.ba.sampling import select_frames
-from flylib.ba.solver import Problem
+from flylib.ba.solver import Problem, project_rows
 from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.errors import ConfigError
 
@@ -173,6 +173,32 @@ def test_numpy_and_jax_projections_agree_with_opencv():
         for p, r in zip(pts, rows)])
     np.testing.assert_allclose(project_rows(pts, rows), reference, atol=1e-8)
     np.testing.assert_allclose(project_rows_with_jac(pts, rows)[0], reference, atol=1e-8)
+
+
+def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
+    import jax
+
+    from flylib import geometry
+    from flylib.ba import solver
+
+    rng = np.random.default_rng(1)
+    m = 2 * solver._CHUNK + 37  # two full chunks and a padded remainder
+    pts = rng.normal(size=(m, 3))
+    rows = np.concatenate([rng.normal(size=(m, 3)) * 0.5, rng.normal(size=(m, 3)) + [0, 0, 10],
+                           np.tile([1000.0, 1100.0, 300.0, 200.0], (m, 1)),
+                           rng.normal(size=(m, 2)) * 0.05], axis=1)
+    value, jpt, jrow = solver.project_rows_with_jac(pts, rows)
+    assert value.shape == (m, 2) and jpt.shape == (m, 2, 3) and jrow.shape == (m, 2, 12)
+
+    def project(pt, row):
+        return geometry.project_full_one(pt, row[:3], row[3:6], row[6:10], row[10:])
+
+    for i in (0, solver._CHUNK - 1, solver._CHUNK, 2 * solver._CHUNK, m - 1):
+        want_pt, want_row = jax.jacfwd(project, argnums=(0, 1))(pts[i], rows[i])
+        np.testing.assert_allclose(value[i], project_rows(pts[i:i + 1], rows[i:i + 1])[0],
+                                   rtol=1e-12)
+        np.testing.assert_allclose(jpt[i], want_pt, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(jrow[i], want_row, rtol=1e-10, atol=1e-9)
 
 
 def test_jacobian_sparsity_covers_the_jacobian():

@@ -49,6 +49,24 @@ def test_rotations_near_zero_are_exact(angle):
     np.testing.assert_allclose(back, rvec, rtol=1e-9, atol=1e-20)
 
 
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.7, 3.0, np.pi])
+def test_numpy_rodrigues_twin_matches_opencv_and_the_jax_kernel(angle):
+    rng = np.random.default_rng(4)
+    rvecs = np.stack([_unit(rng) * angle for _ in range(6)]).reshape(2, 3, 3)
+    got = g.rvec_to_rmat_numpy(rvecs)
+    assert got.shape == (2, 3, 3, 3)
+    np.testing.assert_allclose(got, np.asarray(g.rvec_to_rmat(rvecs)), atol=1e-15)
+    for rvec, rmat in zip(rvecs.reshape(-1, 3), got.reshape(-1, 3, 3)):
+        np.testing.assert_allclose(rmat, expm(_skew(rvec)), atol=1e-15)
+
+
+def test_numpy_kmat_twin_matches_the_jax_kernel_for_both_intrinsic_forms():
+    intrs = np.array([[1200.0, 1100.0, 320.0, 240.0], [900.0, 950.0, 10.0, 20.0]])
+    np.testing.assert_array_equal(g.intr_to_kmat_numpy(intrs), np.asarray(g.intr_to_kmat(intrs)))
+    np.testing.assert_array_equal(g.intr_to_kmat_numpy([500.0, 3.0, 4.0]),
+                                  [[500.0, 0.0, 3.0], [0.0, 500.0, 4.0], [0.0, 0.0, 1.0]])
+
+
 def test_rodrigues_jacobian_at_zero_is_the_skew_generators():
     jac = np.asarray(jax.jacfwd(g.rvec_to_rmat_one)(np.zeros(3)))  # (3, 3, 3)
     assert np.all(np.isfinite(jac))

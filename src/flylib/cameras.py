@@ -266,12 +266,12 @@ class Camera:
     @property
     def rmat(self) -> np.ndarray:
         """World-to-camera rotation matrix ``(3, 3)``."""
-        return np.asarray(geometry.rvec_to_rmat(self.rvec))
+        return geometry.rvec_to_rmat_numpy(self.rvec)
 
     @property
     def kmat(self) -> np.ndarray:
         """Camera matrix ``K`` ``(3, 3)``."""
-        return np.asarray(geometry.intr_to_kmat(self.intr))
+        return geometry.intr_to_kmat_numpy(self.intr)
 
     @property
     def pmat(self) -> np.ndarray:
@@ -480,12 +480,12 @@ class CameraGroup:
     @property
     def rmats(self) -> np.ndarray:
         """``(V, 3, 3)``."""
-        return np.asarray(geometry.rvec_to_rmat(self.rvecs))
+        return geometry.rvec_to_rmat_numpy(self.rvecs)
 
     @property
     def pmats(self) -> np.ndarray:
         """``(V, 3, 4)`` projection matrices ``K [R | t]`` (ignore distortion)."""
-        kmats = np.asarray(geometry.intr_to_kmat(self.intrs))
+        kmats = geometry.intr_to_kmat_numpy(self.intrs)
         return kmats @ np.concatenate([self.rmats, self.tvecs[:, :, None]], axis=2)
 
     @property

@@ -145,6 +145,28 @@ def rmat_to_rvec(rmat):
     return jax.vmap(rmat_to_rvec_one)(flat).reshape(*rmat.shape[:-2], 3)
 
 
+def rvec_to_rmat_numpy(rvec) -> np.ndarray:
+    """NumPy :func:`rvec_to_rmat` (``(..., 3) -> (..., 3, 3)``), same Taylor branch.
+
+    Host-side code (camera properties, bundle-adjustment residuals) uses this twin so
+    that it never waits for an XLA compilation.
+    """
+    rvec = np.asarray(rvec, dtype=np.float64)
+    flat = rvec.reshape(-1, 3)
+    theta_sq = np.einsum("mi,mi->m", flat, flat)
+    small = theta_sq < _SMALL_THETA_SQ
+    safe_sq = np.where(small, 1.0, theta_sq)
+    theta = np.sqrt(safe_sq)
+    a = np.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
+                 (1.0 - np.cos(theta)) / safe_sq)
+    x, y, z = flat.T
+    zero = np.zeros_like(x)
+    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
+    rmat = np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
+    return rmat.reshape(*rvec.shape[:-1], 3, 3)
+
+
 def _skew(v):
     return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -180,6 +202,17 @@ def intr_to_kmat(intr):
         jnp.stack([zero, zero, one], axis=-1),
     ]
     return jnp.stack(rows, axis=-2)
+
+
+def intr_to_kmat_numpy(intr) -> np.ndarray:
+    """NumPy :func:`intr_to_kmat`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
+    intr = np.asarray(intr, dtype=np.float64)
+    fx, fy, cx, cy = _split_intr(intr)
+    kmat = np.zeros(intr.shape[:-1] + (3, 3))
+    kmat[..., 0, 0], kmat[..., 0, 2] = fx, cx
+    kmat[..., 1, 1], kmat[..., 1, 2] = fy, cy
+    kmat[..., 2, 2] = 1.0
+    return kmat
 
 
 def pad_dist(dist):
