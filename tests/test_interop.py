@@ -15,6 +15,7 @@ from flylib.errors import ImportFormatError
 from flylib.interop import (
     FLY38_POINT_NAMES,
     calibration_from_index,
+    calibration_inputs,
     df3d_joint_to_fly38,
     import_points2d,
     load_calibration,
@@ -393,6 +394,14 @@ def test_calibrations_index_resolves_session(tmp_path):
     assert cams.intrs[0, 0] == 1700.0
     with pytest.raises(ImportFormatError, match="no row for session 'session7'"):
         calibration_from_index(index, "session7")
+    # what the workflow lists as inputs of the rules that build this rig
+    assert calibration_inputs(_calib_config(index=str(index)), recording) == [
+        index, tmp_path / "calibrations" / "session1.toml"]
+    assert calibration_inputs(_calib_config(index=str(index)), tmp_path / "session7") == [index]
+    assert calibration_inputs(_calib_config(file="calibrations/session0.toml"), tmp_path) == [
+        tmp_path / "calibrations" / "session0.toml"]  # relative to the recording
+    assert calibration_inputs(_calib_config(file=str(tmp_path / "absent.toml"))) == []
+    assert calibration_inputs({"cameras": {"a": {}}}) == []
 
 
 def test_df3d_calibration_pickle_projects_like_opencv(tmp_path):

@@ -178,6 +178,29 @@ def test_stage_toggles_shape_the_dag(workspace):
     assert jobs(("pose2d", "pictorial_structures", "triangulation"), ("recA", "recB")) <= plan
 
 
+def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
+    from flylib.config import Config
+    from flylib.interop.anipose import write_anipose_toml
+
+    config = base_config()
+    config["bundle_adjustment"]["max_nfev"] = 5
+    config["pipeline"]["do_visualization"] = False
+    config["recordings"] = [make_recording(config, tmp_path / "recA", seed=0)]
+    rig_file = tmp_path / "rig.toml"
+    cfg = Config.from_dict(config)
+    write_anipose_toml(cfg.camera_group({v: (480, 960) for v in cfg.view_names()}), rig_file)
+    config["calibration"] = {"file": str(rig_file), "format": "anipose"}
+    snakemake(tmp_path, config=config)
+    assert planned(tmp_path, config) == set()
+
+    rig_file.write_text(rig_file.read_text().replace("22388.125", "22400.0", 1))  # re-calibrated
+    assert planned(tmp_path, config) == jobs(("bundle_adjustment", "triangulation", "assemble"),
+                                             ("recA",))
+    config["pipeline"]["do_bundle_adjustment"] = False  # triangulation reads the file itself
+    assert ("triangulation", "recA") in planned(tmp_path, config)
+    assert ("pose2d", "recA") not in planned(tmp_path, config)
+
+
 def test_report_holds_every_recordings_figure_and_videos(workspace):
     root = workspace["root"]
     snakemake(root, "--report", str(root / "report.zip"), config=workspace["config"])

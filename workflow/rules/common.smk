@@ -21,6 +21,7 @@ sys.path.insert(0, str(REPO / "src"))
 
 from flylib.config import Config  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
+from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
 from flylib.recordings import plan_recordings  # noqa: E402
 from flylib.stages import ARTIFACTS  # noqa: E402
 
@@ -180,17 +181,27 @@ def pose2d_gpus(wildcards) -> int:
     return 0 if (rec.import_spec or CONFIG.import_spec) else 1
 
 
+def calibration_inputs(wildcards) -> list[str]:
+    """The calibration file(s) the config rig is read from ([] for an orbit rig), so a
+    rule that builds the config rig re-runs when the file changes."""
+    return [str(p) for p in _calibration_files(CONFIG, recording(wildcards).path)]
+
+
 def reconstruction_inputs(stage: str):
     """Inputs of a geometry rule: pose2d, plus the bundle-adjusted rig while that stage
-    is on, plus (triangulation) pictorial-structures 2D while that stage is on."""
+    is on (else the calibration file the config rig comes from, if any), plus
+    (triangulation) pictorial-structures 2D while that stage is on."""
 
-    def inputs(wildcards) -> dict[str, str]:
+    def inputs(wildcards) -> dict:
         files = {"pose2d": artifact("pose2d")}
         if FLAGS["bundle_adjustment"]:
             files["bundle_adjustment"] = artifact("bundle_adjustment")
         if stage == "triangulation" and FLAGS["pictorial_structures"]:
             files["pictorial_structures"] = artifact("pictorial_structures")
-        return {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+        files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+        if not FLAGS["bundle_adjustment"]:
+            files["calibration"] = calibration_inputs(wildcards)
+        return files
 
     return inputs
 
@@ -206,12 +217,13 @@ def shell_quote(text: str) -> str:
     return shlex.quote(str(text))
 
 
-def assemble_inputs(wildcards) -> dict[str, str]:
+def assemble_inputs(wildcards) -> dict:
     files = {"pose2d": artifact("pose2d")}
     for stage in ("bundle_adjustment", "pictorial_structures", "triangulation"):
         if FLAGS[stage]:
             files[stage] = artifact(stage)
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+    files["calibration"] = calibration_inputs(wildcards)
     if recording(wildcards).demo:
         files["truth"] = str(DEMO.path / "truth.h5")
     return files

@@ -8,6 +8,7 @@ if FLAGS["bundle_adjustment"]:
     rule bundle_adjustment:
         input:
             pose2d=artifact("pose2d"),
+            calibration=calibration_inputs,
         output:
             artifact("bundle_adjustment"),
         params:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from .anipose import (
     calibration_from_index,
     calibration_image_sizes,
+    calibration_inputs,
     load_calibration,
     read_anipose_toml,
     write_anipose_toml,
@@ -33,6 +34,7 @@ __all__ = [
     "ViewKeypoints",
     "calibration_from_index",
     "calibration_image_sizes",
+    "calibration_inputs",
     "df3d_joint_to_fly38",
     "dlc_frame",
     "export_result",

@@ -224,6 +224,55 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
     return index_csv.parent / unique[0]
 
 
+def _calibration_file(spec: dict, recording_dir: Path | None, config) -> Path:
+    """The calibration file a ``calibration`` table names (through its index if any)."""
+    if "index" in spec:
+        return calibration_from_index(_resolve(spec["index"], recording_dir, config),
+                                      _session(spec, recording_dir))
+    return _resolve(spec["file"], recording_dir, config)
+
+
+def _session(spec: dict, recording_dir: Path | None) -> str:
+    session = spec.get("session") or (Path(recording_dir).name if recording_dir else None)
+    if not session:
+        raise ImportFormatError("calibration.index needs a recording directory or calibration.session")
+    return str(session)
+
+
+def calibration_inputs(config, recording_dir: Path | None = None) -> list[Path]:
+    """The files the config's ``calibration`` table reads for one recording.
+
+    The workflow lists them as inputs of the rules that build the config rig, so
+    editing a calibration file (or its ``calibrations.csv`` row) re-runs those stages.
+    Files that do not exist, or an index without a row for the session, are left out:
+    the stage itself then fails with the message naming the file and the fix.
+
+    Parameters
+    ----------
+    config
+        The run's config.
+    recording_dir
+        The recording (relative paths and the index session resolve against it).
+
+    Returns
+    -------
+    list of Path
+        ``[]`` without a ``calibration`` table; else the index CSV (if any) and the
+        calibration file, those that exist.
+    """
+    spec = _views.config_data(config).get("calibration")
+    if not isinstance(spec, dict) or not ({"file", "index"} & set(spec)):
+        return []
+    files = []
+    if "index" in spec:
+        files.append(_resolve(spec["index"], recording_dir, config))
+    try:
+        files.append(_calibration_file(spec, recording_dir, config))
+    except ImportFormatError:
+        pass
+    return [f for f in dict.fromkeys(files) if f.is_file()]
+
+
 def load_calibration(config, recording_dir: Path | None = None):
     """The camera rig from the config's ``calibration`` table (module docstring).
 
@@ -253,14 +302,7 @@ def load_calibration(config, recording_dir: Path | None = None):
             f"config 'calibration' is {spec!r}; give {{file: path, format: anipose|deepfly3d}} "
             "or {index: calibrations.csv}"
         )
-    if "index" in spec:
-        index = _resolve(spec["index"], recording_dir, config)
-        session = spec.get("session") or (Path(recording_dir).name if recording_dir else None)
-        if not session:
-            raise ImportFormatError("calibration.index needs a recording directory or calibration.session")
-        path = calibration_from_index(index, str(session))
-    else:
-        path = _resolve(spec["file"], recording_dir, config)
+    path = _calibration_file(spec, recording_dir, config)
     fmt = spec.get("format") or ("deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose")
     if fmt not in CALIBRATION_FORMATS:
         raise ImportFormatError(f"calibration.format is {fmt!r}; use one of {list(CALIBRATION_FORMATS)}")
