@@ -12,7 +12,9 @@ at 256x512):
   (989 TFLOP/s, SXM);
 * end-to-end images/s (7 sources decoded -> 8 pathways -> points in the raw
   frame), i.e. ``flylib.pose2d.run_detection``, per precision and batch size; and
-  whether decoding or the network is the bottleneck;
+  whether decoding or the network is the bottleneck, with where the detection loop's
+  thread spent the run (waiting for decoded blocks, launching the work, waiting for
+  the GPU's results, scattering points on the host);
 * peak memory (RSS, sampled every 10 ms) of streaming a 5,000-frame clip against a
   500-frame clip (target: within 2x); on the CPU the network is replaced by the
   torch preprocessing so this stays quick (``--memory-mode full`` forces it).
@@ -191,16 +193,21 @@ def bench_forward(model: LoadedModel, batch: int, seconds: float) -> float:
     return n * batch / (time.perf_counter() - t)
 
 
-def bench_end_to_end(plan, model, clip: Path, frames: int, batch: int) -> tuple[float, float, np.ndarray]:
+def bench_end_to_end(plan, model, clip: Path, frames: int, batch: int):
+    """End-to-end images/s and frames/s, the points, and where the detection loop's
+    thread spent the run (fractions of the wall time, ``run_detection(timings=...)``)."""
     sources = {s: [clip] for s in plan.sources}
     # warm-up on a short prefix is not possible with whole files; the first block
     # carries compile/cudnn autotuning, so time from the second run
+    timings: dict[str, float] = {}
     t = time.perf_counter()
-    out = stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4)
+    out = stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4,
+                               timings=timings)
     sync(model.device)
     dt = time.perf_counter() - t
     n_images = frames * len(plan.active_pathways())
-    return n_images / dt, frames / dt, out.pts2d
+    shares = {k: v / dt for k, v in timings.items()}
+    return n_images / dt, frames / dt, out.pts2d, shares
 
 
 def bench_memory(plan, model, clips: dict[int, Path], batch: int, full: bool) -> dict[int, tuple[int, int]]:
@@ -296,7 +303,7 @@ def main(argv=None) -> None:
                 try:
                     fwd = bench_forward(model, batch, args.forward_seconds)
                     bench_end_to_end(plan, model, clip, frames, batch) if compiled else None  # warm compile
-                    e2e, fps, pts = bench_end_to_end(plan, model, clip, frames, batch)
+                    e2e, fps, pts, shares = bench_end_to_end(plan, model, clip, frames, batch)
                 except torch.OutOfMemoryError:
                     print(f" {precision:9s} {batch:6d} {str(compiled):7s} | out of memory")
                     torch.cuda.empty_cache()
@@ -305,6 +312,8 @@ def main(argv=None) -> None:
                 bound = "decode" if parallel / N_SOURCES * 8 < 1.15 * e2e else "network"
                 print(f" {precision:9s} {batch:6d} {str(compiled):7s} | {fwd:13.1f} {tflops:8.2f} {100 * tflops / H100_BF16_PEAK_TFLOPS:9.2f}"
                       f"  | {e2e:16.1f} {fps:9.1f}  {bound}")
+                print("     detection loop: " + ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())
+                      + f", other {100 * (1 - sum(shares.values())):.0f}% of the wall time")
                 points[(precision, batch)] = pts
                 if e2e > best[0]:
                     best = (e2e, (precision, batch, compiled))

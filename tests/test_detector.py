@@ -326,8 +326,15 @@ def test_yuv_streaming_path_gives_the_same_detections(default_data, tiny_checkpo
     plan = DetectionPlan.from_config(data)
     models = load_models(plan, data)
     sources = {s: [tmp_path / "cam.mp4"] for s in plan.sources}
-    rgb = stream.run_detection(plan, models, sources, batch_size=3, raw_yuv=False)
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    rgb = stream.run_detection(plan, models, sources, batch_size=3, raw_yuv=False, timings=timings)
+    wall = time.perf_counter() - start
     yuv = stream.run_detection(plan, models, sources, batch_size=3, raw_yuv=True)
+    # the loop's time accounts: on the CPU the forwards run inside "launch"
+    assert set(timings) == {"wait_decode", "launch", "wait_device", "scatter"}
+    assert min(timings.values()) >= 0 and sum(timings.values()) <= wall
+    assert timings["launch"] > timings["scatter"] and timings["wait_device"] < 1e-3  # no GPU to wait on
     assert yuv.frame_sizes == rgb.frame_sizes == {s: (96, 128) for s in plan.sources}
     np.testing.assert_allclose(yuv.conf, rgb.conf, rtol=0.05, atol=1e-3)
     close = np.linalg.norm(yuv.pts2d - rgb.pts2d, axis=-1) < 1.0

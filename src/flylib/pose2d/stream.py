@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -198,6 +199,7 @@ def run_detection(
     k: int | None = None,
     progress=False,
     raw_yuv: bool | None = None,
+    timings: dict[str, float] | None = None,
 ) -> DetectionOutput:
     """Stream every active source through its pathways and scatter the points.
 
@@ -222,6 +224,12 @@ def run_detection(
     raw_yuv
         Convert YUV video to RGB on the device instead of in the decoder
         (default: on a GPU); results agree to within a grey level.
+    timings
+        When given, receives where the calling thread spent its time, in seconds:
+        ``wait_decode`` (blocked on the decode threads), ``launch`` (preprocessing
+        and forwards; on a GPU only queueing them), ``wait_device`` (blocked on a
+        GPU block's results) and ``scatter`` (points to raw pixels on the host).
+        Which one dominates says what bounds the throughput.
 
     Raises
     ------
@@ -250,9 +258,14 @@ def run_detection(
     frame_sizes: dict[str, tuple[int, int]] = {}
     pts_parts, conf_parts, cxy_parts, cscore_parts = [], [], [], []
 
+    clock = dict.fromkeys(("wait_decode", "launch", "wait_device", "scatter"), 0.0)
+
     def finalize(pending: _Pending) -> None:
+        t0 = time.perf_counter()
         if pending.ready is not None:
             pending.ready.synchronize()
+        t1 = time.perf_counter()
+        clock["wait_device"] += t1 - t0
         pts = np.full((n_views, pending.n, n_points, 2), np.nan)
         conf = np.full((n_views, pending.n, n_points), np.nan)
         cxy = np.full((n_views, pending.n, n_points, k, 2), np.nan) if k else None
@@ -276,6 +289,7 @@ def run_detection(
             cscore_parts.append(cscore)
         if bar is not None:
             bar.update(pending.n)
+        clock["scatter"] += time.perf_counter() - t1
 
     for p in prefetchers.values():
         p.start()
@@ -283,7 +297,10 @@ def run_detection(
     start = 0
     try:
         while True:
+            t0 = time.perf_counter()
             blocks = {s: prefetchers[s].get() for s in active}
+            t1 = time.perf_counter()
+            clock["wait_decode"] += t1 - t0
             ended = [s for s, b in blocks.items() if b is _END]
             if ended:
                 if len(ended) != len(blocks):
@@ -317,6 +334,7 @@ def run_detection(
                     xy, cf, cand = models[pathway.model].detect(frames, pathway.ops, k=k)
                     results.append((pathway, source, xy, cf, cand))
             results, ready = _start_download(results, device)
+            clock["launch"] += time.perf_counter() - t1
             if pending is not None:
                 finalize(pending)
             pending = _Pending(start, n, results, ready)
@@ -329,6 +347,8 @@ def run_detection(
             p.stop()
         if bar is not None:
             bar.close()
+        if timings is not None:
+            timings.update(clock)
     if not pts_parts:
         raise FootageError(f"the detector received no frames from sources {active}; check the footage")
     return DetectionOutput(
