@@ -30,7 +30,8 @@ graphs (14% of the bf16 peak); end-to-end 846-902 images/s (network-bound; below
 7,267 MiB for 500 (1.05x).
 
 Run: ``python benchmarks/detector.py [--device cuda] [--precision bfloat16,float16]
-[--batch-sizes 32,64,128] [--stacks 8] [--frames 1000] [--compile auto|on|off|both]``.
+[--batch-sizes 32,64,128] [--stacks 8] [--frames 1000] [--compile auto|on|off|both]
+[--compile-mode reduce-overhead|max-autotune] [--freezing]``.
 Imports only torch, numpy, av, cv2 and flylib (from ``src/``), no network.
 """
 
@@ -247,6 +248,10 @@ def main(argv=None) -> None:
     ap.add_argument("--stacks", type=int, default=None, help="hourglass stacks (default 8 on CUDA, 1 on CPU)")
     ap.add_argument("--frames", type=int, default=None, help="clip length for decode/end-to-end (default 1000 CUDA, 16 CPU)")
     ap.add_argument("--compile", default="auto", choices=["auto", "on", "off", "both"])
+    ap.add_argument("--compile-mode", default="reduce-overhead", choices=["reduce-overhead", "max-autotune"],
+                    help="torch.compile mode of compiled runs (flylib uses reduce-overhead: CUDA graphs)")
+    ap.add_argument("--freezing", action="store_true",
+                    help="Inductor freezing (constant-folds weights, folds BatchNorm into convolutions)")
     ap.add_argument("--forward-seconds", type=float, default=3.0)
     ap.add_argument("--memory-frames", default="500,5000", help="the two clip lengths compared ('' to skip)")
     ap.add_argument("--memory-mode", default="auto", choices=["auto", "full", "decode"])
@@ -260,6 +265,10 @@ def main(argv=None) -> None:
     stacks = args.stacks or (8 if cuda else 1)
     frames = args.frames or (1000 if cuda else 16)
     compile_modes = {"auto": [cuda], "on": [True], "off": [False], "both": [False, True]}[args.compile]
+    if args.freezing:
+        import torch._inductor.config
+
+        torch._inductor.config.freezing = True
     if cuda:
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
@@ -267,6 +276,8 @@ def main(argv=None) -> None:
     else:
         print(f"device: {device} ({torch.get_num_threads()} torch threads, {os.cpu_count()} cpus)  torch {torch.__version__}")
     print(f"hourglass: {stacks} stacks, 256x512 input, 19 channels; plan: {N_SOURCES} sources, 8 pathways")
+    if cuda:
+        print(f"compiled runs: mode {args.compile_mode}{', Inductor freezing' if args.freezing else ''}")
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="flylib-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -300,6 +311,8 @@ def main(argv=None) -> None:
                 plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precision, str(device)))
                 model = LoadedModel(plan.models["hg"], load_hourglass(checkpoint), device,
                                     precision=precision, batch_size=batch, compiled=compiled and cuda)
+                if model.compiled and args.compile_mode != "reduce-overhead":
+                    model._forward = torch.compile(model.net, dynamic=False, mode=args.compile_mode)
                 try:
                     fwd = bench_forward(model, batch, args.forward_seconds)
                     bench_end_to_end(plan, model, clip, frames, batch) if compiled else None  # warm compile
