@@ -232,6 +232,20 @@ def test_pose2d_data_round_trips_with_candidates(tmp_path, skeleton):
         assert "cameras" not in f["pose2d"]  # the rig is not part of detection
 
 
+def test_candidates_artifact_round_trips_and_names_a_missing_group(tmp_path, skeleton):
+    from flylib.results import load_candidates, save_candidates
+
+    cands = pose2d_data(with_candidates=True).candidates
+    save_candidates(tmp_path / "candidates.h5", cands)
+    back = load_candidates(tmp_path / "candidates.h5")
+    np.testing.assert_array_equal(back.xy, cands.xy)
+    np.testing.assert_array_equal(back.score, cands.score)
+    assert read_meta(tmp_path / "candidates.h5")["stage"] == "candidates"
+    pose2d_data().save(tmp_path / "pose2d.h5", skeleton)
+    with pytest.raises(ResultsError, match=r"pose2d.h5: holds no candidate peaks; re-run the pose2d"):
+        load_candidates(tmp_path / "pose2d.h5")
+
+
 def test_pose2d_data_checks_shapes():
     with pytest.raises(ValueError, match="conf must have shape"):
         Pose2dData(np.zeros((V, T, P, 2)), np.zeros((V, T)), VIEWS, {})

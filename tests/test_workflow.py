@@ -201,6 +201,39 @@ def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     assert ("pose2d", "recA") not in planned(tmp_path, config)
 
 
+def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp_path):
+    """The detector (a random tiny network on the synthetic footage) runs once with PS
+    on; turning PS off, and on again, re-runs triangulation and assembly but never the
+    detector."""
+    import torch
+
+    from flylib.pose2d.model import HourglassNet
+    from flylib.pose2d.weights import save_checkpoint
+    from flylib.results import load_candidates
+
+    torch.manual_seed(0)
+    checkpoint = save_checkpoint(HourglassNet(num_stacks=1, num_feats=8, inplanes=8),
+                                 tmp_path / "sh1_random.tar")
+    config = base_config()
+    config["pose2d"]["models"][0].update(weights=str(checkpoint), input_size=[64, 128])
+    config["pose2d"]["device"] = "cpu"
+    config["bundle_adjustment"]["max_nfev"] = 5
+    config["pipeline"].update(do_pictorial_structures=True, do_visualization=False)
+    entry = make_recording(config, tmp_path / "recA", seed=0)
+    config["recordings"] = [{"path": entry["path"]}]  # footage only: the detector runs
+    snakemake(tmp_path, config=config)
+    stages = tmp_path / "recA" / "flylib_outputs" / "stages"
+    assert load_candidates(stages / "candidates.h5").xy.shape == (7, FRAMES, 38, 5, 2)
+    assert (stages / "pictorial_structures.h5").is_file()
+
+    off = copy.deepcopy(config)
+    off["pipeline"]["do_pictorial_structures"] = False
+    assert planned(tmp_path, off) == jobs(("triangulation", "assemble"), ("recA",))
+    snakemake(tmp_path, config=off)
+    # back on: the earlier pictorial-structures artifact is still valid, only its users re-run
+    assert planned(tmp_path, config) == jobs(("triangulation", "assemble"), ("recA",))
+
+
 def test_report_holds_every_recordings_figure_and_videos(workspace):
     root = workspace["root"]
     snakemake(root, "--report", str(root / "report.zip"), config=workspace["config"])

@@ -965,8 +965,9 @@ class Config:
         changing them re-runs nothing.
 
         - ``pose2d``: sources, detection plan, precision, import spec, skeleton point
-          names, view names (the V axis), whether candidates are kept and their ``k``.
-          Not the camera geometry.
+          names, view names (the V axis) and the candidates' ``k`` (not whether
+          pictorial structures is on: its candidates are an extra output of the same
+          detection). Not the camera geometry.
         - ``bundle_adjustment``: its table, the rig, the skeleton's points and limbs.
         - ``pictorial_structures``: its table, the skeleton's points and limbs, and the
           config rig when bundle adjustment is off (otherwise the rig arrives in the
@@ -996,7 +997,9 @@ class Config:
                 "import": pose2d.get("import"),
                 "point_names": list(self._point_names()),
                 "views": self.view_names(),
-                "candidates": {"k": self.pictorial.k} if flags["pictorial_structures"] else None,
+                # always, so that toggling pictorial structures re-runs no detection
+                # (the candidates are a separate output that exists only while it is on)
+                "candidates": {"k": self.pictorial.k},
             }
         elif stage == "bundle_adjustment":
             ba = asdict(self.bundle_adjustment)

@@ -38,11 +38,13 @@ __all__ = [
     "Pose2dData",
     "assemble_results",
     "atomic_path",
+    "load_candidates",
     "open_checked",
     "read_cameras",
     "read_meta",
     "read_skeleton",
     "read_stage",
+    "save_candidates",
     "write_stage",
 ]
 
@@ -459,6 +461,41 @@ def _make_candidates(xy: np.ndarray, score: np.ndarray) -> Any:
     return Candidates(xy=xy, score=score)
 
 
+def _write_candidates(group: h5py.Group, candidates: Any) -> None:
+    _write_array(group, "xy", candidates.xy)
+    _write_array(group, "score", candidates.score)
+
+
+def save_candidates(path: str | Path, candidates: Any) -> None:
+    """Write the detector's top-K peaks to their own artifact (``candidates/{xy, score}``).
+
+    Parameters
+    ----------
+    path
+        Destination, e.g. ``<out>/stages/candidates.h5``; written atomically.
+    candidates
+        A :class:`flylib.pictorial.Candidates` (``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``).
+    """
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta("candidates"))
+        _write_candidates(f.create_group("candidates"), candidates)
+
+
+def load_candidates(path: str | Path) -> Any:
+    """Read what :func:`save_candidates` wrote.
+
+    Raises
+    ------
+    ResultsError
+        If the file is missing, of another version, or holds no candidates.
+    """
+    rerun = "re-run the pose2d stage with pictorial structures on"
+    with open_checked(path, rerun) as f:
+        if "candidates/xy" not in f:
+            raise ResultsError(f"{path}: holds no candidate peaks; {rerun}")
+        return _make_candidates(f["candidates/xy"][()], f["candidates/score"][()])
+
+
 @dataclass
 class Pose2dData:
     """The pose2d stage's output, from the detector or imported from another tool.
@@ -527,9 +564,7 @@ class Pose2dData:
                 },
             )
             if self.candidates is not None:
-                cand = group.create_group("candidates")
-                _write_array(cand, "xy", self.candidates.xy)
-                _write_array(cand, "score", self.candidates.score)
+                _write_candidates(group.create_group("candidates"), self.candidates)
 
     @classmethod
     def load(cls, path: str | Path) -> Pose2dData:

@@ -10,9 +10,10 @@ workflow does, from the rule's params and inputs).
 stage                  reads                                       writes
 =====================  ==========================================  ===============================
 ``demo``               config (rig, skeleton, ``demo``)            footage, DLC CSVs, ``truth.h5``
-``pose2d``             footage, or another tool's 2D files          ``stages/pose2d.h5``
+``pose2d``             footage, or another tool's 2D files          ``stages/pose2d.h5`` (and, for
+                                                                    PS, ``stages/candidates.h5``)
 ``bundle_adjustment``  ``pose2d.h5``, config rig                    ``stages/bundle_adjustment.h5``
-``pictorial``          ``pose2d.h5`` (candidates), rig              ``stages/pictorial_structures.h5``
+``pictorial``          ``pose2d.h5``, ``candidates.h5``, rig        ``stages/pictorial_structures.h5``
 ``triangulation``      2D (PS if on, else pose2d), rig              ``stages/triangulation.h5``
 ``assemble``           the stage artifacts                          ``results.h5``, ``summary.json``,
                                                                     ``summary.png``, ``calibration.toml``
@@ -46,6 +47,9 @@ ARTIFACTS = {
     "pictorial_structures": "pictorial_structures.h5",
     "triangulation": "triangulation.h5",
 }
+#: The detector's top-K peaks, kept beside ``pose2d.h5`` while pictorial structures is on.
+#: A separate file, so that turning pictorial structures off again re-runs no detection.
+CANDIDATES_ARTIFACT = "candidates.h5"
 SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml")
 
 
@@ -92,21 +96,30 @@ def run_demo(config, directory: str | Path):
 
 
 def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
-               import_spec: Mapping | None = None, progress: bool = False) -> Path:
+               import_spec: Mapping | None = None, progress: bool = False,
+               candidates_path: str | Path | None = None) -> Path:
     """2D keypoints of one recording: the detector over its footage, or another
     tool's files when an import spec is in force (``import_spec``, else
     ``pose2d.import``).
 
-    Candidate peaks are kept when pictorial structures is enabled.
+    With ``candidates_path`` (pictorial structures on) the detector's top-K peaks
+    (``pictorial_structures.k``) are written there too, as a ``candidates`` stage.
 
     Raises
     ------
     FootageError
         The recording's footage is missing, unreadable or inconsistent (naming it).
+    ResultsError
+        If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
     recording_dir = Path(recording_dir)
     spec = dict(import_spec) if import_spec else config.import_spec
     if spec:
+        if candidates_path is not None:
+            raise ResultsError(
+                f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
+                f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
+                "which keeps none; set pipeline.do_pictorial_structures: false")
         from .interop import import_points2d
 
         data = import_points2d(config, recording_dir, spec)
@@ -115,10 +128,28 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
         from .recordings import find_recording
 
         sources = find_recording(recording_dir, config, strict=True)
-        want = config.stage_flags()["pictorial_structures"]
-        data = detect_recording(config, sources, want_candidates=want, progress=progress)
+        data = detect_recording(config, sources, want_candidates=candidates_path is not None,
+                                progress=progress)
+    candidates, data.candidates = data.candidates, None
+    if candidates is not None:
+        from .results import save_candidates
+
+        save_candidates(candidates_path, candidates)
     data.save(out_path, config.skeleton())
     return Path(out_path)
+
+
+def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
+    if candidates_path is not None:
+        from .results import load_candidates
+
+        return load_candidates(candidates_path)
+    if pose2d.candidates is None:
+        raise ResultsError(
+            f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
+            "they come only from the detector (set pipeline.do_pictorial_structures: false "
+            "for 2D imported from another tool)")
+    return pose2d.candidates
 
 
 def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path, *,
@@ -145,26 +176,26 @@ def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path,
 
 
 def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Path, *,
+                             candidates_path: str | Path | None = None,
                              ba_path: str | Path | None = None,
                              recording_dir: str | Path | None = None) -> Path:
     """Peak recovery over the detector's candidate peaks (pictorial structures).
 
+    The peaks come from ``candidates_path`` (what the pose2d stage writes), else from
+    the 2D artifact itself (a :class:`~flylib.results.Pose2dData` saved with them).
+
     Raises
     ------
     ResultsError
-        If the 2D artifact holds no candidate peaks (2D imported from another tool).
+        If there are no candidate peaks (2D imported from another tool).
     """
     from .pictorial import reconstruct_from_config
     from .results import Pose2dData, write_stage
 
     pose2d = Pose2dData.load(pose2d_path)
-    if pose2d.candidates is None:
-        raise ResultsError(
-            f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
-            "they come only from the detector (set pipeline.do_pictorial_structures: false "
-            "for 2D imported from another tool)")
+    candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    pts3d, pts2d, error = reconstruct_from_config(config, pose2d.candidates, cameras)
+    pts3d, pts2d, error = reconstruct_from_config(config, candidates, cameras)
     write_stage(out_path, "pictorial_structures",
                 {"points": pts2d, "points3d": pts3d, "reproj_error": error})
     return Path(out_path)

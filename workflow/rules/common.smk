@@ -23,7 +23,7 @@ from flylib.config import Config  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
 from flylib.recordings import plan_recordings  # noqa: E402
-from flylib.stages import ARTIFACTS  # noqa: E402
+from flylib.stages import ARTIFACTS, CANDIDATES_ARTIFACT  # noqa: E402
 
 # Validate before any job starts: flylib's own checks first (one line per problem,
 # naming the key and the fix), then the JSON schema as a structural safety net. A
@@ -115,8 +115,17 @@ def stage_params(stage: str) -> str:
 
 
 def artifact(stage: str) -> str:
-    """The `{outdir}` pattern of a stage artifact."""
-    return f"{{outdir}}/stages/{ARTIFACTS[stage]}"
+    """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
+    name = CANDIDATES_ARTIFACT if stage == "candidates" else ARTIFACTS[stage]
+    return f"{{outdir}}/stages/{name}"
+
+
+def pose2d_outputs() -> dict[str, str]:
+    """The 2D points, plus the candidate peaks while pictorial structures is on."""
+    outputs = {"points": artifact("pose2d")}
+    if FLAGS["pictorial_structures"]:
+        outputs["candidates"] = artifact("candidates")
+    return outputs
 
 
 def recording_inputs(wildcards) -> list[str]:
@@ -142,15 +151,23 @@ VIDEO_NAMES = [
 ]
 
 
+def _absent_2d(rec) -> list[str]:
+    """With pose2d off: the 2D artifacts the later stages need that do not exist."""
+    if FLAGS["pose2d"]:
+        return []
+    needed = [ARTIFACTS["pose2d"]] + ([CANDIDATES_ARTIFACT] if FLAGS["pictorial_structures"] else [])
+    return [str(rec.outdir / "stages" / n) for n in needed if not (rec.outdir / "stages" / n).is_file()]
+
+
 def _missing_pose2d(rec) -> bool:
-    return not FLAGS["pose2d"] and not (rec.outdir / "stages" / ARTIFACTS["pose2d"]).is_file()
+    return bool(_absent_2d(rec))
 
 
 for _rec in RECORDINGS:
     if _missing_pose2d(_rec):
         logger.warning(
-            f"{_rec.id}: pipeline.do_pose2d is false and {_rec.outdir}/stages/pose2d.h5 does "
-            "not exist; skipping this recording (turn pose2d on to create it)"
+            f"{_rec.id}: pipeline.do_pose2d is false and {' and '.join(_absent_2d(_rec))} "
+            "do(es) not exist; skipping this recording (turn pose2d on to create it)"
         )
 
 
@@ -194,6 +211,8 @@ def reconstruction_inputs(stage: str):
 
     def inputs(wildcards) -> dict:
         files = {"pose2d": artifact("pose2d")}
+        if stage == "pictorial_structures":
+            files["candidates"] = artifact("candidates")
         if FLAGS["bundle_adjustment"]:
             files["bundle_adjustment"] = artifact("bundle_adjustment")
         if stage == "triangulation" and FLAGS["pictorial_structures"]:
@@ -209,6 +228,11 @@ def reconstruction_inputs(stage: str):
 def optional_arg(flag: str, key: str):
     """`--flag path` when the job has input `key`, else nothing."""
     return lambda wildcards, input: f"{flag} {shell_quote(input[key])}" if key in input.keys() else ""
+
+
+def optional_output_arg(flag: str, key: str):
+    """`--flag path` when the job has output `key`, else nothing."""
+    return lambda wildcards, output: f"{flag} {shell_quote(output[key])}" if key in output.keys() else ""
 
 
 def shell_quote(text: str) -> str:

@@ -1,6 +1,8 @@
 # pose2d: 2D keypoints per recording, from the detector or another tool's files.
 # Its params leave out performance knobs (batch_size, decode_buffer, device) and the
-# camera rig, so editing those re-runs no detection.
+# camera rig, so editing those re-runs no detection. While pictorial structures is on
+# it also writes the detector's candidate peaks, as a second output: turning PS on
+# runs the detection once more for them, turning it off again re-runs nothing here.
 
 
 if FLAGS["pose2d"]:
@@ -9,12 +11,13 @@ if FLAGS["pose2d"]:
         input:
             recording_inputs,
         output:
-            artifact("pose2d"),
+            **pose2d_outputs(),
         params:
             run=command("pose2d.py"),
             stage=stage_params("pose2d"),
             import_spec=pose2d_import,
             recording=lambda w: str(recording(w).path),
+            candidates=optional_output_arg("--candidates-out", "candidates"),
         log:
             "{outdir}/logs/pose2d.log",
         benchmark:
@@ -29,4 +32,4 @@ if FLAGS["pose2d"]:
         shell:
             "{params.run}"
             " --recording {params.recording:q} --import-spec {params.import_spec:q}"
-            " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --out {output.points:q} {params.candidates} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"

@@ -53,7 +53,8 @@ if FLAGS["pictorial_structures"]:
             "../../envs/geometry.yaml"
         shell:
             "{params.run}"
-            " --pose2d {input.pose2d:q} {params.rig} --recording {params.recording:q}"
+            " --pose2d {input.pose2d:q} --candidates {input.candidates:q} {params.rig}"
+            " --recording {params.recording:q}"
             " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
 
 
