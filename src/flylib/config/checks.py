@@ -1,0 +1,103 @@
+"""Value checks: a check takes a value and returns what is wrong with it ("expected ..."), or None."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import field
+from typing import Any
+
+Check = Callable[[Any], "str | None"]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _got(value: Any) -> str:
+    return f"got {value!r} ({type(value).__name__})"
+
+
+def _integer(minimum: int | None = None, nullable: bool = False) -> Check:
+    def check(value: Any) -> str | None:
+        if value is None and nullable:
+            return None
+        if _is_int(value) and (minimum is None or value >= minimum):
+            return None
+        bound = "" if minimum is None else f" >= {minimum}"
+        return f"expected an integer{bound}{' or null' if nullable else ''}, {_got(value)}"
+
+    return check
+
+
+def _number(minimum: float | None = None, exclusive: bool = False, nullable: bool = False) -> Check:
+    def check(value: Any) -> str | None:
+        if value is None and nullable:
+            return None
+        if _is_number(value) and (
+            minimum is None or (value > minimum if exclusive else value >= minimum)
+        ):
+            return None
+        bound = "" if minimum is None else f" {'>' if exclusive else '>='} {minimum:g}"
+        hint = (
+            "; write exponents with a dot, e.g. 1.0e-8"
+            if isinstance(value, str) and re.fullmatch(r"[-+]?[\d.]+[eE][-+]?\d+", value)
+            else ""
+        )
+        return f"expected a number{bound}{' or null' if nullable else ''}, {_got(value)}{hint}"
+
+    return check
+
+
+def _boolean(value: Any) -> str | None:
+    return None if isinstance(value, bool) else f"expected true or false, {_got(value)}"
+
+
+def _string(value: Any) -> str | None:
+    return None if isinstance(value, str) else f"expected a string, {_got(value)}"
+
+
+def _choice(*options: Any) -> Check:
+    def check(value: Any) -> str | None:
+        if any(value == o and type(value) is type(o) for o in options):
+            return None
+        return f"expected one of {', '.join(map(repr, options))}, got {value!r}"
+
+    return check
+
+
+def _string_list(nullable: bool = False) -> Check:
+    def check(value: Any) -> str | None:
+        if value is None and nullable:
+            return None
+        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+            return None
+        return f"expected a list of strings{' or null' if nullable else ''}, {_got(value)}"
+
+    return check
+
+
+def _string_groups(value: Any) -> str | None:
+    if isinstance(value, (list, tuple)) and all(
+        isinstance(g, (list, tuple)) and all(isinstance(s, str) for s in g) for g in value
+    ):
+        return None
+    return f"expected a list of lists of strings, {_got(value)}"
+
+
+def _mapping(nullable: bool = False) -> Check:
+    def check(value: Any) -> str | None:
+        if (value is None and nullable) or isinstance(value, Mapping):
+            return None
+        return f"expected a mapping{' or null' if nullable else ''}, {_got(value)}"
+
+    return check
+
+
+def _param(default: Any, check: Check, *, kind: type | None = None) -> Any:
+    """A typed-parameter field: its default, its value check, and a conversion."""
+    return field(default=default, metadata={"check": check, "kind": kind})

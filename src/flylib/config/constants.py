@@ -1,0 +1,61 @@
+"""Stage lists, known keys and option tuples shared by the config submodules."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+# ``src/flylib/default_config.yaml`` (a link to the repository's ``config/config.yaml``);
+# the link itself is named, not resolved.
+DEFAULT_CONFIG_PATH = Path(__file__).parents[1] / "default_config.yaml"
+
+#: The pipeline stages, in run order; each is toggled by ``pipeline.do_<stage>``.
+STAGES: tuple[str, ...] = (
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "visualization",
+)
+#: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
+STAGE_DEFAULTS: dict[str, bool] = {
+    "pose2d": True,
+    "bundle_adjustment": True,
+    "pictorial_structures": False,
+    "triangulation": True,
+    "visualization": True,
+}
+#: The workflow rules that :meth:`Config.stage_params` describes.
+PARAM_STAGES: tuple[str, ...] = (
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "assemble",
+    "visualization",
+)
+
+TOP_LEVEL_KEYS: tuple[str, ...] = (
+    "sources",
+    "io",
+    "skeleton",
+    "cameras",
+    "pipeline",
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "visualization",
+    "calibration",
+    "recordings",
+    "recursive",
+    "outdir",
+    "demo",
+)
+TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
+FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
+PRECISIONS = ("float32", "float16", "bfloat16")
+_POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "import")
+# least_squares arguments the bundle adjuster owns itself (the problem definition).
+_LEAST_SQUARES_RESERVED = ("fun", "x0", "jac", "bounds", "args", "kwargs", "jac_sparsity", "callback")
+# least_squares arguments that change only speed or logging, never the result.
+_LEAST_SQUARES_PERF = ("verbose", "workers")

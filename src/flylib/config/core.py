@@ -1,0 +1,431 @@
+"""The :class:`Config` object: construction, typed views, stage parameters, snapshot."""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from ..errors import ConfigError
+from .canonical import _canonical, _plain
+from .constants import (
+    _LEAST_SQUARES_PERF,
+    _POSE2D_PLAN_KEYS,
+    DEFAULT_CONFIG_PATH,
+    PARAM_STAGES,
+    STAGE_DEFAULTS,
+    STAGES,
+)
+from .loading import _parse_text, _problem_report
+from .params import (
+    BundleAdjustmentParams,
+    IoParams,
+    PictorialParams,
+    Pose2dParams,
+    TriangulationParams,
+    _build_params,
+)
+from .validation import _default_point_names, _default_skeleton_table, validate_config
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+    from ..skeleton import Skeleton
+
+
+class Config:
+    """A loaded, validated flylib run configuration.
+
+    Build one with :meth:`from_file` (``.yaml``/``.yml``/``.toml``), :meth:`from_yaml`,
+    :meth:`from_toml`, :meth:`from_dict` or :meth:`default`.
+
+    Attributes
+    ----------
+    data
+        The parsed mapping.
+    text
+        The exact source text when read from a file (``None`` for a dict): what
+        :meth:`save_snapshot` writes back byte-for-byte.
+    source
+        The file it was read from, or ``None``.
+    format
+        ``"yaml"`` or ``"toml"``: the snapshot's format.
+    """
+
+    def __init__(
+        self,
+        data: Mapping,
+        *,
+        text: str | None = None,
+        source: Path | None = None,
+        format: str = "yaml",
+    ) -> None:
+        self.data: dict = dict(data)
+        self.text = text
+        self.source = source
+        self.format = format
+        problems = validate_config(self.data)
+        if problems:
+            error = ConfigError(_problem_report(str(source or "<dict>"), problems))
+            error.problems = problems  # type: ignore[attr-defined]
+            raise error
+
+    def __repr__(self) -> str:
+        return f"Config(source={str(self.source) if self.source else None!r})"
+
+    # -- construction --------------------------------------------------------
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> Config:
+        """Load a config, choosing YAML or TOML by the file suffix.
+
+        Parameters
+        ----------
+        path
+            A ``.yaml``, ``.yml`` or ``.toml`` file.
+
+        Returns
+        -------
+        Config
+            The loaded, validated config.
+
+        Raises
+        ------
+        ConfigError
+            If the file is missing, has another suffix, does not parse or is invalid.
+        """
+        suffix = Path(path).suffix.lower()
+        if suffix in (".yaml", ".yml"):
+            return cls.from_yaml(path)
+        if suffix == ".toml":
+            return cls.from_toml(path)
+        raise ConfigError(f"{path}: unknown config format {suffix!r}; use a .yaml, .yml or .toml file")
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Config:
+        """Load a YAML config file (keeping its text for the snapshot).
+
+        Parameters
+        ----------
+        path
+            The YAML file.
+
+        Returns
+        -------
+        Config
+            The loaded, validated config.
+        """
+        return cls._from_path(Path(path), "yaml")
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> Config:
+        """Load a TOML config file (keeping its text for the snapshot).
+
+        Parameters
+        ----------
+        path
+            The TOML file.
+
+        Returns
+        -------
+        Config
+            The loaded, validated config.
+        """
+        return cls._from_path(Path(path), "toml")
+
+    @classmethod
+    def _from_path(cls, path: Path, fmt: str) -> Config:
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: config file not found; check the path") from None
+        except IsADirectoryError:
+            raise ConfigError(f"{path}: is a directory, not a config file") from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as err:
+            raise ConfigError(f"{path}: not UTF-8 text ({err}); save it as UTF-8") from None
+        return cls(_parse_text(text, fmt, str(path)), text=text, source=path, format=fmt)
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> Config:
+        """Wrap an already-parsed mapping (library use, Snakemake's ``config``).
+
+        Parameters
+        ----------
+        data
+            The parsed config; it is deep-copied.
+
+        Returns
+        -------
+        Config
+            The validated config (no source text).
+        """
+        return cls(copy.deepcopy(dict(data)))
+
+    @classmethod
+    def default(cls) -> Config:
+        """The packaged default config (:data:`DEFAULT_CONFIG_PATH`): the 7-camera fly rig."""
+        return cls.from_yaml(DEFAULT_CONFIG_PATH)
+
+    # -- typed per-stage views -------------------------------------------------
+
+    @property
+    def pose2d(self) -> Pose2dParams:
+        """The scalar ``pose2d`` settings."""
+        return _build_params(Pose2dParams, self.data.get("pose2d") or {})
+
+    @property
+    def triangulation(self) -> TriangulationParams:
+        """The ``triangulation`` table."""
+        return _build_params(TriangulationParams, self.data.get("triangulation") or {})
+
+    @property
+    def pictorial(self) -> PictorialParams:
+        """The ``pictorial_structures`` table."""
+        return _build_params(PictorialParams, self.data.get("pictorial_structures") or {})
+
+    @property
+    def bundle_adjustment(self) -> BundleAdjustmentParams:
+        """The ``bundle_adjustment`` table; keys it does not name go to ``least_squares``."""
+        table = dict(self.data.get("bundle_adjustment") or {})
+        own = {f.name for f in fields(BundleAdjustmentParams)}
+        leftovers = {k: v for k, v in table.items() if k not in own}
+        params = _build_params(BundleAdjustmentParams, {k: v for k, v in table.items() if k in own})
+        return BundleAdjustmentParams(**{**params.__dict__, "least_squares": leftovers})
+
+    @property
+    def io(self) -> IoParams:
+        """Frame-reading settings (``io.image.workers``; 0 means let the reader choose)."""
+        workers = ((self.data.get("io") or {}).get("image") or {}).get("workers")
+        return IoParams(image_workers=workers or None)
+
+    @property
+    def visualization(self) -> dict:
+        """The raw ``visualization`` table (parsed by ``flylib.visualization``)."""
+        return self.data.get("visualization") or {}
+
+    @property
+    def videos(self) -> list:
+        """The parsed output-video specs (``flylib.visualization.specs.read_video_specs``)."""
+        from ..visualization.specs import read_video_specs
+
+        return read_video_specs(self)
+
+    def detection_plan(self) -> Any:
+        """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_config``)."""
+        from ..pose2d.plan import DetectionPlan
+
+        return DetectionPlan.from_config(self)
+
+    @property
+    def import_spec(self) -> dict | None:
+        """The ``pose2d.import`` table (read 2D from another tool), or ``None``."""
+        return (self.data.get("pose2d") or {}).get("import")
+
+    # -- pipeline orchestration ---------------------------------------------
+
+    def stage_flags(self) -> dict[str, bool]:
+        """Which stages are enabled (``pipeline.do_<stage>``, else :data:`STAGE_DEFAULTS`).
+
+        Returns
+        -------
+        dict of str to bool
+            ``stage -> enabled`` for every stage in :data:`STAGES`.
+        """
+        pipeline = self.data.get("pipeline") or {}
+        return {stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES}
+
+    def stage_params(self, stage: str) -> dict:
+        """The exact config subset that affects ``stage``'s result.
+
+        Deterministic and JSON-serialisable; performance-only knobs never appear, so
+        changing them re-runs nothing.
+
+        - ``pose2d``: sources, detection plan, precision, import spec, skeleton point
+          names, view names (the V axis) and the candidates' ``k`` (not whether
+          pictorial structures is on: its candidates are an extra output of the same
+          detection). Not the camera geometry.
+        - ``bundle_adjustment``: its table, the rig, the skeleton's points and limbs.
+        - ``pictorial_structures``: its table, the skeleton's points and limbs, and the
+          config rig when bundle adjustment is off (otherwise the rig arrives in the
+          bundle-adjustment artifact).
+        - ``triangulation``: the method and the knobs that method reads, where its 2D
+          comes from, and the config rig when bundle adjustment is off.
+        - ``assemble``: the rig and the whole skeleton (palette included).
+        - ``visualization``: the visualization table and the skeleton palette.
+
+        Parameters
+        ----------
+        stage
+            One of :data:`PARAM_STAGES`.
+
+        Returns
+        -------
+        dict
+            The parameters, with mapping keys in sorted order.
+        """
+        flags = self.stage_flags()
+        if stage == "pose2d":
+            pose2d = self.data.get("pose2d") or {}
+            params: dict[str, Any] = {
+                "sources": self.data.get("sources") or [],
+                "plan": {key: pose2d.get(key) for key in _POSE2D_PLAN_KEYS if key != "import"},
+                "precision": self.pose2d.precision,
+                "import": pose2d.get("import"),
+                "point_names": list(self._point_names()),
+                "views": self.view_names(),
+                # always, so that toggling pictorial structures re-runs no detection
+                # (the candidates are a separate output that exists only while it is on)
+                "candidates": {"k": self.pictorial.k},
+            }
+        elif stage == "bundle_adjustment":
+            ba = asdict(self.bundle_adjustment)
+            ba["least_squares"] = {
+                k: v for k, v in ba["least_squares"].items() if k not in _LEAST_SQUARES_PERF
+            }
+            params = {"bundle_adjustment": ba, "rig": self._rig(), "skeleton": self._skeleton_structure()}
+        elif stage == "pictorial_structures":
+            params = {
+                "pictorial_structures": asdict(self.pictorial),
+                "skeleton": self._skeleton_structure(),
+                "rig": None if flags["bundle_adjustment"] else self._rig(),
+            }
+        elif stage == "triangulation":
+            params = {
+                "triangulation": self.triangulation.method_params(),
+                "points_from": "pictorial_structures" if flags["pictorial_structures"] else "pose2d",
+                "rig": None if flags["bundle_adjustment"] else self._rig(),
+            }
+        elif stage == "assemble":
+            params = {
+                "rig": self._rig(),
+                "skeleton": {**self._skeleton_structure(), "palette": self._palette(), "name": self._skeleton_name()},
+            }
+        elif stage == "visualization":
+            params = {"visualization": self.visualization, "palette": self._palette()}
+        else:
+            raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
+        canonical = _canonical(params)
+        json.dumps(canonical)  # fail here, not in the workflow, if something is not JSON-able
+        return canonical
+
+    def _point_names(self) -> tuple[str, ...]:
+        spec = self.data.get("skeleton")
+        return tuple(spec["point_names"]) if spec else _default_point_names()
+
+    def _skeleton_spec(self) -> Mapping:
+        return self.data.get("skeleton") or _default_skeleton_table()
+
+    def _skeleton_structure(self) -> dict:
+        limbs = self._skeleton_spec().get("limb_points") or {}
+        return {"point_names": list(self._point_names()), "limbs": [[k, list(v)] for k, v in limbs.items()]}
+
+    def _palette(self) -> dict:
+        return dict(self._skeleton_spec().get("limb_palette") or {})
+
+    def _skeleton_name(self) -> str:
+        return str(self._skeleton_spec().get("name", "skeleton"))
+
+    def _rig(self) -> dict:
+        return {
+            "views": self.view_names(),
+            "cameras": self.data.get("cameras") or {},
+            "calibration": self.data.get("calibration"),
+        }
+
+    # -- structured sections ---------------------------------------------------
+
+    def view_names(self) -> list[str]:
+        """The camera (view) names in config order: the V axis of every points array.
+
+        Taken from the ``cameras`` table (``defaults`` excluded); a config whose rig
+        comes from a calibration file and names no cameras falls back to the
+        ``pose2d.output_points`` views.
+        """
+        names = [name for name in (self.data.get("cameras") or {}) if name != "defaults"]
+        if not names:
+            names = list(((self.data.get("pose2d") or {}).get("output_points") or {}))
+        return names
+
+    def camera_table(self) -> tuple[dict, dict]:
+        """Split ``cameras`` into the shared defaults and the per-camera specs.
+
+        Returns
+        -------
+        defaults, cameras : dict
+            ``cameras.defaults`` and ``name -> spec`` for every real camera.
+        """
+        cameras = dict(self.data.get("cameras") or {})
+        defaults = cameras.pop("defaults", {}) or {}
+        return dict(defaults), cameras
+
+    def source_patterns(self) -> dict[str, str]:
+        """Each footage source's glob (``sources[].name -> filename``), in config order.
+
+        A source without ``filename`` uses its name as the pattern.
+        """
+        return {s["name"]: s.get("filename", s["name"]) for s in self.data.get("sources") or []}
+
+    def skeleton(self) -> Skeleton:
+        """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
+        from ..skeleton import Skeleton
+
+        return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
+
+    def camera_group(self, image_sizes: Mapping[str, tuple[int, int]] | None = None) -> CameraGroup:
+        """The configured camera rig (see ``flylib.cameras.CameraGroup.from_config``).
+
+        Parameters
+        ----------
+        image_sizes
+            ``view -> (height, width)`` of the raw footage, used for the principal point
+            where the config gives none.
+
+        Returns
+        -------
+        CameraGroup
+            The rig.
+        """
+        from ..cameras import CameraGroup
+
+        return CameraGroup.from_config(self, image_sizes=image_sizes)
+
+    # -- snapshot ----------------------------------------------------------------
+
+    def snapshot_text(self) -> str:
+        """The text :meth:`save_snapshot` writes: the source text, or a YAML dump for a dict."""
+        if self.text is not None:
+            return self.text
+        return yaml.safe_dump(_plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True)
+
+    def save_snapshot(self, outdir: str | Path) -> Path:
+        """Write the config that drives this run to ``<outdir>/config.yaml`` (or ``.toml``).
+
+        The source text is copied byte-for-byte, atomically; a config built from a
+        dict is written as YAML. A snapshot of the other format left by an earlier
+        run is removed so the directory holds exactly one.
+
+        Parameters
+        ----------
+        outdir
+            The run's output directory (created if needed).
+
+        Returns
+        -------
+        Path
+            The snapshot file.
+        """
+        from ..results import atomic_path
+
+        fmt = self.format if self.text is not None else "yaml"
+        target = Path(outdir) / f"config.{fmt}"
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(self.snapshot_text().encode("utf-8"))
+        stale = target.with_suffix(".toml" if fmt == "yaml" else ".yaml")
+        stale.unlink(missing_ok=True)
+        return target

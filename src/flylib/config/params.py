@@ -1,0 +1,236 @@
+"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from .checks import (
+    Check,
+    _boolean,
+    _choice,
+    _integer,
+    _mapping,
+    _number,
+    _param,
+    _string,
+    _string_groups,
+    _string_list,
+)
+from .constants import FRAME_SAMPLINGS, PRECISIONS, TRIANGULATION_METHODS
+
+
+@dataclass(frozen=True)
+class Pose2dParams:
+    """The scalar ``pose2d`` settings (the detection plan tables are parsed by ``flylib.pose2d``).
+
+    Attributes
+    ----------
+    precision
+        Detector forward precision: ``float32``, ``float16`` or ``bfloat16``.
+    batch_size
+        Frames per forward pass (performance only).
+    decode_buffer
+        Decoded batches queued ahead of the detector (performance only).
+    device
+        ``auto`` (CUDA, then Apple MPS, then CPU) or a torch device string (performance only).
+    compile
+        Wrap the forward in ``torch.compile``: ``true``, ``false`` or ``auto`` (performance only).
+    """
+
+    precision: str = _param("bfloat16", _choice(*PRECISIONS))
+    batch_size: int = _param(16, _integer(1))
+    decode_buffer: int = _param(4, _integer(1))
+    device: str = _param("auto", _string)
+    compile: bool | str = _param("auto", _choice(True, False, "auto"))
+
+
+@dataclass(frozen=True)
+class TriangulationParams:
+    """The ``triangulation`` table.
+
+    Attributes
+    ----------
+    method
+        ``ransac`` (largest consistent view set), ``greedy`` (drop the worst view
+        while over ``reproj_threshold``) or ``dlt`` (plain least squares).
+    weigh_by_confidence
+        Scale each view's equations by ``sqrt(conf)``.
+    ransac_threshold, min_inliers
+        ``ransac``: inlier reprojection radius in pixels and minimum agreeing views.
+    reproj_threshold, max_drops
+        ``greedy``: reprojection error in pixels that triggers a drop, and the most
+        views dropped per point.
+    """
+
+    method: str = _param("ransac", _choice(*TRIANGULATION_METHODS))
+    weigh_by_confidence: bool = _param(False, _boolean)
+    ransac_threshold: float = _param(15.0, _number(0, exclusive=True), kind=float)
+    min_inliers: int = _param(2, _integer(2))
+    reproj_threshold: float = _param(40.0, _number(0, exclusive=True), kind=float)
+    max_drops: int = _param(5, _integer(0))
+
+    def method_params(self) -> dict[str, Any]:
+        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``)."""
+        own = {
+            "ransac": ("ransac_threshold", "min_inliers"),
+            "greedy": ("reproj_threshold", "max_drops"),
+            "dlt": (),
+        }[self.method]
+        return {
+            "method": self.method,
+            "weigh_by_confidence": self.weigh_by_confidence,
+            **{name: getattr(self, name) for name in own},
+        }
+
+
+@dataclass(frozen=True)
+class PictorialParams:
+    """The ``pictorial_structures`` table.
+
+    Attributes
+    ----------
+    k
+        Candidate peaks per (view, point) the detector keeps for this stage.
+    temporal
+        Add the term tying each frame's 3D to the previous frame's.
+    lam
+        Weight of the bone-length prior.
+    bone_max_frames
+        Frames sampled to estimate the bone lengths (null: every frame).
+    max_hyp, inlier_px, huber, mu, nms
+        Hypothesis pruning and cost knobs; null keeps ``flylib.pictorial``'s defaults.
+    """
+
+    k: int = _param(5, _integer(1))
+    temporal: bool = _param(False, _boolean)
+    lam: float = _param(1.0, _number(0), kind=float)
+    bone_max_frames: int | None = _param(100, _integer(1, nullable=True))
+    max_hyp: int | None = _param(None, _integer(1, nullable=True))
+    inlier_px: float | None = _param(None, _number(0, exclusive=True, nullable=True), kind=float)
+    huber: float | None = _param(None, _number(0, exclusive=True, nullable=True), kind=float)
+    mu: float | None = _param(None, _number(0, nullable=True), kind=float)
+    nms: float | None = _param(None, _number(0, nullable=True), kind=float)
+
+    def solver_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for ``flylib.pictorial.reconstruct`` (``k`` excluded, nulls dropped)."""
+        out: dict[str, Any] = {
+            "temporal": self.temporal,
+            "lam": self.lam,
+            "bone_max_frames": self.bone_max_frames,
+        }
+        for name in ("max_hyp", "inlier_px", "huber", "mu", "nms"):
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
+        return out
+
+
+@dataclass(frozen=True)
+class BundleAdjustmentParams:
+    """The ``bundle_adjustment`` table.
+
+    Attributes
+    ----------
+    points_to_use
+        Skeleton points whose detections drive the adjustment (null: all).
+    fixed
+        Parameter references held constant, e.g. ``"*.intr"`` (every camera's intrinsics).
+    shared
+        Groups of parameter references tied to one value.
+    weigh_by_confidence
+        Scale each residual by ``sqrt(conf)``.
+    max_frames
+        Frames sampled for the adjustment (null: every frame).
+    frame_sampling
+        How frames are sampled: ``even``, ``confidence``, ``coverage`` or ``diversity``.
+    least_squares
+        Every other key of the table, passed through to ``scipy.optimize.least_squares``
+        (e.g. ``max_nfev``, ``loss``, ``f_scale``).
+    """
+
+    points_to_use: tuple[str, ...] | None = _param(None, _string_list(nullable=True), kind=tuple)
+    fixed: tuple[str, ...] = _param(("*.intr",), _string_list(), kind=tuple)
+    shared: tuple[tuple[str, ...], ...] = _param((), _string_groups, kind=tuple)
+    weigh_by_confidence: bool = _param(False, _boolean)
+    max_frames: int | None = _param(200, _integer(1, nullable=True))
+    frame_sampling: str = _param("even", _choice(*FRAME_SAMPLINGS))
+    least_squares: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class IoParams:
+    """Frame-reading settings (performance only).
+
+    Attributes
+    ----------
+    image_workers
+        Threads decoding image sequences; ``None`` lets the reader choose.
+    """
+
+    image_workers: int | None = None
+
+
+_LEAST_SQUARES_CHECKS: dict[str, Check] = {
+    "method": _choice("trf", "dogbox", "lm"),
+    "loss": _choice("linear", "soft_l1", "huber", "cauchy", "arctan"),
+    "f_scale": _number(0, exclusive=True),
+    "max_nfev": _integer(1, nullable=True),
+    "ftol": _number(0, nullable=True),
+    "xtol": _number(0, nullable=True),
+    "gtol": _number(0, nullable=True),
+    "diff_step": _number(0, exclusive=True, nullable=True),
+    "tr_solver": _choice("exact", "lsmr", None),
+    "tr_options": _mapping(),
+    "verbose": _choice(0, 1, 2),
+}
+
+
+# The scipy.optimize.least_squares options a config may set (its signature minus the
+# arguments the bundle adjuster owns). Listed here rather than read from scipy so that
+# loading a config does not import scipy.optimize; a test checks it against scipy.
+LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
+    "method",
+    "ftol",
+    "xtol",
+    "gtol",
+    "x_scale",
+    "loss",
+    "f_scale",
+    "diff_step",
+    "tr_solver",
+    "tr_options",
+    "max_nfev",
+    "verbose",
+    "workers",
+)
+
+
+def _table_problems(table: Mapping, cls: type, path: str, extra_known: tuple[str, ...] = ()) -> list[str]:
+    """Problems with a flat parameter table described by a params dataclass."""
+    checks = {f.name: f.metadata["check"] for f in fields(cls) if "check" in f.metadata}
+    problems = []
+    for key, value in table.items():
+        if key in checks:
+            why = checks[key](value)
+            if why:
+                problems.append(f"{path}.{key}: {why}")
+        elif key not in extra_known:
+            known = ", ".join([*checks, *extra_known])
+            problems.append(f"{path}.{key}: unknown parameter (known: {known})")
+    return problems
+
+
+def _build_params(cls: type, table: Mapping) -> Any:
+    """Instantiate a params dataclass from an already-validated table."""
+    kwargs = {}
+    for f in fields(cls):
+        if f.name not in table:
+            continue
+        value, kind = table[f.name], f.metadata.get("kind")
+        if value is not None and kind is float:
+            value = float(value)
+        elif value is not None and kind is tuple:
+            value = tuple(tuple(v) if isinstance(v, (list, tuple)) else v for v in value)
+        kwargs[f.name] = value
+    return cls(**kwargs)

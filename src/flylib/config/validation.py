@@ -1,0 +1,258 @@
+"""Validation of a parsed config mapping: :func:`validate_config` and the detection-plan checks."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields
+from functools import lru_cache
+from typing import Any
+
+from ..skeleton import skeleton_problems
+from .checks import _boolean, _got, _integer, _is_int, _mapping
+from .constants import _POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
+from .params import (
+    _LEAST_SQUARES_CHECKS,
+    LEAST_SQUARES_OPTIONS,
+    BundleAdjustmentParams,
+    PictorialParams,
+    Pose2dParams,
+    TriangulationParams,
+    _table_problems,
+)
+
+
+def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, dict]:
+    """A list of ``{name: ..., ...}`` tables as ``name -> entry`` (problems recorded)."""
+    if entries is None:
+        return {}
+    if not isinstance(entries, list):
+        problems.append(f"{path}: expected a list of tables, {_got(entries)}")
+        return {}
+    out: dict[str, dict] = {}
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, Mapping):
+            problems.append(f"{path}[{i}]: expected a table, {_got(entry)}")
+            continue
+        name = entry.get("name")
+        if not isinstance(name, str) or not name:
+            problems.append(f"{path}[{i}].name: expected a non-empty string, got {name!r}")
+        elif name in out:
+            problems.append(f"{path}[{i}].name: {name!r} is defined twice")
+        else:
+            out[name] = dict(entry)
+    return out
+
+
+def _reference(value: Any, known: Mapping, what: str, where: str, problems: list[str]) -> bool:
+    if isinstance(value, str) and value in known:
+        return True
+    problems.append(f"{where}: unknown {what} {value!r} (known: {', '.join(known) or 'none'})")
+    return False
+
+
+def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list[str] | None) -> list[str]:
+    """Problems with the detection plan: sources, preprocessors, models, pathways, output_points."""
+    problems: list[str] = []
+    pose2d = data.get("pose2d") or {}
+    sources = _named_entries(data.get("sources"), "sources", problems)
+    for name, entry in sources.items():
+        if "filename" in entry and not isinstance(entry["filename"], str):
+            problems.append(f"sources.{name}.filename: expected a glob string, {_got(entry['filename'])}")
+    preprocessors = _named_entries(pose2d.get("preprocessors"), "pose2d.preprocessors", problems)
+    for name, entry in preprocessors.items():
+        ops = entry.get("ops", [])
+        if not isinstance(ops, list) or not all(isinstance(op, Mapping) and "op" in op for op in ops):
+            problems.append(f"pose2d.preprocessors.{name}.ops: expected a list of tables each with an 'op' key")
+    models = _named_entries(pose2d.get("models"), "pose2d.models", problems)
+    n_channels: dict[str, int | None] = {}
+    for name, entry in models.items():
+        n_out = entry.get("n_out_channels")
+        if n_out is not None and not (_is_int(n_out) and n_out >= 1):
+            problems.append(f"pose2d.models.{name}.n_out_channels: expected an integer >= 1, {_got(n_out)}")
+            n_out = None
+        n_channels[name] = n_out
+        size = entry.get("input_size")
+        if size is not None and not (
+            isinstance(size, list) and len(size) == 2 and all(_is_int(s) and s > 0 for s in size)
+        ):
+            problems.append(f"pose2d.models.{name}.input_size: expected [height, width] in pixels, got {size!r}")
+        if "weights" in entry and not isinstance(entry["weights"], str):
+            problems.append(f"pose2d.models.{name}.weights: expected a path string ('' for the published weights)")
+    pathways = _named_entries(pose2d.get("pathways"), "pose2d.pathways", problems)
+    pathway_model: dict[str, str | None] = {}
+    for name, entry in pathways.items():
+        where = f"pose2d.pathways.{name}"
+        _reference(entry.get("source"), sources, "source", f"{where}.source", problems)
+        if entry.get("preprocessor") is not None:
+            _reference(entry["preprocessor"], preprocessors, "preprocessor", f"{where}.preprocessor", problems)
+        ok = _reference(entry.get("model"), models, "model", f"{where}.model", problems)
+        pathway_model[name] = entry["model"] if ok else None
+
+    output_points = pose2d.get("output_points")
+    if output_points is None:
+        return problems
+    if not isinstance(output_points, Mapping):
+        return [*problems, "pose2d.output_points: expected a mapping view -> point -> {pathway, out_channel}"]
+    known_points = set(point_names)
+    for view, table in output_points.items():
+        where_view = f"pose2d.output_points.{view}"
+        if view_names is not None and view not in view_names:
+            problems.append(f"{where_view}: unknown view {view!r} (cameras: {', '.join(view_names)})")
+        if not isinstance(table, Mapping):
+            problems.append(f"{where_view}: expected a mapping point -> {{pathway, out_channel}}")
+            continue
+        for point, slot in table.items():
+            where = f"{where_view}.{point}"
+            if known_points and point not in known_points:
+                problems.append(f"{where}: unknown point {point!r} (known: {', '.join(point_names)})")
+            if not isinstance(slot, Mapping):
+                problems.append(f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}")
+                continue
+            extra = sorted(set(slot) - {"pathway", "out_channel"})
+            if extra:
+                problems.append(f"{where}: unknown key(s) {', '.join(extra)} (known: pathway, out_channel)")
+            has_pathway = _reference(slot.get("pathway"), pathways, "pathway", f"{where}.pathway", problems)
+            channel = slot.get("out_channel")
+            if not (_is_int(channel) and channel >= 0):
+                problems.append(f"{where}.out_channel: expected an integer >= 0, {_got(channel)}")
+                continue
+            n_out = n_channels.get(pathway_model.get(slot.get("pathway")) or "") if has_pathway else None
+            if n_out is not None and channel >= n_out:
+                model = pathway_model[slot["pathway"]]
+                problems.append(
+                    f"{where}.out_channel: {channel} is out of range for model {model!r}"
+                    f" (n_out_channels {n_out}: use 0..{n_out - 1})"
+                )
+    return problems
+
+
+@lru_cache(maxsize=1)
+def _default_skeleton_table() -> dict:
+    """The packaged default config's ``skeleton`` table (read once; treat as read-only)."""
+    from .core import Config  # at call time: core imports this module
+
+    return Config.default().data["skeleton"]
+
+
+def _default_point_names() -> tuple[str, ...]:
+    return tuple(_default_skeleton_table()["point_names"])
+
+
+def validate_config(data: Any) -> list[str]:
+    """Every problem with a parsed config mapping, one ``"<key path>: <problem>"`` line each.
+
+    Parameters
+    ----------
+    data
+        The parsed config.
+
+    Returns
+    -------
+    list of str
+        The problems; empty when the config is valid.
+    """
+    if not isinstance(data, Mapping):
+        return [f"<top level>: expected a mapping of tables, {_got(data)}"]
+    problems = [
+        f"{key}: unknown top-level table (known: {', '.join(TOP_LEVEL_KEYS)})"
+        for key in data
+        if key not in TOP_LEVEL_KEYS
+    ]
+    table_kinds = {
+        "io": _mapping(),
+        "skeleton": _mapping(),
+        "cameras": _mapping(),
+        "pipeline": _mapping(),
+        "pose2d": _mapping(),
+        "bundle_adjustment": _mapping(),
+        "pictorial_structures": _mapping(),
+        "triangulation": _mapping(),
+        "visualization": _mapping(),
+        "calibration": _mapping(nullable=True),
+        "demo": _mapping(nullable=True),
+        "sources": lambda v: None if isinstance(v, list) else f"expected a list of tables, {_got(v)}",
+        "recordings": lambda v: None
+        if isinstance(v, (list, str))
+        else f"expected a list of recordings or the path of a .tsv sheet, {_got(v)}",
+        "recursive": _boolean,
+        "outdir": lambda v: None if v is None or isinstance(v, str) else f"expected a path template or null, {_got(v)}",
+    }
+    bad_tables = set()
+    for key, check in table_kinds.items():
+        if key in data:
+            why = check(data[key])
+            if why:
+                problems.append(f"{key}: {why}")
+                bad_tables.add(key)
+
+    def table(name: str) -> Mapping:
+        return {} if name in bad_tables else (data.get(name) or {})
+
+    if "skeleton" in data and "skeleton" not in bad_tables:
+        skeleton_issues = skeleton_problems(data["skeleton"])
+        problems += skeleton_issues
+        names = data["skeleton"].get("point_names")
+        point_names = tuple(names) if isinstance(names, list) else ()
+    else:
+        point_names = _default_point_names()
+
+    cameras = table("cameras")
+    view_names = [name for name in cameras if name != "defaults"]
+    for name, spec in cameras.items():
+        if not isinstance(spec, Mapping):
+            problems.append(f"cameras.{name}: expected a table of camera parameters, {_got(spec)}")
+    if not view_names and data.get("calibration"):
+        view_names = None  # the rig comes from the calibration file: names unknown here
+
+    pipeline_checks = {f"do_{stage}": _boolean for stage in STAGES}
+    for key, value in table("pipeline").items():
+        if key not in pipeline_checks:
+            problems.append(f"pipeline.{key}: unknown parameter (known: {', '.join(pipeline_checks)})")
+        elif pipeline_checks[key](value):
+            problems.append(f"pipeline.{key}: {pipeline_checks[key](value)}")
+
+    pose2d = table("pose2d")
+    problems += _table_problems(pose2d, Pose2dParams, "pose2d", _POSE2D_PLAN_KEYS)
+    if "import" in pose2d and _mapping(nullable=True)(pose2d["import"]):
+        problems.append(f"pose2d.import: {_mapping(nullable=True)(pose2d['import'])}")
+    if "sources" not in bad_tables and "pose2d" not in bad_tables:
+        problems += _plan_problems(data, point_names, view_names)
+
+    ba = table("bundle_adjustment")
+    ba_fields = tuple(f.name for f in fields(BundleAdjustmentParams) if f.name != "least_squares")
+    ls_keys = LEAST_SQUARES_OPTIONS
+    for key, value in ba.items():
+        where = f"bundle_adjustment.{key}"
+        if key in ba_fields:
+            continue
+        if key not in ls_keys:
+            problems.append(
+                f"{where}: unknown parameter (known: {', '.join(ba_fields)}, or a"
+                f" scipy.optimize.least_squares option: {', '.join(ls_keys)})"
+            )
+        elif key in _LEAST_SQUARES_CHECKS and _LEAST_SQUARES_CHECKS[key](value):
+            problems.append(f"{where}: {_LEAST_SQUARES_CHECKS[key](value)}")
+    problems += _table_problems(
+        {k: v for k, v in ba.items() if k in ba_fields}, BundleAdjustmentParams, "bundle_adjustment"
+    )
+    if isinstance(ba.get("points_to_use"), (list, tuple)) and point_names:
+        for point in ba["points_to_use"]:
+            if isinstance(point, str) and point not in point_names:
+                problems.append(
+                    f"bundle_adjustment.points_to_use: unknown point {point!r} (known: {', '.join(point_names)})"
+                )
+
+    problems += _table_problems(table("pictorial_structures"), PictorialParams, "pictorial_structures")
+    problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
+
+    for key, value in table("io").items():
+        if not isinstance(value, Mapping):
+            problems.append(f"io.{key}: expected a table, {_got(value)}")
+    workers = table("io").get("image", {})
+    if isinstance(workers, Mapping) and "workers" in workers and _integer(0)(workers["workers"]):
+        problems.append(f"io.image.workers: {_integer(0)(workers['workers'])}")
+
+    videos = table("visualization").get("videos")
+    if videos is not None and not isinstance(videos, list):
+        problems.append(f"visualization.videos: expected a list of video tables, {_got(videos)}")
+    return problems
