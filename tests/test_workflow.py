@@ -223,7 +223,7 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
     config["recordings"] = [{"path": entry["path"]}]  # footage only: the detector runs
     snakemake(tmp_path, config=config)
     stages = tmp_path / "recA" / "flylib_outputs" / "stages"
-    assert load_candidates(stages / "candidates.h5").xy.shape == (7, FRAMES, 38, 5, 2)
+    assert load_candidates(stages / "candidates_k5.h5").xy.shape == (7, FRAMES, 38, 5, 2)
     assert (stages / "pictorial_structures.h5").is_file()
 
     off = copy.deepcopy(config)
@@ -232,6 +232,11 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
     snakemake(tmp_path, config=off)
     # back on: the earlier pictorial-structures artifact is still valid, only its users re-run
     assert planned(tmp_path, config) == jobs(("triangulation", "assemble"), ("recA",))
+    # k: no detection while PS is off; while on, the detector must find k peaks again
+    off["pictorial_structures"]["k"] = 3
+    assert planned(tmp_path, off) == set()
+    config["pictorial_structures"]["k"] = 3
+    assert {("pose2d", "recA"), ("pictorial_structures", "recA")} <= planned(tmp_path, config)
 
 
 def test_report_holds_every_recordings_figure_and_videos(workspace):

@@ -11,9 +11,9 @@ stage                  reads                                       writes
 =====================  ==========================================  ===============================
 ``demo``               config (rig, skeleton, ``demo``)            footage, DLC CSVs, ``truth.h5``
 ``pose2d``             footage, or another tool's 2D files          ``stages/pose2d.h5`` (and, for
-                                                                    PS, ``stages/candidates.h5``)
+                                                                    PS, ``stages/candidates_k<k>.h5``)
 ``bundle_adjustment``  ``pose2d.h5``, config rig                    ``stages/bundle_adjustment.h5``
-``pictorial``          ``pose2d.h5``, ``candidates.h5``, rig        ``stages/pictorial_structures.h5``
+``pictorial``          ``pose2d.h5``, candidates, rig              ``stages/pictorial_structures.h5``
 ``triangulation``      2D (PS if on, else pose2d), rig              ``stages/triangulation.h5``
 ``assemble``           the stage artifacts                          ``results.h5``, ``summary.json``,
                                                                     ``summary.png``, ``calibration.toml``
@@ -47,9 +47,17 @@ ARTIFACTS = {
     "pictorial_structures": "pictorial_structures.h5",
     "triangulation": "triangulation.h5",
 }
-#: The detector's top-K peaks, kept beside ``pose2d.h5`` while pictorial structures is on.
-#: A separate file, so that turning pictorial structures off again re-runs no detection.
-CANDIDATES_ARTIFACT = "candidates.h5"
+
+
+def candidates_artifact(k: int) -> str:
+    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
+
+    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
+    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
+    re-runs no detection, and a new ``k`` while it is on asks for a new file.
+    """
+    return f"candidates_k{int(k)}.h5"
+
 SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml")
 
 

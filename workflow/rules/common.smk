@@ -23,7 +23,7 @@ from flylib.config import Config  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
 from flylib.recordings import plan_recordings  # noqa: E402
-from flylib.stages import ARTIFACTS, CANDIDATES_ARTIFACT  # noqa: E402
+from flylib.stages import ARTIFACTS, candidates_artifact  # noqa: E402
 
 # Validate before any job starts: flylib's own checks first (one line per problem,
 # naming the key and the fix), then the JSON schema as a structural safety net. A
@@ -116,7 +116,7 @@ def stage_params(stage: str) -> str:
 
 def artifact(stage: str) -> str:
     """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
-    name = CANDIDATES_ARTIFACT if stage == "candidates" else ARTIFACTS[stage]
+    name = candidates_artifact(CONFIG.pictorial.k) if stage == "candidates" else ARTIFACTS[stage]
     return f"{{outdir}}/stages/{name}"
 
 
@@ -155,7 +155,9 @@ def _absent_2d(rec) -> list[str]:
     """With pose2d off: the 2D artifacts the later stages need that do not exist."""
     if FLAGS["pose2d"]:
         return []
-    needed = [ARTIFACTS["pose2d"]] + ([CANDIDATES_ARTIFACT] if FLAGS["pictorial_structures"] else [])
+    needed = [ARTIFACTS["pose2d"]]
+    if FLAGS["pictorial_structures"]:
+        needed.append(candidates_artifact(CONFIG.pictorial.k))
     return [str(rec.outdir / "stages" / n) for n in needed if not (rec.outdir / "stages" / n).is_file()]
 
 

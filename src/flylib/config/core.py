@@ -247,9 +247,9 @@ class Config:
         changing them re-runs nothing.
 
         - ``pose2d``: sources, detection plan, precision, import spec, skeleton point
-          names, view names (the V axis) and the candidates' ``k`` (not whether
-          pictorial structures is on: its candidates are an extra output of the same
-          detection). Not the camera geometry.
+          names and view names (the V axis). Not the camera geometry, and nothing of
+          pictorial structures: the candidate peaks it needs are an extra output of
+          the same detection, named by their ``k``.
         - ``bundle_adjustment``: its table, the rig, the skeleton's points and limbs.
         - ``pictorial_structures``: its table, the skeleton's points and limbs, and the
           config rig when bundle adjustment is off (otherwise the rig arrives in the
@@ -279,9 +279,10 @@ class Config:
                 "import": pose2d.get("import"),
                 "point_names": list(self._point_names()),
                 "views": self.view_names(),
-                # always, so that toggling pictorial structures re-runs no detection
-                # (the candidates are a separate output that exists only while it is on)
-                "candidates": {"k": self.pictorial.k},
+                # Not the candidate peaks pictorial structures asks for: they are a
+                # separate pose2d output named by k (stages.candidates_artifact), which
+                # exists only while PS is on, so toggling PS or editing k with it off
+                # re-runs no detection.
             }
         elif stage == "bundle_adjustment":
             ba = asdict(self.bundle_adjustment)
