@@ -60,6 +60,38 @@ def test_numpy_rodrigues_twin_matches_opencv_and_the_jax_kernel(angle):
         np.testing.assert_allclose(rmat, expm(_skew(rvec)), atol=1e-15)
 
 
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.7, 2.0, np.pi - 1e-6, np.pi])
+def test_numpy_rmat_to_rvec_twin_matches_the_jax_kernel_and_inverts(angle):
+    from flylib.camera_model import rmat_to_rvec_numpy
+
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        rvec = _unit(rng) * angle
+        rmat = expm(_skew(rvec))
+        back = rmat_to_rvec_numpy(rmat)
+        assert isinstance(back, np.ndarray) and back.shape == (3,)
+        np.testing.assert_allclose(back, np.asarray(g.rmat_to_rvec_one(rmat)), atol=1e-15)
+        np.testing.assert_allclose(expm(_skew(back)), rmat, atol=1e-14)  # same rotation
+        if angle < np.pi - 1e-3:
+            np.testing.assert_allclose(back, rvec, atol=1e-12)
+
+
+def test_host_side_modules_do_not_import_jax():
+    # workflow jobs that only project, undistort, triangulate by RANSAC or assemble must
+    # not pay for importing JAX (~0.7 s each)
+    import subprocess
+    import sys
+
+    code = ("import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.stages, "
+            "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
+            "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
+            "import numpy as np; from flylib.triangulation import triangulate_ransac; "
+            "triangulate_ransac(rig.project(np.zeros((2, 3))), rig); "
+            "print('jax' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
 def test_numpy_kmat_twin_matches_the_jax_kernel_for_both_intrinsic_forms():
     intrs = np.array([[1200.0, 1100.0, 320.0, 240.0], [900.0, 950.0, 10.0, 20.0]])
     np.testing.assert_array_equal(g.intr_to_kmat_numpy(intrs), np.asarray(g.intr_to_kmat(intrs)))

@@ -24,9 +24,8 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from . import geometry
+from . import camera_model
 from .errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -94,9 +93,9 @@ def orbit_extrinsics(
     c, s = np.cos(roll), np.sin(roll)
     roll_mat = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     rmat = roll_mat @ np.stack([x_cam, y_cam, z_cam])
-    # SciPy, not the JAX primitive: this runs once per camera at config time, where
+    # NumPy, not the JAX primitive: this runs once per camera at config time, where
     # JAX's op-by-op dispatch would compile dozens of tiny kernels (seconds per process).
-    rvec = Rotation.from_matrix(rmat).as_rotvec()
+    rvec = camera_model.rmat_to_rvec_numpy(rmat)
     return rvec, -rmat @ centre
 
 
@@ -179,10 +178,10 @@ def resolve_intrinsics(
         if spec.get("distortion_coefficients") not in (None, [])
         else np.zeros(0)
     )
-    if dist.size > geometry.N_DIST_COEFFS:
+    if dist.size > camera_model.N_DIST_COEFFS:
         raise ConfigError(
             f"{where}.distortion_coefficients has {dist.size} values; at most "
-            f"{geometry.N_DIST_COEFFS} (OpenCV k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4)"
+            f"{camera_model.N_DIST_COEFFS} (OpenCV k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4)"
         )
     return np.array([fx, fy, cx, cy], dtype=np.float64), dist
 
@@ -222,9 +221,9 @@ class Camera:
             raise ValueError(f"camera {self.name!r}: intr must be [fx, fy, cx, cy], got {intr}")
         self.intr = intr
         self.dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
-        if self.dist.size > geometry.N_DIST_COEFFS:
+        if self.dist.size > camera_model.N_DIST_COEFFS:
             raise ValueError(
-                f"camera {self.name!r}: at most {geometry.N_DIST_COEFFS} distortion "
+                f"camera {self.name!r}: at most {camera_model.N_DIST_COEFFS} distortion "
                 f"coefficients, got {self.dist.size}"
             )
 
@@ -266,12 +265,12 @@ class Camera:
     @property
     def rmat(self) -> np.ndarray:
         """World-to-camera rotation matrix ``(3, 3)``."""
-        return geometry.rvec_to_rmat_numpy(self.rvec)
+        return camera_model.rvec_to_rmat_numpy(self.rvec)
 
     @property
     def kmat(self) -> np.ndarray:
         """Camera matrix ``K`` ``(3, 3)``."""
-        return geometry.intr_to_kmat_numpy(self.intr)
+        return camera_model.intr_to_kmat_numpy(self.intr)
 
     @property
     def pmat(self) -> np.ndarray:
@@ -295,6 +294,8 @@ class Camera:
 
     def backproject_ray(self, pixel) -> tuple[np.ndarray, np.ndarray]:
         """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre."""
+        from . import geometry  # JAX: imported only where a ray is asked for
+
         origin, direction = geometry.backproject_ray_one(
             np.asarray(pixel, dtype=np.float64), self.rvec, self.tvec, self.intr, self.dist
         )
@@ -324,8 +325,8 @@ def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
     x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
     dists = np.asarray(dists, dtype=np.float64)
     if dists.shape[-1] and np.any(dists):
-        d = np.asarray(geometry.pad_dist(dists)).T[:, :, None]  # (12, V, 1)
-        radial, add_x, add_y = geometry._distortion_terms(x, y, d)
+        d = camera_model.pad_dist_numpy(dists).T[:, :, None]  # (12, V, 1)
+        radial, add_x, add_y = camera_model.distortion_terms(x, y, d)
         x, y = x * radial + add_x, y * radial + add_y
     u = intrs[:, 0, None] * x + intrs[:, 2, None]
     v = intrs[:, 1, None] * y + intrs[:, 3, None]
@@ -480,12 +481,12 @@ class CameraGroup:
     @property
     def rmats(self) -> np.ndarray:
         """``(V, 3, 3)``."""
-        return geometry.rvec_to_rmat_numpy(self.rvecs)
+        return camera_model.rvec_to_rmat_numpy(self.rvecs)
 
     @property
     def pmats(self) -> np.ndarray:
         """``(V, 3, 4)`` projection matrices ``K [R | t]`` (ignore distortion)."""
-        kmats = geometry.intr_to_kmat_numpy(self.intrs)
+        kmats = camera_model.intr_to_kmat_numpy(self.intrs)
         return kmats @ np.concatenate([self.rmats, self.tvecs[:, :, None]], axis=2)
 
     @property
@@ -511,7 +512,7 @@ class CameraGroup:
             fx, fy, cx, cy = cam.intr
             flat = pts2d[v].reshape(-1, 2)
             norm = (flat - [cx, cy]) / [fx, fy]
-            und = geometry.undistort_normalized(norm, cam.dist)
+            und = camera_model.undistort_normalized(norm, cam.dist)
             out[v] = (und * [fx, fy] + [cx, cy]).reshape(pts2d[v].shape)
         return out
 
@@ -534,7 +535,7 @@ class CameraGroup:
         """
         pts2d = self.undistort_points(pts2d)
         self._check_views(pts2d)
-        return geometry.dlt_solve(np, pts2d, self.pmats, weights)
+        return camera_model.dlt_solve(np, pts2d, self.pmats, weights)
 
     def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
         """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""

@@ -33,12 +33,26 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
 
-N_DIST_COEFFS = 12
-# Below this theta^2 the Rodrigues coefficients use their Taylor series: the
-# closed forms lose all precision to cancellation in 1 - cos(theta).
-_SMALL_THETA_SQ = 1e-6
+from .camera_model import (  # noqa: E402,F401 - the NumPy side, re-exported
+    DLT_TERMS,
+    N_DIST_COEFFS,
+    dlt_camera_constants,
+    dlt_features,
+    dlt_solve,
+    dlt_solve_components,
+    dlt_solve_terms,
+    intr_to_kmat_numpy,
+    pad_dist_generic,
+    pad_dist_numpy,
+    rmat_to_rvec_generic,
+    rmat_to_rvec_numpy,
+    rvec_to_rmat_numpy,
+    undistort_normalized,
+)
+from .camera_model import SMALL_THETA_SQ as _SMALL_THETA_SQ  # noqa: E402
+from .camera_model import distortion_terms as _distortion_terms  # noqa: E402
+from .camera_model import split_intr as _split_intr  # noqa: E402
 _UNDISTORT_FIXED_POINT_ITERS = 20
 _UNDISTORT_NEWTON_ITERS = 2
 
@@ -103,30 +117,7 @@ def rmat_to_rvec_one(rmat):
     jax.Array
         Axis-angle vector of shape ``(3,)`` with norm in ``[0, pi]``.
     """
-    rmat = jnp.asarray(rmat, dtype=jnp.float64)
-    rho = 0.5 * jnp.stack(
-        [rmat[2, 1] - rmat[1, 2], rmat[0, 2] - rmat[2, 0], rmat[1, 0] - rmat[0, 1]]
-    )  # sin(theta) * axis
-    sin_theta = jnp.linalg.norm(rho)
-    cos_theta = 0.5 * (jnp.trace(rmat) - 1.0)
-    theta = jnp.arctan2(sin_theta, cos_theta)
-
-    # Small and moderate angles: rvec = rho * theta / sin(theta).
-    small = sin_theta < 1e-6
-    safe_sin = jnp.where(small, 1.0, sin_theta)
-    scale = jnp.where(small, 1.0 + sin_theta**2 / 6.0, theta / safe_sin)
-    rvec_generic = rho * scale
-
-    # Large angles: axis from the symmetric part, column with the largest diagonal.
-    outer = (0.5 * (rmat + rmat.T) - cos_theta * jnp.eye(3)) / jnp.maximum(
-        1.0 - cos_theta, 1e-300
-    )
-    col = outer[:, jnp.argmax(jnp.diagonal(outer))]
-    axis = col / jnp.linalg.norm(col)
-    axis = jnp.where(jnp.dot(axis, rho) < 0.0, -axis, axis)
-    rvec_large = axis * theta
-
-    return jnp.where(cos_theta < 0.0, rvec_large, rvec_generic)
+    return rmat_to_rvec_generic(jnp, jnp.asarray(rmat, dtype=jnp.float64))
 
 
 @jax.jit
@@ -145,38 +136,11 @@ def rmat_to_rvec(rmat):
     return jax.vmap(rmat_to_rvec_one)(flat).reshape(*rmat.shape[:-2], 3)
 
 
-def rvec_to_rmat_numpy(rvec) -> np.ndarray:
-    """NumPy :func:`rvec_to_rmat` (``(..., 3) -> (..., 3, 3)``), same Taylor branch.
-
-    Host-side code (camera properties, bundle-adjustment residuals) uses this twin so
-    that it never waits for an XLA compilation.
-    """
-    rvec = np.asarray(rvec, dtype=np.float64)
-    flat = rvec.reshape(-1, 3)
-    theta_sq = np.einsum("mi,mi->m", flat, flat)
-    small = theta_sq < _SMALL_THETA_SQ
-    safe_sq = np.where(small, 1.0, theta_sq)
-    theta = np.sqrt(safe_sq)
-    a = np.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, np.sin(theta) / theta)
-    b = np.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
-                 (1.0 - np.cos(theta)) / safe_sq)
-    x, y, z = flat.T
-    zero = np.zeros_like(x)
-    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
-    rmat = np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
-    return rmat.reshape(*rvec.shape[:-1], 3, 3)
-
-
 def _skew(v):
     return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 # -- intrinsics and distortion ---------------------------------------------------
-
-
-def _split_intr(intr):
-    """``(fx, fy, cx, cy)`` from packed ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``."""
-    return intr[..., 0], intr[..., -3], intr[..., -2], intr[..., -1]
 
 
 @jax.jit
@@ -204,17 +168,6 @@ def intr_to_kmat(intr):
     return jnp.stack(rows, axis=-2)
 
 
-def intr_to_kmat_numpy(intr) -> np.ndarray:
-    """NumPy :func:`intr_to_kmat`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
-    intr = np.asarray(intr, dtype=np.float64)
-    fx, fy, cx, cy = _split_intr(intr)
-    kmat = np.zeros(intr.shape[:-1] + (3, 3))
-    kmat[..., 0, 0], kmat[..., 0, 2] = fx, cx
-    kmat[..., 1, 1], kmat[..., 1, 2] = fy, cy
-    kmat[..., 2, 2] = 1.0
-    return kmat
-
-
 def pad_dist(dist):
     """Zero-pad OpenCV distortion coefficients to the full 12-vector.
 
@@ -233,28 +186,7 @@ def pad_dist(dist):
     ValueError
         If more than 12 coefficients are given.
     """
-    dist = jnp.asarray(dist, dtype=jnp.float64)
-    k = dist.shape[-1]
-    if k > N_DIST_COEFFS:
-        raise ValueError(
-            f"at most {N_DIST_COEFFS} distortion coefficients are supported, got {k}"
-        )
-    pad = [(0, 0)] * (dist.ndim - 1) + [(0, N_DIST_COEFFS - k)]
-    return jnp.pad(dist, pad)
-
-
-def _distortion_terms(x, y, d):
-    """Radial factor and additive tangential + thin-prism terms (any array module)."""
-    x2, y2, xy = x * x, y * y, x * y
-    r2 = x2 + y2
-    r4 = r2 * r2
-    r6 = r4 * r2
-    radial = (1.0 + d[0] * r2 + d[1] * r4 + d[4] * r6) / (
-        1.0 + d[5] * r2 + d[6] * r4 + d[7] * r6
-    )
-    add_x = 2.0 * d[2] * xy + d[3] * (r2 + 2.0 * x2) + d[8] * r2 + d[9] * r4
-    add_y = d[2] * (r2 + 2.0 * y2) + 2.0 * d[3] * xy + d[10] * r2 + d[11] * r4
-    return radial, add_x, add_y
+    return pad_dist_generic(jnp, dist)
 
 
 def distort_one(xy, dist):
@@ -322,40 +254,6 @@ def undistort_one(xy_dist, dist):
         return xy - jnp.linalg.solve(jac, distort_one(xy, d) - xy_dist)
 
     return jax.lax.fori_loop(0, _UNDISTORT_NEWTON_ITERS, newton, xy)
-
-
-def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15) -> np.ndarray:
-    """NumPy batch inverse of :func:`distort_one` for one camera.
-
-    The fixed-point scheme of :func:`undistort_one`, run until no coordinate
-    moves by more than ``tol`` (or ``max_iter`` sweeps).
-
-    Parameters
-    ----------
-    xy_dist
-        Distorted normalized coordinates ``(..., 2)``; NaN stays NaN.
-    dist
-        ``(K,)`` coefficients, ``K <= 12``.
-
-    Returns
-    -------
-    np.ndarray
-        Undistorted normalized coordinates ``(..., 2)``.
-    """
-    xy_dist = np.asarray(xy_dist, dtype=np.float64)
-    if np.size(dist) == 0 or not np.any(dist):
-        return xy_dist.copy()
-    d = np.asarray(pad_dist(dist))
-    xd, yd = xy_dist[..., 0], xy_dist[..., 1]
-    x, y = xd.copy(), yd.copy()
-    for _ in range(max_iter):
-        radial, add_x, add_y = _distortion_terms(x, y, d)
-        x_new, y_new = (xd - add_x) / radial, (yd - add_y) / radial
-        step = np.nanmax(np.abs(np.stack([x_new - x, y_new - y])), initial=0.0)
-        x, y = x_new, y_new
-        if step <= tol:
-            break
-    return np.stack([x, y], axis=-1)
 
 
 @jax.jit
@@ -470,147 +368,6 @@ def project_pmat(pts3d, pmats):
 
 
 # -- triangulation and rays ----------------------------------------------------------
-
-# The DLT is written once against the array-API subset NumPy and jax.numpy share
-# (``xp``): the jitted :func:`triangulate_dlt` and the chunked NumPy bulk path in
-# :mod:`flylib.triangulation` run the very same arithmetic.
-#
-# View v's two rows are ``a = o * p2 - pr`` (``o`` = u with ``pr = p0``, v with
-# ``pr = p1``) on ``[X, Y, Z, 1]``. Each row is divided by ``|a[:3]|`` and scaled
-# by ``sqrt(w)``, and the point solves the 3x3 normal equations ``M X = b`` with
-# ``M = sum s a3 a3^T``, ``b = -sum s a3 a[3]``, ``s = w / |a3|^2``. Both are
-# quadratic in ``o``: ``s a3 a3^T = (s o^2) p2 p2^T - (s o)(p2 pr^T + pr p2^T) +
-# s pr pr^T``. So every view's contribution is the feature vector
-# ``(s o^2, s o, s)`` for both rows times a constant (6, 9) matrix of the camera,
-# and the whole system is one matrix product.
-
-DLT_TERMS = ("m00", "m01", "m02", "m11", "m12", "m22", "b0", "b1", "b2")
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-
-
-def dlt_camera_constants(xp, pmats):
-    """Per-view constants of the DLT normal equations.
-
-    Parameters
-    ----------
-    xp
-        ``numpy`` or ``jax.numpy``.
-    pmats
-        ``(V, 3, 4)``.
-
-    Returns
-    -------
-    quad : array
-        ``(V, 6, 9)``: maps a view's features ``(s u^2, s u, s, s v^2, s v, s)``
-        to its contribution to ``DLT_TERMS``.
-    norm : array
-        ``(V, 2, 3)``: ``|a3|^2 = c0 o^2 + c1 o + c2`` per row.
-    """
-    pmats = xp.asarray(pmats, dtype=xp.float64)
-    p2 = pmats[:, 2]
-    blocks, norms = [], []
-    for r in (0, 1):
-        pr = pmats[:, r]
-        by_power = []
-        for lhs, rhs, sign in (((p2, p2), None, 1.0), ((p2, pr), (pr, p2), -1.0), ((pr, pr), None, 1.0)):
-            def outer(x, y):
-                return [x[:, i] * y[:, j] for i, j in _UPPER] + [-x[:, i] * y[:, 3] for i in range(3)]
-
-            cols = outer(*lhs)
-            if rhs is not None:
-                cols = [c + d for c, d in zip(cols, outer(*rhs))]
-            by_power.append(xp.stack([sign * c for c in cols], axis=-1))  # (V, 9)
-        blocks.append(xp.stack(by_power, axis=1))  # (V, 3, 9)
-        p2_3, pr_3 = p2[:, :3], pr[:, :3]
-        norms.append(
-            xp.stack(
-                [xp.sum(p2_3 * p2_3, axis=-1), -2.0 * xp.sum(p2_3 * pr_3, axis=-1), xp.sum(pr_3 * pr_3, axis=-1)],
-                axis=-1,
-            )
-        )
-    return xp.concatenate(blocks, axis=1), xp.stack(norms, axis=1)
-
-
-def dlt_features(xp, pts2d, norm, weights=None):
-    """Per-observation DLT features.
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, N, 2)`` pixels, NaN = missing.
-    norm
-        ``(V, 2, 3)`` from :func:`dlt_camera_constants`.
-    weights
-        Optional ``(V, N)``; non-finite or non-positive drops the view.
-
-    Returns
-    -------
-    features : array
-        ``(6, V, N)``, zero for dropped views.
-    valid : array
-        ``(V, N)`` bool.
-    """
-    pts2d = xp.asarray(pts2d, dtype=xp.float64)
-    u, v = pts2d[..., 0], pts2d[..., 1]
-    valid = xp.isfinite(u) & xp.isfinite(v)
-    if weights is None:
-        w = xp.where(valid, 1.0, 0.0)
-    else:
-        w = xp.asarray(weights, dtype=xp.float64)
-        w = xp.where(valid & xp.isfinite(w) & (w > 0), w, 0.0)
-        valid = w > 0
-    feats = []
-    for r, obs in enumerate((u, v)):
-        obs = xp.where(valid, obs, 0.0)
-        c = norm[:, r]
-        norm_sq = (c[:, 0:1] * obs + c[:, 1:2]) * obs + c[:, 2:3]
-        s = w / xp.where(norm_sq > 0, norm_sq, 1.0)
-        so = s * obs
-        feats += [so * obs, so, s]
-    return xp.stack(feats), valid
-
-
-def dlt_solve_terms(xp, terms, n_valid, min_views=2):
-    """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``.
-
-    NaN where fewer than ``min_views`` views took part or the system is
-    (numerically) singular.
-    """
-    return xp.stack(dlt_solve_components(xp, terms, n_valid, min_views), axis=-1)
-
-
-def dlt_solve_components(xp, terms, n_valid, min_views=2):
-    """:func:`dlt_solve_terms` returning the coordinates ``(x, y, z)`` separately."""
-    m00, m01, m02, m11, m12, m22, b0, b1, b2 = (terms[i] for i in range(9))
-    c00 = m11 * m22 - m12 * m12
-    c01 = m02 * m12 - m01 * m22
-    c02 = m01 * m12 - m02 * m11
-    c11 = m00 * m22 - m02 * m02
-    c12 = m01 * m02 - m00 * m12
-    c22 = m00 * m11 - m01 * m01
-    det = m00 * c00 + m01 * c01 + m02 * c02
-    trace = m00 + m11 + m22
-    ok = (n_valid >= min_views) & (det > 1e-12 * trace * trace * trace)
-    inv_det = xp.where(ok, 1.0 / xp.where(ok, det, 1.0), xp.nan)
-    x = (c00 * b0 + c01 * b1 + c02 * b2) * inv_det
-    y = (c01 * b0 + c11 * b1 + c12 * b2) * inv_det
-    z = (c02 * b0 + c12 * b1 + c22 * b2) * inv_det
-    return x, y, z
-
-
-def dlt_solve(xp, pts2d, pmats, weights=None):
-    """Weighted NaN-aware DLT with array module ``xp`` (see :func:`triangulate_dlt`)."""
-    pts2d = xp.asarray(pts2d, dtype=xp.float64)
-    n_views = pts2d.shape[0]
-    pts_shape = pts2d.shape[1:-1]
-    flat = xp.reshape(pts2d, (n_views, -1, 2))
-    w = None if weights is None else xp.reshape(xp.asarray(weights, dtype=xp.float64), (n_views, -1))
-    quad, norm = dlt_camera_constants(xp, pmats)
-    feats, valid = dlt_features(xp, flat, norm, w)
-    terms = xp.einsum("fvn,vfk->kn", feats, quad)
-    out = dlt_solve_terms(xp, terms, xp.sum(valid, axis=0))
-    return xp.reshape(out, (*pts_shape, 3))
-
 
 @jax.jit
 def triangulate_dlt(pts2d, pmats, weights=None):

@@ -4,8 +4,9 @@ All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for
 recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
 processed in bounded chunks (memory stays bounded on long recordings), all with the
 same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`: DLT
-and greedy by jitted JAX kernels compiled once per chunk length, RANSAC in NumPy
-(no compile) on runs of points seen by the same views, on a few threads.
+and greedy by jitted JAX kernels compiled once per chunk length
+(:mod:`flylib.triangulation_kernels`, imported only when those methods run), RANSAC in
+NumPy (no compile, no JAX) on runs of points seen by the same views, on a few threads.
 Cameras with lens distortion are handled exactly: observations are undistorted
 before the linear solve, and reprojection errors are measured in the raw image.
 
@@ -23,14 +24,11 @@ import logging
 import os
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
 from itertools import combinations, pairwise
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from . import geometry
+from . import camera_model
 from .cameras import CameraGroup
 from .errors import ConfigError
 
@@ -97,8 +95,8 @@ class _Rig:
         self.n_views = len(cameras)
         self.distorted = bool(np.any(cameras.dists))
         self.pmats = cameras.pmats
-        quad, norm = geometry.dlt_camera_constants(np, self.pmats)
-        dists = np.zeros((self.n_views, geometry.N_DIST_COEFFS))
+        quad, norm = camera_model.dlt_camera_constants(np, self.pmats)
+        dists = np.zeros((self.n_views, camera_model.N_DIST_COEFFS))
         dists[:, : cameras.dists.shape[1]] = cameras.dists
         self.arrays = {
             "pmats": self.pmats,
@@ -109,77 +107,6 @@ class _Rig:
             "intrs": cameras.intrs,
             "dists": dists,
         }
-
-
-# -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
-# Arrays are component-major with the point axis last, so XLA fuses each kernel into
-# vectorized loops over points.
-
-
-def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
-    """Squared pixel error in view ``k`` of points ``(x, y, z)`` against ``raw_u/v``."""
-    if distorted:
-        r, t = rig["rmats"][k], rig["tvecs"][k]
-        cx_ = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
-        cy_ = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
-        cz_ = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
-        xn, yn = cx_ / cz_, cy_ / cz_
-        radial, add_x, add_y = geometry._distortion_terms(xn, yn, rig["dists"][k])
-        intr = rig["intrs"][k]
-        u = intr[0] * (xn * radial + add_x) + intr[2]
-        v = intr[1] * (yn * radial + add_y) + intr[3]
-    else:
-        p = rig["pmats"][k]
-        inv_depth = 1.0 / (p[2, 0] * x + p[2, 1] * y + p[2, 2] * z + p[2, 3])
-        u = (p[0, 0] * x + p[0, 1] * y + p[0, 2] * z + p[0, 3]) * inv_depth
-        v = (p[1, 0] * x + p[1, 1] * y + p[1, 2] * z + p[1, 3]) * inv_depth
-    du, dv = u - raw_u, v - raw_v
-    return du * du + dv * dv
-
-
-def _view_terms(rig, und, weights):
-    """Per-view normal-equation terms ``(9, V, N)`` and the valid mask ``(V, N)``."""
-    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)  # (6, V, N)
-    quad = rig["quad"]  # (V, 6, 9)
-    terms = sum(feats[f][None] * quad[:, f, :].T[:, :, None] for f in range(6))
-    return terms, valid
-
-
-def _solve_kept(terms, kept, min_views=2):
-    summed = (terms * kept[None]).sum(axis=1)  # (9, N)
-    return geometry.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
-
-
-@jax.jit
-def _dlt_chunk(rig, raw, und, weights):
-    und = raw if und is None else und
-    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)
-    terms = jnp.einsum("fvn,vfk->kn", feats, rig["quad"])
-    return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
-
-
-@partial(jax.jit, static_argnames=("distorted",))
-def _greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
-    und = raw if und is None else und
-    terms, kept = _view_terms(rig, und, weights)
-    n_views = kept.shape[0]
-
-    def drop_worst(_, state):
-        pts3d, kept = state
-        x, y, z = pts3d[:, 0], pts3d[:, 1], pts3d[:, 2]
-        err_sq = jnp.stack(
-            [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
-        )
-        err_sq = jnp.where(kept & jnp.isfinite(err_sq), err_sq, -jnp.inf)
-        worst = jnp.argmax(err_sq, axis=0)
-        offending = jnp.max(err_sq, axis=0) > threshold * threshold
-        drop = (jnp.arange(n_views)[:, None] == worst[None, :]) & offending[None, :]
-        kept = kept & ~drop
-        return _solve_kept(terms, kept), kept
-
-    pts3d, kept = jax.lax.fori_loop(0, max_drops, drop_worst, (_solve_kept(terms, kept), kept))
-    accepted = jnp.isfinite(pts3d).all(axis=-1)
-    return pts3d, kept & accepted[None]
 
 
 def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
@@ -252,7 +179,7 @@ class _RansacViews:
         if self.distorted:
             # Through the camera frame [R | t] and the lens model, as in ``project``.
             rows = np.concatenate([cameras.rmats[views], cameras.tvecs[views, :, None]], axis=2)
-            dists = np.zeros((self.n_sel, geometry.N_DIST_COEFFS))
+            dists = np.zeros((self.n_sel, camera_model.N_DIST_COEFFS))
             dists[:, : cameras.dists.shape[1]] = cameras.dists[views]
             self.dists = dists.T[:, :, None]  # (12, K, 1)
             self.intrs = cameras.intrs[views].T[:, :, None]  # (4, K, 1)
@@ -267,7 +194,7 @@ class _RansacViews:
         inv_depth = 1.0 / hom[2 * k :]
         u, v = hom[:k] * inv_depth, hom[k : 2 * k] * inv_depth
         if self.distorted:
-            radial, add_x, add_y = geometry._distortion_terms(u, v, self.dists)
+            radial, add_x, add_y = camera_model.distortion_terms(u, v, self.dists)
             intr = self.intrs
             u = intr[0] * (u * radial + add_x) + intr[2]
             v = intr[1] * (v * radial + add_y) + intr[3]
@@ -286,8 +213,8 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     missing); ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
     """
     n_sel, n = raw.shape[:2]
-    quad, norm = geometry.dlt_camera_constants(np, pmats[views])
-    feats, valid = geometry.dlt_features(np, und, norm, weights)  # (6, K, n)
+    quad, norm = camera_model.dlt_camera_constants(np, pmats[views])
+    feats, valid = camera_model.dlt_features(np, und, norm, weights)  # (6, K, n)
     terms = np.einsum("kfc,fkn->kcn", quad, feats)  # (K, 9, n) normal-equation terms
     valid = valid.astype(np.uint8)
     raw_u, raw_v = np.ascontiguousarray(raw[..., 0]), np.ascontiguousarray(raw[..., 1])
@@ -302,7 +229,7 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     best_score = np.full(n, -np.inf)
     best_code = np.zeros(n)  # the winning hypothesis' inliers, as bits over ``views``
     for i, j in combinations(np.flatnonzero(valid.any(axis=1)), 2):
-        pts4[0], pts4[1], pts4[2] = geometry.dlt_solve_components(np, terms[i] + terms[j], valid[i] + valid[j])
+        pts4[0], pts4[1], pts4[2] = camera_model.dlt_solve_components(np, terms[i] + terms[j], valid[i] + valid[j])
         err_sq = project.sq_errors(pts4, raw_u, raw_v)
         np.fmin(err_sq, threshold_sq, out=err_sq)  # NaN (missing view, no hypothesis) fails
         inlier = err_sq < threshold_sq
@@ -316,7 +243,7 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
         best_code = np.where(better, (inlier * bits).sum(axis=0), best_code)
     inliers = (best_code.astype(np.int64) >> np.arange(n_sel)[:, None]) & 1 == 1
     summed = np.einsum("kcn,kn->cn", terms, inliers)
-    pts3d = geometry.dlt_solve_terms(np, summed, inliers.sum(axis=0), max(min_inliers, 2))
+    pts3d = camera_model.dlt_solve_terms(np, summed, inliers.sum(axis=0), max(min_inliers, 2))
     return pts3d, inliers & np.isfinite(pts3d).all(axis=-1)[None]
 
 
@@ -415,7 +342,9 @@ def triangulate(
     """
     pts2d, cameras = _points_and_cameras(pts2d, cameras)
     w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
-    return _run_chunked(_dlt_chunk, pts2d, cameras, w, chunk_points)[0]
+    from .triangulation_kernels import dlt_chunk
+
+    return _run_chunked(dlt_chunk, pts2d, cameras, w, chunk_points)[0]
 
 
 def reprojection_error(pts3d, pts2d, cameras) -> np.ndarray:
@@ -533,8 +462,10 @@ def triangulate_greedy(
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
     pts2d, cameras = _points_and_cameras(pts2d, cameras)
     w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
+    from .triangulation_kernels import greedy_chunk
+
     return _run_chunked(
-        _greedy_chunk,
+        greedy_chunk,
         pts2d,
         cameras,
         w,

@@ -1,0 +1,309 @@
+"""The camera model's closed forms in NumPy (or any array module), without JAX.
+
+Host-side code (camera properties, projection, undistortion, the RANSAC and DLT bulk
+paths, summaries) needs only these, so a workflow job that does not differentiate or
+jit anything never imports JAX (about 0.7 s per job). :mod:`flylib.geometry` builds its
+JAX kernels on the same formulas and re-exports every name here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+N_DIST_COEFFS = 12
+# Below this theta^2 the Rodrigues coefficients use their Taylor series: the
+# closed forms lose all precision to cancellation in 1 - cos(theta).
+SMALL_THETA_SQ = 1e-6
+
+
+# -- rotations and intrinsics ------------------------------------------------------
+
+
+def rvec_to_rmat_numpy(rvec) -> np.ndarray:
+    """NumPy :func:`rvec_to_rmat` (``(..., 3) -> (..., 3, 3)``), same Taylor branch.
+
+    Host-side code (camera properties, bundle-adjustment residuals) uses this twin so
+    that it never waits for an XLA compilation.
+    """
+    rvec = np.asarray(rvec, dtype=np.float64)
+    flat = rvec.reshape(-1, 3)
+    theta_sq = np.einsum("mi,mi->m", flat, flat)
+    small = theta_sq < SMALL_THETA_SQ
+    safe_sq = np.where(small, 1.0, theta_sq)
+    theta = np.sqrt(safe_sq)
+    a = np.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
+                 (1.0 - np.cos(theta)) / safe_sq)
+    x, y, z = flat.T
+    zero = np.zeros_like(x)
+    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
+    rmat = np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
+    return rmat.reshape(*rvec.shape[:-1], 3, 3)
+
+
+def rmat_to_rvec_generic(xp, rmat):
+    """Axis-angle vector of one rotation matrix, with array module ``xp``.
+
+    The body of :func:`flylib.geometry.rmat_to_rvec_one` (which documents the method)
+    and of :func:`rmat_to_rvec_numpy`.
+    """
+    rho = 0.5 * xp.stack(
+        [rmat[2, 1] - rmat[1, 2], rmat[0, 2] - rmat[2, 0], rmat[1, 0] - rmat[0, 1]]
+    )  # sin(theta) * axis
+    sin_theta = xp.linalg.norm(rho)
+    cos_theta = 0.5 * (xp.trace(rmat) - 1.0)
+    theta = xp.arctan2(sin_theta, cos_theta)
+
+    # Small and moderate angles: rvec = rho * theta / sin(theta).
+    small = sin_theta < 1e-6
+    safe_sin = xp.where(small, 1.0, sin_theta)
+    scale = xp.where(small, 1.0 + sin_theta**2 / 6.0, theta / safe_sin)
+    rvec_generic = rho * scale
+
+    # Large angles: axis from the symmetric part, column with the largest diagonal.
+    outer = (0.5 * (rmat + rmat.T) - cos_theta * xp.eye(3)) / xp.maximum(
+        1.0 - cos_theta, 1e-300
+    )
+    col = outer[:, xp.argmax(xp.diagonal(outer))]
+    axis = col / xp.linalg.norm(col)
+    axis = xp.where(xp.dot(axis, rho) < 0.0, -axis, axis)
+    rvec_large = axis * theta
+
+    return xp.where(cos_theta < 0.0, rvec_large, rvec_generic)
+
+
+def rmat_to_rvec_numpy(rmat) -> np.ndarray:
+    """NumPy ``rmat_to_rvec_one``: ``(3, 3)`` rotation -> ``(3,)`` axis-angle, norm in ``[0, pi]``."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # the branch np.where drops
+        return rmat_to_rvec_generic(np, np.asarray(rmat, dtype=np.float64))
+
+
+def split_intr(intr):
+    """``(fx, fy, cx, cy)`` from packed ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``."""
+    return intr[..., 0], intr[..., -3], intr[..., -2], intr[..., -1]
+
+
+def intr_to_kmat_numpy(intr) -> np.ndarray:
+    """NumPy :func:`intr_to_kmat`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
+    intr = np.asarray(intr, dtype=np.float64)
+    fx, fy, cx, cy = split_intr(intr)
+    kmat = np.zeros(intr.shape[:-1] + (3, 3))
+    kmat[..., 0, 0], kmat[..., 0, 2] = fx, cx
+    kmat[..., 1, 1], kmat[..., 1, 2] = fy, cy
+    kmat[..., 2, 2] = 1.0
+    return kmat
+
+
+# -- distortion ------------------------------------------------------------------
+
+
+def pad_dist_generic(xp, dist):
+    """``(..., K)`` distortion coefficients zero-padded to ``(..., 12)``, with array module ``xp``.
+
+    Raises
+    ------
+    ValueError
+        If more than 12 coefficients are given.
+    """
+    dist = xp.asarray(dist, dtype=xp.float64)
+    k = dist.shape[-1]
+    if k > N_DIST_COEFFS:
+        raise ValueError(f"at most {N_DIST_COEFFS} distortion coefficients are supported, got {k}")
+    pad = [(0, 0)] * (dist.ndim - 1) + [(0, N_DIST_COEFFS - k)]
+    return xp.pad(dist, pad)
+
+
+def pad_dist_numpy(dist) -> np.ndarray:
+    """NumPy ``pad_dist``: ``(..., K)`` coefficients zero-padded to ``(..., 12)``."""
+    return pad_dist_generic(np, dist)
+
+
+def distortion_terms(x, y, d):
+    """Radial factor and additive tangential + thin-prism terms (any array module)."""
+    x2, y2, xy = x * x, y * y, x * y
+    r2 = x2 + y2
+    r4 = r2 * r2
+    r6 = r4 * r2
+    radial = (1.0 + d[0] * r2 + d[1] * r4 + d[4] * r6) / (
+        1.0 + d[5] * r2 + d[6] * r4 + d[7] * r6
+    )
+    add_x = 2.0 * d[2] * xy + d[3] * (r2 + 2.0 * x2) + d[8] * r2 + d[9] * r4
+    add_y = d[2] * (r2 + 2.0 * y2) + 2.0 * d[3] * xy + d[10] * r2 + d[11] * r4
+    return radial, add_x, add_y
+
+
+def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15) -> np.ndarray:
+    """NumPy batch inverse of :func:`flylib.geometry.distort_one` for one camera.
+
+    The fixed-point scheme of :func:`flylib.geometry.undistort_one`, run until no coordinate
+    moves by more than ``tol`` (or ``max_iter`` sweeps).
+
+    Parameters
+    ----------
+    xy_dist
+        Distorted normalized coordinates ``(..., 2)``; NaN stays NaN.
+    dist
+        ``(K,)`` coefficients, ``K <= 12``.
+
+    Returns
+    -------
+    np.ndarray
+        Undistorted normalized coordinates ``(..., 2)``.
+    """
+    xy_dist = np.asarray(xy_dist, dtype=np.float64)
+    if np.size(dist) == 0 or not np.any(dist):
+        return xy_dist.copy()
+    d = pad_dist_numpy(dist)
+    xd, yd = xy_dist[..., 0], xy_dist[..., 1]
+    x, y = xd.copy(), yd.copy()
+    for _ in range(max_iter):
+        radial, add_x, add_y = distortion_terms(x, y, d)
+        x_new, y_new = (xd - add_x) / radial, (yd - add_y) / radial
+        step = np.nanmax(np.abs(np.stack([x_new - x, y_new - y])), initial=0.0)
+        x, y = x_new, y_new
+        if step <= tol:
+            break
+    return np.stack([x, y], axis=-1)
+
+
+# -- triangulation (DLT) -----------------------------------------------------------
+
+# The DLT is written once against the array-API subset NumPy and jax.numpy share
+# (``xp``): the jitted :func:`triangulate_dlt` and the chunked NumPy bulk path in
+# :mod:`flylib.triangulation` run the very same arithmetic.
+#
+# View v's two rows are ``a = o * p2 - pr`` (``o`` = u with ``pr = p0``, v with
+# ``pr = p1``) on ``[X, Y, Z, 1]``. Each row is divided by ``|a[:3]|`` and scaled
+# by ``sqrt(w)``, and the point solves the 3x3 normal equations ``M X = b`` with
+# ``M = sum s a3 a3^T``, ``b = -sum s a3 a[3]``, ``s = w / |a3|^2``. Both are
+# quadratic in ``o``: ``s a3 a3^T = (s o^2) p2 p2^T - (s o)(p2 pr^T + pr p2^T) +
+# s pr pr^T``. So every view's contribution is the feature vector
+# ``(s o^2, s o, s)`` for both rows times a constant (6, 9) matrix of the camera,
+# and the whole system is one matrix product.
+
+DLT_TERMS = ("m00", "m01", "m02", "m11", "m12", "m22", "b0", "b1", "b2")
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def dlt_camera_constants(xp, pmats):
+    """Per-view constants of the DLT normal equations.
+
+    Parameters
+    ----------
+    xp
+        ``numpy`` or ``jax.numpy``.
+    pmats
+        ``(V, 3, 4)``.
+
+    Returns
+    -------
+    quad : array
+        ``(V, 6, 9)``: maps a view's features ``(s u^2, s u, s, s v^2, s v, s)``
+        to its contribution to ``DLT_TERMS``.
+    norm : array
+        ``(V, 2, 3)``: ``|a3|^2 = c0 o^2 + c1 o + c2`` per row.
+    """
+    pmats = xp.asarray(pmats, dtype=xp.float64)
+    p2 = pmats[:, 2]
+    blocks, norms = [], []
+    for r in (0, 1):
+        pr = pmats[:, r]
+        by_power = []
+        for lhs, rhs, sign in (((p2, p2), None, 1.0), ((p2, pr), (pr, p2), -1.0), ((pr, pr), None, 1.0)):
+            def outer(x, y):
+                return [x[:, i] * y[:, j] for i, j in _UPPER] + [-x[:, i] * y[:, 3] for i in range(3)]
+
+            cols = outer(*lhs)
+            if rhs is not None:
+                cols = [c + d for c, d in zip(cols, outer(*rhs))]
+            by_power.append(xp.stack([sign * c for c in cols], axis=-1))  # (V, 9)
+        blocks.append(xp.stack(by_power, axis=1))  # (V, 3, 9)
+        p2_3, pr_3 = p2[:, :3], pr[:, :3]
+        norms.append(
+            xp.stack(
+                [xp.sum(p2_3 * p2_3, axis=-1), -2.0 * xp.sum(p2_3 * pr_3, axis=-1), xp.sum(pr_3 * pr_3, axis=-1)],
+                axis=-1,
+            )
+        )
+    return xp.concatenate(blocks, axis=1), xp.stack(norms, axis=1)
+
+
+def dlt_features(xp, pts2d, norm, weights=None):
+    """Per-observation DLT features.
+
+    Parameters
+    ----------
+    pts2d
+        ``(V, N, 2)`` pixels, NaN = missing.
+    norm
+        ``(V, 2, 3)`` from :func:`dlt_camera_constants`.
+    weights
+        Optional ``(V, N)``; non-finite or non-positive drops the view.
+
+    Returns
+    -------
+    features : array
+        ``(6, V, N)``, zero for dropped views.
+    valid : array
+        ``(V, N)`` bool.
+    """
+    pts2d = xp.asarray(pts2d, dtype=xp.float64)
+    u, v = pts2d[..., 0], pts2d[..., 1]
+    valid = xp.isfinite(u) & xp.isfinite(v)
+    if weights is None:
+        w = xp.where(valid, 1.0, 0.0)
+    else:
+        w = xp.asarray(weights, dtype=xp.float64)
+        w = xp.where(valid & xp.isfinite(w) & (w > 0), w, 0.0)
+        valid = w > 0
+    feats = []
+    for r, obs in enumerate((u, v)):
+        obs = xp.where(valid, obs, 0.0)
+        c = norm[:, r]
+        norm_sq = (c[:, 0:1] * obs + c[:, 1:2]) * obs + c[:, 2:3]
+        s = w / xp.where(norm_sq > 0, norm_sq, 1.0)
+        so = s * obs
+        feats += [so * obs, so, s]
+    return xp.stack(feats), valid
+
+
+def dlt_solve_terms(xp, terms, n_valid, min_views=2):
+    """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``.
+
+    NaN where fewer than ``min_views`` views took part or the system is
+    (numerically) singular.
+    """
+    return xp.stack(dlt_solve_components(xp, terms, n_valid, min_views), axis=-1)
+
+
+def dlt_solve_components(xp, terms, n_valid, min_views=2):
+    """:func:`dlt_solve_terms` returning the coordinates ``(x, y, z)`` separately."""
+    m00, m01, m02, m11, m12, m22, b0, b1, b2 = (terms[i] for i in range(9))
+    c00 = m11 * m22 - m12 * m12
+    c01 = m02 * m12 - m01 * m22
+    c02 = m01 * m12 - m02 * m11
+    c11 = m00 * m22 - m02 * m02
+    c12 = m01 * m02 - m00 * m12
+    c22 = m00 * m11 - m01 * m01
+    det = m00 * c00 + m01 * c01 + m02 * c02
+    trace = m00 + m11 + m22
+    ok = (n_valid >= min_views) & (det > 1e-12 * trace * trace * trace)
+    inv_det = xp.where(ok, 1.0 / xp.where(ok, det, 1.0), xp.nan)
+    x = (c00 * b0 + c01 * b1 + c02 * b2) * inv_det
+    y = (c01 * b0 + c11 * b1 + c12 * b2) * inv_det
+    z = (c02 * b0 + c12 * b1 + c22 * b2) * inv_det
+    return x, y, z
+
+
+def dlt_solve(xp, pts2d, pmats, weights=None):
+    """Weighted NaN-aware DLT with array module ``xp`` (see :func:`flylib.geometry.triangulate_dlt`)."""
+    pts2d = xp.asarray(pts2d, dtype=xp.float64)
+    n_views = pts2d.shape[0]
+    pts_shape = pts2d.shape[1:-1]
+    flat = xp.reshape(pts2d, (n_views, -1, 2))
+    w = None if weights is None else xp.reshape(xp.asarray(weights, dtype=xp.float64), (n_views, -1))
+    quad, norm = dlt_camera_constants(xp, pmats)
+    feats, valid = dlt_features(xp, flat, norm, w)
+    terms = xp.einsum("fvn,vfk->kn", feats, quad)
+    out = dlt_solve_terms(xp, terms, xp.sum(valid, axis=0))
+    return xp.reshape(out, (*pts_shape, 3))
