@@ -239,6 +239,16 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
     assert {("pose2d", "recA"), ("pictorial_structures", "recA")} <= planned(tmp_path, config)
 
 
+def test_reconstructing_without_pose2d_skips_recordings_missing_their_2d(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["pipeline"].update(do_pose2d=False, do_pictorial_structures=True)
+    proc = snakemake(workspace["root"], "--dry-run", config=config)
+    text = proc.stdout + proc.stderr
+    for name in ("recA", "recB"):  # 2D exists, candidates do not (imported 2D keeps none)
+        assert f"{name}/flylib_outputs/stages/candidates_k5.h5 missing; skipping" in text
+    assert [rule for rule, _ in _JOB.findall(text) if rule != "all"] == []  # nothing to run
+
+
 def test_report_holds_every_recordings_figure_and_videos(workspace):
     root = workspace["root"]
     snakemake(root, "--report", str(root / "report.zip"), config=workspace["config"])

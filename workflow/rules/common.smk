@@ -168,8 +168,8 @@ def _missing_pose2d(rec) -> bool:
 for _rec in RECORDINGS:
     if _missing_pose2d(_rec):
         logger.warning(
-            f"{_rec.id}: pipeline.do_pose2d is false and {' and '.join(_absent_2d(_rec))} "
-            "do(es) not exist; skipping this recording (turn pose2d on to create it)"
+            f"{_rec.id}: pipeline.do_pose2d is false and {', '.join(_absent_2d(_rec))} "
+            "missing; skipping this recording (turn pose2d on to create it)"
         )
 
 
