@@ -396,6 +396,18 @@ def test_summary_figure_writes_a_png(tmp_path, df3d_result):
     assert bare_png.shape == (380, 560, 3)
 
 
+def test_per_frame_median_matches_numpy_nanmedian():
+    from flylib.visualization.summary import _row_nanmedian
+
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(400, 9))
+    rows[rng.random(rows.shape) < 0.4] = np.nan
+    rows[3] = np.nan  # no observation at all in a frame
+    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+        expected = np.nanmedian(rows, axis=1)
+    np.testing.assert_array_equal(_row_nanmedian(rows), expected)
+
+
 def test_trajectory_points_are_the_leg_tips():
     skel = Skeleton.from_config(Config.default())
     names = [skel.point_names[i] for i in trajectory_points(skel)]
