@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse
 from scipy.optimize import OptimizeResult, least_squares
 
+from .. import camera_model, geometry  # geometry: JAX, float64 on the CPU, the compile cache
 from .params import ParamLayout
 
 # Observations go through the kernel in fixed-size chunks: one compilation serves every
@@ -32,7 +33,6 @@ _CHUNK = 2048
 @lru_cache(maxsize=None)
 def _jacobian_kernel():
     """Jitted ``(points (M,3), camera rows (M,C)) -> (projections, d/dpoint, d/drow)``."""
-    from .. import geometry  # enables float64 on the CPU before anything is traced
     import jax
 
     def project_row(pt, row):
@@ -59,17 +59,15 @@ def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
     The NumPy twin of :func:`flylib.geometry.project_full_one` (same pinhole + OpenCV
     distortion model): residuals need no JIT compilation, only the Jacobian does.
     """
-    from .. import geometry
-
     if pts.shape[0] == 0:
         return np.zeros((0, 2))
-    cam = np.einsum("mij,mj->mi", geometry.rvec_to_rmat_numpy(rows[:, 0:3]), pts) + rows[:, 3:6]
+    cam = np.einsum("mij,mj->mi", camera_model.rvec_to_rmat_numpy(rows[:, 0:3]), pts) + rows[:, 3:6]
     x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
     dist = rows[:, 10:]
     if dist.shape[1] and np.any(dist):
-        d = np.zeros((len(rows), geometry.N_DIST_COEFFS))
+        d = np.zeros((len(rows), camera_model.N_DIST_COEFFS))
         d[:, : dist.shape[1]] = dist
-        radial, add_x, add_y = geometry._distortion_terms(x, y, d.T)
+        radial, add_x, add_y = camera_model.distortion_terms(x, y, d.T)
         x, y = x * radial + add_x, y * radial + add_y
     return np.stack([rows[:, 6] * x + rows[:, 8], rows[:, 7] * y + rows[:, 9]], axis=-1)
 
