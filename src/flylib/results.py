@@ -14,7 +14,6 @@ Every write goes to a temporary sibling first and is renamed into place on succe
 from __future__ import annotations
 
 import json
-import os
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -29,6 +28,7 @@ import numpy as np
 
 from .errors import ResultsError
 from .paths import atomic_path
+from .resources import usable_cpus
 from .skeleton import Skeleton
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -67,7 +67,7 @@ _CHUNK_BYTES = 1024 * 1024
 # chunks are deflated on threads (see _write_deflated_chunks): LZF would write faster
 # on one core but only h5py reads it.
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
-_DEFLATE_THREADS = min(8, os.cpu_count() or 1)
+_DEFLATE_THREADS = min(8, usable_cpus())
 
 
 

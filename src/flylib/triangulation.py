@@ -21,7 +21,6 @@ order is accepted too.
 from __future__ import annotations
 
 import logging
-import os
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from itertools import combinations, pairwise
@@ -31,6 +30,7 @@ import numpy as np
 from . import camera_model
 from .cameras import CameraGroup
 from .errors import ConfigError
+from .resources import usable_cpus
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ METHODS = ("ransac", "greedy", "dlt")
 DEFAULT_CHUNK_POINTS = 4096
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
 _CHUNKS_IN_FLIGHT = 4
-_RANSAC_THREADS = min(4, os.cpu_count() or 1)
+_RANSAC_THREADS = min(4, usable_cpus())
 
 
 # -- input handling --------------------------------------------------------------

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import glob
-import os
 import re
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -12,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FootageError
+from ..resources import usable_cpus
 from .base import IMAGE_EXTS, FrameReader, as_rgb_uint8
 
 _DIGITS = re.compile(r"(\d+)")
@@ -52,7 +52,7 @@ def list_image_files(pattern: str | Path) -> list[Path]:
 
 
 def _default_workers() -> int:
-    return max(1, min(8, os.cpu_count() or 1))
+    return min(8, usable_cpus())
 
 
 class ImageSequenceReader(FrameReader):
