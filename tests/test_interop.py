@@ -500,3 +500,25 @@ def test_import_spec_validation(tmp_path):
         import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": ["480", 960]})
     with pytest.raises(ImportFormatError, match=r"placeholder"):
         import_points2d(config, tmp_path, {"format": "dlc_csv", "files": "camera_*.csv"})
+
+
+def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp_path):
+    # a glob source pattern must not pick up DeepLabCut's CSV written beside the video
+    from flylib import io
+    from flylib.interop.views import footage_files, read_frame_count, read_frame_size
+
+    config = rig_config(["a", "b"])
+    config["sources"] = [{"name": "vid_a", "filename": "camera_0*"}, {"name": "vid_b", "filename": "cam_b/*"}]
+    with io.VideoWriter(tmp_path / "camera_0.mp4", fps=10) as writer:
+        writer.write_frames(np.zeros((3, 32, 48, 3), np.uint8))
+    (tmp_path / "camera_0DLC_resnet50_flyJan1shuffle1_1000.csv").write_text("scorer\n")
+    (tmp_path / "cam_b").mkdir()
+    for i in (10, 9, 1):
+        cv2.imwrite(str(tmp_path / "cam_b" / f"img{i}.png"), np.zeros((20, 30, 3), np.uint8))
+    (tmp_path / "cam_b" / "notes.txt").write_text("not a frame")
+    footage = footage_files(config, tmp_path)
+    assert footage == {"a": [tmp_path / "camera_0.mp4"],
+                       "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (1, 9, 10)]}
+    assert read_frame_count(footage["a"]) == 3 and read_frame_count(footage["b"]) == 3
+    assert read_frame_size(footage["a"][0]) == (32, 48)
+    assert read_frame_size(footage["b"][0]) == (20, 30)

@@ -133,7 +133,8 @@ def video_frame_count(path: Path) -> int | None:
     return int(n) if n and n > 0 else None
 
 
-def _matches(directory: Path, pattern: str) -> list[Path]:
+def footage_matches(directory: Path, pattern: str) -> list[Path]:
+    """Footage files (video or image extensions) matching ``pattern`` in ``directory``."""
     hits = [Path(p) for p in glob.glob(os.path.join(glob.escape(str(directory)), pattern))]
     return [p for p in hits if p.is_file() and p.suffix.lower() in FOOTAGE_EXTS]
 
@@ -188,7 +189,7 @@ def find_recording(
     if not directory.is_dir():
         reject(f"{directory}: is not a directory")
         return None
-    matched = {name: _matches(directory, pat) for name, pat in patterns.items()}
+    matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
     missing = [f"{name} ({patterns[name]!r})" for name, files in matched.items() if not files]
     if missing:
         reject(f"{directory}: no footage for source(s) {', '.join(missing)}; "

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ImportFormatError
+from ..recordings import source_patterns
 from . import views as _views
 from .df3d import FLY38_POINT_NAMES, df3d_joint_to_fly38, read_df3d_points2d
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
@@ -140,11 +141,7 @@ def _view_files(spec: dict, config, recording_dir: Path, views: list[str]) -> di
             "{source} or {stem} placeholder, or a mapping {view: path}"
         )
     sources = _views.view_sources(config)
-    patterns = {
-        s.get("name"): s.get("filename", s.get("name"))
-        for s in _views.config_data(config).get("sources") or []
-        if isinstance(s, dict)
-    }
+    patterns = source_patterns(config) if sources else {}
     out = {}
     for i, v in enumerate(views):
         source = sources.get(v, v)
@@ -218,7 +215,8 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
     if bad:
         raise ImportFormatError(f"pose2d.import.views names unknown views {bad}; configured: {views}")
     sized = [v for v in pickle_views if v is not None]
-    sizes = _views.image_sizes(config, recording_dir, sized, spec.get("image_size"), origin=str(path))
+    footage = _views.footage_files(config, recording_dir)
+    sizes = _views.image_sizes(footage, recording_dir, sized, spec.get("image_size"), origin=str(path))
     default_size = next(iter(sizes.values())) if sizes else (480, 960)
     data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
     if not np.array_equal(data.camera_ordering, np.arange(len(data.camera_ordering))):
@@ -233,7 +231,6 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
         list(range(n_joints)), spec.get("keypoint_map") or {}, points, str(path), default
     )
     n_frames = data.xy.shape[1]
-    footage = _views.footage_files(config, recording_dir)
     _check_frames(
         {v: n_frames for v in sized},
         {v: _views.read_frame_count(footage.get(v, [])) for v in sized},
@@ -285,7 +282,7 @@ def _import_per_view(spec, config, recording_dir, views, points):
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
     sizes = _views.image_sizes(
-        config, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
+        footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
     )
     return pts, conf, sizes
 

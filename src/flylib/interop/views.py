@@ -9,12 +9,11 @@ header is read, never the pixels of a whole video.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
-from ..errors import ImportFormatError
-
-_VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg"}
+from ..errors import FootageError, ImportFormatError
+from ..io import VIDEO_EXTS, open_reader
+from ..recordings import footage_matches, natural_sorted, source_patterns, video_frame_count
 
 
 def config_data(config) -> dict:
@@ -77,44 +76,24 @@ def view_sources(config) -> dict[str, str]:
     return out
 
 
-def _natural_key(path: Path) -> list:
-    return [int(tok) if tok.isdigit() else tok for tok in re.split(r"(\d+)", path.name)]
-
-
 def footage_files(config, recording_dir: Path) -> dict[str, list[Path]]:
-    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none)."""
-    data = config_data(config)
-    patterns = {
-        s.get("name"): s.get("filename", s.get("name"))
-        for s in data.get("sources") or []
-        if isinstance(s, dict)
-    }
-    out: dict[str, list[Path]] = {}
-    for view, source in view_sources(config).items():
-        pattern = patterns.get(source)
-        files = sorted(Path(recording_dir).glob(pattern), key=_natural_key) if pattern else []
-        out[view] = [f for f in files if f.is_file()]
-    return out
+    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none).
+
+    Matched like :func:`flylib.recordings.find_recording` does: only video and image
+    files count, so a DeepLabCut CSV beside ``camera_0.mp4`` is not footage.
+    """
+    sources = view_sources(config)
+    patterns = source_patterns(config) if sources else {}
+    return {view: natural_sorted(footage_matches(Path(recording_dir), patterns[source]))
+            if source in patterns else [] for view, source in sources.items()}
 
 
 def read_frame_size(path: Path) -> tuple[int, int]:
     """``(height, width)`` of a video (from its stream header) or an image file."""
-    path = Path(path)
-    if path.suffix.lower() in _VIDEO_SUFFIXES:
-        import av
-
-        try:
-            with av.open(str(path)) as container:
-                ctx = container.streams.video[0].codec_context
-                return int(ctx.height), int(ctx.width)
-        except (av.error.FFmpegError, IndexError) as exc:
-            raise ImportFormatError(f"{path}: cannot read the video header ({exc})") from exc
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ImportFormatError(f"{path}: cannot read the image to get its frame size")
-    return int(image.shape[0]), int(image.shape[1])
+    try:
+        return open_reader(Path(path)).frame_size()
+    except FootageError as exc:
+        raise ImportFormatError(str(exc)) from exc
 
 
 def read_frame_count(files: list[Path]) -> int | None:
@@ -124,26 +103,24 @@ def read_frame_count(files: list[Path]) -> int | None:
     """
     if not files:
         return None
-    if len(files) > 1 or files[0].suffix.lower() not in _VIDEO_SUFFIXES:
+    if len(files) > 1 or files[0].suffix.lower() not in VIDEO_EXTS:
         return len(files)
-    import av
-
-    with av.open(str(files[0])) as container:
-        frames = int(container.streams.video[0].frames or 0)
-    return frames or None
+    return video_frame_count(files[0])
 
 
 def image_sizes(
-    config, recording_dir: Path | None, views: list[str], fallback=None, *, origin: str
+    footage: dict[str, list[Path]], recording_dir: Path | None, views: list[str], fallback=None,
+    *, origin: str,
 ) -> dict[str, tuple[int, int]]:
-    """Raw frame ``(height, width)`` per view: from the footage, else ``fallback``.
+    """Raw frame ``(height, width)`` per view: from its footage (:func:`footage_files`),
+    else ``fallback``.
 
     Raises
     ------
     ImportFormatError
         When a view has no footage in ``recording_dir`` and no fallback size is set.
     """
-    files = footage_files(config, recording_dir) if recording_dir is not None else {}
+    files = footage
     out: dict[str, tuple[int, int]] = {}
     for view in views:
         if files.get(view):

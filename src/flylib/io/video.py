@@ -52,6 +52,7 @@ class VideoReader(FrameReader):
         self.threads = threads or 0
         self._pts_index: list[int] | None = None
         self._pts_index_read = False
+        self._header_values: dict | None = None
 
     @property
     def name(self) -> str:
@@ -211,52 +212,57 @@ class VideoReader(FrameReader):
 
     # -- header metadata ---------------------------------------------------------
 
+    def _header(self) -> dict:
+        """The stream header's values, read in one open of the container (then cached)."""
+        if self._header_values is None:
+            container, stream = self._open()
+            with container:
+                cc = stream.codec_context
+                rate = stream.average_rate or stream.guessed_rate
+                self._header_values = {
+                    "frames": int(stream.frames or 0),
+                    "fps": float(rate) if rate else None,
+                    "pix_fmt": str(cc.pix_fmt) if cc.pix_fmt else None,
+                    "colorspace": int(getattr(cc, "colorspace", 2) or 2),
+                    "color_range": int(getattr(cc, "color_range", 0) or 0),
+                    "size": (int(cc.height or 0), int(cc.width or 0)),
+                }
+        return self._header_values
+
     def count(self) -> int | None:
         """Frame count from the container header, or ``None`` when it is absent."""
         try:
-            container, stream = self._open()
+            n = self._header()["frames"]
         except FootageError:
             return None
-        with container:
-            n = stream.frames
-        return int(n) if n and n > 0 else None
+        return n if n > 0 else None
 
     def fps(self) -> float | None:
         """Average frame rate from the container header, or ``None`` when absent."""
         try:
-            container, stream = self._open()
+            return self._header()["fps"]
         except FootageError:
             return None
-        with container:
-            rate = stream.average_rate or stream.guessed_rate
-        return float(rate) if rate else None
 
     def pixel_format(self) -> str | None:
         """The decoder's pixel format (e.g. ``"yuv420p"``), or ``None`` when unknown."""
-        container, stream = self._open()
-        with container:
-            fmt = stream.codec_context.pix_fmt
-        return str(fmt) if fmt else None
+        return self._header()["pix_fmt"]
 
     def color_tags(self) -> tuple[str, str]:
         """``(matrix, range)`` of the YUV data: ``"bt709"``/``"bt601"``, ``"full"``/``"limited"``.
 
         Untagged streams are BT.601 limited range, as FFmpeg assumes.
         """
-        container, stream = self._open()
-        with container:
-            cc = stream.codec_context
-            space, rng = int(getattr(cc, "colorspace", 2) or 2), int(getattr(cc, "color_range", 0) or 0)
-        return ("bt709" if space == 1 else "bt601"), ("full" if rng == 2 else "limited")
+        header = self._header()
+        matrix = "bt709" if header["colorspace"] == 1 else "bt601"
+        return matrix, ("full" if header["color_range"] == 2 else "limited")
 
     def frame_size(self) -> tuple[int, int]:
         """``(height, width)`` from the stream header."""
-        container, stream = self._open()
-        with container:
-            h, w = stream.codec_context.height, stream.codec_context.width
+        h, w = self._header()["size"]
         if not h or not w:
             return super().frame_size()
-        return int(h), int(w)
+        return h, w
 
 
 class VideoWriter:

@@ -253,7 +253,7 @@ def run_detection(
                            pin=pin, raw_yuv=raw_yuv)
         for s in active
     }
-    total = prefetchers[active[0]].reader.count() if active else None
+    total = prefetchers[active[0]].reader.count() if active and progress else None
     bar = _make_progress(progress, total)
     frame_sizes: dict[str, tuple[int, int]] = {}
     pts_parts, conf_parts, cxy_parts, cscore_parts = [], [], [], []
