@@ -203,6 +203,18 @@ def test_group_triangulate_handles_distortion_exactly():
     group = CameraGroup.from_arrays(list("abcd"), rvecs, tvecs, intrs, dists)
     pts = rng.uniform(-1, 1, size=(6, 3))
     np.testing.assert_allclose(group.triangulate(group.project(pts)), pts, atol=1e-10)
+    with pytest.raises(ValueError, match="3 views on axis 0 but the rig has 4"):
+        group.triangulate(group.project(pts)[:3])
+    # rays through distorted pixels: the NumPy path against the JAX kernel (fixed point
+    # + Newton), and back through the lens onto the pixel
+    from flylib import geometry
+
+    for cam, pixel in zip(group, group.project(pts[0])):
+        origin, direction = cam.backproject_ray(pixel)
+        ref_origin, ref_direction = geometry.backproject_ray_one(pixel, cam.rvec, cam.tvec, cam.intr, cam.dist)
+        np.testing.assert_allclose(origin, ref_origin, atol=1e-12)
+        np.testing.assert_allclose(direction, ref_direction, rtol=1e-10)
+        np.testing.assert_allclose(cam.project(origin + 3.0 * direction), pixel, atol=1e-8)
 
 
 def test_backproject_ray_through_group():

@@ -280,6 +280,12 @@ def test_ransac_with_distorted_cameras(rig, scene):
     got, inliers = tri.triangulate_ransac(pts2d, distorted)
     np.testing.assert_allclose(got, pts3d, atol=1e-8)
     assert not inliers[6].any() and inliers[:6].all()
+    # the JAX kernels' distorted paths: DLT on undistorted points, greedy's raw-image errors
+    clean = distorted.project(pts3d)
+    np.testing.assert_allclose(tri.triangulate(clean, distorted), pts3d, atol=1e-8)
+    greedy, kept = tri.triangulate_greedy(pts2d, distorted, reproj_threshold=20.0)
+    np.testing.assert_allclose(greedy, pts3d, atol=1e-8)
+    assert not kept[6].any() and kept[:6].all()
 
 
 # -- greedy ----------------------------------------------------------------------------------------

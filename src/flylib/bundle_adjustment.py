@@ -32,6 +32,7 @@ from scipy.optimize import OptimizeResult
 from .ba.params import build_layout
 from .ba.sampling import FRAME_SAMPLING, select_frames
 from .ba.solver import Problem, project_rows
+from .camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
 from .errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -198,7 +199,7 @@ def bundle_adjust(
         pts[keep_points] = sub
         if not reject_outliers or rounds == max_rounds:
             break
-        err = _errors(table, pts, pts2d, view_idx, point_idx)
+        err = _errors(table, pts, view_idx, point_idx, pts2d[view_idx, point_idx])
         med = np.nanmedian(err[active[view_idx, point_idx]])
         threshold = max(outlier_min_px, outlier_factor * med)
         new_active = np.zeros_like(active)
@@ -213,7 +214,8 @@ def bundle_adjust(
     if canonical_gauge and layout.extrinsics_free:
         table, pts = _align_gauge(table0, table, pts)
     refined = _cameras_from_table(cameras.names, table)
-    final_err = _errors(table, pts, pts2d, *np.nonzero(active))
+    final_view, final_point = np.nonzero(active)
+    final_err = _errors(table, pts, final_view, final_point, pts2d[final_view, final_point])
     result.initial_median_px = float(initial_median)
     result.final_median_px = float(np.nanmedian(final_err)) if final_err.size else float("nan")
     result.inliers = active
@@ -264,18 +266,18 @@ def _make_problem(table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bo
     return problem, keep_points
 
 
-def _errors(table, pts, pts2d, view, point):
+def _errors(table, pts, view, point, xy):
+    """Reprojection error (pixels) of observations ``xy`` of ``pts[point]`` in ``view``."""
     if view.size == 0:
         return np.zeros(0)
     proj = project_rows(np.nan_to_num(pts[point]), table[view])
-    err = np.linalg.norm(proj - pts2d[view, point], axis=1)
+    err = np.linalg.norm(proj - xy, axis=1)
     return np.where(np.isfinite(pts[point]).all(axis=1), err, np.nan)
 
 
 def _median_error(problem: Problem, x: np.ndarray) -> float:
     table, pts = problem.unpack(x)
-    return float(np.median(problem.observation_errors(table, pts, problem.view, problem.point,
-                                                      problem.xy)))
+    return float(np.median(_errors(table, pts, problem.view, problem.point, problem.xy)))
 
 
 def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
@@ -283,11 +285,9 @@ def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
 
     Returns ``(2V, 3)``: centres first, then the viewing targets.
     """
-    import cv2
-
-    rmats = [cv2.Rodrigues(r)[0] for r in table[:, 0:3]]
-    centres = np.stack([-rm.T @ t for rm, t in zip(rmats, table[:, 3:6])])
-    targets = np.stack([c + d * rm[2] for c, d, rm in zip(centres, depths, rmats)])
+    rmats = rvec_to_rmat_numpy(table[:, 0:3])
+    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
+    targets = centres + depths[:, None] * rmats[:, 2]
     return np.concatenate([centres, targets])
 
 
@@ -302,8 +302,6 @@ def _align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
     ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
     ``t_c' = s t_c - R_c' t`` (projections are unchanged).
     """
-    import cv2
-
     if len(table) < 2:
         return table, pts
     depths = np.linalg.norm(table0[:, 3:6], axis=1)
@@ -319,9 +317,9 @@ def _align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
     scale = np.trace(np.diag(sig) @ d) / var_s
     shift = mu_d - scale * rot @ mu_s
     out = table.copy()
-    for v in range(len(table)):
-        rc = cv2.Rodrigues(table[v, 0:3])[0] @ rot.T
-        out[v, 0:3] = cv2.Rodrigues(rc)[0].ravel()
+    for v, rmat in enumerate(rvec_to_rmat_numpy(table[:, 0:3])):
+        rc = rmat @ rot.T
+        out[v, 0:3] = rmat_to_rvec_numpy(rc)
         out[v, 3:6] = scale * table[v, 3:6] - rc @ shift
     return out, (scale * pts @ rot.T + shift)
 

@@ -293,13 +293,14 @@ class Camera:
         )[0]
 
     def backproject_ray(self, pixel) -> tuple[np.ndarray, np.ndarray]:
-        """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre."""
-        from . import geometry  # JAX: imported only where a ray is asked for
+        """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre.
 
-        origin, direction = geometry.backproject_ray_one(
-            np.asarray(pixel, dtype=np.float64), self.rvec, self.tvec, self.intr, self.dist
-        )
-        return np.asarray(origin), np.asarray(direction)
+        The NumPy counterpart of :func:`flylib.geometry.backproject_ray_one`.
+        """
+        fx, fy, cx, cy = self.intr
+        norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
+        x, y = camera_model.undistort_normalized(norm, self.dist)
+        return self.position, self.rmat.T @ np.array([x, y, 1.0])
 
 
 def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
@@ -533,9 +534,9 @@ class CameraGroup:
         np.ndarray
             ``(*pts, 3)``; NaN below two views.
         """
-        pts2d = self.undistort_points(pts2d)
+        pts2d = np.asarray(pts2d, dtype=np.float64)
         self._check_views(pts2d)
-        return camera_model.dlt_solve(np, pts2d, self.pmats, weights)
+        return camera_model.dlt_solve(np, self.undistort_points(pts2d), self.pmats, weights)
 
     def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
         """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""

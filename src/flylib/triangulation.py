@@ -94,18 +94,16 @@ class _Rig:
     def __init__(self, cameras: CameraGroup):
         self.n_views = len(cameras)
         self.distorted = bool(np.any(cameras.dists))
-        self.pmats = cameras.pmats
-        quad, norm = camera_model.dlt_camera_constants(np, self.pmats)
-        dists = np.zeros((self.n_views, camera_model.N_DIST_COEFFS))
-        dists[:, : cameras.dists.shape[1]] = cameras.dists
+        pmats = cameras.pmats
+        quad, norm = camera_model.dlt_camera_constants(np, pmats)
         self.arrays = {
-            "pmats": self.pmats,
+            "pmats": pmats,
             "quad": quad,
             "norm": norm,
             "rmats": cameras.rmats,
             "tvecs": cameras.tvecs,
             "intrs": cameras.intrs,
-            "dists": dists,
+            "dists": camera_model.pad_dist_numpy(cameras.dists),
         }
 
 
@@ -144,13 +142,8 @@ def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
         stop = min(start + size, n)
         raw = _padded(raw_all[:, start:stop], size, np.nan)
         und = _padded(und_all[:, start:stop], size, np.nan) if rig.distorted else None
+        # a zero or non-finite weight drops the view inside the kernels (dlt_features)
         w = None if w_all is None else _padded(w_all[:, start:stop], size, 0.0)
-        if w is not None:
-            # A dropped observation (zero / bad weight) is missing everywhere, vote included.
-            drop = ~(np.isfinite(w) & (w > 0))
-            raw = np.where(drop[..., None], np.nan, raw)
-            und = None if und is None else np.where(drop[..., None], np.nan, und)
-            w = np.where(drop, 0.0, w)
         # JAX dispatches asynchronously: keep a few chunks in flight so the kernels
         # overlap with this loop (and with each other on several cores).
         in_flight.append((start, stop, kernel(rig.arrays, raw, und, w, **params)))
@@ -179,9 +172,7 @@ class _RansacViews:
         if self.distorted:
             # Through the camera frame [R | t] and the lens model, as in ``project``.
             rows = np.concatenate([cameras.rmats[views], cameras.tvecs[views, :, None]], axis=2)
-            dists = np.zeros((self.n_sel, camera_model.N_DIST_COEFFS))
-            dists[:, : cameras.dists.shape[1]] = cameras.dists[views]
-            self.dists = dists.T[:, :, None]  # (12, K, 1)
+            self.dists = camera_model.pad_dist_numpy(cameras.dists[views]).T[:, :, None]  # (12, K, 1)
             self.intrs = cameras.intrs[views].T[:, :, None]  # (4, K, 1)
         else:
             rows = pmats[views]
@@ -472,7 +463,6 @@ def triangulate_greedy(
         chunk_points,
         threshold=float(reproj_threshold),
         max_drops=int(max_drops),
-        distorted=bool(np.any(cameras.dists)),
     )
 
 

@@ -7,8 +7,6 @@ workflow job never import JAX; :func:`flylib.triangulation.triangulate` (dlt) an
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 
@@ -62,8 +60,9 @@ def dlt_chunk(rig, raw, und, weights):
     return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
-@partial(jax.jit, static_argnames=("distorted",))
-def greedy_chunk(rig, raw, und, weights, threshold, max_drops, distorted):
+@jax.jit
+def greedy_chunk(rig, raw, und, weights, threshold, max_drops):
+    distorted = und is not None  # the caller undistorts exactly when the rig has distortion
     und = raw if und is None else und
     terms, kept = _view_terms(rig, und, weights)
     n_views = kept.shape[0]

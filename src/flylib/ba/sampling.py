@@ -66,8 +66,8 @@ def _top(score: np.ndarray, k: int) -> np.ndarray:
     """The ``k`` best-scoring frames; equal scores go to evenly spread frames first."""
     n = score.size
     # Secondary key: a bit-reversal-like spread order, so ties don't clump at the start.
-    spread = np.argsort(np.argsort(_spread_order(n)))
-    order = np.lexsort((spread, -score))
+    rank_in_spread = np.argsort(_spread_order(n))  # the spread order is a permutation of frames
+    order = np.lexsort((rank_in_spread, -score))
     return np.sort(order[:k])
 
 

@@ -65,8 +65,7 @@ def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
     x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
     dist = rows[:, 10:]
     if dist.shape[1] and np.any(dist):
-        d = np.zeros((len(rows), camera_model.N_DIST_COEFFS))
-        d[:, : dist.shape[1]] = dist
+        d = camera_model.pad_dist_numpy(dist)
         radial, add_x, add_y = camera_model.distortion_terms(x, y, d.T)
         x, y = x * radial + add_x, y * radial + add_y
     return np.stack([rows[:, 6] * x + rows[:, 8], rows[:, 7] * y + rows[:, 9]], axis=-1)
@@ -242,8 +241,3 @@ class Problem:
             if callable(jac):
                 options["jac"] = lambda x: jac(x).toarray()
         return least_squares(self.residuals, self.pack(table, pts3d), **options)
-
-    def observation_errors(self, table: np.ndarray, pts3d: np.ndarray, view, point, xy):
-        """Unweighted reprojection error (pixels) of arbitrary observations."""
-        proj = project_rows(pts3d[point], table[view])
-        return np.linalg.norm(proj - xy, axis=1)
