@@ -302,13 +302,26 @@ def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
     assert not (rec / "flylib_outputs" / "stages" / "pose2d.h5").exists()
 
 
-def test_invalid_config_is_one_clear_error_before_any_job(tmp_path):
+@pytest.mark.parametrize("edit,message", [
+    (lambda c: c["triangulation"].update(method="magic"), "triangulation.method"),
+    # a video panel is checked before any job, not when the visualization job starts
+    (lambda c: c["visualization"]["videos"][0]["panels"][0].update(view="nope"), "panels[0].view: 'nope'"),
+])
+def test_invalid_config_is_one_clear_error_before_any_job(tmp_path, edit, message):
     config = base_config()
-    config["triangulation"]["method"] = "magic"
+    edit(config)
     proc = snakemake(tmp_path, "--dry-run", config=config, check=False)
     assert proc.returncode != 0
-    assert "triangulation.method" in proc.stdout + proc.stderr
+    assert message in proc.stdout + proc.stderr
     assert not (tmp_path / "demo").exists()
+
+
+def test_schema_accepts_what_flylib_accepts(tmp_path):
+    config = base_config()
+    config["recordings"] = [{"demo": True}]  # no path: the demo's default folder
+    config["visualization"]["background"] = [20, 20, 20]
+    config["visualization"]["videos"][0]["name"] = config["visualization"]["videos"][0].pop("video_name")
+    snakemake(tmp_path, "--dry-run", config=config)
 
 
 def test_empty_batch_is_one_clear_error(tmp_path):

@@ -23,16 +23,7 @@ from flylib.config import Config  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
 from flylib.recordings import plan_recordings  # noqa: E402
-from flylib.stages import ARTIFACTS, candidates_artifact  # noqa: E402
-
-# Validate before any job starts: flylib's own checks first (one line per problem,
-# naming the key and the fix), then the JSON schema as a structural safety net. A
-# copy is validated so the schema's defaults do not leak into what the jobs read.
-try:
-    Config.from_dict(config)
-except FlylibError as exc:
-    raise WorkflowError(str(exc)) from None
-validate(copy.deepcopy(config), str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
+from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact  # noqa: E402
 
 # The config the jobs read: the config file's own bytes when Snakemake's config is
 # exactly that file (so every output directory gets a byte-for-byte snapshot), else
@@ -62,12 +53,19 @@ def _write_effective_config(text: str) -> Path:
 
 EFFECTIVE_CONFIG = _write_effective_config(_effective_config_text())
 
+# Validate before any job starts: flylib's own checks first (one line per problem,
+# naming the key and the fix; the video specs too, so a typo there does not surface
+# hours later in the visualization job), then the JSON schema as a structural safety
+# net. A copy is validated so the schema's defaults do not leak into what jobs read.
+# A cluster job re-parses this file: the footage frame counts were checked already.
 try:
     CONFIG = Config.from_yaml(EFFECTIVE_CONFIG)
     FLAGS = CONFIG.stage_flags()
-    RECORDINGS = plan_recordings(CONFIG)
+    VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
+    RECORDINGS = plan_recordings(CONFIG, check_frames=workflow.is_main_process)
 except FlylibError as exc:
     raise WorkflowError(str(exc)) from None
+validate(copy.deepcopy(config), str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
 
 if sum(r.demo for r in RECORDINGS) > 1:
     raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")
@@ -103,15 +101,10 @@ def recording(wildcards):
     return BY_OUTDIR[wildcards.outdir]
 
 
-_PARAMS_CACHE: dict[str, str] = {}
-
-
 def stage_params(stage: str) -> str:
     """The rule's `params`: the stage's result-affecting config subset, as canonical JSON
     (Snakemake re-runs a job when it changes)."""
-    if stage not in _PARAMS_CACHE:
-        _PARAMS_CACHE[stage] = json.dumps(CONFIG.stage_params(stage), sort_keys=True)
-    return _PARAMS_CACHE[stage]
+    return json.dumps(CONFIG.stage_params(stage), sort_keys=True)
 
 
 def artifact(stage: str) -> str:
@@ -144,12 +137,6 @@ def footage_inputs(wildcards) -> list[str]:
     return [str(f) for f in rec.footage]
 
 
-VIDEO_NAMES = [
-    str(v.get("video_name"))
-    for v in (CONFIG.data.get("visualization") or {}).get("videos") or []
-    if isinstance(v, dict) and v.get("video_name")
-]
-
 
 def _absent_2d(rec) -> list[str]:
     """With pose2d off: the 2D artifacts the later stages need that do not exist."""
@@ -161,29 +148,34 @@ def _absent_2d(rec) -> list[str]:
     return [str(rec.outdir / "stages" / n) for n in needed if not (rec.outdir / "stages" / n).is_file()]
 
 
-def _missing_pose2d(rec) -> bool:
-    return bool(_absent_2d(rec))
+def _skipped_recordings() -> set[str]:
+    """Ids of the recordings left out for missing 2D (each warned about once)."""
+    skipped = set()
+    for rec in RECORDINGS:
+        absent = _absent_2d(rec)
+        if absent:
+            skipped.add(rec.id)
+            logger.warning(
+                f"{rec.id}: pipeline.do_pose2d is false and {', '.join(absent)} "
+                "missing; skipping this recording (turn pose2d on to create it)"
+            )
+    return skipped
 
 
-for _rec in RECORDINGS:
-    if _missing_pose2d(_rec):
-        logger.warning(
-            f"{_rec.id}: pipeline.do_pose2d is false and {', '.join(_absent_2d(_rec))} "
-            "missing; skipping this recording (turn pose2d on to create it)"
-        )
+SKIPPED = _skipped_recordings()
 
 
 def recording_targets(rec) -> list[str]:
     """Every final output of one recording."""
     out = str(rec.outdir)
-    targets = [f"{out}/results.h5", f"{out}/summary.json", f"{out}/summary.png", f"{out}/calibration.toml"]
+    targets = [f"{out}/results.h5", *(f"{out}/{name}" for name in SUMMARY_FILES)]
     if FLAGS["visualization"]:
         targets += [f"{out}/{name}.mp4" for name in VIDEO_NAMES]
     return targets
 
 
 def all_targets() -> list[str]:
-    return [t for rec in RECORDINGS if not _missing_pose2d(rec) for t in recording_targets(rec)]
+    return [t for rec in RECORDINGS if rec.id not in SKIPPED for t in recording_targets(rec)]
 
 
 # -- per-rule input and argument helpers ---------------------------------------
@@ -251,7 +243,7 @@ def assemble_inputs(wildcards) -> dict:
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
     files["calibration"] = calibration_inputs(wildcards)
     if recording(wildcards).demo:
-        files["truth"] = str(DEMO.path / "truth.h5")
+        files["truth"] = str(DEMO.path / _demo_names["truth"][0])
     return files
 
 

@@ -11,12 +11,13 @@ DEMO_FOOTAGE: list[str] = []
 if DEMO is not None:
     try:
         _demo_names = demo_files(CONFIG)
+        _assemble_params = CONFIG.stage_params("assemble")
         _demo_params = json.dumps(
             {
                 "demo": demo_settings(CONFIG),
                 "sources": CONFIG.data.get("sources"),
-                "rig": CONFIG.stage_params("assemble")["rig"],
-                "skeleton": CONFIG.stage_params("assemble")["skeleton"],
+                "rig": _assemble_params["rig"],
+                "skeleton": _assemble_params["skeleton"],
                 "output_points": (CONFIG.data.get("pose2d") or {}).get("output_points"),
             },
             sort_keys=True,
