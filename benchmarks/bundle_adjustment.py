@@ -14,6 +14,7 @@ Run: ``.venv/bin/python benchmarks/bundle_adjustment.py``
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -71,9 +72,12 @@ def first_call_in_fresh_process(label: str, env: dict) -> float:
 
 
 def main() -> None:
-    if sys.argv[1:2] == ["--first-call"]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--first-call", metavar="LABEL", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.first_call:
         start, pts2d, _ = build_problem()
-        run(start, pts2d, sys.argv[2], reject_outliers=False)
+        run(start, pts2d, args.first_call, reject_outliers=False)
         print(f"  (before it, importing flylib.bundle_adjustment took {IMPORT_S:.2f} s)")
         return
     start, pts2d, n_points = build_problem()

@@ -10,6 +10,7 @@ Run: ``.venv/bin/python benchmarks/pictorial.py``
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import time
@@ -31,6 +32,7 @@ N_FRAMES, K, TARGET_FPS = 400, 5, 200.0
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     rig, skeleton = default_rig(), Skeleton.fly()
     truth = synthetic_fly(N_FRAMES, seed=0)
     pts2d, conf = observe(truth, rig, noise_px=1.0, seed=0)

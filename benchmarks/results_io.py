@@ -27,17 +27,13 @@ import h5py
 import numpy as np
 
 from flylib.config import Config
+from flylib.demo import view_visibility
 from flylib.results import PoseResult, Pose2dData, assemble_results, write_stage
 
 
 def visibility(config: Config) -> np.ndarray:
     """``(V, P)``: which (view, point) the default detection plan fills."""
-    views, points = config.view_names(), config.skeleton().point_names
-    seen = np.zeros((len(views), len(points)), bool)
-    for view, table in config.data["pose2d"]["output_points"].items():
-        for point in table:
-            seen[views.index(view), points.index(point)] = True
-    return seen
+    return view_visibility(config, config.view_names(), list(config.skeleton().point_names))
 
 
 def make_arrays(config: Config, n_frames: int, kind: str, rng: np.random.Generator) -> dict:

@@ -17,11 +17,6 @@ def _shared_subdir(name: str) -> Path:
     return path
 
 
-@pytest.fixture(scope="session")
-def repo_root() -> Path:
-    """The repository root."""
-    return REPO_ROOT
-
 
 @pytest.fixture(scope="session")
 def df3d_sample_dir() -> Path:

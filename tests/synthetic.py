@@ -15,35 +15,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from flylib.demo import FLY38_POINTS, synthetic_fly  # noqa: F401  (one motion model)
+from flylib.config import Config
+from flylib.demo import FLY38_POINTS, synthetic_fly, view_visibility  # noqa: F401  (one motion model)
 
 POINT_NAMES = list(FLY38_POINTS)
 
-# Which points each default view sees: the spec's [pose2d.output_points] tables.
-_SIDE = [f"{leg}_{j}" for leg in ("f", "m", "h")
-         for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")]
-_DISTAL = [f"{leg}_{j}" for leg in ("f", "m") for j in ("femur_tibia", "tibia_tarsus", "claw")]
-RIG_VISIBILITY = {
-    "rh": [f"r{p}" for p in _SIDE] + ["r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2"],
-    "rm": [f"r{p}" for p in _SIDE] + ["r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2"],
-    "rf": [f"r{p}" for p in _SIDE] + ["r_antenna"],
-    "f": [f"r{p}" for p in _DISTAL] + ["r_antenna"] + [f"l{p}" for p in _DISTAL] + ["l_antenna"],
-    "lf": [f"l{p}" for p in _SIDE] + ["l_antenna"],
-    "lm": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
-    "lh": [f"l{p}" for p in _SIDE] + ["l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2"],
-}
-
-
 def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:
-    """``(V, P)`` bool: which point each view observes in the default rig.
-
-    A view whose name is not one of the default rig's sees every point.
-    """
-    vis = np.ones((len(view_names), len(point_names)), bool)
-    for v, name in enumerate(view_names):
-        if name in RIG_VISIBILITY:
-            vis[v] = [p in RIG_VISIBILITY[name] for p in point_names]
-    return vis
+    """``(V, P)`` bool: which point each view observes in the default rig (its
+    ``pose2d.output_points`` tables); a view the default config does not name sees
+    every point."""
+    return view_visibility(Config.default(), list(view_names), list(point_names))
 
 
 def project_opencv(cameras, pts3d: np.ndarray) -> np.ndarray:

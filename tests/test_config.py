@@ -451,7 +451,6 @@ def test_schema_rejects_type_errors(schema, data, path, value):
 
 
 def test_camera_group_delegates_to_cameras_module(default):
-    pytest.importorskip("flylib.cameras", reason="flylib.cameras is not written yet")
     rig = default.camera_group(image_sizes={name: (480, 960) for name in default.view_names()})
     assert list(rig.names) == default.view_names()
 
@@ -480,7 +479,7 @@ def test_least_squares_option_list_matches_scipy():
 def test_pictorial_params_are_keywords_of_the_reconstructor(data):
     import inspect
 
-    pictorial = pytest.importorskip("flylib.pictorial", reason="flylib.pictorial is not written yet")
+    from flylib import pictorial
     data["pictorial_structures"].update(max_hyp=50, inlier_px=20.0, huber=3.0, mu=0.5, nms=2.0, bone_max_frames=None)
     kwargs = Config.from_dict(data).pictorial.solver_kwargs()
     assert set(kwargs) == {"temporal", "lam", "bone_max_frames", "max_hyp", "inlier_px", "huber", "mu", "nms"}

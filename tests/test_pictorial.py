@@ -91,13 +91,12 @@ def scene():
 
 
 def test_clean_candidates_change_nothing(scene):
-    from flylib.triangulation import triangulate
-
-    rig, skeleton, _, pts2d, cand = scene
+    rig, skeleton, truth, pts2d, cand = scene
     pts3d, committed, reproj = ps.reconstruct(rig, skeleton, cand)
     np.testing.assert_array_equal(committed, pts2d)
-    np.testing.assert_allclose(pts3d, triangulate(pts2d, rig), rtol=0, atol=1e-9)
     assert np.nanmax(reproj) < 5.0
+    # 1 px at focal 22,388 px and distance 107 is ~0.005 units: the 3D is the truth
+    assert np.nanmedian(np.linalg.norm(pts3d - truth, axis=-1)) < 0.02
 
 
 @pytest.mark.parametrize("temporal", [False, True])

@@ -244,6 +244,9 @@ def test_pose2d_data_round_trips_with_candidates(tmp_path, skeleton):
     np.testing.assert_array_equal(back.pts2d, data.pts2d)
     np.testing.assert_array_equal(back.conf, data.conf)
     assert back.view_names == VIEWS and back.image_sizes == {v: (480, 960) for v in VIEWS}
+    from flylib.results import read_image_sizes
+
+    assert read_image_sizes(path) == back.image_sizes  # attributes only, no arrays read
     assert type(back.candidates).__name__ == "Candidates"
     np.testing.assert_array_equal(back.candidates.xy, data.candidates.xy)
     np.testing.assert_array_equal(back.candidates.score, data.candidates.score)

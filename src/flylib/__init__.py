@@ -36,7 +36,7 @@ _EXPORTS: dict[str, str] = {
     "write_stage": "results",
     "read_stage": "results",
     "assemble_results": "results",
-    "atomic_path": "results",
+    "atomic_path": "paths",
     # cameras / skeleton / results
     "Camera": "cameras",
     "CameraGroup": "cameras",

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ConfigError
+from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
 
 log = logging.getLogger(__name__)
@@ -52,12 +53,7 @@ DLC_SCORER = "flylibdemo"
 
 _JOINTS = ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")
 #: fly38 point order (left side 0-18, right side 19-37), as in the default skeleton.
-FLY38_POINTS: tuple[str, ...] = (
-    *(f"{leg}_{j}" for leg in ("lf", "lm", "lh") for j in _JOINTS),
-    "l_antenna", "l_abdomen0", "l_abdomen1", "l_abdomen2",
-    *(f"{leg}_{j}" for leg in ("rf", "rm", "rh") for j in _JOINTS),
-    "r_antenna", "r_abdomen0", "r_abdomen1", "r_abdomen2",
-)
+FLY38_POINTS: tuple[str, ...] = FLY38_POINT_NAMES
 
 # Leg geometry in world units of the default rig (about millimetres).
 _SEGMENTS = np.array([0.30, 0.70, 0.65, 0.55])  # coxa, femur, tibia, tarsus

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .config.constants import TRIANGULATION_METHODS
 from .errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -15,7 +16,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 BUNDLE_ADJUST_DEFAULTS = {"fixed": ("*.intr",), "max_frames": 200, "frame_sampling": "even"}
 
 

@@ -88,7 +88,7 @@ def source_patterns(config: Any) -> dict[str, str]:
     Parameters
     ----------
     config
-        A ``Config`` (its ``source_patterns()``) or a plain config mapping with a
+        A ``Config`` or a plain config mapping with a
         ``sources`` list of ``{name, filename?}``.
 
     Returns
@@ -96,9 +96,6 @@ def source_patterns(config: Any) -> dict[str, str]:
     dict of str to str
         In config order. A source without ``filename`` uses its name as the pattern.
     """
-    method = getattr(config, "source_patterns", None)
-    if callable(method):
-        return dict(method())
     data = getattr(config, "data", config)
     out: dict[str, str] = {}
     for i, entry in enumerate(data.get("sources") or []):

@@ -46,6 +46,7 @@ __all__ = [
     "read_cameras",
     "read_meta",
     "read_skeleton",
+    "read_image_sizes",
     "read_stage",
     "save_candidates",
     "write_stage",
@@ -305,6 +306,22 @@ def read_cameras(path: str | Path, group: str) -> CameraGroup:
         return _read_cameras(f[f"{group}/cameras"])
 
 
+def read_image_sizes(path: str | Path) -> dict[str, tuple[int, int]]:
+    """``view -> (height, width)`` of a pose2d artifact or results file, without
+    reading its arrays.
+
+    Raises
+    ------
+    ResultsError
+        If the file is missing, of another version, or has no pose2d group.
+    """
+    with open_checked(path, "re-run the pose2d stage") as f:
+        if "pose2d" not in f:
+            raise ResultsError(f"{path}: has no pose2d group; re-run the pose2d stage")
+        sizes = _read_json_attrs(f["pose2d"]).get("image_sizes") or {}
+    return {str(k): (int(v[0]), int(v[1])) for k, v in sizes.items()}
+
+
 # -- the assembled result ------------------------------------------------------
 
 
@@ -476,24 +493,9 @@ class PoseResult:
 # -- the pose2d artifact -------------------------------------------------------
 
 
-@dataclass
-class _RawCandidates:
-    """Stand-in for ``flylib.pictorial.Candidates`` when that module cannot be imported."""
-
-    xy: np.ndarray
-    score: np.ndarray
-
-    @property
-    def shape(self) -> tuple[int, int, int, int]:
-        v, t, p, k, _ = self.xy.shape
-        return v, t, p, k
-
-
 def _make_candidates(xy: np.ndarray, score: np.ndarray) -> Any:
-    try:
-        from .pictorial import Candidates
-    except ImportError:
-        return _RawCandidates(xy=xy, score=score)
+    from .pictorial import Candidates
+
     return Candidates(xy=xy, score=score)
 
 

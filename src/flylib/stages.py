@@ -243,17 +243,16 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
         The summary written to ``summary.json``.
     """
     from .interop.anipose import write_anipose_toml
-    from .results import FORMAT_VERSION, PoseResult, Pose2dData, assemble_results
+    from .results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
     from .visualization import summary_figure
 
     outdir = Path(outdir)
     stage_files = {k: Path(v) for k, v in stage_files.items() if v}
     if "pose2d" not in stage_files:
         raise ResultsError("assemble: no pose2d artifact given; every result starts from 2D keypoints")
-    pose2d = Pose2dData.load(stage_files["pose2d"])
-    sizes = _image_sizes(pose2d)
+    sizes = read_image_sizes(stage_files["pose2d"])  # the arrays are copied, never loaded, here
     rig = config_rig(config, sizes, recording_dir)
-    meta = {"recording": str(recording_dir) if recording_dir else None, "stages": sorted(stage_files)}
+    meta = {"recording": str(recording_dir) if recording_dir else None}
     results_path = outdir / "results.h5"
     assemble_results(results_path, skeleton=config.skeleton(), config_rig=rig,
                      stage_files=stage_files, meta=meta)

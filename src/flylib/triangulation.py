@@ -29,12 +29,12 @@ import numpy as np
 
 from . import camera_model
 from .cameras import CameraGroup
+from .config.constants import TRIANGULATION_METHODS
 from .errors import ConfigError
 from .resources import usable_cpus
 
 log = logging.getLogger(__name__)
 
-METHODS = ("ransac", "greedy", "dlt")
 DEFAULT_CHUNK_POINTS = 4096
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
 _CHUNKS_IN_FLIGHT = 4
@@ -556,7 +556,7 @@ def reconstruct(pts2d, cameras, method: str = "ransac", conf=None, **params):
     pts3d, pts2d_clean, reproj_error
     """
     if method not in _PARAMS:
-        raise ValueError(f"unknown triangulation method {method!r}; use one of {METHODS}")
+        raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
     if "ransac_threshold" in params:
         params.setdefault("threshold", params.pop("ransac_threshold"))
     common = {k: params[k] for k in ("weigh_by_confidence", "chunk_points", "weights") if k in params}
@@ -594,8 +594,8 @@ def reconstruct_from_config(config, pts2d, cameras, conf=None):
         return getattr(params, name, default)
 
     method = get("method", "ransac")
-    if method not in METHODS:
-        raise ConfigError(f"triangulation.method must be one of {list(METHODS)}, got {method!r}")
+    if method not in TRIANGULATION_METHODS:
+        raise ConfigError(f"triangulation.method must be one of {list(TRIANGULATION_METHODS)}, got {method!r}")
     log.info("triangulating with %s", method)
     return reconstruct(
         pts2d,

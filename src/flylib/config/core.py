@@ -369,8 +369,15 @@ class Config:
         """Each footage source's glob (``sources[].name -> filename``), in config order.
 
         A source without ``filename`` uses its name as the pattern.
+
+        Raises
+        ------
+        ConfigError
+            If the config lists no sources.
         """
-        return {s["name"]: s.get("filename", s["name"]) for s in self.data.get("sources") or []}
+        from ..recordings import source_patterns
+
+        return source_patterns(self)
 
     def skeleton(self) -> Skeleton:
         """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
@@ -421,7 +428,7 @@ class Config:
         Path
             The snapshot file.
         """
-        from ..results import atomic_path
+        from ..paths import atomic_path
 
         fmt = self.format if self.text is not None else "yaml"
         target = Path(outdir) / f"config.{fmt}"

@@ -16,10 +16,7 @@ import numpy as np
 from ..errors import ImportFormatError
 from ._h5 import open_foreign_h5
 from .dlc import ViewKeypoints
-
-
-def _decode(names) -> list[str]:
-    return [n.decode() if isinstance(n, bytes) else str(n) for n in np.asarray(names).ravel()]
+from .dlc import _text as _decode
 
 
 def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypoints:

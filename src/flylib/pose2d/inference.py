@@ -8,7 +8,6 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import torch
 
 from ..errors import ConfigError
@@ -228,8 +227,3 @@ def load_models(
         log.info("model %s on %s (%s, batch %d%s)", name, dev, models[name].precision, batch,
                  ", compiled" if compiled else "")
     return models
-
-
-def heatmaps_to_numpy(t: torch.Tensor) -> np.ndarray:
-    """A device tensor as float64 NumPy."""
-    return t.detach().to("cpu", torch.float64).numpy()

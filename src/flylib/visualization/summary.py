@@ -46,7 +46,7 @@ def summary_figure(result, path, *, dpi: int = 100) -> Path:
     """
     from matplotlib.figure import Figure
 
-    from ..results import atomic_path
+    from ..paths import atomic_path
 
     path = Path(path)
     fig = Figure(figsize=(14, 9.5), dpi=dpi, layout="constrained")
