@@ -40,6 +40,9 @@ Size = tuple[int, int]  # (height, width)
 SUBPIXEL_METHODS = ("weighted", "argmax", "taylor", "parabola")
 #: The seed system's default: the intensity-weighted centroid of the 5x5 window.
 DEFAULT_SUBPIXEL = "weighted"
+#: How heatmap cells become raw pixels (part of pose2d's stage parameters, so 2D
+#: detected under an earlier convention is recomputed, never reused).
+DECODING_CONVENTION = "deepfly2d-normalized-cells"
 
 
 # ---------------------------------------------------------------------------
