@@ -193,6 +193,20 @@ def test_fewer_stack_checkpoints_in_the_released_layout_load_strictly(sh8_manife
     assert len(out) == n and all(o.shape == (1, 19, 16, 32) for o in out)
 
 
+def test_a_checkpoint_of_the_earlier_non_deepfly2d_stem_is_refused_with_the_reason(tmp_path):
+    """flylib's network before issue 11 built layer2 on the stem width (64 planes,
+    128 -> 128) and put the projection on layer3; such files cannot hold DeepFly2D weights."""
+    from flylib.errors import WeightsError
+    from flylib.pose2d.weights import save_checkpoint
+
+    net = HourglassNet(num_stacks=1, num_feats=8, inplanes=8)
+    net.inplanes = 16  # after layer1, rebuild the rest of the stem the old way
+    net.layer2, net.layer3 = net._make_residual(8, 1), net._make_residual(8, 1)
+    path = save_checkpoint(net, tmp_path / "old_stem.tar")
+    with pytest.raises(WeightsError, match=r"old_stem\.tar: the checkpoint does not fit.*earlier, non-DeepFly2D"):
+        flylib.load_detector(path)
+
+
 # --- decoding: DeepFly2D's cell-to-pixel convention -------------------------------
 
 
