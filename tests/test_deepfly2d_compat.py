@@ -156,8 +156,8 @@ def sh8_checkpoint(sh8_manifest, tmp_path_factory) -> tuple[Path, dict[str, torc
 def test_a_released_layout_sh8_checkpoint_loads_strictly_and_runs(sh8_checkpoint):
     path, state = sh8_checkpoint
     net = flylib.load_detector(path, num_classes=19)  # the user's path; strict inside
-    assert net.config == dict(num_stacks=8, num_blocks=1, num_classes=19, inplanes=64, num_feats=128,
-                              init_stride=2, depth=4)
+    assert net.config == {"num_stacks": 8, "num_blocks": 1, "num_classes": 19, "inplanes": 64,
+                          "num_feats": 128, "init_stride": 2, "depth": 4}
     _assert_loaded(net, state)
     with torch.inference_mode():
         heatmaps = net.heatmaps(torch.randn(1, 3, 256, 512, generator=torch.Generator().manual_seed(1)))
