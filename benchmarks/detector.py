@@ -10,6 +10,8 @@ at 256x512):
 * forward images/s per precision and batch size (random weights), with GFLOP per
   image, the TFLOP/s reached and its fraction of the H100's dense bf16 peak
   (989 TFLOP/s, SXM);
+* heatmap decoding per sub-pixel method (``pose2d.models[].subpixel``) on the
+  device, against ``parabola`` (flylib's earlier default) as the baseline;
 * end-to-end images/s (7 sources decoded -> 8 pathways -> points in the raw
   frame), i.e. ``flylib.pose2d.run_detection``, per precision and batch size; and
   whether decoding or the network is the bottleneck, with where the detection loop's
@@ -21,7 +23,12 @@ at 256x512):
 
 Targets (H100): end-to-end >= 1,500 images/s in bf16, decode never the bottleneck.
 
-Measured on one H100 80GB HBM3 (16 CPU cores, torch 2.11, 2026-11-22), sh8, bf16:
+The network is DeepFly2D's sh8 (the released checkpoint's layout): 25,606,168
+parameters, 112.6 GFLOP (56.3 G multiply-adds of its convolutions) per 256x512 image.
+
+Measured on one H100 80GB HBM3 (16 CPU cores, torch 2.11, 2026-11-22), sh8, bf16,
+with flylib's earlier stem (layer2 64 planes: 25,445,656 parameters, 110.0
+GFLOP/image, 2.4% less work than the corrected network; not re-measured since):
 decode 2,270 frames/s over 7 sources with GPU-side YUV->RGB (= 2,590 pathway
 images/s; 390-680 when converting to RGB on the CPU); forward 110 GFLOP/image,
 ~500 images/s eager, 1,265 (batch 64) / 1,323 (batch 128) compiled, 1,292 with CUDA
@@ -51,7 +58,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from flylib import io  # noqa: E402
-from flylib.pose2d import stream  # noqa: E402
+from flylib.pose2d import decode, stream  # noqa: E402
 from flylib.pose2d.inference import LoadedModel, select_device  # noqa: E402
 from flylib.pose2d.model import HourglassNet  # noqa: E402
 from flylib.pose2d.plan import DetectionPlan  # noqa: E402
@@ -171,13 +178,35 @@ def _bench_prefetch(clip: Path, block: int, pin: bool, raw_yuv: bool) -> tuple[f
 
 
 def flops_per_image(stacks: int) -> float:
-    """Forward FLOPs (2 x multiply-adds) of one 256x512 image."""
+    """Forward FLOPs (2 x multiply-adds of the convolutions) of one 256x512 image."""
     from torch.utils.flop_counter import FlopCounterMode
 
     net = HourglassNet(num_stacks=stacks).eval()
     with FlopCounterMode(display=False) as counter, torch.inference_mode():
         net(torch.zeros(1, 3, 256, 512))
     return float(counter.get_total_flops())
+
+
+def n_parameters(stacks: int) -> int:
+    """Trainable parameters of the network (batch-norm running statistics excluded)."""
+    return sum(p.numel() for p in HourglassNet(num_stacks=stacks).parameters())
+
+
+def bench_decode_methods(device: torch.device, batch: int, seconds: float = 1.0) -> dict[str, float]:
+    """Images/s of arg-max + sub-pixel decoding of ``batch`` 19x64x128 heatmaps per method."""
+    gen = torch.Generator().manual_seed(0)
+    hm = torch.rand(batch, 19, 64, 128, generator=gen).to(device)
+    rates = {}
+    for method in decode.SUBPIXEL_METHODS:
+        decode.decode_argmax(hm, method)
+        sync(device)
+        n, t = 0, time.perf_counter()
+        while time.perf_counter() - t < seconds or n < 3:
+            decode.decode_argmax(hm, method)
+            n += 1
+        sync(device)
+        rates[method] = n * batch / (time.perf_counter() - t)
+    return rates
 
 
 def bench_forward(model: LoadedModel, batch: int, seconds: float) -> float:
@@ -266,9 +295,11 @@ def main(argv=None) -> None:
     frames = args.frames or (1000 if cuda else 16)
     compile_modes = {"auto": [cuda], "on": [True], "off": [False], "both": [False, True]}[args.compile]
     if args.freezing:
-        import torch._inductor.config
+        # bound to its own name: a bare `import torch._inductor.config` would make
+        # `torch` a local of main() and unbound everywhere else in it
+        import torch._inductor.config as inductor_config
 
-        torch._inductor.config.freezing = True
+        inductor_config.freezing = True
     if cuda:
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
@@ -293,7 +324,13 @@ def main(argv=None) -> None:
         print(f"        {parallel_rgb:8.0f} frames/s total over {N_SOURCES} sources when converting to RGB on the CPU")
 
     gflop = flops_per_image(stacks) / 1e9
-    print(f"forward cost: {gflop:.1f} GFLOP per 256x512 image")
+    print(f"forward cost: {gflop:.1f} GFLOP per 256x512 image ({gflop / 2:.1f} G multiply-adds), "
+          f"{n_parameters(stacks):,} parameters")
+
+    rates = bench_decode_methods(device, max(batches))
+    base = rates["parabola"]
+    print("decode heatmaps (arg-max + sub-pixel), images/s: " + ", ".join(
+        f"{m} {r:,.0f} ({r / base:.2f}x parabola)" for m, r in rates.items()))
 
     torch.manual_seed(0)
     checkpoint = work / "random.tar"

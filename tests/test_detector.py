@@ -49,8 +49,12 @@ def test_sh8_parameter_names_and_shapes_match_the_published_layout():
     assert shapes["layer1.0.conv1.weight"] == (64, 64, 1, 1)
     assert shapes["layer1.0.conv3.weight"] == (128, 64, 1, 1)
     assert shapes["layer1.0.downsample.0.weight"] == (128, 64, 1, 1)
-    assert "layer2.0.downsample.0.weight" not in shapes  # 128 -> 128: no projection
-    assert shapes["layer3.0.downsample.0.weight"] == (256, 128, 1, 1)
+    # DeepFly2D's layer2 gets the running width: 128 planes, 128 -> 256, projected skip
+    assert shapes["layer2.0.conv1.weight"] == (128, 128, 1, 1)
+    assert shapes["layer2.0.conv3.weight"] == (256, 128, 1, 1)
+    assert shapes["layer2.0.downsample.0.weight"] == (256, 128, 1, 1)
+    assert shapes["layer3.0.conv1.weight"] == (128, 256, 1, 1)
+    assert "layer3.0.downsample.0.weight" not in shapes  # 256 -> 256: identity skip
     # depth-4 hourglass: levels 0..3, three branches each plus the bottom at level 0
     assert shapes["hg.7.hg.0.3.0.conv2.weight"] == (128, 128, 3, 3)
     assert "hg.0.hg.1.3.0.conv1.weight" not in shapes and "hg.0.hg.4.0.0.conv1.weight" not in shapes
@@ -60,8 +64,11 @@ def test_sh8_parameter_names_and_shapes_match_the_published_layout():
     assert shapes["score.7.weight"] == (19, 256, 1, 1)
     assert shapes["fc_.6.weight"] == (256, 256, 1, 1) and shapes["score_.6.weight"] == (256, 19, 1, 1)
     assert "fc_.7.weight" not in shapes and "score_.7.weight" not in shapes
-    n_params = sum(v.numel() for k, v in sd.items() if not k.endswith("num_batches_tracked"))
-    assert n_params == 25_566_232  # pytorch-pose hg8 with 19 outputs (~25.6 M)
+    assert len(sd) == 2526  # the released file's entry count
+    n_values = sum(v.numel() for k, v in sd.items() if not k.endswith("num_batches_tracked"))
+    assert n_values == 25_727_256  # parameters + batch-norm running statistics
+    n_params = sum(p.numel() for p in HourglassNet(num_stacks=8, num_classes=19).parameters())
+    assert n_params == 25_606_168  # pytorch-pose hg8 with 19 outputs (~25.6 M)
 
 
 def test_forward_gives_every_stack_at_quarter_resolution():
@@ -180,12 +187,14 @@ def test_detect_2d_on_the_deepfly3d_sample(df3d_sample_dir, default_data, tiny_c
     assert np.array_equal(np.isnan(pts).any(-1), np.isnan(conf))
     assert np.array_equal(np.isnan(pts).all(-1), np.isnan(conf))
     xs, ys = pts[..., 0][filled[:, None, :].repeat(15, 1)], pts[..., 1][filled[:, None, :].repeat(15, 1)]
-    assert xs.min() >= -0.5 and xs.max() <= 959.5 and ys.min() >= -0.5 and ys.max() <= 479.5
+    # DeepFly2D's convention: normalized [0, 1] times the frame size
+    assert xs.min() >= 0 and xs.max() <= 960 and ys.min() >= 0 and ys.max() <= 480
 
 
 def test_mirrored_pathway_lands_in_the_raw_frame(df3d_sample_dir, default_data, tiny_checkpoint, tmp_path):
     """Detecting on camera_4 through the flip preprocessor equals detecting, without
-    one, on a mirrored copy of the footage and mirroring the points back."""
+    one, on a mirrored copy of the footage and mirroring the points back
+    (x -> W - x: DeepFly2D's normalized x -> 1 - x)."""
     frames = io.open_reader(df3d_sample_dir / "camera_4.mp4")[:6]
     import cv2
 
@@ -210,7 +219,7 @@ def test_mirrored_pathway_lands_in_the_raw_frame(df3d_sample_dir, default_data, 
     pts, conf, _ = detect_2d(data, plan, load_models(plan, data), sources=sources)
     lf, lm = plan.view_names.index("lf"), plan.view_names.index("lm")
     via_flip, on_mirror = pts[lf, :, :19], pts[lm, :, :19]
-    np.testing.assert_allclose(via_flip[..., 0], 959.0 - on_mirror[..., 0], atol=1e-3)
+    np.testing.assert_allclose(via_flip[..., 0], 960.0 - on_mirror[..., 0], atol=1e-3)
     np.testing.assert_allclose(via_flip[..., 1], on_mirror[..., 1], atol=1e-3)
     np.testing.assert_allclose(conf[lf, :, :19], conf[lm, :, :19], rtol=1e-5)
     assert FlipLR() in plan.pathways[0].ops
@@ -235,15 +244,18 @@ def test_candidates_agree_with_the_argmax_and_pictorial(default_data, tiny_check
     np.testing.assert_allclose(cands.score[..., 0][seen], conf[seen], rtol=1e-6)
     unseen = np.isnan(conf)
     assert np.all(cands.score[unseen] == 0) and np.isnan(cands.xy[unseen]).all()
-    # the on-device peak finder matches pictorial's NumPy one on Gaussian blobs
+    # the on-device peak finder matches pictorial's NumPy one on Gaussian blobs, for
+    # each refinement both implement (weighted: the detector's default)
     hm = np.stack([
         0.9 * decode.gaussian_heatmap((16, 32), (5.3, 4.6), 1.4) + 0.6 * decode.gaussian_heatmap((16, 32), (21.8, 10.2), 1.4),
-        0.7 * decode.gaussian_heatmap((16, 32), (12.4, 7.7), 1.1),
+        0.7 * decode.gaussian_heatmap((16, 32), (12.4, 7.7), 1.1) - 0.2,  # negatives: clipped
     ])
-    ours_xy, ours_score = decode.topk_peaks(torch.from_numpy(hm)[None], k=3, radius=2, threshold=0.05)
-    ref_xy, ref_score = peak_candidates(hm, k=3, radius=2, threshold=0.05, method="taylor")
-    np.testing.assert_allclose(ours_xy[0].numpy(), ref_xy, atol=1e-6)
-    np.testing.assert_allclose(np.nan_to_num(ours_score[0].numpy()), ref_score, atol=1e-12)
+    for method in ("weighted", "taylor", "argmax"):
+        ours_xy, ours_score = decode.topk_peaks(torch.from_numpy(hm)[None], k=3, radius=2, threshold=0.05,
+                                                method=method)
+        ref_xy, ref_score = peak_candidates(hm, k=3, radius=2, threshold=0.05, method=method)
+        np.testing.assert_allclose(ours_xy[0].numpy(), ref_xy, atol=1e-6, err_msg=method)
+        np.testing.assert_allclose(np.nan_to_num(ours_score[0].numpy()), ref_score, atol=1e-12)
 
 
 def test_detect_recording_returns_pose2d_data_and_never_runs_untrained(default_data, tiny_checkpoint, tmp_path, monkeypatch):

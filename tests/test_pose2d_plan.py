@@ -87,6 +87,7 @@ def _pathway(ops):
     return Pathway("p", "s", "m", "pre", tuple(ops), empty, empty, empty)
 
 
+@pytest.mark.parametrize("method", ["taylor", "parabola"])  # exact for a Gaussian blob
 @pytest.mark.parametrize(
     "ops",
     [
@@ -97,7 +98,7 @@ def _pathway(ops):
         (Crop(10, 20, 700, 400), Rot90(3), Resize(300, 200), FlipLR()),
     ],
 )
-def test_a_heatmap_peak_decodes_back_to_its_raw_pixel(ops):
+def test_a_heatmap_peak_decodes_back_to_its_raw_pixel(ops, method):
     """Raw pixel -> heatmap position -> Gaussian heatmap -> sub-pixel decode -> raw pixel."""
     raw_size, hm_size = (480, 960), (16, 32)
     pathway, spec = _pathway(ops), _spec()
@@ -106,28 +107,30 @@ def test_a_heatmap_peak_decodes_back_to_its_raw_pixel(ops):
     on_hm = pathway.raw_to_heatmap(raw, raw_size, spec, hm_size)
     assert np.all((on_hm > 1) & (on_hm < np.array(hm_size[::-1]) - 2))
     heatmaps = np.stack([decode.gaussian_heatmap(hm_size, p, sigma=1.3) for p in on_hm])[None]
-    xy, conf = decode.decode_argmax(torch.from_numpy(heatmaps))
+    xy, conf = decode.decode_argmax(torch.from_numpy(heatmaps), method)
     back = pathway.heatmap_to_raw(xy.double().numpy()[0], raw_size, spec, hm_size)
     np.testing.assert_allclose(back, raw, atol=1e-3)
     assert np.all(conf.numpy() > 0.7)
 
 
 def test_flip_pathway_equals_mirrored_frame():
-    """The flip preprocessor is x -> W - 1 - x in the raw frame, through the whole chain."""
+    """The flip preprocessor is x -> W - x in the raw frame through the whole chain
+    (DeepFly2D's normalized x -> 1 - x)."""
     raw_size, hm_size, spec = (480, 960), (16, 32), _spec()
     xy_hm = np.array([[7.3, 5.9]])
     plain = _pathway(()).heatmap_to_raw(xy_hm, raw_size, spec, hm_size)
     flipped = _pathway((FlipLR(),)).heatmap_to_raw(xy_hm, raw_size, spec, hm_size)
-    np.testing.assert_allclose(flipped, [[959 - plain[0, 0], plain[0, 1]]], atol=1e-12)
+    np.testing.assert_allclose(flipped, [[960 - plain[0, 0], plain[0, 1]]], atol=1e-12)
 
 
 # --- decoding ---------------------------------------------------------------
 
 
+@pytest.mark.parametrize("method", ["taylor", "parabola"])
 @pytest.mark.parametrize("centre", [(10.3, 7.8), (3.0, 4.0), (20.49, 1.6), (5.5, 8.5)])
-def test_decode_argmax_recovers_a_gaussian_centre(centre):
+def test_decode_argmax_recovers_a_gaussian_centre(centre, method):
     hm = torch.from_numpy(decode.gaussian_heatmap((12, 24), centre, sigma=1.7))[None, None]
-    xy, conf = decode.decode_argmax(hm * 0.8)
+    xy, conf = decode.decode_argmax(hm * 0.8, method)
     np.testing.assert_allclose(xy[0, 0].numpy(), centre, atol=1e-4)
     peak = 0.8 * decode.gaussian_heatmap((12, 24), centre, 1.7).max()
     assert conf[0, 0].item() == pytest.approx(peak, rel=1e-6)
@@ -139,7 +142,7 @@ def test_decode_argmax_handles_negative_values_and_borders():
     xs = torch.arange(8.0)
     hm[0, 0, 4] = -((xs - 3.25) ** 2)
     hm[0, 1, 0, 7] = 5.0  # corner peak: no refinement possible
-    xy, conf = decode.decode_argmax(hm)
+    xy, conf = decode.decode_argmax(hm, "parabola")
     np.testing.assert_allclose(xy[0, 0].numpy(), [3.25, 4.0], atol=1e-5)
     np.testing.assert_allclose(xy[0, 1].numpy(), [7.0, 0.0])
     assert conf[0, 1].item() == 5.0
@@ -147,7 +150,7 @@ def test_decode_argmax_handles_negative_values_and_borders():
 
 def test_topk_peaks_orders_pads_and_refines():
     hm = 0.9 * decode.gaussian_heatmap((20, 30), (6.2, 5.4), 1.2) + 0.5 * decode.gaussian_heatmap((20, 30), (22.7, 13.1), 1.2)
-    xy, score = decode.topk_peaks(torch.from_numpy(hm)[None, None], k=3, threshold=0.05)
+    xy, score = decode.topk_peaks(torch.from_numpy(hm)[None, None], k=3, threshold=0.05, method="parabola")
     np.testing.assert_allclose(xy[0, 0, 0].numpy(), [6.2, 5.4], atol=1e-3)
     np.testing.assert_allclose(xy[0, 0, 1].numpy(), [22.7, 13.1], atol=1e-3)
     assert score[0, 0, 0] > score[0, 0, 1] > 0

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from ..errors import ConfigError
+from ..pose2d.plan import DECODING_CONVENTION
 from .canonical import _canonical, _plain
 from .constants import (
     _LEAST_SQUARES_PERF,
@@ -279,6 +280,7 @@ class Config:
                 "import": pose2d.get("import"),
                 "point_names": list(self._point_names()),
                 "views": self.view_names(),
+                "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
                 # Not the candidate peaks pictorial structures asks for: they are a
                 # separate pose2d output named by k (stages.candidates_artifact), which
                 # exists only while PS is on, so toggling PS or editing k with it off

@@ -7,6 +7,7 @@ from dataclasses import fields
 from functools import lru_cache
 from typing import Any
 
+from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
 from .constants import _POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
@@ -78,6 +79,9 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
             problems.append(f"pose2d.models.{name}.input_size: expected [height, width] in pixels, got {size!r}")
         if "weights" in entry and not isinstance(entry["weights"], str):
             problems.append(f"pose2d.models.{name}.weights: expected a path string ('' for the published weights)")
+        if "subpixel" in entry and entry["subpixel"] not in SUBPIXEL_METHODS:
+            problems.append(f"pose2d.models.{name}.subpixel: expected one of {', '.join(SUBPIXEL_METHODS)}, "
+                            f"got {entry['subpixel']!r}")
     pathways = _named_entries(pose2d.get("pathways"), "pose2d.pathways", problems)
     pathway_model: dict[str, str | None] = {}
     for name, entry in pathways.items():

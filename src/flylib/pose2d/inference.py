@@ -160,16 +160,20 @@ class LoadedModel:
     def detect(
         self, frames: torch.Tensor, ops: tuple[Op, ...] = (), *, k: int | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
-        """Detect on raw frames: heatmap-pixel ``xy (N, C, 2)``, ``conf (N, C)`` and,
-        with ``k``, the top-``k`` candidates ``(xy (N, C, k, 2), score (N, C, k))``."""
+        """Detect on raw frames: heatmap-cell ``xy (N, C, 2)``, ``conf (N, C)`` and,
+        with ``k``, the top-``k`` candidates ``(xy (N, C, k, 2), score (N, C, k))``,
+        refined with the model's ``subpixel`` method."""
+        method = self.spec.subpixel
         with torch.inference_mode():
             hm = self.heatmaps(self.preprocess(frames, ops))
-            xy, conf = decode.decode_argmax(hm)
+            xy, conf = decode.decode_argmax(hm, method)
             candidates = None
             if k:
                 from ..pictorial import DEFAULT_PEAK_RADIUS, DEFAULT_PEAK_THRESHOLD
 
-                candidates = decode.topk_peaks(hm, k, radius=DEFAULT_PEAK_RADIUS, threshold=DEFAULT_PEAK_THRESHOLD)
+                candidates = decode.topk_peaks(
+                    hm, k, radius=DEFAULT_PEAK_RADIUS, threshold=DEFAULT_PEAK_THRESHOLD, method=method
+                )
         return xy, conf, candidates
 
 

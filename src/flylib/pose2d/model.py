@@ -6,7 +6,13 @@ depth-4 hourglasses, and intermediate supervision whose score maps are merged ba
 into the features. Module names, and so ``state_dict`` keys and shapes, are those
 of the published checkpoints (``conv1``, ``bn1``, ``layer1..3``, ``hg.N.hg.L.R.B``,
 ``res``, ``fc``, ``score``, ``fc_``, ``score_``), which therefore load strictly
-without any renaming.
+without any renaming. With the ``sh8`` hyper-parameters the stem is
+``layer1`` 64 planes (64 -> 128, projected skip), ``layer2`` 128 planes
+(128 -> 256, projected skip) and ``layer3`` 128 planes on 256 channels (identity
+skip); ``state_dict()`` then has exactly the 2,526 entries of the released file
+(``../shared/spec/deepfly2d-sh8-state-dict.tsv``, checked in
+``tests/test_deepfly2d_compat.py``): 25,606,168 parameters, 112.6 GFLOP
+(56.3 G multiply-adds) per 256x512 image.
 """
 
 from __future__ import annotations
@@ -122,8 +128,12 @@ class HourglassNet(nn.Module):
         self.conv1 = nn.Conv2d(3, inplanes, kernel_size=7, stride=init_stride, padding=3, bias=True)
         self.bn1 = nn.BatchNorm2d(inplanes)
         self.relu = nn.ReLU(inplace=True)
-        self.layer1 = self._make_residual(inplanes, 1)
-        self.layer2 = self._make_residual(inplanes, 1)
+        # DeepFly2D (pytorch-pose ``hg``) passes the *running* width to layer2: after
+        # layer1 (inplanes -> 2 inplanes) it is a 2*inplanes-plane bottleneck
+        # (2 inplanes -> 4 inplanes, with a projection), and layer3 (num_feats planes)
+        # then needs a projection only when 4 inplanes != 2 num_feats (not for sh8).
+        self.layer1 = self._make_residual(self.inplanes, 1)
+        self.layer2 = self._make_residual(self.inplanes, 1)
         self.layer3 = self._make_residual(num_feats, 1)
         self.maxpool = nn.MaxPool2d(2, stride=2)
 

@@ -4,11 +4,21 @@ Also the preprocessing ops themselves. Each op transforms both an image batch (i
 torch, so frames stay on the GPU) and 2D points, and inverts exactly on points, so
 a pathway's detections are mapped back into its source's raw frame.
 
-Point coordinates follow the pixel-centre convention used for camera projection:
-pixel ``(i, j)`` (row, column) has centre ``(x, y) = (j, i)``; a ``W``-wide image
-spans ``x`` in ``[-0.5, W - 0.5]``. Under it a horizontal mirror is
-``x -> W - 1 - x`` and a resize by ``s`` is ``x -> (x + 0.5) s - 0.5`` (what
-``torch.nn.functional.interpolate`` with ``align_corners=False`` does to pixels).
+The ops' point methods use the pixel-centre convention: pixel ``(i, j)`` (row,
+column) has centre ``(x, y) = (j, i)``; a ``W``-wide image spans ``x`` in
+``[-0.5, W - 0.5]``. Under it a horizontal mirror is ``x -> W - 1 - x`` and a resize
+by ``s`` is ``x -> (x + 0.5) s - 0.5`` (what ``torch.nn.functional.interpolate`` with
+``align_corners=False`` does to pixels).
+
+Heatmap cells map to raw-frame pixels with DeepFly2D's convention, the one the
+published weights were trained with and DeepFly3D stores its 2D in
+(``../shared/spec/deepfly2d-heatmap-decoding.md``): cell ``(r, c)`` of an
+``H_hm x W_hm`` heatmap is the normalized point ``(c / W_hm, r / H_hm)`` of the model
+input, with no half-cell shift, and a normalized point ``u`` of a ``W``-wide image is
+the pixel value ``u W``. That is the edge-based form of the ops above (``u W =
+x + 0.5``): a mirror is ``u -> 1 - u``, a resize keeps ``u``. On a pathway without
+preprocessing, cell ``(r, c)`` is raw ``(c / W_hm W_raw, r / H_hm H_raw)``; through
+the ``fliplr`` preprocessor, ``((1 - c / W_hm) W_raw, r / H_hm H_raw)``.
 
 This module imports torch only inside the image functions, so the plan can be read
 (e.g. :meth:`DetectionPlan.view_sources`) without it.
@@ -24,6 +34,15 @@ import numpy as np
 from ..errors import ConfigError
 
 Size = tuple[int, int]  # (height, width)
+
+#: Sub-pixel refinements of a heatmap peak (``pose2d.models[].subpixel``; see
+#: :mod:`flylib.pose2d.decode`).
+SUBPIXEL_METHODS = ("weighted", "argmax", "taylor", "parabola")
+#: The seed system's default: the intensity-weighted centroid of the 5x5 window.
+DEFAULT_SUBPIXEL = "weighted"
+#: How heatmap cells become raw pixels (part of pose2d's stage parameters, so 2D
+#: detected under an earlier convention is recomputed, never reused).
+DECODING_CONVENTION = "deepfly2d-normalized-cells"
 
 
 # ---------------------------------------------------------------------------
@@ -262,6 +281,7 @@ class ModelSpec:
     n_out_channels: int
     url: str | None = None
     sha256: str | None = None
+    subpixel: str = DEFAULT_SUBPIXEL
 
 
 @dataclass(frozen=True)
@@ -285,26 +305,54 @@ class Pathway:
         """The ops from a raw frame to the model input (the preprocessor, then the resize)."""
         return (*self.ops, Resize(*model.input_size))
 
-    def heatmap_to_raw(self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size) -> np.ndarray:
-        """Map heatmap-pixel ``(..., 2)`` points into the raw source frame (float64)."""
+    def _sizes(self, raw_size: Size, model: ModelSpec) -> tuple[tuple[Op, ...], list[Size]]:
         ops = self.input_ops(model)
         sizes = [tuple(raw_size)]
         for op in ops:
             sizes.append(op.out_size(sizes[-1]))
-        # the heatmap is the model input resampled to the heatmap grid
-        out = Resize(*heatmap_size).inverse_points(xy, sizes[-1])
+        return ops, sizes
+
+    def heatmap_to_raw(self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size) -> np.ndarray:
+        """Map heatmap-cell ``(..., 2)`` points ``(x, y) = (column, row)`` into the raw source frame.
+
+        DeepFly2D's convention (module docstring): cell ``c`` is the normalized
+        point ``c / W_hm`` of the model input, and the raw pixel is the normalized
+        raw-frame point times the frame size.
+
+        Parameters
+        ----------
+        xy
+            ``(..., 2)`` heatmap cells, fractional after sub-pixel refinement.
+        raw_size
+            ``(height, width)`` of the source's raw frames.
+        model
+            The model (its input size).
+        heatmap_size
+            ``(H_hm, W_hm)`` of the heatmaps.
+
+        Returns
+        -------
+        np.ndarray
+            ``(..., 2)`` float64 raw-frame pixels ``(x, y)``.
+        """
+        ops, sizes = self._sizes(raw_size, model)
+        cells = np.array(heatmap_size[::-1], dtype=np.float64)  # (W_hm, H_hm)
+        pixels = np.array(sizes[-1][::-1], dtype=np.float64)  # model input (W, H)
+        # normalized -> the model input's pixel-centre coordinates, where the ops work
+        out = np.asarray(xy, dtype=np.float64) / cells * pixels - 0.5
         for op, size in zip(reversed(ops), reversed(sizes[:-1])):
             out = op.inverse_points(out, size)
-        return out
+        return out + 0.5
 
     def raw_to_heatmap(self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size) -> np.ndarray:
-        """Map raw-frame ``(..., 2)`` points onto the heatmap grid (inverse of :meth:`heatmap_to_raw`)."""
-        size = tuple(raw_size)
-        out = np.asarray(xy, dtype=np.float64)
-        for op in self.input_ops(model):
+        """Map raw-frame ``(..., 2)`` points onto heatmap cells (inverse of :meth:`heatmap_to_raw`)."""
+        ops, sizes = self._sizes(raw_size, model)
+        out = np.asarray(xy, dtype=np.float64) - 0.5
+        for op, size in zip(ops, sizes[:-1]):
             out = op.forward_points(out, size)
-            size = op.out_size(size)
-        return Resize(*heatmap_size).forward_points(out, size)
+        cells = np.array(heatmap_size[::-1], dtype=np.float64)
+        pixels = np.array(sizes[-1][::-1], dtype=np.float64)
+        return (out + 0.5) / pixels * cells
 
     def check_frame(self, raw_size: Size) -> None:
         """Raise :class:`ConfigError` if a crop of this pathway leaves a ``raw_size`` frame."""
@@ -385,6 +433,11 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
         raise ConfigError(f"{where}: mean and std must be numbers") from None
     if std <= 0:
         raise ConfigError(f"{where}.std: must be positive, got {std}")
+    subpixel = entry.get("subpixel", DEFAULT_SUBPIXEL)
+    if subpixel not in SUBPIXEL_METHODS:
+        raise ConfigError(
+            f"{where}.subpixel: unknown sub-pixel method {subpixel!r}; use one of {', '.join(SUBPIXEL_METHODS)}"
+        )
     return ModelSpec(
         name=str(entry["name"]),
         model_class=cls,
@@ -395,6 +448,7 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
         n_out_channels=n_out,
         url=entry.get("url") or None,
         sha256=entry.get("sha256") or None,
+        subpixel=subpixel,
     )
 
 

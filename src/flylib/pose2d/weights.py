@@ -246,6 +246,13 @@ def load_hourglass(
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:
         first = next((ln.strip() for ln in str(exc).splitlines()[1:] if ln.strip()), str(exc))
+        layer2 = state.get("layer2.0.conv1.weight")
+        if layer2 is not None and layer2.shape[0] == arch["inplanes"]:
+            # flylib < issue 11 gave layer2 the stem width instead of the running width
+            first += (
+                "; its layer2 has the stem width, the layout of flylib's earlier, non-DeepFly2D "
+                "network, which no DeepFly2D weights fit"
+            )
         raise WeightsError(
             f"{path}: the checkpoint does not fit a {arch['num_stacks']}-stack hourglass ({first}); "
             "use a DeepFly2D hourglass checkpoint"
