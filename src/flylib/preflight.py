@@ -1,0 +1,132 @@
+"""Everything the workflow can check before it builds its DAG.
+
+:func:`flylib.config.validate_config` checks each key on its own; this module checks
+what needs the whole config or the planned recordings, and would otherwise fail
+minutes or hours later inside a job: the camera rig, each recording's 2D-import spec,
+the detection plan and its weights (only where the detector runs), the output videos,
+the calibration format, and footage for recordings the detector must read. Every
+problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
+user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from .errors import FlylibError
+
+
+def _problem(exc: FlylibError, prefix: str | None = None) -> str:
+    text = " ".join(str(exc).split())
+    return f"{prefix}: {text}" if prefix else text
+
+
+def model_weights(config: Any) -> dict[str, str]:
+    """``model name -> weights path`` in force: ``pose2d.weights`` over each model's own key.
+
+    ``pose2d.weights: {deepfly2d: /path/sh8.tar}`` sets one model's checkpoint without
+    copying its whole ``pose2d.models`` entry (a ``--configfile`` replaces lists whole).
+    """
+    pose2d = getattr(config, "data", config).get("pose2d") or {}
+    out = {}
+    for entry in pose2d.get("models") or []:
+        if isinstance(entry, dict) and isinstance(entry.get("name"), str):
+            out[entry["name"]] = str(entry.get("weights") or "")
+    for name, path in (pose2d.get("weights") or {}).items():
+        out[str(name)] = str(path or "")
+    return out
+
+
+def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, bool]) -> list[str]:
+    """Problems the planned run would hit inside a job, found from the config alone.
+
+    Parameters
+    ----------
+    config
+        The validated :class:`flylib.config.Config`.
+    recordings
+        The planned :class:`flylib.recordings.Recording` objects.
+    flags
+        ``Config.stage_flags()``.
+
+    Returns
+    -------
+    list of str
+        One line per problem, each starting with the config key it concerns.
+    """
+    recordings = list(recordings)
+    problems: list[str] = []
+    data = config.data
+
+    if data.get("cameras") and any(k != "defaults" for k in data["cameras"]):
+        try:  # principal points default to the image centre: any size checks the rest
+            config.camera_group(image_sizes={v: (2, 2) for v in config.view_names()})
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
+    calibration = data.get("calibration")
+    if isinstance(calibration, dict) and calibration.get("format") is not None:
+        from .interop.anipose import CALIBRATION_FORMATS
+
+        if calibration["format"] not in CALIBRATION_FORMATS:
+            problems.append(f"calibration.format: unknown format {calibration['format']!r}; "
+                            f"use one of {', '.join(CALIBRATION_FORMATS)}")
+
+    if flags.get("pose2d", True):
+        problems += _pose2d_problems(config, recordings)
+
+    if flags.get("visualization", True):
+        try:
+            config.videos  # noqa: B018 -- parsing is the check
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+    return list(dict.fromkeys(problems))
+
+
+def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
+    from .interop import import_spec
+    from .recordings import find_recording
+
+    problems: list[str] = []
+    detector = []
+    for rec in recordings:
+        if rec.import_spec is None:
+            if not rec.demo:
+                detector.append(rec)
+            continue
+        own = rec.extra.get("own_import") and not rec.demo
+        where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
+        try:
+            import_spec(config, rec.import_spec)
+        except FlylibError as exc:
+            text = _problem(exc)
+            if where:
+                text = text.replace("pose2d.import", where, 1)
+            problems.append(text)
+    if not detector:
+        return problems
+
+    try:
+        plan = config.detection_plan()
+    except FlylibError as exc:
+        return [*problems, _problem(exc)]
+    own_weights = (config.data.get("pose2d") or {}).get("weights") or {}
+    for name, path in model_weights(config).items():
+        if name not in plan.models or not path:
+            continue
+        if not Path(path).expanduser().is_file():
+            key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
+            problems.append(f"{key}: {path} does not exist; point it at the checkpoint file "
+                            "(or leave it empty for the published weights)")
+    for rec in detector:
+        if rec.sources:
+            continue
+        where = rec.extra.get("where", "recordings")
+        try:
+            find_recording(rec.path, config, check_frames=False, strict=True)
+        except FlylibError as exc:
+            problems.append(f"{where}: {_problem(exc)}; or read 2D from another tool with "
+                            "pose2d.import")
+    return problems
