@@ -74,6 +74,14 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
             problems.append(f"calibration.format: unknown format {calibration['format']!r}; "
                             f"use one of {', '.join(CALIBRATION_FORMATS)}")
 
+    if any(rec.demo for rec in recordings):
+        from .demo import demo_settings
+
+        try:
+            demo_settings(config)
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
     if flags.get("pose2d", True):
         problems += _pose2d_problems(config, recordings)
 
