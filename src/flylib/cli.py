@@ -3,6 +3,7 @@
     flylib inspect RESULTS_H5                 per-stage and per-point summary
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
+    flylib check-config CONFIG...             check config files as the workflow does
 
 A user-facing error is printed as one line on stderr and the exit status is 1.
 """
@@ -192,6 +193,17 @@ def _cmd_calibration(args) -> int:
     return 0
 
 
+def _cmd_check_config(args) -> int:
+    from .config.layers import ConfigLayers
+    from .preflight import load_run_config
+
+    layers = ConfigLayers.from_files(args.configfiles)
+    _, recordings = load_run_config(layers)
+    print(f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
+          + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``flylib`` argument parser (subcommands ``inspect``, ``export``, ``calibration``)."""
     parser = argparse.ArgumentParser(prog="flylib", description=__doc__.splitlines()[0])
@@ -207,6 +219,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv3d", type=Path, help="write the 3D points to this CSV")
     p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
     p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("check-config", help="check config files as `snakemake` would, naming file, line and key")
+    p.add_argument("configfiles", type=Path, nargs="+", metavar="CONFIG",
+                   help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml")
+    p.set_defaults(func=_cmd_check_config)
 
     p = sub.add_parser("calibration", help="write the run's camera rig as an Anipose TOML")
     p.add_argument("results", type=Path, metavar="RESULTS_H5")

@@ -93,6 +93,50 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
     return list(dict.fromkeys(problems))
 
 
+def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
+    """Validate a run's config and plan its recordings, as the workflow does before its DAG.
+
+    Parameters
+    ----------
+    layers
+        The run's :class:`flylib.config.layers.ConfigLayers`.
+    check_frames
+        Compare footage frame counts across cameras while planning.
+
+    Returns
+    -------
+    config, recordings
+        The :class:`flylib.config.Config` (its ``text``: the one file's exact text, or a
+        YAML dump of the merged layers) and the planned recordings.
+
+    Raises
+    ------
+    ConfigError
+        Every problem, one line each, naming the user's file that set the key.
+    """
+    import yaml
+
+    from .config import Config, validate_config
+    from .errors import ConfigError
+    from .recordings import plan_recordings
+
+    problems = validate_config(layers.data)
+    if problems:
+        raise ConfigError(layers.report(problems))
+    text = layers.single_text()
+    if text is None:
+        text = yaml.safe_dump(layers.data, sort_keys=False, default_flow_style=None)
+    try:
+        config = Config(layers.data, text=text, format="yaml")
+        recordings = plan_recordings(config, check_frames=check_frames)
+        problems = preflight_problems(config, recordings, config.stage_flags())
+    except FlylibError as exc:
+        problems = [" ".join(str(exc).split())]
+    if problems:
+        raise ConfigError(layers.report(problems))
+    return config, recordings
+
+
 def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
     from .interop import import_spec
     from .recordings import find_recording

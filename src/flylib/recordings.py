@@ -316,8 +316,11 @@ def resolve_recordings(
         try:
             src = find_recording(path, config, check_frames=check_frames, strict=True)
         except FootageError as exc:
-            log.warning("%s; kept as a recording: its 2D must come from pose2d.import or an "
-                        "existing stages/pose2d.h5", exc)
+            # Not a warning: with imported 2D or an existing pose2d artifact this is
+            # fine, and where the detector needs footage the workflow's preflight
+            # reports it as one error.
+            log.info("%s; kept as a recording: its 2D must come from pose2d.import or an "
+                     "existing stages/pose2d.h5", exc)
             src = {}
         return [(path, src)]
 

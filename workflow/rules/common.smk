@@ -8,7 +8,6 @@ import re
 import sys
 from pathlib import Path
 
-import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
 
@@ -17,12 +16,10 @@ if not (REPO / "src" / "flylib").is_dir():
     raise WorkflowError(f"{REPO}: not a flylib checkout (src/flylib is missing)")
 sys.path.insert(0, str(REPO / "src"))
 
-from flylib.config import Config, validate_config  # noqa: E402
 from flylib.config.layers import ConfigLayers  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
-from flylib.preflight import preflight_problems  # noqa: E402
-from flylib.recordings import plan_recordings  # noqa: E402
+from flylib.preflight import load_run_config  # noqa: E402
 from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact  # noqa: E402
 
 # The config: the same files Snakemake merged (configfile: and --configfile, then
@@ -70,25 +67,12 @@ def _write_effective_config(text: str) -> Path:
 # A cluster job re-parses the config: the footage frame counts were checked already.
 try:
     LAYERS = _config_layers()
+    CONFIG, RECORDINGS = load_run_config(LAYERS, check_frames=workflow.is_main_process)
 except FlylibError as exc:
     raise WorkflowError(str(exc)) from None
-_problems = validate_config(LAYERS.data)
-if _problems:
-    raise WorkflowError(LAYERS.report(_problems))
-try:
-    _text = LAYERS.single_text()
-    if _text is None:
-        _text = yaml.safe_dump(LAYERS.data, sort_keys=False, default_flow_style=None)
-    CONFIG = Config(LAYERS.data, text=_text, format="yaml")
-    FLAGS = CONFIG.stage_flags()
-    RECORDINGS = plan_recordings(CONFIG, check_frames=workflow.is_main_process)
-    _problems = preflight_problems(CONFIG, RECORDINGS, FLAGS)
-except FlylibError as exc:
-    _problems = [" ".join(str(exc).split())]
-if _problems:
-    raise WorkflowError(LAYERS.report(_problems))
+FLAGS = CONFIG.stage_flags()
 VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
-EFFECTIVE_CONFIG = _write_effective_config(_text)
+EFFECTIVE_CONFIG = _write_effective_config(CONFIG.text)
 
 if sum(r.demo for r in RECORDINGS) > 1:
     raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")

@@ -125,7 +125,16 @@ class ConfigLayers:
             except UnicodeDecodeError as err:
                 raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
             fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
-            layers.append((label, _parse_text(text, fmt, label)))
+            try:
+                layers.append((label, _parse_text(text, fmt, label)))
+            except ConfigError as err:
+                problems = getattr(err, "problems", None)
+                if not problems:
+                    raise
+                lines = [f"{label}: {p}" for p in problems]
+                raise ConfigError(f"invalid config: {lines[0]}" if len(lines) == 1 else
+                                  f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
+                                  + "\n".join(f"  {line}" for line in lines)) from None
             texts[label] = text
         if overrides:
             layers.append((OVERRIDES_LABEL, dict(overrides)))
