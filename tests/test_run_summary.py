@@ -86,3 +86,23 @@ def test_summary_figure_names_the_views_without_2d(tmp_path):
     result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d,
                         pts3d=np.zeros((4, 2, 3)), reproj_error=error)
     assert summary_figure(result, tmp_path / "s.png", dpi=30).stat().st_size > 0
+
+
+def test_a_failed_run_does_not_show_an_earlier_runs_result(tmp_path):
+    import os
+    import time
+
+    for name in ("failed", "untouched", "finished"):
+        write_summary(tmp_path / name, error_vs_truth=TRUTH)
+        (tmp_path / name / "logs").mkdir()
+        os.utime(tmp_path / name / "summary.json", (1_000_000, 1_000_000))  # an earlier run
+    start = time.time() - 1
+    (tmp_path / "failed" / "logs" / "pose2d.log").write_text("error: x.csv: not a DeepLabCut CSV\n")
+    (tmp_path / "finished" / "logs" / "assemble.log").write_text("ok\n")
+    os.utime(tmp_path / "finished" / "summary.json")  # rewritten in this run
+    recs = [RunRecording(n, tmp_path / n, demo=True) for n in ("failed", "untouched", "finished")]
+    lines = run_table(recs, failed=True, since=start).splitlines()
+    assert lines[2].split()[:2] == ["failed", "-"]
+    assert f"failed: see {tmp_path / 'failed' / 'logs' / 'pose2d.log'}" in lines[2]
+    assert lines[3].split()[:2] == ["untouched", "60"] and lines[4].split()[:2] == ["finished", "60"]
+    assert [line.split(":")[0] for line in lines[5:]] == ["untouched", "finished"]  # truth lines

@@ -85,10 +85,33 @@ def log_warnings(outdir: Path) -> list[str]:
     return list(dict.fromkeys(found))
 
 
-def recording_row(rec: RunRecording) -> dict[str, Any]:
-    """One table row: the recording's ``summary.json`` figures (``None`` where absent)."""
+def _failed_log(outdir: Path, since: float) -> Path | None:
+    """The log of a job of this run that failed: written since ``since`` and ending in an
+    error line (else the newest log written since then), or ``None`` if none was written."""
+    fresh = sorted((p for p in (Path(outdir) / "logs").glob("*.log") if p.stat().st_mtime >= since),
+                   key=lambda p: p.stat().st_mtime)
+    for log in reversed(fresh):
+        tail = log.read_text(errors="replace").strip().splitlines()[-1:]
+        if tail and (tail[0].startswith("error:") or "Error" in tail[0]):
+            return log
+    return fresh[-1] if fresh else None
+
+
+def recording_row(rec: RunRecording, since: float | None = None) -> dict[str, Any]:
+    """One table row: the recording's ``summary.json`` figures (``None`` where absent).
+
+    With ``since`` (the start of a failed run), a summary older than that while one of
+    the recording's jobs wrote a log since then is not shown: it describes an earlier
+    run, and ``failed_log`` names the log to read.
+    """
     path = Path(rec.outdir) / "summary.json"
-    row: dict[str, Any] = {"id": rec.id, "outdir": str(rec.outdir), "summary": None}
+    row: dict[str, Any] = {"id": rec.id, "outdir": str(rec.outdir), "summary": None, "failed_log": None}
+    if since is not None:
+        row["failed_log"] = _failed_log(rec.outdir, since)
+        if row["failed_log"] is not None and path.is_file() and path.stat().st_mtime >= since:
+            row["failed_log"] = None  # assembled in this run: its jobs finished
+        if row["failed_log"] is not None:
+            return row
     try:
         summary = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -133,7 +156,8 @@ def truth_line(rec_id: str, error: dict) -> str:
             f"{100 * error['reconstructed']:.1f}% of points reconstructed")
 
 
-def run_table(recordings: Iterable[RunRecording], *, failed: bool = False) -> str:
+def run_table(recordings: Iterable[RunRecording], *, failed: bool = False,
+              since: float | None = None) -> str:
     """The end-of-run report: the per-recording table, warnings, then the demo truth.
 
     Parameters
@@ -142,6 +166,9 @@ def run_table(recordings: Iterable[RunRecording], *, failed: bool = False) -> st
         The recordings the run covered, in plan order.
     failed
         The run ended with an error (rows without a summary say so).
+    since
+        When the failed run started (``time.time()``): a recording whose jobs wrote a
+        log since then but no new summary is shown as failed, naming that log.
 
     Returns
     -------
@@ -149,7 +176,7 @@ def run_table(recordings: Iterable[RunRecording], *, failed: bool = False) -> st
         Lines joined by newlines; the demo's truth comparison (if any) is the last line.
     """
     recordings = list(recordings)
-    rows = [recording_row(rec) for rec in recordings]
+    rows = [recording_row(rec, since if failed else None) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
     header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
     if with_suspects:
@@ -158,7 +185,11 @@ def run_table(recordings: Iterable[RunRecording], *, failed: bool = False) -> st
     cells = [header]
     for r in rows:
         if r["summary"] is None:
-            status = "no result yet: see logs/" if failed else "no result"
+            status = "no result"
+            if r["failed_log"] is not None:
+                status = f"failed: see {r['failed_log']}"
+            elif failed:
+                status = "no result yet: see logs/"
             line = [r["id"], "-", "-", "-", "-"] + (["-"] if with_suspects else []) + [f"{r['outdir']}  ({status})"]
         else:
             line = [r["id"], _fmt(r["frames"], "int"), _fmt(r["reconstructed"], "percent"),

@@ -5,14 +5,16 @@
 # lines ("Complete log", "Elapsed time") and is the last thing on screen.
 
 import atexit
+import time
 
 from flylib.run_summary import RunRecording, run_table
 
+_RUN_START = time.time()
 _RUN_RECORDINGS = [RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r.id not in SKIPPED]
 
 
 def _print_run_table(failed: bool) -> None:
-    text = run_table(_RUN_RECORDINGS, failed=failed)
+    text = run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START)
     atexit.register(lambda: print("\n" + text, file=sys.stderr, flush=True))
 
 
