@@ -105,6 +105,8 @@ def recording(tmp_path: Path, *, spec=None, demo=False, sources=None, own=False)
 PREFLIGHT_CASES = [
     ("cameras.rh.distance", lambda d: edit(d, "cameras.rh.distance", "far"), {}),
     ("cameras.rh.focal_length_px", lambda d: edit(d, "cameras.rh.focal_length_px", -1), {}),
+    ("bundle_adjustment.fixed", lambda d: edit(d, "bundle_adjustment.fixed", ["xx.intr"]), {}),
+    ("bundle_adjustment.shared", lambda d: edit(d, "bundle_adjustment.shared", [["rh.rvec", "rm.intr"]]), {}),
     ("pose2d.import.format", lambda d: edit(d, "pose2d.import", {"format": "deepfly"}),
      {"spec": {"format": "deepfly"}}),
     ("recordings[0].import.format", lambda d: d, {"spec": {"format": "deepfly"}, "own": True}),

@@ -2,7 +2,8 @@
 
 :func:`flylib.config.validate_config` checks each key on its own; this module checks
 what needs the whole config or the planned recordings, and would otherwise fail
-minutes or hours later inside a job: the camera rig, each recording's 2D-import spec,
+minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
+``shared`` references, each recording's 2D-import spec,
 the detection plan and its weights (only where the detector runs), the output videos,
 the calibration format, and footage for recordings the detector must read. Every
 problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
@@ -63,6 +64,16 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
     if data.get("cameras") and any(k != "defaults" for k in data["cameras"]):
         try:  # principal points default to the image centre: any size checks the rest
             config.camera_group(image_sizes={v: (2, 2) for v in config.view_names()})
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
+    if flags.get("bundle_adjustment", True) and config.view_names():
+        from .ba.params import build_layout
+        from .camera_model import N_DIST_COEFFS
+
+        ba = config.bundle_adjustment
+        try:  # every distortion slot allowed: the job pads to the rig's own count
+            build_layout(config.view_names(), N_DIST_COEFFS, ba.fixed, ba.shared)
         except FlylibError as exc:
             problems.append(_problem(exc))
 
