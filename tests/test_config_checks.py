@@ -6,6 +6,7 @@ user's own file that set the key."""
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import fields
 from pathlib import Path
 
@@ -46,6 +47,10 @@ def edit(data: dict, path: str, value) -> dict:
     return data
 
 
+def edit_at(data: dict, *, path: str, value) -> dict:
+    return edit(data, path, value)
+
+
 def param_cases() -> list[tuple[str, object]]:
     """One bad value per typed parameter of every table the params dataclasses describe."""
     cases = []
@@ -84,7 +89,7 @@ VALIDATOR_CASES = [
     ("recursive", lambda d: edit(d, "recursive", "no")),
     ("outdir", lambda d: edit(d, "outdir", 3)),
     ("triangulaton", lambda d: edit(d, "triangulaton", {})),
-] + [(path, (lambda p, v: lambda d: edit(d, p, v))(path, value)) for path, value in param_cases()]
+] + [(path, functools.partial(edit_at, path=path, value=value)) for path, value in param_cases()]
 
 
 @pytest.mark.parametrize(("key", "mutate"), VALIDATOR_CASES, ids=[k for k, _ in VALIDATOR_CASES])

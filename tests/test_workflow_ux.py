@@ -26,7 +26,8 @@ def user_dir(tmp_path: Path) -> Path:
 
 def snakemake(workdir: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
     cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--cores", "2", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir,
+                          check=False)
 
 
 def output(proc: subprocess.CompletedProcess) -> str:
@@ -39,7 +40,7 @@ def files_under(root: Path) -> set[str]:
 
 def untracked_in_repo() -> set[str]:
     proc = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO,
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         pytest.skip("the checkout is not a git work tree")
     return {line[3:] for line in proc.stdout.splitlines() if line.startswith("??")}
