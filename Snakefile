@@ -3,7 +3,8 @@
 #   snakemake --cores 2                      # the recordings listed in config/config.yaml
 #   snakemake --cores 2 --configfile my.yaml # another config
 #   snakemake --profile profiles/slurm       # on a SLURM cluster
-#   snakemake --report report.html           # HTML report with figures and videos
+#   snakemake --report demo/flylib_outputs/report.html  # HTML report (figures, videos);
+#                                            # put it beside your outputs, not in the checkout
 #
 # Each rule runs one thin command script from scripts/ (runnable by hand, see --help)
 # and writes one artifact; a rule's `params` is exactly the config subset that
@@ -24,6 +25,7 @@ include: "workflow/rules/pose2d.smk"
 include: "workflow/rules/reconstruction.smk"
 include: "workflow/rules/results.smk"
 include: "workflow/rules/visualization.smk"
+include: "workflow/rules/summary.smk"
 
 
 localrules:

@@ -30,7 +30,7 @@ def main(argv=None) -> int:
                   f"median {error['median']:.4f}, p95 {error['p95']:.4f} world units "
                   f"(body length {error['body_length']:.2f}); after similarity alignment "
                   f"median {error['median_aligned']:.4f}; "
-                  f"{100 * error['reconstructed']:.1f}% of points reconstructed")
+                  f"{100 * error['reconstructed']:.1f}% of points reconstructed", file=sys.stderr)
 
     return script_main(parser, run, argv)
 

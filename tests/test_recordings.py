@@ -177,5 +177,24 @@ def test_plan_skips_a_malformed_batch_member_with_a_warning(tmp_path, caplog):
         recs = plan_recordings({**SOURCES, "recordings": [str(good), str(bad)]})
     assert [r.path for r in recs] == [good]
     assert f"skipping {bad}" in caplog.text and "frame counts" in caplog.text
+    (tmp_path / "empty").mkdir()
     with pytest.raises(FootageError, match="none of"):
-        plan_recordings({**SOURCES, "recordings": [str(bad), str(tmp_path / "absent")]})
+        plan_recordings({**SOURCES, "recordings": [str(bad), str(tmp_path / "empty")]})
+
+
+@pytest.mark.parametrize("batch", [False, True])
+def test_a_mistyped_or_file_path_is_one_clear_error_naming_the_entry(tmp_path, batch):
+    good = make_video_recording(tmp_path / "fly_07")
+    others = [str(good)] if batch else []
+    with pytest.raises(ConfigError) as info:
+        plan_recordings({**SOURCES, "recordings": [*others, str(tmp_path / "fyl_07")]})
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith(f"recordings[{len(others)}]: {tmp_path / 'fyl_07'} does not exist")
+    assert f"did you mean {good}?" in message
+    with pytest.raises(ConfigError, match="does not exist; fix the path"):
+        plan_recordings({**SOURCES, "recordings": [*others, str(tmp_path / "zzzzzzzz" / "q")]})
+    (tmp_path / "notes.txt").write_text("not a recording")
+    with pytest.raises(ConfigError, match=r"notes.txt is a file, not a directory"):
+        plan_recordings({**SOURCES, "recordings": [*others, {"path": str(tmp_path / "notes.txt")}]})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fly_07", "notes.txt"]  # nothing created

@@ -316,7 +316,7 @@ def test_invalid_config_is_one_clear_error_before_any_job(tmp_path, edit, messag
     assert not (tmp_path / "demo").exists()
 
 
-def test_schema_accepts_what_flylib_accepts(tmp_path):
+def test_workflow_accepts_what_flylib_accepts(tmp_path):
     config = base_config()
     config["recordings"] = [{"demo": True}]  # no path: the demo's default folder
     config["visualization"]["background"] = [20, 20, 20]

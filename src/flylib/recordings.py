@@ -313,10 +313,14 @@ def resolve_recordings(
 
     if len(candidates) == 1 and not candidates[0][1]:
         path = candidates[0][0]
-        src = find_recording(path, config, check_frames=check_frames)
-        if src is None:
-            log.warning("%s is kept as a recording although it holds no valid footage "
-                        "(it can only be reconstructed from an existing 2D artifact)", path)
+        try:
+            src = find_recording(path, config, check_frames=check_frames, strict=True)
+        except FootageError as exc:
+            # Not a warning: with imported 2D or an existing pose2d artifact this is
+            # fine, and where the detector needs footage the workflow's preflight
+            # reports it as one error.
+            log.info("%s; kept as a recording: its 2D must come from pose2d.import or an "
+                     "existing stages/pose2d.h5", exc)
             src = {}
         return [(path, src)]
 
@@ -329,6 +333,62 @@ def resolve_recordings(
             f"recordings: none of {[str(a) for a in inputs]} is a valid recording "
             "(a directory with footage for every configured source); fix the paths")
     return found
+
+
+def _close_path(path: Path) -> Path | None:
+    """An existing directory whose name differs from ``path`` by a likely typo, or ``None``.
+
+    Each missing component (from the deepest existing ancestor down) is replaced by
+    its closest sibling name (:func:`difflib.get_close_matches`).
+    """
+    import difflib
+
+    path = Path(os.path.abspath(path))
+    parts = path.parts
+    base = Path(parts[0])
+    for i, part in enumerate(parts[1:], start=1):
+        candidate = base / part
+        if candidate.is_dir():
+            base = candidate
+            continue
+        try:
+            names = [p.name for p in base.iterdir() if p.is_dir()]
+        except OSError:
+            return None
+        match = difflib.get_close_matches(part, names, n=1, cutoff=0.6)
+        if not match:
+            return None
+        base = base / match[0]
+        if i == len(parts) - 1:
+            return base
+    return None
+
+
+def check_recording_path(path: str | Path, where: str) -> None:
+    """Refuse a listed recording path that does not exist or is not a directory.
+
+    Parameters
+    ----------
+    path
+        A literal (non-pattern) recording path from the config.
+    where
+        The config key it came from, e.g. ``recordings[0]``.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the key and the path, with the closest existing directory
+        when there is one ("did you mean ...?").
+    """
+    path = Path(path)
+    if path.is_dir():
+        return
+    if path.exists():
+        raise ConfigError(f"{where}: {path} is a file, not a directory; list the folder that "
+                          "holds the recording's footage")
+    close = _close_path(path)
+    hint = f"did you mean {close}?" if close is not None else "fix the path"
+    raise ConfigError(f"{where}: {path} does not exist; {hint}")
 
 
 def _quiet_find(path: Path, config: Any, check_frames: bool) -> dict | None:
@@ -395,9 +455,10 @@ def _normalize_entries(value: Any) -> list[dict]:
         if isinstance(item, (str, os.PathLike)):
             text = str(item)
             if text.endswith(".tsv"):
-                entries += [dict(e, _sheet=text) for e in _read_sheet(Path(text))]
+                entries += [dict(e, _sheet=text, _where=f"recordings (sheet {text})")
+                            for e in _read_sheet(Path(text))]
             else:
-                entries.append({"path": text})
+                entries.append({"path": text, "_where": f"recordings[{i}]"})
         elif isinstance(item, Mapping):
             unknown = set(item) - {"path", "outdir", "import", "demo", "recursive"}
             if unknown:
@@ -408,7 +469,7 @@ def _normalize_entries(value: Any) -> list[dict]:
             if item.get("import") is not None and not isinstance(item["import"], Mapping):
                 raise ConfigError(f"recordings[{i}].import: must be a mapping like "
                                   "{format: dlc, files: ...}")
-            entries.append(dict(item))
+            entries.append(dict(item, _where=f"recordings[{i}]"))
         else:
             raise ConfigError(f"recordings[{i}]: expected a path, pattern or mapping, got {item!r}")
     if not entries:
@@ -502,6 +563,8 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
             continue
         rec_recursive = bool(entry.get("recursive", recursive))
         is_pattern = bool(_GLOB_CHARS.search(str(entry["path"])))
+        if not is_pattern:  # a typo is one clear error, before anything is created
+            check_recording_path(os.path.expanduser(str(entry["path"])), entry["_where"])
         if batch and not rec_recursive and not is_pattern:
             path = Path(os.path.expanduser(str(entry["path"])))
             src = find_recording(path, config, check_frames=check_frames)  # warns when skipped
@@ -548,5 +611,7 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
             spec = demo_import_spec(config)
         recordings.append(Recording(id=rid, path=path, sources=src, outdir=outdir,
                                     import_spec=dict(spec) if spec else None,
-                                    demo=bool(entry.get("demo"))))
+                                    demo=bool(entry.get("demo")),
+                                    extra={"where": entry["_where"],
+                                           "own_import": entry.get("import") is not None}))
     return recordings

@@ -1,7 +1,6 @@
 # Shared set-up: validate the config, resolve the recordings, and the helpers the
 # rules use. Runs once per Snakemake invocation, before any job starts.
 
-import copy
 import hashlib
 import json
 import os
@@ -9,35 +8,44 @@ import re
 import sys
 from pathlib import Path
 
-import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
-from snakemake.utils import validate
 
 REPO = Path(workflow.basedir)
 if not (REPO / "src" / "flylib").is_dir():
     raise WorkflowError(f"{REPO}: not a flylib checkout (src/flylib is missing)")
 sys.path.insert(0, str(REPO / "src"))
 
-from flylib.config import Config  # noqa: E402
+from flylib.config.layers import ConfigLayers  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
-from flylib.recordings import plan_recordings  # noqa: E402
+from flylib.preflight import load_run_config  # noqa: E402
 from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact  # noqa: E402
 
-# The config the jobs read: the config file's own bytes when Snakemake's config is
-# exactly that file (so every output directory gets a byte-for-byte snapshot), else
-# a YAML dump of the merged config (--configfile/--config overrides). Named by its
-# content, so a dry run with another config never changes what running jobs read.
+# The config: the same files Snakemake merged (configfile: and --configfile, then
+# --config overrides), re-read by flylib's parser so that 1e-8 is a number, a key
+# given twice is an error, and every problem names the user's own file and key.
 
 
-def _effective_config_text() -> str:
-    files = [Path(f) for f in workflow.configfiles]
-    if len(files) == 1 and files[0].is_file():
-        text = files[0].read_text()
-        if yaml.safe_load(text) == config:
-            return text
-    return yaml.safe_dump(dict(config), sort_keys=False, default_flow_style=None)
+def _user_path(path) -> str:
+    text = os.path.relpath(os.path.abspath(path))
+    return text if not text.startswith("..") else str(os.path.abspath(path))
+
+
+def _config_layers() -> ConfigLayers:
+    settings = workflow.config_settings
+    cli = [Path(f).absolute() for f in settings.configfiles]
+    directive = [] if settings.replace_workflow_config else [
+        f for f in workflow.configfiles if Path(f).absolute() not in cli
+    ]
+    files = [_user_path(f) for f in [*directive, *cli]]
+    return ConfigLayers.from_files(files, overrides=dict(settings.config or {}))
+
+
+# The config the jobs read: the config file's own bytes when the config is exactly that
+# file (so every output directory gets a byte-for-byte snapshot), else a YAML dump of
+# the merged config. Named by its content, so a dry run with another config never
+# changes what running jobs read.
 
 
 def _write_effective_config(text: str) -> Path:
@@ -51,21 +59,20 @@ def _write_effective_config(text: str) -> Path:
     return path
 
 
-EFFECTIVE_CONFIG = _write_effective_config(_effective_config_text())
-
-# Validate before any job starts: flylib's own checks first (one line per problem,
-# naming the key and the fix; the video specs too, so a typo there does not surface
-# hours later in the visualization job), then the JSON schema as a structural safety
-# net. A copy is validated so the schema's defaults do not leak into what jobs read.
-# A cluster job re-parses this file: the footage frame counts were checked already.
+# Validate before the DAG is built, with flylib's validator (the one source of truth;
+# there is no separate JSON schema): every key on its own, then what needs the whole
+# config or the planned recordings (the rig, import specs, detection plan and
+# weights, videos, footage for the detector), so nothing that can be known now
+# surfaces later inside a job. Nothing is written or created for an invalid config.
+# A cluster job re-parses the config: the footage frame counts were checked already.
 try:
-    CONFIG = Config.from_yaml(EFFECTIVE_CONFIG)
-    FLAGS = CONFIG.stage_flags()
-    VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
-    RECORDINGS = plan_recordings(CONFIG, check_frames=workflow.is_main_process)
+    LAYERS = _config_layers()
+    CONFIG, RECORDINGS = load_run_config(LAYERS, check_frames=workflow.is_main_process)
 except FlylibError as exc:
     raise WorkflowError(str(exc)) from None
-validate(copy.deepcopy(config), str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
+FLAGS = CONFIG.stage_flags()
+VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
+EFFECTIVE_CONFIG = _write_effective_config(CONFIG.text)
 
 if sum(r.demo for r in RECORDINGS) > 1:
     raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")

@@ -35,9 +35,9 @@ if DEMO is not None:
             demo=_demo_params,
             directory=lambda wildcards, output: str(Path(output[0]).parent),
         log:
-            "logs/demo.log",
+            str(DEMO.outdir / "logs" / "demo.log"),
         benchmark:
-            "logs/demo.benchmark.tsv"
+            str(DEMO.outdir / "benchmarks" / "demo.tsv")
         resources:
             mem_mb=2000,
             runtime=15,

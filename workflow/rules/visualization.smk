@@ -1,4 +1,4 @@
-# visualization: the configured videos ([[visualization.videos]]) of one recording,
+# visualization: the configured videos (visualization.videos) of one recording,
 # drawn over its footage from results.h5.
 
 if FLAGS["visualization"] and VIDEO_NAMES:

@@ -54,7 +54,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
 TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
 PRECISIONS = ("float32", "float16", "bfloat16")
-_POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "import")
+_POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
 _LEAST_SQUARES_RESERVED = ("fun", "x0", "jac", "bounds", "args", "kwargs", "jac_sparsity", "callback")
 # least_squares arguments that change only speed or logging, never the result.

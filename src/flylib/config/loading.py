@@ -61,10 +61,12 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
             duplicates = _duplicate_key_problems(yaml.compose(text, Loader=_YamlLoader))
             data = yaml.load(text, Loader=_YamlLoader)
         except yaml.YAMLError as err:
-            detail = " ".join(str(err).split())
+            detail = " ".join(str(err).replace(' in "<unicode string>",', " at").split())
             raise ConfigError(f"{source}: not valid YAML ({detail}); fix the syntax") from None
         if duplicates:
-            raise ConfigError(_problem_report(source, duplicates))
+            error = ConfigError(_problem_report(source, duplicates))
+            error.problems = duplicates  # type: ignore[attr-defined]
+            raise error
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -82,6 +82,15 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
         if "subpixel" in entry and entry["subpixel"] not in SUBPIXEL_METHODS:
             problems.append(f"pose2d.models.{name}.subpixel: expected one of {', '.join(SUBPIXEL_METHODS)}, "
                             f"got {entry['subpixel']!r}")
+    weights = pose2d.get("weights")
+    if weights is not None and not isinstance(weights, Mapping):
+        problems.append(f"pose2d.weights: expected a mapping model name -> checkpoint path, {_got(weights)}")
+    elif weights:
+        for name, path in weights.items():
+            if name not in models:
+                problems.append(f"pose2d.weights.{name}: unknown model {name!r} (known: {', '.join(models) or 'none'})")
+            elif path is not None and not isinstance(path, str):
+                problems.append(f"pose2d.weights.{name}: expected a path string ('' for the published weights), {_got(path)}")
     pathways = _named_entries(pose2d.get("pathways"), "pose2d.pathways", problems)
     pathway_model: dict[str, str | None] = {}
     for name, entry in pathways.items():

@@ -27,7 +27,7 @@ This module imports torch only inside the image functions, so the plan can be re
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -513,6 +513,11 @@ class DetectionPlan:
         model_entries = _table_list(pose2d.get("models"), "pose2d.models")
         _unique_names(model_entries, "pose2d.models")
         models = {str(e["name"]): _parse_model(e, f"pose2d.models[{i}]") for i, e in enumerate(model_entries)}
+        # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
+        for name, path in (pose2d.get("weights") or {}).items():
+            if name not in models:
+                raise ConfigError(f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}")
+            models[name] = replace(models[name], weights=str(path or ""))
 
         output_points = pose2d.get("output_points") or {}
         if not isinstance(output_points, Mapping):

@@ -80,8 +80,8 @@ def download(url: str, dest: Path, *, sha256: str | None = None, timeout: float 
     except (urllib.error.URLError, OSError, TimeoutError) as exc:
         raise WeightsError(
             f"could not download the detector weights from {url} ({exc}); on a machine without "
-            f"network, download that file elsewhere and put it at {dest} (or set the model's "
-            "weights to its path, or FLYLIB_CACHE to the folder holding it)"
+            f"network, download that file elsewhere and put it at {dest} (or set "
+            "pose2d.weights: {<model>: <path>} in the config, or FLYLIB_CACHE to the folder holding it)"
         ) from None
     finally:
         tmp.unlink(missing_ok=True)
@@ -126,7 +126,7 @@ def resolve_weights(
         path = Path(weights).expanduser()
         if not path.is_file():
             raise WeightsError(
-                f"pose2d.models[{model_name}].weights: {path} does not exist; point it at the "
+                f"pose2d.weights.{model_name}: {path} does not exist; point it at the "
                 "checkpoint file, or leave it empty to use the downloaded published weights"
             )
         _verify(path, sha256, f"model {model_name!r}")
@@ -142,7 +142,7 @@ def resolve_weights(
     if not url:
         raise WeightsError(
             f"pose2d.models[{model_name}]: no weights given and no published checkpoint for class "
-            f"{model_class!r}; set the model's weights to a checkpoint file"
+            f"{model_class!r}; set pose2d.weights.{model_name} to a checkpoint file"
         )
     if not allow_download:
         raise WeightsError(

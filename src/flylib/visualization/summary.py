@@ -66,12 +66,21 @@ def summary_figure(result, path, *, dpi: int = 100) -> Path:
 
     n_views, n_frames, n_points = result.pts2d.shape[:3]
     title = f"{n_frames} frames, {n_views} views, {n_points} points"
+    empty = views_without_2d(result.pts2d, names)
+    if empty:
+        title += f" ({', '.join(empty)}: no 2D, left out)"
     if error is not None and np.isfinite(error).any():
         title += f"; median reprojection error {np.nanmedian(error):.2f} px"
     fig.suptitle(title)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     return path
+
+
+def views_without_2d(pts2d, names) -> list[str]:
+    """The views with no finite 2D point in any frame (``pts2d`` is ``(V, T, P, 2)``)."""
+    seen = np.isfinite(np.asarray(pts2d, float)).all(-1).any(axis=(1, 2))
+    return [n for n, s in zip(names, seen) if not s]
 
 
 def _no_data(ax, message: str) -> None:
@@ -87,6 +96,9 @@ def _error_per_view(ax, error, names) -> None:
         return
     per_view = [e[np.isfinite(e)] for e in error.reshape(error.shape[0], -1)]
     shown = [(n, e) for n, e in zip(names, per_view) if e.size]
+    missing = [n for n, e in zip(names, per_view) if not e.size]
+    if missing:
+        ax.set_title(f"Reprojection error per view ({', '.join(missing)}: none, left out)")
     ax.boxplot([e for _, e in shown], tick_labels=[n for n, _ in shown], showfliers=True,
                flierprops={"markersize": 2, "alpha": 0.3})
     for k, (_, e) in enumerate(shown, start=1):

@@ -1,0 +1,210 @@
+"""A config assembled from several files, the way Snakemake assembles it, remembering
+which file set each key.
+
+Snakemake merges ``configfile:`` and ``--configfile`` files in order (tables merge key
+by key, anything else -- lists included -- is replaced whole) and then applies
+``--config key=value`` overrides. :class:`ConfigLayers` re-reads the same files with
+flylib's own parser (so ``1e-8`` is a number, a key given twice is an error naming
+both lines, a syntax error names the file and line) and merges them the same way, so
+every problem can be reported against the user's own file and key instead of an
+internal merged copy.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .loading import _parse_text
+
+#: The label of values given on the command line with ``--config key=value``.
+OVERRIDES_LABEL = "--config"
+
+_KEY_TOKEN = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
+_KEY_HEAD = re.compile(r"([A-Za-z_][\w-]*(?:\.[\w-]+|\[\d+\])*)(?=[:\s(]|$)")
+
+
+def merge_tables(base: dict, update: Mapping) -> dict:
+    """Merge ``update`` into ``base`` in place, as Snakemake's ``update_config`` does.
+
+    Mappings merge recursively; every other value (lists included) replaces the old one.
+    """
+    for key, value in update.items():
+        if isinstance(value, Mapping):
+            old = base.get(key)
+            base[key] = merge_tables(dict(old) if isinstance(old, Mapping) else {}, value)
+        else:
+            base[key] = value
+    return base
+
+
+def key_path(problem: str) -> list[str | int]:
+    """The key path a problem line starts with: ``"a.b[0].c: ..."`` -> ``["a", "b", 0, "c"]``."""
+    match = _KEY_HEAD.match(problem)
+    if not match:
+        return []
+    return [int(i) if i else name for i, name in _KEY_TOKEN.findall(match.group(1))]
+
+
+def _step(node: Any, token: str | int) -> tuple[bool, Any]:
+    """Descend one key (a mapping key, a list index, or a ``name`` in a list of tables)."""
+    if isinstance(node, Mapping):
+        if token in node:
+            return True, node[token]
+        return False, None
+    if isinstance(node, list):
+        if isinstance(token, int):
+            return (True, node[token]) if 0 <= token < len(node) else (True, None)
+        named = [e for e in node if isinstance(e, Mapping) and e.get("name") == token]
+        return (True, named[0]) if named else (True, None)
+    return False, None
+
+
+def _value(data: Any, path: list[str | int]) -> Any:
+    node = data
+    for token in path:
+        _, node = _step(node, token)
+    return node
+
+
+def _depth(data: Any, path: list[str | int]) -> int:
+    """How many leading keys of ``path`` ``data`` sets."""
+    depth, node = 0, data
+    for token in path:
+        found, node = _step(node, token)
+        if not found:
+            break
+        depth += 1
+    return depth
+
+
+@dataclass
+class ConfigLayers:
+    """Config files (and command-line overrides) merged in order.
+
+    Attributes
+    ----------
+    layers
+        ``(label, data)`` in merge order: a file's path as the user gave it, or
+        :data:`OVERRIDES_LABEL`.
+    data
+        The merged mapping.
+    texts
+        ``label -> source text`` of every file layer.
+    """
+
+    layers: list[tuple[str, dict]]
+    data: dict = field(default_factory=dict)
+    texts: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_files(cls, files: Iterable[str | Path], overrides: Mapping | None = None) -> ConfigLayers:
+        """Read and merge config files (``.yaml``/``.yml``/``.json`` or ``.toml``), then ``overrides``.
+
+        Raises
+        ------
+        ConfigError
+            Naming the file (and line) that is missing, not UTF-8 or does not parse,
+            or a key given twice in one file.
+        """
+        layers: list[tuple[str, dict]] = []
+        texts: dict[str, str] = {}
+        for f in files:
+            path = Path(f)
+            label = str(f)
+            try:
+                text = path.read_bytes().decode("utf-8")
+            except FileNotFoundError:
+                raise ConfigError(f"{label}: config file not found; check the path") from None
+            except IsADirectoryError:
+                raise ConfigError(f"{label}: is a directory, not a config file") from None
+            except UnicodeDecodeError as err:
+                raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
+            fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
+            try:
+                layers.append((label, _parse_text(text, fmt, label)))
+            except ConfigError as err:
+                problems = getattr(err, "problems", None)
+                if not problems:
+                    raise
+                lines = [f"{label}: {p}" for p in problems]
+                raise ConfigError(f"invalid config: {lines[0]}" if len(lines) == 1 else
+                                  f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
+                                  + "\n".join(f"  {line}" for line in lines)) from None
+            texts[label] = text
+        if overrides:
+            layers.append((OVERRIDES_LABEL, dict(overrides)))
+        data: dict = {}
+        for _, layer in layers:
+            merge_tables(data, layer)
+        return cls(layers=layers, data=data, texts=texts)
+
+    @property
+    def labels(self) -> list[str]:
+        """The layers' labels, in merge order."""
+        return [label for label, _ in self.layers]
+
+    def single_text(self) -> str | None:
+        """The one file's exact text when the config is exactly one file, else ``None``."""
+        if len(self.layers) == 1 and self.layers[0][0] in self.texts:
+            return self.texts[self.layers[0][0]]
+        return None
+
+    def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
+        """``(owner, replaced)``: the layer that set the value at ``path``, and the earlier
+        layer whose list the owner replaced on the way (``None`` if none)."""
+        candidates = list(self.layers)
+        owner = replaced = None
+        for k in range(1, len(path) + 1):
+            setters = [(label, layer) for label, layer in candidates if _depth(layer, path[:k]) == k]
+            if not setters:
+                break
+            owner = setters[-1][0]
+            node = _value(setters[-1][1], path[:k])
+            if not isinstance(node, Mapping):  # lists and scalars are replaced whole
+                if isinstance(node, list) and len(setters) > 1 and k < len(path):
+                    replaced = setters[-2][0]
+                candidates = [setters[-1]]
+        return owner, replaced
+
+    def origin(self, path: list[str | int] | str) -> str:
+        """The layer that set the value at ``path`` (a key path or a problem line).
+
+        Walking down the path, the last layer that sets each key owns it; below a list
+        (which a later file replaces whole) only the layer that gave the list counts.
+        With no match, every layer is named.
+        """
+        if isinstance(path, str):
+            path = key_path(path)
+        owner, _ = self._owner(path)
+        return owner if owner is not None else " + ".join(self.labels) or "<config>"
+
+    def _hint(self, problem: str) -> str:
+        path = key_path(problem)
+        owner, replaced = self._owner(path)
+        if replaced is None:
+            return ""
+        lists = [i for i in range(1, len(path)) if isinstance(path[i], int) or i == len(path) - 1]
+        key = ".".join(str(t) for t in path[: lists[0]]) if lists else ".".join(map(str, path))
+        hint = (f" ({owner} replaces the whole {key} list of {replaced}: restate every key of "
+                "the entry")
+        if key == "pose2d.models":
+            hint += ", or set only the checkpoint with pose2d.weights: {<model>: <path>}"
+        return hint + ")"
+
+    def report(self, problems: list[str]) -> str:
+        """The problems as one line each, naming the file that set the key.
+
+        One problem is one line; several get a header line naming every file.
+        """
+        lines = [f"{self.origin(p)}: {p}{self._hint(p)}" for p in problems]
+        if len(lines) == 1:
+            return f"invalid config: {lines[0]}"
+        count = f"{len(lines)} problems"
+        return f"invalid config {' + '.join(self.labels)} ({count}; fix and re-run):\n" + "\n".join(
+            f"  {line}" for line in lines
+        )

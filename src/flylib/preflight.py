@@ -1,0 +1,195 @@
+"""Everything the workflow can check before it builds its DAG.
+
+:func:`flylib.config.validate_config` checks each key on its own; this module checks
+what needs the whole config or the planned recordings, and would otherwise fail
+minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
+``shared`` references, each recording's 2D-import spec,
+the detection plan and its weights (only where the detector runs), the output videos,
+the calibration format, and footage for recordings the detector must read. Every
+problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
+user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from .errors import FlylibError
+
+
+def _problem(exc: FlylibError, prefix: str | None = None) -> str:
+    text = " ".join(str(exc).split())
+    return f"{prefix}: {text}" if prefix else text
+
+
+def model_weights(config: Any) -> dict[str, str]:
+    """``model name -> weights path`` in force: ``pose2d.weights`` over each model's own key.
+
+    ``pose2d.weights: {deepfly2d: /path/sh8.tar}`` sets one model's checkpoint without
+    copying its whole ``pose2d.models`` entry (a ``--configfile`` replaces lists whole).
+    """
+    pose2d = getattr(config, "data", config).get("pose2d") or {}
+    out = {}
+    for entry in pose2d.get("models") or []:
+        if isinstance(entry, dict) and isinstance(entry.get("name"), str):
+            out[entry["name"]] = str(entry.get("weights") or "")
+    for name, path in (pose2d.get("weights") or {}).items():
+        out[str(name)] = str(path or "")
+    return out
+
+
+def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, bool]) -> list[str]:
+    """Problems the planned run would hit inside a job, found from the config alone.
+
+    Parameters
+    ----------
+    config
+        The validated :class:`flylib.config.Config`.
+    recordings
+        The planned :class:`flylib.recordings.Recording` objects.
+    flags
+        ``Config.stage_flags()``.
+
+    Returns
+    -------
+    list of str
+        One line per problem, each starting with the config key it concerns.
+    """
+    recordings = list(recordings)
+    problems: list[str] = []
+    data = config.data
+
+    if data.get("cameras") and any(k != "defaults" for k in data["cameras"]):
+        try:  # principal points default to the image centre: any size checks the rest
+            config.camera_group(image_sizes={v: (2, 2) for v in config.view_names()})
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
+    if flags.get("bundle_adjustment", True) and config.view_names():
+        from .ba.params import build_layout
+        from .camera_model import N_DIST_COEFFS
+
+        ba = config.bundle_adjustment
+        try:  # every distortion slot allowed: the job pads to the rig's own count
+            build_layout(config.view_names(), N_DIST_COEFFS, ba.fixed, ba.shared)
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
+    calibration = data.get("calibration")
+    if isinstance(calibration, dict) and calibration.get("format") is not None:
+        from .interop.anipose import CALIBRATION_FORMATS
+
+        if calibration["format"] not in CALIBRATION_FORMATS:
+            problems.append(f"calibration.format: unknown format {calibration['format']!r}; "
+                            f"use one of {', '.join(CALIBRATION_FORMATS)}")
+
+    if any(rec.demo for rec in recordings):
+        from .demo import demo_settings
+
+        try:
+            demo_settings(config)
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+
+    if flags.get("pose2d", True):
+        problems += _pose2d_problems(config, recordings)
+
+    if flags.get("visualization", True):
+        try:
+            config.videos  # noqa: B018 -- parsing is the check
+        except FlylibError as exc:
+            problems.append(_problem(exc))
+    return list(dict.fromkeys(problems))
+
+
+def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
+    """Validate a run's config and plan its recordings, as the workflow does before its DAG.
+
+    Parameters
+    ----------
+    layers
+        The run's :class:`flylib.config.layers.ConfigLayers`.
+    check_frames
+        Compare footage frame counts across cameras while planning.
+
+    Returns
+    -------
+    config, recordings
+        The :class:`flylib.config.Config` (its ``text``: the one file's exact text, or a
+        YAML dump of the merged layers) and the planned recordings.
+
+    Raises
+    ------
+    ConfigError
+        Every problem, one line each, naming the user's file that set the key.
+    """
+    import yaml
+
+    from .config import Config, validate_config
+    from .errors import ConfigError
+    from .recordings import plan_recordings
+
+    problems = validate_config(layers.data)
+    if problems:
+        raise ConfigError(layers.report(problems))
+    text = layers.single_text()
+    if text is None:
+        text = yaml.safe_dump(layers.data, sort_keys=False, default_flow_style=None)
+    try:
+        config = Config(layers.data, text=text, format="yaml")
+        recordings = plan_recordings(config, check_frames=check_frames)
+        problems = preflight_problems(config, recordings, config.stage_flags())
+    except FlylibError as exc:
+        problems = [" ".join(str(exc).split())]
+    if problems:
+        raise ConfigError(layers.report(problems))
+    return config, recordings
+
+
+def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
+    from .interop import import_spec
+    from .recordings import find_recording
+
+    problems: list[str] = []
+    detector = []
+    for rec in recordings:
+        if rec.import_spec is None:
+            if not rec.demo:
+                detector.append(rec)
+            continue
+        own = rec.extra.get("own_import") and not rec.demo
+        where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
+        try:
+            import_spec(config, rec.import_spec)
+        except FlylibError as exc:
+            text = _problem(exc)
+            if where:
+                text = text.replace("pose2d.import", where, 1)
+            problems.append(text)
+    if not detector:
+        return problems
+
+    try:
+        plan = config.detection_plan()
+    except FlylibError as exc:
+        return [*problems, _problem(exc)]
+    own_weights = (config.data.get("pose2d") or {}).get("weights") or {}
+    for name, path in model_weights(config).items():
+        if name not in plan.models or not path:
+            continue
+        if not Path(path).expanduser().is_file():
+            key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
+            problems.append(f"{key}: {path} does not exist; point it at the checkpoint file "
+                            "(or leave it empty for the published weights)")
+    for rec in detector:
+        if rec.sources:
+            continue
+        where = rec.extra.get("where", "recordings")
+        try:
+            find_recording(rec.path, config, check_frames=False, strict=True)
+        except FlylibError as exc:
+            problems.append(f"{where}: {_problem(exc)}; or read 2D from another tool with "
+                            "pose2d.import")
+    return problems

@@ -1,0 +1,208 @@
+"""The end-of-run table: one line per recording, printed by the workflow's
+``onsuccess`` / ``onerror`` handlers so the answer is the last thing a run shows.
+
+Each row comes from the recording's ``summary.json`` (written by the assemble job):
+frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
+error, the suspect count when the summary holds one, and where the outputs are.
+Warnings the jobs logged (e.g. an implausible container frame rate) follow the
+table, and the demo's comparison against its 3D truth comes last.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+# A Python warning ("file.py:12: UserWarning: text") or a logging record at WARNING
+# level ("... WARNING name: text") in a job's log.
+_WARNING = re.compile(r"(?:^|\s)(?:\w*Warning: |WARNING [\w.]+: )(?P<text>.+)$")
+
+
+@dataclass(frozen=True)
+class RunRecording:
+    """What the table needs of a planned recording.
+
+    Attributes
+    ----------
+    id
+        The recording's id (first column).
+    outdir
+        Its output directory (``summary.json``, ``logs/``).
+    demo
+        Whether it is the embedded demo (its truth comparison is printed last).
+    """
+
+    id: str
+    outdir: Path
+    demo: bool = False
+
+
+def _suspects(summary: dict) -> int | None:
+    value = summary.get("suspects")
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, (int, float)):
+        return int(value)
+    if isinstance(value, dict):
+        for key in ("count", "total", "n"):
+            if isinstance(value.get(key), (int, float)):
+                return int(value[key])
+        return sum(_suspects({"suspects": v}) or 0 for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return len(value)
+    return None
+
+
+def log_warnings(outdir: Path) -> list[str]:
+    """The distinct warning messages in ``<outdir>/logs/*.log``, in file order.
+
+    Parameters
+    ----------
+    outdir
+        A recording's output directory.
+
+    Returns
+    -------
+    list of str
+        ``"<log stem>: <message>"`` per distinct warning.
+    """
+    found: list[str] = []
+    for log in sorted((Path(outdir) / "logs").glob("*.log")):
+        try:
+            lines = log.read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+        for line in lines:
+            match = _WARNING.search(line)
+            if match:
+                found.append(f"{log.stem}: {match.group('text').strip()}")
+    return list(dict.fromkeys(found))
+
+
+def _failed_log(outdir: Path, since: float) -> Path | None:
+    """The log of a job of this run that failed: written since ``since`` and ending in an
+    error line (else the newest log written since then), or ``None`` if none was written."""
+    fresh = sorted((p for p in (Path(outdir) / "logs").glob("*.log") if p.stat().st_mtime >= since),
+                   key=lambda p: p.stat().st_mtime)
+    for log in reversed(fresh):
+        tail = log.read_text(errors="replace").strip().splitlines()[-1:]
+        if tail and (tail[0].startswith("error:") or "Error" in tail[0]):
+            return log
+    return fresh[-1] if fresh else None
+
+
+def recording_row(rec: RunRecording, since: float | None = None) -> dict[str, Any]:
+    """One table row: the recording's ``summary.json`` figures (``None`` where absent).
+
+    With ``since`` (the start of a failed run), a summary older than that while one of
+    the recording's jobs wrote a log since then is not shown: it describes an earlier
+    run, and ``failed_log`` names the log to read.
+    """
+    path = Path(rec.outdir) / "summary.json"
+    row: dict[str, Any] = {"id": rec.id, "outdir": str(rec.outdir), "summary": None, "failed_log": None}
+    if since is not None:
+        row["failed_log"] = _failed_log(rec.outdir, since)
+        if row["failed_log"] is not None and path.is_file() and path.stat().st_mtime >= since:
+            row["failed_log"] = None  # assembled in this run: its jobs finished
+        if row["failed_log"] is not None:
+            return row
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return row
+    error = summary.get("reprojection_error_px") or {}
+    row.update(
+        summary=summary,
+        frames=summary.get("frames"),
+        reconstructed=summary.get("reconstructed_3d_fraction"),
+        median=error.get("median"),
+        p95=error.get("p95"),
+        suspects=_suspects(summary),
+        truth=summary.get("error_vs_truth"),
+    )
+    return row
+
+
+def _fmt(value: Any, kind: str) -> str:
+    if value is None:
+        return "-"
+    if kind == "percent":
+        return f"{100 * float(value):.1f}%"
+    if kind == "px":
+        return f"{float(value):.2f}"
+    return str(value)
+
+
+def _align(rows: Sequence[Sequence[str]]) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = []
+    for r in rows:
+        cells = [c.ljust(w) if i in (0, len(r) - 1) else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))]
+        lines.append("  ".join(cells).rstrip())
+    return lines
+
+
+def truth_line(rec_id: str, error: dict) -> str:
+    """The demo's 3D error against its truth, as one line."""
+    return (f"{rec_id}: 3D error against the demo truth: median {error['median']:.4f}, "
+            f"p95 {error['p95']:.4f} world units (body length {error['body_length']:.2f}); "
+            f"after similarity alignment median {error['median_aligned']:.4f}; "
+            f"{100 * error['reconstructed']:.1f}% of points reconstructed")
+
+
+def run_table(recordings: Iterable[RunRecording], *, failed: bool = False,
+              since: float | None = None) -> str:
+    """The end-of-run report: the per-recording table, warnings, then the demo truth.
+
+    Parameters
+    ----------
+    recordings
+        The recordings the run covered, in plan order.
+    failed
+        The run ended with an error (rows without a summary say so).
+    since
+        When the failed run started (``time.time()``): a recording whose jobs wrote a
+        log since then but no new summary is shown as failed, naming that log.
+
+    Returns
+    -------
+    str
+        Lines joined by newlines; the demo's truth comparison (if any) is the last line.
+    """
+    recordings = list(recordings)
+    rows = [recording_row(rec, since if failed else None) for rec in recordings]
+    with_suspects = any(r.get("suspects") is not None for r in rows)
+    header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
+    if with_suspects:
+        header.append("suspects")
+    header.append("outputs")
+    cells = [header]
+    for r in rows:
+        if r["summary"] is None:
+            status = "no result"
+            if r["failed_log"] is not None:
+                status = f"failed: see {r['failed_log']}"
+            elif failed:
+                status = "no result yet: see logs/"
+            line = [r["id"], "-", "-", "-", "-"] + (["-"] if with_suspects else []) + [f"{r['outdir']}  ({status})"]
+        else:
+            line = [r["id"], _fmt(r["frames"], "int"), _fmt(r["reconstructed"], "percent"),
+                    _fmt(r["median"], "px"), _fmt(r["p95"], "px")]
+            if with_suspects:
+                line.append(_fmt(r["suspects"], "int"))
+            line.append(r["outdir"])
+        cells.append(line)
+    title = "flylib: per-recording results" + (" (the run failed; rows without a result did not finish)"
+                                               if failed else "")
+    lines = [title, *_align(cells)]
+    warnings = [f"  {rec.id}: {w}" for rec in recordings for w in log_warnings(rec.outdir)]
+    if warnings:
+        lines += ["warnings:", *warnings]
+    lines += [truth_line(r["id"], r["truth"]) for rec, r in zip(recordings, rows) if rec.demo and r.get("truth")]
+    return "\n".join(lines)

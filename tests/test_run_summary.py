@@ -1,0 +1,108 @@
+"""The end-of-run table (flylib.run_summary) and the summary figure's note on views
+without 2D."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from flylib.run_summary import RunRecording, log_warnings, run_table
+from flylib.visualization.summary import views_without_2d
+
+TRUTH = {"median": 0.0565, "p95": 0.0627, "body_length": 2.97, "median_aligned": 0.0065,
+         "reconstructed": 0.986}
+
+
+def write_summary(outdir: Path, **extra) -> None:
+    outdir.mkdir(parents=True, exist_ok=True)
+    summary = {"frames": 60, "reconstructed_3d_fraction": 0.5,
+               "reprojection_error_px": {"median": 0.789, "p95": 1.774}, **extra}
+    (outdir / "summary.json").write_text(json.dumps(summary))
+
+
+def test_table_rows_warnings_and_the_demo_truth_last(tmp_path):
+    demo, real, failed = tmp_path / "demo", tmp_path / "real", tmp_path / "failed"
+    write_summary(demo, error_vs_truth=TRUTH)
+    write_summary(real)
+    (real / "logs").mkdir()
+    (real / "logs" / "visualization.log").write_text(
+        "/x/specs.py:480: UserWarning: visualization.videos[0] (pose2d): the footage frame rate is "
+        "0.2 fps, not plausible; writing at visualization.default_fps = 30 fps\n"
+        "  warnings.warn(\n"
+        "2026-01-01 10:00:00,000 WARNING flylib.io: camera_3.mp4: 2 frames short\n"
+        "2026-01-01 10:00:00,000 INFO flylib.io: all good\n")
+    recs = [RunRecording("demo", demo, demo=True), RunRecording("real", real), RunRecording("failed", failed)]
+    lines = run_table(recs, failed=True).splitlines()
+    assert lines[0].startswith("flylib: per-recording results (the run failed")
+    assert lines[1].split() == ["recording", "frames", "3D", "reconstructed", "reproj", "median", "px",
+                                "reproj", "p95", "px", "outputs"]
+    assert lines[2].split() == ["demo", "60", "50.0%", "0.79", "1.77", str(demo)]
+    assert lines[3].split()[:2] == ["real", "60"]
+    assert lines[4].split()[0] == "failed" and "no result yet" in lines[4]
+    assert lines[5] == "warnings:"
+    assert "real: visualization: visualization.videos[0] (pose2d): the footage frame rate is 0.2 fps" in lines[6]
+    assert lines[7] == "  real: visualization: camera_3.mp4: 2 frames short"
+    assert lines[-1].startswith("demo: 3D error against the demo truth: median 0.0565, p95 0.0627")
+    assert len(lines) == 9
+    # the columns line up under the header
+    assert lines[2].index(str(demo)) == lines[1].index("outputs")
+
+
+def test_suspect_column_appears_when_a_summary_counts_suspects(tmp_path):
+    write_summary(tmp_path / "a", suspects=3)
+    write_summary(tmp_path / "b", suspects={"count": 0, "frames": []})
+    write_summary(tmp_path / "c")
+    table = run_table([RunRecording(n, tmp_path / n) for n in "abc"]).splitlines()
+    assert "suspects" in table[1].split()
+    assert table[1].split()[-2:] == ["suspects", "outputs"]
+    assert [row.split()[5] for row in table[2:5]] == ["3", "0", "-"]
+    assert "suspects" not in run_table([RunRecording("c", tmp_path / "c")])
+
+
+def test_log_warnings_are_distinct_and_named_by_log(tmp_path):
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "pose2d.log").write_text("a.py:1: UserWarning: twice\na.py:1: UserWarning: twice\n")
+    assert log_warnings(tmp_path) == ["pose2d: twice"]
+    assert log_warnings(tmp_path / "absent") == []
+
+
+def test_summary_figure_names_the_views_without_2d(tmp_path):
+    from flylib.cameras import CameraGroup
+    from flylib.results import PoseResult
+    from flylib.skeleton import Skeleton
+    from flylib.visualization import summary_figure
+
+    names = ["a", "b", "c"]
+    pts2d = np.random.default_rng(0).uniform(0, 100, (3, 4, 2, 2))
+    pts2d[1] = np.nan  # view b saw nothing
+    assert views_without_2d(pts2d, names) == ["b"]
+    assert views_without_2d(pts2d[[0, 2]], ["a", "c"]) == []
+    cameras = CameraGroup.from_arrays(names, np.zeros((3, 3)), np.tile([0.0, 0.0, 10.0], (3, 1)),
+                                      np.tile([100.0, 100.0, 50.0, 50.0], (3, 1)), np.zeros((3, 5)))
+    skeleton = Skeleton(point_names=("p0", "p1"), limbs={"leg": ("p0", "p1")}, palette={}, name="t")
+    error = np.where(np.isfinite(pts2d).all(-1), 1.0, np.nan)
+    result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d,
+                        pts3d=np.zeros((4, 2, 3)), reproj_error=error)
+    assert summary_figure(result, tmp_path / "s.png", dpi=30).stat().st_size > 0
+
+
+def test_a_failed_run_does_not_show_an_earlier_runs_result(tmp_path):
+    import os
+    import time
+
+    for name in ("failed", "untouched", "finished"):
+        write_summary(tmp_path / name, error_vs_truth=TRUTH)
+        (tmp_path / name / "logs").mkdir()
+        os.utime(tmp_path / name / "summary.json", (1_000_000, 1_000_000))  # an earlier run
+    start = time.time() - 1
+    (tmp_path / "failed" / "logs" / "pose2d.log").write_text("error: x.csv: not a DeepLabCut CSV\n")
+    (tmp_path / "finished" / "logs" / "assemble.log").write_text("ok\n")
+    os.utime(tmp_path / "finished" / "summary.json")  # rewritten in this run
+    recs = [RunRecording(n, tmp_path / n, demo=True) for n in ("failed", "untouched", "finished")]
+    lines = run_table(recs, failed=True, since=start).splitlines()
+    assert lines[2].split()[:2] == ["failed", "-"]
+    assert f"failed: see {tmp_path / 'failed' / 'logs' / 'pose2d.log'}" in lines[2]
+    assert lines[3].split()[:2] == ["untouched", "60"] and lines[4].split()[:2] == ["finished", "60"]
+    assert [line.split(":")[0] for line in lines[5:]] == ["untouched", "finished"]  # truth lines
