@@ -24,6 +24,7 @@ include: "workflow/rules/pose2d.smk"
 include: "workflow/rules/reconstruction.smk"
 include: "workflow/rules/results.smk"
 include: "workflow/rules/visualization.smk"
+include: "workflow/rules/exports.smk"
 
 
 localrules:
@@ -33,4 +34,5 @@ localrules:
 rule all:
     input:
         all_targets(),
+        export_targets(),
     default_target: True

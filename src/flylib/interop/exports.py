@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .dlc import write_dlc_csv
 from ..paths import atomic_path
+from .dlc import write_dlc_csv
 
 #: Anipose's per-point column suffixes, in its order.
 ANIPOSE_POINT_COLUMNS = ("x", "y", "z", "error", "ncams", "score")

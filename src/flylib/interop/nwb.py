@@ -166,8 +166,8 @@ def _nwbfile_kwargs(metadata: Mapping, *, recording: str | None, config_text: st
     description = metadata.get("session_description") or (
         f"Markerless pose of a tethered fly: {n_points} keypoints over {n_frames} frames from "
         f"{n_views} synchronized cameras, estimated with flylib {__version__}")
-    collection = [f"Keypoints estimated with flylib {__version__} "
-                  f"(stages: {', '.join(result.meta.get('stages') or []) or 'unknown'})."]
+    stages = ", ".join(result.meta.get("stages") or []) or "unknown"
+    collection = [f"Keypoints estimated with flylib {__version__} (stages: {stages})."]
     if recording:
         collection.append(f"Recording (footage): {recording}")
     if config_text:
@@ -264,8 +264,8 @@ def write_nwb(
     rate = float(rate)
     names = list(result.skeleton.point_names)
     views = list(result.cameras.names)
-    nwbfile = NWBFile(**_nwbfile_kwargs(metadata, recording=None if recording is None else str(recording),
-                                        config_text=config_text, result=result))
+    recording_text = None if recording is None else str(Path(recording).resolve())
+    nwbfile = NWBFile(**_nwbfile_kwargs(metadata, recording=recording_text, config_text=config_text, result=result))
     nwbfile.subject = _subject(metadata)
 
     cameras = {}
@@ -445,3 +445,63 @@ def export_nwb(
                     recording_dir, ", ".join(missing))
     return write_nwb(result, out_path, metadata, footage=footage, recording=recording_dir,
                      config_text=config.snapshot_text())
+
+
+def export_nwb_command(
+    results_path: str | Path,
+    out_path: str | Path,
+    *,
+    config_path: str | Path | None = None,
+    recording: str | Path | None = None,
+    metadata_path: str | Path | None = None,
+) -> Path:
+    """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
+    :func:`export_nwb`.
+
+    Parameters
+    ----------
+    results_path
+        The recording's ``results.h5``.
+    out_path
+        Destination ``.nwb``.
+    config_path
+        The run's config; default the ``config.yaml`` (or ``.toml``) snapshot every run
+        leaves beside ``results.h5``, else flylib's default config.
+    recording
+        The recording directory; default the one ``results.h5`` records (its footage is
+        linked and its ``nwb.yaml`` read).
+    metadata_path
+        A YAML file of session metadata overriding the config's ``nwb`` table and the
+        recording's ``nwb.yaml``.
+
+    Raises
+    ------
+    ConfigError, ResultsError
+        One line naming what is missing or wrong.
+    """
+    from ..config import Config
+    from ..results import open_checked, read_meta_from
+    from .nwb_metadata import read_sidecar
+
+    results_path = Path(results_path)
+    with open_checked(results_path, "pass the results.h5 a run wrote") as f:
+        meta = read_meta_from(f)
+    if config_path is None:
+        snapshots = [results_path.parent / f"config.{ext}" for ext in ("yaml", "toml")]
+        config_path = next((p for p in snapshots if p.is_file()), None)
+        if config_path is None:
+            log.warning("%s: no config snapshot beside it; using flylib's default config "
+                        "(pass --config for the run's)", results_path)
+    config = Config.from_file(config_path) if config_path is not None else Config.default()
+    if recording is None and meta.get("recording"):
+        recording = Path(meta["recording"])
+        if not recording.is_dir():
+            log.warning("%s names recording %s, which is not a directory here; no video is linked "
+                        "(pass --recording)", results_path, recording)
+            recording = None
+    extra = None
+    if metadata_path is not None:
+        if not Path(metadata_path).is_file():
+            raise ConfigError(f"{metadata_path}: --nwb-metadata file not found")
+        extra = read_sidecar(metadata_path)
+    return export_nwb(config, results_path, out_path, recording_dir=recording, extra_metadata=extra)

@@ -111,7 +111,7 @@ def parse_datetime(value: Any, where: str) -> datetime:
                           "e.g. 2024-05-01T14:03:00+02:00")
     elif isinstance(value, str):
         try:
-            parsed = datetime.fromisoformat(value.strip().replace("Z", "+00:00"))
+            parsed = datetime.fromisoformat(value.strip())
         except ValueError:
             raise ConfigError(f"{where}: {value!r} is not an ISO 8601 date-time; write it like "
                               "2024-05-01T14:03:00+02:00") from None
