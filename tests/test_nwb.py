@@ -324,3 +324,81 @@ def test_anipose_csv_reads_with_anipose_own_reader_logic(tmp_path):
     rotation = np.array([[data.loc[0, f"M_{i}{j}"] for j in range(3)] for i in range(3)])
     center = np.array([data.loc[0, f"center_{i}"] for i in range(3)])
     np.testing.assert_array_equal((points + center).dot(np.linalg.inv(rotation.T)), pts3d)
+
+
+# -- the workflow rule ----------------------------------------------------------------------
+
+
+def _workflow_config(tmp_path):
+    from test_workflow import base_config, make_recording
+
+    config = base_config()
+    config["pipeline"]["do_bundle_adjustment"] = False
+    config["pipeline"]["do_visualization"] = False
+    config["recordings"] = [make_recording(config, tmp_path / "recA", seed=0)]
+    config["exports"] = {"nwb": True}
+    config["nwb"] = {"experimenter": ["Doe, Jane"], "lab": "Fly lab",
+                     "subject": {"sex": "F", "age": "P3D"}}
+    (tmp_path / "recA" / SIDECAR).write_text(
+        "session_start_time: '2024-05-01T14:03:00+02:00'\nsubject: {subject_id: recA}\n")
+    return config
+
+
+@pytest.mark.slow
+def test_export_rule_reruns_only_when_the_result_or_its_tables_change(tmp_path):
+    import copy
+
+    from test_workflow import jobs, planned, snakemake
+
+    config = _workflow_config(tmp_path)
+    snakemake(tmp_path, config=config)
+    nwb = tmp_path / "recA" / "flylib_outputs" / "results.nwb"
+    with pynwb.NWBHDF5IO(str(nwb), "r") as io:
+        nwbfile = io.read()
+        assert nwbfile.subject.subject_id == "recA" and nwbfile.lab == "Fly lab"
+        result = PoseResult.load(nwb.with_name("results.h5"))
+        multi = nwbfile.processing["behavior"]["MultiCameraPoseEstimation"]
+        np.testing.assert_array_equal(_stack(multi, result.skeleton.point_names), result.pts3d)
+    assert planned(tmp_path, config) == set()
+
+    edited = copy.deepcopy(config)
+    edited["nwb"]["lab"] = "Another lab"
+    assert planned(tmp_path, edited) == {("export_nwb", "recA")}
+    edited = copy.deepcopy(config)
+    edited["pose2d"]["batch_size"] = 3  # performance knob: nothing
+    assert planned(tmp_path, edited) == set()
+    edited = copy.deepcopy(config)
+    edited["triangulation"]["ransac_threshold"] = 9.5
+    assert planned(tmp_path, edited) == jobs(("triangulation", "assemble", "export_nwb"), ("recA",))
+    edited = copy.deepcopy(config)
+    edited["exports"]["nwb"] = False
+    assert planned(tmp_path, edited) == set()
+
+    sidecar = tmp_path / "recA" / SIDECAR
+    sidecar.write_text(sidecar.read_text().replace("recA", "fly-A"))  # the lab edits nwb.yaml
+    assert planned(tmp_path, config) == {("export_nwb", "recA")}
+
+
+@pytest.mark.slow
+def test_missing_metadata_stops_the_workflow_before_any_job(tmp_path):
+    from test_workflow import snakemake
+
+    config = _workflow_config(tmp_path)
+    del config["nwb"]["experimenter"]
+    (tmp_path / "recA" / SIDECAR).unlink()
+    proc = snakemake(tmp_path, "--dry-run", config=config, check=False)
+    assert proc.returncode != 0
+    text = proc.stdout + proc.stderr
+    assert "exports.nwb is on" in text and str(tmp_path / "recA" / SIDECAR) in text
+    for key in ("session_start_time", "experimenter", "subject.subject_id"):
+        assert key in text
+    assert "rule pose2d" not in text
+
+
+@pytest.mark.slow
+def test_demo_needs_no_metadata_to_plan_its_export(tmp_path):
+    from test_workflow import base_config, planned
+
+    config = base_config()  # the embedded demo, not generated yet
+    config["exports"] = {"nwb": True}
+    assert ("export_nwb", "demo") in planned(tmp_path, config)
