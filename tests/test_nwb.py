@@ -223,6 +223,20 @@ def test_config_validation_checks_the_exports_and_nwb_tables():
     Config.from_dict({**data, "exports": {"nwb": True}, "nwb": {"world_unit": "millimeters", "frame_rate": 100}})
 
 
+def test_the_default_configs_commented_exports_and_nwb_example_is_valid():
+    """config/config.yaml documents the tables commented out; uncommented they validate."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()
+    block = text[text.index("# exports:"):]
+    example = yaml.safe_load("\n".join(line[2:] for line in block.splitlines()
+                                       if re.match(r"^# (exports|nwb|  )", line)))
+    assert example["exports"] == {"nwb": True} and example["nwb"]["subject"]["sex"] == "F"
+    config = Config.from_dict({**Config.default().data, **example})
+    metadata = recording_metadata(config, None)
+    assert metadata["subject"]["species"] == "Drosophila melanogaster"
+
+
 def test_no_frame_rate_is_a_clear_error(demo_result, tmp_path):
     with pytest.raises(ConfigError, match="nwb.frame_rate"):
         write_nwb(demo_result["result"], tmp_path / "x.nwb", recording_metadata({}, demo_result["recording"]))
