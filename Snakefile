@@ -34,5 +34,5 @@ localrules:
 rule all:
     input:
         all_targets(),
-        export_targets(),
+        EXPORT_TARGETS,
     default_target: True

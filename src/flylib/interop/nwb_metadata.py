@@ -23,7 +23,7 @@ a timezone, e.g. ``2024-05-01T14:03:00+02:00``), ``experimenter``,
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import date, datetime
 from pathlib import Path
 from typing import Any
@@ -294,3 +294,46 @@ def recording_metadata(config: Any, recording_dir: str | Path | None, *, demo: b
                 f"{', '.join(missing)}; set them in the config's nwb table or in {where}"
             )
     return metadata
+
+
+# -- what the workflow asks before any job starts (workflow/rules/exports.smk) ----------
+
+
+def recordings_metadata_problems(config: Any, recordings: Sequence[Any]) -> list[str]:
+    """One line per recording whose NWB export would fail for its metadata or frame rate.
+
+    Parameters
+    ----------
+    config
+        The run's :class:`~flylib.config.Config`.
+    recordings
+        :class:`flylib.recordings.Recording` objects (``path``, ``demo``, ``footage``).
+
+    Returns
+    -------
+    list of str
+        Empty when every recording can be exported.
+    """
+    from ..io import VIDEO_EXTS
+
+    problems = []
+    for rec in recordings:
+        try:
+            metadata = recording_metadata(config, rec.path, demo=rec.demo)
+        except ConfigError as exc:
+            problems.append(str(exc))
+            continue
+        stills = [f for f in rec.footage if Path(f).suffix.lower() not in VIDEO_EXTS]
+        if stills and not metadata.get("frame_rate"):
+            problems.append(
+                f"nwb.frame_rate: recording {rec.path} is image sequences, which carry no frame rate; "
+                f"set nwb.frame_rate (frames per second) in the config or in {Path(rec.path) / SIDECAR}"
+            )
+    return problems
+
+
+def sidecar_inputs(rec: Any) -> list[str]:
+    """The recording's ``nwb.yaml`` as a workflow input when it has one, so editing it
+    re-runs the export (the demo's is generated with the demo: none)."""
+    path = Path(rec.path) / SIDECAR
+    return [str(path)] if not rec.demo and path.is_file() else []
