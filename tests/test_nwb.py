@@ -237,6 +237,25 @@ def test_the_default_configs_commented_exports_and_nwb_example_is_valid():
     assert metadata["subject"]["species"] == "Drosophila melanogaster"
 
 
+def test_image_sequence_footage_links_every_image_at_the_configured_rate(demo_result, tmp_path):
+    result = demo_result["result"]
+    footage = {}
+    for view in result.cameras.names:
+        footage[view] = [tmp_path / "frames" / f"{view}_img_{i:03d}.png" for i in range(result.n_frames)]
+        for path in footage[view]:
+            path.parent.mkdir(exist_ok=True)
+            cv2.imwrite(str(path), np.zeros((4, 4), np.uint8))
+    metadata = {**recording_metadata({}, demo_result["recording"]), "frame_rate": 50.0}
+    path = write_nwb(result, tmp_path / "out" / "seq.nwb", metadata, footage=footage)
+    with pynwb.NWBHDF5IO(str(path), "r") as io:
+        nwbfile = io.read()
+        video = nwbfile.acquisition["video_lf"]
+        assert list(video.external_file[:]) == [f"../frames/lf_img_{i:03d}.png" for i in range(result.n_frames)]
+        assert list(video.starting_frame[:]) == list(range(result.n_frames)) and video.rate == 50.0
+        multi = nwbfile.processing["behavior"]["MultiCameraPoseEstimation"]
+        assert multi.pose_estimation_series["lf_claw"].rate == 50.0
+
+
 def test_no_frame_rate_is_a_clear_error(demo_result, tmp_path):
     with pytest.raises(ConfigError, match="nwb.frame_rate"):
         write_nwb(demo_result["result"], tmp_path / "x.nwb", recording_metadata({}, demo_result["recording"]))

@@ -75,9 +75,9 @@ MULTICAMERA_NAME = "MultiCameraPoseEstimation"
 _COMPRESS_MIN_ELEMENTS = 4096
 
 CONFIDENCE_DEFINITION = (
-    "exp(-e / 5 px) * min(1, (n - 1) / 2): n = number of views the point was triangulated from "
-    "(views with a finite reprojection error), e = mean reprojection error over them in pixels; "
-    "NaN where the point was not reconstructed"
+    f"exp(-e / {CONFIDENCE_ERROR_SCALE_PX:g} px) * min(1, (n - 1) / {CONFIDENCE_FULL_VIEWS - 1}): "
+    "n = number of views the point was triangulated from (views with a finite reprojection error), "
+    "e = mean reprojection error over them in pixels; NaN where the point was not reconstructed"
 )
 
 
