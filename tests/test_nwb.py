@@ -26,7 +26,7 @@ from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.interop.exports import points3d_table, write_dlc_views, write_points3d_csv
 from flylib.interop.nwb import confidence_3d, export_nwb, write_nwb
-from flylib.interop.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
+from flylib.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
 from flylib.results import PoseResult
 
 FRAMES = 40  # >= the 38 points, so every (time, point) series is time-major

@@ -374,7 +374,7 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
                                   [p for p, k in zip(points, keep) if k], scorer=DLC_SCORER)
     truth = _write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
     # The session metadata a lab puts beside its footage for the NWB export (synthetic here).
-    from .interop.nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
+    from .nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
 
     write_sidecar(directory / SIDECAR, DEMO_METADATA)
     log.info("demo recording written to %s (%d frames, %d views)", directory, len(pts3d), len(views))

@@ -261,7 +261,7 @@ def validate_config(data: Any) -> list[str]:
 
 def _export_problems(data: Mapping) -> list[str]:
     """The ``exports`` table (which extra outputs to write) and the NWB export's ``nwb`` table."""
-    from ..interop.nwb_metadata import metadata_problems
+    from ..nwb_metadata import metadata_problems
 
     problems: list[str] = []
     exports = data.get("exports")

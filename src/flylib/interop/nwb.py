@@ -5,7 +5,7 @@ built with ``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4
 describes multi-camera 3D pose:
 
 ``/general``
-    session metadata from :mod:`flylib.interop.nwb_metadata` (subject, session start
+    session metadata from :mod:`flylib.nwb_metadata` (subject, session start
     time, experimenter, ...); ``was_generated_by`` = flylib and its version;
     ``data_collection`` = the recording's path and the flylib config that produced the
     result (its snapshot text); ``session_id`` defaults to the recording's name.
@@ -60,8 +60,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, ResultsError
+from ..nwb_metadata import parse_datetime, recording_metadata
 from ..paths import atomic_path
-from .nwb_metadata import parse_datetime, recording_metadata
 
 log = logging.getLogger(__name__)
 
@@ -220,7 +220,7 @@ def write_nwb(
     path
         Destination ``.nwb`` file.
     metadata
-        Merged session metadata (:func:`flylib.interop.nwb_metadata.recording_metadata`).
+        Merged session metadata (:func:`flylib.nwb_metadata.recording_metadata`).
     footage
         ``view -> files`` of the source footage, linked as external ``ImageSeries``
         (omitted for views without files).
@@ -480,8 +480,8 @@ def export_nwb_command(
         One line naming what is missing or wrong.
     """
     from ..config import Config
+    from ..nwb_metadata import read_sidecar
     from ..results import open_checked, read_meta_from
-    from .nwb_metadata import read_sidecar
 
     results_path = Path(results_path)
     with open_checked(results_path, "pass the results.h5 a run wrote") as f:

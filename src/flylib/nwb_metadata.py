@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import ConfigError
+from .errors import ConfigError
 
 #: Name of the per-recording sidecar file.
 SIDECAR = "nwb.yaml"
@@ -241,7 +241,7 @@ def read_sidecar(path: str | Path) -> dict[str, Any] | None:
 
 def write_sidecar(path: str | Path, metadata: Mapping) -> Path:
     """Write metadata as a recording's ``nwb.yaml`` (atomically)."""
-    from ..paths import atomic_path
+    from .paths import atomic_path
 
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -314,7 +314,7 @@ def recordings_metadata_problems(config: Any, recordings: Sequence[Any]) -> list
     list of str
         Empty when every recording can be exported.
     """
-    from ..io import VIDEO_EXTS
+    from .io import VIDEO_EXTS
 
     problems = []
     for rec in recordings:
