@@ -178,6 +178,28 @@ def test_confidence_formula_on_hand_made_errors():
     assert np.isnan(got[4])
 
 
+def test_a_result_without_confidences_or_errors_still_exports(tmp_path):
+    """Only what the result has is written: no 2D confidence, no 3D confidence, no error series."""
+    from flylib.cameras import CameraGroup
+    from flylib.skeleton import Skeleton
+
+    skeleton = Skeleton(point_names=("p0", "p1"), limbs={"leg": ("p0", "p1")}, palette={}, name="tiny")
+    cameras = CameraGroup.from_arrays(["a", "b"], np.zeros((2, 3)), np.tile([0.0, 0.0, 20.0], (2, 1)),
+                                      np.tile([800.0, 800.0, 320.0, 240.0], (2, 1)), np.zeros((2, 5)))
+    pts3d = np.random.default_rng(1).normal(size=(6, 2, 3))
+    pts3d[2, 1] = np.nan
+    result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=cameras.project(pts3d), pts3d=pts3d)
+    path = write_nwb(result, tmp_path / "tiny.nwb", DEMO_METADATA, frame_rate=30.0)
+    with pynwb.NWBHDF5IO(str(path), "r") as io:
+        behavior = io.read().processing["behavior"]
+        multi = behavior["MultiCameraPoseEstimation"]
+        np.testing.assert_array_equal(_stack(multi, ["p0", "p1"]), pts3d)
+        assert multi.pose_estimation_series["p0"].confidence is None
+        assert multi.pose_estimations["PoseEstimation_b"].pose_estimation_series["p1"].confidence is None
+        assert not any(name.startswith("ReprojectionError") for name in behavior.data_interfaces)
+        assert multi.pose_estimations["PoseEstimation_a"].source_video is None
+
+
 # -- session metadata -------------------------------------------------------------------
 
 
