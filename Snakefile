@@ -25,6 +25,7 @@ include: "workflow/rules/pose2d.smk"
 include: "workflow/rules/reconstruction.smk"
 include: "workflow/rules/results.smk"
 include: "workflow/rules/visualization.smk"
+include: "workflow/rules/exports.smk"
 include: "workflow/rules/summary.smk"
 
 
@@ -35,4 +36,5 @@ localrules:
 rule all:
     input:
         all_targets(),
+        EXPORT_TARGETS,
     default_target: True

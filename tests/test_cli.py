@@ -76,7 +76,7 @@ def test_export_writes_3d_and_dlc_csv_that_import_back(result_file, tmp_path, ca
     assert main(["export", str(path), "--csv3d", str(csv3d), "--dlc-dir", str(dlc_dir)]) == 0
     table = pd.read_csv(csv3d)
     assert len(table) == 5
-    assert table.loc[2, ["p1_x", "p1_y", "p1_z"]].isna().all() and table.loc[2, "p1_ncams"] == 0
+    assert table.loc[2, ["p1_x", "p1_y", "p1_z", "p1_error", "p1_score"]].isna().all()
     np.testing.assert_allclose(table[["p2_x", "p2_y", "p2_z"]].to_numpy(), result.pts3d[:, 2], atol=0)
     assert table.loc[0, "p0_error"] == pytest.approx((1.5 + 0.5 + 0.5) / 3)
     config = {"cameras": {v: {} for v in VIEWS}, "skeleton": {"point_names": ["p0", "p1", "p2"]}}

@@ -440,13 +440,14 @@ def test_points3d_csv_one_row_per_frame_nan_when_missing(tmp_path):
     pts2d = np.where(np.isfinite(err)[..., None], 5.0, np.nan)
     path = write_points3d_csv(tmp_path / "p3d.csv", pts3d, ["a", "b"], err, pts2d)
     table = pd.read_csv(path)
-    assert len(table) == 4 and table["frame"].tolist() == [0, 1, 2, 3]
-    assert list(table.columns) == ["frame", "a_x", "a_y", "a_z", "a_error", "a_ncams", "b_x", "b_y", "b_z", "b_error", "b_ncams"]
-    assert table.loc[1, ["a_x", "a_y", "a_z", "a_error"]].isna().all()
+    assert len(table) == 4 and table["fnum"].tolist() == [0, 1, 2, 3]
+    assert list(table.columns[:12]) == ["a_x", "a_y", "a_z", "a_error", "a_ncams", "a_score",
+                                        "b_x", "b_y", "b_z", "b_error", "b_ncams", "b_score"]
+    assert table.loc[1, ["a_x", "a_y", "a_z", "a_error", "a_score"]].isna().all()
     np.testing.assert_array_equal(table[["b_x", "b_y", "b_z"]].to_numpy(), pts3d[:, 1])
-    assert table.loc[0, "a_error"] == 2.0 and table.loc[0, "a_ncams"] == 2
+    assert table.loc[0, "a_error"] == 2.0 and table.loc[0, "a_ncams"] == 2 and table.loc[0, "a_score"] == 1.0
     frame = points3d_table(pts3d, ["a", "b"])
-    assert frame["a_error"].isna().all() and (frame["a_ncams"] == 0).all()
+    assert frame["a_error"].isna().all() and frame["a_ncams"].isna().all()  # no 2D: Anipose's NaN
 
 
 # -- integration with the default config and real footage -------------------------------------

@@ -114,6 +114,8 @@ _EXPORTS: dict[str, str] = {
     "read_dlc_csv": "interop",
     "write_dlc_csv": "interop",
     "read_sleap_analysis": "interop",
+    "write_nwb": "interop.nwb",
+    "export_nwb": "interop.nwb",
 }
 
 

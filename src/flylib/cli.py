@@ -1,7 +1,7 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
     flylib inspect RESULTS_H5                 per-stage and per-point summary
-    flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR
+    flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does
 
@@ -172,10 +172,16 @@ def _load_result(path: Path):
 def _cmd_export(args) -> int:
     from .interop.exports import export_result
 
-    if args.csv3d is None and args.dlc_dir is None:
-        raise FlylibError("export: nothing to do; pass --csv3d FILE and/or --dlc-dir DIR")
-    for path in export_result(_load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir):
-        print(path)
+    if args.csv3d is None and args.dlc_dir is None and args.nwb is None:
+        raise FlylibError("export: nothing to do; pass --csv3d FILE, --dlc-dir DIR and/or --nwb FILE")
+    if args.nwb is not None:
+        from .interop.nwb import export_nwb_command
+
+        print(export_nwb_command(args.results, args.nwb, config_path=args.config,
+                                 recording=args.recording, metadata_path=args.nwb_metadata))
+    if args.csv3d is not None or args.dlc_dir is not None:
+        for path in export_result(_load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+            print(path)
     return 0
 
 
@@ -214,10 +220,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.set_defaults(func=_cmd_inspect)
 
-    p = sub.add_parser("export", help="3D as tidy CSV, 2D as per-view DeepLabCut CSVs")
+    p = sub.add_parser("export", help="3D as Anipose CSV, 2D as per-view DeepLabCut CSVs, all as NWB")
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("--csv3d", type=Path, help="write the 3D points to this CSV")
     p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
+    p.add_argument("--nwb", type=Path, help="write an NWB file (ndx-pose) here")
+    p.add_argument("--config", type=Path, default=None,
+                   help="NWB: the run's config (default: the config.yaml snapshot beside RESULTS_H5)")
+    p.add_argument("--recording", type=Path, default=None,
+                   help="NWB: the recording directory (footage, nwb.yaml; default: the one results.h5 names)")
+    p.add_argument("--nwb-metadata", type=Path, default=None,
+                   help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("check-config", help="check config files as `snakemake` would, naming file, line and key")

@@ -9,7 +9,8 @@ flylib with the 2D coming from another tool:
   true projections plus pixel noise, dropouts (missing points) and a few gross
   outliers, only for the points each view observes (the config's
   ``pose2d.output_points``);
-- ``truth.h5``: the 3D truth ``(T, P, 3)`` and its exact projections.
+- ``truth.h5``: the 3D truth ``(T, P, 3)`` and its exact projections;
+- ``nwb.yaml``: the (synthetic) session metadata the NWB export reads.
 
 The workflow imports the CSVs through ``pose2d.import`` (format ``dlc``), so the demo
 needs no detector weights and no network. :func:`demo_error` compares a
@@ -372,6 +373,10 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
         dlc[view] = write_dlc_csv(directory / name, observed[v][:, keep], likelihood[v][:, keep],
                                   [p for p, k in zip(points, keep) if k], scorer=DLC_SCORER)
     truth = _write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
+    # The session metadata a lab puts beside its footage for the NWB export (synthetic here).
+    from .nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
+
+    write_sidecar(directory / SIDECAR, DEMO_METADATA)
     log.info("demo recording written to %s (%d frames, %d views)", directory, len(pts3d), len(views))
     return DemoRecording(directory, footage, dlc, truth, pts3d, clean2d)
 

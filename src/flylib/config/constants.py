@@ -50,7 +50,11 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "recursive",
     "outdir",
     "demo",
+    "exports",
+    "nwb",
 )
+#: Keys of the ``exports`` table: extra per-recording outputs the workflow writes.
+EXPORT_KEYS: tuple[str, ...] = ("nwb",)
 TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
 PRECISIONS = ("float32", "float16", "bfloat16")

@@ -10,7 +10,7 @@ from typing import Any
 from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
-from .constants import _POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
+from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
 from .params import (
     _LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
@@ -268,4 +268,21 @@ def validate_config(data: Any) -> list[str]:
     videos = table("visualization").get("videos")
     if videos is not None and not isinstance(videos, list):
         problems.append(f"visualization.videos: expected a list of video tables, {_got(videos)}")
+    problems += _export_problems(data)
     return problems
+
+
+def _export_problems(data: Mapping) -> list[str]:
+    """The ``exports`` table (which extra outputs to write) and the NWB export's ``nwb`` table."""
+    from ..nwb_metadata import metadata_problems
+
+    problems: list[str] = []
+    exports = data.get("exports")
+    if exports is not None and not isinstance(exports, Mapping):
+        problems.append(f"exports: expected a table such as {{nwb: true}}, {_got(exports)}")
+    for key, value in (exports if isinstance(exports, Mapping) else {}).items():
+        if key not in EXPORT_KEYS:
+            problems.append(f"exports.{key}: unknown export (known: {', '.join(EXPORT_KEYS)})")
+        elif _boolean(value):
+            problems.append(f"exports.{key}: {_boolean(value)}")
+    return problems + metadata_problems(data.get("nwb"))

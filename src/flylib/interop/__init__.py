@@ -4,7 +4,8 @@
   Lightning Pose CSV and HDF5, SLEAP analysis HDF5 (:func:`import_points2d`).
 - Calibrations: Anipose TOML read/write, DeepFly3D calibration pickles, the
   ``calibrations.csv`` session index (:func:`load_calibration`).
-- Exports: a tidy 3D CSV and per-view DeepLabCut CSVs (:func:`export_result`).
+- Exports: Anipose's pose-3d CSV and per-view DeepLabCut CSVs (:func:`export_result`);
+  NWB with ndx-pose in :mod:`flylib.interop.nwb` (imported on demand: it loads pynwb).
 """
 
 from __future__ import annotations

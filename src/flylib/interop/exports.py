@@ -1,10 +1,16 @@
-"""Exports for other tools: a tidy 3D CSV and per-view DeepLabCut CSVs.
+"""Exports for other tools: Anipose's 3D CSV and per-view DeepLabCut CSVs.
 
-3D CSV (like Anipose's ``pose-3d`` output): one row per frame, a ``frame`` column,
-then per skeleton point ``<point>_x``, ``_y``, ``_z`` (world units), ``_error`` (mean
-reprojection error in pixels over the views that observed it) and ``_ncams`` (how
-many views' 2D observations it rests on). A point that was not reconstructed has NaN
-coordinates and error.
+3D CSV, exactly Anipose's ``pose-3d`` layout (``anipose triangulate``; what
+``movement``'s Anipose loader and Anipose's own tools read): one row per frame; per
+skeleton point, in skeleton order, ``<point>_x``, ``_y``, ``_z`` (world units),
+``_error`` (mean reprojection error in pixels over the views the point rests on),
+``_ncams`` (how many views' 2D observations it rests on) and ``_score`` (the lowest
+2D confidence among those views); then the alignment ``M_00`` ... ``M_22`` (the
+rotation applied to the points, row-major) and ``center_0..2`` (the offset
+subtracted after it), and last ``fnum`` (the frame number, from 0). flylib applies
+no alignment, so ``M`` is the identity and ``center`` zero. As in Anipose, a point
+resting on fewer than two views has NaN ``_error``, ``_ncams`` and ``_score``, and an
+unreconstructed point NaN coordinates.
 
 2D: one ``<view>.csv`` per view in the DeepLabCut layout with the skeleton point names
 as body parts and the detection confidence as ``likelihood``; these import back with
@@ -18,8 +24,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .dlc import write_dlc_csv
 from ..paths import atomic_path
+from .dlc import write_dlc_csv
+
+#: Anipose's per-point column suffixes, in its order.
+ANIPOSE_POINT_COLUMNS = ("x", "y", "z", "error", "ncams", "score")
 
 
 def points3d_table(
@@ -27,8 +36,9 @@ def points3d_table(
     point_names: list[str],
     reproj_error: np.ndarray | None = None,
     pts2d: np.ndarray | None = None,
+    conf: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """The tidy per-frame 3D table.
+    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout.
 
     Parameters
     ----------
@@ -40,18 +50,28 @@ def points3d_table(
         ``(V, T, P)`` reprojection errors in pixels, or ``None`` (``_error`` is NaN).
     pts2d
         ``(V, T, P, 2)`` the 2D observations the 3D rests on, or ``None``
-        (``_ncams`` is then the views with a finite reprojection error, else 0).
+        (``_ncams`` is then the views with a finite reprojection error).
+    conf
+        ``(V, T, P)`` 2D confidences, or ``None`` (each observation counts as 1).
 
     Returns
     -------
     pandas.DataFrame
-        ``T`` rows: ``frame`` and five columns per point.
+        ``T`` rows: six columns per point, then ``M_00..M_22``, ``center_0..2``,
+        ``fnum``.
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     n_frames, n_points, _ = pts3d.shape
     if len(point_names) != n_points:
         raise ValueError(f"{len(point_names)} point names for {n_points} points")
     reconstructed = np.isfinite(pts3d).all(-1)
+    if pts2d is not None:
+        used = np.isfinite(np.asarray(pts2d, dtype=np.float64)).all(-1)  # (V, T, P)
+    elif reproj_error is not None:
+        used = np.isfinite(np.asarray(reproj_error, dtype=np.float64))
+    else:
+        used = np.zeros((0, n_frames, n_points), dtype=bool)
+    ncams = used.sum(0).astype(np.float64)
     if reproj_error is not None:
         err = np.asarray(reproj_error, dtype=np.float64)
         counts = np.isfinite(err).sum(0)
@@ -59,16 +79,29 @@ def points3d_table(
             error = np.where(counts > 0, np.nansum(err, 0) / np.maximum(counts, 1), np.nan)
     else:
         error = np.full((n_frames, n_points), np.nan)
-        counts = np.zeros((n_frames, n_points), dtype=int)
-    if pts2d is not None:
-        counts = np.isfinite(np.asarray(pts2d, dtype=np.float64)).all(-1).sum(0)
-    error = np.where(reconstructed, error, np.nan)
-    columns: dict[str, np.ndarray] = {"frame": np.arange(n_frames)}
+    scores = np.ones(used.shape) if conf is None else np.asarray(conf, dtype=np.float64)
+    # Anipose: the lowest score among the views used (unused views count as 2, above any score).
+    score = np.where(used, np.nan_to_num(scores, nan=0.0), 2.0).min(0) if used.size else np.full(
+        (n_frames, n_points), np.nan)
+    # Anipose blanks error, score and camera count below two views.
+    too_few = (ncams < 2) | ~reconstructed
+    error = np.where(too_few, np.nan, error)
+    score = np.where(too_few, np.nan, score)
+    ncams = np.where(ncams < 2, np.nan, ncams)
+    columns: dict[str, np.ndarray] = {}
     for p, name in enumerate(point_names):
         for c, axis in enumerate("xyz"):
             columns[f"{name}_{axis}"] = pts3d[:, p, c]
         columns[f"{name}_error"] = error[:, p]
-        columns[f"{name}_ncams"] = np.asarray(counts[:, p], dtype=np.int64)
+        columns[f"{name}_ncams"] = ncams[:, p]
+        columns[f"{name}_score"] = score[:, p]
+    rotation, center = np.eye(3), np.zeros(3)  # flylib applies no alignment
+    for i in range(3):
+        for j in range(3):
+            columns[f"M_{i}{j}"] = np.full(n_frames, rotation[i, j])
+    for i in range(3):
+        columns[f"center_{i}"] = np.full(n_frames, center[i])
+    columns["fnum"] = np.arange(n_frames)
     return pd.DataFrame(columns)
 
 
@@ -78,11 +111,12 @@ def write_points3d_csv(
     point_names: list[str],
     reproj_error: np.ndarray | None = None,
     pts2d: np.ndarray | None = None,
+    conf: np.ndarray | None = None,
 ) -> Path:
     """Write :func:`points3d_table` to ``path`` as CSV (atomically); returns ``path``."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        points3d_table(pts3d, point_names, reproj_error, pts2d).to_csv(tmp, index=False)
+        points3d_table(pts3d, point_names, reproj_error, pts2d, conf).to_csv(tmp, index=False)
     return path
 
 
@@ -131,7 +165,7 @@ def write_dlc_views(
 
 
 def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None) -> list[Path]:
-    """Export a :class:`flylib.results.PoseResult`: 3D CSV and/or per-view DLC CSVs.
+    """Export a :class:`flylib.results.PoseResult`: Anipose 3D CSV and/or per-view DLC CSVs.
 
     Parameters
     ----------
@@ -163,7 +197,8 @@ def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None
                 "the results file has no 3D points (no triangulation or pictorial_structures "
                 "group); enable a 3D stage and re-run, or export only the 2D CSVs"
             )
-        written.append(write_points3d_csv(csv3d, result.pts3d, names, result.reproj_error, result.pts2d))
+        written.append(write_points3d_csv(csv3d, result.pts3d, names, result.reproj_error, result.pts2d,
+                                          result.conf))
     if dlc_dir is not None:
         written += write_dlc_views(dlc_dir, result.pts2d, result.conf, list(result.cameras.names), names)
     return written

@@ -1,0 +1,31 @@
+#!/usr/bin/env python
+"""export_nwb: one recording's results.h5 as an NWB file (ndx-pose), with the session
+metadata of the config's nwb table and the recording's nwb.yaml."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    parser.add_argument("--recording", required=True, type=Path,
+                        help="recording directory (footage linked from the NWB file, nwb.yaml)")
+    parser.add_argument("--output", required=True, type=Path, help="destination .nwb file")
+    parser.add_argument("--demo", action="store_true",
+                        help="the recording is the embedded demo (its synthetic session metadata applies)")
+
+    def run(args, config):
+        from flylib.interop.nwb import export_nwb
+
+        export_nwb(config, args.results, args.output, recording_dir=args.recording, demo=args.demo)
+
+    return script_main(parser, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

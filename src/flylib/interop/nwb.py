@@ -1,0 +1,507 @@
+"""Export a recording's result as Neurodata Without Borders (NWB) with ndx-pose.
+
+:func:`write_nwb` turns a :class:`~flylib.results.PoseResult` into one NWB file,
+built with ``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4)
+describes multi-camera 3D pose:
+
+``/general``
+    session metadata from :mod:`flylib.nwb_metadata` (subject, session start
+    time, experimenter, ...); ``was_generated_by`` = flylib and its version;
+    ``data_collection`` = the recording's path and the flylib config that produced the
+    result (its snapshot text); ``session_id`` defaults to the recording's name.
+``/general/devices/camera_<view>``
+    one ``ndx_pose.CalibratedCamera`` (an NWB ``Device``) per view with the final rig
+    (bundle-adjusted when that stage ran): intrinsic matrix ``K``, world-to-camera
+    rotation ``R`` and translation ``t`` (``x_cam = R x_world + t``), OpenCV
+    distortion coefficients; its description holds the same as JSON (flylib's
+    ``rvec``, ``tvec``, ``[fx, fy, cx, cy]``, distortion, raw image size).
+``/acquisition/video_<view>``
+    the view's source footage as an external ``ImageSeries`` (file paths relative to
+    the NWB file, never copied), linked to its camera.
+``/processing/behavior``
+    ``Skeletons`` with the ``ndx_pose.Skeleton`` (point names, bones as edges);
+    ``MultiCameraPoseEstimation``: one ``PoseEstimationSeries`` per skeleton point
+    with the 3D position ``(T, 3)`` in the calibration's world frame, and one
+    ``PoseEstimation`` per view (``PoseEstimation_<view>``) holding that view's 2D
+    keypoints ``(T, 2)`` in pixels with the detection confidence, linked to its camera,
+    its source video and the skeleton; ``ReprojectionError_<view>`` time series
+    ``(T, P)`` in pixels.
+
+Missing values stay NaN. All series share one time base: frame ``i`` is at
+``i / frame_rate`` seconds after ``session_start_time`` (``starting_time`` 0 and
+``rate``), the frame rate being ``nwb.frame_rate`` when configured, else the footage's.
+
+3D confidence (``PoseEstimationSeries.confidence``, in [0, 1]) combines how well the
+views agree with how many support the point::
+
+    confidence = exp(-e / 5 px) * min(1, (n - 1) / 2)
+
+where ``n`` is the number of views the point was triangulated from (the views with a
+finite reprojection error: RANSAC's inliers) and ``e`` the mean reprojection error over
+them in pixels. A point seen by three or more views with 0 px error scores 1, by two
+views 0.5 (two rays always meet near a point, so nothing cross-checks them); each 5 px of
+mean error divides the score by e. Unreconstructed points have NaN confidence.
+
+Readers: ``pynwb.NWBHDF5IO(path, "r", load_namespaces=True).read()`` (the ndx-pose
+schema is cached in the file); ``movement``: ``movement.io.load_poses.from_nwb_file(path,
+pose_estimation_key="MultiCameraPoseEstimation")`` gives the 3D keypoints.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import uuid
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, ResultsError
+from ..nwb_metadata import parse_datetime, recording_metadata
+from ..paths import atomic_path
+
+log = logging.getLogger(__name__)
+
+#: Reprojection error (pixels) that divides the 3D confidence by e.
+CONFIDENCE_ERROR_SCALE_PX = 5.0
+#: Views beyond the first two needed for full 3D confidence (see the module docstring).
+CONFIDENCE_FULL_VIEWS = 3
+#: Name of the multi-camera container in ``processing/behavior``.
+MULTICAMERA_NAME = "MultiCameraPoseEstimation"
+# Arrays with at least this many elements are written gzip-compressed.
+_COMPRESS_MIN_ELEMENTS = 4096
+
+CONFIDENCE_DEFINITION = (
+    f"exp(-e / {CONFIDENCE_ERROR_SCALE_PX:g} px) * min(1, (n - 1) / {CONFIDENCE_FULL_VIEWS - 1}): "
+    "n = number of views the point was triangulated from (views with a finite reprojection error), "
+    "e = mean reprojection error over them in pixels; NaN where the point was not reconstructed"
+)
+
+
+def confidence_3d(reproj_error: np.ndarray, pts3d: np.ndarray) -> np.ndarray:
+    """The 3D confidence of each point (formula in the module docstring).
+
+    Parameters
+    ----------
+    reproj_error
+        ``(V, T, P)`` reprojection error in pixels, NaN where a view was not used.
+    pts3d
+        ``(T, P, 3)`` 3D points, NaN = not reconstructed.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(T, P)`` float64 in [0, 1]; NaN where the point is not reconstructed.
+    """
+    err = np.asarray(reproj_error, dtype=np.float64)
+    used = np.isfinite(err)
+    n = used.sum(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_err = np.where(n > 0, np.where(used, err, 0.0).sum(0) / np.maximum(n, 1), np.inf)
+    support = np.clip((n - 1) / (CONFIDENCE_FULL_VIEWS - 1), 0.0, 1.0)
+    conf = np.exp(-mean_err / CONFIDENCE_ERROR_SCALE_PX) * support
+    return np.where(np.isfinite(np.asarray(pts3d, dtype=np.float64)).all(-1), conf, np.nan)
+
+
+def footage_frame_rate(footage: Mapping[str, Sequence[Path]]) -> float | None:
+    """The frame rate in the footage's video headers (the first view that has one).
+
+    Image sequences carry none. Views whose videos disagree are logged.
+    """
+    from ..io import VIDEO_EXTS, open_reader
+
+    rates: dict[str, float] = {}
+    for view, files in footage.items():
+        if len(files) == 1 and Path(files[0]).suffix.lower() in VIDEO_EXTS:
+            fps = open_reader(Path(files[0])).fps()
+            if fps:
+                rates[view] = float(fps)
+    if not rates:
+        return None
+    if len({round(r, 6) for r in rates.values()}) > 1:
+        log.warning("the views' videos report different frame rates %s; using %s's", rates, next(iter(rates)))
+    return next(iter(rates.values()))
+
+
+def _data(array: np.ndarray):
+    from hdmf.backends.hdf5.h5_utils import H5DataIO
+
+    array = np.ascontiguousarray(array)
+    if array.size >= _COMPRESS_MIN_ELEMENTS:
+        return H5DataIO(array, compression="gzip", compression_opts=4)
+    return array
+
+
+def _camera_description(camera, view: str, image_size) -> str:
+    return json.dumps({
+        "about": "flylib camera model (OpenCV): x_cam = R(rvec) x_world + tvec; pixel = K distort(x_cam / z); "
+                 "distortion in OpenCV order (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4)",
+        "view": view,
+        "rvec": [float(x) for x in camera.rvec],
+        "tvec": [float(x) for x in camera.tvec],
+        "intrinsics_fx_fy_cx_cy": [float(x) for x in camera.intr],
+        "distortion": [float(x) for x in camera.dist],
+        "image_size_hw": None if image_size is None else [int(image_size[0]), int(image_size[1])],
+    })
+
+
+def _relative(path: Path, start: Path) -> str:
+    try:
+        return Path(os.path.relpath(Path(path).resolve(), start.resolve())).as_posix()
+    except ValueError:  # another drive (Windows): NWB then needs the absolute path
+        return Path(path).resolve().as_posix()
+
+
+def _nwbfile_kwargs(metadata: Mapping, *, recording: str | None, config_text: str | None,
+                    result) -> dict[str, Any]:
+    from .. import __version__
+
+    def as_list(value):
+        return [value] if isinstance(value, str) else list(value)
+
+    n_views, n_frames, n_points = result.n_views, result.n_frames, result.n_points
+    description = metadata.get("session_description") or (
+        f"Markerless pose of a tethered fly: {n_points} keypoints over {n_frames} frames from "
+        f"{n_views} synchronized cameras, estimated with flylib {__version__}")
+    stages = ", ".join(result.meta.get("stages") or []) or "unknown"
+    collection = [f"Keypoints estimated with flylib {__version__} (stages: {stages})."]
+    if recording:
+        collection.append(f"Recording (footage): {recording}")
+    if config_text:
+        collection.append("flylib configuration that produced these results (YAML):\n" + config_text)
+    kwargs: dict[str, Any] = {
+        "session_description": description,
+        "identifier": metadata.get("identifier") or str(uuid.uuid4()),
+        "session_start_time": parse_datetime(metadata["session_start_time"], "nwb.session_start_time"),
+        "experimenter": as_list(metadata["experimenter"]),
+        "session_id": metadata.get("session_id") or (Path(recording).name if recording else None),
+        "keywords": as_list(metadata.get("keywords") or
+                            ["pose estimation", "Drosophila melanogaster", "multi-camera", "flylib"]),
+        "was_generated_by": [["flylib", __version__]],
+        "data_collection": "\n".join(collection),
+    }
+    for key in ("institution", "lab", "experiment_description", "protocol", "notes"):
+        if metadata.get(key):
+            kwargs[key] = str(metadata[key])
+    if metadata.get("related_publications"):
+        kwargs["related_publications"] = as_list(metadata["related_publications"])
+    return kwargs
+
+
+def _subject(metadata: Mapping):
+    from pynwb.file import Subject
+
+    fields = dict(metadata.get("subject") or {})
+    if fields.get("date_of_birth") is not None:
+        fields["date_of_birth"] = parse_datetime(fields["date_of_birth"], "nwb.subject.date_of_birth")
+    return Subject(**{k: v for k, v in fields.items() if v is not None})
+
+
+def write_nwb(
+    result,
+    path: str | Path,
+    metadata: Mapping[str, Any],
+    *,
+    footage: Mapping[str, Sequence[Path]] | None = None,
+    frame_rate: float | None = None,
+    recording: str | Path | None = None,
+    config_text: str | None = None,
+) -> Path:
+    """Write one recording's result as an NWB file (atomically).
+
+    Parameters
+    ----------
+    result
+        The :class:`~flylib.results.PoseResult`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``,
+        ``pts3d (T, P, 3)``, ``reproj_error (V, T, P)``, rig, skeleton.
+    path
+        Destination ``.nwb`` file.
+    metadata
+        Merged session metadata (:func:`flylib.nwb_metadata.recording_metadata`).
+    footage
+        ``view -> files`` of the source footage, linked as external ``ImageSeries``
+        (omitted for views without files).
+    frame_rate
+        Frames per second; default ``metadata["frame_rate"]``, else the footage's.
+    recording
+        The recording directory, for the record.
+    config_text
+        The flylib config that produced the result (stored as text).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ConfigError
+        No frame rate (image-sequence footage or none found, and no ``nwb.frame_rate``).
+    ResultsError
+        The result has no 3D points.
+    """
+    import ndx_pose
+    from pynwb import NWBHDF5IO, NWBFile, TimeSeries
+    from pynwb.image import ImageSeries
+
+    from ..camera_model import intr_to_kmat_numpy, rvec_to_rmat_numpy
+
+    path = Path(path)
+    if result.pts3d is None:
+        raise ResultsError("the result has no 3D points (no triangulation or pictorial_structures group); "
+                           "enable a 3D stage and re-run before exporting NWB")
+    footage = {v: [Path(f) for f in files] for v, files in (footage or {}).items() if files}
+    rate = frame_rate or metadata.get("frame_rate") or footage_frame_rate(footage)
+    if not rate:
+        raise ConfigError(
+            f"nwb.frame_rate: no frame rate for {recording or path}: the footage "
+            f"{'is image sequences' if footage else 'was not found'}; set nwb.frame_rate (frames per second) "
+            "in the config or the recording's nwb.yaml"
+        )
+    rate = float(rate)
+    names = list(result.skeleton.point_names)
+    views = list(result.cameras.names)
+    recording_text = None if recording is None else str(Path(recording).resolve())
+    nwbfile = NWBFile(**_nwbfile_kwargs(metadata, recording=recording_text, config_text=config_text, result=result))
+    nwbfile.subject = _subject(metadata)
+
+    cameras = {}
+    for camera, view in zip(result.cameras, views):
+        size = (result.image_sizes or {}).get(view)
+        device = ndx_pose.CalibratedCamera(
+            name=f"camera_{view}",
+            description=_camera_description(camera, view, size),
+            intrinsic_matrix=intr_to_kmat_numpy(camera.intr),
+            rotation_matrix=rvec_to_rmat_numpy(camera.rvec),
+            translation_vector=np.asarray(camera.tvec, dtype=np.float64),
+            distortion_coefficients=np.asarray(camera.dist, dtype=np.float64).reshape(-1),
+        )
+        nwbfile.add_device(device)
+        cameras[view] = device
+
+    videos = {}
+    for view in views:
+        files = footage.get(view)
+        if not files:
+            continue
+        size = (result.image_sizes or {}).get(view)
+        videos[view] = ImageSeries(
+            name=f"video_{view}",
+            description=f"raw footage of camera {view} (external file{'s' if len(files) > 1 else ''}, not copied)",
+            external_file=[_relative(f, path.parent) for f in files],
+            starting_frame=[0] if len(files) == 1 else list(range(len(files))),
+            format="external",
+            num_samples=int(result.n_frames),
+            rate=rate,
+            starting_time=0.0,
+            unit="n.a.",
+            dimension=None if size is None else [int(size[1]), int(size[0])],
+            device=cameras[view],
+        )
+        nwbfile.add_acquisition(videos[view])
+
+    behavior = nwbfile.create_processing_module(
+        name="behavior", description=f"keypoints of the fly estimated by flylib from {len(views)} cameras")
+    n_points = len(names)
+    skeleton = ndx_pose.Skeleton(
+        name=str(result.skeleton.name or "skeleton"),
+        nodes=names,
+        edges=np.asarray(result.skeleton.bones, dtype=np.uint8 if n_points < 256 else np.uint32).reshape(-1, 2),
+        subject=nwbfile.subject,
+    )
+    behavior.add(ndx_pose.Skeletons(skeletons=[skeleton]))
+
+    per_view = []
+    for v, view in enumerate(views):
+        series = [
+            ndx_pose.PoseEstimationSeries(
+                name=name,
+                description=f"2D position of {name} in camera {view}; NaN = not detected",
+                data=_data(result.pts2d[v, :, p]),
+                unit="pixels",
+                reference_frame=(f"OpenCV image coordinates of camera {view}'s raw frame: x to the right, "
+                                 "y down, (0, 0) at the centre of the top-left pixel"),
+                confidence=None if result.conf is None else _data(result.conf[v, :, p]),
+                confidence_definition=None if result.conf is None else
+                "the 2D detector's (or the imported tool's) confidence in this detection",
+                starting_time=0.0,
+                rate=rate,
+            )
+            for p, name in enumerate(names)
+        ]
+        per_view.append(ndx_pose.PoseEstimation(
+            name=f"PoseEstimation_{view}",
+            description=f"2D keypoints of camera {view}, the ones the 3D rests on (NaN where a view's "
+                        "detection was missing or rejected as an outlier)",
+            pose_estimation_series=series,
+            skeleton=skeleton,
+            device=cameras[view],
+            source_video=videos.get(view),
+            scorer="flylib",
+            source_software="flylib",
+            source_software_version=_version(),
+        ))
+
+    confidence = None if result.reproj_error is None else confidence_3d(result.reproj_error, result.pts3d)
+    world_unit = str(metadata.get("world_unit") or "n.a.")
+    series_3d = [
+        ndx_pose.PoseEstimationSeries(
+            name=name,
+            description=f"3D position of {name}; NaN = not reconstructed",
+            data=_data(result.pts3d[:, p]),
+            unit=world_unit,
+            reference_frame=(
+                "the world frame of the camera calibration (the CalibratedCamera devices map it to each "
+                "camera as x_cam = R x_world + t); for flylib's orbit rig the origin is the point the "
+                "cameras look at; units are the calibration's"),
+            confidence=None if confidence is None else _data(confidence[:, p]),
+            confidence_definition=None if confidence is None else CONFIDENCE_DEFINITION,
+            starting_time=0.0,
+            rate=rate,
+        )
+        for p, name in enumerate(names)
+    ]
+    behavior.add(ndx_pose.MultiCameraPoseEstimation(
+        name=MULTICAMERA_NAME,
+        description=(f"3D keypoints triangulated by flylib from {len(views)} calibrated cameras "
+                     f"({', '.join(views)}), with each camera's 2D keypoints"),
+        pose_estimation_series=series_3d,
+        pose_estimations=per_view,
+        skeleton=skeleton,
+        scorer="flylib",
+        source_software="flylib",
+        source_software_version=_version(),
+    ))
+    if result.reproj_error is not None:
+        for v, view in enumerate(views):
+            behavior.add(TimeSeries(
+                name=f"ReprojectionError_{view}",
+                description=(f"distance in pixels between camera {view}'s 2D keypoint and the 3D point's "
+                             f"projection; columns are the skeleton points in order ({', '.join(names)}); "
+                             "NaN where the view was not used"),
+                data=_data(result.reproj_error[v]),
+                unit="pixels",
+                starting_time=0.0,
+                rate=rate,
+            ))
+
+    with atomic_path(path) as tmp, NWBHDF5IO(str(tmp), mode="w") as io:
+        io.write(nwbfile)
+    return path
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+def export_nwb(
+    config,
+    results_path: str | Path,
+    out_path: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+    demo: bool = False,
+    extra_metadata: Mapping | None = None,
+) -> Path:
+    """Export a run's ``results.h5`` as NWB: what the workflow rule and ``flylib export --nwb`` run.
+
+    The session metadata is checked first (before reading anything large); the footage
+    of ``recording_dir`` is found through the config's ``sources`` and linked.
+
+    Parameters
+    ----------
+    config
+        The run's :class:`~flylib.config.Config` (its ``nwb`` table, sources, snapshot text).
+    results_path
+        The recording's ``results.h5``.
+    out_path
+        Destination ``.nwb``.
+    recording_dir
+        The recording directory (footage and ``nwb.yaml``), or ``None`` (no video links).
+    demo
+        The recording is the embedded demo (its metadata defaults apply).
+    extra_metadata
+        Overrides of the session metadata.
+
+    Raises
+    ------
+    ConfigError
+        Missing or invalid session metadata (all named at once), or no frame rate.
+    """
+    from ..results import PoseResult
+    from .views import footage_files
+
+    metadata = recording_metadata(config, recording_dir, demo=demo, extra=extra_metadata)
+    result = PoseResult.load(results_path)
+    footage = footage_files(config, Path(recording_dir)) if recording_dir is not None else {}
+    missing = [v for v in result.cameras.names if not footage.get(v)]
+    if recording_dir is not None and missing:
+        log.warning("%s: no footage found for view(s) %s; the NWB file links no video for them",
+                    recording_dir, ", ".join(missing))
+    return write_nwb(result, out_path, metadata, footage=footage, recording=recording_dir,
+                     config_text=config.snapshot_text())
+
+
+def export_nwb_command(
+    results_path: str | Path,
+    out_path: str | Path,
+    *,
+    config_path: str | Path | None = None,
+    recording: str | Path | None = None,
+    metadata_path: str | Path | None = None,
+) -> Path:
+    """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
+    :func:`export_nwb`.
+
+    Parameters
+    ----------
+    results_path
+        The recording's ``results.h5``.
+    out_path
+        Destination ``.nwb``.
+    config_path
+        The run's config; default the ``config.yaml`` (or ``.toml``) snapshot every run
+        leaves beside ``results.h5``, else flylib's default config.
+    recording
+        The recording directory; default the one ``results.h5`` records (its footage is
+        linked and its ``nwb.yaml`` read).
+    metadata_path
+        A YAML file of session metadata overriding the config's ``nwb`` table and the
+        recording's ``nwb.yaml``.
+
+    Raises
+    ------
+    ConfigError, ResultsError
+        One line naming what is missing or wrong.
+    """
+    from ..config import Config
+    from ..nwb_metadata import read_sidecar
+    from ..results import open_checked, read_meta_from
+
+    results_path = Path(results_path)
+    with open_checked(results_path, "pass the results.h5 a run wrote") as f:
+        meta = read_meta_from(f)
+    if config_path is None:
+        snapshots = [results_path.parent / f"config.{ext}" for ext in ("yaml", "toml")]
+        config_path = next((p for p in snapshots if p.is_file()), None)
+        if config_path is None:
+            log.warning("%s: no config snapshot beside it; using flylib's default config "
+                        "(pass --config for the run's)", results_path)
+    config = Config.from_file(config_path) if config_path is not None else Config.default()
+    if recording is None and meta.get("recording"):
+        recording = Path(meta["recording"])
+        if not recording.is_dir():
+            log.warning("%s names recording %s, which is not a directory here; no video is linked "
+                        "(pass --recording)", results_path, recording)
+            recording = None
+    extra = None
+    if metadata_path is not None:
+        if not Path(metadata_path).is_file():
+            raise ConfigError(f"{metadata_path}: --nwb-metadata file not found")
+        extra = read_sidecar(metadata_path)
+    return export_nwb(config, results_path, out_path, recording_dir=recording, extra_metadata=extra)

@@ -1,0 +1,55 @@
+# exports: extra per-recording outputs switched on in the config's `exports` table.
+#
+#   exports: {nwb: true}   ->  {outdir}/results.nwb: the result as NWB (ndx-pose), with
+#                              the session metadata of the `nwb` table and the recording's
+#                              nwb.yaml (see flylib.nwb_metadata)
+#
+# The rule's params are the `exports` and `nwb` tables, its inputs results.h5, the
+# footage it links and the recording's nwb.yaml, so it re-runs only when one of those
+# changes. Missing session metadata is one error naming every recording and key, raised
+# here, before any job starts.
+
+from flylib.nwb_metadata import recordings_metadata_problems, sidecar_inputs
+
+EXPORTS = CONFIG.data.get("exports") or {}
+NWB_FILE = "results.nwb"
+EXPORT_RECORDINGS = [rec for rec in RECORDINGS if rec.id not in SKIPPED]
+EXPORT_TARGETS = (
+    [f"{rec.outdir}/{NWB_FILE}" for rec in EXPORT_RECORDINGS]
+    if EXPORTS.get("nwb")
+    else []
+)
+
+if EXPORTS.get("nwb"):
+    _nwb_problems = recordings_metadata_problems(CONFIG, EXPORT_RECORDINGS)
+    if _nwb_problems:
+        raise WorkflowError("exports.nwb is on, but:\n  " + "\n  ".join(_nwb_problems))
+
+    rule export_nwb:
+        input:
+            results="{outdir}/results.h5",
+            footage=footage_inputs,
+            metadata=lambda w: sidecar_inputs(recording(w)),
+        output:
+            f"{{outdir}}/{NWB_FILE}",
+        log:
+            "{outdir}/logs/export_nwb.log",
+        benchmark:
+            "{outdir}/benchmarks/export_nwb.tsv"
+        conda:
+            "../../envs/exports.yaml"
+        resources:
+            mem_mb=2000,
+            runtime=15,
+        params:
+            run=command("export_nwb.py"),
+            stage=json.dumps(
+                {"exports": EXPORTS, "nwb": CONFIG.data.get("nwb")},
+                sort_keys=True,
+                default=str,
+            ),
+            recording=lambda w: str(recording(w).path),
+            demo=lambda w: "--demo" if recording(w).demo else "",
+        shell:
+            "{params.run} --results {input.results:q} --recording {params.recording:q}"
+            " {params.demo} --output {output:q} 2> {log:q}"
