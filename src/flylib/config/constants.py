@@ -50,6 +50,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "recursive",
     "outdir",
     "demo",
+    "corrections",
 )
 TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")

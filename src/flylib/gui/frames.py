@@ -1,0 +1,167 @@
+"""Footage frames for the GUI, as JPEG: one open decoder per view and a small LRU cache.
+
+A video keeps one PyAV container open: the next frame (scrubbing forward) costs one
+decode, a frame a little ahead is decoded forward to, and any other frame is reached
+by a seek to the keyframe before it (frames are identified by presentation timestamp,
+through :meth:`flylib.io.VideoReader.pts_index`), never by decoding from the start.
+Image sequences are read by index through :class:`flylib.io.ImageSequenceReader`.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FootageError
+
+#: Decode forward rather than seek when the wanted frame is at most this far ahead.
+FORWARD_GAP = 24
+JPEG_QUALITY = 85
+
+
+def encode_jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    """``(H, W, 3)`` uint8 BGR -> JPEG bytes."""
+    import cv2
+
+    ok, data = cv2.imencode(".jpg", image_bgr, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
+        raise FootageError("JPEG encoding failed")
+    return data.tobytes()
+
+
+class _VideoFrames:
+    """Random access to one video with a persistent decoder."""
+
+    def __init__(self, path: Path):
+        from ..io import VideoReader
+
+        self.reader = VideoReader(path)
+        self.pts = self.reader.pts_index()
+        self._container = None
+        self._frames = None  # the decoder's frame iterator
+        self._next: int | None = None  # index of the frame the iterator yields next
+
+    def __len__(self) -> int:
+        return len(self.pts) if self.pts is not None else int(self.reader.count() or 0)
+
+    def _restart(self, index: int) -> None:
+        import av
+
+        if self._container is None:
+            self._container = av.open(str(self.reader.path))
+            stream = self._container.streams.video[0]
+            stream.thread_type = "SLICE"  # frame threading would delay every single-frame read
+        stream = self._container.streams.video[0]
+        if self.pts is not None:
+            self._container.seek(self.pts[index], stream=stream, backward=True, any_frame=False)
+        else:
+            self._container.seek(0, stream=stream)
+        self._frames = self._container.decode(stream)
+        self._next = None  # unknown until a frame's timestamp says
+
+    def read(self, index: int) -> np.ndarray:
+        """Frame ``index`` as ``(H, W, 3)`` uint8 BGR."""
+        if self._frames is None or self._next is None or not (self._next <= index <= self._next + FORWARD_GAP):
+            self._restart(index if self.pts is not None else 0)
+            if self.pts is None:
+                self._next = 0
+        index_of = self._index_of()
+        for frame in self._frames:
+            i = index_of.get(frame.pts, self._next) if index_of else self._next
+            if i is None:
+                continue
+            self._next = i + 1
+            if i == index:
+                return frame.to_ndarray(format="bgr24")
+            if i > index:
+                break
+        self._frames = None
+        raise FootageError(f"{self.reader.path}: frame {index} could not be decoded")
+
+    def _index_of(self) -> dict[int, int] | None:
+        if self.pts is None:
+            return None
+        if not hasattr(self, "_index_map"):
+            self._index_map = {p: i for i, p in enumerate(self.pts)}
+        return self._index_map
+
+    def close(self) -> None:
+        if self._container is not None:
+            self._container.close()
+            self._container = None
+            self._frames = None
+
+
+class _ImageFrames:
+    def __init__(self, files: Sequence[Path]):
+        from ..io import ImageSequenceReader
+
+        self.reader = ImageSequenceReader(list(files), workers=1)
+
+    def __len__(self) -> int:
+        return self.reader.count()
+
+    def read(self, index: int) -> np.ndarray:
+        rgb = self.reader[[index]][0]
+        return np.ascontiguousarray(rgb[..., ::-1])
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+class FrameSource:
+    """JPEG frames of one view, with an LRU cache of encoded frames.
+
+    Parameters
+    ----------
+    files
+        The view's footage (one video, or image files in frame order); empty: every
+        frame is a plain dark image of ``size``.
+    size
+        ``(height, width)`` used when there is no footage.
+    cache_frames
+        Encoded frames kept per view.
+    """
+
+    def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 64):
+        files = [Path(f) for f in files]
+        self.size = (int(size[0]), int(size[1]))
+        self._lock = threading.Lock()
+        self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self.cache_frames = int(cache_frames)
+        self._blank: bytes | None = None
+        if not files:
+            self._frames = None
+        elif len(files) == 1 and files[0].suffix.lower() not in {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}:
+            self._frames = _VideoFrames(files[0])
+        else:
+            self._frames = _ImageFrames(files)
+
+    @property
+    def has_footage(self) -> bool:
+        return self._frames is not None
+
+    def jpeg(self, index: int) -> bytes:
+        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
+        with self._lock:
+            cached = self._cache.get(index)
+            if cached is not None:
+                self._cache.move_to_end(index)
+                return cached
+            if self._frames is None or index >= len(self._frames):
+                if self._blank is None:
+                    self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
+                return self._blank
+            data = encode_jpeg(self._frames.read(index))
+            self._cache[index] = data
+            if len(self._cache) > self.cache_frames:
+                self._cache.popitem(last=False)
+            return data
+
+    def close(self) -> None:
+        if self._frames is not None:
+            self._frames.close()
