@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,13 @@ def resolve_results(path: str | Path) -> Path:
         raise ResultsError(f"{path}: no results.h5 here; pass a recording's output directory "
                            "(e.g. demo/flylib_outputs) or its results.h5, after the workflow ran")
     return path.resolve()
+
+
+def _xy_list(arr: np.ndarray, digits: int = 2) -> list:
+    """``(P, k)`` coordinates as ``[[x, y, ...] | None]``: ``None`` for a missing point."""
+    arr = np.round(np.asarray(arr, dtype=np.float64), digits)
+    ok = np.isfinite(arr).all(-1)
+    return [row if keep else None for row, keep in zip(arr.tolist(), ok.tolist())]
 
 
 def _nan_to_none(arr: np.ndarray, digits: int = 3) -> list:
@@ -107,6 +115,7 @@ class ReviewSession:
         self.error = np.array(result.reproj_error) if result.reproj_error is not None else np.full((v, t, p), np.nan)
         self._lock = threading.RLock()
         self._suspects = None
+        self._suspects_stale = True
         self.dirty = False  # edits not yet saved
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
             self._resolve(int(tt), int(pp))
@@ -192,16 +201,19 @@ class ReviewSession:
             for v, name in enumerate(self.view_names):
                 views.append({
                     "name": name,
-                    "points2d": _nan_to_none(given[v], 2),
+                    "points2d": _xy_list(given[v]),
                     "used": used[v].tolist(),
-                    "reprojected": _nan_to_none(reproj[v], 2),
+                    "reprojected": _xy_list(reproj[v]),
                     "error": _nan_to_none(self.error[v, t], 2),
                     "edited": self.corrections.edited[v, t].tolist(),
                     "invisible": self.corrections.invisible[v, t].tolist(),
                 })
             corrected = self.corrections.corrected_points()[t].tolist()
-            suspects = [r for r in self.suspects().records() if r["frame"] == t]
-            return {"frame": t, "views": views, "points3d": _nan_to_none(self.pts3d[t], 5),
+            # the last computed suspects: re-finding them is left to suspects(), so an
+            # edit's reply stays cheap on a long recording
+            cached = self._suspects if self._suspects is not None else self.suspects()
+            suspects = [r for r in cached.records() if r["frame"] == t]
+            return {"frame": t, "views": views, "points3d": _xy_list(self.pts3d[t], 6),
                     "corrected": corrected, "suspects": suspects, "dirty": self.dirty,
                     "edits": self.corrections.count()}
 
@@ -210,7 +222,8 @@ class ReviewSession:
         from ..suspects import find_suspects
 
         with self._lock:
-            if self._suspects is None:
+            if self._suspects is None or self._suspects_stale:
+                self._suspects_stale = False
                 self._suspects = find_suspects(
                     self.pts3d, self.used2d, self.error, self.skeleton.bones,
                     pts2d_input=np.where(self.corrections.touched()[..., None], np.nan, self.base2d),
@@ -245,7 +258,7 @@ class ReviewSession:
         self.pts3d[t, p] = pts3d[0, 0]
         self.used2d[:, t, p] = clean[:, 0, 0]
         self.error[:, t, p] = error[:, 0, 0]
-        self._suspects = None
+        self._suspects_stale = True
 
     def edit(self, op: str, frame: int, point: int | None = None, view: str | None = None,
              xy: Any = None) -> dict:
@@ -263,7 +276,8 @@ class ReviewSession:
         Returns
         -------
         dict
-            :meth:`points` of the frame after the edit.
+            :meth:`points` of the frame after the edit, plus ``solve_ms`` (the time spent
+            re-solving).
 
         Raises
         ------
@@ -298,10 +312,14 @@ class ReviewSession:
             else:
                 raise ValueError(f"unknown edit {op!r}; use move, invisible, reset_point, reset_view "
                                  "or reset_frame")
+            started = time.perf_counter()
             for p in points:
                 self._resolve(t, p)
+            solve_ms = (time.perf_counter() - started) * 1000
             self.dirty = True
-            return self.points(t)
+            reply = self.points(t)
+            reply["solve_ms"] = round(solve_ms, 2)
+            return reply
 
     def save(self) -> Path:
         """Write the corrections sidecar atomically inside the outdir; ``results.h5`` is untouched."""
