@@ -40,6 +40,8 @@ __all__ = [
     "CORRECTIONS_FILE",
     "CORRECTIONS_FORMAT_VERSION",
     "Corrections",
+    "corrections_path",
+    "read_corrected",
     "reconstruct_corrected",
 ]
 
@@ -390,3 +392,14 @@ def corrections_path(config: Any, outdir: str | Path, recording_dir: str | Path 
                           "{recording}, {id} or {name}") from None
     path = Path(text).expanduser()
     return (path if path.is_absolute() else outdir / path), True
+
+
+def read_corrected(results_path: str | Path) -> np.ndarray | None:
+    """``(T, P)`` bool: the points of a ``results.h5`` a person corrected, or ``None``
+    when it was computed without corrections (``triangulation/corrected``)."""
+    from .results import open_checked
+
+    with open_checked(results_path) as f:
+        if "triangulation/corrected" not in f:
+            return None
+        return np.asarray(f["triangulation/corrected"][()], dtype=bool)

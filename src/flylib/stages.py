@@ -341,14 +341,18 @@ def _write_json(path: Path, payload: Mapping) -> None:
 
 def run_visualization(config, results_path: str | Path, recording_dir: str | Path,
                       outdir: str | Path, *, progress: bool = False) -> list[Path]:
-    """Render the configured videos of one recording into ``outdir``."""
+    """Render the configured videos of one recording into ``outdir`` (points a person
+    corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
     from .interop.views import footage_files
     from .results import PoseResult
     from .visualization import render_videos
 
+    from .corrections import read_corrected
+
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
-    return render_videos(config, result, footage, outdir, progress=progress)
+    return render_videos(config, result, footage, outdir, progress=progress,
+                         corrected=read_corrected(results_path))
 
 
 # -- command-line plumbing shared by scripts/*.py ----------------------------------
