@@ -224,7 +224,10 @@ function attachMouse(view) {
     if (hit !== null) {
       state.selected = { view: view.name, point: hit };
       redrawAll();
-      if (state.editMode && event.button === 0) drag = { kind: "point", point: hit, sending: false, pending: null };
+      if (state.editMode && event.button === 0) {
+        drag = { kind: "point", point: hit, sending: false, pending: null };
+        state.dragging = true;
+      }
     }
     if (!drag) drag = { kind: "pan", start: [cx, cy], zoom: { ...state.zoom[view.name] } };
   });
@@ -239,6 +242,7 @@ function attachMouse(view) {
       return;
     }
     const xy = toImage(view.transform, cx, cy);
+    drag.moved = true;
     state.data.views[view.index].points2d[drag.point] = xy;  // follow the mouse at once
     draw(view);
     drag.pending = xy;
@@ -248,7 +252,9 @@ function attachMouse(view) {
     if (!drag) return;
     const finished = drag;
     drag = null;
-    if (finished.kind === "point") {
+    if (finished.kind === "point" && !finished.moved) {
+      state.dragging = false;  // a click selects; only a drag edits
+    } else if (finished.kind === "point") {
       const [cx, cy] = local(event);
       finished.pending = toImage(view.transform, cx, cy);
       finished.final = true;
@@ -281,7 +287,10 @@ async function flushDrag(view, drag) {
     await sendEdit({ op: "move", view: view.name, point: drag.point, xy });
   }
   drag.sending = false;
-  if (drag.final) await afterEdit();
+  if (drag.final) {
+    await afterEdit();
+    state.dragging = false;
+  }
 }
 
 function nearestPoint(view, cx, cy) {
@@ -376,6 +385,7 @@ window.flylib = {
   state,
   goto,
   stepSuspect,
+  busy: () => channel.busy || state.dragging,
   allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
   screenPosition(viewName, point) {
     const view = state.views.find((v) => v.name === viewName);
