@@ -61,10 +61,13 @@ def main(argv=None) -> int:
         switch(0)  # opens the decoders
         n = min(args.repeats, args.frames - 2)
         forward = [switch(t) for t in range(1, n + 1)]
-        jumps = [switch(int(t)) for t in rng.integers(0, args.frames, n)]
-        cached = [switch(int(t)) for t in range(n, n - 5, -1)]
+        targets = [int(t) for t in rng.integers(0, args.frames, n)]
+        jumps = [switch(t) for t in targets]
+        cached = [switch(t) for t in targets[-1:-6:-1]]
         print(f"frame switch, next frame (scrubbing):     {stats(forward)}")
-        print(f"frame switch, random jump (seek):         {stats(jumps)}")
+        gop = np.diff(session.frames[views[0]]._frames.keyframes)
+        print(f"frame switch, random jump (seek):         {stats(jumps)} "
+              f"(keyframe interval of the demo videos: {int(gop.max()) if len(gop) else args.frames} frames)")
         print(f"frame switch, recently seen (LRU cache):  {stats(cached)}")
 
         files = {v: session.frames[v]._frames.reader.path for v in views}

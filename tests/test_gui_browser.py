@@ -83,8 +83,8 @@ def wait_for(driver, script, timeout=60.0):
         if value:
             return value
         time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for: {script}\nstatus: "
-                         f"{driver.execute_script('return document.querySelector(\"#status\").textContent')}")
+    page_status = driver.execute_script("return document.querySelector('#status').textContent")
+    raise AssertionError(f"timed out waiting for: {script}\nstatus: {page_status}")
 
 
 def test_review_drag_save_and_rerun_plan(demo_run, server):

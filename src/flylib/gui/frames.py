@@ -1,9 +1,10 @@
 """Footage frames for the GUI, as JPEG: one open decoder per view and a small LRU cache.
 
 A video keeps one PyAV container open: the next frame (scrubbing forward) costs one
-decode, a frame a little ahead is decoded forward to, and any other frame is reached
-by a seek to the keyframe before it (frames are identified by presentation timestamp,
-through :meth:`flylib.io.VideoReader.pts_index`), never by decoding from the start.
+decode; any other frame is reached by decoding on from the current position or by a
+seek to the keyframe before it, whichever decodes fewer frames (the keyframes and
+presentation timestamps are indexed once from the packets), never by decoding from
+the start. A random jump therefore costs up to one keyframe interval (GOP) of decoding.
 Image sequences are read by index through :class:`flylib.io.ImageSequenceReader`.
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 
 from ..errors import FootageError
 
-#: Decode forward rather than seek when the wanted frame is at most this far ahead.
+#: Always decode forward (rather than seek) when the wanted frame is at most this far ahead.
 FORWARD_GAP = 24
 JPEG_QUALITY = 85
 
@@ -40,13 +41,48 @@ class _VideoFrames:
         from ..io import VideoReader
 
         self.reader = VideoReader(path)
-        self.pts = self.reader.pts_index()
+        self.pts, self.keyframes = self._index()
         self._container = None
         self._frames = None  # the decoder's frame iterator
         self._next: int | None = None  # index of the frame the iterator yields next
 
+    def _index(self) -> tuple[list[int] | None, np.ndarray | None]:
+        """Presentation timestamps in frame order and the frame indices of the keyframes
+        (one demux pass, no decoding); ``(None, None)`` without timestamps."""
+        import av
+
+        pts, key = [], []
+        try:
+            with av.open(str(self.reader.path)) as container:
+                for packet in container.demux(container.streams.video[0]):
+                    if packet.size == 0:
+                        continue
+                    if packet.pts is None:
+                        return None, None
+                    pts.append(int(packet.pts))
+                    if packet.is_keyframe:
+                        key.append(int(packet.pts))
+        except (av.FFmpegError, OSError) as exc:
+            raise FootageError(f"{self.reader.path}: cannot index the video ({exc}); re-copy or "
+                               "re-export it") from None
+        pts.sort()
+        index_of = {p: i for i, p in enumerate(pts)}
+        return (pts or None), np.array(sorted(index_of[k] for k in key), dtype=int)
+
     def __len__(self) -> int:
         return len(self.pts) if self.pts is not None else int(self.reader.count() or 0)
+
+    def _keyframe_before(self, index: int) -> int:
+        if self.keyframes is None or not len(self.keyframes):
+            return 0
+        k = int(np.searchsorted(self.keyframes, index, side="right")) - 1
+        return int(self.keyframes[max(k, 0)])
+
+    def _forward_is_cheaper(self, index: int) -> bool:
+        """Decoding on from the current position costs fewer frames than a seek would."""
+        if self._frames is None or self._next is None or index < self._next:
+            return False
+        return index - self._next <= max(FORWARD_GAP, index - self._keyframe_before(index))
 
     def _restart(self, index: int) -> None:
         import av
@@ -65,7 +101,7 @@ class _VideoFrames:
 
     def read(self, index: int) -> np.ndarray:
         """Frame ``index`` as ``(H, W, 3)`` uint8 BGR."""
-        if self._frames is None or self._next is None or not (self._next <= index <= self._next + FORWARD_GAP):
+        if not self._forward_is_cheaper(index):
             self._restart(index if self.pts is not None else 0)
             if self.pts is None:
                 self._next = 0
@@ -127,7 +163,7 @@ class FrameSource:
         Encoded frames kept per view.
     """
 
-    def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 64):
+    def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 128):
         files = [Path(f) for f in files]
         self.size = (int(size[0]), int(size[1]))
         self._lock = threading.Lock()

@@ -79,7 +79,7 @@ class ReviewSession:
     """
 
     def __init__(self, results: str | Path, *, config: Any = None,
-                 footage: dict[str, list[Path]] | None = None, cache_frames: int = 64):
+                 footage: dict[str, list[Path]] | None = None, cache_frames: int = 128):
         from ..config import Config
         from ..results import PoseResult, open_checked
 
