@@ -70,6 +70,22 @@ def main(argv=None) -> int:
               f"(keyframe interval of the demo videos: {int(gop.max()) if len(gop) else args.frames} frames)")
         print(f"frame switch, recently seen (LRU cache):  {stats(cached)}")
 
+        # n: next suspect, after a pause on the current frame (the prefetcher works then)
+        session.suspects()
+        suspect_frames = [int(f) for f in session.suspects().frames]
+        hops = []
+        frame = 0
+        for _ in range(min(10, len(suspect_frames))):
+            switch(frame)
+            session.visit(frame)
+            time.sleep(1.0)  # the user looks at the frame
+            nxt = next((f for f in suspect_frames if f > frame), None)
+            if nxt is None:
+                break
+            hops.append(switch(nxt))
+            frame = nxt
+        print(f"frame switch, n to the next suspect:      {stats(hops)} (prefetched during a 1 s look)")
+
         files = {v: session.frames[v]._frames.reader.path for v in views}
 
         def baseline(t: int) -> float:

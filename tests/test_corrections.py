@@ -157,3 +157,13 @@ def test_corrections_path_default_and_template(tmp_path):
 
     assert not [m for m in validate_config(data) if "corrections" in m]
     assert any("corrections" in m for m in validate_config(dict(config.data, corrections=3)))
+
+
+def test_corrected_points_are_ringed_in_the_videos():
+    from flylib.visualization.draw import draw_rings
+
+    img = np.zeros((60, 60, 3), np.uint8)
+    xy = np.array([[30.0, 30.0], [10.0, 10.0], [np.nan, np.nan]])
+    draw_rings(img, xy, np.array([True, False, True]), radius=3)
+    assert img[30, 30].max() == 0 and img[30, 30 + 7].max() > 100  # a ring, not a disc
+    assert img[:20, :20].max() == 0  # not corrected: no ring

@@ -278,3 +278,20 @@ def test_page_and_modules_are_served_from_the_package(client):
 def test_gui_refuses_a_directory_without_results(tmp_path):
     with pytest.raises(ResultsError, match="no results.h5 here"):
         ReviewSession(tmp_path)
+
+
+def test_prefetch_fills_the_cache_without_moving_the_request_decoder(outdir):
+    session = ReviewSession(outdir)
+    source = session.frames[session.view_names[0]]
+    source.jpeg(3)
+    position = source._frames._next
+    source.prefetch(9)
+    assert source._frames._next == position  # the spare decoder did the work
+    assert source._cached(9) == source.jpeg(9)
+    fresh = ReviewSession(outdir)
+    reference = fresh.frames[session.view_names[0]].jpeg(9)
+    image = cv2.imdecode(np.frombuffer(source.jpeg(9), np.uint8), cv2.IMREAD_COLOR)
+    again = cv2.imdecode(np.frombuffer(reference, np.uint8), cv2.IMREAD_COLOR)
+    assert np.abs(image.astype(int) - again.astype(int)).max() <= 2  # the same frame
+    session.close()
+    fresh.close()

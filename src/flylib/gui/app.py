@@ -87,7 +87,9 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     @app.get("/api/points/{frame}")
     def points(frame: int) -> dict:
         _check_frame(frame)
-        return session.points(frame)
+        reply = session.points(frame)
+        session.visit(frame)
+        return reply
 
     @app.get("/api/suspects")
     def suspects() -> dict:

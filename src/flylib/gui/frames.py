@@ -37,11 +37,11 @@ def encode_jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
 class _VideoFrames:
     """Random access to one video with a persistent decoder."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, index: tuple | None = None):
         from ..io import VideoReader
 
         self.reader = VideoReader(path)
-        self.pts, self.keyframes = self._index()
+        self.pts, self.keyframes = index if index is not None else self._index()
         self._container = None
         self._frames = None  # the decoder's frame iterator
         self._next: int | None = None  # index of the frame the iterator yields next
@@ -71,6 +71,10 @@ class _VideoFrames:
 
     def __len__(self) -> int:
         return len(self.pts) if self.pts is not None else int(self.reader.count() or 0)
+
+    def spawn(self) -> _VideoFrames:
+        """A second decoder of the same file (sharing the index)."""
+        return _VideoFrames(self.reader.path, (self.pts, self.keyframes))
 
     def _keyframe_before(self, index: int) -> int:
         if self.keyframes is None or not len(self.keyframes):
@@ -141,6 +145,9 @@ class _ImageFrames:
     def __len__(self) -> int:
         return self.reader.count()
 
+    def spawn(self) -> _ImageFrames:
+        return _ImageFrames(self.reader.files)
+
     def read(self, index: int) -> np.ndarray:
         rgb = self.reader[[index]][0]
         return np.ascontiguousarray(rgb[..., ::-1])
@@ -151,6 +158,10 @@ class _ImageFrames:
 
 class FrameSource:
     """JPEG frames of one view, with an LRU cache of encoded frames.
+
+    Two decoders: one follows the requests (so scrubbing stays one decode per frame),
+    the other fills the cache in the background (:meth:`prefetch`, e.g. the next
+    suspect frame) without moving the first away from where the user is.
 
     Parameters
     ----------
@@ -166,10 +177,13 @@ class FrameSource:
     def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 128):
         files = [Path(f) for f in files]
         self.size = (int(size[0]), int(size[1]))
-        self._lock = threading.Lock()
+        self._cache_lock = threading.Lock()
+        self._lock = threading.Lock()  # the request decoder
+        self._spare_lock = threading.Lock()  # the prefetch decoder
         self._cache: OrderedDict[int, bytes] = OrderedDict()
         self.cache_frames = int(cache_frames)
         self._blank: bytes | None = None
+        self._spare = None
         if not files:
             self._frames = None
         elif len(files) == 1 and files[0].suffix.lower() not in {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}:
@@ -181,23 +195,53 @@ class FrameSource:
     def has_footage(self) -> bool:
         return self._frames is not None
 
-    def jpeg(self, index: int) -> bytes:
-        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
-        with self._lock:
-            cached = self._cache.get(index)
-            if cached is not None:
+    def __len__(self) -> int:
+        return 0 if self._frames is None else len(self._frames)
+
+    def _cached(self, index: int) -> bytes | None:
+        with self._cache_lock:
+            data = self._cache.get(index)
+            if data is not None:
                 self._cache.move_to_end(index)
-                return cached
-            if self._frames is None or index >= len(self._frames):
-                if self._blank is None:
-                    self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
-                return self._blank
-            data = encode_jpeg(self._frames.read(index))
-            self._cache[index] = data
-            if len(self._cache) > self.cache_frames:
-                self._cache.popitem(last=False)
             return data
 
+    def _store(self, index: int, data: bytes) -> None:
+        with self._cache_lock:
+            self._cache[index] = data
+            self._cache.move_to_end(index)
+            while len(self._cache) > self.cache_frames:
+                self._cache.popitem(last=False)
+
+    def jpeg(self, index: int) -> bytes:
+        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
+        cached = self._cached(index)
+        if cached is not None:
+            return cached
+        if self._frames is None or index >= len(self._frames):
+            if self._blank is None:
+                self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
+            return self._blank
+        with self._lock:
+            cached = self._cached(index)  # the prefetcher may have just made it
+            if cached is not None:
+                return cached
+            data = encode_jpeg(self._frames.read(index))
+        self._store(index, data)
+        return data
+
+    def prefetch(self, index: int) -> None:
+        """Put frame ``index`` in the cache with the background decoder (no-op if there)."""
+        if self._frames is None or not 0 <= index < len(self._frames) or self._cached(index) is not None:
+            return
+        with self._spare_lock:
+            if self._cached(index) is not None:
+                return
+            if self._spare is None:
+                self._spare = self._frames.spawn()
+            data = encode_jpeg(self._spare.read(index))
+        self._store(index, data)
+
     def close(self) -> None:
-        if self._frames is not None:
-            self._frames.close()
+        for frames in (self._frames, self._spare):
+            if frames is not None:
+                frames.close()

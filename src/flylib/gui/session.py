@@ -126,6 +126,12 @@ class ReviewSession:
             footage = self._find_footage()
         self.frames = {name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
                        for name in self.view_names}
+        self._prefetch_todo: list[int] = []
+        self._prefetch_wake = threading.Condition()
+        self._closed = False
+        self._prefetcher = threading.Thread(target=self._prefetch_loop, name="flylib-gui-prefetch",
+                                            daemon=True)
+        self._prefetcher.start()
 
     # -- set-up ------------------------------------------------------------------------
 
@@ -329,7 +335,42 @@ class ReviewSession:
         log.info("corrections saved to %s (%d edits)", path, self.corrections.count())
         return path
 
+    # -- background prefetch ---------------------------------------------------------------
+
+    def visit(self, frame: int) -> None:
+        """The user is at ``frame``: warm the cache for the neighbouring suspect frames
+        (where ``n`` / ``p`` go next), in the background with each view's spare decoder."""
+        if self._suspects is None:
+            return
+        frames = self._suspects.frames
+        later = frames[frames > frame]
+        earlier = frames[frames < frame]
+        todo = [int(f) for f in (*later[:2], *earlier[-1:])]
+        with self._prefetch_wake:
+            self._prefetch_todo = todo
+            self._prefetch_wake.notify()
+
+    def _prefetch_loop(self) -> None:
+        while True:
+            with self._prefetch_wake:
+                while not self._prefetch_todo and not self._closed:
+                    self._prefetch_wake.wait()
+                if self._closed:
+                    return
+                frame = self._prefetch_todo.pop(0)
+            for name in self.view_names:
+                if self._closed:
+                    return
+                try:
+                    self.frames[name].prefetch(frame)
+                except Exception as exc:  # a bad frame shows up (and is reported) when asked for
+                    log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
+
     def close(self) -> None:
+        with self._prefetch_wake:
+            self._closed = True
+            self._prefetch_wake.notify()
+        self._prefetcher.join(timeout=5)
         for source in self.frames.values():
             source.close()
 
