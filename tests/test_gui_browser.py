@@ -151,6 +151,11 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
             "v.canvas.getBoundingClientRect().width / v.canvas.width")
         np.testing.assert_allclose(np.subtract(after_xy, before_xy), np.array([dx, dy]) / scale, atol=1.5 / scale)
         assert after["points3d"][point] != before_3d
+        # a corrected point is a person's call: it leaves the suspect list and timeline
+        listed = driver.execute_script(
+            f"return window.flylib.state.suspects.map(s => [s.frame, s.point, s.reasons.join()])")
+        score = driver.execute_script(f"return window.flylib.state.frameScore[{first}]")
+        assert [first, point] not in [x[:2] for x in listed], (listed, score, first, point)
 
         driver.find_element(By.ID, "save").click()
         saved = wait_for(driver, "return window.flylib.saved")

@@ -171,7 +171,11 @@ async function sendEdit(message) {
 }
 
 async function afterEdit() {
+  // the suspects are re-found once an edit is done (not on every drag step)
   await loadSuspects();
+  const frame = state.frame;
+  const data = await getJSON(`/api/points/${frame}`);
+  if (frame === state.frame) state.data = data;
   redrawAll();
 }
 
