@@ -103,9 +103,10 @@ def test_errors_are_one_line_exit_1(tmp_path, capsys):
     assert "nothing to do" in capsys.readouterr().err
 
 
-def test_inspect_plain_text_without_rich(result_file, capsys, monkeypatch):
+def test_inspect_prints_aligned_plain_text_and_imports_no_optional_package(result_file, capsys, monkeypatch):
     import sys
 
+    monkeypatch.setitem(sys.modules, "rich", None)  # importing it would now fail loudly
     monkeypatch.setitem(sys.modules, "rich.console", None)
     path, _ = result_file
     assert main(["inspect", str(path)]) == 0
@@ -113,4 +114,22 @@ def test_inspect_plain_text_without_rich(result_file, capsys, monkeypatch):
     header = next(line for line in lines if line.startswith("stage "))
     row = next(line for line in lines if line.startswith("triangulation "))
     assert row.split() == ["triangulation", "3", "5", "0.933", "0.933", "0.5", "1.5", "-"]
-    assert len(header) >= len(row.rstrip())  # columns aligned under their headers
+    assert len(header) == len(row)  # columns aligned under their headers
+
+
+def test_inspect_into_a_closed_pipe_exits_quietly(result_file):
+    """`flylib inspect results.h5 | head -2`: no traceback, the SIGPIPE status."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path, _ = result_file
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    code = f"import sys; sys.path.insert(0, {src!r}); from flylib.cli import main; sys.exit(main())"
+    proc = subprocess.Popen([sys.executable, "-c", code, "inspect", str(path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader is gone before the first line is written
+    err = proc.stderr.read().decode()
+    proc.wait(timeout=120)
+    assert err == ""
+    assert proc.returncode == 141

@@ -10,7 +10,7 @@ import json
 import h5py
 import numpy as np
 import pytest
-from test_workflow import FRAMES, base_config, jobs, make_recording, planned, snakemake
+from test_workflow import base_config, jobs, make_recording, planned, snakemake
 
 from flylib.corrections import Corrections, read_corrected
 from flylib.results import Pose2dData, PoseResult

@@ -15,15 +15,15 @@ import pytest
 pytest.importorskip("fastapi", reason="the GUI needs fastapi (pip install fastapi uvicorn httpx)")
 pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 
-from fastapi.testclient import TestClient  # noqa: E402
-from gui_fixtures import make_demo_outputs, write_seed_sidecar  # noqa: E402
+from fastapi.testclient import TestClient
+from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
-from flylib.config import Config  # noqa: E402
-from flylib.corrections import Corrections  # noqa: E402
-from flylib.errors import ResultsError  # noqa: E402
-from flylib.gui import ReviewSession, create_app  # noqa: E402
-from flylib.results import Pose2dData, PoseResult  # noqa: E402
-from flylib.triangulation import reconstruct_from_config  # noqa: E402
+from flylib.config import Config
+from flylib.corrections import Corrections
+from flylib.errors import ResultsError
+from flylib.gui import ReviewSession, create_app
+from flylib.results import Pose2dData, PoseResult
+from flylib.triangulation import reconstruct_from_config
 
 FRAMES = 12
 
@@ -257,9 +257,8 @@ def test_a_token_guards_every_route_when_set(outdir):
         assert page.status_code == 200 and "flylib_token" in page.headers["set-cookie"]
         assert c.get("/static/app.js").status_code == 200  # the cookie now carries it
         c.cookies.clear()
-        with pytest.raises(WebSocketDisconnect):
-            with c.websocket_connect("/ws") as ws:
-                ws.receive_json()
+        with pytest.raises(WebSocketDisconnect), c.websocket_connect("/ws") as ws:
+            ws.receive_json()
         with c.websocket_connect("/ws?token=s3cret") as ws:
             ws.send_json({"op": "reset_frame", "frame": 0})
             assert ws.receive_json()["op"] == "points"

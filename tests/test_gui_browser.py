@@ -15,7 +15,6 @@ import shutil
 import socket
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,6 +30,7 @@ def _browser():
     if not CHROMIUM or not CHROMEDRIVER:
         pytest.skip("headless Chromium is not installed (apt-get install chromium chromium-driver)")
     webdriver = pytest.importorskip("selenium.webdriver", reason="pip install selenium")
+    from selenium.common.exceptions import WebDriverException
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
@@ -38,7 +38,7 @@ def _browser():
         options.add_argument(arg)
     try:
         return webdriver.Chrome(options=options, service=webdriver.ChromeService(CHROMEDRIVER))
-    except Exception as exc:  # a driver that cannot start in this environment
+    except WebDriverException as exc:  # a driver that cannot start in this environment
         pytest.skip(f"Chromium did not start: {str(exc).splitlines()[0]}")
 
 
@@ -116,7 +116,8 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert len(suspects) > 0
         body = driver.find_element(By.TAG_NAME, "body")
         body.send_keys("n")
-        first = int(suspects.frames[suspects.frames > 0][0]) if (suspects.frames > 0).any() else int(suspects.frames[0])
+        later = suspects.frames[suspects.frames > 0]
+        first = int(later[0] if len(later) else suspects.frames[0])
         wait_for(driver, f"return window.flylib.state.frame === {first} && window.flylib.allDrawn()")
         selected = driver.execute_script("return window.flylib.state.selected")
         assert selected is not None
@@ -136,8 +137,8 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert driver.execute_script("return window.flylib.state.editMode")
         dx, dy = 18, 12
         actions = ActionChains(driver)
-        actions.move_to_element_with_offset(canvas, int(round(pos["x"] - pos["width"] / 2)),
-                                            int(round(pos["y"] - pos["height"] / 2)))
+        actions.move_to_element_with_offset(canvas, round(pos["x"] - pos["width"] / 2),
+                                            round(pos["y"] - pos["height"] / 2))
         actions.click_and_hold()
         for _ in range(3):
             actions.move_by_offset(dx // 3, dy // 3)
@@ -153,7 +154,7 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert after["points3d"][point] != before_3d
         # a corrected point is a person's call: it leaves the suspect list and timeline
         listed = driver.execute_script(
-            f"return window.flylib.state.suspects.map(s => [s.frame, s.point, s.reasons.join()])")
+            "return window.flylib.state.suspects.map(s => [s.frame, s.point, s.reasons.join()])")
         score = driver.execute_script(f"return window.flylib.state.frameScore[{first}]")
         assert [first, point] not in [x[:2] for x in listed], (listed, score, first, point)
 

@@ -70,7 +70,7 @@ def clean_case(frames=40):
 
 
 def test_each_reason_fires_on_its_case():
-    config, cameras, pts3d, pts2d, error = clean_case()
+    config, _, pts3d, pts2d, error = clean_case()
     bones = config.skeleton().bones
     quiet = find_suspects(pts3d, pts2d, error, bones, pts2d_input=pts2d)
     assert len(quiet) == 0 and not quiet.frame_score.any()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -120,26 +121,18 @@ def _cell(value) -> str:
 
 
 def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -> None:
-    """Print rows as a table: ``rich`` when installed, else aligned plain text."""
+    """Print rows as an aligned plain-text table (first column left, the rest right)."""
     cells = [[_cell(r.get(key)) for key, _ in columns] for r in rows]
-    try:
-        from rich.console import Console
-        from rich.table import Table
-    except ImportError:
-        widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
-        print(title)
-        print("  ".join(h.ljust(w) for (_, h), w in zip(columns, widths)))
-        for c in cells:
-            print("  ".join(v.ljust(w) for v, w in zip(c, widths)))
-        print()
-        return
-    table = Table(title=title, title_justify="left")
-    for i, (_, header) in enumerate(columns):
-        table.add_column(header, justify="left" if i == 0 else "right", no_wrap=True)
+    widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
+
+    def line(values) -> str:
+        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
+
+    print(title)
+    print(line([h for _, h in columns]))
     for c in cells:
-        table.add_row(*c)
-    console = Console(width=None if sys.stdout.isatty() else 200)
-    console.print(table)
+        print(line(c))
+    print()
 
 
 def _cmd_inspect(args) -> int:
@@ -258,10 +251,18 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     try:
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()
+        return status
     except FlylibError as exc:
         print(f"flylib {args.command}: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        # The reader went away (`flylib inspect ... | head`): stop quietly, as Unix tools
+        # do, with the status a shell reports for SIGPIPE; stdout is pointed at devnull
+        # so the interpreter's final flush does not fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + 13
 
 
 if __name__ == "__main__":  # pragma: no cover

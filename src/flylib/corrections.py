@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -136,7 +136,7 @@ class Corrections:
             shape that does not match ``shape`` (one line naming the file).
         """
         path = Path(path)
-        fix = f"delete or move it aside, or save the corrections again from `flylib gui`"
+        fix = "delete or move it aside, or save the corrections again from `flylib gui`"
         if not path.is_file():
             raise ResultsError(f"{path}: corrections file not found")
         try:
@@ -186,7 +186,7 @@ class Corrections:
         path
             Destination, normally ``<outdir>/corrections.h5``.
         """
-        self.created_utc = datetime.now(timezone.utc).isoformat()
+        self.created_utc = datetime.now(UTC).isoformat()
         meta = {_META_KEY: CORRECTIONS_FORMAT_VERSION, "source": self.source,
                 "created_utc": self.created_utc}
         with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:

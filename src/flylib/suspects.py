@@ -279,7 +279,7 @@ def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
     if result.pts3d is None or result.reproj_error is None:
         raise ResultsError(f"{path}: holds no 3D points; run triangulation (or pictorial structures)")
     with open_checked(path) as f:
-        source = next((f"{s}/points" for s in ("pictorial_structures", "pose2d") if f"{s}/points" in f))
+        source = next(f"{s}/points" for s in ("pictorial_structures", "pose2d") if f"{s}/points" in f)
         given = f[source][()]
         corrected = f["triangulation/corrected"][()] if "triangulation/corrected" in f else None
         touched = f["triangulation/corrected_2d"][()] if "triangulation/corrected_2d" in f else None

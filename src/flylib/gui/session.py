@@ -20,8 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from ..corrections import CORRECTIONS_FILE, Corrections, corrections_path, reconstruct_corrected
-from ..errors import ResultsError
+from ..corrections import (
+    CORRECTIONS_FILE,
+    Corrections,
+    corrections_path,
+    reconstruct_corrected,
+)
+from ..errors import FlylibError, ResultsError
 from .frames import FrameSource
 
 log = logging.getLogger(__name__)
@@ -139,7 +144,7 @@ class ReviewSession:
         """The configured sidecar if it lies inside the outdir, else ``<outdir>/corrections.h5``."""
         try:
             path, _ = corrections_path(self.config, self.outdir, self.recording_dir)
-        except Exception:  # a bad key is reported by the workflow; the GUI uses the default
+        except FlylibError:  # a bad key is reported by the workflow; the GUI uses the default
             return self.outdir / CORRECTIONS_FILE
         path = path.resolve()
         if not path.is_relative_to(self.outdir.resolve()):
@@ -157,7 +162,7 @@ class ReviewSession:
             return {}
         try:
             return footage_files(self.config, Path(self.recording_dir))
-        except Exception as exc:  # footage is a nicety here: points can be reviewed without it
+        except (FlylibError, OSError) as exc:  # footage is a nicety: points can be reviewed without it
             log.warning("footage of %s not found (%s); views show no footage", self.recording_dir, exc)
             return {}
 
@@ -363,7 +368,7 @@ class ReviewSession:
                     return
                 try:
                     self.frames[name].prefetch(frame)
-                except Exception as exc:  # a bad frame shows up (and is reported) when asked for
+                except (FlylibError, OSError, ValueError, IndexError) as exc:  # reported when asked for
                     log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
 
     def close(self) -> None:
