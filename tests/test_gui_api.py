@@ -252,6 +252,7 @@ def test_a_token_guards_every_route_when_set(outdir):
         assert c.get("/api/meta").status_code == 403
         assert c.get("/").status_code == 403
         assert c.get("/api/meta?token=wrong").status_code == 403
+        assert c.get("/api/meta?token=%C3%A9t%C3%A9").status_code == 403  # non-ASCII: refused, no error
         assert c.get("/api/meta", headers={"X-Flylib-Token": "s3cret"}).status_code == 200
         page = c.get("/?token=s3cret")
         assert page.status_code == 200 and "flylib_token" in page.headers["set-cookie"]
@@ -294,3 +295,18 @@ def test_prefetch_fills_the_cache_without_moving_the_request_decoder(outdir):
     assert np.abs(image.astype(int) - again.astype(int)).max() <= 2  # the same frame
     session.close()
     fresh.close()
+
+
+def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
+    data = dict(Config.from_file(outdir / "config.yaml").data)
+    inside = ReviewSession(outdir, config=Config.from_dict({**data, "corrections": "mine/{name}.h5"}))
+    assert inside.corrections_path == (outdir / "mine" / f"{outdir.parent.name}.h5").resolve()
+    inside.close()
+    elsewhere = tmp_path / "elsewhere.h5"
+    session = ReviewSession(outdir, config=Config.from_dict({**data, "corrections": str(elsewhere)}))
+    assert session.corrections_path == outdir / "corrections.h5"
+    session.edit("invisible", 0, 0, session.view_names[0])
+    session.save()
+    assert not elsewhere.exists() and (outdir / "corrections.h5").is_file()
+    session.close()
+    (outdir / "corrections.h5").unlink()

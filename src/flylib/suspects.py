@@ -77,14 +77,18 @@ class Suspects:
         """Sorted unique frames holding at least one suspect."""
         return np.unique(self.frame)
 
-    def records(self) -> list[dict]:
-        """One dict per suspect (JSON-able): frame, point, point_name, score, reasons, detail."""
-        return [
-            {"frame": int(t), "point": int(p),
-             "point_name": self.point_names[p] if p < len(self.point_names) else str(p),
-             "score": round(float(s), 3), "reasons": r.split(";"), "detail": d}
-            for t, p, s, r, d in zip(self.frame, self.point, self.score, self.reasons, self.details)
-        ]
+    def records(self, frame: int | None = None) -> list[dict]:
+        """One dict per suspect (JSON-able): frame, point, point_name, score, reasons,
+        detail; only those of ``frame`` when given."""
+        rows = range(len(self.frame)) if frame is None else np.flatnonzero(self.frame == frame)
+        out = []
+        for i in rows:
+            p = int(self.point[i])
+            out.append({"frame": int(self.frame[i]), "point": p,
+                        "point_name": self.point_names[p] if p < len(self.point_names) else str(p),
+                        "score": round(float(self.score[i]), 3), "reasons": self.reasons[i].split(";"),
+                        "detail": self.details[i]})
+        return out
 
     def to_csv(self, path: str | Path) -> Path:
         """Write ``frame,point,point_name,score,reasons,detail`` rows atomically."""

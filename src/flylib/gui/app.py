@@ -48,7 +48,8 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     app.state.session = session
 
     def authorized(request_token: str | None) -> bool:
-        return token is None or (request_token is not None and hmac.compare_digest(request_token, token))
+        return token is None or (request_token is not None
+                                 and hmac.compare_digest(request_token.encode(), token.encode()))
 
     @app.middleware("http")
     async def check_token(request: Request, call_next):

@@ -219,11 +219,12 @@ class ReviewSession:
                     "edited": self.corrections.edited[v, t].tolist(),
                     "invisible": self.corrections.invisible[v, t].tolist(),
                 })
-            corrected = self.corrections.corrected_points()[t].tolist()
+            c = self.corrections
+            corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
             # the last computed suspects: re-finding them is left to suspects(), so an
             # edit's reply stays cheap on a long recording
             cached = self._suspects if self._suspects is not None else self.suspects()
-            suspects = [r for r in cached.records() if r["frame"] == t]
+            suspects = cached.records(frame=t)
             return {"frame": t, "views": views, "points3d": _xy_list(self.pts3d[t], 6),
                     "corrected": corrected, "suspects": suspects, "dirty": self.dirty,
                     "edits": self.corrections.count()}
