@@ -117,8 +117,19 @@ def main(argv=None) -> int:
             reply = session.edit("move", t, p, views[v], xy)
             total.append((time.perf_counter() - begin) * 1000)
             solve.append(reply["solve_ms"])
+        session.edit("move3d", 0, p, views[v], session.base2d[v, 0, p])  # imports JAX once
+        solve3d = []
+        for _ in range(args.repeats):
+            t = int(rng.integers(0, args.frames))
+            p = int(rng.choice(np.flatnonzero(seen[:, t].sum(axis=0) >= 2)))
+            v = int(np.flatnonzero(seen[:, t, p])[0])
+            if not np.isfinite(session.pts3d[t, p]).all():
+                continue
+            xy = session.base2d[v, t, p] + rng.normal(0, 4, 2)
+            solve3d.append(session.edit("move3d", t, p, views[v], xy)["solve_ms"])
         print(f"edit, re-solve one point:                 {stats(solve)}")
         print(f"edit, re-solve + the frame's reply:       {stats(total)}")
+        print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
         begin = time.perf_counter()
         reconstruct_from_config(session.config, session.base2d, session.cameras, session.conf)
         whole = (time.perf_counter() - begin) * 1000

@@ -310,3 +310,31 @@ def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
     assert not elsewhere.exists() and (outdir / "corrections.h5").is_file()
     session.close()
     (outdir / "corrections.h5").unlink()
+
+
+def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
+    from flylib.geometry import closest_point_on_ray
+
+    before = client.get("/api/points/7").json()
+    v, p = visible_point(before)
+    name = before["views"][v]["name"]
+    target = np.array(before["views"][v]["reprojected"][p]) + [6.0, -4.0]
+    reply = client.post("/api/edit", json={"op": "move3d", "frame": 7, "point": p, "view": name,
+                                           "xy": target.tolist()}).json()
+    cameras = client.session.cameras
+    origin, direction = cameras[v].backproject_ray(target)
+    want = np.asarray(closest_point_on_ray(origin, direction, before["points3d"][p]))
+    np.testing.assert_allclose(reply["points3d"][p], want, atol=1e-5)
+    np.testing.assert_allclose(reply["views"][v]["reprojected"][p], target, atol=0.02)  # lands there
+    assert reply["corrected"][p] and not any(view["edited"][p] for view in reply["views"])
+    np.testing.assert_allclose([view["reprojected"][p] for view in reply["views"]],
+                               cameras.project(np.asarray(want)), atol=0.02)  # every view follows
+    client.post("/api/save")
+    corr = Corrections.load(outdir / "corrections.h5")
+    assert corr.edited3d[7, p] and corr.edited3d.sum() == 1
+    np.testing.assert_allclose(corr.points3d[7, p], want, atol=1e-6)  # (the reply rounds to 1e-6)
+    # resetting the point in one view keeps the 3D edit; in every view removes it
+    kept = client.post("/api/edit", json={"op": "reset_point", "frame": 7, "point": p, "view": name}).json()
+    assert kept["corrected"][p]
+    gone = client.post("/api/edit", json={"op": "reset_point", "frame": 7, "point": p}).json()
+    assert not gone["corrected"][p] and gone["points3d"][p] == pytest.approx(before["points3d"][p], abs=1e-6)

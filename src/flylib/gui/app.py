@@ -11,6 +11,8 @@ Routes (all under the optional access token, see :func:`create_app`)::
     POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
     POST /api/save                  write corrections.h5 beside results.h5
     WS   /ws                        edits: {"op", "frame", "point", "view", "xy"} -> points
+                                    (op: move, move3d, invisible, reset_point, reset_view,
+                                    reset_frame; or {"op": "save"})
 
 Camera names are looked up in the rig (never used to build a path) and frame numbers
 are integers checked against the recording, so no request reaches any other file.

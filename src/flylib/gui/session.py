@@ -279,9 +279,11 @@ class ReviewSession:
         Parameters
         ----------
         op
-            ``move`` (place the point at ``xy`` in ``view``), ``invisible`` (drop it in
-            ``view``), ``reset_point`` (``view`` given: that view only), ``reset_view``
-            or ``reset_frame``.
+            ``move`` (place the point at ``xy`` in ``view``: Edit 2D), ``move3d`` (Edit 3D:
+            move the 3D point the least so that it projects onto ``xy`` in ``view``, the
+            closest point to it on that pixel's ray), ``invisible`` (drop it in ``view``),
+            ``reset_point`` (``view`` given: that view only; else every view and its 3D
+            edit), ``reset_view`` or ``reset_frame``.
         frame, point, view, xy
             The target; ``xy`` in raw-frame pixels.
 
@@ -299,15 +301,20 @@ class ReviewSession:
         t = self._check_frame(frame)
         v = None if view is None else self.view_index(view)
         with self._lock:
-            if op in ("move", "invisible", "reset_point"):
+            if op in ("move", "move3d", "invisible", "reset_point"):
                 p = self._check_point(point)
                 if op != "reset_point" and v is None:
                     raise ValueError(f"{op} needs a view")
-                if op == "move":
+                if op in ("move", "move3d"):
                     xy = np.asarray(xy, dtype=np.float64).reshape(-1)
                     if xy.shape != (2,) or not np.isfinite(xy).all():
                         raise ValueError(f"xy must be two finite pixel coordinates, got {xy.tolist()}")
+                if op == "move":
                     self.corrections.set_point(v, t, p, xy)
+                elif op == "move3d":
+                    started = time.perf_counter()
+                    self.corrections.set_point3d(t, p, self._onto_ray(v, t, p, xy))
+                    ray_ms = (time.perf_counter() - started) * 1000
                 elif op == "invisible":
                     self.corrections.set_invisible(v, t, p)
                 else:
@@ -322,16 +329,27 @@ class ReviewSession:
                 self.corrections.reset(t)
                 points = range(self.n_points)
             else:
-                raise ValueError(f"unknown edit {op!r}; use move, invisible, reset_point, reset_view "
+                raise ValueError(f"unknown edit {op!r}; use move, move3d, invisible, reset_point, reset_view "
                                  "or reset_frame")
             started = time.perf_counter()
             for p in points:
                 self._resolve(t, p)
-            solve_ms = (time.perf_counter() - started) * 1000
+            solve_ms = (time.perf_counter() - started) * 1000 + (ray_ms if op == "move3d" else 0.0)
             self.dirty = True
             reply = self.points(t)
             reply["solve_ms"] = round(solve_ms, 2)
             return reply
+
+    def _onto_ray(self, v: int, t: int, p: int, xy: np.ndarray) -> np.ndarray:
+        """The point on pixel ``xy``'s ray in view ``v`` closest to the current 3D point."""
+        from ..geometry import closest_point_on_ray
+
+        target = self.pts3d[t, p]
+        if not np.isfinite(target).all():
+            raise ValueError(f"point {self.skeleton.point_names[p]} has no 3D at frame {t}; "
+                             "place it in 2D (Edit 2D) first")
+        origin, direction = self.cameras[v].backproject_ray(xy)
+        return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
 
     def save(self) -> Path:
         """Write the corrections sidecar atomically inside the outdir; ``results.h5`` is untouched."""

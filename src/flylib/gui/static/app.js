@@ -5,7 +5,7 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 const $ = (sel) => document.querySelector(sel);
 const state = {
   meta: null, frame: 0, data: null, images: {}, views: [], zoom: {},
-  focus: 0, layout: "grid", editMode: false, selected: null,  // {view, point}
+  focus: 0, layout: "grid", editMode: false, mode: "view", selected: null,  // {view, point}
   suspects: [], frameScore: [], suspectFrames: [], sort: { key: "frame", asc: true },
   drawn: {}, lastServerMs: null, requestId: 0,
 };
@@ -189,9 +189,17 @@ async function markInvisible() {
   if (s) { await sendEdit({ op: "invisible", view: s.view, point: s.point }); await afterEdit(); }
 }
 
-async function resetPoint() {
+async function resetPoint(everywhere = false) {
   const s = selectedOrWarn();
-  if (s) { await sendEdit({ op: "reset_point", view: s.view, point: s.point }); await afterEdit(); }
+  if (!s) return;
+  await sendEdit(everywhere ? { op: "reset_point", point: s.point } : { op: "reset_point", view: s.view, point: s.point });
+  await afterEdit();
+}
+
+function setMode(mode) {
+  state.mode = state.mode === mode ? "view" : mode;
+  state.editMode = state.mode !== "view";
+  document.querySelector(`input[name=mode][value="${state.mode === "view" ? "view" : state.mode}"]`).checked = true;
 }
 
 async function resetView() {
@@ -228,7 +236,7 @@ function attachMouse(view) {
     if (hit !== null) {
       state.selected = { view: view.name, point: hit };
       redrawAll();
-      if (state.editMode && event.button === 0) {
+      if (state.mode !== "view" && event.button === 0) {
         drag = { kind: "point", point: hit, sending: false, pending: null };
         state.dragging = true;
       }
@@ -247,7 +255,8 @@ function attachMouse(view) {
     }
     const xy = toImage(view.transform, cx, cy);
     drag.moved = true;
-    state.data.views[view.index].points2d[drag.point] = xy;  // follow the mouse at once
+    // follow the mouse at once: the 2D point (Edit 2D) or the 3D ghost (Edit 3D)
+    state.data.views[view.index][state.mode === "3d" ? "reprojected" : "points2d"][drag.point] = xy;
     draw(view);
     drag.pending = xy;
     if (!drag.sending) await flushDrag(view, drag);
@@ -288,7 +297,7 @@ async function flushDrag(view, drag) {
   while (drag.pending) {
     const xy = drag.pending;
     drag.pending = null;
-    await sendEdit({ op: "move", view: view.name, point: drag.point, xy });
+    await sendEdit({ op: state.mode === "3d" ? "move3d" : "move", view: view.name, point: drag.point, xy });
   }
   drag.sending = false;
   if (drag.final) {
@@ -303,11 +312,14 @@ function nearestPoint(view, cx, cy) {
   const dpr = window.devicePixelRatio || 1;
   let best = null, bestD = 12 * dpr;
   v.points2d.forEach((p, i) => {
-    const q = p || (v.invisible[i] ? v.reprojected[i] : null);
-    if (!q) return;
-    const [x, y] = toCanvas(view.transform, q);
-    const d = Math.hypot(x - cx, y - cy);
-    if (d < bestD) { best = i; bestD = d; }
+    // the 2D point, or the 3D ghost (Edit 3D, or where the point is invisible in this view)
+    const ghost = state.mode === "3d" || v.invisible[i] || !p ? v.reprojected[i] : null;
+    for (const q of [p, ghost]) {
+      if (!q) continue;
+      const [x, y] = toCanvas(view.transform, q);
+      const d = Math.hypot(x - cx, y - cy);
+      if (d < bestD) { best = i; bestD = d; }
+    }
   });
   return best;
 }
@@ -337,10 +349,13 @@ function toggleHelp(show) {
 }
 
 function wireControls() {
-  $("#edit-mode").addEventListener("change", (e) => { state.editMode = e.target.checked; });
+  document.querySelectorAll("input[name=mode]").forEach((input) => input.addEventListener("change", () => {
+    state.mode = input.value;
+    state.editMode = state.mode !== "view";
+  }));
   $("#layout").addEventListener("click", () => setLayout(state.layout === "grid" ? "focus" : "grid"));
   $("#invisible").addEventListener("click", markInvisible);
-  $("#reset-point").addEventListener("click", resetPoint);
+  $("#reset-point").addEventListener("click", () => resetPoint(false));
   $("#reset-view").addEventListener("click", resetView);
   $("#reset-frame").addEventListener("click", resetFrame);
   $("#save").addEventListener("click", save);
@@ -367,9 +382,11 @@ function wireControls() {
     else if (key === "End") goto(state.meta.frames - 1);
     else if (key === "n") stepSuspect(1);
     else if (key === "p") stepSuspect(-1);
-    else if (key === "e") { state.editMode = !state.editMode; $("#edit-mode").checked = state.editMode; }
+    else if (key === "e") setMode("2d");
+    else if (key === "d") setMode("3d");
     else if (key === "i") markInvisible();
-    else if (key === "r") resetPoint();
+    else if (key === "r") resetPoint(false);
+    else if (key === "R") resetPoint(true);
     else if (key === "v") resetView();
     else if (key === "x") resetFrame();
     else if (key === "g") setLayout(state.layout === "grid" ? "focus" : "grid");

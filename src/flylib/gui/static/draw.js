@@ -107,7 +107,6 @@ export function drawTimeline(canvas, frameScore, suspectFrames, current) {
     ctx.fillStyle = suspectFrames.has(i) ? "#e04848" : "#777";
     ctx.fillRect(i * step, h - bar, Math.max(step - 1, 1), bar);
   });
-  ctx.strokeStyle = "#6aa0ff";
-  ctx.lineWidth = 2;
-  ctx.strokeRect(current * step + 1, 1, Math.max(step - 2, 2), h - 2);
+  ctx.fillStyle = "rgba(106, 160, 255, 0.45)";  // the current frame, bars still visible
+  ctx.fillRect(current * step, 0, Math.max(step, 2), h);
 }
