@@ -338,3 +338,20 @@ def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
     assert kept["corrected"][p]
     gone = client.post("/api/edit", json={"op": "reset_point", "frame": 7, "point": p}).json()
     assert not gone["corrected"][p] and gone["points3d"][p] == pytest.approx(before["points3d"][p], abs=1e-6)
+
+
+def test_image_sequence_footage_and_missing_footage(tmp_path):
+    from flylib.gui.frames import FrameSource
+
+    files = []
+    for i in range(3):
+        image = np.full((48, 64, 3), 40 * (i + 1), np.uint8)  # BGR grey levels 40, 80, 120
+        files.append(tmp_path / f"camera_0_img_{i}.png")
+        cv2.imwrite(str(files[-1]), image)
+    source = FrameSource(files, (48, 64))
+    for i in (2, 0, 1):
+        decoded = cv2.imdecode(np.frombuffer(source.jpeg(i), np.uint8), cv2.IMREAD_COLOR)
+        assert decoded.shape == (48, 64, 3) and abs(float(decoded.mean()) - 40 * (i + 1)) < 2
+    blank = FrameSource([], (30, 40))
+    assert not blank.has_footage
+    assert cv2.imdecode(np.frombuffer(blank.jpeg(5), np.uint8), cv2.IMREAD_COLOR).shape == (30, 40, 3)
