@@ -90,6 +90,7 @@ def wait_for(driver, script, timeout=60.0):
 def test_review_drag_save_and_rerun_plan(demo_run, server):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
 
     from flylib.corrections import Corrections
 
@@ -163,6 +164,25 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert saved["saved"] == str(out / "corrections.h5")
         if shot:
             driver.save_screenshot(shot)
+
+        # ? lists the shortcuts; g: one large view plus thumbnails; wheel zooms; p goes back
+        body.send_keys("?")
+        assert driver.find_element(By.ID, "help").is_displayed()
+        body.send_keys(Keys.ESCAPE)
+        assert not driver.find_element(By.ID, "help").is_displayed()
+        body.send_keys("g")
+        wait_for(driver, "return document.querySelector('#views').classList.contains('focus') && "
+                         "document.querySelectorAll('.view.large').length === 1")
+        large = driver.find_element(By.CSS_SELECTOR, ".view.large canvas")
+        thumbnail = driver.find_element(By.CSS_SELECTOR, ".view:not(.large) canvas")
+        assert large.size["width"] > 2 * thumbnail.size["width"]
+        ScrollOrigin = pytest.importorskip("selenium.webdriver.common.actions.wheel_input").ScrollOrigin
+        ActionChains(driver).scroll_from_origin(ScrollOrigin.from_element(large), 0, -300).perform()
+        zoom = wait_for(driver, "const v = document.querySelector('.view.large canvas').dataset.view; "
+                                "const z = window.flylib.state.zoom[v]; return z.scale > 1 && z.scale")
+        assert zoom > 1
+        body.send_keys("p")
+        wait_for(driver, f"return window.flylib.state.frame < {first} || window.flylib.state.frame > {first}")
     finally:
         driver.quit()
 
