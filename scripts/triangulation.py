@@ -18,10 +18,13 @@ def main(argv=None) -> int:
                         help="bundle-adjustment artifact (its rig); default: the config rig")
     parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+    parser.add_argument("--corrections", type=Path, default=None,
+                        help="corrections.h5 sidecar (flylib gui): apply its manual edits")
 
     def run(args, config):
         run_triangulation(config, args.pose2d, args.out, pictorial_path=args.pictorial_structures,
-                          ba_path=args.bundle_adjustment, recording_dir=args.recording)
+                          ba_path=args.bundle_adjustment, recording_dir=args.recording,
+                          corrections_path=args.corrections)
 
     return script_main(parser, run, argv)
 

@@ -4,6 +4,7 @@
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does
+    flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
 
 A user-facing error is printed as one line on stderr and the exit status is 1.
 """
@@ -160,7 +161,21 @@ def _cmd_inspect(args) -> int:
             [("bone", "bone"), ("frames", "frames"), ("median_length", "median length"),
              ("spread", "IQR / median")],
         )
+    if summary["stage_3d"]:
+        _print_suspects(args.results)
     return 0
+
+
+def _print_suspects(path: Path) -> None:
+    from collections import Counter
+
+    from .suspects import suspects_from_results
+
+    suspects = suspects_from_results(path)
+    reasons = Counter(r for rs in suspects.reasons for r in rs.split(";"))
+    detail = ", ".join(f"{name} {n}" for name, n in reasons.most_common())
+    print(f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
+          + (f" ({detail}); review them with `flylib gui {path}`" if len(suspects) else ""))
 
 
 def _load_result(path: Path):
@@ -242,7 +257,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("-o", "--output", type=Path, required=True, help="destination .toml")
     p.set_defaults(func=_cmd_calibration)
+
+    p = sub.add_parser("gui", help="review and correct a recording's 3D pose in the browser")
+    p.add_argument("results", type=Path, metavar="OUTDIR_OR_RESULTS_H5",
+                   help="a recording's output directory or its results.h5")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1; any other needs the printed token URL)")
+    p.add_argument("--port", type=int, default=8765, help="port (default 8765; a busy one is replaced)")
+    p.add_argument("--no-browser", action="store_true", help="only print the URL")
+    p.set_defaults(func=_cmd_gui)
     return parser
+
+
+def _cmd_gui(args) -> int:
+    from .gui.server import serve
+
+    serve(args.results, host=args.host, port=args.port, open_browser=not args.no_browser)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

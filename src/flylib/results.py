@@ -656,7 +656,7 @@ def write_stage(
         pose2d artifact is written by :meth:`Pose2dData.save`).
     arrays
         ``name -> array`` stored as float64 datasets (e.g. ``points``, ``points3d``,
-        ``reproj_error``).
+        ``reproj_error``); boolean arrays (masks) stay boolean.
     cameras
         A rig to store as ``<stage>/cameras`` (bundle adjustment's refined rig).
     attrs
@@ -668,7 +668,8 @@ def write_stage(
         f.attrs["meta"] = json.dumps(_new_meta(stage))
         group = f.create_group(stage)
         for name, value in arrays.items():
-            _write_array(group, name, value)
+            value = np.asarray(value)
+            _write_array(group, name, value, dtype=np.bool_ if value.dtype == np.bool_ else np.float64)
         if cameras is not None:
             _write_cameras(group.create_group("cameras"), cameras)
         _json_attrs(group, attrs)

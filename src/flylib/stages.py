@@ -16,7 +16,8 @@ stage                  reads                                       writes
 ``pictorial``          ``pose2d.h5``, candidates, rig              ``stages/pictorial_structures.h5``
 ``triangulation``      2D (PS if on, else pose2d), rig              ``stages/triangulation.h5``
 ``assemble``           the stage artifacts                          ``results.h5``, ``summary.json``,
-                                                                    ``summary.png``, ``calibration.toml``
+                                                                    ``summary.png``, ``calibration.toml``,
+                                                                    ``suspects.csv``
 ``visualization``      ``results.h5``, footage                      ``<video_name>.mp4``
 =====================  ==========================================  ===============================
 """
@@ -58,7 +59,7 @@ def candidates_artifact(k: int) -> str:
     """
     return f"candidates_k{int(k)}.h5"
 
-SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml")
+SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
 
 
 def artifact_path(outdir: str | Path, stage: str) -> Path:
@@ -212,20 +213,37 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
 def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
                       pictorial_path: str | Path | None = None,
                       ba_path: str | Path | None = None,
-                      recording_dir: str | Path | None = None) -> Path:
+                      recording_dir: str | Path | None = None,
+                      corrections_path: str | Path | None = None) -> Path:
     """Lift the 2D keypoints (pictorial-structures-corrected when given, else pose2d's)
-    to 3D with the bundle-adjusted rig when given, else the config rig."""
+    to 3D with the bundle-adjusted rig when given, else the config rig.
+
+    With ``corrections_path`` (a ``corrections.h5`` sidecar, see
+    :mod:`flylib.corrections`) the manual edits are applied first; the artifact then
+    also holds ``corrected`` ``(T, P)`` and ``corrected_2d`` ``(V, T, P)`` (bool masks of
+    what a person changed) and the sidecar's name and edit count as attribute
+    ``corrections``.
+    """
+    from .corrections import Corrections, reconstruct_corrected
     from .results import Pose2dData, read_stage, write_stage
-    from .triangulation import reconstruct_from_config
 
     pose2d = Pose2dData.load(pose2d_path)
     pts2d = pose2d.pts2d
     if pictorial_path:
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    pts3d, pts2d_clean, error = reconstruct_from_config(config, pts2d, cameras, pose2d.conf)
-    write_stage(out_path, "triangulation",
-                {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error})
+    corrections = Corrections.load(corrections_path, pts2d.shape[:3]) if corrections_path else None
+    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(config, pts2d, cameras, pose2d.conf,
+                                                                 corrections)
+    arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
+    attrs = None
+    if corrections is not None:
+        arrays["corrected"] = corrected
+        arrays["corrected_2d"] = corrections.touched()
+        attrs = {"corrections": {"file": str(corrections_path), "count": corrections.count()}}
+        log.info("triangulation: %d manual corrections applied from %s", corrections.count(),
+                 corrections_path)
+    write_stage(out_path, "triangulation", arrays, attrs=attrs)
     return Path(out_path)
 
 
@@ -261,6 +279,7 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     write_anipose_toml(result.cameras, outdir / "calibration.toml", image_sizes=sizes,
                        metadata={"recording": str(recording_dir or "")})
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
+    summary["suspects"] = _write_suspects(results_path, outdir, result)
     if truth_path:
         from .demo import demo_error, load_truth
 
@@ -299,6 +318,22 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
     return summary
 
 
+def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
+    """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
+    and a header-only file when the result holds no 3D)."""
+    from .suspects import SUSPECTS_FILE, Suspects, suspects_from_results
+
+    if result.pts3d is None or result.reproj_error is None:
+        empty = np.zeros(0, int)
+        Suspects(empty, empty, np.zeros(0), [], [], np.zeros(result.n_frames)).to_csv(outdir / SUSPECTS_FILE)
+        return None
+    suspects = suspects_from_results(results_path)
+    suspects.to_csv(outdir / SUSPECTS_FILE)
+    log.info("%d suspect (frame, point) pairs in %d frames: %s", len(suspects), len(suspects.frames),
+             outdir / SUSPECTS_FILE)
+    return len(suspects)
+
+
 def _write_json(path: Path, payload: Mapping) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
@@ -306,14 +341,18 @@ def _write_json(path: Path, payload: Mapping) -> None:
 
 def run_visualization(config, results_path: str | Path, recording_dir: str | Path,
                       outdir: str | Path, *, progress: bool = False) -> list[Path]:
-    """Render the configured videos of one recording into ``outdir``."""
+    """Render the configured videos of one recording into ``outdir`` (points a person
+    corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
     from .interop.views import footage_files
     from .results import PoseResult
     from .visualization import render_videos
 
+    from .corrections import read_corrected
+
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
-    return render_videos(config, result, footage, outdir, progress=progress)
+    return render_videos(config, result, footage, outdir, progress=progress,
+                         corrected=read_corrected(results_path))
 
 
 # -- command-line plumbing shared by scripts/*.py ----------------------------------

@@ -63,6 +63,7 @@ if FLAGS["triangulation"]:
     rule triangulation:
         input:
             unpack(reconstruction_inputs("triangulation")),
+            unpack(corrections_inputs),
         output:
             artifact("triangulation"),
         params:
@@ -71,6 +72,7 @@ if FLAGS["triangulation"]:
             recording=lambda w: str(recording(w).path),
             rig=optional_arg("--bundle-adjustment", "bundle_adjustment"),
             points=optional_arg("--pictorial-structures", "pictorial_structures"),
+            corrections=optional_arg("--corrections", "corrections"),
         log:
             "{outdir}/logs/triangulation.log",
         benchmark:
@@ -82,5 +84,6 @@ if FLAGS["triangulation"]:
             "../../envs/geometry.yaml"
         shell:
             "{params.run}"
-            " --pose2d {input.pose2d:q} {params.rig} {params.points} --recording {params.recording:q}"
+            " --pose2d {input.pose2d:q} {params.rig} {params.points} {params.corrections}"
+            " --recording {params.recording:q}"
             " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"

@@ -17,6 +17,7 @@ rule assemble:
             labels={"recording": "{outdir}", "figure": "summary"},
         ),
         calibration="{outdir}/calibration.toml",
+        suspects="{outdir}/suspects.csv",
     params:
         run=command("assemble.py"),
         stage=stage_params("assemble"),

@@ -52,6 +52,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "demo",
     "exports",
     "nwb",
+    "corrections",
 )
 #: Keys of the ``exports`` table: extra per-recording outputs the workflow writes.
 EXPORT_KEYS: tuple[str, ...] = ("nwb",)

@@ -189,6 +189,8 @@ def validate_config(data: Any) -> list[str]:
         else f"expected a list of recordings or the path of a .tsv sheet, {_got(v)}",
         "recursive": _boolean,
         "outdir": lambda v: None if v is None or isinstance(v, str) else f"expected a path template or null, {_got(v)}",
+        "corrections": lambda v: None if v is None or (isinstance(v, str) and v.strip())
+        else f"expected the path (template) of a corrections.h5 sidecar or null, {_got(v)}",
     }
     bad_tables = set()
     for key, check in table_kinds.items():

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from ..paths import atomic_path
-from .draw import (color_tuples, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
+from .draw import (color_tuples, draw_rings, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
                    to_panel_coords)
 from .specs import (PanelSpec, VideoSpec, read_video_specs, resolve_output_fps,
                     visualization_table)
@@ -94,7 +94,7 @@ class Compositor:
     def compose(self, frames: Mapping[str, np.ndarray | None],
                 points2d: Mapping[str, np.ndarray],
                 points3d: Mapping[str, tuple[np.ndarray, np.ndarray]],
-                resized: dict | None = None) -> np.ndarray:
+                resized: dict | None = None, corrected: np.ndarray | None = None) -> np.ndarray:
         """Draw one output frame.
 
         Parameters
@@ -111,6 +111,9 @@ class Compositor:
             Cache of resized frames for this output frame, keyed ``(view, width,
             height)``; share one dict between compositors drawing the same frame so
             each view is resized once.
+        corrected
+            ``(P,)`` bool: points a person corrected (``flylib gui``), ringed in the
+            skeleton panels; ``None``: none.
 
         Returns
         -------
@@ -140,19 +143,20 @@ class Compositor:
                 xy = points2d.get(spec.view)
                 if xy is None:
                     continue
-                draw_skeleton_2d(region, to_panel_coords(xy, panel.image_hw,
-                                                         (panel.width, panel.height)),
-                                 panel.bones, panel.point_colors, panel.bone_colors,
+                xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
+                draw_skeleton_2d(region, xy, panel.bones, panel.point_colors, panel.bone_colors,
                                  radius=spec.point_radius, thickness=spec.line_thickness)
             else:
                 proj = points3d.get(spec.view)
                 if proj is None:
                     continue
                 xy, depth = proj
-                draw_skeleton_3d(region, to_panel_coords(xy, panel.image_hw,
-                                                         (panel.width, panel.height)),
-                                 depth, panel.bones, panel.point_colors, panel.bone_colors,
-                                 radius=spec.point_radius, thickness=spec.line_thickness)
+                xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
+                draw_skeleton_3d(region, xy, depth, panel.bones, panel.point_colors,
+                                 panel.bone_colors, radius=spec.point_radius,
+                                 thickness=spec.line_thickness)
+            if corrected is not None and corrected.any():
+                draw_rings(region, xy, corrected, spec.point_radius)
         return canvas
 
 
@@ -370,7 +374,7 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
 
 
 def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir, *,
-                  progress: bool = True) -> list[Path]:
+                  progress: bool = True, corrected: np.ndarray | None = None) -> list[Path]:
     """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
 
     All videos are rendered in one pass over the footage: each frame of each used
@@ -392,6 +396,9 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
         Directory for ``<video_name>.mp4`` (created if needed).
     progress
         Show a tqdm progress bar.
+    corrected
+        ``(T, P)`` bool: points a person corrected, drawn with a ring (see
+        :mod:`flylib.corrections`); ``None``: no rings.
 
     Returns
     -------
@@ -476,6 +483,7 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             points3d = reprojector.at(t) if reprojector else {}
             resized: dict = {}
             for comp, writer in zip(compositors, writers):
-                writer.write_frame(comp.compose(frames, points2d, points3d, resized))
+                writer.write_frame(comp.compose(frames, points2d, points3d, resized,
+                                                None if corrected is None else corrected[t]))
             bar.update(1)
     return paths

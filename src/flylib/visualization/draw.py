@@ -98,6 +98,14 @@ def draw_points(img: np.ndarray, xy: np.ndarray, colors: np.ndarray, radius: int
         cv2.circle(img, fixed[p], radius * _ONE, colors[p], -1, cv2.LINE_AA, _SHIFT)
 
 
+def draw_rings(img: np.ndarray, xy: np.ndarray, mask: np.ndarray, radius: int,
+               color: tuple[int, int, int] = (255, 255, 255)) -> None:
+    """Circle the points ``xy[mask]`` (e.g. points a person corrected) with thin rings."""
+    fixed = _fixed(xy).tolist()
+    for p in np.flatnonzero(_drawable(xy) & np.asarray(mask, bool)).tolist():
+        cv2.circle(img, fixed[p], max(radius, 1) * 2 * _ONE + _ONE, color, 1, cv2.LINE_AA, _SHIFT)
+
+
 def draw_bones(img: np.ndarray, xy: np.ndarray, bones: np.ndarray, colors: np.ndarray,
                thickness: int) -> None:
     """Draw anti-aliased segments between ``xy[bones[:, 0]]`` and ``xy[bones[:, 1]]``."""

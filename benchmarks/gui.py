@@ -1,0 +1,146 @@
+#!/usr/bin/env python
+"""``flylib gui`` server time: a frame switch (7 views of 960x480 as JPEG) and an edit.
+
+Targets (issue 15): a frame switch <= 40 ms, an edit (re-solving one point) <= 20 ms,
+server time. Measured on a demo recording run through the stage functions, against
+baselines in the same run: reading each frame with a fresh ``flylib.io`` reader call
+(open + seek per frame, no persistent decoder, no cache), and re-triangulating the
+whole recording per edit.
+
+    python benchmarks/gui.py [--frames 200] [--repeats 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+
+def stats(ms) -> str:
+    ms = np.asarray(ms)
+    return f"median {np.median(ms):6.1f} ms, p95 {np.percentile(ms, 95):6.1f} ms"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=200, help="demo recording length")
+    parser.add_argument("--repeats", type=int, default=60, help="frame switches / edits timed")
+    args = parser.parse_args(argv)
+
+    from gui_fixtures import make_demo_outputs
+
+    from flylib.gui import ReviewSession
+    from flylib.io import open_reader
+    from flylib.triangulation import reconstruct_from_config
+
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        started = time.perf_counter()
+        out = make_demo_outputs(Path(tmp) / "rec", frames=args.frames)
+        print(f"demo recording: {args.frames} frames x 7 views of 960x480 "
+              f"(made in {time.perf_counter() - started:.1f} s)")
+        session = ReviewSession(out, cache_frames=8)
+        views = session.view_names
+        pool = ThreadPoolExecutor(len(views))  # the browser asks for the 7 views at once
+
+        def switch(t: int) -> float:
+            begin = time.perf_counter()
+            list(pool.map(lambda v: session.frames[v].jpeg(t), views))
+            session.points(t)
+            return (time.perf_counter() - begin) * 1000
+
+        switch(0)  # opens the decoders
+        n = min(args.repeats, args.frames - 2)
+        forward = [switch(t) for t in range(1, n + 1)]
+        targets = [int(t) for t in rng.integers(0, args.frames, n)]
+        jumps = [switch(t) for t in targets]
+        cached = [switch(t) for t in targets[-1:-6:-1]]
+        print(f"frame switch, next frame (scrubbing):     {stats(forward)}")
+        gop = np.diff(session.frames[views[0]]._frames.keyframes)
+        print(f"frame switch, random jump (seek):         {stats(jumps)} "
+              f"(keyframe interval of the demo videos: {int(gop.max()) if len(gop) else args.frames} frames)")
+        print(f"frame switch, recently seen (LRU cache):  {stats(cached)}")
+
+        # n: next suspect, after a pause on the current frame (the prefetcher works then)
+        session.suspects()
+        suspect_frames = [int(f) for f in session.suspects().frames]
+        hops = []
+        frame = 0
+        for _ in range(min(10, len(suspect_frames))):
+            switch(frame)
+            session.visit(frame)
+            time.sleep(1.0)  # the user looks at the frame
+            nxt = next((f for f in suspect_frames if f > frame), None)
+            if nxt is None:
+                break
+            hops.append(switch(nxt))
+            frame = nxt
+        print(f"frame switch, n to the next suspect:      {stats(hops)} (prefetched during a 1 s look)")
+
+        files = {v: session.frames[v]._frames.reader.path for v in views}
+
+        def baseline(t: int) -> float:
+            import cv2
+
+            begin = time.perf_counter()
+
+            def one(v):
+                frame = open_reader(files[v])[[t]][0]
+                cv2.imencode(".jpg", frame[..., ::-1], [int(cv2.IMWRITE_JPEG_QUALITY), 85])
+
+            list(pool.map(one, views))
+            return (time.perf_counter() - begin) * 1000
+
+        base_forward = [baseline(t) for t in range(1, min(n, 20) + 1)]
+        print(f"baseline, a fresh reader per frame, next: {stats(base_forward)}")
+        print(f"  persistent decoder vs baseline (next frame): "
+              f"{np.median(base_forward) / np.median(forward):.1f}x faster")
+
+        # edits: move one well-seen point by a few pixels
+        seen = np.isfinite(session.base2d).all(-1)
+        solve, total = [], []
+        for _ in range(args.repeats):
+            t = int(rng.integers(0, args.frames))
+            p = int(rng.choice(np.flatnonzero(seen[:, t].sum(axis=0) >= 2)))
+            v = int(np.flatnonzero(seen[:, t, p])[0])
+            xy = session.base2d[v, t, p] + rng.normal(0, 4, 2)
+            begin = time.perf_counter()
+            reply = session.edit("move", t, p, views[v], xy)
+            total.append((time.perf_counter() - begin) * 1000)
+            solve.append(reply["solve_ms"])
+        session.edit("move3d", 0, p, views[v], session.base2d[v, 0, p])  # imports JAX once
+        solve3d = []
+        for _ in range(args.repeats):
+            t = int(rng.integers(0, args.frames))
+            p = int(rng.choice(np.flatnonzero(seen[:, t].sum(axis=0) >= 2)))
+            v = int(np.flatnonzero(seen[:, t, p])[0])
+            if not np.isfinite(session.pts3d[t, p]).all():
+                continue
+            xy = session.base2d[v, t, p] + rng.normal(0, 4, 2)
+            solve3d.append(session.edit("move3d", t, p, views[v], xy)["solve_ms"])
+        print(f"edit, re-solve one point:                 {stats(solve)}")
+        print(f"edit, re-solve + the frame's reply:       {stats(total)}")
+        print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
+        begin = time.perf_counter()
+        reconstruct_from_config(session.config, session.base2d, session.cameras, session.conf)
+        whole = (time.perf_counter() - begin) * 1000
+        print(f"baseline, re-triangulating the recording: {whole:6.1f} ms "
+              f"({whole / np.median(solve):.0f}x one edit)")
+        session.close()
+        pool.shutdown()
+    print("targets: frame switch <= 40 ms, edit <= 20 ms (server time; figures are noisy on a "
+          "shared machine)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

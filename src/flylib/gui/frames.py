@@ -1,0 +1,247 @@
+"""Footage frames for the GUI, as JPEG: one open decoder per view and a small LRU cache.
+
+A video keeps one PyAV container open: the next frame (scrubbing forward) costs one
+decode; any other frame is reached by decoding on from the current position or by a
+seek to the keyframe before it, whichever decodes fewer frames (the keyframes and
+presentation timestamps are indexed once from the packets), never by decoding from
+the start. A random jump therefore costs up to one keyframe interval (GOP) of decoding.
+Image sequences are read by index through :class:`flylib.io.ImageSequenceReader`.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FootageError
+
+#: Always decode forward (rather than seek) when the wanted frame is at most this far ahead.
+FORWARD_GAP = 24
+JPEG_QUALITY = 85
+
+
+def encode_jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    """``(H, W, 3)`` uint8 BGR -> JPEG bytes."""
+    import cv2
+
+    ok, data = cv2.imencode(".jpg", image_bgr, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
+        raise FootageError("JPEG encoding failed")
+    return data.tobytes()
+
+
+class _VideoFrames:
+    """Random access to one video with a persistent decoder."""
+
+    def __init__(self, path: Path, index: tuple | None = None):
+        from ..io import VideoReader
+
+        self.reader = VideoReader(path)
+        self.pts, self.keyframes = index if index is not None else self._index()
+        self._container = None
+        self._frames = None  # the decoder's frame iterator
+        self._next: int | None = None  # index of the frame the iterator yields next
+
+    def _index(self) -> tuple[list[int] | None, np.ndarray | None]:
+        """Presentation timestamps in frame order and the frame indices of the keyframes
+        (one demux pass, no decoding); ``(None, None)`` without timestamps."""
+        import av
+
+        pts, key = [], []
+        try:
+            with av.open(str(self.reader.path)) as container:
+                for packet in container.demux(container.streams.video[0]):
+                    if packet.size == 0:
+                        continue
+                    if packet.pts is None:
+                        return None, None
+                    pts.append(int(packet.pts))
+                    if packet.is_keyframe:
+                        key.append(int(packet.pts))
+        except (av.FFmpegError, OSError) as exc:
+            raise FootageError(f"{self.reader.path}: cannot index the video ({exc}); re-copy or "
+                               "re-export it") from None
+        pts.sort()
+        index_of = {p: i for i, p in enumerate(pts)}
+        return (pts or None), np.array(sorted(index_of[k] for k in key), dtype=int)
+
+    def __len__(self) -> int:
+        return len(self.pts) if self.pts is not None else int(self.reader.count() or 0)
+
+    def spawn(self) -> _VideoFrames:
+        """A second decoder of the same file (sharing the index)."""
+        return _VideoFrames(self.reader.path, (self.pts, self.keyframes))
+
+    def _keyframe_before(self, index: int) -> int:
+        if self.keyframes is None or not len(self.keyframes):
+            return 0
+        k = int(np.searchsorted(self.keyframes, index, side="right")) - 1
+        return int(self.keyframes[max(k, 0)])
+
+    def _forward_is_cheaper(self, index: int) -> bool:
+        """Decoding on from the current position costs fewer frames than a seek would."""
+        if self._frames is None or self._next is None or index < self._next:
+            return False
+        return index - self._next <= max(FORWARD_GAP, index - self._keyframe_before(index))
+
+    def _restart(self, index: int) -> None:
+        import av
+
+        if self._container is None:
+            self._container = av.open(str(self.reader.path))
+            stream = self._container.streams.video[0]
+            stream.thread_type = "SLICE"  # frame threading would delay every single-frame read
+        stream = self._container.streams.video[0]
+        if self.pts is not None:
+            self._container.seek(self.pts[index], stream=stream, backward=True, any_frame=False)
+        else:
+            self._container.seek(0, stream=stream)
+        self._frames = self._container.decode(stream)
+        self._next = None  # unknown until a frame's timestamp says
+
+    def read(self, index: int) -> np.ndarray:
+        """Frame ``index`` as ``(H, W, 3)`` uint8 BGR."""
+        if not self._forward_is_cheaper(index):
+            self._restart(index if self.pts is not None else 0)
+            if self.pts is None:
+                self._next = 0
+        index_of = self._index_of()
+        for frame in self._frames:
+            i = index_of.get(frame.pts, self._next) if index_of else self._next
+            if i is None:
+                continue
+            self._next = i + 1
+            if i == index:
+                return frame.to_ndarray(format="bgr24")
+            if i > index:
+                break
+        self._frames = None
+        raise FootageError(f"{self.reader.path}: frame {index} could not be decoded")
+
+    def _index_of(self) -> dict[int, int] | None:
+        if self.pts is None:
+            return None
+        if not hasattr(self, "_index_map"):
+            self._index_map = {p: i for i, p in enumerate(self.pts)}
+        return self._index_map
+
+    def close(self) -> None:
+        if self._container is not None:
+            self._container.close()
+            self._container = None
+            self._frames = None
+
+
+class _ImageFrames:
+    def __init__(self, files: Sequence[Path]):
+        from ..io import ImageSequenceReader
+
+        self.reader = ImageSequenceReader(list(files), workers=1)
+
+    def __len__(self) -> int:
+        return self.reader.count()
+
+    def spawn(self) -> _ImageFrames:
+        return _ImageFrames(self.reader.files)
+
+    def read(self, index: int) -> np.ndarray:
+        rgb = self.reader[[index]][0]
+        return np.ascontiguousarray(rgb[..., ::-1])
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+class FrameSource:
+    """JPEG frames of one view, with an LRU cache of encoded frames.
+
+    Two decoders: one follows the requests (so scrubbing stays one decode per frame),
+    the other fills the cache in the background (:meth:`prefetch`, e.g. the next
+    suspect frame) without moving the first away from where the user is.
+
+    Parameters
+    ----------
+    files
+        The view's footage (one video, or image files in frame order); empty: every
+        frame is a plain dark image of ``size``.
+    size
+        ``(height, width)`` used when there is no footage.
+    cache_frames
+        Encoded frames kept per view.
+    """
+
+    def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 128):
+        files = [Path(f) for f in files]
+        self.size = (int(size[0]), int(size[1]))
+        self._cache_lock = threading.Lock()
+        self._lock = threading.Lock()  # the request decoder
+        self._spare_lock = threading.Lock()  # the prefetch decoder
+        self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self.cache_frames = int(cache_frames)
+        self._blank: bytes | None = None
+        self._spare = None
+        if not files:
+            self._frames = None
+        elif len(files) == 1 and files[0].suffix.lower() not in {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}:
+            self._frames = _VideoFrames(files[0])
+        else:
+            self._frames = _ImageFrames(files)
+
+    @property
+    def has_footage(self) -> bool:
+        return self._frames is not None
+
+    def __len__(self) -> int:
+        return 0 if self._frames is None else len(self._frames)
+
+    def _cached(self, index: int) -> bytes | None:
+        with self._cache_lock:
+            data = self._cache.get(index)
+            if data is not None:
+                self._cache.move_to_end(index)
+            return data
+
+    def _store(self, index: int, data: bytes) -> None:
+        with self._cache_lock:
+            self._cache[index] = data
+            self._cache.move_to_end(index)
+            while len(self._cache) > self.cache_frames:
+                self._cache.popitem(last=False)
+
+    def jpeg(self, index: int) -> bytes:
+        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
+        cached = self._cached(index)
+        if cached is not None:
+            return cached
+        if self._frames is None or index >= len(self._frames):
+            if self._blank is None:
+                self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
+            return self._blank
+        with self._lock:
+            cached = self._cached(index)  # the prefetcher may have just made it
+            if cached is not None:
+                return cached
+            data = encode_jpeg(self._frames.read(index))
+        self._store(index, data)
+        return data
+
+    def prefetch(self, index: int) -> None:
+        """Put frame ``index`` in the cache with the background decoder (no-op if there)."""
+        if self._frames is None or not 0 <= index < len(self._frames) or self._cached(index) is not None:
+            return
+        with self._spare_lock:
+            if self._cached(index) is not None:
+                return
+            if self._spare is None:
+                self._spare = self._frames.spawn()
+            data = encode_jpeg(self._spare.read(index))
+        self._store(index, data)
+
+    def close(self) -> None:
+        for frames in (self._frames, self._spare):
+            if frames is not None:
+                frames.close()

@@ -1,0 +1,84 @@
+"""Run the GUI with uvicorn: ``flylib gui <outdir or results.h5> [--host --port --no-browser]``."""
+
+from __future__ import annotations
+
+import ipaddress
+import logging
+import secrets
+import socket
+import threading
+import webbrowser
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (no token needed there)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def free_port(host: str, preferred: int) -> int:
+    """``preferred`` if it can be bound on ``host``, else a free port the OS picks."""
+    for port in (preferred, 0):
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+            try:
+                sock.bind((host, port))
+            except OSError:
+                continue
+            return sock.getsockname()[1]
+    raise OSError(f"cannot bind {host}; pass another --host")
+
+
+def serve(results: str | Path, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+          open_browser: bool = True, token: str | None = None) -> None:
+    """Open the recording and serve the GUI until interrupted.
+
+    Bound to localhost by default (reach it from another machine with
+    ``ssh -L 8765:localhost:8765 node``); binding to any other address requires a
+    random access token, which is part of the printed URL.
+
+    Parameters
+    ----------
+    results
+        A recording's output directory or its ``results.h5``.
+    host, port
+        Where to listen; a busy ``port`` is replaced by a free one.
+    open_browser
+        Open the URL in the local browser (if there is one).
+    token
+        The access token when not on localhost (default: a random one).
+    """
+    import uvicorn
+
+    from .app import create_app
+    from .session import ReviewSession
+
+    session = ReviewSession(results)
+    if not is_loopback(host):
+        token = token or secrets.token_urlsafe(24)
+    port = free_port(host, port)
+    app = create_app(session, token=None if is_loopback(host) else token)
+    shown = "localhost" if is_loopback(host) else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
+    url = f"http://{shown}:{port}/" + (f"?token={token}" if not is_loopback(host) else "")
+    print(f"flylib gui: {session.results_path} ({session.n_frames} frames, {session.n_views} views)")
+    print(f"flylib gui: open {url}  (Ctrl+C stops; edits are saved to {session.corrections_path})")
+    if is_loopback(host):
+        print(f"flylib gui: from another machine: ssh -L {port}:localhost:{port} <this host>, "
+              f"then open http://localhost:{port}/")
+    if open_browser:
+        threading.Timer(1.0, lambda: webbrowser.open(url)).start()
+    try:
+        uvicorn.run(app, host=host, port=port, log_level="warning")
+    finally:
+        if session.dirty:
+            print(f"flylib gui: unsaved edits were discarded (press Save to write {session.corrections_path})")
+        session.close()

@@ -1,0 +1,403 @@
+"""The state behind ``flylib gui``: one recording's result, its footage and the edits.
+
+The 2D a point is solved from is what triangulation read (pictorial structures' 2D
+when that stage ran, else pose2d's), with the corrections applied; every edit
+re-solves that one (frame, point) with :func:`flylib.corrections.reconstruct_corrected`
+on the final rig and the run's own config, the function the triangulation stage
+runs, so what the page shows is what the workflow computes after saving.
+``results.h5`` is only read; the only file written is the corrections sidecar,
+inside the output directory.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..corrections import (
+    CORRECTIONS_FILE,
+    Corrections,
+    corrections_path,
+    reconstruct_corrected,
+)
+from ..errors import FlylibError, ResultsError
+from .frames import FrameSource
+
+log = logging.getLogger(__name__)
+
+
+def resolve_results(path: str | Path) -> Path:
+    """``results.h5`` from a recording's output directory or the file itself.
+
+    Raises
+    ------
+    ResultsError
+        When neither is there (one line naming the path).
+    """
+    path = Path(path).expanduser()
+    if path.is_dir():
+        path = path / "results.h5"
+    if not path.is_file():
+        raise ResultsError(f"{path}: no results.h5 here; pass a recording's output directory "
+                           "(e.g. demo/flylib_outputs) or its results.h5, after the workflow ran")
+    return path.resolve()
+
+
+def _xy_list(arr: np.ndarray, digits: int = 2) -> list:
+    """``(P, k)`` coordinates as ``[[x, y, ...] | None]``: ``None`` for a missing point."""
+    arr = np.round(np.asarray(arr, dtype=np.float64), digits)
+    ok = np.isfinite(arr).all(-1)
+    return [row if keep else None for row, keep in zip(arr.tolist(), ok.tolist())]
+
+
+def _nan_to_none(arr: np.ndarray, digits: int = 3) -> list:
+    """A float array as nested lists with ``None`` for NaN (JSON has no NaN)."""
+    out = np.round(np.asarray(arr, dtype=np.float64), digits).tolist()
+
+    def clean(x):
+        if isinstance(x, list):
+            return [clean(y) for y in x]
+        return None if x is None or not math.isfinite(x) else x
+
+    return clean(out)
+
+
+class ReviewSession:
+    """One recording opened for review.
+
+    Parameters
+    ----------
+    results
+        ``results.h5`` or the output directory holding it.
+    config
+        The run's config; default: the snapshot ``<outdir>/config.yaml`` (``.toml``),
+        else :meth:`flylib.config.Config.default`.
+    footage
+        ``view -> files``; default: found in the recording directory named in the
+        result's meta, through the config's ``sources``.
+    """
+
+    def __init__(self, results: str | Path, *, config: Any = None,
+                 footage: dict[str, list[Path]] | None = None, cache_frames: int = 128):
+        from ..config import Config
+        from ..results import PoseResult, open_checked
+
+        self.results_path = resolve_results(results)
+        self.outdir = self.results_path.parent
+        if config is None:
+            snapshot = next((p for p in (self.outdir / "config.yaml", self.outdir / "config.toml")
+                             if p.is_file()), None)
+            config = Config.from_file(snapshot) if snapshot else Config.default()
+        self.config = config
+        result = PoseResult.load(self.results_path)
+        if result.pts3d is None:
+            raise ResultsError(f"{self.results_path}: holds no 3D points; run triangulation first")
+        self.result = result
+        self.cameras = result.cameras
+        self.skeleton = result.skeleton
+        self.view_names = list(self.cameras.names)
+        with open_checked(self.results_path) as f:
+            source = "pictorial_structures" if "pictorial_structures/points" in f else "pose2d"
+            self.base2d = np.asarray(f[f"{source}/points"][()], dtype=np.float64)
+            self.conf = np.asarray(f["pose2d/conf"][()], dtype=np.float64) if "pose2d/conf" in f else None
+        self.recording_dir = result.meta.get("recording")
+        v, t, p = self.base2d.shape[:3]
+        self.n_views, self.n_frames, self.n_points = v, t, p
+        self.corrections_path = self._sidecar_path()
+        if self.corrections_path.is_file():
+            self.corrections = Corrections.load(self.corrections_path, (v, t, p))
+        else:
+            self.corrections = Corrections.empty(v, t, p)
+        self.corrections.source = str(self.results_path)
+        self.pts3d = np.array(result.pts3d)
+        self.used2d = np.array(result.pts2d)
+        self.error = np.array(result.reproj_error) if result.reproj_error is not None else np.full((v, t, p), np.nan)
+        self._lock = threading.RLock()
+        self._suspects = None
+        self._suspects_stale = True
+        self.dirty = False  # edits not yet saved
+        for tt, pp in np.argwhere(self.corrections.corrected_points()):
+            self._resolve(int(tt), int(pp))
+        self.image_sizes = {name: tuple(result.image_sizes.get(name, (480, 960)))
+                            for name in self.view_names} if result.image_sizes else \
+            {name: (480, 960) for name in self.view_names}
+        if footage is None:
+            footage = self._find_footage()
+        self.frames = {name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
+                       for name in self.view_names}
+        self._prefetch_todo: list[int] = []
+        self._prefetch_wake = threading.Condition()
+        self._closed = False
+        self._prefetcher = threading.Thread(target=self._prefetch_loop, name="flylib-gui-prefetch",
+                                            daemon=True)
+        self._prefetcher.start()
+
+    # -- set-up ------------------------------------------------------------------------
+
+    def _sidecar_path(self) -> Path:
+        """The configured sidecar if it lies inside the outdir, else ``<outdir>/corrections.h5``."""
+        try:
+            path, _ = corrections_path(self.config, self.outdir, self.recording_dir)
+        except FlylibError:  # a bad key is reported by the workflow; the GUI uses the default
+            return self.outdir / CORRECTIONS_FILE
+        path = path.resolve()
+        if not path.is_relative_to(self.outdir.resolve()):
+            log.warning("corrections: %s lies outside %s; the GUI reads and writes %s instead",
+                        path, self.outdir, self.outdir / CORRECTIONS_FILE)
+            return self.outdir / CORRECTIONS_FILE
+        return path
+
+    def _find_footage(self) -> dict[str, list[Path]]:
+        from ..interop.views import footage_files
+
+        if not self.recording_dir or not Path(self.recording_dir).is_dir():
+            log.warning("%s: recording directory %r not found; views show no footage",
+                        self.results_path, self.recording_dir)
+            return {}
+        try:
+            return footage_files(self.config, Path(self.recording_dir))
+        except (FlylibError, OSError) as exc:  # footage is a nicety: points can be reviewed without it
+            log.warning("footage of %s not found (%s); views show no footage", self.recording_dir, exc)
+            return {}
+
+    # -- reading -----------------------------------------------------------------------
+
+    def view_index(self, view: str) -> int:
+        """Index of a camera name; ``KeyError`` for an unknown one."""
+        return self.view_names.index(view) if view in self.view_names else _raise_key(view)
+
+    def meta(self) -> dict:
+        """What the page needs once: views, sizes, skeleton with palette, frame count."""
+        sk = self.skeleton
+        limb_names = list(sk.limb_names)
+        return {
+            "results": str(self.results_path),
+            "outdir": str(self.outdir),
+            "corrections_file": str(self.corrections_path),
+            "corrections_loaded": self.corrections.count(),
+            "views": [{"name": n, "height": int(self.image_sizes[n][0]), "width": int(self.image_sizes[n][1]),
+                       "footage": self.frames[n].has_footage} for n in self.view_names],
+            "frames": self.n_frames,
+            "points": list(sk.point_names),
+            "bones": np.asarray(sk.bones, int).tolist(),
+            "point_colors": [sk.limb_color(limb_names[i]) for i in np.asarray(sk.limb_id, int)],
+            "bone_colors": [sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)],
+            "method": str(getattr(self.config.triangulation, "method", "ransac")),
+        }
+
+    def points(self, frame: int) -> dict:
+        """Everything drawn at one frame.
+
+        Returns
+        -------
+        dict
+            ``frame``; per view (in view order) ``points2d`` (the 2D triangulation reads,
+            edits applied), ``used`` (kept by the solver), ``reprojected`` (the 3D ghost),
+            ``error``, ``edited``, ``invisible``; ``points3d``; ``corrected``; the frame's
+            ``suspects``.
+        """
+        t = self._check_frame(frame)
+        with self._lock:
+            given, _ = self.corrections.subset([t], slice(None)).apply_2d(self.base2d[:, [t]])
+            given = given[:, 0]
+            reproj = self.cameras.project(self.pts3d[t])  # (V, P, 2)
+            used = np.isfinite(self.used2d[:, t]).all(-1)
+            views = []
+            for v, name in enumerate(self.view_names):
+                views.append({
+                    "name": name,
+                    "points2d": _xy_list(given[v]),
+                    "used": used[v].tolist(),
+                    "reprojected": _xy_list(reproj[v]),
+                    "error": _nan_to_none(self.error[v, t], 2),
+                    "edited": self.corrections.edited[v, t].tolist(),
+                    "invisible": self.corrections.invisible[v, t].tolist(),
+                })
+            c = self.corrections
+            corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
+            # the last computed suspects: re-finding them is left to suspects(), so an
+            # edit's reply stays cheap on a long recording
+            cached = self._suspects if self._suspects is not None else self.suspects()
+            suspects = cached.records(frame=t)
+            return {"frame": t, "views": views, "points3d": _xy_list(self.pts3d[t], 6),
+                    "corrected": corrected, "suspects": suspects, "dirty": self.dirty,
+                    "edits": self.corrections.count()}
+
+    def suspects(self):
+        """Suspects of the current state (recomputed after edits, lazily)."""
+        from ..suspects import find_suspects
+
+        with self._lock:
+            if self._suspects is None or self._suspects_stale:
+                self._suspects_stale = False
+                self._suspects = find_suspects(
+                    self.pts3d, self.used2d, self.error, self.skeleton.bones,
+                    pts2d_input=np.where(self.corrections.touched()[..., None], np.nan, self.base2d),
+                    corrected=self.corrections.corrected_points(),
+                    point_names=list(self.skeleton.point_names))
+            return self._suspects
+
+    def suspects_payload(self) -> dict:
+        s = self.suspects()
+        return {"suspects": s.records(), "frame_score": np.round(s.frame_score, 3).tolist()}
+
+    # -- editing -------------------------------------------------------------------------
+
+    def _check_frame(self, frame: int) -> int:
+        t = int(frame)
+        if not 0 <= t < self.n_frames:
+            raise IndexError(f"frame {frame} out of range 0..{self.n_frames - 1}")
+        return t
+
+    def _check_point(self, point: int) -> int:
+        p = int(point)
+        if not 0 <= p < self.n_points:
+            raise IndexError(f"point {point} out of range 0..{self.n_points - 1}")
+        return p
+
+    def _resolve(self, t: int, p: int) -> None:
+        """Re-solve one (frame, point) from the base 2D with the current corrections."""
+        sub = self.corrections.subset([t], [p])
+        conf = None if self.conf is None else self.conf[:, [t]][:, :, [p]]
+        pts3d, clean, error, _ = reconstruct_corrected(self.config, self.base2d[:, [t]][:, :, [p]],
+                                                      self.cameras, conf, sub)
+        self.pts3d[t, p] = pts3d[0, 0]
+        self.used2d[:, t, p] = clean[:, 0, 0]
+        self.error[:, t, p] = error[:, 0, 0]
+        self._suspects_stale = True
+
+    def edit(self, op: str, frame: int, point: int | None = None, view: str | None = None,
+             xy: Any = None) -> dict:
+        """Apply one edit and re-solve what it touched.
+
+        Parameters
+        ----------
+        op
+            ``move`` (place the point at ``xy`` in ``view``: Edit 2D), ``move3d`` (Edit 3D:
+            move the 3D point the least so that it projects onto ``xy`` in ``view``, the
+            closest point to it on that pixel's ray), ``invisible`` (drop it in ``view``),
+            ``reset_point`` (``view`` given: that view only; else every view and its 3D
+            edit), ``reset_view`` or ``reset_frame``.
+        frame, point, view, xy
+            The target; ``xy`` in raw-frame pixels.
+
+        Returns
+        -------
+        dict
+            :meth:`points` of the frame after the edit, plus ``solve_ms`` (the time spent
+            re-solving).
+
+        Raises
+        ------
+        KeyError, IndexError, ValueError
+            An unknown view, an index out of range, or a bad operation / coordinate.
+        """
+        t = self._check_frame(frame)
+        v = None if view is None else self.view_index(view)
+        with self._lock:
+            if op in ("move", "move3d", "invisible", "reset_point"):
+                p = self._check_point(point)
+                if op != "reset_point" and v is None:
+                    raise ValueError(f"{op} needs a view")
+                if op in ("move", "move3d"):
+                    xy = np.asarray(xy, dtype=np.float64).reshape(-1)
+                    if xy.shape != (2,) or not np.isfinite(xy).all():
+                        raise ValueError(f"xy must be two finite pixel coordinates, got {xy.tolist()}")
+                if op == "move":
+                    self.corrections.set_point(v, t, p, xy)
+                elif op == "move3d":
+                    started = time.perf_counter()
+                    self.corrections.set_point3d(t, p, self._onto_ray(v, t, p, xy))
+                    ray_ms = (time.perf_counter() - started) * 1000
+                elif op == "invisible":
+                    self.corrections.set_invisible(v, t, p)
+                else:
+                    self.corrections.reset(t, point=p, view=v)
+                points = [p]
+            elif op == "reset_view":
+                if v is None:
+                    raise ValueError("reset_view needs a view")
+                self.corrections.reset(t, view=v)
+                points = range(self.n_points)
+            elif op == "reset_frame":
+                self.corrections.reset(t)
+                points = range(self.n_points)
+            else:
+                raise ValueError(f"unknown edit {op!r}; use move, move3d, invisible, reset_point, reset_view "
+                                 "or reset_frame")
+            started = time.perf_counter()
+            for p in points:
+                self._resolve(t, p)
+            solve_ms = (time.perf_counter() - started) * 1000 + (ray_ms if op == "move3d" else 0.0)
+            self.dirty = True
+            reply = self.points(t)
+            reply["solve_ms"] = round(solve_ms, 2)
+            return reply
+
+    def _onto_ray(self, v: int, t: int, p: int, xy: np.ndarray) -> np.ndarray:
+        """The point on pixel ``xy``'s ray in view ``v`` closest to the current 3D point."""
+        from ..geometry import closest_point_on_ray
+
+        target = self.pts3d[t, p]
+        if not np.isfinite(target).all():
+            raise ValueError(f"point {self.skeleton.point_names[p]} has no 3D at frame {t}; "
+                             "place it in 2D (Edit 2D) first")
+        origin, direction = self.cameras[v].backproject_ray(xy)
+        return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
+
+    def save(self) -> Path:
+        """Write the corrections sidecar atomically inside the outdir; ``results.h5`` is untouched."""
+        with self._lock:
+            path = self.corrections.save(self.corrections_path)
+            self.dirty = False
+        log.info("corrections saved to %s (%d edits)", path, self.corrections.count())
+        return path
+
+    # -- background prefetch ---------------------------------------------------------------
+
+    def visit(self, frame: int) -> None:
+        """The user is at ``frame``: warm the cache for the neighbouring suspect frames
+        (where ``n`` / ``p`` go next), in the background with each view's spare decoder."""
+        if self._suspects is None:
+            return
+        frames = self._suspects.frames
+        later = frames[frames > frame]
+        earlier = frames[frames < frame]
+        todo = [int(f) for f in (*later[:2], *earlier[-1:])]
+        with self._prefetch_wake:
+            self._prefetch_todo = todo
+            self._prefetch_wake.notify()
+
+    def _prefetch_loop(self) -> None:
+        while True:
+            with self._prefetch_wake:
+                while not self._prefetch_todo and not self._closed:
+                    self._prefetch_wake.wait()
+                if self._closed:
+                    return
+                frame = self._prefetch_todo.pop(0)
+            for name in self.view_names:
+                if self._closed:
+                    return
+                try:
+                    self.frames[name].prefetch(frame)
+                except (FlylibError, OSError, ValueError, IndexError) as exc:  # reported when asked for
+                    log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
+
+    def close(self) -> None:
+        with self._prefetch_wake:
+            self._closed = True
+            self._prefetch_wake.notify()
+        self._prefetcher.join(timeout=5)
+        for source in self.frames.values():
+            source.close()
+
+
+def _raise_key(view: str):
+    raise KeyError(f"unknown camera {view!r}")

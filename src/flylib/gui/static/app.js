@@ -1,0 +1,423 @@
+// flylib gui: the page. Plain ES modules, one <canvas> per camera view.
+import { apiUrl, EditChannel, getJSON, postJSON } from "./api.js";
+import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.js";
+
+const $ = (sel) => document.querySelector(sel);
+const state = {
+  meta: null, frame: 0, data: null, images: {}, views: [], zoom: {},
+  focus: 0, layout: "grid", editMode: false, mode: "view", selected: null,  // {view, point}
+  suspects: [], frameScore: [], suspectFrames: [], sort: { key: "frame", asc: true },
+  drawn: {}, lastServerMs: null, requestId: 0,
+};
+const channel = new EditChannel(status);
+
+function status(text) { $("#status").textContent = text; }
+
+async function start() {
+  state.meta = await getJSON("/api/meta");
+  const meta = state.meta;
+  $("#recording").textContent = meta.results;
+  const slider = $("#slider");
+  slider.max = meta.frames - 1;
+  slider.addEventListener("input", () => goto(Number(slider.value)));
+  const container = $("#views");
+  meta.views.forEach((view, i) => {
+    const div = document.createElement("div");
+    div.className = "view";
+    div.innerHTML = `<canvas></canvas><span class="label">${i + 1} ${view.name}</span>`;
+    container.appendChild(div);
+    const canvas = div.querySelector("canvas");
+    canvas.dataset.view = view.name;
+    state.views.push({ ...view, index: i, div, canvas, transform: null });
+    state.zoom[view.name] = { scale: 1, x: 0, y: 0 };
+    attachMouse(state.views[i]);
+  });
+  new ResizeObserver(() => redrawAll()).observe(container);
+  wireControls();
+  await loadSuspects();
+  const first = new URLSearchParams(location.search).get("frame");
+  await goto(first ? Number(first) : 0);
+}
+
+// -- frames --------------------------------------------------------------------------
+
+async function goto(frame) {
+  const meta = state.meta;
+  frame = Math.max(0, Math.min(meta.frames - 1, Math.round(frame)));
+  state.frame = frame;
+  const id = ++state.requestId;
+  $("#slider").value = frame;
+  $("#frame-label").textContent = `frame ${frame} / ${meta.frames - 1}`;
+  for (const view of state.views) {
+    const image = new Image();
+    image.onload = () => {
+      if (id !== state.requestId) return;
+      state.images[view.name] = image;
+      draw(view);
+    };
+    image.src = apiUrl(`/api/frame/${encodeURIComponent(view.name)}/${frame}`);
+  }
+  const data = await getJSON(`/api/points/${frame}`);
+  if (id !== state.requestId) return;
+  state.data = data;
+  redrawAll();
+  renderSuspectTable();
+}
+
+function resize(view) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = Math.max(1, Math.round(view.canvas.clientWidth * dpr));
+  const h = Math.max(1, Math.round(view.canvas.clientHeight * dpr));
+  if (view.canvas.width !== w || view.canvas.height !== h) {
+    view.canvas.width = w;
+    view.canvas.height = h;
+  }
+}
+
+function draw(view) {
+  resize(view);
+  const image = state.images[view.name];
+  const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
+  view.transform = drawView(view.canvas, image, view, state.meta, state.data,
+    { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel });
+  const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
+    image && image.src.includes(`/${state.frame}?`);
+  if (state.data && state.data.frame === state.frame && imageReady) {
+    view.canvas.dataset.drawnFrame = String(state.frame);
+  }
+}
+
+function redrawAll() {
+  state.views.forEach(draw);
+  drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
+  const edits = state.data ? state.data.edits : 0;
+  $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
+  $("#save").textContent = state.data && state.data.dirty ? `Save (${edits})` : "Save";
+}
+
+// -- suspects --------------------------------------------------------------------------
+
+async function loadSuspects() {
+  const payload = await getJSON("/api/suspects");
+  state.suspects = payload.suspects;
+  state.frameScore = payload.frame_score;
+  state.suspectFrames = [...new Set(state.suspects.map((s) => s.frame))].sort((a, b) => a - b);
+  $("#suspect-count").textContent = `(${state.suspects.length} in ${state.suspectFrames.length} frames)`;
+  const timeline = $("#timeline");
+  timeline.width = timeline.clientWidth || 800;
+  renderSuspectTable();
+}
+
+function renderSuspectTable() {
+  const { key, asc } = state.sort;
+  const rows = [...state.suspects].sort((a, b) => {
+    const x = key === "reasons" ? a.reasons.join() : a[key], y = key === "reasons" ? b.reasons.join() : b[key];
+    const c = x < y ? -1 : x > y ? 1 : a.frame - b.frame || a.point - b.point;
+    return asc ? c : -c;
+  });
+  const body = $("#suspects tbody");
+  body.replaceChildren(...rows.map((s) => {
+    const tr = document.createElement("tr");
+    tr.className = s.frame === state.frame ? "current" : "";
+    tr.title = s.detail;
+    tr.innerHTML = `<td>${s.frame}</td><td>${s.point_name}</td><td>${s.score.toFixed(2)}</td><td>${s.reasons.join(", ")}</td>`;
+    tr.addEventListener("click", () => jumpToSuspect(s));
+    return tr;
+  }));
+  document.querySelectorAll("#suspects th").forEach((th) => {
+    th.classList.toggle("sorted", th.dataset.key === key);
+    th.classList.toggle("asc", th.dataset.key === key && asc);
+  });
+}
+
+async function jumpToSuspect(s) {
+  await goto(s.frame);
+  const view = bestViewFor(s.point);
+  state.selected = { view: view.name, point: s.point };
+  if (state.layout === "focus") setFocus(view.index);
+  redrawAll();
+}
+
+function bestViewFor(point) {
+  // the view where the point is drawn with the largest reprojection error (else the first that sees it)
+  let best = null, bestError = -1;
+  state.data.views.forEach((v, i) => {
+    if (!v.points2d[point]) return;
+    const e = v.error[point] ?? 0;
+    if (e > bestError) { best = state.views[i]; bestError = e; }
+  });
+  return best || state.views[0];
+}
+
+function stepSuspect(direction) {
+  const frames = state.suspectFrames;
+  if (!frames.length) return status("no suspects");
+  const next = direction > 0 ? frames.find((f) => f > state.frame) ?? frames[0]
+    : [...frames].reverse().find((f) => f < state.frame) ?? frames[frames.length - 1];
+  const s = state.suspects.filter((x) => x.frame === next).sort((a, b) => b.score - a.score)[0];
+  return jumpToSuspect(s);
+}
+
+// -- editing ---------------------------------------------------------------------------
+
+async function sendEdit(message) {
+  const reply = await channel.send({ frame: state.frame, ...message });
+  if (reply.error) { status(`edit refused: ${reply.error}`); return null; }
+  if (reply.frame === state.frame) state.data = reply;
+  state.lastServerMs = reply.server_ms;
+  status(`${message.op}: re-solved in ${reply.server_ms} ms on the server`);
+  redrawAll();
+  return reply;
+}
+
+async function afterEdit() {
+  // the suspects are re-found once an edit is done (not on every drag step)
+  await loadSuspects();
+  const frame = state.frame;
+  const data = await getJSON(`/api/points/${frame}`);
+  if (frame === state.frame) state.data = data;
+  redrawAll();
+}
+
+function selectedOrWarn() {
+  if (!state.selected) { status("select a point first (click it)"); return null; }
+  return state.selected;
+}
+
+async function markInvisible() {
+  const s = selectedOrWarn();
+  if (s) { await sendEdit({ op: "invisible", view: s.view, point: s.point }); await afterEdit(); }
+}
+
+async function resetPoint(everywhere = false) {
+  const s = selectedOrWarn();
+  if (!s) return;
+  await sendEdit(everywhere ? { op: "reset_point", point: s.point } : { op: "reset_point", view: s.view, point: s.point });
+  await afterEdit();
+}
+
+function setMode(mode) {
+  state.mode = state.mode === mode ? "view" : mode;
+  state.editMode = state.mode !== "view";
+  document.querySelector(`input[name=mode][value="${state.mode === "view" ? "view" : state.mode}"]`).checked = true;
+}
+
+async function resetView() {
+  const view = state.selected ? state.selected.view : state.views[state.focus].name;
+  await sendEdit({ op: "reset_view", view });
+  await afterEdit();
+}
+
+async function resetFrame() {
+  await sendEdit({ op: "reset_frame" });
+  await afterEdit();
+}
+
+async function save() {
+  const reply = await postJSON("/api/save");
+  status(`saved ${reply.edits} edits to ${reply.saved}; run snakemake to apply them`);
+  if (state.data) state.data.dirty = false;
+  redrawAll();
+  window.flylib.saved = reply;
+}
+
+function attachMouse(view) {
+  const canvas = view.canvas;
+  let drag = null;
+  const local = (event) => {
+    const rect = canvas.getBoundingClientRect();
+    const dpr = canvas.width / rect.width;
+    return [(event.clientX - rect.left) * dpr, (event.clientY - rect.top) * dpr];
+  };
+  canvas.addEventListener("mousedown", (event) => {
+    event.preventDefault();
+    const [cx, cy] = local(event);
+    const hit = nearestPoint(view, cx, cy);
+    if (hit !== null) {
+      state.selected = { view: view.name, point: hit };
+      redrawAll();
+      if (state.mode !== "view" && event.button === 0) {
+        drag = { kind: "point", point: hit, sending: false, pending: null };
+        state.dragging = true;
+      }
+    }
+    if (!drag) drag = { kind: "pan", start: [cx, cy], zoom: { ...state.zoom[view.name] } };
+  });
+  window.addEventListener("mousemove", async (event) => {
+    if (!drag || !state.data) return;
+    const [cx, cy] = local(event);
+    if (drag.kind === "pan") {
+      const z = state.zoom[view.name];
+      z.x = drag.zoom.x + cx - drag.start[0];
+      z.y = drag.zoom.y + cy - drag.start[1];
+      draw(view);
+      return;
+    }
+    const xy = toImage(view.transform, cx, cy);
+    drag.moved = true;
+    // follow the mouse at once: the 2D point (Edit 2D) or the 3D ghost (Edit 3D)
+    state.data.views[view.index][state.mode === "3d" ? "reprojected" : "points2d"][drag.point] = xy;
+    draw(view);
+    drag.pending = xy;
+    if (!drag.sending) await flushDrag(view, drag);
+  });
+  window.addEventListener("mouseup", async (event) => {
+    if (!drag) return;
+    const finished = drag;
+    drag = null;
+    if (finished.kind === "point" && !finished.moved) {
+      state.dragging = false;  // a click selects; only a drag edits
+    } else if (finished.kind === "point") {
+      const [cx, cy] = local(event);
+      finished.pending = toImage(view.transform, cx, cy);
+      finished.final = true;
+      if (!finished.sending) await flushDrag(view, finished);
+    }
+  });
+  canvas.addEventListener("wheel", (event) => {
+    event.preventDefault();
+    const [cx, cy] = local(event);
+    const z = state.zoom[view.name];
+    const factor = Math.exp(-event.deltaY * 0.0015);
+    const scale = Math.min(40, Math.max(1, z.scale * factor));
+    // keep the image pixel under the cursor in place
+    const [u, v] = toImage(view.transform, cx, cy);
+    const base = fitTransform(canvas, view.width, view.height, { scale: 1, x: 0, y: 0 });
+    z.x = cx - u * base.scale * scale - base.ox * scale;
+    z.y = cy - v * base.scale * scale - base.oy * scale;
+    z.scale = scale;
+    draw(view);
+  }, { passive: false });
+  canvas.addEventListener("dblclick", () => { state.zoom[view.name] = { scale: 1, x: 0, y: 0 }; draw(view); });
+}
+
+async function flushDrag(view, drag) {
+  // one move in flight at a time; the latest position wins
+  drag.sending = true;
+  while (drag.pending) {
+    const xy = drag.pending;
+    drag.pending = null;
+    await sendEdit({ op: state.mode === "3d" ? "move3d" : "move", view: view.name, point: drag.point, xy });
+  }
+  drag.sending = false;
+  if (drag.final) {
+    await afterEdit();
+    state.dragging = false;
+  }
+}
+
+function nearestPoint(view, cx, cy) {
+  if (!state.data || !view.transform) return null;
+  const v = state.data.views[view.index];
+  const dpr = window.devicePixelRatio || 1;
+  let best = null, bestD = 12 * dpr;
+  v.points2d.forEach((p, i) => {
+    // the 2D point, or the 3D ghost (Edit 3D, or where the point is invisible in this view)
+    const ghost = state.mode === "3d" || v.invisible[i] || !p ? v.reprojected[i] : null;
+    for (const q of [p, ghost]) {
+      if (!q) continue;
+      const [x, y] = toCanvas(view.transform, q);
+      const d = Math.hypot(x - cx, y - cy);
+      if (d < bestD) { best = i; bestD = d; }
+    }
+  });
+  return best;
+}
+
+// -- layout and keys ----------------------------------------------------------------
+
+function setLayout(layout) {
+  state.layout = layout;
+  $("#views").className = layout;
+  setFocus(state.focus);
+}
+
+function setFocus(index) {
+  state.focus = Math.max(0, Math.min(state.views.length - 1, index));
+  state.views.forEach((v, i) => v.div.classList.toggle("large", state.layout === "focus" && i === state.focus));
+  // the large view first in the grid flow
+  const container = $("#views");
+  const large = state.views[state.focus].div;
+  if (state.layout === "focus") container.prepend(large);
+  else state.views.forEach((v) => container.appendChild(v.div));
+  requestAnimationFrame(redrawAll);
+}
+
+function toggleHelp(show) {
+  const help = $("#help");
+  help.hidden = show === undefined ? !help.hidden : !show;
+}
+
+function wireControls() {
+  document.querySelectorAll("input[name=mode]").forEach((input) => input.addEventListener("change", () => {
+    state.mode = input.value;
+    state.editMode = state.mode !== "view";
+  }));
+  $("#layout").addEventListener("click", () => setLayout(state.layout === "grid" ? "focus" : "grid"));
+  $("#invisible").addEventListener("click", markInvisible);
+  $("#reset-point").addEventListener("click", () => resetPoint(false));
+  $("#reset-view").addEventListener("click", resetView);
+  $("#reset-frame").addEventListener("click", resetFrame);
+  $("#save").addEventListener("click", save);
+  $("#help-button").addEventListener("click", () => toggleHelp());
+  $("#next-suspect").addEventListener("click", () => stepSuspect(1));
+  $("#prev-suspect").addEventListener("click", () => stepSuspect(-1));
+  document.querySelectorAll("#suspects th").forEach((th) => th.addEventListener("click", () => {
+    const key = th.dataset.key;
+    state.sort = { key, asc: state.sort.key === key ? !state.sort.asc : key !== "score" };
+    renderSuspectTable();
+  }));
+  $("#timeline").addEventListener("click", (event) => {
+    const rect = event.target.getBoundingClientRect();
+    goto(Math.floor((event.clientX - rect.left) / rect.width * state.meta.frames));
+  });
+  window.addEventListener("resize", () => { $("#timeline").width = $("#timeline").clientWidth; redrawAll(); });
+  window.addEventListener("keydown", (event) => {
+    if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
+    const big = event.shiftKey ? 10 : 1;
+    const key = event.key;
+    if (key === "ArrowRight") goto(state.frame + big);
+    else if (key === "ArrowLeft") goto(state.frame - big);
+    else if (key === "Home") goto(0);
+    else if (key === "End") goto(state.meta.frames - 1);
+    else if (key === "n") stepSuspect(1);
+    else if (key === "p") stepSuspect(-1);
+    else if (key === "e") setMode("2d");
+    else if (key === "d") setMode("3d");
+    else if (key === "i") markInvisible();
+    else if (key === "r") resetPoint(false);
+    else if (key === "R") resetPoint(true);
+    else if (key === "v") resetView();
+    else if (key === "x") resetFrame();
+    else if (key === "g") setLayout(state.layout === "grid" ? "focus" : "grid");
+    else if (key === "s" || (key === "S" && event.ctrlKey)) save();
+    else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
+    else if (key >= "1" && key <= "9") { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
+    else if (key === "?") toggleHelp();
+    else if (key === "Escape") toggleHelp(false);
+    else return;
+    event.preventDefault();
+  });
+}
+
+// A small handle for scripted checks (the browser test): where a point is on screen,
+// and whether every canvas shows the current frame.
+window.flylib = {
+  state,
+  goto,
+  stepSuspect,
+  busy: () => channel.busy || state.dragging,
+  allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
+  screenPosition(viewName, point) {
+    const view = state.views.find((v) => v.name === viewName);
+    const p = state.data.views[view.index].points2d[point];
+    if (!p) return null;
+    const [x, y] = toCanvas(view.transform, p);
+    const rect = view.canvas.getBoundingClientRect();
+    const dpr = view.canvas.width / rect.width;
+    return { x: x / dpr, y: y / dpr, left: rect.left, top: rect.top, width: rect.width, height: rect.height };
+  },
+  saved: null,
+};
+
+start().catch((err) => { status(`failed to start: ${err.message}`); console.error(err); });

@@ -1,0 +1,72 @@
+"""Shared set-up of the GUI and corrections tests: a small demo recording run through the
+stage functions (2D imported from its DeepLabCut CSVs, triangulated with the config rig,
+assembled), and a corrections sidecar written by hand from the seed GUI's documented
+layout (``../shared/spec/corrections-h5.md``), not by flylib's writer."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+
+def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
+    """Demo recording in ``directory``; returns its output directory (with results.h5)."""
+    from flylib.config import Config
+    from flylib.demo import demo_import_spec, make_demo
+    from flylib.stages import run_assemble, run_pose2d, run_triangulation
+
+    config = Config.default()
+    make_demo(config, directory, frames=frames, **demo)
+    out = directory / "flylib_outputs"
+    run_pose2d(config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_triangulation(config, out / "stages" / "pose2d.h5", out / "stages" / "triangulation.h5",
+                      recording_dir=directory)
+    run_assemble(config, {"pose2d": out / "stages" / "pose2d.h5",
+                          "triangulation": out / "stages" / "triangulation.h5"}, out,
+                 recording_dir=directory)
+    config.save_snapshot(out)
+    return out
+
+
+def write_seed_sidecar(path: Path, shape: tuple[int, int, int], *, version: int = 3,
+                       edits2d=(), invisible=(), edits3d=(), fixed=()) -> Path:
+    """A corrections.h5 in the seed GUI's layout, written with plain h5py.
+
+    ``edits2d``: ``(view, frame, point, x, y)``; ``invisible``: ``(view, frame, point)``;
+    ``edits3d``: ``(frame, point, x, y, z)``; ``fixed``: ``(view, frame, point)`` among the
+    2D edits. Version 2 files have no ``invisible`` mask, version 1 no ``fixed`` either.
+    """
+    v, t, p = shape
+    points = np.full((v, t, p, 2), np.nan)
+    edited = np.zeros((v, t, p), bool)
+    fixed_mask = np.zeros((v, t, p), bool)
+    invisible_mask = np.zeros((v, t, p), bool)
+    for vi, ti, pi, x, y in edits2d:
+        points[vi, ti, pi] = (x, y)
+        edited[vi, ti, pi] = True
+    for vi, ti, pi in fixed:
+        fixed_mask[vi, ti, pi] = True
+    for vi, ti, pi in invisible:
+        invisible_mask[vi, ti, pi] = True
+    points3d = np.full((t, p, 3), np.nan)
+    edited3d = np.zeros((t, p), bool)
+    for ti, pi, x, y, z in edits3d:
+        points3d[ti, pi] = (x, y, z)
+        edited3d[ti, pi] = True
+    with h5py.File(path, "w") as f:
+        f.attrs["meta"] = json.dumps({"deeperfly_corrections_format_version": version,
+                                      "source": "results.h5", "created_utc": "2025-01-01T00:00:00+00:00"})
+        g = f.create_group("pose2d_corrections")
+        g["points"] = points
+        g["edited"] = edited
+        if version >= 2:
+            g["fixed"] = fixed_mask
+        if version >= 3:
+            g["invisible"] = invisible_mask
+        g3 = f.create_group("pose3d_corrections")
+        g3["points3d"] = points3d
+        g3["edited"] = edited3d
+    return path

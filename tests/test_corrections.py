@@ -1,0 +1,169 @@
+"""The corrections sidecar: format, edit semantics, and how the triangulation stage applies it."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from gui_fixtures import make_demo_outputs, write_seed_sidecar
+
+from flylib.config import Config
+from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
+from flylib.errors import ConfigError, ResultsError
+from flylib.results import Pose2dData, PoseResult, read_stage
+from flylib.stages import run_assemble, run_triangulation
+from flylib.triangulation import reconstruct_from_config
+
+FRAMES = 10
+
+
+@pytest.fixture(scope="module")
+def outdir(tmp_path_factory):
+    return make_demo_outputs(tmp_path_factory.mktemp("corr") / "rec", frames=FRAMES)
+
+
+def test_edit_semantics_follow_the_seed_gui():
+    c = Corrections.empty(3, 4, 5)
+    c.set_invisible(1, 2, 3)
+    c.set_point(1, 2, 3, (10.0, 20.0), fixed=True)
+    assert c.edited[1, 2, 3] and c.fixed[1, 2, 3] and not c.invisible[1, 2, 3]
+    c.set_invisible(1, 2, 3)
+    assert c.invisible[1, 2, 3] and not c.edited[1, 2, 3] and not c.fixed[1, 2, 3]
+    assert np.isnan(c.points[1, 2, 3]).all()
+    c.set_point(0, 2, 1, (1.0, 2.0))
+    c.set_point3d(2, 1, (0.0, 0.0, 1.0))
+    c.reset(2, point=1, view=0)
+    assert not c.edited.any() and c.edited3d[2, 1]  # one view's reset keeps the 3D edit
+    c.reset(2)
+    assert c.count() == 0
+
+
+def test_save_writes_the_documented_layout(tmp_path):
+    c = Corrections.empty(2, 3, 4, source="x/results.h5")
+    c.set_point(1, 2, 3, (5.5, 6.5))
+    c.set_invisible(0, 1, 0)
+    path = c.save(tmp_path / "corrections.h5")
+    with h5py.File(path) as f:
+        import json
+
+        meta = json.loads(f.attrs["meta"])
+        assert meta["deeperfly_corrections_format_version"] == 3 and meta["source"] == "x/results.h5"
+        assert "created_utc" in meta
+        g = f["pose2d_corrections"]
+        assert g["points"].dtype == np.float64 and g["points"].shape == (2, 3, 4, 2)
+        for name in ("edited", "fixed", "invisible"):
+            assert g[name].dtype == bool and g[name].shape == (2, 3, 4)
+        assert f["pose3d_corrections/points3d"].shape == (3, 4, 3)
+        assert f["pose3d_corrections/edited"].dtype == bool
+    back = Corrections.load(path, (2, 3, 4))
+    np.testing.assert_array_equal(back.points, c.points)
+    assert back.invisible[0, 1, 0] and back.edited[1, 2, 3]
+
+
+def test_a_newer_or_foreign_file_is_one_clear_error(tmp_path):
+    path = write_seed_sidecar(tmp_path / "corrections.h5", (2, 3, 4), version=4)
+    with pytest.raises(ResultsError, match="corrections format version 4"):
+        Corrections.load(path)
+    with h5py.File(path, "w") as f:
+        f["x"] = 1
+    with pytest.raises(ResultsError, match="not a corrections sidecar"):
+        Corrections.load(path)
+
+
+def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
+    config = Config.from_file(outdir / "config.yaml")
+    pose2d = Pose2dData.load(outdir / "stages" / "pose2d.h5")
+    result = PoseResult.load(outdir / "results.h5")
+    cameras = result.cameras
+    seen = np.isfinite(pose2d.pts2d).all(-1)
+    t, p = 4, int(np.flatnonzero(seen[:, 4].sum(axis=0) >= 3)[0])
+    views = np.flatnonzero(seen[:, t, p])
+    moved = pose2d.pts2d[views[0], t, p] + [6.0, -3.0]
+    q = int(np.flatnonzero(seen[:, 6].sum(axis=0) >= 3)[1])
+    hidden = int(np.flatnonzero(seen[:, 6, q])[0])
+    sidecar = write_seed_sidecar(tmp_path / "corrections.h5", seen.shape, version=3,
+                                 edits2d=[(views[0], t, p, *moved)], invisible=[(hidden, 6, q)],
+                                 edits3d=[(8, 0, 0.1, 0.2, 0.3)])
+    out = tmp_path / "triangulation.h5"
+    run_triangulation(config, outdir / "stages" / "pose2d.h5", out, corrections_path=sidecar)
+    tri = read_stage(out, "triangulation")
+    expected = pose2d.pts2d.copy()
+    expected[views[0], t, p] = moved
+    expected[hidden, 6, q] = np.nan
+    want3d, _, _ = reconstruct_from_config(config, expected, cameras, pose2d.conf)
+    np.testing.assert_allclose(tri["points3d"][t, p], want3d[t, p], atol=1e-9)
+    np.testing.assert_allclose(tri["points3d"][6, q], want3d[6, q], atol=1e-9)
+    assert not np.isfinite(tri["points"][hidden, 6, q]).any()
+    np.testing.assert_allclose(tri["points3d"][8, 0], [0.1, 0.2, 0.3])
+    corrected = tri["corrected"]
+    assert corrected.dtype == bool and corrected.sum() == 3 and corrected[t, p] and corrected[6, q]
+    assert tri["corrected_2d"].sum() == 2 and tri["attrs"]["corrections"]["count"] == 3
+    # untouched points are what the uncorrected run gave
+    untouched = ~corrected
+    np.testing.assert_array_equal(np.isfinite(tri["points3d"][untouched]),
+                                  np.isfinite(result.pts3d[untouched]))
+    # assembled: the marks travel into results.h5
+    run_assemble(config, {"pose2d": outdir / "stages" / "pose2d.h5", "triangulation": out},
+                 tmp_path / "assembled")
+    with h5py.File(tmp_path / "assembled" / "results.h5") as f:
+        assert f["triangulation/corrected"][()].sum() == 3
+
+
+def test_a_fixed_view_stays_in_the_solution(outdir):
+    config = Config.from_file(outdir / "config.yaml")
+    pose2d = Pose2dData.load(outdir / "stages" / "pose2d.h5")
+    cameras = PoseResult.load(outdir / "results.h5").cameras
+    seen = np.isfinite(pose2d.pts2d).all(-1)
+    t = 2
+
+    def dropped_case():
+        # an edit the robust fit rejects: 60 px off, across the epipolar lines of the others
+        for p in np.flatnonzero(seen[:, t].sum(axis=0) >= 3):
+            for v in np.flatnonzero(seen[:, t, p]):
+                for shift in ([60.0, 0.0], [0.0, 60.0]):
+                    pts = pose2d.pts2d[:, [t]][:, :, [p]]
+                    far = pts[v, 0, 0] + shift
+                    plain = Corrections.empty(len(cameras), 1, 1)
+                    plain.set_point(v, 0, 0, far)
+                    _, clean, _, _ = reconstruct_corrected(config, pts, cameras, None, plain)
+                    if not np.isfinite(clean[v, 0, 0]).all():
+                        return pts, v, far
+        raise AssertionError("no edit was rejected by ransac")
+
+    pts, v, far = dropped_case()
+    fixed = Corrections.empty(len(cameras), 1, 1)
+    fixed.set_point(v, 0, 0, far, fixed=True)
+    pts3d, clean, error, corrected = reconstruct_corrected(config, pts, cameras, None, fixed)
+    np.testing.assert_allclose(clean[v, 0, 0], far)
+    assert corrected[0, 0] and np.isfinite(pts3d).all() and error[v, 0, 0] < 60
+
+
+def test_a_sidecar_of_another_shape_fails_naming_it(outdir, tmp_path):
+    config = Config.from_file(outdir / "config.yaml")
+    sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES + 2, 38))
+    with pytest.raises(ResultsError, match=r"corrections\.h5: corrects a result of"):
+        run_triangulation(config, outdir / "stages" / "pose2d.h5", tmp_path / "t.h5", corrections_path=sidecar)
+    assert not (tmp_path / "t.h5").exists()
+
+
+def test_corrections_path_default_and_template(tmp_path):
+    config = Config.default()
+    assert corrections_path(config, tmp_path) == (tmp_path / "corrections.h5", False)
+    data = dict(config.data, corrections="fixes/{name}.h5")
+    assert corrections_path(data, tmp_path / "out", tmp_path / "fly1") == (tmp_path / "out" / "fixes" / "fly1.h5", True)
+    with pytest.raises(ConfigError, match="unknown placeholder"):
+        corrections_path(dict(config.data, corrections="{nope}.h5"), tmp_path)
+    from flylib.config.validation import validate_config
+
+    assert not [m for m in validate_config(data) if "corrections" in m]
+    assert any("corrections" in m for m in validate_config(dict(config.data, corrections=3)))
+
+
+def test_corrected_points_are_ringed_in_the_videos():
+    from flylib.visualization.draw import draw_rings
+
+    img = np.zeros((60, 60, 3), np.uint8)
+    xy = np.array([[30.0, 30.0], [10.0, 10.0], [np.nan, np.nan]])
+    draw_rings(img, xy, np.array([True, False, True]), radius=3)
+    assert img[30, 30].max() == 0 and img[30, 30 + 7].max() > 100  # a ring, not a disc
+    assert img[:20, :20].max() == 0  # not corrected: no ring

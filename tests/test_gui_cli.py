@@ -1,0 +1,90 @@
+"""``flylib gui`` as a command: it serves the page, prints the URL, and asks for a token
+when bound to anything but localhost."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+
+import pytest
+
+pytest.importorskip("uvicorn", reason="the GUI needs uvicorn")
+httpx = pytest.importorskip("httpx")
+
+from gui_fixtures import make_demo_outputs
+
+from flylib.gui.server import is_loopback
+
+
+@pytest.fixture(scope="module")
+def outdir(tmp_path_factory):
+    return make_demo_outputs(tmp_path_factory.mktemp("gui_cli") / "rec", frames=6)
+
+
+def start(outdir, *args):
+    proc = subprocess.Popen([sys.executable, "-m", "flylib.cli", "gui", str(outdir), "--no-browser",
+                             "--port", "0", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    lines = []
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        match = re.search(r"open (http://\S+)", line)
+        if match:
+            return proc, match.group(1)
+        if proc.poll() is not None:
+            break
+    proc.kill()
+    raise AssertionError("flylib gui printed no URL:\n" + "".join(lines))
+
+
+def get(url, **kwargs):
+    deadline = time.time() + 60
+    while True:
+        try:
+            return httpx.get(url, timeout=10, **kwargs)
+        except httpx.TransportError:
+            if time.time() > deadline:
+                raise
+            time.sleep(0.2)
+
+
+def test_serves_on_localhost_without_a_token(outdir):
+    proc, url = start(outdir)
+    try:
+        assert url.startswith("http://localhost:") and "token" not in url
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        meta = get(f"http://127.0.0.1:{port}/api/meta")
+        assert meta.status_code == 200 and meta.json()["frames"] == 6
+        assert get(f"http://127.0.0.1:{port}/").status_code == 200
+    finally:
+        proc.terminate()
+        proc.wait(20)
+
+
+def test_any_other_address_needs_the_printed_token(outdir):
+    proc, url = start(outdir, "--host", "0.0.0.0")
+    try:
+        token = re.search(r"token=([\w-]+)", url).group(1)
+        assert len(token) >= 24
+        port = int(re.search(r":(\d+)/", url).group(1))
+        assert get(f"http://127.0.0.1:{port}/api/meta").status_code == 403
+        assert get(f"http://127.0.0.1:{port}/api/meta?token={token}").status_code == 200
+    finally:
+        proc.terminate()
+        proc.wait(20)
+
+
+def test_a_missing_recording_is_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "flylib.cli", "gui", str(tmp_path), "--no-browser"],
+                          check=False, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().count("\n") == 0 and "no results.h5 here" in proc.stderr
+
+
+def test_loopback_detection():
+    assert is_loopback("127.0.0.1") and is_loopback("localhost") and is_loopback("::1")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4") and not is_loopback("example.org")

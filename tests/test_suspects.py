@@ -1,0 +1,120 @@
+"""Suspect detection: the demo's injected gross outliers are found, clean data is quiet,
+and each reason fires on the case it describes."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from flylib.config import Config
+from flylib.demo import demo_import_spec, load_truth, make_demo, synthetic_fly
+from flylib.results import Pose2dData, read_stage
+from flylib.stages import run_pose2d, run_triangulation
+from flylib.suspects import SUSPECTS_FILE, find_suspects
+
+FRAMES = 60
+
+
+def triangulated_demo(directory, **settings):
+    config = Config.default()
+    make_demo(config, directory, frames=FRAMES, **settings)
+    run_pose2d(config, directory, directory / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_triangulation(config, directory / "pose2d.h5", directory / "triangulation.h5")
+    pose2d = Pose2dData.load(directory / "pose2d.h5")
+    tri = read_stage(directory / "triangulation.h5", "triangulation")
+    suspects = find_suspects(tri["points3d"], tri["points"], tri["reproj_error"], config.skeleton().bones,
+                             pts2d_input=pose2d.pts2d)
+    return pose2d, tri, load_truth(directory / "truth.h5"), suspects
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed,outliers", [(0, 0.01), (1, 0.03)])
+def test_suspects_hold_the_injected_outliers_that_reach_the_3d(tmp_path, seed, outliers):
+    pose2d, tri, truth, suspects = triangulated_demo(tmp_path, seed=seed, outliers=outliers)
+    # the demo moves an outlier 40-120 px off the true projection; noise is 1 px
+    injected = np.nan_to_num(np.linalg.norm(pose2d.pts2d - truth["points2d"], axis=-1)) > 20
+    reached = injected & np.isfinite(tri["points3d"]).all(-1)[None]  # (V, T, P)
+    _, frames, points = np.nonzero(reached)
+    assert len(frames) > 20
+    flagged = np.zeros(reached.shape[1:], bool)
+    flagged[suspects.frame, suspects.point] = True
+    assert flagged[frames, points].mean() >= 0.8
+    # those the robust fit kept (they bend the 3D) are found too
+    _, kf, kp = np.nonzero(injected & np.isfinite(tri["points"]).all(-1))
+    assert flagged[kf, kp].mean() >= 0.8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 3])
+def test_clean_data_flags_under_5_percent_of_frames(tmp_path, seed):
+    *_, suspects = triangulated_demo(tmp_path, seed=seed, outliers=0.0)
+    assert len(suspects.frames) < 0.05 * FRAMES
+
+
+def clean_case(frames=40):
+    """Exact 3D of the synthetic fly and its exact 2D through the default rig."""
+    config = Config.default()
+    views = config.view_names()
+    cameras = config.camera_group(image_sizes={v: (480, 960) for v in views})
+    pts3d = synthetic_fly(frames, seed=2)
+    from flylib.demo import view_visibility
+
+    vis = view_visibility(config, views, list(config.skeleton().point_names))
+    pts2d = np.where(vis[:, None, :, None], cameras.project(pts3d), np.nan)
+    pts2d = pts2d + np.random.default_rng(0).normal(0, 0.5, pts2d.shape)
+    error = np.linalg.norm(cameras.project(pts3d) - pts2d, axis=-1)
+    return config, cameras, pts3d, pts2d, error
+
+
+def test_each_reason_fires_on_its_case():
+    config, _, pts3d, pts2d, error = clean_case()
+    bones = config.skeleton().bones
+    quiet = find_suspects(pts3d, pts2d, error, bones, pts2d_input=pts2d)
+    assert len(quiet) == 0 and not quiet.frame_score.any()
+    names = list(config.skeleton().point_names)
+    claw, tarsus = names.index("lf_claw"), names.index("lf_tibia_tarsus")
+    moved = pts3d.copy()
+    moved[10, claw] += [0.0, 0.0, 0.25]  # a claw 0.25 units off for one frame
+    err = error.copy()
+    seen = np.flatnonzero(np.isfinite(pts2d[:, 20, tarsus, 0]))
+    err[seen[0], 20, tarsus] = 40.0  # a 40 px reprojection error
+    given = pts2d.copy()
+    used = pts2d.copy()
+    used[seen[1], 30, tarsus] = np.nan  # dropped by the robust fit
+    found = find_suspects(moved, used, err, bones, pts2d_input=given, point_names=names)
+    by_pair = {(r["frame"], r["point"]): r["reasons"] for r in found.records()}
+    assert {"jump", "bone_length"} <= set(by_pair[(10, claw)])
+    assert "reprojection" in by_pair[(20, tarsus)]
+    assert by_pair[(30, tarsus)] == ["ransac_drop"]
+    assert found.frame_score[10] >= 1 and found.frame_score[5] == 0
+    # a two-view point alone is not a suspect; with another reason it is
+    two = pts2d.copy()
+    seen = np.flatnonzero(np.isfinite(two[:, 15, tarsus, 0]))
+    assert len(seen) > 2
+    two[seen[2:], 15, tarsus] = np.nan
+    alone = find_suspects(pts3d, two, error, bones)
+    assert (15, tarsus) not in {(r["frame"], r["point"]) for r in alone.records()}
+    # corrected points are a person's call: never suspects
+    assert (10, claw) not in {(r["frame"], r["point"]) for r in find_suspects(
+        moved, used, err, bones, pts2d_input=given,
+        corrected=np.eye(1, 38 * 40, 10 * 38 + claw, dtype=bool).reshape(40, 38)).records()}
+
+
+@pytest.mark.slow
+def test_assemble_writes_suspects_csv_and_count_and_inspect_prints_it(tmp_path, capsys):
+    from gui_fixtures import make_demo_outputs
+
+    from flylib.cli import main
+
+    out = make_demo_outputs(tmp_path / "rec", frames=20)
+    summary = json.loads((out / "summary.json").read_text())
+    with open(out / SUSPECTS_FILE) as fh:
+        rows = list(csv.DictReader(fh))
+    assert summary["suspects"] == len(rows) > 0
+    assert set(rows[0]) == {"frame", "point", "point_name", "score", "reasons", "detail"}
+    assert all(0 <= int(r["frame"]) < 20 and float(r["score"]) >= 1 for r in rows)
+    assert main(["inspect", str(out / "results.h5")]) == 0
+    assert f"suspects: {len(rows)} (frame, point) pairs" in capsys.readouterr().out
