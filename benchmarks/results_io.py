@@ -12,6 +12,10 @@ Targets: results.h5 at most 50% of the raw float64 bytes for grid 2D (random
 confidences and errors do not compress, so subpixel 2D sits near that bound), and
 loading it at most 5x slower than reading the same arrays uncompressed.
 
+Checksums: every dataset carries HDF5's Fletcher-32 filter (issue 13). The same
+writes, assembly and load are timed with the checksums off (the baseline, same run,
+best of ``--repeat``), and the overhead is printed; target < 10% on write and read.
+
 Run: ``.venv/bin/python benchmarks/results_io.py [--frames 20000]``
 (``--frames 100000`` needs about 3 GB of memory.)
 """
@@ -26,6 +30,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from flylib import results as results_module
 from flylib.config import Config
 from flylib.demo import view_visibility
 from flylib.results import PoseResult, Pose2dData, assemble_results, write_stage
@@ -59,6 +64,57 @@ def read_plain(path: Path) -> None:
     with h5py.File(path, "r") as f:
         for name in f:
             f[name][()]
+
+
+def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) -> dict:
+    """Stage writes, assembly and load of results.h5, with or without Fletcher-32."""
+    skeleton, rig = config.skeleton(), config.camera_group({v: (480, 960) for v in config.view_names()})
+    results_module._FLETCHER32 = checksums
+    try:
+        t0 = time.perf_counter()
+        Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(stages / "pose2d.h5", skeleton)
+        write_stage(
+            stages / "triangulation.h5",
+            "triangulation",
+            {"points": arrays["pts2d"], "points3d": arrays["pts3d"], "reproj_error": arrays["reproj"]},
+        )
+        write = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        assemble_results(
+            stages / "results.h5",
+            skeleton=skeleton,
+            config_rig=rig,
+            stage_files={"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
+        )
+        assemble = time.perf_counter() - t0
+    finally:
+        results_module._FLETCHER32 = True
+    t0 = time.perf_counter()
+    PoseResult.load(stages / "results.h5")
+    load = time.perf_counter() - t0
+    return {"write": write, "assemble": assemble, "load": load}
+
+
+def checksum_overhead(n_frames: int, kind: str, workdir: Path, repeat: int) -> None:
+    """Print the write/assemble/load time with and without Fletcher-32 checksums."""
+    config = Config.default()
+    arrays = make_arrays(config, n_frames, kind, np.random.default_rng(0))
+    best: dict[bool, dict] = {}
+    for _ in range(repeat):
+        for checksums in (False, True):  # interleaved, so load drifts hit both alike
+            stages = workdir / f"{kind}_{checksums}"
+            times = write_and_load(config, arrays, stages, checksums)
+            prev = best.setdefault(checksums, times)
+            best[checksums] = {k: min(v, prev[k]) for k, v in times.items()}
+    off, on = best[False], best[True]
+    cells = []
+    ok = True
+    for key in ("write", "assemble", "load"):
+        ratio = on[key] / max(off[key], 1e-9) - 1
+        ok &= key == "assemble" or ratio < 0.10
+        cells.append(f"{key} {off[key]:5.2f} s -> {on[key]:5.2f} s ({ratio:+6.1%})")
+    print(f"[{'PASS' if ok else 'MISS'}] checksums {kind:9s} T={n_frames:>7,d}  without -> with Fletcher-32: "
+          + ", ".join(cells) + f" (best of {repeat}; target < 10% on write and load)")
 
 
 def run(n_frames: int, kind: str, workdir: Path) -> None:
@@ -112,10 +168,13 @@ def run(n_frames: int, kind: str, workdir: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20000)
+    parser.add_argument("--repeat", type=int, default=3, help="runs per checksum setting (best is kept)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         for kind in ("grid", "subpixel"):
             run(args.frames, kind, Path(tmp))
+        for kind in ("grid", "subpixel"):
+            checksum_overhead(args.frames, kind, Path(tmp), args.repeat)
 
 
 if __name__ == "__main__":
