@@ -713,7 +713,7 @@ def _write_candidates(group: h5py.Group, candidates: Any) -> None:
     _write_array(group, "score", candidates.score)
 
 
-def save_candidates(path: str | Path, candidates: Any) -> None:
+def save_candidates(path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None) -> None:
     """Write the detector's top-K peaks to their own artifact (``candidates/{xy, score}``).
 
     Parameters
@@ -722,9 +722,11 @@ def save_candidates(path: str | Path, candidates: Any) -> None:
         Destination, e.g. ``<out>/stages/candidates.h5``; written atomically.
     candidates
         A :class:`flylib.pictorial.Candidates` (``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``).
+    meta
+        Extra entries for the file's meta JSON (e.g. its params hash).
     """
     with atomic_path(path) as tmp, _create(tmp) as f:
-        f.attrs["meta"] = json.dumps(_new_meta("candidates"))
+        f.attrs["meta"] = json.dumps(_new_meta("candidates", meta))
         _write_candidates(f.create_group("candidates"), candidates)
 
 
@@ -785,7 +787,7 @@ class Pose2dData:
             if len(xy) != 5 or xy[:3] != (v, t, p) or xy[4] != 2 or score != xy[:4]:
                 raise ValueError(f"candidates must be xy (V, T, P, K, 2) / score (V, T, P, K), got {xy} / {score}")
 
-    def save(self, path: str | Path, skeleton: Skeleton) -> None:
+    def save(self, path: str | Path, skeleton: Skeleton, meta: Mapping[str, Any] | None = None) -> None:
         """Write ``skeleton/`` and ``pose2d/`` to ``path`` atomically.
 
         Parameters
@@ -794,11 +796,14 @@ class Pose2dData:
             Destination, e.g. ``<out>/stages/pose2d.h5``.
         skeleton
             The skeleton whose points make up the P axis.
+        meta
+            Extra entries for the file's meta JSON (e.g. its params hash, see
+            :mod:`flylib.provenance`).
         """
         if skeleton.n_points != self.pts2d.shape[2]:
             raise ValueError(f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}")
         with atomic_path(path) as tmp, _create(tmp) as f:
-            f.attrs["meta"] = json.dumps(_new_meta("pose2d"))
+            f.attrs["meta"] = json.dumps(_new_meta("pose2d", meta))
             _write_skeleton(f.create_group("skeleton"), skeleton)
             group = f.create_group("pose2d")
             _write_array(group, "points", self.pts2d)
@@ -853,6 +858,7 @@ def write_stage(
     *,
     cameras: CameraGroup | None = None,
     attrs: Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
 ) -> None:
     """Write one stage's artifact: ``<stage>/`` with its arrays, rig and attributes.
 
@@ -870,11 +876,14 @@ def write_stage(
         A rig to store as ``<stage>/cameras`` (bundle adjustment's refined rig).
     attrs
         JSON-serialisable group attributes (e.g. a bundle-adjustment ``summary``).
+    meta
+        Extra entries for the file's meta JSON (e.g. its params hash, see
+        :mod:`flylib.provenance`).
     """
     if stage not in STAGE_GROUPS or stage == "pose2d":
         raise ValueError(f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})")
     with atomic_path(path) as tmp, _create(tmp) as f:
-        f.attrs["meta"] = json.dumps(_new_meta(stage))
+        f.attrs["meta"] = json.dumps(_new_meta(stage, meta))
         group = f.create_group(stage)
         for name, value in arrays.items():
             _write_array(group, name, value)

@@ -17,6 +17,9 @@ rule assemble:
             labels={"recording": "{outdir}", "figure": "summary"},
         ),
         calibration="{outdir}/calibration.toml",
+        # the config snapshot: written last, by this rule only, so it always
+        # describes the results beside it (issue 14: one owner per output)
+        snapshot="{outdir}/config.yaml",
     params:
         run=command("assemble.py"),
         stage=stage_params("assemble"),
@@ -34,4 +37,4 @@ rule assemble:
     shell:
         "{params.run} {params.args}"
         " --recording {params.recording:q} --outdir {wildcards.outdir:q}"
-        " --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+        " --snapshot {output.snapshot:q} 2> {log:q}"
