@@ -151,7 +151,9 @@ def _read(dataset: h5py.Dataset) -> np.ndarray:
     try:
         return dataset[()]
     except OSError as err:
-        raise _damaged(dataset.file.filename, f"dataset {dataset.name}", err) from None
+        path = dataset.file.filename
+        _verify_dataset(path, dataset)  # names the chunk whose checksum fails, if one does
+        raise _damaged(path, f"dataset {dataset.name}", err) from None
 
 
 def verify_file(path: str | Path) -> list[str]:
@@ -201,7 +203,12 @@ def verify_file(path: str | Path) -> list[str]:
                 else:
                     item[()]
             except (OSError, RuntimeError) as err:
-                problems.append(str(_damaged(path, f"dataset {item.name}", err)))
+                try:
+                    _verify_dataset(path, item)  # the chunk whose checksum fails, if one does
+                except ResultsError as precise:
+                    problems.append(str(precise))
+                else:
+                    problems.append(str(_damaged(path, f"dataset {item.name}", err)))
                 continue
             if item.size and not item.fletcher32 and item.layout != h5py.h5d.COMPACT:
                 problems.append(f"{path}: dataset {item.name} carries no checksum (written by an older flylib); "
@@ -232,7 +239,7 @@ def _verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
             info = dsid.get_chunk_info(i)
             _, raw = dsid.read_direct_chunk(info.chunk_offset)
             if len(raw) < 4 or int.from_bytes(raw[-4:], "little") != fletcher32(raw[:-4]):
-                raise OSError(f"Fletcher-32 checksum mismatch in the chunk at {info.chunk_offset}")
+                raise OSError(f"Fletcher-32 checksum mismatch in the chunk at {tuple(info.chunk_offset)}")
     except (OSError, RuntimeError, ValueError) as err:
         raise _damaged(path, f"dataset {dataset.name}", err) from None
 
