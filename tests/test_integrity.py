@@ -395,32 +395,47 @@ def test_lock_is_exclusive_between_two_live_processes(tmp_path):
 
 _WRITE_UNDER_LIMIT = textwrap.dedent("""
     import resource, signal, sys
+    from pathlib import Path
     import numpy as np
-    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))
     from flylib.errors import FlylibError
-    from flylib.results import Pose2dData, write_stage
+    from flylib.results import Pose2dData, assemble_results, write_stage
     from flylib.config import Config
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))
+
     rng = np.random.default_rng(0)
+    config = Config.default()
+    target, kind = Path(sys.argv[1]), sys.argv[2]
     try:
-        if sys.argv[2] == "stage":
-            write_stage(sys.argv[1], "triangulation", {"points3d": rng.normal(size=(20000, 38, 3))})
-        else:
-            config = Config.default()
+        if kind == "stage":
+            limit()
+            write_stage(target, "triangulation", {"points3d": rng.normal(size=(20000, 38, 3))})
+        elif kind == "pose2d":
+            limit()
             Pose2dData(rng.normal(size=(7, 5000, 38, 2)), rng.uniform(size=(7, 5000, 38)),
-                       config.view_names(), {}).save(sys.argv[1], config.skeleton())
+                       config.view_names(), {}).save(target, config.skeleton())
+        else:  # assemble: the stage files fit, results.h5 does not
+            pose2d = target.parent / "stages" / "big_pose2d.h5"
+            Pose2dData(rng.normal(size=(7, 5000, 38, 2)), rng.uniform(size=(7, 5000, 38)),
+                       config.view_names(), {}).save(pose2d, config.skeleton())
+            limit()
+            assemble_results(target, skeleton=config.skeleton(), stage_files={"pose2d": pose2d},
+                             config_rig=config.camera_group({v: (480, 960) for v in config.view_names()}))
     except FlylibError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(1)
 """)
 
 
-@pytest.mark.parametrize("kind,name", [("stage", "triangulation.h5"), ("pose2d", "pose2d.h5")])
+@pytest.mark.parametrize("kind,name", [("stage", "stages/triangulation.h5"), ("pose2d", "stages/pose2d.h5"),
+                                       ("assemble", "results.h5")])
 def test_a_write_over_the_file_size_limit_is_one_line_and_keeps_earlier_artifacts(tmp_path, kind, name):
     stages = tmp_path / "stages"
     earlier = stages / "earlier.h5"
     write_stage(earlier, "triangulation", {"points3d": np.ones((10, 38, 3))})
-    target = stages / name
+    target = tmp_path / name
     write_stage(target, "triangulation", {"points3d": np.zeros((3, 38, 3))})  # a previous version
     before = {p: p.read_bytes() for p in (earlier, target)}
     proc = subprocess.run([sys.executable, "-c", _WRITE_UNDER_LIMIT, str(target), kind],
@@ -430,4 +445,4 @@ def test_a_write_over_the_file_size_limit_is_one_line_and_keeps_earlier_artifact
         f"error: {target}: could not be written (File too large); nothing was kept (the previous file is "
         "unchanged); free disk space or raise the file-size limit and re-run")
     assert {p: p.read_bytes() for p in (earlier, target)} == before
-    assert sorted(p.name for p in stages.iterdir()) == sorted(["earlier.h5", name])
+    assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name]

@@ -52,7 +52,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         os.replace(tmp, path)
     except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
-        cause = _out_of_space(err)
+        cause = out_of_space(err)
         if cause is None:
             raise
         from .errors import OutputError
@@ -69,7 +69,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 _NO_SPACE = {errno.ENOSPC, errno.EFBIG, errno.EDQUOT}
 
 
-def _out_of_space(err: BaseException | None) -> BaseException | None:
+def out_of_space(err: BaseException | None) -> BaseException | None:
     """The error in ``err``'s chain that says a write ran out of space, if any
     (HDF5 reports the system's error text inside its own message)."""
     seen = set()

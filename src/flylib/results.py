@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError
-from .paths import atomic_path
+from .paths import out_of_space, atomic_path
 from .resources import usable_cpus
 from .skeleton import Skeleton
 
@@ -394,6 +394,8 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
         try:
             yield f
         except (OSError, RuntimeError) as err:  # a damaged object header, link table, ...
+            if out_of_space(err) is not None:
+                raise  # a write in the block failed (atomic_path reports it), not this file
             raise _damaged(path, "an HDF5 object", err) from None
         except KeyError as err:
             if "Unable to" not in str(err):  # h5py's words for an object HDF5 could not load
