@@ -312,6 +312,16 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     snapshot = Config.from_file(out / "config.yaml")
     assert all(row.status == "ok" for row in provenance_report(out / "results.h5", snapshot))
 
+    # A run from another working directory with another config over the same outdir:
+    # its Snakemake has no record of these artifacts; the recorded hashes tell.
+    other = tmp_path / "other-workdir"
+    other.mkdir()
+    data["triangulation"]["ransac_threshold"] = 9.0
+    proc = _snakemake(other, data, "--dry-run")
+    assert (f"{out / 'stages' / 'triangulation.h5'}: written by a run from {tmp_path} on " in proc.stderr
+            + proc.stdout), proc.stderr[-3000:]
+    assert "pose2d.h5: written by" not in proc.stderr + proc.stdout  # same pose2d params: not foreign
+
 
 def test_no_stage_script_but_assemble_writes_a_snapshot(tmp_path):
     rules = "\n".join(p.read_text() for p in (REPO / "workflow" / "rules").glob("*.smk"))
@@ -319,6 +329,23 @@ def test_no_stage_script_but_assemble_writes_a_snapshot(tmp_path):
     from flylib.stages import script_parser
 
     assert "--snapshot-dir" not in script_parser("x").format_help()
+
+
+def test_foreign_artifacts_are_those_of_another_workdir_with_other_params(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from flylib.provenance import foreign_artifacts
+
+    monkeypatch.chdir(tmp_path)
+    config = _config(tmp_path, "config.yaml")
+    _, out = _small_run(tmp_path, config)
+    recordings = [SimpleNamespace(outdir=out)]
+    assert foreign_artifacts(config, recordings, cwd=tmp_path / "elsewhere") == []  # same params
+    edited = _config(tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5))
+    assert foreign_artifacts(edited, recordings) == []  # this workdir: Snakemake's own params tracking
+    lines = foreign_artifacts(edited, recordings, cwd=tmp_path / "elsewhere")
+    assert [line.split(":")[0] for line in lines] == [str(out / "stages" / "triangulation.h5")]
+    assert f"written by a run from {tmp_path} on " in lines[0] and "--forcerun triangulation" in lines[0]
 
 
 # -- the output-directory lock -----------------------------------------------------------

@@ -17,17 +17,22 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import socket
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["params_hash", "stage_provenance", "ProvenanceRow", "provenance_report"]
+__all__ = ["params_hash", "stage_provenance", "ProvenanceRow", "provenance_report", "foreign_artifacts"]
 
 #: meta key of an artifact's own params hash.
 PARAMS_KEY = "params_sha256"
 #: meta key of ``{upstream stage: params hash}`` the artifact was built from.
 UPSTREAM_KEY = "upstream_params_sha256"
+#: meta key of ``{"host", "cwd"}``: where the process that wrote the artifact ran
+#: (a Snakemake job's working directory is its run's).
+WRITER_KEY = "writer"
 
 # Where each stage's artifact sits beside results.h5, and the stage the artifact
 # names its params after (the candidate peaks are a pose2d output).
@@ -70,7 +75,10 @@ def stage_provenance(config, stage: str, upstream: Mapping[str, str | Path | Non
     """
     from .results import read_meta
 
-    out: dict[str, Any] = {PARAMS_KEY: params_hash(config.stage_params(stage))}
+    out: dict[str, Any] = {
+        PARAMS_KEY: params_hash(config.stage_params(stage)),
+        WRITER_KEY: {"host": socket.gethostname(), "cwd": os.getcwd()},
+    }
     hashes = {}
     for name, path in (upstream or {}).items():
         if path:
@@ -179,3 +187,60 @@ def provenance_report(results: str | Path, config=None, stages_dir: str | Path |
                                     f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow")
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
+
+
+def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> list[str]:
+    """Artifacts another working directory's run wrote with other params.
+
+    Snakemake tracks params per working directory: a run from another directory
+    that wrote the same output directory with another config leaves artifacts this
+    run's Snakemake takes as up to date ("Nothing to be done"). Each such artifact
+    (its recorded writer's working directory differs from ``cwd`` and its params
+    hash from what ``config`` gives) is one line naming it and the fix.
+
+    Parameters
+    ----------
+    config
+        The run's config.
+    recordings
+        The planned recordings (objects with an ``outdir``).
+    cwd
+        This run's working directory (default: the current one).
+
+    Returns
+    -------
+    list of str
+        One warning line per foreign artifact.
+    """
+    from .results import read_meta
+    from .stages import ARTIFACTS
+
+    here = str(Path(cwd or os.getcwd()).resolve())
+    flags = config.stage_flags()
+    lines = []
+    for rec in recordings:
+        outdir = Path(rec.outdir)
+        files = {stage: outdir / "stages" / name for stage, name in ARTIFACTS.items() if flags.get(stage)}
+        files["assemble"] = outdir / "results.h5"
+        for stage, path in files.items():
+            if not path.is_file():
+                continue
+            try:
+                meta = read_meta(path)
+            except Exception:  # noqa: BLE001 - an unreadable file is the stage's own error later
+                continue
+            writer = meta.get(WRITER_KEY) or {}
+            recorded = meta.get(PARAMS_KEY)
+            if not writer.get("cwd") or recorded is None:
+                continue
+            if str(Path(writer["cwd"]).resolve()) == here:
+                continue
+            expected = params_hash(config.stage_params(stage))
+            if recorded != expected:
+                lines.append(
+                    f"{path}: written by a run from {writer['cwd']} on {writer.get('host')} with other "
+                    f"{stage} params ({recorded}, this config gives {expected}); this run's Snakemake "
+                    f"does not know it and may take it as up to date: delete it or re-run with "
+                    f"--forcerun {stage}"
+                )
+    return lines
