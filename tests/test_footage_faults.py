@@ -189,7 +189,7 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
         _mp4_from(video, tmp_path / "faststart.mp4")
     _truncate(video, 0.5)
     with pytest.raises(ImportFormatError, match=rf"{spec['files']['rm']}: 6 frames but view 'rm' footage "
-                                                 rf"\({video}\) has [0-5]; .*re-copy truncated footage"):
+                                                 rf"has [0-5] \({video}\); .*re-copy truncated footage"):
         import_points2d(config, tmp_path, spec)
 
 

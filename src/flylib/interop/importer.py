@@ -199,7 +199,7 @@ def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None],
             files = (footage or {}).get(view) or []
             where = f" ({files[0]}{' ...' if len(files) > 1 else ''})" if files else ""
             raise ImportFormatError(
-                f"{origin[view]}: {n_frames} frames but view {view!r} footage{where} has {n}; "
+                f"{origin[view]}: {n_frames} frames but view {view!r} footage has {n}{where}; "
                 "import the file made from this recording's footage, or re-copy truncated footage"
             )
     return n_frames
