@@ -33,7 +33,7 @@ import numpy as np
 from flylib import results as results_module
 from flylib.config import Config
 from flylib.demo import view_visibility
-from flylib.results import PoseResult, Pose2dData, assemble_results, write_stage
+from flylib.results import Pose2dData, PoseResult, assemble_results, write_stage
 
 
 def visibility(config: Config) -> np.ndarray:

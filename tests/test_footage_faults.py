@@ -38,7 +38,7 @@ def test_image_damage_finds_truncated_jpeg_and_png(tmp_path):
     assert image_damage(jpg) is None
     assert "truncated JPEG" in image_damage(jpg[: len(jpg) // 2])
     assert image_damage(jpg + b"\x00" * 16) is None  # padding after the end marker is fine
-    ok, png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
+    _, png = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
     png = png.tobytes()
     assert image_damage(png) is None and "truncated PNG" in image_damage(png[:-20])
 

@@ -125,10 +125,10 @@ def results(tmp_path, rig_and_skeleton) -> Path:
 def test_every_dataset_of_artifacts_and_results_carries_a_checksum(results):
     for path in (results, results.parent / "stages" / "pose2d.h5", results.parent / "stages" / "triangulation.h5"):
         with h5py.File(path) as f:
-            datasets = []
-            f.visititems(lambda name, item: datasets.append(item) if isinstance(item, h5py.Dataset) else None)
-            unchecked = [d.name for d in datasets if d.size and not d.fletcher32]
-            assert datasets and not unchecked, (path, unchecked)
+            found: list = []
+            f.visititems(lambda name, item, found=found: found.append(item) if isinstance(item, h5py.Dataset) else None)
+            unchecked = [d.name for d in found if d.size and not d.fletcher32]
+            assert found and not unchecked, (path, unchecked)
         assert verify_file(path) == []
     result = PoseResult.load(results)
     assert result.skeleton.point_names[0] == "lf_thorax_coxa" and result.cameras.names[0] == "rh"
@@ -258,8 +258,8 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
 
     # pose2d re-made with other params beside a triangulation built on the old one: mixed.
     other = _config(tmp_path, "other.yaml", lambda d: d["pose2d"].update(precision="float32"))
-    from flylib.stages import run_assemble, run_pose2d
     from flylib.demo import demo_import_spec
+    from flylib.stages import run_assemble, run_pose2d
 
     run_pose2d(other, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(other))
     run_assemble(other, {"pose2d": out / "stages" / "pose2d.h5", "triangulation": out / "stages" / "triangulation.h5"},
@@ -276,7 +276,8 @@ def _snakemake(workdir: Path, config: dict, *args: str, check: bool = True) -> s
     (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
            "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=workdir, env=_env())
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=workdir, env=_env(),
+                          check=False)
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}")
     return proc
@@ -383,7 +384,7 @@ def test_a_second_writer_of_an_outdir_fails_naming_the_holder_and_a_dead_holder_
         cmd = [sys.executable, str(REPO / "scripts" / "triangulation.py"), "--config", str(tmp_path / "config.yaml"),
                "--pose2d", str(out / "stages" / "pose2d.h5"), "--recording", str(recording),
                "--out", str(out / "stages" / "triangulation.h5")]
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300)
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False)
         assert proc.returncode == 1
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1, proc.stderr
@@ -394,7 +395,7 @@ def test_a_second_writer_of_an_outdir_fails_naming_the_holder_and_a_dead_holder_
         holder.send_signal(signal.SIGKILL)  # dies without releasing: a stale lock
         holder.wait()
     assert json.loads((out / ".flylib.lock").read_text())["pid"] == holder.pid
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
     assert (out / "stages" / "triangulation.h5").is_file()
     assert not list(out.glob(".flylib.lock*"))  # released after the job
@@ -408,9 +409,9 @@ def test_lock_is_exclusive_between_two_live_processes(tmp_path):
     try:
         assert holder.stdout.readline().strip() == "locked"
         started = time.monotonic()
-        with pytest.raises(OutputError, match=rf"pid {holder.pid} on .*delete {tmp_path / '.flylib.lock'}$"):
-            with outdir_lock(tmp_path, job="assemble"):
-                pass
+        with pytest.raises(OutputError, match=rf"pid {holder.pid} on .*delete {tmp_path / '.flylib.lock'}$"), \
+                outdir_lock(tmp_path, job="assemble"):
+            pass
         assert time.monotonic() - started < 5
     finally:
         holder.kill()
@@ -466,7 +467,7 @@ def test_a_write_over_the_file_size_limit_is_one_line_and_keeps_earlier_artifact
     write_stage(target, "triangulation", {"points3d": np.zeros((3, 38, 3))})  # a previous version
     before = {p: p.read_bytes() for p in (earlier, target)}
     proc = subprocess.run([sys.executable, "-c", _WRITE_UNDER_LIMIT, str(target), kind],
-                          capture_output=True, text=True, env=_env(), timeout=300)
+                          capture_output=True, text=True, env=_env(), timeout=300, check=False)
     assert proc.returncode == 1
     assert proc.stderr.strip() == (
         f"error: {target}: could not be written (File too large); nothing was kept (the previous file is "

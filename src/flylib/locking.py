@@ -16,12 +16,12 @@ import os
 import socket
 import time
 from collections.abc import Iterator
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from .errors import OutputError
 
-__all__ = ["LOCK_NAME", "outdir_lock", "lock_holder"]
+__all__ = ["LOCK_NAME", "lock_holder", "outdir_lock"]
 
 #: The lock file's name inside an output directory.
 LOCK_NAME = ".flylib.lock"
@@ -110,7 +110,7 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
         "pid": os.getpid(),
         "cwd": os.getcwd(),
         "job": job,
-        "since": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "since": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     first_unreadable = None
     while True:

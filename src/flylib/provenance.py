@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["params_hash", "stage_provenance", "ProvenanceRow", "provenance_report", "foreign_artifacts"]
+__all__ = ["ProvenanceRow", "foreign_artifacts", "params_hash", "provenance_report", "stage_provenance"]
 
 #: meta key of an artifact's own params hash.
 PARAMS_KEY = "params_sha256"
@@ -212,6 +212,7 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     list of str
         One warning line per foreign artifact.
     """
+    from .errors import ResultsError
     from .results import read_meta
     from .stages import ARTIFACTS
 
@@ -227,8 +228,8 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
                 continue
             try:
                 meta = read_meta(path)
-            except Exception:  # noqa: BLE001 - an unreadable file is the stage's own error later
-                continue
+            except ResultsError:  # an unreadable file is the stage's own error, later
+                meta = {}
             writer = meta.get(WRITER_KEY) or {}
             recorded = meta.get(PARAMS_KEY)
             if not writer.get("cwd") or recorded is None:

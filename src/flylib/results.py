@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError
-from .paths import out_of_space, atomic_path
+from .paths import atomic_path, out_of_space
 from .resources import usable_cpus
 from .skeleton import Skeleton
 

@@ -33,12 +33,10 @@ def image_damage(data: bytes) -> str | None:
     bytes are checked: a JPEG must end its last scan with the EOI marker (``FFD9``;
     it cannot occur inside entropy-coded data), a PNG must hold its ``IEND`` chunk.
     """
-    if data[:2] == b"\xff\xd8":
-        if data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
-            return "truncated JPEG: no end-of-image marker after its last scan"
-    elif data[:8] == b"\x89PNG\r\n\x1a\n":
-        if b"IEND" not in data[-64:]:
-            return "truncated PNG: no IEND chunk"
+    if data[:2] == b"\xff\xd8" and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
+        return "truncated JPEG: no end-of-image marker after its last scan"
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-64:]:
+        return "truncated PNG: no IEND chunk"
     return None
 
 
