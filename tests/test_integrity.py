@@ -134,6 +134,19 @@ def test_every_dataset_of_artifacts_and_results_carries_a_checksum(results):
     assert result.skeleton.point_names[0] == "lf_thorax_coxa" and result.cameras.names[0] == "rh"
 
 
+def test_inspect_notes_a_file_without_checksums_but_does_not_fail_it(tmp_path, rig_and_skeleton, capsys,
+                                                                     monkeypatch):
+    from flylib import results as results_module
+
+    config, rig, skeleton = rig_and_skeleton
+    monkeypatch.setattr(results_module, "_FLETCHER32", False)  # as an older flylib wrote it
+    PoseResult(rig, skeleton, np.zeros((7, 500, 38, 2)), pts3d=np.zeros((500, 38, 3))).save(tmp_path / "old.h5")
+    unchecked: list[str] = []
+    assert verify_file(tmp_path / "old.h5", unchecked=unchecked) == [] and "/pose2d/points" in unchecked
+    assert flylib_main(["inspect", str(tmp_path / "old.h5")]) == 0
+    assert "datasets carry no checksum" in capsys.readouterr().err
+
+
 def _damage_middle(path: Path, seed: int = 0) -> int:
     data = bytearray(path.read_bytes())
     middle = len(data) // 2

@@ -148,11 +148,16 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
 def _cmd_inspect(args) -> int:
     from .results import verify_file
 
-    damaged = verify_file(args.results) if args.results.is_file() else []
+    unchecked: list[str] = []
+    damaged = verify_file(args.results, unchecked=unchecked) if args.results.is_file() else []
     if damaged:
         for line in damaged:
             print(f"flylib inspect: {line}", file=sys.stderr)
         return 1
+    if unchecked:
+        print(f"flylib inspect: note: {args.results}: {len(unchecked)} datasets carry no checksum "
+              f"(e.g. {unchecked[0]}; written by an older flylib), so their integrity cannot be "
+              "verified; re-run the workflow to regenerate the file", file=sys.stderr)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(f"{args.results}  (format version {meta.get('deeperfly_format_version', '?')}, "
