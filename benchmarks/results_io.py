@@ -12,6 +12,10 @@ Targets: results.h5 at most 50% of the raw float64 bytes for grid 2D (random
 confidences and errors do not compress, so subpixel 2D sits near that bound), and
 loading it at most 5x slower than reading the same arrays uncompressed.
 
+Checksums: every dataset carries HDF5's Fletcher-32 filter (issue 13). The same
+writes, assembly and load are timed with the checksums off (the baseline, same run,
+best of ``--repeat``), and the overhead is printed; target < 10% on write and read.
+
 Run: ``.venv/bin/python benchmarks/results_io.py [--frames 20000]``
 (``--frames 100000`` needs about 3 GB of memory.)
 """
@@ -26,9 +30,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from flylib import results as results_module
 from flylib.config import Config
 from flylib.demo import view_visibility
-from flylib.results import PoseResult, Pose2dData, assemble_results, write_stage
+from flylib.results import Pose2dData, PoseResult, assemble_results, write_stage
 
 
 def visibility(config: Config) -> np.ndarray:
@@ -59,6 +64,72 @@ def read_plain(path: Path) -> None:
     with h5py.File(path, "r") as f:
         for name in f:
             f[name][()]
+
+
+class _Clock:
+    """Wall and CPU (all threads of this process) seconds of a block."""
+
+    def __enter__(self):
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc):
+        self.wall, self.cpu = time.perf_counter() - self.wall, time.process_time() - self.cpu
+
+
+def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) -> dict:
+    """Stage writes, assembly and load of results.h5, with or without Fletcher-32:
+    ``{step: (wall s, cpu s)}``."""
+    skeleton, rig = config.skeleton(), config.camera_group({v: (480, 960) for v in config.view_names()})
+    results_module._FLETCHER32 = checksums
+    try:
+        with _Clock() as write:
+            Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(stages / "pose2d.h5", skeleton)
+            write_stage(
+                stages / "triangulation.h5",
+                "triangulation",
+                {"points": arrays["pts2d"], "points3d": arrays["pts3d"], "reproj_error": arrays["reproj"]},
+            )
+        with _Clock() as assemble:
+            assemble_results(
+                stages / "results.h5",
+                skeleton=skeleton,
+                config_rig=rig,
+                stage_files={"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
+            )
+    finally:
+        results_module._FLETCHER32 = True
+    with _Clock() as load:
+        PoseResult.load(stages / "results.h5")
+    return {name: (c.wall, c.cpu) for name, c in (("write", write), ("assemble", assemble), ("load", load))}
+
+
+def checksum_overhead(n_frames: int, kind: str, workdir: Path, repeat: int) -> None:
+    """Print the write/assemble/load time with and without Fletcher-32 checksums.
+
+    Wall time is the user's figure; CPU time (summed over the deflate threads) is the
+    steadier one on a shared machine. Both are the best of ``repeat`` interleaved runs.
+    """
+    config = Config.default()
+    arrays = make_arrays(config, n_frames, kind, np.random.default_rng(0))
+    best: dict[bool, dict] = {}
+    for _ in range(repeat):
+        for checksums in (False, True):  # interleaved, so load drifts hit both alike
+            times = write_and_load(config, arrays, workdir / f"{kind}_{checksums}", checksums)
+            prev = best.setdefault(checksums, times)
+            best[checksums] = {k: tuple(map(min, v, prev[k])) for k, v in times.items()}
+    off, on = best[False], best[True]
+    cells = []
+    ok = True
+    for key in ("write", "assemble", "load"):
+        wall = on[key][0] / max(off[key][0], 1e-9) - 1
+        cpu = on[key][1] / max(off[key][1], 1e-9) - 1
+        ok &= key == "assemble" or min(wall, cpu) < 0.10
+        cells.append(f"{key} wall {off[key][0]:5.2f} -> {on[key][0]:5.2f} s ({wall:+6.1%}), "
+                     f"cpu {off[key][1]:5.2f} -> {on[key][1]:5.2f} s ({cpu:+6.1%})")
+    print(f"[{'PASS' if ok else 'MISS'}] checksums {kind:9s} T={n_frames:>7,d} without -> with Fletcher-32: "
+          + "; ".join(cells) + f" (best of {repeat}; target < 10% on write and load; assemble without "
+          "checksums has nothing to verify)")
 
 
 def run(n_frames: int, kind: str, workdir: Path) -> None:
@@ -112,10 +183,13 @@ def run(n_frames: int, kind: str, workdir: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20000)
+    parser.add_argument("--repeat", type=int, default=3, help="runs per checksum setting (best is kept)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         for kind in ("grid", "subpixel"):
             run(args.frames, kind, Path(tmp))
+        for kind in ("grid", "subpixel"):
+            checksum_overhead(args.frames, kind, Path(tmp), args.repeat)
 
 
 if __name__ == "__main__":

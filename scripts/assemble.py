@@ -19,11 +19,14 @@ def main(argv=None) -> int:
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
     parser.add_argument("--truth", type=Path, default=None,
                         help="demo truth.h5: report the 3D error against it")
+    parser.add_argument("--snapshot", type=Path, default=None,
+                        help="write a byte-for-byte copy of the config here, after the results "
+                             "(e.g. <outdir>/config.yaml)")
 
     def run(args, config):
         files = {stage: getattr(args, stage) for stage in ARTIFACTS}
         summary = run_assemble(config, files, args.outdir, recording_dir=args.recording,
-                               truth_path=args.truth)
+                               truth_path=args.truth, snapshot_path=args.snapshot)
         error = summary.get("error_vs_truth")
         if error:
             print(f"[{args.recording or args.outdir}] 3D error against the demo truth: "
@@ -32,7 +35,7 @@ def main(argv=None) -> int:
                   f"median {error['median_aligned']:.4f}; "
                   f"{100 * error['reconstructed']:.1f}% of points reconstructed", file=sys.stderr)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: args.outdir)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import _bootstrap  # noqa: F401
 
-from flylib.stages import run_bundle_adjustment, script_main, script_parser
+from flylib.stages import output_dir, run_bundle_adjustment, script_main, script_parser
 
 
 def main(argv=None) -> int:
@@ -19,7 +19,7 @@ def main(argv=None) -> int:
     def run(args, config):
         run_bundle_adjustment(config, args.pose2d, args.out, recording_dir=args.recording)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import _bootstrap  # noqa: F401
 
-from flylib.stages import run_pictorial_structures, script_main, script_parser
+from flylib.stages import output_dir, run_pictorial_structures, script_main, script_parser
 
 
 def main(argv=None) -> int:
@@ -23,7 +23,7 @@ def main(argv=None) -> int:
         run_pictorial_structures(config, args.pose2d, args.out, candidates_path=args.candidates,
                                  ba_path=args.bundle_adjustment, recording_dir=args.recording)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import _bootstrap  # noqa: F401
 
-from flylib.stages import run_pose2d, script_main, script_parser
+from flylib.stages import output_dir, run_pose2d, script_main, script_parser
 
 
 def main(argv=None) -> int:
@@ -24,7 +24,7 @@ def main(argv=None) -> int:
         run_pose2d(config, args.recording, args.out, import_spec=args.import_spec,
                    progress=args.progress, candidates_path=args.candidates_out)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ def main(argv=None) -> int:
     def run(args, config):
         run_visualization(config, args.results, args.recording, args.outdir, progress=args.progress)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: args.outdir)
 
 
 if __name__ == "__main__":

@@ -214,7 +214,7 @@ def test_large_arrays_are_chunked_and_compressed(tmp_path, skeleton):
 def test_threaded_deflate_writes_standard_gzip_chunks_with_a_padded_edge(tmp_path):
     import zlib
 
-    from flylib.results import _write_array
+    from flylib.results import _write_array, fletcher32
 
     rng = np.random.default_rng(1)
     arr = rng.normal(size=(3, 50_000))  # 24 bytes per step: two 43,690-column chunks
@@ -226,8 +226,11 @@ def test_threaded_deflate_writes_standard_gzip_chunks_with_a_padded_edge(tmp_pat
         assert ds.compression == "gzip" and ds.compression_opts == 1 and ds.chunks == (3, 43690)
         np.testing.assert_array_equal(ds[()], arr)  # decoded by HDF5's own deflate filter
         np.testing.assert_array_equal(ds[:, 43000:44000], arr[:, 43000:44000])  # across chunks
+        assert ds.fletcher32
         mask, raw = ds.id.read_direct_chunk((0, 43690))  # the edge chunk: stored whole
-        edge = np.frombuffer(zlib.decompress(raw)).reshape(3, 43690)
+        # deflate stream, then the Fletcher-32 checksum HDF5's filter appends (little-endian)
+        assert int.from_bytes(raw[-4:], "little") == fletcher32(raw[:-4])
+        edge = np.frombuffer(zlib.decompress(raw[:-4])).reshape(3, 43690)
         assert mask == 0
         np.testing.assert_array_equal(edge[:, : 50_000 - 43690], arr[:, 43690:])
         assert not edge[:, 50_000 - 43690:].any()

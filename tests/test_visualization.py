@@ -414,7 +414,11 @@ def test_trajectory_points_are_the_leg_tips():
     assert names == ["lf_claw", "lm_claw", "lh_claw", "rf_claw", "rm_claw", "rh_claw"]
 
 
-def test_short_footage_warns_and_shows_the_background(tmp_path, df3d_sample_dir, df3d_result):
+def test_short_footage_is_an_error_naming_the_file_and_counts(tmp_path, df3d_sample_dir, df3d_result):
+    """Footage and result of different lengths (issue 13: a truncated MP4 with its
+    header) fail the job instead of drawing the background with a warning."""
+    from flylib.errors import FootageError
+
     config, result = df3d_result
     longer = dataclasses.replace(result, pts2d=np.concatenate([result.pts2d] * 2, axis=1),
                                  pts3d=np.concatenate([result.pts3d] * 2, axis=0))
@@ -424,14 +428,10 @@ def test_short_footage_warns_and_shows_the_background(tmp_path, df3d_sample_dir,
             {"plot": "skeleton_3d", "view": "rf", "width": 240, "point_radius": 0,
              "line_thickness": 1}]}]}
     footage = {"rf": [df3d_sample_dir / "camera_2.mp4"]}
-    with pytest.warns(UserWarning, match="footage of view 'rf' ends after 15 frames but the "
-                                         "result has 30"):
-        (path,) = render_videos({**config.data, "visualization": table}, longer, footage,
-                                tmp_path, progress=False)
-    frames, rate = decoded_video(path)
-    assert frames.shape == (30, 120, 240, 3) and rate == 10
-    white = (frames.astype(int) >= 235).all(axis=-1).mean(axis=(1, 2))
-    assert white[:15].max() < 0.2 and white[15:].min() > 0.6
+    with pytest.raises(FootageError, match=f"^{df3d_sample_dir / 'camera_2.mp4'}: footage of view 'rf' has 15 "
+                                           "frames but the result has 30"):
+        render_videos({**config.data, "visualization": table}, longer, footage, tmp_path, progress=False)
+    assert not list(tmp_path.glob("*.mp4"))
 
 
 def test_canvas_encoder_keeps_colours_and_crops_to_even_size(tmp_path):

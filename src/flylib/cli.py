@@ -1,12 +1,16 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
-    flylib inspect RESULTS_H5                 per-stage and per-point summary
+    flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does
     flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
 
 A user-facing error is printed as one line on stderr and the exit status is 1.
+``inspect`` first checks every dataset against its checksum (a damaged file: one
+line per damaged dataset, status 1), then compares the params hashes each stage
+recorded with the config snapshot beside the file (or ``--config``): a stale or
+mixed file prints one line per problem after the tables, status 2.
 """
 
 from __future__ import annotations
@@ -137,6 +141,18 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
 
 
 def _cmd_inspect(args) -> int:
+    from .results import verify_file
+
+    unchecked: list[str] = []
+    damaged = verify_file(args.results, unchecked=unchecked) if args.results.is_file() else []
+    if damaged:
+        for line in damaged:
+            print(f"flylib inspect: {line}", file=sys.stderr)
+        return 1
+    if unchecked:
+        print(f"flylib inspect: note: {args.results}: {len(unchecked)} datasets carry no checksum "
+              f"(e.g. {unchecked[0]}; written by an older flylib), so their integrity cannot be "
+              "verified; re-run the workflow to regenerate the file", file=sys.stderr)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(f"{args.results}  (format version {meta.get('deeperfly_format_version', '?')}, "
@@ -163,7 +179,26 @@ def _cmd_inspect(args) -> int:
         )
     if summary["stage_3d"]:
         _print_suspects(args.results)
-    return 0
+    return _print_provenance(args)
+
+
+def _print_provenance(args) -> int:
+    """The provenance table; status 2 when the file is stale or mixes runs."""
+    from .config import Config
+    from .provenance import provenance_report, snapshot_beside
+
+    config_path = args.config or snapshot_beside(args.results)
+    config = Config.from_file(config_path) if config_path else None
+    rows = provenance_report(args.results, config)
+    _print_table(
+        f"provenance (params hashes; compared with {config_path or 'no config: pass --config'})",
+        [{"stage": r.stage, "recorded": r.recorded, "expected": r.expected, "status": r.status} for r in rows],
+        [("stage", "stage"), ("recorded", "recorded"), ("expected", "config gives"), ("status", "status")],
+    )
+    problems = [line for r in rows for line in r.problems]
+    for line in problems:
+        print(f"flylib inspect: {line}", file=sys.stderr)
+    return 2 if problems else 0
 
 
 def _print_suspects(path: Path) -> None:
@@ -231,8 +266,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("inspect", help="per-stage and per-point summary of a results.h5")
+    p = sub.add_parser("inspect", help="integrity, per-stage and per-point summary and provenance of a results.h5")
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
+    p.add_argument("--config", type=Path, default=None,
+                   help="config to compare the recorded params hashes with (default: the "
+                        "config.yaml snapshot beside RESULTS_H5)")
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser("export", help="3D as Anipose CSV, 2D as per-view DeepLabCut CSVs, all as NWB")

@@ -25,3 +25,8 @@ class ResultsError(FlylibError, ValueError):
 
 class ImportFormatError(FlylibError, ValueError):
     """A 2D-keypoint or calibration file from another tool cannot be used as given."""
+
+
+class OutputError(FlylibError, OSError):
+    """An output cannot be written: the disk is full, a file-size limit is hit, or
+    another run holds the output directory's lock."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import uuid
 from collections.abc import Iterator
@@ -37,6 +38,12 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     ------
     Path
         Where to write; it does not exist yet.
+
+    Raises
+    ------
+    OutputError
+        When the write fails for want of space (disk full, quota, file-size limit):
+        one line naming ``path`` and saying that nothing was kept.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -44,5 +51,41 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+    except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
+        cause = out_of_space(err)
+        if cause is None:
+            raise
+        from .errors import OutputError
+
+        previous = "the previous file is unchanged" if path.exists() else "no partial file is left"
+        raise OutputError(
+            f"{path}: could not be written ({_reason(cause)}); nothing was kept ({previous}); "
+            "free disk space or raise the file-size limit and re-run"
+        ) from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_NO_SPACE = {errno.ENOSPC, errno.EFBIG, errno.EDQUOT}
+
+
+def out_of_space(err: BaseException | None) -> BaseException | None:
+    """The error in ``err``'s chain that says a write ran out of space, if any
+    (HDF5 reports the system's error text inside its own message)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if getattr(err, "errno", None) in _NO_SPACE or any(os.strerror(c) in str(err) for c in _NO_SPACE):
+            return err
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def _reason(err: BaseException) -> str:
+    if getattr(err, "errno", None) in _NO_SPACE:
+        return os.strerror(err.errno)
+    text = " ".join(str(err).split())
+    for code in _NO_SPACE:
+        if os.strerror(code) in text:
+            return os.strerror(code)
+    return text

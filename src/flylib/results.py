@@ -9,11 +9,20 @@ once they are large, so a 100k-frame recording stays small.
 
 Every write goes to a temporary sibling first and is renamed into place on success
 (:func:`atomic_path`), so an interrupted run never leaves a truncated file.
+
+Integrity: every non-empty dataset carries HDF5's Fletcher-32 checksum filter, and
+files are written with HDF5 1.8's object-header format, whose metadata (object
+headers with their attributes, link tables, the superblock) carries checksums too;
+HDF5 verifies both on every read, so a damaged file fails to load with a
+:class:`~flylib.errors.ResultsError` naming the file and the dataset
+(:func:`verify_file` checks a whole file, as ``flylib inspect`` does). Names are
+stored as fixed-length UTF-8 strings, inside the checksummed chunks.
 """
 
 from __future__ import annotations
 
 import json
+import struct
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -27,7 +36,7 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError
-from .paths import atomic_path
+from .paths import atomic_path, out_of_space
 from .resources import usable_cpus
 from .skeleton import Skeleton
 
@@ -49,6 +58,7 @@ __all__ = [
     "read_image_sizes",
     "read_stage",
     "save_candidates",
+    "verify_file",
     "write_stage",
 ]
 
@@ -69,8 +79,187 @@ _CHUNK_BYTES = 1024 * 1024
 # on one core but only h5py reads it.
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
 _DEFLATE_THREADS = min(8, usable_cpus())
+# HDF5 1.8's file format: object headers, link tables and the superblock carry
+# checksums (readable by any HDF5 >= 1.8, i.e. since 2008).
+_LIBVER = ("v108", "latest")
+# Fletcher-32 on every dataset; off only for benchmarks/results_io.py's baseline.
+_FLETCHER32 = True
 
 
+def _create(path: str | Path) -> h5py.File:
+    """A new HDF5 file in the checksummed metadata format."""
+    return h5py.File(path, "w", libver=_LIBVER)
+
+
+# -- checksums -----------------------------------------------------------------
+
+
+# Word weights n, n-1, ..., 1 (mod 65535), grown on demand: the tail of this array
+# is the weight vector of any shorter buffer. Integer dot products (no BLAS threads
+# competing with the deflate threads) stay exact in int64.
+_WEIGHTS = np.zeros(0, np.int64)
+
+
+def fletcher32(data: bytes) -> int:
+    """HDF5's Fletcher-32 checksum of ``data`` (``H5_checksum_fletcher32``).
+
+    Sums big-endian 16-bit words (an odd last byte is the high byte of a last word)
+    in ones'-complement arithmetic modulo 65535, where a non-zero sum is represented
+    in ``1..65535``; returns ``(sum2 << 16) | sum1``. The filter appends it to each
+    filtered chunk as 4 little-endian bytes.
+    """
+    global _WEIGHTS
+    raw = np.frombuffer(data, np.uint8)
+    if raw.size % 2:
+        raw = np.concatenate([raw, np.zeros(1, np.uint8)])
+    n = raw.size // 2
+    words = raw.view(">u2").astype(np.int64)
+    table = _WEIGHTS
+    if table.size < n:
+        table = _WEIGHTS = np.arange(max(n, 1 << 19), 0, -1, dtype=np.int64) % 65535
+    # word i is in the running sum of every later position: weight n - i
+    total, weighted = int(words.sum()), int(np.dot(words, table[table.size - n:]))
+    if total == 0:
+        return 0
+
+    def fold(value: int) -> int:
+        return (value - 1) % 65535 + 1  # value > 0 here
+
+    return (fold(weighted) << 16) | fold(total)
+
+
+def _checksummed(payload: bytes) -> bytes:
+    """A filtered chunk as the Fletcher-32 filter stores it: the data, then its checksum."""
+    if not _FLETCHER32:
+        return payload
+    return payload + struct.pack("<I", fletcher32(payload))
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split())
+
+
+def _damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
+    return ResultsError(
+        f"{path}: {what} is damaged (HDF5: {_one_line(err)}); the file is corrupt: delete it "
+        "and re-run the workflow to regenerate it"
+    )
+
+
+def _read(dataset: h5py.Dataset) -> np.ndarray:
+    """The whole dataset, its checksums verified by HDF5; damage is a ResultsError."""
+    try:
+        return dataset[()]
+    except OSError as err:
+        path = dataset.file.filename
+        _verify_dataset(path, dataset)  # names the chunk whose checksum fails, if one does
+        raise _damaged(path, f"dataset {dataset.name}", err) from None
+
+
+def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list[str]:
+    """Check every dataset and attribute of an HDF5 file against its checksums.
+
+    Reads each dataset chunk by chunk (HDF5 verifies the Fletcher-32 checksum of
+    every chunk and the checksum of every object header it loads).
+
+    Parameters
+    ----------
+    path
+        A results or stage-artifact file.
+    unchecked
+        When given, receives the names of non-empty datasets that carry no checksum
+        (files of an older flylib): readable, but their integrity cannot be verified.
+
+    Returns
+    -------
+    list of str
+        One line per damaged object (file and dataset or group named); empty when
+        the file is intact.
+    """
+    problems: list[str] = []
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:
+        return [str(_damaged(path, "its HDF5 structure", err))]
+
+    def visit(group: h5py.Group) -> None:
+        try:
+            names = list(group.keys())
+            dict(group.attrs.items())
+        except (OSError, KeyError, RuntimeError) as err:
+            problems.append(str(_damaged(path, f"group {group.name}", err)))
+            return
+        for name in names:
+            try:
+                item = group[name]
+            except (OSError, KeyError, RuntimeError) as err:
+                problems.append(str(_damaged(path, f"object {group.name.rstrip('/')}/{name}", err)))
+                continue
+            if isinstance(item, h5py.Group):
+                visit(item)
+                continue
+            try:
+                dict(item.attrs.items())
+                if item.size and item.chunks is not None:
+                    for chunk in item.iter_chunks():
+                        item[chunk]
+                else:
+                    item[()]
+            except (OSError, RuntimeError) as err:
+                try:
+                    _verify_dataset(path, item)  # the chunk whose checksum fails, if one does
+                except ResultsError as precise:
+                    problems.append(str(precise))
+                else:
+                    problems.append(str(_damaged(path, f"dataset {item.name}", err)))
+                continue
+            if unchecked is not None and item.size and not item.fletcher32:
+                unchecked.append(item.name)
+
+    with f:
+        visit(f)
+    return problems
+
+
+def _verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
+    """Check a dataset against its stored checksums without decompressing it.
+
+    A Fletcher-32-filtered dataset's chunks are read raw and their checksums
+    recomputed (a fraction of the cost of decoding them); a dataset without the
+    filter has nothing to check.
+
+    Raises
+    ------
+    ResultsError
+        Naming the file and the dataset, when a checksum does not match.
+    """
+    if not (dataset.size and dataset.chunks is not None and dataset.fletcher32):
+        return  # no checksum to check (an empty array, or a file of an older flylib)
+    try:
+        dsid = dataset.id
+        for i in range(dsid.get_num_chunks()):
+            info = dsid.get_chunk_info(i)
+            _, raw = dsid.read_direct_chunk(info.chunk_offset)
+            if len(raw) < 4 or int.from_bytes(raw[-4:], "little") != fletcher32(raw[:-4]):
+                raise OSError(f"Fletcher-32 checksum mismatch in the chunk at {tuple(info.chunk_offset)}")
+    except (OSError, RuntimeError, ValueError) as err:
+        raise _damaged(path, f"dataset {dataset.name}", err) from None
+
+
+def _check_group(path: str | Path, group: h5py.Group, skip: Sequence[str] = ()) -> None:
+    """Verify every dataset under ``group`` (but those named in ``skip``, already read)."""
+    datasets: list[h5py.Dataset] = []
+
+    def collect(name: str, item: Any) -> None:
+        if isinstance(item, h5py.Dataset) and item.name not in skip:
+            datasets.append(item)
+
+    try:
+        group.visititems(collect)
+    except (OSError, KeyError, RuntimeError) as err:
+        raise _damaged(path, f"group {group.name}", err) from None
+    for dataset in datasets:
+        _verify_dataset(path, dataset)
 
 
 # -- low-level helpers ---------------------------------------------------------
@@ -93,15 +282,19 @@ def _write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float6
     arr = np.asarray(data, dtype=dtype)
     if name in group:
         del group[name]
-    if arr.size < _COMPRESS_MIN_ELEMENTS or arr.ndim == 0:
+    if arr.size == 0 or arr.ndim == 0:  # no chunk to checksum (the header holds a scalar)
         return group.create_dataset(name, data=arr)
+    if arr.size < _COMPRESS_MIN_ELEMENTS:
+        if not _FLETCHER32:
+            return group.create_dataset(name, data=arr)
+        return group.create_dataset(name, data=arr, chunks=arr.shape, fletcher32=True)
     axis = int(np.argmax(arr.shape))
     per_step = arr.itemsize * arr.size // arr.shape[axis]
     step = int(max(1, min(arr.shape[axis], _CHUNK_BYTES // max(per_step, 1))))
     chunks = list(arr.shape)
     chunks[axis] = step
     dataset = group.create_dataset(name, shape=arr.shape, dtype=arr.dtype, chunks=tuple(chunks),
-                                   **_COMPRESSION)
+                                   fletcher32=_FLETCHER32, **_COMPRESSION)
     _write_deflated_chunks(dataset, arr, axis, step)
     return dataset
 
@@ -112,8 +305,10 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
     HDF5 compresses chunk by chunk on one core (most of the write time of a long
     recording's arrays); here zlib compresses the slabs on threads (it releases the
     GIL) and HDF5 stores the finished chunks as they are. The file is the one
-    ``create_dataset(data=..., compression="gzip")`` writes: the same deflate filter
-    and zlib stream, readable by any HDF5 reader.
+    ``create_dataset(data=..., compression="gzip", fletcher32=True)`` writes: the same
+    deflate filter and zlib stream followed by the Fletcher-32 checksum of the
+    deflated bytes (what HDF5's filter appends), readable and verified by any HDF5
+    reader.
     """
     starts = range(0, arr.shape[axis], step)
 
@@ -123,7 +318,8 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
             pad = [(0, 0)] * arr.ndim
             pad[axis] = (0, step - slab.shape[axis])
             slab = np.pad(slab, pad)
-        return zlib.compress(np.ascontiguousarray(slab).tobytes(), _COMPRESSION["compression_opts"])
+        return _checksummed(zlib.compress(np.ascontiguousarray(slab).tobytes(),
+                                          _COMPRESSION["compression_opts"]))
 
     workers = min(_DEFLATE_THREADS, len(starts))
     with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
@@ -135,11 +331,16 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
 def _write_strings(group: h5py.Group, name: str, values: Sequence[str]) -> None:
     if name in group:
         del group[name]
-    group.create_dataset(name, data=np.array(list(values), dtype=object), dtype=h5py.string_dtype())
+    encoded = [str(v).encode("utf-8") for v in values]
+    width = max([1, *map(len, encoded)])
+    data = np.array(encoded, dtype=h5py.string_dtype("utf-8", width))
+    kwargs = {"chunks": data.shape, "fletcher32": True} if data.size and _FLETCHER32 else {}
+    group.create_dataset(name, data=data, **kwargs)
 
 
 def _read_strings(dataset: h5py.Dataset) -> list[str]:
-    return [str(s) for s in dataset.asstr()[()]]
+    values = _read(dataset)
+    return [v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
 
 
 def _json_attrs(group: h5py.Group, attrs: Mapping | None) -> None:
@@ -182,14 +383,26 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
     except OSError as err:
         raise ResultsError(f"{path}: not a readable HDF5 file ({err}); {rerun}") from None
     with f:
-        version = read_meta_from(f).get("deeperfly_format_version")
+        try:
+            version = read_meta_from(f).get("deeperfly_format_version")
+        except (OSError, KeyError, RuntimeError) as err:
+            raise _damaged(path, "its root attributes", err) from None
         if version is None:
             raise ResultsError(f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it")
         if version != FORMAT_VERSION:
             raise ResultsError(
                 f"{path}: format version {version!r}, expected {FORMAT_VERSION}; {rerun} to regenerate it"
             )
-        yield f
+        try:
+            yield f
+        except (OSError, RuntimeError) as err:  # a damaged object header, link table, ...
+            if out_of_space(err) is not None:
+                raise  # a write in the block failed (atomic_path reports it), not this file
+            raise _damaged(path, "an HDF5 object", err) from None
+        except KeyError as err:
+            if "Unable to" not in str(err):  # h5py's words for an object HDF5 could not load
+                raise
+            raise _damaged(path, "an HDF5 object", err) from None
 
 
 def read_meta_from(f: h5py.File) -> dict:
@@ -240,10 +453,10 @@ def _read_cameras(group: h5py.Group) -> CameraGroup:
 
     return CameraGroup.from_arrays(
         _read_strings(group["names"]),
-        group["rvecs"][()],
-        group["tvecs"][()],
-        group["intrs"][()],
-        group["dists"][()],
+        _read(group["rvecs"]),
+        _read(group["tvecs"]),
+        _read(group["intrs"]),
+        _read(group["dists"]),
     )
 
 
@@ -264,8 +477,8 @@ def _read_skeleton(group: h5py.Group) -> Skeleton:
     return Skeleton.from_arrays(
         _read_strings(group["point_names"]),
         _read_strings(group["limb_names"]),
-        group["limb_id"][()],
-        group["bones"][()],
+        _read(group["limb_id"]),
+        _read(group["bones"]),
         palette=palette,
         name=str(name),
     )
@@ -412,7 +625,7 @@ class PoseResult:
         meta = {**fresh, **self.meta}
         meta["deeperfly_format_version"] = fresh["deeperfly_format_version"]
         meta["flylib_version"] = fresh["flylib_version"]
-        with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        with atomic_path(path) as tmp, _create(tmp) as f:
             f.attrs["meta"] = json.dumps(meta)
             _write_skeleton(f.create_group("skeleton"), self.skeleton)
             g2d = f.create_group("pose2d")
@@ -469,8 +682,14 @@ class PoseResult:
                 raise ResultsError(f"{path}: has no cameras (pose2d/cameras); assemble it with assemble_results")
             cameras = _read_cameras(rig)
 
+            read: list[str] = []
+
             def first(name: str, stages: tuple[str, ...]) -> np.ndarray | None:
-                return next((f[f"{s}/{name}"][()] for s in stages if f"{s}/{name}" in f), None)
+                stage = next((s for s in stages if f"{s}/{name}" in f), None)
+                if stage is None:
+                    return None
+                read.append(f"/{stage}/{name}")
+                return _read(f[f"{stage}/{name}"])
 
             derived = ("triangulation", "pictorial_structures")
             pts2d = first("points", (*derived, "pose2d"))
@@ -478,6 +697,7 @@ class PoseResult:
             reproj = first("reproj_error", derived)
             conf = first("conf", ("pose2d",))
             sizes = _read_json_attrs(f["pose2d"]).get("image_sizes")
+            _check_group(path, f, skip=read)  # damage in what was not loaded is damage too
         return cls(
             cameras=cameras,
             skeleton=skeleton,
@@ -504,7 +724,7 @@ def _write_candidates(group: h5py.Group, candidates: Any) -> None:
     _write_array(group, "score", candidates.score)
 
 
-def save_candidates(path: str | Path, candidates: Any) -> None:
+def save_candidates(path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None) -> None:
     """Write the detector's top-K peaks to their own artifact (``candidates/{xy, score}``).
 
     Parameters
@@ -513,9 +733,11 @@ def save_candidates(path: str | Path, candidates: Any) -> None:
         Destination, e.g. ``<out>/stages/candidates.h5``; written atomically.
     candidates
         A :class:`flylib.pictorial.Candidates` (``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``).
+    meta
+        Extra entries for the file's meta JSON (e.g. its params hash).
     """
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta("candidates"))
+    with atomic_path(path) as tmp, _create(tmp) as f:
+        f.attrs["meta"] = json.dumps(_new_meta("candidates", meta))
         _write_candidates(f.create_group("candidates"), candidates)
 
 
@@ -531,7 +753,7 @@ def load_candidates(path: str | Path) -> Any:
     with open_checked(path, rerun) as f:
         if "candidates/xy" not in f:
             raise ResultsError(f"{path}: holds no candidate peaks; {rerun}")
-        return _make_candidates(f["candidates/xy"][()], f["candidates/score"][()])
+        return _make_candidates(_read(f["candidates/xy"]), _read(f["candidates/score"]))
 
 
 @dataclass
@@ -576,7 +798,7 @@ class Pose2dData:
             if len(xy) != 5 or xy[:3] != (v, t, p) or xy[4] != 2 or score != xy[:4]:
                 raise ValueError(f"candidates must be xy (V, T, P, K, 2) / score (V, T, P, K), got {xy} / {score}")
 
-    def save(self, path: str | Path, skeleton: Skeleton) -> None:
+    def save(self, path: str | Path, skeleton: Skeleton, meta: Mapping[str, Any] | None = None) -> None:
         """Write ``skeleton/`` and ``pose2d/`` to ``path`` atomically.
 
         Parameters
@@ -585,11 +807,14 @@ class Pose2dData:
             Destination, e.g. ``<out>/stages/pose2d.h5``.
         skeleton
             The skeleton whose points make up the P axis.
+        meta
+            Extra entries for the file's meta JSON (e.g. its params hash, see
+            :mod:`flylib.provenance`).
         """
         if skeleton.n_points != self.pts2d.shape[2]:
             raise ValueError(f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}")
-        with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-            f.attrs["meta"] = json.dumps(_new_meta("pose2d"))
+        with atomic_path(path) as tmp, _create(tmp) as f:
+            f.attrs["meta"] = json.dumps(_new_meta("pose2d", meta))
             _write_skeleton(f.create_group("skeleton"), skeleton)
             group = f.create_group("pose2d")
             _write_array(group, "points", self.pts2d)
@@ -621,13 +846,13 @@ class Pose2dData:
             attrs = _read_json_attrs(group)
             candidates = None
             if "candidates" in group:
-                candidates = _make_candidates(group["candidates/xy"][()], group["candidates/score"][()])
+                candidates = _make_candidates(_read(group["candidates/xy"]), _read(group["candidates/score"]))
             views = attrs.get("view_names")
             if views is None and "cameras" in group:
                 views = _read_strings(group["cameras/names"])
             return cls(
-                pts2d=group["points"][()],
-                conf=group["conf"][()] if "conf" in group else np.ones(group["points"].shape[:3]),
+                pts2d=_read(group["points"]),
+                conf=_read(group["conf"]) if "conf" in group else np.ones(group["points"].shape[:3]),
                 view_names=list(views or []),
                 image_sizes={k: tuple(v) for k, v in (attrs.get("image_sizes") or {}).items()},
                 candidates=candidates,
@@ -644,6 +869,7 @@ def write_stage(
     *,
     cameras: CameraGroup | None = None,
     attrs: Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
 ) -> None:
     """Write one stage's artifact: ``<stage>/`` with its arrays, rig and attributes.
 
@@ -661,11 +887,14 @@ def write_stage(
         A rig to store as ``<stage>/cameras`` (bundle adjustment's refined rig).
     attrs
         JSON-serialisable group attributes (e.g. a bundle-adjustment ``summary``).
+    meta
+        Extra entries for the file's meta JSON (e.g. its params hash, see
+        :mod:`flylib.provenance`).
     """
     if stage not in STAGE_GROUPS or stage == "pose2d":
         raise ValueError(f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})")
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta(stage))
+    with atomic_path(path) as tmp, _create(tmp) as f:
+        f.attrs["meta"] = json.dumps(_new_meta(stage, meta))
         group = f.create_group(stage)
         for name, value in arrays.items():
             value = np.asarray(value)
@@ -702,7 +931,7 @@ def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
             raise ResultsError(f"{path}: has no {stage} group; {rerun}")
         group = f[stage]
         out: dict[str, Any] = {
-            name: item[()] for name, item in group.items() if isinstance(item, h5py.Dataset)
+            name: _read(item) for name, item in group.items() if isinstance(item, h5py.Dataset)
         }
         out["cameras"] = _read_cameras(group["cameras"]) if "cameras" in group else None
         out["attrs"] = _read_json_attrs(group)
@@ -748,7 +977,7 @@ def assemble_results(
         raise ValueError(f"unknown stage(s) {', '.join(unknown)} (known: {', '.join(STAGE_GROUPS)})")
     if "pose2d" not in stage_files:
         raise ResultsError(f"{out_path}: cannot assemble without the pose2d artifact; run the pose2d stage")
-    with atomic_path(out_path) as tmp, h5py.File(tmp, "w") as dst:
+    with atomic_path(out_path) as tmp, _create(tmp) as dst:
         dst.attrs["meta"] = json.dumps(_new_meta("assemble", {**(meta or {}), "stages": list(stage_files)}))
         _write_skeleton(dst.create_group("skeleton"), skeleton)
         for stage in STAGE_GROUPS:
@@ -758,6 +987,7 @@ def assemble_results(
             with open_checked(src_path, f"re-run the {stage} stage") as src:
                 if stage not in src:
                     raise ResultsError(f"{src_path}: has no {stage} group; re-run the {stage} stage")
+                _check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
                 src.copy(src[stage], dst, name=stage)
                 dst[stage].attrs["meta"] = json.dumps(read_meta_from(src))
                 if stage == "pose2d":

@@ -94,6 +94,13 @@ def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
     return config_rig(config, _image_sizes(pose2d), recording_dir)
 
 
+def _provenance(config, stage: str, **upstream) -> dict:
+    """The params hash of ``stage`` and those of the artifacts it read (meta entries)."""
+    from .provenance import stage_provenance
+
+    return stage_provenance(config, stage, upstream)
+
+
 # -- stages --------------------------------------------------------------------
 
 
@@ -139,12 +146,15 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
         sources = find_recording(recording_dir, config, strict=True)
         data = detect_recording(config, sources, want_candidates=candidates_path is not None,
                                 progress=progress)
+    from .provenance import stage_provenance
+
+    provenance = stage_provenance(config, "pose2d")
     candidates, data.candidates = data.candidates, None
     if candidates is not None:
         from .results import save_candidates
 
-        save_candidates(candidates_path, candidates)
-    data.save(out_path, config.skeleton())
+        save_candidates(candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)})
+    data.save(out_path, config.skeleton(), meta=provenance)
     return Path(out_path)
 
 
@@ -179,7 +189,8 @@ def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path,
         "seconds": round(time.perf_counter() - started, 3),
     }
     write_stage(out_path, "bundle_adjustment", {}, cameras=refined,
-                attrs={"summary": json.dumps(summary)})
+                attrs={"summary": json.dumps(summary)},
+                meta=_provenance(config, "bundle_adjustment", pose2d=pose2d_path))
     log.info("bundle adjustment: %s", summary)
     return Path(out_path)
 
@@ -206,7 +217,9 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
     pts3d, pts2d, error = reconstruct_from_config(config, candidates, cameras)
     write_stage(out_path, "pictorial_structures",
-                {"points": pts2d, "points3d": pts3d, "reproj_error": error})
+                {"points": pts2d, "points3d": pts3d, "reproj_error": error},
+                meta=_provenance(config, "pictorial_structures", pose2d=pose2d_path,
+                                 candidates=candidates_path, bundle_adjustment=ba_path))
     return Path(out_path)
 
 
@@ -243,17 +256,24 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
         attrs = {"corrections": {"file": str(corrections_path), "count": corrections.count()}}
         log.info("triangulation: %d manual corrections applied from %s", corrections.count(),
                  corrections_path)
-    write_stage(out_path, "triangulation", arrays, attrs=attrs)
+    write_stage(out_path, "triangulation", arrays, attrs=attrs,
+                meta=_provenance(config, "triangulation", pose2d=pose2d_path,
+                                 pictorial_structures=pictorial_path, bundle_adjustment=ba_path))
     return Path(out_path)
 
 
 def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
                  recording_dir: str | Path | None = None,
-                 truth_path: str | Path | None = None) -> dict:
+                 truth_path: str | Path | None = None,
+                 snapshot_path: str | Path | None = None) -> dict:
     """Assemble ``results.h5`` from the stage artifacts, then write the recording's
     summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format) and
     ``summary.json``. With ``truth_path`` (the demo) the 3D error against the truth is
     computed, logged and stored in the summary.
+
+    With ``snapshot_path`` the config's text is written there last, atomically, so
+    the snapshot never describes a config the results beside it were not made with
+    (the workflow's assemble rule is its only writer).
 
     Returns
     -------
@@ -270,7 +290,8 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
         raise ResultsError("assemble: no pose2d artifact given; every result starts from 2D keypoints")
     sizes = read_image_sizes(stage_files["pose2d"])  # the arrays are copied, never loaded, here
     rig = config_rig(config, sizes, recording_dir)
-    meta = {"recording": str(recording_dir) if recording_dir else None}
+    meta = {"recording": str(recording_dir) if recording_dir else None,
+            **_provenance(config, "assemble", **stage_files)}
     results_path = outdir / "results.h5"
     assemble_results(results_path, skeleton=config.skeleton(), config_rig=rig,
                      stage_files=stage_files, meta=meta)
@@ -286,8 +307,19 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
         truth = load_truth(truth_path)
         if result.pts3d is not None:
             summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
+    summary["params_sha256"] = {**meta.get("upstream_params_sha256", {}), "assemble": meta["params_sha256"]}
     _write_json(outdir / "summary.json", summary)
+    if snapshot_path is not None:
+        write_snapshot(config, snapshot_path)
     return summary
+
+
+def write_snapshot(config, path: str | Path) -> Path:
+    """Write the config's text (the source bytes, or YAML for a dict config) to
+    ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(config.snapshot_text().encode("utf-8"))
+    return Path(path)
 
 
 def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
@@ -363,16 +395,26 @@ def script_parser(description: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--config", required=True, type=Path,
                         help="config file (.yaml/.toml) of the run, e.g. config/config.yaml")
-    parser.add_argument("--snapshot-dir", type=Path, default=None,
-                        help="output directory that receives a byte-for-byte copy of the config")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 
 
+def output_dir(out: str | Path) -> Path:
+    """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
+    gives ``<outdir>``; any other file its own directory)."""
+    parent = Path(out).parent
+    return parent.parent if parent.name == "stages" else parent
+
+
 def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace, Any], Any],
-                argv: list[str] | None = None) -> int:
+                argv: list[str] | None = None,
+                outdir: Callable[[argparse.Namespace], str | Path] | None = None) -> int:
     """Parse arguments, load the config, run a stage; a user-facing error is printed as
-    one line on stderr and exits with status 1."""
+    one line on stderr and exits with status 1.
+
+    With ``outdir`` (the output directory the stage writes, from its arguments) the
+    stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
+    a second run writing the same directory fails naming the holder."""
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
@@ -380,9 +422,13 @@ def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespa
 
     try:
         config = Config.from_file(args.config)
-        run(args, config)
-        if args.snapshot_dir is not None:
-            config.save_snapshot(args.snapshot_dir)
+        if outdir is None:
+            run(args, config)
+        else:
+            from .locking import outdir_lock
+
+            with outdir_lock(outdir(args), job=Path(parser.prog).stem):
+                run(args, config)
     except FlylibError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

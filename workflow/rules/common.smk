@@ -98,6 +98,13 @@ def command(script: str):
 
 BY_OUTDIR = {str(r.outdir): r for r in RECORDINGS}
 
+# Artifacts another working directory's run wrote with other params (issue 13).
+if workflow.is_main_process:
+    from flylib.provenance import foreign_artifacts  # noqa: E402
+
+    for _line in foreign_artifacts(CONFIG, RECORDINGS):
+        logger.warning(_line)
+
 
 wildcard_constraints:
     outdir="|".join(re.escape(o) for o in sorted(BY_OUTDIR, key=len, reverse=True)),

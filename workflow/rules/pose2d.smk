@@ -32,4 +32,4 @@ if FLAGS["pose2d"]:
         shell:
             "{params.run}"
             " --recording {params.recording:q} --import-spec {params.import_spec:q}"
-            " --out {output.points:q} {params.candidates} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --out {output.points:q} {params.candidates} 2> {log:q}"

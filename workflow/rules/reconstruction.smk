@@ -27,7 +27,7 @@ if FLAGS["bundle_adjustment"]:
         shell:
             "{params.run}"
             " --pose2d {input.pose2d:q} --recording {params.recording:q}"
-            " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --out {output:q} 2> {log:q}"
 
 
 if FLAGS["pictorial_structures"]:
@@ -55,7 +55,7 @@ if FLAGS["pictorial_structures"]:
             "{params.run}"
             " --pose2d {input.pose2d:q} --candidates {input.candidates:q} {params.rig}"
             " --recording {params.recording:q}"
-            " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --out {output:q} 2> {log:q}"
 
 
 if FLAGS["triangulation"]:
@@ -86,4 +86,4 @@ if FLAGS["triangulation"]:
             "{params.run}"
             " --pose2d {input.pose2d:q} {params.rig} {params.points} {params.corrections}"
             " --recording {params.recording:q}"
-            " --out {output:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --out {output:q} 2> {log:q}"

@@ -18,6 +18,9 @@ rule assemble:
         ),
         calibration="{outdir}/calibration.toml",
         suspects="{outdir}/suspects.csv",
+        # the config snapshot: written last, by this rule only, so it always
+        # describes the results beside it (issue 14: one owner per output)
+        snapshot="{outdir}/config.yaml",
     params:
         run=command("assemble.py"),
         stage=stage_params("assemble"),
@@ -35,4 +38,4 @@ rule assemble:
     shell:
         "{params.run} {params.args}"
         " --recording {params.recording:q} --outdir {wildcards.outdir:q}"
-        " --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+        " --snapshot {output.snapshot:q} 2> {log:q}"

@@ -34,4 +34,4 @@ if FLAGS["visualization"] and VIDEO_NAMES:
         shell:
             "{params.run}"
             " --results {input.results:q} --recording {params.recording:q}"
-            " --outdir {wildcards.outdir:q} --snapshot-dir {wildcards.outdir:q} 2> {log:q}"
+            " --outdir {wildcards.outdir:q} 2> {log:q}"

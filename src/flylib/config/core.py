@@ -203,7 +203,8 @@ class Config:
     def io(self) -> IoParams:
         """Frame-reading settings (``io.image.workers``; 0 means let the reader choose)."""
         workers = ((self.data.get("io") or {}).get("image") or {}).get("workers")
-        return IoParams(image_workers=workers or None)
+        on_corrupt = (self.data.get("io") or {}).get("on_corrupt_frame") or "error"
+        return IoParams(image_workers=workers or None, on_corrupt_frame=on_corrupt)
 
     @property
     def visualization(self) -> dict:
@@ -281,6 +282,9 @@ class Config:
                 "point_names": list(self._point_names()),
                 "views": self.view_names(),
                 "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
+                # Present only when not the default, so existing artifacts keep their params.
+                **({"on_corrupt_frame": self.io.on_corrupt_frame}
+                   if self.io.on_corrupt_frame != "error" else {}),
                 # Not the candidate peaks pictorial structures asks for: they are a
                 # separate pose2d output named by k (stages.candidates_artifact), which
                 # exists only while PS is on, so toggling PS or editing k with it off

@@ -166,9 +166,14 @@ class IoParams:
     ----------
     image_workers
         Threads decoding image sequences; ``None`` lets the reader choose.
+    on_corrupt_frame
+        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's
+        job naming the file; ``"missing"`` warns and marks the frame missing (all its
+        2D NaN). Not performance only: ``missing`` is part of pose2d's params.
     """
 
     image_workers: int | None = None
+    on_corrupt_frame: str = "error"
 
 
 _LEAST_SQUARES_CHECKS: dict[str, Check] = {

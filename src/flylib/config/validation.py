@@ -261,6 +261,10 @@ def validate_config(data: Any) -> list[str]:
     problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
 
     for key, value in table("io").items():
+        if key == "on_corrupt_frame":
+            if value not in ("error", "missing"):
+                problems.append(f"io.on_corrupt_frame: expected 'error' or 'missing', {_got(value)}")
+            continue
         if not isinstance(value, Mapping):
             problems.append(f"io.{key}: expected a table, {_got(value)}")
     workers = table("io").get("image", {})

@@ -184,7 +184,8 @@ def _point_targets(names: list, keypoint_map: dict, points: list[str], origin: s
     return targets
 
 
-def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None], origin: dict) -> int:
+def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None], origin: dict,
+                  footage: dict | None = None) -> int:
     values = set(counts.values())
     if len(values) > 1:
         detail = ", ".join(f"{v}: {n} ({origin[v]})" for v, n in counts.items())
@@ -195,9 +196,11 @@ def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None],
     n_frames = values.pop()
     for view, n in footage_counts.items():
         if n is not None and view in counts and n != n_frames:
+            files = (footage or {}).get(view) or []
+            where = f" ({files[0]}{' ...' if len(files) > 1 else ''})" if files else ""
             raise ImportFormatError(
-                f"{origin[view]}: {n_frames} frames but view {view!r} footage has {n}; "
-                "import the file made from this recording's footage"
+                f"{origin[view]}: {n_frames} frames but view {view!r} footage has {n}{where}; "
+                "import the file made from this recording's footage, or re-copy truncated footage"
             )
     return n_frames
 
@@ -235,6 +238,7 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
         {v: n_frames for v in sized},
         {v: _views.read_frame_count(footage.get(v, [])) for v in sized},
         {v: path for v in sized},
+        footage,
     )
     pts = np.full((len(views), n_frames, len(points), 2), np.nan)
     conf = np.full((len(views), n_frames, len(points)), np.nan)
@@ -270,6 +274,7 @@ def _import_per_view(spec, config, recording_dir, views, points):
         {v: read[v].xy.shape[0] for v in present},
         {v: _views.read_frame_count(footage.get(v, [])) for v in present},
         {v: files[v] for v in present},
+        footage,
     ) if present else 0
     pts = np.full((len(views), n_frames, len(points), 2), np.nan)
     conf = np.full((len(views), n_frames, len(points)), np.nan)

@@ -97,15 +97,21 @@ def read_frame_size(path: Path) -> tuple[int, int]:
 
 
 def read_frame_count(files: list[Path]) -> int | None:
-    """Frame count of a view's footage: the number of images, or the video's header count.
+    """Frame count of a view's footage: the number of images, or the video's frames.
 
-    ``None`` when the container does not report one (it is then not checked).
+    A video's frames are counted from its packets (read without decoding), not
+    taken from the header, which a truncated file still carries whole; the header
+    count is the fallback for a stream without timestamps. ``None`` when neither
+    gives a count (it is then not checked).
     """
     if not files:
         return None
     if len(files) > 1 or files[0].suffix.lower() not in VIDEO_EXTS:
         return len(files)
-    return video_frame_count(files[0])
+    from ..io import VideoReader
+
+    packets = VideoReader(files[0]).pts_index()
+    return len(packets) if packets else video_frame_count(files[0])
 
 
 def image_sizes(

@@ -43,6 +43,7 @@ def open_reader(
     *,
     workers: int | None = None,
     threads: int | None = None,
+    on_corrupt: str = "error",
 ) -> FrameReader:
     """Open the right :class:`FrameReader` for a footage source.
 
@@ -56,6 +57,10 @@ def open_reader(
         Decode threads for image sequences (``0``/``None``: automatic).
     threads
         Decoder threads for videos (``0``/``None``: automatic).
+    on_corrupt
+        Image sequences: ``"error"`` fails on a corrupt or truncated image naming it,
+        ``"missing"`` yields a black frame and records it (see
+        :class:`ImageSequenceReader`).
 
     Returns
     -------
@@ -79,17 +84,18 @@ def open_reader(
                     f"{len(files)} files including {videos[0].name}; narrow the pattern"
                 )
             return VideoReader(videos[0], threads=threads)
-        return ImageSequenceReader(files, workers=workers)
+        return ImageSequenceReader(files, workers=workers, on_corrupt=on_corrupt)
     path = Path(source)
     if path.is_file():
         if path.suffix.lower() in IMAGE_EXTS:
-            return ImageSequenceReader([path], workers=workers)
+            return ImageSequenceReader([path], workers=workers, on_corrupt=on_corrupt)
         return VideoReader(path, threads=threads)
     if path.is_dir():
-        return ImageSequenceReader.from_pattern(path, workers=workers)
+        return ImageSequenceReader.from_pattern(path, workers=workers, on_corrupt=on_corrupt)
     matches = sorted(glob.glob(str(source)))
     if not matches:
         raise FootageError(f"{source}: no such file or directory, and the pattern matches nothing")
     if len(matches) == 1 and Path(matches[0]).suffix.lower() in VIDEO_EXTS:
         return VideoReader(matches[0], threads=threads)
-    return open_reader([Path(m) for m in list_image_files(source)], workers=workers, threads=threads)
+    return open_reader([Path(m) for m in list_image_files(source)], workers=workers, threads=threads,
+                       on_corrupt=on_corrupt)

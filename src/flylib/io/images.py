@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import glob
+import logging
 import re
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -15,6 +16,28 @@ from ..resources import usable_cpus
 from .base import IMAGE_EXTS, FrameReader, as_rgb_uint8
 
 _DIGITS = re.compile(r"(\d+)")
+
+log = logging.getLogger(__name__)
+
+#: What an image sequence reader does with a corrupt or truncated image:
+#: ``error`` fails naming the file; ``missing`` warns and yields a black frame,
+#: recording its index in :attr:`ImageSequenceReader.corrupt_frames`.
+ON_CORRUPT = ("error", "missing")
+
+
+def image_damage(data: bytes) -> str | None:
+    """Why an encoded JPEG or PNG is incomplete, or ``None`` when it looks whole.
+
+    OpenCV decodes a truncated JPEG without an error (libjpeg fills the missing
+    rows with grey and only prints "Premature end of JPEG file"), so the encoded
+    bytes are checked: a JPEG must end its last scan with the EOI marker (``FFD9``;
+    it cannot occur inside entropy-coded data), a PNG must hold its ``IEND`` chunk.
+    """
+    if data[:2] == b"\xff\xd8" and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
+        return "truncated JPEG: no end-of-image marker after its last scan"
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-64:]:
+        return "truncated PNG: no IEND chunk"
+    return None
 
 
 def natural_key(path: str | Path) -> tuple:
@@ -70,19 +93,31 @@ class ImageSequenceReader(FrameReader):
         or glob in natural order).
     workers
         Decode threads; ``0`` or ``None`` picks ``min(8, cpu_count)``.
+    on_corrupt
+        ``"error"`` (default): a corrupt or truncated image raises
+        :class:`~flylib.errors.FootageError` naming it. ``"missing"``: it is logged as
+        a warning, decoded as a black frame and its index added to
+        :attr:`corrupt_frames`, so callers can mark the frame missing.
     """
 
-    def __init__(self, files, *, workers: int | None = None) -> None:
+    def __init__(self, files, *, workers: int | None = None, on_corrupt: str = "error") -> None:
         self.files = [Path(f) for f in files]
         if not self.files:
             raise FootageError("ImageSequenceReader got an empty file list; check the footage pattern")
+        if on_corrupt not in ON_CORRUPT:
+            raise ValueError(f"on_corrupt must be one of {ON_CORRUPT}, got {on_corrupt!r}")
         self.workers = int(workers) if workers else _default_workers()
+        self.on_corrupt = on_corrupt
+        #: Indices of the frames whose image was corrupt (``on_corrupt="missing"``).
+        self.corrupt_frames: set[int] = set()
+        self._shape: tuple[int, ...] | None = None
         self._pool: ThreadPoolExecutor | None = None
 
     @classmethod
-    def from_pattern(cls, pattern: str | Path, *, workers: int | None = None) -> ImageSequenceReader:
+    def from_pattern(cls, pattern: str | Path, *, workers: int | None = None,
+                     on_corrupt: str = "error") -> ImageSequenceReader:
         """A reader over a directory or glob pattern, in natural order."""
-        return cls(list_image_files(pattern), workers=workers)
+        return cls(list_image_files(pattern), workers=workers, on_corrupt=on_corrupt)
 
     @property
     def name(self) -> str:
@@ -100,13 +135,42 @@ class ImageSequenceReader(FrameReader):
         path = self.files[index]
         if not path.is_file():
             raise FootageError(f"{path}: image file of frame {index} not found")
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)  # gray -> 3 channels, alpha dropped, 8-bit
-        if image is None:
+        data = path.read_bytes()
+        damage = image_damage(data)
+        image = None
+        if damage is None:  # gray -> 3 channels, alpha dropped, 8-bit
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+            if image is None:
+                damage = "OpenCV could not decode it"
+        if damage is not None:
+            return self._corrupt(index, path, damage)
+        frame = as_rgb_uint8(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        self._shape = self._shape or frame.shape
+        return frame
+
+    def _corrupt(self, index: int, path: Path, damage: str) -> np.ndarray:
+        if self.on_corrupt == "error":
             raise FootageError(
-                f"{path}: cannot decode frame {index} (OpenCV could not read it); the image is "
-                "corrupt, truncated or of an unsupported format"
+                f"{path}: cannot decode frame {index} ({damage}); the image is corrupt or truncated: "
+                "re-copy or re-export it, or set io.on_corrupt_frame: missing to mark such frames missing"
             )
-        return as_rgb_uint8(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        log.warning("%s: frame %d is corrupt (%s); marking it missing (io.on_corrupt_frame: missing)",
+                    path, index, damage)
+        self.corrupt_frames.add(index)
+        shape = self._shape or self._shape_from_neighbour(index)
+        return np.zeros(shape, np.uint8)
+
+    def _shape_from_neighbour(self, index: int) -> tuple[int, ...]:
+        import cv2
+
+        for other in (*range(index + 1, len(self.files)), *range(index - 1, -1, -1)):
+            data = self.files[other].read_bytes()
+            if image_damage(data) is None:
+                image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+                if image is not None:
+                    self._shape = (image.shape[0], image.shape[1], 3)
+                    return self._shape
+        raise FootageError(f"{self.name}: every image is corrupt; re-copy or re-export the footage")
 
     def _decode(self, indices: list[int]) -> np.ndarray:
         if len(indices) == 1 or self.workers == 1:

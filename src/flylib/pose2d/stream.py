@@ -60,15 +60,19 @@ class BlockPrefetcher(threading.Thread):
         Allocate blocks in page-locked memory (fast, asynchronous GPU copies).
     raw_yuv
         Hand over YUV planes instead of RGB when the source allows it.
+    on_corrupt
+        Image sequences: ``"error"`` or ``"missing"`` (``io.on_corrupt_frame``).
     """
 
     def __init__(
         self, name: str, files, *, block_size: int, depth: int, workers: int | None = None,
-        pin: bool = False, raw_yuv: bool = False,
+        pin: bool = False, raw_yuv: bool = False, on_corrupt: str = "error",
     ):
         super().__init__(name=f"flylib-decode-{name}", daemon=True)
         self.source = name
-        self.reader = io.open_reader(files, workers=workers)
+        self.reader = io.open_reader(files, workers=workers, on_corrupt=on_corrupt)
+        #: Frames decoded (set once the source ended).
+        self.decoded = 0
         self.block_size = block_size
         self.pin = pin
         self.yuv = False
@@ -107,11 +111,28 @@ class BlockPrefetcher(threading.Thread):
                     block, filled = None, 0
             if filled and not self._put(block[:filled]):
                 return
+            self.decoded = index + 1 if shape is not None else 0
+            self._check_complete()
             self._put(_END)
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
             self._put(_Failure(exc))
         finally:
             self.reader.close()
+
+    def _check_complete(self) -> None:
+        """A video whose header promises more frames than decode is truncated."""
+        if not isinstance(self.reader, io.VideoReader):
+            return
+        promised = self.reader.count()
+        if promised is not None and self.decoded < promised:
+            raise FootageError(
+                f"{self.reader.name}: its header says {promised} frames but only {self.decoded} "
+                "decode; the file is truncated: re-copy or re-export it"
+            )
+
+    def corrupt_frames(self) -> set[int]:
+        """Frames an image sequence marked missing (``io.on_corrupt_frame: missing``)."""
+        return set(getattr(self.reader, "corrupt_frames", ()) or ())
 
     def _put(self, item) -> bool:
         while not self._stop_event.is_set():
@@ -200,6 +221,7 @@ def run_detection(
     progress=False,
     raw_yuv: bool | None = None,
     timings: dict[str, float] | None = None,
+    on_corrupt: str = "error",
 ) -> DetectionOutput:
     """Stream every active source through its pathways and scatter the points.
 
@@ -230,6 +252,9 @@ def run_detection(
         and forwards; on a GPU only queueing them), ``wait_device`` (blocked on a
         GPU block's results) and ``scatter`` (points to raw pixels on the host).
         Which one dominates says what bounds the throughput.
+    on_corrupt
+        A corrupt image in a sequence: ``"error"`` fails naming it, ``"missing"``
+        marks every point of that frame in the views it feeds as missing (NaN).
 
     Raises
     ------
@@ -250,7 +275,7 @@ def run_detection(
     raw_yuv = device.type != "cpu" if raw_yuv is None else raw_yuv
     prefetchers = {
         s: BlockPrefetcher(s, sources[s], block_size=batch_size, depth=decode_buffer, workers=workers,
-                           pin=pin, raw_yuv=raw_yuv)
+                           pin=pin, raw_yuv=raw_yuv, on_corrupt=on_corrupt)
         for s in active
     }
     total = prefetchers[active[0]].reader.count() if active and progress else None
@@ -351,13 +376,38 @@ def run_detection(
             timings.update(clock)
     if not pts_parts:
         raise FootageError(f"the detector received no frames from sources {active}; check the footage")
-    return DetectionOutput(
+    out = DetectionOutput(
         pts2d=np.concatenate(pts_parts, axis=1),
         conf=np.concatenate(conf_parts, axis=1),
         candidates_xy=np.concatenate(cxy_parts, axis=1) if k else None,
         candidates_score=np.concatenate(cscore_parts, axis=1) if k else None,
         frame_sizes=frame_sizes,
     )
+    for source, prefetcher in prefetchers.items():
+        frames = sorted(prefetcher.corrupt_frames())
+        if frames:
+            _mark_missing(out, sorted({int(v) for p in plan.pathways_on(source) for v in np.atleast_1d(p.views)}),
+                          frames)
+    return out
+
+
+def _mark_missing(out: DetectionOutput, views: list[int], frames: list[int]) -> None:
+    """NaN every point of ``frames`` in ``views`` (a corrupt image is no observation)."""
+    index = np.ix_(views, frames)
+    out.pts2d[index] = np.nan
+    out.conf[index] = np.nan
+    if out.candidates_xy is not None:
+        out.candidates_xy[index] = np.nan
+        out.candidates_score[index] = np.nan
+
+
+def _on_corrupt(config) -> str:
+    params = getattr(config, "io", None)
+    value = getattr(params, "on_corrupt_frame", None)
+    if value is None:
+        data = getattr(config, "data", config) or {}
+        value = (data.get("io") or {}).get("on_corrupt_frame")
+    return value or "error"
 
 
 def _io_workers(config) -> int | None:
@@ -431,6 +481,7 @@ def _detect(config, plan, models, sources, *, want_candidates, k, progress) -> D
         workers=_io_workers(config),
         k=k if want_candidates else None,
         progress=progress,
+        on_corrupt=_on_corrupt(config),
     )
 
 

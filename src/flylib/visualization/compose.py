@@ -23,6 +23,7 @@ from typing import Any, Iterable, Iterator, Mapping, Sequence
 import cv2
 import numpy as np
 
+from ..errors import FootageError
 from ..paths import atomic_path
 from .draw import (color_tuples, draw_rings, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
                    to_panel_coords)
@@ -178,11 +179,11 @@ def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
 class _Footage:
     """One view's footage: its frame size and rate, streamed forward once."""
 
-    def __init__(self, view: str, files: Sequence[Path]):
+    def __init__(self, view: str, files: Sequence[Path], on_corrupt: str = "error"):
         from ..io import open_reader
 
         self.view = view
-        self.reader = open_reader([Path(f) for f in files])
+        self.reader = open_reader([Path(f) for f in files], on_corrupt=on_corrupt)
         self.image_hw = tuple(self.reader.frame_size())
         self.fps = self.reader.fps()
 
@@ -194,17 +195,34 @@ class _Footage:
 
 
 def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
-    """Yield ``{view: frame or None}`` for frames ``0..n_frames-1`` (``None`` once a
-    view's footage has ended)."""
+    """Yield ``{view: frame}`` for frames ``0..n_frames-1``.
+
+    Raises
+    ------
+    FootageError
+        When a view's footage ends before ``n_frames`` or goes on after it (footage
+        and result must cover the same frames), naming the footage and both counts.
+    """
     iters = {view: iter(src) for view, src in sources.items()}
-    for _ in range(n_frames):
+
+    def mismatch(view: str, count: str) -> FootageError:
+        return FootageError(
+            f"{sources[view].reader.name}: footage of view {view!r} has {count} frames but the "
+            f"result has {n_frames}; the footage is truncated or not this recording's: re-copy "
+            "it, or re-run the workflow from pose2d with the right footage"
+        )
+
+    for t in range(n_frames):
         bundle = {}
-        for view in list(iters):
-            frame = next(iters[view], None)
+        for view, frames in iters.items():
+            frame = next(frames, None)
             if frame is None:
-                del iters[view]
+                raise mismatch(view, str(t))
             bundle[view] = frame
         yield bundle
+    for view, frames in iters.items():
+        if next(frames, None) is not None:
+            raise mismatch(view, "more")
 
 
 @contextlib.contextmanager
@@ -373,6 +391,11 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
     return sizes
 
 
+def _on_corrupt(config) -> str:
+    data = getattr(config, "data", config) or {}
+    return (data.get("io") or {}).get("on_corrupt_frame") or "error"
+
+
 def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir, *,
                   progress: bool = True, corrected: np.ndarray | None = None) -> list[Path]:
     """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
@@ -443,7 +466,7 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             if isinstance(files, (str, Path)):
                 files = [files]
             if files:
-                source = _Footage(view, files)
+                source = _Footage(view, files, on_corrupt=_on_corrupt(config))
                 stack.callback(source.close)
                 sources[view] = source
         lacking = [v for v in imshow_views if v not in sources]
@@ -471,14 +494,7 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
         bar = stack.enter_context(tqdm(total=n_frames, unit="frame", disable=not progress,
                                        desc="render " + ", ".join(s.name for s in specs)))
-        ended: set[str] = set()
         for t, frames in enumerate(bundles):
-            for view in sources:
-                if frames.get(view) is None and view not in ended:
-                    ended.add(view)
-                    warnings.warn(f"footage of view {view!r} ends after {t} frames but the "
-                                  f"result has {n_frames}; its imshow panels show the "
-                                  "background from there on", stacklevel=2)
             points2d = {v: pts2d[i, t] for v, i in index.items()}
             points3d = reprojector.at(t) if reprojector else {}
             resized: dict = {}

@@ -1,0 +1,247 @@
+"""Which config produced an artifact: params hashes recorded in every flylib HDF5 file.
+
+Each stage artifact's ``meta`` records ``params_sha256``, the hash of the config
+subset that stage's result depends on (:meth:`flylib.config.Config.stage_params`,
+exactly what the workflow rule tracks as its ``params``), and
+``upstream_params_sha256``, the hashes recorded in the artifacts it was built from.
+``results.h5`` keeps each stage group's meta (so its hashes) and adds the assemble
+stage's own. From these :func:`provenance_report` tells
+
+* a *stale* stage: made with params other than what a config gives now;
+* a *mixed* file: a stage built from an upstream artifact other than the one
+  assembled beside it (e.g. triangulation from an older pose2d);
+* a results file assembled from other artifacts than those in ``stages/``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import socket
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ProvenanceRow", "foreign_artifacts", "params_hash", "provenance_report", "stage_provenance"]
+
+#: meta key of an artifact's own params hash.
+PARAMS_KEY = "params_sha256"
+#: meta key of ``{upstream stage: params hash}`` the artifact was built from.
+UPSTREAM_KEY = "upstream_params_sha256"
+#: meta key of ``{"host", "cwd"}``: where the process that wrote the artifact ran
+#: (a Snakemake job's working directory is its run's).
+WRITER_KEY = "writer"
+
+# Where each stage's artifact sits beside results.h5, and the stage the artifact
+# names its params after (the candidate peaks are a pose2d output).
+_STAGE_ORDER = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation")
+
+
+def params_hash(params: Mapping[str, Any]) -> str:
+    """A short, stable hash of a params mapping (canonical JSON, SHA-256, 16 hex digits).
+
+    Parameters
+    ----------
+    params
+        JSON-serialisable parameters, e.g. ``Config.stage_params("triangulation")``.
+
+    Returns
+    -------
+    str
+        16 lowercase hex digits.
+    """
+    text = json.dumps(params, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def stage_provenance(config, stage: str, upstream: Mapping[str, str | Path | None] | None = None) -> dict:
+    """The provenance entries of a stage artifact's ``meta``.
+
+    Parameters
+    ----------
+    config
+        The run's :class:`~flylib.config.Config`.
+    stage
+        The stage (a :data:`flylib.config.PARAM_STAGES` name).
+    upstream
+        ``upstream stage -> artifact path`` the stage read (``None`` entries skipped).
+
+    Returns
+    -------
+    dict
+        ``{"params_sha256": ..., "upstream_params_sha256": {stage: hash}}``.
+    """
+    from .results import read_meta
+
+    out: dict[str, Any] = {
+        PARAMS_KEY: params_hash(config.stage_params(stage)),
+        WRITER_KEY: {"host": socket.gethostname(), "cwd": os.getcwd()},
+    }
+    hashes = {}
+    for name, path in (upstream or {}).items():
+        if path:
+            hashes[name] = read_meta(path).get(PARAMS_KEY)
+    if hashes:
+        out[UPSTREAM_KEY] = hashes
+    return out
+
+
+@dataclass
+class ProvenanceRow:
+    """One stage of a results file: what it records and what a config would give.
+
+    Attributes
+    ----------
+    stage
+        The stage (``assemble`` for the file itself).
+    recorded
+        The params hash the stage recorded, or ``None`` (an older flylib).
+    expected
+        The hash the compared config gives, or ``None`` without a config.
+    problems
+        One line per inconsistency (empty when consistent).
+    status
+        ``ok``, ``stale`` (params differ from the config's), ``mixed`` (built from
+        other upstream artifacts) or ``unknown`` (no hash recorded).
+    """
+
+    stage: str
+    recorded: str | None
+    expected: str | None
+    problems: list[str]
+    status: str
+
+
+def _group_metas(path: Path) -> tuple[dict, dict[str, dict]]:
+    from .results import open_checked, read_meta_from
+
+    with open_checked(path, "pass a results.h5 a run wrote") as f:
+        root = read_meta_from(f)
+        groups = {stage: read_meta_from(f[stage]) for stage in _STAGE_ORDER if stage in f}
+    return root, groups
+
+
+def snapshot_beside(results: str | Path) -> Path | None:
+    """The config snapshot the workflow writes beside ``results.h5``, if there is one."""
+    results = Path(results)
+    for name in ("config.yaml", "config.toml"):
+        candidate = results.parent / name
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def provenance_report(results: str | Path, config=None, stages_dir: str | Path | None = None) -> list[ProvenanceRow]:
+    """Check a results file's recorded params hashes for a stale or mixed state.
+
+    Parameters
+    ----------
+    results
+        A ``results.h5`` written by the assemble stage.
+    config
+        A :class:`~flylib.config.Config` to compare with (e.g. the snapshot beside the
+        file, or the config a re-run would use); ``None`` checks only consistency.
+    stages_dir
+        The ``stages/`` directory the file was assembled from (default: beside it,
+        when it exists); each artifact there must carry the hash the file holds.
+
+    Returns
+    -------
+    list of ProvenanceRow
+        One row per stage in the file, then ``assemble``.
+    """
+    from .results import read_meta
+
+    results = Path(results)
+    root, groups = _group_metas(results)
+    recorded = {stage: meta.get(PARAMS_KEY) for stage, meta in groups.items()}
+    if stages_dir is None and (results.parent / "stages").is_dir():
+        stages_dir = results.parent / "stages"
+    rows = []
+    for stage, meta in [*groups.items(), ("assemble", root)]:
+        own = meta.get(PARAMS_KEY)
+        problems: list[str] = []
+        status = "unknown" if own is None else "ok"
+        expected = params_hash(config.stage_params(stage)) if config is not None else None
+        if expected is not None and own is not None and own != expected:
+            status = "stale"
+            problems.append(f"{results}: {stage} is stale: made with params {own}, but the config "
+                            f"gives {expected}; re-run the workflow with that config")
+        for upstream, built_from in (meta.get(UPSTREAM_KEY) or {}).items():
+            present = recorded.get(upstream)
+            if upstream in recorded and built_from != present:
+                status = "mixed" if status != "stale" else status
+                problems.append(f"{results}: {stage} was built from {upstream} params {built_from}, but "
+                                f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow")
+        if stages_dir is not None and stage != "assemble":
+            from .stages import ARTIFACTS
+
+            artifact = Path(stages_dir) / ARTIFACTS[stage]
+            if artifact.is_file():
+                on_disk = read_meta(artifact).get(PARAMS_KEY)
+                if on_disk != own:
+                    status = "mixed" if status != "stale" else status
+                    problems.append(f"{artifact}: params {on_disk}, but {results.name} holds {stage} with "
+                                    f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow")
+        rows.append(ProvenanceRow(stage, own, expected, problems, status))
+    return rows
+
+
+def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> list[str]:
+    """Artifacts another working directory's run wrote with other params.
+
+    Snakemake tracks params per working directory: a run from another directory
+    that wrote the same output directory with another config leaves artifacts this
+    run's Snakemake takes as up to date ("Nothing to be done"). Each such artifact
+    (its recorded writer's working directory differs from ``cwd`` and its params
+    hash from what ``config`` gives) is one line naming it and the fix.
+
+    Parameters
+    ----------
+    config
+        The run's config.
+    recordings
+        The planned recordings (objects with an ``outdir``).
+    cwd
+        This run's working directory (default: the current one).
+
+    Returns
+    -------
+    list of str
+        One warning line per foreign artifact.
+    """
+    from .errors import ResultsError
+    from .results import read_meta
+    from .stages import ARTIFACTS
+
+    here = str(Path(cwd or os.getcwd()).resolve())
+    flags = config.stage_flags()
+    lines = []
+    for rec in recordings:
+        outdir = Path(rec.outdir)
+        files = {stage: outdir / "stages" / name for stage, name in ARTIFACTS.items() if flags.get(stage)}
+        files["assemble"] = outdir / "results.h5"
+        for stage, path in files.items():
+            if not path.is_file():
+                continue
+            try:
+                meta = read_meta(path)
+            except ResultsError:  # an unreadable file is the stage's own error, later
+                meta = {}
+            writer = meta.get(WRITER_KEY) or {}
+            recorded = meta.get(PARAMS_KEY)
+            if not writer.get("cwd") or recorded is None:
+                continue
+            if str(Path(writer["cwd"]).resolve()) == here:
+                continue
+            expected = params_hash(config.stage_params(stage))
+            if recorded != expected:
+                lines.append(
+                    f"{path}: written by a run from {writer['cwd']} on {writer.get('host')} with other "
+                    f"{stage} params ({recorded}, this config gives {expected}); this run's Snakemake "
+                    f"does not know it and may take it as up to date: delete it or re-run with "
+                    f"--forcerun {stage}"
+                )
+    return lines
