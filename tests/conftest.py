@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+# FLYLIB_SHARED_DATA: the sample data elsewhere than ../shared/data (e.g. from a worktree).
+SHARED_DATA = Path(os.environ.get("FLYLIB_SHARED_DATA") or REPO_ROOT.parent / "shared" / "data")
 
 
 def _shared_subdir(name: str) -> Path:
