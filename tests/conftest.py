@@ -39,3 +39,17 @@ def df3d_pickle(df3d_sample_dir: Path) -> Path:
     if not path.is_file():
         pytest.skip(f"{path} is absent")
     return path
+
+
+# Hypothesis profiles (tests/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
+# under a minute in all; `pytest --hypothesis-profile=long` runs many more examples.
+try:
+    from hypothesis import HealthCheck, settings
+except ImportError:  # hypothesis is in the `test` extra; the fuzz tests skip without it
+    pass
+else:
+    _fuzz = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+                 derandomize=False, print_blob=True)
+    settings.register_profile("flylib", max_examples=40, **_fuzz)
+    settings.register_profile("long", max_examples=2000, **_fuzz)
+    settings.load_profile("flylib")
