@@ -283,7 +283,8 @@ def damaged_h5(draw, seed: bytes) -> bytes:
             if op == "attr" and len(obj.attrs):
                 key = draw(st.sampled_from(sorted(obj.attrs)))
                 obj.attrs[key] = draw(st.one_of(
-                    st.binary(max_size=40).map(np.bytes_), st.integers(-5, 5), st.text(max_size=8),
+                    st.binary(max_size=40).map(np.bytes_), st.integers(-5, 5),
+                    st.text(st.characters(exclude_characters="\x00"), max_size=8),
                     st.sampled_from([b"(lp0\n.", b"N.", b"(dp0\n.", b"cos\nsystem\n(S'touch pwned'\ntR.",
                                      b"(lp0\n(I0\nI1\ntp1\na.", b"I5\n."]).map(np.bytes_),
                 ))

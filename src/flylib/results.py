@@ -206,8 +206,11 @@ def _read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
     try:
         with open_checked(path, rerun) as f:
             yield f
-    except FlylibError:
+    except ResultsError:
         raise
+    except FlylibError as err:  # stored content a constructor refuses (e.g. a skeleton's limbs)
+        detail = " ".join(str(err).split())[:300]
+        raise ResultsError(f"{path}: invalid content ({detail}); {rerun}") from None
     except _DAMAGE_ERRORS as err:
         detail = " ".join(str(err).split())[:300]
         raise ResultsError(

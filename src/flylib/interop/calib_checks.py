@@ -20,7 +20,7 @@ _DIST_TEXT = (f"at most {N_DIST_COEFFS} OpenCV-order distortion coefficients "
 def _describe(value) -> str:
     if isinstance(value, np.ndarray):
         return f"an array of shape {value.shape} and dtype {value.dtype}"
-    text = repr(value)
+    text = " ".join(repr(value).split())
     return f"a {type(value).__name__} ({text[:40]}{'...' if len(text) > 40 else ''})"
 
 

@@ -87,6 +87,9 @@ def _read_csv_frame(path: Path) -> pd.DataFrame:
         raise ImportFormatError(
             f"{path}: not a DeepLabCut CSV (expected header rows scorer/bodyparts/coords)"
         )
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ImportFormatError(f"{path}: header rows {repeated} given twice; keep one of each")
     # DeepLabCut's labelled-data files index rows by several columns (left blank in the header).
     first = header[0]
     n_index = 1 + next((i for i, cell in enumerate(first[1:]) if cell.strip()), len(first) - 1)
@@ -130,7 +133,7 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
 def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> ViewKeypoints:
     columns = frame.columns
     names = list(columns.names)
-    if "bodyparts" not in names or "coords" not in names:
+    if not {"scorer", "bodyparts", "coords"} <= set(names) or len(set(names)) != len(names):
         raise ImportFormatError(
             f"{path}: header has levels {names}; expected DeepLabCut's scorer/bodyparts/coords"
         )
@@ -226,6 +229,14 @@ def _pandas_group(fh: h5py.File, path: Path) -> h5py.Group:
     raise ImportFormatError(f"{path}: holds no pandas DataFrame; not a DeepLabCut .h5")
 
 
+def _real_block(values) -> np.ndarray:
+    """A pandas value block as float64; other kinds (text, complex) are not keypoints."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "biuf":
+        raise ValueError(f"a value block of dtype {values.dtype}, not real numbers")
+    return values.astype(np.float64)
+
+
 def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
     """pandas ``format="fixed"``: level arrays + codes for the columns, one value block."""
     nlevels = int(group.attrs.get("block0_items_nlevels", 1))
@@ -238,7 +249,7 @@ def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
         codes.append(np.asarray(group[f"block0_items_label{i}"][()], dtype=int))
         names.append(_text([level.attrs["name"]])[0])
     columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
-    return pd.DataFrame(np.asarray(group["block0_values"][()], dtype=np.float64), columns=columns)
+    return pd.DataFrame(_real_block(group["block0_values"][()]), columns=columns)
 
 
 def _table_frame(group: h5py.Group) -> pd.DataFrame:
@@ -251,7 +262,7 @@ def _table_frame(group: h5py.Group) -> pd.DataFrame:
     for field in data.dtype.names:
         if not field.startswith("values_block_"):
             continue
-        values = np.asarray(data[field], dtype=np.float64).reshape(len(data), -1)
+        values = _real_block(data[field]).reshape(len(data), -1)
         blocks.append(values)
         columns += [tuple(c) for c in _plain_pickle(table.attrs[f"{field}_kind"])]
     index = pd.MultiIndex.from_tuples(columns, names=names or None)

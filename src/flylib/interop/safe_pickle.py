@@ -39,8 +39,15 @@ def _numpy_helpers() -> dict[tuple[str, str], object]:
     return out
 
 
+def _latin1_bytes(text, encoding: str = "latin1") -> bytes:
+    """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, nothing else
+    (no other codec -- compressors, ROT13, unknown names -- is reachable from a file)."""
+    if not isinstance(text, str) or not isinstance(encoding, str) or encoding.lower().replace("-", "").replace("_", "") not in ("latin1", "iso88591"):
+        raise pickle.UnpicklingError(f"_codecs.encode with {type(text).__name__} and {encoding!r}")
+    return text.encode("latin-1")
+
+
 def _builtins() -> dict[tuple[str, str], object]:
-    import _codecs
     import builtins
     from collections import OrderedDict
 
@@ -50,7 +57,7 @@ def _builtins() -> dict[tuple[str, str], object]:
     for module in ("builtins", "__builtin__"):  # __builtin__: pickles written by Python 2
         out.update({(module, name): getattr(builtins, name) for name in plain})
     # Python 3 writes bytes in protocols 0-2 as _codecs.encode(text, "latin1").
-    out[("_codecs", "encode")] = _codecs.encode
+    out[("_codecs", "encode")] = _latin1_bytes
     out[("collections", "OrderedDict")] = OrderedDict
     return out
 
