@@ -427,3 +427,26 @@ def test_df3d_calibration_bad_value_names_camera_and_key(tmp_path, key, value, m
 
 def test_errors_are_flylib_errors():
     assert issubclass(ImportFormatError, FlylibError)
+
+
+# -- detector checkpoints ---------------------------------------------------------------------
+
+
+def test_checkpoint_with_a_payload_is_refused_and_never_runs(tmp_path):
+    torch = pytest.importorskip("torch")
+    from flylib.errors import WeightsError
+    from flylib.pose2d.weights import read_state_dict
+
+    target = tmp_path / "pwned"
+    path = tmp_path / "evil.tar"
+    torch.save({"state_dict": {"conv1.weight": torch.zeros(1)}, "hook": _TouchFile(target)}, path)
+    with pytest.raises(WeightsError, match=r"evil\.tar: cannot read the checkpoint \(UnpicklingError") as err:
+        read_state_dict(path)
+    _one_line(err)
+    assert not target.exists()
+    good = tmp_path / "good.tar"
+    torch.save({"state_dict": {"module.conv1.weight": torch.ones(2)}}, good)
+    assert list(read_state_dict(good)) == ["conv1.weight"]
+    (tmp_path / "cut.tar").write_bytes(good.read_bytes()[:100])
+    with pytest.raises(WeightsError, match=r"cut\.tar: cannot read the checkpoint"):
+        read_state_dict(tmp_path / "cut.tar")
