@@ -48,8 +48,8 @@ try:
 except ImportError:  # hypothesis is in the `test` extra; the fuzz tests skip without it
     pass
 else:
-    _fuzz = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-                 derandomize=False, print_blob=True)
+    _fuzz = {"deadline": None, "print_blob": True,
+             "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large]}
     settings.register_profile("flylib", max_examples=40, **_fuzz)
     settings.register_profile("long", max_examples=2000, **_fuzz)
     settings.load_profile("flylib")

@@ -13,8 +13,10 @@ a minute; ``pytest tests/test_fuzz_loaders.py --hypothesis-profile=long`` runs m
 
 from __future__ import annotations
 
+import atexit
 import pickle
 import re
+import shutil
 import tempfile
 from functools import lru_cache
 from pathlib import Path
@@ -24,12 +26,12 @@ import numpy as np
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import given  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-from hypothesis.extra import numpy as hnp  # noqa: E402
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
-from flylib.errors import ConfigError, FlylibError  # noqa: E402
-from flylib.interop import (  # noqa: E402
+from flylib.errors import ConfigError, FlylibError
+from flylib.interop import (
     read_anipose_toml,
     read_df3d_calibration,
     read_df3d_points2d,
@@ -42,6 +44,7 @@ from flylib.interop import (  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data" / "interop"
 WORK = Path(tempfile.mkdtemp(prefix="flylib-fuzz-"))
+atexit.register(shutil.rmtree, WORK, True)
 
 
 def _check(load, path: Path, *, multiline_ok: bool = False):
@@ -423,7 +426,13 @@ def _results_seeds() -> tuple[bytes, bytes]:
 
 @given(st.data())
 def test_fuzz_results_h5(data):
-    from flylib.results import Pose2dData, PoseResult, read_cameras, read_skeleton, read_stage
+    from flylib.results import (
+        Pose2dData,
+        PoseResult,
+        read_cameras,
+        read_skeleton,
+        read_stage,
+    )
 
     results, stage = _results_seeds()
     path = _write("results_fuzz.h5", data.draw(damaged_h5(results)))
