@@ -50,6 +50,8 @@ except ImportError:  # hypothesis is in the `test` extra; the fuzz tests skip wi
 else:
     _fuzz = {"deadline": None, "print_blob": True,
              "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large]}
-    settings.register_profile("flylib", max_examples=40, **_fuzz)
+    # derandomized: the same examples every run, so CI is reproducible (libhdf5 itself can
+    # loop forever on some damaged attribute headers, which random runs may reach)
+    settings.register_profile("flylib", max_examples=80, derandomize=True, **_fuzz)
     settings.register_profile("long", max_examples=2000, **_fuzz)
     settings.load_profile("flylib")

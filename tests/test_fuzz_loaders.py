@@ -8,7 +8,12 @@ or raises flylib's own error (a :class:`flylib.errors.FlylibError`) whose messag
 the file in one line -- never another exception type.
 
 The default Hypothesis profile ("flylib", tests/conftest.py) keeps the whole file under
-a minute; ``pytest tests/test_fuzz_loaders.py --hypothesis-profile=long`` runs many more.
+a minute (derandomized, so every run checks the same cases);
+``pytest tests/test_fuzz_loaders.py --hypothesis-profile=long`` runs many more, random ones.
+Known limit found that way: libhdf5 itself can loop forever reading the attributes of a
+results.h5 whose object header bytes are damaged (``f.attrs.get`` never returns), which no
+Python-level handling can turn into an error; HDF5's checksummed metadata
+(``libver="latest"`` object headers) would detect such damage instead.
 """
 
 from __future__ import annotations
