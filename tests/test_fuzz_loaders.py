@@ -13,7 +13,7 @@ a minute (derandomized, so every run checks the same cases);
 Known limit found that way: libhdf5 itself can loop forever reading the attributes of a
 results.h5 whose object header bytes are damaged (``f.attrs.get`` never returns), which no
 Python-level handling can turn into an error; HDF5's checksummed metadata
-(``libver="latest"`` object headers) would detect such damage instead.
+(``libver="latest"`` object headers) should detect such damage instead (not verified here).
 """
 
 from __future__ import annotations
