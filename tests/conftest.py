@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+# FLYLIB_SHARED_DATA: the sample data elsewhere than ../shared/data (e.g. from a worktree).
+SHARED_DATA = Path(os.environ.get("FLYLIB_SHARED_DATA") or REPO_ROOT.parent / "shared" / "data")
 
 
 def _shared_subdir(name: str) -> Path:
@@ -37,3 +39,19 @@ def df3d_pickle(df3d_sample_dir: Path) -> Path:
     if not path.is_file():
         pytest.skip(f"{path} is absent")
     return path
+
+
+# Hypothesis profiles (tests/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
+# under a minute in all; `pytest --hypothesis-profile=long` runs many more examples.
+try:
+    from hypothesis import HealthCheck, settings
+except ImportError:  # hypothesis is in the `test` extra; the fuzz tests skip without it
+    pass
+else:
+    _fuzz = {"deadline": None, "print_blob": True,
+             "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large]}
+    # derandomized: the same examples every run, so CI is reproducible (libhdf5 itself can
+    # loop forever on some damaged attribute headers, which random runs may reach)
+    settings.register_profile("flylib", max_examples=80, derandomize=True, **_fuzz)
+    settings.register_profile("long", max_examples=2000, **_fuzz)
+    settings.load_profile("flylib")

@@ -365,7 +365,7 @@ def test_anipose_toml_errors(tmp_path):
     bad = tmp_path / "bad.toml"
     # the seed document's example puts (cx, cy) in K's last row: not a camera matrix
     bad.write_text(ANIPOSE_TOML.replace("[0.0, 0.0, 1.0]]\ndistortions = [-0.12", "[1451.1, 993.0, 1.0]]\ndistortions = [-0.12"))
-    with pytest.raises(ImportFormatError, match=r"\[cam_0\]: matrix must be"):
+    with pytest.raises(ImportFormatError, match=r"\[cam_0\] \(name 'left'\): 'matrix' is .*; it must be a 3x3 camera matrix"):
         read_anipose_toml(bad)
     good = tmp_path / "good.toml"
     good.write_text(ANIPOSE_TOML)

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .errors import ResultsError
+from .errors import FlylibError, ResultsError
 from .paths import atomic_path, out_of_space
 from .resources import usable_cpus
 from .skeleton import Skeleton
@@ -405,6 +405,32 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
             raise _damaged(path, "an HDF5 object", err) from None
 
 
+#: What reading a damaged file raises below flylib: h5py's OSError (a bad B-tree, a
+#: failed filter or checksum, a truncated file), KeyError (a link that does not resolve),
+#: ValueError/TypeError (a dataset of another dtype or shape), RuntimeError (low-level
+#: HDF5 failures), and IndexError/AttributeError (JSON attributes of an unexpected type).
+_DAMAGE_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError)
+
+
+@contextmanager
+def _read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
+    """:func:`open_checked` for the loaders: a read that fails inside the block (the
+    file is damaged) raises :class:`ResultsError` naming the file, not h5py's error."""
+    try:
+        with open_checked(path, rerun) as f:
+            yield f
+    except ResultsError:
+        raise
+    except FlylibError as err:  # stored content a constructor refuses (e.g. a skeleton's limbs)
+        detail = " ".join(str(err).split())[:300]
+        raise ResultsError(f"{path}: invalid content ({detail}); {rerun}") from None
+    except _DAMAGE_ERRORS as err:
+        detail = " ".join(str(err).split())[:300]
+        raise ResultsError(
+            f"{path}: damaged or unreadable ({type(err).__name__}: {detail}); {rerun}"
+        ) from None
+
+
 def read_meta_from(f: h5py.File) -> dict:
     """The ``meta`` JSON of an open file (empty when absent or unreadable)."""
     raw = f.attrs.get("meta")
@@ -492,7 +518,7 @@ def read_skeleton(path: str | Path) -> Skeleton:
     ResultsError
         If the file is missing, of another version, or has no skeleton.
     """
-    with open_checked(path, "re-run the pipeline") as f:
+    with _read_checked(path, "re-run the pipeline") as f:
         if "skeleton" not in f:
             raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
         return _read_skeleton(f["skeleton"])
@@ -513,7 +539,7 @@ def read_cameras(path: str | Path, group: str) -> CameraGroup:
     ResultsError
         If the file is missing, of another version, or has no such rig.
     """
-    with open_checked(path, f"re-run {group}") as f:
+    with _read_checked(path, f"re-run {group}") as f:
         if f"{group}/cameras" not in f:
             raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")
         return _read_cameras(f[f"{group}/cameras"])
@@ -528,11 +554,11 @@ def read_image_sizes(path: str | Path) -> dict[str, tuple[int, int]]:
     ResultsError
         If the file is missing, of another version, or has no pose2d group.
     """
-    with open_checked(path, "re-run the pose2d stage") as f:
+    with _read_checked(path, "re-run the pose2d stage") as f:
         if "pose2d" not in f:
             raise ResultsError(f"{path}: has no pose2d group; re-run the pose2d stage")
         sizes = _read_json_attrs(f["pose2d"]).get("image_sizes") or {}
-    return {str(k): (int(v[0]), int(v[1])) for k, v in sizes.items()}
+        return {str(k): (int(v[0]), int(v[1])) for k, v in sizes.items()}
 
 
 # -- the assembled result ------------------------------------------------------
@@ -669,7 +695,7 @@ class PoseResult:
             or no rig.
         """
         rerun = "re-run the pipeline"
-        with open_checked(path, rerun) as f:
+        with _read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
             if "skeleton" not in f:
@@ -698,16 +724,16 @@ class PoseResult:
             conf = first("conf", ("pose2d",))
             sizes = _read_json_attrs(f["pose2d"]).get("image_sizes")
             _check_group(path, f, skip=read)  # damage in what was not loaded is damage too
-        return cls(
-            cameras=cameras,
-            skeleton=skeleton,
-            pts2d=pts2d,
-            conf=conf,
-            pts3d=pts3d,
-            reproj_error=reproj,
-            meta=meta,
-            image_sizes=None if sizes is None else {k: tuple(v) for k, v in sizes.items()},
-        )
+            return cls(  # inside the block: a shape mismatch of a damaged file names the file
+                cameras=cameras,
+                skeleton=skeleton,
+                pts2d=pts2d,
+                conf=conf,
+                pts3d=pts3d,
+                reproj_error=reproj,
+                meta=meta,
+                image_sizes=None if sizes is None else {k: tuple(v) for k, v in sizes.items()},
+            )
 
 
 # -- the pose2d artifact -------------------------------------------------------
@@ -750,7 +776,7 @@ def load_candidates(path: str | Path) -> Any:
         If the file is missing, of another version, or holds no candidates.
     """
     rerun = "re-run the pose2d stage with pictorial structures on"
-    with open_checked(path, rerun) as f:
+    with _read_checked(path, rerun) as f:
         if "candidates/xy" not in f:
             raise ResultsError(f"{path}: holds no candidate peaks; {rerun}")
         return _make_candidates(_read(f["candidates/xy"]), _read(f["candidates/score"]))
@@ -839,7 +865,7 @@ class Pose2dData:
             If the file is missing, of another version, or has no pose2d group.
         """
         rerun = "re-run the pose2d stage"
-        with open_checked(path, rerun) as f:
+        with _read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group; {rerun}")
             group = f["pose2d"]
@@ -926,7 +952,7 @@ def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
         If the file is missing, of another version, or lacks the group.
     """
     rerun = f"re-run the {stage} stage"
-    with open_checked(path, rerun) as f:
+    with _read_checked(path, rerun) as f:
         if stage not in f:
             raise ResultsError(f"{path}: has no {stage} group; {rerun}")
         group = f[stage]

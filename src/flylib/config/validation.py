@@ -121,7 +121,7 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
             if not isinstance(slot, Mapping):
                 problems.append(f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}")
                 continue
-            extra = sorted(set(slot) - {"pathway", "out_channel"})
+            extra = sorted(str(k) for k in set(slot) - {"pathway", "out_channel"})
             if extra:
                 problems.append(f"{where}: unknown key(s) {', '.join(extra)} (known: pathway, out_channel)")
             has_pathway = _reference(slot.get("pathway"), pathways, "pathway", f"{where}.pathway", problems)

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
 
-from ..errors import ImportFormatError
+from ..errors import FlylibError, ImportFormatError
+
+#: What h5py raises while reading a damaged or unexpected file: OSError for storage-level
+#: damage (a bad B-tree, a failed filter or checksum, a truncated file), KeyError for a
+#: link that does not resolve, ValueError/TypeError for a dtype or selection that does
+#: not convert, RuntimeError for a few low-level HDF5 failures.
+H5_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
 
 
 def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
@@ -26,5 +34,27 @@ def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
         raise ImportFormatError(f"{path}: no such {what}; {hint}")
     try:
         return h5py.File(path, "r")
-    except OSError as exc:
-        raise ImportFormatError(f"{path}: not an HDF5 file ({exc})") from exc
+    except H5_READ_ERRORS as exc:
+        raise ImportFormatError(f"{path}: not an HDF5 file ({_one_line(exc)})") from exc
+
+
+@contextmanager
+def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.File]:
+    """:func:`open_foreign_h5` as a context whose h5py read errors become one line.
+
+    Errors raised while reading inside the block (:data:`H5_READ_ERRORS`) are re-raised
+    as :class:`ImportFormatError` naming ``path``; flylib's own errors pass unchanged.
+    """
+    with open_foreign_h5(path, what, hint) as fh:
+        try:
+            yield fh
+        except FlylibError:
+            raise
+        except H5_READ_ERRORS as exc:
+            raise ImportFormatError(
+                f"{path}: damaged or not a {what} ({type(exc).__name__}: {_one_line(exc)}); {hint}"
+            ) from None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:300]

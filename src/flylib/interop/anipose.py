@@ -38,6 +38,7 @@ import numpy as np
 from ..errors import ImportFormatError
 from ..paths import atomic_path
 from . import views as _views
+from .calib_checks import camera_value, image_size
 
 log = logging.getLogger(__name__)
 
@@ -63,9 +64,12 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such Anipose calibration file; check calibration.file")
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ImportFormatError(f"{path}: not valid TOML ({exc})") from exc
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        detail = " ".join(str(exc).split())
+        raise ImportFormatError(f"{path}: not valid TOML ({detail}); fix the syntax") from None
+    except OSError as exc:
+        raise ImportFormatError(f"{path}: cannot read the calibration ({exc.strerror or exc})") from None
     tables = {k: v for k, v in data.items() if k.startswith("cam_") and isinstance(v, dict)}
 
     def order(key: str):
@@ -75,28 +79,23 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
     out: dict[str, dict] = {}
     for key in sorted(tables, key=order):
         table = tables[key]
-        where = f"{path} [{key}]"
+        name = table.get("name", key)
+        name = str(name) if isinstance(name, int) and not isinstance(name, bool) else name
+        if not isinstance(name, str) or not name:
+            raise ImportFormatError(f"{path} [{key}]: 'name' is {name!r}; it must be the camera's name (text)")
+        where = f"{path} [{key}] (name {name!r})"
         missing = [k for k in ("matrix", "distortions", "rotation", "translation") if k not in table]
         if missing:
             raise ImportFormatError(f"{where}: lacks {missing}; see the Anipose calibration format")
-        try:
-            kmat = np.asarray(table["matrix"], dtype=np.float64).reshape(3, 3)
-            rvec = np.asarray(table["rotation"], dtype=np.float64).reshape(3)
-            tvec = np.asarray(table["translation"], dtype=np.float64).reshape(3)
-            dist = np.asarray(table["distortions"], dtype=np.float64).ravel()
-        except ValueError as exc:
-            raise ImportFormatError(f"{where}: bad array shape ({exc})") from exc
-        skewed = abs(kmat[0, 1]) > 1e-12 * abs(kmat[0, 0]) or kmat[1, 0] != 0
-        if skewed or not np.allclose(kmat[2], [0.0, 0.0, 1.0]):
-            raise ImportFormatError(
-                f"{where}: matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {kmat.tolist()}"
-            )
-        name = str(table.get("name", key))
+        kmat = camera_value(table["matrix"], "matrix", where, "matrix")
+        rvec = camera_value(table["rotation"], "vec3", where, "rotation")
+        tvec = camera_value(table["translation"], "vec3", where, "translation")
+        dist = camera_value(table["distortions"], "dist", where, "distortions")
         if name in out:
             raise ImportFormatError(f"{where}: camera name {name!r} used twice; names must be unique")
         size = table.get("size")
         out[name] = {
-            "size": None if size is None else (int(size[0]), int(size[1])),
+            "size": None if size is None else image_size(size, where),
             "kmat": kmat,
             "dist": dist,
             "rvec": rvec,
@@ -201,7 +200,11 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
     index_csv = Path(index_csv)
     if not index_csv.is_file():
         raise ImportFormatError(f"{index_csv}: no such calibrations index; check calibration.index")
-    table = pd.read_csv(index_csv, index_col=0, dtype=str)
+    try:
+        table = pd.read_csv(index_csv, index_col=0, dtype=str)
+    except (UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError, OSError) as exc:
+        detail = " ".join(str(exc).split())[:300]
+        raise ImportFormatError(f"{index_csv}: not a readable calibrations index CSV ({detail})") from None
     if "file" not in table.columns:
         raise ImportFormatError(
             f"{index_csv}: needs a 'file' column (header ',file'); see the calibrations.csv format"

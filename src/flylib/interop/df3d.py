@@ -33,13 +33,15 @@ Other keys are ignored.
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ImportFormatError
+from .calib_checks import camera_value, numeric_array
+from .safe_pickle import load_restricted
+
 
 def _fly38_names() -> tuple[str, ...]:
     names: list[str] = []
@@ -85,11 +87,7 @@ def _load_pickle(path: Path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such {what}; check the path in the config")
-    try:
-        with path.open("rb") as fh:
-            data = pickle.load(fh)
-    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, ValueError) as exc:
-        raise ImportFormatError(f"{path}: not a readable {what} pickle ({exc})") from exc
+    data = load_restricted(path, what)
     if not isinstance(data, dict):
         raise ImportFormatError(f"{path}: a {what} pickle must hold a dict, got {type(data).__name__}")
     return data
@@ -121,9 +119,12 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
             f"{path}: no 'points2d' key (keys: {sorted(map(str, data))}); "
             "pass DeepFly3D's df3d_result*.pkl"
         )
-    norm = np.asarray(data["points2d"], dtype=np.float64)
+    fix = "pass DeepFly3D's df3d_result*.pkl unchanged"
+    norm = numeric_array(data["points2d"], str(path), "points2d", fix)
     if norm.ndim != 4 or norm.shape[-1] != 2:
-        raise ImportFormatError(f"{path}: 'points2d' has shape {norm.shape}, expected (C, T, J, 2)")
+        raise ImportFormatError(
+            f"{path}: 'points2d' has shape {norm.shape}, expected (cameras, frames, joints, 2); {fix}"
+        )
     n_cams, n_frames, n_joints, _ = norm.shape
     if len(image_sizes) != n_cams:
         raise ImportFormatError(
@@ -138,16 +139,33 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
 
     conf = np.ones((n_cams, n_frames, n_joints))
     if "heatmap_confidence" in data:
-        heat = np.asarray(data["heatmap_confidence"], dtype=np.float64)
-        heat = heat.reshape(heat.shape[:3])
-        if heat.shape[:2] != (n_cams, n_frames) or n_joints % heat.shape[2]:
+        heat = numeric_array(data["heatmap_confidence"], str(path), "heatmap_confidence", fix)
+        if heat.ndim < 3 or heat.size != np.prod(heat.shape[:3]):
             raise ImportFormatError(
-                f"{path}: 'heatmap_confidence' shape {heat.shape} does not fit 'points2d' {norm.shape}"
+                f"{path}: 'heatmap_confidence' has shape {heat.shape}, expected (cameras, frames, channels, 1); {fix}"
+            )
+        heat = heat.reshape(heat.shape[:3])
+        if heat.shape[:2] != (n_cams, n_frames) or heat.shape[2] == 0 or n_joints % heat.shape[2]:
+            raise ImportFormatError(
+                f"{path}: 'heatmap_confidence' shape {heat.shape} does not fit 'points2d' {norm.shape}; {fix}"
             )
         conf = heat[:, :, np.arange(n_joints) % heat.shape[2]]
     conf[missing] = np.nan
-    ordering = np.asarray(data.get("camera_ordering", np.arange(n_cams))).astype(int)
+    ordering = _camera_ordering(data, path, n_cams)
     return Df3dPoints2d(xy=xy, conf=conf, camera_ordering=ordering)
+
+
+def _camera_ordering(data: dict, path: Path, n_cams: int) -> np.ndarray:
+    """``camera_ordering`` as ``(C,)`` distinct integers (default ``0..C-1``)."""
+    if "camera_ordering" not in data:
+        return np.arange(n_cams)
+    fix = (f"it must list {n_cams} distinct integer camera indices (DeepFly3D's cidread2cid); "
+           "delete the key to take the rows in order")
+    ordering = numeric_array(data["camera_ordering"], str(path), "camera_ordering", fix)
+    if (ordering.shape != (n_cams,) or not np.isfinite(ordering).all()
+            or (ordering != np.round(ordering)).any() or len(set(ordering.tolist())) != n_cams):
+        raise ImportFormatError(f"{path}: 'camera_ordering' is {ordering.tolist()}; {fix}")
+    return ordering.astype(int)
 
 
 def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
@@ -171,7 +189,7 @@ def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
     for key, entry in data.items():
         try:
             index = int(key)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             continue  # DeepFly3D stores extra, non-camera keys beside the cameras
         if not isinstance(entry, dict):
             continue
@@ -181,16 +199,16 @@ def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
                 f"{path}: camera {index} lacks {missing}; a DeepFly3D calibration needs "
                 "R (3x3), tvec (3), intr (3x3) and distort (5) per camera"
             )
-        rmat = np.asarray(entry["R"], dtype=np.float64).reshape(3, 3)
-        kmat = np.asarray(entry["intr"], dtype=np.float64).reshape(3, 3)
-        dist = np.asarray(entry.get("distort", np.zeros(5)), dtype=np.float64).ravel()
+        where = f"{path}: camera {index}"
+        rmat = camera_value(entry["R"], "rotmat", where, "R")
         rvec, _ = cv2.Rodrigues(rmat)
         out[index] = {
             "rvec": rvec.ravel(),
-            "tvec": np.asarray(entry["tvec"], dtype=np.float64).ravel(),
-            "kmat": kmat,
-            "dist": dist,
+            "tvec": camera_value(entry["tvec"], "vec3", where, "tvec"),
+            "kmat": camera_value(entry["intr"], "matrix", where, "intr"),
+            "dist": camera_value(entry.get("distort", np.zeros(5)), "dist", where, "distort"),
         }
     if not out:
         raise ImportFormatError(f"{path}: no per-camera entries (integer keys) in the calibration pickle")
     return dict(sorted(out.items()))
+

@@ -9,6 +9,7 @@ Missing detections are empty cells (NaN).
 
 from __future__ import annotations
 
+import csv
 import io
 import pickle
 from dataclasses import dataclass
@@ -19,7 +20,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ImportFormatError
-from ._h5 import open_foreign_h5
+from ._h5 import H5_READ_ERRORS, reading_foreign_h5
+from .safe_pickle import PICKLE_PARSE_ERRORS
 from ..paths import atomic_path
 
 
@@ -50,17 +52,70 @@ class ViewKeypoints:
 _EXACT_FLOATS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 
 
-def _header_depth(path: Path) -> int:
-    """Number of header rows: the leading rows whose first cell is a level name."""
-    levels = {"scorer", "individuals", "bodyparts", "coords"}
-    depth = 0
-    with path.open(newline="") as fh:
-        for line in fh:
-            if line.split(",", 1)[0].strip().strip('"') in levels:
-                depth += 1
-            else:
+_HEADER_LEVELS = ("scorer", "individuals", "bodyparts", "coords")
+
+#: What reading a CSV's text can raise: undecodable bytes, a malformed row, an
+#: oversized field, no rows at all.
+_CSV_ERRORS = (UnicodeDecodeError, csv.Error, pd.errors.ParserError, pd.errors.EmptyDataError,
+               ValueError, OverflowError)
+
+
+def _read_header(path: Path) -> list[list[str]]:
+    """The header rows: the leading rows whose first cell is a DeepLabCut level name."""
+    rows = []
+    with path.open(newline="", encoding="utf-8") as fh:
+        for row in csv.reader(fh):
+            if not row or row[0].strip() not in _HEADER_LEVELS:
                 break
-    return depth
+            rows.append(row)
+    return rows
+
+
+def _read_csv_frame(path: Path) -> pd.DataFrame:
+    """The CSV as a DataFrame with the header rows as a column MultiIndex.
+
+    The header is parsed here, not by pandas: with a multi-row ``header``, pandas takes
+    a first data row whose cells are all empty (a frame with no detections) for the
+    index-name row and drops that frame.
+    """
+    try:
+        header = _read_header(path)
+    except _CSV_ERRORS as exc:
+        raise ImportFormatError(f"{path}: not a readable CSV ({_one_line(exc)})") from None
+    names = [row[0].strip() for row in header]
+    if len(header) < 3 or not {"scorer", "bodyparts", "coords"} <= set(names):
+        raise ImportFormatError(
+            f"{path}: not a DeepLabCut CSV (expected header rows scorer/bodyparts/coords)"
+        )
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ImportFormatError(f"{path}: header rows {repeated} given twice; keep one of each")
+    # DeepLabCut's labelled-data files index rows by several columns (left blank in the header).
+    first = header[0]
+    n_index = 1 + next((i for i, cell in enumerate(first[1:]) if cell.strip()), len(first) - 1)
+    widths = {len(row) for row in header}
+    if len(widths) != 1 or n_index >= len(first):
+        raise ImportFormatError(f"{path}: the header rows have different lengths or no keypoint columns")
+    columns = pd.MultiIndex.from_arrays([row[n_index:] for row in header], names=names)
+    try:
+        frame = pd.read_csv(
+            path, header=None, skiprows=len(header), index_col=list(range(n_index)),
+            names=list(range(len(first))), **_EXACT_FLOATS,
+        )
+    except pd.errors.EmptyDataError:  # a header and no frames
+        frame = pd.DataFrame(np.empty((0, len(columns))))
+    except _CSV_ERRORS as exc:
+        raise ImportFormatError(f"{path}: malformed CSV row ({_one_line(exc)})") from None
+    if frame.shape[1] != len(columns):
+        raise ImportFormatError(
+            f"{path}: rows have {frame.shape[1]} value columns but the header names {len(columns)}"
+        )
+    frame.columns = columns
+    return frame
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:300]
 
 
 def _floats(values: np.ndarray, path: Path) -> np.ndarray:
@@ -78,7 +133,7 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
 def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> ViewKeypoints:
     columns = frame.columns
     names = list(columns.names)
-    if "bodyparts" not in names or "coords" not in names:
+    if not {"scorer", "bodyparts", "coords"} <= set(names) or len(set(names)) != len(names):
         raise ImportFormatError(
             f"{path}: header has levels {names}; expected DeepLabCut's scorer/bodyparts/coords"
         )
@@ -139,12 +194,7 @@ def read_dlc_csv(path: Path, individual: str | None = None) -> ViewKeypoints:
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such DeepLabCut CSV; check pose2d.import.files")
-    depth = _header_depth(path)
-    if depth < 3:
-        raise ImportFormatError(
-            f"{path}: not a DeepLabCut CSV (expected header rows scorer/bodyparts/coords)"
-        )
-    frame = pd.read_csv(path, header=list(range(depth)), index_col=0, **_EXACT_FLOATS)
+    frame = _read_csv_frame(path)
     return _frame_to_view(frame, path, individual)
 
 
@@ -157,7 +207,12 @@ class _PlainUnpickler(pickle.Unpickler):
 
 def _plain_pickle(value) -> object:
     raw = value.tobytes() if isinstance(value, np.ndarray) else bytes(value)
-    return _PlainUnpickler(io.BytesIO(raw)).load()
+    try:
+        return _PlainUnpickler(io.BytesIO(raw)).load()
+    except pickle.UnpicklingError:
+        raise
+    except PICKLE_PARSE_ERRORS as exc:
+        raise pickle.UnpicklingError(f"{type(exc).__name__}: {exc}") from None
 
 
 def _text(values) -> list[str]:
@@ -174,6 +229,14 @@ def _pandas_group(fh: h5py.File, path: Path) -> h5py.Group:
     raise ImportFormatError(f"{path}: holds no pandas DataFrame; not a DeepLabCut .h5")
 
 
+def _real_block(values) -> np.ndarray:
+    """A pandas value block as float64; other kinds (text, complex) are not keypoints."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "biuf":
+        raise ValueError(f"a value block of dtype {values.dtype}, not real numbers")
+    return values.astype(np.float64)
+
+
 def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
     """pandas ``format="fixed"``: level arrays + codes for the columns, one value block."""
     nlevels = int(group.attrs.get("block0_items_nlevels", 1))
@@ -186,7 +249,7 @@ def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
         codes.append(np.asarray(group[f"block0_items_label{i}"][()], dtype=int))
         names.append(_text([level.attrs["name"]])[0])
     columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
-    return pd.DataFrame(np.asarray(group["block0_values"][()], dtype=np.float64), columns=columns)
+    return pd.DataFrame(_real_block(group["block0_values"][()]), columns=columns)
 
 
 def _table_frame(group: h5py.Group) -> pd.DataFrame:
@@ -199,7 +262,7 @@ def _table_frame(group: h5py.Group) -> pd.DataFrame:
     for field in data.dtype.names:
         if not field.startswith("values_block_"):
             continue
-        values = np.asarray(data[field], dtype=np.float64).reshape(len(data), -1)
+        values = _real_block(data[field]).reshape(len(data), -1)
         blocks.append(values)
         columns += [tuple(c) for c in _plain_pickle(table.attrs[f"{field}_kind"])]
     index = pd.MultiIndex.from_tuples(columns, names=names or None)
@@ -220,7 +283,8 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
         When the file is missing or holds no DeepLabCut-layout DataFrame.
     """
     path = Path(path)
-    with open_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:
+    hint = "or import the CSV beside it (format: dlc_csv)"
+    with reading_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:
         group = _pandas_group(fh, path)
         kind = _text([group.attrs.get("pandas_type", b"")])[0]
         try:
@@ -230,10 +294,12 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
                 frame = _fixed_frame(group)
             else:
                 raise ValueError(f"pandas_type {kind!r} is not a DataFrame")
-        except (KeyError, ValueError, TypeError, pickle.UnpicklingError) as exc:
+        except pickle.UnpicklingError as exc:
             raise ImportFormatError(
-                f"{path}: not a DeepLabCut DataFrame ({exc}); or import the CSV beside it (format: dlc_csv)"
-            ) from exc
+                f"{path}: refused or unreadable pickled pandas metadata ({_one_line(exc)}); {hint}"
+            ) from None
+        except (*H5_READ_ERRORS, AttributeError, IndexError, EOFError) as exc:
+            raise ImportFormatError(f"{path}: not a DeepLabCut DataFrame ({_one_line(exc)}); {hint}") from None
     return _frame_to_view(frame, path, individual)
 
 

@@ -229,9 +229,17 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
             path, data.camera_ordering.tolist(), pickle_views,
         )
     n_joints = data.xy.shape[2]
+    keypoint_map = spec.get("keypoint_map") or {}
     default = df3d_joint_to_fly38 if n_joints == 38 else None
+    unmapped = [j for j in range(n_joints) if str(j) not in {str(k) for k in keypoint_map}]
+    if default is None and unmapped:
+        raise ImportFormatError(
+            f"{path}: 'points2d' has {n_joints} joints, but only DeepFly3D's 38 map to the "
+            f"fly38 skeleton by default; set pose2d.import.keypoint_map {{joint index: skeleton "
+            f"point name or null}} for joints {_ranges(unmapped)}"
+        )
     targets = _point_targets(
-        list(range(n_joints)), spec.get("keypoint_map") or {}, points, str(path), default
+        list(range(n_joints)), keypoint_map, points, str(path), default
     )
     n_frames = data.xy.shape[1]
     _check_frames(
@@ -251,7 +259,60 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
         v = views.index(view)
         pts[v][:, dst_p] = data.xy[row][:, src_j]
         conf[v][:, dst_p] = data.conf[row][:, src_j]
-    return pts, conf, {v: sizes[v] for v in sized}
+    return pts, conf, {v: sizes[v] for v in sized}, {v: path for v in sized}
+
+
+def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], points: list[str]) -> None:
+    """Warn, per file, about skeleton points the other views' files give and it does not.
+
+    A per-view file lacking body parts the others have (a column dropped, a part renamed
+    and mapped away) leaves those points missing in that view; say so, naming the file.
+    """
+    given = set().union(*filled.values()) if filled else set()
+    for view, have in filled.items():
+        lacking = sorted(given - have)
+        if lacking and len(filled) > 1:
+            log.warning(
+                "%s: has no columns for body parts %s that the other views' files have; "
+                "they are missing in view %r (add them, or map them in pose2d.import.keypoint_map)",
+                files[view], [points[p] for p in lacking], view,
+            )
+
+
+def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
+    """Refuse 2D with no observed point at all; warn about views that observe nothing.
+
+    Decision: an import without a single observed point cannot give a 3D result (bundle
+    adjustment has nothing to fit, triangulation returns only NaN), so it is an error at
+    import, before any later stage runs -- with or without bundle adjustment.
+    """
+    cut = "" if threshold is None else f" at or above likelihood_threshold {threshold}"
+    observed = np.isfinite(pts).all(-1).any(axis=(1, 2))  # (V,)
+    files = list(dict.fromkeys(str(f) for f in origin.values()))
+    if not observed.any():
+        raise ImportFormatError(
+            f"{', '.join(files) or 'pose2d.import'}: the imported 2D has no observed point{cut} in any "
+            "view or frame, so there is nothing to reconstruct; check the files, "
+            "pose2d.import.keypoint_map and pose2d.import.likelihood_threshold"
+        )
+    for v, view in enumerate(views):
+        if view in origin and not observed[v]:
+            log.warning(
+                "%s: no observed point%s in view %r in any frame; the view contributes nothing",
+                origin[view], cut, view,
+            )
+
+
+def _ranges(indices: list[int]) -> str:
+    """``[0, 1, 2, 5]`` -> ``"0-2, 5"`` (a short list of joint indices for messages)."""
+    parts, start = [], None
+    for i, j in enumerate(indices):
+        if start is None:
+            start = j
+        if i + 1 == len(indices) or indices[i + 1] != j + 1:
+            parts.append(str(start) if start == j else f"{start}-{j}")
+            start = None
+    return ", ".join(parts)
 
 
 def _read_view(fmt: str, path: Path, spec: dict) -> ViewKeypoints:
@@ -278,18 +339,21 @@ def _import_per_view(spec, config, recording_dir, views, points):
     ) if present else 0
     pts = np.full((len(views), n_frames, len(points), 2), np.nan)
     conf = np.full((len(views), n_frames, len(points)), np.nan)
+    filled: dict[str, set[int]] = {}
     for view in present:
         kp = read[view]
         targets = _point_targets(kp.names, keypoint_map, points, str(kp.source))
         v = views.index(view)
+        filled[view] = {p for p in targets if p is not None}
         for k, p in enumerate(targets):
             if p is not None:
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
+    _warn_missing_parts(filled, {v: files[v] for v in present}, points)
     sizes = _views.image_sizes(
         footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
     )
-    return pts, conf, sizes
+    return pts, conf, sizes, {v: files[v] for v in present}
 
 
 def import_points2d(config, recording_dir: Path, spec: dict | None = None):
@@ -323,15 +387,16 @@ def import_points2d(config, recording_dir: Path, spec: dict | None = None):
     views = _views.view_names(config)
     points = _skeleton_points(config)
     if spec["format"] == "deepfly3d":
-        pts, conf, sizes = _import_deepfly3d(spec, config, recording_dir, views, points)
+        pts, conf, sizes, origin = _import_deepfly3d(spec, config, recording_dir, views, points)
     else:
-        pts, conf, sizes = _import_per_view(spec, config, recording_dir, views, points)
+        pts, conf, sizes, origin = _import_per_view(spec, config, recording_dir, views, points)
     threshold = spec.get("likelihood_threshold")
     if threshold is not None:
         low = ~(conf >= float(threshold))  # NaN confidences count as below
         pts[low] = np.nan
         conf[low] = np.nan
     pts[~np.isfinite(pts).all(-1)] = np.nan
+    _check_observed(pts, views, origin, threshold)
     log.info(
         "imported %s 2D for %d views x %d frames x %d points from %s",
         spec["format"], pts.shape[0], pts.shape[1], pts.shape[2], recording_dir,

@@ -9,14 +9,18 @@ accepted (told apart by where the length-2 coordinate axis sits).
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ImportFormatError
-from ._h5 import open_foreign_h5
+from ._h5 import reading_foreign_h5
+from .calib_checks import numeric_array
 from .dlc import ViewKeypoints
 from .dlc import _text as _decode
+
+log = logging.getLogger(__name__)
 
 
 def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypoints:
@@ -41,26 +45,39 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
         When the file is missing, lacks ``tracks``/``node_names``, or the track is ambiguous.
     """
     path = Path(path)
-    with open_foreign_h5(path, "SLEAP analysis file", "check pose2d.import.files") as fh:
+    hint = "export it with sleap-convert --format analysis (or sleap_io.save_analysis_h5)"
+    with reading_foreign_h5(path, "SLEAP analysis file", hint) as fh:
         if "tracks" not in fh or "node_names" not in fh:
             raise ImportFormatError(
                 f"{path}: lacks 'tracks'/'node_names'; export it with sleap-convert --format analysis"
             )
         names = _decode(fh["node_names"][()])
-        tracks = np.asarray(fh["tracks"][()], dtype=np.float64)
-        scores = np.asarray(fh["point_scores"][()], dtype=np.float64) if "point_scores" in fh else None
+        tracks = numeric_array(fh["tracks"][()], str(path), "tracks", hint)
+        scores = numeric_array(fh["point_scores"][()], str(path), "point_scores", hint) \
+            if "point_scores" in fh else None
         track_names = _decode(fh["track_names"][()]) if "track_names" in fh else []
     n_nodes = len(names)
     if tracks.ndim != 4:
-        raise ImportFormatError(f"{path}: 'tracks' has shape {tracks.shape}, expected 4 axes")
+        raise ImportFormatError(f"{path}: 'tracks' has shape {tracks.shape}, expected 4 axes; {hint}")
     if tracks.shape[1] == 2 and tracks.shape[2] == n_nodes:  # MATLAB-transposed layout
         tracks = tracks.T  # -> (T, K, 2, n_tracks)
         scores = None if scores is None else scores.T  # -> (T, K, n_tracks)
     elif not (tracks.shape[1] == n_nodes and tracks.shape[2] == 2):
         raise ImportFormatError(
-            f"{path}: 'tracks' shape {tracks.shape} does not fit {n_nodes} nodes"
+            f"{path}: 'tracks' shape {tracks.shape} does not fit {n_nodes} nodes; {hint}"
+        )
+    if scores is not None and scores.shape != tracks.shape[:2] + tracks.shape[3:]:
+        raise ImportFormatError(
+            f"{path}: 'point_scores' shape does not fit 'tracks' {tracks.shape}; {hint}"
         )
     n_tracks = tracks.shape[-1]
+    if n_tracks == 0:  # what SLEAP writes for a video in which nothing was detected
+        log.warning(
+            "%s: holds no tracks (SLEAP detected nothing in this view); its %d frames are "
+            "imported as missing", path, tracks.shape[0],
+        )
+        xy = np.full(tracks.shape[:3], np.nan)
+        return ViewKeypoints(names=names, xy=xy, conf=np.full(xy.shape[:2], np.nan), source=path)
     if track is None:
         if n_tracks > 1:
             raise ImportFormatError(

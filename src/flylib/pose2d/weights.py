@@ -13,7 +13,9 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import pickle
 import re
+import struct
 import tempfile
 import urllib.error
 import urllib.request
@@ -162,6 +164,16 @@ def strip_prefixes(state_dict: dict) -> dict:
     return out
 
 
+#: What ``torch.load(weights_only=True)`` raises on a damaged or foreign file (seen by
+#: fuzzing both the zip and the legacy format): the restricted unpickler's
+#: UnpicklingError (also for a refused global), the zip reader's RuntimeError, and the
+#: parse errors of the pickle stream and its struct-packed records.
+_CHECKPOINT_PARSE_ERRORS = (
+    pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, TypeError, KeyError,
+    IndexError, AttributeError, AssertionError, OverflowError, MemoryError, struct.error,
+)
+
+
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     """The network parameters of a checkpoint file, prefixes stripped.
 
@@ -169,10 +181,13 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     """
     path = Path(path)
     try:
+        # weights_only: torch's own restricted unpickler (tensors and plain containers);
+        # a checkpoint that names any other global is refused, never run.
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a bad file
+    except _CHECKPOINT_PARSE_ERRORS as exc:
+        detail = " ".join(str(exc).split())[:300] or "no detail"
         raise WeightsError(
-            f"{path}: cannot read the checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0]}); "
+            f"{path}: cannot read the checkpoint ({type(exc).__name__}: {detail}); "
             "it must be a torch file holding {'state_dict': ...}"
         ) from None
     state = payload.get("state_dict", payload) if isinstance(payload, dict) else None
