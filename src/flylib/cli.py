@@ -206,7 +206,11 @@ def _print_suspects(path: Path) -> None:
 
     from .suspects import suspects_from_results
 
-    suspects = suspects_from_results(path)
+    try:
+        suspects = suspects_from_results(path)
+    except ResultsError as exc:  # e.g. 3D without reprojection errors: nothing to judge
+        print(f"suspects: not computed ({exc})")
+        return
     reasons = Counter(r for rs in suspects.reasons for r in rs.split(";"))
     detail = ", ".join(f"{name} {n}" for name, n in reasons.most_common())
     print(f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
