@@ -22,8 +22,10 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/demo.smk"
 include: "workflow/rules/pose2d.smk"
 include: "workflow/rules/reconstruction.smk"
+include: "workflow/rules/refinement.smk"
 include: "workflow/rules/results.smk"
 include: "workflow/rules/visualization.smk"
+include: "workflow/rules/kinematics.smk"
 
 
 localrules:

@@ -55,7 +55,8 @@ __all__ = [
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation")
+STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation",
+                                  "refinement")
 
 # Arrays with at least this many elements are chunked and compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
@@ -435,8 +436,9 @@ class PoseResult:
     def load(cls, path: str | Path) -> PoseResult:
         """Read the assembled result back, preferring the most-derived data present.
 
-        ``pts2d``: triangulation, else pictorial_structures, else pose2d. ``pts3d`` and
-        ``reproj_error``: triangulation, else pictorial_structures. Cameras:
+        ``pts2d``: refinement, else triangulation, else pictorial_structures, else
+        pose2d. ``pts3d`` and ``reproj_error``: refinement, else triangulation, else
+        pictorial_structures. Cameras:
         bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d.
 
         Parameters
@@ -472,7 +474,7 @@ class PoseResult:
             def first(name: str, stages: tuple[str, ...]) -> np.ndarray | None:
                 return next((f[f"{s}/{name}"][()] for s in stages if f"{s}/{name}" in f), None)
 
-            derived = ("triangulation", "pictorial_structures")
+            derived = ("refinement", "triangulation", "pictorial_structures")
             pts2d = first("points", (*derived, "pose2d"))
             pts3d = first("points3d", derived)
             reproj = first("reproj_error", derived)
