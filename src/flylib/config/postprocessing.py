@@ -52,7 +52,7 @@ class RefinementParams:
     smooth_order: int = _param(1, _choice(1, 2))
     smooth_scale: float = _param(0.05, _number(0, exclusive=True), kind=float)
     bone_weight: float = _param(1.0, _number(0), kind=float)
-    bone_scale: float = _param(0.01, _number(0, exclusive=True), kind=float)
+    bone_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
     symmetric_bones: bool = _param(False, _boolean)
     rigid_points: tuple[str, ...] | None = _param(None, _string_list(nullable=True), kind=tuple)
     rigid_weight: float = _param(1.0, _number(0), kind=float)

@@ -51,7 +51,7 @@ class RefineOptions:
     smooth_order: int = 1
     smooth_scale: float = 0.05
     bone_weight: float = 1.0
-    bone_scale: float = 0.01
+    bone_scale: float = 0.005
     symmetric_bones: bool = False
     rigid_weight: float = 1.0
     rigid_scale: float = 0.005
