@@ -59,7 +59,7 @@ class RefinementParams:
     rigid_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
     gap_length: int = _param(5, _integer(0))
     outlier_px: float = _param(20.0, _number(0, exclusive=True), kind=float)
-    max_iterations: int = _param(15, _integer(1))
+    max_iterations: int = _param(10, _integer(1))
     chunk_frames: int = _param(1024, _integer(16))
     overlap_frames: int = _param(32, _integer(0))
     moved_fraction: float = _param(0.05, _number(0, exclusive=True), kind=float)

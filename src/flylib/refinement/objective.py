@@ -88,9 +88,10 @@ def chunk_kernel(loss: str, order: int, m: int):
       ``rigid_w``;
     - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram`), ``smooth_w``.
 
-    ``ab`` is the Gauss-Newton matrix (IRLS weights for the robust loss) in LAPACK's
-    upper band storage ``(u + 1, n)``, ``u`` = :func:`band_width`; ``grad`` ``(n,)``
-    the gradient (both halved, so the step solves ``ab d = -grad``); ``err``
+    ``ab`` holds the within-frame part of the Gauss-Newton matrix (IRLS weights for
+    the robust loss) as the superdiagonals ``0..5`` of LAPACK's upper band storage
+    (``(6, n)``; :func:`temporal_band` adds the temporal rows); ``grad`` ``(n,)`` the
+    gradient (both halved, so the step solves ``ab d = -grad``); ``err``
     ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
     of :func:`flylib.geometry.distort_one` plus intrinsics in the camera frame (the
     model of :func:`flylib.geometry.project_full_one`), chained with the rotation.
@@ -122,10 +123,12 @@ def chunk_kernel(loss: str, order: int, m: int):
         dist = data.get("dist")
         dist = None if dist is None else jnp.moveaxis(dist, -1, 0)[..., None]
         proj = pixel(pc, intr, dist)  # (2, nb, m, W, T)
-        # d pixel / d camera-frame point: one JVP per axis, then through the rotation
-        jpc = jnp.stack([jax.jvp(lambda p: pixel(p, intr, dist), (pc,),
-                                 (jnp.zeros_like(pc).at[i].set(1.0),))[1] for i in range(3)], axis=1)
-        jac = jnp.einsum("acbkvt,bkvcj->ajbkvt", jpc, rmat)  # (2, 3, nb, m, W, T)
+        # d pixel / d world point: one JVP per world axis j, whose tangent in the camera
+        # frame is the rotation's column j
+        rot = jnp.moveaxis(rmat, (-2, -1), (0, 1))[..., None]  # (3, 3, nb, m, W, 1)
+        jac = jnp.stack([jax.jvp(lambda p: pixel(p, intr, dist), (pc,),
+                                 (jnp.broadcast_to(rot[:, j], pc.shape),))[1] for j in range(3)],
+                        axis=1)  # (2, 3, nb, m, W, T)
         e = proj - jnp.moveaxis(data["xy"], -1, 0)  # (2, nb, m, W, T)
         sq = e[0] * e[0] + e[1] * e[1]
         rho, drho = _loss_jax(sq * data["inv_s2"], loss)
@@ -141,10 +144,10 @@ def chunk_kernel(loss: str, order: int, m: int):
         g = g + data["rigid_w"] * jnp.moveaxis(diff, 2, 0)
         h = h + data["rigid_w"] * jnp.eye(3)[:, :, None, None, None] * mask[None, None]
         cost += data["rigid_w"] * jnp.sum(diff * diff)
-        # -- within-frame blocks (nb, m, 3, m, 3, T): reprojection + rigid on the diagonal
-        eye_m = jnp.eye(m)
-        blocks = jnp.transpose(h, (2, 3, 0, 1, 4))[:, :, :, None, :, :] * eye_m[None, :, None, :, None, None]
-        # -- bones: d = incidence @ x; Hessian incidence^T (u u^T) incidence
+        # -- within-frame blocks: diagonal (slot k, k) and next-slot (k, k+1); a bone
+        # joins neighbouring slots (chains are packed contiguously), so nothing else
+        diag = jnp.transpose(h, (2, 4, 3, 0, 1))  # (nb, T, m, 3, 3)
+        nxt = jnp.zeros((nb, n_frames, max(m - 1, 1), 3, 3))
         inc = data["incidence"]  # (nb, Kb, m)
         d = jnp.einsum("bqk,bkit->bqit", inc, xk)  # (nb, Kb, 3, T)
         length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
@@ -152,9 +155,13 @@ def chunk_kernel(loss: str, order: int, m: int):
         target = data["length"][..., None]
         resid = (length - target) * (target > 0)
         outer = data["bone_w"] * unit[:, :, :, None] * unit[:, :, None, :]  # (nb, Kb, 3, 3, T)
-        for q in range(inc.shape[1]):
-            pair = inc[:, q, :, None] * inc[:, q, None, :]  # (nb, m, m)
-            blocks = blocks + pair[:, :, None, :, None, None] * outer[:, q, None, :, None, :, :]
+        outer = jnp.transpose(outer, (0, 4, 1, 2, 3))  # (nb, T, Kb, 3, 3)
+        # slot k gets +outer for each bone touching it; (k, k+1) gets -outer
+        touch = jnp.abs(inc)  # (nb, Kb, m)
+        diag = diag + jnp.einsum("bqk,btqij->btkij", touch, outer)
+        if m > 1:
+            link = -inc[:, :, :-1] * inc[:, :, 1:]  # 1 where bone q joins slots k, k+1
+            nxt = jnp.einsum("bqk,btqij->btkij", link, -outer)
         grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
         gk = jnp.einsum("bqk,bqit->bkit", inc, grad_b)  # (nb, m, 3, T)
         g = g + jnp.moveaxis(gk, 2, 0)
@@ -175,22 +182,21 @@ def chunk_kernel(loss: str, order: int, m: int):
                 ahead = jnp.concatenate([(c * xs)[:, q:], zero[:, :q]], axis=1)
                 smooth = smooth + back + ahead
             g = g + sw * smooth
-        # -- band storage: row u - delta holds the delta-th superdiagonal
-        blocks = blocks.reshape(nb, width, width, n_frames)
+        # -- the non-zero within-frame rows of the band: row u - delta holds the
+        # delta-th superdiagonal at the column of its lower-right end (delta < 6)
         rows = []
-        for r in range(u + 1):
-            delta = u - r
-            if delta < width:
-                diag = jnp.diagonal(blocks, delta, axis1=1, axis2=2)  # (nb, T, width - delta)
-                row = jnp.pad(diag, ((0, 0), (0, 0), (delta, 0)))
-                if delta == 0 and order:
-                    row = row + data["smooth_w"] * gram[0][None, :, None]
-            elif order and delta % width == 0 and delta // width <= order:
-                q = delta // width
-                row = jnp.broadcast_to(data["smooth_w"] * gram[q][None, :, None], (nb, n_frames, width))
-            else:
-                row = jnp.zeros((nb, n_frames, width))
-            rows.append(row.reshape(-1))
+        zero = jnp.zeros((nb, n_frames, m))
+        for delta in range(min(6, width)):
+            cols = []
+            for jj in range(3):
+                ii = jj - delta
+                if ii >= 0:
+                    cols.append(diag[..., ii, jj])
+                elif ii + 3 >= 0 and m > 1:
+                    cols.append(jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1))
+                else:
+                    cols.append(zero)
+            rows.append(jnp.stack(cols, axis=-1).reshape(-1))
         err = jnp.sqrt(sq)  # (nb, m, W, T)
         return cost, jnp.stack(rows), g.reshape(-1), err
 
@@ -275,6 +281,19 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
             # difference rows k = 0..rows-1 add coef[a] coef[a+q] at column k + a + q
             out[q, a + q : a + q + rows] += coef[a] * coef[a + q]
     return out
+
+
+def temporal_band(m: int, order: int, n_blocks: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
+    """The constant part of the band ``(u + 1, n)``: the temporal term's rows (zeros
+    elsewhere; :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``)."""
+    width = 3 * m
+    u = band_width(m, order)
+    n_frames = gram.shape[1]
+    ab = np.zeros((u + 1, n_blocks * n_frames * width))
+    if order and smooth_w:
+        for q in range(order + 1):
+            ab[u - q * width] = smooth_w * np.broadcast_to(gram[q][None, :, None], (n_blocks, n_frames, width)).ravel()
+    return ab
 
 
 def band_width(m: int, order: int) -> int:

@@ -24,7 +24,8 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 
 from .. import camera_model
-from .objective import LOSSES, BlockLayout, band_width, chunk_kernel, difference_gram, from_slots, to_slots
+from .objective import (LOSSES, BlockLayout, band_width, chunk_kernel, difference_gram, from_slots,
+                        temporal_band, to_slots)
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +58,7 @@ class RefineOptions:
     rigid_scale: float = 0.005
     gap_length: int = 5
     outlier_px: float = 20.0
-    max_iterations: int = 15
+    max_iterations: int = 10
     chunk_frames: int = 1024
     overlap_frames: int = 32
     moved_fraction: float = 0.05
@@ -274,6 +275,8 @@ class ChunkProblem:
             "gram": difference_gram(padded, opts.smooth_order),
             "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
         }
+        self.band = temporal_band(layout.m, opts.smooth_order, layout.n_blocks, self.data["gram"],
+                                  self.data["smooth_w"])
         self.set_active(weight > 0)
 
     def set_active(self, active: np.ndarray) -> None:
@@ -291,17 +294,24 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
-        cost, ab, grad, err = self.kernel(xs, self.data)
-        return float(cost), np.asarray(ab), np.asarray(grad), np.asarray(err)
+        cost, rows, grad, err = self.kernel(xs, self.data)
+        ab = self.band.copy()
+        ab[self.u - rows.shape[0] + 1:] += np.asarray(rows)[::-1]
+        return float(cost), ab, np.asarray(grad), np.asarray(err)
 
     def errors(self, err: np.ndarray) -> np.ndarray:
         """Cell errors ``(n_blocks, m, W, padded)`` -> ``(V, T, P)``."""
         return self.tracks.scatter(err, (self.n_views, self.n_frames, self.n_points))
 
-    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-6):
-        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, iterations, err (K, T))``."""
+    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
+        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, iterations, err)``.
+
+        ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
+        """
         u = self.u
         cost, ab, grad, err = self.evaluate(xs)
+        if trace is not None:
+            trace.append((cost, 0.0))
         mu = 1e-4
         it = 0
         for it in range(1, max_iterations + 1):
@@ -319,6 +329,8 @@ class ChunkProblem:
                 step = cho_solve_banded((factor, False), -grad, check_finite=False)
                 trial = xs + step.reshape(xs.shape)
                 new = self.evaluate(trial)
+                if trace is not None:
+                    trace.append((new[0], mu))
                 if new[0] <= cost:
                     improved = True
                     decrease = cost - new[0]
@@ -389,8 +401,9 @@ def refine_points(
     chains = [list(map(int, c)) for c in chains] if chains is not None else [list(map(int, b)) for b in bones]
     layout = BlockLayout.from_chains(n_points, chains)
     for i, j in bones:
-        if layout.block_of[i] != layout.block_of[j]:
-            raise ValueError(f"bone ({i}, {j}) crosses limb chains; give the chains it lies on")
+        if layout.block_of[i] != layout.block_of[j] or abs(layout.slot_of[i] - layout.slot_of[j]) != 1:
+            raise ValueError(f"bone ({i}, {j}) does not join neighbouring points of one chain; "
+                             "give the limb chains the bones run along")
     observed = np.isfinite(pts2d).all(-1)
     if conf is not None and opts.weigh_by_confidence:
         c = np.asarray(conf, np.float64)
