@@ -346,6 +346,172 @@ class ChunkProblem:
 # -- the recording ----------------------------------------------------------------------
 
 
+class ArraySource:
+    """In-memory inputs of :func:`refine_stream`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``
+    or None, ``start (T, P, 3)``, ``inliers (V, T, P)`` or None (anything sliceable
+    along T works, e.g. h5py datasets)."""
+
+    def __init__(self, pts2d, start, conf=None, inliers=None):
+        self.pts2d, self.start, self.conf, self.inliers = pts2d, start, conf, inliers
+        self.n_views, self.n_frames, self.n_points = pts2d.shape[:3]
+
+    def read(self, lo: int, hi: int):
+        """``(pts2d, conf, start, inliers)`` of frames ``lo:hi`` as float64 / bool arrays."""
+        conf = None if self.conf is None else np.asarray(self.conf[:, lo:hi], np.float64)
+        inl = None if self.inliers is None else np.asarray(self.inliers[:, lo:hi], bool)
+        return (np.asarray(self.pts2d[:, lo:hi], np.float64), conf,
+                np.asarray(self.start[lo:hi], np.float64), inl)
+
+
+class ArraySink:
+    """Collects :func:`refine_stream`'s output in memory."""
+
+    def __init__(self, n_views: int, n_frames: int, n_points: int):
+        self.points3d = np.full((n_frames, n_points, 3), np.nan)
+        self.reproj_error = np.full((n_views, n_frames, n_points), np.nan)
+        self.points2d = np.full((n_views, n_frames, n_points, 2), np.nan)
+        self.flags = np.zeros((n_frames, n_points), np.uint8)
+
+    def write(self, lo, hi, points3d, reproj_error, points2d, flags):
+        self.points3d[lo:hi] = points3d
+        self.reproj_error[:, lo:hi] = reproj_error
+        self.points2d[:, lo:hi] = points2d
+        self.flags[lo:hi] = flags
+
+    def mark_missing(self, lo, hi, missing):
+        """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing."""
+        flags = self.flags[lo:hi]
+        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
+        self.points3d[lo:hi][missing] = np.nan
+
+
+def _weights(pts2d, conf, opts):
+    observed = np.isfinite(pts2d).all(-1)
+    if conf is not None and opts.weigh_by_confidence:
+        weight = np.where(observed & np.isfinite(conf) & (conf > 0), np.nan_to_num(conf), 0.0)
+    else:
+        weight = observed.astype(np.float64)
+    return observed & (weight > 0), weight
+
+
+#: Frames (at most) the recording-wide medians are taken over: evenly spread, so the
+#: memory they need does not grow with the recording.
+GLOBAL_SAMPLE_FRAMES = 20000
+
+
+def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None, rigid=(),
+                  options: RefineOptions | None = None) -> dict[str, Any]:
+    """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``.
+
+    Memory is bounded by the chunk size (plus one byte per frame and point for the
+    gap bookkeeping), whatever the recording's length.
+
+    Parameters
+    ----------
+    source
+        Has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
+        start, inliers)`` (see :class:`ArraySource`).
+    cameras
+        The rig.
+    sink
+        Has ``write(lo, hi, points3d, reproj_error, points2d, flags)`` and
+        ``mark_missing(lo, hi, missing)`` (see :class:`ArraySink`).
+    bones, chains, mirror, rigid, options
+        As in :func:`refine_points`.
+
+    Returns
+    -------
+    dict
+        ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
+    """
+    opts = options or RefineOptions()
+    n_views, n_frames, n_points = source.n_views, source.n_frames, source.n_points
+    bones = np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
+    rigid = np.asarray(rigid, np.int64).ravel()
+    chains = [list(map(int, c)) for c in chains] if chains is not None else [list(map(int, b)) for b in bones]
+    layout = BlockLayout.from_chains(n_points, chains)
+    for i, j in bones:
+        if layout.block_of[i] != layout.block_of[j] or abs(layout.slot_of[i] - layout.slot_of[j]) != 1:
+            raise ValueError(f"bone ({i}, {j}) does not join neighbouring points of one chain; "
+                             "give the limb chains the bones run along")
+    chunk = max(int(opts.chunk_frames), 1)
+    overlap = max(int(opts.overlap_frames), 0)
+
+    # -- pass 1: which views see which points, and a frame sample for the medians
+    seen = np.zeros((n_views, n_points), bool)
+    stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
+    sample = []
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        pts2d, conf, start, _ = source.read(lo, hi)
+        seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
+        sample.append(start[(-lo) % stride::stride])
+    sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
+    lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
+    centres = rigid_centres(sample, rigid)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fallback = np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
+    centre_all = np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else np.zeros(3)
+    fallback = np.where(np.isfinite(fallback), fallback, centre_all)
+    if len(rigid):
+        ok = np.isfinite(centres).all(-1)
+        fallback[rigid[ok]] = centres[ok]
+    grid = Grid(seen[:, None, :], cameras, layout)
+    scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
+
+    # -- pass 2: the chunks
+    supported = np.zeros((n_frames, n_points), bool)
+    largest = chunk + 2 * overlap
+    iterations, kept_total, rejected_total = [], 0, 0
+    started = time.perf_counter()
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
+        pts2d, conf, start, inliers = source.read(a, b)
+        observed, weight = _weights(pts2d, conf, opts)
+        problem = ChunkProblem(grid, pts2d, weight, layout, bones, lengths, rigid, centres, opts,
+                               _bucket(b - a, largest))
+        first = observed.copy()
+        if inliers is not None:
+            first &= inliers | ~np.isfinite(start).all(-1)[None]
+        problem.set_active(first)
+        xs = problem.to_slots(fill_start(start, fallback))
+        half = max(opts.max_iterations // 2, 1)
+        xs, it1, err = problem.solve(xs, half)
+        problem.set_active(observed & (problem.errors(err) < opts.outlier_px))
+        xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
+        iterations.append(it1 + it2)
+        keep = slice(lo - a, hi - a)
+        active = problem.active[:, keep]
+        points3d = problem.from_slots(xs)[keep]
+        flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, scale, opts)
+        supported[lo:hi] = active.any(axis=0)
+        kept_total += int(active.sum())
+        rejected_total += int((observed[:, keep] & ~active).sum())
+        sink.write(lo, hi, points3d, np.where(active, problem.errors(err)[:, keep], np.nan),
+                   np.where(active[..., None], pts2d[:, keep], np.nan), flags)
+    solve_seconds = time.perf_counter() - started
+
+    # -- gaps longer than gap_length: NaN
+    long_gap = _runs_longer_than(~supported, int(opts.gap_length))
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        if long_gap[lo:hi].any():
+            sink.mark_missing(lo, hi, long_gap[lo:hi])
+    info = {
+        "frames": n_frames, "chunks": len(iterations), "iterations": iterations[:64],
+        "seconds": round(solve_seconds, 3), "observations_kept": kept_total,
+        "observations_rejected": rejected_total, "bone_sample_frames": int(len(sample)),
+    }
+    log.info("refinement: %d frames in %d chunk(s), %.2f s, iterations %s", n_frames, len(iterations),
+             solve_seconds, iterations[:8])
+    return {"bone_lengths": lengths, "rigid_points": rigid, "rigid_centres": centres, "info": info}
+
+
 def refine_points(
     pts2d: np.ndarray,
     cameras,
@@ -377,8 +543,8 @@ def refine_points(
     bones
         ``(B, 2)`` point-index pairs whose length is constant over the recording.
     chains
-        The limb chains (point indices) that bones run along; every bone must lie
-        within one chain. Default: each bone its own chain.
+        The limb chains (point indices) that bones run along; every bone must join
+        neighbouring points of one chain. Default: each bone its own chain.
     mirror
         ``(B,)`` each bone's left/right twin, for ``symmetric_bones``.
     rigid
@@ -390,80 +556,16 @@ def refine_points(
     -------
     RefinementResult
     """
-    opts = options or RefineOptions()
     pts2d = np.asarray(pts2d, np.float64)
     start = np.asarray(start, np.float64)
     n_views, n_frames, n_points, _ = pts2d.shape
     if start.shape != (n_frames, n_points, 3):
         raise ValueError(f"start must be (T={n_frames}, P={n_points}, 3), got {start.shape}")
-    bones = np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
-    rigid = np.asarray(rigid, np.int64).ravel()
-    chains = [list(map(int, c)) for c in chains] if chains is not None else [list(map(int, b)) for b in bones]
-    layout = BlockLayout.from_chains(n_points, chains)
-    for i, j in bones:
-        if layout.block_of[i] != layout.block_of[j] or abs(layout.slot_of[i] - layout.slot_of[j]) != 1:
-            raise ValueError(f"bone ({i}, {j}) does not join neighbouring points of one chain; "
-                             "give the limb chains the bones run along")
-    observed = np.isfinite(pts2d).all(-1)
-    if conf is not None and opts.weigh_by_confidence:
-        c = np.asarray(conf, np.float64)
-        weight = np.where(observed & np.isfinite(c) & (c > 0), np.nan_to_num(c), 0.0)
-    else:
-        weight = observed.astype(np.float64)
-    observed &= weight > 0
-    lengths = bone_lengths(start, bones, mirror if opts.symmetric_bones else None)
-    centres = rigid_centres(start, rigid)
-    fallback = np.nanmedian(start, axis=0) if np.isfinite(start).any() else np.zeros((n_points, 3))
-    fallback = np.where(np.isfinite(fallback), fallback, np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else 0.0)
-    fallback = np.nan_to_num(fallback)
-    if len(rigid):
-        ok = np.isfinite(centres).all(-1)
-        fallback[rigid[ok]] = centres[ok]
-    tracks = Grid(observed, cameras, layout)
-
-    out3d = np.full((n_frames, n_points, 3), np.nan)
-    err_out = np.full((n_views, n_frames, n_points), np.nan)
-    kept = np.zeros((n_views, n_frames, n_points), bool)
-    chunk = max(int(opts.chunk_frames), 1)
-    overlap = max(int(opts.overlap_frames), 0)
-    largest = chunk + 2 * overlap
-    iterations = []
-    started = time.perf_counter()
-    for lo in range(0, n_frames, chunk):
-        hi = min(lo + chunk, n_frames)
-        a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
-        sl = slice(a, b)
-        problem = ChunkProblem(tracks, pts2d[:, sl], weight[:, sl], layout, bones, lengths, rigid,
-                               centres, opts, _bucket(b - a, largest))
-        first = observed[:, sl].copy()
-        if inliers is not None:
-            unreconstructed = ~np.isfinite(start[sl]).all(-1)
-            first &= np.asarray(inliers[:, sl], bool) | unreconstructed[None]
-        problem.set_active(first)
-        xs = problem.to_slots(fill_start(start[sl], fallback))
-        half = max(opts.max_iterations // 2, 1)
-        xs, it1, err = problem.solve(xs, half)
-        problem.set_active(observed[:, sl] & (problem.errors(err) < opts.outlier_px))
-        xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
-        iterations.append(it1 + it2)
-        keep = slice(lo - a, lo - a + (hi - lo))
-        out3d[lo:hi] = problem.from_slots(xs)[keep]
-        active = problem.active[:, keep]
-        kept[:, lo:hi] = active
-        err_out[:, lo:hi] = np.where(active, problem.errors(err)[:, keep], np.nan)
-    solve_seconds = time.perf_counter() - started
-
-    flags = _flags(out3d, start, observed, kept, lengths, opts)
-    out3d[(flags & FLAG_BITS["missing"][0]) > 0] = np.nan
-    clean2d = np.where(kept[..., None], pts2d, np.nan)
-    info = {
-        "frames": n_frames, "chunks": len(iterations), "iterations": iterations,
-        "seconds": round(solve_seconds, 3), "observations_kept": int(kept.sum()),
-        "observations_rejected": int((observed & ~kept).sum()),
-    }
-    log.info("refinement: %d frames in %d chunk(s), %.2f s, iterations %s", n_frames, len(iterations),
-             solve_seconds, iterations[:8])
-    return RefinementResult(out3d, err_out, clean2d, flags, lengths, rigid, centres, info)
+    sink = ArraySink(n_views, n_frames, n_points)
+    out = refine_stream(ArraySource(pts2d, start, conf, inliers), cameras, sink, bones=bones, chains=chains,
+                        mirror=mirror, rigid=rigid, options=options)
+    return RefinementResult(sink.points3d, sink.reproj_error, sink.points2d, sink.flags, out["bone_lengths"],
+                            out["rigid_points"], out["rigid_centres"], out["info"])
 
 
 def _camera_rows(cameras) -> np.ndarray:
@@ -492,20 +594,17 @@ def _runs_longer_than(mask: np.ndarray, length: int) -> np.ndarray:
     return out
 
 
-def _flags(out3d, start, observed, kept, lengths, opts: RefineOptions) -> np.ndarray:
+def _chunk_flags(points3d, start, observed, kept, scale, opts: RefineOptions) -> np.ndarray:
+    """Per-point flags of one chunk; an unsupported point is flagged ``filled`` until the
+    recording-wide gap pass turns long gaps into ``missing``."""
+    bit = {k: np.uint8(v[0]) for k, v in FLAG_BITS.items()}
     views = kept.sum(0)
-    supported = views > 0
-    long_gap = _runs_longer_than(~supported, int(opts.gap_length))
-    bit = {k: v[0] for k, v in FLAG_BITS.items()}
-    flags = np.zeros(supported.shape, np.uint8)
-    flags |= np.where(supported, bit["observed"], 0).astype(np.uint8)
-    flags |= np.where(~supported & ~long_gap, bit["filled"], 0).astype(np.uint8)
-    flags |= np.where(long_gap, bit["missing"], 0).astype(np.uint8)
+    flags = np.where(views > 0, bit["observed"], bit["filled"]).astype(np.uint8)
     flags |= np.where(views == 1, bit["single_view"], 0).astype(np.uint8)
     flags |= np.where((observed & ~kept).any(0), bit["outlier_views"], 0).astype(np.uint8)
     started = np.isfinite(start).all(-1)
     flags |= np.where(~started, bit["no_start"], 0).astype(np.uint8)
-    scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
-    moved = np.linalg.norm(out3d - start, axis=-1) > opts.moved_fraction * scale
+    with np.errstate(invalid="ignore"):
+        moved = np.linalg.norm(points3d - start, axis=-1) > opts.moved_fraction * scale
     flags |= np.where(started & moved, bit["moved"], 0).astype(np.uint8)
     return flags

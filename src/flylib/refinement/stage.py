@@ -25,20 +25,83 @@ import h5py
 import numpy as np
 
 from ..paths import atomic_path
-from .setup import options_from_params, refine_from_config
+from .setup import options_from_params
 from .solver import FLAG_BITS, RefinementResult
 
 STAGE = "refinement"
 
 
-def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
-    """Write the refinement artifact atomically (layout in the module docstring)."""
-    from ..results import _new_meta, _write_array
+class H5Source:
+    """Chunks of the pose2d and triangulation artifacts, read on demand (h5py slices)."""
 
+    def __init__(self, pose2d: h5py.File, triangulation: h5py.File):
+        self.pts2d = pose2d["pose2d/points"]
+        self.conf = pose2d["pose2d/conf"] if "pose2d/conf" in pose2d else None
+        self.start = triangulation["triangulation/points3d"]
+        self.inlier_2d = triangulation["triangulation/points"]
+        self.n_views, self.n_frames, self.n_points = self.pts2d.shape[:3]
+        if self.start.shape != (self.n_frames, self.n_points, 3):
+            from ..errors import ResultsError
+
+            raise ResultsError(f"{triangulation.filename}: 3D of shape {self.start.shape} does not match the "
+                               f"2D {self.pts2d.shape}; re-run the triangulation stage")
+
+    def read(self, lo: int, hi: int):
+        conf = None if self.conf is None else self.conf[:, lo:hi].astype(np.float64)
+        inliers = np.isfinite(self.inlier_2d[:, lo:hi]).all(-1)
+        return self.pts2d[:, lo:hi].astype(np.float64), conf, self.start[lo:hi].astype(np.float64), inliers
+
+
+class H5Sink:
+    """Writes the refinement group chunk by chunk (datasets chunked along time, gzip)."""
+
+    def __init__(self, group: h5py.Group, n_views: int, n_frames: int, n_points: int, chunk: int):
+        step = max(1, min(n_frames, chunk))
+
+        def make(name, shape, dtype, axis, fill):
+            chunks = list(shape)
+            chunks[axis] = step
+            return group.create_dataset(name, shape=shape, dtype=dtype, chunks=tuple(chunks),
+                                        compression="gzip", compression_opts=1, fillvalue=fill)
+
+        self.points3d = make("points3d", (n_frames, n_points, 3), np.float64, 0, np.nan)
+        self.reproj_error = make("reproj_error", (n_views, n_frames, n_points), np.float64, 1, np.nan)
+        self.points2d = make("points", (n_views, n_frames, n_points, 2), np.float64, 1, np.nan)
+        self.flags = make("flags", (n_frames, n_points), np.uint8, 0, 0)
+
+    def write(self, lo, hi, points3d, reproj_error, points2d, flags):
+        self.points3d[lo:hi] = points3d
+        self.reproj_error[:, lo:hi] = reproj_error
+        self.points2d[:, lo:hi] = points2d
+        self.flags[lo:hi] = flags
+
+    def mark_missing(self, lo, hi, missing):
+        flags = self.flags[lo:hi]
+        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
+        self.flags[lo:hi] = flags
+        points = self.points3d[lo:hi]
+        points[missing] = np.nan
+        self.points3d[lo:hi] = points
+
+
+def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dict:
     names = list(skeleton.point_names)
     bones = {f"{names[i]}-{names[j]}": (None if not np.isfinite(v) else float(v))
-             for (i, j), v in zip(np.asarray(skeleton.bones), result.bone_lengths)}
-    centres = {names[p]: [float(c) for c in centre] for p, centre in zip(result.rigid_points, result.rigid_centres)}
+             for (i, j), v in zip(np.asarray(skeleton.bones), lengths)}
+    centres = {names[p]: [float(c) for c in centre] for p, centre in zip(rigid_points, rigid_centres)}
+    return {
+        "flag_bits": {k: list(v) for k, v in FLAG_BITS.items()},
+        "bone_lengths": bones,
+        "rigid_centres": centres,
+        "summary": info,
+        "options": options,
+    }
+
+
+def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
+    """Write an in-memory :class:`RefinementResult` as the refinement artifact (atomically)."""
+    from ..results import _new_meta, _write_array
+
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["meta"] = json.dumps(_new_meta(STAGE))
         group = f.create_group(STAGE)
@@ -46,13 +109,8 @@ def write_refinement(path: str | Path, result: RefinementResult, skeleton, optio
         _write_array(group, "reproj_error", result.reproj_error)
         _write_array(group, "points", result.points2d)
         _write_array(group, "flags", result.flags, dtype=np.uint8)
-        attrs = {
-            "flag_bits": {k: list(v) for k, v in FLAG_BITS.items()},
-            "bone_lengths": bones,
-            "rigid_centres": centres,
-            "summary": result.info,
-            "options": options,
-        }
+        attrs = _attrs(skeleton, result.bone_lengths, result.rigid_points, result.rigid_centres, result.info,
+                       options)
         for key, value in attrs.items():
             group.attrs[key] = json.dumps(value)
 
@@ -60,6 +118,9 @@ def write_refinement(path: str | Path, result: RefinementResult, skeleton, optio
 def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Path, out_path: str | Path, *,
                    ba_path: str | Path | None = None, recording_dir: str | Path | None = None) -> Path:
     """Refine the triangulated 3D of one recording and write ``stages/refinement.h5``.
+
+    The artifacts are read and the result written chunk by chunk, so memory does not
+    grow with the recording's length.
 
     Parameters
     ----------
@@ -76,16 +137,33 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
     recording_dir
         The recording (for a calibration file relative to it).
     """
-    from ..results import Pose2dData, read_stage
-    from ..stages import _rig_for
+    from ..results import _new_meta, open_checked, read_image_sizes
+    from ..stages import config_rig
+    from .setup import skeleton_terms
+    from .solver import refine_stream
 
-    pose2d = Pose2dData.load(pose2d_path)
-    tri = read_stage(triangulation_path, "triangulation")
-    cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    inliers = np.isfinite(np.asarray(tri["points"], float)).all(-1)
-    result = refine_from_config(config, pose2d.pts2d, cameras, np.asarray(tri["points3d"], float),
-                                conf=pose2d.conf, inliers=inliers)
-    options = asdict(options_from_params(config.refinement))
-    options["rigid_points"] = [config.skeleton().point_names[p] for p in result.rigid_points]
-    write_refinement(out_path, result, config.skeleton(), options)
+    if ba_path:
+        from ..results import read_stage
+
+        cameras = read_stage(ba_path, "bundle_adjustment")["cameras"]
+    else:
+        cameras = config_rig(config, read_image_sizes(pose2d_path), recording_dir)
+    params = config.refinement
+    skeleton = config.skeleton()
+    terms = skeleton_terms(skeleton, params.rigid_points)
+    options = options_from_params(params)
+    with open_checked(pose2d_path, "re-run the pose2d stage") as p2d, \
+            open_checked(triangulation_path, "re-run the triangulation stage") as tri:
+        source = H5Source(p2d, tri)
+        with atomic_path(out_path) as tmp, h5py.File(tmp, "w") as f:
+            f.attrs["meta"] = json.dumps(_new_meta(STAGE))
+            group = f.create_group(STAGE)
+            sink = H5Sink(group, source.n_views, source.n_frames, source.n_points, options.chunk_frames)
+            out = refine_stream(source, cameras, sink, options=options, **terms)
+            record = asdict(options)
+            record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
+            attrs = _attrs(skeleton, out["bone_lengths"], out["rigid_points"], out["rigid_centres"],
+                           out["info"], record)
+            for key, value in attrs.items():
+                group.attrs[key] = json.dumps(value)
     return Path(out_path)
