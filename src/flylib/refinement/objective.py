@@ -283,16 +283,21 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
     return out
 
 
-def temporal_band(m: int, order: int, n_blocks: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
-    """The constant part of the band ``(u + 1, n)``: the temporal term's rows (zeros
-    elsewhere; :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``)."""
+def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
+    """The constant part of the band ``(u + 1, n)``: the temporal term's rows for real
+    slots and a unit diagonal for empty ones (whose unknowns then never move);
+    :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``."""
+    m = layout.m
     width = 3 * m
     u = band_width(m, order)
+    n_blocks = layout.n_blocks
     n_frames = gram.shape[1]
+    real = np.repeat((layout.slots >= 0).astype(float), 3, axis=1)[:, None, :]  # (nb, 1, 3m)
     ab = np.zeros((u + 1, n_blocks * n_frames * width))
     if order and smooth_w:
         for q in range(order + 1):
-            ab[u - q * width] = smooth_w * np.broadcast_to(gram[q][None, :, None], (n_blocks, n_frames, width)).ravel()
+            ab[u - q * width] = (smooth_w * gram[q][None, :, None] * real).ravel()
+    ab[u] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
     return ab
 
 

@@ -275,8 +275,7 @@ class ChunkProblem:
             "gram": difference_gram(padded, opts.smooth_order),
             "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
         }
-        self.band = temporal_band(layout.m, opts.smooth_order, layout.n_blocks, self.data["gram"],
-                                  self.data["smooth_w"])
+        self.band = temporal_band(layout, opts.smooth_order, self.data["gram"], self.data["smooth_w"])
         self.set_active(weight > 0)
 
     def set_active(self, active: np.ndarray) -> None:
@@ -308,6 +307,14 @@ class ChunkProblem:
 
         ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
         """
+        from threadpoolctl import threadpool_limits
+
+        # One BLAS thread: the banded factorization's blocked kernels are tiny, and
+        # OpenBLAS threads spinning on them ran 10-40x slower on a busy 2-core machine.
+        with threadpool_limits(1, user_api="blas"):
+            return self._solve(xs, max_iterations, ftol, trace)
+
+    def _solve(self, xs, max_iterations, ftol, trace):
         u = self.u
         cost, ab, grad, err = self.evaluate(xs)
         if trace is not None:
@@ -316,7 +323,10 @@ class ChunkProblem:
         it = 0
         for it in range(1, max_iterations + 1):
             diag = ab[u].copy()
-            floor = 1e-12 * max(float(diag.max()), 1.0)
+            # a ridge far below any real curvature: keeps unknowns that only the
+            # temporal term sees (a point unobserved in the whole chunk) well posed, and
+            # the factorization free of denormal fill-in
+            floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
             improved = False
             while mu < 1e8:
                 damped = ab.copy()
