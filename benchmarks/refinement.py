@@ -84,7 +84,7 @@ def accuracy_and_speed(frames: int) -> None:
     worse = int(((after - before) > 0.05 * bone)[right].sum())
     rows = [("ransac", before[both]), ("refinement", after[both])]
     print(f"scene: {frames} frames x 38 points x 7 views; 1.5 px noise, 5% outliers <= 50 px, "
-          "2% L/R swaps (side views), 10% missing; median bone %.3f" % bone)
+          f"2% L/R swaps (side views), 10% missing; median bone {bone:.3f}")
     print(f"{'':12s} {'median':>9s} {'p95':>9s}  (world units, {both.sum()} points both reconstruct)")
     for name, err in rows:
         print(f"{name:12s} {np.median(err):9.5f} {np.percentile(err, 95):9.5f}")

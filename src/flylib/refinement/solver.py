@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +26,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 
 from .. import camera_model
+from ..resources import usable_cpus
 from .objective import (LOSSES, BlockLayout, band_width, chunk_kernel, difference_gram, from_slots,
                         temporal_band, to_slots)
 
@@ -49,8 +52,8 @@ class RefineOptions:
     scale_px: float = 3.0
     weigh_by_confidence: bool = True
     smooth_weight: float = 1.0
-    smooth_order: int = 1
-    smooth_scale: float = 0.05
+    smooth_order: int = 2
+    smooth_scale: float = 0.03
     bone_weight: float = 1.0
     bone_scale: float = 0.005
     symmetric_bones: bool = False
@@ -473,12 +476,13 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     grid = Grid(seen[:, None, :], cameras, layout)
     scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
 
-    # -- pass 2: the chunks
+    # -- pass 2: the chunks, two at a time (the JAX kernel and LAPACK release the GIL);
+    # results are written in order by this thread
     supported = np.zeros((n_frames, n_points), bool)
     largest = chunk + 2 * overlap
     iterations, kept_total, rejected_total = [], 0, 0
-    started = time.perf_counter()
-    for lo in range(0, n_frames, chunk):
+
+    def solve_chunk(lo: int):
         hi = min(lo + chunk, n_frames)
         a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
         pts2d, conf, start, inliers = source.read(a, b)
@@ -494,16 +498,29 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
         xs, it1, err = problem.solve(xs, half)
         problem.set_active(observed & (problem.errors(err) < opts.outlier_px))
         xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
-        iterations.append(it1 + it2)
         keep = slice(lo - a, hi - a)
         active = problem.active[:, keep]
         points3d = problem.from_slots(xs)[keep]
         flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, scale, opts)
-        supported[lo:hi] = active.any(axis=0)
-        kept_total += int(active.sum())
-        rejected_total += int((observed[:, keep] & ~active).sum())
-        sink.write(lo, hi, points3d, np.where(active, problem.errors(err)[:, keep], np.nan),
-                   np.where(active[..., None], pts2d[:, keep], np.nan), flags)
+        return (lo, hi, it1 + it2, active, int((observed[:, keep] & ~active).sum()), points3d,
+                np.where(active, problem.errors(err)[:, keep], np.nan),
+                np.where(active[..., None], pts2d[:, keep], np.nan), flags)
+
+    started = time.perf_counter()
+    starts = list(range(0, n_frames, chunk))
+    workers = max(1, min(2, usable_cpus(), len(starts)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        for k in range(len(starts) + workers):
+            if k < len(starts):  # at most `workers` chunks ahead of the writer: memory stays flat
+                pending.append(pool.submit(solve_chunk, starts[k]))
+            if len(pending) > workers or (k >= len(starts) and pending):
+                lo, hi, its, active, rejected, points3d, err, clean, flags = pending.popleft().result()
+                iterations.append(its)
+                supported[lo:hi] = active.any(axis=0)
+                kept_total += int(active.sum())
+                rejected_total += rejected
+                sink.write(lo, hi, points3d, err, clean, flags)
     solve_seconds = time.perf_counter() - started
 
     # -- gaps longer than gap_length: NaN
