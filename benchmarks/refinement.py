@@ -125,7 +125,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
         g = p2d.create_group("pose2d")
         g.attrs["view_names"] = json.dumps(list(rig.names))
         g.attrs["image_sizes"] = json.dumps({v: [480, 960] for v in rig.names})
-        kw = {"compression": "gzip", "compression_opts": 1}
+        kw = {"compression": "gzip", "compression_opts": 1, "dtype": "f8"}
         points = g.create_dataset("points", (n_views, frames, n_points, 2), chunks=(n_views, 1024, n_points, 2), **kw)
         conf = g.create_dataset("conf", (n_views, frames, n_points), chunks=(n_views, 1024, n_points), **kw)
         t = tri.create_group("triangulation")

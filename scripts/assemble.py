@@ -34,8 +34,8 @@ def main(argv=None) -> int:
         before = summary.get("error_vs_truth_triangulation")
         if error and before:
             print(f"[{args.recording or args.outdir}] the refined 3D above; triangulation alone: "
-                  f"median {before['median']:.4f}, p95 {before['p95']:.4f} "
-                  f"({100 * before['reconstructed']:.1f}% reconstructed)")
+                  f"median {before['median']:.4f}, p95 {before['p95']:.4f}, after similarity alignment "
+                  f"median {before['median_aligned']:.4f} ({100 * before['reconstructed']:.1f}% reconstructed)")
 
     return script_main(parser, run, argv)
 
