@@ -166,3 +166,36 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     np.testing.assert_array_equal(result.pts3d, refined)
     with h5py.File(tmp_path / "results.h5") as f:  # additive: the triangulation is still there
         assert {"triangulation", "refinement", "pose2d"} <= set(f)
+
+
+@pytest.mark.parametrize("order,smooth", [(1, 0.0), (2, 0.0), (2, 1.0)])
+def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
+    """At the truth with exact 2D, lengths and rigid positions, Gauss-Newton's matrix is
+    the exact Hessian: finite differences of the gradient must reproduce the band."""
+    rig = default_rig()
+    truth = synthetic_fly(8, seed=6)
+    pts2d = np.asarray(rig.project(truth))
+    observed = np.isfinite(pts2d).all(-1) & rig_visibility(rig.names)[:, None, :]
+    pts2d = np.where(observed[..., None], pts2d, np.nan)
+    terms = skeleton_terms(Skeleton.fly(), None)
+    layout = BlockLayout.from_chains(38, terms["chains"])
+    rigid = np.asarray(terms["rigid"])
+    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, observed.astype(float), layout, terms["bones"],
+                           bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
+                           RefineOptions(smooth_order=order, smooth_weight=smooth), 8)
+    xs = problem.to_slots(truth)
+    _, ab, grad, _ = problem.evaluate(xs)
+    if not smooth:  # the temporal term is quadratic: its Hessian is exact anyway
+        assert np.abs(grad).max() < 1e-6 * np.abs(ab).max()
+    u = problem.u
+    rng = np.random.default_rng(0)
+    for j in rng.choice(np.flatnonzero(ab[u] > 1.0), 8, replace=False):
+        h = 1e-7
+        plus, minus = xs.copy().ravel(), xs.copy().ravel()
+        plus[j] += h
+        minus[j] -= h
+        column = (problem.evaluate(plus.reshape(xs.shape))[2] - problem.evaluate(minus.reshape(xs.shape))[2]) / (2 * h)
+        band_column = np.zeros_like(column)
+        for i in range(max(0, j - u), min(column.size, j + u + 1)):
+            band_column[i] = ab[u + i - j, j] if i <= j else ab[u + j - i, i]
+        np.testing.assert_allclose(column, band_column, rtol=1e-4, atol=1e-5 * np.abs(band_column).max())
