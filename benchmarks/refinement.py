@@ -40,12 +40,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility  # noqa: E402
+from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
-from flylib.demo import synthetic_fly  # noqa: E402
-from flylib.refinement import refine_points, skeleton_terms  # noqa: E402
-from flylib.skeleton import Skeleton  # noqa: E402
-from flylib.triangulation import reconstruct_ransac  # noqa: E402
+from flylib.demo import synthetic_fly
+from flylib.refinement import refine_points, skeleton_terms
+from flylib.skeleton import Skeleton
+from flylib.triangulation import reconstruct_ransac
 
 
 def scene(frames: int, seed: int = 3):

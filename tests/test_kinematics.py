@@ -102,8 +102,9 @@ def test_angles_csv_has_anipose_layout(tmp_path):
 
 
 def test_stage_writes_h5_csv_and_figure(tmp_path):
-    import h5py
     import json
+
+    import h5py
 
     from flylib.config import Config
     from flylib.kinematics.stage import run_kinematics

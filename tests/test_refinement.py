@@ -5,15 +5,25 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
 from flylib.demo import synthetic_fly
-from flylib.refinement import RefineOptions, difference_gram, refine_points, skeleton_terms
+from flylib.refinement import (
+    RefineOptions,
+    difference_gram,
+    refine_points,
+    skeleton_terms,
+)
 from flylib.refinement.objective import BlockLayout
-from flylib.refinement.solver import ChunkProblem, Grid, bone_lengths, fill_start, rigid_centres
+from flylib.refinement.solver import (
+    ChunkProblem,
+    Grid,
+    bone_lengths,
+    fill_start,
+    rigid_centres,
+)
 from flylib.skeleton import Skeleton
 from flylib.triangulation import reconstruct_ransac
-
-from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
 
 @pytest.mark.parametrize("order", [1, 2])
@@ -54,7 +64,7 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
                            terms["bones"], bone_lengths(truth, terms["bones"]), rigid,
                            rigid_centres(truth, rigid) + 0.003, opts, 8)
     xs = problem.to_slots(start)
-    cost, ab, grad, _ = problem.evaluate(xs)
+    _cost, ab, grad, _ = problem.evaluate(xs)
     rng = np.random.default_rng(1)
     used = np.flatnonzero(np.abs(grad) > 0)
     for k in rng.choice(used, 12, replace=False):
@@ -112,7 +122,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
 
 
 def test_rigid_thorax_points_stay_put_and_chunks_agree_with_one_solve():
-    rig, truth, pts2d, conf, _ = _scene(frames=150, seed=4)
+    rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
     start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
     terms = skeleton_terms(Skeleton.fly(), None)
     inliers = np.isfinite(clean2d).all(-1)
@@ -146,7 +156,7 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     from flylib.stages import run_assemble, run_refinement
 
     config = Config.default()
-    rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)
+    rig, _truth, pts2d, conf, _ = _scene(frames=30, seed=5)
     sizes = {v: (480, 960) for v in rig.names}
     Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
     start, clean2d, err = reconstruct_ransac(pts2d, rig, 15.0, 2)

@@ -17,18 +17,18 @@ if FLAGS["kinematics"]:
                 category="Joint angles",
                 labels={"recording": "{outdir}", "figure": "angles"},
             ),
-        params:
-            run=command("kinematics.py"),
-            stage=stage_params("kinematics"),
         log:
             "{outdir}/logs/kinematics.log",
         benchmark:
             "{outdir}/benchmarks/kinematics.tsv"
+        conda:
+            "../../envs/visualization.yaml"
         resources:
             mem_mb=2000,
             runtime=15,
-        conda:
-            "../../envs/visualization.yaml"
+        params:
+            run=command("kinematics.py"),
+            stage=stage_params("kinematics"),
         shell:
             "{params.run}"
             " --results {input.results:q} --outdir {wildcards.outdir:q}"

@@ -11,20 +11,20 @@ if FLAGS["refinement"]:
             unpack(refinement_inputs),
         output:
             artifact("refinement"),
+        log:
+            "{outdir}/logs/refinement.log",
+        benchmark:
+            "{outdir}/benchmarks/refinement.tsv"
+        conda:
+            "../../envs/geometry.yaml"
+        resources:
+            mem_mb=3000,
+            runtime=60,
         params:
             run=command("refinement.py"),
             stage=stage_params("refinement"),
             recording=lambda w: str(recording(w).path),
             rig=optional_arg("--bundle-adjustment", "bundle_adjustment"),
-        log:
-            "{outdir}/logs/refinement.log",
-        benchmark:
-            "{outdir}/benchmarks/refinement.tsv"
-        resources:
-            mem_mb=3000,
-            runtime=60,
-        conda:
-            "../../envs/geometry.yaml"
         shell:
             "{params.run}"
             " --pose2d {input.pose2d:q} --triangulation {input.triangulation:q} {params.rig}"

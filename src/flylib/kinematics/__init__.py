@@ -13,7 +13,13 @@ import numpy as np
 
 from ..errors import ConfigError
 from .angles import default_angles, default_segments, flexion, segment_orientation
-from .frame import FRAME_KEYS, body_frame, default_frame_points, frame_from_groups, to_body
+from .frame import (
+    FRAME_KEYS,
+    body_frame,
+    default_frame_points,
+    frame_from_groups,
+    to_body,
+)
 
 #: What the kinematics stage writes into a recording's output directory.
 FILES = ("kinematics.h5", "angles.csv", "angles.png")

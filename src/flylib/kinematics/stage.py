@@ -74,7 +74,7 @@ def angles_figure(kin: Kinematics, path: str | Path, *, fps: float | None = None
     for k, name in enumerate(kin.angle_names):
         groups.setdefault(name.split("_")[0], []).append(k)
     n = max(len(groups), 1)
-    cols = 3 if n > 3 else n
+    cols = min(n, 3)
     rows = int(np.ceil(n / cols))
     fig = Figure(figsize=(5 * cols, 3 * rows), dpi=dpi, layout="constrained")
     t = np.arange(kin.angles.shape[0])

@@ -7,8 +7,20 @@ stage (``stages/refinement.h5``).
 """
 
 from .objective import LOSSES, BlockLayout, chunk_kernel, difference_gram
-from .solver import FLAG_BITS, RefinementResult, RefineOptions, bone_lengths, refine_points, rigid_centres
-from .setup import default_rigid_points, mirror_bones, refine_from_config, skeleton_terms
+from .setup import (
+    default_rigid_points,
+    mirror_bones,
+    refine_from_config,
+    skeleton_terms,
+)
+from .solver import (
+    FLAG_BITS,
+    RefinementResult,
+    RefineOptions,
+    bone_lengths,
+    refine_points,
+    rigid_centres,
+)
 
 __all__ = [
     "FLAG_BITS",
@@ -17,12 +29,12 @@ __all__ = [
     "RefineOptions",
     "RefinementResult",
     "bone_lengths",
+    "chunk_kernel",
     "default_rigid_points",
     "difference_gram",
     "mirror_bones",
     "refine_from_config",
     "refine_points",
-    "chunk_kernel",
     "rigid_centres",
     "skeleton_terms",
 ]

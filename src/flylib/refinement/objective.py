@@ -32,24 +32,11 @@ legs with first differences) and is factorized by LAPACK's banded Cholesky
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
-
-
-def loss_numpy(z: np.ndarray, loss: str) -> np.ndarray:
-    """``rho(z)`` (SciPy's convention, ``z`` = squared scaled residual)."""
-    if loss == "linear":
-        return z
-    if loss == "soft_l1":
-        return 2.0 * (np.sqrt(1.0 + z) - 1.0)
-    if loss == "huber":
-        return np.where(z <= 1.0, z, 2.0 * np.sqrt(np.maximum(z, 1.0)) - 1.0)
-    if loss == "cauchy":
-        return np.log1p(z)
-    raise ValueError(f"unknown loss {loss!r} (known: {', '.join(LOSSES)})")
 
 
 def _loss_jax(z, loss: str):
@@ -70,7 +57,7 @@ def _loss_jax(z, loss: str):
     raise ValueError(f"unknown loss {loss!r} (known: {', '.join(LOSSES)})")
 
 
-@lru_cache(maxsize=None)
+@cache
 def chunk_kernel(loss: str, order: int, m: int):
     """The jitted evaluation of one chunk: cost, banded normal matrix and gradient.
 
@@ -102,7 +89,7 @@ def chunk_kernel(loss: str, order: int, m: int):
     from .. import camera_model, geometry  # noqa: F401  (geometry: float64, CPU, compile cache)
 
     width = 3 * m
-    u = band_width(m, order)
+    band_width(m, order)
 
     def pixel(pc, intr, dist):
         # the model of geometry.project_full_one, camera frame -> pixels, elementwise

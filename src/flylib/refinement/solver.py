@@ -27,8 +27,16 @@ from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 
 from .. import camera_model
 from ..resources import usable_cpus
-from .objective import (LOSSES, BlockLayout, band_width, chunk_kernel, difference_gram, from_slots,
-                        temporal_band, to_slots)
+from .objective import (
+    LOSSES,
+    BlockLayout,
+    band_width,
+    chunk_kernel,
+    difference_gram,
+    from_slots,
+    temporal_band,
+    to_slots,
+)
 
 log = logging.getLogger(__name__)
 
@@ -532,7 +540,7 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     info = {
         "frames": n_frames, "chunks": len(iterations), "iterations": iterations[:64],
         "seconds": round(solve_seconds, 3), "observations_kept": kept_total,
-        "observations_rejected": rejected_total, "bone_sample_frames": int(len(sample)),
+        "observations_rejected": rejected_total, "bone_sample_frames": len(sample),
     }
     log.info("refinement: %d frames in %d chunk(s), %.2f s, iterations %s", n_frames, len(iterations),
              solve_seconds, iterations[:8])

@@ -36,7 +36,7 @@ class H5Source:
 
     def __init__(self, pose2d: h5py.File, triangulation: h5py.File):
         self.pts2d = pose2d["pose2d/points"]
-        self.conf = pose2d["pose2d/conf"] if "pose2d/conf" in pose2d else None
+        self.conf = pose2d.get("pose2d/conf", None)
         self.start = triangulation["triangulation/points3d"]
         self.inlier_2d = triangulation["triangulation/points"]
         self.n_views, self.n_frames, self.n_points = self.pts2d.shape[:3]
