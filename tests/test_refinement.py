@@ -156,7 +156,7 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     from flylib.stages import run_assemble, run_refinement
 
     config = Config.default()
-    rig, _truth, pts2d, conf, _ = _scene(frames=30, seed=5)
+    rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)
     sizes = {v: (480, 960) for v in rig.names}
     Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
     start, clean2d, err = reconstruct_ransac(pts2d, rig, 15.0, 2)
@@ -170,8 +170,15 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
         assert bits["missing"][0] == 4 and "observed" in bits
         assert json.loads(group.attrs["options"])["rigid_points"][0].endswith("thorax_coxa")
         refined = group["points3d"][()]
-    run_assemble(config, {"pose2d": tmp_path / "pose2d.h5", "triangulation": tmp_path / "triangulation.h5",
-                          "refinement": tmp_path / "refinement.h5"}, tmp_path)
+    from flylib.demo import _write_truth
+
+    truth_path = _write_truth(tmp_path / "truth.h5", truth, np.asarray(rig.project(truth)), list(rig.names),
+                              list(config.skeleton().point_names), {})
+    summary = run_assemble(config, {"pose2d": tmp_path / "pose2d.h5", "triangulation": tmp_path / "triangulation.h5",
+                                    "refinement": tmp_path / "refinement.h5"}, tmp_path, truth_path=truth_path)
+    # the demo's figure is the refined 3D's, with the triangulation's beside it
+    assert summary["error_vs_truth"]["median"] < summary["error_vs_truth_triangulation"]["median"]
+    assert summary["error_vs_truth"]["reconstructed"] >= summary["error_vs_truth_triangulation"]["reconstructed"]
     result = PoseResult.load(tmp_path / "results.h5")
     np.testing.assert_array_equal(result.pts3d, refined)
     with h5py.File(tmp_path / "results.h5") as f:  # additive: the triangulation is still there
