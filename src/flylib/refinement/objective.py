@@ -121,39 +121,50 @@ def chunk_kernel(loss: str, order: int, m: int):
         rho, drho = _loss_jax(sq * data["inv_s2"], loss)
         w = data["w"]
         scale = w * drho * data["inv_s2"]
-        sj = scale * jac  # (2, 3, nb, m, W, T)
-        h = jnp.sum(sj[:, :, None] * jac[:, None, :], axis=(0, 5))  # (3, 3, nb, m, T)
-        g = jnp.sum(sj * e[:, None], axis=(0, 4))  # (3, nb, m, T)
+        # explicit sums over the 2 pixel rows and the W views (XLA's generic reductions
+        # over these small strided axes were the kernel's slowest part)
+        sj = [[scale * jac[a, i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        entry = {}
+        for i in range(3):
+            for j in range(i, 3):
+                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0, j] + sj[1][i] * jac[1, j], axis=2)
+        h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
+        g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
         cost = jnp.sum(w * rho)
-        # -- rigid points: one world position each
-        mask = data["rigid_mask"][..., None]  # (nb, m, 1)
-        diff = (xk - data["centre"][..., None]) * mask[:, :, None]  # (nb, m, 3, T)
-        g = g + data["rigid_w"] * jnp.moveaxis(diff, 2, 0)
-        h = h + data["rigid_w"] * jnp.eye(3)[:, :, None, None, None] * mask[None, None]
+        # -- rigid points: one world position each (T-last layouts from here on)
+        h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
+        g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
+        mask = data["rigid_mask"][:, :, None, None]  # (nb, m, 1, 1)
+        diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
+        g = g + data["rigid_w"] * diff
+        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[..., None]
         cost += data["rigid_w"] * jnp.sum(diff * diff)
-        # -- within-frame blocks: diagonal (slot k, k) and next-slot (k, k+1); a bone
-        # joins neighbouring slots (chains are packed contiguously), so nothing else
-        diag = jnp.transpose(h, (2, 4, 3, 0, 1))  # (nb, T, m, 3, 3)
-        nxt = jnp.zeros((nb, n_frames, max(m - 1, 1), 3, 3))
+        # -- bones: within-frame blocks on the diagonal (slot k, k) and next to it
+        # (k, k+1); a bone joins neighbouring slots (chains are packed contiguously).
+        # Loops over the few bones per block instead of einsums: XLA's contractions
+        # over these tiny axes were slow.
         inc = data["incidence"]  # (nb, Kb, m)
-        d = jnp.einsum("bqk,bkit->bqit", inc, xk)  # (nb, Kb, 3, T)
+        n_bones = inc.shape[1]
+        d = jnp.sum(inc[:, :, :, None, None] * xk[:, None], axis=2)  # (nb, Kb, 3, T)
         length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
         unit = d / length[:, :, None]
         target = data["length"][..., None]
         resid = (length - target) * (target > 0)
-        outer = data["bone_w"] * unit[:, :, :, None] * unit[:, :, None, :]  # (nb, Kb, 3, 3, T)
-        outer = jnp.transpose(outer, (0, 4, 1, 2, 3))  # (nb, T, Kb, 3, 3)
-        # slot k gets +outer for each bone touching it; (k, k+1) gets -outer
-        touch = jnp.abs(inc)  # (nb, Kb, m)
-        diag = diag + jnp.einsum("bqk,btqij->btkij", touch, outer)
-        if m > 1:
-            link = -inc[:, :, :-1] * inc[:, :, 1:]  # 1 where bone q joins slots k, k+1
-            nxt = jnp.einsum("bqk,btqij->btkij", link, -outer)
         grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
-        gk = jnp.einsum("bqk,bqit->bkit", inc, grad_b)  # (nb, m, 3, T)
-        g = g + jnp.moveaxis(gk, 2, 0)
+        diag = h
+        nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
+        for q in range(n_bones):
+            outer = data["bone_w"] * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+            # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
+            diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
+            if m > 1:
+                link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
+                nxt = nxt - link[:, :, None, None, None] * outer[:, None]
+            g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
         cost += data["bone_w"] * jnp.sum(resid * resid)
-        g = jnp.transpose(g, (1, 3, 2, 0))  # (nb, T, m, 3)
+        diag = jnp.transpose(diag, (0, 4, 1, 2, 3))  # (nb, T, m, 3, 3)
+        nxt = jnp.transpose(nxt, (0, 4, 1, 2, 3))  # (nb, T, m - 1, 3, 3)
+        g = jnp.transpose(g, (0, 3, 1, 2))  # (nb, T, m, 3)
         # -- temporal differences
         gram = data["gram"]
         if order:
