@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+from threadpoolctl import threadpool_limits
 
 from .. import camera_model
 from ..resources import usable_cpus
@@ -318,14 +319,6 @@ class ChunkProblem:
 
         ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
         """
-        from threadpoolctl import threadpool_limits
-
-        # One BLAS thread: the banded factorization's blocked kernels are tiny, and
-        # OpenBLAS threads spinning on them ran 10-40x slower on a busy 2-core machine.
-        with threadpool_limits(1, user_api="blas"):
-            return self._solve(xs, max_iterations, ftol, trace)
-
-    def _solve(self, xs, max_iterations, ftol, trace):
         u = self.u
         cost, ab, grad, err = self.evaluate(xs)
         if trace is not None:
@@ -517,7 +510,11 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     started = time.perf_counter()
     starts = list(range(0, n_frames, chunk))
     workers = max(1, min(2, usable_cpus(), len(starts)))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
+    # once, not per chunk: threads entering and leaving it would undo each other). The
+    # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
+    # them ran 10-40x slower on a busy 2-core machine.
+    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
         for k in range(len(starts) + workers):
             if k < len(starts):  # at most `workers` chunks ahead of the writer: memory stays flat
