@@ -24,7 +24,7 @@ def main(argv=None) -> int:
 
         export_nwb(config, args.results, args.output, recording_dir=args.recording, demo=args.demo)
 
-    return script_main(parser, run, argv)
+    return script_main(parser, run, argv, outdir=lambda args: args.output.parent)
 
 
 if __name__ == "__main__":

@@ -149,3 +149,44 @@ def default_rig(focal: float = 22388.125, distance: float = 107.463,
     intrs = np.tile([focal, focal, width / 2.0, height / 2.0], (n, 1))
     return CameraGroup.from_arrays(list(DEFAULT_AZIMUTHS), np.array(rvecs), np.array(tvecs),
                                    intrs, np.zeros((n, 0)))
+
+
+def detector_errors(clean2d: np.ndarray, visible: np.ndarray, view_names, point_names, *,
+                    noise_px: float = 1.5, outlier_frac: float = 0.05, outlier_px: float = 50.0,
+                    swap_frac: float = 0.02, missing_frac: float = 0.10, seed: int = 0):
+    """Detector-like 2D from exact projections ``(V, T, P, 2)``: Gaussian noise, gross
+    outliers (displaced by up to ``outlier_px`` in a random direction), left/right
+    swaps in the side views (the view reports the contralateral point's projection:
+    the hidden leg behind the body) and missing detections.
+
+    Returns ``(pts2d, conf, truth_kind)``: confidences are [0.6, 1] for good points,
+    [0.2, 0.8] for outliers and swaps; ``truth_kind`` ``(V, T, P)`` int8 is 0 good,
+    1 outlier, 2 swap, -1 not observed.
+    """
+    rng = np.random.default_rng(seed)
+    n_views, n_frames, n_points, _ = clean2d.shape
+    names = list(point_names)
+    twin = np.array([names.index(("r" + n[1:]) if n[0] == "l" else ("l" + n[1:]))
+                     if n[0] in "lr" and (("r" + n[1:]) if n[0] == "l" else ("l" + n[1:])) in names else i
+                     for i, n in enumerate(names)])
+    pts = clean2d + rng.normal(0.0, noise_px, clean2d.shape)
+    kind = np.zeros((n_views, n_frames, n_points), np.int8)
+    seen = np.broadcast_to(np.asarray(visible, bool)[:, None, :], kind.shape)
+    side = np.array([name != "f" for name in view_names])[:, None, None]
+    swap = seen & side & (twin != np.arange(n_points))[None, None, :] & (rng.random(kind.shape) < swap_frac)
+    swapped = clean2d[:, :, twin] + rng.normal(0.0, noise_px, clean2d.shape)
+    pts = np.where(swap[..., None], swapped, pts)
+    outlier = seen & ~swap & (rng.random(kind.shape) < outlier_frac)
+    angle = rng.uniform(0, 2 * np.pi, kind.shape)
+    radius = rng.uniform(0.0, outlier_px, kind.shape)
+    shift = np.stack([np.cos(angle), np.sin(angle)], -1) * radius[..., None]
+    pts = np.where(outlier[..., None], clean2d + shift, pts)
+    kind[swap] = 2
+    kind[outlier] = 1
+    conf = rng.uniform(0.6, 1.0, kind.shape)
+    conf = np.where(kind > 0, rng.uniform(0.2, 0.8, kind.shape), conf)
+    present = seen & (rng.random(kind.shape) >= missing_frac)
+    kind[~present] = -1
+    pts = np.where(present[..., None], pts, np.nan)
+    conf = np.where(present, conf, 0.0)
+    return pts, conf, kind

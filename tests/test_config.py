@@ -58,10 +58,35 @@ def test_stage_flags_default_pictorial_off(default, data):
         "bundle_adjustment": True,
         "pictorial_structures": False,
         "triangulation": True,
+        "refinement": True,
+        "kinematics": True,
         "visualization": True,
     }
     del data["pipeline"]
     assert Config.from_dict(data).stage_flags() == STAGE_DEFAULTS
+
+
+def test_refinement_needs_triangulation_and_kinematics_some_3d(data):
+    data["pipeline"]["do_triangulation"] = False
+    flags = Config.from_dict(data).stage_flags()
+    assert flags["refinement"] is False and flags["kinematics"] is False
+    data["pipeline"]["do_pictorial_structures"] = True
+    assert Config.from_dict(data).stage_flags()["kinematics"] is True
+
+
+def test_refinement_and_kinematics_tables_are_checked(data):
+    data["refinement"] = {"smooth_order": 3, "rigid_points": ["lf_thorax_coxa", "nose"], "lossy": 1}
+    data["kinematics"] = {"angles": {"bad": ["lf_claw", "lf_femur_tibia"], "ok": ["lf_claw", "lf_femur_tibia",
+                                                                                "lf_tibia_tarsus"]},
+                          "body_frame": {"origin": ["lf_thorax_coxa"]}}
+    with pytest.raises(ConfigError) as err:
+        Config.from_dict(data)
+    text = str(err.value)
+    for needle in ("refinement.smooth_order", "refinement.rigid_points: unknown point 'nose'",
+                   "refinement.lossy: unknown parameter", "kinematics.angles.bad: expected three point names",
+                   "kinematics.body_frame: missing posterior"):
+        assert needle in text, needle
+    assert "kinematics.angles.ok" not in text
 
 
 def test_typed_views(default, data):
@@ -100,7 +125,8 @@ def test_typed_views(default, data):
 
 def test_stage_params_cover_every_workflow_stage_and_are_json(default):
     params = all_params(default)
-    assert set(params) == {"pose2d", "bundle_adjustment", "pictorial_structures", "triangulation", "assemble", "visualization"}
+    assert set(params) == {"pose2d", "bundle_adjustment", "pictorial_structures", "triangulation", "refinement",
+                           "assemble", "kinematics", "visualization"}
     for value in params.values():
         assert json.loads(json.dumps(value)) == value
     text = json.dumps(params["pose2d"])
@@ -164,8 +190,14 @@ def test_rig_reaches_triangulation_when_bundle_adjustment_is_off(data):
         "bundle_adjustment",
         "pictorial_structures",
         "triangulation",
+        "refinement",
         "assemble",
     }
+
+
+def test_refinement_weight_changes_only_refinement(default, data):
+    data["refinement"]["smooth_weight"] = 0.5
+    assert changed_stages(default, Config.from_dict(data)) == {"refinement"}
 
 
 def test_toggling_pictorial_leaves_pose2d_params_alone(default, data):

@@ -44,6 +44,18 @@ def test_leg_segments_keep_their_length_and_the_legs_move():
     assert not np.allclose(pts, synthetic_fly(40, seed=4))
 
 
+def test_every_bone_keeps_its_length():
+    """The refinement's acceptance scene assumes constant bones: abdomen included."""
+    from flylib.skeleton import Skeleton
+
+    skeleton = Skeleton.fly()
+    pts = synthetic_fly(300, seed=5)
+    lengths = np.linalg.norm(pts[:, skeleton.bones[:, 0]] - pts[:, skeleton.bones[:, 1]], axis=-1)
+    assert np.ptp(lengths, axis=0).max() < 1e-12
+    tip = pts[:, FLY38_POINTS.index("l_abdomen2"), 2]
+    assert np.ptp(tip) > 0.05  # the abdomen still moves
+
+
 def test_left_legs_are_on_plus_y_and_the_head_on_plus_x():
     pts = synthetic_fly(3)
     y = {name: pts[0, i, 1] for i, name in enumerate(FLY38_POINTS)}

@@ -73,7 +73,10 @@ def jobs(rules, recordings) -> set[tuple[str, str]]:
     return {(r, rec) for r in rules for rec in recordings}
 
 
-ALL_STAGES = ("pose2d", "bundle_adjustment", "triangulation", "assemble", "visualization")
+ALL_STAGES = ("pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble", "visualization",
+              "kinematics")
+#: What a change to the triangulation re-runs (everything after it).
+AFTER_TRIANGULATION = ("triangulation", "refinement", "assemble", "visualization", "kinematics")
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +102,8 @@ def test_run_writes_every_artifact_and_a_byte_for_byte_config_snapshot(workspace
         assert result.pts3d.shape == (FRAMES, 38, 3)
         assert np.isfinite(result.pts3d).mean() > 0.9
         for f in ("summary.png", "summary.json", "calibration.toml", "pose2d.mp4", "pose3d.mp4",
-                  "stages/pose2d.h5", "stages/bundle_adjustment.h5", "stages/triangulation.h5"):
+                  "stages/pose2d.h5", "stages/bundle_adjustment.h5", "stages/triangulation.h5",
+                  "stages/refinement.h5", "kinematics.h5", "angles.csv", "angles.png"):
             assert (out / f).stat().st_size > 0, f
         assert (out / "config.yaml").read_bytes() == (root / "config.yaml").read_bytes()
         assert (out / "benchmarks" / "triangulation.tsv").is_file()
@@ -107,7 +111,7 @@ def test_run_writes_every_artifact_and_a_byte_for_byte_config_snapshot(workspace
         summary = json.loads((out / "summary.json").read_text())
         assert summary["frames"] == FRAMES and summary["views"][0] == "rh"
         with h5py.File(out / "results.h5") as f:
-            assert {"pose2d", "bundle_adjustment", "triangulation", "skeleton"} <= set(f)
+            assert {"pose2d", "bundle_adjustment", "triangulation", "refinement", "skeleton"} <= set(f)
     assert not list(root.rglob("*.tmp*")), "a temporary file was left behind"
 
 
@@ -129,14 +133,27 @@ def test_performance_knobs_plan_nothing(workspace, section, key, value):
 def test_triangulation_threshold_reruns_triangulation_and_downstream_only(workspace):
     config = copy.deepcopy(workspace["config"])
     config["triangulation"]["ransac_threshold"] = 9.5
-    expected = jobs(("triangulation", "assemble", "visualization"), ("recA", "recB"))
+    expected = jobs(AFTER_TRIANGULATION, ("recA", "recB"))
     assert planned(workspace["root"], config) == expected
+
+
+def test_refinement_weight_reruns_refinement_and_downstream_only(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["refinement"]["smooth_weight"] = 0.5
+    expected = jobs(("refinement", "assemble", "visualization", "kinematics"), ("recA", "recB"))
+    assert planned(workspace["root"], config) == expected
+
+
+def test_angle_table_edit_reruns_kinematics_only(workspace):
+    config = copy.deepcopy(workspace["config"])
+    config["kinematics"]["angles"] = {"lf_knee": ["lf_coxa_trochanter", "lf_femur_tibia", "lf_tibia_tarsus"]}
+    assert planned(workspace["root"], config) == jobs(("kinematics",), ("recA", "recB"))
 
 
 def test_rig_edit_reruns_bundle_adjustment_and_after_but_not_pose2d(workspace):
     config = copy.deepcopy(workspace["config"])
     config["cameras"]["defaults"]["distance"] = 107.0
-    expected = jobs(("bundle_adjustment", "triangulation", "assemble", "visualization"), ("recA", "recB"))
+    expected = jobs(("bundle_adjustment", *AFTER_TRIANGULATION), ("recA", "recB"))
     assert planned(workspace["root"], config) == expected
 
 
@@ -162,7 +179,7 @@ def test_stage_toggles_shape_the_dag(workspace):
     config["pipeline"]["do_bundle_adjustment"] = False
     plan = planned(root, config)
     assert not any(rule == "bundle_adjustment" for rule, _ in plan)
-    assert jobs(("triangulation", "assemble", "visualization"), ("recA", "recB")) == plan
+    assert jobs(AFTER_TRIANGULATION, ("recA", "recB")) == plan
 
     config = copy.deepcopy(base)
     config["pipeline"]["do_pose2d"] = False  # reconstruct from the existing 2D artifact
@@ -194,8 +211,8 @@ def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     assert planned(tmp_path, config) == set()
 
     rig_file.write_text(rig_file.read_text().replace("22388.125", "22400.0", 1))  # re-calibrated
-    assert planned(tmp_path, config) == jobs(("bundle_adjustment", "triangulation", "assemble"),
-                                             ("recA",))
+    assert planned(tmp_path, config) == jobs(("bundle_adjustment", "triangulation", "refinement",
+                                              "assemble", "kinematics"), ("recA",))
     config["pipeline"]["do_bundle_adjustment"] = False  # triangulation reads the file itself
     assert ("triangulation", "recA") in planned(tmp_path, config)
     assert ("pose2d", "recA") not in planned(tmp_path, config)
@@ -228,10 +245,11 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
 
     off = copy.deepcopy(config)
     off["pipeline"]["do_pictorial_structures"] = False
-    assert planned(tmp_path, off) == jobs(("triangulation", "assemble"), ("recA",))
+    assert planned(tmp_path, off) == jobs(("triangulation", "refinement", "assemble", "kinematics"), ("recA",))
     snakemake(tmp_path, config=off)
     # back on: the earlier pictorial-structures artifact is still valid, only its users re-run
-    assert planned(tmp_path, config) == jobs(("triangulation", "assemble"), ("recA",))
+    assert planned(tmp_path, config) == jobs(("triangulation", "refinement", "assemble", "kinematics"),
+                                             ("recA",))
     # k: no detection while PS is off; while on, the detector must find k peaks again
     off["pictorial_structures"]["k"] = 3
     assert planned(tmp_path, off) == set()
@@ -256,7 +274,7 @@ def test_report_holds_every_recordings_figure_and_videos(workspace):
 
     report = zipfile.ZipFile(root / "report.zip")
     names = report.namelist()
-    for f in ("summary.png", "pose2d.mp4", "pose3d.mp4"):
+    for f in ("summary.png", "angles.png", "pose2d.mp4", "pose3d.mp4"):
         assert sum(n.endswith(f"/{f}") for n in names) == 2, f  # one per recording
     html = report.read(next(n for n in names if n.endswith(".html"))).decode()
     assert "recA/flylib_outputs" in html and "recB/flylib_outputs" in html
@@ -285,7 +303,8 @@ def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_pat
     assert csv.name in (tmp_path / "bad" / "flylib_outputs" / "logs" / "pose2d.log").read_text()
 
     csv.write_bytes(original)
-    assert planned(tmp_path, config) == jobs(("pose2d", "triangulation", "assemble"), ("bad",))
+    assert planned(tmp_path, config) == jobs(("pose2d", "triangulation", "refinement", "assemble", "kinematics"),
+                                             ("bad",))
 
 
 def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
@@ -371,7 +390,8 @@ def test_batch_of_the_two_real_recordings(tmp_path, df3d_sample_dir, df3d_pickle
 
 
 @pytest.mark.parametrize("script", ["demo", "pose2d", "bundle_adjustment", "pictorial_structures",
-                                    "triangulation", "assemble", "visualization"])
+                                    "triangulation", "refinement", "assemble", "visualization",
+                                    "kinematics"])
 def test_stage_scripts_have_help(script):
     proc = subprocess.run([sys.executable, str(REPO / "scripts" / f"{script}.py"), "--help"],
                           capture_output=True, text=True, timeout=120)

@@ -27,8 +27,8 @@ import numpy as np
 from .errors import FlylibError, ResultsError
 from .results import open_checked
 
-_STAGES_2D = ("pose2d", "pictorial_structures", "triangulation")
-_STAGES_3D = ("pictorial_structures", "triangulation")
+_STAGES_2D = ("pose2d", "pictorial_structures", "triangulation", "refinement")
+_STAGES_3D = ("pictorial_structures", "triangulation", "refinement")
 
 
 # -- reading results.h5 (schema v2, seed 004) -------------------------------------
@@ -82,7 +82,7 @@ def summarize_results(path: Path) -> dict:
             if "cameras/names" in group:
                 row["cameras"] = len(_decode(group["cameras/names"][()]))
             stages.append(row)
-        stage_3d = next((s for s in ("triangulation", "pictorial_structures") if f"{s}/points3d" in f), None)
+        stage_3d = next((s for s in reversed(_STAGES_3D) if f"{s}/points3d" in f), None)
         source_2d = next((s for s in reversed(_STAGES_2D) if f"{s}/points" in f), None)
         pts2d = f[f"{source_2d}/points"][()] if source_2d else None
         pts3d = f[f"{stage_3d}/points3d"][()] if stage_3d else None

@@ -114,9 +114,16 @@ def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> np.nda
                 out[:, index[names[s + 1]]] = joint
         wiggle = 0.03 * np.sin(2 * np.pi * 3.0 * t + sign)[:, None]
         out[:, index[f"{side}_antenna"]] = [0.80, sign * 0.12, _BODY_Z + 0.30] + wiggle
-        bend = 0.05 * np.sin(2 * np.pi * 1.5 * t + phase0)[:, None]
-        for k, (x, y, z) in enumerate([(-0.45, 0.22, 0.05), (-0.85, 0.20, 0.0), (-1.25, 0.12, -0.05)]):
-            out[:, index[f"{side}_abdomen{k}"]] = [x, sign * y, _BODY_Z + z] + k * bend * [0, 0, 1]
+        # the abdomen pitches as one rigid piece about its first stripe (its "bones" keep
+        # their lengths): the tip rises and falls by about 0.05
+        pitch = 0.05 / 0.8 * np.sin(2 * np.pi * 1.5 * t + phase0)
+        base = np.array([(-0.45, sign * 0.22, _BODY_Z + 0.05), (-0.85, sign * 0.20, _BODY_Z),
+                         (-1.25, sign * 0.12, _BODY_Z - 0.05)])
+        for k, point in enumerate(base):
+            rel = point - base[0]
+            out[:, index[f"{side}_abdomen{k}"], 0] = base[0, 0] + rel[0] * np.cos(pitch) - rel[2] * np.sin(pitch)
+            out[:, index[f"{side}_abdomen{k}"], 1] = point[1]
+            out[:, index[f"{side}_abdomen{k}"], 2] = base[0, 2] + rel[0] * np.sin(pitch) + rel[2] * np.cos(pitch)
     return out
 
 

@@ -65,7 +65,8 @@ __all__ = [
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation")
+STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation",
+                                  "refinement")
 
 # Arrays with at least this many elements are chunked and compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
@@ -674,8 +675,9 @@ class PoseResult:
     def load(cls, path: str | Path) -> PoseResult:
         """Read the assembled result back, preferring the most-derived data present.
 
-        ``pts2d``: triangulation, else pictorial_structures, else pose2d. ``pts3d`` and
-        ``reproj_error``: triangulation, else pictorial_structures. Cameras:
+        ``pts2d``: refinement, else triangulation, else pictorial_structures, else
+        pose2d. ``pts3d`` and ``reproj_error``: refinement, else triangulation, else
+        pictorial_structures. Cameras:
         bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d.
 
         Parameters
@@ -717,7 +719,7 @@ class PoseResult:
                 read.append(f"/{stage}/{name}")
                 return _read(f[f"{stage}/{name}"])
 
-            derived = ("triangulation", "pictorial_structures")
+            derived = ("refinement", "triangulation", "pictorial_structures")
             pts2d = first("points", (*derived, "pose2d"))
             pts3d = first("points3d", derived)
             reproj = first("reproj_error", derived)

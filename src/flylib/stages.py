@@ -15,10 +15,13 @@ stage                  reads                                       writes
 ``bundle_adjustment``  ``pose2d.h5``, config rig                    ``stages/bundle_adjustment.h5``
 ``pictorial``          ``pose2d.h5``, candidates, rig              ``stages/pictorial_structures.h5``
 ``triangulation``      2D (PS if on, else pose2d), rig              ``stages/triangulation.h5``
+``refinement``         triangulation, pose2d, rig                   ``stages/refinement.h5``
 ``assemble``           the stage artifacts                          ``results.h5``, ``summary.json``,
                                                                     ``summary.png``, ``calibration.toml``,
                                                                     ``suspects.csv``
 ``visualization``      ``results.h5``, footage                      ``<video_name>.mp4``
+``kinematics``         ``results.h5``                               ``kinematics.h5``, ``angles.csv``,
+                                                                    ``angles.png``
 =====================  ==========================================  ===============================
 """
 
@@ -47,6 +50,7 @@ ARTIFACTS = {
     "bundle_adjustment": "bundle_adjustment.h5",
     "pictorial_structures": "pictorial_structures.h5",
     "triangulation": "triangulation.h5",
+    "refinement": "refinement.h5",
 }
 
 
@@ -262,6 +266,21 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
     return Path(out_path)
 
 
+def run_refinement(config, pose2d_path, triangulation_path, out_path, *, ba_path=None,
+                   recording_dir=None) -> Path:
+    """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
+    from .refinement.stage import run_refinement as run
+
+    return run(config, pose2d_path, triangulation_path, out_path, ba_path=ba_path, recording_dir=recording_dir)
+
+
+def run_kinematics(config, results_path, outdir) -> dict:
+    """Body frame and joint angles (see :func:`flylib.kinematics.stage.run_kinematics`)."""
+    from .kinematics.stage import run_kinematics as run
+
+    return run(config, results_path, outdir)
+
+
 def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
                  recording_dir: str | Path | None = None,
                  truth_path: str | Path | None = None,
@@ -307,6 +326,11 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
         truth = load_truth(truth_path)
         if result.pts3d is not None:
             summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
+        if "refinement" in stage_files and "triangulation" in stage_files:
+            from .results import read_stage
+
+            tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
+            summary["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
     summary["params_sha256"] = {**meta.get("upstream_params_sha256", {}), "assemble": meta["params_sha256"]}
     _write_json(outdir / "summary.json", summary)
     if snapshot_path is not None:

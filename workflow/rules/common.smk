@@ -20,6 +20,7 @@ from flylib.config.layers import ConfigLayers  # noqa: E402
 from flylib.errors import FlylibError  # noqa: E402
 from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
 from flylib.preflight import load_run_config  # noqa: E402
+from flylib.kinematics import FILES as KINEMATICS_FILES  # noqa: E402
 from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact  # noqa: E402
 
 # The config: the same files Snakemake merged (configfile: and --configfile, then
@@ -185,6 +186,8 @@ def recording_targets(rec) -> list[str]:
     targets = [f"{out}/results.h5", *(f"{out}/{name}" for name in SUMMARY_FILES)]
     if FLAGS["visualization"]:
         targets += [f"{out}/{name}.mp4" for name in VIDEO_NAMES]
+    if FLAGS["kinematics"]:
+        targets += [f"{out}/{name}" for name in KINEMATICS_FILES]
     return targets
 
 
@@ -233,6 +236,14 @@ def reconstruction_inputs(stage: str):
     return inputs
 
 
+def refinement_inputs(wildcards) -> dict:
+    """Inputs of refinement: pose2d (2D, confidences), the triangulation (start, inlier
+    views), and the rig as triangulation reads it."""
+    files = reconstruction_inputs("refinement")(wildcards)
+    files["triangulation"] = artifact("triangulation").format(outdir=wildcards.outdir)
+    return files
+
+
 def optional_arg(flag: str, key: str):
     """`--flag path` when the job has input `key`, else nothing."""
     return lambda wildcards, input: f"{flag} {shell_quote(input[key])}" if key in input.keys() else ""
@@ -251,7 +262,7 @@ def shell_quote(text: str) -> str:
 
 def assemble_inputs(wildcards) -> dict:
     files = {"pose2d": artifact("pose2d")}
-    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation"):
+    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation", "refinement"):
         if FLAGS[stage]:
             files[stage] = artifact(stage)
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}

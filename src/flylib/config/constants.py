@@ -14,6 +14,8 @@ STAGES: tuple[str, ...] = (
     "bundle_adjustment",
     "pictorial_structures",
     "triangulation",
+    "refinement",
+    "kinematics",
     "visualization",
 )
 #: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
@@ -22,6 +24,8 @@ STAGE_DEFAULTS: dict[str, bool] = {
     "bundle_adjustment": True,
     "pictorial_structures": False,
     "triangulation": True,
+    "refinement": True,
+    "kinematics": True,
     "visualization": True,
 }
 #: The workflow rules that :meth:`Config.stage_params` describes.
@@ -30,7 +34,9 @@ PARAM_STAGES: tuple[str, ...] = (
     "bundle_adjustment",
     "pictorial_structures",
     "triangulation",
+    "refinement",
     "assemble",
+    "kinematics",
     "visualization",
 )
 
@@ -44,6 +50,8 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "bundle_adjustment",
     "pictorial_structures",
     "triangulation",
+    "refinement",
+    "kinematics",
     "visualization",
     "calibration",
     "recordings",

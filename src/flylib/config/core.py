@@ -31,6 +31,7 @@ from .params import (
     TriangulationParams,
     _build_params,
 )
+from .postprocessing import KinematicsParams, RefinementParams
 from .validation import _default_point_names, _default_skeleton_table, validate_config
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -186,6 +187,16 @@ class Config:
         return _build_params(TriangulationParams, self.data.get("triangulation") or {})
 
     @property
+    def refinement(self) -> RefinementParams:
+        """The ``refinement`` table."""
+        return _build_params(RefinementParams, self.data.get("refinement") or {})
+
+    @property
+    def kinematics(self) -> KinematicsParams:
+        """The ``kinematics`` table."""
+        return KinematicsParams.from_table(self.data.get("kinematics") or {})
+
+    @property
     def pictorial(self) -> PictorialParams:
         """The ``pictorial_structures`` table."""
         return _build_params(PictorialParams, self.data.get("pictorial_structures") or {})
@@ -240,7 +251,11 @@ class Config:
             ``stage -> enabled`` for every stage in :data:`STAGES`.
         """
         pipeline = self.data.get("pipeline") or {}
-        return {stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES}
+        flags = {stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES}
+        # refinement starts from the triangulation; kinematics needs some 3D
+        flags["refinement"] &= flags["triangulation"]
+        flags["kinematics"] &= flags["triangulation"] or flags["pictorial_structures"]
+        return flags
 
     def stage_params(self, stage: str) -> dict:
         """The exact config subset that affects ``stage``'s result.
@@ -258,6 +273,9 @@ class Config:
           bundle-adjustment artifact).
         - ``triangulation``: the method and the knobs that method reads, where its 2D
           comes from, and the config rig when bundle adjustment is off.
+        - ``refinement``: its table, the skeleton's points and limbs, and the config rig
+          when bundle adjustment is off.
+        - ``kinematics``: its table and the skeleton's points and limbs.
         - ``assemble``: the rig and the whole skeleton (palette included).
         - ``visualization``: the visualization table and the skeleton palette.
 
@@ -308,6 +326,14 @@ class Config:
                 "points_from": "pictorial_structures" if flags["pictorial_structures"] else "pose2d",
                 "rig": None if flags["bundle_adjustment"] else self._rig(),
             }
+        elif stage == "refinement":
+            params = {
+                "refinement": asdict(self.refinement),
+                "skeleton": self._skeleton_structure(),
+                "rig": None if flags["bundle_adjustment"] else self._rig(),
+            }
+        elif stage == "kinematics":
+            params = {"kinematics": asdict(self.kinematics), "skeleton": self._skeleton_structure()}
         elif stage == "assemble":
             params = {
                 "rig": self._rig(),

@@ -11,6 +11,7 @@ from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
 from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
+from .postprocessing import RefinementParams, kinematics_problems
 from .params import (
     _LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
@@ -180,6 +181,8 @@ def validate_config(data: Any) -> list[str]:
         "bundle_adjustment": _mapping(),
         "pictorial_structures": _mapping(),
         "triangulation": _mapping(),
+        "refinement": _mapping(),
+        "kinematics": _mapping(),
         "visualization": _mapping(),
         "calibration": _mapping(nullable=True),
         "demo": _mapping(nullable=True),
@@ -259,6 +262,13 @@ def validate_config(data: Any) -> list[str]:
 
     problems += _table_problems(table("pictorial_structures"), PictorialParams, "pictorial_structures")
     problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
+    problems += _table_problems(table("refinement"), RefinementParams, "refinement")
+    rigid = table("refinement").get("rigid_points")
+    if isinstance(rigid, list) and point_names:
+        for point in rigid:
+            if isinstance(point, str) and point not in point_names:
+                problems.append(f"refinement.rigid_points: unknown point {point!r} (known: {', '.join(point_names)})")
+    problems += kinematics_problems(table("kinematics"), point_names)
 
     for key, value in table("io").items():
         if key == "on_corrupt_frame":

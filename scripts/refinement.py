@@ -1,0 +1,31 @@
+#!/usr/bin/env python
+"""refinement stage: re-solve the triangulated 3D of every frame at once (robust
+reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)."""
+
+import sys
+from pathlib import Path
+
+import _bootstrap  # noqa: F401
+
+from flylib.stages import output_dir, run_refinement, script_main, script_parser
+
+
+def main(argv=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5): 2D and confidences")
+    parser.add_argument("--triangulation", required=True, type=Path,
+                        help="triangulation artifact (.h5): the starting 3D and its inlier views")
+    parser.add_argument("--bundle-adjustment", type=Path, default=None,
+                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
+    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+
+    def run(args, config):
+        run_refinement(config, args.pose2d, args.triangulation, args.out,
+                       ba_path=args.bundle_adjustment, recording_dir=args.recording)
+
+    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

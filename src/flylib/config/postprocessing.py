@@ -1,0 +1,151 @@
+"""Typed views and checks of the ``refinement`` and ``kinematics`` tables."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .checks import _boolean, _choice, _got, _integer, _number, _param, _string_list
+
+REFINEMENT_LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+BODY_FRAME_KEYS = ("origin", "posterior", "anterior", "right", "left")
+
+
+@dataclass(frozen=True)
+class RefinementParams:
+    """The ``refinement`` table (spatiotemporal 3D refinement, :mod:`flylib.refinement`).
+
+    Attributes
+    ----------
+    loss, scale_px
+        Robust loss of the reprojection term and its scale in pixels.
+    weigh_by_confidence
+        Weight each observation by the detector's confidence.
+    smooth_weight, smooth_order, smooth_scale
+        Temporal term: weight, difference order (1 velocity, 2 acceleration) and the
+        per-frame change in world units that costs as much as ``scale_px``.
+    bone_weight, bone_scale, symmetric_bones
+        Bone-length constancy (one length per bone for the recording): weight, the
+        length deviation in world units that costs as much as ``scale_px``, and
+        whether left and right bones share a length.
+    rigid_points, rigid_weight, rigid_scale
+        Points held at one world position (null: every ``*thorax_coxa`` point, the
+        tethered thorax; ``[]``: none), weight and scale in world units.
+    gap_length
+        Frames a point with no supporting view is filled by the temporal term;
+        longer gaps stay NaN.
+    outlier_px
+        After the first pass, observations further than this from the refined point
+        are left out.
+    max_iterations, chunk_frames, overlap_frames
+        Solver iterations per chunk, frames per chunk, and context frames on each side.
+    moved_fraction
+        Flag points moved from the triangulation by more than this fraction of the
+        median bone length.
+    """
+
+    loss: str = _param("soft_l1", _choice(*REFINEMENT_LOSSES))
+    scale_px: float = _param(3.0, _number(0, exclusive=True), kind=float)
+    weigh_by_confidence: bool = _param(True, _boolean)
+    smooth_weight: float = _param(1.0, _number(0), kind=float)
+    smooth_order: int = _param(2, _choice(1, 2))
+    smooth_scale: float = _param(0.03, _number(0, exclusive=True), kind=float)
+    bone_weight: float = _param(1.0, _number(0), kind=float)
+    bone_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
+    symmetric_bones: bool = _param(False, _boolean)
+    rigid_points: tuple[str, ...] | None = _param(None, _string_list(nullable=True), kind=tuple)
+    rigid_weight: float = _param(1.0, _number(0), kind=float)
+    rigid_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
+    gap_length: int = _param(5, _integer(0))
+    outlier_px: float = _param(20.0, _number(0, exclusive=True), kind=float)
+    max_iterations: int = _param(10, _integer(1))
+    chunk_frames: int = _param(1024, _integer(16))
+    overlap_frames: int = _param(32, _integer(0))
+    moved_fraction: float = _param(0.05, _number(0, exclusive=True), kind=float)
+
+
+def _triples_problems(value: Any, path: str, point_names: tuple[str, ...]) -> list[str]:
+    if value is None:
+        return []
+    if not isinstance(value, Mapping):
+        return [f"{path}: expected a mapping name -> [a, b, c] of point names, {_got(value)}"]
+    problems = []
+    for name, triple in value.items():
+        if not (isinstance(triple, (list, tuple)) and len(triple) == 3 and all(isinstance(p, str) for p in triple)):
+            problems.append(f"{path}.{name}: expected three point names [a, b, c], got {triple!r}")
+            continue
+        unknown = [p for p in triple if point_names and p not in point_names]
+        if unknown:
+            problems.append(f"{path}.{name}: unknown point(s) {unknown} (known: {', '.join(point_names)})")
+    return problems
+
+
+def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[str]:
+    """Problems with the ``kinematics`` table, one ``"kinematics.<key>: ..."`` line each."""
+    problems = []
+    known = ("angles", "segments", "tethered", "body_frame")
+    for key in table:
+        if key not in known:
+            problems.append(f"kinematics.{key}: unknown parameter (known: {', '.join(known)})")
+    problems += _triples_problems(table.get("angles"), "kinematics.angles", point_names)
+    problems += _triples_problems(table.get("segments"), "kinematics.segments", point_names)
+    if "tethered" in table and _boolean(table["tethered"]):
+        problems.append(f"kinematics.tethered: {_boolean(table['tethered'])}")
+    frame = table.get("body_frame")
+    if frame is not None:
+        if not isinstance(frame, Mapping):
+            problems.append(f"kinematics.body_frame: expected a mapping with {', '.join(BODY_FRAME_KEYS)}, {_got(frame)}")
+        else:
+            for key, value in frame.items():
+                where = f"kinematics.body_frame.{key}"
+                if key not in BODY_FRAME_KEYS:
+                    problems.append(f"{where}: unknown key (known: {', '.join(BODY_FRAME_KEYS)})")
+                elif _string_list()(value) or not value:
+                    problems.append(f"{where}: expected a non-empty list of point names, {_got(value)}")
+                else:
+                    unknown = [p for p in value if point_names and p not in point_names]
+                    if unknown:
+                        problems.append(f"{where}: unknown point(s) {unknown}")
+            missing = [k for k in BODY_FRAME_KEYS if k not in frame]
+            if missing:
+                problems.append(f"kinematics.body_frame: missing {', '.join(missing)}")
+    return problems
+
+
+@dataclass(frozen=True)
+class KinematicsParams:
+    """The ``kinematics`` table (body frame and joint angles, :mod:`flylib.kinematics`).
+
+    Attributes
+    ----------
+    angles
+        ``name -> (a, b, c)``: the angle at ``b`` between ``b->a`` and ``b->c``
+        (Anipose's flexion angles); ``None`` = the fly default set.
+    segments
+        ``name -> (a, b, c)``: yaw, pitch and roll of segment ``a->b`` in the body
+        frame, roll measured from the plane through ``c``; ``None`` = the six coxae.
+    tethered
+        One body frame for the recording (else one per frame).
+    body_frame
+        ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point lists;
+        ``None`` = the fly's thorax-coxa points.
+    """
+
+    angles: dict[str, tuple[str, str, str]] | None = None
+    segments: dict[str, tuple[str, str, str]] | None = None
+    tethered: bool = True
+    body_frame: dict[str, tuple[str, ...]] | None = None
+
+    @classmethod
+    def from_table(cls, table: Mapping) -> KinematicsParams:
+        def triples(value):
+            return None if value is None else {str(k): tuple(v) for k, v in value.items()}
+
+        frame = table.get("body_frame")
+        return cls(
+            angles=triples(table.get("angles")),
+            segments=triples(table.get("segments")),
+            tethered=bool(table.get("tethered", True)),
+            body_frame=None if frame is None else {k: tuple(v) for k, v in frame.items()},
+        )

@@ -1,0 +1,120 @@
+"""Kinematics: the body frame of the fly and its joint angles.
+
+:func:`compute_kinematics` works on a ``(T, P, 3)`` array and a skeleton;
+:mod:`flylib.kinematics.stage` is the workflow stage (``kinematics.h5``,
+``angles.csv`` in Anipose's angles layout, ``angles.png``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from .angles import default_angles, default_segments, flexion, segment_orientation
+from .frame import (
+    FRAME_KEYS,
+    body_frame,
+    default_frame_points,
+    frame_from_groups,
+    to_body,
+)
+
+#: What the kinematics stage writes into a recording's output directory.
+FILES = ("kinematics.h5", "angles.csv", "angles.png")
+
+__all__ = [
+    "FILES",
+    "FRAME_KEYS",
+    "Kinematics",
+    "body_frame",
+    "compute_kinematics",
+    "default_angles",
+    "default_frame_points",
+    "default_segments",
+    "flexion",
+    "frame_from_groups",
+    "segment_orientation",
+    "to_body",
+]
+
+
+@dataclass
+class Kinematics:
+    """Angles and body-frame 3D of one recording.
+
+    Attributes
+    ----------
+    angle_names
+        Column names, flexion angles first, then ``<segment>_yaw/_pitch/_roll``.
+    angles
+        ``(T, A)`` degrees, NaN where a point is missing.
+    definitions
+        ``name -> [a, b, c]`` point names each angle is computed from.
+    points3d_body
+        ``(T, P, 3)`` the pose in the body frame.
+    rotation, origin
+        The body frame: ``(3, 3)``/``(3,)`` (tethered) or ``(T, 3, 3)``/``(T, 3)``.
+    """
+
+    angle_names: list[str]
+    angles: np.ndarray
+    definitions: dict[str, list[str]]
+    points3d_body: np.ndarray
+    rotation: np.ndarray
+    origin: np.ndarray
+
+
+def _indices(skeleton, names, what: str) -> list[int]:
+    missing = [n for n in names if n not in skeleton.point_names]
+    if missing:
+        raise ConfigError(f"kinematics.{what}: unknown point(s) {missing} (known: {', '.join(skeleton.point_names)})")
+    return [skeleton.index(n) for n in names]
+
+
+def compute_kinematics(pts3d, skeleton, *, angles=None, segments=None, tethered: bool = True,
+                       body_frame_points=None) -> Kinematics:
+    """Body frame, body-frame 3D and joint angles.
+
+    Parameters
+    ----------
+    pts3d
+        ``(T, P, 3)`` world points, NaN = missing.
+    skeleton
+        The :class:`~flylib.skeleton.Skeleton` naming the P axis.
+    angles
+        ``name -> (a, b, c)`` flexion angles at ``b``; ``None`` = :func:`default_angles`.
+    segments
+        ``name -> (a, b, c)`` segment orientations; ``None`` = :func:`default_segments`.
+    tethered
+        One body frame for the recording, else one per frame.
+    body_frame_points
+        ``origin, posterior, anterior, right, left`` point names; ``None`` =
+        :func:`default_frame_points`.
+
+    Returns
+    -------
+    Kinematics
+    """
+    pts3d = np.asarray(pts3d, np.float64)
+    groups_names = body_frame_points or default_frame_points(skeleton)
+    groups = {k: _indices(skeleton, groups_names[k], f"body_frame.{k}") for k in FRAME_KEYS}
+    rotation, origin = body_frame(pts3d, groups, tethered)
+    body = to_body(pts3d, rotation, origin)
+    angles = default_angles(skeleton) if angles is None else angles
+    segments = default_segments(skeleton) if segments is None else segments
+    names, columns, definitions = [], [], {}
+    for name, triple in angles.items():
+        a, b, c = _indices(skeleton, triple, f"angles.{name}")
+        names.append(name)
+        columns.append(flexion(pts3d, a, b, c))
+        definitions[name] = list(triple)
+    for name, triple in segments.items():
+        a, b, c = _indices(skeleton, triple, f"segments.{name}")
+        for key, values in segment_orientation(body, a, b, c).items():
+            names.append(f"{name}_{key}")
+            columns.append(values)
+            definitions[f"{name}_{key}"] = list(triple)
+    values = np.stack(columns, axis=1) if columns else np.zeros((pts3d.shape[0], 0))
+    return Kinematics(names, values, definitions, body, np.asarray(rotation), np.asarray(origin))

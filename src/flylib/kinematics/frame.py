@@ -1,0 +1,119 @@
+"""The body frame: origin at the thorax-coxa centroid, x anterior, z dorsal, right-handed.
+
+Given point groups (``origin``, ``posterior``, ``anterior``, ``right``, ``left``), the
+axes of a pose are
+
+- ``x`` = unit(mean(anterior) - mean(posterior)),
+- ``y`` = the left-pointing ``mean(left) - mean(right)`` made orthogonal to ``x``,
+- ``z`` = ``x`` cross ``y`` (dorsal for a fly whose left is +y when it faces +x),
+
+and body coordinates are ``R (p - origin)`` with ``R = [x; y; z]`` (rows). Everything
+is built from differences and means of the pose's own points, so rotating and
+translating the whole pose leaves the body coordinates unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ConfigError
+
+FRAME_KEYS = ("origin", "posterior", "anterior", "right", "left")
+
+
+def default_frame_points(skeleton) -> dict[str, list[str]]:
+    """The fly's body-frame groups from its ``<side><leg>_thorax_coxa`` points.
+
+    Raises
+    ------
+    ConfigError
+        If the skeleton lacks the thorax-coxa points (set ``kinematics.body_frame``).
+    """
+    tc = [p for p in skeleton.point_names if p.endswith("thorax_coxa") and len(p) > 2]
+    groups = {
+        "origin": tc,
+        "posterior": [p for p in tc if p[1] == "h"],
+        "anterior": [p for p in tc if p[1] == "f"],
+        "right": [p for p in tc if p[0] == "r"],
+        "left": [p for p in tc if p[0] == "l"],
+    }
+    empty = [k for k, v in groups.items() if not v]
+    if empty:
+        raise ConfigError(f"kinematics.body_frame: the skeleton has no thorax-coxa points for {', '.join(empty)}; "
+                          "set kinematics.body_frame: {origin, posterior, anterior, right, left}")
+    return groups
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def frame_from_groups(pts: np.ndarray, groups: dict[str, list[int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Body frame(s) of poses ``(..., P, 3)``.
+
+    Returns
+    -------
+    rotation : np.ndarray
+        ``(..., 3, 3)`` rows ``x, y, z`` (world -> body).
+    origin : np.ndarray
+        ``(..., 3)``.
+    """
+    def mean(key):
+        return pts[..., groups[key], :].mean(axis=-2)
+
+    x = _unit(mean("anterior") - mean("posterior"))
+    left = mean("left") - mean("right")
+    y = _unit(left - (left * x).sum(-1, keepdims=True) * x)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=-2), mean("origin")
+
+
+def steady_pose(pts: np.ndarray, indices: list[int]) -> np.ndarray:
+    """One robust position per point over frames ``(T, P, 3)`` -> ``(P, 3)`` (NaN rows for
+    points never seen): the mean after dropping frames more than 3 median distances
+    from the mean; distances only, so the estimate moves with a rigid motion."""
+    out = np.full((pts.shape[1], 3), np.nan)
+    for p in indices:
+        track = pts[:, p]
+        track = track[np.isfinite(track).all(-1)]
+        if not len(track):
+            continue
+        centre = track.mean(0)
+        dist = np.linalg.norm(track - centre, axis=-1)
+        keep = dist <= 3.0 * np.median(dist) + 1e-12
+        out[p] = track[keep].mean(0)
+    return out
+
+
+def body_frame(pts3d: np.ndarray, groups: dict[str, list[int]], tethered: bool = True):
+    """The body frame of a recording.
+
+    Parameters
+    ----------
+    pts3d
+        ``(T, P, 3)`` world points, NaN = missing.
+    groups
+        ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point indices.
+    tethered
+        One frame for the recording (from each frame point's robust steady position),
+        else one per frame.
+
+    Returns
+    -------
+    rotation, origin
+        ``(3, 3)`` and ``(3,)`` when tethered, else ``(T, 3, 3)`` and ``(T, 3)``.
+    """
+    if tethered:
+        used = sorted({p for v in groups.values() for p in v})
+        return frame_from_groups(steady_pose(pts3d, used), groups)
+    return frame_from_groups(pts3d, groups)
+
+
+def to_body(pts3d: np.ndarray, rotation: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """World ``(T, P, 3)`` -> body coordinates with a constant or per-frame frame."""
+    rotation = np.asarray(rotation)
+    origin = np.asarray(origin)
+    if rotation.ndim == 2:
+        return (pts3d - origin) @ rotation.T
+    return np.einsum("tij,tpj->tpi", rotation, pts3d - origin[:, None, :])

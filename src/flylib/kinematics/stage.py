@@ -1,0 +1,123 @@
+"""The kinematics workflow stage: ``results.h5`` -> ``kinematics.h5``, ``angles.csv``,
+``angles.png``.
+
+``angles.csv`` follows Anipose's ``angles`` output (``anipose angles``): one column per
+angle, named as configured, in degrees, then ``fnum`` (the frame number), no index
+column, NaN (an empty field) where a point is missing.
+
+``kinematics.h5`` holds ``attrs["meta"]`` (format version, ``stage: kinematics``) and
+``kinematics/`` with ``angles`` ``(T, A)``, ``points3d_body`` ``(T, P, 3)``,
+``body_rotation`` (``(3, 3)`` world -> body rows x, y, z, or ``(T, 3, 3)``),
+``body_origin`` (``(3,)`` or ``(T, 3)``) and attributes ``angle_names``,
+``definitions`` (``name -> [a, b, c]``), ``point_names`` and ``tethered`` (JSON).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..paths import atomic_path
+from . import FILES, Kinematics, compute_kinematics
+
+
+def kinematics_from_config(config, pts3d, skeleton=None) -> Kinematics:
+    """:func:`compute_kinematics` as the config's ``kinematics`` table says."""
+    params = config.kinematics
+    skeleton = skeleton or config.skeleton()
+    return compute_kinematics(pts3d, skeleton, angles=params.angles, segments=params.segments,
+                              tethered=params.tethered, body_frame_points=params.body_frame)
+
+
+def angles_table(kin: Kinematics):
+    """The Anipose angles table (``pandas.DataFrame``): angle columns, then ``fnum``."""
+    import pandas as pd
+
+    table = pd.DataFrame({name: kin.angles[:, k] for k, name in enumerate(kin.angle_names)})
+    table["fnum"] = np.arange(kin.angles.shape[0])
+    return table
+
+
+def write_angles_csv(path: str | Path, kin: Kinematics) -> Path:
+    """Write ``angles.csv`` atomically (Anipose's layout)."""
+    with atomic_path(path) as tmp:
+        angles_table(kin).to_csv(tmp, index=False)
+    return Path(path)
+
+
+def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered: bool) -> Path:
+    """Write ``kinematics.h5`` atomically (layout in the module docstring)."""
+    from ..results import _new_meta, _write_array
+
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta("kinematics"))
+        group = f.create_group("kinematics")
+        _write_array(group, "angles", kin.angles)
+        _write_array(group, "points3d_body", kin.points3d_body)
+        _write_array(group, "body_rotation", kin.rotation)
+        _write_array(group, "body_origin", kin.origin)
+        for key, value in {"angle_names": kin.angle_names, "definitions": kin.definitions,
+                           "point_names": list(point_names), "tethered": bool(tethered)}.items():
+            group.attrs[key] = json.dumps(value)
+    return Path(path)
+
+
+def angles_figure(kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90) -> Path:
+    """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
+    solid, segment yaw/pitch/roll dashed."""
+    from matplotlib.figure import Figure
+
+    groups: dict[str, list[int]] = {}
+    for k, name in enumerate(kin.angle_names):
+        groups.setdefault(name.split("_")[0], []).append(k)
+    n = max(len(groups), 1)
+    cols = min(n, 3)
+    rows = int(np.ceil(n / cols))
+    fig = Figure(figsize=(5 * cols, 3 * rows), dpi=dpi, layout="constrained")
+    t = np.arange(kin.angles.shape[0])
+    xlabel = "frame"
+    if fps:
+        t, xlabel = t / fps, "time (s)"
+    for i, (leg, columns) in enumerate(sorted(groups.items())):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        for k in columns:
+            name = kin.angle_names[k]
+            style = "-" if name.endswith("_flex") else "--"
+            ax.plot(t, kin.angles[:, k], style, lw=1.2, label=name[len(leg) + 1:])
+        ax.set_title(leg)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("degrees")
+        ax.legend(fontsize=7, ncol=2, loc="upper right")
+    if not groups:
+        fig.add_subplot(1, 1, 1).text(0.5, 0.5, "no angles configured", ha="center")
+    fig.suptitle("joint angles (kinematics)")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
+
+
+def run_kinematics(config, results_path: str | Path, outdir: str | Path) -> dict:
+    """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
+    into ``outdir``.
+
+    Raises
+    ------
+    ResultsError
+        If ``results.h5`` holds no 3D.
+    """
+    from ..errors import ResultsError
+    from ..results import PoseResult
+
+    result = PoseResult.load(results_path)
+    if result.pts3d is None:
+        raise ResultsError(f"{results_path}: holds no 3D points; turn on triangulation "
+                           "(or set pipeline.do_kinematics: false)")
+    outdir = Path(outdir)
+    kin = kinematics_from_config(config, result.pts3d, result.skeleton)
+    write_kinematics_h5(outdir / FILES[0], kin, result.skeleton.point_names, config.kinematics.tethered)
+    write_angles_csv(outdir / FILES[1], kin)
+    angles_figure(kin, outdir / FILES[2])
+    return {"angles": kin.angle_names, "frames": int(kin.angles.shape[0])}

@@ -1,0 +1,320 @@
+"""The spatiotemporal objective: its terms, their normal equations, and the band layout.
+
+Unknowns are every point of every frame of a chunk, ``X (T, P, 3)``. The objective is
+
+.. math::
+
+    F(X) = \\sum_{v,t,p} w_{vtp}\\, \\rho\\big(|\\pi_v(X_{tp}) - x_{vtp}|^2 / s^2\\big)
+         + \\lambda_s \\sum_{t,p} |\\Delta^d X_{tp}|^2 / s_s^2
+         + \\lambda_b \\sum_{t,b} (|X_{t i_b} - X_{t j_b}| - L_b)^2 / s_b^2
+         + \\lambda_r \\sum_{t, p \\in R} |X_{tp} - C_p|^2 / s_r^2
+
+(robust reprojection with scale ``s`` px and confidence weights ``w``; ``d``-th
+temporal differences; one length ``L_b`` per bone; rigid points held at one world
+position ``C_p`` for the recording). Every term is dimensionless, so the weights
+``lambda`` compare like with like.
+
+The reprojection term's Gauss-Newton blocks come from one jitted JAX kernel:
+``jax.jacfwd`` of :func:`flylib.geometry.project_full_one` (the same projection and
+Jacobian machinery bundle adjustment uses), ``vmap``-ed over points and views, with
+the robust loss applied as iteratively reweighted least squares. The other terms are
+quadratic or rank-one and are assembled in NumPy.
+
+Band layout: the points are packed into *blocks* of at most ``m`` points (whole limb
+chains, so that every bone stays inside a block) and the unknowns ordered
+``(block, frame, slot, xyz)``. Within a frame a block couples ``3m`` unknowns; the
+temporal term couples the same unknown ``d`` frames apart, ``3m d`` positions away.
+The normal matrix is therefore banded with half-bandwidth ``3 m d`` (15 for the fly's
+legs with first differences) and is factorized by LAPACK's banded Cholesky
+(``scipy.linalg.cholesky_banded``) in time linear in the number of frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+
+
+def _loss_jax(z, loss: str):
+    """``(rho(z), rho'(z))`` in JAX."""
+    import jax.numpy as jnp
+
+    if loss == "linear":
+        return z, jnp.ones_like(z)
+    if loss == "soft_l1":
+        root = jnp.sqrt(1.0 + z)
+        return 2.0 * (root - 1.0), 1.0 / root
+    if loss == "huber":
+        small = z <= 1.0
+        root = jnp.sqrt(jnp.maximum(z, 1.0))
+        return jnp.where(small, z, 2.0 * root - 1.0), jnp.where(small, 1.0, 1.0 / root)
+    if loss == "cauchy":
+        return jnp.log1p(z), 1.0 / (1.0 + z)
+    raise ValueError(f"unknown loss {loss!r} (known: {', '.join(LOSSES)})")
+
+
+@cache
+def chunk_kernel(loss: str, order: int, m: int):
+    """The jitted evaluation of one chunk: cost, banded normal matrix and gradient.
+
+    ``evaluate(xs, data) -> (cost, ab, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
+    the slotted points and ``data`` a dict of dense arrays (no scatter anywhere: every
+    sum is over a padded axis):
+
+    - observations on a grid ``(n_blocks, m, W)`` of (slot, view) cells, ``W`` the
+      most views any point is seen from: ``rmat`` ``(..., 3, 3)``, ``tvec``
+      ``(..., 3)``, ``intr`` ``(..., 4)``, ``dist`` ``(..., D)``, ``xy``
+      ``(..., T, 2)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2`` (1 / scale_px^2);
+    - bones as incidence rows ``incidence`` ``(n_blocks, Kb, m)`` (+1 / -1 at the
+      bone's two slots, zero rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
+    - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``,
+      ``rigid_w``;
+    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram`), ``smooth_w``.
+
+    ``ab`` holds the within-frame part of the Gauss-Newton matrix (IRLS weights for
+    the robust loss) as the superdiagonals ``0..5`` of LAPACK's upper band storage
+    (``(6, n)``; :func:`temporal_band` adds the temporal rows); ``grad`` ``(n,)`` the
+    gradient (both halved, so the step solves ``ab d = -grad``); ``err``
+    ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
+    of :func:`flylib.geometry.distort_one` plus intrinsics in the camera frame (the
+    model of :func:`flylib.geometry.project_full_one`), chained with the rotation.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from .. import camera_model, geometry  # noqa: F401  (geometry: float64, CPU, compile cache)
+
+    width = 3 * m
+    band_width(m, order)
+
+    def pixel(pc, intr, dist):
+        # the model of geometry.project_full_one, camera frame -> pixels, elementwise
+        # over trailing axes (components lead: pc (3, ...), intr (4, ...), dist (12, ...))
+        x, y = pc[0] / pc[2], pc[1] / pc[2]
+        if dist is not None:
+            radial, add_x, add_y = camera_model.distortion_terms(x, y, dist)
+            x, y = x * radial + add_x, y * radial + add_y
+        return jnp.stack([intr[0] * x + intr[2], intr[1] * y + intr[3]])
+
+    def evaluate(xs, data):
+        nb, n_frames = xs.shape[0], xs.shape[1]
+        # T-last layouts throughout: every elementwise op runs along frames
+        xk = jnp.transpose(xs, (0, 2, 3, 1))  # (nb, m, 3, T)
+        rmat = data["rmat"]  # (nb, m, W, 3, 3)
+        pc = jnp.einsum("bkvij,bkjt->ibkvt", rmat, xk) + jnp.moveaxis(data["tvec"], -1, 0)[..., None]
+        intr = jnp.moveaxis(data["intr"], -1, 0)[..., None]  # (4, nb, m, W, 1)
+        dist = data.get("dist")
+        dist = None if dist is None else jnp.moveaxis(dist, -1, 0)[..., None]
+        proj = pixel(pc, intr, dist)  # (2, nb, m, W, T)
+        # d pixel / d world point: one JVP per world axis j, whose tangent in the camera
+        # frame is the rotation's column j
+        rot = jnp.moveaxis(rmat, (-2, -1), (0, 1))[..., None]  # (3, 3, nb, m, W, 1)
+        jac = jnp.stack([jax.jvp(lambda p: pixel(p, intr, dist), (pc,),
+                                 (jnp.broadcast_to(rot[:, j], pc.shape),))[1] for j in range(3)],
+                        axis=1)  # (2, 3, nb, m, W, T)
+        e = proj - jnp.moveaxis(data["xy"], -1, 0)  # (2, nb, m, W, T)
+        sq = e[0] * e[0] + e[1] * e[1]
+        rho, drho = _loss_jax(sq * data["inv_s2"], loss)
+        w = data["w"]
+        scale = w * drho * data["inv_s2"]
+        # explicit sums over the 2 pixel rows and the W views (XLA's generic reductions
+        # over these small strided axes were the kernel's slowest part)
+        sj = [[scale * jac[a, i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        entry = {}
+        for i in range(3):
+            for j in range(i, 3):
+                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0, j] + sj[1][i] * jac[1, j], axis=2)
+        h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
+        g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
+        cost = jnp.sum(w * rho)
+        # -- rigid points: one world position each (T-last layouts from here on)
+        h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
+        g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
+        mask = data["rigid_mask"][:, :, None, None]  # (nb, m, 1, 1)
+        diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
+        g = g + data["rigid_w"] * diff
+        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[..., None]
+        cost += data["rigid_w"] * jnp.sum(diff * diff)
+        # -- bones: within-frame blocks on the diagonal (slot k, k) and next to it
+        # (k, k+1); a bone joins neighbouring slots (chains are packed contiguously).
+        # Loops over the few bones per block instead of einsums: XLA's contractions
+        # over these tiny axes were slow.
+        inc = data["incidence"]  # (nb, Kb, m)
+        n_bones = inc.shape[1]
+        d = jnp.sum(inc[:, :, :, None, None] * xk[:, None], axis=2)  # (nb, Kb, 3, T)
+        length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
+        unit = d / length[:, :, None]
+        target = data["length"][..., None]
+        resid = (length - target) * (target > 0)
+        grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
+        diag = h
+        nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
+        for q in range(n_bones):
+            outer = data["bone_w"] * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+            # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
+            diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
+            if m > 1:
+                link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
+                nxt = nxt - link[:, :, None, None, None] * outer[:, None]
+            g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
+        cost += data["bone_w"] * jnp.sum(resid * resid)
+        diag = jnp.transpose(diag, (0, 4, 1, 2, 3))  # (nb, T, m, 3, 3)
+        nxt = jnp.transpose(nxt, (0, 4, 1, 2, 3))  # (nb, T, m - 1, 3, 3)
+        g = jnp.transpose(g, (0, 3, 1, 2))  # (nb, T, m, 3)
+        # -- temporal differences
+        gram = data["gram"]
+        if order:
+            sw = data["smooth_w"]
+            dx = jnp.diff(xs, n=order, axis=1)
+            cost += sw * jnp.sum(dx * dx)
+            smooth = gram[0][None, :, None, None] * xs
+            zero = jnp.zeros_like(xs)
+            for q in range(1, order + 1):
+                c = gram[q][None, :, None, None]
+                # (D^T D)[t - q, t] x[t - q] + (D^T D)[t, t + q] x[t + q]
+                back = jnp.concatenate([zero[:, :q], xs[:, :-q]], axis=1) * c
+                ahead = jnp.concatenate([(c * xs)[:, q:], zero[:, :q]], axis=1)
+                smooth = smooth + back + ahead
+            g = g + sw * smooth
+        # -- the non-zero within-frame rows of the band: row u - delta holds the
+        # delta-th superdiagonal at the column of its lower-right end (delta < 6)
+        rows = []
+        zero = jnp.zeros((nb, n_frames, m))
+        for delta in range(min(6, width)):
+            cols = []
+            for jj in range(3):
+                ii = jj - delta
+                if ii >= 0:
+                    cols.append(diag[..., ii, jj])
+                elif ii + 3 >= 0 and m > 1:
+                    cols.append(jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1))
+                else:
+                    cols.append(zero)
+            rows.append(jnp.stack(cols, axis=-1).reshape(-1))
+        err = jnp.sqrt(sq)  # (nb, m, W, T)
+        return cost, jnp.stack(rows), g.reshape(-1), err
+
+    return jax.jit(evaluate)
+
+
+@dataclass(frozen=True)
+class BlockLayout:
+    """Points packed into blocks of ``m`` slots (whole limb chains per block).
+
+    Attributes
+    ----------
+    slots
+        ``(n_blocks, m)`` point index of each slot, ``-1`` for an empty slot.
+    block_of, slot_of
+        ``(P,)`` the block and slot of every point.
+    """
+
+    slots: np.ndarray
+    block_of: np.ndarray
+    slot_of: np.ndarray
+
+    @property
+    def m(self) -> int:
+        return int(self.slots.shape[1])
+
+    @property
+    def n_blocks(self) -> int:
+        return int(self.slots.shape[0])
+
+    @classmethod
+    def from_chains(cls, n_points: int, chains: list[list[int]]) -> BlockLayout:
+        """First-fit packing of the chains (longest first), then the loose points.
+
+        Parameters
+        ----------
+        n_points
+            ``P``.
+        chains
+            Point-index chains (limbs); a point appears in at most one.
+        """
+        chains = [list(c) for c in chains if c]
+        seen = {p for c in chains for p in c}
+        chains += [[p] for p in range(n_points) if p not in seen]
+        m = max((len(c) for c in chains), default=1)
+        blocks: list[list[int]] = []
+        for chain in sorted(chains, key=len, reverse=True):
+            for block in blocks:
+                if len(block) + len(chain) <= m:
+                    block.extend(chain)
+                    break
+            else:
+                blocks.append(list(chain))
+        slots = np.full((len(blocks), m), -1, dtype=np.int64)
+        block_of = np.zeros(n_points, dtype=np.int64)
+        slot_of = np.zeros(n_points, dtype=np.int64)
+        for b, block in enumerate(blocks):
+            slots[b, : len(block)] = block
+            block_of[block] = b
+            slot_of[block] = np.arange(len(block))
+        return cls(slots, block_of, slot_of)
+
+
+def difference_gram(n_frames: int, order: int) -> np.ndarray:
+    """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``.
+
+    Returns
+    -------
+    np.ndarray
+        ``(order + 1, n_frames)``: row ``q`` holds ``(D^T D)[t - q, t]`` at column ``t``
+        (zero for ``t < q``).
+    """
+    out = np.zeros((order + 1, n_frames))
+    if order == 0 or n_frames <= order:
+        return out
+    coef = np.array([1.0])
+    for _ in range(order):
+        coef = np.convolve(coef, [1.0, -1.0])
+    rows = n_frames - order
+    for q in range(order + 1):
+        for a in range(order + 1 - q):
+            # difference rows k = 0..rows-1 add coef[a] coef[a+q] at column k + a + q
+            out[q, a + q : a + q + rows] += coef[a] * coef[a + q]
+    return out
+
+
+def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
+    """The constant part of the band ``(u + 1, n)``: the temporal term's rows for real
+    slots and a unit diagonal for empty ones (whose unknowns then never move);
+    :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``."""
+    m = layout.m
+    width = 3 * m
+    u = band_width(m, order)
+    n_blocks = layout.n_blocks
+    n_frames = gram.shape[1]
+    real = np.repeat((layout.slots >= 0).astype(float), 3, axis=1)[:, None, :]  # (nb, 1, 3m)
+    ab = np.zeros((u + 1, n_blocks * n_frames * width))
+    if order and smooth_w:
+        for q in range(order + 1):
+            ab[u - q * width] = (smooth_w * gram[q][None, :, None] * real).ravel()
+    ab[u] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
+    return ab
+
+
+def band_width(m: int, order: int) -> int:
+    """Half-bandwidth ``u`` of the normal matrix for blocks of ``m`` points."""
+    return max(3 * m - 1, 3 * m * order)
+
+
+def to_slots(per_point: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """``(T, P, ...)`` -> ``(n_blocks, T, m, ...)`` (zeros in empty slots)."""
+    pad = np.zeros((per_point.shape[0], 1, *per_point.shape[2:]))
+    padded = np.concatenate([per_point, pad], axis=1)
+    index = np.where(slots >= 0, slots, per_point.shape[1])
+    return np.moveaxis(padded[:, index], 0, 1)
+
+
+def from_slots(slotted: np.ndarray, slots: np.ndarray, n_points: int) -> np.ndarray:
+    """``(n_blocks, T, m, ...)`` -> ``(T, P, ...)``."""
+    ok = slots >= 0
+    out = np.zeros((slotted.shape[1], n_points, *slotted.shape[3:]))
+    out[:, slots[ok]] = np.moveaxis(slotted, 1, 0)[:, ok]
+    return out

@@ -1,0 +1,642 @@
+"""Levenberg-Marquardt over a whole recording, chunk by chunk, with banded solves.
+
+:func:`refine_points` is the entry point. Recording-wide unknowns are settled first
+(one length per bone, one world position per rigid point: robust medians over the
+whole starting reconstruction, left/right bones pooled on request); then the frames
+are solved in chunks of ``chunk_frames`` with ``overlap_frames`` of context on each
+side (only the chunk's own frames are kept), so memory does not grow with the
+recording. In each chunk, Gauss-Newton steps with Levenberg-Marquardt damping solve
+the banded normal equations of :mod:`flylib.refinement.objective` exactly. The robust
+reprojection term starts from the triangulation's inlier views (plus every view of a
+point the triangulation could not reconstruct); once converged, every observation
+within ``outlier_px`` of the refined point is admitted, the rest sit out, and the
+fit continues.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+from threadpoolctl import threadpool_limits
+
+from .. import camera_model
+from ..resources import usable_cpus
+from .objective import (
+    LOSSES,
+    BlockLayout,
+    band_width,
+    chunk_kernel,
+    difference_gram,
+    from_slots,
+    temporal_band,
+    to_slots,
+)
+
+log = logging.getLogger(__name__)
+
+#: Bits of the per-point ``flags`` array ``(T, P)`` (documented in the artifact's attrs).
+FLAG_BITS: dict[str, tuple[int, str]] = {
+    "observed": (1, "at least one view's 2D supports the point in this frame"),
+    "filled": (2, "no view supports it; filled by the temporal term (gap <= gap_length)"),
+    "missing": (4, "no view supports it for more than gap_length frames: NaN"),
+    "single_view": (8, "supported by exactly one view (depth from the priors)"),
+    "outlier_views": (16, "one or more of its 2D observations were rejected as outliers"),
+    "moved": (32, "moved from the starting (triangulated) 3D by more than moved_fraction of the median bone"),
+    "no_start": (64, "the starting triangulation had no 3D for it in this frame"),
+}
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """Weights, scales and limits of the refinement (the config's ``refinement`` table)."""
+
+    loss: str = "soft_l1"
+    scale_px: float = 3.0
+    weigh_by_confidence: bool = True
+    smooth_weight: float = 1.0
+    smooth_order: int = 2
+    smooth_scale: float = 0.03
+    bone_weight: float = 1.0
+    bone_scale: float = 0.005
+    symmetric_bones: bool = False
+    rigid_weight: float = 1.0
+    rigid_scale: float = 0.005
+    gap_length: int = 5
+    outlier_px: float = 20.0
+    max_iterations: int = 10
+    chunk_frames: int = 1024
+    overlap_frames: int = 32
+    moved_fraction: float = 0.05
+
+    def __post_init__(self):
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}, got {self.loss!r}")
+        if self.smooth_order not in (1, 2):
+            raise ValueError(f"smooth_order must be 1 or 2, got {self.smooth_order}")
+
+
+@dataclass
+class RefinementResult:
+    """What :func:`refine_points` returns.
+
+    Attributes
+    ----------
+    points3d
+        ``(T, P, 3)`` refined points; NaN where no view supports a point for more
+        than ``gap_length`` frames.
+    reproj_error
+        ``(V, T, P)`` pixel error of every observation the fit kept (NaN elsewhere).
+    points2d
+        ``(V, T, P, 2)`` the observations the fit kept (rejected outliers NaN).
+    flags
+        ``(T, P)`` uint8 bit flags, see :data:`FLAG_BITS`.
+    bone_lengths
+        ``(B,)`` the recording's bone lengths (NaN: bone unconstrained).
+    rigid_points, rigid_centres
+        Indices ``(R,)`` and world positions ``(R, 3)`` of the rigid group.
+    info
+        Timings and iteration counts.
+    """
+
+    points3d: np.ndarray
+    reproj_error: np.ndarray
+    points2d: np.ndarray
+    flags: np.ndarray
+    bone_lengths: np.ndarray
+    rigid_points: np.ndarray
+    rigid_centres: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+# -- recording-wide unknowns ------------------------------------------------------------
+
+
+def bone_lengths(start: np.ndarray, bones: np.ndarray, mirror: np.ndarray | None = None) -> np.ndarray:
+    """Robust length of every bone over the recording: the median over frames.
+
+    Parameters
+    ----------
+    start
+        ``(T, P, 3)`` starting points (NaN = missing).
+    bones
+        ``(B, 2)`` point-index pairs.
+    mirror
+        ``(B,)`` index of each bone's left/right twin (or itself): twins share the
+        median of their pooled lengths.
+
+    Returns
+    -------
+    np.ndarray
+        ``(B,)``; NaN for a bone never seen whole.
+    """
+    if len(bones) == 0:
+        return np.zeros(0)
+    lengths = np.linalg.norm(start[:, bones[:, 0]] - start[:, bones[:, 1]], axis=-1)  # (T, B)
+    out = np.full(len(bones), np.nan)
+    for b in range(len(bones)):
+        cols = [b] if mirror is None else sorted({b, int(mirror[b])})
+        values = lengths[:, cols].ravel()
+        values = values[np.isfinite(values)]
+        if values.size:
+            out[b] = np.median(values)
+    return out
+
+
+def rigid_centres(start: np.ndarray, rigid: np.ndarray) -> np.ndarray:
+    """World position of each rigid point: the per-coordinate median over frames ``(R, 3)``."""
+    out = np.full((len(rigid), 3), np.nan)
+    for k, p in enumerate(rigid):
+        track = start[:, p]
+        track = track[np.isfinite(track).all(-1)]
+        if len(track):
+            out[k] = np.median(track, axis=0)
+    return out
+
+
+def fill_start(start: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Linear interpolation of every point's missing frames (nearest value at the ends);
+    a point with no value at all takes ``fallback`` ``(P, 3)``."""
+    out = start.copy()
+    t = np.arange(start.shape[0])
+    for p in range(start.shape[1]):
+        ok = np.isfinite(start[:, p]).all(-1)
+        if ok.all():
+            continue
+        if not ok.any():
+            out[:, p] = fallback[p]
+            continue
+        for c in range(3):
+            out[:, p, c] = np.interp(t, t[ok], start[ok, p, c])
+    return out
+
+
+# -- one chunk ----------------------------------------------------------------------------
+
+
+def _bucket(n: int, largest: int) -> int:
+    """Padded frame count for the kernel: powers of two from 32, capped at ``largest``."""
+    size = 32
+    while size < n:
+        size *= 2
+    return max(n, min(size, largest))
+
+
+class Grid:
+    """Observations as a dense (slot, view) grid: for every point slot, the views that
+    see it anywhere in the recording (at most ``W``; unused cells have weight 0).
+
+    ``W`` is rounded up to keep the kernel's compiled shapes few.
+    """
+
+    def __init__(self, observed: np.ndarray, cameras, layout: BlockLayout):
+        seen = observed.any(axis=1)  # (V, P)
+        slots = layout.slots
+        width = max(int(seen.sum(0).max(initial=1)), 1)
+        view = np.zeros((*slots.shape, width), np.int64)
+        real = np.zeros((*slots.shape, width), bool)
+        for (b, k), p in np.ndenumerate(slots):
+            if p < 0:
+                continue
+            views = np.flatnonzero(seen[:, p])
+            view[b, k, : len(views)] = views
+            real[b, k, : len(views)] = True
+        self.view, self.real = view, real
+        self.point = np.broadcast_to(np.where(slots >= 0, slots, 0)[..., None], view.shape)
+        rows = _camera_rows(cameras)[view]
+        self.arrays = {
+            "rmat": camera_model.rvec_to_rmat_numpy(rows[..., 0:3].reshape(-1, 3)).reshape(*view.shape, 3, 3),
+            "tvec": rows[..., 3:6],
+            "intr": rows[..., 6:10],
+        }
+        if rows.shape[-1] > 10 and np.any(rows[..., 10:]):
+            self.arrays["dist"] = camera_model.pad_dist_numpy(rows[..., 10:].reshape(-1, rows.shape[-1] - 10)
+                                                              ).reshape(*view.shape, 12)
+
+    def gather(self, per_obs: np.ndarray, n_frames: int) -> np.ndarray:
+        """``(V, T, P, ...)`` -> ``(n_blocks, m, W, n_frames, ...)`` (0 in unused cells and padding)."""
+        picked = per_obs[self.view, :, self.point]  # (nb, m, W, T, ...)
+        mask = self.real.reshape(*self.real.shape, *([1] * (picked.ndim - 3)))
+        picked = np.where(mask, picked, 0.0)
+        if picked.shape[3] < n_frames:
+            pad = [(0, 0)] * picked.ndim
+            pad[3] = (0, n_frames - picked.shape[3])
+            picked = np.pad(picked, pad)
+        return picked
+
+    def scatter(self, per_cell: np.ndarray, shape) -> np.ndarray:
+        """``(n_blocks, m, W, T)`` -> ``(V, T, P)`` (NaN where no cell)."""
+        out = np.full(shape, np.nan)
+        real = self.real
+        out[self.view[real], :, self.point[real]] = per_cell[real][:, : shape[1]]
+        return out
+
+
+def _bone_incidence(layout: BlockLayout, bones: np.ndarray, lengths: np.ndarray):
+    """``(n_blocks, Kb, m)`` incidence rows and ``(n_blocks, Kb)`` lengths (0 = padding)."""
+    per_block = [[] for _ in range(layout.n_blocks)]
+    for (i, j), length in zip(bones, lengths):
+        per_block[layout.block_of[i]].append((layout.slot_of[i], layout.slot_of[j], length))
+    kb = max(1, max(len(b) for b in per_block))
+    inc = np.zeros((layout.n_blocks, kb, layout.m))
+    out = np.zeros((layout.n_blocks, kb))
+    for b, items in enumerate(per_block):
+        for q, (si, sj, length) in enumerate(items):
+            inc[b, q, si] += 1.0
+            inc[b, q, sj] -= 1.0
+            out[b, q] = length
+    return inc, out
+
+
+class ChunkProblem:
+    """The objective over one chunk of frames (padded to ``padded`` for the kernel)."""
+
+    def __init__(self, tracks: Grid, xy, weight, layout: BlockLayout, bones, lengths, rigid, centres,
+                 opts: RefineOptions, padded: int):
+        self.opts = opts
+        self.tracks = tracks
+        self.layout = layout
+        self.n_views, self.n_frames, self.n_points = weight.shape
+        self.padded = padded
+        self.weight = weight
+        self.u = band_width(layout.m, opts.smooth_order)
+        self.kernel = chunk_kernel(opts.loss, opts.smooth_order, layout.m)
+        bone_ok = np.isfinite(lengths) & (lengths > 0) & (opts.bone_weight > 0)
+        bones, lengths = bones[bone_ok], lengths[bone_ok]
+        rigid_ok = np.isfinite(centres).all(-1) & (opts.rigid_weight > 0)
+        rigid, centres = rigid[rigid_ok], centres[rigid_ok]
+        incidence, slot_lengths = _bone_incidence(layout, bones, lengths)
+        rigid_mask = np.zeros(layout.slots.shape)
+        centre = np.zeros((*layout.slots.shape, 3))
+        rigid_mask[layout.block_of[rigid], layout.slot_of[rigid]] = 1.0
+        centre[layout.block_of[rigid], layout.slot_of[rigid]] = centres.reshape(-1, 3)
+        self.data = {
+            **tracks.arrays,
+            "xy": tracks.gather(np.nan_to_num(xy, nan=0.0), padded),
+            "inv_s2": 1.0 / opts.scale_px**2,
+            "incidence": incidence, "length": slot_lengths,
+            "bone_w": opts.bone_weight / opts.bone_scale**2,
+            "rigid_mask": rigid_mask, "centre": centre,
+            "rigid_w": opts.rigid_weight / opts.rigid_scale**2,
+            "gram": difference_gram(padded, opts.smooth_order),
+            "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
+        }
+        self.band = temporal_band(layout, opts.smooth_order, self.data["gram"], self.data["smooth_w"])
+        self.set_active(weight > 0)
+
+    def set_active(self, active: np.ndarray) -> None:
+        """Use only the observations ``active`` ``(V, T, P)``."""
+        self.active = active
+        self.data["w"] = self.tracks.gather(np.where(active, self.weight, 0.0), self.padded)
+
+    def to_slots(self, x: np.ndarray) -> np.ndarray:
+        """``(T, P, 3)`` -> padded, slotted ``(n_blocks, padded, m, 3)``."""
+        if x.shape[0] < self.padded:
+            x = np.concatenate([x, np.repeat(x[-1:], self.padded - x.shape[0], axis=0)])
+        return to_slots(x, self.layout.slots)
+
+    def from_slots(self, xs: np.ndarray) -> np.ndarray:
+        return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
+
+    def evaluate(self, xs: np.ndarray):
+        cost, rows, grad, err = self.kernel(xs, self.data)
+        ab = self.band.copy()
+        ab[self.u - rows.shape[0] + 1:] += np.asarray(rows)[::-1]
+        return float(cost), ab, np.asarray(grad), np.asarray(err)
+
+    def errors(self, err: np.ndarray) -> np.ndarray:
+        """Cell errors ``(n_blocks, m, W, padded)`` -> ``(V, T, P)``."""
+        return self.tracks.scatter(err, (self.n_views, self.n_frames, self.n_points))
+
+    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
+        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, iterations, err)``.
+
+        ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
+        """
+        u = self.u
+        cost, ab, grad, err = self.evaluate(xs)
+        if trace is not None:
+            trace.append((cost, 0.0))
+        mu = 1e-4
+        it = 0
+        for it in range(1, max_iterations + 1):
+            diag = ab[u].copy()
+            # a ridge far below any real curvature: keeps unknowns that only the
+            # temporal term sees (a point unobserved in the whole chunk) well posed, and
+            # the factorization free of denormal fill-in
+            floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
+            improved = False
+            while mu < 1e8:
+                damped = ab.copy()
+                damped[u] += mu * diag + floor
+                try:
+                    factor = cholesky_banded(damped, lower=False, check_finite=False)
+                except LinAlgError:
+                    mu *= 10.0
+                    continue
+                step = cho_solve_banded((factor, False), -grad, check_finite=False)
+                trial = xs + step.reshape(xs.shape)
+                new = self.evaluate(trial)
+                if trace is not None:
+                    trace.append((new[0], mu))
+                if new[0] <= cost:
+                    improved = True
+                    decrease = cost - new[0]
+                    xs, (cost, ab, grad, err) = trial, new
+                    mu = max(mu / 5.0, 1e-10)
+                    break
+                mu *= 8.0
+            if not improved or decrease <= ftol * max(cost, 1e-12):
+                break
+        return xs, it, err
+
+
+# -- the recording ----------------------------------------------------------------------
+
+
+class ArraySource:
+    """In-memory inputs of :func:`refine_stream`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``
+    or None, ``start (T, P, 3)``, ``inliers (V, T, P)`` or None (anything sliceable
+    along T works, e.g. h5py datasets)."""
+
+    def __init__(self, pts2d, start, conf=None, inliers=None):
+        self.pts2d, self.start, self.conf, self.inliers = pts2d, start, conf, inliers
+        self.n_views, self.n_frames, self.n_points = pts2d.shape[:3]
+
+    def read(self, lo: int, hi: int):
+        """``(pts2d, conf, start, inliers)`` of frames ``lo:hi`` as float64 / bool arrays."""
+        conf = None if self.conf is None else np.asarray(self.conf[:, lo:hi], np.float64)
+        inl = None if self.inliers is None else np.asarray(self.inliers[:, lo:hi], bool)
+        return (np.asarray(self.pts2d[:, lo:hi], np.float64), conf,
+                np.asarray(self.start[lo:hi], np.float64), inl)
+
+
+class ArraySink:
+    """Collects :func:`refine_stream`'s output in memory."""
+
+    def __init__(self, n_views: int, n_frames: int, n_points: int):
+        self.points3d = np.full((n_frames, n_points, 3), np.nan)
+        self.reproj_error = np.full((n_views, n_frames, n_points), np.nan)
+        self.points2d = np.full((n_views, n_frames, n_points, 2), np.nan)
+        self.flags = np.zeros((n_frames, n_points), np.uint8)
+
+    def write(self, lo, hi, points3d, reproj_error, points2d, flags):
+        self.points3d[lo:hi] = points3d
+        self.reproj_error[:, lo:hi] = reproj_error
+        self.points2d[:, lo:hi] = points2d
+        self.flags[lo:hi] = flags
+
+    def mark_missing(self, lo, hi, missing):
+        """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing."""
+        flags = self.flags[lo:hi]
+        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
+        self.points3d[lo:hi][missing] = np.nan
+
+
+def _weights(pts2d, conf, opts):
+    observed = np.isfinite(pts2d).all(-1)
+    if conf is not None and opts.weigh_by_confidence:
+        weight = np.where(observed & np.isfinite(conf) & (conf > 0), np.nan_to_num(conf), 0.0)
+    else:
+        weight = observed.astype(np.float64)
+    return observed & (weight > 0), weight
+
+
+#: Frames (at most) the recording-wide medians are taken over: evenly spread, so the
+#: memory they need does not grow with the recording.
+GLOBAL_SAMPLE_FRAMES = 20000
+
+
+def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None, rigid=(),
+                  options: RefineOptions | None = None) -> dict[str, Any]:
+    """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``.
+
+    Memory is bounded by the chunk size (plus one byte per frame and point for the
+    gap bookkeeping), whatever the recording's length.
+
+    Parameters
+    ----------
+    source
+        Has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
+        start, inliers)`` (see :class:`ArraySource`).
+    cameras
+        The rig.
+    sink
+        Has ``write(lo, hi, points3d, reproj_error, points2d, flags)`` and
+        ``mark_missing(lo, hi, missing)`` (see :class:`ArraySink`).
+    bones, chains, mirror, rigid, options
+        As in :func:`refine_points`.
+
+    Returns
+    -------
+    dict
+        ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
+    """
+    opts = options or RefineOptions()
+    n_views, n_frames, n_points = source.n_views, source.n_frames, source.n_points
+    bones = np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
+    rigid = np.asarray(rigid, np.int64).ravel()
+    chains = [list(map(int, c)) for c in chains] if chains is not None else [list(map(int, b)) for b in bones]
+    layout = BlockLayout.from_chains(n_points, chains)
+    for i, j in bones:
+        if layout.block_of[i] != layout.block_of[j] or abs(layout.slot_of[i] - layout.slot_of[j]) != 1:
+            raise ValueError(f"bone ({i}, {j}) does not join neighbouring points of one chain; "
+                             "give the limb chains the bones run along")
+    chunk = max(int(opts.chunk_frames), 1)
+    overlap = max(int(opts.overlap_frames), 0)
+
+    # -- pass 1: which views see which points, and a frame sample for the medians
+    seen = np.zeros((n_views, n_points), bool)
+    stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
+    sample = []
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        pts2d, conf, start, _ = source.read(lo, hi)
+        seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
+        sample.append(start[(-lo) % stride::stride])
+    sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
+    lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
+    centres = rigid_centres(sample, rigid)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fallback = np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
+    centre_all = np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else np.zeros(3)
+    fallback = np.where(np.isfinite(fallback), fallback, centre_all)
+    if len(rigid):
+        ok = np.isfinite(centres).all(-1)
+        fallback[rigid[ok]] = centres[ok]
+    grid = Grid(seen[:, None, :], cameras, layout)
+    scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
+
+    # -- pass 2: the chunks, two at a time (the JAX kernel and LAPACK release the GIL);
+    # results are written in order by this thread
+    supported = np.zeros((n_frames, n_points), bool)
+    largest = chunk + 2 * overlap
+    iterations, kept_total, rejected_total = [], 0, 0
+
+    def solve_chunk(lo: int):
+        hi = min(lo + chunk, n_frames)
+        a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
+        pts2d, conf, start, inliers = source.read(a, b)
+        observed, weight = _weights(pts2d, conf, opts)
+        problem = ChunkProblem(grid, pts2d, weight, layout, bones, lengths, rigid, centres, opts,
+                               _bucket(b - a, largest))
+        first = observed.copy()
+        if inliers is not None:
+            first &= inliers | ~np.isfinite(start).all(-1)[None]
+        problem.set_active(first)
+        xs = problem.to_slots(fill_start(start, fallback))
+        half = max(opts.max_iterations // 2, 1)
+        xs, it1, err = problem.solve(xs, half)
+        problem.set_active(observed & (problem.errors(err) < opts.outlier_px))
+        xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
+        keep = slice(lo - a, hi - a)
+        active = problem.active[:, keep]
+        points3d = problem.from_slots(xs)[keep]
+        flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, scale, opts)
+        return (lo, hi, it1 + it2, active, int((observed[:, keep] & ~active).sum()), points3d,
+                np.where(active, problem.errors(err)[:, keep], np.nan),
+                np.where(active[..., None], pts2d[:, keep], np.nan), flags)
+
+    started = time.perf_counter()
+    starts = list(range(0, n_frames, chunk))
+    workers = max(1, min(2, usable_cpus(), len(starts)))
+    # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
+    # once, not per chunk: threads entering and leaving it would undo each other). The
+    # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
+    # them ran 10-40x slower on a busy 2-core machine.
+    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        for k in range(len(starts) + workers):
+            if k < len(starts):  # at most `workers` chunks ahead of the writer: memory stays flat
+                pending.append(pool.submit(solve_chunk, starts[k]))
+            if len(pending) > workers or (k >= len(starts) and pending):
+                lo, hi, its, active, rejected, points3d, err, clean, flags = pending.popleft().result()
+                iterations.append(its)
+                supported[lo:hi] = active.any(axis=0)
+                kept_total += int(active.sum())
+                rejected_total += rejected
+                sink.write(lo, hi, points3d, err, clean, flags)
+    solve_seconds = time.perf_counter() - started
+
+    # -- gaps longer than gap_length: NaN
+    long_gap = _runs_longer_than(~supported, int(opts.gap_length))
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        if long_gap[lo:hi].any():
+            sink.mark_missing(lo, hi, long_gap[lo:hi])
+    info = {
+        "frames": n_frames, "chunks": len(iterations), "iterations": iterations[:64],
+        "seconds": round(solve_seconds, 3), "observations_kept": kept_total,
+        "observations_rejected": rejected_total, "bone_sample_frames": len(sample),
+    }
+    log.info("refinement: %d frames in %d chunk(s), %.2f s, iterations %s", n_frames, len(iterations),
+             solve_seconds, iterations[:8])
+    return {"bone_lengths": lengths, "rigid_points": rigid, "rigid_centres": centres, "info": info}
+
+
+def refine_points(
+    pts2d: np.ndarray,
+    cameras,
+    start: np.ndarray,
+    *,
+    conf: np.ndarray | None = None,
+    inliers: np.ndarray | None = None,
+    bones: np.ndarray | None = None,
+    chains: list[list[int]] | None = None,
+    mirror: np.ndarray | None = None,
+    rigid: list[int] | np.ndarray = (),
+    options: RefineOptions | None = None,
+) -> RefinementResult:
+    """Refine a whole recording's 3D jointly over frames and the skeleton.
+
+    Parameters
+    ----------
+    pts2d
+        ``(V, T, P, 2)`` 2D observations in raw-frame pixels, NaN = missing.
+    cameras
+        The rig (:class:`~flylib.cameras.CameraGroup`).
+    start
+        ``(T, P, 3)`` starting 3D (the triangulation), NaN = not reconstructed.
+    conf
+        ``(V, T, P)`` detector confidences (weights when ``weigh_by_confidence``).
+    inliers
+        ``(V, T, P)`` bool: the views the triangulation kept; the first pass uses only
+        those (and every view of points it left NaN). ``None``: every observation.
+    bones
+        ``(B, 2)`` point-index pairs whose length is constant over the recording.
+    chains
+        The limb chains (point indices) that bones run along; every bone must join
+        neighbouring points of one chain. Default: each bone its own chain.
+    mirror
+        ``(B,)`` each bone's left/right twin, for ``symmetric_bones``.
+    rigid
+        Indices of the points held at one world position (the tethered thorax).
+    options
+        :class:`RefineOptions`.
+
+    Returns
+    -------
+    RefinementResult
+    """
+    pts2d = np.asarray(pts2d, np.float64)
+    start = np.asarray(start, np.float64)
+    n_views, n_frames, n_points, _ = pts2d.shape
+    if start.shape != (n_frames, n_points, 3):
+        raise ValueError(f"start must be (T={n_frames}, P={n_points}, 3), got {start.shape}")
+    sink = ArraySink(n_views, n_frames, n_points)
+    out = refine_stream(ArraySource(pts2d, start, conf, inliers), cameras, sink, bones=bones, chains=chains,
+                        mirror=mirror, rigid=rigid, options=options)
+    return RefinementResult(sink.points3d, sink.reproj_error, sink.points2d, sink.flags, out["bone_lengths"],
+                            out["rigid_points"], out["rigid_centres"], out["info"])
+
+
+def _camera_rows(cameras) -> np.ndarray:
+    """``(V, 10 + K)`` stacked ``[rvec, tvec, fx, fy, cx, cy, dist]`` (what the kernel reads)."""
+    intrs = np.asarray(cameras.intrs, np.float64)
+    if intrs.shape[1] == 3:
+        intrs = np.stack([intrs[:, 0], intrs[:, 0], intrs[:, 1], intrs[:, 2]], axis=1)
+    dists = np.asarray(cameras.dists, np.float64).reshape(len(intrs), -1)
+    return np.concatenate([np.asarray(cameras.rvecs, np.float64), np.asarray(cameras.tvecs, np.float64),
+                           intrs, dists], axis=1)
+
+
+def _runs_longer_than(mask: np.ndarray, length: int) -> np.ndarray:
+    """``(T, P)`` bool: the frames inside runs of ``mask`` longer than ``length``."""
+    out = np.zeros_like(mask)
+    n = mask.shape[0]
+    for p in range(mask.shape[1]):
+        col = mask[:, p]
+        if not col.any():
+            continue
+        edges = np.diff(np.concatenate([[0], col.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for s, e in zip(starts, stops):
+            if e - s > length:
+                out[s:min(e, n), p] = True
+    return out
+
+
+def _chunk_flags(points3d, start, observed, kept, scale, opts: RefineOptions) -> np.ndarray:
+    """Per-point flags of one chunk; an unsupported point is flagged ``filled`` until the
+    recording-wide gap pass turns long gaps into ``missing``."""
+    bit = {k: np.uint8(v[0]) for k, v in FLAG_BITS.items()}
+    views = kept.sum(0)
+    flags = np.where(views > 0, bit["observed"], bit["filled"]).astype(np.uint8)
+    flags |= np.where(views == 1, bit["single_view"], 0).astype(np.uint8)
+    flags |= np.where((observed & ~kept).any(0), bit["outlier_views"], 0).astype(np.uint8)
+    started = np.isfinite(start).all(-1)
+    flags |= np.where(~started, bit["no_start"], 0).astype(np.uint8)
+    with np.errstate(invalid="ignore"):
+        moved = np.linalg.norm(points3d - start, axis=-1) > opts.moved_fraction * scale
+    flags |= np.where(started & moved, bit["moved"], 0).astype(np.uint8)
+    return flags

@@ -1,0 +1,35 @@
+# kinematics: the body frame (thorax-coxa centroid, x anterior, z dorsal) and joint
+# angles from results.h5: kinematics.h5, angles.csv (Anipose's angles layout) and
+# angles.png (angle traces per leg, in the report).
+
+
+if FLAGS["kinematics"]:
+
+    rule kinematics:
+        input:
+            results="{outdir}/results.h5",
+        output:
+            h5="{outdir}/kinematics.h5",
+            csv="{outdir}/angles.csv",
+            figure=report(
+                "{outdir}/angles.png",
+                caption="../report/angles.rst",
+                category="Joint angles",
+                labels={"recording": "{outdir}", "figure": "angles"},
+            ),
+        log:
+            "{outdir}/logs/kinematics.log",
+        benchmark:
+            "{outdir}/benchmarks/kinematics.tsv"
+        conda:
+            "../../envs/visualization.yaml"
+        resources:
+            mem_mb=2000,
+            runtime=15,
+        params:
+            run=command("kinematics.py"),
+            stage=stage_params("kinematics"),
+        shell:
+            "{params.run}"
+            " --results {input.results:q} --outdir {wildcards.outdir:q}"
+            " 2> {log:q}"
