@@ -417,7 +417,9 @@ def test_a_second_writer_of_an_outdir_fails_naming_the_holder_and_a_dead_holder_
 def test_lock_is_exclusive_between_two_live_processes(tmp_path):
     from flylib.locking import outdir_lock
 
-    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], env=_env(),
+    elsewhere = tmp_path / "other-workdir"
+    elsewhere.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], env=_env(), cwd=elsewhere,
                               stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
@@ -426,6 +428,21 @@ def test_lock_is_exclusive_between_two_live_processes(tmp_path):
                 outdir_lock(tmp_path, job="assemble"):
             pass
         assert time.monotonic() - started < 5
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_jobs_of_one_run_share_the_lock_and_only_its_owner_releases_it(tmp_path):
+    from flylib.locking import outdir_lock
+
+    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], env=_env(), cwd=os.getcwd(),
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with outdir_lock(tmp_path, job="kinematics"):  # same host and working directory: a sibling job
+            pass
+        assert json.loads((tmp_path / ".flylib.lock").read_text())["pid"] == holder.pid
     finally:
         holder.kill()
         holder.wait()

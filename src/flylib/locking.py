@@ -1,7 +1,8 @@
 """One writer per output directory: a lock file held for the duration of each job.
 
 Two Snakemake runs started from different working directories do not know about
-each other's jobs; both writing one ``outdir`` would interleave artifacts made with
+each other's jobs (one working directory is locked by Snakemake itself, and the jobs of
+one run share the lock: they run side by side, e.g. visualization and kinematics); both writing one ``outdir`` would interleave artifacts made with
 different configs. Every stage script takes ``<outdir>/.flylib.lock`` (created
 exclusively, holding the holder's host, pid, working directory and job) before it
 writes and removes it when done; a second writer fails at once with one line naming
@@ -55,6 +56,14 @@ def _is_stale(holder: dict) -> bool:
         return holder.get("host") == socket.gethostname() and not _alive(int(holder["pid"]))
     except (KeyError, TypeError, ValueError):
         return False
+
+
+def _same_run(holder: dict, me: dict) -> bool:
+    """Whether the holder is a live job of the same working directory on this host: the
+    same Snakemake run (Snakemake itself refuses a second run in one working directory),
+    e.g. visualization and kinematics of one recording running side by side."""
+    return (holder.get("host") == me["host"] and holder.get("cwd") == me["cwd"]
+            and not _is_stale(holder))
 
 
 def _describe(holder: dict) -> str:
@@ -123,6 +132,8 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
                 if time.monotonic() - first_unreadable < _UNREADABLE_GRACE_S:
                     time.sleep(0.05)
                     continue
+            elif _same_run(holder, me):
+                break  # a sibling job of this run (Snakemake locks a working directory itself)
             elif not _is_stale(holder):
                 raise OutputError(
                     f"{outdir}: another run is writing this output directory ({_describe(holder)}); "
