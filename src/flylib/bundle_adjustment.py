@@ -60,6 +60,7 @@ DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
 DEFAULT_OUTLIER_FACTOR = 5.0
 DEFAULT_OUTLIER_MIN_PX = 3.0
 DEFAULT_MAX_ROUNDS = 10
+DEFAULT_SOLVER = "scipy"
 DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
 DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
@@ -103,7 +104,7 @@ def bundle_adjust(
     max_rounds: int = DEFAULT_MAX_ROUNDS,
     canonical_gauge: bool = True,
     point_ids: np.ndarray | None = None,
-    solver: str = "lm",
+    solver: str = DEFAULT_SOLVER,
     distortion: str = "auto",
     reseed_px: float | None = DEFAULT_RESEED_PX,
     warn_ratio: float = DEFAULT_WARN_RATIO,
@@ -738,10 +739,10 @@ def bundle_adjust_from_config(
 ) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
     """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
 
-    ``points_to_use``, ``fixed``, ``shared``, ``weigh_by_confidence``, ``max_frames``
-    and ``frame_sampling`` come from :attr:`Config.bundle_adjustment`; the remaining
-    flat keys (``max_nfev``, ``loss``, ``f_scale``, ...) go to ``least_squares``. The
-    bone prior uses :meth:`Config.skeleton`.
+    Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
+    ``shared``, ``solver``, ``distortion``, outlier rounds, ``reseed_px``, bone lengths,
+    ``rigid_points`` ...) is passed on; the remaining flat keys (``max_nfev``, ``loss``,
+    ``f_scale``, ...) go to the solver. Bones come from :meth:`Config.skeleton`.
 
     Returns
     -------
@@ -750,8 +751,15 @@ def bundle_adjust_from_config(
     """
     params = config.bundle_adjustment
     skeleton = config.skeleton()
+    names = set(skeleton.point_names)
     return bundle_adjust_sequence(
         cameras, pts2d, conf, skeleton,
         points_to_use=params.points_to_use, max_frames=params.max_frames,
         frame_sampling=params.frame_sampling, weigh_by_confidence=params.weigh_by_confidence,
-        fixed=params.fixed, shared=params.shared, **dict(params.least_squares))
+        fixed=params.fixed, shared=params.shared, solver=params.solver,
+        distortion=params.distortion, max_rounds=params.max_rounds,
+        outlier_factor=params.outlier_factor, outlier_min_px=params.outlier_min_px,
+        reseed_px=params.reseed_px, bone_lengths=params.bone_lengths,
+        symmetric_bones=params.symmetric_bones, length_weight=params.length_weight,
+        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points
+        else (), warn_ratio=params.warn_ratio, **dict(params.least_squares))

@@ -113,7 +113,8 @@ def run_from_points2d(
             "initial_median_px": result.initial_median_px,
             "final_median_px": result.final_median_px,
             "cost": float(result.cost), "nfev": int(result.nfev),
-            "message": str(result.message)}
+            "message": str(result.message),
+            **({"report": result.report} if hasattr(result, "report") else {})}
 
     tri_input = pts2d
     if do_pictorial:

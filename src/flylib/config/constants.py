@@ -53,6 +53,10 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
 )
 TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
+BA_SOLVERS = ("lm", "scipy")
+BA_DISTORTION_MODES = ("auto", "free", "fixed")
+BA_DEFAULT_SOLVER = "scipy"
+BA_DEFAULT_BONE_LENGTHS = False
 PRECISIONS = ("float32", "float16", "bfloat16")
 _POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
