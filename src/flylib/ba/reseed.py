@@ -126,12 +126,17 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
         if ok.sum() < 8:
             continue
         row = table[v]
+        # EPnP inside RANSAC, no extrinsic guess (the guess is what is wrong; OpenCV's
+        # iterative solver returned garbage from a 3-degree-off guess), then LM on inliers
+        obj, img = pts_good[ok], pts2d[v][ok]
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
-            pts_good[ok], pts2d[v][ok], _kmat(row), _dist(row), row[0:3].copy(),
-            row[3:6].copy(), useExtrinsicGuess=True, iterationsCount=200,
-            reprojectionError=8.0, confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE)
+            obj, img, _kmat(row), _dist(row), iterationsCount=200, reprojectionError=8.0,
+            confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
         if not found or inliers is None or len(inliers) < 6:
             continue
+        inl = np.asarray(inliers).ravel()
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], _kmat(row), _dist(row),
+                                          rvec, tvec)
         candidate = row.copy()
         candidate[0:3], candidate[3:6] = np.ravel(rvec), np.ravel(tvec)
         trial = table.copy()
