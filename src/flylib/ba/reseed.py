@@ -70,6 +70,20 @@ def reaim(row: np.ndarray, observed: np.ndarray, target: np.ndarray) -> np.ndarr
     return new
 
 
+def leave_one_out_errors(table, pts2d, usable, triangulate) -> np.ndarray:
+    """``(V,)`` median error of each camera against points the *other* cameras
+    triangulate (a point triangulated with a camera always fits it)."""
+    med = np.full(len(table), np.nan)
+    for v in np.flatnonzero(usable.any(axis=1)):
+        others = usable.copy()
+        others[v] = False
+        pts = triangulate(table, others)
+        err = view_errors(table, pts, pts2d, usable)[v]
+        if np.isfinite(err).any():
+            med[v] = np.nanmedian(err)
+    return med
+
+
 def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np.ndarray,
                          gross_px: float, triangulate, movable: np.ndarray | None = None,
                          ) -> tuple[np.ndarray, list[str], np.ndarray]:
@@ -85,7 +99,7 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
         ``(V, N, 2)`` observations and ``(V, N)`` which may be used.
     gross_px
         A camera is gross when the median reprojection error of its observations
-        (against points triangulated by all cameras) exceeds this.
+        against points triangulated by the other cameras exceeds this.
     triangulate
         ``(table, usable) -> pts (N, 3)``: a robust triangulation (NaN where impossible).
     movable
@@ -101,16 +115,15 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
         ``(V,)`` per-camera median error before the repair.
     """
     table = table.copy()
-    pts = triangulate(table, usable)
-    med = np.array([np.nanmedian(e) if np.isfinite(e).any() else np.nan
-                    for e in view_errors(table, pts, pts2d, usable)])
-    gross = np.nan_to_num(med, nan=0.0) > gross_px
+    has_obs = usable.any(axis=1)
+    med = leave_one_out_errors(table, pts2d, usable, triangulate)
+    # no consensus among the others within the RANSAC radius: as bad as gross
+    gross = has_obs & (np.nan_to_num(med, nan=np.inf) > gross_px)
     if movable is not None:
         gross &= np.asarray(movable, bool)
     reseeded: list[str] = []
     if not gross.any():
         return table, reseeded, med
-    has_obs = usable.any(axis=1)
     good = ~gross & has_obs
     if good.sum() < 2:
         target = rig_target(table)
@@ -118,6 +131,12 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
             table[v] = reaim(table[v], pts2d[v][usable[v]], target)
             reseeded.append(f"{names[v]}: re-aimed")
         good = np.zeros_like(good)
+        # the re-aimed rig is roughly consistent: judge again, resect what is still off
+        after = leave_one_out_errors(table, pts2d, usable, triangulate)
+        gross = has_obs & (np.nan_to_num(after, nan=np.inf) > gross_px)
+        if movable is not None:
+            gross &= np.asarray(movable, bool)
+        good = ~gross & has_obs
     for v in np.flatnonzero(gross):
         if good.sum() < 2:
             break
