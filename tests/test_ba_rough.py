@@ -16,8 +16,8 @@ from flylib.bundle_adjustment import bundle_adjust, camera_table
 from flylib.config import Config
 from flylib.errors import ConfigError
 
-from rough_rig import (LEG_POINTS, fit_with_default_config, make_case, rough_start,
-                       similarity_error, true_rig)
+from rough_rig import (LEG_POINTS, TETHERED, fit_with_default_config, make_case,
+                       rough_start, similarity_error, true_rig)
 from synthetic import project_opencv
 from test_bundle_adjustment import _small_problem
 
@@ -125,27 +125,34 @@ def rough():
 
 @pytest.mark.slow
 def test_rough_rig_recovers_the_fly(rough):
-    """Default config (200 of 300 frames) from the rough rig: the issue's target is 0.06
-    median bones (stretch 0.03); measured 0.030."""
-    result, _, _, err = fit_with_default_config(rough)
-    start_err = similarity_error(
-        __import__("flylib.triangulation", fromlist=["x"]).reconstruct(
-            rough.pts2d, rough.start, method="ransac")[0], rough.truth) / rough.bone
+    """From the rough rig (200 of 300 frames). The issue's target is 0.06 median bones
+    (stretch 0.03): met by the tethered settings (measured 0.030), not by the default
+    config (scipy, no bone lengths: 0.088, still well below the start)."""
+    from flylib.triangulation import reconstruct
+
+    start_err = np.nanmedian(similarity_error(
+        reconstruct(rough.pts2d, rough.start, method="ransac")[0], rough.truth) / rough.bone)
+    result, _, _, err = fit_with_default_config(rough, **TETHERED)
     assert np.nanmedian(err) <= 0.06
-    assert np.nanmedian(err) < 0.5 * np.nanmedian(start_err)
     assert result.final_median_px < 1.0
-    assert not result.warnings or result.warnings == [
-        w for w in result.warnings if "settle" in w]  # well determined: no Hessian warning
-    kept = result.report["kept_fraction"]
-    assert min(kept.values()) > 0.85  # outliers gone, good data kept (the issue: 67 %)
-    assert result.report["inliers_stable"] or result.rounds == 10
+    assert min(result.report["kept_fraction"].values()) > 0.85  # the issue: 67 %
+    assert not [w for w in result.warnings if "poorly determined" in w]
+    assert result.report["free"]["bone_lengths"] == 12 and result.report["free"]["rigid_points"] == 6
+    default, _, _, err_default = fit_with_default_config(rough)
+    assert np.nanmedian(err_default) < 0.5 * start_err
+    assert min(default.report["kept_fraction"].values()) > 0.85
+    # legs only, no symmetric lengths: the left half's scale about the front camera is
+    # free (an exact null direction), and the report says so
+    assert [w for w in default.warnings if "poorly determined" in w]
 
 
 @pytest.mark.slow
 def test_true_rig_start_stays_true(rough):
-    # measured 0.027 (the issue asks for 0.015: not met; the left/right scale rests on
-    # the bone lengths alone, see README)
+    # default config: measured 0.011 (target 0.015); tethered settings 0.027 (the
+    # left/right scale then rests on the bone lengths alone)
     _, _, _, err = fit_with_default_config(rough, rough.rig)
+    assert np.nanmedian(err) <= 0.015
+    _, _, _, err = fit_with_default_config(rough, rough.rig, **TETHERED)
     assert np.nanmedian(err) < 0.035
 
 
@@ -153,8 +160,11 @@ def test_true_rig_start_stays_true(rough):
 def test_hard_variant_finishes_with_a_warning():
     case = make_case(60, hard=True, seed=0)
     with pytest.warns(RuntimeWarning, match="poorly determined"):
-        result, _, _, _ = fit_with_default_config(case, max_frames=30, max_rounds=3)
+        result, _, _, _ = fit_with_default_config(case, max_frames=60, max_rounds=3, **TETHERED)
     assert any("poorly determined" in w for w in result.report["warnings"])
+    assert len(result.report["reseeded"]) == 6  # every camera that sees something re-aimed
+    kept = [k for k in result.report["kept_fraction"].values() if k is not None]
+    assert min(kept) > 0.8  # neither side thrown away
 
 
 def test_new_keys_are_validated_and_reach_stage_params():

@@ -46,7 +46,8 @@ def test_synthetic_fly_truth_is_recovered():
     pts2d, conf = observe(truth, rig, noise_px=1.0, outlier_frac=0.05, seed=0)
     start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=1)
 
-    result = run_from_points2d(start, skeleton, pts2d, conf)  # the defaults: 200 frames
+    result = run_from_points2d(start, skeleton, pts2d, conf,
+                               bundle_adjust_kwargs={"max_frames": 60})
     i, j = skeleton.bone_index_pairs()
     bone = np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1))
     err = _similarity_error(result.pts3d, truth)

@@ -16,9 +16,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-BUNDLE_ADJUST_DEFAULTS = {"fixed": ("*.intr",), "max_frames": 200, "frame_sampling": "even",
-                          "solver": "lm", "bone_lengths": True, "symmetric_bones": True}
-# plus rigid_points: the default config's, where the skeleton has them
+BUNDLE_ADJUST_DEFAULTS = {"fixed": ("*.intr",), "max_frames": 200, "frame_sampling": "even"}
 
 
 def run_from_points2d(
@@ -59,9 +57,8 @@ def run_from_points2d(
     bundle_adjust_kwargs
         Keyword arguments for the adjustment (``fixed``, ``shared``, ``points_to_use``,
         ``max_frames``, ``frame_sampling``, ``weigh_by_confidence``, ``least_squares``
-        options ...); defaults: intrinsics fixed, 200 evenly spaced frames, the
-        Levenberg-Marquardt solver, one length per bone (left = right) and the
-        thorax-coxa joints rigid, as in the default config.
+        options, ``solver``, ``bone_lengths``, ``rigid_points`` ...); defaults:
+        intrinsics fixed, 200 evenly spaced frames.
     triangulation
         ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
         ``min_inliers``), ``"greedy"`` (drop the worst view; ``reproj_threshold``,
@@ -110,10 +107,7 @@ def run_from_points2d(
     if do_bundle_adjust:
         from .bundle_adjustment import bundle_adjust_sequence
 
-        from .config.constants import BA_DEFAULT_RIGID_POINTS
-
-        rigid = [p for p in BA_DEFAULT_RIGID_POINTS if p in list(skeleton.point_names)]
-        kwargs = {**BUNDLE_ADJUST_DEFAULTS, "rigid_points": rigid, **(bundle_adjust_kwargs or {})}
+        kwargs = {**BUNDLE_ADJUST_DEFAULTS, **(bundle_adjust_kwargs or {})}
         kwargs.update(kwargs.pop("least_squares", None) or {})
         result, cameras, _ = bundle_adjust_sequence(cameras, pts2d, conf, skeleton, **kwargs)
         run_meta["bundle_adjustment"] = {

@@ -20,7 +20,6 @@ from .checks import (
 )
 from .constants import (
     BA_DEFAULT_BONE_LENGTHS,
-    BA_DEFAULT_RIGID_POINTS,
     BA_DEFAULT_SOLVER,
     BA_DISTORTION_MODES,
     BA_SOLVERS,
@@ -191,9 +190,9 @@ class BundleAdjustmentParams:
     outlier_min_px: float = _param(3.0, _number(0))
     reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
     bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
-    symmetric_bones: bool = _param(True, _boolean)
+    symmetric_bones: bool = _param(False, _boolean)
     length_weight: float = _param(100.0, _number(0, exclusive=True))
-    rigid_points: tuple[str, ...] = _param(BA_DEFAULT_RIGID_POINTS, _string_list(), kind=tuple)
+    rigid_points: tuple[str, ...] = _param((), _string_list(), kind=tuple)
     warn_ratio: float = _param(1e-9, _number(0))
     least_squares: dict[str, Any] = field(default_factory=dict)
 
