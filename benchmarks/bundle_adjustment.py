@@ -115,7 +115,7 @@ def rough_case(hard: bool, frames: int) -> None:
         report = result.report
         print(f"{label:<46s} {seconds:7.2f} s  3D error {np.nanmedian(err):.4f} bones  "
               f"reprojection {result.final_median_px:.2f} px  rounds {result.rounds}  "
-              f"weakest {report['weakest_direction']:.1e}", flush=True)
+              f"weakest {report['weakest_direction'] or float('inf'):.1e}", flush=True)
         print(f"    kept per camera {report['kept_fraction']}  reseeded {report['reseeded']}")
         for w in caught:
             if "bundle adjustment" in str(w.message):

@@ -348,10 +348,11 @@ def bundle_adjust(
         "start_median_px": None if start_median is None else {
             n: (None if not np.isfinite(m) else round(float(m), 2))
             for n, m in zip(names, start_median)},
-        "weakest_direction": ratio,
+        "weakest_direction": ratio if np.isfinite(ratio) else None,
         "weak_directions": n_weak,
-        "initial_median_px": initial_median,
-        "final_median_px": result.final_median_px,
+        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
+        "final_median_px": (result.final_median_px if np.isfinite(result.final_median_px)
+                            else None),
         "warnings": warnings_out,
     }
     log.info("bundle adjustment: median reprojection error %.2f px -> %.2f px "
