@@ -195,6 +195,11 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
     OptimizeResult
         ``x``, ``cost``, ``fun``, ``nfev``, ``njev``, ``status``, ``message``,
         ``success`` as scipy's, plus ``reduced_hessian`` ``(G, G)`` at the solution.
+
+    Notes
+    -----
+    Directions the data do not pin at all (a gauge) make the damped step wander along
+    them; hold the gauge fixed (as :func:`flylib.bundle_adjustment.bundle_adjust` does).
     """
     if unused:
         log.debug("Levenberg-Marquardt ignores %s", sorted(unused))
@@ -236,9 +241,8 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
             predicted = system.predicted_reduction(dg, dl, lam)
             actual = cost - cost_new
             rho = actual / predicted if predicted > 0 else -1.0
-            log.debug("LM nfev %d cost %.6g -> %.6g (rho %.3g, lambda %.3g, |dx| %.3g, "
-                      "largest at %s)", nfev, cost, cost_new, rho, lam, np.linalg.norm(dx),
-                      np.argsort(-np.abs(dx))[:6])
+            log.debug("LM nfev %d cost %.6g -> %.6g (rho %.3g, lambda %.3g)",
+                      nfev, cost, cost_new, rho, lam)
             if np.isfinite(cost_new) and rho > 0:
                 # shrink fast on good steps: weak directions of a long-focal rig need
                 # lambda far below their share of the diagonal before they move
@@ -279,9 +283,8 @@ def weak_directions(hessian: np.ndarray, n_gauge: int) -> tuple[float, int]:
     ratio : float
         Its ``n_gauge``-th smallest eigenvalue (the weakest non-gauge direction) over
         its largest.
-    order : int
-        How many eigenvalues beyond the gauge lie below ``1e-3`` times that weakest
-        direction's ... (the count of eigenvalues below ``1e-9`` of the largest).
+    count : int
+        How many eigenvalues beyond the gauge lie below ``1e-9`` of the largest.
     """
     d = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
     eig = np.linalg.eigvalsh(hessian / d[:, None] / d[None, :])
