@@ -194,7 +194,7 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
     -------
     OptimizeResult
         ``x``, ``cost``, ``fun``, ``nfev``, ``njev``, ``status``, ``message``,
-        ``success`` as scipy's, plus ``reduced_hessian`` ``(G, G)`` at the solution.
+        ``success`` as scipy's.
 
     Notes
     -----
@@ -268,8 +268,6 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
             break
     result = OptimizeResult(x=x, cost=float(cost), fun=raw, nfev=nfev, njev=njev,
                             status=status, message=message, success=status > 0)
-    final = ReducedSystem(problem.jacobian(x), raw, blocks)
-    result.reduced_hessian = final.schur(0.0)[0]
     return result
 
 
