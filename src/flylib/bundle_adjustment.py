@@ -24,12 +24,15 @@ Robustness and gauge, beyond a plain least-squares fit:
 from __future__ import annotations
 
 import logging
+import warnings
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from .ba.params import build_layout
+from .ba.lm import ReducedSystem, block_structure, solve_lm, weak_directions
+from .ba.params import build_layout, param_slices
+from .ba.reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
 from .ba.sampling import FRAME_SAMPLING, select_frames
 from .ba.solver import Problem, project_rows
 from .camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
@@ -52,11 +55,18 @@ __all__ = [
 ]
 
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
+DEFAULT_LENGTH_WEIGHT = 100.0  # px per 100 % deviation from a bone's common length
 DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
 DEFAULT_OUTLIER_FACTOR = 5.0
 DEFAULT_OUTLIER_MIN_PX = 3.0
-DEFAULT_MAX_ROUNDS = 3
-_SORTING_NFEV = 15
+DEFAULT_MAX_ROUNDS = 10
+DEFAULT_SOLVER = "scipy"
+DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
+DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
+LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
+STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
+SOLVERS = ("lm", "scipy")
+DISTORTION_MODES = ("auto", "free", "fixed")
 
 
 def camera_table(cameras: "CameraGroup") -> np.ndarray:
@@ -85,7 +95,7 @@ def bundle_adjust(
     pts3d: np.ndarray | None = None,
     conf: np.ndarray | None = None,
     weigh_by_confidence: bool = False,
-    bones: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    bones: tuple[np.ndarray, ...] | None = None,
     bone_weight: float = DEFAULT_BONE_WEIGHT,
     reject_outliers: bool = True,
     init_threshold: float = DEFAULT_INIT_THRESHOLD,
@@ -93,6 +103,11 @@ def bundle_adjust(
     outlier_min_px: float = DEFAULT_OUTLIER_MIN_PX,
     max_rounds: int = DEFAULT_MAX_ROUNDS,
     canonical_gauge: bool = True,
+    point_ids: np.ndarray | None = None,
+    solver: str = DEFAULT_SOLVER,
+    distortion: str = "auto",
+    reseed_px: float | None = DEFAULT_RESEED_PX,
+    warn_ratio: float = DEFAULT_WARN_RATIO,
     **solver_kwargs,
 ) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
     """Bundle-adjust a camera group against observed 2D points.
@@ -106,34 +121,62 @@ def bundle_adjust(
     fixed, shared
         Parameter references held constant / tied together (:mod:`flylib.ba.params`).
     pts3d
-        Initial 3D points ``(N, 3)``; consensus-triangulated from ``cameras`` if omitted.
+        Initial 3D points ``(N, 3)``; robustly triangulated from ``cameras`` if omitted.
     conf, weigh_by_confidence
         With ``weigh_by_confidence`` and ``conf`` ``(V, N)``, residuals are scaled by
         ``sqrt(conf)``; non-positive or non-finite confidences drop the observation.
     bones
-        Optional bone-length prior ``(i, j, target)`` or ``(i, j, target, group)``:
-        point indices into ``N``, target lengths and, optionally, which rows share one
-        unknown length (the same bone in different frames); with groups the prior asks
-        for constant lengths (initialized at the targets) instead of the targets
-        themselves. Pairs with a non-finite or non-positive target are ignored.
+        Optional bone-length residuals ``(i, j, target)`` or ``(i, j, target, group)``:
+        point indices into ``N``, reference lengths and, optionally, which rows share one
+        unknown length (the same bone in different frames, or left and right). With
+        groups the lengths are unknowns (started at the group's median length over the
+        starting points, the target where there is none) and the
+        residuals ask only for constancy; without, for the targets themselves. Pairs
+        with a non-finite or non-positive target are ignored.
     bone_weight
-        Residual scale of the prior, pixels per 100 % relative length deviation.
+        Residual scale of the bone rows, pixels per 100 % relative length deviation.
     reject_outliers, init_threshold, outlier_factor, outlier_min_px, max_rounds
-        Outlier handling (see the module docstring).
+        Outlier handling: observations farther than ``outlier_factor`` times the
+        median error (at least ``outlier_min_px``) sit out; the threshold is first
+        taken from the errors against the starting triangulation (RANSAC with
+        ``init_threshold`` px), then after each fit from the fitted errors, every
+        observation (also those set aside before) is judged again, and rounds repeat
+        until the inlier set is stable or ``max_rounds`` fits were made.
     canonical_gauge
         Report the result in the similarity frame closest to the initial rig when no
         extrinsic parameter is fixed.
+    point_ids
+        ``(N,)`` which 3D unknown each column of ``pts2d`` observes (default: its own).
+        Columns sharing an id are one point, e.g. a rigid point seen in every frame.
+    solver
+        ``"lm"``: Levenberg-Marquardt on the reduced camera system
+        (:mod:`flylib.ba.lm`); ``"scipy"``: ``scipy.optimize.least_squares``.
+    distortion
+        ``"auto"``: distortion coefficients that start at zero are held at zero on long
+        lenses (image corner within ``0.2`` of the optical axis in normalized
+        coordinates, where the images cannot tell them from the rig); ``"free"``:
+        free unless in ``fixed``; ``"fixed"``: all held. Whatever is free, a fit whose
+        radial model folds inside the image is redone with that camera's distortion
+        held.
+    reseed_px
+        Cameras whose median error from the start exceeds this are resected by PnP
+        from the others (or re-aimed) before the joint fit; ``None`` turns this off.
+    warn_ratio
+        Warn (and report) when the weakest direction of the unit-diagonal reduced
+        camera Hessian beyond the gauge is below this fraction of the strongest.
     **solver_kwargs
-        Passed to ``scipy.optimize.least_squares`` (``max_nfev``, ``loss``,
-        ``f_scale``, ``ftol``, ...). ``jac="2-point"`` swaps the JAX Jacobian for
-        finite differences with ``jac_sparsity``.
+        ``max_nfev``, ``loss``, ``f_scale``, ``ftol``, ``xtol``, ``gtol`` (both solvers);
+        with ``solver="scipy"`` any ``scipy.optimize.least_squares`` option
+        (``jac="2-point"`` swaps the JAX Jacobian for finite differences).
 
     Returns
     -------
     result : scipy.optimize.OptimizeResult
-        The last round's least-squares result, plus ``initial_median_px`` /
-        ``final_median_px`` (median reprojection error before / after),
-        ``inliers`` ``(V, N)`` (observations used in the final fit) and ``rounds``.
+        The last fit's result plus ``initial_median_px`` / ``final_median_px``
+        (median reprojection error before / after), ``inliers`` ``(V, N)``
+        (observations used in the final fit), ``rounds``, ``warnings`` (list of str)
+        and ``report`` (a JSON-able dict: solver, what was free, kept fraction per
+        camera, rounds, repaired cameras, the Hessian's weakest direction).
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
@@ -142,7 +185,7 @@ def bundle_adjust(
     Raises
     ------
     ConfigError
-        For a bad ``fixed`` / ``shared`` reference.
+        For a bad ``fixed`` / ``shared`` reference, solver or distortion mode.
     ValueError
         For arrays of the wrong shape or no usable observations.
     """
@@ -150,81 +193,275 @@ def bundle_adjust(
     n_views = len(cameras)
     if pts2d.ndim != 3 or pts2d.shape[0] != n_views or pts2d.shape[2] != 2:
         raise ValueError(f"pts2d must be (V={n_views}, N, 2), got {pts2d.shape}")
-    n_points = pts2d.shape[1]
-    table0 = camera_table(cameras)
-    layout = build_layout(list(cameras.names), table0.shape[1] - 10, fixed, shared)
-    table0 = layout.unpack(layout.pack(table0), table0)  # tied entries start equal
+    if solver not in SOLVERS:
+        raise ConfigError(f"bundle_adjustment.solver: unknown solver {solver!r}; "
+                          f"use one of {', '.join(SOLVERS)}")
+    if distortion not in DISTORTION_MODES:
+        raise ConfigError(f"bundle_adjustment.distortion: unknown mode {distortion!r}; "
+                          f"use one of {', '.join(DISTORTION_MODES)}")
+    names = list(cameras.names)
+    n_cols = pts2d.shape[1]
+    ids = np.arange(n_cols) if point_ids is None else np.asarray(point_ids, int).reshape(n_cols)
+    n_unknown = int(ids.max()) + 1 if n_cols else 0
+    uses = np.bincount(ids, minlength=n_unknown)
+    is_shared = uses > 1
+
+    table_user = camera_table(cameras)
+    n_dist = table_user.shape[1] - 10
+    held = _held_distortion(table_user, names, distortion)
+    layout = build_layout(names, n_dist, [*fixed, *held], shared)
+    table_user = layout.unpack(layout.pack(table_user), table_user)  # tied entries start equal
 
     usable = np.isfinite(pts2d).all(axis=-1)
-    weight = np.ones((n_views, n_points))
+    weight = np.ones((n_views, n_cols))
     if weigh_by_confidence and conf is not None:
-        c = np.asarray(conf, float).reshape(n_views, n_points)
+        c = np.asarray(conf, float).reshape(n_views, n_cols)
         usable &= np.isfinite(c) & (c > 0)
         weight = np.sqrt(np.where(usable, c, 0.0))
 
-    cams0 = _cameras_from_table(cameras.names, table0)
-    if pts3d is None:
-        start, active = _ransac_start(cams0, pts2d, usable, init_threshold)
-    else:
-        start = np.asarray(pts3d, float).reshape(n_points, 3).copy()
-        active = usable.copy()
-    if not reject_outliers:
-        active = usable.copy()
+    def triangulate(table, use):
+        return _ransac_points(_cameras_from_table(names, table), pts2d, use, init_threshold)
 
-    bone_i, bone_j, bone_t, bone_g = _valid_bones(bones)
-    view_idx, point_idx = np.nonzero(usable)
-    table, pts = table0, start
-    initial_median = None
+    table = table_user
+    reseeded: list[str] = []
+    start_median = None
+    if pts3d is None and reseed_px:
+        movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+        table, reseeded, start_median = reseed_gross_cameras(
+            table_user, names, pts2d, usable, float(reseed_px), triangulate, movable=movable)
+    # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
+    # converge only linearly: hold one camera and one depth during the fit instead; the
+    # canonical frame below makes the result independent of which.
+    fit_layout, n_gauge = layout, (7 if layout.extrinsics_free else 0)
+    if solver == "lm" and layout.extrinsics_free and _untied_extrinsics(layout):
+        fit_layout = build_layout(names, n_dist, [*fixed, *held, *_gauge_refs(table, names)],
+                                  shared)
+        n_gauge = 0
+    cols_start = (triangulate(table, usable) if pts3d is None
+                  else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
+    pts = _unknowns_from_columns(cols_start, ids, n_unknown)
+
+    err = _view_errors(table, pts[ids], pts2d, usable)
+    if reject_outliers:
+        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[usable])))
+        active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
+    else:
+        active = usable.copy()
+    initial_median = float(np.nanmedian(err[active])) if active.any() else float("nan")
+
+    bone_i, bone_j, bone_t, bone_g = _bones_on_unknowns(_valid_bones(bones), ids)
+    if bone_g is not None and bone_i.size:
+        bone_t = _start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
+    lengths = None
     result = None
+    stable = not reject_outliers
     rounds = 0
+    keep = np.zeros(n_unknown, bool)
+    problem = None
+    blocks = None
     for rounds in range(1, max(int(max_rounds), 1) + 1):
-        problem, keep_points = _make_problem(
-            table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t, bone_g,
-            bone_weight)
+        problem, keep = _make_problem(table, fit_layout, pts2d, weight, active, pts, ids,
+                                      bone_i, bone_j, bone_t if lengths is None else lengths,
+                                      bone_g, bone_weight)
         if problem is None:
             raise ValueError("bundle adjustment: no point is seen by two or more views; "
                              "nothing to fit")
-        x0 = problem.pack(table, pts[keep_points])
-        if initial_median is None:
-            initial_median = _median_error(problem, x0)
-        # The first of several rounds only sorts inliers from outliers: a few
-        # iterations do, the last round gets the caller's full budget.
-        sorting = reject_outliers and rounds == 1 and max_rounds > 1
-        kwargs = dict(solver_kwargs)
-        if sorting:
-            kwargs["max_nfev"] = min(kwargs.get("max_nfev") or _SORTING_NFEV, _SORTING_NFEV)
-        result = problem.solve(table, pts[keep_points], **kwargs)
+        blocks = block_structure(problem, is_shared[keep])
+        if solver == "lm":
+            result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **solver_kwargs)
+        else:
+            result = problem.solve(table, pts[keep], **solver_kwargs)
         table, sub = problem.unpack(result.x)
-        pts = np.full((n_points, 3), np.nan)
-        pts[keep_points] = sub
-        if not reject_outliers or rounds == max_rounds:
+        lengths = _lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep,
+                                   lengths)
+        pts = np.full((n_unknown, 3), np.nan)
+        pts[keep] = sub
+        if not reject_outliers:
             break
-        err = _errors(table, pts, view_idx, point_idx, pts2d[view_idx, point_idx])
-        med = np.nanmedian(err[active[view_idx, point_idx]])
-        threshold = max(outlier_min_px, outlier_factor * med)
-        new_active = np.zeros_like(active)
-        new_active[view_idx, point_idx] = np.nan_to_num(err, nan=np.inf) <= threshold
-        if np.array_equal(new_active, active) and not sorting:
+        lost = ~keep & (uses > 0)
+        if lost.any():  # judge the observations of points that left the fit too
+            again = _unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
+            pts[lost] = again[lost]
+        err = _view_errors(table, pts[ids], pts2d, usable)
+        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
+        new_active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
+        changed = int((new_active != active).sum())
+        log.info("bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
+                 "set aside, %d changed", rounds, float(np.nanmedian(err[active])),
+                 int(usable.sum() - new_active.sum()), threshold, changed)
+        if changed <= STABLE_FRACTION * usable.sum():
+            stable = True
             break
-        log.info("bundle adjustment round %d: %d observations beyond %.1f px set aside",
-                 rounds, int(usable.sum() - new_active.sum()), threshold)
+        if rounds == max_rounds:
+            break
         active = new_active
-        pts = np.where(np.isnan(pts), start, pts)  # points dropped earlier get a retry
+
+    folded = _folded_cameras(table, layout, names)
+    if folded:
+        message = (f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
+                   f"refitting with it held at its starting values")
+        log.warning(message)
+        return bundle_adjust(
+            cameras, pts2d, fixed=[*fixed, *(f"{n}.dist" for n in folded)], shared=shared,
+            pts3d=pts3d, conf=conf, weigh_by_confidence=weigh_by_confidence, bones=bones,
+            bone_weight=bone_weight, reject_outliers=reject_outliers,
+            init_threshold=init_threshold, outlier_factor=outlier_factor,
+            outlier_min_px=outlier_min_px, max_rounds=max_rounds,
+            canonical_gauge=canonical_gauge, point_ids=point_ids, solver=solver,
+            distortion=distortion, reseed_px=reseed_px, warn_ratio=warn_ratio,
+            **solver_kwargs)
+
+    final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), blocks)
+    ratio, n_weak = weak_directions(final.schur(0.0)[0], n_gauge)
+    warnings_out: list[str] = []
+    if ratio < warn_ratio:
+        warnings_out.append(
+            f"the rig is poorly determined: beyond the {n_gauge} gauge directions the reduced "
+            f"camera Hessian's weakest direction is {ratio:.1e} of its strongest "
+            f"(< {warn_ratio:.0e}); some cameras or point groups can move with little change "
+            f"in the images (e.g. a view that connects both sides is missing): check the "
+            f"result, hold more parameters fixed or start from a calibration")
+    if not stable:
+        warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
+    for message in warnings_out:
+        log.warning("bundle adjustment: %s", message)
+        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
 
     if canonical_gauge and layout.extrinsics_free:
-        table, pts = _align_gauge(table0, table, pts)
-    refined = _cameras_from_table(cameras.names, table)
-    final_view, final_point = np.nonzero(active)
-    final_err = _errors(table, pts, final_view, final_point, pts2d[final_view, final_point])
-    result.initial_median_px = float(initial_median)
-    result.final_median_px = float(np.nanmedian(final_err)) if final_err.size else float("nan")
+        table, pts = _align_gauge(table_user, table, pts)
+    refined = _cameras_from_table(names, table)
+    out_pts = pts[ids]
+    err = _view_errors(table, out_pts, pts2d, active)
+    result.initial_median_px = initial_median
+    result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
     result.inliers = active
     result.rounds = rounds
+    result.warnings = warnings_out
+    result.report = {
+        "solver": solver,
+        "free": _free_report(layout, names, held, problem, int(is_shared[keep].sum())),
+        "kept_fraction": {n: (round(float(active[v].sum() / usable[v].sum()), 4)
+                              if usable[v].any() else None) for v, n in enumerate(names)},
+        "rounds": rounds,
+        "inliers_stable": bool(stable),
+        "reseeded": reseeded,
+        "start_median_px": None if start_median is None else {
+            n: (None if not np.isfinite(m) else round(float(m), 2))
+            for n, m in zip(names, start_median)},
+        "weakest_direction": ratio if np.isfinite(ratio) else None,
+        "weak_directions": n_weak,
+        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
+        "final_median_px": (result.final_median_px if np.isfinite(result.final_median_px)
+                            else None),
+        "warnings": warnings_out,
+    }
     log.info("bundle adjustment: median reprojection error %.2f px -> %.2f px "
              "(%d observations, %d set aside, %d round(s), %s)",
              result.initial_median_px, result.final_median_px, int(active.sum()),
              int(usable.sum() - active.sum()), rounds, result.message)
-    return result, refined, pts
+    return result, refined, out_pts
+
+
+def _untied_extrinsics(layout) -> bool:
+    ext = layout.var_index[:, :6].ravel()
+    return np.unique(ext).size == ext.size
+
+
+def _gauge_refs(table: np.ndarray, names) -> list[str]:
+    """References that pin the similarity gauge: the first camera's pose and, for scale,
+    the translation entry of the camera farthest from it that scaling moves most."""
+    rmats = rvec_to_rmat_numpy(table[:, 0:3])
+    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
+    far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
+    if far == 0:
+        return [f"{names[0]}.rvec", f"{names[0]}.tvec"]
+    d_tvec = -rmats[far] @ (centres[far] - centres[0])
+    return [f"{names[0]}.rvec", f"{names[0]}.tvec",
+            f"{names[far]}.tvec[{int(np.argmax(np.abs(d_tvec)))}]"]
+
+
+def _held_distortion(table: np.ndarray, names, mode: str) -> list[str]:
+    """References of the distortion entries ``mode`` holds fixed."""
+    n_dist = table.shape[1] - 10
+    if n_dist == 0 or mode == "free":
+        return []
+    if mode == "fixed":
+        return ["*.dist"]
+    held = []
+    for name, row in zip(names, table):
+        if image_radius(row) / 1.25 < LONG_LENS_RADIUS:
+            held += [f"{name}.dist[{k}]" for k in range(n_dist) if row[10 + k] == 0.0]
+    return held
+
+
+def _folded_cameras(table, layout, names) -> list[str]:
+    if table.shape[1] == 10:
+        return []
+    free = (layout.var_index[:, 10:] >= 0).any(axis=1)
+    return [names[v] for v in np.flatnonzero(free)
+            if radial_folds(table[v, 10:], image_radius(table[v]))]
+
+
+def _free_report(layout, names, held, problem, n_rigid) -> dict:
+    slices = param_slices(layout.var_index.shape[1] - 10)
+    per_camera = {}
+    for v, name in enumerate(names):
+        free = layout.var_index[v] >= 0
+        per_camera[name] = [p for p, (lo, hi) in slices.items() if hi > lo and free[lo:hi].any()]
+    return {"camera_variables": int(layout.n_free), "per_camera": per_camera,
+            "distortion_held_at_zero": len(held), "points": int(problem.n_points),
+            "rigid_points": n_rigid, "bone_lengths": int(problem.n_len),
+            "bone_rows": int(problem.n_bones)}
+
+
+def _unknowns_from_columns(cols: np.ndarray, ids: np.ndarray, n_unknown: int) -> np.ndarray:
+    """Per-unknown start: the column's point, or the median over the columns sharing it."""
+    pts = np.full((n_unknown, 3), np.nan)
+    pts[ids] = cols
+    shared = np.flatnonzero(np.bincount(ids, minlength=n_unknown) > 1)
+    for u in shared:
+        rows = cols[ids == u]
+        rows = rows[np.isfinite(rows).all(axis=1)]
+        pts[u] = np.median(rows, axis=0) if len(rows) else np.nan
+    return pts
+
+
+def _bones_on_unknowns(bones, ids):
+    """Bone rows re-indexed onto the 3D unknowns, duplicates (rigid pairs) merged."""
+    bi, bj, bt, bg = bones
+    if bi.size == 0:
+        return bi, bj, bt, bg
+    ui, uj = ids[bi], ids[bj]
+    key = np.stack([np.minimum(ui, uj), np.maximum(ui, uj),
+                    bg if bg is not None else np.zeros_like(ui)], axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    first = first[ui[first] != uj[first]]
+    return ui[first], uj[first], bt[first], None if bg is None else bg[first]
+
+
+def _lengths_per_row(problem, x, bone_i, bone_j, bone_t, bone_g, keep, previous):
+    """Each bone row's current length (the fitted unknown), to restart the next round."""
+    if bone_g is None or not problem.n_len or bone_i.size == 0:
+        return previous
+    ok = keep[bone_i] & keep[bone_j]
+    fitted = x[problem.n_cam + 3 * problem.n_points:]
+    out = (bone_t if previous is None else previous).copy()
+    _, group_compact = np.unique(bone_g[ok], return_inverse=True)
+    out[ok] = fitted[group_compact]
+    return out
+
+
+def _start_lengths(pts, bone_i, bone_j, target, group):
+    """Each row's group median of the starting 3D lengths (the target where none)."""
+    length = np.linalg.norm(pts[bone_i] - pts[bone_j], axis=1)
+    out = target.copy()
+    for g in np.unique(group):
+        rows = group == g
+        ok = rows & np.isfinite(length) & (length > 0)
+        if ok.any():
+            out[rows] = np.median(length[ok])
+    return out
 
 
 def _valid_bones(bones):
@@ -237,33 +474,43 @@ def _valid_bones(bones):
             None if group is None else group[ok])
 
 
-def _ransac_start(cameras, pts2d, usable, threshold):
+def _ransac_points(cameras, pts2d, usable, threshold):
+    """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
     from .triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
-    pts3d, inliers = triangulate_ransac(masked, cameras, threshold=threshold)
-    inliers = np.asarray(inliers, bool) & usable
-    return np.asarray(pts3d, float), inliers
+    pts3d, _ = triangulate_ransac(masked, cameras, threshold=threshold)
+    return np.asarray(pts3d, float)
 
 
-def _make_problem(table0, layout, pts2d, weight, active, pts, bone_i, bone_j, bone_t, bone_g,
-                  bone_weight):
-    """The problem over points with >= 2 active views and a finite start."""
-    keep_points = (active.sum(axis=0) >= 2) & np.isfinite(pts).all(axis=1)
-    if not keep_points.any():
-        return None, keep_points
-    compact = np.cumsum(keep_points) - 1
-    obs = active & keep_points[None, :]
-    view, point = np.nonzero(obs)
-    bones_ok = keep_points[bone_i] & keep_points[bone_j] if bone_i.size else np.zeros(0, bool)
+def _make_problem(table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_j, bone_t,
+                  bone_g, bone_weight):
+    """The problem over unknowns seen actively from >= 2 views, with a finite start."""
+    n_views = active.shape[0]
+    n_unknown = pts.shape[0]
+    seen = np.zeros((n_views, n_unknown), bool)
+    v_all, c_all = np.nonzero(active)
+    seen[v_all, ids[c_all]] = True
+    keep = (seen.sum(axis=0) >= 2) & np.isfinite(pts).all(axis=1)
+    if not keep.any():
+        return None, keep
+    compact = np.cumsum(keep) - 1
+    obs = active & keep[ids][None, :]
+    view, col = np.nonzero(obs)
+    bones_ok = keep[bone_i] & keep[bone_j] if bone_i.size else np.zeros(0, bool)
     problem = Problem(
-        table0=table0, layout=layout, view=view, point=compact[point],
-        xy=pts2d[view, point], weight=weight[view, point], n_points=int(keep_points.sum()),
+        table0=table0, layout=layout, view=view, point=compact[ids[col]],
+        xy=pts2d[view, col], weight=weight[view, col], n_points=int(keep.sum()),
         bone_i=compact[bone_i[bones_ok]], bone_j=compact[bone_j[bones_ok]],
         bone_target=bone_t[bones_ok], bone_weight=float(bone_weight),
         bone_group=None if bone_g is None else np.unique(bone_g[bones_ok],
                                                          return_inverse=True)[1])
-    return problem, keep_points
+    return problem, keep
+
+
+def _view_errors(table, pts_cols, pts2d, usable):
+    """``(V, N)`` reprojection errors of the usable observations, NaN elsewhere."""
+    return view_errors(table, pts_cols, pts2d, usable)
 
 
 def _errors(table, pts, view, point, xy):
@@ -273,11 +520,6 @@ def _errors(table, pts, view, point, xy):
     proj = project_rows(np.nan_to_num(pts[point]), table[view])
     err = np.linalg.norm(proj - xy, axis=1)
     return np.where(np.isfinite(pts[point]).all(axis=1), err, np.nan)
-
-
-def _median_error(problem: Problem, x: np.ndarray) -> float:
-    table, pts = problem.unpack(x)
-    return float(np.median(_errors(table, pts, problem.view, problem.point, problem.xy)))
 
 
 def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
@@ -337,14 +579,19 @@ def bundle_adjust_sequence(
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
     bone_prior: bool = False,
+    bone_lengths: bool = False,
+    symmetric_bones: bool = False,
+    length_weight: float = DEFAULT_LENGTH_WEIGHT,
+    rigid_points: Sequence[str] = (),
     **kwargs,
 ) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
     Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
     ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's
-    bone-length prior (``bone_prior``) and runs :func:`bundle_adjust` on the flattened
-    (frame, point) observations.
+    bone lengths (``bone_lengths``, or the older ``bone_prior``), makes the
+    ``rigid_points`` one 3D point over all frames, and runs :func:`bundle_adjust` on
+    the flattened (frame, point) observations.
 
     Parameters
     ----------
@@ -356,9 +603,21 @@ def bundle_adjust_sequence(
     points_to_use, max_frames, frame_sampling, weigh_by_confidence, fixed, shared
         As in the ``bundle_adjustment`` config table.
     bone_prior
-        Add the bone-length prior (off by default: its targets come from the starting
-        rig, and on the synthetic benchmark it costs accuracy, 3D error 1.9 % vs 1.2 %
-        of a bone, for no gain in robustness).
+        Add the bone-length prior toward fixed targets (off by default: its targets come
+        from the starting rig, whose errors it then reproduces).
+    bone_lengths
+        Each bone of the skeleton (among the used points) has one unknown length over
+        all fitted frames; residual rows ``length_weight * (|Xi - Xj| - L) / L0`` ask
+        every frame for it. This, not a target, is what pins a long-focal rig's shape.
+    symmetric_bones
+        Left and right bones (names differing only in a leading ``l``/``r``) share one
+        length.
+    length_weight
+        Pixels of residual per 100 % deviation from the common length.
+    rigid_points
+        Point names that do not move over the recording (a tethered fly's thorax-coxa
+        joints): one 3D unknown each instead of one per frame. Names that are not
+        used points are ignored.
     **kwargs
         Forwarded to :func:`bundle_adjust` (and from there to ``least_squares``).
 
@@ -397,15 +656,63 @@ def bundle_adjust_sequence(
                  (offsets + position[bj[ok]][None]).ravel(),
                  np.tile(targets[ok], n_sel))
 
+    point_ids = None
+    names = list(skeleton.point_names) if skeleton is not None else []
+    if rigid_points:
+        if skeleton is None:
+            raise ValueError("rigid_points names points: pass the skeleton too")
+        unknown = [p for p in rigid_points if p not in names]
+        if unknown:
+            raise ConfigError(
+                f"bundle_adjustment.rigid_points: unknown point(s) "
+                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names")
+        rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
+        ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
+        ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
+        point_ids = np.unique(ids.ravel(), return_inverse=True)[1]
+    if bone_lengths and skeleton is not None:
+        if bone_prior:
+            log.info("bundle adjustment: bone_lengths replaces bone_prior")
+        bones = _length_unknowns(skeleton, point_idx, n_sel, symmetric_bones)
+        kwargs["bone_weight"] = length_weight
+
     result, refined, flat = bundle_adjust(
         cameras, sub.reshape(n_views, n_sel * n_q, 2), fixed=fixed, shared=shared,
         conf=None if sub_conf is None else sub_conf.reshape(n_views, -1),
-        weigh_by_confidence=weigh_by_confidence, bones=bones, **kwargs)
+        weigh_by_confidence=weigh_by_confidence, bones=bones, point_ids=point_ids, **kwargs)
     pts3d = np.full((n_frames, n_points, 3), np.nan)
     pts3d[np.ix_(frames, point_idx)] = flat.reshape(n_sel, n_q, 3)
     result.frames = frames
     result.points = point_idx
     return result, refined, pts3d
+
+
+def _length_unknowns(skeleton, point_idx, n_frames, symmetric):
+    """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one
+    group per bone (per left/right pair with ``symmetric``)."""
+    names = list(skeleton.point_names)
+    bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
+    n_q = len(point_idx)
+    position = np.full(len(names), -1)
+    position[point_idx] = np.arange(n_q)
+    ok = (position[bi] >= 0) & (position[bj] >= 0)
+    bi, bj = bi[ok], bj[ok]
+    if bi.size == 0:
+        return None
+    start = np.ones(bi.size)  # placeholder: bundle_adjust starts them from its 3D start
+
+    def side_free(name):
+        if name[:1] in ("l", "r") and ("r" if name[0] == "l" else "l") + name[1:] in names:
+            return "*" + name[1:]
+        return name
+
+    keys = [(side_free(names[a]), side_free(names[b])) if symmetric else (names[a], names[b])
+            for a, b in zip(bi, bj)]
+    _, group = np.unique(np.array(keys), axis=0, return_inverse=True)
+    group = np.asarray(group).ravel()
+    offsets = (np.arange(n_frames) * n_q)[:, None]
+    return ((offsets + position[bi][None]).ravel(), (offsets + position[bj][None]).ravel(),
+            np.tile(start, n_frames), np.tile(group, n_frames))
 
 
 def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
@@ -433,10 +740,10 @@ def bundle_adjust_from_config(
 ) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
     """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
 
-    ``points_to_use``, ``fixed``, ``shared``, ``weigh_by_confidence``, ``max_frames``
-    and ``frame_sampling`` come from :attr:`Config.bundle_adjustment`; the remaining
-    flat keys (``max_nfev``, ``loss``, ``f_scale``, ...) go to ``least_squares``. The
-    bone prior uses :meth:`Config.skeleton`.
+    Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
+    ``shared``, ``solver``, ``distortion``, outlier rounds, ``reseed_px``, bone lengths,
+    ``rigid_points`` ...) is passed on; the remaining flat keys (``max_nfev``, ``loss``,
+    ``f_scale``, ...) go to the solver. Bones come from :meth:`Config.skeleton`.
 
     Returns
     -------
@@ -445,8 +752,15 @@ def bundle_adjust_from_config(
     """
     params = config.bundle_adjustment
     skeleton = config.skeleton()
+    names = set(skeleton.point_names)
     return bundle_adjust_sequence(
         cameras, pts2d, conf, skeleton,
         points_to_use=params.points_to_use, max_frames=params.max_frames,
         frame_sampling=params.frame_sampling, weigh_by_confidence=params.weigh_by_confidence,
-        fixed=params.fixed, shared=params.shared, **dict(params.least_squares))
+        fixed=params.fixed, shared=params.shared, solver=params.solver,
+        distortion=params.distortion, max_rounds=params.max_rounds,
+        outlier_factor=params.outlier_factor, outlier_min_px=params.outlier_min_px,
+        reseed_px=params.reseed_px, bone_lengths=params.bone_lengths,
+        symmetric_bones=params.symmetric_bones, length_weight=params.length_weight,
+        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points
+        else (), warn_ratio=params.warn_ratio, **dict(params.least_squares))

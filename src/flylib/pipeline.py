@@ -57,7 +57,8 @@ def run_from_points2d(
     bundle_adjust_kwargs
         Keyword arguments for the adjustment (``fixed``, ``shared``, ``points_to_use``,
         ``max_frames``, ``frame_sampling``, ``weigh_by_confidence``, ``least_squares``
-        options ...); defaults: intrinsics fixed, 200 evenly spaced frames.
+        options, ``solver``, ``bone_lengths``, ``rigid_points`` ...); defaults:
+        intrinsics fixed, 200 evenly spaced frames.
     triangulation
         ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
         ``min_inliers``), ``"greedy"`` (drop the worst view; ``reproj_threshold``,
@@ -113,7 +114,8 @@ def run_from_points2d(
             "initial_median_px": result.initial_median_px,
             "final_median_px": result.final_median_px,
             "cost": float(result.cost), "nfev": int(result.nfev),
-            "message": str(result.message)}
+            "message": str(result.message),
+            **({"report": result.report} if hasattr(result, "report") else {})}
 
     tri_input = pts2d
     if do_pictorial:

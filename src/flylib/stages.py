@@ -192,6 +192,8 @@ def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path,
         "nfev": int(getattr(result, "nfev", 0) or 0),
         "seconds": round(time.perf_counter() - started, 3),
     }
+    if hasattr(result, "report"):  # what was free, kept fractions, rounds, warnings
+        summary["report"] = result.report
     write_stage(out_path, "bundle_adjustment", {}, cameras=refined,
                 attrs={"summary": json.dumps(summary)},
                 meta=_provenance(config, "bundle_adjustment", pose2d=pose2d_path))

@@ -106,8 +106,10 @@ class Problem:
     bone_i, bone_j, bone_target
         ``(B,)`` bone-prior endpoints (point indices) and target lengths.
     bone_weight
-        Residual scale of the prior: pixels per unit of relative length deviation
-        (``bone_weight * (|Xi - Xj| - L) / target``).
+        Residual scale of the prior: pixels per unit of relative length deviation,
+        ``bone_weight * (|Xi - Xj| - target) / target`` for fixed targets and
+        ``bone_weight * (|Xi - Xj| / L - 1)`` for a shared unknown length ``L`` (scale
+        free: a similarity of the whole scene leaves it unchanged).
     bone_group
         ``(B,)`` index of the shared length unknown each row uses, or ``None`` for
         fixed lengths ``L = target``.
@@ -166,6 +168,8 @@ class Problem:
 
     def _bone_residuals(self, pts: np.ndarray, target: np.ndarray) -> np.ndarray:
         length = np.linalg.norm(pts[self.bone_i] - pts[self.bone_j], axis=1)
+        if self.n_len:  # relative to the unknown itself: scale-free, so no pull to shrink
+            return self.bone_weight * (length / target - 1.0)
         return self.bone_weight * (length - target) / self.bone_target
 
     def jacobian(self, x: np.ndarray) -> scipy.sparse.csr_matrix:
@@ -177,10 +181,11 @@ class Problem:
         if self.n_bones:
             diff = pts[self.bone_i] - pts[self.bone_j]
             length = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
-            g = (self.bone_weight / self.bone_target / length)[:, None] * diff
+            scale = self._lengths(x) if self.n_len else self.bone_target
+            g = (self.bone_weight / scale / length)[:, None] * diff
             parts += [g.ravel(), (-g).ravel()]
             if self.n_len:
-                parts.append(np.full(self.n_bones, -1.0) * self.bone_weight / self.bone_target)
+                parts.append(-self.bone_weight * length / scale ** 2)
         data = np.concatenate(parts)[self._order]
         data = np.add.reduceat(data, self._starts) if data.size else data
         return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=self.shape)

@@ -66,6 +66,13 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
 EXPORT_KEYS: tuple[str, ...] = ("nwb",)
 TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
+BA_SOLVERS = ("lm", "scipy")
+BA_DISTORTION_MODES = ("auto", "free", "fixed")
+BA_DEFAULT_SOLVER = "scipy"
+BA_DEFAULT_BONE_LENGTHS = False
+# a tethered fly's thorax-coxa joints do not move (what `rigid_points` would list; names
+# missing from a skeleton are ignored)
+TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
 PRECISIONS = ("float32", "float16", "bfloat16")
 _POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).

@@ -18,7 +18,15 @@ from .checks import (
     _string_groups,
     _string_list,
 )
-from .constants import FRAME_SAMPLINGS, PRECISIONS, TRIANGULATION_METHODS
+from .constants import (
+    BA_DEFAULT_BONE_LENGTHS,
+    BA_DEFAULT_SOLVER,
+    BA_DISTORTION_MODES,
+    BA_SOLVERS,
+    FRAME_SAMPLINGS,
+    PRECISIONS,
+    TRIANGULATION_METHODS,
+)
 
 
 @dataclass(frozen=True)
@@ -144,6 +152,26 @@ class BundleAdjustmentParams:
         Frames sampled for the adjustment (null: every frame).
     frame_sampling
         How frames are sampled: ``even``, ``confidence``, ``coverage`` or ``diversity``.
+    solver
+        ``lm`` (Levenberg-Marquardt on the reduced camera system) or ``scipy``
+        (``scipy.optimize.least_squares``).
+    distortion
+        ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or
+        ``fixed``.
+    max_rounds, outlier_factor, outlier_min_px
+        Outlier rounds: observations beyond ``outlier_factor`` x the median error (at
+        least ``outlier_min_px``) sit out; repeated until the inlier set is stable.
+    reseed_px
+        Cameras whose starting median error exceeds this are resected by PnP first
+        (null: never).
+    bone_lengths, symmetric_bones, length_weight
+        One unknown length per bone over all frames (left = right with
+        ``symmetric_bones``), ``length_weight`` px per 100 % deviation.
+    rigid_points
+        Points that do not move over the recording (a tethered fly's thorax-coxa joints).
+    warn_ratio
+        Warn when the reduced Hessian's weakest non-gauge direction is below this
+        fraction of its strongest.
     least_squares
         Every other key of the table, passed through to ``scipy.optimize.least_squares``
         (e.g. ``max_nfev``, ``loss``, ``f_scale``).
@@ -155,6 +183,17 @@ class BundleAdjustmentParams:
     weigh_by_confidence: bool = _param(False, _boolean)
     max_frames: int | None = _param(200, _integer(1, nullable=True))
     frame_sampling: str = _param("even", _choice(*FRAME_SAMPLINGS))
+    solver: str = _param(BA_DEFAULT_SOLVER, _choice(*BA_SOLVERS))
+    distortion: str = _param("auto", _choice(*BA_DISTORTION_MODES))
+    max_rounds: int = _param(10, _integer(1))
+    outlier_factor: float = _param(5.0, _number(0, exclusive=True))
+    outlier_min_px: float = _param(3.0, _number(0))
+    reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
+    bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
+    symmetric_bones: bool = _param(False, _boolean)
+    length_weight: float = _param(100.0, _number(0, exclusive=True))
+    rigid_points: tuple[str, ...] = _param((), _string_list(), kind=tuple)
+    warn_ratio: float = _param(1e-9, _number(0))
     least_squares: dict[str, Any] = field(default_factory=dict)
 
 

@@ -1,0 +1,293 @@
+"""Levenberg-Marquardt on the reduced camera system (Schur complement).
+
+The unknowns of a :class:`~flylib.ba.solver.Problem` split into
+
+- *global* ones, few and seen by many observations: the free camera parameters, the
+  points shared by every frame (a tethered fly's rigid thorax-coxa points) and the
+  bone lengths;
+- *local* ones: every other 3D point. Points joined by a bone-length residual are
+  coupled, so the local unknowns form small blocks: one point (3x3) without bones,
+  one frame of a leg chain (e.g. 4 points, 12x12) with them. Blocks never couple to
+  each other except through the global unknowns.
+
+Each step solves the damped normal equations ``(J^T J + lambda D) dx = -J^T r`` by
+eliminating the local blocks (batched dense inverses), solving the dense reduced
+system of the global unknowns (~100), and back-substituting. The Jacobian is the
+JAX one of :meth:`Problem.jacobian`. Robust losses (scipy's names and definitions)
+are applied by iteratively reweighted least squares.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+from scipy.optimize import OptimizeResult
+from scipy.sparse.csgraph import connected_components
+
+from .solver import Problem
+
+log = logging.getLogger(__name__)
+
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+
+
+@dataclass
+class BlockStructure:
+    """Column partition of a problem: global columns and padded local blocks.
+
+    Attributes
+    ----------
+    global_cols
+        ``(G,)`` column indices of the global unknowns.
+    block_cols
+        ``(B, S)`` column indices of each local block, ``-1`` where padded.
+    """
+
+    global_cols: np.ndarray
+    block_cols: np.ndarray
+
+
+def block_structure(problem: Problem, global_points: np.ndarray | None = None) -> BlockStructure:
+    """Global columns and local blocks of ``problem``.
+
+    ``global_points``: ``(N,)`` bool, points kept among the global unknowns (shared by
+    many frames); every other point is local, grouped with the points it shares a
+    bone residual with.
+    """
+    n_pts = problem.n_points
+    is_global = np.zeros(n_pts, bool) if global_points is None else np.asarray(global_points, bool)
+    n_cam = problem.n_cam
+    pt_cols = n_cam + 3 * np.arange(n_pts)[:, None] + np.arange(3)
+    length_cols = n_cam + 3 * n_pts + np.arange(problem.n_len)
+    global_cols = np.concatenate([np.arange(n_cam), pt_cols[is_global].ravel(), length_cols])
+
+    local = np.flatnonzero(~is_global)
+    if problem.n_bones:
+        bi, bj = problem.bone_i, problem.bone_j
+        both = ~is_global[bi] & ~is_global[bj]
+        graph = scipy.sparse.coo_matrix((np.ones(both.sum()), (bi[both], bj[both])),
+                                        shape=(n_pts, n_pts))
+        _, label = connected_components(graph, directed=False)
+    else:
+        label = np.arange(n_pts)
+    label = label[local]
+    _, block_of = np.unique(label, return_inverse=True)
+    n_blocks = int(block_of.max()) + 1 if local.size else 0
+    order = np.argsort(block_of, kind="stable")
+    counts = np.bincount(block_of, minlength=n_blocks)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.empty(local.size, int)
+    slot[order] = np.arange(local.size) - np.repeat(starts, counts)
+    width = int(counts.max()) if n_blocks else 0
+    block_cols = np.full((n_blocks, 3 * width), -1)
+    for k in range(3):
+        block_cols[block_of, 3 * slot + k] = pt_cols[local, k]
+    return BlockStructure(global_cols=global_cols, block_cols=block_cols)
+
+
+def _loss(name: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """scipy's ``rho(z)`` and ``rho'(z)`` for ``z = (r / f_scale)^2``."""
+    if name == "linear":
+        return z, np.ones_like(z)
+    if name == "soft_l1":
+        t = 1 + z
+        return 2 * (np.sqrt(t) - 1), 1 / np.sqrt(t)
+    if name == "huber":
+        big = z > 1
+        sq = np.sqrt(np.where(big, z, 1.0))
+        return np.where(big, 2 * sq - 1, z), np.where(big, 1 / sq, 1.0)
+    if name == "cauchy":
+        return np.log1p(z), 1 / (1 + z)
+    if name == "arctan":
+        return np.arctan(z), 1 / (1 + z ** 2)
+    raise ValueError(f"unknown loss {name!r}; use one of {', '.join(LOSSES)}")
+
+
+class ReducedSystem:
+    """The normal equations of one linearization, in reduced (Schur) form."""
+
+    def __init__(self, jac: scipy.sparse.csr_matrix, res: np.ndarray, blocks: BlockStructure):
+        csc = jac.tocsc()
+        jg = csc[:, blocks.global_cols]
+        self.n_global = blocks.global_cols.size
+        cols = blocks.block_cols
+        n_blocks, width = cols.shape
+        padded = cols < 0
+        flat = np.where(padded, 0, cols).ravel()
+        jl = csc[:, flat]
+        # padded slots read column 0: zero them out
+        if padded.any():
+            jl = jl @ scipy.sparse.diags((~padded).ravel().astype(float))
+        self.u = (jg.T @ jg).toarray()
+        self.gg = jg.T @ res
+        self.w = (jg.T @ jl).toarray().reshape(self.n_global, n_blocks, width)
+        v = (jl.T @ jl).tocoo()
+        bi, bj = v.row // width, v.col // width
+        same = bi == bj
+        self.v = np.zeros((n_blocks, width, width))
+        np.add.at(self.v, (bi[same], v.row[same] % width, v.col[same] % width), v.data[same])
+        self.v[:, np.arange(width), np.arange(width)] += padded  # keep padding invertible
+        self.gl = (jl.T @ res).reshape(n_blocks, width)
+        self.padded = padded
+        self.diag_u = np.maximum(np.diag(self.u).copy(), 1e-12)
+        self.diag_v = np.maximum(np.diagonal(self.v, axis1=1, axis2=2).copy(), 1e-12)
+
+    def schur(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``)."""
+        width = self.v.shape[1]
+        vd = self.v.copy()
+        vd[:, np.arange(width), np.arange(width)] += lam * self.diag_v
+        vinv = np.linalg.inv(vd)
+        y = np.einsum("gbk,bkl->gbl", self.w, vinv)
+        s = self.u + np.diag(lam * self.diag_u) - y.reshape(self.n_global, -1) @ \
+            self.w.reshape(self.n_global, -1).T
+        return 0.5 * (s + s.T), y, vinv
+
+    def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(dx_global, dx_local (B, S))`` of the damped system."""
+        s, y, vinv = self.schur(lam)
+        rhs = -self.gg + y.reshape(self.n_global, -1) @ self.gl.ravel()
+        try:
+            dg = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
+        except np.linalg.LinAlgError:
+            dg = np.linalg.lstsq(s, rhs, rcond=None)[0]
+        back = -self.gl - np.einsum("gbk,g->bk", self.w, dg)
+        dl = np.einsum("bkl,bl->bk", vinv, back)
+        return dg, np.where(self.padded, 0.0, dl)
+
+    def predicted_reduction(self, dg, dl, lam) -> float:
+        """``-(g^T dx + 0.5 dx^T J^T J dx)`` (the model's cost decrease, no damping)."""
+        jtj_dx_g = self.u @ dg + np.einsum("gbk,bk->g", self.w, dl)
+        jtj_dx_l = np.einsum("gbk,g->bk", self.w, dg) + np.einsum("bkl,bl->bk", self.v, dl)
+        jtj_dx_l = np.where(self.padded, 0.0, jtj_dx_l)
+        grad = dg @ self.gg + (dl * self.gl).sum()
+        quad = dg @ jtj_dx_g + (dl * jtj_dx_l).sum()
+        return float(-(grad + 0.5 * quad))
+
+
+def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
+             loss: str = "linear", f_scale: float = 1.0, max_nfev: int | None = None,
+             ftol: float = 1e-8, xtol: float = 1e-10, gtol: float = 1e-10,
+             max_iter: int = 100, **unused) -> OptimizeResult:
+    """Minimize ``problem``'s (robust) cost from ``x0`` by Levenberg-Marquardt.
+
+    Parameters
+    ----------
+    problem, x0
+        The problem and the starting vector (:meth:`Problem.pack`).
+    blocks
+        Its column partition (:func:`block_structure`).
+    loss, f_scale
+        As ``scipy.optimize.least_squares``.
+    max_nfev
+        Cap on residual evaluations (default ``max_iter + 1``).
+    ftol, xtol, gtol
+        Stop when an accepted step lowers the cost by less than ``ftol`` relatively,
+        moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is below
+        ``gtol``.
+
+    Returns
+    -------
+    OptimizeResult
+        ``x``, ``cost``, ``fun``, ``nfev``, ``njev``, ``status``, ``message``,
+        ``success`` as scipy's.
+
+    Notes
+    -----
+    Directions the data do not pin at all (a gauge) make the damped step wander along
+    them; hold the gauge fixed (as :func:`flylib.bundle_adjustment.bundle_adjust` does).
+    """
+    if unused:
+        log.debug("Levenberg-Marquardt ignores %s", sorted(unused))
+    max_nfev = max_iter + 1 if max_nfev is None else int(max_nfev)
+    gcols = blocks.global_cols
+    bcols = blocks.block_cols
+    local_mask = bcols >= 0
+
+    def evaluate(x):
+        raw = problem.residuals(x)
+        rho, _ = _loss(loss, (raw / f_scale) ** 2)
+        return raw, 0.5 * f_scale ** 2 * rho.sum()
+
+    x = np.asarray(x0, float).copy()
+    raw, cost = evaluate(x)
+    nfev, njev, lam, nu = 1, 0, 1e-3, 2.0
+    status, message = 0, "the maximum number of function evaluations is exceeded"
+    system = None
+    while nfev < max_nfev:
+        jac = problem.jacobian(x)
+        njev += 1
+        _, drho = _loss(loss, (raw / f_scale) ** 2)
+        scale = np.sqrt(drho)
+        system = ReducedSystem(scipy.sparse.diags(scale) @ jac, scale * raw, blocks)
+        gnorm = max(np.abs(system.gg).max(initial=0) / np.sqrt(system.diag_u.max()),
+                    np.abs(system.gl).max(initial=0) / np.sqrt(system.diag_v.max()))
+        if gnorm < gtol * max(1.0, np.sqrt(2 * cost)):
+            status, message = 1, "`gtol` termination condition is satisfied."
+            break
+        accepted = False
+        while nfev < max_nfev:
+            dg, dl = system.step(lam)
+            dx = np.zeros_like(x)
+            dx[gcols] = dg
+            dx[bcols[local_mask]] = dl[local_mask]
+            x_new = x + dx
+            raw_new, cost_new = evaluate(x_new)
+            nfev += 1
+            predicted = system.predicted_reduction(dg, dl, lam)
+            actual = cost - cost_new
+            rho = actual / predicted if predicted > 0 else -1.0
+            log.debug("LM nfev %d cost %.6g -> %.6g (rho %.3g, lambda %.3g)",
+                      nfev, cost, cost_new, rho, lam)
+            if np.isfinite(cost_new) and rho > 0:
+                # shrink fast on good steps: weak directions of a long-focal rig need
+                # lambda far below their share of the diagonal before they move
+                lam = max(lam * (0.1 if rho > 0.75 else max(1 / 3, 1 - (2 * rho - 1) ** 3)),
+                          1e-15)
+                nu = 2.0
+                small_step = np.linalg.norm(dx) <= xtol * (xtol + np.linalg.norm(x))
+                small_cost = actual <= ftol * cost
+                x, raw, cost = x_new, raw_new, cost_new
+                accepted = True
+                if small_cost:
+                    status, message = 2, "`ftol` termination condition is satisfied."
+                elif small_step:
+                    status, message = 3, "`xtol` termination condition is satisfied."
+                break
+            lam *= nu
+            nu *= 2
+            if lam > 1e16:
+                break
+        if status or not accepted:
+            if not accepted and not status:
+                status, message = 2, "no further decrease (damping at its limit)"
+            break
+    result = OptimizeResult(x=x, cost=float(cost), fun=raw, nfev=nfev, njev=njev,
+                            status=status, message=message, success=status > 0)
+    return result
+
+
+def weak_directions(hessian: np.ndarray, n_gauge: int) -> tuple[float, int]:
+    """How well the reduced Hessian pins its unknowns beyond the gauge.
+
+    The Hessian is first scaled to unit diagonal (Jacobi), so units do not matter.
+
+    Returns
+    -------
+    ratio : float
+        Its ``n_gauge``-th smallest eigenvalue (the weakest non-gauge direction) over
+        its largest.
+    count : int
+        How many eigenvalues beyond the gauge lie below ``1e-9`` of the largest.
+    """
+    d = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
+    eig = np.linalg.eigvalsh(hessian / d[:, None] / d[None, :])
+    eig = np.maximum(eig, 0.0)
+    if eig.size <= n_gauge:
+        return float("inf"), 0
+    ratio = float(eig[n_gauge] / eig[-1])
+    return ratio, int((eig[n_gauge:] < 1e-9 * eig[-1]).sum())

@@ -1,0 +1,191 @@
+"""Starting-rig repairs before the joint fit: gross cameras, distortion that folds.
+
+A camera whose aim is off by degrees puts the fly hundreds of pixels away from its
+detections; a joint least-squares fit from there wanders. Such a camera is resected
+by PnP (OpenCV ``solvePnPRansac``) from points triangulated by the other cameras;
+when too few cameras are trustworthy to triangulate from, each gross camera is first
+re-aimed (turned about its centre) so that its detections' median falls on the point
+the rig looks at.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+from ..camera_model import pad_dist_numpy, rmat_to_rvec_numpy, rvec_to_rmat_numpy
+
+log = logging.getLogger(__name__)
+
+
+def view_errors(table: np.ndarray, pts: np.ndarray, pts2d: np.ndarray, usable: np.ndarray):
+    """``(V, N)`` reprojection error of every usable observation (NaN elsewhere)."""
+    from .solver import project_rows
+
+    n_views, n_cols = usable.shape
+    err = np.full((n_views, n_cols), np.nan)
+    ok = usable & np.isfinite(pts).all(-1)[None]
+    v, n = np.nonzero(ok)
+    if v.size:
+        err[v, n] = np.linalg.norm(project_rows(pts[n], table[v]) - pts2d[v, n], axis=1)
+    return err
+
+
+def _kmat(row):
+    return np.array([[row[6], 0, row[8]], [0, row[7], row[9]], [0, 0, 1.0]])
+
+
+def _dist(row):
+    return pad_dist_numpy(row[10:][None])[0] if row.size > 10 else np.zeros(5)
+
+
+def rig_target(table: np.ndarray) -> np.ndarray:
+    """The point closest (least squares) to every camera's optical axis, ``(3,)``."""
+    rmats = rvec_to_rmat_numpy(table[:, 0:3])
+    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
+    axes = rmats[:, 2]
+    proj = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    return np.linalg.lstsq(proj.sum(0), np.einsum("vij,vj->i", proj, centres), rcond=None)[0]
+
+
+def reaim(row: np.ndarray, observed: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Turn camera ``row`` about its centre so that ``target`` projects near the
+    median of ``observed`` ``(M, 2)`` pixels (distortion ignored: a coarse repair)."""
+    rmat = rvec_to_rmat_numpy(row[0:3])
+    centre = -rmat.T @ row[3:6]
+    med = np.median(observed, axis=0)
+    want = np.linalg.solve(_kmat(row), [med[0], med[1], 1.0])
+    want /= np.linalg.norm(want)
+    have = rmat @ (target - centre)
+    have /= np.linalg.norm(have)
+    axis = np.cross(have, want)
+    angle = np.arctan2(np.linalg.norm(axis), have @ want)
+    delta = cv2.Rodrigues(axis / max(np.linalg.norm(axis), 1e-300) * angle)[0]
+    new = row.copy()
+    new_rmat = delta @ rmat
+    new[0:3] = rmat_to_rvec_numpy(new_rmat)
+    new[3:6] = -new_rmat @ centre
+    return new
+
+
+def leave_one_out_errors(table, pts2d, usable, triangulate) -> np.ndarray:
+    """``(V,)`` median error of each camera against points the *other* cameras
+    triangulate (a point triangulated with a camera always fits it)."""
+    med = np.full(len(table), np.nan)
+    for v in np.flatnonzero(usable.any(axis=1)):
+        others = usable.copy()
+        others[v] = False
+        pts = triangulate(table, others)
+        err = view_errors(table, pts, pts2d, usable)[v]
+        if np.isfinite(err).any():
+            med[v] = np.nanmedian(err)
+    return med
+
+
+def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np.ndarray,
+                         gross_px: float, triangulate, movable: np.ndarray | None = None,
+                         ) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Resect (or re-aim) every camera whose median error from the start is gross.
+
+    Parameters
+    ----------
+    table
+        ``(V, C)`` camera table.
+    names
+        Camera names (for the report).
+    pts2d, usable
+        ``(V, N, 2)`` observations and ``(V, N)`` which may be used.
+    gross_px
+        A camera is gross when the median reprojection error of its observations
+        against points triangulated by the other cameras exceeds this.
+    triangulate
+        ``(table, usable) -> pts (N, 3)``: a robust triangulation (NaN where impossible).
+    movable
+        ``(V,)`` bool: cameras whose extrinsics may be changed (default all).
+
+    Returns
+    -------
+    table : np.ndarray
+        The repaired table.
+    reseeded : list of str
+        ``"<camera>: pnp"`` / ``"<camera>: re-aimed"`` per repaired camera.
+    median_px : np.ndarray
+        ``(V,)`` per-camera median error before the repair.
+    """
+    table = table.copy()
+    has_obs = usable.any(axis=1)
+    med = leave_one_out_errors(table, pts2d, usable, triangulate)
+    # no consensus among the others within the RANSAC radius: as bad as gross
+    gross = has_obs & (np.nan_to_num(med, nan=np.inf) > gross_px)
+    if movable is not None:
+        gross &= np.asarray(movable, bool)
+    reseeded: list[str] = []
+    if not gross.any():
+        return table, reseeded, med
+    good = ~gross & has_obs
+    if good.sum() < 2:
+        target = rig_target(table)
+        for v in np.flatnonzero(gross):
+            table[v] = reaim(table[v], pts2d[v][usable[v]], target)
+            reseeded.append(f"{names[v]}: re-aimed")
+        good = np.zeros_like(good)
+        # the re-aimed rig is roughly consistent: judge again, resect what is still off
+        after = leave_one_out_errors(table, pts2d, usable, triangulate)
+        gross = has_obs & (np.nan_to_num(after, nan=np.inf) > gross_px)
+        if movable is not None:
+            gross &= np.asarray(movable, bool)
+        good = ~gross & has_obs
+    for v in np.flatnonzero(gross):
+        if good.sum() < 2:
+            break
+        pts_good = triangulate(table, usable & good[:, None])
+        ok = usable[v] & np.isfinite(pts_good).all(-1)
+        if ok.sum() < 8:
+            continue
+        row = table[v]
+        # EPnP inside RANSAC, no extrinsic guess (the guess is what is wrong; OpenCV's
+        # iterative solver returned garbage from a 3-degree-off guess), then LM on inliers
+        obj, img = pts_good[ok], pts2d[v][ok]
+        found, rvec, tvec, inliers = cv2.solvePnPRansac(
+            obj, img, _kmat(row), _dist(row), iterationsCount=200, reprojectionError=8.0,
+            confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+        if not found or inliers is None or len(inliers) < 6:
+            continue
+        inl = np.asarray(inliers).ravel()
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], _kmat(row), _dist(row),
+                                          rvec, tvec)
+        candidate = row.copy()
+        candidate[0:3], candidate[3:6] = np.ravel(rvec), np.ravel(tvec)
+        trial = table.copy()
+        trial[v] = candidate
+        before = np.nanmedian(view_errors(table, pts_good, pts2d, usable)[v][ok])
+        after = np.nanmedian(view_errors(trial, pts_good, pts2d, usable)[v][ok])
+        if after < before:
+            table = trial
+            reseeded = [r for r in reseeded if not r.startswith(f"{names[v]}:")]
+            reseeded.append(f"{names[v]}: pnp")
+    if reseeded:
+        log.info("bundle adjustment: cameras with a gross start (median error > %.0f px) "
+                 "repaired: %s", gross_px, ", ".join(reseeded))
+    return table, reseeded, med
+
+
+def radial_folds(dist: np.ndarray, r_max: float, n: int = 256) -> bool:
+    """True when the OpenCV radial model ``r * radial(r)`` is not increasing on
+    ``[0, r_max]`` (the image would fold onto itself)."""
+    d = pad_dist_numpy(np.asarray(dist, float)[None])[0]
+    k1, k2, k3, k4, k5, k6 = d[0], d[1], d[4], d[5], d[6], d[7]
+    r = np.linspace(0.0, r_max, n)
+    r2 = r * r
+    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    mapped = r * num / den
+    return bool(np.any(den <= 0) or np.any(np.diff(mapped) <= 0))
+
+
+def image_radius(row: np.ndarray) -> float:
+    """Normalized radius of the farthest image corner, taking the image as twice the
+    principal point (plus a margin): where the distortion model must stay monotonic."""
+    return 1.25 * float(np.hypot(row[8] / row[6], row[9] / row[7]))

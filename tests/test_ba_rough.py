@@ -1,0 +1,178 @@
+"""Bundle adjustment from a realistic rough rig (issue 12), and its building blocks.
+
+The case (``tests/rough_rig.py``): tethered fly, DeepFly3D-like long-focal rig with five
+zero distortion coefficients, plan visibility, 1 px noise, 5 % outliers within +-80 px,
+a starting rig 4 deg / 4 % / 0.1 deg off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flylib.ba.lm import ReducedSystem, block_structure, solve_lm
+from flylib.ba.reseed import radial_folds, reseed_gross_cameras
+from flylib.bundle_adjustment import bundle_adjust, camera_table
+from flylib.config import Config
+from flylib.errors import ConfigError
+
+from rough_rig import (LEG_POINTS, TETHERED, fit_with_default_config, make_case,
+                       rough_start, similarity_error, true_rig)
+from synthetic import project_opencv
+from test_bundle_adjustment import _small_problem
+
+
+# -- the reduced camera system ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("bone_group", [None, np.array([0, 1, 0])])
+@pytest.mark.parametrize("global_point", [None, 1])
+def test_schur_step_equals_the_dense_damped_solve(bone_group, global_point):
+    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
+    shared = None if global_point is None else np.arange(problem.n_points) == global_point
+    blocks = block_structure(problem, shared)
+    jac, res = problem.jacobian(x), problem.residuals(x)
+    system = ReducedSystem(jac, res, blocks)
+    lam = 0.1
+    dg, dl = system.step(lam)
+    dx = np.zeros_like(x)
+    dx[blocks.global_cols] = dg
+    local = blocks.block_cols >= 0
+    dx[blocks.block_cols[local]] = dl[local]
+    normal = (jac.T @ jac).toarray()
+    reference = np.linalg.solve(normal + lam * np.diag(np.maximum(np.diag(normal), 1e-12)),
+                                -jac.T @ res)
+    np.testing.assert_allclose(dx, reference, rtol=0, atol=1e-9 * np.abs(reference).max())
+    # bone-coupled points share a block, a global point is in no block
+    if bone_group is not None and global_point is None:
+        assert blocks.block_cols.shape[1] >= 6
+    if global_point is not None:
+        assert not np.isin(problem.n_cam + 3 * global_point, blocks.block_cols)
+
+
+def test_lm_reaches_the_least_squares_minimum_like_scipy():
+    from scipy.optimize import least_squares
+
+    from flylib.ba.solver import project_rows
+
+    problem, x = _small_problem(fixed=["*.intr", "*.dist", "rh.rvec", "rh.tvec", "rm.tvec[2]"])
+    rng = np.random.default_rng(0)
+    table, pts = problem.unpack(x)
+    problem.xy = project_rows(pts[problem.point], table[problem.view]) + rng.normal(
+        0, 1.0, problem.xy.shape)  # a consistent scene with 1 px noise
+    x0 = x + rng.normal(0, 1e-3, x.size)
+    ours = solve_lm(problem, x0, block_structure(problem), max_nfev=200, ftol=1e-12)
+    ref = least_squares(problem.residuals, x0, jac=lambda v: problem.jacobian(v).toarray(),
+                        method="lm", xtol=1e-14, ftol=1e-14)
+    assert ours.cost == pytest.approx(ref.cost, rel=1e-6)
+
+
+# -- distortion, re-seeding ------------------------------------------------------------
+
+
+def test_radial_fold_check():
+    assert not radial_folds(np.zeros(5), 0.5)
+    assert not radial_folds(np.array([-0.2, 0.05, 0, 0, 0]), 0.5)
+    # k1 = -400 turns r (1 + k1 r^2) back at r = 0.029, inside a 16,000 px lens's image
+    assert radial_folds(np.array([-400.0, 0, 0, 0, 0]), 0.04)
+    assert not radial_folds(np.array([-400.0, 0, 0, 0, 0]), 0.02)
+
+
+def test_zero_distortion_stays_zero_on_long_lenses_by_default():
+    case = make_case(30, seed=3)
+    legs = list(LEG_POINTS)
+    flat = case.pts2d[:, ::3][:, :, legs].reshape(7, -1, 2)
+    result, refined, _ = bundle_adjust(case.start, flat, fixed=["*.intr"], max_nfev=20,
+                                       max_rounds=2)
+    assert np.all(np.asarray(refined.dists) == 0.0)
+    assert result.report["free"]["distortion_held_at_zero"] == 35
+    assert result.report["free"]["per_camera"]["f"] == ["rvec", "tvec"]
+    _, freed, _ = bundle_adjust(case.start, flat, fixed=["*.intr"], max_nfev=5, max_rounds=1,
+                                distortion="free")
+    assert np.any(np.asarray(freed.dists) != 0.0)
+    with pytest.raises(ConfigError, match="distortion"):
+        bundle_adjust(case.start, flat, distortion="maybe")
+
+
+def test_a_camera_aimed_degrees_off_is_resected_by_pnp():
+    rig = true_rig(seed=5)
+    truth = make_case(40, seed=5).truth[:, list(LEG_POINTS)].reshape(-1, 3)
+    pts2d = project_opencv(rig, truth)  # every view sees every point here
+    table = camera_table(rig)
+    bad = table.copy()
+    bad[2] = camera_table(rough_start(rig, orbit_deg=0.0, dist_frac=0.0, aim_deg=3.0,
+                                      seed=2))[2]
+
+    def triangulate(tab, use):
+        from flylib.bundle_adjustment import _cameras_from_table, _ransac_points
+
+        return _ransac_points(_cameras_from_table(rig.names, tab), pts2d, use, 40.0)
+
+    usable = np.isfinite(pts2d).all(-1)
+    fixed_table, reseeded, med = reseed_gross_cameras(bad, list(rig.names), pts2d, usable,
+                                                      100.0, triangulate)
+    assert reseeded == [f"{rig.names[2]}: pnp"] and med[2] > 300
+    np.testing.assert_allclose(fixed_table[2, :6], table[2, :6], atol=1e-4)
+
+
+# -- the rough case ------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rough():
+    return make_case(300, seed=0)
+
+
+@pytest.mark.slow
+def test_rough_rig_recovers_the_fly(rough):
+    """From the rough rig (200 of 300 frames). The issue's target is 0.06 median bones
+    (stretch 0.03): met by the tethered settings (measured 0.030), not by the default
+    config (scipy, no bone lengths: 0.088, still well below the start)."""
+    from flylib.triangulation import reconstruct
+
+    start_err = np.nanmedian(similarity_error(
+        reconstruct(rough.pts2d, rough.start, method="ransac")[0], rough.truth) / rough.bone)
+    result, _, _, err = fit_with_default_config(rough, **TETHERED)
+    assert np.nanmedian(err) <= 0.06
+    assert result.final_median_px < 1.0
+    assert min(result.report["kept_fraction"].values()) > 0.85  # the issue: 67 %
+    assert not [w for w in result.warnings if "poorly determined" in w]
+    assert result.report["free"]["bone_lengths"] == 12 and result.report["free"]["rigid_points"] == 6
+    default, _, _, err_default = fit_with_default_config(rough)
+    assert np.nanmedian(err_default) < 0.5 * start_err
+    assert min(default.report["kept_fraction"].values()) > 0.85
+    # legs only, no symmetric lengths: the left half's scale about the front camera is
+    # free (an exact null direction), and the report says so
+    assert [w for w in default.warnings if "poorly determined" in w]
+
+
+@pytest.mark.slow
+def test_true_rig_start_stays_true(rough):
+    # default config: measured 0.011 (target 0.015); tethered settings 0.027 (the
+    # left/right scale then rests on the bone lengths alone)
+    _, _, _, err = fit_with_default_config(rough, rough.rig)
+    assert np.nanmedian(err) <= 0.015
+    _, _, _, err = fit_with_default_config(rough, rough.rig, **TETHERED)
+    assert np.nanmedian(err) < 0.035
+
+
+@pytest.mark.slow
+def test_hard_variant_finishes_with_a_warning():
+    case = make_case(60, hard=True, seed=0)
+    with pytest.warns(RuntimeWarning, match="poorly determined"):
+        result, _, _, _ = fit_with_default_config(case, max_frames=60, max_rounds=3, **TETHERED)
+    assert any("poorly determined" in w for w in result.report["warnings"])
+    assert len(result.report["reseeded"]) == 6  # every camera that sees something re-aimed
+    kept = [k for k in result.report["kept_fraction"].values() if k is not None]
+    assert min(kept) > 0.8  # neither side thrown away
+
+
+def test_new_keys_are_validated_and_reach_stage_params():
+    base = Config.default().data
+    config = Config.from_dict({**base, "bundle_adjustment": {
+        **base["bundle_adjustment"], "solver": "lm", "symmetric_bones": True}})
+    params = config.stage_params("bundle_adjustment")["bundle_adjustment"]
+    assert params["solver"] == "lm" and params["symmetric_bones"] is True
+    assert "rigid_points" in params and "distortion" in params
+    with pytest.raises(ConfigError, match="bundle_adjustment.solver"):
+        Config.from_dict({**base, "bundle_adjustment": {"solver": "newton"}})
