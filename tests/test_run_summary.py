@@ -106,3 +106,12 @@ def test_a_failed_run_does_not_show_an_earlier_runs_result(tmp_path):
     assert f"failed: see {tmp_path / 'failed' / 'logs' / 'pose2d.log'}" in lines[2]
     assert lines[3].split()[:2] == ["untouched", "60"] and lines[4].split()[:2] == ["finished", "60"]
     assert [line.split(":")[0] for line in lines[5:]] == ["untouched", "finished"]  # truth lines
+
+
+def test_the_demo_truth_line_gives_the_triangulation_figure_beside_the_refined_one(tmp_path):
+    demo = tmp_path / "demo"
+    before = {**TRUTH, "median": 0.0701, "p95": 0.0812, "median_aligned": 0.0123}
+    write_summary(demo, error_vs_truth=TRUTH, error_vs_truth_triangulation=before)
+    last = run_table([RunRecording("demo", demo, demo=True)]).splitlines()[-1]
+    assert last.startswith("demo: 3D error against the demo truth: median 0.0565")
+    assert last.endswith("(refined 3D; triangulation alone: median 0.0701, p95 0.0812, aligned 0.0123)")
