@@ -35,6 +35,7 @@ import numpy as np
 
 from .errors import ResultsError
 from .paths import atomic_path
+from .results import read_meta_from
 
 __all__ = [
     "CORRECTIONS_FILE",
@@ -144,7 +145,7 @@ class Corrections:
         except OSError as err:
             raise ResultsError(f"{path}: not a readable HDF5 corrections file ({err}); {fix}") from None
         with f:
-            meta = _read_meta(f)
+            meta = read_meta_from(f)
             version = meta.get(_META_KEY)
             if not isinstance(version, int) or isinstance(version, bool):
                 raise ResultsError(f"{path}: no {_META_KEY} in attrs['meta']; not a corrections "
@@ -289,17 +290,6 @@ class Corrections:
             points=self.points[:, ix[0], ix[1]], edited=self.edited[:, ix[0], ix[1]],
             fixed=self.fixed[:, ix[0], ix[1]], invisible=self.invisible[:, ix[0], ix[1]],
             points3d=self.points3d[ix], edited3d=self.edited3d[ix], source=self.source)
-
-
-def _read_meta(f: h5py.File) -> dict:
-    raw = f.attrs.get("meta")
-    if raw is None:
-        return {}
-    try:
-        meta = json.loads(raw.decode() if isinstance(raw, bytes) else raw)
-    except (json.JSONDecodeError, TypeError):
-        return {}
-    return meta if isinstance(meta, dict) else {}
 
 
 def reconstruct_corrected(config: Any, pts2d, cameras, conf=None,
