@@ -89,6 +89,13 @@ VALIDATOR_CASES = [
     ("recursive", lambda d: edit(d, "recursive", "no")),
     ("outdir", lambda d: edit(d, "outdir", 3)),
     ("triangulaton", lambda d: edit(d, "triangulaton", {})),
+    ("refinement.smooth_scale", lambda d: edit(d, "refinement.smooth_scale", -1)),
+    ("refinement.rigid_points", lambda d: edit(d, "refinement.rigid_points", ["nope"])),
+    ("kinematics.angles.a", lambda d: edit(d, "kinematics.angles", {"a": ["lf_claw", "lf_femur_tibia"]})),
+    ("exports.nwb", lambda d: edit(d, "exports", {"nwb": "yes"})),
+    ("nwb.subject.sex", lambda d: edit(d, "nwb", {"subject": {"sex": "Q"}})),
+    ("corrections", lambda d: edit(d, "corrections", 3)),
+    ("pose2d.models.deepfly2d.subpixel", lambda d: edit(d, "pose2d.models.0.subpixel", "centroid")),
 ] + [(path, functools.partial(edit_at, path=path, value=value)) for path, value in param_cases()]
 
 
