@@ -51,7 +51,7 @@ def test_saved_corrections_rerun_exactly_triangulation_assemble_visualization(ru
     video_before = (out / "pose2d.mp4").read_bytes()
     corr, (t, p), (t2, q) = an_edit(out)
     corr.save(out / "corrections.h5")
-    assert planned(root, config) == jobs(("triangulation", "assemble", "visualization"), ("recA",))
+    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
 
     snakemake(root, config=config)
     assert planned(root, config) == set()
@@ -69,9 +69,9 @@ def test_saved_corrections_rerun_exactly_triangulation_assemble_visualization(ru
     # saving again (a newer file) re-runs the same three jobs; deleting it does too
     corr.set_point(0, 0, 0, (100.0, 100.0))
     corr.save(out / "corrections.h5")
-    assert planned(root, config) == jobs(("triangulation", "assemble", "visualization"), ("recA",))
+    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
     (out / "corrections.h5").unlink()
-    assert planned(root, config) == jobs(("triangulation", "assemble", "visualization"), ("recA",))
+    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
 
 
 def test_the_config_can_name_the_sidecar(runs, tmp_path):

@@ -189,4 +189,4 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
     corr = Corrections.load(out / "corrections.h5", (session.n_views, session.n_frames, session.n_points))
     assert corr.edited[v, first, point] and corr.edited.sum() == 1
     np.testing.assert_allclose(corr.points[v, first, point], after_xy, atol=0.01)
-    assert planned(root, config) == jobs(("triangulation", "assemble", "visualization"), ("demo",))
+    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("demo",))

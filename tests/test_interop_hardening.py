@@ -275,6 +275,20 @@ def test_dlc_csv_missing_body_parts_warns_naming_file_and_parts(tmp_path, caplog
     assert "a.csv" not in caplog.text
 
 
+def test_dlc_csv_lacking_the_other_side_is_fine_when_the_plan_says_the_view_sees_one_side(tmp_path, caplog):
+    """A camera sees one side of the fly: its file rightly lacks the other side's parts.
+    With a detection plan (pose2d.output_points) only parts the plan gives that view count."""
+    parts = ["p0", "p1", "p2", "p3"]
+    (tmp_path / "a.csv").write_text(_dlc_text(["p0", "p1"]))
+    (tmp_path / "b.csv").write_text(_dlc_text(["p2"]))
+    plan = {"output_points": {"a": {"p0": {}, "p1": {}}, "b": {"p2": {}, "p3": {}}}}
+    with caplog.at_level(logging.WARNING, logger="flylib.interop"):
+        import_points2d(_config(["a", "b"], parts, pose2d=plan), tmp_path, {"format": "dlc_csv", "image_size": [9, 9]})
+    assert "a.csv" not in caplog.text  # p2, p3 are the other side's
+    message = [r.getMessage() for r in caplog.records if "b.csv" in r.getMessage()]
+    assert len(message) == 1 and "['p3']" in message[0] and "output_points" in message[0]
+
+
 @pytest.mark.parametrize("text, message", [
     ("scorer,DLC,DLC\nbodyparts,p,p\ncoords,x,y\n0,1,2,3,4\n", "malformed CSV row"),
     ("scorer,DLC,DLC\nbodyparts,p,p\n0,1,2\n", "not a DeepLabCut CSV"),

@@ -424,7 +424,7 @@ def test_export_rule_reruns_only_when_the_result_or_its_tables_change(tmp_path):
     assert planned(tmp_path, edited) == set()
     edited = copy.deepcopy(config)
     edited["triangulation"]["ransac_threshold"] = 9.5
-    assert planned(tmp_path, edited) == jobs(("triangulation", "assemble", "export_nwb"), ("recA",))
+    assert planned(tmp_path, edited) == jobs(("triangulation", "refinement", "assemble", "kinematics", "export_nwb"), ("recA",))
     edited = copy.deepcopy(config)
     edited["exports"]["nwb"] = False
     assert planned(tmp_path, edited) == set()

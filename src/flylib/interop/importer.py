@@ -262,21 +262,37 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
     return pts, conf, {v: sizes[v] for v in sized}, {v: path for v in sized}
 
 
-def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], points: list[str]) -> None:
-    """Warn, per file, about skeleton points the other views' files give and it does not.
+def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], points: list[str],
+                        expected: dict[str, set[int]] | None = None) -> None:
+    """Warn, per file, about skeleton points its view should give and it does not.
 
-    A per-view file lacking body parts the others have (a column dropped, a part renamed
-    and mapped away) leaves those points missing in that view; say so, naming the file.
+    A per-view file lacking body parts (a column dropped, a part renamed and mapped
+    away) leaves those points missing in that view; say so, naming the file. What a view
+    should give is the detection plan's ``pose2d.output_points`` for that view when the
+    config has one (a camera sees one side of the fly: its file rightly lacks the other
+    side), else what the other views' files give.
     """
     given = set().union(*filled.values()) if filled else set()
     for view, have in filled.items():
-        lacking = sorted(given - have)
-        if lacking and len(filled) > 1:
+        if expected and view in expected:
+            lacking, whose = sorted(expected[view] - have), "the detection plan's pose2d.output_points give this view"
+        else:
+            lacking = sorted(given - have) if len(filled) > 1 else []
+            whose = "the other views' files have"
+        if lacking:
             log.warning(
-                "%s: has no columns for body parts %s that the other views' files have; "
+                "%s: has no columns for body parts %s that %s; "
                 "they are missing in view %r (add them, or map them in pose2d.import.keypoint_map)",
-                files[view], [points[p] for p in lacking], view,
+                files[view], [points[p] for p in lacking], whose, view,
             )
+
+
+def _plan_points(config, points: list[str]) -> dict[str, set[int]]:
+    """``view -> point indices`` the config's ``pose2d.output_points`` assigns (may be empty)."""
+    table = (_views.config_data(config).get("pose2d") or {}).get("output_points") or {}
+    index = {name: i for i, name in enumerate(points)}
+    return {str(view): {index[p] for p in (entries or {}) if p in index}
+            for view, entries in table.items() if isinstance(entries, dict)}
 
 
 def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
@@ -349,7 +365,7 @@ def _import_per_view(spec, config, recording_dir, views, points):
             if p is not None:
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
-    _warn_missing_parts(filled, {v: files[v] for v in present}, points)
+    _warn_missing_parts(filled, {v: files[v] for v in present}, points, _plan_points(config, points))
     sizes = _views.image_sizes(
         footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
     )
