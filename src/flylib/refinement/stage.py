@@ -166,6 +166,7 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
             group = f.create_group(STAGE)
             sink = H5Sink(group, source.n_views, source.n_frames, source.n_points, options.chunk_frames)
             out = refine_stream(source, cameras, sink, options=options, **terms)
+            _keep_corrected(tri, group)
             record = asdict(options)
             record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
             attrs = _attrs(skeleton, out["bone_lengths"], out["rigid_points"], out["rigid_centres"],
@@ -173,3 +174,16 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
             for key, value in attrs.items():
                 group.attrs[key] = json.dumps(value)
     return Path(out_path)
+
+
+def _keep_corrected(tri: h5py.File, group: h5py.Group) -> None:
+    """Points a person corrected (``triangulation/corrected``, from a ``corrections.h5``)
+    keep the triangulation's 3D: a person's call is not smoothed away."""
+    if "triangulation/corrected" not in tri:
+        return
+    corrected = np.asarray(tri["triangulation/corrected"][()], bool)
+    if not corrected.any():
+        return
+    points = group["points3d"][()]
+    points[corrected] = np.asarray(tri["triangulation/points3d"][()], float)[corrected]
+    group["points3d"][...] = points
