@@ -393,10 +393,15 @@ class ArraySink:
         self.flags[lo:hi] = flags
 
     def mark_missing(self, lo, hi, missing):
-        """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing."""
+        """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing.
+
+        Read, modify, write back: the same code serves arrays and HDF5 datasets."""
         flags = self.flags[lo:hi]
         flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
-        self.points3d[lo:hi][missing] = np.nan
+        self.flags[lo:hi] = flags
+        points = self.points3d[lo:hi]
+        points[missing] = np.nan
+        self.points3d[lo:hi] = points
 
 
 def _weights(pts2d, conf, opts):

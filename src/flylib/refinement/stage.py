@@ -26,7 +26,7 @@ import numpy as np
 
 from ..paths import atomic_path
 from .setup import options_from_params
-from .solver import FLAG_BITS, RefinementResult
+from .solver import FLAG_BITS, ArraySink, RefinementResult
 
 STAGE = "refinement"
 
@@ -52,8 +52,9 @@ class H5Source:
         return self.pts2d[:, lo:hi].astype(np.float64), conf, self.start[lo:hi].astype(np.float64), inliers
 
 
-class H5Sink:
-    """Writes the refinement group chunk by chunk (datasets chunked along time, gzip)."""
+class H5Sink(ArraySink):
+    """Writes the refinement group chunk by chunk (datasets chunked along time, gzip);
+    :class:`ArraySink`'s methods over HDF5 datasets instead of arrays."""
 
     def __init__(self, group: h5py.Group, n_views: int, n_frames: int, n_points: int, chunk: int):
         step = max(1, min(n_frames, chunk))
@@ -71,20 +72,6 @@ class H5Sink:
         self.reproj_error = make("reproj_error", (n_views, n_frames, n_points), np.float64, 1, np.nan)
         self.points2d = make("points", (n_views, n_frames, n_points, 2), np.float64, 1, np.nan)
         self.flags = make("flags", (n_frames, n_points), np.uint8, 0, 0)
-
-    def write(self, lo, hi, points3d, reproj_error, points2d, flags):
-        self.points3d[lo:hi] = points3d
-        self.reproj_error[:, lo:hi] = reproj_error
-        self.points2d[:, lo:hi] = points2d
-        self.flags[lo:hi] = flags
-
-    def mark_missing(self, lo, hi, missing):
-        flags = self.flags[lo:hi]
-        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
-        self.flags[lo:hi] = flags
-        points = self.points3d[lo:hi]
-        points[missing] = np.nan
-        self.points3d[lo:hi] = points
 
 
 def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dict:
