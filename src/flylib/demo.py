@@ -370,7 +370,9 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
             continue  # one source feeding several views is rendered once
         path = directory / patterns[source]
         with atomic_path(path) as tmp, VideoWriter(
-            tmp, fps=float(settings["fps"]), preset="ultrafast", crf=23
+            # A keyframe every 10 frames, as camera recorders write them: a reader (the
+            # review GUI) seeks to any frame without decoding from the start.
+            tmp, fps=float(settings["fps"]), preset="ultrafast", crf=23, options={"g": "10"}
         ) as writer:
             writer.write_frames(render_frames(clean2d[v], bones, colors, image_size))
         footage[source] = path
