@@ -35,7 +35,7 @@ import numpy as np
 
 from .errors import ResultsError
 from .paths import atomic_path
-from .results import read_meta_from
+from .results import open_hdf5, read_meta_from
 
 __all__ = [
     "CORRECTIONS_FILE",
@@ -138,13 +138,7 @@ class Corrections:
         """
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
-        if not path.is_file():
-            raise ResultsError(f"{path}: corrections file not found")
-        try:
-            f = h5py.File(path, "r")
-        except OSError as err:
-            raise ResultsError(f"{path}: not a readable HDF5 corrections file ({err}); {fix}") from None
-        with f:
+        with open_hdf5(path, fix, "HDF5 corrections file") as f:
             meta = read_meta_from(f)
             version = meta.get(_META_KEY)
             if not isinstance(version, int) or isinstance(version, bool):

@@ -168,23 +168,23 @@ def metadata_problems(table: Any, where: str = "nwb") -> list[str]:
         return []
     if not isinstance(table, Mapping):
         return [f"{where}: expected a table of NWB session metadata, {_got(table)}"]
-    problems = []
-    for key, value in table.items():
-        if key not in SESSION_KEYS:
-            problems.append(f"{where}.{key}: unknown key (known: {', '.join(SESSION_KEYS)})")
-        elif value is not None:
-            why = _value_problem(SESSION_KEYS[key], value, f"{where}.{key}")
-            if why:
-                problems.append(why)
+    problems = _key_problems(table, SESSION_KEYS, where)
     subject = table.get("subject")
     if isinstance(subject, Mapping):
-        for key, value in subject.items():
-            if key not in SUBJECT_KEYS:
-                problems.append(f"{where}.subject.{key}: unknown key (known: {', '.join(SUBJECT_KEYS)})")
-            elif value is not None:
-                why = _value_problem(SUBJECT_KEYS[key], value, f"{where}.subject.{key}")
-                if why:
-                    problems.append(why)
+        problems += _key_problems(subject, SUBJECT_KEYS, f"{where}.subject")
+    return problems
+
+
+def _key_problems(table: Mapping, known: Mapping, where: str) -> list[str]:
+    """Unknown keys and ill-formed values of one metadata table."""
+    problems = []
+    for key, value in table.items():
+        if key not in known:
+            problems.append(f"{where}.{key}: unknown key (known: {', '.join(known)})")
+        elif value is not None:
+            why = _value_problem(known[key], value, f"{where}.{key}")
+            if why:
+                problems.append(why)
     return problems
 
 

@@ -360,6 +360,18 @@ def _read_json_attrs(group: h5py.Group) -> dict:
     return out
 
 
+def open_hdf5(path: str | Path, fix: str, what: str = "HDF5 file") -> h5py.File:
+    """Open an HDF5 file for reading; a missing or non-HDF5 file is one
+    :class:`ResultsError` naming the file and ``fix`` (what the user should do)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ResultsError(f"{path}: file not found; {fix}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as err:
+        raise ResultsError(f"{path}: not a readable {what} ({err}); {fix}") from None
+
+
 @contextmanager
 def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterator[h5py.File]:
     """Open a flylib HDF5 file (results or stage artifact) read-only, checking its version.
@@ -377,13 +389,7 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
         Missing, not HDF5, not a flylib file, or a different format version.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ResultsError(f"{path}: file not found; {rerun}")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as err:
-        raise ResultsError(f"{path}: not a readable HDF5 file ({err}); {rerun}") from None
-    with f:
+    with open_hdf5(path, rerun) as f:
         try:
             version = read_meta_from(f).get("deeperfly_format_version")
         except (OSError, KeyError, RuntimeError) as err:
