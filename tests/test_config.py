@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import copy
+import fnmatch
 import json
 import re
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -35,8 +37,24 @@ def all_params(config: Config) -> dict:
 # -- the default config --------------------------------------------------------
 
 
+def test_packaged_default_is_a_file_in_the_package_identical_to_the_users_copy():
+    # A symlink breaks in wheels and on Windows; config/config.yaml is the copy users edit.
+    assert DEFAULT_CONFIG_PATH.parent == REPO / "src" / "flylib"
+    assert DEFAULT_CONFIG_PATH.is_file() and not DEFAULT_CONFIG_PATH.is_symlink()
+    user = REPO / "config" / "config.yaml"
+    assert DEFAULT_CONFIG_PATH.read_bytes() == user.read_bytes(), (
+        f"{DEFAULT_CONFIG_PATH} and {user} differ: edit one, then copy it over the other"
+    )
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    assert any(fnmatch.fnmatch(DEFAULT_CONFIG_PATH.name, pattern) for pattern in package_data["flylib"])
+
+
+def test_skeleton_fly_is_the_default_configs_skeleton(default):
+    assert Skeleton.fly() == default.skeleton() == Skeleton.from_config(default)
+    assert Skeleton.fly().n_points == 38
+
+
 def test_default_config_is_the_seven_camera_fly_rig(default):
-    assert DEFAULT_CONFIG_PATH.resolve() == (REPO / "config" / "config.yaml").resolve()
     assert default.view_names() == ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
     assert default.source_patterns()["vid_f"] == "camera_3.mp4"
     assert len(default.source_patterns()) == 7

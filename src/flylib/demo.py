@@ -33,6 +33,13 @@ import numpy as np
 from .errors import ConfigError
 from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
+from .recordings import (  # noqa: F401  (the demo directory's layout, re-exported)
+    DLC_SCORER,
+    TRUTH_FILE,
+    demo_files,
+    demo_import_spec,
+    dlc_filename,
+)
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +56,6 @@ DEMO_DEFAULTS: dict[str, Any] = {
     "outlier_px": [40.0, 120.0],
 }
 
-TRUTH_FILE = "truth.h5"
-DLC_SCORER = "flylibdemo"
 
 _JOINTS = ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")
 #: fly38 point order (left side 0-18, right side 19-37), as in the default skeleton.
@@ -258,44 +263,6 @@ def render_frames(points2d: np.ndarray, bones: np.ndarray, colors: list[tuple[in
 def _hex_to_rgb(color: str) -> tuple[int, int, int]:
     text = color.lstrip("#")
     return int(text[0:2], 16), int(text[2:4], 16), int(text[4:6], 16)
-
-
-def dlc_filename(footage_name: str) -> str:
-    """The DeepLabCut CSV name for a video (DLC's ``<video stem>DLC_<scorer>.csv``)."""
-    return f"{Path(footage_name).stem}DLC_{DLC_SCORER}.csv"
-
-
-def demo_files(config: Any) -> dict[str, list[str]]:
-    """File names :func:`make_demo` writes, relative to the demo directory.
-
-    Returns
-    -------
-    dict
-        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
-        order) and ``truth`` (``[truth.h5]``).
-    """
-    from .interop.views import view_names, view_sources
-    from .recordings import source_patterns
-
-    patterns = source_patterns(config)
-    for name, pattern in patterns.items():
-        if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
-            raise ConfigError(f"sources: {name!r} has filename {pattern!r}; the demo writes one "
-                              ".mp4 per source, so each source needs a plain '<name>.mp4' filename")
-    by_view = view_sources(config)
-    return {
-        "footage": list(patterns.values()),
-        "dlc": [dlc_filename(patterns[by_view[v]]) for v in view_names(config)],
-        "truth": [TRUTH_FILE],
-    }
-
-
-def demo_import_spec(config: Any) -> dict[str, Any]:
-    """The ``pose2d.import`` entry that reads the demo's CSVs: ``{format, files}``,
-    ``files`` mapping each view to its CSV (relative to the demo directory)."""
-    from .interop.views import view_names
-
-    return {"format": "dlc_csv", "files": dict(zip(view_names(config), demo_files(config)["dlc"]))}
 
 
 @dataclass

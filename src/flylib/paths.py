@@ -1,4 +1,4 @@
-"""Per-user locations flylib writes outside a run's output directory."""
+"""Files flylib reads or writes outside a run's output directory, and atomic writes."""
 
 from __future__ import annotations
 
@@ -8,6 +8,10 @@ import os
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+
+#: The packaged default config, a real file inside the package (the repository's
+#: ``config/config.yaml`` is the user's editable copy; a test keeps the two identical).
+DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.yaml")
 
 
 def cache_dir() -> Path:

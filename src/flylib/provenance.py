@@ -152,7 +152,7 @@ def provenance_report(results: str | Path, config=None, stages_dir: str | Path |
     list of ProvenanceRow
         One row per stage in the file, then ``assemble``.
     """
-    from .results import read_meta
+    from .results import ARTIFACTS, read_meta
 
     results = Path(results)
     root, groups = _group_metas(results)
@@ -176,8 +176,6 @@ def provenance_report(results: str | Path, config=None, stages_dir: str | Path |
                 problems.append(f"{results}: {stage} was built from {upstream} params {built_from}, but "
                                 f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow")
         if stages_dir is not None and stage != "assemble":
-            from .stages import ARTIFACTS
-
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
                 on_disk = read_meta(artifact).get(PARAMS_KEY)
@@ -213,8 +211,7 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
         One warning line per foreign artifact.
     """
     from .errors import ResultsError
-    from .results import read_meta
-    from .stages import ARTIFACTS
+    from .results import ARTIFACTS, read_meta
 
     here = str(Path(cwd or os.getcwd()).resolve())
     flags = config.stage_flags()

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .config.sources import source_patterns, view_names, view_sources
 from .errors import ConfigError, FootageError
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
 from .io.images import natural_key
@@ -33,6 +34,9 @@ FOOTAGE_EXTS = VIDEO_EXTS | IMAGE_EXTS
 
 DEFAULT_OUTDIR = "{recording}/flylib_outputs"
 DEMO_ID = "demo"
+#: The demo directory's 3D truth file and the scorer its DeepLabCut CSVs name.
+TRUTH_FILE = "truth.h5"
+DLC_SCORER = "flylibdemo"
 
 _GLOB_CHARS = re.compile(r"[*?\[]")
 _ID_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -80,32 +84,6 @@ class Recording:
 def natural_sorted(paths: Iterable[Path]) -> list[Path]:
     """``paths`` sorted by :func:`natural_key` of their names (then full path)."""
     return sorted(paths, key=lambda p: (natural_key(Path(p).name), str(p)))
-
-
-def source_patterns(config: Any) -> dict[str, str]:
-    """Source name -> footage glob, from a :class:`~flylib.config.Config` or a mapping.
-
-    Parameters
-    ----------
-    config
-        A ``Config`` or a plain config mapping with a
-        ``sources`` list of ``{name, filename?}``.
-
-    Returns
-    -------
-    dict of str to str
-        In config order. A source without ``filename`` uses its name as the pattern.
-    """
-    data = getattr(config, "data", config)
-    out: dict[str, str] = {}
-    for i, entry in enumerate(data.get("sources") or []):
-        name = entry.get("name") if isinstance(entry, Mapping) else None
-        if not isinstance(name, str) or not name:
-            raise ConfigError(f"sources[{i}]: needs a string 'name' (got {entry!r})")
-        out[name] = str(entry.get("filename", name))
-    if not out:
-        raise ConfigError("sources: the config lists no footage sources; add [[sources]] entries")
-    return out
 
 
 def video_frame_count(path: Path) -> int | None:
@@ -517,6 +495,42 @@ def _format_outdir(template: str, *, recording: Path, rid: str) -> Path:
     return Path(os.path.normpath(os.path.expanduser(text)))
 
 
+# -- the demo recording's files (flylib.demo writes them) ----------------------
+
+
+def dlc_filename(footage_name: str) -> str:
+    """The DeepLabCut CSV name for a video (DLC's ``<video stem>DLC_<scorer>.csv``)."""
+    return f"{Path(footage_name).stem}DLC_{DLC_SCORER}.csv"
+
+
+def demo_files(config: Any) -> dict[str, list[str]]:
+    """File names :func:`flylib.demo.make_demo` writes, relative to the demo directory.
+
+    Returns
+    -------
+    dict
+        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
+        order) and ``truth`` (``[truth.h5]``).
+    """
+    patterns = source_patterns(config)
+    for name, pattern in patterns.items():
+        if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
+            raise ConfigError(f"sources: {name!r} has filename {pattern!r}; the demo writes one "
+                              ".mp4 per source, so each source needs a plain '<name>.mp4' filename")
+    by_view = view_sources(config)
+    return {
+        "footage": list(patterns.values()),
+        "dlc": [dlc_filename(patterns[by_view[v]]) for v in view_names(config)],
+        "truth": [TRUTH_FILE],
+    }
+
+
+def demo_import_spec(config: Any) -> dict[str, Any]:
+    """The ``pose2d.import`` entry that reads the demo's CSVs: ``{format, files}``,
+    ``files`` mapping each view to its CSV (relative to the demo directory)."""
+    return {"format": "dlc_csv", "files": dict(zip(view_names(config), demo_files(config)["dlc"]))}
+
+
 def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording]:
     """The recordings a workflow run covers, from the config's ``recordings`` key.
 
@@ -606,8 +620,6 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
         outdirs[outdir.resolve()] = rid
         spec = entry.get("import", default_import)
         if entry.get("demo") and spec is None:
-            from .demo import demo_import_spec
-
             spec = demo_import_spec(config)
         recordings.append(Recording(id=rid, path=path, sources=src, outdir=outdir,
                                     import_spec=dict(spec) if spec else None,

@@ -44,6 +44,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .cameras import CameraGroup
 
 __all__ = [
+    "ARTIFACTS",
     "FORMAT_VERSION",
     "STAGE_GROUPS",
     "PoseResult",
@@ -64,6 +65,14 @@ __all__ = [
 
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
+#: Stage-artifact file names inside ``<outdir>/stages/``.
+ARTIFACTS: dict[str, str] = {
+    "pose2d": "pose2d.h5",
+    "bundle_adjustment": "bundle_adjustment.h5",
+    "pictorial_structures": "pictorial_structures.h5",
+    "triangulation": "triangulation.h5",
+    "refinement": "refinement.h5",
+}
 #: Stages that own a group in results.h5, in pipeline order.
 STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation",
                                   "refinement")

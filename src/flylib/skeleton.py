@@ -12,18 +12,32 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import yaml
 
 from .errors import ConfigError
+from .paths import DEFAULT_CONFIG_PATH
 
 if TYPE_CHECKING:  # pragma: no cover
     from .config import Config
 
 _HEX_COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
 _SKELETON_KEYS = ("name", "point_names", "limb_points", "limb_palette")
+
+
+@lru_cache(maxsize=1)
+def default_skeleton_table() -> dict:
+    """The packaged default config's ``skeleton`` table (read once; treat as read-only).
+
+    Read here rather than through :class:`~flylib.config.Config`, which validates
+    configs against this skeleton and so sits above it.
+    """
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    with open(DEFAULT_CONFIG_PATH, encoding="utf-8") as stream:
+        return yaml.load(stream, Loader=loader)["skeleton"]
 
 
 def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
@@ -140,9 +154,7 @@ class Skeleton:
     @classmethod
     def fly(cls) -> Skeleton:
         """The default 38-point Drosophila skeleton, read from the packaged default config."""
-        from .config import Config
-
-        return cls.from_config(Config.default())
+        return cls.from_spec(default_skeleton_table())
 
     @classmethod
     def from_config(cls, config: Config) -> Skeleton:

@@ -40,18 +40,11 @@ from typing import Any
 import numpy as np
 
 from .errors import FlylibError, ResultsError
+from .interop.anipose import config_rig
 from .paths import atomic_path
+from .results import ARTIFACTS
 
 log = logging.getLogger(__name__)
-
-#: Stage-artifact file names inside ``<outdir>/stages/``.
-ARTIFACTS = {
-    "pose2d": "pose2d.h5",
-    "bundle_adjustment": "bundle_adjustment.h5",
-    "pictorial_structures": "pictorial_structures.h5",
-    "triangulation": "triangulation.h5",
-    "refinement": "refinement.h5",
-}
 
 
 def candidates_artifact(k: int) -> str:
@@ -76,17 +69,6 @@ def artifact_path(outdir: str | Path, stage: str) -> Path:
 
 def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
     return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
-
-
-def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
-               recording_dir: str | Path | None = None):
-    """The rig the config describes: its ``calibration`` file when set, else the orbit
-    parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
-    if config.data.get("calibration"):
-        from .interop.anipose import load_calibration
-
-        return load_calibration(config, Path(recording_dir) if recording_dir else None)
-    return config.camera_group(image_sizes=dict(image_sizes or {}))
 
 
 def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):

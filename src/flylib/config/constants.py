@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-# ``src/flylib/default_config.yaml`` (a link to the repository's ``config/config.yaml``);
-# the link itself is named, not resolved.
-DEFAULT_CONFIG_PATH = Path(__file__).parents[1] / "default_config.yaml"
+from ..paths import DEFAULT_CONFIG_PATH  # noqa: F401  (re-exported: flylib.config.DEFAULT_CONFIG_PATH)
 
 #: The pipeline stages, in run order; each is toggled by ``pipeline.do_<stage>``.
 STAGES: tuple[str, ...] = (

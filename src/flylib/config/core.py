@@ -13,6 +13,7 @@ import yaml
 
 from ..errors import ConfigError
 from ..pose2d.plan import DECODING_CONVENTION
+from ..skeleton import Skeleton, default_skeleton_table
 from .canonical import _canonical, _plain
 from .constants import (
     _LEAST_SQUARES_PERF,
@@ -32,11 +33,11 @@ from .params import (
     _build_params,
 )
 from .postprocessing import KinematicsParams, RefinementParams
-from .validation import _default_point_names, _default_skeleton_table, validate_config
+from .sources import source_patterns, view_names
+from .validation import _default_point_names, validate_config
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..cameras import CameraGroup
-    from ..skeleton import Skeleton
 
 
 class Config:
@@ -352,7 +353,7 @@ class Config:
         return tuple(spec["point_names"]) if spec else _default_point_names()
 
     def _skeleton_spec(self) -> Mapping:
-        return self.data.get("skeleton") or _default_skeleton_table()
+        return self.data.get("skeleton") or default_skeleton_table()
 
     def _skeleton_structure(self) -> dict:
         limbs = self._skeleton_spec().get("limb_points") or {}
@@ -380,10 +381,7 @@ class Config:
         comes from a calibration file and names no cameras falls back to the
         ``pose2d.output_points`` views.
         """
-        names = [name for name in (self.data.get("cameras") or {}) if name != "defaults"]
-        if not names:
-            names = list(((self.data.get("pose2d") or {}).get("output_points") or {}))
-        return names
+        return view_names(self, required=False)
 
     def camera_table(self) -> tuple[dict, dict]:
         """Split ``cameras`` into the shared defaults and the per-camera specs.
@@ -407,14 +405,10 @@ class Config:
         ConfigError
             If the config lists no sources.
         """
-        from ..recordings import source_patterns
-
         return source_patterns(self)
 
     def skeleton(self) -> Skeleton:
         """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
-        from ..skeleton import Skeleton
-
         return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
 
     def camera_group(self, image_sizes: Mapping[str, tuple[int, int]] | None = None) -> CameraGroup:

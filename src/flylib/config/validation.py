@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import fields
-from functools import lru_cache
 from typing import Any
 
 from ..pose2d.plan import SUBPIXEL_METHODS
-from ..skeleton import skeleton_problems
+from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
 from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
 from .postprocessing import RefinementParams, kinematics_problems
@@ -140,16 +139,8 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
     return problems
 
 
-@lru_cache(maxsize=1)
-def _default_skeleton_table() -> dict:
-    """The packaged default config's ``skeleton`` table (read once; treat as read-only)."""
-    from .core import Config  # at call time: core imports this module
-
-    return Config.default().data["skeleton"]
-
-
 def _default_point_names() -> tuple[str, ...]:
-    return tuple(_default_skeleton_table()["point_names"])
+    return tuple(default_skeleton_table()["point_names"])
 
 
 def validate_config(data: Any) -> list[str]:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
@@ -342,6 +343,15 @@ def load_calibration(config, recording_dir: Path | None = None):
         intrs,
         dists,
     )
+
+
+def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
+               recording_dir: str | Path | None = None):
+    """The rig the config describes: its ``calibration`` file when set, else the orbit
+    parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
+    if config.data.get("calibration"):
+        return load_calibration(config, Path(recording_dir) if recording_dir else None)
+    return config.camera_group(image_sizes=dict(image_sizes or {}))
 
 
 def calibration_image_sizes(path: Path) -> dict[str, tuple[int, int]]:

@@ -11,69 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..config.sources import config_data, source_patterns, view_names, view_sources  # noqa: F401  (re-exported)
 from ..errors import FootageError, ImportFormatError
 from ..io import VIDEO_EXTS, open_reader
-from ..recordings import footage_matches, natural_sorted, source_patterns, video_frame_count
-
-
-def config_data(config) -> dict:
-    """The raw config mapping of a ``flylib.config.Config`` (or a plain dict)."""
-    return config if isinstance(config, dict) else config.data
-
-
-def view_names(config, *, required: bool = True) -> list[str]:
-    """The configured views in config order: ``cameras`` entries except ``defaults``.
-
-    A config whose rig comes from a calibration file may name no cameras; the views
-    are then the ``pose2d.output_points`` keys (as ``Config.view_names`` does).
-
-    Raises
-    ------
-    ImportFormatError
-        When ``required`` and the config names no views at all.
-    """
-    data = config_data(config)
-    names = [name for name in (data.get("cameras") or {}) if name != "defaults"]
-    if not names:
-        names = list(((data.get("pose2d") or {}).get("output_points") or {}))
-    if required and not names:
-        raise ImportFormatError(
-            "config names no views (no cameras entries, no pose2d.output_points); define the rig's views"
-        )
-    return names
-
-
-def view_sources(config) -> dict[str, str]:
-    """Map each view to the footage source that feeds it.
-
-    The first pathway listed for the view in ``pose2d.output_points`` decides; a view
-    without output points falls back to a source named ``vid_<view>`` or ``<view>``,
-    then to the source at the same position in ``sources``.
-    """
-    data = config_data(config)
-    pose2d = data.get("pose2d") or {}
-    pathway_source = {
-        p.get("name"): p.get("source") for p in pose2d.get("pathways") or [] if isinstance(p, dict)
-    }
-    source_names = [s.get("name") for s in data.get("sources") or [] if isinstance(s, dict)]
-    out: dict[str, str] = {}
-    for i, view in enumerate(view_names(config)):
-        points = (pose2d.get("output_points") or {}).get(view) or {}
-        source = None
-        for entry in points.values():
-            if isinstance(entry, dict) and pathway_source.get(entry.get("pathway")):
-                source = pathway_source[entry["pathway"]]
-                break
-        if source is None:
-            for candidate in (f"vid_{view}", view):
-                if candidate in source_names:
-                    source = candidate
-                    break
-        if source is None and i < len(source_names):
-            source = source_names[i]
-        if source is not None:
-            out[view] = source
-    return out
+from ..recordings import footage_matches, natural_sorted, video_frame_count
 
 
 def footage_files(config, recording_dir: Path) -> dict[str, list[Path]]:
