@@ -1,0 +1,61 @@
+"""flylib's top level: every name in the type stub resolves, and ``import flylib`` stays cheap."""
+
+from __future__ import annotations
+
+import ast
+import fnmatch
+import importlib
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import flylib
+
+REPO = Path(__file__).resolve().parents[1]
+STUB = REPO / "src" / "flylib" / "__init__.pyi"
+
+
+def stub_exports() -> dict[str, str]:
+    """``name -> module`` of every ``from .module import name as name`` in the stub."""
+    exports = {}
+    for node in ast.parse(STUB.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.ImportFrom):
+            assert node.level == 1, f"line {node.lineno}: the stub imports only from flylib's own modules"
+            for alias in node.names:
+                assert alias.asname == alias.name, f"line {node.lineno}: write {alias.name} as {alias.name}"
+                exports[alias.name] = f"flylib.{node.module}"
+    return exports
+
+
+def test_every_stub_name_resolves_to_its_modules_object():
+    exports = stub_exports()
+    assert len(exports) >= 89
+    assert sorted(flylib.__all__) == sorted(exports)
+    assert set(exports) <= set(dir(flylib))
+    for name, module in exports.items():
+        assert getattr(flylib, name) is getattr(importlib.import_module(module), name), name
+    from flylib import CameraGroup, write_nwb  # noqa: F401  (the from-import form, a dotted module)
+
+
+def test_unknown_names_are_attribute_errors():
+    with pytest.raises(AttributeError, match="no_such_name"):
+        flylib.no_such_name  # noqa: B018
+
+
+def test_import_flylib_loads_no_heavy_module():
+    heavy = ["jax", "torch", "h5py", "pandas", "scipy", "cv2", "av", "pynwb", "matplotlib"]
+    code = f"import sys, flylib; print(__import__('json').dumps([m for m in {heavy!r} if m in sys.modules]))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(REPO / "src"), "PATH": ""})
+    assert json.loads(out.stdout) == []
+
+
+def test_the_stub_ships_in_the_wheel():
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    for name in (STUB.name, "py.typed"):
+        assert any(fnmatch.fnmatch(name, pattern) for pattern in package_data["flylib"]), name
+        assert (STUB.parent / name).is_file()
