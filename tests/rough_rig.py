@@ -30,11 +30,11 @@ import numpy as np
 
 from flylib.cameras import CameraGroup, orbit_extrinsics
 
+from rig_constants import AZIMUTHS as RIG_AZIMUTHS
+from rig_constants import IMAGE_SIZE, VIEWS
 from synthetic import POINT_NAMES, project_opencv, rig_visibility
 
-VIEWS = ("rh", "rm", "rf", "f", "lf", "lm", "lh")
-AZIMUTHS = (-120.0, -90.0, -45.0, 0.0, 45.0, 90.0, 120.0)
-IMAGE_SIZE = (480, 960)  # (height, width)
+AZIMUTHS = tuple(RIG_AZIMUTHS.values())
 DISTANCE = 116.0
 FOCAL = 16000.0
 LEG_POINTS = tuple(p for p, name in enumerate(POINT_NAMES)

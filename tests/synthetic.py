@@ -18,6 +18,8 @@ import numpy as np
 from flylib.config import Config
 from flylib.demo import FLY38_POINTS, synthetic_fly, view_visibility  # noqa: F401  (one motion model)
 
+from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
+
 POINT_NAMES = list(FLY38_POINTS)
 
 def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:
@@ -132,12 +134,11 @@ def perturb_rig(cameras, *, rot_deg: float = 3.0, dist_frac: float = 0.03, seed:
                                    cameras.intrs, cameras.dists)
 
 
-DEFAULT_AZIMUTHS = {"rh": -120.0, "rm": -90.0, "rf": -45.0, "f": 0.0, "lf": 45.0,
-                    "lm": 90.0, "lh": 120.0}
+DEFAULT_AZIMUTHS = AZIMUTHS
 
 
-def default_rig(focal: float = 22388.125, distance: float = 107.463,
-                image_size: tuple[int, int] = (480, 960)):
+def default_rig(focal: float = FOCAL, distance: float = DISTANCE,
+                image_size: tuple[int, int] = IMAGE_SIZE):
     """The default 7-view orbit rig (spec ``fly38-rig.yaml``), principal point at the
     image centre, no distortion; built directly so tests need no config file."""
     from flylib.cameras import CameraGroup, orbit_extrinsics

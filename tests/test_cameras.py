@@ -11,10 +11,9 @@ from flylib.cameras import Camera, CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
-AZIMUTHS = {"rh": -120, "rm": -90, "rf": -45, "f": 0, "lf": 45, "lm": 90, "lh": 120}
-FOCAL = 22388.125
-DISTANCE = 107.463
-SIZES = {name: (480, 960) for name in AZIMUTHS}
+from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
+
+SIZES = {name: IMAGE_SIZE for name in AZIMUTHS}
 
 
 def rig_config(**defaults) -> Config:

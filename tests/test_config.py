@@ -17,6 +17,8 @@ from flylib.config import DEFAULT_CONFIG_PATH, PARAM_STAGES, STAGE_DEFAULTS, STA
 from flylib.errors import ConfigError
 from flylib.skeleton import Skeleton
 
+from rig_constants import DISTANCE, VIEWS
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -55,11 +57,11 @@ def test_skeleton_fly_is_the_default_configs_skeleton(default):
 
 
 def test_default_config_is_the_seven_camera_fly_rig(default):
-    assert default.view_names() == ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
+    assert default.view_names() == list(VIEWS)
     assert default.source_patterns()["vid_f"] == "camera_3.mp4"
     assert len(default.source_patterns()) == 7
     defaults, cameras = default.camera_table()
-    assert defaults["distance"] == pytest.approx(107.463)
+    assert defaults["distance"] == pytest.approx(DISTANCE)
     assert cameras["lh"] == {"azimuth_deg": 120}
     assert default.triangulation.method == "ransac"
     assert default.triangulation.ransac_threshold == 15.0

@@ -10,6 +10,8 @@ from scipy.linalg import expm
 
 from flylib import geometry as g
 
+from rig_constants import AZIMUTHS, DISTANCE, FOCAL
+
 
 def _skew(v):
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -234,7 +236,7 @@ def test_project_pmat_equals_pinhole_projection_and_intr_forms():
 # -- triangulation and rays ---------------------------------------------------------------
 
 
-def _orbit_pmats(focal=22388.125, distance=107.463, azimuths=(-120, -90, -45, 0, 45, 90, 120)):
+def _orbit_pmats(focal=FOCAL, distance=DISTANCE, azimuths=tuple(AZIMUTHS.values())):
     """Look-at cameras built here with cv2 (independent of flylib.cameras)."""
     pmats = []
     for az in np.deg2rad(azimuths):

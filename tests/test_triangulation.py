@@ -15,15 +15,16 @@ from flylib.cameras import CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
-AZIMUTHS = {"rh": -120, "rm": -90, "rf": -45, "f": 0, "lf": 45, "lm": 90, "lh": 120}
+from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
+
 
 
 @pytest.fixture(scope="module")
 def rig() -> CameraGroup:
-    defaults = {"focal_length_px": 22388.125, "distance": 107.463, "look_at": [0, 0, 0]}
+    defaults = {"focal_length_px": FOCAL, "distance": DISTANCE, "look_at": [0, 0, 0]}
     cams = {name: {"azimuth_deg": az} for name, az in AZIMUTHS.items()}
     config = Config.from_dict({"cameras": {"defaults": defaults, **cams}})
-    return CameraGroup.from_config(config, image_sizes={n: (480, 960) for n in AZIMUTHS})
+    return CameraGroup.from_config(config, image_sizes={n: IMAGE_SIZE for n in AZIMUTHS})
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +234,7 @@ def test_ransac_with_more_views_than_the_run_key_holds(rig):
     # points seen by different later views.
     n_views = 64
     extrinsics = [
-        orbit_extrinsics(distance=107.463, azimuth_deg=360.0 * k / n_views, elevation_deg=20.0 * (-1) ** k)
+        orbit_extrinsics(distance=DISTANCE, azimuth_deg=360.0 * k / n_views, elevation_deg=20.0 * (-1) ** k)
         for k in range(n_views)
     ]
     big = CameraGroup.from_arrays(

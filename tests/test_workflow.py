@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 import yaml
 
+from rig_constants import FOCAL
+
 REPO = Path(__file__).resolve().parents[1]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 FRAMES = 6
@@ -210,7 +212,7 @@ def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     snakemake(tmp_path, config=config)
     assert planned(tmp_path, config) == set()
 
-    rig_file.write_text(rig_file.read_text().replace("22388.125", "22400.0", 1))  # re-calibrated
+    rig_file.write_text(rig_file.read_text().replace(str(FOCAL), "22400.0", 1))  # re-calibrated
     assert planned(tmp_path, config) == jobs(("bundle_adjustment", "triangulation", "refinement",
                                               "assemble", "kinematics"), ("recA",))
     config["pipeline"]["do_bundle_adjustment"] = False  # triangulation reads the file itself
