@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import ast
 import fnmatch
+import functools
 import importlib
+import inspect
 import json
 import subprocess
 import sys
 import tomllib
+import types
+import typing
 from pathlib import Path
 
 import pytest
@@ -52,6 +56,41 @@ def test_import_flylib_loads_no_heavy_module():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(REPO / "src"), "PATH": ""})
     assert json.loads(out.stdout) == []
+
+
+@functools.cache
+def type_checking_namespace(module_name: str) -> dict:
+    """The module's globals plus what its ``if TYPE_CHECKING:`` blocks import: what a type checker sees."""
+    module = sys.modules[module_name]
+    namespace = dict(vars(module))
+    for node in ast.parse(inspect.getsource(module)).body:
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            exec(compile(ast.Module(body=node.body, type_ignores=[]), module.__file__, "exec"), namespace)
+    return namespace
+
+
+def annotated(obj) -> list:
+    """``obj`` and, for a class, its own methods and properties (not inherited ones)."""
+    if not inspect.isclass(obj):
+        return [obj] if callable(obj) else []
+    own = [types.SimpleNamespace(__annotations__=vars(obj).get("__annotations__", {}), __module__=obj.__module__)]
+    for member in vars(obj).values():
+        member = getattr(member, "__func__", member)  # classmethod, staticmethod
+        member = getattr(member, "fget", None) or getattr(member, "func", None) or member  # (cached) property
+        if inspect.isfunction(member):
+            own.append(member)
+    return own
+
+
+def test_annotations_of_every_public_name_evaluate():
+    # Annotations are strings (shapes are for type checkers); evaluating each one in the
+    # namespace a type checker sees catches an unimported name or a malformed shape.
+    shapes = 0
+    for name in stub_exports():
+        for target in annotated(getattr(flylib, name)):
+            hints = typing.get_type_hints(target, globalns=type_checking_namespace(target.__module__))
+            shapes += sum("jaxtyping" in repr(hint) for hint in hints.values())
+    assert shapes >= 30
 
 
 def test_the_stub_ships_in_the_wheel():

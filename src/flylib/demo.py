@@ -26,7 +26,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,6 +40,9 @@ from .recordings import (  # noqa: F401  (the demo directory's layout, re-export
     demo_import_spec,
     dlc_filename,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +74,7 @@ _GAIT_PHASE = {"lf": 0.0, "rm": 0.0, "lh": 0.0, "rf": np.pi, "lm": np.pi, "rh": 
 _BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the frame
 
 
-def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> np.ndarray:
+def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> Float[np.ndarray, "T 38 3"]:
     """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` world points.
 
     Points are in :data:`FLY38_POINTS` order. The head points to +x (the default
@@ -273,8 +276,8 @@ class DemoRecording:
     footage: dict[str, Path]
     dlc: dict[str, Path]
     truth: Path
-    points3d: np.ndarray
-    points2d: np.ndarray
+    points3d: Float[np.ndarray, "T P 3"]
+    points2d: Float[np.ndarray, "V T P 2"]
 
 
 def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecording:

@@ -41,6 +41,8 @@ from .resources import usable_cpus
 from .skeleton import Skeleton
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
     from .cameras import CameraGroup
 
 __all__ = [
@@ -610,10 +612,10 @@ class PoseResult:
 
     cameras: CameraGroup
     skeleton: Skeleton
-    pts2d: np.ndarray
-    conf: np.ndarray | None = None
-    pts3d: np.ndarray | None = None
-    reproj_error: np.ndarray | None = None
+    pts2d: Float[np.ndarray, "V T P 2"]
+    conf: Float[np.ndarray, "V T P"] | None = None
+    pts3d: Float[np.ndarray, "T P 3"] | None = None
+    reproj_error: Float[np.ndarray, "V T P"] | None = None
     meta: dict = field(default_factory=dict)
     image_sizes: dict[str, tuple[int, int]] | None = None
 
@@ -818,8 +820,8 @@ class Pose2dData:
         pictorial structures is on, else ``None``.
     """
 
-    pts2d: np.ndarray
-    conf: np.ndarray
+    pts2d: Float[np.ndarray, "V T P 2"]
+    conf: Float[np.ndarray, "V T P"]
     view_names: list[str]
     image_sizes: dict[str, tuple[int, int]]
     candidates: Any = None

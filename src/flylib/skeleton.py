@@ -22,6 +22,8 @@ from .errors import ConfigError
 from .paths import DEFAULT_CONFIG_PATH
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Int
+
     from .config import Config
 
 _HEX_COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
@@ -216,8 +218,8 @@ class Skeleton:
         cls,
         point_names: Sequence[str],
         limb_names: Sequence[str],
-        limb_id: np.ndarray,
-        bones: np.ndarray,
+        limb_id: Int[np.ndarray, "P"],
+        bones: Int[np.ndarray, "B 2"],
         palette: Mapping[str, str] | None = None,
         name: str = "skeleton",
     ) -> Skeleton:
@@ -315,7 +317,7 @@ class Skeleton:
         return {n: i for i, n in enumerate(self.point_names)}
 
     @cached_property
-    def limb_id(self) -> np.ndarray:
+    def limb_id(self) -> Int[np.ndarray, "P"]:
         """``(P,)`` int array: the limb index of each point, ``-1`` if in no limb."""
         out = np.full(self.n_points, -1, dtype=np.int64)
         for li, chain in enumerate(self.limbs.values()):
@@ -324,7 +326,7 @@ class Skeleton:
         return out
 
     @cached_property
-    def bones(self) -> np.ndarray:
+    def bones(self) -> Int[np.ndarray, "B 2"]:
         """``(B, 2)`` int array of point-index pairs: consecutive points of each limb chain."""
         pairs = [
             (self._index_of[a], self._index_of[b])
@@ -340,7 +342,7 @@ class Skeleton:
         """Number of bones ``B``."""
         return int(self.bones.shape[0])
 
-    def bone_index_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+    def bone_index_pairs(self) -> tuple[Int[np.ndarray, "B"], Int[np.ndarray, "B"]]:
         """Endpoint index arrays ``(i, j)`` for vectorised bone-length maths.
 
         Returns

@@ -14,6 +14,7 @@ import io
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -23,6 +24,9 @@ from ..errors import ImportFormatError
 from ._h5 import H5_READ_ERRORS, reading_foreign_h5
 from .safe_pickle import PICKLE_PARSE_ERRORS
 from ..paths import atomic_path
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 
 @dataclass
@@ -42,8 +46,8 @@ class ViewKeypoints:
     """
 
     names: list[str]
-    xy: np.ndarray
-    conf: np.ndarray
+    xy: Float[np.ndarray, "T K 2"]
+    conf: Float[np.ndarray, "T K"]
     source: Path
 
 
@@ -330,8 +334,8 @@ def dlc_frame(
 
 def write_dlc_csv(
     path: Path,
-    xy: np.ndarray,
-    likelihood: np.ndarray | None,
+    xy: Float[np.ndarray, "T K 2"],
+    likelihood: Float[np.ndarray, "T K"] | None,
     bodyparts: list[str],
     scorer: str = "flylib",
 ) -> Path:

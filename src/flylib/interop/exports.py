@@ -20,6 +20,7 @@ as body parts and the detection confidence as ``likelihood``; these import back 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -27,16 +28,19 @@ import pandas as pd
 from ..paths import atomic_path
 from .dlc import write_dlc_csv
 
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
 #: Anipose's per-point column suffixes, in its order.
 ANIPOSE_POINT_COLUMNS = ("x", "y", "z", "error", "ncams", "score")
 
 
 def points3d_table(
-    pts3d: np.ndarray,
+    pts3d: Float[np.ndarray, "T P 3"],
     point_names: list[str],
-    reproj_error: np.ndarray | None = None,
-    pts2d: np.ndarray | None = None,
-    conf: np.ndarray | None = None,
+    reproj_error: Float[np.ndarray, "V T P"] | None = None,
+    pts2d: Float[np.ndarray, "V T P 2"] | None = None,
+    conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> pd.DataFrame:
     """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout.
 
@@ -107,11 +111,11 @@ def points3d_table(
 
 def write_points3d_csv(
     path: Path,
-    pts3d: np.ndarray,
+    pts3d: Float[np.ndarray, "T P 3"],
     point_names: list[str],
-    reproj_error: np.ndarray | None = None,
-    pts2d: np.ndarray | None = None,
-    conf: np.ndarray | None = None,
+    reproj_error: Float[np.ndarray, "V T P"] | None = None,
+    pts2d: Float[np.ndarray, "V T P 2"] | None = None,
+    conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> Path:
     """Write :func:`points3d_table` to ``path`` as CSV (atomically); returns ``path``."""
     path = Path(path)

@@ -6,8 +6,12 @@ import logging
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import UInt8
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +46,7 @@ class FrameReader(ABC):
     @abstractmethod
     def stream_frames(
         self, *, start: int = 0, stop: int | None = None, step: int = 1
-    ) -> Iterator[np.ndarray]:
+    ) -> Iterator[UInt8[np.ndarray, "H W 3"]]:
         """Yield ``(H, W, 3)`` uint8 RGB frames of ``range(start, stop, step)`` in one pass."""
 
     @abstractmethod
@@ -73,7 +77,7 @@ class FrameReader(ABC):
         stop: int | None = None,
         step: int = 1,
         block_size: int = 64,
-    ) -> Iterator[np.ndarray]:
+    ) -> Iterator[UInt8[np.ndarray, "T H W 3"]]:
         """Yield ``(T, H, W, 3)`` uint8 RGB blocks, ``T <= block_size``, in one forward pass.
 
         Parameters
@@ -94,7 +98,9 @@ class FrameReader(ABC):
         if buf:
             yield np.stack(buf)
 
-    def __getitem__(self, key: int | list[int] | slice | np.ndarray) -> np.ndarray:
+    def __getitem__(
+        self, key: int | list[int] | slice | np.ndarray
+    ) -> UInt8[np.ndarray, "H W 3"] | UInt8[np.ndarray, "T H W 3"]:
         if isinstance(key, (int, np.integer)):
             index = int(key)
             if index < 0:

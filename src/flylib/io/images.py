@@ -8,12 +8,16 @@ import re
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import FootageError
 from ..resources import usable_cpus
 from .base import IMAGE_EXTS, FrameReader, as_rgb_uint8
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import UInt8
 
 _DIGITS = re.compile(r"(\d+)")
 
@@ -192,13 +196,13 @@ class ImageSequenceReader(FrameReader):
 
     def stream_frames(
         self, *, start: int = 0, stop: int | None = None, step: int = 1
-    ) -> Iterator[np.ndarray]:
+    ) -> Iterator[UInt8[np.ndarray, "H W 3"]]:
         for block in self.stream_blocks(start=start, stop=stop, step=step, block_size=self.workers):
             yield from block
 
     def stream_blocks(
         self, *, start: int = 0, stop: int | None = None, step: int = 1, block_size: int = 64
-    ) -> Iterator[np.ndarray]:
+    ) -> Iterator[UInt8[np.ndarray, "T H W 3"]]:
         if block_size < 1:
             raise ValueError(f"block_size must be >= 1, got {block_size}")
         indices = list(range(len(self.files)))[start:stop:step]

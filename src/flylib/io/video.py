@@ -6,12 +6,15 @@ import logging
 from collections.abc import Iterable, Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import FootageError
 from .base import FrameReader, as_rgb_uint8, to_numpy
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import UInt8
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +115,7 @@ class VideoReader(FrameReader):
 
     def stream_frames(
         self, *, start: int = 0, stop: int | None = None, step: int = 1, format: str = "rgb24"
-    ) -> Iterator[np.ndarray]:
+    ) -> Iterator[UInt8[np.ndarray, "*frame"]]:
         """Yield frames of ``range(start, stop, step)`` in one forward pass.
 
         Parameters

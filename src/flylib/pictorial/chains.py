@@ -12,11 +12,15 @@ from ..errors import ConfigError
 from .hypotheses import DEFAULT_INLIER_PX
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
+
     from ..cameras import CameraGroup
     from ..skeleton import Skeleton
 
 
-def bone_length_targets(cameras: "CameraGroup", pts2d: np.ndarray, skeleton: "Skeleton"):
+def bone_length_targets(
+    cameras: CameraGroup, pts2d: Float[np.ndarray, "V F P 2"], skeleton: Skeleton
+) -> tuple[Int[np.ndarray, "B"], Int[np.ndarray, "B"], Float[np.ndarray, "B"]]:
     """Median length of every skeleton bone over a RANSAC triangulation of ``pts2d``.
 
     Shared by bundle adjustment (bone prior) and pictorial structures.

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 log = logging.getLogger(__name__)
 
@@ -30,8 +34,8 @@ class Candidates:
         ``(V, T, P, K)`` peak values, 0 where padded; ``K = 0`` is the arg-max.
     """
 
-    xy: np.ndarray
-    score: np.ndarray
+    xy: Float[np.ndarray, "V T P K 2"]
+    score: Float[np.ndarray, "V T P K"]
 
     def __post_init__(self):
         xy = np.asarray(self.xy, dtype=np.float64)
@@ -48,16 +52,18 @@ class Candidates:
         """``(V, T, P, K)``."""
         return self.score.shape
 
-    def frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+    def frame(self, t: int) -> tuple[Float[np.ndarray, "V P K 2"], Float[np.ndarray, "V P K"]]:
         """Candidates of one frame: ``(V, P, K, 2)`` and ``(V, P, K)``."""
         return self.xy[:, t], self.score[:, t]
 
-    def argmax(self) -> np.ndarray:
+    def argmax(self) -> Float[np.ndarray, "V T P 2"]:
         """The strongest peak per (view, frame, point): ``(V, T, P, 2)``."""
         return self.xy[..., 0, :]
 
     @classmethod
-    def from_points(cls, pts2d: np.ndarray, conf: np.ndarray | None = None) -> "Candidates":
+    def from_points(
+        cls, pts2d: Float[np.ndarray, "V T P 2"], conf: Float[np.ndarray, "V T P"] | None = None
+    ) -> Candidates:
         """Single-peak candidates (``K = 1``) from plain detections ``(V, T, P, 2)``."""
         pts2d = np.asarray(pts2d, float)
         score = np.ones(pts2d.shape[:-1]) if conf is None else np.asarray(conf, float)
@@ -67,9 +73,10 @@ class Candidates:
 # -- heatmap peaks -----------------------------------------------------------------
 
 
-def peak_candidates(heatmaps, k: int = DEFAULT_K, *, radius: int = DEFAULT_PEAK_RADIUS,
-                    threshold: float = DEFAULT_PEAK_THRESHOLD,
-                    method: str = DEFAULT_SUBPIXEL) -> tuple[np.ndarray, np.ndarray]:
+def peak_candidates(heatmaps: Float[np.ndarray, "*batch H W"], k: int = DEFAULT_K, *,
+                    radius: int = DEFAULT_PEAK_RADIUS, threshold: float = DEFAULT_PEAK_THRESHOLD,
+                    method: str = DEFAULT_SUBPIXEL,
+                    ) -> tuple[Float[np.ndarray, "*batch k 2"], Float[np.ndarray, "*batch k"]]:
     """Top-``k`` local-maximum peaks of each heatmap, sub-pixel refined.
 
     A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2`` neighbourhood

@@ -12,6 +12,8 @@ from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, _all_hy
 from .peaks import Candidates
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
     from ..cameras import CameraGroup
     from ..config import Config
     from ..skeleton import Skeleton
@@ -35,12 +37,14 @@ def _prior(cameras, skeleton, pts2d_argmax, bone_max_frames):
     return target_map, scale
 
 
-def solve_frames(cameras: "CameraGroup", cand_xy: np.ndarray, cand_score: np.ndarray,
+def solve_frames(cameras: CameraGroup, cand_xy: Float[np.ndarray, "V T P K 2"],
+                 cand_score: Float[np.ndarray, "V T P K"],
                  chains: list[list[int]], target_map: dict, *, scale: float,
                  max_hyp: int = DEFAULT_MAX_HYP, inlier_px: float = DEFAULT_INLIER_PX,
                  lam: float = DEFAULT_LAMBDA, huber: float = DEFAULT_HUBER,
                  mu: float = DEFAULT_MU, temporal: bool = False,
-                 prev_pts3d: np.ndarray | None = None, nms: float = DEFAULT_NMS):
+                 prev_pts3d: Float[np.ndarray, "P 3"] | None = None, nms: float = DEFAULT_NMS,
+                 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
     """Pictorial structures over a block of frames.
 
     Parameters
@@ -104,12 +108,13 @@ def _pick(pos: np.ndarray, choice: np.ndarray) -> np.ndarray:
     return np.where((choice < n_s)[..., None], out, np.nan)
 
 
-def solve_frame(cameras: "CameraGroup", skeleton: "Skeleton", cand_xy: np.ndarray,
-                cand_score: np.ndarray, target_map: dict, chains: list[list[int]], *,
+def solve_frame(cameras: CameraGroup, skeleton: Skeleton, cand_xy: Float[np.ndarray, "V P K 2"],
+                cand_score: Float[np.ndarray, "V P K"], target_map: dict, chains: list[list[int]], *,
                 scale: float, max_hyp: int = DEFAULT_MAX_HYP,
                 inlier_px: float = DEFAULT_INLIER_PX, lam: float = DEFAULT_LAMBDA,
                 huber: float = DEFAULT_HUBER, mu: float = DEFAULT_MU,
-                prev_pts3d: np.ndarray | None = None):
+                prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
+                ) -> tuple[Float[np.ndarray, "P 3"], Float[np.ndarray, "V P 2"]]:
     """Pictorial structures for one frame (seed API): ``(V, P, K, 2)`` candidates in,
     ``pts3d (P, 3)`` and committed ``pts2d (V, P, 2)`` out. See :func:`solve_frames`."""
     pts3d, pts2d = solve_frames(

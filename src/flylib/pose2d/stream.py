@@ -17,6 +17,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -25,6 +26,11 @@ from .. import io
 from ..errors import FootageError
 from .inference import LoadedModel, _pose2d_setting, load_models, yuv420p_to_rgb
 from .plan import DetectionPlan, Pathway
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from ..pictorial import Candidates
 
 log = logging.getLogger(__name__)
 
@@ -433,7 +439,7 @@ def detect_2d(
     want_candidates: bool = False,
     k: int | None = None,
     progress=False,
-):
+) -> tuple[Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"], Candidates | None]:
     """Stream 2D detection over a recording -> ``(pts2d, conf, candidates)``.
 
     Parameters
