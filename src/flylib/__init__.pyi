@@ -19,8 +19,8 @@ from .cameras import (
 )
 from .config import (
     PARAM_STAGES as PARAM_STAGES,
-    STAGES as STAGES,
     STAGE_DEFAULTS as STAGE_DEFAULTS,
+    STAGES as STAGES,
     BundleAdjustmentParams as BundleAdjustmentParams,
     Config as Config,
     IoParams as IoParams,

@@ -218,7 +218,7 @@ class Skeleton:
         cls,
         point_names: Sequence[str],
         limb_names: Sequence[str],
-        limb_id: Int[np.ndarray, "P"],
+        limb_id: Int[np.ndarray, " P"],
         bones: Int[np.ndarray, "B 2"],
         palette: Mapping[str, str] | None = None,
         name: str = "skeleton",
@@ -317,7 +317,7 @@ class Skeleton:
         return {n: i for i, n in enumerate(self.point_names)}
 
     @cached_property
-    def limb_id(self) -> Int[np.ndarray, "P"]:
+    def limb_id(self) -> Int[np.ndarray, " P"]:
         """``(P,)`` int array: the limb index of each point, ``-1`` if in no limb."""
         out = np.full(self.n_points, -1, dtype=np.int64)
         for li, chain in enumerate(self.limbs.values()):
@@ -342,7 +342,7 @@ class Skeleton:
         """Number of bones ``B``."""
         return int(self.bones.shape[0])
 
-    def bone_index_pairs(self) -> tuple[Int[np.ndarray, "B"], Int[np.ndarray, "B"]]:
+    def bone_index_pairs(self) -> tuple[Int[np.ndarray, " B"], Int[np.ndarray, " B"]]:
         """Endpoint index arrays ``(i, j)`` for vectorised bone-length maths.
 
         Returns

@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def bone_length_targets(
     cameras: CameraGroup, pts2d: Float[np.ndarray, "V F P 2"], skeleton: Skeleton
-) -> tuple[Int[np.ndarray, "B"], Int[np.ndarray, "B"], Float[np.ndarray, "B"]]:
+) -> tuple[Int[np.ndarray, " B"], Int[np.ndarray, " B"], Float[np.ndarray, " B"]]:
     """Median length of every skeleton bone over a RANSAC triangulation of ``pts2d``.
 
     Shared by bundle adjustment (bone prior) and pictorial structures.

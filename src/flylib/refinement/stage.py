@@ -127,8 +127,8 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
     recording_dir
         The recording (for a calibration file relative to it).
     """
-    from ..provenance import stage_provenance
     from ..interop.anipose import config_rig
+    from ..provenance import stage_provenance
     from ..results import _new_meta, open_checked, read_image_sizes
     from .setup import skeleton_terms
     from .solver import refine_stream
