@@ -86,7 +86,7 @@ def test_host_side_modules_do_not_import_jax():
             "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
             "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
             "import numpy as np; from flylib.triangulation import triangulate_ransac; "
-            "triangulate_ransac(rig.project(np.zeros((2, 3))), rig); "
+            "triangulate_ransac(rig, rig.project(np.zeros((2, 3)))); "
             "print('jax' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

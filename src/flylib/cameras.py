@@ -517,26 +517,52 @@ class CameraGroup:
             out[v] = (und * [fx, fy] + [cx, cy]).reshape(pts2d[v].shape)
         return out
 
-    def triangulate(self, pts2d, weights=None) -> np.ndarray:
+    def triangulate(self, pts2d, weights=None, *, chunk_points: int | None = None) -> np.ndarray:
         """Weighted NaN-aware DLT (see :func:`flylib.geometry.triangulate_dlt`).
 
-        Distorted cameras are handled by undistorting the observations first.
+        Distorted cameras are handled by undistorting the observations first. The
+        points run in fixed-length chunks through one jitted kernel
+        (:func:`flylib.geometry.triangulate_dlt_chunked`, JAX imported on the first
+        call); :func:`flylib.triangulation.triangulate` is this method.
 
         Parameters
         ----------
         pts2d
             ``(V, *pts, 2)`` pixels, NaN = missing.
         weights
-            Optional ``(V, *pts)``.
+            Optional ``(V, *pts)``; a non-positive or non-finite weight drops the view.
+        chunk_points
+            Points per chunk (default :data:`flylib.geometry.DLT_CHUNK_POINTS`).
 
         Returns
         -------
         np.ndarray
             ``(*pts, 3)``; NaN below two views.
+
+        Raises
+        ------
+        ValueError
+            If ``pts2d`` is not ``(V, *pts, 2)`` for this rig's ``V`` or ``weights`` is
+            not ``(V, *pts)``.
         """
+        from .geometry import DLT_CHUNK_POINTS, triangulate_dlt_chunked
+
         pts2d = np.asarray(pts2d, dtype=np.float64)
+        if pts2d.ndim < 2 or pts2d.shape[-1] != 2:
+            raise ValueError(f"pts2d must be (V, *pts, 2), got shape {pts2d.shape}")
         self._check_views(pts2d)
-        return camera_model.dlt_solve(np, self.undistort_points(pts2d), self.pmats, weights)
+        if weights is not None:
+            weights = np.asarray(weights, dtype=np.float64)
+            if weights.shape != pts2d.shape[:-1]:
+                raise ValueError(
+                    f"weights must have shape {pts2d.shape[:-1]} (V, *pts), got {weights.shape}"
+                )
+        return triangulate_dlt_chunked(
+            self.undistort_points(pts2d),
+            self.pmats,
+            weights,
+            DLT_CHUNK_POINTS if chunk_points is None else chunk_points,
+        )
 
     def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
         """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""

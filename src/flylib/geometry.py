@@ -19,8 +19,10 @@ The ``*_one`` functions handle one point / one camera and compose with
 from __future__ import annotations
 
 import os
+from collections import deque
 
 import jax
+import numpy as np
 
 from .paths import cache_dir
 
@@ -398,6 +400,141 @@ def triangulate_dlt(pts2d, pmats, weights=None):
         degenerate.
     """
     return dlt_solve(jnp, pts2d, pmats, weights)
+
+
+# -- the bulk DLT: fixed-length chunks through one jitted kernel -------------------------
+
+DLT_CHUNK_POINTS = 4096
+_CHUNKS_IN_FLIGHT = 4
+
+
+@jax.jit
+def dlt_chunk(consts, pts2d, weights):
+    """The DLT of :func:`triangulate_dlt` on one chunk, component-major.
+
+    Parameters
+    ----------
+    consts
+        ``{"quad": (V, 6, 9), "norm": (V, 2, 3)}`` from :func:`dlt_camera_constants`.
+    pts2d
+        ``(V, N, 2)`` pixels (undistorted), NaN = missing.
+    weights
+        ``(V, N)`` or None; a zero or non-finite weight drops the view.
+
+    Returns
+    -------
+    pts3d : jax.Array
+        ``(N, 3)``.
+    valid : jax.Array
+        ``(V, N)`` bool, the views that took part.
+    """
+    feats, valid = dlt_features(jnp, pts2d, consts["norm"], weights)
+    terms = jnp.einsum("fvn,vfk->kn", feats, consts["quad"])
+    return dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
+
+
+def chunk_length(n: int, chunk_points: int) -> int:
+    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it.
+
+    Kernels compile once per input length, so lengths come from a short list.
+    """
+    size = 64
+    while size < min(n, chunk_points):
+        size *= 2
+    return min(size, max(int(chunk_points), 1))
+
+
+def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
+    """``arr`` ``(V, n, ...)`` extended along axis 1 to ``size`` with ``fill``."""
+    if arr.shape[1] == size:
+        return arr
+    out = np.full((arr.shape[0], size, *arr.shape[2:]), fill)
+    out[:, : arr.shape[1]] = arr
+    return out
+
+
+def run_chunked(kernel, consts, inputs, n_views: int, chunk_points: int = DLT_CHUNK_POINTS, **params):
+    """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks.
+
+    Parameters
+    ----------
+    kernel
+        ``kernel(consts, *chunks, **params) -> (pts3d (size, 3), kept (V, size))``.
+    consts
+        Per-rig arrays, passed unchanged.
+    inputs
+        ``(array, fill)`` pairs; each array ``(V, n, ...)`` (or None, passed as None) is
+        cut into chunks along axis 1, the last one padded with ``fill``.
+    n_views
+        ``V``.
+    chunk_points
+        Points per chunk (memory stays bounded on long recordings).
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(n, 3)``.
+    kept : np.ndarray
+        ``(V, n)`` bool.
+    """
+    n = next(a.shape[1] for a, _ in inputs if a is not None)
+    size = chunk_length(n, chunk_points)
+    pts3d = np.full((n, 3), np.nan)
+    kept = np.zeros((n_views, n), dtype=bool)
+    in_flight: deque = deque()
+
+    def collect() -> None:
+        start, stop, (x, k) = in_flight.popleft()
+        pts3d[start:stop] = np.asarray(x)[: stop - start]
+        kept[:, start:stop] = np.asarray(k)[:, : stop - start]
+
+    for start in range(0, n, size):
+        stop = min(start + size, n)
+        chunks = [None if a is None else _padded(a[:, start:stop], size, fill) for a, fill in inputs]
+        # JAX dispatches asynchronously: a few chunks in flight overlap the kernels with
+        # this loop (and with each other on several cores).
+        in_flight.append((start, stop, kernel(consts, *chunks, **params)))
+        if len(in_flight) > _CHUNKS_IN_FLIGHT:
+            collect()
+    while in_flight:
+        collect()
+    return pts3d, kept
+
+
+def triangulate_dlt_chunked(pts2d, pmats, weights=None, chunk_points: int = DLT_CHUNK_POINTS) -> np.ndarray:
+    """:func:`triangulate_dlt` for any number of points, in bounded memory, to NumPy.
+
+    The bulk path behind :meth:`flylib.cameras.CameraGroup.triangulate` and
+    :func:`flylib.triangulation.triangulate`: one kernel compiled per chunk length.
+
+    Parameters
+    ----------
+    pts2d
+        ``(V, *pts, 2)`` (undistorted) pixels, NaN = missing.
+    pmats
+        ``(V, 3, 4)``.
+    weights
+        Optional ``(V, *pts)``; non-finite or non-positive drops the view.
+    chunk_points
+        Points per chunk.
+
+    Returns
+    -------
+    np.ndarray
+        ``(*pts, 3)``; NaN below two views or for a degenerate geometry.
+    """
+    pts2d = np.asarray(pts2d, dtype=np.float64)
+    n_views, pts_shape = pts2d.shape[0], pts2d.shape[1:-1]
+    quad, norm = dlt_camera_constants(np, pmats)
+    flat_w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(n_views, -1)
+    pts3d, _ = run_chunked(
+        dlt_chunk,
+        {"quad": quad, "norm": norm},
+        [(pts2d.reshape(n_views, -1, 2), np.nan), (flat_w, 0.0)],
+        n_views,
+        chunk_points,
+    )
+    return pts3d.reshape(*pts_shape, 3)
 
 
 def backproject_ray_one(pixel, rvec, tvec, intr, dist):

@@ -1,8 +1,8 @@
-"""The jitted JAX kernels of DLT and greedy triangulation, over one chunk of points.
+"""The jitted JAX kernel of greedy triangulation, over one chunk of points.
 
-Separate from :mod:`flylib.triangulation` so that RANSAC (NumPy) and the rest of a
-workflow job never import JAX; :func:`flylib.triangulation.triangulate` (dlt) and
-:func:`~flylib.triangulation.triangulate_greedy` import this module when called.
+Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest
+of a workflow job never import JAX; :func:`~flylib.triangulation.triangulate_greedy`
+imports this module when called (the DLT kernel is :func:`flylib.geometry.dlt_chunk`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from . import geometry
+from .. import geometry
 
 
 # -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
@@ -50,14 +50,6 @@ def _view_terms(rig, und, weights):
 def _solve_kept(terms, kept, min_views=2):
     summed = (terms * kept[None]).sum(axis=1)  # (9, N)
     return geometry.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
-
-
-@jax.jit
-def dlt_chunk(rig, raw, und, weights):
-    und = raw if und is None else und
-    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)
-    terms = jnp.einsum("fvn,vfk->kn", feats, rig["quad"])
-    return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
 @jax.jit
