@@ -304,7 +304,7 @@ class Camera:
 
 
 def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
-    """NumPy projection through stacked cameras (same model as ``geometry.project_full``).
+    """NumPy projection through stacked cameras (:func:`flylib.camera_model.project_generic`).
 
     Parameters
     ----------
@@ -320,18 +320,7 @@ def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
     np.ndarray
         ``(V, *pts, 2)``.
     """
-    pts3d = np.asarray(pts3d, dtype=np.float64)
-    flat = pts3d.reshape(-1, 3)
-    cam = np.einsum("vij,nj->vin", rmats, flat) + tvecs[:, :, None]  # (V, 3, N)
-    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
-    dists = np.asarray(dists, dtype=np.float64)
-    if dists.shape[-1] and np.any(dists):
-        d = camera_model.pad_dist_numpy(dists).T[:, :, None]  # (12, V, 1)
-        radial, add_x, add_y = camera_model.distortion_terms(x, y, d)
-        x, y = x * radial + add_x, y * radial + add_y
-    u = intrs[:, 0, None] * x + intrs[:, 2, None]
-    v = intrs[:, 1, None] * y + intrs[:, 3, None]
-    return np.stack([u, v], axis=-1).reshape(len(rmats), *pts3d.shape[:-1], 2)
+    return camera_model.project_numpy(pts3d, rmats, tvecs, intrs, dists)
 
 
 # -- a rig -----------------------------------------------------------------------

@@ -11,9 +11,10 @@ Conventions (shared by the whole package):
 * arrays are view-leading: ``(V, *pts, 2)`` for image points;
 * NaN marks a missing observation.
 
-The ``*_one`` functions handle one point / one camera and compose with
-``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment builds its Jacobian from
-:func:`project_full_one`). The batched functions are jitted wrappers.
+The formulas live once, generic over the array module, in :mod:`flylib.camera_model`;
+this module binds them to ``jax.numpy`` (float64). The ``*_one`` functions handle one
+point / one camera and compose with ``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment
+builds its Jacobian from :func:`project_full_one`). The batched functions are jitted.
 """
 
 from __future__ import annotations
@@ -36,24 +37,30 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
 
 import jax.numpy as jnp  # noqa: E402
 
-from .camera_model import (  # noqa: E402,F401 - the NumPy side, re-exported
+from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
     DLT_TERMS,
     N_DIST_COEFFS,
+    distort_normalized,
     dlt_camera_constants,
     dlt_features,
     dlt_solve,
     dlt_solve_components,
     dlt_solve_terms,
+    intr_to_kmat_generic,
     intr_to_kmat_numpy,
     pad_dist_generic,
     pad_dist_numpy,
+    pixels_from_normalized,
+    project_generic,
+    project_numpy,
     rmat_to_rvec_generic,
     rmat_to_rvec_numpy,
+    rvec_to_rmat_generic,
     rvec_to_rmat_numpy,
     undistort_normalized,
+    undistort_step,
 )
-from .camera_model import SMALL_THETA_SQ as _SMALL_THETA_SQ  # noqa: E402
-from .camera_model import distortion_terms as _distortion_terms  # noqa: E402
+from .camera_model import distortion_terms as _distortion_terms  # noqa: E402,F401
 from .camera_model import split_intr as _split_intr  # noqa: E402
 _UNDISTORT_FIXED_POINT_ITERS = 20
 _UNDISTORT_NEWTON_ITERS = 2
@@ -77,26 +84,7 @@ def rvec_to_rmat_one(rvec):
         Rotation matrix of shape ``(3, 3)``; exact and differentiable at
         ``rvec = 0``.
     """
-    rvec = jnp.asarray(rvec, dtype=jnp.float64)
-    theta_sq = jnp.dot(rvec, rvec)
-    small = theta_sq < _SMALL_THETA_SQ
-    # Double-where keeps the untaken branch finite so gradients stay finite at 0.
-    safe_theta_sq = jnp.where(small, 1.0, theta_sq)
-    safe_theta = jnp.sqrt(safe_theta_sq)
-    sin_over_theta = jnp.where(
-        small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, jnp.sin(safe_theta) / safe_theta
-    )
-    one_minus_cos_over_theta_sq = jnp.where(
-        small,
-        0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
-        (1.0 - jnp.cos(safe_theta)) / safe_theta_sq,
-    )
-    skew = _skew(rvec)
-    return (
-        jnp.eye(3)
-        + sin_over_theta * skew
-        + one_minus_cos_over_theta_sq * (jnp.outer(rvec, rvec) - theta_sq * jnp.eye(3))
-    )
+    return rvec_to_rmat_generic(jnp, rvec)
 
 
 def rmat_to_rvec_one(rmat):
@@ -125,9 +113,7 @@ def rmat_to_rvec_one(rmat):
 @jax.jit
 def rvec_to_rmat(rvec):
     """Batched :func:`rvec_to_rmat_one`: ``(..., 3) -> (..., 3, 3)``."""
-    rvec = jnp.asarray(rvec, dtype=jnp.float64)
-    flat = rvec.reshape(-1, 3)
-    return jax.vmap(rvec_to_rmat_one)(flat).reshape(*rvec.shape[:-1], 3, 3)
+    return rvec_to_rmat_generic(jnp, rvec)
 
 
 @jax.jit
@@ -136,10 +122,6 @@ def rmat_to_rvec(rmat):
     rmat = jnp.asarray(rmat, dtype=jnp.float64)
     flat = rmat.reshape(-1, 3, 3)
     return jax.vmap(rmat_to_rvec_one)(flat).reshape(*rmat.shape[:-2], 3)
-
-
-def _skew(v):
-    return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 # -- intrinsics and distortion ---------------------------------------------------
@@ -159,15 +141,7 @@ def intr_to_kmat(intr):
     jax.Array
         ``K`` of shape ``(..., 3, 3)``.
     """
-    intr = jnp.asarray(intr, dtype=jnp.float64)
-    fx, fy, cx, cy = _split_intr(intr)
-    zero, one = jnp.zeros_like(fx), jnp.ones_like(fx)
-    rows = [
-        jnp.stack([fx, zero, cx], axis=-1),
-        jnp.stack([zero, fy, cy], axis=-1),
-        jnp.stack([zero, zero, one], axis=-1),
-    ]
-    return jnp.stack(rows, axis=-2)
+    return intr_to_kmat_generic(jnp, intr)
 
 
 def pad_dist(dist):
@@ -192,13 +166,7 @@ def pad_dist(dist):
 
 
 def distort_one(xy, dist):
-    """Apply OpenCV distortion to one normalized image point.
-
-    With ``r^2 = x^2 + y^2``::
-
-        x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
-              + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
-        y_d = y (...) / (...) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
+    """Apply OpenCV distortion to one normalized image point (:func:`distort_normalized`).
 
     Parameters
     ----------
@@ -215,9 +183,7 @@ def distort_one(xy, dist):
     xy = jnp.asarray(xy, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
         return xy
-    d = pad_dist(dist)
-    radial, add_x, add_y = _distortion_terms(xy[0], xy[1], d)
-    return jnp.stack([xy[0] * radial + add_x, xy[1] * radial + add_y])
+    return jnp.stack(distort_normalized(xy[0], xy[1], pad_dist(dist)))
 
 
 def undistort_one(xy_dist, dist):
@@ -246,8 +212,7 @@ def undistort_one(xy_dist, dist):
     d = pad_dist(dist)
 
     def fixed_point(_, xy):
-        radial, add_x, add_y = _distortion_terms(xy[0], xy[1], d)
-        return jnp.stack([(xy_dist[0] - add_x) / radial, (xy_dist[1] - add_y) / radial])
+        return jnp.stack(undistort_step(xy[0], xy[1], xy_dist[0], xy_dist[1], d))
 
     xy = jax.lax.fori_loop(0, _UNDISTORT_FIXED_POINT_ITERS, fixed_point, xy_dist)
 
@@ -308,9 +273,9 @@ def project_full_one(pt3d, rvec, tvec, intr, dist):
         Pixel ``(u, v)``, shape ``(2,)``; ``v`` grows downwards in the image.
     """
     p_cam = rvec_to_rmat_one(rvec) @ jnp.asarray(pt3d, dtype=jnp.float64) + tvec
-    xy = distort_one(p_cam[:2] / p_cam[2], dist)
+    d = pad_dist(dist) if jnp.shape(dist)[-1] else None
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
-    return jnp.stack([fx * xy[0] + cx, fy * xy[1] + cy])
+    return jnp.stack(pixels_from_normalized(p_cam[0] / p_cam[2], p_cam[1] / p_cam[2], fx, fy, cx, cy, d))
 
 
 @jax.jit
@@ -333,15 +298,12 @@ def project_full(pts3d, rvecs, tvecs, intrs, dists):
     jax.Array
         Pixels ``(V, *pts, 2)``.
     """
-    pts3d = jnp.asarray(pts3d, dtype=jnp.float64)
     rvecs = jnp.asarray(rvecs, dtype=jnp.float64)
     n_views = rvecs.shape[0]
+    tvecs = jnp.asarray(tvecs, dtype=jnp.float64)
     intrs = jnp.broadcast_to(jnp.asarray(intrs, dtype=jnp.float64), (n_views, jnp.shape(intrs)[-1]))
     dists = jnp.broadcast_to(jnp.asarray(dists, dtype=jnp.float64), (n_views, jnp.shape(dists)[-1]))
-    flat = pts3d.reshape(-1, 3)
-    per_view = jax.vmap(project_full_one, in_axes=(0, None, None, None, None))
-    out = jax.vmap(per_view, in_axes=(None, 0, 0, 0, 0))(flat, rvecs, tvecs, intrs, dists)
-    return out.reshape(n_views, *pts3d.shape[:-1], 2)
+    return project_generic(jnp, pts3d, rvec_to_rmat_generic(jnp, rvecs), tvecs, intrs, dists)
 
 
 @jax.jit

@@ -25,11 +25,10 @@ def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
         cx_ = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
         cy_ = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
         cz_ = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
-        xn, yn = cx_ / cz_, cy_ / cz_
-        radial, add_x, add_y = geometry._distortion_terms(xn, yn, rig["dists"][k])
         intr = rig["intrs"][k]
-        u = intr[0] * (xn * radial + add_x) + intr[2]
-        v = intr[1] * (yn * radial + add_y) + intr[3]
+        u, v = geometry.pixels_from_normalized(
+            cx_ / cz_, cy_ / cz_, intr[0], intr[1], intr[2], intr[3], rig["dists"][k]
+        )
     else:
         p = rig["pmats"][k]
         inv_depth = 1.0 / (p[2, 0] * x + p[2, 1] * y + p[2, 2] * z + p[2, 3])

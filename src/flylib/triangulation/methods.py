@@ -135,10 +135,8 @@ class _RansacViews:
         inv_depth = 1.0 / hom[2 * k :]
         u, v = hom[:k] * inv_depth, hom[k : 2 * k] * inv_depth
         if self.distorted:
-            radial, add_x, add_y = camera_model.distortion_terms(u, v, self.dists)
             intr = self.intrs
-            u = intr[0] * (u * radial + add_x) + intr[2]
-            v = intr[1] * (v * radial + add_y) + intr[3]
+            u, v = camera_model.pixels_from_normalized(u, v, intr[0], intr[1], intr[2], intr[3], self.dists)
         u -= raw_u
         v -= raw_v
         u *= u
