@@ -286,8 +286,7 @@ def triangulate(
         If the shapes do not match the rig.
     """
     cameras, pts2d = _arguments("triangulate", cameras, pts2d)
-    _check_inputs(pts2d, cameras, weights)
-    return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)
+    return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
 
 
 def reprojection_error(cameras: CameraGroup, pts3d, pts2d) -> np.ndarray:
