@@ -24,7 +24,6 @@ Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...
 from __future__ import annotations
 
 import logging
-from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from itertools import combinations, pairwise
 
