@@ -229,6 +229,18 @@ def project_generic(xp, pts3d, rmats, tvecs, intrs, dists):
     return xp.reshape(xp.stack([u, v], axis=-1), (rmats.shape[0], *pts3d.shape[:-1], 2))
 
 
+def ray_from_normalized(xp, x, y, rmat, tvec):
+    """World ray of an undistorted normalized coordinate ``(x, y)`` through one camera.
+
+    Returns ``(origin, direction)``, ``(3,)`` each: the centre ``-R^T t`` and the
+    unnormalized ``R^T (x, y, 1)``; every ``origin + s * direction``, ``s > 0``,
+    projects onto ``(x, y)``.
+    """
+    rmat = xp.asarray(rmat, dtype=xp.float64)
+    direction = rmat.T @ xp.stack([x, y, xp.ones_like(x)])
+    return -rmat.T @ xp.asarray(tvec, dtype=xp.float64), direction
+
+
 def project_numpy(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
     """NumPy :func:`project_generic`: ``(*pts, 3)`` through ``V`` cameras -> ``(V, *pts, 2)``."""
     return project_generic(

@@ -300,7 +300,7 @@ class Camera:
         fx, fy, cx, cy = self.intr
         norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
         x, y = camera_model.undistort_normalized(norm, self.dist)
-        return self.position, self.rmat.T @ np.array([x, y, 1.0])
+        return camera_model.ray_from_normalized(np, x, y, self.rmat, self.tvec)
 
 
 def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:

@@ -53,6 +53,7 @@ from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bi
     pixels_from_normalized,
     project_generic,
     project_numpy,
+    ray_from_normalized,
     rmat_to_rvec_generic,
     rmat_to_rvec_numpy,
     rvec_to_rmat_generic,
@@ -518,10 +519,7 @@ def backproject_ray_one(pixel, rvec, tvec, intr, dist):
     pixel = jnp.asarray(pixel, dtype=jnp.float64)
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
     xy = undistort_one(jnp.stack([(pixel[0] - cx) / fx, (pixel[1] - cy) / fy]), dist)
-    rmat = rvec_to_rmat_one(rvec)
-    direction = rmat.T @ jnp.stack([xy[0], xy[1], jnp.ones(())])
-    origin = -rmat.T @ jnp.asarray(tvec, dtype=jnp.float64)
-    return origin, direction
+    return ray_from_normalized(jnp, xy[0], xy[1], rvec_to_rmat_one(rvec), tvec)
 
 
 def closest_point_on_ray(origin, direction, target):
