@@ -131,7 +131,7 @@ def main(argv=None) -> int:
         print(f"edit, re-solve + the frame's reply:       {stats(total)}")
         print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
         begin = time.perf_counter()
-        reconstruct_from_config(session.config, session.base2d, session.cameras, session.conf)
+        reconstruct_from_config(session.config, session.cameras, session.base2d, session.conf)
         whole = (time.perf_counter() - begin) * 1000
         print(f"baseline, re-triangulating the recording: {whole:6.1f} ms "
               f"({whole / np.median(solve):.0f}x one edit)")

@@ -62,7 +62,7 @@ def main() -> None:
     full = timed(f"ps.reconstruct (prior + solve + DLT), K={K}",
                  lambda: ps.reconstruct(rig, skeleton, ps.Candidates(xy, score)))
     base = timed("baseline: RANSAC triangulation of arg-max",
-                 lambda: reconstruct_ransac(pts2d, rig))
+                 lambda: reconstruct_ransac(rig, pts2d))
     print(f"vs target {TARGET_FPS:.0f} frames/s: {plain / TARGET_FPS:.2f}x (temporal "
           f"{temporal / TARGET_FPS:.2f}x, reconstruct {full / TARGET_FPS:.2f}x); "
           f"RANSAC is {base / plain:.1f}x faster than PS")

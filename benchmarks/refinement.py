@@ -60,7 +60,7 @@ def accuracy_and_speed(frames: int) -> None:
     rig, truth, pts2d, conf, kind = scene(frames)
     terms = skeleton_terms(Skeleton.fly(), None)
     started = time.perf_counter()
-    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     ransac_s = time.perf_counter() - started
     inliers = np.isfinite(clean2d).all(-1)
 
@@ -135,7 +135,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
             hi = min(lo + block, frames)
             clean = np.asarray(rig.project(truth[lo:hi]))
             pts, c, _ = detector_errors(clean, vis, rig.names, POINT_NAMES, seed=lo)
-            start, clean2d, _ = reconstruct_ransac(pts, rig, 15.0, 2)
+            start, clean2d, _ = reconstruct_ransac(rig, pts, threshold=15.0, min_inliers=2)
             points[:, lo:hi], conf[:, lo:hi], t2d[:, lo:hi], t3d[lo:hi] = pts, c, clean2d, start
     return p2d_path, tri_path
 

@@ -246,5 +246,5 @@ def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None,
     config = Config.from_dict(data)
     result, refined, _ = bundle_adjust_from_config(
         config, case.start if start is None else start, case.pts2d, case.conf)
-    pts3d, _, _ = reconstruct_from_config(config, case.pts2d, refined, case.conf)
+    pts3d, _, _ = reconstruct_from_config(config, refined, case.pts2d, case.conf)
     return result, refined, pts3d, similarity_error(pts3d, case.truth) / case.bone

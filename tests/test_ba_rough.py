@@ -131,7 +131,7 @@ def test_rough_rig_recovers_the_fly(rough):
     from flylib.triangulation import reconstruct
 
     start_err = np.nanmedian(similarity_error(
-        reconstruct(rough.pts2d, rough.start, method="ransac")[0], rough.truth) / rough.bone)
+        reconstruct(rough.start, rough.pts2d, method="ransac")[0], rough.truth) / rough.bone)
     result, _, _, err = fit_with_default_config(rough, **TETHERED)
     assert np.nanmedian(err) <= 0.06
     assert result.final_median_px < 1.0

@@ -90,7 +90,7 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
     expected = pose2d.pts2d.copy()
     expected[views[0], t, p] = moved
     expected[hidden, 6, q] = np.nan
-    want3d, _, _ = reconstruct_from_config(config, expected, cameras, pose2d.conf)
+    want3d, _, _ = reconstruct_from_config(config, cameras, expected, pose2d.conf)
     np.testing.assert_allclose(tri["points3d"][t, p], want3d[t, p], atol=1e-9)
     np.testing.assert_allclose(tri["points3d"][6, q], want3d[6, q], atol=1e-9)
     assert not np.isfinite(tri["points"][hidden, 6, q]).any()

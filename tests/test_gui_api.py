@@ -65,7 +65,7 @@ def expected_after(outdir, frame, point, change):
     pts = pose2d.pts2d[:, [frame]][:, :, [point]].copy()
     change(pts)
     conf = pose2d.conf[:, [frame]][:, :, [point]]
-    pts3d, _, _ = reconstruct_from_config(config, pts, result.cameras, conf)
+    pts3d, _, _ = reconstruct_from_config(config, result.cameras, pts, conf)
     return pts3d[0, 0], result.cameras.project(pts3d[0, 0])
 
 

@@ -113,7 +113,7 @@ def test_swapped_peak_in_two_views_is_recovered(scene, temporal):
         score[v, frame, joint, [0, 1]] = [0.95, 0.8]
     swapped = ps.Candidates(xy, score)
 
-    ransac3d, ransac2d, _ = reconstruct_ransac(swapped.argmax(), rig)
+    ransac3d, ransac2d, _ = reconstruct_ransac(rig, swapped.argmax())
     ransac_err = np.linalg.norm(ransac3d[frame, joint] - truth[frame, joint])
     assert not np.isfinite(ransac_err) or ransac_err > 0.1 or \
         np.isnan(ransac2d[views[:2], frame, joint]).all()  # ransac can at best drop them

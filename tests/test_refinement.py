@@ -86,7 +86,7 @@ def test_refinement_beats_ransac_on_detector_like_errors():
     """1.5 px noise, 5% outliers up to 50 px, 2% left/right swaps in the side views,
     10% missing (the issue's acceptance scene; the benchmark runs it longer)."""
     rig, truth, pts2d, conf, kind = _scene(frames=200, seed=3)
-    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     terms = skeleton_terms(Skeleton.fly(), None)
     result = refine_points(pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1), **terms)
     before, after = _errors(start, truth), _errors(result.points3d, truth)
@@ -112,7 +112,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
     q = POINT_NAMES.index("lm_claw")
     pts2d[:, 10:13, p] = np.nan  # 3 frames: filled
     pts2d[:, 30:40, q] = np.nan  # 10 frames: missing
-    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     terms = skeleton_terms(Skeleton.fly(), None)
     result = refine_points(pts2d, rig, start, inliers=np.isfinite(clean2d).all(-1),
                            options=RefineOptions(gap_length=5), **terms)
@@ -126,7 +126,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
 
 def test_rigid_thorax_points_stay_put_and_chunks_agree_with_one_solve():
     rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
-    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     terms = skeleton_terms(Skeleton.fly(), None)
     inliers = np.isfinite(clean2d).all(-1)
     whole = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
@@ -162,7 +162,7 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)
     sizes = {v: (480, 960) for v in rig.names}
     Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
-    start, clean2d, err = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, err = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     write_stage(tmp_path / "triangulation.h5", "triangulation",
                 {"points": clean2d, "points3d": start, "reproj_error": err})
     run_refinement(config, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", tmp_path / "refinement.h5")

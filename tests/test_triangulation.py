@@ -9,7 +9,7 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from flylib import geometry
+from flylib import camera_model, geometry
 from flylib import triangulation as tri
 from flylib.cameras import CameraGroup, orbit_extrinsics
 from flylib.config import Config
@@ -50,7 +50,7 @@ def _lstsq_point(obs, pmats, weights=None):
 
 def test_dlt_recovers_points_exactly(rig, scene):
     pts3d, pts2d = scene
-    got = tri.triangulate(pts2d, rig)
+    got = tri.triangulate(rig, pts2d)
     assert got.shape == pts3d.shape
     np.testing.assert_allclose(got, pts3d, rtol=1e-9, atol=1e-9 * np.abs(pts3d).max())
 
@@ -59,10 +59,12 @@ def test_dlt_chunking_and_jax_path_agree(rig, scene):
     pts3d, pts2d = scene
     noisy = pts2d + np.random.default_rng(1).normal(scale=4.0, size=pts2d.shape)
     noisy[2, 1, 3] = np.nan
-    whole = tri.triangulate(noisy, rig)
-    np.testing.assert_allclose(tri.triangulate(noisy, rig, chunk_points=7), whole, rtol=1e-12)
+    whole = tri.triangulate(rig, noisy)
+    np.testing.assert_allclose(tri.triangulate(rig, noisy, chunk_points=7), whole, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(geometry.triangulate_dlt(noisy, rig.pmats)), whole, rtol=1e-10)
-    np.testing.assert_allclose(rig.triangulate(noisy), whole, rtol=1e-10)
+    np.testing.assert_array_equal(rig.triangulate(noisy), whole)  # one path behind both
+    # the unchunked NumPy DLT (the seed API's path before) agrees to float64 precision
+    np.testing.assert_allclose(camera_model.dlt_solve(np, noisy, rig.pmats), whole, rtol=1e-10)
     for t, p in [(0, 0), (1, 3), (5, 4)]:
         obs = noisy[:, t, p]
         ok = np.isfinite(obs).all(axis=1)
@@ -75,11 +77,11 @@ def test_dlt_missing_views_and_confidence(rig, scene):
     noisy = pts2d + rng.normal(scale=4.0, size=pts2d.shape)
     one_view = np.full_like(noisy, np.nan)
     one_view[3] = noisy[3]
-    assert np.isnan(tri.triangulate(one_view, rig)).all()
+    assert np.isnan(tri.triangulate(rig, one_view)).all()
     conf = rng.uniform(0.2, 1.0, size=noisy.shape[:-1])
-    plain = tri.triangulate(noisy, rig)
-    np.testing.assert_array_equal(tri.triangulate(noisy, rig, conf), plain)  # not asked to weigh
-    weighted = tri.triangulate(noisy, rig, conf, weigh_by_confidence=True)
+    plain = tri.triangulate(rig, noisy)
+    weighted = tri.triangulate(rig, noisy, conf)
+    np.testing.assert_array_equal(rig.triangulate(noisy, conf), weighted)
     assert np.abs(weighted - plain).max() > 1e-6
     obs, w = noisy[:, 2, 1], conf[:, 2, 1]
     np.testing.assert_allclose(weighted[2, 1], _lstsq_point(obs, rig.pmats, w), rtol=1e-9)
@@ -87,7 +89,7 @@ def test_dlt_missing_views_and_confidence(rig, scene):
     dropped = noisy.copy()
     dropped[4] = np.nan
     np.testing.assert_allclose(
-        tri.triangulate(noisy, rig, conf, True), tri.triangulate(dropped, rig, conf, True), rtol=1e-12
+        tri.triangulate(rig, noisy, conf), tri.triangulate(rig, dropped, conf), rtol=1e-12
     )
 
 
@@ -97,23 +99,53 @@ def test_reprojection_error(rig, scene):
     shifted[1, ..., 0] += 3.0
     shifted[4, ..., 1] -= 4.0
     shifted[0, 0, 0] = np.nan
-    err = tri.reprojection_error(pts3d, shifted, rig)
+    err = tri.reprojection_error(rig, pts3d, shifted)
     assert err.shape == pts2d.shape[:-1]
     np.testing.assert_allclose(err[1], 3.0, rtol=1e-6)
     np.testing.assert_allclose(err[4], 4.0, rtol=1e-6)
     np.testing.assert_allclose(err[2], 0.0, atol=1e-6)
     assert np.isnan(err[0, 0, 0])
-    np.testing.assert_array_equal(tri.reprojection_error(rig, pts3d, shifted), err)  # seed order
 
 
 def test_input_validation(rig, scene):
     _, pts2d = scene
     with pytest.raises(ValueError, match="7 cameras"):
-        tri.triangulate(pts2d[:5], rig)
+        tri.triangulate(rig, pts2d[:5])
     with pytest.raises(ValueError, match="min_inliers"):
-        tri.triangulate_ransac(pts2d, rig, min_inliers=1)
-    with pytest.raises(ValueError, match="conf"):
-        tri.triangulate(pts2d, rig, np.ones((7, 2)), True)
+        tri.triangulate_ransac(rig, pts2d, min_inliers=1)
+    with pytest.raises(ValueError, match="weights must have shape"):
+        tri.triangulate(rig, pts2d, np.ones((7, 2)))
+    with pytest.raises(ValueError, match="weights must have shape"):
+        rig.triangulate(pts2d, np.ones((7, 2)))
+
+
+def test_one_argument_order(rig, scene):
+    # The seed API's order, rig first; the swapped order is refused, not guessed.
+    pts3d, pts2d = scene
+    calls = [
+        (tri.triangulate, (pts2d,)),
+        (tri.triangulate_ransac, (pts2d,)),
+        (tri.triangulate_greedy, (pts2d,)),
+        (tri.reconstruct_dlt, (pts2d,)),
+        (tri.reconstruct_ransac, (pts2d,)),
+        (tri.reconstruct_greedy, (pts2d,)),
+        (tri.reconstruct, (pts2d,)),
+    ]
+    for func, args in calls:
+        out = func(rig, *args)
+        np.testing.assert_allclose(out if isinstance(out, np.ndarray) else out[0], pts3d, atol=1e-9)
+        with pytest.raises(TypeError, match=r"\(cameras, pts2d, \.\.\.\) takes the camera rig first"):
+            func(*args, rig)
+    np.testing.assert_allclose(tri.reprojection_error(rig, pts3d, pts2d), 0.0, atol=1e-6)
+    with pytest.raises(TypeError, match="camera rig first"):
+        tri.reprojection_error(pts3d, pts2d, rig)
+    # the old aliases are gone: conf / weigh_by_confidence / ransac_threshold
+    with pytest.raises(TypeError):
+        tri.triangulate(rig, pts2d, conf=np.ones(pts2d.shape[:-1]))
+    with pytest.raises(TypeError):
+        tri.reconstruct(rig, pts2d, ransac_threshold=3.0)
+    with pytest.raises(TypeError):
+        tri.triangulate_ransac(rig, pts2d, 15.0)  # knobs are keywords
 
 
 # -- RANSAC -------------------------------------------------------------------------------------
@@ -124,29 +156,29 @@ def test_ransac_rejects_gross_outliers(rig, scene, bad_views):
     pts3d, pts2d = scene
     corrupted = pts2d.copy()
     corrupted[bad_views] += np.array([150.0, -90.0])
-    got, inliers = tri.triangulate_ransac(corrupted, rig)
+    got, inliers = tri.triangulate_ransac(rig, corrupted)
     np.testing.assert_allclose(got, pts3d, rtol=1e-9, atol=1e-9 * np.abs(pts3d).max())
     expected = np.ones(7, dtype=bool)
     expected[bad_views] = False
     assert (inliers == expected[:, None, None]).all()
-    _, clean, err = tri.reconstruct_ransac(corrupted, rig)
+    _, clean, err = tri.reconstruct_ransac(rig, corrupted)
     assert np.isnan(clean[bad_views]).all()
     np.testing.assert_array_equal(np.delete(clean, bad_views, axis=0), np.delete(corrupted, bad_views, axis=0))
     assert np.isnan(err[bad_views]).all() and np.nanmax(err) < 1e-6
     # Plain DLT is dragged by the same outliers.
-    assert np.abs(tri.triangulate(corrupted, rig) - pts3d).max() > 1e-3
+    assert np.abs(tri.triangulate(rig, corrupted) - pts3d).max() > 1e-3
 
 
 def test_ransac_nan_views_never_count_and_min_inliers(rig, scene):
     pts3d, pts2d = scene
     two = np.full_like(pts2d, np.nan)
     two[[1, 2]] = pts2d[[1, 2]]
-    got, inliers = tri.triangulate_ransac(two, rig)
+    got, inliers = tri.triangulate_ransac(rig, two)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert inliers[[1, 2]].all() and not inliers[[0, 3, 4, 5, 6]].any()
-    got3, inliers3 = tri.triangulate_ransac(two, rig, min_inliers=3)
+    got3, inliers3 = tri.triangulate_ransac(rig, two, min_inliers=3)
     assert np.isnan(got3).all() and not inliers3.any()
-    _, clean, _ = tri.reconstruct_ransac(two, rig, min_inliers=3)
+    _, clean, _ = tri.reconstruct_ransac(rig, two, min_inliers=3)
     assert np.isnan(clean).all()
 
 
@@ -159,7 +191,7 @@ def test_ransac_tie_break_prefers_lower_total_error(rig):
     # and is far from the exact pair's point.
     other = rig.project(point + np.array([0.0, 0.0, 0.5]))
     pts2d[[0, 1]] = other[[0, 1]] + np.array([[[3.0, 0.0]], [[-3.0, 2.0]]])
-    got, inliers = tri.triangulate_ransac(pts2d, rig)
+    got, inliers = tri.triangulate_ransac(rig, pts2d)
     assert inliers[:, 0].tolist() == [False, False, False, True, True, False, False]
     np.testing.assert_allclose(got, point, atol=1e-9)
 
@@ -195,7 +227,7 @@ def test_ransac_matches_a_brute_force_reference(rig):
     pts2d[rng.random(pts2d.shape[:-1]) < 0.3] = np.nan
     bad = rng.random(pts2d.shape[:-1]) < 0.2
     pts2d[bad] += rng.uniform(-300, 300, size=(int(bad.sum()), 2))
-    got, inliers = tri.triangulate_ransac(pts2d, rig, threshold=15.0)
+    got, inliers = tri.triangulate_ransac(rig, pts2d, threshold=15.0)
     ref, ref_inliers = _brute_force_ransac(pts2d, rig, 15.0)
     np.testing.assert_array_equal(inliers, ref_inliers)
     np.testing.assert_allclose(got, ref, rtol=1e-8, atol=1e-10)
@@ -210,8 +242,8 @@ def test_ransac_pieces_threads_and_dropped_views(rig):
     pts2d[rng.random(pts2d.shape[:-1]) < 0.4] = np.nan
     bad = rng.random(pts2d.shape[:-1]) < 0.15
     pts2d[bad] += rng.uniform(-200, 200, size=(int(bad.sum()), 2))
-    whole, whole_inliers = tri.triangulate_ransac(pts2d, rig)
-    pieces, pieces_inliers = tri.triangulate_ransac(pts2d, rig, chunk_points=5)
+    whole, whole_inliers = tri.triangulate_ransac(rig, pts2d)
+    pieces, pieces_inliers = tri.triangulate_ransac(rig, pts2d, chunk_points=5)
     np.testing.assert_array_equal(pieces_inliers, whole_inliers)
     np.testing.assert_allclose(pieces, whole, rtol=1e-12)
     ref, ref_inliers = _brute_force_ransac(pts2d, rig, 15.0)
@@ -221,9 +253,9 @@ def test_ransac_pieces_threads_and_dropped_views(rig):
     conf = rng.uniform(0.5, 1.0, size=pts2d.shape[:-1])
     zero = rng.random(conf.shape) < 0.2
     conf[zero] = 0.0
-    got, inliers = tri.triangulate_ransac(pts2d, rig, conf=conf, weigh_by_confidence=True)
+    got, inliers = tri.triangulate_ransac(rig, pts2d, weights=conf)
     dropped = np.where(zero[..., None], np.nan, pts2d)
-    want, want_inliers = tri.triangulate_ransac(dropped, rig, conf=conf, weigh_by_confidence=True)
+    want, want_inliers = tri.triangulate_ransac(rig, dropped, weights=conf)
     assert not inliers[zero].any()
     np.testing.assert_array_equal(inliers, want_inliers)
     np.testing.assert_allclose(got, want, rtol=1e-12)
@@ -253,7 +285,7 @@ def test_ransac_with_more_views_than_the_run_key_holds(rig):
     seen[63, [1, 2]] = True
     pts2d[seen] = exact[seen]
     pts2d[63, 2] += 120.0  # an outlier
-    got, inliers = tri.triangulate_ransac(pts2d, big)
+    got, inliers = tri.triangulate_ransac(big, pts2d)
     ref, ref_inliers = _brute_force_ransac(pts2d, big, 15.0)
     np.testing.assert_array_equal(inliers, ref_inliers)
     assert inliers[62, 0] and inliers[63, 1] and not inliers[63, 2]
@@ -266,7 +298,7 @@ def test_ransac_vote_is_not_weighted(rig, scene):
     corrupted[5] += 200.0
     conf = np.full(pts2d.shape[:-1], 0.5)
     conf[5] = 1.0  # a confidently wrong view
-    got, inliers = tri.triangulate_ransac(corrupted, rig, conf=conf, weigh_by_confidence=True)
+    got, inliers = tri.triangulate_ransac(rig, corrupted, weights=conf)
     assert not inliers[5].any()
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
 
@@ -278,13 +310,13 @@ def test_ransac_with_distorted_cameras(rig, scene):
     pts2d = distorted.project(pts3d)
     assert np.abs(pts2d - rig.project(pts3d)).max() > 1e-3  # the distortion is visible
     pts2d[6] += 80.0
-    got, inliers = tri.triangulate_ransac(pts2d, distorted)
+    got, inliers = tri.triangulate_ransac(distorted, pts2d)
     np.testing.assert_allclose(got, pts3d, atol=1e-8)
     assert not inliers[6].any() and inliers[:6].all()
     # the JAX kernels' distorted paths: DLT on undistorted points, greedy's raw-image errors
     clean = distorted.project(pts3d)
-    np.testing.assert_allclose(tri.triangulate(clean, distorted), pts3d, atol=1e-8)
-    greedy, kept = tri.triangulate_greedy(pts2d, distorted, reproj_threshold=20.0)
+    np.testing.assert_allclose(tri.triangulate(distorted, clean), pts3d, atol=1e-8)
+    greedy, kept = tri.triangulate_greedy(distorted, pts2d, reproj_threshold=20.0)
     np.testing.assert_allclose(greedy, pts3d, atol=1e-8)
     assert not kept[6].any() and kept[:6].all()
 
@@ -296,19 +328,19 @@ def test_greedy_drops_the_outlier(rig, scene):
     pts3d, pts2d = scene
     corrupted = pts2d.copy()
     corrupted[3, :, :, 0] += 400.0
-    got, kept = tri.triangulate_greedy(corrupted, rig, reproj_threshold=40.0)
+    got, kept = tri.triangulate_greedy(rig, corrupted, reproj_threshold=40.0)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert not kept[3].any() and kept[[0, 1, 2, 4, 5, 6]].all()
     # max_drops=0 is plain DLT.
     np.testing.assert_allclose(
-        tri.triangulate_greedy(corrupted, rig, max_drops=0)[0], tri.triangulate(corrupted, rig), rtol=1e-12
+        tri.triangulate_greedy(rig, corrupted, max_drops=0)[0], tri.triangulate(rig, corrupted), rtol=1e-12
     )
     # Two inconsistent views (off the epipolar line): one is dropped, and one view
     # cannot make a point.
     pair = np.full_like(pts2d, np.nan)
     pair[[0, 1]] = pts2d[[0, 1]]
     pair[1, ..., 1] += 400.0
-    got, kept = tri.triangulate_greedy(pair, rig)
+    got, kept = tri.triangulate_greedy(rig, pair)
     assert np.isnan(got).all() and not kept.any()
 
 
@@ -318,11 +350,11 @@ def test_greedy_drops_the_outlier(rig, scene):
 def test_reconstruct_dispatch_shapes(rig, scene):
     pts3d, pts2d = scene
     for method in ("ransac", "greedy", "dlt"):
-        out3d, clean, err = tri.reconstruct(pts2d, rig, method=method)
+        out3d, clean, err = tri.reconstruct(rig, pts2d, method=method)
         assert out3d.shape == pts3d.shape and clean.shape == pts2d.shape and err.shape == pts2d.shape[:-1]
         np.testing.assert_allclose(out3d, pts3d, atol=1e-9)
     with pytest.raises(ValueError, match="unknown triangulation method"):
-        tri.reconstruct(pts2d, rig, method="magic")
+        tri.reconstruct(rig, pts2d, method="magic")
 
 
 def test_reconstruct_from_config(rig, scene):
@@ -330,12 +362,12 @@ def test_reconstruct_from_config(rig, scene):
     corrupted = pts2d.copy()
     corrupted[2] += 60.0
     config = Config.from_dict({"triangulation": {"method": "ransac", "ransac_threshold": 20.0}})
-    got, clean, _ = tri.reconstruct_from_config(config, corrupted, rig)
+    got, clean, _ = tri.reconstruct_from_config(config, rig, corrupted)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert np.isnan(clean[2]).all()
     # With a threshold above the outlier's pull, nothing is rejected.
     loose = Config.from_dict({"triangulation": {"method": "greedy", "reproj_threshold": 1000.0}})
-    got, clean, _ = tri.reconstruct_from_config(loose, corrupted, rig)
+    got, clean, _ = tri.reconstruct_from_config(loose, rig, corrupted)
     assert np.isfinite(clean).all() and np.abs(got - pts3d).max() > 1e-4
 
     @dataclass
@@ -347,7 +379,7 @@ def test_reconstruct_from_config(rig, scene):
         triangulation: Params
 
     with pytest.raises(ConfigError, match="triangulation.method"):
-        tri.reconstruct_from_config(Holder(Params()), pts2d, rig)
+        tri.reconstruct_from_config(Holder(Params()), rig, pts2d)
 
 
 # -- real data ------------------------------------------------------------------------------------------
@@ -365,10 +397,10 @@ def test_ransac_on_the_deepfly3d_sample(df3d_pickle, rig):
     assert (seen >= 2).any()
     # The uncalibrated default rig is ~10 px off on this recording: 30 px keeps every
     # point seen twice (15 px, the default, keeps > 99%).
-    pts3d, clean, err = tri.reconstruct_ransac(pts2d, rig, threshold=30.0)
+    pts3d, clean, err = tri.reconstruct_ransac(rig, pts2d, threshold=30.0)
     assert np.isfinite(pts3d[seen >= 2]).all()
     assert np.nanmedian(err) < 15.0
-    strict, _, _ = tri.reconstruct_ransac(pts2d, rig, threshold=15.0)
+    strict, _, _ = tri.reconstruct_ransac(rig, pts2d, threshold=15.0)
     assert np.isfinite(strict[seen >= 2]).all(axis=-1).mean() > 0.95
     # The orbit convention reconstructs a fly facing +x: its right side (r* points,
     # 19..37) at -y, its left at +y, front legs ahead of hind legs.

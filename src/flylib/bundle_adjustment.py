@@ -479,7 +479,7 @@ def _ransac_points(cameras, pts2d, usable, threshold):
     from .triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
-    pts3d, _ = triangulate_ransac(masked, cameras, threshold=threshold)
+    pts3d, _ = triangulate_ransac(cameras, masked, threshold=threshold)
     return np.asarray(pts3d, float)
 
 

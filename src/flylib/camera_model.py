@@ -1,9 +1,12 @@
-"""The camera model's closed forms in NumPy (or any array module), without JAX.
+"""The camera model's formulas, written once for any array module (``xp``).
 
-Host-side code (camera properties, projection, undistortion, the RANSAC and DLT bulk
-paths, summaries) needs only these, so a workflow job that does not differentiate or
-jit anything never imports JAX (about 0.7 s per job). :mod:`flylib.geometry` builds its
-JAX kernels on the same formulas and re-exports every name here.
+Every formula (Rodrigues both ways, ``K``, OpenCV distortion and its fixed-point
+inverse, projection, the DLT) is a function of an array module ``xp`` (``numpy`` or
+``jax.numpy``) or uses only arithmetic operators, so one body serves both back-ends:
+:mod:`flylib.geometry` binds them to ``jax.numpy`` (jitted, differentiable, float64)
+and the ``*_numpy`` names here bind them to NumPy. Importing this module does not
+import JAX, so host-side code (camera properties, projection, undistortion, RANSAC,
+summaries) never pays for it (about 0.7 s per workflow job).
 """
 
 from __future__ import annotations
@@ -19,26 +22,50 @@ SMALL_THETA_SQ = 1e-6
 # -- rotations and intrinsics ------------------------------------------------------
 
 
-def rvec_to_rmat_numpy(rvec) -> np.ndarray:
-    """NumPy :func:`rvec_to_rmat` (``(..., 3) -> (..., 3, 3)``), same Taylor branch.
+def rvec_to_rmat_generic(xp, rvec):
+    """Rodrigues' formula ``(..., 3) -> (..., 3, 3)`` with array module ``xp``.
 
-    Host-side code (camera properties, bundle-adjustment residuals) uses this twin so
+    ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``,
+    ``a = sin(theta) / theta`` and ``b = (1 - cos(theta)) / theta^2``. Below ``theta^2 = SMALL_THETA_SQ`` ``a`` and ``b`` come from their Taylor
+    series (the closed forms lose all precision to cancellation there); the untaken
+    branch is evaluated at a safe ``theta`` so JAX gradients stay finite at ``r = 0``.
+
+    Parameters
+    ----------
+    xp
+        ``numpy`` or ``jax.numpy``.
+    rvec
+        Axis-angle vectors ``(..., 3)`` (direction = axis, norm = angle in radians).
+
+    Returns
+    -------
+    array
+        Rotation matrices ``(..., 3, 3)``.
+    """
+    rvec = xp.asarray(rvec, dtype=xp.float64)
+    x, y, z = rvec[..., 0], rvec[..., 1], rvec[..., 2]
+    theta_sq = x * x + y * y + z * z
+    small = theta_sq < SMALL_THETA_SQ
+    safe_sq = xp.where(small, 1.0, theta_sq)
+    theta = xp.sqrt(safe_sq)
+    a = xp.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, xp.sin(theta) / theta)
+    b = xp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, (1.0 - xp.cos(theta)) / safe_sq)
+    zero = xp.zeros_like(x)
+    skew = xp.reshape(xp.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1), (*x.shape, 3, 3))
+    outer = rvec[..., :, None] * rvec[..., None, :]
+    eye = xp.eye(3)
+    # Matrix-valued terms, not nine stacked entries: XLA's forward-mode Jacobian of
+    # the stacked form ran 5x slower inside bundle adjustment's vmap.
+    return eye + a[..., None, None] * skew + b[..., None, None] * (outer - theta_sq[..., None, None] * eye)
+
+
+def rvec_to_rmat_numpy(rvec) -> np.ndarray:
+    """NumPy :func:`rvec_to_rmat_generic`: ``(..., 3) -> (..., 3, 3)``.
+
+    Host-side code (camera properties, bundle-adjustment residuals) uses this binding so
     that it never waits for an XLA compilation.
     """
-    rvec = np.asarray(rvec, dtype=np.float64)
-    flat = rvec.reshape(-1, 3)
-    theta_sq = np.einsum("mi,mi->m", flat, flat)
-    small = theta_sq < SMALL_THETA_SQ
-    safe_sq = np.where(small, 1.0, theta_sq)
-    theta = np.sqrt(safe_sq)
-    a = np.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, np.sin(theta) / theta)
-    b = np.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
-                 (1.0 - np.cos(theta)) / safe_sq)
-    x, y, z = flat.T
-    zero = np.zeros_like(x)
-    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
-    rmat = np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
-    return rmat.reshape(*rvec.shape[:-1], 3, 3)
+    return rvec_to_rmat_generic(np, rvec)
 
 
 def rmat_to_rvec_generic(xp, rmat):
@@ -83,15 +110,18 @@ def split_intr(intr):
     return intr[..., 0], intr[..., -3], intr[..., -2], intr[..., -1]
 
 
-def intr_to_kmat_numpy(intr) -> np.ndarray:
-    """NumPy :func:`intr_to_kmat`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
-    intr = np.asarray(intr, dtype=np.float64)
+def intr_to_kmat_generic(xp, intr):
+    """Camera matrices ``(..., 3, 3)`` from packed ``(..., 4)`` ``[fx, fy, cx, cy]`` or ``(..., 3)`` ``[f, cx, cy]``."""
+    intr = xp.asarray(intr, dtype=xp.float64)
     fx, fy, cx, cy = split_intr(intr)
-    kmat = np.zeros(intr.shape[:-1] + (3, 3))
-    kmat[..., 0, 0], kmat[..., 0, 2] = fx, cx
-    kmat[..., 1, 1], kmat[..., 1, 2] = fy, cy
-    kmat[..., 2, 2] = 1.0
-    return kmat
+    zero, one = xp.zeros_like(fx), xp.ones_like(fx)
+    rows = ((fx, zero, cx), (zero, fy, cy), (zero, zero, one))
+    return xp.stack([xp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def intr_to_kmat_numpy(intr) -> np.ndarray:
+    """NumPy :func:`intr_to_kmat_generic`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
+    return intr_to_kmat_generic(np, intr)
 
 
 # -- distortion ------------------------------------------------------------------
@@ -132,11 +162,98 @@ def distortion_terms(x, y, d):
     return radial, add_x, add_y
 
 
-def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15) -> np.ndarray:
-    """NumPy batch inverse of :func:`flylib.geometry.distort_one` for one camera.
+def distort_normalized(x, y, d):
+    """Distorted normalized coordinates ``(x_d, y_d)`` of ``(x, y)`` (any array module).
 
-    The fixed-point scheme of :func:`flylib.geometry.undistort_one`, run until no coordinate
-    moves by more than ``tol`` (or ``max_iter`` sweeps).
+    With ``r^2 = x^2 + y^2`` and ``d = [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``::
+
+        x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
+              + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
+        y_d = y (...) / (...) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
+
+    ``x``, ``y`` broadcast against each ``d[i]`` (``d`` is coefficient-major,
+    ``(12, ...)``).
+    """
+    radial, add_x, add_y = distortion_terms(x, y, d)
+    return x * radial + add_x, y * radial + add_y
+
+
+def undistort_step(x, y, x_dist, y_dist, d):
+    """One sweep of OpenCV's fixed-point inverse of :func:`distort_normalized` (any array module)."""
+    radial, add_x, add_y = distortion_terms(x, y, d)
+    return (x_dist - add_x) / radial, (y_dist - add_y) / radial
+
+
+def pixels_from_normalized(x, y, fx, fy, cx, cy, d=None):
+    """Pixels ``(u, v)`` of normalized coordinates, through the lens model ``d`` if given."""
+    if d is not None:
+        x, y = distort_normalized(x, y, d)
+    return fx * x + cx, fy * y + cy
+
+
+def project_generic(xp, pts3d, rmats, tvecs, intrs, dists):
+    """Project world points through stacked cameras, with array module ``xp``.
+
+    ``X_cam = R X + t``, perspective division, :func:`distort_normalized`, then
+    ``u = fx x + cx``, ``v = fy y + cy``: the model of ``cv2.projectPoints``.
+
+    Parameters
+    ----------
+    xp
+        ``numpy`` or ``jax.numpy``.
+    pts3d
+        World points ``(*pts, 3)``.
+    rmats
+        Rotation matrices ``(V, 3, 3)``.
+    tvecs
+        ``(V, 3)``.
+    intrs
+        ``(V, 4)`` ``[fx, fy, cx, cy]`` or ``(V, 3)`` ``[f, cx, cy]``.
+    dists
+        ``(V, K)``, ``K <= 12``; an all-zero NumPy array skips the lens model.
+
+    Returns
+    -------
+    array
+        Pixels ``(V, *pts, 2)``.
+    """
+    pts3d = xp.asarray(pts3d, dtype=xp.float64)
+    flat = xp.reshape(pts3d, (-1, 3))
+    cam = xp.einsum("vij,nj->vin", rmats, flat) + tvecs[:, :, None]  # (V, 3, N)
+    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    # NumPy can see that a rig has no distortion; under jit the lens model always runs
+    lens = dists.shape[-1] > 0 and (xp is not np or bool(np.any(dists)))
+    d = pad_dist_generic(xp, dists).T[:, :, None] if lens else None  # (12, V, 1)
+    fx, fy, cx, cy = (c[:, None] for c in split_intr(xp.asarray(intrs, dtype=xp.float64)))
+    u, v = pixels_from_normalized(x, y, fx, fy, cx, cy, d)
+    return xp.reshape(xp.stack([u, v], axis=-1), (rmats.shape[0], *pts3d.shape[:-1], 2))
+
+
+def ray_from_normalized(xp, x, y, rmat, tvec):
+    """World ray of an undistorted normalized coordinate ``(x, y)`` through one camera.
+
+    Returns ``(origin, direction)``, ``(3,)`` each: the centre ``-R^T t`` and the
+    unnormalized ``R^T (x, y, 1)``; every ``origin + s * direction``, ``s > 0``,
+    projects onto ``(x, y)``.
+    """
+    rmat = xp.asarray(rmat, dtype=xp.float64)
+    direction = rmat.T @ xp.stack([x, y, xp.ones_like(x)])
+    return -rmat.T @ xp.asarray(tvec, dtype=xp.float64), direction
+
+
+def project_numpy(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
+    """NumPy :func:`project_generic`: ``(*pts, 3)`` through ``V`` cameras -> ``(V, *pts, 2)``."""
+    return project_generic(
+        np, pts3d, np.asarray(rmats, dtype=np.float64), np.asarray(tvecs, dtype=np.float64),
+        intrs, np.asarray(dists, dtype=np.float64),
+    )
+
+
+def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15) -> np.ndarray:
+    """NumPy batch inverse of :func:`distort_normalized` for one camera.
+
+    :func:`undistort_step` (the fixed point :func:`flylib.geometry.undistort_one` starts
+    with), run until no coordinate moves by more than ``tol`` (or ``max_iter`` sweeps).
 
     Parameters
     ----------
@@ -157,8 +274,7 @@ def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15)
     xd, yd = xy_dist[..., 0], xy_dist[..., 1]
     x, y = xd.copy(), yd.copy()
     for _ in range(max_iter):
-        radial, add_x, add_y = distortion_terms(x, y, d)
-        x_new, y_new = (xd - add_x) / radial, (yd - add_y) / radial
+        x_new, y_new = undistort_step(x, y, xd, yd, d)
         step = np.nanmax(np.abs(np.stack([x_new - x, y_new - y])), initial=0.0)
         x, y = x_new, y_new
         if step <= tol:

@@ -300,11 +300,11 @@ class Camera:
         fx, fy, cx, cy = self.intr
         norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
         x, y = camera_model.undistort_normalized(norm, self.dist)
-        return self.position, self.rmat.T @ np.array([x, y, 1.0])
+        return camera_model.ray_from_normalized(np, x, y, self.rmat, self.tvec)
 
 
 def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
-    """NumPy projection through stacked cameras (same model as ``geometry.project_full``).
+    """NumPy projection through stacked cameras (:func:`flylib.camera_model.project_generic`).
 
     Parameters
     ----------
@@ -320,18 +320,7 @@ def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
     np.ndarray
         ``(V, *pts, 2)``.
     """
-    pts3d = np.asarray(pts3d, dtype=np.float64)
-    flat = pts3d.reshape(-1, 3)
-    cam = np.einsum("vij,nj->vin", rmats, flat) + tvecs[:, :, None]  # (V, 3, N)
-    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
-    dists = np.asarray(dists, dtype=np.float64)
-    if dists.shape[-1] and np.any(dists):
-        d = camera_model.pad_dist_numpy(dists).T[:, :, None]  # (12, V, 1)
-        radial, add_x, add_y = camera_model.distortion_terms(x, y, d)
-        x, y = x * radial + add_x, y * radial + add_y
-    u = intrs[:, 0, None] * x + intrs[:, 2, None]
-    v = intrs[:, 1, None] * y + intrs[:, 3, None]
-    return np.stack([u, v], axis=-1).reshape(len(rmats), *pts3d.shape[:-1], 2)
+    return camera_model.project_numpy(pts3d, rmats, tvecs, intrs, dists)
 
 
 # -- a rig -----------------------------------------------------------------------
@@ -517,26 +506,52 @@ class CameraGroup:
             out[v] = (und * [fx, fy] + [cx, cy]).reshape(pts2d[v].shape)
         return out
 
-    def triangulate(self, pts2d, weights=None) -> np.ndarray:
+    def triangulate(self, pts2d, weights=None, *, chunk_points: int | None = None) -> np.ndarray:
         """Weighted NaN-aware DLT (see :func:`flylib.geometry.triangulate_dlt`).
 
-        Distorted cameras are handled by undistorting the observations first.
+        Distorted cameras are handled by undistorting the observations first. The
+        points run in fixed-length chunks through one jitted kernel
+        (:func:`flylib.geometry.triangulate_dlt_chunked`, JAX imported on the first
+        call); :func:`flylib.triangulation.triangulate` is this method.
 
         Parameters
         ----------
         pts2d
             ``(V, *pts, 2)`` pixels, NaN = missing.
         weights
-            Optional ``(V, *pts)``.
+            Optional ``(V, *pts)``; a non-positive or non-finite weight drops the view.
+        chunk_points
+            Points per chunk (default :data:`flylib.geometry.DLT_CHUNK_POINTS`).
 
         Returns
         -------
         np.ndarray
             ``(*pts, 3)``; NaN below two views.
+
+        Raises
+        ------
+        ValueError
+            If ``pts2d`` is not ``(V, *pts, 2)`` for this rig's ``V`` or ``weights`` is
+            not ``(V, *pts)``.
         """
+        from .geometry import DLT_CHUNK_POINTS, triangulate_dlt_chunked
+
         pts2d = np.asarray(pts2d, dtype=np.float64)
+        if pts2d.ndim < 2 or pts2d.shape[-1] != 2:
+            raise ValueError(f"pts2d must be (V, *pts, 2), got shape {pts2d.shape}")
         self._check_views(pts2d)
-        return camera_model.dlt_solve(np, self.undistort_points(pts2d), self.pmats, weights)
+        if weights is not None:
+            weights = np.asarray(weights, dtype=np.float64)
+            if weights.shape != pts2d.shape[:-1]:
+                raise ValueError(
+                    f"weights must have shape {pts2d.shape[:-1]} (V, *pts), got {weights.shape}"
+                )
+        return triangulate_dlt_chunked(
+            self.undistort_points(pts2d),
+            self.pmats,
+            weights,
+            DLT_CHUNK_POINTS if chunk_points is None else chunk_points,
+        )
 
     def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
         """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""

@@ -314,13 +314,13 @@ def reconstruct_corrected(config: Any, pts2d, cameras, conf=None,
 
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if corrections is None:
-        pts3d, clean, error = reconstruct_from_config(config, pts2d, cameras, conf)
+        pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
         return pts3d, clean, error, np.zeros(pts2d.shape[1:3], bool)
     if corrections.shape != pts2d.shape[:3]:
         raise ResultsError(f"corrections of shape {corrections.shape} (views, frames, points) do not "
                            f"match the 2D points {pts2d.shape[:3]}; save them again from `flylib gui`")
     pts2d, conf = corrections.apply_2d(pts2d, conf)
-    pts3d, clean, error = reconstruct_from_config(config, pts2d, cameras, conf)
+    pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
     fixed = corrections.fixed & corrections.edited & np.isfinite(pts2d).all(-1)
     lost = fixed & ~np.isfinite(clean).all(-1)  # fixed views the robust fit left out
     redo = np.argwhere(lost.any(axis=0))  # (n, 2) frame, point
@@ -335,7 +335,7 @@ def reconstruct_corrected(config: Any, pts2d, cameras, conf=None,
         pts3d = pts3d.copy()
         pts3d[corrections.edited3d] = corrections.points3d[corrections.edited3d]
     if len(redo) or corrections.edited3d.any():
-        error = reprojection_error(pts3d, clean, cameras)
+        error = reprojection_error(cameras, pts3d, clean)
     return pts3d, clean, error, corrections.corrected_points()
 
 

@@ -11,16 +11,19 @@ Conventions (shared by the whole package):
 * arrays are view-leading: ``(V, *pts, 2)`` for image points;
 * NaN marks a missing observation.
 
-The ``*_one`` functions handle one point / one camera and compose with
-``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment builds its Jacobian from
-:func:`project_full_one`). The batched functions are jitted wrappers.
+The formulas live once, generic over the array module, in :mod:`flylib.camera_model`;
+this module binds them to ``jax.numpy`` (float64). The ``*_one`` functions handle one
+point / one camera and compose with ``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment
+builds its Jacobian from :func:`project_full_one`). The batched functions are jitted.
 """
 
 from __future__ import annotations
 
 import os
+from collections import deque
 
 import jax
+import numpy as np
 
 from .paths import cache_dir
 
@@ -34,24 +37,31 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
 
 import jax.numpy as jnp  # noqa: E402
 
-from .camera_model import (  # noqa: E402,F401 - the NumPy side, re-exported
+from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
     DLT_TERMS,
     N_DIST_COEFFS,
+    distort_normalized,
     dlt_camera_constants,
     dlt_features,
     dlt_solve,
     dlt_solve_components,
     dlt_solve_terms,
+    intr_to_kmat_generic,
     intr_to_kmat_numpy,
     pad_dist_generic,
     pad_dist_numpy,
+    pixels_from_normalized,
+    project_generic,
+    project_numpy,
+    ray_from_normalized,
     rmat_to_rvec_generic,
     rmat_to_rvec_numpy,
+    rvec_to_rmat_generic,
     rvec_to_rmat_numpy,
     undistort_normalized,
+    undistort_step,
 )
-from .camera_model import SMALL_THETA_SQ as _SMALL_THETA_SQ  # noqa: E402
-from .camera_model import distortion_terms as _distortion_terms  # noqa: E402
+from .camera_model import distortion_terms as _distortion_terms  # noqa: E402,F401
 from .camera_model import split_intr as _split_intr  # noqa: E402
 _UNDISTORT_FIXED_POINT_ITERS = 20
 _UNDISTORT_NEWTON_ITERS = 2
@@ -75,26 +85,7 @@ def rvec_to_rmat_one(rvec):
         Rotation matrix of shape ``(3, 3)``; exact and differentiable at
         ``rvec = 0``.
     """
-    rvec = jnp.asarray(rvec, dtype=jnp.float64)
-    theta_sq = jnp.dot(rvec, rvec)
-    small = theta_sq < _SMALL_THETA_SQ
-    # Double-where keeps the untaken branch finite so gradients stay finite at 0.
-    safe_theta_sq = jnp.where(small, 1.0, theta_sq)
-    safe_theta = jnp.sqrt(safe_theta_sq)
-    sin_over_theta = jnp.where(
-        small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, jnp.sin(safe_theta) / safe_theta
-    )
-    one_minus_cos_over_theta_sq = jnp.where(
-        small,
-        0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0,
-        (1.0 - jnp.cos(safe_theta)) / safe_theta_sq,
-    )
-    skew = _skew(rvec)
-    return (
-        jnp.eye(3)
-        + sin_over_theta * skew
-        + one_minus_cos_over_theta_sq * (jnp.outer(rvec, rvec) - theta_sq * jnp.eye(3))
-    )
+    return rvec_to_rmat_generic(jnp, rvec)
 
 
 def rmat_to_rvec_one(rmat):
@@ -123,9 +114,7 @@ def rmat_to_rvec_one(rmat):
 @jax.jit
 def rvec_to_rmat(rvec):
     """Batched :func:`rvec_to_rmat_one`: ``(..., 3) -> (..., 3, 3)``."""
-    rvec = jnp.asarray(rvec, dtype=jnp.float64)
-    flat = rvec.reshape(-1, 3)
-    return jax.vmap(rvec_to_rmat_one)(flat).reshape(*rvec.shape[:-1], 3, 3)
+    return rvec_to_rmat_generic(jnp, rvec)
 
 
 @jax.jit
@@ -134,10 +123,6 @@ def rmat_to_rvec(rmat):
     rmat = jnp.asarray(rmat, dtype=jnp.float64)
     flat = rmat.reshape(-1, 3, 3)
     return jax.vmap(rmat_to_rvec_one)(flat).reshape(*rmat.shape[:-2], 3)
-
-
-def _skew(v):
-    return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 # -- intrinsics and distortion ---------------------------------------------------
@@ -157,15 +142,7 @@ def intr_to_kmat(intr):
     jax.Array
         ``K`` of shape ``(..., 3, 3)``.
     """
-    intr = jnp.asarray(intr, dtype=jnp.float64)
-    fx, fy, cx, cy = _split_intr(intr)
-    zero, one = jnp.zeros_like(fx), jnp.ones_like(fx)
-    rows = [
-        jnp.stack([fx, zero, cx], axis=-1),
-        jnp.stack([zero, fy, cy], axis=-1),
-        jnp.stack([zero, zero, one], axis=-1),
-    ]
-    return jnp.stack(rows, axis=-2)
+    return intr_to_kmat_generic(jnp, intr)
 
 
 def pad_dist(dist):
@@ -190,13 +167,7 @@ def pad_dist(dist):
 
 
 def distort_one(xy, dist):
-    """Apply OpenCV distortion to one normalized image point.
-
-    With ``r^2 = x^2 + y^2``::
-
-        x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
-              + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
-        y_d = y (...) / (...) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
+    """Apply OpenCV distortion to one normalized image point (:func:`distort_normalized`).
 
     Parameters
     ----------
@@ -213,9 +184,7 @@ def distort_one(xy, dist):
     xy = jnp.asarray(xy, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
         return xy
-    d = pad_dist(dist)
-    radial, add_x, add_y = _distortion_terms(xy[0], xy[1], d)
-    return jnp.stack([xy[0] * radial + add_x, xy[1] * radial + add_y])
+    return jnp.stack(distort_normalized(xy[0], xy[1], pad_dist(dist)))
 
 
 def undistort_one(xy_dist, dist):
@@ -244,8 +213,7 @@ def undistort_one(xy_dist, dist):
     d = pad_dist(dist)
 
     def fixed_point(_, xy):
-        radial, add_x, add_y = _distortion_terms(xy[0], xy[1], d)
-        return jnp.stack([(xy_dist[0] - add_x) / radial, (xy_dist[1] - add_y) / radial])
+        return jnp.stack(undistort_step(xy[0], xy[1], xy_dist[0], xy_dist[1], d))
 
     xy = jax.lax.fori_loop(0, _UNDISTORT_FIXED_POINT_ITERS, fixed_point, xy_dist)
 
@@ -306,9 +274,9 @@ def project_full_one(pt3d, rvec, tvec, intr, dist):
         Pixel ``(u, v)``, shape ``(2,)``; ``v`` grows downwards in the image.
     """
     p_cam = rvec_to_rmat_one(rvec) @ jnp.asarray(pt3d, dtype=jnp.float64) + tvec
-    xy = distort_one(p_cam[:2] / p_cam[2], dist)
+    d = pad_dist(dist) if jnp.shape(dist)[-1] else None
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
-    return jnp.stack([fx * xy[0] + cx, fy * xy[1] + cy])
+    return jnp.stack(pixels_from_normalized(p_cam[0] / p_cam[2], p_cam[1] / p_cam[2], fx, fy, cx, cy, d))
 
 
 @jax.jit
@@ -331,15 +299,12 @@ def project_full(pts3d, rvecs, tvecs, intrs, dists):
     jax.Array
         Pixels ``(V, *pts, 2)``.
     """
-    pts3d = jnp.asarray(pts3d, dtype=jnp.float64)
     rvecs = jnp.asarray(rvecs, dtype=jnp.float64)
     n_views = rvecs.shape[0]
+    tvecs = jnp.asarray(tvecs, dtype=jnp.float64)
     intrs = jnp.broadcast_to(jnp.asarray(intrs, dtype=jnp.float64), (n_views, jnp.shape(intrs)[-1]))
     dists = jnp.broadcast_to(jnp.asarray(dists, dtype=jnp.float64), (n_views, jnp.shape(dists)[-1]))
-    flat = pts3d.reshape(-1, 3)
-    per_view = jax.vmap(project_full_one, in_axes=(0, None, None, None, None))
-    out = jax.vmap(per_view, in_axes=(None, 0, 0, 0, 0))(flat, rvecs, tvecs, intrs, dists)
-    return out.reshape(n_views, *pts3d.shape[:-1], 2)
+    return project_generic(jnp, pts3d, rvec_to_rmat_generic(jnp, rvecs), tvecs, intrs, dists)
 
 
 @jax.jit
@@ -400,6 +365,141 @@ def triangulate_dlt(pts2d, pmats, weights=None):
     return dlt_solve(jnp, pts2d, pmats, weights)
 
 
+# -- the bulk DLT: fixed-length chunks through one jitted kernel -------------------------
+
+DLT_CHUNK_POINTS = 4096
+_CHUNKS_IN_FLIGHT = 4
+
+
+@jax.jit
+def dlt_chunk(consts, pts2d, weights):
+    """The DLT of :func:`triangulate_dlt` on one chunk, component-major.
+
+    Parameters
+    ----------
+    consts
+        ``{"quad": (V, 6, 9), "norm": (V, 2, 3)}`` from :func:`dlt_camera_constants`.
+    pts2d
+        ``(V, N, 2)`` pixels (undistorted), NaN = missing.
+    weights
+        ``(V, N)`` or None; a zero or non-finite weight drops the view.
+
+    Returns
+    -------
+    pts3d : jax.Array
+        ``(N, 3)``.
+    valid : jax.Array
+        ``(V, N)`` bool, the views that took part.
+    """
+    feats, valid = dlt_features(jnp, pts2d, consts["norm"], weights)
+    terms = jnp.einsum("fvn,vfk->kn", feats, consts["quad"])
+    return dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
+
+
+def chunk_length(n: int, chunk_points: int) -> int:
+    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it.
+
+    Kernels compile once per input length, so lengths come from a short list.
+    """
+    size = 64
+    while size < min(n, chunk_points):
+        size *= 2
+    return min(size, max(int(chunk_points), 1))
+
+
+def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
+    """``arr`` ``(V, n, ...)`` extended along axis 1 to ``size`` with ``fill``."""
+    if arr.shape[1] == size:
+        return arr
+    out = np.full((arr.shape[0], size, *arr.shape[2:]), fill)
+    out[:, : arr.shape[1]] = arr
+    return out
+
+
+def run_chunked(kernel, consts, inputs, n_views: int, chunk_points: int = DLT_CHUNK_POINTS, **params):
+    """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks.
+
+    Parameters
+    ----------
+    kernel
+        ``kernel(consts, *chunks, **params) -> (pts3d (size, 3), kept (V, size))``.
+    consts
+        Per-rig arrays, passed unchanged.
+    inputs
+        ``(array, fill)`` pairs; each array ``(V, n, ...)`` (or None, passed as None) is
+        cut into chunks along axis 1, the last one padded with ``fill``.
+    n_views
+        ``V``.
+    chunk_points
+        Points per chunk (memory stays bounded on long recordings).
+
+    Returns
+    -------
+    pts3d : np.ndarray
+        ``(n, 3)``.
+    kept : np.ndarray
+        ``(V, n)`` bool.
+    """
+    n = next(a.shape[1] for a, _ in inputs if a is not None)
+    size = chunk_length(n, chunk_points)
+    pts3d = np.full((n, 3), np.nan)
+    kept = np.zeros((n_views, n), dtype=bool)
+    in_flight: deque = deque()
+
+    def collect() -> None:
+        start, stop, (x, k) = in_flight.popleft()
+        pts3d[start:stop] = np.asarray(x)[: stop - start]
+        kept[:, start:stop] = np.asarray(k)[:, : stop - start]
+
+    for start in range(0, n, size):
+        stop = min(start + size, n)
+        chunks = [None if a is None else _padded(a[:, start:stop], size, fill) for a, fill in inputs]
+        # JAX dispatches asynchronously: a few chunks in flight overlap the kernels with
+        # this loop (and with each other on several cores).
+        in_flight.append((start, stop, kernel(consts, *chunks, **params)))
+        if len(in_flight) > _CHUNKS_IN_FLIGHT:
+            collect()
+    while in_flight:
+        collect()
+    return pts3d, kept
+
+
+def triangulate_dlt_chunked(pts2d, pmats, weights=None, chunk_points: int = DLT_CHUNK_POINTS) -> np.ndarray:
+    """:func:`triangulate_dlt` for any number of points, in bounded memory, to NumPy.
+
+    The bulk path behind :meth:`flylib.cameras.CameraGroup.triangulate` and
+    :func:`flylib.triangulation.triangulate`: one kernel compiled per chunk length.
+
+    Parameters
+    ----------
+    pts2d
+        ``(V, *pts, 2)`` (undistorted) pixels, NaN = missing.
+    pmats
+        ``(V, 3, 4)``.
+    weights
+        Optional ``(V, *pts)``; non-finite or non-positive drops the view.
+    chunk_points
+        Points per chunk.
+
+    Returns
+    -------
+    np.ndarray
+        ``(*pts, 3)``; NaN below two views or for a degenerate geometry.
+    """
+    pts2d = np.asarray(pts2d, dtype=np.float64)
+    n_views, pts_shape = pts2d.shape[0], pts2d.shape[1:-1]
+    quad, norm = dlt_camera_constants(np, pmats)
+    flat_w = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(n_views, -1)
+    pts3d, _ = run_chunked(
+        dlt_chunk,
+        {"quad": quad, "norm": norm},
+        [(pts2d.reshape(n_views, -1, 2), np.nan), (flat_w, 0.0)],
+        n_views,
+        chunk_points,
+    )
+    return pts3d.reshape(*pts_shape, 3)
+
+
 def backproject_ray_one(pixel, rvec, tvec, intr, dist):
     """World-frame viewing ray of one pixel (inverse of :func:`project_full_one`).
 
@@ -419,10 +519,7 @@ def backproject_ray_one(pixel, rvec, tvec, intr, dist):
     pixel = jnp.asarray(pixel, dtype=jnp.float64)
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
     xy = undistort_one(jnp.stack([(pixel[0] - cx) / fx, (pixel[1] - cy) / fy]), dist)
-    rmat = rvec_to_rmat_one(rvec)
-    direction = rmat.T @ jnp.stack([xy[0], xy[1], jnp.ones(())])
-    origin = -rmat.T @ jnp.asarray(tvec, dtype=jnp.float64)
-    return origin, direction
+    return ray_from_normalized(jnp, xy[0], xy[1], rvec_to_rmat_one(rvec), tvec)
 
 
 def closest_point_on_ray(origin, direction, target):

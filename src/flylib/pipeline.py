@@ -127,8 +127,8 @@ def run_from_points2d(
     params = {"dlt": {}, "ransac": {"threshold": ransac_threshold, "min_inliers": min_inliers},
               "greedy": {"reproj_threshold": reproj_threshold, "max_drops": max_drops}}
     pts3d, pts2d_out, reproj = reconstruct(
-        tri_input, cameras, method=triangulation, conf=conf,
-        weigh_by_confidence=bool(weigh_by_confidence and conf is not None),
+        cameras, tri_input, method=triangulation,
+        weights=conf if (weigh_by_confidence and conf is not None) else None,
         **params[triangulation])
     return PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d_out, conf=conf,
                       pts3d=pts3d, reproj_error=reproj, meta={**run_meta, **(meta or {})})

@@ -43,7 +43,7 @@ def bone_length_targets(
     """
     from ..triangulation import triangulate_ransac
 
-    pts3d, _ = triangulate_ransac(np.asarray(pts2d, float), cameras, threshold=DEFAULT_INLIER_PX)
+    pts3d, _ = triangulate_ransac(cameras, np.asarray(pts2d, float), threshold=DEFAULT_INLIER_PX)
     i, j = skeleton.bone_index_pairs()
     lengths = np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)
     with warnings.catch_warnings():  # an all-NaN bone gives a NaN target, on purpose

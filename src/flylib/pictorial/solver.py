@@ -154,8 +154,8 @@ def reconstruct(cameras: "CameraGroup", skeleton: "Skeleton", candidates: Candid
     _, pts2d = solve_frames(cameras, candidates.xy, candidates.score, chains, target_map,
                             scale=scale, max_hyp=max_hyp, inlier_px=inlier_px, lam=lam,
                             huber=huber, mu=mu, temporal=temporal, nms=nms)
-    pts3d = triangulate(pts2d, cameras)
-    reproj = reprojection_error(pts3d, pts2d, cameras)
+    pts3d = triangulate(cameras, pts2d)
+    reproj = reprojection_error(cameras, pts3d, pts2d)
     changed = np.isfinite(argmax).all(-1) & ~np.isclose(pts2d, argmax).all(-1)
     log.info("pictorial structures: %d of %d observations moved off the arg-max peak",
              int(changed.sum()), int(np.isfinite(argmax).all(-1).sum()))

@@ -4,53 +4,67 @@ All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for
 recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
 processed in bounded chunks (memory stays bounded on long recordings), all with the
 same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`: DLT
-and greedy by jitted JAX kernels compiled once per chunk length
-(:mod:`flylib.triangulation_kernels`, imported only when those methods run), RANSAC in
-NumPy (no compile, no JAX) on runs of points seen by the same views, on a few threads.
+(:meth:`flylib.cameras.CameraGroup.triangulate`, the one bulk DLT path) and greedy
+(:mod:`flylib.triangulation.kernels`) by jitted JAX kernels compiled once per chunk
+length and imported only when those methods run, RANSAC in NumPy (no compile, no JAX)
+on runs of points seen by the same views, on a few threads.
 Cameras with lens distortion are handled exactly: observations are undistorted
 before the linear solve, and reprojection errors are measured in the raw image.
 
-Confidence weighting: with ``weigh_by_confidence=True`` each view's DLT rows are
-scaled by ``sqrt(conf)`` and observations with non-positive or non-finite
-confidence are treated as missing. RANSAC's inlier vote is never weighted.
+Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's
+confidences) each view's DLT rows are scaled by ``sqrt(weight)`` and observations with
+a non-positive or non-finite weight are treated as missing. RANSAC's inlier vote is
+never weighted.
 
-The functions take ``(pts2d, cameras, ...)``; the seed's ``(cameras, pts2d, ...)``
-order is accepted too.
+Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...)``
+(``(cameras, pts3d, pts2d)`` for :func:`reprojection_error`); method knobs and
+``weights`` are keywords.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from itertools import combinations, pairwise
 
 import numpy as np
 
-from . import camera_model
-from .cameras import CameraGroup
-from .config.constants import TRIANGULATION_METHODS
-from .errors import ConfigError
-from .resources import usable_cpus
+from typing import TYPE_CHECKING
+
+from .. import camera_model
+from ..config.constants import TRIANGULATION_METHODS
+from ..errors import ConfigError
+from ..resources import usable_cpus
+
+if TYPE_CHECKING:
+    from ..cameras import CameraGroup
 
 log = logging.getLogger(__name__)
 
-DEFAULT_CHUNK_POINTS = 4096
+DEFAULT_CHUNK_POINTS = 4096  # = flylib.geometry.DLT_CHUNK_POINTS (not imported: no JAX here)
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
-_CHUNKS_IN_FLIGHT = 4
 _RANSAC_THREADS = min(4, usable_cpus())
 
 
 # -- input handling --------------------------------------------------------------
 
 
-def _points_and_cameras(a, b):
-    """Accept ``(pts2d, cameras)`` or the seed's ``(cameras, pts2d)``."""
-    if isinstance(a, CameraGroup):
-        a, b = b, a
-    if not isinstance(b, CameraGroup):
-        raise TypeError(f"expected a CameraGroup, got {type(b).__name__}")
-    return np.asarray(a, dtype=np.float64), b
+def _arguments(func: str, cameras, pts2d, what: str = "pts2d"):
+    """``cameras`` checked to be a rig and ``pts2d`` as float64, for ``func(cameras, pts2d, ...)``.
+
+    Raises
+    ------
+    TypeError
+        If ``cameras`` is not a camera rig (e.g. the arguments are swapped).
+    """
+    if not (hasattr(cameras, "pmats") and hasattr(cameras, "undistort_points")):
+        raise TypeError(
+            f"{func}(cameras, {what}, ...) takes the camera rig first, got "
+            f"{type(cameras).__name__} for cameras"
+        )
+    if hasattr(pts2d, "pmats"):
+        raise TypeError(f"{func}(cameras, {what}, ...) got a camera rig for {what}")
+    return cameras, np.asarray(pts2d, dtype=np.float64)
 
 
 def _check_inputs(pts2d: np.ndarray, cameras: CameraGroup, weights) -> np.ndarray | None:
@@ -66,36 +80,18 @@ def _check_inputs(pts2d: np.ndarray, cameras: CameraGroup, weights) -> np.ndarra
     weights = np.asarray(weights, dtype=np.float64)
     if weights.shape != pts2d.shape[:-1]:
         raise ValueError(
-            f"conf/weights must have shape {pts2d.shape[:-1]} (V, *pts), got {weights.shape}"
+            f"weights must have shape {pts2d.shape[:-1]} (V, *pts), got {weights.shape}"
         )
     return weights
 
 
-def _weights(conf, weigh_by_confidence: bool, weights):
-    if weights is not None:
-        return weights
-    return conf if (weigh_by_confidence and conf is not None) else None
-
-
-def _pad_to(n: int, chunk_points: int) -> int:
-    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it.
-
-    Kernels are compiled once per chunk length, so lengths come from a short list.
-    """
-    size = 64
-    while size < min(n, chunk_points):
-        size *= 2
-    return min(size, max(chunk_points, 1))
-
-
 class _Rig:
-    """A camera group's arrays in the form the jitted kernels take."""
+    """A camera group's arrays in the form the greedy kernel takes."""
 
     def __init__(self, cameras: CameraGroup):
-        self.n_views = len(cameras)
-        self.distorted = bool(np.any(cameras.dists))
         pmats = cameras.pmats
         quad, norm = camera_model.dlt_camera_constants(np, pmats)
+        self.distorted = bool(np.any(cameras.dists))
         self.arrays = {
             "pmats": pmats,
             "quad": quad,
@@ -105,53 +101,6 @@ class _Rig:
             "intrs": cameras.intrs,
             "dists": camera_model.pad_dist_numpy(cameras.dists),
         }
-
-
-def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
-    """``arr`` (V, n, ...) extended along axis 1 to ``size`` with ``fill``."""
-    if arr.shape[1] == size:
-        return arr
-    out = np.full((arr.shape[0], size, *arr.shape[2:]), fill)
-    out[:, : arr.shape[1]] = arr
-    return out
-
-
-def _run_chunked(kernel, pts2d, cameras, weights, chunk_points, **params):
-    """Flatten ``(V, *pts, 2)``, run a jitted kernel on fixed-length chunks, reshape back.
-
-    Returns ``(pts3d (*pts, 3), kept (V, *pts) bool)``.
-    """
-    rig = _Rig(cameras)
-    n_views = pts2d.shape[0]
-    pts_shape = pts2d.shape[1:-1]
-    raw_all = pts2d.reshape(n_views, -1, 2)
-    und_all = cameras.undistort_points(raw_all) if rig.distorted else raw_all
-    n = raw_all.shape[1]
-    w_all = None if weights is None else weights.reshape(n_views, -1)
-    size = _pad_to(n, chunk_points)
-    pts3d = np.full((n, 3), np.nan)
-    kept = np.zeros((n_views, n), dtype=bool)
-    in_flight: deque = deque()
-
-    def collect() -> None:
-        start, stop, (x, k) = in_flight.popleft()
-        pts3d[start:stop] = np.asarray(x)[: stop - start]
-        kept[:, start:stop] = np.asarray(k)[:, : stop - start]
-
-    for start in range(0, n, size):
-        stop = min(start + size, n)
-        raw = _padded(raw_all[:, start:stop], size, np.nan)
-        und = _padded(und_all[:, start:stop], size, np.nan) if rig.distorted else None
-        # a zero or non-finite weight drops the view inside the kernels (dlt_features)
-        w = None if w_all is None else _padded(w_all[:, start:stop], size, 0.0)
-        # JAX dispatches asynchronously: keep a few chunks in flight so the kernels
-        # overlap with this loop (and with each other on several cores).
-        in_flight.append((start, stop, kernel(rig.arrays, raw, und, w, **params)))
-        if len(in_flight) > _CHUNKS_IN_FLIGHT:
-            collect()
-    while in_flight:
-        collect()
-    return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
 # -- RANSAC in NumPy: each hypothesis only where both its views see the point ---------
@@ -185,10 +134,8 @@ class _RansacViews:
         inv_depth = 1.0 / hom[2 * k :]
         u, v = hom[:k] * inv_depth, hom[k : 2 * k] * inv_depth
         if self.distorted:
-            radial, add_x, add_y = camera_model.distortion_terms(u, v, self.dists)
             intr = self.intrs
-            u = intr[0] * (u * radial + add_x) + intr[2]
-            v = intr[1] * (v * radial + add_y) + intr[3]
+            u, v = camera_model.pixels_from_normalized(u, v, intr[0], intr[1], intr[2], intr[3], self.dists)
         u -= raw_u
         v -= raw_v
         u *= u
@@ -301,28 +248,27 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
 
 
 def triangulate(
+    cameras: CameraGroup,
     pts2d,
-    cameras,
-    conf=None,
-    weigh_by_confidence: bool = False,
-    *,
     weights=None,
+    *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> np.ndarray:
     """NaN-aware (optionally confidence-weighted) DLT triangulation.
 
+    The same path as :meth:`flylib.cameras.CameraGroup.triangulate` (this forwards to
+    it): undistortion, then fixed-length chunks through one jitted kernel.
+
     Parameters
     ----------
-    pts2d
-        ``(V, *pts, 2)`` pixels, NaN = missing.
     cameras
         The rig (:class:`~flylib.cameras.CameraGroup`).
-    conf
-        Optional confidences ``(V, *pts)``; used when ``weigh_by_confidence``.
-    weigh_by_confidence
-        Scale each view's rows by ``sqrt(conf)``.
+    pts2d
+        ``(V, *pts, 2)`` pixels, NaN = missing.
     weights
-        Explicit per-observation weights ``(V, *pts)`` (overrides ``conf``).
+        Optional per-observation weights ``(V, *pts)`` (e.g. confidences): each view's
+        rows are scaled by ``sqrt(weight)``; a non-positive or non-finite weight drops
+        the view.
     chunk_points
         Points per vectorized chunk.
 
@@ -330,50 +276,57 @@ def triangulate(
     -------
     np.ndarray
         ``(*pts, 3)``; NaN where fewer than two views observe the point.
+
+    Raises
+    ------
+    TypeError
+        If ``cameras`` is not a camera rig (arguments swapped).
+    ValueError
+        If the shapes do not match the rig.
     """
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
-    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
-    from .triangulation_kernels import dlt_chunk
-
-    return _run_chunked(dlt_chunk, pts2d, cameras, w, chunk_points)[0]
+    cameras, pts2d = _arguments("triangulate", cameras, pts2d)
+    return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
 
 
-def reprojection_error(pts3d, pts2d, cameras) -> np.ndarray:
+def reprojection_error(cameras: CameraGroup, pts3d, pts2d) -> np.ndarray:
     """Per-observation reprojection error in pixels.
 
     Parameters
     ----------
+    cameras
+        The rig.
     pts3d
         ``(*pts, 3)``.
     pts2d
         ``(V, *pts, 2)``.
-    cameras
-        The rig. (The seed's order ``(cameras, pts3d, pts2d)`` is accepted too.)
 
     Returns
     -------
     np.ndarray
         ``(V, *pts)``; NaN where the observation or the 3D point is missing.
+
+    Raises
+    ------
+    TypeError
+        If ``cameras`` is not a camera rig (arguments swapped).
+    ValueError
+        If the shapes do not match each other or the rig.
     """
-    if isinstance(pts3d, CameraGroup):
-        pts3d, pts2d, cameras = pts2d, cameras, pts3d
+    cameras, pts2d = _arguments("reprojection_error", cameras, pts2d, "pts3d, pts2d")
     pts3d = np.asarray(pts3d, dtype=np.float64)
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
     _check_inputs(pts2d, cameras, None)
-    if pts3d.shape[:-1] != pts2d.shape[1:-1]:
+    if pts3d.shape[:-1] != pts2d.shape[1:-1] or pts3d.shape[-1:] != (3,):
         raise ValueError(f"pts3d shape {pts3d.shape} does not match pts2d shape {pts2d.shape}")
     diff = cameras.project(pts3d) - pts2d
     return np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2)
 
 
 def triangulate_ransac(
+    cameras: CameraGroup,
     pts2d,
-    cameras,
+    *,
     threshold: float = 15.0,
     min_inliers: int = 2,
-    conf=None,
-    weigh_by_confidence: bool = False,
-    *,
     weights=None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -383,11 +336,11 @@ def triangulate_ransac(
     RANSAC for a handful of cameras) is triangulated and scored by the number of
     views that reproject within ``threshold`` pixels (unweighted; NaN views never
     count); ties go to the smaller total inlier error. The point is refitted from
-    the winning inliers (confidence-weighted when asked).
+    the winning inliers (weighted when ``weights`` are given).
 
     Parameters
     ----------
-    pts2d, cameras, conf, weigh_by_confidence, weights, chunk_points
+    cameras, pts2d, weights, chunk_points
         As in :func:`triangulate`.
     threshold
         Inlier reprojection-error cutoff in pixels.
@@ -404,26 +357,26 @@ def triangulate_ransac(
 
     Raises
     ------
+    TypeError
+        If ``cameras`` is not a camera rig (arguments swapped).
     ValueError
         If ``min_inliers < 2`` or ``threshold <= 0``.
     """
+    cameras, pts2d = _arguments("triangulate_ransac", cameras, pts2d)
     if int(min_inliers) < 2:
         raise ValueError(f"min_inliers must be >= 2, got {min_inliers}")
     if not threshold > 0:
         raise ValueError(f"threshold must be a positive number of pixels, got {threshold}")
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
-    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
+    w = _check_inputs(pts2d, cameras, weights)
     return _ransac_numpy(pts2d, cameras, w, chunk_points, float(threshold), int(min_inliers))
 
 
 def triangulate_greedy(
+    cameras: CameraGroup,
     pts2d,
-    cameras,
+    *,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-    conf=None,
-    weigh_by_confidence: bool = False,
-    *,
     weights=None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -435,7 +388,7 @@ def triangulate_greedy(
 
     Parameters
     ----------
-    pts2d, cameras, conf, weigh_by_confidence, weights, chunk_points
+    cameras, pts2d, weights, chunk_points
         As in :func:`triangulate`.
     reproj_threshold
         Pixels.
@@ -448,31 +401,46 @@ def triangulate_greedy(
         ``(*pts, 3)``.
     kept : np.ndarray
         ``(V, *pts)`` bool, the views the final point was fitted from.
+
+    Raises
+    ------
+    TypeError
+        If ``cameras`` is not a camera rig (arguments swapped).
+    ValueError
+        If ``max_drops < 0``.
     """
+    cameras, pts2d = _arguments("triangulate_greedy", cameras, pts2d)
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
-    w = _check_inputs(pts2d, cameras, _weights(conf, weigh_by_confidence, weights))
-    from .triangulation_kernels import greedy_chunk
+    w = _check_inputs(pts2d, cameras, weights)
+    from ..geometry import run_chunked
+    from .kernels import greedy_chunk
 
-    return _run_chunked(
+    rig = _Rig(cameras)
+    n_views, pts_shape = pts2d.shape[0], pts2d.shape[1:-1]
+    raw = pts2d.reshape(n_views, -1, 2)
+    # the kernel measures errors through the lens model exactly when it gets ``und``
+    und = cameras.undistort_points(raw) if rig.distorted else None
+    flat_w = None if w is None else w.reshape(n_views, -1)
+    pts3d, kept = run_chunked(
         greedy_chunk,
-        pts2d,
-        cameras,
-        w,
+        rig.arrays,
+        [(raw, np.nan), (und, np.nan), (flat_w, 0.0)],
+        n_views,
         chunk_points,
         threshold=float(reproj_threshold),
         max_drops=int(max_drops),
     )
+    return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
-def _finish(pts3d, pts2d, cameras, kept):
+def _finish(cameras, pts3d, pts2d, kept):
     clean = pts2d if kept is None else np.where(kept[..., None], pts2d, np.nan)
-    return pts3d, clean, reprojection_error(pts3d, clean, cameras)
+    return pts3d, clean, reprojection_error(cameras, pts3d, clean)
 
 
-def reconstruct_dlt(pts2d, cameras, conf=None, weigh_by_confidence: bool = False, **kwargs):
-    """Plain DLT reconstruction.
+def reconstruct_dlt(cameras: CameraGroup, pts2d, *, weights=None, chunk_points: int = DEFAULT_CHUNK_POINTS):
+    """Plain DLT reconstruction (:func:`triangulate` plus reprojection errors).
 
     Returns
     -------
@@ -483,19 +451,19 @@ def reconstruct_dlt(pts2d, cameras, conf=None, weigh_by_confidence: bool = False
     reproj_error : np.ndarray
         ``(V, *pts)`` pixels.
     """
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
-    pts3d = triangulate(pts2d, cameras, conf, weigh_by_confidence, **kwargs)
-    return _finish(pts3d, pts2d, cameras, None)
+    cameras, pts2d = _arguments("reconstruct_dlt", cameras, pts2d)
+    pts3d = triangulate(cameras, pts2d, weights, chunk_points=chunk_points)
+    return _finish(cameras, pts3d, pts2d, None)
 
 
 def reconstruct_ransac(
+    cameras: CameraGroup,
     pts2d,
-    cameras,
+    *,
     threshold: float = 15.0,
     min_inliers: int = 2,
-    conf=None,
-    weigh_by_confidence: bool = False,
-    **kwargs,
+    weights=None,
+    chunk_points: int = RANSAC_CHUNK_POINTS,
 ):
     """:func:`triangulate_ransac` plus cleaned 2D (outlier views NaN) and errors.
 
@@ -505,72 +473,91 @@ def reconstruct_ransac(
         ``(*pts, 3)``, ``(V, *pts, 2)`` keeping only the inlier views of accepted
         points, and ``(V, *pts)`` errors against the cleaned 2D.
     """
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    cameras, pts2d = _arguments("reconstruct_ransac", cameras, pts2d)
     pts3d, inliers = triangulate_ransac(
-        pts2d, cameras, threshold, min_inliers, conf, weigh_by_confidence, **kwargs
+        cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights,
+        chunk_points=chunk_points,
     )
-    return _finish(pts3d, pts2d, cameras, inliers)
+    return _finish(cameras, pts3d, pts2d, inliers)
 
 
 def reconstruct_greedy(
+    cameras: CameraGroup,
     pts2d,
-    cameras,
+    *,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-    conf=None,
-    weigh_by_confidence: bool = False,
-    **kwargs,
+    weights=None,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
 ):
     """:func:`triangulate_greedy` plus cleaned 2D (dropped views NaN) and errors."""
-    pts2d, cameras = _points_and_cameras(pts2d, cameras)
+    cameras, pts2d = _arguments("reconstruct_greedy", cameras, pts2d)
     pts3d, kept = triangulate_greedy(
-        pts2d, cameras, reproj_threshold, max_drops, conf, weigh_by_confidence, **kwargs
+        cameras, pts2d, reproj_threshold=reproj_threshold, max_drops=max_drops,
+        weights=weights, chunk_points=chunk_points,
     )
-    return _finish(pts3d, pts2d, cameras, kept)
+    return _finish(cameras, pts3d, pts2d, kept)
 
 
-_PARAMS = {
-    "ransac": ("threshold", "min_inliers"),
-    "greedy": ("reproj_threshold", "max_drops"),
-    "dlt": (),
-}
-
-
-def reconstruct(pts2d, cameras, method: str = "ransac", conf=None, **params):
+def reconstruct(
+    cameras: CameraGroup,
+    pts2d,
+    method: str = "ransac",
+    *,
+    weights=None,
+    threshold: float = 15.0,
+    min_inliers: int = 2,
+    reproj_threshold: float = 40.0,
+    max_drops: int = 5,
+):
     """Dispatch to :func:`reconstruct_ransac`, :func:`reconstruct_greedy` or :func:`reconstruct_dlt`.
 
     Parameters
     ----------
-    pts2d, cameras, conf
+    cameras, pts2d, weights
         As in :func:`triangulate`.
     method
         ``"ransac"``, ``"greedy"`` or ``"dlt"``.
-    **params
-        ``weigh_by_confidence``, ``chunk_points`` and the method's own knobs:
-        ``threshold`` (alias ``ransac_threshold``) and ``min_inliers`` for ransac,
-        ``reproj_threshold`` and ``max_drops`` for greedy. Knobs of the other
-        methods are ignored.
+    threshold, min_inliers
+        RANSAC's knobs (ignored by the other methods).
+    reproj_threshold, max_drops
+        Greedy's knobs (ignored by the other methods).
 
     Returns
     -------
     pts3d, pts2d_clean, reproj_error
+
+    Raises
+    ------
+    ValueError
+        If ``method`` is unknown.
     """
-    if method not in _PARAMS:
-        raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
-    if "ransac_threshold" in params:
-        params.setdefault("threshold", params.pop("ransac_threshold"))
-    common = {k: params[k] for k in ("weigh_by_confidence", "chunk_points", "weights") if k in params}
-    own = {k: params[k] for k in _PARAMS[method] if k in params}
-    func = {"ransac": reconstruct_ransac, "greedy": reconstruct_greedy, "dlt": reconstruct_dlt}[method]
-    return func(pts2d, cameras, conf=conf, **own, **common)
+    if method == "ransac":
+        return reconstruct_ransac(cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights)
+    if method == "greedy":
+        return reconstruct_greedy(
+            cameras, pts2d, reproj_threshold=reproj_threshold, max_drops=max_drops, weights=weights
+        )
+    if method == "dlt":
+        return reconstruct_dlt(cameras, pts2d, weights=weights)
+    raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
 
 
-def reconstruct_from_config(config, pts2d, cameras, conf=None):
+def reconstruct_from_config(config, cameras: CameraGroup, pts2d, conf=None):
     """Run the triangulation stage as ``config.triangulation`` says.
 
     Reads ``method``, ``ransac_threshold``, ``min_inliers``, ``weigh_by_confidence``,
     ``reproj_threshold`` and ``max_drops`` (attributes of the params object, or
     keys of a mapping); missing ones take the defaults of :func:`reconstruct`.
+
+    Parameters
+    ----------
+    config
+        A :class:`~flylib.config.Config` (or a mapping with a ``triangulation`` table).
+    cameras, pts2d
+        As in :func:`triangulate`: ``(V, T, P, 2)``.
+    conf
+        Detector confidences ``(V, T, P)``, the weights when ``weigh_by_confidence``.
 
     Returns
     -------
@@ -597,14 +584,14 @@ def reconstruct_from_config(config, pts2d, cameras, conf=None):
     if method not in TRIANGULATION_METHODS:
         raise ConfigError(f"triangulation.method must be one of {list(TRIANGULATION_METHODS)}, got {method!r}")
     log.info("triangulating with %s", method)
+    weigh = bool(get("weigh_by_confidence", False))
     return reconstruct(
-        pts2d,
         cameras,
+        pts2d,
         method=method,
-        conf=conf,
+        weights=conf if (weigh and conf is not None) else None,
         threshold=float(get("ransac_threshold", 15.0)),
         min_inliers=int(get("min_inliers", 2)),
-        weigh_by_confidence=bool(get("weigh_by_confidence", False)),
         reproj_threshold=float(get("reproj_threshold", 40.0)),
         max_drops=int(get("max_drops", 5)),
     )

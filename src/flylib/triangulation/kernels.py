@@ -1,8 +1,8 @@
-"""The jitted JAX kernels of DLT and greedy triangulation, over one chunk of points.
+"""The jitted JAX kernel of greedy triangulation, over one chunk of points.
 
-Separate from :mod:`flylib.triangulation` so that RANSAC (NumPy) and the rest of a
-workflow job never import JAX; :func:`flylib.triangulation.triangulate` (dlt) and
-:func:`~flylib.triangulation.triangulate_greedy` import this module when called.
+Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest
+of a workflow job never import JAX; :func:`~flylib.triangulation.triangulate_greedy`
+imports this module when called (the DLT kernel is :func:`flylib.geometry.dlt_chunk`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from . import geometry
+from .. import geometry
 
 
 # -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
@@ -25,11 +25,10 @@ def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
         cx_ = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
         cy_ = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
         cz_ = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
-        xn, yn = cx_ / cz_, cy_ / cz_
-        radial, add_x, add_y = geometry._distortion_terms(xn, yn, rig["dists"][k])
         intr = rig["intrs"][k]
-        u = intr[0] * (xn * radial + add_x) + intr[2]
-        v = intr[1] * (yn * radial + add_y) + intr[3]
+        u, v = geometry.pixels_from_normalized(
+            cx_ / cz_, cy_ / cz_, intr[0], intr[1], intr[2], intr[3], rig["dists"][k]
+        )
     else:
         p = rig["pmats"][k]
         inv_depth = 1.0 / (p[2, 0] * x + p[2, 1] * y + p[2, 2] * z + p[2, 3])
@@ -50,14 +49,6 @@ def _view_terms(rig, und, weights):
 def _solve_kept(terms, kept, min_views=2):
     summed = (terms * kept[None]).sum(axis=1)  # (9, N)
     return geometry.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
-
-
-@jax.jit
-def dlt_chunk(rig, raw, und, weights):
-    und = raw if und is None else und
-    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)
-    terms = jnp.einsum("fvn,vfk->kn", feats, rig["quad"])
-    return geometry.dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
 @jax.jit

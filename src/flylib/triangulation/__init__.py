@@ -1,0 +1,39 @@
+"""Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
+
+Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...)``,
+view-leading ``(V, *pts, 2)`` pixels with NaN = missing, and returns ``(*pts, 3)``.
+
+Modules: :mod:`~flylib.triangulation.methods` (the functions below, NumPy; RANSAC
+runs there) and :mod:`~flylib.triangulation.kernels` (greedy's jitted JAX kernel,
+imported only when greedy runs). The DLT is :meth:`flylib.cameras.CameraGroup.triangulate`.
+"""
+
+from __future__ import annotations
+
+from .methods import (
+    DEFAULT_CHUNK_POINTS,
+    RANSAC_CHUNK_POINTS,
+    reconstruct,
+    reconstruct_dlt,
+    reconstruct_from_config,
+    reconstruct_greedy,
+    reconstruct_ransac,
+    reprojection_error,
+    triangulate,
+    triangulate_greedy,
+    triangulate_ransac,
+)
+
+__all__ = [
+    "DEFAULT_CHUNK_POINTS",
+    "RANSAC_CHUNK_POINTS",
+    "reconstruct",
+    "reconstruct_dlt",
+    "reconstruct_from_config",
+    "reconstruct_greedy",
+    "reconstruct_ransac",
+    "reprojection_error",
+    "triangulate",
+    "triangulate_greedy",
+    "triangulate_ransac",
+]
