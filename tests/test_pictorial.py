@@ -150,6 +150,9 @@ def test_reconstruct_from_config(scene):
     rig, _, _, pts2d, cand = scene
     config = Config.from_dict({**Config.default().data,
                                "pictorial_structures": {"k": 3, "temporal": True, "lam": 2.0}})
-    pts3d, committed, reproj = ps.reconstruct_from_config(config, cand, rig)
+    pts3d, committed, reproj = ps.reconstruct_from_config(config, rig, cand)
     np.testing.assert_array_equal(committed, pts2d)
     assert pts3d.shape == (24, 38, 3) and reproj.shape == (7, 24, 38)
+    # the rig right after the config, as triangulation.reconstruct_from_config takes it
+    with pytest.raises(TypeError, match="rig before the candidates"):
+        ps.reconstruct_from_config(config, cand, rig)

@@ -11,7 +11,17 @@ summaries) never pays for it (about 0.7 s per workflow job).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import ModuleType
+
+    from jax import Array
+    from jaxtyping import Bool, Float
+
+    AnyArray = np.ndarray | Array  # the formulas run on either back-end (``xp``)
 
 N_DIST_COEFFS = 12
 # Below this theta^2 the Rodrigues coefficients use their Taylor series: the
@@ -22,7 +32,7 @@ SMALL_THETA_SQ = 1e-6
 # -- rotations and intrinsics ------------------------------------------------------
 
 
-def rvec_to_rmat_generic(xp, rvec):
+def rvec_to_rmat_generic(xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]) -> Float[AnyArray, "*batch 3 3"]:
     """Rodrigues' formula ``(..., 3) -> (..., 3, 3)`` with array module ``xp``.
 
     ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``,
@@ -59,7 +69,7 @@ def rvec_to_rmat_generic(xp, rvec):
     return eye + a[..., None, None] * skew + b[..., None, None] * (outer - theta_sq[..., None, None] * eye)
 
 
-def rvec_to_rmat_numpy(rvec) -> np.ndarray:
+def rvec_to_rmat_numpy(rvec: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3 3"]:
     """NumPy :func:`rvec_to_rmat_generic`: ``(..., 3) -> (..., 3, 3)``.
 
     Host-side code (camera properties, bundle-adjustment residuals) uses this binding so
@@ -68,7 +78,7 @@ def rvec_to_rmat_numpy(rvec) -> np.ndarray:
     return rvec_to_rmat_generic(np, rvec)
 
 
-def rmat_to_rvec_generic(xp, rmat):
+def rmat_to_rvec_generic(xp: ModuleType, rmat: Float[AnyArray, "3 3"]) -> Float[AnyArray, " 3"]:
     """Axis-angle vector of one rotation matrix, with array module ``xp``.
 
     The body of :func:`flylib.geometry.rmat_to_rvec_one` (which documents the method)
@@ -99,18 +109,20 @@ def rmat_to_rvec_generic(xp, rmat):
     return xp.where(cos_theta < 0.0, rvec_large, rvec_generic)
 
 
-def rmat_to_rvec_numpy(rmat) -> np.ndarray:
+def rmat_to_rvec_numpy(rmat: Float[np.ndarray, "3 3"]) -> Float[np.ndarray, " 3"]:
     """NumPy ``rmat_to_rvec_one``: ``(3, 3)`` rotation -> ``(3,)`` axis-angle, norm in ``[0, pi]``."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # the branch np.where drops
         return rmat_to_rvec_generic(np, np.asarray(rmat, dtype=np.float64))
 
 
-def split_intr(intr):
+def split_intr(
+    intr: Float[AnyArray, "*batch P"],
+) -> tuple[Float[AnyArray, "*batch"], Float[AnyArray, "*batch"], Float[AnyArray, "*batch"], Float[AnyArray, "*batch"]]:
     """``(fx, fy, cx, cy)`` from packed ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``."""
     return intr[..., 0], intr[..., -3], intr[..., -2], intr[..., -1]
 
 
-def intr_to_kmat_generic(xp, intr):
+def intr_to_kmat_generic(xp: ModuleType, intr: Float[AnyArray, "*batch P"]) -> Float[AnyArray, "*batch 3 3"]:
     """Camera matrices ``(..., 3, 3)`` from packed ``(..., 4)`` ``[fx, fy, cx, cy]`` or ``(..., 3)`` ``[f, cx, cy]``."""
     intr = xp.asarray(intr, dtype=xp.float64)
     fx, fy, cx, cy = split_intr(intr)
@@ -119,7 +131,7 @@ def intr_to_kmat_generic(xp, intr):
     return xp.stack([xp.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def intr_to_kmat_numpy(intr) -> np.ndarray:
+def intr_to_kmat_numpy(intr: Float[np.ndarray, "*batch P"]) -> Float[np.ndarray, "*batch 3 3"]:
     """NumPy :func:`intr_to_kmat_generic`: ``(..., 4)`` or ``(..., 3)`` -> ``(..., 3, 3)``."""
     return intr_to_kmat_generic(np, intr)
 
@@ -127,7 +139,7 @@ def intr_to_kmat_numpy(intr) -> np.ndarray:
 # -- distortion ------------------------------------------------------------------
 
 
-def pad_dist_generic(xp, dist):
+def pad_dist_generic(xp: ModuleType, dist: Float[AnyArray, "*batch K"]) -> Float[AnyArray, "*batch 12"]:
     """``(..., K)`` distortion coefficients zero-padded to ``(..., 12)``, with array module ``xp``.
 
     Raises
@@ -143,7 +155,7 @@ def pad_dist_generic(xp, dist):
     return xp.pad(dist, pad)
 
 
-def pad_dist_numpy(dist) -> np.ndarray:
+def pad_dist_numpy(dist: Float[np.ndarray, "*batch K"]) -> Float[np.ndarray, "*batch 12"]:
     """NumPy ``pad_dist``: ``(..., K)`` coefficients zero-padded to ``(..., 12)``."""
     return pad_dist_generic(np, dist)
 
@@ -191,7 +203,14 @@ def pixels_from_normalized(x, y, fx, fy, cx, cy, d=None):
     return fx * x + cx, fy * y + cy
 
 
-def project_generic(xp, pts3d, rmats, tvecs, intrs, dists):
+def project_generic(
+    xp: ModuleType,
+    pts3d: Float[AnyArray, "*pts 3"],
+    rmats: Float[AnyArray, "V 3 3"],
+    tvecs: Float[AnyArray, "V 3"],
+    intrs: Float[AnyArray, "V P"],
+    dists: Float[AnyArray, "V K"],
+) -> Float[AnyArray, "V *pts 2"]:
     """Project world points through stacked cameras, with array module ``xp``.
 
     ``X_cam = R X + t``, perspective division, :func:`distort_normalized`, then
@@ -229,7 +248,10 @@ def project_generic(xp, pts3d, rmats, tvecs, intrs, dists):
     return xp.reshape(xp.stack([u, v], axis=-1), (rmats.shape[0], *pts3d.shape[:-1], 2))
 
 
-def ray_from_normalized(xp, x, y, rmat, tvec):
+def ray_from_normalized(
+    xp: ModuleType, x: float | Float[AnyArray, ""], y: float | Float[AnyArray, ""],
+    rmat: Float[AnyArray, "3 3"], tvec: Float[AnyArray, " 3"],
+) -> tuple[Float[AnyArray, " 3"], Float[AnyArray, " 3"]]:
     """World ray of an undistorted normalized coordinate ``(x, y)`` through one camera.
 
     Returns ``(origin, direction)``, ``(3,)`` each: the centre ``-R^T t`` and the
@@ -241,7 +263,13 @@ def ray_from_normalized(xp, x, y, rmat, tvec):
     return -rmat.T @ xp.asarray(tvec, dtype=xp.float64), direction
 
 
-def project_numpy(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
+def project_numpy(
+    pts3d: Float[np.ndarray, "*pts 3"],
+    rmats: Float[np.ndarray, "V 3 3"],
+    tvecs: Float[np.ndarray, "V 3"],
+    intrs: Float[np.ndarray, "V P"],
+    dists: Float[np.ndarray, "V K"],
+) -> Float[np.ndarray, "V *pts 2"]:
     """NumPy :func:`project_generic`: ``(*pts, 3)`` through ``V`` cameras -> ``(V, *pts, 2)``."""
     return project_generic(
         np, pts3d, np.asarray(rmats, dtype=np.float64), np.asarray(tvecs, dtype=np.float64),
@@ -249,7 +277,9 @@ def project_numpy(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
     )
 
 
-def undistort_normalized(xy_dist, dist, max_iter: int = 200, tol: float = 1e-15) -> np.ndarray:
+def undistort_normalized(
+    xy_dist: Float[np.ndarray, "*pts 2"], dist: Float[np.ndarray, " K"], max_iter: int = 200, tol: float = 1e-15
+) -> Float[np.ndarray, "*pts 2"]:
     """NumPy batch inverse of :func:`distort_normalized` for one camera.
 
     :func:`undistort_step` (the fixed point :func:`flylib.geometry.undistort_one` starts
@@ -301,7 +331,9 @@ DLT_TERMS = ("m00", "m01", "m02", "m11", "m12", "m22", "b0", "b1", "b2")
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def dlt_camera_constants(xp, pmats):
+def dlt_camera_constants(
+    xp: ModuleType, pmats: Float[AnyArray, "V 3 4"]
+) -> tuple[Float[AnyArray, "V 6 9"], Float[AnyArray, "V 2 3"]]:
     """Per-view constants of the DLT normal equations.
 
     Parameters
@@ -344,7 +376,12 @@ def dlt_camera_constants(xp, pmats):
     return xp.concatenate(blocks, axis=1), xp.stack(norms, axis=1)
 
 
-def dlt_features(xp, pts2d, norm, weights=None):
+def dlt_features(
+    xp: ModuleType,
+    pts2d: Float[AnyArray, "V N 2"],
+    norm: Float[AnyArray, "V 2 3"],
+    weights: Float[AnyArray, "V N"] | None = None,
+) -> tuple[Float[AnyArray, "6 V N"], Bool[AnyArray, "V N"]]:
     """Per-observation DLT features.
 
     Parameters
@@ -383,7 +420,9 @@ def dlt_features(xp, pts2d, norm, weights=None):
     return xp.stack(feats), valid
 
 
-def dlt_solve_terms(xp, terms, n_valid, min_views=2):
+def dlt_solve_terms(
+    xp: ModuleType, terms: Float[AnyArray, " 9 *pts"], n_valid: int | Float[AnyArray, "*pts"], min_views: int = 2
+) -> Float[AnyArray, "*pts 3"]:
     """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``.
 
     NaN where fewer than ``min_views`` views took part or the system is
@@ -392,7 +431,9 @@ def dlt_solve_terms(xp, terms, n_valid, min_views=2):
     return xp.stack(dlt_solve_components(xp, terms, n_valid, min_views), axis=-1)
 
 
-def dlt_solve_components(xp, terms, n_valid, min_views=2):
+def dlt_solve_components(
+    xp: ModuleType, terms: Float[AnyArray, " 9 *pts"], n_valid: int | Float[AnyArray, "*pts"], min_views: int = 2
+) -> tuple[Float[AnyArray, "*pts"], Float[AnyArray, "*pts"], Float[AnyArray, "*pts"]]:
     """:func:`dlt_solve_terms` returning the coordinates ``(x, y, z)`` separately."""
     m00, m01, m02, m11, m12, m22, b0, b1, b2 = (terms[i] for i in range(9))
     c00 = m11 * m22 - m12 * m12
@@ -411,7 +452,12 @@ def dlt_solve_components(xp, terms, n_valid, min_views=2):
     return x, y, z
 
 
-def dlt_solve(xp, pts2d, pmats, weights=None):
+def dlt_solve(
+    xp: ModuleType,
+    pts2d: Float[AnyArray, "V *pts 2"],
+    pmats: Float[AnyArray, "V 3 4"],
+    weights: Float[AnyArray, " V *pts"] | None = None,
+) -> Float[AnyArray, "*pts 3"]:
     """Weighted NaN-aware DLT with array module ``xp`` (see :func:`flylib.geometry.triangulate_dlt`)."""
     pts2d = xp.asarray(pts2d, dtype=xp.float64)
     n_views = pts2d.shape[0]

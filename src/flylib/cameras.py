@@ -22,11 +22,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import camera_model
 from .errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from .config import Config
 
 log = logging.getLogger(__name__)
 
@@ -62,12 +68,12 @@ def _number(spec: Mapping, key: str, default: float | None, where: str) -> float
 
 
 def orbit_extrinsics(
-    look_at=(0.0, 0.0, 0.0),
+    look_at: Float[np.ndarray, " 3"] | tuple[float, float, float] = (0.0, 0.0, 0.0),
     distance: float = 1.0,
     azimuth_deg: float = 0.0,
     elevation_deg: float = 0.0,
     roll_deg: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
     """``(rvec, tvec)`` of a camera orbiting ``look_at`` (see the module docstring).
 
     Parameters
@@ -99,7 +105,9 @@ def orbit_extrinsics(
     return rvec, -rmat @ centre
 
 
-def resolve_extrinsics(spec: Mapping, where: str = "cameras") -> tuple[np.ndarray, np.ndarray]:
+def resolve_extrinsics(
+    spec: Mapping, where: str = "cameras"
+) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
     """``(rvec, tvec)`` from a camera spec: explicit ``rvec``/``tvec`` or orbit keys.
 
     Parameters
@@ -138,7 +146,7 @@ def resolve_extrinsics(spec: Mapping, where: str = "cameras") -> tuple[np.ndarra
 
 def resolve_intrinsics(
     spec: Mapping, image_size: tuple[int, int] | None = None, where: str = "cameras"
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[Float[np.ndarray, " 4"], Float[np.ndarray, " K"]]:
     """``(intr, dist)`` from a camera spec.
 
     ``focal_length_px`` is a number or ``[fx, fy]``; ``principal_point_px`` is
@@ -205,10 +213,10 @@ class Camera:
         The view's name, or ``None``.
     """
 
-    rvec: np.ndarray
-    tvec: np.ndarray
-    intr: np.ndarray
-    dist: np.ndarray
+    rvec: Float[np.ndarray, " 3"]
+    tvec: Float[np.ndarray, " 3"]
+    intr: Float[np.ndarray, " 4"]
+    dist: Float[np.ndarray, " K"]
     name: str | None = None
 
     def __post_init__(self) -> None:
@@ -263,26 +271,26 @@ class Camera:
         return cls(rvec=rvec, tvec=tvec, intr=intr, dist=dist, name=name)
 
     @property
-    def rmat(self) -> np.ndarray:
+    def rmat(self) -> Float[np.ndarray, "3 3"]:
         """World-to-camera rotation matrix ``(3, 3)``."""
         return camera_model.rvec_to_rmat_numpy(self.rvec)
 
     @property
-    def kmat(self) -> np.ndarray:
+    def kmat(self) -> Float[np.ndarray, "3 3"]:
         """Camera matrix ``K`` ``(3, 3)``."""
         return camera_model.intr_to_kmat_numpy(self.intr)
 
     @property
-    def pmat(self) -> np.ndarray:
+    def pmat(self) -> Float[np.ndarray, "3 4"]:
         """Projection matrix ``K [R | t]`` ``(3, 4)`` (ignores distortion)."""
         return self.kmat @ np.concatenate([self.rmat, self.tvec[:, None]], axis=1)
 
     @property
-    def position(self) -> np.ndarray:
+    def position(self) -> Float[np.ndarray, " 3"]:
         """Camera centre in world coordinates, ``-R^T t``."""
         return -self.rmat.T @ self.tvec
 
-    def project(self, pts3d) -> np.ndarray:
+    def project(self, pts3d: Float[np.ndarray, "*pts 3"]) -> Float[np.ndarray, "*pts 2"]:
         """Project world points ``(*pts, 3)`` to pixels ``(*pts, 2)``."""
         return project_points(
             np.asarray(pts3d, dtype=np.float64),
@@ -292,7 +300,9 @@ class Camera:
             self.dist[None],
         )[0]
 
-    def backproject_ray(self, pixel) -> tuple[np.ndarray, np.ndarray]:
+    def backproject_ray(
+        self, pixel: Float[np.ndarray, " 2"]
+    ) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
         """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre.
 
         The NumPy counterpart of :func:`flylib.geometry.backproject_ray_one`.
@@ -303,7 +313,13 @@ class Camera:
         return camera_model.ray_from_normalized(np, x, y, self.rmat, self.tvec)
 
 
-def project_points(pts3d, rmats, tvecs, intrs, dists) -> np.ndarray:
+def project_points(
+    pts3d: Float[np.ndarray, "*pts 3"],
+    rmats: Float[np.ndarray, "V 3 3"],
+    tvecs: Float[np.ndarray, "V 3"],
+    intrs: Float[np.ndarray, "V 4"],
+    dists: Float[np.ndarray, "V K"],
+) -> Float[np.ndarray, "V *pts 2"]:
     """NumPy projection through stacked cameras (:func:`flylib.camera_model.project_generic`).
 
     Parameters
@@ -375,7 +391,7 @@ class CameraGroup:
 
     @classmethod
     def from_config(
-        cls, config, image_sizes: Mapping[str, tuple[int, int]] | None = None
+        cls, config: Config, image_sizes: Mapping[str, tuple[int, int]] | None = None
     ) -> CameraGroup:
         """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``.
 
@@ -423,7 +439,14 @@ class CameraGroup:
         return cls(cameras)
 
     @classmethod
-    def from_arrays(cls, names, rvecs, tvecs, intrs, dists) -> CameraGroup:
+    def from_arrays(
+        cls,
+        names: Iterable[str],
+        rvecs: Float[np.ndarray, "V 3"],
+        tvecs: Float[np.ndarray, "V 3"],
+        intrs: Float[np.ndarray, "V 4"],
+        dists: Float[np.ndarray, "V K"],
+    ) -> CameraGroup:
         """Build a rig from stacked arrays ``(V, 3)``, ``(V, 3)``, ``(V, 4)``, ``(V, K)``."""
         names = list(names)
         arrays = [np.asarray(a, dtype=np.float64) for a in (rvecs, tvecs, intrs, dists)]
@@ -445,22 +468,22 @@ class CameraGroup:
     # -- stacked parameters ------------------------------------------------------
 
     @property
-    def rvecs(self) -> np.ndarray:
+    def rvecs(self) -> Float[np.ndarray, "V 3"]:
         """``(V, 3)``."""
         return np.stack([c.rvec for c in self])
 
     @property
-    def tvecs(self) -> np.ndarray:
+    def tvecs(self) -> Float[np.ndarray, "V 3"]:
         """``(V, 3)``."""
         return np.stack([c.tvec for c in self])
 
     @property
-    def intrs(self) -> np.ndarray:
+    def intrs(self) -> Float[np.ndarray, "V 4"]:
         """``(V, 4)`` as ``[fx, fy, cx, cy]``."""
         return np.stack([c.intr for c in self])
 
     @property
-    def dists(self) -> np.ndarray:
+    def dists(self) -> Float[np.ndarray, "V K"]:
         """``(V, K)``, zero-padded to the longest camera's ``K``."""
         k = max((c.dist.size for c in self), default=0)
         out = np.zeros((len(self), k))
@@ -469,28 +492,28 @@ class CameraGroup:
         return out
 
     @property
-    def rmats(self) -> np.ndarray:
+    def rmats(self) -> Float[np.ndarray, "V 3 3"]:
         """``(V, 3, 3)``."""
         return camera_model.rvec_to_rmat_numpy(self.rvecs)
 
     @property
-    def pmats(self) -> np.ndarray:
+    def pmats(self) -> Float[np.ndarray, "V 3 4"]:
         """``(V, 3, 4)`` projection matrices ``K [R | t]`` (ignore distortion)."""
         kmats = camera_model.intr_to_kmat_numpy(self.intrs)
         return kmats @ np.concatenate([self.rmats, self.tvecs[:, :, None]], axis=2)
 
     @property
-    def positions(self) -> np.ndarray:
+    def positions(self) -> Float[np.ndarray, "V 3"]:
         """``(V, 3)`` camera centres."""
         return np.stack([c.position for c in self])
 
     # -- geometry --------------------------------------------------------------------
 
-    def project(self, pts3d) -> np.ndarray:
+    def project(self, pts3d: Float[np.ndarray, "*pts 3"]) -> Float[np.ndarray, "V *pts 2"]:
         """Project world points ``(*pts, 3)`` through every camera -> ``(V, *pts, 2)``."""
         return project_points(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
 
-    def undistort_points(self, pts2d) -> np.ndarray:
+    def undistort_points(self, pts2d: Float[np.ndarray, "V *pts 2"]) -> Float[np.ndarray, "V *pts 2"]:
         """Remove lens distortion from pixels ``(V, *pts, 2)`` (same intrinsics, no distortion)."""
         pts2d = np.asarray(pts2d, dtype=np.float64)
         if not np.any(self.dists):
@@ -506,7 +529,13 @@ class CameraGroup:
             out[v] = (und * [fx, fy] + [cx, cy]).reshape(pts2d[v].shape)
         return out
 
-    def triangulate(self, pts2d, weights=None, *, chunk_points: int | None = None) -> np.ndarray:
+    def triangulate(
+        self,
+        pts2d: Float[np.ndarray, "V *pts 2"],
+        weights: Float[np.ndarray, " V *pts"] | None = None,
+        *,
+        chunk_points: int | None = None,
+    ) -> Float[np.ndarray, "*pts 3"]:
         """Weighted NaN-aware DLT (see :func:`flylib.geometry.triangulate_dlt`).
 
         Distorted cameras are handled by undistorting the observations first. The
@@ -553,7 +582,9 @@ class CameraGroup:
             DLT_CHUNK_POINTS if chunk_points is None else chunk_points,
         )
 
-    def backproject_ray(self, pixels) -> tuple[np.ndarray, np.ndarray]:
+    def backproject_ray(
+        self, pixels: Float[np.ndarray, "V 2"]
+    ) -> tuple[Float[np.ndarray, "V 3"], Float[np.ndarray, "V 3"]]:
         """World rays of one pixel per camera ``(V, 2)`` -> origins, directions ``(V, 3)``."""
         pixels = np.asarray(pixels, dtype=np.float64)
         self._check_views(pixels)

@@ -28,7 +28,7 @@ import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -36,6 +36,11 @@ import numpy as np
 from .errors import ResultsError
 from .paths import atomic_path
 from .results import open_hdf5, read_meta_from
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float
+
+    from .cameras import CameraGroup
 
 __all__ = [
     "CORRECTIONS_FILE",
@@ -78,12 +83,12 @@ class Corrections:
         When the file was written (ISO 8601).
     """
 
-    points: np.ndarray
-    edited: np.ndarray
-    fixed: np.ndarray
-    invisible: np.ndarray
-    points3d: np.ndarray
-    edited3d: np.ndarray
+    points: Float[np.ndarray, "V T P 2"]
+    edited: Bool[np.ndarray, "V T P"]
+    fixed: Bool[np.ndarray, "V T P"]
+    invisible: Bool[np.ndarray, "V T P"]
+    points3d: Float[np.ndarray, "T P 3"]
+    edited3d: Bool[np.ndarray, "T P"]
     source: str = ""
     created_utc: str = ""
 
@@ -202,7 +207,8 @@ class Corrections:
         """``(V, T, P)``."""
         return tuple(self.edited.shape)
 
-    def set_point(self, view: int, frame: int, point: int, xy, *, fixed: bool = False) -> None:
+    def set_point(self, view: int, frame: int, point: int, xy: Float[np.ndarray, " 2"] | tuple[float, float], *,
+                  fixed: bool = False) -> None:
         """Place a 2D point (clears its ``invisible`` flag)."""
         self.points[view, frame, point] = np.asarray(xy, dtype=np.float64)
         self.edited[view, frame, point] = True
@@ -216,7 +222,7 @@ class Corrections:
         self.fixed[view, frame, point] = False
         self.invisible[view, frame, point] = True
 
-    def set_point3d(self, frame: int, point: int, xyz) -> None:
+    def set_point3d(self, frame: int, point: int, xyz: Float[np.ndarray, " 3"] | tuple[float, float, float]) -> None:
         """Place a 3D point."""
         self.points3d[frame, point] = np.asarray(xyz, dtype=np.float64)
         self.edited3d[frame, point] = True
@@ -239,11 +245,11 @@ class Corrections:
 
     # -- applying ----------------------------------------------------------------------
 
-    def touched(self) -> np.ndarray:
+    def touched(self) -> Bool[np.ndarray, "V T P"]:
         """``(V, T, P)`` bool: observations a person edited or marked invisible."""
         return self.edited | self.invisible
 
-    def corrected_points(self) -> np.ndarray:
+    def corrected_points(self) -> Bool[np.ndarray, "T P"]:
         """``(T, P)`` bool: 3D points whose input a person changed (any view, or in 3D)."""
         return self.touched().any(axis=0) | self.edited3d
 
@@ -251,7 +257,9 @@ class Corrections:
         """Number of edited or invisible observations plus edited 3D points."""
         return int(self.touched().sum() + self.edited3d.sum())
 
-    def apply_2d(self, pts2d, conf=None) -> tuple[np.ndarray, np.ndarray | None]:
+    def apply_2d(
+        self, pts2d: Float[np.ndarray, "V T P 2"], conf: Float[np.ndarray, "V T P"] | None = None
+    ) -> tuple[Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"] | None]:
         """The 2D triangulation reads: edits replace detections, invisible ones go.
 
         Parameters
@@ -286,8 +294,14 @@ class Corrections:
             points3d=self.points3d[ix], edited3d=self.edited3d[ix], source=self.source)
 
 
-def reconstruct_corrected(config: Any, pts2d, cameras, conf=None,
-                          corrections: Corrections | None = None):
+def reconstruct_corrected(
+    config: Any,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    cameras: CameraGroup,
+    conf: Float[np.ndarray, "V T P"] | None = None,
+    corrections: Corrections | None = None,
+) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"],
+           Bool[np.ndarray, "T P"]]:
     """Triangulate as ``config.triangulation`` says, with manual corrections applied.
 
     Parameters
@@ -378,7 +392,7 @@ def corrections_path(config: Any, outdir: str | Path, recording_dir: str | Path 
     return (path if path.is_absolute() else outdir / path), True
 
 
-def read_corrected(results_path: str | Path) -> np.ndarray | None:
+def read_corrected(results_path: str | Path) -> Bool[np.ndarray, "T P"] | None:
     """``(T, P)`` bool: the points of a ``results.h5`` a person corrected, or ``None``
     when it was computed without corrections (``triangulation/corrected``)."""
     from .results import open_checked

@@ -21,11 +21,18 @@ from __future__ import annotations
 
 import os
 from collections import deque
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
 
 from .paths import cache_dir
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
+
+    from jax import Array
+    from jaxtyping import Bool, Float
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")
@@ -70,7 +77,7 @@ _UNDISTORT_NEWTON_ITERS = 2
 # -- rotations ---------------------------------------------------------------
 
 
-def rvec_to_rmat_one(rvec):
+def rvec_to_rmat_one(rvec: Float[Array, " 3"]) -> Float[Array, "3 3"]:
     """Rodrigues' formula for one rotation vector.
 
     Parameters
@@ -88,7 +95,7 @@ def rvec_to_rmat_one(rvec):
     return rvec_to_rmat_generic(jnp, rvec)
 
 
-def rmat_to_rvec_one(rmat):
+def rmat_to_rvec_one(rmat: Float[Array, "3 3"]) -> Float[Array, " 3"]:
     """Axis-angle vector of one rotation matrix (inverse of :func:`rvec_to_rmat_one`).
 
     The angle comes from ``atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)``, accurate
@@ -112,13 +119,13 @@ def rmat_to_rvec_one(rmat):
 
 
 @jax.jit
-def rvec_to_rmat(rvec):
+def rvec_to_rmat(rvec: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
     """Batched :func:`rvec_to_rmat_one`: ``(..., 3) -> (..., 3, 3)``."""
     return rvec_to_rmat_generic(jnp, rvec)
 
 
 @jax.jit
-def rmat_to_rvec(rmat):
+def rmat_to_rvec(rmat: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3"]:
     """Batched :func:`rmat_to_rvec_one`: ``(..., 3, 3) -> (..., 3)``."""
     rmat = jnp.asarray(rmat, dtype=jnp.float64)
     flat = rmat.reshape(-1, 3, 3)
@@ -129,7 +136,7 @@ def rmat_to_rvec(rmat):
 
 
 @jax.jit
-def intr_to_kmat(intr):
+def intr_to_kmat(intr: Float[Array, "*batch P"]) -> Float[Array, "*batch 3 3"]:
     """Camera matrices from packed intrinsics.
 
     Parameters
@@ -145,7 +152,7 @@ def intr_to_kmat(intr):
     return intr_to_kmat_generic(jnp, intr)
 
 
-def pad_dist(dist):
+def pad_dist(dist: Float[Array, "*batch K"]) -> Float[Array, "*batch 12"]:
     """Zero-pad OpenCV distortion coefficients to the full 12-vector.
 
     Parameters
@@ -166,7 +173,7 @@ def pad_dist(dist):
     return pad_dist_generic(jnp, dist)
 
 
-def distort_one(xy, dist):
+def distort_one(xy: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array, " 2"]:
     """Apply OpenCV distortion to one normalized image point (:func:`distort_normalized`).
 
     Parameters
@@ -187,7 +194,7 @@ def distort_one(xy, dist):
     return jnp.stack(distort_normalized(xy[0], xy[1], pad_dist(dist)))
 
 
-def undistort_one(xy_dist, dist):
+def undistort_one(xy_dist: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array, " 2"]:
     """Invert :func:`distort_one`: distorted normalized coordinate -> undistorted.
 
     Runs OpenCV's fixed-point scheme (the one behind ``cv2.undistortPoints``)
@@ -225,7 +232,9 @@ def undistort_one(xy_dist, dist):
 
 
 @jax.jit
-def distort(pts2d, dists):
+def distort(
+    pts2d: Float[Array, "V *pts 2"], dists: Float[Array, "V K"] | Float[Array, " K"]
+) -> Float[Array, "V *pts 2"]:
     """Batched :func:`distort_one`.
 
     Parameters
@@ -254,7 +263,13 @@ def distort(pts2d, dists):
 # -- projection ----------------------------------------------------------------
 
 
-def project_full_one(pt3d, rvec, tvec, intr, dist):
+def project_full_one(
+    pt3d: Float[Array, " 3"],
+    rvec: Float[Array, " 3"],
+    tvec: Float[Array, " 3"],
+    intr: Float[Array, " P"],
+    dist: Float[Array, " K"],
+) -> Float[Array, " 2"]:
     """Project one world point through one camera (pinhole + distortion + intrinsics).
 
     Parameters
@@ -280,7 +295,13 @@ def project_full_one(pt3d, rvec, tvec, intr, dist):
 
 
 @jax.jit
-def project_full(pts3d, rvecs, tvecs, intrs, dists):
+def project_full(
+    pts3d: Float[Array, "*pts 3"],
+    rvecs: Float[Array, "V 3"],
+    tvecs: Float[Array, "V 3"],
+    intrs: Float[Array, "V P"] | Float[Array, " P"],
+    dists: Float[Array, "V K"] | Float[Array, " K"],
+) -> Float[Array, "V *pts 2"]:
     """Project world points through every camera of a stacked rig.
 
     Parameters
@@ -308,7 +329,9 @@ def project_full(pts3d, rvecs, tvecs, intrs, dists):
 
 
 @jax.jit
-def project_pmat(pts3d, pmats):
+def project_pmat(
+    pts3d: Float[Array, "*pts 3"], pmats: Float[Array, "*cams 3 4"]
+) -> Float[Array, "... 2"]:  # (*cams, *pts, 2): one variadic dim per shape
     """Project world points with 3x4 projection matrices (no distortion).
 
     Parameters
@@ -335,7 +358,11 @@ def project_pmat(pts3d, pmats):
 # -- triangulation and rays ----------------------------------------------------------
 
 @jax.jit
-def triangulate_dlt(pts2d, pmats, weights=None):
+def triangulate_dlt(
+    pts2d: Float[Array, "V *pts 2"],
+    pmats: Float[Array, "V 3 4"],
+    weights: Float[Array, " V *pts"] | None = None,
+) -> Float[Array, "*pts 3"]:
     """Weighted, NaN-aware linear (DLT) triangulation.
 
     Each view contributes the two rows ``u p3 - p1`` and ``v p3 - p2`` of the
@@ -372,7 +399,11 @@ _CHUNKS_IN_FLIGHT = 4
 
 
 @jax.jit
-def dlt_chunk(consts, pts2d, weights):
+def dlt_chunk(
+    consts: dict[str, Array],
+    pts2d: Float[Array, "V N 2"],
+    weights: Float[Array, "V N"] | None,
+) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
     """The DLT of :func:`triangulate_dlt` on one chunk, component-major.
 
     Parameters
@@ -416,7 +447,14 @@ def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
     return out
 
 
-def run_chunked(kernel, consts, inputs, n_views: int, chunk_points: int = DLT_CHUNK_POINTS, **params):
+def run_chunked(
+    kernel: Callable,
+    consts: dict,
+    inputs: list[tuple[np.ndarray | None, float]],
+    n_views: int,
+    chunk_points: int = DLT_CHUNK_POINTS,
+    **params,
+) -> tuple[Float[np.ndarray, "N 3"], Bool[np.ndarray, "V N"]]:
     """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks.
 
     Parameters
@@ -464,7 +502,12 @@ def run_chunked(kernel, consts, inputs, n_views: int, chunk_points: int = DLT_CH
     return pts3d, kept
 
 
-def triangulate_dlt_chunked(pts2d, pmats, weights=None, chunk_points: int = DLT_CHUNK_POINTS) -> np.ndarray:
+def triangulate_dlt_chunked(
+    pts2d: Float[np.ndarray, "V *pts 2"],
+    pmats: Float[np.ndarray, "V 3 4"],
+    weights: Float[np.ndarray, " V *pts"] | None = None,
+    chunk_points: int = DLT_CHUNK_POINTS,
+) -> Float[np.ndarray, "*pts 3"]:
     """:func:`triangulate_dlt` for any number of points, in bounded memory, to NumPy.
 
     The bulk path behind :meth:`flylib.cameras.CameraGroup.triangulate` and
@@ -500,7 +543,13 @@ def triangulate_dlt_chunked(pts2d, pmats, weights=None, chunk_points: int = DLT_
     return pts3d.reshape(*pts_shape, 3)
 
 
-def backproject_ray_one(pixel, rvec, tvec, intr, dist):
+def backproject_ray_one(
+    pixel: Float[Array, " 2"],
+    rvec: Float[Array, " 3"],
+    tvec: Float[Array, " 3"],
+    intr: Float[Array, " P"],
+    dist: Float[Array, " K"],
+) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
     """World-frame viewing ray of one pixel (inverse of :func:`project_full_one`).
 
     Parameters
@@ -522,7 +571,9 @@ def backproject_ray_one(pixel, rvec, tvec, intr, dist):
     return ray_from_normalized(jnp, xy[0], xy[1], rvec_to_rmat_one(rvec), tvec)
 
 
-def closest_point_on_ray(origin, direction, target):
+def closest_point_on_ray(
+    origin: Float[Array, " 3"], direction: Float[Array, " 3"], target: Float[Array, " 3"]
+) -> Float[Array, " 3"]:
     """Orthogonal projection of ``target`` onto the line ``origin + s * direction``.
 
     Parameters

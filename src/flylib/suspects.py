@@ -29,10 +29,14 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .paths import atomic_path
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float, Int
 
 __all__ = ["REASONS", "SUSPECTS_FILE", "Suspects", "find_suspects", "suspects_from_results"]
 
@@ -61,19 +65,19 @@ class Suspects:
         The skeleton's point names (the P axis).
     """
 
-    frame: np.ndarray
-    point: np.ndarray
-    score: np.ndarray
+    frame: Int[np.ndarray, " N"]
+    point: Int[np.ndarray, " N"]
+    score: Float[np.ndarray, " N"]
     reasons: list[str]
     details: list[str]
-    frame_score: np.ndarray
+    frame_score: Float[np.ndarray, " T"]
     point_names: list[str] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.frame)
 
     @property
-    def frames(self) -> np.ndarray:
+    def frames(self) -> Int[np.ndarray, " F"]:
         """Sorted unique frames holding at least one suspect."""
         return np.unique(self.frame)
 
@@ -124,14 +128,14 @@ class _quiet:
 
 
 def find_suspects(
-    pts3d,
-    pts2d_used,
-    reproj_error,
-    bones,
+    pts3d: Float[np.ndarray, "T P 3"],
+    pts2d_used: Float[np.ndarray, "V T P 2"],
+    reproj_error: Float[np.ndarray, "V T P"],
+    bones: Int[np.ndarray, "B 2"],
     *,
-    pts2d_input=None,
-    corrected=None,
-    point_names=None,
+    pts2d_input: Float[np.ndarray, "V T P 2"] | None = None,
+    corrected: Bool[np.ndarray, "T P"] | None = None,
+    point_names: list[str] | None = None,
     k_reproj: float = 6.0,
     min_reproj_px: float = 3.0,
     k_bone: float = 6.0,

@@ -35,12 +35,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ImportFormatError
 from .calib_checks import camera_value, numeric_array
 from .safe_pickle import load_restricted
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 
 def _fly38_names() -> tuple[str, ...]:
@@ -78,9 +82,9 @@ class Df3dPoints2d:
         DeepFly3D's ``camera_ordering`` (``cidread2cid``), ``(C,)``.
     """
 
-    xy: np.ndarray
-    conf: np.ndarray
-    camera_ordering: np.ndarray
+    xy: Float[np.ndarray, "C T J 2"]
+    conf: Float[np.ndarray, "C T J"]
+    camera_ordering: Int[np.ndarray, " C"]
 
 
 def _load_pickle(path: Path, what: str) -> dict:

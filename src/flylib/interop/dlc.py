@@ -308,8 +308,8 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
 
 
 def dlc_frame(
-    xy: np.ndarray,
-    likelihood: np.ndarray | None,
+    xy: Float[np.ndarray, "T K 2"],
+    likelihood: Float[np.ndarray, "T K"] | None,
     bodyparts: list[str],
     scorer: str = "flylib",
 ) -> pd.DataFrame:

@@ -126,8 +126,8 @@ def write_points3d_csv(
 
 def write_dlc_views(
     directory: Path,
-    pts2d: np.ndarray,
-    conf: np.ndarray | None,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None,
     view_names: list[str],
     point_names: list[str],
     scorer: str = "flylib",

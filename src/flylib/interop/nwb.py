@@ -55,13 +55,16 @@ import os
 import uuid
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ConfigError, ResultsError
 from ..nwb_metadata import parse_datetime, recording_metadata
 from ..paths import atomic_path
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +84,9 @@ CONFIDENCE_DEFINITION = (
 )
 
 
-def confidence_3d(reproj_error: np.ndarray, pts3d: np.ndarray) -> np.ndarray:
+def confidence_3d(
+    reproj_error: Float[np.ndarray, "V T P"], pts3d: Float[np.ndarray, "T P 3"]
+) -> Float[np.ndarray, "T P"]:
     """The 3D confidence of each point (formula in the module docstring).
 
     Parameters

@@ -7,7 +7,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +22,11 @@ from .frame import (
     frame_from_groups,
     to_body,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from ..skeleton import Skeleton
 
 #: What the kinematics stage writes into a recording's output directory.
 FILES = ("kinematics.h5", "angles.csv", "angles.png")
@@ -59,11 +66,11 @@ class Kinematics:
     """
 
     angle_names: list[str]
-    angles: np.ndarray
+    angles: Float[np.ndarray, "T A"]
     definitions: dict[str, list[str]]
-    points3d_body: np.ndarray
-    rotation: np.ndarray
-    origin: np.ndarray
+    points3d_body: Float[np.ndarray, "T P 3"]
+    rotation: Float[np.ndarray, "*frames 3 3"]
+    origin: Float[np.ndarray, "*frames 3"]
 
 
 def _indices(skeleton, names, what: str) -> list[int]:
@@ -73,8 +80,10 @@ def _indices(skeleton, names, what: str) -> list[int]:
     return [skeleton.index(n) for n in names]
 
 
-def compute_kinematics(pts3d, skeleton, *, angles=None, segments=None, tethered: bool = True,
-                       body_frame_points=None) -> Kinematics:
+def compute_kinematics(pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton, *,
+                       angles: Mapping[str, Sequence[str]] | None = None,
+                       segments: Mapping[str, Sequence[str]] | None = None, tethered: bool = True,
+                       body_frame_points: Mapping[str, Sequence[str]] | None = None) -> Kinematics:
     """Body frame, body-frame 3D and joint angles.
 
     Parameters

@@ -10,10 +10,15 @@ contains the body's z axis, positive counter-clockwise looking from ``a`` to ``b
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
-def flexion(pts: np.ndarray, a: int, b: int, c: int) -> np.ndarray:
+
+def flexion(pts: Float[np.ndarray, "T P 3"], a: int, b: int, c: int) -> Float[np.ndarray, " T"]:
     """Angle at ``b`` in degrees, ``(T,)`` from ``(T, P, 3)`` (NaN where a point is missing)."""
     v1 = pts[:, a] - pts[:, b]
     v2 = pts[:, c] - pts[:, b]
@@ -22,7 +27,9 @@ def flexion(pts: np.ndarray, a: int, b: int, c: int) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def segment_orientation(body: np.ndarray, a: int, b: int, c: int) -> dict[str, np.ndarray]:
+def segment_orientation(
+    body: Float[np.ndarray, "T P 3"], a: int, b: int, c: int
+) -> dict[str, Float[np.ndarray, " T"]]:
     """``yaw``, ``pitch``, ``roll`` in degrees ``(T,)`` of segment ``a->b`` in body coordinates."""
     v = body[:, b] - body[:, a]
     yaw = np.degrees(np.arctan2(v[:, 1], v[:, 0]))

@@ -14,9 +14,14 @@ translating the whole pose leaves the body coordinates unchanged.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 FRAME_KEYS = ("origin", "posterior", "anterior", "right", "left")
 
@@ -49,7 +54,9 @@ def _unit(v: np.ndarray) -> np.ndarray:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def frame_from_groups(pts: np.ndarray, groups: dict[str, list[int]]) -> tuple[np.ndarray, np.ndarray]:
+def frame_from_groups(
+    pts: Float[np.ndarray, "*batch P 3"], groups: dict[str, list[int]]
+) -> tuple[Float[np.ndarray, "*batch 3 3"], Float[np.ndarray, "*batch 3"]]:
     """Body frame(s) of poses ``(..., P, 3)``.
 
     Returns
@@ -69,7 +76,7 @@ def frame_from_groups(pts: np.ndarray, groups: dict[str, list[int]]) -> tuple[np
     return np.stack([x, y, z], axis=-2), mean("origin")
 
 
-def steady_pose(pts: np.ndarray, indices: list[int]) -> np.ndarray:
+def steady_pose(pts: Float[np.ndarray, "T P 3"], indices: list[int]) -> Float[np.ndarray, "P 3"]:
     """One robust position per point over frames ``(T, P, 3)`` -> ``(P, 3)`` (NaN rows for
     points never seen): the mean after dropping frames more than 3 median distances
     from the mean; distances only, so the estimate moves with a rigid motion."""
@@ -86,7 +93,9 @@ def steady_pose(pts: np.ndarray, indices: list[int]) -> np.ndarray:
     return out
 
 
-def body_frame(pts3d: np.ndarray, groups: dict[str, list[int]], tethered: bool = True):
+def body_frame(
+    pts3d: Float[np.ndarray, "T P 3"], groups: dict[str, list[int]], tethered: bool = True
+) -> tuple[Float[np.ndarray, "*frames 3 3"], Float[np.ndarray, "*frames 3"]]:
     """The body frame of a recording.
 
     Parameters
@@ -110,7 +119,11 @@ def body_frame(pts3d: np.ndarray, groups: dict[str, list[int]], tethered: bool =
     return frame_from_groups(pts3d, groups)
 
 
-def to_body(pts3d: np.ndarray, rotation: np.ndarray, origin: np.ndarray) -> np.ndarray:
+def to_body(
+    pts3d: Float[np.ndarray, "T P 3"],
+    rotation: Float[np.ndarray, "*frames 3 3"],
+    origin: Float[np.ndarray, "*frames 3"],
+) -> Float[np.ndarray, "T P 3"]:
     """World ``(T, P, 3)`` -> body coordinates with a constant or per-frame frame."""
     rotation = np.asarray(rotation)
     origin = np.asarray(origin)

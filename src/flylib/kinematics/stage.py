@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -23,8 +24,16 @@ import numpy as np
 from ..paths import atomic_path
 from . import FILES, Kinematics, compute_kinematics
 
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
-def kinematics_from_config(config, pts3d, skeleton=None) -> Kinematics:
+    from ..config import Config
+    from ..skeleton import Skeleton
+
+
+def kinematics_from_config(
+    config: Config, pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton | None = None
+) -> Kinematics:
     """:func:`compute_kinematics` as the config's ``kinematics`` table says."""
     params = config.kinematics
     skeleton = skeleton or config.skeleton()

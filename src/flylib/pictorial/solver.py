@@ -124,11 +124,14 @@ def solve_frame(cameras: CameraGroup, skeleton: Skeleton, cand_xy: Float[np.ndar
     return pts3d[0], pts2d[:, 0]
 
 
-def reconstruct(cameras: "CameraGroup", skeleton: "Skeleton", candidates: Candidates,
-                pts2d_argmax: np.ndarray | None = None, *, bone_max_frames: int | None = 100,
+def reconstruct(cameras: CameraGroup, skeleton: Skeleton, candidates: Candidates,
+                pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None, *,
+                bone_max_frames: int | None = 100,
                 temporal: bool = False, max_hyp: int = DEFAULT_MAX_HYP,
                 inlier_px: float = DEFAULT_INLIER_PX, lam: float = DEFAULT_LAMBDA,
-                huber: float = DEFAULT_HUBER, mu: float = DEFAULT_MU, nms: float = DEFAULT_NMS):
+                huber: float = DEFAULT_HUBER, mu: float = DEFAULT_MU, nms: float = DEFAULT_NMS,
+                ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"],
+                           Float[np.ndarray, "V T P"]]:
     """Pictorial-structures reconstruction of a sequence.
 
     The bone-length prior comes from a RANSAC triangulation of the arg-max detections
@@ -162,13 +165,29 @@ def reconstruct(cameras: "CameraGroup", skeleton: "Skeleton", candidates: Candid
     return pts3d, pts2d, reproj
 
 
-def reconstruct_from_config(config: "Config", candidates: Candidates, cameras: "CameraGroup"):
+def reconstruct_from_config(config: Config, cameras: CameraGroup, candidates: Candidates,
+                            ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"],
+                                       Float[np.ndarray, "V T P"]]:
     """Run :func:`reconstruct` with the config's ``pictorial_structures`` table and skeleton.
+
+    The rig comes right after the config, as in
+    :func:`flylib.triangulation.reconstruct_from_config` (``config, cameras, pts2d, conf``).
 
     Returns
     -------
     pts3d, pts2d, reproj_error
         As :func:`reconstruct`.
+
+    Raises
+    ------
+    TypeError
+        If the rig and the candidates are swapped (the order before the rig came first).
     """
+    if isinstance(cameras, Candidates) or hasattr(candidates, "pmats"):
+        raise TypeError(
+            "reconstruct_from_config(config, cameras, candidates) takes the rig before the "
+            f"candidates, got {type(cameras).__name__} for cameras and "
+            f"{type(candidates).__name__} for candidates"
+        )
     return reconstruct(cameras, config.skeleton(), candidates,
                        **config.pictorial.solver_kwargs())

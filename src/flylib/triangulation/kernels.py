@@ -7,10 +7,16 @@ imports this module when called (the DLT kernel is :func:`flylib.geometry.dlt_ch
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
 
 from .. import geometry
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jax import Array
+    from jaxtyping import Bool, Float
 
 
 # -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
@@ -52,7 +58,19 @@ def _solve_kept(terms, kept, min_views=2):
 
 
 @jax.jit
-def greedy_chunk(rig, raw, und, weights, threshold, max_drops):
+def greedy_chunk(
+    rig: dict[str, Array],
+    raw: Float[Array, "V N 2"],
+    und: Float[Array, "V N 2"] | None,
+    weights: Float[Array, "V N"] | None,
+    threshold: float,
+    max_drops: int,
+) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
+    """Greedy view dropping (:func:`~flylib.triangulation.triangulate_greedy`) on one chunk.
+
+    ``raw`` pixels, ``und`` the undistorted ones (None: the rig has no distortion),
+    ``weights`` or None; returns the points ``(N, 3)`` and the views kept ``(V, N)``.
+    """
     distorted = und is not None  # the caller undistorts exactly when the rig has distortion
     und = raw if und is None else und
     terms, kept = _view_terms(rig, und, weights)

@@ -26,18 +26,22 @@ from __future__ import annotations
 import logging
 from concurrent.futures import ThreadPoolExecutor
 from itertools import combinations, pairwise
+from typing import TYPE_CHECKING
 
 import numpy as np
-
-from typing import TYPE_CHECKING
 
 from .. import camera_model
 from ..config.constants import TRIANGULATION_METHODS
 from ..errors import ConfigError
 from ..resources import usable_cpus
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Mapping
+
+    from jaxtyping import Bool, Float
+
     from ..cameras import CameraGroup
+    from ..config import Config
 
 log = logging.getLogger(__name__)
 
@@ -249,11 +253,11 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
 
 def triangulate(
     cameras: CameraGroup,
-    pts2d,
-    weights=None,
+    pts2d: Float[np.ndarray, " V *pts 2"],
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> np.ndarray:
+) -> Float[np.ndarray, "*pts 3"]:
     """NaN-aware (optionally confidence-weighted) DLT triangulation.
 
     The same path as :meth:`flylib.cameras.CameraGroup.triangulate` (this forwards to
@@ -288,7 +292,9 @@ def triangulate(
     return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
 
 
-def reprojection_error(cameras: CameraGroup, pts3d, pts2d) -> np.ndarray:
+def reprojection_error(
+    cameras: CameraGroup, pts3d: Float[np.ndarray, "*pts 3"], pts2d: Float[np.ndarray, " V *pts 2"]
+) -> Float[np.ndarray, " V *pts"]:
     """Per-observation reprojection error in pixels.
 
     Parameters
@@ -323,13 +329,13 @@ def reprojection_error(cameras: CameraGroup, pts3d, pts2d) -> np.ndarray:
 
 def triangulate_ransac(
     cameras: CameraGroup,
-    pts2d,
+    pts2d: Float[np.ndarray, " V *pts 2"],
     *,
     threshold: float = 15.0,
     min_inliers: int = 2,
-    weights=None,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
     """Robust triangulation from the largest set of mutually consistent views.
 
     Every two-view hypothesis (all ``C(V, 2)`` pairs: the deterministic limit of
@@ -373,13 +379,13 @@ def triangulate_ransac(
 
 def triangulate_greedy(
     cameras: CameraGroup,
-    pts2d,
+    pts2d: Float[np.ndarray, " V *pts 2"],
     *,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-    weights=None,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
     """DLT, then repeatedly drop each offending point's worst-reprojecting view.
 
     While a point's largest reprojection error exceeds ``reproj_threshold``, its
@@ -439,7 +445,13 @@ def _finish(cameras, pts3d, pts2d, kept):
     return pts3d, clean, reprojection_error(cameras, pts3d, clean)
 
 
-def reconstruct_dlt(cameras: CameraGroup, pts2d, *, weights=None, chunk_points: int = DEFAULT_CHUNK_POINTS):
+def reconstruct_dlt(
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, " V *pts 2"],
+    *,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
+    chunk_points: int = DEFAULT_CHUNK_POINTS,
+) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
     """Plain DLT reconstruction (:func:`triangulate` plus reprojection errors).
 
     Returns
@@ -458,13 +470,13 @@ def reconstruct_dlt(cameras: CameraGroup, pts2d, *, weights=None, chunk_points: 
 
 def reconstruct_ransac(
     cameras: CameraGroup,
-    pts2d,
+    pts2d: Float[np.ndarray, " V *pts 2"],
     *,
     threshold: float = 15.0,
     min_inliers: int = 2,
-    weights=None,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
-):
+) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
     """:func:`triangulate_ransac` plus cleaned 2D (outlier views NaN) and errors.
 
     Returns
@@ -483,13 +495,13 @@ def reconstruct_ransac(
 
 def reconstruct_greedy(
     cameras: CameraGroup,
-    pts2d,
+    pts2d: Float[np.ndarray, " V *pts 2"],
     *,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-    weights=None,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
-):
+) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
     """:func:`triangulate_greedy` plus cleaned 2D (dropped views NaN) and errors."""
     cameras, pts2d = _arguments("reconstruct_greedy", cameras, pts2d)
     pts3d, kept = triangulate_greedy(
@@ -501,15 +513,15 @@ def reconstruct_greedy(
 
 def reconstruct(
     cameras: CameraGroup,
-    pts2d,
+    pts2d: Float[np.ndarray, " V *pts 2"],
     method: str = "ransac",
     *,
-    weights=None,
+    weights: Float[np.ndarray, " V *pts"] | None = None,
     threshold: float = 15.0,
     min_inliers: int = 2,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-):
+) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
     """Dispatch to :func:`reconstruct_ransac`, :func:`reconstruct_greedy` or :func:`reconstruct_dlt`.
 
     Parameters
@@ -543,7 +555,12 @@ def reconstruct(
     raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
 
 
-def reconstruct_from_config(config, cameras: CameraGroup, pts2d, conf=None):
+def reconstruct_from_config(
+    config: Config | Mapping,
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
+) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
     """Run the triangulation stage as ``config.triangulation`` says.
 
     Reads ``method``, ``ransac_threshold``, ``min_inliers``, ``weigh_by_confidence``,
