@@ -203,7 +203,7 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    pts3d, pts2d, error = reconstruct_from_config(config, candidates, cameras)
+    pts3d, pts2d, error = reconstruct_from_config(config, cameras, candidates)
     write_stage(out_path, "pictorial_structures",
                 {"points": pts2d, "points3d": pts3d, "reproj_error": error},
                 meta=_provenance(config, "pictorial_structures", pose2d=pose2d_path,
