@@ -61,7 +61,7 @@ def _loss_jax(z, loss: str):
 def chunk_kernel(loss: str, order: int, m: int):
     """The jitted evaluation of one chunk: cost, banded normal matrix and gradient.
 
-    ``evaluate(xs, data) -> (cost, ab, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
+    ``evaluate(xs, data) -> (cost, rows, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
     the slotted points and ``data`` a dict of dense arrays (no scatter anywhere: every
     sum is over a padded axis):
 
@@ -73,12 +73,17 @@ def chunk_kernel(loss: str, order: int, m: int):
       bone's two slots, zero rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
     - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``,
       ``rigid_w``;
-    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram`), ``smooth_w``.
+    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram` of the live
+      frames, zero over the padding), ``smooth_w``;
+    - ``live`` ``(T,)``: 1 for the chunk's frames, 0 for the padding that rounds ``T``
+      up to a compiled shape (no term reaches a padded frame).
 
-    ``ab`` holds the within-frame part of the Gauss-Newton matrix (IRLS weights for
-    the robust loss) as the superdiagonals ``0..5`` of LAPACK's upper band storage
-    (``(6, n)``; :func:`temporal_band` adds the temporal rows); ``grad`` ``(n,)`` the
-    gradient (both halved, so the step solves ``ab d = -grad``); ``err``
+    ``cost`` ``(n_blocks,)`` is the objective per block (the blocks share no unknown);
+    ``rows`` ``(6, n)`` the within-frame part of the Gauss-Newton matrix (IRLS weights
+    for the robust loss), row ``delta`` its ``delta``-th superdiagonal at the column
+    of the lower-right end (:func:`assemble_band` adds :func:`temporal_band`'s rows
+    and makes LAPACK's band); ``grad`` ``(n,)`` the gradient (both halved, so the
+    step solves ``A d = -grad``); ``err``
     ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
     of :func:`flylib.geometry.distort_one` plus intrinsics in the camera frame (the
     model of :func:`flylib.geometry.project_full_one`), chained with the rotation.
@@ -130,15 +135,19 @@ def chunk_kernel(loss: str, order: int, m: int):
                 entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0, j] + sj[1][i] * jac[1, j], axis=2)
         h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
         g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
-        cost = jnp.sum(w * rho)
+        # the cost per block: blocks share no unknown, so the solver accepts or
+        # rejects a step block by block
+        cost = jnp.sum(w * rho, axis=(1, 2, 3))
         # -- rigid points: one world position each (T-last layouts from here on)
         h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
         g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
-        mask = data["rigid_mask"][:, :, None, None]  # (nb, m, 1, 1)
+        # padded frames (live 0) carry no term: their unknowns stay where they are
+        live = data["live"]  # (T,)
+        mask = data["rigid_mask"][:, :, None, None] * live  # (nb, m, 1, T)
         diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
         g = g + data["rigid_w"] * diff
-        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[..., None]
-        cost += data["rigid_w"] * jnp.sum(diff * diff)
+        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[:, :, :, None]
+        cost += data["rigid_w"] * jnp.sum(diff * diff, axis=(1, 2, 3))
         # -- bones: within-frame blocks on the diagonal (slot k, k) and next to it
         # (k, k+1); a bone joins neighbouring slots (chains are packed contiguously).
         # Loops over the few bones per block instead of einsums: XLA's contractions
@@ -149,19 +158,19 @@ def chunk_kernel(loss: str, order: int, m: int):
         length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
         unit = d / length[:, :, None]
         target = data["length"][..., None]
-        resid = (length - target) * (target > 0)
+        resid = (length - target) * (target > 0) * live
         grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
         diag = h
         nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
         for q in range(n_bones):
-            outer = data["bone_w"] * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+            outer = data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
             # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
             diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
             if m > 1:
                 link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
                 nxt = nxt - link[:, :, None, None, None] * outer[:, None]
             g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
-        cost += data["bone_w"] * jnp.sum(resid * resid)
+        cost += data["bone_w"] * jnp.sum(resid * resid, axis=(1, 2))
         diag = jnp.transpose(diag, (0, 4, 1, 2, 3))  # (nb, T, m, 3, 3)
         nxt = jnp.transpose(nxt, (0, 4, 1, 2, 3))  # (nb, T, m - 1, 3, 3)
         g = jnp.transpose(g, (0, 3, 1, 2))  # (nb, T, m, 3)
@@ -169,8 +178,8 @@ def chunk_kernel(loss: str, order: int, m: int):
         gram = data["gram"]
         if order:
             sw = data["smooth_w"]
-            dx = jnp.diff(xs, n=order, axis=1)
-            cost += sw * jnp.sum(dx * dx)
+            dx = jnp.diff(xs, n=order, axis=1) * live[order:, None, None]
+            cost += sw * jnp.sum(dx * dx, axis=(1, 2, 3))
             smooth = gram[0][None, :, None, None] * xs
             zero = jnp.zeros_like(xs)
             for q in range(1, order + 1):
@@ -281,22 +290,67 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
     return out
 
 
-def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
-    """The constant part of the band ``(u + 1, n)``: the temporal term's rows for real
-    slots and a unit diagonal for empty ones (whose unknowns then never move);
-    :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``."""
+def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float,
+                  live: np.ndarray | None = None) -> np.ndarray:
+    """The constant part of the normal matrix: the temporal term on real slots, and a
+    unit diagonal for empty slots and padded frames (``live`` ``(T,)`` 0), whose
+    unknowns then never move.
+
+    Returns
+    -------
+    np.ndarray
+        ``(order + 1, n)``: row ``q`` is the ``3 m q``-th superdiagonal (row 0 the
+        diagonal), at the column of its lower-right end, i.e. band row ``u - 3 m q``
+        of LAPACK's upper storage (:func:`assemble_band`).
+    """
     m = layout.m
     width = 3 * m
-    u = band_width(m, order)
     n_blocks = layout.n_blocks
     n_frames = gram.shape[1]
     real = np.repeat((layout.slots >= 0).astype(float), 3, axis=1)[:, None, :]  # (nb, 1, 3m)
-    ab = np.zeros((u + 1, n_blocks * n_frames * width))
+    if live is not None:
+        real = real * np.asarray(live, float)[None, :, None]  # (nb, T, 3m)
+    out = np.zeros((order + 1, n_blocks * n_frames * width))
     if order and smooth_w:
         for q in range(order + 1):
-            ab[u - q * width] = (smooth_w * gram[q][None, :, None] * real).ravel()
-    ab[u] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
-    return ab
+            out[q] = (smooth_w * gram[q][None, :, None] * real).ravel()
+    out[0] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
+    return out
+
+
+def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
+                  columns: np.ndarray | None = None) -> np.ndarray:
+    """The normal matrix in LAPACK's upper band storage, Fortran-ordered (what
+    ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
+
+    Parameters
+    ----------
+    rows
+        ``(k, n)`` :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``.
+    temporal
+        ``(order + 1, n)`` :func:`temporal_band`.
+    width, u
+        ``3 m`` and the half-bandwidth (:func:`band_width`).
+    columns
+        ``(n,)`` bool: only these unknowns (whole blocks, which share nothing); None:
+        all.
+
+    Returns
+    -------
+    np.ndarray
+        ``(u + 1, n_columns)``; entry ``(u + i - j, j)`` is ``A[i, j]`` for ``i <= j``.
+    """
+    if columns is not None:
+        rows, temporal = rows[:, columns], temporal[:, columns]
+    # built transposed (C-ordered (n, u + 1), each unknown's column contiguous), then
+    # viewed as Fortran-ordered: filling it row by row would touch every cache line
+    # of the band once per row
+    out = np.zeros((rows.shape[1], u + 1))
+    for delta in range(rows.shape[0]):
+        out[:, u - delta] = rows[delta]
+    for q in range(temporal.shape[0]):
+        out[:, u - q * width] += temporal[q]
+    return out.T
 
 
 def band_width(m: int, order: int) -> int:

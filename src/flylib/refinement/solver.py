@@ -31,6 +31,7 @@ from ..resources import usable_cpus
 from .objective import (
     LOSSES,
     BlockLayout,
+    assemble_band,
     band_width,
     chunk_kernel,
     difference_gram,
@@ -272,6 +273,9 @@ class ChunkProblem:
         rigid_ok = np.isfinite(centres).all(-1) & (opts.rigid_weight > 0)
         rigid, centres = rigid[rigid_ok], centres[rigid_ok]
         incidence, slot_lengths = _bone_incidence(layout, bones, lengths)
+        live = (np.arange(padded) < self.n_frames).astype(np.float64)
+        gram = np.zeros((opts.smooth_order + 1, padded))
+        gram[:, : self.n_frames] = difference_gram(self.n_frames, opts.smooth_order)
         rigid_mask = np.zeros(layout.slots.shape)
         centre = np.zeros((*layout.slots.shape, 3))
         rigid_mask[layout.block_of[rigid], layout.slot_of[rigid]] = 1.0
@@ -284,10 +288,11 @@ class ChunkProblem:
             "bone_w": opts.bone_weight / opts.bone_scale**2,
             "rigid_mask": rigid_mask, "centre": centre,
             "rigid_w": opts.rigid_weight / opts.rigid_scale**2,
-            "gram": difference_gram(padded, opts.smooth_order),
+            "gram": gram,
             "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
+            "live": live,
         }
-        self.band = temporal_band(layout, opts.smooth_order, self.data["gram"], self.data["smooth_w"])
+        self.temporal = temporal_band(layout, opts.smooth_order, gram, self.data["smooth_w"], live)
         self.set_active(weight > 0)
 
     def set_active(self, active: np.ndarray) -> None:
@@ -305,56 +310,101 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
+        """The objective at slotted ``xs``: ``(cost, rows, grad, err)``.
+
+        ``cost`` ``(n_blocks,)`` per block, ``rows`` ``(6, n)`` the within-frame part
+        of the Gauss-Newton matrix (:meth:`band` makes the whole matrix), ``grad``
+        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err``
+        ``(n_blocks, m, W, padded)`` pixel errors.
+        """
         cost, rows, grad, err = self.kernel(xs, self.data)
-        ab = self.band.copy()
-        ab[self.u - rows.shape[0] + 1:] += np.asarray(rows)[::-1]
-        return float(cost), ab, np.asarray(grad), np.asarray(err)
+        return np.asarray(cost), np.asarray(rows), np.asarray(grad), np.asarray(err)
+
+    def band(self, rows: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
+        """The Gauss-Newton matrix ``(u + 1, n)`` in LAPACK's upper band storage
+        (Fortran-ordered) from :meth:`evaluate`'s ``rows``; only ``columns`` ``(n,)``
+        bool (whole blocks) when given."""
+        return assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns)
 
     def errors(self, err: np.ndarray) -> np.ndarray:
         """Cell errors ``(n_blocks, m, W, padded)`` -> ``(V, T, P)``."""
         return self.tracks.scatter(err, (self.n_views, self.n_frames, self.n_points))
 
-    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
-        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, iterations, err)``.
+    def step(self, rows: np.ndarray, grad: np.ndarray, mu: np.ndarray, floor: float,
+             columns: np.ndarray | None = None) -> np.ndarray:
+        """The damped Gauss-Newton step ``(n,)``: solves ``(A + diag(mu * diag(A) + floor)) d
+        = -grad`` over ``columns`` (zero elsewhere) by one banded Cholesky.
 
-        ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
+        ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
+        definite.
         """
         u = self.u
-        cost, ab, grad, err = self.evaluate(xs)
+        ab = self.band(rows, columns)
+        if columns is not None and not np.isscalar(mu):
+            mu = mu[columns]
+        ab[u] += mu * ab[u] + floor
+        factor = cholesky_banded(ab, lower=False, overwrite_ab=True, check_finite=False)
+        step = np.zeros(grad.shape)
+        rhs = -grad if columns is None else -grad[columns]
+        solved = cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
+        if columns is None:
+            return solved
+        step[columns] = solved
+        return step
+
+    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
+        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, steps, err)``.
+
+        The blocks share no unknown, so each keeps its own damping and takes or
+        refuses its part of a step on its own cost: one block's refused step costs the
+        others nothing. A block stops once its cost falls by less than ``ftol`` of
+        itself (or its damping runs away), and leaves the factorization. A step is one
+        banded factorization of the live blocks and one evaluation of the chunk; at
+        most ``max_iterations`` are taken.
+
+        ``trace``, when given, receives ``(cost, mu)`` (per-block arrays) after every
+        evaluation.
+        """
+        n_blocks = xs.shape[0]
+        per_block = xs[0].size  # unknowns of one block (block-major ordering)
+        cost, rows, grad, err = self.evaluate(xs)
+        mu = np.full(n_blocks, 1e-4)
         if trace is not None:
-            trace.append((cost, 0.0))
-        mu = 1e-4
-        it = 0
-        for it in range(1, max_iterations + 1):
-            diag = ab[u].copy()
-            # a ridge far below any real curvature: keeps unknowns that only the
-            # temporal term sees (a point unobserved in the whole chunk) well posed, and
-            # the factorization free of denormal fill-in
-            floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
-            improved = False
-            while mu < 1e8:
-                damped = ab.copy()
-                damped[u] += mu * diag + floor
-                try:
-                    factor = cholesky_banded(damped, lower=False, check_finite=False)
-                except LinAlgError:
-                    mu *= 10.0
-                    continue
-                step = cho_solve_banded((factor, False), -grad, check_finite=False)
-                trial = xs + step.reshape(xs.shape)
-                new = self.evaluate(trial)
-                if trace is not None:
-                    trace.append((new[0], mu))
-                if new[0] <= cost:
-                    improved = True
-                    decrease = cost - new[0]
-                    xs, (cost, ab, grad, err) = trial, new
-                    mu = max(mu / 5.0, 1e-10)
-                    break
-                mu *= 8.0
-            if not improved or decrease <= ftol * max(cost, 1e-12):
-                break
-        return xs, it, err
+            trace.append((cost, np.zeros(n_blocks)))
+        # a ridge far below any real curvature: keeps unknowns that only the temporal
+        # term sees (a point unobserved in the whole chunk) well posed, and the
+        # factorization free of denormal fill-in
+        diag = rows[0] + self.temporal[0]
+        floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
+        live = np.ones(n_blocks, bool)
+        steps = 0
+        while steps < max_iterations and live.any():
+            columns = None if live.all() else np.repeat(live, per_block)
+            try:
+                step = self.step(rows, grad, np.repeat(mu, per_block), floor, columns)
+            except LinAlgError:
+                mu = np.where(live, mu * 10.0, mu)
+                live &= mu < 1e8
+                continue
+            steps += 1
+            trial = xs + step.reshape(xs.shape)
+            new_cost, new_rows, new_grad, new_err = self.evaluate(trial)
+            better = live & (new_cost <= cost)
+            settled = better & (cost - new_cost <= ftol * np.maximum(new_cost, 1e-12))
+            if better.all():
+                xs, cost, rows, grad, err = trial, new_cost, new_rows, new_grad, new_err
+            elif better.any():
+                took = np.repeat(better, per_block)
+                xs = np.where(better[:, None, None, None], trial, xs)
+                cost = np.where(better, new_cost, cost)
+                rows = np.where(took, new_rows, rows)
+                grad = np.where(took, new_grad, grad)
+                err = np.where(better[:, None, None, None], new_err, err)
+            mu = np.where(better, np.maximum(mu / 5.0, 1e-10), np.where(live, mu * 8.0, mu))
+            live &= ~settled & (mu < 1e8)
+            if trace is not None:
+                trace.append((new_cost, mu.copy()))
+        return xs, steps, err
 
 
 # -- the recording ----------------------------------------------------------------------
