@@ -6,11 +6,13 @@ whole starting reconstruction, left/right bones pooled on request); then the fra
 are solved in chunks of ``chunk_frames`` with ``overlap_frames`` of context on each
 side (only the chunk's own frames are kept), so memory does not grow with the
 recording. In each chunk, Gauss-Newton steps with Levenberg-Marquardt damping solve
-the banded normal equations of :mod:`flylib.refinement.objective` exactly. The robust
+the banded normal equations of :mod:`flylib.refinement.objective` exactly; the
+point blocks (limb chains) share no unknown once the recording-wide unknowns are
+fixed, so each block takes or refuses its steps and is damped on its own. The robust
 reprojection term starts from the triangulation's inlier views (plus every view of a
-point the triangulation could not reconstruct); once converged, every observation
-within ``outlier_px`` of the refined point is admitted, the rest sit out, and the
-fit continues.
+point the triangulation could not reconstruct); after the first half of the steps,
+every observation within ``outlier_px`` of the refined point is admitted, the rest
+sit out, and the fit continues.
 """
 
 from __future__ import annotations
@@ -255,6 +257,15 @@ def _bone_incidence(layout: BlockLayout, bones: np.ndarray, lengths: np.ndarray)
     return inc, out
 
 
+def _device(value):
+    """A NumPy array as a JAX array (scalars as they are)."""
+    if isinstance(value, np.ndarray):
+        import jax
+
+        return jax.device_put(value)
+    return value
+
+
 class ChunkProblem:
     """The objective over one chunk of frames (padded to ``padded`` for the kernel)."""
 
@@ -293,12 +304,14 @@ class ChunkProblem:
             "live": live,
         }
         self.temporal = temporal_band(layout, opts.smooth_order, gram, self.data["smooth_w"], live)
+        # on the device once, not at every evaluation
+        self.data = {k: _device(v) for k, v in self.data.items()}
         self.set_active(weight > 0)
 
     def set_active(self, active: np.ndarray) -> None:
         """Use only the observations ``active`` ``(V, T, P)``."""
         self.active = active
-        self.data["w"] = self.tracks.gather(np.where(active, self.weight, 0.0), self.padded)
+        self.data["w"] = _device(self.tracks.gather(np.where(active, self.weight, 0.0), self.padded))
 
     def to_slots(self, x: np.ndarray) -> np.ndarray:
         """``(T, P, 3)`` -> padded, slotted ``(n_blocks, padded, m, 3)``."""
@@ -538,9 +551,17 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     largest = chunk + 2 * overlap
     iterations, kept_total, rejected_total = [], 0, 0
 
-    def solve_chunk(lo: int):
-        hi = min(lo + chunk, n_frames)
-        a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
+    # Every chunk is solved over a window of one length (`largest`, or the whole
+    # recording if shorter): the first and last windows reach further into the
+    # recording instead of being shorter, so the kernel compiles once per recording
+    # and no window is padded.
+    window = min(largest, n_frames)
+    bounds = [(0, n_frames)] if n_frames <= largest else \
+        [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
+
+    def solve_chunk(lo: int, hi: int):
+        a = min(max(lo - overlap, 0), n_frames - window)
+        b = a + window
         pts2d, conf, start, inliers = source.read(a, b)
         observed, weight = _weights(pts2d, conf, opts)
         problem = ChunkProblem(grid, pts2d, weight, layout, bones, lengths, rigid, centres, opts,
@@ -563,18 +584,17 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
                 np.where(active[..., None], pts2d[:, keep], np.nan), flags)
 
     started = time.perf_counter()
-    starts = list(range(0, n_frames, chunk))
-    workers = max(1, min(2, usable_cpus(), len(starts)))
+    workers = max(1, min(2, usable_cpus(), len(bounds)))
     # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
     # once, not per chunk: threads entering and leaving it would undo each other). The
     # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
     # them ran 10-40x slower on a busy 2-core machine.
     with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
-        for k in range(len(starts) + workers):
-            if k < len(starts):  # at most `workers` chunks ahead of the writer: memory stays flat
-                pending.append(pool.submit(solve_chunk, starts[k]))
-            if len(pending) > workers or (k >= len(starts) and pending):
+        for k in range(len(bounds) + workers):
+            if k < len(bounds):  # at most `workers` chunks ahead of the writer: memory stays flat
+                pending.append(pool.submit(solve_chunk, *bounds[k]))
+            if len(pending) > workers or (k >= len(bounds) and pending):
                 lo, hi, its, active, rejected, points3d, err, clean, flags = pending.popleft().result()
                 iterations.append(its)
                 supported[lo:hi] = active.any(axis=0)
