@@ -68,7 +68,8 @@ def chunk_kernel(loss: str, order: int, m: int):
     - observations on a grid ``(n_blocks, m, W)`` of (slot, view) cells, ``W`` the
       most views any point is seen from: ``rmat`` ``(..., 3, 3)``, ``tvec``
       ``(..., 3)``, ``intr`` ``(..., 4)``, ``dist`` ``(..., D)``, ``xy``
-      ``(..., T, 2)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2`` (1 / scale_px^2);
+      ``(2, n_blocks, m, W, T)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2``
+      (1 / scale_px^2);
     - bones as incidence rows ``incidence`` ``(n_blocks, Kb, m)`` (+1 / -1 at the
       bone's two slots, zero rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
     - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``,
@@ -97,42 +98,46 @@ def chunk_kernel(loss: str, order: int, m: int):
     band_width(m, order)
 
     def pixel(pc, intr, dist):
-        # the model of geometry.project_full_one, camera frame -> pixels, elementwise
-        # over trailing axes (components lead: pc (3, ...), intr (4, ...), dist (12, ...))
+        # the model of geometry.project_full_one, camera frame -> pixels, elementwise:
+        # components as sequences (pc 3, intr 4, dist 12) of same-shaped arrays, so that
+        # no op stacks or transposes the large (nb, m, W, T) arrays
         x, y = pc[0] / pc[2], pc[1] / pc[2]
         if dist is not None:
             radial, add_x, add_y = camera_model.distortion_terms(x, y, dist)
             x, y = x * radial + add_x, y * radial + add_y
-        return jnp.stack([intr[0] * x + intr[2], intr[1] * y + intr[3]])
+        return intr[0] * x + intr[2], intr[1] * y + intr[3]
 
     def evaluate(xs, data):
         nb, n_frames = xs.shape[0], xs.shape[1]
         # T-last layouts throughout: every elementwise op runs along frames
         xk = jnp.transpose(xs, (0, 2, 3, 1))  # (nb, m, 3, T)
-        rmat = data["rmat"]  # (nb, m, W, 3, 3)
-        pc = jnp.einsum("bkvij,bkjt->ibkvt", rmat, xk) + jnp.moveaxis(data["tvec"], -1, 0)[..., None]
-        intr = jnp.moveaxis(data["intr"], -1, 0)[..., None]  # (4, nb, m, W, 1)
+        rmat, tvec = data["rmat"], data["tvec"]  # (nb, m, W, 3, 3), (nb, m, W, 3)
+        r = [[rmat[..., i, j, None] for j in range(3)] for i in range(3)]  # each (nb, m, W, 1)
+        xw = [xk[:, :, None, j] for j in range(3)]  # each (nb, m, 1, T)
+        pc = tuple(r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None] for i in range(3))
+        intr = [data["intr"][..., k, None] for k in range(4)]
         dist = data.get("dist")
-        dist = None if dist is None else jnp.moveaxis(dist, -1, 0)[..., None]
-        proj = pixel(pc, intr, dist)  # (2, nb, m, W, T)
-        # d pixel / d world point: one JVP per world axis j, whose tangent in the camera
-        # frame is the rotation's column j
-        rot = jnp.moveaxis(rmat, (-2, -1), (0, 1))[..., None]  # (3, 3, nb, m, W, 1)
-        jac = jnp.stack([jax.jvp(lambda p: pixel(p, intr, dist), (pc,),
-                                 (jnp.broadcast_to(rot[:, j], pc.shape),))[1] for j in range(3)],
-                        axis=1)  # (2, 3, nb, m, W, T)
-        e = proj - jnp.moveaxis(data["xy"], -1, 0)  # (2, nb, m, W, T)
+        dist = None if dist is None else [dist[..., k, None] for k in range(dist.shape[-1])]
+        proj = pixel(pc, intr, dist)  # 2 x (nb, m, W, T)
+        # d pixel / d world point: one JVP per camera-frame axis (through the same
+        # model), chained with the rotation
+        units = [tuple(jnp.full_like(c, float(k == i)) for k, c in enumerate(pc)) for i in range(3)]
+        dpix = [jax.jvp(lambda *p: pixel(p, intr, dist), pc, units[i])[1] for i in range(3)]
+        jac = [[dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
+               for a in range(2)]  # jac[a][j] (nb, m, W, T)
+        xy = data["xy"]  # (2, nb, m, W, T)
+        e = (proj[0] - xy[0], proj[1] - xy[1])
         sq = e[0] * e[0] + e[1] * e[1]
         rho, drho = _loss_jax(sq * data["inv_s2"], loss)
         w = data["w"]
         scale = w * drho * data["inv_s2"]
         # explicit sums over the 2 pixel rows and the W views (XLA's generic reductions
         # over these small strided axes were the kernel's slowest part)
-        sj = [[scale * jac[a, i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
         entry = {}
         for i in range(3):
             for j in range(i, 3):
-                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0, j] + sj[1][i] * jac[1, j], axis=2)
+                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j], axis=2)
         h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
         g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
         # the cost per block: blocks share no unknown, so the solver accepts or

@@ -293,7 +293,7 @@ class ChunkProblem:
         centre[layout.block_of[rigid], layout.slot_of[rigid]] = centres.reshape(-1, 3)
         self.data = {
             **tracks.arrays,
-            "xy": tracks.gather(np.nan_to_num(xy, nan=0.0), padded),
+            "xy": np.moveaxis(tracks.gather(np.nan_to_num(xy, nan=0.0), padded), -1, 0),
             "inv_s2": 1.0 / opts.scale_px**2,
             "incidence": incidence, "length": slot_lengths,
             "bone_w": opts.bone_weight / opts.bone_scale**2,
