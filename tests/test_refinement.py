@@ -223,3 +223,73 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
         for i in range(max(0, j - u), min(column.size, j + u + 1)):
             band_column[i] = ab[u + i - j, j] if i <= j else ab[u + j - i, i]
         np.testing.assert_allclose(column, band_column, rtol=1e-4, atol=1e-5 * np.abs(band_column).max())
+
+
+def _tiny_problem(frames=6, padded=None, seed=0):
+    rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed)
+    terms = skeleton_terms(Skeleton.fly(), None)
+    layout = BlockLayout.from_chains(38, terms["chains"])
+    observed = np.isfinite(pts2d).all(-1)
+    rigid = np.asarray(terms["rigid"])
+    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, np.where(observed, conf, 0.0), layout,
+                           terms["bones"], bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
+                           RefineOptions(), padded or frames)
+    start = truth + np.random.default_rng(seed).normal(0, 0.01, truth.shape)
+    return problem, problem.to_slots(start)
+
+
+def _dense(ab: np.ndarray, u: int) -> np.ndarray:
+    """LAPACK upper band storage -> the symmetric matrix."""
+    n = ab.shape[1]
+    a = np.zeros((n, n))
+    for d in range(u + 1):
+        idx = np.arange(d, n)
+        a[idx - d, idx] = a[idx, idx - d] = ab[u - d, d:]
+    return a
+
+
+def test_step_matches_a_dense_solve_of_the_damped_normal_equations():
+    problem, xs = _tiny_problem()
+    _, rows, grad, _ = problem.evaluate(xs)
+    dense = _dense(problem.band(rows), problem.u)
+    # the structure the banded solve relies on: symmetric positive definite, and no
+    # entry couples two blocks
+    per_block = xs[0].size
+    n_blocks = xs.shape[0]
+    block = np.repeat(np.arange(n_blocks), per_block)
+    assert not dense[block[:, None] != block[None, :]].any()
+    mu = np.repeat(np.random.default_rng(2).uniform(1e-4, 1.0, n_blocks), per_block)
+    floor = 1e-3
+    live = np.ones(n_blocks, bool)
+    live[[1, 4]] = False  # settled blocks: left out, their step zero
+    columns = np.repeat(live, per_block)
+    step = problem.step(rows, grad, mu, floor, columns)
+    sub = dense[np.ix_(columns, columns)]
+    sub = sub + np.diag(mu[columns] * np.diag(sub) + floor)
+    np.testing.assert_allclose(step[columns], np.linalg.solve(sub, -grad[columns]), rtol=1e-8,
+                               atol=1e-10 * np.abs(step).max())
+    assert not step[~columns].any()
+    np.testing.assert_allclose(problem.step(rows, grad, mu, floor)[columns], step[columns], rtol=1e-8,
+                               atol=1e-10 * np.abs(step).max())
+
+
+def test_padded_frames_carry_no_term():
+    """A chunk padded to a longer compiled shape is the same problem on its own frames:
+    the padding adds no cost, no gradient, no curvature, and never moves."""
+    frames, padded = 10, 16
+    exact, xs = _tiny_problem(frames)
+    longer, xs_long = _tiny_problem(frames, padded)
+    xs_long = xs_long + np.where(np.arange(padded)[None, :, None, None] >= frames, 0.3, 0.0)  # far off
+    cost, rows, grad, _ = exact.evaluate(xs)
+    cost_l, rows_l, grad_l, _ = longer.evaluate(xs_long)
+    np.testing.assert_allclose(cost_l, cost, rtol=1e-12)
+    per_frame = 3 * exact.layout.m
+    own = (np.arange(padded)[None, :, None] < frames) & np.ones((xs.shape[0], 1, per_frame), bool)
+    own = own.ravel()
+    np.testing.assert_allclose(grad_l[own], grad, rtol=1e-10, atol=1e-12 * np.abs(grad).max())
+    assert not grad_l[~own].any()
+    mu = np.full(grad.size, 1e-3)
+    step = exact.step(rows, grad, mu, 1e-6)
+    step_l = longer.step(rows_l, grad_l, np.full(grad_l.size, 1e-3), 1e-6)
+    np.testing.assert_allclose(step_l[own], step, rtol=1e-8, atol=1e-10 * np.abs(step).max())
+    assert not step_l[~own].any()
