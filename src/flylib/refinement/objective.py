@@ -131,18 +131,23 @@ def chunk_kernel(loss: str, order: int, m: int):
         rho, drho = _loss_jax(sq * data["inv_s2"], loss)
         w = data["w"]
         scale = w * drho * data["inv_s2"]
-        # explicit sums over the 2 pixel rows and the W views (XLA's generic reductions
-        # over these small strided axes were the kernel's slowest part)
+        # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W
+        # views by ONE variadic reduction: XLA then computes every summand in a single
+        # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
         sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+        summands = ([sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
+                    + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)] + [w * rho])
+        sums = jax.lax.reduce(tuple(summands), (0.0,) * len(summands),
+                              lambda a, b: tuple(x + y for x, y in zip(a, b)), (2,))  # each (nb, m, T)
         entry = {}
-        for i in range(3):
-            for j in range(i, 3):
-                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j], axis=2)
+        for (i, j), value in zip(pairs, sums):
+            entry[i, j] = entry[j, i] = value
         h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
-        g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
+        g = jnp.stack(sums[len(pairs):len(pairs) + 3])  # (3, nb, m, T)
         # the cost per block: blocks share no unknown, so the solver accepts or
         # rejects a step block by block
-        cost = jnp.sum(w * rho, axis=(1, 2, 3))
+        cost = jnp.sum(sums[-1], axis=(1, 2))
         # -- rigid points: one world position each (T-last layouts from here on)
         h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
         g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
@@ -324,8 +329,9 @@ def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: f
 
 
 def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
-                  columns: np.ndarray | None = None) -> np.ndarray:
-    """The normal matrix in LAPACK's upper band storage, Fortran-ordered (what
+                  columns: np.ndarray | None = None, mu: np.ndarray | float = 0.0,
+                  floor: float = 0.0) -> np.ndarray:
+    """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
     ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
 
     Parameters
@@ -339,6 +345,9 @@ def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
     columns
         ``(n,)`` bool: only these unknowns (whole blocks, which share nothing); None:
         all.
+    mu, floor
+        Levenberg-Marquardt damping: the diagonal becomes ``diag * (1 + mu) + floor``
+        (``mu`` scalar or ``(n,)``).
 
     Returns
     -------
@@ -347,13 +356,16 @@ def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
     """
     if columns is not None:
         rows, temporal = rows[:, columns], temporal[:, columns]
-    # built transposed (C-ordered (n, u + 1), each unknown's column contiguous), then
-    # viewed as Fortran-ordered: filling it row by row would touch every cache line
-    # of the band once per row
+        if not np.isscalar(mu):
+            mu = mu[columns]
+    k = rows.shape[0]
+    # built transposed (C-ordered (n, u + 1): each unknown's band column contiguous)
+    # and returned as its Fortran-ordered view; the kernel's rows land in one block
+    # of adjacent entries
     out = np.zeros((rows.shape[1], u + 1))
-    for delta in range(rows.shape[0]):
-        out[:, u - delta] = rows[delta]
-    for q in range(temporal.shape[0]):
+    out[:, u - k + 1:] = rows[::-1].T
+    out[:, u] = (rows[0] + temporal[0]) * (1.0 + mu) + floor
+    for q in range(1, temporal.shape[0]):
         out[:, u - q * width] += temporal[q]
     return out.T
 

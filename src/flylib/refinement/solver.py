@@ -351,11 +351,7 @@ class ChunkProblem:
         ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
         definite.
         """
-        u = self.u
-        ab = self.band(rows, columns)
-        if columns is not None and not np.isscalar(mu):
-            mu = mu[columns]
-        ab[u] += mu * ab[u] + floor
+        ab = assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor)
         factor = cholesky_banded(ab, lower=False, overwrite_ab=True, check_finite=False)
         step = np.zeros(grad.shape)
         rhs = -grad if columns is None else -grad[columns]
