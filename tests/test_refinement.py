@@ -293,3 +293,26 @@ def test_padded_frames_carry_no_term():
     step_l = longer.step(rows_l, grad_l, np.full(grad_l.size, 1e-3), 1e-6)
     np.testing.assert_allclose(step_l[own], step, rtol=1e-8, atol=1e-10 * np.abs(step).max())
     assert not step_l[~own].any()
+
+
+def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
+    """The first and last windows reach further into the recording instead of being
+    shorter: one compiled kernel shape per recording, no padded frames."""
+    from flylib.refinement import solver
+
+    shapes = []
+    init = solver.ChunkProblem.__init__
+
+    def record(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        shapes.append((self.n_frames, self.padded))
+
+    monkeypatch.setattr(solver.ChunkProblem, "__init__", record)
+    rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
+    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    result = refine_points(pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1),
+                           options=RefineOptions(chunk_frames=40, overlap_frames=8),
+                           **skeleton_terms(Skeleton.fly(), None))
+    assert result.info["chunks"] == 4
+    assert shapes == [(56, 56)] * 4
+    assert np.isfinite(result.points3d).mean() > 0.95

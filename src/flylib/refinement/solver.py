@@ -552,8 +552,10 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     # recording instead of being shorter, so the kernel compiles once per recording
     # and no window is padded.
     window = min(largest, n_frames)
-    bounds = [(0, n_frames)] if n_frames <= largest else \
-        [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
+    if n_frames <= largest:
+        bounds = [(0, n_frames)] if n_frames else []
+    else:
+        bounds = [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
 
     def solve_chunk(lo: int, hi: int):
         a = min(max(lo - overlap, 0), n_frames - window)
