@@ -330,7 +330,7 @@ def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: f
 
 def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
                   columns: np.ndarray | None = None, mu: np.ndarray | float = 0.0,
-                  floor: float = 0.0) -> np.ndarray:
+                  floor: float = 0.0, buffer: np.ndarray | None = None) -> np.ndarray:
     """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
     ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
 
@@ -348,6 +348,9 @@ def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
     mu, floor
         Levenberg-Marquardt damping: the diagonal becomes ``diag * (1 + mu) + floor``
         (``mu`` scalar or ``(n,)``).
+    buffer
+        ``(n, u + 1)`` C-ordered float64 to build the band in (the result is a view of
+        it); reusing one spares the page faults of a fresh allocation at every step.
 
     Returns
     -------
@@ -362,7 +365,11 @@ def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
     # built transposed (C-ordered (n, u + 1): each unknown's band column contiguous)
     # and returned as its Fortran-ordered view; the kernel's rows land in one block
     # of adjacent entries
-    out = np.zeros((rows.shape[1], u + 1))
+    if buffer is None:
+        out = np.zeros((rows.shape[1], u + 1))
+    else:
+        out = buffer[: rows.shape[1]]
+        out[:, : u - k + 1] = 0.0
     out[:, u - k + 1:] = rows[::-1].T
     out[:, u] = (rows[0] + temporal[0]) * (1.0 + mu) + floor
     for q in range(1, temporal.shape[0]):

@@ -304,6 +304,7 @@ class ChunkProblem:
             "live": live,
         }
         self.temporal = temporal_band(layout, opts.smooth_order, gram, self.data["smooth_w"], live)
+        self._buffer = None  # the band, rebuilt and factorized in place at every step
         # on the device once, not at every evaluation
         self.data = {k: _device(v) for k, v in self.data.items()}
         self.set_active(weight > 0)
@@ -351,7 +352,9 @@ class ChunkProblem:
         ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
         definite.
         """
-        ab = assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor)
+        if self._buffer is None:
+            self._buffer = np.empty((grad.size, self.u + 1))
+        ab = assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor, self._buffer)
         factor = cholesky_banded(ab, lower=False, overwrite_ab=True, check_finite=False)
         step = np.zeros(grad.shape)
         rhs = -grad if columns is None else -grad[columns]
