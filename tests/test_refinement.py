@@ -51,7 +51,8 @@ def _scene(frames=40, seed=0, dist=False):
     return rig, truth, pts2d, conf, kind
 
 
-@pytest.mark.parametrize("loss,order,dist", [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False)])
+@pytest.mark.parametrize("loss,order,dist", [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False),
+                                             ("cauchy", 2, True)])
 def test_kernel_gradient_matches_finite_differences(loss, order, dist):
     rig, truth, pts2d, conf, _ = _scene(frames=6, dist=dist)
     terms = skeleton_terms(Skeleton.fly(), None)
