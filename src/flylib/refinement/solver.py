@@ -267,7 +267,8 @@ def _device(value):
 
 
 class ChunkProblem:
-    """The objective over one chunk of frames (padded to ``padded`` for the kernel)."""
+    """The objective over one chunk of frames (padded to ``padded`` for the kernel;
+    no term reaches a padded frame, whose unknowns never move)."""
 
     def __init__(self, tracks: Grid, xy, weight, layout: BlockLayout, bones, lengths, rigid, centres,
                  opts: RefineOptions, padded: int):
