@@ -2,6 +2,7 @@
 
     PYTHONPATH=src python benchmarks/refinement.py                  # everything
     PYTHONPATH=src python benchmarks/refinement.py --skip-memory    # accuracy + speed only
+    PYTHONPATH=src python benchmarks/refinement.py --skip-memory --baseline ''   # no old-solver timing
 
 The scene is the issue's acceptance scene: the synthetic walking fly (constant bones,
 fixed thorax) seen by the default 7-camera rig, with detector-like 2D errors (1.5 px
@@ -16,7 +17,10 @@ Printed:
   right (error < 5% of the median bone) that the refinement made worse by more than
   5% of a bone;
 - speed: frames/s of the refinement with the JIT compilation excluded (the first call
-  in the process compiles; its extra time is printed separately), beside RANSAC's;
+  in the process compiles; its extra time is printed separately), beside RANSAC's, and
+  frames per CPU second (all threads: the figure least moved by other work on the
+  machine); then the solver of git revision ``--baseline`` (default: the one before
+  the speed work) timed on the same scene in a child process, and the speed-ups;
 - memory: the peak resident memory of a fresh process running the refinement stage
   on artifacts of 10,000 and 100,000 frames (streamed chunk by chunk), and the ratio.
 
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -38,6 +43,9 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+#: The solver before the speed work of issue #16 (whole-chunk LM, padded frames free,
+#: band copied in C order): timed beside the current one unless ``--baseline ''``.
+BASELINE = "bfd9509"
 sys.path.insert(0, str(REPO / "tests"))
 
 from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
@@ -64,15 +72,8 @@ def accuracy_and_speed(frames: int) -> None:
     ransac_s = time.perf_counter() - started
     inliers = np.isfinite(clean2d).all(-1)
 
-    started = time.perf_counter()
-    refine_points(pts2d[:, :64], rig, start[:64], conf=conf[:, :64], inliers=inliers[:, :64], **terms)
-    small_first = time.perf_counter() - started
-    started = time.perf_counter()
-    first = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
-    first_s = time.perf_counter() - started
-    started = time.perf_counter()
-    result = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
-    solve_s = time.perf_counter() - started
+    first, result, speed = timed_refinement(rig, pts2d, start, conf, inliers, terms)
+    solve_s = speed["seconds"]
     assert np.array_equal(first.points3d, result.points3d, equal_nan=True)
 
     before = np.linalg.norm(start - truth, axis=-1)
@@ -101,11 +102,60 @@ def accuracy_and_speed(frames: int) -> None:
     for label, code in (("outliers", 1), ("swaps", 2), ("good", 0)):
         total = int((kind == code).sum())
         print(f"  {label:8s}: {int((rejected & (kind == code)).sum())} of {total} rejected")
-    print(f"speed: refinement {frames / solve_s:,.0f} frames/s (JIT excluded; {solve_s:.2f} s), "
+    print(f"speed: refinement {frames / solve_s:,.0f} frames/s (JIT excluded; {solve_s:.2f} s; "
+          f"{result.info['chunks']} chunks, LM steps per chunk {result.info['iterations'][:4]}), "
           f"ransac {frames / ransac_s:,.0f} frames/s; ratio ransac/refinement {solve_s / ransac_s:.1f}x "
           "(target: >= 2,000 frames/s)")
-    print(f"JIT: the first call in this process took {first_s:.2f} s for {frames} frames "
-          f"(compilation ~{max(first_s - solve_s, 0):.2f} s; a 64-frame call first: {small_first:.2f} s)")
+    print(f"       per CPU second: {frames / speed['cpu_seconds']:,.0f} frames (all threads; less "
+          f"sensitive to the machine's load, {speed['load']:.1f} during the run)")
+    print(f"JIT: the first call in this process took {speed['first_seconds']:.2f} s for {frames} frames "
+          f"(compilation ~{speed['jit_seconds']:.2f} s; a 64-frame call first: {speed['small_first']:.2f} s)")
+    return frames / solve_s, frames / speed["cpu_seconds"]
+
+
+def timed_refinement(rig, pts2d, start, conf, inliers, terms):
+    """Refine twice (the first call compiles); ``(first, second, figures)``."""
+    started = time.perf_counter()
+    refine_points(pts2d[:, :64], rig, start[:64], conf=conf[:, :64], inliers=inliers[:, :64], **terms)
+    small_first = time.perf_counter() - started
+    started = time.perf_counter()
+    first = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
+    first_s = time.perf_counter() - started
+    started, cpu = time.perf_counter(), time.process_time()
+    result = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
+    solve_s, cpu_s = time.perf_counter() - started, time.process_time() - cpu
+    return first, result, {"seconds": solve_s, "cpu_seconds": cpu_s, "first_seconds": first_s,
+                           "jit_seconds": max(first_s - solve_s, 0.0), "small_first": small_first,
+                           "load": os.getloadavg()[0]}
+
+
+def speed_child(frames: int) -> None:
+    """Time the refinement on the scene (whatever ``flylib`` is importable); print JSON."""
+    rig, _truth, pts2d, conf, _kind = scene(frames)
+    terms = skeleton_terms(Skeleton.fly(), None)
+    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    _, _, figures = timed_refinement(rig, pts2d, start, conf, np.isfinite(clean2d).all(-1), terms)
+    print(json.dumps(figures))
+
+
+def baseline(frames: int, revision: str, figures: tuple[float, float]) -> None:
+    """The refinement of git ``revision`` timed on the same scene, in a child process
+    (its ``src`` and ``config`` exported to a temporary directory)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            archive = subprocess.run(["git", "-C", str(REPO), "archive", revision, "src", "config"],
+                                     capture_output=True, check=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+            proc = subprocess.run([sys.executable, __file__, "--speed-child", str(frames)], capture_output=True,
+                                  text=True, check=True, env={**os.environ, "PYTHONPATH": f"{tmp}/src"})
+        except (subprocess.CalledProcessError, FileNotFoundError) as exc:
+            print(f"baseline {revision}: not measured ({exc})")
+            return
+    old = json.loads(proc.stdout.strip().splitlines()[-1])
+    wall, cpu = frames / old["seconds"], frames / old["cpu_seconds"]
+    print(f"baseline solver ({revision}, same scene, measured next): {wall:,.0f} frames/s, "
+          f"{cpu:,.0f} per CPU second (JIT ~{old['jit_seconds']:.2f} s, load {old['load']:.1f}); "
+          f"this solver {figures[0] / wall:.2f}x wall, {figures[1] / cpu:.2f}x per CPU second")
 
 
 def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[Path, Path]:
@@ -188,12 +238,20 @@ def main() -> None:
     parser.add_argument("--memory-frames", type=int, nargs=2, default=[10000, 100000],
                         help="the two recording lengths of the memory comparison")
     parser.add_argument("--skip-memory", action="store_true", help="accuracy and speed only")
+    parser.add_argument("--baseline", default=BASELINE,
+                        help="git revision whose solver is timed on the same scene for comparison ('' to skip)")
     parser.add_argument("--memory-child", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--speed-child", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.memory_child:
         memory_child(args.memory_child)
         return
-    accuracy_and_speed(args.frames)
+    if args.speed_child:
+        speed_child(args.speed_child)
+        return
+    figures = accuracy_and_speed(args.frames)
+    if args.baseline:
+        baseline(args.frames, args.baseline, figures)
     if not args.skip_memory:
         memory(list(args.memory_frames))
 

@@ -51,7 +51,8 @@ def _scene(frames=40, seed=0, dist=False):
     return rig, truth, pts2d, conf, kind
 
 
-@pytest.mark.parametrize("loss,order,dist", [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False)])
+@pytest.mark.parametrize("loss,order,dist", [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False),
+                                             ("cauchy", 2, True)])
 def test_kernel_gradient_matches_finite_differences(loss, order, dist):
     rig, truth, pts2d, conf, _ = _scene(frames=6, dist=dist)
     terms = skeleton_terms(Skeleton.fly(), None)
@@ -64,7 +65,8 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
                            terms["bones"], bone_lengths(truth, terms["bones"]), rigid,
                            rigid_centres(truth, rigid) + 0.003, opts, 8)
     xs = problem.to_slots(start)
-    _cost, ab, grad, _ = problem.evaluate(xs)
+    _cost, rows, grad, _ = problem.evaluate(xs)
+    ab = problem.band(rows)
     rng = np.random.default_rng(1)
     used = np.flatnonzero(np.abs(grad) > 0)
     for k in rng.choice(used, 12, replace=False):
@@ -72,7 +74,9 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
         plus, minus = xs.copy().ravel(), xs.copy().ravel()
         plus[k] += h
         minus[k] -= h
-        fd = (problem.evaluate(plus.reshape(xs.shape))[0] - problem.evaluate(minus.reshape(xs.shape))[0]) / (2 * h)
+        # the cost is per block: the sum is the objective
+        fd = (problem.evaluate(plus.reshape(xs.shape))[0].sum()
+              - problem.evaluate(minus.reshape(xs.shape))[0].sum()) / (2 * h)
         # evaluate returns half the gradient of the cost (the Gauss-Newton convention)
         np.testing.assert_allclose(grad[k], fd / 2, rtol=2e-4, atol=1e-6 * np.abs(grad).max())
     assert np.all(ab[-1][used] > 0)  # the diagonal of the normal matrix
@@ -204,7 +208,8 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
                            bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
                            RefineOptions(smooth_order=order, smooth_weight=smooth), 8)
     xs = problem.to_slots(truth)
-    _, ab, grad, _ = problem.evaluate(xs)
+    _, rows, grad, _ = problem.evaluate(xs)
+    ab = problem.band(rows)
     if not smooth:  # the temporal term is quadratic: its Hessian is exact anyway
         assert np.abs(grad).max() < 1e-6 * np.abs(ab).max()
     u = problem.u
@@ -219,3 +224,96 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
         for i in range(max(0, j - u), min(column.size, j + u + 1)):
             band_column[i] = ab[u + i - j, j] if i <= j else ab[u + j - i, i]
         np.testing.assert_allclose(column, band_column, rtol=1e-4, atol=1e-5 * np.abs(band_column).max())
+
+
+def _tiny_problem(frames=6, padded=None, seed=0):
+    rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed)
+    terms = skeleton_terms(Skeleton.fly(), None)
+    layout = BlockLayout.from_chains(38, terms["chains"])
+    observed = np.isfinite(pts2d).all(-1)
+    rigid = np.asarray(terms["rigid"])
+    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, np.where(observed, conf, 0.0), layout,
+                           terms["bones"], bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
+                           RefineOptions(), padded or frames)
+    start = truth + np.random.default_rng(seed).normal(0, 0.01, truth.shape)
+    return problem, problem.to_slots(start)
+
+
+def _dense(ab: np.ndarray, u: int) -> np.ndarray:
+    """LAPACK upper band storage -> the symmetric matrix."""
+    n = ab.shape[1]
+    a = np.zeros((n, n))
+    for d in range(u + 1):
+        idx = np.arange(d, n)
+        a[idx - d, idx] = a[idx, idx - d] = ab[u - d, d:]
+    return a
+
+
+def test_step_matches_a_dense_solve_of_the_damped_normal_equations():
+    problem, xs = _tiny_problem()
+    _, rows, grad, _ = problem.evaluate(xs)
+    dense = _dense(problem.band(rows), problem.u)
+    # the structure the banded solve relies on: symmetric positive definite, and no
+    # entry couples two blocks
+    per_block = xs[0].size
+    n_blocks = xs.shape[0]
+    block = np.repeat(np.arange(n_blocks), per_block)
+    assert not dense[block[:, None] != block[None, :]].any()
+    mu = np.repeat(np.random.default_rng(2).uniform(1e-4, 1.0, n_blocks), per_block)
+    floor = 1e-3
+    live = np.ones(n_blocks, bool)
+    live[[1, 4]] = False  # settled blocks: left out, their step zero
+    columns = np.repeat(live, per_block)
+    step = problem.step(rows, grad, mu, floor, columns)
+    sub = dense[np.ix_(columns, columns)]
+    sub = sub + np.diag(mu[columns] * np.diag(sub) + floor)
+    np.testing.assert_allclose(step[columns], np.linalg.solve(sub, -grad[columns]), rtol=1e-8,
+                               atol=1e-10 * np.abs(step).max())
+    assert not step[~columns].any()
+    np.testing.assert_allclose(problem.step(rows, grad, mu, floor)[columns], step[columns], rtol=1e-8,
+                               atol=1e-10 * np.abs(step).max())
+
+
+def test_padded_frames_carry_no_term():
+    """A chunk padded to a longer compiled shape is the same problem on its own frames:
+    the padding adds no cost, no gradient, no curvature, and never moves."""
+    frames, padded = 10, 16
+    exact, xs = _tiny_problem(frames)
+    longer, xs_long = _tiny_problem(frames, padded)
+    xs_long = xs_long + np.where(np.arange(padded)[None, :, None, None] >= frames, 0.3, 0.0)  # far off
+    cost, rows, grad, _ = exact.evaluate(xs)
+    cost_l, rows_l, grad_l, _ = longer.evaluate(xs_long)
+    np.testing.assert_allclose(cost_l, cost, rtol=1e-12)
+    per_frame = 3 * exact.layout.m
+    own = (np.arange(padded)[None, :, None] < frames) & np.ones((xs.shape[0], 1, per_frame), bool)
+    own = own.ravel()
+    np.testing.assert_allclose(grad_l[own], grad, rtol=1e-10, atol=1e-12 * np.abs(grad).max())
+    assert not grad_l[~own].any()
+    mu = np.full(grad.size, 1e-3)
+    step = exact.step(rows, grad, mu, 1e-6)
+    step_l = longer.step(rows_l, grad_l, np.full(grad_l.size, 1e-3), 1e-6)
+    np.testing.assert_allclose(step_l[own], step, rtol=1e-8, atol=1e-10 * np.abs(step).max())
+    assert not step_l[~own].any()
+
+
+def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
+    """The first and last windows reach further into the recording instead of being
+    shorter: one compiled kernel shape per recording, no padded frames."""
+    from flylib.refinement import solver
+
+    shapes = []
+    init = solver.ChunkProblem.__init__
+
+    def record(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        shapes.append((self.n_frames, self.padded))
+
+    monkeypatch.setattr(solver.ChunkProblem, "__init__", record)
+    rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
+    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    result = refine_points(pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1),
+                           options=RefineOptions(chunk_frames=40, overlap_frames=8),
+                           **skeleton_terms(Skeleton.fly(), None))
+    assert result.info["chunks"] == 4
+    assert shapes == [(56, 56)] * 4
+    assert np.isfinite(result.points3d).mean() > 0.95

@@ -61,24 +61,30 @@ def _loss_jax(z, loss: str):
 def chunk_kernel(loss: str, order: int, m: int):
     """The jitted evaluation of one chunk: cost, banded normal matrix and gradient.
 
-    ``evaluate(xs, data) -> (cost, ab, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
+    ``evaluate(xs, data) -> (cost, rows, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
     the slotted points and ``data`` a dict of dense arrays (no scatter anywhere: every
     sum is over a padded axis):
 
     - observations on a grid ``(n_blocks, m, W)`` of (slot, view) cells, ``W`` the
       most views any point is seen from: ``rmat`` ``(..., 3, 3)``, ``tvec``
       ``(..., 3)``, ``intr`` ``(..., 4)``, ``dist`` ``(..., D)``, ``xy``
-      ``(..., T, 2)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2`` (1 / scale_px^2);
+      ``(2, n_blocks, m, W, T)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2``
+      (1 / scale_px^2);
     - bones as incidence rows ``incidence`` ``(n_blocks, Kb, m)`` (+1 / -1 at the
       bone's two slots, zero rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
     - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``,
       ``rigid_w``;
-    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram`), ``smooth_w``.
+    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram` of the live
+      frames, zero over the padding), ``smooth_w``;
+    - ``live`` ``(T,)``: 1 for the chunk's frames, 0 for the padding that rounds ``T``
+      up to a compiled shape (no term reaches a padded frame).
 
-    ``ab`` holds the within-frame part of the Gauss-Newton matrix (IRLS weights for
-    the robust loss) as the superdiagonals ``0..5`` of LAPACK's upper band storage
-    (``(6, n)``; :func:`temporal_band` adds the temporal rows); ``grad`` ``(n,)`` the
-    gradient (both halved, so the step solves ``ab d = -grad``); ``err``
+    ``cost`` ``(n_blocks,)`` is the objective per block (the blocks share no unknown);
+    ``rows`` ``(6, n)`` the within-frame part of the Gauss-Newton matrix (IRLS weights
+    for the robust loss), row ``delta`` its ``delta``-th superdiagonal at the column
+    of the lower-right end (:func:`assemble_band` adds :func:`temporal_band`'s rows
+    and makes LAPACK's band); ``grad`` ``(n,)`` the gradient (both halved, so the
+    step solves ``A d = -grad``); ``err``
     ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
     of :func:`flylib.geometry.distort_one` plus intrinsics in the camera frame (the
     model of :func:`flylib.geometry.project_full_one`), chained with the rotation.
@@ -92,53 +98,66 @@ def chunk_kernel(loss: str, order: int, m: int):
     band_width(m, order)
 
     def pixel(pc, intr, dist):
-        # the model of geometry.project_full_one, camera frame -> pixels, elementwise
-        # over trailing axes (components lead: pc (3, ...), intr (4, ...), dist (12, ...))
+        # the model of geometry.project_full_one, camera frame -> pixels, elementwise:
+        # components as sequences (pc 3, intr 4, dist 12) of same-shaped arrays, so that
+        # no op stacks or transposes the large (nb, m, W, T) arrays
         x, y = pc[0] / pc[2], pc[1] / pc[2]
         if dist is not None:
             radial, add_x, add_y = camera_model.distortion_terms(x, y, dist)
             x, y = x * radial + add_x, y * radial + add_y
-        return jnp.stack([intr[0] * x + intr[2], intr[1] * y + intr[3]])
+        return intr[0] * x + intr[2], intr[1] * y + intr[3]
 
     def evaluate(xs, data):
         nb, n_frames = xs.shape[0], xs.shape[1]
         # T-last layouts throughout: every elementwise op runs along frames
         xk = jnp.transpose(xs, (0, 2, 3, 1))  # (nb, m, 3, T)
-        rmat = data["rmat"]  # (nb, m, W, 3, 3)
-        pc = jnp.einsum("bkvij,bkjt->ibkvt", rmat, xk) + jnp.moveaxis(data["tvec"], -1, 0)[..., None]
-        intr = jnp.moveaxis(data["intr"], -1, 0)[..., None]  # (4, nb, m, W, 1)
+        rmat, tvec = data["rmat"], data["tvec"]  # (nb, m, W, 3, 3), (nb, m, W, 3)
+        r = [[rmat[..., i, j, None] for j in range(3)] for i in range(3)]  # each (nb, m, W, 1)
+        xw = [xk[:, :, None, j] for j in range(3)]  # each (nb, m, 1, T)
+        pc = tuple(r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None] for i in range(3))
+        intr = [data["intr"][..., k, None] for k in range(4)]
         dist = data.get("dist")
-        dist = None if dist is None else jnp.moveaxis(dist, -1, 0)[..., None]
-        proj = pixel(pc, intr, dist)  # (2, nb, m, W, T)
-        # d pixel / d world point: one JVP per world axis j, whose tangent in the camera
-        # frame is the rotation's column j
-        rot = jnp.moveaxis(rmat, (-2, -1), (0, 1))[..., None]  # (3, 3, nb, m, W, 1)
-        jac = jnp.stack([jax.jvp(lambda p: pixel(p, intr, dist), (pc,),
-                                 (jnp.broadcast_to(rot[:, j], pc.shape),))[1] for j in range(3)],
-                        axis=1)  # (2, 3, nb, m, W, T)
-        e = proj - jnp.moveaxis(data["xy"], -1, 0)  # (2, nb, m, W, T)
+        dist = None if dist is None else [dist[..., k, None] for k in range(dist.shape[-1])]
+        proj = pixel(pc, intr, dist)  # 2 x (nb, m, W, T)
+        # d pixel / d world point: one JVP per camera-frame axis (through the same
+        # model), chained with the rotation
+        units = [tuple(jnp.full_like(c, float(k == i)) for k, c in enumerate(pc)) for i in range(3)]
+        dpix = [jax.jvp(lambda *p: pixel(p, intr, dist), pc, units[i])[1] for i in range(3)]
+        jac = [[dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
+               for a in range(2)]  # jac[a][j] (nb, m, W, T)
+        xy = data["xy"]  # (2, nb, m, W, T)
+        e = (proj[0] - xy[0], proj[1] - xy[1])
         sq = e[0] * e[0] + e[1] * e[1]
         rho, drho = _loss_jax(sq * data["inv_s2"], loss)
         w = data["w"]
         scale = w * drho * data["inv_s2"]
-        # explicit sums over the 2 pixel rows and the W views (XLA's generic reductions
-        # over these small strided axes were the kernel's slowest part)
-        sj = [[scale * jac[a, i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W
+        # views by ONE variadic reduction: XLA then computes every summand in a single
+        # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
+        sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+        summands = ([sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
+                    + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)] + [w * rho])
+        sums = jax.lax.reduce(tuple(summands), (0.0,) * len(summands),
+                              lambda a, b: tuple(x + y for x, y in zip(a, b)), (2,))  # each (nb, m, T)
         entry = {}
-        for i in range(3):
-            for j in range(i, 3):
-                entry[i, j] = entry[j, i] = jnp.sum(sj[0][i] * jac[0, j] + sj[1][i] * jac[1, j], axis=2)
+        for (i, j), value in zip(pairs, sums):
+            entry[i, j] = entry[j, i] = value
         h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
-        g = jnp.stack([jnp.sum(sj[0][i] * e[0] + sj[1][i] * e[1], axis=2) for i in range(3)])  # (3, nb, m, T)
-        cost = jnp.sum(w * rho)
+        g = jnp.stack(sums[len(pairs):len(pairs) + 3])  # (3, nb, m, T)
+        # the cost per block: blocks share no unknown, so the solver accepts or
+        # rejects a step block by block
+        cost = jnp.sum(sums[-1], axis=(1, 2))
         # -- rigid points: one world position each (T-last layouts from here on)
         h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
         g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
-        mask = data["rigid_mask"][:, :, None, None]  # (nb, m, 1, 1)
+        # padded frames (live 0) carry no term: their unknowns stay where they are
+        live = data["live"]  # (T,)
+        mask = data["rigid_mask"][:, :, None, None] * live  # (nb, m, 1, T)
         diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
         g = g + data["rigid_w"] * diff
-        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[..., None]
-        cost += data["rigid_w"] * jnp.sum(diff * diff)
+        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[:, :, :, None]
+        cost += data["rigid_w"] * jnp.sum(diff * diff, axis=(1, 2, 3))
         # -- bones: within-frame blocks on the diagonal (slot k, k) and next to it
         # (k, k+1); a bone joins neighbouring slots (chains are packed contiguously).
         # Loops over the few bones per block instead of einsums: XLA's contractions
@@ -149,19 +168,19 @@ def chunk_kernel(loss: str, order: int, m: int):
         length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
         unit = d / length[:, :, None]
         target = data["length"][..., None]
-        resid = (length - target) * (target > 0)
+        resid = (length - target) * (target > 0) * live
         grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
         diag = h
         nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
         for q in range(n_bones):
-            outer = data["bone_w"] * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+            outer = data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
             # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
             diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
             if m > 1:
                 link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
                 nxt = nxt - link[:, :, None, None, None] * outer[:, None]
             g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
-        cost += data["bone_w"] * jnp.sum(resid * resid)
+        cost += data["bone_w"] * jnp.sum(resid * resid, axis=(1, 2))
         diag = jnp.transpose(diag, (0, 4, 1, 2, 3))  # (nb, T, m, 3, 3)
         nxt = jnp.transpose(nxt, (0, 4, 1, 2, 3))  # (nb, T, m - 1, 3, 3)
         g = jnp.transpose(g, (0, 3, 1, 2))  # (nb, T, m, 3)
@@ -169,8 +188,8 @@ def chunk_kernel(loss: str, order: int, m: int):
         gram = data["gram"]
         if order:
             sw = data["smooth_w"]
-            dx = jnp.diff(xs, n=order, axis=1)
-            cost += sw * jnp.sum(dx * dx)
+            dx = jnp.diff(xs, n=order, axis=1) * live[order:, None, None]
+            cost += sw * jnp.sum(dx * dx, axis=(1, 2, 3))
             smooth = gram[0][None, :, None, None] * xs
             zero = jnp.zeros_like(xs)
             for q in range(1, order + 1):
@@ -281,22 +300,81 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
     return out
 
 
-def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float) -> np.ndarray:
-    """The constant part of the band ``(u + 1, n)``: the temporal term's rows for real
-    slots and a unit diagonal for empty ones (whose unknowns then never move);
-    :func:`chunk_kernel`'s rows are added to rows ``u .. u - 5``."""
+def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float,
+                  live: np.ndarray | None = None) -> np.ndarray:
+    """The constant part of the normal matrix: the temporal term on real slots, and a
+    unit diagonal for empty slots and padded frames (``live`` ``(T,)`` 0), whose
+    unknowns then never move.
+
+    Returns
+    -------
+    np.ndarray
+        ``(order + 1, n)``: row ``q`` is the ``3 m q``-th superdiagonal (row 0 the
+        diagonal), at the column of its lower-right end, i.e. band row ``u - 3 m q``
+        of LAPACK's upper storage (:func:`assemble_band`).
+    """
     m = layout.m
     width = 3 * m
-    u = band_width(m, order)
     n_blocks = layout.n_blocks
     n_frames = gram.shape[1]
     real = np.repeat((layout.slots >= 0).astype(float), 3, axis=1)[:, None, :]  # (nb, 1, 3m)
-    ab = np.zeros((u + 1, n_blocks * n_frames * width))
+    if live is not None:
+        real = real * np.asarray(live, float)[None, :, None]  # (nb, T, 3m)
+    out = np.zeros((order + 1, n_blocks * n_frames * width))
     if order and smooth_w:
         for q in range(order + 1):
-            ab[u - q * width] = (smooth_w * gram[q][None, :, None] * real).ravel()
-    ab[u] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
-    return ab
+            out[q] = (smooth_w * gram[q][None, :, None] * real).ravel()
+    out[0] += np.broadcast_to(1.0 - real, (n_blocks, n_frames, width)).ravel()
+    return out
+
+
+def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
+                  columns: np.ndarray | None = None, mu: np.ndarray | float = 0.0,
+                  floor: float = 0.0, buffer: np.ndarray | None = None) -> np.ndarray:
+    """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
+    ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
+
+    Parameters
+    ----------
+    rows
+        ``(k, n)`` :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``.
+    temporal
+        ``(order + 1, n)`` :func:`temporal_band`.
+    width, u
+        ``3 m`` and the half-bandwidth (:func:`band_width`).
+    columns
+        ``(n,)`` bool: only these unknowns (whole blocks, which share nothing); None:
+        all.
+    mu, floor
+        Levenberg-Marquardt damping: the diagonal becomes ``diag * (1 + mu) + floor``
+        (``mu`` scalar or ``(n,)``).
+    buffer
+        ``(n, u + 1)`` C-ordered float64 to build the band in (the result is a view of
+        it); reusing one spares the page faults of a fresh allocation at every step.
+
+    Returns
+    -------
+    np.ndarray
+        ``(u + 1, n_columns)``; entry ``(u + i - j, j)`` is ``A[i, j]`` for ``i <= j``.
+    """
+    if columns is not None:
+        rows, temporal = rows[:, columns], temporal[:, columns]
+        if not np.isscalar(mu):
+            mu = mu[columns]
+    k = rows.shape[0]
+    # built transposed (C-ordered (n, u + 1): each unknown's band column contiguous)
+    # and returned as its Fortran-ordered view; the kernel's rows land in one block
+    # of adjacent entries
+    if buffer is None:
+        out = np.zeros((rows.shape[1], u + 1))
+    else:
+        out = buffer[: rows.shape[1]]
+        out[:, : u - k + 1] = 0.0
+    out[:, u - k + 1:] = rows[::-1].T
+    out[:, u] = (rows[0] + temporal[0]) * (1.0 + mu) + floor
+    for q in range(1, temporal.shape[0]):
+        out[:, u - q * width] += temporal[q]
+    return out.T
 
 
 def band_width(m: int, order: int) -> int:

@@ -6,11 +6,13 @@ whole starting reconstruction, left/right bones pooled on request); then the fra
 are solved in chunks of ``chunk_frames`` with ``overlap_frames`` of context on each
 side (only the chunk's own frames are kept), so memory does not grow with the
 recording. In each chunk, Gauss-Newton steps with Levenberg-Marquardt damping solve
-the banded normal equations of :mod:`flylib.refinement.objective` exactly. The robust
+the banded normal equations of :mod:`flylib.refinement.objective` exactly; the
+point blocks (limb chains) share no unknown once the recording-wide unknowns are
+fixed, so each block takes or refuses its steps and is damped on its own. The robust
 reprojection term starts from the triangulation's inlier views (plus every view of a
-point the triangulation could not reconstruct); once converged, every observation
-within ``outlier_px`` of the refined point is admitted, the rest sit out, and the
-fit continues.
+point the triangulation could not reconstruct); after the first half of the steps,
+every observation within ``outlier_px`` of the refined point is admitted, the rest
+sit out, and the fit continues.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from ..resources import usable_cpus
 from .objective import (
     LOSSES,
     BlockLayout,
+    assemble_band,
     band_width,
     chunk_kernel,
     difference_gram,
@@ -254,8 +257,18 @@ def _bone_incidence(layout: BlockLayout, bones: np.ndarray, lengths: np.ndarray)
     return inc, out
 
 
+def _device(value):
+    """A NumPy array as a JAX array (scalars as they are)."""
+    if isinstance(value, np.ndarray):
+        import jax
+
+        return jax.device_put(value)
+    return value
+
+
 class ChunkProblem:
-    """The objective over one chunk of frames (padded to ``padded`` for the kernel)."""
+    """The objective over one chunk of frames (padded to ``padded`` for the kernel;
+    no term reaches a padded frame, whose unknowns never move)."""
 
     def __init__(self, tracks: Grid, xy, weight, layout: BlockLayout, bones, lengths, rigid, centres,
                  opts: RefineOptions, padded: int):
@@ -272,28 +285,35 @@ class ChunkProblem:
         rigid_ok = np.isfinite(centres).all(-1) & (opts.rigid_weight > 0)
         rigid, centres = rigid[rigid_ok], centres[rigid_ok]
         incidence, slot_lengths = _bone_incidence(layout, bones, lengths)
+        live = (np.arange(padded) < self.n_frames).astype(np.float64)
+        gram = np.zeros((opts.smooth_order + 1, padded))
+        gram[:, : self.n_frames] = difference_gram(self.n_frames, opts.smooth_order)
         rigid_mask = np.zeros(layout.slots.shape)
         centre = np.zeros((*layout.slots.shape, 3))
         rigid_mask[layout.block_of[rigid], layout.slot_of[rigid]] = 1.0
         centre[layout.block_of[rigid], layout.slot_of[rigid]] = centres.reshape(-1, 3)
         self.data = {
             **tracks.arrays,
-            "xy": tracks.gather(np.nan_to_num(xy, nan=0.0), padded),
+            "xy": np.moveaxis(tracks.gather(np.nan_to_num(xy, nan=0.0), padded), -1, 0),
             "inv_s2": 1.0 / opts.scale_px**2,
             "incidence": incidence, "length": slot_lengths,
             "bone_w": opts.bone_weight / opts.bone_scale**2,
             "rigid_mask": rigid_mask, "centre": centre,
             "rigid_w": opts.rigid_weight / opts.rigid_scale**2,
-            "gram": difference_gram(padded, opts.smooth_order),
+            "gram": gram,
             "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
+            "live": live,
         }
-        self.band = temporal_band(layout, opts.smooth_order, self.data["gram"], self.data["smooth_w"])
+        self.temporal = temporal_band(layout, opts.smooth_order, gram, self.data["smooth_w"], live)
+        self._buffer = None  # the band, rebuilt and factorized in place at every step
+        # on the device once, not at every evaluation
+        self.data = {k: _device(v) for k, v in self.data.items()}
         self.set_active(weight > 0)
 
     def set_active(self, active: np.ndarray) -> None:
         """Use only the observations ``active`` ``(V, T, P)``."""
         self.active = active
-        self.data["w"] = self.tracks.gather(np.where(active, self.weight, 0.0), self.padded)
+        self.data["w"] = _device(self.tracks.gather(np.where(active, self.weight, 0.0), self.padded))
 
     def to_slots(self, x: np.ndarray) -> np.ndarray:
         """``(T, P, 3)`` -> padded, slotted ``(n_blocks, padded, m, 3)``."""
@@ -305,56 +325,99 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
+        """The objective at slotted ``xs``: ``(cost, rows, grad, err)``.
+
+        ``cost`` ``(n_blocks,)`` per block, ``rows`` ``(6, n)`` the within-frame part
+        of the Gauss-Newton matrix (:meth:`band` makes the whole matrix), ``grad``
+        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err``
+        ``(n_blocks, m, W, padded)`` pixel errors.
+        """
         cost, rows, grad, err = self.kernel(xs, self.data)
-        ab = self.band.copy()
-        ab[self.u - rows.shape[0] + 1:] += np.asarray(rows)[::-1]
-        return float(cost), ab, np.asarray(grad), np.asarray(err)
+        return np.asarray(cost), np.asarray(rows), np.asarray(grad), np.asarray(err)
+
+    def band(self, rows: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
+        """The Gauss-Newton matrix ``(u + 1, n)`` in LAPACK's upper band storage
+        (Fortran-ordered) from :meth:`evaluate`'s ``rows``; only ``columns`` ``(n,)``
+        bool (whole blocks) when given."""
+        return assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns)
 
     def errors(self, err: np.ndarray) -> np.ndarray:
         """Cell errors ``(n_blocks, m, W, padded)`` -> ``(V, T, P)``."""
         return self.tracks.scatter(err, (self.n_views, self.n_frames, self.n_points))
 
-    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
-        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, iterations, err)``.
+    def step(self, rows: np.ndarray, grad: np.ndarray, mu: np.ndarray, floor: float,
+             columns: np.ndarray | None = None) -> np.ndarray:
+        """The damped Gauss-Newton step ``(n,)``: solves ``(A + diag(mu * diag(A) + floor)) d
+        = -grad`` over ``columns`` (zero elsewhere) by one banded Cholesky.
 
-        ``trace``, when given, receives ``(cost, mu)`` after every evaluation.
+        ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
+        definite.
         """
-        u = self.u
-        cost, ab, grad, err = self.evaluate(xs)
+        if self._buffer is None:
+            self._buffer = np.empty((grad.size, self.u + 1))
+        ab = assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor, self._buffer)
+        factor = cholesky_banded(ab, lower=False, overwrite_ab=True, check_finite=False)
+        step = np.zeros(grad.shape)
+        rhs = -grad if columns is None else -grad[columns]
+        solved = cho_solve_banded((factor, False), rhs, overwrite_b=True, check_finite=False)
+        if columns is None:
+            return solved
+        step[columns] = solved
+        return step
+
+    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
+        """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, steps, err)``.
+
+        The blocks share no unknown, so each keeps its own damping and takes or
+        refuses its part of a step on its own cost: one block's refused step costs the
+        others nothing. A block stops once its cost falls by less than ``ftol`` of
+        itself (or its damping runs away), and leaves the factorization. A step is one
+        banded factorization of the live blocks and one evaluation of the chunk; at
+        most ``max_iterations`` are taken.
+
+        ``trace``, when given, receives ``(cost, mu)`` (per-block arrays) after every
+        evaluation.
+        """
+        n_blocks = xs.shape[0]
+        per_block = xs[0].size  # unknowns of one block (block-major ordering)
+        cost, rows, grad, err = self.evaluate(xs)
+        mu = np.full(n_blocks, 1e-4)
         if trace is not None:
-            trace.append((cost, 0.0))
-        mu = 1e-4
-        it = 0
-        for it in range(1, max_iterations + 1):
-            diag = ab[u].copy()
-            # a ridge far below any real curvature: keeps unknowns that only the
-            # temporal term sees (a point unobserved in the whole chunk) well posed, and
-            # the factorization free of denormal fill-in
-            floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
-            improved = False
-            while mu < 1e8:
-                damped = ab.copy()
-                damped[u] += mu * diag + floor
-                try:
-                    factor = cholesky_banded(damped, lower=False, check_finite=False)
-                except LinAlgError:
-                    mu *= 10.0
-                    continue
-                step = cho_solve_banded((factor, False), -grad, check_finite=False)
-                trial = xs + step.reshape(xs.shape)
-                new = self.evaluate(trial)
-                if trace is not None:
-                    trace.append((new[0], mu))
-                if new[0] <= cost:
-                    improved = True
-                    decrease = cost - new[0]
-                    xs, (cost, ab, grad, err) = trial, new
-                    mu = max(mu / 5.0, 1e-10)
-                    break
-                mu *= 8.0
-            if not improved or decrease <= ftol * max(cost, 1e-12):
-                break
-        return xs, it, err
+            trace.append((cost, np.zeros(n_blocks)))
+        # a ridge far below any real curvature: keeps unknowns that only the temporal
+        # term sees (a point unobserved in the whole chunk) well posed, and the
+        # factorization free of denormal fill-in
+        diag = rows[0] + self.temporal[0]
+        floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
+        live = np.ones(n_blocks, bool)
+        steps = 0
+        while steps < max_iterations and live.any():
+            columns = None if live.all() else np.repeat(live, per_block)
+            try:
+                step = self.step(rows, grad, np.repeat(mu, per_block), floor, columns)
+            except LinAlgError:
+                mu = np.where(live, mu * 10.0, mu)
+                live &= mu < 1e8
+                continue
+            steps += 1
+            trial = xs + step.reshape(xs.shape)
+            new_cost, new_rows, new_grad, new_err = self.evaluate(trial)
+            better = live & (new_cost <= cost)
+            settled = better & (cost - new_cost <= ftol * np.maximum(new_cost, 1e-12))
+            if better.all():
+                xs, cost, rows, grad, err = trial, new_cost, new_rows, new_grad, new_err
+            elif better.any():
+                took = np.repeat(better, per_block)
+                xs = np.where(better[:, None, None, None], trial, xs)
+                cost = np.where(better, new_cost, cost)
+                rows = np.where(took, new_rows, rows)
+                grad = np.where(took, new_grad, grad)
+                err = np.where(better[:, None, None, None], new_err, err)
+            mu = np.where(better, np.maximum(mu / 5.0, 1e-10), np.where(live, mu * 8.0, mu))
+            live &= ~settled & (mu < 1e8)
+            if trace is not None:
+                trace.append((new_cost, mu.copy()))
+        return xs, steps, err
 
 
 # -- the recording ----------------------------------------------------------------------
@@ -488,9 +551,19 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     largest = chunk + 2 * overlap
     iterations, kept_total, rejected_total = [], 0, 0
 
-    def solve_chunk(lo: int):
-        hi = min(lo + chunk, n_frames)
-        a, b = max(lo - overlap, 0), min(hi + overlap, n_frames)
+    # Every chunk is solved over a window of one length (`largest`, or the whole
+    # recording if shorter): the first and last windows reach further into the
+    # recording instead of being shorter, so the kernel compiles once per recording
+    # and no window is padded.
+    window = min(largest, n_frames)
+    if n_frames <= largest:
+        bounds = [(0, n_frames)] if n_frames else []
+    else:
+        bounds = [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
+
+    def solve_chunk(lo: int, hi: int):
+        a = min(max(lo - overlap, 0), n_frames - window)
+        b = a + window
         pts2d, conf, start, inliers = source.read(a, b)
         observed, weight = _weights(pts2d, conf, opts)
         problem = ChunkProblem(grid, pts2d, weight, layout, bones, lengths, rigid, centres, opts,
@@ -513,18 +586,17 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
                 np.where(active[..., None], pts2d[:, keep], np.nan), flags)
 
     started = time.perf_counter()
-    starts = list(range(0, n_frames, chunk))
-    workers = max(1, min(2, usable_cpus(), len(starts)))
+    workers = max(1, min(2, usable_cpus(), len(bounds)))
     # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
     # once, not per chunk: threads entering and leaving it would undo each other). The
     # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
     # them ran 10-40x slower on a busy 2-core machine.
     with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
         pending: deque = deque()
-        for k in range(len(starts) + workers):
-            if k < len(starts):  # at most `workers` chunks ahead of the writer: memory stays flat
-                pending.append(pool.submit(solve_chunk, starts[k]))
-            if len(pending) > workers or (k >= len(starts) and pending):
+        for k in range(len(bounds) + workers):
+            if k < len(bounds):  # at most `workers` chunks ahead of the writer: memory stays flat
+                pending.append(pool.submit(solve_chunk, *bounds[k]))
+            if len(pending) > workers or (k >= len(bounds) and pending):
                 lo, hi, its, active, rejected, points3d, err, clean, flags = pending.popleft().result()
                 iterations.append(its)
                 supported[lo:hi] = active.any(axis=0)
