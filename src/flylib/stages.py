@@ -27,19 +27,17 @@ stage                  reads                                       writes
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import FlylibError, ResultsError
+from .errors import ResultsError
 from .paths import atomic_path
 
 log = logging.getLogger(__name__)
@@ -411,51 +409,3 @@ def run_visualization(config, results_path: str | Path, recording_dir: str | Pat
     footage = footage_files(config, Path(recording_dir))
     return render_videos(config, result, footage, outdir, progress=progress,
                          corrected=read_corrected(results_path))
-
-
-# -- command-line plumbing shared by scripts/*.py ----------------------------------
-
-
-def script_parser(description: str) -> argparse.ArgumentParser:
-    """An argument parser with the options every stage script shares."""
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--config", required=True, type=Path,
-                        help="config file (.yaml/.toml) of the run, e.g. config/config.yaml")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    return parser
-
-
-def output_dir(out: str | Path) -> Path:
-    """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
-    gives ``<outdir>``; any other file its own directory)."""
-    parent = Path(out).parent
-    return parent.parent if parent.name == "stages" else parent
-
-
-def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace, Any], Any],
-                argv: list[str] | None = None,
-                outdir: Callable[[argparse.Namespace], str | Path] | None = None) -> int:
-    """Parse arguments, load the config, run a stage; a user-facing error is printed as
-    one line on stderr and exits with status 1.
-
-    With ``outdir`` (the output directory the stage writes, from its arguments) the
-    stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
-    a second run writing the same directory fails naming the holder."""
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-    from .config import Config
-
-    try:
-        config = Config.from_file(args.config)
-        if outdir is None:
-            run(args, config)
-        else:
-            from .locking import outdir_lock
-
-            with outdir_lock(outdir(args), job=Path(parser.prog).stem):
-                run(args, config)
-    except FlylibError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 from itertools import combinations, pairwise
 
 import numpy as np
@@ -31,14 +30,14 @@ from . import camera_model
 from .cameras import CameraGroup
 from .config.constants import TRIANGULATION_METHODS
 from .errors import ConfigError
-from .resources import usable_cpus
+from .resources import thread_map
 
 log = logging.getLogger(__name__)
 
 DEFAULT_CHUNK_POINTS = 4096
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
 _CHUNKS_IN_FLIGHT = 4
-_RANSAC_THREADS = min(4, usable_cpus())
+_RANSAC_THREADS = 4
 
 
 # -- input handling --------------------------------------------------------------
@@ -291,9 +290,8 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
         kept[:, sel] = seen
 
     # NumPy releases the GIL in its loops: pieces run on a few threads (disjoint outputs).
-    with ThreadPoolExecutor(max_workers=max(1, min(_RANSAC_THREADS, len(pieces)))) as pool:
-        for _ in pool.map(run, pieces):
-            pass
+    for _ in thread_map(run, pieces, _RANSAC_THREADS):
+        pass
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 

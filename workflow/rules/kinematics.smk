@@ -27,9 +27,8 @@ if FLAGS["kinematics"]:
             mem_mb=2000,
             runtime=15,
         params:
-            run=command("kinematics.py"),
             stage=stage_params("kinematics"),
-        shell:
-            "{params.run}"
-            " --results {input.results:q} --outdir {wildcards.outdir:q}"
-            " 2> {log:q}"
+            config=job_config,
+        threads: 1
+        script:
+            "../../scripts/kinematics.py"
