@@ -44,6 +44,6 @@ if DEMO is not None:
             mem_mb=2000,
             runtime=15,
         conda:
-            "../../envs/visualization.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/demo.py"

@@ -37,7 +37,7 @@ if EXPORTS.get("nwb"):
         benchmark:
             "{outdir}/benchmarks/export_nwb.tsv"
         conda:
-            "../../envs/exports.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=2000,
             runtime=15,

@@ -22,7 +22,7 @@ if FLAGS["kinematics"]:
         benchmark:
             "{outdir}/benchmarks/kinematics.tsv"
         conda:
-            "../../envs/visualization.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=2000,
             runtime=15,

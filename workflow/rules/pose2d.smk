@@ -27,6 +27,6 @@ if FLAGS["pose2d"]:
             runtime=120,
             gpu=pose2d_gpus,
         conda:
-            "../../envs/pose2d.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/pose2d.py"

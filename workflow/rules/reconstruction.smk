@@ -24,7 +24,7 @@ if FLAGS["bundle_adjustment"]:
             runtime=60,
         threads: 1
         conda:
-            "../../envs/geometry.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/bundle_adjustment.py"
 
@@ -49,7 +49,7 @@ if FLAGS["pictorial_structures"]:
             runtime=60,
         threads: 1
         conda:
-            "../../envs/geometry.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/pictorial_structures.py"
 
@@ -75,6 +75,6 @@ if FLAGS["triangulation"]:
             runtime=30,
         threads: 2
         conda:
-            "../../envs/geometry.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/triangulation.py"

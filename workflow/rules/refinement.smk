@@ -16,7 +16,7 @@ if FLAGS["refinement"]:
         benchmark:
             "{outdir}/benchmarks/refinement.tsv"
         conda:
-            "../../envs/geometry.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=3000,
             runtime=60,

@@ -33,6 +33,6 @@ rule assemble:
         mem_mb=2000,
         runtime=15,
     conda:
-        "../../envs/visualization.yaml"
+        "../../envs/flylib.yaml"
     script:
         "../../scripts/assemble.py"

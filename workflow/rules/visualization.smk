@@ -30,6 +30,6 @@ if FLAGS["visualization"] and VIDEO_NAMES:
             mem_mb=4000,
             runtime=60,
         conda:
-            "../../envs/visualization.yaml"
+            "../../envs/flylib.yaml"
         script:
             "../../scripts/visualization.py"
