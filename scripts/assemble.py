@@ -5,7 +5,8 @@ calibration.toml (the final rig as an Anipose calibration)."""
 import sys
 from pathlib import Path
 
-from flylib.stages import ARTIFACTS, run_assemble
+from flylib.pipeline.artifacts import ARTIFACTS
+from flylib.pipeline.stages import run_assemble
 
 from _cli import run_script, script_main, script_parser
 

@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.stages import run_bundle_adjustment
+from flylib.pipeline.stages import run_bundle_adjustment
 
 from _cli import output_dir, run_script, script_main, script_parser
 

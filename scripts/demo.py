@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.stages import run_demo
+from flylib.pipeline.stages import run_demo
 
 from _cli import run_script, script_main, script_parser
 

@@ -4,7 +4,7 @@ angles.csv (Anipose's angles layout) and angles.png (angle traces per leg)."""
 
 from pathlib import Path
 
-from flylib.stages import run_kinematics
+from flylib.pipeline.stages import run_kinematics
 
 from _cli import run_script, script_main, script_parser
 

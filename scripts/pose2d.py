@@ -4,7 +4,7 @@
 import json
 from pathlib import Path
 
-from flylib.stages import run_pose2d
+from flylib.pipeline.stages import run_pose2d
 
 from _cli import output_dir, run_script, script_main, script_parser
 

@@ -4,7 +4,7 @@ reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)
 
 from pathlib import Path
 
-from flylib.stages import run_refinement
+from flylib.pipeline.stages import run_refinement
 
 from _cli import output_dir, run_script, script_main, script_parser
 

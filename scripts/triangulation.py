@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.stages import run_triangulation
+from flylib.pipeline.stages import run_triangulation
 
 from _cli import output_dir, run_script, script_main, script_parser
 

@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.stages import run_visualization
+from flylib.pipeline.stages import run_visualization
 
 from _cli import run_script, script_main, script_parser
 

@@ -16,7 +16,7 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
     from flylib.config import Config
     from flylib.demo import demo_import_spec, make_demo
-    from flylib.stages import run_assemble, run_pose2d, run_triangulation
+    from flylib.pipeline.stages import run_assemble, run_pose2d, run_triangulation
 
     config = Config.default()
     make_demo(config, directory, frames=frames, **demo)

@@ -176,7 +176,7 @@ def provenance_report(results: str | Path, config=None, stages_dir: str | Path |
                 problems.append(f"{results}: {stage} was built from {upstream} params {built_from}, but "
                                 f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow")
         if stages_dir is not None and stage != "assemble":
-            from .stages import ARTIFACTS
+            from .pipeline.artifacts import ARTIFACTS
 
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
@@ -214,7 +214,7 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     """
     from .errors import ResultsError
     from .results import read_meta
-    from .stages import ARTIFACTS
+    from .pipeline.artifacts import ARTIFACTS
 
     here = str(Path(cwd or os.getcwd()).resolve())
     flags = config.stage_flags()

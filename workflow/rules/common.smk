@@ -15,7 +15,7 @@ from flylib.errors import FlylibError
 from flylib.interop import calibration_inputs as _calibration_files
 from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
-from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 
 # envs/flylib.yaml installs flylib from this checkout (pip expands the variable when
 # --sdm conda creates the environment).

@@ -129,7 +129,7 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
     """
     from ..provenance import stage_provenance
     from ..results import _new_meta, open_checked, read_image_sizes
-    from ..stages import config_rig
+    from ..pipeline.stages import config_rig
     from .setup import skeleton_terms
     from .solver import refine_stream
 

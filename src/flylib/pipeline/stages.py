@@ -37,36 +37,11 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ResultsError
-from .paths import atomic_path
+from ..errors import ResultsError
+from ..paths import atomic_path
+from .tracked import StageConfig
 
 log = logging.getLogger(__name__)
-
-#: Stage-artifact file names inside ``<outdir>/stages/``.
-ARTIFACTS = {
-    "pose2d": "pose2d.h5",
-    "bundle_adjustment": "bundle_adjustment.h5",
-    "pictorial_structures": "pictorial_structures.h5",
-    "triangulation": "triangulation.h5",
-    "refinement": "refinement.h5",
-}
-
-
-def candidates_artifact(k: int) -> str:
-    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
-
-    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
-    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
-    re-runs no detection, and a new ``k`` while it is on asks for a new file.
-    """
-    return f"candidates_k{int(k)}.h5"
-
-SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
-
-
-def artifact_path(outdir: str | Path, stage: str) -> Path:
-    """``<outdir>/stages/<stage>.h5``."""
-    return Path(outdir) / "stages" / ARTIFACTS[stage]
 
 
 # -- helpers -------------------------------------------------------------------
@@ -81,7 +56,7 @@ def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
     """The rig the config describes: its ``calibration`` file when set, else the orbit
     parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
     if config.data.get("calibration"):
-        from .interop.anipose import load_calibration
+        from ..interop.anipose import load_calibration
 
         return load_calibration(config, Path(recording_dir) if recording_dir else None)
     return config.camera_group(image_sizes=dict(image_sizes or {}))
@@ -90,7 +65,7 @@ def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
 def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
     """The bundle-adjusted rig when that artifact is given, else the config rig."""
     if ba_path:
-        from .results import read_stage
+        from ..results import read_stage
 
         return read_stage(ba_path, "bundle_adjustment")["cameras"]
     return config_rig(config, _image_sizes(pose2d), recording_dir)
@@ -98,7 +73,7 @@ def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
 
 def _provenance(config, stage: str, **upstream) -> dict:
     """The params hash of ``stage`` and those of the artifacts it read (meta entries)."""
-    from .provenance import stage_provenance
+    from ..provenance import stage_provenance
 
     return stage_provenance(config, stage, upstream)
 
@@ -108,7 +83,7 @@ def _provenance(config, stage: str, **upstream) -> dict:
 
 def run_demo(config, directory: str | Path):
     """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`)."""
-    from .demo import make_demo
+    from ..demo import make_demo
 
     return make_demo(config, directory)
 
@@ -130,6 +105,7 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
     ResultsError
         If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
+    config = StageConfig.for_stage(config, "pose2d")
     recording_dir = Path(recording_dir)
     spec = dict(import_spec) if import_spec else config.import_spec
     if spec:
@@ -138,22 +114,22 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
                 f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
                 f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
                 "which keeps none; set pipeline.do_pictorial_structures: false")
-        from .interop import import_points2d
+        from ..interop import import_points2d
 
         data = import_points2d(config, recording_dir, spec)
     else:
-        from .pose2d import detect_recording
-        from .recordings import find_recording
+        from ..pose2d import detect_recording
+        from ..recordings import find_recording
 
         sources = find_recording(recording_dir, config, strict=True)
         data = detect_recording(config, sources, want_candidates=candidates_path is not None,
                                 progress=progress)
-    from .provenance import stage_provenance
+    from ..provenance import stage_provenance
 
     provenance = stage_provenance(config, "pose2d")
     candidates, data.candidates = data.candidates, None
     if candidates is not None:
-        from .results import save_candidates
+        from ..results import save_candidates
 
         save_candidates(candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)})
     data.save(out_path, config.skeleton(), meta=provenance)
@@ -162,7 +138,7 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
 
 def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
     if candidates_path is not None:
-        from .results import load_candidates
+        from ..results import load_candidates
 
         return load_candidates(candidates_path)
     if pose2d.candidates is None:
@@ -176,9 +152,10 @@ def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
 def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path, *,
                           recording_dir: str | Path | None = None) -> Path:
     """Refine the config rig against the recording's 2D keypoints."""
-    from .bundle_adjustment import bundle_adjust_from_config
-    from .results import Pose2dData, write_stage
+    from ..bundle_adjustment import bundle_adjust_from_config
+    from ..results import Pose2dData, write_stage
 
+    config = StageConfig.for_stage(config, "bundle_adjustment")
     pose2d = Pose2dData.load(pose2d_path)
     cameras = config_rig(config, _image_sizes(pose2d), recording_dir)
     started = time.perf_counter()
@@ -213,9 +190,10 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     ResultsError
         If there are no candidate peaks (2D imported from another tool).
     """
-    from .pictorial import reconstruct_from_config
-    from .results import Pose2dData, write_stage
+    from ..pictorial import reconstruct_from_config
+    from ..results import Pose2dData, write_stage
 
+    config = StageConfig.for_stage(config, "pictorial_structures")
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
@@ -241,9 +219,10 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
     what a person changed) and the sidecar's name and edit count as attribute
     ``corrections``.
     """
-    from .corrections import Corrections, reconstruct_corrected
-    from .results import Pose2dData, read_stage, write_stage
+    from ..corrections import Corrections, reconstruct_corrected
+    from ..results import Pose2dData, read_stage, write_stage
 
+    config = StageConfig.for_stage(config, "triangulation")
     pose2d = Pose2dData.load(pose2d_path)
     pts2d = pose2d.pts2d
     if pictorial_path:
@@ -269,16 +248,17 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
 def run_refinement(config, pose2d_path, triangulation_path, out_path, *, ba_path=None,
                    recording_dir=None) -> Path:
     """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
-    from .refinement.stage import run_refinement as run
+    from ..refinement.stage import run_refinement as run
 
-    return run(config, pose2d_path, triangulation_path, out_path, ba_path=ba_path, recording_dir=recording_dir)
+    return run(StageConfig.for_stage(config, "refinement"), pose2d_path, triangulation_path, out_path,
+               ba_path=ba_path, recording_dir=recording_dir)
 
 
 def run_kinematics(config, results_path, outdir) -> dict:
     """Body frame and joint angles (see :func:`flylib.kinematics.stage.run_kinematics`)."""
-    from .kinematics.stage import run_kinematics as run
+    from ..kinematics.stage import run_kinematics as run
 
-    return run(config, results_path, outdir)
+    return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
 
 
 def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
@@ -299,10 +279,12 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     dict
         The summary written to ``summary.json``.
     """
-    from .interop.anipose import write_anipose_toml
-    from .results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
-    from .visualization import summary_figure
+    from ..interop.anipose import write_anipose_toml
+    from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
+    from ..visualization import summary_figure
 
+    snapshot = config.snapshot_text() if snapshot_path is not None else None
+    config = StageConfig.for_stage(config, "assemble")
     outdir = Path(outdir)
     stage_files = {k: Path(v) for k, v in stage_files.items() if v}
     if "pose2d" not in stage_files:
@@ -321,28 +303,28 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
     summary["suspects"] = _write_suspects(results_path, outdir, result)
     if truth_path:
-        from .demo import demo_error, load_truth
+        from ..demo import demo_error, load_truth
 
         truth = load_truth(truth_path)
         if result.pts3d is not None:
             summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
         if "refinement" in stage_files and "triangulation" in stage_files:
-            from .results import read_stage
+            from ..results import read_stage
 
             tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
             summary["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
     summary["params_sha256"] = {**meta.get("upstream_params_sha256", {}), "assemble": meta["params_sha256"]}
     _write_json(outdir / "summary.json", summary)
-    if snapshot_path is not None:
-        write_snapshot(config, snapshot_path)
+    if snapshot is not None:
+        write_snapshot(snapshot, snapshot_path)
     return summary
 
 
-def write_snapshot(config, path: str | Path) -> Path:
-    """Write the config's text (the source bytes, or YAML for a dict config) to
-    ``path`` atomically."""
+def write_snapshot(text: str, path: str | Path) -> Path:
+    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) to ``path``
+    atomically."""
     with atomic_path(path) as tmp:
-        tmp.write_bytes(config.snapshot_text().encode("utf-8"))
+        tmp.write_bytes(text.encode("utf-8"))
     return Path(path)
 
 
@@ -377,7 +359,7 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
 def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
     """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
     and a header-only file when the result holds no 3D)."""
-    from .suspects import SUSPECTS_FILE, Suspects, suspects_from_results
+    from ..suspects import SUSPECTS_FILE, Suspects, suspects_from_results
 
     if result.pts3d is None or result.reproj_error is None:
         empty = np.zeros(0, int)
@@ -399,12 +381,13 @@ def run_visualization(config, results_path: str | Path, recording_dir: str | Pat
                       outdir: str | Path, *, progress: bool = False) -> list[Path]:
     """Render the configured videos of one recording into ``outdir`` (points a person
     corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
-    from .interop.views import footage_files
-    from .results import PoseResult
-    from .visualization import render_videos
+    from ..interop.views import footage_files
+    from ..results import PoseResult
+    from ..visualization import render_videos
 
-    from .corrections import read_corrected
+    from ..corrections import read_corrected
 
+    config = StageConfig.for_stage(config, "visualization")
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
     return render_videos(config, result, footage, outdir, progress=progress,
