@@ -38,6 +38,7 @@ UNTRACKED: dict[str, dict[str, str]] = {
         "pose2d.batch_size": "speed only",
         "pose2d.decode_buffer": "speed only",
         "pose2d.device": "where the detector runs (speed only)",
+        "pose2d.compile": "torch.compile or not (speed only)",
         "io.image.workers": "speed only",
         "pictorial_structures.k": "named in the candidates file (stages/candidates_k<k>.h5)",
     },
@@ -47,7 +48,6 @@ UNTRACKED: dict[str, dict[str, str]] = {
     },
 }
 
-_RIG = ("cameras", "calibration", "pose2d.output_points:names")
 _SKELETON = ("skeleton.point_names", "skeleton.limb_points")
 
 
@@ -67,12 +67,15 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
         The declared paths.
     """
     flags = config.stage_flags()
-    own_rig = () if flags["bundle_adjustment"] else _RIG
+    rig = ("cameras", "calibration")
+    if not config.camera_table()[1]:  # the views are named by pose2d.output_points
+        rig += ("pose2d.output_points:names",)
+    own_rig = () if flags["bundle_adjustment"] else rig
     if stage == "pose2d":
         return ("sources", "pose2d", "skeleton.point_names", "cameras:names", "io.on_corrupt_frame",
                 *UNTRACKED["pose2d"])
     if stage == "bundle_adjustment":
-        return ("bundle_adjustment", *_RIG, *_SKELETON)
+        return ("bundle_adjustment", *rig, *_SKELETON)
     if stage == "pictorial_structures":
         return ("pictorial_structures", *_SKELETON, *own_rig)
     if stage == "triangulation":
@@ -83,7 +86,7 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
     if stage == "kinematics":
         return ("kinematics", *_SKELETON)
     if stage == "assemble":
-        return (*_RIG, "skeleton.point_names", "skeleton.limb_points", "skeleton.limb_palette",
+        return (*rig, "skeleton.point_names", "skeleton.limb_points", "skeleton.limb_palette",
                 "skeleton.name")
     if stage == "visualization":
         return ("visualization", "skeleton.limb_palette", *upstream_reads(stage))
