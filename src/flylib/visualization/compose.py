@@ -508,8 +508,10 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             if views_3d else None
         pts2d = result.pts2d
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
-        bar = stack.enter_context(tqdm(total=n_frames, unit="frame", disable=not progress,
-                                       desc="render " + ", ".join(s.name for s in specs)))
+        # no bar object at all without progress: tqdm starts its monitor thread even disabled
+        bar = stack.enter_context(tqdm(total=n_frames, unit="frame",
+                                       desc="render " + ", ".join(s.name for s in specs))) \
+            if progress else None
         for t, frames in enumerate(bundles):
             points2d = {v: pts2d[i, t] for v, i in index.items()}
             points3d = reprojector.at(t) if reprojector else {}
@@ -517,5 +519,6 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             for comp, writer in zip(compositors, writers):
                 writer.write_frame(comp.compose(frames, points2d, points3d, resized,
                                                 None if corrected is None else corrected[t]))
-            bar.update(1)
+            if bar is not None:
+                bar.update(1)
     return paths
