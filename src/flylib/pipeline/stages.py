@@ -3,8 +3,9 @@ the library, write the stage's artifact atomically.
 
 These are what the command scripts in ``scripts/`` (and so the Snakemake rules) run,
 and what a library user can call to reproduce one step by hand. Every function takes
-paths and a :class:`~flylib.config.Config`; none decides *whether* it should run (the
-workflow does, from the rule's params and inputs).
+paths and a :class:`~flylib.config.Config`, and runs on the part of it its rule tracks
+(:class:`~flylib.pipeline.tracked.StageConfig`: reading any other key raises); none
+decides *whether* it should run (the workflow does, from the rule's params and inputs).
 
 =====================  ==========================================  ===============================
 stage                  reads                                       writes
