@@ -17,9 +17,9 @@ from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 
-# envs/flylib.yaml installs flylib from this checkout (pip expands the variable when
-# --sdm conda creates the environment).
-os.environ["FLYLIB_CHECKOUT"] = str(Path(workflow.basedir).resolve())
+# envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
+# --sdm conda creates the environment, which happens in this process, before any job.
+os.environ.update(FLYLIB_CHECKOUT=str(Path(workflow.basedir).resolve()))
 
 # The config: the same files Snakemake merged (configfile: and --configfile, then
 # --config overrides), re-read by flylib's parser so that 1e-8 is a number, a key

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ResultsError
+from ..errors import ConfigError, ResultsError
 from ..paths import atomic_path
 from .tracked import StageConfig
 
@@ -55,7 +55,18 @@ def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
 def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
                recording_dir: str | Path | None = None):
     """The rig the config describes: its ``calibration`` file when set, else the orbit
-    parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
+    parameters of ``cameras`` (principal points from ``image_sizes`` where not given).
+
+    Raises
+    ------
+    ConfigError
+        For a stage whose rig comes from the bundle-adjustment artifact (bundle
+        adjustment is on), so that its rule does not track the config rig.
+    """
+    if isinstance(config, StageConfig) and not config.tracks("cameras"):
+        raise ConfigError(
+            f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
+            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off")
     if config.data.get("calibration"):
         from ..interop.anipose import load_calibration
 
@@ -70,6 +81,16 @@ def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
 
         return read_stage(ba_path, "bundle_adjustment")["cameras"]
     return config_rig(config, _image_sizes(pose2d), recording_dir)
+
+
+def _rig_source(config, ba_path):
+    """``config`` as the stage runs it: without a bundle-adjustment artifact the rig is
+    the config's, as with bundle adjustment off (so the params track that rig)."""
+    if ba_path or isinstance(config, StageConfig) or not config.stage_flags()["bundle_adjustment"]:
+        return config
+    data = dict(config.data)
+    data["pipeline"] = {**(data.get("pipeline") or {}), "do_bundle_adjustment": False}
+    return type(config)(data, text=config.text, source=config.source, format=config.format)
 
 
 def _provenance(config, stage: str, **upstream) -> dict:
@@ -194,7 +215,7 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     from ..pictorial import reconstruct_from_config
     from ..results import Pose2dData, write_stage
 
-    config = StageConfig.for_stage(config, "pictorial_structures")
+    config = StageConfig.for_stage(_rig_source(config, ba_path), "pictorial_structures")
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
@@ -223,7 +244,7 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
     from ..corrections import Corrections, reconstruct_corrected
     from ..results import Pose2dData, read_stage, write_stage
 
-    config = StageConfig.for_stage(config, "triangulation")
+    config = StageConfig.for_stage(_rig_source(config, ba_path), "triangulation")
     pose2d = Pose2dData.load(pose2d_path)
     pts2d = pose2d.pts2d
     if pictorial_path:
@@ -251,7 +272,7 @@ def run_refinement(config, pose2d_path, triangulation_path, out_path, *, ba_path
     """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
     from ..refinement.stage import run_refinement as run
 
-    return run(StageConfig.for_stage(config, "refinement"), pose2d_path, triangulation_path, out_path,
+    return run(StageConfig.for_stage(_rig_source(config, ba_path), "refinement"), pose2d_path, triangulation_path, out_path,
                ba_path=ba_path, recording_dir=recording_dir)
 
 

@@ -239,6 +239,10 @@ class StageConfig(Config):
             return config
         return cls(config, stage)
 
+    def tracks(self, key: str) -> bool:
+        """Whether this stage may read the top-level config ``key``."""
+        return key in self.data._tree
+
     def stage_params(self, stage: str) -> dict:
         """The stage's params, as the full config gives them (only for this stage)."""
         if stage != self.stage:
