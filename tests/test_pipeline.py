@@ -89,9 +89,9 @@ def test_pictorial_path_agrees_with_plain_triangulation():
 def test_one_argument_order_and_no_aliases():
     rig, skeleton = default_rig(), Skeleton.fly()
     pts2d = np.full((7, 2, 38, 2), np.nan)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="do_bundle_adjustment"):
         run_from_points2d(rig, skeleton, pts2d, do_bundle_adjustment=False)
-    with pytest.raises(Exception):
+    with pytest.raises(TypeError):  # (pts2d, cameras, skeleton) is not the seed's order
         run_from_points2d(pts2d, rig, skeleton, do_bundle_adjust=False)
 
 
