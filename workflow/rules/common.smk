@@ -59,7 +59,6 @@ if sum(r.demo for r in RECORDINGS) > 1:
     raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")
 
 
-
 def job_config(wildcards, input):
     """A rule's `params.config`: the run's Config, handed to the stage script.
 
