@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from ..errors import FootageError
-from ..resources import usable_cpus
 from .base import FrameReader, as_rgb_uint8, to_numpy
 
 log = logging.getLogger(__name__)
@@ -42,8 +41,8 @@ class VideoReader(FrameReader):
     path
         The video file.
     threads
-        Decoder threads; ``0`` or ``None``: :func:`~flylib.resources.usable_cpus`
-        (frame + slice threading).
+        Decoder threads; ``0`` or ``None`` lets FFmpeg choose (frame + slice
+        threading).
     """
 
     def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
@@ -75,7 +74,7 @@ class VideoReader(FrameReader):
             raise FootageError(f"{self.path}: the file holds no video stream")
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        stream.thread_count = self.threads or usable_cpus()
+        stream.thread_count = self.threads
         return container, stream
 
     def _decode_error(self, frame_index: int, exc: Exception) -> FootageError:
