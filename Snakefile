@@ -6,10 +6,11 @@
 #   snakemake --report demo/flylib_outputs/report.html  # HTML report (figures, videos);
 #                                            # put it beside your outputs, not in the checkout
 #
-# Each rule runs one thin command script from scripts/ (runnable by hand, see --help)
-# and writes one artifact; a rule's `params` is exactly the config subset that
+# Each rule runs one thin command script from scripts/ through `script:` (each is also
+# runnable by hand, see --help) and writes one artifact; a rule's `params` is exactly the config subset that
 # affects its result, so after editing the config a plain re-run recomputes only
-# what changed and everything downstream of it.
+# what changed and everything downstream of it. Each file under workflow/rules/ uses
+# only what the files included before it define.
 
 from snakemake.utils import min_version
 
@@ -24,6 +25,7 @@ report: "workflow/report/workflow.rst"
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/demo.smk"
+include: "workflow/rules/inputs.smk"
 include: "workflow/rules/pose2d.smk"
 include: "workflow/rules/corrections.smk"
 include: "workflow/rules/reconstruction.smk"

@@ -193,7 +193,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
 def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
-    from flylib.stages import run_refinement
+    from flylib.pipeline.stages import run_refinement
 
     config = Config.default()
     before = _peak_mb()

@@ -90,7 +90,7 @@ def bench_planning(n: int) -> dict:
 
 
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
-    from flylib import stages
+    from flylib.pipeline import stages
     from flylib.demo import demo_import_spec
 
     p2d = stages.artifact_path(out, "pose2d")

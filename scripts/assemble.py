@@ -5,12 +5,13 @@ calibration.toml (the final rig as an Anipose calibration)."""
 import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.artifacts import ARTIFACTS
+from flylib.pipeline.stages import run_assemble
 
-from flylib.stages import ARTIFACTS, run_assemble, script_main, script_parser
+from _cli import run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     for stage in ARTIFACTS:
         parser.add_argument(f"--{stage.replace('_', '-')}", type=Path, default=None,
@@ -41,8 +42,8 @@ def main(argv=None) -> int:
                   f"median {before['median_aligned']:.4f} ({100 * before['reconstructed']:.1f}% reconstructed)",
                   file=sys.stderr)
 
-    return script_main(parser, run, argv, outdir=lambda args: args.outdir)
+    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

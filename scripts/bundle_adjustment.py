@@ -1,15 +1,14 @@
 #!/usr/bin/env python
 """bundle_adjustment stage: refine the camera rig against the recording's 2D keypoints."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_bundle_adjustment
 
-from flylib.stages import output_dir, run_bundle_adjustment, script_main, script_parser
+from _cli import output_dir, run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
     parser.add_argument("--out", required=True, type=Path, help="bundle-adjustment artifact to write")
@@ -19,8 +18,8 @@ def main(argv=None) -> int:
     def run(args, config):
         run_bundle_adjustment(config, args.pose2d, args.out, recording_dir=args.recording)
 
-    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

@@ -2,15 +2,13 @@
 """export_nwb: one recording's results.h5 as an NWB file (ndx-pose), with the session
 metadata of the config's nwb table and the recording's nwb.yaml."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
 
-from flylib.stages import script_main, script_parser
+from _cli import run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
     parser.add_argument("--recording", required=True, type=Path,
@@ -24,8 +22,8 @@ def main(argv=None) -> int:
 
         export_nwb(config, args.results, args.output, recording_dir=args.recording, demo=args.demo)
 
-    return script_main(parser, run, argv, outdir=lambda args: args.output.parent)
+    return script_main(parser, run, argv, job=job, outdir=lambda args: args.output.parent)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

@@ -2,15 +2,14 @@
 """kinematics stage: body frame and joint angles from results.h5 -> kinematics.h5,
 angles.csv (Anipose's angles layout) and angles.png (angle traces per leg)."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_kinematics
 
-from flylib.stages import run_kinematics, script_main, script_parser
+from _cli import run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
     parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
@@ -18,8 +17,8 @@ def main(argv=None) -> int:
     def run(args, config):
         run_kinematics(config, args.results, args.outdir)
 
-    return script_main(parser, run, argv, outdir=lambda args: args.outdir)
+    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

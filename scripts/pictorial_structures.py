@@ -1,15 +1,14 @@
 #!/usr/bin/env python
 """pictorial_structures stage: recover joints from the detector's candidate peaks."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_pictorial_structures
 
-from flylib.stages import output_dir, run_pictorial_structures, script_main, script_parser
+from _cli import output_dir, run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact")
     parser.add_argument("--candidates", type=Path, default=None,
@@ -23,8 +22,8 @@ def main(argv=None) -> int:
         run_pictorial_structures(config, args.pose2d, args.out, candidates_path=args.candidates,
                                  ba_path=args.bundle_adjustment, recording_dir=args.recording)
 
-    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

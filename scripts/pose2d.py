@@ -2,15 +2,14 @@
 """pose2d stage: 2D keypoints of one recording (detector, or another tool's files)."""
 
 import json
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_pose2d
 
-from flylib.stages import output_dir, run_pose2d, script_main, script_parser
+from _cli import output_dir, run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--recording", required=True, type=Path, help="recording directory")
     parser.add_argument("--out", required=True, type=Path, help="pose2d artifact to write (.h5)")
@@ -24,8 +23,8 @@ def main(argv=None) -> int:
         run_pose2d(config, args.recording, args.out, import_spec=args.import_spec,
                    progress=args.progress, candidates_path=args.candidates_out)
 
-    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

@@ -2,15 +2,14 @@
 """refinement stage: re-solve the triangulated 3D of every frame at once (robust
 reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_refinement
 
-from flylib.stages import output_dir, run_refinement, script_main, script_parser
+from _cli import output_dir, run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5): 2D and confidences")
     parser.add_argument("--triangulation", required=True, type=Path,
@@ -24,8 +23,8 @@ def main(argv=None) -> int:
         run_refinement(config, args.pose2d, args.triangulation, args.out,
                        ba_path=args.bundle_adjustment, recording_dir=args.recording)
 
-    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

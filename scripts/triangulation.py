@@ -1,15 +1,14 @@
 #!/usr/bin/env python
 """triangulation stage: lift the 2D keypoints to 3D."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_triangulation
 
-from flylib.stages import output_dir, run_triangulation, script_main, script_parser
+from _cli import output_dir, run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
     parser.add_argument("--pictorial-structures", type=Path, default=None,
@@ -26,8 +25,8 @@ def main(argv=None) -> int:
                           ba_path=args.bundle_adjustment, recording_dir=args.recording,
                           corrections_path=args.corrections)
 
-    return script_main(parser, run, argv, outdir=lambda args: output_dir(args.out))
+    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

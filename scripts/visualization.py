@@ -1,15 +1,14 @@
 #!/usr/bin/env python
 """visualization stage: render the configured videos of one recording."""
 
-import sys
 from pathlib import Path
 
-import _bootstrap  # noqa: F401
+from flylib.pipeline.stages import run_visualization
 
-from flylib.stages import run_visualization, script_main, script_parser
+from _cli import run_script, script_main, script_parser
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
     parser.add_argument("--recording", required=True, type=Path, help="recording directory (footage)")
@@ -19,8 +18,8 @@ def main(argv=None) -> int:
     def run(args, config):
         run_visualization(config, args.results, args.recording, args.outdir, progress=args.progress)
 
-    return script_main(parser, run, argv, outdir=lambda args: args.outdir)
+    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_script(main, globals())

@@ -16,9 +16,11 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
     from flylib.config import Config
     from flylib.demo import demo_import_spec, make_demo
-    from flylib.stages import run_assemble, run_pose2d, run_triangulation
+    from flylib.pipeline.stages import run_assemble, run_pose2d, run_triangulation
 
-    config = Config.default()
+    data = Config.default().data
+    data["pipeline"]["do_bundle_adjustment"] = False  # what is run below: the config rig
+    config = Config.from_dict(data)
     make_demo(config, directory, frames=frames, **demo)
     out = directory / "flylib_outputs"
     run_pose2d(config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))

@@ -11,7 +11,7 @@ from flylib.config import Config
 from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
 from flylib.errors import ConfigError, ResultsError
 from flylib.results import Pose2dData, PoseResult, read_stage
-from flylib.stages import run_assemble, run_triangulation
+from flylib.pipeline.stages import run_assemble, run_triangulation
 from flylib.triangulation import reconstruct_from_config
 
 FRAMES = 10

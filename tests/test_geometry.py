@@ -84,7 +84,7 @@ def test_host_side_modules_do_not_import_jax():
     import subprocess
     import sys
 
-    code = ("import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.stages, "
+    code = ("import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
             "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
             "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
             "import numpy as np; from flylib.triangulation import triangulate_ransac; "

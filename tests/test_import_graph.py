@@ -47,7 +47,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                     "flylib.kinematics", "flylib.visualization")),
     ("data", ("flylib.results", "flylib.provenance", "flylib.suspects", "flylib.corrections",
               "flylib.interop", "flylib.demo", "flylib.pose2d.stream")),
-    ("stages", ("flylib.stages", "flylib.pipeline", "flylib.preflight", "flylib.run_summary",
+    ("stages", ("flylib.pipeline", "flylib.preflight", "flylib.run_summary",
                 "flylib.refinement.stage", "flylib.kinematics.stage")),
     ("applications", ("flylib.cli", "flylib.gui")),
 )

@@ -72,19 +72,39 @@ def test_bad_arguments_are_clear_errors():
         run_from_points2d(rig, skeleton, pts2d, do_pictorial=True, do_bundle_adjust=False)
 
 
-def test_pictorial_path_and_argument_orders_agree():
+def test_pictorial_path_agrees_with_plain_triangulation():
     from flylib.pictorial import Candidates
 
     rig, skeleton = default_rig(), Skeleton.fly()
     truth = synthetic_fly(6, seed=9)
     pts2d, conf = observe(truth, rig, noise_px=0.5, seed=9)
     plain = run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False)
-    swapped_order = run_from_points2d(pts2d, rig, skeleton, conf, do_bundle_adjustment=False,
-                                      do_pictorial=True,
-                                      candidates=Candidates.from_points(pts2d, conf))
-    np.testing.assert_allclose(swapped_order.pts3d, plain.pts3d, atol=1e-9)
-    assert swapped_order.meta["pictorial"] and not plain.meta["pictorial"]
+    pictorial = run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False, do_pictorial=True,
+                                  candidates=Candidates.from_points(pts2d, conf))
+    np.testing.assert_allclose(pictorial.pts3d, plain.pts3d, atol=1e-9)
+    assert pictorial.meta["pictorial"] and not plain.meta["pictorial"]
     assert np.nanmax(np.linalg.norm(plain.pts3d - truth, axis=-1)) < 0.05
+
+
+def test_one_argument_order_and_no_aliases():
+    rig, skeleton = default_rig(), Skeleton.fly()
+    pts2d = np.full((7, 2, 38, 2), np.nan)
+    with pytest.raises(TypeError, match="do_bundle_adjustment"):
+        run_from_points2d(rig, skeleton, pts2d, do_bundle_adjustment=False)
+    with pytest.raises(TypeError):  # (pts2d, cameras, skeleton) is not the seed's order
+        run_from_points2d(pts2d, rig, skeleton, do_bundle_adjust=False)
+
+
+def test_defaults_are_the_packaged_configs(monkeypatch):
+    from flylib.config import Config
+    from flylib.pipeline import oneshot
+
+    data = Config.default().data
+    data["triangulation"] = {**data["triangulation"], "method": "greedy"}
+    monkeypatch.setattr(oneshot, "_defaults", lambda: Config.from_dict(data))
+    rig, skeleton = default_rig(), Skeleton.fly()
+    pts2d, conf = observe(synthetic_fly(4, seed=3), rig, noise_px=0.5, seed=3)
+    assert run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False).meta["triangulation"] == "greedy"
 
 
 # -- real data: DeepFly3D's own 2D for the sample recording ---------------------------------

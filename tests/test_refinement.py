@@ -160,7 +160,7 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
 
     from flylib.config import Config
     from flylib.results import Pose2dData, PoseResult, write_stage
-    from flylib.stages import run_assemble, run_refinement
+    from flylib.pipeline.stages import run_assemble, run_refinement
 
     config = Config.default()
     rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)

@@ -7,7 +7,7 @@ import pytest
 from flylib.config import Config
 from flylib.demo import demo_import_spec, make_demo
 from flylib.errors import ResultsError
-from flylib.stages import run_pictorial_structures, run_pose2d
+from flylib.pipeline.stages import run_pictorial_structures, run_pose2d
 
 
 @pytest.fixture(scope="module")

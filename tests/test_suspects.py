@@ -12,7 +12,7 @@ import pytest
 from flylib.config import Config
 from flylib.demo import demo_import_spec, load_truth, make_demo, synthetic_fly
 from flylib.results import Pose2dData, read_stage
-from flylib.stages import run_pose2d, run_triangulation
+from flylib.pipeline.stages import run_pose2d, run_triangulation
 from flylib.suspects import SUSPECTS_FILE, find_suspects
 
 FRAMES = 60

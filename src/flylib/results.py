@@ -25,7 +25,6 @@ import json
 import struct
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -37,7 +36,7 @@ import numpy as np
 
 from .errors import FlylibError, ResultsError
 from .paths import atomic_path, out_of_space
-from .resources import usable_cpus
+from .resources import thread_map
 from .skeleton import Skeleton
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -90,7 +89,8 @@ _CHUNK_BYTES = 1024 * 1024
 # chunks are deflated on threads (see _write_deflated_chunks): LZF would write faster
 # on one core but only h5py reads it.
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
-_DEFLATE_THREADS = min(8, usable_cpus())
+# chunks deflate on at most this many threads (fewer under a thread budget)
+_DEFLATE_THREADS = 8
 # HDF5 1.8's file format: object headers, link tables and the superblock carry
 # checksums (readable by any HDF5 >= 1.8, i.e. since 2008).
 _LIBVER = ("v108", "latest")
@@ -333,11 +333,9 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
         return _checksummed(zlib.compress(np.ascontiguousarray(slab).tobytes(),
                                           _COMPRESSION["compression_opts"]))
 
-    workers = min(_DEFLATE_THREADS, len(starts))
-    with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
-        for start, payload in zip(starts, pool.map(deflate, starts)):
-            offset = tuple(start if i == axis else 0 for i in range(arr.ndim))
-            dataset.id.write_direct_chunk(offset, payload)
+    for start, payload in zip(starts, thread_map(deflate, starts, _DEFLATE_THREADS)):
+        offset = tuple(start if i == axis else 0 for i in range(arr.ndim))
+        dataset.id.write_direct_chunk(offset, payload)
 
 
 def _write_strings(group: h5py.Group, name: str, values: Sequence[str]) -> None:

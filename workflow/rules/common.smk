@@ -1,7 +1,6 @@
 # Shared set-up: validate the config, resolve the recordings, and the helpers the
 # rules use. Runs once per Snakemake invocation, before any job starts.
 
-import hashlib
 import json
 import os
 import re
@@ -11,17 +10,16 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
 
-REPO = Path(workflow.basedir)
-if not (REPO / "src" / "flylib").is_dir():
-    raise WorkflowError(f"{REPO}: not a flylib checkout (src/flylib is missing)")
-sys.path.insert(0, str(REPO / "src"))
+from flylib.config.layers import ConfigLayers
+from flylib.errors import FlylibError
+from flylib.interop import calibration_inputs as _calibration_files
+from flylib.preflight import load_run_config
+from flylib.kinematics import FILES as KINEMATICS_FILES
+from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 
-from flylib.config.layers import ConfigLayers  # noqa: E402
-from flylib.errors import FlylibError  # noqa: E402
-from flylib.interop import calibration_inputs as _calibration_files  # noqa: E402
-from flylib.preflight import load_run_config  # noqa: E402
-from flylib.kinematics import FILES as KINEMATICS_FILES  # noqa: E402
-from flylib.stages import ARTIFACTS, SUMMARY_FILES, candidates_artifact  # noqa: E402
+# envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
+# --sdm conda creates the environment, which happens in this process, before any job.
+os.environ.update(FLYLIB_CHECKOUT=str(Path(workflow.basedir).resolve()))
 
 # The config: the same files Snakemake merged (configfile: and --configfile, then
 # --config overrides), re-read by flylib's parser so that 1e-8 is a number, a key
@@ -43,23 +41,6 @@ def _config_layers() -> ConfigLayers:
     return ConfigLayers.from_files(files, overrides=dict(settings.config or {}))
 
 
-# The config the jobs read: the config file's own bytes when the config is exactly that
-# file (so every output directory gets a byte-for-byte snapshot), else a YAML dump of
-# the merged config. Named by its content, so a dry run with another config never
-# changes what running jobs read.
-
-
-def _write_effective_config(text: str) -> Path:
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    path = Path(".snakemake") / "flylib" / f"config-{digest}.yaml"
-    if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    return path
-
-
 # Validate before the DAG is built, with flylib's validator (the one source of truth;
 # there is no separate JSON schema): every key on its own, then what needs the whole
 # config or the planned recordings (the rig, import specs, detection plan and
@@ -73,29 +54,20 @@ except FlylibError as exc:
     raise WorkflowError(str(exc)) from None
 FLAGS = CONFIG.stage_flags()
 VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
-EFFECTIVE_CONFIG = _write_effective_config(CONFIG.text)
 
 if sum(r.demo for r in RECORDINGS) > 1:
     raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")
 
-# The interpreter the scripts run with: this one, unless jobs run in per-rule conda
-# environments (--sdm conda), where `python` is the environment's.
-PYTHON = "python" if "conda" in str(workflow.deployment_settings.deployment_method).lower() else sys.executable
-SCRIPTS = REPO / "scripts"
 
+def job_config(wildcards, input):
+    """A rule's `params.config`: the run's Config, handed to the stage script.
 
-def command(script: str):
-    """A rule's `params.run`: interpreter, stage script and config file.
-
-    How a job is run is not what it computes, so this is a *derived* param (a function
-    of the job's input), which Snakemake leaves out of its re-run provenance: moving
-    the checkout or switching to conda environments re-runs nothing.
+    What the job computes from it is tracked by `params.stage`; this is a *derived*
+    param (a function of the job's input), which Snakemake leaves out of its re-run
+    provenance, so it re-runs nothing by itself.
     """
-    import shlex
+    return CONFIG
 
-    text = " ".join(shlex.quote(str(p)) for p in (PYTHON, SCRIPTS / script))
-    text += f" --config {shlex.quote(str(EFFECTIVE_CONFIG))}"
-    return lambda wildcards, input: text
 
 BY_OUTDIR = {str(r.outdir): r for r in RECORDINGS}
 
@@ -130,27 +102,10 @@ def artifact(stage: str) -> str:
 
 def pose2d_outputs() -> dict[str, str]:
     """The 2D points, plus the candidate peaks while pictorial structures is on."""
-    outputs = {"points": artifact("pose2d")}
+    outputs = {"out": artifact("pose2d")}
     if FLAGS["pictorial_structures"]:
-        outputs["candidates"] = artifact("candidates")
+        outputs["candidates_out"] = artifact("candidates")
     return outputs
-
-
-def recording_inputs(wildcards) -> list[str]:
-    """What pose2d reads: the footage (for the demo, everything the demo rule writes)."""
-    rec = recording(wildcards)
-    if rec.demo:
-        return DEMO_OUTPUTS
-    return [str(f) for f in rec.footage]
-
-
-def footage_inputs(wildcards) -> list[str]:
-    """The recording's footage files (for the demo, the videos the demo rule writes)."""
-    rec = recording(wildcards)
-    if rec.demo:
-        return DEMO_FOOTAGE
-    return [str(f) for f in rec.footage]
-
 
 
 def _absent_2d(rec) -> list[str]:
@@ -242,39 +197,3 @@ def refinement_inputs(wildcards) -> dict:
     files = reconstruction_inputs("refinement")(wildcards)
     files["triangulation"] = artifact("triangulation").format(outdir=wildcards.outdir)
     return files
-
-
-def optional_arg(flag: str, key: str):
-    """`--flag path` when the job has input `key`, else nothing."""
-    return lambda wildcards, input: f"{flag} {shell_quote(input[key])}" if key in input.keys() else ""
-
-
-def optional_output_arg(flag: str, key: str):
-    """`--flag path` when the job has output `key`, else nothing."""
-    return lambda wildcards, output: f"{flag} {shell_quote(output[key])}" if key in output.keys() else ""
-
-
-def shell_quote(text: str) -> str:
-    import shlex
-
-    return shlex.quote(str(text))
-
-
-def assemble_inputs(wildcards) -> dict:
-    files = {"pose2d": artifact("pose2d")}
-    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation", "refinement"):
-        if FLAGS[stage]:
-            files[stage] = artifact(stage)
-    files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
-    files["calibration"] = calibration_inputs(wildcards)
-    if recording(wildcards).demo:
-        files["truth"] = str(DEMO.path / _demo_names["truth"][0])
-    return files
-
-
-def assemble_args(wildcards, input) -> str:
-    args = []
-    for key in (*ARTIFACTS, "truth"):
-        if key in input.keys():
-            args.append(f"--{key.replace('_', '-')} {shell_quote(input[key])}")
-    return " ".join(args)

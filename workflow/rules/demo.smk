@@ -7,6 +7,7 @@ from flylib.demo import demo_files, demo_settings
 DEMO = next((r for r in RECORDINGS if r.demo), None)
 DEMO_OUTPUTS: list[str] = []
 DEMO_FOOTAGE: list[str] = []
+DEMO_TRUTH: str | None = None
 
 if DEMO is not None:
     try:
@@ -26,14 +27,15 @@ if DEMO is not None:
         raise WorkflowError(str(exc)) from None
     DEMO_OUTPUTS = [str(DEMO.path / name) for names in _demo_names.values() for name in names]
     DEMO_FOOTAGE = [str(DEMO.path / name) for name in _demo_names["footage"]]
+    DEMO_TRUTH = str(DEMO.path / _demo_names["truth"][0])
 
     rule demo:
         output:
             DEMO_OUTPUTS,
         params:
-            run=command("demo.py"),
             demo=_demo_params,
-            directory=lambda wildcards, output: str(Path(output[0]).parent),
+            config=job_config,
+            out=lambda wildcards, output: str(Path(output[0]).parent),
         log:
             str(DEMO.outdir / "logs" / "demo.log"),
         benchmark:
@@ -42,6 +44,6 @@ if DEMO is not None:
             mem_mb=2000,
             runtime=15,
         conda:
-            "../../envs/visualization.yaml"
-        shell:
-            "{params.run} --out {params.directory:q} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/demo.py"

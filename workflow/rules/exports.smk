@@ -31,25 +31,25 @@ if EXPORTS.get("nwb"):
             footage=footage_inputs,
             metadata=lambda w: sidecar_inputs(recording(w)),
         output:
-            f"{{outdir}}/{NWB_FILE}",
+            output=f"{{outdir}}/{NWB_FILE}",
         log:
             "{outdir}/logs/export_nwb.log",
         benchmark:
             "{outdir}/benchmarks/export_nwb.tsv"
         conda:
-            "../../envs/exports.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=2000,
             runtime=15,
         params:
-            run=command("export_nwb.py"),
             stage=json.dumps(
                 {"exports": EXPORTS, "nwb": CONFIG.data.get("nwb")},
                 sort_keys=True,
                 default=str,
             ),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
-            demo=lambda w: "--demo" if recording(w).demo else "",
-        shell:
-            "{params.run} --results {input.results:q} --recording {params.recording:q}"
-            " {params.demo} --output {output:q} 2> {log:q}"
+            demo=lambda w: recording(w).demo,
+        threads: 1
+        script:
+            "../../scripts/export_nwb.py"

@@ -22,14 +22,13 @@ if FLAGS["kinematics"]:
         benchmark:
             "{outdir}/benchmarks/kinematics.tsv"
         conda:
-            "../../envs/visualization.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=2000,
             runtime=15,
         params:
-            run=command("kinematics.py"),
             stage=stage_params("kinematics"),
-        shell:
-            "{params.run}"
-            " --results {input.results:q} --outdir {wildcards.outdir:q}"
-            " 2> {log:q}"
+            config=job_config,
+        threads: 1
+        script:
+            "../../scripts/kinematics.py"

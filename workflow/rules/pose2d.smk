@@ -13,11 +13,10 @@ if FLAGS["pose2d"]:
         output:
             **pose2d_outputs(),
         params:
-            run=command("pose2d.py"),
             stage=stage_params("pose2d"),
+            config=job_config,
             import_spec=pose2d_import,
             recording=lambda w: str(recording(w).path),
-            candidates=optional_output_arg("--candidates-out", "candidates"),
         log:
             "{outdir}/logs/pose2d.log",
         benchmark:
@@ -28,8 +27,6 @@ if FLAGS["pose2d"]:
             runtime=120,
             gpu=pose2d_gpus,
         conda:
-            "../../envs/pose2d.yaml"
-        shell:
-            "{params.run}"
-            " --recording {params.recording:q} --import-spec {params.import_spec:q}"
-            " --out {output.points:q} {params.candidates} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/pose2d.py"

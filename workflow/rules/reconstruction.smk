@@ -12,8 +12,8 @@ if FLAGS["bundle_adjustment"]:
         output:
             artifact("bundle_adjustment"),
         params:
-            run=command("bundle_adjustment.py"),
             stage=stage_params("bundle_adjustment"),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/bundle_adjustment.log",
@@ -22,12 +22,11 @@ if FLAGS["bundle_adjustment"]:
         resources:
             mem_mb=2000,
             runtime=60,
+        threads: 1
         conda:
-            "../../envs/geometry.yaml"
-        shell:
-            "{params.run}"
-            " --pose2d {input.pose2d:q} --recording {params.recording:q}"
-            " --out {output:q} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/bundle_adjustment.py"
 
 
 if FLAGS["pictorial_structures"]:
@@ -38,10 +37,9 @@ if FLAGS["pictorial_structures"]:
         output:
             artifact("pictorial_structures"),
         params:
-            run=command("pictorial_structures.py"),
             stage=stage_params("pictorial_structures"),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
-            rig=optional_arg("--bundle-adjustment", "bundle_adjustment"),
         log:
             "{outdir}/logs/pictorial_structures.log",
         benchmark:
@@ -49,13 +47,11 @@ if FLAGS["pictorial_structures"]:
         resources:
             mem_mb=2000,
             runtime=60,
+        threads: 1
         conda:
-            "../../envs/geometry.yaml"
-        shell:
-            "{params.run}"
-            " --pose2d {input.pose2d:q} --candidates {input.candidates:q} {params.rig}"
-            " --recording {params.recording:q}"
-            " --out {output:q} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/pictorial_structures.py"
 
 
 if FLAGS["triangulation"]:
@@ -67,12 +63,9 @@ if FLAGS["triangulation"]:
         output:
             artifact("triangulation"),
         params:
-            run=command("triangulation.py"),
             stage=stage_params("triangulation"),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
-            rig=optional_arg("--bundle-adjustment", "bundle_adjustment"),
-            points=optional_arg("--pictorial-structures", "pictorial_structures"),
-            corrections=optional_arg("--corrections", "corrections"),
         log:
             "{outdir}/logs/triangulation.log",
         benchmark:
@@ -80,10 +73,8 @@ if FLAGS["triangulation"]:
         resources:
             mem_mb=2000,
             runtime=30,
+        threads: 2
         conda:
-            "../../envs/geometry.yaml"
-        shell:
-            "{params.run}"
-            " --pose2d {input.pose2d:q} {params.rig} {params.points} {params.corrections}"
-            " --recording {params.recording:q}"
-            " --out {output:q} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/triangulation.py"

@@ -16,17 +16,14 @@ if FLAGS["refinement"]:
         benchmark:
             "{outdir}/benchmarks/refinement.tsv"
         conda:
-            "../../envs/geometry.yaml"
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=3000,
             runtime=60,
         params:
-            run=command("refinement.py"),
             stage=stage_params("refinement"),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
-            rig=optional_arg("--bundle-adjustment", "bundle_adjustment"),
-        shell:
-            "{params.run}"
-            " --pose2d {input.pose2d:q} --triangulation {input.triangulation:q} {params.rig}"
-            " --recording {params.recording:q}"
-            " --out {output:q} 2> {log:q}"
+        threads: 2
+        script:
+            "../../scripts/refinement.py"

@@ -22,10 +22,9 @@ rule assemble:
         # describes the results beside it (issue 14: one owner per output)
         snapshot="{outdir}/config.yaml",
     params:
-        run=command("assemble.py"),
         stage=stage_params("assemble"),
+        config=job_config,
         recording=lambda w: str(recording(w).path),
-        args=assemble_args,
     log:
         "{outdir}/logs/assemble.log",
     benchmark:
@@ -34,8 +33,6 @@ rule assemble:
         mem_mb=2000,
         runtime=15,
     conda:
-        "../../envs/visualization.yaml"
-    shell:
-        "{params.run} {params.args}"
-        " --recording {params.recording:q} --outdir {wildcards.outdir:q}"
-        " --snapshot {output.snapshot:q} 2> {log:q}"
+        "../../envs/flylib.yaml"
+    script:
+        "../../scripts/assemble.py"

@@ -18,8 +18,8 @@ if FLAGS["visualization"] and VIDEO_NAMES:
                 for name in VIDEO_NAMES
             ],
         params:
-            run=command("visualization.py"),
             stage=stage_params("visualization"),
+            config=job_config,
             recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/visualization.log",
@@ -30,8 +30,6 @@ if FLAGS["visualization"] and VIDEO_NAMES:
             mem_mb=4000,
             runtime=60,
         conda:
-            "../../envs/visualization.yaml"
-        shell:
-            "{params.run}"
-            " --results {input.results:q} --recording {params.recording:q}"
-            " --outdir {wildcards.outdir:q} 2> {log:q}"
+            "../../envs/flylib.yaml"
+        script:
+            "../../scripts/visualization.py"

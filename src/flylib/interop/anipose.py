@@ -36,7 +36,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
-from ..errors import ImportFormatError
+from ..errors import ConfigError, ImportFormatError
 from ..paths import atomic_path
 from . import views as _views
 from .calib_checks import camera_value, image_size
@@ -348,7 +348,20 @@ def load_calibration(config, recording_dir: Path | None = None):
 def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
                recording_dir: str | Path | None = None):
     """The rig the config describes: its ``calibration`` file when set, else the orbit
-    parameters of ``cameras`` (principal points from ``image_sizes`` where not given)."""
+    parameters of ``cameras`` (principal points from ``image_sizes`` where not given).
+
+    Raises
+    ------
+    ConfigError
+        For a stage's view of the config (:class:`~flylib.pipeline.tracked.StageConfig`)
+        whose rig comes from the bundle-adjustment artifact (bundle adjustment is on), so
+        that its rule does not track the config rig.
+    """
+    tracks = getattr(config, "tracks", None)
+    if tracks is not None and not tracks("cameras"):
+        raise ConfigError(
+            f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
+            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off")
     if config.data.get("calibration"):
         return load_calibration(config, Path(recording_dir) if recording_dir else None)
     return config.camera_group(image_sizes=dict(image_sizes or {}))

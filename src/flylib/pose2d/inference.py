@@ -11,6 +11,7 @@ from typing import Any
 import torch
 
 from ..errors import ConfigError
+from ..resources import usable_cpus
 from . import decode
 from .model import HourglassNet
 from .plan import DetectionPlan, ModelSpec, Op, Resize
@@ -213,6 +214,8 @@ def load_models(
         If a model's weights cannot be found, downloaded or loaded.
     """
     dev = select_device(device if device is not None else _pose2d_setting(config, "device", "auto"))
+    if dev.type == "cpu":  # torch's intra-op pool, sized like every other (flylib.resources)
+        torch.set_num_threads(usable_cpus())
     precision = precision or _pose2d_setting(config, "precision", "bfloat16")
     if precision not in PRECISIONS:
         raise ConfigError(f"pose2d.precision: {precision!r} is not one of {sorted(PRECISIONS)}")

@@ -24,7 +24,7 @@ Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
+from collections import deque
 from itertools import combinations, pairwise
 from typing import TYPE_CHECKING
 
@@ -33,7 +33,7 @@ import numpy as np
 from .. import camera_model
 from ..config.constants import TRIANGULATION_METHODS
 from ..errors import ConfigError
-from ..resources import usable_cpus
+from ..resources import thread_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -47,7 +47,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_CHUNK_POINTS = 4096  # = flylib.geometry.DLT_CHUNK_POINTS (not imported: no JAX here)
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
-_RANSAC_THREADS = min(4, usable_cpus())
+_CHUNKS_IN_FLIGHT = 4
+_RANSAC_THREADS = 4
 
 
 # -- input handling --------------------------------------------------------------
@@ -242,9 +243,8 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
         kept[:, sel] = seen
 
     # NumPy releases the GIL in its loops: pieces run on a few threads (disjoint outputs).
-    with ThreadPoolExecutor(max_workers=max(1, min(_RANSAC_THREADS, len(pieces)))) as pool:
-        for _ in pool.map(run, pieces):
-            pass
+    for _ in thread_map(run, pieces, _RANSAC_THREADS):
+        pass
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 

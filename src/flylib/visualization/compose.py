@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import FootageError
 from ..paths import atomic_path
+from ..resources import usable_cpus
 from .draw import (color_tuples, draw_rings, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
                    to_panel_coords)
 from .specs import (PanelSpec, VideoSpec, read_video_specs, resolve_output_fps,
@@ -227,7 +228,11 @@ def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
 
 @contextlib.contextmanager
 def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
-    """Iterate ``items`` in a background thread, at most ``depth`` ahead of the consumer."""
+    """Iterate ``items`` in a background thread, at most ``depth`` ahead of the consumer
+    (in this thread under a one-thread budget)."""
+    if usable_cpus() == 1:
+        yield iter(items)
+        return
     buffer: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     done = object()
@@ -323,15 +328,18 @@ class _CanvasEncoder:
             raise ValueError(f"{path}: a {width}x{height} canvas is too small to encode")
         self._container = av.open(str(path), mode="w", format="mp4")
         rate = Fraction(fps).limit_denominator(1_000_000)
-        options = {k: str(v) for k, v in X264_SETTINGS.items()}
+        self._threads = usable_cpus()
+        options = {**{k: str(v) for k, v in X264_SETTINGS.items()}, "threads": str(self._threads)}
         self._stream = self._container.add_stream("libx264", rate=rate, options=options)
         self._stream.width, self._stream.height = self.width, self.height
         self._stream.pix_fmt = "yuv420p"
         self._queue: queue.Queue = queue.Queue(maxsize=ENCODE_QUEUE)
         self._error: BaseException | None = None
-        self._worker = threading.Thread(target=self._encode_loop, name="flylib-encode",
-                                         daemon=True)
-        self._worker.start()
+        self._worker = None
+        if self._threads > 1:  # encode beside the drawing; inline under a one-thread budget
+            self._worker = threading.Thread(target=self._encode_loop, name="flylib-encode",
+                                            daemon=True)
+            self._worker.start()
 
     def _encode_loop(self) -> None:
         while True:
@@ -340,11 +348,14 @@ class _CanvasEncoder:
                 return
             if self._error is not None:
                 continue  # drain after a failure so the producer never blocks
-            try:
-                frame = self._av.VideoFrame.from_ndarray(yuv, format="yuv420p")
-                self._container.mux(self._stream.encode(frame))
-            except BaseException as exc:  # re-raised in the caller's thread
-                self._error = exc
+            self._encode(yuv)
+
+    def _encode(self, yuv: np.ndarray) -> None:
+        try:
+            frame = self._av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+            self._container.mux(self._stream.encode(frame))
+        except BaseException as exc:  # re-raised in the caller's thread
+            self._error = exc
 
     def write_frame(self, canvas: np.ndarray) -> None:
         """Queue one ``(H, W, 3)`` RGB canvas (converted now, so it may be reused)."""
@@ -353,12 +364,17 @@ class _CanvasEncoder:
         rgb = canvas[:self.height, :self.width]
         if not rgb.flags.c_contiguous:
             rgb = np.ascontiguousarray(rgb)
-        self._queue.put(cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420))
+        yuv = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420)
+        if self._worker is None:
+            self._encode(yuv)
+        else:
+            self._queue.put(yuv)
 
     def close(self) -> None:
         """Finish the queued frames, flush the encoder and close the file."""
-        self._queue.put(None)
-        self._worker.join()
+        if self._worker is not None:
+            self._queue.put(None)
+            self._worker.join()
         try:
             if self._error is not None:
                 raise self._error
@@ -492,8 +508,10 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             if views_3d else None
         pts2d = result.pts2d
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
-        bar = stack.enter_context(tqdm(total=n_frames, unit="frame", disable=not progress,
-                                       desc="render " + ", ".join(s.name for s in specs)))
+        # no bar object at all without progress: tqdm starts its monitor thread even disabled
+        bar = stack.enter_context(tqdm(total=n_frames, unit="frame",
+                                       desc="render " + ", ".join(s.name for s in specs))) \
+            if progress else None
         for t, frames in enumerate(bundles):
             points2d = {v: pts2d[i, t] for v, i in index.items()}
             points3d = reprojector.at(t) if reprojector else {}
@@ -501,5 +519,6 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             for comp, writer in zip(compositors, writers):
                 writer.write_frame(comp.compose(frames, points2d, points3d, resized,
                                                 None if corrected is None else corrected[t]))
-            bar.update(1)
+            if bar is not None:
+                bar.update(1)
     return paths

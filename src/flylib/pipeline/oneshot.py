@@ -1,4 +1,8 @@
-"""Library one-shot: 2D detections -> (bundle adjustment) -> (pictorial structures) -> 3D."""
+"""Library one-shot: 2D detections -> (bundle adjustment) -> (pictorial structures) -> 3D.
+
+Its defaults are the packaged default config's (:meth:`flylib.config.Config.default`),
+so the one-shot and the workflow start from the same settings.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +11,25 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config.constants import TRIANGULATION_METHODS
-from .errors import ConfigError
+from ..config.constants import TRIANGULATION_METHODS
+from ..errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .pictorial import Candidates
-    from .results import PoseResult
+    from ..pictorial import Candidates
+    from ..results import PoseResult
 
 log = logging.getLogger(__name__)
 
-BUNDLE_ADJUST_DEFAULTS = {"fixed": ("*.intr",), "max_frames": 200, "frame_sampling": "even"}
+#: The ``bundle_adjustment`` settings the one-shot takes from the packaged default config
+#: when ``bundle_adjust_kwargs`` does not give them.
+BUNDLE_ADJUST_DEFAULT_KEYS = ("fixed", "max_frames", "frame_sampling")
+
+
+def _defaults():
+    """The packaged default config (read once per call; the file is small)."""
+    from ..config import Config
+
+    return Config.default()
 
 
 def run_from_points2d(
@@ -27,18 +40,17 @@ def run_from_points2d(
     *,
     do_bundle_adjust: bool = True,
     bundle_adjust_kwargs: dict | None = None,
-    triangulation: str = "ransac",
-    weigh_by_confidence: bool = False,
+    triangulation: str | None = None,
+    weigh_by_confidence: bool | None = None,
     do_pictorial: bool = False,
     candidates: "Candidates | None" = None,
     ps_kwargs: dict | None = None,
-    ransac_threshold: float = 15.0,
-    min_inliers: int = 2,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    ransac_threshold: float | None = None,
+    min_inliers: int | None = None,
+    reproj_threshold: float | None = None,
+    max_drops: int | None = None,
     fps: float = 100.0,
     meta: dict | None = None,
-    do_bundle_adjustment: bool | None = None,
 ) -> "PoseResult":
     """Run the 2D-to-3D pipeline on detections and return a :class:`PoseResult`.
 
@@ -49,22 +61,22 @@ def run_from_points2d(
     ----------
     cameras, skeleton, pts2d, conf
         The rig, skeleton, detections ``(V, T, P, 2)`` (NaN = missing) and confidences
-        ``(V, T, P)`` or ``None``. The order ``(pts2d, cameras, skeleton, conf)`` is
-        accepted too.
+        ``(V, T, P)`` or ``None``.
     do_bundle_adjust
         Refine the rig first (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`).
-        ``do_bundle_adjustment`` is an alias.
     bundle_adjust_kwargs
         Keyword arguments for the adjustment (``fixed``, ``shared``, ``points_to_use``,
         ``max_frames``, ``frame_sampling``, ``weigh_by_confidence``, ``least_squares``
-        options, ``solver``, ``bone_lengths``, ``rigid_points`` ...); defaults:
-        intrinsics fixed, 200 evenly spaced frames.
-    triangulation
-        ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
+        options, ``solver``, ``bone_lengths``, ``rigid_points`` ...); ``fixed``,
+        ``max_frames`` and ``frame_sampling`` default to the packaged config's
+        ``bundle_adjustment`` values (intrinsics fixed, 200 evenly spaced frames).
+    triangulation, weigh_by_confidence, ransac_threshold, min_inliers, reproj_threshold, max_drops
+        ``None`` takes the packaged default config's ``triangulation`` value.
+        ``triangulation``: ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
         ``min_inliers``), ``"greedy"`` (drop the worst view; ``reproj_threshold``,
         ``max_drops``) or ``"dlt"`` (plain least squares).
-    weigh_by_confidence
-        Confidence-weighted triangulation (``sqrt(conf)`` per view).
+        ``weigh_by_confidence``: confidence-weighted triangulation (``sqrt(conf)`` per
+        view).
     do_pictorial, candidates, ps_kwargs
         Pictorial-structures peak recovery (:func:`flylib.pictorial.reconstruct`, with
         ``ps_kwargs`` such as ``temporal``, ``lam``, ``max_hyp``) over ``candidates``;
@@ -85,14 +97,17 @@ def run_from_points2d(
         For an unknown ``triangulation`` method, or ``do_pictorial`` without
         ``candidates``.
     """
-    from .cameras import CameraGroup
-    from .results import PoseResult
-    from .triangulation import reconstruct
+    from ..results import PoseResult
+    from ..triangulation import reconstruct
 
-    if not isinstance(cameras, CameraGroup) and isinstance(skeleton, CameraGroup):
-        cameras, skeleton, pts2d = skeleton, pts2d, cameras  # (pts2d, cameras, skeleton)
-    if do_bundle_adjustment is not None:
-        do_bundle_adjust = do_bundle_adjustment
+    defaults = _defaults()
+    tri = defaults.triangulation
+    triangulation = tri.method if triangulation is None else triangulation
+    weigh_by_confidence = tri.weigh_by_confidence if weigh_by_confidence is None else weigh_by_confidence
+    ransac_threshold = tri.ransac_threshold if ransac_threshold is None else ransac_threshold
+    min_inliers = tri.min_inliers if min_inliers is None else min_inliers
+    reproj_threshold = tri.reproj_threshold if reproj_threshold is None else reproj_threshold
+    max_drops = tri.max_drops if max_drops is None else max_drops
     if triangulation not in TRIANGULATION_METHODS:
         raise ConfigError(f"triangulation: unknown method {triangulation!r}; "
                           f"use one of {', '.join(TRIANGULATION_METHODS)}")
@@ -105,9 +120,10 @@ def run_from_points2d(
                       "pictorial": bool(do_pictorial)}
 
     if do_bundle_adjust:
-        from .bundle_adjustment import bundle_adjust_sequence
+        from ..bundle_adjustment import bundle_adjust_sequence
 
-        kwargs = {**BUNDLE_ADJUST_DEFAULTS, **(bundle_adjust_kwargs or {})}
+        ba = defaults.data["bundle_adjustment"]
+        kwargs = {**{k: ba[k] for k in BUNDLE_ADJUST_DEFAULT_KEYS}, **(bundle_adjust_kwargs or {})}
         kwargs.update(kwargs.pop("least_squares", None) or {})
         result, cameras, _ = bundle_adjust_sequence(cameras, pts2d, conf, skeleton, **kwargs)
         run_meta["bundle_adjustment"] = {
@@ -119,7 +135,7 @@ def run_from_points2d(
 
     tri_input = pts2d
     if do_pictorial:
-        from .pictorial import reconstruct as ps_reconstruct
+        from ..pictorial import reconstruct as ps_reconstruct
 
         _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d,
                                          **(ps_kwargs or {}))

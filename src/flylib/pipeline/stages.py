@@ -3,8 +3,9 @@ the library, write the stage's artifact atomically.
 
 These are what the command scripts in ``scripts/`` (and so the Snakemake rules) run,
 and what a library user can call to reproduce one step by hand. Every function takes
-paths and a :class:`~flylib.config.Config`; none decides *whether* it should run (the
-workflow does, from the rule's params and inputs).
+paths and a :class:`~flylib.config.Config`, and runs on the part of it its rule tracks
+(:class:`~flylib.pipeline.tracked.StageConfig`: reading any other key raises); none
+decides *whether* it should run (the workflow does, from the rule's params and inputs).
 
 =====================  ==========================================  ===============================
 stage                  reads                                       writes
@@ -27,41 +28,22 @@ stage                  reads                                       writes
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import FlylibError, ResultsError
-from .interop.anipose import config_rig
-from .paths import atomic_path
-from .results import ARTIFACTS
+from ..errors import ResultsError
+from ..interop.anipose import config_rig
+from ..paths import atomic_path
+from .tracked import StageConfig
 
 log = logging.getLogger(__name__)
-
-
-def candidates_artifact(k: int) -> str:
-    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
-
-    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
-    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
-    re-runs no detection, and a new ``k`` while it is on asks for a new file.
-    """
-    return f"candidates_k{int(k)}.h5"
-
-SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
-
-
-def artifact_path(outdir: str | Path, stage: str) -> Path:
-    """``<outdir>/stages/<stage>.h5``."""
-    return Path(outdir) / "stages" / ARTIFACTS[stage]
 
 
 # -- helpers -------------------------------------------------------------------
@@ -74,15 +56,25 @@ def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
 def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
     """The bundle-adjusted rig when that artifact is given, else the config rig."""
     if ba_path:
-        from .results import read_stage
+        from ..results import read_stage
 
         return read_stage(ba_path, "bundle_adjustment")["cameras"]
     return config_rig(config, _image_sizes(pose2d), recording_dir)
 
 
+def _rig_source(config, ba_path):
+    """``config`` as the stage runs it: without a bundle-adjustment artifact the rig is
+    the config's, as with bundle adjustment off (so the params track that rig)."""
+    if ba_path or isinstance(config, StageConfig) or not config.stage_flags()["bundle_adjustment"]:
+        return config
+    data = dict(config.data)
+    data["pipeline"] = {**(data.get("pipeline") or {}), "do_bundle_adjustment": False}
+    return type(config)(data, text=config.text, source=config.source, format=config.format)
+
+
 def _provenance(config, stage: str, **upstream) -> dict:
     """The params hash of ``stage`` and those of the artifacts it read (meta entries)."""
-    from .provenance import stage_provenance
+    from ..provenance import stage_provenance
 
     return stage_provenance(config, stage, upstream)
 
@@ -92,7 +84,7 @@ def _provenance(config, stage: str, **upstream) -> dict:
 
 def run_demo(config, directory: str | Path):
     """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`)."""
-    from .demo import make_demo
+    from ..demo import make_demo
 
     return make_demo(config, directory)
 
@@ -114,6 +106,7 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
     ResultsError
         If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
+    config = StageConfig.for_stage(config, "pose2d")
     recording_dir = Path(recording_dir)
     spec = dict(import_spec) if import_spec else config.import_spec
     if spec:
@@ -122,22 +115,22 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
                 f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
                 f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
                 "which keeps none; set pipeline.do_pictorial_structures: false")
-        from .interop import import_points2d
+        from ..interop import import_points2d
 
         data = import_points2d(config, recording_dir, spec)
     else:
-        from .pose2d import detect_recording
-        from .recordings import find_recording
+        from ..pose2d import detect_recording
+        from ..recordings import find_recording
 
         sources = find_recording(recording_dir, config, strict=True)
         data = detect_recording(config, sources, want_candidates=candidates_path is not None,
                                 progress=progress)
-    from .provenance import stage_provenance
+    from ..provenance import stage_provenance
 
     provenance = stage_provenance(config, "pose2d")
     candidates, data.candidates = data.candidates, None
     if candidates is not None:
-        from .results import save_candidates
+        from ..results import save_candidates
 
         save_candidates(candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)})
     data.save(out_path, config.skeleton(), meta=provenance)
@@ -146,7 +139,7 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
 
 def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
     if candidates_path is not None:
-        from .results import load_candidates
+        from ..results import load_candidates
 
         return load_candidates(candidates_path)
     if pose2d.candidates is None:
@@ -160,9 +153,10 @@ def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
 def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path, *,
                           recording_dir: str | Path | None = None) -> Path:
     """Refine the config rig against the recording's 2D keypoints."""
-    from .bundle_adjustment import bundle_adjust_from_config
-    from .results import Pose2dData, write_stage
+    from ..bundle_adjustment import bundle_adjust_from_config
+    from ..results import Pose2dData, write_stage
 
+    config = StageConfig.for_stage(config, "bundle_adjustment")
     pose2d = Pose2dData.load(pose2d_path)
     cameras = config_rig(config, _image_sizes(pose2d), recording_dir)
     started = time.perf_counter()
@@ -197,9 +191,10 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     ResultsError
         If there are no candidate peaks (2D imported from another tool).
     """
-    from .pictorial import reconstruct_from_config
-    from .results import Pose2dData, write_stage
+    from ..pictorial import reconstruct_from_config
+    from ..results import Pose2dData, write_stage
 
+    config = StageConfig.for_stage(_rig_source(config, ba_path), "pictorial_structures")
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
@@ -225,9 +220,10 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
     what a person changed) and the sidecar's name and edit count as attribute
     ``corrections``.
     """
-    from .corrections import Corrections, reconstruct_corrected
-    from .results import Pose2dData, read_stage, write_stage
+    from ..corrections import Corrections, reconstruct_corrected
+    from ..results import Pose2dData, read_stage, write_stage
 
+    config = StageConfig.for_stage(_rig_source(config, ba_path), "triangulation")
     pose2d = Pose2dData.load(pose2d_path)
     pts2d = pose2d.pts2d
     if pictorial_path:
@@ -253,16 +249,17 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
 def run_refinement(config, pose2d_path, triangulation_path, out_path, *, ba_path=None,
                    recording_dir=None) -> Path:
     """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
-    from .refinement.stage import run_refinement as run
+    from ..refinement.stage import run_refinement as run
 
-    return run(config, pose2d_path, triangulation_path, out_path, ba_path=ba_path, recording_dir=recording_dir)
+    return run(StageConfig.for_stage(_rig_source(config, ba_path), "refinement"), pose2d_path, triangulation_path, out_path,
+               ba_path=ba_path, recording_dir=recording_dir)
 
 
 def run_kinematics(config, results_path, outdir) -> dict:
     """Body frame and joint angles (see :func:`flylib.kinematics.stage.run_kinematics`)."""
-    from .kinematics.stage import run_kinematics as run
+    from ..kinematics.stage import run_kinematics as run
 
-    return run(config, results_path, outdir)
+    return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
 
 
 def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
@@ -283,10 +280,12 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     dict
         The summary written to ``summary.json``.
     """
-    from .interop.anipose import write_anipose_toml
-    from .results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
-    from .visualization import summary_figure
+    from ..interop.anipose import write_anipose_toml
+    from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
+    from ..visualization import summary_figure
 
+    snapshot = config.snapshot_text() if snapshot_path is not None else None
+    config = StageConfig.for_stage(config, "assemble")
     outdir = Path(outdir)
     stage_files = {k: Path(v) for k, v in stage_files.items() if v}
     if "pose2d" not in stage_files:
@@ -305,28 +304,28 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
     summary["suspects"] = _write_suspects(results_path, outdir, result)
     if truth_path:
-        from .demo import demo_error, load_truth
+        from ..demo import demo_error, load_truth
 
         truth = load_truth(truth_path)
         if result.pts3d is not None:
             summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
         if "refinement" in stage_files and "triangulation" in stage_files:
-            from .results import read_stage
+            from ..results import read_stage
 
             tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
             summary["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
     summary["params_sha256"] = {**meta.get("upstream_params_sha256", {}), "assemble": meta["params_sha256"]}
     _write_json(outdir / "summary.json", summary)
-    if snapshot_path is not None:
-        write_snapshot(config, snapshot_path)
+    if snapshot is not None:
+        write_snapshot(snapshot, snapshot_path)
     return summary
 
 
-def write_snapshot(config, path: str | Path) -> Path:
-    """Write the config's text (the source bytes, or YAML for a dict config) to
-    ``path`` atomically."""
+def write_snapshot(text: str, path: str | Path) -> Path:
+    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) to ``path``
+    atomically."""
     with atomic_path(path) as tmp:
-        tmp.write_bytes(config.snapshot_text().encode("utf-8"))
+        tmp.write_bytes(text.encode("utf-8"))
     return Path(path)
 
 
@@ -361,7 +360,7 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
 def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
     """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
     and a header-only file when the result holds no 3D)."""
-    from .suspects import SUSPECTS_FILE, Suspects, suspects_from_results
+    from ..suspects import SUSPECTS_FILE, Suspects, suspects_from_results
 
     if result.pts3d is None or result.reproj_error is None:
         empty = np.zeros(0, int)
@@ -383,61 +382,14 @@ def run_visualization(config, results_path: str | Path, recording_dir: str | Pat
                       outdir: str | Path, *, progress: bool = False) -> list[Path]:
     """Render the configured videos of one recording into ``outdir`` (points a person
     corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
-    from .interop.views import footage_files
-    from .results import PoseResult
-    from .visualization import render_videos
+    from ..interop.views import footage_files
+    from ..results import PoseResult
+    from ..visualization import render_videos
 
-    from .corrections import read_corrected
+    from ..corrections import read_corrected
 
+    config = StageConfig.for_stage(config, "visualization")
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
     return render_videos(config, result, footage, outdir, progress=progress,
                          corrected=read_corrected(results_path))
-
-
-# -- command-line plumbing shared by scripts/*.py ----------------------------------
-
-
-def script_parser(description: str) -> argparse.ArgumentParser:
-    """An argument parser with the options every stage script shares."""
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--config", required=True, type=Path,
-                        help="config file (.yaml/.toml) of the run, e.g. config/config.yaml")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    return parser
-
-
-def output_dir(out: str | Path) -> Path:
-    """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
-    gives ``<outdir>``; any other file its own directory)."""
-    parent = Path(out).parent
-    return parent.parent if parent.name == "stages" else parent
-
-
-def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace, Any], Any],
-                argv: list[str] | None = None,
-                outdir: Callable[[argparse.Namespace], str | Path] | None = None) -> int:
-    """Parse arguments, load the config, run a stage; a user-facing error is printed as
-    one line on stderr and exits with status 1.
-
-    With ``outdir`` (the output directory the stage writes, from its arguments) the
-    stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
-    a second run writing the same directory fails naming the holder."""
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-    from .config import Config
-
-    try:
-        config = Config.from_file(args.config)
-        if outdir is None:
-            run(args, config)
-        else:
-            from .locking import outdir_lock
-
-            with outdir_lock(outdir(args), job=Path(parser.prog).stem):
-                run(args, config)
-    except FlylibError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0

@@ -1,0 +1,30 @@
+# Input functions that tell the demo (its files come from the demo rule) from a real
+# recording (its files are on disk): they use DEMO* from demo.smk, included above.
+
+
+def recording_inputs(wildcards) -> list[str]:
+    """What pose2d reads: the footage (for the demo, everything the demo rule writes)."""
+    rec = recording(wildcards)
+    if rec.demo:
+        return DEMO_OUTPUTS
+    return [str(f) for f in rec.footage]
+
+
+def footage_inputs(wildcards) -> list[str]:
+    """The recording's footage files (for the demo, the videos the demo rule writes)."""
+    rec = recording(wildcards)
+    if rec.demo:
+        return DEMO_FOOTAGE
+    return [str(f) for f in rec.footage]
+
+
+def assemble_inputs(wildcards) -> dict:
+    files = {"pose2d": artifact("pose2d")}
+    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation", "refinement"):
+        if FLAGS[stage]:
+            files[stage] = artifact(stage)
+    files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+    files["calibration"] = calibration_inputs(wildcards)
+    if recording(wildcards).demo:
+        files["truth"] = DEMO_TRUTH
+    return files
