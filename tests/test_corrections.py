@@ -125,7 +125,7 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
                     far = pts[v, 0, 0] + shift
                     plain = Corrections.empty(len(cameras), 1, 1)
                     plain.set_point(v, 0, 0, far)
-                    _, clean, _, _ = reconstruct_corrected(config, pts, cameras, None, plain)
+                    _, clean, _, _ = reconstruct_corrected(config, cameras, pts, None, plain)
                     if not np.isfinite(clean[v, 0, 0]).all():
                         return pts, v, far
         raise AssertionError("no edit was rejected by ransac")
@@ -133,7 +133,7 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
     pts, v, far = dropped_case()
     fixed = Corrections.empty(len(cameras), 1, 1)
     fixed.set_point(v, 0, 0, far, fixed=True)
-    pts3d, clean, error, corrected = reconstruct_corrected(config, pts, cameras, None, fixed)
+    pts3d, clean, error, corrected = reconstruct_corrected(config, cameras, pts, None, fixed)
     np.testing.assert_allclose(clean[v, 0, 0], far)
     assert corrected[0, 0] and np.isfinite(pts3d).all() and error[v, 0, 0] < 60
 
@@ -167,3 +167,11 @@ def test_corrected_points_are_ringed_in_the_videos():
     draw_rings(img, xy, np.array([True, False, True]), radius=3)
     assert img[30, 30].max() == 0 and img[30, 30 + 7].max() > 100  # a ring, not a disc
     assert img[:20, :20].max() == 0  # not corrected: no ring
+
+
+def test_reconstruct_corrected_takes_the_rig_first():
+    config = Config.default()
+    cameras = config.camera_group()
+    pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
+    with pytest.raises(TypeError, match="rig before the points"):
+        reconstruct_corrected(config, pts, cameras)

@@ -88,9 +88,16 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
     assert _script("triangulation").main([*common, "--pose2d", str(stages / "pose2d.h5"),
                                           "--recording", str(root / "rec"),
                                           "--out", str(stages / "triangulation.h5")]) == 0
+    assert _script("refinement").main([*common, "--pose2d", str(stages / "pose2d.h5"),
+                                       "--triangulation", str(stages / "triangulation.h5"),
+                                       "--recording", str(root / "rec"),
+                                       "--out", str(stages / "refinement.h5")]) == 0
     assert _script("assemble").main([*common, "--pose2d", str(stages / "pose2d.h5"),
                                      "--triangulation", str(stages / "triangulation.h5"),
+                                     "--refinement", str(stages / "refinement.h5"),
                                      "--recording", str(root / "rec"), "--outdir", str(out)]) == 0
+    assert _script("kinematics").main([*common, "--results", str(out / "results.h5"),
+                                       "--outdir", str(out)]) == 0
     assert _script("visualization").main([*common, "--results", str(out / "results.h5"),
                                           "--recording", str(root / "rec"), "--outdir", str(out)]) == 0
     assert list(out.glob("*.mp4")), "no video rendered"

@@ -296,8 +296,8 @@ class Corrections:
 
 def reconstruct_corrected(
     config: Any,
-    pts2d: Float[np.ndarray, "V T P 2"],
     cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V T P 2"],
     conf: Float[np.ndarray, "V T P"] | None = None,
     corrections: Corrections | None = None,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"],
@@ -308,10 +308,10 @@ def reconstruct_corrected(
     ----------
     config
         The run config (its ``triangulation`` table).
+    cameras
+        The final rig (first, as in every triangulation function).
     pts2d
         ``(V, T, P, 2)`` the 2D triangulation reads (pose2d or pictorial structures).
-    cameras
-        The final rig.
     conf
         ``(V, T, P)`` or ``None``.
     corrections
@@ -322,10 +322,18 @@ def reconstruct_corrected(
     pts3d, pts2d_clean, reproj_error, corrected
         ``(T, P, 3)``, ``(V, T, P, 2)`` (the views the points were solved from),
         ``(V, T, P)`` pixels and ``(T, P)`` bool (points a correction changed).
+
+    Raises
+    ------
+    TypeError
+        If the points and the rig are swapped (the order before the rig came first).
     """
     from . import camera_model
     from .triangulation import reconstruct_from_config, reprojection_error
 
+    if hasattr(pts2d, "pmats") or not hasattr(cameras, "pmats"):
+        raise TypeError("reconstruct_corrected(config, cameras, pts2d, ...) takes the rig before "
+                        f"the points, got {type(cameras).__name__} for cameras")
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if corrections is None:
         pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)

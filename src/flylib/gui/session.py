@@ -265,8 +265,8 @@ class ReviewSession:
         """Re-solve one (frame, point) from the base 2D with the current corrections."""
         sub = self.corrections.subset([t], [p])
         conf = None if self.conf is None else self.conf[:, [t]][:, :, [p]]
-        pts3d, clean, error, _ = reconstruct_corrected(self.config, self.base2d[:, [t]][:, :, [p]],
-                                                      self.cameras, conf, sub)
+        pts3d, clean, error, _ = reconstruct_corrected(self.config, self.cameras,
+                                                      self.base2d[:, [t]][:, :, [p]], conf, sub)
         self.pts3d[t, p] = pts3d[0, 0]
         self.used2d[:, t, p] = clean[:, 0, 0]
         self.error[:, t, p] = error[:, 0, 0]

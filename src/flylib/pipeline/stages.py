@@ -230,7 +230,7 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
     corrections = Corrections.load(corrections_path, pts2d.shape[:3]) if corrections_path else None
-    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(config, pts2d, cameras, pose2d.conf,
+    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(config, cameras, pts2d, pose2d.conf,
                                                                  corrections)
     arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
     attrs = None

@@ -591,18 +591,26 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     # once, not per chunk: threads entering and leaving it would undo each other). The
     # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
     # them ran 10-40x slower on a busy 2-core machine.
-    with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
-        pending: deque = deque()
-        for k in range(len(bounds) + workers):
-            if k < len(bounds):  # at most `workers` chunks ahead of the writer: memory stays flat
-                pending.append(pool.submit(solve_chunk, *bounds[k]))
-            if len(pending) > workers or (k >= len(bounds) and pending):
-                lo, hi, its, active, rejected, points3d, err, clean, flags = pending.popleft().result()
-                iterations.append(its)
-                supported[lo:hi] = active.any(axis=0)
-                kept_total += int(active.sum())
-                rejected_total += rejected
-                sink.write(lo, hi, points3d, err, clean, flags)
+    def collect(lo, hi, its, active, rejected, points3d, err, clean, flags):
+        nonlocal kept_total, rejected_total
+        iterations.append(its)
+        supported[lo:hi] = active.any(axis=0)
+        kept_total += int(active.sum())
+        rejected_total += rejected
+        sink.write(lo, hi, points3d, err, clean, flags)
+
+    with threadpool_limits(1, user_api="blas"):
+        if workers == 1:  # a one-thread job starts no thread
+            for bound in bounds:
+                collect(*solve_chunk(*bound))
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                pending: deque = deque()
+                for k in range(len(bounds) + workers):
+                    if k < len(bounds):  # at most `workers` chunks ahead of the writer: memory stays flat
+                        pending.append(pool.submit(solve_chunk, *bounds[k]))
+                    if len(pending) > workers or (k >= len(bounds) and pending):
+                        collect(*pending.popleft().result())
     solve_seconds = time.perf_counter() - started
 
     # -- gaps longer than gap_length: NaN
