@@ -171,7 +171,7 @@ def test_corrected_points_are_ringed_in_the_videos():
 
 def test_reconstruct_corrected_takes_the_rig_first():
     config = Config.default()
-    cameras = config.camera_group()
+    cameras = config.camera_group(image_sizes={name: (480, 960) for name in config.view_names()})
     pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
     with pytest.raises(TypeError, match="rig before the points"):
         reconstruct_corrected(config, pts, cameras)
