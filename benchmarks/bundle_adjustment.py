@@ -94,7 +94,7 @@ def rough_case(hard: bool, frames: int) -> None:
           f"{case.bone:.3f} units; fitting 200 frames of the 30 leg points", flush=True)
     # JIT: compile the Jacobian kernel once, timed apart from the fits
     t0 = time.perf_counter()
-    from flylib.ba.solver import project_rows_with_jac
+    from flylib.bundle_adjustment.solver import project_rows_with_jac
 
     project_rows_with_jac(np.zeros((1, 3)) + [0, 0, 100.0], np.zeros((1, 15)) + 1.0)
     print(f"JIT compile of the Jacobian kernel: {time.perf_counter() - t0:.2f} s "

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flylib.ba.lm import ReducedSystem, block_structure, solve_lm
-from flylib.ba.reseed import radial_folds, reseed_gross_cameras
+from flylib.bundle_adjustment.lm import ReducedSystem, block_structure, solve_lm
+from flylib.bundle_adjustment.reseed import radial_folds, reseed_gross_cameras
 from flylib.bundle_adjustment import bundle_adjust, camera_table
 from flylib.config import Config
 from flylib.errors import ConfigError
@@ -53,7 +53,7 @@ def test_schur_step_equals_the_dense_damped_solve(bone_group, global_point):
 def test_lm_reaches_the_least_squares_minimum_like_scipy():
     from scipy.optimize import least_squares
 
-    from flylib.ba.solver import project_rows
+    from flylib.bundle_adjustment.solver import project_rows
 
     problem, x = _small_problem(fixed=["*.intr", "*.dist", "rh.rvec", "rh.tvec", "rm.tvec[2]"])
     rng = np.random.default_rng(0)
@@ -104,7 +104,7 @@ def test_a_camera_aimed_degrees_off_is_resected_by_pnp():
                                       seed=2))[2]
 
     def triangulate(tab, use):
-        from flylib.bundle_adjustment import _cameras_from_table, _ransac_points
+        from flylib.bundle_adjustment.adjust import _cameras_from_table, _ransac_points
 
         return _ransac_points(_cameras_from_table(rig.names, tab), pts2d, use, 40.0)
 

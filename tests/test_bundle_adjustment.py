@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flylib.ba.params import build_layout
-from flylib.ba.sampling import select_frames
-from flylib.ba.solver import Problem, project_rows
+from flylib.bundle_adjustment.params import build_layout
+from flylib.bundle_adjustment.sampling import select_frames
+from flylib.bundle_adjustment.solver import Problem, project_rows
 from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.errors import ConfigError
 
@@ -165,7 +165,7 @@ def test_jacobian_matches_central_differences(bone_group):
 def test_numpy_and_jax_projections_agree_with_opencv():
     import cv2
 
-    from flylib.ba.solver import project_rows, project_rows_with_jac
+    from flylib.bundle_adjustment.solver import project_rows, project_rows_with_jac
 
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(64, 3))
@@ -185,7 +185,7 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
     import jax
 
     from flylib import geometry
-    from flylib.ba import solver
+    from flylib.bundle_adjustment import solver
 
     rng = np.random.default_rng(1)
     m = 2 * solver._CHUNK + 37  # two full chunks and a padded remainder

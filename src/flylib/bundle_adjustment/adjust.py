@@ -1,24 +1,24 @@
-"""Bundle adjustment: refine the camera rig against the fly's own detected joints.
+"""Bundle adjustment of one flattened problem: :func:`bundle_adjust`.
 
-``scipy.optimize.least_squares`` over the free camera parameters and the 3D points,
-with the analytic Jacobian of :func:`flylib.geometry.project_full_one` from JAX
-(``jacfwd``, ``vmap``-ed over observations) assembled as a sparse matrix, float64
-throughout. See :mod:`flylib.ba.params` for the ``fixed`` / ``shared`` grammar and
-:mod:`flylib.ba.sampling` for ``frame_sampling``.
+Free camera parameters and 3D points (plus, optionally, shared bone lengths) are fitted
+to the observed 2D points by Levenberg-Marquardt on the reduced camera system
+(:mod:`.lm`) or ``scipy.optimize.least_squares`` (:mod:`.solver`), with the analytic
+JAX Jacobian, float64 throughout. See :mod:`.params` for the ``fixed`` / ``shared``
+grammar.
 
 Robustness and gauge, beyond a plain least-squares fit:
 
-- the starting 3D points come from a two-view consensus triangulation; its outlying
-  observations sit out the first round (a short one); after every round observations reprojecting worse than ``outlier_factor`` times the
-  median error (at least ``outlier_min_px``) are dropped and the fit repeated with the
-  caller's loss, so gross detector errors do not bend the rig;
-- an optional (``bone_prior``), weak bone-length prior (one residual per frame and bone, relative to
-  :func:`flylib.pictorial.bone_length_targets`) keeps limbs at a plausible length and
-  pins the near-affine depth ambiguity of the long-focal rig (letting the lengths
-  float instead, ``bones=(i, j, target, group)``, leaves that ambiguity open);
-- when no rotation or translation is fixed, the world frame is a free similarity
-  (gauge): the refined rig and points are mapped by the similarity that best aligns
-  the refined camera centres onto the initial ones, so the result does not drift.
+- cameras whose start is grossly off are resected by PnP first (:mod:`.reseed`);
+- zero distortion coefficients stay zero on long lenses, and a fit whose radial model
+  folds the image is redone with that camera's distortion held;
+- outlier rounds: the first threshold comes from the errors against the starting
+  consensus triangulation; after every fit every observation is judged again
+  (``outlier_factor`` times the median error, at least ``outlier_min_px``) until the
+  inlier set is stable, so observations dropped from a rough start come back;
+- bone lengths as unknowns (one per bone or left/right pair, shared by all frames) and
+  rigid points (one 3D unknown over all frames) pin what the images alone leave loose;
+- the similarity gauge is held during the fit and the result reported in the frame
+  closest to the initial rig (:mod:`.gauge`).
 """
 
 from __future__ import annotations
@@ -30,29 +30,19 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from .ba.lm import ReducedSystem, block_structure, solve_lm, weak_directions
-from .ba.params import build_layout, param_slices
-from .ba.reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
-from .ba.sampling import FRAME_SAMPLING, select_frames
-from .ba.solver import Problem, project_rows
-from .camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
-from .errors import ConfigError
+from ..errors import ConfigError
+from .gauge import align_gauge, gauge_refs, untied_extrinsics
+from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
+from .params import build_layout, param_slices
+from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
+from .solver import Problem, project_rows
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .cameras import CameraGroup
-    from .config import Config
-    from .skeleton import Skeleton
+    from ..cameras import CameraGroup
 
 log = logging.getLogger(__name__)
 
-__all__ = [
-    "FRAME_SAMPLING",
-    "bundle_adjust",
-    "bundle_adjust_from_config",
-    "bundle_adjust_sequence",
-    "camera_table",
-    "select_frames",
-]
+__all__ = ["bundle_adjust", "camera_table"]
 
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
 DEFAULT_LENGTH_WEIGHT = 100.0  # px per 100 % deviation from a bone's common length
@@ -80,7 +70,7 @@ def camera_table(cameras: "CameraGroup") -> np.ndarray:
 
 
 def _cameras_from_table(names, table: np.ndarray) -> "CameraGroup":
-    from .cameras import CameraGroup
+    from ..cameras import CameraGroup
 
     return CameraGroup.from_arrays(list(names), table[:, 0:3], table[:, 3:6], table[:, 6:10],
                                    table[:, 10:])
@@ -119,7 +109,7 @@ def bundle_adjust(
     pts2d
         Observations ``(V, N, 2)`` in pixels, NaN for missing.
     fixed, shared
-        Parameter references held constant / tied together (:mod:`flylib.ba.params`).
+        Parameter references held constant / tied together (:mod:`flylib.bundle_adjustment.params`).
     pts3d
         Initial 3D points ``(N, 3)``; robustly triangulated from ``cameras`` if omitted.
     conf, weigh_by_confidence
@@ -150,7 +140,7 @@ def bundle_adjust(
         Columns sharing an id are one point, e.g. a rigid point seen in every frame.
     solver
         ``"lm"``: Levenberg-Marquardt on the reduced camera system
-        (:mod:`flylib.ba.lm`); ``"scipy"``: ``scipy.optimize.least_squares``.
+        (:mod:`flylib.bundle_adjustment.lm`); ``"scipy"``: ``scipy.optimize.least_squares``.
     distortion
         ``"auto"``: distortion coefficients that start at zero are held at zero on long
         lenses (image corner within ``0.2`` of the optical axis in normalized
@@ -233,8 +223,8 @@ def bundle_adjust(
     # converge only linearly: hold one camera and one depth during the fit instead; the
     # canonical frame below makes the result independent of which.
     fit_layout, n_gauge = layout, (7 if layout.extrinsics_free else 0)
-    if solver == "lm" and layout.extrinsics_free and _untied_extrinsics(layout):
-        fit_layout = build_layout(names, n_dist, [*fixed, *held, *_gauge_refs(table, names)],
+    if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
+        fit_layout = build_layout(names, n_dist, [*fixed, *held, *gauge_refs(table, names)],
                                   shared)
         n_gauge = 0
     cols_start = (triangulate(table, usable) if pts3d is None
@@ -255,6 +245,7 @@ def bundle_adjust(
     lengths = None
     result = None
     stable = not reject_outliers
+    history = {active.tobytes()}
     rounds = 0
     keep = np.zeros(n_unknown, bool)
     problem = None
@@ -289,12 +280,15 @@ def bundle_adjust(
         log.info("bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
                  "set aside, %d changed", rounds, float(np.nanmedian(err[active])),
                  int(usable.sum() - new_active.sum()), threshold, changed)
-        if changed <= STABLE_FRACTION * usable.sum():
+        # a set seen before is a cycle (a few borderline observations flipping in and
+        # out): as settled as it gets
+        if changed <= STABLE_FRACTION * usable.sum() or new_active.tobytes() in history:
             stable = True
             break
         if rounds == max_rounds:
             break
         active = new_active
+        history.add(active.tobytes())
 
     folded = _folded_cameras(table, layout, names)
     if folded:
@@ -328,7 +322,7 @@ def bundle_adjust(
         warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
 
     if canonical_gauge and layout.extrinsics_free:
-        table, pts = _align_gauge(table_user, table, pts)
+        table, pts = align_gauge(table_user, table, pts)
     refined = _cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
@@ -360,24 +354,6 @@ def bundle_adjust(
              result.initial_median_px, result.final_median_px, int(active.sum()),
              int(usable.sum() - active.sum()), rounds, result.message)
     return result, refined, out_pts
-
-
-def _untied_extrinsics(layout) -> bool:
-    ext = layout.var_index[:, :6].ravel()
-    return np.unique(ext).size == ext.size
-
-
-def _gauge_refs(table: np.ndarray, names) -> list[str]:
-    """References that pin the similarity gauge: the first camera's pose and, for scale,
-    the translation entry of the camera farthest from it that scaling moves most."""
-    rmats = rvec_to_rmat_numpy(table[:, 0:3])
-    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
-    far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
-    if far == 0:
-        return [f"{names[0]}.rvec", f"{names[0]}.tvec"]
-    d_tvec = -rmats[far] @ (centres[far] - centres[0])
-    return [f"{names[0]}.rvec", f"{names[0]}.tvec",
-            f"{names[far]}.tvec[{int(np.argmax(np.abs(d_tvec)))}]"]
 
 
 def _held_distortion(table: np.ndarray, names, mode: str) -> list[str]:
@@ -476,7 +452,7 @@ def _valid_bones(bones):
 
 def _ransac_points(cameras, pts2d, usable, threshold):
     """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
-    from .triangulation import triangulate_ransac
+    from ..triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
     pts3d, _ = triangulate_ransac(masked, cameras, threshold=threshold)
@@ -520,247 +496,3 @@ def _errors(table, pts, view, point, xy):
     proj = project_rows(np.nan_to_num(pts[point]), table[view])
     err = np.linalg.norm(proj - xy, axis=1)
     return np.where(np.isfinite(pts[point]).all(axis=1), err, np.nan)
-
-
-def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """Each camera's centre and the point ``depths[v]`` ahead on its optical axis.
-
-    Returns ``(2V, 3)``: centres first, then the viewing targets.
-    """
-    rmats = rvec_to_rmat_numpy(table[:, 0:3])
-    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
-    targets = centres + depths[:, None] * rmats[:, 2]
-    return np.concatenate([centres, targets])
-
-
-def _align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
-    """Map the refined rig + points by the similarity that best restores the initial rig.
-
-    Umeyama's least-squares similarity between the two rigs' camera centres *and*
-    viewing targets (a point at the initial camera distance along each optical axis).
-    Centres alone leave a near-gauge free: with long lenses far from the fly, moving
-    the fly sideways while every camera turns to follow it barely changes any image,
-    so the solution would drift; the targets pin where the rig looks.
-    ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
-    ``t_c' = s t_c - R_c' t`` (projections are unchanged).
-    """
-    if len(table) < 2:
-        return table, pts
-    depths = np.linalg.norm(table0[:, 3:6], axis=1)
-    src, dst = _camera_anchors(table, depths), _camera_anchors(table0, depths)
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    a, b = src - mu_s, dst - mu_d
-    u, sig, vt = np.linalg.svd(b.T @ a / len(src))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ d @ vt
-    var_s = (a ** 2).sum() / len(src)
-    if var_s <= 0:
-        return table, pts
-    scale = np.trace(np.diag(sig) @ d) / var_s
-    shift = mu_d - scale * rot @ mu_s
-    out = table.copy()
-    for v, rmat in enumerate(rvec_to_rmat_numpy(table[:, 0:3])):
-        rc = rmat @ rot.T
-        out[v, 0:3] = rmat_to_rvec_numpy(rc)
-        out[v, 3:6] = scale * table[v, 3:6] - rc @ shift
-    return out, (scale * pts @ rot.T + shift)
-
-
-def bundle_adjust_sequence(
-    cameras: "CameraGroup",
-    pts2d: np.ndarray,
-    conf: np.ndarray | None = None,
-    skeleton: "Skeleton | None" = None,
-    *,
-    points_to_use: Sequence[str] | None = None,
-    max_frames: int | None = 200,
-    frame_sampling: str = "even",
-    weigh_by_confidence: bool = False,
-    fixed: Sequence[str] = (),
-    shared: Sequence[Sequence[str]] = (),
-    bone_prior: bool = False,
-    bone_lengths: bool = False,
-    symmetric_bones: bool = False,
-    length_weight: float = DEFAULT_LENGTH_WEIGHT,
-    rigid_points: Sequence[str] = (),
-    **kwargs,
-) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
-    """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
-
-    Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
-    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's
-    bone lengths (``bone_lengths``, or the older ``bone_prior``), makes the
-    ``rigid_points`` one 3D point over all frames, and runs :func:`bundle_adjust` on
-    the flattened (frame, point) observations.
-
-    Parameters
-    ----------
-    cameras, pts2d, conf
-        The rig, detections ``(V, T, P, 2)`` and confidences ``(V, T, P)`` (or ``None``).
-    skeleton
-        Supplies point names and bones; without it ``points_to_use`` must be ``None``
-        and there is no bone prior.
-    points_to_use, max_frames, frame_sampling, weigh_by_confidence, fixed, shared
-        As in the ``bundle_adjustment`` config table.
-    bone_prior
-        Add the bone-length prior toward fixed targets (off by default: its targets come
-        from the starting rig, whose errors it then reproduces).
-    bone_lengths
-        Each bone of the skeleton (among the used points) has one unknown length over
-        all fitted frames; residual rows ``length_weight * (|Xi - Xj| - L) / L0`` ask
-        every frame for it. This, not a target, is what pins a long-focal rig's shape.
-    symmetric_bones
-        Left and right bones (names differing only in a leading ``l``/``r``) share one
-        length.
-    length_weight
-        Pixels of residual per 100 % deviation from the common length.
-    rigid_points
-        Point names that do not move over the recording (a tethered fly's thorax-coxa
-        joints): one 3D unknown each instead of one per frame. Names that are not
-        used points are ignored.
-    **kwargs
-        Forwarded to :func:`bundle_adjust` (and from there to ``least_squares``).
-
-    Returns
-    -------
-    result : OptimizeResult
-        As :func:`bundle_adjust`, plus ``frames`` (the fitted frame indices) and
-        ``points`` (the fitted point indices).
-    cameras : CameraGroup
-        The refined rig.
-    pts3d : np.ndarray
-        ``(T, P, 3)``: the refined points of the fitted frames/points, NaN elsewhere.
-    """
-    pts2d = np.asarray(pts2d, float)
-    if pts2d.ndim != 4 or pts2d.shape[-1] != 2:
-        raise ValueError(f"pts2d must be (V, T, P, 2), got {pts2d.shape}")
-    n_views, n_frames, n_points, _ = pts2d.shape
-    conf_arr = None if conf is None else np.asarray(conf, float)
-    point_idx = _point_indices(points_to_use, skeleton, n_points)
-    frames = select_frames(pts2d[:, :, point_idx], None if conf_arr is None
-                           else conf_arr[:, :, point_idx], max_frames, frame_sampling)
-    sub = pts2d[:, frames][:, :, point_idx]  # (V, F, Q, 2)
-    n_sel, n_q = sub.shape[1], sub.shape[2]
-    sub_conf = None if conf_arr is None else conf_arr[:, frames][:, :, point_idx]
-
-    bones = None
-    if bone_prior and skeleton is not None:
-        from .pictorial import bone_length_targets
-
-        bi, bj, targets = bone_length_targets(cameras, pts2d[:, frames], skeleton)
-        position = np.full(n_points, -1)
-        position[point_idx] = np.arange(n_q)
-        ok = (position[bi] >= 0) & (position[bj] >= 0)
-        offsets = (np.arange(n_sel) * n_q)[:, None]
-        bones = ((offsets + position[bi[ok]][None]).ravel(),
-                 (offsets + position[bj[ok]][None]).ravel(),
-                 np.tile(targets[ok], n_sel))
-
-    point_ids = None
-    names = list(skeleton.point_names) if skeleton is not None else []
-    if rigid_points:
-        if skeleton is None:
-            raise ValueError("rigid_points names points: pass the skeleton too")
-        unknown = [p for p in rigid_points if p not in names]
-        if unknown:
-            raise ConfigError(
-                f"bundle_adjustment.rigid_points: unknown point(s) "
-                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names")
-        rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
-        ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
-        ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
-        point_ids = np.unique(ids.ravel(), return_inverse=True)[1]
-    if bone_lengths and skeleton is not None:
-        if bone_prior:
-            log.info("bundle adjustment: bone_lengths replaces bone_prior")
-        bones = _length_unknowns(skeleton, point_idx, n_sel, symmetric_bones)
-        kwargs["bone_weight"] = length_weight
-
-    result, refined, flat = bundle_adjust(
-        cameras, sub.reshape(n_views, n_sel * n_q, 2), fixed=fixed, shared=shared,
-        conf=None if sub_conf is None else sub_conf.reshape(n_views, -1),
-        weigh_by_confidence=weigh_by_confidence, bones=bones, point_ids=point_ids, **kwargs)
-    pts3d = np.full((n_frames, n_points, 3), np.nan)
-    pts3d[np.ix_(frames, point_idx)] = flat.reshape(n_sel, n_q, 3)
-    result.frames = frames
-    result.points = point_idx
-    return result, refined, pts3d
-
-
-def _length_unknowns(skeleton, point_idx, n_frames, symmetric):
-    """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one
-    group per bone (per left/right pair with ``symmetric``)."""
-    names = list(skeleton.point_names)
-    bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
-    n_q = len(point_idx)
-    position = np.full(len(names), -1)
-    position[point_idx] = np.arange(n_q)
-    ok = (position[bi] >= 0) & (position[bj] >= 0)
-    bi, bj = bi[ok], bj[ok]
-    if bi.size == 0:
-        return None
-    start = np.ones(bi.size)  # placeholder: bundle_adjust starts them from its 3D start
-
-    def side_free(name):
-        if name[:1] in ("l", "r") and ("r" if name[0] == "l" else "l") + name[1:] in names:
-            return "*" + name[1:]
-        return name
-
-    keys = [(side_free(names[a]), side_free(names[b])) if symmetric else (names[a], names[b])
-            for a, b in zip(bi, bj)]
-    _, group = np.unique(np.array(keys), axis=0, return_inverse=True)
-    group = np.asarray(group).ravel()
-    offsets = (np.arange(n_frames) * n_q)[:, None]
-    return ((offsets + position[bi][None]).ravel(), (offsets + position[bj][None]).ravel(),
-            np.tile(start, n_frames), np.tile(group, n_frames))
-
-
-def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
-    if points_to_use is None:
-        return np.arange(n_points)
-    if skeleton is None:
-        raise ValueError("points_to_use names points: pass the skeleton too")
-    names = list(skeleton.point_names)
-    unknown = [p for p in points_to_use if p not in names]
-    if unknown:
-        raise ConfigError(
-            f"bundle_adjustment.points_to_use: unknown point(s) {', '.join(map(repr, unknown))}; "
-            f"use names from skeleton.point_names")
-    if not points_to_use:
-        raise ConfigError("bundle_adjustment.points_to_use is empty; list at least two points "
-                          "or remove the key to use all points")
-    return np.array(sorted({names.index(p) for p in points_to_use}), int)
-
-
-def bundle_adjust_from_config(
-    config: "Config",
-    cameras: "CameraGroup",
-    pts2d: np.ndarray,
-    conf: np.ndarray | None = None,
-) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
-    """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
-
-    Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
-    ``shared``, ``solver``, ``distortion``, outlier rounds, ``reseed_px``, bone lengths,
-    ``rigid_points`` ...) is passed on; the remaining flat keys (``max_nfev``, ``loss``,
-    ``f_scale``, ...) go to the solver. Bones come from :meth:`Config.skeleton`.
-
-    Returns
-    -------
-    result, cameras, pts3d
-        As :func:`bundle_adjust_sequence`.
-    """
-    params = config.bundle_adjustment
-    skeleton = config.skeleton()
-    names = set(skeleton.point_names)
-    return bundle_adjust_sequence(
-        cameras, pts2d, conf, skeleton,
-        points_to_use=params.points_to_use, max_frames=params.max_frames,
-        frame_sampling=params.frame_sampling, weigh_by_confidence=params.weigh_by_confidence,
-        fixed=params.fixed, shared=params.shared, solver=params.solver,
-        distortion=params.distortion, max_rounds=params.max_rounds,
-        outlier_factor=params.outlier_factor, outlier_min_px=params.outlier_min_px,
-        reseed_px=params.reseed_px, bone_lengths=params.bone_lengths,
-        symmetric_bones=params.symmetric_bones, length_weight=params.length_weight,
-        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points
-        else (), warn_ratio=params.warn_ratio, **dict(params.least_squares))

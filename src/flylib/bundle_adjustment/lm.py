@@ -1,6 +1,6 @@
 """Levenberg-Marquardt on the reduced camera system (Schur complement).
 
-The unknowns of a :class:`~flylib.ba.solver.Problem` split into
+The unknowns of a :class:`~flylib.bundle_adjustment.solver.Problem` split into
 
 - *global* ones, few and seen by many observations: the free camera parameters, the
   points shared by every frame (a tethered fly's rigid thorax-coxa points) and the
@@ -117,11 +117,12 @@ class ReducedSystem:
         cols = blocks.block_cols
         n_blocks, width = cols.shape
         padded = cols < 0
-        flat = np.where(padded, 0, cols).ravel()
-        jl = csc[:, flat]
-        # padded slots read column 0: zero them out
-        if padded.any():
-            jl = jl @ scipy.sparse.diags((~padded).ravel().astype(float))
+        # a selection matrix, not fancy indexing: padded slots must read nothing (reading
+        # a camera column once per slot cost seconds with wide, mostly padded blocks)
+        slot = np.flatnonzero(~padded.ravel())
+        select = scipy.sparse.csc_matrix((np.ones(slot.size), (cols.ravel()[slot], slot)),
+                                         shape=(jac.shape[1], cols.size))
+        jl = (csc @ select).tocsc()
         self.u = (jg.T @ jg).toarray()
         self.gg = jg.T @ res
         self.w = (jg.T @ jl).toarray().reshape(self.n_global, n_blocks, width)
