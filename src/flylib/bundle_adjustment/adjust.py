@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from ..errors import ConfigError
-from .gauge import align_gauge, gauge_refs, untied_extrinsics
+from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
@@ -50,7 +50,7 @@ DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
 DEFAULT_OUTLIER_FACTOR = 5.0
 DEFAULT_OUTLIER_MIN_PX = 3.0
 DEFAULT_MAX_ROUNDS = 10
-DEFAULT_SOLVER = "scipy"
+DEFAULT_SOLVER = "lm"
 DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
 DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
@@ -222,11 +222,16 @@ def bundle_adjust(
     # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
     # converge only linearly: hold one camera and one depth during the fit instead; the
     # canonical frame below makes the result independent of which.
-    fit_layout, n_gauge = layout, (7 if layout.extrinsics_free else 0)
+    # a camera that sees none of the points has nothing to fit: held at its start
+    observed = usable.any(axis=1)
+    unobserved = [n for n, seen in zip(names, observed) if not seen]
+    fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved
+                                  for part in ("rvec", "tvec", "intr", "dist")[:4 if n_dist else 3])]
     if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
-        fit_layout = build_layout(names, n_dist, [*fixed, *held, *gauge_refs(table, names)],
-                                  shared)
-        n_gauge = 0
+        fit_fixed += gauge_refs(table, names, observed)
+    fit_layout = build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] \
+        else layout
+    n_gauge = open_gauge_directions(table, fit_layout, observed)
     cols_start = (triangulate(table, usable) if pts3d is None
                   else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
     pts = _unknowns_from_columns(cols_start, ids, n_unknown)
@@ -309,12 +314,15 @@ def bundle_adjust(
     ratio, n_weak = weak_directions(final.schur(0.0)[0], n_gauge)
     warnings_out: list[str] = []
     if ratio < warn_ratio:
+        beyond = ("with the similarity gauge held" if n_gauge == 0 else
+                  f"beyond the {n_gauge} open similarity (gauge) direction(s)")
+        weakest = "0 (an exact null direction)" if ratio <= 0 else f"{ratio:.1e}"
         warnings_out.append(
-            f"the rig is poorly determined: beyond the {n_gauge} gauge directions the reduced "
-            f"camera Hessian's weakest direction is {ratio:.1e} of its strongest "
-            f"(< {warn_ratio:.0e}); some cameras or point groups can move with little change "
-            f"in the images (e.g. a view that connects both sides is missing): check the "
-            f"result, hold more parameters fixed or start from a calibration")
+            f"the rig is poorly determined: {beyond}, the reduced camera Hessian's weakest "
+            f"direction is {weakest} of its strongest (< {warn_ratio:.0e}); some cameras or "
+            f"point groups can move with little change in the images (e.g. a view that "
+            f"connects both sides is missing): check the result, hold more parameters "
+            f"fixed or start from a calibration")
     if not stable:
         warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
     for message in warnings_out:
@@ -323,6 +331,7 @@ def bundle_adjust(
 
     if canonical_gauge and layout.extrinsics_free:
         table, pts = align_gauge(table_user, table, pts)
+        table[~observed] = table_user[~observed]
     refined = _cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
@@ -339,6 +348,7 @@ def bundle_adjust(
         "rounds": rounds,
         "inliers_stable": bool(stable),
         "reseeded": reseeded,
+        "unobserved": unobserved,
         "start_median_px": None if start_median is None else {
             n: (None if not np.isfinite(m) else round(float(m), 2))
             for n, m in zip(names, start_median)},

@@ -19,17 +19,22 @@ def untied_extrinsics(layout) -> bool:
     return np.unique(ext).size == ext.size
 
 
-def gauge_refs(table: np.ndarray, names) -> list[str]:
-    """References that pin the similarity gauge: the first camera's pose and, for scale,
-    the translation entry of the camera farthest from it that scaling moves most."""
+def gauge_refs(table: np.ndarray, names, observed: np.ndarray | None = None) -> list[str]:
+    """References that pin the similarity gauge: the first observed camera's pose and,
+    for scale, the translation entry of the observed camera farthest from it that
+    scaling moves most."""
+    seen = np.flatnonzero(np.ones(len(table), bool) if observed is None else observed)
+    if seen.size == 0:
+        return []
     rmats = rvec_to_rmat_numpy(table[:, 0:3])
     centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
-    far = int(np.argmax(np.linalg.norm(centres - centres[0], axis=1)))
-    if far == 0:
-        return [f"{names[0]}.rvec", f"{names[0]}.tvec"]
-    d_tvec = -rmats[far] @ (centres[far] - centres[0])
-    return [f"{names[0]}.rvec", f"{names[0]}.tvec",
-            f"{names[far]}.tvec[{int(np.argmax(np.abs(d_tvec)))}]"]
+    first = int(seen[0])
+    far = int(seen[np.argmax(np.linalg.norm(centres[seen] - centres[first], axis=1))])
+    refs = [f"{names[first]}.rvec", f"{names[first]}.tvec"]
+    if far == first:
+        return refs
+    d_tvec = -rmats[far] @ (centres[far] - centres[first])
+    return [*refs, f"{names[far]}.tvec[{int(np.argmax(np.abs(d_tvec)))}]"]
 
 
 def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
@@ -68,10 +73,50 @@ def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
         return table, pts
     scale = np.trace(np.diag(sig) @ d) / var_s
     shift = mu_d - scale * rot @ mu_s
+    return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
+
+
+def _similarity_table(table: np.ndarray, scale: float, rot: np.ndarray,
+                      shift: np.ndarray) -> np.ndarray:
+    """The camera table after mapping the world by ``X' = scale rot X + shift``."""
     out = table.copy()
     for v, rmat in enumerate(rvec_to_rmat_numpy(table[:, 0:3])):
         rc = rmat @ rot.T
         out[v, 0:3] = rmat_to_rvec_numpy(rc)
         out[v, 3:6] = scale * table[v, 3:6] - rc @ shift
-    return out, (scale * pts @ rot.T + shift)
+    return out
 
+
+def open_gauge_directions(table: np.ndarray, layout, observed: np.ndarray | None = None) -> int:
+    """How many of the 7 similarity directions the held and tied entries leave open.
+
+    Each direction (3 rotations, 3 translations, scale) moves every camera's
+    ``[rvec, tvec]``; a held entry must not move and tied entries must move alike.
+    The directions that obey both change no image and stay undetermined in a fit.
+    Cameras not ``observed`` ``(V,)`` (no observation ties them to the rest) are left out.
+    """
+    eps = 1e-6
+    columns = []
+    for k in range(7):
+        rot, shift, scale = np.eye(3), np.zeros(3), 1.0
+        if k < 3:
+            rot = rvec_to_rmat_numpy(eps * np.eye(3)[k][None])[0]
+        elif k < 6:
+            shift = eps * np.eye(3)[k - 3]
+        else:
+            scale = 1.0 + eps
+        moved = _similarity_table(table, scale, rot, shift)
+        columns.append(((moved - table)[:, :6] / eps).ravel())
+    keep = np.ones(len(table), bool) if observed is None else np.asarray(observed, bool)
+    motion = np.stack(columns, axis=1).reshape(len(table), 6, 7)[keep].reshape(-1, 7)
+    var = layout.var_index[keep, :6].ravel()
+    rows = [motion[var < 0]]
+    for v in np.unique(var[var >= 0]):
+        members = np.flatnonzero(var == v)
+        rows.append(motion[members[1:]] - motion[members[0]])
+    held = np.concatenate(rows)
+    if held.size == 0:
+        return 7
+    held = held / np.maximum(np.linalg.norm(motion, axis=0), 1e-300)
+    sig = np.linalg.svd(held, compute_uv=False)
+    return 7 - int((sig > 1e-6 * max(sig.max(initial=0.0), 1e-300)).sum())

@@ -46,10 +46,10 @@ def bundle_adjust_sequence(
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
     bone_prior: bool = False,
-    bone_lengths: bool = False,
-    symmetric_bones: bool = False,
+    bone_lengths: bool = True,
+    symmetric_bones: bool = True,
     length_weight: float = DEFAULT_LENGTH_WEIGHT,
-    rigid_points: Sequence[str] = (),
+    rigid_points: Sequence[str] | None = None,
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
     body_points: Sequence[str] = THORAX_POINTS,
     **kwargs,
@@ -91,7 +91,8 @@ def bundle_adjust_sequence(
     rigid_points
         Point names that do not move over the recording when the body is fixed (a
         tethered fly's thorax-coxa joints): one 3D unknown each instead of one per
-        frame. Names that are not used points are ignored.
+        frame. Names that are not used points are ignored. ``None``: the
+        :data:`THORAX_POINTS` the skeleton has (none without a skeleton).
     rigid_tolerance
         Use ``rigid_points`` only if the data show the body fixed: their starting
         triangulation (from ``cameras``) stays within this many median bone lengths of
@@ -140,6 +141,8 @@ def bundle_adjust_sequence(
     point_ids = None
     names = list(skeleton.point_names) if skeleton is not None else []
     rigid_report = None
+    if rigid_points is None:
+        rigid_points = [p for p in THORAX_POINTS if p in names]
     if rigid_points:
         if skeleton is None:
             raise ValueError("rigid_points names points: pass the skeleton too")
