@@ -54,6 +54,7 @@ DEFAULT_SOLVER = "lm"
 DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
 DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
+FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
 SOLVERS = ("lm", "scipy")
 DISTORTION_MODES = ("auto", "free", "fixed")
@@ -264,7 +265,13 @@ def bundle_adjust(
                              "nothing to fit")
         blocks = block_structure(problem, is_shared[keep])
         if solver == "lm":
-            result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **solver_kwargs)
+            options = dict(solver_kwargs)
+            if rounds == 1 and reject_outliers:
+                # the first inlier set, judged from the start, still holds most gross
+                # outliers: polishing a fit to it only wanders (40+ evaluations from a
+                # rough rig); the next rounds refit on a cleaner set from here
+                options["ftol"] = max(options.get("ftol", 1e-8), FIRST_ROUND_FTOL)
+            result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **options)
         else:
             result = problem.solve(table, pts[keep], **solver_kwargs)
         table, sub = problem.unpack(result.x)

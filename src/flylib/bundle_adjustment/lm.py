@@ -125,7 +125,10 @@ class ReducedSystem:
         jl = (csc @ select).tocsc()
         self.u = (jg.T @ jg).toarray()
         self.gg = jg.T @ res
-        self.w = (jg.T @ jl).toarray().reshape(self.n_global, n_blocks, width)
+        # W stored flat (G, B * S) for the GEMMs and as blocks (B, G, S) for batched products
+        self.w = (jg.T @ jl).toarray()
+        self.w_blocks = np.ascontiguousarray(
+            self.w.reshape(self.n_global, n_blocks, width).transpose(1, 0, 2))
         v = (jl.T @ jl).tocoo()
         bi, bj = v.row // width, v.col // width
         same = bi == bj
@@ -138,32 +141,33 @@ class ReducedSystem:
         self.diag_v = np.maximum(np.diagonal(self.v, axis1=1, axis2=2).copy(), 1e-12)
 
     def schur(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``)."""
+        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` is
+        ``W V^-1`` as ``(G, B * S)``."""
         width = self.v.shape[1]
         vd = self.v.copy()
         vd[:, np.arange(width), np.arange(width)] += lam * self.diag_v
         vinv = np.linalg.inv(vd)
-        y = np.einsum("gbk,bkl->gbl", self.w, vinv)
-        s = self.u + np.diag(lam * self.diag_u) - y.reshape(self.n_global, -1) @ \
-            self.w.reshape(self.n_global, -1).T
+        y = np.matmul(self.w_blocks, vinv)  # (B, G, S): W_b V_b^-1
+        y = y.transpose(1, 0, 2).reshape(self.n_global, -1)  # (G, B * S)
+        s = self.u + np.diag(lam * self.diag_u) - y @ self.w.T
         return 0.5 * (s + s.T), y, vinv
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """``(dx_global, dx_local (B, S))`` of the damped system."""
         s, y, vinv = self.schur(lam)
-        rhs = -self.gg + y.reshape(self.n_global, -1) @ self.gl.ravel()
+        rhs = -self.gg + y @ self.gl.ravel()
         try:
             dg = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
         except np.linalg.LinAlgError:
             dg = np.linalg.lstsq(s, rhs, rcond=None)[0]
-        back = -self.gl - np.einsum("gbk,g->bk", self.w, dg)
-        dl = np.einsum("bkl,bl->bk", vinv, back)
+        back = -self.gl - (dg @ self.w).reshape(self.gl.shape)
+        dl = np.matmul(vinv, back[:, :, None])[:, :, 0]
         return dg, np.where(self.padded, 0.0, dl)
 
     def predicted_reduction(self, dg, dl, lam) -> float:
         """``-(g^T dx + 0.5 dx^T J^T J dx)`` (the model's cost decrease, no damping)."""
-        jtj_dx_g = self.u @ dg + np.einsum("gbk,bk->g", self.w, dl)
-        jtj_dx_l = np.einsum("gbk,g->bk", self.w, dg) + np.einsum("bkl,bl->bk", self.v, dl)
+        jtj_dx_g = self.u @ dg + self.w @ dl.ravel()
+        jtj_dx_l = (dg @ self.w).reshape(dl.shape) + np.matmul(self.v, dl[:, :, None])[:, :, 0]
         jtj_dx_l = np.where(self.padded, 0.0, jtj_dx_l)
         grad = dg @ self.gg + (dl * self.gl).sum()
         quad = dg @ jtj_dx_g + (dl * jtj_dx_l).sum()
