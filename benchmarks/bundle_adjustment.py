@@ -115,9 +115,11 @@ def rough_case(hard: bool, frames: int) -> None:
                 case, case.rig if from_truth else None, **overrides)
             seconds = time.perf_counter() - t0
         report = result.report
+        weakest = ("n/a" if report["weakest_direction"] is None
+                   else f"{report['weakest_direction']:.1e}")
         print(f"{label:<46s} {seconds:7.2f} s  3D error {np.nanmedian(err):.4f} bones  "
               f"reprojection {result.final_median_px:.2f} px  rounds {result.rounds}  "
-              f"weakest {report['weakest_direction'] or float('inf'):.1e}", flush=True)
+              f"weakest {weakest}", flush=True)
         print(f"    kept per camera {report['kept_fraction']}  reseeded {report['reseeded']}"
               f"  rigid {report.get('rigid')}")
         for w in caught:

@@ -8,6 +8,7 @@ one :func:`~flylib.bundle_adjustment.adjust.bundle_adjust` problem;
 from __future__ import annotations
 
 import logging
+import warnings
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -200,7 +201,10 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> di
     lengths = np.linalg.norm(pts[:, position[bi[ok]]] - pts[:, position[bj[ok]]], axis=-1)
     bone = float(np.nanmedian(lengths)) if np.isfinite(lengths).any() else float("nan")
     rigid = pts[:, rigid_q]
-    spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1), axis=0)
+    with warnings.catch_warnings():  # a point never triangulated: NaN, judged below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1),
+                              axis=0)
     worst = float(np.nanmax(spread)) / bone if np.isfinite(spread).any() and bone > 0 \
         else float("inf")
     out["spread_bones"] = round(worst, 4) if np.isfinite(worst) else None
