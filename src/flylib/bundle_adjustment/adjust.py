@@ -420,17 +420,19 @@ def _unknowns_from_columns(cols: np.ndarray, ids: np.ndarray, n_unknown: int) ->
 
 
 def _bones_on_unknowns(bones, ids):
-    """Bone rows re-indexed onto the 3D unknowns, duplicates (rigid pairs) merged."""
+    """Bone rows re-indexed onto the 3D unknowns.
+
+    A pair of rigid points keeps one row per frame (not one in all): each frame asks
+    for the length as much as a moving pair's does, and a single row would leave
+    what it pins (one side's scale against the other's) so weakly held that
+    Levenberg-Marquardt creeps along it.
+    """
     bi, bj, bt, bg = bones
     if bi.size == 0:
         return bi, bj, bt, bg
     ui, uj = ids[bi], ids[bj]
-    key = np.stack([np.minimum(ui, uj), np.maximum(ui, uj),
-                    bg if bg is not None else np.zeros_like(ui)], axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
-    first = np.sort(first)
-    first = first[ui[first] != uj[first]]
-    return ui[first], uj[first], bt[first], None if bg is None else bg[first]
+    ok = ui != uj
+    return ui[ok], uj[ok], bt[ok], None if bg is None else bg[ok]
 
 
 def _lengths_per_row(problem, x, bone_i, bone_j, bone_t, bone_g, keep, previous):

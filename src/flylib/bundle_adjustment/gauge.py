@@ -106,6 +106,14 @@ def open_gauge_directions(table: np.ndarray, layout, observed: np.ndarray | None
         else:
             scale = 1.0 + eps
         moved = _similarity_table(table, scale, rot, shift)
+        # near a half turn the rotation vector can come back on its other branch
+        # (|r| -> |r| - 2 pi): take the one next to the start
+        r = moved[:, 0:3]
+        norm = np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
+        other = r * (1.0 - 2.0 * np.pi / norm)
+        flip = np.linalg.norm(other - table[:, 0:3], axis=1) < np.linalg.norm(
+            r - table[:, 0:3], axis=1)
+        moved[flip, 0:3] = other[flip]
         columns.append(((moved - table)[:, :6] / eps).ravel())
     keep = np.ones(len(table), bool) if observed is None else np.asarray(observed, bool)
     motion = np.stack(columns, axis=1).reshape(len(table), 6, 7)[keep].reshape(-1, 7)

@@ -176,7 +176,7 @@ class ReducedSystem:
 
 def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
              loss: str = "linear", f_scale: float = 1.0, max_nfev: int | None = None,
-             ftol: float = 1e-8, xtol: float = 1e-10, gtol: float = 1e-10,
+             ftol: float = 1e-6, xtol: float = 1e-10, gtol: float = 1e-10,
              max_iter: int = 100, **unused) -> OptimizeResult:
     """Minimize ``problem``'s (robust) cost from ``x0`` by Levenberg-Marquardt.
 
@@ -191,7 +191,9 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
     max_nfev
         Cap on residual evaluations (default ``max_iter + 1``).
     ftol, xtol, gtol
-        Stop when an accepted step lowers the cost by less than ``ftol`` relatively,
+        Stop when an accepted step lowers the cost by less than ``ftol`` relatively
+        (``1e-6``: tighter only crept on, 0.2 of 30,000 over a dozen steps, with no
+        change in the 3D),
         moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is below
         ``gtol``.
 
