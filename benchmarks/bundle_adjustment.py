@@ -157,8 +157,10 @@ def main() -> None:
     run(start, pts2d, "first call in this process", reject_outliers=False)
     warm, res = run(start, pts2d, "JIT excluded (second call)", reject_outliers=False)
     run(start, pts2d, "with outlier rounds (default)")
-    fd, res_fd = run(start, pts2d, "baseline: finite differences + jac_sparsity",
-                     reject_outliers=False, jac="2-point")
+    run(start, pts2d, "solver scipy (least_squares), JAX Jacobian", reject_outliers=False,
+        solver="scipy")
+    fd, res_fd = run(start, pts2d, "baseline: scipy, finite differences + jac_sparsity",
+                     reject_outliers=False, solver="scipy", jac="2-point")
     for label, first in (("empty cache", cold), ("warm cache", warm_cache)):
         print(f"JIT included, {label}: {first:.3f} s (JIT cost {first - warm:.3f} s); "
               f"vs target {TARGET_S} s: {first / TARGET_S:.2f}x "
