@@ -139,30 +139,43 @@ class ReducedSystem:
         self.padded = padded
         self.diag_u = np.maximum(np.diag(self.u).copy(), 1e-12)
         self.diag_v = np.maximum(np.diagonal(self.v, axis1=1, axis2=2).copy(), 1e-12)
+        # blocks of one true width together (a frame of all legs and a lone point differ
+        # 30-fold): inverses and products at their own size, not the widest one's
+        n_used = (~padded).sum(axis=1)
+        self.groups = [(np.flatnonzero(n_used == k), int(k)) for k in np.unique(n_used)]
 
-    def schur(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` is
-        ``W V^-1`` as ``(G, B * S)``."""
-        width = self.v.shape[1]
-        vd = self.v.copy()
-        vd[:, np.arange(width), np.arange(width)] += lam * self.diag_v
-        vinv = np.linalg.inv(vd)
-        y = np.matmul(self.w_blocks, vinv)  # (B, G, S): W_b V_b^-1
-        y = y.transpose(1, 0, 2).reshape(self.n_global, -1)  # (G, B * S)
-        s = self.u + np.diag(lam * self.diag_u) - y @ self.w.T
-        return 0.5 * (s + s.T), y, vinv
+    def schur(self, lam: float) -> tuple[np.ndarray, list, list]:
+        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` and
+        ``V^-1`` per group of blocks of one width (``W_g V_g^-1`` as ``(G, B_g * k)``
+        and ``(B_g, k, k)``)."""
+        s = self.u + np.diag(lam * self.diag_u)
+        ys, vinvs = [], []
+        for idx, k in self.groups:
+            vd = self.v[idx, :k, :k].copy()
+            vd[:, np.arange(k), np.arange(k)] += lam * self.diag_v[idx, :k]
+            vinv = np.linalg.inv(vd)
+            w = self.w_blocks[idx, :, :k]  # (B_g, G, k)
+            y = np.matmul(w, vinv).transpose(1, 0, 2).reshape(self.n_global, -1)
+            s -= y @ w.transpose(1, 0, 2).reshape(self.n_global, -1).T
+            ys.append(y)
+            vinvs.append(vinv)
+        return 0.5 * (s + s.T), ys, vinvs
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """``(dx_global, dx_local (B, S))`` of the damped system."""
-        s, y, vinv = self.schur(lam)
-        rhs = -self.gg + y @ self.gl.ravel()
+        s, ys, vinvs = self.schur(lam)
+        rhs = -self.gg.copy()
+        for (idx, k), y in zip(self.groups, ys):
+            rhs += y @ self.gl[idx, :k].ravel()
         try:
             dg = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
         except np.linalg.LinAlgError:
             dg = np.linalg.lstsq(s, rhs, rcond=None)[0]
         back = -self.gl - (dg @ self.w).reshape(self.gl.shape)
-        dl = np.matmul(vinv, back[:, :, None])[:, :, 0]
-        return dg, np.where(self.padded, 0.0, dl)
+        dl = np.zeros_like(self.gl)
+        for (idx, k), vinv in zip(self.groups, vinvs):
+            dl[idx, :k] = np.matmul(vinv, back[idx, :k, None])[:, :, 0]
+        return dg, dl
 
     def predicted_reduction(self, dg, dl, lam) -> float:
         """``-(g^T dx + 0.5 dx^T J^T J dx)`` (the model's cost decrease, no damping)."""
