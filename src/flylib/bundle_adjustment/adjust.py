@@ -236,6 +236,7 @@ def bundle_adjust(
     cols_start = (triangulate(table, usable) if pts3d is None
                   else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
     pts = _unknowns_from_columns(cols_start, ids, n_unknown)
+    pts_start = pts.copy()
 
     err = _view_errors(table, pts[ids], pts2d, usable)
     if reject_outliers:
@@ -337,7 +338,7 @@ def bundle_adjust(
         warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
 
     if canonical_gauge and layout.extrinsics_free:
-        table, pts = align_gauge(table_user, table, pts)
+        table, pts = align_gauge(table_user, table, pts, pts_start)
         table[~observed] = table_user[~observed]
     refined = _cameras_from_table(names, table)
     out_pts = pts[ids]

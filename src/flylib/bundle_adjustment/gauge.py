@@ -48,21 +48,46 @@ def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
     return np.concatenate([centres, targets])
 
 
-def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
-    """Map the refined rig + points by the similarity that best restores the initial rig.
+def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray,
+                pts0: np.ndarray | None = None):
+    """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start.
 
-    Umeyama's least-squares similarity between the two rigs' camera centres *and*
-    viewing targets (a point at the initial camera distance along each optical axis).
-    Centres alone leave a near-gauge free: with long lenses far from the fly, moving
-    the fly sideways while every camera turns to follow it barely changes any image,
-    so the solution would drift; the targets pin where the rig looks.
+    With ``pts0`` (the starting 3D points, ``(N, 3)``, NaN where none): the similarity
+    that best maps the refined points onto them (Umeyama, refitted without the 20 %
+    worst-agreeing), so the fly stays where the starting rig put it: thousands of points
+    pin the frame far better than seven cameras ~100 units away, whose small refinements
+    would otherwise move the fly by several hundredths of a body length. Otherwise (or
+    with fewer than four such points) the camera centres *and* viewing targets (a point
+    at the initial camera distance along each optical axis): centres alone leave a
+    near-gauge free (moving the fly sideways while every camera turns to follow it
+    barely changes any image).
     ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
     ``t_c' = s t_c - R_c' t`` (projections are unchanged).
     """
-    if len(table) < 2:
+    fitted = None
+    if pts0 is not None:
+        ok = np.isfinite(pts).all(axis=1) & np.isfinite(pts0).all(axis=1)
+        if ok.sum() >= 4:
+            src, dst = pts[ok], pts0[ok]
+            fitted = _umeyama(src, dst)
+            if fitted is not None:
+                scale, rot, shift = fitted
+                resid = np.linalg.norm(scale * src @ rot.T + shift - dst, axis=1)
+                best = resid <= np.percentile(resid, 80)
+                if best.sum() >= 4:
+                    fitted = _umeyama(src[best], dst[best]) or fitted
+    if fitted is None and len(table) >= 2:
+        depths = np.linalg.norm(table0[:, 3:6], axis=1)
+        fitted = _umeyama(_camera_anchors(table, depths), _camera_anchors(table0, depths))
+    if fitted is None:
         return table, pts
-    depths = np.linalg.norm(table0[:, 3:6], axis=1)
-    src, dst = _camera_anchors(table, depths), _camera_anchors(table0, depths)
+    scale, rot, shift = fitted
+    return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
+
+
+def _umeyama(src: np.ndarray, dst: np.ndarray):
+    """Least-squares similarity ``(scale, rot, shift)`` mapping ``src`` onto ``dst``
+    (both ``(M, 3)``), or ``None`` when ``src`` has no spread."""
     mu_s, mu_d = src.mean(0), dst.mean(0)
     a, b = src - mu_s, dst - mu_d
     u, sig, vt = np.linalg.svd(b.T @ a / len(src))
@@ -70,10 +95,9 @@ def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray):
     rot = u @ d @ vt
     var_s = (a ** 2).sum() / len(src)
     if var_s <= 0:
-        return table, pts
+        return None
     scale = np.trace(np.diag(sig) @ d) / var_s
-    shift = mu_d - scale * rot @ mu_s
-    return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
+    return scale, rot, mu_d - scale * rot @ mu_s
 
 
 def _similarity_table(table: np.ndarray, scale: float, rot: np.ndarray,
