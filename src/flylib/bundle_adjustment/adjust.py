@@ -18,7 +18,7 @@ Robustness and gauge, beyond a plain least-squares fit:
 - bone lengths as unknowns (one per bone or left/right pair, shared by all frames) and
   rigid points (one 3D unknown over all frames) pin what the images alone leave loose;
 - the similarity gauge is held during the fit and the result reported in the frame
-  closest to the initial rig (:mod:`.gauge`).
+  where the starting rig put the fly (:mod:`.gauge`).
 """
 
 from __future__ import annotations
@@ -134,8 +134,9 @@ def bundle_adjust(
         observation (also those set aside before) is judged again, and rounds repeat
         until the inlier set is stable or ``max_rounds`` fits were made.
     canonical_gauge
-        Report the result in the similarity frame closest to the initial rig when no
-        extrinsic parameter is fixed.
+        When no extrinsic parameter is fixed, report the result in the similarity frame
+        that maps the refined points onto the starting ones (the fly stays where the
+        starting rig put it; :func:`~flylib.bundle_adjustment.gauge.align_gauge`).
     point_ids
         ``(N,)`` which 3D unknown each column of ``pts2d`` observes (default: its own).
         Columns sharing an id are one point, e.g. a rigid point seen in every frame.
@@ -167,7 +168,8 @@ def bundle_adjust(
         (median reprojection error before / after), ``inliers`` ``(V, N)``
         (observations used in the final fit), ``rounds``, ``warnings`` (list of str)
         and ``report`` (a JSON-able dict: solver, what was free, kept fraction per
-        camera, rounds, repaired cameras, the Hessian's weakest direction).
+        camera, rounds, repaired cameras, cameras that saw nothing (held), the
+        Hessian's weakest direction).
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray

@@ -4,7 +4,8 @@ With no extrinsic parameter fixed, a similarity of the whole scene (rotation,
 translation, scale: 7 directions) changes no image. Levenberg-Marquardt converges only
 linearly along such directions, so the fit holds one camera's pose and one translation
 entry (:func:`gauge_refs`); afterwards the result is mapped into the similarity frame
-closest to the initial rig (:func:`align_gauge`), independent of which were held.
+where the starting rig put the fly (:func:`align_gauge`), independent of which were
+held. :func:`open_gauge_directions` counts what held and tied entries leave open.
 """
 
 from __future__ import annotations

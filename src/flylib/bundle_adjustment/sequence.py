@@ -107,8 +107,10 @@ def bundle_adjust_sequence(
     Returns
     -------
     result : OptimizeResult
-        As :func:`bundle_adjust`, plus ``frames`` (the fitted frame indices) and
-        ``points`` (the fitted point indices).
+        As :func:`bundle_adjust`, plus ``frames`` (the fitted frame indices),
+        ``points`` (the fitted point indices) and ``report["rigid"]`` (whether the
+        rigid points were used, their spread in median bones, the tolerance; ``None``
+        without rigid points).
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
