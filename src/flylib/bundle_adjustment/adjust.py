@@ -228,8 +228,8 @@ def bundle_adjust(
     # a camera that sees none of the points has nothing to fit: held at its start
     observed = usable.any(axis=1)
     unobserved = [n for n, seen in zip(names, observed) if not seen]
-    fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved
-                                  for part in ("rvec", "tvec", "intr", "dist")[:4 if n_dist else 3])]
+    parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
+    fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
     if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
         fit_fixed += gauge_refs(table, names, observed)
     fit_layout = build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] \
