@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from ..errors import ConfigError
-from .adjust import DEFAULT_LENGTH_WEIGHT, bundle_adjust
+from .adjust import DEFAULT_INIT_THRESHOLD, DEFAULT_LENGTH_WEIGHT, _ransac_points, bundle_adjust
 from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -190,8 +190,6 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> di
            "tolerance_bones": tolerance, "spread_bones": None}
     if tolerance is None or not rigid_q.any():
         return out
-    from .adjust import DEFAULT_INIT_THRESHOLD, _ransac_points
-
     n_views, n_sel, n_q, _ = sub.shape
     flat = sub.reshape(n_views, -1, 2)
     pts = _ransac_points(cameras, flat, np.isfinite(flat).all(-1),
