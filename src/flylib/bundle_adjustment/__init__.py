@@ -8,6 +8,8 @@ adjust
 sequence
     :func:`bundle_adjust_sequence` on a recording's ``(V, T, P, 2)`` detections (frames,
     bone lengths, rigid points) and :func:`bundle_adjust_from_config`.
+unknowns
+    Shared 3D unknowns (rigid points) and bone rows of a flattened problem.
 params
     The ``fixed`` / ``shared`` parameter grammar.
 sampling

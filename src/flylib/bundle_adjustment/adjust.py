@@ -35,7 +35,9 @@ from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrin
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
-from .solver import Problem, project_rows
+from .solver import Problem
+from .unknowns import (bones_on_unknowns, lengths_per_row, start_lengths,
+                       unknowns_from_columns, valid_bones)
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..cameras import CameraGroup
@@ -237,7 +239,7 @@ def bundle_adjust(
     n_gauge = open_gauge_directions(table, fit_layout, observed)
     cols_start = (triangulate(table, usable) if pts3d is None
                   else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
-    pts = _unknowns_from_columns(cols_start, ids, n_unknown)
+    pts = unknowns_from_columns(cols_start, ids, n_unknown)
     pts_start = pts.copy()
 
     err = _view_errors(table, pts[ids], pts2d, usable)
@@ -248,9 +250,9 @@ def bundle_adjust(
         active = usable.copy()
     initial_median = float(np.nanmedian(err[active])) if active.any() else float("nan")
 
-    bone_i, bone_j, bone_t, bone_g = _bones_on_unknowns(_valid_bones(bones), ids)
+    bone_i, bone_j, bone_t, bone_g = bones_on_unknowns(valid_bones(bones), ids)
     if bone_g is not None and bone_i.size:
-        bone_t = _start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
+        bone_t = start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
     lengths = None
     result = None
     stable = not reject_outliers
@@ -278,7 +280,7 @@ def bundle_adjust(
         else:
             result = problem.solve(table, pts[keep], **solver_kwargs)
         table, sub = problem.unpack(result.x)
-        lengths = _lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep,
+        lengths = lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep,
                                    lengths)
         pts = np.full((n_unknown, 3), np.nan)
         pts[keep] = sub
@@ -286,7 +288,7 @@ def bundle_adjust(
             break
         lost = ~keep & (uses > 0)
         if lost.any():  # judge the observations of points that left the fit too
-            again = _unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
+            again = unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
             pts[lost] = again[lost]
         err = _view_errors(table, pts[ids], pts2d, usable)
         threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
@@ -410,68 +412,6 @@ def _free_report(layout, names, held, problem, n_rigid) -> dict:
             "bone_rows": int(problem.n_bones)}
 
 
-def _unknowns_from_columns(cols: np.ndarray, ids: np.ndarray, n_unknown: int) -> np.ndarray:
-    """Per-unknown start: the column's point, or the median over the columns sharing it."""
-    pts = np.full((n_unknown, 3), np.nan)
-    pts[ids] = cols
-    shared = np.flatnonzero(np.bincount(ids, minlength=n_unknown) > 1)
-    for u in shared:
-        rows = cols[ids == u]
-        rows = rows[np.isfinite(rows).all(axis=1)]
-        pts[u] = np.median(rows, axis=0) if len(rows) else np.nan
-    return pts
-
-
-def _bones_on_unknowns(bones, ids):
-    """Bone rows re-indexed onto the 3D unknowns.
-
-    A pair of rigid points keeps one row per frame (not one in all): each frame asks
-    for the length as much as a moving pair's does, and a single row would leave
-    what it pins (one side's scale against the other's) so weakly held that
-    Levenberg-Marquardt creeps along it.
-    """
-    bi, bj, bt, bg = bones
-    if bi.size == 0:
-        return bi, bj, bt, bg
-    ui, uj = ids[bi], ids[bj]
-    ok = ui != uj
-    return ui[ok], uj[ok], bt[ok], None if bg is None else bg[ok]
-
-
-def _lengths_per_row(problem, x, bone_i, bone_j, bone_t, bone_g, keep, previous):
-    """Each bone row's current length (the fitted unknown), to restart the next round."""
-    if bone_g is None or not problem.n_len or bone_i.size == 0:
-        return previous
-    ok = keep[bone_i] & keep[bone_j]
-    fitted = x[problem.n_cam + 3 * problem.n_points:]
-    out = (bone_t if previous is None else previous).copy()
-    _, group_compact = np.unique(bone_g[ok], return_inverse=True)
-    out[ok] = fitted[group_compact]
-    return out
-
-
-def _start_lengths(pts, bone_i, bone_j, target, group):
-    """Each row's group median of the starting 3D lengths (the target where none)."""
-    length = np.linalg.norm(pts[bone_i] - pts[bone_j], axis=1)
-    out = target.copy()
-    for g in np.unique(group):
-        rows = group == g
-        ok = rows & np.isfinite(length) & (length > 0)
-        if ok.any():
-            out[rows] = np.median(length[ok])
-    return out
-
-
-def _valid_bones(bones):
-    if bones is None:
-        return np.zeros(0, int), np.zeros(0, int), np.zeros(0), None
-    i, j, t = (np.asarray(a) for a in bones[:3])
-    group = np.asarray(bones[3]).astype(int) if len(bones) > 3 and bones[3] is not None else None
-    ok = np.isfinite(t) & (t > 0)
-    return (i[ok].astype(int), j[ok].astype(int), t[ok].astype(float),
-            None if group is None else group[ok])
-
-
 def _ransac_points(cameras, pts2d, usable, threshold):
     """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
     from ..triangulation import triangulate_ransac
@@ -509,12 +449,3 @@ def _make_problem(table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_
 def _view_errors(table, pts_cols, pts2d, usable):
     """``(V, N)`` reprojection errors of the usable observations, NaN elsewhere."""
     return view_errors(table, pts_cols, pts2d, usable)
-
-
-def _errors(table, pts, view, point, xy):
-    """Reprojection error (pixels) of observations ``xy`` of ``pts[point]`` in ``view``."""
-    if view.size == 0:
-        return np.zeros(0)
-    proj = project_rows(np.nan_to_num(pts[point]), table[view])
-    err = np.linalg.norm(proj - xy, axis=1)
-    return np.where(np.isfinite(pts[point]).all(axis=1), err, np.nan)
