@@ -68,7 +68,7 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
             problems.append(_problem(exc))
 
     if flags.get("bundle_adjustment", True) and config.view_names():
-        from .ba.params import build_layout
+        from .bundle_adjustment.params import build_layout
         from .camera_model import N_DIST_COEFFS
 
         ba = config.bundle_adjustment

@@ -25,6 +25,7 @@ from .constants import (
     BA_SOLVERS,
     FRAME_SAMPLINGS,
     PRECISIONS,
+    TETHERED_RIGID_POINTS,
     TRIANGULATION_METHODS,
 )
 
@@ -168,7 +169,9 @@ class BundleAdjustmentParams:
         One unknown length per bone over all frames (left = right with
         ``symmetric_bones``), ``length_weight`` px per 100 % deviation.
     rigid_points
-        Points that do not move over the recording (a tethered fly's thorax-coxa joints).
+        Points that do not move over the recording when the body is fixed (a tethered
+        fly's thorax-coxa joints); used only if the starting triangulation shows them
+        still.
     warn_ratio
         Warn when the reduced Hessian's weakest non-gauge direction is below this
         fraction of its strongest.
@@ -190,9 +193,9 @@ class BundleAdjustmentParams:
     outlier_min_px: float = _param(3.0, _number(0))
     reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
     bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
-    symmetric_bones: bool = _param(False, _boolean)
+    symmetric_bones: bool = _param(True, _boolean)
     length_weight: float = _param(100.0, _number(0, exclusive=True))
-    rigid_points: tuple[str, ...] = _param((), _string_list(), kind=tuple)
+    rigid_points: tuple[str, ...] = _param(TETHERED_RIGID_POINTS, _string_list(), kind=tuple)
     warn_ratio: float = _param(1e-9, _number(0))
     least_squares: dict[str, Any] = field(default_factory=dict)
 

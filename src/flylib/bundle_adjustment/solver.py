@@ -6,7 +6,7 @@ Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m
 :func:`flylib.geometry.project_full_one` with respect to the point and the camera row,
 ``vmap``-ed over observations and jitted once for a fixed chunk of rows (residuals alone
 use a NumPy twin of the same model, so they cost no compilation). Camera columns go
-through :class:`~flylib.ba.params.ParamLayout` (fixed entries dropped, tied entries
+through :class:`~flylib.bundle_adjustment.params.ParamLayout` (fixed entries dropped, tied entries
 summed into one column). An optional bone-length prior adds one row per (frame, bone):
 with ``bone_group`` the lengths are unknowns shared by every frame of a bone (rigid
 segments, no bias from the targets), else the targets are fixed.

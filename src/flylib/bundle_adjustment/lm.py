@@ -1,6 +1,6 @@
 """Levenberg-Marquardt on the reduced camera system (Schur complement).
 
-The unknowns of a :class:`~flylib.ba.solver.Problem` split into
+The unknowns of a :class:`~flylib.bundle_adjustment.solver.Problem` split into
 
 - *global* ones, few and seen by many observations: the free camera parameters, the
   points shared by every frame (a tethered fly's rigid thorax-coxa points) and the
@@ -117,14 +117,18 @@ class ReducedSystem:
         cols = blocks.block_cols
         n_blocks, width = cols.shape
         padded = cols < 0
-        flat = np.where(padded, 0, cols).ravel()
-        jl = csc[:, flat]
-        # padded slots read column 0: zero them out
-        if padded.any():
-            jl = jl @ scipy.sparse.diags((~padded).ravel().astype(float))
+        # a selection matrix, not fancy indexing: padded slots must read nothing (reading
+        # a camera column once per slot cost seconds with wide, mostly padded blocks)
+        slot = np.flatnonzero(~padded.ravel())
+        select = scipy.sparse.csc_matrix((np.ones(slot.size), (cols.ravel()[slot], slot)),
+                                         shape=(jac.shape[1], cols.size))
+        jl = (csc @ select).tocsc()
         self.u = (jg.T @ jg).toarray()
         self.gg = jg.T @ res
-        self.w = (jg.T @ jl).toarray().reshape(self.n_global, n_blocks, width)
+        # W stored flat (G, B * S) for the GEMMs and as blocks (B, G, S) for batched products
+        self.w = (jg.T @ jl).toarray()
+        self.w_blocks = np.ascontiguousarray(
+            self.w.reshape(self.n_global, n_blocks, width).transpose(1, 0, 2))
         v = (jl.T @ jl).tocoo()
         bi, bj = v.row // width, v.col // width
         same = bi == bj
@@ -135,34 +139,48 @@ class ReducedSystem:
         self.padded = padded
         self.diag_u = np.maximum(np.diag(self.u).copy(), 1e-12)
         self.diag_v = np.maximum(np.diagonal(self.v, axis1=1, axis2=2).copy(), 1e-12)
+        # blocks of one true width together (a frame of all legs and a lone point differ
+        # 30-fold): inverses and products at their own size, not the widest one's
+        n_used = (~padded).sum(axis=1)
+        self.groups = [(np.flatnonzero(n_used == k), int(k)) for k in np.unique(n_used)]
 
-    def schur(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``)."""
-        width = self.v.shape[1]
-        vd = self.v.copy()
-        vd[:, np.arange(width), np.arange(width)] += lam * self.diag_v
-        vinv = np.linalg.inv(vd)
-        y = np.einsum("gbk,bkl->gbl", self.w, vinv)
-        s = self.u + np.diag(lam * self.diag_u) - y.reshape(self.n_global, -1) @ \
-            self.w.reshape(self.n_global, -1).T
-        return 0.5 * (s + s.T), y, vinv
+    def schur(self, lam: float) -> tuple[np.ndarray, list, list]:
+        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` and
+        ``V^-1`` per group of blocks of one width (``W_g V_g^-1`` as ``(G, B_g * k)``
+        and ``(B_g, k, k)``)."""
+        s = self.u + np.diag(lam * self.diag_u)
+        ys, vinvs = [], []
+        for idx, k in self.groups:
+            vd = self.v[idx, :k, :k].copy()
+            vd[:, np.arange(k), np.arange(k)] += lam * self.diag_v[idx, :k]
+            vinv = np.linalg.inv(vd)
+            w = self.w_blocks[idx, :, :k]  # (B_g, G, k)
+            y = np.matmul(w, vinv).transpose(1, 0, 2).reshape(self.n_global, -1)
+            s -= y @ w.transpose(1, 0, 2).reshape(self.n_global, -1).T
+            ys.append(y)
+            vinvs.append(vinv)
+        return 0.5 * (s + s.T), ys, vinvs
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """``(dx_global, dx_local (B, S))`` of the damped system."""
-        s, y, vinv = self.schur(lam)
-        rhs = -self.gg + y.reshape(self.n_global, -1) @ self.gl.ravel()
+        s, ys, vinvs = self.schur(lam)
+        rhs = -self.gg.copy()
+        for (idx, k), y in zip(self.groups, ys):
+            rhs += y @ self.gl[idx, :k].ravel()
         try:
             dg = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
         except np.linalg.LinAlgError:
             dg = np.linalg.lstsq(s, rhs, rcond=None)[0]
-        back = -self.gl - np.einsum("gbk,g->bk", self.w, dg)
-        dl = np.einsum("bkl,bl->bk", vinv, back)
-        return dg, np.where(self.padded, 0.0, dl)
+        back = -self.gl - (dg @ self.w).reshape(self.gl.shape)
+        dl = np.zeros_like(self.gl)
+        for (idx, k), vinv in zip(self.groups, vinvs):
+            dl[idx, :k] = np.matmul(vinv, back[idx, :k, None])[:, :, 0]
+        return dg, dl
 
     def predicted_reduction(self, dg, dl, lam) -> float:
         """``-(g^T dx + 0.5 dx^T J^T J dx)`` (the model's cost decrease, no damping)."""
-        jtj_dx_g = self.u @ dg + np.einsum("gbk,bk->g", self.w, dl)
-        jtj_dx_l = np.einsum("gbk,g->bk", self.w, dg) + np.einsum("bkl,bl->bk", self.v, dl)
+        jtj_dx_g = self.u @ dg + self.w @ dl.ravel()
+        jtj_dx_l = (dg @ self.w).reshape(dl.shape) + np.matmul(self.v, dl[:, :, None])[:, :, 0]
         jtj_dx_l = np.where(self.padded, 0.0, jtj_dx_l)
         grad = dg @ self.gg + (dl * self.gl).sum()
         quad = dg @ jtj_dx_g + (dl * jtj_dx_l).sum()
@@ -171,7 +189,7 @@ class ReducedSystem:
 
 def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
              loss: str = "linear", f_scale: float = 1.0, max_nfev: int | None = None,
-             ftol: float = 1e-8, xtol: float = 1e-10, gtol: float = 1e-10,
+             ftol: float = 1e-6, xtol: float = 1e-10, gtol: float = 1e-10,
              max_iter: int = 100, **unused) -> OptimizeResult:
     """Minimize ``problem``'s (robust) cost from ``x0`` by Levenberg-Marquardt.
 
@@ -186,7 +204,9 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
     max_nfev
         Cap on residual evaluations (default ``max_iter + 1``).
     ftol, xtol, gtol
-        Stop when an accepted step lowers the cost by less than ``ftol`` relatively,
+        Stop when an accepted step lowers the cost by less than ``ftol`` relatively
+        (``1e-6``: tighter only crept on, 0.2 of 30,000 over a dozen steps, with no
+        change in the 3D),
         moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is below
         ``gtol``.
 

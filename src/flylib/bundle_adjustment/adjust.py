@@ -1,0 +1,451 @@
+"""Bundle adjustment of one flattened problem: :func:`bundle_adjust`.
+
+Free camera parameters and 3D points (plus, optionally, shared bone lengths) are fitted
+to the observed 2D points by Levenberg-Marquardt on the reduced camera system
+(:mod:`.lm`) or ``scipy.optimize.least_squares`` (:mod:`.solver`), with the analytic
+JAX Jacobian, float64 throughout. See :mod:`.params` for the ``fixed`` / ``shared``
+grammar.
+
+Robustness and gauge, beyond a plain least-squares fit:
+
+- cameras whose start is grossly off are resected by PnP first (:mod:`.reseed`);
+- zero distortion coefficients stay zero on long lenses, and a fit whose radial model
+  folds the image is redone with that camera's distortion held;
+- outlier rounds: the first threshold comes from the errors against the starting
+  consensus triangulation; after every fit every observation is judged again
+  (``outlier_factor`` times the median error, at least ``outlier_min_px``) until the
+  inlier set is stable, so observations dropped from a rough start come back;
+- bone lengths as unknowns (one per bone or left/right pair, shared by all frames) and
+  rigid points (one 3D unknown over all frames) pin what the images alone leave loose;
+- the similarity gauge is held during the fit and the result reported in the frame
+  where the starting rig put the fly (:mod:`.gauge`).
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+from scipy.optimize import OptimizeResult
+
+from ..errors import ConfigError
+from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
+from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
+from .params import build_layout, param_slices
+from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
+from .solver import Problem
+from .unknowns import (bones_on_unknowns, lengths_per_row, start_lengths,
+                       unknowns_from_columns, valid_bones)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+
+log = logging.getLogger(__name__)
+
+__all__ = ["bundle_adjust", "camera_table"]
+
+DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
+DEFAULT_LENGTH_WEIGHT = 100.0  # px per 100 % deviation from a bone's common length
+DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
+DEFAULT_OUTLIER_FACTOR = 5.0
+DEFAULT_OUTLIER_MIN_PX = 3.0
+DEFAULT_MAX_ROUNDS = 10
+DEFAULT_SOLVER = "lm"
+DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
+DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
+LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
+FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
+STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
+SOLVERS = ("lm", "scipy")
+DISTORTION_MODES = ("auto", "free", "fixed")
+
+
+def camera_table(cameras: "CameraGroup") -> np.ndarray:
+    """``(V, 10 + K)`` table of stacked ``[rvec, tvec, intr, dist]`` rows."""
+    intrs = np.asarray(cameras.intrs, float)
+    if intrs.shape[1] != 4:
+        raise ConfigError("bundle adjustment needs intrinsics packed as [fx, fy, cx, cy]")
+    return np.concatenate([np.asarray(cameras.rvecs, float), np.asarray(cameras.tvecs, float),
+                           intrs, np.asarray(cameras.dists, float).reshape(len(intrs), -1)],
+                          axis=1)
+
+
+def _cameras_from_table(names, table: np.ndarray) -> "CameraGroup":
+    from ..cameras import CameraGroup
+
+    return CameraGroup.from_arrays(list(names), table[:, 0:3], table[:, 3:6], table[:, 6:10],
+                                   table[:, 10:])
+
+
+def bundle_adjust(
+    cameras: "CameraGroup",
+    pts2d: np.ndarray,
+    *,
+    fixed: Sequence[str] = (),
+    shared: Sequence[Sequence[str]] = (),
+    pts3d: np.ndarray | None = None,
+    conf: np.ndarray | None = None,
+    weigh_by_confidence: bool = False,
+    bones: tuple[np.ndarray, ...] | None = None,
+    bone_weight: float = DEFAULT_BONE_WEIGHT,
+    reject_outliers: bool = True,
+    init_threshold: float = DEFAULT_INIT_THRESHOLD,
+    outlier_factor: float = DEFAULT_OUTLIER_FACTOR,
+    outlier_min_px: float = DEFAULT_OUTLIER_MIN_PX,
+    max_rounds: int = DEFAULT_MAX_ROUNDS,
+    canonical_gauge: bool = True,
+    point_ids: np.ndarray | None = None,
+    solver: str = DEFAULT_SOLVER,
+    distortion: str = "auto",
+    reseed_px: float | None = DEFAULT_RESEED_PX,
+    warn_ratio: float = DEFAULT_WARN_RATIO,
+    **solver_kwargs,
+) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+    """Bundle-adjust a camera group against observed 2D points.
+
+    Parameters
+    ----------
+    cameras
+        Initial rig; its stacked parameters seed the optimization.
+    pts2d
+        Observations ``(V, N, 2)`` in pixels, NaN for missing.
+    fixed, shared
+        Parameter references held constant / tied together (:mod:`flylib.bundle_adjustment.params`).
+    pts3d
+        Initial 3D points ``(N, 3)``; robustly triangulated from ``cameras`` if omitted.
+    conf, weigh_by_confidence
+        With ``weigh_by_confidence`` and ``conf`` ``(V, N)``, residuals are scaled by
+        ``sqrt(conf)``; non-positive or non-finite confidences drop the observation.
+    bones
+        Optional bone-length residuals ``(i, j, target)`` or ``(i, j, target, group)``:
+        point indices into ``N``, reference lengths and, optionally, which rows share one
+        unknown length (the same bone in different frames, or left and right). With
+        groups the lengths are unknowns (started at the group's median length over the
+        starting points, the target where there is none) and the
+        residuals ask only for constancy; without, for the targets themselves. Pairs
+        with a non-finite or non-positive target are ignored.
+    bone_weight
+        Residual scale of the bone rows, pixels per 100 % relative length deviation.
+    reject_outliers, init_threshold, outlier_factor, outlier_min_px, max_rounds
+        Outlier handling: observations farther than ``outlier_factor`` times the
+        median error (at least ``outlier_min_px``) sit out; the threshold is first
+        taken from the errors against the starting triangulation (RANSAC with
+        ``init_threshold`` px), then after each fit from the fitted errors, every
+        observation (also those set aside before) is judged again, and rounds repeat
+        until the inlier set is stable or ``max_rounds`` fits were made.
+    canonical_gauge
+        When no extrinsic parameter is fixed, report the result in the similarity frame
+        that maps the refined points onto the starting ones (the fly stays where the
+        starting rig put it; :func:`~flylib.bundle_adjustment.gauge.align_gauge`).
+    point_ids
+        ``(N,)`` which 3D unknown each column of ``pts2d`` observes (default: its own).
+        Columns sharing an id are one point, e.g. a rigid point seen in every frame.
+    solver
+        ``"lm"``: Levenberg-Marquardt on the reduced camera system
+        (:mod:`flylib.bundle_adjustment.lm`); ``"scipy"``: ``scipy.optimize.least_squares``.
+    distortion
+        ``"auto"``: distortion coefficients that start at zero are held at zero on long
+        lenses (image corner within ``0.2`` of the optical axis in normalized
+        coordinates, where the images cannot tell them from the rig); ``"free"``:
+        free unless in ``fixed``; ``"fixed"``: all held. Whatever is free, a fit whose
+        radial model folds inside the image is redone with that camera's distortion
+        held.
+    reseed_px
+        Cameras whose median error from the start exceeds this are resected by PnP
+        from the others (or re-aimed) before the joint fit; ``None`` turns this off.
+    warn_ratio
+        Warn (and report) when the weakest direction of the unit-diagonal reduced
+        camera Hessian beyond the gauge is below this fraction of the strongest.
+    **solver_kwargs
+        ``max_nfev``, ``loss``, ``f_scale``, ``ftol``, ``xtol``, ``gtol`` (both solvers);
+        with ``solver="scipy"`` any ``scipy.optimize.least_squares`` option
+        (``jac="2-point"`` swaps the JAX Jacobian for finite differences).
+
+    Returns
+    -------
+    result : scipy.optimize.OptimizeResult
+        The last fit's result plus ``initial_median_px`` / ``final_median_px``
+        (median reprojection error before / after), ``inliers`` ``(V, N)``
+        (observations used in the final fit), ``rounds``, ``warnings`` (list of str)
+        and ``report`` (a JSON-able dict: solver, what was free, kept fraction per
+        camera, rounds, repaired cameras, cameras that saw nothing (held), the
+        Hessian's weakest direction).
+    cameras : CameraGroup
+        The refined rig.
+    pts3d : np.ndarray
+        Refined points ``(N, 3)``; NaN for points with fewer than two usable views.
+
+    Raises
+    ------
+    ConfigError
+        For a bad ``fixed`` / ``shared`` reference, solver or distortion mode.
+    ValueError
+        For arrays of the wrong shape or no usable observations.
+    """
+    pts2d = np.asarray(pts2d, float)
+    n_views = len(cameras)
+    if pts2d.ndim != 3 or pts2d.shape[0] != n_views or pts2d.shape[2] != 2:
+        raise ValueError(f"pts2d must be (V={n_views}, N, 2), got {pts2d.shape}")
+    if solver not in SOLVERS:
+        raise ConfigError(f"bundle_adjustment.solver: unknown solver {solver!r}; "
+                          f"use one of {', '.join(SOLVERS)}")
+    if distortion not in DISTORTION_MODES:
+        raise ConfigError(f"bundle_adjustment.distortion: unknown mode {distortion!r}; "
+                          f"use one of {', '.join(DISTORTION_MODES)}")
+    names = list(cameras.names)
+    n_cols = pts2d.shape[1]
+    ids = np.arange(n_cols) if point_ids is None else np.asarray(point_ids, int).reshape(n_cols)
+    n_unknown = int(ids.max()) + 1 if n_cols else 0
+    uses = np.bincount(ids, minlength=n_unknown)
+    is_shared = uses > 1
+
+    table_user = camera_table(cameras)
+    n_dist = table_user.shape[1] - 10
+    held = _held_distortion(table_user, names, distortion)
+    layout = build_layout(names, n_dist, [*fixed, *held], shared)
+    table_user = layout.unpack(layout.pack(table_user), table_user)  # tied entries start equal
+
+    usable = np.isfinite(pts2d).all(axis=-1)
+    weight = np.ones((n_views, n_cols))
+    if weigh_by_confidence and conf is not None:
+        c = np.asarray(conf, float).reshape(n_views, n_cols)
+        usable &= np.isfinite(c) & (c > 0)
+        weight = np.sqrt(np.where(usable, c, 0.0))
+
+    def triangulate(table, use):
+        return _ransac_points(_cameras_from_table(names, table), pts2d, use, init_threshold)
+
+    table = table_user
+    reseeded: list[str] = []
+    start_median = None
+    if pts3d is None and reseed_px:
+        movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+        table, reseeded, start_median = reseed_gross_cameras(
+            table_user, names, pts2d, usable, float(reseed_px), triangulate, movable=movable)
+    # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
+    # converge only linearly: hold one camera and one depth during the fit instead; the
+    # canonical frame below makes the result independent of which.
+    # a camera that sees none of the points has nothing to fit: held at its start
+    observed = usable.any(axis=1)
+    unobserved = [n for n, seen in zip(names, observed) if not seen]
+    parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
+    fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
+    if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
+        fit_fixed += gauge_refs(table, names, observed)
+    fit_layout = build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] \
+        else layout
+    n_gauge = open_gauge_directions(table, fit_layout, observed)
+    cols_start = (triangulate(table, usable) if pts3d is None
+                  else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
+    pts = unknowns_from_columns(cols_start, ids, n_unknown)
+    pts_start = pts.copy()
+
+    err = _view_errors(table, pts[ids], pts2d, usable)
+    if reject_outliers:
+        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[usable])))
+        active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
+    else:
+        active = usable.copy()
+    initial_median = float(np.nanmedian(err[active])) if active.any() else float("nan")
+
+    bone_i, bone_j, bone_t, bone_g = bones_on_unknowns(valid_bones(bones), ids)
+    if bone_g is not None and bone_i.size:
+        bone_t = start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
+    lengths = None
+    result = None
+    stable = not reject_outliers
+    history = {active.tobytes()}
+    rounds = 0
+    keep = np.zeros(n_unknown, bool)
+    problem = None
+    blocks = None
+    for rounds in range(1, max(int(max_rounds), 1) + 1):
+        problem, keep = _make_problem(table, fit_layout, pts2d, weight, active, pts, ids,
+                                      bone_i, bone_j, bone_t if lengths is None else lengths,
+                                      bone_g, bone_weight)
+        if problem is None:
+            raise ValueError("bundle adjustment: no point is seen by two or more views; "
+                             "nothing to fit")
+        blocks = block_structure(problem, is_shared[keep])
+        if solver == "lm":
+            options = dict(solver_kwargs)
+            if rounds == 1 and reject_outliers:
+                # the first inlier set, judged from the start, still holds most gross
+                # outliers: polishing a fit to it only wanders (40+ evaluations from a
+                # rough rig); the next rounds refit on a cleaner set from here
+                options["ftol"] = max(options.get("ftol", 1e-8), FIRST_ROUND_FTOL)
+            result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **options)
+        else:
+            result = problem.solve(table, pts[keep], **solver_kwargs)
+        table, sub = problem.unpack(result.x)
+        lengths = lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep,
+                                   lengths)
+        pts = np.full((n_unknown, 3), np.nan)
+        pts[keep] = sub
+        if not reject_outliers:
+            break
+        lost = ~keep & (uses > 0)
+        if lost.any():  # judge the observations of points that left the fit too
+            again = unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
+            pts[lost] = again[lost]
+        err = _view_errors(table, pts[ids], pts2d, usable)
+        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
+        new_active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
+        changed = int((new_active != active).sum())
+        log.info("bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
+                 "set aside, %d changed", rounds, float(np.nanmedian(err[active])),
+                 int(usable.sum() - new_active.sum()), threshold, changed)
+        # a set seen before is a cycle (a few borderline observations flipping in and
+        # out): as settled as it gets
+        if changed <= STABLE_FRACTION * usable.sum() or new_active.tobytes() in history:
+            stable = True
+            break
+        if rounds == max_rounds:
+            break
+        active = new_active
+        history.add(active.tobytes())
+
+    folded = _folded_cameras(table, layout, names)
+    if folded:
+        message = (f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
+                   f"refitting with it held at its starting values")
+        log.warning(message)
+        return bundle_adjust(
+            cameras, pts2d, fixed=[*fixed, *(f"{n}.dist" for n in folded)], shared=shared,
+            pts3d=pts3d, conf=conf, weigh_by_confidence=weigh_by_confidence, bones=bones,
+            bone_weight=bone_weight, reject_outliers=reject_outliers,
+            init_threshold=init_threshold, outlier_factor=outlier_factor,
+            outlier_min_px=outlier_min_px, max_rounds=max_rounds,
+            canonical_gauge=canonical_gauge, point_ids=point_ids, solver=solver,
+            distortion=distortion, reseed_px=reseed_px, warn_ratio=warn_ratio,
+            **solver_kwargs)
+
+    final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), blocks)
+    ratio, n_weak = weak_directions(final.schur(0.0)[0], n_gauge)
+    warnings_out: list[str] = []
+    if ratio < warn_ratio:
+        beyond = ("with the similarity gauge held" if n_gauge == 0 else
+                  f"beyond the {n_gauge} open similarity (gauge) direction(s)")
+        weakest = "0 (an exact null direction)" if ratio <= 0 else f"{ratio:.1e}"
+        warnings_out.append(
+            f"the rig is poorly determined: {beyond}, the reduced camera Hessian's weakest "
+            f"direction is {weakest} of its strongest (< {warn_ratio:.0e}); some cameras or "
+            f"point groups can move with little change in the images (e.g. a view that "
+            f"connects both sides is missing): check the result, hold more parameters "
+            f"fixed or start from a calibration")
+    if not stable:
+        warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
+    for message in warnings_out:
+        log.warning("bundle adjustment: %s", message)
+        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
+
+    if canonical_gauge and layout.extrinsics_free:
+        table, pts = align_gauge(table_user, table, pts, pts_start)
+        table[~observed] = table_user[~observed]
+    refined = _cameras_from_table(names, table)
+    out_pts = pts[ids]
+    err = _view_errors(table, out_pts, pts2d, active)
+    result.initial_median_px = initial_median
+    result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
+    result.inliers = active
+    result.rounds = rounds
+    result.warnings = warnings_out
+    result.report = {
+        "solver": solver,
+        "free": _free_report(layout, names, held, problem, int(is_shared[keep].sum())),
+        "kept_fraction": {n: (round(float(active[v].sum() / usable[v].sum()), 4)
+                              if usable[v].any() else None) for v, n in enumerate(names)},
+        "rounds": rounds,
+        "inliers_stable": bool(stable),
+        "reseeded": reseeded,
+        "unobserved": unobserved,
+        "start_median_px": None if start_median is None else {
+            n: (None if not np.isfinite(m) else round(float(m), 2))
+            for n, m in zip(names, start_median)},
+        "weakest_direction": ratio if np.isfinite(ratio) else None,
+        "weak_directions": n_weak,
+        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
+        "final_median_px": (result.final_median_px if np.isfinite(result.final_median_px)
+                            else None),
+        "warnings": warnings_out,
+    }
+    log.info("bundle adjustment: median reprojection error %.2f px -> %.2f px "
+             "(%d observations, %d set aside, %d round(s), %s)",
+             result.initial_median_px, result.final_median_px, int(active.sum()),
+             int(usable.sum() - active.sum()), rounds, result.message)
+    return result, refined, out_pts
+
+
+def _held_distortion(table: np.ndarray, names, mode: str) -> list[str]:
+    """References of the distortion entries ``mode`` holds fixed."""
+    n_dist = table.shape[1] - 10
+    if n_dist == 0 or mode == "free":
+        return []
+    if mode == "fixed":
+        return ["*.dist"]
+    held = []
+    for name, row in zip(names, table):
+        if image_radius(row) / 1.25 < LONG_LENS_RADIUS:
+            held += [f"{name}.dist[{k}]" for k in range(n_dist) if row[10 + k] == 0.0]
+    return held
+
+
+def _folded_cameras(table, layout, names) -> list[str]:
+    if table.shape[1] == 10:
+        return []
+    free = (layout.var_index[:, 10:] >= 0).any(axis=1)
+    return [names[v] for v in np.flatnonzero(free)
+            if radial_folds(table[v, 10:], image_radius(table[v]))]
+
+
+def _free_report(layout, names, held, problem, n_rigid) -> dict:
+    slices = param_slices(layout.var_index.shape[1] - 10)
+    per_camera = {}
+    for v, name in enumerate(names):
+        free = layout.var_index[v] >= 0
+        per_camera[name] = [p for p, (lo, hi) in slices.items() if hi > lo and free[lo:hi].any()]
+    return {"camera_variables": int(layout.n_free), "per_camera": per_camera,
+            "distortion_held_at_zero": len(held), "points": int(problem.n_points),
+            "rigid_points": n_rigid, "bone_lengths": int(problem.n_len),
+            "bone_rows": int(problem.n_bones)}
+
+
+def _ransac_points(cameras, pts2d, usable, threshold):
+    """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
+    from ..triangulation import triangulate_ransac
+
+    masked = np.where(usable[..., None], pts2d, np.nan)
+    pts3d, _ = triangulate_ransac(cameras, masked, threshold=threshold)
+    return np.asarray(pts3d, float)
+
+
+def _make_problem(table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_j, bone_t,
+                  bone_g, bone_weight):
+    """The problem over unknowns seen actively from >= 2 views, with a finite start."""
+    n_views = active.shape[0]
+    n_unknown = pts.shape[0]
+    seen = np.zeros((n_views, n_unknown), bool)
+    v_all, c_all = np.nonzero(active)
+    seen[v_all, ids[c_all]] = True
+    keep = (seen.sum(axis=0) >= 2) & np.isfinite(pts).all(axis=1)
+    if not keep.any():
+        return None, keep
+    compact = np.cumsum(keep) - 1
+    obs = active & keep[ids][None, :]
+    view, col = np.nonzero(obs)
+    bones_ok = keep[bone_i] & keep[bone_j] if bone_i.size else np.zeros(0, bool)
+    problem = Problem(
+        table0=table0, layout=layout, view=view, point=compact[ids[col]],
+        xy=pts2d[view, col], weight=weight[view, col], n_points=int(keep.sum()),
+        bone_i=compact[bone_i[bones_ok]], bone_j=compact[bone_j[bones_ok]],
+        bone_target=bone_t[bones_ok], bone_weight=float(bone_weight),
+        bone_group=None if bone_g is None else np.unique(bone_g[bones_ok],
+                                                         return_inverse=True)[1])
+    return problem, keep
+
+
+def _view_errors(table, pts_cols, pts2d, usable):
+    """``(V, N)`` reprojection errors of the usable observations, NaN elsewhere."""
+    return view_errors(table, pts_cols, pts2d, usable)

@@ -1,0 +1,155 @@
+"""The similarity gauge of bundle adjustment: what to hold during a fit, how to report.
+
+With no extrinsic parameter fixed, a similarity of the whole scene (rotation,
+translation, scale: 7 directions) changes no image. Levenberg-Marquardt converges only
+linearly along such directions, so the fit holds one camera's pose and one translation
+entry (:func:`gauge_refs`); afterwards the result is mapped into the similarity frame
+where the starting rig put the fly (:func:`align_gauge`), independent of which were
+held. :func:`open_gauge_directions` counts what held and tied entries leave open.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
+
+
+def untied_extrinsics(layout) -> bool:
+    ext = layout.var_index[:, :6].ravel()
+    return np.unique(ext).size == ext.size
+
+
+def gauge_refs(table: np.ndarray, names, observed: np.ndarray | None = None) -> list[str]:
+    """References that pin the similarity gauge: the first observed camera's pose and,
+    for scale, the translation entry of the observed camera farthest from it that
+    scaling moves most."""
+    seen = np.flatnonzero(np.ones(len(table), bool) if observed is None else observed)
+    if seen.size == 0:
+        return []
+    rmats = rvec_to_rmat_numpy(table[:, 0:3])
+    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
+    first = int(seen[0])
+    far = int(seen[np.argmax(np.linalg.norm(centres[seen] - centres[first], axis=1))])
+    refs = [f"{names[first]}.rvec", f"{names[first]}.tvec"]
+    if far == first:
+        return refs
+    d_tvec = -rmats[far] @ (centres[far] - centres[first])
+    return [*refs, f"{names[far]}.tvec[{int(np.argmax(np.abs(d_tvec)))}]"]
+
+
+def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """Each camera's centre and the point ``depths[v]`` ahead on its optical axis.
+
+    Returns ``(2V, 3)``: centres first, then the viewing targets.
+    """
+    rmats = rvec_to_rmat_numpy(table[:, 0:3])
+    centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
+    targets = centres + depths[:, None] * rmats[:, 2]
+    return np.concatenate([centres, targets])
+
+
+def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray,
+                pts0: np.ndarray | None = None):
+    """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start.
+
+    With ``pts0`` (the starting 3D points, ``(N, 3)``, NaN where none): the similarity
+    that best maps the refined points onto them (Umeyama, refitted without the 20 %
+    worst-agreeing), so the fly stays where the starting rig put it: thousands of points
+    pin the frame far better than seven cameras ~100 units away, whose small refinements
+    would otherwise move the fly by several hundredths of a body length. Otherwise (or
+    with fewer than four such points) the camera centres *and* viewing targets (a point
+    at the initial camera distance along each optical axis): centres alone leave a
+    near-gauge free (moving the fly sideways while every camera turns to follow it
+    barely changes any image).
+    ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
+    ``t_c' = s t_c - R_c' t`` (projections are unchanged).
+    """
+    fitted = None
+    if pts0 is not None:
+        ok = np.isfinite(pts).all(axis=1) & np.isfinite(pts0).all(axis=1)
+        if ok.sum() >= 4:
+            src, dst = pts[ok], pts0[ok]
+            fitted = _umeyama(src, dst)
+            if fitted is not None:
+                scale, rot, shift = fitted
+                resid = np.linalg.norm(scale * src @ rot.T + shift - dst, axis=1)
+                best = resid <= np.percentile(resid, 80)
+                if best.sum() >= 4:
+                    fitted = _umeyama(src[best], dst[best]) or fitted
+    if fitted is None and len(table) >= 2:
+        depths = np.linalg.norm(table0[:, 3:6], axis=1)
+        fitted = _umeyama(_camera_anchors(table, depths), _camera_anchors(table0, depths))
+    if fitted is None:
+        return table, pts
+    scale, rot, shift = fitted
+    return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
+
+
+def _umeyama(src: np.ndarray, dst: np.ndarray):
+    """Least-squares similarity ``(scale, rot, shift)`` mapping ``src`` onto ``dst``
+    (both ``(M, 3)``), or ``None`` when ``src`` has no spread."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    a, b = src - mu_s, dst - mu_d
+    u, sig, vt = np.linalg.svd(b.T @ a / len(src))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ d @ vt
+    var_s = (a ** 2).sum() / len(src)
+    if var_s <= 0:
+        return None
+    scale = np.trace(np.diag(sig) @ d) / var_s
+    return scale, rot, mu_d - scale * rot @ mu_s
+
+
+def _similarity_table(table: np.ndarray, scale: float, rot: np.ndarray,
+                      shift: np.ndarray) -> np.ndarray:
+    """The camera table after mapping the world by ``X' = scale rot X + shift``."""
+    out = table.copy()
+    for v, rmat in enumerate(rvec_to_rmat_numpy(table[:, 0:3])):
+        rc = rmat @ rot.T
+        out[v, 0:3] = rmat_to_rvec_numpy(rc)
+        out[v, 3:6] = scale * table[v, 3:6] - rc @ shift
+    return out
+
+
+def open_gauge_directions(table: np.ndarray, layout, observed: np.ndarray | None = None) -> int:
+    """How many of the 7 similarity directions the held and tied entries leave open.
+
+    Each direction (3 rotations, 3 translations, scale) moves every camera's
+    ``[rvec, tvec]``; a held entry must not move and tied entries must move alike.
+    The directions that obey both change no image and stay undetermined in a fit.
+    Cameras not ``observed`` ``(V,)`` (no observation ties them to the rest) are left out.
+    """
+    eps = 1e-6
+    columns = []
+    for k in range(7):
+        rot, shift, scale = np.eye(3), np.zeros(3), 1.0
+        if k < 3:
+            rot = rvec_to_rmat_numpy(eps * np.eye(3)[k][None])[0]
+        elif k < 6:
+            shift = eps * np.eye(3)[k - 3]
+        else:
+            scale = 1.0 + eps
+        moved = _similarity_table(table, scale, rot, shift)
+        # near a half turn the rotation vector can come back on its other branch
+        # (|r| -> |r| - 2 pi): take the one next to the start
+        r = moved[:, 0:3]
+        norm = np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
+        other = r * (1.0 - 2.0 * np.pi / norm)
+        flip = np.linalg.norm(other - table[:, 0:3], axis=1) < np.linalg.norm(
+            r - table[:, 0:3], axis=1)
+        moved[flip, 0:3] = other[flip]
+        columns.append(((moved - table)[:, :6] / eps).ravel())
+    keep = np.ones(len(table), bool) if observed is None else np.asarray(observed, bool)
+    motion = np.stack(columns, axis=1).reshape(len(table), 6, 7)[keep].reshape(-1, 7)
+    var = layout.var_index[keep, :6].ravel()
+    rows = [motion[var < 0]]
+    for v in np.unique(var[var >= 0]):
+        members = np.flatnonzero(var == v)
+        rows.append(motion[members[1:]] - motion[members[0]])
+    held = np.concatenate(rows)
+    if held.size == 0:
+        return 7
+    held = held / np.maximum(np.linalg.norm(motion, axis=0), 1e-300)
+    sig = np.linalg.svd(held, compute_uv=False)
+    return 7 - int((sig > 1e-6 * max(sig.max(initial=0.0), 1e-300)).sum())

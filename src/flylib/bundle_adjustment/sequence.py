@@ -1,0 +1,306 @@
+"""Bundle adjustment of a recording: frame choice, bones, rigid points, the config table.
+
+:func:`bundle_adjust_sequence` flattens a recording's ``(V, T, P, 2)`` detections into
+one :func:`~flylib.bundle_adjustment.adjust.bundle_adjust` problem;
+:func:`bundle_adjust_from_config` runs it with the config's ``bundle_adjustment`` table.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+from scipy.optimize import OptimizeResult
+
+from ..errors import ConfigError
+from .adjust import DEFAULT_INIT_THRESHOLD, DEFAULT_LENGTH_WEIGHT, _ransac_points, bundle_adjust
+from .sampling import select_frames
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+    from ..config import Config
+    from ..skeleton import Skeleton
+
+log = logging.getLogger(__name__)
+
+__all__ = ["THORAX_POINTS", "bundle_adjust_from_config", "bundle_adjust_sequence"]
+
+#: where the legs join the thorax: one rigid, left/right mirror-symmetric body in any fly
+THORAX_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
+#: a listed rigid point is merged over time only if its starting triangulation stays
+#: within this many median bone lengths (median distance to its median position)
+DEFAULT_RIGID_TOLERANCE = 0.15
+
+
+def bundle_adjust_sequence(
+    cameras: "CameraGroup",
+    pts2d: np.ndarray,
+    conf: np.ndarray | None = None,
+    skeleton: "Skeleton | None" = None,
+    *,
+    points_to_use: Sequence[str] | None = None,
+    max_frames: int | None = 200,
+    frame_sampling: str = "even",
+    weigh_by_confidence: bool = False,
+    fixed: Sequence[str] = (),
+    shared: Sequence[Sequence[str]] = (),
+    bone_prior: bool = False,
+    bone_lengths: bool = True,
+    symmetric_bones: bool = True,
+    length_weight: float = DEFAULT_LENGTH_WEIGHT,
+    rigid_points: Sequence[str] | None = None,
+    rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
+    body_points: Sequence[str] = THORAX_POINTS,
+    **kwargs,
+) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+    """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
+
+    Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
+    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's
+    bone lengths (``bone_lengths``, or the older ``bone_prior``), makes the
+    ``rigid_points`` one 3D point over all frames, and runs :func:`bundle_adjust` on
+    the flattened (frame, point) observations.
+
+    Parameters
+    ----------
+    cameras, pts2d, conf
+        The rig, detections ``(V, T, P, 2)`` and confidences ``(V, T, P)`` (or ``None``).
+    skeleton
+        Supplies point names and bones; without it ``points_to_use`` must be ``None``
+        and there is no bone prior.
+    points_to_use, max_frames, frame_sampling, weigh_by_confidence, fixed, shared
+        As in the ``bundle_adjustment`` config table.
+    bone_prior
+        Add the bone-length prior toward fixed targets (off by default: its targets come
+        from the starting rig, whose errors it then reproduces).
+    bone_lengths
+        Each bone of the skeleton (among the used points) has one unknown length over
+        all fitted frames; residual rows ``length_weight * (|Xi - Xj| / L - 1)`` ask
+        every frame for it. The ``body_points`` are one rigid body: every distance
+        between two of them is such a length too. This, not a target, is what pins a
+        long-focal rig's shape.
+    symmetric_bones
+        Left and right bones (names differing only in a leading ``l``/``r``) share one
+        length, and so do mirror-image distances between ``body_points``. When each
+        camera sees one side only, nothing in the images fixes one side's cameras and
+        points against the other's (they can be scaled together about a camera seeing
+        both); the mirror-symmetric thorax does.
+    length_weight
+        Pixels of residual per 100 % deviation from the common length.
+    rigid_points
+        Point names that do not move over the recording when the body is fixed (a
+        tethered fly's thorax-coxa joints): one 3D unknown each instead of one per
+        frame. Names that are not used points are ignored. ``None``: the
+        :data:`THORAX_POINTS` the skeleton has (none without a skeleton).
+    rigid_tolerance
+        Use ``rigid_points`` only if the data show the body fixed: their starting
+        triangulation (from ``cameras``) stays within this many median bone lengths of
+        its median position (median over frames, worst point). ``None``: always. The
+        decision is in ``result.report["rigid"]``.
+    body_points
+        Points of one rigid body (default :data:`THORAX_POINTS`), for ``bone_lengths``.
+    **kwargs
+        Forwarded to :func:`bundle_adjust` (and from there to ``least_squares``).
+
+    Returns
+    -------
+    result : OptimizeResult
+        As :func:`bundle_adjust`, plus ``frames`` (the fitted frame indices),
+        ``points`` (the fitted point indices) and ``report["rigid"]`` (whether the
+        rigid points were used, their spread in median bones, the tolerance; ``None``
+        without rigid points).
+    cameras : CameraGroup
+        The refined rig.
+    pts3d : np.ndarray
+        ``(T, P, 3)``: the refined points of the fitted frames/points, NaN elsewhere.
+    """
+    pts2d = np.asarray(pts2d, float)
+    if pts2d.ndim != 4 or pts2d.shape[-1] != 2:
+        raise ValueError(f"pts2d must be (V, T, P, 2), got {pts2d.shape}")
+    n_views, n_frames, n_points, _ = pts2d.shape
+    conf_arr = None if conf is None else np.asarray(conf, float)
+    point_idx = _point_indices(points_to_use, skeleton, n_points)
+    frames = select_frames(pts2d[:, :, point_idx], None if conf_arr is None
+                           else conf_arr[:, :, point_idx], max_frames, frame_sampling)
+    sub = pts2d[:, frames][:, :, point_idx]  # (V, F, Q, 2)
+    n_sel, n_q = sub.shape[1], sub.shape[2]
+    sub_conf = None if conf_arr is None else conf_arr[:, frames][:, :, point_idx]
+
+    bones = None
+    if bone_prior and skeleton is not None:
+        from ..pictorial import bone_length_targets
+
+        bi, bj, targets = bone_length_targets(cameras, pts2d[:, frames], skeleton)
+        position = np.full(n_points, -1)
+        position[point_idx] = np.arange(n_q)
+        ok = (position[bi] >= 0) & (position[bj] >= 0)
+        offsets = (np.arange(n_sel) * n_q)[:, None]
+        bones = ((offsets + position[bi[ok]][None]).ravel(),
+                 (offsets + position[bj[ok]][None]).ravel(),
+                 np.tile(targets[ok], n_sel))
+
+    point_ids = None
+    names = list(skeleton.point_names) if skeleton is not None else []
+    rigid_report = None
+    if rigid_points is None:
+        rigid_points = [p for p in THORAX_POINTS if p in names]
+    if rigid_points:
+        if skeleton is None:
+            raise ValueError("rigid_points names points: pass the skeleton too")
+        unknown = [p for p in rigid_points if p not in names]
+        if unknown:
+            raise ConfigError(
+                f"bundle_adjustment.rigid_points: unknown point(s) "
+                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names")
+        rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
+        rigid_report = _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q,
+                                       rigid_tolerance)
+        if rigid_report["used"]:
+            ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
+            ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
+            point_ids = np.unique(ids.ravel(), return_inverse=True)[1]
+    if bone_lengths and skeleton is not None:
+        if bone_prior:
+            log.info("bundle adjustment: bone_lengths replaces bone_prior")
+        bones = _length_unknowns(skeleton, point_idx, n_sel, symmetric_bones, body_points)
+        kwargs["bone_weight"] = length_weight
+
+    result, refined, flat = bundle_adjust(
+        cameras, sub.reshape(n_views, n_sel * n_q, 2), fixed=fixed, shared=shared,
+        conf=None if sub_conf is None else sub_conf.reshape(n_views, -1),
+        weigh_by_confidence=weigh_by_confidence, bones=bones, point_ids=point_ids, **kwargs)
+    pts3d = np.full((n_frames, n_points, 3), np.nan)
+    pts3d[np.ix_(frames, point_idx)] = flat.reshape(n_sel, n_q, 3)
+    result.frames = frames
+    result.points = point_idx
+    result.report["rigid"] = rigid_report
+    return result, refined, pts3d
+
+
+def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> dict:
+    """Whether the data show the rigid points still: ``{"used", "spread_bones", ...}``.
+
+    ``sub`` ``(V, F, Q, 2)``: the fitted frames and points. The spread is each rigid
+    point's median distance to its median position over the frames of its starting
+    triangulation, in median bone lengths of the same triangulation (worst point).
+    """
+    out = {"used": bool(rigid_q.any()), "points": int(rigid_q.sum()),
+           "tolerance_bones": tolerance, "spread_bones": None}
+    if tolerance is None or not rigid_q.any():
+        return out
+    n_views, n_sel, n_q, _ = sub.shape
+    flat = sub.reshape(n_views, -1, 2)
+    pts = _ransac_points(cameras, flat, np.isfinite(flat).all(-1),
+                         DEFAULT_INIT_THRESHOLD).reshape(n_sel, n_q, 3)
+    bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
+    position = np.full(len(skeleton.point_names), -1)
+    position[point_idx] = np.arange(n_q)
+    ok = (position[bi] >= 0) & (position[bj] >= 0)
+    lengths = np.linalg.norm(pts[:, position[bi[ok]]] - pts[:, position[bj[ok]]], axis=-1)
+    bone = float(np.nanmedian(lengths)) if np.isfinite(lengths).any() else float("nan")
+    rigid = pts[:, rigid_q]
+    with warnings.catch_warnings():  # a point never triangulated: NaN, judged below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1),
+                              axis=0)
+    worst = float(np.nanmax(spread)) / bone if np.isfinite(spread).any() and bone > 0 \
+        else float("inf")
+    out["spread_bones"] = round(worst, 4) if np.isfinite(worst) else None
+    out["used"] = bool(worst <= tolerance)
+    log.info("bundle adjustment: rigid points %s (they move %.3f median bones, tolerance %.3f)",
+             "used" if out["used"] else "not used: the body moves", worst, tolerance)
+    return out
+
+
+def _length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
+    """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one
+    group per bone and per pair of ``body_points`` (per left/right mirror pair with
+    ``symmetric``)."""
+    names = list(skeleton.point_names)
+    bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
+    body = [names.index(p) for p in body_points if p in names]
+    pairs = {(min(a, b), max(a, b)) for a, b in zip(bi, bj)}
+    extra = [(a, b) for k, a in enumerate(body) for b in body[k + 1:]
+             if (min(a, b), max(a, b)) not in pairs]
+    if extra:
+        bi = np.concatenate([bi, [a for a, _ in extra]]).astype(int)
+        bj = np.concatenate([bj, [b for _, b in extra]]).astype(int)
+    n_q = len(point_idx)
+    position = np.full(len(names), -1)
+    position[point_idx] = np.arange(n_q)
+    ok = (position[bi] >= 0) & (position[bj] >= 0)
+    bi, bj = bi[ok], bj[ok]
+    if bi.size == 0:
+        return None
+    start = np.ones(bi.size)  # placeholder: bundle_adjust starts them from its 3D start
+
+    def side(name):
+        mirror = ("r" if name[0] == "l" else "l") + name[1:]
+        return name[0] if name[:1] in ("l", "r") and mirror in names else ""
+
+    def key(a, b):
+        """The pair's name, side-free with ``symmetric``: lf-rm and rf-lm are one."""
+        if not symmetric:
+            return (names[a], names[b], "")
+        ends = sorted(n[1:] if side(n) else n for n in (names[a], names[b]))
+        return (*ends, "same" if side(names[a]) == side(names[b]) else "cross")
+
+    keys = [key(a, b) for a, b in zip(bi, bj)]
+    _, group = np.unique(np.array(keys), axis=0, return_inverse=True)
+    group = np.asarray(group).ravel()
+    offsets = (np.arange(n_frames) * n_q)[:, None]
+    return ((offsets + position[bi][None]).ravel(), (offsets + position[bj][None]).ravel(),
+            np.tile(start, n_frames), np.tile(group, n_frames))
+
+
+def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
+    if points_to_use is None:
+        return np.arange(n_points)
+    if skeleton is None:
+        raise ValueError("points_to_use names points: pass the skeleton too")
+    names = list(skeleton.point_names)
+    unknown = [p for p in points_to_use if p not in names]
+    if unknown:
+        raise ConfigError(
+            f"bundle_adjustment.points_to_use: unknown point(s) {', '.join(map(repr, unknown))}; "
+            f"use names from skeleton.point_names")
+    if not points_to_use:
+        raise ConfigError("bundle_adjustment.points_to_use is empty; list at least two points "
+                          "or remove the key to use all points")
+    return np.array(sorted({names.index(p) for p in points_to_use}), int)
+
+
+def bundle_adjust_from_config(
+    config: "Config",
+    cameras: "CameraGroup",
+    pts2d: np.ndarray,
+    conf: np.ndarray | None = None,
+) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+    """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
+
+    Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
+    ``shared``, ``solver``, ``distortion``, outlier rounds, ``reseed_px``, bone lengths,
+    ``rigid_points`` ...) is passed on; the remaining flat keys (``max_nfev``, ``loss``,
+    ``f_scale``, ...) go to the solver. Bones come from :meth:`Config.skeleton`.
+
+    Returns
+    -------
+    result, cameras, pts3d
+        As :func:`bundle_adjust_sequence`.
+    """
+    params = config.bundle_adjustment
+    skeleton = config.skeleton()
+    names = set(skeleton.point_names)
+    return bundle_adjust_sequence(
+        cameras, pts2d, conf, skeleton,
+        points_to_use=params.points_to_use, max_frames=params.max_frames,
+        frame_sampling=params.frame_sampling, weigh_by_confidence=params.weigh_by_confidence,
+        fixed=params.fixed, shared=params.shared, solver=params.solver,
+        distortion=params.distortion, max_rounds=params.max_rounds,
+        outlier_factor=params.outlier_factor, outlier_min_px=params.outlier_min_px,
+        reseed_px=params.reseed_px, bone_lengths=params.bone_lengths,
+        symmetric_bones=params.symmetric_bones, length_weight=params.length_weight,
+        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points
+        else (), warn_ratio=params.warn_ratio, **dict(params.least_squares))
