@@ -42,7 +42,7 @@ localrules:
 
 
 rule all:
+    default_target: True
     input:
         all_targets(),
         EXPORT_TARGETS,
-    default_target: True

@@ -42,8 +42,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from synthetic import (  # noqa: E402
-    POINT_NAMES, default_rig, observe, perturb_rig, rig_visibility, synthetic_fly)
+from synthetic import POINT_NAMES, default_rig, observe, perturb_rig, rig_visibility, synthetic_fly  # noqa: E402
 
 _t0 = time.perf_counter()
 from flylib.bundle_adjustment import bundle_adjust  # noqa: E402
@@ -58,8 +57,7 @@ def build_problem():
     truth = synthetic_fly(200, seed=0)
     # the 30 leg points (both sides), as in the default points_to_use
     legs = np.array([p for p in range(38) if p % 19 < 15])
-    pts2d, _ = observe(truth[:, legs], rig, noise_px=1.0, outlier_frac=0.0,
-                       visibility=None, seed=0)
+    pts2d, _ = observe(truth[:, legs], rig, noise_px=1.0, outlier_frac=0.0, visibility=None, seed=0)
     vis = rig_visibility(rig.names, [POINT_NAMES[p] for p in legs])
     pts2d = np.where(vis[:, None, :, None], pts2d, np.nan).reshape(7, -1, 2)
     start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=1)
@@ -70,15 +68,23 @@ def run(start, pts2d, label, **kwargs):
     t0 = time.perf_counter()
     result, _, _ = bundle_adjust(start, pts2d, fixed=["*.intr"], **kwargs)
     seconds = time.perf_counter() - t0
-    print(f"{label:<48s} {seconds:7.3f} s  cost {result.cost:10.2f}  nfev {result.nfev:3d}"
-          f"  median {result.final_median_px:.3f} px", flush=True)
+    print(
+        f"{label:<48s} {seconds:7.3f} s  cost {result.cost:10.2f}  nfev {result.nfev:3d}"
+        f"  median {result.final_median_px:.3f} px",
+        flush=True,
+    )
     return seconds, result
 
 
 def first_call_in_fresh_process(label: str, env: dict) -> float:
     """Run this script with ``--first-call`` in a new interpreter; its time in seconds."""
-    out = subprocess.run([sys.executable, __file__, "--first-call", label], env=env,
-                         check=True, capture_output=True, text=True).stdout
+    out = subprocess.run(
+        [sys.executable, __file__, "--first-call", label],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
     print(out, end="")
     return float(out.splitlines()[0].split(" s  cost")[0].split()[-1])
 
@@ -90,21 +96,29 @@ def rough_case(hard: bool, frames: int) -> None:
     from rough_rig import fit_with_default_config, make_case
 
     case = make_case(frames, hard=hard)
-    print(f"rough case{' (hard)' if hard else ''}: {frames} frames, median bone "
-          f"{case.bone:.3f} units; fitting 200 frames of the 30 leg points", flush=True)
+    print(
+        f"rough case{' (hard)' if hard else ''}: {frames} frames, median bone "
+        f"{case.bone:.3f} units; fitting 200 frames of the 30 leg points",
+        flush=True,
+    )
     # JIT: compile the Jacobian kernel once, timed apart from the fits
     t0 = time.perf_counter()
     from flylib.bundle_adjustment.solver import project_rows_with_jac
 
     project_rows_with_jac(np.zeros((1, 3)) + [0, 0, 100.0], np.zeros((1, 15)) + 1.0)
-    print(f"JIT compile of the Jacobian kernel: {time.perf_counter() - t0:.2f} s "
-          f"(import {IMPORT_S:.2f} s)", flush=True)
+    print(
+        f"JIT compile of the Jacobian kernel: {time.perf_counter() - t0:.2f} s "
+        f"(import {IMPORT_S:.2f} s)",
+        flush=True,
+    )
     from rough_rig import PREVIOUS_DEFAULTS
 
-    runs = [("default config", {}, False),
-            ("baseline: pre-issue-12 defaults (scipy, no bones)", PREVIOUS_DEFAULTS, False),
-            ("default config, from the true rig", {}, True),
-            ("baseline, from the true rig", PREVIOUS_DEFAULTS, True)]
+    runs = [
+        ("default config", {}, False),
+        ("baseline: pre-issue-12 defaults (scipy, no bones)", PREVIOUS_DEFAULTS, False),
+        ("default config, from the true rig", {}, True),
+        ("baseline, from the true rig", PREVIOUS_DEFAULTS, True),
+    ]
     if hard:  # the baselines grind here; the target is the default config's
         runs = runs[:1]
     for label, overrides, from_truth in runs:
@@ -112,16 +126,23 @@ def rough_case(hard: bool, frames: int) -> None:
             warnings.simplefilter("always")
             t0 = time.perf_counter()
             result, _, _, err = fit_with_default_config(
-                case, case.rig if from_truth else None, **overrides)
+                case, case.rig if from_truth else None, **overrides
+            )
             seconds = time.perf_counter() - t0
         report = result.report
-        weakest = ("n/a" if report["weakest_direction"] is None
-                   else f"{report['weakest_direction']:.1e}")
-        print(f"{label:<46s} {seconds:7.2f} s  3D error {np.nanmedian(err):.4f} bones  "
-              f"reprojection {result.final_median_px:.2f} px  rounds {result.rounds}  "
-              f"weakest {weakest}", flush=True)
-        print(f"    kept per camera {report['kept_fraction']}  reseeded {report['reseeded']}"
-              f"  rigid {report.get('rigid')}")
+        weakest = (
+            "n/a" if report["weakest_direction"] is None else f"{report['weakest_direction']:.1e}"
+        )
+        print(
+            f"{label:<46s} {seconds:7.2f} s  3D error {np.nanmedian(err):.4f} bones  "
+            f"reprojection {result.final_median_px:.2f} px  rounds {result.rounds}  "
+            f"weakest {weakest}",
+            flush=True,
+        )
+        print(
+            f"    kept per camera {report['kept_fraction']}  reseeded {report['reseeded']}"
+            f"  rigid {report.get('rigid')}"
+        )
         for w in caught:
             if "bundle adjustment" in str(w.message):
                 print(f"    warning: {str(w.message)[:160]}")
@@ -130,10 +151,17 @@ def rough_case(hard: bool, frames: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--first-call", metavar="LABEL", help=argparse.SUPPRESS)
-    parser.add_argument("--case", choices=("easy", "rough"), default="easy",
-                        help="easy: today's case (default); rough: issue 12's realistic case")
-    parser.add_argument("--hard", action="store_true",
-                        help="with --case rough: blind front camera, 3 deg aim errors")
+    parser.add_argument(
+        "--case",
+        choices=("easy", "rough"),
+        default="easy",
+        help="easy: today's case (default); rough: issue 12's realistic case",
+    )
+    parser.add_argument(
+        "--hard",
+        action="store_true",
+        help="with --case rough: blind front camera, 3 deg aim errors",
+    )
     parser.add_argument("--frames", type=int, default=300, help="frames of the rough case")
     args = parser.parse_args()
     if args.case == "rough":
@@ -157,16 +185,31 @@ def main() -> None:
     run(start, pts2d, "first call in this process", reject_outliers=False)
     warm, res = run(start, pts2d, "JIT excluded (second call)", reject_outliers=False)
     run(start, pts2d, "with outlier rounds (default)")
-    run(start, pts2d, "solver scipy (least_squares), JAX Jacobian", reject_outliers=False,
-        solver="scipy")
-    fd, res_fd = run(start, pts2d, "baseline: scipy, finite differences + jac_sparsity",
-                     reject_outliers=False, solver="scipy", jac="2-point")
+    run(
+        start,
+        pts2d,
+        "solver scipy (least_squares), JAX Jacobian",
+        reject_outliers=False,
+        solver="scipy",
+    )
+    fd, res_fd = run(
+        start,
+        pts2d,
+        "baseline: scipy, finite differences + jac_sparsity",
+        reject_outliers=False,
+        solver="scipy",
+        jac="2-point",
+    )
     for label, first in (("empty cache", cold), ("warm cache", warm_cache)):
-        print(f"JIT included, {label}: {first:.3f} s (JIT cost {first - warm:.3f} s); "
-              f"vs target {TARGET_S} s: {first / TARGET_S:.2f}x "
-              f"({'meets' if first <= TARGET_S else 'misses'} target)")
-    print(f"speed-up over finite differences (warm): {fd / warm:.2f}x; "
-          f"final cost ratio (JAX / FD): {res.cost / res_fd.cost:.4f}")
+        print(
+            f"JIT included, {label}: {first:.3f} s (JIT cost {first - warm:.3f} s); "
+            f"vs target {TARGET_S} s: {first / TARGET_S:.2f}x "
+            f"({'meets' if first <= TARGET_S else 'misses'} target)"
+        )
+    print(
+        f"speed-up over finite differences (warm): {fd / warm:.2f}x; "
+        f"final cost ratio (JAX / FD): {res.cost / res_fd.cost:.4f}"
+    )
 
 
 if __name__ == "__main__":

@@ -84,7 +84,10 @@ def make_clip(path: Path, n_frames: int, seed: int = 0) -> Path:
             for (cx, cy), (vx, vy) in zip(centres, speeds):
                 x0 = (cx + vx * t) % FRAME_W
                 y0 = (cy + vy * t) % FRAME_H
-                sl = (slice(max(0, int(y0) - 30), int(y0) + 30), slice(max(0, int(x0) - 30), int(x0) + 30))
+                sl = (
+                    slice(max(0, int(y0) - 30), int(y0) + 30),
+                    slice(max(0, int(x0) - 30), int(x0) + 30),
+                )
                 frame[sl] += 150 * np.exp(-((xx[sl] - x0) ** 2 + (yy[sl] - y0) ** 2) / 200.0)
             gray = frame.clip(0, 255).astype(np.uint8)
             writer.write_frame(np.repeat(gray[..., None], 3, axis=-1))
@@ -96,21 +99,37 @@ def plan_data(checkpoint: Path, batch_size: int, precision: str, device: str) ->
     points = [f"l{i}" for i in range(19)] + [f"r{i}" for i in range(19)]
     views = [f"cam{i}" for i in range(N_SOURCES)]
     pathways = [{"name": f"p{i}", "source": f"vid{i}", "model": "hg"} for i in range(4)]
-    pathways += [{"name": f"p{i}_flip", "source": f"vid{i}", "preprocessor": "flip", "model": "hg"} for i in range(3, 7)]
+    pathways += [
+        {"name": f"p{i}_flip", "source": f"vid{i}", "preprocessor": "flip", "model": "hg"}
+        for i in range(3, 7)
+    ]
     output_points = {v: {} for v in views}
     for p in pathways:
         view = f"cam{p['source'][3:]}"
         side = "l" if "flip" in p["name"] else "r"
-        output_points[view].update({f"{side}{c}": {"pathway": p["name"], "out_channel": c} for c in range(19)})
+        output_points[view].update(
+            {f"{side}{c}": {"pathway": p["name"], "out_channel": c} for c in range(19)}
+        )
     return {
         "sources": [{"name": f"vid{i}", "filename": f"camera_{i}.mp4"} for i in range(N_SOURCES)],
         "skeleton": {"point_names": points},
         "cameras": {v: {} for v in views},
         "pose2d": {
-            "precision": precision, "batch_size": batch_size, "decode_buffer": 4, "device": device,
+            "precision": precision,
+            "batch_size": batch_size,
+            "decode_buffer": 4,
+            "device": device,
             "preprocessors": [{"name": "flip", "ops": [{"op": "fliplr"}]}],
-            "models": [{"name": "hg", "class": "hourglass", "weights": str(checkpoint),
-                        "input_size": [256, 512], "mean": 0.22, "n_out_channels": 19}],
+            "models": [
+                {
+                    "name": "hg",
+                    "class": "hourglass",
+                    "weights": str(checkpoint),
+                    "input_size": [256, 512],
+                    "mean": 0.22,
+                    "n_out_channels": 19,
+                }
+            ],
             "pathways": pathways,
             "output_points": output_points,
         },
@@ -165,8 +184,10 @@ def bench_decode(clip: Path, frames: int, block: int, gpu: bool) -> tuple[float,
 
 
 def _bench_prefetch(clip: Path, block: int, pin: bool, raw_yuv: bool) -> tuple[float, int]:
-    prefetchers = [stream.BlockPrefetcher(f"s{i}", [clip], block_size=block, depth=4, pin=pin, raw_yuv=raw_yuv)
-                   for i in range(N_SOURCES)]
+    prefetchers = [
+        stream.BlockPrefetcher(f"s{i}", [clip], block_size=block, depth=4, pin=pin, raw_yuv=raw_yuv)
+        for i in range(N_SOURCES)
+    ]
     t = time.perf_counter()
     for p in prefetchers:
         p.start()
@@ -192,7 +213,9 @@ def n_parameters(stacks: int) -> int:
     return sum(p.numel() for p in HourglassNet(num_stacks=stacks).parameters())
 
 
-def bench_decode_methods(device: torch.device, batch: int, seconds: float = 1.0) -> dict[str, float]:
+def bench_decode_methods(
+    device: torch.device, batch: int, seconds: float = 1.0
+) -> dict[str, float]:
     """Images/s of arg-max + sub-pixel decoding of ``batch`` 19x64x128 heatmaps per method."""
     gen = torch.Generator().manual_seed(0)
     hm = torch.rand(batch, 19, 64, 128, generator=gen).to(device)
@@ -211,7 +234,9 @@ def bench_decode_methods(device: torch.device, batch: int, seconds: float = 1.0)
 
 def bench_forward(model: LoadedModel, batch: int, seconds: float) -> float:
     """Images/s of the network alone on preprocessed input."""
-    x = model.preprocess(torch.randint(0, 255, (batch, FRAME_H, FRAME_W, 3), dtype=torch.uint8, device=model.device))
+    x = model.preprocess(
+        torch.randint(0, 255, (batch, FRAME_H, FRAME_W, 3), dtype=torch.uint8, device=model.device)
+    )
     for _ in range(3):
         model.heatmaps(x)
     sync(model.device)
@@ -231,8 +256,9 @@ def bench_end_to_end(plan, model, clip: Path, frames: int, batch: int):
     # carries compile/cudnn autotuning, so time from the second run
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    out = stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4,
-                               timings=timings)
+    out = stream.run_detection(
+        plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4, timings=timings
+    )
     sync(model.device)
     dt = time.perf_counter() - t
     n_images = frames * len(plan.active_pathways())
@@ -240,7 +266,9 @@ def bench_end_to_end(plan, model, clip: Path, frames: int, batch: int):
     return n_images / dt, frames / dt, out.pts2d, shares
 
 
-def bench_memory(plan, model, clips: dict[int, Path], batch: int, full: bool) -> dict[int, tuple[int, int]]:
+def bench_memory(
+    plan, model, clips: dict[int, Path], batch: int, full: bool
+) -> dict[int, tuple[int, int]]:
     """Peak RSS (and its rise over the pre-run RSS) streaming each clip length."""
     out = {}
     for n, clip in clips.items():
@@ -251,7 +279,10 @@ def bench_memory(plan, model, clips: dict[int, Path], batch: int, full: bool) ->
         if full:
             stream.run_detection(plan, {"hg": model}, sources, batch_size=batch, decode_buffer=4)
         else:  # decode threads + torch preprocessing of every pathway, no network
-            prefetchers = {s: stream.BlockPrefetcher(s, sources[s], block_size=batch, depth=4) for s in plan.sources}
+            prefetchers = {
+                s: stream.BlockPrefetcher(s, sources[s], block_size=batch, depth=4)
+                for s in plan.sources
+            }
             for p in prefetchers.values():
                 p.start()
             while True:
@@ -272,19 +303,43 @@ def bench_memory(plan, model, clips: dict[int, Path], batch: int, full: bool) ->
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="auto", help="auto, cpu, cuda, mps")
-    ap.add_argument("--precision", default=None, help="comma list (default: bfloat16,float16,float32 on CUDA; float32 on CPU)")
-    ap.add_argument("--batch-sizes", default=None, help="comma list (default: 32,64,128 on CUDA; 4 on CPU)")
-    ap.add_argument("--stacks", type=int, default=None, help="hourglass stacks (default 8 on CUDA, 1 on CPU)")
-    ap.add_argument("--frames", type=int, default=None, help="clip length for decode/end-to-end (default 1000 CUDA, 16 CPU)")
+    ap.add_argument(
+        "--precision",
+        default=None,
+        help="comma list (default: bfloat16,float16,float32 on CUDA; float32 on CPU)",
+    )
+    ap.add_argument(
+        "--batch-sizes", default=None, help="comma list (default: 32,64,128 on CUDA; 4 on CPU)"
+    )
+    ap.add_argument(
+        "--stacks", type=int, default=None, help="hourglass stacks (default 8 on CUDA, 1 on CPU)"
+    )
+    ap.add_argument(
+        "--frames",
+        type=int,
+        default=None,
+        help="clip length for decode/end-to-end (default 1000 CUDA, 16 CPU)",
+    )
     ap.add_argument("--compile", default="auto", choices=["auto", "on", "off", "both"])
-    ap.add_argument("--compile-mode", default="reduce-overhead", choices=["reduce-overhead", "max-autotune"],
-                    help="torch.compile mode of compiled runs (flylib uses reduce-overhead: CUDA graphs)")
-    ap.add_argument("--freezing", action="store_true",
-                    help="Inductor freezing (constant-folds weights, folds BatchNorm into convolutions)")
+    ap.add_argument(
+        "--compile-mode",
+        default="reduce-overhead",
+        choices=["reduce-overhead", "max-autotune"],
+        help="torch.compile mode of compiled runs (flylib uses reduce-overhead: CUDA graphs)",
+    )
+    ap.add_argument(
+        "--freezing",
+        action="store_true",
+        help="Inductor freezing (constant-folds weights, folds BatchNorm into convolutions)",
+    )
     ap.add_argument("--forward-seconds", type=float, default=3.0)
-    ap.add_argument("--memory-frames", default="500,5000", help="the two clip lengths compared ('' to skip)")
+    ap.add_argument(
+        "--memory-frames", default="500,5000", help="the two clip lengths compared ('' to skip)"
+    )
     ap.add_argument("--memory-mode", default="auto", choices=["auto", "full", "decode"])
-    ap.add_argument("--workdir", default=None, help="where to write the synthetic clips (default: a temp dir)")
+    ap.add_argument(
+        "--workdir", default=None, help="where to write the synthetic clips (default: a temp dir)"
+    )
     args = ap.parse_args(argv)
 
     device = select_device(args.device)
@@ -293,7 +348,9 @@ def main(argv=None) -> None:
     batches = [int(b) for b in (args.batch_sizes or ("32,64,128" if cuda else "4")).split(",")]
     stacks = args.stacks or (8 if cuda else 1)
     frames = args.frames or (1000 if cuda else 16)
-    compile_modes = {"auto": [cuda], "on": [True], "off": [False], "both": [False, True]}[args.compile]
+    compile_modes = {"auto": [cuda], "on": [True], "off": [False], "both": [False, True]}[
+        args.compile
+    ]
     if args.freezing:
         # bound to its own name: a bare `import torch._inductor.config` would make
         # `torch` a local of main() and unbound everywhere else in it
@@ -305,10 +362,16 @@ def main(argv=None) -> None:
         torch.backends.cudnn.allow_tf32 = True
         print(f"device: {torch.cuda.get_device_name()}  torch {torch.__version__}")
     else:
-        print(f"device: {device} ({torch.get_num_threads()} torch threads, {os.cpu_count()} cpus)  torch {torch.__version__}")
-    print(f"hourglass: {stacks} stacks, 256x512 input, 19 channels; plan: {N_SOURCES} sources, 8 pathways")
+        print(
+            f"device: {device} ({torch.get_num_threads()} torch threads, {os.cpu_count()} cpus)  torch {torch.__version__}"
+        )
+    print(
+        f"hourglass: {stacks} stacks, 256x512 input, 19 channels; plan: {N_SOURCES} sources, 8 pathways"
+    )
     if cuda:
-        print(f"compiled runs: mode {args.compile_mode}{', Inductor freezing' if args.freezing else ''}")
+        print(
+            f"compiled runs: mode {args.compile_mode}{', Inductor freezing' if args.freezing else ''}"
+        )
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="flylib-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -317,20 +380,28 @@ def main(argv=None) -> None:
     print(f"synthetic clip: {frames} frames 960x480 in {time.perf_counter() - t:.1f} s")
 
     single, parallel, parallel_rgb = bench_decode(clip, frames, block=max(batches), gpu=cuda)
-    print(f"\ndecode: {single:8.0f} frames/s one source (RGB) | {parallel:8.0f} frames/s total over {N_SOURCES} "
-          f"parallel sources{' (YUV, converted on the GPU)' if cuda else ''} = {parallel / N_SOURCES:.0f} recording "
-          f"frames/s = {parallel / N_SOURCES * 8:.0f} pathway images/s")
+    print(
+        f"\ndecode: {single:8.0f} frames/s one source (RGB) | {parallel:8.0f} frames/s total over {N_SOURCES} "
+        f"parallel sources{' (YUV, converted on the GPU)' if cuda else ''} = {parallel / N_SOURCES:.0f} recording "
+        f"frames/s = {parallel / N_SOURCES * 8:.0f} pathway images/s"
+    )
     if cuda:
-        print(f"        {parallel_rgb:8.0f} frames/s total over {N_SOURCES} sources when converting to RGB on the CPU")
+        print(
+            f"        {parallel_rgb:8.0f} frames/s total over {N_SOURCES} sources when converting to RGB on the CPU"
+        )
 
     gflop = flops_per_image(stacks) / 1e9
-    print(f"forward cost: {gflop:.1f} GFLOP per 256x512 image ({gflop / 2:.1f} G multiply-adds), "
-          f"{n_parameters(stacks):,} parameters")
+    print(
+        f"forward cost: {gflop:.1f} GFLOP per 256x512 image ({gflop / 2:.1f} G multiply-adds), "
+        f"{n_parameters(stacks):,} parameters"
+    )
 
     rates = bench_decode_methods(device, max(batches))
     base = rates["parabola"]
-    print("decode heatmaps (arg-max + sub-pixel), images/s: " + ", ".join(
-        f"{m} {r:,.0f} ({r / base:.2f}x parabola)" for m, r in rates.items()))
+    print(
+        "decode heatmaps (arg-max + sub-pixel), images/s: "
+        + ", ".join(f"{m} {r:,.0f} ({r / base:.2f}x parabola)" for m, r in rates.items())
+    )
 
     torch.manual_seed(0)
     checkpoint = work / "random.tar"
@@ -339,20 +410,32 @@ def main(argv=None) -> None:
     save_checkpoint(HourglassNet(num_stacks=stacks), checkpoint)
     from flylib.pose2d.weights import load_hourglass
 
-    print("\n precision  batch compile | forward img/s  TFLOP/s  %bf16peak | end-to-end img/s  frames/s  bound")
+    print(
+        "\n precision  batch compile | forward img/s  TFLOP/s  %bf16peak | end-to-end img/s  frames/s  bound"
+    )
     best = (0.0, None)
     points = {}
     for precision in precisions:
         for batch in batches:
             for compiled in compile_modes:
-                plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precision, str(device)))
-                model = LoadedModel(plan.models["hg"], load_hourglass(checkpoint), device,
-                                    precision=precision, batch_size=batch, compiled=compiled and cuda)
+                plan = DetectionPlan.from_config(
+                    plan_data(checkpoint, batch, precision, str(device))
+                )
+                model = LoadedModel(
+                    plan.models["hg"],
+                    load_hourglass(checkpoint),
+                    device,
+                    precision=precision,
+                    batch_size=batch,
+                    compiled=compiled and cuda,
+                )
                 if model.compiled and args.compile_mode != "reduce-overhead":
                     model._forward = torch.compile(model.net, dynamic=False, mode=args.compile_mode)
                 try:
                     fwd = bench_forward(model, batch, args.forward_seconds)
-                    bench_end_to_end(plan, model, clip, frames, batch) if compiled else None  # warm compile
+                    bench_end_to_end(
+                        plan, model, clip, frames, batch
+                    ) if compiled else None  # warm compile
                     e2e, fps, pts, shares = bench_end_to_end(plan, model, clip, frames, batch)
                 except torch.OutOfMemoryError:
                     print(f" {precision:9s} {batch:6d} {str(compiled):7s} | out of memory")
@@ -360,23 +443,32 @@ def main(argv=None) -> None:
                     continue
                 tflops = fwd * gflop / 1e3
                 bound = "decode" if parallel / N_SOURCES * 8 < 1.15 * e2e else "network"
-                print(f" {precision:9s} {batch:6d} {str(compiled):7s} | {fwd:13.1f} {tflops:8.2f} {100 * tflops / H100_BF16_PEAK_TFLOPS:9.2f}"
-                      f"  | {e2e:16.1f} {fps:9.1f}  {bound}")
-                print("     detection loop: " + ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())
-                      + f", other {100 * (1 - sum(shares.values())):.0f}% of the wall time")
+                print(
+                    f" {precision:9s} {batch:6d} {str(compiled):7s} | {fwd:13.1f} {tflops:8.2f} {100 * tflops / H100_BF16_PEAK_TFLOPS:9.2f}"
+                    f"  | {e2e:16.1f} {fps:9.1f}  {bound}"
+                )
+                print(
+                    "     detection loop: "
+                    + ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())
+                    + f", other {100 * (1 - sum(shares.values())):.0f}% of the wall time"
+                )
                 points[(precision, batch)] = pts
                 if e2e > best[0]:
                     best = (e2e, (precision, batch, compiled))
                 del model
                 if cuda:
                     torch.cuda.empty_cache()
-    print(f"\nbest end-to-end: {best[0]:.0f} images/s with {best[1]} (target on H100: >= 1500 bf16)")
+    print(
+        f"\nbest end-to-end: {best[0]:.0f} images/s with {best[1]} (target on H100: >= 1500 bf16)"
+    )
     for (precision, batch), pts in points.items():
         ref = points.get(("float32", batch))
         if precision != "float32" and ref is not None:
             moved = np.linalg.norm(pts - ref, axis=-1)
-            print(f"{precision} vs float32 points (batch {batch}, random weights): median shift "
-                  f"{np.nanmedian(moved):.2f} px, {np.nanmean(moved < 1.0) * 100:.0f}% within 1 px")
+            print(
+                f"{precision} vs float32 points (batch {batch}, random weights): median shift "
+                f"{np.nanmedian(moved):.2f} px, {np.nanmean(moved < 1.0) * 100:.0f}% within 1 px"
+            )
 
     if args.memory_frames:
         lengths = [int(n) for n in args.memory_frames.split(",")]
@@ -388,12 +480,22 @@ def main(argv=None) -> None:
             print(f"memory clip {n} frames written in {time.perf_counter() - t:.1f} s")
         batch = batches[0]
         plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precisions[0], str(device)))
-        model = LoadedModel(plan.models["hg"], load_hourglass(checkpoint), device,
-                            precision=precisions[0], batch_size=batch, compiled=False)
+        model = LoadedModel(
+            plan.models["hg"],
+            load_hourglass(checkpoint),
+            device,
+            precision=precisions[0],
+            batch_size=batch,
+            compiled=False,
+        )
         result = bench_memory(plan, model, clips, batch, full)
-        print(f"\nmemory ({'full detection' if full else 'decode + preprocessing'}, batch {batch}, buffer 4):")
+        print(
+            f"\nmemory ({'full detection' if full else 'decode + preprocessing'}, batch {batch}, buffer 4):"
+        )
         for n, (peak, rise) in result.items():
-            print(f"  {n:6d} frames: peak RSS {peak / 2**20:8.0f} MiB (+{rise / 2**20:6.0f} MiB over the start)")
+            print(
+                f"  {n:6d} frames: peak RSS {peak / 2**20:8.0f} MiB (+{rise / 2**20:6.0f} MiB over the start)"
+            )
         small, large = result[lengths[0]][0], result[lengths[-1]][0]
         print(f"  ratio {lengths[-1]}/{lengths[0]} frames: {large / small:.2f}x (target <= 2x)")
 

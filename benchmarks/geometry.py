@@ -70,9 +70,12 @@ def main() -> None:
     pts2d = plain.project(pts3d)
 
     timings = {
-        "ba-jacobian (2,048 obs)": _best(lambda: jax.block_until_ready(jac_kernel(pts, rows)), args.repeat),
+        "ba-jacobian (2,048 obs)": _best(
+            lambda: jax.block_until_ready(jac_kernel(pts, rows)), args.repeat
+        ),
         "project_full (JAX, 380k x 7)": _best(
-            lambda: jax.block_until_ready(geometry.project_full(pts3d, rvecs, tvecs, intrs, dists)), args.repeat
+            lambda: jax.block_until_ready(geometry.project_full(pts3d, rvecs, tvecs, intrs, dists)),
+            args.repeat,
         ),
         "group.project (NumPy, 380k x 7)": _best(lambda: rig.project(pts3d), args.repeat),
         "rodrigues-np (100k)": _best(lambda: geometry.rvec_to_rmat_numpy(many_rvecs), args.repeat),

@@ -36,18 +36,20 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=60, help="frame switches / edits timed")
     args = parser.parse_args(argv)
 
-    from gui_fixtures import make_demo_outputs
-
     from flylib.gui import ReviewSession
     from flylib.io import open_reader
     from flylib.triangulation import reconstruct_from_config
+
+    from gui_fixtures import make_demo_outputs
 
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:
         started = time.perf_counter()
         out = make_demo_outputs(Path(tmp) / "rec", frames=args.frames)
-        print(f"demo recording: {args.frames} frames x 7 views of 960x480 "
-              f"(made in {time.perf_counter() - started:.1f} s)")
+        print(
+            f"demo recording: {args.frames} frames x 7 views of 960x480 "
+            f"(made in {time.perf_counter() - started:.1f} s)"
+        )
         session = ReviewSession(out, cache_frames=8)
         views = session.view_names
         pool = ThreadPoolExecutor(len(views))  # the browser asks for the 7 views at once
@@ -66,8 +68,10 @@ def main(argv=None) -> int:
         cached = [switch(t) for t in targets[-1:-6:-1]]
         print(f"frame switch, next frame (scrubbing):     {stats(forward)}")
         gop = np.diff(session.frames[views[0]]._frames.keyframes)
-        print(f"frame switch, random jump (seek):         {stats(jumps)} "
-              f"(keyframe interval of the demo videos: {int(gop.max()) if len(gop) else args.frames} frames)")
+        print(
+            f"frame switch, random jump (seek):         {stats(jumps)} "
+            f"(keyframe interval of the demo videos: {int(gop.max()) if len(gop) else args.frames} frames)"
+        )
         print(f"frame switch, recently seen (LRU cache):  {stats(cached)}")
 
         # n: next suspect, after a pause on the current frame (the prefetcher works then)
@@ -84,7 +88,9 @@ def main(argv=None) -> int:
                 break
             hops.append(switch(nxt))
             frame = nxt
-        print(f"frame switch, n to the next suspect:      {stats(hops)} (prefetched during a 1 s look)")
+        print(
+            f"frame switch, n to the next suspect:      {stats(hops)} (prefetched during a 1 s look)"
+        )
 
         files = {v: session.frames[v]._frames.reader.path for v in views}
 
@@ -102,8 +108,10 @@ def main(argv=None) -> int:
 
         base_forward = [baseline(t) for t in range(1, min(n, 20) + 1)]
         print(f"baseline, a fresh reader per frame, next: {stats(base_forward)}")
-        print(f"  persistent decoder vs baseline (next frame): "
-              f"{np.median(base_forward) / np.median(forward):.1f}x faster")
+        print(
+            f"  persistent decoder vs baseline (next frame): "
+            f"{np.median(base_forward) / np.median(forward):.1f}x faster"
+        )
 
         # edits: move one well-seen point by a few pixels
         seen = np.isfinite(session.base2d).all(-1)
@@ -133,12 +141,16 @@ def main(argv=None) -> int:
         begin = time.perf_counter()
         reconstruct_from_config(session.config, session.cameras, session.base2d, session.conf)
         whole = (time.perf_counter() - begin) * 1000
-        print(f"baseline, re-triangulating the recording: {whole:6.1f} ms "
-              f"({whole / np.median(solve):.0f}x one edit)")
+        print(
+            f"baseline, re-triangulating the recording: {whole:6.1f} ms "
+            f"({whole / np.median(solve):.0f}x one edit)"
+        )
         session.close()
         pool.shutdown()
-    print("targets: frame switch <= 40 ms, edit <= 20 ms (server time; figures are noisy on a "
-          "shared machine)")
+    print(
+        "targets: frame switch <= 40 ms, edit <= 20 ms (server time; figures are noisy on a "
+        "shared machine)"
+    )
     return 0
 
 

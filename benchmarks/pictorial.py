@@ -22,11 +22,11 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from synthetic import default_rig, observe, project_opencv, synthetic_fly  # noqa: E402
-
 from flylib import pictorial as ps  # noqa: E402
 from flylib.skeleton import Skeleton  # noqa: E402
 from flylib.triangulation import reconstruct_ransac  # noqa: E402
+
+from synthetic import default_rig, observe, project_opencv, synthetic_fly  # noqa: E402
 
 N_FRAMES, K, TARGET_FPS = 400, 5, 200.0
 
@@ -39,8 +39,10 @@ def main() -> None:
     mirrored = project_opencv(rig, truth[:, [(i + 19) % 38 for i in range(38)]])
     rng = np.random.default_rng(1)
     peaks = [pts2d, np.where(np.isfinite(pts2d), mirrored, np.nan)]
-    peaks += [np.where(np.isfinite(pts2d), rng.random(pts2d.shape) * [960, 480], np.nan)
-              for _ in range(K - 2)]
+    peaks += [
+        np.where(np.isfinite(pts2d), rng.random(pts2d.shape) * [960, 480], np.nan)
+        for _ in range(K - 2)
+    ]
     xy = np.stack(peaks, axis=3)
     score = np.stack([conf * f for f in np.linspace(1.0, 0.2, K)], axis=3)
     targets, scale = ps.solver._prior(rig, skeleton, pts2d, 100)
@@ -54,18 +56,26 @@ def main() -> None:
         print(f"{label:<46s} {fps:8.1f} frames/s")
         return fps
 
-    plain = timed(f"pictorial structures, K={K}",
-                  lambda: ps.solve_frames(rig, xy, score, chains, targets, scale=scale))
-    temporal = timed(f"pictorial structures, K={K}, temporal",
-                     lambda: ps.solve_frames(rig, xy, score, chains, targets, scale=scale,
-                                             temporal=True))
-    full = timed(f"ps.reconstruct (prior + solve + DLT), K={K}",
-                 lambda: ps.reconstruct(rig, skeleton, ps.Candidates(xy, score)))
-    base = timed("baseline: RANSAC triangulation of arg-max",
-                 lambda: reconstruct_ransac(rig, pts2d))
-    print(f"vs target {TARGET_FPS:.0f} frames/s: {plain / TARGET_FPS:.2f}x (temporal "
-          f"{temporal / TARGET_FPS:.2f}x, reconstruct {full / TARGET_FPS:.2f}x); "
-          f"RANSAC is {base / plain:.1f}x faster than PS")
+    plain = timed(
+        f"pictorial structures, K={K}",
+        lambda: ps.solve_frames(rig, xy, score, chains, targets, scale=scale),
+    )
+    temporal = timed(
+        f"pictorial structures, K={K}, temporal",
+        lambda: ps.solve_frames(rig, xy, score, chains, targets, scale=scale, temporal=True),
+    )
+    full = timed(
+        f"ps.reconstruct (prior + solve + DLT), K={K}",
+        lambda: ps.reconstruct(rig, skeleton, ps.Candidates(xy, score)),
+    )
+    base = timed(
+        "baseline: RANSAC triangulation of arg-max", lambda: reconstruct_ransac(rig, pts2d)
+    )
+    print(
+        f"vs target {TARGET_FPS:.0f} frames/s: {plain / TARGET_FPS:.2f}x (temporal "
+        f"{temporal / TARGET_FPS:.2f}x, reconstruct {full / TARGET_FPS:.2f}x); "
+        f"RANSAC is {base / plain:.1f}x faster than PS"
+    )
 
 
 if __name__ == "__main__":

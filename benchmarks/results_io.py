@@ -80,28 +80,43 @@ class _Clock:
 def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) -> dict:
     """Stage writes, assembly and load of results.h5, with or without Fletcher-32:
     ``{step: (wall s, cpu s)}``."""
-    skeleton, rig = config.skeleton(), config.camera_group({v: (480, 960) for v in config.view_names()})
+    skeleton, rig = (
+        config.skeleton(),
+        config.camera_group({v: (480, 960) for v in config.view_names()}),
+    )
     results_module._FLETCHER32 = checksums
     try:
         with _Clock() as write:
-            Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(stages / "pose2d.h5", skeleton)
+            Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(
+                stages / "pose2d.h5", skeleton
+            )
             write_stage(
                 stages / "triangulation.h5",
                 "triangulation",
-                {"points": arrays["pts2d"], "points3d": arrays["pts3d"], "reproj_error": arrays["reproj"]},
+                {
+                    "points": arrays["pts2d"],
+                    "points3d": arrays["pts3d"],
+                    "reproj_error": arrays["reproj"],
+                },
             )
         with _Clock() as assemble:
             assemble_results(
                 stages / "results.h5",
                 skeleton=skeleton,
                 config_rig=rig,
-                stage_files={"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
+                stage_files={
+                    "pose2d": stages / "pose2d.h5",
+                    "triangulation": stages / "triangulation.h5",
+                },
             )
     finally:
         results_module._FLETCHER32 = True
     with _Clock() as load:
         PoseResult.load(stages / "results.h5")
-    return {name: (c.wall, c.cpu) for name, c in (("write", write), ("assemble", assemble), ("load", load))}
+    return {
+        name: (c.wall, c.cpu)
+        for name, c in (("write", write), ("assemble", assemble), ("load", load))
+    }
 
 
 def checksum_overhead(n_frames: int, kind: str, workdir: Path, repeat: int) -> None:
@@ -125,16 +140,24 @@ def checksum_overhead(n_frames: int, kind: str, workdir: Path, repeat: int) -> N
         wall = on[key][0] / max(off[key][0], 1e-9) - 1
         cpu = on[key][1] / max(off[key][1], 1e-9) - 1
         ok &= key == "assemble" or min(wall, cpu) < 0.10
-        cells.append(f"{key} wall {off[key][0]:5.2f} -> {on[key][0]:5.2f} s ({wall:+6.1%}), "
-                     f"cpu {off[key][1]:5.2f} -> {on[key][1]:5.2f} s ({cpu:+6.1%})")
-    print(f"[{'PASS' if ok else 'MISS'}] checksums {kind:9s} T={n_frames:>7,d} without -> with Fletcher-32: "
-          + "; ".join(cells) + f" (best of {repeat}; target < 10% on write and load; assemble without "
-          "checksums has nothing to verify)")
+        cells.append(
+            f"{key} wall {off[key][0]:5.2f} -> {on[key][0]:5.2f} s ({wall:+6.1%}), "
+            f"cpu {off[key][1]:5.2f} -> {on[key][1]:5.2f} s ({cpu:+6.1%})"
+        )
+    print(
+        f"[{'PASS' if ok else 'MISS'}] checksums {kind:9s} T={n_frames:>7,d} without -> with Fletcher-32: "
+        + "; ".join(cells)
+        + f" (best of {repeat}; target < 10% on write and load; assemble without "
+        "checksums has nothing to verify)"
+    )
 
 
 def run(n_frames: int, kind: str, workdir: Path) -> None:
     config = Config.default()
-    skeleton, rig = config.skeleton(), config.camera_group({v: (480, 960) for v in config.view_names()})
+    skeleton, rig = (
+        config.skeleton(),
+        config.camera_group({v: (480, 960) for v in config.view_names()}),
+    )
     arrays = make_arrays(config, n_frames, kind, np.random.default_rng(0))
     raw_bytes = sum(a.nbytes for a in arrays.values()) + arrays["pts2d"].nbytes  # 2D stored twice
 
@@ -148,7 +171,9 @@ def run(n_frames: int, kind: str, workdir: Path) -> None:
 
     stages = workdir / kind
     t0 = time.perf_counter()
-    Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(stages / "pose2d.h5", skeleton)
+    Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(
+        stages / "pose2d.h5", skeleton
+    )
     write_stage(
         stages / "triangulation.h5",
         "triangulation",
@@ -183,7 +208,9 @@ def run(n_frames: int, kind: str, workdir: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20000)
-    parser.add_argument("--repeat", type=int, default=3, help="runs per checksum setting (best is kept)")
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="runs per checksum setting (best is kept)"
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         for kind in ("grid", "subpixel"):

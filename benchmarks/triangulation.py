@@ -53,8 +53,12 @@ def default_rig() -> CameraGroup:
     else:  # the same numbers, for a checkout without ../shared
         cams = {
             "defaults": {"focal_length_px": 22388.125, "distance": 107.463},
-            **{n: {"azimuth_deg": a} for n, a in zip(
-                ["rh", "rm", "rf", "f", "lf", "lm", "lh"], [-120, -90, -45, 0, 45, 90, 120])},
+            **{
+                n: {"azimuth_deg": a}
+                for n, a in zip(
+                    ["rh", "rm", "rf", "f", "lf", "lm", "lh"], [-120, -90, -45, 0, 45, 90, 120]
+                )
+            },
         }
     names = [n for n in cams if n != "defaults"]
     return CameraGroup.from_config(_Table(cams), image_sizes={n: (480, 960) for n in names})
@@ -141,11 +145,18 @@ def main() -> None:
         loop_dlt_s = _time(loop_dlt, small, pmats, repeat=1)[0] / args.loop_frames
         loop_ransac_s = _time(loop_ransac, small, pmats, repeat=1)[0] / args.loop_frames
         print(f"visibility={visibility}  T={args.frames}  P={N_POINTS}  V={len(rig)}")
-        print("  (wall-clock frames/s; in brackets frames per CPU-second, robust to a loaded machine)")
+        print(
+            "  (wall-clock frames/s; in brackets frames per CPU-second, robust to a loaded machine)"
+        )
         for name, func, loop_s, target in (
             ("dlt", triangulate, loop_dlt_s, "100,000"),
             ("group", lambda cams, pts: cams.triangulate(pts), loop_dlt_s, "100,000"),
-            ("np-dlt", lambda cams, pts: camera_model.dlt_solve(np, pts, cams.pmats), loop_dlt_s, "-"),
+            (
+                "np-dlt",
+                lambda cams, pts: camera_model.dlt_solve(np, pts, cams.pmats),
+                loop_dlt_s,
+                "-",
+            ),
             ("ransac", triangulate_ransac, loop_ransac_s, "20,000"),
             ("greedy", triangulate_greedy, None, "-"),
         ):
@@ -156,7 +167,9 @@ def main() -> None:
                 f"  {name:7s}{1 / wall:10,.0f} frames/s ({1 / cpu:8,.0f})  {vs_loop}   "
                 f"first call {first:5.2f} s   target {target}"
             )
-        print(f"  per-point loop: dlt {1 / loop_dlt_s:,.0f} frames/s, ransac {1 / loop_ransac_s:,.1f} frames/s")
+        print(
+            f"  per-point loop: dlt {1 / loop_dlt_s:,.0f} frames/s, ransac {1 / loop_ransac_s:,.1f} frames/s"
+        )
         # Agreement with the loop on the subset (independent SVD reference).
         ref = loop_dlt(small, pmats)
         got = triangulate(rig, small)

@@ -48,8 +48,13 @@ def make_result(n_frames: int, image_hw=(480, 960)):
     pts3d = synthetic_fly(n_frames)
     pts2d = cameras.project(pts3d)
     pts2d[:, ::17, 3] = np.nan  # some missing points
-    return config, PoseResult(cameras=cameras, skeleton=Skeleton.from_config(config),
-                              pts2d=pts2d, pts3d=pts3d, image_sizes={v: image_hw for v in views})
+    return config, PoseResult(
+        cameras=cameras,
+        skeleton=Skeleton.from_config(config),
+        pts2d=pts2d,
+        pts3d=pts3d,
+        image_sizes={v: image_hw for v in views},
+    )
 
 
 def cpu_seconds() -> float:
@@ -97,21 +102,29 @@ def throughput() -> None:
         t_sep = time.perf_counter() - start
     n_videos = len(config.data["visualization"]["videos"])
     montage_fps = n_frames * n_videos / t_one
-    print(f"throughput: deeperfly-example, {n_frames} frames x 7 views 960x480, "
-          f"{n_videos} default videos (960x960)")
+    print(
+        f"throughput: deeperfly-example, {n_frames} frames x 7 views 960x480, "
+        f"{n_videos} default videos (960x960)"
+    )
     print(f"  decode only (floor)          {n_frames / t_decode:8.1f} recording frames/s")
-    print(f"  render, one pass (flylib)    {n_frames / t_one:8.1f} recording frames/s"
-          f" = {montage_fps:.1f} montage frames/s")
+    print(
+        f"  render, one pass (flylib)    {n_frames / t_one:8.1f} recording frames/s"
+        f" = {montage_fps:.1f} montage frames/s"
+    )
     print(f"  render, one video at a time  {n_frames / t_sep:8.1f} recording frames/s")
-    print(f"  one pass vs separate passes: {t_sep / t_one:.2f}x faster; "
-          f"render / decode time {t_one / t_decode:.2f}")
+    print(
+        f"  one pass vs separate passes: {t_sep / t_one:.2f}x faster; "
+        f"render / decode time {t_one / t_decode:.2f}"
+    )
     print(f"  montage frames/s vs target {TARGET_FPS:g}: {montage_fps / TARGET_FPS:.2f}")
     n_cpu = os.cpu_count() or 1
     cpu_fps = n_frames * n_videos / cpu_one * n_cpu
-    print(f"  CPU time {1000 * cpu_one / (n_frames * n_videos):.1f} ms per montage frame "
-          f"(all threads); CPU-bound rate on {n_cpu} idle cores: {cpu_fps:.1f} montage "
-          f"frames/s ({cpu_fps / TARGET_FPS:.2f} of target); load average now "
-          f"{os.getloadavg()[0]:.1f}")
+    print(
+        f"  CPU time {1000 * cpu_one / (n_frames * n_videos):.1f} ms per montage frame "
+        f"(all threads); CPU-bound rate on {n_cpu} idle cores: {cpu_fps:.1f} montage "
+        f"frames/s ({cpu_fps / TARGET_FPS:.2f} of target); load average now "
+        f"{os.getloadavg()[0]:.1f}"
+    )
 
 
 def make_footage(path: Path, n_frames: int, size=(320, 160)) -> None:
@@ -139,8 +152,9 @@ def memory_child(n_frames: int, clip: Path) -> None:
         render_videos(config, result, {v: [clip] for v in views}, tmp, progress=False)
         seconds = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print(json.dumps({"frames": n_frames, "before_kib": before, "peak_kib": peak,
-                      "seconds": seconds}))
+    print(
+        json.dumps({"frames": n_frames, "before_kib": before, "peak_kib": peak, "seconds": seconds})
+    )
 
 
 def memory(short: int, long: int) -> None:
@@ -149,19 +163,29 @@ def memory(short: int, long: int) -> None:
         make_footage(clip, long)
         rows = []
         for n in (short, long):
-            out = subprocess.run([sys.executable, __file__, "--memory-child", str(n), str(clip)],
-                                 check=True, capture_output=True, text=True)
+            out = subprocess.run(
+                [sys.executable, __file__, "--memory-child", str(n), str(clip)],
+                check=True,
+                capture_output=True,
+                text=True,
+            )
             rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    print("memory: default videos from synthetic footage (320x160 clip upscaled), "
-          "fresh process per run")
+    print(
+        "memory: default videos from synthetic footage (320x160 clip upscaled), "
+        "fresh process per run"
+    )
     for r in rows:
-        print(f"  {r['frames']:6d} frames: peak RSS {r['peak_kib'] / 1024:7.1f} MiB "
-              f"(before render {r['before_kib'] / 1024:7.1f} MiB), "
-              f"{r['frames'] * 2 / r['seconds']:.1f} montage frames/s")
+        print(
+            f"  {r['frames']:6d} frames: peak RSS {r['peak_kib'] / 1024:7.1f} MiB "
+            f"(before render {r['before_kib'] / 1024:7.1f} MiB), "
+            f"{r['frames'] * 2 / r['seconds']:.1f} montage frames/s"
+        )
     ratio = rows[1]["peak_kib"] / rows[0]["peak_kib"]
     growth = (rows[1]["peak_kib"] - rows[1]["before_kib"]) / 1024
-    print(f"  peak ratio {long}/{short} frames: {ratio:.3f} (limit 2.0); "
-          f"render growth at {long} frames: {growth:.1f} MiB")
+    print(
+        f"  peak ratio {long}/{short} frames: {ratio:.3f} (limit 2.0); "
+        f"render growth at {long} frames: {growth:.1f} MiB"
+    )
 
 
 def main() -> None:

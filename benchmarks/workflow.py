@@ -37,8 +37,18 @@ def _children_cpu() -> float:
 def _snakemake(workdir: Path, *args: str, cpu: list | None = None) -> float:
     """Wall-clock seconds of one snakemake call; its CPU seconds are appended to ``cpu``
     (a figure that a busy machine inflates much less than the wall clock)."""
-    cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
-           "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
+    cmd = [
+        str(SNAKEMAKE),
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(workdir / "config.yaml"),
+        "--cores",
+        "2",
+        *args,
+    ]
     cpu_before = _children_cpu()
     start = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -90,8 +100,8 @@ def bench_planning(n: int) -> dict:
 
 
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
-    from flylib.pipeline import stages
     from flylib.demo import demo_import_spec
+    from flylib.pipeline import stages
 
     p2d = stages.artifact_path(out, "pose2d")
     ba = stages.artifact_path(out, "bundle_adjustment")
@@ -99,8 +109,13 @@ def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     stages.run_pose2d(config, rec_dir, p2d, import_spec=demo_import_spec(config))
     stages.run_bundle_adjustment(config, p2d, ba, recording_dir=rec_dir)
     stages.run_triangulation(config, p2d, tri, ba_path=ba, recording_dir=rec_dir)
-    stages.run_assemble(config, {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri}, out,
-                        recording_dir=rec_dir, truth_path=truth)
+    stages.run_assemble(
+        config,
+        {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri},
+        out,
+        recording_dir=rec_dir,
+        truth_path=truth,
+    )
     stages.run_visualization(config, out / "results.h5", rec_dir, out)
 
 
@@ -121,7 +136,12 @@ def bench_overhead(frames: int) -> dict:
         direct_cpu = _children_cpu() - cpu_before
         cpu: list[float] = []
         workflow = _snakemake(root, "--cores", "1", cpu=cpu)
-    return {"direct": direct, "workflow": workflow, "direct cpu": direct_cpu, "workflow cpu": cpu[0]}
+    return {
+        "direct": direct,
+        "workflow": workflow,
+        "direct cpu": direct_cpu,
+        "workflow cpu": cpu[0],
+    }
 
 
 def main() -> None:
@@ -145,24 +165,34 @@ def main() -> None:
         n = args.recordings
         plan = bench_planning(n)
         one, many = plan["1 recording"], plan[f"{n} recordings"]
-        print(f"dry run, 1 recording:   {one:6.2f} s wall, {plan['1 recording cpu']:6.2f} s CPU "
-              "(Snakemake start-up and parse: the baseline)")
-        print(f"dry run, {n} recordings: {many:6.2f} s wall, {plan[f'{n} recordings cpu']:6.2f} s CPU "
-              f"(target < 10 s: {'ok' if many < 10 else 'MISSED'}); "
-              f"{(many - one) / max(n - 1, 1) * 1000:.1f} ms wall per extra recording; "
-              f"ratio to baseline {many / one:.2f}")
+        print(
+            f"dry run, 1 recording:   {one:6.2f} s wall, {plan['1 recording cpu']:6.2f} s CPU "
+            "(Snakemake start-up and parse: the baseline)"
+        )
+        print(
+            f"dry run, {n} recordings: {many:6.2f} s wall, {plan[f'{n} recordings cpu']:6.2f} s CPU "
+            f"(target < 10 s: {'ok' if many < 10 else 'MISSED'}); "
+            f"{(many - one) / max(n - 1, 1) * 1000:.1f} ms wall per extra recording; "
+            f"ratio to baseline {many / one:.2f}"
+        )
         print(f"plan_recordings alone ({n} recordings): {plan['plan_recordings alone']:6.2f} s")
     if args.skip_overhead:
         return
     over = bench_overhead(args.frames)
     ratio = over["workflow"] / over["direct"] - 1
     ratio_cpu = over["workflow cpu"] / over["direct cpu"] - 1
-    print(f"demo ({args.frames} frames), stage functions in one process: "
-          f"{over['direct']:6.2f} s wall, {over['direct cpu']:6.2f} s CPU")
-    print(f"demo ({args.frames} frames), snakemake --cores 1:            "
-          f"{over['workflow']:6.2f} s wall, {over['workflow cpu']:6.2f} s CPU")
-    print(f"workflow overhead: {100 * ratio:.0f} % wall, {100 * ratio_cpu:.0f} % CPU "
-          f"(target < 30 %: {'ok' if ratio < 0.3 else 'MISSED'})")
+    print(
+        f"demo ({args.frames} frames), stage functions in one process: "
+        f"{over['direct']:6.2f} s wall, {over['direct cpu']:6.2f} s CPU"
+    )
+    print(
+        f"demo ({args.frames} frames), snakemake --cores 1:            "
+        f"{over['workflow']:6.2f} s wall, {over['workflow cpu']:6.2f} s CPU"
+    )
+    print(
+        f"workflow overhead: {100 * ratio:.0f} % wall, {100 * ratio_cpu:.0f} % CPU "
+        f"(target < 30 %: {'ok' if ratio < 0.3 else 'MISSED'})"
+    )
 
 
 if __name__ == "__main__":

@@ -32,11 +32,19 @@ _NOT_OPTIONS = ("stage", "config")
 def script_parser(description: str) -> argparse.ArgumentParser:
     """An argument parser with the options every stage script shares."""
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--config", type=Path, default=None,
-                        help="config file (.yaml/.toml) of the run, e.g. config/config.yaml "
-                             "(required when run by hand)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="threads the stage may use (default: the CPUs this process may run on)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="config file (.yaml/.toml) of the run, e.g. config/config.yaml "
+        "(required when run by hand)",
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="threads the stage may use (default: the CPUs this process may run on)",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 
@@ -84,9 +92,14 @@ def _log_to(path: str | Path) -> None:
     os.close(fd)
 
 
-def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace, Any], Any],
-                argv: list[str] | None = None, *, job: Any = None,
-                outdir: Callable[[argparse.Namespace], str | Path] | None = None) -> int:
+def script_main(
+    parser: argparse.ArgumentParser,
+    run: Callable[[argparse.Namespace, Any], Any],
+    argv: list[str] | None = None,
+    *,
+    job: Any = None,
+    outdir: Callable[[argparse.Namespace], str | Path] | None = None,
+) -> int:
     """Parse the arguments (from ``argv``, or from the Snakemake ``job``), load the
     config, and run a stage under the thread budget; a user-facing error is printed as
     one line on stderr and exits with status 1.
@@ -103,8 +116,11 @@ def script_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespa
     args = parser.parse_args(argv)
     if job is None and args.config is None:
         parser.error("the following arguments are required: --config")
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
     from flylib.config import Config
     from flylib.resources import thread_budget
 

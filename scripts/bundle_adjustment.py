@@ -11,9 +11,15 @@ from _cli import output_dir, run_script, script_main, script_parser
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
-    parser.add_argument("--out", required=True, type=Path, help="bundle-adjustment artifact to write")
-    parser.add_argument("--recording", type=Path, default=None,
-                        help="recording directory (resolves a per-session calibration file)")
+    parser.add_argument(
+        "--out", required=True, type=Path, help="bundle-adjustment artifact to write"
+    )
+    parser.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        help="recording directory (resolves a per-session calibration file)",
+    )
 
     def run(args, config):
         run_bundle_adjustment(config, args.pose2d, args.out, recording_dir=args.recording)

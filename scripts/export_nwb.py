@@ -4,18 +4,24 @@ metadata of the config's nwb table and the recording's nwb.yaml."""
 
 from pathlib import Path
 
-
 from _cli import run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
-    parser.add_argument("--recording", required=True, type=Path,
-                        help="recording directory (footage linked from the NWB file, nwb.yaml)")
+    parser.add_argument(
+        "--recording",
+        required=True,
+        type=Path,
+        help="recording directory (footage linked from the NWB file, nwb.yaml)",
+    )
     parser.add_argument("--output", required=True, type=Path, help="destination .nwb file")
-    parser.add_argument("--demo", action="store_true",
-                        help="the recording is the embedded demo (its synthetic session metadata applies)")
+    parser.add_argument(
+        "--demo",
+        action="store_true",
+        help="the recording is the embedded demo (its synthetic session metadata applies)",
+    )
 
     def run(args, config):
         from flylib.interop.nwb import export_nwb

@@ -11,16 +11,30 @@ from _cli import output_dir, run_script, script_main, script_parser
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact")
-    parser.add_argument("--candidates", type=Path, default=None,
-                        help="the detector's top-K peaks (default: those inside the pose2d artifact)")
-    parser.add_argument("--bundle-adjustment", type=Path, default=None,
-                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument(
+        "--candidates",
+        type=Path,
+        default=None,
+        help="the detector's top-K peaks (default: those inside the pose2d artifact)",
+    )
+    parser.add_argument(
+        "--bundle-adjustment",
+        type=Path,
+        default=None,
+        help="bundle-adjustment artifact (its rig); default: the config rig",
+    )
     parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
 
     def run(args, config):
-        run_pictorial_structures(config, args.pose2d, args.out, candidates_path=args.candidates,
-                                 ba_path=args.bundle_adjustment, recording_dir=args.recording)
+        run_pictorial_structures(
+            config,
+            args.pose2d,
+            args.out,
+            candidates_path=args.candidates,
+            ba_path=args.bundle_adjustment,
+            recording_dir=args.recording,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 

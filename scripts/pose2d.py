@@ -13,15 +13,29 @@ def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--recording", required=True, type=Path, help="recording directory")
     parser.add_argument("--out", required=True, type=Path, help="pose2d artifact to write (.h5)")
-    parser.add_argument("--import-spec", type=json.loads, default=None,
-                        help="JSON pose2d.import spec for this recording (default: the config's)")
-    parser.add_argument("--candidates-out", type=Path, default=None,
-                        help="also write the detector's top-K peaks here (for pictorial structures)")
+    parser.add_argument(
+        "--import-spec",
+        type=json.loads,
+        default=None,
+        help="JSON pose2d.import spec for this recording (default: the config's)",
+    )
+    parser.add_argument(
+        "--candidates-out",
+        type=Path,
+        default=None,
+        help="also write the detector's top-K peaks here (for pictorial structures)",
+    )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
     def run(args, config):
-        run_pose2d(config, args.recording, args.out, import_spec=args.import_spec,
-                   progress=args.progress, candidates_path=args.candidates_out)
+        run_pose2d(
+            config,
+            args.recording,
+            args.out,
+            import_spec=args.import_spec,
+            progress=args.progress,
+            candidates_path=args.candidates_out,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 

@@ -11,17 +11,33 @@ from _cli import output_dir, run_script, script_main, script_parser
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5): 2D and confidences")
-    parser.add_argument("--triangulation", required=True, type=Path,
-                        help="triangulation artifact (.h5): the starting 3D and its inlier views")
-    parser.add_argument("--bundle-adjustment", type=Path, default=None,
-                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument(
+        "--pose2d", required=True, type=Path, help="pose2d artifact (.h5): 2D and confidences"
+    )
+    parser.add_argument(
+        "--triangulation",
+        required=True,
+        type=Path,
+        help="triangulation artifact (.h5): the starting 3D and its inlier views",
+    )
+    parser.add_argument(
+        "--bundle-adjustment",
+        type=Path,
+        default=None,
+        help="bundle-adjustment artifact (its rig); default: the config rig",
+    )
     parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
 
     def run(args, config):
-        run_refinement(config, args.pose2d, args.triangulation, args.out,
-                       ba_path=args.bundle_adjustment, recording_dir=args.recording)
+        run_refinement(
+            config,
+            args.pose2d,
+            args.triangulation,
+            args.out,
+            ba_path=args.bundle_adjustment,
+            recording_dir=args.recording,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 

@@ -11,19 +11,37 @@ from _cli import output_dir, run_script, script_main, script_parser
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
-    parser.add_argument("--pictorial-structures", type=Path, default=None,
-                        help="pictorial-structures artifact: triangulate its corrected 2D instead")
-    parser.add_argument("--bundle-adjustment", type=Path, default=None,
-                        help="bundle-adjustment artifact (its rig); default: the config rig")
+    parser.add_argument(
+        "--pictorial-structures",
+        type=Path,
+        default=None,
+        help="pictorial-structures artifact: triangulate its corrected 2D instead",
+    )
+    parser.add_argument(
+        "--bundle-adjustment",
+        type=Path,
+        default=None,
+        help="bundle-adjustment artifact (its rig); default: the config rig",
+    )
     parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
-    parser.add_argument("--corrections", type=Path, default=None,
-                        help="corrections.h5 sidecar (flylib gui): apply its manual edits")
+    parser.add_argument(
+        "--corrections",
+        type=Path,
+        default=None,
+        help="corrections.h5 sidecar (flylib gui): apply its manual edits",
+    )
 
     def run(args, config):
-        run_triangulation(config, args.pose2d, args.out, pictorial_path=args.pictorial_structures,
-                          ba_path=args.bundle_adjustment, recording_dir=args.recording,
-                          corrections_path=args.corrections)
+        run_triangulation(
+            config,
+            args.pose2d,
+            args.out,
+            pictorial_path=args.pictorial_structures,
+            ba_path=args.bundle_adjustment,
+            recording_dir=args.recording,
+            corrections_path=args.corrections,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
 

@@ -11,7 +11,9 @@ from _cli import run_script, script_main, script_parser
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
-    parser.add_argument("--recording", required=True, type=Path, help="recording directory (footage)")
+    parser.add_argument(
+        "--recording", required=True, type=Path, help="recording directory (footage)"
+    )
     parser.add_argument("--outdir", required=True, type=Path, help="where the videos go")
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 

@@ -19,7 +19,6 @@ def _shared_subdir(name: str) -> Path:
     return path
 
 
-
 @pytest.fixture(scope="session")
 def df3d_sample_dir() -> Path:
     """``../shared/data/deepfly3d-sample`` (7 cameras, 960x480, 15 frames), or skip."""
@@ -48,8 +47,11 @@ try:
 except ImportError:  # hypothesis is in the `test` extra; the fuzz tests skip without it
     pass
 else:
-    _fuzz = {"deadline": None, "print_blob": True,
-             "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large]}
+    _fuzz = {
+        "deadline": None,
+        "print_blob": True,
+        "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large],
+    }
     # derandomized: the same examples every run, so CI is reproducible (libhdf5 itself can
     # loop forever on some damaged attribute headers, which random runs may reach)
     settings.register_profile("flylib", max_examples=80, derandomize=True, **_fuzz)

@@ -23,18 +23,38 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     config = Config.from_dict(data)
     make_demo(config, directory, frames=frames, **demo)
     out = directory / "flylib_outputs"
-    run_pose2d(config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))
-    run_triangulation(config, out / "stages" / "pose2d.h5", out / "stages" / "triangulation.h5",
-                      recording_dir=directory)
-    run_assemble(config, {"pose2d": out / "stages" / "pose2d.h5",
-                          "triangulation": out / "stages" / "triangulation.h5"}, out,
-                 recording_dir=directory)
+    run_pose2d(
+        config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+    )
+    run_triangulation(
+        config,
+        out / "stages" / "pose2d.h5",
+        out / "stages" / "triangulation.h5",
+        recording_dir=directory,
+    )
+    run_assemble(
+        config,
+        {
+            "pose2d": out / "stages" / "pose2d.h5",
+            "triangulation": out / "stages" / "triangulation.h5",
+        },
+        out,
+        recording_dir=directory,
+    )
     config.save_snapshot(out)
     return out
 
 
-def write_seed_sidecar(path: Path, shape: tuple[int, int, int], *, version: int = 3,
-                       edits2d=(), invisible=(), edits3d=(), fixed=()) -> Path:
+def write_seed_sidecar(
+    path: Path,
+    shape: tuple[int, int, int],
+    *,
+    version: int = 3,
+    edits2d=(),
+    invisible=(),
+    edits3d=(),
+    fixed=(),
+) -> Path:
     """A corrections.h5 in the seed GUI's layout, written with plain h5py.
 
     ``edits2d``: ``(view, frame, point, x, y)``; ``invisible``: ``(view, frame, point)``;
@@ -59,8 +79,13 @@ def write_seed_sidecar(path: Path, shape: tuple[int, int, int], *, version: int 
         points3d[ti, pi] = (x, y, z)
         edited3d[ti, pi] = True
     with h5py.File(path, "w") as f:
-        f.attrs["meta"] = json.dumps({"deeperfly_corrections_format_version": version,
-                                      "source": "results.h5", "created_utc": "2025-01-01T00:00:00+00:00"})
+        f.attrs["meta"] = json.dumps(
+            {
+                "deeperfly_corrections_format_version": version,
+                "source": "results.h5",
+                "created_utc": "2025-01-01T00:00:00+00:00",
+            }
+        )
         g = f.create_group("pose2d_corrections")
         g["points"] = points
         g["edited"] = edited

@@ -30,15 +30,15 @@ import numpy as np
 
 from flylib.cameras import CameraGroup, orbit_extrinsics
 
-from rig_constants import AZIMUTHS as RIG_AZIMUTHS
-from rig_constants import IMAGE_SIZE, VIEWS
+from rig_constants import AZIMUTHS as RIG_AZIMUTHS, IMAGE_SIZE, VIEWS
 from synthetic import POINT_NAMES, project_opencv, rig_visibility
 
 AZIMUTHS = tuple(RIG_AZIMUTHS.values())
 DISTANCE = 116.0
 FOCAL = 16000.0
-LEG_POINTS = tuple(p for p, name in enumerate(POINT_NAMES)
-                   if name[:2] in ("lf", "lm", "lh", "rf", "rm", "rh"))
+LEG_POINTS = tuple(
+    p for p, name in enumerate(POINT_NAMES) if name[:2] in ("lf", "lm", "lh", "rf", "rm", "rh")
+)
 
 _JOINTS = ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")
 _SCALE = 1.4
@@ -112,13 +112,15 @@ def tethered_fly(n_frames: int, seed: int = 0, step_frac: float = 0.03) -> np.nd
             joint = np.tile([_SCALE * x, sign * _SCALE * y, _BODY_Z - 0.18], (n_frames, 1))
             out[:, index[f"{leg}_{_JOINTS[0]}"]] = joint
             for s, length in enumerate(_SEGMENTS):
-                direction = np.cos(pitch[:, s:s + 1]) * lateral
+                direction = np.cos(pitch[:, s : s + 1]) * lateral
                 direction[:, 2] = -np.sin(pitch[:, s])
                 joint = joint + length * direction
                 out[:, index[f"{leg}_{_JOINTS[s + 1]}"]] = joint
         wiggle = 0.01 * np.sin(2 * np.pi * 0.02 * np.arange(n_frames) + sign)[:, None]
         out[:, index[f"{side}_antenna"]] = np.array([0.80, sign * 0.12, 0.75]) * _SCALE + wiggle
-        for k, (x, y, z) in enumerate([(-0.45, 0.22, 0.05), (-0.85, 0.20, 0.0), (-1.25, 0.12, -0.05)]):
+        for k, (x, y, z) in enumerate(
+            [(-0.45, 0.22, 0.05), (-0.85, 0.20, 0.0), (-1.25, 0.12, -0.05)]
+        ):
             out[:, index[f"{side}_abdomen{k}"]] = np.array([x, sign * y, 0.45 + z]) * _SCALE
     out[..., 2] -= 0.5 * (out[..., 2].max() + out[..., 2].min())  # centred on the rig's aim
     return out
@@ -131,16 +133,22 @@ def true_rig(seed: int = 0) -> CameraGroup:
     rvecs, tvecs, intrs = [], [], []
     for az in AZIMUTHS:
         look_at = rng.normal(0.0, 0.1, 3)
-        rvec, tvec = orbit_extrinsics(look_at, DISTANCE + rng.normal(0, 1.0),
-                                      az + rng.normal(0, 1.0), rng.normal(0, 2.0),
-                                      rng.normal(0, 1.0))
+        rvec, tvec = orbit_extrinsics(
+            look_at,
+            DISTANCE + rng.normal(0, 1.0),
+            az + rng.normal(0, 1.0),
+            rng.normal(0, 2.0),
+            rng.normal(0, 1.0),
+        )
         rvecs.append(rvec)
         tvecs.append(tvec)
         focal = FOCAL + rng.normal(0, 150.0)
-        intrs.append([focal, focal, width / 2 + rng.uniform(-40, 40),
-                      height / 2 + rng.uniform(-25, 25)])
-    return CameraGroup.from_arrays(list(VIEWS), np.array(rvecs), np.array(tvecs),
-                                   np.array(intrs), np.zeros((len(VIEWS), 5)))
+        intrs.append(
+            [focal, focal, width / 2 + rng.uniform(-40, 40), height / 2 + rng.uniform(-25, 25)]
+        )
+    return CameraGroup.from_arrays(
+        list(VIEWS), np.array(rvecs), np.array(tvecs), np.array(intrs), np.zeros((len(VIEWS), 5))
+    )
 
 
 def _random_perpendicular(rng, axis: np.ndarray) -> np.ndarray:
@@ -149,8 +157,14 @@ def _random_perpendicular(rng, axis: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def rough_start(rig: CameraGroup, *, orbit_deg: float = 4.0, dist_frac: float = 0.04,
-                aim_deg: float = 0.1, seed: int = 1) -> CameraGroup:
+def rough_start(
+    rig: CameraGroup,
+    *,
+    orbit_deg: float = 4.0,
+    dist_frac: float = 0.04,
+    aim_deg: float = 0.1,
+    seed: int = 1,
+) -> CameraGroup:
     """The rig as a user enters it: each camera moved about ``orbit_deg`` along its
     orbit (about the world origin, still looking the same way relative to it), its
     distance off by about ``dist_frac`` and its aim off by about ``aim_deg``."""
@@ -160,31 +174,43 @@ def rough_start(rig: CameraGroup, *, orbit_deg: float = 4.0, dist_frac: float = 
         rmat = cv2.Rodrigues(np.asarray(rvec, float))[0]
         centre = -rmat.T @ tvec
         radial = centre / np.linalg.norm(centre)
-        orbit = cv2.Rodrigues(_random_perpendicular(rng, radial)
-                              * np.deg2rad(rng.uniform(0.75, 1.25) * orbit_deg))[0]
+        orbit = cv2.Rodrigues(
+            _random_perpendicular(rng, radial) * np.deg2rad(rng.uniform(0.75, 1.25) * orbit_deg)
+        )[0]
         scale = 1.0 + rng.choice([-1, 1]) * rng.uniform(0.75, 1.25) * dist_frac
-        aim = cv2.Rodrigues(_random_perpendicular(rng, np.array([0.0, 0.0, 1.0]))
-                            * np.deg2rad(rng.uniform(0.75, 1.25) * aim_deg))[0]
+        aim = cv2.Rodrigues(
+            _random_perpendicular(rng, np.array([0.0, 0.0, 1.0]))
+            * np.deg2rad(rng.uniform(0.75, 1.25) * aim_deg)
+        )[0]
         new_centre = scale * (orbit @ centre)
         new_rmat = aim @ rmat @ orbit.T  # orbit the camera, then turn it about its centre
         rvecs.append(cv2.Rodrigues(new_rmat)[0].ravel())
         tvecs.append(-new_rmat @ new_centre)
-    return CameraGroup.from_arrays(list(rig.names), np.array(rvecs), np.array(tvecs),
-                                   rig.intrs, rig.dists)
+    return CameraGroup.from_arrays(
+        list(rig.names), np.array(rvecs), np.array(tvecs), rig.intrs, rig.dists
+    )
 
 
 def bone_pairs() -> tuple[np.ndarray, np.ndarray]:
     """fly38 leg bones as index arrays ``(i, j)``."""
     index = {n: i for i, n in enumerate(POINT_NAMES)}
-    pairs = [(index[f"{leg}_{a}"], index[f"{leg}_{b}"])
-             for leg in ("lf", "lm", "lh", "rf", "rm", "rh")
-             for a, b in zip(_JOINTS[:-1], _JOINTS[1:])]
+    pairs = [
+        (index[f"{leg}_{a}"], index[f"{leg}_{b}"])
+        for leg in ("lf", "lm", "lh", "rf", "rm", "rh")
+        for a, b in zip(_JOINTS[:-1], _JOINTS[1:])
+    ]
     return tuple(np.array(x) for x in zip(*pairs))
 
 
-def make_case(n_frames: int = 300, *, hard: bool = False, seed: int = 0,
-              noise_px: float = 1.0, outlier_frac: float = 0.05,
-              outlier_px: float = 80.0) -> RoughCase:
+def make_case(
+    n_frames: int = 300,
+    *,
+    hard: bool = False,
+    seed: int = 0,
+    noise_px: float = 1.0,
+    outlier_frac: float = 0.05,
+    outlier_px: float = 80.0,
+) -> RoughCase:
     """Generate the rough case (``hard=True``: front camera blind, aim 3 degrees off)."""
     rng = np.random.default_rng(seed + 100)
     truth = tethered_fly(n_frames, seed=seed)
@@ -196,17 +222,20 @@ def make_case(n_frames: int = 300, *, hard: bool = False, seed: int = 0,
     clean = project_opencv(rig, truth)  # (V, T, P, 2)
     pts2d = clean + rng.normal(0.0, noise_px, clean.shape)
     outlier = (rng.random(clean.shape[:3]) < outlier_frac) & vis[:, None, :]
-    pts2d = np.where(outlier[..., None],
-                     clean + rng.uniform(-outlier_px, outlier_px, clean.shape), pts2d)
-    conf = np.where(outlier, rng.uniform(0.2, 0.7, outlier.shape),
-                    rng.uniform(0.6, 1.0, outlier.shape))
+    pts2d = np.where(
+        outlier[..., None], clean + rng.uniform(-outlier_px, outlier_px, clean.shape), pts2d
+    )
+    conf = np.where(
+        outlier, rng.uniform(0.2, 0.7, outlier.shape), rng.uniform(0.6, 1.0, outlier.shape)
+    )
     seen = np.broadcast_to(vis[:, None, :], outlier.shape)
     pts2d = np.where(seen[..., None], pts2d, np.nan)
     conf = np.where(seen, conf, 0.0)
     i, j = bone_pairs()
     bone = float(np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1)))
-    return RoughCase(truth=truth, rig=rig, start=start, pts2d=pts2d, conf=conf,
-                     outlier=outlier & seen, bone=bone)
+    return RoughCase(
+        truth=truth, rig=rig, start=start, pts2d=pts2d, conf=conf, outlier=outlier & seen, bone=bone
+    )
 
 
 def similarity_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -225,12 +254,15 @@ def similarity_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 #: the bundle-adjustment settings before issue 12 (scipy, no facts about the fly): the
 #: baseline the benchmark prints beside the default config
-PREVIOUS_DEFAULTS = {"solver": "scipy", "bone_lengths": False, "symmetric_bones": False,
-                     "rigid_points": []}
+PREVIOUS_DEFAULTS = {
+    "solver": "scipy",
+    "bone_lengths": False,
+    "symmetric_bones": False,
+    "rigid_points": [],
+}
 
 
-def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None,
-                            **overrides):
+def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None, **overrides):
     """Bundle-adjust ``case`` from ``start`` (default: the rough rig) with the default
     config's ``bundle_adjustment`` table (``overrides`` replace its keys), then
     triangulate every frame with the default triangulation.
@@ -246,6 +278,7 @@ def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None,
     data["bundle_adjustment"] = {**(data.get("bundle_adjustment") or {}), **overrides}
     config = Config.from_dict(data)
     result, refined, _ = bundle_adjust_from_config(
-        config, case.start if start is None else start, case.pts2d, case.conf)
+        config, case.start if start is None else start, case.pts2d, case.conf
+    )
     pts3d, _, _ = reconstruct_from_config(config, refined, case.pts2d, case.conf)
     return result, refined, pts3d, similarity_error(pts3d, case.truth) / case.bone

@@ -22,6 +22,7 @@ from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
 
 POINT_NAMES = list(FLY38_POINTS)
 
+
 def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:
     """``(V, P)`` bool: which point each view observes in the default rig (its
     ``pose2d.output_points`` tables); a view the default config does not name sees
@@ -45,8 +46,9 @@ def project_opencv(cameras, pts3d: np.ndarray) -> np.ndarray:
         ok = np.isfinite(flat).all(axis=1)
         proj = np.full((flat.shape[0], 2), np.nan)
         if ok.any():
-            img, _ = cv2.projectPoints(flat[ok], np.asarray(rvec, float), np.asarray(tvec, float),
-                                       kmat, dist5)
+            img, _ = cv2.projectPoints(
+                flat[ok], np.asarray(rvec, float), np.asarray(tvec, float), kmat, dist5
+            )
             proj[ok] = img.reshape(-1, 2)
         out.append(proj.reshape(*pts3d.shape[:-1], 2))
     return np.stack(out)
@@ -130,31 +132,45 @@ def perturb_rig(cameras, *, rot_deg: float = 3.0, dist_frac: float = 0.03, seed:
         new_rmat = rmat @ delta.T  # world -> camera after rotating the camera by delta
         rvecs.append(cv2.Rodrigues(new_rmat)[0].ravel())
         tvecs.append(-new_rmat @ new_center)
-    return CameraGroup.from_arrays(list(cameras.names), np.array(rvecs), np.array(tvecs),
-                                   cameras.intrs, cameras.dists)
+    return CameraGroup.from_arrays(
+        list(cameras.names), np.array(rvecs), np.array(tvecs), cameras.intrs, cameras.dists
+    )
 
 
 DEFAULT_AZIMUTHS = AZIMUTHS
 
 
-def default_rig(focal: float = FOCAL, distance: float = DISTANCE,
-                image_size: tuple[int, int] = IMAGE_SIZE):
+def default_rig(
+    focal: float = FOCAL, distance: float = DISTANCE, image_size: tuple[int, int] = IMAGE_SIZE
+):
     """The default 7-view orbit rig (spec ``fly38-rig.yaml``), principal point at the
     image centre, no distortion; built directly so tests need no config file."""
     from flylib.cameras import CameraGroup, orbit_extrinsics
 
     height, width = image_size
-    rvecs, tvecs = zip(*(orbit_extrinsics((0.0, 0.0, 0.0), distance, az)
-                         for az in DEFAULT_AZIMUTHS.values()))
+    rvecs, tvecs = zip(
+        *(orbit_extrinsics((0.0, 0.0, 0.0), distance, az) for az in DEFAULT_AZIMUTHS.values())
+    )
     n = len(DEFAULT_AZIMUTHS)
     intrs = np.tile([focal, focal, width / 2.0, height / 2.0], (n, 1))
-    return CameraGroup.from_arrays(list(DEFAULT_AZIMUTHS), np.array(rvecs), np.array(tvecs),
-                                   intrs, np.zeros((n, 0)))
+    return CameraGroup.from_arrays(
+        list(DEFAULT_AZIMUTHS), np.array(rvecs), np.array(tvecs), intrs, np.zeros((n, 0))
+    )
 
 
-def detector_errors(clean2d: np.ndarray, visible: np.ndarray, view_names, point_names, *,
-                    noise_px: float = 1.5, outlier_frac: float = 0.05, outlier_px: float = 50.0,
-                    swap_frac: float = 0.02, missing_frac: float = 0.10, seed: int = 0):
+def detector_errors(
+    clean2d: np.ndarray,
+    visible: np.ndarray,
+    view_names,
+    point_names,
+    *,
+    noise_px: float = 1.5,
+    outlier_frac: float = 0.05,
+    outlier_px: float = 50.0,
+    swap_frac: float = 0.02,
+    missing_frac: float = 0.10,
+    seed: int = 0,
+):
     """Detector-like 2D from exact projections ``(V, T, P, 2)``: Gaussian noise, gross
     outliers (displaced by up to ``outlier_px`` in a random direction), left/right
     swaps in the side views (the view reports the contralateral point's projection:
@@ -167,14 +183,24 @@ def detector_errors(clean2d: np.ndarray, visible: np.ndarray, view_names, point_
     rng = np.random.default_rng(seed)
     n_views, n_frames, n_points, _ = clean2d.shape
     names = list(point_names)
-    twin = np.array([names.index(("r" + n[1:]) if n[0] == "l" else ("l" + n[1:]))
-                     if n[0] in "lr" and (("r" + n[1:]) if n[0] == "l" else ("l" + n[1:])) in names else i
-                     for i, n in enumerate(names)])
+    twin = np.array(
+        [
+            names.index(("r" + n[1:]) if n[0] == "l" else ("l" + n[1:]))
+            if n[0] in "lr" and (("r" + n[1:]) if n[0] == "l" else ("l" + n[1:])) in names
+            else i
+            for i, n in enumerate(names)
+        ]
+    )
     pts = clean2d + rng.normal(0.0, noise_px, clean2d.shape)
     kind = np.zeros((n_views, n_frames, n_points), np.int8)
     seen = np.broadcast_to(np.asarray(visible, bool)[:, None, :], kind.shape)
     side = np.array([name != "f" for name in view_names])[:, None, None]
-    swap = seen & side & (twin != np.arange(n_points))[None, None, :] & (rng.random(kind.shape) < swap_frac)
+    swap = (
+        seen
+        & side
+        & (twin != np.arange(n_points))[None, None, :]
+        & (rng.random(kind.shape) < swap_frac)
+    )
     swapped = clean2d[:, :, twin] + rng.normal(0.0, noise_px, clean2d.shape)
     pts = np.where(swap[..., None], swapped, pts)
     outlier = seen & ~swap & (rng.random(kind.shape) < outlier_frac)

@@ -9,18 +9,24 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_bundle_adjustment import _small_problem
 
+from flylib.bundle_adjustment import bundle_adjust, camera_table
 from flylib.bundle_adjustment.lm import ReducedSystem, block_structure, solve_lm
 from flylib.bundle_adjustment.reseed import radial_folds, reseed_gross_cameras
-from flylib.bundle_adjustment import bundle_adjust, camera_table
 from flylib.config import Config
 from flylib.errors import ConfigError
 
-from rough_rig import (LEG_POINTS, PREVIOUS_DEFAULTS, fit_with_default_config, make_case,
-                       rough_start, similarity_error, true_rig)
+from rough_rig import (
+    LEG_POINTS,
+    PREVIOUS_DEFAULTS,
+    fit_with_default_config,
+    make_case,
+    rough_start,
+    similarity_error,
+    true_rig,
+)
 from synthetic import project_opencv
-from test_bundle_adjustment import _small_problem
-
 
 # -- the reduced camera system ---------------------------------------------------------
 
@@ -40,8 +46,9 @@ def test_schur_step_equals_the_dense_damped_solve(bone_group, global_point):
     local = blocks.block_cols >= 0
     dx[blocks.block_cols[local]] = dl[local]
     normal = (jac.T @ jac).toarray()
-    reference = np.linalg.solve(normal + lam * np.diag(np.maximum(np.diag(normal), 1e-12)),
-                                -jac.T @ res)
+    reference = np.linalg.solve(
+        normal + lam * np.diag(np.maximum(np.diag(normal), 1e-12)), -jac.T @ res
+    )
     np.testing.assert_allclose(dx, reference, rtol=0, atol=1e-9 * np.abs(reference).max())
     # bone-coupled points share a block, a global point is in no block
     if bone_group is not None and global_point is None:
@@ -59,11 +66,18 @@ def test_lm_reaches_the_least_squares_minimum_like_scipy():
     rng = np.random.default_rng(0)
     table, pts = problem.unpack(x)
     problem.xy = project_rows(pts[problem.point], table[problem.view]) + rng.normal(
-        0, 1.0, problem.xy.shape)  # a consistent scene with 1 px noise
+        0, 1.0, problem.xy.shape
+    )  # a consistent scene with 1 px noise
     x0 = x + rng.normal(0, 1e-3, x.size)
     ours = solve_lm(problem, x0, block_structure(problem), max_nfev=200, ftol=1e-12)
-    ref = least_squares(problem.residuals, x0, jac=lambda v: problem.jacobian(v).toarray(),
-                        method="lm", xtol=1e-14, ftol=1e-14)
+    ref = least_squares(
+        problem.residuals,
+        x0,
+        jac=lambda v: problem.jacobian(v).toarray(),
+        method="lm",
+        xtol=1e-14,
+        ftol=1e-14,
+    )
     assert ours.cost == pytest.approx(ref.cost, rel=1e-6)
 
 
@@ -82,13 +96,15 @@ def test_zero_distortion_stays_zero_on_long_lenses_by_default():
     case = make_case(30, seed=3)
     legs = list(LEG_POINTS)
     flat = case.pts2d[:, ::3][:, :, legs].reshape(7, -1, 2)
-    result, refined, _ = bundle_adjust(case.start, flat, fixed=["*.intr"], max_nfev=20,
-                                       max_rounds=2)
+    result, refined, _ = bundle_adjust(
+        case.start, flat, fixed=["*.intr"], max_nfev=20, max_rounds=2
+    )
     assert np.all(np.asarray(refined.dists) == 0.0)
     assert result.report["free"]["distortion_held_at_zero"] == 35
     assert result.report["free"]["per_camera"]["f"] == ["rvec", "tvec"]
-    _, freed, _ = bundle_adjust(case.start, flat, fixed=["*.intr"], max_nfev=5, max_rounds=1,
-                                distortion="free")
+    _, freed, _ = bundle_adjust(
+        case.start, flat, fixed=["*.intr"], max_nfev=5, max_rounds=1, distortion="free"
+    )
     assert np.any(np.asarray(freed.dists) != 0.0)
     with pytest.raises(ConfigError, match="distortion"):
         bundle_adjust(case.start, flat, distortion="maybe")
@@ -100,8 +116,7 @@ def test_a_camera_aimed_degrees_off_is_resected_by_pnp():
     pts2d = project_opencv(rig, truth)  # every view sees every point here
     table = camera_table(rig)
     bad = table.copy()
-    bad[2] = camera_table(rough_start(rig, orbit_deg=0.0, dist_frac=0.0, aim_deg=3.0,
-                                      seed=2))[2]
+    bad[2] = camera_table(rough_start(rig, orbit_deg=0.0, dist_frac=0.0, aim_deg=3.0, seed=2))[2]
 
     def triangulate(tab, use):
         from flylib.bundle_adjustment.adjust import _cameras_from_table, _ransac_points
@@ -109,8 +124,9 @@ def test_a_camera_aimed_degrees_off_is_resected_by_pnp():
         return _ransac_points(_cameras_from_table(rig.names, tab), pts2d, use, 40.0)
 
     usable = np.isfinite(pts2d).all(-1)
-    fixed_table, reseeded, med = reseed_gross_cameras(bad, list(rig.names), pts2d, usable,
-                                                      100.0, triangulate)
+    fixed_table, reseeded, med = reseed_gross_cameras(
+        bad, list(rig.names), pts2d, usable, 100.0, triangulate
+    )
     assert reseeded == [f"{rig.names[2]}: pnp"] and med[2] > 300
     np.testing.assert_allclose(fixed_table[2, :6], table[2, :6], atol=1e-4)
 
@@ -130,8 +146,10 @@ def test_rough_rig_recovers_the_fly(rough):
     floor (0.0112). Before issue 12 (scipy, no facts about the fly): 0.088."""
     from flylib.triangulation import reconstruct
 
-    start_err = np.nanmedian(similarity_error(
-        reconstruct(rough.start, rough.pts2d, method="ransac")[0], rough.truth) / rough.bone)
+    start_err = np.nanmedian(
+        similarity_error(reconstruct(rough.start, rough.pts2d, method="ransac")[0], rough.truth)
+        / rough.bone
+    )
     result, _, _, err = fit_with_default_config(rough)
     assert np.nanmedian(err) <= 0.03
     assert result.final_median_px < 1.0
@@ -176,14 +194,22 @@ def test_rigid_points_are_used_only_when_the_body_is_still():
     from flylib.skeleton import Skeleton
 
     case = make_case(40, seed=2)
-    moving = case.truth + np.cumsum(np.random.default_rng(0).normal(0, 0.3 * case.bone,
-                                                                    (40, 1, 3)), axis=0)
+    moving = case.truth + np.cumsum(
+        np.random.default_rng(0).normal(0, 0.3 * case.bone, (40, 1, 3)), axis=0
+    )
     for truth, still in ((case.truth, True), (moving, False)):
         pts2d = project_opencv(case.rig, truth)
         pts2d[:, :, [p for p in range(38) if p not in LEG_POINTS]] = np.nan
-        result, _, _ = bundle_adjust_sequence(case.rig, pts2d, None, Skeleton.fly(),
-                                              fixed=["*.intr"], max_frames=20, max_nfev=3,
-                                              max_rounds=1)
+        result, _, _ = bundle_adjust_sequence(
+            case.rig,
+            pts2d,
+            None,
+            Skeleton.fly(),
+            fixed=["*.intr"],
+            max_frames=20,
+            max_nfev=3,
+            max_rounds=1,
+        )
         assert result.report["rigid"]["used"] is still
         assert result.report["free"]["rigid_points"] == (6 if still else 0)
 
@@ -197,8 +223,9 @@ def test_thorax_distances_pair_mirror_images():
     used = np.array(sorted(names.index(p) for p in THORAX_POINTS))
     bi, bj, _, group = _length_unknowns(skeleton, used, 2, True, THORAX_POINTS)
     assert bi.size == 2 * 15  # every pair of the six, in each of two frames
-    pair = {frozenset((names[used[i % 6]], names[used[j % 6]])): g
-            for i, j, g in zip(bi, bj, group)}
+    pair = {
+        frozenset((names[used[i % 6]], names[used[j % 6]])): g for i, j, g in zip(bi, bj, group)
+    }
     key = lambda a, b: pair[frozenset((f"{a}_thorax_coxa", f"{b}_thorax_coxa"))]  # noqa: E731
     assert key("lf", "rm") == key("rf", "lm") != key("lf", "lm") == key("rf", "rm")
     assert key("lf", "rf") != key("lm", "rm")
@@ -223,8 +250,16 @@ def test_open_gauge_directions_count_what_held_entries_leave():
 
 def test_new_keys_are_validated_and_reach_stage_params():
     base = Config.default().data
-    config = Config.from_dict({**base, "bundle_adjustment": {
-        **base["bundle_adjustment"], "solver": "lm", "symmetric_bones": True}})
+    config = Config.from_dict(
+        {
+            **base,
+            "bundle_adjustment": {
+                **base["bundle_adjustment"],
+                "solver": "lm",
+                "symmetric_bones": True,
+            },
+        }
+    )
     params = config.stage_params("bundle_adjustment")["bundle_adjustment"]
     assert params["solver"] == "lm" and params["symmetric_bones"] is True
     assert "rigid_points" in params and "distortion" in params

@@ -7,10 +7,10 @@ import warnings
 import numpy as np
 import pytest
 
+from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.bundle_adjustment.params import build_layout
 from flylib.bundle_adjustment.sampling import select_frames
 from flylib.bundle_adjustment.solver import Problem, project_rows
-from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.errors import ConfigError
 
 from rig_constants import DISTANCE, VIEWS
@@ -49,13 +49,16 @@ def test_tied_slot_with_a_fixed_member_is_fixed():
     assert (layout.var_index[:, 6:10] < 0).all()
 
 
-@pytest.mark.parametrize("ref, match", [
-    ("xx.rvec", "unknown camera 'xx'"),
-    ("f.focal", "unknown parameter 'focal'"),
-    ("f.tvec[3]", "index 3 out of range"),
-    ("f-rvec", "cannot parse"),
-    ("*.dist[0]", "index 0 out of range"),
-])
+@pytest.mark.parametrize(
+    "ref, match",
+    [
+        ("xx.rvec", "unknown camera 'xx'"),
+        ("f.focal", "unknown parameter 'focal'"),
+        ("f.tvec[3]", "index 3 out of range"),
+        ("f-rvec", "cannot parse"),
+        ("*.dist[0]", "index 0 out of range"),
+    ],
+)
 def test_bad_reference_is_a_config_error_naming_it(ref, match):
     with pytest.raises(ConfigError, match=match) as info:
         build_layout(NAMES, 0, fixed=[ref])
@@ -138,11 +141,20 @@ def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0, bone_group=No
     pts3d = synthetic_fly(2, seed=3)[:, :6].reshape(-1, 3)
     view, point = np.nonzero(np.ones((7, len(pts3d)), bool))
     rng = np.random.default_rng(0)
-    problem = Problem(table0=table, layout=layout, view=view, point=point,
-                      xy=rng.uniform(0, 500, (view.size, 2)), weight=rng.uniform(0.5, 1, view.size),
-                      n_points=len(pts3d), bone_i=np.array([0, 1, 6]), bone_j=np.array([1, 2, 7]),
-                      bone_target=np.array([0.3, 0.7, 0.3]), bone_weight=bone_weight,
-                      bone_group=bone_group)
+    problem = Problem(
+        table0=table,
+        layout=layout,
+        view=view,
+        point=point,
+        xy=rng.uniform(0, 500, (view.size, 2)),
+        weight=rng.uniform(0.5, 1, view.size),
+        n_points=len(pts3d),
+        bone_i=np.array([0, 1, 6]),
+        bone_j=np.array([1, 2, 7]),
+        bone_target=np.array([0.3, 0.7, 0.3]),
+        bone_weight=bone_weight,
+        bone_group=bone_group,
+    )
     return problem, problem.pack(table, pts3d)
 
 
@@ -161,8 +173,10 @@ def test_jacobian_matches_central_differences(bone_group):
     scale = np.abs(numeric).max(axis=0, keepdims=True) + 1e-9
     np.testing.assert_allclose(jac / scale, numeric / scale, atol=1e-6)
     n_len = 0 if bone_group is None else 2
-    assert jac.shape == (2 * problem.n_obs + 3,
-                         problem.layout.n_free + 3 * problem.n_points + n_len)
+    assert jac.shape == (
+        2 * problem.n_obs + 3,
+        problem.layout.n_free + 3 * problem.n_points + n_len,
+    )
 
 
 def test_numpy_and_jax_projections_agree_with_opencv():
@@ -172,14 +186,28 @@ def test_numpy_and_jax_projections_agree_with_opencv():
 
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(64, 3))
-    rows = np.concatenate([rng.normal(size=(64, 3)) * 0.5, rng.normal(size=(64, 3)) + [0, 0, 10],
-                           np.tile([1000.0, 1100.0, 300.0, 200.0], (64, 1)),
-                           rng.normal(size=(64, 5)) * 0.05], axis=1)
+    rows = np.concatenate(
+        [
+            rng.normal(size=(64, 3)) * 0.5,
+            rng.normal(size=(64, 3)) + [0, 0, 10],
+            np.tile([1000.0, 1100.0, 300.0, 200.0], (64, 1)),
+            rng.normal(size=(64, 5)) * 0.05,
+        ],
+        axis=1,
+    )
     rows[:4, :3] = 1e-5  # the small-angle branch
-    reference = np.stack([
-        cv2.projectPoints(p[None], r[:3], r[3:6], np.array([[r[6], 0, r[8]], [0, r[7], r[9]],
-                                                             [0, 0, 1]]), r[10:])[0].ravel()
-        for p, r in zip(pts, rows)])
+    reference = np.stack(
+        [
+            cv2.projectPoints(
+                p[None],
+                r[:3],
+                r[3:6],
+                np.array([[r[6], 0, r[8]], [0, r[7], r[9]], [0, 0, 1]]),
+                r[10:],
+            )[0].ravel()
+            for p, r in zip(pts, rows)
+        ]
+    )
     np.testing.assert_allclose(project_rows(pts, rows), reference, atol=1e-8)
     np.testing.assert_allclose(project_rows_with_jac(pts, rows)[0], reference, atol=1e-8)
 
@@ -193,9 +221,15 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
     rng = np.random.default_rng(1)
     m = 2 * solver._CHUNK + 37  # two full chunks and a padded remainder
     pts = rng.normal(size=(m, 3))
-    rows = np.concatenate([rng.normal(size=(m, 3)) * 0.5, rng.normal(size=(m, 3)) + [0, 0, 10],
-                           np.tile([1000.0, 1100.0, 300.0, 200.0], (m, 1)),
-                           rng.normal(size=(m, 2)) * 0.05], axis=1)
+    rows = np.concatenate(
+        [
+            rng.normal(size=(m, 3)) * 0.5,
+            rng.normal(size=(m, 3)) + [0, 0, 10],
+            np.tile([1000.0, 1100.0, 300.0, 200.0], (m, 1)),
+            rng.normal(size=(m, 2)) * 0.05,
+        ],
+        axis=1,
+    )
     value, jpt, jrow = solver.project_rows_with_jac(pts, rows)
     assert value.shape == (m, 2) and jpt.shape == (m, 2, 3) and jrow.shape == (m, 2, 12)
 
@@ -204,8 +238,9 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
 
     for i in (0, solver._CHUNK - 1, solver._CHUNK, 2 * solver._CHUNK, m - 1):
         want_pt, want_row = jax.jacfwd(project, argnums=(0, 1))(pts[i], rows[i])
-        np.testing.assert_allclose(value[i], project_rows(pts[i:i + 1], rows[i:i + 1])[0],
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            value[i], project_rows(pts[i : i + 1], rows[i : i + 1])[0], rtol=1e-12
+        )
         np.testing.assert_allclose(jpt[i], want_pt, rtol=1e-10, atol=1e-9)
         np.testing.assert_allclose(jrow[i], want_row, rtol=1e-10, atol=1e-9)
 
@@ -234,8 +269,13 @@ def test_fixed_and_shared_parameters_are_respected(clean_scene):
     rig, pts3d, pts2d, _ = clean_scene
     start = perturb_rig(rig, rot_deg=1.0, dist_frac=0.01, seed=4)
     flat = pts2d[:, ::4].reshape(7, -1, 2)
-    _, refined, _ = bundle_adjust(start, flat, fixed=["*.intr", "f.rvec", "rm.tvec[2]"],
-                                  shared=[["rh.tvec[0]", "lh.tvec[0]"]], max_nfev=30)
+    _, refined, _ = bundle_adjust(
+        start,
+        flat,
+        fixed=["*.intr", "f.rvec", "rm.tvec[2]"],
+        shared=[["rh.tvec[0]", "lh.tvec[0]"]],
+        max_nfev=30,
+    )
     before, after = camera_table(start), camera_table(refined)
     np.testing.assert_array_equal(after[:, 6:10], before[:, 6:10])
     np.testing.assert_array_equal(after[3, 0:3], before[3, 0:3])
@@ -269,8 +309,7 @@ def test_fixed_intrinsics_fit_keeps_the_fly_in_place():
     rig = default_rig()
     pts3d = synthetic_fly(60, seed=1)
     pts2d, conf = observe(pts3d, rig, noise_px=1.0, outlier_frac=0.0, seed=1)
-    result, _, pts = bundle_adjust_sequence(rig, pts2d, conf, None, max_frames=30,
-                                            fixed=["*.intr"])
+    result, _, pts = bundle_adjust_sequence(rig, pts2d, conf, None, max_frames=30, fixed=["*.intr"])
     ok = np.isfinite(pts).all(-1)
     assert np.linalg.norm(pts[ok].mean(0) - pts3d[ok].mean(0)) < 0.1
     assert result.final_median_px < 1.0
@@ -281,8 +320,9 @@ def test_recovers_perturbed_rig_with_outliers(clean_scene):
     pts3d = synthetic_fly(60, seed=5)
     pts2d, conf = observe(pts3d, rig, noise_px=1.0, outlier_frac=0.05, seed=6)
     start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=7)
-    result, refined, _ = bundle_adjust_sequence(start, pts2d, conf, None, max_frames=30,
-                                                fixed=["*.intr"])
+    result, refined, _ = bundle_adjust_sequence(
+        start, pts2d, conf, None, max_frames=30, fixed=["*.intr"]
+    )
     assert result.final_median_px < 1.2
     assert result.initial_median_px > 3 * result.final_median_px
     assert result.inliers.sum() < np.isfinite(pts2d[:, result.frames]).all(-1).sum()
@@ -293,8 +333,10 @@ def test_recovers_perturbed_rig_with_outliers(clean_scene):
         return dist / dist.mean()
 
     truth_shape = shape_error(rig)
-    assert (np.abs(shape_error(refined) - truth_shape).max()
-            < 0.2 * np.abs(shape_error(start) - truth_shape).max())
+    assert (
+        np.abs(shape_error(refined) - truth_shape).max()
+        < 0.2 * np.abs(shape_error(start) - truth_shape).max()
+    )
 
 
 def test_bad_reference_raises_before_solving(clean_scene):
@@ -309,8 +351,9 @@ def test_points_to_use_restricts_points_by_name(clean_scene):
     rig, _, pts2d, conf = clean_scene
     skeleton = Skeleton.fly()
     names = ["rf_thorax_coxa", "rf_coxa_trochanter", "rf_femur_tibia", "rm_claw"]
-    result, _, pts = bundle_adjust_sequence(rig, pts2d, conf, skeleton, points_to_use=names,
-                                            max_frames=5, max_nfev=5)
+    result, _, pts = bundle_adjust_sequence(
+        rig, pts2d, conf, skeleton, points_to_use=names, max_frames=5, max_nfev=5
+    )
     used = np.isfinite(pts).all(-1).any(0)
     assert set(np.flatnonzero(used)) == {skeleton.point_names.index(n) for n in names}
     assert len(result.frames) == 5
@@ -324,14 +367,25 @@ def test_from_config_uses_the_table(clean_scene):
 
     rig, _, pts2d, conf = clean_scene
     base = Config.default().data
-    config = Config.from_dict({**base, "bundle_adjustment": {
-        "points_to_use": ["rf_femur_tibia", "rf_tibia_tarsus", "rf_claw", "rm_claw"],
-        "fixed": ["*.intr", "f.tvec"], "weigh_by_confidence": True, "max_frames": 4,
-        "frame_sampling": "confidence", "max_nfev": 4}})
+    config = Config.from_dict(
+        {
+            **base,
+            "bundle_adjustment": {
+                "points_to_use": ["rf_femur_tibia", "rf_tibia_tarsus", "rf_claw", "rm_claw"],
+                "fixed": ["*.intr", "f.tvec"],
+                "weigh_by_confidence": True,
+                "max_frames": 4,
+                "frame_sampling": "confidence",
+                "max_nfev": 4,
+            },
+        }
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # nothing to warn about: see below
         result, refined, pts3d = bundle_adjust_from_config(config, rig, pts2d, conf)
-    assert len(result.frames) == 4 and result.nfev <= 4  # max_nfev reaches the solver (the final round)
+    assert (
+        len(result.frames) == 4 and result.nfev <= 4
+    )  # max_nfev reaches the solver (the final round)
     # the left cameras see none of these points: held (they once showed up as exact null
     # directions, "poorly determined ... beyond the 0 gauge directions ... 0.0e+00")
     assert result.report["unobserved"] == ["lf", "lm", "lh"]

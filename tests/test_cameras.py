@@ -46,7 +46,9 @@ def test_default_rig_positions_and_look_at(default_rig):
     assert default_rig.names == list(AZIMUTHS)
     for cam in default_rig:
         az = np.deg2rad(AZIMUTHS[cam.name])
-        np.testing.assert_allclose(cam.position, DISTANCE * np.array([np.cos(az), np.sin(az), 0.0]), atol=1e-12)
+        np.testing.assert_allclose(
+            cam.position, DISTANCE * np.array([np.cos(az), np.sin(az), 0.0]), atol=1e-12
+        )
         np.testing.assert_allclose(cam.rmat @ cam.rmat.T, np.eye(3), atol=1e-14)
         assert np.linalg.det(cam.rmat) == pytest.approx(1.0)
         # The origin (look_at) is on the optical axis, in front of the camera.
@@ -73,16 +75,22 @@ def test_azimuth_sides(default_rig):
 
 
 def test_elevation_and_roll():
-    rvec, tvec = orbit_extrinsics(look_at=(1.0, 2.0, 3.0), distance=10.0, azimuth_deg=30.0, elevation_deg=40.0)
+    rvec, tvec = orbit_extrinsics(
+        look_at=(1.0, 2.0, 3.0), distance=10.0, azimuth_deg=30.0, elevation_deg=40.0
+    )
     cam = Camera(rvec, tvec, [100.0, 100.0, 50.0, 50.0], [], name="c")
     el, az = np.deg2rad(40.0), np.deg2rad(30.0)
-    expected = np.array([1.0, 2.0, 3.0]) + 10.0 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    expected = np.array([1.0, 2.0, 3.0]) + 10.0 * np.array(
+        [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+    )
     np.testing.assert_allclose(cam.position, expected, atol=1e-12)
     np.testing.assert_allclose(cam.project(np.array([1.0, 2.0, 3.0])), [50.0, 50.0], atol=1e-9)
     assert cam.project(np.array([1.0, 2.0, 4.0]))[1] < 50.0  # up is still up
     # Straight down (elevation 90) is well defined.
     rvec, tvec = orbit_extrinsics(distance=5.0, azimuth_deg=0.0, elevation_deg=90.0)
-    assert np.all(np.isfinite(rvec)) and np.allclose(-geometry.rvec_to_rmat_one(rvec).T @ tvec, [0, 0, 5])
+    assert np.all(np.isfinite(rvec)) and np.allclose(
+        -geometry.rvec_to_rmat_one(rvec).T @ tvec, [0, 0, 5]
+    )
     # Roll +90: what was above the centre now appears to its right (clockwise).
     rvec, tvec = orbit_extrinsics(distance=10.0, azimuth_deg=0.0, roll_deg=90.0)
     rolled = Camera(rvec, tvec, [100.0, 100.0, 50.0, 50.0], [])
@@ -98,7 +106,11 @@ def test_focal_scalar_or_pair_and_principal_point():
             {"distance": 10.0, "focal_length_px": 500.0},
             {
                 "a": {"azimuth_deg": 0},
-                "b": {"azimuth_deg": 90, "focal_length_px": [400.0, 410.0], "principal_point_px": [1.0, 2.0]},
+                "b": {
+                    "azimuth_deg": 90,
+                    "focal_length_px": [400.0, 410.0],
+                    "principal_point_px": [1.0, 2.0],
+                },
             },
         ),
         image_sizes={"a": (480, 960)},
@@ -140,7 +152,9 @@ def test_explicit_extrinsics_override_orbit_defaults():
     ],
 )
 def test_bad_camera_specs(spec, message):
-    config = cameras_config({"distance": 10.0, "focal_length_px": 500.0, "principal_point_px": [1, 1]}, {"bad": spec})
+    config = cameras_config(
+        {"distance": 10.0, "focal_length_px": 500.0, "principal_point_px": [1, 1]}, {"bad": spec}
+    )
     with pytest.raises(ConfigError, match=message):
         CameraGroup.from_config(config)
 
@@ -159,9 +173,19 @@ def test_from_arrays_stacked_views_and_padding():
     intrs = rng.uniform(100, 200, size=(3, 4))
     dists = rng.normal(size=(3, 5)) * 0.01
     group = CameraGroup.from_arrays(["a", "b", "c"], rvecs, tvecs, intrs, dists)
-    for got, ref in ((group.rvecs, rvecs), (group.tvecs, tvecs), (group.intrs, intrs), (group.dists, dists)):
+    for got, ref in (
+        (group.rvecs, rvecs),
+        (group.tvecs, tvecs),
+        (group.intrs, intrs),
+        (group.dists, dists),
+    ):
         np.testing.assert_array_equal(got, ref)
-    mixed = CameraGroup([Camera(rvecs[0], tvecs[0], intrs[0], [0.1, 0.2], name="p"), Camera(rvecs[1], tvecs[1], intrs[1], [], name="q")])
+    mixed = CameraGroup(
+        [
+            Camera(rvecs[0], tvecs[0], intrs[0], [0.1, 0.2], name="p"),
+            Camera(rvecs[1], tvecs[1], intrs[1], [], name="q"),
+        ]
+    )
     np.testing.assert_array_equal(mixed.dists, [[0.1, 0.2], [0.0, 0.0]])
     assert len(group) == 3 and [c.name for c in group] == ["a", "b", "c"]
     assert group[1] is group["b"]
@@ -172,8 +196,14 @@ def test_from_arrays_stacked_views_and_padding():
         group.subset(["z"])
     for v, cam in enumerate(group):
         kmat = np.array([[intrs[v, 0], 0, intrs[v, 2]], [0, intrs[v, 1], intrs[v, 3]], [0, 0, 1]])
-        np.testing.assert_allclose(group.pmats[v], kmat @ np.column_stack([cv2.Rodrigues(rvecs[v])[0], tvecs[v]]), rtol=1e-13)
-        np.testing.assert_allclose(cam.position, -cv2.Rodrigues(rvecs[v])[0].T @ tvecs[v], atol=1e-13)
+        np.testing.assert_allclose(
+            group.pmats[v],
+            kmat @ np.column_stack([cv2.Rodrigues(rvecs[v])[0], tvecs[v]]),
+            rtol=1e-13,
+        )
+        np.testing.assert_allclose(
+            cam.position, -cv2.Rodrigues(rvecs[v])[0].T @ tvecs[v], atol=1e-13
+        )
 
 
 def test_group_projection_matches_jax_and_opencv_with_distortion():
@@ -186,8 +216,12 @@ def test_group_projection_matches_jax_and_opencv_with_distortion():
     pts = rng.normal(size=(4, 5, 3))
     got = group.project(pts)
     assert got.shape == (3, 4, 5, 2)
-    np.testing.assert_allclose(got, np.asarray(geometry.project_full(pts, rvecs, tvecs, intrs, dists)), rtol=1e-12)
-    ref = cv2.projectPoints(pts.reshape(-1, 3), rvecs[1], tvecs[1], group[1].kmat, dists[1])[0][:, 0]
+    np.testing.assert_allclose(
+        got, np.asarray(geometry.project_full(pts, rvecs, tvecs, intrs, dists)), rtol=1e-12
+    )
+    ref = cv2.projectPoints(pts.reshape(-1, 3), rvecs[1], tvecs[1], group[1].kmat, dists[1])[0][
+        :, 0
+    ]
     np.testing.assert_allclose(got[1].reshape(-1, 2), ref, rtol=1e-9)
     np.testing.assert_allclose(group["b"].project(pts), got[1], rtol=1e-12)
 
@@ -210,7 +244,9 @@ def test_group_triangulate_handles_distortion_exactly():
 
     for cam, pixel in zip(group, group.project(pts[0])):
         origin, direction = cam.backproject_ray(pixel)
-        ref_origin, ref_direction = geometry.backproject_ray_one(pixel, cam.rvec, cam.tvec, cam.intr, cam.dist)
+        ref_origin, ref_direction = geometry.backproject_ray_one(
+            pixel, cam.rvec, cam.tvec, cam.intr, cam.dist
+        )
         np.testing.assert_allclose(origin, ref_origin, atol=1e-12)
         np.testing.assert_allclose(direction, ref_direction, rtol=1e-10)
         np.testing.assert_allclose(cam.project(origin + 3.0 * direction), pixel, atol=1e-8)

@@ -24,13 +24,21 @@ def result_file(tmp_path):
     angles = np.deg2rad([-30.0, 0.0, 30.0])
     rvecs = np.stack([[0.0, a, 0.0] for a in angles])
     cameras = CameraGroup.from_arrays(
-        VIEWS, rvecs, np.tile([0.0, 0.0, 20.0], (3, 1)), np.tile([800.0, 810.0, 320.0, 240.0], (3, 1)),
+        VIEWS,
+        rvecs,
+        np.tile([0.0, 0.0, 20.0], (3, 1)),
+        np.tile([800.0, 810.0, 320.0, 240.0], (3, 1)),
         np.tile([0.01, 0.0, 0.0, 0.0, 0.0], (3, 1)),
     )
     t = np.arange(5, dtype=float)
-    pts3d = np.stack([np.stack([t * 0.1, np.zeros(5), np.zeros(5)], -1),
-                      np.stack([t * 0.1 + 1.0, np.zeros(5), np.zeros(5)], -1),
-                      np.stack([t * 0.1 + 1.0, 2.0 + 0.5 * (t == 4), np.zeros(5)], -1)], axis=1)
+    pts3d = np.stack(
+        [
+            np.stack([t * 0.1, np.zeros(5), np.zeros(5)], -1),
+            np.stack([t * 0.1 + 1.0, np.zeros(5), np.zeros(5)], -1),
+            np.stack([t * 0.1 + 1.0, 2.0 + 0.5 * (t == 4), np.zeros(5)], -1),
+        ],
+        axis=1,
+    )
     pts3d[2, 1] = np.nan
     pts2d = cameras.project(np.nan_to_num(pts3d))
     pts2d[:, 2, 1] = np.nan
@@ -38,7 +46,12 @@ def result_file(tmp_path):
     err[0, :, 0] = 1.5
     conf = np.where(np.isfinite(pts2d).all(-1), 0.75, np.nan)
     result = PoseResult(
-        cameras=cameras, skeleton=skeleton, pts2d=pts2d, conf=conf, pts3d=pts3d, reproj_error=err,
+        cameras=cameras,
+        skeleton=skeleton,
+        pts2d=pts2d,
+        conf=conf,
+        pts3d=pts3d,
+        reproj_error=err,
         image_sizes={v: (480, 640) for v in VIEWS},
     )
     path = tmp_path / "results.h5"
@@ -54,9 +67,13 @@ def test_summary_figures(result_file):
     assert tri["frames"] == 5 and tri["reconstructed"] == pytest.approx(14 / 15)
     points = {p["point"]: p for p in summary["points"]}
     assert points["p1"]["reconstructed"] == pytest.approx(0.8)
-    assert points["p0"]["err_median"] == pytest.approx(0.5) and points["p0"]["err_p95"] == pytest.approx(1.5)
+    assert points["p0"]["err_median"] == pytest.approx(0.5) and points["p0"][
+        "err_p95"
+    ] == pytest.approx(1.5)
     bones = {b["bone"]: b for b in summary["bones"]}
-    assert bones["p0-p1"]["median_length"] == pytest.approx(1.0) and bones["p0-p1"]["spread"] == pytest.approx(0.0)
+    assert bones["p0-p1"]["median_length"] == pytest.approx(1.0) and bones["p0-p1"][
+        "spread"
+    ] == pytest.approx(0.0)
     assert bones["p1-p2"]["frames"] == 4  # p1 lost in frame 2
     # lengths 2, 2, 2.5 over frames 0, 1, 3, 4 -> IQR 0.125 over median 2
     assert bones["p1-p2"]["spread"] == pytest.approx(0.0625)
@@ -77,7 +94,9 @@ def test_export_writes_3d_and_dlc_csv_that_import_back(result_file, tmp_path, ca
     table = pd.read_csv(csv3d)
     assert len(table) == 5
     assert table.loc[2, ["p1_x", "p1_y", "p1_z", "p1_error", "p1_score"]].isna().all()
-    np.testing.assert_allclose(table[["p2_x", "p2_y", "p2_z"]].to_numpy(), result.pts3d[:, 2], atol=0)
+    np.testing.assert_allclose(
+        table[["p2_x", "p2_y", "p2_z"]].to_numpy(), result.pts3d[:, 2], atol=0
+    )
     assert table.loc[0, "p0_error"] == pytest.approx((1.5 + 0.5 + 0.5) / 3)
     config = {"cameras": {v: {} for v in VIEWS}, "skeleton": {"point_names": ["p0", "p1", "p2"]}}
     back = import_points2d(config, dlc_dir, {"format": "dlc_csv", "image_size": [480, 640]})
@@ -103,7 +122,9 @@ def test_errors_are_one_line_exit_1(tmp_path, capsys):
     assert "nothing to do" in capsys.readouterr().err
 
 
-def test_inspect_prints_aligned_plain_text_and_imports_no_optional_package(result_file, capsys, monkeypatch):
+def test_inspect_prints_aligned_plain_text_and_imports_no_optional_package(
+    result_file, capsys, monkeypatch
+):
     import sys
 
     monkeypatch.setitem(sys.modules, "rich", None)  # importing it would now fail loudly
@@ -126,8 +147,11 @@ def test_inspect_into_a_closed_pipe_exits_quietly(result_file):
     path, _ = result_file
     src = str(Path(__file__).resolve().parents[1] / "src")
     code = f"import sys; sys.path.insert(0, {src!r}); from flylib.cli import main; sys.exit(main())"
-    proc = subprocess.Popen([sys.executable, "-c", code, "inspect", str(path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "inspect", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     proc.stdout.close()  # the reader is gone before the first line is written
     err = proc.stderr.read().decode()
     proc.wait(timeout=120)

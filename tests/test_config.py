@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import tomli_w
-import yaml
 
 from flylib.config import DEFAULT_CONFIG_PATH, PARAM_STAGES, STAGE_DEFAULTS, STAGES, Config
 from flylib.errors import ConfigError
@@ -47,8 +46,12 @@ def test_packaged_default_is_a_file_in_the_package_identical_to_the_users_copy()
     assert DEFAULT_CONFIG_PATH.read_bytes() == user.read_bytes(), (
         f"{DEFAULT_CONFIG_PATH} and {user} differ: edit one, then copy it over the other"
     )
-    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
-    assert any(fnmatch.fnmatch(DEFAULT_CONFIG_PATH.name, pattern) for pattern in package_data["flylib"])
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]
+    assert any(
+        fnmatch.fnmatch(DEFAULT_CONFIG_PATH.name, pattern) for pattern in package_data["flylib"]
+    )
 
 
 def test_skeleton_fly_is_the_default_configs_skeleton(default):
@@ -96,15 +99,23 @@ def test_refinement_needs_triangulation_and_kinematics_some_3d(data):
 
 def test_refinement_and_kinematics_tables_are_checked(data):
     data["refinement"] = {"smooth_order": 3, "rigid_points": ["lf_thorax_coxa", "nose"], "lossy": 1}
-    data["kinematics"] = {"angles": {"bad": ["lf_claw", "lf_femur_tibia"], "ok": ["lf_claw", "lf_femur_tibia",
-                                                                                "lf_tibia_tarsus"]},
-                          "body_frame": {"origin": ["lf_thorax_coxa"]}}
+    data["kinematics"] = {
+        "angles": {
+            "bad": ["lf_claw", "lf_femur_tibia"],
+            "ok": ["lf_claw", "lf_femur_tibia", "lf_tibia_tarsus"],
+        },
+        "body_frame": {"origin": ["lf_thorax_coxa"]},
+    }
     with pytest.raises(ConfigError) as err:
         Config.from_dict(data)
     text = str(err.value)
-    for needle in ("refinement.smooth_order", "refinement.rigid_points: unknown point 'nose'",
-                   "refinement.lossy: unknown parameter", "kinematics.angles.bad: expected three point names",
-                   "kinematics.body_frame: missing posterior"):
+    for needle in (
+        "refinement.smooth_order",
+        "refinement.rigid_points: unknown point 'nose'",
+        "refinement.lossy: unknown parameter",
+        "kinematics.angles.bad: expected three point names",
+        "kinematics.body_frame: missing posterior",
+    ):
         assert needle in text, needle
     assert "kinematics.angles.ok" not in text
 
@@ -145,8 +156,16 @@ def test_typed_views(default, data):
 
 def test_stage_params_cover_every_workflow_stage_and_are_json(default):
     params = all_params(default)
-    assert set(params) == {"pose2d", "bundle_adjustment", "pictorial_structures", "triangulation", "refinement",
-                           "assemble", "kinematics", "visualization"}
+    assert set(params) == {
+        "pose2d",
+        "bundle_adjustment",
+        "pictorial_structures",
+        "triangulation",
+        "refinement",
+        "assemble",
+        "kinematics",
+        "visualization",
+    }
     for value in params.values():
         assert json.loads(json.dumps(value)) == value
     text = json.dumps(params["pose2d"])
@@ -239,13 +258,18 @@ def test_palette_change_touches_only_outputs_that_draw_it(default, data):
 
 def test_stage_params_ignore_mapping_key_order(default, data):
     data["triangulation"] = dict(reversed(list(data["triangulation"].items())))
-    data["pose2d"]["output_points"]["f"] = dict(reversed(list(data["pose2d"]["output_points"]["f"].items())))
+    data["pose2d"]["output_points"]["f"] = dict(
+        reversed(list(data["pose2d"]["output_points"]["f"].items()))
+    )
     assert all_params(Config.from_dict(data)) == all_params(default)
 
 
 def test_camera_order_is_part_of_the_params(default, data):
     cams = data["cameras"]
-    data["cameras"] = {"defaults": cams["defaults"], **{k: cams[k] for k in reversed(default.view_names())}}
+    data["cameras"] = {
+        "defaults": cams["defaults"],
+        **{k: cams[k] for k in reversed(default.view_names())},
+    }
     assert "pose2d" in changed_stages(default, Config.from_dict(data))
 
 
@@ -289,29 +313,86 @@ INVALID = [
     (_set("bundle_adjustment.jac", "3-point"), "bundle_adjustment.jac: unknown parameter"),
     (_set("bundle_adjustment.loss", "hubber"), "bundle_adjustment.loss: expected one of 'linear'"),
     (_set("bundle_adjustment.ftol", "1e-x"), "bundle_adjustment.ftol: expected a number"),
-    (_set("triangulation.min_inliers", "two"), "triangulation.min_inliers: expected an integer >= 2"),
+    (
+        _set("triangulation.min_inliers", "two"),
+        "triangulation.min_inliers: expected an integer >= 2",
+    ),
     (_set("triangulation.min_inliers", 1), "triangulation.min_inliers: expected an integer >= 2"),
-    (_set("triangulation.ransac_threshold", -1.0), "triangulation.ransac_threshold: expected a number > 0"),
-    (_set("triangulation.weigh_by_confidence", "yes"), "triangulation.weigh_by_confidence: expected true or false"),
+    (
+        _set("triangulation.ransac_threshold", -1.0),
+        "triangulation.ransac_threshold: expected a number > 0",
+    ),
+    (
+        _set("triangulation.weigh_by_confidence", "yes"),
+        "triangulation.weigh_by_confidence: expected true or false",
+    ),
     (_set("pipeline.do_pose2d", 1), "pipeline.do_pose2d: expected true or false"),
     (_set("pose2d.batch_size", 1.5), "pose2d.batch_size: expected an integer >= 1"),
     (_set("pictorial_structures.k", True), "pictorial_structures.k: expected an integer >= 1"),
-    (_set("bundle_adjustment.fixed", "*.intr"), "bundle_adjustment.fixed: expected a list of strings"),
-    (_set("triangulation.method", "ransack"), "triangulation.method: expected one of 'ransac', 'greedy', 'dlt'"),
-    (_set("bundle_adjustment.frame_sampling", "random"), "bundle_adjustment.frame_sampling: expected one of 'even'"),
-    (_set("pose2d.precision", "float64"), "pose2d.precision: expected one of 'float32', 'float16', 'bfloat16'"),
-    (_set("skeleton.limb_points.lf_leg.2", "lf_femurr"), "skeleton.limb_points.lf_leg: unknown point 'lf_femurr' (known: lf_thorax_coxa"),
-    (_set("bundle_adjustment.points_to_use.0", "lf_thorax"), "bundle_adjustment.points_to_use: unknown point 'lf_thorax'"),
-    (_rename_key("pose2d.output_points.f", "rf_claw", "rf_clow"), "pose2d.output_points.f.rf_clow: unknown point 'rf_clow'"),
-    (_set("pose2d.pathways.0.source", "vid_rhh"), "pose2d.pathways.rh.source: unknown source 'vid_rhh' (known: vid_rh,"),
-    (_set("pose2d.pathways.0.source", ["vid_rh"]), "pose2d.pathways.rh.source: unknown source ['vid_rh']"),
-    (_set("pose2d.pathways.4.preprocessor", "flop"), "pose2d.pathways.f_flip.preprocessor: unknown preprocessor 'flop' (known: flip)"),
-    (_set("pose2d.pathways.1.model", "sh8"), "pose2d.pathways.rm.model: unknown model 'sh8' (known: deepfly2d)"),
-    (_set("pose2d.output_points.f.rf_claw.pathway", "front"), "pose2d.output_points.f.rf_claw.pathway: unknown pathway 'front'"),
-    (_set("pose2d.output_points.rh.r_abdomen2.out_channel", 19), "pose2d.output_points.rh.r_abdomen2.out_channel: 19 is out of range for model 'deepfly2d' (n_out_channels 19"),
-    (_set("pose2d.output_points.rh.r_abdomen2.out_channel", -1), "pose2d.output_points.rh.r_abdomen2.out_channel: expected an integer >= 0"),
-    (_rename_key("pose2d.output_points", "f", "front"), "pose2d.output_points.front: unknown view 'front' (cameras: rh, rm"),
-    (_set("pose2d.models.0.n_out_channels", 0), "pose2d.models.deepfly2d.n_out_channels: expected an integer >= 1"),
+    (
+        _set("bundle_adjustment.fixed", "*.intr"),
+        "bundle_adjustment.fixed: expected a list of strings",
+    ),
+    (
+        _set("triangulation.method", "ransack"),
+        "triangulation.method: expected one of 'ransac', 'greedy', 'dlt'",
+    ),
+    (
+        _set("bundle_adjustment.frame_sampling", "random"),
+        "bundle_adjustment.frame_sampling: expected one of 'even'",
+    ),
+    (
+        _set("pose2d.precision", "float64"),
+        "pose2d.precision: expected one of 'float32', 'float16', 'bfloat16'",
+    ),
+    (
+        _set("skeleton.limb_points.lf_leg.2", "lf_femurr"),
+        "skeleton.limb_points.lf_leg: unknown point 'lf_femurr' (known: lf_thorax_coxa",
+    ),
+    (
+        _set("bundle_adjustment.points_to_use.0", "lf_thorax"),
+        "bundle_adjustment.points_to_use: unknown point 'lf_thorax'",
+    ),
+    (
+        _rename_key("pose2d.output_points.f", "rf_claw", "rf_clow"),
+        "pose2d.output_points.f.rf_clow: unknown point 'rf_clow'",
+    ),
+    (
+        _set("pose2d.pathways.0.source", "vid_rhh"),
+        "pose2d.pathways.rh.source: unknown source 'vid_rhh' (known: vid_rh,",
+    ),
+    (
+        _set("pose2d.pathways.0.source", ["vid_rh"]),
+        "pose2d.pathways.rh.source: unknown source ['vid_rh']",
+    ),
+    (
+        _set("pose2d.pathways.4.preprocessor", "flop"),
+        "pose2d.pathways.f_flip.preprocessor: unknown preprocessor 'flop' (known: flip)",
+    ),
+    (
+        _set("pose2d.pathways.1.model", "sh8"),
+        "pose2d.pathways.rm.model: unknown model 'sh8' (known: deepfly2d)",
+    ),
+    (
+        _set("pose2d.output_points.f.rf_claw.pathway", "front"),
+        "pose2d.output_points.f.rf_claw.pathway: unknown pathway 'front'",
+    ),
+    (
+        _set("pose2d.output_points.rh.r_abdomen2.out_channel", 19),
+        "pose2d.output_points.rh.r_abdomen2.out_channel: 19 is out of range for model 'deepfly2d' (n_out_channels 19",
+    ),
+    (
+        _set("pose2d.output_points.rh.r_abdomen2.out_channel", -1),
+        "pose2d.output_points.rh.r_abdomen2.out_channel: expected an integer >= 0",
+    ),
+    (
+        _rename_key("pose2d.output_points", "f", "front"),
+        "pose2d.output_points.front: unknown view 'front' (cameras: rh, rm",
+    ),
+    (
+        _set("pose2d.models.0.n_out_channels", 0),
+        "pose2d.models.deepfly2d.n_out_channels: expected an integer >= 1",
+    ),
     (_set("sources.1.name", "vid_rh"), "sources[1].name: 'vid_rh' is defined twice"),
     (_set("pose2d.import", "dlc"), "pose2d.import: expected a mapping or null"),
     (_set("calibration", ["a.toml"]), "calibration: expected a mapping or null"),
@@ -335,7 +416,14 @@ def test_each_problem_is_reported_with_its_key_path(data, mutate, message):
 def test_least_squares_options_pass_through(data):
     data["bundle_adjustment"].update(f_scale=2.0, ftol=1e-6, method="trf", x_scale="jac")
     ba = Config.from_dict(data).bundle_adjustment
-    assert ba.least_squares == {"max_nfev": 2000, "loss": "linear", "f_scale": 2.0, "ftol": 1e-6, "method": "trf", "x_scale": "jac"}
+    assert ba.least_squares == {
+        "max_nfev": 2000,
+        "loss": "linear",
+        "f_scale": 2.0,
+        "ftol": 1e-6,
+        "method": "trf",
+        "x_scale": "jac",
+    }
 
 
 def test_all_problems_are_reported_together_one_line_each(data):
@@ -360,15 +448,24 @@ def test_output_points_filled_twice_is_reported_from_yaml(tmp_path):
     line = "      rf_claw: {pathway: f, out_channel: 4}\n"
     assert line in text
     path = tmp_path / "dup.yaml"
-    path.write_text(text.replace(line, line + "      rf_claw: {pathway: f_flip, out_channel: 4}\n", 1))
-    with pytest.raises(ConfigError, match=r"pose2d\.output_points\.f\.rf_claw: \(view 'f', point 'rf_claw'\) is filled twice \(lines \d+ and \d+\)") as info:
+    path.write_text(
+        text.replace(line, line + "      rf_claw: {pathway: f_flip, out_channel: 4}\n", 1)
+    )
+    with pytest.raises(
+        ConfigError,
+        match=r"pose2d\.output_points\.f\.rf_claw: \(view 'f', point 'rf_claw'\) is filled twice \(lines \d+ and \d+\)",
+    ) as info:
         Config.from_yaml(path)
     assert str(path) in str(info.value)
 
 
 def test_duplicate_key_anywhere_is_reported(tmp_path):
     path = tmp_path / "dup.yaml"
-    path.write_text(DEFAULT_CONFIG_PATH.read_text().replace("  min_inliers: 2\n", "  min_inliers: 2\n  min_inliers: 3\n"))
+    path.write_text(
+        DEFAULT_CONFIG_PATH.read_text().replace(
+            "  min_inliers: 2\n", "  min_inliers: 2\n  min_inliers: 3\n"
+        )
+    )
     with pytest.raises(ConfigError, match="triangulation.min_inliers: key given twice"):
         Config.from_yaml(path)
 
@@ -387,7 +484,11 @@ def test_skeleton_without_table_uses_fly_points(data):
 
 def test_yaml_exponent_without_dot_reads_as_float(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text(DEFAULT_CONFIG_PATH.read_text().replace("  loss: linear\n", "  loss: linear\n  ftol: 1e-10\n"))
+    path.write_text(
+        DEFAULT_CONFIG_PATH.read_text().replace(
+            "  loss: linear\n", "  loss: linear\n  ftol: 1e-10\n"
+        )
+    )
     assert Config.from_yaml(path).bundle_adjustment.least_squares["ftol"] == 1e-10
 
 
@@ -404,7 +505,9 @@ def test_file_errors_are_one_line_config_errors(tmp_path):
     with pytest.raises(ConfigError, match="missing.yaml: config file not found"):
         Config.from_file(tmp_path / "missing.yaml")
     (tmp_path / "c.json").write_text("{}")
-    with pytest.raises(ConfigError, match=r"unknown config format '\.json'; use a \.yaml, \.yml or \.toml file"):
+    with pytest.raises(
+        ConfigError, match=r"unknown config format '\.json'; use a \.yaml, \.yml or \.toml file"
+    ):
         Config.from_file(tmp_path / "c.json")
     (tmp_path / "bad.yaml").write_text("triangulation: {method: ransac\n")
     with pytest.raises(ConfigError, match="bad.yaml: not valid YAML .*line 2") as info:
@@ -494,7 +597,9 @@ def test_error_messages_are_single_lines_per_problem(data):
     with pytest.raises(ConfigError) as info:
         Config.from_dict(data)
     (problem,) = info.value.problems
-    assert re.fullmatch(r"triangulation\.min_inliers: expected an integer >= 2, got 'two' \(str\)", problem)
+    assert re.fullmatch(
+        r"triangulation\.min_inliers: expected an integer >= 2, got 'two' \(str\)", problem
+    )
 
 
 def test_least_squares_option_list_matches_scipy():
@@ -514,9 +619,21 @@ def test_pictorial_params_are_keywords_of_the_reconstructor(data):
     import inspect
 
     from flylib import pictorial
-    data["pictorial_structures"].update(max_hyp=50, inlier_px=20.0, huber=3.0, mu=0.5, nms=2.0, bone_max_frames=None)
+
+    data["pictorial_structures"].update(
+        max_hyp=50, inlier_px=20.0, huber=3.0, mu=0.5, nms=2.0, bone_max_frames=None
+    )
     kwargs = Config.from_dict(data).pictorial.solver_kwargs()
-    assert set(kwargs) == {"temporal", "lam", "bone_max_frames", "max_hyp", "inlier_px", "huber", "mu", "nms"}
+    assert set(kwargs) == {
+        "temporal",
+        "lam",
+        "bone_max_frames",
+        "max_hyp",
+        "inlier_px",
+        "huber",
+        "mu",
+        "nms",
+    }
     assert set(kwargs) <= set(inspect.signature(pictorial.reconstruct).parameters)
 
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
 from flylib.config import Config
 from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
 from flylib.errors import ConfigError, ResultsError
-from flylib.results import Pose2dData, PoseResult, read_stage
 from flylib.pipeline.stages import run_assemble, run_triangulation
+from flylib.results import Pose2dData, PoseResult, read_stage
 from flylib.triangulation import reconstruct_from_config
+
+from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
 FRAMES = 10
 
@@ -47,7 +48,9 @@ def test_save_writes_the_documented_layout(tmp_path):
         import json
 
         meta = json.loads(f.attrs["meta"])
-        assert meta["deeperfly_corrections_format_version"] == 3 and meta["source"] == "x/results.h5"
+        assert (
+            meta["deeperfly_corrections_format_version"] == 3 and meta["source"] == "x/results.h5"
+        )
         assert "created_utc" in meta
         g = f["pose2d_corrections"]
         assert g["points"].dtype == np.float64 and g["points"].shape == (2, 3, 4, 2)
@@ -81,9 +84,14 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
     moved = pose2d.pts2d[views[0], t, p] + [6.0, -3.0]
     q = int(np.flatnonzero(seen[:, 6].sum(axis=0) >= 3)[1])
     hidden = int(np.flatnonzero(seen[:, 6, q])[0])
-    sidecar = write_seed_sidecar(tmp_path / "corrections.h5", seen.shape, version=3,
-                                 edits2d=[(views[0], t, p, *moved)], invisible=[(hidden, 6, q)],
-                                 edits3d=[(8, 0, 0.1, 0.2, 0.3)])
+    sidecar = write_seed_sidecar(
+        tmp_path / "corrections.h5",
+        seen.shape,
+        version=3,
+        edits2d=[(views[0], t, p, *moved)],
+        invisible=[(hidden, 6, q)],
+        edits3d=[(8, 0, 0.1, 0.2, 0.3)],
+    )
     out = tmp_path / "triangulation.h5"
     run_triangulation(config, outdir / "stages" / "pose2d.h5", out, corrections_path=sidecar)
     tri = read_stage(out, "triangulation")
@@ -100,11 +108,15 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
     assert tri["corrected_2d"].sum() == 2 and tri["attrs"]["corrections"]["count"] == 3
     # untouched points are what the uncorrected run gave
     untouched = ~corrected
-    np.testing.assert_array_equal(np.isfinite(tri["points3d"][untouched]),
-                                  np.isfinite(result.pts3d[untouched]))
+    np.testing.assert_array_equal(
+        np.isfinite(tri["points3d"][untouched]), np.isfinite(result.pts3d[untouched])
+    )
     # assembled: the marks travel into results.h5
-    run_assemble(config, {"pose2d": outdir / "stages" / "pose2d.h5", "triangulation": out},
-                 tmp_path / "assembled")
+    run_assemble(
+        config,
+        {"pose2d": outdir / "stages" / "pose2d.h5", "triangulation": out},
+        tmp_path / "assembled",
+    )
     with h5py.File(tmp_path / "assembled" / "results.h5") as f:
         assert f["triangulation/corrected"][()].sum() == 3
 
@@ -142,7 +154,9 @@ def test_a_sidecar_of_another_shape_fails_naming_it(outdir, tmp_path):
     config = Config.from_file(outdir / "config.yaml")
     sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES + 2, 38))
     with pytest.raises(ResultsError, match=r"corrections\.h5: corrects a result of"):
-        run_triangulation(config, outdir / "stages" / "pose2d.h5", tmp_path / "t.h5", corrections_path=sidecar)
+        run_triangulation(
+            config, outdir / "stages" / "pose2d.h5", tmp_path / "t.h5", corrections_path=sidecar
+        )
     assert not (tmp_path / "t.h5").exists()
 
 
@@ -150,7 +164,10 @@ def test_corrections_path_default_and_template(tmp_path):
     config = Config.default()
     assert corrections_path(config, tmp_path) == (tmp_path / "corrections.h5", False)
     data = dict(config.data, corrections="fixes/{name}.h5")
-    assert corrections_path(data, tmp_path / "out", tmp_path / "fly1") == (tmp_path / "out" / "fixes" / "fly1.h5", True)
+    assert corrections_path(data, tmp_path / "out", tmp_path / "fly1") == (
+        tmp_path / "out" / "fixes" / "fly1.h5",
+        True,
+    )
     with pytest.raises(ConfigError, match="unknown placeholder"):
         corrections_path(dict(config.data, corrections="{nope}.h5"), tmp_path)
     from flylib.config.validation import validate_config

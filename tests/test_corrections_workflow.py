@@ -23,8 +23,9 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("corrections_workflow")
     config = base_config()
     config["bundle_adjustment"]["max_nfev"] = 20
-    config["recordings"] = [make_recording(config, root / name, seed)
-                            for seed, name in enumerate(("recA", "recB"))]
+    config["recordings"] = [
+        make_recording(config, root / name, seed) for seed, name in enumerate(("recA", "recB"))
+    ]
     snakemake(root, config=config)
     return root, config
 
@@ -53,7 +54,9 @@ def test_saved_corrections_rerun_exactly_triangulation_assemble_visualization(ru
     video_before = (out / "pose2d.mp4").read_bytes()
     corr, (t, p), (t2, q) = an_edit(out)
     corr.save(out / "corrections.h5")
-    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
+    assert planned(root, config) == jobs(
+        ("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",)
+    )
 
     snakemake(root, config=config)
     assert planned(root, config) == set()
@@ -76,9 +79,13 @@ def test_saved_corrections_rerun_exactly_triangulation_assemble_visualization(ru
     # saving again (a newer file) re-runs the same three jobs; deleting it does too
     corr.set_point(0, 0, 0, (100.0, 100.0))
     corr.save(out / "corrections.h5")
-    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
+    assert planned(root, config) == jobs(
+        ("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",)
+    )
     (out / "corrections.h5").unlink()
-    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",))
+    assert planned(root, config) == jobs(
+        ("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("recA",)
+    )
 
 
 def test_the_config_can_name_the_sidecar(runs, tmp_path):

@@ -60,20 +60,24 @@ def _read_manifest(path: Path) -> dict[str, tuple[tuple[int, ...], str]]:
         if not line.strip() or line.startswith("#"):
             continue
         key, shape, dtype = line.split("\t")
-        out[key] = ((), dtype) if shape == "scalar" else (tuple(int(s) for s in shape.split("x")), dtype)
+        out[key] = (
+            ((), dtype) if shape == "scalar" else (tuple(int(s) for s in shape.split("x")), dtype)
+        )
     return out
 
 
 @pytest.fixture(scope="module")
 def sh8_manifest() -> dict[str, tuple[tuple[int, ...], str]]:
     if not MANIFEST.is_file():
-        pytest.skip(f"{MANIFEST} is absent: the published-layout tests need ../shared/spec beside the repo")
+        pytest.skip(
+            f"{MANIFEST} is absent: the published-layout tests need ../shared/spec beside the repo"
+        )
     return _read_manifest(MANIFEST)
 
 
 def _strip(manifest: dict) -> dict:
     assert all(k.startswith("module.") for k in manifest)
-    return {k[len("module."):]: v for k, v in manifest.items()}
+    return {k[len("module.") :]: v for k, v in manifest.items()}
 
 
 def _stacks(manifest: dict, n: int) -> dict:
@@ -109,7 +113,10 @@ def test_the_manifest_is_the_released_sh8_layout(sh8_manifest):
 def test_default_detector_state_dict_is_exactly_the_released_layout(sh8_manifest):
     ours = _layout(HourglassNet().state_dict())  # the default detector: sh8, 19 classes
     expected = _strip(sh8_manifest)
-    assert set(ours) == set(expected), (sorted(set(expected) - set(ours))[:5], sorted(set(ours) - set(expected))[:5])
+    assert set(ours) == set(expected), (
+        sorted(set(expected) - set(ours))[:5],
+        sorted(set(ours) - set(expected))[:5],
+    )
     wrong = {k: (ours[k], expected[k]) for k in expected if ours[k] != expected[k]}
     assert not wrong, list(wrong.items())[:5]
     assert len(ours) == 2526
@@ -156,16 +163,27 @@ def sh8_checkpoint(sh8_manifest, tmp_path_factory) -> tuple[Path, dict[str, torc
 def test_a_released_layout_sh8_checkpoint_loads_strictly_and_runs(sh8_checkpoint):
     path, state = sh8_checkpoint
     net = flylib.load_detector(path, num_classes=19)  # the user's path; strict inside
-    assert net.config == {"num_stacks": 8, "num_blocks": 1, "num_classes": 19, "inplanes": 64,
-                          "num_feats": 128, "init_stride": 2, "depth": 4}
+    assert net.config == {
+        "num_stacks": 8,
+        "num_blocks": 1,
+        "num_classes": 19,
+        "inplanes": 64,
+        "num_feats": 128,
+        "init_stride": 2,
+        "depth": 4,
+    }
     _assert_loaded(net, state)
     with torch.inference_mode():
-        heatmaps = net.heatmaps(torch.randn(1, 3, 256, 512, generator=torch.Generator().manual_seed(1)))
+        heatmaps = net.heatmaps(
+            torch.randn(1, 3, 256, 512, generator=torch.Generator().manual_seed(1))
+        )
     assert heatmaps.shape == (1, 19, 64, 128) and torch.isfinite(heatmaps).all()
     assert heatmaps.std() > 0
 
 
-def test_the_released_file_in_the_cache_serves_the_default_config(sh8_checkpoint, tmp_path, monkeypatch):
+def test_the_released_file_in_the_cache_serves_the_default_config(
+    sh8_checkpoint, tmp_path, monkeypatch
+):
     """What a user does: put the published file in the cache and run the default plan."""
     path, state = sh8_checkpoint
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path))
@@ -176,12 +194,16 @@ def test_the_released_file_in_the_cache_serves_the_default_config(sh8_checkpoint
     model = load_models(plan, data, allow_download=False)["deepfly2d"]
     _assert_loaded(model.net, state)
     assert model.heatmap_size == HM_SIZE
-    frames = torch.randint(0, 255, (1, *RAW_SIZE, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(3))
+    frames = torch.randint(
+        0, 255, (1, *RAW_SIZE, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(3)
+    )
     assert model.preprocess(frames, (FlipLR(),)).shape == (1, 3, 256, 512)
 
 
 @pytest.mark.parametrize("n,prefix", [(4, "module."), (2, "model.")])
-def test_fewer_stack_checkpoints_in_the_released_layout_load_strictly(sh8_manifest, tmp_path, n, prefix):
+def test_fewer_stack_checkpoints_in_the_released_layout_load_strictly(
+    sh8_manifest, tmp_path, n, prefix
+):
     manifest = {prefix + k.removeprefix("module."): v for k, v in _stacks(sh8_manifest, n).items()}
     path = tmp_path / f"sh{n}.tar"
     state = _synthesize(manifest, path, seed=n)
@@ -203,7 +225,9 @@ def test_a_checkpoint_of_the_earlier_non_deepfly2d_stem_is_refused_with_the_reas
     net.inplanes = 16  # after layer1, rebuild the rest of the stem the old way
     net.layer2, net.layer3 = net._make_residual(8, 1), net._make_residual(8, 1)
     path = save_checkpoint(net, tmp_path / "old_stem.tar")
-    with pytest.raises(WeightsError, match=r"old_stem\.tar: the checkpoint does not fit.*earlier, non-DeepFly2D"):
+    with pytest.raises(
+        WeightsError, match=r"old_stem\.tar: the checkpoint does not fit.*earlier, non-DeepFly2D"
+    ):
         flylib.load_detector(path)
 
 
@@ -227,7 +251,9 @@ def _expected_raw(cell_xy, flipped: bool) -> np.ndarray:
 def _pathway_kinds(plan: DetectionPlan) -> dict[str, list]:
     kinds: dict[str, list] = {}
     for pathway in plan.active_pathways():
-        kinds.setdefault("flip" if pathway.ops == (FlipLR(),) else "plain" if not pathway.ops else "other", []).append(pathway)
+        kinds.setdefault(
+            "flip" if pathway.ops == (FlipLR(),) else "plain" if not pathway.ops else "other", []
+        ).append(pathway)
     return kinds
 
 
@@ -236,7 +262,13 @@ def test_the_default_plan_has_plain_and_mirrored_pathways_only(default_plan):
     assert set(kinds) == {"plain", "flip"} and len(kinds["plain"]) == 4 and len(kinds["flip"]) == 4
 
 
-CELLS = [(2, 2), (37, 11), (64, 32), (125, 61), (100, 5)]  # (c, r), at least 2 cells from the border
+CELLS = [
+    (2, 2),
+    (37, 11),
+    (64, 32),
+    (125, 61),
+    (100, 5),
+]  # (c, r), at least 2 cells from the border
 
 
 @pytest.mark.parametrize("method", ["weighted", "argmax", "taylor", "parabola"])
@@ -248,8 +280,9 @@ def test_a_blob_on_a_cell_decodes_to_the_cell_on_every_pathway(default_plan, met
     spec = default_plan.models["deepfly2d"]
     for pathway in default_plan.active_pathways():
         raw = pathway.heatmap_to_raw(xy[0].double().numpy(), RAW_SIZE, spec, HM_SIZE)
-        np.testing.assert_allclose(raw, _expected_raw(CELLS, flipped=bool(pathway.ops)), atol=1e-3,
-                                   err_msg=pathway.name)
+        np.testing.assert_allclose(
+            raw, _expected_raw(CELLS, flipped=bool(pathway.ops)), atol=1e-3, err_msg=pathway.name
+        )
 
 
 def test_cell_to_pixel_is_exact_on_every_pathway(default_plan):
@@ -261,7 +294,9 @@ def test_cell_to_pixel_is_exact_on_every_pathway(default_plan):
         np.testing.assert_allclose(raw, _expected_raw(cells, flipped), atol=1e-9)
         # 7.5 raw px per cell on a 960x480 frame; the corner cell is x = 0 (x = 960 mirrored)
         assert raw[0].tolist() == ([960.0, 0.0] if flipped else [0.0, 0.0])
-        np.testing.assert_allclose(pathway.raw_to_heatmap(raw, RAW_SIZE, spec, HM_SIZE), cells, atol=1e-9)
+        np.testing.assert_allclose(
+            pathway.raw_to_heatmap(raw, RAW_SIZE, spec, HM_SIZE), cells, atol=1e-9
+        )
 
 
 @pytest.mark.parametrize("method", ["weighted", "taylor", "parabola"])
@@ -278,7 +313,11 @@ def test_a_blob_between_cells_decodes_between_them(default_plan, method):
             hi = _expected_raw((c + 1, r + 1), bool(pathway.ops))
             for a in (0, 1):
                 if axis is None or a == axis:  # strictly between the two cells' pixels
-                    assert min(lo[a], hi[a]) + 0.5 < raw[a] < max(lo[a], hi[a]) - 0.5, (pathway.name, centre, raw)
+                    assert min(lo[a], hi[a]) + 0.5 < raw[a] < max(lo[a], hi[a]) - 0.5, (
+                        pathway.name,
+                        centre,
+                        raw,
+                    )
                 else:
                     assert raw[a] == pytest.approx(lo[a], abs=1e-3)
     # the symmetric refinements put an exactly half-way blob exactly half-way
@@ -302,9 +341,13 @@ def test_the_default_refinement_is_the_seed_weighted_centroid():
     assert decode.DEFAULT_SUBPIXEL == "weighted"
     rng = np.random.default_rng(0)
     hm = rng.normal(0.0, 0.1, size=(4, 16, 24))
-    for i, (r, c) in enumerate([(7, 9), (0, 1), (15, 23)]):  # inside, top border, bottom-right corner
+    for i, (r, c) in enumerate(
+        [(7, 9), (0, 1), (15, 23)]
+    ):  # inside, top border, bottom-right corner
         hm[i, r, c] = 2.0
-    hm[3] = 0.7 * decode.gaussian_heatmap((16, 24), (10.3, 6.6), 1.3) ** 0.5  # a wide, skewed window
+    hm[3] = (
+        0.7 * decode.gaussian_heatmap((16, 24), (10.3, 6.6), 1.3) ** 0.5
+    )  # a wide, skewed window
     xy, conf = decode.decode_argmax(torch.from_numpy(hm)[None])  # the default
     for i in range(len(hm)):
         np.testing.assert_allclose(xy[0, i].numpy(), _seed_weighted(hm[i]), atol=1e-5)
@@ -315,7 +358,9 @@ def test_an_unknown_subpixel_method_is_a_config_error(default_plan):
     data = copy.deepcopy(dict(Config.default().data))
     assert default_plan.models["deepfly2d"].subpixel == "weighted"
     data["pose2d"]["models"][0]["subpixel"] = "quadratic"
-    with pytest.raises(ConfigError, match=r"pose2d\.models\[0\]\.subpixel: unknown sub-pixel method 'quadratic'"):
+    with pytest.raises(
+        ConfigError, match=r"pose2d\.models\[0\]\.subpixel: unknown sub-pixel method 'quadratic'"
+    ):
         DetectionPlan.from_config(data)
     with pytest.raises(ConfigError, match=r"pose2d\.models\.deepfly2d\.subpixel"):
         Config.from_dict(data)
@@ -343,24 +388,33 @@ def test_detection_on_the_default_plan_puts_known_peaks_at_the_spec_pixels(defau
     peak, refined by the default (the seed's weighted centroid), lands at the spec's
     raw pixel, mirrored on the flipped pathways."""
     rng = np.random.default_rng(4)
-    centres = np.stack([rng.uniform(3, HM_SIZE[1] - 3, 19), rng.uniform(3, HM_SIZE[0] - 3, 19)], axis=-1)
+    centres = np.stack(
+        [rng.uniform(3, HM_SIZE[1] - 3, 19), rng.uniform(3, HM_SIZE[0] - 3, 19)], axis=-1
+    )
     heatmaps = np.stack([0.9 * decode.gaussian_heatmap(HM_SIZE, c, sigma=1.5) for c in centres])
     cells = np.stack([_seed_weighted(hm) for hm in heatmaps])
     assert np.abs(cells - centres).max() > 0.02  # the window's pull: not just any refinement
     with io.VideoWriter(tmp_path / "cam.mp4", fps=10) as writer:
         writer.write_frames(np.full((3, *RAW_SIZE, 3), 80, np.uint8))
     spec = default_plan.models["deepfly2d"]
-    model = LoadedModel(spec, _FixedHeatmaps(torch.from_numpy(heatmaps[None]).float()), torch.device("cpu"))
+    model = LoadedModel(
+        spec, _FixedHeatmaps(torch.from_numpy(heatmaps[None]).float()), torch.device("cpu")
+    )
     sources = {s: [tmp_path / "cam.mp4"] for s in default_plan.sources}
-    out = stream.run_detection(default_plan, {"deepfly2d": model}, sources, batch_size=2, decode_buffer=1)
+    out = stream.run_detection(
+        default_plan, {"deepfly2d": model}, sources, batch_size=2, decode_buffer=1
+    )
     assert out.pts2d.shape == (7, 3, 38, 2)
     for pathway in default_plan.active_pathways():
         expected = _expected_raw(cells[pathway.channels], flipped=bool(pathway.ops))
         for t in range(3):
             got = out.pts2d[pathway.views, t, pathway.points]
             np.testing.assert_allclose(got, expected, atol=2e-3, err_msg=pathway.name)
-            np.testing.assert_allclose(out.conf[pathway.views, t, pathway.points],
-                                       heatmaps[pathway.channels].max(axis=(1, 2)), rtol=1e-6)
+            np.testing.assert_allclose(
+                out.conf[pathway.views, t, pathway.points],
+                heatmaps[pathway.channels].max(axis=(1, 2)),
+                rtol=1e-6,
+            )
 
 
 # --- agreement with flylib's DeepFly3D importer -----------------------------------
@@ -387,7 +441,9 @@ def test_detector_and_df3d_importer_agree_on_normalized_points(default_plan, tmp
     for i, pathway in pathways.items():
         flipped = pathway.ops == (FlipLR(),)
         col = cells[:, 0] / HM_SIZE[1]
-        points2d[i, 0, : len(cells)] = np.stack([cells[:, 1] / HM_SIZE[0], 1 - col if flipped else col], -1)
+        points2d[i, 0, : len(cells)] = np.stack(
+            [cells[:, 1] / HM_SIZE[0], 1 - col if flipped else col], -1
+        )
     path = tmp_path / "df3d_result.pkl"
     with path.open("wb") as fh:
         pickle.dump({"points2d": points2d}, fh)
@@ -396,7 +452,9 @@ def test_detector_and_df3d_importer_agree_on_normalized_points(default_plan, tmp
     assert {p.ops for p in pathways.values()} == {(), (FlipLR(),)}
     for i, pathway in pathways.items():
         detector = pathway.heatmap_to_raw(cells, RAW_SIZE, spec, HM_SIZE)
-        np.testing.assert_allclose(imported.xy[i, 0, : len(cells)], detector, atol=1e-9, err_msg=pathway.name)
+        np.testing.assert_allclose(
+            imported.xy[i, 0, : len(cells)], detector, atol=1e-9, err_msg=pathway.name
+        )
 
 
 def test_deepfly3d_real_2d_lies_on_the_detector_grid(df3d_pickle, default_plan):

@@ -35,8 +35,10 @@ def test_leg_segments_keep_their_length_and_the_legs_move():
     assert pts.shape == (40, 38, 3)
     for side in "lr":
         for leg in "fmh":
-            chain = [FLY38_POINTS.index(f"{side}{leg}_{j}") for j in
-                     ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")]
+            chain = [
+                FLY38_POINTS.index(f"{side}{leg}_{j}")
+                for j in ("thorax_coxa", "coxa_trochanter", "femur_tibia", "tibia_tarsus", "claw")
+            ]
             lengths = np.linalg.norm(np.diff(pts[:, chain], axis=1), axis=-1)  # (T, 4)
             np.testing.assert_allclose(lengths, lengths[:1].repeat(40, 0), atol=1e-12)
             assert np.ptp(pts[:, chain[-1]], axis=0).max() > 0.1  # the claw walks
@@ -127,7 +129,9 @@ def test_demo_error_scores_against_the_truth():
     truth = synthetic_fly(8)
     assert demo_error(truth, truth)["median"] == 0.0
     angle = np.deg2rad(10)
-    rot = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    rot = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
     moved = 1.1 * truth @ rot.T + [0.3, 0.0, 0.1]
     moved[0, 0] = np.nan
     score = demo_error(moved, truth)

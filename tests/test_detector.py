@@ -12,8 +12,16 @@ import torch
 
 from flylib import io
 from flylib.errors import FootageError, WeightsError
-from flylib.pose2d import DetectionPlan, HourglassNet, detect_2d, load_detector, load_models
-from flylib.pose2d import decode, stream, weights
+from flylib.pose2d import (
+    DetectionPlan,
+    HourglassNet,
+    decode,
+    detect_2d,
+    load_detector,
+    load_models,
+    stream,
+    weights,
+)
 from flylib.pose2d.plan import FlipLR
 
 TINY = dict(num_stacks=2, num_feats=8, inplanes=8)
@@ -62,7 +70,12 @@ def test_sh8_parameter_names_and_shapes_match_the_published_layout():
     assert shapes["res.7.0.conv3.weight"] == (256, 128, 1, 1)
     assert shapes["fc.7.0.weight"] == (256, 256, 1, 1) and shapes["fc.7.1.weight"] == (256,)
     assert shapes["score.7.weight"] == (19, 256, 1, 1)
-    assert shapes["fc_.6.weight"] == (256, 256, 1, 1) and shapes["score_.6.weight"] == (256, 19, 1, 1)
+    assert shapes["fc_.6.weight"] == (256, 256, 1, 1) and shapes["score_.6.weight"] == (
+        256,
+        19,
+        1,
+        1,
+    )
     assert "fc_.7.weight" not in shapes and "score_.7.weight" not in shapes
     assert len(sd) == 2526  # the released file's entry count
     n_values = sum(v.numel() for k, v in sd.items() if not k.endswith("num_batches_tracked"))
@@ -77,7 +90,9 @@ def test_forward_gives_every_stack_at_quarter_resolution():
         out = net(torch.randn(2, 3, 64, 128))
     assert len(out) == 2 and all(o.shape == (2, 5, 16, 32) for o in out)
     assert not torch.equal(out[0], out[1])
-    torch.testing.assert_close(net.heatmaps(torch.zeros(1, 3, 64, 64)), net(torch.zeros(1, 3, 64, 64))[-1])
+    torch.testing.assert_close(
+        net.heatmaps(torch.zeros(1, 3, 64, 64)), net(torch.zeros(1, 3, 64, 64))[-1]
+    )
 
 
 # --- checkpoints ----------------------------------------------------------------
@@ -99,14 +114,18 @@ def test_checkpoint_roundtrip_gives_identical_heatmaps(tmp_path, prefix):
 def test_bad_checkpoints_are_clear_weights_errors(tmp_path):
     net = _tiny_net()
     good = weights.save_checkpoint(net, tmp_path / "good.tar")
-    with pytest.raises(WeightsError, match="outputs 19 channels but the model's n_out_channels is 7"):
+    with pytest.raises(
+        WeightsError, match="outputs 19 channels but the model's n_out_channels is 7"
+    ):
         weights.load_hourglass(good, num_classes=7)
     with pytest.raises(WeightsError, match="has 2 stacks, expected 8"):
         weights.load_hourglass(good, num_stacks=8)
     state = {k: v.clone() for k, v in net.state_dict().items()}
     state["res.1.0.conv2.weight"] = torch.zeros(8, 8, 1, 1)
     torch.save({"state_dict": state}, tmp_path / "shape.tar")
-    with pytest.raises(WeightsError, match=r"shape\.tar: the checkpoint does not fit.*res\.1\.0\.conv2\.weight"):
+    with pytest.raises(
+        WeightsError, match=r"shape\.tar: the checkpoint does not fit.*res\.1\.0\.conv2\.weight"
+    ):
         weights.load_hourglass(tmp_path / "shape.tar")
     del state["res.1.0.conv2.weight"]
     torch.save({"state_dict": state}, tmp_path / "missing.tar")
@@ -162,7 +181,9 @@ def _config(default_data, checkpoint: Path, *, input_size=(64, 128), batch_size=
 
 @pytest.fixture(scope="module")
 def tiny_checkpoint(tmp_path_factory):
-    return weights.save_checkpoint(_tiny_net(seed=11, num_stacks=1), tmp_path_factory.mktemp("w") / "sh1.tar")
+    return weights.save_checkpoint(
+        _tiny_net(seed=11, num_stacks=1), tmp_path_factory.mktemp("w") / "sh1.tar"
+    )
 
 
 def _sources(root: Path, data, kind: str) -> dict[str, list[Path]]:
@@ -186,12 +207,17 @@ def test_detect_2d_on_the_deepfly3d_sample(df3d_sample_dir, default_data, tiny_c
     assert np.array_equal(np.isnan(conf), np.broadcast_to(~filled[:, None, :], conf.shape))
     assert np.array_equal(np.isnan(pts).any(-1), np.isnan(conf))
     assert np.array_equal(np.isnan(pts).all(-1), np.isnan(conf))
-    xs, ys = pts[..., 0][filled[:, None, :].repeat(15, 1)], pts[..., 1][filled[:, None, :].repeat(15, 1)]
+    xs, ys = (
+        pts[..., 0][filled[:, None, :].repeat(15, 1)],
+        pts[..., 1][filled[:, None, :].repeat(15, 1)],
+    )
     # DeepFly2D's convention: normalized [0, 1] times the frame size
     assert xs.min() >= 0 and xs.max() <= 960 and ys.min() >= 0 and ys.max() <= 480
 
 
-def test_mirrored_pathway_lands_in_the_raw_frame(df3d_sample_dir, default_data, tiny_checkpoint, tmp_path):
+def test_mirrored_pathway_lands_in_the_raw_frame(
+    df3d_sample_dir, default_data, tiny_checkpoint, tmp_path
+):
     """Detecting on camera_4 through the flip preprocessor equals detecting, without
     one, on a mirrored copy of the footage and mirroring the points back
     (x -> W - x: DeepFly2D's normalized x -> 1 - x)."""
@@ -235,7 +261,9 @@ def test_candidates_agree_with_the_argmax_and_pictorial(default_data, tiny_check
     data = _config(default_data, tiny_checkpoint, batch_size=2)
     plan = DetectionPlan.from_config(data)
     sources = {s: [tmp_path / "cam.mp4"] for s in plan.sources}
-    pts, conf, cands = detect_2d(data, plan, load_models(plan, data), sources=sources, want_candidates=True, k=3)
+    pts, conf, cands = detect_2d(
+        data, plan, load_models(plan, data), sources=sources, want_candidates=True, k=3
+    )
     assert isinstance(cands, Candidates) and cands.xy.shape == (7, 5, 38, 3, 2)
     seen = conf > 0.05  # pictorial's peak threshold
     assert seen.sum() > 100
@@ -246,19 +274,25 @@ def test_candidates_agree_with_the_argmax_and_pictorial(default_data, tiny_check
     assert np.all(cands.score[unseen] == 0) and np.isnan(cands.xy[unseen]).all()
     # the on-device peak finder matches pictorial's NumPy one on Gaussian blobs, for
     # each refinement both implement (weighted: the detector's default)
-    hm = np.stack([
-        0.9 * decode.gaussian_heatmap((16, 32), (5.3, 4.6), 1.4) + 0.6 * decode.gaussian_heatmap((16, 32), (21.8, 10.2), 1.4),
-        0.7 * decode.gaussian_heatmap((16, 32), (12.4, 7.7), 1.1) - 0.2,  # negatives: clipped
-    ])
+    hm = np.stack(
+        [
+            0.9 * decode.gaussian_heatmap((16, 32), (5.3, 4.6), 1.4)
+            + 0.6 * decode.gaussian_heatmap((16, 32), (21.8, 10.2), 1.4),
+            0.7 * decode.gaussian_heatmap((16, 32), (12.4, 7.7), 1.1) - 0.2,  # negatives: clipped
+        ]
+    )
     for method in ("weighted", "taylor", "argmax"):
-        ours_xy, ours_score = decode.topk_peaks(torch.from_numpy(hm)[None], k=3, radius=2, threshold=0.05,
-                                                method=method)
+        ours_xy, ours_score = decode.topk_peaks(
+            torch.from_numpy(hm)[None], k=3, radius=2, threshold=0.05, method=method
+        )
         ref_xy, ref_score = peak_candidates(hm, k=3, radius=2, threshold=0.05, method=method)
         np.testing.assert_allclose(ours_xy[0].numpy(), ref_xy, atol=1e-6, err_msg=method)
         np.testing.assert_allclose(np.nan_to_num(ours_score[0].numpy()), ref_score, atol=1e-12)
 
 
-def test_detect_recording_returns_pose2d_data_and_never_runs_untrained(default_data, tiny_checkpoint, tmp_path, monkeypatch):
+def test_detect_recording_returns_pose2d_data_and_never_runs_untrained(
+    default_data, tiny_checkpoint, tmp_path, monkeypatch
+):
     from flylib.pose2d import detect_recording
     from flylib.results import Pose2dData
 
@@ -314,13 +348,23 @@ def test_gpu_side_yuv_conversion_matches_the_decoder(df3d_sample_dir, tmp_path):
     from flylib.pose2d.inference import yuv420p_to_rgb
 
     rng = np.random.default_rng(5)
-    smooth = torch.nn.functional.interpolate(
-        torch.from_numpy(rng.uniform(20, 235, size=(4, 3, 6, 8))), size=(48, 64), mode="bilinear"
-    ).permute(0, 2, 3, 1).numpy().astype(np.uint8)
+    smooth = (
+        torch.nn.functional.interpolate(
+            torch.from_numpy(rng.uniform(20, 235, size=(4, 3, 6, 8))),
+            size=(48, 64),
+            mode="bilinear",
+        )
+        .permute(0, 2, 3, 1)
+        .numpy()
+        .astype(np.uint8)
+    )
     with io.VideoWriter(tmp_path / "colour.mp4", fps=10, crf=0) as writer:
         writer.write_frames(smooth)
     # grey fly footage: within a grey level; colour: FFmpeg's fixed-point chroma path differs slightly
-    for path, tol, mean_tol in ((df3d_sample_dir / "camera_1.mp4", 1, 0.5), (tmp_path / "colour.mp4", 4, 1.5)):
+    for path, tol, mean_tol in (
+        (df3d_sample_dir / "camera_1.mp4", 1, 0.5),
+        (tmp_path / "colour.mp4", 4, 1.5),
+    ):
         reader = io.VideoReader(path)
         assert reader.pixel_format() == "yuv420p" and reader.color_tags() == ("bt601", "limited")
         planes = np.stack(list(reader.stream_frames(stop=3, format="yuv420p")))
@@ -346,7 +390,9 @@ def test_yuv_streaming_path_gives_the_same_detections(default_data, tiny_checkpo
     # the loop's time accounts: on the CPU the forwards run inside "launch"
     assert set(timings) == {"wait_decode", "launch", "wait_device", "scatter"}
     assert min(timings.values()) >= 0 and sum(timings.values()) <= wall
-    assert timings["launch"] > timings["scatter"] and timings["wait_device"] < 1e-3  # no GPU to wait on
+    assert (
+        timings["launch"] > timings["scatter"] and timings["wait_device"] < 1e-3
+    )  # no GPU to wait on
     assert yuv.frame_sizes == rgb.frame_sizes == {s: (96, 128) for s in plan.sources}
     np.testing.assert_allclose(yuv.conf, rgb.conf, rtol=0.05, atol=1e-3)
     close = np.linalg.norm(yuv.pts2d - rgb.pts2d, axis=-1) < 1.0

@@ -38,12 +38,16 @@ def test_env_pins_exactly_pyprojects_dependencies():
 
 
 def test_every_pin_is_exact_and_within_pyprojects_range():
-    ranges = {canonicalize_name(r.name): r.specifier
-              for r in map(Requirement, _pyproject()["dependencies"])}
+    ranges = {
+        canonicalize_name(r.name): r.specifier
+        for r in map(Requirement, _pyproject()["dependencies"])
+    }
     for name, req in _pins().items():
         (spec,) = req.specifier
         assert spec.operator == "==", f"{name}: {req} is not pinned"
-        assert Version(spec.version) in ranges[name], f"{name}: {req} outside pyproject's {ranges[name]}"
+        assert Version(spec.version) in ranges[name], (
+            f"{name}: {req} outside pyproject's {ranges[name]}"
+        )
 
 
 def test_pins_are_the_versions_the_tests_run_with():
@@ -52,8 +56,9 @@ def test_pins_are_the_versions_the_tests_run_with():
             installed = Version(version(name)).public  # torch's "+cpu" is a build, not a version
         except PackageNotFoundError:
             continue
-        assert req.specifier == SpecifierSet(f"=={installed}"), \
+        assert req.specifier == SpecifierSet(f"=={installed}"), (
             f"envs/flylib.yaml pins {req}, the tests run with {name}=={installed}"
+        )
 
 
 def test_env_installs_flylib_from_the_checkout_and_a_python_pyproject_allows():

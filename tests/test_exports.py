@@ -29,9 +29,13 @@ def stub_exports() -> dict[str, str]:
     exports = {}
     for node in ast.parse(STUB.read_text(encoding="utf-8")).body:
         if isinstance(node, ast.ImportFrom):
-            assert node.level == 1, f"line {node.lineno}: the stub imports only from flylib's own modules"
+            assert node.level == 1, (
+                f"line {node.lineno}: the stub imports only from flylib's own modules"
+            )
             for alias in node.names:
-                assert alias.asname == alias.name, f"line {node.lineno}: write {alias.name} as {alias.name}"
+                assert alias.asname == alias.name, (
+                    f"line {node.lineno}: write {alias.name} as {alias.name}"
+                )
                 exports[alias.name] = f"flylib.{node.module}"
     return exports
 
@@ -54,19 +58,38 @@ def test_unknown_names_are_attribute_errors():
 def test_import_flylib_loads_no_heavy_module():
     heavy = ["jax", "torch", "h5py", "pandas", "scipy", "cv2", "av", "pynwb", "matplotlib"]
     code = f"import sys, flylib; print(__import__('json').dumps([m for m in {heavy!r} if m in sys.modules]))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         env={"PYTHONPATH": str(REPO / "src"), "PATH": ""})
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PYTHONPATH": str(REPO / "src"), "PATH": ""},
+    )
     assert json.loads(out.stdout) == []
 
 
 def test_shapes_are_for_type_checkers_only():
     # jaxtyping costs ~130 ms at import: the annotated modules import it only under TYPE_CHECKING
-    modules = ["flylib.cameras", "flylib.camera_model", "flylib.geometry", "flylib.triangulation",
-               "flylib.pictorial", "flylib.interop", "flylib.kinematics.stage", "flylib.suspects",
-               "flylib.corrections", "flylib.results"]
+    modules = [
+        "flylib.cameras",
+        "flylib.camera_model",
+        "flylib.geometry",
+        "flylib.triangulation",
+        "flylib.pictorial",
+        "flylib.interop",
+        "flylib.kinematics.stage",
+        "flylib.suspects",
+        "flylib.corrections",
+        "flylib.results",
+    ]
     code = f"import sys; [__import__(m) for m in {modules!r}]; print('jaxtyping' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         env={"PYTHONPATH": str(REPO / "src"), "PATH": "", "FLYLIB_NO_JAX_CACHE": "1"})
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PYTHONPATH": str(REPO / "src"), "PATH": "", "FLYLIB_NO_JAX_CACHE": "1"},
+    )
     assert out.stdout.strip() == "False"
 
 
@@ -77,7 +100,10 @@ def type_checking_namespace(module_name: str) -> dict:
     namespace = dict(vars(module))
     for node in ast.parse(inspect.getsource(module)).body:
         if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
-            exec(compile(ast.Module(body=node.body, type_ignores=[]), module.__file__, "exec"), namespace)
+            exec(
+                compile(ast.Module(body=node.body, type_ignores=[]), module.__file__, "exec"),
+                namespace,
+            )
     return namespace
 
 
@@ -85,10 +111,16 @@ def annotated(obj) -> list:
     """``obj`` and, for a class, its own methods and properties (not inherited ones)."""
     if not inspect.isclass(obj):
         return [obj] if callable(obj) else []
-    own = [types.SimpleNamespace(__annotations__=vars(obj).get("__annotations__", {}), __module__=obj.__module__)]
+    own = [
+        types.SimpleNamespace(
+            __annotations__=vars(obj).get("__annotations__", {}), __module__=obj.__module__
+        )
+    ]
     for member in vars(obj).values():
         member = getattr(member, "__func__", member)  # classmethod, staticmethod
-        member = getattr(member, "fget", None) or getattr(member, "func", None) or member  # (cached) property
+        member = (
+            getattr(member, "fget", None) or getattr(member, "func", None) or member
+        )  # (cached) property
         if inspect.isfunction(member):
             own.append(member)
     return own
@@ -100,7 +132,9 @@ def test_annotations_of_every_public_name_evaluate():
     shapes = 0
     for name in stub_exports():
         for target in annotated(getattr(flylib, name)):
-            hints = typing.get_type_hints(target, globalns=type_checking_namespace(target.__module__))
+            hints = typing.get_type_hints(
+                target, globalns=type_checking_namespace(target.__module__)
+            )
             shapes += sum("jaxtyping" in repr(hint) for hint in hints.values())
     assert shapes >= 30
 
@@ -127,9 +161,13 @@ def test_annotations_of_every_module_evaluate():
     for qualname, obj in public_objects():
         for target in annotated(obj):
             try:
-                hints = typing.get_type_hints(target, globalns=type_checking_namespace(target.__module__))
+                hints = typing.get_type_hints(
+                    target, globalns=type_checking_namespace(target.__module__)
+                )
             except Exception as exc:  # noqa: BLE001 - collect them all
-                failures.append(f"{qualname}.{getattr(target, '__name__', '')}: {type(exc).__name__}: {exc}")
+                failures.append(
+                    f"{qualname}.{getattr(target, '__name__', '')}: {type(exc).__name__}: {exc}"
+                )
                 continue
             shapes += sum("jaxtyping" in repr(hint) for hint in hints.values())
     assert not failures, "\n".join(failures)
@@ -137,12 +175,31 @@ def test_annotations_of_every_module_evaluate():
 
 
 #: Parameters that are arrays wherever they appear in the public API.
-ARRAY_PARAMETERS = frozenset({"pts2d", "pts3d", "conf", "weights", "reproj_error", "rvecs", "tvecs",
-                              "intrs", "dists", "pmats", "heatmaps"})
+ARRAY_PARAMETERS = frozenset(
+    {
+        "pts2d",
+        "pts3d",
+        "conf",
+        "weights",
+        "reproj_error",
+        "rvecs",
+        "tvecs",
+        "intrs",
+        "dists",
+        "pmats",
+        "heatmaps",
+    }
+)
 #: Modules whose public array API is still to be annotated (issue #14), and names that
 #: are not arrays there (``pose2d.weights``: ``weights`` is a checkpoint).
-SHAPES_TODO = ("flylib.ba.", "flylib.bundle_adjustment", "flylib.pipeline", "flylib.refinement.",
-               "flylib.pose2d.decode", "flylib.visualization.summary")
+SHAPES_TODO = (
+    "flylib.ba.",
+    "flylib.bundle_adjustment",
+    "flylib.pipeline",
+    "flylib.refinement.",
+    "flylib.pose2d.decode",
+    "flylib.visualization.summary",
+)
 NOT_ARRAYS = {"flylib.pose2d.weights.resolve_weights": {"weights"}}
 
 
@@ -154,16 +211,22 @@ def test_public_array_parameters_have_shapes():
         for target in annotated(obj):
             if not inspect.isfunction(target) or target.__name__.startswith("_"):
                 continue
-            hints = typing.get_type_hints(target, globalns=type_checking_namespace(target.__module__))
+            hints = typing.get_type_hints(
+                target, globalns=type_checking_namespace(target.__module__)
+            )
             exempt = NOT_ARRAYS.get(f"{target.__module__}.{target.__qualname__}", set())
-            missing += [f"{target.__module__}.{target.__qualname__}({name})"
-                        for name in inspect.signature(target).parameters
-                        if name in ARRAY_PARAMETERS - exempt and "jaxtyping" not in repr(hints.get(name))]
+            missing += [
+                f"{target.__module__}.{target.__qualname__}({name})"
+                for name in inspect.signature(target).parameters
+                if name in ARRAY_PARAMETERS - exempt and "jaxtyping" not in repr(hints.get(name))
+            ]
     assert not missing, f"array parameters without a jaxtyping shape: {missing}"
 
 
 def test_the_stub_ships_in_the_wheel():
-    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]
     for name in (STUB.name, "py.typed"):
         assert any(fnmatch.fnmatch(name, pattern) for pattern in package_data["flylib"]), name
         assert (STUB.parent / name).is_file()

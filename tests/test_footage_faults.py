@@ -49,8 +49,11 @@ def test_truncated_jpeg_fails_naming_the_file(tmp_path):
     # OpenCV alone decodes it without an error (grey rows, a libjpeg warning)
     assert cv2.imread(str(files[3])) is not None
     reader = io.open_reader(tmp_path / "img_*.jpg")
-    with pytest.raises(FootageError, match=rf"^{files[3]}: cannot decode frame 3 \(truncated JPEG: no "
-                                           r"end-of-image marker.*io\.on_corrupt_frame: missing"):
+    with pytest.raises(
+        FootageError,
+        match=rf"^{files[3]}: cannot decode frame 3 \(truncated JPEG: no "
+        r"end-of-image marker.*io\.on_corrupt_frame: missing",
+    ):
         reader[:]
 
 
@@ -137,7 +140,9 @@ def _mp4(path: Path, n: int = 60, truncate: float | None = None) -> Path:
         stream = container.add_stream("libx264", rate=Fraction(100))
         stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
         for _ in range(n):
-            frame = av.VideoFrame.from_ndarray(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8), format="rgb24")
+            frame = av.VideoFrame.from_ndarray(
+                rng.integers(0, 255, (48, 64, 3), dtype=np.uint8), format="rgb24"
+            )
             for packet in stream.encode(frame):
                 container.mux(packet)
         for packet in stream.encode():
@@ -161,11 +166,16 @@ def test_detector_fails_on_a_truncated_video(tmp_path):
     path = _mp4(tmp_path / "cam.mp4", truncate=0.6)
     prefetcher = stream.BlockPrefetcher("s", [path], block_size=8, depth=2, workers=1)
     prefetcher.start()
-    with pytest.raises(FootageError, match=rf"^{path}: its header says 60 frames but only \d+ decode; "
-                                           "the file is truncated"):
+    with pytest.raises(
+        FootageError,
+        match=rf"^{path}: its header says 60 frames but only \d+ decode; "
+        "the file is truncated",
+    ):
         while prefetcher.get() is not stream._END:
             pass
-    whole = stream.BlockPrefetcher("s", [_mp4(tmp_path / "whole.mp4")], block_size=8, depth=2, workers=1)
+    whole = stream.BlockPrefetcher(
+        "s", [_mp4(tmp_path / "whole.mp4")], block_size=8, depth=2, workers=1
+    )
     whole.start()
     n = 0
     while (block := whole.get()) is not stream._END:
@@ -188,8 +198,11 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
     if moov > mdat:  # index at the end: a cut would lose the header; rebuild it first
         _mp4_from(video, tmp_path / "faststart.mp4")
     _truncate(video, 0.5)
-    with pytest.raises(ImportFormatError, match=rf"{spec['files']['rm']}: 6 frames but view 'rm' footage "
-                                                 rf"has [0-5] \({video}\); .*re-copy truncated footage"):
+    with pytest.raises(
+        ImportFormatError,
+        match=rf"{spec['files']['rm']}: 6 frames but view 'rm' footage "
+        rf"has [0-5] \({video}\); .*re-copy truncated footage",
+    ):
         import_points2d(config, tmp_path, spec)
 
 
@@ -220,11 +233,16 @@ def test_visualization_errors_when_footage_and_result_differ_in_length(tmp_path,
     views = config.view_names()
     rig = config.camera_group({v: (48, 64) for v in views})
     skeleton = config.skeleton()
-    result = PoseResult(rig, skeleton, np.full((7, 6, 38, 2), np.nan), pts3d=np.full((6, 38, 3), np.nan))
+    result = PoseResult(
+        rig, skeleton, np.full((7, 6, 38, 2), np.nan), pts3d=np.full((6, 38, 3), np.nan)
+    )
     footage = {}
     for v in views:
         footage[v] = [_mp4(tmp_path / f"{v}.mp4", n=6 if v != "rm" else n_footage)]
-    with pytest.raises(FootageError, match=rf"^{tmp_path / 'rm.mp4'}: footage of view 'rm' has "
-                                           rf"{n_footage if n_footage < 6 else 'more'} frames but the result has 6"):
+    with pytest.raises(
+        FootageError,
+        match=rf"^{tmp_path / 'rm.mp4'}: footage of view 'rm' has "
+        rf"{n_footage if n_footage < 6 else 'more'} frames but the result has 6",
+    ):
         render_videos(config, result, footage, tmp_path / "out", progress=False)
     assert not list((tmp_path / "out").glob("*.mp4"))

@@ -29,10 +29,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-
-hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import given
-from hypothesis import strategies as st
+from hypothesis import given, strategies as st
 from hypothesis.extra import numpy as hnp
 
 from flylib.errors import ConfigError, FlylibError
@@ -87,24 +84,58 @@ def damaged_bytes(draw, seed: bytes, max_ops: int = 4) -> bytes:
             data[pos] ^= 1 << draw(st.integers(0, 7))
         elif op == "overwrite":
             chunk = draw(st.binary(min_size=1, max_size=64))
-            data[pos:pos + len(chunk)] = chunk
+            data[pos : pos + len(chunk)] = chunk
         elif op == "truncate":
             del data[pos:]
         elif op == "insert":
             data[pos:pos] = draw(st.binary(min_size=1, max_size=16))
         elif op == "delete":
-            del data[pos:pos + draw(st.integers(1, 64))]
+            del data[pos : pos + draw(st.integers(1, 64))]
         else:  # a zeroed block, like a torn write
             n = draw(st.integers(1, 512))
-            data[pos:pos + n] = bytes(min(n, len(data) - pos))
+            data[pos : pos + n] = bytes(min(n, len(data) - pos))
     return bytes(data)
 
 
 HOSTILE_TEXT = st.one_of(
-    st.sampled_from(["", "nan", "NaN", "inf", "-inf", "1e400", "-0", "0", "-1", "1e-8", "x", '"', "'",
-                     "[", "]", "{}", "[]", "null", "~", "true", "1,2", "\x00", "\ufeff", "wide",
-                     "[1, [2]]", '"wide"', "!!python/object/apply:os.system ['touch pwned']",
-                     "99999999999999999999999", "0x10", "1_000", "- a", ": b", "&a", "*a"]),
+    st.sampled_from(
+        [
+            "",
+            "nan",
+            "NaN",
+            "inf",
+            "-inf",
+            "1e400",
+            "-0",
+            "0",
+            "-1",
+            "1e-8",
+            "x",
+            '"',
+            "'",
+            "[",
+            "]",
+            "{}",
+            "[]",
+            "null",
+            "~",
+            "true",
+            "1,2",
+            "\x00",
+            "\ufeff",
+            "wide",
+            "[1, [2]]",
+            '"wide"',
+            "!!python/object/apply:os.system ['touch pwned']",
+            "99999999999999999999999",
+            "0x10",
+            "1_000",
+            "- a",
+            ": b",
+            "&a",
+            "*a",
+        ]
+    ),
     st.text(max_size=10),
 )
 
@@ -134,7 +165,7 @@ def damaged_lines(draw, seed: str, cell_sep: str = ",") -> str:
             lines[i], lines[k] = lines[k], lines[i]
         else:
             lines[i] = lines[i][: draw(st.integers(0, len(lines[i])))]
-            del lines[i + 1:]
+            del lines[i + 1 :]
     return "\n".join(lines) + ("\n" if draw(st.booleans()) else "")
 
 
@@ -146,7 +177,9 @@ def damaged_tokens(draw, seed: str) -> str:
     """``seed`` with random scalar tokens (numbers, strings, booleans) replaced."""
     spans = [m.span() for m in _TOKEN.finditer(seed)]
     text = seed
-    for a, b in sorted(draw(st.lists(st.sampled_from(spans), min_size=1, max_size=4, unique=True)), reverse=True):
+    for a, b in sorted(
+        draw(st.lists(st.sampled_from(spans), min_size=1, max_size=4, unique=True)), reverse=True
+    ):
         text = text[:a] + draw(HOSTILE_TEXT) + text[b:]
     return text
 
@@ -161,16 +194,29 @@ def text_damage(seed: str, cell_sep: str = ","):
 
 
 SCALARS = st.one_of(
-    st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(), st.text(max_size=8),
-    st.binary(max_size=8), st.complex_numbers(),
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(),
+    st.text(max_size=8),
+    st.binary(max_size=8),
+    st.complex_numbers(),
 )
 ARRAYS = hnp.arrays(
-    dtype=st.sampled_from([np.float64, np.float32, np.int64, np.uint8, np.bool_, np.complex128, "<U3", "S2"]),
+    dtype=st.sampled_from(
+        [np.float64, np.float32, np.int64, np.uint8, np.bool_, np.complex128, "<U3", "S2"]
+    ),
     shape=hnp.array_shapes(min_dims=0, max_dims=5, min_side=0, max_side=4),
 )
-VALUES = st.recursive(st.one_of(SCALARS, ARRAYS), lambda inner: st.one_of(
-    st.lists(inner, max_size=4), st.tuples(inner, inner), st.dictionaries(st.text(max_size=4), inner, max_size=3),
-), max_leaves=8)
+VALUES = st.recursive(
+    st.one_of(SCALARS, ARRAYS),
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=4),
+        st.tuples(inner, inner),
+        st.dictionaries(st.text(max_size=4), inner, max_size=3),
+    ),
+    max_leaves=8,
+)
 
 
 @st.composite
@@ -209,8 +255,11 @@ def _df3d_2d_seed() -> dict:
     rng = np.random.default_rng(0)
     points = rng.uniform(0, 1, size=(3, 4, 38, 2))
     points[:, 1, :5] = 0.0
-    return {"points2d": points, "camera_ordering": np.arange(3),
-            "heatmap_confidence": rng.uniform(0, 1, size=(3, 4, 19, 1))}
+    return {
+        "points2d": points,
+        "camera_ordering": np.arange(3),
+        "heatmap_confidence": rng.uniform(0, 1, size=(3, 4, 19, 1)),
+    }
 
 
 def _df3d_calib_seed() -> dict:
@@ -218,8 +267,12 @@ def _df3d_calib_seed() -> dict:
 
     calib = {"name": "rig"}
     for i in range(3):
-        calib[i] = {"R": cv2.Rodrigues(np.array([0.0, 0.3 * i, 0.0]))[0], "tvec": np.array([0.0, 0.0, 110.0]),
-                    "intr": np.array([[16000.0, 0, 480], [0, 16000.0, 240], [0, 0, 1]]), "distort": np.zeros(5)}
+        calib[i] = {
+            "R": cv2.Rodrigues(np.array([0.0, 0.3 * i, 0.0]))[0],
+            "tvec": np.array([0.0, 0.0, 110.0]),
+            "intr": np.array([[16000.0, 0, 480], [0, 16000.0, 240], [0, 0, 1]]),
+            "distort": np.zeros(5),
+        }
     return calib
 
 
@@ -263,8 +316,10 @@ coords,x,y,likelihood,x,y,likelihood
 """
 
 
-@given(st.one_of(text_damage(_dlc_csv_seed()), text_damage(LP_CSV), text_damage(MULTI_CSV)),
-       st.sampled_from([None, "fly1"]))
+@given(
+    st.one_of(text_damage(_dlc_csv_seed()), text_damage(LP_CSV), text_damage(MULTI_CSV)),
+    st.sampled_from([None, "fly1"]),
+)
 def test_fuzz_dlc_and_lightning_pose_csv(text, individual):
     path = _write("view_fuzz.csv", text)
     _check(lambda p: read_dlc_csv(p, individual), path)
@@ -290,16 +345,29 @@ def damaged_h5(draw, seed: bytes) -> bytes:
             op = draw(st.sampled_from(["attr", "attr", "dataset", "delete"]))
             if op == "attr" and len(obj.attrs):
                 key = draw(st.sampled_from(sorted(obj.attrs)))
-                obj.attrs[key] = draw(st.one_of(
-                    st.binary(max_size=40).map(np.bytes_), st.integers(-5, 5),
-                    st.text(st.characters(exclude_characters="\x00"), max_size=8),
-                    st.sampled_from([b"(lp0\n.", b"N.", b"(dp0\n.", b"cos\nsystem\n(S'touch pwned'\ntR.",
-                                     b"(lp0\n(I0\nI1\ntp1\na.", b"I5\n."]).map(np.bytes_),
-                ))
+                obj.attrs[key] = draw(
+                    st.one_of(
+                        st.binary(max_size=40).map(np.bytes_),
+                        st.integers(-5, 5),
+                        st.text(st.characters(exclude_characters="\x00"), max_size=8),
+                        st.sampled_from(
+                            [
+                                b"(lp0\n.",
+                                b"N.",
+                                b"(dp0\n.",
+                                b"cos\nsystem\n(S'touch pwned'\ntR.",
+                                b"(lp0\n(I0\nI1\ntp1\na.",
+                                b"I5\n.",
+                            ]
+                        ).map(np.bytes_),
+                    )
+                )
             elif op == "dataset" and isinstance(obj, h5py.Dataset):
                 parent, leaf = name.rsplit("/", 1) if "/" in name else ("", name)
                 del f[name]
-                (f[parent] if parent else f)[leaf] = draw(ARRAYS.filter(lambda a: a.dtype.kind != "U"))
+                (f[parent] if parent else f)[leaf] = draw(
+                    ARRAYS.filter(lambda a: a.dtype.kind != "U")
+                )
             elif op == "delete" and name:
                 del f[name]
                 items = [i for i in items if not (i == name or i.startswith(name + "/"))]
@@ -309,7 +377,10 @@ def damaged_h5(draw, seed: bytes) -> bytes:
 DLC_H5_SEEDS = ["dlc_table.h5", "dlc_fixed.h5", "dlc_multianimal_table.h5"]
 
 
-@given(st.sampled_from(DLC_H5_SEEDS).flatmap(lambda n: damaged_h5(_h5_seed(n))), st.sampled_from([None, "fly1"]))
+@given(
+    st.sampled_from(DLC_H5_SEEDS).flatmap(lambda n: damaged_h5(_h5_seed(n))),
+    st.sampled_from([None, "fly1"]),
+)
 def test_fuzz_dlc_h5(data, individual):
     path = _write("view_fuzz.h5", data)
     _check(lambda p: read_dlc_h5(p, individual), path)
@@ -328,12 +399,26 @@ def _sleap_seeds() -> tuple[bytes, bytes]:
     for detect in (True, False):
         frames = []
         for t in range(4):
-            instances = [sio.PredictedInstance.from_numpy(
-                np.array([[1.0 + t, 2.0], [3.0, 4.0], [np.nan, np.nan]]), skeleton=skeleton,
-                point_scores=np.array([0.9, 0.8, 0.0]), score=1.0, track=track)] if detect else []
+            instances = (
+                [
+                    sio.PredictedInstance.from_numpy(
+                        np.array([[1.0 + t, 2.0], [3.0, 4.0], [np.nan, np.nan]]),
+                        skeleton=skeleton,
+                        point_scores=np.array([0.9, 0.8, 0.0]),
+                        score=1.0,
+                        track=track,
+                    )
+                ]
+                if detect
+                else []
+            )
             frames.append(sio.LabeledFrame(video=video, frame_idx=t, instances=instances))
-        labels = sio.Labels(labeled_frames=frames, videos=[video], skeletons=[skeleton],
-                            tracks=[track] if detect else [])
+        labels = sio.Labels(
+            labeled_frames=frames,
+            videos=[video],
+            skeletons=[skeleton],
+            tracks=[track] if detect else [],
+        )
         path = WORK / f"sleap_seed_{detect}.analysis.h5"
         sio.save_analysis_h5(labels, str(path))
         seeds.append(path.read_bytes())
@@ -376,7 +461,12 @@ def test_fuzz_anipose_toml(text):
 
     path = _write("calibration_fuzz.toml", text)
     _check(read_anipose_toml, path)
-    _check(lambda p: load_calibration({"cameras": {"rh": {}, "rm": {}}, "calibration": {"file": str(p)}}), path)
+    _check(
+        lambda p: load_calibration(
+            {"cameras": {"rh": {}, "rm": {}}, "calibration": {"file": str(p)}}
+        ),
+        path,
+    )
 
 
 # -- config YAML ---------------------------------------------------------------------------------------
@@ -387,8 +477,13 @@ def _config_seed() -> str:
     return (REPO / "config" / "config.yaml").read_text()
 
 
-@given(st.one_of(damaged_tokens(_config_seed()), damaged_lines(_config_seed(), cell_sep=": "),
-                 damaged_bytes(_config_seed().encode(), max_ops=2)))
+@given(
+    st.one_of(
+        damaged_tokens(_config_seed()),
+        damaged_lines(_config_seed(), cell_sep=": "),
+        damaged_bytes(_config_seed().encode(), max_ops=2),
+    )
+)
 def test_fuzz_config_yaml(text):
     from flylib.config import Config
 
@@ -412,20 +507,36 @@ def _results_seeds() -> tuple[bytes, bytes]:
     from flylib.skeleton import Skeleton
 
     views = ["a", "b", "c"]
-    skeleton = Skeleton(point_names=("p0", "p1", "p2"), limbs={"leg": ("p0", "p1", "p2")}, palette={}, name="t")
+    skeleton = Skeleton(
+        point_names=("p0", "p1", "p2"), limbs={"leg": ("p0", "p1", "p2")}, palette={}, name="t"
+    )
     cameras = CameraGroup.from_arrays(
-        views, np.array([[0.0, a, 0.0] for a in (-0.5, 0.0, 0.5)]), np.tile([0.0, 0.0, 110.0], (3, 1)),
-        np.tile([16000.0, 16000.0, 480.0, 240.0], (3, 1)), np.zeros((3, 5)),
+        views,
+        np.array([[0.0, a, 0.0] for a in (-0.5, 0.0, 0.5)]),
+        np.tile([0.0, 0.0, 110.0], (3, 1)),
+        np.tile([16000.0, 16000.0, 480.0, 240.0], (3, 1)),
+        np.zeros((3, 5)),
     )
     rng = np.random.default_rng(2)
     pts3d = rng.normal(scale=2.0, size=(6, 3, 3))
     pts2d = cameras.project(pts3d)
-    result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d, conf=np.ones(pts2d.shape[:3]),
-                        pts3d=pts3d, reproj_error=np.zeros(pts2d.shape[:3]),
-                        image_sizes={v: (480, 960) for v in views})
+    result = PoseResult(
+        cameras=cameras,
+        skeleton=skeleton,
+        pts2d=pts2d,
+        conf=np.ones(pts2d.shape[:3]),
+        pts3d=pts3d,
+        reproj_error=np.zeros(pts2d.shape[:3]),
+        image_sizes={v: (480, 960) for v in views},
+    )
     result.save(WORK / "results_seed.h5")
-    write_stage(WORK / "stage_seed.h5", "triangulation", {"points": pts2d, "points3d": pts3d},
-                cameras=cameras, attrs={"summary": "{}"})
+    write_stage(
+        WORK / "stage_seed.h5",
+        "triangulation",
+        {"points": pts2d, "points3d": pts3d},
+        cameras=cameras,
+        attrs={"summary": "{}"},
+    )
     return (WORK / "results_seed.h5").read_bytes(), (WORK / "stage_seed.h5").read_bytes()
 
 
@@ -441,7 +552,12 @@ def test_fuzz_results_h5(data):
 
     results, stage = _results_seeds()
     path = _write("results_fuzz.h5", data.draw(damaged_h5(results)))
-    for load in (PoseResult.load, Pose2dData.load, read_skeleton, lambda p: read_cameras(p, "pose2d")):
+    for load in (
+        PoseResult.load,
+        Pose2dData.load,
+        read_skeleton,
+        lambda p: read_cameras(p, "pose2d"),
+    ):
         _check(load, path)
     path = _write("stage_fuzz.h5", data.draw(damaged_h5(stage)))
     _check(lambda p: read_stage(p, "triangulation"), path)

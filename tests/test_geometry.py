@@ -84,12 +84,14 @@ def test_host_side_modules_do_not_import_jax():
     import subprocess
     import sys
 
-    code = ("import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
-            "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
-            "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
-            "import numpy as np; from flylib.triangulation import triangulate_ransac; "
-            "triangulate_ransac(rig, rig.project(np.zeros((2, 3)))); "
-            "print('jax' in sys.modules)")
+    code = (
+        "import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
+        "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
+        "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
+        "import numpy as np; from flylib.triangulation import triangulate_ransac; "
+        "triangulate_ransac(rig, rig.project(np.zeros((2, 3)))); "
+        "print('jax' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 
@@ -97,8 +99,10 @@ def test_host_side_modules_do_not_import_jax():
 def test_numpy_kmat_twin_matches_the_jax_kernel_for_both_intrinsic_forms():
     intrs = np.array([[1200.0, 1100.0, 320.0, 240.0], [900.0, 950.0, 10.0, 20.0]])
     np.testing.assert_array_equal(g.intr_to_kmat_numpy(intrs), np.asarray(g.intr_to_kmat(intrs)))
-    np.testing.assert_array_equal(g.intr_to_kmat_numpy([500.0, 3.0, 4.0]),
-                                  [[500.0, 0.0, 3.0], [0.0, 500.0, 4.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(
+        g.intr_to_kmat_numpy([500.0, 3.0, 4.0]),
+        [[500.0, 0.0, 3.0], [0.0, 500.0, 4.0], [0.0, 0.0, 1.0]],
+    )
 
 
 def test_rodrigues_jacobian_at_zero_is_the_skew_generators():
@@ -201,16 +205,21 @@ def test_project_full_one_jacobian_matches_finite_differences():
             hi[k][i] += eps
             lo[k][i] -= eps
             num[:, i] = (np.asarray(project(*hi)) - np.asarray(project(*lo))) / (2 * eps)
-        np.testing.assert_allclose(np.asarray(jacs[k]), num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
+        np.testing.assert_allclose(
+            np.asarray(jacs[k]), num, rtol=1e-6, atol=1e-6 * np.abs(num).max()
+        )
 
 
 def test_project_full_one_composes_with_vmap():
     rng = np.random.default_rng(7)
     rvec, tvec, intr, dist = _random_camera(rng, 5)
     pts = rng.normal(size=(6, 3))
-    batched = jax.vmap(g.project_full_one, in_axes=(0, None, None, None, None))(pts, rvec, tvec, intr, dist)
+    batched = jax.vmap(g.project_full_one, in_axes=(0, None, None, None, None))(
+        pts, rvec, tvec, intr, dist
+    )
     np.testing.assert_allclose(
-        np.asarray(batched), np.asarray(g.project_full(pts, rvec[None], tvec[None], intr[None], dist[None]))[0]
+        np.asarray(batched),
+        np.asarray(g.project_full(pts, rvec[None], tvec[None], intr[None], dist[None]))[0],
     )
 
 
@@ -218,11 +227,10 @@ def test_project_pmat_equals_pinhole_projection_and_intr_forms():
     rng = np.random.default_rng(8)
     rvec, tvec, intr, _ = _random_camera(rng, 0)
     kmat = np.asarray(g.intr_to_kmat(intr))
+    np.testing.assert_array_equal(kmat, [[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
     np.testing.assert_array_equal(
-        kmat, [[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]]
-    )
-    np.testing.assert_array_equal(
-        np.asarray(g.intr_to_kmat(np.array([500.0, 10.0, 20.0]))), [[500, 0, 10], [0, 500, 20], [0, 0, 1]]
+        np.asarray(g.intr_to_kmat(np.array([500.0, 10.0, 20.0]))),
+        [[500, 0, 10], [0, 500, 20], [0, 0, 1]],
     )
     pmat = kmat @ np.column_stack([cv2.Rodrigues(rvec)[0], tvec])
     pts = rng.normal(size=(5, 3))
@@ -236,7 +244,10 @@ def test_project_pmat_equals_pinhole_projection_and_intr_forms():
 # -- triangulation and rays ---------------------------------------------------------------
 
 
-def _orbit_pmats(focal=FOCAL, distance=DISTANCE, azimuths=tuple(AZIMUTHS.values())):
+_AZIMUTHS = tuple(AZIMUTHS.values())
+
+
+def _orbit_pmats(focal=FOCAL, distance=DISTANCE, azimuths=_AZIMUTHS):
     """Look-at cameras built here with cv2 (independent of flylib.cameras)."""
     pmats = []
     for az in np.deg2rad(azimuths):
@@ -268,13 +279,17 @@ def test_triangulate_dlt_nan_and_weights():
     obs = np.asarray(g.project_pmat(pts, pmats)) + rng.normal(scale=3.0, size=(7, 8, 2))
     plain = np.asarray(g.triangulate_dlt(obs, pmats))
     # A uniform weight changes nothing; a zero weight is the same as a missing view.
-    np.testing.assert_allclose(np.asarray(g.triangulate_dlt(obs, pmats, np.full((7, 8), 0.3))), plain, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(g.triangulate_dlt(obs, pmats, np.full((7, 8), 0.3))), plain, atol=1e-12
+    )
     weights = np.ones((7, 8))
     weights[2] = 0.0
     dropped = obs.copy()
     dropped[2] = np.nan
     np.testing.assert_allclose(
-        np.asarray(g.triangulate_dlt(obs, pmats, weights)), np.asarray(g.triangulate_dlt(dropped, pmats)), atol=1e-12
+        np.asarray(g.triangulate_dlt(obs, pmats, weights)),
+        np.asarray(g.triangulate_dlt(dropped, pmats)),
+        atol=1e-12,
     )
     # Non-uniform weights pull the point: the result differs from the plain fit.
     weights = rng.uniform(0.1, 1.0, size=(7, 8))
@@ -305,7 +320,9 @@ def test_backprojected_ray_projects_onto_the_pixel():
     rng = np.random.default_rng(12)
     rvec, tvec, intr, dist = _random_camera(rng, 5)
     pixel = np.array([400.0, 200.0])
-    origin, direction = (np.asarray(a) for a in jax.jit(g.backproject_ray_one)(pixel, rvec, tvec, intr, dist))
+    origin, direction = (
+        np.asarray(a) for a in jax.jit(g.backproject_ray_one)(pixel, rvec, tvec, intr, dist)
+    )
     np.testing.assert_allclose(origin, -cv2.Rodrigues(rvec)[0].T @ tvec, atol=1e-12)
     along = origin + np.array([0.5, 3.0, 10.0])[:, None] * direction
     reproj = np.asarray(g.project_full(along, rvec[None], tvec[None], intr[None], dist[None]))[0]
@@ -355,14 +372,18 @@ def test_each_backend_rodrigues_matches_opencv_both_ways(backend):
     angles = np.concatenate([[0.0, 1e-10, 1e-4], rng.uniform(0.01, 3.1, size=20)])
     rvecs = np.stack([_unit(rng) * a for a in angles])
     got = b["rvec_to_rmat"](rvecs)
-    assert isinstance(got, b["array"]) and got.dtype == np.float64 and got.shape == (len(rvecs), 3, 3)
+    assert (
+        isinstance(got, b["array"]) and got.dtype == np.float64 and got.shape == (len(rvecs), 3, 3)
+    )
     ref = np.stack([cv2.Rodrigues(r)[0] for r in rvecs])
     np.testing.assert_allclose(np.asarray(got), ref, atol=1e-14)
     back = np.stack([np.asarray(b["rmat_to_rvec"](m)) for m in ref])
     np.testing.assert_allclose(back, rvecs, atol=1e-12)
     # OpenCV rounds rotations below ~1e-5 rad to zero; compare where it does not
     big = angles > 1e-3
-    np.testing.assert_allclose(back[big], np.stack([cv2.Rodrigues(m)[0][:, 0] for m in ref[big]]), atol=1e-12)
+    np.testing.assert_allclose(
+        back[big], np.stack([cv2.Rodrigues(m)[0][:, 0] for m in ref[big]]), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
@@ -377,8 +398,12 @@ def test_each_backend_projection_matches_cv2_projectpoints(backend, n_dist):
     assert isinstance(got, b["array"]) and got.dtype == np.float64 and got.shape == (4, 3, 7, 2)
     for v, (rvec, tvec, intr, dist) in enumerate(cams):
         kmat = np.asarray(b["kmat"](intr))
-        np.testing.assert_array_equal(kmat, [[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
-        ref = cv2.projectPoints(pts.reshape(-1, 3), rvec, tvec, kmat, dist if n_dist else None)[0][:, 0]
+        np.testing.assert_array_equal(
+            kmat, [[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]]
+        )
+        ref = cv2.projectPoints(pts.reshape(-1, 3), rvec, tvec, kmat, dist if n_dist else None)[0][
+            :, 0
+        ]
         np.testing.assert_allclose(np.asarray(got[v]).reshape(-1, 2), ref, rtol=1e-10)
 
 
@@ -387,23 +412,39 @@ def test_backends_agree_with_each_other(n_dist):
     numpy_b, jax_b = _backends()["numpy"], _backends()["jax"]
     rng = np.random.default_rng(60 + n_dist)
     rvecs = rng.normal(size=(5, 3)) * np.array([[1e-9], [1e-3], [0.5], [2.0], [3.1]])
-    np.testing.assert_allclose(numpy_b["rvec_to_rmat"](rvecs), np.asarray(jax_b["rvec_to_rmat"](rvecs)),
-                               atol=2e-16)
+    np.testing.assert_allclose(
+        numpy_b["rvec_to_rmat"](rvecs), np.asarray(jax_b["rvec_to_rmat"](rvecs)), atol=2e-16
+    )
     intrs = np.array([[900.0, 880.0, 330.0, 250.0], [500.0, 500.0, 3.0, 4.0]])
     np.testing.assert_array_equal(numpy_b["kmat"](intrs), np.asarray(jax_b["kmat"](intrs)))
     cams = [_random_camera(rng, n_dist) for _ in range(3)]
     rv, tv, iv, dv = (np.stack(a) for a in zip(*cams))
     pts = rng.normal(size=(40, 3))
-    np.testing.assert_allclose(numpy_b["project"](pts, rv, tv, iv, dv),
-                               np.asarray(jax_b["project"](pts, rv, tv, iv, dv)), rtol=1e-12, atol=1e-10)
+    np.testing.assert_allclose(
+        numpy_b["project"](pts, rv, tv, iv, dv),
+        np.asarray(jax_b["project"](pts, rv, tv, iv, dv)),
+        rtol=1e-12,
+        atol=1e-10,
+    )
     # the one-point JAX kernel bundle adjustment differentiates is the same model
-    one = np.asarray(jax.vmap(g.project_full_one, in_axes=(0, None, None, None, None))(pts, rv[1], tv[1], iv[1], dv[1]))
-    np.testing.assert_allclose(one, numpy_b["project"](pts, rv, tv, iv, dv)[1], rtol=1e-12, atol=1e-10)
+    one = np.asarray(
+        jax.vmap(g.project_full_one, in_axes=(0, None, None, None, None))(
+            pts, rv[1], tv[1], iv[1], dv[1]
+        )
+    )
+    np.testing.assert_allclose(
+        one, numpy_b["project"](pts, rv, tv, iv, dv)[1], rtol=1e-12, atol=1e-10
+    )
     # undistortion: NumPy iterates to convergence, JAX runs a fixed schedule + Newton
     xy = rng.uniform(-0.3, 0.3, size=(30, 2))
-    distorted = np.stack(g.distort_normalized(xy[:, 0], xy[:, 1], g.pad_dist_numpy(dv[0])[:, None]), axis=-1)
-    np.testing.assert_allclose(numpy_b["undistort"](distorted, dv[0]),
-                               np.asarray(jax_b["undistort"](distorted, dv[0])), atol=1e-13)
+    distorted = np.stack(
+        g.distort_normalized(xy[:, 0], xy[:, 1], g.pad_dist_numpy(dv[0])[:, None]), axis=-1
+    )
+    np.testing.assert_allclose(
+        numpy_b["undistort"](distorted, dv[0]),
+        np.asarray(jax_b["undistort"](distorted, dv[0])),
+        atol=1e-13,
+    )
     np.testing.assert_allclose(numpy_b["undistort"](distorted, dv[0]), xy, atol=1e-13)
 
 
@@ -413,8 +454,17 @@ def test_generic_formulas_stay_jittable_and_differentiable_in_float64():
     from flylib import camera_model as cm
 
     def loss(rvec, pts, tvec, intr, dist):
-        return jnp.sum(cm.project_generic(jnp, pts, cm.rvec_to_rmat_generic(jnp, rvec[None]), tvec[None],
-                                          intr[None], dist[None]) ** 2)
+        return jnp.sum(
+            cm.project_generic(
+                jnp,
+                pts,
+                cm.rvec_to_rmat_generic(jnp, rvec[None]),
+                tvec[None],
+                intr[None],
+                dist[None],
+            )
+            ** 2
+        )
 
     rng = np.random.default_rng(70)
     rvec, tvec, intr, dist = _random_camera(rng, 5)
@@ -422,8 +472,11 @@ def test_generic_formulas_stay_jittable_and_differentiable_in_float64():
     grad = jax.jit(jax.grad(loss))(rvec, pts, tvec, intr, dist)
     assert grad.dtype == jnp.float64 and np.all(np.isfinite(np.asarray(grad)))
     eps = 1e-6
-    num = [(loss(rvec + eps * e, pts, tvec, intr, dist) - loss(rvec - eps * e, pts, tvec, intr, dist)) / (2 * eps)
-           for e in np.eye(3)]
+    num = [
+        (loss(rvec + eps * e, pts, tvec, intr, dist) - loss(rvec - eps * e, pts, tvec, intr, dist))
+        / (2 * eps)
+        for e in np.eye(3)
+    ]
     np.testing.assert_allclose(np.asarray(grad), num, rtol=1e-6)
     # at rvec = 0 the Taylor branch is taken and the gradient is still finite
     assert np.all(np.isfinite(np.asarray(jax.grad(loss)(np.zeros(3), pts, tvec, intr, dist))))

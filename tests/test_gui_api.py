@@ -16,7 +16,6 @@ pytest.importorskip("fastapi", reason="the GUI needs fastapi (pip install fastap
 pytest.importorskip("httpx", reason="FastAPI's TestClient needs httpx")
 
 from fastapi.testclient import TestClient
-from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
 from flylib.config import Config
 from flylib.corrections import Corrections
@@ -24,6 +23,8 @@ from flylib.errors import ResultsError
 from flylib.gui import ReviewSession, create_app
 from flylib.results import Pose2dData, PoseResult
 from flylib.triangulation import reconstruct_from_config
+
+from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
 FRAMES = 12
 
@@ -87,7 +88,9 @@ def test_frames_are_the_footage_frames_as_jpeg_in_any_order(client, outdir):
 
     view = client.get("/api/meta").json()["views"][2]["name"]
     footage = sorted((outdir.parent).glob("*.mp4"))
-    reader_path = next(p for p in footage if p.stem == client.session.frames[view]._frames.reader.path.stem)
+    reader_path = next(
+        p for p in footage if p.stem == client.session.frames[view]._frames.reader.path.stem
+    )
     truth = open_reader(reader_path)[list(range(FRAMES))]  # RGB
     for frame in (7, 8, 2, 11, 3, 0):  # forward, next, back, far, ...
         response = client.get(f"/api/frame/{view}/{frame}")
@@ -122,8 +125,9 @@ def test_edit_moves_the_point_and_its_3d_and_every_reprojection(client, outdir):
     v, p = visible_point(before)
     name = before["views"][v]["name"]
     xy = np.array(before["views"][v]["points2d"][p]) + [7.0, -5.0]
-    reply = client.post("/api/edit", json={"op": "move", "frame": 5, "point": p, "view": name,
-                                           "xy": xy.tolist()}).json()
+    reply = client.post(
+        "/api/edit", json={"op": "move", "frame": 5, "point": p, "view": name, "xy": xy.tolist()}
+    ).json()
     assert reply["views"][v]["points2d"][p] == pytest.approx(xy.tolist())
     assert reply["views"][v]["edited"][p] and reply["corrected"][p]
 
@@ -136,7 +140,12 @@ def test_edit_moves_the_point_and_its_3d_and_every_reprojection(client, outdir):
     moved = 0
     for u, view in enumerate(reply["views"]):
         np.testing.assert_allclose(view["reprojected"][p], want2d[u], atol=0.01)
-        moved += np.linalg.norm(np.subtract(view["reprojected"][p], before["views"][u]["reprojected"][p])) > 0.05
+        moved += (
+            np.linalg.norm(
+                np.subtract(view["reprojected"][p], before["views"][u]["reprojected"][p])
+            )
+            > 0.05
+        )
     assert moved == len(reply["views"])  # every view's ghost follows
     assert reply["solve_ms"] < 1000  # (the <= 20 ms target is measured in benchmarks/gui.py)
 
@@ -185,9 +194,14 @@ def test_save_writes_the_sidecar_and_a_new_session_loads_it(client, outdir):
     v, p = visible_point(before)
     name = before["views"][v]["name"]
     xy = (np.array(before["views"][v]["points2d"][p]) + [4.0, 4.0]).tolist()
-    edited = client.post("/api/edit", json={"op": "move", "frame": 6, "point": p, "view": name, "xy": xy}).json()
+    edited = client.post(
+        "/api/edit", json={"op": "move", "frame": 6, "point": p, "view": name, "xy": xy}
+    ).json()
     u = (v + 1) % len(before["views"])
-    client.post("/api/edit", json={"op": "invisible", "frame": 2, "point": 1, "view": before["views"][u]["name"]})
+    client.post(
+        "/api/edit",
+        json={"op": "invisible", "frame": 2, "point": 1, "view": before["views"][u]["name"]},
+    )
     saved = client.post("/api/save").json()
     assert saved["saved"] == str(outdir / "corrections.h5") and saved["edits"] == 2
     assert sha256(outdir / "results.h5") == results_hash  # never modified
@@ -209,12 +223,20 @@ def test_a_sidecar_in_the_seed_layout_loads(client, outdir):
     v, p = visible_point(data)
     xy = (np.array(data["views"][v]["points2d"][p]) + [3.0, 2.0]).tolist()
     q = (p + 2) % 38
-    path = write_seed_sidecar(outdir / "corrections.h5", (7, FRAMES, 38), version=3,
-                              edits2d=[(v, 1, p, *xy)], fixed=[(v, 1, p)], invisible=[(v, 2, p)],
-                              edits3d=[(4, q, 0.1, 0.2, 0.3)])
+    path = write_seed_sidecar(
+        outdir / "corrections.h5",
+        (7, FRAMES, 38),
+        version=3,
+        edits2d=[(v, 1, p, *xy)],
+        fixed=[(v, 1, p)],
+        invisible=[(v, 2, p)],
+        edits3d=[(4, q, 0.1, 0.2, 0.3)],
+    )
     session = ReviewSession(outdir)
     frame1 = session.points(1)
-    assert frame1["views"][v]["edited"][p] and frame1["views"][v]["points2d"][p] == pytest.approx(xy)
+    assert frame1["views"][v]["edited"][p] and frame1["views"][v]["points2d"][p] == pytest.approx(
+        xy
+    )
     assert session.points(2)["views"][v]["invisible"][p]
     assert session.points(4)["points3d"][q] == pytest.approx([0.1, 0.2, 0.3])
     assert session.corrections.fixed[v, 1, p]
@@ -237,9 +259,13 @@ def test_requests_cannot_name_files_or_leave_the_recording(client):
     assert client.get("/api/frame/rh/abc").status_code == 422
     assert client.get("/api/points/100000").status_code == 404
     assert client.get("/static/../results.h5").status_code == 404
-    bad = client.post("/api/edit", json={"op": "move", "frame": 0, "point": 0, "view": "../x", "xy": [1, 2]})
+    bad = client.post(
+        "/api/edit", json={"op": "move", "frame": 0, "point": 0, "view": "../x", "xy": [1, 2]}
+    )
     assert bad.status_code == 400 and "unknown camera" in bad.json()["detail"]
-    bad = client.post("/api/edit", json={"op": "move", "frame": 0, "point": 0, "view": "rh", "xy": ["a"]})
+    bad = client.post(
+        "/api/edit", json={"op": "move", "frame": 0, "point": 0, "view": "rh", "xy": ["a"]}
+    )
     assert bad.status_code == 400
     assert client.post("/api/edit", json={"op": "rm -rf", "frame": 0}).status_code == 400
 
@@ -252,7 +278,9 @@ def test_a_token_guards_every_route_when_set(outdir):
         assert c.get("/api/meta").status_code == 403
         assert c.get("/").status_code == 403
         assert c.get("/api/meta?token=wrong").status_code == 403
-        assert c.get("/api/meta?token=%C3%A9t%C3%A9").status_code == 403  # non-ASCII: refused, no error
+        assert (
+            c.get("/api/meta?token=%C3%A9t%C3%A9").status_code == 403
+        )  # non-ASCII: refused, no error
         assert c.get("/api/meta", headers={"X-Flylib-Token": "s3cret"}).status_code == 200
         page = c.get("/?token=s3cret")
         assert page.status_code == 200 and "flylib_token" in page.headers["set-cookie"]
@@ -299,11 +327,15 @@ def test_prefetch_fills_the_cache_without_moving_the_request_decoder(outdir):
 
 def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
     data = dict(Config.from_file(outdir / "config.yaml").data)
-    inside = ReviewSession(outdir, config=Config.from_dict({**data, "corrections": "mine/{name}.h5"}))
+    inside = ReviewSession(
+        outdir, config=Config.from_dict({**data, "corrections": "mine/{name}.h5"})
+    )
     assert inside.corrections_path == (outdir / "mine" / f"{outdir.parent.name}.h5").resolve()
     inside.close()
     elsewhere = tmp_path / "elsewhere.h5"
-    session = ReviewSession(outdir, config=Config.from_dict({**data, "corrections": str(elsewhere)}))
+    session = ReviewSession(
+        outdir, config=Config.from_dict({**data, "corrections": str(elsewhere)})
+    )
     assert session.corrections_path == outdir / "corrections.h5"
     session.edit("invisible", 0, 0, session.view_names[0])
     session.save()
@@ -319,25 +351,36 @@ def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
     v, p = visible_point(before)
     name = before["views"][v]["name"]
     target = np.array(before["views"][v]["reprojected"][p]) + [6.0, -4.0]
-    reply = client.post("/api/edit", json={"op": "move3d", "frame": 7, "point": p, "view": name,
-                                           "xy": target.tolist()}).json()
+    reply = client.post(
+        "/api/edit",
+        json={"op": "move3d", "frame": 7, "point": p, "view": name, "xy": target.tolist()},
+    ).json()
     cameras = client.session.cameras
     origin, direction = cameras[v].backproject_ray(target)
     want = np.asarray(closest_point_on_ray(origin, direction, before["points3d"][p]))
     np.testing.assert_allclose(reply["points3d"][p], want, atol=1e-5)
-    np.testing.assert_allclose(reply["views"][v]["reprojected"][p], target, atol=0.02)  # lands there
+    np.testing.assert_allclose(
+        reply["views"][v]["reprojected"][p], target, atol=0.02
+    )  # lands there
     assert reply["corrected"][p] and not any(view["edited"][p] for view in reply["views"])
-    np.testing.assert_allclose([view["reprojected"][p] for view in reply["views"]],
-                               cameras.project(np.asarray(want)), atol=0.02)  # every view follows
+    np.testing.assert_allclose(
+        [view["reprojected"][p] for view in reply["views"]],
+        cameras.project(np.asarray(want)),
+        atol=0.02,
+    )  # every view follows
     client.post("/api/save")
     corr = Corrections.load(outdir / "corrections.h5")
     assert corr.edited3d[7, p] and corr.edited3d.sum() == 1
     np.testing.assert_allclose(corr.points3d[7, p], want, atol=1e-6)  # (the reply rounds to 1e-6)
     # resetting the point in one view keeps the 3D edit; in every view removes it
-    kept = client.post("/api/edit", json={"op": "reset_point", "frame": 7, "point": p, "view": name}).json()
+    kept = client.post(
+        "/api/edit", json={"op": "reset_point", "frame": 7, "point": p, "view": name}
+    ).json()
     assert kept["corrected"][p]
     gone = client.post("/api/edit", json={"op": "reset_point", "frame": 7, "point": p}).json()
-    assert not gone["corrected"][p] and gone["points3d"][p] == pytest.approx(before["points3d"][p], abs=1e-6)
+    assert not gone["corrected"][p] and gone["points3d"][p] == pytest.approx(
+        before["points3d"][p], abs=1e-6
+    )
 
 
 def test_image_sequence_footage_and_missing_footage(tmp_path):
@@ -354,4 +397,8 @@ def test_image_sequence_footage_and_missing_footage(tmp_path):
         assert decoded.shape == (48, 64, 3) and abs(float(decoded.mean()) - 40 * (i + 1)) < 2
     blank = FrameSource([], (30, 40))
     assert not blank.has_footage
-    assert cv2.imdecode(np.frombuffer(blank.jpeg(5), np.uint8), cv2.IMREAD_COLOR).shape == (30, 40, 3)
+    assert cv2.imdecode(np.frombuffer(blank.jpeg(5), np.uint8), cv2.IMREAD_COLOR).shape == (
+        30,
+        40,
+        3,
+    )

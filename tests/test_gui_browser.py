@@ -31,10 +31,17 @@ def _browser():
         pytest.skip("headless Chromium is not installed (apt-get install chromium chromium-driver)")
     webdriver = pytest.importorskip("selenium.webdriver", reason="pip install selenium")
     from selenium.common.exceptions import WebDriverException
+
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1500,950", "--force-device-scale-factor=1"):
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--disable-gpu",
+        "--window-size=1500,950",
+        "--force-device-scale-factor=1",
+    ):
         options.add_argument(arg)
     try:
         return webdriver.Chrome(options=options, service=webdriver.ChromeService(CHROMEDRIVER))
@@ -64,7 +71,9 @@ def server(demo_run):
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    srv = uvicorn.Server(uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning"))
+    srv = uvicorn.Server(
+        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
+    )
     thread = threading.Thread(target=srv.run, daemon=True)
     thread.start()
     deadline = time.time() + 30
@@ -119,7 +128,9 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         body.send_keys("n")
         later = suspects.frames[suspects.frames > 0]
         first = int(later[0] if len(later) else suspects.frames[0])
-        wait_for(driver, f"return window.flylib.state.frame === {first} && window.flylib.allDrawn()")
+        wait_for(
+            driver, f"return window.flylib.state.frame === {first} && window.flylib.allDrawn()"
+        )
         selected = driver.execute_script("return window.flylib.state.selected")
         assert selected is not None
 
@@ -138,24 +149,32 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert driver.execute_script("return window.flylib.state.editMode")
         dx, dy = 18, 12
         actions = ActionChains(driver)
-        actions.move_to_element_with_offset(canvas, round(pos["x"] - pos["width"] / 2),
-                                            round(pos["y"] - pos["height"] / 2))
+        actions.move_to_element_with_offset(
+            canvas, round(pos["x"] - pos["width"] / 2), round(pos["y"] - pos["height"] / 2)
+        )
         actions.click_and_hold()
         for _ in range(3):
             actions.move_by_offset(dx // 3, dy // 3)
         actions.release()
         actions.perform()
-        wait_for(driver, f"return window.flylib.state.data.views[{v}].edited[{point}] && !window.flylib.busy()")
+        wait_for(
+            driver,
+            f"return window.flylib.state.data.views[{v}].edited[{point}] && !window.flylib.busy()",
+        )
         after = driver.execute_script("return window.flylib.state.data")
         after_xy = after["views"][v]["points2d"][point]
         scale = driver.execute_script(
             f"const v = window.flylib.state.views[{v}]; return v.transform.scale * "
-            "v.canvas.getBoundingClientRect().width / v.canvas.width")
-        np.testing.assert_allclose(np.subtract(after_xy, before_xy), np.array([dx, dy]) / scale, atol=1.5 / scale)
+            "v.canvas.getBoundingClientRect().width / v.canvas.width"
+        )
+        np.testing.assert_allclose(
+            np.subtract(after_xy, before_xy), np.array([dx, dy]) / scale, atol=1.5 / scale
+        )
         assert after["points3d"][point] != before_3d
         # a corrected point is a person's call: it leaves the suspect list and timeline
         listed = driver.execute_script(
-            "return window.flylib.state.suspects.map(s => [s.frame, s.point, s.reasons.join()])")
+            "return window.flylib.state.suspects.map(s => [s.frame, s.point, s.reasons.join()])"
+        )
         score = driver.execute_script(f"return window.flylib.state.frameScore[{first}]")
         assert [first, point] not in [x[:2] for x in listed], (listed, score, first, point)
 
@@ -171,22 +190,37 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         body.send_keys(Keys.ESCAPE)
         assert not driver.find_element(By.ID, "help").is_displayed()
         body.send_keys("g")
-        wait_for(driver, "return document.querySelector('#views').classList.contains('focus') && "
-                         "document.querySelectorAll('.view.large').length === 1")
+        wait_for(
+            driver,
+            "return document.querySelector('#views').classList.contains('focus') && "
+            "document.querySelectorAll('.view.large').length === 1",
+        )
         large = driver.find_element(By.CSS_SELECTOR, ".view.large canvas")
         thumbnail = driver.find_element(By.CSS_SELECTOR, ".view:not(.large) canvas")
         assert large.size["width"] > 2 * thumbnail.size["width"]
-        ScrollOrigin = pytest.importorskip("selenium.webdriver.common.actions.wheel_input").ScrollOrigin
+        ScrollOrigin = pytest.importorskip(
+            "selenium.webdriver.common.actions.wheel_input"
+        ).ScrollOrigin
         ActionChains(driver).scroll_from_origin(ScrollOrigin.from_element(large), 0, -300).perform()
-        zoom = wait_for(driver, "const v = document.querySelector('.view.large canvas').dataset.view; "
-                                "const z = window.flylib.state.zoom[v]; return z.scale > 1 && z.scale")
+        zoom = wait_for(
+            driver,
+            "const v = document.querySelector('.view.large canvas').dataset.view; "
+            "const z = window.flylib.state.zoom[v]; return z.scale > 1 && z.scale",
+        )
         assert zoom > 1
         body.send_keys("p")
-        wait_for(driver, f"return window.flylib.state.frame < {first} || window.flylib.state.frame > {first}")
+        wait_for(
+            driver,
+            f"return window.flylib.state.frame < {first} || window.flylib.state.frame > {first}",
+        )
     finally:
         driver.quit()
 
-    corr = Corrections.load(out / "corrections.h5", (session.n_views, session.n_frames, session.n_points))
+    corr = Corrections.load(
+        out / "corrections.h5", (session.n_views, session.n_frames, session.n_points)
+    )
     assert corr.edited[v, first, point] and corr.edited.sum() == 1
     np.testing.assert_allclose(corr.points[v, first, point], after_xy, atol=0.01)
-    assert planned(root, config) == jobs(("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("demo",))
+    assert planned(root, config) == jobs(
+        ("triangulation", "refinement", "assemble", "visualization", "kinematics"), ("demo",)
+    )

@@ -11,11 +11,11 @@ import time
 import pytest
 
 pytest.importorskip("uvicorn", reason="the GUI needs uvicorn")
-httpx = pytest.importorskip("httpx")
-
-from gui_fixtures import make_demo_outputs
+import httpx
 
 from flylib.gui.server import is_loopback
+
+from gui_fixtures import make_demo_outputs
 
 
 @pytest.fixture(scope="module")
@@ -24,9 +24,22 @@ def outdir(tmp_path_factory):
 
 
 def start(outdir, *args):
-    proc = subprocess.Popen([sys.executable, "-m", "flylib.cli", "gui", str(outdir), "--no-browser",
-                             "--port", "0", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "flylib.cli",
+            "gui",
+            str(outdir),
+            "--no-browser",
+            "--port",
+            "0",
+            *args,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     lines = []
     deadline = time.time() + 120
     while time.time() < deadline:
@@ -79,12 +92,21 @@ def test_any_other_address_needs_the_printed_token(outdir):
 
 
 def test_a_missing_recording_is_one_line(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "flylib.cli", "gui", str(tmp_path), "--no-browser"],
-                          check=False, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "flylib.cli", "gui", str(tmp_path), "--no-browser"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 1
     assert proc.stderr.strip().count("\n") == 0 and "no results.h5 here" in proc.stderr
 
 
 def test_loopback_detection():
     assert is_loopback("127.0.0.1") and is_loopback("localhost") and is_loopback("::1")
-    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.4") and not is_loopback("example.org")
+    assert (
+        not is_loopback("0.0.0.0")
+        and not is_loopback("192.168.1.4")
+        and not is_loopback("example.org")
+    )

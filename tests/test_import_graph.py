@@ -37,18 +37,58 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 #: its submodules; the most specific prefix wins. The root ``flylib`` matches only
 #: itself.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("foundation", ("flylib", "flylib.errors", "flylib.paths", "flylib.resources", "flylib.locking")),
-    ("primitives", ("flylib.camera_model", "flylib.geometry", "flylib.cameras", "flylib.skeleton",
-                    "flylib.io", "flylib.pose2d.plan", "flylib.visualization.specs")),
+    (
+        "foundation",
+        ("flylib", "flylib.errors", "flylib.paths", "flylib.resources", "flylib.locking"),
+    ),
+    (
+        "primitives",
+        (
+            "flylib.camera_model",
+            "flylib.geometry",
+            "flylib.cameras",
+            "flylib.skeleton",
+            "flylib.io",
+            "flylib.pose2d.plan",
+            "flylib.visualization.specs",
+        ),
+    ),
     ("config", ("flylib.config", "flylib.nwb_metadata")),
     ("recordings", ("flylib.recordings",)),
-    ("algorithms", ("flylib.pose2d", "flylib.bundle_adjustment", "flylib.pictorial",
-                    "flylib.triangulation", "flylib.refinement",
-                    "flylib.kinematics", "flylib.visualization")),
-    ("data", ("flylib.results", "flylib.provenance", "flylib.suspects", "flylib.corrections",
-              "flylib.interop", "flylib.demo", "flylib.pose2d.stream")),
-    ("stages", ("flylib.pipeline", "flylib.preflight", "flylib.run_summary",
-                "flylib.refinement.stage", "flylib.kinematics.stage")),
+    (
+        "algorithms",
+        (
+            "flylib.pose2d",
+            "flylib.bundle_adjustment",
+            "flylib.pictorial",
+            "flylib.triangulation",
+            "flylib.refinement",
+            "flylib.kinematics",
+            "flylib.visualization",
+        ),
+    ),
+    (
+        "data",
+        (
+            "flylib.results",
+            "flylib.provenance",
+            "flylib.suspects",
+            "flylib.corrections",
+            "flylib.interop",
+            "flylib.demo",
+            "flylib.pose2d.stream",
+        ),
+    ),
+    (
+        "stages",
+        (
+            "flylib.pipeline",
+            "flylib.preflight",
+            "flylib.run_summary",
+            "flylib.refinement.stage",
+            "flylib.kinematics.stage",
+        ),
+    ),
     ("applications", ("flylib.cli", "flylib.gui")),
 )
 
@@ -222,12 +262,16 @@ def graph() -> dict[str, dict[str, int]]:
 
 def test_flylib_has_no_import_cycles(graph):
     cycles = find_cycles(graph)
-    assert not cycles, "import cycles among flylib's modules:\n" + "\n".join(describe(c, graph) for c in cycles)
+    assert not cycles, "import cycles among flylib's modules:\n" + "\n".join(
+        describe(c, graph) for c in cycles
+    )
 
 
 def test_every_module_has_a_layer(graph):
     missing = sorted(m for m in graph if layer_of(m) is None)
-    assert not missing, f"modules without a layer: {missing}; add them to LAYERS in {Path(__file__).name}"
+    assert not missing, (
+        f"modules without a layer: {missing}; add them to LAYERS in {Path(__file__).name}"
+    )
 
 
 def test_no_module_imports_a_higher_layer(graph):
@@ -252,14 +296,17 @@ def _package(tmp_path: Path, files: dict[str, str]) -> Path:
 
 
 def test_a_cycle_through_a_function_body_and_a_relative_import_is_found(tmp_path):
-    src = _package(tmp_path, {
-        "__init__.py": "",
-        "a.py": "from .sub import b\n",
-        "sub/__init__.py": "",
-        "sub/b.py": "def f():\n    import pkg.c\n",
-        "c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import d\nelse:\n    from .a import x\n",
-        "d.py": "from .c import y\n",
-    })
+    src = _package(
+        tmp_path,
+        {
+            "__init__.py": "",
+            "a.py": "from .sub import b\n",
+            "sub/__init__.py": "",
+            "sub/b.py": "def f():\n    import pkg.c\n",
+            "c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import d\nelse:\n    from .a import x\n",
+            "d.py": "from .c import y\n",
+        },
+    )
     graph = import_graph(src, "pkg")
     assert graph["pkg.a"] == {"pkg.sub.b": 1}
     assert graph["pkg.c"] == {"pkg.a": 5}  # the TYPE_CHECKING branch does not count
@@ -271,12 +318,15 @@ def test_a_cycle_through_a_function_body_and_a_relative_import_is_found(tmp_path
 
 
 def test_names_from_a_package_and_its_lazy_stub_point_at_their_modules(tmp_path):
-    src = _package(tmp_path, {
-        "__init__.py": "",
-        "__init__.pyi": "from .core import Thing as Thing\n",
-        "core.py": "def f():\n    from pkg import Thing, helpers\n",
-        "helpers.py": "from . import __version__\nfrom pkg import Thing\n",
-    })
+    src = _package(
+        tmp_path,
+        {
+            "__init__.py": "",
+            "__init__.pyi": "from .core import Thing as Thing\n",
+            "core.py": "def f():\n    from pkg import Thing, helpers\n",
+            "helpers.py": "from . import __version__\nfrom pkg import Thing\n",
+        },
+    )
     graph = import_graph(src, "pkg")
     assert graph["pkg.helpers"] == {"pkg": 1, "pkg.core": 2}
     assert graph["pkg.core"] == {"pkg.helpers": 2}

@@ -37,7 +37,10 @@ SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 
 def _env() -> dict:
     """Subprocess environment with this checkout's flylib first on the path."""
-    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), os.environ.get("PYTHONPATH", "")])}
+    return {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(REPO / "src"), os.environ.get("PYTHONPATH", "")]),
+    }
 
 
 # -- Fletcher-32 -----------------------------------------------------------------
@@ -67,11 +70,18 @@ def _fletcher32_reference(data: bytes) -> int:
     return (sum2 << 16) | sum1
 
 
-@pytest.mark.parametrize("data", [
-    b"", b"\x00" * 10, b"\xff" * 1001, b"\xff\xff", bytes(range(256)) * 9 + b"\x07",
-    np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes(),
-    np.random.default_rng(1).integers(250, 256, 4321, dtype=np.uint8).tobytes(),  # many carries
-])
+@pytest.mark.parametrize(
+    "data",
+    [
+        b"",
+        b"\x00" * 10,
+        b"\xff" * 1001,
+        b"\xff\xff",
+        bytes(range(256)) * 9 + b"\x07",
+        np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes(),
+        np.random.default_rng(1).integers(250, 256, 4321, dtype=np.uint8).tobytes(),  # many carries
+    ],
+)
 def test_fletcher32_matches_hdf5s_algorithm(data):
     assert fletcher32(data) == _fletcher32_reference(data)
 
@@ -95,7 +105,11 @@ def test_fletcher32_matches_the_checksum_hdf5s_own_filter_stores(tmp_path):
 @pytest.fixture(scope="module")
 def rig_and_skeleton():
     config = Config.default()
-    return config, config.camera_group({v: (480, 960) for v in config.view_names()}), config.skeleton()
+    return (
+        config,
+        config.camera_group({v: (480, 960) for v in config.view_names()}),
+        config.skeleton(),
+    )
 
 
 def _stage_files(directory: Path, config, skeleton, n_frames: int = 3000) -> dict[str, Path]:
@@ -103,13 +117,22 @@ def _stage_files(directory: Path, config, skeleton, n_frames: int = 3000) -> dic
     pts2d = rng.uniform(0, 900, size=(7, n_frames, 38, 2))
     pts2d[:, :, ::5] = np.nan
     conf = rng.uniform(size=(7, n_frames, 38))
-    files = {"pose2d": directory / "stages" / "pose2d.h5", "triangulation": directory / "stages" / "triangulation.h5"}
+    files = {
+        "pose2d": directory / "stages" / "pose2d.h5",
+        "triangulation": directory / "stages" / "triangulation.h5",
+    }
     Pose2dData(pts2d, conf, config.view_names(), {v: (480, 960) for v in config.view_names()}).save(
-        files["pose2d"], skeleton)
-    write_stage(files["triangulation"], "triangulation", {
-        "points": pts2d, "points3d": rng.normal(size=(n_frames, 38, 3)),
-        "reproj_error": rng.gamma(2.0, 2.0, size=(7, n_frames, 38)),
-    })
+        files["pose2d"], skeleton
+    )
+    write_stage(
+        files["triangulation"],
+        "triangulation",
+        {
+            "points": pts2d,
+            "points3d": rng.normal(size=(n_frames, 38, 3)),
+            "reproj_error": rng.gamma(2.0, 2.0, size=(7, n_frames, 38)),
+        },
+    )
     return files
 
 
@@ -123,10 +146,18 @@ def results(tmp_path, rig_and_skeleton) -> Path:
 
 
 def test_every_dataset_of_artifacts_and_results_carries_a_checksum(results):
-    for path in (results, results.parent / "stages" / "pose2d.h5", results.parent / "stages" / "triangulation.h5"):
+    for path in (
+        results,
+        results.parent / "stages" / "pose2d.h5",
+        results.parent / "stages" / "triangulation.h5",
+    ):
         with h5py.File(path) as f:
             found: list = []
-            f.visititems(lambda name, item, found=found: found.append(item) if isinstance(item, h5py.Dataset) else None)
+            f.visititems(
+                lambda name, item, found=found: (
+                    found.append(item) if isinstance(item, h5py.Dataset) else None
+                )
+            )
             unchecked = [d.name for d in found if d.size and not d.fletcher32]
             assert found and not unchecked, (path, unchecked)
         assert verify_file(path) == []
@@ -134,15 +165,21 @@ def test_every_dataset_of_artifacts_and_results_carries_a_checksum(results):
     assert result.skeleton.point_names[0] == "lf_thorax_coxa" and result.cameras.names[0] == "rh"
 
 
-def test_inspect_notes_a_file_without_checksums_but_does_not_fail_it(tmp_path, rig_and_skeleton, capsys,
-                                                                     monkeypatch):
+def test_inspect_notes_a_file_without_checksums_but_does_not_fail_it(
+    tmp_path, rig_and_skeleton, capsys, monkeypatch
+):
     from flylib import results as results_module
 
     config, rig, skeleton = rig_and_skeleton
     monkeypatch.setattr(results_module, "_FLETCHER32", False)  # as an older flylib wrote it
-    PoseResult(rig, skeleton, np.zeros((7, 500, 38, 2)), pts3d=np.zeros((500, 38, 3))).save(tmp_path / "old.h5")
+    PoseResult(rig, skeleton, np.zeros((7, 500, 38, 2)), pts3d=np.zeros((500, 38, 3))).save(
+        tmp_path / "old.h5"
+    )
     unchecked: list[str] = []
-    assert verify_file(tmp_path / "old.h5", unchecked=unchecked) == [] and "/pose2d/points" in unchecked
+    assert (
+        verify_file(tmp_path / "old.h5", unchecked=unchecked) == []
+        and "/pose2d/points" in unchecked
+    )
     assert flylib_main(["inspect", str(tmp_path / "old.h5")]) == 0
     assert "datasets carry no checksum" in capsys.readouterr().err
 
@@ -151,13 +188,15 @@ def _damage_middle(path: Path, seed: int = 0) -> int:
     data = bytearray(path.read_bytes())
     middle = len(data) // 2
     noise = np.random.default_rng(seed).integers(0, 256, 64, dtype=np.uint8).tobytes()
-    assert bytes(data[middle:middle + 64]) != noise
-    data[middle:middle + 64] = noise
+    assert bytes(data[middle : middle + 64]) != noise
+    data[middle : middle + 64] = noise
     path.write_bytes(bytes(data))
     return middle
 
 
-def test_random_bytes_in_the_middle_of_results_fail_to_load_naming_file_and_dataset(results, capsys):
+def test_random_bytes_in_the_middle_of_results_fail_to_load_naming_file_and_dataset(
+    results, capsys
+):
     _damage_middle(results)
     with pytest.raises(ResultsError) as info:
         PoseResult.load(results)
@@ -178,7 +217,7 @@ def test_damage_anywhere_is_caught_or_harmless(results, seed):
     data = bytearray(results.read_bytes())
     rng = np.random.default_rng(100 + seed)
     at = int(rng.integers(0, len(data) - 64))
-    data[at:at + 64] = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()
+    data[at : at + 64] = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()
     results.write_bytes(bytes(data))
     try:
         loaded = PoseResult.load(results)
@@ -193,7 +232,7 @@ def test_damaged_object_header_is_a_results_error(results):
     with h5py.File(results) as f:
         address = h5py.h5o.get_info(f["triangulation"].id).addr
     data = bytearray(results.read_bytes())
-    data[address + 8:address + 24] = b"\xa5" * 16
+    data[address + 8 : address + 24] = b"\xa5" * 16
     results.write_bytes(bytes(data))
     with pytest.raises(ResultsError, match=rf"^{results}: .* is damaged \(HDF5: .*checksum"):
         PoseResult.load(results)
@@ -203,8 +242,12 @@ def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig
     config, rig, skeleton = rig_and_skeleton
     files = _stage_files(tmp_path, config, skeleton)
     _damage_middle(files["triangulation"])
-    with pytest.raises(ResultsError, match=rf"^{files['triangulation']}: dataset /triangulation/\w+ is damaged"):
-        assemble_results(tmp_path / "results.h5", skeleton=skeleton, config_rig=rig, stage_files=files)
+    with pytest.raises(
+        ResultsError, match=rf"^{files['triangulation']}: dataset /triangulation/\w+ is damaged"
+    ):
+        assemble_results(
+            tmp_path / "results.h5", skeleton=skeleton, config_rig=rig, stage_files=files
+        )
     assert not (tmp_path / "results.h5").exists()
 
 
@@ -219,12 +262,25 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     recording = tmp_path / "rec"
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
-    run_pose2d(config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))
-    run_triangulation(config, out / "stages" / "pose2d.h5", out / "stages" / "triangulation.h5",
-                      recording_dir=recording)
-    run_assemble(config, {"pose2d": out / "stages" / "pose2d.h5",
-                          "triangulation": out / "stages" / "triangulation.h5"},
-                 out, recording_dir=recording, snapshot_path=out / "config.yaml")
+    run_pose2d(
+        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+    )
+    run_triangulation(
+        config,
+        out / "stages" / "pose2d.h5",
+        out / "stages" / "triangulation.h5",
+        recording_dir=recording,
+    )
+    run_assemble(
+        config,
+        {
+            "pose2d": out / "stages" / "pose2d.h5",
+            "triangulation": out / "stages" / "triangulation.h5",
+        },
+        out,
+        recording_dir=recording,
+        snapshot_path=out / "config.yaml",
+    )
     return recording, out
 
 
@@ -241,7 +297,10 @@ def _config(tmp_path: Path, name: str, edit=None) -> Config:
 def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix(tmp_path, capsys):
     config = _config(tmp_path, "config.yaml")
     recording, out = _small_run(tmp_path, config)
-    expected = {stage: params_hash(config.stage_params(stage)) for stage in ("pose2d", "triangulation", "assemble")}
+    expected = {
+        stage: params_hash(config.stage_params(stage))
+        for stage in ("pose2d", "triangulation", "assemble")
+    }
     assert read_meta(out / "stages" / "pose2d.h5")["params_sha256"] == expected["pose2d"]
     tri = read_meta(out / "stages" / "triangulation.h5")
     assert tri["params_sha256"] == expected["triangulation"]
@@ -257,17 +316,32 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     capsys.readouterr()
 
     # A config edit, then only triangulation re-runs (the run was interrupted before assemble).
-    edited = _config(tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5))
+    edited = _config(
+        tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5)
+    )
     from flylib.pipeline.stages import run_triangulation
 
-    run_triangulation(edited, out / "stages" / "pose2d.h5", out / "stages" / "triangulation.h5",
-                      recording_dir=recording)
+    run_triangulation(
+        edited,
+        out / "stages" / "pose2d.h5",
+        out / "stages" / "triangulation.h5",
+        recording_dir=recording,
+    )
     rows = {row.stage: row for row in provenance_report(out / "results.h5", edited)}
     assert rows["triangulation"].status == "stale" and rows["pose2d"].status == "ok"
-    assert flylib_main(["inspect", str(out / "results.h5"), "--config", str(tmp_path / "edited.yaml")]) == 2
+    assert (
+        flylib_main(["inspect", str(out / "results.h5"), "--config", str(tmp_path / "edited.yaml")])
+        == 2
+    )
     err = capsys.readouterr().err
-    assert f"{out / 'results.h5'}: triangulation is stale: made with params {expected['triangulation']}" in err
-    assert f"{out / 'stages' / 'triangulation.h5'}: params " in err and "not assembled from these artifacts" in err
+    assert (
+        f"{out / 'results.h5'}: triangulation is stale: made with params {expected['triangulation']}"
+        in err
+    )
+    assert (
+        f"{out / 'stages' / 'triangulation.h5'}: params " in err
+        and "not assembled from these artifacts" in err
+    )
 
     # pose2d re-made with other params beside a triangulation built on the old one: mixed.
     other = _config(tmp_path, "other.yaml", lambda d: d["pose2d"].update(precision="float32"))
@@ -275,8 +349,15 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     from flylib.pipeline.stages import run_assemble, run_pose2d
 
     run_pose2d(other, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(other))
-    run_assemble(other, {"pose2d": out / "stages" / "pose2d.h5", "triangulation": out / "stages" / "triangulation.h5"},
-                 out, recording_dir=recording)
+    run_assemble(
+        other,
+        {
+            "pose2d": out / "stages" / "pose2d.h5",
+            "triangulation": out / "stages" / "triangulation.h5",
+        },
+        out,
+        recording_dir=recording,
+    )
     rows = {row.stage: row for row in provenance_report(out / "results.h5")}
     assert rows["triangulation"].status == "mixed"
     assert any("was built from pose2d params" in p for p in rows["triangulation"].problems)
@@ -285,12 +366,25 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
 # -- the config snapshot: written by assemble only, after the results ---------------------
 
 
-def _snakemake(workdir: Path, config: dict, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+def _snakemake(
+    workdir: Path, config: dict, *args: str, check: bool = True
+) -> subprocess.CompletedProcess:
     (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
-           "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=workdir, env=_env(),
-                          check=False)
+    cmd = [
+        str(SNAKEMAKE),
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(workdir / "config.yaml"),
+        "--cores",
+        "2",
+        *args,
+    ]
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=600, cwd=workdir, env=_env(), check=False
+    )
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}")
     return proc
@@ -303,7 +397,9 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     data["pipeline"].update(do_bundle_adjustment=False, do_visualization=False)
     make_demo(Config.from_dict(data), tmp_path / "rec", frames=6, seed=0)
-    data["recordings"] = [{"path": str(tmp_path / "rec"), "import": demo_import_spec(Config.from_dict(data))}]
+    data["recordings"] = [
+        {"path": str(tmp_path / "rec"), "import": demo_import_spec(Config.from_dict(data))}
+    ]
     out = tmp_path / "rec" / "flylib_outputs"
     _snakemake(tmp_path, data)
     first = (tmp_path / "config.yaml").read_bytes()
@@ -315,7 +411,8 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     data["triangulation"]["ransac_threshold"] = 7.5
     _snakemake(tmp_path, data, "--omit-from", "assemble")
     assert read_meta(out / "stages" / "triangulation.h5")["params_sha256"] == params_hash(
-        Config.from_dict(data).stage_params("triangulation"))
+        Config.from_dict(data).stage_params("triangulation")
+    )
     assert (out / "config.yaml").read_bytes() == first
     assert (out / "results.h5").read_bytes() == results_before
     assert not list(out.glob(".flylib.lock*"))
@@ -332,15 +429,21 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     other.mkdir()
     data["triangulation"]["ransac_threshold"] = 9.0
     proc = _snakemake(other, data, "--dry-run")
-    assert (f"{out / 'stages' / 'triangulation.h5'}: written by a run from {tmp_path} on " in proc.stderr
-            + proc.stdout), proc.stderr[-3000:]
-    assert "pose2d.h5: written by" not in proc.stderr + proc.stdout  # same pose2d params: not foreign
+    assert (
+        f"{out / 'stages' / 'triangulation.h5'}: written by a run from {tmp_path} on "
+        in proc.stderr + proc.stdout
+    ), proc.stderr[-3000:]
+    assert (
+        "pose2d.h5: written by" not in proc.stderr + proc.stdout
+    )  # same pose2d params: not foreign
 
 
 def test_no_stage_script_but_assemble_writes_a_snapshot(tmp_path):
     rules = "\n".join(p.read_text() for p in (REPO / "workflow" / "rules").glob("*.smk"))
     assert "--snapshot-dir" not in rules and rules.count('"{outdir}/config.yaml"') == 1
-    writers = [p.name for p in sorted((REPO / "scripts").glob("*.py")) if "--snapshot" in p.read_text()]
+    writers = [
+        p.name for p in sorted((REPO / "scripts").glob("*.py")) if "--snapshot" in p.read_text()
+    ]
     assert writers == ["assemble.py"]
 
 
@@ -354,11 +457,18 @@ def test_foreign_artifacts_are_those_of_another_workdir_with_other_params(tmp_pa
     _, out = _small_run(tmp_path, config)
     recordings = [SimpleNamespace(outdir=out)]
     assert foreign_artifacts(config, recordings, cwd=tmp_path / "elsewhere") == []  # same params
-    edited = _config(tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5))
-    assert foreign_artifacts(edited, recordings) == []  # this workdir: Snakemake's own params tracking
+    edited = _config(
+        tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5)
+    )
+    assert (
+        foreign_artifacts(edited, recordings) == []
+    )  # this workdir: Snakemake's own params tracking
     lines = foreign_artifacts(edited, recordings, cwd=tmp_path / "elsewhere")
     assert [line.split(":")[0] for line in lines] == [str(out / "stages" / "triangulation.h5")]
-    assert f"written by a run from {tmp_path} on " in lines[0] and "--forcerun triangulation" in lines[0]
+    assert (
+        f"written by a run from {tmp_path} on " in lines[0]
+        and "--forcerun triangulation" in lines[0]
+    )
 
 
 # -- the output-directory lock -----------------------------------------------------------
@@ -381,33 +491,57 @@ def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     recording = tmp_path / "rec"
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
-    run_pose2d(config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_pose2d(
+        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+    )
     return recording, out
 
 
-def test_a_second_writer_of_an_outdir_fails_naming_the_holder_and_a_dead_holder_is_taken_over(tmp_path):
+def test_a_second_writer_of_an_outdir_fails_naming_the_holder_and_a_dead_holder_is_taken_over(
+    tmp_path,
+):
     recording, out = _pose2d_for_script(tmp_path)
     elsewhere = tmp_path / "other-workdir"
     elsewhere.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(out)], cwd=elsewhere, env=_env(),
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, str(out)],
+        cwd=elsewhere,
+        env=_env(),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "locked"
-        cmd = [sys.executable, str(REPO / "scripts" / "triangulation.py"), "--config", str(tmp_path / "config.yaml"),
-               "--pose2d", str(out / "stages" / "pose2d.h5"), "--recording", str(recording),
-               "--out", str(out / "stages" / "triangulation.h5")]
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False)
+        cmd = [
+            sys.executable,
+            str(REPO / "scripts" / "triangulation.py"),
+            "--config",
+            str(tmp_path / "config.yaml"),
+            "--pose2d",
+            str(out / "stages" / "pose2d.h5"),
+            "--recording",
+            str(recording),
+            "--out",
+            str(out / "stages" / "triangulation.h5"),
+        ]
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False
+        )
         assert proc.returncode == 1
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1, proc.stderr
-        assert lines[0].startswith(f"error: {out}: another run is writing this output directory (pid {holder.pid} on ")
+        assert lines[0].startswith(
+            f"error: {out}: another run is writing this output directory (pid {holder.pid} on "
+        )
         assert f"working directory {elsewhere}, job triangulation" in lines[0]
         assert not (out / "stages" / "triangulation.h5").exists()
     finally:
         holder.send_signal(signal.SIGKILL)  # dies without releasing: a stale lock
         holder.wait()
     assert json.loads((out / ".flylib.lock").read_text())["pid"] == holder.pid
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False)
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, env=_env(), cwd=tmp_path, timeout=300, check=False
+    )
     assert proc.returncode == 0, proc.stderr
     assert (out / "stages" / "triangulation.h5").is_file()
     assert not list(out.glob(".flylib.lock*"))  # released after the job
@@ -418,13 +552,22 @@ def test_lock_is_exclusive_between_two_live_processes(tmp_path):
 
     elsewhere = tmp_path / "other-workdir"
     elsewhere.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], env=_env(), cwd=elsewhere,
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, str(tmp_path)],
+        env=_env(),
+        cwd=elsewhere,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "locked"
         started = time.monotonic()
-        with pytest.raises(OutputError, match=rf"pid {holder.pid} on .*delete {tmp_path / '.flylib.lock'}$"), \
-                outdir_lock(tmp_path, job="assemble"):
+        with (
+            pytest.raises(
+                OutputError, match=rf"pid {holder.pid} on .*delete {tmp_path / '.flylib.lock'}$"
+            ),
+            outdir_lock(tmp_path, job="assemble"),
+        ):
             pass
         assert time.monotonic() - started < 5
     finally:
@@ -435,11 +578,18 @@ def test_lock_is_exclusive_between_two_live_processes(tmp_path):
 def test_jobs_of_one_run_share_the_lock_and_only_its_owner_releases_it(tmp_path):
     from flylib.locking import outdir_lock
 
-    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], env=_env(), cwd=os.getcwd(),
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, str(tmp_path)],
+        env=_env(),
+        cwd=os.getcwd(),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "locked"
-        with outdir_lock(tmp_path, job="kinematics"):  # same host and working directory: a sibling job
+        with outdir_lock(
+            tmp_path, job="kinematics"
+        ):  # same host and working directory: a sibling job
             pass
         assert json.loads((tmp_path / ".flylib.lock").read_text())["pid"] == holder.pid
     finally:
@@ -486,20 +636,35 @@ _WRITE_UNDER_LIMIT = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("kind,name", [("stage", "stages/triangulation.h5"), ("pose2d", "stages/pose2d.h5"),
-                                       ("assemble", "results.h5")])
-def test_a_write_over_the_file_size_limit_is_one_line_and_keeps_earlier_artifacts(tmp_path, kind, name):
+@pytest.mark.parametrize(
+    "kind,name",
+    [
+        ("stage", "stages/triangulation.h5"),
+        ("pose2d", "stages/pose2d.h5"),
+        ("assemble", "results.h5"),
+    ],
+)
+def test_a_write_over_the_file_size_limit_is_one_line_and_keeps_earlier_artifacts(
+    tmp_path, kind, name
+):
     stages = tmp_path / "stages"
     earlier = stages / "earlier.h5"
     write_stage(earlier, "triangulation", {"points3d": np.ones((10, 38, 3))})
     target = tmp_path / name
     write_stage(target, "triangulation", {"points3d": np.zeros((3, 38, 3))})  # a previous version
     before = {p: p.read_bytes() for p in (earlier, target)}
-    proc = subprocess.run([sys.executable, "-c", _WRITE_UNDER_LIMIT, str(target), kind],
-                          capture_output=True, text=True, env=_env(), timeout=300, check=False)
+    proc = subprocess.run(
+        [sys.executable, "-c", _WRITE_UNDER_LIMIT, str(target), kind],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=300,
+        check=False,
+    )
     assert proc.returncode == 1
     assert proc.stderr.strip() == (
         f"error: {target}: could not be written (File too large); nothing was kept (the previous file is "
-        "unchanged); free disk space or raise the file-size limit and re-run")
+        "unchanged); free disk space or raise the file-size limit and re-run"
+    )
     assert {p: p.read_bytes() for p in (earlier, target)} == before
     assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name]

@@ -33,7 +33,9 @@ RIG_VIEWS = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
 def rig_config(views=RIG_VIEWS, points=FLY38_POINT_NAMES, **extra) -> dict:
     """A raw config mapping: views fed by sources camera_<i>.mp4, skeleton points."""
     data = {
-        "sources": [{"name": f"vid_{v}", "filename": f"camera_{i}.mp4"} for i, v in enumerate(views)],
+        "sources": [
+            {"name": f"vid_{v}", "filename": f"camera_{i}.mp4"} for i, v in enumerate(views)
+        ],
         "cameras": {"defaults": {}, **{v: {} for v in views}},
         "skeleton": {"name": "test", "point_names": list(points)},
     }
@@ -122,10 +124,13 @@ def test_df3d_import_errors_name_file_and_fix(tmp_path):
     _write_df3d_pickle(tmp_path / "df3d_result_1.pkl", np.full((2, 3, 2, 2), 0.5))
     config = rig_config(views, points)
     with pytest.raises(ImportFormatError, match="image_size"):  # no footage, no fallback
-        import_points2d(config, tmp_path, {"format": "deepfly3d", "keypoint_map": {0: "p0", 1: "p1"}})
+        import_points2d(
+            config, tmp_path, {"format": "deepfly3d", "keypoint_map": {0: "p0", 1: "p1"}}
+        )
     with pytest.raises(ImportFormatError, match=r"keypoint '1' maps to 'nose'.*keypoint_map"):
         import_points2d(
-            config, tmp_path,
+            config,
+            tmp_path,
             {"format": "deepfly3d", "image_size": [10, 10], "keypoint_map": {0: "p0", 1: "nose"}},
         )
     _write_df3d_pickle(tmp_path / "df3d_result_2.pkl", np.full((2, 3, 2, 2), 0.5))
@@ -182,13 +187,17 @@ def test_dlc_csv_import_errors(tmp_path):
         import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
     # a deliberate drop is fine
     ok = import_points2d(
-        config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}}
+        config,
+        tmp_path,
+        {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}},
     )
     assert np.isfinite(ok.pts2d[:, :, 0]).all(-1).sum() == 6
     (tmp_path / "b.csv").write_text("\n".join(DLC_CSV.splitlines()[:-1]) + "\n")
     with pytest.raises(ImportFormatError, match="different frame counts"):
         import_points2d(
-            config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}}
+            config,
+            tmp_path,
+            {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}},
         )
     (tmp_path / "a.csv").write_text("frame,x,y\n0,1,2\n")
     with pytest.raises(ImportFormatError, match=r"a\.csv: not a DeepLabCut CSV"):
@@ -227,7 +236,9 @@ def test_dlc_export_imports_back_identically(tmp_path):
     header = files[0].read_text().splitlines()[:3]
     assert header[0].startswith("scorer,flylib") and header[1].startswith("bodyparts,p0,p0,p0,p1")
     assert header[2].startswith("coords,x,y,likelihood,x")
-    back = import_points2d(rig_config(views, points), tmp_path, {"format": "lightning_pose", "image_size": [480, 960]})
+    back = import_points2d(
+        rig_config(views, points), tmp_path, {"format": "lightning_pose", "image_size": [480, 960]}
+    )
     np.testing.assert_array_equal(back.pts2d, pts)
     np.testing.assert_array_equal(back.conf, conf)
 
@@ -248,7 +259,9 @@ def test_dlc_h5_import_without_pytables(tmp_path, name):
     np.testing.assert_array_equal(from_h5.conf, from_csv.conf)
     np.testing.assert_array_equal(from_h5.pts2d[0, 1, 0], [11.5, 21.25])
     assert np.isnan(from_h5.pts2d[0, 1, 1]).all()
-    by_suffix = import_points2d(config, tmp_path, {"format": "deeplabcut", "files": "{view}.h5", "image_size": [4, 4]})
+    by_suffix = import_points2d(
+        config, tmp_path, {"format": "deeplabcut", "files": "{view}.h5", "image_size": [4, 4]}
+    )
     np.testing.assert_array_equal(by_suffix.pts2d, from_h5.pts2d)
 
 
@@ -270,11 +283,15 @@ def test_dlc_h5_multi_animal(tmp_path):
 # -- SLEAP analysis HDF5 -----------------------------------------------------------------
 
 
-def _write_sleap(path: Path, locations: np.ndarray, scores: np.ndarray, nodes, transpose=True) -> Path:
+def _write_sleap(
+    path: Path, locations: np.ndarray, scores: np.ndarray, nodes, transpose=True
+) -> Path:
     """locations (T, K, 2, n_tracks), scores (T, K, n_tracks), as SLEAP's analysis export."""
     with h5py.File(path, "w") as f:
         f["node_names"] = np.array([n.encode() for n in nodes], dtype="S")
-        f["track_names"] = np.array([f"track_{i}".encode() for i in range(locations.shape[-1])], dtype="S")
+        f["track_names"] = np.array(
+            [f"track_{i}".encode() for i in range(locations.shape[-1])], dtype="S"
+        )
         f["tracks"] = locations.T if transpose else locations
         f["point_scores"] = scores.T if transpose else scores
     return path
@@ -288,7 +305,11 @@ def test_sleap_analysis_import(tmp_path, transpose):
     scores = rng.uniform(0, 1, size=(5, 3, 1))
     for v in ("a", "b"):
         _write_sleap(tmp_path / f"{v}.analysis.h5", loc, scores, ["n0", "n1", "n2"], transpose)
-    spec = {"format": "sleap", "image_size": [500, 500], "keypoint_map": {"n0": "p0", "n1": "p1", "n2": "p2"}}
+    spec = {
+        "format": "sleap",
+        "image_size": [500, 500],
+        "keypoint_map": {"n0": "p0", "n1": "p1", "n2": "p2"},
+    }
     data = import_points2d(rig_config(["a", "b"], ["p0", "p1", "p2"]), tmp_path, spec)
     np.testing.assert_array_equal(data.pts2d[1], loc[..., 0])
     expected_conf = np.where(np.isfinite(loc[..., 0]).all(-1), scores[..., 0], np.nan)
@@ -301,7 +322,9 @@ def test_sleap_several_tracks_need_a_choice(tmp_path):
     config = rig_config(["a"], ["p0", "p1"])
     with pytest.raises(ImportFormatError, match="pose2d.import.track"):
         import_points2d(config, tmp_path, {"format": "sleap", "image_size": [9, 9]})
-    data = import_points2d(config, tmp_path, {"format": "sleap", "image_size": [9, 9], "track": "track_1"})
+    data = import_points2d(
+        config, tmp_path, {"format": "sleap", "image_size": [9, 9], "track": "track_1"}
+    )
     np.testing.assert_array_equal(data.pts2d[0], loc[..., 1])
 
 
@@ -364,21 +387,34 @@ def test_anipose_toml_round_trip(tmp_path):
 def test_anipose_toml_errors(tmp_path):
     bad = tmp_path / "bad.toml"
     # the seed document's example puts (cx, cy) in K's last row: not a camera matrix
-    bad.write_text(ANIPOSE_TOML.replace("[0.0, 0.0, 1.0]]\ndistortions = [-0.12", "[1451.1, 993.0, 1.0]]\ndistortions = [-0.12"))
-    with pytest.raises(ImportFormatError, match=r"\[cam_0\] \(name 'left'\): 'matrix' is .*; it must be a 3x3 camera matrix"):
+    bad.write_text(
+        ANIPOSE_TOML.replace(
+            "[0.0, 0.0, 1.0]]\ndistortions = [-0.12", "[1451.1, 993.0, 1.0]]\ndistortions = [-0.12"
+        )
+    )
+    with pytest.raises(
+        ImportFormatError,
+        match=r"\[cam_0\] \(name 'left'\): 'matrix' is .*; it must be a 3x3 camera matrix",
+    ):
         read_anipose_toml(bad)
     good = tmp_path / "good.toml"
     good.write_text(ANIPOSE_TOML)
-    with pytest.raises(ImportFormatError, match=r"no camera for views \['centre'\].*calibration.names"):
+    with pytest.raises(
+        ImportFormatError, match=r"no camera for views \['centre'\].*calibration.names"
+    ):
         load_calibration(_calib_config(views=("left", "centre"), file=str(good)))
-    cams = load_calibration(_calib_config(views=("left", "centre"), file=str(good), names={"centre": "right"}))
+    cams = load_calibration(
+        _calib_config(views=("left", "centre"), file=str(good), names={"centre": "right"})
+    )
     assert cams.names == ["left", "centre"] and cams.intrs[1, 0] == 1600.0
 
 
 def test_calibrations_index_resolves_session(tmp_path):
     (tmp_path / "calibrations").mkdir()
     (tmp_path / "calibrations" / "session0.toml").write_text(ANIPOSE_TOML)
-    (tmp_path / "calibrations" / "session1.toml").write_text(ANIPOSE_TOML.replace("1500.5", "1700.0"))
+    (tmp_path / "calibrations" / "session1.toml").write_text(
+        ANIPOSE_TOML.replace("1500.5", "1700.0")
+    )
     (tmp_path / "calibrations.csv").write_text(
         ",file\n"
         "labeled-data/session0/img00000005.png,calibrations/session0.toml\n"
@@ -395,10 +431,13 @@ def test_calibrations_index_resolves_session(tmp_path):
         calibration_from_index(index, "session7")
     # what the workflow lists as inputs of the rules that build this rig
     assert calibration_inputs(_calib_config(index=str(index)), recording) == [
-        index, tmp_path / "calibrations" / "session1.toml"]
+        index,
+        tmp_path / "calibrations" / "session1.toml",
+    ]
     assert calibration_inputs(_calib_config(index=str(index)), tmp_path / "session7") == [index]
     assert calibration_inputs(_calib_config(file="calibrations/session0.toml"), tmp_path) == [
-        tmp_path / "calibrations" / "session0.toml"]  # relative to the recording
+        tmp_path / "calibrations" / "session0.toml"
+    ]  # relative to the recording
     assert calibration_inputs(_calib_config(file=str(tmp_path / "absent.toml"))) == []
     assert calibration_inputs({"cameras": {"a": {}}}) == []
 
@@ -424,7 +463,9 @@ def test_df3d_calibration_pickle_projects_like_opencv(tmp_path):
     ours = cams.project(pts)
     for i in range(3):
         c = calib[i]
-        ref, _ = cv2.projectPoints(pts, cv2.Rodrigues(c["R"])[0], c["tvec"], c["intr"], c["distort"])
+        ref, _ = cv2.projectPoints(
+            pts, cv2.Rodrigues(c["R"])[0], c["tvec"], c["intr"], c["distort"]
+        )
         np.testing.assert_allclose(ours[i], ref[:, 0], rtol=0, atol=1e-8)
 
 
@@ -441,11 +482,27 @@ def test_points3d_csv_one_row_per_frame_nan_when_missing(tmp_path):
     path = write_points3d_csv(tmp_path / "p3d.csv", pts3d, ["a", "b"], err, pts2d)
     table = pd.read_csv(path)
     assert len(table) == 4 and table["fnum"].tolist() == [0, 1, 2, 3]
-    assert list(table.columns[:12]) == ["a_x", "a_y", "a_z", "a_error", "a_ncams", "a_score",
-                                        "b_x", "b_y", "b_z", "b_error", "b_ncams", "b_score"]
+    assert list(table.columns[:12]) == [
+        "a_x",
+        "a_y",
+        "a_z",
+        "a_error",
+        "a_ncams",
+        "a_score",
+        "b_x",
+        "b_y",
+        "b_z",
+        "b_error",
+        "b_ncams",
+        "b_score",
+    ]
     assert table.loc[1, ["a_x", "a_y", "a_z", "a_error", "a_score"]].isna().all()
     np.testing.assert_array_equal(table[["b_x", "b_y", "b_z"]].to_numpy(), pts3d[:, 1])
-    assert table.loc[0, "a_error"] == 2.0 and table.loc[0, "a_ncams"] == 2 and table.loc[0, "a_score"] == 1.0
+    assert (
+        table.loc[0, "a_error"] == 2.0
+        and table.loc[0, "a_ncams"] == 2
+        and table.loc[0, "a_score"] == 1.0
+    )
     frame = points3d_table(pts3d, ["a", "b"])
     assert frame["a_error"].isna().all() and frame["a_ncams"].isna().all()  # no 2D: Anipose's NaN
 
@@ -453,7 +510,9 @@ def test_points3d_csv_one_row_per_frame_nan_when_missing(tmp_path):
 # -- integration with the default config and real footage -------------------------------------
 
 
-def test_default_config_df3d_import_saves_as_pose2d_artifact(df3d_sample_dir, df3d_pickle, tmp_path):
+def test_default_config_df3d_import_saves_as_pose2d_artifact(
+    df3d_sample_dir, df3d_pickle, tmp_path
+):
     from flylib.config import Config
     from flylib.results import Pose2dData
 
@@ -471,15 +530,29 @@ def test_dlc_import_reads_sizes_and_checks_frames_against_footage(deeperfly_exam
     views = RIG_VIEWS[:2]
     rng = np.random.default_rng(4)
     for i in range(2):
-        write_dlc_views(tmp_path, rng.uniform(0, 400, (1, 64, 2, 2)), None, [f"camera_{i}DLC_resnet50_flyJan1shuffle1_1000"], ["p0", "p1"])
+        write_dlc_views(
+            tmp_path,
+            rng.uniform(0, 400, (1, 64, 2, 2)),
+            None,
+            [f"camera_{i}DLC_resnet50_flyJan1shuffle1_1000"],
+            ["p0", "p1"],
+        )
     config = rig_config(views, ["p0", "p1"])
     spec = {"format": "deeplabcut", "files": str(tmp_path / "{stem}DLC_*.csv")}
     data = import_points2d(config, deeperfly_example_dir, spec)
     assert data.image_sizes == {"rh": (480, 960), "rm": (480, 960)}
     assert data.pts2d.shape == (2, 64, 2, 2)
     for i in range(2):
-        write_dlc_views(tmp_path, rng.uniform(0, 400, (1, 10, 2, 2)), None, [f"camera_{i}DLC_resnet50_flyJan1shuffle1_1000"], ["p0", "p1"])
-    with pytest.raises(ImportFormatError, match=r"camera_0DLC.*10 frames but view 'rh' footage has 64"):
+        write_dlc_views(
+            tmp_path,
+            rng.uniform(0, 400, (1, 10, 2, 2)),
+            None,
+            [f"camera_{i}DLC_resnet50_flyJan1shuffle1_1000"],
+            ["p0", "p1"],
+        )
+    with pytest.raises(
+        ImportFormatError, match=r"camera_0DLC.*10 frames but view 'rh' footage has 64"
+    ):
         import_points2d(config, deeperfly_example_dir, spec)
 
 
@@ -508,7 +581,10 @@ def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp
     from flylib.interop.views import footage_files, read_frame_count, read_frame_size
 
     config = rig_config(["a", "b"])
-    config["sources"] = [{"name": "vid_a", "filename": "camera_0*"}, {"name": "vid_b", "filename": "cam_b/*"}]
+    config["sources"] = [
+        {"name": "vid_a", "filename": "camera_0*"},
+        {"name": "vid_b", "filename": "cam_b/*"},
+    ]
     with io.VideoWriter(tmp_path / "camera_0.mp4", fps=10) as writer:
         writer.write_frames(np.zeros((3, 32, 48, 3), np.uint8))
     (tmp_path / "camera_0DLC_resnet50_flyJan1shuffle1_1000.csv").write_text("scorer\n")
@@ -517,8 +593,10 @@ def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp
         cv2.imwrite(str(tmp_path / "cam_b" / f"img{i}.png"), np.zeros((20, 30, 3), np.uint8))
     (tmp_path / "cam_b" / "notes.txt").write_text("not a frame")
     footage = footage_files(config, tmp_path)
-    assert footage == {"a": [tmp_path / "camera_0.mp4"],
-                       "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (1, 9, 10)]}
+    assert footage == {
+        "a": [tmp_path / "camera_0.mp4"],
+        "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (1, 9, 10)],
+    }
     assert read_frame_count(footage["a"]) == 3 and read_frame_count(footage["b"]) == 3
     assert read_frame_size(footage["a"][0]) == (32, 48)
     assert read_frame_size(footage["b"][0]) == (20, 30)

@@ -29,7 +29,10 @@ DATA = Path(__file__).parent / "data" / "interop"
 
 
 def _config(views, points, **extra) -> dict:
-    data = {"cameras": {v: {} for v in views}, "skeleton": {"name": "t", "point_names": list(points)}}
+    data = {
+        "cameras": {v: {} for v in views},
+        "skeleton": {"name": "t", "point_names": list(points)},
+    }
     data.update(extra)
     return data
 
@@ -67,11 +70,18 @@ class _SystemCall:
 def test_df3d_2d_pickle_payload_never_runs(tmp_path, payload, refused):
     target = tmp_path / "pwned"
     path = tmp_path / "df3d_result_evil.pkl"
-    data = {"points2d": np.full((2, 3, 2, 2), 0.5), "camera_ordering": np.arange(2), "x": payload(target)}
+    data = {
+        "points2d": np.full((2, 3, 2, 2), 0.5),
+        "camera_ordering": np.arange(2),
+        "x": payload(target),
+    }
     path.write_bytes(pickle.dumps(data))
     with pytest.raises(ImportFormatError) as err:
-        import_points2d(_config(["a", "b"], ["p0", "p1"]), tmp_path,
-                        {"format": "deepfly3d", "image_size": [10, 10], "keypoint_map": {0: "p0", 1: "p1"}})
+        import_points2d(
+            _config(["a", "b"], ["p0", "p1"]),
+            tmp_path,
+            {"format": "deepfly3d", "image_size": [10, 10], "keypoint_map": {0: "p0", 1: "p1"}},
+        )
     text = _one_line(err)
     assert str(path) in text and refused in text and "refused" in text
     assert not target.exists()
@@ -80,10 +90,14 @@ def test_df3d_2d_pickle_payload_never_runs(tmp_path, payload, refused):
 @pytest.mark.parametrize("protocol", [0, 2, 5])
 def test_df3d_calibration_pickle_payload_never_runs(tmp_path, protocol):
     target = tmp_path / "pwned"
-    calib = {0: {"R": np.eye(3), "tvec": np.zeros(3), "intr": np.eye(3), "hook": _TouchFile(target)}}
+    calib = {
+        0: {"R": np.eye(3), "tvec": np.zeros(3), "intr": np.eye(3), "hook": _TouchFile(target)}
+    }
     path = tmp_path / "calib.pkl"
     path.write_bytes(pickle.dumps(calib, protocol=protocol))
-    with pytest.raises(ImportFormatError, match=r"calib\.pkl: refused .*'(builtins|__builtin__|io)\.open'") as err:
+    with pytest.raises(
+        ImportFormatError, match=r"calib\.pkl: refused .*'(builtins|__builtin__|io)\.open'"
+    ) as err:
         load_calibration({"cameras": {"a": {}}, "calibration": {"file": str(path)}})
     _one_line(err)
     assert not target.exists()
@@ -105,11 +119,20 @@ def test_df3d_sample_pickle_loads_bit_identically(df3d_pickle):
 def test_numpy_1_and_2_module_paths_and_plain_data_load(tmp_path, protocol, numpy_path):
     """NumPy 1.x pickles name numpy.core.multiarray, 2.x numpy._core.multiarray."""
     data = {
-        "a": np.arange(6.0).reshape(2, 3), "i": np.int64(3), "f": np.float32(0.5), "s": "text",
-        "l": [1, 2.5, None, True], "t": (1, b"x"), "set": {1, 2}, "c": 1j, "rec": np.zeros(2, "<f8,<i4"),
+        "a": np.arange(6.0).reshape(2, 3),
+        "i": np.int64(3),
+        "f": np.float32(0.5),
+        "s": "text",
+        "l": [1, 2.5, None, True],
+        "t": (1, b"x"),
+        "set": {1, 2},
+        "c": 1j,
+        "rec": np.zeros(2, "<f8,<i4"),
     }
     raw = pickle.dumps(data, protocol=protocol)
-    if protocol <= 2:  # GLOBAL opcodes are text lines: rewrite the module path as the other NumPy writes it
+    if (
+        protocol <= 2
+    ):  # GLOBAL opcodes are text lines: rewrite the module path as the other NumPy writes it
         for other in ("numpy._core", "numpy.core"):
             raw = raw.replace(f"c{other}.".encode(), f"c{numpy_path}.".encode())
     path = tmp_path / "x.pkl"
@@ -118,13 +141,26 @@ def test_numpy_1_and_2_module_paths_and_plain_data_load(tmp_path, protocol, nump
     assert set(back) == set(data)
     for key in ("a", "rec"):
         assert back[key].tobytes() == data[key].tobytes() and back[key].dtype == data[key].dtype
-    assert back["i"] == 3 and back["f"] == np.float32(0.5) and back["l"] == data["l"] and back["set"] == {1, 2}
+    assert (
+        back["i"] == 3
+        and back["f"] == np.float32(0.5)
+        and back["l"] == data["l"]
+        and back["set"] == {1, 2}
+    )
 
 
 def test_allow_list_holds_no_callable_that_reaches_the_system():
     names = {f"{m}.{n}" for m, n in ALLOWED_GLOBALS}
-    for bad in ("builtins.eval", "builtins.exec", "builtins.open", "builtins.getattr",
-                "builtins.__import__", "os.system", "subprocess.Popen", "numpy.load"):
+    for bad in (
+        "builtins.eval",
+        "builtins.exec",
+        "builtins.open",
+        "builtins.getattr",
+        "builtins.__import__",
+        "os.system",
+        "subprocess.Popen",
+        "numpy.load",
+    ):
         assert bad not in names
 
 
@@ -134,8 +170,12 @@ def test_dlc_h5_pickled_metadata_cannot_name_a_global(tmp_path):
     path = tmp_path / "a.h5"
     path.write_bytes((DATA / "dlc_table.h5").read_bytes())
     with h5py.File(path, "r+") as f:
-        f["df_with_missing/table"].attrs["values_block_0_kind"] = np.bytes_(pickle.dumps(_TouchFile(target), 0))
-    with pytest.raises(ImportFormatError, match=r"a\.h5: refused or unreadable pickled pandas metadata") as err:
+        f["df_with_missing/table"].attrs["values_block_0_kind"] = np.bytes_(
+            pickle.dumps(_TouchFile(target), 0)
+        )
+    with pytest.raises(
+        ImportFormatError, match=r"a\.h5: refused or unreadable pickled pandas metadata"
+    ) as err:
         read_dlc_h5(path)
     _one_line(err)
     assert not target.exists()
@@ -152,18 +192,36 @@ def _df3d(tmp_path: Path, **payload) -> Path:
 
 
 def _import_df3d(tmp_path, **spec):
-    return import_points2d(_config(["a", "b"], FLY38_POINT_NAMES), tmp_path,
-                           {"format": "deepfly3d", "image_size": [480, 960], **spec})
+    return import_points2d(
+        _config(["a", "b"], FLY38_POINT_NAMES),
+        tmp_path,
+        {"format": "deepfly3d", "image_size": [480, 960], **spec},
+    )
 
 
-@pytest.mark.parametrize("payload, message", [
-    ({"points2d": "0.5 0.5"}, r"'points2d' is a str \('0.5 0.5'\), not numbers"),
-    ({"points2d": [[1.0, 2.0], [3.0]]}, r"'points2d' is not a regular array"),
-    ({"points2d": np.zeros((2, 3, 38))}, r"'points2d' has shape \(2, 3, 38\), expected \(cameras, frames, joints, 2\)"),
-    ({"camera_ordering": "0123456"}, r"'camera_ordering' is a str \('0123456'\), not numbers.*2 distinct integer"),
-    ({"camera_ordering": np.array([0, 0])}, r"'camera_ordering' is \[0.0, 0.0\]; it must list 2 distinct integer"),
-    ({"heatmap_confidence": np.ones((2, 3, 5, 1))}, r"'heatmap_confidence' shape \(2, 3, 5\) does not fit"),
-])
+@pytest.mark.parametrize(
+    "payload, message",
+    [
+        ({"points2d": "0.5 0.5"}, r"'points2d' is a str \('0.5 0.5'\), not numbers"),
+        ({"points2d": [[1.0, 2.0], [3.0]]}, r"'points2d' is not a regular array"),
+        (
+            {"points2d": np.zeros((2, 3, 38))},
+            r"'points2d' has shape \(2, 3, 38\), expected \(cameras, frames, joints, 2\)",
+        ),
+        (
+            {"camera_ordering": "0123456"},
+            r"'camera_ordering' is a str \('0123456'\), not numbers.*2 distinct integer",
+        ),
+        (
+            {"camera_ordering": np.array([0, 0])},
+            r"'camera_ordering' is \[0.0, 0.0\]; it must list 2 distinct integer",
+        ),
+        (
+            {"heatmap_confidence": np.ones((2, 3, 5, 1))},
+            r"'heatmap_confidence' shape \(2, 3, 5\) does not fit",
+        ),
+    ],
+)
 def test_df3d_bad_content_is_one_line_naming_the_key(tmp_path, payload, message):
     path = _df3d(tmp_path, **payload)
     with pytest.raises(ImportFormatError, match=message) as err:
@@ -231,8 +289,11 @@ def test_flylib_export_dlc_dir_imports_back_with_empty_first_frame(tmp_path):
     views = ["a", "b", "c"]
     skeleton = Skeleton(point_names=("p0", "p1"), limbs={"leg": ("p0", "p1")}, palette={}, name="t")
     cameras = CameraGroup.from_arrays(
-        views, np.zeros((3, 3)), np.tile([0.0, 0.0, 110.0], (3, 1)),
-        np.tile([16000.0, 16000.0, 480.0, 240.0], (3, 1)), np.zeros((3, 5)),
+        views,
+        np.zeros((3, 3)),
+        np.tile([0.0, 0.0, 110.0], (3, 1)),
+        np.tile([16000.0, 16000.0, 480.0, 240.0], (3, 1)),
+        np.zeros((3, 5)),
     )
     rng = np.random.default_rng(5)
     pts2d = rng.uniform(0, 960, size=(3, 6, 2, 2))
@@ -241,13 +302,20 @@ def test_flylib_export_dlc_dir_imports_back_with_empty_first_frame(tmp_path):
     pts2d[0, 3, 1] = np.nan
     pts2d[2, -1] = np.nan  # and the last row
     conf[~np.isfinite(pts2d).all(-1)] = np.nan
-    result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d, conf=conf,
-                        image_sizes={v: (480, 960) for v in views})
+    result = PoseResult(
+        cameras=cameras,
+        skeleton=skeleton,
+        pts2d=pts2d,
+        conf=conf,
+        image_sizes={v: (480, 960) for v in views},
+    )
     result.save(tmp_path / "results.h5")
     out = tmp_path / "dlc"
     assert main(["export", str(tmp_path / "results.h5"), "--dlc-dir", str(out)]) == 0
     assert (out / "b.csv").read_text().splitlines()[3] == "0,,,,,,"
-    back = import_points2d(_config(views, ["p0", "p1"]), out, {"format": "dlc_csv", "image_size": [480, 960]})
+    back = import_points2d(
+        _config(views, ["p0", "p1"]), out, {"format": "dlc_csv", "image_size": [480, 960]}
+    )
     np.testing.assert_array_equal(back.pts2d, pts2d)
     np.testing.assert_array_equal(back.conf, conf)
 
@@ -259,7 +327,9 @@ def _dlc_text(parts, rows=3) -> str:
     s = ",".join(["DLC"] * 3 * len(parts))
     b = ",".join(p for p in parts for _ in range(3))
     c = ",".join(["x", "y", "likelihood"] * len(parts))
-    body = "".join(f"{t}," + ",".join(["1.5", "2.5", "0.9"] * len(parts)) + "\n" for t in range(rows))
+    body = "".join(
+        f"{t}," + ",".join(["1.5", "2.5", "0.9"] * len(parts)) + "\n" for t in range(rows)
+    )
     return DLC_HEADER.format(s=s, b=b, c=c) + body
 
 
@@ -268,14 +338,18 @@ def test_dlc_csv_missing_body_parts_warns_naming_file_and_parts(tmp_path, caplog
     (tmp_path / "a.csv").write_text(_dlc_text(parts))
     (tmp_path / "b.csv").write_text(_dlc_text(["p0", "p4"]))
     with caplog.at_level(logging.WARNING, logger="flylib.interop"):
-        data = import_points2d(_config(["a", "b"], parts), tmp_path, {"format": "dlc_csv", "image_size": [9, 9]})
+        data = import_points2d(
+            _config(["a", "b"], parts), tmp_path, {"format": "dlc_csv", "image_size": [9, 9]}
+        )
     assert np.isnan(data.pts2d[1, :, 1:4]).all()
     message = [r.getMessage() for r in caplog.records if "b.csv" in r.getMessage()]
     assert len(message) == 1 and "['p1', 'p2', 'p3']" in message[0] and "view 'b'" in message[0]
     assert "a.csv" not in caplog.text
 
 
-def test_dlc_csv_lacking_the_other_side_is_fine_when_the_plan_says_the_view_sees_one_side(tmp_path, caplog):
+def test_dlc_csv_lacking_the_other_side_is_fine_when_the_plan_says_the_view_sees_one_side(
+    tmp_path, caplog
+):
     """A camera sees one side of the fly: its file rightly lacks the other side's parts.
     With a detection plan (pose2d.output_points) only parts the plan gives that view count."""
     parts = ["p0", "p1", "p2", "p3"]
@@ -283,18 +357,25 @@ def test_dlc_csv_lacking_the_other_side_is_fine_when_the_plan_says_the_view_sees
     (tmp_path / "b.csv").write_text(_dlc_text(["p2"]))
     plan = {"output_points": {"a": {"p0": {}, "p1": {}}, "b": {"p2": {}, "p3": {}}}}
     with caplog.at_level(logging.WARNING, logger="flylib.interop"):
-        import_points2d(_config(["a", "b"], parts, pose2d=plan), tmp_path, {"format": "dlc_csv", "image_size": [9, 9]})
+        import_points2d(
+            _config(["a", "b"], parts, pose2d=plan),
+            tmp_path,
+            {"format": "dlc_csv", "image_size": [9, 9]},
+        )
     assert "a.csv" not in caplog.text  # p2, p3 are the other side's
     message = [r.getMessage() for r in caplog.records if "b.csv" in r.getMessage()]
     assert len(message) == 1 and "['p3']" in message[0] and "output_points" in message[0]
 
 
-@pytest.mark.parametrize("text, message", [
-    ("scorer,DLC,DLC\nbodyparts,p,p\ncoords,x,y\n0,1,2,3,4\n", "malformed CSV row"),
-    ("scorer,DLC,DLC\nbodyparts,p,p\n0,1,2\n", "not a DeepLabCut CSV"),
-    (b"scorer,\xff\xfe\n".decode("latin-1"), "not a readable CSV .*utf-8"),
-    ("scorer,DLC,DLC\nbodyparts,p,p\ncoords,x,y\n0,a,b\n", "non-numeric cell"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("scorer,DLC,DLC\nbodyparts,p,p\ncoords,x,y\n0,1,2,3,4\n", "malformed CSV row"),
+        ("scorer,DLC,DLC\nbodyparts,p,p\n0,1,2\n", "not a DeepLabCut CSV"),
+        (b"scorer,\xff\xfe\n".decode("latin-1"), "not a readable CSV .*utf-8"),
+        ("scorer,DLC,DLC\nbodyparts,p,p\ncoords,x,y\n0,a,b\n", "non-numeric cell"),
+    ],
+)
 def test_dlc_csv_damage_is_one_line(tmp_path, text, message):
     path = tmp_path / "a.csv"
     path.write_text(text, encoding="latin-1")
@@ -322,11 +403,22 @@ def _sleap_labels(n_frames: int, detect: bool):
         instances = []
         if detect:
             points = np.array([[10.0 + t, 20.0], [30.0, 40.0 + t], [np.nan, np.nan]])
-            instances.append(sio.PredictedInstance.from_numpy(
-                points, skeleton=skeleton, point_scores=np.array([0.9, 0.8, 0.0]), score=1.0, track=track))
+            instances.append(
+                sio.PredictedInstance.from_numpy(
+                    points,
+                    skeleton=skeleton,
+                    point_scores=np.array([0.9, 0.8, 0.0]),
+                    score=1.0,
+                    track=track,
+                )
+            )
         frames.append(sio.LabeledFrame(video=video, frame_idx=t, instances=instances))
-    return sio, sio.Labels(labeled_frames=frames, videos=[video], skeletons=[skeleton],
-                           tracks=[track] if detect else [])
+    return sio, sio.Labels(
+        labeled_frames=frames,
+        videos=[video],
+        skeletons=[skeleton],
+        tracks=[track] if detect else [],
+    )
 
 
 def test_sleap_io_analysis_file_with_one_track(tmp_path):
@@ -391,23 +483,48 @@ def _cam2(line_old: str, line_new: str) -> str:
     return head + "[cam_2]" + cam2.replace(line_old, line_new)
 
 
-@pytest.mark.parametrize("old, new, message", [
-    ("[0.0, 16000.0, 240.0]", "[0.0, nan, 240.0]", r"'matrix' holds NaN or infinite values"),
-    ("translation = [0.0, 0.0, 110.0]", "translation = [0.0, nan, 110.0]", r"'translation' holds NaN"),
-    ("rotation = [0.0, 0.2, 0.0]", "rotation = [0.0, inf, 0.0]", r"'rotation' holds NaN"),
-    ("size = [960, 480]", 'size = ["wide", 480]', r"'size' is \['wide', 480\]; it must be \[width, height\]"),
-    ("size = [960, 480]", "size = [960]", r"'size' is \[960\]"),
-    ("distortions = [0.0, 0.0, 0.0, 0.0, 0.0]", f"distortions = {[0.0] * 20}", r"'distortions' has 20 values; it must be at most 12"),
-    ("distortions = [0.0, 0.0, 0.0, 0.0, 0.0]", 'distortions = ["k1"]', r"'distortions' is a list \(\['k1'\]\), not numbers"),
-    ("translation = [0.0, 0.0, 110.0]", "translation = [0.0, 110.0]", r"'translation' has shape \(2,\); it must be 3 numbers"),
-    ("[0.0, 0.0, 1.0]]", "[0.0, 1.0, 1.0]]", r"'matrix' is .* it must be a 3x3 camera matrix"),
-    ('name = "rf"', "name = [1]", r"\[cam_2\]: 'name' is \[1\]"),
-])
+@pytest.mark.parametrize(
+    "old, new, message",
+    [
+        ("[0.0, 16000.0, 240.0]", "[0.0, nan, 240.0]", r"'matrix' holds NaN or infinite values"),
+        (
+            "translation = [0.0, 0.0, 110.0]",
+            "translation = [0.0, nan, 110.0]",
+            r"'translation' holds NaN",
+        ),
+        ("rotation = [0.0, 0.2, 0.0]", "rotation = [0.0, inf, 0.0]", r"'rotation' holds NaN"),
+        (
+            "size = [960, 480]",
+            'size = ["wide", 480]',
+            r"'size' is \['wide', 480\]; it must be \[width, height\]",
+        ),
+        ("size = [960, 480]", "size = [960]", r"'size' is \[960\]"),
+        (
+            "distortions = [0.0, 0.0, 0.0, 0.0, 0.0]",
+            f"distortions = {[0.0] * 20}",
+            r"'distortions' has 20 values; it must be at most 12",
+        ),
+        (
+            "distortions = [0.0, 0.0, 0.0, 0.0, 0.0]",
+            'distortions = ["k1"]',
+            r"'distortions' is a list \(\['k1'\]\), not numbers",
+        ),
+        (
+            "translation = [0.0, 0.0, 110.0]",
+            "translation = [0.0, 110.0]",
+            r"'translation' has shape \(2,\); it must be 3 numbers",
+        ),
+        ("[0.0, 0.0, 1.0]]", "[0.0, 1.0, 1.0]]", r"'matrix' is .* it must be a 3x3 camera matrix"),
+        ('name = "rf"', "name = [1]", r"\[cam_2\]: 'name' is \[1\]"),
+    ],
+)
 def test_anipose_bad_value_names_file_section_camera_and_key(tmp_path, old, new, message):
     path = tmp_path / "calibration.toml"
     path.write_text(_cam2(old, new))
     with pytest.raises(ImportFormatError, match=message) as err:
-        load_calibration({"cameras": {"rh": {}, "rm": {}, "rf": {}}, "calibration": {"file": str(path)}})
+        load_calibration(
+            {"cameras": {"rh": {}, "rm": {}, "rf": {}}, "calibration": {"file": str(path)}}
+        )
     text = _one_line(err)
     assert text.startswith(f"{path} [cam_2]")
     if "'name'" not in text:
@@ -421,16 +538,27 @@ def test_anipose_good_file_still_loads(tmp_path):
     assert list(cams) == ["rh", "rm", "rf"] and cams["rf"]["size"] == (960, 480)
 
 
-@pytest.mark.parametrize("key, value, message", [
-    ("intr", np.array([[np.nan, 0, 480], [0, 16000.0, 240], [0, 0, 1]]), r"camera 1: 'intr' holds NaN"),
-    ("tvec", np.array([0.0, np.nan, 110.0]), r"camera 1: 'tvec' holds NaN"),
-    ("tvec", "0 0 110", r"camera 1: 'tvec' is a str"),
-    ("R", np.eye(3) * 2, r"camera 1: 'R' is not a rotation"),
-    ("distort", np.zeros(20), r"camera 1: 'distort' has 20 values"),
-])
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        (
+            "intr",
+            np.array([[np.nan, 0, 480], [0, 16000.0, 240], [0, 0, 1]]),
+            r"camera 1: 'intr' holds NaN",
+        ),
+        ("tvec", np.array([0.0, np.nan, 110.0]), r"camera 1: 'tvec' holds NaN"),
+        ("tvec", "0 0 110", r"camera 1: 'tvec' is a str"),
+        ("R", np.eye(3) * 2, r"camera 1: 'R' is not a rotation"),
+        ("distort", np.zeros(20), r"camera 1: 'distort' has 20 values"),
+    ],
+)
 def test_df3d_calibration_bad_value_names_camera_and_key(tmp_path, key, value, message):
-    good = {"R": np.eye(3), "tvec": np.array([0.0, 0.0, 110.0]),
-            "intr": np.array([[16000.0, 0, 480], [0, 16000.0, 240], [0, 0, 1]]), "distort": np.zeros(5)}
+    good = {
+        "R": np.eye(3),
+        "tvec": np.array([0.0, 0.0, 110.0]),
+        "intr": np.array([[16000.0, 0, 480], [0, 16000.0, 240], [0, 0, 1]]),
+        "distort": np.zeros(5),
+    }
     calib = {0: dict(good), 1: {**good, key: value}}
     path = tmp_path / "calib.pkl"
     path.write_bytes(pickle.dumps(calib))
@@ -454,7 +582,9 @@ def test_checkpoint_with_a_payload_is_refused_and_never_runs(tmp_path):
     target = tmp_path / "pwned"
     path = tmp_path / "evil.tar"
     torch.save({"state_dict": {"conv1.weight": torch.zeros(1)}, "hook": _TouchFile(target)}, path)
-    with pytest.raises(WeightsError, match=r"evil\.tar: cannot read the checkpoint \(UnpicklingError") as err:
+    with pytest.raises(
+        WeightsError, match=r"evil\.tar: cannot read the checkpoint \(UnpicklingError"
+    ) as err:
         read_state_dict(path)
     _one_line(err)
     assert not target.exists()

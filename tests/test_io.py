@@ -201,8 +201,10 @@ def test_deepfly3d_sample_video_and_images_give_the_same_frames(df3d_sample_dir)
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this OS")
 def test_worker_counts_follow_the_cpu_affinity_not_the_machine(tmp_path):
     # a cluster job bound to one core of a big node must not start a thread per node core
-    code = ("import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
-            "from flylib.resources import usable_cpus; from flylib.io.images import _default_workers; "
-            "print(usable_cpus(), _default_workers())")
+    code = (
+        "import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+        "from flylib.resources import usable_cpus; from flylib.io.images import _default_workers; "
+        "print(usable_cpus(), _default_workers())"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["1", "1"]

@@ -36,9 +36,16 @@ def test_flexion_matches_the_law_of_cosines_on_a_walking_fly():
 def test_default_angles_are_the_three_leg_joints_of_every_leg():
     angles = default_angles(FLY)
     assert len(angles) == 18
-    assert angles["rm_femur_tibia_flex"] == ("rm_coxa_trochanter", "rm_femur_tibia", "rm_tibia_tarsus")
-    assert {n.split("_", 1)[1] for n in angles} == {"coxa_trochanter_flex", "femur_tibia_flex",
-                                                     "tibia_tarsus_flex"}
+    assert angles["rm_femur_tibia_flex"] == (
+        "rm_coxa_trochanter",
+        "rm_femur_tibia",
+        "rm_tibia_tarsus",
+    )
+    assert {n.split("_", 1)[1] for n in angles} == {
+        "coxa_trochanter_flex",
+        "femur_tibia_flex",
+        "tibia_tarsus_flex",
+    }
 
 
 @pytest.mark.parametrize("degrees", [30.0, 90.0, 135.0, 180.0])
@@ -114,8 +121,9 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
     sizes = {v: (480, 960) for v in config.view_names()}
     rig = config.camera_group(image_sizes=sizes)
     pts3d = synthetic_fly(20, seed=5)
-    PoseResult(cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)),
-               pts3d=pts3d).save(tmp_path / "results.h5")
+    PoseResult(
+        cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)), pts3d=pts3d
+    ).save(tmp_path / "results.h5")
     run_kinematics(config, tmp_path / "results.h5", tmp_path)
     with h5py.File(tmp_path / "kinematics.h5") as f:
         names = json.loads(f["kinematics"].attrs["angle_names"])

@@ -16,7 +16,7 @@ from synthetic import POINT_NAMES, default_rig, observe, project_opencv, synthet
 
 def _gaussian(h, w, x, y, sigma=1.5, amp=1.0):
     yy, xx = np.mgrid[0:h, 0:w]
-    return amp * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma ** 2))
+    return amp * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma**2))
 
 
 def test_peaks_are_ordered_padded_and_subpixel_exact_for_gaussians():
@@ -83,8 +83,9 @@ def scene():
     pts2d, conf = observe(pts3d, rig, noise_px=1.0, outlier_frac=0.0, seed=1)
     mirror = [(i + 19) % 38 for i in range(38)]
     mirrored = np.where(np.isfinite(pts2d), project_opencv(rig, pts3d[:, mirror]), np.nan)
-    junk = np.where(np.isfinite(pts2d),
-                    np.random.default_rng(2).random(pts2d.shape) * [960, 480], np.nan)
+    junk = np.where(
+        np.isfinite(pts2d), np.random.default_rng(2).random(pts2d.shape) * [960, 480], np.nan
+    )
     xy = np.stack([pts2d, mirrored, junk], axis=3)
     score = np.stack([conf, 0.5 * conf, 0.3 * conf], axis=3)
     return rig, skeleton, pts3d, pts2d, ps.Candidates(xy, score)
@@ -115,8 +116,11 @@ def test_swapped_peak_in_two_views_is_recovered(scene, temporal):
 
     ransac3d, ransac2d, _ = reconstruct_ransac(rig, swapped.argmax())
     ransac_err = np.linalg.norm(ransac3d[frame, joint] - truth[frame, joint])
-    assert not np.isfinite(ransac_err) or ransac_err > 0.1 or \
-        np.isnan(ransac2d[views[:2], frame, joint]).all()  # ransac can at best drop them
+    assert (
+        not np.isfinite(ransac_err)
+        or ransac_err > 0.1
+        or np.isnan(ransac2d[views[:2], frame, joint]).all()
+    )  # ransac can at best drop them
 
     pts3d, committed, _ = ps.reconstruct(rig, skeleton, swapped, temporal=temporal)
     assert np.linalg.norm(pts3d[frame, joint] - truth[frame, joint]) < 0.02
@@ -148,8 +152,9 @@ def test_reconstruct_from_config(scene):
     from flylib.config import Config
 
     rig, _, _, pts2d, cand = scene
-    config = Config.from_dict({**Config.default().data,
-                               "pictorial_structures": {"k": 3, "temporal": True, "lam": 2.0}})
+    config = Config.from_dict(
+        {**Config.default().data, "pictorial_structures": {"k": 3, "temporal": True, "lam": 2.0}}
+    )
     pts3d, committed, reproj = ps.reconstruct_from_config(config, rig, cand)
     np.testing.assert_array_equal(committed, pts2d)
     assert pts3d.shape == (24, 38, 3) and reproj.shape == (7, 24, 38)

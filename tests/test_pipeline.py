@@ -46,8 +46,9 @@ def test_synthetic_fly_truth_is_recovered():
     pts2d, conf = observe(truth, rig, noise_px=1.0, outlier_frac=0.05, seed=0)
     start = perturb_rig(rig, rot_deg=3.0, dist_frac=0.03, seed=1)
 
-    result = run_from_points2d(start, skeleton, pts2d, conf,
-                               bundle_adjust_kwargs={"max_frames": 60})
+    result = run_from_points2d(
+        start, skeleton, pts2d, conf, bundle_adjust_kwargs={"max_frames": 60}
+    )
     i, j = skeleton.bone_index_pairs()
     bone = np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1))
     err = _similarity_error(result.pts3d, truth)
@@ -79,8 +80,15 @@ def test_pictorial_path_agrees_with_plain_triangulation():
     truth = synthetic_fly(6, seed=9)
     pts2d, conf = observe(truth, rig, noise_px=0.5, seed=9)
     plain = run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False)
-    pictorial = run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False, do_pictorial=True,
-                                  candidates=Candidates.from_points(pts2d, conf))
+    pictorial = run_from_points2d(
+        rig,
+        skeleton,
+        pts2d,
+        conf,
+        do_bundle_adjust=False,
+        do_pictorial=True,
+        candidates=Candidates.from_points(pts2d, conf),
+    )
     np.testing.assert_allclose(pictorial.pts3d, plain.pts3d, atol=1e-9)
     assert pictorial.meta["pictorial"] and not plain.meta["pictorial"]
     assert np.nanmax(np.linalg.norm(plain.pts3d - truth, axis=-1)) < 0.05
@@ -104,7 +112,10 @@ def test_defaults_are_the_packaged_configs(monkeypatch):
     monkeypatch.setattr(oneshot, "_defaults", lambda: Config.from_dict(data))
     rig, skeleton = default_rig(), Skeleton.fly()
     pts2d, conf = observe(synthetic_fly(4, seed=3), rig, noise_px=0.5, seed=3)
-    assert run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False).meta["triangulation"] == "greedy"
+    assert (
+        run_from_points2d(rig, skeleton, pts2d, conf, do_bundle_adjust=False).meta["triangulation"]
+        == "greedy"
+    )
 
 
 # -- real data: DeepFly3D's own 2D for the sample recording ---------------------------------
@@ -141,8 +152,9 @@ def test_real_df3d_sample_reaches_three_pixels(df3d_pickle):
     seen = np.isfinite(pts2d).all(-1)
     assert seen[:2, :, 19:].all() and not seen[:3, :, :19].any() and not seen[3].any()
     assert seen[5:, :, :19].all() and not seen[4:, :, 19:].any()
-    result = run_from_points2d(rig, skeleton, pts2d, conf,
-                               bundle_adjust_kwargs={"max_frames": None})
+    result = run_from_points2d(
+        rig, skeleton, pts2d, conf, bundle_adjust_kwargs={"max_frames": None}
+    )
     assert np.nanmedian(result.reproj_error) <= 3.0
     two_view = np.isfinite(pts2d).all(-1).sum(0) >= 2
     reconstructed = np.isfinite(result.pts3d).all(-1)

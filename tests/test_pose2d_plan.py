@@ -23,7 +23,16 @@ from flylib.pose2d.plan import (
 )
 
 RNG = np.random.default_rng(7)
-OPS = [FlipLR(), FlipUD(), Rot90(1), Rot90(2), Rot90(3), Crop(5, 3, 40, 30), Resize(24, 32), Resize(100, 90)]
+OPS = [
+    FlipLR(),
+    FlipUD(),
+    Rot90(1),
+    Rot90(2),
+    Rot90(3),
+    Crop(5, 3, 40, 30),
+    Resize(24, 32),
+    Resize(100, 90),
+]
 
 
 def _blob_image(size, xy, sigma=2.0):
@@ -37,7 +46,9 @@ def _centroid(image: torch.Tensor) -> np.ndarray:
     return np.array([(img * xx).sum(), (img * yy).sum()]) / img.sum()
 
 
-@pytest.mark.parametrize("op", [FlipLR(), FlipUD(), Rot90(1), Rot90(2), Rot90(3), Crop(7, 4, 40, 30)])
+@pytest.mark.parametrize(
+    "op", [FlipLR(), FlipUD(), Rot90(1), Rot90(2), Rot90(3), Crop(7, 4, 40, 30)]
+)
 def test_exact_ops_move_pixels_where_the_points_go(op):
     size = (48, 64)
     raw = np.zeros(size)
@@ -61,7 +72,9 @@ def test_rot90_matches_numpy(k):
         assert out[int(fy), int(fx)] == img[y, x]
 
 
-@pytest.mark.parametrize("size,new", [((60, 80), (30, 40)), ((48, 96), (64, 128)), ((480, 960), (256, 512))])
+@pytest.mark.parametrize(
+    "size,new", [((60, 80), (30, 40)), ((48, 96), (64, 128)), ((480, 960), (256, 512))]
+)
 def test_resize_moves_a_blob_centroid_where_the_point_goes(size, new):
     xy = np.array([size[1] * 0.37 + 0.3, size[0] * 0.61 - 0.2])
     sigma = 0.05 * size[1]
@@ -149,8 +162,12 @@ def test_decode_argmax_handles_negative_values_and_borders():
 
 
 def test_topk_peaks_orders_pads_and_refines():
-    hm = 0.9 * decode.gaussian_heatmap((20, 30), (6.2, 5.4), 1.2) + 0.5 * decode.gaussian_heatmap((20, 30), (22.7, 13.1), 1.2)
-    xy, score = decode.topk_peaks(torch.from_numpy(hm)[None, None], k=3, threshold=0.05, method="parabola")
+    hm = 0.9 * decode.gaussian_heatmap((20, 30), (6.2, 5.4), 1.2) + 0.5 * decode.gaussian_heatmap(
+        (20, 30), (22.7, 13.1), 1.2
+    )
+    xy, score = decode.topk_peaks(
+        torch.from_numpy(hm)[None, None], k=3, threshold=0.05, method="parabola"
+    )
     np.testing.assert_allclose(xy[0, 0, 0].numpy(), [6.2, 5.4], atol=1e-3)
     np.testing.assert_allclose(xy[0, 0, 1].numpy(), [22.7, 13.1], atol=1e-3)
     assert score[0, 0, 0] > score[0, 0, 1] > 0
@@ -172,8 +189,13 @@ def test_default_plan_structure(default_data):
     assert plan.view_names == ("rh", "rm", "rf", "f", "lf", "lm", "lh")
     assert len(plan.point_names) == 38
     assert plan.view_sources() == {
-        "rh": "vid_rh", "rm": "vid_rm", "rf": "vid_rf", "f": "vid_f",
-        "lf": "vid_lf", "lm": "vid_lm", "lh": "vid_lh",
+        "rh": "vid_rh",
+        "rm": "vid_rm",
+        "rf": "vid_rf",
+        "f": "vid_f",
+        "lf": "vid_lf",
+        "lm": "vid_lm",
+        "lh": "vid_lh",
     }
     filled = plan.filled_mask()
     assert filled.sum(axis=1).tolist() == [19, 19, 16, 14, 16, 19, 19]
@@ -196,13 +218,30 @@ def _broken(data, edit):
 @pytest.mark.parametrize(
     "edit,match",
     [
-        (lambda d: d["pose2d"]["pathways"][0].update(source="nope"), r"pathways\[0\].*unknown source 'nope'"),
+        (
+            lambda d: d["pose2d"]["pathways"][0].update(source="nope"),
+            r"pathways\[0\].*unknown source 'nope'",
+        ),
         (lambda d: d["pose2d"]["pathways"][0].update(model="nope"), r"unknown model 'nope'"),
         (lambda d: d["pose2d"]["pathways"][0].update(preprocessor="nope"), r"unknown preprocessor"),
-        (lambda d: d["pose2d"]["output_points"]["rh"]["rf_claw"].update(out_channel=19), r"rh\.rf_claw\.out_channel"),
-        (lambda d: d["pose2d"]["output_points"]["rh"].update(bogus={"pathway": "rh", "out_channel": 0}), r"unknown skeleton point"),
-        (lambda d: d["pose2d"]["output_points"]["rh"]["rf_claw"].update(pathway="lm_flip"), r"view 'rh' takes points from sources"),
-        (lambda d: d["pose2d"]["preprocessors"][0]["ops"].append({"op": "shear"}), r"unknown op 'shear'"),
+        (
+            lambda d: d["pose2d"]["output_points"]["rh"]["rf_claw"].update(out_channel=19),
+            r"rh\.rf_claw\.out_channel",
+        ),
+        (
+            lambda d: d["pose2d"]["output_points"]["rh"].update(
+                bogus={"pathway": "rh", "out_channel": 0}
+            ),
+            r"unknown skeleton point",
+        ),
+        (
+            lambda d: d["pose2d"]["output_points"]["rh"]["rf_claw"].update(pathway="lm_flip"),
+            r"view 'rh' takes points from sources",
+        ),
+        (
+            lambda d: d["pose2d"]["preprocessors"][0]["ops"].append({"op": "shear"}),
+            r"unknown op 'shear'",
+        ),
         (lambda d: d["pose2d"]["models"][0].update(input_size=[250, 512]), r"multiples of 64"),
     ],
 )
@@ -212,7 +251,9 @@ def test_plan_errors_name_the_key(default_data, edit, match):
 
 
 def test_parse_op_validates_parameters():
-    assert parse_op({"op": "crop", "x0": 1, "y0": 2, "width": 3, "height": 4}, "w") == Crop(1, 2, 3, 4)
+    assert parse_op({"op": "crop", "x0": 1, "y0": 2, "width": 3, "height": 4}, "w") == Crop(
+        1, 2, 3, 4
+    )
     assert parse_op({"op": "rot90"}, "w") == Rot90(1)
     with pytest.raises(ConfigError, match=r"w: missing key 'height'"):
         parse_op({"op": "crop", "x0": 1, "y0": 2, "width": 3}, "w")

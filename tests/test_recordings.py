@@ -13,7 +13,9 @@ from flylib.errors import ConfigError, FootageError
 from flylib.io import VideoWriter
 from flylib.recordings import find_recording, plan_recordings, resolve_recordings
 
-SOURCES = {"sources": [{"name": "left", "filename": "cam_0*"}, {"name": "right", "filename": "cam_1*"}]}
+SOURCES = {
+    "sources": [{"name": "left", "filename": "cam_0*"}, {"name": "right", "filename": "cam_1*"}]
+}
 
 
 def write_video(path: Path, frames: int) -> Path:
@@ -90,12 +92,16 @@ def test_batch_skips_malformed_directories_and_an_empty_batch_is_an_error(tmp_pa
     assert [p for p, _ in found] == [good]
     assert "empty" in caplog.text
     with pytest.raises(FootageError, match="none of"):
-        resolve_recordings([tmp_path / "empty", tmp_path / "notes.txt"], recursive=False, config=SOURCES)
+        resolve_recordings(
+            [tmp_path / "empty", tmp_path / "notes.txt"], recursive=False, config=SOURCES
+        )
 
 
 def test_single_literal_path_is_kept_even_without_footage(tmp_path):
     (tmp_path / "rec").mkdir()
-    assert resolve_recordings([tmp_path / "rec"], recursive=False, config=SOURCES) == [(tmp_path / "rec", {})]
+    assert resolve_recordings([tmp_path / "rec"], recursive=False, config=SOURCES) == [
+        (tmp_path / "rec", {})
+    ]
 
 
 def test_recursive_search_finds_nested_recordings_but_not_outputs(tmp_path):
@@ -130,16 +136,23 @@ def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
     a = make_video_recording(tmp_path / "a")
     b = make_video_recording(tmp_path / "b")
     sheet = tmp_path / "recordings.tsv"
-    sheet.write_text("path\toutdir\timport_format\timport_files\n"
-                     f"a\t{tmp_path / 'out_a'}\tdlc_csv\tleft=l.csv;right=r.csv\n"
-                     "b\t\t\t\n")
+    sheet.write_text(
+        "path\toutdir\timport_format\timport_files\n"
+        f"a\t{tmp_path / 'out_a'}\tdlc_csv\tleft=l.csv;right=r.csv\n"
+        "b\t\t\t\n"
+    )
     recs = plan_recordings({**SOURCES, "recordings": str(sheet)})
     assert [r.path for r in recs] == [a, b]
     assert recs[0].outdir == tmp_path / "out_a" and recs[1].outdir == b / "flylib_outputs"
-    assert recs[0].import_spec == {"format": "dlc_csv", "files": {"left": "l.csv", "right": "r.csv"}}
+    assert recs[0].import_spec == {
+        "format": "dlc_csv",
+        "files": {"left": "l.csv", "right": "r.csv"},
+    }
     assert recs[1].import_spec is None
 
-    recs = plan_recordings({**SOURCES, "recordings": [{"path": str(a), "import": {"format": "sleap"}}]})
+    recs = plan_recordings(
+        {**SOURCES, "recordings": [{"path": str(a), "import": {"format": "sleap"}}]}
+    )
     assert recs[0].import_spec == {"format": "sleap"}
     with pytest.raises(ConfigError, match="unknown key"):
         plan_recordings({**SOURCES, "recordings": [{"path": str(a), "colour": "red"}]})
@@ -164,10 +177,15 @@ def test_real_sample_resolves_to_its_videos_or_its_image_sequences(df3d_sample_d
     config = Config.default()
     sources = find_recording(df3d_sample_dir, config)
     assert sources["vid_rh"] == [df3d_sample_dir / "camera_0.mp4"]
-    images = {"sources": [{"name": f"cam{i}", "filename": f"camera_{i}_img_*.jpg"} for i in range(7)]}
+    images = {
+        "sources": [{"name": f"cam{i}", "filename": f"camera_{i}_img_*.jpg"} for i in range(7)]
+    }
     sources = find_recording(df3d_sample_dir, images)
     assert len(sources["cam3"]) == 15
-    assert sources["cam3"][2].name == "camera_3_img_2.jpg" and sources["cam3"][-1].name == "camera_3_img_14.jpg"
+    assert (
+        sources["cam3"][2].name == "camera_3_img_2.jpg"
+        and sources["cam3"][-1].name == "camera_3_img_14.jpg"
+    )
 
 
 def test_plan_skips_a_malformed_batch_member_with_a_warning(tmp_path, caplog):

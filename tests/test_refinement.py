@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
 from flylib.demo import synthetic_fly
 from flylib.refinement import (
@@ -25,6 +24,8 @@ from flylib.refinement.solver import (
 from flylib.skeleton import Skeleton
 from flylib.triangulation import reconstruct_ransac
 
+from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
+
 
 @pytest.mark.parametrize("order", [1, 2])
 def test_difference_gram_is_the_band_of_d_transpose_d(order):
@@ -42,17 +43,25 @@ def _scene(frames=40, seed=0, dist=False):
     if dist:
         from flylib.cameras import CameraGroup
 
-        rig = CameraGroup.from_arrays(rig.names, rig.rvecs, rig.tvecs, rig.intrs,
-                                      np.tile([[-0.3, 0.1, 1e-3, -2e-3, 0.05]], (len(rig.names), 1)))
+        rig = CameraGroup.from_arrays(
+            rig.names,
+            rig.rvecs,
+            rig.tvecs,
+            rig.intrs,
+            np.tile([[-0.3, 0.1, 1e-3, -2e-3, 0.05]], (len(rig.names), 1)),
+        )
     truth = synthetic_fly(frames, seed=seed)
     clean = np.asarray(rig.project(truth))
-    pts2d, conf, kind = detector_errors(clean, rig_visibility(rig.names), rig.names, POINT_NAMES,
-                                        seed=seed + 1)
+    pts2d, conf, kind = detector_errors(
+        clean, rig_visibility(rig.names), rig.names, POINT_NAMES, seed=seed + 1
+    )
     return rig, truth, pts2d, conf, kind
 
 
-@pytest.mark.parametrize("loss,order,dist", [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False),
-                                             ("cauchy", 2, True)])
+@pytest.mark.parametrize(
+    "loss,order,dist",
+    [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False), ("cauchy", 2, True)],
+)
 def test_kernel_gradient_matches_finite_differences(loss, order, dist):
     rig, truth, pts2d, conf, _ = _scene(frames=6, dist=dist)
     terms = skeleton_terms(Skeleton.fly(), None)
@@ -61,9 +70,18 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
     opts = RefineOptions(loss=loss, smooth_order=order)
     start = truth + np.random.default_rng(0).normal(0, 0.01, truth.shape)
     rigid = np.asarray(terms["rigid"])
-    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, np.where(observed, conf, 0.0), layout,
-                           terms["bones"], bone_lengths(truth, terms["bones"]), rigid,
-                           rigid_centres(truth, rigid) + 0.003, opts, 8)
+    problem = ChunkProblem(
+        Grid(observed, rig, layout),
+        pts2d,
+        np.where(observed, conf, 0.0),
+        layout,
+        terms["bones"],
+        bone_lengths(truth, terms["bones"]),
+        rigid,
+        rigid_centres(truth, rigid) + 0.003,
+        opts,
+        8,
+    )
     xs = problem.to_slots(start)
     _cost, rows, grad, _ = problem.evaluate(xs)
     ab = problem.band(rows)
@@ -75,8 +93,10 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
         plus[k] += h
         minus[k] -= h
         # the cost is per block: the sum is the objective
-        fd = (problem.evaluate(plus.reshape(xs.shape))[0].sum()
-              - problem.evaluate(minus.reshape(xs.shape))[0].sum()) / (2 * h)
+        fd = (
+            problem.evaluate(plus.reshape(xs.shape))[0].sum()
+            - problem.evaluate(minus.reshape(xs.shape))[0].sum()
+        ) / (2 * h)
         # evaluate returns half the gradient of the cost (the Gauss-Newton convention)
         np.testing.assert_allclose(grad[k], fd / 2, rtol=2e-4, atol=1e-6 * np.abs(grad).max())
     assert np.all(ab[-1][used] > 0)  # the diagonal of the normal matrix
@@ -92,13 +112,17 @@ def test_refinement_beats_ransac_on_detector_like_errors():
     rig, truth, pts2d, conf, kind = _scene(frames=200, seed=3)
     start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     terms = skeleton_terms(Skeleton.fly(), None)
-    result = refine_points(pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1), **terms)
+    result = refine_points(
+        pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1), **terms
+    )
     before, after = _errors(start, truth), _errors(result.points3d, truth)
     both = np.isfinite(before) & np.isfinite(after)
     assert np.isfinite(after).mean() > np.isfinite(before).mean()  # single-view points too
     assert np.median(after[both]) < 0.75 * np.median(before[both])
     assert np.percentile(after[both], 95) < 0.5 * np.percentile(before[both], 95)
-    bone = np.median(np.linalg.norm(truth[:, terms["bones"][:, 0]] - truth[:, terms["bones"][:, 1]], axis=-1))
+    bone = np.median(
+        np.linalg.norm(truth[:, terms["bones"][:, 0]] - truth[:, terms["bones"][:, 1]], axis=-1)
+    )
     right = both & (before < 0.05 * bone)
     # where RANSAC was right the refinement (almost) never makes things worse: the rare
     # exception is a recording's first/last frame, where the temporal term is one-sided
@@ -118,8 +142,14 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
     pts2d[:, 30:40, q] = np.nan  # 10 frames: missing
     start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     terms = skeleton_terms(Skeleton.fly(), None)
-    result = refine_points(pts2d, rig, start, inliers=np.isfinite(clean2d).all(-1),
-                           options=RefineOptions(gap_length=5), **terms)
+    result = refine_points(
+        pts2d,
+        rig,
+        start,
+        inliers=np.isfinite(clean2d).all(-1),
+        options=RefineOptions(gap_length=5),
+        **terms,
+    )
     assert np.isfinite(result.points3d[10:13, p]).all()
     assert (result.flags[10:13, p] & 2).all()
     assert np.abs(result.points3d[10:13, p] - truth[10:13, p]).max() < 0.1
@@ -138,8 +168,15 @@ def test_rigid_thorax_points_stay_put_and_chunks_agree_with_one_solve():
     assert len(tc) == 6
     spread = np.nanstd(whole.points3d[:, tc], axis=0).max()
     assert spread < 0.1 * np.nanstd(start[:, tc], axis=0).max()
-    chunked = refine_points(pts2d, rig, start, conf=conf, inliers=inliers,
-                            options=RefineOptions(chunk_frames=50, overlap_frames=16), **terms)
+    chunked = refine_points(
+        pts2d,
+        rig,
+        start,
+        conf=conf,
+        inliers=inliers,
+        options=RefineOptions(chunk_frames=50, overlap_frames=16),
+        **terms,
+    )
     assert whole.info["chunks"] == 1 and chunked.info["chunks"] == 3
     diff = np.linalg.norm(whole.points3d - chunked.points3d, axis=-1)
     assert np.nanmedian(diff) < 1e-3 and np.nanpercentile(diff, 99) < 0.02
@@ -159,17 +196,22 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     import h5py
 
     from flylib.config import Config
-    from flylib.results import Pose2dData, PoseResult, write_stage
     from flylib.pipeline.stages import run_assemble, run_refinement
+    from flylib.results import Pose2dData, PoseResult, write_stage
 
     config = Config.default()
     rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)
     sizes = {v: (480, 960) for v in rig.names}
     Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
     start, clean2d, err = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
-    write_stage(tmp_path / "triangulation.h5", "triangulation",
-                {"points": clean2d, "points3d": start, "reproj_error": err})
-    run_refinement(config, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", tmp_path / "refinement.h5")
+    write_stage(
+        tmp_path / "triangulation.h5",
+        "triangulation",
+        {"points": clean2d, "points3d": start, "reproj_error": err},
+    )
+    run_refinement(
+        config, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", tmp_path / "refinement.h5"
+    )
     with h5py.File(tmp_path / "refinement.h5") as f:
         group = f["refinement"]
         assert group["flags"].dtype == np.uint8 and group["flags"].shape == (30, 38)
@@ -179,13 +221,30 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
         refined = group["points3d"][()]
     from flylib.demo import _write_truth
 
-    truth_path = _write_truth(tmp_path / "truth.h5", truth, np.asarray(rig.project(truth)), list(rig.names),
-                              list(config.skeleton().point_names), {})
-    summary = run_assemble(config, {"pose2d": tmp_path / "pose2d.h5", "triangulation": tmp_path / "triangulation.h5",
-                                    "refinement": tmp_path / "refinement.h5"}, tmp_path, truth_path=truth_path)
+    truth_path = _write_truth(
+        tmp_path / "truth.h5",
+        truth,
+        np.asarray(rig.project(truth)),
+        list(rig.names),
+        list(config.skeleton().point_names),
+        {},
+    )
+    summary = run_assemble(
+        config,
+        {
+            "pose2d": tmp_path / "pose2d.h5",
+            "triangulation": tmp_path / "triangulation.h5",
+            "refinement": tmp_path / "refinement.h5",
+        },
+        tmp_path,
+        truth_path=truth_path,
+    )
     # the demo's figure is the refined 3D's, with the triangulation's beside it
     assert summary["error_vs_truth"]["median"] < summary["error_vs_truth_triangulation"]["median"]
-    assert summary["error_vs_truth"]["reconstructed"] >= summary["error_vs_truth_triangulation"]["reconstructed"]
+    assert (
+        summary["error_vs_truth"]["reconstructed"]
+        >= summary["error_vs_truth_triangulation"]["reconstructed"]
+    )
     result = PoseResult.load(tmp_path / "results.h5")
     np.testing.assert_array_equal(result.pts3d, refined)
     with h5py.File(tmp_path / "results.h5") as f:  # additive: the triangulation is still there
@@ -204,9 +263,18 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
     terms = skeleton_terms(Skeleton.fly(), None)
     layout = BlockLayout.from_chains(38, terms["chains"])
     rigid = np.asarray(terms["rigid"])
-    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, observed.astype(float), layout, terms["bones"],
-                           bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
-                           RefineOptions(smooth_order=order, smooth_weight=smooth), 8)
+    problem = ChunkProblem(
+        Grid(observed, rig, layout),
+        pts2d,
+        observed.astype(float),
+        layout,
+        terms["bones"],
+        bone_lengths(truth, terms["bones"]),
+        rigid,
+        rigid_centres(truth, rigid),
+        RefineOptions(smooth_order=order, smooth_weight=smooth),
+        8,
+    )
     xs = problem.to_slots(truth)
     _, rows, grad, _ = problem.evaluate(xs)
     ab = problem.band(rows)
@@ -219,11 +287,16 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
         plus, minus = xs.copy().ravel(), xs.copy().ravel()
         plus[j] += h
         minus[j] -= h
-        column = (problem.evaluate(plus.reshape(xs.shape))[2] - problem.evaluate(minus.reshape(xs.shape))[2]) / (2 * h)
+        column = (
+            problem.evaluate(plus.reshape(xs.shape))[2]
+            - problem.evaluate(minus.reshape(xs.shape))[2]
+        ) / (2 * h)
         band_column = np.zeros_like(column)
         for i in range(max(0, j - u), min(column.size, j + u + 1)):
             band_column[i] = ab[u + i - j, j] if i <= j else ab[u + j - i, i]
-        np.testing.assert_allclose(column, band_column, rtol=1e-4, atol=1e-5 * np.abs(band_column).max())
+        np.testing.assert_allclose(
+            column, band_column, rtol=1e-4, atol=1e-5 * np.abs(band_column).max()
+        )
 
 
 def _tiny_problem(frames=6, padded=None, seed=0):
@@ -232,9 +305,18 @@ def _tiny_problem(frames=6, padded=None, seed=0):
     layout = BlockLayout.from_chains(38, terms["chains"])
     observed = np.isfinite(pts2d).all(-1)
     rigid = np.asarray(terms["rigid"])
-    problem = ChunkProblem(Grid(observed, rig, layout), pts2d, np.where(observed, conf, 0.0), layout,
-                           terms["bones"], bone_lengths(truth, terms["bones"]), rigid, rigid_centres(truth, rigid),
-                           RefineOptions(), padded or frames)
+    problem = ChunkProblem(
+        Grid(observed, rig, layout),
+        pts2d,
+        np.where(observed, conf, 0.0),
+        layout,
+        terms["bones"],
+        bone_lengths(truth, terms["bones"]),
+        rigid,
+        rigid_centres(truth, rigid),
+        RefineOptions(),
+        padded or frames,
+    )
     start = truth + np.random.default_rng(seed).normal(0, 0.01, truth.shape)
     return problem, problem.to_slots(start)
 
@@ -267,11 +349,19 @@ def test_step_matches_a_dense_solve_of_the_damped_normal_equations():
     step = problem.step(rows, grad, mu, floor, columns)
     sub = dense[np.ix_(columns, columns)]
     sub = sub + np.diag(mu[columns] * np.diag(sub) + floor)
-    np.testing.assert_allclose(step[columns], np.linalg.solve(sub, -grad[columns]), rtol=1e-8,
-                               atol=1e-10 * np.abs(step).max())
+    np.testing.assert_allclose(
+        step[columns],
+        np.linalg.solve(sub, -grad[columns]),
+        rtol=1e-8,
+        atol=1e-10 * np.abs(step).max(),
+    )
     assert not step[~columns].any()
-    np.testing.assert_allclose(problem.step(rows, grad, mu, floor)[columns], step[columns], rtol=1e-8,
-                               atol=1e-10 * np.abs(step).max())
+    np.testing.assert_allclose(
+        problem.step(rows, grad, mu, floor)[columns],
+        step[columns],
+        rtol=1e-8,
+        atol=1e-10 * np.abs(step).max(),
+    )
 
 
 def test_padded_frames_carry_no_term():
@@ -280,7 +370,9 @@ def test_padded_frames_carry_no_term():
     frames, padded = 10, 16
     exact, xs = _tiny_problem(frames)
     longer, xs_long = _tiny_problem(frames, padded)
-    xs_long = xs_long + np.where(np.arange(padded)[None, :, None, None] >= frames, 0.3, 0.0)  # far off
+    xs_long = xs_long + np.where(
+        np.arange(padded)[None, :, None, None] >= frames, 0.3, 0.0
+    )  # far off
     cost, rows, grad, _ = exact.evaluate(xs)
     cost_l, rows_l, grad_l, _ = longer.evaluate(xs_long)
     np.testing.assert_allclose(cost_l, cost, rtol=1e-12)
@@ -311,9 +403,15 @@ def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
     monkeypatch.setattr(solver.ChunkProblem, "__init__", record)
     rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
     start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
-    result = refine_points(pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1),
-                           options=RefineOptions(chunk_frames=40, overlap_frames=8),
-                           **skeleton_terms(Skeleton.fly(), None))
+    result = refine_points(
+        pts2d,
+        rig,
+        start,
+        conf=conf,
+        inliers=np.isfinite(clean2d).all(-1),
+        options=RefineOptions(chunk_frames=40, overlap_frames=8),
+        **skeleton_terms(Skeleton.fly(), None),
+    )
     assert result.info["chunks"] == 4
     assert shapes == [(56, 56)] * 4
     assert np.isfinite(result.points3d).mean() > 0.95

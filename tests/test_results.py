@@ -107,6 +107,7 @@ def test_interrupted_overwrite_keeps_the_previous_file(tmp_path, skeleton):
     target = tmp_path / "pose2d.h5"
     pose2d_data().save(target, skeleton)
     before = target.read_bytes()
+
     class FailingScore:  # fails while the file is half written, like a full disk
         shape = (V, T, P, K)
 
@@ -114,7 +115,9 @@ def test_interrupted_overwrite_keeps_the_previous_file(tmp_path, skeleton):
             raise OSError("disk full")
 
     broken = pose2d_data()
-    broken.candidates = type("Cand", (), {"xy": np.zeros((V, T, P, K, 2)), "score": FailingScore()})()
+    broken.candidates = type(
+        "Cand", (), {"xy": np.zeros((V, T, P, K, 2)), "score": FailingScore()}
+    )()
     with pytest.raises(OSError, match="disk full"):
         broken.save(target, skeleton)
     assert target.read_bytes() == before
@@ -128,7 +131,9 @@ def test_pose_result_round_trips_with_nan(tmp_path, skeleton):
     data = pose2d_data()
     pts3d = filled((T, P, 3), 1.0)
     reproj = filled((V, T, P), 2.0)
-    result = PoseResult(make_rig(0.5), skeleton, data.pts2d, data.conf, pts3d, reproj, meta={"fps": 100.0})
+    result = PoseResult(
+        make_rig(0.5), skeleton, data.pts2d, data.conf, pts3d, reproj, meta={"fps": 100.0}
+    )
     path = tmp_path / "r.h5"
     result.save(path)
     back = PoseResult.load(path)
@@ -198,7 +203,9 @@ def test_missing_or_foreign_files_are_results_errors(tmp_path):
 def test_large_arrays_are_chunked_and_compressed(tmp_path, skeleton):
     n_frames = 20000
     pts2d = np.full((V, n_frames, P, 2), np.nan)
-    pts2d[:, :, :2] = np.round(np.random.default_rng(0).uniform(0, 500, (V, n_frames, 2, 2)) / 7.5) * 7.5
+    pts2d[:, :, :2] = (
+        np.round(np.random.default_rng(0).uniform(0, 500, (V, n_frames, 2, 2)) / 7.5) * 7.5
+    )
     data = Pose2dData(pts2d, np.ones((V, n_frames, P)), VIEWS, {})
     path = tmp_path / "big.h5"
     data.save(path, skeleton)
@@ -233,7 +240,7 @@ def test_threaded_deflate_writes_standard_gzip_chunks_with_a_padded_edge(tmp_pat
         edge = np.frombuffer(zlib.decompress(raw[:-4])).reshape(3, 43690)
         assert mask == 0
         np.testing.assert_array_equal(edge[:, : 50_000 - 43690], arr[:, 43690:])
-        assert not edge[:, 50_000 - 43690:].any()
+        assert not edge[:, 50_000 - 43690 :].any()
 
 
 # -- stage artifacts -----------------------------------------------------------------
@@ -270,7 +277,9 @@ def test_candidates_artifact_round_trips_and_names_a_missing_group(tmp_path, ske
     np.testing.assert_array_equal(back.score, cands.score)
     assert read_meta(tmp_path / "candidates.h5")["stage"] == "candidates"
     pose2d_data().save(tmp_path / "pose2d.h5", skeleton)
-    with pytest.raises(ResultsError, match=r"pose2d.h5: holds no candidate peaks; re-run the pose2d"):
+    with pytest.raises(
+        ResultsError, match=r"pose2d.h5: holds no candidate peaks; re-run the pose2d"
+    ):
         load_candidates(tmp_path / "pose2d.h5")
 
 
@@ -290,7 +299,9 @@ def test_write_and_read_stage(tmp_path):
     assert out["attrs"] == {"summary": summary}
     assert_rigs_equal(out["cameras"], rig)
     assert_rigs_equal(read_cameras(path, "bundle_adjustment"), rig)
-    with pytest.raises(ResultsError, match="has no triangulation group; re-run the triangulation stage"):
+    with pytest.raises(
+        ResultsError, match="has no triangulation group; re-run the triangulation stage"
+    ):
         read_stage(path, "triangulation")
     with pytest.raises(ValueError, match="unknown stage 'pose2d'"):
         write_stage(path, "pose2d", {})
@@ -304,7 +315,13 @@ def stage_files(tmp_path, skeleton):
     files = {"pose2d": tmp_path / "pose2d.h5"}
     pose2d_data().save(files["pose2d"], skeleton)
     files["bundle_adjustment"] = tmp_path / "ba.h5"
-    write_stage(files["bundle_adjustment"], "bundle_adjustment", {}, cameras=make_rig(0.75), attrs={"summary": {"cost": 1.0}})
+    write_stage(
+        files["bundle_adjustment"],
+        "bundle_adjustment",
+        {},
+        cameras=make_rig(0.75),
+        attrs={"summary": {"cost": 1.0}},
+    )
     for stage, value in (("pictorial_structures", 20.0), ("triangulation", 30.0)):
         files[stage] = tmp_path / f"{stage}.h5"
         write_stage(
@@ -326,13 +343,26 @@ def stage_files(tmp_path, skeleton):
         (("pose2d", "bundle_adjustment"), None, None, 0.75),
         (("pose2d", "pictorial_structures"), 20.0, 21.0, 0.0),
         (("pose2d", "triangulation"), 30.0, 31.0, 0.0),
-        (("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation"), 30.0, 31.0, 0.75),
+        (
+            ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation"),
+            30.0,
+            31.0,
+            0.75,
+        ),
     ],
 )
-def test_assembly_precedence(tmp_path, skeleton, stage_files, stages, pts2d_value, pts3d_value, rig_offset):
+def test_assembly_precedence(
+    tmp_path, skeleton, stage_files, stages, pts2d_value, pts3d_value, rig_offset
+):
     out = tmp_path / "results.h5"
     config_rig = make_rig(0.0)
-    assemble_results(out, skeleton=skeleton, config_rig=config_rig, stage_files={s: stage_files[s] for s in stages}, meta={"recording": "r1"})
+    assemble_results(
+        out,
+        skeleton=skeleton,
+        config_rig=config_rig,
+        stage_files={s: stage_files[s] for s in stages},
+        meta={"recording": "r1"},
+    )
     result = PoseResult.load(out)
     reference = pose2d_data()
     np.testing.assert_array_equal(result.conf, reference.conf)  # conf always from pose2d
@@ -359,35 +389,66 @@ def test_assembly_keeps_compression(tmp_path, skeleton):
     n_frames = 4000
     big = Pose2dData(np.full((V, n_frames, P, 2), np.nan), np.zeros((V, n_frames, P)), VIEWS, {})
     big.save(tmp_path / "pose2d.h5", skeleton)
-    assemble_results(tmp_path / "results.h5", skeleton=skeleton, config_rig=make_rig(), stage_files={"pose2d": tmp_path / "pose2d.h5"})
+    assemble_results(
+        tmp_path / "results.h5",
+        skeleton=skeleton,
+        config_rig=make_rig(),
+        stage_files={"pose2d": tmp_path / "pose2d.h5"},
+    )
     with h5py.File(tmp_path / "results.h5") as f:
         assert f["pose2d/points"].compression == "gzip"
 
 
 def test_assembly_requires_pose2d(tmp_path, skeleton, stage_files):
     with pytest.raises(ResultsError, match="cannot assemble without the pose2d artifact"):
-        assemble_results(tmp_path / "results.h5", skeleton=skeleton, config_rig=make_rig(), stage_files={"triangulation": stage_files["triangulation"]})
+        assemble_results(
+            tmp_path / "results.h5",
+            skeleton=skeleton,
+            config_rig=make_rig(),
+            stage_files={"triangulation": stage_files["triangulation"]},
+        )
     assert not (tmp_path / "results.h5").exists()
 
 
 def test_assembly_rejects_a_rig_with_other_views(tmp_path, skeleton, stage_files):
-    with pytest.raises(ResultsError, match=r"views \['a', 'b', 'c'\] but the rig has cameras \['a', 'c', 'b'\]"):
-        assemble_results(tmp_path / "results.h5", skeleton=skeleton, config_rig=make_rig(names=["a", "c", "b"]), stage_files={"pose2d": stage_files["pose2d"]})
+    with pytest.raises(
+        ResultsError, match=r"views \['a', 'b', 'c'\] but the rig has cameras \['a', 'c', 'b'\]"
+    ):
+        assemble_results(
+            tmp_path / "results.h5",
+            skeleton=skeleton,
+            config_rig=make_rig(names=["a", "c", "b"]),
+            stage_files={"pose2d": stage_files["pose2d"]},
+        )
     assert not (tmp_path / "results.h5").exists()
     assert not any(p.name.startswith(".results.h5") for p in tmp_path.iterdir())
 
 
 def test_assembly_rejects_another_skeleton(tmp_path, skeleton, stage_files):
     other = Skeleton(point_names=("q0", "q1", "q2", "q3"))
-    with pytest.raises(ResultsError, match="differ from the config's skeleton; re-run the pose2d stage"):
-        assemble_results(tmp_path / "results.h5", skeleton=other, config_rig=make_rig(), stage_files={"pose2d": stage_files["pose2d"]})
+    with pytest.raises(
+        ResultsError, match="differ from the config's skeleton; re-run the pose2d stage"
+    ):
+        assemble_results(
+            tmp_path / "results.h5",
+            skeleton=other,
+            config_rig=make_rig(),
+            stage_files={"pose2d": stage_files["pose2d"]},
+        )
 
 
 def test_stage_file_of_wrong_version_stops_assembly(tmp_path, skeleton, stage_files):
     with h5py.File(stage_files["triangulation"], "a") as f:
         f.attrs["meta"] = json.dumps({"deeperfly_format_version": 1})
-    with pytest.raises(ResultsError, match=r"triangulation\.h5: format version 1.*re-run the triangulation stage"):
-        assemble_results(tmp_path / "results.h5", skeleton=skeleton, config_rig=make_rig(), stage_files=stage_files)
+    with pytest.raises(
+        ResultsError, match=r"triangulation\.h5: format version 1.*re-run the triangulation stage"
+    ):
+        assemble_results(
+            tmp_path / "results.h5",
+            skeleton=skeleton,
+            config_rig=make_rig(),
+            stage_files=stage_files,
+        )
 
 
 def test_bare_pose2d_artifact_has_no_rig_for_pose_result(tmp_path, skeleton, stage_files):

@@ -11,14 +11,23 @@ import numpy as np
 from flylib.run_summary import RunRecording, log_warnings, run_table
 from flylib.visualization.summary import views_without_2d
 
-TRUTH = {"median": 0.0565, "p95": 0.0627, "body_length": 2.97, "median_aligned": 0.0065,
-         "reconstructed": 0.986}
+TRUTH = {
+    "median": 0.0565,
+    "p95": 0.0627,
+    "body_length": 2.97,
+    "median_aligned": 0.0065,
+    "reconstructed": 0.986,
+}
 
 
 def write_summary(outdir: Path, **extra) -> None:
     outdir.mkdir(parents=True, exist_ok=True)
-    summary = {"frames": 60, "reconstructed_3d_fraction": 0.5,
-               "reprojection_error_px": {"median": 0.789, "p95": 1.774}, **extra}
+    summary = {
+        "frames": 60,
+        "reconstructed_3d_fraction": 0.5,
+        "reprojection_error_px": {"median": 0.789, "p95": 1.774},
+        **extra,
+    }
     (outdir / "summary.json").write_text(json.dumps(summary))
 
 
@@ -32,17 +41,36 @@ def test_table_rows_warnings_and_the_demo_truth_last(tmp_path):
         "0.2 fps, not plausible; writing at visualization.default_fps = 30 fps\n"
         "  warnings.warn(\n"
         "2026-01-01 10:00:00,000 WARNING flylib.io: camera_3.mp4: 2 frames short\n"
-        "2026-01-01 10:00:00,000 INFO flylib.io: all good\n")
-    recs = [RunRecording("demo", demo, demo=True), RunRecording("real", real), RunRecording("failed", failed)]
+        "2026-01-01 10:00:00,000 INFO flylib.io: all good\n"
+    )
+    recs = [
+        RunRecording("demo", demo, demo=True),
+        RunRecording("real", real),
+        RunRecording("failed", failed),
+    ]
     lines = run_table(recs, failed=True).splitlines()
     assert lines[0].startswith("flylib: per-recording results (the run failed")
-    assert lines[1].split() == ["recording", "frames", "3D", "reconstructed", "reproj", "median", "px",
-                                "reproj", "p95", "px", "outputs"]
+    assert lines[1].split() == [
+        "recording",
+        "frames",
+        "3D",
+        "reconstructed",
+        "reproj",
+        "median",
+        "px",
+        "reproj",
+        "p95",
+        "px",
+        "outputs",
+    ]
     assert lines[2].split() == ["demo", "60", "50.0%", "0.79", "1.77", str(demo)]
     assert lines[3].split()[:2] == ["real", "60"]
     assert lines[4].split()[0] == "failed" and "no result yet" in lines[4]
     assert lines[5] == "warnings:"
-    assert "real: visualization: visualization.videos[0] (pose2d): the footage frame rate is 0.2 fps" in lines[6]
+    assert (
+        "real: visualization: visualization.videos[0] (pose2d): the footage frame rate is 0.2 fps"
+        in lines[6]
+    )
     assert lines[7] == "  real: visualization: camera_3.mp4: 2 frames short"
     assert lines[-1].startswith("demo: 3D error against the demo truth: median 0.0565, p95 0.0627")
     assert len(lines) == 9
@@ -63,7 +91,9 @@ def test_suspect_column_appears_when_a_summary_counts_suspects(tmp_path):
 
 def test_log_warnings_are_distinct_and_named_by_log(tmp_path):
     (tmp_path / "logs").mkdir()
-    (tmp_path / "logs" / "pose2d.log").write_text("a.py:1: UserWarning: twice\na.py:1: UserWarning: twice\n")
+    (tmp_path / "logs" / "pose2d.log").write_text(
+        "a.py:1: UserWarning: twice\na.py:1: UserWarning: twice\n"
+    )
     assert log_warnings(tmp_path) == ["pose2d: twice"]
     assert log_warnings(tmp_path / "absent") == []
 
@@ -79,12 +109,22 @@ def test_summary_figure_names_the_views_without_2d(tmp_path):
     pts2d[1] = np.nan  # view b saw nothing
     assert views_without_2d(pts2d, names) == ["b"]
     assert views_without_2d(pts2d[[0, 2]], ["a", "c"]) == []
-    cameras = CameraGroup.from_arrays(names, np.zeros((3, 3)), np.tile([0.0, 0.0, 10.0], (3, 1)),
-                                      np.tile([100.0, 100.0, 50.0, 50.0], (3, 1)), np.zeros((3, 5)))
+    cameras = CameraGroup.from_arrays(
+        names,
+        np.zeros((3, 3)),
+        np.tile([0.0, 0.0, 10.0], (3, 1)),
+        np.tile([100.0, 100.0, 50.0, 50.0], (3, 1)),
+        np.zeros((3, 5)),
+    )
     skeleton = Skeleton(point_names=("p0", "p1"), limbs={"leg": ("p0", "p1")}, palette={}, name="t")
     error = np.where(np.isfinite(pts2d).all(-1), 1.0, np.nan)
-    result = PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d,
-                        pts3d=np.zeros((4, 2, 3)), reproj_error=error)
+    result = PoseResult(
+        cameras=cameras,
+        skeleton=skeleton,
+        pts2d=pts2d,
+        pts3d=np.zeros((4, 2, 3)),
+        reproj_error=error,
+    )
     assert summary_figure(result, tmp_path / "s.png", dpi=30).stat().st_size > 0
 
 
@@ -104,7 +144,10 @@ def test_a_failed_run_does_not_show_an_earlier_runs_result(tmp_path):
     lines = run_table(recs, failed=True, since=start).splitlines()
     assert lines[2].split()[:2] == ["failed", "-"]
     assert f"failed: see {tmp_path / 'failed' / 'logs' / 'pose2d.log'}" in lines[2]
-    assert lines[3].split()[:2] == ["untouched", "60"] and lines[4].split()[:2] == ["finished", "60"]
+    assert lines[3].split()[:2] == ["untouched", "60"] and lines[4].split()[:2] == [
+        "finished",
+        "60",
+    ]
     assert [line.split(":")[0] for line in lines[5:]] == ["untouched", "finished"]  # truth lines
 
 
@@ -114,4 +157,6 @@ def test_the_demo_truth_line_gives_the_triangulation_figure_beside_the_refined_o
     write_summary(demo, error_vs_truth=TRUTH, error_vs_truth_triangulation=before)
     last = run_table([RunRecording("demo", demo, demo=True)]).splitlines()[-1]
     assert last.startswith("demo: 3D error against the demo truth: median 0.0565")
-    assert last.endswith("(refined 3D; triangulation alone: median 0.0701, p95 0.0812, aligned 0.0123)")
+    assert last.endswith(
+        "(refined 3D; triangulation alone: median 0.0701, p95 0.0812, aligned 0.0123)"
+    )

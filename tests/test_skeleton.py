@@ -102,12 +102,16 @@ def test_from_arrays_recovers_chain_order_not_index_order():
         name="toy",
     )
     assert sk.bones.tolist() == [[1, 2], [2, 0]]
-    back = Skeleton.from_arrays(sk.point_names, sk.limb_names, sk.limb_id, sk.bones, sk.palette, sk.name)
+    back = Skeleton.from_arrays(
+        sk.point_names, sk.limb_names, sk.limb_id, sk.bones, sk.palette, sk.name
+    )
     assert back == sk
     assert back.limbs["arm"] == ("base", "mid", "tip")
 
 
 def test_fly_round_trips_through_arrays(fly):
-    back = Skeleton.from_arrays(fly.point_names, fly.limb_names, fly.limb_id, fly.bones, fly.palette, fly.name)
+    back = Skeleton.from_arrays(
+        fly.point_names, fly.limb_names, fly.limb_id, fly.bones, fly.palette, fly.name
+    )
     assert back == fly
     assert back != Skeleton(point_names=fly.point_names)

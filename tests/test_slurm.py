@@ -61,36 +61,38 @@ def _free_port() -> int:
 
 def _slurm_conf(root: Path, host: str) -> str:
     cpus = os.cpu_count() or 2
-    return "\n".join([
-        "ClusterName=flylibtest",
-        f"SlurmctldHost={host}(127.0.0.1)",
-        f"SlurmctldPort={_free_port()}",
-        f"SlurmdPort={_free_port()}",
-        "SlurmUser=root",
-        "SlurmdUser=root",
-        "AuthType=auth/munge",
-        "CredType=cred/munge",
-        f"StateSaveLocation={root}/state",
-        f"SlurmdSpoolDir={root}/spool",
-        f"SlurmctldPidFile={root}/slurmctld.pid",
-        f"SlurmdPidFile={root}/slurmd.pid",
-        f"SlurmctldLogFile={root}/slurmctld.log",
-        f"SlurmdLogFile={root}/slurmd.log",
-        "ProctrackType=proctrack/linuxproc",
-        "TaskPlugin=task/none",
-        "JobAcctGatherType=jobacct_gather/none",
-        "AccountingStorageType=accounting_storage/none",
-        "SchedulerType=sched/backfill",
-        "SelectType=select/cons_tres",
-        "SelectTypeParameters=CR_Core",
-        "MpiDefault=none",
-        "ReturnToService=2",
-        "MinJobAge=3600",
-        "SlurmdParameters=config_overrides",
-        f"NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory=16000 State=UNKNOWN",
-        "PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP",
-        "",
-    ])
+    return "\n".join(
+        [
+            "ClusterName=flylibtest",
+            f"SlurmctldHost={host}(127.0.0.1)",
+            f"SlurmctldPort={_free_port()}",
+            f"SlurmdPort={_free_port()}",
+            "SlurmUser=root",
+            "SlurmdUser=root",
+            "AuthType=auth/munge",
+            "CredType=cred/munge",
+            f"StateSaveLocation={root}/state",
+            f"SlurmdSpoolDir={root}/spool",
+            f"SlurmctldPidFile={root}/slurmctld.pid",
+            f"SlurmdPidFile={root}/slurmd.pid",
+            f"SlurmctldLogFile={root}/slurmctld.log",
+            f"SlurmdLogFile={root}/slurmd.log",
+            "ProctrackType=proctrack/linuxproc",
+            "TaskPlugin=task/none",
+            "JobAcctGatherType=jobacct_gather/none",
+            "AccountingStorageType=accounting_storage/none",
+            "SchedulerType=sched/backfill",
+            "SelectType=select/cons_tres",
+            "SelectTypeParameters=CR_Core",
+            "MpiDefault=none",
+            "ReturnToService=2",
+            "MinJobAge=3600",
+            "SlurmdParameters=config_overrides",
+            f"NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory=16000 State=UNKNOWN",
+            "PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP",
+            "",
+        ]
+    )
 
 
 def _start_munge() -> tuple[subprocess.Popen | None, Path | None]:
@@ -101,10 +103,22 @@ def _start_munge() -> tuple[subprocess.Popen | None, Path | None]:
     socket_dir.chmod(0o755)  # munged insists that everyone can reach its socket
     shutil.chown(socket_dir, "munge", "munge")
     proc = subprocess.Popen(
-        ["runuser", "-u", "munge", "--", "munged", "--foreground",
-         f"--socket={socket_dir}/munge.socket.2", f"--pid-file={socket_dir}/munged.pid",
-         f"--seed-file={socket_dir}/munged.seed", f"--log-file={socket_dir}/munged.log"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        [
+            "runuser",
+            "-u",
+            "munge",
+            "--",
+            "munged",
+            "--foreground",
+            f"--socket={socket_dir}/munge.socket.2",
+            f"--pid-file={socket_dir}/munged.pid",
+            f"--seed-file={socket_dir}/munged.seed",
+            f"--log-file={socket_dir}/munged.log",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     for _ in range(50):
         if (socket_dir / "munge.socket.2").exists():
             return proc, socket_dir
@@ -147,8 +161,14 @@ def slurm_cluster(tmp_path_factory):
     daemons: list[subprocess.Popen] = []
     try:
         for daemon in ("slurmctld", "slurmd"):
-            daemons.append(subprocess.Popen([daemon, "-D", "-f", str(conf)], env=env,
-                                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            daemons.append(
+                subprocess.Popen(
+                    [daemon, "-D", "-f", str(conf)],
+                    env=env,
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                )
+            )
             time.sleep(1.0)
         deadline = time.monotonic() + 90
         state = ""
@@ -158,8 +178,11 @@ def slurm_cluster(tmp_path_factory):
                 break
             time.sleep(1.0)
         else:
-            logs = "".join((root / f).read_text()[-600:] for f in ("slurmctld.log", "slurmd.log")
-                           if (root / f).exists())
+            logs = "".join(
+                (root / f).read_text()[-600:]
+                for f in ("slurmctld.log", "slurmd.log")
+                if (root / f).exists()
+            )
             pytest.skip(f"SLURM did not come up (sinfo: {state!r}): {logs}")
         yield env
     finally:
@@ -186,10 +209,22 @@ def test_demo_runs_to_completion_through_the_slurm_profile(slurm_cluster, tmp_pa
     config["demo"] = {**(config.get("demo") or {}), "frames": 8}
     config["bundle_adjustment"]["max_nfev"] = 20
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    cmd = [str(SNAKEMAKE), "--profile", str(REPO / "profiles" / "slurm"),
-           "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path),
-           "--configfile", str(tmp_path / "config.yaml"), "--jobs", "4",
-           "--set-resources", "pose2d:mem_mb=2000", "visualization:mem_mb=2000"]
+    cmd = [
+        str(SNAKEMAKE),
+        "--profile",
+        str(REPO / "profiles" / "slurm"),
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(tmp_path),
+        "--configfile",
+        str(tmp_path / "config.yaml"),
+        "--jobs",
+        "4",
+        "--set-resources",
+        "pose2d:mem_mb=2000",
+        "visualization:mem_mb=2000",
+    ]
     env = {**slurm_cluster, "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}"}
     try:
         proc = _run(cmd, 900, env=env, cwd=tmp_path)
@@ -197,7 +232,9 @@ def test_demo_runs_to_completion_through_the_slurm_profile(slurm_cluster, tmp_pa
         pytest.fail("the SLURM run did not finish within 15 minutes")
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
     # every job went through sbatch (the plugin logs each submission)
-    assert len(re.findall(r"has been submitted with SLURM jobid \d+", proc.stdout + proc.stderr)) >= 5
+    assert (
+        len(re.findall(r"has been submitted with SLURM jobid \d+", proc.stdout + proc.stderr)) >= 5
+    )
     out = tmp_path / "demo" / "flylib_outputs"
     result = PoseResult.load(out / "results.h5")
     assert result.pts3d.shape == (8, 38, 3)

@@ -23,10 +23,18 @@ def imported(tmp_path_factory):
 
 def test_candidates_for_imported_2d_fail_in_one_line_with_the_fix(imported):
     config, root, spec, _ = imported
-    with pytest.raises(ResultsError, match=r"rec: pictorial structures needs the detector's "
-                       r"candidate peaks.*imported \(dlc_csv\).*do_pictorial_structures: false"):
-        run_pose2d(config, root / "rec", root / "other.h5", import_spec=spec,
-                   candidates_path=root / "candidates.h5")
+    with pytest.raises(
+        ResultsError,
+        match=r"rec: pictorial structures needs the detector's "
+        r"candidate peaks.*imported \(dlc_csv\).*do_pictorial_structures: false",
+    ):
+        run_pose2d(
+            config,
+            root / "rec",
+            root / "other.h5",
+            import_spec=spec,
+            candidates_path=root / "candidates.h5",
+        )
     assert not (root / "other.h5").exists() and not (root / "candidates.h5").exists()
 
 

@@ -11,8 +11,8 @@ import pytest
 
 from flylib.config import Config
 from flylib.demo import demo_import_spec, load_truth, make_demo, synthetic_fly
-from flylib.results import Pose2dData, read_stage
 from flylib.pipeline.stages import run_pose2d, run_triangulation
+from flylib.results import Pose2dData, read_stage
 from flylib.suspects import SUSPECTS_FILE, find_suspects
 
 FRAMES = 60
@@ -25,8 +25,13 @@ def triangulated_demo(directory, **settings):
     run_triangulation(config, directory / "pose2d.h5", directory / "triangulation.h5")
     pose2d = Pose2dData.load(directory / "pose2d.h5")
     tri = read_stage(directory / "triangulation.h5", "triangulation")
-    suspects = find_suspects(tri["points3d"], tri["points"], tri["reproj_error"], config.skeleton().bones,
-                             pts2d_input=pose2d.pts2d)
+    suspects = find_suspects(
+        tri["points3d"],
+        tri["points"],
+        tri["reproj_error"],
+        config.skeleton().bones,
+        pts2d_input=pose2d.pts2d,
+    )
     return pose2d, tri, load_truth(directory / "truth.h5"), suspects
 
 
@@ -98,16 +103,24 @@ def test_each_reason_fires_on_its_case():
     alone = find_suspects(pts3d, two, error, bones)
     assert (15, tarsus) not in {(r["frame"], r["point"]) for r in alone.records()}
     # corrected points are a person's call: never suspects
-    assert (10, claw) not in {(r["frame"], r["point"]) for r in find_suspects(
-        moved, used, err, bones, pts2d_input=given,
-        corrected=np.eye(1, 38 * 40, 10 * 38 + claw, dtype=bool).reshape(40, 38)).records()}
+    assert (10, claw) not in {
+        (r["frame"], r["point"])
+        for r in find_suspects(
+            moved,
+            used,
+            err,
+            bones,
+            pts2d_input=given,
+            corrected=np.eye(1, 38 * 40, 10 * 38 + claw, dtype=bool).reshape(40, 38),
+        ).records()
+    }
 
 
 @pytest.mark.slow
 def test_assemble_writes_suspects_csv_and_count_and_inspect_prints_it(tmp_path, capsys):
-    from gui_fixtures import make_demo_outputs
-
     from flylib.cli import main
+
+    from gui_fixtures import make_demo_outputs
 
     out = make_demo_outputs(tmp_path / "rec", frames=20)
     summary = json.loads((out / "summary.json").read_text())

@@ -19,7 +19,9 @@ def _script(name: str):
     """Import ``scripts/<name>.py`` as a module (its ``_cli`` import resolved)."""
     sys.path.insert(0, str(REPO / "scripts"))
     try:
-        spec = importlib.util.spec_from_file_location(f"flylib_script_{name}", REPO / "scripts" / f"{name}.py")
+        spec = importlib.util.spec_from_file_location(
+            f"flylib_script_{name}", REPO / "scripts" / f"{name}.py"
+        )
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     finally:
@@ -76,7 +78,9 @@ def recording(tmp_path_factory):
     config = Config.from_file(config_path)
     make_demo(config, root / "rec", frames=4, seed=0)
     out = root / "out"
-    run_pose2d(config, root / "rec", out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_pose2d(
+        config, root / "rec", out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+    )
     return root, config_path, out
 
 
@@ -85,20 +89,73 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
     root, config, out = recording
     common = ["--config", str(config), "--threads", "1"]
     stages = out / "stages"
-    assert _script("triangulation").main([*common, "--pose2d", str(stages / "pose2d.h5"),
-                                          "--recording", str(root / "rec"),
-                                          "--out", str(stages / "triangulation.h5")]) == 0
-    assert _script("refinement").main([*common, "--pose2d", str(stages / "pose2d.h5"),
-                                       "--triangulation", str(stages / "triangulation.h5"),
-                                       "--recording", str(root / "rec"),
-                                       "--out", str(stages / "refinement.h5")]) == 0
-    assert _script("assemble").main([*common, "--pose2d", str(stages / "pose2d.h5"),
-                                     "--triangulation", str(stages / "triangulation.h5"),
-                                     "--refinement", str(stages / "refinement.h5"),
-                                     "--recording", str(root / "rec"), "--outdir", str(out)]) == 0
-    assert _script("kinematics").main([*common, "--results", str(out / "results.h5"),
-                                       "--outdir", str(out)]) == 0
-    assert _script("visualization").main([*common, "--results", str(out / "results.h5"),
-                                          "--recording", str(root / "rec"), "--outdir", str(out)]) == 0
+    assert (
+        _script("triangulation").main(
+            [
+                *common,
+                "--pose2d",
+                str(stages / "pose2d.h5"),
+                "--recording",
+                str(root / "rec"),
+                "--out",
+                str(stages / "triangulation.h5"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        _script("refinement").main(
+            [
+                *common,
+                "--pose2d",
+                str(stages / "pose2d.h5"),
+                "--triangulation",
+                str(stages / "triangulation.h5"),
+                "--recording",
+                str(root / "rec"),
+                "--out",
+                str(stages / "refinement.h5"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        _script("assemble").main(
+            [
+                *common,
+                "--pose2d",
+                str(stages / "pose2d.h5"),
+                "--triangulation",
+                str(stages / "triangulation.h5"),
+                "--refinement",
+                str(stages / "refinement.h5"),
+                "--recording",
+                str(root / "rec"),
+                "--outdir",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert (
+        _script("kinematics").main(
+            [*common, "--results", str(out / "results.h5"), "--outdir", str(out)]
+        )
+        == 0
+    )
+    assert (
+        _script("visualization").main(
+            [
+                *common,
+                "--results",
+                str(out / "results.h5"),
+                "--recording",
+                str(root / "rec"),
+                "--outdir",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert list(out.glob("*.mp4")), "no video rendered"
     assert started == []

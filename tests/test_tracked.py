@@ -16,11 +16,36 @@ import pytest
 from flylib.config import PARAM_STAGES, Config
 from flylib.errors import ConfigError
 from flylib.pipeline import stages
-from flylib.pipeline.tracked import UNTRACKED, StageConfig, UntrackedConfigRead, stage_reads, upstream_reads
+from flylib.pipeline.tracked import (
+    UNTRACKED,
+    StageConfig,
+    UntrackedConfigRead,
+    stage_reads,
+    upstream_reads,
+)
 
-_CHOICES = ("dlt", "greedy", "ransac", "soft_l1", "huber", "cauchy", "linear", "even", "confidence",
-            "coverage", "lm", "scipy", "float16", "bfloat16", "missing", "error", "free", "fixed",
-            "white", "gray")
+_CHOICES = (
+    "dlt",
+    "greedy",
+    "ransac",
+    "soft_l1",
+    "huber",
+    "cauchy",
+    "linear",
+    "even",
+    "confidence",
+    "coverage",
+    "lm",
+    "scipy",
+    "float16",
+    "bfloat16",
+    "missing",
+    "error",
+    "free",
+    "fixed",
+    "white",
+    "gray",
+)
 
 
 def _candidates(value):
@@ -34,7 +59,7 @@ def _candidates(value):
     if isinstance(value, str):
         return [c for c in _CHOICES if c != value] + [value + "_x", "#123456"]
     if isinstance(value, list):
-        return ([value[:-1], value + value[-1:]] if value else [[1], ["x"]])
+        return [value[:-1], value + value[-1:]] if value else [[1], ["x"]]
     if value is None:
         return [1, 2.5, True, "x", ["x"]]
     return []
@@ -44,8 +69,9 @@ def _leaves(data, prefix=()):
     """``(path tuple, value)`` of every leaf (lists are leaves) of a config mapping."""
     items = enumerate(data) if isinstance(data, list) else data.items()
     for key, value in items:
-        if (isinstance(value, dict) and value) or (isinstance(value, list) and value
-                                                   and all(isinstance(v, dict) for v in value)):
+        if (isinstance(value, dict) and value) or (
+            isinstance(value, list) and value and all(isinstance(v, dict) for v in value)
+        ):
             yield from _leaves(value, (*prefix, key))
         else:
             yield (*prefix, key), value
@@ -62,7 +88,7 @@ def _set(data, path, value):
 
 def _under(path: tuple, declared: str) -> bool:
     parts = tuple(declared.partition(":")[0].split("."))
-    return path[:len(parts)] == parts
+    return path[: len(parts)] == parts
 
 
 def _params(data, stage):
@@ -121,8 +147,9 @@ def test_every_path_a_stage_reads_is_tracked(stage, variant):
             results = [_params(_set(data, leaf, c), owner) for c in _candidates(value)]
             results = [r for r in results if r is not None]
             assert results, f"{stage}: no valid change of {'.'.join(leaf)} to try"
-            assert any(r != base for r in results), \
+            assert any(r != base for r in results), (
                 f"{stage} reads {'.'.join(leaf)} (declared {declared}) but {owner}'s params do not track it"
+            )
 
 
 def test_a_stage_cannot_read_an_untracked_key():
@@ -130,7 +157,9 @@ def test_a_stage_cannot_read_an_untracked_key():
     with pytest.raises(UntrackedConfigRead, match=r"'triangulation' read config key 'refinement'"):
         view.data.get("refinement")
     assert view.triangulation.method == "ransac"
-    with pytest.raises(UntrackedConfigRead, match="max_drops"):  # greedy's knob, untracked under ransac
+    with pytest.raises(
+        UntrackedConfigRead, match="max_drops"
+    ):  # greedy's knob, untracked under ransac
         view.data["triangulation"]["max_drops"]
     assert view.triangulation.ransac_threshold == Config.default().triangulation.ransac_threshold
     with pytest.raises(UntrackedConfigRead):
@@ -148,7 +177,15 @@ def _perturb_untracked(data, config, stage):
     for leaf, value in list(_leaves(data)):
         if any(_under(leaf, d) for d in declared if not d.endswith(":names")):
             continue
-        if leaf[0] in ("recordings", "outdir", "recursive", "demo", "exports", "nwb", "corrections"):
+        if leaf[0] in (
+            "recordings",
+            "outdir",
+            "recursive",
+            "demo",
+            "exports",
+            "nwb",
+            "corrections",
+        ):
             continue  # which recordings and extra outputs: not an input of a stage function
         if leaf[0] == "pipeline":
             continue  # the stage flags shape the DAG (which artifacts a stage is given)
@@ -168,7 +205,11 @@ def _perturb_untracked(data, config, stage):
 def _datasets(path):
     out = {}
     with h5py.File(path) as f:
-        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+        f.visititems(
+            lambda name, obj: (
+                out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None
+            )
+        )
     return out
 
 
@@ -177,7 +218,9 @@ def _same(a, b):
     assert da.keys() == db.keys()
     for name in da:
         x, y = np.asarray(da[name]), np.asarray(db[name])
-        same = np.array_equal(x, y, equal_nan=True) if x.dtype.kind in "fc" else np.array_equal(x, y)
+        same = (
+            np.array_equal(x, y, equal_nan=True) if x.dtype.kind in "fc" else np.array_equal(x, y)
+        )
         assert same, f"{a.name}: {name} differs"
 
 
@@ -195,11 +238,15 @@ def base_run(tmp_path_factory):
     spec = demo_import_spec(config)
     (out / "stages").mkdir(parents=True)
     p2d = stages.run_pose2d(config, rec, out / "stages" / "pose2d.h5", import_spec=spec)
-    ba = stages.run_bundle_adjustment(config, p2d, out / "stages" / "bundle_adjustment.h5", recording_dir=rec)
-    tri = stages.run_triangulation(config, p2d, out / "stages" / "triangulation.h5", ba_path=ba,
-                                   recording_dir=rec)
-    ref = stages.run_refinement(config, p2d, tri, out / "stages" / "refinement.h5", ba_path=ba,
-                                recording_dir=rec)
+    ba = stages.run_bundle_adjustment(
+        config, p2d, out / "stages" / "bundle_adjustment.h5", recording_dir=rec
+    )
+    tri = stages.run_triangulation(
+        config, p2d, out / "stages" / "triangulation.h5", ba_path=ba, recording_dir=rec
+    )
+    ref = stages.run_refinement(
+        config, p2d, tri, out / "stages" / "refinement.h5", ba_path=ba, recording_dir=rec
+    )
     files = {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri, "refinement": ref}
     stages.run_assemble(config, files, out, recording_dir=rec)
     stages.run_kinematics(config, out / "results.h5", out)
@@ -208,8 +255,10 @@ def base_run(tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("stage", ["pose2d", "bundle_adjustment", "triangulation", "refinement",
-                                   "assemble", "kinematics"])
+@pytest.mark.parametrize(
+    "stage",
+    ["pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble", "kinematics"],
+)
 def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, stage, tmp_path):
     data, rec, spec, base = base_run
     perturbed, changed = _perturb_untracked(data, Config.from_dict(data), stage)
@@ -219,15 +268,31 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
     upstream = {k: base[k] for k in ("pose2d", "bundle_adjustment", "triangulation", "refinement")}
     run = {
         "pose2d": lambda: stages.run_pose2d(other, rec, out / "pose2d.h5", import_spec=spec),
-        "bundle_adjustment": lambda: stages.run_bundle_adjustment(other, base["pose2d"], out / "ba.h5",
-                                                                  recording_dir=rec),
-        "triangulation": lambda: stages.run_triangulation(other, base["pose2d"], out / "tri.h5",
-                                                          ba_path=base["bundle_adjustment"], recording_dir=rec),
-        "refinement": lambda: stages.run_refinement(other, base["pose2d"], base["triangulation"],
-                                                    out / "ref.h5", ba_path=base["bundle_adjustment"],
-                                                    recording_dir=rec),
-        "assemble": lambda: (stages.run_assemble(other, upstream, out, recording_dir=rec),
-                             out / "results.h5")[1],
-        "kinematics": lambda: (stages.run_kinematics(other, base["assemble"], out), out / "kinematics.h5")[1],
+        "bundle_adjustment": lambda: stages.run_bundle_adjustment(
+            other, base["pose2d"], out / "ba.h5", recording_dir=rec
+        ),
+        "triangulation": lambda: stages.run_triangulation(
+            other,
+            base["pose2d"],
+            out / "tri.h5",
+            ba_path=base["bundle_adjustment"],
+            recording_dir=rec,
+        ),
+        "refinement": lambda: stages.run_refinement(
+            other,
+            base["pose2d"],
+            base["triangulation"],
+            out / "ref.h5",
+            ba_path=base["bundle_adjustment"],
+            recording_dir=rec,
+        ),
+        "assemble": lambda: (
+            stages.run_assemble(other, upstream, out, recording_dir=rec),
+            out / "results.h5",
+        )[1],
+        "kinematics": lambda: (
+            stages.run_kinematics(other, base["assemble"], out),
+            out / "kinematics.h5",
+        )[1],
     }[stage]
     _same(base[stage], run())

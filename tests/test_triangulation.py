@@ -9,14 +9,12 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from flylib import camera_model, geometry
-from flylib import triangulation as tri
+from flylib import camera_model, geometry, triangulation as tri
 from flylib.cameras import CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
 from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
-
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +59,9 @@ def test_dlt_chunking_and_jax_path_agree(rig, scene):
     noisy[2, 1, 3] = np.nan
     whole = tri.triangulate(rig, noisy)
     np.testing.assert_allclose(tri.triangulate(rig, noisy, chunk_points=7), whole, rtol=1e-12)
-    np.testing.assert_allclose(np.asarray(geometry.triangulate_dlt(noisy, rig.pmats)), whole, rtol=1e-10)
+    np.testing.assert_allclose(
+        np.asarray(geometry.triangulate_dlt(noisy, rig.pmats)), whole, rtol=1e-10
+    )
     np.testing.assert_array_equal(rig.triangulate(noisy), whole)  # one path behind both
     # the unchunked NumPy DLT (the seed API's path before) agrees to float64 precision
     np.testing.assert_allclose(camera_model.dlt_solve(np, noisy, rig.pmats), whole, rtol=1e-10)
@@ -134,7 +134,9 @@ def test_one_argument_order(rig, scene):
     for func, args in calls:
         out = func(rig, *args)
         np.testing.assert_allclose(out if isinstance(out, np.ndarray) else out[0], pts3d, atol=1e-9)
-        with pytest.raises(TypeError, match=r"\(cameras, pts2d, \.\.\.\) takes the camera rig first"):
+        with pytest.raises(
+            TypeError, match=r"\(cameras, pts2d, \.\.\.\) takes the camera rig first"
+        ):
             func(*args, rig)
     np.testing.assert_allclose(tri.reprojection_error(rig, pts3d, pts2d), 0.0, atol=1e-6)
     with pytest.raises(TypeError, match="camera rig first"):
@@ -163,7 +165,9 @@ def test_ransac_rejects_gross_outliers(rig, scene, bad_views):
     assert (inliers == expected[:, None, None]).all()
     _, clean, err = tri.reconstruct_ransac(rig, corrupted)
     assert np.isnan(clean[bad_views]).all()
-    np.testing.assert_array_equal(np.delete(clean, bad_views, axis=0), np.delete(corrupted, bad_views, axis=0))
+    np.testing.assert_array_equal(
+        np.delete(clean, bad_views, axis=0), np.delete(corrupted, bad_views, axis=0)
+    )
     assert np.isnan(err[bad_views]).all() and np.nanmax(err) < 1e-6
     # Plain DLT is dragged by the same outliers.
     assert np.abs(tri.triangulate(rig, corrupted) - pts3d).max() > 1e-3
@@ -266,7 +270,9 @@ def test_ransac_with_more_views_than_the_run_key_holds(rig):
     # points seen by different later views.
     n_views = 64
     extrinsics = [
-        orbit_extrinsics(distance=DISTANCE, azimuth_deg=360.0 * k / n_views, elevation_deg=20.0 * (-1) ** k)
+        orbit_extrinsics(
+            distance=DISTANCE, azimuth_deg=360.0 * k / n_views, elevation_deg=20.0 * (-1) ** k
+        )
         for k in range(n_views)
     ]
     big = CameraGroup.from_arrays(
@@ -333,7 +339,9 @@ def test_greedy_drops_the_outlier(rig, scene):
     assert not kept[3].any() and kept[[0, 1, 2, 4, 5, 6]].all()
     # max_drops=0 is plain DLT.
     np.testing.assert_allclose(
-        tri.triangulate_greedy(rig, corrupted, max_drops=0)[0], tri.triangulate(rig, corrupted), rtol=1e-12
+        tri.triangulate_greedy(rig, corrupted, max_drops=0)[0],
+        tri.triangulate(rig, corrupted),
+        rtol=1e-12,
     )
     # Two inconsistent views (off the epipolar line): one is dropped, and one view
     # cannot make a point.
@@ -351,7 +359,11 @@ def test_reconstruct_dispatch_shapes(rig, scene):
     pts3d, pts2d = scene
     for method in ("ransac", "greedy", "dlt"):
         out3d, clean, err = tri.reconstruct(rig, pts2d, method=method)
-        assert out3d.shape == pts3d.shape and clean.shape == pts2d.shape and err.shape == pts2d.shape[:-1]
+        assert (
+            out3d.shape == pts3d.shape
+            and clean.shape == pts2d.shape
+            and err.shape == pts2d.shape[:-1]
+        )
         np.testing.assert_allclose(out3d, pts3d, atol=1e-9)
     with pytest.raises(ValueError, match="unknown triangulation method"):
         tri.reconstruct(rig, pts2d, method="magic")

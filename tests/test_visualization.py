@@ -56,12 +56,15 @@ def vis_table(**overrides) -> dict:
             "skeleton_3d": {"line_thickness": 2, "width": 480, "height": 240},
         },
         "videos": [
-            {"video_name": "pose2d", "panels": [
-                {"plot": "imshow", "view": "f", "x0": 240, "y0": 0},
-                {"plot": "skeleton_2d", "view": "f", "x0": 240, "y0": 0},
-                {"plot": "imshow", "view": "rf", "x0": 0, "y0": 240},
-                {"plot": "skeleton_2d", "view": "rf", "x0": 0, "y0": 240},
-            ]},
+            {
+                "video_name": "pose2d",
+                "panels": [
+                    {"plot": "imshow", "view": "f", "x0": 240, "y0": 0},
+                    {"plot": "skeleton_2d", "view": "f", "x0": 240, "y0": 0},
+                    {"plot": "imshow", "view": "rf", "x0": 0, "y0": 240},
+                    {"plot": "skeleton_2d", "view": "rf", "x0": 0, "y0": 240},
+                ],
+            },
         ],
     }
     table.update(overrides)
@@ -77,7 +80,7 @@ def config_dict(table: dict) -> dict:
 
 def test_specs_merge_kwargs_most_specific_wins_and_canvas_autosizes():
     table = vis_table()
-    table["kwargs"]["point_radius"] = 7                       # global, every plot
+    table["kwargs"]["point_radius"] = 7  # global, every plot
     table["kwargs"]["skeleton_2d"]["palette"] = {"a": "#010203", "b": "#040506"}
     video = table["videos"][0]
     video["kwargs"] = {"line_thickness": 5, "skeleton_2d": {"point_radius": 4}}
@@ -116,24 +119,42 @@ def test_panel_size_keeps_aspect_when_one_side_is_given():
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda t: t["videos"][0]["panels"][1].update(plot="heatmap"),
-         r"visualization\.videos\[0\]\.panels\[1\]\.plot: unknown plot 'heatmap'"),
-        (lambda t: t["videos"][0]["panels"][2].update(view="top"),
-         r"visualization\.videos\[0\]\.panels\[2\]\.view: 'top' is not a view of the rig"),
-        (lambda t: t["videos"][0].update(width=600),
-         r"visualization\.videos\[0\]\.panels\[0\]: panel is off the canvas"),
-        (lambda t: t["videos"][0]["panels"][3].update(x0=-1),
-         r"visualization\.videos\[0\]\.panels\[3\]: panel is off the canvas"),
-        (lambda t: t["videos"][0]["panels"][0].update(radius=3),
-         r"visualization\.videos\[0\]\.panels\[0\]: unknown key 'radius'"),
-        (lambda t: t["videos"][0]["panels"][0].update(line_thickness=0),
-         r"visualization\.videos\[0\]\.panels\[0\]\.line_thickness must be"),
-        (lambda t: t["kwargs"]["skeleton_2d"].update(palette={"a": "notacolour"}),
-         r"visualization\.videos\[0\]\.panels\[1\]\.palette\.a: 'notacolour' is not a colour"),
-        (lambda t: t["videos"][0].update(output_fps=10, speed=2),
-         r"visualization\.videos\[0\]: give output_fps or speed, not both"),
-        (lambda t: t["videos"].append(copy.deepcopy(t["videos"][0])),
-         r"visualization\.videos\[1\]: video_name 'pose2d' is used twice"),
+        (
+            lambda t: t["videos"][0]["panels"][1].update(plot="heatmap"),
+            r"visualization\.videos\[0\]\.panels\[1\]\.plot: unknown plot 'heatmap'",
+        ),
+        (
+            lambda t: t["videos"][0]["panels"][2].update(view="top"),
+            r"visualization\.videos\[0\]\.panels\[2\]\.view: 'top' is not a view of the rig",
+        ),
+        (
+            lambda t: t["videos"][0].update(width=600),
+            r"visualization\.videos\[0\]\.panels\[0\]: panel is off the canvas",
+        ),
+        (
+            lambda t: t["videos"][0]["panels"][3].update(x0=-1),
+            r"visualization\.videos\[0\]\.panels\[3\]: panel is off the canvas",
+        ),
+        (
+            lambda t: t["videos"][0]["panels"][0].update(radius=3),
+            r"visualization\.videos\[0\]\.panels\[0\]: unknown key 'radius'",
+        ),
+        (
+            lambda t: t["videos"][0]["panels"][0].update(line_thickness=0),
+            r"visualization\.videos\[0\]\.panels\[0\]\.line_thickness must be",
+        ),
+        (
+            lambda t: t["kwargs"]["skeleton_2d"].update(palette={"a": "notacolour"}),
+            r"visualization\.videos\[0\]\.panels\[1\]\.palette\.a: 'notacolour' is not a colour",
+        ),
+        (
+            lambda t: t["videos"][0].update(output_fps=10, speed=2),
+            r"visualization\.videos\[0\]: give output_fps or speed, not both",
+        ),
+        (
+            lambda t: t["videos"].append(copy.deepcopy(t["videos"][0])),
+            r"visualization\.videos\[1\]: video_name 'pose2d' is used twice",
+        ),
     ],
 )
 def test_bad_specs_raise_config_error_naming_the_key(mutate, message):
@@ -147,8 +168,11 @@ def test_panel_off_an_explicit_canvas_is_caught_once_the_frame_size_is_known():
     table = vis_table(kwargs={})  # panels take the frame size: unknown until render
     table["videos"][0]["width"] = 1000
     (spec,) = read_video_specs(config_dict(table))
-    with pytest.raises(ConfigError, match=r"videos\[0\]\.panels\[0\]: panel 960x480 at "
-                                          r"\(240, 0\) runs off the 1000x"):
+    with pytest.raises(
+        ConfigError,
+        match=r"videos\[0\]\.panels\[0\]: panel 960x480 at "
+        r"\(240, 0\) runs off the 1000x",
+    ):
         spec.canvas_size({"f": (480, 960), "rf": (480, 960)})
 
 
@@ -162,13 +186,15 @@ def test_specs_accept_the_raw_table_and_config_objects():
 
 def test_output_fps_precedence_and_nonsense_container_rate():
     table = vis_table(speed=0.5, default_fps=25)
-    table["videos"].append({"video_name": "fixed", "output_fps": 12.5,
-                            "panels": [{"plot": "imshow", "view": "f"}]})
-    table["videos"].append({"video_name": "fast", "speed": 2,
-                            "panels": [{"plot": "imshow", "view": "f"}]})
+    table["videos"].append(
+        {"video_name": "fixed", "output_fps": 12.5, "panels": [{"plot": "imshow", "view": "f"}]}
+    )
+    table["videos"].append(
+        {"video_name": "fast", "speed": 2, "panels": [{"plot": "imshow", "view": "f"}]}
+    )
     slow, fixed, fast = read_video_specs(table, view_names=VIEWS)
     assert resolve_output_fps(fixed, table, 0.2) == 12.5
-    assert resolve_output_fps(slow, table, 100.0) == 50.0   # global speed
+    assert resolve_output_fps(slow, table, 100.0) == 50.0  # global speed
     assert resolve_output_fps(fast, table, 100.0) == 200.0  # video speed beats global
     with pytest.warns(UserWarning, match=r"0\.2 fps, not plausible.*default_fps = 25"):
         assert resolve_output_fps(fast, table, 0.2) == 50.0
@@ -189,8 +215,8 @@ def test_2d_point_lands_on_its_pixel_in_the_palette_colour_and_nan_draws_nothing
     assert point_colors.tolist() == [[255, 0, 0]] * 2 + [[0, 0, 255]] * 2 + [[128] * 3]
     img = np.zeros((60, 80, 3), np.uint8)
     xy = np.full((5, 2), np.nan)
-    xy[0] = (17, 23)   # a0 alone: a1 is missing, so bone a draws nothing
-    xy[2] = (60, 40)   # b0 with b1 at NaN in y only
+    xy[0] = (17, 23)  # a0 alone: a1 is missing, so bone a draws nothing
+    xy[2] = (60, 40)  # b0 with b1 at NaN in y only
     xy[3] = (50, np.nan)
     draw_skeleton_2d(img, xy, skel.bones, point_colors, bone_colors, radius=2, thickness=3)
     assert img[23, 17].tolist() == [255, 0, 0]
@@ -220,16 +246,15 @@ def test_3d_nearer_bone_covers_the_farther_one_where_they_cross(near_limb):
     skel = tiny_skeleton()
     point_colors, bone_colors = skeleton_colors(skel)
     xy = np.full((5, 2), np.nan)
-    xy[0], xy[1] = (10, 50), (90, 50)   # limb a: horizontal
-    xy[2], xy[3] = (50, 10), (50, 90)   # limb b: vertical, crossing at (50, 50)
+    xy[0], xy[1] = (10, 50), (90, 50)  # limb a: horizontal
+    xy[2], xy[3] = (50, 10), (50, 90)  # limb b: vertical, crossing at (50, 50)
     depth = np.full(5, np.nan)
     near, far = (0, 1), (2, 3)
     if near_limb == "b":
         near, far = far, near
     depth[list(near)], depth[list(far)] = 10.0, 20.0
     img = np.zeros((100, 100, 3), np.uint8)
-    draw_skeleton_3d(img, xy, depth, skel.bones, point_colors, bone_colors, radius=2,
-                     thickness=5)
+    draw_skeleton_3d(img, xy, depth, skel.bones, point_colors, bone_colors, radius=2, thickness=5)
     want = [255, 0, 0] if near_limb == "a" else [0, 0, 255]
     assert img[50, 50].tolist() == want
     assert img[50, 30].tolist() == [255, 0, 0] and img[30, 50].tolist() == [0, 0, 255]
@@ -249,13 +274,13 @@ def test_3d_points_behind_the_camera_or_nan_are_not_drawn():
 
 def test_panel_coordinates_match_opencv_resize_alignment():
     frame = np.zeros((480, 960), np.uint8)
-    frame[50:52, 100:102] = 255                         # a 2x2 block centred at (100.5, 50.5)
+    frame[50:52, 100:102] = 255  # a 2x2 block centred at (100.5, 50.5)
     small = cv2.resize(frame, (480, 240), interpolation=cv2.INTER_AREA)
     y, x = np.unravel_index(np.argmax(small), small.shape)
     mapped = to_panel_coords(np.array([100.5, 50.5]), (480, 960), (480, 240))
     np.testing.assert_allclose(mapped, [x, y], atol=1e-12)
     up = cv2.resize(np.pad(np.ones((1, 1)), 2), (15, 15), interpolation=cv2.INTER_LINEAR)
-    y, x = np.unravel_index(np.argmax(up), up.shape)   # 5x5 -> 15x15: pixel 2 -> 7
+    y, x = np.unravel_index(np.argmax(up), up.shape)  # 5x5 -> 15x15: pixel 2 -> 7
     np.testing.assert_allclose(to_panel_coords(np.array([2.0, 2.0]), (5, 5), (15, 15)), [x, y])
 
 
@@ -266,14 +291,32 @@ def test_compositor_draws_panels_in_order_with_backgrounds():
     skel = tiny_skeleton()
     table = {
         "background": [10, 20, 30],
-        "videos": [{"video_name": "v", "panels": [
-            {"plot": "imshow", "view": "f", "x0": 0, "y0": 0, "width": 100},
-            {"plot": "skeleton_2d", "view": "f", "x0": 0, "y0": 0, "width": 100,
-             "point_radius": 1},
-            {"plot": "imshow", "view": "rf", "x0": 100, "y0": 0, "width": 100},
-            {"plot": "skeleton_3d", "view": "rf", "x0": 0, "y0": 50, "width": 100,
-             "background": "white", "point_radius": 1},
-        ]}],
+        "videos": [
+            {
+                "video_name": "v",
+                "panels": [
+                    {"plot": "imshow", "view": "f", "x0": 0, "y0": 0, "width": 100},
+                    {
+                        "plot": "skeleton_2d",
+                        "view": "f",
+                        "x0": 0,
+                        "y0": 0,
+                        "width": 100,
+                        "point_radius": 1,
+                    },
+                    {"plot": "imshow", "view": "rf", "x0": 100, "y0": 0, "width": 100},
+                    {
+                        "plot": "skeleton_3d",
+                        "view": "rf",
+                        "x0": 0,
+                        "y0": 50,
+                        "width": 100,
+                        "background": "white",
+                        "point_radius": 1,
+                    },
+                ],
+            }
+        ],
     }
     (spec,) = read_video_specs(table, view_names=VIEWS)
     sizes = {"f": (100, 200), "rf": (100, 200)}
@@ -281,16 +324,15 @@ def test_compositor_draws_panels_in_order_with_backgrounds():
     assert (comp.width, comp.height) == (200, 100)
     frame = np.full((100, 200, 3), 77, np.uint8)
     pts2d = np.full((5, 2), np.nan)
-    pts2d[0] = (40.5, 20.5)                  # raw pixel -> panel (20, 10)
+    pts2d[0] = (40.5, 20.5)  # raw pixel -> panel (20, 10)
     xy3 = np.full((5, 2), np.nan)
-    xy3[2] = (120.5, 40.5)                   # -> panel (60, 20) -> canvas (60, 70)
-    canvas = comp.compose({"f": frame}, {"f": pts2d},
-                          {"rf": (xy3, np.array([1.0, 1, 1, 1, 1]))})
-    assert canvas[10, 20].tolist() == [255, 0, 0]                   # 2D point over imshow
-    assert canvas[5, 50].tolist() == [77, 77, 77]                   # resized frame
-    assert canvas[70, 60].tolist() == [0, 0, 255]                   # 3D point
-    assert canvas[90, 10].tolist() == [255, 255, 255]               # skeleton_3d background
-    assert canvas[20, 150].tolist() == [10, 20, 30]                 # rf: no frame given
+    xy3[2] = (120.5, 40.5)  # -> panel (60, 20) -> canvas (60, 70)
+    canvas = comp.compose({"f": frame}, {"f": pts2d}, {"rf": (xy3, np.array([1.0, 1, 1, 1, 1]))})
+    assert canvas[10, 20].tolist() == [255, 0, 0]  # 2D point over imshow
+    assert canvas[5, 50].tolist() == [77, 77, 77]  # resized frame
+    assert canvas[70, 60].tolist() == [0, 0, 255]  # 3D point
+    assert canvas[90, 10].tolist() == [255, 255, 255]  # skeleton_3d background
+    assert canvas[20, 150].tolist() == [10, 20, 30]  # rf: no frame given
     # the canvas is reused; a second call redraws from scratch
     canvas = comp.compose({}, {}, {})
     assert canvas[10, 20].tolist() == [10, 20, 30]
@@ -325,12 +367,12 @@ def df3d_result(df3d_pickle):
     cameras = CameraGroup.from_config(config, image_sizes={v: (480, 960) for v in VIEWS})
     pts2d = load_df3d_points2d(df3d_pickle)
     pts3d = cameras.triangulate(pts2d)
-    return config, PoseResult(cameras=cameras, skeleton=Skeleton.from_config(config),
-                              pts2d=pts2d, pts3d=pts3d)
+    return config, PoseResult(
+        cameras=cameras, skeleton=Skeleton.from_config(config), pts2d=pts2d, pts3d=pts3d
+    )
 
 
-def test_default_videos_render_for_the_deepfly3d_sample(tmp_path, df3d_sample_dir,
-                                                          df3d_result):
+def test_default_videos_render_for_the_deepfly3d_sample(tmp_path, df3d_sample_dir, df3d_result):
     config, result = df3d_result
     footage = {v: [df3d_sample_dir / f"camera_{i}.mp4"] for i, v in enumerate(VIEWS)}
     with pytest.warns(UserWarning, match=r"0\.2 fps, not plausible.*30 fps"):
@@ -414,23 +456,47 @@ def test_trajectory_points_are_the_leg_tips():
     assert names == ["lf_claw", "lm_claw", "lh_claw", "rf_claw", "rm_claw", "rh_claw"]
 
 
-def test_short_footage_is_an_error_naming_the_file_and_counts(tmp_path, df3d_sample_dir, df3d_result):
+def test_short_footage_is_an_error_naming_the_file_and_counts(
+    tmp_path, df3d_sample_dir, df3d_result
+):
     """Footage and result of different lengths (issue 13: a truncated MP4 with its
     header) fail the job instead of drawing the background with a warning."""
     from flylib.errors import FootageError
 
     config, result = df3d_result
-    longer = dataclasses.replace(result, pts2d=np.concatenate([result.pts2d] * 2, axis=1),
-                                 pts3d=np.concatenate([result.pts3d] * 2, axis=0))
-    table = {"output_fps": 10, "background": "white", "videos": [{
-        "video_name": "rf_only", "panels": [
-            {"plot": "imshow", "view": "rf", "width": 240},
-            {"plot": "skeleton_3d", "view": "rf", "width": 240, "point_radius": 0,
-             "line_thickness": 1}]}]}
+    longer = dataclasses.replace(
+        result,
+        pts2d=np.concatenate([result.pts2d] * 2, axis=1),
+        pts3d=np.concatenate([result.pts3d] * 2, axis=0),
+    )
+    table = {
+        "output_fps": 10,
+        "background": "white",
+        "videos": [
+            {
+                "video_name": "rf_only",
+                "panels": [
+                    {"plot": "imshow", "view": "rf", "width": 240},
+                    {
+                        "plot": "skeleton_3d",
+                        "view": "rf",
+                        "width": 240,
+                        "point_radius": 0,
+                        "line_thickness": 1,
+                    },
+                ],
+            }
+        ],
+    }
     footage = {"rf": [df3d_sample_dir / "camera_2.mp4"]}
-    with pytest.raises(FootageError, match=f"^{df3d_sample_dir / 'camera_2.mp4'}: footage of view 'rf' has 15 "
-                                           "frames but the result has 30"):
-        render_videos({**config.data, "visualization": table}, longer, footage, tmp_path, progress=False)
+    with pytest.raises(
+        FootageError,
+        match=f"^{df3d_sample_dir / 'camera_2.mp4'}: footage of view 'rf' has 15 "
+        "frames but the result has 30",
+    ):
+        render_videos(
+            {**config.data, "visualization": table}, longer, footage, tmp_path, progress=False
+        )
     assert not list(tmp_path.glob("*.mp4"))
 
 
@@ -461,18 +527,31 @@ def test_missing_footage_raises_footage_error_and_leaves_no_file(tmp_path, df3d_
     assert not any((tmp_path / "out").iterdir())
 
 
-def test_image_sequence_footage_renders_at_the_default_rate(tmp_path, df3d_sample_dir,
-                                                            df3d_result):
+def test_image_sequence_footage_renders_at_the_default_rate(tmp_path, df3d_sample_dir, df3d_result):
     from flylib.io import natural_key
 
     config, result = df3d_result
     images = sorted(df3d_sample_dir.glob("camera_2_img_*.jpg"), key=natural_key)
-    table = {"default_fps": 12, "videos": [{"video_name": "rf", "panels": [
-        {"plot": "imshow", "view": "rf", "scale": 0.25},
-        {"plot": "skeleton_2d", "view": "rf", "scale": 0.25, "point_radius": 1}]}]}
+    table = {
+        "default_fps": 12,
+        "videos": [
+            {
+                "video_name": "rf",
+                "panels": [
+                    {"plot": "imshow", "view": "rf", "scale": 0.25},
+                    {"plot": "skeleton_2d", "view": "rf", "scale": 0.25, "point_radius": 1},
+                ],
+            }
+        ],
+    }
     with pytest.warns(UserWarning, match="frame rate is unknown.*default_fps = 12"):
-        (path,) = render_videos({**config.data, "visualization": table}, result,
-                                {"rf": images}, tmp_path, progress=False)
+        (path,) = render_videos(
+            {**config.data, "visualization": table},
+            result,
+            {"rf": images},
+            tmp_path,
+            progress=False,
+        )
     frames, rate = decoded_video(path)
     assert frames.shape == (15, 120, 240, 3) and rate == 12
     first = cv2.cvtColor(cv2.imread(str(images[0])), cv2.COLOR_BGR2RGB)

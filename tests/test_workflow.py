@@ -32,17 +32,29 @@ def base_config() -> dict:
     return yaml.safe_load((REPO / "config" / "config.yaml").read_text())
 
 
-def snakemake(workdir: Path, *args: str, config: dict | None = None, check: bool = True,
-              timeout: float = 600) -> subprocess.CompletedProcess:
+def snakemake(
+    workdir: Path, *args: str, config: dict | None = None, check: bool = True, timeout: float = 600
+) -> subprocess.CompletedProcess:
     """Run the repo's workflow in ``workdir`` (with ``config`` written to config.yaml)."""
     if config is not None:
         (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
-           "--configfile", str(workdir / "config.yaml"), "--cores", "2", *args]
+    cmd = [
+        str(SNAKEMAKE),
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(workdir / "config.yaml"),
+        "--cores",
+        "2",
+        *args,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir)
     if check and proc.returncode != 0:
-        raise AssertionError(f"snakemake failed ({proc.returncode}):\n{proc.stdout[-4000:]}\n"
-                             f"{proc.stderr[-6000:]}")
+        raise AssertionError(
+            f"snakemake failed ({proc.returncode}):\n{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}"
+        )
     return proc
 
 
@@ -75,8 +87,15 @@ def jobs(rules, recordings) -> set[tuple[str, str]]:
     return {(r, rec) for r in rules for rec in recordings}
 
 
-ALL_STAGES = ("pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble", "visualization",
-              "kinematics")
+ALL_STAGES = (
+    "pose2d",
+    "bundle_adjustment",
+    "triangulation",
+    "refinement",
+    "assemble",
+    "visualization",
+    "kinematics",
+)
 #: What a change to the triangulation re-runs (everything after it).
 AFTER_TRIANGULATION = ("triangulation", "refinement", "assemble", "visualization", "kinematics")
 
@@ -87,8 +106,10 @@ def workspace(tmp_path_factory):
     root = tmp_path_factory.mktemp("workflow")
     config = base_config()
     config["bundle_adjustment"]["max_nfev"] = 20
-    entries = {name: make_recording(config, root / name, seed)
-               for seed, name in enumerate(("recA", "recB", "recC"))}
+    entries = {
+        name: make_recording(config, root / name, seed)
+        for seed, name in enumerate(("recA", "recB", "recC"))
+    }
     config["recordings"] = [entries["recA"], entries["recB"]]
     proc = snakemake(root, config=config)
     return {"root": root, "config": config, "entries": entries, "run": proc}
@@ -103,9 +124,20 @@ def test_run_writes_every_artifact_and_a_byte_for_byte_config_snapshot(workspace
         result = PoseResult.load(out / "results.h5")
         assert result.pts3d.shape == (FRAMES, 38, 3)
         assert np.isfinite(result.pts3d).mean() > 0.9
-        for f in ("summary.png", "summary.json", "calibration.toml", "pose2d.mp4", "pose3d.mp4",
-                  "stages/pose2d.h5", "stages/bundle_adjustment.h5", "stages/triangulation.h5",
-                  "stages/refinement.h5", "kinematics.h5", "angles.csv", "angles.png"):
+        for f in (
+            "summary.png",
+            "summary.json",
+            "calibration.toml",
+            "pose2d.mp4",
+            "pose3d.mp4",
+            "stages/pose2d.h5",
+            "stages/bundle_adjustment.h5",
+            "stages/triangulation.h5",
+            "stages/refinement.h5",
+            "kinematics.h5",
+            "angles.csv",
+            "angles.png",
+        ):
             assert (out / f).stat().st_size > 0, f
         assert (out / "config.yaml").read_bytes() == (root / "config.yaml").read_bytes()
         assert (out / "benchmarks" / "triangulation.tsv").is_file()
@@ -113,7 +145,13 @@ def test_run_writes_every_artifact_and_a_byte_for_byte_config_snapshot(workspace
         summary = json.loads((out / "summary.json").read_text())
         assert summary["frames"] == FRAMES and summary["views"][0] == "rh"
         with h5py.File(out / "results.h5") as f:
-            assert {"pose2d", "bundle_adjustment", "triangulation", "refinement", "skeleton"} <= set(f)
+            assert {
+                "pose2d",
+                "bundle_adjustment",
+                "triangulation",
+                "refinement",
+                "skeleton",
+            } <= set(f)
     assert not list(root.rglob("*.tmp*")), "a temporary file was left behind"
 
 
@@ -121,11 +159,14 @@ def test_unchanged_config_plans_nothing(workspace):
     assert planned(workspace["root"], workspace["config"]) == set()
 
 
-@pytest.mark.parametrize("section,key,value", [
-    ("pose2d", "batch_size", 3),
-    ("pose2d", "decode_buffer", 9),
-    ("io", "image", {"workers": 3}),
-])
+@pytest.mark.parametrize(
+    "section,key,value",
+    [
+        ("pose2d", "batch_size", 3),
+        ("pose2d", "decode_buffer", 9),
+        ("io", "image", {"workers": 3}),
+    ],
+)
 def test_performance_knobs_plan_nothing(workspace, section, key, value):
     config = copy.deepcopy(workspace["config"])
     config[section][key] = value
@@ -148,7 +189,9 @@ def test_refinement_weight_reruns_refinement_and_downstream_only(workspace):
 
 def test_angle_table_edit_reruns_kinematics_only(workspace):
     config = copy.deepcopy(workspace["config"])
-    config["kinematics"]["angles"] = {"lf_knee": ["lf_coxa_trochanter", "lf_femur_tibia", "lf_tibia_tarsus"]}
+    config["kinematics"]["angles"] = {
+        "lf_knee": ["lf_coxa_trochanter", "lf_femur_tibia", "lf_tibia_tarsus"]
+    }
     assert planned(workspace["root"], config) == jobs(("kinematics",), ("recA", "recB"))
 
 
@@ -166,7 +209,9 @@ def test_skeleton_edit_reruns_bundle_adjustment_and_after(workspace):
     limbs["l_abdomen_tip"] = ["l_abdomen2"]
     planned_jobs = planned(workspace["root"], config)
     assert ("pose2d", "recA") not in planned_jobs
-    assert jobs(("bundle_adjustment", "triangulation", "assemble"), ("recA", "recB")) <= planned_jobs
+    assert (
+        jobs(("bundle_adjustment", "triangulation", "assemble"), ("recA", "recB")) <= planned_jobs
+    )
 
 
 def test_new_recording_plans_only_its_own_jobs(workspace):
@@ -213,8 +258,9 @@ def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     assert planned(tmp_path, config) == set()
 
     rig_file.write_text(rig_file.read_text().replace(str(FOCAL), "22400.0", 1))  # re-calibrated
-    assert planned(tmp_path, config) == jobs(("bundle_adjustment", "triangulation", "refinement",
-                                              "assemble", "kinematics"), ("recA",))
+    assert planned(tmp_path, config) == jobs(
+        ("bundle_adjustment", "triangulation", "refinement", "assemble", "kinematics"), ("recA",)
+    )
     config["pipeline"]["do_bundle_adjustment"] = False  # triangulation reads the file itself
     assert ("triangulation", "recA") in planned(tmp_path, config)
     assert ("pose2d", "recA") not in planned(tmp_path, config)
@@ -231,8 +277,9 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
     from flylib.results import load_candidates
 
     torch.manual_seed(0)
-    checkpoint = save_checkpoint(HourglassNet(num_stacks=1, num_feats=8, inplanes=8),
-                                 tmp_path / "sh1_random.tar")
+    checkpoint = save_checkpoint(
+        HourglassNet(num_stacks=1, num_feats=8, inplanes=8), tmp_path / "sh1_random.tar"
+    )
     config = base_config()
     config["pose2d"]["models"][0].update(weights=str(checkpoint), input_size=[64, 128])
     config["pose2d"]["device"] = "cpu"
@@ -247,11 +294,14 @@ def test_pictorial_structures_toggle_reruns_detection_only_to_get_candidates(tmp
 
     off = copy.deepcopy(config)
     off["pipeline"]["do_pictorial_structures"] = False
-    assert planned(tmp_path, off) == jobs(("triangulation", "refinement", "assemble", "kinematics"), ("recA",))
+    assert planned(tmp_path, off) == jobs(
+        ("triangulation", "refinement", "assemble", "kinematics"), ("recA",)
+    )
     snakemake(tmp_path, config=off)
     # back on: the earlier pictorial-structures artifact is still valid, only its users re-run
-    assert planned(tmp_path, config) == jobs(("triangulation", "refinement", "assemble", "kinematics"),
-                                             ("recA",))
+    assert planned(tmp_path, config) == jobs(
+        ("triangulation", "refinement", "assemble", "kinematics"), ("recA",)
+    )
     # k: no detection while PS is off; while on, the detector must find k peaks again
     off["pictorial_structures"]["k"] = 3
     assert planned(tmp_path, off) == set()
@@ -283,8 +333,13 @@ def test_report_holds_every_recordings_figure_and_videos(workspace):
 
 
 def test_lint_is_clean():
-    proc = subprocess.run([str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--lint"],
-                          capture_output=True, text=True, cwd=REPO, timeout=300)
+    proc = subprocess.run(
+        [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--lint"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Congratulations" in proc.stdout + proc.stderr
 
@@ -305,8 +360,9 @@ def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_pat
     assert csv.name in (tmp_path / "bad" / "flylib_outputs" / "logs" / "pose2d.log").read_text()
 
     csv.write_bytes(original)
-    assert planned(tmp_path, config) == jobs(("pose2d", "triangulation", "refinement", "assemble", "kinematics"),
-                                             ("bad",))
+    assert planned(tmp_path, config) == jobs(
+        ("pose2d", "triangulation", "refinement", "assemble", "kinematics"), ("bad",)
+    )
 
 
 def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
@@ -323,11 +379,17 @@ def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
     assert not (rec / "flylib_outputs" / "stages" / "pose2d.h5").exists()
 
 
-@pytest.mark.parametrize("edit,message", [
-    (lambda c: c["triangulation"].update(method="magic"), "triangulation.method"),
-    # a video panel is checked before any job, not when the visualization job starts
-    (lambda c: c["visualization"]["videos"][0]["panels"][0].update(view="nope"), "panels[0].view: 'nope'"),
-])
+@pytest.mark.parametrize(
+    "edit,message",
+    [
+        (lambda c: c["triangulation"].update(method="magic"), "triangulation.method"),
+        # a video panel is checked before any job, not when the visualization job starts
+        (
+            lambda c: c["visualization"]["videos"][0]["panels"][0].update(view="nope"),
+            "panels[0].view: 'nope'",
+        ),
+    ],
+)
 def test_invalid_config_is_one_clear_error_before_any_job(tmp_path, edit, message):
     config = base_config()
     edit(config)
@@ -341,7 +403,9 @@ def test_workflow_accepts_what_flylib_accepts(tmp_path):
     config = base_config()
     config["recordings"] = [{"demo": True}]  # no path: the demo's default folder
     config["visualization"]["background"] = [20, 20, 20]
-    config["visualization"]["videos"][0]["name"] = config["visualization"]["videos"][0].pop("video_name")
+    config["visualization"]["videos"][0]["name"] = config["visualization"]["videos"][0].pop(
+        "video_name"
+    )
     snakemake(tmp_path, "--dry-run", config=config)
 
 
@@ -352,12 +416,15 @@ def test_empty_batch_is_one_clear_error(tmp_path):
     config["recordings"] = [str(tmp_path / "a"), str(tmp_path / "b")]
     proc = snakemake(tmp_path, "--dry-run", config=config, check=False)
     assert proc.returncode != 0
-    assert "no valid recording" in (proc.stdout + proc.stderr).lower() or \
-        "none of" in (proc.stdout + proc.stderr)
+    assert "no valid recording" in (proc.stdout + proc.stderr).lower() or "none of" in (
+        proc.stdout + proc.stderr
+    )
 
 
 @pytest.mark.shared
-def test_batch_of_the_two_real_recordings(tmp_path, df3d_sample_dir, df3d_pickle, deeperfly_example_dir):
+def test_batch_of_the_two_real_recordings(
+    tmp_path, df3d_sample_dir, df3d_pickle, deeperfly_example_dir
+):
     """deepfly3d-sample with DeepFly3D's own 2D imported; deeperfly-example through the
     detector with a randomly initialised network saved in the published checkpoint
     format (its keypoints are meaningless, but every stage runs on real footage)."""
@@ -368,15 +435,19 @@ def test_batch_of_the_two_real_recordings(tmp_path, df3d_sample_dir, df3d_pickle
     from flylib.results import PoseResult
 
     torch.manual_seed(0)
-    checkpoint = save_checkpoint(HourglassNet(num_stacks=1, num_feats=8, inplanes=8),
-                                 tmp_path / "sh1_random.tar")
+    checkpoint = save_checkpoint(
+        HourglassNet(num_stacks=1, num_feats=8, inplanes=8), tmp_path / "sh1_random.tar"
+    )
     config = base_config()
     model = config["pose2d"]["models"][0]
     model.update(weights=str(checkpoint), input_size=[64, 128])
     config["pose2d"].update(device="cpu", batch_size=16)
     config["bundle_adjustment"]["max_nfev"] = 10
     config["recordings"] = [
-        {"path": str(df3d_sample_dir), "import": {"format": "deepfly3d", "files": df3d_pickle.name}},
+        {
+            "path": str(df3d_sample_dir),
+            "import": {"format": "deepfly3d", "files": df3d_pickle.name},
+        },
         {"path": str(deeperfly_example_dir)},
     ]
     config["outdir"] = str(tmp_path / "out" / "{id}")  # the shared data is read-only
@@ -391,20 +462,46 @@ def test_batch_of_the_two_real_recordings(tmp_path, df3d_sample_dir, df3d_pickle
     assert np.isfinite(imported.pts3d).mean() > 0.5
 
 
-@pytest.mark.parametrize("script", ["demo", "pose2d", "bundle_adjustment", "pictorial_structures",
-                                    "triangulation", "refinement", "assemble", "visualization",
-                                    "kinematics"])
+@pytest.mark.parametrize(
+    "script",
+    [
+        "demo",
+        "pose2d",
+        "bundle_adjustment",
+        "pictorial_structures",
+        "triangulation",
+        "refinement",
+        "assemble",
+        "visualization",
+        "kinematics",
+    ],
+)
 def test_stage_scripts_have_help(script):
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / f"{script}.py"), "--help"],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / f"{script}.py"), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0 and "--config" in proc.stdout
 
 
 def test_stage_script_reports_a_missing_artifact_in_one_line(tmp_path):
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "triangulation.py"),
-                           "--config", str(REPO / "config" / "config.yaml"),
-                           "--pose2d", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "t.h5")],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "scripts" / "triangulation.py"),
+            "--config",
+            str(REPO / "config" / "config.yaml"),
+            "--pose2d",
+            str(tmp_path / "missing.h5"),
+            "--out",
+            str(tmp_path / "t.h5"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 1
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("error: ") and "missing.h5" in last

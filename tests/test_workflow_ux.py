@@ -26,8 +26,9 @@ def user_dir(tmp_path: Path) -> Path:
 
 def snakemake(workdir: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
     cmd = [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--cores", "2", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir,
-                          check=False)
+    return subprocess.run(
+        cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir, check=False
+    )
 
 
 def output(proc: subprocess.CompletedProcess) -> str:
@@ -39,8 +40,13 @@ def files_under(root: Path) -> set[str]:
 
 
 def untracked_in_repo() -> set[str]:
-    proc = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO,
-                          capture_output=True, text=True, check=False)
+    proc = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=all"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if proc.returncode != 0:
         pytest.skip("the checkout is not a git work tree")
     return {line[3:] for line in proc.stdout.splitlines() if line.startswith("??")}
@@ -54,7 +60,9 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     assert proc.returncode == 0, proc.stderr[-4000:]
 
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    title = max(i for i, line in enumerate(lines) if line.startswith("flylib: per-recording results"))
+    title = max(
+        i for i, line in enumerate(lines) if line.startswith("flylib: per-recording results")
+    )
     table = lines[title:]
     assert table[1].split()[:3] == ["recording", "frames", "3D"]
     row = table[2].split()
@@ -78,8 +86,10 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
 
 LATE_FAILING = {
     "import_format": ("pose2d:\n  import: {format: deepfly}\n", "pose2d.import.format"),
-    "models_override": ("pose2d:\n  models: [{name: deepfly2d, weights: x.tar}]\n",
-                        "pose2d.models[0].n_out_channels"),
+    "models_override": (
+        "pose2d:\n  models: [{name: deepfly2d, weights: x.tar}]\n",
+        "pose2d.models[0].n_out_channels",
+    ),
 }
 
 
@@ -96,8 +106,12 @@ def test_late_failing_configs_fail_at_dry_run_naming_the_users_file_and_key(tmp_
     proc = snakemake(workdir, "-n", "--configfile", "mine.yaml")
     assert proc.returncode != 0
     errors = [line for line in output(proc).splitlines() if line.startswith("invalid config")]
-    assert len(errors) == 1 and errors[0].startswith(f"invalid config: mine.yaml: {key}"), output(proc)
-    assert files_under(workdir) - before <= {f for f in files_under(workdir) if f.startswith(".snakemake/")}
+    assert len(errors) == 1 and errors[0].startswith(f"invalid config: mine.yaml: {key}"), output(
+        proc
+    )
+    assert files_under(workdir) - before <= {
+        f for f in files_under(workdir) if f.startswith(".snakemake/")
+    }
     assert not (recording / "flylib_outputs").exists()
 
 
@@ -108,8 +122,10 @@ def test_the_weights_key_passes_the_dry_run(tmp_path):
     for i in range(7):
         (recording / f"camera_{i}.mp4").write_bytes(b"")
     (workdir / "sh8.tar").write_bytes(b"checkpoint")
-    (workdir / "mine.yaml").write_text(f"recordings: [{recording}]\npose2d:\n  weights: {{deepfly2d: sh8.tar}}\n"
-                                       "bundle_adjustment:\n  ftol: 1e-8\n")
+    (workdir / "mine.yaml").write_text(
+        f"recordings: [{recording}]\npose2d:\n  weights: {{deepfly2d: sh8.tar}}\n"
+        "bundle_adjustment:\n  ftol: 1e-8\n"
+    )
     proc = snakemake(workdir, "-n", "--configfile", "mine.yaml")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "rule pose2d" in proc.stdout + proc.stderr
@@ -126,19 +142,28 @@ def test_a_mistyped_or_file_recording_is_one_line_and_creates_nothing(tmp_path, 
     assert proc.returncode != 0
     errors = [line for line in output(proc).splitlines() if line.startswith("invalid config")]
     assert len(errors) == 1, output(proc)
-    expected = (f"does not exist; did you mean {workdir / 'fly1'}?" if entry == "fyl1"
-                else "is a file, not a directory")
+    expected = (
+        f"does not exist; did you mean {workdir / 'fly1'}?"
+        if entry == "fyl1"
+        else "is a file, not a directory"
+    )
     assert errors[0].startswith(f"invalid config: mine.yaml: recordings[0]: {workdir / entry}")
     assert expected in errors[0]
     assert "Traceback" not in output(proc)
     assert {f for f in files_under(workdir) - before if not f.startswith(".snakemake/")} == set()
     assert sorted(p.name for p in workdir.iterdir() if p.name != ".snakemake") == [
-        "config", "fly1", "mine.yaml", "notes.txt"]
+        "config",
+        "fly1",
+        "mine.yaml",
+        "notes.txt",
+    ]
 
 
 def test_a_key_given_twice_in_a_configfile_is_an_error_naming_file_and_lines(tmp_path):
     workdir = user_dir(tmp_path)
-    (workdir / "mine.yaml").write_text("triangulation:\n  method: dlt\ntriangulation:\n  method: greedy\n")
+    (workdir / "mine.yaml").write_text(
+        "triangulation:\n  method: dlt\ntriangulation:\n  method: greedy\n"
+    )
     proc = snakemake(workdir, "-n", "--configfile", "mine.yaml")
     assert proc.returncode != 0
     assert "mine.yaml: triangulation: key given twice (lines 1 and 3)" in output(proc)

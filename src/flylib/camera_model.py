@@ -32,7 +32,9 @@ SMALL_THETA_SQ = 1e-6
 # -- rotations and intrinsics ------------------------------------------------------
 
 
-def rvec_to_rmat_generic(xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]) -> Float[AnyArray, "*batch 3 3"]:
+def rvec_to_rmat_generic(
+    xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]
+) -> Float[AnyArray, "*batch 3 3"]:
     """Rodrigues' formula ``(..., 3) -> (..., 3, 3)`` with array module ``xp``.
 
     ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``,
@@ -59,14 +61,20 @@ def rvec_to_rmat_generic(xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]) -> F
     safe_sq = xp.where(small, 1.0, theta_sq)
     theta = xp.sqrt(safe_sq)
     a = xp.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, xp.sin(theta) / theta)
-    b = xp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, (1.0 - xp.cos(theta)) / safe_sq)
+    b = xp.where(
+        small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, (1.0 - xp.cos(theta)) / safe_sq
+    )
     zero = xp.zeros_like(x)
     skew = xp.reshape(xp.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1), (*x.shape, 3, 3))
     outer = rvec[..., :, None] * rvec[..., None, :]
     eye = xp.eye(3)
     # Matrix-valued terms, not nine stacked entries: XLA's forward-mode Jacobian of
     # the stacked form ran 5x slower inside bundle adjustment's vmap.
-    return eye + a[..., None, None] * skew + b[..., None, None] * (outer - theta_sq[..., None, None] * eye)
+    return (
+        eye
+        + a[..., None, None] * skew
+        + b[..., None, None] * (outer - theta_sq[..., None, None] * eye)
+    )
 
 
 def rvec_to_rmat_numpy(rvec: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3 3"]:
@@ -98,9 +106,7 @@ def rmat_to_rvec_generic(xp: ModuleType, rmat: Float[AnyArray, "3 3"]) -> Float[
     rvec_generic = rho * scale
 
     # Large angles: axis from the symmetric part, column with the largest diagonal.
-    outer = (0.5 * (rmat + rmat.T) - cos_theta * xp.eye(3)) / xp.maximum(
-        1.0 - cos_theta, 1e-300
-    )
+    outer = (0.5 * (rmat + rmat.T) - cos_theta * xp.eye(3)) / xp.maximum(1.0 - cos_theta, 1e-300)
     col = outer[:, xp.argmax(xp.diagonal(outer))]
     axis = col / xp.linalg.norm(col)
     axis = xp.where(xp.dot(axis, rho) < 0.0, -axis, axis)
@@ -117,12 +123,19 @@ def rmat_to_rvec_numpy(rmat: Float[np.ndarray, "3 3"]) -> Float[np.ndarray, " 3"
 
 def split_intr(
     intr: Float[AnyArray, "*batch P"],
-) -> tuple[Float[AnyArray, "*batch"], Float[AnyArray, "*batch"], Float[AnyArray, "*batch"], Float[AnyArray, "*batch"]]:
+) -> tuple[
+    Float[AnyArray, "*batch"],
+    Float[AnyArray, "*batch"],
+    Float[AnyArray, "*batch"],
+    Float[AnyArray, "*batch"],
+]:
     """``(fx, fy, cx, cy)`` from packed ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``."""
     return intr[..., 0], intr[..., -3], intr[..., -2], intr[..., -1]
 
 
-def intr_to_kmat_generic(xp: ModuleType, intr: Float[AnyArray, "*batch P"]) -> Float[AnyArray, "*batch 3 3"]:
+def intr_to_kmat_generic(
+    xp: ModuleType, intr: Float[AnyArray, "*batch P"]
+) -> Float[AnyArray, "*batch 3 3"]:
     """Camera matrices ``(..., 3, 3)`` from packed ``(..., 4)`` ``[fx, fy, cx, cy]`` or ``(..., 3)`` ``[f, cx, cy]``."""
     intr = xp.asarray(intr, dtype=xp.float64)
     fx, fy, cx, cy = split_intr(intr)
@@ -139,7 +152,9 @@ def intr_to_kmat_numpy(intr: Float[np.ndarray, "*batch P"]) -> Float[np.ndarray,
 # -- distortion ------------------------------------------------------------------
 
 
-def pad_dist_generic(xp: ModuleType, dist: Float[AnyArray, "*batch K"]) -> Float[AnyArray, "*batch 12"]:
+def pad_dist_generic(
+    xp: ModuleType, dist: Float[AnyArray, "*batch K"]
+) -> Float[AnyArray, "*batch 12"]:
     """``(..., K)`` distortion coefficients zero-padded to ``(..., 12)``, with array module ``xp``.
 
     Raises
@@ -166,9 +181,7 @@ def distortion_terms(x, y, d):
     r2 = x2 + y2
     r4 = r2 * r2
     r6 = r4 * r2
-    radial = (1.0 + d[0] * r2 + d[1] * r4 + d[4] * r6) / (
-        1.0 + d[5] * r2 + d[6] * r4 + d[7] * r6
-    )
+    radial = (1.0 + d[0] * r2 + d[1] * r4 + d[4] * r6) / (1.0 + d[5] * r2 + d[6] * r4 + d[7] * r6)
     add_x = 2.0 * d[2] * xy + d[3] * (r2 + 2.0 * x2) + d[8] * r2 + d[9] * r4
     add_y = d[2] * (r2 + 2.0 * y2) + 2.0 * d[3] * xy + d[10] * r2 + d[11] * r4
     return radial, add_x, add_y
@@ -249,8 +262,11 @@ def project_generic(
 
 
 def ray_from_normalized(
-    xp: ModuleType, x: float | Float[AnyArray, ""], y: float | Float[AnyArray, ""],
-    rmat: Float[AnyArray, "3 3"], tvec: Float[AnyArray, " 3"],
+    xp: ModuleType,
+    x: float | Float[AnyArray, ""],
+    y: float | Float[AnyArray, ""],
+    rmat: Float[AnyArray, "3 3"],
+    tvec: Float[AnyArray, " 3"],
 ) -> tuple[Float[AnyArray, " 3"], Float[AnyArray, " 3"]]:
     """World ray of an undistorted normalized coordinate ``(x, y)`` through one camera.
 
@@ -272,13 +288,20 @@ def project_numpy(
 ) -> Float[np.ndarray, "V *pts 2"]:
     """NumPy :func:`project_generic`: ``(*pts, 3)`` through ``V`` cameras -> ``(V, *pts, 2)``."""
     return project_generic(
-        np, pts3d, np.asarray(rmats, dtype=np.float64), np.asarray(tvecs, dtype=np.float64),
-        intrs, np.asarray(dists, dtype=np.float64),
+        np,
+        pts3d,
+        np.asarray(rmats, dtype=np.float64),
+        np.asarray(tvecs, dtype=np.float64),
+        intrs,
+        np.asarray(dists, dtype=np.float64),
     )
 
 
 def undistort_normalized(
-    xy_dist: Float[np.ndarray, "*pts 2"], dist: Float[np.ndarray, " K"], max_iter: int = 200, tol: float = 1e-15
+    xy_dist: Float[np.ndarray, "*pts 2"],
+    dist: Float[np.ndarray, " K"],
+    max_iter: int = 200,
+    tol: float = 1e-15,
 ) -> Float[np.ndarray, "*pts 2"]:
     """NumPy batch inverse of :func:`distort_normalized` for one camera.
 
@@ -357,9 +380,16 @@ def dlt_camera_constants(
     for r in (0, 1):
         pr = pmats[:, r]
         by_power = []
-        for lhs, rhs, sign in (((p2, p2), None, 1.0), ((p2, pr), (pr, p2), -1.0), ((pr, pr), None, 1.0)):
+        for lhs, rhs, sign in (
+            ((p2, p2), None, 1.0),
+            ((p2, pr), (pr, p2), -1.0),
+            ((pr, pr), None, 1.0),
+        ):
+
             def outer(x, y):
-                return [x[:, i] * y[:, j] for i, j in _UPPER] + [-x[:, i] * y[:, 3] for i in range(3)]
+                return [x[:, i] * y[:, j] for i, j in _UPPER] + [
+                    -x[:, i] * y[:, 3] for i in range(3)
+                ]
 
             cols = outer(*lhs)
             if rhs is not None:
@@ -369,7 +399,11 @@ def dlt_camera_constants(
         p2_3, pr_3 = p2[:, :3], pr[:, :3]
         norms.append(
             xp.stack(
-                [xp.sum(p2_3 * p2_3, axis=-1), -2.0 * xp.sum(p2_3 * pr_3, axis=-1), xp.sum(pr_3 * pr_3, axis=-1)],
+                [
+                    xp.sum(p2_3 * p2_3, axis=-1),
+                    -2.0 * xp.sum(p2_3 * pr_3, axis=-1),
+                    xp.sum(pr_3 * pr_3, axis=-1),
+                ],
                 axis=-1,
             )
         )
@@ -421,7 +455,10 @@ def dlt_features(
 
 
 def dlt_solve_terms(
-    xp: ModuleType, terms: Float[AnyArray, " 9 *pts"], n_valid: int | Float[AnyArray, "*pts"], min_views: int = 2
+    xp: ModuleType,
+    terms: Float[AnyArray, " 9 *pts"],
+    n_valid: int | Float[AnyArray, "*pts"],
+    min_views: int = 2,
 ) -> Float[AnyArray, "*pts 3"]:
     """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``.
 
@@ -432,7 +469,10 @@ def dlt_solve_terms(
 
 
 def dlt_solve_components(
-    xp: ModuleType, terms: Float[AnyArray, " 9 *pts"], n_valid: int | Float[AnyArray, "*pts"], min_views: int = 2
+    xp: ModuleType,
+    terms: Float[AnyArray, " 9 *pts"],
+    n_valid: int | Float[AnyArray, "*pts"],
+    min_views: int = 2,
 ) -> tuple[Float[AnyArray, "*pts"], Float[AnyArray, "*pts"], Float[AnyArray, "*pts"]]:
     """:func:`dlt_solve_terms` returning the coordinates ``(x, y, z)`` separately."""
     m00, m01, m02, m11, m12, m22, b0, b1, b2 = (terms[i] for i in range(9))
@@ -463,7 +503,11 @@ def dlt_solve(
     n_views = pts2d.shape[0]
     pts_shape = pts2d.shape[1:-1]
     flat = xp.reshape(pts2d, (n_views, -1, 2))
-    w = None if weights is None else xp.reshape(xp.asarray(weights, dtype=xp.float64), (n_views, -1))
+    w = (
+        None
+        if weights is None
+        else xp.reshape(xp.asarray(weights, dtype=xp.float64), (n_views, -1))
+    )
     quad, norm = dlt_camera_constants(xp, pmats)
     feats, valid = dlt_features(xp, flat, norm, w)
     terms = xp.einsum("fvn,vfk->kn", feats, quad)

@@ -263,9 +263,7 @@ class Camera:
         where = f"cameras.{name}" if name else "cameras"
         unknown = sorted(set(spec) - CAMERA_KEYS)
         if unknown:
-            raise ConfigError(
-                f"{where}: unknown key(s) {unknown}; allowed: {sorted(CAMERA_KEYS)}"
-            )
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(CAMERA_KEYS)}")
         rvec, tvec = resolve_extrinsics(spec, where)
         intr, dist = resolve_intrinsics(spec, image_size, where)
         return cls(rvec=rvec, tvec=tvec, intr=intr, dist=dist, name=name)
@@ -420,7 +418,9 @@ class CameraGroup:
         defaults = dict(defaults or {})
         image_sizes = image_sizes or {}
         if not specs:
-            raise ConfigError("cameras: the config defines no cameras (add [cameras.<name>] tables)")
+            raise ConfigError(
+                "cameras: the config defines no cameras (add [cameras.<name>] tables)"
+            )
         cameras = {}
         for name, own in specs.items():
             own = dict(own or {})
@@ -435,7 +435,9 @@ class CameraGroup:
                 base = {k: v for k, v in defaults.items() if k not in ORBIT_KEYS}
             elif orbit:
                 base = {k: v for k, v in defaults.items() if k not in EXPLICIT_KEYS}
-            cameras[name] = Camera.from_spec({**base, **own}, name=name, image_size=image_sizes.get(name))
+            cameras[name] = Camera.from_spec(
+                {**base, **own}, name=name, image_size=image_sizes.get(name)
+            )
         return cls(cameras)
 
     @classmethod
@@ -513,7 +515,9 @@ class CameraGroup:
         """Project world points ``(*pts, 3)`` through every camera -> ``(V, *pts, 2)``."""
         return project_points(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
 
-    def undistort_points(self, pts2d: Float[np.ndarray, "V *pts 2"]) -> Float[np.ndarray, "V *pts 2"]:
+    def undistort_points(
+        self, pts2d: Float[np.ndarray, "V *pts 2"]
+    ) -> Float[np.ndarray, "V *pts 2"]:
         """Remove lens distortion from pixels ``(V, *pts, 2)`` (same intrinsics, no distortion)."""
         pts2d = np.asarray(pts2d, dtype=np.float64)
         if not np.any(self.dists):
@@ -597,4 +601,3 @@ class CameraGroup:
                 f"array has {arr.shape[0]} views on axis 0 but the rig has {len(self)} "
                 f"cameras {self.names}"
             )
-

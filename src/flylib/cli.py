@@ -86,7 +86,11 @@ def summarize_results(path: Path) -> dict:
         source_2d = next((s for s in reversed(_STAGES_2D) if f"{s}/points" in f), None)
         pts2d = f[f"{source_2d}/points"][()] if source_2d else None
         pts3d = f[f"{stage_3d}/points3d"][()] if stage_3d else None
-        err = f[f"{stage_3d}/reproj_error"][()] if stage_3d and f"{stage_3d}/reproj_error" in f else None
+        err = (
+            f[f"{stage_3d}/reproj_error"][()]
+            if stage_3d and f"{stage_3d}/reproj_error" in f
+            else None
+        )
 
     points = []
     for p, name in enumerate(names):
@@ -96,7 +100,10 @@ def summarize_results(path: Path) -> dict:
         if pts3d is not None:
             row["reconstructed"] = float(np.isfinite(pts3d[:, p]).all(-1).mean())
         if err is not None:
-            row["err_median"], row["err_p95"] = _percentile(err[:, :, p], 50), _percentile(err[:, :, p], 95)
+            row["err_median"], row["err_p95"] = (
+                _percentile(err[:, :, p], 50),
+                _percentile(err[:, :, p], 95),
+            )
         points.append(row)
     bone_rows = []
     if pts3d is not None:
@@ -105,13 +112,21 @@ def summarize_results(path: Path) -> dict:
             median = _percentile(length, 50)
             iqr = _percentile(length, 75) - _percentile(length, 25)
             spread = iqr / median if median > 0 else float("nan")
-            bone_rows.append({
-                "bone": f"{names[a]}-{names[b]}",
-                "frames": int(np.isfinite(length).sum()),
-                "median_length": median,
-                "spread": spread,
-            })
-    return {"meta": meta, "stages": stages, "points": points, "bones": bone_rows, "stage_3d": stage_3d}
+            bone_rows.append(
+                {
+                    "bone": f"{names[a]}-{names[b]}",
+                    "frames": int(np.isfinite(length).sum()),
+                    "median_length": median,
+                    "spread": spread,
+                }
+            )
+    return {
+        "meta": meta,
+        "stages": stages,
+        "points": points,
+        "bones": bone_rows,
+        "stage_3d": stage_3d,
+    }
 
 
 # -- printing ---------------------------------------------------------------------
@@ -131,7 +146,9 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
 
     def line(values) -> str:
-        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
+        return "  ".join(
+            v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths))
+        )
 
     print(title)
     print(line([h for _, h in columns]))
@@ -150,32 +167,53 @@ def _cmd_inspect(args) -> int:
             print(f"flylib inspect: {line}", file=sys.stderr)
         return 1
     if unchecked:
-        print(f"flylib inspect: note: {args.results}: {len(unchecked)} datasets carry no checksum "
-              f"(e.g. {unchecked[0]}; written by an older flylib), so their integrity cannot be "
-              "verified; re-run the workflow to regenerate the file", file=sys.stderr)
+        print(
+            f"flylib inspect: note: {args.results}: {len(unchecked)} datasets carry no checksum "
+            f"(e.g. {unchecked[0]}; written by an older flylib), so their integrity cannot be "
+            "verified; re-run the workflow to regenerate the file",
+            file=sys.stderr,
+        )
     summary = summarize_results(args.results)
     meta = summary["meta"]
-    print(f"{args.results}  (format version {meta.get('deeperfly_format_version', '?')}, "
-          f"created {meta.get('created_utc', '?')})")
+    print(
+        f"{args.results}  (format version {meta.get('deeperfly_format_version', '?')}, "
+        f"created {meta.get('created_utc', '?')})"
+    )
     _print_table(
         "stages",
         summary["stages"],
-        [("stage", "stage"), ("views", "views"), ("frames", "frames"), ("observed_2d", "2D observed"),
-         ("reconstructed", "3D reconstructed"), ("err_median", "err median px"), ("err_p95", "err p95 px"),
-         ("cameras", "cameras")],
+        [
+            ("stage", "stage"),
+            ("views", "views"),
+            ("frames", "frames"),
+            ("observed_2d", "2D observed"),
+            ("reconstructed", "3D reconstructed"),
+            ("err_median", "err median px"),
+            ("err_p95", "err p95 px"),
+            ("cameras", "cameras"),
+        ],
     )
     _print_table(
         f"points ({summary['stage_3d'] or 'no 3D stage'})",
         summary["points"],
-        [("point", "point"), ("views_observing", "views/frame"), ("reconstructed", "reconstructed"),
-         ("err_median", "err median px"), ("err_p95", "err p95 px")],
+        [
+            ("point", "point"),
+            ("views_observing", "views/frame"),
+            ("reconstructed", "reconstructed"),
+            ("err_median", "err median px"),
+            ("err_p95", "err p95 px"),
+        ],
     )
     if summary["bones"]:
         _print_table(
             "bones",
             summary["bones"],
-            [("bone", "bone"), ("frames", "frames"), ("median_length", "median length"),
-             ("spread", "IQR / median")],
+            [
+                ("bone", "bone"),
+                ("frames", "frames"),
+                ("median_length", "median length"),
+                ("spread", "IQR / median"),
+            ],
         )
     if summary["stage_3d"]:
         _print_suspects(args.results)
@@ -192,8 +230,16 @@ def _print_provenance(args) -> int:
     rows = provenance_report(args.results, config)
     _print_table(
         f"provenance (params hashes; compared with {config_path or 'no config: pass --config'})",
-        [{"stage": r.stage, "recorded": r.recorded, "expected": r.expected, "status": r.status} for r in rows],
-        [("stage", "stage"), ("recorded", "recorded"), ("expected", "config gives"), ("status", "status")],
+        [
+            {"stage": r.stage, "recorded": r.recorded, "expected": r.expected, "status": r.status}
+            for r in rows
+        ],
+        [
+            ("stage", "stage"),
+            ("recorded", "recorded"),
+            ("expected", "config gives"),
+            ("status", "status"),
+        ],
     )
     problems = [line for r in rows for line in r.problems]
     for line in problems:
@@ -213,8 +259,10 @@ def _print_suspects(path: Path) -> None:
         return
     reasons = Counter(r for rs in suspects.reasons for r in rs.split(";"))
     detail = ", ".join(f"{name} {n}" for name, n in reasons.most_common())
-    print(f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
-          + (f" ({detail}); review them with `flylib gui {path}`" if len(suspects) else ""))
+    print(
+        f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
+        + (f" ({detail}); review them with `flylib gui {path}`" if len(suspects) else "")
+    )
 
 
 def _load_result(path: Path):
@@ -227,14 +275,25 @@ def _cmd_export(args) -> int:
     from .interop.exports import export_result
 
     if args.csv3d is None and args.dlc_dir is None and args.nwb is None:
-        raise FlylibError("export: nothing to do; pass --csv3d FILE, --dlc-dir DIR and/or --nwb FILE")
+        raise FlylibError(
+            "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR and/or --nwb FILE"
+        )
     if args.nwb is not None:
         from .interop.nwb import export_nwb_command
 
-        print(export_nwb_command(args.results, args.nwb, config_path=args.config,
-                                 recording=args.recording, metadata_path=args.nwb_metadata))
+        print(
+            export_nwb_command(
+                args.results,
+                args.nwb,
+                config_path=args.config,
+                recording=args.recording,
+                metadata_path=args.nwb_metadata,
+            )
+        )
     if args.csv3d is not None or args.dlc_dir is not None:
-        for path in export_result(_load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+        for path in export_result(
+            _load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir
+        ):
             print(path)
     return 0
 
@@ -246,7 +305,9 @@ def _cmd_calibration(args) -> int:
     with open_checked(args.results) as f:
         stage = "bundle_adjustment" if "bundle_adjustment/cameras" in f else "pose2d"
     path = write_anipose_toml(
-        result.cameras, args.output, result.image_sizes or {},
+        result.cameras,
+        args.output,
+        result.image_sizes or {},
         metadata={"source": str(args.results), "rig": stage},
     )
     print(path)
@@ -259,8 +320,10 @@ def _cmd_check_config(args) -> int:
 
     layers = ConfigLayers.from_files(args.configfiles)
     _, recordings = load_run_config(layers)
-    print(f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
-          + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings))
+    print(
+        f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
+        + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
+    )
     return 0
 
 
@@ -270,29 +333,56 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("inspect", help="integrity, per-stage and per-point summary and provenance of a results.h5")
+    p = sub.add_parser(
+        "inspect", help="integrity, per-stage and per-point summary and provenance of a results.h5"
+    )
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
-    p.add_argument("--config", type=Path, default=None,
-                   help="config to compare the recorded params hashes with (default: the "
-                        "config.yaml snapshot beside RESULTS_H5)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="config to compare the recorded params hashes with (default: the "
+        "config.yaml snapshot beside RESULTS_H5)",
+    )
     p.set_defaults(func=_cmd_inspect)
 
-    p = sub.add_parser("export", help="3D as Anipose CSV, 2D as per-view DeepLabCut CSVs, all as NWB")
+    p = sub.add_parser(
+        "export", help="3D as Anipose CSV, 2D as per-view DeepLabCut CSVs, all as NWB"
+    )
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("--csv3d", type=Path, help="write the 3D points to this CSV")
     p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
     p.add_argument("--nwb", type=Path, help="write an NWB file (ndx-pose) here")
-    p.add_argument("--config", type=Path, default=None,
-                   help="NWB: the run's config (default: the config.yaml snapshot beside RESULTS_H5)")
-    p.add_argument("--recording", type=Path, default=None,
-                   help="NWB: the recording directory (footage, nwb.yaml; default: the one results.h5 names)")
-    p.add_argument("--nwb-metadata", type=Path, default=None,
-                   help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="NWB: the run's config (default: the config.yaml snapshot beside RESULTS_H5)",
+    )
+    p.add_argument(
+        "--recording",
+        type=Path,
+        default=None,
+        help="NWB: the recording directory (footage, nwb.yaml; default: the one results.h5 names)",
+    )
+    p.add_argument(
+        "--nwb-metadata",
+        type=Path,
+        default=None,
+        help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml",
+    )
     p.set_defaults(func=_cmd_export)
 
-    p = sub.add_parser("check-config", help="check config files as `snakemake` would, naming file, line and key")
-    p.add_argument("configfiles", type=Path, nargs="+", metavar="CONFIG",
-                   help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml")
+    p = sub.add_parser(
+        "check-config", help="check config files as `snakemake` would, naming file, line and key"
+    )
+    p.add_argument(
+        "configfiles",
+        type=Path,
+        nargs="+",
+        metavar="CONFIG",
+        help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml",
+    )
     p.set_defaults(func=_cmd_check_config)
 
     p = sub.add_parser("calibration", help="write the run's camera rig as an Anipose TOML")
@@ -301,11 +391,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_calibration)
 
     p = sub.add_parser("gui", help="review and correct a recording's 3D pose in the browser")
-    p.add_argument("results", type=Path, metavar="OUTDIR_OR_RESULTS_H5",
-                   help="a recording's output directory or its results.h5")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default 127.0.0.1; any other needs the printed token URL)")
-    p.add_argument("--port", type=int, default=8765, help="port (default 8765; a busy one is replaced)")
+    p.add_argument(
+        "results",
+        type=Path,
+        metavar="OUTDIR_OR_RESULTS_H5",
+        help="a recording's output directory or its results.h5",
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1; any other needs the printed token URL)",
+    )
+    p.add_argument(
+        "--port", type=int, default=8765, help="port (default 8765; a busy one is replaced)"
+    )
     p.add_argument("--no-browser", action="store_true", help="only print the URL")
     p.set_defaults(func=_cmd_gui)
     return parser
@@ -321,7 +420,9 @@ def _cmd_gui(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``flylib`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
+    )
     try:
         status = args.func(args)
         sys.stdout.flush()

@@ -105,8 +105,10 @@ class Corrections:
         self.points3d = np.asarray(self.points3d, dtype=np.float64)
         self.edited3d = np.asarray(self.edited3d, dtype=bool)
         if self.points3d.shape != (*shape[1:], 3) or self.edited3d.shape != shape[1:]:
-            raise ValueError(f"points3d / edited must be {(*shape[1:], 3)} / {shape[1:]}, got "
-                             f"{self.points3d.shape} / {self.edited3d.shape}")
+            raise ValueError(
+                f"points3d / edited must be {(*shape[1:], 3)} / {shape[1:]}, got "
+                f"{self.points3d.shape} / {self.edited3d.shape}"
+            )
 
     # -- construction and I/O ---------------------------------------------------------
 
@@ -147,35 +149,53 @@ class Corrections:
             meta = read_meta_from(f)
             version = meta.get(_META_KEY)
             if not isinstance(version, int) or isinstance(version, bool):
-                raise ResultsError(f"{path}: no {_META_KEY} in attrs['meta']; not a corrections "
-                                   f"sidecar ({fix})")
+                raise ResultsError(
+                    f"{path}: no {_META_KEY} in attrs['meta']; not a corrections sidecar ({fix})"
+                )
             if version > CORRECTIONS_FORMAT_VERSION or version < 1:
-                raise ResultsError(f"{path}: corrections format version {version}, this flylib "
-                                   f"reads 1 to {CORRECTIONS_FORMAT_VERSION}; update flylib")
-            for name in ("pose2d_corrections/points", "pose2d_corrections/edited",
-                         "pose3d_corrections/points3d", "pose3d_corrections/edited"):
+                raise ResultsError(
+                    f"{path}: corrections format version {version}, this flylib "
+                    f"reads 1 to {CORRECTIONS_FORMAT_VERSION}; update flylib"
+                )
+            for name in (
+                "pose2d_corrections/points",
+                "pose2d_corrections/edited",
+                "pose3d_corrections/points3d",
+                "pose3d_corrections/edited",
+            ):
                 if name not in f:
                     raise ResultsError(f"{path}: has no {name} dataset; {fix}")
             g2 = f["pose2d_corrections"]
             points = np.asarray(g2["points"][()], dtype=np.float64)
             if points.ndim != 4 or points.shape[-1] != 2:
-                raise ResultsError(f"{path}: pose2d_corrections/points must be (V, T, P, 2), "
-                                   f"got {points.shape}; {fix}")
+                raise ResultsError(
+                    f"{path}: pose2d_corrections/points must be (V, T, P, 2), "
+                    f"got {points.shape}; {fix}"
+                )
             masks = {}
             for name in ("edited", "fixed", "invisible"):
-                masks[name] = (np.asarray(g2[name][()], dtype=bool) if name in g2
-                               else np.zeros(points.shape[:3], bool))
+                masks[name] = (
+                    np.asarray(g2[name][()], dtype=bool)
+                    if name in g2
+                    else np.zeros(points.shape[:3], bool)
+                )
             g3 = f["pose3d_corrections"]
             try:
-                out = cls(points=points, points3d=g3["points3d"][()], edited3d=g3["edited"][()],
-                          source=str(meta.get("source", "")),
-                          created_utc=str(meta.get("created_utc", "")), **masks)
+                out = cls(
+                    points=points,
+                    points3d=g3["points3d"][()],
+                    edited3d=g3["edited"][()],
+                    source=str(meta.get("source", "")),
+                    created_utc=str(meta.get("created_utc", "")),
+                    **masks,
+                )
             except ValueError as err:
                 raise ResultsError(f"{path}: inconsistent shapes ({err}); {fix}") from None
         if shape is not None and tuple(out.shape) != tuple(shape):
             raise ResultsError(
                 f"{path}: corrects a result of (views, frames, points) {out.shape}, but this one "
-                f"is {tuple(shape)}; it belongs to another recording or run ({fix})")
+                f"is {tuple(shape)}; it belongs to another recording or run ({fix})"
+            )
         return out
 
     def save(self, path: str | Path) -> Path:
@@ -187,8 +207,11 @@ class Corrections:
             Destination, normally ``<outdir>/corrections.h5``.
         """
         self.created_utc = datetime.now(UTC).isoformat()
-        meta = {_META_KEY: CORRECTIONS_FORMAT_VERSION, "source": self.source,
-                "created_utc": self.created_utc}
+        meta = {
+            _META_KEY: CORRECTIONS_FORMAT_VERSION,
+            "source": self.source,
+            "created_utc": self.created_utc,
+        }
         with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
             f.attrs["meta"] = json.dumps(meta)
             g2 = f.create_group("pose2d_corrections")
@@ -207,8 +230,15 @@ class Corrections:
         """``(V, T, P)``."""
         return tuple(self.edited.shape)
 
-    def set_point(self, view: int, frame: int, point: int, xy: Float[np.ndarray, " 2"] | tuple[float, float], *,
-                  fixed: bool = False) -> None:
+    def set_point(
+        self,
+        view: int,
+        frame: int,
+        point: int,
+        xy: Float[np.ndarray, " 2"] | tuple[float, float],
+        *,
+        fixed: bool = False,
+    ) -> None:
         """Place a 2D point (clears its ``invisible`` flag)."""
         self.points[view, frame, point] = np.asarray(xy, dtype=np.float64)
         self.edited[view, frame, point] = True
@@ -222,7 +252,9 @@ class Corrections:
         self.fixed[view, frame, point] = False
         self.invisible[view, frame, point] = True
 
-    def set_point3d(self, frame: int, point: int, xyz: Float[np.ndarray, " 3"] | tuple[float, float, float]) -> None:
+    def set_point3d(
+        self, frame: int, point: int, xyz: Float[np.ndarray, " 3"] | tuple[float, float, float]
+    ) -> None:
         """Place a 3D point."""
         self.points3d[frame, point] = np.asarray(xyz, dtype=np.float64)
         self.edited3d[frame, point] = True
@@ -289,9 +321,14 @@ class Corrections:
         p = np.arange(self.shape[2])[points]
         ix = np.ix_(f, p)
         return Corrections(
-            points=self.points[:, ix[0], ix[1]], edited=self.edited[:, ix[0], ix[1]],
-            fixed=self.fixed[:, ix[0], ix[1]], invisible=self.invisible[:, ix[0], ix[1]],
-            points3d=self.points3d[ix], edited3d=self.edited3d[ix], source=self.source)
+            points=self.points[:, ix[0], ix[1]],
+            edited=self.edited[:, ix[0], ix[1]],
+            fixed=self.fixed[:, ix[0], ix[1]],
+            invisible=self.invisible[:, ix[0], ix[1]],
+            points3d=self.points3d[ix],
+            edited3d=self.edited3d[ix],
+            source=self.source,
+        )
 
 
 def reconstruct_corrected(
@@ -300,8 +337,12 @@ def reconstruct_corrected(
     pts2d: Float[np.ndarray, "V T P 2"],
     conf: Float[np.ndarray, "V T P"] | None = None,
     corrections: Corrections | None = None,
-) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"],
-           Bool[np.ndarray, "T P"]]:
+) -> tuple[
+    Float[np.ndarray, "T P 3"],
+    Float[np.ndarray, "V T P 2"],
+    Float[np.ndarray, "V T P"],
+    Bool[np.ndarray, "T P"],
+]:
     """Triangulate as ``config.triangulation`` says, with manual corrections applied.
 
     Parameters
@@ -332,15 +373,19 @@ def reconstruct_corrected(
     from .triangulation import reconstruct_from_config, reprojection_error
 
     if hasattr(pts2d, "pmats") or not hasattr(cameras, "pmats"):
-        raise TypeError("reconstruct_corrected(config, cameras, pts2d, ...) takes the rig before "
-                        f"the points, got {type(cameras).__name__} for cameras")
+        raise TypeError(
+            "reconstruct_corrected(config, cameras, pts2d, ...) takes the rig before "
+            f"the points, got {type(cameras).__name__} for cameras"
+        )
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if corrections is None:
         pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
         return pts3d, clean, error, np.zeros(pts2d.shape[1:3], bool)
     if corrections.shape != pts2d.shape[:3]:
-        raise ResultsError(f"corrections of shape {corrections.shape} (views, frames, points) do not "
-                           f"match the 2D points {pts2d.shape[:3]}; save them again from `flylib gui`")
+        raise ResultsError(
+            f"corrections of shape {corrections.shape} (views, frames, points) do not "
+            f"match the 2D points {pts2d.shape[:3]}; save them again from `flylib gui`"
+        )
     pts2d, conf = corrections.apply_2d(pts2d, conf)
     pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
     fixed = corrections.fixed & corrections.edited & np.isfinite(pts2d).all(-1)
@@ -361,8 +406,12 @@ def reconstruct_corrected(
     return pts3d, clean, error, corrections.corrected_points()
 
 
-def corrections_path(config: Any, outdir: str | Path, recording_dir: str | Path | None = None,
-                     recording_id: str | None = None) -> tuple[Path, bool]:
+def corrections_path(
+    config: Any,
+    outdir: str | Path,
+    recording_dir: str | Path | None = None,
+    recording_id: str | None = None,
+) -> tuple[Path, bool]:
     """Where a recording's corrections sidecar is, and whether the config named it.
 
     ``<outdir>/corrections.h5`` unless the config's ``corrections`` key gives a path
@@ -387,15 +436,23 @@ def corrections_path(config: Any, outdir: str | Path, recording_dir: str | Path 
     if template is None:
         return outdir / CORRECTIONS_FILE, False
     if not isinstance(template, str) or not template.strip():
-        raise ConfigError(f"corrections: expected the path (template) of a corrections.h5 or null, "
-                          f"got {template!r}")
+        raise ConfigError(
+            f"corrections: expected the path (template) of a corrections.h5 or null, "
+            f"got {template!r}"
+        )
     recording = Path(recording_dir) if recording_dir is not None else outdir
     try:
-        text = template.format(outdir=str(outdir), recording=str(recording),
-                               id=recording_id or recording.name, name=recording.name)
+        text = template.format(
+            outdir=str(outdir),
+            recording=str(recording),
+            id=recording_id or recording.name,
+            name=recording.name,
+        )
     except (KeyError, IndexError, ValueError) as exc:
-        raise ConfigError(f"corrections: unknown placeholder {exc} in {template!r}; use {{outdir}}, "
-                          "{recording}, {id} or {name}") from None
+        raise ConfigError(
+            f"corrections: unknown placeholder {exc} in {template!r}; use {{outdir}}, "
+            "{recording}, {id} or {name}"
+        ) from None
     path = Path(text).expanduser()
     return (path if path.is_absolute() else outdir / path), True
 

@@ -74,7 +74,9 @@ _GAIT_PHASE = {"lf": 0.0, "rm": 0.0, "lh": 0.0, "rf": np.pi, "lm": np.pi, "rh": 
 _BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the frame
 
 
-def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> Float[np.ndarray, "T 38 3"]:
+def synthetic_fly(
+    n_frames: int, seed: int = 0, *, fps: float = 100.0
+) -> Float[np.ndarray, "T 38 3"]:
     """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` world points.
 
     Points are in :data:`FLY38_POINTS` order. The head points to +x (the default
@@ -110,13 +112,14 @@ def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> Float[
             cos = np.cos(2 * np.pi * freq * t + phase0 + _GAIT_PHASE[leg])
             yaw = np.deg2rad(_YAW_DEG[pos] + 18.0 * sin)
             pitch = np.deg2rad(_PITCH_DEG)[None, :] + np.deg2rad(
-                np.stack([5 * cos, 15 * cos, -15 * sin, 8 * sin], axis=1))
+                np.stack([5 * cos, 15 * cos, -15 * sin, 8 * sin], axis=1)
+            )
             lateral = np.stack([np.sin(yaw), sign * np.cos(yaw), np.zeros_like(yaw)], -1)
             joint = np.tile([_COXA_X[pos], sign * _COXA_Y[pos], _BODY_Z - 0.12], (n_frames, 1))
             names = [f"{leg}_{j}" for j in _JOINTS]
             out[:, index[names[0]]] = joint
             for s, length in enumerate(_SEGMENTS):
-                direction = np.cos(pitch[:, s:s + 1]) * lateral
+                direction = np.cos(pitch[:, s : s + 1]) * lateral
                 direction[:, 2] = -np.sin(pitch[:, s])
                 joint = joint + length * direction
                 out[:, index[names[s + 1]]] = joint
@@ -125,13 +128,22 @@ def synthetic_fly(n_frames: int, seed: int = 0, *, fps: float = 100.0) -> Float[
         # the abdomen pitches as one rigid piece about its first stripe (its "bones" keep
         # their lengths): the tip rises and falls by about 0.05
         pitch = 0.05 / 0.8 * np.sin(2 * np.pi * 1.5 * t + phase0)
-        base = np.array([(-0.45, sign * 0.22, _BODY_Z + 0.05), (-0.85, sign * 0.20, _BODY_Z),
-                         (-1.25, sign * 0.12, _BODY_Z - 0.05)])
+        base = np.array(
+            [
+                (-0.45, sign * 0.22, _BODY_Z + 0.05),
+                (-0.85, sign * 0.20, _BODY_Z),
+                (-1.25, sign * 0.12, _BODY_Z - 0.05),
+            ]
+        )
         for k, point in enumerate(base):
             rel = point - base[0]
-            out[:, index[f"{side}_abdomen{k}"], 0] = base[0, 0] + rel[0] * np.cos(pitch) - rel[2] * np.sin(pitch)
+            out[:, index[f"{side}_abdomen{k}"], 0] = (
+                base[0, 0] + rel[0] * np.cos(pitch) - rel[2] * np.sin(pitch)
+            )
             out[:, index[f"{side}_abdomen{k}"], 1] = point[1]
-            out[:, index[f"{side}_abdomen{k}"], 2] = base[0, 2] + rel[0] * np.sin(pitch) + rel[2] * np.cos(pitch)
+            out[:, index[f"{side}_abdomen{k}"], 2] = (
+                base[0, 2] + rel[0] * np.sin(pitch) + rel[2] * np.cos(pitch)
+            )
     return out
 
 
@@ -224,8 +236,12 @@ def observe(
     return pts2d, likelihood
 
 
-def render_frames(points2d: np.ndarray, bones: np.ndarray, colors: list[tuple[int, int, int]],
-                  image_size: tuple[int, int]):
+def render_frames(
+    points2d: np.ndarray,
+    bones: np.ndarray,
+    colors: list[tuple[int, int, int]],
+    image_size: tuple[int, int],
+):
     """Yield ``(H, W, 3)`` uint8 frames of one view: the skeleton drawn on a dark,
     slightly textured background (so the video has something to encode).
 
@@ -313,10 +329,14 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
     skeleton = Skeleton.from_config(config)
     points = list(skeleton.point_names)
     if set(points) != set(FLY38_POINTS):
-        raise ConfigError("skeleton: the demo animates the fly38 skeleton; its point_names "
-                          f"must be the 38 fly points (got {len(points)} points)")
+        raise ConfigError(
+            "skeleton: the demo animates the fly38 skeleton; its point_names "
+            f"must be the 38 fly points (got {len(points)} points)"
+        )
     order = [FLY38_POINTS.index(p) for p in points]
-    pts3d = synthetic_fly(settings["frames"], settings["seed"], fps=float(settings["fps"]))[:, order]
+    pts3d = synthetic_fly(settings["frames"], settings["seed"], fps=float(settings["fps"]))[
+        :, order
+    ]
     image_size = (settings["height"], settings["width"])
     views = view_names(config)
     cameras = CameraGroup.from_config(config, image_sizes={v: image_size for v in views})
@@ -339,24 +359,38 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
         if source in footage:
             continue  # one source feeding several views is rendered once
         path = directory / patterns[source]
-        with atomic_path(path) as tmp, VideoWriter(
-            # A keyframe every 10 frames, as camera recorders write them: a reader (the
-            # review GUI) seeks to any frame without decoding from the start.
-            tmp, fps=float(settings["fps"]), preset="ultrafast", crf=23, options={"g": "10"}
-        ) as writer:
+        with (
+            atomic_path(path) as tmp,
+            VideoWriter(
+                # A keyframe every 10 frames, as camera recorders write them: a reader (the
+                # review GUI) seeks to any frame without decoding from the start.
+                tmp,
+                fps=float(settings["fps"]),
+                preset="ultrafast",
+                crf=23,
+                options={"g": "10"},
+            ) as writer,
+        ):
             writer.write_frames(render_frames(clean2d[v], bones, colors, image_size))
         footage[source] = path
     dlc: dict[str, Path] = {}
     for v, (view, name) in enumerate(zip(views, files["dlc"])):
         keep = visible[v]
-        dlc[view] = write_dlc_csv(directory / name, observed[v][:, keep], likelihood[v][:, keep],
-                                  [p for p, k in zip(points, keep) if k], scorer=DLC_SCORER)
+        dlc[view] = write_dlc_csv(
+            directory / name,
+            observed[v][:, keep],
+            likelihood[v][:, keep],
+            [p for p, k in zip(points, keep) if k],
+            scorer=DLC_SCORER,
+        )
     truth = _write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
     # The session metadata a lab puts beside its footage for the NWB export (synthetic here).
     from .nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
 
     write_sidecar(directory / SIDECAR, DEMO_METADATA)
-    log.info("demo recording written to %s (%d frames, %d views)", directory, len(pts3d), len(views))
+    log.info(
+        "demo recording written to %s (%d frames, %d views)", directory, len(pts3d), len(views)
+    )
     return DemoRecording(directory, footage, dlc, truth, pts3d, clean2d)
 
 
@@ -366,8 +400,10 @@ def _check_in_frame(clean2d: np.ndarray, image_size: tuple[int, int], views: lis
     inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
     for v, view in enumerate(views):
         if not inside[v].all():
-            raise ConfigError(f"cameras.{view}: the demo fly projects outside the "
-                              f"{width}x{height} frame; check the rig's distance/focal length")
+            raise ConfigError(
+                f"cameras.{view}: the demo fly projects outside the "
+                f"{width}x{height} frame; check the rig's distance/focal length"
+            )
 
 
 def _write_truth(path: Path, pts3d, clean2d, views, points, settings) -> Path:
@@ -376,8 +412,9 @@ def _write_truth(path: Path, pts3d, clean2d, views, points, settings) -> Path:
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         f.create_dataset("points3d", data=pts3d)
         f.create_dataset("points2d", data=clean2d)
-        f.attrs["meta"] = json.dumps({"views": list(views), "point_names": list(points),
-                                      "settings": settings})
+        f.attrs["meta"] = json.dumps(
+            {"views": list(views), "point_names": list(points), "settings": settings}
+        )
     return path
 
 
@@ -416,18 +453,26 @@ def demo_error(points3d: np.ndarray, truth3d: np.ndarray) -> dict[str, float]:
     points3d = np.asarray(points3d, float)
     truth3d = np.asarray(truth3d, float)
     if points3d.shape != truth3d.shape:
-        raise ValueError(f"reconstruction {points3d.shape} and truth {truth3d.shape} differ in shape")
+        raise ValueError(
+            f"reconstruction {points3d.shape} and truth {truth3d.shape} differ in shape"
+        )
     ok = np.isfinite(points3d).all(-1)
     err = np.linalg.norm(points3d - truth3d, axis=-1)[ok]
     flat_rec, flat_truth = points3d[ok], truth3d[ok]
-    aligned = (np.linalg.norm(_similarity_align(flat_rec, flat_truth) - flat_truth, axis=-1)
-               if len(flat_rec) >= 3 else np.array([np.nan]))
+    aligned = (
+        np.linalg.norm(_similarity_align(flat_rec, flat_truth) - flat_truth, axis=-1)
+        if len(flat_rec) >= 3
+        else np.array([np.nan])
+    )
     extent = np.ptp(truth3d.reshape(-1, 3), axis=0).max()
     if err.size == 0:
         err = np.array([np.nan])
     return {
-        "median": float(np.median(err)), "mean": float(np.mean(err)),
-        "p95": float(np.percentile(err, 95)), "max": float(np.max(err)),
+        "median": float(np.median(err)),
+        "mean": float(np.mean(err)),
+        "p95": float(np.percentile(err, 95)),
+        "max": float(np.max(err)),
         "median_aligned": float(np.median(aligned)),
-        "reconstructed": float(ok.mean()), "body_length": float(extent),
+        "reconstructed": float(ok.mean()),
+        "body_length": float(extent),
     }

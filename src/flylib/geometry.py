@@ -48,6 +48,7 @@ from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bi
     DLT_TERMS,
     N_DIST_COEFFS,
     distort_normalized,
+    distortion_terms as _distortion_terms,  # noqa: E402,F401
     dlt_camera_constants,
     dlt_features,
     dlt_solve,
@@ -65,11 +66,11 @@ from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bi
     rmat_to_rvec_numpy,
     rvec_to_rmat_generic,
     rvec_to_rmat_numpy,
+    split_intr as _split_intr,  # noqa: E402
     undistort_normalized,
     undistort_step,
 )
-from .camera_model import distortion_terms as _distortion_terms  # noqa: E402,F401
-from .camera_model import split_intr as _split_intr  # noqa: E402
+
 _UNDISTORT_FIXED_POINT_ITERS = 20
 _UNDISTORT_NEWTON_ITERS = 2
 
@@ -291,7 +292,9 @@ def project_full_one(
     p_cam = rvec_to_rmat_one(rvec) @ jnp.asarray(pt3d, dtype=jnp.float64) + tvec
     d = pad_dist(dist) if jnp.shape(dist)[-1] else None
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
-    return jnp.stack(pixels_from_normalized(p_cam[0] / p_cam[2], p_cam[1] / p_cam[2], fx, fy, cx, cy, d))
+    return jnp.stack(
+        pixels_from_normalized(p_cam[0] / p_cam[2], p_cam[1] / p_cam[2], fx, fy, cx, cy, d)
+    )
 
 
 @jax.jit
@@ -356,6 +359,7 @@ def project_pmat(
 
 
 # -- triangulation and rays ----------------------------------------------------------
+
 
 @jax.jit
 def triangulate_dlt(
@@ -491,7 +495,9 @@ def run_chunked(
 
     for start in range(0, n, size):
         stop = min(start + size, n)
-        chunks = [None if a is None else _padded(a[:, start:stop], size, fill) for a, fill in inputs]
+        chunks = [
+            None if a is None else _padded(a[:, start:stop], size, fill) for a, fill in inputs
+        ]
         # JAX dispatches asynchronously: a few chunks in flight overlap the kernels with
         # this loop (and with each other on several cores).
         in_flight.append((start, stop, kernel(consts, *chunks, **params)))

@@ -62,13 +62,18 @@ def _same_run(holder: dict, me: dict) -> bool:
     """Whether the holder is a live job of the same working directory on this host: the
     same Snakemake run (Snakemake itself refuses a second run in one working directory),
     e.g. visualization and kinematics of one recording running side by side."""
-    return (holder.get("host") == me["host"] and holder.get("cwd") == me["cwd"]
-            and not _is_stale(holder))
+    return (
+        holder.get("host") == me["host"]
+        and holder.get("cwd") == me["cwd"]
+        and not _is_stale(holder)
+    )
 
 
 def _describe(holder: dict) -> str:
-    return (f"pid {holder.get('pid')} on {holder.get('host')}, working directory {holder.get('cwd')}, "
-            f"job {holder.get('job')}, since {holder.get('since')}")
+    return (
+        f"pid {holder.get('pid')} on {holder.get('host')}, working directory {holder.get('cwd')}, "
+        f"job {holder.get('job')}, since {holder.get('since')}"
+    )
 
 
 def _take_over(path: Path, stale: dict | None) -> None:
@@ -150,5 +155,9 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
         yield path
     finally:
         holder = lock_holder(path)
-        if holder is not None and holder.get("pid") == me["pid"] and holder.get("host") == me["host"]:
+        if (
+            holder is not None
+            and holder.get("pid") == me["pid"]
+            and holder.get("host") == me["host"]
+        ):
             path.unlink(missing_ok=True)

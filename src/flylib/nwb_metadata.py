@@ -68,13 +68,18 @@ SUBJECT_KEYS: dict[str, str] = {
     "weight": "text",
 }
 SUBJECT_DEFAULTS = {"species": "Drosophila melanogaster"}
-REQUIRED = ("session_start_time", "experimenter", "subject.subject_id", "subject.sex",
-            "subject.age or subject.date_of_birth")
+REQUIRED = (
+    "session_start_time",
+    "experimenter",
+    "subject.subject_id",
+    "subject.sex",
+    "subject.age or subject.date_of_birth",
+)
 
 #: The embedded demo's session metadata (it is synthetic: no animal, no experimenter).
 DEMO_METADATA: dict[str, Any] = {
     "session_description": "flylib's embedded synthetic demo: a walking fly rendered through the "
-                           "default 7-camera rig (no real animal)",
+    "default 7-camera rig (no real animal)",
     "session_start_time": "2024-01-01T00:00:00+00:00",
     "experimenter": ["Demo, Flylib"],
     "institution": "none (synthetic data)",
@@ -107,28 +112,41 @@ def parse_datetime(value: Any, where: str) -> datetime:
     if isinstance(value, datetime):
         parsed = value
     elif isinstance(value, date):
-        raise ConfigError(f"{where}: {value!r} is a date; give a date and time with a timezone, "
-                          "e.g. 2024-05-01T14:03:00+02:00")
+        raise ConfigError(
+            f"{where}: {value!r} is a date; give a date and time with a timezone, "
+            "e.g. 2024-05-01T14:03:00+02:00"
+        )
     elif isinstance(value, str):
         try:
             parsed = datetime.fromisoformat(value.strip())
         except ValueError:
-            raise ConfigError(f"{where}: {value!r} is not an ISO 8601 date-time; write it like "
-                              "2024-05-01T14:03:00+02:00") from None
+            raise ConfigError(
+                f"{where}: {value!r} is not an ISO 8601 date-time; write it like "
+                "2024-05-01T14:03:00+02:00"
+            ) from None
     else:
         raise ConfigError(f"{where}: expected an ISO 8601 date-time, {_got(value)}")
     if parsed.tzinfo is None:
-        raise ConfigError(f"{where}: {value!r} has no timezone; add the offset, e.g. "
-                          f"{parsed.isoformat()}+01:00 (or Z for UTC)")
+        raise ConfigError(
+            f"{where}: {value!r} has no timezone; add the offset, e.g. "
+            f"{parsed.isoformat()}+01:00 (or Z for UTC)"
+        )
     return parsed
 
 
 def _value_problem(kind: str, value: Any, where: str) -> str | None:
     if kind == "text":
-        return None if isinstance(value, str) and value.strip() else f"{where}: expected text, {_got(value)}"
+        return (
+            None
+            if isinstance(value, str) and value.strip()
+            else f"{where}: expected text, {_got(value)}"
+        )
     if kind == "text list":
         ok = (isinstance(value, str) and value.strip()) or (
-            isinstance(value, list) and value and all(isinstance(v, str) and v.strip() for v in value))
+            isinstance(value, list)
+            and value
+            and all(isinstance(v, str) and v.strip() for v in value)
+        )
         return None if ok else f"{where}: expected text or a list of text, {_got(value)}"
     if kind == "datetime":
         try:
@@ -140,14 +158,31 @@ def _value_problem(kind: str, value: Any, where: str) -> str | None:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0
         return None if ok else f"{where}: expected a number > 0 (frames per second), {_got(value)}"
     if kind == "unit":
-        return None if value in WORLD_UNITS else f"{where}: expected one of {', '.join(WORLD_UNITS)}, {_got(value)}"
+        return (
+            None
+            if value in WORLD_UNITS
+            else f"{where}: expected one of {', '.join(WORLD_UNITS)}, {_got(value)}"
+        )
     if kind == "sex":
-        return None if value in SEXES else f"{where}: expected one of {', '.join(SEXES)}, {_got(value)}"
+        return (
+            None
+            if value in SEXES
+            else f"{where}: expected one of {', '.join(SEXES)}, {_got(value)}"
+        )
     if kind == "duration":
-        ok = isinstance(value, str) and all(
-            part == "" or _DURATION.fullmatch(part) for part in value.split("/")) and value.strip("/")
-        return None if ok else (f"{where}: expected an ISO 8601 duration such as P3D (3 days) or "
-                                f"P1D/P3D (a range), {_got(value)}")
+        ok = (
+            isinstance(value, str)
+            and all(part == "" or _DURATION.fullmatch(part) for part in value.split("/"))
+            and value.strip("/")
+        )
+        return (
+            None
+            if ok
+            else (
+                f"{where}: expected an ISO 8601 duration such as P3D (3 days) or "
+                f"P1D/P3D (a range), {_got(value)}"
+            )
+        )
     if kind == "table":
         return None if isinstance(value, Mapping) else f"{where}: expected a table, {_got(value)}"
     raise ValueError(kind)
@@ -213,7 +248,9 @@ def missing_required(metadata: Mapping) -> list[str]:
         "experimenter": bool(metadata.get("experimenter")),
         "subject.subject_id": bool(subject.get("subject_id")),
         "subject.sex": bool(subject.get("sex")),
-        "subject.age or subject.date_of_birth": bool(subject.get("age") or subject.get("date_of_birth")),
+        "subject.age or subject.date_of_birth": bool(
+            subject.get("age") or subject.get("date_of_birth")
+        ),
     }
     return [key for key in REQUIRED if not present[key]]
 
@@ -232,7 +269,9 @@ def read_sidecar(path: str | Path) -> dict[str, Any] | None:
     try:
         table = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]}); fix the file") from None
+        raise ConfigError(
+            f"{path}: not valid YAML ({str(exc).splitlines()[0]}); fix the file"
+        ) from None
     problems = metadata_problems(table, str(path))
     if problems:
         raise ConfigError("; ".join(problems))
@@ -245,12 +284,20 @@ def write_sidecar(path: str | Path, metadata: Mapping) -> Path:
 
     path = Path(path)
     with atomic_path(path) as tmp:
-        tmp.write_text(yaml.safe_dump(dict(metadata), sort_keys=False, allow_unicode=True), encoding="utf-8")
+        tmp.write_text(
+            yaml.safe_dump(dict(metadata), sort_keys=False, allow_unicode=True), encoding="utf-8"
+        )
     return path
 
 
-def recording_metadata(config: Any, recording_dir: str | Path | None, *, demo: bool = False,
-                       extra: Mapping | None = None, check: bool = True) -> dict[str, Any]:
+def recording_metadata(
+    config: Any,
+    recording_dir: str | Path | None,
+    *,
+    demo: bool = False,
+    extra: Mapping | None = None,
+    check: bool = True,
+) -> dict[str, Any]:
     """The merged session metadata of one recording (config table, sidecar, ``extra``).
 
     Parameters

@@ -79,7 +79,9 @@ def out_of_space(err: BaseException | None) -> BaseException | None:
     seen = set()
     while err is not None and id(err) not in seen:
         seen.add(id(err))
-        if getattr(err, "errno", None) in _NO_SPACE or any(os.strerror(c) in str(err) for c in _NO_SPACE):
+        if getattr(err, "errno", None) in _NO_SPACE or any(
+            os.strerror(c) in str(err) for c in _NO_SPACE
+        ):
             return err
         err = err.__cause__ or err.__context__
     return None

@@ -82,8 +82,10 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
         from .interop.anipose import CALIBRATION_FORMATS
 
         if calibration["format"] not in CALIBRATION_FORMATS:
-            problems.append(f"calibration.format: unknown format {calibration['format']!r}; "
-                            f"use one of {', '.join(CALIBRATION_FORMATS)}")
+            problems.append(
+                f"calibration.format: unknown format {calibration['format']!r}; "
+                f"use one of {', '.join(CALIBRATION_FORMATS)}"
+            )
 
     if any(rec.demo for rec in recordings):
         from .demo import demo_settings
@@ -180,9 +182,13 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
         if name not in plan.models or not path:
             continue
         if not Path(path).expanduser().is_file():
-            key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
-            problems.append(f"{key}: {path} does not exist; point it at the checkpoint file "
-                            "(or leave it empty for the published weights)")
+            key = (
+                f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
+            )
+            problems.append(
+                f"{key}: {path} does not exist; point it at the checkpoint file "
+                "(or leave it empty for the published weights)"
+            )
     for rec in detector:
         if rec.sources:
             continue
@@ -190,6 +196,7 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
         try:
             find_recording(rec.path, config, check_frames=False, strict=True)
         except FlylibError as exc:
-            problems.append(f"{where}: {_problem(exc)}; or read 2D from another tool with "
-                            "pose2d.import")
+            problems.append(
+                f"{where}: {_problem(exc)}; or read 2D from another tool with pose2d.import"
+            )
     return problems

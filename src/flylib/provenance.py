@@ -24,7 +24,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ProvenanceRow", "foreign_artifacts", "params_hash", "provenance_report", "stage_provenance"]
+__all__ = [
+    "ProvenanceRow",
+    "foreign_artifacts",
+    "params_hash",
+    "provenance_report",
+    "stage_provenance",
+]
 
 #: meta key of an artifact's own params hash.
 PARAMS_KEY = "params_sha256"
@@ -56,7 +62,9 @@ def params_hash(params: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def stage_provenance(config, stage: str, upstream: Mapping[str, str | Path | None] | None = None) -> dict:
+def stage_provenance(
+    config, stage: str, upstream: Mapping[str, str | Path | None] | None = None
+) -> dict:
     """The provenance entries of a stage artifact's ``meta``.
 
     Parameters
@@ -133,7 +141,9 @@ def snapshot_beside(results: str | Path) -> Path | None:
     return None
 
 
-def provenance_report(results: str | Path, config=None, stages_dir: str | Path | None = None) -> list[ProvenanceRow]:
+def provenance_report(
+    results: str | Path, config=None, stages_dir: str | Path | None = None
+) -> list[ProvenanceRow]:
     """Check a results file's recorded params hashes for a stale or mixed state.
 
     Parameters
@@ -167,22 +177,28 @@ def provenance_report(results: str | Path, config=None, stages_dir: str | Path |
         expected = params_hash(config.stage_params(stage)) if config is not None else None
         if expected is not None and own is not None and own != expected:
             status = "stale"
-            problems.append(f"{results}: {stage} is stale: made with params {own}, but the config "
-                            f"gives {expected}; re-run the workflow with that config")
+            problems.append(
+                f"{results}: {stage} is stale: made with params {own}, but the config "
+                f"gives {expected}; re-run the workflow with that config"
+            )
         for upstream, built_from in (meta.get(UPSTREAM_KEY) or {}).items():
             present = recorded.get(upstream)
             if upstream in recorded and built_from != present:
                 status = "mixed" if status != "stale" else status
-                problems.append(f"{results}: {stage} was built from {upstream} params {built_from}, but "
-                                f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow")
+                problems.append(
+                    f"{results}: {stage} was built from {upstream} params {built_from}, but "
+                    f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow"
+                )
         if stages_dir is not None and stage != "assemble":
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
                 on_disk = read_meta(artifact).get(PARAMS_KEY)
                 if on_disk != own:
                     status = "mixed" if status != "stale" else status
-                    problems.append(f"{artifact}: params {on_disk}, but {results.name} holds {stage} with "
-                                    f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow")
+                    problems.append(
+                        f"{artifact}: params {on_disk}, but {results.name} holds {stage} with "
+                        f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow"
+                    )
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
 
@@ -218,7 +234,9 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     lines = []
     for rec in recordings:
         outdir = Path(rec.outdir)
-        files = {stage: outdir / "stages" / name for stage, name in ARTIFACTS.items() if flags.get(stage)}
+        files = {
+            stage: outdir / "stages" / name for stage, name in ARTIFACTS.items() if flags.get(stage)
+        }
         files["assemble"] = outdir / "results.h5"
         for stage, path in files.items():
             if not path.is_file():

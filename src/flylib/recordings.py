@@ -167,21 +167,29 @@ def find_recording(
     matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
     missing = [f"{name} ({patterns[name]!r})" for name, files in matched.items() if not files]
     if missing:
-        reject(f"{directory}: no footage for source(s) {', '.join(missing)}; "
-               "a recording needs footage for every configured source")
+        reject(
+            f"{directory}: no footage for source(s) {', '.join(missing)}; "
+            "a recording needs footage for every configured source"
+        )
         return None
     ext = _pick_extension(matched)
     if ext is None:
-        reject(f"{directory}: the sources share no footage file extension "
-               f"({ {n: sorted({p.suffix for p in f}) for n, f in matched.items()} })")
+        reject(
+            f"{directory}: the sources share no footage file extension "
+            f"({ {n: sorted({p.suffix for p in f}) for n, f in matched.items()} })"
+        )
         return None
-    sources = {n: natural_sorted(p for p in files if p.suffix.lower() == ext)
-               for n, files in matched.items()}
+    sources = {
+        n: natural_sorted(p for p in files if p.suffix.lower() == ext)
+        for n, files in matched.items()
+    }
     if ext in VIDEO_EXTS:
         several = {n: [p.name for p in f] for n, f in sources.items() if len(f) > 1}
         if several:
-            reject(f"{directory}: several videos match one source {several}; "
-                   "make each source's filename pattern match a single video")
+            reject(
+                f"{directory}: several videos match one source {several}; "
+                "make each source's filename pattern match a single video"
+            )
             return None
     if check_frames:
         counts = _frame_counts(sources, ext, reject)
@@ -189,8 +197,10 @@ def find_recording(
             return None
         known = {n: c for n, c in counts.items() if c is not None}
         if len(set(known.values())) > 1:
-            reject(f"{directory}: sources have different frame counts {known}; "
-                   "every camera must cover the same frames")
+            reject(
+                f"{directory}: sources have different frame counts {known}; "
+                "every camera must cover the same frames"
+            )
             return None
     return sources
 
@@ -286,7 +296,8 @@ def resolve_recordings(
             raise FootageError(
                 f"recordings: no recording found under {[str(p) for p, _ in candidates]} "
                 "(searched recursively); a recording is a directory with footage for "
-                "every configured source")
+                "every configured source"
+            )
         return found
 
     if len(candidates) == 1 and not candidates[0][1]:
@@ -297,19 +308,31 @@ def resolve_recordings(
             # Not a warning: with imported 2D or an existing pose2d artifact this is
             # fine, and where the detector needs footage the workflow's preflight
             # reports it as one error.
-            log.info("%s; kept as a recording: its 2D must come from pose2d.import or an "
-                     "existing stages/pose2d.h5", exc)
+            log.info(
+                "%s; kept as a recording: its 2D must come from pose2d.import or an "
+                "existing stages/pose2d.h5",
+                exc,
+            )
             src = {}
         return [(path, src)]
 
-    found = _dedup((p, src) for p, is_glob in candidates
-                   if (src := (_quiet_find(p, config, check_frames) if is_glob
-                               else find_recording(p, config, check_frames=check_frames)))
-                   is not None)
+    found = _dedup(
+        (p, src)
+        for p, is_glob in candidates
+        if (
+            src := (
+                _quiet_find(p, config, check_frames)
+                if is_glob
+                else find_recording(p, config, check_frames=check_frames)
+            )
+        )
+        is not None
+    )
     if not found:
         raise FootageError(
             f"recordings: none of {[str(a) for a in inputs]} is a valid recording "
-            "(a directory with footage for every configured source); fix the paths")
+            "(a directory with footage for every configured source); fix the paths"
+        )
     return found
 
 
@@ -362,8 +385,10 @@ def check_recording_path(path: str | Path, where: str) -> None:
     if path.is_dir():
         return
     if path.exists():
-        raise ConfigError(f"{where}: {path} is a file, not a directory; list the folder that "
-                          "holds the recording's footage")
+        raise ConfigError(
+            f"{where}: {path} is a file, not a directory; list the folder that "
+            "holds the recording's footage"
+        )
     close = _close_path(path)
     hint = f"did you mean {close}?" if close is not None else "fix the path"
     raise ConfigError(f"{where}: {path} does not exist; {hint}")
@@ -393,9 +418,13 @@ def _read_sheet(path: Path) -> list[dict]:
     try:
         sheet = pd.read_csv(path, sep="\t", dtype=str, comment="#").fillna("")
     except Exception as exc:  # pandas raises several parser error types
-        raise ConfigError(f"recordings: cannot read sheet {path} ({exc}); it must be tab-separated") from exc
+        raise ConfigError(
+            f"recordings: cannot read sheet {path} ({exc}); it must be tab-separated"
+        ) from exc
     if "path" not in sheet.columns:
-        raise ConfigError(f"recordings: sheet {path} needs a 'path' column (has {list(sheet.columns)})")
+        raise ConfigError(
+            f"recordings: sheet {path} needs a 'path' column (has {list(sheet.columns)})"
+        )
     entries = []
     for i, row in sheet.iterrows():
         if not row["path"].strip():
@@ -416,8 +445,10 @@ def _read_sheet(path: Path) -> list[dict]:
                 elif len(pairs) == 1:
                     spec["files"] = files
                 else:
-                    raise ConfigError(f"recordings: {path} row {i + 2}: import_files must be "
-                                      "one file or 'view=file' pairs separated by ';'")
+                    raise ConfigError(
+                        f"recordings: {path} row {i + 2}: import_files must be "
+                        "one file or 'view=file' pairs separated by ';'"
+                    )
             entry["import"] = spec
         entries.append(entry)
     return entries
@@ -433,20 +464,25 @@ def _normalize_entries(value: Any) -> list[dict]:
         if isinstance(item, (str, os.PathLike)):
             text = str(item)
             if text.endswith(".tsv"):
-                entries += [dict(e, _sheet=text, _where=f"recordings (sheet {text})")
-                            for e in _read_sheet(Path(text))]
+                entries += [
+                    dict(e, _sheet=text, _where=f"recordings (sheet {text})")
+                    for e in _read_sheet(Path(text))
+                ]
             else:
                 entries.append({"path": text, "_where": f"recordings[{i}]"})
         elif isinstance(item, Mapping):
             unknown = set(item) - {"path", "outdir", "import", "demo", "recursive"}
             if unknown:
-                raise ConfigError(f"recordings[{i}]: unknown key(s) {sorted(unknown)}; "
-                                  "allowed: path, outdir, import, demo, recursive")
+                raise ConfigError(
+                    f"recordings[{i}]: unknown key(s) {sorted(unknown)}; "
+                    "allowed: path, outdir, import, demo, recursive"
+                )
             if not item.get("demo") and not item.get("path"):
                 raise ConfigError(f"recordings[{i}]: needs 'path' (or demo: true)")
             if item.get("import") is not None and not isinstance(item["import"], Mapping):
-                raise ConfigError(f"recordings[{i}].import: must be a mapping like "
-                                  "{format: dlc, files: ...}")
+                raise ConfigError(
+                    f"recordings[{i}].import: must be a mapping like {{format: dlc, files: ...}}"
+                )
             entries.append(dict(item, _where=f"recordings[{i}]"))
         else:
             raise ConfigError(f"recordings[{i}]: expected a path, pattern or mapping, got {item!r}")
@@ -461,7 +497,7 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
     depth = {i: 1 for i in range(len(paths)) if i not in fixed}
 
     def name(i: int) -> str:
-        parts = resolved[i].parts[-depth[i]:]
+        parts = resolved[i].parts[-depth[i] :]
         return _ID_UNSAFE.sub("_", "-".join(parts)).strip("_") or "recording"
 
     ids = dict(fixed)
@@ -470,7 +506,9 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
         groups: dict[str, list[int]] = {}
         for i, rid in ids.items():
             groups.setdefault(rid, []).append(i)
-        clashes = [i for members in groups.values() if len(members) > 1 for i in members if i in depth]
+        clashes = [
+            i for members in groups.values() if len(members) > 1 for i in members if i in depth
+        ]
         if not clashes:
             break
         grown = False
@@ -490,8 +528,10 @@ def _format_outdir(template: str, *, recording: Path, rid: str) -> Path:
     try:
         text = template.format(recording=str(recording), id=rid, name=recording.name)
     except (KeyError, IndexError) as exc:
-        raise ConfigError(f"outdir: unknown placeholder {exc} in {template!r}; "
-                          "use {recording}, {id} or {name}") from exc
+        raise ConfigError(
+            f"outdir: unknown placeholder {exc} in {template!r}; "
+            "use {recording}, {id} or {name}"
+        ) from exc
     return Path(os.path.normpath(os.path.expanduser(text)))
 
 
@@ -515,8 +555,10 @@ def demo_files(config: Any) -> dict[str, list[str]]:
     patterns = source_patterns(config)
     for name, pattern in patterns.items():
         if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
-            raise ConfigError(f"sources: {name!r} has filename {pattern!r}; the demo writes one "
-                              ".mp4 per source, so each source needs a plain '<name>.mp4' filename")
+            raise ConfigError(
+                f"sources: {name!r} has filename {pattern!r}; the demo writes one "
+                ".mp4 per source, so each source needs a plain '<name>.mp4' filename"
+            )
     by_view = view_sources(config)
     return {
         "footage": list(patterns.values()),
@@ -567,7 +609,11 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
     template = str(data.get("outdir") or DEFAULT_OUTDIR)
     default_import = (data.get("pose2d") or {}).get("import")
 
-    batch = len(entries) > 1 or recursive or any(_GLOB_CHARS.search(str(e.get("path", ""))) for e in entries)
+    batch = (
+        len(entries) > 1
+        or recursive
+        or any(_GLOB_CHARS.search(str(e.get("path", ""))) for e in entries)
+    )
 
     found: list[tuple[Path, dict, dict]] = []  # (dir, sources, entry)
     for entry in entries:
@@ -585,14 +631,19 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
             hits = [(path, src)] if src is not None else []
         elif batch or rec_recursive:
             try:
-                hits = resolve_recordings([entry["path"]], recursive=rec_recursive, config=config,
-                                          check_frames=check_frames)
+                hits = resolve_recordings(
+                    [entry["path"]],
+                    recursive=rec_recursive,
+                    config=config,
+                    check_frames=check_frames,
+                )
             except FootageError as exc:
                 log.warning("%s", exc)
                 continue
         else:
-            hits = resolve_recordings([entry["path"]], recursive=False, config=config,
-                                      check_frames=check_frames)
+            hits = resolve_recordings(
+                [entry["path"]], recursive=False, config=config, check_frames=check_frames
+            )
         found += [(p, src, entry) for p, src in hits]
 
     seen: set[Path] = set()
@@ -605,7 +656,8 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
     if not unique:
         raise FootageError(
             f"recordings: none of {[e.get('path', 'demo') for e in entries]} is a valid "
-            "recording (a directory with footage for every configured source); fix the paths")
+            "recording (a directory with footage for every configured source); fix the paths"
+        )
 
     fixed = {i: DEMO_ID for i, (_, _, e) in enumerate(unique) if e.get("demo")}
     ids = _unique_ids([p for p, _, _ in unique], fixed)
@@ -614,16 +666,24 @@ def plan_recordings(config: Any, *, check_frames: bool = True) -> list[Recording
     for (path, src, entry), rid in zip(unique, ids):
         outdir = _format_outdir(str(entry.get("outdir") or template), recording=path, rid=rid)
         if outdir.resolve() in outdirs:
-            raise ConfigError(f"outdir: recordings {outdirs[outdir.resolve()]!r} and {rid!r} "
-                              f"would both write to {outdir}; give them distinct outdirs "
-                              "(e.g. outdir: results/{id})")
+            raise ConfigError(
+                f"outdir: recordings {outdirs[outdir.resolve()]!r} and {rid!r} "
+                f"would both write to {outdir}; give them distinct outdirs "
+                "(e.g. outdir: results/{id})"
+            )
         outdirs[outdir.resolve()] = rid
         spec = entry.get("import", default_import)
         if entry.get("demo") and spec is None:
             spec = demo_import_spec(config)
-        recordings.append(Recording(id=rid, path=path, sources=src, outdir=outdir,
-                                    import_spec=dict(spec) if spec else None,
-                                    demo=bool(entry.get("demo")),
-                                    extra={"where": entry["_where"],
-                                           "own_import": entry.get("import") is not None}))
+        recordings.append(
+            Recording(
+                id=rid,
+                path=path,
+                sources=src,
+                outdir=outdir,
+                import_spec=dict(spec) if spec else None,
+                demo=bool(entry.get("demo")),
+                extra={"where": entry["_where"], "own_import": entry.get("import") is not None},
+            )
+        )
     return recordings

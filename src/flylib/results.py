@@ -27,7 +27,7 @@ import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -75,8 +75,13 @@ ARTIFACTS: dict[str, str] = {
     "refinement": "refinement.h5",
 }
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation",
-                                  "refinement")
+STAGE_GROUPS: tuple[str, ...] = (
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "refinement",
+)
 
 # Arrays with at least this many elements are chunked and compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
@@ -130,7 +135,7 @@ def fletcher32(data: bytes) -> int:
     if table.size < n:
         table = _WEIGHTS = np.arange(max(n, 1 << 19), 0, -1, dtype=np.int64) % 65535
     # word i is in the running sum of every later position: weight n - i
-    total, weighted = int(words.sum()), int(np.dot(words, table[table.size - n:]))
+    total, weighted = int(words.sum()), int(np.dot(words, table[table.size - n :]))
     if total == 0:
         return 0
 
@@ -253,7 +258,9 @@ def _verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
             info = dsid.get_chunk_info(i)
             _, raw = dsid.read_direct_chunk(info.chunk_offset)
             if len(raw) < 4 or int.from_bytes(raw[-4:], "little") != fletcher32(raw[:-4]):
-                raise OSError(f"Fletcher-32 checksum mismatch in the chunk at {tuple(info.chunk_offset)}")
+                raise OSError(
+                    f"Fletcher-32 checksum mismatch in the chunk at {tuple(info.chunk_offset)}"
+                )
     except (OSError, RuntimeError, ValueError) as err:
         raise _damaged(path, f"dataset {dataset.name}", err) from None
 
@@ -284,7 +291,7 @@ def _new_meta(stage: str, extra: Mapping | None = None) -> dict:
         **(extra or {}),
         "deeperfly_format_version": FORMAT_VERSION,
         "flylib_version": __version__,
-        "created_utc": datetime.now(timezone.utc).isoformat(),
+        "created_utc": datetime.now(UTC).isoformat(),
         "stage": stage,
     }
 
@@ -305,8 +312,14 @@ def _write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float6
     step = int(max(1, min(arr.shape[axis], _CHUNK_BYTES // max(per_step, 1))))
     chunks = list(arr.shape)
     chunks[axis] = step
-    dataset = group.create_dataset(name, shape=arr.shape, dtype=arr.dtype, chunks=tuple(chunks),
-                                   fletcher32=_FLETCHER32, **_COMPRESSION)
+    dataset = group.create_dataset(
+        name,
+        shape=arr.shape,
+        dtype=arr.dtype,
+        chunks=tuple(chunks),
+        fletcher32=_FLETCHER32,
+        **_COMPRESSION,
+    )
     _write_deflated_chunks(dataset, arr, axis, step)
     return dataset
 
@@ -330,8 +343,9 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
             pad = [(0, 0)] * arr.ndim
             pad[axis] = (0, step - slab.shape[axis])
             slab = np.pad(slab, pad)
-        return _checksummed(zlib.compress(np.ascontiguousarray(slab).tobytes(),
-                                          _COMPRESSION["compression_opts"]))
+        return _checksummed(
+            zlib.compress(np.ascontiguousarray(slab).tobytes(), _COMPRESSION["compression_opts"])
+        )
 
     for start, payload in zip(starts, thread_map(deflate, starts, _DEFLATE_THREADS)):
         offset = tuple(start if i == axis else 0 for i in range(arr.ndim))
@@ -350,7 +364,9 @@ def _write_strings(group: h5py.Group, name: str, values: Sequence[str]) -> None:
 
 def _read_strings(dataset: h5py.Dataset) -> list[str]:
     values = _read(dataset)
-    return [v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
+    return [
+        v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()
+    ]
 
 
 def _json_attrs(group: h5py.Group, attrs: Mapping | None) -> None:
@@ -404,7 +420,9 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
         except (OSError, KeyError, RuntimeError) as err:
             raise _damaged(path, "its root attributes", err) from None
         if version is None:
-            raise ResultsError(f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it")
+            raise ResultsError(
+                f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it"
+            )
         if version != FORMAT_VERSION:
             raise ResultsError(
                 f"{path}: format version {version!r}, expected {FORMAT_VERSION}; {rerun} to regenerate it"
@@ -425,7 +443,15 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
 #: failed filter or checksum, a truncated file), KeyError (a link that does not resolve),
 #: ValueError/TypeError (a dataset of another dtype or shape), RuntimeError (low-level
 #: HDF5 failures), and IndexError/AttributeError (JSON attributes of an unexpected type).
-_DAMAGE_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError)
+_DAMAGE_ERRORS = (
+    OSError,
+    KeyError,
+    ValueError,
+    TypeError,
+    RuntimeError,
+    IndexError,
+    AttributeError,
+)
 
 
 @contextmanager
@@ -515,7 +541,9 @@ def _write_skeleton(group: h5py.Group, skeleton: Skeleton) -> None:
 
 def _read_skeleton(group: h5py.Group) -> Skeleton:
     name = group.attrs.get("name", "skeleton")
-    palette = {str(k): str(v) for k, v in group["palette"].attrs.items()} if "palette" in group else {}
+    palette = (
+        {str(k): str(v) for k, v in group["palette"].attrs.items()} if "palette" in group else {}
+    )
     return Skeleton.from_arrays(
         _read_strings(group["point_names"]),
         _read_strings(group["limb_names"]),
@@ -720,9 +748,14 @@ class PoseResult:
             meta = read_meta_from(f)
             meta.pop("deeperfly_format_version", None)
             skeleton = _read_skeleton(f["skeleton"])
-            rig = next((f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f), None)
+            rig = next(
+                (f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f),
+                None,
+            )
             if rig is None:
-                raise ResultsError(f"{path}: has no cameras (pose2d/cameras); assemble it with assemble_results")
+                raise ResultsError(
+                    f"{path}: has no cameras (pose2d/cameras); assemble it with assemble_results"
+                )
             cameras = _read_cameras(rig)
 
             read: list[str] = []
@@ -767,7 +800,9 @@ def _write_candidates(group: h5py.Group, candidates: Any) -> None:
     _write_array(group, "score", candidates.score)
 
 
-def save_candidates(path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None) -> None:
+def save_candidates(
+    path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None
+) -> None:
     """Write the detector's top-K peaks to their own artifact (``candidates/{xy, score}``).
 
     Parameters
@@ -839,9 +874,13 @@ class Pose2dData:
             v, t, p = self.pts2d.shape[:3]
             xy, score = np.shape(self.candidates.xy), np.shape(self.candidates.score)
             if len(xy) != 5 or xy[:3] != (v, t, p) or xy[4] != 2 or score != xy[:4]:
-                raise ValueError(f"candidates must be xy (V, T, P, K, 2) / score (V, T, P, K), got {xy} / {score}")
+                raise ValueError(
+                    f"candidates must be xy (V, T, P, K, 2) / score (V, T, P, K), got {xy} / {score}"
+                )
 
-    def save(self, path: str | Path, skeleton: Skeleton, meta: Mapping[str, Any] | None = None) -> None:
+    def save(
+        self, path: str | Path, skeleton: Skeleton, meta: Mapping[str, Any] | None = None
+    ) -> None:
         """Write ``skeleton/`` and ``pose2d/`` to ``path`` atomically.
 
         Parameters
@@ -855,7 +894,9 @@ class Pose2dData:
             :mod:`flylib.provenance`).
         """
         if skeleton.n_points != self.pts2d.shape[2]:
-            raise ValueError(f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}")
+            raise ValueError(
+                f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}"
+            )
         with atomic_path(path) as tmp, _create(tmp) as f:
             f.attrs["meta"] = json.dumps(_new_meta("pose2d", meta))
             _write_skeleton(f.create_group("skeleton"), skeleton)
@@ -889,13 +930,17 @@ class Pose2dData:
             attrs = _read_json_attrs(group)
             candidates = None
             if "candidates" in group:
-                candidates = _make_candidates(_read(group["candidates/xy"]), _read(group["candidates/score"]))
+                candidates = _make_candidates(
+                    _read(group["candidates/xy"]), _read(group["candidates/score"])
+                )
             views = attrs.get("view_names")
             if views is None and "cameras" in group:
                 views = _read_strings(group["cameras/names"])
             return cls(
                 pts2d=_read(group["points"]),
-                conf=_read(group["conf"]) if "conf" in group else np.ones(group["points"].shape[:3]),
+                conf=_read(group["conf"])
+                if "conf" in group
+                else np.ones(group["points"].shape[:3]),
                 view_names=list(views or []),
                 image_sizes={k: tuple(v) for k, v in (attrs.get("image_sizes") or {}).items()},
                 candidates=candidates,
@@ -935,13 +980,17 @@ def write_stage(
         :mod:`flylib.provenance`).
     """
     if stage not in STAGE_GROUPS or stage == "pose2d":
-        raise ValueError(f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})")
+        raise ValueError(
+            f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})"
+        )
     with atomic_path(path) as tmp, _create(tmp) as f:
         f.attrs["meta"] = json.dumps(_new_meta(stage, meta))
         group = f.create_group(stage)
         for name, value in arrays.items():
             value = np.asarray(value)
-            _write_array(group, name, value, dtype=np.bool_ if value.dtype == np.bool_ else np.float64)
+            _write_array(
+                group, name, value, dtype=np.bool_ if value.dtype == np.bool_ else np.float64
+            )
         if cameras is not None:
             _write_cameras(group.create_group("cameras"), cameras)
         _json_attrs(group, attrs)
@@ -1017,11 +1066,17 @@ def assemble_results(
     """
     unknown = sorted(set(stage_files) - set(STAGE_GROUPS))
     if unknown:
-        raise ValueError(f"unknown stage(s) {', '.join(unknown)} (known: {', '.join(STAGE_GROUPS)})")
+        raise ValueError(
+            f"unknown stage(s) {', '.join(unknown)} (known: {', '.join(STAGE_GROUPS)})"
+        )
     if "pose2d" not in stage_files:
-        raise ResultsError(f"{out_path}: cannot assemble without the pose2d artifact; run the pose2d stage")
+        raise ResultsError(
+            f"{out_path}: cannot assemble without the pose2d artifact; run the pose2d stage"
+        )
     with atomic_path(out_path) as tmp, _create(tmp) as dst:
-        dst.attrs["meta"] = json.dumps(_new_meta("assemble", {**(meta or {}), "stages": list(stage_files)}))
+        dst.attrs["meta"] = json.dumps(
+            _new_meta("assemble", {**(meta or {}), "stages": list(stage_files)})
+        )
         _write_skeleton(dst.create_group("skeleton"), skeleton)
         for stage in STAGE_GROUPS:
             if stage not in stage_files:
@@ -1029,7 +1084,9 @@ def assemble_results(
             src_path = stage_files[stage]
             with open_checked(src_path, f"re-run the {stage} stage") as src:
                 if stage not in src:
-                    raise ResultsError(f"{src_path}: has no {stage} group; re-run the {stage} stage")
+                    raise ResultsError(
+                        f"{src_path}: has no {stage} group; re-run the {stage} stage"
+                    )
                 _check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
                 src.copy(src[stage], dst, name=stage)
                 dst[stage].attrs["meta"] = json.dumps(read_meta_from(src))
@@ -1041,7 +1098,9 @@ def assemble_results(
         _write_cameras(g2d.create_group("cameras"), config_rig)
 
 
-def _check_pose2d_matches(src: h5py.File, src_path: str | Path, skeleton: Skeleton, rig: CameraGroup) -> None:
+def _check_pose2d_matches(
+    src: h5py.File, src_path: str | Path, skeleton: Skeleton, rig: CameraGroup
+) -> None:
     if "skeleton" in src:
         detected = _read_strings(src["skeleton/point_names"])
         if list(detected) != list(skeleton.point_names):

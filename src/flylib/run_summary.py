@@ -88,8 +88,10 @@ def log_warnings(outdir: Path) -> list[str]:
 def _failed_log(outdir: Path, since: float) -> Path | None:
     """The log of a job of this run that failed: written since ``since`` and ending in an
     error line (else the newest log written since then), or ``None`` if none was written."""
-    fresh = sorted((p for p in (Path(outdir) / "logs").glob("*.log") if p.stat().st_mtime >= since),
-                   key=lambda p: p.stat().st_mtime)
+    fresh = sorted(
+        (p for p in (Path(outdir) / "logs").glob("*.log") if p.stat().st_mtime >= since),
+        key=lambda p: p.stat().st_mtime,
+    )
     for log in reversed(fresh):
         tail = log.read_text(errors="replace").strip().splitlines()[-1:]
         if tail and (tail[0].startswith("error:") or "Error" in tail[0]):
@@ -105,7 +107,12 @@ def recording_row(rec: RunRecording, since: float | None = None) -> dict[str, An
     run, and ``failed_log`` names the log to read.
     """
     path = Path(rec.outdir) / "summary.json"
-    row: dict[str, Any] = {"id": rec.id, "outdir": str(rec.outdir), "summary": None, "failed_log": None}
+    row: dict[str, Any] = {
+        "id": rec.id,
+        "outdir": str(rec.outdir),
+        "summary": None,
+        "failed_log": None,
+    }
     if since is not None:
         row["failed_log"] = _failed_log(rec.outdir, since)
         if row["failed_log"] is not None and path.is_file() and path.stat().st_mtime >= since:
@@ -144,7 +151,10 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = []
     for r in rows:
-        cells = [c.ljust(w) if i in (0, len(r) - 1) else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))]
+        cells = [
+            c.ljust(w) if i in (0, len(r) - 1) else c.rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths))
+        ]
         lines.append("  ".join(cells).rstrip())
     return lines
 
@@ -152,18 +162,23 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
 def truth_line(rec_id: str, error: dict, before: dict | None = None) -> str:
     """The demo's 3D error against its truth, as one line; with ``before`` (the
     triangulation's error when the refinement stage ran) that figure follows."""
-    line = (f"{rec_id}: 3D error against the demo truth: median {error['median']:.4f}, "
-            f"p95 {error['p95']:.4f} world units (body length {error['body_length']:.2f}); "
-            f"after similarity alignment median {error['median_aligned']:.4f}; "
-            f"{100 * error['reconstructed']:.1f}% of points reconstructed")
+    line = (
+        f"{rec_id}: 3D error against the demo truth: median {error['median']:.4f}, "
+        f"p95 {error['p95']:.4f} world units (body length {error['body_length']:.2f}); "
+        f"after similarity alignment median {error['median_aligned']:.4f}; "
+        f"{100 * error['reconstructed']:.1f}% of points reconstructed"
+    )
     if before:
-        line += (f" (refined 3D; triangulation alone: median {before['median']:.4f}, "
-                 f"p95 {before['p95']:.4f}, aligned {before['median_aligned']:.4f})")
+        line += (
+            f" (refined 3D; triangulation alone: median {before['median']:.4f}, "
+            f"p95 {before['p95']:.4f}, aligned {before['median_aligned']:.4f})"
+        )
     return line
 
 
-def run_table(recordings: Iterable[RunRecording], *, failed: bool = False,
-              since: float | None = None) -> str:
+def run_table(
+    recordings: Iterable[RunRecording], *, failed: bool = False, since: float | None = None
+) -> str:
     """The end-of-run report: the per-recording table, warnings, then the demo truth.
 
     Parameters
@@ -196,20 +211,33 @@ def run_table(recordings: Iterable[RunRecording], *, failed: bool = False,
                 status = f"failed: see {r['failed_log']}"
             elif failed:
                 status = "no result yet: see logs/"
-            line = [r["id"], "-", "-", "-", "-"] + (["-"] if with_suspects else []) + [f"{r['outdir']}  ({status})"]
+            line = (
+                [r["id"], "-", "-", "-", "-"]
+                + (["-"] if with_suspects else [])
+                + [f"{r['outdir']}  ({status})"]
+            )
         else:
-            line = [r["id"], _fmt(r["frames"], "int"), _fmt(r["reconstructed"], "percent"),
-                    _fmt(r["median"], "px"), _fmt(r["p95"], "px")]
+            line = [
+                r["id"],
+                _fmt(r["frames"], "int"),
+                _fmt(r["reconstructed"], "percent"),
+                _fmt(r["median"], "px"),
+                _fmt(r["p95"], "px"),
+            ]
             if with_suspects:
                 line.append(_fmt(r["suspects"], "int"))
             line.append(r["outdir"])
         cells.append(line)
-    title = "flylib: per-recording results" + (" (the run failed; rows without a result did not finish)"
-                                               if failed else "")
+    title = "flylib: per-recording results" + (
+        " (the run failed; rows without a result did not finish)" if failed else ""
+    )
     lines = [title, *_align(cells)]
     warnings = [f"  {rec.id}: {w}" for rec in recordings for w in log_warnings(rec.outdir)]
     if warnings:
         lines += ["warnings:", *warnings]
-    lines += [truth_line(r["id"], r["truth"], r.get("truth_before"))
-              for rec, r in zip(recordings, rows) if rec.demo and r.get("truth")]
+    lines += [
+        truth_line(r["id"], r["truth"], r.get("truth_before"))
+        for rec, r in zip(recordings, rows)
+        if rec.demo and r.get("truth")
+    ]
     return "\n".join(lines)

@@ -88,9 +88,7 @@ def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
             continue
         for point in points:
             if point not in seen:
-                problems.append(
-                    f"{where}: unknown point {point!r} (known: {', '.join(names)})"
-                )
+                problems.append(f"{where}: unknown point {point!r} (known: {', '.join(names)})")
             elif point in owner:
                 problems.append(
                     f"{where}: point {point!r} already belongs to limb {owner[point]!r}"

@@ -88,10 +88,16 @@ class Suspects:
         out = []
         for i in rows:
             p = int(self.point[i])
-            out.append({"frame": int(self.frame[i]), "point": p,
-                        "point_name": self.point_names[p] if p < len(self.point_names) else str(p),
-                        "score": round(float(self.score[i]), 3), "reasons": self.reasons[i].split(";"),
-                        "detail": self.details[i]})
+            out.append(
+                {
+                    "frame": int(self.frame[i]),
+                    "point": p,
+                    "point_name": self.point_names[p] if p < len(self.point_names) else str(p),
+                    "score": round(float(self.score[i]), 3),
+                    "reasons": self.reasons[i].split(";"),
+                    "detail": self.details[i],
+                }
+            )
         return out
 
     def to_csv(self, path: str | Path) -> Path:
@@ -100,8 +106,16 @@ class Suspects:
             writer = csv.writer(fh)
             writer.writerow(["frame", "point", "point_name", "score", "reasons", "detail"])
             for rec in self.records():
-                writer.writerow([rec["frame"], rec["point"], rec["point_name"], f"{rec['score']:.3f}",
-                                 ";".join(rec["reasons"]), rec["detail"]])
+                writer.writerow(
+                    [
+                        rec["frame"],
+                        rec["point"],
+                        rec["point_name"],
+                        f"{rec['score']:.3f}",
+                        ";".join(rec["reasons"]),
+                        rec["detail"],
+                    ]
+                )
         return Path(path)
 
 
@@ -188,7 +202,9 @@ def find_suspects(
             notes.setdefault((int(t), int(p)), []).append(text_of(t, p))
 
     # reprojection error, per view
-    thr = _robust_threshold(error.reshape(len(error), -1), k_reproj, min_reproj_px, axis=1)[:, :, None]
+    thr = _robust_threshold(error.reshape(len(error), -1), k_reproj, min_reproj_px, axis=1)[
+        :, :, None
+    ]
     with np.errstate(invalid="ignore"):
         excess = np.nanmax(np.where(np.isfinite(error), error / thr.reshape(-1, 1, 1), 0.0), axis=0)
     mask = (excess > 1.0) & has3d
@@ -210,13 +226,20 @@ def find_suspects(
         for b in np.flatnonzero(bad.any(axis=0)):
             for end in bones[b]:
                 rows = bad[:, b]
-                scores["bone_length"][rows, end] = np.maximum(scores["bone_length"][rows, end], ratio[rows, b])
+                scores["bone_length"][rows, end] = np.maximum(
+                    scores["bone_length"][rows, end], ratio[rows, b]
+                )
                 i, j = bones[b]
-                note(rows[:, None] & (np.arange(n_points) == end)[None],
-                     lambda t, p, i=i, j=j, b=b: f"bone {i}-{j} {lengths[t, b]:.3g} vs median {median[b]:.3g}")
+                note(
+                    rows[:, None] & (np.arange(n_points) == end)[None],
+                    lambda t, p, i=i, j=j, b=b: (
+                        f"bone {i}-{j} {lengths[t, b]:.3g} vs median {median[b]:.3g}"
+                    ),
+                )
 
     # jumps from the neighbouring frames
     if n_frames >= 2:
+
         def shifted(k):  # pts3d[t + k] at t, NaN outside the recording
             out = np.full_like(pts3d, np.nan)
             if k > 0:
@@ -248,10 +271,17 @@ def find_suspects(
         dropped = given & ~used_views & has3d[None]
         mask = dropped.any(axis=0)
         scores["ransac_drop"][mask] = 1.0
-        note(mask, lambda t, p: f"view(s) {', '.join(map(str, np.flatnonzero(dropped[:, t, p])))} "
-                                "dropped by the robust triangulation")
+        note(
+            mask,
+            lambda t, p: (
+                f"view(s) {', '.join(map(str, np.flatnonzero(dropped[:, t, p])))} "
+                "dropped by the robust triangulation"
+            ),
+        )
     n_used = used_views.sum(axis=0)
-    typical = np.median(np.where(has3d, n_used, np.nan), axis=0) if has3d.any() else np.zeros(n_points)
+    typical = (
+        np.median(np.where(has3d, n_used, np.nan), axis=0) if has3d.any() else np.zeros(n_points)
+    )
     mask = has3d & (n_used == 2) & (np.nan_to_num(typical) > 2)
     scores["two_views"][mask] = 0.5
     note(mask, lambda t, p: f"from 2 views (usually {typical[p]:g})")
@@ -264,9 +294,15 @@ def find_suspects(
     ts, ps = np.nonzero(suspect)
     reasons = [";".join(r for r in REASONS if scores[r][t, p] > 0) for t, p in zip(ts, ps)]
     details = ["; ".join(notes.get((int(t), int(p)), [])) for t, p in zip(ts, ps)]
-    return Suspects(frame=ts.astype(int), point=ps.astype(int), score=total[ts, ps], reasons=reasons,
-                    details=details, frame_score=frame_score,
-                    point_names=[str(n) for n in (point_names or [])])
+    return Suspects(
+        frame=ts.astype(int),
+        point=ps.astype(int),
+        score=total[ts, ps],
+        reasons=reasons,
+        details=details,
+        frame_score=frame_score,
+        point_names=[str(n) for n in (point_names or [])],
+    )
 
 
 def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
@@ -285,14 +321,25 @@ def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
 
     result = PoseResult.load(path)
     if result.pts3d is None or result.reproj_error is None:
-        raise ResultsError(f"{path}: holds no 3D points; run triangulation (or pictorial structures)")
+        raise ResultsError(
+            f"{path}: holds no 3D points; run triangulation (or pictorial structures)"
+        )
     with open_checked(path) as f:
-        source = next(f"{s}/points" for s in ("pictorial_structures", "pose2d") if f"{s}/points" in f)
+        source = next(
+            f"{s}/points" for s in ("pictorial_structures", "pose2d") if f"{s}/points" in f
+        )
         given = f[source][()]
         corrected = f["triangulation/corrected"][()] if "triangulation/corrected" in f else None
         touched = f["triangulation/corrected_2d"][()] if "triangulation/corrected_2d" in f else None
     if touched is not None:
         given = np.where(touched[..., None], np.nan, given)  # a person's call, not ransac's
-    return find_suspects(result.pts3d, result.pts2d, result.reproj_error, result.skeleton.bones,
-                         pts2d_input=given, corrected=corrected,
-                         point_names=list(result.skeleton.point_names), **thresholds)
+    return find_suspects(
+        result.pts3d,
+        result.pts2d,
+        result.reproj_error,
+        result.skeleton.bones,
+        pts2d_input=given,
+        corrected=corrected,
+        point_names=list(result.skeleton.point_names),
+        **thresholds,
+    )

@@ -34,9 +34,11 @@ def _user_path(path) -> str:
 def _config_layers() -> ConfigLayers:
     settings = workflow.config_settings
     cli = [Path(f).absolute() for f in settings.configfiles]
-    directive = [] if settings.replace_workflow_config else [
-        f for f in workflow.configfiles if Path(f).absolute() not in cli
-    ]
+    directive = (
+        []
+        if settings.replace_workflow_config
+        else [f for f in workflow.configfiles if Path(f).absolute() not in cli]
+    )
     files = [_user_path(f) for f in [*directive, *cli]]
     return ConfigLayers.from_files(files, overrides=dict(settings.config or {}))
 
@@ -115,7 +117,9 @@ def _absent_2d(rec) -> list[str]:
     needed = [ARTIFACTS["pose2d"]]
     if FLAGS["pictorial_structures"]:
         needed.append(candidates_artifact(CONFIG.pictorial.k))
-    return [str(rec.outdir / "stages" / n) for n in needed if not (rec.outdir / "stages" / n).is_file()]
+    return [
+        str(rec.outdir / "stages" / n) for n in needed if not (rec.outdir / "stages" / n).is_file()
+    ]
 
 
 def _skipped_recordings() -> set[str]:

@@ -32,18 +32,18 @@ if DEMO is not None:
     rule demo:
         output:
             DEMO_OUTPUTS,
-        params:
-            demo=_demo_params,
-            config=job_config,
-            out=lambda wildcards, output: str(Path(output[0]).parent),
         log:
             str(DEMO.outdir / "logs" / "demo.log"),
         benchmark:
             str(DEMO.outdir / "benchmarks" / "demo.tsv")
+        conda:
+            "../../envs/flylib.yaml"
         resources:
             mem_mb=2000,
             runtime=15,
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            demo=_demo_params,
+            config=job_config,
+            out=lambda wildcards, output: str(Path(output[0]).parent),
         script:
             "../../scripts/demo.py"

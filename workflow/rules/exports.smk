@@ -15,9 +15,7 @@ EXPORTS = CONFIG.data.get("exports") or {}
 NWB_FILE = "results.nwb"
 EXPORT_RECORDINGS = [rec for rec in RECORDINGS if rec.id not in SKIPPED]
 EXPORT_TARGETS = (
-    [f"{rec.outdir}/{NWB_FILE}" for rec in EXPORT_RECORDINGS]
-    if EXPORTS.get("nwb")
-    else []
+    [f"{rec.outdir}/{NWB_FILE}" for rec in EXPORT_RECORDINGS] if EXPORTS.get("nwb") else []
 )
 
 if EXPORTS.get("nwb"):
@@ -38,6 +36,7 @@ if EXPORTS.get("nwb"):
             "{outdir}/benchmarks/export_nwb.tsv"
         conda:
             "../../envs/flylib.yaml"
+        threads: 1
         resources:
             mem_mb=2000,
             runtime=15,
@@ -50,6 +49,5 @@ if EXPORTS.get("nwb"):
             config=job_config,
             recording=lambda w: str(recording(w).path),
             demo=lambda w: recording(w).demo,
-        threads: 1
         script:
             "../../scripts/export_nwb.py"

@@ -23,12 +23,12 @@ if FLAGS["kinematics"]:
             "{outdir}/benchmarks/kinematics.tsv"
         conda:
             "../../envs/flylib.yaml"
+        threads: 1
         resources:
             mem_mb=2000,
             runtime=15,
         params:
             stage=stage_params("kinematics"),
             config=job_config,
-        threads: 1
         script:
             "../../scripts/kinematics.py"

@@ -12,21 +12,21 @@ if FLAGS["pose2d"]:
             recording_inputs,
         output:
             **pose2d_outputs(),
-        params:
-            stage=stage_params("pose2d"),
-            config=job_config,
-            import_spec=pose2d_import,
-            recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/pose2d.log",
         benchmark:
             "{outdir}/benchmarks/pose2d.tsv"
+        conda:
+            "../../envs/flylib.yaml"
         threads: 2
         resources:
             mem_mb=8000,
             runtime=120,
             gpu=pose2d_gpus,
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            stage=stage_params("pose2d"),
+            config=job_config,
+            import_spec=pose2d_import,
+            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/pose2d.py"

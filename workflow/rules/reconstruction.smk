@@ -11,20 +11,20 @@ if FLAGS["bundle_adjustment"]:
             calibration=calibration_inputs,
         output:
             artifact("bundle_adjustment"),
-        params:
-            stage=stage_params("bundle_adjustment"),
-            config=job_config,
-            recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/bundle_adjustment.log",
         benchmark:
             "{outdir}/benchmarks/bundle_adjustment.tsv"
+        conda:
+            "../../envs/flylib.yaml"
+        threads: 1
         resources:
             mem_mb=2000,
             runtime=60,
-        threads: 1
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            stage=stage_params("bundle_adjustment"),
+            config=job_config,
+            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/bundle_adjustment.py"
 
@@ -36,20 +36,20 @@ if FLAGS["pictorial_structures"]:
             unpack(reconstruction_inputs("pictorial_structures")),
         output:
             artifact("pictorial_structures"),
-        params:
-            stage=stage_params("pictorial_structures"),
-            config=job_config,
-            recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/pictorial_structures.log",
         benchmark:
             "{outdir}/benchmarks/pictorial_structures.tsv"
+        conda:
+            "../../envs/flylib.yaml"
+        threads: 1
         resources:
             mem_mb=2000,
             runtime=60,
-        threads: 1
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            stage=stage_params("pictorial_structures"),
+            config=job_config,
+            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/pictorial_structures.py"
 
@@ -62,19 +62,19 @@ if FLAGS["triangulation"]:
             unpack(corrections_inputs),
         output:
             artifact("triangulation"),
-        params:
-            stage=stage_params("triangulation"),
-            config=job_config,
-            recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/triangulation.log",
         benchmark:
             "{outdir}/benchmarks/triangulation.tsv"
+        conda:
+            "../../envs/flylib.yaml"
+        threads: 2
         resources:
             mem_mb=2000,
             runtime=30,
-        threads: 2
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            stage=stage_params("triangulation"),
+            config=job_config,
+            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/triangulation.py"

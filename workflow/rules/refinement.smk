@@ -17,6 +17,7 @@ if FLAGS["refinement"]:
             "{outdir}/benchmarks/refinement.tsv"
         conda:
             "../../envs/flylib.yaml"
+        threads: 2
         resources:
             mem_mb=3000,
             runtime=60,
@@ -24,6 +25,5 @@ if FLAGS["refinement"]:
             stage=stage_params("refinement"),
             config=job_config,
             recording=lambda w: str(recording(w).path),
-        threads: 2
         script:
             "../../scripts/refinement.py"

@@ -21,18 +21,18 @@ rule assemble:
         # the config snapshot: written last, by this rule only, so it always
         # describes the results beside it (issue 14: one owner per output)
         snapshot="{outdir}/config.yaml",
-    params:
-        stage=stage_params("assemble"),
-        config=job_config,
-        recording=lambda w: str(recording(w).path),
     log:
         "{outdir}/logs/assemble.log",
     benchmark:
         "{outdir}/benchmarks/assemble.tsv"
+    conda:
+        "../../envs/flylib.yaml"
     resources:
         mem_mb=2000,
         runtime=15,
-    conda:
-        "../../envs/flylib.yaml"
+    params:
+        stage=stage_params("assemble"),
+        config=job_config,
+        recording=lambda w: str(recording(w).path),
     script:
         "../../scripts/assemble.py"

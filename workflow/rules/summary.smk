@@ -10,9 +10,7 @@ import time
 from flylib.run_summary import RunRecording, run_table
 
 _RUN_START = time.time()
-_RUN_RECORDINGS = [
-    RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r.id not in SKIPPED
-]
+_RUN_RECORDINGS = [RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r.id not in SKIPPED]
 
 
 def _print_run_table(failed: bool) -> None:

@@ -17,19 +17,19 @@ if FLAGS["visualization"] and VIDEO_NAMES:
                 )
                 for name in VIDEO_NAMES
             ],
-        params:
-            stage=stage_params("visualization"),
-            config=job_config,
-            recording=lambda w: str(recording(w).path),
         log:
             "{outdir}/logs/visualization.log",
         benchmark:
             "{outdir}/benchmarks/visualization.tsv"
+        conda:
+            "../../envs/flylib.yaml"
         threads: 2
         resources:
             mem_mb=4000,
             runtime=60,
-        conda:
-            "../../envs/flylib.yaml"
+        params:
+            stage=stage_params("visualization"),
+            config=job_config,
+            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/visualization.py"

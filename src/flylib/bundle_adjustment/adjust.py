@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import logging
 import warnings
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import OptimizeResult
@@ -36,8 +37,13 @@ from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
 from .solver import Problem
-from .unknowns import (bones_on_unknowns, lengths_per_row, start_lengths,
-                       unknowns_from_columns, valid_bones)
+from .unknowns import (
+    bones_on_unknowns,
+    lengths_per_row,
+    start_lengths,
+    unknowns_from_columns,
+    valid_bones,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..cameras import CameraGroup
@@ -62,25 +68,32 @@ SOLVERS = ("lm", "scipy")
 DISTORTION_MODES = ("auto", "free", "fixed")
 
 
-def camera_table(cameras: "CameraGroup") -> np.ndarray:
+def camera_table(cameras: CameraGroup) -> np.ndarray:
     """``(V, 10 + K)`` table of stacked ``[rvec, tvec, intr, dist]`` rows."""
     intrs = np.asarray(cameras.intrs, float)
     if intrs.shape[1] != 4:
         raise ConfigError("bundle adjustment needs intrinsics packed as [fx, fy, cx, cy]")
-    return np.concatenate([np.asarray(cameras.rvecs, float), np.asarray(cameras.tvecs, float),
-                           intrs, np.asarray(cameras.dists, float).reshape(len(intrs), -1)],
-                          axis=1)
+    return np.concatenate(
+        [
+            np.asarray(cameras.rvecs, float),
+            np.asarray(cameras.tvecs, float),
+            intrs,
+            np.asarray(cameras.dists, float).reshape(len(intrs), -1),
+        ],
+        axis=1,
+    )
 
 
-def _cameras_from_table(names, table: np.ndarray) -> "CameraGroup":
+def _cameras_from_table(names, table: np.ndarray) -> CameraGroup:
     from ..cameras import CameraGroup
 
-    return CameraGroup.from_arrays(list(names), table[:, 0:3], table[:, 3:6], table[:, 6:10],
-                                   table[:, 10:])
+    return CameraGroup.from_arrays(
+        list(names), table[:, 0:3], table[:, 3:6], table[:, 6:10], table[:, 10:]
+    )
 
 
 def bundle_adjust(
-    cameras: "CameraGroup",
+    cameras: CameraGroup,
     pts2d: np.ndarray,
     *,
     fixed: Sequence[str] = (),
@@ -102,7 +115,7 @@ def bundle_adjust(
     reseed_px: float | None = DEFAULT_RESEED_PX,
     warn_ratio: float = DEFAULT_WARN_RATIO,
     **solver_kwargs,
-) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
     """Bundle-adjust a camera group against observed 2D points.
 
     Parameters
@@ -189,11 +202,14 @@ def bundle_adjust(
     if pts2d.ndim != 3 or pts2d.shape[0] != n_views or pts2d.shape[2] != 2:
         raise ValueError(f"pts2d must be (V={n_views}, N, 2), got {pts2d.shape}")
     if solver not in SOLVERS:
-        raise ConfigError(f"bundle_adjustment.solver: unknown solver {solver!r}; "
-                          f"use one of {', '.join(SOLVERS)}")
+        raise ConfigError(
+            f"bundle_adjustment.solver: unknown solver {solver!r}; use one of {', '.join(SOLVERS)}"
+        )
     if distortion not in DISTORTION_MODES:
-        raise ConfigError(f"bundle_adjustment.distortion: unknown mode {distortion!r}; "
-                          f"use one of {', '.join(DISTORTION_MODES)}")
+        raise ConfigError(
+            f"bundle_adjustment.distortion: unknown mode {distortion!r}; "
+            f"use one of {', '.join(DISTORTION_MODES)}"
+        )
     names = list(cameras.names)
     n_cols = pts2d.shape[1]
     ids = np.arange(n_cols) if point_ids is None else np.asarray(point_ids, int).reshape(n_cols)
@@ -223,7 +239,8 @@ def bundle_adjust(
     if pts3d is None and reseed_px:
         movable = (layout.var_index[:, :6] >= 0).all(axis=1)
         table, reseeded, start_median = reseed_gross_cameras(
-            table_user, names, pts2d, usable, float(reseed_px), triangulate, movable=movable)
+            table_user, names, pts2d, usable, float(reseed_px), triangulate, movable=movable
+        )
     # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
     # converge only linearly: hold one camera and one depth during the fit instead; the
     # canonical frame below makes the result independent of which.
@@ -234,11 +251,15 @@ def bundle_adjust(
     fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
     if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
         fit_fixed += gauge_refs(table, names, observed)
-    fit_layout = build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] \
-        else layout
+    fit_layout = (
+        build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] else layout
+    )
     n_gauge = open_gauge_directions(table, fit_layout, observed)
-    cols_start = (triangulate(table, usable) if pts3d is None
-                  else np.asarray(pts3d, float).reshape(n_cols, 3).copy())
+    cols_start = (
+        triangulate(table, usable)
+        if pts3d is None
+        else np.asarray(pts3d, float).reshape(n_cols, 3).copy()
+    )
     pts = unknowns_from_columns(cols_start, ids, n_unknown)
     pts_start = pts.copy()
 
@@ -262,12 +283,24 @@ def bundle_adjust(
     problem = None
     blocks = None
     for rounds in range(1, max(int(max_rounds), 1) + 1):
-        problem, keep = _make_problem(table, fit_layout, pts2d, weight, active, pts, ids,
-                                      bone_i, bone_j, bone_t if lengths is None else lengths,
-                                      bone_g, bone_weight)
+        problem, keep = _make_problem(
+            table,
+            fit_layout,
+            pts2d,
+            weight,
+            active,
+            pts,
+            ids,
+            bone_i,
+            bone_j,
+            bone_t if lengths is None else lengths,
+            bone_g,
+            bone_weight,
+        )
         if problem is None:
-            raise ValueError("bundle adjustment: no point is seen by two or more views; "
-                             "nothing to fit")
+            raise ValueError(
+                "bundle adjustment: no point is seen by two or more views; nothing to fit"
+            )
         blocks = block_structure(problem, is_shared[keep])
         if solver == "lm":
             options = dict(solver_kwargs)
@@ -280,8 +313,7 @@ def bundle_adjust(
         else:
             result = problem.solve(table, pts[keep], **solver_kwargs)
         table, sub = problem.unpack(result.x)
-        lengths = lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep,
-                                   lengths)
+        lengths = lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep, lengths)
         pts = np.full((n_unknown, 3), np.nan)
         pts[keep] = sub
         if not reject_outliers:
@@ -294,9 +326,15 @@ def bundle_adjust(
         threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
         new_active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
         changed = int((new_active != active).sum())
-        log.info("bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
-                 "set aside, %d changed", rounds, float(np.nanmedian(err[active])),
-                 int(usable.sum() - new_active.sum()), threshold, changed)
+        log.info(
+            "bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
+            "set aside, %d changed",
+            rounds,
+            float(np.nanmedian(err[active])),
+            int(usable.sum() - new_active.sum()),
+            threshold,
+            changed,
+        )
         # a set seen before is a cycle (a few borderline observations flipping in and
         # out): as settled as it gets
         if changed <= STABLE_FRACTION * usable.sum() or new_active.tobytes() in history:
@@ -309,32 +347,52 @@ def bundle_adjust(
 
     folded = _folded_cameras(table, layout, names)
     if folded:
-        message = (f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
-                   f"refitting with it held at its starting values")
+        message = (
+            f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
+            f"refitting with it held at its starting values"
+        )
         log.warning(message)
         return bundle_adjust(
-            cameras, pts2d, fixed=[*fixed, *(f"{n}.dist" for n in folded)], shared=shared,
-            pts3d=pts3d, conf=conf, weigh_by_confidence=weigh_by_confidence, bones=bones,
-            bone_weight=bone_weight, reject_outliers=reject_outliers,
-            init_threshold=init_threshold, outlier_factor=outlier_factor,
-            outlier_min_px=outlier_min_px, max_rounds=max_rounds,
-            canonical_gauge=canonical_gauge, point_ids=point_ids, solver=solver,
-            distortion=distortion, reseed_px=reseed_px, warn_ratio=warn_ratio,
-            **solver_kwargs)
+            cameras,
+            pts2d,
+            fixed=[*fixed, *(f"{n}.dist" for n in folded)],
+            shared=shared,
+            pts3d=pts3d,
+            conf=conf,
+            weigh_by_confidence=weigh_by_confidence,
+            bones=bones,
+            bone_weight=bone_weight,
+            reject_outliers=reject_outliers,
+            init_threshold=init_threshold,
+            outlier_factor=outlier_factor,
+            outlier_min_px=outlier_min_px,
+            max_rounds=max_rounds,
+            canonical_gauge=canonical_gauge,
+            point_ids=point_ids,
+            solver=solver,
+            distortion=distortion,
+            reseed_px=reseed_px,
+            warn_ratio=warn_ratio,
+            **solver_kwargs,
+        )
 
     final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), blocks)
     ratio, n_weak = weak_directions(final.schur(0.0)[0], n_gauge)
     warnings_out: list[str] = []
     if ratio < warn_ratio:
-        beyond = ("with the similarity gauge held" if n_gauge == 0 else
-                  f"beyond the {n_gauge} open similarity (gauge) direction(s)")
+        beyond = (
+            "with the similarity gauge held"
+            if n_gauge == 0
+            else f"beyond the {n_gauge} open similarity (gauge) direction(s)"
+        )
         weakest = "0 (an exact null direction)" if ratio <= 0 else f"{ratio:.1e}"
         warnings_out.append(
             f"the rig is poorly determined: {beyond}, the reduced camera Hessian's weakest "
             f"direction is {weakest} of its strongest (< {warn_ratio:.0e}); some cameras or "
             f"point groups can move with little change in the images (e.g. a view that "
             f"connects both sides is missing): check the result, hold more parameters "
-            f"fixed or start from a calibration")
+            f"fixed or start from a calibration"
+        )
     if not stable:
         warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
     for message in warnings_out:
@@ -355,26 +413,38 @@ def bundle_adjust(
     result.report = {
         "solver": solver,
         "free": _free_report(layout, names, held, problem, int(is_shared[keep].sum())),
-        "kept_fraction": {n: (round(float(active[v].sum() / usable[v].sum()), 4)
-                              if usable[v].any() else None) for v, n in enumerate(names)},
+        "kept_fraction": {
+            n: (round(float(active[v].sum() / usable[v].sum()), 4) if usable[v].any() else None)
+            for v, n in enumerate(names)
+        },
         "rounds": rounds,
         "inliers_stable": bool(stable),
         "reseeded": reseeded,
         "unobserved": unobserved,
-        "start_median_px": None if start_median is None else {
+        "start_median_px": None
+        if start_median is None
+        else {
             n: (None if not np.isfinite(m) else round(float(m), 2))
-            for n, m in zip(names, start_median)},
+            for n, m in zip(names, start_median)
+        },
         "weakest_direction": ratio if np.isfinite(ratio) else None,
         "weak_directions": n_weak,
         "initial_median_px": initial_median if np.isfinite(initial_median) else None,
-        "final_median_px": (result.final_median_px if np.isfinite(result.final_median_px)
-                            else None),
+        "final_median_px": (
+            result.final_median_px if np.isfinite(result.final_median_px) else None
+        ),
         "warnings": warnings_out,
     }
-    log.info("bundle adjustment: median reprojection error %.2f px -> %.2f px "
-             "(%d observations, %d set aside, %d round(s), %s)",
-             result.initial_median_px, result.final_median_px, int(active.sum()),
-             int(usable.sum() - active.sum()), rounds, result.message)
+    log.info(
+        "bundle adjustment: median reprojection error %.2f px -> %.2f px "
+        "(%d observations, %d set aside, %d round(s), %s)",
+        result.initial_median_px,
+        result.final_median_px,
+        int(active.sum()),
+        int(usable.sum() - active.sum()),
+        rounds,
+        result.message,
+    )
     return result, refined, out_pts
 
 
@@ -396,8 +466,11 @@ def _folded_cameras(table, layout, names) -> list[str]:
     if table.shape[1] == 10:
         return []
     free = (layout.var_index[:, 10:] >= 0).any(axis=1)
-    return [names[v] for v in np.flatnonzero(free)
-            if radial_folds(table[v, 10:], image_radius(table[v]))]
+    return [
+        names[v]
+        for v in np.flatnonzero(free)
+        if radial_folds(table[v, 10:], image_radius(table[v]))
+    ]
 
 
 def _free_report(layout, names, held, problem, n_rigid) -> dict:
@@ -406,10 +479,15 @@ def _free_report(layout, names, held, problem, n_rigid) -> dict:
     for v, name in enumerate(names):
         free = layout.var_index[v] >= 0
         per_camera[name] = [p for p, (lo, hi) in slices.items() if hi > lo and free[lo:hi].any()]
-    return {"camera_variables": int(layout.n_free), "per_camera": per_camera,
-            "distortion_held_at_zero": len(held), "points": int(problem.n_points),
-            "rigid_points": n_rigid, "bone_lengths": int(problem.n_len),
-            "bone_rows": int(problem.n_bones)}
+    return {
+        "camera_variables": int(layout.n_free),
+        "per_camera": per_camera,
+        "distortion_held_at_zero": len(held),
+        "points": int(problem.n_points),
+        "rigid_points": n_rigid,
+        "bone_lengths": int(problem.n_len),
+        "bone_rows": int(problem.n_bones),
+    }
 
 
 def _ransac_points(cameras, pts2d, usable, threshold):
@@ -421,8 +499,9 @@ def _ransac_points(cameras, pts2d, usable, threshold):
     return np.asarray(pts3d, float)
 
 
-def _make_problem(table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_j, bone_t,
-                  bone_g, bone_weight):
+def _make_problem(
+    table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_j, bone_t, bone_g, bone_weight
+):
     """The problem over unknowns seen actively from >= 2 views, with a finite start."""
     n_views = active.shape[0]
     n_unknown = pts.shape[0]
@@ -437,12 +516,19 @@ def _make_problem(table0, layout, pts2d, weight, active, pts, ids, bone_i, bone_
     view, col = np.nonzero(obs)
     bones_ok = keep[bone_i] & keep[bone_j] if bone_i.size else np.zeros(0, bool)
     problem = Problem(
-        table0=table0, layout=layout, view=view, point=compact[ids[col]],
-        xy=pts2d[view, col], weight=weight[view, col], n_points=int(keep.sum()),
-        bone_i=compact[bone_i[bones_ok]], bone_j=compact[bone_j[bones_ok]],
-        bone_target=bone_t[bones_ok], bone_weight=float(bone_weight),
-        bone_group=None if bone_g is None else np.unique(bone_g[bones_ok],
-                                                         return_inverse=True)[1])
+        table0=table0,
+        layout=layout,
+        view=view,
+        point=compact[ids[col]],
+        xy=pts2d[view, col],
+        weight=weight[view, col],
+        n_points=int(keep.sum()),
+        bone_i=compact[bone_i[bones_ok]],
+        bone_j=compact[bone_j[bones_ok]],
+        bone_target=bone_t[bones_ok],
+        bone_weight=float(bone_weight),
+        bone_group=None if bone_g is None else np.unique(bone_g[bones_ok], return_inverse=True)[1],
+    )
     return problem, keep
 
 

@@ -49,8 +49,9 @@ def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
     return np.concatenate([centres, targets])
 
 
-def align_gauge(table0: np.ndarray, table: np.ndarray, pts: np.ndarray,
-                pts0: np.ndarray | None = None):
+def align_gauge(
+    table0: np.ndarray, table: np.ndarray, pts: np.ndarray, pts0: np.ndarray | None = None
+):
     """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start.
 
     With ``pts0`` (the starting 3D points, ``(N, 3)``, NaN where none): the similarity
@@ -94,15 +95,16 @@ def _umeyama(src: np.ndarray, dst: np.ndarray):
     u, sig, vt = np.linalg.svd(b.T @ a / len(src))
     d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
     rot = u @ d @ vt
-    var_s = (a ** 2).sum() / len(src)
+    var_s = (a**2).sum() / len(src)
     if var_s <= 0:
         return None
     scale = np.trace(np.diag(sig) @ d) / var_s
     return scale, rot, mu_d - scale * rot @ mu_s
 
 
-def _similarity_table(table: np.ndarray, scale: float, rot: np.ndarray,
-                      shift: np.ndarray) -> np.ndarray:
+def _similarity_table(
+    table: np.ndarray, scale: float, rot: np.ndarray, shift: np.ndarray
+) -> np.ndarray:
     """The camera table after mapping the world by ``X' = scale rot X + shift``."""
     out = table.copy()
     for v, rmat in enumerate(rvec_to_rmat_numpy(table[:, 0:3])):
@@ -137,7 +139,8 @@ def open_gauge_directions(table: np.ndarray, layout, observed: np.ndarray | None
         norm = np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
         other = r * (1.0 - 2.0 * np.pi / norm)
         flip = np.linalg.norm(other - table[:, 0:3], axis=1) < np.linalg.norm(
-            r - table[:, 0:3], axis=1)
+            r - table[:, 0:3], axis=1
+        )
         moved[flip, 0:3] = other[flip]
         columns.append(((moved - table)[:, :6] / eps).ravel())
     keep = np.ones(len(table), bool) if observed is None else np.asarray(observed, bool)

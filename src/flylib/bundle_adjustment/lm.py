@@ -69,8 +69,9 @@ def block_structure(problem: Problem, global_points: np.ndarray | None = None) -
     if problem.n_bones:
         bi, bj = problem.bone_i, problem.bone_j
         both = ~is_global[bi] & ~is_global[bj]
-        graph = scipy.sparse.coo_matrix((np.ones(both.sum()), (bi[both], bj[both])),
-                                        shape=(n_pts, n_pts))
+        graph = scipy.sparse.coo_matrix(
+            (np.ones(both.sum()), (bi[both], bj[both])), shape=(n_pts, n_pts)
+        )
         _, label = connected_components(graph, directed=False)
     else:
         label = np.arange(n_pts)
@@ -103,7 +104,7 @@ def _loss(name: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if name == "cauchy":
         return np.log1p(z), 1 / (1 + z)
     if name == "arctan":
-        return np.arctan(z), 1 / (1 + z ** 2)
+        return np.arctan(z), 1 / (1 + z**2)
     raise ValueError(f"unknown loss {name!r}; use one of {', '.join(LOSSES)}")
 
 
@@ -120,15 +121,17 @@ class ReducedSystem:
         # a selection matrix, not fancy indexing: padded slots must read nothing (reading
         # a camera column once per slot cost seconds with wide, mostly padded blocks)
         slot = np.flatnonzero(~padded.ravel())
-        select = scipy.sparse.csc_matrix((np.ones(slot.size), (cols.ravel()[slot], slot)),
-                                         shape=(jac.shape[1], cols.size))
+        select = scipy.sparse.csc_matrix(
+            (np.ones(slot.size), (cols.ravel()[slot], slot)), shape=(jac.shape[1], cols.size)
+        )
         jl = (csc @ select).tocsc()
         self.u = (jg.T @ jg).toarray()
         self.gg = jg.T @ res
         # W stored flat (G, B * S) for the GEMMs and as blocks (B, G, S) for batched products
         self.w = (jg.T @ jl).toarray()
         self.w_blocks = np.ascontiguousarray(
-            self.w.reshape(self.n_global, n_blocks, width).transpose(1, 0, 2))
+            self.w.reshape(self.n_global, n_blocks, width).transpose(1, 0, 2)
+        )
         v = (jl.T @ jl).tocoo()
         bi, bj = v.row // width, v.col // width
         same = bi == bj
@@ -187,10 +190,20 @@ class ReducedSystem:
         return float(-(grad + 0.5 * quad))
 
 
-def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
-             loss: str = "linear", f_scale: float = 1.0, max_nfev: int | None = None,
-             ftol: float = 1e-6, xtol: float = 1e-10, gtol: float = 1e-10,
-             max_iter: int = 100, **unused) -> OptimizeResult:
+def solve_lm(
+    problem: Problem,
+    x0: np.ndarray,
+    blocks: BlockStructure,
+    *,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    max_nfev: int | None = None,
+    ftol: float = 1e-6,
+    xtol: float = 1e-10,
+    gtol: float = 1e-10,
+    max_iter: int = 100,
+    **unused,
+) -> OptimizeResult:
     """Minimize ``problem``'s (robust) cost from ``x0`` by Levenberg-Marquardt.
 
     Parameters
@@ -231,7 +244,7 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
     def evaluate(x):
         raw = problem.residuals(x)
         rho, _ = _loss(loss, (raw / f_scale) ** 2)
-        return raw, 0.5 * f_scale ** 2 * rho.sum()
+        return raw, 0.5 * f_scale**2 * rho.sum()
 
     x = np.asarray(x0, float).copy()
     raw, cost = evaluate(x)
@@ -244,8 +257,10 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
         _, drho = _loss(loss, (raw / f_scale) ** 2)
         scale = np.sqrt(drho)
         system = ReducedSystem(scipy.sparse.diags(scale) @ jac, scale * raw, blocks)
-        gnorm = max(np.abs(system.gg).max(initial=0) / np.sqrt(system.diag_u.max()),
-                    np.abs(system.gl).max(initial=0) / np.sqrt(system.diag_v.max()))
+        gnorm = max(
+            np.abs(system.gg).max(initial=0) / np.sqrt(system.diag_u.max()),
+            np.abs(system.gl).max(initial=0) / np.sqrt(system.diag_v.max()),
+        )
         if gnorm < gtol * max(1.0, np.sqrt(2 * cost)):
             status, message = 1, "`gtol` termination condition is satisfied."
             break
@@ -261,13 +276,18 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
             predicted = system.predicted_reduction(dg, dl, lam)
             actual = cost - cost_new
             rho = actual / predicted if predicted > 0 else -1.0
-            log.debug("LM nfev %d cost %.6g -> %.6g (rho %.3g, lambda %.3g)",
-                      nfev, cost, cost_new, rho, lam)
+            log.debug(
+                "LM nfev %d cost %.6g -> %.6g (rho %.3g, lambda %.3g)",
+                nfev,
+                cost,
+                cost_new,
+                rho,
+                lam,
+            )
             if np.isfinite(cost_new) and rho > 0:
                 # shrink fast on good steps: weak directions of a long-focal rig need
                 # lambda far below their share of the diagonal before they move
-                lam = max(lam * (0.1 if rho > 0.75 else max(1 / 3, 1 - (2 * rho - 1) ** 3)),
-                          1e-15)
+                lam = max(lam * (0.1 if rho > 0.75 else max(1 / 3, 1 - (2 * rho - 1) ** 3)), 1e-15)
                 nu = 2.0
                 small_step = np.linalg.norm(dx) <= xtol * (xtol + np.linalg.norm(x))
                 small_cost = actual <= ftol * cost
@@ -286,8 +306,16 @@ def solve_lm(problem: Problem, x0: np.ndarray, blocks: BlockStructure, *,
             if not accepted and not status:
                 status, message = 2, "no further decrease (damping at its limit)"
             break
-    result = OptimizeResult(x=x, cost=float(cost), fun=raw, nfev=nfev, njev=njev,
-                            status=status, message=message, success=status > 0)
+    result = OptimizeResult(
+        x=x,
+        cost=float(cost),
+        fun=raw,
+        nfev=nfev,
+        njev=njev,
+        status=status,
+        message=message,
+        success=status > 0,
+    )
     return result
 
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -36,8 +36,9 @@ def param_slices(n_dist: int) -> dict[str, tuple[int, int]]:
     return {**PARAM_OFFSETS, "dist": (10, 10 + n_dist)}
 
 
-def expand_reference(ref: str, camera_names: Sequence[str], n_dist: int,
-                     key: str = "bundle_adjustment") -> list[list[tuple[int, int]]]:
+def expand_reference(
+    ref: str, camera_names: Sequence[str], n_dist: int, key: str = "bundle_adjustment"
+) -> list[list[tuple[int, int]]]:
     """Expand one reference to ``[(view, column), ...]`` entries, one list per camera.
 
     Raises
@@ -50,13 +51,15 @@ def expand_reference(ref: str, camera_names: Sequence[str], n_dist: int,
     if match is None:
         raise ConfigError(
             f"{key}: cannot parse parameter reference {ref!r}; write <camera>.<param> or "
-            f"<camera>.<param>[<index>], e.g. '*.intr', 'f.rvec', 'rm.tvec[2]'")
+            f"<camera>.<param>[<index>], e.g. '*.intr', 'f.rvec', 'rm.tvec[2]'"
+        )
     cam, param, idx = match["cam"], match["param"], match["idx"]
     slices = param_slices(n_dist)
     if param not in slices:
         raise ConfigError(
             f"{key}: unknown parameter {param!r} in reference {ref!r}; "
-            f"use one of rvec, tvec, intr, dist")
+            f"use one of rvec, tvec, intr, dist"
+        )
     if cam == "*":
         views = list(range(len(camera_names)))
     elif cam in camera_names:
@@ -64,7 +67,8 @@ def expand_reference(ref: str, camera_names: Sequence[str], n_dist: int,
     else:
         raise ConfigError(
             f"{key}: unknown camera {cam!r} in reference {ref!r}; "
-            f"the rig's cameras are {', '.join(camera_names)}")
+            f"the rig's cameras are {', '.join(camera_names)}"
+        )
     lo, hi = slices[param]
     columns = list(range(lo, hi))
     if idx is not None:
@@ -72,7 +76,8 @@ def expand_reference(ref: str, camera_names: Sequence[str], n_dist: int,
         if not 0 <= i < hi - lo:
             raise ConfigError(
                 f"{key}: index {i} out of range in reference {ref!r}; {param} has "
-                f"{hi - lo} entries here (valid 0..{hi - lo - 1})")
+                f"{hi - lo} entries here (valid 0..{hi - lo - 1})"
+            )
         columns = [lo + i]
     return [[(v, c) for c in columns] for v in views]
 
@@ -112,8 +117,12 @@ class ParamLayout:
         return bool((self.var_index[:, :6] >= 0).all())
 
 
-def build_layout(camera_names: Sequence[str], n_dist: int, fixed: Sequence[str] = (),
-                 shared: Sequence[Sequence[str]] = ()) -> ParamLayout:
+def build_layout(
+    camera_names: Sequence[str],
+    n_dist: int,
+    fixed: Sequence[str] = (),
+    shared: Sequence[Sequence[str]] = (),
+) -> ParamLayout:
     """Resolve ``fixed`` / ``shared`` references into a :class:`ParamLayout`.
 
     Raises
@@ -123,8 +132,10 @@ def build_layout(camera_names: Sequence[str], n_dist: int, fixed: Sequence[str] 
         references expand to different numbers of entries.
     """
     if isinstance(fixed, str) or isinstance(shared, str):
-        raise ConfigError("bundle_adjustment.fixed must be a list of references and "
-                          "bundle_adjustment.shared a list of lists of references")
+        raise ConfigError(
+            "bundle_adjustment.fixed must be a list of references and "
+            "bundle_adjustment.shared a list of lists of references"
+        )
     n_views, n_cols = len(camera_names), 10 + n_dist
     is_fixed = np.zeros((n_views, n_cols), bool)
     for ref in fixed:
@@ -145,14 +156,19 @@ def build_layout(camera_names: Sequence[str], n_dist: int, fixed: Sequence[str] 
         if isinstance(group, str):
             raise ConfigError(
                 f"bundle_adjustment.shared: each group must be a list of references, "
-                f"got the string {group!r}; write [[{group!r}, ...]]")
-        expansions = [e for ref in group
-                      for e in expand_reference(ref, camera_names, n_dist, "bundle_adjustment.shared")]
+                f"got the string {group!r}; write [[{group!r}, ...]]"
+            )
+        expansions = [
+            e
+            for ref in group
+            for e in expand_reference(ref, camera_names, n_dist, "bundle_adjustment.shared")
+        ]
         lengths = {len(e) for e in expansions}
         if len(lengths) > 1:
             raise ConfigError(
                 f"bundle_adjustment.shared: the references {list(group)} expand to different "
-                f"numbers of entries per camera ({sorted(lengths)}); tie like with like")
+                f"numbers of entries per camera ({sorted(lengths)}); tie like with like"
+            )
         for slot in zip(*expansions):
             roots = [find(v * n_cols + c) for v, c in slot]
             for r in roots[1:]:
@@ -169,6 +185,8 @@ def build_layout(camera_names: Sequence[str], n_dist: int, fixed: Sequence[str] 
     var_index = var_index.reshape(n_views, n_cols)
     widened = (var_index < 0) & ~is_fixed
     if widened.any():
-        log.info("bundle adjustment: %d entries tied to a fixed entry are held fixed too",
-                 int(widened.sum()))
+        log.info(
+            "bundle adjustment: %d entries tied to a fixed entry are held fixed too",
+            int(widened.sum()),
+        )
     return ParamLayout(var_index=var_index, n_free=len(numbering))

@@ -84,9 +84,15 @@ def leave_one_out_errors(table, pts2d, usable, triangulate) -> np.ndarray:
     return med
 
 
-def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np.ndarray,
-                         gross_px: float, triangulate, movable: np.ndarray | None = None,
-                         ) -> tuple[np.ndarray, list[str], np.ndarray]:
+def reseed_gross_cameras(
+    table: np.ndarray,
+    names,
+    pts2d: np.ndarray,
+    usable: np.ndarray,
+    gross_px: float,
+    triangulate,
+    movable: np.ndarray | None = None,
+) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Resect (or re-aim) every camera whose median error from the start is gross.
 
     Parameters
@@ -149,13 +155,19 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
         # iterative solver returned garbage from a 3-degree-off guess), then LM on inliers
         obj, img = pts_good[ok], pts2d[v][ok]
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
-            obj, img, _kmat(row), _dist(row), iterationsCount=200, reprojectionError=8.0,
-            confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+            obj,
+            img,
+            _kmat(row),
+            _dist(row),
+            iterationsCount=200,
+            reprojectionError=8.0,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
         if not found or inliers is None or len(inliers) < 6:
             continue
         inl = np.asarray(inliers).ravel()
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], _kmat(row), _dist(row),
-                                          rvec, tvec)
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], _kmat(row), _dist(row), rvec, tvec)
         candidate = row.copy()
         candidate[0:3], candidate[3:6] = np.ravel(rvec), np.ravel(tvec)
         trial = table.copy()
@@ -167,8 +179,11 @@ def reseed_gross_cameras(table: np.ndarray, names, pts2d: np.ndarray, usable: np
             reseeded = [r for r in reseeded if not r.startswith(f"{names[v]}:")]
             reseeded.append(f"{names[v]}: pnp")
     if reseeded:
-        log.info("bundle adjustment: cameras with a gross start (median error > %.0f px) "
-                 "repaired: %s", gross_px, ", ".join(reseeded))
+        log.info(
+            "bundle adjustment: cameras with a gross start (median error > %.0f px) repaired: %s",
+            gross_px,
+            ", ".join(reseeded),
+        )
     return table, reseeded, med
 
 

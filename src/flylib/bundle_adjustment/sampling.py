@@ -24,8 +24,9 @@ from ..errors import ConfigError
 FRAME_SAMPLING = ("even", "confidence", "coverage", "diversity")
 
 
-def select_frames(pts2d: np.ndarray, conf: np.ndarray | None, max_frames: int | None,
-                  method: str = "even") -> np.ndarray:
+def select_frames(
+    pts2d: np.ndarray, conf: np.ndarray | None, max_frames: int | None, method: str = "even"
+) -> np.ndarray:
     """Sorted indices of at most ``max_frames`` frames of ``pts2d`` ``(V, T, P, 2)``.
 
     ``max_frames=None`` (or at least ``T``) keeps every frame.
@@ -38,13 +39,15 @@ def select_frames(pts2d: np.ndarray, conf: np.ndarray | None, max_frames: int | 
     if method not in FRAME_SAMPLING:
         raise ConfigError(
             f"bundle_adjustment.frame_sampling: unknown strategy {method!r}; "
-            f"use one of {', '.join(FRAME_SAMPLING)}")
+            f"use one of {', '.join(FRAME_SAMPLING)}"
+        )
     n_frames = pts2d.shape[1]
     if max_frames is None or max_frames >= n_frames:
         return np.arange(n_frames)
     if max_frames < 1:
-        raise ConfigError(f"bundle_adjustment.max_frames must be >= 1 (or null for all frames), "
-                          f"got {max_frames}")
+        raise ConfigError(
+            f"bundle_adjustment.max_frames must be >= 1 (or null for all frames), got {max_frames}"
+        )
     seen = np.isfinite(pts2d).all(axis=-1)  # (V, T, P)
     if method == "even":
         return np.unique(np.linspace(0, n_frames - 1, max_frames).round().astype(int))
@@ -56,7 +59,7 @@ def select_frames(pts2d: np.ndarray, conf: np.ndarray | None, max_frames: int | 
             score = c.sum(axis=(0, 2)) / np.maximum(seen.sum(axis=(0, 2)), 1)
         return _top(score, max_frames)
     if method == "coverage":
-        triangulable = (seen.sum(axis=0) >= 2)  # (T, P)
+        triangulable = seen.sum(axis=0) >= 2  # (T, P)
         score = (seen & triangulable[None]).sum(axis=(0, 2)).astype(float)
         return _top(score, max_frames)
     return _farthest_point_frames(pts2d, seen, max_frames)

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import logging
 import warnings
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import OptimizeResult
@@ -35,10 +36,10 @@ DEFAULT_RIGID_TOLERANCE = 0.15
 
 
 def bundle_adjust_sequence(
-    cameras: "CameraGroup",
+    cameras: CameraGroup,
     pts2d: np.ndarray,
     conf: np.ndarray | None = None,
-    skeleton: "Skeleton | None" = None,
+    skeleton: Skeleton | None = None,
     *,
     points_to_use: Sequence[str] | None = None,
     max_frames: int | None = 200,
@@ -54,7 +55,7 @@ def bundle_adjust_sequence(
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
     body_points: Sequence[str] = THORAX_POINTS,
     **kwargs,
-) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
     Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
@@ -122,8 +123,12 @@ def bundle_adjust_sequence(
     n_views, n_frames, n_points, _ = pts2d.shape
     conf_arr = None if conf is None else np.asarray(conf, float)
     point_idx = _point_indices(points_to_use, skeleton, n_points)
-    frames = select_frames(pts2d[:, :, point_idx], None if conf_arr is None
-                           else conf_arr[:, :, point_idx], max_frames, frame_sampling)
+    frames = select_frames(
+        pts2d[:, :, point_idx],
+        None if conf_arr is None else conf_arr[:, :, point_idx],
+        max_frames,
+        frame_sampling,
+    )
     sub = pts2d[:, frames][:, :, point_idx]  # (V, F, Q, 2)
     n_sel, n_q = sub.shape[1], sub.shape[2]
     sub_conf = None if conf_arr is None else conf_arr[:, frames][:, :, point_idx]
@@ -137,9 +142,11 @@ def bundle_adjust_sequence(
         position[point_idx] = np.arange(n_q)
         ok = (position[bi] >= 0) & (position[bj] >= 0)
         offsets = (np.arange(n_sel) * n_q)[:, None]
-        bones = ((offsets + position[bi[ok]][None]).ravel(),
-                 (offsets + position[bj[ok]][None]).ravel(),
-                 np.tile(targets[ok], n_sel))
+        bones = (
+            (offsets + position[bi[ok]][None]).ravel(),
+            (offsets + position[bj[ok]][None]).ravel(),
+            np.tile(targets[ok], n_sel),
+        )
 
     point_ids = None
     names = list(skeleton.point_names) if skeleton is not None else []
@@ -153,10 +160,10 @@ def bundle_adjust_sequence(
         if unknown:
             raise ConfigError(
                 f"bundle_adjustment.rigid_points: unknown point(s) "
-                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names")
+                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names"
+            )
         rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
-        rigid_report = _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q,
-                                       rigid_tolerance)
+        rigid_report = _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, rigid_tolerance)
         if rigid_report["used"]:
             ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
             ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
@@ -168,9 +175,16 @@ def bundle_adjust_sequence(
         kwargs["bone_weight"] = length_weight
 
     result, refined, flat = bundle_adjust(
-        cameras, sub.reshape(n_views, n_sel * n_q, 2), fixed=fixed, shared=shared,
+        cameras,
+        sub.reshape(n_views, n_sel * n_q, 2),
+        fixed=fixed,
+        shared=shared,
         conf=None if sub_conf is None else sub_conf.reshape(n_views, -1),
-        weigh_by_confidence=weigh_by_confidence, bones=bones, point_ids=point_ids, **kwargs)
+        weigh_by_confidence=weigh_by_confidence,
+        bones=bones,
+        point_ids=point_ids,
+        **kwargs,
+    )
     pts3d = np.full((n_frames, n_points, 3), np.nan)
     pts3d[np.ix_(frames, point_idx)] = flat.reshape(n_sel, n_q, 3)
     result.frames = frames
@@ -186,14 +200,19 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> di
     point's median distance to its median position over the frames of its starting
     triangulation, in median bone lengths of the same triangulation (worst point).
     """
-    out = {"used": bool(rigid_q.any()), "points": int(rigid_q.sum()),
-           "tolerance_bones": tolerance, "spread_bones": None}
+    out = {
+        "used": bool(rigid_q.any()),
+        "points": int(rigid_q.sum()),
+        "tolerance_bones": tolerance,
+        "spread_bones": None,
+    }
     if tolerance is None or not rigid_q.any():
         return out
     n_views, n_sel, n_q, _ = sub.shape
     flat = sub.reshape(n_views, -1, 2)
-    pts = _ransac_points(cameras, flat, np.isfinite(flat).all(-1),
-                         DEFAULT_INIT_THRESHOLD).reshape(n_sel, n_q, 3)
+    pts = _ransac_points(cameras, flat, np.isfinite(flat).all(-1), DEFAULT_INIT_THRESHOLD).reshape(
+        n_sel, n_q, 3
+    )
     bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
     position = np.full(len(skeleton.point_names), -1)
     position[point_idx] = np.arange(n_q)
@@ -203,14 +222,18 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> di
     rigid = pts[:, rigid_q]
     with warnings.catch_warnings():  # a point never triangulated: NaN, judged below
         warnings.simplefilter("ignore", RuntimeWarning)
-        spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1),
-                              axis=0)
-    worst = float(np.nanmax(spread)) / bone if np.isfinite(spread).any() and bone > 0 \
-        else float("inf")
+        spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1), axis=0)
+    worst = (
+        float(np.nanmax(spread)) / bone if np.isfinite(spread).any() and bone > 0 else float("inf")
+    )
     out["spread_bones"] = round(worst, 4) if np.isfinite(worst) else None
     out["used"] = bool(worst <= tolerance)
-    log.info("bundle adjustment: rigid points %s (they move %.3f median bones, tolerance %.3f)",
-             "used" if out["used"] else "not used: the body moves", worst, tolerance)
+    log.info(
+        "bundle adjustment: rigid points %s (they move %.3f median bones, tolerance %.3f)",
+        "used" if out["used"] else "not used: the body moves",
+        worst,
+        tolerance,
+    )
     return out
 
 
@@ -222,8 +245,12 @@ def _length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
     bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
     body = [names.index(p) for p in body_points if p in names]
     pairs = {(min(a, b), max(a, b)) for a, b in zip(bi, bj)}
-    extra = [(a, b) for k, a in enumerate(body) for b in body[k + 1:]
-             if (min(a, b), max(a, b)) not in pairs]
+    extra = [
+        (a, b)
+        for k, a in enumerate(body)
+        for b in body[k + 1 :]
+        if (min(a, b), max(a, b)) not in pairs
+    ]
     if extra:
         bi = np.concatenate([bi, [a for a, _ in extra]]).astype(int)
         bj = np.concatenate([bj, [b for _, b in extra]]).astype(int)
@@ -251,8 +278,12 @@ def _length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
     _, group = np.unique(np.array(keys), axis=0, return_inverse=True)
     group = np.asarray(group).ravel()
     offsets = (np.arange(n_frames) * n_q)[:, None]
-    return ((offsets + position[bi][None]).ravel(), (offsets + position[bj][None]).ravel(),
-            np.tile(start, n_frames), np.tile(group, n_frames))
+    return (
+        (offsets + position[bi][None]).ravel(),
+        (offsets + position[bj][None]).ravel(),
+        np.tile(start, n_frames),
+        np.tile(group, n_frames),
+    )
 
 
 def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
@@ -265,19 +296,22 @@ def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
     if unknown:
         raise ConfigError(
             f"bundle_adjustment.points_to_use: unknown point(s) {', '.join(map(repr, unknown))}; "
-            f"use names from skeleton.point_names")
+            f"use names from skeleton.point_names"
+        )
     if not points_to_use:
-        raise ConfigError("bundle_adjustment.points_to_use is empty; list at least two points "
-                          "or remove the key to use all points")
+        raise ConfigError(
+            "bundle_adjustment.points_to_use is empty; list at least two points "
+            "or remove the key to use all points"
+        )
     return np.array(sorted({names.index(p) for p in points_to_use}), int)
 
 
 def bundle_adjust_from_config(
-    config: "Config",
-    cameras: "CameraGroup",
+    config: Config,
+    cameras: CameraGroup,
     pts2d: np.ndarray,
     conf: np.ndarray | None = None,
-) -> tuple[OptimizeResult, "CameraGroup", np.ndarray]:
+) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
     """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
 
     Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
@@ -294,13 +328,26 @@ def bundle_adjust_from_config(
     skeleton = config.skeleton()
     names = set(skeleton.point_names)
     return bundle_adjust_sequence(
-        cameras, pts2d, conf, skeleton,
-        points_to_use=params.points_to_use, max_frames=params.max_frames,
-        frame_sampling=params.frame_sampling, weigh_by_confidence=params.weigh_by_confidence,
-        fixed=params.fixed, shared=params.shared, solver=params.solver,
-        distortion=params.distortion, max_rounds=params.max_rounds,
-        outlier_factor=params.outlier_factor, outlier_min_px=params.outlier_min_px,
-        reseed_px=params.reseed_px, bone_lengths=params.bone_lengths,
-        symmetric_bones=params.symmetric_bones, length_weight=params.length_weight,
-        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points
-        else (), warn_ratio=params.warn_ratio, **dict(params.least_squares))
+        cameras,
+        pts2d,
+        conf,
+        skeleton,
+        points_to_use=params.points_to_use,
+        max_frames=params.max_frames,
+        frame_sampling=params.frame_sampling,
+        weigh_by_confidence=params.weigh_by_confidence,
+        fixed=params.fixed,
+        shared=params.shared,
+        solver=params.solver,
+        distortion=params.distortion,
+        max_rounds=params.max_rounds,
+        outlier_factor=params.outlier_factor,
+        outlier_min_px=params.outlier_min_px,
+        reseed_px=params.reseed_px,
+        bone_lengths=params.bone_lengths,
+        symmetric_bones=params.symmetric_bones,
+        length_weight=params.length_weight,
+        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points else (),
+        warn_ratio=params.warn_ratio,
+        **dict(params.least_squares),
+    )

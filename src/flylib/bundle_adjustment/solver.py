@@ -15,7 +15,7 @@ segments, no bias from the targets), else the targets are fixed.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import scipy.sparse
@@ -30,7 +30,7 @@ from .params import ParamLayout
 _CHUNK = 2048
 
 
-@lru_cache(maxsize=None)
+@cache
 def _jacobian_kernel():
     """Jitted ``(points (M,3), camera rows (M,C)) -> (projections, d/dpoint, d/drow)``."""
     import jax
@@ -134,8 +134,7 @@ class Problem:
         self.n_bones = self.bone_i.size if self.bone_weight > 0 else 0
         free_lengths = self.n_bones and self.bone_group is not None
         self.n_len = int(self.bone_group.max()) + 1 if free_lengths else 0
-        self.shape = (2 * self.n_obs + self.n_bones,
-                      self.n_cam + 3 * self.n_points + self.n_len)
+        self.shape = (2 * self.n_obs + self.n_bones, self.n_cam + 3 * self.n_points + self.n_len)
         self._build_structure()
 
     # -- packing ------------------------------------------------------------
@@ -149,11 +148,11 @@ class Problem:
 
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         table = self.layout.unpack(x[: self.n_cam], self.table0)
-        return table, x[self.n_cam:self.n_cam + 3 * self.n_points].reshape(self.n_points, 3)
+        return table, x[self.n_cam : self.n_cam + 3 * self.n_points].reshape(self.n_points, 3)
 
     def _lengths(self, x: np.ndarray) -> np.ndarray:
         if self.n_len:
-            return x[self.n_cam + 3 * self.n_points:][self.bone_group]
+            return x[self.n_cam + 3 * self.n_points :][self.bone_group]
         return self.bone_target
 
     # -- residuals and Jacobian ----------------------------------------------
@@ -176,8 +175,10 @@ class Problem:
         table, pts = self.unpack(x)
         _, jpt, jrow = project_rows_with_jac(pts[self.point], table[self.view])
         w = self.weight[:, None, None]
-        parts = [(w * jpt).ravel(), (w * jrow)[self._cam_m, :, self._cam_c].T.ravel()
-                 if self._cam_m.size else np.zeros(0)]
+        parts = [
+            (w * jpt).ravel(),
+            (w * jrow)[self._cam_m, :, self._cam_c].T.ravel() if self._cam_m.size else np.zeros(0),
+        ]
         if self.n_bones:
             diff = pts[self.bone_i] - pts[self.bone_j]
             length = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
@@ -185,7 +186,7 @@ class Problem:
             g = (self.bone_weight / scale / length)[:, None] * diff
             parts += [g.ravel(), (-g).ravel()]
             if self.n_len:
-                parts.append(-self.bone_weight * length / scale ** 2)
+                parts.append(-self.bone_weight * length / scale**2)
         data = np.concatenate(parts)[self._order]
         data = np.add.reduceat(data, self._starts) if data.size else data
         return scipy.sparse.csr_matrix((data, self._indices, self._indptr), shape=self.shape)
@@ -201,7 +202,8 @@ class Problem:
         rows_pt = (2 * m[:, None, None] + np.arange(2)[None, :, None]).repeat(3, axis=2)
         cols_pt = np.broadcast_to(
             self.n_cam + 3 * self.point[:, None, None] + np.arange(3)[None, None, :],
-            (self.n_obs, 2, 3))
+            (self.n_obs, 2, 3),
+        )
         # camera block: every free column of the observation's view, (entry, a) order
         var = self.layout.var_index[self.view]  # (M, C)
         self._cam_m, self._cam_c = np.nonzero(var >= 0)
@@ -213,8 +215,10 @@ class Problem:
         if self.n_bones:
             b = 2 * self.n_obs + np.arange(self.n_bones)
             rows += [np.repeat(b, 3), np.repeat(b, 3)]
-            cols += [(self.n_cam + 3 * self.bone_i[:, None] + np.arange(3)).ravel(),
-                     (self.n_cam + 3 * self.bone_j[:, None] + np.arange(3)).ravel()]
+            cols += [
+                (self.n_cam + 3 * self.bone_i[:, None] + np.arange(3)).ravel(),
+                (self.n_cam + 3 * self.bone_j[:, None] + np.arange(3)).ravel(),
+            ]
             if self.n_len:
                 rows.append(b)
                 cols.append(self.n_cam + 3 * self.n_points + self.bone_group)

@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bones_on_unknowns", "lengths_per_row", "start_lengths", "unknowns_from_columns",
-           "valid_bones"]
+__all__ = [
+    "bones_on_unknowns",
+    "lengths_per_row",
+    "start_lengths",
+    "unknowns_from_columns",
+    "valid_bones",
+]
 
 
 def unknowns_from_columns(cols: np.ndarray, ids: np.ndarray, n_unknown: int) -> np.ndarray:
@@ -46,7 +51,7 @@ def lengths_per_row(problem, x, bone_i, bone_j, bone_t, bone_g, keep, previous):
     if bone_g is None or not problem.n_len or bone_i.size == 0:
         return previous
     ok = keep[bone_i] & keep[bone_j]
-    fitted = x[problem.n_cam + 3 * problem.n_points:]
+    fitted = x[problem.n_cam + 3 * problem.n_points :]
     out = (bone_t if previous is None else previous).copy()
     _, group_compact = np.unique(bone_g[ok], return_inverse=True)
     out[ok] = fitted[group_compact]
@@ -71,5 +76,9 @@ def valid_bones(bones):
     i, j, t = (np.asarray(a) for a in bones[:3])
     group = np.asarray(bones[3]).astype(int) if len(bones) > 3 and bones[3] is not None else None
     ok = np.isfinite(t) & (t > 0)
-    return (i[ok].astype(int), j[ok].astype(int), t[ok].astype(float),
-            None if group is None else group[ok])
+    return (
+        i[ok].astype(int),
+        j[ok].astype(int),
+        t[ok].astype(float),
+        None if group is None else group[ok],
+    )

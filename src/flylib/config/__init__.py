@@ -19,15 +19,20 @@ Modules: :mod:`.constants` (stage lists, known keys, :data:`DEFAULT_CONFIG_PATH`
 
 # ``X as X``: importable from here as before the split, though not in ``__all__``.
 from .checks import Check as Check
-from .constants import _LEAST_SQUARES_RESERVED as _LEAST_SQUARES_RESERVED
-from .constants import DEFAULT_CONFIG_PATH, PARAM_STAGES, STAGE_DEFAULTS, STAGES
-from .constants import FRAME_SAMPLINGS as FRAME_SAMPLINGS
-from .constants import PRECISIONS as PRECISIONS
-from .constants import TOP_LEVEL_KEYS as TOP_LEVEL_KEYS
-from .constants import TRIANGULATION_METHODS as TRIANGULATION_METHODS
+from .constants import (
+    _LEAST_SQUARES_RESERVED as _LEAST_SQUARES_RESERVED,
+    DEFAULT_CONFIG_PATH,
+    FRAME_SAMPLINGS as FRAME_SAMPLINGS,
+    PARAM_STAGES,
+    PRECISIONS as PRECISIONS,
+    STAGE_DEFAULTS,
+    STAGES,
+    TOP_LEVEL_KEYS as TOP_LEVEL_KEYS,
+    TRIANGULATION_METHODS as TRIANGULATION_METHODS,
+)
 from .core import Config
-from .params import LEAST_SQUARES_OPTIONS as LEAST_SQUARES_OPTIONS
 from .params import (
+    LEAST_SQUARES_OPTIONS as LEAST_SQUARES_OPTIONS,
     BundleAdjustmentParams,
     IoParams,
     PictorialParams,

@@ -72,6 +72,15 @@ TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh",
 PRECISIONS = ("float32", "float16", "bfloat16")
 _POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
-_LEAST_SQUARES_RESERVED = ("fun", "x0", "jac", "bounds", "args", "kwargs", "jac_sparsity", "callback")
+_LEAST_SQUARES_RESERVED = (
+    "fun",
+    "x0",
+    "jac",
+    "bounds",
+    "args",
+    "kwargs",
+    "jac_sparsity",
+    "callback",
+)
 # least_squares arguments that change only speed or logging, never the result.
 _LEAST_SQUARES_PERF = ("verbose", "workers")

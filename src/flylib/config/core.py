@@ -106,7 +106,9 @@ class Config:
             return cls.from_yaml(path)
         if suffix == ".toml":
             return cls.from_toml(path)
-        raise ConfigError(f"{path}: unknown config format {suffix!r}; use a .yaml, .yml or .toml file")
+        raise ConfigError(
+            f"{path}: unknown config format {suffix!r}; use a .yaml, .yml or .toml file"
+        )
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Config:
@@ -252,7 +254,9 @@ class Config:
             ``stage -> enabled`` for every stage in :data:`STAGES`.
         """
         pipeline = self.data.get("pipeline") or {}
-        flags = {stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES}
+        flags = {
+            stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES
+        }
         # refinement starts from the triangulation; kinematics needs some 3D
         flags["refinement"] &= flags["triangulation"]
         flags["kinematics"] &= flags["triangulation"] or flags["pictorial_structures"]
@@ -302,8 +306,11 @@ class Config:
                 "views": self.view_names(),
                 "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
                 # Present only when not the default, so existing artifacts keep their params.
-                **({"on_corrupt_frame": self.io.on_corrupt_frame}
-                   if self.io.on_corrupt_frame != "error" else {}),
+                **(
+                    {"on_corrupt_frame": self.io.on_corrupt_frame}
+                    if self.io.on_corrupt_frame != "error"
+                    else {}
+                ),
                 # Not the candidate peaks pictorial structures asks for: they are a
                 # separate pose2d output named by k (stages.candidates_artifact), which
                 # exists only while PS is on, so toggling PS or editing k with it off
@@ -314,7 +321,11 @@ class Config:
             ba["least_squares"] = {
                 k: v for k, v in ba["least_squares"].items() if k not in _LEAST_SQUARES_PERF
             }
-            params = {"bundle_adjustment": ba, "rig": self._rig(), "skeleton": self._skeleton_structure()}
+            params = {
+                "bundle_adjustment": ba,
+                "rig": self._rig(),
+                "skeleton": self._skeleton_structure(),
+            }
         elif stage == "pictorial_structures":
             params = {
                 "pictorial_structures": asdict(self.pictorial),
@@ -324,7 +335,9 @@ class Config:
         elif stage == "triangulation":
             params = {
                 "triangulation": self.triangulation.method_params(),
-                "points_from": "pictorial_structures" if flags["pictorial_structures"] else "pose2d",
+                "points_from": "pictorial_structures"
+                if flags["pictorial_structures"]
+                else "pose2d",
                 "rig": None if flags["bundle_adjustment"] else self._rig(),
             }
         elif stage == "refinement":
@@ -338,7 +351,11 @@ class Config:
         elif stage == "assemble":
             params = {
                 "rig": self._rig(),
-                "skeleton": {**self._skeleton_structure(), "palette": self._palette(), "name": self._skeleton_name()},
+                "skeleton": {
+                    **self._skeleton_structure(),
+                    "palette": self._palette(),
+                    "name": self._skeleton_name(),
+                },
             }
         elif stage == "visualization":
             params = {"visualization": self.visualization, "palette": self._palette()}
@@ -357,7 +374,10 @@ class Config:
 
     def _skeleton_structure(self) -> dict:
         limbs = self._skeleton_spec().get("limb_points") or {}
-        return {"point_names": list(self._point_names()), "limbs": [[k, list(v)] for k, v in limbs.items()]}
+        return {
+            "point_names": list(self._point_names()),
+            "limbs": [[k, list(v)] for k, v in limbs.items()],
+        }
 
     def _palette(self) -> dict:
         return dict(self._skeleton_spec().get("limb_palette") or {})
@@ -435,7 +455,9 @@ class Config:
         """The text :meth:`save_snapshot` writes: the source text, or a YAML dump for a dict."""
         if self.text is not None:
             return self.text
-        return yaml.safe_dump(_plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True)
+        return yaml.safe_dump(
+            _plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True
+        )
 
     def save_snapshot(self, outdir: str | Path) -> Path:
         """Write the config that drives this run to ``<outdir>/config.yaml`` (or ``.toml``).

@@ -102,7 +102,9 @@ class ConfigLayers:
     texts: dict[str, str] = field(default_factory=dict)
 
     @classmethod
-    def from_files(cls, files: Iterable[str | Path], overrides: Mapping | None = None) -> ConfigLayers:
+    def from_files(
+        cls, files: Iterable[str | Path], overrides: Mapping | None = None
+    ) -> ConfigLayers:
         """Read and merge config files (``.yaml``/``.yml``/``.json`` or ``.toml``), then ``overrides``.
 
         Raises
@@ -132,9 +134,12 @@ class ConfigLayers:
                 if not problems:
                     raise
                 lines = [f"{label}: {p}" for p in problems]
-                raise ConfigError(f"invalid config: {lines[0]}" if len(lines) == 1 else
-                                  f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
-                                  + "\n".join(f"  {line}" for line in lines)) from None
+                raise ConfigError(
+                    f"invalid config: {lines[0]}"
+                    if len(lines) == 1
+                    else f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
+                    + "\n".join(f"  {line}" for line in lines)
+                ) from None
             texts[label] = text
         if overrides:
             layers.append((OVERRIDES_LABEL, dict(overrides)))
@@ -160,7 +165,9 @@ class ConfigLayers:
         candidates = list(self.layers)
         owner = replaced = None
         for k in range(1, len(path) + 1):
-            setters = [(label, layer) for label, layer in candidates if _depth(layer, path[:k]) == k]
+            setters = [
+                (label, layer) for label, layer in candidates if _depth(layer, path[:k]) == k
+            ]
             if not setters:
                 break
             owner = setters[-1][0]
@@ -190,8 +197,9 @@ class ConfigLayers:
             return ""
         lists = [i for i in range(1, len(path)) if isinstance(path[i], int) or i == len(path) - 1]
         key = ".".join(str(t) for t in path[: lists[0]]) if lists else ".".join(map(str, path))
-        hint = (f" ({owner} replaces the whole {key} list of {replaced}: restate every key of "
-                "the entry")
+        hint = (
+            f" ({owner} replaces the whole {key} list of {replaced}: restate every key of the entry"
+        )
         if key == "pose2d.models":
             hint += ", or set only the checkpoint with pose2d.weights: {<model>: <path>}"
         return hint + ")"

@@ -70,7 +70,9 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: the top level must be a mapping of tables, got {type(data).__name__}")
+        raise ConfigError(
+            f"{source}: the top level must be a mapping of tables, got {type(data).__name__}"
+        )
     return data
 
 

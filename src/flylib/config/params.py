@@ -253,7 +253,9 @@ LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
 )
 
 
-def _table_problems(table: Mapping, cls: type, path: str, extra_known: tuple[str, ...] = ()) -> list[str]:
+def _table_problems(
+    table: Mapping, cls: type, path: str, extra_known: tuple[str, ...] = ()
+) -> list[str]:
     """Problems with a flat parameter table described by a params dataclass."""
     checks = {f.name: f.metadata["check"] for f in fields(cls) if "check" in f.metadata}
     problems = []

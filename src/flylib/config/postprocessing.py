@@ -72,12 +72,18 @@ def _triples_problems(value: Any, path: str, point_names: tuple[str, ...]) -> li
         return [f"{path}: expected a mapping name -> [a, b, c] of point names, {_got(value)}"]
     problems = []
     for name, triple in value.items():
-        if not (isinstance(triple, (list, tuple)) and len(triple) == 3 and all(isinstance(p, str) for p in triple)):
+        if not (
+            isinstance(triple, (list, tuple))
+            and len(triple) == 3
+            and all(isinstance(p, str) for p in triple)
+        ):
             problems.append(f"{path}.{name}: expected three point names [a, b, c], got {triple!r}")
             continue
         unknown = [p for p in triple if point_names and p not in point_names]
         if unknown:
-            problems.append(f"{path}.{name}: unknown point(s) {unknown} (known: {', '.join(point_names)})")
+            problems.append(
+                f"{path}.{name}: unknown point(s) {unknown} (known: {', '.join(point_names)})"
+            )
     return problems
 
 
@@ -95,14 +101,18 @@ def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[st
     frame = table.get("body_frame")
     if frame is not None:
         if not isinstance(frame, Mapping):
-            problems.append(f"kinematics.body_frame: expected a mapping with {', '.join(BODY_FRAME_KEYS)}, {_got(frame)}")
+            problems.append(
+                f"kinematics.body_frame: expected a mapping with {', '.join(BODY_FRAME_KEYS)}, {_got(frame)}"
+            )
         else:
             for key, value in frame.items():
                 where = f"kinematics.body_frame.{key}"
                 if key not in BODY_FRAME_KEYS:
                     problems.append(f"{where}: unknown key (known: {', '.join(BODY_FRAME_KEYS)})")
                 elif _string_list()(value) or not value:
-                    problems.append(f"{where}: expected a non-empty list of point names, {_got(value)}")
+                    problems.append(
+                        f"{where}: expected a non-empty list of point names, {_got(value)}"
+                    )
                 else:
                     unknown = [p for p in value if point_names and p not in point_names]
                     if unknown:

@@ -32,7 +32,7 @@ def view_names(config, *, required: bool = True) -> list[str]:
     data = config_data(config)
     names = [name for name in (data.get("cameras") or {}) if name != "defaults"]
     if not names:
-        names = list(((data.get("pose2d") or {}).get("output_points") or {}))
+        names = list((data.get("pose2d") or {}).get("output_points") or {})
     if required and not names:
         raise ImportFormatError(
             "config names no views (no cameras entries, no pose2d.output_points); define the rig's views"

@@ -10,7 +10,6 @@ from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
 from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
-from .postprocessing import RefinementParams, kinematics_problems
 from .params import (
     _LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
@@ -20,6 +19,7 @@ from .params import (
     TriangulationParams,
     _table_problems,
 )
+from .postprocessing import RefinementParams, kinematics_problems
 
 
 def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, dict]:
@@ -51,53 +51,81 @@ def _reference(value: Any, known: Mapping, what: str, where: str, problems: list
     return False
 
 
-def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list[str] | None) -> list[str]:
+def _plan_problems(
+    data: Mapping, point_names: tuple[str, ...], view_names: list[str] | None
+) -> list[str]:
     """Problems with the detection plan: sources, preprocessors, models, pathways, output_points."""
     problems: list[str] = []
     pose2d = data.get("pose2d") or {}
     sources = _named_entries(data.get("sources"), "sources", problems)
     for name, entry in sources.items():
         if "filename" in entry and not isinstance(entry["filename"], str):
-            problems.append(f"sources.{name}.filename: expected a glob string, {_got(entry['filename'])}")
+            problems.append(
+                f"sources.{name}.filename: expected a glob string, {_got(entry['filename'])}"
+            )
     preprocessors = _named_entries(pose2d.get("preprocessors"), "pose2d.preprocessors", problems)
     for name, entry in preprocessors.items():
         ops = entry.get("ops", [])
-        if not isinstance(ops, list) or not all(isinstance(op, Mapping) and "op" in op for op in ops):
-            problems.append(f"pose2d.preprocessors.{name}.ops: expected a list of tables each with an 'op' key")
+        if not isinstance(ops, list) or not all(
+            isinstance(op, Mapping) and "op" in op for op in ops
+        ):
+            problems.append(
+                f"pose2d.preprocessors.{name}.ops: expected a list of tables each with an 'op' key"
+            )
     models = _named_entries(pose2d.get("models"), "pose2d.models", problems)
     n_channels: dict[str, int | None] = {}
     for name, entry in models.items():
         n_out = entry.get("n_out_channels")
         if n_out is not None and not (_is_int(n_out) and n_out >= 1):
-            problems.append(f"pose2d.models.{name}.n_out_channels: expected an integer >= 1, {_got(n_out)}")
+            problems.append(
+                f"pose2d.models.{name}.n_out_channels: expected an integer >= 1, {_got(n_out)}"
+            )
             n_out = None
         n_channels[name] = n_out
         size = entry.get("input_size")
         if size is not None and not (
             isinstance(size, list) and len(size) == 2 and all(_is_int(s) and s > 0 for s in size)
         ):
-            problems.append(f"pose2d.models.{name}.input_size: expected [height, width] in pixels, got {size!r}")
+            problems.append(
+                f"pose2d.models.{name}.input_size: expected [height, width] in pixels, got {size!r}"
+            )
         if "weights" in entry and not isinstance(entry["weights"], str):
-            problems.append(f"pose2d.models.{name}.weights: expected a path string ('' for the published weights)")
+            problems.append(
+                f"pose2d.models.{name}.weights: expected a path string ('' for the published weights)"
+            )
         if "subpixel" in entry and entry["subpixel"] not in SUBPIXEL_METHODS:
-            problems.append(f"pose2d.models.{name}.subpixel: expected one of {', '.join(SUBPIXEL_METHODS)}, "
-                            f"got {entry['subpixel']!r}")
+            problems.append(
+                f"pose2d.models.{name}.subpixel: expected one of {', '.join(SUBPIXEL_METHODS)}, "
+                f"got {entry['subpixel']!r}"
+            )
     weights = pose2d.get("weights")
     if weights is not None and not isinstance(weights, Mapping):
-        problems.append(f"pose2d.weights: expected a mapping model name -> checkpoint path, {_got(weights)}")
+        problems.append(
+            f"pose2d.weights: expected a mapping model name -> checkpoint path, {_got(weights)}"
+        )
     elif weights:
         for name, path in weights.items():
             if name not in models:
-                problems.append(f"pose2d.weights.{name}: unknown model {name!r} (known: {', '.join(models) or 'none'})")
+                problems.append(
+                    f"pose2d.weights.{name}: unknown model {name!r} (known: {', '.join(models) or 'none'})"
+                )
             elif path is not None and not isinstance(path, str):
-                problems.append(f"pose2d.weights.{name}: expected a path string ('' for the published weights), {_got(path)}")
+                problems.append(
+                    f"pose2d.weights.{name}: expected a path string ('' for the published weights), {_got(path)}"
+                )
     pathways = _named_entries(pose2d.get("pathways"), "pose2d.pathways", problems)
     pathway_model: dict[str, str | None] = {}
     for name, entry in pathways.items():
         where = f"pose2d.pathways.{name}"
         _reference(entry.get("source"), sources, "source", f"{where}.source", problems)
         if entry.get("preprocessor") is not None:
-            _reference(entry["preprocessor"], preprocessors, "preprocessor", f"{where}.preprocessor", problems)
+            _reference(
+                entry["preprocessor"],
+                preprocessors,
+                "preprocessor",
+                f"{where}.preprocessor",
+                problems,
+            )
         ok = _reference(entry.get("model"), models, "model", f"{where}.model", problems)
         pathway_model[name] = entry["model"] if ok else None
 
@@ -105,31 +133,48 @@ def _plan_problems(data: Mapping, point_names: tuple[str, ...], view_names: list
     if output_points is None:
         return problems
     if not isinstance(output_points, Mapping):
-        return [*problems, "pose2d.output_points: expected a mapping view -> point -> {pathway, out_channel}"]
+        return [
+            *problems,
+            "pose2d.output_points: expected a mapping view -> point -> {pathway, out_channel}",
+        ]
     known_points = set(point_names)
     for view, table in output_points.items():
         where_view = f"pose2d.output_points.{view}"
         if view_names is not None and view not in view_names:
-            problems.append(f"{where_view}: unknown view {view!r} (cameras: {', '.join(view_names)})")
+            problems.append(
+                f"{where_view}: unknown view {view!r} (cameras: {', '.join(view_names)})"
+            )
         if not isinstance(table, Mapping):
             problems.append(f"{where_view}: expected a mapping point -> {{pathway, out_channel}}")
             continue
         for point, slot in table.items():
             where = f"{where_view}.{point}"
             if known_points and point not in known_points:
-                problems.append(f"{where}: unknown point {point!r} (known: {', '.join(point_names)})")
+                problems.append(
+                    f"{where}: unknown point {point!r} (known: {', '.join(point_names)})"
+                )
             if not isinstance(slot, Mapping):
-                problems.append(f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}")
+                problems.append(
+                    f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}"
+                )
                 continue
             extra = sorted(str(k) for k in set(slot) - {"pathway", "out_channel"})
             if extra:
-                problems.append(f"{where}: unknown key(s) {', '.join(extra)} (known: pathway, out_channel)")
-            has_pathway = _reference(slot.get("pathway"), pathways, "pathway", f"{where}.pathway", problems)
+                problems.append(
+                    f"{where}: unknown key(s) {', '.join(extra)} (known: pathway, out_channel)"
+                )
+            has_pathway = _reference(
+                slot.get("pathway"), pathways, "pathway", f"{where}.pathway", problems
+            )
             channel = slot.get("out_channel")
             if not (_is_int(channel) and channel >= 0):
                 problems.append(f"{where}.out_channel: expected an integer >= 0, {_got(channel)}")
                 continue
-            n_out = n_channels.get(pathway_model.get(slot.get("pathway")) or "") if has_pathway else None
+            n_out = (
+                n_channels.get(pathway_model.get(slot.get("pathway")) or "")
+                if has_pathway
+                else None
+            )
             if n_out is not None and channel >= n_out:
                 model = pathway_model[slot["pathway"]]
                 problems.append(
@@ -177,14 +222,25 @@ def validate_config(data: Any) -> list[str]:
         "visualization": _mapping(),
         "calibration": _mapping(nullable=True),
         "demo": _mapping(nullable=True),
-        "sources": lambda v: None if isinstance(v, list) else f"expected a list of tables, {_got(v)}",
-        "recordings": lambda v: None
-        if isinstance(v, (list, str))
-        else f"expected a list of recordings or the path of a .tsv sheet, {_got(v)}",
+        "sources": lambda v: (
+            None if isinstance(v, list) else f"expected a list of tables, {_got(v)}"
+        ),
+        "recordings": lambda v: (
+            None
+            if isinstance(v, (list, str))
+            else f"expected a list of recordings or the path of a .tsv sheet, {_got(v)}"
+        ),
         "recursive": _boolean,
-        "outdir": lambda v: None if v is None or isinstance(v, str) else f"expected a path template or null, {_got(v)}",
-        "corrections": lambda v: None if v is None or (isinstance(v, str) and v.strip())
-        else f"expected the path (template) of a corrections.h5 sidecar or null, {_got(v)}",
+        "outdir": lambda v: (
+            None
+            if v is None or isinstance(v, str)
+            else f"expected a path template or null, {_got(v)}"
+        ),
+        "corrections": lambda v: (
+            None
+            if v is None or (isinstance(v, str) and v.strip())
+            else f"expected the path (template) of a corrections.h5 sidecar or null, {_got(v)}"
+        ),
     }
     bad_tables = set()
     for key, check in table_kinds.items():
@@ -216,7 +272,9 @@ def validate_config(data: Any) -> list[str]:
     pipeline_checks = {f"do_{stage}": _boolean for stage in STAGES}
     for key, value in table("pipeline").items():
         if key not in pipeline_checks:
-            problems.append(f"pipeline.{key}: unknown parameter (known: {', '.join(pipeline_checks)})")
+            problems.append(
+                f"pipeline.{key}: unknown parameter (known: {', '.join(pipeline_checks)})"
+            )
         elif pipeline_checks[key](value):
             problems.append(f"pipeline.{key}: {pipeline_checks[key](value)}")
 
@@ -251,20 +309,26 @@ def validate_config(data: Any) -> list[str]:
                     f"bundle_adjustment.points_to_use: unknown point {point!r} (known: {', '.join(point_names)})"
                 )
 
-    problems += _table_problems(table("pictorial_structures"), PictorialParams, "pictorial_structures")
+    problems += _table_problems(
+        table("pictorial_structures"), PictorialParams, "pictorial_structures"
+    )
     problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
     problems += _table_problems(table("refinement"), RefinementParams, "refinement")
     rigid = table("refinement").get("rigid_points")
     if isinstance(rigid, list) and point_names:
         for point in rigid:
             if isinstance(point, str) and point not in point_names:
-                problems.append(f"refinement.rigid_points: unknown point {point!r} (known: {', '.join(point_names)})")
+                problems.append(
+                    f"refinement.rigid_points: unknown point {point!r} (known: {', '.join(point_names)})"
+                )
     problems += kinematics_problems(table("kinematics"), point_names)
 
     for key, value in table("io").items():
         if key == "on_corrupt_frame":
             if value not in ("error", "missing"):
-                problems.append(f"io.on_corrupt_frame: expected 'error' or 'missing', {_got(value)}")
+                problems.append(
+                    f"io.on_corrupt_frame: expected 'error' or 'missing', {_got(value)}"
+                )
             continue
         if not isinstance(value, Mapping):
             problems.append(f"io.{key}: expected a table, {_got(value)}")

@@ -50,16 +50,23 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     app.state.session = session
 
     def authorized(request_token: str | None) -> bool:
-        return token is None or (request_token is not None
-                                 and hmac.compare_digest(request_token.encode(), token.encode()))
+        return token is None or (
+            request_token is not None
+            and hmac.compare_digest(request_token.encode(), token.encode())
+        )
 
     @app.middleware("http")
     async def check_token(request: Request, call_next):
-        supplied = (request.query_params.get("token") or request.headers.get("x-flylib-token")
-                    or request.cookies.get("flylib_token"))
+        supplied = (
+            request.query_params.get("token")
+            or request.headers.get("x-flylib-token")
+            or request.cookies.get("flylib_token")
+        )
         if not authorized(supplied):
-            return JSONResponse({"detail": "missing or wrong access token; open the URL `flylib gui` "
-                                           "printed"}, status_code=403)
+            return JSONResponse(
+                {"detail": "missing or wrong access token; open the URL `flylib gui` printed"},
+                status_code=403,
+            )
         response = await call_next(request)
         if token is not None and request.url.path == "/":
             response.set_cookie("flylib_token", token, httponly=True, samesite="strict")
@@ -69,7 +76,9 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
 
     @app.get("/", response_class=HTMLResponse)
     def index() -> HTMLResponse:
-        return HTMLResponse((STATIC / "index.html").read_text(), headers={"Cache-Control": "no-store"})
+        return HTMLResponse(
+            (STATIC / "index.html").read_text(), headers={"Cache-Control": "no-store"}
+        )
 
     @app.get("/api/meta")
     def meta() -> dict:
@@ -83,9 +92,14 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
         started = time.perf_counter()
         data = session.frames[view].jpeg(frame)
         elapsed = (time.perf_counter() - started) * 1000
-        return Response(data, media_type="image/jpeg",
-                        headers={"Cache-Control": "private, max-age=3600",
-                                 "Server-Timing": f"decode;dur={elapsed:.1f}"})
+        return Response(
+            data,
+            media_type="image/jpeg",
+            headers={
+                "Cache-Control": "private, max-age=3600",
+                "Server-Timing": f"decode;dur={elapsed:.1f}",
+            },
+        )
 
     @app.get("/api/points/{frame}")
     def points(frame: int) -> dict:
@@ -126,8 +140,9 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
                 message = await websocket.receive_json()
                 if isinstance(message, dict) and message.get("op") == "save":
                     path = session.save()
-                    await websocket.send_json({"op": "saved", "saved": str(path),
-                                               "edits": session.corrections.count()})
+                    await websocket.send_json(
+                        {"op": "saved", "saved": str(path), "edits": session.corrections.count()}
+                    )
                     continue
                 await websocket.send_json(_apply(message))
         except WebSocketDisconnect:

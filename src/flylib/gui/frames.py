@@ -63,8 +63,9 @@ class _VideoFrames:
                     if packet.is_keyframe:
                         key.append(int(packet.pts))
         except (av.FFmpegError, OSError) as exc:
-            raise FootageError(f"{self.reader.path}: cannot index the video ({exc}); re-copy or "
-                               "re-export it") from None
+            raise FootageError(
+                f"{self.reader.path}: cannot index the video ({exc}); re-copy or re-export it"
+            ) from None
         pts.sort()
         index_of = {p: i for i, p in enumerate(pts)}
         return (pts or None), np.array(sorted(index_of[k] for k in key), dtype=int)
@@ -186,7 +187,14 @@ class FrameSource:
         self._spare = None
         if not files:
             self._frames = None
-        elif len(files) == 1 and files[0].suffix.lower() not in {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}:
+        elif len(files) == 1 and files[0].suffix.lower() not in {
+            ".png",
+            ".jpg",
+            ".jpeg",
+            ".tif",
+            ".tiff",
+            ".bmp",
+        }:
             self._frames = _VideoFrames(files[0])
         else:
             self._frames = _ImageFrames(files)
@@ -231,7 +239,11 @@ class FrameSource:
 
     def prefetch(self, index: int) -> None:
         """Put frame ``index`` in the cache with the background decoder (no-op if there)."""
-        if self._frames is None or not 0 <= index < len(self._frames) or self._cached(index) is not None:
+        if (
+            self._frames is None
+            or not 0 <= index < len(self._frames)
+            or self._cached(index) is not None
+        ):
             return
         with self._spare_lock:
             if self._cached(index) is not None:

@@ -38,8 +38,14 @@ def free_port(host: str, preferred: int) -> int:
     raise OSError(f"cannot bind {host}; pass another --host")
 
 
-def serve(results: str | Path, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-          open_browser: bool = True, token: str | None = None) -> None:
+def serve(
+    results: str | Path,
+    *,
+    host: str = DEFAULT_HOST,
+    port: int = DEFAULT_PORT,
+    open_browser: bool = True,
+    token: str | None = None,
+) -> None:
     """Open the recording and serve the GUI until interrupted.
 
     Bound to localhost by default (reach it from another machine with
@@ -67,18 +73,28 @@ def serve(results: str | Path, *, host: str = DEFAULT_HOST, port: int = DEFAULT_
         token = token or secrets.token_urlsafe(24)
     port = free_port(host, port)
     app = create_app(session, token=None if is_loopback(host) else token)
-    shown = "localhost" if is_loopback(host) else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
+    shown = (
+        "localhost"
+        if is_loopback(host)
+        else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
+    )
     url = f"http://{shown}:{port}/" + (f"?token={token}" if not is_loopback(host) else "")
-    print(f"flylib gui: {session.results_path} ({session.n_frames} frames, {session.n_views} views)")
+    print(
+        f"flylib gui: {session.results_path} ({session.n_frames} frames, {session.n_views} views)"
+    )
     print(f"flylib gui: open {url}  (Ctrl+C stops; edits are saved to {session.corrections_path})")
     if is_loopback(host):
-        print(f"flylib gui: from another machine: ssh -L {port}:localhost:{port} <this host>, "
-              f"then open http://localhost:{port}/")
+        print(
+            f"flylib gui: from another machine: ssh -L {port}:localhost:{port} <this host>, "
+            f"then open http://localhost:{port}/"
+        )
     if open_browser:
         threading.Timer(1.0, lambda: webbrowser.open(url)).start()
     try:
         uvicorn.run(app, host=host, port=port, log_level="warning")
     finally:
         if session.dirty:
-            print(f"flylib gui: unsaved edits were discarded (press Save to write {session.corrections_path})")
+            print(
+                f"flylib gui: unsaved edits were discarded (press Save to write {session.corrections_path})"
+            )
         session.close()

@@ -44,8 +44,10 @@ def resolve_results(path: str | Path) -> Path:
     if path.is_dir():
         path = path / "results.h5"
     if not path.is_file():
-        raise ResultsError(f"{path}: no results.h5 here; pass a recording's output directory "
-                           "(e.g. demo/flylib_outputs) or its results.h5, after the workflow ran")
+        raise ResultsError(
+            f"{path}: no results.h5 here; pass a recording's output directory "
+            "(e.g. demo/flylib_outputs) or its results.h5, after the workflow ran"
+        )
     return path.resolve()
 
 
@@ -83,16 +85,28 @@ class ReviewSession:
         result's meta, through the config's ``sources``.
     """
 
-    def __init__(self, results: str | Path, *, config: Any = None,
-                 footage: dict[str, list[Path]] | None = None, cache_frames: int = 128):
+    def __init__(
+        self,
+        results: str | Path,
+        *,
+        config: Any = None,
+        footage: dict[str, list[Path]] | None = None,
+        cache_frames: int = 128,
+    ):
         from ..config import Config
         from ..results import PoseResult, open_checked
 
         self.results_path = resolve_results(results)
         self.outdir = self.results_path.parent
         if config is None:
-            snapshot = next((p for p in (self.outdir / "config.yaml", self.outdir / "config.toml")
-                             if p.is_file()), None)
+            snapshot = next(
+                (
+                    p
+                    for p in (self.outdir / "config.yaml", self.outdir / "config.toml")
+                    if p.is_file()
+                ),
+                None,
+            )
             config = Config.from_file(snapshot) if snapshot else Config.default()
         self.config = config
         result = PoseResult.load(self.results_path)
@@ -105,7 +119,9 @@ class ReviewSession:
         with open_checked(self.results_path) as f:
             source = "pictorial_structures" if "pictorial_structures/points" in f else "pose2d"
             self.base2d = np.asarray(f[f"{source}/points"][()], dtype=np.float64)
-            self.conf = np.asarray(f["pose2d/conf"][()], dtype=np.float64) if "pose2d/conf" in f else None
+            self.conf = (
+                np.asarray(f["pose2d/conf"][()], dtype=np.float64) if "pose2d/conf" in f else None
+            )
         self.recording_dir = result.meta.get("recording")
         v, t, p = self.base2d.shape[:3]
         self.n_views, self.n_frames, self.n_points = v, t, p
@@ -117,25 +133,34 @@ class ReviewSession:
         self.corrections.source = str(self.results_path)
         self.pts3d = np.array(result.pts3d)
         self.used2d = np.array(result.pts2d)
-        self.error = np.array(result.reproj_error) if result.reproj_error is not None else np.full((v, t, p), np.nan)
+        self.error = (
+            np.array(result.reproj_error)
+            if result.reproj_error is not None
+            else np.full((v, t, p), np.nan)
+        )
         self._lock = threading.RLock()
         self._suspects = None
         self._suspects_stale = True
         self.dirty = False  # edits not yet saved
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
             self._resolve(int(tt), int(pp))
-        self.image_sizes = {name: tuple(result.image_sizes.get(name, (480, 960)))
-                            for name in self.view_names} if result.image_sizes else \
-            {name: (480, 960) for name in self.view_names}
+        self.image_sizes = (
+            {name: tuple(result.image_sizes.get(name, (480, 960))) for name in self.view_names}
+            if result.image_sizes
+            else {name: (480, 960) for name in self.view_names}
+        )
         if footage is None:
             footage = self._find_footage()
-        self.frames = {name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
-                       for name in self.view_names}
+        self.frames = {
+            name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
+            for name in self.view_names
+        }
         self._prefetch_todo: list[int] = []
         self._prefetch_wake = threading.Condition()
         self._closed = False
-        self._prefetcher = threading.Thread(target=self._prefetch_loop, name="flylib-gui-prefetch",
-                                            daemon=True)
+        self._prefetcher = threading.Thread(
+            target=self._prefetch_loop, name="flylib-gui-prefetch", daemon=True
+        )
         self._prefetcher.start()
 
     # -- set-up ------------------------------------------------------------------------
@@ -148,8 +173,12 @@ class ReviewSession:
             return self.outdir / CORRECTIONS_FILE
         path = path.resolve()
         if not path.is_relative_to(self.outdir.resolve()):
-            log.warning("corrections: %s lies outside %s; the GUI reads and writes %s instead",
-                        path, self.outdir, self.outdir / CORRECTIONS_FILE)
+            log.warning(
+                "corrections: %s lies outside %s; the GUI reads and writes %s instead",
+                path,
+                self.outdir,
+                self.outdir / CORRECTIONS_FILE,
+            )
             return self.outdir / CORRECTIONS_FILE
         return path
 
@@ -157,13 +186,21 @@ class ReviewSession:
         from ..interop.views import footage_files
 
         if not self.recording_dir or not Path(self.recording_dir).is_dir():
-            log.warning("%s: recording directory %r not found; views show no footage",
-                        self.results_path, self.recording_dir)
+            log.warning(
+                "%s: recording directory %r not found; views show no footage",
+                self.results_path,
+                self.recording_dir,
+            )
             return {}
         try:
             return footage_files(self.config, Path(self.recording_dir))
-        except (FlylibError, OSError) as exc:  # footage is a nicety: points can be reviewed without it
-            log.warning("footage of %s not found (%s); views show no footage", self.recording_dir, exc)
+        except (
+            FlylibError,
+            OSError,
+        ) as exc:  # footage is a nicety: points can be reviewed without it
+            log.warning(
+                "footage of %s not found (%s); views show no footage", self.recording_dir, exc
+            )
             return {}
 
     # -- reading -----------------------------------------------------------------------
@@ -181,13 +218,22 @@ class ReviewSession:
             "outdir": str(self.outdir),
             "corrections_file": str(self.corrections_path),
             "corrections_loaded": self.corrections.count(),
-            "views": [{"name": n, "height": int(self.image_sizes[n][0]), "width": int(self.image_sizes[n][1]),
-                       "footage": self.frames[n].has_footage} for n in self.view_names],
+            "views": [
+                {
+                    "name": n,
+                    "height": int(self.image_sizes[n][0]),
+                    "width": int(self.image_sizes[n][1]),
+                    "footage": self.frames[n].has_footage,
+                }
+                for n in self.view_names
+            ],
             "frames": self.n_frames,
             "points": list(sk.point_names),
             "bones": np.asarray(sk.bones, int).tolist(),
             "point_colors": [sk.limb_color(limb_names[i]) for i in np.asarray(sk.limb_id, int)],
-            "bone_colors": [sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)],
+            "bone_colors": [
+                sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)
+            ],
             "method": str(getattr(self.config.triangulation, "method", "ransac")),
         }
 
@@ -210,24 +256,32 @@ class ReviewSession:
             used = np.isfinite(self.used2d[:, t]).all(-1)
             views = []
             for v, name in enumerate(self.view_names):
-                views.append({
-                    "name": name,
-                    "points2d": _xy_list(given[v]),
-                    "used": used[v].tolist(),
-                    "reprojected": _xy_list(reproj[v]),
-                    "error": _nan_to_none(self.error[v, t], 2),
-                    "edited": self.corrections.edited[v, t].tolist(),
-                    "invisible": self.corrections.invisible[v, t].tolist(),
-                })
+                views.append(
+                    {
+                        "name": name,
+                        "points2d": _xy_list(given[v]),
+                        "used": used[v].tolist(),
+                        "reprojected": _xy_list(reproj[v]),
+                        "error": _nan_to_none(self.error[v, t], 2),
+                        "edited": self.corrections.edited[v, t].tolist(),
+                        "invisible": self.corrections.invisible[v, t].tolist(),
+                    }
+                )
             c = self.corrections
             corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
             # the last computed suspects: re-finding them is left to suspects(), so an
             # edit's reply stays cheap on a long recording
             cached = self._suspects if self._suspects is not None else self.suspects()
             suspects = cached.records(frame=t)
-            return {"frame": t, "views": views, "points3d": _xy_list(self.pts3d[t], 6),
-                    "corrected": corrected, "suspects": suspects, "dirty": self.dirty,
-                    "edits": self.corrections.count()}
+            return {
+                "frame": t,
+                "views": views,
+                "points3d": _xy_list(self.pts3d[t], 6),
+                "corrected": corrected,
+                "suspects": suspects,
+                "dirty": self.dirty,
+                "edits": self.corrections.count(),
+            }
 
     def suspects(self):
         """Suspects of the current state (recomputed after edits, lazily)."""
@@ -237,10 +291,16 @@ class ReviewSession:
             if self._suspects is None or self._suspects_stale:
                 self._suspects_stale = False
                 self._suspects = find_suspects(
-                    self.pts3d, self.used2d, self.error, self.skeleton.bones,
-                    pts2d_input=np.where(self.corrections.touched()[..., None], np.nan, self.base2d),
+                    self.pts3d,
+                    self.used2d,
+                    self.error,
+                    self.skeleton.bones,
+                    pts2d_input=np.where(
+                        self.corrections.touched()[..., None], np.nan, self.base2d
+                    ),
                     corrected=self.corrections.corrected_points(),
-                    point_names=list(self.skeleton.point_names))
+                    point_names=list(self.skeleton.point_names),
+                )
             return self._suspects
 
     def suspects_payload(self) -> dict:
@@ -265,15 +325,17 @@ class ReviewSession:
         """Re-solve one (frame, point) from the base 2D with the current corrections."""
         sub = self.corrections.subset([t], [p])
         conf = None if self.conf is None else self.conf[:, [t]][:, :, [p]]
-        pts3d, clean, error, _ = reconstruct_corrected(self.config, self.cameras,
-                                                      self.base2d[:, [t]][:, :, [p]], conf, sub)
+        pts3d, clean, error, _ = reconstruct_corrected(
+            self.config, self.cameras, self.base2d[:, [t]][:, :, [p]], conf, sub
+        )
         self.pts3d[t, p] = pts3d[0, 0]
         self.used2d[:, t, p] = clean[:, 0, 0]
         self.error[:, t, p] = error[:, 0, 0]
         self._suspects_stale = True
 
-    def edit(self, op: str, frame: int, point: int | None = None, view: str | None = None,
-             xy: Any = None) -> dict:
+    def edit(
+        self, op: str, frame: int, point: int | None = None, view: str | None = None, xy: Any = None
+    ) -> dict:
         """Apply one edit and re-solve what it touched.
 
         Parameters
@@ -308,7 +370,9 @@ class ReviewSession:
                 if op in ("move", "move3d"):
                     xy = np.asarray(xy, dtype=np.float64).reshape(-1)
                     if xy.shape != (2,) or not np.isfinite(xy).all():
-                        raise ValueError(f"xy must be two finite pixel coordinates, got {xy.tolist()}")
+                        raise ValueError(
+                            f"xy must be two finite pixel coordinates, got {xy.tolist()}"
+                        )
                 if op == "move":
                     self.corrections.set_point(v, t, p, xy)
                 elif op == "move3d":
@@ -329,8 +393,10 @@ class ReviewSession:
                 self.corrections.reset(t)
                 points = range(self.n_points)
             else:
-                raise ValueError(f"unknown edit {op!r}; use move, move3d, invisible, reset_point, reset_view "
-                                 "or reset_frame")
+                raise ValueError(
+                    f"unknown edit {op!r}; use move, move3d, invisible, reset_point, reset_view "
+                    "or reset_frame"
+                )
             started = time.perf_counter()
             for p in points:
                 self._resolve(t, p)
@@ -346,8 +412,10 @@ class ReviewSession:
 
         target = self.pts3d[t, p]
         if not np.isfinite(target).all():
-            raise ValueError(f"point {self.skeleton.point_names[p]} has no 3D at frame {t}; "
-                             "place it in 2D (Edit 2D) first")
+            raise ValueError(
+                f"point {self.skeleton.point_names[p]} has no 3D at frame {t}; "
+                "place it in 2D (Edit 2D) first"
+            )
         origin, direction = self.cameras[v].backproject_ray(xy)
         return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
 
@@ -387,7 +455,12 @@ class ReviewSession:
                     return
                 try:
                     self.frames[name].prefetch(frame)
-                except (FlylibError, OSError, ValueError, IndexError) as exc:  # reported when asked for
+                except (
+                    FlylibError,
+                    OSError,
+                    ValueError,
+                    IndexError,
+                ) as exc:  # reported when asked for
                     log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
 
     def close(self) -> None:

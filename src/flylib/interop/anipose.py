@@ -70,7 +70,9 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
         detail = " ".join(str(exc).split())
         raise ImportFormatError(f"{path}: not valid TOML ({detail}); fix the syntax") from None
     except OSError as exc:
-        raise ImportFormatError(f"{path}: cannot read the calibration ({exc.strerror or exc})") from None
+        raise ImportFormatError(
+            f"{path}: cannot read the calibration ({exc.strerror or exc})"
+        ) from None
     tables = {k: v for k, v in data.items() if k.startswith("cam_") and isinstance(v, dict)}
 
     def order(key: str):
@@ -83,9 +85,13 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
         name = table.get("name", key)
         name = str(name) if isinstance(name, int) and not isinstance(name, bool) else name
         if not isinstance(name, str) or not name:
-            raise ImportFormatError(f"{path} [{key}]: 'name' is {name!r}; it must be the camera's name (text)")
+            raise ImportFormatError(
+                f"{path} [{key}]: 'name' is {name!r}; it must be the camera's name (text)"
+            )
         where = f"{path} [{key}] (name {name!r})"
-        missing = [k for k in ("matrix", "distortions", "rotation", "translation") if k not in table]
+        missing = [
+            k for k in ("matrix", "distortions", "rotation", "translation") if k not in table
+        ]
         if missing:
             raise ImportFormatError(f"{where}: lacks {missing}; see the Anipose calibration format")
         kmat = camera_value(table["matrix"], "matrix", where, "matrix")
@@ -93,7 +99,9 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
         tvec = camera_value(table["translation"], "vec3", where, "translation")
         dist = camera_value(table["distortions"], "dist", where, "distortions")
         if name in out:
-            raise ImportFormatError(f"{where}: camera name {name!r} used twice; names must be unique")
+            raise ImportFormatError(
+                f"{where}: camera name {name!r} used twice; names must be unique"
+            )
         size = table.get("size")
         out[name] = {
             "size": None if size is None else image_size(size, where),
@@ -205,7 +213,9 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
         table = pd.read_csv(index_csv, index_col=0, dtype=str)
     except (UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError, OSError) as exc:
         detail = " ".join(str(exc).split())[:300]
-        raise ImportFormatError(f"{index_csv}: not a readable calibrations index CSV ({detail})") from None
+        raise ImportFormatError(
+            f"{index_csv}: not a readable calibrations index CSV ({detail})"
+        ) from None
     if "file" not in table.columns:
         raise ImportFormatError(
             f"{index_csv}: needs a 'file' column (header ',file'); see the calibrations.csv format"
@@ -231,15 +241,18 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
 def _calibration_file(spec: dict, recording_dir: Path | None, config) -> Path:
     """The calibration file a ``calibration`` table names (through its index if any)."""
     if "index" in spec:
-        return calibration_from_index(_resolve(spec["index"], recording_dir, config),
-                                      _session(spec, recording_dir))
+        return calibration_from_index(
+            _resolve(spec["index"], recording_dir, config), _session(spec, recording_dir)
+        )
     return _resolve(spec["file"], recording_dir, config)
 
 
 def _session(spec: dict, recording_dir: Path | None) -> str:
     session = spec.get("session") or (Path(recording_dir).name if recording_dir else None)
     if not session:
-        raise ImportFormatError("calibration.index needs a recording directory or calibration.session")
+        raise ImportFormatError(
+            "calibration.index needs a recording directory or calibration.session"
+        )
     return str(session)
 
 
@@ -307,9 +320,13 @@ def load_calibration(config, recording_dir: Path | None = None):
             "or {index: calibrations.csv}"
         )
     path = _calibration_file(spec, recording_dir, config)
-    fmt = spec.get("format") or ("deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose")
+    fmt = spec.get("format") or (
+        "deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose"
+    )
     if fmt not in CALIBRATION_FORMATS:
-        raise ImportFormatError(f"calibration.format is {fmt!r}; use one of {list(CALIBRATION_FORMATS)}")
+        raise ImportFormatError(
+            f"calibration.format is {fmt!r}; use one of {list(CALIBRATION_FORMATS)}"
+        )
     views = _views.view_names(config, required=False)
     names = spec.get("names") or {}
     if fmt == "anipose":
@@ -345,8 +362,11 @@ def load_calibration(config, recording_dir: Path | None = None):
     )
 
 
-def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
-               recording_dir: str | Path | None = None):
+def config_rig(
+    config,
+    image_sizes: Mapping[str, tuple[int, int]] | None = None,
+    recording_dir: str | Path | None = None,
+):
     """The rig the config describes: its ``calibration`` file when set, else the orbit
     parameters of ``cameras`` (principal points from ``image_sizes`` where not given).
 
@@ -361,7 +381,8 @@ def config_rig(config, image_sizes: Mapping[str, tuple[int, int]] | None = None,
     if tracks is not None and not tracks("cameras"):
         raise ConfigError(
             f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
-            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off")
+            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off"
+        )
     if config.data.get("calibration"):
         return load_calibration(config, Path(recording_dir) if recording_dir else None)
     return config.camera_group(image_sizes=dict(image_sizes or {}))

@@ -13,8 +13,10 @@ import numpy as np
 from ..camera_model import N_DIST_COEFFS
 from ..errors import ImportFormatError
 
-_DIST_TEXT = (f"at most {N_DIST_COEFFS} OpenCV-order distortion coefficients "
-              "(k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4]]])")
+_DIST_TEXT = (
+    f"at most {N_DIST_COEFFS} OpenCV-order distortion coefficients "
+    "(k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4]]])"
+)
 
 
 def _describe(value) -> str:
@@ -66,8 +68,12 @@ def camera_value(value, kind: str, where: str, key: str) -> np.ndarray:
     ImportFormatError
         One line naming ``where`` and ``key``, what is wrong and what it must be.
     """
-    what = {"matrix": "a 3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
-            "rotmat": "a 3x3 rotation matrix", "vec3": "3 numbers", "dist": _DIST_TEXT}[kind]
+    what = {
+        "matrix": "a 3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
+        "rotmat": "a 3x3 rotation matrix",
+        "vec3": "3 numbers",
+        "dist": _DIST_TEXT,
+    }[kind]
     arr = numeric_array(value, where, key, f"it must be {what}")
     shape = {"matrix": (3, 3), "rotmat": (3, 3), "vec3": (3,)}.get(kind)
     if shape is None:
@@ -79,21 +85,32 @@ def camera_value(value, kind: str, where: str, key: str) -> np.ndarray:
     else:
         arr = arr.reshape(shape)
     if not np.isfinite(arr).all():
-        raise ImportFormatError(f"{where}: {key!r} holds NaN or infinite values; it must be {what}, all finite")
+        raise ImportFormatError(
+            f"{where}: {key!r} holds NaN or infinite values; it must be {what}, all finite"
+        )
     if kind == "matrix":
         skewed = abs(arr[0, 1]) > 1e-12 * abs(arr[0, 0]) or arr[1, 0] != 0
         if skewed or arr[0, 0] <= 0 or arr[1, 1] <= 0 or not np.allclose(arr[2], [0.0, 0.0, 1.0]):
-            raise ImportFormatError(f"{where}: {key!r} is {arr.tolist()}; it must be {what} with fx, fy > 0")
-    if kind == "rotmat" and (not np.allclose(arr @ arr.T, np.eye(3), atol=1e-4) or np.linalg.det(arr) <= 0):
-        raise ImportFormatError(f"{where}: {key!r} is not a rotation (R R^T != I or det R <= 0); it must be {what}")
+            raise ImportFormatError(
+                f"{where}: {key!r} is {arr.tolist()}; it must be {what} with fx, fy > 0"
+            )
+    if kind == "rotmat" and (
+        not np.allclose(arr @ arr.T, np.eye(3), atol=1e-4) or np.linalg.det(arr) <= 0
+    ):
+        raise ImportFormatError(
+            f"{where}: {key!r} is not a rotation (R R^T != I or det R <= 0); it must be {what}"
+        )
     return arr
 
 
 def image_size(value, where: str, key: str = "size") -> tuple[int, int]:
     """Anipose's ``size = [width, height]``: two positive integers."""
-    ok = (isinstance(value, (list, tuple)) and len(value) == 2
-          and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-          and all(np.isfinite(v) and v > 0 and float(v) == int(v) for v in value))
+    ok = (
+        isinstance(value, (list, tuple))
+        and len(value) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        and all(np.isfinite(v) and v > 0 and float(v) == int(v) for v in value)
+    )
     if not ok:
         raise ImportFormatError(
             f"{where}: {key!r} is {value!r}; it must be [width, height] in pixels (two positive integers)"

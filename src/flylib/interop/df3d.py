@@ -93,7 +93,9 @@ def _load_pickle(path: Path, what: str) -> dict:
         raise ImportFormatError(f"{path}: no such {what}; check the path in the config")
     data = load_restricted(path, what)
     if not isinstance(data, dict):
-        raise ImportFormatError(f"{path}: a {what} pickle must hold a dict, got {type(data).__name__}")
+        raise ImportFormatError(
+            f"{path}: a {what} pickle must hold a dict, got {type(data).__name__}"
+        )
     return data
 
 
@@ -163,11 +165,17 @@ def _camera_ordering(data: dict, path: Path, n_cams: int) -> np.ndarray:
     """``camera_ordering`` as ``(C,)`` distinct integers (default ``0..C-1``)."""
     if "camera_ordering" not in data:
         return np.arange(n_cams)
-    fix = (f"it must list {n_cams} distinct integer camera indices (DeepFly3D's cidread2cid); "
-           "delete the key to take the rows in order")
+    fix = (
+        f"it must list {n_cams} distinct integer camera indices (DeepFly3D's cidread2cid); "
+        "delete the key to take the rows in order"
+    )
     ordering = numeric_array(data["camera_ordering"], str(path), "camera_ordering", fix)
-    if (ordering.shape != (n_cams,) or not np.isfinite(ordering).all()
-            or (ordering != np.round(ordering)).any() or len(set(ordering.tolist())) != n_cams):
+    if (
+        ordering.shape != (n_cams,)
+        or not np.isfinite(ordering).all()
+        or (ordering != np.round(ordering)).any()
+        or len(set(ordering.tolist())) != n_cams
+    ):
         raise ImportFormatError(f"{path}: 'camera_ordering' is {ordering.tolist()}; {fix}")
     return ordering.astype(int)
 
@@ -213,6 +221,7 @@ def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
             "dist": camera_value(entry.get("distort", np.zeros(5)), "dist", where, "distort"),
         }
     if not out:
-        raise ImportFormatError(f"{path}: no per-camera entries (integer keys) in the calibration pickle")
+        raise ImportFormatError(
+            f"{path}: no per-camera entries (integer keys) in the calibration pickle"
+        )
     return dict(sorted(out.items()))
-

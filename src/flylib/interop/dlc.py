@@ -21,9 +21,9 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ImportFormatError
+from ..paths import atomic_path
 from ._h5 import H5_READ_ERRORS, reading_foreign_h5
 from .safe_pickle import PICKLE_PARSE_ERRORS
-from ..paths import atomic_path
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -60,8 +60,14 @@ _HEADER_LEVELS = ("scorer", "individuals", "bodyparts", "coords")
 
 #: What reading a CSV's text can raise: undecodable bytes, a malformed row, an
 #: oversized field, no rows at all.
-_CSV_ERRORS = (UnicodeDecodeError, csv.Error, pd.errors.ParserError, pd.errors.EmptyDataError,
-               ValueError, OverflowError)
+_CSV_ERRORS = (
+    UnicodeDecodeError,
+    csv.Error,
+    pd.errors.ParserError,
+    pd.errors.EmptyDataError,
+    ValueError,
+    OverflowError,
+)
 
 
 def _read_header(path: Path) -> list[list[str]]:
@@ -99,12 +105,18 @@ def _read_csv_frame(path: Path) -> pd.DataFrame:
     n_index = 1 + next((i for i, cell in enumerate(first[1:]) if cell.strip()), len(first) - 1)
     widths = {len(row) for row in header}
     if len(widths) != 1 or n_index >= len(first):
-        raise ImportFormatError(f"{path}: the header rows have different lengths or no keypoint columns")
+        raise ImportFormatError(
+            f"{path}: the header rows have different lengths or no keypoint columns"
+        )
     columns = pd.MultiIndex.from_arrays([row[n_index:] for row in header], names=names)
     try:
         frame = pd.read_csv(
-            path, header=None, skiprows=len(header), index_col=list(range(n_index)),
-            names=list(range(len(first))), **_EXACT_FLOATS,
+            path,
+            header=None,
+            skiprows=len(header),
+            index_col=list(range(n_index)),
+            names=list(range(len(first))),
+            **_EXACT_FLOATS,
         )
     except pd.errors.EmptyDataError:  # a header and no frames
         frame = pd.DataFrame(np.empty((0, len(columns))))
@@ -131,7 +143,9 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
     try:
         return values.astype(np.float64)
     except ValueError as exc:
-        raise ImportFormatError(f"{path}: a keypoint column has a non-numeric cell ({exc})") from exc
+        raise ImportFormatError(
+            f"{path}: a keypoint column has a non-numeric cell ({exc})"
+        ) from exc
 
 
 def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> ViewKeypoints:
@@ -303,7 +317,9 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
                 f"{path}: refused or unreadable pickled pandas metadata ({_one_line(exc)}); {hint}"
             ) from None
         except (*H5_READ_ERRORS, AttributeError, IndexError, EOFError) as exc:
-            raise ImportFormatError(f"{path}: not a DeepLabCut DataFrame ({_one_line(exc)}); {hint}") from None
+            raise ImportFormatError(
+                f"{path}: not a DeepLabCut DataFrame ({_one_line(exc)}); {hint}"
+            ) from None
     return _frame_to_view(frame, path, individual)
 
 

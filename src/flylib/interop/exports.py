@@ -85,8 +85,11 @@ def points3d_table(
         error = np.full((n_frames, n_points), np.nan)
     scores = np.ones(used.shape) if conf is None else np.asarray(conf, dtype=np.float64)
     # Anipose: the lowest score among the views used (unused views count as 2, above any score).
-    score = np.where(used, np.nan_to_num(scores, nan=0.0), 2.0).min(0) if used.size else np.full(
-        (n_frames, n_points), np.nan)
+    score = (
+        np.where(used, np.nan_to_num(scores, nan=0.0), 2.0).min(0)
+        if used.size
+        else np.full((n_frames, n_points), np.nan)
+    )
     # Anipose blanks error, score and camera count below two views.
     too_few = (ncams < 2) | ~reconstructed
     error = np.where(too_few, np.nan, error)
@@ -201,8 +204,13 @@ def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None
                 "the results file has no 3D points (no triangulation or pictorial_structures "
                 "group); enable a 3D stage and re-run, or export only the 2D CSVs"
             )
-        written.append(write_points3d_csv(csv3d, result.pts3d, names, result.reproj_error, result.pts2d,
-                                          result.conf))
+        written.append(
+            write_points3d_csv(
+                csv3d, result.pts3d, names, result.reproj_error, result.pts2d, result.conf
+            )
+        )
     if dlc_dir is not None:
-        written += write_dlc_views(dlc_dir, result.pts2d, result.conf, list(result.cameras.names), names)
+        written += write_dlc_views(
+            dlc_dir, result.pts2d, result.conf, list(result.cameras.names), names
+        )
     return written

@@ -64,8 +64,14 @@ _DEFAULT_FILES = {
     "sleap": "{view}.analysis.h5",
 }
 _KNOWN_KEYS = {
-    "format", "files", "keypoint_map", "likelihood_threshold", "image_size",
-    "views", "individual", "track",
+    "format",
+    "files",
+    "keypoint_map",
+    "likelihood_threshold",
+    "image_size",
+    "views",
+    "individual",
+    "track",
 }
 
 
@@ -88,7 +94,9 @@ def import_spec(config, spec: dict | None = None) -> dict:
         or len(size) != 2
         or not all(isinstance(v, int) and v > 0 for v in size)
     ):
-        raise ImportFormatError(f"{where}.image_size must be [height, width] in pixels, got {size!r}")
+        raise ImportFormatError(
+            f"{where}.image_size must be [height, width] in pixels, got {size!r}"
+        )
     threshold = spec.get("likelihood_threshold")
     if threshold is not None and not isinstance(threshold, (int, float)):
         raise ImportFormatError(f"{where}.likelihood_threshold must be a number, got {threshold!r}")
@@ -104,7 +112,9 @@ def _skeleton_points(config) -> list[str]:
 def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
     path = Path(pattern)
     if path.is_absolute():
-        matches = sorted(path.parent.glob(path.name)) if any(c in path.name for c in "*?[") else [path]
+        matches = (
+            sorted(path.parent.glob(path.name)) if any(c in path.name for c in "*?[") else [path]
+        )
     else:
         matches = sorted(recording_dir.glob(pattern))
     matches = [m for m in matches if m.is_file()]
@@ -121,7 +131,9 @@ def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
     return matches[0]
 
 
-def _view_files(spec: dict, config, recording_dir: Path, views: list[str]) -> dict[str, Path | None]:
+def _view_files(
+    spec: dict, config, recording_dir: Path, views: list[str]
+) -> dict[str, Path | None]:
     files = spec.get("files", _DEFAULT_FILES[spec["format"]])
     if isinstance(files, dict):
         missing = [v for v in views if v not in files]
@@ -184,8 +196,12 @@ def _point_targets(names: list, keypoint_map: dict, points: list[str], origin: s
     return targets
 
 
-def _check_frames(counts: dict[str, int], footage_counts: dict[str, int | None], origin: dict,
-                  footage: dict | None = None) -> int:
+def _check_frames(
+    counts: dict[str, int],
+    footage_counts: dict[str, int | None],
+    origin: dict,
+    footage: dict | None = None,
+) -> int:
     values = set(counts.values())
     if len(values) > 1:
         detail = ", ".join(f"{v}: {n} ({origin[v]})" for v, n in counts.items())
@@ -216,17 +232,23 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
     known = set(views)
     bad = [v for v in pickle_views if v is not None and v not in known]
     if bad:
-        raise ImportFormatError(f"pose2d.import.views names unknown views {bad}; configured: {views}")
+        raise ImportFormatError(
+            f"pose2d.import.views names unknown views {bad}; configured: {views}"
+        )
     sized = [v for v in pickle_views if v is not None]
     footage = _views.footage_files(config, recording_dir)
-    sizes = _views.image_sizes(footage, recording_dir, sized, spec.get("image_size"), origin=str(path))
+    sizes = _views.image_sizes(
+        footage, recording_dir, sized, spec.get("image_size"), origin=str(path)
+    )
     default_size = next(iter(sizes.values())) if sizes else (480, 960)
     data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
     if not np.array_equal(data.camera_ordering, np.arange(len(data.camera_ordering))):
         log.warning(
             "%s: DeepFly3D camera_ordering is %s; its rows are placed on views %s in order "
             "(set pose2d.import.views to change that)",
-            path, data.camera_ordering.tolist(), pickle_views,
+            path,
+            data.camera_ordering.tolist(),
+            pickle_views,
         )
     n_joints = data.xy.shape[2]
     keypoint_map = spec.get("keypoint_map") or {}
@@ -238,9 +260,7 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
             f"fly38 skeleton by default; set pose2d.import.keypoint_map {{joint index: skeleton "
             f"point name or null}} for joints {_ranges(unmapped)}"
         )
-    targets = _point_targets(
-        list(range(n_joints)), keypoint_map, points, str(path), default
-    )
+    targets = _point_targets(list(range(n_joints)), keypoint_map, points, str(path), default)
     n_frames = data.xy.shape[1]
     _check_frames(
         {v: n_frames for v in sized},
@@ -262,8 +282,12 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
     return pts, conf, {v: sizes[v] for v in sized}, {v: path for v in sized}
 
 
-def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], points: list[str],
-                        expected: dict[str, set[int]] | None = None) -> None:
+def _warn_missing_parts(
+    filled: dict[str, set[int]],
+    files: dict[str, Path],
+    points: list[str],
+    expected: dict[str, set[int]] | None = None,
+) -> None:
     """Warn, per file, about skeleton points its view should give and it does not.
 
     A per-view file lacking body parts (a column dropped, a part renamed and mapped
@@ -275,7 +299,10 @@ def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], poi
     given = set().union(*filled.values()) if filled else set()
     for view, have in filled.items():
         if expected and view in expected:
-            lacking, whose = sorted(expected[view] - have), "the detection plan's pose2d.output_points give this view"
+            lacking, whose = (
+                sorted(expected[view] - have),
+                "the detection plan's pose2d.output_points give this view",
+            )
         else:
             lacking = sorted(given - have) if len(filled) > 1 else []
             whose = "the other views' files have"
@@ -283,7 +310,10 @@ def _warn_missing_parts(filled: dict[str, set[int]], files: dict[str, Path], poi
             log.warning(
                 "%s: has no columns for body parts %s that %s; "
                 "they are missing in view %r (add them, or map them in pose2d.import.keypoint_map)",
-                files[view], [points[p] for p in lacking], whose, view,
+                files[view],
+                [points[p] for p in lacking],
+                whose,
+                view,
             )
 
 
@@ -291,8 +321,11 @@ def _plan_points(config, points: list[str]) -> dict[str, set[int]]:
     """``view -> point indices`` the config's ``pose2d.output_points`` assigns (may be empty)."""
     table = (_views.config_data(config).get("pose2d") or {}).get("output_points") or {}
     index = {name: i for i, name in enumerate(points)}
-    return {str(view): {index[p] for p in (entries or {}) if p in index}
-            for view, entries in table.items() if isinstance(entries, dict)}
+    return {
+        str(view): {index[p] for p in (entries or {}) if p in index}
+        for view, entries in table.items()
+        if isinstance(entries, dict)
+    }
 
 
 def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
@@ -315,7 +348,9 @@ def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], 
         if view in origin and not observed[v]:
             log.warning(
                 "%s: no observed point%s in view %r in any frame; the view contributes nothing",
-                origin[view], cut, view,
+                origin[view],
+                cut,
+                view,
             )
 
 
@@ -347,12 +382,16 @@ def _import_per_view(spec, config, recording_dir, views, points):
     read = {v: _read_view(spec["format"], files[v], spec) for v in present}
     keypoint_map = spec.get("keypoint_map") or {}
     footage = _views.footage_files(config, recording_dir)
-    n_frames = _check_frames(
-        {v: read[v].xy.shape[0] for v in present},
-        {v: _views.read_frame_count(footage.get(v, [])) for v in present},
-        {v: files[v] for v in present},
-        footage,
-    ) if present else 0
+    n_frames = (
+        _check_frames(
+            {v: read[v].xy.shape[0] for v in present},
+            {v: _views.read_frame_count(footage.get(v, [])) for v in present},
+            {v: files[v] for v in present},
+            footage,
+        )
+        if present
+        else 0
+    )
     pts = np.full((len(views), n_frames, len(points), 2), np.nan)
     conf = np.full((len(views), n_frames, len(points)), np.nan)
     filled: dict[str, set[int]] = {}
@@ -365,7 +404,9 @@ def _import_per_view(spec, config, recording_dir, views, points):
             if p is not None:
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
-    _warn_missing_parts(filled, {v: files[v] for v in present}, points, _plan_points(config, points))
+    _warn_missing_parts(
+        filled, {v: files[v] for v in present}, points, _plan_points(config, points)
+    )
     sizes = _views.image_sizes(
         footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
     )
@@ -415,6 +456,10 @@ def import_points2d(config, recording_dir: Path, spec: dict | None = None):
     _check_observed(pts, views, origin, threshold)
     log.info(
         "imported %s 2D for %d views x %d frames x %d points from %s",
-        spec["format"], pts.shape[0], pts.shape[1], pts.shape[2], recording_dir,
+        spec["format"],
+        pts.shape[0],
+        pts.shape[1],
+        pts.shape[2],
+        recording_dir,
     )
     return Pose2dData(pts2d=pts, conf=conf, view_names=list(views), image_sizes=sizes)

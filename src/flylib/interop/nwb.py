@@ -127,7 +127,11 @@ def footage_frame_rate(footage: Mapping[str, Sequence[Path]]) -> float | None:
     if not rates:
         return None
     if len({round(r, 6) for r in rates.values()}) > 1:
-        log.warning("the views' videos report different frame rates %s; using %s's", rates, next(iter(rates)))
+        log.warning(
+            "the views' videos report different frame rates %s; using %s's",
+            rates,
+            next(iter(rates)),
+        )
     return next(iter(rates.values()))
 
 
@@ -141,16 +145,20 @@ def _data(array: np.ndarray):
 
 
 def _camera_description(camera, view: str, image_size) -> str:
-    return json.dumps({
-        "about": "flylib camera model (OpenCV): x_cam = R(rvec) x_world + tvec; pixel = K distort(x_cam / z); "
-                 "distortion in OpenCV order (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4)",
-        "view": view,
-        "rvec": [float(x) for x in camera.rvec],
-        "tvec": [float(x) for x in camera.tvec],
-        "intrinsics_fx_fy_cx_cy": [float(x) for x in camera.intr],
-        "distortion": [float(x) for x in camera.dist],
-        "image_size_hw": None if image_size is None else [int(image_size[0]), int(image_size[1])],
-    })
+    return json.dumps(
+        {
+            "about": "flylib camera model (OpenCV): x_cam = R(rvec) x_world + tvec; pixel = K distort(x_cam / z); "
+            "distortion in OpenCV order (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4)",
+            "view": view,
+            "rvec": [float(x) for x in camera.rvec],
+            "tvec": [float(x) for x in camera.tvec],
+            "intrinsics_fx_fy_cx_cy": [float(x) for x in camera.intr],
+            "distortion": [float(x) for x in camera.dist],
+            "image_size_hw": None
+            if image_size is None
+            else [int(image_size[0]), int(image_size[1])],
+        }
+    )
 
 
 def _relative(path: Path, start: Path) -> str:
@@ -160,8 +168,9 @@ def _relative(path: Path, start: Path) -> str:
         return Path(path).resolve().as_posix()
 
 
-def _nwbfile_kwargs(metadata: Mapping, *, recording: str | None, config_text: str | None,
-                    result) -> dict[str, Any]:
+def _nwbfile_kwargs(
+    metadata: Mapping, *, recording: str | None, config_text: str | None, result
+) -> dict[str, Any]:
     from .. import __version__
 
     def as_list(value):
@@ -170,21 +179,28 @@ def _nwbfile_kwargs(metadata: Mapping, *, recording: str | None, config_text: st
     n_views, n_frames, n_points = result.n_views, result.n_frames, result.n_points
     description = metadata.get("session_description") or (
         f"Markerless pose of a tethered fly: {n_points} keypoints over {n_frames} frames from "
-        f"{n_views} synchronized cameras, estimated with flylib {__version__}")
+        f"{n_views} synchronized cameras, estimated with flylib {__version__}"
+    )
     stages = ", ".join(result.meta.get("stages") or []) or "unknown"
     collection = [f"Keypoints estimated with flylib {__version__} (stages: {stages})."]
     if recording:
         collection.append(f"Recording (footage): {recording}")
     if config_text:
-        collection.append("flylib configuration that produced these results (YAML):\n" + config_text)
+        collection.append(
+            "flylib configuration that produced these results (YAML):\n" + config_text
+        )
     kwargs: dict[str, Any] = {
         "session_description": description,
         "identifier": metadata.get("identifier") or str(uuid.uuid4()),
-        "session_start_time": parse_datetime(metadata["session_start_time"], "nwb.session_start_time"),
+        "session_start_time": parse_datetime(
+            metadata["session_start_time"], "nwb.session_start_time"
+        ),
         "experimenter": as_list(metadata["experimenter"]),
         "session_id": metadata.get("session_id") or (Path(recording).name if recording else None),
-        "keywords": as_list(metadata.get("keywords") or
-                            ["pose estimation", "Drosophila melanogaster", "multi-camera", "flylib"]),
+        "keywords": as_list(
+            metadata.get("keywords")
+            or ["pose estimation", "Drosophila melanogaster", "multi-camera", "flylib"]
+        ),
         "was_generated_by": [["flylib", __version__]],
         "data_collection": "\n".join(collection),
     }
@@ -201,7 +217,9 @@ def _subject(metadata: Mapping):
 
     fields = dict(metadata.get("subject") or {})
     if fields.get("date_of_birth") is not None:
-        fields["date_of_birth"] = parse_datetime(fields["date_of_birth"], "nwb.subject.date_of_birth")
+        fields["date_of_birth"] = parse_datetime(
+            fields["date_of_birth"], "nwb.subject.date_of_birth"
+        )
     return Subject(**{k: v for k, v in fields.items() if v is not None})
 
 
@@ -256,8 +274,10 @@ def write_nwb(
 
     path = Path(path)
     if result.pts3d is None:
-        raise ResultsError("the result has no 3D points (no triangulation or pictorial_structures group); "
-                           "enable a 3D stage and re-run before exporting NWB")
+        raise ResultsError(
+            "the result has no 3D points (no triangulation or pictorial_structures group); "
+            "enable a 3D stage and re-run before exporting NWB"
+        )
     footage = {v: [Path(f) for f in files] for v, files in (footage or {}).items() if files}
     rate = frame_rate or metadata.get("frame_rate") or footage_frame_rate(footage)
     if not rate:
@@ -270,7 +290,11 @@ def write_nwb(
     names = list(result.skeleton.point_names)
     views = list(result.cameras.names)
     recording_text = None if recording is None else str(Path(recording).resolve())
-    nwbfile = NWBFile(**_nwbfile_kwargs(metadata, recording=recording_text, config_text=config_text, result=result))
+    nwbfile = NWBFile(
+        **_nwbfile_kwargs(
+            metadata, recording=recording_text, config_text=config_text, result=result
+        )
+    )
     nwbfile.subject = _subject(metadata)
 
     cameras = {}
@@ -309,12 +333,16 @@ def write_nwb(
         nwbfile.add_acquisition(videos[view])
 
     behavior = nwbfile.create_processing_module(
-        name="behavior", description=f"keypoints of the fly estimated by flylib from {len(views)} cameras")
+        name="behavior",
+        description=f"keypoints of the fly estimated by flylib from {len(views)} cameras",
+    )
     n_points = len(names)
     skeleton = ndx_pose.Skeleton(
         name=str(result.skeleton.name or "skeleton"),
         nodes=names,
-        edges=np.asarray(result.skeleton.bones, dtype=np.uint8 if n_points < 256 else np.uint32).reshape(-1, 2),
+        edges=np.asarray(
+            result.skeleton.bones, dtype=np.uint8 if n_points < 256 else np.uint32
+        ).reshape(-1, 2),
         subject=nwbfile.subject,
     )
     behavior.add(ndx_pose.Skeletons(skeletons=[skeleton]))
@@ -327,30 +355,37 @@ def write_nwb(
                 description=f"2D position of {name} in camera {view}; NaN = not detected",
                 data=_data(result.pts2d[v, :, p]),
                 unit="pixels",
-                reference_frame=(f"OpenCV image coordinates of camera {view}'s raw frame: x to the right, "
-                                 "y down, (0, 0) at the centre of the top-left pixel"),
+                reference_frame=(
+                    f"OpenCV image coordinates of camera {view}'s raw frame: x to the right, "
+                    "y down, (0, 0) at the centre of the top-left pixel"
+                ),
                 confidence=None if result.conf is None else _data(result.conf[v, :, p]),
-                confidence_definition=None if result.conf is None else
-                "the 2D detector's (or the imported tool's) confidence in this detection",
+                confidence_definition=None
+                if result.conf is None
+                else "the 2D detector's (or the imported tool's) confidence in this detection",
                 starting_time=0.0,
                 rate=rate,
             )
             for p, name in enumerate(names)
         ]
-        per_view.append(ndx_pose.PoseEstimation(
-            name=f"PoseEstimation_{view}",
-            description=f"2D keypoints of camera {view}, the ones the 3D rests on (NaN where a view's "
-                        "detection was missing or rejected as an outlier)",
-            pose_estimation_series=series,
-            skeleton=skeleton,
-            device=cameras[view],
-            source_video=videos.get(view),
-            scorer="flylib",
-            source_software="flylib",
-            source_software_version=_version(),
-        ))
+        per_view.append(
+            ndx_pose.PoseEstimation(
+                name=f"PoseEstimation_{view}",
+                description=f"2D keypoints of camera {view}, the ones the 3D rests on (NaN where a view's "
+                "detection was missing or rejected as an outlier)",
+                pose_estimation_series=series,
+                skeleton=skeleton,
+                device=cameras[view],
+                source_video=videos.get(view),
+                scorer="flylib",
+                source_software="flylib",
+                source_software_version=_version(),
+            )
+        )
 
-    confidence = None if result.reproj_error is None else confidence_3d(result.reproj_error, result.pts3d)
+    confidence = (
+        None if result.reproj_error is None else confidence_3d(result.reproj_error, result.pts3d)
+    )
     world_unit = str(metadata.get("world_unit") or "n.a.")
     series_3d = [
         ndx_pose.PoseEstimationSeries(
@@ -361,7 +396,8 @@ def write_nwb(
             reference_frame=(
                 "the world frame of the camera calibration (the CalibratedCamera devices map it to each "
                 "camera as x_cam = R x_world + t); for flylib's orbit rig the origin is the point the "
-                "cameras look at; units are the calibration's"),
+                "cameras look at; units are the calibration's"
+            ),
             confidence=None if confidence is None else _data(confidence[:, p]),
             confidence_definition=None if confidence is None else CONFIDENCE_DEFINITION,
             starting_time=0.0,
@@ -369,29 +405,37 @@ def write_nwb(
         )
         for p, name in enumerate(names)
     ]
-    behavior.add(ndx_pose.MultiCameraPoseEstimation(
-        name=MULTICAMERA_NAME,
-        description=(f"3D keypoints triangulated by flylib from {len(views)} calibrated cameras "
-                     f"({', '.join(views)}), with each camera's 2D keypoints"),
-        pose_estimation_series=series_3d,
-        pose_estimations=per_view,
-        skeleton=skeleton,
-        scorer="flylib",
-        source_software="flylib",
-        source_software_version=_version(),
-    ))
+    behavior.add(
+        ndx_pose.MultiCameraPoseEstimation(
+            name=MULTICAMERA_NAME,
+            description=(
+                f"3D keypoints triangulated by flylib from {len(views)} calibrated cameras "
+                f"({', '.join(views)}), with each camera's 2D keypoints"
+            ),
+            pose_estimation_series=series_3d,
+            pose_estimations=per_view,
+            skeleton=skeleton,
+            scorer="flylib",
+            source_software="flylib",
+            source_software_version=_version(),
+        )
+    )
     if result.reproj_error is not None:
         for v, view in enumerate(views):
-            behavior.add(TimeSeries(
-                name=f"ReprojectionError_{view}",
-                description=(f"distance in pixels between camera {view}'s 2D keypoint and the 3D point's "
-                             f"projection; columns are the skeleton points in order ({', '.join(names)}); "
-                             "NaN where the view was not used"),
-                data=_data(result.reproj_error[v]),
-                unit="pixels",
-                starting_time=0.0,
-                rate=rate,
-            ))
+            behavior.add(
+                TimeSeries(
+                    name=f"ReprojectionError_{view}",
+                    description=(
+                        f"distance in pixels between camera {view}'s 2D keypoint and the 3D point's "
+                        f"projection; columns are the skeleton points in order ({', '.join(names)}); "
+                        "NaN where the view was not used"
+                    ),
+                    data=_data(result.reproj_error[v]),
+                    unit="pixels",
+                    starting_time=0.0,
+                    rate=rate,
+                )
+            )
 
     with atomic_path(path) as tmp, NWBHDF5IO(str(tmp), mode="w") as io:
         io.write(nwbfile)
@@ -446,10 +490,19 @@ def export_nwb(
     footage = footage_files(config, Path(recording_dir)) if recording_dir is not None else {}
     missing = [v for v in result.cameras.names if not footage.get(v)]
     if recording_dir is not None and missing:
-        log.warning("%s: no footage found for view(s) %s; the NWB file links no video for them",
-                    recording_dir, ", ".join(missing))
-    return write_nwb(result, out_path, metadata, footage=footage, recording=recording_dir,
-                     config_text=config.snapshot_text())
+        log.warning(
+            "%s: no footage found for view(s) %s; the NWB file links no video for them",
+            recording_dir,
+            ", ".join(missing),
+        )
+    return write_nwb(
+        result,
+        out_path,
+        metadata,
+        footage=footage,
+        recording=recording_dir,
+        config_text=config.snapshot_text(),
+    )
 
 
 def export_nwb_command(
@@ -495,14 +548,21 @@ def export_nwb_command(
         snapshots = [results_path.parent / f"config.{ext}" for ext in ("yaml", "toml")]
         config_path = next((p for p in snapshots if p.is_file()), None)
         if config_path is None:
-            log.warning("%s: no config snapshot beside it; using flylib's default config "
-                        "(pass --config for the run's)", results_path)
+            log.warning(
+                "%s: no config snapshot beside it; using flylib's default config "
+                "(pass --config for the run's)",
+                results_path,
+            )
     config = Config.from_file(config_path) if config_path is not None else Config.default()
     if recording is None and meta.get("recording"):
         recording = Path(meta["recording"])
         if not recording.is_dir():
-            log.warning("%s names recording %s, which is not a directory here; no video is linked "
-                        "(pass --recording)", results_path, recording)
+            log.warning(
+                "%s names recording %s, which is not a directory here; no video is linked "
+                "(pass --recording)",
+                results_path,
+                recording,
+            )
             recording = None
     extra = None
     if metadata_path is not None:

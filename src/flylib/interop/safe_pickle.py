@@ -31,7 +31,10 @@ def _numpy_helpers() -> dict[tuple[str, str], object]:
         "multiarray": {"_reconstruct": multiarray._reconstruct, "scalar": multiarray.scalar},
         "numeric": {"_frombuffer": numeric._frombuffer},
     }
-    out: dict[tuple[str, str], object] = {("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype}
+    out: dict[tuple[str, str], object] = {
+        ("numpy", "ndarray"): np.ndarray,
+        ("numpy", "dtype"): np.dtype,
+    }
     for package in ("numpy.core", "numpy._core"):
         for module, names in helpers.items():
             for name, obj in names.items():
@@ -42,7 +45,11 @@ def _numpy_helpers() -> dict[tuple[str, str], object]:
 def _latin1_bytes(text, encoding: str = "latin1") -> bytes:
     """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, nothing else
     (no other codec -- compressors, ROT13, unknown names -- is reachable from a file)."""
-    if not isinstance(text, str) or not isinstance(encoding, str) or encoding.lower().replace("-", "").replace("_", "") not in ("latin1", "iso88591"):
+    if (
+        not isinstance(text, str)
+        or not isinstance(encoding, str)
+        or encoding.lower().replace("-", "").replace("_", "") not in ("latin1", "iso88591")
+    ):
         raise pickle.UnpicklingError(f"_codecs.encode with {type(text).__name__} and {encoding!r}")
     return text.encode("latin-1")
 
@@ -51,8 +58,20 @@ def _builtins() -> dict[tuple[str, str], object]:
     import builtins
     from collections import OrderedDict
 
-    plain = ("dict", "list", "tuple", "set", "frozenset", "int", "float", "complex", "bool",
-             "str", "bytes", "bytearray")
+    plain = (
+        "dict",
+        "list",
+        "tuple",
+        "set",
+        "frozenset",
+        "int",
+        "float",
+        "complex",
+        "bool",
+        "str",
+        "bytes",
+        "bytearray",
+    )
     out: dict[tuple[str, str], object] = {}
     for module in ("builtins", "__builtin__"):  # __builtin__: pickles written by Python 2
         out.update({(module, name): getattr(builtins, name) for name in plain})
@@ -88,8 +107,17 @@ class _RestrictedUnpickler(pickle.Unpickler):
 #: constructors raise on bad values (struct sizes, memo keys, dtype strings, text
 #: encodings, absurd lengths, nesting deeper than the interpreter's stack).
 PICKLE_PARSE_ERRORS = (
-    pickle.UnpicklingError, AttributeError, EOFError, ImportError, IndexError, KeyError,
-    ValueError, TypeError, OverflowError, MemoryError, RecursionError,
+    pickle.UnpicklingError,
+    AttributeError,
+    EOFError,
+    ImportError,
+    IndexError,
+    KeyError,
+    ValueError,
+    TypeError,
+    OverflowError,
+    MemoryError,
+    RecursionError,
 )
 
 
@@ -126,7 +154,9 @@ def load_restricted(path: str | Path, what: str):
             "(loading it could run code); re-save the data from a trusted source"
         ) from None
     except OSError as exc:
-        raise ImportFormatError(f"{path}: cannot read the {what} pickle ({exc.strerror or exc})") from None
+        raise ImportFormatError(
+            f"{path}: cannot read the {what} pickle ({exc.strerror or exc})"
+        ) from None
     except PICKLE_PARSE_ERRORS as exc:
         detail = " ".join(str(exc).split())[:200] or type(exc).__name__
         raise ImportFormatError(

@@ -17,8 +17,7 @@ import numpy as np
 from ..errors import ImportFormatError
 from ._h5 import reading_foreign_h5
 from .calib_checks import numeric_array
-from .dlc import ViewKeypoints
-from .dlc import _text as _decode
+from .dlc import ViewKeypoints, _text as _decode
 
 log = logging.getLogger(__name__)
 
@@ -53,12 +52,17 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
             )
         names = _decode(fh["node_names"][()])
         tracks = numeric_array(fh["tracks"][()], str(path), "tracks", hint)
-        scores = numeric_array(fh["point_scores"][()], str(path), "point_scores", hint) \
-            if "point_scores" in fh else None
+        scores = (
+            numeric_array(fh["point_scores"][()], str(path), "point_scores", hint)
+            if "point_scores" in fh
+            else None
+        )
         track_names = _decode(fh["track_names"][()]) if "track_names" in fh else []
     n_nodes = len(names)
     if tracks.ndim != 4:
-        raise ImportFormatError(f"{path}: 'tracks' has shape {tracks.shape}, expected 4 axes; {hint}")
+        raise ImportFormatError(
+            f"{path}: 'tracks' has shape {tracks.shape}, expected 4 axes; {hint}"
+        )
     if tracks.shape[1] == 2 and tracks.shape[2] == n_nodes:  # MATLAB-transposed layout
         tracks = tracks.T  # -> (T, K, 2, n_tracks)
         scores = None if scores is None else scores.T  # -> (T, K, n_tracks)
@@ -74,7 +78,9 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
     if n_tracks == 0:  # what SLEAP writes for a video in which nothing was detected
         log.warning(
             "%s: holds no tracks (SLEAP detected nothing in this view); its %d frames are "
-            "imported as missing", path, tracks.shape[0],
+            "imported as missing",
+            path,
+            tracks.shape[0],
         )
         xy = np.full(tracks.shape[:3], np.nan)
         return ViewKeypoints(names=names, xy=xy, conf=np.full(xy.shape[:2], np.nan), source=path)

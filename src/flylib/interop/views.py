@@ -25,8 +25,12 @@ def footage_files(config, recording_dir: Path) -> dict[str, list[Path]]:
     """
     sources = view_sources(config)
     patterns = source_patterns(config) if sources else {}
-    return {view: natural_sorted(footage_matches(Path(recording_dir), patterns[source]))
-            if source in patterns else [] for view, source in sources.items()}
+    return {
+        view: natural_sorted(footage_matches(Path(recording_dir), patterns[source]))
+        if source in patterns
+        else []
+        for view, source in sources.items()
+    }
 
 
 def read_frame_size(path: Path) -> tuple[int, int]:
@@ -56,8 +60,12 @@ def read_frame_count(files: list[Path]) -> int | None:
 
 
 def image_sizes(
-    footage: dict[str, list[Path]], recording_dir: Path | None, views: list[str], fallback=None,
-    *, origin: str,
+    footage: dict[str, list[Path]],
+    recording_dir: Path | None,
+    views: list[str],
+    fallback=None,
+    *,
+    origin: str,
 ) -> dict[str, tuple[int, int]]:
     """Raw frame ``(height, width)`` per view: from its footage (:func:`footage_files`),
     else ``fallback``.

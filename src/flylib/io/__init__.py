@@ -75,7 +75,9 @@ def open_reader(
     if isinstance(source, (list, tuple)):
         files = [Path(f) for f in source]
         if not files:
-            raise FootageError("open_reader got an empty file list; the footage pattern matched nothing")
+            raise FootageError(
+                "open_reader got an empty file list; the footage pattern matched nothing"
+            )
         videos = [f for f in files if f.suffix.lower() in VIDEO_EXTS]
         if videos:
             if len(files) > 1:
@@ -97,5 +99,9 @@ def open_reader(
         raise FootageError(f"{source}: no such file or directory, and the pattern matches nothing")
     if len(matches) == 1 and Path(matches[0]).suffix.lower() in VIDEO_EXTS:
         return VideoReader(matches[0], threads=threads)
-    return open_reader([Path(m) for m in list_image_files(source)], workers=workers, threads=threads,
-                       on_corrupt=on_corrupt)
+    return open_reader(
+        [Path(m) for m in list_image_files(source)],
+        workers=workers,
+        threads=threads,
+        on_corrupt=on_corrupt,
+    )

@@ -35,7 +35,7 @@ class FrameReader(ABC):
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (a no-op unless a reader holds something)
         """Release any resources held by the reader (no-op by default)."""
 
     @property

@@ -107,7 +107,9 @@ class ImageSequenceReader(FrameReader):
     def __init__(self, files, *, workers: int | None = None, on_corrupt: str = "error") -> None:
         self.files = [Path(f) for f in files]
         if not self.files:
-            raise FootageError("ImageSequenceReader got an empty file list; check the footage pattern")
+            raise FootageError(
+                "ImageSequenceReader got an empty file list; check the footage pattern"
+            )
         if on_corrupt not in ON_CORRUPT:
             raise ValueError(f"on_corrupt must be one of {ON_CORRUPT}, got {on_corrupt!r}")
         self.workers = int(workers) if workers else _default_workers()
@@ -118,15 +120,20 @@ class ImageSequenceReader(FrameReader):
         self._pool: ThreadPoolExecutor | None = None
 
     @classmethod
-    def from_pattern(cls, pattern: str | Path, *, workers: int | None = None,
-                     on_corrupt: str = "error") -> ImageSequenceReader:
+    def from_pattern(
+        cls, pattern: str | Path, *, workers: int | None = None, on_corrupt: str = "error"
+    ) -> ImageSequenceReader:
         """A reader over a directory or glob pattern, in natural order."""
         return cls(list_image_files(pattern), workers=workers, on_corrupt=on_corrupt)
 
     @property
     def name(self) -> str:
         first = self.files[0]
-        return str(first) if len(self.files) == 1 else f"{first.parent}/{first.name}...({len(self.files)} images)"
+        return (
+            str(first)
+            if len(self.files) == 1
+            else f"{first.parent}/{first.name}...({len(self.files)} images)"
+        )
 
     def close(self) -> None:
         if self._pool is not None:
@@ -158,8 +165,12 @@ class ImageSequenceReader(FrameReader):
                 f"{path}: cannot decode frame {index} ({damage}); the image is corrupt or truncated: "
                 "re-copy or re-export it, or set io.on_corrupt_frame: missing to mark such frames missing"
             )
-        log.warning("%s: frame %d is corrupt (%s); marking it missing (io.on_corrupt_frame: missing)",
-                    path, index, damage)
+        log.warning(
+            "%s: frame %d is corrupt (%s); marking it missing (io.on_corrupt_frame: missing)",
+            path,
+            index,
+            damage,
+        )
         self.corrupt_frames.add(index)
         shape = self._shape or self._shape_from_neighbour(index)
         return np.zeros(shape, np.uint8)
@@ -180,18 +191,24 @@ class ImageSequenceReader(FrameReader):
         if len(indices) == 1 or self.workers == 1:
             return np.stack([self._decode_one(i) for i in indices])
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="flylib-imread")
+            self._pool = ThreadPoolExecutor(
+                max_workers=self.workers, thread_name_prefix="flylib-imread"
+            )
         frames = list(self._pool.map(self._decode_one, indices))
         shapes = {f.shape for f in frames}
         if len(shapes) > 1:
-            raise FootageError(f"{self.name}: images of different sizes in one sequence: {sorted(shapes)}")
+            raise FootageError(
+                f"{self.name}: images of different sizes in one sequence: {sorted(shapes)}"
+            )
         return np.stack(frames)
 
     def _read_indices(self, indices: list[int]) -> np.ndarray:
         n = len(self.files)
         bad = [i for i in indices if not 0 <= i < n]
         if bad:
-            raise IndexError(f"{self.name}: frame {bad[0]} is out of range (the sequence has {n} images)")
+            raise IndexError(
+                f"{self.name}: frame {bad[0]} is out of range (the sequence has {n} images)"
+            )
         return self._decode(indices)
 
     def stream_frames(

@@ -51,7 +51,9 @@ class VideoReader(FrameReader):
     def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise FootageError(f"{self.path}: video file not found; check the path or the [[sources]] pattern")
+            raise FootageError(
+                f"{self.path}: video file not found; check the path or the [[sources]] pattern"
+            )
         self.threads = threads or 0
         self._pts_index: list[int] | None = None
         self._pts_index_read = False

@@ -76,14 +76,21 @@ class Kinematics:
 def _indices(skeleton, names, what: str) -> list[int]:
     missing = [n for n in names if n not in skeleton.point_names]
     if missing:
-        raise ConfigError(f"kinematics.{what}: unknown point(s) {missing} (known: {', '.join(skeleton.point_names)})")
+        raise ConfigError(
+            f"kinematics.{what}: unknown point(s) {missing} (known: {', '.join(skeleton.point_names)})"
+        )
     return [skeleton.index(n) for n in names]
 
 
-def compute_kinematics(pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton, *,
-                       angles: Mapping[str, Sequence[str]] | None = None,
-                       segments: Mapping[str, Sequence[str]] | None = None, tethered: bool = True,
-                       body_frame_points: Mapping[str, Sequence[str]] | None = None) -> Kinematics:
+def compute_kinematics(
+    pts3d: Float[np.ndarray, "T P 3"],
+    skeleton: Skeleton,
+    *,
+    angles: Mapping[str, Sequence[str]] | None = None,
+    segments: Mapping[str, Sequence[str]] | None = None,
+    tethered: bool = True,
+    body_frame_points: Mapping[str, Sequence[str]] | None = None,
+) -> Kinematics:
     """Body frame, body-frame 3D and joint angles.
 
     Parameters

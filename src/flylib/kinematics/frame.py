@@ -44,8 +44,10 @@ def default_frame_points(skeleton) -> dict[str, list[str]]:
     }
     empty = [k for k, v in groups.items() if not v]
     if empty:
-        raise ConfigError(f"kinematics.body_frame: the skeleton has no thorax-coxa points for {', '.join(empty)}; "
-                          "set kinematics.body_frame: {origin, posterior, anterior, right, left}")
+        raise ConfigError(
+            f"kinematics.body_frame: the skeleton has no thorax-coxa points for {', '.join(empty)}; "
+            "set kinematics.body_frame: {origin, posterior, anterior, right, left}"
+        )
     return groups
 
 
@@ -66,6 +68,7 @@ def frame_from_groups(
     origin : np.ndarray
         ``(..., 3)``.
     """
+
     def mean(key):
         return pts[..., groups[key], :].mean(axis=-2)
 

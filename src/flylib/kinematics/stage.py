@@ -37,8 +37,14 @@ def kinematics_from_config(
     """:func:`compute_kinematics` as the config's ``kinematics`` table says."""
     params = config.kinematics
     skeleton = skeleton or config.skeleton()
-    return compute_kinematics(pts3d, skeleton, angles=params.angles, segments=params.segments,
-                              tethered=params.tethered, body_frame_points=params.body_frame)
+    return compute_kinematics(
+        pts3d,
+        skeleton,
+        angles=params.angles,
+        segments=params.segments,
+        tethered=params.tethered,
+        body_frame_points=params.body_frame,
+    )
 
 
 def angles_table(kin: Kinematics):
@@ -68,13 +74,19 @@ def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered
         _write_array(group, "points3d_body", kin.points3d_body)
         _write_array(group, "body_rotation", kin.rotation)
         _write_array(group, "body_origin", kin.origin)
-        for key, value in {"angle_names": kin.angle_names, "definitions": kin.definitions,
-                           "point_names": list(point_names), "tethered": bool(tethered)}.items():
+        for key, value in {
+            "angle_names": kin.angle_names,
+            "definitions": kin.definitions,
+            "point_names": list(point_names),
+            "tethered": bool(tethered),
+        }.items():
             group.attrs[key] = json.dumps(value)
     return Path(path)
 
 
-def angles_figure(kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90) -> Path:
+def angles_figure(
+    kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90
+) -> Path:
     """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
     solid, segment yaw/pitch/roll dashed."""
     from matplotlib.figure import Figure
@@ -95,7 +107,7 @@ def angles_figure(kin: Kinematics, path: str | Path, *, fps: float | None = None
         for k in columns:
             name = kin.angle_names[k]
             style = "-" if name.endswith("_flex") else "--"
-            ax.plot(t, kin.angles[:, k], style, lw=1.2, label=name[len(leg) + 1:])
+            ax.plot(t, kin.angles[:, k], style, lw=1.2, label=name[len(leg) + 1 :])
         ax.set_title(leg)
         ax.set_xlabel(xlabel)
         ax.set_ylabel("degrees")
@@ -122,11 +134,15 @@ def run_kinematics(config, results_path: str | Path, outdir: str | Path) -> dict
 
     result = PoseResult.load(results_path)
     if result.pts3d is None:
-        raise ResultsError(f"{results_path}: holds no 3D points; turn on triangulation "
-                           "(or set pipeline.do_kinematics: false)")
+        raise ResultsError(
+            f"{results_path}: holds no 3D points; turn on triangulation "
+            "(or set pipeline.do_kinematics: false)"
+        )
     outdir = Path(outdir)
     kin = kinematics_from_config(config, result.pts3d, result.skeleton)
-    write_kinematics_h5(outdir / FILES[0], kin, result.skeleton.point_names, config.kinematics.tethered)
+    write_kinematics_h5(
+        outdir / FILES[0], kin, result.skeleton.point_names, config.kinematics.tethered
+    )
     write_angles_csv(outdir / FILES[1], kin)
     angles_figure(kin, outdir / FILES[2])
     return {"angles": kin.angle_names, "frames": int(kin.angles.shape[0])}

@@ -26,10 +26,24 @@ bone-length targets, the chain DP of step 3) and :mod:`.solver` (per frame, sequ
 
 from .chains import bone_length_targets, skeleton_chains
 from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, SEED_K
-from .peaks import (DEFAULT_K, DEFAULT_PEAK_RADIUS, DEFAULT_PEAK_THRESHOLD, DEFAULT_SUBPIXEL,
-                    SUBPIXEL_METHODS, Candidates, peak_candidates)
-from .solver import (DEFAULT_HUBER, DEFAULT_LAMBDA, DEFAULT_MU, reconstruct,
-                     reconstruct_from_config, solve_frame, solve_frames)
+from .peaks import (
+    DEFAULT_K,
+    DEFAULT_PEAK_RADIUS,
+    DEFAULT_PEAK_THRESHOLD,
+    DEFAULT_SUBPIXEL,
+    SUBPIXEL_METHODS,
+    Candidates,
+    peak_candidates,
+)
+from .solver import (
+    DEFAULT_HUBER,
+    DEFAULT_LAMBDA,
+    DEFAULT_MU,
+    reconstruct,
+    reconstruct_from_config,
+    solve_frame,
+    solve_frames,
+)
 
 __all__ = [
     "Candidates",

@@ -52,7 +52,7 @@ def bone_length_targets(
     return np.asarray(i), np.asarray(j), np.asarray(targets, float)
 
 
-def skeleton_chains(skeleton: "Skeleton") -> list[list[int]]:
+def skeleton_chains(skeleton: Skeleton) -> list[list[int]]:
     """The skeleton's bones as ordered simple chains (isolated points as singletons).
 
     Each connected component of the bone graph must be a path (the fly's limbs are);
@@ -79,11 +79,12 @@ def skeleton_chains(skeleton: "Skeleton") -> list[list[int]]:
                 component.append(node)
                 stack.extend(adjacency[node])
         ends = [n for n in component if len(adjacency[n]) <= 1]
-        if len(component) > 1 and (len(ends) != 2 or
-                                   any(len(adjacency[n]) > 2 for n in component)):
+        if len(component) > 1 and (len(ends) != 2 or any(len(adjacency[n]) > 2 for n in component)):
             names = [skeleton.point_names[n] for n in component]
-            raise ConfigError(f"skeleton: the limb through {names} branches or loops; "
-                              f"pictorial structures needs simple chains")
+            raise ConfigError(
+                f"skeleton: the limb through {names} branches or loops; "
+                f"pictorial structures needs simple chains"
+            )
         chain, prev = [ends[0]], None
         while len(chain) < len(component):
             nxt = [m for m in adjacency[chain[-1]] if m != prev][0]
@@ -91,7 +92,6 @@ def skeleton_chains(skeleton: "Skeleton") -> list[list[int]]:
             chain.append(nxt)
         chains.append(chain)
     return chains
-
 
 
 def _huber(x: np.ndarray, delta: float) -> np.ndarray:

@@ -15,7 +15,6 @@ SEED_K = 3  # peaks per view that seed two-view hypotheses (all K may join as in
 _CHUNK_FRAMES = 64
 
 
-
 @dataclass
 class _Hypotheses:
     """Per (frame, joint) the kept 3D hypotheses, padded to ``S`` slots."""
@@ -38,18 +37,37 @@ def _solve3(mat: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     a, b, c = mat[..., 0, 0], mat[..., 0, 1], mat[..., 0, 2]
     d, e, f = mat[..., 1, 0], mat[..., 1, 1], mat[..., 1, 2]
     g, h, i = mat[..., 2, 0], mat[..., 2, 1], mat[..., 2, 2]
-    co = np.stack([e * i - f * h, c * h - b * i, b * f - c * e,
-                   f * g - d * i, a * i - c * g, c * d - a * f,
-                   d * h - e * g, b * g - a * h, a * e - b * d], -1).reshape(mat.shape)
+    co = np.stack(
+        [
+            e * i - f * h,
+            c * h - b * i,
+            b * f - c * e,
+            f * g - d * i,
+            a * i - c * g,
+            c * d - a * f,
+            d * h - e * g,
+            b * g - a * h,
+            a * e - b * d,
+        ],
+        -1,
+    ).reshape(mat.shape)
     det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.einsum("...ij,...j->...i", co, rhs) / det[..., None]
     return np.where(np.abs(det[..., None]) > 1e-300, out, np.nan)
 
 
-def _frame_hypotheses(rt: np.ndarray, focal: np.ndarray, norm: np.ndarray, score: np.ndarray,
-                      views: np.ndarray, *, inlier_px: float, max_hyp: int,
-                      nms_radius: float):
+def _frame_hypotheses(
+    rt: np.ndarray,
+    focal: np.ndarray,
+    norm: np.ndarray,
+    score: np.ndarray,
+    views: np.ndarray,
+    *,
+    inlier_px: float,
+    max_hyp: int,
+    nms_radius: float,
+):
     """Hypotheses for a group of joints sharing a view count.
 
     Parameters
@@ -72,8 +90,9 @@ def _frame_hypotheses(rt: np.ndarray, focal: np.ndarray, norm: np.ndarray, score
     n_t, n_j, n_v, n_k, _ = norm.shape
     proj = rt[views]  # (J, n, 3, 4)
     # Per candidate: two DLT rows (x P3 - P1, y P3 - P2) as normal-equation terms.
-    rows = (norm[..., :, None] * proj[None, :, :, None, 2:3, :]
-            - proj[None, :, :, None, 0:2, :])  # (T, J, n, K, 2, 4)
+    rows = (
+        norm[..., :, None] * proj[None, :, :, None, 2:3, :] - proj[None, :, :, None, 0:2, :]
+    )  # (T, J, n, K, 2, 4)
     rows = np.where(np.isfinite(rows), rows, 0.0)
     lhs = np.einsum("...ri,...rj->...ij", rows[..., :3], rows[..., :3])  # (T,J,n,K,3,3)
     rhs = -np.einsum("...ri,...r->...i", rows[..., :3], rows[..., 3])  # (T,J,n,K,3)
@@ -131,8 +150,9 @@ def _frame_hypotheses(rt: np.ndarray, focal: np.ndarray, norm: np.ndarray, score
     code = np.where(ok, code, -1)
     order = np.argsort(code, axis=-1, kind="stable")
     sorted_code = np.take_along_axis(code, order, -1)
-    dup_sorted = np.concatenate([np.zeros((n_t, n_j, 1), bool),
-                                 sorted_code[..., 1:] == sorted_code[..., :-1]], -1)
+    dup_sorted = np.concatenate(
+        [np.zeros((n_t, n_j, 1), bool), sorted_code[..., 1:] == sorted_code[..., :-1]], -1
+    )
     dup = np.zeros_like(dup_sorted)
     np.put_along_axis(dup, order, dup_sorted, -1)
     evidence = np.where(dup, -np.inf, evidence)
@@ -146,13 +166,16 @@ def _frame_hypotheses(rt: np.ndarray, focal: np.ndarray, norm: np.ndarray, score
     keep = np.isfinite(ev)
     if nms_radius > 0 and m > 1:
         diff = pos[..., :, None, :] - pos[..., None, :, :]
-        close = np.einsum("...i,...i->...", diff, diff) < nms_radius ** 2
+        close = np.einsum("...i,...i->...", diff, diff) < nms_radius**2
         for s in range(1, m):
             keep[..., s] &= ~(close[..., s, :s] & keep[..., :s]).any(-1)
     ev = np.where(keep, ev, -np.inf)
     order = np.argsort(-ev, axis=-1, kind="stable")[..., :max_hyp]
-    return (np.take_along_axis(pos, order[..., None], -2), np.take_along_axis(ev, order, -1),
-            np.take_along_axis(asg, order[..., None], -2))
+    return (
+        np.take_along_axis(pos, order[..., None], -2),
+        np.take_along_axis(ev, order, -1),
+        np.take_along_axis(asg, order[..., None], -2),
+    )
 
 
 def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_radius):
@@ -162,9 +185,11 @@ def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_rad
     rt = np.concatenate([np.asarray(cameras.rmats), np.asarray(cameras.tvecs)[..., None]], -1)
     focal = np.asarray(cameras.intrs)[:, 0:2].mean(-1)
     seen = np.isfinite(cand_xy).all(-1).any(axis=(1, 3))  # (V, P)
-    hyp = _Hypotheses(np.full((n_t, n_p, max_hyp, 3), np.nan),
-                      np.full((n_t, n_p, max_hyp), -np.inf),
-                      np.full((n_t, n_p, max_hyp, n_v), -1))
+    hyp = _Hypotheses(
+        np.full((n_t, n_p, max_hyp, 3), np.nan),
+        np.full((n_t, n_p, max_hyp), -np.inf),
+        np.full((n_t, n_p, max_hyp, n_v), -1),
+    )
     by_count: dict[int, list[int]] = defaultdict(list)
     for p in range(n_p):
         by_count[int(seen[:, p].sum())].append(p)
@@ -178,8 +203,15 @@ def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_rad
             g_norm = norm[views, t, joints[:, None]]  # (J, n, Tc, K, 2)
             g_score = cand_score[views, t, joints[:, None]]
             pos, ev, asg = _frame_hypotheses(
-                rt, focal, g_norm.transpose(2, 0, 1, 3, 4), g_score.transpose(2, 0, 1, 3),
-                views, inlier_px=inlier_px, max_hyp=max_hyp, nms_radius=nms_radius)
+                rt,
+                focal,
+                g_norm.transpose(2, 0, 1, 3, 4),
+                g_score.transpose(2, 0, 1, 3),
+                views,
+                inlier_px=inlier_px,
+                max_hyp=max_hyp,
+                nms_radius=nms_radius,
+            )
             s = pos.shape[2]
             hyp.pos[t, joints, :s] = pos
             hyp.evidence[t, joints, :s] = ev

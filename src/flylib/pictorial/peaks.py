@@ -41,8 +41,10 @@ class Candidates:
         xy = np.asarray(self.xy, dtype=np.float64)
         score = np.asarray(self.score, dtype=np.float64)
         if xy.ndim != 5 or xy.shape[-1] != 2 or score.shape != xy.shape[:-1]:
-            raise ValueError(f"Candidates need xy (V, T, P, K, 2) and score (V, T, P, K), "
-                             f"got {xy.shape} and {score.shape}")
+            raise ValueError(
+                f"Candidates need xy (V, T, P, K, 2) and score (V, T, P, K), "
+                f"got {xy.shape} and {score.shape}"
+            )
         score = np.where(np.isfinite(xy).all(-1), np.nan_to_num(score), 0.0)
         object.__setattr__(self, "xy", xy)
         object.__setattr__(self, "score", score)
@@ -73,10 +75,14 @@ class Candidates:
 # -- heatmap peaks -----------------------------------------------------------------
 
 
-def peak_candidates(heatmaps: Float[np.ndarray, "*batch H W"], k: int = DEFAULT_K, *,
-                    radius: int = DEFAULT_PEAK_RADIUS, threshold: float = DEFAULT_PEAK_THRESHOLD,
-                    method: str = DEFAULT_SUBPIXEL,
-                    ) -> tuple[Float[np.ndarray, "*batch k 2"], Float[np.ndarray, "*batch k"]]:
+def peak_candidates(
+    heatmaps: Float[np.ndarray, "*batch H W"],
+    k: int = DEFAULT_K,
+    *,
+    radius: int = DEFAULT_PEAK_RADIUS,
+    threshold: float = DEFAULT_PEAK_THRESHOLD,
+    method: str = DEFAULT_SUBPIXEL,
+) -> tuple[Float[np.ndarray, "*batch k 2"], Float[np.ndarray, "*batch k"]]:
     """Top-``k`` local-maximum peaks of each heatmap, sub-pixel refined.
 
     A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2`` neighbourhood
@@ -109,8 +115,10 @@ def peak_candidates(heatmaps: Float[np.ndarray, "*batch H W"], k: int = DEFAULT_
     from scipy.ndimage import maximum_filter
 
     if method not in SUBPIXEL_METHODS:
-        raise ConfigError(f"pictorial_structures: unknown sub-pixel method {method!r}; "
-                          f"use one of {', '.join(SUBPIXEL_METHODS)}")
+        raise ConfigError(
+            f"pictorial_structures: unknown sub-pixel method {method!r}; "
+            f"use one of {', '.join(SUBPIXEL_METHODS)}"
+        )
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
     hm = np.asarray(heatmaps, dtype=np.float64)
@@ -118,8 +126,9 @@ def peak_candidates(heatmaps: Float[np.ndarray, "*batch H W"], k: int = DEFAULT_
         raise ValueError(f"heatmaps must be (..., H, W), got shape {hm.shape}")
     lead, (height, width) = hm.shape[:-2], hm.shape[-2:]
     flat_hm = hm.reshape(-1, height, width)
-    local_max = maximum_filter(flat_hm, size=(1, 2 * radius + 1, 2 * radius + 1),
-                               mode="constant", cval=-np.inf)
+    local_max = maximum_filter(
+        flat_hm, size=(1, 2 * radius + 1, 2 * radius + 1), mode="constant", cval=-np.inf
+    )
     is_peak = (flat_hm == local_max) & (flat_hm > threshold)
     values = np.where(is_peak, flat_hm, -np.inf).reshape(len(flat_hm), -1)
     kk = min(k, values.shape[1])

@@ -25,26 +25,40 @@ DEFAULT_HUBER = 0.25  # relative bone-length deviation where the cost turns line
 DEFAULT_MU = 1.0
 
 
-
 def _prior(cameras, skeleton, pts2d_argmax, bone_max_frames):
     n_t = pts2d_argmax.shape[1]
-    sel = (np.arange(n_t) if bone_max_frames is None or n_t <= bone_max_frames
-           else np.linspace(0, n_t - 1, bone_max_frames).round().astype(int))
+    sel = (
+        np.arange(n_t)
+        if bone_max_frames is None or n_t <= bone_max_frames
+        else np.linspace(0, n_t - 1, bone_max_frames).round().astype(int)
+    )
     i, j, targets = bone_length_targets(cameras, pts2d_argmax[:, sel], skeleton)
-    target_map = {(min(int(a), int(b)), max(int(a), int(b))): float(t)
-                  for a, b, t in zip(i, j, targets) if np.isfinite(t)}
+    target_map = {
+        (min(int(a), int(b)), max(int(a), int(b))): float(t)
+        for a, b, t in zip(i, j, targets)
+        if np.isfinite(t)
+    }
     scale = float(np.nanmedian(targets)) if np.isfinite(targets).any() else 1.0
     return target_map, scale
 
 
-def solve_frames(cameras: CameraGroup, cand_xy: Float[np.ndarray, "V T P K 2"],
-                 cand_score: Float[np.ndarray, "V T P K"],
-                 chains: list[list[int]], target_map: dict, *, scale: float,
-                 max_hyp: int = DEFAULT_MAX_HYP, inlier_px: float = DEFAULT_INLIER_PX,
-                 lam: float = DEFAULT_LAMBDA, huber: float = DEFAULT_HUBER,
-                 mu: float = DEFAULT_MU, temporal: bool = False,
-                 prev_pts3d: Float[np.ndarray, "P 3"] | None = None, nms: float = DEFAULT_NMS,
-                 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
+def solve_frames(
+    cameras: CameraGroup,
+    cand_xy: Float[np.ndarray, "V T P K 2"],
+    cand_score: Float[np.ndarray, "V T P K"],
+    chains: list[list[int]],
+    target_map: dict,
+    *,
+    scale: float,
+    max_hyp: int = DEFAULT_MAX_HYP,
+    inlier_px: float = DEFAULT_INLIER_PX,
+    lam: float = DEFAULT_LAMBDA,
+    huber: float = DEFAULT_HUBER,
+    mu: float = DEFAULT_MU,
+    temporal: bool = False,
+    prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
+    nms: float = DEFAULT_NMS,
+) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
     """Pictorial structures over a block of frames.
 
     Parameters
@@ -74,24 +88,27 @@ def solve_frames(cameras: CameraGroup, cand_xy: Float[np.ndarray, "V T P K 2"],
     cand_xy = np.asarray(cand_xy, float)
     cand_score = np.where(np.isfinite(cand_xy).all(-1), np.nan_to_num(cand_score), 0.0)
     n_v, n_t, n_p, n_k, _ = cand_xy.shape
-    hyp = _all_hypotheses(cameras, cand_xy, cand_score, inlier_px=inlier_px,
-                          max_hyp=max_hyp, nms_radius=nms * scale)
+    hyp = _all_hypotheses(
+        cameras, cand_xy, cand_score, inlier_px=inlier_px, max_hyp=max_hyp, nms_radius=nms * scale
+    )
     unary = np.where(np.isfinite(hyp.evidence), -hyp.evidence, np.inf)
     if temporal:
         choice = np.empty((n_t, n_p), int)
         prev = prev_pts3d
         for t in range(n_t):
-            u = unary[t:t + 1]
+            u = unary[t : t + 1]
             if prev is not None and mu > 0:
                 jump = np.linalg.norm(hyp.pos[t] - prev[:, None], axis=-1) / scale  # (P, S)
-                u = u + np.nan_to_num(mu * jump ** 2, nan=0.0)[None]
-            choice[t] = _solve_chains(hyp.pos[t:t + 1], u, chains, target_map,
-                                      lam=lam, huber=huber, scale=scale)[0]
-            picked = _pick(hyp.pos[t:t + 1], choice[t:t + 1])[0]
+                u = u + np.nan_to_num(mu * jump**2, nan=0.0)[None]
+            choice[t] = _solve_chains(
+                hyp.pos[t : t + 1], u, chains, target_map, lam=lam, huber=huber, scale=scale
+            )[0]
+            picked = _pick(hyp.pos[t : t + 1], choice[t : t + 1])[0]
             prev = np.where(np.isfinite(picked), picked, prev) if prev is not None else picked
     else:
-        choice = _solve_chains(hyp.pos, unary, chains, target_map, lam=lam, huber=huber,
-                               scale=scale)
+        choice = _solve_chains(
+            hyp.pos, unary, chains, target_map, lam=lam, huber=huber, scale=scale
+        )
     pts3d = _pick(hyp.pos, choice)
     slot = np.minimum(choice, max_hyp - 1)
     assign = np.take_along_axis(hyp.assign, slot[..., None, None], 2)[:, :, 0]  # (T, P, V)
@@ -108,30 +125,57 @@ def _pick(pos: np.ndarray, choice: np.ndarray) -> np.ndarray:
     return np.where((choice < n_s)[..., None], out, np.nan)
 
 
-def solve_frame(cameras: CameraGroup, skeleton: Skeleton, cand_xy: Float[np.ndarray, "V P K 2"],
-                cand_score: Float[np.ndarray, "V P K"], target_map: dict, chains: list[list[int]], *,
-                scale: float, max_hyp: int = DEFAULT_MAX_HYP,
-                inlier_px: float = DEFAULT_INLIER_PX, lam: float = DEFAULT_LAMBDA,
-                huber: float = DEFAULT_HUBER, mu: float = DEFAULT_MU,
-                prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
-                ) -> tuple[Float[np.ndarray, "P 3"], Float[np.ndarray, "V P 2"]]:
+def solve_frame(
+    cameras: CameraGroup,
+    skeleton: Skeleton,
+    cand_xy: Float[np.ndarray, "V P K 2"],
+    cand_score: Float[np.ndarray, "V P K"],
+    target_map: dict,
+    chains: list[list[int]],
+    *,
+    scale: float,
+    max_hyp: int = DEFAULT_MAX_HYP,
+    inlier_px: float = DEFAULT_INLIER_PX,
+    lam: float = DEFAULT_LAMBDA,
+    huber: float = DEFAULT_HUBER,
+    mu: float = DEFAULT_MU,
+    prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
+) -> tuple[Float[np.ndarray, "P 3"], Float[np.ndarray, "V P 2"]]:
     """Pictorial structures for one frame (seed API): ``(V, P, K, 2)`` candidates in,
     ``pts3d (P, 3)`` and committed ``pts2d (V, P, 2)`` out. See :func:`solve_frames`."""
     pts3d, pts2d = solve_frames(
-        cameras, np.asarray(cand_xy)[:, None], np.asarray(cand_score)[:, None], chains,
-        target_map, scale=scale, max_hyp=max_hyp, inlier_px=inlier_px, lam=lam, huber=huber,
-        mu=mu, temporal=prev_pts3d is not None, prev_pts3d=prev_pts3d)
+        cameras,
+        np.asarray(cand_xy)[:, None],
+        np.asarray(cand_score)[:, None],
+        chains,
+        target_map,
+        scale=scale,
+        max_hyp=max_hyp,
+        inlier_px=inlier_px,
+        lam=lam,
+        huber=huber,
+        mu=mu,
+        temporal=prev_pts3d is not None,
+        prev_pts3d=prev_pts3d,
+    )
     return pts3d[0], pts2d[:, 0]
 
 
-def reconstruct(cameras: CameraGroup, skeleton: Skeleton, candidates: Candidates,
-                pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None, *,
-                bone_max_frames: int | None = 100,
-                temporal: bool = False, max_hyp: int = DEFAULT_MAX_HYP,
-                inlier_px: float = DEFAULT_INLIER_PX, lam: float = DEFAULT_LAMBDA,
-                huber: float = DEFAULT_HUBER, mu: float = DEFAULT_MU, nms: float = DEFAULT_NMS,
-                ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"],
-                           Float[np.ndarray, "V T P"]]:
+def reconstruct(
+    cameras: CameraGroup,
+    skeleton: Skeleton,
+    candidates: Candidates,
+    pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
+    *,
+    bone_max_frames: int | None = 100,
+    temporal: bool = False,
+    max_hyp: int = DEFAULT_MAX_HYP,
+    inlier_px: float = DEFAULT_INLIER_PX,
+    lam: float = DEFAULT_LAMBDA,
+    huber: float = DEFAULT_HUBER,
+    mu: float = DEFAULT_MU,
+    nms: float = DEFAULT_NMS,
+) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
     """Pictorial-structures reconstruction of a sequence.
 
     The bone-length prior comes from a RANSAC triangulation of the arg-max detections
@@ -154,20 +198,37 @@ def reconstruct(cameras: CameraGroup, skeleton: Skeleton, candidates: Candidates
     argmax = candidates.argmax() if pts2d_argmax is None else np.asarray(pts2d_argmax, float)
     target_map, scale = _prior(cameras, skeleton, argmax, bone_max_frames)
     chains = skeleton_chains(skeleton)
-    _, pts2d = solve_frames(cameras, candidates.xy, candidates.score, chains, target_map,
-                            scale=scale, max_hyp=max_hyp, inlier_px=inlier_px, lam=lam,
-                            huber=huber, mu=mu, temporal=temporal, nms=nms)
+    _, pts2d = solve_frames(
+        cameras,
+        candidates.xy,
+        candidates.score,
+        chains,
+        target_map,
+        scale=scale,
+        max_hyp=max_hyp,
+        inlier_px=inlier_px,
+        lam=lam,
+        huber=huber,
+        mu=mu,
+        temporal=temporal,
+        nms=nms,
+    )
     pts3d = triangulate(cameras, pts2d)
     reproj = reprojection_error(cameras, pts3d, pts2d)
     changed = np.isfinite(argmax).all(-1) & ~np.isclose(pts2d, argmax).all(-1)
-    log.info("pictorial structures: %d of %d observations moved off the arg-max peak",
-             int(changed.sum()), int(np.isfinite(argmax).all(-1).sum()))
+    log.info(
+        "pictorial structures: %d of %d observations moved off the arg-max peak",
+        int(changed.sum()),
+        int(np.isfinite(argmax).all(-1).sum()),
+    )
     return pts3d, pts2d, reproj
 
 
-def reconstruct_from_config(config: Config, cameras: CameraGroup, candidates: Candidates,
-                            ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"],
-                                       Float[np.ndarray, "V T P"]]:
+def reconstruct_from_config(
+    config: Config,
+    cameras: CameraGroup,
+    candidates: Candidates,
+) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
     """Run :func:`reconstruct` with the config's ``pictorial_structures`` table and skeleton.
 
     The rig comes right after the config, as in
@@ -189,5 +250,4 @@ def reconstruct_from_config(config: Config, cameras: CameraGroup, candidates: Ca
             f"candidates, got {type(cameras).__name__} for cameras and "
             f"{type(candidates).__name__} for candidates"
         )
-    return reconstruct(cameras, config.skeleton(), candidates,
-                       **config.pictorial.solver_kwargs())
+    return reconstruct(cameras, config.skeleton(), candidates, **config.pictorial.solver_kwargs())

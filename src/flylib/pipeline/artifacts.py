@@ -12,7 +12,6 @@ from ..results import ARTIFACTS
 __all__ = ["ARTIFACTS", "SUMMARY_FILES", "artifact_path", "candidates_artifact"]
 
 
-
 def candidates_artifact(k: int) -> str:
     """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
 

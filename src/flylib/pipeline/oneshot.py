@@ -43,7 +43,7 @@ def run_from_points2d(
     triangulation: str | None = None,
     weigh_by_confidence: bool | None = None,
     do_pictorial: bool = False,
-    candidates: "Candidates | None" = None,
+    candidates: Candidates | None = None,
     ps_kwargs: dict | None = None,
     ransac_threshold: float | None = None,
     min_inliers: int | None = None,
@@ -51,7 +51,7 @@ def run_from_points2d(
     max_drops: int | None = None,
     fps: float = 100.0,
     meta: dict | None = None,
-) -> "PoseResult":
+) -> PoseResult:
     """Run the 2D-to-3D pipeline on detections and return a :class:`PoseResult`.
 
     Steps: optionally bundle-adjust the rig (on the arg-max ``pts2d``), optionally run
@@ -103,21 +103,30 @@ def run_from_points2d(
     defaults = _defaults()
     tri = defaults.triangulation
     triangulation = tri.method if triangulation is None else triangulation
-    weigh_by_confidence = tri.weigh_by_confidence if weigh_by_confidence is None else weigh_by_confidence
+    weigh_by_confidence = (
+        tri.weigh_by_confidence if weigh_by_confidence is None else weigh_by_confidence
+    )
     ransac_threshold = tri.ransac_threshold if ransac_threshold is None else ransac_threshold
     min_inliers = tri.min_inliers if min_inliers is None else min_inliers
     reproj_threshold = tri.reproj_threshold if reproj_threshold is None else reproj_threshold
     max_drops = tri.max_drops if max_drops is None else max_drops
     if triangulation not in TRIANGULATION_METHODS:
-        raise ConfigError(f"triangulation: unknown method {triangulation!r}; "
-                          f"use one of {', '.join(TRIANGULATION_METHODS)}")
+        raise ConfigError(
+            f"triangulation: unknown method {triangulation!r}; "
+            f"use one of {', '.join(TRIANGULATION_METHODS)}"
+        )
     if do_pictorial and candidates is None:
-        raise ConfigError("do_pictorial=True needs candidates=... (the detector's top-K "
-                          "peaks); 2D imported from another tool has none")
+        raise ConfigError(
+            "do_pictorial=True needs candidates=... (the detector's top-K "
+            "peaks); 2D imported from another tool has none"
+        )
     pts2d = np.asarray(pts2d, dtype=np.float64)
     conf = None if conf is None else np.asarray(conf, dtype=np.float64)
-    run_meta: dict = {"fps": float(fps), "triangulation": triangulation,
-                      "pictorial": bool(do_pictorial)}
+    run_meta: dict = {
+        "fps": float(fps),
+        "triangulation": triangulation,
+        "pictorial": bool(do_pictorial),
+    }
 
     if do_bundle_adjust:
         from ..bundle_adjustment import bundle_adjust_sequence
@@ -129,22 +138,36 @@ def run_from_points2d(
         run_meta["bundle_adjustment"] = {
             "initial_median_px": result.initial_median_px,
             "final_median_px": result.final_median_px,
-            "cost": float(result.cost), "nfev": int(result.nfev),
+            "cost": float(result.cost),
+            "nfev": int(result.nfev),
             "message": str(result.message),
-            **({"report": result.report} if hasattr(result, "report") else {})}
+            **({"report": result.report} if hasattr(result, "report") else {}),
+        }
 
     tri_input = pts2d
     if do_pictorial:
         from ..pictorial import reconstruct as ps_reconstruct
 
-        _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d,
-                                         **(ps_kwargs or {}))
+        _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d, **(ps_kwargs or {}))
 
-    params = {"dlt": {}, "ransac": {"threshold": ransac_threshold, "min_inliers": min_inliers},
-              "greedy": {"reproj_threshold": reproj_threshold, "max_drops": max_drops}}
+    params = {
+        "dlt": {},
+        "ransac": {"threshold": ransac_threshold, "min_inliers": min_inliers},
+        "greedy": {"reproj_threshold": reproj_threshold, "max_drops": max_drops},
+    }
     pts3d, pts2d_out, reproj = reconstruct(
-        cameras, tri_input, method=triangulation,
+        cameras,
+        tri_input,
+        method=triangulation,
         weights=conf if (weigh_by_confidence and conf is not None) else None,
-        **params[triangulation])
-    return PoseResult(cameras=cameras, skeleton=skeleton, pts2d=pts2d_out, conf=conf,
-                      pts3d=pts3d, reproj_error=reproj, meta={**run_meta, **(meta or {})})
+        **params[triangulation],
+    )
+    return PoseResult(
+        cameras=cameras,
+        skeleton=skeleton,
+        pts2d=pts2d_out,
+        conf=conf,
+        pts3d=pts3d,
+        reproj_error=reproj,
+        meta={**run_meta, **(meta or {})},
+    )

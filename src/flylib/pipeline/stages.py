@@ -32,7 +32,7 @@ import json
 import logging
 import time
 from collections.abc import Mapping
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -89,9 +89,15 @@ def run_demo(config, directory: str | Path):
     return make_demo(config, directory)
 
 
-def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
-               import_spec: Mapping | None = None, progress: bool = False,
-               candidates_path: str | Path | None = None) -> Path:
+def run_pose2d(
+    config,
+    recording_dir: str | Path,
+    out_path: str | Path,
+    *,
+    import_spec: Mapping | None = None,
+    progress: bool = False,
+    candidates_path: str | Path | None = None,
+) -> Path:
     """2D keypoints of one recording: the detector over its footage, or another
     tool's files when an import spec is in force (``import_spec``, else
     ``pose2d.import``).
@@ -114,7 +120,8 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
             raise ResultsError(
                 f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
                 f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
-                "which keeps none; set pipeline.do_pictorial_structures: false")
+                "which keeps none; set pipeline.do_pictorial_structures: false"
+            )
         from ..interop import import_points2d
 
         data = import_points2d(config, recording_dir, spec)
@@ -123,8 +130,9 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
         from ..recordings import find_recording
 
         sources = find_recording(recording_dir, config, strict=True)
-        data = detect_recording(config, sources, want_candidates=candidates_path is not None,
-                                progress=progress)
+        data = detect_recording(
+            config, sources, want_candidates=candidates_path is not None, progress=progress
+        )
     from ..provenance import stage_provenance
 
     provenance = stage_provenance(config, "pose2d")
@@ -132,7 +140,9 @@ def run_pose2d(config, recording_dir: str | Path, out_path: str | Path, *,
     if candidates is not None:
         from ..results import save_candidates
 
-        save_candidates(candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)})
+        save_candidates(
+            candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)}
+        )
     data.save(out_path, config.skeleton(), meta=provenance)
     return Path(out_path)
 
@@ -146,12 +156,18 @@ def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
         raise ResultsError(
             f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
             "they come only from the detector (set pipeline.do_pictorial_structures: false "
-            "for 2D imported from another tool)")
+            "for 2D imported from another tool)"
+        )
     return pose2d.candidates
 
 
-def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path, *,
-                          recording_dir: str | Path | None = None) -> Path:
+def run_bundle_adjustment(
+    config,
+    pose2d_path: str | Path,
+    out_path: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+) -> Path:
     """Refine the config rig against the recording's 2D keypoints."""
     from ..bundle_adjustment import bundle_adjust_from_config
     from ..results import Pose2dData, write_stage
@@ -170,17 +186,27 @@ def run_bundle_adjustment(config, pose2d_path: str | Path, out_path: str | Path,
     }
     if hasattr(result, "report"):  # what was free, kept fractions, rounds, warnings
         summary["report"] = result.report
-    write_stage(out_path, "bundle_adjustment", {}, cameras=refined,
-                attrs={"summary": json.dumps(summary)},
-                meta=_provenance(config, "bundle_adjustment", pose2d=pose2d_path))
+    write_stage(
+        out_path,
+        "bundle_adjustment",
+        {},
+        cameras=refined,
+        attrs={"summary": json.dumps(summary)},
+        meta=_provenance(config, "bundle_adjustment", pose2d=pose2d_path),
+    )
     log.info("bundle adjustment: %s", summary)
     return Path(out_path)
 
 
-def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Path, *,
-                             candidates_path: str | Path | None = None,
-                             ba_path: str | Path | None = None,
-                             recording_dir: str | Path | None = None) -> Path:
+def run_pictorial_structures(
+    config,
+    pose2d_path: str | Path,
+    out_path: str | Path,
+    *,
+    candidates_path: str | Path | None = None,
+    ba_path: str | Path | None = None,
+    recording_dir: str | Path | None = None,
+) -> Path:
     """Peak recovery over the detector's candidate peaks (pictorial structures).
 
     The peaks come from ``candidates_path`` (what the pose2d stage writes), else from
@@ -199,18 +225,31 @@ def run_pictorial_structures(config, pose2d_path: str | Path, out_path: str | Pa
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
     pts3d, pts2d, error = reconstruct_from_config(config, cameras, candidates)
-    write_stage(out_path, "pictorial_structures",
-                {"points": pts2d, "points3d": pts3d, "reproj_error": error},
-                meta=_provenance(config, "pictorial_structures", pose2d=pose2d_path,
-                                 candidates=candidates_path, bundle_adjustment=ba_path))
+    write_stage(
+        out_path,
+        "pictorial_structures",
+        {"points": pts2d, "points3d": pts3d, "reproj_error": error},
+        meta=_provenance(
+            config,
+            "pictorial_structures",
+            pose2d=pose2d_path,
+            candidates=candidates_path,
+            bundle_adjustment=ba_path,
+        ),
+    )
     return Path(out_path)
 
 
-def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
-                      pictorial_path: str | Path | None = None,
-                      ba_path: str | Path | None = None,
-                      recording_dir: str | Path | None = None,
-                      corrections_path: str | Path | None = None) -> Path:
+def run_triangulation(
+    config,
+    pose2d_path: str | Path,
+    out_path: str | Path,
+    *,
+    pictorial_path: str | Path | None = None,
+    ba_path: str | Path | None = None,
+    recording_dir: str | Path | None = None,
+    corrections_path: str | Path | None = None,
+) -> Path:
     """Lift the 2D keypoints (pictorial-structures-corrected when given, else pose2d's)
     to 3D with the bundle-adjusted rig when given, else the config rig.
 
@@ -230,29 +269,50 @@ def run_triangulation(config, pose2d_path: str | Path, out_path: str | Path, *,
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
     corrections = Corrections.load(corrections_path, pts2d.shape[:3]) if corrections_path else None
-    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(config, cameras, pts2d, pose2d.conf,
-                                                                 corrections)
+    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(
+        config, cameras, pts2d, pose2d.conf, corrections
+    )
     arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
     attrs = None
     if corrections is not None:
         arrays["corrected"] = corrected
         arrays["corrected_2d"] = corrections.touched()
         attrs = {"corrections": {"file": str(corrections_path), "count": corrections.count()}}
-        log.info("triangulation: %d manual corrections applied from %s", corrections.count(),
-                 corrections_path)
-    write_stage(out_path, "triangulation", arrays, attrs=attrs,
-                meta=_provenance(config, "triangulation", pose2d=pose2d_path,
-                                 pictorial_structures=pictorial_path, bundle_adjustment=ba_path))
+        log.info(
+            "triangulation: %d manual corrections applied from %s",
+            corrections.count(),
+            corrections_path,
+        )
+    write_stage(
+        out_path,
+        "triangulation",
+        arrays,
+        attrs=attrs,
+        meta=_provenance(
+            config,
+            "triangulation",
+            pose2d=pose2d_path,
+            pictorial_structures=pictorial_path,
+            bundle_adjustment=ba_path,
+        ),
+    )
     return Path(out_path)
 
 
-def run_refinement(config, pose2d_path, triangulation_path, out_path, *, ba_path=None,
-                   recording_dir=None) -> Path:
+def run_refinement(
+    config, pose2d_path, triangulation_path, out_path, *, ba_path=None, recording_dir=None
+) -> Path:
     """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
     from ..refinement.stage import run_refinement as run
 
-    return run(StageConfig.for_stage(_rig_source(config, ba_path), "refinement"), pose2d_path, triangulation_path, out_path,
-               ba_path=ba_path, recording_dir=recording_dir)
+    return run(
+        StageConfig.for_stage(_rig_source(config, ba_path), "refinement"),
+        pose2d_path,
+        triangulation_path,
+        out_path,
+        ba_path=ba_path,
+        recording_dir=recording_dir,
+    )
 
 
 def run_kinematics(config, results_path, outdir) -> dict:
@@ -262,10 +322,15 @@ def run_kinematics(config, results_path, outdir) -> dict:
     return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
 
 
-def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Path, *,
-                 recording_dir: str | Path | None = None,
-                 truth_path: str | Path | None = None,
-                 snapshot_path: str | Path | None = None) -> dict:
+def run_assemble(
+    config,
+    stage_files: Mapping[str, str | Path],
+    outdir: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+    truth_path: str | Path | None = None,
+    snapshot_path: str | Path | None = None,
+) -> dict:
     """Assemble ``results.h5`` from the stage artifacts, then write the recording's
     summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format) and
     ``summary.json``. With ``truth_path`` (the demo) the 3D error against the truth is
@@ -289,18 +354,27 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
     outdir = Path(outdir)
     stage_files = {k: Path(v) for k, v in stage_files.items() if v}
     if "pose2d" not in stage_files:
-        raise ResultsError("assemble: no pose2d artifact given; every result starts from 2D keypoints")
+        raise ResultsError(
+            "assemble: no pose2d artifact given; every result starts from 2D keypoints"
+        )
     sizes = read_image_sizes(stage_files["pose2d"])  # the arrays are copied, never loaded, here
     rig = config_rig(config, sizes, recording_dir)
-    meta = {"recording": str(recording_dir) if recording_dir else None,
-            **_provenance(config, "assemble", **stage_files)}
+    meta = {
+        "recording": str(recording_dir) if recording_dir else None,
+        **_provenance(config, "assemble", **stage_files),
+    }
     results_path = outdir / "results.h5"
-    assemble_results(results_path, skeleton=config.skeleton(), config_rig=rig,
-                     stage_files=stage_files, meta=meta)
+    assemble_results(
+        results_path, skeleton=config.skeleton(), config_rig=rig, stage_files=stage_files, meta=meta
+    )
     result = PoseResult.load(results_path)
     summary_figure(result, outdir / "summary.png")
-    write_anipose_toml(result.cameras, outdir / "calibration.toml", image_sizes=sizes,
-                       metadata={"recording": str(recording_dir or "")})
+    write_anipose_toml(
+        result.cameras,
+        outdir / "calibration.toml",
+        image_sizes=sizes,
+        metadata={"recording": str(recording_dir or "")},
+    )
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
     summary["suspects"] = _write_suspects(results_path, outdir, result)
     if truth_path:
@@ -314,7 +388,10 @@ def run_assemble(config, stage_files: Mapping[str, str | Path], outdir: str | Pa
 
             tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
             summary["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
-    summary["params_sha256"] = {**meta.get("upstream_params_sha256", {}), "assemble": meta["params_sha256"]}
+    summary["params_sha256"] = {
+        **meta.get("upstream_params_sha256", {}),
+        "assemble": meta["params_sha256"],
+    }
     _write_json(outdir / "summary.json", summary)
     if snapshot is not None:
         write_snapshot(snapshot, snapshot_path)
@@ -334,7 +411,7 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
     summary: dict[str, Any] = {
         "recording": str(recording_dir) if recording_dir else None,
         "outdir": str(outdir),
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "format_version": version,
         "stages": sorted(stage_files),
         "views": list(result.cameras.names),
@@ -351,8 +428,10 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
         summary["reprojection_error_px"] = {
             "median": float(np.nanmedian(error)),
             "p95": float(np.nanpercentile(error, 95)),
-            "per_view_median": {name: (float(np.nanmedian(e)) if np.isfinite(e).any() else None)
-                                for name, e in zip(result.cameras.names, error)},
+            "per_view_median": {
+                name: (float(np.nanmedian(e)) if np.isfinite(e).any() else None)
+                for name, e in zip(result.cameras.names, error)
+            },
         }
     return summary
 
@@ -364,12 +443,18 @@ def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
 
     if result.pts3d is None or result.reproj_error is None:
         empty = np.zeros(0, int)
-        Suspects(empty, empty, np.zeros(0), [], [], np.zeros(result.n_frames)).to_csv(outdir / SUSPECTS_FILE)
+        Suspects(empty, empty, np.zeros(0), [], [], np.zeros(result.n_frames)).to_csv(
+            outdir / SUSPECTS_FILE
+        )
         return None
     suspects = suspects_from_results(results_path)
     suspects.to_csv(outdir / SUSPECTS_FILE)
-    log.info("%d suspect (frame, point) pairs in %d frames: %s", len(suspects), len(suspects.frames),
-             outdir / SUSPECTS_FILE)
+    log.info(
+        "%d suspect (frame, point) pairs in %d frames: %s",
+        len(suspects),
+        len(suspects.frames),
+        outdir / SUSPECTS_FILE,
+    )
     return len(suspects)
 
 
@@ -378,18 +463,24 @@ def _write_json(path: Path, payload: Mapping) -> None:
         tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
 
 
-def run_visualization(config, results_path: str | Path, recording_dir: str | Path,
-                      outdir: str | Path, *, progress: bool = False) -> list[Path]:
+def run_visualization(
+    config,
+    results_path: str | Path,
+    recording_dir: str | Path,
+    outdir: str | Path,
+    *,
+    progress: bool = False,
+) -> list[Path]:
     """Render the configured videos of one recording into ``outdir`` (points a person
     corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
+    from ..corrections import read_corrected
     from ..interop.views import footage_files
     from ..results import PoseResult
     from ..visualization import render_videos
 
-    from ..corrections import read_corrected
-
     config = StageConfig.for_stage(config, "visualization")
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
-    return render_videos(config, result, footage, outdir, progress=progress,
-                         corrected=read_corrected(results_path))
+    return render_videos(
+        config, result, footage, outdir, progress=progress, corrected=read_corrected(results_path)
+    )

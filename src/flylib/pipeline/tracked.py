@@ -72,8 +72,14 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
         rig += ("pose2d.output_points:names",)
     own_rig = () if flags["bundle_adjustment"] else rig
     if stage == "pose2d":
-        return ("sources", "pose2d", "skeleton.point_names", "cameras:names", "io.on_corrupt_frame",
-                *UNTRACKED["pose2d"])
+        return (
+            "sources",
+            "pose2d",
+            "skeleton.point_names",
+            "cameras:names",
+            "io.on_corrupt_frame",
+            *UNTRACKED["pose2d"],
+        )
     if stage == "bundle_adjustment":
         return ("bundle_adjustment", *rig, *_SKELETON)
     if stage == "pictorial_structures":
@@ -86,8 +92,13 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
     if stage == "kinematics":
         return ("kinematics", *_SKELETON)
     if stage == "assemble":
-        return (*rig, "skeleton.point_names", "skeleton.limb_points", "skeleton.limb_palette",
-                "skeleton.name")
+        return (
+            *rig,
+            "skeleton.point_names",
+            "skeleton.limb_points",
+            "skeleton.limb_palette",
+            "skeleton.name",
+        )
     if stage == "visualization":
         return ("visualization", "skeleton.limb_palette", *upstream_reads(stage))
     raise ValueError(f"unknown stage {stage!r}")
@@ -100,8 +111,13 @@ def upstream_reads(stage: str) -> dict[str, str]:
     pathways): a change there re-runs pose2d, and so everything after it.
     """
     if stage == "visualization":
-        return {"sources": "pose2d", "pose2d.pathways": "pose2d", "pose2d.output_points": "pose2d",
-                "cameras:names": "pose2d", "io.on_corrupt_frame": "pose2d"}
+        return {
+            "sources": "pose2d",
+            "pose2d.pathways": "pose2d",
+            "pose2d.output_points": "pose2d",
+            "cameras:names": "pose2d",
+            "io.on_corrupt_frame": "pose2d",
+        }
     return {}
 
 
@@ -138,7 +154,8 @@ class _Tracked(Mapping):
     def _refuse(self, key) -> UntrackedConfigRead:
         return UntrackedConfigRead(
             f"stage {self._stage!r} read config key {self._prefix}{key!r}, which its rule "
-            "does not track (flylib.pipeline.tracked.stage_reads)")
+            "does not track (flylib.pipeline.tracked.stage_reads)"
+        )
 
     def __getitem__(self, key):
         if key not in self._tree:
@@ -177,7 +194,8 @@ class _Names(Mapping):
     def __getitem__(self, key):
         raise UntrackedConfigRead(
             f"stage {self._stage!r} read config key {self._prefix}{key!r}, of which its rule "
-            "tracks only the names (flylib.pipeline.tracked.stage_reads)")
+            "tracks only the names (flylib.pipeline.tracked.stage_reads)"
+        )
 
     def __contains__(self, key) -> bool:
         return key in self._data
@@ -235,7 +253,9 @@ class StageConfig(Config):
         """
         if isinstance(config, StageConfig):
             if config.stage != stage:
-                raise UntrackedConfigRead(f"stage {stage!r} was given the config of stage {config.stage!r}")
+                raise UntrackedConfigRead(
+                    f"stage {stage!r} was given the config of stage {config.stage!r}"
+                )
             return config
         return cls(config, stage)
 
@@ -246,7 +266,9 @@ class StageConfig(Config):
     def stage_params(self, stage: str) -> dict:
         """The stage's params, as the full config gives them (only for this stage)."""
         if stage != self.stage:
-            raise UntrackedConfigRead(f"stage {self.stage!r} asked for the params of stage {stage!r}")
+            raise UntrackedConfigRead(
+                f"stage {self.stage!r} asked for the params of stage {stage!r}"
+            )
         return copy.deepcopy(self.params)
 
     def skeleton(self):

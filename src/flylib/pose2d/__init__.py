@@ -40,7 +40,9 @@ def __getattr__(name: str):
     return value
 
 
-def load_detector(checkpoint: str | Path | None = None, *, device=None, num_classes: int | None = None):
+def load_detector(
+    checkpoint: str | Path | None = None, *, device=None, num_classes: int | None = None
+):
     """Load the hourglass detector from a checkpoint (strictly; shape read from the file).
 
     Parameters

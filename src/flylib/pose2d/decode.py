@@ -31,8 +31,14 @@ _EPS = 1e-12
 SUBPIXEL_RADIUS = 2
 
 __all__ = [
-    "DEFAULT_SUBPIXEL", "SUBPIXEL_METHODS", "SUBPIXEL_RADIUS", "check_subpixel",
-    "decode_argmax", "gaussian_heatmap", "refine_peaks", "topk_peaks",
+    "DEFAULT_SUBPIXEL",
+    "SUBPIXEL_METHODS",
+    "SUBPIXEL_RADIUS",
+    "check_subpixel",
+    "decode_argmax",
+    "gaussian_heatmap",
+    "refine_peaks",
+    "topk_peaks",
 ]
 
 
@@ -50,7 +56,9 @@ def _parabola_offset(left: torch.Tensor, centre: torch.Tensor, right: torch.Tens
     return offset.clamp(-0.5, 0.5)
 
 
-def _gather(flat: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, h: int, w: int) -> torch.Tensor:
+def _gather(
+    flat: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, h: int, w: int
+) -> torch.Tensor:
     """``flat (M, H*W)`` at integer ``rows, cols`` of any shape ``(M, ...)`` (clamped into the grid)."""
     index = rows.clamp(0, h - 1) * w + cols.clamp(0, w - 1)
     return torch.gather(flat, 1, index.reshape(flat.shape[0], -1)).reshape(index.shape)
@@ -93,8 +101,12 @@ def _taylor_offsets(flat, rows, cols, h, w, radius):
 
 def _parabola_offsets(flat, rows, cols, h, w):
     centre = _gather(flat, rows, cols, h, w)
-    dx = _parabola_offset(_gather(flat, rows, cols - 1, h, w), centre, _gather(flat, rows, cols + 1, h, w))
-    dy = _parabola_offset(_gather(flat, rows - 1, cols, h, w), centre, _gather(flat, rows + 1, cols, h, w))
+    dx = _parabola_offset(
+        _gather(flat, rows, cols - 1, h, w), centre, _gather(flat, rows, cols + 1, h, w)
+    )
+    dy = _parabola_offset(
+        _gather(flat, rows - 1, cols, h, w), centre, _gather(flat, rows + 1, cols, h, w)
+    )
     dx = torch.where((cols > 0) & (cols < w - 1), dx, torch.zeros_like(dx))
     dy = torch.where((rows > 0) & (rows < h - 1), dy, torch.zeros_like(dy))
     return dx, dy
@@ -103,7 +115,9 @@ def _parabola_offsets(flat, rows, cols, h, w):
 def check_subpixel(method: str, where: str = "pose2d.models[].subpixel") -> str:
     """``method`` if it is one of :data:`SUBPIXEL_METHODS`, else a :class:`~flylib.errors.ConfigError`."""
     if method not in SUBPIXEL_METHODS:
-        raise ConfigError(f"{where}: unknown sub-pixel method {method!r}; use one of {', '.join(SUBPIXEL_METHODS)}")
+        raise ConfigError(
+            f"{where}: unknown sub-pixel method {method!r}; use one of {', '.join(SUBPIXEL_METHODS)}"
+        )
     return method
 
 

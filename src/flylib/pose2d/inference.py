@@ -38,9 +38,13 @@ def select_device(requested: str | torch.device | None = "auto") -> torch.device
     try:
         device = torch.device(requested)
     except RuntimeError:
-        raise ConfigError(f"pose2d.device: {requested!r} is not a torch device (use auto, cpu, cuda, cuda:1, mps)") from None
+        raise ConfigError(
+            f"pose2d.device: {requested!r} is not a torch device (use auto, cpu, cuda, cuda:1, mps)"
+        ) from None
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("pose2d.device: cuda was asked for but torch sees no CUDA GPU; use auto or cpu")
+        raise ConfigError(
+            "pose2d.device: cuda was asked for but torch sees no CUDA GPU; use auto or cpu"
+        )
     return device
 
 
@@ -53,7 +57,9 @@ _YUV_COEFFS = {
 }
 
 
-def yuv420p_to_rgb(planes: torch.Tensor, matrix: str = "bt601", value_range: str = "limited") -> torch.Tensor:
+def yuv420p_to_rgb(
+    planes: torch.Tensor, matrix: str = "bt601", value_range: str = "limited"
+) -> torch.Tensor:
     """Planar YUV 4:2:0 ``(N, 3H/2, W)`` uint8 -> ``(N, H, W, 3)`` uint8 RGB, on the tensor's device.
 
     Chroma is upsampled by pixel repetition, as FFmpeg's default converter does;
@@ -120,7 +126,9 @@ class LoadedModel:
         # CUDA graphs ("reduce-overhead") replay the whole forward in one launch, so the
         # Python decode threads competing for the GIL cannot starve kernel launches.
         mode = "reduce-overhead" if self.device.type == "cuda" else None
-        self._forward = torch.compile(self.net, dynamic=False, mode=mode) if self.compiled else self.net
+        self._forward = (
+            torch.compile(self.net, dynamic=False, mode=mode) if self.compiled else self.net
+        )
 
     @property
     def heatmap_size(self) -> tuple[int, int]:
@@ -138,7 +146,7 @@ class LoadedModel:
         for op in ops:
             x = op.apply(x)
         x = Resize(*self.spec.input_size).apply(x)
-        x = (x * (1.0 / (255.0 * self.spec.std)) - self.spec.mean / self.spec.std)
+        x = x * (1.0 / (255.0 * self.spec.std)) - self.spec.mean / self.spec.std
         if self.device.type == "cuda":
             x = x.contiguous(memory_format=torch.channels_last)
         return x
@@ -151,7 +159,9 @@ class LoadedModel:
             chunk = x[start : start + self.batch_size]
             short = chunk.shape[0]
             if self.compiled and short < self.batch_size:
-                chunk = torch.cat([chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])])
+                chunk = torch.cat(
+                    [chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])]
+                )
             with torch.inference_mode(), _autocast(self.device, self.precision):
                 hm = self._forward(chunk)[-1]
             # a copy: a CUDA-graph replay reuses its output buffer
@@ -173,7 +183,11 @@ class LoadedModel:
                 from ..pictorial import DEFAULT_PEAK_RADIUS, DEFAULT_PEAK_THRESHOLD
 
                 candidates = decode.topk_peaks(
-                    hm, k, radius=DEFAULT_PEAK_RADIUS, threshold=DEFAULT_PEAK_THRESHOLD, method=method
+                    hm,
+                    k,
+                    radius=DEFAULT_PEAK_RADIUS,
+                    threshold=DEFAULT_PEAK_THRESHOLD,
+                    method=method,
                 )
         return xy, conf, candidates
 
@@ -221,16 +235,30 @@ def load_models(
         raise ConfigError(f"pose2d.precision: {precision!r} is not one of {sorted(PRECISIONS)}")
     batch = int(batch_size or _pose2d_setting(config, "batch_size", 16))
     want_compile = compile if compile is not None else _pose2d_setting(config, "compile", "auto")
-    compiled = dev.type == "cuda" and (want_compile is True or (want_compile == "auto" and batch >= COMPILE_MIN_BATCH))
+    compiled = dev.type == "cuda" and (
+        want_compile is True or (want_compile == "auto" and batch >= COMPILE_MIN_BATCH)
+    )
     models = {}
     for name in dict.fromkeys(p.model for p in plan.active_pathways()):
         spec = plan.models[name]
         path = resolve_weights(
-            spec.weights, model_name=name, model_class=spec.model_class,
-            url=spec.url, sha256=spec.sha256, allow_download=allow_download,
+            spec.weights,
+            model_name=name,
+            model_class=spec.model_class,
+            url=spec.url,
+            sha256=spec.sha256,
+            allow_download=allow_download,
         )
         net = load_hourglass(path, num_classes=spec.n_out_channels)
-        models[name] = LoadedModel(spec, net, dev, precision=precision, batch_size=batch, compiled=compiled)
-        log.info("model %s on %s (%s, batch %d%s)", name, dev, models[name].precision, batch,
-                 ", compiled" if compiled else "")
+        models[name] = LoadedModel(
+            spec, net, dev, precision=precision, batch_size=batch, compiled=compiled
+        )
+        log.info(
+            "model %s on %s (%s, batch %d%s)",
+            name,
+            dev,
+            models[name].precision,
+            batch,
+            ", compiled" if compiled else "",
+        )
     return models

@@ -27,7 +27,9 @@ class Bottleneck(nn.Module):
 
     expansion = 2
 
-    def __init__(self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None):
+    def __init__(
+        self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
+    ):
         super().__init__()
         self.bn1 = nn.BatchNorm2d(inplanes)
         self.conv1 = nn.Conv2d(inplanes, planes, kernel_size=1, bias=True)
@@ -63,7 +65,8 @@ class Hourglass(nn.Module):
             return nn.Sequential(*[Bottleneck(channels, planes) for _ in range(num_blocks)])
 
         self.hg = nn.ModuleList(
-            nn.ModuleList([branch() for _ in range(4 if level == 0 else 3)]) for level in range(depth)
+            nn.ModuleList([branch() for _ in range(4 if level == 0 else 3)])
+            for level in range(depth)
         )
 
     def _level(self, n: int, x: torch.Tensor) -> torch.Tensor:
@@ -139,13 +142,23 @@ class HourglassNet(nn.Module):
 
         ch = num_feats * Bottleneck.expansion
         self.hg = nn.ModuleList(Hourglass(num_blocks, num_feats, depth) for _ in range(num_stacks))
-        self.res = nn.ModuleList(self._make_residual(num_feats, num_blocks) for _ in range(num_stacks))
+        self.res = nn.ModuleList(
+            self._make_residual(num_feats, num_blocks) for _ in range(num_stacks)
+        )
         self.fc = nn.ModuleList(
-            nn.Sequential(nn.Conv2d(ch, ch, kernel_size=1, bias=True), nn.BatchNorm2d(ch), nn.ReLU(inplace=True))
+            nn.Sequential(
+                nn.Conv2d(ch, ch, kernel_size=1, bias=True),
+                nn.BatchNorm2d(ch),
+                nn.ReLU(inplace=True),
+            )
             for _ in range(num_stacks)
         )
-        self.score = nn.ModuleList(nn.Conv2d(ch, num_classes, kernel_size=1, bias=True) for _ in range(num_stacks))
-        self.fc_ = nn.ModuleList(nn.Conv2d(ch, ch, kernel_size=1, bias=True) for _ in range(num_stacks - 1))
+        self.score = nn.ModuleList(
+            nn.Conv2d(ch, num_classes, kernel_size=1, bias=True) for _ in range(num_stacks)
+        )
+        self.fc_ = nn.ModuleList(
+            nn.Conv2d(ch, ch, kernel_size=1, bias=True) for _ in range(num_stacks - 1)
+        )
         self.score_ = nn.ModuleList(
             nn.Conv2d(num_classes, ch, kernel_size=1, bias=True) for _ in range(num_stacks - 1)
         )
@@ -156,7 +169,9 @@ class HourglassNet(nn.Module):
         out_channels = planes * Bottleneck.expansion
         downsample = None
         if self.inplanes != out_channels:
-            downsample = nn.Sequential(nn.Conv2d(self.inplanes, out_channels, kernel_size=1, bias=True))
+            downsample = nn.Sequential(
+                nn.Conv2d(self.inplanes, out_channels, kernel_size=1, bias=True)
+            )
         layers = [Bottleneck(self.inplanes, planes, 1, downsample)]
         self.inplanes = out_channels
         layers += [Bottleneck(out_channels, planes) for _ in range(1, blocks)]

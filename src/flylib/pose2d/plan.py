@@ -182,7 +182,13 @@ class Crop(Op):
         return images[..., self.y0 : self.y0 + self.height, self.x0 : self.x0 + self.width]
 
     def describe(self):
-        return {"op": "crop", "x0": self.x0, "y0": self.y0, "width": self.width, "height": self.height}
+        return {
+            "op": "crop",
+            "x0": self.x0,
+            "y0": self.y0,
+            "width": self.width,
+            "height": self.height,
+        }
 
 
 @dataclass(frozen=True)
@@ -211,7 +217,11 @@ class Resize(Op):
             return images
         shrinking = images.shape[-2] > self.height or images.shape[-1] > self.width
         return F.interpolate(
-            images, size=(self.height, self.width), mode="bilinear", align_corners=False, antialias=shrinking
+            images,
+            size=(self.height, self.width),
+            mode="bilinear",
+            align_corners=False,
+            antialias=shrinking,
         )
 
     def describe(self):
@@ -249,14 +259,18 @@ def parse_op(spec: Mapping, where: str) -> Op:
     elif kind == "crop":
         allowed |= {"x0", "y0", "width", "height"}
         op = Crop(
-            _int(spec, "x0", where), _int(spec, "y0", where),
-            _int(spec, "width", where, minimum=1), _int(spec, "height", where, minimum=1),
+            _int(spec, "x0", where),
+            _int(spec, "y0", where),
+            _int(spec, "width", where, minimum=1),
+            _int(spec, "height", where, minimum=1),
         )
     elif kind == "resize":
         allowed |= {"width", "height"}
         op = Resize(_int(spec, "height", where, minimum=1), _int(spec, "width", where, minimum=1))
     else:
-        raise ConfigError(f"{where}.op: unknown op {spec['op']!r}; use fliplr, flipud, rot90, crop or resize")
+        raise ConfigError(
+            f"{where}.op: unknown op {spec['op']!r}; use fliplr, flipud, rot90, crop or resize"
+        )
     extra = set(spec) - allowed
     if extra:
         raise ConfigError(f"{where}: unknown key(s) {sorted(extra)} for op {kind!r}")
@@ -312,7 +326,9 @@ class Pathway:
             sizes.append(op.out_size(sizes[-1]))
         return ops, sizes
 
-    def heatmap_to_raw(self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size) -> np.ndarray:
+    def heatmap_to_raw(
+        self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size
+    ) -> np.ndarray:
         """Map heatmap-cell ``(..., 2)`` points ``(x, y) = (column, row)`` into the raw source frame.
 
         DeepFly2D's convention (module docstring): cell ``c`` is the normalized
@@ -344,7 +360,9 @@ class Pathway:
             out = op.inverse_points(out, size)
         return out + 0.5
 
-    def raw_to_heatmap(self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size) -> np.ndarray:
+    def raw_to_heatmap(
+        self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size
+    ) -> np.ndarray:
         """Map raw-frame ``(..., 2)`` points onto heatmap cells (inverse of :meth:`heatmap_to_raw`)."""
         ops, sizes = self._sizes(raw_size, model)
         out = np.asarray(xy, dtype=np.float64) - 0.5
@@ -392,7 +410,9 @@ def _point_names(config, data: Mapping) -> list[str]:
     make = getattr(config, "skeleton", None)
     if callable(make):
         return list(make().point_names)
-    raise ConfigError("skeleton.point_names: missing; the detection plan needs the skeleton's points")
+    raise ConfigError(
+        "skeleton.point_names: missing; the detection plan needs the skeleton's points"
+    )
 
 
 def _table_list(value, where: str) -> list[Mapping]:
@@ -418,12 +438,20 @@ def _unique_names(entries: list[Mapping], where: str) -> None:
 def _parse_model(entry: Mapping, where: str) -> ModelSpec:
     cls = str(entry.get("class", "hourglass"))
     if cls != "hourglass":
-        raise ConfigError(f"{where}.class: unknown model class {cls!r}; only 'hourglass' is supported")
+        raise ConfigError(
+            f"{where}.class: unknown model class {cls!r}; only 'hourglass' is supported"
+        )
     size = entry.get("input_size", [256, 512])
-    if not (isinstance(size, Sequence) and len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size)):
+    if not (
+        isinstance(size, Sequence)
+        and len(size) == 2
+        and all(isinstance(s, int) and s > 0 for s in size)
+    ):
         raise ConfigError(f"{where}.input_size: expected [height, width], got {size!r}")
     if size[0] % 64 or size[1] % 64:
-        raise ConfigError(f"{where}.input_size: {list(size)} must be multiples of 64 for the hourglass")
+        raise ConfigError(
+            f"{where}.input_size: {list(size)} must be multiples of 64 for the hourglass"
+        )
     n_out = entry.get("n_out_channels")
     if not isinstance(n_out, int) or isinstance(n_out, bool) or n_out < 1:
         raise ConfigError(f"{where}.n_out_channels: expected a positive integer, got {n_out!r}")
@@ -512,16 +540,23 @@ class DetectionPlan:
 
         model_entries = _table_list(pose2d.get("models"), "pose2d.models")
         _unique_names(model_entries, "pose2d.models")
-        models = {str(e["name"]): _parse_model(e, f"pose2d.models[{i}]") for i, e in enumerate(model_entries)}
+        models = {
+            str(e["name"]): _parse_model(e, f"pose2d.models[{i}]")
+            for i, e in enumerate(model_entries)
+        }
         # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
         for name, path in (pose2d.get("weights") or {}).items():
             if name not in models:
-                raise ConfigError(f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}")
+                raise ConfigError(
+                    f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}"
+                )
             models[name] = replace(models[name], weights=str(path or ""))
 
         output_points = pose2d.get("output_points") or {}
         if not isinstance(output_points, Mapping):
-            raise ConfigError("pose2d.output_points: expected a table of view -> point -> {pathway, out_channel}")
+            raise ConfigError(
+                "pose2d.output_points: expected a table of view -> point -> {pathway, out_channel}"
+            )
         view_names = _camera_names(config, data, output_points)
         point_names = _point_names(config, data)
         view_index = {v: i for i, v in enumerate(view_names)}
@@ -532,36 +567,62 @@ class DetectionPlan:
         raw: dict[str, dict] = {}
         for i, entry in enumerate(path_entries):
             where = f"pose2d.pathways[{i}] ({entry['name']})"
-            src, model, pre = entry.get("source"), entry.get("model"), entry.get("preprocessor") or None
+            src, model, pre = (
+                entry.get("source"),
+                entry.get("model"),
+                entry.get("preprocessor") or None,
+            )
             if src not in sources:
-                raise ConfigError(f"{where}.source: unknown source {src!r}; defined: {sorted(sources)}")
+                raise ConfigError(
+                    f"{where}.source: unknown source {src!r}; defined: {sorted(sources)}"
+                )
             if model not in models:
-                raise ConfigError(f"{where}.model: unknown model {model!r}; defined: {sorted(models)}")
+                raise ConfigError(
+                    f"{where}.model: unknown model {model!r}; defined: {sorted(models)}"
+                )
             if pre is not None and pre not in preprocessors:
-                raise ConfigError(f"{where}.preprocessor: unknown preprocessor {pre!r}; defined: {sorted(preprocessors)}")
+                raise ConfigError(
+                    f"{where}.preprocessor: unknown preprocessor {pre!r}; defined: {sorted(preprocessors)}"
+                )
             raw[str(entry["name"])] = dict(source=src, model=model, preprocessor=pre, slots=[])
 
         view_source: dict[str, str] = {}
         for view, table in output_points.items():
             view = str(view)
             if view not in view_index:
-                raise ConfigError(f"pose2d.output_points.{view}: unknown view; cameras are {view_names}")
+                raise ConfigError(
+                    f"pose2d.output_points.{view}: unknown view; cameras are {view_names}"
+                )
             if not isinstance(table, Mapping):
-                raise ConfigError(f"pose2d.output_points.{view}: expected a table of point -> {{pathway, out_channel}}")
+                raise ConfigError(
+                    f"pose2d.output_points.{view}: expected a table of point -> {{pathway, out_channel}}"
+                )
             for point, slot in table.items():
                 where = f"pose2d.output_points.{view}.{point}"
                 if point not in point_index:
                     raise ConfigError(f"{where}: unknown skeleton point {point!r}")
-                if not isinstance(slot, Mapping) or "pathway" not in slot or "out_channel" not in slot:
+                if (
+                    not isinstance(slot, Mapping)
+                    or "pathway" not in slot
+                    or "out_channel" not in slot
+                ):
                     raise ConfigError(f"{where}: expected {{pathway, out_channel}}, got {slot!r}")
                 pathway = raw.get(slot["pathway"])
                 if pathway is None:
-                    raise ConfigError(f"{where}.pathway: unknown pathway {slot['pathway']!r}; defined: {sorted(raw)}")
+                    raise ConfigError(
+                        f"{where}.pathway: unknown pathway {slot['pathway']!r}; defined: {sorted(raw)}"
+                    )
                 channel = slot["out_channel"]
                 n_out = models[pathway["model"]].n_out_channels
-                if not isinstance(channel, int) or isinstance(channel, bool) or not 0 <= channel < n_out:
-                    raise ConfigError(f"{where}.out_channel: {channel!r} is not a channel of model "
-                                      f"{pathway['model']!r} (0..{n_out - 1})")
+                if (
+                    not isinstance(channel, int)
+                    or isinstance(channel, bool)
+                    or not 0 <= channel < n_out
+                ):
+                    raise ConfigError(
+                        f"{where}.out_channel: {channel!r} is not a channel of model "
+                        f"{pathway['model']!r} (0..{n_out - 1})"
+                    )
                 previous = view_source.setdefault(view, pathway["source"])
                 if previous != pathway["source"]:
                     raise ConfigError(
@@ -573,14 +634,18 @@ class DetectionPlan:
         pathways = []
         for name, info in raw.items():
             slots = np.array(info["slots"], dtype=np.int64).reshape(-1, 3)
-            pathways.append(Pathway(
-                name=name,
-                source=info["source"],
-                model=info["model"],
-                preprocessor=info["preprocessor"],
-                ops=preprocessors.get(info["preprocessor"], ()) if info["preprocessor"] else (),
-                channels=slots[:, 0], views=slots[:, 1], points=slots[:, 2],
-            ))
+            pathways.append(
+                Pathway(
+                    name=name,
+                    source=info["source"],
+                    model=info["model"],
+                    preprocessor=info["preprocessor"],
+                    ops=preprocessors.get(info["preprocessor"], ()) if info["preprocessor"] else (),
+                    channels=slots[:, 0],
+                    views=slots[:, 1],
+                    points=slots[:, 2],
+                )
+            )
         return cls(
             sources=sources,
             models=models,

@@ -71,8 +71,16 @@ class BlockPrefetcher(threading.Thread):
     """
 
     def __init__(
-        self, name: str, files, *, block_size: int, depth: int, workers: int | None = None,
-        pin: bool = False, raw_yuv: bool = False, on_corrupt: str = "error",
+        self,
+        name: str,
+        files,
+        *,
+        block_size: int,
+        depth: int,
+        workers: int | None = None,
+        pin: bool = False,
+        raw_yuv: bool = False,
+        on_corrupt: str = "error",
     ):
         super().__init__(name=f"flylib-decode-{name}", daemon=True)
         self.source = name
@@ -83,7 +91,11 @@ class BlockPrefetcher(threading.Thread):
         self.pin = pin
         self.yuv = False
         self.color = ("bt601", "limited")
-        if raw_yuv and isinstance(self.reader, io.VideoReader) and self.reader.pixel_format() == "yuv420p":
+        if (
+            raw_yuv
+            and isinstance(self.reader, io.VideoReader)
+            and self.reader.pixel_format() == "yuv420p"
+        ):
             h, w = self.reader.frame_size()
             self.yuv = h % 2 == 0 and w % 2 == 0
             self.color = self.reader.color_tags()
@@ -107,7 +119,9 @@ class BlockPrefetcher(threading.Thread):
                         f"earlier frames are {shape[1]}x{shape[0]}; a source's frames must share one size"
                     )
                 if block is None:
-                    block = torch.empty((self.block_size, *shape), dtype=torch.uint8, pin_memory=self.pin)
+                    block = torch.empty(
+                        (self.block_size, *shape), dtype=torch.uint8, pin_memory=self.pin
+                    )
                     view = block.numpy()
                 view[filled] = frame
                 filled += 1
@@ -197,7 +211,15 @@ def _start_download(results: list, device: torch.device):
     host = []
     for pathway, source, xy, cf, cand in results:
         cand = None if cand is None else tuple(c.to("cpu", non_blocking=True) for c in cand)
-        host.append((pathway, source, xy.to("cpu", non_blocking=True), cf.to("cpu", non_blocking=True), cand))
+        host.append(
+            (
+                pathway,
+                source,
+                xy.to("cpu", non_blocking=True),
+                cf.to("cpu", non_blocking=True),
+                cand,
+            )
+        )
     event = torch.cuda.Event()
     event.record()
     return host, event
@@ -280,8 +302,16 @@ def run_detection(
     pin = device.type == "cuda"
     raw_yuv = device.type != "cpu" if raw_yuv is None else raw_yuv
     prefetchers = {
-        s: BlockPrefetcher(s, sources[s], block_size=batch_size, depth=decode_buffer, workers=workers,
-                           pin=pin, raw_yuv=raw_yuv, on_corrupt=on_corrupt)
+        s: BlockPrefetcher(
+            s,
+            sources[s],
+            block_size=batch_size,
+            depth=decode_buffer,
+            workers=workers,
+            pin=pin,
+            raw_yuv=raw_yuv,
+            on_corrupt=on_corrupt,
+        )
         for s in active
     }
     total = prefetchers[active[0]].reader.count() if active and progress else None
@@ -303,9 +333,16 @@ def run_detection(
         cscore = np.full((n_views, pending.n, n_points, k), np.nan) if k else None
         for pathway, source, xy, cf, cand in pending.results:
             model = models[pathway.model]
-            raw = _to_raw(pathway, xy.to("cpu", torch.float64).numpy()[:, pathway.channels], frame_sizes[source], model)
+            raw = _to_raw(
+                pathway,
+                xy.to("cpu", torch.float64).numpy()[:, pathway.channels],
+                frame_sizes[source],
+                model,
+            )
             pts[pathway.views, :, pathway.points] = raw.transpose(1, 0, 2)
-            conf[pathway.views, :, pathway.points] = cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
+            conf[pathway.views, :, pathway.points] = (
+                cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
+            )
             if k:
                 cand_xy = cand[0].to("cpu", torch.float64).numpy()[:, pathway.channels]
                 cand_raw = _to_raw(pathway, cand_xy, frame_sizes[source], model)  # NaN stays NaN
@@ -381,7 +418,9 @@ def run_detection(
         if timings is not None:
             timings.update(clock)
     if not pts_parts:
-        raise FootageError(f"the detector received no frames from sources {active}; check the footage")
+        raise FootageError(
+            f"the detector received no frames from sources {active}; check the footage"
+        )
     out = DetectionOutput(
         pts2d=np.concatenate(pts_parts, axis=1),
         conf=np.concatenate(conf_parts, axis=1),
@@ -392,8 +431,11 @@ def run_detection(
     for source, prefetcher in prefetchers.items():
         frames = sorted(prefetcher.corrupt_frames())
         if frames:
-            _mark_missing(out, sorted({int(v) for p in plan.pathways_on(source) for v in np.atleast_1d(p.views)}),
-                          frames)
+            _mark_missing(
+                out,
+                sorted({int(v) for p in plan.pathways_on(source) for v in np.atleast_1d(p.views)}),
+                frames,
+            )
     return out
 
 
@@ -469,7 +511,9 @@ def detect_2d(
     candidates : Candidates or None
         ``xy (V, T, P, K, 2)`` and ``score (V, T, P, K)`` when ``want_candidates``.
     """
-    out = _detect(config, plan, models, sources, want_candidates=want_candidates, k=k, progress=progress)
+    out = _detect(
+        config, plan, models, sources, want_candidates=want_candidates, k=k, progress=progress
+    )
     cands = _candidates(out.candidates_xy, out.candidates_score) if want_candidates else None
     return out.pts2d, out.conf, cands
 
@@ -529,7 +573,9 @@ def detect_recording(
     """
     plan = DetectionPlan.from_config(config)
     models = models if models is not None else load_models(plan, config)
-    out = _detect(config, plan, models, sources, want_candidates=want_candidates, k=None, progress=progress)
+    out = _detect(
+        config, plan, models, sources, want_candidates=want_candidates, k=None, progress=progress
+    )
     view_sources = plan.view_sources()
     image_sizes = {v: out.frame_sizes[s] for v, s in view_sources.items() if s in out.frame_sizes}
     from ..results import Pose2dData
@@ -539,5 +585,7 @@ def detect_recording(
         conf=out.conf,
         view_names=list(plan.view_names),
         image_sizes=image_sizes,
-        candidates=_candidates(out.candidates_xy, out.candidates_score) if want_candidates else None,
+        candidates=_candidates(out.candidates_xy, out.candidates_score)
+        if want_candidates
+        else None,
     )

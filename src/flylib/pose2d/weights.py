@@ -136,7 +136,9 @@ def resolve_weights(
     published = PUBLISHED_WEIGHTS.get(model_class, {})
     url = url or published.get("url")
     sha256 = sha256 or published.get("sha256")
-    filename = published.get("filename") or (Path(url.split("?")[0]).name if url else f"{model_name}.tar")
+    filename = published.get("filename") or (
+        Path(url.split("?")[0]).name if url else f"{model_name}.tar"
+    )
     path = cache_dir() / filename
     if path.is_file():
         _verify(path, sha256, f"model {model_name!r}")
@@ -169,8 +171,19 @@ def strip_prefixes(state_dict: dict) -> dict:
 #: UnpicklingError (also for a refused global), the zip reader's RuntimeError, and the
 #: parse errors of the pickle stream and its struct-packed records.
 _CHECKPOINT_PARSE_ERRORS = (
-    pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError, TypeError, KeyError,
-    IndexError, AttributeError, AssertionError, OverflowError, MemoryError, struct.error,
+    pickle.UnpicklingError,
+    RuntimeError,
+    EOFError,
+    OSError,
+    ValueError,
+    TypeError,
+    KeyError,
+    IndexError,
+    AttributeError,
+    AssertionError,
+    OverflowError,
+    MemoryError,
+    struct.error,
 )
 
 
@@ -192,11 +205,15 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         ) from None
     state = payload.get("state_dict", payload) if isinstance(payload, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise WeightsError(f"{path}: not a network checkpoint (expected a dict with a 'state_dict' of tensors)")
+        raise WeightsError(
+            f"{path}: not a network checkpoint (expected a dict with a 'state_dict' of tensors)"
+        )
     return strip_prefixes(state)
 
 
-def infer_hourglass_config(state_dict: dict[str, torch.Tensor], *, source: str = "checkpoint") -> dict:
+def infer_hourglass_config(
+    state_dict: dict[str, torch.Tensor], *, source: str = "checkpoint"
+) -> dict:
     """Read the hourglass's shape (stacks, classes, widths, blocks) from its parameters."""
     try:
         stacks = 1 + max(int(m.group(1)) for k in state_dict if (m := _STACK_KEY.match(k)))
@@ -272,7 +289,12 @@ def load_hourglass(
             f"{path}: the checkpoint does not fit a {arch['num_stacks']}-stack hourglass ({first}); "
             "use a DeepFly2D hourglass checkpoint"
         ) from None
-    log.info("loaded %d-stack hourglass (%d outputs) from %s", arch["num_stacks"], arch["num_classes"], path)
+    log.info(
+        "loaded %d-stack hourglass (%d outputs) from %s",
+        arch["num_stacks"],
+        arch["num_classes"],
+        path,
+    )
     return net.to(device).eval()
 
 

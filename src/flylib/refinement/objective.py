@@ -114,7 +114,10 @@ def chunk_kernel(loss: str, order: int, m: int):
         rmat, tvec = data["rmat"], data["tvec"]  # (nb, m, W, 3, 3), (nb, m, W, 3)
         r = [[rmat[..., i, j, None] for j in range(3)] for i in range(3)]  # each (nb, m, W, 1)
         xw = [xk[:, :, None, j] for j in range(3)]  # each (nb, m, 1, T)
-        pc = tuple(r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None] for i in range(3))
+        pc = tuple(
+            r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None]
+            for i in range(3)
+        )
         intr = [data["intr"][..., k, None] for k in range(4)]
         dist = data.get("dist")
         dist = None if dist is None else [dist[..., k, None] for k in range(dist.shape[-1])]
@@ -123,8 +126,10 @@ def chunk_kernel(loss: str, order: int, m: int):
         # model), chained with the rotation
         units = [tuple(jnp.full_like(c, float(k == i)) for k, c in enumerate(pc)) for i in range(3)]
         dpix = [jax.jvp(lambda *p: pixel(p, intr, dist), pc, units[i])[1] for i in range(3)]
-        jac = [[dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
-               for a in range(2)]  # jac[a][j] (nb, m, W, T)
+        jac = [
+            [dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
+            for a in range(2)
+        ]  # jac[a][j] (nb, m, W, T)
         xy = data["xy"]  # (2, nb, m, W, T)
         e = (proj[0] - xy[0], proj[1] - xy[1])
         sq = e[0] * e[0] + e[1] * e[1]
@@ -136,15 +141,24 @@ def chunk_kernel(loss: str, order: int, m: int):
         # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
         sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
         pairs = [(i, j) for i in range(3) for j in range(i, 3)]
-        summands = ([sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
-                    + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)] + [w * rho])
-        sums = jax.lax.reduce(tuple(summands), (0.0,) * len(summands),
-                              lambda a, b: tuple(x + y for x, y in zip(a, b)), (2,))  # each (nb, m, T)
+        summands = (
+            [sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
+            + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)]
+            + [w * rho]
+        )
+        sums = jax.lax.reduce(
+            tuple(summands),
+            (0.0,) * len(summands),
+            lambda a, b: tuple(x + y for x, y in zip(a, b)),
+            (2,),
+        )  # each (nb, m, T)
         entry = {}
         for (i, j), value in zip(pairs, sums):
             entry[i, j] = entry[j, i] = value
-        h = jnp.stack([jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)])  # (3, 3, nb, m, T)
-        g = jnp.stack(sums[len(pairs):len(pairs) + 3])  # (3, nb, m, T)
+        h = jnp.stack(
+            [jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)]
+        )  # (3, 3, nb, m, T)
+        g = jnp.stack(sums[len(pairs) : len(pairs) + 3])  # (3, nb, m, T)
         # the cost per block: blocks share no unknown, so the solver accepts or
         # rejects a step block by block
         cost = jnp.sum(sums[-1], axis=(1, 2))
@@ -173,7 +187,9 @@ def chunk_kernel(loss: str, order: int, m: int):
         diag = h
         nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
         for q in range(n_bones):
-            outer = data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+            outer = (
+                data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]
+            )  # (nb, 3, 3, T)
             # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
             diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
             if m > 1:
@@ -210,7 +226,9 @@ def chunk_kernel(loss: str, order: int, m: int):
                 if ii >= 0:
                     cols.append(diag[..., ii, jj])
                 elif ii + 3 >= 0 and m > 1:
-                    cols.append(jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1))
+                    cols.append(
+                        jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1)
+                    )
                 else:
                     cols.append(zero)
             rows.append(jnp.stack(cols, axis=-1).reshape(-1))
@@ -300,8 +318,13 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
     return out
 
 
-def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: float,
-                  live: np.ndarray | None = None) -> np.ndarray:
+def temporal_band(
+    layout: BlockLayout,
+    order: int,
+    gram: np.ndarray,
+    smooth_w: float,
+    live: np.ndarray | None = None,
+) -> np.ndarray:
     """The constant part of the normal matrix: the temporal term on real slots, and a
     unit diagonal for empty slots and padded frames (``live`` ``(T,)`` 0), whose
     unknowns then never move.
@@ -328,9 +351,16 @@ def temporal_band(layout: BlockLayout, order: int, gram: np.ndarray, smooth_w: f
     return out
 
 
-def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
-                  columns: np.ndarray | None = None, mu: np.ndarray | float = 0.0,
-                  floor: float = 0.0, buffer: np.ndarray | None = None) -> np.ndarray:
+def assemble_band(
+    rows: np.ndarray,
+    temporal: np.ndarray,
+    width: int,
+    u: int,
+    columns: np.ndarray | None = None,
+    mu: np.ndarray | float = 0.0,
+    floor: float = 0.0,
+    buffer: np.ndarray | None = None,
+) -> np.ndarray:
     """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
     ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
 
@@ -370,7 +400,7 @@ def assemble_band(rows: np.ndarray, temporal: np.ndarray, width: int, u: int,
     else:
         out = buffer[: rows.shape[1]]
         out[:, : u - k + 1] = 0.0
-    out[:, u - k + 1:] = rows[::-1].T
+    out[:, u - k + 1 :] = rows[::-1].T
     out[:, u] = (rows[0] + temporal[0]) * (1.0 + mu) + floor
     for q in range(1, temporal.shape[0]):
         out[:, u - q * width] += temporal[q]

@@ -38,7 +38,11 @@ def mirror_bones(skeleton) -> np.ndarray:
     out = np.arange(b)
     for (name, k), bone in index.items():
         twin = _twin_name(name)
-        if twin is not None and (twin, k) in index and len(skeleton.limbs[twin]) == len(skeleton.limbs[name]):
+        if (
+            twin is not None
+            and (twin, k) in index
+            and len(skeleton.limbs[twin]) == len(skeleton.limbs[name])
+        ):
             out[bone] = index[(twin, k)]
     return out
 
@@ -61,8 +65,10 @@ def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
     names = default_rigid_points(skeleton) if rigid_names is None else list(rigid_names)
     unknown = [n for n in names if n not in skeleton.point_names]
     if unknown:
-        raise ConfigError(f"refinement.rigid_points: unknown point(s) {unknown} "
-                          f"(known: {', '.join(skeleton.point_names)})")
+        raise ConfigError(
+            f"refinement.rigid_points: unknown point(s) {unknown} "
+            f"(known: {', '.join(skeleton.point_names)})"
+        )
     chains = [[skeleton.index(p) for p in chain] for chain in skeleton.limbs.values()]
     return {
         "bones": np.asarray(skeleton.bones, np.int64),
@@ -78,7 +84,9 @@ def options_from_params(params) -> RefineOptions:
     return RefineOptions(**{k: v for k, v in vars(params).items() if k in own})
 
 
-def refine_from_config(config, pts2d, cameras, start, *, conf=None, inliers=None) -> RefinementResult:
+def refine_from_config(
+    config, pts2d, cameras, start, *, conf=None, inliers=None
+) -> RefinementResult:
     """Run :func:`refine_points` as the config's ``refinement`` table and skeleton say.
 
     Parameters
@@ -90,5 +98,12 @@ def refine_from_config(config, pts2d, cameras, start, *, conf=None, inliers=None
     """
     params = config.refinement
     terms = skeleton_terms(config.skeleton(), params.rigid_points)
-    return refine_points(pts2d, cameras, start, conf=conf, inliers=inliers,
-                         options=options_from_params(params), **terms)
+    return refine_points(
+        pts2d,
+        cameras,
+        start,
+        conf=conf,
+        inliers=inliers,
+        options=options_from_params(params),
+        **terms,
+    )

@@ -51,7 +51,10 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
     "missing": (4, "no view supports it for more than gap_length frames: NaN"),
     "single_view": (8, "supported by exactly one view (depth from the priors)"),
     "outlier_views": (16, "one or more of its 2D observations were rejected as outliers"),
-    "moved": (32, "moved from the starting (triangulated) 3D by more than moved_fraction of the median bone"),
+    "moved": (
+        32,
+        "moved from the starting (triangulated) 3D by more than moved_fraction of the median bone",
+    ),
     "no_start": (64, "the starting triangulation had no 3D for it in this frame"),
 }
 
@@ -121,7 +124,9 @@ class RefinementResult:
 # -- recording-wide unknowns ------------------------------------------------------------
 
 
-def bone_lengths(start: np.ndarray, bones: np.ndarray, mirror: np.ndarray | None = None) -> np.ndarray:
+def bone_lengths(
+    start: np.ndarray, bones: np.ndarray, mirror: np.ndarray | None = None
+) -> np.ndarray:
     """Robust length of every bone over the recording: the median over frames.
 
     Parameters
@@ -214,13 +219,16 @@ class Grid:
         self.point = np.broadcast_to(np.where(slots >= 0, slots, 0)[..., None], view.shape)
         rows = _camera_rows(cameras)[view]
         self.arrays = {
-            "rmat": camera_model.rvec_to_rmat_numpy(rows[..., 0:3].reshape(-1, 3)).reshape(*view.shape, 3, 3),
+            "rmat": camera_model.rvec_to_rmat_numpy(rows[..., 0:3].reshape(-1, 3)).reshape(
+                *view.shape, 3, 3
+            ),
             "tvec": rows[..., 3:6],
             "intr": rows[..., 6:10],
         }
         if rows.shape[-1] > 10 and np.any(rows[..., 10:]):
-            self.arrays["dist"] = camera_model.pad_dist_numpy(rows[..., 10:].reshape(-1, rows.shape[-1] - 10)
-                                                              ).reshape(*view.shape, 12)
+            self.arrays["dist"] = camera_model.pad_dist_numpy(
+                rows[..., 10:].reshape(-1, rows.shape[-1] - 10)
+            ).reshape(*view.shape, 12)
 
     def gather(self, per_obs: np.ndarray, n_frames: int) -> np.ndarray:
         """``(V, T, P, ...)`` -> ``(n_blocks, m, W, n_frames, ...)`` (0 in unused cells and padding)."""
@@ -270,8 +278,19 @@ class ChunkProblem:
     """The objective over one chunk of frames (padded to ``padded`` for the kernel;
     no term reaches a padded frame, whose unknowns never move)."""
 
-    def __init__(self, tracks: Grid, xy, weight, layout: BlockLayout, bones, lengths, rigid, centres,
-                 opts: RefineOptions, padded: int):
+    def __init__(
+        self,
+        tracks: Grid,
+        xy,
+        weight,
+        layout: BlockLayout,
+        bones,
+        lengths,
+        rigid,
+        centres,
+        opts: RefineOptions,
+        padded: int,
+    ):
         self.opts = opts
         self.tracks = tracks
         self.layout = layout
@@ -296,9 +315,11 @@ class ChunkProblem:
             **tracks.arrays,
             "xy": np.moveaxis(tracks.gather(np.nan_to_num(xy, nan=0.0), padded), -1, 0),
             "inv_s2": 1.0 / opts.scale_px**2,
-            "incidence": incidence, "length": slot_lengths,
+            "incidence": incidence,
+            "length": slot_lengths,
             "bone_w": opts.bone_weight / opts.bone_scale**2,
-            "rigid_mask": rigid_mask, "centre": centre,
+            "rigid_mask": rigid_mask,
+            "centre": centre,
             "rigid_w": opts.rigid_weight / opts.rigid_scale**2,
             "gram": gram,
             "smooth_w": opts.smooth_weight / opts.smooth_scale**2,
@@ -313,7 +334,9 @@ class ChunkProblem:
     def set_active(self, active: np.ndarray) -> None:
         """Use only the observations ``active`` ``(V, T, P)``."""
         self.active = active
-        self.data["w"] = _device(self.tracks.gather(np.where(active, self.weight, 0.0), self.padded))
+        self.data["w"] = _device(
+            self.tracks.gather(np.where(active, self.weight, 0.0), self.padded)
+        )
 
     def to_slots(self, x: np.ndarray) -> np.ndarray:
         """``(T, P, 3)`` -> padded, slotted ``(n_blocks, padded, m, 3)``."""
@@ -345,8 +368,14 @@ class ChunkProblem:
         """Cell errors ``(n_blocks, m, W, padded)`` -> ``(V, T, P)``."""
         return self.tracks.scatter(err, (self.n_views, self.n_frames, self.n_points))
 
-    def step(self, rows: np.ndarray, grad: np.ndarray, mu: np.ndarray, floor: float,
-             columns: np.ndarray | None = None) -> np.ndarray:
+    def step(
+        self,
+        rows: np.ndarray,
+        grad: np.ndarray,
+        mu: np.ndarray,
+        floor: float,
+        columns: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The damped Gauss-Newton step ``(n,)``: solves ``(A + diag(mu * diag(A) + floor)) d
         = -grad`` over ``columns`` (zero elsewhere) by one banded Cholesky.
 
@@ -355,7 +384,9 @@ class ChunkProblem:
         """
         if self._buffer is None:
             self._buffer = np.empty((grad.size, self.u + 1))
-        ab = assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor, self._buffer)
+        ab = assemble_band(
+            rows, self.temporal, 3 * self.layout.m, self.u, columns, mu, floor, self._buffer
+        )
         factor = cholesky_banded(ab, lower=False, overwrite_ab=True, check_finite=False)
         step = np.zeros(grad.shape)
         rhs = -grad if columns is None else -grad[columns]
@@ -365,7 +396,9 @@ class ChunkProblem:
         step[columns] = solved
         return step
 
-    def solve(self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None):
+    def solve(
+        self, xs: np.ndarray, max_iterations: int, ftol: float = 1e-3, trace: list | None = None
+    ):
         """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, steps, err)``.
 
         The blocks share no unknown, so each keeps its own damping and takes or
@@ -436,8 +469,12 @@ class ArraySource:
         """``(pts2d, conf, start, inliers)`` of frames ``lo:hi`` as float64 / bool arrays."""
         conf = None if self.conf is None else np.asarray(self.conf[:, lo:hi], np.float64)
         inl = None if self.inliers is None else np.asarray(self.inliers[:, lo:hi], bool)
-        return (np.asarray(self.pts2d[:, lo:hi], np.float64), conf,
-                np.asarray(self.start[lo:hi], np.float64), inl)
+        return (
+            np.asarray(self.pts2d[:, lo:hi], np.float64),
+            conf,
+            np.asarray(self.start[lo:hi], np.float64),
+            inl,
+        )
 
 
 class ArraySink:
@@ -460,7 +497,9 @@ class ArraySink:
 
         Read, modify, write back: the same code serves arrays and HDF5 datasets."""
         flags = self.flags[lo:hi]
-        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS["missing"][0]
+        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS[
+            "missing"
+        ][0]
         self.flags[lo:hi] = flags
         points = self.points3d[lo:hi]
         points[missing] = np.nan
@@ -481,8 +520,17 @@ def _weights(pts2d, conf, opts):
 GLOBAL_SAMPLE_FRAMES = 20000
 
 
-def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None, rigid=(),
-                  options: RefineOptions | None = None) -> dict[str, Any]:
+def refine_stream(
+    source,
+    cameras,
+    sink,
+    *,
+    bones=None,
+    chains=None,
+    mirror=None,
+    rigid=(),
+    options: RefineOptions | None = None,
+) -> dict[str, Any]:
     """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``.
 
     Memory is bounded by the chunk size (plus one byte per frame and point for the
@@ -508,14 +556,25 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
     """
     opts = options or RefineOptions()
     n_views, n_frames, n_points = source.n_views, source.n_frames, source.n_points
-    bones = np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
+    bones = (
+        np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
+    )
     rigid = np.asarray(rigid, np.int64).ravel()
-    chains = [list(map(int, c)) for c in chains] if chains is not None else [list(map(int, b)) for b in bones]
+    chains = (
+        [list(map(int, c)) for c in chains]
+        if chains is not None
+        else [list(map(int, b)) for b in bones]
+    )
     layout = BlockLayout.from_chains(n_points, chains)
     for i, j in bones:
-        if layout.block_of[i] != layout.block_of[j] or abs(layout.slot_of[i] - layout.slot_of[j]) != 1:
-            raise ValueError(f"bone ({i}, {j}) does not join neighbouring points of one chain; "
-                             "give the limb chains the bones run along")
+        if (
+            layout.block_of[i] != layout.block_of[j]
+            or abs(layout.slot_of[i] - layout.slot_of[j]) != 1
+        ):
+            raise ValueError(
+                f"bone ({i}, {j}) does not join neighbouring points of one chain; "
+                "give the limb chains the bones run along"
+            )
     chunk = max(int(opts.chunk_frames), 1)
     overlap = max(int(opts.overlap_frames), 0)
 
@@ -527,7 +586,7 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
         hi = min(lo + chunk, n_frames)
         pts2d, conf, start, _ = source.read(lo, hi)
         seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
-        sample.append(start[(-lo) % stride::stride])
+        sample.append(start[(-lo) % stride :: stride])
     sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
     lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
     centres = rigid_centres(sample, rigid)
@@ -536,7 +595,9 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            fallback = np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
+            fallback = (
+                np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
+            )
     centre_all = np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else np.zeros(3)
     fallback = np.where(np.isfinite(fallback), fallback, centre_all)
     if len(rigid):
@@ -566,8 +627,18 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
         b = a + window
         pts2d, conf, start, inliers = source.read(a, b)
         observed, weight = _weights(pts2d, conf, opts)
-        problem = ChunkProblem(grid, pts2d, weight, layout, bones, lengths, rigid, centres, opts,
-                               _bucket(b - a, largest))
+        problem = ChunkProblem(
+            grid,
+            pts2d,
+            weight,
+            layout,
+            bones,
+            lengths,
+            rigid,
+            centres,
+            opts,
+            _bucket(b - a, largest),
+        )
         first = observed.copy()
         if inliers is not None:
             first &= inliers | ~np.isfinite(start).all(-1)[None]
@@ -581,12 +652,21 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
         active = problem.active[:, keep]
         points3d = problem.from_slots(xs)[keep]
         flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, scale, opts)
-        return (lo, hi, it1 + it2, active, int((observed[:, keep] & ~active).sum()), points3d,
-                np.where(active, problem.errors(err)[:, keep], np.nan),
-                np.where(active[..., None], pts2d[:, keep], np.nan), flags)
+        return (
+            lo,
+            hi,
+            it1 + it2,
+            active,
+            int((observed[:, keep] & ~active).sum()),
+            points3d,
+            np.where(active, problem.errors(err)[:, keep], np.nan),
+            np.where(active[..., None], pts2d[:, keep], np.nan),
+            flags,
+        )
 
     started = time.perf_counter()
     workers = max(1, min(2, usable_cpus(), len(bounds)))
+
     # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
     # once, not per chunk: threads entering and leaving it would undo each other). The
     # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
@@ -607,7 +687,9 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
             with ThreadPoolExecutor(max_workers=workers) as pool:
                 pending: deque = deque()
                 for k in range(len(bounds) + workers):
-                    if k < len(bounds):  # at most `workers` chunks ahead of the writer: memory stays flat
+                    if k < len(
+                        bounds
+                    ):  # at most `workers` chunks ahead of the writer: memory stays flat
                         pending.append(pool.submit(solve_chunk, *bounds[k]))
                     if len(pending) > workers or (k >= len(bounds) and pending):
                         collect(*pending.popleft().result())
@@ -620,12 +702,21 @@ def refine_stream(source, cameras, sink, *, bones=None, chains=None, mirror=None
         if long_gap[lo:hi].any():
             sink.mark_missing(lo, hi, long_gap[lo:hi])
     info = {
-        "frames": n_frames, "chunks": len(iterations), "iterations": iterations[:64],
-        "seconds": round(solve_seconds, 3), "observations_kept": kept_total,
-        "observations_rejected": rejected_total, "bone_sample_frames": len(sample),
+        "frames": n_frames,
+        "chunks": len(iterations),
+        "iterations": iterations[:64],
+        "seconds": round(solve_seconds, 3),
+        "observations_kept": kept_total,
+        "observations_rejected": rejected_total,
+        "bone_sample_frames": len(sample),
     }
-    log.info("refinement: %d frames in %d chunk(s), %.2f s, iterations %s", n_frames, len(iterations),
-             solve_seconds, iterations[:8])
+    log.info(
+        "refinement: %d frames in %d chunk(s), %.2f s, iterations %s",
+        n_frames,
+        len(iterations),
+        solve_seconds,
+        iterations[:8],
+    )
     return {"bone_lengths": lengths, "rigid_points": rigid, "rigid_centres": centres, "info": info}
 
 
@@ -679,10 +770,26 @@ def refine_points(
     if start.shape != (n_frames, n_points, 3):
         raise ValueError(f"start must be (T={n_frames}, P={n_points}, 3), got {start.shape}")
     sink = ArraySink(n_views, n_frames, n_points)
-    out = refine_stream(ArraySource(pts2d, start, conf, inliers), cameras, sink, bones=bones, chains=chains,
-                        mirror=mirror, rigid=rigid, options=options)
-    return RefinementResult(sink.points3d, sink.reproj_error, sink.points2d, sink.flags, out["bone_lengths"],
-                            out["rigid_points"], out["rigid_centres"], out["info"])
+    out = refine_stream(
+        ArraySource(pts2d, start, conf, inliers),
+        cameras,
+        sink,
+        bones=bones,
+        chains=chains,
+        mirror=mirror,
+        rigid=rigid,
+        options=options,
+    )
+    return RefinementResult(
+        sink.points3d,
+        sink.reproj_error,
+        sink.points2d,
+        sink.flags,
+        out["bone_lengths"],
+        out["rigid_points"],
+        out["rigid_centres"],
+        out["info"],
+    )
 
 
 def _camera_rows(cameras) -> np.ndarray:
@@ -691,8 +798,15 @@ def _camera_rows(cameras) -> np.ndarray:
     if intrs.shape[1] == 3:
         intrs = np.stack([intrs[:, 0], intrs[:, 0], intrs[:, 1], intrs[:, 2]], axis=1)
     dists = np.asarray(cameras.dists, np.float64).reshape(len(intrs), -1)
-    return np.concatenate([np.asarray(cameras.rvecs, np.float64), np.asarray(cameras.tvecs, np.float64),
-                           intrs, dists], axis=1)
+    return np.concatenate(
+        [
+            np.asarray(cameras.rvecs, np.float64),
+            np.asarray(cameras.tvecs, np.float64),
+            intrs,
+            dists,
+        ],
+        axis=1,
+    )
 
 
 def _runs_longer_than(mask: np.ndarray, length: int) -> np.ndarray:
@@ -707,7 +821,7 @@ def _runs_longer_than(mask: np.ndarray, length: int) -> np.ndarray:
         starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
         for s, e in zip(starts, stops):
             if e - s > length:
-                out[s:min(e, n), p] = True
+                out[s : min(e, n), p] = True
     return out
 
 

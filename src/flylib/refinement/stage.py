@@ -43,13 +43,20 @@ class H5Source:
         if self.start.shape != (self.n_frames, self.n_points, 3):
             from ..errors import ResultsError
 
-            raise ResultsError(f"{triangulation.filename}: 3D of shape {self.start.shape} does not match the "
-                               f"2D {self.pts2d.shape}; re-run the triangulation stage")
+            raise ResultsError(
+                f"{triangulation.filename}: 3D of shape {self.start.shape} does not match the "
+                f"2D {self.pts2d.shape}; re-run the triangulation stage"
+            )
 
     def read(self, lo: int, hi: int):
         conf = None if self.conf is None else self.conf[:, lo:hi].astype(np.float64)
         inliers = np.isfinite(self.inlier_2d[:, lo:hi]).all(-1)
-        return self.pts2d[:, lo:hi].astype(np.float64), conf, self.start[lo:hi].astype(np.float64), inliers
+        return (
+            self.pts2d[:, lo:hi].astype(np.float64),
+            conf,
+            self.start[lo:hi].astype(np.float64),
+            inliers,
+        )
 
 
 class H5Sink(ArraySink):
@@ -64,21 +71,34 @@ class H5Sink(ArraySink):
         def make(name, shape, dtype, axis, fill):
             chunks = list(shape)
             chunks[axis] = step
-            return group.create_dataset(name, shape=shape, dtype=dtype, chunks=tuple(chunks),
-                                        compression="gzip", compression_opts=1, fillvalue=fill,
-                                        fletcher32=results_module._FLETCHER32)
+            return group.create_dataset(
+                name,
+                shape=shape,
+                dtype=dtype,
+                chunks=tuple(chunks),
+                compression="gzip",
+                compression_opts=1,
+                fillvalue=fill,
+                fletcher32=results_module._FLETCHER32,
+            )
 
         self.points3d = make("points3d", (n_frames, n_points, 3), np.float64, 0, np.nan)
-        self.reproj_error = make("reproj_error", (n_views, n_frames, n_points), np.float64, 1, np.nan)
+        self.reproj_error = make(
+            "reproj_error", (n_views, n_frames, n_points), np.float64, 1, np.nan
+        )
         self.points2d = make("points", (n_views, n_frames, n_points, 2), np.float64, 1, np.nan)
         self.flags = make("flags", (n_frames, n_points), np.uint8, 0, 0)
 
 
 def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dict:
     names = list(skeleton.point_names)
-    bones = {f"{names[i]}-{names[j]}": (None if not np.isfinite(v) else float(v))
-             for (i, j), v in zip(np.asarray(skeleton.bones), lengths)}
-    centres = {names[p]: [float(c) for c in centre] for p, centre in zip(rigid_points, rigid_centres)}
+    bones = {
+        f"{names[i]}-{names[j]}": (None if not np.isfinite(v) else float(v))
+        for (i, j), v in zip(np.asarray(skeleton.bones), lengths)
+    }
+    centres = {
+        names[p]: [float(c) for c in centre] for p, centre in zip(rigid_points, rigid_centres)
+    }
     return {
         "flag_bits": {k: list(v) for k, v in FLAG_BITS.items()},
         "bone_lengths": bones,
@@ -99,14 +119,27 @@ def write_refinement(path: str | Path, result: RefinementResult, skeleton, optio
         _write_array(group, "reproj_error", result.reproj_error)
         _write_array(group, "points", result.points2d)
         _write_array(group, "flags", result.flags, dtype=np.uint8)
-        attrs = _attrs(skeleton, result.bone_lengths, result.rigid_points, result.rigid_centres, result.info,
-                       options)
+        attrs = _attrs(
+            skeleton,
+            result.bone_lengths,
+            result.rigid_points,
+            result.rigid_centres,
+            result.info,
+            options,
+        )
         for key, value in attrs.items():
             group.attrs[key] = json.dumps(value)
 
 
-def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Path, out_path: str | Path, *,
-                   ba_path: str | Path | None = None, recording_dir: str | Path | None = None) -> Path:
+def run_refinement(
+    config,
+    pose2d_path: str | Path,
+    triangulation_path: str | Path,
+    out_path: str | Path,
+    *,
+    ba_path: str | Path | None = None,
+    recording_dir: str | Path | None = None,
+) -> Path:
     """Refine the triangulated 3D of one recording and write ``stages/refinement.h5``.
 
     The artifacts are read and the result written chunk by chunk, so memory does not
@@ -143,21 +176,42 @@ def run_refinement(config, pose2d_path: str | Path, triangulation_path: str | Pa
     skeleton = config.skeleton()
     terms = skeleton_terms(skeleton, params.rigid_points)
     options = options_from_params(params)
-    with open_checked(pose2d_path, "re-run the pose2d stage") as p2d, \
-            open_checked(triangulation_path, "re-run the triangulation stage") as tri:
+    with (
+        open_checked(pose2d_path, "re-run the pose2d stage") as p2d,
+        open_checked(triangulation_path, "re-run the triangulation stage") as tri,
+    ):
         source = H5Source(p2d, tri)
         with atomic_path(out_path) as tmp, h5py.File(tmp, "w") as f:
-            f.attrs["meta"] = json.dumps(_new_meta(STAGE, stage_provenance(
-                config, STAGE, {"pose2d": pose2d_path, "triangulation": triangulation_path,
-                                "bundle_adjustment": ba_path})))
+            f.attrs["meta"] = json.dumps(
+                _new_meta(
+                    STAGE,
+                    stage_provenance(
+                        config,
+                        STAGE,
+                        {
+                            "pose2d": pose2d_path,
+                            "triangulation": triangulation_path,
+                            "bundle_adjustment": ba_path,
+                        },
+                    ),
+                )
+            )
             group = f.create_group(STAGE)
-            sink = H5Sink(group, source.n_views, source.n_frames, source.n_points, options.chunk_frames)
+            sink = H5Sink(
+                group, source.n_views, source.n_frames, source.n_points, options.chunk_frames
+            )
             out = refine_stream(source, cameras, sink, options=options, **terms)
             _keep_corrected(tri, group)
             record = asdict(options)
             record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
-            attrs = _attrs(skeleton, out["bone_lengths"], out["rigid_points"], out["rigid_centres"],
-                           out["info"], record)
+            attrs = _attrs(
+                skeleton,
+                out["bone_lengths"],
+                out["rigid_points"],
+                out["rigid_centres"],
+                out["info"],
+                record,
+            )
             for key, value in attrs.items():
                 group.attrs[key] = json.dumps(value)
     return Path(out_path)

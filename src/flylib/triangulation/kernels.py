@@ -80,7 +80,10 @@ def greedy_chunk(
         pts3d, kept = state
         x, y, z = pts3d[:, 0], pts3d[:, 1], pts3d[:, 2]
         err_sq = jnp.stack(
-            [_view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted) for k in range(n_views)]
+            [
+                _view_sq_error(rig, k, x, y, z, raw[k, :, 0], raw[k, :, 1], distorted)
+                for k in range(n_views)
+            ]
         )
         err_sq = jnp.where(kept & jnp.isfinite(err_sq), err_sq, -jnp.inf)
         worst = jnp.argmax(err_sq, axis=0)

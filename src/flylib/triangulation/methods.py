@@ -24,7 +24,6 @@ Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...
 from __future__ import annotations
 
 import logging
-from collections import deque
 from itertools import combinations, pairwise
 from typing import TYPE_CHECKING
 
@@ -126,7 +125,9 @@ class _RansacViews:
         if self.distorted:
             # Through the camera frame [R | t] and the lens model, as in ``project``.
             rows = np.concatenate([cameras.rmats[views], cameras.tvecs[views, :, None]], axis=2)
-            self.dists = camera_model.pad_dist_numpy(cameras.dists[views]).T[:, :, None]  # (12, K, 1)
+            self.dists = camera_model.pad_dist_numpy(cameras.dists[views]).T[
+                :, :, None
+            ]  # (12, K, 1)
             self.intrs = cameras.intrs[views].T[:, :, None]  # (4, K, 1)
         else:
             rows = pmats[views]
@@ -140,7 +141,9 @@ class _RansacViews:
         u, v = hom[:k] * inv_depth, hom[k : 2 * k] * inv_depth
         if self.distorted:
             intr = self.intrs
-            u, v = camera_model.pixels_from_normalized(u, v, intr[0], intr[1], intr[2], intr[3], self.dists)
+            u, v = camera_model.pixels_from_normalized(
+                u, v, intr[0], intr[1], intr[2], intr[3], self.dists
+            )
         u -= raw_u
         v -= raw_v
         u *= u
@@ -172,7 +175,9 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     best_score = np.full(n, -np.inf)
     best_code = np.zeros(n)  # the winning hypothesis' inliers, as bits over ``views``
     for i, j in combinations(np.flatnonzero(valid.any(axis=1)), 2):
-        pts4[0], pts4[1], pts4[2] = camera_model.dlt_solve_components(np, terms[i] + terms[j], valid[i] + valid[j])
+        pts4[0], pts4[1], pts4[2] = camera_model.dlt_solve_components(
+            np, terms[i] + terms[j], valid[i] + valid[j]
+        )
         err_sq = project.sq_errors(pts4, raw_u, raw_v)
         np.fmin(err_sq, threshold_sq, out=err_sq)  # NaN (missing view, no hypothesis) fails
         inlier = err_sq < threshold_sq
@@ -237,7 +242,9 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
         und = raw if und_all is raw_all else und_all.take(sel, axis=1)[views]
         w = None if w_all is None else w_all.take(sel, axis=1)[views]
         with np.errstate(all="ignore"):
-            pts3d[sel], inliers = _ransac_block(cameras, pmats, raw, und, w, views, threshold, min_inliers)
+            pts3d[sel], inliers = _ransac_block(
+                cameras, pmats, raw, und, w, views, threshold, min_inliers
+            )
         seen[:] = False
         seen[views] = inliers
         kept[:, sel] = seen
@@ -451,7 +458,9 @@ def reconstruct_dlt(
     *,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
+) -> tuple[
+    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
+]:
     """Plain DLT reconstruction (:func:`triangulate` plus reprojection errors).
 
     Returns
@@ -476,7 +485,9 @@ def reconstruct_ransac(
     min_inliers: int = 2,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
-) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
+) -> tuple[
+    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
+]:
     """:func:`triangulate_ransac` plus cleaned 2D (outlier views NaN) and errors.
 
     Returns
@@ -487,7 +498,11 @@ def reconstruct_ransac(
     """
     cameras, pts2d = _arguments("reconstruct_ransac", cameras, pts2d)
     pts3d, inliers = triangulate_ransac(
-        cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights,
+        cameras,
+        pts2d,
+        threshold=threshold,
+        min_inliers=min_inliers,
+        weights=weights,
         chunk_points=chunk_points,
     )
     return _finish(cameras, pts3d, pts2d, inliers)
@@ -501,12 +516,18 @@ def reconstruct_greedy(
     max_drops: int = 5,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
+) -> tuple[
+    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
+]:
     """:func:`triangulate_greedy` plus cleaned 2D (dropped views NaN) and errors."""
     cameras, pts2d = _arguments("reconstruct_greedy", cameras, pts2d)
     pts3d, kept = triangulate_greedy(
-        cameras, pts2d, reproj_threshold=reproj_threshold, max_drops=max_drops,
-        weights=weights, chunk_points=chunk_points,
+        cameras,
+        pts2d,
+        reproj_threshold=reproj_threshold,
+        max_drops=max_drops,
+        weights=weights,
+        chunk_points=chunk_points,
     )
     return _finish(cameras, pts3d, pts2d, kept)
 
@@ -521,7 +542,9 @@ def reconstruct(
     min_inliers: int = 2,
     reproj_threshold: float = 40.0,
     max_drops: int = 5,
-) -> tuple[Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]]:
+) -> tuple[
+    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
+]:
     """Dispatch to :func:`reconstruct_ransac`, :func:`reconstruct_greedy` or :func:`reconstruct_dlt`.
 
     Parameters
@@ -545,7 +568,9 @@ def reconstruct(
         If ``method`` is unknown.
     """
     if method == "ransac":
-        return reconstruct_ransac(cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights)
+        return reconstruct_ransac(
+            cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights
+        )
     if method == "greedy":
         return reconstruct_greedy(
             cameras, pts2d, reproj_threshold=reproj_threshold, max_drops=max_drops, weights=weights
@@ -599,7 +624,9 @@ def reconstruct_from_config(
 
     method = get("method", "ransac")
     if method not in TRIANGULATION_METHODS:
-        raise ConfigError(f"triangulation.method must be one of {list(TRIANGULATION_METHODS)}, got {method!r}")
+        raise ConfigError(
+            f"triangulation.method must be one of {list(TRIANGULATION_METHODS)}, got {method!r}"
+        )
     log.info("triangulating with %s", method)
     weigh = bool(get("weigh_by_confidence", False))
     return reconstruct(

@@ -16,9 +16,10 @@ import logging
 import queue
 import threading
 import warnings
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,10 +27,15 @@ import numpy as np
 from ..errors import FootageError
 from ..paths import atomic_path
 from ..resources import usable_cpus
-from .draw import (color_tuples, draw_rings, draw_skeleton_2d, draw_skeleton_3d, skeleton_colors,
-                   to_panel_coords)
-from .specs import (PanelSpec, VideoSpec, read_video_specs, resolve_output_fps,
-                    visualization_table)
+from .draw import (
+    color_tuples,
+    draw_rings,
+    draw_skeleton_2d,
+    draw_skeleton_3d,
+    skeleton_colors,
+    to_panel_coords,
+)
+from .specs import PanelSpec, VideoSpec, read_video_specs, resolve_output_fps, visualization_table
 
 log = logging.getLogger(__name__)
 
@@ -46,13 +52,17 @@ X264_SETTINGS = {"preset": "superfast", "crf": 20}
 class _Panel:
     """A panel resolved against the frame size: its canvas rectangle and colours."""
 
-    def __init__(self, spec: PanelSpec, image_hw: tuple[int, int], skeleton,
-                 video_background: tuple[int, int, int]):
+    def __init__(
+        self,
+        spec: PanelSpec,
+        image_hw: tuple[int, int],
+        skeleton,
+        video_background: tuple[int, int, int],
+    ):
         self.spec = spec
         self.image_hw = image_hw
         self.width, self.height = spec.size(image_hw)
-        self.slices = (slice(spec.y0, spec.y0 + self.height),
-                       slice(spec.x0, spec.x0 + self.width))
+        self.slices = (slice(spec.y0, spec.y0 + self.height), slice(spec.x0, spec.x0 + self.width))
         # solid fills are prebuilt: copying an array is ~50x faster than broadcasting a colour
         self.fill = None if spec.background is None else self._solid(spec.background)
         self.empty_fill = self._solid(spec.background or video_background)  # imshow, no footage
@@ -90,13 +100,18 @@ class Compositor:
         self.width, self.height = spec.canvas_size(image_sizes)
         self._blank = np.full((self.height, self.width, 3), spec.background, np.uint8)
         self.canvas = self._blank.copy()
-        self.panels = [_Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background)
-                       for p in spec.panels]
+        self.panels = [
+            _Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background) for p in spec.panels
+        ]
 
-    def compose(self, frames: Mapping[str, np.ndarray | None],
-                points2d: Mapping[str, np.ndarray],
-                points3d: Mapping[str, tuple[np.ndarray, np.ndarray]],
-                resized: dict | None = None, corrected: np.ndarray | None = None) -> np.ndarray:
+    def compose(
+        self,
+        frames: Mapping[str, np.ndarray | None],
+        points2d: Mapping[str, np.ndarray],
+        points3d: Mapping[str, tuple[np.ndarray, np.ndarray]],
+        resized: dict | None = None,
+        corrected: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Draw one output frame.
 
         Parameters
@@ -146,17 +161,31 @@ class Compositor:
                 if xy is None:
                     continue
                 xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
-                draw_skeleton_2d(region, xy, panel.bones, panel.point_colors, panel.bone_colors,
-                                 radius=spec.point_radius, thickness=spec.line_thickness)
+                draw_skeleton_2d(
+                    region,
+                    xy,
+                    panel.bones,
+                    panel.point_colors,
+                    panel.bone_colors,
+                    radius=spec.point_radius,
+                    thickness=spec.line_thickness,
+                )
             else:
                 proj = points3d.get(spec.view)
                 if proj is None:
                     continue
                 xy, depth = proj
                 xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
-                draw_skeleton_3d(region, xy, depth, panel.bones, panel.point_colors,
-                                 panel.bone_colors, radius=spec.point_radius,
-                                 thickness=spec.line_thickness)
+                draw_skeleton_3d(
+                    region,
+                    xy,
+                    depth,
+                    panel.bones,
+                    panel.point_colors,
+                    panel.bone_colors,
+                    radius=spec.point_radius,
+                    thickness=spec.line_thickness,
+                )
             if corrected is not None and corrected.any():
                 draw_rings(region, xy, corrected, spec.point_radius)
         return canvas
@@ -170,8 +199,9 @@ def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     if frame.shape[0] == height and frame.shape[1] == width:
         return frame
     shrink = width < frame.shape[1] and height < frame.shape[0]
-    return cv2.resize(frame, (width, height),
-                      interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    return cv2.resize(
+        frame, (width, height), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+    )
 
 
 # -- footage ------------------------------------------------------------------
@@ -281,12 +311,13 @@ class _Reprojector:
     axis) per view, computing :data:`PROJECT_CHUNK` frames at a time.
     """
 
-    def __init__(self, cameras, pts3d: np.ndarray, views: Sequence[str],
-                 chunk: int = PROJECT_CHUNK):
+    def __init__(
+        self, cameras, pts3d: np.ndarray, views: Sequence[str], chunk: int = PROJECT_CHUNK
+    ):
         self._views = list(views)
         self._rig = cameras.subset(self._views)
         rmats = np.asarray(self._rig.rmats, float)
-        self._axis = rmats[:, 2, :]                      # (V, 3) optical axes
+        self._axis = rmats[:, 2, :]  # (V, 3) optical axes
         self._offset = np.asarray(self._rig.tvecs, float)[:, 2]
         self._pts3d = pts3d
         self._chunk = chunk
@@ -296,10 +327,9 @@ class _Reprojector:
     def at(self, t: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         start = (t // self._chunk) * self._chunk
         if start != self._start:
-            block = self._pts3d[start:start + self._chunk]             # (Tc, P, 3)
-            self._xy = np.asarray(self._rig.project(block), float)     # (V, Tc, P, 2)
-            self._depth = np.einsum("vk,tpk->vtp", self._axis, block) \
-                + self._offset[:, None, None]
+            block = self._pts3d[start : start + self._chunk]  # (Tc, P, 3)
+            self._xy = np.asarray(self._rig.project(block), float)  # (V, Tc, P, 2)
+            self._depth = np.einsum("vk,tpk->vtp", self._axis, block) + self._offset[:, None, None]
             self._start = start
         k = t - start
         return {v: (self._xy[i, k], self._depth[i, k]) for i, v in enumerate(self._views)}
@@ -337,8 +367,9 @@ class _CanvasEncoder:
         self._error: BaseException | None = None
         self._worker = None
         if self._threads > 1:  # encode beside the drawing; inline under a one-thread budget
-            self._worker = threading.Thread(target=self._encode_loop, name="flylib-encode",
-                                            daemon=True)
+            self._worker = threading.Thread(
+                target=self._encode_loop, name="flylib-encode", daemon=True
+            )
             self._worker.start()
 
     def _encode_loop(self) -> None:
@@ -361,7 +392,7 @@ class _CanvasEncoder:
         """Queue one ``(H, W, 3)`` RGB canvas (converted now, so it may be reused)."""
         if self._error is not None:
             raise self._error
-        rgb = canvas[:self.height, :self.width]
+        rgb = canvas[: self.height, : self.width]
         if not rgb.flags.c_contiguous:
             rgb = np.ascontiguousarray(rgb)
         yuv = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420)
@@ -389,8 +420,10 @@ class _CanvasEncoder:
 def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> dict:
     """``view -> (height, width)``: from footage, the result's stored sizes, or the
     principal point."""
-    meta_sizes = {**((getattr(result, "meta", None) or {}).get("image_sizes") or {}),
-                  **(getattr(result, "image_sizes", None) or {})}
+    meta_sizes = {
+        **((getattr(result, "meta", None) or {}).get("image_sizes") or {}),
+        **(getattr(result, "image_sizes", None) or {}),
+    }
     names = list(result.cameras.names)
     sizes = {}
     for view in views:
@@ -402,8 +435,12 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
             # principal point at the image centre: cx = (W - 1) / 2
             _, _, cx, cy = np.asarray(result.cameras.intrs, float)[names.index(view)][:4]
             sizes[view] = (max(2, int(round(2 * cy + 1))), max(2, int(round(2 * cx + 1))))
-            log.info("view %s: no footage or stored image size; assuming %dx%d from its "
-                     "principal point", view, sizes[view][1], sizes[view][0])
+            log.info(
+                "view %s: no footage or stored image size; assuming %dx%d from its principal point",
+                view,
+                sizes[view][1],
+                sizes[view][0],
+            )
     return sizes
 
 
@@ -412,8 +449,15 @@ def _on_corrupt(config) -> str:
     return (data.get("io") or {}).get("on_corrupt_frame") or "error"
 
 
-def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir, *,
-                  progress: bool = True, corrected: np.ndarray | None = None) -> list[Path]:
+def render_videos(
+    config,
+    result,
+    footage: Mapping[str, Sequence[Path]],
+    outdir,
+    *,
+    progress: bool = True,
+    corrected: np.ndarray | None = None,
+) -> list[Path]:
     """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
 
     All videos are rendered in one pass over the footage: each frame of each used
@@ -462,14 +506,22 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     used_views = list(dict.fromkeys(v for s in specs for v in s.views))
-    imshow_views = [v for v in used_views
-                    if any(p.plot == "imshow" and p.view == v for s in specs for p in s.panels)]
-    views_3d = [v for v in used_views
-                if any(p.plot == "skeleton_3d" and p.view == v for s in specs for p in s.panels)]
+    imshow_views = [
+        v
+        for v in used_views
+        if any(p.plot == "imshow" and p.view == v for s in specs for p in s.panels)
+    ]
+    views_3d = [
+        v
+        for v in used_views
+        if any(p.plot == "skeleton_3d" and p.view == v for s in specs for p in s.panels)
+    ]
     pts3d = getattr(result, "pts3d", None)
     if views_3d and pts3d is None:
-        warnings.warn("the result has no 3D points; skeleton_3d panels stay empty "
-                      "(run triangulation)", stacklevel=2)
+        warnings.warn(
+            "the result has no 3D points; skeleton_3d panels stay empty (run triangulation)",
+            stacklevel=2,
+        )
         views_3d = []
     index = {v: names.index(v) for v in used_views}
     n_frames = int(result.pts2d.shape[1])
@@ -487,9 +539,12 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
                 sources[view] = source
         lacking = [v for v in imshow_views if v not in sources]
         if lacking:
-            warnings.warn(f"no footage for view{'s' * (len(lacking) > 1)} "
-                          f"{', '.join(map(repr, lacking))}: imshow panels show the "
-                          "background", stacklevel=2)
+            warnings.warn(
+                f"no footage for view{'s' * (len(lacking) > 1)} "
+                f"{', '.join(map(repr, lacking))}: imshow panels show the "
+                "background",
+                stacklevel=2,
+            )
         image_sizes = _image_sizes(result, sources, used_views)
         input_fps = next((s.fps for s in sources.values() if s.fps), None)
         if input_fps is None:
@@ -502,23 +557,43 @@ def render_videos(config, result, footage: Mapping[str, Sequence[Path]], outdir,
             writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
             stack.callback(writer.close)
             writers.append(writer)
-            log.info("rendering %s: %dx%d, %d frames at %g fps", path.name, comp.width,
-                     comp.height, n_frames, fps)
-        reprojector = _Reprojector(result.cameras, np.asarray(pts3d, float), views_3d) \
-            if views_3d else None
+            log.info(
+                "rendering %s: %dx%d, %d frames at %g fps",
+                path.name,
+                comp.width,
+                comp.height,
+                n_frames,
+                fps,
+            )
+        reprojector = (
+            _Reprojector(result.cameras, np.asarray(pts3d, float), views_3d) if views_3d else None
+        )
         pts2d = result.pts2d
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
         # no bar object at all without progress: tqdm starts its monitor thread even disabled
-        bar = stack.enter_context(tqdm(total=n_frames, unit="frame",
-                                       desc="render " + ", ".join(s.name for s in specs))) \
-            if progress else None
+        bar = (
+            stack.enter_context(
+                tqdm(
+                    total=n_frames, unit="frame", desc="render " + ", ".join(s.name for s in specs)
+                )
+            )
+            if progress
+            else None
+        )
         for t, frames in enumerate(bundles):
             points2d = {v: pts2d[i, t] for v, i in index.items()}
             points3d = reprojector.at(t) if reprojector else {}
             resized: dict = {}
             for comp, writer in zip(compositors, writers):
-                writer.write_frame(comp.compose(frames, points2d, points3d, resized,
-                                                None if corrected is None else corrected[t]))
+                writer.write_frame(
+                    comp.compose(
+                        frames,
+                        points2d,
+                        points3d,
+                        resized,
+                        None if corrected is None else corrected[t],
+                    )
+                )
             if bar is not None:
                 bar.update(1)
     return paths

@@ -98,16 +98,22 @@ def draw_points(img: np.ndarray, xy: np.ndarray, colors: np.ndarray, radius: int
         cv2.circle(img, fixed[p], radius * _ONE, colors[p], -1, cv2.LINE_AA, _SHIFT)
 
 
-def draw_rings(img: np.ndarray, xy: np.ndarray, mask: np.ndarray, radius: int,
-               color: tuple[int, int, int] = (255, 255, 255)) -> None:
+def draw_rings(
+    img: np.ndarray,
+    xy: np.ndarray,
+    mask: np.ndarray,
+    radius: int,
+    color: tuple[int, int, int] = (255, 255, 255),
+) -> None:
     """Circle the points ``xy[mask]`` (e.g. points a person corrected) with thin rings."""
     fixed = _fixed(xy).tolist()
     for p in np.flatnonzero(_drawable(xy) & np.asarray(mask, bool)).tolist():
         cv2.circle(img, fixed[p], max(radius, 1) * 2 * _ONE + _ONE, color, 1, cv2.LINE_AA, _SHIFT)
 
 
-def draw_bones(img: np.ndarray, xy: np.ndarray, bones: np.ndarray, colors: np.ndarray,
-               thickness: int) -> None:
+def draw_bones(
+    img: np.ndarray, xy: np.ndarray, bones: np.ndarray, colors: np.ndarray, thickness: int
+) -> None:
     """Draw anti-aliased segments between ``xy[bones[:, 0]]`` and ``xy[bones[:, 1]]``."""
     colors = color_tuples(colors)
     bones = np.asarray(bones, dtype=int).reshape(-1, 2)
@@ -118,9 +124,16 @@ def draw_bones(img: np.ndarray, xy: np.ndarray, bones: np.ndarray, colors: np.nd
         cv2.line(img, fixed[i], fixed[j], colors[b], thickness, cv2.LINE_AA, _SHIFT)
 
 
-def draw_skeleton_2d(img: np.ndarray, xy: np.ndarray, bones: np.ndarray,
-                     point_colors: np.ndarray, bone_colors: np.ndarray, *,
-                     radius: int = 3, thickness: int = 2) -> None:
+def draw_skeleton_2d(
+    img: np.ndarray,
+    xy: np.ndarray,
+    bones: np.ndarray,
+    point_colors: np.ndarray,
+    bone_colors: np.ndarray,
+    *,
+    radius: int = 3,
+    thickness: int = 2,
+) -> None:
     """Draw a 2D skeleton: bones first, joints on top.
 
     Parameters
@@ -140,9 +153,17 @@ def draw_skeleton_2d(img: np.ndarray, xy: np.ndarray, bones: np.ndarray,
     draw_points(img, xy, point_colors, radius)
 
 
-def draw_skeleton_3d(img: np.ndarray, xy: np.ndarray, depth: np.ndarray, bones: np.ndarray,
-                     point_colors: np.ndarray, bone_colors: np.ndarray, *,
-                     radius: int = 3, thickness: int = 2) -> None:
+def draw_skeleton_3d(
+    img: np.ndarray,
+    xy: np.ndarray,
+    depth: np.ndarray,
+    bones: np.ndarray,
+    point_colors: np.ndarray,
+    bone_colors: np.ndarray,
+    *,
+    radius: int = 3,
+    thickness: int = 2,
+) -> None:
     """Draw a reprojected 3D skeleton back to front, so nearer parts cover farther ones.
 
     Bones (at the mean depth of their endpoints) and joints (at their own depth) are
@@ -168,8 +189,9 @@ def draw_skeleton_3d(img: np.ndarray, xy: np.ndarray, depth: np.ndarray, bones: 
     joints = np.flatnonzero(ok) if radius > 0 else np.zeros(0, int)
     # one list of primitives, bones (kind 0) then joints (kind 1); a stable sort on
     # decreasing depth paints far to near and, at equal depth, bones before joints
-    depths = np.concatenate([0.5 * (depth[bones[visible_bones, 0]]
-                                    + depth[bones[visible_bones, 1]]), depth[joints]])
+    depths = np.concatenate(
+        [0.5 * (depth[bones[visible_bones, 0]] + depth[bones[visible_bones, 1]]), depth[joints]]
+    )
     order = np.argsort(-depths, kind="stable")
     n_bones = len(visible_bones)
     for k in order.tolist():
@@ -182,8 +204,9 @@ def draw_skeleton_3d(img: np.ndarray, xy: np.ndarray, depth: np.ndarray, bones: 
             cv2.circle(img, fixed[p], radius * _ONE, point_colors[p], -1, cv2.LINE_AA, _SHIFT)
 
 
-def to_panel_coords(xy: np.ndarray, image_hw: tuple[int, int],
-                    panel_wh: tuple[int, int]) -> np.ndarray:
+def to_panel_coords(
+    xy: np.ndarray, image_hw: tuple[int, int], panel_wh: tuple[int, int]
+) -> np.ndarray:
     """Map raw-frame pixel coordinates into a panel showing that frame resized.
 
     With pixel centres at integer coordinates, resizing a ``W``-wide frame to ``w``

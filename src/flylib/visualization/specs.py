@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from ..errors import ConfigError
 
@@ -42,8 +43,17 @@ DEFAULT_FPS = 30.0
 PLAUSIBLE_FPS = (1.0, 10_000.0)
 
 _TOP_KEYS = {"background", "kwargs", "videos", "output_fps", "speed", "default_fps"}
-_VIDEO_KEYS = {"video_name", "name", "panels", "kwargs", "width", "height", "background",
-               "output_fps", "speed"}
+_VIDEO_KEYS = {
+    "video_name",
+    "name",
+    "panels",
+    "kwargs",
+    "width",
+    "height",
+    "background",
+    "output_fps",
+    "speed",
+}
 _PANEL_KEYS = {"plot", "view", "x0", "y0"} | set(DEFAULT_DRAW_KWARGS)
 
 RGB = tuple[int, int, int]
@@ -276,10 +286,12 @@ def _number(value: Any, where: str, *, integer: bool, minimum: float, allow_none
 
 
 def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
-    fps = _number(table.get("output_fps"), f"{where}.output_fps", integer=False,
-                  minimum=1e-9, allow_none=True)
-    speed = _number(table.get("speed"), f"{where}.speed", integer=False, minimum=1e-9,
-                    allow_none=True)
+    fps = _number(
+        table.get("output_fps"), f"{where}.output_fps", integer=False, minimum=1e-9, allow_none=True
+    )
+    speed = _number(
+        table.get("speed"), f"{where}.speed", integer=False, minimum=1e-9, allow_none=True
+    )
     if fps is not None and speed is not None:
         raise ConfigError(f"{where}: give output_fps or speed, not both")
     return fps, speed
@@ -347,18 +359,27 @@ def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> li
     specs: list[VideoSpec] = []
     seen: set[str] = set()
     for i, video in enumerate(videos):
-        spec = _read_video(video, f"visualization.videos[{i}]", background, global_flat,
-                           global_plot, view_names)
+        spec = _read_video(
+            video, f"visualization.videos[{i}]", background, global_flat, global_plot, view_names
+        )
         if spec.name in seen:
-            raise ConfigError(f"{spec.where}: video_name {spec.name!r} is used twice; "
-                              "each video needs its own name")
+            raise ConfigError(
+                f"{spec.where}: video_name {spec.name!r} is used twice; "
+                "each video needs its own name"
+            )
         seen.add(spec.name)
         specs.append(spec)
     return specs
 
 
-def _read_video(video: Any, where: str, background: RGB, global_flat: dict,
-                global_plot: dict, view_names: Sequence[str] | None) -> VideoSpec:
+def _read_video(
+    video: Any,
+    where: str,
+    background: RGB,
+    global_flat: dict,
+    global_plot: dict,
+    view_names: Sequence[str] | None,
+) -> VideoSpec:
     if not isinstance(video, Mapping):
         raise ConfigError(f"{where} must be a table with video_name and panels")
     for key in video:
@@ -367,31 +388,44 @@ def _read_video(video: Any, where: str, background: RGB, global_flat: dict,
     name = video.get("video_name", video.get("name"))
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
-    width = _number(video.get("width"), f"{where}.width", integer=True, minimum=2,
-                    allow_none=True)
-    height = _number(video.get("height"), f"{where}.height", integer=True, minimum=2,
-                     allow_none=True)
+    width = _number(video.get("width"), f"{where}.width", integer=True, minimum=2, allow_none=True)
+    height = _number(
+        video.get("height"), f"{where}.height", integer=True, minimum=2, allow_none=True
+    )
     if "background" in video:
         background = parse_color(video["background"], f"{where}.background")
     fps, speed = _rate(video, where)
     video_flat, video_plot = _split_kwargs(video.get("kwargs"), f"{where}.kwargs")
     panels_raw = video.get("panels")
-    if not isinstance(panels_raw, Sequence) or isinstance(panels_raw, (str, bytes)) \
-            or not panels_raw:
+    if (
+        not isinstance(panels_raw, Sequence)
+        or isinstance(panels_raw, (str, bytes))
+        or not panels_raw
+    ):
         raise ConfigError(f"{where}.panels must be a non-empty list of panel tables")
     panels = []
     for j, raw in enumerate(panels_raw):
         pwhere = f"{where}.panels[{j}]"
-        panel = _read_panel(raw, pwhere, view_names, global_flat, global_plot, video_flat,
-                            video_plot)
+        panel = _read_panel(
+            raw, pwhere, view_names, global_flat, global_plot, video_flat, video_plot
+        )
         _check_static_bounds(panel, width, height)
         panels.append(panel)
-    return VideoSpec(name=name, panels=tuple(panels), width=width, height=height,
-                     background=background, output_fps=fps, speed=speed, where=where)
+    return VideoSpec(
+        name=name,
+        panels=tuple(panels),
+        width=width,
+        height=height,
+        background=background,
+        output_fps=fps,
+        speed=speed,
+        where=where,
+    )
 
 
-def _read_panel(raw: Any, where: str, view_names, global_flat, global_plot, video_flat,
-                video_plot) -> PanelSpec:
+def _read_panel(
+    raw: Any, where: str, view_names, global_flat, global_plot, video_flat, video_plot
+) -> PanelSpec:
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where} must be a table {{plot, view, x0, y0, ...}}")
     for key in raw:
@@ -404,43 +438,52 @@ def _read_panel(raw: Any, where: str, view_names, global_flat, global_plot, vide
     if not isinstance(view, str):
         raise ConfigError(f"{where}.view must name a camera of the rig, got {view!r}")
     if view_names is not None and view not in view_names:
-        raise ConfigError(f"{where}.view: {view!r} is not a view of the rig; "
-                          f"use one of {', '.join(view_names)}")
+        raise ConfigError(
+            f"{where}.view: {view!r} is not a view of the rig; use one of {', '.join(view_names)}"
+        )
     own = {k: v for k, v in raw.items() if k in DEFAULT_DRAW_KWARGS}
     _check_palette(own, where)
-    kw = merge_draw_kwargs(global_flat, global_plot.get(plot, {}), video_flat,
-                           video_plot.get(plot, {}), own)
+    kw = merge_draw_kwargs(
+        global_flat, global_plot.get(plot, {}), video_flat, video_plot.get(plot, {}), own
+    )
     x0 = raw.get("x0", 0)
     y0 = raw.get("y0", 0)
     for key, value in (("x0", x0), ("y0", y0)):
         if not (isinstance(value, int) and not isinstance(value, bool)):
             raise ConfigError(f"{where}.{key} must be an integer pixel offset, got {value!r}")
         if value < 0:
-            raise ConfigError(f"{where}: panel is off the canvas ({key} = {value} < 0); "
-                              "use offsets >= 0")
-    palette = {str(limb): parse_color(c, f"{where}.palette.{limb}")
-               for limb, c in kw["palette"].items()}
-    bg = None if kw["background"] is None else parse_color(kw["background"],
-                                                           f"{where}.background")
+            raise ConfigError(
+                f"{where}: panel is off the canvas ({key} = {value} < 0); use offsets >= 0"
+            )
+    palette = {
+        str(limb): parse_color(c, f"{where}.palette.{limb}") for limb, c in kw["palette"].items()
+    }
+    bg = None if kw["background"] is None else parse_color(kw["background"], f"{where}.background")
     return PanelSpec(
-        plot=plot, view=view, x0=x0, y0=y0,
-        point_radius=_number(kw["point_radius"], f"{where}.point_radius", integer=True,
-                             minimum=0),
-        line_thickness=_number(kw["line_thickness"], f"{where}.line_thickness", integer=True,
-                               minimum=1),
+        plot=plot,
+        view=view,
+        x0=x0,
+        y0=y0,
+        point_radius=_number(kw["point_radius"], f"{where}.point_radius", integer=True, minimum=0),
+        line_thickness=_number(
+            kw["line_thickness"], f"{where}.line_thickness", integer=True, minimum=1
+        ),
         scale=_number(kw["scale"], f"{where}.scale", integer=False, minimum=1e-6),
         width=_number(kw["width"], f"{where}.width", integer=True, minimum=1, allow_none=True),
-        height=_number(kw["height"], f"{where}.height", integer=True, minimum=1,
-                       allow_none=True),
-        palette=palette, background=bg, where=where,
+        height=_number(kw["height"], f"{where}.height", integer=True, minimum=1, allow_none=True),
+        palette=palette,
+        background=bg,
+        where=where,
     )
 
 
 def _check_static_bounds(panel: PanelSpec, width: int | None, height: int | None) -> None:
     """Reject panels that are off an explicitly sized canvas before any footage is read."""
     size = panel.static_size() or (1, 1)
-    for origin, extent, limit, axis in ((panel.x0, size[0], width, "width"),
-                                        (panel.y0, size[1], height, "height")):
+    for origin, extent, limit, axis in (
+        (panel.x0, size[0], width, "width"),
+        (panel.y0, size[1], height, "height"),
+    ):
         if limit is not None and origin + extent > limit:
             raise ConfigError(
                 f"{panel.where}: panel is off the canvas ({origin} + {extent} > {axis} "
@@ -450,8 +493,12 @@ def _check_static_bounds(panel: PanelSpec, width: int | None, height: int | None
 
 def default_fps(table: Mapping) -> float:
     """``visualization.default_fps`` (30 unless set), validated."""
-    return _number(table.get("default_fps", DEFAULT_FPS), "visualization.default_fps",
-                   integer=False, minimum=1e-9)
+    return _number(
+        table.get("default_fps", DEFAULT_FPS),
+        "visualization.default_fps",
+        integer=False,
+        minimum=1e-9,
+    )
 
 
 def resolve_output_fps(video: VideoSpec, table: Mapping, input_fps: float | None) -> float:

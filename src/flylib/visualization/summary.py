@@ -61,8 +61,7 @@ def summary_figure(result, path, *, dpi: int = 100) -> Path:
     _error_per_view(fig.add_subplot(grid[0, 0]), error, names)
     _coverage(fig.add_subplot(grid[0, 1]), result.pts2d, pts3d, skeleton, point_colors)
     _error_over_time(fig.add_subplot(grid[1, 0]), error)
-    _trajectories(fig.add_subplot(grid[1, 1], projection="3d"), pts3d, skeleton,
-                  point_colors)
+    _trajectories(fig.add_subplot(grid[1, 1], projection="3d"), pts3d, skeleton, point_colors)
 
     n_views, n_frames, n_points = result.pts2d.shape[:3]
     title = f"{n_frames} frames, {n_views} views, {n_points} points"
@@ -99,11 +98,21 @@ def _error_per_view(ax, error, names) -> None:
     missing = [n for n, e in zip(names, per_view) if not e.size]
     if missing:
         ax.set_title(f"Reprojection error per view ({', '.join(missing)}: none, left out)")
-    ax.boxplot([e for _, e in shown], tick_labels=[n for n, _ in shown], showfliers=True,
-               flierprops={"markersize": 2, "alpha": 0.3})
+    ax.boxplot(
+        [e for _, e in shown],
+        tick_labels=[n for n, _ in shown],
+        showfliers=True,
+        flierprops={"markersize": 2, "alpha": 0.3},
+    )
     for k, (_, e) in enumerate(shown, start=1):
-        ax.annotate(f"{np.median(e):.1f}", (k, np.median(e)), xytext=(12, 0),
-                    textcoords="offset points", fontsize=8, va="center")
+        ax.annotate(
+            f"{np.median(e):.1f}",
+            (k, np.median(e)),
+            xytext=(12, 0),
+            textcoords="offset points",
+            fontsize=8,
+            va="center",
+        )
     ax.set_yscale("symlog", linthresh=1.0)
     ax.set_ylabel("pixels")
     ax.set_xlabel("view")
@@ -172,11 +181,19 @@ def _trajectories(ax, pts3d, skeleton, colors) -> None:
     start = max(0, min(middle - MAX_TRAJECTORY_FRAMES // 2, len(pts3d) - MAX_TRAJECTORY_FRAMES))
     window = slice(start, start + MAX_TRAJECTORY_FRAMES)
     if len(pts3d) > MAX_TRAJECTORY_FRAMES:
-        ax.set_title(f"3D trajectories of the leg tips, frames {start}-{start + MAX_TRAJECTORY_FRAMES - 1}")
+        ax.set_title(
+            f"3D trajectories of the leg tips, frames {start}-{start + MAX_TRAJECTORY_FRAMES - 1}"
+        )
     for p in trajectory_points(skeleton):
         track = pts3d[window, p]
-        ax.plot(track[:, 0], track[:, 1], track[:, 2], color=colors[p], lw=0.8,
-                label=skeleton.point_names[p])
+        ax.plot(
+            track[:, 0],
+            track[:, 1],
+            track[:, 2],
+            color=colors[p],
+            lw=0.8,
+            label=skeleton.point_names[p],
+        )
     finite = pts3d[np.isfinite(pts3d).all(axis=-1)]
     lo, hi = finite.min(axis=0), finite.max(axis=0)
     centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-9)
