@@ -402,7 +402,7 @@ def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
 
     monkeypatch.setattr(solver.ChunkProblem, "__init__", record)
     rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
-    start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
+    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
     result = refine_points(
         pts2d,
         rig,
