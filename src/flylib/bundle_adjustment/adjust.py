@@ -46,6 +46,8 @@ from .unknowns import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
+
     from ..cameras import CameraGroup
 
 log = logging.getLogger(__name__)
@@ -68,7 +70,7 @@ SOLVERS = ("lm", "scipy")
 DISTORTION_MODES = ("auto", "free", "fixed")
 
 
-def camera_table(cameras: CameraGroup) -> np.ndarray:
+def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
     """``(V, 10 + K)`` table of stacked ``[rvec, tvec, intr, dist]`` rows."""
     intrs = np.asarray(cameras.intrs, float)
     if intrs.shape[1] != 4:
@@ -94,12 +96,12 @@ def _cameras_from_table(names, table: np.ndarray) -> CameraGroup:
 
 def bundle_adjust(
     cameras: CameraGroup,
-    pts2d: np.ndarray,
+    pts2d: Float[np.ndarray, "V N 2"],
     *,
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
-    pts3d: np.ndarray | None = None,
-    conf: np.ndarray | None = None,
+    pts3d: Float[np.ndarray, "N 3"] | None = None,
+    conf: Float[np.ndarray, "V N"] | None = None,
     weigh_by_confidence: bool = False,
     bones: tuple[np.ndarray, ...] | None = None,
     bone_weight: float = DEFAULT_BONE_WEIGHT,
@@ -109,13 +111,13 @@ def bundle_adjust(
     outlier_min_px: float = DEFAULT_OUTLIER_MIN_PX,
     max_rounds: int = DEFAULT_MAX_ROUNDS,
     canonical_gauge: bool = True,
-    point_ids: np.ndarray | None = None,
+    point_ids: Int[np.ndarray, " N"] | None = None,
     solver: str = DEFAULT_SOLVER,
     distortion: str = "auto",
     reseed_px: float | None = DEFAULT_RESEED_PX,
     warn_ratio: float = DEFAULT_WARN_RATIO,
     **solver_kwargs,
-) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
+) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "N 3"]]:
     """Bundle-adjust a camera group against observed 2D points.
 
     Parameters

@@ -10,9 +10,14 @@ held. :func:`open_gauge_directions` counts what held and tied entries leave open
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float
 
 
 def untied_extrinsics(layout) -> bool:
@@ -20,7 +25,9 @@ def untied_extrinsics(layout) -> bool:
     return np.unique(ext).size == ext.size
 
 
-def gauge_refs(table: np.ndarray, names, observed: np.ndarray | None = None) -> list[str]:
+def gauge_refs(
+    table: Float[np.ndarray, "V C"], names, observed: Bool[np.ndarray, " V"] | None = None
+) -> list[str]:
     """References that pin the similarity gauge: the first observed camera's pose and,
     for scale, the translation entry of the observed camera farthest from it that
     scaling moves most."""
@@ -50,8 +57,11 @@ def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
 
 
 def align_gauge(
-    table0: np.ndarray, table: np.ndarray, pts: np.ndarray, pts0: np.ndarray | None = None
-):
+    table0: Float[np.ndarray, "V C"],
+    table: Float[np.ndarray, "V C"],
+    pts: Float[np.ndarray, "N 3"],
+    pts0: Float[np.ndarray, "N 3"] | None = None,
+) -> tuple[Float[np.ndarray, "V C"], Float[np.ndarray, "N 3"]]:
     """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start.
 
     With ``pts0`` (the starting 3D points, ``(N, 3)``, NaN where none): the similarity
@@ -114,7 +124,9 @@ def _similarity_table(
     return out
 
 
-def open_gauge_directions(table: np.ndarray, layout, observed: np.ndarray | None = None) -> int:
+def open_gauge_directions(
+    table: Float[np.ndarray, "V C"], layout, observed: Bool[np.ndarray, " V"] | None = None
+) -> int:
     """How many of the 7 similarity directions the held and tied entries leave open.
 
     Each direction (3 rotations, 3 translations, scale) moves every camera's

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
@@ -29,6 +30,9 @@ from scipy.optimize import OptimizeResult
 from scipy.sparse.csgraph import connected_components
 
 from .solver import Problem
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +55,9 @@ class BlockStructure:
     block_cols: np.ndarray
 
 
-def block_structure(problem: Problem, global_points: np.ndarray | None = None) -> BlockStructure:
+def block_structure(
+    problem: Problem, global_points: Bool[np.ndarray, " N"] | None = None
+) -> BlockStructure:
     """Global columns and local blocks of ``problem``.
 
     ``global_points``: ``(N,)`` bool, points kept among the global unknowns (shared by
@@ -111,7 +117,9 @@ def _loss(name: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class ReducedSystem:
     """The normal equations of one linearization, in reduced (Schur) form."""
 
-    def __init__(self, jac: scipy.sparse.csr_matrix, res: np.ndarray, blocks: BlockStructure):
+    def __init__(
+        self, jac: scipy.sparse.csr_matrix, res: Float[np.ndarray, " R"], blocks: BlockStructure
+    ):
         csc = jac.tocsc()
         jg = csc[:, blocks.global_cols]
         self.n_global = blocks.global_cols.size
@@ -147,7 +155,7 @@ class ReducedSystem:
         n_used = (~padded).sum(axis=1)
         self.groups = [(np.flatnonzero(n_used == k), int(k)) for k in np.unique(n_used)]
 
-    def schur(self, lam: float) -> tuple[np.ndarray, list, list]:
+    def schur(self, lam: float) -> tuple[Float[np.ndarray, "G G"], list, list]:
         """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` and
         ``V^-1`` per group of blocks of one width (``W_g V_g^-1`` as ``(G, B_g * k)``
         and ``(B_g, k, k)``)."""
@@ -164,7 +172,7 @@ class ReducedSystem:
             vinvs.append(vinv)
         return 0.5 * (s + s.T), ys, vinvs
 
-    def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, lam: float) -> tuple[Float[np.ndarray, " G"], Float[np.ndarray, "B S"]]:
         """``(dx_global, dx_local (B, S))`` of the damped system."""
         s, ys, vinvs = self.schur(lam)
         rhs = -self.gg.copy()
@@ -192,7 +200,7 @@ class ReducedSystem:
 
 def solve_lm(
     problem: Problem,
-    x0: np.ndarray,
+    x0: Float[np.ndarray, " X"],
     blocks: BlockStructure,
     *,
     loss: str = "linear",
@@ -319,7 +327,7 @@ def solve_lm(
     return result
 
 
-def weak_directions(hessian: np.ndarray, n_gauge: int) -> tuple[float, int]:
+def weak_directions(hessian: Float[np.ndarray, "G G"], n_gauge: int) -> tuple[float, int]:
     """How well the reduced Hessian pins its unknowns beyond the gauge.
 
     The Hessian is first scaled to unit diagonal (Jacobi), so units do not matter.

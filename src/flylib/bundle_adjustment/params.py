@@ -20,10 +20,14 @@ import logging
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 log = logging.getLogger(__name__)
 
@@ -94,17 +98,19 @@ class ParamLayout:
         Number of free camera variables.
     """
 
-    var_index: np.ndarray
+    var_index: Int[np.ndarray, "V C"]
     n_free: int
 
-    def pack(self, table: np.ndarray) -> np.ndarray:
+    def pack(self, table: Float[np.ndarray, "V C"]) -> Float[np.ndarray, " F"]:
         """Free-variable vector from a camera table (tied entries are averaged)."""
         free = self.var_index >= 0
         sums = np.bincount(self.var_index[free], weights=table[free], minlength=self.n_free)
         counts = np.bincount(self.var_index[free], minlength=self.n_free)
         return sums / np.maximum(counts, 1)
 
-    def unpack(self, x: np.ndarray, base: np.ndarray) -> np.ndarray:
+    def unpack(
+        self, x: Float[np.ndarray, " F"], base: Float[np.ndarray, "V C"]
+    ) -> Float[np.ndarray, "V C"]:
         """Camera table: ``base`` with every free entry replaced from ``x``."""
         free = self.var_index >= 0
         table = np.array(base, dtype=float, copy=True)

@@ -11,16 +11,25 @@ the rig looks at.
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from ..camera_model import pad_dist_numpy, rmat_to_rvec_numpy, rvec_to_rmat_numpy
 
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float
+
 log = logging.getLogger(__name__)
 
 
-def view_errors(table: np.ndarray, pts: np.ndarray, pts2d: np.ndarray, usable: np.ndarray):
+def view_errors(
+    table: Float[np.ndarray, "V C"],
+    pts: Float[np.ndarray, "N 3"],
+    pts2d: Float[np.ndarray, "V N 2"],
+    usable: Bool[np.ndarray, "V N"],
+) -> Float[np.ndarray, "V N"]:
     """``(V, N)`` reprojection error of every usable observation (NaN elsewhere)."""
     from .solver import project_rows
 
@@ -41,7 +50,7 @@ def _dist(row):
     return pad_dist_numpy(row[10:][None])[0] if row.size > 10 else np.zeros(5)
 
 
-def rig_target(table: np.ndarray) -> np.ndarray:
+def rig_target(table: Float[np.ndarray, "V C"]) -> Float[np.ndarray, " 3"]:
     """The point closest (least squares) to every camera's optical axis, ``(3,)``."""
     rmats = rvec_to_rmat_numpy(table[:, 0:3])
     centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
@@ -50,7 +59,11 @@ def rig_target(table: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(proj.sum(0), np.einsum("vij,vj->i", proj, centres), rcond=None)[0]
 
 
-def reaim(row: np.ndarray, observed: np.ndarray, target: np.ndarray) -> np.ndarray:
+def reaim(
+    row: Float[np.ndarray, " C"],
+    observed: Float[np.ndarray, "M 2"],
+    target: Float[np.ndarray, " 3"],
+) -> Float[np.ndarray, " C"]:
     """Turn camera ``row`` about its centre so that ``target`` projects near the
     median of ``observed`` ``(M, 2)`` pixels (distortion ignored: a coarse repair)."""
     rmat = rvec_to_rmat_numpy(row[0:3])
@@ -70,7 +83,12 @@ def reaim(row: np.ndarray, observed: np.ndarray, target: np.ndarray) -> np.ndarr
     return new
 
 
-def leave_one_out_errors(table, pts2d, usable, triangulate) -> np.ndarray:
+def leave_one_out_errors(
+    table: Float[np.ndarray, "V C"],
+    pts2d: Float[np.ndarray, "V N 2"],
+    usable: Bool[np.ndarray, "V N"],
+    triangulate,
+) -> Float[np.ndarray, " V"]:
     """``(V,)`` median error of each camera against points the *other* cameras
     triangulate (a point triangulated with a camera always fits it)."""
     med = np.full(len(table), np.nan)
@@ -85,14 +103,14 @@ def leave_one_out_errors(table, pts2d, usable, triangulate) -> np.ndarray:
 
 
 def reseed_gross_cameras(
-    table: np.ndarray,
+    table: Float[np.ndarray, "V C"],
     names,
-    pts2d: np.ndarray,
-    usable: np.ndarray,
+    pts2d: Float[np.ndarray, "V N 2"],
+    usable: Bool[np.ndarray, "V N"],
     gross_px: float,
     triangulate,
-    movable: np.ndarray | None = None,
-) -> tuple[np.ndarray, list[str], np.ndarray]:
+    movable: Bool[np.ndarray, " V"] | None = None,
+) -> tuple[Float[np.ndarray, "V C"], list[str], Float[np.ndarray, " V"]]:
     """Resect (or re-aim) every camera whose median error from the start is gross.
 
     Parameters
@@ -187,7 +205,7 @@ def reseed_gross_cameras(
     return table, reseeded, med
 
 
-def radial_folds(dist: np.ndarray, r_max: float, n: int = 256) -> bool:
+def radial_folds(dist: Float[np.ndarray, " K"], r_max: float, n: int = 256) -> bool:
     """True when the OpenCV radial model ``r * radial(r)`` is not increasing on
     ``[0, r_max]`` (the image would fold onto itself)."""
     d = pad_dist_numpy(np.asarray(dist, float)[None])[0]
@@ -200,7 +218,7 @@ def radial_folds(dist: np.ndarray, r_max: float, n: int = 256) -> bool:
     return bool(np.any(den <= 0) or np.any(np.diff(mapped) <= 0))
 
 
-def image_radius(row: np.ndarray) -> float:
+def image_radius(row: Float[np.ndarray, " C"]) -> float:
     """Normalized radius of the farthest image corner, taking the image as twice the
     principal point (plus a margin): where the distortion model must stay monotonic."""
     return 1.25 * float(np.hypot(row[8] / row[6], row[9] / row[7]))

@@ -17,16 +17,24 @@ Strategies
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 FRAME_SAMPLING = ("even", "confidence", "coverage", "diversity")
 
 
 def select_frames(
-    pts2d: np.ndarray, conf: np.ndarray | None, max_frames: int | None, method: str = "even"
-) -> np.ndarray:
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None,
+    max_frames: int | None,
+    method: str = "even",
+) -> Int[np.ndarray, " F"]:
     """Sorted indices of at most ``max_frames`` frames of ``pts2d`` ``(V, T, P, 2)``.
 
     ``max_frames=None`` (or at least ``T``) keeps every frame.

@@ -20,6 +20,8 @@ from .adjust import DEFAULT_INIT_THRESHOLD, DEFAULT_LENGTH_WEIGHT, _ransac_point
 from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
     from ..cameras import CameraGroup
     from ..config import Config
     from ..skeleton import Skeleton
@@ -37,8 +39,8 @@ DEFAULT_RIGID_TOLERANCE = 0.15
 
 def bundle_adjust_sequence(
     cameras: CameraGroup,
-    pts2d: np.ndarray,
-    conf: np.ndarray | None = None,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
     skeleton: Skeleton | None = None,
     *,
     points_to_use: Sequence[str] | None = None,
@@ -55,7 +57,7 @@ def bundle_adjust_sequence(
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
     body_points: Sequence[str] = THORAX_POINTS,
     **kwargs,
-) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
+) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
     Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
@@ -309,9 +311,9 @@ def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
 def bundle_adjust_from_config(
     config: Config,
     cameras: CameraGroup,
-    pts2d: np.ndarray,
-    conf: np.ndarray | None = None,
-) -> tuple[OptimizeResult, CameraGroup, np.ndarray]:
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
+) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
     """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
 
     Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,

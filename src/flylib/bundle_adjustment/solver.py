@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse
@@ -23,6 +24,9 @@ from scipy.optimize import OptimizeResult, least_squares
 
 from .. import camera_model, geometry  # geometry: JAX, float64 on the CPU, the compile cache
 from .params import ParamLayout
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 # Observations go through the kernel in fixed-size chunks: one compilation serves every
 # problem size (XLA's compile time does not depend on the size, ~0.5 s here), and a
@@ -53,7 +57,9 @@ def _pad(a: np.ndarray, size: int) -> np.ndarray:
     return np.concatenate([a, pad], axis=0)
 
 
-def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+def project_rows(
+    pts: Float[np.ndarray, "M 3"], rows: Float[np.ndarray, "M C"]
+) -> Float[np.ndarray, "M 2"]:
     """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``.
 
     The NumPy twin of :func:`flylib.geometry.project_full_one` (same pinhole + OpenCV
@@ -71,7 +77,9 @@ def project_rows(pts: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return np.stack([rows[:, 6] * x + rows[:, 8], rows[:, 7] * y + rows[:, 9]], axis=-1)
 
 
-def project_rows_with_jac(pts: np.ndarray, rows: np.ndarray):
+def project_rows_with_jac(
+    pts: Float[np.ndarray, "M 3"], rows: Float[np.ndarray, "M C"]
+) -> tuple[Float[np.ndarray, "M 2"], Float[np.ndarray, "M 2 3"], Float[np.ndarray, "M 2 C"]]:
     """Projections ``(M, 2)`` and Jacobians ``(M, 2, 3)`` / ``(M, 2, C)``."""
     m = pts.shape[0]
     value, jpt = np.empty((m, 2)), np.empty((m, 2, 3))
@@ -115,18 +123,18 @@ class Problem:
         fixed lengths ``L = target``.
     """
 
-    table0: np.ndarray
+    table0: Float[np.ndarray, "V C"]
     layout: ParamLayout
-    view: np.ndarray
-    point: np.ndarray
-    xy: np.ndarray
-    weight: np.ndarray
+    view: Int[np.ndarray, " M"]
+    point: Int[np.ndarray, " M"]
+    xy: Float[np.ndarray, "M 2"]
+    weight: Float[np.ndarray, " M"]
     n_points: int
-    bone_i: np.ndarray
-    bone_j: np.ndarray
-    bone_target: np.ndarray
+    bone_i: Int[np.ndarray, " B"]
+    bone_j: Int[np.ndarray, " B"]
+    bone_target: Float[np.ndarray, " B"]
     bone_weight: float = 0.0
-    bone_group: np.ndarray | None = None
+    bone_group: Int[np.ndarray, " B"] | None = None
 
     def __post_init__(self):
         self.n_cam = self.layout.n_free
@@ -139,14 +147,18 @@ class Problem:
 
     # -- packing ------------------------------------------------------------
 
-    def pack(self, table: np.ndarray, pts3d: np.ndarray) -> np.ndarray:
+    def pack(
+        self, table: Float[np.ndarray, "V C"], pts3d: Float[np.ndarray, "N 3"]
+    ) -> Float[np.ndarray, " X"]:
         parts = [self.layout.pack(table), np.asarray(pts3d, float).ravel()]
         if self.n_len:
             sums = np.bincount(self.bone_group, self.bone_target, self.n_len)
             parts.append(sums / np.maximum(np.bincount(self.bone_group, minlength=self.n_len), 1))
         return np.concatenate(parts)
 
-    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def unpack(
+        self, x: Float[np.ndarray, " X"]
+    ) -> tuple[Float[np.ndarray, "V C"], Float[np.ndarray, "N 3"]]:
         table = self.layout.unpack(x[: self.n_cam], self.table0)
         return table, x[self.n_cam : self.n_cam + 3 * self.n_points].reshape(self.n_points, 3)
 
@@ -157,7 +169,7 @@ class Problem:
 
     # -- residuals and Jacobian ----------------------------------------------
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
+    def residuals(self, x: Float[np.ndarray, " X"]) -> Float[np.ndarray, " R"]:
         table, pts = self.unpack(x)
         proj = project_rows(pts[self.point], table[self.view])
         r_obs = (self.weight[:, None] * (proj - self.xy)).ravel()
@@ -171,7 +183,7 @@ class Problem:
             return self.bone_weight * (length / target - 1.0)
         return self.bone_weight * (length - target) / self.bone_target
 
-    def jacobian(self, x: np.ndarray) -> scipy.sparse.csr_matrix:
+    def jacobian(self, x: Float[np.ndarray, " X"]) -> scipy.sparse.csr_matrix:
         table, pts = self.unpack(x)
         _, jpt, jrow = project_rows_with_jac(pts[self.point], table[self.view])
         w = self.weight[:, None, None]
@@ -232,7 +244,9 @@ class Problem:
 
     # -- solve ----------------------------------------------------------------
 
-    def solve(self, table: np.ndarray, pts3d: np.ndarray, **kwargs) -> OptimizeResult:
+    def solve(
+        self, table: Float[np.ndarray, "V C"], pts3d: Float[np.ndarray, "N 3"], **kwargs
+    ) -> OptimizeResult:
         """``scipy.optimize.least_squares`` from ``(table, pts3d)``; kwargs pass through.
 
         ``jac`` defaults to the analytic JAX Jacobian; pass ``jac="2-point"`` (or

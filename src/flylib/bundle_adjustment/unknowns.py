@@ -8,7 +8,12 @@ or its left/right pair) that the fit finds.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 __all__ = [
     "bones_on_unknowns",
@@ -19,7 +24,9 @@ __all__ = [
 ]
 
 
-def unknowns_from_columns(cols: np.ndarray, ids: np.ndarray, n_unknown: int) -> np.ndarray:
+def unknowns_from_columns(
+    cols: Float[np.ndarray, "N 3"], ids: Int[np.ndarray, " N"], n_unknown: int
+) -> Float[np.ndarray, "U 3"]:
     """Per-unknown start: the column's point, or the median over the columns sharing it."""
     pts = np.full((n_unknown, 3), np.nan)
     pts[ids] = cols

@@ -15,8 +15,12 @@ from ..config.constants import TRIANGULATION_METHODS
 from ..errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from ..cameras import CameraGroup
     from ..pictorial import Candidates
     from ..results import PoseResult
+    from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -33,10 +37,10 @@ def _defaults():
 
 
 def run_from_points2d(
-    cameras,
-    skeleton,
-    pts2d,
-    conf: np.ndarray | None = None,
+    cameras: CameraGroup,
+    skeleton: Skeleton,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
     *,
     do_bundle_adjust: bool = True,
     bundle_adjust_kwargs: dict | None = None,

@@ -19,11 +19,16 @@ confidence is the raw peak value. The sub-pixel refinement of the peak cell is o
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 
 from ..errors import ConfigError
 from .plan import DEFAULT_SUBPIXEL, SUBPIXEL_METHODS
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float, Int
 
 _EPS = 1e-12
 
@@ -122,12 +127,12 @@ def check_subpixel(method: str, where: str = "pose2d.models[].subpixel") -> str:
 
 
 def refine_peaks(
-    heatmaps: torch.Tensor,
-    rows: torch.Tensor,
-    cols: torch.Tensor,
+    heatmaps: Float[torch.Tensor, "M H W"],
+    rows: Int[torch.Tensor, "M K"],
+    cols: Int[torch.Tensor, "M K"],
     method: str = DEFAULT_SUBPIXEL,
     radius: int = SUBPIXEL_RADIUS,
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[Float[torch.Tensor, "M K"], Float[torch.Tensor, "M K"]]:
     """Sub-pixel ``(x, y)`` of integer peaks, in heatmap cells.
 
     Parameters
@@ -161,8 +166,10 @@ def refine_peaks(
 
 
 def decode_argmax(
-    heatmaps: torch.Tensor, method: str = DEFAULT_SUBPIXEL, radius: int = SUBPIXEL_RADIUS
-) -> tuple[torch.Tensor, torch.Tensor]:
+    heatmaps: Float[torch.Tensor, "N C H W"],
+    method: str = DEFAULT_SUBPIXEL,
+    radius: int = SUBPIXEL_RADIUS,
+) -> tuple[Float[torch.Tensor, "N C 2"], Float[torch.Tensor, "N C"]]:
     """Sub-pixel arg-max of each heatmap channel and its peak value.
 
     Parameters
@@ -189,14 +196,14 @@ def decode_argmax(
 
 
 def topk_peaks(
-    heatmaps: torch.Tensor,
+    heatmaps: Float[torch.Tensor, "N C H W"],
     k: int,
     *,
     radius: int = 2,
     threshold: float = 0.0,
     method: str = DEFAULT_SUBPIXEL,
     refine_radius: int = SUBPIXEL_RADIUS,
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[Float[torch.Tensor, "N C K 2"], Float[torch.Tensor, "N C K"]]:
     """The ``k`` strongest local maxima per channel, sub-pixel refined, on the device.
 
     The torch counterpart of :func:`flylib.pictorial.peak_candidates` (same peak
@@ -244,7 +251,11 @@ def topk_peaks(
     return xy.reshape(n, c, k, 2), score.reshape(n, c, k)
 
 
-def gaussian_heatmap(size: tuple[int, int], centre_xy, sigma: float = 1.5) -> np.ndarray:
+def gaussian_heatmap(
+    size: tuple[int, int],
+    centre_xy: tuple[float, float] | Float[np.ndarray, " 2"],
+    sigma: float = 1.5,
+) -> Float[np.ndarray, "H W"]:
     """A unit-peak Gaussian blob on an ``(H, W)`` grid centred at cell ``(x, y)`` (for tests/benchmarks)."""
     h, w = size
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)

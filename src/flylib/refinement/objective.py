@@ -33,8 +33,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float, Int
 
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 
@@ -250,9 +254,9 @@ class BlockLayout:
         ``(P,)`` the block and slot of every point.
     """
 
-    slots: np.ndarray
-    block_of: np.ndarray
-    slot_of: np.ndarray
+    slots: Int[np.ndarray, "n_blocks m"]
+    block_of: Int[np.ndarray, " P"]
+    slot_of: Int[np.ndarray, " P"]
 
     @property
     def m(self) -> int:
@@ -295,7 +299,7 @@ class BlockLayout:
         return cls(slots, block_of, slot_of)
 
 
-def difference_gram(n_frames: int, order: int) -> np.ndarray:
+def difference_gram(n_frames: int, order: int) -> Float[np.ndarray, "order_1 T"]:
     """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``.
 
     Returns
@@ -321,10 +325,10 @@ def difference_gram(n_frames: int, order: int) -> np.ndarray:
 def temporal_band(
     layout: BlockLayout,
     order: int,
-    gram: np.ndarray,
+    gram: Float[np.ndarray, "order_1 T"],
     smooth_w: float,
-    live: np.ndarray | None = None,
-) -> np.ndarray:
+    live: Float[np.ndarray, " T"] | None = None,
+) -> Float[np.ndarray, "order_1 n"]:
     """The constant part of the normal matrix: the temporal term on real slots, and a
     unit diagonal for empty slots and padded frames (``live`` ``(T,)`` 0), whose
     unknowns then never move.
@@ -352,15 +356,15 @@ def temporal_band(
 
 
 def assemble_band(
-    rows: np.ndarray,
-    temporal: np.ndarray,
+    rows: Float[np.ndarray, "k n"],
+    temporal: Float[np.ndarray, "order_1 n"],
     width: int,
     u: int,
-    columns: np.ndarray | None = None,
-    mu: np.ndarray | float = 0.0,
+    columns: Bool[np.ndarray, " n"] | None = None,
+    mu: Float[np.ndarray, " n"] | float = 0.0,
     floor: float = 0.0,
-    buffer: np.ndarray | None = None,
-) -> np.ndarray:
+    buffer: Float[np.ndarray, "n u_1"] | None = None,
+) -> Float[np.ndarray, "u_1 n_columns"]:
     """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
     ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
 
@@ -412,7 +416,9 @@ def band_width(m: int, order: int) -> int:
     return max(3 * m - 1, 3 * m * order)
 
 
-def to_slots(per_point: np.ndarray, slots: np.ndarray) -> np.ndarray:
+def to_slots(
+    per_point: Float[np.ndarray, "T P *rest"], slots: Int[np.ndarray, "n_blocks m"]
+) -> Float[np.ndarray, "n_blocks T m *rest"]:
     """``(T, P, ...)`` -> ``(n_blocks, T, m, ...)`` (zeros in empty slots)."""
     pad = np.zeros((per_point.shape[0], 1, *per_point.shape[2:]))
     padded = np.concatenate([per_point, pad], axis=1)
@@ -420,7 +426,11 @@ def to_slots(per_point: np.ndarray, slots: np.ndarray) -> np.ndarray:
     return np.moveaxis(padded[:, index], 0, 1)
 
 
-def from_slots(slotted: np.ndarray, slots: np.ndarray, n_points: int) -> np.ndarray:
+def from_slots(
+    slotted: Float[np.ndarray, "n_blocks T m *rest"],
+    slots: Int[np.ndarray, "n_blocks m"],
+    n_points: int,
+) -> Float[np.ndarray, "T P *rest"]:
     """``(n_blocks, T, m, ...)`` -> ``(T, P, ...)``."""
     ok = slots >= 0
     out = np.zeros((slotted.shape[1], n_points, *slotted.shape[3:]))

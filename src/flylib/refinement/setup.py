@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ConfigError
 from .solver import RefinementResult, RefineOptions, refine_points
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float, Int
+
+    from ..cameras import CameraGroup
+    from ..config import Config
 
 
 def default_rigid_points(skeleton) -> list[str]:
@@ -25,7 +31,7 @@ def _twin_name(name: str) -> str | None:
     return None
 
 
-def mirror_bones(skeleton) -> np.ndarray:
+def mirror_bones(skeleton) -> Int[np.ndarray, " B"]:
     """``(B,)`` the left/right twin of every bone (itself when it has none): bone ``k``
     of limb ``l...`` and bone ``k`` of limb ``r...`` with equally long chains."""
     limbs = list(skeleton.limbs.items())
@@ -85,7 +91,13 @@ def options_from_params(params) -> RefineOptions:
 
 
 def refine_from_config(
-    config, pts2d, cameras, start, *, conf=None, inliers=None
+    config: Config,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    cameras: CameraGroup,
+    start: Float[np.ndarray, "T P 3"],
+    *,
+    conf: Float[np.ndarray, "V T P"] | None = None,
+    inliers: Bool[np.ndarray, "V T P"] | None = None,
 ) -> RefinementResult:
     """Run :func:`refine_points` as the config's ``refinement`` table and skeleton say.
 

@@ -22,7 +22,7 @@ import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
@@ -41,6 +41,11 @@ from .objective import (
     temporal_band,
     to_slots,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float, Int, UInt8
+
+    from ..cameras import CameraGroup
 
 log = logging.getLogger(__name__)
 
@@ -111,13 +116,13 @@ class RefinementResult:
         Timings and iteration counts.
     """
 
-    points3d: np.ndarray
-    reproj_error: np.ndarray
-    points2d: np.ndarray
-    flags: np.ndarray
-    bone_lengths: np.ndarray
-    rigid_points: np.ndarray
-    rigid_centres: np.ndarray
+    points3d: Float[np.ndarray, "T P 3"]
+    reproj_error: Float[np.ndarray, "V T P"]
+    points2d: Float[np.ndarray, "V T P 2"]
+    flags: UInt8[np.ndarray, "T P"]
+    bone_lengths: Float[np.ndarray, " B"]
+    rigid_points: Int[np.ndarray, " R"]
+    rigid_centres: Float[np.ndarray, "R 3"]
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -125,8 +130,10 @@ class RefinementResult:
 
 
 def bone_lengths(
-    start: np.ndarray, bones: np.ndarray, mirror: np.ndarray | None = None
-) -> np.ndarray:
+    start: Float[np.ndarray, "T P 3"],
+    bones: Int[np.ndarray, "B 2"],
+    mirror: Int[np.ndarray, " B"] | None = None,
+) -> Float[np.ndarray, " B"]:
     """Robust length of every bone over the recording: the median over frames.
 
     Parameters
@@ -157,7 +164,9 @@ def bone_lengths(
     return out
 
 
-def rigid_centres(start: np.ndarray, rigid: np.ndarray) -> np.ndarray:
+def rigid_centres(
+    start: Float[np.ndarray, "T P 3"], rigid: Int[np.ndarray, " R"]
+) -> Float[np.ndarray, "R 3"]:
     """World position of each rigid point: the per-coordinate median over frames ``(R, 3)``."""
     out = np.full((len(rigid), 3), np.nan)
     for k, p in enumerate(rigid):
@@ -168,7 +177,9 @@ def rigid_centres(start: np.ndarray, rigid: np.ndarray) -> np.ndarray:
     return out
 
 
-def fill_start(start: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+def fill_start(
+    start: Float[np.ndarray, "T P 3"], fallback: Float[np.ndarray, "P 3"]
+) -> Float[np.ndarray, "T P 3"]:
     """Linear interpolation of every point's missing frames (nearest value at the ends);
     a point with no value at all takes ``fallback`` ``(P, 3)``."""
     out = start.copy()
@@ -486,13 +497,21 @@ class ArraySink:
         self.points2d = np.full((n_views, n_frames, n_points, 2), np.nan)
         self.flags = np.zeros((n_frames, n_points), np.uint8)
 
-    def write(self, lo, hi, points3d, reproj_error, points2d, flags):
+    def write(
+        self,
+        lo: int,
+        hi: int,
+        points3d: Float[np.ndarray, "T P 3"],
+        reproj_error: Float[np.ndarray, "V T P"],
+        points2d: Float[np.ndarray, "V T P 2"],
+        flags: UInt8[np.ndarray, "T P"],
+    ) -> None:
         self.points3d[lo:hi] = points3d
         self.reproj_error[:, lo:hi] = reproj_error
         self.points2d[:, lo:hi] = points2d
         self.flags[lo:hi] = flags
 
-    def mark_missing(self, lo, hi, missing):
+    def mark_missing(self, lo: int, hi: int, missing: Bool[np.ndarray, "T P"]) -> None:
         """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing.
 
         Read, modify, write back: the same code serves arrays and HDF5 datasets."""
@@ -721,16 +740,16 @@ def refine_stream(
 
 
 def refine_points(
-    pts2d: np.ndarray,
-    cameras,
-    start: np.ndarray,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    cameras: CameraGroup,
+    start: Float[np.ndarray, "T P 3"],
     *,
-    conf: np.ndarray | None = None,
-    inliers: np.ndarray | None = None,
-    bones: np.ndarray | None = None,
+    conf: Float[np.ndarray, "V T P"] | None = None,
+    inliers: Bool[np.ndarray, "V T P"] | None = None,
+    bones: Int[np.ndarray, "B 2"] | None = None,
     chains: list[list[int]] | None = None,
-    mirror: np.ndarray | None = None,
-    rigid: list[int] | np.ndarray = (),
+    mirror: Int[np.ndarray, " B"] | None = None,
+    rigid: list[int] | Int[np.ndarray, " R"] = (),
     options: RefineOptions | None = None,
 ) -> RefinementResult:
     """Refine a whole recording's 3D jointly over frames and the skeleton.

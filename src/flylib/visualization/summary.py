@@ -12,10 +12,18 @@ Four panels (matplotlib, Agg backend, no pyplot state):
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .draw import skeleton_colors
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Sequence
+
+    from jaxtyping import Float
+
+    from ..results import PoseResult
 
 #: Leg tips and other chain ends drawn in the trajectory panel, at most this many.
 MAX_TRAJECTORIES = 6
@@ -25,7 +33,7 @@ MAX_TRAJECTORIES = 6
 MAX_TRAJECTORY_FRAMES = 2000
 
 
-def summary_figure(result, path, *, dpi: int = 100) -> Path:
+def summary_figure(result: PoseResult, path: str | Path, *, dpi: int = 100) -> Path:
     """Write the summary PNG of a pose result.
 
     Parameters
@@ -76,7 +84,7 @@ def summary_figure(result, path, *, dpi: int = 100) -> Path:
     return path
 
 
-def views_without_2d(pts2d, names) -> list[str]:
+def views_without_2d(pts2d: Float[np.ndarray, "V T P 2"], names: Sequence[str]) -> list[str]:
     """The views with no finite 2D point in any frame (``pts2d`` is ``(V, T, P, 2)``)."""
     seen = np.isfinite(np.asarray(pts2d, float)).all(-1).any(axis=(1, 2))
     return [n for n, s in zip(names, seen) if not s]
