@@ -332,7 +332,7 @@ def test_prefetch_queue_stays_bounded(tmp_path):
     for i in range(40):
         files.append(tmp_path / f"f{i}.png")
         cv2.imwrite(str(files[-1]), np.full((8, 8, 3), i, np.uint8))
-    prefetcher = stream.BlockPrefetcher("s", files, block_size=3, depth=2, workers=1)
+    prefetcher = stream.BlockPrefetcher("s", files, block_size=3, depth=2, workers=1, threaded=True)
     prefetcher.start()
     time.sleep(0.3)  # a slow consumer: the decoder must stop at the queue bound
     assert prefetcher.blocks.qsize() <= 2 and prefetcher.is_alive()

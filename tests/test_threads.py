@@ -7,6 +7,7 @@ import sys
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from flylib.config import Config
@@ -159,3 +160,118 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
     )
     assert list(out.glob("*.mp4")), "no video rendered"
     assert started == []
+
+
+def test_a_one_thread_budget_decodes_in_the_calling_thread(tmp_path, started):
+    import cv2
+    import torch
+
+    from flylib import io
+    from flylib.pose2d import stream
+
+    files = []
+    for i in range(7):
+        files.append(tmp_path / f"f{i}.png")
+        cv2.imwrite(str(files[-1]), np.full((8, 8, 3), i, np.uint8))
+
+    def blocks(**kwargs):
+        prefetcher = stream.BlockPrefetcher("s", files, block_size=3, depth=2, **kwargs)
+        prefetcher.start()
+        out = []
+        while (block := prefetcher.get()) is not stream._END:
+            out.append(block)
+        prefetcher.stop()
+        return [len(b) for b in out], torch.cat(out)[:, 0, 0, 0].tolist()
+
+    with thread_budget(1):
+        inline = blocks(workers=4)  # more image workers than the budget: capped
+        # (a reader opens its file only to decode)
+        assert io.VideoReader(REPO / "pyproject.toml").decoder_threads() == 1
+        assert io.ImageSequenceReader(files, workers=4).workers == 1
+    assert started == []
+    assert inline == ([3, 3, 1], list(range(7))) == blocks(workers=2, threaded=True)
+    assert "flylib-decode-s" in started
+    with thread_budget(2):
+        assert io.VideoReader(REPO / "pyproject.toml", threads=8).decoder_threads() == 2
+        assert io.VideoReader(REPO / "pyproject.toml").decoder_threads() == 0  # FFmpeg picks
+
+
+@pytest.fixture
+def torch_threads():
+    """``load_models`` sizes torch's (process-wide) CPU pool from the budget: restore it."""
+    import torch
+
+    before = torch.get_num_threads()
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.slow
+def test_a_one_thread_pose2d_job_starts_no_thread(recording, started, torch_threads):
+    """The 2D stage under ``--threads 1``: the demo's DeepLabCut import, then the detector
+    (a tiny random-weight network, on the demo's seven videos) decoding every source in
+    the calling thread; with two threads the sources decode on their own threads again."""
+    import json
+
+    from flylib.demo import demo_import_spec
+    from flylib.pose2d.model import HourglassNet
+    from flylib.pose2d.weights import save_checkpoint
+    from flylib.results import Pose2dData
+
+    root, config_path, out = recording
+    pose2d = _script("pose2d")
+    recording_args = ["--recording", str(root / "rec")]
+    spec = demo_import_spec(Config.from_file(config_path))
+    imported = root / "threads1" / "stages" / "pose2d.h5"
+    assert (
+        pose2d.main(
+            [
+                *("--config", str(config_path), "--threads", "1"),
+                *recording_args,
+                *("--import-spec", json.dumps(spec), "--out", str(imported)),
+            ]
+        )
+        == 0
+    )
+    import torch
+
+    torch.manual_seed(0)
+    checkpoint = save_checkpoint(
+        HourglassNet(num_stacks=1, num_feats=8, inplanes=8), root / "sh1_random.tar"
+    )
+    import yaml
+
+    data = yaml.safe_load(config_path.read_text())
+    data["pose2d"]["models"][0].update(weights=str(checkpoint), input_size=[64, 128])
+    data["pose2d"].update(batch_size=3, decode_buffer=2, device="cpu")
+    detector_config = root / "detector.yaml"
+    detector_config.write_text(yaml.safe_dump(data))
+    detected = root / "detect1" / "stages" / "pose2d.h5"
+    assert (
+        pose2d.main(
+            [
+                *("--config", str(detector_config), "--threads", "1"),
+                *recording_args,
+                *("--out", str(detected)),
+            ]
+        )
+        == 0
+    )
+    assert started == []
+    assert Pose2dData.load(imported).pts2d.shape == Pose2dData.load(detected).pts2d.shape
+    threaded = root / "detect2" / "stages" / "pose2d.h5"
+    assert (
+        pose2d.main(
+            [
+                *("--config", str(detector_config), "--threads", "2"),
+                *recording_args,
+                *("--out", str(threaded)),
+            ]
+        )
+        == 0
+    )
+    assert sum(name.startswith("flylib-decode-") for name in started) == 7
+    # the same points either way (up to torch's float summation order)
+    one, two = Pose2dData.load(detected), Pose2dData.load(threaded)
+    np.testing.assert_allclose(one.pts2d, two.pts2d, atol=0.05)
+    np.testing.assert_allclose(one.conf, two.conf, atol=1e-5)

@@ -36,6 +36,19 @@ def usable_cpus() -> int:
 def thread_budget(threads: int | None) -> Iterator[int]:
     """Size every flylib thread pool (and BLAS's) from ``threads`` while in the block.
 
+    Under ``threads=1`` flylib starts no thread: pools run their work inline, the
+    detector decodes its sources in the calling thread, FFmpeg decodes with one
+    thread and torch's CPU pool has one.
+
+    Not covered: what native libraries start on their own when loaded. JAX's CPU
+    backend starts its C++ thread pools (about 15 OS threads on a 2-core box, none a
+    Python thread) on the first JAX operation, sized from the machine, not from this
+    budget; ``XLA_FLAGS`` (``--xla_cpu_multi_thread_eigen=false
+    intra_op_parallelism_threads=1``) does not shrink them in jax 0.10, and nothing
+    can once the backend is up. They idle outside JAX calls, which the stages keep
+    small. Likewise OpenBLAS's pool is started on import; ``threadpool_limits``
+    keeps all but one of its threads idle.
+
     Parameters
     ----------
     threads

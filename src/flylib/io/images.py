@@ -96,7 +96,9 @@ class ImageSequenceReader(FrameReader):
         The image files in frame order (use :meth:`from_pattern` to list a directory
         or glob in natural order).
     workers
-        Decode threads; ``0`` or ``None`` picks ``min(8, cpu_count)``.
+        Decode threads; ``0`` or ``None`` picks ``min(8, usable_cpus())``; never more
+        than :func:`~flylib.resources.usable_cpus` (a thread budget caps it). With one,
+        blocks decode in the calling thread: no pool is started.
     on_corrupt
         ``"error"`` (default): a corrupt or truncated image raises
         :class:`~flylib.errors.FootageError` naming it. ``"missing"``: it is logged as
@@ -112,7 +114,7 @@ class ImageSequenceReader(FrameReader):
             )
         if on_corrupt not in ON_CORRUPT:
             raise ValueError(f"on_corrupt must be one of {ON_CORRUPT}, got {on_corrupt!r}")
-        self.workers = int(workers) if workers else _default_workers()
+        self.workers = min(int(workers), usable_cpus()) if workers else _default_workers()
         self.on_corrupt = on_corrupt
         #: Indices of the frames whose image was corrupt (``on_corrupt="missing"``).
         self.corrupt_frames: set[int] = set()

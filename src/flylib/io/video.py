@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import FootageError
+from ..resources import usable_cpus
 from .base import FrameReader, as_rgb_uint8, to_numpy
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -44,8 +45,9 @@ class VideoReader(FrameReader):
     path
         The video file.
     threads
-        Decoder threads; ``0`` or ``None`` lets FFmpeg choose (frame + slice
-        threading).
+        Decoder threads (frame + slice threading); ``0`` or ``None`` lets FFmpeg
+        choose from the CPUs. Never more than :func:`~flylib.resources.usable_cpus`:
+        under a one-thread budget FFmpeg decodes in the calling thread.
     """
 
     def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
@@ -79,8 +81,22 @@ class VideoReader(FrameReader):
             raise FootageError(f"{self.path}: the file holds no video stream")
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
-        stream.thread_count = self.threads
+        stream.thread_count = self.decoder_threads()
         return container, stream
+
+    def decoder_threads(self) -> int:
+        """FFmpeg's ``thread_count`` for the next open (``0``: FFmpeg's choice), read
+        when the video is opened, so the :func:`~flylib.resources.thread_budget` in
+        force then applies.
+
+        FFmpeg's choice is kept with more than one CPU: the thread count changes how a
+        truncated last packet surfaces (a decode error with one or two threads, a short
+        stream with more; both end in a :class:`~flylib.errors.FootageError`).
+        """
+        cpus = usable_cpus()
+        if cpus == 1:
+            return 1
+        return min(self.threads, cpus) if self.threads else 0
 
     def _decode_error(self, frame_index: int, exc: Exception) -> FootageError:
         return FootageError(

@@ -4,6 +4,8 @@ Each source is decoded once, on its own background thread, into a bounded queue
 of ``batch_size``-frame blocks (``decode_buffer`` blocks deep), so decoding runs in
 parallel with the forward passes and frame memory is bounded by
 ``sources x (decode_buffer + 2) x batch_size`` frames whatever the recording length.
+Under a one-thread budget (:func:`flylib.resources.thread_budget`) every source is
+decoded in the calling thread, a block at a time, when the forwards need it.
 Every pathway reading a source is fed from the same block (moved to the device
 once). Results are copied back one block late, so the GPU is never idle waiting
 for the host.
@@ -15,6 +17,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +27,7 @@ import torch
 
 from .. import io
 from ..errors import FootageError
+from ..resources import usable_cpus
 from .inference import LoadedModel, _pose2d_setting, load_models, yuv420p_to_rgb
 from .plan import DetectionPlan, Pathway
 
@@ -42,13 +46,18 @@ class _Failure:
         self.exc = exc
 
 
-class BlockPrefetcher(threading.Thread):
+class BlockPrefetcher:
     """Decode one source into a bounded queue of uint8 torch blocks of up to ``block_size`` frames.
 
     Blocks are ``(T, H, W, 3)`` RGB, or, with ``raw_yuv`` on a ``yuv420p`` video,
     the decoder's planes ``(T, 3H/2, W)`` (:attr:`yuv` tells which; convert with
     :func:`~flylib.pose2d.inference.yuv420p_to_rgb` and :attr:`color`), which skips
     the CPU colour conversion, the slowest part of decoding.
+
+    The source decodes on its own thread (``flylib-decode-<name>``), ``depth`` blocks
+    ahead of :meth:`get`; under a one-thread budget (:func:`~flylib.resources.usable_cpus`
+    is 1) it decodes in the calling thread instead, one block per :meth:`get`, so a
+    one-thread job starts no thread (and holds one block, not ``depth``).
 
     Parameters
     ----------
@@ -68,6 +77,8 @@ class BlockPrefetcher(threading.Thread):
         Hand over YUV planes instead of RGB when the source allows it.
     on_corrupt
         Image sequences: ``"error"`` or ``"missing"`` (``io.on_corrupt_frame``).
+    threaded
+        Decode on a background thread (default: unless ``usable_cpus()`` is 1).
     """
 
     def __init__(
@@ -81,8 +92,9 @@ class BlockPrefetcher(threading.Thread):
         pin: bool = False,
         raw_yuv: bool = False,
         on_corrupt: str = "error",
+        threaded: bool | None = None,
     ):
-        super().__init__(name=f"flylib-decode-{name}", daemon=True)
+        self.name = f"flylib-decode-{name}"
         self.source = name
         self.reader = io.open_reader(files, workers=workers, on_corrupt=on_corrupt)
         #: Frames decoded (set once the source ended).
@@ -99,15 +111,19 @@ class BlockPrefetcher(threading.Thread):
             h, w = self.reader.frame_size()
             self.yuv = h % 2 == 0 and w % 2 == 0
             self.color = self.reader.color_tags()
+        self.threaded = usable_cpus() > 1 if threaded is None else bool(threaded)
         self.blocks: queue.Queue = queue.Queue(maxsize=max(1, depth))
         self._stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._inline: Iterator | None = None  # the block generator, when not threaded
 
     def _frames(self):
         if self.yuv:
             return self.reader.stream_frames(format="yuv420p")
         return self.reader.stream_frames()
 
-    def run(self) -> None:
+    def _produce(self) -> Iterator:
+        """The source's blocks, then the end marker; a decode error as a :class:`_Failure`."""
         try:
             block, filled, shape, index = None, 0, None, 0
             for index, frame in enumerate(self._frames()):
@@ -126,18 +142,46 @@ class BlockPrefetcher(threading.Thread):
                 view[filled] = frame
                 filled += 1
                 if filled == self.block_size:
-                    if not self._put(block):
-                        return
+                    yield block
                     block, filled = None, 0
-            if filled and not self._put(block[:filled]):
-                return
+            if filled:
+                yield block[:filled]
             self.decoded = index + 1 if shape is not None else 0
             self._check_complete()
-            self._put(_END)
+            yield _END
+        except GeneratorExit:
+            raise
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
-            self._put(_Failure(exc))
+            yield _Failure(exc)
         finally:
             self.reader.close()
+
+    def start(self) -> None:
+        """Start decoding (on the background thread when :attr:`threaded`)."""
+        if not self.threaded:
+            self._inline = self._produce()
+            return
+        self._thread = threading.Thread(target=self.run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def run(self) -> None:
+        """The decode thread: queue every block (blocking while the queue is full)."""
+        produced = self._produce()
+        try:
+            for item in produced:
+                if not self._put(item):
+                    return
+        finally:
+            produced.close()
+
+    def is_alive(self) -> bool:
+        """Whether the decode thread runs (never, inline)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the decode thread to finish (nothing to wait for inline)."""
+        if self._thread is not None:
+            self._thread.join(timeout)
 
     def _check_complete(self) -> None:
         """A video whose header promises more frames than decode is truncated."""
@@ -165,13 +209,19 @@ class BlockPrefetcher(threading.Thread):
 
     def get(self):
         """The next block, or the end marker; re-raises a decode error here."""
-        item = self.blocks.get()
+        if self._inline is not None:
+            item = next(self._inline, _END)
+        else:
+            item = self.blocks.get()
         if isinstance(item, _Failure):
             raise item.exc
         return item
 
     def stop(self) -> None:
-        """Ask the thread to finish and drop what it queued."""
+        """Ask the decoding to finish and drop what it queued."""
+        if self._inline is not None:
+            self._inline.close()  # closes the reader
+            return
         self._stop_event.set()
         while True:
             try:
@@ -276,7 +326,8 @@ def run_detection(
         (default: on a GPU); results agree to within a grey level.
     timings
         When given, receives where the calling thread spent its time, in seconds:
-        ``wait_decode`` (blocked on the decode threads), ``launch`` (preprocessing
+        ``wait_decode`` (blocked on the decode threads; decoding, under a one-thread
+        budget), ``launch`` (preprocessing
         and forwards; on a GPU only queueing them), ``wait_device`` (blocked on a
         GPU block's results) and ``scatter`` (points to raw pixels on the host).
         Which one dominates says what bounds the throughput.
