@@ -25,8 +25,10 @@ import numpy as np
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 sys.path.insert(0, str(REPO / "src"))
+sys.path.insert(0, str(REPO / "tests"))
+
+from workflow_run import snakemake_command
 
 
 def _children_cpu() -> float:
@@ -37,18 +39,7 @@ def _children_cpu() -> float:
 def _snakemake(workdir: Path, *args: str, cpu: list | None = None) -> float:
     """Wall-clock seconds of one snakemake call; its CPU seconds are appended to ``cpu``
     (a figure that a busy machine inflates much less than the wall clock)."""
-    cmd = [
-        str(SNAKEMAKE),
-        "--snakefile",
-        str(REPO / "Snakefile"),
-        "--directory",
-        str(workdir),
-        "--configfile",
-        str(workdir / "config.yaml"),
-        "--cores",
-        "2",
-        *args,
-    ]
+    cmd = snakemake_command(workdir, *args)
     cpu_before = _children_cpu()
     start = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -31,8 +31,9 @@ from flylib.results import (
     write_stage,
 )
 
+from workflow_run import snakemake_command
+
 REPO = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 
 
 def _env() -> dict:
@@ -370,18 +371,7 @@ def _snakemake(
     workdir: Path, config: dict, *args: str, check: bool = True
 ) -> subprocess.CompletedProcess:
     (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    cmd = [
-        str(SNAKEMAKE),
-        "--snakefile",
-        str(REPO / "Snakefile"),
-        "--directory",
-        str(workdir),
-        "--configfile",
-        str(workdir / "config.yaml"),
-        "--cores",
-        "2",
-        *args,
-    ]
+    cmd = snakemake_command(workdir, *args)
     proc = subprocess.run(
         cmd, capture_output=True, text=True, timeout=600, cwd=workdir, env=_env(), check=False
     )

@@ -20,9 +20,10 @@ import pytest
 import yaml
 
 from rig_constants import FOCAL
+from workflow_run import SNAKEMAKE, snakemake_command
 
 REPO = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).parent / "snakemake"
+
 FRAMES = 6
 
 pytestmark = pytest.mark.slow
@@ -38,18 +39,7 @@ def snakemake(
     """Run the repo's workflow in ``workdir`` (with ``config`` written to config.yaml)."""
     if config is not None:
         (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    cmd = [
-        str(SNAKEMAKE),
-        "--snakefile",
-        str(REPO / "Snakefile"),
-        "--directory",
-        str(workdir),
-        "--configfile",
-        str(workdir / "config.yaml"),
-        "--cores",
-        "2",
-        *args,
-    ]
+    cmd = snakemake_command(workdir, *args)
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=workdir)
     if check and proc.returncode != 0:
         raise AssertionError(
