@@ -239,6 +239,16 @@ def test_damaged_object_header_is_a_results_error(results):
         PoseResult.load(results)
 
 
+def test_a_complex_dataset_is_refused_not_cast(results):
+    with h5py.File(results, "r+") as f:
+        shape = f["triangulation/points3d"].shape
+        del f["triangulation/points3d"]
+        f["triangulation/points3d"] = np.ones(shape, np.complex128)
+    with pytest.raises(ResultsError, match=r"points3d holds complex numbers") as info:
+        PoseResult.load(results)
+    assert str(info.value).startswith(f"{results}:") and "\n" not in str(info.value)
+
+
 def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig_and_skeleton):
     config, rig, skeleton = rig_and_skeleton
     files = _stage_files(tmp_path, config, skeleton)

@@ -165,6 +165,12 @@ def _damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
 
 def _read(dataset: h5py.Dataset) -> np.ndarray:
     """The whole dataset, its checksums verified by HDF5; damage is a ResultsError."""
+    if dataset.dtype.kind == "c":  # NumPy would drop the imaginary part with only a warning
+        raise ResultsError(
+            f"{dataset.file.filename}: dataset {dataset.name} holds complex numbers, which "
+            "flylib never writes: the file was not made by flylib or was altered; re-run "
+            "the workflow to regenerate it"
+        )
     try:
         return dataset[()]
     except OSError as err:
