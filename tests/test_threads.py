@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +62,21 @@ def test_thread_map_keeps_order_and_runs_inline_under_one_thread(started):
     with thread_budget(2):
         assert list(thread_map(lambda x: x * x, list(range(20)), 8)) == [x * x for x in range(20)]
     assert len(started) == 2
+
+
+def test_thread_map_runs_at_most_workers_items_ahead_of_the_consumer():
+    ran: list[int] = []
+
+    def work(x):
+        ran.append(x)
+        return x
+
+    with thread_budget(2):
+        results = thread_map(work, list(range(50)), 2)
+        assert next(results) == 0
+        time.sleep(0.1)  # a pool that queued everything would have run all 50 by now
+        assert len(ran) <= 3
+        assert list(results) == list(range(1, 50))
 
 
 @pytest.fixture(scope="module")

@@ -9,6 +9,7 @@ from the CPU affinity mask.
 from __future__ import annotations
 
 import os
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -77,10 +78,20 @@ def thread_map(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterat
     """``map(fn, items)`` on at most ``workers`` threads (capped by :func:`usable_cpus`),
     in order; in the calling thread when that leaves one, so a one-thread job starts
     no thread.
+
+    At most ``workers`` items run ahead of the one the caller is consuming, so results
+    are held only that far ahead: a caller that writes each result out (a chunked
+    stage) keeps its memory flat in the number of items.
     """
     workers = max(1, min(int(workers), usable_cpus(), len(items)))
     if workers == 1:
         yield from map(fn, items)
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(fn, items)
+        pending: deque = deque()
+        for item in items:
+            pending.append(pool.submit(fn, item))
+            if len(pending) > workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()

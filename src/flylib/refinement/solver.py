@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -29,7 +27,7 @@ from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from threadpoolctl import threadpool_limits
 
 from .. import camera_model
-from ..resources import usable_cpus
+from ..resources import thread_map
 from .objective import (
     LOSSES,
     BlockLayout,
@@ -684,34 +682,20 @@ def refine_stream(
         )
 
     started = time.perf_counter()
-    workers = max(1, min(2, usable_cpus(), len(bounds)))
-
     # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
     # once, not per chunk: threads entering and leaving it would undo each other). The
     # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
-    # them ran 10-40x slower on a busy 2-core machine.
-    def collect(lo, hi, its, active, rejected, points3d, err, clean, flags):
-        nonlocal kept_total, rejected_total
-        iterations.append(its)
-        supported[lo:hi] = active.any(axis=0)
-        kept_total += int(active.sum())
-        rejected_total += rejected
-        sink.write(lo, hi, points3d, err, clean, flags)
-
+    # them ran 10-40x slower on a busy 2-core machine. Two chunk workers at most, each
+    # at most one chunk ahead of the writer (memory flat); inline under one thread.
     with threadpool_limits(1, user_api="blas"):
-        if workers == 1:  # a one-thread job starts no thread
-            for bound in bounds:
-                collect(*solve_chunk(*bound))
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                pending: deque = deque()
-                for k in range(len(bounds) + workers):
-                    if k < len(
-                        bounds
-                    ):  # at most `workers` chunks ahead of the writer: memory stays flat
-                        pending.append(pool.submit(solve_chunk, *bounds[k]))
-                    if len(pending) > workers or (k >= len(bounds) and pending):
-                        collect(*pending.popleft().result())
+        for lo, hi, its, active, rejected, points3d, err, clean, flags in thread_map(
+            lambda bound: solve_chunk(*bound), bounds, 2
+        ):
+            iterations.append(its)
+            supported[lo:hi] = active.any(axis=0)
+            kept_total += int(active.sum())
+            rejected_total += rejected
+            sink.write(lo, hi, points3d, err, clean, flags)
     solve_seconds = time.perf_counter() - started
 
     # -- gaps longer than gap_length: NaN

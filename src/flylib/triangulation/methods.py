@@ -46,7 +46,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_CHUNK_POINTS = 4096  # = flylib.geometry.DLT_CHUNK_POINTS (not imported: no JAX here)
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
-_CHUNKS_IN_FLIGHT = 4
 _RANSAC_THREADS = 4
 
 
