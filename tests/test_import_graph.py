@@ -39,7 +39,14 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "foundation",
-        ("flylib", "flylib.errors", "flylib.paths", "flylib.resources", "flylib.locking"),
+        (
+            "flylib",
+            "flylib.errors",
+            "flylib.paths",
+            "flylib.resources",
+            "flylib.locking",
+            "flylib.hdf5_files",
+        ),
     ),
     (
         "primitives",

@@ -193,7 +193,7 @@ def test_missing_pose2d_group_is_rejected(tmp_path):
 
 
 def test_missing_or_foreign_files_are_results_errors(tmp_path):
-    with pytest.raises(ResultsError, match="nope.h5: file not found"):
+    with pytest.raises(ResultsError, match="nope.h5: no such HDF5 file"):
         PoseResult.load(tmp_path / "nope.h5")
     (tmp_path / "text.h5").write_text("not hdf5")
     with pytest.raises(ResultsError, match="text.h5: not a readable HDF5 file"):

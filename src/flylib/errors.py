@@ -30,3 +30,9 @@ class ImportFormatError(FlylibError, ValueError):
 class OutputError(FlylibError, OSError):
     """An output cannot be written: the disk is full, a file-size limit is hit, or
     another run holds the output directory's lock."""
+
+
+def one_line(err: BaseException | str, limit: int = 300) -> str:
+    """``err``'s text on one line (whitespace runs collapsed), at most ``limit``
+    characters: for quoting a library's message inside a flylib error."""
+    return " ".join(str(err).split())[:limit]

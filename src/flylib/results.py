@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .errors import FlylibError, ResultsError
+from .errors import FlylibError, ResultsError, one_line
+from .hdf5_files import open_h5
 from .paths import atomic_path, out_of_space
 from .resources import thread_map
 from .skeleton import Skeleton
@@ -152,13 +153,9 @@ def _checksummed(payload: bytes) -> bytes:
     return payload + struct.pack("<I", fletcher32(payload))
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split())
-
-
 def _damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
     return ResultsError(
-        f"{path}: {what} is damaged (HDF5: {_one_line(err)}); the file is corrupt: delete it "
+        f"{path}: {what} is damaged (HDF5: {one_line(err)}); the file is corrupt: delete it "
         "and re-run the workflow to regenerate it"
     )
 
@@ -392,15 +389,9 @@ def _read_json_attrs(group: h5py.Group) -> dict:
 
 
 def open_hdf5(path: str | Path, fix: str, what: str = "HDF5 file") -> h5py.File:
-    """Open an HDF5 file for reading; a missing or non-HDF5 file is one
+    """Open a flylib HDF5 file for reading; a missing or non-HDF5 file is one
     :class:`ResultsError` naming the file and ``fix`` (what the user should do)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ResultsError(f"{path}: file not found; {fix}")
-    try:
-        return h5py.File(path, "r")
-    except OSError as err:
-        raise ResultsError(f"{path}: not a readable {what} ({err}); {fix}") from None
+    return open_h5(path, error=ResultsError, what=what, fix=fix)
 
 
 @contextmanager

@@ -8,13 +8,10 @@ from pathlib import Path
 
 import h5py
 
-from ..errors import FlylibError, ImportFormatError
+from ..errors import FlylibError, ImportFormatError, one_line
+from ..hdf5_files import H5_READ_ERRORS, open_h5
 
-#: What h5py raises while reading a damaged or unexpected file: OSError for storage-level
-#: damage (a bad B-tree, a failed filter or checksum, a truncated file), KeyError for a
-#: link that does not resolve, ValueError/TypeError for a dtype or selection that does
-#: not convert, RuntimeError for a few low-level HDF5 failures.
-H5_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
+__all__ = ["H5_READ_ERRORS", "open_foreign_h5", "reading_foreign_h5"]
 
 
 def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
@@ -29,13 +26,7 @@ def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
     hint
         What to check when it is missing (e.g. ``"check pose2d.import.files"``).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ImportFormatError(f"{path}: no such {what}; {hint}")
-    try:
-        return h5py.File(path, "r")
-    except H5_READ_ERRORS as exc:
-        raise ImportFormatError(f"{path}: not an HDF5 file ({_one_line(exc)})") from exc
+    return open_h5(path, error=ImportFormatError, what=what, fix=hint)
 
 
 @contextmanager
@@ -52,9 +43,5 @@ def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.
             raise
         except H5_READ_ERRORS as exc:
             raise ImportFormatError(
-                f"{path}: damaged or not a {what} ({type(exc).__name__}: {_one_line(exc)}); {hint}"
+                f"{path}: damaged or not a {what} ({type(exc).__name__}: {one_line(exc)}); {hint}"
             ) from None
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())[:300]

@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from ..errors import ImportFormatError
+from ..errors import ImportFormatError, one_line
 from ..paths import atomic_path
 from ._h5 import H5_READ_ERRORS, reading_foreign_h5
 from .safe_pickle import PICKLE_PARSE_ERRORS
@@ -91,7 +91,7 @@ def _read_csv_frame(path: Path) -> pd.DataFrame:
     try:
         header = _read_header(path)
     except _CSV_ERRORS as exc:
-        raise ImportFormatError(f"{path}: not a readable CSV ({_one_line(exc)})") from None
+        raise ImportFormatError(f"{path}: not a readable CSV ({one_line(exc)})") from None
     names = [row[0].strip() for row in header]
     if len(header) < 3 or not {"scorer", "bodyparts", "coords"} <= set(names):
         raise ImportFormatError(
@@ -121,17 +121,13 @@ def _read_csv_frame(path: Path) -> pd.DataFrame:
     except pd.errors.EmptyDataError:  # a header and no frames
         frame = pd.DataFrame(np.empty((0, len(columns))))
     except _CSV_ERRORS as exc:
-        raise ImportFormatError(f"{path}: malformed CSV row ({_one_line(exc)})") from None
+        raise ImportFormatError(f"{path}: malformed CSV row ({one_line(exc)})") from None
     if frame.shape[1] != len(columns):
         raise ImportFormatError(
             f"{path}: rows have {frame.shape[1]} value columns but the header names {len(columns)}"
         )
     frame.columns = columns
     return frame
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())[:300]
 
 
 def _floats(values: np.ndarray, path: Path) -> np.ndarray:
@@ -314,11 +310,11 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
                 raise ValueError(f"pandas_type {kind!r} is not a DataFrame")
         except pickle.UnpicklingError as exc:
             raise ImportFormatError(
-                f"{path}: refused or unreadable pickled pandas metadata ({_one_line(exc)}); {hint}"
+                f"{path}: refused or unreadable pickled pandas metadata ({one_line(exc)}); {hint}"
             ) from None
         except (*H5_READ_ERRORS, AttributeError, IndexError, EOFError) as exc:
             raise ImportFormatError(
-                f"{path}: not a DeepLabCut DataFrame ({_one_line(exc)}); {hint}"
+                f"{path}: not a DeepLabCut DataFrame ({one_line(exc)}); {hint}"
             ) from None
     return _frame_to_view(frame, path, individual)
 
