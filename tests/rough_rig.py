@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from flylib.alignment import similarity_aligned
 from flylib.cameras import CameraGroup, orbit_extrinsics
 
 from rig_constants import AZIMUTHS as RIG_AZIMUTHS, IMAGE_SIZE, VIEWS
@@ -241,15 +242,7 @@ def make_case(
 def similarity_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Per-point distance after the least-squares similarity (Umeyama) alignment of all
     points both hold (no trimming); NaN where either is missing."""
-    ok = np.isfinite(estimate).all(-1) & np.isfinite(truth).all(-1)
-    a, b = estimate[ok], truth[ok]
-    mu_a, mu_b = a.mean(0), b.mean(0)
-    u, sig, vt = np.linalg.svd((b - mu_b).T @ (a - mu_a) / len(a))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ d @ vt
-    scale = np.trace(np.diag(sig) @ d) / ((a - mu_a) ** 2).sum(1).mean()
-    aligned = scale * estimate @ rot.T + (mu_b - scale * rot @ mu_a)
-    return np.where(ok, np.linalg.norm(aligned - truth, axis=-1), np.nan)
+    return np.linalg.norm(similarity_aligned(estimate, truth) - truth, axis=-1)
 
 
 #: the bundle-adjustment settings before issue 12 (scipy, no facts about the fly): the

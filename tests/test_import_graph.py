@@ -51,6 +51,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "primitives",
         (
+            "flylib.alignment",
             "flylib.camera_model",
             "flylib.geometry",
             "flylib.cameras",

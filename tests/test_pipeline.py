@@ -7,6 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
+from flylib.alignment import similarity_aligned
 from flylib.errors import ConfigError
 from flylib.pipeline import run_from_points2d
 from flylib.skeleton import Skeleton
@@ -21,19 +22,8 @@ def _similarity_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     errors no triangulation can catch (an outlier along the epipolar line of a point
     seen by two views only) do not tilt it.
     """
-    ok = np.isfinite(estimate).all(-1) & np.isfinite(truth).all(-1)
-    use = ok.copy()
-    for _ in range(3):
-        a, b = estimate[use], truth[use]
-        mu_a, mu_b = a.mean(0), b.mean(0)
-        u, sig, vt = np.linalg.svd((b - mu_b).T @ (a - mu_a) / len(a))
-        d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-        rot = u @ d @ vt
-        scale = np.trace(np.diag(sig) @ d) / ((a - mu_a) ** 2).sum(1).mean()
-        aligned = scale * estimate @ rot.T + (mu_b - scale * rot @ mu_a)
-        err = np.linalg.norm(aligned - truth, axis=-1)
-        use = ok & (err <= np.nanpercentile(err[ok], 90))
-    return err
+    aligned = similarity_aligned(estimate, truth, keep=0.9, refits=2)
+    return np.linalg.norm(aligned - truth, axis=-1)
 
 
 @pytest.mark.slow

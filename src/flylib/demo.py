@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .alignment import similarity_aligned
 from .errors import ConfigError
 from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
@@ -427,18 +428,6 @@ def load_truth(path: str | Path) -> dict[str, Any]:
         return {"points3d": f["points3d"][()], "points2d": f["points2d"][()], **meta}
 
 
-def _similarity_align(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """``source`` mapped onto ``target`` by the least-squares similarity (Umeyama)."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    a, b = source - mu_s, target - mu_t
-    u, s, vt = np.linalg.svd(b.T @ a / len(a))
-    d = np.sign(np.linalg.det(u @ vt))
-    fix = np.diag([1.0, 1.0, d])
-    rot = u @ fix @ vt
-    scale = np.trace(np.diag(s) @ fix) / a.var(0).sum()
-    return mu_t + scale * (a @ rot.T)
-
-
 def demo_error(points3d: np.ndarray, truth3d: np.ndarray) -> dict[str, float]:
     """3D error of a reconstruction against the demo truth (world units).
 
@@ -458,12 +447,9 @@ def demo_error(points3d: np.ndarray, truth3d: np.ndarray) -> dict[str, float]:
         )
     ok = np.isfinite(points3d).all(-1)
     err = np.linalg.norm(points3d - truth3d, axis=-1)[ok]
-    flat_rec, flat_truth = points3d[ok], truth3d[ok]
-    aligned = (
-        np.linalg.norm(_similarity_align(flat_rec, flat_truth) - flat_truth, axis=-1)
-        if len(flat_rec) >= 3
-        else np.array([np.nan])
-    )
+    aligned = np.linalg.norm(similarity_aligned(points3d, truth3d) - truth3d, axis=-1)[ok]
+    if aligned.size == 0:
+        aligned = np.array([np.nan])
     extent = np.ptp(truth3d.reshape(-1, 3), axis=0).max()
     if err.size == 0:
         err = np.array([np.nan])

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..alignment import similarity_transform
 from ..camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -80,36 +81,16 @@ def align_gauge(
     if pts0 is not None:
         ok = np.isfinite(pts).all(axis=1) & np.isfinite(pts0).all(axis=1)
         if ok.sum() >= 4:
-            src, dst = pts[ok], pts0[ok]
-            fitted = _umeyama(src, dst)
-            if fitted is not None:
-                scale, rot, shift = fitted
-                resid = np.linalg.norm(scale * src @ rot.T + shift - dst, axis=1)
-                best = resid <= np.percentile(resid, 80)
-                if best.sum() >= 4:
-                    fitted = _umeyama(src[best], dst[best]) or fitted
+            fitted = similarity_transform(pts[ok], pts0[ok], keep=0.8, refits=1)
     if fitted is None and len(table) >= 2:
         depths = np.linalg.norm(table0[:, 3:6], axis=1)
-        fitted = _umeyama(_camera_anchors(table, depths), _camera_anchors(table0, depths))
+        fitted = similarity_transform(
+            _camera_anchors(table, depths), _camera_anchors(table0, depths)
+        )
     if fitted is None:
         return table, pts
     scale, rot, shift = fitted
     return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
-
-
-def _umeyama(src: np.ndarray, dst: np.ndarray):
-    """Least-squares similarity ``(scale, rot, shift)`` mapping ``src`` onto ``dst``
-    (both ``(M, 3)``), or ``None`` when ``src`` has no spread."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    a, b = src - mu_s, dst - mu_d
-    u, sig, vt = np.linalg.svd(b.T @ a / len(src))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ d @ vt
-    var_s = (a**2).sum() / len(src)
-    if var_s <= 0:
-        return None
-    scale = np.trace(np.diag(sig) @ d) / var_s
-    return scale, rot, mu_d - scale * rot @ mu_s
 
 
 def _similarity_table(
