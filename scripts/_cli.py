@@ -49,6 +49,19 @@ def script_parser(description: str) -> argparse.ArgumentParser:
     return parser
 
 
+def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--bundle-adjustment``, ``--out`` and ``--recording``: the arguments of every
+    stage after bundle adjustment that writes one artifact from the final rig."""
+    parser.add_argument(
+        "--bundle-adjustment",
+        type=Path,
+        default=None,
+        help="bundle-adjustment artifact (its rig); default: the config rig",
+    )
+    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
+    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+
+
 def output_dir(out: str | Path) -> Path:
     """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
     gives ``<outdir>``; any other file its own directory)."""

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from flylib.pipeline.stages import run_triangulation
 
-from _cli import output_dir, run_script, script_main, script_parser
+from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
@@ -17,14 +17,7 @@ def main(argv=None, *, job=None) -> int:
         default=None,
         help="pictorial-structures artifact: triangulate its corrected 2D instead",
     )
-    parser.add_argument(
-        "--bundle-adjustment",
-        type=Path,
-        default=None,
-        help="bundle-adjustment artifact (its rig); default: the config rig",
-    )
-    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
-    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+    add_rig_stage_arguments(parser)
     parser.add_argument(
         "--corrections",
         type=Path,

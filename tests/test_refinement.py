@@ -63,26 +63,12 @@ def _scene(frames=40, seed=0, dist=False):
     [("soft_l1", 1, True), ("huber", 2, False), ("linear", 1, False), ("cauchy", 2, True)],
 )
 def test_kernel_gradient_matches_finite_differences(loss, order, dist):
-    rig, truth, pts2d, conf, _ = _scene(frames=6, dist=dist)
-    terms = skeleton_terms(Skeleton.fly(), None)
-    layout = BlockLayout.from_chains(38, terms["chains"])
-    observed = np.isfinite(pts2d).all(-1)
-    opts = RefineOptions(loss=loss, smooth_order=order)
-    start = truth + np.random.default_rng(0).normal(0, 0.01, truth.shape)
-    rigid = np.asarray(terms["rigid"])
-    problem = ChunkProblem(
-        Grid(observed, rig, layout),
-        pts2d,
-        np.where(observed, conf, 0.0),
-        layout,
-        terms["bones"],
-        bone_lengths(truth, terms["bones"]),
-        rigid,
-        rigid_centres(truth, rigid) + 0.003,
-        opts,
-        8,
+    problem, xs = _tiny_problem(
+        padded=8,
+        dist=dist,
+        opts=RefineOptions(loss=loss, smooth_order=order),
+        rigid_offset=0.003,
     )
-    xs = problem.to_slots(start)
     _cost, rows, grad, _ = problem.evaluate(xs)
     ab = problem.band(rows)
     rng = np.random.default_rng(1)
@@ -299,8 +285,10 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
         )
 
 
-def _tiny_problem(frames=6, padded=None, seed=0):
-    rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed)
+def _tiny_problem(frames=6, padded=None, seed=0, dist=False, opts=None, rigid_offset=0.0):
+    """A :class:`ChunkProblem` of ``frames`` frames (kernel length ``padded``) and its
+    start: the truth with 0.01 noise; rigid centres ``rigid_offset`` off the truth's."""
+    rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed, dist=dist)
     terms = skeleton_terms(Skeleton.fly(), None)
     layout = BlockLayout.from_chains(38, terms["chains"])
     observed = np.isfinite(pts2d).all(-1)
@@ -313,8 +301,8 @@ def _tiny_problem(frames=6, padded=None, seed=0):
         terms["bones"],
         bone_lengths(truth, terms["bones"]),
         rigid,
-        rigid_centres(truth, rigid),
-        RefineOptions(),
+        rigid_centres(truth, rigid) + rigid_offset,
+        opts or RefineOptions(),
         padded or frames,
     )
     start = truth + np.random.default_rng(seed).normal(0, 0.01, truth.shape)
