@@ -34,15 +34,39 @@ def outdir(tmp_path_factory):
     return make_demo_outputs(tmp_path_factory.mktemp("gui") / "rec", frames=FRAMES)
 
 
+def page_client(app, **kwargs):
+    """A TestClient that talks to ``app`` as the page does: from its own origin, with
+    the session token the page gets."""
+    return TestClient(
+        app,
+        base_url="http://127.0.0.1:8765",
+        headers={"X-Flylib-Token": app.state.token, "Origin": "http://127.0.0.1:8765"},
+        **kwargs,
+    )
+
+
+def page_ws(client, token=None, **kwargs):
+    """The page's WebSocket: its own origin, the token as a sub-protocol."""
+    token = token or client.app.state.token
+    return client.websocket_connect(
+        "ws://127.0.0.1:8765/ws", subprotocols=["flylib.v1", f"flylib.token.{token}"], **kwargs
+    )
+
+
+def clean_sidecar(outdir):
+    for name in ("corrections.h5", "corrections.h5.journal"):
+        (outdir / name).unlink(missing_ok=True)
+
+
 @pytest.fixture
 def client(outdir):
-    (outdir / "corrections.h5").unlink(missing_ok=True)
+    clean_sidecar(outdir)
     session = ReviewSession(outdir)
-    with TestClient(create_app(session)) as c:
+    with page_client(create_app(session)) as c:
         c.session = session
         yield c
     session.close()
-    (outdir / "corrections.h5").unlink(missing_ok=True)
+    clean_sidecar(outdir)
 
 
 def sha256(path):
@@ -154,7 +178,7 @@ def test_invisible_drops_the_view_and_reset_restores_the_result(client, outdir):
     before = client.get("/api/points/3").json()
     v, p = visible_point(before)
     name = before["views"][v]["name"]
-    with client.websocket_connect("/ws") as ws:
+    with page_ws(client) as ws:
         ws.send_json({"op": "invisible", "frame": 3, "point": p, "view": name})
         reply = ws.receive_json()
         assert reply["op"] == "points" and reply["views"][v]["points2d"][p] is None
@@ -202,7 +226,7 @@ def test_save_writes_the_sidecar_and_a_new_session_loads_it(client, outdir):
         "/api/edit",
         json={"op": "invisible", "frame": 2, "point": 1, "view": before["views"][u]["name"]},
     )
-    saved = client.post("/api/save").json()
+    saved = client.post("/api/save", json={}).json()
     assert saved["saved"] == str(outdir / "corrections.h5") and saved["edits"] == 2
     assert sha256(outdir / "results.h5") == results_hash  # never modified
     assert not list(outdir.glob(".*.tmp*"))
@@ -211,6 +235,7 @@ def test_save_writes_the_sidecar_and_a_new_session_loads_it(client, outdir):
     np.testing.assert_allclose(corr.points[v, 6, p], xy)
     assert corr.invisible.sum() == 1 and corr.invisible[u, 2, 1]
     assert not corr.fixed.any() and not corr.edited3d.any()
+    client.session.close()  # one GUI per sidecar
     reopened = ReviewSession(outdir)
     again = reopened.points(6)
     assert again["views"][v]["edited"][p]
@@ -232,6 +257,7 @@ def test_a_sidecar_in_the_seed_layout_loads(client, outdir):
         invisible=[(v, 2, p)],
         edits3d=[(4, q, 0.1, 0.2, 0.3)],
     )
+    client.session.close()  # one GUI per sidecar
     session = ReviewSession(outdir)
     frame1 = session.points(1)
     assert frame1["views"][v]["edited"][p] and frame1["views"][v]["points2d"][p] == pytest.approx(
@@ -274,7 +300,7 @@ def test_a_token_guards_every_route_when_set(outdir):
     from starlette.websockets import WebSocketDisconnect
 
     session = ReviewSession(outdir)
-    with TestClient(create_app(session, token="s3cret")) as c:
+    with TestClient(create_app(session, token="s3cret"), base_url="http://127.0.0.1:8765") as c:
         assert c.get("/api/meta").status_code == 403
         assert c.get("/").status_code == 403
         assert c.get("/api/meta?token=wrong").status_code == 403
@@ -286,9 +312,9 @@ def test_a_token_guards_every_route_when_set(outdir):
         assert page.status_code == 200 and "flylib_token" in page.headers["set-cookie"]
         assert c.get("/static/app.js").status_code == 200  # the cookie now carries it
         c.cookies.clear()
-        with pytest.raises(WebSocketDisconnect), c.websocket_connect("/ws") as ws:
+        with pytest.raises(WebSocketDisconnect), page_ws(c, token="wrong") as ws:
             ws.receive_json()
-        with c.websocket_connect("/ws?token=s3cret") as ws:
+        with page_ws(c, token="s3cret") as ws:
             ws.send_json({"op": "reset_frame", "frame": 0})
             assert ws.receive_json()["op"] == "points"
     session.close()
@@ -309,6 +335,7 @@ def test_gui_refuses_a_directory_without_results(tmp_path):
 
 
 def test_prefetch_fills_the_cache_without_moving_the_request_decoder(outdir):
+    clean_sidecar(outdir)
     session = ReviewSession(outdir)
     source = session.frames[session.view_names[0]]
     source.jpeg(3)
@@ -316,13 +343,15 @@ def test_prefetch_fills_the_cache_without_moving_the_request_decoder(outdir):
     source.prefetch(9)
     assert source._frames._next == position  # the spare decoder did the work
     assert source._cached(9) == source.jpeg(9)
-    fresh = ReviewSession(outdir)
-    reference = fresh.frames[session.view_names[0]].jpeg(9)
+    from flylib.gui.frames import FrameSource
+
+    fresh = FrameSource(session._find_footage()[session.view_names[0]], source.size)
+    reference = fresh.jpeg(9)
+    fresh.close()
     image = cv2.imdecode(np.frombuffer(source.jpeg(9), np.uint8), cv2.IMREAD_COLOR)
     again = cv2.imdecode(np.frombuffer(reference, np.uint8), cv2.IMREAD_COLOR)
     assert np.abs(image.astype(int) - again.astype(int)).max() <= 2  # the same frame
     session.close()
-    fresh.close()
 
 
 def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
@@ -333,6 +362,7 @@ def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
     assert inside.corrections_path == (outdir / "mine" / f"{outdir.parent.name}.h5").resolve()
     inside.close()
     elsewhere = tmp_path / "elsewhere.h5"
+    clean_sidecar(outdir)
     session = ReviewSession(
         outdir, config=Config.from_dict({**data, "corrections": str(elsewhere)})
     )
@@ -341,7 +371,7 @@ def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
     session.save()
     assert not elsewhere.exists() and (outdir / "corrections.h5").is_file()
     session.close()
-    (outdir / "corrections.h5").unlink()
+    clean_sidecar(outdir)
 
 
 def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
@@ -368,7 +398,7 @@ def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
         cameras.project(np.asarray(want)),
         atol=0.02,
     )  # every view follows
-    client.post("/api/save")
+    client.post("/api/save", json={})
     corr = Corrections.load(outdir / "corrections.h5")
     assert corr.edited3d[7, p] and corr.edited3d.sum() == 1
     np.testing.assert_allclose(corr.points3d[7, p], want, atol=1e-6)  # (the reply rounds to 1e-6)

@@ -9,7 +9,12 @@ inside it::
     pose3d_corrections/    points3d (T, P, 3) float64, edited (T, P) bool
 
 A file of version 1 or 2 (no ``invisible``, or no ``fixed`` either) loads with the
-missing masks all False.
+missing masks all False. flylib writes every dataset with the Fletcher-32 filter in
+HDF5 1.8's checksummed object format (like its other artifacts) and adds
+``flylib_revision`` (the GUI session's edit revision) to the meta; the seed's readers
+ignore both. A file written by the seed (no checksums) still loads; whichever wrote it,
+an ``inf`` coordinate, a non-finite 3D edit or (given the image sizes) a 2D edit
+outside the image is one :class:`~flylib.errors.ResultsError` at load, never applied.
 
 How the triangulation stage applies a sidecar (:func:`reconstruct_corrected`, which the
 GUI calls too, for one point at a time, so what it shows is what a re-run computes):
@@ -25,6 +30,7 @@ GUI calls too, for one point at a time, so what it shows is what a re-run comput
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -33,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .errors import ResultsError
+from .errors import ResultsError, one_line
 from .paths import atomic_path
 from .results import open_hdf5, read_meta_from
 
@@ -56,6 +62,14 @@ CORRECTIONS_FILE = "corrections.h5"
 #: The sidecar format version this code writes (and the newest it reads).
 CORRECTIONS_FORMAT_VERSION = 3
 _META_KEY = "deeperfly_corrections_format_version"
+# HDF5 1.8's file format: checksummed object headers (as results.h5 and the artifacts)
+_LIBVER = ("v108", "latest")
+_DATASETS = (
+    "pose2d_corrections/points",
+    "pose2d_corrections/edited",
+    "pose3d_corrections/points3d",
+    "pose3d_corrections/edited",
+)
 
 
 @dataclass
@@ -81,6 +95,8 @@ class Corrections:
         The ``results.h5`` these corrections apply to (informative).
     created_utc
         When the file was written (ISO 8601).
+    revision
+        The GUI session revision the file was saved at (0 for a seed-written file).
     """
 
     points: Float[np.ndarray, "V T P 2"]
@@ -91,6 +107,7 @@ class Corrections:
     edited3d: Bool[np.ndarray, "T P"]
     source: str = ""
     created_utc: str = ""
+    revision: int = 0
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
@@ -127,8 +144,13 @@ class Corrections:
         )
 
     @classmethod
-    def load(cls, path: str | Path, shape: tuple[int, int, int] | None = None) -> Corrections:
-        """Read a sidecar (format version 1 to 3).
+    def load(
+        cls,
+        path: str | Path,
+        shape: tuple[int, int, int] | None = None,
+        image_sizes: Sequence[tuple[int, int] | None] | None = None,
+    ) -> Corrections:
+        """Read a sidecar (format version 1 to 3), its checksums verified.
 
         Parameters
         ----------
@@ -136,91 +158,134 @@ class Corrections:
             The ``corrections.h5``.
         shape
             ``(V, T, P)`` of the result it must correct, checked when given.
+        image_sizes
+            ``(height, width)`` of each view's frames (``None`` for unknown), in view
+            order; when given, a 2D edit outside its image is refused.
 
         Raises
         ------
         ResultsError
-            Missing or unreadable file, a newer format version, missing datasets, or a
-            shape that does not match ``shape`` (one line naming the file).
+            Missing or unreadable file, a dataset whose Fletcher-32 checksum fails, a
+            newer format version, missing datasets, infinite or out-of-image
+            coordinates, or a shape that does not match ``shape`` (one line naming the
+            file).
         """
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
         with open_hdf5(path, fix, "HDF5 corrections file") as f:
-            meta = read_meta_from(f)
-            version = meta.get(_META_KEY)
-            if not isinstance(version, int) or isinstance(version, bool):
-                raise ResultsError(
-                    f"{path}: no {_META_KEY} in attrs['meta']; not a corrections sidecar ({fix})"
-                )
-            if version > CORRECTIONS_FORMAT_VERSION or version < 1:
-                raise ResultsError(
-                    f"{path}: corrections format version {version}, this flylib "
-                    f"reads 1 to {CORRECTIONS_FORMAT_VERSION}; update flylib"
-                )
-            for name in (
-                "pose2d_corrections/points",
-                "pose2d_corrections/edited",
-                "pose3d_corrections/points3d",
-                "pose3d_corrections/edited",
-            ):
-                if name not in f:
-                    raise ResultsError(f"{path}: has no {name} dataset; {fix}")
-            g2 = f["pose2d_corrections"]
-            points = np.asarray(g2["points"][()], dtype=np.float64)
-            if points.ndim != 4 or points.shape[-1] != 2:
-                raise ResultsError(
-                    f"{path}: pose2d_corrections/points must be (V, T, P, 2), "
-                    f"got {points.shape}; {fix}"
-                )
-            masks = {}
-            for name in ("edited", "fixed", "invisible"):
-                masks[name] = (
-                    np.asarray(g2[name][()], dtype=bool)
-                    if name in g2
-                    else np.zeros(points.shape[:3], bool)
-                )
-            g3 = f["pose3d_corrections"]
             try:
-                out = cls(
-                    points=points,
-                    points3d=g3["points3d"][()],
-                    edited3d=g3["edited"][()],
-                    source=str(meta.get("source", "")),
-                    created_utc=str(meta.get("created_utc", "")),
-                    **masks,
-                )
-            except ValueError as err:
-                raise ResultsError(f"{path}: inconsistent shapes ({err}); {fix}") from None
+                meta, arrays = _read_sidecar(f, path, fix)
+            except (OSError, KeyError, RuntimeError) as err:  # a damaged header or link table
+                raise ResultsError(f"{path}: damaged ({one_line(err)}); {fix}") from None
+        points = arrays["pose2d_corrections/points"]
+        if points.ndim != 4 or points.shape[-1] != 2:
+            raise ResultsError(
+                f"{path}: pose2d_corrections/points must be (V, T, P, 2), got {points.shape}; {fix}"
+            )
+        masks = {
+            name: (
+                arrays[f"pose2d_corrections/{name}"].astype(bool)
+                if f"pose2d_corrections/{name}" in arrays
+                else np.zeros(points.shape[:3], bool)
+            )
+            for name in ("edited", "fixed", "invisible")
+        }
+        revision = meta.get("flylib_revision", 0)
+        try:
+            out = cls(
+                points=points,
+                points3d=arrays["pose3d_corrections/points3d"],
+                edited3d=arrays["pose3d_corrections/edited"],
+                source=str(meta.get("source", "")),
+                created_utc=str(meta.get("created_utc", "")),
+                revision=revision if type(revision) is int and revision >= 0 else 0,
+                **masks,
+            )
+        except ValueError as err:
+            raise ResultsError(f"{path}: inconsistent shapes ({err}); {fix}") from None
         if shape is not None and tuple(out.shape) != tuple(shape):
             raise ResultsError(
                 f"{path}: corrects a result of (views, frames, points) {out.shape}, but this one "
                 f"is {tuple(shape)}; it belongs to another recording or run ({fix})"
             )
+        problem = out.invalid_values(image_sizes)
+        if problem:
+            raise ResultsError(f"{path}: {problem}; nothing was applied ({fix})")
         return out
 
+    def invalid_values(self, image_sizes: Sequence[tuple[int, int] | None] | None = None) -> str:
+        """What makes these corrections unusable, or ``""``.
+
+        Infinite numbers anywhere, a non-finite edited 3D point, or (with
+        ``image_sizes``, ``(height, width)`` per view) an edited 2D point outside its
+        image. A NaN 2D edit is allowed (the seed's deliberate "remove").
+        """
+        for name in ("points", "points3d"):
+            bad = np.argwhere(np.isinf(getattr(self, name)))
+            if len(bad):
+                return f"{name} holds an infinite value at index {tuple(bad[0].tolist())}"
+        bad = np.argwhere(self.edited3d & ~np.isfinite(self.points3d).all(-1))
+        if len(bad):
+            t, p = bad[0].tolist()
+            return f"the 3D edit of frame {t}, point {p} is not a finite point"
+        for v, size in enumerate(image_sizes or ()):
+            if size is None:
+                continue
+            height, width = size
+            xy = self.points[v]
+            with np.errstate(invalid="ignore"):
+                outside = self.edited[v] & (
+                    (xy[..., 0] < 0)
+                    | (xy[..., 0] > width)
+                    | (xy[..., 1] < 0)
+                    | (xy[..., 1] > height)
+                )
+            bad = np.argwhere(outside)
+            if len(bad):
+                t, p = bad[0].tolist()
+                x, y = xy[t, p].tolist()
+                return (
+                    f"the 2D edit of view {v}, frame {t}, point {p} at ({x:.6g}, {y:.6g}) lies "
+                    f"outside the {width}x{height} image"
+                )
+        return ""
+
     def save(self, path: str | Path) -> Path:
-        """Write the sidecar atomically (format version 3).
+        """Write the sidecar atomically (format version 3), every dataset Fletcher-32
+        checksummed.
 
         Parameters
         ----------
         path
             Destination, normally ``<outdir>/corrections.h5``.
+
+        Raises
+        ------
+        ResultsError
+            When the corrections hold infinite numbers or a non-finite 3D edit
+            (nothing is written).
+        OutputError
+            When the disk is full (from :func:`flylib.paths.atomic_path`).
         """
+        problem = self.invalid_values()
+        if problem:
+            raise ResultsError(f"{path}: not saved, {problem}")
         self.created_utc = datetime.now(UTC).isoformat()
         meta = {
             _META_KEY: CORRECTIONS_FORMAT_VERSION,
             "source": self.source,
             "created_utc": self.created_utc,
+            "flylib_revision": int(self.revision),
         }
-        with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
             f.attrs["meta"] = json.dumps(meta)
             g2 = f.create_group("pose2d_corrections")
-            g2.create_dataset("points", data=self.points, dtype=np.float64)
+            _write_checksummed(g2, "points", self.points, np.float64)
             for name in ("edited", "fixed", "invisible"):
-                g2.create_dataset(name, data=getattr(self, name), dtype=bool)
+                _write_checksummed(g2, name, getattr(self, name), bool)
             g3 = f.create_group("pose3d_corrections")
-            g3.create_dataset("points3d", data=self.points3d, dtype=np.float64)
-            g3.create_dataset("edited", data=self.edited3d, dtype=bool)
+            _write_checksummed(g3, "points3d", self.points3d, np.float64)
+            _write_checksummed(g3, "edited", self.edited3d, bool)
         return Path(path)
 
     # -- edits (the seed GUI's semantics) ----------------------------------------------
@@ -329,6 +394,48 @@ class Corrections:
             edited3d=self.edited3d[ix],
             source=self.source,
         )
+
+
+def _write_checksummed(group: h5py.Group, name: str, data: np.ndarray, dtype: Any) -> None:
+    arr = np.asarray(data, dtype=dtype)
+    if arr.size == 0:  # no chunk to checksum
+        group.create_dataset(name, data=arr)
+        return
+    group.create_dataset(name, data=arr, chunks=arr.shape, fletcher32=True)
+
+
+def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """The meta and every dataset of an open sidecar; HDF5 checks each Fletcher-32
+    chunk it reads (seed-written files carry none)."""
+    meta = read_meta_from(f)
+    version = meta.get(_META_KEY)
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise ResultsError(
+            f"{path}: no {_META_KEY} in attrs['meta']; not a corrections sidecar ({fix})"
+        )
+    if version > CORRECTIONS_FORMAT_VERSION or version < 1:
+        raise ResultsError(
+            f"{path}: corrections format version {version}, this flylib "
+            f"reads 1 to {CORRECTIONS_FORMAT_VERSION}; update flylib"
+        )
+    for name in _DATASETS:
+        if name not in f:
+            raise ResultsError(f"{path}: has no {name} dataset; {fix}")
+    arrays = {}
+    for name in (*_DATASETS, "pose2d_corrections/fixed", "pose2d_corrections/invisible"):
+        if name not in f:
+            continue
+        dataset = f[name]
+        if not isinstance(dataset, h5py.Dataset) or dataset.dtype.kind not in "biuf":
+            raise ResultsError(f"{path}: {name} is not a numeric or boolean dataset; {fix}")
+        try:
+            arrays[name] = np.asarray(dataset[()], dtype=np.float64 if "points" in name else bool)
+        except OSError as err:
+            raise ResultsError(
+                f"{path}: dataset {name} is damaged ({one_line(err)}); the file is corrupt, "
+                f"nothing was applied ({fix})"
+            ) from None
+    return meta, arrays
 
 
 def reconstruct_corrected(

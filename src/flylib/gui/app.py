@@ -1,27 +1,35 @@
 """The GUI's FastAPI app: REST for meta, frames, points and suspects; a WebSocket for edits.
 
-Routes (all under the optional access token, see :func:`create_app`)::
+Routes::
 
-    GET  /                          the page (static/index.html)
+    GET  /                          the page (static/index.html, the session token inside)
     GET  /static/{file}             the front-end's ES modules and CSS (package data)
-    GET  /api/meta                  views, sizes, skeleton + palette, frame count
+    GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
     GET  /api/suspects              suspect (frame, point) pairs and the per-frame score
     POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
     POST /api/save                  write corrections.h5 beside results.h5
-    WS   /ws                        edits: {"op", "frame", "point", "view", "xy"} -> points
-                                    (op: move, move3d, invisible, reset_point, reset_view,
-                                    reset_frame; or {"op": "save"})
+    WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision"}
+                                    -> points (op: move, move3d, invisible, reset_point,
+                                    reset_view, reset_frame; or {"op": "save"}); other
+                                    pages' edits arrive as {"op": "changed", "revision"}
 
+Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are
+this server's; POSTs and the WebSocket carry the session token; JSON bodies only,
+size and depth limited) and every response carries a strict Content-Security-Policy.
 Camera names are looked up in the rig (never used to build a path) and frame numbers
 are integers checked against the recording, so no request reaches any other file.
+Errors are one line (``{"detail": ...}``), never a traceback.
 """
 
 from __future__ import annotations
 
-import hmac
+import html
+import logging
+import secrets
 import time
+from collections.abc import Iterable
 from importlib import resources
 from typing import Any
 
@@ -29,12 +37,33 @@ from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconn
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
-from .session import ReviewSession
+from ..errors import FlylibError
+from .security import (
+    LOOPBACK_NAMES,
+    MAX_BODY,
+    SECURITY_HEADERS,
+    WS_PROTOCOL,
+    RequestGuard,
+    RequestRefused,
+    check_json_content_type,
+    parse_json,
+)
+from .session import ReviewSession, StaleRevision
+
+log = logging.getLogger(__name__)
 
 STATIC = resources.files("flylib.gui") / "static"
+_TOKEN_SLOT = '<meta name="flylib-token" content="">'
 
 
-def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
+def create_app(
+    session: ReviewSession,
+    token: str | None = None,
+    *,
+    guard_reads: bool | None = None,
+    hosts: Iterable[str] = LOOPBACK_NAMES,
+    port: int | None = None,
+) -> FastAPI:
     """The app serving one :class:`ReviewSession`.
 
     Parameters
@@ -42,43 +71,71 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     session
         The opened recording.
     token
-        When set, every request must carry it (query ``?token=``, header
-        ``X-Flylib-Token`` or the cookie the page sets); used when the server is
-        bound to anything but localhost.
+        The session token every mutating request must carry (header
+        ``X-Flylib-Token``, or the WebSocket sub-protocol ``flylib.token.<token>``);
+        default: a random one. The page receives it inside its HTML. Available as
+        ``app.state.token``.
+    guard_reads
+        Require the token on reads too (query ``?token=``, header or the cookie the
+        page sets); default: when ``token`` is given (a server bound to anything but
+        localhost).
+    hosts, port
+        The host names (and port) the server answers to; any other ``Host`` header
+        is refused (DNS rebinding).
     """
+    if guard_reads is None:
+        guard_reads = token is not None
+    token = token or secrets.token_urlsafe(24)
+    guard = RequestGuard(token, hosts, port, guard_reads)
     app = FastAPI(title="flylib gui", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session = session
+    app.state.token = token
+    sockets: set[WebSocket] = set()
 
-    def authorized(request_token: str | None) -> bool:
-        return token is None or (
-            request_token is not None
-            and hmac.compare_digest(request_token.encode(), token.encode())
-        )
+    def refused(status: int, message: str) -> JSONResponse:
+        return JSONResponse({"detail": message}, status_code=status, headers=SECURITY_HEADERS)
 
     @app.middleware("http")
-    async def check_token(request: Request, call_next):
-        supplied = (
-            request.query_params.get("token")
-            or request.headers.get("x-flylib-token")
-            or request.cookies.get("flylib_token")
-        )
-        if not authorized(supplied):
-            return JSONResponse(
-                {"detail": "missing or wrong access token; open the URL `flylib gui` printed"},
-                status_code=403,
-            )
+    async def check_request(request: Request, call_next):
+        try:
+            guard.check_origin(request.headers)
+            if guard.guard_reads and not guard.token_matches(
+                request.query_params.get("token")
+                or request.headers.get("x-flylib-token")
+                or request.cookies.get("flylib_token")
+            ):
+                raise RequestRefused(
+                    403, "missing or wrong access token; open the URL `flylib gui` printed"
+                )
+            if request.method not in ("GET", "HEAD"):
+                guard.check_mutation_token(request.headers.get("x-flylib-token"))
+                check_json_content_type(request.headers.get("content-type"))
+                length = request.headers.get("content-length")
+                if length is not None and (not length.isdigit() or int(length) > MAX_BODY):
+                    raise RequestRefused(
+                        413, f"refused: the body is larger than {MAX_BODY // 1024} KiB"
+                    )
+        except RequestRefused as exc:
+            return refused(exc.status, str(exc))
         response = await call_next(request)
-        if token is not None and request.url.path == "/":
+        response.headers.update(SECURITY_HEADERS)
+        if guard.guard_reads and request.url.path == "/":
             response.set_cookie("flylib_token", token, httponly=True, samesite="strict")
         return response
+
+    @app.exception_handler(HTTPException)
+    async def one_line_error(request: Request, exc: HTTPException) -> JSONResponse:
+        return refused(exc.status_code, str(exc.detail))
 
     app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
 
     @app.get("/", response_class=HTMLResponse)
     def index() -> HTMLResponse:
-        return HTMLResponse(
-            (STATIC / "index.html").read_text(), headers={"Cache-Control": "no-store"}
+        page = (STATIC / "index.html").read_text()
+        page = page.replace(
+            _TOKEN_SLOT, f'<meta name="flylib-token" content="{html.escape(token, quote=True)}">'
         )
+        return HTMLResponse(page, headers={"Cache-Control": "no-store"})
 
     @app.get("/api/meta")
     def meta() -> dict:
@@ -87,7 +144,7 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     @app.get("/api/frame/{view}/{frame}")
     def frame(view: str, frame: int) -> Response:
         if view not in session.view_names:
-            raise HTTPException(404, f"unknown camera {view!r}")
+            raise HTTPException(404, f"unknown camera {view[:80]!r}")
         _check_frame(frame)
         started = time.perf_counter()
         data = session.frames[view].jpeg(frame)
@@ -113,40 +170,85 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
         return session.suspects_payload()
 
     @app.post("/api/edit")
-    async def edit(request: Request) -> dict:
-        try:
-            message = await request.json()
-        except ValueError:
-            raise HTTPException(400, "the body must be JSON") from None
+    async def edit(request: Request) -> JSONResponse:
+        message = await _read_json(request)
         reply = _apply(message)
-        if "error" in reply:
-            raise HTTPException(400, reply["error"])
-        return reply
+        if reply["op"] != "points":
+            return refused(_STATUS[reply["op"]], reply["error"])
+        await _broadcast(None, reply["revision"], reply["frame"])
+        return JSONResponse(reply)
 
     @app.post("/api/save")
-    def save() -> dict:
-        path = session.save()
-        return {"saved": str(path), "edits": session.corrections.count()}
+    async def save(request: Request) -> JSONResponse:
+        message = await _read_json(request)
+        reply = _save(message)
+        if reply["op"] != "saved":
+            return refused(_STATUS[reply["op"]], reply["error"])
+        return JSONResponse(reply)
 
     @app.websocket("/ws")
     async def ws(websocket: WebSocket) -> None:
-        supplied = websocket.query_params.get("token") or websocket.cookies.get("flylib_token")
-        if not authorized(supplied):
+        try:
+            guard.check_origin(websocket.headers)
+            guard.check_mutation_token(
+                guard.ws_token(
+                    websocket.headers.get("sec-websocket-protocol"),
+                    websocket.query_params.get("token"),
+                )
+            )
+        except RequestRefused as exc:
+            log.warning("flylib gui: WebSocket %s", exc)
             await websocket.close(code=1008)
             return
-        await websocket.accept()
+        offered = websocket.headers.get("sec-websocket-protocol") or ""
+        subprotocol = (
+            WS_PROTOCOL if WS_PROTOCOL in [p.strip() for p in offered.split(",")] else None
+        )
+        await websocket.accept(subprotocol=subprotocol)
+        sockets.add(websocket)
         try:
             while True:
-                message = await websocket.receive_json()
-                if isinstance(message, dict) and message.get("op") == "save":
-                    path = session.save()
-                    await websocket.send_json(
-                        {"op": "saved", "saved": str(path), "edits": session.corrections.count()}
-                    )
+                raw = await websocket.receive()
+                if raw["type"] == "websocket.disconnect":
+                    return
+                data = raw.get("bytes") or (raw.get("text") or "").encode()
+                try:
+                    message = parse_json(data, "the message")
+                except RequestRefused as exc:
+                    await websocket.send_json({"op": "refused", "error": str(exc)})
                     continue
-                await websocket.send_json(_apply(message))
+                if isinstance(message, dict) and message.get("op") == "save":
+                    await websocket.send_json(_save(message))
+                    continue
+                reply = _apply(message)
+                await websocket.send_json(reply)
+                if reply["op"] == "points":
+                    await _broadcast(websocket, reply["revision"], reply["frame"])
         except WebSocketDisconnect:
             return
+        finally:
+            sockets.discard(websocket)
+
+    async def _broadcast(origin: WebSocket | None, revision: int, frame: int) -> None:
+        """Tell every other open page that the edits changed (it refreshes)."""
+        for other in list(sockets):
+            if other is origin:
+                continue
+            try:
+                await other.send_json({"op": "changed", "revision": revision, "frame": frame})
+            except (RuntimeError, OSError, WebSocketDisconnect):
+                sockets.discard(other)
+
+    async def _read_json(request: Request) -> Any:
+        body = bytearray()
+        async for chunk in request.stream():
+            body += chunk
+            if len(body) > MAX_BODY:
+                raise HTTPException(413, f"refused: the body is larger than {MAX_BODY // 1024} KiB")
+        try:
+            return parse_json(bytes(body)) if body else {}
+        except RequestRefused as exc:
+            raise HTTPException(exc.status, str(exc)) from None
 
     def _check_frame(frame: int) -> None:
         if not 0 <= frame < session.n_frames:
@@ -155,21 +257,49 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
     def _apply(message: Any) -> dict:
         """One edit message -> the frame's points (plus the server time), or an error."""
         if not isinstance(message, dict):
-            return {"error": "an edit is a JSON object with op, frame, point, view, xy"}
+            return {
+                "op": "refused",
+                "error": "an edit is a JSON object with op, frame, point, view, xy",
+            }
         started = time.perf_counter()
         try:
-            frame = message.get("frame")
-            point = message.get("point")
-            if not isinstance(frame, int) or (point is not None and not isinstance(point, int)):
-                raise ValueError("frame and point must be integers")
-            view = message.get("view")
-            if view is not None and not isinstance(view, str):
-                raise ValueError("view must be a camera name")
-            reply = session.edit(str(message.get("op")), frame, point, view, message.get("xy"))
+            reply = session.edit(
+                message.get("op"),
+                message.get("frame"),
+                message.get("point"),
+                message.get("view"),
+                message.get("xy"),
+                revision=message.get("revision"),
+            )
+        except StaleRevision as exc:
+            return {"op": "stale", "error": str(exc), "revision": exc.current}
+        except FlylibError as exc:  # the journal cannot be written: not applied
+            return {"op": "not_stored", "error": str(exc)}
         except (KeyError, IndexError, ValueError, TypeError) as exc:
-            return {"error": str(exc).strip("'\"")}
+            return {"op": "refused", "error": str(exc).strip("'\"")}
         reply["op"] = "points"
         reply["server_ms"] = round((time.perf_counter() - started) * 1000, 2)
         return reply
 
+    def _save(message: Any) -> dict:
+        revision = message.get("revision") if isinstance(message, dict) else None
+        try:
+            path = session.save(revision=revision)
+        except StaleRevision as exc:
+            return {"op": "stale", "error": str(exc), "revision": exc.current}
+        except (FlylibError, OSError) as exc:
+            return {"op": "save_failed", "error": str(exc)}
+        except ValueError as exc:
+            return {"op": "refused", "error": str(exc)}
+        return {
+            "op": "saved",
+            "saved": str(path),
+            "edits": session.corrections.count(),
+            "revision": session.revision,
+        }
+
     return app
+
+
+#: HTTP status of each refusal a REST edit or save can meet.
+_STATUS = {"refused": 400, "stale": 409, "not_stored": 507, "save_failed": 507}

@@ -66,24 +66,34 @@ def serve(
     import uvicorn
 
     from .app import create_app
+    from .security import LOOPBACK_NAMES, MAX_BODY
     from .session import ReviewSession
 
     session = ReviewSession(results)
-    if not is_loopback(host):
+    loopback = is_loopback(host)
+    if not loopback:
         token = token or secrets.token_urlsafe(24)
     port = free_port(host, port)
-    app = create_app(session, token=None if is_loopback(host) else token)
-    shown = (
-        "localhost"
-        if is_loopback(host)
-        else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
+    app = create_app(
+        session,
+        token=token,
+        guard_reads=not loopback,
+        hosts=LOOPBACK_NAMES if loopback else (*LOOPBACK_NAMES, *served_names(host)),
     )
-    url = f"http://{shown}:{port}/" + (f"?token={token}" if not is_loopback(host) else "")
+    shown = (
+        "localhost" if loopback else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
+    )
+    url = f"http://{shown}:{port}/" + (f"?token={token}" if not loopback else "")
     print(
         f"flylib gui: {session.results_path} ({session.n_frames} frames, {session.n_views} views)"
     )
-    print(f"flylib gui: open {url}  (Ctrl+C stops; edits are saved to {session.corrections_path})")
-    if is_loopback(host):
+    if session.notice:
+        print(f"flylib gui: {session.notice}")
+    print(
+        f"flylib gui: open {url}  (Ctrl+C stops; every edit is journaled to "
+        f"{session.journal_path} until Save writes {session.corrections_path})"
+    )
+    if loopback:
         print(
             f"flylib gui: from another machine: ssh -L {port}:localhost:{port} <this host>, "
             f"then open http://localhost:{port}/"
@@ -91,10 +101,25 @@ def serve(
     if open_browser:
         threading.Timer(1.0, lambda: webbrowser.open(url)).start()
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning")
+        uvicorn.run(app, host=host, port=port, log_level="warning", ws_max_size=MAX_BODY)
     finally:
         if session.dirty:
             print(
-                f"flylib gui: unsaved edits were discarded (press Save to write {session.corrections_path})"
+                f"flylib gui: {session.corrections.count()} edit(s) not saved to "
+                f"{session.corrections_path} are kept in {session.journal_path}; the next "
+                "`flylib gui` on this recording replays them"
             )
         session.close()
+
+
+def served_names(host: str) -> tuple[str, ...]:
+    """The host names a server bound to ``host`` (not loopback) may be reached by."""
+    if host not in ("0.0.0.0", "::"):
+        return (host,)
+    names = {socket.gethostname(), socket.getfqdn()}
+    for name in list(names):
+        try:
+            names |= {info[4][0] for info in socket.getaddrinfo(name, None)}
+        except OSError:
+            continue
+    return tuple(sorted(names))

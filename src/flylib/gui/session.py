@@ -5,8 +5,12 @@ when that stage ran, else pose2d's), with the corrections applied; every edit
 re-solves that one (frame, point) with :func:`flylib.corrections.reconstruct_corrected`
 on the final rig and the run's own config, the function the triangulation stage
 runs, so what the page shows is what the workflow computes after saving.
-``results.h5`` is only read; the only file written is the corrections sidecar,
-inside the output directory.
+``results.h5`` is only read; the only files written are the corrections sidecar,
+inside the output directory, and beside it its edit journal and lock
+(:mod:`flylib.gui.journal`): every edit is journaled (fsync'd) before it is applied
+and replayed by the next session when it was not saved. One revision number counts
+the session's edits, so a page whose revision is behind is told and refreshed instead
+of overwriting what another tab did.
 """
 
 from __future__ import annotations
@@ -26,8 +30,26 @@ from ..corrections import (
     corrections_path,
     reconstruct_corrected,
 )
-from ..errors import FlylibError, ResultsError
+from ..errors import FlylibError, OutputError, ResultsError
 from .frames import FrameSource
+from .journal import EditJournal, SidecarLock, read_journal
+
+#: The edit operations a page may send; ``set3d`` (a 3D point) is what the journal
+#: records for ``move3d``, whose result depends on the 3D at the time of the edit.
+EDIT_OPS = ("move", "move3d", "invisible", "reset_point", "reset_view", "reset_frame")
+
+
+class StaleRevision(ValueError):
+    """An edit or save made against an older revision than the session's."""
+
+    def __init__(self, given: int, current: int):
+        super().__init__(
+            f"the edits changed since this page loaded them (revision {given}, now "
+            f"{current}: another tab or a replayed journal); the page was refreshed, "
+            "look and edit again"
+        )
+        self.current = current
+
 
 log = logging.getLogger(__name__)
 
@@ -126,11 +148,28 @@ class ReviewSession:
         v, t, p = self.base2d.shape[:3]
         self.n_views, self.n_frames, self.n_points = v, t, p
         self.corrections_path = self._sidecar_path()
-        if self.corrections_path.is_file():
-            self.corrections = Corrections.load(self.corrections_path, (v, t, p))
-        else:
-            self.corrections = Corrections.empty(v, t, p)
+        self.image_sizes = (
+            {name: tuple(result.image_sizes.get(name, (480, 960))) for name in self.view_names}
+            if result.image_sizes
+            else {name: (480, 960) for name in self.view_names}
+        )
+        self._sidecar_lock = SidecarLock(self.corrections_path)
+        self._sidecar_lock.acquire()
+        try:
+            if self.corrections_path.is_file():
+                self.corrections = Corrections.load(
+                    self.corrections_path,
+                    (v, t, p),
+                    [self.image_sizes[name] for name in self.view_names],
+                )
+            else:
+                self.corrections = Corrections.empty(v, t, p)
+        except FlylibError:
+            self._sidecar_lock.release()
+            raise
         self.corrections.source = str(self.results_path)
+        self.revision = self.corrections.revision
+        self._journal = EditJournal(self.corrections_path)
         self.pts3d = np.array(result.pts3d)
         self.used2d = np.array(result.pts2d)
         self.error = (
@@ -142,13 +181,10 @@ class ReviewSession:
         self._suspects = None
         self._suspects_stale = True
         self.dirty = False  # edits not yet saved
+        self.notice = ""  # what the page and the terminal say on start (a replayed journal)
+        self._replay_journal()
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
             self._resolve(int(tt), int(pp))
-        self.image_sizes = (
-            {name: tuple(result.image_sizes.get(name, (480, 960))) for name in self.view_names}
-            if result.image_sizes
-            else {name: (480, 960) for name in self.view_names}
-        )
         if footage is None:
             footage = self._find_footage()
         self.frames = {
@@ -218,6 +254,10 @@ class ReviewSession:
             "outdir": str(self.outdir),
             "corrections_file": str(self.corrections_path),
             "corrections_loaded": self.corrections.count(),
+            "journal": str(self._journal.path),
+            "revision": self.revision,
+            "dirty": self.dirty,
+            "notice": self.notice,
             "views": [
                 {
                     "name": n,
@@ -281,6 +321,7 @@ class ReviewSession:
                 "suspects": suspects,
                 "dirty": self.dirty,
                 "edits": self.corrections.count(),
+                "revision": self.revision,
             }
 
     def suspects(self):
@@ -334,9 +375,16 @@ class ReviewSession:
         self._suspects_stale = True
 
     def edit(
-        self, op: str, frame: int, point: int | None = None, view: str | None = None, xy: Any = None
+        self,
+        op: str,
+        frame: int,
+        point: int | None = None,
+        view: str | None = None,
+        xy: Any = None,
+        *,
+        revision: int | None = None,
     ) -> dict:
-        """Apply one edit and re-solve what it touched.
+        """Check one edit, journal it (fsync'd), apply it and re-solve what it touched.
 
         Parameters
         ----------
@@ -347,64 +395,175 @@ class ReviewSession:
             ``reset_point`` (``view`` given: that view only; else every view and its 3D
             edit), ``reset_view`` or ``reset_frame``.
         frame, point, view, xy
-            The target; ``xy`` in raw-frame pixels.
+            The target; ``frame`` and ``point`` integers (not booleans), ``xy`` two
+            finite raw-frame pixel coordinates inside the view's image.
+        revision
+            The revision the page last saw; an edit against an older one is refused
+            (:class:`StaleRevision`), so a stale tab never overwrites a newer edit.
 
         Returns
         -------
         dict
-            :meth:`points` of the frame after the edit, plus ``solve_ms`` (the time spent
-            re-solving).
+            :meth:`points` of the frame after the edit (with the new ``revision``),
+            plus ``solve_ms`` (the time spent re-solving).
 
         Raises
         ------
         KeyError, IndexError, ValueError
             An unknown view, an index out of range, or a bad operation / coordinate.
+        StaleRevision
+            ``revision`` is behind the session's.
+        OutputError
+            The journal cannot be written (the edit is not applied).
         """
-        t = self._check_frame(frame)
-        v = None if view is None else self.view_index(view)
         with self._lock:
-            if op in ("move", "move3d", "invisible", "reset_point"):
-                p = self._check_point(point)
-                if op != "reset_point" and v is None:
-                    raise ValueError(f"{op} needs a view")
-                if op in ("move", "move3d"):
-                    xy = np.asarray(xy, dtype=np.float64).reshape(-1)
-                    if xy.shape != (2,) or not np.isfinite(xy).all():
-                        raise ValueError(
-                            f"xy must be two finite pixel coordinates, got {xy.tolist()}"
-                        )
-                if op == "move":
-                    self.corrections.set_point(v, t, p, xy)
-                elif op == "move3d":
-                    started = time.perf_counter()
-                    self.corrections.set_point3d(t, p, self._onto_ray(v, t, p, xy))
-                    ray_ms = (time.perf_counter() - started) * 1000
-                elif op == "invisible":
-                    self.corrections.set_invisible(v, t, p)
-                else:
-                    self.corrections.reset(t, point=p, view=v)
-                points = [p]
-            elif op == "reset_view":
-                if v is None:
-                    raise ValueError("reset_view needs a view")
-                self.corrections.reset(t, view=v)
-                points = range(self.n_points)
-            elif op == "reset_frame":
-                self.corrections.reset(t)
-                points = range(self.n_points)
-            else:
-                raise ValueError(
-                    f"unknown edit {op!r}; use move, move3d, invisible, reset_point, reset_view "
-                    "or reset_frame"
-                )
+            self._check_revision(revision)
             started = time.perf_counter()
+            record = self._plan(op, frame, point, view, xy)
+            self._journal.append(record, self.corrections.revision)
+            points = self._apply_record(record)
+            self.revision += 1
             for p in points:
-                self._resolve(t, p)
-            solve_ms = (time.perf_counter() - started) * 1000 + (ray_ms if op == "move3d" else 0.0)
+                self._resolve(record["frame"], p)
+            solve_ms = (time.perf_counter() - started) * 1000
             self.dirty = True
-            reply = self.points(t)
+            reply = self.points(record["frame"])
             reply["solve_ms"] = round(solve_ms, 2)
             return reply
+
+    @property
+    def journal_path(self) -> Path:
+        """Where this session's unsaved edits are journaled."""
+        return self._journal.path
+
+    def _check_revision(self, revision: Any) -> None:
+        if revision is None:
+            return
+        if type(revision) is not int:
+            raise ValueError(f"revision must be an integer, got {revision!r}")
+        if revision != self.revision:
+            raise StaleRevision(revision, self.revision)
+
+    def _plan(self, op: Any, frame: Any, point: Any, view: Any, xy: Any) -> dict:
+        """The journal record of an edit, every argument checked; nothing changes yet."""
+        if op not in EDIT_OPS:
+            raise ValueError(
+                f"unknown edit {str(op)[:40]!r}; use move, move3d, invisible, reset_point, "
+                "reset_view or reset_frame"
+            )
+        t = self._check_frame(_integer("frame", frame))
+        if view is not None and not isinstance(view, str):
+            raise ValueError("view must be a camera name")
+        v = None if view is None else self.view_index(view)
+        record: dict[str, Any] = {"op": op, "frame": t, "view": view}
+        if op in ("move", "move3d", "invisible", "reset_point"):
+            record["point"] = p = self._check_point(_integer("point", point))
+            if op != "reset_point" and v is None:
+                raise ValueError(f"{op} needs a view")
+        elif op == "reset_view" and v is None:
+            raise ValueError("reset_view needs a view")
+        if op in ("move", "move3d"):
+            record["xy"] = self._check_xy(view, xy)
+        if op == "move3d":
+            record["op"] = "set3d"
+            record["xyz"] = self._onto_ray(v, t, p, np.asarray(record["xy"])).tolist()
+        return record
+
+    def _check_xy(self, view: str, xy: Any) -> list[float]:
+        """Two finite pixel coordinates inside ``view``'s image, as floats."""
+        if (
+            not isinstance(xy, (list, tuple))
+            or len(xy) != 2
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in xy)
+        ):
+            raise ValueError(f"xy must be two pixel coordinates [x, y], got {str(xy)[:60]}")
+        x, y = (float(c) for c in xy)
+        height, width = self.image_sizes[view]
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"xy must be finite pixel coordinates, got [{x}, {y}]")
+        if not (0 <= x <= width and 0 <= y <= height):
+            raise ValueError(f"xy [{x:.6g}, {y:.6g}] lies outside {view}'s {width}x{height} image")
+        return [x, y]
+
+    def _apply_record(self, record: dict) -> range | list[int]:
+        """Change the corrections as a checked record says; the points to re-solve."""
+        op, t = record["op"], record["frame"]
+        view, p = record.get("view"), record.get("point")
+        v = None if view is None else self.view_index(view)
+        if op == "move":
+            self.corrections.set_point(v, t, p, record["xy"])
+        elif op == "set3d":
+            self.corrections.set_point3d(t, p, record["xyz"])
+        elif op == "invisible":
+            self.corrections.set_invisible(v, t, p)
+        elif op == "reset_point":
+            self.corrections.reset(t, point=p, view=v)
+        elif op == "reset_view":
+            self.corrections.reset(t, view=v)
+            return range(self.n_points)
+        else:
+            self.corrections.reset(t)
+            return range(self.n_points)
+        return [p]
+
+    def _replay_journal(self) -> None:
+        """Apply the edits a previous session journaled but did not save."""
+        replay = read_journal(self._journal.path)
+        if not replay.edits and not replay.damaged:
+            return
+        applied, refused = 0, []
+        for record in replay.edits:
+            try:
+                checked = self._checked_journal_record(record)
+                self._apply_record(checked)
+            except (KeyError, IndexError, ValueError, TypeError) as exc:
+                refused.append(str(exc).strip("'\""))
+                continue
+            applied += 1
+        self.revision += applied
+        self.dirty = applied > 0
+        parts = [
+            f"{applied} unsaved edit(s) replayed from {self._journal.path} "
+            "(a previous session stopped before saving); press Save to keep them"
+        ]
+        if (
+            replay.sidecar_revision is not None
+            and replay.sidecar_revision != self.corrections.revision
+        ):
+            parts.append(
+                f"they were made on revision {replay.sidecar_revision} of "
+                f"{self.corrections_path.name}, which is now at {self.corrections.revision}"
+            )
+        if replay.damaged:
+            parts.append(f"damaged journal line(s) skipped: {replay.damaged[:10]}")
+        if refused:
+            parts.append(f"{len(refused)} edit(s) refused: {refused[0]}")
+        self.notice = "; ".join(parts)
+        log.warning("flylib gui: %s", self.notice)
+
+    def _checked_journal_record(self, record: dict) -> dict:
+        """A journal line through the same checks as an edit from the page."""
+        if not isinstance(record, dict):
+            raise ValueError("not an edit")
+        if record.get("op") != "set3d":
+            return self._plan(
+                record.get("op"),
+                record.get("frame"),
+                record.get("point"),
+                record.get("view"),
+                record.get("xy"),
+            )
+        checked = self._plan(
+            "invisible", record.get("frame"), record.get("point"), record.get("view"), None
+        )
+        xyz = record.get("xyz")
+        if (
+            not isinstance(xyz, list)
+            or len(xyz) != 3
+            or not all(isinstance(c, (int, float)) and math.isfinite(c) for c in xyz)
+        ):
+            raise ValueError(f"a 3D edit must be three finite numbers, got {str(xyz)[:60]}")
+        return {**checked, "op": "set3d", "xyz": [float(c) for c in xyz]}
 
     def _onto_ray(self, v: int, t: int, p: int, xy: np.ndarray) -> np.ndarray:
         """The point on pixel ``xy``'s ray in view ``v`` closest to the current 3D point."""
@@ -419,10 +578,36 @@ class ReviewSession:
         origin, direction = self.cameras[v].backproject_ray(xy)
         return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
 
-    def save(self) -> Path:
-        """Write the corrections sidecar atomically inside the outdir; ``results.h5`` is untouched."""
+    def save(self, *, revision: int | None = None) -> Path:
+        """Write the corrections sidecar atomically inside the outdir, then drop the
+        journal; ``results.h5`` is untouched.
+
+        Parameters
+        ----------
+        revision
+            The revision the page shows; a save from a page that is behind is refused
+            (:class:`StaleRevision`), so a person never saves what they have not seen.
+
+        Raises
+        ------
+        OutputError
+            The sidecar cannot be written (full disk, read-only directory: one line
+            with the reason); the edits stay in memory and in the journal.
+        """
         with self._lock:
-            path = self.corrections.save(self.corrections_path)
+            self._check_revision(revision)
+            self.corrections.revision = self.revision
+            try:
+                path = self.corrections.save(self.corrections_path)
+            except OSError as err:
+                if isinstance(err, OutputError):
+                    raise
+                raise OutputError(
+                    f"{self.corrections_path}: cannot save ({err.strerror or err}); the "
+                    f"edits are kept in {self._journal.path.name} and in this session: make "
+                    "the directory writable or free space, then save again"
+                ) from None
+            self._journal.discard()
             self.dirty = False
         log.info("corrections saved to %s (%d edits)", path, self.corrections.count())
         return path
@@ -464,12 +649,21 @@ class ReviewSession:
                     log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
 
     def close(self) -> None:
+        self._journal.close()
+        self._sidecar_lock.release()
         with self._prefetch_wake:
             self._closed = True
             self._prefetch_wake.notify()
         self._prefetcher.join(timeout=5)
         for source in self.frames.values():
             source.close()
+
+
+def _integer(name: str, value: Any) -> int:
+    """``value`` when it is an integer (JSON ``true`` is not one)."""
+    if type(value) is not int and not isinstance(value, np.integer):
+        raise ValueError(f"{name} must be an integer, got {str(value)[:40]}")
+    return int(value)
 
 
 def _raise_key(view: str):

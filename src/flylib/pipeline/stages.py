@@ -268,7 +268,15 @@ def run_triangulation(
     if pictorial_path:
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    corrections = Corrections.load(corrections_path, pts2d.shape[:3]) if corrections_path else None
+    corrections = (
+        Corrections.load(
+            corrections_path,
+            pts2d.shape[:3],
+            [pose2d.image_sizes.get(name) for name in pose2d.view_names],
+        )
+        if corrections_path
+        else None
+    )
     pts3d, pts2d_clean, error, corrected = reconstruct_corrected(
         config, cameras, pts2d, pose2d.conf, corrections
     )

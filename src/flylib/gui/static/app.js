@@ -1,4 +1,5 @@
 // flylib gui: the page. Plain ES modules, one <canvas> per camera view.
+import { alertText, clearAlert, showAlert } from "./alerts.js";
 import { apiUrl, EditChannel, getJSON, postJSON } from "./api.js";
 import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.js";
 
@@ -8,15 +9,18 @@ const state = {
   focus: 0, layout: "grid", editMode: false, mode: "view", selected: null,  // {view, point}
   suspects: [], frameScore: [], suspectFrames: [], sort: { key: "frame", asc: true },
   drawn: {}, lastServerMs: null, requestId: 0,
+  revision: 0, offline: false,
 };
-const channel = new EditChannel(status);
+const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewhere });
 
 function status(text) { $("#status").textContent = text; }
 
 async function start() {
   state.meta = await getJSON("/api/meta");
   const meta = state.meta;
+  state.revision = meta.revision;
   $("#recording").textContent = meta.results;
+  if (meta.notice) showAlert(meta.notice, "info");
   const slider = $("#slider");
   slider.max = meta.frames - 1;
   slider.addEventListener("input", () => goto(Number(slider.value)));
@@ -24,9 +28,12 @@ async function start() {
   meta.views.forEach((view, i) => {
     const div = document.createElement("div");
     div.className = "view";
-    div.innerHTML = `<canvas></canvas><span class="label">${i + 1} ${view.name}</span>`;
+    const canvas = document.createElement("canvas");
+    const label = document.createElement("span");
+    label.className = "label";
+    label.textContent = `${i + 1} ${view.name}`;
+    div.append(canvas, label);
     container.appendChild(div);
-    const canvas = div.querySelector("canvas");
     canvas.dataset.view = view.name;
     state.views.push({ ...view, index: i, div, canvas, transform: null });
     state.zoom[view.name] = { scale: 1, x: 0, y: 0 };
@@ -60,6 +67,7 @@ async function goto(frame) {
   const data = await getJSON(`/api/points/${frame}`);
   if (id !== state.requestId) return;
   state.data = data;
+  state.revision = data.revision;
   redrawAll();
   renderSuspectTable();
 }
@@ -120,7 +128,11 @@ function renderSuspectTable() {
     const tr = document.createElement("tr");
     tr.className = s.frame === state.frame ? "current" : "";
     tr.title = s.detail;
-    tr.innerHTML = `<td>${s.frame}</td><td>${s.point_name}</td><td>${s.score.toFixed(2)}</td><td>${s.reasons.join(", ")}</td>`;
+    tr.append(...[s.frame, s.point_name, s.score.toFixed(2), s.reasons.join(", ")].map((text) => {
+      const td = document.createElement("td");
+      td.textContent = String(text);
+      return td;
+    }));
     tr.addEventListener("click", () => jumpToSuspect(s));
     return tr;
   }));
@@ -161,8 +173,17 @@ function stepSuspect(direction) {
 // -- editing ---------------------------------------------------------------------------
 
 async function sendEdit(message) {
-  const reply = await channel.send({ frame: state.frame, ...message });
-  if (reply.error) { status(`edit refused: ${reply.error}`); return null; }
+  if (state.offline) { status("not stored: flylib gui is not running"); return null; }
+  const reply = await channel.send({ frame: state.frame, revision: state.revision, ...message });
+  if (reply.op !== "points") {
+    // stale (another tab edited), refused (bad input) or not stored (journal unwritable,
+    // server gone): the page shows the server's state again, and why
+    if (reply.op === "not_stored") showAlert(`edit not stored: ${reply.error}`);
+    else status(`edit ${reply.op === "stale" ? "not applied" : "refused"}: ${reply.error}`);
+    if (!state.offline) await refresh();
+    return null;
+  }
+  state.revision = reply.revision;
   if (reply.frame === state.frame) state.data = reply;
   state.lastServerMs = reply.server_ms;
   status(`${message.op}: re-solved in ${reply.server_ms} ms on the server`);
@@ -170,13 +191,38 @@ async function sendEdit(message) {
   return reply;
 }
 
-async function afterEdit() {
-  // the suspects are re-found once an edit is done (not on every drag step)
-  await loadSuspects();
+async function refresh() {
+  // the server's current state of this frame and the suspects (re-found once an edit is
+  // done, not on every drag step)
   const frame = state.frame;
   const data = await getJSON(`/api/points/${frame}`);
   if (frame === state.frame) state.data = data;
+  state.revision = data.revision;
+  await loadSuspects();
   redrawAll();
+}
+
+function changedElsewhere(message) {
+  if (message.revision === state.revision) return;
+  status(`another tab changed the edits (revision ${message.revision}); this page was refreshed`);
+  if (!state.dragging) refresh();
+}
+
+function serverLost() {
+  state.offline = true;
+  state.mode = "view";
+  state.editMode = false;
+  document.body.classList.add("offline");
+  const dirty = state.data && state.data.dirty;
+  showAlert("flylib gui has stopped: edits are no longer accepted. Every edit it confirmed " +
+    `is ${dirty ? "journaled on disk (not yet saved) and replayed" : "saved and loaded"} when ` +
+    "`flylib gui` runs again; this page reloads then.");
+  const probe = setInterval(async () => {
+    try {
+      const response = await fetch(apiUrl("/api/meta"), { cache: "no-store" });
+      if (response.ok) { clearInterval(probe); location.reload(); }
+    } catch { /* still gone */ }
+  }, 2000);
 }
 
 function selectedOrWarn() {
@@ -186,17 +232,18 @@ function selectedOrWarn() {
 
 async function markInvisible() {
   const s = selectedOrWarn();
-  if (s) { await sendEdit({ op: "invisible", view: s.view, point: s.point }); await afterEdit(); }
+  if (s) { await sendEdit({ op: "invisible", view: s.view, point: s.point }); await refresh(); }
 }
 
 async function resetPoint(everywhere = false) {
   const s = selectedOrWarn();
   if (!s) return;
   await sendEdit(everywhere ? { op: "reset_point", point: s.point } : { op: "reset_point", view: s.view, point: s.point });
-  await afterEdit();
+  await refresh();
 }
 
 function setMode(mode) {
+  if (state.offline) return;
   state.mode = state.mode === mode ? "view" : mode;
   state.editMode = state.mode !== "view";
   document.querySelector(`input[name=mode][value="${state.mode === "view" ? "view" : state.mode}"]`).checked = true;
@@ -205,16 +252,30 @@ function setMode(mode) {
 async function resetView() {
   const view = state.selected ? state.selected.view : state.views[state.focus].name;
   await sendEdit({ op: "reset_view", view });
-  await afterEdit();
+  await refresh();
 }
 
 async function resetFrame() {
   await sendEdit({ op: "reset_frame" });
-  await afterEdit();
+  await refresh();
 }
 
 async function save() {
-  const reply = await postJSON("/api/save");
+  if (state.offline) return;
+  let reply;
+  try {
+    reply = await postJSON("/api/save", { revision: state.revision });
+  } catch (err) {
+    if (err.status === 409) {
+      await refresh();
+      status(`not saved: ${err.detail}`);
+    } else {
+      showAlert(`not saved: ${err.detail || err.message}`);
+    }
+    return;
+  }
+  if (alertText().startsWith("not saved")) clearAlert();
+  state.revision = reply.revision;
   status(`saved ${reply.edits} edits to ${reply.saved}; run snakemake to apply them`);
   if (state.data) state.data.dirty = false;
   redrawAll();
@@ -236,7 +297,7 @@ function attachMouse(view) {
     if (hit !== null) {
       state.selected = { view: view.name, point: hit };
       redrawAll();
-      if (state.mode !== "view" && event.button === 0) {
+      if (state.mode !== "view" && event.button === 0 && !state.offline) {
         drag = { kind: "point", point: hit, sending: false, pending: null };
         state.dragging = true;
       }
@@ -301,7 +362,7 @@ async function flushDrag(view, drag) {
   }
   drag.sending = false;
   if (drag.final) {
-    await afterEdit();
+    await refresh();
     state.dragging = false;
   }
 }
@@ -350,7 +411,7 @@ function toggleHelp(show) {
 
 function wireControls() {
   document.querySelectorAll("input[name=mode]").forEach((input) => input.addEventListener("change", () => {
-    state.mode = input.value;
+    state.mode = state.offline ? "view" : input.value;
     state.editMode = state.mode !== "view";
   }));
   $("#layout").addEventListener("click", () => setLayout(state.layout === "grid" ? "focus" : "grid"));
@@ -406,6 +467,7 @@ window.flylib = {
   state,
   goto,
   stepSuspect,
+  alert: alertText,
   busy: () => channel.busy || state.dragging,
   allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
   screenPosition(viewName, point) {

@@ -1,0 +1,190 @@
+"""What keeps other web pages out of ``flylib gui``: the request checks, free of FastAPI.
+
+A browser lets any page send requests to ``localhost``; these checks make such requests
+fail before they reach the session:
+
+- ``Host`` must name the server itself (a loopback name, or the address it was bound
+  to), so a DNS-rebinding page (``Host: evil.example:PORT``) gets nothing;
+- ``Origin``, when sent (browsers always send it on WebSockets and POSTs), must be the
+  server's own origin, and ``Sec-Fetch-Site`` must not be ``cross-site``;
+- every mutating request carries the session's random token in a header (REST) or a
+  WebSocket sub-protocol; the page gets it inside its own HTML, which another origin
+  cannot read (the same-origin policy, and the ``Host`` check for rebinding);
+- bodies are JSON (``Content-Type: application/json``: a form or ``text/plain`` POST,
+  which needs no CORS pre-flight, is refused), at most :data:`MAX_BODY` bytes and
+  :data:`MAX_DEPTH` levels deep, parsed without recursion trouble.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import re
+from collections.abc import Iterable
+from typing import Any
+
+#: The largest request body or WebSocket message accepted (an edit is ~150 bytes).
+MAX_BODY = 64 * 1024
+#: The deepest JSON nesting accepted (an edit is two levels deep).
+MAX_DEPTH = 8
+#: Sent with every response: no inline script, nothing from elsewhere, never framed.
+SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; "
+        "connect-src 'self'; font-src 'self'; base-uri 'none'; form-action 'none'; "
+        "frame-ancestors 'none'"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer",
+    "Cross-Origin-Opener-Policy": "same-origin",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
+#: The WebSocket sub-protocol the page speaks; the token travels as a second one,
+#: ``flylib.token.<token>`` (a browser cannot set headers on a WebSocket).
+WS_PROTOCOL = "flylib.v1"
+WS_TOKEN_PREFIX = "flylib.token."
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]", "::1")
+
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+class RequestRefused(ValueError):
+    """A request the GUI refuses; ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+def split_host(host: str) -> tuple[str, int | None]:
+    """``"name:port"`` (or ``"[::1]:port"``) as ``(name, port)``; the name lower-cased."""
+    host = host.strip().lower()
+    match = re.fullmatch(r"(\[[0-9a-f:.]+\]|[^:\[\]]*)(?::(\d{1,5}))?", host)
+    if not match:
+        return host, None
+    return match.group(1), (int(match.group(2)) if match.group(2) else None)
+
+
+class RequestGuard:
+    """The Host / Origin / token checks of one server.
+
+    Parameters
+    ----------
+    token
+        The session's secret (``secrets.token_urlsafe``).
+    hosts
+        The host names the server answers to (loopback names by default; add the
+        bound address and the machine's name when bound to another interface).
+    port
+        The port it listens on; when given, ``Host`` must carry it.
+    guard_reads
+        Require the token on reads too (query ``?token=``, header or the cookie the
+        page sets): when bound to anything but localhost.
+    """
+
+    def __init__(
+        self,
+        token: str,
+        hosts: Iterable[str] = LOOPBACK_NAMES,
+        port: int | None = None,
+        guard_reads: bool = False,
+    ):
+        self.token = token
+        self.hosts = {f"[{h}]" if ":" in h and not h.startswith("[") else h.lower() for h in hosts}
+        self.port = port
+        self.guard_reads = guard_reads
+
+    def token_matches(self, supplied: str | None) -> bool:
+        return supplied is not None and hmac.compare_digest(
+            supplied.encode("utf-8", "replace"), self.token.encode()
+        )
+
+    def check_origin(self, headers: Any) -> None:
+        """``Host`` is this server, ``Origin`` (when sent) is this server's origin.
+
+        Raises
+        ------
+        RequestRefused
+            403 naming what was wrong.
+        """
+        host = headers.get("host") or ""
+        name, port = split_host(host)
+        if name not in self.hosts or (self.port is not None and port != self.port):
+            raise RequestRefused(
+                403,
+                f"refused: Host {host[:80]!r} is not this server; open flylib gui at the "
+                "address it printed",
+            )
+        if headers.get("sec-fetch-site") == "cross-site":
+            raise RequestRefused(403, "refused: a request from another site")
+        origin = headers.get("origin")
+        if origin is not None and origin.lower() not in (f"http://{host}", f"https://{host}"):
+            raise RequestRefused(
+                403,
+                f"refused: a request from another origin ({origin[:80]!r}); flylib gui "
+                "answers only its own page",
+            )
+
+    def check_mutation_token(self, supplied: str | None) -> None:
+        if not self.token_matches(supplied):
+            raise RequestRefused(
+                403,
+                "refused: missing or wrong session token (X-Flylib-Token); reload the page "
+                "flylib gui printed",
+            )
+
+    def ws_token(self, protocols: str | None, query_token: str | None) -> str | None:
+        """The token a WebSocket handshake offers (a sub-protocol, or ``?token=``)."""
+        for item in (protocols or "").split(","):
+            item = item.strip()
+            if item.startswith(WS_TOKEN_PREFIX):
+                return item[len(WS_TOKEN_PREFIX) :]
+        return query_token
+
+
+def check_json_content_type(content_type: str | None) -> None:
+    """Only ``application/json`` (a ``text/plain`` or form POST needs no pre-flight).
+
+    Raises
+    ------
+    RequestRefused
+        415.
+    """
+    media = (content_type or "").split(";")[0].strip().lower()
+    if media != "application/json":
+        raise RequestRefused(
+            415, f"refused: Content-Type {media or 'none'!r}; send application/json"
+        )
+
+
+def parse_json(body: bytes, what: str = "the body") -> Any:
+    """``body`` as JSON, refused when larger than :data:`MAX_BODY` or nested deeper
+    than :data:`MAX_DEPTH` (checked before parsing, so no recursion limit is hit).
+
+    Raises
+    ------
+    RequestRefused
+        413 (too large; the body is never echoed) or 400 (not JSON, too deep).
+    """
+    if len(body) > MAX_BODY:
+        raise RequestRefused(413, f"refused: {what} is larger than {MAX_BODY // 1024} KiB")
+    depth = json_depth(body)
+    if depth > MAX_DEPTH:
+        raise RequestRefused(400, f"refused: {what} nests deeper than {MAX_DEPTH} levels")
+    try:
+        return json.loads(body)
+    except (ValueError, RecursionError):
+        raise RequestRefused(400, f"refused: {what} is not valid JSON") from None
+
+
+def json_depth(body: bytes) -> int:
+    """The deepest ``[``/``{`` nesting of a JSON text (brackets inside strings ignored)."""
+    depth = deepest = 0
+    for char in _STRING.sub(b'""', body):
+        if char in b"[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in b"]}":
+            depth -= 1
+    return deepest
