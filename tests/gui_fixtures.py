@@ -97,3 +97,44 @@ def write_seed_sidecar(
         g3["points3d"] = points3d
         g3["edited"] = edited3d
     return path
+
+
+#: A name that runs script wherever a page builds HTML from data (issue 25's stored XSS).
+HOSTILE_NAME = '<img src=x onerror="window.flylibPwned=1">'
+
+
+def rename_hostile(outdir: Path) -> tuple[str, str]:
+    """Rewrite ``outdir/results.h5`` with its first camera and first point renamed to
+    script-carrying HTML (as a foreign or tampered results.h5 could hold); returns the
+    two new names."""
+    from dataclasses import replace
+
+    from flylib.cameras import CameraGroup
+    from flylib.results import PoseResult
+
+    result = PoseResult.load(outdir / "results.h5")
+    camera, point = HOSTILE_NAME, HOSTILE_NAME.replace("=1", "=2")
+    old_camera = result.cameras.names[0]
+    old_point = result.skeleton.point_names[0]
+    cameras = CameraGroup(
+        {
+            (camera if name == old_camera else name): replace(
+                cam, name=camera if name == old_camera else name
+            )
+            for name, cam in zip(result.cameras.names, result.cameras, strict=True)
+        }
+    )
+    rename = {old_point: point}
+    skeleton = replace(
+        result.skeleton,
+        point_names=tuple(rename.get(p, p) for p in result.skeleton.point_names),
+        limbs={k: tuple(rename.get(p, p) for p in v) for k, v in result.skeleton.limbs.items()},
+    )
+    sizes = result.image_sizes or {}
+    image_sizes = {
+        (camera if name == old_camera else name): size for name, size in sizes.items()
+    } or None
+    replace(result, cameras=cameras, skeleton=skeleton, image_sizes=image_sizes).save(
+        outdir / "results.h5"
+    )
+    return camera, point

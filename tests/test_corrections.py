@@ -192,3 +192,94 @@ def test_reconstruct_corrected_takes_the_rig_first():
     pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
     with pytest.raises(TypeError, match="rig before the points"):
         reconstruct_corrected(config, pts, cameras)
+
+
+# -- integrity (issue 25) ---------------------------------------------------------------
+
+
+def _flip_a_byte_of(path, dataset):
+    """Flip one byte inside ``dataset``'s stored chunk (as bit rot or a bad copy would)."""
+    with h5py.File(path, "r") as f:
+        info = f[dataset].id.get_chunk_info(0)
+    with open(path, "r+b") as raw:
+        raw.seek(info.byte_offset + 8)
+        byte = raw.read(1)
+        raw.seek(info.byte_offset + 8)
+        raw.write(bytes([byte[0] ^ 0x40]))
+
+
+def test_flylib_writes_every_dataset_fletcher32_checksummed(tmp_path):
+    from flylib.results import verify_file
+
+    c = Corrections.empty(2, 3, 4)
+    c.set_point(1, 2, 3, (5.5, 6.5))
+    c.revision = 7
+    path = c.save(tmp_path / "corrections.h5")
+    unchecked = []
+    assert verify_file(path, unchecked=unchecked) == [] and unchecked == []
+    with h5py.File(path) as f:
+        names = []
+        f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+        assert len(names) == 6 and all(f[n].fletcher32 for n in names)
+    assert Corrections.load(path).revision == 7
+
+
+@pytest.mark.parametrize(
+    "dataset",
+    ["pose2d_corrections/points", "pose2d_corrections/edited", "pose3d_corrections/points3d"],
+)
+def test_flipped_bytes_are_one_error_at_load_never_applied(tmp_path, dataset):
+    c = Corrections.empty(2, 3, 4)
+    c.set_point(1, 2, 3, (5.5, 6.5))
+    c.set_point3d(0, 1, (0.1, 0.2, 0.3))
+    path = c.save(tmp_path / "corrections.h5")
+    _flip_a_byte_of(path, dataset)
+    with pytest.raises(ResultsError, match=rf"corrections.h5: dataset {dataset} is damaged") as err:
+        Corrections.load(path)
+    assert "\n" not in str(err.value) and "nothing was applied" in str(err.value)
+
+
+def test_infinite_or_out_of_image_edits_are_one_error_at_load(tmp_path):
+    shape = (2, 3, 4)
+    path = tmp_path / "corrections.h5"
+    # written by hand in the seed's layout (no checksums), as a tampered file would be
+    write_seed_sidecar(path, shape, edits3d=[(1, 2, np.inf, 0.0, 0.0)])
+    with pytest.raises(
+        ResultsError, match=r"points3d holds an infinite value at index \(1, 2, 0\)"
+    ):
+        Corrections.load(path)
+    write_seed_sidecar(path, shape, edits2d=[(0, 1, 2, -np.inf, 4.0)])
+    with pytest.raises(ResultsError, match="points holds an infinite value"):
+        Corrections.load(path)
+    write_seed_sidecar(path, shape, edits3d=[(1, 2, np.nan, 0.0, 0.0)])
+    with pytest.raises(ResultsError, match="the 3D edit of frame 1, point 2 is not a finite"):
+        Corrections.load(path)
+    write_seed_sidecar(path, shape, edits2d=[(1, 0, 3, 1e308, 4.0)])
+    assert Corrections.load(path).edited[1, 0, 3]  # sizes unknown: accepted as the seed does
+    with pytest.raises(
+        ResultsError, match=r"view 1, frame 0, point 3 at \(1e\+308, 4\) lies outside the 960x480"
+    ):
+        Corrections.load(path, shape, [(480, 960), (480, 960)])
+    # a deliberate NaN edit (the seed's "remove") is not an error
+    write_seed_sidecar(path, shape, edits2d=[(1, 0, 3, np.nan, np.nan)])
+    assert Corrections.load(path, shape, [(480, 960), None]).edited[1, 0, 3]
+    # and flylib never writes such a file
+    bad = Corrections.empty(*shape)
+    bad.set_point3d(0, 0, (np.inf, 0.0, 0.0))
+    with pytest.raises(ResultsError, match="not saved, points3d holds an infinite"):
+        bad.save(tmp_path / "other.h5")
+    assert not (tmp_path / "other.h5").exists()
+
+
+def test_the_triangulation_stage_refuses_an_out_of_image_sidecar(outdir, tmp_path):
+    path = write_seed_sidecar(
+        tmp_path / "corrections.h5", (7, FRAMES, 38), edits2d=[(0, 1, 2, 1e308, 5.0)]
+    )
+    with pytest.raises(ResultsError, match="lies outside the 960x480 image; nothing was applied"):
+        run_triangulation(
+            Config.from_file(outdir / "config.yaml"),
+            outdir / "stages" / "pose2d.h5",
+            tmp_path / "triangulation.h5",
+            corrections_path=path,
+        )
+    assert not (tmp_path / "triangulation.h5").exists()

@@ -190,21 +190,13 @@ def create_app(
     async def ws(websocket: WebSocket) -> None:
         try:
             guard.check_origin(websocket.headers)
-            guard.check_mutation_token(
-                guard.ws_token(
-                    websocket.headers.get("sec-websocket-protocol"),
-                    websocket.query_params.get("token"),
-                )
-            )
+            offered = _offered_protocols(websocket)
+            guard.check_mutation_token(guard.ws_token(offered, websocket.query_params.get("token")))
         except RequestRefused as exc:
             log.warning("flylib gui: WebSocket %s", exc)
             await websocket.close(code=1008)
             return
-        offered = websocket.headers.get("sec-websocket-protocol") or ""
-        subprotocol = (
-            WS_PROTOCOL if WS_PROTOCOL in [p.strip() for p in offered.split(",")] else None
-        )
-        await websocket.accept(subprotocol=subprotocol)
+        await websocket.accept(subprotocol=WS_PROTOCOL if WS_PROTOCOL in offered else None)
         sockets.add(websocket)
         try:
             while True:
@@ -299,6 +291,15 @@ def create_app(
         }
 
     return app
+
+
+def _offered_protocols(websocket: WebSocket) -> list[str]:
+    """The sub-protocols a handshake offers (the server puts them in the ASGI scope;
+    the raw header is the fallback)."""
+    offered = websocket.scope.get("subprotocols") or (
+        websocket.headers.get("sec-websocket-protocol") or ""
+    ).split(",")
+    return [str(p).strip() for p in offered]
 
 
 #: HTTP status of each refusal a REST edit or save can meet.

@@ -134,10 +134,9 @@ class RequestGuard:
                 "flylib gui printed",
             )
 
-    def ws_token(self, protocols: str | None, query_token: str | None) -> str | None:
+    def ws_token(self, protocols: Iterable[str], query_token: str | None) -> str | None:
         """The token a WebSocket handshake offers (a sub-protocol, or ``?token=``)."""
-        for item in (protocols or "").split(","):
-            item = item.strip()
+        for item in protocols:
             if item.startswith(WS_TOKEN_PREFIX):
                 return item[len(WS_TOKEN_PREFIX) :]
         return query_token
