@@ -115,7 +115,7 @@ def main(argv=None) -> int:
 
         # edits: move one well-seen point by a few pixels
         seen = np.isfinite(session.base2d).all(-1)
-        solve, total = [], []
+        solve, total, journal = [], [], []
         for _ in range(args.repeats):
             t = int(rng.integers(0, args.frames))
             p = int(rng.choice(np.flatnonzero(seen[:, t].sum(axis=0) >= 2)))
@@ -125,6 +125,7 @@ def main(argv=None) -> int:
             reply = session.edit("move", t, p, views[v], xy)
             total.append((time.perf_counter() - begin) * 1000)
             solve.append(reply["solve_ms"])
+            journal.append(reply["journal_ms"])
         session.edit("move3d", 0, p, views[v], session.base2d[v, 0, p])  # imports JAX once
         solve3d = []
         for _ in range(args.repeats):
@@ -137,6 +138,7 @@ def main(argv=None) -> int:
             solve3d.append(session.edit("move3d", t, p, views[v], xy)["solve_ms"])
         print(f"edit, re-solve one point:                 {stats(solve)}")
         print(f"edit, re-solve + the frame's reply:       {stats(total)}")
+        print(f"edit, journal line written and fsync'd:   {stats(journal)} (inside the reply)")
         print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
         begin = time.perf_counter()
         reconstruct_from_config(session.config, session.cameras, session.base2d, session.conf)

@@ -336,3 +336,21 @@ def test_an_unwritable_directory_refuses_each_edit_with_the_reason(outdir):
     finally:
         session.close()
         blocker.unlink()
+
+
+def test_drag_steps_are_flushed_and_the_last_one_fsynced(outdir, monkeypatch):
+    session = ReviewSession(outdir)
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+    try:
+        session.edit(**move(session, dx=1.0), durable=False)
+        after_header = len(synced)  # the new journal's header and directory entry
+        session.edit(**move(session, dx=2.0), durable=False)
+        assert len(synced) == after_header
+        # flushed: another reader sees both positions at once (what kill -9 leaves)
+        assert len(read_journal(session.journal_path).edits) == 2
+        session.edit(**move(session, dx=3.0))
+        assert len(synced) == after_header + 1
+    finally:
+        session.close()

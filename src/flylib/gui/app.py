@@ -10,7 +10,8 @@ Routes::
     GET  /api/suspects              suspect (frame, point) pairs and the per-frame score
     POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
     POST /api/save                  write corrections.h5 beside results.h5
-    WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision"}
+    WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision",
+                                    "durable"}
                                     -> points (op: move, move3d, invisible, reset_point,
                                     reset_view, reset_frame; or {"op": "save"}); other
                                     pages' edits arrive as {"op": "changed", "revision"}
@@ -262,6 +263,7 @@ def create_app(
                 message.get("view"),
                 message.get("xy"),
                 revision=message.get("revision"),
+                durable=message.get("durable", True) is not False,
             )
         except StaleRevision as exc:
             return {"op": "stale", "error": str(exc), "revision": exc.current}

@@ -96,8 +96,12 @@ class EditJournal:
         self.path = journal_path(self.sidecar)
         self._file = None
 
-    def append(self, record: dict, sidecar_revision: int) -> None:
-        """Write one edit and fsync it.
+    def append(self, record: dict, sidecar_revision: int, *, durable: bool = True) -> None:
+        """Write one edit and flush it; fsync it too when ``durable``.
+
+        A flushed line survives the server's death (a crash, ``kill -9``); fsync also
+        makes it survive the machine's. The page asks for ``durable=False`` only for
+        the intermediate positions of a drag, whose last position comes durable.
 
         Raises
         ------
@@ -116,9 +120,9 @@ class EditJournal:
                         "sidecar_revision": int(sidecar_revision),
                         "created_utc": datetime.now(UTC).isoformat(),
                     }
-                    self._write(header)
+                    self._write(header, durable=True)
                     _fsync_dir(self.path.parent)
-            self._write(record)
+            self._write(record, durable=durable)
         except OSError as err:
             self.close()
             raise OutputError(
@@ -126,11 +130,12 @@ class EditJournal:
                 "Free disk space or make the directory writable, then edit again"
             ) from None
 
-    def _write(self, record: dict) -> None:
+    def _write(self, record: dict, *, durable: bool) -> None:
         line = json.dumps({"record": record, "crc": _crc(record)}, separators=(",", ":"))
         self._file.write(line.encode() + b"\n")
         self._file.flush()
-        os.fsync(self._file.fileno())
+        if durable:
+            os.fsync(self._file.fileno())
 
     def discard(self) -> None:
         """Remove the journal (its edits are in the saved sidecar now)."""

@@ -383,6 +383,7 @@ class ReviewSession:
         xy: Any = None,
         *,
         revision: int | None = None,
+        durable: bool = True,
     ) -> dict:
         """Check one edit, journal it (fsync'd), apply it and re-solve what it touched.
 
@@ -400,12 +401,17 @@ class ReviewSession:
         revision
             The revision the page last saw; an edit against an older one is refused
             (:class:`StaleRevision`), so a stale tab never overwrites a newer edit.
+        durable
+            fsync the journal line (default); ``False`` only flushes it, which
+            survives a crash of the server but not of the machine (the page's
+            intermediate drag positions, whose final one comes durable).
 
         Returns
         -------
         dict
             :meth:`points` of the frame after the edit (with the new ``revision``),
-            plus ``solve_ms`` (the time spent re-solving).
+            plus ``solve_ms`` (the time spent re-solving) and ``journal_ms`` (writing
+            and fsync-ing the journal line).
 
         Raises
         ------
@@ -420,15 +426,18 @@ class ReviewSession:
             self._check_revision(revision)
             started = time.perf_counter()
             record = self._plan(op, frame, point, view, xy)
-            self._journal.append(record, self.corrections.revision)
+            planned = time.perf_counter()
+            self._journal.append(record, self.corrections.revision, durable=durable)
+            journaled = time.perf_counter()
             points = self._apply_record(record)
             self.revision += 1
             for p in points:
                 self._resolve(record["frame"], p)
-            solve_ms = (time.perf_counter() - started) * 1000
+            solve_ms = (time.perf_counter() - journaled + planned - started) * 1000
             self.dirty = True
             reply = self.points(record["frame"])
             reply["solve_ms"] = round(solve_ms, 2)
+            reply["journal_ms"] = round((journaled - planned) * 1000, 2)
             return reply
 
     @property
@@ -471,6 +480,8 @@ class ReviewSession:
 
     def _check_xy(self, view: str, xy: Any) -> list[float]:
         """Two finite pixel coordinates inside ``view``'s image, as floats."""
+        if isinstance(xy, np.ndarray) and xy.dtype.kind == "f":
+            xy = xy.tolist()
         if (
             not isinstance(xy, (list, tuple))
             or len(xy) != 2

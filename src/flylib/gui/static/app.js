@@ -358,7 +358,9 @@ async function flushDrag(view, drag) {
   while (drag.pending) {
     const xy = drag.pending;
     drag.pending = null;
-    await sendEdit({ op: state.mode === "3d" ? "move3d" : "move", view: view.name, point: drag.point, xy });
+    // the drag's last position is fsync'd on the server; the ones before are only flushed
+    const durable = Boolean(drag.final);
+    await sendEdit({ op: state.mode === "3d" ? "move3d" : "move", view: view.name, point: drag.point, xy, durable });
   }
   drag.sending = false;
   if (drag.final) {
