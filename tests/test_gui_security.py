@@ -417,3 +417,16 @@ def test_a_real_server_refuses_rebinding_and_foreign_websockets(app, real_server
     assert accepted.startswith("HTTP/1.1 101") and "flylib.v1" in accepted
     assert nothing_changed(app)
     assert np.isfinite(app.state.session.pts3d).any()
+
+
+def test_bound_elsewhere_any_host_name_works_but_only_with_the_token(outdir):
+    session = ReviewSession(outdir)
+    try:
+        app = create_app(session, token="s3cret", hosts=None)
+        with client_for(app, base_url="http://node17.cluster:8765") as c:
+            assert c.get("/api/meta").status_code == 403  # a rebinding page has no token
+            assert c.get("/api/meta?token=s3cret").status_code == 200
+            foreign = c.get("/api/meta?token=s3cret", headers={"Origin": "http://evil.example"})
+            assert foreign.status_code == 403
+    finally:
+        session.close()

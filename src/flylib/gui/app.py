@@ -62,7 +62,7 @@ def create_app(
     token: str | None = None,
     *,
     guard_reads: bool | None = None,
-    hosts: Iterable[str] = LOOPBACK_NAMES,
+    hosts: Iterable[str] | None = LOOPBACK_NAMES,
     port: int | None = None,
 ) -> FastAPI:
     """The app serving one :class:`ReviewSession`.
@@ -82,7 +82,7 @@ def create_app(
         localhost).
     hosts, port
         The host names (and port) the server answers to; any other ``Host`` header
-        is refused (DNS rebinding).
+        is refused (DNS rebinding). ``hosts=None``: any (with ``guard_reads``).
     """
     if guard_reads is None:
         guard_reads = token is not None

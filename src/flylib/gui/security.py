@@ -74,8 +74,9 @@ class RequestGuard:
     token
         The session's secret (``secrets.token_urlsafe``).
     hosts
-        The host names the server answers to (loopback names by default; add the
-        bound address and the machine's name when bound to another interface).
+        The host names the server answers to (loopback names by default); ``None``:
+        any, for a server bound to another interface, whose every request needs the
+        token anyway (``guard_reads``), which a rebinding page does not have.
     port
         The port it listens on; when given, ``Host`` must carry it.
     guard_reads
@@ -86,12 +87,16 @@ class RequestGuard:
     def __init__(
         self,
         token: str,
-        hosts: Iterable[str] = LOOPBACK_NAMES,
+        hosts: Iterable[str] | None = LOOPBACK_NAMES,
         port: int | None = None,
         guard_reads: bool = False,
     ):
         self.token = token
-        self.hosts = {f"[{h}]" if ":" in h and not h.startswith("[") else h.lower() for h in hosts}
+        self.hosts = (
+            None
+            if hosts is None
+            else {f"[{h}]" if ":" in h and not h.startswith("[") else h.lower() for h in hosts}
+        )
         self.port = port
         self.guard_reads = guard_reads
 
@@ -110,7 +115,8 @@ class RequestGuard:
         """
         host = headers.get("host") or ""
         name, port = split_host(host)
-        if name not in self.hosts or (self.port is not None and port != self.port):
+        known = self.hosts is None or name in self.hosts
+        if not known or (self.port is not None and port != self.port):
             raise RequestRefused(
                 403,
                 f"refused: Host {host[:80]!r} is not this server; open flylib gui at the "

@@ -78,7 +78,7 @@ def serve(
         session,
         token=token,
         guard_reads=not loopback,
-        hosts=LOOPBACK_NAMES if loopback else (*LOOPBACK_NAMES, *served_names(host)),
+        hosts=LOOPBACK_NAMES if loopback else None,  # elsewhere every request needs the token
     )
     shown = (
         "localhost" if loopback else (socket.gethostname() if host in ("0.0.0.0", "::") else host)
@@ -110,16 +110,3 @@ def serve(
                 "`flylib gui` on this recording replays them"
             )
         session.close()
-
-
-def served_names(host: str) -> tuple[str, ...]:
-    """The host names a server bound to ``host`` (not loopback) may be reached by."""
-    if host not in ("0.0.0.0", "::"):
-        return (host,)
-    names = {socket.gethostname(), socket.getfqdn()}
-    for name in list(names):
-        try:
-            names |= {info[4][0] for info in socket.getaddrinfo(name, None)}
-        except OSError:
-            continue
-    return tuple(sorted(names))
