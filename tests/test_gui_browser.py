@@ -96,6 +96,22 @@ def wait_for(driver, script, timeout=60.0):
     raise AssertionError(f"timed out waiting for: {script}\nstatus: {page_status}")
 
 
+def drag(driver, canvas, pos, dx, dy):
+    """Press on the page position ``pos`` (``window.flylib.screenPosition``) inside
+    ``canvas`` and drag by ``(dx, dy)`` CSS pixels in three real mouse moves."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    actions = ActionChains(driver)
+    actions.move_to_element_with_offset(
+        canvas, round(pos["x"] - pos["width"] / 2), round(pos["y"] - pos["height"] / 2)
+    )
+    actions.click_and_hold()
+    for _ in range(3):
+        actions.move_by_offset(dx // 3, dy // 3)
+    actions.release()
+    actions.perform()
+
+
 def test_review_drag_save_and_rerun_plan(demo_run, server):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
@@ -148,15 +164,7 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         body.send_keys("e")  # Edit 2D on
         assert driver.execute_script("return window.flylib.state.editMode")
         dx, dy = 18, 12
-        actions = ActionChains(driver)
-        actions.move_to_element_with_offset(
-            canvas, round(pos["x"] - pos["width"] / 2), round(pos["y"] - pos["height"] / 2)
-        )
-        actions.click_and_hold()
-        for _ in range(3):
-            actions.move_by_offset(dx // 3, dy // 3)
-        actions.release()
-        actions.perform()
+        drag(driver, canvas, pos, dx, dy)
         wait_for(
             driver,
             f"return window.flylib.state.data.views[{v}].edited[{point}] && !window.flylib.busy()",

@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from test_gui_browser import _browser, wait_for
+from test_gui_browser import _browser, drag, wait_for
 
 from flylib.gui.journal import read_journal
 
@@ -67,7 +67,6 @@ def open_page(driver, url):
 
 def drag_a_point(driver, dx=18, dy=12):
     """Edit 2D on, drag the first drawn point of the first view; returns (view, point)."""
-    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
 
     data = driver.execute_script("return window.flylib.state.data")
@@ -77,15 +76,7 @@ def drag_a_point(driver, dx=18, dy=12):
     canvas = driver.find_elements(By.CSS_SELECTOR, ".view canvas")[0]
     if not driver.execute_script("return window.flylib.state.editMode"):
         driver.find_element(By.TAG_NAME, "body").send_keys("e")
-    actions = ActionChains(driver)
-    actions.move_to_element_with_offset(
-        canvas, round(pos["x"] - pos["width"] / 2), round(pos["y"] - pos["height"] / 2)
-    )
-    actions.click_and_hold()
-    for _ in range(3):
-        actions.move_by_offset(dx // 3, dy // 3)
-    actions.release()
-    actions.perform()
+    drag(driver, canvas, pos, dx, dy)
     return view, point
 
 

@@ -47,6 +47,7 @@ def start(outdir, *args):
         lines.append(line)
         match = re.search(r"open (http://\S+)", line)
         if match:
+            proc.printed = "".join(lines)  # what it said before the URL
             return proc, match.group(1)
         if proc.poll() is not None:
             break

@@ -24,6 +24,7 @@ import pytest
 pytest.importorskip("fastapi", reason="the GUI needs fastapi (pip install fastapi uvicorn httpx)")
 import httpx
 from fastapi.testclient import TestClient
+from test_gui_cli import start
 
 from flylib.config import Config
 from flylib.corrections import Corrections
@@ -78,24 +79,9 @@ def move(session, frame=1, point=3, dx=0.0, view=0):
 
 
 def start_gui(outdir):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "flylib.cli", "gui", str(outdir), "--no-browser", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    lines = []
-    deadline = time.time() + 120
-    while time.time() < deadline:
-        line = proc.stdout.readline()
-        lines.append(line)
-        match = re.search(r"open http://localhost:(\d+)/", line)
-        if match:
-            return proc, int(match.group(1)), "".join(lines)
-        if proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError("flylib gui printed no URL:\n" + "".join(lines))
+    """``flylib gui`` in a subprocess: it, its port and what it printed."""
+    proc, url = start(outdir)
+    return proc, int(re.search(r":(\d+)/", url).group(1)), proc.printed
 
 
 def page_token(base):
