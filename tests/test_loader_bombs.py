@@ -1,0 +1,127 @@
+"""Small files that would make a loader allocate without bound (issue 24): DeepFly3D
+pickles (shared, deep, cyclic structures; constructors asked for huge sizes; declared
+lengths beyond the file) and DeepLabCut CSVs with millions of columns. Each is one
+``ImportFormatError`` line naming the file, raised before anything large is built."""
+
+from __future__ import annotations
+
+import pickle
+import struct
+
+import numpy as np
+import pytest
+
+from flylib.errors import ImportFormatError
+from flylib.interop import read_df3d_points2d, safe_pickle
+from flylib.interop.safe_pickle import load_restricted
+
+SIZES = [(480, 960)] * 7
+_reconstruct = pytest.importorskip("numpy._core.multiarray")._reconstruct
+
+
+def _refused(tmp_path, data: bytes, *fragments: str, load=None) -> str:
+    path = tmp_path / "df3d_result_bomb.pkl"
+    path.write_bytes(data)
+    with pytest.raises(ImportFormatError) as err:
+        (load or (lambda p: read_df3d_points2d(p, SIZES)))(path)
+    text = str(err.value)
+    assert "\n" not in text and text.startswith(str(path)), text
+    for fragment in fragments:
+        assert fragment in text, text
+    return text
+
+
+def _shared_nested(levels: int, width: int = 16) -> list:
+    x = [1.0, 1.0]
+    for _ in range(levels):
+        x = [x] * width
+    return x
+
+
+def test_shared_nested_lists_of_the_probe_are_refused(tmp_path):
+    """The probe's case: a few hundred bytes that np.asarray would expand to 7.8 GB."""
+    data = pickle.dumps({"points2d": _shared_nested(7)}, protocol=2)
+    assert len(data) < 400
+    _refused(tmp_path, data, "shared structure expands to more than 268435456 values")
+
+
+def test_expansion_limit_counts_the_tree_not_the_objects(tmp_path, monkeypatch):
+    """5 distinct lists, a tree of 200,979 values (131,072 numbers, 69,905 lists, the
+    dict and its key): loaded at exactly that limit, refused one below it."""
+    data = pickle.dumps({"points2d": _shared_nested(4)}, protocol=4)
+    path = tmp_path / "x.pkl"
+    path.write_bytes(data)
+    monkeypatch.setattr(safe_pickle, "MAX_EXPANDED_VALUES", 200_979)
+    assert np.asarray(load_restricted(path, "test")["points2d"]).size == 131_072
+    monkeypatch.setattr(safe_pickle, "MAX_EXPANDED_VALUES", 200_978)
+    _refused(
+        tmp_path,
+        data,
+        "expands to more than 200978 values",
+        load=lambda p: load_restricted(p, "test"),
+    )
+
+
+def test_nesting_100000_deep_is_refused(tmp_path):
+    n = 100_000
+    data = b"\x80\x02}X\x08\x00\x00\x00points2d" + b"]" * (n + 1) + b"a" * n + b"s."
+    _refused(tmp_path, data, "containers nested more than 32 deep")
+
+
+def test_a_list_holding_itself_is_refused(tmp_path):
+    cycle: list = []
+    cycle.append(cycle)
+    _refused(tmp_path, pickle.dumps({"points2d": cycle}), "reference cycle")
+
+
+def test_declared_length_beyond_the_file_is_refused_without_allocating(tmp_path):
+    """BINBYTES8 declaring 1 TiB: the C unpickler would allocate it before reading."""
+    data = b"\x80\x04\x8e" + struct.pack("<Q", 1 << 40) + b"abc."
+    _refused(tmp_path, data, "not a readable DeepFly3D 2D result pickle", "1099511627776")
+
+
+class _Call:
+    """Pickles as ``func(*args)`` (a REDUCE of an admitted global)."""
+
+    def __init__(self, func, *args):
+        self.func, self.args = func, args
+
+    def __reduce__(self):
+        return self.func, self.args
+
+
+@pytest.mark.parametrize(
+    ("call", "fragment"),
+    [
+        # the admitted type itself, called: an 80 GB allocation
+        (_Call(np.ndarray, (10**10,)), "shape (10000000000,) and dtype float64"),
+        (_Call(np.ndarray, (10**5,), np.dtype(("f8", (10**5,)))), "dtype ('<f8', (100000,))"),
+        (_Call(_reconstruct, np.ndarray, (10**10,), b"b"), "(10000000000,)"),
+        (_Call(bytes, 10**12), "(1000000000000,)"),
+        (_Call(bytearray, 10**12), "(1000000000000,)"),
+    ],
+    ids=["ndarray", "ndarray-subarray-dtype", "_reconstruct", "bytes", "bytearray"],
+)
+@pytest.mark.parametrize("protocol", [2, 4])
+def test_admitted_constructors_asked_for_huge_sizes_are_refused(tmp_path, call, fragment, protocol):
+    _refused(tmp_path, pickle.dumps({"points2d": call}, protocol=protocol), fragment)
+
+
+def test_str_of_a_shared_structure_is_refused(tmp_path):
+    """str() of nested shared lists prints the whole expansion."""
+    inner = pickle.dumps(_shared_nested(7), protocol=2)[2:-1]
+    data = b"\x80\x02c__builtin__\nstr\n(" + inner + b"tR."
+    _refused(tmp_path, data, "str() of a list")
+
+
+def test_plain_data_and_arrays_still_load(tmp_path):
+    value = {
+        "points2d": np.random.default_rng(0).uniform(size=(7, 3, 38, 2)),
+        "l": [b"x", bytearray(b"y"), "z", 3, (1.0, None)],
+    }
+    for protocol in (0, 2, 5):
+        path = tmp_path / f"ok{protocol}.pkl"
+        path.write_bytes(pickle.dumps(value, protocol=protocol))
+        back = load_restricted(path, "test")
+        np.testing.assert_array_equal(back["points2d"], value["points2d"])
+        assert back["l"] == value["l"]
