@@ -125,3 +125,74 @@ def test_plain_data_and_arrays_still_load(tmp_path):
         back = load_restricted(path, "test")
         np.testing.assert_array_equal(back["points2d"], value["points2d"])
         assert back["l"] == value["l"]
+
+
+# -- config files and JSON nested without bound -------------------------------------------------
+
+NESTED = {
+    "flow-100000.yaml": lambda: "pose2d: " + "[" * 100_000 + "]" * 100_000,
+    "flow-900.yaml": lambda: "pose2d: " + "[" * 900 + "]" * 900,
+    "block-2000.yaml": lambda: (
+        "".join(" " * i + "k:\n" for i in range(2000)) + " " * 2000 + "v: 1\n"
+    ),
+    "self-alias.yaml": lambda: "pose2d: &x [*x]\n",
+    "laughs.yaml": lambda: (
+        "a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+        + "".join(
+            f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join([f'*{chr(97 + i)}'] * 10)}]\n"
+            for i in range(8)
+        )
+    ),
+    "inline-100000.toml": lambda: "a = " + "[" * 100_000 + "]" * 100_000,
+    "inline-tables-900.toml": lambda: "a = " + "{x = " * 900 + "1" + "}" * 900,
+    "dotted-100000.toml": lambda: "a" + ".a" * 100_000 + " = 1\n",
+    "header-100000.toml": lambda: "[a" + ".a" * 100_000 + "]\nx = 1\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(NESTED))
+def test_check_config_on_deep_nesting_is_one_line(tmp_path, capsys, name):
+    from flylib.cli import main
+
+    path = tmp_path / name
+    path.write_text(NESTED[name]())
+    assert main(["check-config", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and str(path) in err, err
+    assert any(
+        what in err
+        for what in ("nested more than 64 levels", "contains itself", "expands to more than")
+    ) or ("maximum nesting depth" in err and "100000" in name), err
+
+
+def test_a_config_nested_as_deep_as_the_bound_still_loads(tmp_path):
+    from flylib.config.loading import MAX_NESTING, _parse_text
+
+    inner = "[" * (MAX_NESTING - 1) + "]" * (MAX_NESTING - 1)
+    assert _parse_text(f"a: {inner}\n", "yaml", "x")["a"] is not None
+    assert _parse_text(f"a = {inner}\n", "toml", "x")["a"] is not None
+    with pytest.raises(Exception, match="nested more than 64"):
+        _parse_text(f"a: [{inner}]\n", "yaml", "x")
+
+
+def test_deep_json_argument_is_one_config_error():
+    from flylib.config.loading import parse_json
+    from flylib.errors import ConfigError
+
+    assert parse_json('{"format": "dlc_csv", "files": {"rh": "a.csv"}}', "--x")["format"]
+    for text in ("[" * 100_000 + "]" * 100_000, "[" * 65 + "]" * 65):
+        with pytest.raises(ConfigError, match=r"^--import-spec: (nested|is nested) more than 64"):
+            parse_json(text, "--import-spec")
+
+
+@pytest.mark.parametrize(
+    "text", ["[cam_0]\nx = " + "[" * 100_000 + "]" * 100_000, "cam_0" + ".a" * 100_000 + " = 1\n"]
+)
+def test_deeply_nested_anipose_calibration_is_one_line(tmp_path, text):
+    from flylib.interop import read_anipose_toml
+
+    path = tmp_path / "calibration.toml"
+    path.write_text(text)
+    with pytest.raises(ImportFormatError, match="nested more than 64 levels deep") as err:
+        read_anipose_toml(path)
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
