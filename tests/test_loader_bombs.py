@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from flylib.errors import ImportFormatError
-from flylib.interop import read_df3d_points2d, safe_pickle
+from flylib.interop import read_df3d_points2d, read_dlc_csv, safe_pickle
 from flylib.interop.safe_pickle import load_restricted
 
 SIZES = [(480, 960)] * 7
@@ -196,3 +196,48 @@ def test_deeply_nested_anipose_calibration_is_one_line(tmp_path, text):
     with pytest.raises(ImportFormatError, match="nested more than 64 levels deep") as err:
         read_anipose_toml(path)
     assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+# -- DeepLabCut CSV with millions of columns ---------------------------------------------------
+
+
+@pytest.mark.parametrize("where", ["scorer", "bodyparts", "data"])
+def test_dlc_csv_with_3_million_columns_is_one_line(tmp_path, where):
+    """The probe's case (3M columns: > 120 s and 3 GB before) in the first header row, a
+    later header row, or a data row under a normal header."""
+    wide = ",x" * 3_000_000
+    head = ["scorer,DLC,DLC,DLC", "bodyparts,head,head,head", "coords,x,y,likelihood"]
+    rows = ["0,1,2,0.9"]
+    if where == "data":
+        rows[0] += wide
+    else:
+        i = 0 if where == "scorer" else 1
+        head[i] += wide
+    path = tmp_path / "rh.csv"
+    path.write_text("\n".join(head + rows) + "\n")
+    with pytest.raises(ImportFormatError) as err:
+        read_dlc_csv(path)
+    text = str(err.value)
+    assert text.startswith(str(path)) and "\n" not in text, text
+    if where != "data":
+        assert "more than 100000 columns" in text, text
+
+
+def test_dlc_csv_column_bound_is_exact(tmp_path, monkeypatch):
+    from flylib.interop import dlc
+
+    monkeypatch.setattr(dlc, "MAX_CSV_COLUMNS", 301)  # the index column + 100 body parts
+    for parts, loads in ((100, True), (101, False)):
+        head = [
+            "scorer" + ",DLC" * (3 * parts),
+            "bodyparts" + "".join(f",p{k},p{k},p{k}" for k in range(parts)),
+            "coords" + ",x,y,likelihood" * parts,
+        ]
+        path = tmp_path / f"rh{parts}.csv"
+        path.write_text("\n".join([*head, "0" + ",1,2,0.5" * parts]) + "\n")
+        if loads:
+            kp = read_dlc_csv(path)
+            assert kp.xy.shape == (1, parts, 2) and (kp.xy == [1, 2]).all()
+        else:
+            with pytest.raises(ImportFormatError, match="line 1 has more than 301 columns"):
+                read_dlc_csv(path)

@@ -76,11 +76,31 @@ _CSV_ERRORS = (
 )
 
 
+#: Most columns a DeepLabCut CSV may have: 3 per body part and individual (33,333
+#: body parts of one animal, or 38 points of 877 individuals).
+MAX_CSV_COLUMNS = 100_000
+#: Longest header line read (characters): 100,000 cells of about 160 characters.
+_MAX_HEADER_LINE = 16 << 20
+
+
 def _read_header(path: Path) -> list[list[str]]:
-    """The header rows: the leading rows whose first cell is a DeepLabCut level name."""
+    """The header rows: the leading rows whose first cell is a DeepLabCut level name.
+
+    Each line is read with a length bound and its columns counted before it is split,
+    so a file of millions of columns is one error in milliseconds, not gigabytes of cells.
+    """
     rows = []
     with path.open(newline="", encoding="utf-8") as fh:
-        for row in csv.reader(fh):
+        while True:
+            line = fh.readline(_MAX_HEADER_LINE + 1)
+            columns = line.count(",") + 1
+            if len(line) > _MAX_HEADER_LINE or columns > MAX_CSV_COLUMNS:
+                raise ImportFormatError(
+                    f"{path}: line {len(rows) + 1} has more than {MAX_CSV_COLUMNS} columns "
+                    "(a DeepLabCut CSV has 3 per body part and individual); check that this "
+                    "is the tool's 2D output"
+                )
+            row = next(csv.reader([line]), [])
             if not row or row[0].strip() not in _HEADER_LEVELS:
                 break
             rows.append(row)
