@@ -42,8 +42,10 @@ MAX_PICKLE_OPCODES = 2_000_000
 MAX_EXPANDED_VALUES = 1 << 28
 #: Deepest nesting of containers (DeepFly3D's data nests 3 deep).
 MAX_NESTING = 32
-#: Most bytes one admitted constructor may allocate.
-MAX_ALLOCATION_BYTES = 2 << 30
+#: Most bytes one call of an admitted constructor may allocate. A pickle's arrays
+#: carry their data in the file (``_reconstruct`` of an empty array, then its bytes);
+#: only a crafted file asks a constructor for size.
+MAX_ALLOCATION_BYTES = 256 << 20
 
 
 class PickleBomb(pickle.UnpicklingError):
