@@ -241,3 +241,24 @@ def test_dlc_csv_column_bound_is_exact(tmp_path, monkeypatch):
         else:
             with pytest.raises(ImportFormatError, match="line 1 has more than 301 columns"):
                 read_dlc_csv(path)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "subject:\n" + "".join(" " * (i + 1) + "k:\n" for i in range(600)) + " " * 601 + "v: 1\n",
+        "subject: &x {a: *x}\n",
+    ],
+    ids=["600-deep", "self-alias"],
+)
+def test_deep_nwb_sidecar_is_one_config_error(tmp_path, text):
+    from flylib.errors import ConfigError
+    from flylib.nwb_metadata import read_sidecar
+
+    path = tmp_path / "nwb.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        read_sidecar(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message, message
+    assert "nested more than 64" in message or "contains itself" in message, message

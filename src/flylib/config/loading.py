@@ -48,7 +48,7 @@ def _too_deep(source: str, where: str = "") -> ConfigError:
     )
 
 
-def _yaml_nesting_line(text: str) -> int | None:
+def yaml_nesting_line(text: str) -> int | None:
     """The line where the YAML's nesting first passes :data:`MAX_NESTING`, else ``None``."""
     depth = 0
     for event in yaml.parse(text, Loader=_YamlLoader):
@@ -87,7 +87,7 @@ def _children(node) -> list:
     return list(node) if isinstance(node, list | tuple) else []
 
 
-def _shape_problem(value) -> str | None:
+def shape_problem(value) -> str | None:
     """Why ``value`` is too deep, self-containing or too large when expanded, else
     ``None``; without recursion, each shared member measured once."""
     measured: dict[int, tuple[int, int]] = {}  # id -> (depth, expanded values)
@@ -136,7 +136,7 @@ def parse_json(text: str, source: str) -> object:
         raise _too_deep(source) from None
     except ValueError as err:
         raise ConfigError(f"{source}: not valid JSON ({err}); fix the syntax") from None
-    problem = _shape_problem(value)
+    problem = shape_problem(value)
     if problem:
         raise ConfigError(f"{source}: {problem}; fix the JSON")
     return value
@@ -190,7 +190,7 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
             raise ConfigError(f"{source}: not valid TOML ({err}); fix the syntax") from None
     else:
         try:
-            line = _yaml_nesting_line(text)
+            line = yaml_nesting_line(text)
             if line is not None:
                 raise _too_deep(source, f" (line {line})")
             duplicates = _duplicate_key_problems(yaml.compose(text, Loader=_YamlLoader))
@@ -208,7 +208,7 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
         raise ConfigError(
             f"{source}: the top level must be a mapping of tables, got {type(data).__name__}"
         )
-    problem = _shape_problem(data)
+    problem = shape_problem(data)
     if problem:
         raise ConfigError(f"{source}: the config {problem}; fix the file")
     return data
