@@ -277,3 +277,32 @@ def test_dlc_h5_sparse_value_block_is_refused(tmp_path):
         lambda f, n: f.create_dataset(n, shape=(10**8, 10**4), dtype="<f8", chunks=(64, 64)),
     )
     _one_line_refusal(read_dlc_h5, path, "'df_with_missing/block0_values' declares")
+
+
+def test_import_budget_comes_from_the_recordings_footage(sleap_file, tmp_path, df3d_sample_dir):
+    """The real 15-frame sample's camera_0.mp4 as view rh's footage: a SLEAP file for rh
+    declaring 10 million frames (480 MB, sparse) is under the 2 GiB default but far over
+    what 15 frames can need (the 64 MiB floor), so the import refuses it unread."""
+    from flylib.config import Config
+    from flylib.interop import import_points2d
+    from flylib.interop.views import view_names
+
+    recording = tmp_path / "recording"
+    recording.mkdir()
+    (recording / "camera_0.mp4").symlink_to(df3d_sample_dir / "camera_0.mp4")
+    target = recording / "rh.analysis.h5"
+    shutil.copy(sleap_file, target)
+    _replace(
+        target,
+        "tracks",
+        lambda f, n: f.create_dataset(
+            n, shape=(1, 2, 3, 10**7), dtype="<f8", chunks=(1, 2, 3, 4096)
+        ),
+    )
+    config = Config.default()
+    files = {v: None for v in view_names(config)} | {"rh": "rh.analysis.h5"}
+    with pytest.raises(ImportFormatError) as err:
+        import_points2d(config, recording, {"format": "sleap", "files": files})
+    text = str(err.value)
+    assert text.startswith(str(target)) and "\n" not in text, text
+    assert "declares (1, 2, 3, 10000000)" in text and "more than the 64 MiB" in text, text
