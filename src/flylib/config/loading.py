@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import re
 import tomllib
+from collections.abc import Callable
 from typing import Any
 
 import yaml
@@ -87,36 +88,67 @@ def _children(node) -> list:
     return list(node) if isinstance(node, list | tuple) else []
 
 
-def shape_problem(value) -> str | None:
-    """Why ``value`` is too deep, self-containing or too large when expanded, else
-    ``None``; without recursion, each shared member measured once."""
+def _one(node) -> int:
+    return 1
+
+
+def shape_problem(
+    value,
+    *,
+    children: Callable[[object], list] = _children,
+    weight: Callable[[object], int] = _one,
+    max_values: int = MAX_EXPANDED_VALUES,
+    max_depth: int = MAX_NESTING,
+) -> str | None:
+    """Why ``value`` nests deeper than ``max_depth``, contains itself, or expands (walked
+    as a tree, a shared member counted wherever it appears) to more than ``max_values``
+    values; ``None`` when it does none of these.
+
+    Without recursion, and each shared member measured once, so the cost is the size of
+    the object graph, not of its expansion.
+
+    Parameters
+    ----------
+    value
+        A parsed config, JSON value or unpickled structure.
+    children
+        A node's members (default: a dict's values, a list's or tuple's items).
+    weight
+        How many values a node counts for besides its members (default 1).
+    max_values, max_depth
+        The bounds.
+    """
     measured: dict[int, tuple[int, int]] = {}  # id -> (depth, expanded values)
     on_path: set[int] = set()
     stack: list[tuple[object, bool]] = [(value, False)]
+    too_many = (
+        f"expands to more than {max_values} values (shared members counted wherever they appear)"
+    )
     while stack:
         node, leaving = stack.pop()
         key = id(node)
         if leaving:
             on_path.discard(key)
-            below = [measured[id(child)] for child in _children(node)]
-            depth = 1 + max((d for d, _ in below), default=0)
-            size = 1 + sum(n for _, n in below)
-            if size > MAX_EXPANDED_VALUES:
-                return f"expands to more than {MAX_EXPANDED_VALUES} values through its aliases"
-            measured[key] = (depth, size)
+            below = [measured[id(child)] for child in children(node)]
+            size = weight(node) + sum(n for _, n in below)
+            if size > max_values:
+                return too_many
+            measured[key] = (1 + max(d for d, _ in below), size)
             continue
-        children = _children(node)
+        members = children(node)
         if key in on_path:
-            return "contains itself (a YAML alias of its own ancestor)"
-        if key not in measured and not children:
-            measured[key] = (1 if isinstance(node, dict | list | tuple) else 0, 1)
-        if len(on_path) + measured.get(key, (1, 0))[0] > MAX_NESTING:
-            return f"is nested more than {MAX_NESTING} levels deep"
+            return "contains itself (a reference cycle)"
+        if key not in measured and not members:
+            measured[key] = (1 if isinstance(node, dict | list | tuple | set) else 0, weight(node))
+            if measured[key][1] > max_values:
+                return too_many
+        if len(on_path) + measured.get(key, (1, 0))[0] > max_depth:
+            return f"is nested more than {max_depth} levels deep"
         if key in measured:
             continue
         on_path.add(key)
         stack.append((node, True))
-        stack.extend((child, False) for child in children)
+        stack.extend((child, False) for child in members)
     return None
 
 

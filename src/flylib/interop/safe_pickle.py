@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config.loading import shape_problem
 from ..errors import ImportFormatError
 
 #: Largest pickle file read (a 100,000-frame DeepFly3D 2D result is about 0.5 GB).
@@ -228,7 +229,7 @@ def _prescan(data: bytes) -> None:
             raise PickleBomb(f"more than {MAX_PICKLE_OPCODES} pickle opcodes")
 
 
-def _children(obj) -> list:
+def _members(obj) -> list:
     if isinstance(obj, dict):
         return [*obj.keys(), *obj.values()]
     if isinstance(obj, list | tuple | set | frozenset):
@@ -238,41 +239,24 @@ def _children(obj) -> list:
     return []
 
 
-def _measure(root) -> None:
+def _values(obj) -> int:
+    """A numeric array counts its elements; anything else counts 1 (plus its members)."""
+    return int(obj.size) if isinstance(obj, np.ndarray) and not obj.dtype.hasobject else 1
+
+
+def _measure(value) -> None:
     """Refuse a loaded value that expands, walked as a tree, beyond
     :data:`MAX_EXPANDED_VALUES` values, nests deeper than :data:`MAX_NESTING`, or
-    contains itself. Shared members are measured once (memoized by identity), so the
-    walk costs the pickle's own size, not the expansion."""
-    done: dict[int, int] = {}
-    path: set[int] = set()
-    stack: list[tuple[object, bool]] = [(root, False)]
-    while stack:
-        obj, leaving = stack.pop()
-        key = id(obj)
-        if leaving:
-            path.discard(key)
-            size = 1 + sum(done[id(child)] for child in _children(obj))
-            if isinstance(obj, np.ndarray) and not obj.dtype.hasobject:
-                size += obj.size
-            if size > MAX_EXPANDED_VALUES:
-                raise PickleBomb(
-                    f"its shared structure expands to more than {MAX_EXPANDED_VALUES} values"
-                )
-            done[key] = size
-            continue
-        if key in done:
-            continue
-        if key in path:
-            raise PickleBomb("a container holds itself (a reference cycle)")
-        children = _children(obj)
-        if not children:
-            done[key] = obj.size if isinstance(obj, np.ndarray) else 1
-            continue
-        path.add(key)
-        if len(path) > MAX_NESTING:
-            raise PickleBomb(f"containers nested more than {MAX_NESTING} deep")
-        stack.append((obj, True))
-        stack.extend((child, False) for child in children if id(child) not in done)
+    contains itself (:func:`flylib.config.loading.shape_problem`)."""
+    problem = shape_problem(
+        value,
+        children=_members,
+        weight=_values,
+        max_values=MAX_EXPANDED_VALUES,
+        max_depth=MAX_NESTING,
+    )
+    if problem:
+        raise PickleBomb(f"its value {problem}")
 
 
 def load_restricted(path: str | Path, what: str):
