@@ -1,12 +1,22 @@
 #!/usr/bin/env python
 """pose2d stage: 2D keypoints of one recording (detector, or another tool's files)."""
 
-import json
+import argparse
 from pathlib import Path
 
+from flylib.config.loading import parse_json
+from flylib.errors import ConfigError
 from flylib.pipeline.stages import run_pose2d
 
 from _cli import output_dir, run_script, script_main, script_parser
+
+
+def _import_spec(text: str):
+    """The --import-spec JSON, nesting bounded (a ConfigError line, not a traceback)."""
+    try:
+        return parse_json(text, "--import-spec")
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def main(argv=None, *, job=None) -> int:
@@ -15,7 +25,7 @@ def main(argv=None, *, job=None) -> int:
     parser.add_argument("--out", required=True, type=Path, help="pose2d artifact to write (.h5)")
     parser.add_argument(
         "--import-spec",
-        type=json.loads,
+        type=_import_spec,
         default=None,
         help="JSON pose2d.import spec for this recording (default: the config's)",
     )

@@ -3,7 +3,9 @@
 Each test starts from a valid file of one format, damages it at random (bytes flipped,
 overwritten, inserted, deleted or cut off; cells, values, lines and keys of text formats
 replaced by hostile values; values of pickled dicts and HDF5 datasets swapped for other
-types and shapes), and feeds it to the loader. The property: the loader either returns,
+types and shapes; HDF5 members made to reach beyond the file -- external storage,
+external links, soft links through them, virtual datasets -- or to declare terabytes
+they do not store), and feeds it to the loader. The property: the loader either returns,
 or raises flylib's own error (a :class:`flylib.errors.FlylibError`) whose message names
 the file in one line -- never another exception type.
 
@@ -282,6 +284,59 @@ def test_fuzz_df3d_2d_pickle(data):
     _check(lambda p: read_df3d_points2d(p, [(480, 960)] * 3), path)
 
 
+class _Call:
+    """Pickles as ``func(*args)``: an admitted global called with hostile arguments."""
+
+    def __init__(self, func, *args):
+        self.func, self.args = func, args
+
+    def __reduce__(self):
+        return self.func, self.args
+
+
+def _shared(levels: int, width: int) -> list:
+    x = [0.5, 0.5]
+    for _ in range(levels):
+        x = [x] * width
+    return x
+
+
+def _deep(levels: int) -> list:
+    x: list = [0.5, 0.5]
+    for _ in range(levels):
+        x = [x]
+    return x
+
+
+HUGE = st.integers(2**31, 2**62)
+PICKLE_BOMBS = st.one_of(
+    # shared lists that expand past the bound, or stay tiny (nothing in between: a
+    # value under the bound really is materialized by the loader)
+    st.tuples(st.integers(1, 14), st.integers(2, 40))
+    .filter(lambda lw: lw[1] ** lw[0] > 2**28 or lw[1] ** lw[0] < 10**4)
+    .map(lambda lw: _shared(*lw)),
+    st.integers(33, 300).map(_deep),
+    HUGE.map(lambda n: _Call(np.ndarray, (n,))),
+    st.tuples(HUGE, st.sampled_from(["f8", "u1", "(1000,)f8"])).map(
+        lambda nd: _Call(np.ndarray, (nd[0] // 10**6, 10**6), np.dtype(nd[1]))
+    ),
+    HUGE.map(lambda n: _Call(bytes, n)),
+    HUGE.map(lambda n: _Call(bytearray, n)),
+    st.integers(4, 9).map(lambda levels: _Call(str, _shared(levels, 16))),
+)
+
+
+@given(
+    st.tuples(PICKLE_BOMBS, st.sampled_from([2, 4, 5])).map(
+        lambda bp: pickle.dumps({"points2d": bp[0]}, protocol=bp[1])
+    )
+)
+def test_fuzz_df3d_pickle_bombs(data):
+    """Small pickles that would allocate without bound: refused in one line (or tiny)."""
+    path = _write("df3d_result_bomb.pkl", data)
+    _check(lambda p: read_df3d_points2d(p, [(480, 960)] * 3), path)
+
+
 @given(pickle_damage(_df3d_calib_seed()))
 def test_fuzz_df3d_calibration_pickle(data):
     path = _write("calib_fuzz.pkl", data)
@@ -374,6 +429,85 @@ def damaged_h5(draw, seed: bytes) -> bytes:
     return path.read_bytes()
 
 
+#: The value every byte outside a fuzzed HDF5 file holds: a loader that returns it has
+#: read beyond the file (the probe saw /etc/ssl's bytes become 1e175-pixel points).
+OUTSIDE = 12345.678
+
+
+@lru_cache
+def _outside_files() -> tuple[Path, Path]:
+    """A raw file and an HDF5 file (dataset ``/data``) full of :data:`OUTSIDE`."""
+    raw = WORK / "outside.bin"
+    raw.write_bytes(np.full(1 << 16, OUTSIDE).tobytes())
+    h5 = WORK / "outside.h5"
+    with h5py.File(h5, "w") as f:
+        f["data"] = np.full((4, 4, 4, 4), OUTSIDE)
+        f.create_group("group")["data"] = np.full((4, 4, 4, 4), OUTSIDE)
+    return raw, h5
+
+
+@st.composite
+def hostile_h5(draw, seed: bytes) -> bytes:
+    """An HDF5 file with one member made to reach beyond it or to declare far more than
+    it stores: external storage, an external link (to a dataset or through a group),
+    a soft link through an external link, a virtual dataset, a sparse dataset of
+    terabytes, or a chunk larger than any budget."""
+    raw, other = _outside_files()
+    path = WORK / "h5_hostile.h5"
+    path.write_bytes(seed)
+    with h5py.File(path, "r+") as f:
+        items: list[str] = []
+        f.visititems(
+            lambda name, obj: items.append(name) if isinstance(obj, h5py.Dataset) else None
+        )
+        name = draw(st.sampled_from(sorted(items)))
+        old = f[name]
+        shape, dtype = old.shape or (1,), old.dtype if old.dtype.kind in "biuf" else np.float64
+        del f[name]
+        op = draw(
+            st.sampled_from(
+                ["external", "extlink", "extgroup", "soft-ext", "virtual", "sparse", "chunk"]
+            )
+        )
+        if op == "external":
+            nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            f.create_dataset(name, shape=shape, dtype=dtype, external=[(str(raw), 0, nbytes)])
+        elif op == "extlink":
+            f[name] = h5py.ExternalLink(str(other), "/data")
+        elif op == "extgroup":
+            parent = name.rsplit("/", 1)[0] if "/" in name else ""
+            if parent:
+                del f[parent]
+                f[parent] = h5py.ExternalLink(str(other), "/group")
+            else:
+                f[name] = h5py.ExternalLink(str(other), "/group/data")
+        elif op == "soft-ext":
+            f["__elsewhere"] = h5py.ExternalLink(str(other), "/group")
+            f[name] = h5py.SoftLink("/__elsewhere/data")
+        elif op == "virtual":
+            layout = h5py.VirtualLayout(shape=(4, 4, 4, 4), dtype="<f8")
+            layout[...] = h5py.VirtualSource(str(other), "data", shape=(4, 4, 4, 4))
+            f.create_virtual_dataset(name, layout)
+        elif op == "sparse":
+            big = (*shape[:-1], 10**12) if len(shape) > 1 else (10**12,)
+            f.create_dataset(name, shape=big, dtype=dtype, chunks=True)
+        else:
+            f.create_dataset(
+                name,
+                shape=shape,
+                maxshape=tuple(None for _ in shape),
+                chunks=(*([1] * (len(shape) - 1)), 1 << 30),
+                dtype=dtype,
+            )
+    return path.read_bytes()
+
+
+def _never_outside(result) -> None:
+    """A loader that returned read nothing from beyond its file."""
+    if result is not None:
+        assert not np.any(np.asarray(result.xy) == OUTSIDE), "read data from another file"
+
+
 DLC_H5_SEEDS = ["dlc_table.h5", "dlc_fixed.h5", "dlc_multianimal_table.h5"]
 
 
@@ -384,6 +518,12 @@ DLC_H5_SEEDS = ["dlc_table.h5", "dlc_fixed.h5", "dlc_multianimal_table.h5"]
 def test_fuzz_dlc_h5(data, individual):
     path = _write("view_fuzz.h5", data)
     _check(lambda p: read_dlc_h5(p, individual), path)
+
+
+@given(st.sampled_from(DLC_H5_SEEDS).flatmap(lambda n: hostile_h5(_h5_seed(n))))
+def test_fuzz_dlc_h5_reaching_beyond_the_file(data):
+    path = _write("view_hostile.h5", data)
+    _never_outside(_check(lambda p: read_dlc_h5(p, "fly1"), path))
 
 
 # -- SLEAP analysis files (written by sleap-io) ----------------------------------------------------------
@@ -430,6 +570,13 @@ def test_fuzz_sleap_analysis(data, track):
     seed = data.draw(st.sampled_from(_sleap_seeds()))
     path = _write("view_fuzz.analysis.h5", data.draw(damaged_h5(seed)))
     _check(lambda p: read_sleap_analysis(p, track), path)
+
+
+@given(st.data())
+def test_fuzz_sleap_analysis_reaching_beyond_the_file(data):
+    seed = data.draw(st.sampled_from(_sleap_seeds()))
+    path = _write("view_hostile.analysis.h5", data.draw(hostile_h5(seed)))
+    _never_outside(_check(read_sleap_analysis, path))
 
 
 # -- Anipose TOML ----------------------------------------------------------------------------------

@@ -35,6 +35,7 @@ from .errors import (
     FootageError as FootageError,
     ImportFormatError as ImportFormatError,
     ResultsError as ResultsError,
+    StageError as StageError,
     WeightsError as WeightsError,
 )
 from .geometry import (

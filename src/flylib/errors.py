@@ -32,6 +32,11 @@ class OutputError(FlylibError, OSError):
     another run holds the output directory's lock."""
 
 
+class StageError(FlylibError, RuntimeError):
+    """A numerical stage (bundle adjustment, pictorial structures, triangulation,
+    refinement, kinematics) cannot solve a recording's data as given."""
+
+
 def one_line(err: BaseException | str, limit: int = 300) -> str:
     """``err``'s text on one line (whitespace runs collapsed), at most ``limit``
     characters: for quoting a library's message inside a flylib error."""

@@ -30,6 +30,7 @@ from typing import Any
 
 import yaml
 
+from .config.loading import MAX_NESTING, shape_problem, yaml_nesting_line
 from .errors import ConfigError
 
 #: Name of the per-recording sidecar file.
@@ -267,11 +268,16 @@ def read_sidecar(path: str | Path) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     try:
-        table = yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        deep = yaml_nesting_line(text)
+        table = None if deep else yaml.safe_load(text)
+        problem = f"nested more than {MAX_NESTING} levels deep" if deep else shape_problem(table)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(
             f"{path}: not valid YAML ({str(exc).splitlines()[0]}); fix the file"
         ) from None
+    if problem:
+        raise ConfigError(f"{path}: {problem}; fix the file")
     problems = metadata_problems(table, str(path))
     if problems:
         raise ConfigError("; ".join(problems))

@@ -1,17 +1,78 @@
-"""Opening another tool's HDF5 file with errors that name the file and the fix."""
+"""Opening another tool's HDF5 file so that it cannot reach beyond itself.
+
+A foreign HDF5 file (a SLEAP analysis file, a DeepLabCut ``.h5``) is untrusted input.
+HDF5 lets a file borrow bytes from elsewhere: a dataset's raw data may live in other
+files (external storage, ``Dataset.external``), a link may name an object in another
+file (``ExternalLink``, which HDF5 opens when the link is followed -- a FIFO there
+blocks forever), a virtual dataset maps other files' datasets, and a soft link may
+route through any of these. And a dataset declares its shape: a sparse or compressed
+dataset of a few hundred bytes on disk can declare terabytes, which a read allocates.
+
+So members are looked up here one path component at a time from the link table,
+never through h5py's ``in`` / ``[]`` on a full path (which resolves, and so opens,
+external links): external and user-defined links are refused without being
+followed, soft links are resolved by the same walk, and a dataset is read only after
+its storage is checked (no external files, not virtual) and its declared size and
+chunk size are under a budget derived from the recording (:func:`read_budget`).
+"""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from ..errors import FlylibError, ImportFormatError, one_line
 from ..hdf5_files import H5_READ_ERRORS, open_h5
 
-__all__ = ["H5_READ_ERRORS", "open_foreign_h5", "reading_foreign_h5"]
+__all__ = [
+    "DEFAULT_READ_BUDGET",
+    "H5_READ_ERRORS",
+    "checked_dataset",
+    "foreign_member",
+    "open_foreign_h5",
+    "read_budget",
+    "read_checked",
+    "reading_foreign_h5",
+]
+
+#: Bytes one dataset of a foreign file may hold when the recording's frame count is
+#: unknown (no footage to count): 2 GiB, a 100,000-frame recording of 1,300 points.
+DEFAULT_READ_BUDGET = 2 << 30
+#: The smallest budget, whatever the recording: short recordings still get room.
+_BUDGET_FLOOR = 64 << 20
+#: Values one frame of one view may hold: (x, y, score) of up to 64 tracks or
+#: individuals of the skeleton's points (at least 64 points, as a file may carry
+#: body parts the import maps away).
+_TRACKS_PER_FRAME = 64
+#: Soft links followed in one lookup before the chain is refused (a cycle, or a maze).
+_MAX_SOFT_LINK_HOPS = 16
+
+
+def read_budget(frames: int | None, points: int) -> int:
+    """Bytes one dataset of a per-view foreign file may hold for this recording.
+
+    Parameters
+    ----------
+    frames
+        The view's frame count (from its footage), or ``None`` when unknown.
+    points
+        The configured skeleton's point count.
+
+    Returns
+    -------
+    int
+        ``frames x 3 values x 64 tracks x max(points, 64) x 8 bytes``, at least 64 MiB
+        and at most :data:`DEFAULT_READ_BUDGET`; the latter when ``frames`` is unknown.
+    """
+    if frames is None:
+        return DEFAULT_READ_BUDGET
+    per_frame = 3 * _TRACKS_PER_FRAME * max(int(points), 64) * 8
+    return int(min(DEFAULT_READ_BUDGET, max(_BUDGET_FLOOR, int(frames) * per_frame)))
 
 
 def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
@@ -45,3 +106,137 @@ def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.
             raise ImportFormatError(
                 f"{path}: damaged or not a {what} ({type(exc).__name__}: {one_line(exc)}); {hint}"
             ) from None
+
+
+def _refuse(path, where: str, reason: str, what: str, hint: str) -> ImportFormatError:
+    return ImportFormatError(
+        f"{path}: {where!r} {reason}; flylib reads a {what} only from the file's own bytes "
+        f"and never follows a link out of it; {hint}"
+    )
+
+
+def foreign_member(
+    fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, _hops: int = 0
+) -> h5py.Group | h5py.Dataset | h5py.Datatype | None:
+    """The object at ``name`` inside ``fh``, reached without leaving the file.
+
+    Parameters
+    ----------
+    fh
+        The open foreign file.
+    name
+        A path inside it (``"tracks"``, ``"df_with_missing/table"``).
+    path, what, hint
+        The file, what it should be and the fix, for messages.
+
+    Returns
+    -------
+    h5py.Group or h5py.Dataset or h5py.Datatype or None
+        The object, or ``None`` when no link of that path exists.
+
+    Raises
+    ------
+    ImportFormatError
+        A component of the path is an external or user-defined link (not followed),
+        or a chain of soft links is longer than 16 hops.
+    """
+    from h5py import h5l
+
+    if _hops > _MAX_SOFT_LINK_HOPS:
+        raise _refuse(path, name, "is a chain of more than 16 soft links", what, hint)
+    node: h5py.Group | h5py.Dataset | h5py.Datatype = fh
+    parts = [p for p in name.split("/") if p and p != "."]
+    for i, part in enumerate(parts):
+        if not isinstance(node, h5py.Group):
+            return None
+        key = part.encode("utf-8")
+        where = "/".join(parts[: i + 1])
+        links = node.id.links
+        if not links.exists(key):
+            return None
+        kind = links.get_info(key).type
+        if kind == h5l.TYPE_HARD:
+            node = node[part]
+        elif kind == h5l.TYPE_SOFT:
+            target = links.get_val(key).decode("utf-8", "replace")
+            if not target.startswith("/"):
+                target = f"{node.name.rstrip('/')}/{target}"
+            resolved = foreign_member(fh, target, path, what, hint, _hops=_hops + 1)
+            if resolved is None:
+                return None
+            node = resolved
+        elif kind == h5l.TYPE_EXTERNAL:
+            filename, target = links.get_val(key)
+            raise _refuse(
+                path,
+                where,
+                f"is an external link to {filename.decode('utf-8', 'replace')}:"
+                f"{target.decode('utf-8', 'replace')}",
+                what,
+                hint,
+            )
+        else:
+            raise _refuse(path, where, f"is a user-defined link (type {kind})", what, hint)
+    return node
+
+
+def checked_dataset(
+    fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, max_bytes: int
+) -> h5py.Dataset | None:
+    """The dataset at ``name``, checked to be safe to read whole; ``None`` if absent.
+
+    Parameters
+    ----------
+    fh, name, path, what, hint
+        As for :func:`foreign_member`.
+    max_bytes
+        The most bytes the dataset (and any one of its chunks, decompressed) may hold
+        (:func:`read_budget`).
+
+    Raises
+    ------
+    ImportFormatError
+        The member is not a dataset, keeps its data in other files (external storage,
+        a virtual dataset), or declares more than ``max_bytes`` -- a sparse or
+        compressed "bomb" is refused before anything is allocated.
+    """
+    obj = foreign_member(fh, name, path, what, hint)
+    if obj is None:
+        return None
+    if not isinstance(obj, h5py.Dataset):
+        raise ImportFormatError(
+            f"{path}: {name!r} is a {type(obj).__name__.lower()}, expected a dataset; {hint}"
+        )
+    external = obj.external
+    if external:
+        raise _refuse(
+            path, name, f"stores its data in the external file {external[0][0]!r}", what, hint
+        )
+    if obj.is_virtual:
+        sources = sorted({m.file_name for m in obj.virtual_sources()})
+        raise _refuse(
+            path, name, f"is a virtual dataset mapping {', '.join(sources[:3])}", what, hint
+        )
+    itemsize = max(int(obj.dtype.itemsize), 1)
+    declared = math.prod(int(n) for n in obj.shape or ()) * itemsize
+    chunk = math.prod(int(n) for n in obj.chunks) * itemsize if obj.chunks else 0
+    if max(declared, chunk) > max_bytes:
+        size = obj.shape if declared >= chunk else f"chunks of {obj.chunks}"
+        raise ImportFormatError(
+            f"{path}: {name!r} declares {size} of {obj.dtype} ({_gib(max(declared, chunk))}), "
+            f"more than the {_gib(max_bytes)} a {what} of this recording can need "
+            f"(frames x points x tracks); refusing to read it; {hint}"
+        )
+    return obj
+
+
+def read_checked(
+    fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, max_bytes: int
+) -> np.ndarray | None:
+    """The whole dataset at ``name`` (``None`` if absent), after :func:`checked_dataset`."""
+    obj = checked_dataset(fh, name, path, what, hint, max_bytes=max_bytes)
+    return None if obj is None else obj[()]
+
+
+def _gib(n: int) -> str:
+    return f"{n / (1 << 30):.3g} GiB" if n >= 1 << 30 else f"{n / (1 << 20):.3g} MiB"

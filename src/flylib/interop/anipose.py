@@ -36,6 +36,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
+from ..config.loading import MAX_NESTING, toml_dotted_line
 from ..errors import ConfigError, ImportFormatError
 from ..paths import atomic_path
 from . import views as _views
@@ -65,7 +66,15 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such Anipose calibration file; check calibration.file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        if toml_dotted_line(text) is not None:
+            raise RecursionError
+        data = tomllib.loads(text)
+    except RecursionError:
+        raise ImportFormatError(
+            f"{path}: nested more than {MAX_NESTING} levels deep; an Anipose calibration "
+            "holds one table per camera, fix the file"
+        ) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         detail = " ".join(str(exc).split())
         raise ImportFormatError(f"{path}: not valid TOML ({detail}); fix the syntax") from None

@@ -20,9 +20,15 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from ..errors import ImportFormatError, one_line
+from ..errors import FlylibError, ImportFormatError, one_line
 from ..paths import atomic_path
-from ._h5 import H5_READ_ERRORS, reading_foreign_h5
+from ._h5 import (
+    DEFAULT_READ_BUDGET,
+    H5_READ_ERRORS,
+    checked_dataset,
+    foreign_member,
+    reading_foreign_h5,
+)
 from .safe_pickle import PICKLE_PARSE_ERRORS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -70,11 +76,31 @@ _CSV_ERRORS = (
 )
 
 
+#: Most columns a DeepLabCut CSV may have: 3 per body part and individual (33,333
+#: body parts of one animal, or 38 points of 877 individuals).
+MAX_CSV_COLUMNS = 100_000
+#: Longest header line read (characters): 100,000 cells of about 160 characters.
+_MAX_HEADER_LINE = 16 << 20
+
+
 def _read_header(path: Path) -> list[list[str]]:
-    """The header rows: the leading rows whose first cell is a DeepLabCut level name."""
+    """The header rows: the leading rows whose first cell is a DeepLabCut level name.
+
+    Each line is read with a length bound and its columns counted before it is split,
+    so a file of millions of columns is one error in milliseconds, not gigabytes of cells.
+    """
     rows = []
     with path.open(newline="", encoding="utf-8") as fh:
-        for row in csv.reader(fh):
+        while True:
+            line = fh.readline(_MAX_HEADER_LINE + 1)
+            columns = line.count(",") + 1
+            if len(line) > _MAX_HEADER_LINE or columns > MAX_CSV_COLUMNS:
+                raise ImportFormatError(
+                    f"{path}: line {len(rows) + 1} has more than {MAX_CSV_COLUMNS} columns "
+                    "(a DeepLabCut CSV has 3 per body part and individual); check that this "
+                    "is the tool's 2D output"
+                )
+            row = next(csv.reader([line]), [])
             if not row or row[0].strip() not in _HEADER_LEVELS:
                 break
             rows.append(row)
@@ -233,14 +259,40 @@ def _text(values) -> list[str]:
     return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
 
 
-def _pandas_group(fh: h5py.File, path: Path) -> h5py.Group:
-    """The group pandas wrote the DataFrame to (DeepLabCut: ``df_with_missing``)."""
-    if "df_with_missing" in fh:
-        return fh["df_with_missing"]
-    for key in fh:
-        if isinstance(fh[key], h5py.Group) and "pandas_type" in fh[key].attrs:
-            return fh[key]
-    raise ImportFormatError(f"{path}: holds no pandas DataFrame; not a DeepLabCut .h5")
+@dataclass
+class _ForeignH5:
+    """One open DeepLabCut ``.h5`` and how its members may be reached and read."""
+
+    fh: h5py.File
+    path: Path
+    max_bytes: int
+    what: str = "DeepLabCut .h5"
+    hint: str = "check pose2d.import.files"
+
+    def member(self, name: str):
+        return foreign_member(self.fh, name, self.path, self.what, self.hint)
+
+    def dataset(self, name: str) -> h5py.Dataset:
+        found = checked_dataset(
+            self.fh, name, self.path, self.what, self.hint, max_bytes=self.max_bytes
+        )
+        if found is None:
+            raise KeyError(f"no dataset {name!r}")
+        return found
+
+    def read(self, name: str) -> np.ndarray:
+        return self.dataset(name)[()]
+
+
+def _pandas_group(source: _ForeignH5) -> str:
+    """The path of the group pandas wrote the DataFrame to (DeepLabCut: ``df_with_missing``)."""
+    if isinstance(source.member("df_with_missing"), h5py.Group):
+        return "df_with_missing"
+    for key in source.fh:
+        found = source.member(key)
+        if isinstance(found, h5py.Group) and "pandas_type" in found.attrs:
+            return key
+    raise ImportFormatError(f"{source.path}: holds no pandas DataFrame; not a DeepLabCut .h5")
 
 
 def _real_block(values) -> np.ndarray:
@@ -251,24 +303,26 @@ def _real_block(values) -> np.ndarray:
     return values.astype(np.float64)
 
 
-def _fixed_frame(group: h5py.Group) -> pd.DataFrame:
+def _fixed_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
     """pandas ``format="fixed"``: level arrays + codes for the columns, one value block."""
+    group = source.member(key)
     nlevels = int(group.attrs.get("block0_items_nlevels", 1))
     if int(group.attrs.get("nblocks", 1)) != 1 or nlevels < 3:
         raise ValueError("expected one float block with scorer/bodyparts/coords columns")
     levels, codes, names = [], [], []
     for i in range(nlevels):
-        level = group[f"block0_items_level{i}"]
+        level = source.dataset(f"{key}/block0_items_level{i}")
         levels.append(_text(level[()]))
-        codes.append(np.asarray(group[f"block0_items_label{i}"][()], dtype=int))
+        codes.append(np.asarray(source.read(f"{key}/block0_items_label{i}"), dtype=int))
         names.append(_text([level.attrs["name"]])[0])
     columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
-    return pd.DataFrame(_real_block(group["block0_values"][()]), columns=columns)
+    return pd.DataFrame(_real_block(source.read(f"{key}/block0_values")), columns=columns)
 
 
-def _table_frame(group: h5py.Group) -> pd.DataFrame:
+def _table_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
     """pandas ``format="table"`` (what DeepLabCut writes): a PyTables table of value blocks."""
-    table = group["table"]
+    group = source.member(key)
+    table = source.dataset(f"{key}/table")
     info = _plain_pickle(group.attrs["info"])
     names = list((info.get(1) or {}).get("names") or [])
     data = table[()]
@@ -283,13 +337,17 @@ def _table_frame(group: h5py.Group) -> pd.DataFrame:
     return pd.DataFrame(np.concatenate(blocks, axis=1), columns=index)
 
 
-def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
+def read_dlc_h5(
+    path: Path, individual: str | None = None, *, max_bytes: int = DEFAULT_READ_BUDGET
+) -> ViewKeypoints:
     """Read a DeepLabCut per-view HDF5 (a pandas DataFrame, key ``df_with_missing``).
 
     Read with h5py (no PyTables needed), for both pandas layouts: ``format="table"``
     (DeepLabCut's) and ``format="fixed"``. pandas keeps the column names as protocol-0
     pickles of plain lists/tuples; those are loaded with an unpickler that refuses
-    every class, so a crafted file cannot run code.
+    every class, so a crafted file cannot run code. External storage, external links
+    and virtual datasets are refused (never followed), and each dataset's declared size
+    is checked against ``max_bytes`` before it is read (see :mod:`flylib.interop._h5`).
 
     Raises
     ------
@@ -299,15 +357,18 @@ def read_dlc_h5(path: Path, individual: str | None = None) -> ViewKeypoints:
     path = Path(path)
     hint = "or import the CSV beside it (format: dlc_csv)"
     with reading_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:
-        group = _pandas_group(fh, path)
-        kind = _text([group.attrs.get("pandas_type", b"")])[0]
+        source = _ForeignH5(fh, path, max_bytes)
+        key = _pandas_group(source)
+        kind = _text([source.member(key).attrs.get("pandas_type", b"")])[0]
         try:
             if kind == "frame_table":
-                frame = _table_frame(group)
+                frame = _table_frame(source, key)
             elif kind == "frame":
-                frame = _fixed_frame(group)
+                frame = _fixed_frame(source, key)
             else:
                 raise ValueError(f"pandas_type {kind!r} is not a DataFrame")
+        except FlylibError:
+            raise
         except pickle.UnpicklingError as exc:
             raise ImportFormatError(
                 f"{path}: refused or unreadable pickled pandas metadata ({one_line(exc)}); {hint}"

@@ -49,6 +49,7 @@ import numpy as np
 from ..errors import ImportFormatError
 from ..recordings import source_patterns
 from . import views as _views
+from ._h5 import read_budget
 from .df3d import FLY38_POINT_NAMES, df3d_joint_to_fly38, read_df3d_points2d
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
@@ -366,26 +367,31 @@ def _ranges(indices: list[int]) -> str:
     return ", ".join(parts)
 
 
-def _read_view(fmt: str, path: Path, spec: dict) -> ViewKeypoints:
+def _read_view(fmt: str, path: Path, spec: dict, max_bytes: int) -> ViewKeypoints:
+    """One view's file; HDF5 datasets may declare at most ``max_bytes`` (see ``read_budget``)."""
     if fmt in ("dlc_csv", "lightning_pose"):
         return read_dlc_csv(path, spec.get("individual"))
     if fmt == "dlc_h5" or (fmt == "deeplabcut" and path.suffix.lower() in (".h5", ".hdf5")):
-        return read_dlc_h5(path, spec.get("individual"))
+        return read_dlc_h5(path, spec.get("individual"), max_bytes=max_bytes)
     if fmt == "deeplabcut":
         return read_dlc_csv(path, spec.get("individual"))
-    return read_sleap_analysis(path, spec.get("track"))
+    return read_sleap_analysis(path, spec.get("track"), max_bytes=max_bytes)
 
 
 def _import_per_view(spec, config, recording_dir, views, points):
     files = _view_files(spec, config, recording_dir, views)
     present = [v for v in views if files[v] is not None]
-    read = {v: _read_view(spec["format"], files[v], spec) for v in present}
-    keypoint_map = spec.get("keypoint_map") or {}
     footage = _views.footage_files(config, recording_dir)
+    footage_counts = {v: _views.read_frame_count(footage.get(v, [])) for v in present}
+    read = {
+        v: _read_view(spec["format"], files[v], spec, read_budget(footage_counts[v], len(points)))
+        for v in present
+    }
+    keypoint_map = spec.get("keypoint_map") or {}
     n_frames = (
         _check_frames(
             {v: read[v].xy.shape[0] for v in present},
-            {v: _views.read_frame_count(footage.get(v, [])) for v in present},
+            footage_counts,
             {v: files[v] for v in present},
             footage,
         )

@@ -15,15 +15,21 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ImportFormatError
-from ._h5 import reading_foreign_h5
+from ._h5 import DEFAULT_READ_BUDGET, read_checked, reading_foreign_h5
 from .calib_checks import numeric_array
 from .dlc import ViewKeypoints, _text as _decode
 
 log = logging.getLogger(__name__)
 
 
-def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypoints:
+def read_sleap_analysis(
+    path: Path, track: int | str | None = None, *, max_bytes: int = DEFAULT_READ_BUDGET
+) -> ViewKeypoints:
     """Read one track of a SLEAP analysis HDF5.
+
+    The file must hold its data itself: external storage, external links and virtual
+    datasets are refused (never followed), and each dataset's declared size is
+    checked against ``max_bytes`` before it is read (see :mod:`flylib.interop._h5`).
 
     Parameters
     ----------
@@ -31,6 +37,9 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
         The ``.analysis.h5`` file.
     track
         Track index or name; required when the file holds several tracks.
+    max_bytes
+        The most bytes one dataset may declare (:func:`~flylib.interop._h5.read_budget`
+        of the recording; the importer passes it).
 
     Returns
     -------
@@ -45,19 +54,27 @@ def read_sleap_analysis(path: Path, track: int | str | None = None) -> ViewKeypo
     """
     path = Path(path)
     hint = "export it with sleap-convert --format analysis (or sleap_io.save_analysis_h5)"
-    with reading_foreign_h5(path, "SLEAP analysis file", hint) as fh:
-        if "tracks" not in fh or "node_names" not in fh:
+    what = "SLEAP analysis file"
+    with reading_foreign_h5(path, what, hint) as fh:
+
+        def read(name: str):
+            return read_checked(fh, name, path, what, hint, max_bytes=max_bytes)
+
+        raw_names, raw_tracks = read("node_names"), read("tracks")
+        if raw_tracks is None or raw_names is None:
             raise ImportFormatError(
                 f"{path}: lacks 'tracks'/'node_names'; export it with sleap-convert --format analysis"
             )
-        names = _decode(fh["node_names"][()])
-        tracks = numeric_array(fh["tracks"][()], str(path), "tracks", hint)
+        names = _decode(raw_names)
+        tracks = numeric_array(raw_tracks, str(path), "tracks", hint)
+        raw_scores = read("point_scores")
         scores = (
-            numeric_array(fh["point_scores"][()], str(path), "point_scores", hint)
-            if "point_scores" in fh
-            else None
+            None
+            if raw_scores is None
+            else numeric_array(raw_scores, str(path), "point_scores", hint)
         )
-        track_names = _decode(fh["track_names"][()]) if "track_names" in fh else []
+        raw_track_names = read("track_names")
+        track_names = [] if raw_track_names is None else _decode(raw_track_names)
     n_nodes = len(names)
     if tracks.ndim != 4:
         raise ImportFormatError(

@@ -31,17 +31,18 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import ResultsError
+from ..errors import FlylibError, ResultsError, StageError, one_line
 from ..interop.anipose import config_rig
 from ..paths import atomic_path
-from .tracked import StageConfig
+from .tracked import StageConfig, UntrackedConfigRead
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,42 @@ def _provenance(config, stage: str, **upstream) -> dict:
     from ..provenance import stage_provenance
 
     return stage_provenance(config, stage, upstream)
+
+
+#: What to check when a numerical stage fails on a recording's data, per stage.
+_CHECK = {
+    "bundle_adjustment": "check its 2D (are the views' points of one fly, in raw-frame pixels?) "
+    "and the starting rig (cameras, calibration.file), or set "
+    "pipeline.do_bundle_adjustment: false",
+    "pictorial_structures": "check the detector's 2D and the rig, or set "
+    "pipeline.do_pictorial_structures: false",
+    "triangulation": "check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
+    "result, cameras, calibration.file)",
+    "refinement": "check triangulation's 3D (flylib inspect) and the refinement settings, or "
+    "set pipeline.do_refinement: false",
+    "kinematics": "check the 3D in results.h5 (flylib inspect), or set "
+    "pipeline.do_kinematics: false",
+}
+
+
+@contextmanager
+def _solving(stage: str, recording) -> Iterator[None]:
+    """The stage boundary of a numerical stage: any exception its solver raises on the
+    recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
+    :class:`StageError` line naming the recording and what to check. flylib's own errors,
+    storage errors (``OSError``) and :class:`UntrackedConfigRead` (a bug in the stage,
+    not the data) pass unchanged; the original is kept as the error's cause and its
+    traceback logged at DEBUG."""
+    try:
+        yield
+    except (FlylibError, OSError, UntrackedConfigRead):
+        raise  # flylib's own lines; storage errors; a stage reading a key it does not track
+    except Exception as exc:
+        log.debug("%s failed on %s", stage, recording, exc_info=True)
+        raise StageError(
+            f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
+            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {_CHECK[stage]}"
+        ) from exc
 
 
 # -- stages --------------------------------------------------------------------
@@ -176,7 +213,8 @@ def run_bundle_adjustment(
     pose2d = Pose2dData.load(pose2d_path)
     cameras = config_rig(config, _image_sizes(pose2d), recording_dir)
     started = time.perf_counter()
-    result, refined, _ = bundle_adjust_from_config(config, cameras, pose2d.pts2d, pose2d.conf)
+    with _solving("bundle_adjustment", recording_dir or pose2d_path):
+        result, refined, _ = bundle_adjust_from_config(config, cameras, pose2d.pts2d, pose2d.conf)
     summary = {
         "success": bool(getattr(result, "success", True)),
         "message": str(getattr(result, "message", "")),
@@ -224,7 +262,8 @@ def run_pictorial_structures(
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
     cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    pts3d, pts2d, error = reconstruct_from_config(config, cameras, candidates)
+    with _solving("pictorial_structures", recording_dir or pose2d_path):
+        pts3d, pts2d, error = reconstruct_from_config(config, cameras, candidates)
     write_stage(
         out_path,
         "pictorial_structures",
@@ -277,9 +316,10 @@ def run_triangulation(
         if corrections_path
         else None
     )
-    pts3d, pts2d_clean, error, corrected = reconstruct_corrected(
-        config, cameras, pts2d, pose2d.conf, corrections
-    )
+    with _solving("triangulation", recording_dir or pose2d_path):
+        pts3d, pts2d_clean, error, corrected = reconstruct_corrected(
+            config, cameras, pts2d, pose2d.conf, corrections
+        )
     arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
     attrs = None
     if corrections is not None:
@@ -313,21 +353,23 @@ def run_refinement(
     """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
     from ..refinement.stage import run_refinement as run
 
-    return run(
-        StageConfig.for_stage(_rig_source(config, ba_path), "refinement"),
-        pose2d_path,
-        triangulation_path,
-        out_path,
-        ba_path=ba_path,
-        recording_dir=recording_dir,
-    )
+    with _solving("refinement", recording_dir or triangulation_path):
+        return run(
+            StageConfig.for_stage(_rig_source(config, ba_path), "refinement"),
+            pose2d_path,
+            triangulation_path,
+            out_path,
+            ba_path=ba_path,
+            recording_dir=recording_dir,
+        )
 
 
 def run_kinematics(config, results_path, outdir) -> dict:
     """Body frame and joint angles (see :func:`flylib.kinematics.stage.run_kinematics`)."""
     from ..kinematics.stage import run_kinematics as run
 
-    return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
+    with _solving("kinematics", results_path):
+        return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
 
 
 def run_assemble(

@@ -6,6 +6,14 @@ A checkpoint is what DeepFly3D publishes: a torch ``.tar`` holding
 channels, widths) is read from the checkpoint itself, so an ``sh8`` and an ``sh2``
 both load, and any key or shape mismatch is a :class:`~flylib.errors.WeightsError`
 rather than a silently half-initialised network.
+
+Integrity. Where a SHA-256 is known (a model's ``sha256`` in the config, or one
+pinned in :data:`PUBLISHED_WEIGHTS`) every download and every use is checked against
+it. No SHA-256 of the published DeepFly2D checkpoint is published by its authors, and
+none could be established here, so none is pinned: instead the first download's hash
+is recorded beside the file (``<file>.sha256``, trust on first use) and every later
+use is checked against that record, so a cached file that changes afterwards
+(corruption, a swapped file) is refused with one line naming it.
 """
 
 from __future__ import annotations
@@ -30,6 +38,9 @@ from .model import HourglassNet
 log = logging.getLogger(__name__)
 
 #: The published DeepFly2D ``sh8`` checkpoint (the DeepFly2D project's download link).
+#: ``sha256`` stays ``None`` until a hash can be pinned from an authoritative source
+#: (neither DeepFly2D/DeepFly3D's sources nor the spec give one); meanwhile the first
+#: download's hash is recorded beside the file (:func:`recorded_sha256_path`).
 PUBLISHED_WEIGHTS = {
     "hourglass": {
         "url": "https://www.dropbox.com/s/csgon8uojr3gdd9/sh8_front_j8.tar?dl=1",
@@ -56,6 +67,61 @@ def _verify(path: Path, sha256: str | None, what: str) -> None:
         raise WeightsError(
             f"{path}: checksum mismatch for {what} (expected sha256 {sha256}); delete the file "
             "and let it download again, or fix the model's sha256"
+        )
+
+
+def recorded_sha256_path(path: str | Path) -> Path:
+    """Where the hash of a downloaded checkpoint is recorded: ``<file>.sha256`` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + ".sha256")
+
+
+def _record_sha256(path: Path, digest: str) -> None:
+    """Write ``digest`` in ``sha256sum`` format beside ``path`` (atomically)."""
+    record = recorded_sha256_path(path)
+    tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
+    tmp.write_text(f"{digest}  {path.name}\n")
+    os.replace(tmp, record)
+
+
+def _recorded_sha256(path: Path) -> str | None:
+    """The hash recorded beside ``path`` at its first download, or ``None`` if none is."""
+    record = recorded_sha256_path(path)
+    if not record.is_file():
+        return None
+    fields = record.read_text(errors="replace").split()
+    if not fields or not re.fullmatch(r"[0-9a-fA-F]{64}", fields[0]):
+        raise WeightsError(
+            f"{record}: not a SHA-256 record of {path.name}; delete {path} and {record} "
+            "to download the weights again"
+        )
+    return fields[0].lower()
+
+
+def _trust_on_first_use(path: Path, digest: str, what: str) -> None:
+    _record_sha256(path, digest)
+    log.warning(
+        "%s: no pinned SHA-256 for %s; recorded its hash %s in %s (trust on first use: later "
+        "runs refuse the file if it changes)",
+        path,
+        what,
+        digest,
+        recorded_sha256_path(path),
+    )
+
+
+def _check_trusted_on_first_use(path: Path, what: str) -> None:
+    """Check a cached checkpoint that has no pinned hash against the hash recorded at its
+    first download; record one now if there is none yet (a file put there by hand)."""
+    digest = sha256sum(path)
+    recorded = _recorded_sha256(path)
+    if recorded is None:
+        _trust_on_first_use(path, digest, what)
+    elif digest != recorded:
+        raise WeightsError(
+            f"{path}: the {what} checkpoint changed since it was downloaded (sha256 {digest}, "
+            f"recorded {recorded} in {recorded_sha256_path(path)}); delete both files to "
+            "download it again"
         )
 
 
@@ -140,8 +206,12 @@ def resolve_weights(
         Path(url.split("?")[0]).name if url else f"{model_name}.tar"
     )
     path = cache_dir() / filename
+    what = f"model {model_name!r}"
     if path.is_file():
-        _verify(path, sha256, f"model {model_name!r}")
+        if sha256:
+            _verify(path, sha256, what)
+        else:
+            _check_trusted_on_first_use(path, what)
         return path
     if not url:
         raise WeightsError(
@@ -153,7 +223,10 @@ def resolve_weights(
             f"pose2d.models[{model_name}]: the weights cache {path} is empty and downloading is off; "
             f"download {url} and put it there"
         )
-    return download(url, path, sha256=sha256)
+    download(url, path, sha256=sha256)
+    if not sha256:  # a fresh download is the first use: its hash is the record from now on
+        _trust_on_first_use(path, sha256sum(path), what)
+    return path
 
 
 def strip_prefixes(state_dict: dict) -> dict:

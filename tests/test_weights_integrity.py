@@ -1,0 +1,99 @@
+"""Detector weights are checked on every use (issue 24).
+
+No SHA-256 of the published DeepFly2D checkpoint is published or could be established
+(DeepFly2D/DeepFly3D's sources download it without one; the spec lists its layout, not
+its bytes), so none is pinned: the first download's hash is recorded beside the file
+and every later use is checked against it; a hash given in the config is checked on
+download and on every use. The "published" file here is a small checkpoint served
+from a ``file://`` URL, the way ``urllib`` fetches the real one.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from flylib.errors import WeightsError
+from flylib.pose2d import weights
+from flylib.pose2d.model import HourglassNet
+
+
+@pytest.fixture
+def published(tmp_path, monkeypatch):
+    monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
+    net = HourglassNet(num_stacks=1, num_blocks=1, num_classes=3, inplanes=8, num_feats=8)
+    return weights.save_checkpoint(net, tmp_path / "published" / "sh8_front_j8.tar")
+
+
+def _flip_a_byte(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def test_no_sha256_is_pinned_for_the_published_weights():
+    """Honest: none is known, so none is invented (see the module docstring)."""
+    assert weights.PUBLISHED_WEIGHTS["hourglass"]["sha256"] is None
+
+
+def test_first_download_records_its_hash_and_later_uses_check_it(published, caplog):
+    with caplog.at_level(logging.WARNING, logger="flylib.pose2d.weights"):
+        path = weights.resolve_weights("", url=published.as_uri())
+    record = weights.recorded_sha256_path(path)
+    digest = weights.sha256sum(published)
+    assert record.read_text() == f"{digest}  {path.name}\n"
+    assert "trust on first use" in caplog.text and digest in caplog.text
+    assert weights.resolve_weights("", url="http://127.0.0.1:9/offline.tar") == path
+    _flip_a_byte(path)
+    with pytest.raises(WeightsError) as err:
+        weights.resolve_weights("", url="http://127.0.0.1:9/offline.tar")
+    text = str(err.value)
+    assert "\n" not in text and text.startswith(f"{path}: ")
+    assert "changed since it was downloaded" in text and f"recorded {digest}" in text
+    assert "delete both files" in text
+
+
+def test_a_file_put_in_the_cache_by_hand_is_recorded_then_checked(published, caplog):
+    cached = weights.cache_dir() / "sh8_deepfly.tar"
+    cached.parent.mkdir(parents=True)
+    cached.write_bytes(published.read_bytes())
+    with caplog.at_level(logging.WARNING, logger="flylib.pose2d.weights"):
+        assert weights.resolve_weights("", allow_download=False) == cached
+    assert "recorded its hash" in caplog.text
+    assert weights.recorded_sha256_path(cached).is_file()
+    _flip_a_byte(cached)
+    with pytest.raises(WeightsError, match="changed since it was downloaded"):
+        weights.resolve_weights("", allow_download=False)
+
+
+def test_a_new_download_replaces_a_stale_record(published):
+    cached = weights.cache_dir() / "sh8_deepfly.tar"
+    cached.parent.mkdir(parents=True)
+    weights.recorded_sha256_path(cached).write_text(f"{'0' * 64}  sh8_deepfly.tar\n")
+    path = weights.resolve_weights("", url=published.as_uri())
+    assert weights.recorded_sha256_path(path).read_text().split()[0] == weights.sha256sum(path)
+
+
+def test_a_damaged_record_is_one_line_naming_it(published):
+    path = weights.resolve_weights("", url=published.as_uri())
+    record = weights.recorded_sha256_path(path)
+    record.write_text("not a hash\n")
+    with pytest.raises(WeightsError, match=f"^{record}: not a SHA-256 record"):
+        weights.resolve_weights("", allow_download=False)
+
+
+def test_a_given_sha256_is_checked_on_download_and_on_every_use(published, tmp_path):
+    digest = weights.sha256sum(published)
+    with pytest.raises(WeightsError, match="checksum mismatch"):
+        weights.resolve_weights("", url=published.as_uri(), sha256="0" * 64)
+    path = weights.resolve_weights("", url=published.as_uri(), sha256=digest)
+    assert not weights.recorded_sha256_path(path).exists()  # the pinned hash is the record
+    _flip_a_byte(path)
+    with pytest.raises(WeightsError, match=f"^{path}: checksum mismatch"):
+        weights.resolve_weights("", sha256=digest, allow_download=False)
+    own = tmp_path / "mine.tar"
+    own.write_bytes(published.read_bytes())
+    assert weights.resolve_weights(own, sha256=digest) == own
+    with pytest.raises(WeightsError, match="checksum mismatch"):
+        weights.resolve_weights(own, sha256="f" * 64)
