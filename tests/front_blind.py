@@ -56,11 +56,22 @@ def _fly38(joints: np.ndarray) -> np.ndarray:
     return out
 
 
+def recorded_poses() -> np.ndarray:
+    """``(15, 38, 3)``: DeepFly3D's own 3D of the sample recording, fly38 order."""
+    data = load_restricted(PACKAGE_EXAMPLE / "df3d_result.pkl", "DeepFly3D result")
+    return _fly38(np.asarray(data["points3d"], float))
+
+
+def median_bone(pts3d: np.ndarray) -> float:
+    """Median leg-bone length of ``(T, 38, 3)`` points (the error unit)."""
+    i, j = bone_pairs()
+    return float(np.nanmedian(np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)))
+
+
 def deepfly3d_poses(n_frames: int) -> np.ndarray:
     """``(n_frames, 38, 3)``: DeepFly3D's 3D of the sample, back and forth, interpolated
     at 0.1 recorded frames per frame."""
-    data = load_restricted(PACKAGE_EXAMPLE / "df3d_result.pkl", "DeepFly3D result")
-    poses = _fly38(np.asarray(data["points3d"], float))
+    poses = recorded_poses()
     n = len(poses)
     phase = (0.1 * np.arange(n_frames)) % (2 * (n - 1))
     phase = np.where(phase > n - 1, 2 * (n - 1) - phase, phase)
@@ -120,8 +131,7 @@ def make_case(
     seen = np.broadcast_to(vis[:, None, :], outlier.shape)
     pts2d = np.where(seen[..., None], pts2d, np.nan)
     conf = np.where(seen, conf, 0.0)
-    i, j = bone_pairs()
-    bone = float(np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1)))
+    bone = median_bone(truth)
     return RoughCase(
         truth=truth,
         rig=rig,
@@ -143,3 +153,22 @@ def mirror_free_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
         if best is None or np.nanmedian(err) < np.nanmedian(best):
             best = err
     return best
+
+
+def held_out_error(cameras: CameraGroup, pts2d: np.ndarray) -> np.ndarray:
+    """``(V, T, P)`` leave-one-camera-out reprojection error in pixels: each point
+    triangulated (DLT) from every view but ``v`` that observed it, reprojected into
+    ``v``; NaN where ``v`` has no observation or fewer than two others saw the point.
+    Truth-free (the issue's yardstick for every default); uses every observation, so
+    two rigs are judged on the same ones (compare medians: gross outliers stay in)."""
+    from flylib.triangulation import triangulate
+
+    seen = np.isfinite(pts2d).all(-1)
+    out = np.full(pts2d.shape[:3], np.nan)
+    for v in range(pts2d.shape[0]):
+        others = seen.copy()
+        others[v] = False
+        points = np.asarray(triangulate(cameras, np.where(others[..., None], pts2d, np.nan)))
+        points[others.sum(axis=0) < 2] = np.nan
+        out[v] = np.linalg.norm(np.asarray(cameras.project(points))[v] - pts2d[v], axis=-1)
+    return out

@@ -207,18 +207,20 @@ def make_case(
     n_frames: int = 300,
     *,
     hard: bool = False,
+    blind_front: bool | None = None,
     seed: int = 0,
     noise_px: float = 1.0,
     outlier_frac: float = 0.05,
     outlier_px: float = 80.0,
 ) -> RoughCase:
-    """Generate the rough case (``hard=True``: front camera blind, aim 3 degrees off)."""
+    """Generate the rough case (``hard=True``: front camera blind, aim 3 degrees off;
+    ``blind_front``: the front camera blind or not, whatever ``hard`` says)."""
     rng = np.random.default_rng(seed + 100)
     truth = tethered_fly(n_frames, seed=seed)
     rig = true_rig(seed=seed)
     start = rough_start(rig, aim_deg=3.0 if hard else 0.1, seed=seed + 1)
     vis = rig_visibility(list(VIEWS), POINT_NAMES)
-    if hard:
+    if hard if blind_front is None else blind_front:
         vis[VIEWS.index("f")] = False
     clean = project_opencv(rig, truth)  # (V, T, P, 2)
     pts2d = clean + rng.normal(0.0, noise_px, clean.shape)

@@ -64,6 +64,10 @@ DEFAULT_MAX_ROUNDS = 10
 DEFAULT_SOLVER = "lm"
 DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
 DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
+#: a camera whose position around the fly ends this far from where the starting rig put
+#: it is named as possibly swapped or mislabeled (a rough start moves cameras up to
+#: ~8 degrees; neighbouring cameras of the fly rig are 30-45 degrees apart)
+MOVED_DEG = 15.0
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
 FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
@@ -433,6 +437,13 @@ def bundle_adjust(
     elif canonical_gauge and layout.extrinsics_free:
         table, pts = align_gauge(table_user, table, pts, pts_start)
         table[~observed] = table_user[~observed]
+    moved = _moved_degrees(table_user, table, pts)
+    suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
+    if suspects:
+        message = _moved_message(suspects, [d for d in moved if d > MOVED_DEG])
+        warnings_out.append(message)
+        log.warning("bundle adjustment: %s", message)
+        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
     refined = _cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
@@ -463,6 +474,9 @@ def bundle_adjust(
             for n, m in zip(names, start_median)
         },
         "weakest_direction": ratio if np.isfinite(ratio) else None,
+        "moved_deg": {
+            n: (round(float(d), 1) if np.isfinite(d) else None) for n, d in zip(names, moved)
+        },
         "weak_directions": n_weak,
         "initial_median_px": initial_median if np.isfinite(initial_median) else None,
         "final_median_px": (
@@ -513,6 +527,40 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
         f"as good as the starting rig there (e.g. left against right): give a calibration "
         f"file (config 'calibration'), or film a view that sees both sides (a front "
         f"camera seeing the legs of both sides)"
+    )
+
+
+def _moved_degrees(table0, table, pts) -> np.ndarray:
+    """``(V,)`` the angle in degrees, seen from the fly (median of ``pts``), between each
+    camera's starting and final position; NaN without points."""
+    from ..camera_model import rvec_to_rmat_numpy
+
+    finite = pts[np.isfinite(pts).all(axis=1)]
+    if not len(finite):
+        return np.full(len(table), np.nan)
+    fly = np.median(finite, axis=0)
+    out = []
+    for row0, row in zip(table0, table):
+        rays = []
+        for r in (row0, row):
+            rmat = rvec_to_rmat_numpy(r[None, 0:3])[0]
+            ray = -rmat.T @ r[3:6] - fly
+            rays.append(ray / np.linalg.norm(ray))
+        out.append(np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1.0, 1.0))))
+    return np.array(out)
+
+
+def _moved_message(cameras, degrees) -> str:
+    """The warning for cameras the fit moved far around the fly, in plain words."""
+    many = len(cameras) > 1
+    return (
+        f"{'cameras' if many else 'camera'} {_listed(cameras)} ended "
+        f"{_listed([f'{d:.0f}' for d in degrees])} degrees away (around the fly) from where "
+        f"the configured rig puts {'them' if many else 'it'}: {'their' if many else 'its'} "
+        f"videos or 2D may be swapped with another camera's or mislabeled. Check which "
+        f"footage or 2D file belongs to which camera (config 'sources', or "
+        f"pose2d.import.views) and the rig in the config; the 3D may be mirrored or "
+        f"wrong where these cameras were used"
     )
 
 
