@@ -37,8 +37,7 @@ from flylib.interop.df3d import read_df3d_calibration, read_df3d_points2d
 from flylib.interop.safe_pickle import load_restricted
 
 from rig_constants import IMAGE_SIZE, VIEWS
-from rough_rig import RoughCase, bone_pairs
-from synthetic import project_opencv
+from rough_rig import RoughCase, detections, median_bone
 
 PACKAGE_EXAMPLE = SHARED_DATA / "deepfly3d-package-example"
 SAMPLE_2D = SHARED_DATA / "deepfly3d-sample" / "df3d_result_2d.pkl"
@@ -60,12 +59,6 @@ def recorded_poses() -> np.ndarray:
     """``(15, 38, 3)``: DeepFly3D's own 3D of the sample recording, fly38 order."""
     data = load_restricted(PACKAGE_EXAMPLE / "df3d_result.pkl", "DeepFly3D result")
     return _fly38(np.asarray(data["points3d"], float))
-
-
-def median_bone(pts3d: np.ndarray) -> float:
-    """Median leg-bone length of ``(T, 38, 3)`` points (the error unit)."""
-    i, j = bone_pairs()
-    return float(np.nanmedian(np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)))
 
 
 def deepfly3d_poses(n_frames: int) -> np.ndarray:
@@ -119,27 +112,15 @@ def make_case(
     truth = deepfly3d_poses(n_frames)
     rig = deepfly3d_rig()
     vis = sample_visibility()
-    clean = project_opencv(rig, truth)  # (V, T, P, 2)
-    pts2d = clean + rng.normal(0.0, noise_px, clean.shape)
-    outlier = (rng.random(clean.shape[:3]) < outlier_frac) & vis[:, None, :]
-    pts2d = np.where(
-        outlier[..., None], clean + rng.uniform(-outlier_px, outlier_px, clean.shape), pts2d
-    )
-    conf = np.where(
-        outlier, rng.uniform(0.2, 0.7, outlier.shape), rng.uniform(0.6, 1.0, outlier.shape)
-    )
-    seen = np.broadcast_to(vis[:, None, :], outlier.shape)
-    pts2d = np.where(seen[..., None], pts2d, np.nan)
-    conf = np.where(seen, conf, 0.0)
-    bone = median_bone(truth)
+    pts2d, conf, outlier = detections(rig, truth, vis, rng, noise_px, outlier_frac, outlier_px)
     return RoughCase(
         truth=truth,
         rig=rig,
         start=default_start(),
         pts2d=pts2d,
         conf=conf,
-        outlier=outlier & seen,
-        bone=bone,
+        outlier=outlier,
+        bone=median_bone(truth),
     )
 
 
