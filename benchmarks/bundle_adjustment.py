@@ -22,6 +22,20 @@ bone lengths (targets: <= 0.06 from the rough rig, <= 0.015 from
 the true rig, <= 5 s), the kept fraction per camera and the warnings; ``--hard`` runs
 the variant with a blind front camera and 3 deg aim errors (target: <= 30 s with a
 warning that the rig is poorly determined).
+
+``--case front-blind`` (issue 23) is the case with the visibility real DeepFly3D data
+has: DeepFly3D's own 3D of the sample recording played at ``--frames`` (default 1,000
+and 10,000), DeepFly3D's calibration as the true rig, the sample's visibility (front
+camera blind, the two sides share no view), 1 px noise, 5 % outliers, the default
+config's rig as the start (``tests/front_blind.py``; needs ``../shared/data``). Each
+fit (default config bundle adjustment + ransac triangulation of every frame) runs in a
+fresh child process, once with this tree and once with the last release (``RELEASE``,
+exported by ``git archive`` into a temporary directory), JIT warmed on a small fit
+first; printed side by side: seconds, 3D error in median bones after the best
+similarity or mirrored similarity (the default rig explains DeepFly3D's images with the
+mirror-image world), rounds, whether the inlier set settled, the warnings. Targets:
+<= 0.061 bones (the seed system's), <= 1 s at 1,000 frames and <= 5 s at 10,000 on a
+quiet 2-core machine (the load average is printed: compare the ratio).
 """
 
 from __future__ import annotations
@@ -40,19 +54,38 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from synthetic import POINT_NAMES, default_rig, observe, perturb_rig, rig_visibility, synthetic_fly  # noqa: E402
-
-_t0 = time.perf_counter()
-from flylib.bundle_adjustment import bundle_adjust  # noqa: E402
-
-IMPORT_S = time.perf_counter() - _t0  # JAX, SciPy: a per-process cost, not compilation
-
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+#: the last release: main before the issue-12 merge (6f976ef), its first parent
+RELEASE = "40c28f7"
 TARGET_S = 1.5
+IMPORT_S = float("nan")  # set by _import_flylib (JAX, SciPy: a per-process cost)
+
+
+def _import_flylib():
+    """Import flylib's bundle adjustment (timed: JAX, SciPy) and the test scenes.
+
+    Not at module level: ``--fit-child`` runs this file against an older flylib, where
+    only the public calls it uses exist.
+    """
+    global IMPORT_S
+    t0 = time.perf_counter()
+    from flylib.bundle_adjustment import bundle_adjust
+
+    IMPORT_S = time.perf_counter() - t0
+    return bundle_adjust
 
 
 def build_problem():
+    from synthetic import (
+        POINT_NAMES,
+        default_rig,
+        observe,
+        perturb_rig,
+        rig_visibility,
+        synthetic_fly,
+    )
+
     rig = default_rig()
     truth = synthetic_fly(200, seed=0)
     # the 30 leg points (both sides), as in the default points_to_use
@@ -65,6 +98,7 @@ def build_problem():
 
 
 def run(start, pts2d, label, **kwargs):
+    bundle_adjust = _import_flylib()
     t0 = time.perf_counter()
     result, _, _ = bundle_adjust(start, pts2d, fixed=["*.intr"], **kwargs)
     seconds = time.perf_counter() - t0
@@ -95,6 +129,7 @@ def rough_case(hard: bool, frames: int) -> None:
 
     from rough_rig import fit_with_default_config, make_case
 
+    _import_flylib()
     case = make_case(frames, hard=hard)
     print(
         f"rough case{' (hard)' if hard else ''}: {frames} frames, median bone "
@@ -148,24 +183,170 @@ def rough_case(hard: bool, frames: int) -> None:
                 print(f"    warning: {str(w.message)[:160]}")
 
 
+def fit_child(inputs: str, output: str) -> None:
+    """Default-config bundle adjustment + triangulation of the arrays in ``inputs``
+    (``.npz``) with whatever flylib is importable; writes ``output`` (``.npz``).
+
+    Only calls both this tree and the last release have: ``Config.default`` /
+    ``from_dict``, ``CameraGroup.from_arrays``, ``bundle_adjust_from_config``,
+    ``triangulation.reconstruct_from_config``.
+    """
+    import warnings
+
+    from flylib.bundle_adjustment import bundle_adjust_from_config
+    from flylib.cameras import CameraGroup
+    from flylib.config import Config
+    from flylib.triangulation import reconstruct_from_config
+
+    data = np.load(inputs)
+    names = [str(n) for n in data["names"]]
+    start = CameraGroup.from_arrays(
+        names, data["rvecs"], data["tvecs"], data["intrs"], data["dists"]
+    )
+    config = Config.default()
+    pts2d, conf = data["pts2d"], data["conf"]
+    with warnings.catch_warnings():  # JIT: a small fit first, not timed
+        warnings.simplefilter("ignore")
+        small = Config.from_dict(
+            {
+                **config.data,
+                "bundle_adjustment": {**config.data["bundle_adjustment"], "max_frames": 10},
+            }
+        )
+        bundle_adjust_from_config(small, start, pts2d[:, :20], conf[:, :20])
+        reconstruct_from_config(small, start, pts2d[:, :20], conf[:, :20])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t0 = time.perf_counter()
+        result, refined, _ = bundle_adjust_from_config(config, start, pts2d, conf)
+        ba_s = time.perf_counter() - t0
+        pts3d, _, _ = reconstruct_from_config(config, refined, pts2d, conf)
+        total_s = time.perf_counter() - t0
+    report = getattr(result, "report", {}) or {}
+    np.savez(
+        output,
+        pts3d=pts3d,
+        ba_s=ba_s,
+        total_s=total_s,
+        rounds=getattr(result, "rounds", -1),
+        stable=bool(report.get("inliers_stable", False)),
+        warnings=np.array(
+            sorted({str(w.message)[:90] for w in caught if "bundle adjustment" in str(w.message)})
+            or [""]
+        ),
+    )
+
+
+def _child_fit(inputs: Path, output: Path, src: Path) -> dict | None:
+    """:func:`fit_child` in a fresh interpreter with ``src`` first on the path."""
+    try:
+        subprocess.run(
+            [sys.executable, __file__, "--fit-child", str(inputs), str(output)],
+            env={**os.environ, "PYTHONPATH": str(src)},
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+    except subprocess.CalledProcessError as exc:
+        print(f"    child with {src} failed: {exc.stderr.strip().splitlines()[-1:]}")
+        return None
+    return dict(np.load(output))
+
+
+def front_blind_case(frame_counts: list[int]) -> None:
+    """Issue 23's front-blind case: this tree and the last release side by side."""
+    import front_blind
+
+    if not front_blind.available():
+        print(f"front-blind case skipped: {front_blind.PACKAGE_EXAMPLE} or the sample is absent")
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        old_src = Path(tmp) / "release"
+        old_src.mkdir()
+        archive = subprocess.run(
+            ["git", "-C", str(REPO), "archive", RELEASE, "src", "config"],
+            capture_output=True,
+            check=True,
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(old_src)], input=archive, check=True)
+        for frames in frame_counts:
+            case = front_blind.make_case(frames)
+            inputs = Path(tmp) / f"case{frames}.npz"
+            start = case.start
+            np.savez(
+                inputs,
+                names=np.array(list(start.names)),
+                rvecs=np.asarray(start.rvecs, float),
+                tvecs=np.asarray(start.tvecs, float),
+                intrs=np.asarray(start.intrs, float),
+                dists=np.asarray(start.dists, float).reshape(len(start.names), -1),
+                pts2d=case.pts2d,
+                conf=case.conf,
+            )
+            print(
+                f"front-blind case, {frames} frames (load average {os.getloadavg()[0]:.1f}):",
+                flush=True,
+            )
+            rows = {}
+            for label, src in (
+                ("this tree", REPO / "src"),
+                (f"release {RELEASE}", old_src / "src"),
+            ):
+                out = _child_fit(inputs, Path(tmp) / f"out{frames}.npz", src)
+                if out is None:
+                    continue
+                err = np.nanmedian(front_blind.mirror_free_error(out["pts3d"], case.truth))
+                rows[label] = (float(out["total_s"]), err / case.bone)
+                print(
+                    f"  {label:<16s} BA + ransac {float(out['total_s']):6.2f} s "
+                    f"(BA {float(out['ba_s']):.2f} s)  3D error {err / case.bone:.4f} bones  "
+                    f"rounds {int(out['rounds'])}  settled {bool(out['stable'])}",
+                    flush=True,
+                )
+                for message in out["warnings"]:
+                    if message:
+                        print(f"      warning: {message}")
+            if len(rows) == 2:
+                (new_s, new_e), (old_s, old_e) = rows.values()
+                print(
+                    f"  this tree / release: time {new_s / old_s:.2f}x, error {new_e / old_e:.2f}x"
+                    f" (targets: error <= 0.061 bones, time <= {1 if frames <= 1000 else 5} s"
+                    " on a quiet machine)"
+                )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--first-call", metavar="LABEL", help=argparse.SUPPRESS)
+    parser.add_argument("--fit-child", nargs=2, metavar=("IN", "OUT"), help=argparse.SUPPRESS)
     parser.add_argument(
         "--case",
-        choices=("easy", "rough"),
+        choices=("easy", "rough", "front-blind"),
         default="easy",
-        help="easy: today's case (default); rough: issue 12's realistic case",
+        help="easy: today's case (default); rough: issue 12's realistic case; "
+        "front-blind: issue 23's DeepFly3D case beside the last release",
     )
     parser.add_argument(
         "--hard",
         action="store_true",
         help="with --case rough: blind front camera, 3 deg aim errors",
     )
-    parser.add_argument("--frames", type=int, default=300, help="frames of the rough case")
+    parser.add_argument(
+        "--frames",
+        type=int,
+        nargs="+",
+        default=None,
+        help="frames of the rough case (300) / the front-blind case (1000 10000)",
+    )
     args = parser.parse_args()
+    if args.fit_child:
+        fit_child(*args.fit_child)
+        return
+    if args.case == "front-blind":
+        front_blind_case(args.frames or [1000, 10000])
+        return
     if args.case == "rough":
-        rough_case(args.hard, args.frames)
+        rough_case(args.hard, (args.frames or [300])[0])
         return
     if args.first_call:
         start, pts2d, _ = build_problem()

@@ -207,19 +207,41 @@ def make_case(
     n_frames: int = 300,
     *,
     hard: bool = False,
+    blind_front: bool | None = None,
     seed: int = 0,
     noise_px: float = 1.0,
     outlier_frac: float = 0.05,
     outlier_px: float = 80.0,
 ) -> RoughCase:
-    """Generate the rough case (``hard=True``: front camera blind, aim 3 degrees off)."""
+    """Generate the rough case (``hard=True``: front camera blind, aim 3 degrees off;
+    ``blind_front``: the front camera blind or not, whatever ``hard`` says)."""
     rng = np.random.default_rng(seed + 100)
     truth = tethered_fly(n_frames, seed=seed)
     rig = true_rig(seed=seed)
     start = rough_start(rig, aim_deg=3.0 if hard else 0.1, seed=seed + 1)
     vis = rig_visibility(list(VIEWS), POINT_NAMES)
-    if hard:
+    if hard if blind_front is None else blind_front:
         vis[VIEWS.index("f")] = False
+    pts2d, conf, outlier = detections(rig, truth, vis, rng, noise_px, outlier_frac, outlier_px)
+    return RoughCase(
+        truth=truth,
+        rig=rig,
+        start=start,
+        pts2d=pts2d,
+        conf=conf,
+        outlier=outlier,
+        bone=median_bone(truth),
+    )
+
+
+def detections(rig, truth, vis, rng, noise_px, outlier_frac, outlier_px):
+    """What a detector reports of ``truth`` ``(T, P, 3)`` through ``rig`` where ``vis``
+    ``(V, P)``: ``noise_px`` Gaussian noise, a fraction ``outlier_frac`` of gross
+    outliers within ``+-outlier_px``, confidences lower on the outliers.
+
+    Returns ``(pts2d (V, T, P, 2), conf (V, T, P), outlier (V, T, P))``, NaN / 0 / False
+    where not seen.
+    """
     clean = project_opencv(rig, truth)  # (V, T, P, 2)
     pts2d = clean + rng.normal(0.0, noise_px, clean.shape)
     outlier = (rng.random(clean.shape[:3]) < outlier_frac) & vis[:, None, :]
@@ -230,13 +252,13 @@ def make_case(
         outlier, rng.uniform(0.2, 0.7, outlier.shape), rng.uniform(0.6, 1.0, outlier.shape)
     )
     seen = np.broadcast_to(vis[:, None, :], outlier.shape)
-    pts2d = np.where(seen[..., None], pts2d, np.nan)
-    conf = np.where(seen, conf, 0.0)
+    return np.where(seen[..., None], pts2d, np.nan), np.where(seen, conf, 0.0), outlier & seen
+
+
+def median_bone(pts3d: np.ndarray) -> float:
+    """Median leg-bone length of ``(T, 38, 3)`` points (the error unit)."""
     i, j = bone_pairs()
-    bone = float(np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1)))
-    return RoughCase(
-        truth=truth, rig=rig, start=start, pts2d=pts2d, conf=conf, outlier=outlier & seen, bone=bone
-    )
+    return float(np.nanmedian(np.linalg.norm(pts3d[:, i] - pts3d[:, j], axis=-1)))
 
 
 def similarity_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:

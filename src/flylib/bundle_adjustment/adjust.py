@@ -35,6 +35,7 @@ from ..errors import ConfigError
 from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
+from .parts import align_parts, camera_parts, point_parts, split_bones
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
 from .solver import Problem
 from .unknowns import (
@@ -63,9 +64,16 @@ DEFAULT_MAX_ROUNDS = 10
 DEFAULT_SOLVER = "lm"
 DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
 DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
+#: a camera whose position around the fly ends this far from where the starting rig put
+#: it is named as possibly swapped or mislabeled (a rough start moves cameras up to
+#: ~8 degrees; neighbouring cameras of the fly rig are 30-45 degrees apart)
+MOVED_DEG = 15.0
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
 FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
+#: an observation set aside comes back within this fraction of the threshold only: the
+#: band keeps borderline observations from flipping in and out round after round
+RETURN_FRACTION = 0.8
 SOLVERS = ("lm", "scipy")
 DISTORTION_MODES = ("auto", "free", "fixed")
 
@@ -251,8 +259,18 @@ def bundle_adjust(
     unobserved = [n for n, seen in zip(names, observed) if not seen]
     parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
     fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
-    if solver == "lm" and layout.extrinsics_free and untied_extrinsics(layout):
-        fit_fixed += gauge_refs(table, names, observed)
+    # sides that share no view: each is fixed by the images only up to its own
+    # similarity, which is held during the fit and put back where the start had it
+    cam_part = camera_parts(usable, ids, n_unknown)
+    n_parts = int(cam_part.max()) + 1
+    movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+    if solver == "lm" and untied_extrinsics(layout):
+        if n_parts == 1 and layout.extrinsics_free:
+            fit_fixed += gauge_refs(table, names, observed)
+        elif n_parts > 1:
+            for part in range(n_parts):
+                if movable[cam_part == part].all():
+                    fit_fixed += gauge_refs(table, names, cam_part == part)
     fit_layout = (
         build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] else layout
     )
@@ -274,12 +292,28 @@ def bundle_adjust(
     initial_median = float(np.nanmedian(err[active])) if active.any() else float("nan")
 
     bone_i, bone_j, bone_t, bone_g = bones_on_unknowns(valid_bones(bones), ids)
+    pt_part = point_parts(usable, ids, n_unknown, cam_part)
+    if bone_i.size:
+        log.info(
+            "bundle adjustment: %s",
+            "the cameras see the body as one connected group: bone-length, left/right and "
+            "thorax constraints used"
+            if n_parts <= 1
+            else f"the cameras form {n_parts} groups that see no point in common: "
+            "constraints joining two groups not used, their relative placement held at the "
+            "starting rig",
+        )
+    dropped_rows = 0
+    if n_parts > 1 and bone_i.size:
+        within, bone_g, dropped_rows = split_bones(bone_i, bone_j, bone_g, pt_part)
+        bone_i, bone_j, bone_t = bone_i[within], bone_j[within], bone_t[within]
+        bone_g = None if bone_g is None else bone_g[within]
     if bone_g is not None and bone_i.size:
         bone_t = start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
     lengths = None
     result = None
     stable = not reject_outliers
-    history = {active.tobytes()}
+    history = [active]
     rounds = 0
     keep = np.zeros(n_unknown, bool)
     problem = None
@@ -326,26 +360,30 @@ def bundle_adjust(
             pts[lost] = again[lost]
         err = _view_errors(table, pts[ids], pts2d, usable)
         threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
-        new_active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
+        err_inf = np.nan_to_num(err, nan=np.inf)
+        new_active = usable & (err_inf <= np.where(active, 1.0, RETURN_FRACTION) * threshold)
         changed = int((new_active != active).sum())
         log.info(
-            "bundle adjustment round %d: median %.2f px, %d observations beyond %.1f px "
-            "set aside, %d changed",
+            "bundle adjustment round %d (%d evaluations): median %.2f px, %d observations "
+            "beyond %.1f px set aside, %d changed",
             rounds,
+            result.nfev,
             float(np.nanmedian(err[active])),
             int(usable.sum() - new_active.sum()),
             threshold,
             changed,
         )
-        # a set seen before is a cycle (a few borderline observations flipping in and
-        # out): as settled as it gets
-        if changed <= STABLE_FRACTION * usable.sum() or new_active.tobytes() in history:
+        # a set (nearly) seen before is a cycle: a few borderline observations flipping
+        # in and out, or a point seen twice that leaves the fit with one observation set
+        # aside and returns when judged alone: as settled as it gets
+        tolerance = STABLE_FRACTION * usable.sum()
+        if min(int((new_active != seen).sum()) for seen in history) <= tolerance:
             stable = True
             break
         if rounds == max_rounds:
             break
         active = new_active
-        history.add(active.tobytes())
+        history.append(active)
 
     folded = _folded_cameras(table, layout, names)
     if folded:
@@ -379,21 +417,13 @@ def bundle_adjust(
         )
 
     final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), blocks)
-    ratio, n_weak = weak_directions(final.schur(0.0)[0], n_gauge)
+    ratio, n_weak, direction = weak_directions(final.schur(0.0)[0], n_gauge)
     warnings_out: list[str] = []
-    if ratio < warn_ratio:
-        beyond = (
-            "with the similarity gauge held"
-            if n_gauge == 0
-            else f"beyond the {n_gauge} open similarity (gauge) direction(s)"
-        )
-        weakest = "0 (an exact null direction)" if ratio <= 0 else f"{ratio:.1e}"
+    if n_parts > 1:
+        warnings_out.append(_parts_message(names, cam_part, dropped_rows))
+    elif ratio < warn_ratio:
         warnings_out.append(
-            f"the rig is poorly determined: {beyond}, the reduced camera Hessian's weakest "
-            f"direction is {weakest} of its strongest (< {warn_ratio:.0e}); some cameras or "
-            f"point groups can move with little change in the images (e.g. a view that "
-            f"connects both sides is missing): check the result, hold more parameters "
-            f"fixed or start from a calibration"
+            _weak_message(_cameras_moving(direction, fit_layout, names), ratio, warn_ratio)
         )
     if not stable:
         warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
@@ -401,9 +431,19 @@ def bundle_adjust(
         log.warning("bundle adjustment: %s", message)
         warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
 
-    if canonical_gauge and layout.extrinsics_free:
+    if canonical_gauge and n_parts > 1:
+        table, pts = align_parts(table_user, table, pts, pts_start, cam_part, pt_part, movable)
+        table[~observed] = table_user[~observed]
+    elif canonical_gauge and layout.extrinsics_free:
         table, pts = align_gauge(table_user, table, pts, pts_start)
         table[~observed] = table_user[~observed]
+    moved = _moved_degrees(table_user, table, pts)
+    suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
+    if suspects:
+        message = _moved_message(suspects, [d for d in moved if d > MOVED_DEG])
+        warnings_out.append(message)
+        log.warning("bundle adjustment: %s", message)
+        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
     refined = _cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
@@ -423,6 +463,10 @@ def bundle_adjust(
         "inliers_stable": bool(stable),
         "reseeded": reseeded,
         "unobserved": unobserved,
+        # cameras tied by shared points; with more than one group their relative
+        # placement is the starting rig's and constraints across groups are not used
+        "camera_groups": [[n for n, p in zip(names, cam_part) if p == k] for k in range(n_parts)],
+        "constraints_across_groups_dropped": dropped_rows,
         "start_median_px": None
         if start_median is None
         else {
@@ -430,6 +474,9 @@ def bundle_adjust(
             for n, m in zip(names, start_median)
         },
         "weakest_direction": ratio if np.isfinite(ratio) else None,
+        "moved_deg": {
+            n: (round(float(d), 1) if np.isfinite(d) else None) for n, d in zip(names, moved)
+        },
         "weak_directions": n_weak,
         "initial_median_px": initial_median if np.isfinite(initial_median) else None,
         "final_median_px": (
@@ -448,6 +495,110 @@ def bundle_adjust(
         result.message,
     )
     return result, refined, out_pts
+
+
+def _listed(names) -> str:
+    names = list(names)
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
+def _parts_message(names, cam_part, dropped_rows: int) -> str:
+    """The warning for cameras that fall into groups sharing no point, in plain words."""
+    groups = [
+        "{" + ", ".join(n for n, p in zip(names, cam_part) if p == k) + "}"
+        for k in range(int(cam_part.max()) + 1)
+    ]
+    blind = [n for n, p in zip(names, cam_part) if p < 0]
+    blind_text = (
+        f"; {_listed(blind)} {'sees' if len(blind) == 1 else 'see'} no point" if blind else ""
+    )
+    across = (
+        f"; the {dropped_rows} left/right and across-the-body length constraints that would "
+        f"join them were not used (the images cannot check them)"
+        if dropped_rows
+        else ""
+    )
+    return (
+        f"the rig is poorly determined: the cameras form {len(groups)} groups that see no "
+        f"point in common ({_listed(groups)}{blind_text}), so the images cannot tell where "
+        f"one group and the body parts it sees sit, how they are turned or how large they "
+        f"are relative to the other group. Bundle adjustment refined each group on its own "
+        f"and kept their relative placement as in the starting rig{across}. The 3D is only "
+        f"as good as the starting rig there (e.g. left against right): give a calibration "
+        f"file (config 'calibration'), or film a view that sees both sides (a front "
+        f"camera seeing the legs of both sides)"
+    )
+
+
+def _moved_degrees(table0, table, pts) -> np.ndarray:
+    """``(V,)`` the angle in degrees, seen from the fly (median of ``pts``), between each
+    camera's starting and final position; NaN without points."""
+    from ..camera_model import rvec_to_rmat_numpy
+
+    finite = pts[np.isfinite(pts).all(axis=1)]
+    if not len(finite):
+        return np.full(len(table), np.nan)
+    fly = np.median(finite, axis=0)
+    out = []
+    for row0, row in zip(table0, table):
+        rays = []
+        for r in (row0, row):
+            rmat = rvec_to_rmat_numpy(r[None, 0:3])[0]
+            ray = -rmat.T @ r[3:6] - fly
+            rays.append(ray / np.linalg.norm(ray))
+        out.append(np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1.0, 1.0))))
+    return np.array(out)
+
+
+def _moved_message(cameras, degrees) -> str:
+    """The warning for cameras the fit moved far around the fly, in plain words."""
+    many = len(cameras) > 1
+    return (
+        f"{'cameras' if many else 'camera'} {_listed(cameras)} ended "
+        f"{_listed([f'{d:.0f}' for d in degrees])} degrees away (around the fly) from where "
+        f"the configured rig puts {'them' if many else 'it'}: {'their' if many else 'its'} "
+        f"videos or 2D may be swapped with another camera's or mislabeled. Check which "
+        f"footage or 2D file belongs to which camera (config 'sources', or "
+        f"pose2d.import.views) and the rig in the config; the 3D may be mirrored or "
+        f"wrong where these cameras were used"
+    )
+
+
+def _cameras_moving(direction, layout, names, share: float = 0.5) -> list[str]:
+    """Cameras whose free parameters carry at least ``share`` of the largest component
+    of a reduced-system direction (its first ``n_free`` entries are camera variables)."""
+    n_free = int(layout.n_free)
+    if direction.size < n_free or n_free == 0:
+        return []
+    size = np.abs(direction[:n_free])
+    per_camera = np.array(
+        [
+            size[var[var >= 0]].max(initial=0.0)
+            for var in layout.var_index  # (V, C) variable index or -1
+        ]
+    )
+    if per_camera.max(initial=0.0) <= 0:
+        return []
+    return [n for n, s in zip(names, per_camera) if s >= share * per_camera.max()]
+
+
+def _weak_message(cameras, ratio: float, warn_ratio: float) -> str:
+    """The warning for a rig the images barely pin, in plain words."""
+    who = (
+        f"cameras {_listed(cameras)}"
+        if len(cameras) > 1
+        else f"camera {cameras[0]}"
+        if cameras
+        else "some cameras"
+    )
+    strength = "not at all" if ratio <= 0 else f"{ratio:.0e} of the best-pinned direction"
+    return (
+        f"the rig is poorly determined: {who} and the points they see can move together "
+        f"with almost no change in the images (pinned {strength}, below {warn_ratio:.0e}), "
+        f"usually because few body points are seen by them and another camera at once. "
+        f"Check the 3D (bone lengths in 'flylib inspect'), hold their parameters fixed "
+        f"(bundle_adjustment.fixed) or give a calibration file (config 'calibration')"
+    )
 
 
 def _held_distortion(table: np.ndarray, names, mode: str) -> list[str]:

@@ -327,7 +327,9 @@ def solve_lm(
     return result
 
 
-def weak_directions(hessian: Float[np.ndarray, "G G"], n_gauge: int) -> tuple[float, int]:
+def weak_directions(
+    hessian: Float[np.ndarray, "G G"], n_gauge: int
+) -> tuple[float, int, Float[np.ndarray, " G"]]:
     """How well the reduced Hessian pins its unknowns beyond the gauge.
 
     The Hessian is first scaled to unit diagonal (Jacobi), so units do not matter.
@@ -339,11 +341,14 @@ def weak_directions(hessian: Float[np.ndarray, "G G"], n_gauge: int) -> tuple[fl
         its largest.
     count : int
         How many eigenvalues beyond the gauge lie below ``1e-9`` of the largest.
+    direction : np.ndarray
+        ``(G,)`` that weakest direction (unit, in the scaled unknowns); empty when
+        there is none beyond the gauge.
     """
     d = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
-    eig = np.linalg.eigvalsh(hessian / d[:, None] / d[None, :])
+    eig, vec = np.linalg.eigh(hessian / d[:, None] / d[None, :])
     eig = np.maximum(eig, 0.0)
     if eig.size <= n_gauge:
-        return float("inf"), 0
+        return float("inf"), 0, np.zeros(0)
     ratio = float(eig[n_gauge] / eig[-1])
-    return ratio, int((eig[n_gauge:] < 1e-9 * eig[-1]).sum())
+    return ratio, int((eig[n_gauge:] < 1e-9 * eig[-1]).sum()), vec[:, n_gauge]

@@ -35,6 +35,11 @@ THORAX_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "
 #: a listed rigid point is merged over time only if its starting triangulation stays
 #: within this many median bone lengths (median distance to its median position)
 DEFAULT_RIGID_TOLERANCE = 0.15
+#: ... and within this many pixels in the cameras: a still point's triangulation moves by
+#: about the detection noise (1.5 px on the rough-rig scene); DeepFly3D's thorax-coxa
+#: detections on its real sample move 5 px, and holding them as one point costs every
+#: observation that much (issue 23: the inlier rounds never settled)
+DEFAULT_RIGID_PX = 3.0
 
 
 def bundle_adjust_sequence(
@@ -55,6 +60,7 @@ def bundle_adjust_sequence(
     length_weight: float = DEFAULT_LENGTH_WEIGHT,
     rigid_points: Sequence[str] | None = None,
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
+    rigid_px: float | None = DEFAULT_RIGID_PX,
     body_points: Sequence[str] = THORAX_POINTS,
     **kwargs,
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
@@ -102,6 +108,10 @@ def bundle_adjust_sequence(
         triangulation (from ``cameras``) stays within this many median bone lengths of
         its median position (median over frames, worst point). ``None``: always. The
         decision is in ``result.report["rigid"]``.
+    rigid_px
+        ... and that spread seen from the cameras (focal length over distance, median
+        over cameras) is at most this many pixels: what the images can tell from still.
+        ``None``: no pixel test.
     body_points
         Points of one rigid body (default :data:`THORAX_POINTS`), for ``bone_lengths``.
     **kwargs
@@ -165,7 +175,9 @@ def bundle_adjust_sequence(
                 f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names"
             )
         rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
-        rigid_report = _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, rigid_tolerance)
+        rigid_report = _rigid_decision(
+            cameras, sub, skeleton, point_idx, rigid_q, rigid_tolerance, rigid_px
+        )
         if rigid_report["used"]:
             ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
             ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
@@ -195,20 +207,23 @@ def bundle_adjust_sequence(
     return result, refined, pts3d
 
 
-def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> dict:
+def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, tolerance_px) -> dict:
     """Whether the data show the rigid points still: ``{"used", "spread_bones", ...}``.
 
     ``sub`` ``(V, F, Q, 2)``: the fitted frames and points. The spread is each rigid
     point's median distance to its median position over the frames of its starting
-    triangulation, in median bone lengths of the same triangulation (worst point).
+    triangulation, in median bone lengths of the same triangulation (worst point), and
+    in pixels (times focal length over camera distance, median over the cameras).
     """
     out = {
         "used": bool(rigid_q.any()),
         "points": int(rigid_q.sum()),
         "tolerance_bones": tolerance,
         "spread_bones": None,
+        "tolerance_px": tolerance_px,
+        "spread_px": None,
     }
-    if tolerance is None or not rigid_q.any():
+    if (tolerance is None and tolerance_px is None) or not rigid_q.any():
         return out
     n_views, n_sel, n_q, _ = sub.shape
     flat = sub.reshape(n_views, -1, 2)
@@ -224,19 +239,41 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance) -> di
     rigid = pts[:, rigid_q]
     with warnings.catch_warnings():  # a point never triangulated: NaN, judged below
         warnings.simplefilter("ignore", RuntimeWarning)
-        spread = np.nanmedian(np.linalg.norm(rigid - np.nanmedian(rigid, axis=0), axis=-1), axis=0)
-    worst = (
-        float(np.nanmax(spread)) / bone if np.isfinite(spread).any() and bone > 0 else float("inf")
-    )
+        centre = np.nanmedian(rigid, axis=0)
+        spread = np.nanmedian(np.linalg.norm(rigid - centre, axis=-1), axis=0)
+    worst_units = float(np.nanmax(spread)) if np.isfinite(spread).any() else float("inf")
+    worst = worst_units / bone if bone > 0 else float("inf")
+    worst_px = worst_units * _pixels_per_unit(cameras, np.nanmedian(centre, axis=0))
     out["spread_bones"] = round(worst, 4) if np.isfinite(worst) else None
-    out["used"] = bool(worst <= tolerance)
+    out["spread_px"] = round(worst_px, 2) if np.isfinite(worst_px) else None
+    out["used"] = bool(
+        (tolerance is None or worst <= tolerance)
+        and (tolerance_px is None or worst_px <= tolerance_px)
+    )
     log.info(
-        "bundle adjustment: rigid points %s (they move %.3f median bones, tolerance %.3f)",
-        "used" if out["used"] else "not used: the body moves",
+        "bundle adjustment: rigid points %s (they move %.3f median bones, %.1f px; "
+        "tolerance %s bones, %s px)",
+        "used" if out["used"] else "not used: the data show them moving",
         worst,
+        worst_px,
         tolerance,
+        tolerance_px,
     )
     return out
+
+
+def _pixels_per_unit(cameras, point) -> float:
+    """Median over the cameras of focal length / distance to ``point`` ``(3,)``: how
+    many pixels one world unit there spans in the images."""
+    from ..camera_model import rvec_to_rmat_numpy
+
+    if not np.isfinite(point).all():
+        return float("nan")
+    rvecs = np.asarray(cameras.rvecs, float)
+    rmats = rvec_to_rmat_numpy(rvecs)
+    centres = -np.einsum("vji,vj->vi", rmats, np.asarray(cameras.tvecs, float))
+    focal = np.asarray(cameras.intrs, float)[:, :2].mean(axis=1)
+    return float(np.median(focal / np.linalg.norm(centres - point, axis=1)))
 
 
 def _length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
