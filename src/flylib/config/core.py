@@ -343,6 +343,8 @@ class Config:
         elif stage == "refinement":
             params = {
                 "refinement": asdict(self.refinement),
+                # the held-out-view check re-runs the triangulation without each view
+                "triangulation": self.triangulation.method_params(),
                 "skeleton": self._skeleton_structure(),
                 "rig": None if flags["bundle_adjustment"] else self._rig(),
             }

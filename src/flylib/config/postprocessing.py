@@ -25,6 +25,11 @@ class RefinementParams:
     smooth_weight, smooth_order, smooth_scale
         Temporal term: weight, difference order (1 velocity, 2 acceleration) and the
         per-frame change in world units that costs as much as ``scale_px``.
+    motion_scale
+        Floor of the smoothness scale in units of the recording's own motion (the
+        median per-frame change of the triangulated points, which also carries the
+        frame rate): the scale used is ``max(smooth_scale, motion_scale * motion)``;
+        0 turns the floor off.
     bone_weight, bone_scale, symmetric_bones
         Bone-length constancy (one length per bone for the recording): weight, the
         length deviation in world units that costs as much as ``scale_px``, and
@@ -51,6 +56,7 @@ class RefinementParams:
     smooth_weight: float = _param(1.0, _number(0), kind=float)
     smooth_order: int = _param(2, _choice(1, 2))
     smooth_scale: float = _param(0.03, _number(0, exclusive=True), kind=float)
+    motion_scale: float = _param(2.0, _number(0), kind=float)
     bone_weight: float = _param(1.0, _number(0), kind=float)
     bone_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
     symmetric_bones: bool = _param(False, _boolean)

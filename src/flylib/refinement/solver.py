@@ -17,6 +17,7 @@ sit out, and the fit continues.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -59,6 +60,11 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
         "moved from the starting (triangulated) 3D by more than moved_fraction of the median bone",
     ),
     "no_start": (64, "the starting triangulation had no 3D for it in this frame"),
+    "kept_triangulation": (
+        128,
+        "refinement's held-out-view error was not better than triangulation's for this "
+        "point, so the output keeps the triangulation's 3D",
+    ),
 }
 
 
@@ -72,6 +78,7 @@ class RefineOptions:
     smooth_weight: float = 1.0
     smooth_order: int = 2
     smooth_scale: float = 0.03
+    motion_scale: float = 2.0
     bone_weight: float = 1.0
     bone_scale: float = 0.005
     symmetric_bones: bool = False
@@ -192,6 +199,22 @@ def fill_start(
         for c in range(3):
             out[:, p, c] = np.interp(t, t[ok], start[ok, p, c])
     return out
+
+
+def recording_motion(start: Float[np.ndarray, "T P 3"], order: int) -> float:
+    """How far the points move per frame: the median length of their ``order``-th
+    differences over consecutive frames (world units per frame^order; NaN when no
+    point is seen in ``order + 1`` consecutive frames).
+
+    It carries the footage's frame rate (a faster camera sees smaller per-frame
+    changes) and the recording's own motion, and sets a floor under the smoothness
+    scale (``motion_scale`` times it), so a fast or fast-moving fly is not held to
+    a slower one's smoothness."""
+    if start.shape[0] <= order:
+        return float("nan")
+    step = np.linalg.norm(np.diff(start, n=order, axis=0), axis=-1)
+    step = step[np.isfinite(step)]
+    return float(np.median(step)) if step.size else float("nan")
 
 
 # -- one chunk ----------------------------------------------------------------------------
@@ -595,16 +618,21 @@ def refine_stream(
     chunk = max(int(opts.chunk_frames), 1)
     overlap = max(int(opts.overlap_frames), 0)
 
-    # -- pass 1: which views see which points, and a frame sample for the medians
+    # -- pass 1: which views see which points, a frame sample for the medians, and how
+    # much the recording itself moves per frame (differences within each chunk)
     seen = np.zeros((n_views, n_points), bool)
     stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
-    sample = []
+    sample, motion = [], []
     for lo in range(0, n_frames, chunk):
         hi = min(lo + chunk, n_frames)
         pts2d, conf, start, _ = source.read(lo, hi)
         seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
         sample.append(start[(-lo) % stride :: stride])
+        motion.append(recording_motion(start, opts.smooth_order))
     sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
+    motion = float(np.nanmedian(motion)) if np.isfinite(motion).any() else 0.0
+    smooth_scale = max(opts.smooth_scale, opts.motion_scale * motion)
+    opts = dataclasses.replace(opts, smooth_scale=smooth_scale)
     lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
     centres = rigid_centres(sample, rigid)
     with np.errstate(all="ignore"):
@@ -712,6 +740,8 @@ def refine_stream(
         "observations_kept": kept_total,
         "observations_rejected": rejected_total,
         "bone_sample_frames": len(sample),
+        "motion_per_frame": round(motion, 6),
+        "smooth_scale_used": round(smooth_scale, 6),
     }
     log.info(
         "refinement: %d frames in %d chunk(s), %.2f s, iterations %s",

@@ -12,7 +12,17 @@ The artifact holds ``refinement/`` with
 
 and attributes ``bone_lengths`` (``{"a-b": length}``), ``rigid_centres``
 (``{point: [x, y, z]}``), ``summary`` (timings, iterations, observations kept and
-rejected) and ``options`` (the ``refinement`` table in force).
+rejected), ``options`` (the ``refinement`` table in force) and ``accuracy``.
+
+Refinement never makes a recording worse by the truth-free yardstick of
+:mod:`flylib.accuracy`: after the solve, every view is held out in turn and both the
+triangulation and the refinement are re-solved without it (on at most
+:data:`~flylib.accuracy.EVALUATION_FRAMES` frames). A point whose refined held-out-view
+error (median or 95th percentile) is higher than the triangulation's keeps the
+triangulation's 3D, 2D and errors in every frame, flagged ``kept_triangulation``; if
+the output is still worse overall, every point does. The ``accuracy`` attribute holds
+the three summaries (``triangulation``, ``refinement`` as solved, ``output``), the
+points kept and the frames evaluated.
 """
 
 from __future__ import annotations
@@ -202,6 +212,7 @@ def run_refinement(
             )
             out = refine_stream(source, cameras, sink, options=options, **terms)
             _keep_corrected(tri, group)
+            accuracy = _held_out_check(config, cameras, source, tri, group, terms, options)
             record = asdict(options)
             record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
             attrs = _attrs(
@@ -212,9 +223,86 @@ def run_refinement(
                 out["info"],
                 record,
             )
+            attrs["accuracy"] = accuracy
             for key, value in attrs.items():
                 group.attrs[key] = json.dumps(value)
     return Path(out_path)
+
+
+def _held_out_check(config, cameras, source, tri, group, terms, options) -> dict:
+    """Hold each view out, compare refinement with triangulation, keep the triangulation
+    where refinement is not better (see the module doc); returns the ``accuracy`` attrs."""
+    from ..accuracy import (
+        accuracy_summary,
+        evaluation_windows,
+        held_out_errors,
+        keep_triangulation,
+        methods_from_config,
+    )
+    from .solver import refine_points
+
+    triangulate, _ = methods_from_config(config, cameras)
+
+    def refine(pts2d, conf, start, kept):
+        return refine_points(
+            pts2d, cameras, start, conf=conf, inliers=kept, options=options, **terms
+        ).points3d
+
+    windows = evaluation_windows(source.n_frames)
+    held = held_out_errors(
+        cameras, source.pts2d, triangulate, conf=source.conf, refine=refine, windows=windows
+    )
+    keep, everywhere = keep_triangulation(held["triangulation"], held["refinement"])
+    frames = held["frames"]
+    refined3d = group["points3d"][()][frames] if len(frames) else np.zeros((0, source.n_points, 3))
+    tri3d = np.asarray(tri["triangulation/points3d"][()], np.float64)[frames]
+    if keep.any():
+        _keep_triangulation_points(tri, group, keep, options.chunk_frames)
+    both = np.isfinite(held["triangulation"]) & np.isfinite(held["refinement"])
+    chosen = np.where(keep[None, None], held["triangulation"], held["refinement"])
+    skeleton = config.skeleton()
+    names = dict(view_names=list(cameras.names), point_names=list(skeleton.point_names))
+    shape = dict(bones=terms["bones"], mirror=terms["mirror"])
+    output3d = np.where(keep[None, :, None], tri3d, refined3d)
+    result = {
+        "frames_evaluated": int(len(frames)),
+        "frames_total": int(source.n_frames),
+        "windows": [list(w) for w in windows],
+        "compared_on": "observations both methods reconstructed without the view",
+        "triangulation": accuracy_summary(
+            np.where(both, held["triangulation"], np.nan), tri3d, **names, **shape
+        ),
+        "refinement": accuracy_summary(
+            np.where(both, held["refinement"], np.nan), refined3d, **names, **shape
+        ),
+        "output": accuracy_summary(np.where(both, chosen, np.nan), output3d, **names, **shape),
+        "kept_triangulation": [skeleton.point_names[p] for p in np.flatnonzero(keep)],
+        "kept_everywhere": bool(everywhere),
+    }
+    return result
+
+
+def _keep_triangulation_points(tri: h5py.File, group: h5py.Group, keep: np.ndarray, chunk: int):
+    """Points ``keep`` ``(P,)`` take the triangulation's 3D, 2D and errors in every frame,
+    flagged ``kept_triangulation`` (chunk by chunk along time)."""
+    bit = np.uint8(FLAG_BITS["kept_triangulation"][0])
+    n_frames = group["points3d"].shape[0]
+    step = max(1, int(chunk))
+    for lo in range(0, n_frames, step):
+        hi = min(lo + step, n_frames)
+        for name, axis in (("points3d", 0), ("reproj_error", 1), ("points", 1)):
+            source = tri[f"triangulation/{name}"]
+            if axis == 0:
+                values = group[name][lo:hi]
+                values[:, keep] = source[lo:hi][:, keep]
+                group[name][lo:hi] = values
+            else:
+                values = group[name][:, lo:hi]
+                values[:, :, keep] = source[:, lo:hi][:, :, keep]
+                group[name][:, lo:hi] = values
+        flags = group["flags"][lo:hi]
+        flags[:, keep] |= bit
+        group["flags"][lo:hi] = flags
 
 
 def _keep_corrected(tri: h5py.File, group: h5py.Group) -> None:
