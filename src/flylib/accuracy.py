@@ -257,16 +257,23 @@ def accuracy_summary(
     return out
 
 
-def methods_from_config(config, cameras: CameraGroup) -> tuple[Triangulate, Refine]:
-    """The triangulation and refinement stages' 3D methods, as :func:`held_out_errors`
-    calls them, from the config's ``triangulation``, ``refinement`` and skeleton tables."""
-    from .refinement.setup import options_from_params, skeleton_terms
-    from .refinement.solver import refine_points
+def triangulation_method(config, cameras: CameraGroup) -> Triangulate:
+    """The triangulation stage's 3D method as :func:`held_out_errors` calls it (the
+    config's ``triangulation`` table)."""
     from .triangulation import reconstruct_from_config
 
     def triangulate(pts2d, conf):
         pts3d, clean, _ = reconstruct_from_config(config, cameras, pts2d, conf)
         return pts3d, np.isfinite(clean).all(-1)
+
+    return triangulate
+
+
+def refinement_method(config, cameras: CameraGroup) -> Refine:
+    """The refinement stage's 3D method as :func:`held_out_errors` calls it (the
+    config's ``refinement`` table and skeleton)."""
+    from .refinement.setup import options_from_params, skeleton_terms
+    from .refinement.solver import refine_points
 
     params = config.refinement
     terms = skeleton_terms(config.skeleton(), params.rigid_points)
@@ -277,4 +284,33 @@ def methods_from_config(config, cameras: CameraGroup) -> tuple[Triangulate, Refi
             pts2d, cameras, start, conf=conf, inliers=kept, options=options, **terms
         ).points3d
 
-    return triangulate, refine
+    return refine
+
+
+def triangulation_accuracy(
+    config,
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    pts3d: Float[np.ndarray, "T P 3"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
+) -> dict[str, Any]:
+    """The triangulation stage's truth-free accuracy: :func:`accuracy_summary` of its
+    held-out-view errors (on :func:`evaluation_windows`) and of ``pts3d`` on the same
+    frames, plus ``frames_evaluated`` and ``frames_total``."""
+    from .refinement.setup import mirror_bones
+
+    held = held_out_errors(cameras, pts2d, triangulation_method(config, cameras), conf=conf)
+    skeleton = config.skeleton()
+    frames = held["frames"]
+    return {
+        "frames_evaluated": int(len(frames)),
+        "frames_total": int(pts2d.shape[1]),
+        "triangulation": accuracy_summary(
+            held["triangulation"],
+            np.asarray(pts3d, np.float64)[frames],
+            view_names=list(cameras.names),
+            point_names=list(skeleton.point_names),
+            bones=np.asarray(skeleton.bones, int),
+            mirror=mirror_bones(skeleton),
+        ),
+    }

@@ -85,8 +85,8 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
     if stage == "pictorial_structures":
         return ("pictorial_structures", *_SKELETON, *own_rig)
     method = tuple(f"triangulation.{key}" for key in config.triangulation.method_params())
-    if stage == "triangulation":
-        return (*method, *own_rig)
+    if stage == "triangulation":  # the skeleton: its accuracy's bone figures
+        return (*method, *_SKELETON, *own_rig)
     if stage == "refinement":  # its held-out-view check re-runs the triangulation
         return ("refinement", *method, *_SKELETON, *own_rig)
     if stage == "kinematics":

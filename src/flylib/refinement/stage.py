@@ -237,11 +237,11 @@ def _held_out_check(config, cameras, source, tri, group, terms, options) -> dict
         evaluation_windows,
         held_out_errors,
         keep_triangulation,
-        methods_from_config,
+        triangulation_method,
     )
     from .solver import refine_points
 
-    triangulate, _ = methods_from_config(config, cameras)
+    triangulate = triangulation_method(config, cameras)
 
     def refine(pts2d, conf, start, kept):
         return refine_points(
