@@ -177,7 +177,8 @@ def keep_triangulation(
     keep : np.ndarray
         ``(P,)`` bool: the points whose output is the triangulation.
     everywhere : bool
-        True when refinement lost overall and every point keeps the triangulation.
+        True when every point keeps the triangulation (point by point, or because
+        refinement lost overall).
     """
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
@@ -194,7 +195,7 @@ def keep_triangulation(
     worse = np.median(mixed) > np.median(base) or np.percentile(mixed, 95) > np.percentile(base, 95)
     if worse:
         return np.ones(tri.shape[2], bool), True
-    return keep, False
+    return keep, bool(keep.all())
 
 
 def _stats(values: np.ndarray) -> dict[str, float | int | None]:

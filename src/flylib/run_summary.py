@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 # A Python warning ("file.py:12: UserWarning: text") or a logging record at WARNING
 # level ("... WARNING name: text") in a job's log.
 _WARNING = re.compile(r"(?:^|\s)(?:\w*Warning: |WARNING [\w.]+: )(?P<text>.+)$")
@@ -246,7 +248,8 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
 
 
 def _worst_view(block: dict, overall: float) -> str:
-    """A camera whose held-out error is over twice the recording's: named, with the fix."""
+    """Cameras whose held-out error is over twice the typical camera's: named, with the
+    fix. (Three cameras see each side, so one camera's error shows in all three.)"""
     views = {
         name: v["median"]
         for name, v in ((block or {}).get("per_view") or {}).items()
@@ -254,13 +257,15 @@ def _worst_view(block: dict, overall: float) -> str:
     }
     if len(views) < 3:
         return ""
-    name = max(views, key=views.get)
-    if views[name] <= 2 * overall:
+    typical = float(np.median(list(views.values())))
+    bad = [name for name, value in views.items() if value > 2 * typical]
+    if not bad:
         return ""
+    figures = ", ".join(f"{name} {views[name]:.2f} px" for name in bad)
     return (
-        f" Camera {name} disagrees with the others (held-out median {views[name]:.2f} px vs "
-        f"{overall:.2f} px overall): check its calibration and that its footage and 2D are "
-        "the right camera's."
+        f" Cameras {figures} disagree with the others (typical {typical:.2f} px held out): "
+        "one of them is mis-calibrated or mislabeled (its footage or 2D from another camera); "
+        "check the rig and which video is which camera."
     )
 
 
