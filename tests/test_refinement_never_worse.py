@@ -90,7 +90,7 @@ def test_front_blind_scene_through_bundle_adjustment(tmp_path):
     assert acc["triangulation"]["held_out_px"]["median"] < 10  # a usable rig to judge on
 
 
-def test_the_demo(tmp_path):
+def test_the_demo(tmp_path, capsys):
     from flylib.demo import demo_import_spec, make_demo
 
     config = Config.default()
@@ -99,5 +99,20 @@ def test_the_demo(tmp_path):
     stages.run_pose2d(
         config, tmp_path / "demo", s / "pose2d.h5", import_spec=demo_import_spec(config)
     )
-    acc = _check_never_worse(tmp_path / "demo" / "flylib_outputs", with_ba=False)
+    out = tmp_path / "demo" / "flylib_outputs"
+    acc = _check_never_worse(out, with_ba=False)
     assert acc["frames_evaluated"] == 60
+    # flylib inspect: the held-out figures per stage and per point, and the sentence
+    from flylib.cli import main, summarize_results
+
+    summary = summarize_results(out / "results.h5")
+    rows = {r["stage"]: r for r in summary["stages"]}
+    assert rows["triangulation"]["held_median"] == acc["triangulation"]["held_out_px"]["median"]
+    assert rows["refinement"]["held_median"] == acc["output"]["held_out_px"]["median"]
+    first = summary["points"][0]
+    assert first["held_median"] == acc["output"]["per_point"][first["point"]]["median"]
+    capsys.readouterr()
+    assert main(["inspect", str(out / "results.h5")]) in (0, 2)
+    text = capsys.readouterr().out
+    assert "held-out median px" in text and "accuracy: held-out px = " in text
+    assert "refinement is better than triangulation" in text or "keep" in text

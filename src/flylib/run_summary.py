@@ -248,8 +248,9 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
 
 
 def _worst_view(block: dict, overall: float) -> str:
-    """Cameras whose held-out error is over twice the typical camera's: named, with the
-    fix. (Three cameras see each side, so one camera's error shows in all three.)"""
+    """Cameras whose held-out error is over twice the typical (better-half median)
+    camera's: named, with the fix. (Three cameras see each side, so one camera's error
+    shows in all three.)"""
     views = {
         name: v["median"]
         for name, v in ((block or {}).get("per_view") or {}).items()
@@ -257,7 +258,9 @@ def _worst_view(block: dict, overall: float) -> str:
     }
     if len(views) < 3:
         return ""
-    typical = float(np.median(list(views.values())))
+    # the better half: a mis-calibrated camera drags its whole side (half the views) up
+    values = np.sort(list(views.values()))
+    typical = float(np.median(values[: max(1, len(values) // 2)]))
     bad = [name for name, value in views.items() if value > 2 * typical]
     if not bad:
         return ""
