@@ -205,11 +205,11 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
     frames = ""
     if accuracy.get("frames_evaluated", 0) < accuracy.get("frames_total", 0):
         frames = (
-            f" (held out on {accuracy['frames_evaluated']} of {accuracy['frames_total']} frames)"
+            f" Held out on {accuracy['frames_evaluated']} of {accuracy['frames_total']} frames."
         )
     figures = f"median {tri[0]:.2f} px, p95 {tri[1]:.2f} px"
     if accuracy.get("output_stage") != "refinement":
-        line = f"{rec_id}: each camera is predicted from the others to {figures} (triangulation){frames}."
+        line = f"{rec_id}: each camera is predicted from the others to {figures} (triangulation)."
     else:
         out = _held(accuracy.get("output")) or tri
         raw = _held(accuracy.get("refinement")) or tri
@@ -240,7 +240,7 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
             )
         else:
             line = f"{rec_id}: refinement is better than triangulation ({compare}); the results use it."
-        line += frames
+    line += frames
     worst = _worst_view(accuracy.get("output") or accuracy.get("triangulation"), tri[0])
     if worst:
         line += worst

@@ -254,8 +254,13 @@ def _held_out_check(config, cameras, source, tri, group, terms, options) -> dict
     )
     keep, everywhere = keep_triangulation(held["triangulation"], held["refinement"])
     frames = held["frames"]
-    refined3d = group["points3d"][()][frames] if len(frames) else np.zeros((0, source.n_points, 3))
-    tri3d = np.asarray(tri["triangulation/points3d"][()], np.float64)[frames]
+
+    def on_windows(dataset) -> np.ndarray:  # the evaluated frames only: memory stays flat
+        parts = [np.asarray(dataset[lo:hi], np.float64) for lo, hi in windows]
+        return np.concatenate(parts) if parts else np.zeros((0, source.n_points, 3))
+
+    refined3d = on_windows(group["points3d"])
+    tri3d = on_windows(tri["triangulation/points3d"])
     if keep.any():
         _keep_triangulation_points(tri, group, keep, options.chunk_frames)
     both = np.isfinite(held["triangulation"]) & np.isfinite(held["refinement"])
