@@ -15,7 +15,7 @@ frames (:func:`evaluation_windows`; the summary says how many frames were used).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -57,7 +57,7 @@ def held_out_errors(
     triangulate: Triangulate,
     *,
     conf: Float[np.ndarray, "V T P"] | None = None,
-    refine: Refine | None = None,
+    refine: Refine | Mapping[Any, Refine] | None = None,
     windows: Sequence[tuple[int, int]] | None = None,
 ) -> dict[str, Any]:
     """Leave-one-camera-out reprojection errors of triangulation (and refinement).
@@ -71,9 +71,12 @@ def held_out_errors(
     cameras
         The rig the reconstruction used.
     pts2d
-        ``(V, T, P, 2)`` the 2D the 3D methods read, NaN = missing.
+        ``(V, T, P, 2)`` the 2D the 3D methods read, NaN = missing (h5py datasets are
+        read window by window).
     triangulate, refine
-        The 3D methods, as the stages run them (see :data:`Triangulate`, :data:`Refine`).
+        The 3D methods, as the stages run them (see :data:`Triangulate`, :data:`Refine`);
+        ``refine`` may be a mapping ``label -> Refine`` (variants judged on the same
+        held-out triangulations).
     conf
         ``(V, T, P)`` detector confidences handed to the methods, or ``None``.
     windows
@@ -84,19 +87,20 @@ def held_out_errors(
     dict
         ``frames`` ``(T',)`` the frames evaluated; ``triangulation`` and, with
         ``refine``, ``refinement``: ``(V, T', P)`` pixel errors (NaN where ``v`` has
-        no 2D or the method could not reconstruct the point without it).
+        no 2D or the method could not reconstruct the point without it); a mapping
+        ``label -> (V, T', P)`` when ``refine`` is a mapping.
     """
+    variants = dict(refine) if isinstance(refine, Mapping) else {None: refine} if refine else {}
     n_views, n_frames, n_points = pts2d.shape[:3]
     windows = evaluation_windows(n_frames) if windows is None else list(windows)
     frames = np.concatenate([np.arange(lo, hi) for lo, hi in windows] or [np.zeros(0, int)])
-    out = {"frames": frames, "triangulation": []}
-    if refine is not None:
-        out["refinement"] = []
+    tri_parts: list[np.ndarray] = []
+    ref_parts: dict[Any, list[np.ndarray]] = {label: [] for label in variants}
     for lo, hi in windows:
-        seen = np.asarray(pts2d[:, lo:hi], np.float64)  # h5py datasets are read window by window
+        seen = np.asarray(pts2d[:, lo:hi], np.float64)
         part_conf = None if conf is None else np.asarray(conf[:, lo:hi], np.float64)
         tri = np.full(seen.shape[:3], np.nan)
-        ref = np.full(seen.shape[:3], np.nan)
+        ref = {label: np.full(seen.shape[:3], np.nan) for label in variants}
         for v in range(n_views):
             if not np.isfinite(seen[v]).any():
                 continue
@@ -104,15 +108,20 @@ def held_out_errors(
             without[v] = np.nan
             start, kept = triangulate(without, part_conf)
             tri[v] = _view_error(cameras, v, start, seen[v])
-            if refine is not None:
-                ref[v] = _view_error(cameras, v, refine(without, part_conf, start, kept), seen[v])
-        out["triangulation"].append(tri)
-        if refine is not None:
-            out["refinement"].append(ref)
-    for key in ("triangulation", "refinement"):
-        if key in out:
-            parts = out[key]
-            out[key] = np.concatenate(parts, axis=1) if parts else np.zeros((n_views, 0, n_points))
+            for label, method in variants.items():
+                refined = method(without, part_conf, start, kept)
+                ref[label][v] = _view_error(cameras, v, refined, seen[v])
+        tri_parts.append(tri)
+        for label in variants:
+            ref_parts[label].append(ref[label])
+
+    def joined(parts):
+        return np.concatenate(parts, axis=1) if parts else np.zeros((n_views, 0, n_points))
+
+    out: dict[str, Any] = {"frames": frames, "triangulation": joined(tri_parts)}
+    if variants:
+        refined = {label: joined(parts) for label, parts in ref_parts.items()}
+        out["refinement"] = refined if isinstance(refine, Mapping) else refined[None]
     return out
 
 

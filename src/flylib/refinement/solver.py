@@ -17,7 +17,6 @@ sit out, and the fit continues.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -78,7 +77,6 @@ class RefineOptions:
     smooth_weight: float = 1.0
     smooth_order: int = 2
     smooth_scale: float = 0.03
-    motion_scale: float = 2.0
     bone_weight: float = 1.0
     bone_scale: float = 0.005
     symmetric_bones: bool = False
@@ -204,12 +202,9 @@ def fill_start(
 def recording_motion(start: Float[np.ndarray, "T P 3"], order: int) -> float:
     """How far the points move per frame: the median length of their ``order``-th
     differences over consecutive frames (world units per frame^order; NaN when no
-    point is seen in ``order + 1`` consecutive frames).
-
-    It carries the footage's frame rate (a faster camera sees smaller per-frame
-    changes) and the recording's own motion, and sets a floor under the smoothness
-    scale (``motion_scale`` times it), so a fast or fast-moving fly is not held to
-    a slower one's smoothness."""
+    point is seen in ``order + 1`` consecutive frames). It carries the footage's frame
+    rate (a faster camera sees smaller per-frame changes) and the recording's own
+    motion; the refinement stage tries smoothness scales in units of it."""
     if start.shape[0] <= order:
         return float("nan")
     step = np.linalg.norm(np.diff(start, n=order, axis=0), axis=-1)
@@ -618,21 +613,16 @@ def refine_stream(
     chunk = max(int(opts.chunk_frames), 1)
     overlap = max(int(opts.overlap_frames), 0)
 
-    # -- pass 1: which views see which points, a frame sample for the medians, and how
-    # much the recording itself moves per frame (differences within each chunk)
+    # -- pass 1: which views see which points, and a frame sample for the medians
     seen = np.zeros((n_views, n_points), bool)
     stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
-    sample, motion = [], []
+    sample = []
     for lo in range(0, n_frames, chunk):
         hi = min(lo + chunk, n_frames)
         pts2d, conf, start, _ = source.read(lo, hi)
         seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
         sample.append(start[(-lo) % stride :: stride])
-        motion.append(recording_motion(start, opts.smooth_order))
     sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
-    motion = float(np.nanmedian(motion)) if np.isfinite(motion).any() else 0.0
-    smooth_scale = max(opts.smooth_scale, opts.motion_scale * motion)
-    opts = dataclasses.replace(opts, smooth_scale=smooth_scale)
     lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
     centres = rigid_centres(sample, rigid)
     with np.errstate(all="ignore"):
@@ -740,8 +730,7 @@ def refine_stream(
         "observations_kept": kept_total,
         "observations_rejected": rejected_total,
         "bone_sample_frames": len(sample),
-        "motion_per_frame": round(motion, 6),
-        "smooth_scale_used": round(smooth_scale, 6),
+        "smooth_scale": opts.smooth_scale,
     }
     log.info(
         "refinement: %d frames in %d chunk(s), %.2f s, iterations %s",
