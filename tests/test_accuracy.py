@@ -145,9 +145,11 @@ def test_evaluation_windows_bound_the_frames_and_cover_the_recording():
     assert evaluation_windows(15) == [(0, 15)]
     assert evaluation_windows(0) == []
     windows = evaluation_windows(100_000)
-    assert sum(hi - lo for lo, hi in windows) == 1000 and len(windows) == 4
+    assert sum(hi - lo for lo, hi in windows) == 500 and len(windows) == 2
     assert windows[0][0] == 0 and windows[-1][1] == 100_000
     assert all(hi - lo == 250 for lo, hi in windows)
+    assert evaluation_windows(501) == [(0, 250), (251, 501)]
+    assert len(evaluation_windows(100_000, max_frames=1000)) == 4
 
 
 def test_keep_triangulation_point_by_point_and_everywhere():

@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: At most this many frames are held out per recording (in windows of
 #: :data:`EVALUATION_WINDOW` contiguous frames), bounding refinement's re-solves.
-EVALUATION_FRAMES = 1000
+EVALUATION_FRAMES = 500
 EVALUATION_WINDOW = 250
 
 #: ``triangulate(pts2d (V, T, P, 2), conf (V, T, P) | None) -> (pts3d (T, P, 3), kept (V, T, P))``
