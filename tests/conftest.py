@@ -32,6 +32,13 @@ def deeperfly_example_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
+def df3d_package_example_dir() -> Path:
+    """``../shared/data/deepfly3d-package-example`` (DeepFly3D 1.x ``df3d_result.pkl``
+    and ``calib.pkl``, 7 cameras, 15 frames), or skip."""
+    return _shared_subdir("deepfly3d-package-example")
+
+
+@pytest.fixture(scope="session")
 def df3d_pickle(df3d_sample_dir: Path) -> Path:
     """DeepFly3D's own 2D output for the sample recording, or skip."""
     path = df3d_sample_dir / "df3d_result_2d.pkl"

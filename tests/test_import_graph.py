@@ -16,7 +16,7 @@ below it:
 2. config -- :class:`~flylib.config.Config` and its validation (NWB metadata checks)
 3. recordings -- which directories hold footage, and the demo directory's layout
 4. algorithms -- detection, bundle adjustment, pictorial structures, triangulation,
-   refinement, kinematics, rendering
+   refinement, the held-out-view accuracy, kinematics, rendering
 5. data -- stage artifacts and results, provenance, suspects, corrections, file
    formats of other tools, the demo generator
 6. stages -- the stage functions the workflow runs, preflight checks, run summaries
@@ -71,6 +71,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.pictorial",
             "flylib.triangulation",
             "flylib.refinement",
+            "flylib.accuracy",
             "flylib.kinematics",
             "flylib.visualization",
         ),

@@ -160,3 +160,88 @@ def test_the_demo_truth_line_gives_the_triangulation_figure_beside_the_refined_o
     assert last.endswith(
         "(refined 3D; triangulation alone: median 0.0701, p95 0.0812, aligned 0.0123)"
     )
+
+
+def _figures(median, p95, per_view=None):
+    return {"held_out_px": {"median": median, "p95": p95, "n": 100}, "per_view": per_view or {}}
+
+
+def _accuracy(tri, out, raw=None, kept=(), everywhere=False, per_view=None, frames=(60, 60)):
+    points = {f"p{i}": {"median": 1.0, "p95": 2.0, "n": 10} for i in range(10)}
+    return {
+        "frames_evaluated": frames[0],
+        "frames_total": frames[1],
+        "triangulation": _figures(*tri),
+        "refinement": _figures(*(raw or out)),
+        "output": {**_figures(*out, per_view), "per_point": points},
+        "kept_triangulation": list(kept),
+        "kept_everywhere": everywhere,
+        "output_stage": "refinement",
+    }
+
+
+def test_held_out_columns_mark_the_better_method_and_say_what_to_do(tmp_path):
+    """Issue 27 item 2: the table explains when refinement is worse instead of bare numbers."""
+    write_summary(tmp_path / "better", accuracy=_accuracy((5.87, 16.97), (4.1, 9.0)))
+    write_summary(
+        tmp_path / "partly",
+        accuracy=_accuracy((5.87, 16.97), (5.78, 16.70), (5.95, 16.86), kept=["p1", "p2"]),
+    )
+    write_summary(
+        tmp_path / "worse",
+        accuracy=_accuracy(
+            (5.87, 16.97),
+            (5.87, 16.97),
+            (7.51, 51.2),
+            kept=[f"p{i}" for i in range(10)],
+            everywhere=True,
+            frames=(1000, 90000),
+        ),
+    )
+    tri_only = {
+        "frames_evaluated": 60,
+        "frames_total": 60,
+        "triangulation": _figures(2.0, 5.0),
+        "output": _figures(2.0, 5.0),
+        "output_stage": "triangulation",
+    }
+    write_summary(tmp_path / "tri", accuracy=tri_only)
+    write_summary(tmp_path / "none")
+    names = ["better", "partly", "worse", "tri", "none"]
+    lines = run_table([RunRecording(n, tmp_path / n) for n in names]).splitlines()
+    header = lines[1]
+    assert "held-out px triangulation" in header and "held-out px refined" in header
+    col_tri, col_ref = (
+        header.index("held-out px triangulation"),
+        header.index("held-out px refined"),
+    )
+    end = header.index("outputs")
+    assert lines[2][col_tri:col_ref].strip() == "5.87 / 16.97"
+    assert lines[2][col_ref:end].strip() == "4.10 / 9.00 *"
+    assert lines[3][col_ref:end].strip() == "5.78 / 16.70 *"
+    assert lines[4][col_tri:col_ref].strip() == "5.87 / 16.97"  # a tie marks nothing
+    assert "*" not in lines[4] and lines[5][col_tri:col_ref].strip() == "2.00 / 5.00"
+    assert lines[5][col_ref:end].strip() == "-" and lines[6].split()[5:7] == ["-", "-"]
+    assert lines[7].startswith("accuracy: held-out px = median / p95 distance")
+    said = dict(line.strip().split(": ", 1) for line in lines[8:12])
+    assert said["better"].startswith(
+        "refinement is better than triangulation (held-out median 5.87 -> 4.10 px"
+    )
+    assert "the refined 3D is used for 8 of the 10 points" in said["partly"]
+    assert "for 2 (p1, p2) it predicted the held-out cameras worse" in said["partly"]
+    assert "kept_triangulation" in said["partly"]
+    assert said["worse"].startswith("refinement made this recording worse than triangulation")
+    assert "7.51" in said["worse"] and "pipeline.do_refinement: false" in said["worse"]
+    assert said["worse"].endswith(" Held out on 1000 of 90000 frames.")
+    assert said["tri"].startswith("each camera is predicted from the others to median 2.00 px")
+    assert len(lines) == 12
+
+
+def test_the_cameras_that_disagree_are_named(tmp_path):
+    views = {
+        v: {"median": m, "p95": 2 * m, "n": 9} for v, m in zip("abcdef", (14, 19, 10, 2, 1.6, 2))
+    }
+    write_summary(tmp_path / "r", accuracy=_accuracy((6.0, 20.0), (5.0, 18.0), per_view=views))
+    line = run_table([RunRecording("r", tmp_path / "r")]).splitlines()[-1]
+    assert "Cameras a 14.00 px, b 19.00 px, c 10.00 px disagree with the others" in line
+    assert "mislabeled" in line

@@ -69,10 +69,13 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     assert row[0] == "demo" and row[1] == "60" and row[2].endswith("%")
     assert float(row[3]) < 2 and float(row[4]) < 5 and row[-1] == "demo/flylib_outputs"
     assert table[-1].startswith("demo: 3D error against the demo truth: median ")
-    # title, header, one row, the truth last; the one warning is bundle adjustment's, and
+    # title, header, one row, the held-out-view accuracy (the note, then the demo's
+    # sentence: issue 23), the truth last; the one warning is bundle adjustment's, and
     # it is right: each camera sees one side, so the two sides share no point and one
     # side can scale about the front camera without changing an image (issue 12)
-    warnings = table[3:-1]
+    assert table[3].startswith("accuracy: held-out px = ") and table[4].strip().startswith("demo: ")
+    assert "refinement is better than triangulation" in table[4]
+    warnings = table[5:-1]
     assert warnings in ([], ["warnings:", warnings[-1] if warnings else ""]), warnings
     assert not warnings or "bundle adjustment: the rig is poorly determined" in warnings[-1]
     assert "Shell command" not in proc.stdout + proc.stderr  # printshellcmds is off

@@ -5,6 +5,13 @@ module on first use, so ``import flylib`` stays cheap while type checkers and ID
 the real definitions. A new public name goes here, in its module's import.
 """
 
+from .accuracy import (
+    accuracy_summary as accuracy_summary,
+    bone_length_spread as bone_length_spread,
+    held_out_errors as held_out_errors,
+    keep_triangulation as keep_triangulation,
+    left_right_asymmetry as left_right_asymmetry,
+)
 from .bundle_adjustment import (
     bundle_adjust as bundle_adjust,
     bundle_adjust_from_config as bundle_adjust_from_config,

@@ -81,6 +81,12 @@ def summarize_results(path: Path) -> dict:
                 row["err_median"], row["err_p95"] = _percentile(err, 50), _percentile(err, 95)
             if "cameras/names" in group:
                 row["cameras"] = len(_decode(group["cameras/names"][()]))
+            accuracy = _stage_accuracy(group)
+            if accuracy is not None:
+                row["accuracy"] = accuracy
+                held = accuracy["output" if stage == "refinement" else "triangulation"]
+                row["held_median"] = held["held_out_px"]["median"]
+                row["held_p95"] = held["held_out_px"]["p95"]
             stages.append(row)
         stage_3d = next((s for s in reversed(_STAGES_3D) if f"{s}/points3d" in f), None)
         source_2d = next((s for s in reversed(_STAGES_2D) if f"{s}/points" in f), None)
@@ -92,9 +98,20 @@ def summarize_results(path: Path) -> dict:
             else None
         )
 
+    accuracy = next(
+        (s["accuracy"] for s in stages if s["stage"] == stage_3d and "accuracy" in s), None
+    )
+    held_points = {}
+    if accuracy is not None:
+        held_points = accuracy["output" if stage_3d == "refinement" else "triangulation"][
+            "per_point"
+        ]
     points = []
     for p, name in enumerate(names):
         row = {"point": name}
+        if name in held_points:
+            row["held_median"] = held_points[name]["median"]
+            row["held_p95"] = held_points[name]["p95"]
         if pts2d is not None:
             row["views_observing"] = float(np.isfinite(pts2d[:, :, p]).all(-1).sum(0).mean())
         if pts3d is not None:
@@ -126,7 +143,20 @@ def summarize_results(path: Path) -> dict:
         "points": points,
         "bones": bone_rows,
         "stage_3d": stage_3d,
+        "accuracy": accuracy,
     }
+
+
+def _stage_accuracy(group) -> dict | None:
+    """A 3D stage's truth-free accuracy attrs (:mod:`flylib.accuracy`), or ``None``."""
+    text = group.attrs.get("accuracy")
+    if text is None:
+        return None
+    try:
+        value = json.loads(text.decode() if isinstance(text, bytes) else text)
+    except ValueError:
+        return None
+    return value if isinstance(value, dict) else None
 
 
 # -- printing ---------------------------------------------------------------------
@@ -190,9 +220,21 @@ def _cmd_inspect(args) -> int:
             ("reconstructed", "3D reconstructed"),
             ("err_median", "err median px"),
             ("err_p95", "err p95 px"),
+            ("held_median", "held-out median px"),
+            ("held_p95", "held-out p95 px"),
             ("cameras", "cameras"),
         ],
     )
+    if summary["accuracy"] is not None:
+        from .run_summary import HELD_OUT_NOTE, accuracy_line
+
+        print(f"accuracy: {HELD_OUT_NOTE}")
+        line = accuracy_line(
+            str(args.results), summary["accuracy"] | {"output_stage": summary["stage_3d"]}
+        )
+        if line:
+            print(f"  {line}")
+        print()
     _print_table(
         f"points ({summary['stage_3d'] or 'no 3D stage'})",
         summary["points"],
@@ -202,6 +244,8 @@ def _cmd_inspect(args) -> int:
             ("reconstructed", "reconstructed"),
             ("err_median", "err median px"),
             ("err_p95", "err p95 px"),
+            ("held_median", "held-out median px"),
+            ("held_p95", "held-out p95 px"),
         ],
     )
     if summary["bones"]:

@@ -3,9 +3,13 @@
 
 Each row comes from the recording's ``summary.json`` (written by the assemble job):
 frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
-error, the suspect count when the summary holds one, and where the outputs are.
-Warnings the jobs logged (e.g. an implausible container frame rate) follow the
-table, and the demo's comparison against its 3D truth comes last.
+error, the held-out-view error of triangulation and of the refined output side by
+side (the better one marked ``*``) when the summary holds :mod:`flylib.accuracy`'s
+figures, the suspect count when it holds one, and where the outputs are. Then one
+sentence per recording says what the held-out figures mean for it (refinement better,
+partly kept, or worse and not used; a camera that disagrees with the others), the
+warnings the jobs logged (e.g. an implausible container frame rate) follow, and the
+demo's comparison against its 3D truth comes last.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 # A Python warning ("file.py:12: UserWarning: text") or a logging record at WARNING
 # level ("... WARNING name: text") in a job's log.
@@ -131,6 +137,7 @@ def recording_row(rec: RunRecording, since: float | None = None) -> dict[str, An
         median=error.get("median"),
         p95=error.get("p95"),
         suspects=_suspects(summary),
+        accuracy=summary.get("accuracy"),
         truth=summary.get("error_vs_truth"),
         truth_before=summary.get("error_vs_truth_triangulation"),
     )
@@ -157,6 +164,112 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
         ]
         lines.append("  ".join(cells).rstrip())
     return lines
+
+
+#: What the held-out-view error is, once under the table that shows it.
+HELD_OUT_NOTE = (
+    "held-out px = median / p95 distance from each camera's 2D to the 3D rebuilt without "
+    "that camera (lower is better, * the better method); reproj px only shows how closely "
+    "the 3D fits the 2D it was built from"
+)
+
+
+def _held(block: dict | None) -> tuple[float, float] | None:
+    figures = (block or {}).get("held_out_px") or {}
+    if figures.get("median") is None:
+        return None
+    return float(figures["median"]), float(figures["p95"])
+
+
+def held_out_cells(accuracy: dict | None) -> tuple[str, str]:
+    """``(triangulation, output)`` cells ``"median / p95"`` of the held-out-view error,
+    the better (lower median, then p95) marked ``*``; ``"-"`` where absent."""
+    if not accuracy:
+        return "-", "-"
+    tri = _held(accuracy.get("triangulation"))
+    out = _held(accuracy.get("output")) if accuracy.get("output_stage") == "refinement" else None
+    cells = [f"{v[0]:.2f} / {v[1]:.2f}" if v else "-" for v in (tri, out)]
+    if tri and out and out != tri:
+        better = 1 if out <= tri else 0
+        cells[better] += " *"
+    return cells[0], cells[1]
+
+
+def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
+    """One sentence a biologist can act on: is the refined 3D better than the plain
+    triangulation by the held-out-view error, which points keep the triangulation and
+    why, and which camera (if any) disagrees with the others."""
+    tri = _held(accuracy.get("triangulation"))
+    if tri is None:
+        return None
+    frames = ""
+    if accuracy.get("frames_evaluated", 0) < accuracy.get("frames_total", 0):
+        frames = (
+            f" Held out on {accuracy['frames_evaluated']} of {accuracy['frames_total']} frames."
+        )
+    figures = f"median {tri[0]:.2f} px, p95 {tri[1]:.2f} px"
+    if accuracy.get("output_stage") != "refinement":
+        line = f"{rec_id}: each camera is predicted from the others to {figures} (triangulation)."
+    else:
+        out = _held(accuracy.get("output")) or tri
+        raw = _held(accuracy.get("refinement")) or tri
+        kept = list(accuracy.get("kept_triangulation") or [])
+        per_point = (accuracy.get("output") or {}).get("per_point") or {}
+        n_points = sum(1 for v in per_point.values() if v.get("n")) or None
+        compare = (
+            f"held-out median {tri[0]:.2f} -> {out[0]:.2f} px, p95 {tri[1]:.2f} -> {out[1]:.2f} px"
+        )
+        if accuracy.get("kept_everywhere"):
+            line = (
+                f"{rec_id}: refinement made this recording worse than triangulation (held-out "
+                f"median {tri[0]:.2f} -> {raw[0]:.2f} px, p95 {tri[1]:.2f} -> {raw[1]:.2f} px), "
+                "so the results keep the triangulation for every point. Its assumptions (smooth "
+                "motion, constant bone lengths, a still thorax) do not fit this fly or this rig: "
+                "check the rig first (the bundle-adjustment warning, or a calibration file), "
+                "or set pipeline.do_refinement: false."
+            )
+        elif kept:
+            names = ", ".join(kept[:6]) + (f" and {len(kept) - 6} more" if len(kept) > 6 else "")
+            helped = f"{n_points - len(kept)} of the {n_points}" if n_points else "some of the"
+            line = (
+                f"{rec_id}: the refined 3D is used for {helped} points that could be checked "
+                f"({compare}); for {len(kept)} "
+                f"({names}) it predicted the held-out cameras worse than triangulation, so the "
+                "results keep their triangulation (flag kept_triangulation in "
+                "stages/refinement.h5)."
+            )
+        else:
+            line = f"{rec_id}: refinement is better than triangulation ({compare}); the results use it."
+    line += frames
+    worst = _worst_view(accuracy.get("output") or accuracy.get("triangulation"), tri[0])
+    if worst:
+        line += worst
+    return line
+
+
+def _worst_view(block: dict, overall: float) -> str:
+    """Cameras whose held-out error is over twice the typical (better-half median)
+    camera's: named, with the fix. (Three cameras see each side, so one camera's error
+    shows in all three.)"""
+    views = {
+        name: v["median"]
+        for name, v in ((block or {}).get("per_view") or {}).items()
+        if v.get("median") is not None
+    }
+    if len(views) < 3:
+        return ""
+    # the better half: a mis-calibrated camera drags its whole side (half the views) up
+    values = np.sort(list(views.values()))
+    typical = float(np.median(values[: max(1, len(values) // 2)]))
+    bad = [name for name, value in views.items() if value > 2 * typical]
+    if not bad:
+        return ""
+    figures = ", ".join(f"{name} {views[name]:.2f} px" for name in bad)
+    return (
+        f" Cameras {figures} disagree with the others (typical {typical:.2f} px held out): "
+        "one of them is mis-calibrated or mislabeled (its footage or 2D from another camera); "
+        "check the rig and which video is which camera."
+    )
 
 
 def truth_line(rec_id: str, error: dict, before: dict | None = None) -> str:
@@ -199,7 +312,10 @@ def run_table(
     recordings = list(recordings)
     rows = [recording_row(rec, since if failed else None) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
+    with_accuracy = any(r.get("accuracy") for r in rows)
     header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
+    if with_accuracy:
+        header += ["held-out px triangulation", "held-out px refined"]
     if with_suspects:
         header.append("suspects")
     header.append("outputs")
@@ -213,6 +329,7 @@ def run_table(
                 status = "no result yet: see logs/"
             line = (
                 [r["id"], "-", "-", "-", "-"]
+                + (["-", "-"] if with_accuracy else [])
                 + (["-"] if with_suspects else [])
                 + [f"{r['outdir']}  ({status})"]
             )
@@ -224,6 +341,8 @@ def run_table(
                 _fmt(r["median"], "px"),
                 _fmt(r["p95"], "px"),
             ]
+            if with_accuracy:
+                line += list(held_out_cells(r.get("accuracy")))
             if with_suspects:
                 line.append(_fmt(r["suspects"], "int"))
             line.append(r["outdir"])
@@ -232,6 +351,10 @@ def run_table(
         " (the run failed; rows without a result did not finish)" if failed else ""
     )
     lines = [title, *_align(cells)]
+    sentences = [accuracy_line(r["id"], r["accuracy"]) for r in rows if r.get("accuracy")]
+    sentences = [s for s in sentences if s]
+    if sentences:
+        lines += [f"accuracy: {HELD_OUT_NOTE}:", *(f"  {s}" for s in sentences)]
     warnings = [f"  {rec.id}: {w}" for rec in recordings for w in log_warnings(rec.outdir)]
     if warnings:
         lines += ["warnings:", *warnings]

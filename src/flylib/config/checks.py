@@ -81,6 +81,19 @@ def _string_list(nullable: bool = False) -> Check:
     return check
 
 
+def _number_list(minimum: float, exclusive: bool = False) -> Check:
+    """A list of numbers, each as :func:`_number` checks it."""
+    one = _number(minimum, exclusive)
+
+    def check(value: Any) -> str | None:
+        if isinstance(value, (list, tuple)) and not any(one(v) for v in value):
+            return None
+        bound = f" {'>' if exclusive else '>='} {minimum:g}"
+        return f"expected a list of numbers{bound}, {_got(value)}"
+
+    return check
+
+
 def _string_groups(value: Any) -> str | None:
     if isinstance(value, (list, tuple)) and all(
         isinstance(g, (list, tuple)) and all(isinstance(s, str) for s in g) for g in value

@@ -335,6 +335,8 @@ class Config:
         elif stage == "triangulation":
             params = {
                 "triangulation": self.triangulation.method_params(),
+                # the held-out accuracy's bone spread and left/right figures
+                "skeleton": self._skeleton_structure(),
                 "points_from": "pictorial_structures"
                 if flags["pictorial_structures"]
                 else "pose2d",
@@ -343,6 +345,8 @@ class Config:
         elif stage == "refinement":
             params = {
                 "refinement": asdict(self.refinement),
+                # the held-out-view check re-runs the triangulation without each view
+                "triangulation": self.triangulation.method_params(),
                 "skeleton": self._skeleton_structure(),
                 "rig": None if flags["bundle_adjustment"] else self._rig(),
             }

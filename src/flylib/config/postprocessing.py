@@ -6,7 +6,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .checks import _boolean, _choice, _got, _integer, _number, _param, _string_list
+from .checks import (
+    _boolean,
+    _choice,
+    _got,
+    _integer,
+    _number,
+    _number_list,
+    _param,
+    _string_list,
+)
 
 REFINEMENT_LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 BODY_FRAME_KEYS = ("origin", "posterior", "anterior", "right", "left")
@@ -25,6 +34,12 @@ class RefinementParams:
     smooth_weight, smooth_order, smooth_scale
         Temporal term: weight, difference order (1 velocity, 2 acceleration) and the
         per-frame change in world units that costs as much as ``scale_px``.
+    motion_scales
+        Smoothness scales the refinement stage tries beside ``smooth_scale``, in units
+        of the recording's own motion (the median per-frame ``smooth_order``-th
+        difference of the triangulated points, which also carries the frame rate);
+        the one whose held-out-view error is lowest is used. ``[]``: ``smooth_scale``
+        only.
     bone_weight, bone_scale, symmetric_bones
         Bone-length constancy (one length per bone for the recording): weight, the
         length deviation in world units that costs as much as ``scale_px``, and
@@ -51,6 +66,9 @@ class RefinementParams:
     smooth_weight: float = _param(1.0, _number(0), kind=float)
     smooth_order: int = _param(2, _choice(1, 2))
     smooth_scale: float = _param(0.03, _number(0, exclusive=True), kind=float)
+    motion_scales: tuple[float, ...] = _param(
+        (1.0, 2.0, 4.0), _number_list(0, exclusive=True), kind=tuple
+    )
     bone_weight: float = _param(1.0, _number(0), kind=float)
     bone_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
     symmetric_bones: bool = _param(False, _boolean)

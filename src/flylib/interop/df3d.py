@@ -1,12 +1,19 @@
 """DeepFly3D files: the 2D result pickle and the calibration pickle.
 
-2D (``df3d_result*.pkl``, a pickled dict):
+2D (``df3d_result*.pkl``, a pickled dict). ``points2d`` ``(C, T, J, 2)`` comes in two
+layouts, told apart from the values themselves (:func:`points2d_layout`):
 
-- ``points2d`` ``(C, T, J, 2)``, normalized: ``[..., 0]`` is row / height (y),
-  ``[..., 1]`` is column / width (x). An undetected joint is stored as ``(0, 0)``,
-  and as ``(0, 1)`` in the mirrored cameras (the flip maps column 0 to 1). Values
-  are quantized to the heatmap grid, so pixels are ``x = col * width``,
+- DeepFly3D 0.x, normalized: ``[..., 0]`` is row / height (y), ``[..., 1]`` is
+  column / width (x), every value in ``[0, 1]``. An undetected joint is stored as
+  ``(0, 0)``, and as ``(0, 1)`` in the mirrored cameras (the flip maps column 0 to 1).
+  Values are quantized to the heatmap grid, so pixels are ``x = col * width``,
   ``y = row * height`` (no half-cell shift: that is how DeepFly3D scales them back).
+- DeepFly3D 1.x (the ``df3d`` package's ``df3d_result.pkl``), raw-frame pixels
+  ``(x, y)``, an undetected joint ``(0, 0)``; the same pickle also holds the
+  calibration (NumPy-integer camera keys) and ``points3d``.
+
+A file whose values fit neither (pixels beyond the frames, or some cameras
+normalized and others in pixels) is one :class:`ImportFormatError` naming it.
 - ``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per output channel.
   DeepFly3D's network has ``K = J / 2`` channels, run on one side of the fly at a
   time, so joint ``j`` takes channel ``j mod K``.
@@ -137,10 +144,14 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
             f"{path}: holds {n_cams} cameras but {len(image_sizes)} views are configured; "
             "set pose2d.import.views to name the view of each pickle camera"
         )
-    row, col = norm[..., 0], norm[..., 1]
-    missing = (row == 0) & ((col == 0) | (col == 1)) | ~np.isfinite(norm).all(-1)
     sizes = np.asarray(image_sizes, dtype=np.float64)  # (C, 2) = (h, w)
-    xy = np.stack([col * sizes[:, 1, None, None], row * sizes[:, 0, None, None]], axis=-1)
+    if points2d_layout(norm, sizes, path) == "pixels":
+        missing = (norm == 0).all(-1) | ~np.isfinite(norm).all(-1)
+        xy = norm.copy()
+    else:
+        row, col = norm[..., 0], norm[..., 1]
+        missing = (row == 0) & ((col == 0) | (col == 1)) | ~np.isfinite(norm).all(-1)
+        xy = np.stack([col * sizes[:, 1, None, None], row * sizes[:, 0, None, None]], axis=-1)
     xy[missing] = np.nan
 
     conf = np.ones((n_cams, n_frames, n_joints))
@@ -159,6 +170,75 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
     conf[missing] = np.nan
     ordering = _camera_ordering(data, path, n_cams)
     return Df3dPoints2d(xy=xy, conf=conf, camera_ordering=ordering)
+
+
+#: How far (as a fraction of the frame) a 1.x pixel coordinate may lie outside its
+#: frame before the file is refused: DeepFly3D's heatmap grid reaches the border.
+_PIXEL_MARGIN = 0.05
+
+
+def points2d_layout(
+    points2d: Float[np.ndarray, "C T J 2"],
+    image_sizes: Float[np.ndarray, "C 2"],
+    path: Path | str = "points2d",
+) -> str:
+    """Which DeepFly3D layout ``points2d`` is in, decided from its values.
+
+    A camera whose detected coordinates all lie in ``[0, 1]`` is normalized (0.x);
+    one with a coordinate above 1 is in pixels (1.x) and must stay within its frame.
+
+    Parameters
+    ----------
+    points2d
+        ``(C, T, J, 2)`` as stored in the pickle.
+    image_sizes
+        ``(C, 2)`` ``(height, width)`` of each camera's frames.
+    path
+        The file, for the error message.
+
+    Returns
+    -------
+    str
+        ``"normalized"`` or ``"pixels"``.
+
+    Raises
+    ------
+    ImportFormatError
+        When cameras disagree (some normalized, some in pixels) or pixel coordinates
+        lie outside the frames.
+    """
+    finite = np.isfinite(points2d).all(-1)
+    detected = finite & ~(points2d == 0).all(-1)
+    pixel_cams = [
+        c for c in range(points2d.shape[0]) if (np.abs(points2d[c][detected[c]]) > 1).any()
+    ]
+    if not pixel_cams:
+        return "normalized"
+    normalized_cams = [
+        c for c in range(points2d.shape[0]) if detected[c].any() and c not in pixel_cams
+    ]
+    if normalized_cams:
+        raise ImportFormatError(
+            f"{path}: 'points2d' is ambiguous: camera(s) {normalized_cams} hold only values "
+            f"in [0, 1] (DeepFly3D 0.x, normalized) but camera(s) {pixel_cams} hold pixels "
+            "(DeepFly3D 1.x); pass one DeepFly3D result unchanged, not a merge of two"
+        )
+    sizes = np.asarray(image_sizes, np.float64)
+    for c in pixel_cams:
+        xy = points2d[c][detected[c]]
+        height, width = sizes[c]
+        low = -_PIXEL_MARGIN * np.array([width, height])
+        high = (1 + _PIXEL_MARGIN) * np.array([width, height])
+        outside = (xy < low) | (xy > high)
+        if outside.any():
+            worst = xy[outside.any(-1)][0]
+            raise ImportFormatError(
+                f"{path}: 'points2d' of camera {c} is in pixels (DeepFly3D 1.x) but holds "
+                f"(x, y) = ({worst[0]:g}, {worst[1]:g}), outside its {width:g}x{height:g} frames; "
+                "check the footage's size (or pose2d.import.image_size) and that the file "
+                "is DeepFly3D's result unchanged"
+            )
+    return "pixels"
 
 
 def _camera_ordering(data: dict, path: Path, n_cams: int) -> np.ndarray:

@@ -298,6 +298,7 @@ def run_triangulation(
     what a person changed) and the sidecar's name and edit count as attribute
     ``corrections``.
     """
+    from ..accuracy import triangulation_accuracy
     from ..corrections import Corrections, reconstruct_corrected
     from ..results import Pose2dData, read_stage, write_stage
 
@@ -321,11 +322,12 @@ def run_triangulation(
             config, cameras, pts2d, pose2d.conf, corrections
         )
     arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
-    attrs = None
+    # truth-free accuracy (flylib.accuracy): each view predicted from the others
+    attrs = {"accuracy": triangulation_accuracy(config, cameras, pts2d, pts3d, pose2d.conf)}
     if corrections is not None:
         arrays["corrected"] = corrected
         arrays["corrected_2d"] = corrections.touched()
-        attrs = {"corrections": {"file": str(corrections_path), "count": corrections.count()}}
+        attrs["corrections"] = {"file": str(corrections_path), "count": corrections.count()}
         log.info(
             "triangulation: %d manual corrections applied from %s",
             corrections.count(),
@@ -426,6 +428,9 @@ def run_assemble(
         metadata={"recording": str(recording_dir or "")},
     )
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
+    accuracy = _accuracy(stage_files)
+    if accuracy is not None:
+        summary["accuracy"] = accuracy
     summary["suspects"] = _write_suspects(results_path, outdir, result)
     if truth_path:
         from ..demo import demo_error, load_truth
@@ -484,6 +489,27 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
             },
         }
     return summary
+
+
+def _accuracy(stage_files: Mapping[str, Path]) -> dict | None:
+    """The truth-free accuracy (:mod:`flylib.accuracy`) the 3D stages recorded:
+    refinement's (triangulation, refinement as solved, and the output side by side)
+    when it ran, else triangulation's (``output`` is then the triangulation)."""
+    from ..results import open_checked
+
+    for stage in ("refinement", "triangulation"):
+        if stage not in stage_files:
+            continue
+        with open_checked(stage_files[stage], f"re-run the {stage} stage") as f:
+            text = f[stage].attrs.get("accuracy") if stage in f else None
+        if text is None:
+            continue
+        found = json.loads(text.decode() if isinstance(text, bytes) else text)
+        if stage == "triangulation":
+            found["output"] = found["triangulation"]
+        found["output_stage"] = stage
+        return found
+    return None
 
 
 def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:

@@ -84,11 +84,11 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
         return ("bundle_adjustment", *rig, *_SKELETON)
     if stage == "pictorial_structures":
         return ("pictorial_structures", *_SKELETON, *own_rig)
-    if stage == "triangulation":
-        method = config.triangulation.method_params()
-        return (*(f"triangulation.{key}" for key in method), *own_rig)
-    if stage == "refinement":
-        return ("refinement", *_SKELETON, *own_rig)
+    method = tuple(f"triangulation.{key}" for key in config.triangulation.method_params())
+    if stage == "triangulation":  # the skeleton: its accuracy's bone figures
+        return (*method, *_SKELETON, *own_rig)
+    if stage == "refinement":  # its held-out-view check re-runs the triangulation
+        return ("refinement", *method, *_SKELETON, *own_rig)
     if stage == "kinematics":
         return ("kinematics", *_SKELETON)
     if stage == "assemble":

@@ -59,6 +59,11 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
         "moved from the starting (triangulated) 3D by more than moved_fraction of the median bone",
     ),
     "no_start": (64, "the starting triangulation had no 3D for it in this frame"),
+    "kept_triangulation": (
+        128,
+        "refinement's held-out-view error was not better than triangulation's for this "
+        "point, so the output keeps the triangulation's 3D",
+    ),
 }
 
 
@@ -192,6 +197,19 @@ def fill_start(
         for c in range(3):
             out[:, p, c] = np.interp(t, t[ok], start[ok, p, c])
     return out
+
+
+def recording_motion(start: Float[np.ndarray, "T P 3"], order: int) -> float:
+    """How far the points move per frame: the median length of their ``order``-th
+    differences over consecutive frames (world units per frame^order; NaN when no
+    point is seen in ``order + 1`` consecutive frames). It carries the footage's frame
+    rate (a faster camera sees smaller per-frame changes) and the recording's own
+    motion; the refinement stage tries smoothness scales in units of it."""
+    if start.shape[0] <= order:
+        return float("nan")
+    step = np.linalg.norm(np.diff(start, n=order, axis=0), axis=-1)
+    step = step[np.isfinite(step)]
+    return float(np.median(step)) if step.size else float("nan")
 
 
 # -- one chunk ----------------------------------------------------------------------------
@@ -712,6 +730,7 @@ def refine_stream(
         "observations_kept": kept_total,
         "observations_rejected": rejected_total,
         "bone_sample_frames": len(sample),
+        "smooth_scale": opts.smooth_scale,
     }
     log.info(
         "refinement: %d frames in %d chunk(s), %.2f s, iterations %s",
