@@ -60,9 +60,9 @@ def random_access(directory: Path, repeats: int) -> None:
         n = len(sources[0])
         targets = [int(t) for t in rng.integers(0, n, repeats)]
 
-        def jump(t: int) -> float:
+        def jump(t: int, sources=sources) -> float:
             begin = time.perf_counter()
-            list(pool.map(lambda s: s.jpeg(t), sources))
+            list(pool.map(lambda source: source.jpeg(t), sources))
             return (time.perf_counter() - begin) * 1000
 
         opened = time.perf_counter()
