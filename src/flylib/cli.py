@@ -261,7 +261,12 @@ def _print_suspects(path: Path) -> None:
     detail = ", ".join(f"{name} {n}" for name, n in reasons.most_common())
     print(
         f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
-        + (f" ({detail}); review them with `flylib gui {path}`" if len(suspects) else "")
+        + (
+            f", {suspects.n_items} items (a point's consecutive frames, best first in "
+            f"suspects.csv) ({detail}); review them with `flylib gui {path}`"
+            if len(suspects)
+            else ""
+        )
     )
 
 

@@ -300,12 +300,17 @@ class ReviewSession:
                     ),
                     corrected=self.corrections.corrected_points(),
                     point_names=list(self.skeleton.point_names),
+                    view_names=self.view_names,
                 )
             return self._suspects
 
     def suspects_payload(self) -> dict:
         s = self.suspects()
-        return {"suspects": s.records(), "frame_score": np.round(s.frame_score, 3).tolist()}
+        return {
+            "suspects": s.records(),
+            "items": s.items(),
+            "frame_score": np.round(s.frame_score, 3).tolist(),
+        }
 
     # -- editing -------------------------------------------------------------------------
 
