@@ -121,13 +121,12 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert spread > 20
         shot = os.environ.get("FLYLIB_GUI_SCREENSHOT")
 
-        # n: the first suspect
+        # n: the top suspect item (the list is best first), at its worst frame
         suspects = session.suspects()
         assert len(suspects) > 0
         body = driver.find_element(By.TAG_NAME, "body")
         body.send_keys("n")
-        later = suspects.frames[suspects.frames > 0]
-        first = int(later[0] if len(later) else suspects.frames[0])
+        first = int(suspects.items()[0]["peak_frame"])
         wait_for(
             driver, f"return window.flylib.state.frame === {first} && window.flylib.allDrawn()"
         )

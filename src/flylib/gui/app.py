@@ -12,7 +12,7 @@ Routes (all under the optional access token, see :func:`create_app`)::
     POST /api/save                  write corrections.h5 beside results.h5
     WS   /ws                        edits: {"op", "frame", "point", "view", "xy"} -> points
                                     (op: move, move3d, invisible, reset_point, reset_view,
-                                    reset_frame; or {"op": "save"})
+                                    reset_frame; move takes "fixed": true; or {"op": "save"})
 
 Camera names are looked up in the rig (never used to build a path) and frame numbers
 are integers checked against the recording, so no request reaches any other file.
@@ -165,7 +165,12 @@ def create_app(session: ReviewSession, token: str | None = None) -> FastAPI:
             view = message.get("view")
             if view is not None and not isinstance(view, str):
                 raise ValueError("view must be a camera name")
-            reply = session.edit(str(message.get("op")), frame, point, view, message.get("xy"))
+            fixed = message.get("fixed", False)
+            if not isinstance(fixed, bool):
+                raise ValueError("fixed must be true or false")
+            reply = session.edit(
+                str(message.get("op")), frame, point, view, message.get("xy"), fixed=fixed
+            )
         except (KeyError, IndexError, ValueError, TypeError) as exc:
             return {"error": str(exc).strip("'\"")}
         reply["op"] = "points"

@@ -235,6 +235,15 @@ class ReviewSession:
                 sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)
             ],
             "method": str(getattr(self.config.triangulation, "method", "ransac")),
+            # the 3D view draws the rig: each camera's centre and viewing direction
+            "rig": [
+                {
+                    "name": cam.name,
+                    "position": np.round(cam.position, 6).tolist(),
+                    "axis": np.round(cam.rmat[2], 6).tolist(),
+                }
+                for cam in self.cameras
+            ],
         }
 
     def points(self, frame: int) -> dict:
@@ -264,6 +273,7 @@ class ReviewSession:
                         "reprojected": _xy_list(reproj[v]),
                         "error": _nan_to_none(self.error[v, t], 2),
                         "edited": self.corrections.edited[v, t].tolist(),
+                        "fixed": self.corrections.fixed[v, t].tolist(),
                         "invisible": self.corrections.invisible[v, t].tolist(),
                     }
                 )
@@ -339,7 +349,14 @@ class ReviewSession:
         self._suspects_stale = True
 
     def edit(
-        self, op: str, frame: int, point: int | None = None, view: str | None = None, xy: Any = None
+        self,
+        op: str,
+        frame: int,
+        point: int | None = None,
+        view: str | None = None,
+        xy: Any = None,
+        *,
+        fixed: bool = False,
     ) -> dict:
         """Apply one edit and re-solve what it touched.
 
@@ -353,6 +370,9 @@ class ReviewSession:
             edit), ``reset_view`` or ``reset_frame``.
         frame, point, view, xy
             The target; ``xy`` in raw-frame pixels.
+        fixed
+            ``move``: mark the placed point ``fixed`` (always kept by the robust
+            triangulation, the seed GUI's "finalized" state).
 
         Returns
         -------
@@ -379,7 +399,7 @@ class ReviewSession:
                             f"xy must be two finite pixel coordinates, got {xy.tolist()}"
                         )
                 if op == "move":
-                    self.corrections.set_point(v, t, p, xy)
+                    self.corrections.set_point(v, t, p, xy, fixed=fixed)
                 elif op == "move3d":
                     started = time.perf_counter()
                     self.corrections.set_point3d(t, p, self._onto_ray(v, t, p, xy))
