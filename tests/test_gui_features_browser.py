@@ -10,15 +10,13 @@ Set ``FLYLIB_GUI_SCREENSHOT_DIR`` to keep the screenshots.
 from __future__ import annotations
 
 import os
-import socket
-import threading
 import time
 
 import numpy as np
 import pytest
 from test_gui_browser import _browser, wait_for
 
-from gui_fixtures import make_demo_outputs
+from gui_fixtures import make_demo_outputs, serving
 
 pytestmark = pytest.mark.slow
 
@@ -30,29 +28,15 @@ def outdir(tmp_path_factory):
 
 @pytest.fixture
 def page(outdir):
-    import uvicorn
-
-    from flylib.gui import ReviewSession, create_app
+    from flylib.gui import ReviewSession
 
     session = ReviewSession(outdir)
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    srv = uvicorn.Server(
-        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
-    )
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.time() + 30
-    while not srv.started and time.time() < deadline:
-        time.sleep(0.05)
     driver = _browser()
     try:
-        yield driver, f"http://127.0.0.1:{port}/", session
+        with serving(session) as url:
+            yield driver, url, session
     finally:
         driver.quit()
-        srv.should_exit = True
-        thread.join(10)
         session.close()
 
 
@@ -160,6 +144,19 @@ def test_typed_frame_and_a_bad_frame_parameter(page):
     wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
     assert driver.execute_script("return window.flylib.state.frame") == 0
     assert "not a frame number" in driver.find_element(By.ID, "status").text
+    # n: the top item at its worst frame, then the next in the list's order
+    items = session.suspects().items()
+    body = driver.find_element(By.TAG_NAME, "body")
+    body.send_keys("n")
+    top = items[0]
+    wait_for(
+        driver,
+        f"return window.flylib.state.frame === {top['peak_frame']} && "
+        f"window.flylib.state.selected?.point === {top['point']}",
+    )
+    body.send_keys("n")
+    wait_for(driver, f"return window.flylib.state.selected?.point === {items[1]['point']}")
+    assert driver.find_element(By.CSS_SELECTOR, "#suspects tr.current")  # follows the frame
     box = driver.find_element(By.ID, "frame-input")
     box.clear()
     box.send_keys("11", Keys.ENTER)

@@ -99,15 +99,7 @@ class ReviewSession:
         self.results_path = resolve_results(results)
         self.outdir = self.results_path.parent
         if config is None:
-            snapshot = next(
-                (
-                    p
-                    for p in (self.outdir / "config.yaml", self.outdir / "config.toml")
-                    if p.is_file()
-                ),
-                None,
-            )
-            config = Config.from_file(snapshot) if snapshot else Config.default()
+            config = Config.of_outputs(self.outdir)
         self.config = config
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:

@@ -155,15 +155,7 @@ def export_training_data(
             "save, run snakemake, then export the training data"
         )
     if config is None:
-        snapshot = next(
-            (
-                p
-                for p in (results.parent / "config.yaml", results.parent / "config.toml")
-                if p.is_file()
-            ),
-            None,
-        )
-        config = Config.from_file(snapshot) if snapshot else Config.default()
+        config = Config.of_outputs(results.parent)
     recording = Path(recording) if recording else Path(result.meta.get("recording") or "")
     views = list(result.cameras.names)
     footage = footage_files(config, recording) if recording.is_dir() else {}

@@ -12,8 +12,8 @@ export function sortedItems(items, sort) {
   const get = KEYS[sort.key] || KEYS.score;
   return [...items].sort((a, b) => {
     const x = get(a), y = get(b);
-    const c = x < y ? -1 : x > y ? 1 : a.rank - b.rank;
-    return sort.asc ? c : -c;
+    const c = x < y ? -1 : x > y ? 1 : 0;
+    return (sort.asc ? c : -c) || a.rank - b.rank;  // ties: the better item first
   });
 }
 
