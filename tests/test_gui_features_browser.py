@@ -195,6 +195,10 @@ def test_undo_redo_fixed_hover_name_and_leave_warning(page):
     assert not driver.execute_script(leave)  # nothing to lose yet
 
     body = driver.find_element(By.TAG_NAME, "body")
+    tile_before = driver.execute_script(
+        "const r = arguments[0].getBoundingClientRect(); return [r.left, r.top, r.width, r.height];",
+        canvas,
+    )
     body.send_keys("e")
     ActionChains(driver).move_to_element_with_offset(
         canvas, *offset
@@ -204,6 +208,11 @@ def test_undo_redo_fixed_hover_name_and_leave_warning(page):
         f"return window.flylib.state.data.views[{v}].edited[{point}] && !window.flylib.busy()",
     )
     moved = driver.execute_script(f"return window.flylib.state.data.views[{v}].points2d[{point}]")
+    # the tiles did not move under the mouse (the header stays one line when Save counts)
+    rect = (
+        "const r = arguments[0].getBoundingClientRect(); return [r.left, r.top, r.width, r.height];"
+    )
+    assert driver.execute_script(rect, canvas) == tile_before
     assert session.corrections.edited[v, 5, point]
     assert driver.execute_script("return window.flylib.history()") == {"undo": 1, "redo": 0}
     assert driver.execute_script(leave)  # unsaved edits: the browser asks

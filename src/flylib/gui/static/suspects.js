@@ -39,7 +39,19 @@ export function renderItems(tbody, items, sort, frame, onPick) {
   });
   tbody.replaceChildren(...rows);
   const current = rows.find((tr) => tr.className === "current");
-  if (current) current.scrollIntoView({ block: "nearest" });
+  if (current && frame !== shownFrame) keepVisible(current);
+  shownFrame = frame;
+}
+
+let shownFrame = null;  // the list scrolls to the current frame's items once per frame
+
+function keepVisible(row) {
+  // scroll the list's own box only (scrollIntoView would also scroll the page under a drag)
+  const box = row.closest("#side") || row.parentElement;
+  const r = row.getBoundingClientRect(), b = box.getBoundingClientRect();
+  const header = row.closest("table")?.querySelector("thead")?.getBoundingClientRect().height || 0;
+  if (r.top < b.top + header) box.scrollTop -= b.top + header - r.top;
+  else if (r.bottom > b.bottom) box.scrollTop += r.bottom - b.bottom;
 }
 
 export function neighbourItem(items, sort, frame, point, direction) {
