@@ -80,3 +80,30 @@ def test_no_fill_when_switched_off(one_keyframe_video):
         assert source.filled == 0 and source._fill_thread is None
     finally:
         source.close()
+
+
+def test_a_jump_the_fill_is_nearer_to_waits_for_it(one_keyframe_video, monkeypatch):
+    """While the fill decodes forward, a jump ahead of it is served by the fill rather
+    than a second decoder working through the same frames (the request decoder stays)."""
+    import time
+
+    from flylib.gui import frames as frames_module
+
+    real = frames_module.encode_jpeg
+
+    def slow_encode(image, quality=frames_module.JPEG_QUALITY):
+        time.sleep(0.02)  # a real frame's decode + encode, so the fill takes a while
+        return real(image, quality)
+
+    monkeypatch.setattr(frames_module, "encode_jpeg", slow_encode)
+    source = FrameSource([one_keyframe_video], (64, 96), cache_frames=2)
+    try:
+        source.jpeg(0)
+        assert source.wait_filled(4, timeout=30)
+        position = source._frames._next
+        assert source.filled < FRAMES - 5  # still filling
+        image = _decoded(source.jpeg(FRAMES - 5))
+        assert np.abs(image - _frame_image(FRAMES - 5)).mean() < 4
+        assert source._frames._next == position  # served by the fill
+    finally:
+        source.close()

@@ -12,7 +12,9 @@ So once a view's first frame is asked for, a background thread decodes the video
 order (one decode per frame, the cheapest way through it) into the fill cache: the
 whole video when its JPEGs fit ``fill_bytes`` (estimated from the first frame), else a
 window of frames ahead of the last requested one. It pauses while a request decodes,
-so it never slows down the frame the user is waiting for. Image sequences are read by
+so it never slows down the frame the user is waiting for; and a request for a frame the
+fill decoder is nearer to (it decodes forward to it, the request decoder would seek back
+to a keyframe) waits for the fill instead of decoding the same frames a second time. Image sequences are read by
 index through :class:`flylib.io.ImageSequenceReader` (already random access).
 """
 
@@ -35,6 +37,8 @@ FORWARD_GAP = 24
 JPEG_QUALITY = 85
 #: JPEG bytes one view may hold in its fill cache (7 views: about 450 MB at most).
 FILL_BYTES = 64 * 2**20
+#: Longest a request waits for the fill decoder when that one is nearer its frame.
+FILL_WAIT_S = 10.0
 #: Frames kept behind the last requested one when only a window fits (for stepping back).
 _WINDOW_BEHIND = 0.25
 
@@ -216,6 +220,7 @@ class FrameSource:
         self._anchor = 0  # the last requested frame
         self._requests = 0  # requests decoding now (the fill waits for them)
         self._fill_wake = threading.Condition()
+        self._filled_wake = threading.Condition()  # a frame entered the fill cache
         self._fill_thread: threading.Thread | None = None
         self._closed = False
         if not files:
@@ -266,6 +271,10 @@ class FrameSource:
             if self._blank is None:
                 self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
             return self._blank
+        if self._fill_is_nearer(index):
+            data = self._await_fill(index, FILL_WAIT_S)
+            if data is not None:
+                return data
         with self._fill_wake:
             self._requests += 1
         try:
@@ -304,6 +313,43 @@ class FrameSource:
             return encode_jpeg(self._spare.read(index))
 
     # -- the background fill -----------------------------------------------------------
+
+    def _fill_is_nearer(self, index: int) -> bool:
+        """The fill decoder reaches ``index`` with fewer decodes than the request decoder
+        (it decodes forward to it, the fill going there next): waiting for it then costs
+        less than a second decoder working through the same frames."""
+        spare, frames = self._spare, self._frames
+        if (
+            self._fill_thread is None
+            or not self._fill_thread.is_alive()
+            or spare is None
+            or spare._next is None
+            or not isinstance(frames, _VideoFrames)
+        ):
+            return False
+        ahead = index - spare._next
+        if ahead < 0 or ahead > FORWARD_GAP + index - spare._keyframe_before(index):
+            return False
+        own = (
+            index - frames._next
+            if frames._forward_is_cheaper(index)
+            else index - frames._keyframe_before(index)
+        )
+        return ahead < own
+
+    def _await_fill(self, index: int, timeout: float) -> bytes | None:
+        """Frame ``index`` once the fill has it, or None after ``timeout`` s."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        with self._filled_wake:
+            while True:
+                data = self._cached(index)
+                if data is not None or self._closed or time.monotonic() > deadline:
+                    return data
+                if self._fill_thread is None or not self._fill_thread.is_alive():
+                    return None
+                self._filled_wake.wait(0.05)
 
     def _follow(self, index: int) -> None:
         """A request for ``index``: move the fill window there, start the fill thread."""
@@ -380,6 +426,8 @@ class FrameSource:
                 self._fill_window = min(frames, len(self._frames))
             with self._cache_lock:
                 self._filled[index] = data
+            with self._filled_wake:
+                self._filled_wake.notify_all()
 
     def close(self) -> None:
         with self._fill_wake:
