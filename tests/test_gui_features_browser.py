@@ -239,6 +239,12 @@ def test_undo_redo_fixed_hover_name_and_leave_warning(page):
         f"return !window.flylib.state.data.views[{v}].edited[{point}] && !window.flylib.busy()",
     )
     assert not session.corrections.edited[v, 5, point]
+    # undo is an edit like any other: journaled, and the page follows the revision
+    from flylib.gui.journal import read_journal
+
+    last = read_journal(session.journal_path).edits[-1]
+    assert (last["op"], last["frame"], last["point"]) == ("reset_point", 5, point)
+    assert driver.execute_script("return window.flylib.state.revision") == session.revision
     back = driver.execute_script(f"return window.flylib.state.data.views[{v}].points2d[{point}]")
     np.testing.assert_allclose(back, data["views"][v]["points2d"][point], atol=0.01)
     _shot(driver, "undo.png")
@@ -253,3 +259,31 @@ def test_undo_redo_fixed_hover_name_and_leave_warning(page):
     driver.find_element(By.ID, "save").click()
     wait_for(driver, "return window.flylib.saved")
     assert not driver.execute_script(leave)  # saved: leaving loses nothing
+
+    # another tab's edit: undoing from this page's older view could overwrite it, so the
+    # history starts again and Ctrl+Z leaves the other edit alone
+    import httpx
+
+    token = driver.execute_script(
+        "return document.querySelector('meta[name=\"flylib-token\"]').content"
+    )
+    other = next(
+        p for p, xy in enumerate(data["views"][v]["points2d"]) if xy is not None and p != point
+    )
+    reply = httpx.post(
+        url + "api/edit",
+        json={
+            "op": "invisible",
+            "frame": 5,
+            "point": other,
+            "view": view,
+            "revision": session.revision,
+        },
+        headers={"X-Flylib-Token": token, "Origin": url.rstrip("/")},
+    )
+    assert reply.status_code == 200, reply.text
+    wait_for(driver, f"return window.flylib.state.data.views[{v}].invisible[{other}]")
+    assert driver.execute_script("return window.flylib.history()") == {"undo": 0, "redo": 0}
+    body.send_keys(Keys.CONTROL, "z")
+    wait_for(driver, "return document.getElementById('status').textContent === 'nothing to undo'")
+    assert session.corrections.invisible[v, 5, other] and session.corrections.edited[v, 5, point]
