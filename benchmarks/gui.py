@@ -7,7 +7,14 @@ baselines in the same run: reading each frame with a fresh ``flylib.io`` reader 
 (open + seek per frame, no persistent decoder, no cache), and re-triangulating the
 whole recording per edit.
 
-    python benchmarks/gui.py [--frames 200] [--repeats 60]
+Random access on real footage (issue 25, target p90 <= 150 ms for a random jump of all
+views): each ``--footage`` directory's videos (default: the real samples beside the
+checkout, ``../shared/data/deepfly3d-sample`` and ``deeperfly-example``, single-keyframe
+H.264) opened as the GUI does, random jumps timed right after opening (the background
+fill still running) and once it is done, against the same sources with the fill off
+(``fill_bytes=0``: keyframe seek + decode on, as before) in the same run.
+
+    python benchmarks/gui.py [--frames 200] [--repeats 60] [--footage DIR ...]
 """
 
 from __future__ import annotations
@@ -30,11 +37,76 @@ def stats(ms) -> str:
     return f"median {np.median(ms):6.1f} ms, p95 {np.percentile(ms, 95):6.1f} ms"
 
 
+SHARED_FOOTAGE = [
+    Path(__file__).resolve().parents[2] / "shared" / "data" / name
+    for name in ("deepfly3d-sample", "deeperfly-example")
+]
+
+
+def random_access(directory: Path, repeats: int) -> None:
+    """Random jumps (all views at once) on one directory of videos, fill on and off."""
+    from flylib.gui.frames import FrameSource
+
+    files = sorted(directory.glob("*.mp4")) + sorted(directory.glob("*.avi"))
+    if not files:
+        print(f"{directory}: no videos, skipped")
+        return
+    pool = ThreadPoolExecutor(len(files))
+    rng = np.random.default_rng(0)
+    figures = {}
+    for label, fill in (("fill off (keyframe seek)", 0), ("background fill", None)):
+        kwargs = {} if fill is None else {"fill_bytes": fill}
+        sources = [FrameSource([f], (480, 960), 8, **kwargs) for f in files]
+        n = len(sources[0])
+        targets = [int(t) for t in rng.integers(0, n, repeats)]
+
+        def jump(t: int, sources=sources) -> float:
+            begin = time.perf_counter()
+            list(pool.map(lambda source: source.jpeg(t), sources))
+            return (time.perf_counter() - begin) * 1000
+
+        opened = time.perf_counter()
+        jump(0)
+        early = [jump(t) for t in targets[: max(5, repeats // 6)]]  # while the fill runs
+        if fill is None:
+            done = all(s.wait_filled(n, 120) for s in sources)
+            filled_s = time.perf_counter() - opened
+        settled = [jump(t) for t in targets]
+        figures[label] = np.percentile(settled, 90)
+        line = f"  {label:26s} random jump: {stats(settled)}, p90 {figures[label]:6.1f} ms"
+        if fill is None:
+            line += (
+                f"; first {len(early)} jumps while filling: p90 {np.percentile(early, 90):.1f} ms;"
+                f" whole video filled {'in' if done else 'NOT within'} {filled_s:.1f} s"
+            )
+        print(f"{directory.name}: {len(files)} videos x {n} frames" if fill == 0 else "", end="")
+        print(("\n" if fill == 0 else "") + line)
+        for s in sources:
+            s.close()
+    base, new = figures["fill off (keyframe seek)"], figures["background fill"]
+    print(f"  p90 ratio fill off / fill on: {base / max(new, 1e-3):.0f}x (target p90 <= 150 ms)")
+    pool.shutdown()
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200, help="demo recording length")
     parser.add_argument("--repeats", type=int, default=60, help="frame switches / edits timed")
+    parser.add_argument(
+        "--footage",
+        type=Path,
+        action="append",
+        help="a directory of videos (one per view) for the random-access figures; repeatable",
+    )
+    parser.add_argument(
+        "--footage-only", action="store_true", help="only the real-footage random-access figures"
+    )
     args = parser.parse_args(argv)
+    footage = args.footage or [d for d in SHARED_FOOTAGE if d.is_dir()]
+    for directory in footage:
+        random_access(directory, args.repeats)
+    if args.footage_only:
+        return 0
 
     from flylib.gui import ReviewSession
     from flylib.io import open_reader

@@ -6,6 +6,7 @@ layout (``../shared/spec/corrections-h5.md``), not by flylib's writer."""
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
@@ -138,3 +139,33 @@ def rename_hostile(outdir: Path) -> tuple[str, str]:
         outdir / "results.h5"
     )
     return camera, point
+
+
+@contextmanager
+def serving(session):
+    """``flylib gui``'s app for ``session`` on a free localhost port in a thread; yields
+    the page's URL and stops the server (not the session) afterwards."""
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+
+    from flylib.gui import create_app
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    srv = uvicorn.Server(
+        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
+    )
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.time() + 30
+    while not srv.started and time.time() < deadline:
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}/"
+    finally:
+        srv.should_exit = True
+        thread.join(10)

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
-import threading
 import time
 
 import numpy as np
@@ -62,26 +60,14 @@ def demo_run(tmp_path_factory):
 
 @pytest.fixture
 def server(demo_run):
-    import uvicorn
+    from flylib.gui import ReviewSession
 
-    from flylib.gui import ReviewSession, create_app
+    from gui_fixtures import serving
 
     _, _, out = demo_run
     session = ReviewSession(out)
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    srv = uvicorn.Server(
-        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
-    )
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.time() + 30
-    while not srv.started and time.time() < deadline:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}/", session
-    srv.should_exit = True
-    thread.join(10)
+    with serving(session) as url:
+        yield url, session
     session.close()
 
 
@@ -125,7 +111,7 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
     try:
         driver.get(url)
         wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
-        canvases = driver.find_elements(By.CSS_SELECTOR, ".view canvas")
+        canvases = driver.find_elements(By.CSS_SELECTOR, ".view canvas[data-view]")
         assert len(canvases) == session.n_views
         # the canvases really hold the footage: not a uniform fill
         spread = driver.execute_script("""
@@ -137,13 +123,12 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         assert spread > 20
         shot = os.environ.get("FLYLIB_GUI_SCREENSHOT")
 
-        # n: the first suspect
+        # n: the top suspect item (the list is best first), at its worst frame
         suspects = session.suspects()
         assert len(suspects) > 0
         body = driver.find_element(By.TAG_NAME, "body")
         body.send_keys("n")
-        later = suspects.frames[suspects.frames > 0]
-        first = int(later[0] if len(later) else suspects.frames[0])
+        first = int(suspects.items()[0]["peak_frame"])
         wait_for(
             driver, f"return window.flylib.state.frame === {first} && window.flylib.allDrawn()"
         )

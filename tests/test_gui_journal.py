@@ -195,6 +195,60 @@ def test_a_journal_line_with_a_valid_checksum_is_still_checked(outdir):
         session.close()
 
 
+def test_fixed_is_checked_journaled_revisioned_and_replayed(outdir):
+    """The ``fixed`` state (f) goes the way of every edit: a boolean or refused, only on
+    ``move``, against the page's revision, journaled, and replayed after a crash."""
+    session = ReviewSession(outdir)
+    app = create_app(session)
+    journal = outdir / "corrections.h5.journal"
+    try:
+        with page(app) as c:
+            for bad, says in (
+                ({**move(session), "fixed": "yes"}, "fixed must be true or false"),
+                ({**move(session), "fixed": 1}, "fixed must be true or false"),
+                (
+                    {
+                        "op": "invisible",
+                        "frame": 1,
+                        "point": 3,
+                        "view": session.view_names[0],
+                        "fixed": True,
+                    },
+                    "fixed applies to move",
+                ),
+            ):
+                response = c.post("/api/edit", json={**bad, "revision": 0})
+                assert response.status_code == 400 and says in response.json()["detail"]
+            assert not journal.exists() and session.revision == 0
+            assert not session.corrections.fixed.any()
+            response = c.post("/api/edit", json={**move(session), "fixed": True, "revision": 0})
+            assert response.status_code == 200 and response.json()["revision"] == 1
+            assert response.json()["views"][0]["fixed"][3]
+            # a stale page cannot unfix it
+            response = c.post("/api/edit", json={**move(session), "fixed": False, "revision": 0})
+            assert response.status_code == 409
+        assert session.corrections.fixed[0, 1, 3]
+        assert read_journal(journal).edits[-1]["fixed"] is True
+    finally:
+        session.close()  # a crash before saving: the journal holds the edit
+    # a journal line claiming a non-boolean fixed (valid checksum) is refused on replay
+    from flylib.gui.journal import EditJournal
+
+    appended = EditJournal(outdir / "corrections.h5")
+    appended.append({**move(session, frame=2), "fixed": "true"}, 0)
+    appended.close()
+    session = ReviewSession(outdir)
+    try:
+        assert "1 unsaved edit(s) replayed" in session.notice
+        assert "1 edit(s) refused: fixed must be true or false" in session.notice
+        assert session.corrections.fixed[0, 1, 3] and session.corrections.edited[0, 1, 3]
+        assert not session.corrections.edited[:, 2].any()
+        session.save()
+    finally:
+        session.close()
+    assert Corrections.load(outdir / "corrections.h5", (7, FRAMES, 38)).fixed[0, 1, 3]
+
+
 # -- one revision per session: two tabs ------------------------------------------------
 
 

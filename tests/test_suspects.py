@@ -127,7 +127,109 @@ def test_assemble_writes_suspects_csv_and_count_and_inspect_prints_it(tmp_path, 
     with open(out / SUSPECTS_FILE) as fh:
         rows = list(csv.DictReader(fh))
     assert summary["suspects"] == len(rows) > 0
-    assert set(rows[0]) == {"frame", "point", "point_name", "score", "reasons", "detail"}
+    assert set(rows[0]) == {"item", "frame", "point", "point_name", "score", "reasons", "detail"}
     assert all(0 <= int(r["frame"]) < 20 and float(r["score"]) >= 1 for r in rows)
+    # in the order to review them: item 0 first, its best pair the recording's best
+    items = [int(r["item"]) for r in rows]
+    assert items == sorted(items) and items[0] == 0
+    assert float(rows[0]["score"]) == max(float(r["score"]) for r in rows)
+    assert not any(" view(s) " in r["detail"] or "view 0 " in r["detail"] for r in rows)
     assert main(["inspect", str(out / "results.h5")]) == 0
-    assert f"suspects: {len(rows)} (frame, point) pairs" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"suspects: {len(rows)} (frame, point) pairs" in printed
+    assert f"{max(items) + 1} items" in printed
+
+
+def _truth_pairs(pose2d, tri, truth, bones):
+    """(T, P) pairs a person should look at: an injected 2D outlier in some view (the
+    demo moves it 40-120 px, noise is 1 px), or a 3D more than 10% of a bone off."""
+    injected = np.nan_to_num(np.linalg.norm(pose2d.pts2d - truth["points2d"], axis=-1)) > 20
+    off3d = np.linalg.norm(tri["points3d"] - truth["points3d"], axis=-1)
+    t3 = truth["points3d"]
+    bone = np.median(np.linalg.norm(t3[:, bones[:, 0]] - t3[:, bones[:, 1]], axis=-1))
+    return injected.any(axis=0), np.nan_to_num(off3d) > 0.1 * bone
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed,outliers", [(0, 0.01), (1, 0.03)])
+def test_precision_recall_and_ranking_against_the_injected_errors(tmp_path, seed, outliers):
+    pose2d, tri, truth, suspects = triangulated_demo(tmp_path, seed=seed, outliers=outliers)
+    bones = Config.default().skeleton().bones
+    injected, off3d = _truth_pairs(pose2d, tri, truth, bones)
+    wanted = injected | off3d
+    flagged = np.zeros_like(wanted)
+    flagged[suspects.frame, suspects.point] = True
+    precision = wanted[flagged].mean()
+    recall = flagged[wanted].mean()
+    assert precision >= 0.9 and recall >= 0.9, (precision, recall)
+    # the items whose 3D is wrong come first
+    items = suspects.items()
+    bad_items = [i for i, it in enumerate(items) if off3d[it["frames"], it["point"]].any()]
+    assert bad_items and max(bad_items) < len(bad_items) + 2, bad_items
+    assert flagged[off3d].all()
+
+
+def test_a_wrong_point_makes_no_suspects_of_its_neighbours():
+    config, _, pts3d, pts2d, error = clean_case()
+    bones = config.skeleton().bones
+    names = list(config.skeleton().point_names)
+    claw, femur_tibia = names.index("lf_claw"), names.index("lf_femur_tibia")
+    moved = pts3d.copy()
+    moved[10, claw] += [0.0, 0.0, 0.25]  # a leaf point, one frame
+    moved[20, femur_tibia] += [0.0, 0.25, 0.0]  # a middle joint, two bones
+    found = find_suspects(moved, pts2d, error, bones, pts2d_input=pts2d, point_names=names)
+    pairs = {(int(t), int(p)) for t, p in zip(found.frame, found.point)}
+    assert pairs == {(10, claw), (20, femur_tibia)}, sorted(pairs)
+    assert "bone lf_tibia_tarsus-lf_claw" in found.records(frame=10)[0]["detail"]
+
+
+def test_items_group_a_points_consecutive_frames_and_rank_by_score():
+    from flylib.suspects import Suspects
+
+    frame = np.array([3, 4, 5, 5, 9, 10, 12])
+    point = np.array([1, 1, 1, 2, 1, 1, 1])
+    score = np.array([1.0, 7.0, 1.0, 2.0, 1.5, 1.5, 3.0])
+    reasons = [
+        "jump",
+        "jump;bone_length",
+        "jump",
+        "reprojection",
+        "ransac_drop",
+        "two_views;ransac_drop",
+        "jump",
+    ]
+    s = Suspects(
+        frame, point, score, reasons, [f"d{i}" for i in range(7)], np.zeros(13), ["a", "b", "c"]
+    )
+    items = s.items()
+    assert [(it["point"], it["frames"]) for it in items] == [
+        (1, [3, 4, 5]),
+        (1, [12]),
+        (2, [5]),
+        (1, [9, 10]),
+    ]
+    first = items[0]
+    assert first["peak_frame"] == 4 and first["score"] == 7.0 and first["detail"] == "d1"
+    assert first["reasons"] == ["bone_length", "jump"] and first["point_name"] == "b"
+    assert items[3]["reasons"] == ["ransac_drop", "two_views"]
+    assert s.n_items == 4 and s.item.tolist() == [0, 0, 0, 2, 3, 3, 1]
+    assert [r["item"] for r in s.records(frame=5)] == [0, 2]
+
+
+def test_details_name_views_as_the_gui_does():
+    config, cameras, pts3d, pts2d, error = clean_case()
+    bones = config.skeleton().bones
+    views = config.view_names()
+    names = list(config.skeleton().point_names)
+    tarsus = names.index("lf_tibia_tarsus")
+    seen = np.flatnonzero(np.isfinite(pts2d[:, 20, tarsus, 0]))
+    err = error.copy()
+    err[seen[0], 20, tarsus] = 40.0
+    used = pts2d.copy()
+    used[seen[1], 30, tarsus] = np.nan
+    found = find_suspects(pts3d, used, err, bones, pts2d_input=pts2d, view_names=views)
+    by_frame = {r["frame"]: r["detail"] for r in found.records()}
+    assert by_frame[20].startswith(f"view {seen[0] + 1} {views[seen[0]]} reprojects 40.0 px")
+    assert (
+        by_frame[30] == f"view {seen[1] + 1} {views[seen[1]]} dropped by the robust triangulation"
+    )

@@ -73,6 +73,7 @@ from .interop import (
     write_points3d_csv as write_points3d_csv,
 )
 from .interop.nwb import export_nwb as export_nwb, write_nwb as write_nwb
+from .interop.training_data import export_training_data as export_training_data
 from .io import (
     FrameReader as FrameReader,
     ImageSequenceReader as ImageSequenceReader,

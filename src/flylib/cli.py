@@ -305,7 +305,12 @@ def _print_suspects(path: Path) -> None:
     detail = ", ".join(f"{name} {n}" for name, n in reasons.most_common())
     print(
         f"suspects: {len(suspects)} (frame, point) pairs in {len(suspects.frames)} frames"
-        + (f" ({detail}); review them with `flylib gui {path}`" if len(suspects) else "")
+        + (
+            f", {suspects.n_items} items (a point's consecutive frames, best first in "
+            f"suspects.csv) ({detail}); review them with `flylib gui {path}`"
+            if len(suspects)
+            else ""
+        )
     )
 
 
@@ -318,10 +323,31 @@ def _load_result(path: Path):
 def _cmd_export(args) -> int:
     from .interop.exports import export_result
 
-    if args.csv3d is None and args.dlc_dir is None and args.nwb is None:
+    if (
+        args.csv3d is None
+        and args.dlc_dir is None
+        and args.nwb is None
+        and args.training_data is None
+    ):
         raise FlylibError(
-            "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR and/or --nwb FILE"
+            "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR, --nwb FILE "
+            "and/or --training-data DIR"
         )
+    if args.training_data is not None:
+        from .config import Config
+        from .interop.training_data import export_training_data
+
+        written = export_training_data(
+            args.results,
+            args.training_data,
+            config=Config.from_file(args.config) if args.config else None,
+            recording=args.recording,
+            scorer=args.scorer,
+        )
+        labels = sorted({p.parent for p in written})
+        print(f"{len(written)} files in {len(labels)} labeled-data folders:")
+        for folder in labels:
+            print(folder)
     if args.nwb is not None:
         from .interop.nwb import export_nwb_command
 
@@ -398,16 +424,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
     p.add_argument("--nwb", type=Path, help="write an NWB file (ndx-pose) here")
     p.add_argument(
+        "--training-data",
+        type=Path,
+        metavar="DIR",
+        help="write the corrected frames as DeepLabCut labeled data (DIR/labeled-data/...)",
+    )
+    p.add_argument(
+        "--scorer",
+        default="flylib",
+        help="training data: DeepLabCut's scorer name (CollectedData_<scorer>; default flylib)",
+    )
+    p.add_argument(
         "--config",
         type=Path,
         default=None,
-        help="NWB: the run's config (default: the config.yaml snapshot beside RESULTS_H5)",
+        help="NWB, training data: the run's config (default: the config.yaml snapshot "
+        "beside RESULTS_H5)",
     )
     p.add_argument(
         "--recording",
         type=Path,
         default=None,
-        help="NWB: the recording directory (footage, nwb.yaml; default: the one results.h5 names)",
+        help="NWB, training data: the recording directory (footage, nwb.yaml; default: the "
+        "one results.h5 names)",
     )
     p.add_argument(
         "--nwb-metadata",

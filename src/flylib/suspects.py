@@ -7,12 +7,17 @@ rate and fly size:
 ``reprojection``
     A view's reprojection error far above that view's typical error.
 ``bone_length``
-    A bone's length far from its median over the recording (both ends are flagged).
+    A bone's length far from its median over the recording. The end with more evidence
+    is flagged (more bad bones at that frame, or another reason), both ends when
+    neither has more: a wrong claw does not make its tarsus joint a suspect too.
 ``jump``
-    The 3D point far from the midpoint of its neighbouring frames (at the ends of the
-    recording or of a gap: from the line through the two frames on one side).
+    The 3D point far from every prediction its neighbouring frames make: the midpoint
+    of the frames on both sides and the line through the two frames on either side. A
+    point that is wrong in one frame makes no suspects of its neighbours, since each of
+    them has one side that does not use it.
 ``ransac_drop``
-    A view detected the point but the robust triangulation left it out.
+    A view detected the point but the robust triangulation left it out (or left out
+    every view: two or more detections that no 3D point fits).
 ``two_views``
     The point was triangulated from two views only although it is usually seen by
     more. Weak on its own (score 0.5): dropouts make it common, so it makes a suspect
@@ -22,6 +27,13 @@ Every other reason scores at least 1 (more the further past its threshold) and a
 scoring >= 1 is a suspect. Points a person corrected (``corrected``) are not
 suspects. The per-frame score (for the GUI's timeline) is the largest pair score of
 the frame.
+
+A person works through *items*, not pairs: a point's suspect pairs in consecutive
+frames are one item (one mistake of the detector usually lasts a few frames), ranked
+by their largest score, so the items that most likely hold a wrong 3D come first
+(gross 3D errors score far above 1; a view the robust triangulation already left out
+scores 1 to 1.5, a 2D label worth fixing but a 3D already right). Views are named as
+the GUI names them: ``"2 lm"`` (1-based number and camera name).
 """
 
 from __future__ import annotations
@@ -38,11 +50,24 @@ from .paths import atomic_path
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
-__all__ = ["REASONS", "SUSPECTS_FILE", "Suspects", "find_suspects", "suspects_from_results"]
+__all__ = [
+    "REASONS",
+    "SUSPECTS_FILE",
+    "Suspects",
+    "find_suspects",
+    "suspects_from_results",
+    "view_label",
+]
 
 SUSPECTS_FILE = "suspects.csv"
 REASONS = ("reprojection", "bone_length", "jump", "ransac_drop", "two_views")
 _MAD_SCALE = 1.4826  # MAD -> standard deviation of a normal distribution
+
+
+def view_label(index: int, view_names: list[str] | None = None) -> str:
+    """How a person reads view ``index``: ``"2 lm"`` (1-based, as the GUI's tiles)."""
+    names = view_names or []
+    return f"{index + 1} {names[index]}" if index < len(names) else f"{index + 1}"
 
 
 @dataclass
@@ -63,6 +88,10 @@ class Suspects:
         ``(T,)`` the largest pair score per frame (0 where nothing is odd).
     point_names
         The skeleton's point names (the P axis).
+    item
+        ``(N,)`` int: the rank of the item each pair belongs to (0 = look first); an item
+        is one point's suspects in consecutive frames (see :meth:`items`). Computed from
+        the pairs when not given.
     """
 
     frame: Int[np.ndarray, " N"]
@@ -72,9 +101,47 @@ class Suspects:
     details: list[str]
     frame_score: Float[np.ndarray, " T"]
     point_names: list[str] = field(default_factory=list)
+    item: Int[np.ndarray, " N"] | None = None
+
+    def __post_init__(self) -> None:
+        if self.item is None:
+            self.item = _rank_items(self.frame, self.point, self.score)
 
     def __len__(self) -> int:
         return len(self.frame)
+
+    @property
+    def n_items(self) -> int:
+        """Number of items (runs of consecutive suspect frames of one point)."""
+        return int(self.item.max()) + 1 if len(self.item) else 0
+
+    def items(self) -> list[dict]:
+        """The items, best first (JSON-able): ``rank`` (0 first), ``point``,
+        ``point_name``, ``first_frame``, ``last_frame``, ``frames``, ``peak_frame`` (the
+        frame of the largest score, where to look), ``score`` (that largest score),
+        ``reasons`` (over all its frames) and ``detail`` (of the peak frame)."""
+        out = []
+        for rank in range(self.n_items):
+            rows = np.flatnonzero(self.item == rank)
+            rows = rows[np.argsort(self.frame[rows], kind="stable")]
+            peak = rows[int(np.argmax(self.score[rows]))]
+            p = int(self.point[peak])
+            seen = {r for i in rows for r in self.reasons[i].split(";")}
+            out.append(
+                {
+                    "rank": rank,
+                    "point": p,
+                    "point_name": self.point_names[p] if p < len(self.point_names) else str(p),
+                    "first_frame": int(self.frame[rows[0]]),
+                    "last_frame": int(self.frame[rows[-1]]),
+                    "frames": [int(f) for f in self.frame[rows]],
+                    "peak_frame": int(self.frame[peak]),
+                    "score": round(float(self.score[peak]), 3),
+                    "reasons": [r for r in REASONS if r in seen],
+                    "detail": self.details[peak],
+                }
+            )
+        return out
 
     @property
     def frames(self) -> Int[np.ndarray, " F"]:
@@ -83,7 +150,7 @@ class Suspects:
 
     def records(self, frame: int | None = None) -> list[dict]:
         """One dict per suspect (JSON-able): frame, point, point_name, score, reasons,
-        detail; only those of ``frame`` when given."""
+        detail, item (its item's rank); only those of ``frame`` when given."""
         rows = range(len(self.frame)) if frame is None else np.flatnonzero(self.frame == frame)
         out = []
         for i in rows:
@@ -96,18 +163,22 @@ class Suspects:
                     "score": round(float(self.score[i]), 3),
                     "reasons": self.reasons[i].split(";"),
                     "detail": self.details[i],
+                    "item": int(self.item[i]),
                 }
             )
         return out
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write ``frame,point,point_name,score,reasons,detail`` rows atomically."""
+        """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically, in
+        the order to review them: by item rank (``item`` 0 first), then frame."""
+        order = sorted(self.records(), key=lambda rec: (rec["item"], rec["frame"]))
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             writer = csv.writer(fh)
-            writer.writerow(["frame", "point", "point_name", "score", "reasons", "detail"])
-            for rec in self.records():
+            writer.writerow(["item", "frame", "point", "point_name", "score", "reasons", "detail"])
+            for rec in order:
                 writer.writerow(
                     [
+                        rec["item"],
                         rec["frame"],
                         rec["point"],
                         rec["point_name"],
@@ -117,6 +188,33 @@ class Suspects:
                     ]
                 )
         return Path(path)
+
+
+def _rank_items(frame: np.ndarray, point: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """``(N,)`` item rank per pair: runs of consecutive frames of one point, ranked by
+    their largest score (ties: earlier frame, then point)."""
+    frame = np.asarray(frame, dtype=int)
+    point = np.asarray(point, dtype=int)
+    if not len(frame):
+        return np.zeros(0, int)
+    order = np.lexsort((frame, point))
+    f, p = frame[order], point[order]
+    new_run = np.ones(len(order), bool)
+    new_run[1:] = (p[1:] != p[:-1]) | (f[1:] != f[:-1] + 1)
+    run = np.cumsum(new_run) - 1  # run id in (point, frame) order
+    run_of = np.empty(len(order), int)
+    run_of[order] = run
+    n_runs = int(run[-1]) + 1
+    peak = np.full(n_runs, -np.inf)
+    np.maximum.at(peak, run_of, np.asarray(score, dtype=np.float64))
+    first = np.full(n_runs, np.iinfo(int).max)
+    np.minimum.at(first, run_of, frame)
+    start_point = np.empty(n_runs, int)
+    start_point[run_of] = point
+    ranked = np.lexsort((start_point, first, -peak))  # run ids, best first
+    rank_of_run = np.empty(n_runs, int)
+    rank_of_run[ranked] = np.arange(n_runs)
+    return rank_of_run[run_of]
 
 
 def _robust_threshold(values: np.ndarray, k: float, floor: float, axis=None) -> np.ndarray:
@@ -150,6 +248,7 @@ def find_suspects(
     pts2d_input: Float[np.ndarray, "V T P 2"] | None = None,
     corrected: Bool[np.ndarray, "T P"] | None = None,
     point_names: list[str] | None = None,
+    view_names: list[str] | None = None,
     k_reproj: float = 6.0,
     min_reproj_px: float = 3.0,
     k_bone: float = 6.0,
@@ -174,7 +273,9 @@ def find_suspects(
     corrected
         ``(T, P)`` bool: points a person corrected (never suspects), or None.
     point_names
-        The P axis' names (for :meth:`Suspects.records`).
+        The P axis' names (for :meth:`Suspects.records` and the details).
+    view_names
+        The V axis' names (the details name views as ``"2 lm"``).
     k_reproj, min_reproj_px
         Reprojection threshold per view: median + ``k_reproj`` MAD-sigmas, at least
         ``min_reproj_px`` above the median.
@@ -196,6 +297,10 @@ def find_suspects(
     has3d = np.isfinite(pts3d).all(-1)  # (T, P)
     scores = {r: np.zeros((n_frames, n_points)) for r in REASONS}
     notes: dict[tuple[int, int], list[str]] = {}
+    names = [str(n) for n in (point_names or [])]
+
+    def name(p: int) -> str:
+        return names[p] if p < len(names) else str(p)
 
     def note(mask, text_of):
         for t, p in np.argwhere(mask):
@@ -210,59 +315,13 @@ def find_suspects(
     mask = (excess > 1.0) & has3d
     scores["reprojection"][mask] = excess[mask]
     worst = np.nanargmax(np.where(np.isfinite(error), error, -1.0), axis=0)
-    note(mask, lambda t, p: f"view {worst[t, p]} reprojects {error[worst[t, p], t, p]:.1f} px off")
-
-    # bone lengths
-    scale = np.nan
-    if len(bones):
-        lengths = np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)  # (T, B)
-        with np.errstate(all="ignore"), _quiet():
-            median = np.nanmedian(lengths, axis=0)
-            sigma = _MAD_SCALE * np.nanmedian(np.abs(lengths - median), axis=0)
-            scale = float(np.nanmedian(median))
-            allowed = np.maximum(k_bone * np.nan_to_num(sigma), bone_tolerance * median)
-            ratio = np.abs(lengths - median) / allowed  # (T, B)
-        bad = np.nan_to_num(ratio) > 1.0
-        for b in np.flatnonzero(bad.any(axis=0)):
-            for end in bones[b]:
-                rows = bad[:, b]
-                scores["bone_length"][rows, end] = np.maximum(
-                    scores["bone_length"][rows, end], ratio[rows, b]
-                )
-                i, j = bones[b]
-                note(
-                    rows[:, None] & (np.arange(n_points) == end)[None],
-                    lambda t, p, i=i, j=j, b=b: (
-                        f"bone {i}-{j} {lengths[t, b]:.3g} vs median {median[b]:.3g}"
-                    ),
-                )
-
-    # jumps from the neighbouring frames
-    if n_frames >= 2:
-
-        def shifted(k):  # pts3d[t + k] at t, NaN outside the recording
-            out = np.full_like(pts3d, np.nan)
-            if k > 0:
-                out[:-k] = pts3d[k:]
-            else:
-                out[-k:] = pts3d[:k]
-            return out
-
-        # Predicted from the neighbours: their midpoint, else (at an end or a gap) the
-        # straight-line extrapolation of the two frames on one side; a first
-        # difference alone would measure speed, not a jump.
-        predicted = 0.5 * (shifted(-1) + shifted(1))
-        for near, far in ((-1, -2), (1, 2)):
-            line = 2.0 * shifted(near) - shifted(far)
-            predicted = np.where(np.isfinite(predicted), predicted, line)
-        jump = np.linalg.norm(pts3d - predicted, axis=-1)  # (T, P), NaN without neighbours
-        floor = jump_tolerance * scale if np.isfinite(scale) else 0.0
-        thr = _robust_threshold(jump, k_jump, floor, axis=0)  # (1, P)
-        with np.errstate(invalid="ignore"):
-            ratio = jump / thr
-        mask = np.nan_to_num(ratio) > 1.0
-        scores["jump"][mask] = ratio[mask]
-        note(mask, lambda t, p: f"{jump[t, p]:.3g} off the path of its neighbouring frames")
+    note(
+        mask,
+        lambda t, p: (
+            f"view {view_label(worst[t, p], view_names)} reprojects "
+            f"{error[worst[t, p], t, p]:.1f} px off"
+        ),
+    )
 
     # views left out by the robust triangulation, and two-view points
     used_views = np.isfinite(used).all(-1)  # (V, T, P)
@@ -274,8 +333,18 @@ def find_suspects(
         note(
             mask,
             lambda t, p: (
-                f"view(s) {', '.join(map(str, np.flatnonzero(dropped[:, t, p])))} "
+                f"{_views(np.flatnonzero(dropped[:, t, p]), view_names)} "
                 "dropped by the robust triangulation"
+            ),
+        )
+        # seen by two or more views that no 3D point fits: every view was dropped
+        unsolved = ~has3d & (given.sum(axis=0) >= 2)
+        scores["ransac_drop"][unsolved] = 1.0
+        note(
+            unsolved,
+            lambda t, p: (
+                f"{_views(np.flatnonzero(given[:, t, p]), view_names)} disagree: "
+                "the robust triangulation found no 3D that fits them"
             ),
         )
     n_used = used_views.sum(axis=0)
@@ -285,6 +354,74 @@ def find_suspects(
     mask = has3d & (n_used == 2) & (np.nan_to_num(typical) > 2)
     scores["two_views"][mask] = 0.5
     note(mask, lambda t, p: f"from 2 views (usually {typical[p]:g})")
+
+    # jumps: the point far from every prediction of its neighbouring frames
+    if n_frames >= 2:
+
+        def shifted(k):  # pts3d[t + k] at t, NaN outside the recording
+            out = np.full_like(pts3d, np.nan)
+            if k > 0:
+                out[:-k] = pts3d[k:]
+            else:
+                out[-k:] = pts3d[:k]
+            return out
+
+        # the midpoint of both sides and the straight line through either side's two
+        # frames; a first difference alone would measure speed, not a jump
+        predictions = [
+            0.5 * (shifted(-1) + shifted(1)),
+            2.0 * shifted(-1) - shifted(-2),
+            2.0 * shifted(1) - shifted(2),
+        ]
+        with _quiet():
+            jump = np.nanmin(
+                np.stack([np.linalg.norm(pts3d - q, axis=-1) for q in predictions]), axis=0
+            )  # (T, P), NaN without neighbours
+        with np.errstate(all="ignore"), _quiet():
+            scale = (
+                float(
+                    np.nanmedian(
+                        np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)
+                    )
+                )
+                if len(bones)
+                else np.nan
+            )
+        floor = jump_tolerance * scale if np.isfinite(scale) else 0.0
+        thr = _robust_threshold(jump, k_jump, floor, axis=0)  # (1, P)
+        with np.errstate(invalid="ignore"):
+            ratio = jump / thr
+        mask = np.nan_to_num(ratio) > 1.0
+        scores["jump"][mask] = ratio[mask]
+        note(mask, lambda t, p: f"{jump[t, p]:.3g} off the path of its neighbouring frames")
+
+    # bone lengths: the end with more evidence (more bad bones there, or another
+    # reason) is the suspect, both ends when it is a tie
+    if len(bones):
+        lengths = np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)  # (T, B)
+        with np.errstate(all="ignore"), _quiet():
+            median = np.nanmedian(lengths, axis=0)
+            sigma = _MAD_SCALE * np.nanmedian(np.abs(lengths - median), axis=0)
+            allowed = np.maximum(k_bone * np.nan_to_num(sigma), bone_tolerance * median)
+            ratio = np.abs(lengths - median) / allowed  # (T, B)
+        bad = np.nan_to_num(ratio) > 1.0
+        evidence = np.zeros((n_frames, n_points))
+        np.add.at(evidence.T, bones[:, 0], bad.T)
+        np.add.at(evidence.T, bones[:, 1], bad.T)
+        evidence += sum(scores[r] for r in ("reprojection", "jump", "ransac_drop")) > 0
+        for b in np.flatnonzero(bad.any(axis=0)):
+            i, j = (int(x) for x in bones[b])
+            for end, other in ((i, j), (j, i)):
+                rows = bad[:, b] & (evidence[:, end] >= evidence[:, other])
+                scores["bone_length"][rows, end] = np.maximum(
+                    scores["bone_length"][rows, end], ratio[rows, b]
+                )
+                note(
+                    rows[:, None] & (np.arange(n_points) == end)[None],
+                    lambda t, p, i=i, j=j, b=b: (
+                        f"bone {name(i)}-{name(j)} {lengths[t, b]:.3g} vs median {median[b]:.3g}"
+                    ),
+                )
 
     total = sum(scores.values())
     if corrected is not None:
@@ -301,8 +438,13 @@ def find_suspects(
         reasons=reasons,
         details=details,
         frame_score=frame_score,
-        point_names=[str(n) for n in (point_names or [])],
+        point_names=names,
     )
+
+
+def _views(indices, view_names: list[str] | None) -> str:
+    labels = [view_label(int(v), view_names) for v in indices]
+    return ("view " if len(labels) == 1 else "views ") + ", ".join(labels)
 
 
 def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
@@ -341,5 +483,6 @@ def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
         pts2d_input=given,
         corrected=corrected,
         point_names=list(result.skeleton.point_names),
+        view_names=list(result.cameras.names) if result.cameras is not None else None,
         **thresholds,
     )

@@ -177,6 +177,14 @@ class Config:
         """The packaged default config (:data:`DEFAULT_CONFIG_PATH`): the 7-camera fly rig."""
         return cls.from_yaml(DEFAULT_CONFIG_PATH)
 
+    @classmethod
+    def of_outputs(cls, outdir: str | Path) -> Config:
+        """The config a run used: the snapshot ``config.yaml`` (or ``.toml``) every run
+        leaves in its output directory ``outdir``, else :meth:`default`."""
+        snapshots = (Path(outdir) / "config.yaml", Path(outdir) / "config.toml")
+        snapshot = next((p for p in snapshots if p.is_file()), None)
+        return cls.from_file(snapshot) if snapshot else cls.default()
+
     # -- typed per-stage views -------------------------------------------------
 
     @property

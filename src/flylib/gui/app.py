@@ -11,10 +11,11 @@ Routes::
     POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
     POST /api/save                  write corrections.h5 beside results.h5
     WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision",
-                                    "durable"}
+                                    "durable", "fixed"}
                                     -> points (op: move, move3d, invisible, reset_point,
-                                    reset_view, reset_frame; or {"op": "save"}); other
-                                    pages' edits arrive as {"op": "changed", "revision"}
+                                    reset_view, reset_frame; move takes "fixed": true; or
+                                    {"op": "save"}); other pages' edits arrive as
+                                    {"op": "changed", "revision"}
 
 Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are
 this server's; POSTs and the WebSocket carry the session token; JSON bodies only,
@@ -262,6 +263,7 @@ def create_app(
                 message.get("point"),
                 message.get("view"),
                 message.get("xy"),
+                fixed=message.get("fixed", False),
                 revision=message.get("revision"),
                 durable=message.get("durable", True) is not False,
             )

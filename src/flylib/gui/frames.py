@@ -1,15 +1,26 @@
-"""Footage frames for the GUI, as JPEG: one open decoder per view and a small LRU cache.
+"""Footage frames for the GUI, as JPEG: one open decoder per view, a small LRU cache and
+a background decoder that fills a second cache ahead of the user.
 
 A video keeps one PyAV container open: the next frame (scrubbing forward) costs one
 decode; any other frame is reached by decoding on from the current position or by a
 seek to the keyframe before it, whichever decodes fewer frames (the keyframes and
 presentation timestamps are indexed once from the packets), never by decoding from
-the start. A random jump therefore costs up to one keyframe interval (GOP) of decoding.
-Image sequences are read by index through :class:`flylib.io.ImageSequenceReader`.
+the start. A cold random jump therefore costs up to one keyframe interval (GOP) of
+decoding, which on footage with a single keyframe is the whole video.
+
+So once a view's first frame is asked for, a background thread decodes the video in
+order (one decode per frame, the cheapest way through it) into the fill cache: the
+whole video when its JPEGs fit ``fill_bytes`` (estimated from the first frame), else a
+window of frames ahead of the last requested one. It pauses while a request decodes,
+so it never slows down the frame the user is waiting for; and a request for a frame the
+fill decoder is nearer to (it decodes forward to it, the request decoder would seek back
+to a keyframe) waits for the fill instead of decoding the same frames a second time. Image sequences are read by
+index through :class:`flylib.io.ImageSequenceReader` (already random access).
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -19,9 +30,17 @@ import numpy as np
 
 from ..errors import FootageError
 
+log = logging.getLogger(__name__)
+
 #: Always decode forward (rather than seek) when the wanted frame is at most this far ahead.
 FORWARD_GAP = 24
 JPEG_QUALITY = 85
+#: JPEG bytes one view may hold in its fill cache (7 views: about 450 MB at most).
+FILL_BYTES = 64 * 2**20
+#: Longest a request waits for the fill decoder when that one is nearer its frame.
+FILL_WAIT_S = 10.0
+#: Frames kept behind the last requested one when only a window fits (for stepping back).
+_WINDOW_BEHIND = 0.25
 
 
 def encode_jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
@@ -158,11 +177,12 @@ class _ImageFrames:
 
 
 class FrameSource:
-    """JPEG frames of one view, with an LRU cache of encoded frames.
+    """JPEG frames of one view, with an LRU cache of encoded frames and a fill cache.
 
     Two decoders: one follows the requests (so scrubbing stays one decode per frame),
-    the other fills the cache in the background (:meth:`prefetch`, e.g. the next
-    suspect frame) without moving the first away from where the user is.
+    the other fills the caches in the background (:meth:`prefetch`, e.g. the next
+    suspect frame, and the fill thread, see the module's docstring) without moving the
+    first away from where the user is.
 
     Parameters
     ----------
@@ -172,19 +192,37 @@ class FrameSource:
     size
         ``(height, width)`` used when there is no footage.
     cache_frames
-        Encoded frames kept per view.
+        Encoded frames kept per view in the LRU cache of requested frames.
+    fill_bytes
+        JPEG bytes the background fill may hold (0: no background decoding).
     """
 
-    def __init__(self, files: Sequence[Path], size: tuple[int, int], cache_frames: int = 128):
+    def __init__(
+        self,
+        files: Sequence[Path],
+        size: tuple[int, int],
+        cache_frames: int = 128,
+        *,
+        fill_bytes: int = FILL_BYTES,
+    ):
         files = [Path(f) for f in files]
         self.size = (int(size[0]), int(size[1]))
         self._cache_lock = threading.Lock()
         self._lock = threading.Lock()  # the request decoder
-        self._spare_lock = threading.Lock()  # the prefetch decoder
+        self._spare_lock = threading.Lock()  # the prefetch / fill decoder
         self._cache: OrderedDict[int, bytes] = OrderedDict()
         self.cache_frames = int(cache_frames)
         self._blank: bytes | None = None
         self._spare = None
+        self.fill_bytes = int(fill_bytes)
+        self._filled: dict[int, bytes] = {}
+        self._fill_window: int | None = None  # None: undecided; else frames the fill may hold
+        self._anchor = 0  # the last requested frame
+        self._requests = 0  # requests decoding now (the fill waits for them)
+        self._fill_wake = threading.Condition()
+        self._filled_wake = threading.Condition()  # a frame entered the fill cache
+        self._fill_thread: threading.Thread | None = None
+        self._closed = False
         if not files:
             self._frames = None
         elif len(files) == 1 and files[0].suffix.lower() not in {
@@ -208,6 +246,9 @@ class FrameSource:
 
     def _cached(self, index: int) -> bytes | None:
         with self._cache_lock:
+            data = self._filled.get(index)
+            if data is not None:
+                return data
             data = self._cache.get(index)
             if data is not None:
                 self._cache.move_to_end(index)
@@ -222,6 +263,7 @@ class FrameSource:
 
     def jpeg(self, index: int) -> bytes:
         """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
+        self._follow(index)
         cached = self._cached(index)
         if cached is not None:
             return cached
@@ -229,11 +271,22 @@ class FrameSource:
             if self._blank is None:
                 self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
             return self._blank
-        with self._lock:
-            cached = self._cached(index)  # the prefetcher may have just made it
-            if cached is not None:
-                return cached
-            data = encode_jpeg(self._frames.read(index))
+        if self._fill_is_nearer(index):
+            data = self._await_fill(index, FILL_WAIT_S)
+            if data is not None:
+                return data
+        with self._fill_wake:
+            self._requests += 1
+        try:
+            with self._lock:
+                cached = self._cached(index)  # the prefetcher may have just made it
+                if cached is not None:
+                    return cached
+                data = encode_jpeg(self._frames.read(index))
+        finally:
+            with self._fill_wake:
+                self._requests -= 1
+                self._fill_wake.notify_all()
         self._store(index, data)
         return data
 
@@ -245,15 +298,144 @@ class FrameSource:
             or self._cached(index) is not None
         ):
             return
+        data = self._spare_read(index)
+        if data is not None:
+            self._store(index, data)
+
+    def _spare_read(self, index: int) -> bytes | None:
         with self._spare_lock:
+            if self._closed:
+                return None
             if self._cached(index) is not None:
-                return
+                return None
             if self._spare is None:
                 self._spare = self._frames.spawn()
-            data = encode_jpeg(self._spare.read(index))
-        self._store(index, data)
+            return encode_jpeg(self._spare.read(index))
+
+    # -- the background fill -----------------------------------------------------------
+
+    def _fill_is_nearer(self, index: int) -> bool:
+        """The fill decoder reaches ``index`` with fewer decodes than the request decoder
+        (it decodes forward to it, the fill going there next): waiting for it then costs
+        less than a second decoder working through the same frames."""
+        spare, frames = self._spare, self._frames
+        if (
+            self._fill_thread is None
+            or not self._fill_thread.is_alive()
+            or spare is None
+            or spare._next is None
+            or not isinstance(frames, _VideoFrames)
+        ):
+            return False
+        ahead = index - spare._next
+        if ahead < 0 or ahead > FORWARD_GAP + index - spare._keyframe_before(index):
+            return False
+        own = (
+            index - frames._next
+            if frames._forward_is_cheaper(index)
+            else index - frames._keyframe_before(index)
+        )
+        return ahead < own
+
+    def _await_fill(self, index: int, timeout: float) -> bytes | None:
+        """Frame ``index`` once the fill has it, or None after ``timeout`` s."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        with self._filled_wake:
+            while True:
+                data = self._cached(index)
+                if data is not None or self._closed or time.monotonic() > deadline:
+                    return data
+                if self._fill_thread is None or not self._fill_thread.is_alive():
+                    return None
+                self._filled_wake.wait(0.05)
+
+    def _follow(self, index: int) -> None:
+        """A request for ``index``: move the fill window there, start the fill thread."""
+        if not isinstance(self._frames, _VideoFrames) or self.fill_bytes <= 0:
+            return
+        with self._fill_wake:
+            self._anchor = int(index)
+            if self._fill_thread is None and not self._closed:
+                self._fill_thread = threading.Thread(
+                    target=self._fill_loop, name="flylib-gui-fill", daemon=True
+                )
+                self._fill_thread.start()
+            self._fill_wake.notify_all()
+
+    @property
+    def filled(self) -> int:
+        """Frames in the fill cache now."""
+        with self._cache_lock:
+            return len(self._filled)
+
+    def wait_filled(self, frames: int, timeout: float) -> bool:
+        """Wait until the fill cache holds ``frames`` frames (True) or ``timeout`` s pass."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        while self.filled < frames:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
+    def _wanted(self) -> list[int]:
+        """Frames the fill should hold now, nearest first ahead of the user."""
+        n = len(self._frames)
+        anchor = min(max(self._anchor, 0), n - 1)
+        if self._fill_window is None or self._fill_window >= n:
+            return [*range(anchor, n), *range(anchor)]
+        behind = int(self._fill_window * _WINDOW_BEHIND)
+        start = max(0, anchor - behind)
+        stop = min(n, start + self._fill_window)
+        return [*range(anchor, stop), *range(start, anchor)]
+
+    def _next_to_fill(self) -> int | None:
+        wanted = self._wanted()
+        with self._cache_lock:
+            keep = set(wanted)
+            for index in [i for i in self._filled if i not in keep]:
+                del self._filled[index]  # outside the window: the user moved on
+            return next((i for i in wanted if i not in self._filled), None)
+
+    def _fill_loop(self) -> None:
+        while True:
+            with self._fill_wake:
+                while not self._closed and (self._requests or self._next_to_fill() is None):
+                    self._fill_wake.wait(0.5)
+                if self._closed:
+                    return
+                index = self._next_to_fill()
+            if index is None:
+                continue
+            try:
+                data = self._spare_read(index)
+            except (FootageError, OSError, ValueError) as exc:  # the request reports it
+                log.debug("%s: background decode of frame %d failed: %s", self, index, exc)
+                return
+            if data is None:
+                if self._closed:
+                    return
+                data = self._cached(index)
+                if data is None:
+                    continue
+            if self._fill_window is None:
+                frames = max(1, self.fill_bytes // max(1, int(len(data) * 1.25)))
+                self._fill_window = min(frames, len(self._frames))
+            with self._cache_lock:
+                self._filled[index] = data
+            with self._filled_wake:
+                self._filled_wake.notify_all()
 
     def close(self) -> None:
-        for frames in (self._frames, self._spare):
-            if frames is not None:
-                frames.close()
+        with self._fill_wake:
+            self._closed = True
+            self._fill_wake.notify_all()
+        if self._fill_thread is not None:
+            self._fill_thread.join(timeout=5)
+        with self._spare_lock:
+            for frames in (self._frames, self._spare):
+                if frames is not None:
+                    frames.close()

@@ -121,15 +121,7 @@ class ReviewSession:
         self.results_path = resolve_results(results)
         self.outdir = self.results_path.parent
         if config is None:
-            snapshot = next(
-                (
-                    p
-                    for p in (self.outdir / "config.yaml", self.outdir / "config.toml")
-                    if p.is_file()
-                ),
-                None,
-            )
-            config = Config.from_file(snapshot) if snapshot else Config.default()
+            config = Config.of_outputs(self.outdir)
         self.config = config
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
@@ -275,6 +267,15 @@ class ReviewSession:
                 sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)
             ],
             "method": str(getattr(self.config.triangulation, "method", "ransac")),
+            # the 3D view draws the rig: each camera's centre and viewing direction
+            "rig": [
+                {
+                    "name": cam.name,
+                    "position": np.round(cam.position, 6).tolist(),
+                    "axis": np.round(cam.rmat[2], 6).tolist(),
+                }
+                for cam in self.cameras
+            ],
         }
 
     def points(self, frame: int) -> dict:
@@ -304,6 +305,7 @@ class ReviewSession:
                         "reprojected": _xy_list(reproj[v]),
                         "error": _nan_to_none(self.error[v, t], 2),
                         "edited": self.corrections.edited[v, t].tolist(),
+                        "fixed": self.corrections.fixed[v, t].tolist(),
                         "invisible": self.corrections.invisible[v, t].tolist(),
                     }
                 )
@@ -341,12 +343,17 @@ class ReviewSession:
                     ),
                     corrected=self.corrections.corrected_points(),
                     point_names=list(self.skeleton.point_names),
+                    view_names=self.view_names,
                 )
             return self._suspects
 
     def suspects_payload(self) -> dict:
         s = self.suspects()
-        return {"suspects": s.records(), "frame_score": np.round(s.frame_score, 3).tolist()}
+        return {
+            "suspects": s.records(),
+            "items": s.items(),
+            "frame_score": np.round(s.frame_score, 3).tolist(),
+        }
 
     # -- editing -------------------------------------------------------------------------
 
@@ -382,6 +389,7 @@ class ReviewSession:
         view: str | None = None,
         xy: Any = None,
         *,
+        fixed: bool = False,
         revision: int | None = None,
         durable: bool = True,
     ) -> dict:
@@ -398,6 +406,10 @@ class ReviewSession:
         frame, point, view, xy
             The target; ``frame`` and ``point`` integers (not booleans), ``xy`` two
             finite raw-frame pixel coordinates inside the view's image.
+        fixed
+            ``move``: mark the placed point ``fixed`` (always kept by the robust
+            triangulation, the seed GUI's "finalized" state); a boolean, journaled
+            with the edit.
         revision
             The revision the page last saw; an edit against an older one is refused
             (:class:`StaleRevision`), so a stale tab never overwrites a newer edit.
@@ -425,7 +437,7 @@ class ReviewSession:
         with self._lock:
             self._check_revision(revision)
             started = time.perf_counter()
-            record = self._plan(op, frame, point, view, xy)
+            record = self._plan(op, frame, point, view, xy, fixed)
             planned = time.perf_counter()
             self._journal.append(record, self.corrections.revision, durable=durable)
             journaled = time.perf_counter()
@@ -453,13 +465,19 @@ class ReviewSession:
         if revision != self.revision:
             raise StaleRevision(revision, self.revision)
 
-    def _plan(self, op: Any, frame: Any, point: Any, view: Any, xy: Any) -> dict:
+    def _plan(
+        self, op: Any, frame: Any, point: Any, view: Any, xy: Any, fixed: Any = False
+    ) -> dict:
         """The journal record of an edit, every argument checked; nothing changes yet."""
         if op not in EDIT_OPS:
             raise ValueError(
                 f"unknown edit {str(op)[:40]!r}; use move, move3d, invisible, reset_point, "
                 "reset_view or reset_frame"
             )
+        if type(fixed) is not bool:
+            raise ValueError(f"fixed must be true or false, got {str(fixed)[:40]}")
+        if fixed and op != "move":
+            raise ValueError(f"fixed applies to move (Edit 2D) only, not to {op}")
         t = self._check_frame(_integer("frame", frame))
         if view is not None and not isinstance(view, str):
             raise ValueError("view must be a camera name")
@@ -473,6 +491,8 @@ class ReviewSession:
             raise ValueError("reset_view needs a view")
         if op in ("move", "move3d"):
             record["xy"] = self._check_xy(view, xy)
+        if fixed:
+            record["fixed"] = True
         if op == "move3d":
             record["op"] = "set3d"
             record["xyz"] = self._onto_ray(v, t, p, np.asarray(record["xy"])).tolist()
@@ -502,7 +522,7 @@ class ReviewSession:
         view, p = record.get("view"), record.get("point")
         v = None if view is None else self.view_index(view)
         if op == "move":
-            self.corrections.set_point(v, t, p, record["xy"])
+            self.corrections.set_point(v, t, p, record["xy"], fixed=record.get("fixed", False))
         elif op == "set3d":
             self.corrections.set_point3d(t, p, record["xyz"])
         elif op == "invisible":
@@ -563,6 +583,7 @@ class ReviewSession:
                 record.get("point"),
                 record.get("view"),
                 record.get("xy"),
+                record.get("fixed", False),
             )
         checked = self._plan(
             "invisible", record.get("frame"), record.get("point"), record.get("view"), None

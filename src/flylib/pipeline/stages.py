@@ -526,9 +526,10 @@ def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
     suspects = suspects_from_results(results_path)
     suspects.to_csv(outdir / SUSPECTS_FILE)
     log.info(
-        "%d suspect (frame, point) pairs in %d frames: %s",
+        "%d suspect (frame, point) pairs in %d frames, %d items to review: %s",
         len(suspects),
         len(suspects.frames),
+        suspects.n_items,
         outdir / SUSPECTS_FILE,
     )
     return len(suspects)

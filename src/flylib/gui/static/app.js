@@ -2,13 +2,18 @@
 import { alertText, clearAlert, showAlert } from "./alerts.js";
 import { apiUrl, EditChannel, getJSON, postJSON } from "./api.js";
 import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.js";
+import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
+import { applyLayout } from "./layout.js";
+import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
+import { neighbourItem, renderItems } from "./suspects.js";
+import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
 const state = {
   meta: null, frame: 0, data: null, images: {}, views: [], zoom: {},
   focus: 0, layout: "grid", editMode: false, mode: "view", selected: null,  // {view, point}
-  suspects: [], frameScore: [], suspectFrames: [], sort: { key: "frame", asc: true },
-  drawn: {}, lastServerMs: null, requestId: 0,
+  suspects: [], items: [], frameScore: [], suspectFrames: [], sort: { key: "score", asc: false },
+  drawn: {}, lastServerMs: null, requestId: 0, hover: null, history: new EditHistory(), view3d: null,
   revision: 0, offline: false,
 };
 const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewhere });
@@ -39,11 +44,46 @@ async function start() {
     state.zoom[view.name] = { scale: 1, x: 0, y: 0 };
     attachMouse(state.views[i]);
   });
-  new ResizeObserver(() => redrawAll()).observe(container);
+  const tile3d = document.createElement("div");
+  tile3d.className = "view view3d";
+  const canvas3d = document.createElement("canvas");
+  const label3d = document.createElement("span");
+  label3d.className = "label clickable";
+  label3d.textContent = "3D (fly scale)";
+  label3d.title = "click: fly scale / rig scale";
+  label3d.addEventListener("click", () => { label3d.textContent = `3D (${state.view3d.toggleScale()} scale)`; });
+  tile3d.append(canvas3d, label3d);
+  container.appendChild(tile3d);
+  state.tile3d = tile3d;
+  state.view3d = new View3D(canvas3d, meta, (point) => {
+    state.selected = { view: (state.selected && state.selected.view) || state.views[0].name, point };
+    redrawAll();
+  });
+  buildLegend($("#legend"), meta);
+  new ResizeObserver(() => { relayout(); redrawAll(); }).observe(container);
   wireControls();
+  relayout();
   await loadSuspects();
-  const first = new URLSearchParams(location.search).get("frame");
-  await goto(first ? Number(first) : 0);
+  await goto(initialFrame(new URLSearchParams(location.search).get("frame")));
+}
+
+function initialFrame(asked) {
+  // ?frame=N: clamped to the recording; anything but a whole number is ignored, said once
+  if (asked === null || asked === "") return 0;
+  const last = state.meta.frames - 1;
+  if (!/^-?\d+$/.test(asked.trim())) {
+    status(`?frame=${asked} is not a frame number; showing frame 0 (frames 0..${last})`);
+    return 0;
+  }
+  const frame = Number(asked);
+  if (frame < 0 || frame > last) status(`?frame=${asked} is outside 0..${last}; showing frame ${Math.max(0, Math.min(last, frame))}`);
+  return Math.max(0, Math.min(last, frame));
+}
+
+function relayout() {
+  const tiles = [...state.views.map((v) => v.div), state.tile3d];
+  const first = state.meta.views[0];
+  applyLayout($("#views"), tiles, state.layout, state.focus, first.width / first.height);
 }
 
 // -- frames --------------------------------------------------------------------------
@@ -54,7 +94,8 @@ async function goto(frame) {
   state.frame = frame;
   const id = ++state.requestId;
   $("#slider").value = frame;
-  $("#frame-label").textContent = `frame ${frame} / ${meta.frames - 1}`;
+  $("#frame-label").textContent = `/ ${meta.frames - 1}`;
+  if (document.activeElement !== $("#frame-input")) $("#frame-input").value = String(frame);
   for (const view of state.views) {
     const image = new Image();
     image.onload = () => {
@@ -77,6 +118,12 @@ function resize(view) {
   const w = Math.max(1, Math.round(view.canvas.clientWidth * dpr));
   const h = Math.max(1, Math.round(view.canvas.clientHeight * dpr));
   if (view.canvas.width !== w || view.canvas.height !== h) {
+    // a zoomed view keeps showing the same part of the frame at its new size
+    const z = state.zoom[view.name];
+    if (view.canvas.width > 1 && view.canvas.height > 1) {
+      z.x *= w / view.canvas.width;
+      z.y *= h / view.canvas.height;
+    }
     view.canvas.width = w;
     view.canvas.height = h;
   }
@@ -88,6 +135,7 @@ function draw(view) {
   const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
   view.transform = drawView(view.canvas, image, view, state.meta, state.data,
     { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel });
+  drawMarks(view, sel);
   const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
     image && image.src.includes(`/${state.frame}?`);
   if (state.data && state.data.frame === state.frame && imageReady) {
@@ -95,8 +143,28 @@ function draw(view) {
   }
 }
 
+function drawMarks(view, selected) {
+  // fixed points, and the names of the hovered and the selected point
+  if (!state.data || !view.transform) return;
+  const v = state.data.views[view.index];
+  (v.fixed || []).forEach((isFixed, p) => {
+    if (isFixed && v.points2d[p]) drawFixedMark(view.canvas, toCanvas(view.transform, v.points2d[p]));
+  });
+  const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
+  for (const p of new Set([selected, hover])) {
+    if (p === null || p === undefined) continue;
+    const xy = v.points2d[p] || v.reprojected[p];
+    if (!xy) continue;
+    drawPointLabel(view.canvas, toCanvas(view.transform, xy), state.meta.points[p], state.meta.point_colors[p]);
+  }
+}
+
 function redrawAll() {
   state.views.forEach(draw);
+  if (state.view3d) state.view3d.update(state.data, state.selected ? state.selected.point : null);
+  showSelection();
+  $("#undo").disabled = !state.history.canUndo;
+  $("#redo").disabled = !state.history.canRedo;
   drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
   const edits = state.data ? state.data.edits : 0;
   $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
@@ -105,40 +173,37 @@ function redrawAll() {
 
 // -- suspects --------------------------------------------------------------------------
 
+function showSelection() {
+  const s = state.selected;
+  const label = $("#selection");
+  if (!s) { label.textContent = "no point selected"; return; }
+  const view = state.views.find((v) => v.name === s.view);
+  const v = state.data && view ? state.data.views[view.index] : null;
+  const flags = v ? [v.edited[s.point] && "edited", v.fixed && v.fixed[s.point] && "fixed",
+    v.invisible[s.point] && "invisible", v.used[s.point] === false && v.points2d[s.point] && "dropped"].filter(Boolean) : [];
+  label.textContent = `${state.meta.points[s.point]} in ${view ? view.index + 1 : "?"} ${s.view}` +
+    (flags.length ? ` (${flags.join(", ")})` : "");
+}
+
 async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
+  state.items = payload.items || [];
   state.frameScore = payload.frame_score;
   state.suspectFrames = [...new Set(state.suspects.map((s) => s.frame))].sort((a, b) => a - b);
-  $("#suspect-count").textContent = `(${state.suspects.length} in ${state.suspectFrames.length} frames)`;
+  $("#suspect-count").textContent =
+    `(${state.items.length} items: ${state.suspects.length} points in ${state.suspectFrames.length} frames)`;
   const timeline = $("#timeline");
   timeline.width = timeline.clientWidth || 800;
   renderSuspectTable();
 }
 
 function renderSuspectTable() {
-  const { key, asc } = state.sort;
-  const rows = [...state.suspects].sort((a, b) => {
-    const x = key === "reasons" ? a.reasons.join() : a[key], y = key === "reasons" ? b.reasons.join() : b[key];
-    const c = x < y ? -1 : x > y ? 1 : a.frame - b.frame || a.point - b.point;
-    return asc ? c : -c;
-  });
-  const body = $("#suspects tbody");
-  body.replaceChildren(...rows.map((s) => {
-    const tr = document.createElement("tr");
-    tr.className = s.frame === state.frame ? "current" : "";
-    tr.title = s.detail;
-    tr.append(...[s.frame, s.point_name, s.score.toFixed(2), s.reasons.join(", ")].map((text) => {
-      const td = document.createElement("td");
-      td.textContent = String(text);
-      return td;
-    }));
-    tr.addEventListener("click", () => jumpToSuspect(s));
-    return tr;
-  }));
+  renderItems($("#suspects tbody"), state.items, state.sort, state.frame,
+    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point }));
   document.querySelectorAll("#suspects th").forEach((th) => {
-    th.classList.toggle("sorted", th.dataset.key === key);
-    th.classList.toggle("asc", th.dataset.key === key && asc);
+    th.classList.toggle("sorted", th.dataset.key === state.sort.key);
+    th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
   });
 }
 
@@ -162,33 +227,83 @@ function bestViewFor(point) {
 }
 
 function stepSuspect(direction) {
-  const frames = state.suspectFrames;
-  if (!frames.length) return status("no suspects");
-  const next = direction > 0 ? frames.find((f) => f > state.frame) ?? frames[0]
-    : [...frames].reverse().find((f) => f < state.frame) ?? frames[frames.length - 1];
-  const s = state.suspects.filter((x) => x.frame === next).sort((a, b) => b.score - a.score)[0];
-  return jumpToSuspect(s);
+  // n / p: the next / previous item in the list's order, at its worst frame
+  if (!state.items.length) return status("no suspects");
+  const point = state.selected ? state.selected.point : null;
+  const item = neighbourItem(state.items, state.sort, state.frame, point, direction);
+  return jumpToSuspect({ frame: item.peak_frame, point: item.point });
 }
 
 // -- editing ---------------------------------------------------------------------------
 
-async function sendEdit(message) {
+async function submit(message) {
+  // one edit to the server, against the revision this page shows; the reply, or null
+  // when it was not applied (stale: another tab edited; refused: bad input; not stored:
+  // journal unwritable or server gone), after which the page shows the server's state
   if (state.offline) { status("not stored: flylib gui is not running"); return null; }
   const reply = await channel.send({ frame: state.frame, revision: state.revision, ...message });
   if (reply.op !== "points") {
-    // stale (another tab edited), refused (bad input) or not stored (journal unwritable,
-    // server gone): the page shows the server's state again, and why
     if (reply.op === "not_stored") showAlert(`edit not stored: ${reply.error}`);
     else status(`edit ${reply.op === "stale" ? "not applied" : "refused"}: ${reply.error}`);
+    if (reply.op === "stale") dropHistory();
     if (!state.offline) await refresh();
     return null;
   }
   state.revision = reply.revision;
   if (reply.frame === state.frame) state.data = reply;
+  return reply;
+}
+
+async function sendEdit(message, drag = null) {
+  // what puts the touched points back is taken from the frame before this edit (a drag:
+  // before its first step); the history keeps it once the server applied the edit
+  const frame = state.frame;
+  const before = drag ? drag.before
+    : restoreMessages(state.data, touchedPoints(message, state.meta.points.length));
+  const reply = await submit(message);
+  if (!reply) return null;
+  const redo = [{ frame, ...message, durable: true }];
+  if (drag && drag.recorded) state.history.done[state.history.done.length - 1].redo = redo;
+  else state.history.record({ frame, undo: before, redo });
+  if (drag) drag.recorded = true;
   state.lastServerMs = reply.server_ms;
   status(`${message.op}: re-solved in ${reply.server_ms} ms on the server`);
   redrawAll();
   return reply;
+}
+
+async function replay(entry, which) {
+  // undo / redo: the entry's messages through the same edit path as any edit (checked,
+  // journaled, against the page's revision)
+  if (!entry) return status(`nothing to ${which}`);
+  if (entry.frame !== state.frame) await goto(entry.frame);
+  for (const message of entry[which]) {
+    if (!(await submit(message))) { status(`${which} stopped: ${$("#status").textContent}`); return; }
+  }
+  await refresh();
+  status(`${which}: ${entry.redo.map((m) => m.op).join(", ")} at frame ${entry.frame}`);
+}
+
+const undo = () => replay(state.history.takeUndo(), "undo");
+const redo = () => replay(state.history.takeRedo(), "redo");
+
+function dropHistory() {
+  // another tab's edits: undoing from this page's older view of them could overwrite
+  // them, so the history starts again
+  state.history.done = [];
+  state.history.undone = [];
+}
+
+async function toggleFixed() {
+  // fixed: the robust triangulation always keeps this view's 2D of the point
+  const s = selectedOrWarn();
+  if (!s) return;
+  const view = state.views.find((v) => v.name === s.view);
+  const v = state.data.views[view.index];
+  if (!v.points2d[s.point]) return status("only a placed point can be fixed");
+  const fixed = !(v.fixed && v.fixed[s.point]);
+  await sendEdit({ op: "move", view: s.view, point: s.point, xy: v.points2d[s.point], fixed });
+  await refresh();
 }
 
 async function refresh() {
@@ -204,6 +319,7 @@ async function refresh() {
 
 function changedElsewhere(message) {
   if (message.revision === state.revision) return;
+  dropHistory();
   status(`another tab changed the edits (revision ${message.revision}); this page was refreshed`);
   if (!state.dragging) refresh();
 }
@@ -294,16 +410,30 @@ function attachMouse(view) {
     event.preventDefault();
     const [cx, cy] = local(event);
     const hit = nearestPoint(view, cx, cy);
+    if (state.layout === "focus" && view.index !== state.focus) {
+      setFocus(view.index);  // a thumbnail: click makes it the large view
+      return;
+    }
     if (hit !== null) {
       state.selected = { view: view.name, point: hit };
       redrawAll();
       if (state.mode !== "view" && event.button === 0 && !state.offline) {
-        drag = { kind: "point", point: hit, sending: false, pending: null };
+        drag = { kind: "point", point: hit, sending: false, pending: null, before: restoreMessages(state.data, [hit]) };
         state.dragging = true;
       }
     }
     if (!drag) drag = { kind: "pan", start: [cx, cy], zoom: { ...state.zoom[view.name] } };
   });
+  canvas.addEventListener("mousemove", (event) => {
+    if (drag || !state.data) return;
+    const [cx, cy] = local(event);
+    const hit = nearestPoint(view, cx, cy);
+    const before = state.hover;
+    state.hover = hit === null ? null : { view: view.name, point: hit };
+    canvas.title = hit === null ? `${view.index + 1} ${view.name}` : `${state.meta.points[hit]} (${view.index + 1} ${view.name})`;
+    if ((before && before.point) !== (state.hover && state.hover.point) || (before && before.view) !== view.name) draw(view);
+  });
+  canvas.addEventListener("mouseleave", () => { if (state.hover && state.hover.view === view.name) { state.hover = null; draw(view); } });
   window.addEventListener("mousemove", async (event) => {
     if (!drag || !state.data) return;
     const [cx, cy] = local(event);
@@ -360,7 +490,10 @@ async function flushDrag(view, drag) {
     drag.pending = null;
     // the drag's last position is fsync'd on the server; the ones before are only flushed
     const durable = Boolean(drag.final);
-    await sendEdit({ op: state.mode === "3d" ? "move3d" : "move", view: view.name, point: drag.point, xy, durable });
+    const was = state.data.views[view.index];
+    const message = state.mode === "3d" ? { op: "move3d", view: view.name, point: drag.point, xy, durable }
+      : { op: "move", view: view.name, point: drag.point, xy, durable, fixed: Boolean(was.fixed && was.fixed[drag.point]) };
+    await sendEdit(message, drag);
   }
   drag.sending = false;
   if (drag.final) {
@@ -395,14 +528,13 @@ function setLayout(layout) {
   setFocus(state.focus);
 }
 
+// views, then the 3D view (index = number of views) in the focus layout
+
 function setFocus(index) {
-  state.focus = Math.max(0, Math.min(state.views.length - 1, index));
-  state.views.forEach((v, i) => v.div.classList.toggle("large", state.layout === "focus" && i === state.focus));
-  // the large view first in the grid flow
-  const container = $("#views");
-  const large = state.views[state.focus].div;
-  if (state.layout === "focus") container.prepend(large);
-  else state.views.forEach((v) => container.appendChild(v.div));
+  state.focus = Math.max(0, Math.min(state.views.length, index));
+  const tiles = [...state.views.map((v) => v.div), state.tile3d];
+  tiles.forEach((div, i) => div.classList.toggle("large", state.layout === "focus" && i === state.focus));
+  relayout();  // CSS order only: thumbnails keep their order and their canvases
   requestAnimationFrame(redrawAll);
 }
 
@@ -422,6 +554,20 @@ function wireControls() {
   $("#reset-view").addEventListener("click", resetView);
   $("#reset-frame").addEventListener("click", resetFrame);
   $("#save").addEventListener("click", save);
+  $("#undo").addEventListener("click", undo);
+  $("#redo").addEventListener("click", redo);
+  $("#fixed").addEventListener("click", toggleFixed);
+  state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
+  $("#frame-input").addEventListener("change", () => {
+    const text = $("#frame-input").value.trim();
+    if (!/^\d+$/.test(text)) { status(`"${text}" is not a frame number (0..${state.meta.frames - 1})`); return; }
+    goto(Number(text));
+  });
+  $("#frame-input").addEventListener("keydown", (event) => { if (event.key === "Enter") $("#frame-input").blur(); });
+  window.addEventListener("beforeunload", (event) => {
+    // unsaved edits: the browser asks before leaving (its own words; the text is ignored)
+    if (state.data && state.data.dirty) { event.preventDefault(); event.returnValue = ""; }
+  });
   $("#help-button").addEventListener("click", () => toggleHelp());
   $("#next-suspect").addEventListener("click", () => stepSuspect(1));
   $("#prev-suspect").addEventListener("click", () => stepSuspect(-1));
@@ -437,6 +583,11 @@ function wireControls() {
   window.addEventListener("resize", () => { $("#timeline").width = $("#timeline").clientWidth; redrawAll(); });
   window.addEventListener("keydown", (event) => {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
+    if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
+      event.preventDefault();
+      if (event.key === "y" || event.shiftKey) redo(); else undo();
+      return;
+    }
     const big = event.shiftKey ? 10 : 1;
     const key = event.key;
     if (key === "ArrowRight") goto(state.frame + big);
@@ -448,6 +599,7 @@ function wireControls() {
     else if (key === "e") setMode("2d");
     else if (key === "d") setMode("3d");
     else if (key === "i") markInvisible();
+    else if (key === "f") toggleFixed();
     else if (key === "r") resetPoint(false);
     else if (key === "R") resetPoint(true);
     else if (key === "v") resetView();
@@ -455,7 +607,7 @@ function wireControls() {
     else if (key === "g") setLayout(state.layout === "grid" ? "focus" : "grid");
     else if (key === "s" || (key === "S" && event.ctrlKey)) save();
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
-    else if (key >= "1" && key <= "9") { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
+    else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
     else if (key === "?") toggleHelp();
     else if (key === "Escape") toggleHelp(false);
     else return;
@@ -472,6 +624,19 @@ window.flylib = {
   alert: alertText,
   busy: () => channel.busy || state.dragging,
   allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
+  undo,
+  redo,
+  history: () => ({ undo: state.history.done.length, redo: state.history.undone.length }),
+  cellFill() {
+    // per view: the fraction of its tile the frame covers (unzoomed), and the tiles' boxes
+    return state.views.map((view) => {
+      const rect = view.div.getBoundingClientRect();
+      const fit = Math.min(rect.width / view.width, rect.height / view.height);
+      return { name: view.name, fill: (view.width * fit * view.height * fit) / (rect.width * rect.height),
+        left: rect.left, top: rect.top, width: rect.width, height: rect.height };
+    });
+  },
+  tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {
     const view = state.views.find((v) => v.name === viewName);
     const p = state.data.views[view.index].points2d[point];

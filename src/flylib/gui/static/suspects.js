@@ -1,0 +1,71 @@
+// The suspect list: items (a point's consecutive suspect frames), best first by
+// default, sortable; the rows of the current frame are marked and scrolled into view.
+
+const KEYS = {
+  frame: (it) => it.first_frame,
+  point_name: (it) => it.point_name,
+  score: (it) => it.score,
+  reasons: (it) => it.reasons.join(),
+};
+
+export function sortedItems(items, sort) {
+  const get = KEYS[sort.key] || KEYS.score;
+  return [...items].sort((a, b) => {
+    const x = get(a), y = get(b);
+    const c = x < y ? -1 : x > y ? 1 : 0;
+    return (sort.asc ? c : -c) || a.rank - b.rank;  // ties: the better item first
+  });
+}
+
+export function framesText(item) {
+  return item.first_frame === item.last_frame ? String(item.first_frame)
+    : `${item.first_frame}\u2013${item.last_frame}`;
+}
+
+export function renderItems(tbody, items, sort, frame, onPick) {
+  const rows = sortedItems(items, sort).map((item) => {
+    const tr = document.createElement("tr");
+    const covers = item.frames.includes(frame);
+    tr.className = covers ? "current" : "";
+    tr.title = `frames ${item.frames.join(", ")}; at ${item.peak_frame}: ${item.detail}`;
+    tr.dataset.rank = String(item.rank);
+    for (const text of [framesText(item), item.point_name, item.score.toFixed(2), item.reasons.join(", ")]) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      tr.appendChild(td);
+    }
+    tr.addEventListener("click", () => onPick(item));
+    return tr;
+  });
+  tbody.replaceChildren(...rows);
+  const current = rows.find((tr) => tr.className === "current");
+  if (current && frame !== shownFrame) keepVisible(current);
+  shownFrame = frame;
+}
+
+let shownFrame = null;  // the list scrolls to the current frame's items once per frame
+
+function keepVisible(row) {
+  // scroll the list's own box only (scrollIntoView would also scroll the page under a drag)
+  const box = row.closest("#side") || row.parentElement;
+  const r = row.getBoundingClientRect(), b = box.getBoundingClientRect();
+  const header = row.closest("table")?.querySelector("thead")?.getBoundingClientRect().height || 0;
+  if (r.top < b.top + header) box.scrollTop -= b.top + header - r.top;
+  else if (r.bottom > b.bottom) box.scrollTop += r.bottom - b.bottom;
+}
+
+export function neighbourItem(items, sort, frame, point, direction) {
+  // the item after / before the one at (frame, point) in the list's order
+  const list = sortedItems(items, sort);
+  if (!list.length) return null;
+  let here = list.findIndex((it) => it.point === point && it.frames.includes(frame));
+  if (here < 0) {
+    // not on an item: in time order the next (previous) item in time, else the list's ends
+    if (sort.key === "frame" && sort.asc) {
+      if (direction > 0) return list.find((it) => it.first_frame > frame) ?? list[0];
+      return [...list].reverse().find((it) => it.last_frame < frame) ?? list[list.length - 1];
+    }
+    return direction > 0 ? list[0] : list[list.length - 1];
+  }
+  return list[(here + direction + list.length) % list.length];
+}
