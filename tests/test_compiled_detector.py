@@ -241,3 +241,24 @@ def test_load_models_uses_the_cached_package_and_pads_a_short_batch(cold, tmp_pa
         eager = load_models(plan, data, compile="auto", frames=10**6, cache_root=root)
     assert not next(iter(eager.values())).compiled
     assert any("auto: eager on cpu" in r.getMessage() for r in caplog.records)
+
+
+def test_the_policy_sees_the_recordings_frame_count(tmp_path):
+    import copy
+
+    import numpy as np
+
+    from flylib import io
+    from flylib.config import Config
+    from flylib.pose2d.stream import _frame_count
+
+    data = copy.deepcopy(dict(Config.default().data))
+    plan = DetectionPlan.from_config(data)
+    first = plan.active_sources()[0]
+    video = tmp_path / "camera_0.mp4"
+    with io.VideoWriter(video, fps=100) as writer:
+        for t in range(7):
+            writer.write_frame(np.full((48, 64, 3), 10 * t, np.uint8))
+    assert _frame_count(plan, {first: [video]}) == 7
+    assert _frame_count(plan, {}) is None  # the detection itself names missing footage
+    assert _frame_count(plan, {first: [tmp_path / "nothing.mp4"]}) is None
