@@ -262,3 +262,36 @@ def test_the_policy_sees_the_recordings_frame_count(tmp_path):
     assert _frame_count(plan, {first: [video]}) == 7
     assert _frame_count(plan, {}) is None  # the detection itself names missing footage
     assert _frame_count(plan, {first: [tmp_path / "nothing.mp4"]}) is None
+
+
+needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+
+
+@needs_cuda
+@pytest.mark.slow
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+def test_on_a_gpu_the_graphed_package_matches_eager_autocast(tmp_path, precision):
+    import copy
+
+    from flylib.config import Config
+
+    data = copy.deepcopy(dict(Config.default().data))
+    data["pose2d"]["models"][0].update(input_size=list(INPUT[1:]))
+    spec = DetectionPlan.from_config(data).models["deepfly2d"]
+    cuda = torch.device("cuda")
+    eager = LoadedModel(spec, _tiny_net(seed=7), cuda, precision=precision, batch_size=BATCH)
+    model = LoadedModel(
+        spec,
+        _tiny_net(seed=7),
+        cuda,
+        precision=precision,
+        batch_size=BATCH,
+        compiled=True,
+        cache_root=tmp_path / "cache",
+    )
+    assert model.compile_status == "cold"
+    assert isinstance(model._forward, compiled.CudaGraphForward)
+    x = torch.randn(BATCH + 1, *INPUT, device=cuda)
+    tol = 1e-3 if precision == "float32" else 5e-2
+    for _ in range(2):  # replays reuse the graph's buffers: results must not alias
+        torch.testing.assert_close(model.heatmaps(x), eager.heatmaps(x), rtol=tol, atol=tol)
