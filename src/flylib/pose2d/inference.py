@@ -313,9 +313,11 @@ def load_models(
             dev,
             batch_size=batch,
             images=images,
-            cached=want_compile is not False and dev.type in ("cuda", "cpu") and model.is_cached(),
+            # hashing the weights costs a fraction of a second: only where it can matter
+            cached=(want_compile is True or (want_compile == "auto" and dev.type == "cuda"))
+            and model.is_cached(),
         )
-        log.info("model %s: %s compiled detector: %s", name, "a" if use else "no", reason)
+        log.info("model %s: %s (%s)", name, "compiled detector" if use else "eager", reason)
         if use:
             status = model.use_compiled()
             log.info("model %s: compiled detector %s", name, _STATUS_WORDS[status])
