@@ -36,9 +36,29 @@ graphs (14% of the bf16 peak); end-to-end 846-902 images/s (network-bound; below
 1,500 target). Memory, decode + preprocessing: peak RSS 7,645 MiB for 5,000 frames vs
 7,267 MiB for 500 (1.05x).
 
+Compiled runs use flylib's compiled detector (``--compile-mode aot``: an AOTInductor
+package of the BatchNorm-folded network, cached on disk, replayed as one CUDA graph
+per batch), or torch.compile's JIT in another mode for comparison.
+
+``--cold-start`` measures instead what each Snakemake pose2d job pays: one recording
+(default 900 frames on CUDA) in a fresh process per mode -- ``compile: false``,
+``compile: auto`` and ``compile: true`` with an empty compiled-detector cache, then
+``compile: true`` and ``auto`` with the cache the cold run filled -- the wall time of
+the whole process (imports, model load or compilation, decode, detection), its
+images/s and its ratio to ``compile: false`` measured in the same run, with the
+compile status and peak GPU memory. On an H100 (not measured yet: no GPU on the
+development machines)::
+
+    python benchmarks/detector.py --cold-start --device cuda --frames 900 \
+        --stacks 8 --precision bfloat16 --batch-sizes 16
+
+On a CPU (shows it works; about ten minutes on a busy 2-core box, mostly the cold
+AOTInductor build): ``python benchmarks/detector.py --cold-start --device cpu
+--frames 8 --stacks 1``.
+
 Run: ``python benchmarks/detector.py [--device cuda] [--precision bfloat16,float16]
 [--batch-sizes 32,64,128] [--stacks 8] [--frames 1000] [--compile auto|on|off|both]
-[--compile-mode reduce-overhead|max-autotune] [--freezing]``.
+[--compile-mode aot|reduce-overhead|max-autotune] [--freezing] [--cold-start]``.
 Imports only torch, numpy, av, cv2 and flylib (from ``src/``), no network.
 """
 
@@ -59,7 +79,7 @@ import torch  # noqa: E402
 
 from flylib import io  # noqa: E402
 from flylib.pose2d import decode, stream  # noqa: E402
-from flylib.pose2d.inference import LoadedModel, select_device  # noqa: E402
+from flylib.pose2d.inference import LoadedModel, load_models, select_device  # noqa: E402
 from flylib.pose2d.model import HourglassNet  # noqa: E402
 from flylib.pose2d.plan import DetectionPlan  # noqa: E402
 
@@ -297,6 +317,107 @@ def bench_memory(
     return out
 
 
+# --- cold start: one recording per fresh process, as each Snakemake pose2d job -------
+
+COLD_START_MODES = (
+    ("compile: false", False, "empty"),
+    ("compile: auto, empty cache", "auto", "empty"),
+    ("compile: true, empty cache (cold)", True, "empty"),
+    ("compile: true, warm cache", True, "warm"),
+    ("compile: auto, warm cache", "auto", "warm"),
+)
+
+
+def one_recording(spec_path: Path) -> None:
+    """The child of ``--cold-start``: load the models as a pose2d job does (the policy
+    sees the recording's frame count) and detect over the clip; print one JSON line."""
+    import json
+
+    spec = json.loads(Path(spec_path).read_text())
+    data = spec["config"]
+    plan = DetectionPlan.from_config(data)
+    t = time.perf_counter()
+    models = load_models(plan, data, frames=spec["frames"])
+    loaded = time.perf_counter() - t
+    sources = {s: [Path(spec["clip"])] for s in plan.sources}
+    stream.run_detection(
+        plan, models, sources, batch_size=data["pose2d"]["batch_size"], decode_buffer=4
+    )
+    model = next(iter(models.values()))
+    cuda = model.device.type == "cuda"
+    if cuda:
+        torch.cuda.synchronize()
+    print(
+        "RESULT "
+        + json.dumps(
+            {
+                "load_s": loaded,
+                "compiled": model.compiled,
+                "status": model.compile_status,
+                "peak_gib": torch.cuda.max_memory_allocated() / 2**30 if cuda else None,
+            }
+        )
+    )
+
+
+def bench_cold_start(args, device: torch.device, work: Path) -> None:
+    """Wall time of one recording in a fresh process per compile mode, empty then warm cache."""
+    import json
+    import shutil
+    import subprocess
+
+    cuda = device.type == "cuda"
+    frames = args.frames or (900 if cuda else 8)
+    stacks = args.stacks or (8 if cuda else 1)
+    batch = int((args.batch_sizes or ("16" if cuda else "4")).split(",")[0])
+    precision = (args.precision or ("bfloat16" if cuda else "float32")).split(",")[0]
+    torch.manual_seed(0)
+    checkpoint = work / "random.tar"
+    from flylib.pose2d.weights import save_checkpoint
+
+    save_checkpoint(HourglassNet(num_stacks=stacks), checkpoint)
+    clip = make_clip(work / f"clip_{frames}.mp4", frames)
+    cache = work / "cache"
+    shutil.rmtree(cache, ignore_errors=True)
+    print(
+        f"cold start: one {frames}-frame recording ({N_SOURCES} sources, 8 pathways = "
+        f"{frames * 8} images), {stacks}-stack hourglass, {precision}, batch {batch}, "
+        f"a fresh process per mode (FLYLIB_CACHE={cache})"
+    )
+    print("\n mode                                 wall s  images/s  vs compile:false  compiled")
+    eager_wall = None
+    for label, setting, cache_state in COLD_START_MODES:
+        if cache_state == "empty":
+            shutil.rmtree(cache, ignore_errors=True)
+        data = plan_data(checkpoint, batch, precision, str(device))
+        data["pose2d"]["compile"] = setting
+        spec = work / "cold_start.json"
+        spec.write_text(json.dumps({"config": data, "frames": frames, "clip": str(clip)}))
+        env = {**os.environ, "FLYLIB_CACHE": str(cache)}
+        t = time.perf_counter()
+        done = subprocess.run(
+            [sys.executable, __file__, "--one-recording", str(spec)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
+        wall = time.perf_counter() - t
+        lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
+        if done.returncode or not lines:
+            print(f" {label:36s} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+            continue
+        result = json.loads(lines[-1][len("RESULT ") :])
+        if setting is False:
+            eager_wall = wall
+        ratio = f"{wall / eager_wall:15.2f}x" if eager_wall else f"{'-':>16s}"
+        state = result["status"] or "no"
+        memory = f", peak GPU {result['peak_gib']:.2f} GiB" if result["peak_gib"] else ""
+        print(
+            f" {label:36s} {wall:6.1f} {frames * 8 / wall:9.1f} {ratio}  {state} "
+            f"(models ready in {result['load_s']:.1f} s{memory})"
+        )
+
+
 # --- driver ---------------------------------------------------------------------------
 
 
@@ -323,9 +444,10 @@ def main(argv=None) -> None:
     ap.add_argument("--compile", default="auto", choices=["auto", "on", "off", "both"])
     ap.add_argument(
         "--compile-mode",
-        default="reduce-overhead",
-        choices=["reduce-overhead", "max-autotune"],
-        help="torch.compile mode of compiled runs (flylib uses reduce-overhead: CUDA graphs)",
+        default="aot",
+        choices=["aot", "reduce-overhead", "max-autotune"],
+        help="compiled runs: flylib's AOTInductor package + CUDA graph (aot, cached under "
+        "the workdir), or torch.compile's JIT in this mode, for comparison",
     )
     ap.add_argument(
         "--freezing",
@@ -340,8 +462,18 @@ def main(argv=None) -> None:
     ap.add_argument(
         "--workdir", default=None, help="where to write the synthetic clips (default: a temp dir)"
     )
+    ap.add_argument(
+        "--cold-start",
+        action="store_true",
+        help="only the cold-start comparison: one recording per fresh process per compile "
+        "mode, empty then warm compiled-detector cache (--frames default 900 on CUDA)",
+    )
+    ap.add_argument("--one-recording", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
+    if args.one_recording:
+        one_recording(args.one_recording)
+        return
     device = select_device(args.device)
     cuda = device.type == "cuda"
     precisions = (args.precision or ("bfloat16,float16,float32" if cuda else "float32")).split(",")
@@ -375,6 +507,9 @@ def main(argv=None) -> None:
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="flylib-bench-"))
     work.mkdir(parents=True, exist_ok=True)
+    if args.cold_start:
+        bench_cold_start(args, device, work)
+        return
     t = time.perf_counter()
     clip = make_clip(work / f"clip_{frames}.mp4", frames)
     print(f"synthetic clip: {frames} frames 960x480 in {time.perf_counter() - t:.1f} s")
@@ -421,16 +556,23 @@ def main(argv=None) -> None:
                 plan = DetectionPlan.from_config(
                     plan_data(checkpoint, batch, precision, str(device))
                 )
+                aot = compiled and cuda and args.compile_mode == "aot"
                 model = LoadedModel(
                     plan.models["hg"],
                     load_hourglass(checkpoint),
                     device,
                     precision=precision,
                     batch_size=batch,
-                    compiled=compiled and cuda,
+                    compiled=aot,
+                    cache_root=work / "compiled",
                 )
-                if model.compiled and args.compile_mode != "reduce-overhead":
-                    model._forward = torch.compile(model.net, dynamic=False, mode=args.compile_mode)
+                if compiled and cuda and not aot:  # torch.compile (JIT), for comparison
+                    model._forward = torch.compile(
+                        model.net.heatmaps, dynamic=False, mode=args.compile_mode
+                    )
+                    model.compiled = True
+                if cuda:
+                    torch.cuda.reset_peak_memory_stats()
                 try:
                     fwd = bench_forward(model, batch, args.forward_seconds)
                     bench_end_to_end(
@@ -447,6 +589,11 @@ def main(argv=None) -> None:
                     f" {precision:9s} {batch:6d} {str(compiled):7s} | {fwd:13.1f} {tflops:8.2f} {100 * tflops / H100_BF16_PEAK_TFLOPS:9.2f}"
                     f"  | {e2e:16.1f} {fps:9.1f}  {bound}"
                 )
+                if cuda:
+                    print(
+                        f"     peak GPU memory {torch.cuda.max_memory_allocated() / 2**30:.2f} GiB"
+                        + (f" (compiled detector: {model.compile_status})" if aot else "")
+                    )
                 print(
                     "     detection loop: "
                     + ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())

@@ -45,7 +45,8 @@ class Pose2dParams:
     device
         ``auto`` (CUDA, then Apple MPS, then CPU) or a torch device string (performance only).
     compile
-        Wrap the forward in ``torch.compile``: ``true``, ``false`` or ``auto`` (performance only).
+        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``,
+        ``false`` or ``auto`` (when it beats eager for the recording; performance only).
     """
 
     precision: str = _param("bfloat16", _choice(*PRECISIONS))

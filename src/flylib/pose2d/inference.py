@@ -6,13 +6,14 @@ from __future__ import annotations
 import contextlib
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import torch
 
 from ..errors import ConfigError
 from ..resources import usable_cpus
-from . import decode
+from . import compiled, decode
 from .model import HourglassNet
 from .plan import DetectionPlan, ModelSpec, Op, Resize
 from .weights import load_hourglass, resolve_weights
@@ -20,8 +21,6 @@ from .weights import load_hourglass, resolve_weights
 log = logging.getLogger(__name__)
 
 PRECISIONS = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
-#: ``compile: auto`` wraps the forward in torch.compile on CUDA from this batch size on.
-COMPILE_MIN_BATCH = 8
 
 
 def select_device(requested: str | torch.device | None = "auto") -> torch.device:
@@ -101,10 +100,16 @@ class LoadedModel:
     precision
         Forward precision; float32 on the CPU whatever was asked.
     batch_size
-        The forward batch; with ``compiled``, shorter batches are padded to it so
-        the compiled graph never re-specialises.
+        The forward batch; with ``compiled``, shorter batches are padded to it (the
+        compiled network has a fixed shape).
     compiled
-        Whether the forward is wrapped in ``torch.compile``.
+        Whether the forward is the ahead-of-time compiled network
+        (:mod:`flylib.pose2d.compiled`), from the on-disk cache or compiled into it.
+    compile_status
+        With ``compiled``: ``"cached"``, ``"cold"`` or ``"rebuilt"``
+        (:func:`~flylib.pose2d.compiled.load_or_compile`).
+    cache_root
+        The compiled-detector cache (default ``<cache_dir()>/detector``).
     """
 
     spec: ModelSpec
@@ -113,7 +118,10 @@ class LoadedModel:
     precision: str = "float32"
     batch_size: int = 16
     compiled: bool = False
+    compile_status: str | None = None
+    cache_root: Path | None = None
     _forward: Any = field(default=None, repr=False)
+    _key: compiled.CompileKey | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.device.type == "cpu" and self.precision != "float32":
@@ -123,12 +131,47 @@ class LoadedModel:
         if self.device.type == "cuda":
             torch.backends.cudnn.benchmark = True
             self.net = self.net.to(memory_format=torch.channels_last)
-        # CUDA graphs ("reduce-overhead") replay the whole forward in one launch, so the
-        # Python decode threads competing for the GIL cannot starve kernel launches.
-        mode = "reduce-overhead" if self.device.type == "cuda" else None
-        self._forward = (
-            torch.compile(self.net, dynamic=False, mode=mode) if self.compiled else self.net
+        self._forward = self.net.heatmaps
+        if self.compiled:
+            self.compiled = False
+            self.use_compiled()
+
+    def use_compiled(self) -> str:
+        """Switch the forward to the compiled network, loaded from the cache or compiled
+        into it (a cold start); return :attr:`compile_status`."""
+        forward, self.compile_status = compiled.load_or_compile(
+            self.net, self.compile_key(), self.device, root=self.cache_root
         )
+        if self.device.type == "cuda":
+            forward = self._graphed(forward)
+        self._forward, self.compiled = forward, True
+        return self.compile_status
+
+    def compile_key(self) -> compiled.CompileKey:
+        """The compiled-detector cache key of this network, device, precision and batch."""
+        if self._key is None:
+            self._key = compiled.CompileKey.for_model(
+                self.net, self.device, self.precision, self.batch_size, (3, *self.spec.input_size)
+            )
+        return self._key
+
+    def is_cached(self) -> bool:
+        """Whether the compiled network for :meth:`compile_key` is in the cache."""
+        return compiled.is_cached(self.compile_key(), self.cache_root)
+
+    def _graphed(self, forward):
+        # One CUDA-graph replay per batch: the Python decode threads competing for the
+        # GIL cannot starve kernel launches. Capture can fail (driver, memory): then the
+        # package runs as is.
+        example = torch.zeros((self.batch_size, 3, *self.spec.input_size), device=self.device)
+        try:
+            with torch.inference_mode():
+                return compiled.CudaGraphForward(forward, example)
+        except RuntimeError as err:
+            log.warning(
+                "CUDA graph capture failed (%s); running the compiled detector without", err
+            )
+            return forward
 
     @property
     def heatmap_size(self) -> tuple[int, int]:
@@ -158,12 +201,18 @@ class LoadedModel:
         for start in range(0, n, self.batch_size):
             chunk = x[start : start + self.batch_size]
             short = chunk.shape[0]
-            if self.compiled and short < self.batch_size:
-                chunk = torch.cat(
-                    [chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])]
-                )
-            with torch.inference_mode(), _autocast(self.device, self.precision):
-                hm = self._forward(chunk)[-1]
+            if self.compiled:
+                if short < self.batch_size:
+                    chunk = torch.cat(
+                        [chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])]
+                    )
+                # the package was exported for contiguous input; its own layout choice
+                # (channels-last convolutions) is inside it
+                with torch.inference_mode():
+                    hm = self._forward(chunk.contiguous())
+            else:
+                with torch.inference_mode(), _autocast(self.device, self.precision):
+                    hm = self._forward(chunk)
             # a copy: a CUDA-graph replay reuses its output buffer
             outputs.append(hm[:short].to(torch.float32, copy=True))
         return outputs[0] if len(outputs) == 1 else torch.cat(outputs)
@@ -208,6 +257,8 @@ def load_models(
     precision: str | None = None,
     batch_size: int | None = None,
     compile: bool | str | None = None,
+    frames: int | None = None,
+    cache_root: Path | None = None,
     allow_download: bool = True,
 ) -> dict[str, LoadedModel]:
     """Load every model the plan's active pathways use, with the config's settings.
@@ -219,6 +270,11 @@ def load_models(
     config
         The run config (``pose2d.device``, ``precision``, ``batch_size``, ``compile``);
         the keyword arguments override it.
+    frames
+        The recording's frame count, for ``compile: auto`` (the work is frames x the
+        model's pathways; :func:`~flylib.pose2d.compiled.decide_compile`).
+    cache_root
+        The compiled-detector cache (default ``<cache_dir()>/detector``).
     allow_download
         Whether an empty weights cache may be filled from the network.
 
@@ -235,11 +291,9 @@ def load_models(
         raise ConfigError(f"pose2d.precision: {precision!r} is not one of {sorted(PRECISIONS)}")
     batch = int(batch_size or _pose2d_setting(config, "batch_size", 16))
     want_compile = compile if compile is not None else _pose2d_setting(config, "compile", "auto")
-    compiled = dev.type == "cuda" and (
-        want_compile is True or (want_compile == "auto" and batch >= COMPILE_MIN_BATCH)
-    )
     models = {}
-    for name in dict.fromkeys(p.model for p in plan.active_pathways()):
+    pathways = plan.active_pathways()
+    for name in dict.fromkeys(p.model for p in pathways):
         spec = plan.models[name]
         path = resolve_weights(
             spec.weights,
@@ -250,15 +304,37 @@ def load_models(
             allow_download=allow_download,
         )
         net = load_hourglass(path, num_classes=spec.n_out_channels)
-        models[name] = LoadedModel(
-            spec, net, dev, precision=precision, batch_size=batch, compiled=compiled
+        model = LoadedModel(
+            spec, net, dev, precision=precision, batch_size=batch, cache_root=cache_root
         )
+        images = None if frames is None else frames * sum(p.model == name for p in pathways)
+        use, reason = compiled.decide_compile(
+            want_compile,
+            dev,
+            batch_size=batch,
+            images=images,
+            # hashing the weights costs a fraction of a second: only where it can matter
+            cached=(want_compile is True or (want_compile == "auto" and dev.type == "cuda"))
+            and model.is_cached(),
+        )
+        log.info("model %s: %s (%s)", name, "compiled detector" if use else "eager", reason)
+        if use:
+            status = model.use_compiled()
+            log.info("model %s: compiled detector %s", name, _STATUS_WORDS[status])
+        models[name] = model
         log.info(
             "model %s on %s (%s, batch %d%s)",
             name,
             dev,
-            models[name].precision,
+            model.precision,
             batch,
-            ", compiled" if compiled else "",
+            ", compiled" if use else "",
         )
     return models
+
+
+_STATUS_WORDS = {
+    "cached": "loaded from the cache",
+    "cold": "compiled (cold start) and cached for later jobs",
+    "rebuilt": "rebuilt (the cached one was damaged) and cached",
+}

@@ -500,6 +500,22 @@ def _mark_missing(out: DetectionOutput, views: list[int], frames: list[int]) -> 
         out.candidates_score[index] = np.nan
 
 
+def _frame_count(plan: DetectionPlan, sources) -> int | None:
+    """The recording's frame count from its first active source's header (``None`` if
+    unknown: the detection itself then reports any problem with the footage)."""
+    active = plan.active_sources()
+    if not active or not sources.get(active[0]):
+        return None
+    try:
+        reader = io.open_reader(sources[active[0]])
+    except Exception:  # noqa: BLE001 - run_detection names the problem
+        return None
+    try:
+        return reader.count()
+    finally:
+        reader.close()
+
+
 def _on_corrupt(config) -> str:
     params = getattr(config, "io", None)
     value = getattr(params, "on_corrupt_frame", None)
@@ -623,7 +639,8 @@ def detect_recording(
         If the footage is missing, corrupt or inconsistent across cameras.
     """
     plan = DetectionPlan.from_config(config)
-    models = models if models is not None else load_models(plan, config)
+    if models is None:
+        models = load_models(plan, config, frames=_frame_count(plan, sources))
     out = _detect(
         config, plan, models, sources, want_candidates=want_candidates, k=None, progress=progress
     )
