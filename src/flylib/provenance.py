@@ -224,7 +224,8 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     Returns
     -------
     list of str
-        One warning line per foreign artifact.
+        One warning line per foreign artifact, and per artifact too damaged to tell
+        (its recording's stage that reads it fails on it; the others run).
     """
     from .errors import ResultsError
     from .results import ARTIFACTS, read_meta
@@ -243,8 +244,9 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
                 continue
             try:
                 meta = read_meta(path)
-            except ResultsError:  # an unreadable file is the stage's own error, later
-                meta = {}
+            except ResultsError as err:  # the stage that reads it fails on it: say so now
+                lines.append(f"{err} (only {rec.id} is affected)")
+                continue
             writer = meta.get(WRITER_KEY) or {}
             recorded = meta.get(PARAMS_KEY)
             if not writer.get("cwd") or recorded is None:

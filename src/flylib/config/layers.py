@@ -23,6 +23,8 @@ from .loading import _parse_text
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
+# The table of ``cameras`` every camera inherits its unset keys from.
+_CAMERA_DEFAULTS = "defaults"
 
 _KEY_TOKEN = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
 _KEY_HEAD = re.compile(r"([A-Za-z_][\w-]*(?:\.[\w-]+|\[\d+\])*)(?=[:\s(]|$)")
@@ -159,23 +161,37 @@ class ConfigLayers:
             return self.texts[self.layers[0][0]]
         return None
 
-    def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
-        """``(owner, replaced)``: the layer that set the value at ``path``, and the earlier
-        layer whose list the owner replaced on the way (``None`` if none)."""
+    def _walk(self, path: list[str | int]) -> tuple[str | None, str | None, int]:
+        """``(owner, replaced, depth)``: the layer that set the value at ``path`` (or at
+        its first ``depth`` keys, the deepest any layer sets), and the earlier layer whose
+        list the owner replaced on the way (``None`` if none)."""
         candidates = list(self.layers)
         owner = replaced = None
+        depth = 0
         for k in range(1, len(path) + 1):
             setters = [
                 (label, layer) for label, layer in candidates if _depth(layer, path[:k]) == k
             ]
             if not setters:
                 break
-            owner = setters[-1][0]
+            owner, depth = setters[-1][0], k
             node = _value(setters[-1][1], path[:k])
             if not isinstance(node, Mapping):  # lists and scalars are replaced whole
                 if isinstance(node, list) and len(setters) > 1 and k < len(path):
                     replaced = setters[-2][0]
                 candidates = [setters[-1]]
+        return owner, replaced, depth
+
+    def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
+        """``(owner, replaced)`` of :meth:`_walk`; a camera's key that no layer sets on
+        the camera itself (``cameras.<name>.<key>``) is owned by whoever set it in
+        ``cameras.defaults``, which every camera inherits."""
+        owner, replaced, depth = self._walk(path)
+        if depth < len(path) and len(path) >= 3 and path[0] == "cameras":
+            inherited = ["cameras", _CAMERA_DEFAULTS, *path[2:]]
+            fallback, fallback_replaced, fallback_depth = self._walk(inherited)
+            if fallback_depth == len(inherited):
+                return fallback, fallback_replaced
         return owner, replaced
 
     def origin(self, path: list[str | int] | str) -> str:
