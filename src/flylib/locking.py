@@ -21,6 +21,7 @@ cluster node too), so the run's own jobs pass it and every other writer stops.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import json
 import os
 import socket
@@ -33,7 +34,15 @@ from pathlib import Path
 from .errors import OutputError
 from .paths import pid_alive
 
-__all__ = ["LOCK_NAME", "RUN_ENV", "claim_outdirs", "lock_holder", "outdir_lock", "release_outdirs"]
+__all__ = [
+    "LOCK_NAME",
+    "RUN_ENV",
+    "claim_outdirs",
+    "held_outdir",
+    "lock_holder",
+    "outdir_lock",
+    "release_outdirs",
+]
 
 #: The lock file's name inside an output directory.
 LOCK_NAME = ".flylib.lock"
@@ -43,6 +52,13 @@ _UNREADABLE_GRACE_S = 2.0
 #: The environment variable that carries a run's id to its jobs (set by the workflow
 #: when it claims the run's output directories; inherited by local and cluster jobs).
 RUN_ENV = "FLYLIB_RUN_ID"
+_HELD: contextvars.ContextVar[Path | None] = contextvars.ContextVar("held_outdir", default=None)
+
+
+def held_outdir() -> Path | None:
+    """The output directory whose lock the running block holds (:func:`outdir_lock`),
+    resolved; ``None`` outside one. Artifacts record it to tell a copied directory."""
+    return _HELD.get()
 
 
 def lock_holder(path: str | Path) -> dict | None:
@@ -187,9 +203,11 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
     outdir = Path(outdir)
     me = _me(job, os.environ.get(RUN_ENV))
     owned = _acquire(outdir, me)
+    token = _HELD.set(outdir.resolve())
     try:
         yield outdir / LOCK_NAME
     finally:
+        _HELD.reset(token)
         if owned:
             _release(outdir, me)
 

@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import socket
+import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,9 +37,14 @@ __all__ = [
 PARAMS_KEY = "params_sha256"
 #: meta key of ``{upstream stage: params hash}`` the artifact was built from.
 UPSTREAM_KEY = "upstream_params_sha256"
-#: meta key of ``{"host", "cwd"}``: where the process that wrote the artifact ran
-#: (a Snakemake job's working directory is its run's).
+#: meta key of ``{"host", "cwd", "outdir"?}``: where the process that wrote the
+#: artifact ran (a Snakemake job's working directory is its run's) and the output
+#: directory it wrote (when it held that directory's lock), which tells a copy.
 WRITER_KEY = "writer"
+#: meta key of the artifact's own random id (two artifacts with equal params differ).
+ARTIFACT_ID_KEY = "artifact_id"
+#: meta key of ``{upstream stage: artifact id}`` the artifact was built from.
+UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
 # Where each stage's artifact sits beside results.h5, and the stage the artifact
 # names its params after (the candidate peaks are a pose2d output).
@@ -79,20 +85,31 @@ def stage_provenance(
     Returns
     -------
     dict
-        ``{"params_sha256": ..., "upstream_params_sha256": {stage: hash}}``.
+        ``{"params_sha256": ..., "artifact_id": ..., "writer": {...},
+        "upstream_params_sha256": {stage: hash}, "upstream_artifact_ids": {stage: id}}``.
     """
+    from .locking import held_outdir
     from .results import read_meta
 
+    writer = {"host": socket.gethostname(), "cwd": os.getcwd()}
+    if held_outdir() is not None:
+        writer["outdir"] = str(held_outdir())
     out: dict[str, Any] = {
         PARAMS_KEY: params_hash(config.stage_params(stage)),
-        WRITER_KEY: {"host": socket.gethostname(), "cwd": os.getcwd()},
+        ARTIFACT_ID_KEY: uuid.uuid4().hex[:16],
+        WRITER_KEY: writer,
     }
-    hashes = {}
+    hashes, ids = {}, {}
     for name, path in (upstream or {}).items():
         if path:
-            hashes[name] = read_meta(path).get(PARAMS_KEY)
+            meta = read_meta(path)
+            hashes[name] = meta.get(PARAMS_KEY)
+            if meta.get(ARTIFACT_ID_KEY):
+                ids[name] = meta[ARTIFACT_ID_KEY]
     if hashes:
         out[UPSTREAM_KEY] = hashes
+    if ids:
+        out[UPSTREAM_IDS_KEY] = ids
     return out
 
 
@@ -167,6 +184,7 @@ def provenance_report(
     results = Path(results)
     root, groups = _group_metas(results)
     recorded = {stage: meta.get(PARAMS_KEY) for stage, meta in groups.items()}
+    recorded_ids = {stage: meta.get(ARTIFACT_ID_KEY) for stage, meta in groups.items()}
     if stages_dir is None and (results.parent / "stages").is_dir():
         stages_dir = results.parent / "stages"
     rows = []
@@ -189,10 +207,32 @@ def provenance_report(
                     f"{results}: {stage} was built from {upstream} params {built_from}, but "
                     f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow"
                 )
+        for upstream, built_from in (meta.get(UPSTREAM_IDS_KEY) or {}).items():
+            present = recorded_ids.get(upstream)
+            if (
+                present
+                and built_from != present
+                and recorded.get(upstream) == (meta.get(UPSTREAM_KEY) or {}).get(upstream)
+            ):
+                status = "mixed" if status != "stale" else status
+                problems.append(
+                    f"{results}: {stage} was built from another {upstream} artifact ({built_from}) "
+                    f"than the one in this file ({present}), with equal params; the file mixes "
+                    "runs or recordings: re-run the workflow"
+                )
         if stages_dir is not None and stage != "assemble":
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
-                on_disk = read_meta(artifact).get(PARAMS_KEY)
+                disk_meta = read_meta(artifact)
+                on_disk = disk_meta.get(PARAMS_KEY)
+                disk_id, own_id = disk_meta.get(ARTIFACT_ID_KEY), meta.get(ARTIFACT_ID_KEY)
+                if on_disk == own and disk_id and own_id and disk_id != own_id:
+                    status = "mixed" if status != "stale" else status
+                    problems.append(
+                        f"{artifact}: another {stage} artifact ({disk_id}) than the one "
+                        f"{results.name} holds ({own_id}), with equal params; results.h5 is not "
+                        "assembled from these artifacts: re-run the workflow"
+                    )
                 if on_disk != own:
                     status = "mixed" if status != "stale" else status
                     problems.append(
@@ -251,9 +291,17 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
             recorded = meta.get(PARAMS_KEY)
             if not writer.get("cwd") or recorded is None:
                 continue
+            expected = params_hash(config.stage_params(stage))
+            written_in = writer.get("outdir")
+            if written_in and Path(written_in) != outdir.resolve() and recorded != expected:
+                lines.append(
+                    f"{path}: copied from {written_in} (made there with other {stage} params, "
+                    f"{recorded}; this config gives {expected}); Snakemake has no record of the "
+                    f"copy and takes it as up to date: delete it or re-run with --forcerun {stage}"
+                )
+                continue
             if str(Path(writer["cwd"]).resolve()) == here:
                 continue
-            expected = params_hash(config.stage_params(stage))
             if recorded != expected:
                 lines.append(
                     f"{path}: written by a run from {writer['cwd']} on {writer.get('host')} with other "

@@ -84,6 +84,36 @@ def _depth(data: Any, path: list[str | int]) -> int:
     return depth
 
 
+#: Top-level keys that make Snakemake render a config file as a YTE template (running
+#: the Python expressions inside it while it reads ``--configfile``).
+TEMPLATING_KEYS = ("__use_yte__",)
+
+
+def refuse_templating(data: Any, label: str) -> None:
+    """Refuse a config file that asks for templating: a config holds values, not code.
+
+    Snakemake renders a YAML config file whose top level sets ``__use_yte__`` with YTE,
+    evaluating the Python in its ``?...`` keys and values, and does so for
+    ``--configfile`` before the workflow (and flylib) can look at the file. The
+    workflow and ``flylib check-config`` refuse such a file, so it is caught by the
+    check before it is ever handed to Snakemake.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key.
+    """
+    if not isinstance(data, Mapping):
+        return
+    for key in TEMPLATING_KEYS:
+        if key in data:
+            raise ConfigError(
+                f"invalid config: {label}: {key}: templating is not accepted in a flylib config "
+                "(Snakemake runs the Python inside such a file while reading it, before flylib can check it); remove "
+                f"{key} and write the values out"
+            )
+
+
 @dataclass
 class ConfigLayers:
     """Config files (and command-line overrides) merged in order.
@@ -130,7 +160,7 @@ class ConfigLayers:
                 raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
             fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
             try:
-                layers.append((label, _parse_text(text, fmt, label)))
+                data = _parse_text(text, fmt, label)
             except ConfigError as err:
                 problems = getattr(err, "problems", None)
                 if not problems:
@@ -142,6 +172,8 @@ class ConfigLayers:
                     else f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
                     + "\n".join(f"  {line}" for line in lines)
                 ) from None
+            refuse_templating(data, label)
+            layers.append((label, data))
             texts[label] = text
         if overrides:
             layers.append((OVERRIDES_LABEL, dict(overrides)))
