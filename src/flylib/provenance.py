@@ -27,6 +27,7 @@ from typing import Any
 
 __all__ = [
     "ProvenanceRow",
+    "file_sha256",
     "foreign_artifacts",
     "params_hash",
     "provenance_report",
@@ -128,7 +129,8 @@ class ProvenanceRow:
     problems
         One line per inconsistency (empty when consistent).
     status
-        ``ok``, ``stale`` (params differ from the config's), ``mixed`` (built from
+        ``ok``, ``stale`` (params differ from the config's, or a corrections sidecar
+        beside the file was not applied), ``mixed`` (built from
         other upstream artifacts) or ``unknown`` (no hash recorded).
     """
 
@@ -139,13 +141,51 @@ class ProvenanceRow:
     status: str
 
 
-def _group_metas(path: Path) -> tuple[dict, dict[str, dict]]:
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, 16 hex digits (e.g. the corrections sidecar a
+    triangulation applied)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()[:16]
+
+
+def _group_metas(path: Path) -> tuple[dict, dict[str, dict], dict | None]:
+    """The root meta, each stage group's meta, and the corrections the triangulation
+    group records having applied (``None``: none)."""
     from .results import open_checked, read_meta_from
 
     with open_checked(path, "pass a results.h5 a run wrote") as f:
         root = read_meta_from(f)
         groups = {stage: read_meta_from(f[stage]) for stage in _STAGE_ORDER if stage in f}
-    return root, groups
+        applied = f["triangulation"].attrs.get("corrections") if "triangulation" in f else None
+    if isinstance(applied, bytes):
+        applied = applied.decode()
+    try:
+        applied = json.loads(applied) if isinstance(applied, str) else None
+    except ValueError:
+        applied = None
+    return root, groups, applied if isinstance(applied, dict) else None
+
+
+def _corrections_problem(results: Path, applied: dict | None) -> str | None:
+    """A line when the corrections sidecar beside ``results`` is not what its
+    triangulation applied (never applied, or edited since)."""
+    sidecar = results.parent / "corrections.h5"
+    if not sidecar.is_file():
+        return None
+    if applied is None:
+        return (
+            f"{sidecar}: manual corrections that the triangulation in {results.name} did not "
+            "apply; re-run the workflow to apply them"
+        )
+    if applied.get("sha256") and applied["sha256"] != file_sha256(sidecar):
+        return (
+            f"{sidecar}: changed since the triangulation in {results.name} applied it "
+            f"({applied.get('count')} corrections then); re-run the workflow to apply it"
+        )
+    return None
 
 
 def snapshot_beside(results: str | Path) -> Path | None:
@@ -182,7 +222,7 @@ def provenance_report(
     from .results import ARTIFACTS, read_meta
 
     results = Path(results)
-    root, groups = _group_metas(results)
+    root, groups, applied = _group_metas(results)
     recorded = {stage: meta.get(PARAMS_KEY) for stage, meta in groups.items()}
     recorded_ids = {stage: meta.get(ARTIFACT_ID_KEY) for stage, meta in groups.items()}
     if stages_dir is None and (results.parent / "stages").is_dir():
@@ -239,6 +279,11 @@ def provenance_report(
                         f"{artifact}: params {on_disk}, but {results.name} holds {stage} with "
                         f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow"
                     )
+        if stage == "triangulation":
+            unapplied = _corrections_problem(results, applied)
+            if unapplied is not None:
+                status = "stale" if status == "ok" else status
+                problems.append(unapplied)
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
 

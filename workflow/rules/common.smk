@@ -16,6 +16,7 @@ from flylib.interop import calibration_inputs as _calibration_files
 from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 
 # envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
 # --sdm conda creates the environment, which happens in this process, before any job.

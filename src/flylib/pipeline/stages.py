@@ -318,7 +318,15 @@ def run_triangulation(
     if corrections is not None:
         arrays["corrected"] = corrected
         arrays["corrected_2d"] = corrections.touched()
-        attrs = {"corrections": {"file": str(corrections_path), "count": corrections.count()}}
+        from ..provenance import file_sha256
+
+        attrs = {
+            "corrections": {
+                "file": str(corrections_path),
+                "count": corrections.count(),
+                "sha256": file_sha256(corrections_path),
+            }
+        }
         log.info(
             "triangulation: %d manual corrections applied from %s",
             corrections.count(),
