@@ -504,20 +504,18 @@ def test_workflow_a_second_run_from_another_directory_touches_nothing_of_the_fir
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        start_new_session=True,  # its own process group: the run and its jobs
     )
     try:
         deadline = time.monotonic() + 300
         while (_lock(out) or {}).get("job") != "snakemake run":
             assert first.poll() is None and time.monotonic() < deadline, "the run never claimed"
-            time.sleep(0.1)
+            time.sleep(0.05)
+        # Freeze the first run with its jobs, so that it is surely still running (alive,
+        # holding its claim) however slow the machine is while the second one starts.
+        os.killpg(first.pid, signal.SIGSTOP)
         claim = _lock(out)
         assert claim["pid"] == first.pid
-        # What reads only: a dry run, --list and --summary from the other directory pass.
-        for args in (("-n",), ("--list-rules",), ("--summary",)):
-            look = subprocess.run(
-                _snakemake(other, *args), cwd=other, env=_env(), capture_output=True, text=True
-            )
-            assert look.returncode == 0, (args, look.stderr[-3000:])
         second = subprocess.run(
             _snakemake(other, "--forcerun", "pose2d"),
             cwd=other,
@@ -526,7 +524,14 @@ def test_workflow_a_second_run_from_another_directory_touches_nothing_of_the_fir
             text=True,
             timeout=600,
         )
+        # What only reads passes beside a claimed directory: a dry run, --list, --summary.
+        for args in (("-n",), ("--list-rules",), ("--summary",)):
+            look = subprocess.run(
+                _snakemake(other, *args), cwd=other, env=_env(), capture_output=True, text=True
+            )
+            assert look.returncode == 0, (args, look.stderr[-3000:])
     finally:
+        os.killpg(first.pid, signal.SIGCONT)
         log, _ = first.communicate(timeout=900)
     assert second.returncode == 1
     assert (
