@@ -61,6 +61,13 @@ def no_run_id(monkeypatch):
     monkeypatch.delenv(RUN_ENV)
 
 
+def _damage_root_header(path: Path) -> None:
+    """Flip bytes 60-61 of an HDF5 file: its root object header."""
+    data = bytearray(path.read_bytes())
+    data[60:62] = bytes(b ^ 0xFF for b in data[60:62])
+    path.write_bytes(bytes(data))
+
+
 def _dead_pid(tmp_path: Path) -> int:
     """The pid of a process that has exited (and been reaped)."""
     proc = subprocess.Popen([sys.executable, "-c", "pass"], cwd=tmp_path)
@@ -226,9 +233,7 @@ def test_a_damaged_root_object_header_is_one_line_naming_the_artifact_and_its_re
     for rec in recs:
         _triangulation_artifact(rec.outdir / "stages" / "triangulation.h5", config)
     damaged = recs[0].outdir / "stages" / "triangulation.h5"
-    data = bytearray(damaged.read_bytes())
-    data[60:62] = bytes(b ^ 0xFF for b in data[60:62])  # the root object header
-    damaged.write_bytes(bytes(data))
+    _damage_root_header(damaged)
     with pytest.raises(ResultsError) as err:
         read_meta(damaged)
     assert str(err.value).startswith(f"{damaged}: its root attributes is damaged (HDF5: ")
@@ -458,6 +463,18 @@ def _snakemake(workdir: Path, *args: str) -> list[str]:
     return snakemake_command(workdir, *args)
 
 
+def _run(workdir: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """The workflow in ``workdir`` to its end, its output captured."""
+    return subprocess.run(
+        _snakemake(workdir, *args),
+        cwd=workdir,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     """A work directory with two tiny recordings run to completion."""
@@ -473,9 +490,7 @@ def finished_run(tmp_path_factory):
         make_demo(cfg, root / name, frames=6, seed=seed)
         data["recordings"].append({"path": str(root / name), "import": demo_import_spec(cfg)})
     (root / "config.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
-    proc = subprocess.run(
-        _snakemake(root), cwd=root, env=_env(), capture_output=True, text=True, timeout=900
-    )
+    proc = _run(root)
     assert proc.returncode == 0, proc.stderr[-4000:]
     return SimpleNamespace(root=root, data=data)
 
@@ -516,14 +531,7 @@ def test_workflow_a_second_run_from_another_directory_touches_nothing_of_the_fir
         os.killpg(first.pid, signal.SIGSTOP)
         claim = _lock(out)
         assert claim["pid"] == first.pid
-        second = subprocess.run(
-            _snakemake(other, "--forcerun", "pose2d"),
-            cwd=other,
-            env=_env(),
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
+        second = _run(other, "--forcerun", "pose2d", timeout=600)
         # What only reads passes beside a claimed directory: a dry run, --list, --summary.
         for args in (("-n",), ("--list-rules",), ("--summary",)):
             look = subprocess.run(
@@ -559,14 +567,7 @@ def test_workflow_a_killed_runs_claim_and_temp_files_are_cleared_by_the_next_run
     )
     temp = out / f".results.{dead}.0123abcd.tmp.h5"
     temp.write_bytes(b"x" * 1000)
-    proc = subprocess.run(
-        _snakemake(root, "--forcerun", "kinematics"),
-        cwd=root,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    proc = _run(root, "--forcerun", "kinematics", timeout=900)
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert not temp.exists() and _lock(out) is None
     assert f"removed {temp}, left by a writer that was killed" in proc.stderr
@@ -576,26 +577,17 @@ def test_workflow_a_killed_runs_claim_and_temp_files_are_cleared_by_the_next_run
 def test_workflow_a_damaged_artifact_blocks_only_its_own_recording(finished_run):
     root = finished_run.root
     damaged = root / "fly1" / "flylib_outputs" / "stages" / "triangulation.h5"
-    data = bytearray(damaged.read_bytes())
-    data[60:62] = bytes(b ^ 0xFF for b in data[60:62])
-    damaged.write_bytes(bytes(data))
+    _damage_root_header(damaged)
     fly2 = root / "fly2" / "flylib_outputs" / "results.h5"
     before = fly2.stat().st_mtime_ns
-    proc = subprocess.run(
-        _snakemake(root, "--forcerun", "assemble"),
-        cwd=root,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    proc = _run(root, "--forcerun", "assemble", timeout=900)
     assert proc.returncode == 1
     warning = f"{damaged}: its root attributes is damaged (HDF5: "
     assert warning in proc.stderr and "(only fly1 is affected)" in proc.stderr
     assert "KeyError" not in proc.stderr
     assert fly2.stat().st_mtime_ns > before  # fly2 was assembled again
     damaged.unlink()  # later tests of the module start from a whole run
-    subprocess.run(_snakemake(root), cwd=root, env=_env(), capture_output=True, timeout=900)
+    _run(root)
 
 
 @pytest.mark.slow
@@ -603,16 +595,9 @@ def test_workflow_refuses_yte_and_warns_about_a_copied_outdir(finished_run, tmp_
     root = finished_run.root
     template = tmp_path / "yte.yaml"
     template.write_text("__use_yte__: true\ntriangulation:\n  ransac_threshold: ?2 + 1\n")
-    proc = subprocess.run(
-        _snakemake(root, "-n", "--configfile", str(root / "config.yaml"), str(template)),
-        cwd=root,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    proc = _run(root, "-n", "--configfile", str(root / "config.yaml"), str(template), timeout=600)
     assert proc.returncode == 1
-    assert "__use_yte__: templating is not accepted in a flylib config" in proc.stderr
+    assert "__use_yte__: templating is not accepted in a flylib config" in proc.stdout + proc.stderr
 
     copy = tmp_path / "copy"
     shutil.copytree(root / "fly1" / "flylib_outputs", copy)
@@ -620,17 +605,10 @@ def test_workflow_refuses_yte_and_warns_about_a_copied_outdir(finished_run, tmp_
     data["recordings"] = [{**data["recordings"][0], "outdir": str(copy)}]
     data["triangulation"]["ransac_threshold"] = 9.0
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
-    proc = subprocess.run(
-        _snakemake(tmp_path, "-n"),
-        cwd=tmp_path,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    proc = _run(tmp_path, "-n", timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     expected = f"{copy / 'stages' / 'triangulation.h5'}: copied from {(root / 'fly1' / 'flylib_outputs').resolve()}"
-    assert expected in proc.stderr, proc.stderr[-3000:]
+    assert expected in proc.stdout + proc.stderr, proc.stderr[-3000:]
 
 
 def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not_ok(tmp_path):
