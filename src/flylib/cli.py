@@ -269,8 +269,15 @@ def _print_provenance(args) -> int:
     from .config import Config
     from .provenance import provenance_report, snapshot_beside
 
-    config_path = args.config or snapshot_beside(args.results)
-    config = Config.from_file(config_path) if config_path else None
+    if args.config:  # the user's files, merged over the default config as the workflow does
+        from .config.layers import ConfigLayers
+        from .paths import DEFAULT_CONFIG_PATH
+
+        layers = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, *args.config])
+        config, config_path = Config.from_dict(layers.data), " + ".join(map(str, args.config))
+    else:
+        config_path = snapshot_beside(args.results)
+        config = Config.from_file(config_path) if config_path else None
     rows = provenance_report(args.results, config)
     _print_table(
         f"provenance (params hashes; compared with {config_path or 'no config: pass --config'})",
@@ -410,8 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
+        nargs="+",
         default=None,
-        help="config to compare the recorded params hashes with (default: the "
+        metavar="CONFIG",
+        help="config file(s) to compare the recorded params hashes with, merged in order "
+        "over the default config as `snakemake --configfile` merges them (default: the "
         "config.yaml snapshot beside RESULTS_H5)",
     )
     p.set_defaults(func=_cmd_inspect)

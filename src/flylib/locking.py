@@ -7,28 +7,58 @@ different configs. Every stage script takes ``<outdir>/.flylib.lock`` (created
 exclusively, holding the holder's host, pid, working directory and job) before it
 writes and removes it when done; a second writer fails at once with one line naming
 the holder. A lock left by a process that died (same host, pid gone) is taken over.
+
+A job's lock comes too late to protect a whole run: Snakemake deletes a job's old
+outputs before the job starts, so a second run would already have removed the first
+run's files when its job meets the lock. The workflow therefore *claims* every output
+directory of a run (:func:`claim_outdirs`) once its DAG is built and before any job is
+scheduled or any output removed, and releases them when the run ends
+(:func:`release_outdirs`). The claim is the same lock file, held by the Snakemake
+process and naming a run id that the run's jobs inherit through :data:`RUN_ENV` (on a
+cluster node too), so the run's own jobs pass it and every other writer stops.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import json
 import os
 import socket
 import time
-from collections.abc import Iterator
+import uuid
+from collections.abc import Iterable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
 from .errors import OutputError
+from .paths import pid_alive
 
-__all__ = ["LOCK_NAME", "lock_holder", "outdir_lock"]
+__all__ = [
+    "LOCK_NAME",
+    "RUN_ENV",
+    "claim_outdirs",
+    "held_outdir",
+    "lock_holder",
+    "outdir_lock",
+    "release_outdirs",
+]
 
 #: The lock file's name inside an output directory.
 LOCK_NAME = ".flylib.lock"
 # A lock file found empty or unreadable is being written by its creator; after this
 # many seconds it is taken for the remains of a crash.
 _UNREADABLE_GRACE_S = 2.0
+#: The environment variable that carries a run's id to its jobs (set by the workflow
+#: when it claims the run's output directories; inherited by local and cluster jobs).
+RUN_ENV = "FLYLIB_RUN_ID"
+_HELD: contextvars.ContextVar[Path | None] = contextvars.ContextVar("held_outdir", default=None)
+
+
+def held_outdir() -> Path | None:
+    """The output directory whose lock the running block holds (:func:`outdir_lock`),
+    resolved; ``None`` outside one. Artifacts record it to tell a copied directory."""
+    return _HELD.get()
 
 
 def lock_holder(path: str | Path) -> dict | None:
@@ -40,28 +70,21 @@ def lock_holder(path: str | Path) -> dict | None:
     return holder if isinstance(holder, dict) else None
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's live process
-        return True
-    return True
-
-
 def _is_stale(holder: dict) -> bool:
     """Whether the holder is a process of this host that no longer exists."""
     try:
-        return holder.get("host") == socket.gethostname() and not _alive(int(holder["pid"]))
+        return holder.get("host") == socket.gethostname() and not pid_alive(int(holder["pid"]))
     except (KeyError, TypeError, ValueError):
         return False
 
 
 def _same_run(holder: dict, me: dict) -> bool:
-    """Whether the holder is a live job of the same working directory on this host: the
-    same Snakemake run (Snakemake itself refuses a second run in one working directory),
-    e.g. visualization and kinematics of one recording running side by side."""
+    """Whether the holder belongs to this process's run: its run id (a job of a run
+    that claimed the directory, on any host), or a live process of the same working
+    directory on this host (Snakemake itself refuses a second run in one working
+    directory), e.g. visualization and kinematics of one recording running side by side."""
+    if me.get("run") and holder.get("run") == me["run"]:
+        return True
     return (
         holder.get("host") == me["host"]
         and holder.get("cwd") == me["cwd"]
@@ -94,9 +117,70 @@ def _take_over(path: Path, stale: dict | None) -> None:
     aside.unlink(missing_ok=True)
 
 
+def _me(job: str, run: str | None) -> dict:
+    me = {
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+        "cwd": os.getcwd(),
+        "job": job,
+        "since": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    if run:
+        me["run"] = run
+    return me
+
+
+def _acquire(outdir: Path, me: dict) -> bool:
+    """Take ``outdir``'s lock for ``me``; ``False`` when this run already holds it.
+
+    Raises
+    ------
+    OutputError
+        When another live run (or a process on another host) holds it.
+    """
+    outdir.mkdir(parents=True, exist_ok=True)
+    path = outdir / LOCK_NAME
+    first_unreadable = None
+    while True:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            holder = lock_holder(path)
+            if holder is None:  # being written right now, or left empty by a crash
+                first_unreadable = first_unreadable or time.monotonic()
+                if time.monotonic() - first_unreadable < _UNREADABLE_GRACE_S:
+                    time.sleep(0.05)
+                    continue
+            elif _same_run(holder, me):
+                return False  # a sibling job of this run, or the run's own claim
+            elif not _is_stale(holder):
+                raise OutputError(
+                    f"{outdir}: another run is writing this output directory ({_describe(holder)}); "
+                    f"wait for it to finish, or give each run its own outdir; if that process is gone, "
+                    f"delete {path}"
+                ) from None
+            _take_over(path, holder)
+            first_unreadable = None
+            continue
+        with os.fdopen(fd, "w") as handle:
+            json.dump(me, handle)
+        return True
+
+
+def _release(outdir: Path, me: dict) -> None:
+    """Remove ``outdir``'s lock if ``me`` (this process) holds it."""
+    path = outdir / LOCK_NAME
+    holder = lock_holder(path)
+    if holder is not None and holder.get("pid") == me["pid"] and holder.get("host") == me["host"]:
+        path.unlink(missing_ok=True)
+
+
 @contextlib.contextmanager
 def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
     """Hold ``<outdir>/.flylib.lock`` for the block's duration.
+
+    Inside a run that claimed the directory (:data:`RUN_ENV` names the claim's run)
+    the run's claim stands for the job's lock.
 
     Parameters
     ----------
@@ -113,51 +197,63 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
     Raises
     ------
     OutputError
-        When a live process (or one on another host) holds the lock: one line naming
-        it, its working directory and the lock file.
+        When a live process of another run (or one on another host) holds the lock:
+        one line naming it, its working directory and the lock file.
     """
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    path = outdir / LOCK_NAME
-    me = {
-        "host": socket.gethostname(),
-        "pid": os.getpid(),
-        "cwd": os.getcwd(),
-        "job": job,
-        "since": datetime.now(UTC).isoformat(timespec="seconds"),
-    }
-    first_unreadable = None
-    while True:
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            holder = lock_holder(path)
-            if holder is None:  # being written right now, or left empty by a crash
-                first_unreadable = first_unreadable or time.monotonic()
-                if time.monotonic() - first_unreadable < _UNREADABLE_GRACE_S:
-                    time.sleep(0.05)
-                    continue
-            elif _same_run(holder, me):
-                break  # a sibling job of this run (Snakemake locks a working directory itself)
-            elif not _is_stale(holder):
-                raise OutputError(
-                    f"{outdir}: another run is writing this output directory ({_describe(holder)}); "
-                    f"wait for it to finish, or give each run its own outdir; if that process is gone, "
-                    f"delete {path}"
-                ) from None
-            _take_over(path, holder)
-            first_unreadable = None
-            continue
-        with os.fdopen(fd, "w") as handle:
-            json.dump(me, handle)
-        break
+    me = _me(job, os.environ.get(RUN_ENV))
+    owned = _acquire(outdir, me)
+    token = _HELD.set(outdir.resolve())
     try:
-        yield path
+        yield outdir / LOCK_NAME
     finally:
-        holder = lock_holder(path)
-        if (
-            holder is not None
-            and holder.get("pid") == me["pid"]
-            and holder.get("host") == me["host"]
-        ):
-            path.unlink(missing_ok=True)
+        _HELD.reset(token)
+        if owned:
+            _release(outdir, me)
+
+
+def claim_outdirs(outdirs: Iterable[str | Path], run: str | None = None) -> list[Path]:
+    """Claim every output directory of a run for this process, all or none.
+
+    Sets :data:`RUN_ENV` to the run's id, so that the jobs this process starts from
+    now on (which inherit the environment) pass the claim.
+
+    Parameters
+    ----------
+    outdirs
+        The run's output directories (created if missing).
+    run
+        The run's id (default: a new random one).
+
+    Returns
+    -------
+    list of Path
+        The directories this call claimed (those this run held already are left out);
+        hand them to :func:`release_outdirs` when the run ends.
+
+    Raises
+    ------
+    OutputError
+        The first directory another live run holds; the ones claimed before it are
+        released again, so nothing is left held.
+    """
+    run = run or os.environ.get(RUN_ENV) or uuid.uuid4().hex
+    os.environ[RUN_ENV] = run
+    me = _me("snakemake run", run)
+    claimed: list[Path] = []
+    try:
+        for outdir in dict.fromkeys(Path(o) for o in outdirs):
+            if _acquire(outdir, me):
+                claimed.append(outdir)
+    except BaseException:
+        release_outdirs(claimed)
+        raise
+    return claimed
+
+
+def release_outdirs(outdirs: Iterable[str | Path]) -> None:
+    """Release the claims :func:`claim_outdirs` took (a claim another process holds by
+    now, after taking over a stale one, is left alone)."""
+    me = _me("snakemake run", None)
+    for outdir in outdirs:
+        _release(Path(outdir), me)

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import os
+import re
+import socket
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -31,7 +34,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     atomic), keeps ``path``'s suffix (FFmpeg and pandas pick the format from it) and is
     removed if the block raises, leaving any previous ``path`` untouched: a crash never
     leaves a truncated output under the final name. The parent directory is created
-    if missing.
+    if missing. Temporary files of ``path`` left by writers that died (killed
+    mid-write on this host) are removed first (:func:`remove_stale_temps`).
 
     Parameters
     ----------
@@ -51,7 +55,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
+    remove_stale_temps(path.parent, of=path)
+    tmp = path.with_name(
+        f".{path.stem}.{os.getpid()}@{_HOST}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
+    )
     try:
         yield tmp
         os.replace(tmp, path)
@@ -68,6 +75,86 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         ) from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_HOST = socket.gethostname()
+# atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (flylib
+# before the host was recorded: .<stem>.<pid>.<8 hex>.tmp<suffix>, taken as this host's).
+_TEMP_NAME = re.compile(
+    r"^\.(?P<stem>.*)\.(?P<pid>\d+)(?:@(?P<host>[^/]+?))?\.[0-9a-f]{8}\.tmp(?P<suffix>\.[^.]*)?$"
+)
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this host (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # another user's process; a pid out of range
+        return True
+    return True
+
+
+def _stale_temp(path: str | Path) -> bool:
+    """Whether ``path`` is a temporary file of :func:`atomic_path` whose writer is gone.
+
+    Only writers on this host can be told dead (a process of a cluster node writing the
+    same shared directory cannot), so another host's temporary file is never stale.
+    """
+    match = _TEMP_NAME.match(Path(path).name)
+    if match is None:
+        return False
+    host = match.group("host")
+    if host is not None and host != _HOST:
+        return False
+    return not pid_alive(int(match.group("pid")))
+
+
+def remove_stale_temps(
+    directory: str | Path, *, of: str | Path | None = None, recursive: bool = False
+) -> list[Path]:
+    """Remove the temporary files that killed writers left behind in ``directory``.
+
+    A writer killed mid-write (``kill -9``, out of memory, a node lost) cannot remove
+    its temporary file; the next write of the same file, and the workflow when it
+    claims an output directory, remove those whose writer (this host, its pid) no longer
+    exists. A live writer's temporary file is never touched.
+
+    Parameters
+    ----------
+    directory
+        Where to look (a missing directory holds nothing).
+    of
+        Only the temporary files of this final path (default: every one).
+    recursive
+        Look in sub-directories too.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    directory = Path(directory)
+    if of is not None:
+        of = Path(of)
+        pattern = f".{glob.escape(of.stem)}.*.tmp{glob.escape(of.suffix)}"
+    else:
+        pattern = ".*.tmp*"
+    try:
+        candidates = list(directory.rglob(pattern) if recursive else directory.glob(pattern))
+    except OSError:
+        return []
+    removed = []
+    for candidate in candidates:
+        match = _TEMP_NAME.match(candidate.name)
+        if match is None or (of is not None and match.group("stem") != of.stem):
+            continue
+        if _stale_temp(candidate) and candidate.is_file():
+            with contextlib.suppress(FileNotFoundError):
+                candidate.unlink()
+                removed.append(candidate)
+    return removed
 
 
 _NO_SPACE = {errno.ENOSPC, errno.EFBIG, errno.EDQUOT}

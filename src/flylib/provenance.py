@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import socket
+import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from typing import Any
 
 __all__ = [
     "ProvenanceRow",
+    "file_sha256",
     "foreign_artifacts",
     "params_hash",
     "provenance_report",
@@ -36,9 +38,14 @@ __all__ = [
 PARAMS_KEY = "params_sha256"
 #: meta key of ``{upstream stage: params hash}`` the artifact was built from.
 UPSTREAM_KEY = "upstream_params_sha256"
-#: meta key of ``{"host", "cwd"}``: where the process that wrote the artifact ran
-#: (a Snakemake job's working directory is its run's).
+#: meta key of ``{"host", "cwd", "outdir"?}``: where the process that wrote the
+#: artifact ran (a Snakemake job's working directory is its run's) and the output
+#: directory it wrote (when it held that directory's lock), which tells a copy.
 WRITER_KEY = "writer"
+#: meta key of the artifact's own random id (two artifacts with equal params differ).
+ARTIFACT_ID_KEY = "artifact_id"
+#: meta key of ``{upstream stage: artifact id}`` the artifact was built from.
+UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
 # Where each stage's artifact sits beside results.h5, and the stage the artifact
 # names its params after (the candidate peaks are a pose2d output).
@@ -79,20 +86,31 @@ def stage_provenance(
     Returns
     -------
     dict
-        ``{"params_sha256": ..., "upstream_params_sha256": {stage: hash}}``.
+        ``{"params_sha256": ..., "artifact_id": ..., "writer": {...},
+        "upstream_params_sha256": {stage: hash}, "upstream_artifact_ids": {stage: id}}``.
     """
+    from .locking import held_outdir
     from .results import read_meta
 
+    writer = {"host": socket.gethostname(), "cwd": os.getcwd()}
+    if held_outdir() is not None:
+        writer["outdir"] = str(held_outdir())
     out: dict[str, Any] = {
         PARAMS_KEY: params_hash(config.stage_params(stage)),
-        WRITER_KEY: {"host": socket.gethostname(), "cwd": os.getcwd()},
+        ARTIFACT_ID_KEY: uuid.uuid4().hex[:16],
+        WRITER_KEY: writer,
     }
-    hashes = {}
+    hashes, ids = {}, {}
     for name, path in (upstream or {}).items():
         if path:
-            hashes[name] = read_meta(path).get(PARAMS_KEY)
+            meta = read_meta(path)
+            hashes[name] = meta.get(PARAMS_KEY)
+            if meta.get(ARTIFACT_ID_KEY):
+                ids[name] = meta[ARTIFACT_ID_KEY]
     if hashes:
         out[UPSTREAM_KEY] = hashes
+    if ids:
+        out[UPSTREAM_IDS_KEY] = ids
     return out
 
 
@@ -111,7 +129,8 @@ class ProvenanceRow:
     problems
         One line per inconsistency (empty when consistent).
     status
-        ``ok``, ``stale`` (params differ from the config's), ``mixed`` (built from
+        ``ok``, ``stale`` (params differ from the config's, or a corrections sidecar
+        beside the file was not applied), ``mixed`` (built from
         other upstream artifacts) or ``unknown`` (no hash recorded).
     """
 
@@ -122,13 +141,51 @@ class ProvenanceRow:
     status: str
 
 
-def _group_metas(path: Path) -> tuple[dict, dict[str, dict]]:
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, 16 hex digits (e.g. the corrections sidecar a
+    triangulation applied)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()[:16]
+
+
+def _group_metas(path: Path) -> tuple[dict, dict[str, dict], dict | None]:
+    """The root meta, each stage group's meta, and the corrections the triangulation
+    group records having applied (``None``: none)."""
     from .results import open_checked, read_meta_from
 
     with open_checked(path, "pass a results.h5 a run wrote") as f:
         root = read_meta_from(f)
         groups = {stage: read_meta_from(f[stage]) for stage in _STAGE_ORDER if stage in f}
-    return root, groups
+        applied = f["triangulation"].attrs.get("corrections") if "triangulation" in f else None
+    if isinstance(applied, bytes):
+        applied = applied.decode()
+    try:
+        applied = json.loads(applied) if isinstance(applied, str) else None
+    except ValueError:
+        applied = None
+    return root, groups, applied if isinstance(applied, dict) else None
+
+
+def _corrections_problem(results: Path, applied: dict | None) -> str | None:
+    """A line when the corrections sidecar beside ``results`` is not what its
+    triangulation applied (never applied, or edited since)."""
+    sidecar = results.parent / "corrections.h5"
+    if not sidecar.is_file():
+        return None
+    if applied is None:
+        return (
+            f"{sidecar}: manual corrections that the triangulation in {results.name} did not "
+            "apply; re-run the workflow to apply them"
+        )
+    if applied.get("sha256") and applied["sha256"] != file_sha256(sidecar):
+        return (
+            f"{sidecar}: changed since the triangulation in {results.name} applied it "
+            f"({applied.get('count')} corrections then); re-run the workflow to apply it"
+        )
+    return None
 
 
 def snapshot_beside(results: str | Path) -> Path | None:
@@ -165,8 +222,9 @@ def provenance_report(
     from .results import ARTIFACTS, read_meta
 
     results = Path(results)
-    root, groups = _group_metas(results)
+    root, groups, applied = _group_metas(results)
     recorded = {stage: meta.get(PARAMS_KEY) for stage, meta in groups.items()}
+    recorded_ids = {stage: meta.get(ARTIFACT_ID_KEY) for stage, meta in groups.items()}
     if stages_dir is None and (results.parent / "stages").is_dir():
         stages_dir = results.parent / "stages"
     rows = []
@@ -189,16 +247,43 @@ def provenance_report(
                     f"{results}: {stage} was built from {upstream} params {built_from}, but "
                     f"the {upstream} in this file has {present}; the file mixes runs: re-run the workflow"
                 )
+        for upstream, built_from in (meta.get(UPSTREAM_IDS_KEY) or {}).items():
+            present = recorded_ids.get(upstream)
+            if (
+                present
+                and built_from != present
+                and recorded.get(upstream) == (meta.get(UPSTREAM_KEY) or {}).get(upstream)
+            ):
+                status = "mixed" if status != "stale" else status
+                problems.append(
+                    f"{results}: {stage} was built from another {upstream} artifact ({built_from}) "
+                    f"than the one in this file ({present}), with equal params; the file mixes "
+                    "runs or recordings: re-run the workflow"
+                )
         if stages_dir is not None and stage != "assemble":
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
-                on_disk = read_meta(artifact).get(PARAMS_KEY)
+                disk_meta = read_meta(artifact)
+                on_disk = disk_meta.get(PARAMS_KEY)
+                disk_id, own_id = disk_meta.get(ARTIFACT_ID_KEY), meta.get(ARTIFACT_ID_KEY)
+                if on_disk == own and disk_id and own_id and disk_id != own_id:
+                    status = "mixed" if status != "stale" else status
+                    problems.append(
+                        f"{artifact}: another {stage} artifact ({disk_id}) than the one "
+                        f"{results.name} holds ({own_id}), with equal params; results.h5 is not "
+                        "assembled from these artifacts: re-run the workflow"
+                    )
                 if on_disk != own:
                     status = "mixed" if status != "stale" else status
                     problems.append(
                         f"{artifact}: params {on_disk}, but {results.name} holds {stage} with "
                         f"{own}; results.h5 is not assembled from these artifacts: re-run the workflow"
                     )
+        if stage == "triangulation":
+            unapplied = _corrections_problem(results, applied)
+            if unapplied is not None:
+                status = "stale" if status == "ok" else status
+                problems.append(unapplied)
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
 
@@ -224,7 +309,8 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     Returns
     -------
     list of str
-        One warning line per foreign artifact.
+        One warning line per foreign artifact, and per artifact too damaged to tell
+        (its recording's stage that reads it fails on it; the others run).
     """
     from .errors import ResultsError
     from .results import ARTIFACTS, read_meta
@@ -243,15 +329,24 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
                 continue
             try:
                 meta = read_meta(path)
-            except ResultsError:  # an unreadable file is the stage's own error, later
-                meta = {}
+            except ResultsError as err:  # the stage that reads it fails on it: say so now
+                lines.append(f"{err} (only {rec.id} is affected)")
+                continue
             writer = meta.get(WRITER_KEY) or {}
             recorded = meta.get(PARAMS_KEY)
             if not writer.get("cwd") or recorded is None:
                 continue
+            expected = params_hash(config.stage_params(stage))
+            written_in = writer.get("outdir")
+            if written_in and Path(written_in) != outdir.resolve() and recorded != expected:
+                lines.append(
+                    f"{path}: copied from {written_in} (made there with other {stage} params, "
+                    f"{recorded}; this config gives {expected}); Snakemake has no record of the "
+                    f"copy and takes it as up to date: delete it or re-run with --forcerun {stage}"
+                )
+                continue
             if str(Path(writer["cwd"]).resolve()) == here:
                 continue
-            expected = params_hash(config.stage_params(stage))
             if recorded != expected:
                 lines.append(
                     f"{path}: written by a run from {writer['cwd']} on {writer.get('host')} with other "

@@ -494,13 +494,21 @@ def read_meta(path: str | Path) -> dict:
     -------
     dict
         The parsed meta; empty if the file has none.
+
+    Raises
+    ------
+    ResultsError
+        Not HDF5, or its root object (header, attributes) damaged: one line naming it.
     """
     try:
         f = h5py.File(path, "r")
     except OSError as err:
         raise ResultsError(f"{path}: not a readable HDF5 file ({err})") from None
     with f:
-        return read_meta_from(f)
+        try:
+            return read_meta_from(f)
+        except (OSError, KeyError, RuntimeError) as err:  # a damaged root object header
+            raise _damaged(path, "its root attributes", err) from None
 
 
 # -- cameras and skeleton groups ----------------------------------------------

@@ -16,6 +16,7 @@ from flylib.interop import calibration_inputs as _calibration_files
 from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 
 # envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
 # --sdm conda creates the environment, which happens in this process, before any job.
@@ -201,3 +202,29 @@ def refinement_inputs(wildcards) -> dict:
     files = reconstruction_inputs("refinement")(wildcards)
     files["triangulation"] = artifact("triangulation").format(outdir=wildcards.outdir)
     return files
+
+
+# -- one run per output directory ------------------------------------------------------
+# Snakemake deletes a job's old outputs before the job starts, so a job's own lock
+# (scripts/_cli.py) comes too late: a second run from another directory would already
+# have removed the first run's files. The run claims every output directory once its
+# DAG is built and before any job is scheduled or any output removed (onstart: real
+# runs only, so -n, --list, --summary and the jobs' own re-parses claim nothing), and
+# releases them at exit. Its jobs inherit the claim's run id and pass it; a claim left
+# by a killed run (same host, pid gone) is taken over by the next run. Once claimed,
+# the temporary files of writers killed mid-write there are removed.
+
+
+onstart:
+    import atexit
+    from flylib.locking import claim_outdirs, release_outdirs
+    from flylib.paths import remove_stale_temps
+
+    try:
+        _claimed = claim_outdirs(str(r.outdir) for r in RECORDINGS if r.id not in SKIPPED)
+    except FlylibError as exc:
+        raise WorkflowError(str(exc)) from None
+    atexit.register(release_outdirs, _claimed)
+    for _outdir in _claimed:
+        for _temp in remove_stale_temps(_outdir, recursive=True):
+            logger.info(f"removed {_temp}, left by a writer that was killed")

@@ -25,7 +25,7 @@ if FLAGS["kinematics"]:
             "../../envs/flylib.yaml"
         threads: 1
         resources:
-            mem_mb=2000,
+            mem_mb=job_mem_mb("kinematics"),
             runtime=15,
         params:
             stage=stage_params("kinematics"),

@@ -19,7 +19,7 @@ if FLAGS["bundle_adjustment"]:
             "../../envs/flylib.yaml"
         threads: 1
         resources:
-            mem_mb=2000,
+            mem_mb=job_mem_mb("bundle_adjustment"),
             runtime=60,
         params:
             stage=stage_params("bundle_adjustment"),
@@ -70,7 +70,7 @@ if FLAGS["triangulation"]:
             "../../envs/flylib.yaml"
         threads: 2
         resources:
-            mem_mb=2000,
+            mem_mb=job_mem_mb("triangulation"),
             runtime=30,
         params:
             stage=stage_params("triangulation"),

@@ -19,7 +19,7 @@ if FLAGS["refinement"]:
             "../../envs/flylib.yaml"
         threads: 2
         resources:
-            mem_mb=3000,
+            mem_mb=job_mem_mb("refinement"),
             runtime=60,
         params:
             stage=stage_params("refinement"),

@@ -28,7 +28,7 @@ rule assemble:
     conda:
         "../../envs/flylib.yaml"
     resources:
-        mem_mb=2000,
+        mem_mb=job_mem_mb("assemble"),
         runtime=15,
     params:
         stage=stage_params("assemble"),

@@ -23,6 +23,8 @@ from .loading import _parse_text
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
+# The table of ``cameras`` every camera inherits its unset keys from.
+_CAMERA_DEFAULTS = "defaults"
 
 _KEY_TOKEN = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
 _KEY_HEAD = re.compile(r"([A-Za-z_][\w-]*(?:\.[\w-]+|\[\d+\])*)(?=[:\s(]|$)")
@@ -82,6 +84,36 @@ def _depth(data: Any, path: list[str | int]) -> int:
     return depth
 
 
+#: Top-level keys that make Snakemake render a config file as a YTE template (running
+#: the Python expressions inside it while it reads ``--configfile``).
+TEMPLATING_KEYS = ("__use_yte__",)
+
+
+def refuse_templating(data: Any, label: str) -> None:
+    """Refuse a config file that asks for templating: a config holds values, not code.
+
+    Snakemake renders a YAML config file whose top level sets ``__use_yte__`` with YTE,
+    evaluating the Python in its ``?...`` keys and values, and does so for
+    ``--configfile`` before the workflow (and flylib) can look at the file. The
+    workflow and ``flylib check-config`` refuse such a file, so it is caught by the
+    check before it is ever handed to Snakemake.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key.
+    """
+    if not isinstance(data, Mapping):
+        return
+    for key in TEMPLATING_KEYS:
+        if key in data:
+            raise ConfigError(
+                f"invalid config: {label}: {key}: templating is not accepted in a flylib config "
+                "(Snakemake runs the Python inside such a file while reading it, before flylib can check it); remove "
+                f"{key} and write the values out"
+            )
+
+
 @dataclass
 class ConfigLayers:
     """Config files (and command-line overrides) merged in order.
@@ -128,7 +160,7 @@ class ConfigLayers:
                 raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
             fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
             try:
-                layers.append((label, _parse_text(text, fmt, label)))
+                data = _parse_text(text, fmt, label)
             except ConfigError as err:
                 problems = getattr(err, "problems", None)
                 if not problems:
@@ -140,6 +172,8 @@ class ConfigLayers:
                     else f"invalid config {label} ({len(lines)} problems; fix and re-run):\n"
                     + "\n".join(f"  {line}" for line in lines)
                 ) from None
+            refuse_templating(data, label)
+            layers.append((label, data))
             texts[label] = text
         if overrides:
             layers.append((OVERRIDES_LABEL, dict(overrides)))
@@ -159,23 +193,37 @@ class ConfigLayers:
             return self.texts[self.layers[0][0]]
         return None
 
-    def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
-        """``(owner, replaced)``: the layer that set the value at ``path``, and the earlier
-        layer whose list the owner replaced on the way (``None`` if none)."""
+    def _walk(self, path: list[str | int]) -> tuple[str | None, str | None, int]:
+        """``(owner, replaced, depth)``: the layer that set the value at ``path`` (or at
+        its first ``depth`` keys, the deepest any layer sets), and the earlier layer whose
+        list the owner replaced on the way (``None`` if none)."""
         candidates = list(self.layers)
         owner = replaced = None
+        depth = 0
         for k in range(1, len(path) + 1):
             setters = [
                 (label, layer) for label, layer in candidates if _depth(layer, path[:k]) == k
             ]
             if not setters:
                 break
-            owner = setters[-1][0]
+            owner, depth = setters[-1][0], k
             node = _value(setters[-1][1], path[:k])
             if not isinstance(node, Mapping):  # lists and scalars are replaced whole
                 if isinstance(node, list) and len(setters) > 1 and k < len(path):
                     replaced = setters[-2][0]
                 candidates = [setters[-1]]
+        return owner, replaced, depth
+
+    def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
+        """``(owner, replaced)`` of :meth:`_walk`; a camera's key that no layer sets on
+        the camera itself (``cameras.<name>.<key>``) is owned by whoever set it in
+        ``cameras.defaults``, which every camera inherits."""
+        owner, replaced, depth = self._walk(path)
+        if depth < len(path) and len(path) >= 3 and path[0] == "cameras":
+            inherited = ["cameras", _CAMERA_DEFAULTS, *path[2:]]
+            fallback, fallback_replaced, fallback_depth = self._walk(inherited)
+            if fallback_depth == len(inherited):
+                return fallback, fallback_replaced
         return owner, replaced
 
     def origin(self, path: list[str | int] | str) -> str:

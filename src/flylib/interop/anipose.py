@@ -37,7 +37,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 import numpy as np
 
 from ..config.loading import MAX_NESTING, toml_dotted_line
-from ..errors import ConfigError, ImportFormatError
+from ..errors import ConfigError, FootageError, ImportFormatError
 from ..paths import atomic_path
 from . import views as _views
 from .calib_checks import camera_value, image_size
@@ -299,7 +299,11 @@ def calibration_inputs(config, recording_dir: Path | None = None) -> list[Path]:
     return [f for f in dict.fromkeys(files) if f.is_file()]
 
 
-def load_calibration(config, recording_dir: Path | None = None):
+def load_calibration(
+    config,
+    recording_dir: Path | None = None,
+    image_sizes: Mapping[str, tuple[int, int]] | None = None,
+):
     """The camera rig from the config's ``calibration`` table (module docstring).
 
     Parameters
@@ -309,6 +313,10 @@ def load_calibration(config, recording_dir: Path | None = None):
     recording_dir
         The recording; relative paths may resolve against it, and it names the
         session for ``calibration.index``.
+    image_sizes
+        ``view -> (height, width)`` of the recording's footage, checked against the
+        sizes an Anipose file records (a lens calibrated at another resolution does
+        not fit the footage).
 
     Returns
     -------
@@ -319,6 +327,8 @@ def load_calibration(config, recording_dir: Path | None = None):
     ------
     ImportFormatError
         No ``calibration`` table, an unknown format, or a view with no camera in the file.
+    FootageError
+        A view's footage size differs from the size its camera was calibrated at.
     """
     from ..cameras import CameraGroup
 
@@ -342,6 +352,7 @@ def load_calibration(config, recording_dir: Path | None = None):
         cams = read_anipose_toml(path)
         views = views or list(cams)  # no views configured: the file's cameras, in order
         chosen = [cams.get(str(names.get(v, v))) for v in views]
+        _check_calibrated_sizes(path, views, chosen, image_sizes or {}, recording_dir)
     else:
         from .df3d import read_df3d_calibration
 
@@ -371,6 +382,24 @@ def load_calibration(config, recording_dir: Path | None = None):
     )
 
 
+def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> None:
+    """Each view's footage (height, width) against the ``size`` ([width, height]) its
+    camera has in the calibration file."""
+    for view, cam in zip(views, chosen):
+        footage = image_sizes.get(view)
+        if cam is None or cam["size"] is None or footage is None:
+            continue
+        calibrated = (int(cam["size"][0]), int(cam["size"][1]))
+        actual = (int(footage[1]), int(footage[0]))
+        if actual != calibrated:
+            where = f"{recording_dir}: camera {view}" if recording_dir else f"camera {view}"
+            raise FootageError(
+                f"{where}: footage is {actual[0]}x{actual[1]} px but {path} calibrated it at "
+                f"{calibrated[0]}x{calibrated[1]} px (width x height); use that camera's "
+                "original footage or a calibration made at this resolution"
+            )
+
+
 def config_rig(
     config,
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
@@ -393,7 +422,9 @@ def config_rig(
             "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off"
         )
     if config.data.get("calibration"):
-        return load_calibration(config, Path(recording_dir) if recording_dir else None)
+        return load_calibration(
+            config, Path(recording_dir) if recording_dir else None, image_sizes=image_sizes
+        )
     return config.camera_group(image_sizes=dict(image_sizes or {}))
 
 

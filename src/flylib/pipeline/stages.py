@@ -54,6 +54,46 @@ def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
     return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
 
 
+# Imported 2D may stray a little past the frame (a detector's edge peaks, sub-pixel
+# refinement); this much of a view's points beyond its frame by more than this fraction
+# of its size says the 2D was made on footage of another resolution.
+_OUTSIDE_MARGIN = 0.02
+_OUTSIDE_FRACTION = 0.01
+
+
+def _check_inside_frames(pose2d, recording_dir: Path) -> None:
+    """Refuse imported 2D whose points lie outside the footage they claim to be on.
+
+    Raises
+    ------
+    FootageError
+        Naming the view, its footage size and the extent of its points.
+    """
+    from ..errors import FootageError
+
+    sizes = _image_sizes(pose2d)
+    for v, view in enumerate(pose2d.view_names):
+        if view not in sizes:
+            continue
+        height, width = sizes[view]
+        xy = pose2d.pts2d[v].reshape(-1, 2)
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if not len(xy):
+            continue
+        limit = np.array([width, height], dtype=np.float64)
+        outside = ((xy < -_OUTSIDE_MARGIN * limit) | (xy > (1 + _OUTSIDE_MARGIN) * limit)).any(
+            axis=1
+        )
+        if outside.mean() > _OUTSIDE_FRACTION:
+            top = np.max(xy, axis=0)
+            raise FootageError(
+                f"{recording_dir}: camera {view}: footage is {width}x{height} px but "
+                f"{outside.mean():.0%} of its imported 2D lies outside that frame (up to "
+                f"x={top[0]:.0f}, y={top[1]:.0f}); the 2D was made on footage of another size: "
+                "use the footage it was made on, or re-run the 2D tool on this footage"
+            )
+
+
 def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
     """The bundle-adjusted rig when that artifact is given, else the config rig."""
     if ba_path:
@@ -162,6 +202,7 @@ def run_pose2d(
         from ..interop import import_points2d
 
         data = import_points2d(config, recording_dir, spec)
+        _check_inside_frames(data, recording_dir)
     else:
         from ..pose2d import detect_recording
         from ..recordings import find_recording
@@ -327,7 +368,13 @@ def run_triangulation(
     if corrections is not None:
         arrays["corrected"] = corrected
         arrays["corrected_2d"] = corrections.touched()
-        attrs["corrections"] = {"file": str(corrections_path), "count": corrections.count()}
+        from ..provenance import file_sha256
+
+        attrs["corrections"] = {
+            "file": str(corrections_path),
+            "count": corrections.count(),
+            "sha256": file_sha256(corrections_path),
+        }
         log.info(
             "triangulation: %d manual corrections applied from %s",
             corrections.count(),

@@ -1,0 +1,107 @@
+"""How much memory a workflow job declares (its rule's ``mem_mb``), from the recording's size.
+
+A job's peak memory is a fixed part (Python, NumPy, JAX, the libraries it imports) plus
+a part that grows with the arrays it holds, which are ``frames x points x views``
+elements wide. ``benchmarks/stage_memory.py`` measures each stage script's peak at
+two sizes as a workflow job runs it (its rule's threads) and prints both parts; the
+figures below are those measurements with :data:`MARGIN` on top, so that a cluster
+scheduler (SLURM kills a job that passes its reservation) reserves enough for a
+100,000-frame recording as for the demo. Stages not listed (the detector, import,
+visualization, exports) keep the fixed ``mem_mb`` their rules state.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["MARGIN", "job_mem_mb", "recording_shape", "stage_mem_mb"]
+
+#: Head-room over the measured peak (allocator fragmentation, other footage, rounding).
+MARGIN = 1.5
+#: The least any job declares.
+FLOOR_MB = 1000
+# Peak MB measured with benchmarks/stage_memory.py (7 views x 38 points, 1,000 and
+# 10,000 frames with the rules' threads; 500 and 5,000 with one thread), the larger of
+# the two runs: the fixed part, and the part per million (frame, point, view)
+# elements. Refinement's chunked solve grows more slowly past 10,000 frames (README:
+# ~0.7 GB at 100,000), so its figure over-reserves there rather than under.
+_FIXED_MB = {
+    "bundle_adjustment": 380,
+    "triangulation": 110,
+    "refinement": 410,
+    "assemble": 160,
+    "kinematics": 130,
+}
+_PER_MILLION_MB = {
+    "bundle_adjustment": 30,
+    "triangulation": 120,
+    "refinement": 140,
+    "assemble": 130,
+    "kinematics": 105,
+}
+
+
+def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
+    """The ``mem_mb`` a stage's job declares for a recording of ``shape``.
+
+    Parameters
+    ----------
+    stage
+        A stage with a measured memory figure (``bundle_adjustment``,
+        ``triangulation``, ``refinement``, ``assemble``, ``kinematics``).
+    shape
+        ``(V, T, P)``: views, frames, points of the recording's 2D.
+
+    Returns
+    -------
+    int
+        Megabytes, a multiple of 100, at least :data:`FLOOR_MB`.
+    """
+    views, frames, points = (int(n) for n in shape)
+    peak = _FIXED_MB[stage] + _PER_MILLION_MB[stage] * views * frames * points / 1e6
+    return max(FLOOR_MB, int(math.ceil(MARGIN * peak / 100.0)) * 100)
+
+
+def recording_shape(path: str | Path) -> tuple[int, int, int]:
+    """``(V, T, P)`` of the 2D in a pose2d artifact or a ``results.h5``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``path`` does not exist yet (with its name: Snakemake then decides the
+        resource once the upstream job has written it).
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(errno.ENOENT, "no such file", str(path))
+    with h5py.File(path, "r") as f:
+        v, t, p, _ = f["pose2d/points"].shape
+    return int(v), int(t), int(p)
+
+
+def job_mem_mb(stage: str, fallback_mb: int = 4000) -> Callable[..., int]:
+    """A rule's ``mem_mb``: :func:`stage_mem_mb` of the job's pose2d (or results) input,
+    doubled on each retry after a failure (``attempt``).
+
+    ``fallback_mb`` is declared when the input cannot be read (a damaged file: the job
+    fails on it with its own message).
+    """
+
+    def mem_mb(wildcards, input, attempt: int = 1) -> int:
+        source = input.get("pose2d") or input.get("results")
+        if isinstance(source, list):
+            source = source[0] if source else None
+        try:
+            megabytes = stage_mem_mb(stage, recording_shape(source))
+        except FileNotFoundError:
+            raise
+        except (OSError, KeyError, ValueError, TypeError):
+            megabytes = fallback_mb
+        return megabytes * 2 ** (max(int(attempt), 1) - 1)
+
+    return mem_mb
