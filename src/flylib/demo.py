@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .alignment import similarity_aligned
-from .errors import ConfigError
+from .errors import ConfigError, did_you_mean
 from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
 from .recordings import (  # noqa: F401  (the demo directory's layout, re-exported)
@@ -162,7 +162,9 @@ def demo_settings(config: Any) -> dict[str, Any]:
         raise ConfigError(f"demo: must be a mapping of demo parameters, got {table!r}")
     unknown = sorted(set(table) - set(DEMO_DEFAULTS))
     if unknown:
-        raise ConfigError(f"demo: unknown key(s) {unknown}; allowed: {sorted(DEMO_DEFAULTS)}")
+        raise ConfigError(
+            f"demo: unknown key(s) {unknown}; {did_you_mean(unknown[0], DEMO_DEFAULTS)}allowed: {sorted(DEMO_DEFAULTS)}"
+        )
     settings = {**DEMO_DEFAULTS, **table}
     for key in ("frames", "height", "width"):
         if not isinstance(settings[key], int) or settings[key] < 2:

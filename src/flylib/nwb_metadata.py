@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, unknown_key
 
 #: Name of the per-recording sidecar file.
 SIDECAR = "nwb.yaml"
@@ -215,7 +215,7 @@ def _key_problems(table: Mapping, known: Mapping, where: str) -> list[str]:
     problems = []
     for key, value in table.items():
         if key not in known:
-            problems.append(f"{where}.{key}: unknown key (known: {', '.join(known)})")
+            problems.append(f"{where}.{key}: {unknown_key('key', key, known)}")
         elif value is not None:
             why = _value_problem(known[key], value, f"{where}.{key}")
             if why:

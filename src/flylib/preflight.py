@@ -3,7 +3,7 @@
 :func:`flylib.config.validate_config` checks each key on its own; this module checks
 what needs the whole config or the planned recordings, and would otherwise fail
 minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
-``shared`` references, each recording's 2D-import spec,
+``shared`` references, each recording's 2D-import spec and the files it names,
 the detection plan and its weights (only where the detector runs), the output videos,
 the calibration format, and footage for recordings the detector must read. Every
 problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
@@ -13,7 +13,6 @@ user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
 
 from .errors import FlylibError
@@ -152,6 +151,8 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 
 def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
     from .interop import import_spec
+    from .interop.importer import import_files
+    from .pose2d.published import checkpoint_problem
     from .recordings import find_recording
 
     problems: list[str] = []
@@ -164,11 +165,15 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
         own = rec.extra.get("own_import") and not rec.demo
         where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
         try:
-            import_spec(config, rec.import_spec)
+            spec = import_spec(config, rec.import_spec)
+            if not rec.demo:  # the demo's files are written by its own rule
+                import_files(config, spec, rec.path)
         except FlylibError as exc:
             text = _problem(exc)
+            if not text.startswith("pose2d.import"):
+                text = f"pose2d.import.files: {text}"
             if where:
-                text = text.replace("pose2d.import", where, 1)
+                text = text.replace("pose2d.import", where)
             problems.append(text)
     if not detector:
         return problems
@@ -178,17 +183,11 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
     except FlylibError as exc:
         return [*problems, _problem(exc)]
     own_weights = (config.data.get("pose2d") or {}).get("weights") or {}
-    for name, path in model_weights(config).items():
-        if name not in plan.models or not path:
-            continue
-        if not Path(path).expanduser().is_file():
-            key = (
-                f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
-            )
-            problems.append(
-                f"{key}: {path} does not exist; point it at the checkpoint file "
-                "(or leave it empty for the published weights)"
-            )
+    for name in dict.fromkeys(p.model for p in plan.active_pathways()):
+        key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
+        problem = checkpoint_problem(plan.models[name], key)
+        if problem:
+            problems.append(problem)
     for rec in detector:
         if rec.sources:
             continue

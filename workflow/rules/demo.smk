@@ -24,7 +24,7 @@ if DEMO is not None:
             sort_keys=True,
         )
     except FlylibError as exc:
-        raise WorkflowError(str(exc)) from None
+        stop_run(str(exc))
     DEMO_OUTPUTS = [str(DEMO.path / name) for names in _demo_names.values() for name in names]
     DEMO_FOOTAGE = [str(DEMO.path / name) for name in _demo_names["footage"]]
     DEMO_TRUTH = str(DEMO.path / _demo_names["truth"][0])

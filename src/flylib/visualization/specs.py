@@ -22,7 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, did_you_mean
 
 PLOTS = ("imshow", "skeleton_2d", "skeleton_3d")
 
@@ -263,7 +263,7 @@ def _split_kwargs(table: Any, where: str) -> tuple[dict, dict[str, dict]]:
 def _check_draw_key(key: str, where: str) -> None:
     if key not in DEFAULT_DRAW_KWARGS:
         raise ConfigError(
-            f"{where}: unknown key {key!r}; plot names are {', '.join(PLOTS)} and draw "
+            f"{where}: unknown key {key!r}; {did_you_mean(key, [*PLOTS, *DEFAULT_DRAW_KWARGS])}plot names are {', '.join(PLOTS)} and draw "
             f"kwargs are {', '.join(DEFAULT_DRAW_KWARGS)}"
         )
 
@@ -348,7 +348,9 @@ def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> li
         view_names = _rig_views(data)
     for key in table:
         if key not in _TOP_KEYS:
-            raise ConfigError(f"visualization: unknown key {key!r}; known: {sorted(_TOP_KEYS)}")
+            raise ConfigError(
+                f"visualization: unknown key {key!r}; {did_you_mean(key, _TOP_KEYS)}known: {sorted(_TOP_KEYS)}"
+            )
     background = parse_color(table.get("background", "black"), "visualization.background")
     global_flat, global_plot = _split_kwargs(table.get("kwargs"), "visualization.kwargs")
     default_fps(table)  # validate early
@@ -384,7 +386,9 @@ def _read_video(
         raise ConfigError(f"{where} must be a table with video_name and panels")
     for key in video:
         if key not in _VIDEO_KEYS:
-            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_VIDEO_KEYS)}")
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; {did_you_mean(key, _VIDEO_KEYS)}known: {sorted(_VIDEO_KEYS)}"
+            )
     name = video.get("video_name", video.get("name"))
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
@@ -430,7 +434,9 @@ def _read_panel(
         raise ConfigError(f"{where} must be a table {{plot, view, x0, y0, ...}}")
     for key in raw:
         if key not in _PANEL_KEYS:
-            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_PANEL_KEYS)}")
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; {did_you_mean(key, _PANEL_KEYS)}known: {sorted(_PANEL_KEYS)}"
+            )
     plot = raw.get("plot")
     if plot not in PLOTS:
         raise ConfigError(f"{where}.plot: unknown plot {plot!r}; use one of {', '.join(PLOTS)}")
