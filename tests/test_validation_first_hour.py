@@ -185,3 +185,42 @@ def test_a_key_like_no_known_one_gets_no_guess(default_data):
     data = {**copy.deepcopy(default_data), "zzz_qqq": {}}
     (problem,) = validate_config(data)
     assert problem.startswith("zzz_qqq: unknown top-level table; (known:")
+
+
+# -- 4. the workflow run from another directory -------------------------------------
+
+
+def _snakemake(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    from workflow_run import SNAKEMAKE
+
+    return subprocess.run(
+        [str(SNAKEMAKE), "-s", str(REPO / "Snakefile"), "-n", "--cores", "1", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={
+            "PYTHONPATH": str(REPO / "src"),
+            "PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin",
+        },
+        timeout=300,
+    )
+
+
+def test_snakefile_from_another_directory_finds_its_default_config(tmp_path):
+    proc = _snakemake(tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "demo" in proc.stdout  # the default config's demo recording, planned under tmp_path
+    assert not list(tmp_path.iterdir()) or {p.name for p in tmp_path.iterdir()} <= {".snakemake"}
+
+
+def test_workflow_config_errors_are_the_lines_alone(tmp_path):
+    (tmp_path / "my.yaml").write_text("triangulation: {methd: dlt}\n")
+    proc = _snakemake(tmp_path, "--configfile", "my.yaml")
+    assert proc.returncode == 1
+    tail = proc.stderr.strip().splitlines()
+    assert tail[-1] == (
+        "invalid config: my.yaml: triangulation.methd: unknown parameter; did you mean 'method'? (known: method,"
+        " weigh_by_confidence, ransac_threshold, min_inliers, reproj_threshold, max_drops)"
+    ), proc.stderr
+    assert "WorkflowError" not in proc.stderr and "Traceback" not in proc.stderr
+    assert 'File "' not in proc.stderr
