@@ -437,6 +437,7 @@ def test_cli_nwb_without_metadata_fails_in_one_line(demo_result, tmp_path, capsy
     )
     err = capsys.readouterr().err.strip()
     assert code == 1 and "\n" not in err and "session_start_time" in err and str(recording) in err
+    assert "flylib export --nwb-metadata FILE" in err  # the command's own way to supply them
     assert not (tmp_path / "x.nwb").exists()
 
 

@@ -335,10 +335,11 @@ def recording_metadata(
     if check:
         missing = missing_required(metadata)
         if missing:
-            where = f"{sidecar_path}" if sidecar_path is not None else "a --nwb-metadata YAML file"
+            sidecar = f"in {sidecar_path}, " if sidecar_path is not None else ""
             raise ConfigError(
                 f"nwb: recording {recording_dir or '?'} lacks session metadata the NWB export needs: "
-                f"{', '.join(missing)}; set them in the config's nwb table or in {where}"
+                f"{', '.join(missing)}; set them in the config's nwb table, {sidecar}or in a YAML "
+                "file given to flylib export --nwb-metadata FILE"
             )
     return metadata
 
