@@ -69,6 +69,18 @@ def test_a_checkpoint_neither_cached_nor_downloadable_is_one_line_naming_model_a
     assert preflight_problems(config, [detector_recording(tmp_path)], config.stage_flags()) == []
 
 
+def test_a_cluster_job_rereading_the_config_does_not_probe_again(
+    default_data, tmp_path, monkeypatch
+):
+    """The main process checked the checkpoints; a compute node may have no network."""
+    monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
+    config = with_model_url(default_data, CLOSED_PORT_URL)
+    flags = config.stage_flags()
+    rec = detector_recording(tmp_path)
+    assert preflight_problems(config, [rec], flags, check_weights=False) == []
+    assert preflight_problems(config, [rec], flags) != []
+
+
 def test_a_reachable_weights_host_counts_as_downloadable(default_data, tmp_path, monkeypatch):
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
     with socket.socket() as server:

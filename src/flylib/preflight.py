@@ -39,7 +39,9 @@ def model_weights(config: Any) -> dict[str, str]:
     return out
 
 
-def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, bool]) -> list[str]:
+def preflight_problems(
+    config: Any, recordings: Iterable[Any], flags: dict[str, bool], *, check_weights: bool = True
+) -> list[str]:
     """Problems the planned run would hit inside a job, found from the config alone.
 
     Parameters
@@ -50,6 +52,9 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
         The planned :class:`flylib.recordings.Recording` objects.
     flags
         ``Config.stage_flags()``.
+    check_weights
+        Check that every detector model's checkpoint is cached or downloadable (may
+        wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
 
     Returns
     -------
@@ -95,7 +100,7 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
             problems.append(_problem(exc))
 
     if flags.get("pose2d", True):
-        problems += _pose2d_problems(config, recordings)
+        problems += _pose2d_problems(config, recordings, check_weights)
 
     if flags.get("visualization", True):
         try:
@@ -113,7 +118,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     layers
         The run's :class:`flylib.config.layers.ConfigLayers`.
     check_frames
-        Compare footage frame counts across cameras while planning.
+        Compare footage frame counts across cameras while planning, and check the
+        detector's checkpoints (off in a cluster job re-reading the config: the run's
+        main process checked both, and a compute node may have no network).
 
     Returns
     -------
@@ -141,7 +148,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     try:
         config = Config(layers.data, text=text, format="yaml")
         recordings = plan_recordings(config, check_frames=check_frames)
-        problems = preflight_problems(config, recordings, config.stage_flags())
+        problems = preflight_problems(
+            config, recordings, config.stage_flags(), check_weights=check_frames
+        )
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
@@ -149,7 +158,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     return config, recordings
 
 
-def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
+def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
     from .interop import import_spec
     from .interop.importer import import_files
     from .pose2d.published import checkpoint_problem
@@ -183,7 +192,8 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
     except FlylibError as exc:
         return [*problems, _problem(exc)]
     own_weights = (config.data.get("pose2d") or {}).get("weights") or {}
-    for name in dict.fromkeys(p.model for p in plan.active_pathways()):
+    used = dict.fromkeys(p.model for p in plan.active_pathways()) if check_weights else {}
+    for name in used:
         key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
         problem = checkpoint_problem(plan.models[name], key)
         if problem:
