@@ -212,6 +212,7 @@ def test_demo_runs_to_completion_through_the_slurm_profile(slurm_cluster, tmp_pa
         str(tmp_path),
         "--configfile",
         str(tmp_path / "config.yaml"),
+        "--replace-workflow-config",
         "--jobs",
         "4",
         "--set-resources",

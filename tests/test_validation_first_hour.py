@@ -218,6 +218,7 @@ def _snakemake(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # runs Snakemake
 def test_snakefile_from_another_directory_finds_its_default_config(tmp_path):
     proc = _snakemake(tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -225,6 +226,7 @@ def test_snakefile_from_another_directory_finds_its_default_config(tmp_path):
     assert not list(tmp_path.iterdir()) or {p.name for p in tmp_path.iterdir()} <= {".snakemake"}
 
 
+@pytest.mark.slow  # runs Snakemake
 def test_workflow_config_errors_are_the_lines_alone(tmp_path):
     (tmp_path / "my.yaml").write_text("triangulation: {methd: dlt}\n")
     proc = _snakemake(tmp_path, "--configfile", "my.yaml")
