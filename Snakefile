@@ -12,12 +12,17 @@
 # what changed and everything downstream of it. Each file under workflow/rules/ uses
 # only what the files included before it define.
 
+import os
+
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 
-configfile: "config/config.yaml"
+# Beside this Snakefile, so `snakemake -s /path/to/flylib/Snakefile` works from any
+# directory (relative paths in the config, such as recordings, stay relative to the
+# working directory).
+configfile: os.path.join(workflow.basedir, "config", "config.yaml")
 
 
 report: "workflow/report/workflow.rst"

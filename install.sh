@@ -5,8 +5,40 @@
 #   FLYLIB_PYTHON   interpreter to build the venv from (default: python3, needs >= 3.11)
 #   FLYLIB_TORCH    pip requirement for PyTorch (default: the CPU build torch==2.13.0 on
 #                   machines without an NVIDIA GPU, plain "torch" where nvidia-smi sees one)
+#
+#   bash install.sh --test-system-packages
+#                   also install the system packages two tests use, where that is possible
+#                   (root and apt-get): slurm-wlm and munge (a real single-node SLURM,
+#                   tests/test_slurm.py), chromium and chromium-driver (tests/test_gui_browser.py).
+#                   Quiet; where they cannot be installed it says so in one line and goes
+#                   on (those tests then skip with the reason). .ci/run passes it.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")"
+
+system_packages=(slurm-wlm munge chromium chromium-driver)
+install_system_packages() {
+  local missing=()
+  command -v slurmctld >/dev/null 2>&1 && command -v munged >/dev/null 2>&1 || missing+=(slurm-wlm munge)
+  command -v chromedriver >/dev/null 2>&1 || missing+=(chromium chromium-driver)
+  [ ${#missing[@]} -eq 0 ] && return 0
+  if [ "$(id -u)" != 0 ] || ! command -v apt-get >/dev/null 2>&1; then
+    echo "install.sh: not installing ${missing[*]} (needs root and apt-get); the tests that use them skip"
+    return 0
+  fi
+  echo "install.sh: installing system packages ${missing[*]}"
+  local apt=(env DEBIAN_FRONTEND=noninteractive timeout 900 apt-get -qq -y --no-install-recommends)
+  if ! "${apt[@]}" install "${missing[@]}" >/dev/null 2>&1; then
+    timeout 300 apt-get -qq update >/dev/null 2>&1 || true
+    "${apt[@]}" install "${missing[@]}" >/dev/null 2>&1 \
+      || echo "install.sh: could not install ${missing[*]} with apt-get; the tests that use them skip"
+  fi
+}
+for arg in "$@"; do
+  case $arg in
+    --test-system-packages) install_system_packages ;;
+    *) echo "install.sh: unknown option $arg (known: --test-system-packages)" >&2; exit 2 ;;
+  esac
+done
 
 python=${FLYLIB_PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then

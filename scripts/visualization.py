@@ -16,9 +16,21 @@ def main(argv=None, *, job=None) -> int:
     )
     parser.add_argument("--outdir", required=True, type=Path, help="where the videos go")
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
+    parser.add_argument(
+        "--speed",
+        type=float,
+        help="play the videos at this multiple of the recording's rate when the config sets none",
+    )
 
     def run(args, config):
-        run_visualization(config, args.results, args.recording, args.outdir, progress=args.progress)
+        run_visualization(
+            config,
+            args.results,
+            args.recording,
+            args.outdir,
+            progress=args.progress,
+            speed=args.speed,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
 

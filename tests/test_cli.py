@@ -2,16 +2,24 @@
 
 from __future__ import annotations
 
+import json
+import re
+from pathlib import Path
+
+import h5py
 import numpy as np
 import pandas as pd
 import pytest
 
 from flylib.cameras import CameraGroup
 from flylib.cli import main, summarize_results
+from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml
+from flylib.provenance import PARAMS_KEY, params_hash, provenance_report
 from flylib.results import PoseResult
 from flylib.skeleton import Skeleton
 
+REPO = Path(__file__).resolve().parents[1]
 VIEWS = ["a", "b", "c"]
 
 
@@ -83,8 +91,29 @@ def test_inspect_prints_tables(result_file, capsys):
     path, _ = result_file
     assert main(["inspect", str(path)]) == 0
     out = capsys.readouterr().out
-    for text in ("triangulation", "pose2d", "p0-p1", "p2", "0.933"):
+    for text in ("triangulation", "pose2d", "p0-p1", "p2"):
         assert text in out
+    # fractions as percentages, like the end-of-run table: 14 of 15 points reconstructed
+    assert re.search(r"^triangulation +3 +5 +93\.3% +93\.3% ", out, re.M), out
+    assert re.search(r"^p1 +\S+ +80\.0% ", out, re.M), out
+
+
+def test_inspect_provenance_covers_refinement(result_file, tmp_path, capsys):
+    path, _ = result_file
+    default = REPO / "config" / "config.yaml"
+    config = Config.from_file(default)
+    own = params_hash(config.stage_params("refinement"))
+    with h5py.File(path, "a") as f:  # what assemble copies from stages/refinement.h5
+        f.create_group("refinement").attrs["meta"] = json.dumps({PARAMS_KEY: own})
+    rows = {row.stage: row for row in provenance_report(path, config)}
+    assert rows["refinement"].status == "ok" and rows["refinement"].recorded == own
+    edited = tmp_path / "edited.yaml"
+    edited.write_text(default.read_text().replace("scale_px: 3.0", "scale_px: 2.0", 1))
+    assert edited.read_text() != default.read_text()
+    assert main(["inspect", str(path), "--config", str(edited)]) == 2
+    captured = capsys.readouterr()
+    assert re.search(rf"^refinement +{own} +[0-9a-f]{{16}} +stale$", captured.out, re.M)
+    assert f"{path}: refinement is stale" in captured.err
 
 
 def test_export_writes_3d_and_dlc_csv_that_import_back(result_file, tmp_path, capsys):
@@ -135,7 +164,9 @@ def test_inspect_prints_aligned_plain_text_and_imports_no_optional_package(
     header = next(line for line in lines if line.startswith("stage "))
     row = next(line for line in lines if line.startswith("triangulation "))
     # no held-out accuracy in this hand-made file: "-" under both held-out columns
-    assert row.split() == ["triangulation", "3", "5", "0.933", "0.933", "0.5", "1.5", "-", "-", "-"]
+    assert row.split() == [
+        "triangulation", "3", "5", "93.3%", "93.3%", "0.5", "1.5", "-", "-", "-"
+    ]
     assert len(header) == len(row)  # columns aligned under their headers
 
 

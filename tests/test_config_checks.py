@@ -193,12 +193,17 @@ def test_preflight_names_the_key_in_one_line(default_data, tmp_path, key, mutate
 
 
 def test_preflight_passes_the_default_config_and_skips_the_detector_for_imported_2d(
-    default_data, tmp_path
+    default_data, tmp_path, monkeypatch
 ):
+    monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "sh8_deepfly.tar").write_bytes(b"x")  # the published checkpoint, cached
     config = Config.from_dict(default_data)
     assert preflight_problems(config, [recording(tmp_path)], config.stage_flags()) == []
     broken = Config.from_dict(edit(default_data, "pose2d.models", [{"name": "deepfly2d"}]))
     imported = recording(tmp_path, spec={"format": "dlc_csv"})
+    for view in broken.view_names():  # validation checks that the import's files exist
+        (tmp_path / f"{view}.csv").touch()
     assert preflight_problems(broken, [imported], broken.stage_flags()) == []
 
 

@@ -141,7 +141,10 @@ def test_bad_checkpoints_are_clear_weights_errors(tmp_path):
 
 def test_weights_resolution_cache_download_and_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
-    assert weights.cache_dir() == tmp_path / "cache"
+    assert (
+        weights.cached_checkpoint("deepfly2d", "hourglass")
+        == tmp_path / "cache" / "sh8_deepfly.tar"
+    )
     with pytest.raises(WeightsError, match="does not exist"):
         weights.resolve_weights(tmp_path / "nope.tar")
     published = weights.save_checkpoint(_tiny_net(), tmp_path / "published.tar")

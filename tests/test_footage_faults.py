@@ -89,6 +89,7 @@ def detector(tmp_path_factory):
     return data
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_detector_fails_on_a_truncated_jpeg_or_marks_its_frame_missing(tmp_path, detector):
     import torch
 

@@ -105,6 +105,7 @@ def test_numpy_kmat_twin_matches_the_jax_kernel_for_both_intrinsic_forms():
     )
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_rodrigues_jacobian_at_zero_is_the_skew_generators():
     jac = np.asarray(jax.jacfwd(g.rvec_to_rmat_one)(np.zeros(3)))  # (3, 3, 3)
     assert np.all(np.isfinite(jac))
@@ -174,6 +175,7 @@ def test_short_distortion_vectors_are_zero_padded():
 
 
 @pytest.mark.parametrize("n_dist", [4, 5, 8, 12])
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_undistort_matches_cv2_and_inverts_distort(n_dist):
     rng = np.random.default_rng(20 + n_dist)
     _, _, intr, dist = _random_camera(rng, n_dist)

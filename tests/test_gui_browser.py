@@ -26,7 +26,10 @@ CHROMEDRIVER = shutil.which("chromedriver")
 
 def _browser():
     if not CHROMIUM or not CHROMEDRIVER:
-        pytest.skip("headless Chromium is not installed (apt-get install chromium chromium-driver)")
+        pytest.skip(
+            "headless Chromium is not installed: run `bash install.sh --test-system-packages` "
+            "as root, or apt-get install chromium chromium-driver"
+        )
     webdriver = pytest.importorskip("selenium.webdriver", reason="pip install selenium")
     from selenium.common.exceptions import WebDriverException
 

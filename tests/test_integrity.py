@@ -305,6 +305,7 @@ def _config(tmp_path: Path, name: str, edit=None) -> Config:
     return Config.from_file(path)
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix(tmp_path, capsys):
     config = _config(tmp_path, "config.yaml")
     recording, out = _small_run(tmp_path, config)

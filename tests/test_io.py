@@ -185,6 +185,7 @@ def test_to_numpy_and_to_torch_share_memory():
 # --- the real recording -------------------------------------------------------
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_deepfly3d_sample_video_and_images_give_the_same_frames(df3d_sample_dir):
     video = io.open_reader(df3d_sample_dir / "camera_2.mp4")
     assert video.fps() == pytest.approx(0.2)  # the container's quirk

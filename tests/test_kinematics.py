@@ -132,3 +132,26 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
         assert f["kinematics/body_rotation"].shape == (3, 3)
     assert (tmp_path / "angles.png").stat().st_size > 10_000
     assert pd.read_csv(tmp_path / "angles.csv").shape == (20, len(names) + 1)
+
+
+def test_angles_figure_names_each_angle_once_beside_the_traces_not_over_them():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from flylib.kinematics.stage import angles_plot
+
+    kin = compute_kinematics(synthetic_fly(40, seed=2), FLY)
+    fig = angles_plot(kin)
+    FigureCanvasAgg(fig).draw()  # lays the figure out as savefig does
+    axes = fig.axes
+    assert len(axes) == 6 and all(ax.get_legend() is None for ax in axes)
+    (legend,) = fig.legends
+    kinds = [t.get_text() for t in legend.get_texts()]
+    assert kinds == list(dict.fromkeys(n.split("_", 1)[1] for n in kin.angle_names))
+    box = legend.get_window_extent()
+    assert all(box.x0 >= ax.get_window_extent().x1 for ax in axes)  # right of every panel
+    # one colour per kind, the same in every leg's panel
+    for ax in axes:
+        colours = {line.get_label(): line.get_color() for line in ax.get_lines()}
+        assert colours == {
+            t.get_text(): h.get_color() for t, h in zip(legend.get_texts(), legend.legend_handles)
+        }

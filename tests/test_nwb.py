@@ -93,6 +93,7 @@ def _stack(container, names, attr="data"):
 # -- the NWB file --------------------------------------------------------------------
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_nwb_reads_back_with_pynwb_and_equals_results(demo_result, nwb_file):
     result = demo_result["result"]
     names = list(result.skeleton.point_names)
@@ -178,6 +179,7 @@ def test_cameras_are_devices_with_the_final_calibration(demo_result, nwb_file):
             )
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_nwbinspector_finds_nothing_critical_or_violating(nwb_file):
     from nwbinspector import Importance, inspect_nwbfile
 
@@ -192,6 +194,7 @@ def test_nwbinspector_finds_nothing_critical_or_violating(nwb_file):
     )
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_nwbinspector_flags_a_broken_video_link(demo_result, tmp_path):
     """The inspection above can fail: the inspector checks our video links."""
     from nwbinspector import inspect_nwbfile
@@ -210,6 +213,7 @@ def test_nwbinspector_flags_a_broken_video_link(demo_result, tmp_path):
     assert any(m.check_function_name == "check_image_series_external_file_valid" for m in messages)
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_movement_reads_the_nwb_3d(demo_result, nwb_file):
     from movement.io import load_dataset
 
@@ -358,6 +362,7 @@ def test_the_default_configs_commented_exports_and_nwb_example_is_valid():
     assert metadata["subject"]["species"] == "Drosophila melanogaster"
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_image_sequence_footage_links_every_image_at_the_configured_rate(demo_result, tmp_path):
     result = demo_result["result"]
     footage = {}
@@ -393,6 +398,7 @@ def test_no_frame_rate_is_a_clear_error(demo_result, tmp_path):
 # -- the command line ---------------------------------------------------------------------
 
 
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_cli_exports_nwb_in_one_command(demo_result, tmp_path, capsys):
     out = tmp_path / "out" / "fly.nwb"
     override = tmp_path / "meta.yaml"
@@ -437,6 +443,7 @@ def test_cli_nwb_without_metadata_fails_in_one_line(demo_result, tmp_path, capsy
     )
     err = capsys.readouterr().err.strip()
     assert code == 1 and "\n" not in err and "session_start_time" in err and str(recording) in err
+    assert "flylib export --nwb-metadata FILE" in err  # the command's own way to supply them
     assert not (tmp_path / "x.nwb").exists()
 
 

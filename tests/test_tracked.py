@@ -122,6 +122,7 @@ def _renamed_keys(data, path):
 
 @pytest.mark.parametrize("variant", ["ba_on", "ba_off"])
 @pytest.mark.parametrize("stage", PARAM_STAGES)
+@pytest.mark.slow  # >15 s on the shared 2-core machine
 def test_every_path_a_stage_reads_is_tracked(stage, variant):
     data = dict(_variants())[variant]
     config = Config.from_dict(data)

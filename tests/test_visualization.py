@@ -25,13 +25,14 @@ from flylib.visualization import (
     resolve_output_fps,
     summary_figure,
 )
+from flylib.visualization.compose import frame_stamp
 from flylib.visualization.draw import (
     draw_skeleton_2d,
     draw_skeleton_3d,
     skeleton_colors,
     to_panel_coords,
 )
-from flylib.visualization.summary import trajectory_points
+from flylib.visualization.summary import _error_per_view, error_ticks, trajectory_points
 
 VIEWS = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
 RED, BLUE = "#ff0000", "#0000ff"
@@ -338,6 +339,63 @@ def test_compositor_draws_panels_in_order_with_backgrounds():
     assert canvas[10, 20].tolist() == [10, 20, 30]
 
 
+def _two_panel_compositor(labels: bool) -> Compositor:
+    table = {
+        "background": "black",
+        "labels": labels,
+        "videos": [
+            {
+                "video_name": "v",
+                "panels": [
+                    {"plot": "imshow", "view": "f", "x0": 0, "y0": 0, "width": 200},
+                    {"plot": "skeleton_2d", "view": "f", "x0": 0, "y0": 0, "width": 200},
+                    {"plot": "imshow", "view": "rf", "x0": 200, "y0": 0, "width": 200},
+                ],
+            }
+        ],
+    }
+    (spec,) = read_video_specs(table, view_names=VIEWS)
+    return Compositor(spec, tiny_skeleton(), {"f": (100, 200), "rf": (100, 200)})
+
+
+def test_panels_carry_their_view_name_and_the_canvas_the_frame_and_time():
+    frame = np.full((100, 200, 3), 60, np.uint8)
+    frames = {"f": frame, "rf": frame}
+    stamp = frame_stamp(12, 60, 100.0)
+    assert stamp == "frame 12 / 59   0.120 s" and frame_stamp(3, 15, None) == "frame 3 / 14"
+    plain = _two_panel_compositor(False).compose(frames, {}, {}, stamp=stamp).copy()
+    labelled = _two_panel_compositor(True).compose(frames, {}, {}, stamp=stamp)
+    assert (plain == 60).all()  # labels off: the footage alone
+    changed = np.argwhere((labelled != plain).any(-1))
+    # ...on: white text on a black outline in three places, nothing anywhere else
+    top_left = changed[(changed[:, 0] < 25) & (changed[:, 1] < 30)]  # "f"
+    rf_name = changed[(changed[:, 0] < 25) & (changed[:, 1] >= 200) & (changed[:, 1] < 240)]
+    bottom = changed[changed[:, 0] > 75]  # the stamp, across the first panel
+    assert len(top_left) and len(rf_name) and len(bottom)
+    assert len(top_left) + len(rf_name) + len(bottom) == len(changed)
+    assert bottom[:, 1].max() > 150  # a whole line of text, not one glyph
+    assert labelled[6:25, 200:240].max() == 255 and labelled[6:25, 200:240].min() == 0
+    # the imshow panel and the skeleton over it share one area: one name, not two
+    assert len(_two_panel_compositor(True).labelled) == 2
+
+
+def test_the_demo_videos_play_slowed_unless_the_config_sets_a_rate():
+    (spec,) = read_video_specs(vis_table(), view_names=VIEWS)
+    assert resolve_output_fps(spec, {}, 100.0, 0.1) == pytest.approx(10.0)
+    assert resolve_output_fps(spec, {"output_fps": 25}, 100.0, 0.1) == 25
+    assert resolve_output_fps(spec, {"speed": 0.5}, 100.0, 0.1) == pytest.approx(50.0)
+    assert resolve_output_fps(spec, {}, 100.0) == 100.0
+    from flylib.demo import DEMO_DEFAULTS
+
+    frames, fps, speed = (DEMO_DEFAULTS[k] for k in ("frames", "fps", "video_speed"))
+    assert frames / (fps * speed) >= 5.0  # seconds of video: long enough to watch
+
+
+def test_labels_must_be_a_boolean():
+    with pytest.raises(ConfigError, match="visualization.labels: expected true or false"):
+        read_video_specs(vis_table(labels="yes"), view_names=VIEWS)
+
+
 # -- streaming render on the real DeepFly3D sample --------------------------------------
 
 
@@ -416,8 +474,10 @@ def test_views_without_footage_draw_the_background(tmp_path, df3d_sample_dir, df
         (path,) = render_videos(data, result, footage, tmp_path, progress=False)
     frames, rate = decoded_video(path)
     assert rate == 7 and frames.shape == (15, 960, 960, 3)
-    # the f panel (240..720, 0..240) has no footage and view f has no detections
-    assert np.abs(frames[:, 5:235, 245:715].astype(int) - [0, 0, 200]).max() < 12
+    # the f panel (240..720, 0..240) has no footage and view f has no detections: below
+    # its name (top-left corner), the background
+    assert np.abs(frames[:, 30:235, 245:715].astype(int) - [0, 0, 200]).max() < 12
+    assert frames[:, 6:24, 246:262].max() > 200  # the name "f", white
 
 
 # -- summary ----------------------------------------------------------------------------
@@ -436,6 +496,29 @@ def test_summary_figure_writes_a_png(tmp_path, df3d_result):
     bare = dataclasses.replace(result, pts3d=None)
     bare_png = cv2.imread(str(summary_figure(bare, tmp_path / "bare.png", dpi=40)))
     assert bare_png.shape == (380, 560, 3)
+
+
+def test_error_axis_has_readable_ticks_and_the_medians_sit_under_the_boxes():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    assert error_ticks(6.5) == [0.0, 0.25, 0.5, 0.75, 1.0, 2.0, 5.0]
+    assert error_ticks(140.0) == [0.0, 0.25, 0.5, 0.75, 1.0, 2, 5, 10, 20, 50, 100]
+    assert error_ticks(0.4) == [0.0, 0.25, 0.5, 0.75, 1.0]
+    rng = np.random.default_rng(0)
+    error = np.abs(rng.normal(0, 1.5, (3, 50, 4)))  # (V, T, P)
+    error[1, :5, 0] = 60.0  # a few gross outliers in one view
+    fig = Figure()
+    ax = fig.add_subplot()
+    _error_per_view(ax, error, ["rh", "f", "lh"])
+    FigureCanvasAgg(fig).draw()
+    labels = [t.get_text() for t in ax.get_yticklabels()]
+    assert labels[:5] == ["0", "0.25", "0.5", "0.75", "1"] and labels[-2:] == ["20", "50"]
+    medians = [f"{np.median(e):.2f}" for e in error.reshape(3, -1)]
+    assert [t.get_text() for t in ax.get_xticklabels()] == [
+        f"{v}\n{m} px" for v, m in zip(["rh", "f", "lh"], medians)
+    ]
+    assert not ax.texts  # no number printed inside the plot, over the boxes
 
 
 def test_per_frame_median_matches_numpy_nanmedian():

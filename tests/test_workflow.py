@@ -356,7 +356,15 @@ def test_failing_job_leaves_no_artifact_and_keep_going_finishes_the_rest(tmp_pat
 
 
 def test_bad_footage_fails_pose2d_naming_the_file(tmp_path):
+    from flylib.pose2d.model import HourglassNet
+    from flylib.pose2d.weights import save_checkpoint
+
+    checkpoint = save_checkpoint(
+        HourglassNet(num_stacks=1, num_feats=8, inplanes=8), tmp_path / "w.tar"
+    )
     config = base_config()
+    # a checkpoint, or validation stops the run before the job (no weights, no network)
+    config["pose2d"]["models"][0].update(weights=str(checkpoint), input_size=[64, 128])
     config["pipeline"]["do_visualization"] = False
     rec = tmp_path / "broken"
     make_recording(config, rec, 0)

@@ -86,9 +86,24 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     assert (workdir / "demo" / "flylib_outputs" / "logs" / "demo.log").is_file()
     assert untracked_in_repo() == before_repo
 
+    # nothing to do: Snakemake says so, then the table of the existing results
+    again = snakemake(workdir)
+    assert again.returncode == 0, again.stderr[-4000:]
+    after = again.stderr[again.stderr.index("Nothing to be done") :].splitlines()
+    rest = [line for line in after if line.strip()]
+    assert rest[1:3] == ["flylib: nothing to do; the existing results:", lines[title]]
+    assert rest[3:] == table[1:]
+    dry = snakemake(workdir, "-n")
+    assert "per-recording results" not in dry.stdout + dry.stderr  # a dry run prints no table
+
 
 LATE_FAILING = {
     "import_format": ("pose2d:\n  import: {format: deepfly}\n", "pose2d.import.format"),
+    # the README's own df3d_result.pkl, where DeepFly3D writes df3d_result_2d.pkl
+    "import_files": (
+        "pose2d:\n  import: {format: deepfly3d, files: df3d_result.pkl}\n",
+        "pose2d.import.files: ",
+    ),
     "models_override": (
         "pose2d:\n  models: [{name: deepfly2d, weights: x.tar}]\n",
         "pose2d.models[0].n_out_channels",
@@ -103,6 +118,7 @@ def test_late_failing_configs_fail_at_dry_run_naming_the_users_file_and_key(tmp_
     recording.mkdir()
     for i in range(7):
         (recording / f"camera_{i}.mp4").write_bytes(b"")  # the dry run never decodes
+    (recording / "df3d_result_2d.pkl").write_bytes(b"")
     text, key = LATE_FAILING[case]
     (workdir / "mine.yaml").write_text(f"recordings: [{recording}]\n{text}")
     before = files_under(workdir)

@@ -11,7 +11,9 @@ SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 
 
 def snakemake_command(workdir: Path, *args: str, cores: int = 2) -> list[str]:
-    """``snakemake`` on the repo's Snakefile in ``workdir`` with its ``config.yaml``."""
+    """``snakemake`` on the repo's Snakefile in ``workdir`` with its ``config.yaml``, a
+    whole config that replaces the checkout's (``--replace-workflow-config``), so the
+    snapshot is its byte-for-byte copy."""
     return [
         str(SNAKEMAKE),
         "--snakefile",
@@ -20,6 +22,7 @@ def snakemake_command(workdir: Path, *args: str, cores: int = 2) -> list[str]:
         str(workdir),
         "--configfile",
         str(workdir / "config.yaml"),
+        "--replace-workflow-config",
         "--cores",
         str(cores),
         *args,

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import camera_model
-from .errors import ConfigError
+from .errors import ConfigError, did_you_mean
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -263,7 +263,9 @@ class Camera:
         where = f"cameras.{name}" if name else "cameras"
         unknown = sorted(set(spec) - CAMERA_KEYS)
         if unknown:
-            raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(CAMERA_KEYS)}")
+            raise ConfigError(
+                f"{where}: unknown key(s) {unknown}; {did_you_mean(unknown[0], CAMERA_KEYS)}allowed: {sorted(CAMERA_KEYS)}"
+            )
         rvec, tvec = resolve_extrinsics(spec, where)
         intr, dist = resolve_intrinsics(spec, image_size, where)
         return cls(rvec=rvec, tvec=tvec, intr=intr, dist=dist, name=name)

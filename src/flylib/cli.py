@@ -162,17 +162,23 @@ def _stage_accuracy(group) -> dict | None:
 # -- printing ---------------------------------------------------------------------
 
 
-def _cell(value) -> str:
-    if isinstance(value, float):
+#: Columns holding fractions, printed as percentages like the end-of-run table.
+_PERCENT_COLUMNS = frozenset({"observed_2d", "reconstructed"})
+
+
+def _cell(value, percent: bool = False) -> str:
+    if isinstance(value, (float, np.floating)):
         if not np.isfinite(value):
             return "-"
+        if percent:
+            return f"{100 * float(value):.1f}%"
         return f"{value:.3g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
     return "-" if value is None else str(value)
 
 
 def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -> None:
     """Print rows as an aligned plain-text table (first column left, the rest right)."""
-    cells = [[_cell(r.get(key)) for key, _ in columns] for r in rows]
+    cells = [[_cell(r.get(key), key in _PERCENT_COLUMNS) for key, _ in columns] for r in rows]
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
 
     def line(values) -> str:

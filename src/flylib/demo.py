@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .alignment import similarity_aligned
-from .errors import ConfigError
+from .errors import ConfigError, did_you_mean
 from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
 from .recordings import (  # noqa: F401  (the demo directory's layout, re-exported)
@@ -58,6 +58,9 @@ DEMO_DEFAULTS: dict[str, Any] = {
     "dropout": 0.05,
     "outliers": 0.01,
     "outlier_px": [40.0, 120.0],
+    # the workflow's videos of the demo play at this multiple of fps (slow motion: the
+    # legs step at 6-10 Hz); a rate set in the visualization table wins
+    "video_speed": 0.1,
 }
 
 
@@ -162,7 +165,9 @@ def demo_settings(config: Any) -> dict[str, Any]:
         raise ConfigError(f"demo: must be a mapping of demo parameters, got {table!r}")
     unknown = sorted(set(table) - set(DEMO_DEFAULTS))
     if unknown:
-        raise ConfigError(f"demo: unknown key(s) {unknown}; allowed: {sorted(DEMO_DEFAULTS)}")
+        raise ConfigError(
+            f"demo: unknown key(s) {unknown}; {did_you_mean(unknown[0], DEMO_DEFAULTS)}allowed: {sorted(DEMO_DEFAULTS)}"
+        )
     settings = {**DEMO_DEFAULTS, **table}
     for key in ("frames", "height", "width"):
         if not isinstance(settings[key], int) or settings[key] < 2:
@@ -172,6 +177,9 @@ def demo_settings(config: Any) -> dict[str, Any]:
             raise ConfigError(f"demo.{key}: must be a fraction in [0, 1), got {settings[key]!r}")
     if float(settings["noise_px"]) < 0 or float(settings["fps"]) <= 0:
         raise ConfigError("demo.noise_px must be >= 0 and demo.fps > 0")
+    speed = settings["video_speed"]
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 < speed <= 10:
+        raise ConfigError(f"demo.video_speed: must be a number in (0, 10], got {speed!r}")
     return settings
 
 

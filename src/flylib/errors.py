@@ -41,3 +41,20 @@ def one_line(err: BaseException | str, limit: int = 300) -> str:
     """``err``'s text on one line (whitespace runs collapsed), at most ``limit``
     characters: for quoting a library's message inside a flylib error."""
     return " ".join(str(err).split())[:limit]
+
+
+def did_you_mean(name: object, known: object) -> str:
+    """``"did you mean 'x'? "`` for the entry of ``known`` closest to ``name`` (a likely
+    typo, :func:`difflib.get_close_matches`), else ``""``: the start of a fix hint."""
+    import difflib
+
+    names = [str(k) for k in known]  # type: ignore[union-attr]
+    match = difflib.get_close_matches(str(name), names, n=1, cutoff=0.6)
+    return f"did you mean {match[0]!r}? " if match else ""
+
+
+def unknown_key(kind: str, name: object, known: object) -> str:
+    """The text of an unknown-key problem: ``"unknown parameter; did you mean 'method'?
+    (known: ...)"``, the closest known name first when there is one."""
+    names = [str(k) for k in known]  # type: ignore[union-attr]
+    return f"unknown {kind}; {did_you_mean(name, names)}(known: {', '.join(names)})"

@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 
 from .config.loading import MAX_NESTING, shape_problem, yaml_nesting_line
-from .errors import ConfigError
+from .errors import ConfigError, unknown_key
 
 #: Name of the per-recording sidecar file.
 SIDECAR = "nwb.yaml"
@@ -216,7 +216,7 @@ def _key_problems(table: Mapping, known: Mapping, where: str) -> list[str]:
     problems = []
     for key, value in table.items():
         if key not in known:
-            problems.append(f"{where}.{key}: unknown key (known: {', '.join(known)})")
+            problems.append(f"{where}.{key}: {unknown_key('key', key, known)}")
         elif value is not None:
             why = _value_problem(known[key], value, f"{where}.{key}")
             if why:
@@ -341,10 +341,11 @@ def recording_metadata(
     if check:
         missing = missing_required(metadata)
         if missing:
-            where = f"{sidecar_path}" if sidecar_path is not None else "a --nwb-metadata YAML file"
+            sidecar = f"in {sidecar_path}, " if sidecar_path is not None else ""
             raise ConfigError(
                 f"nwb: recording {recording_dir or '?'} lacks session metadata the NWB export needs: "
-                f"{', '.join(missing)}; set them in the config's nwb table or in {where}"
+                f"{', '.join(missing)}; set them in the config's nwb table, {sidecar}or in a YAML "
+                "file given to flylib export --nwb-metadata FILE"
             )
     return metadata
 

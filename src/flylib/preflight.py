@@ -3,7 +3,7 @@
 :func:`flylib.config.validate_config` checks each key on its own; this module checks
 what needs the whole config or the planned recordings, and would otherwise fail
 minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
-``shared`` references, each recording's 2D-import spec,
+``shared`` references, each recording's 2D-import spec and the files it names,
 the detection plan and its weights (only where the detector runs), the output videos,
 the calibration format, and footage for recordings the detector must read. Every
 problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
@@ -13,7 +13,6 @@ user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
 
 from .errors import FlylibError
@@ -40,7 +39,9 @@ def model_weights(config: Any) -> dict[str, str]:
     return out
 
 
-def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, bool]) -> list[str]:
+def preflight_problems(
+    config: Any, recordings: Iterable[Any], flags: dict[str, bool], *, check_weights: bool = True
+) -> list[str]:
     """Problems the planned run would hit inside a job, found from the config alone.
 
     Parameters
@@ -51,6 +52,9 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
         The planned :class:`flylib.recordings.Recording` objects.
     flags
         ``Config.stage_flags()``.
+    check_weights
+        Check that every detector model's checkpoint is cached or downloadable (may
+        wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
 
     Returns
     -------
@@ -96,7 +100,7 @@ def preflight_problems(config: Any, recordings: Iterable[Any], flags: dict[str, 
             problems.append(_problem(exc))
 
     if flags.get("pose2d", True):
-        problems += _pose2d_problems(config, recordings)
+        problems += _pose2d_problems(config, recordings, check_weights)
 
     if flags.get("visualization", True):
         try:
@@ -114,7 +118,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     layers
         The run's :class:`flylib.config.layers.ConfigLayers`.
     check_frames
-        Compare footage frame counts across cameras while planning.
+        Compare footage frame counts across cameras while planning, and check the
+        detector's checkpoints (off in a cluster job re-reading the config: the run's
+        main process checked both, and a compute node may have no network).
 
     Returns
     -------
@@ -142,7 +148,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     try:
         config = Config(layers.data, text=text, format="yaml")
         recordings = plan_recordings(config, check_frames=check_frames)
-        problems = preflight_problems(config, recordings, config.stage_flags())
+        problems = preflight_problems(
+            config, recordings, config.stage_flags(), check_weights=check_frames
+        )
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
@@ -150,8 +158,10 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     return config, recordings
 
 
-def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
+def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
     from .interop import import_spec
+    from .interop.importer import import_files
+    from .pose2d.published import checkpoint_problem
     from .recordings import find_recording
 
     problems: list[str] = []
@@ -164,11 +174,15 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
         own = rec.extra.get("own_import") and not rec.demo
         where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
         try:
-            import_spec(config, rec.import_spec)
+            spec = import_spec(config, rec.import_spec)
+            if not rec.demo:  # the demo's files are written by its own rule
+                import_files(config, spec, rec.path)
         except FlylibError as exc:
             text = _problem(exc)
+            if not text.startswith("pose2d.import"):
+                text = f"pose2d.import.files: {text}"
             if where:
-                text = text.replace("pose2d.import", where, 1)
+                text = text.replace("pose2d.import", where)
             problems.append(text)
     if not detector:
         return problems
@@ -178,17 +192,12 @@ def _pose2d_problems(config: Any, recordings: list[Any]) -> list[str]:
     except FlylibError as exc:
         return [*problems, _problem(exc)]
     own_weights = (config.data.get("pose2d") or {}).get("weights") or {}
-    for name, path in model_weights(config).items():
-        if name not in plan.models or not path:
-            continue
-        if not Path(path).expanduser().is_file():
-            key = (
-                f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
-            )
-            problems.append(
-                f"{key}: {path} does not exist; point it at the checkpoint file "
-                "(or leave it empty for the published weights)"
-            )
+    used = dict.fromkeys(p.model for p in plan.active_pathways()) if check_weights else {}
+    for name in used:
+        key = f"pose2d.weights.{name}" if name in own_weights else f"pose2d.models.{name}.weights"
+        problem = checkpoint_problem(plan.models[name], key)
+        if problem:
+            problems.append(problem)
     for rec in detector:
         if rec.sources:
             continue

@@ -49,7 +49,13 @@ UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
 # Where each stage's artifact sits beside results.h5, and the stage the artifact
 # names its params after (the candidate peaks are a pose2d output).
-_STAGE_ORDER = ("pose2d", "bundle_adjustment", "pictorial_structures", "triangulation")
+_STAGE_ORDER = (
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "refinement",
+)
 
 
 def params_hash(params: Mapping[str, Any]) -> str:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from .config.sources import source_patterns, view_names, view_sources
-from .errors import ConfigError, FootageError
+from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
 from .io.images import natural_key
 
@@ -40,6 +40,8 @@ DLC_SCORER = "flylibdemo"
 
 _GLOB_CHARS = re.compile(r"[*?\[]")
 _ID_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+#: The keys of a ``recordings`` entry that is a table.
+_ENTRY_KEYS = ("path", "outdir", "import", "demo", "recursive")
 
 
 @dataclass(frozen=True)
@@ -471,11 +473,11 @@ def _normalize_entries(value: Any) -> list[dict]:
             else:
                 entries.append({"path": text, "_where": f"recordings[{i}]"})
         elif isinstance(item, Mapping):
-            unknown = set(item) - {"path", "outdir", "import", "demo", "recursive"}
+            unknown = set(item) - set(_ENTRY_KEYS)
             if unknown:
                 raise ConfigError(
                     f"recordings[{i}]: unknown key(s) {sorted(unknown)}; "
-                    "allowed: path, outdir, import, demo, recursive"
+                    f"{did_you_mean(min(unknown), _ENTRY_KEYS)}allowed: {', '.join(_ENTRY_KEYS)}"
                 )
             if not item.get("demo") and not item.get("path"):
                 raise ConfigError(f"recordings[{i}]: needs 'path' (or demo: true)")

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, unknown_key
 from .paths import DEFAULT_CONFIG_PATH
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -60,7 +60,7 @@ def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
     if not isinstance(spec, Mapping):
         return [f"{path}: expected a mapping, got {type(spec).__name__}"]
     problems = [
-        f"{path}.{key}: unknown key (known: {', '.join(_SKELETON_KEYS)})"
+        f"{path}.{key}: {unknown_key('key', key, _SKELETON_KEYS)}"
         for key in spec
         if key not in _SKELETON_KEYS
     ]

@@ -50,16 +50,25 @@ def _config_layers() -> ConfigLayers:
 # weights, videos, footage for the detector), so nothing that can be known now
 # surfaces later inside a job. Nothing is written or created for an invalid config.
 # A cluster job re-parses the config: the footage frame counts were checked already.
+
+
+def stop_run(message: str) -> None:
+    """End the run before the DAG with ``message`` alone on stderr: a WorkflowError
+    raised here would come wrapped in Snakemake's file, line and traceback lines."""
+    print(message, file=sys.stderr, flush=True)
+    sys.exit(1)
+
+
 try:
     LAYERS = _config_layers()
     CONFIG, RECORDINGS = load_run_config(LAYERS, check_frames=workflow.is_main_process)
 except FlylibError as exc:
-    raise WorkflowError(str(exc)) from None
+    stop_run(str(exc))
 FLAGS = CONFIG.stage_flags()
 VIDEO_NAMES = [video.name for video in CONFIG.videos] if FLAGS["visualization"] else []
 
 if sum(r.demo for r in RECORDINGS) > 1:
-    raise WorkflowError("recordings: more than one {demo: true} entry; list the demo once")
+    stop_run("recordings: more than one {demo: true} entry; list the demo once")
 
 
 def job_config(wildcards, input):

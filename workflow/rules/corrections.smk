@@ -16,7 +16,7 @@ def _find_corrections() -> dict[str, str]:
         try:
             path, named = _corrections_path(CONFIG, rec.outdir, rec.path, rec.id)
         except FlylibError as exc:
-            raise WorkflowError(str(exc)) from None
+            stop_run(str(exc))
         if path.is_file():
             found[str(rec.outdir)] = str(path)
         elif named:

@@ -8,6 +8,7 @@ DEMO = next((r for r in RECORDINGS if r.demo), None)
 DEMO_OUTPUTS: list[str] = []
 DEMO_FOOTAGE: list[str] = []
 DEMO_TRUTH: str | None = None
+DEMO_VIDEO_SPEED: float | None = None
 
 if DEMO is not None:
     try:
@@ -24,10 +25,11 @@ if DEMO is not None:
             sort_keys=True,
         )
     except FlylibError as exc:
-        raise WorkflowError(str(exc)) from None
+        stop_run(str(exc))
     DEMO_OUTPUTS = [str(DEMO.path / name) for names in _demo_names.values() for name in names]
     DEMO_FOOTAGE = [str(DEMO.path / name) for name in _demo_names["footage"]]
     DEMO_TRUTH = str(DEMO.path / _demo_names["truth"][0])
+    DEMO_VIDEO_SPEED = demo_settings(CONFIG)["video_speed"]
 
     rule demo:
         output:

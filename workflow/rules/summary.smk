@@ -2,10 +2,15 @@
 # reprojection error, suspects when counted, where the outputs are), the warnings the
 # jobs logged, and the demo's error against its truth last. Printed on success and on
 # error alike (not for dry runs), at exit, so that it follows Snakemake's own closing
-# lines ("Complete log", "Elapsed time") and is the last thing on screen.
+# lines ("Complete log", "Elapsed time") and is the last thing on screen. A run with
+# nothing to do calls neither hook (Snakemake returns before them): it prints the
+# table of the existing results, after Snakemake's "Nothing to be done".
 
 import atexit
+import logging
 import time
+
+from snakemake.common import NOTHING_TO_BE_DONE_MSG
 
 from flylib.run_summary import RunRecording, run_table
 
@@ -13,9 +18,33 @@ _RUN_START = time.time()
 _RUN_RECORDINGS = [RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r.id not in SKIPPED]
 
 
-def _print_run_table(failed: bool) -> None:
-    text = run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START)
+_TABLE_STATE = {"printed": False, "nothing_to_do": False}
+
+
+def _print_run_table(failed: bool, heading: str = "") -> None:
+    _TABLE_STATE["printed"] = True
+    text = heading + run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START)
     atexit.register(lambda: print("\n" + text, file=sys.stderr, flush=True))
+
+
+class _NothingToDo(logging.Handler):
+    """Notes Snakemake's "Nothing to be done" (logged by a real run and a dry run alike)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.getMessage() == NOTHING_TO_BE_DONE_MSG:
+            _TABLE_STATE["nothing_to_do"] = True
+
+
+def _table_after_nothing_to_do() -> None:
+    if _TABLE_STATE["printed"] or not _TABLE_STATE["nothing_to_do"] or workflow.dryrun:
+        return
+    text = run_table(_RUN_RECORDINGS)
+    print("\nflylib: nothing to do; the existing results:\n" + text, file=sys.stderr, flush=True)
+
+
+if workflow.is_main_process:
+    logging.getLogger("snakemake.logging").addHandler(_NothingToDo(logging.INFO))
+    atexit.register(_table_after_nothing_to_do)
 
 
 onsuccess:

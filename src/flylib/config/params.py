@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from ..errors import unknown_key
 from .checks import (
     Check,
     _boolean,
@@ -266,8 +267,9 @@ def _table_problems(
             if why:
                 problems.append(f"{path}.{key}: {why}")
         elif key not in extra_known:
-            known = ", ".join([*checks, *extra_known])
-            problems.append(f"{path}.{key}: unknown parameter (known: {known})")
+            problems.append(
+                f"{path}.{key}: {unknown_key('parameter', key, [*checks, *extra_known])}"
+            )
     return problems
 
 

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ..errors import unknown_key
 from .checks import (
     _boolean,
     _choice,
@@ -111,7 +112,7 @@ def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[st
     known = ("angles", "segments", "tethered", "body_frame")
     for key in table:
         if key not in known:
-            problems.append(f"kinematics.{key}: unknown parameter (known: {', '.join(known)})")
+            problems.append(f"kinematics.{key}: {unknown_key('parameter', key, known)}")
     problems += _triples_problems(table.get("angles"), "kinematics.angles", point_names)
     problems += _triples_problems(table.get("segments"), "kinematics.segments", point_names)
     if "tethered" in table and _boolean(table["tethered"]):
@@ -126,7 +127,7 @@ def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[st
             for key, value in frame.items():
                 where = f"kinematics.body_frame.{key}"
                 if key not in BODY_FRAME_KEYS:
-                    problems.append(f"{where}: unknown key (known: {', '.join(BODY_FRAME_KEYS)})")
+                    problems.append(f"{where}: {unknown_key('key', key, BODY_FRAME_KEYS)}")
                 elif _string_list()(value) or not value:
                     problems.append(
                         f"{where}: expected a non-empty list of point names, {_got(value)}"

@@ -95,5 +95,8 @@ def source_patterns(config: Any) -> dict[str, str]:
             raise ConfigError(f"sources[{i}]: needs a string 'name' (got {entry!r})")
         out[name] = str(entry.get("filename", name))
     if not out:
-        raise ConfigError("sources: the config lists no footage sources; add [[sources]] entries")
+        raise ConfigError(
+            "sources: the config lists no footage sources; add a sources: list to the YAML config "
+            "(entries such as {name: vid_rh, filename: camera_0.mp4}, as in config/config.yaml)"
+        )
     return out

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
 
+from ..errors import did_you_mean, unknown_key
 from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
@@ -204,7 +205,7 @@ def validate_config(data: Any) -> list[str]:
     if not isinstance(data, Mapping):
         return [f"<top level>: expected a mapping of tables, {_got(data)}"]
     problems = [
-        f"{key}: unknown top-level table (known: {', '.join(TOP_LEVEL_KEYS)})"
+        f"{key}: {unknown_key('top-level table', key, TOP_LEVEL_KEYS)}"
         for key in data
         if key not in TOP_LEVEL_KEYS
     ]
@@ -272,9 +273,7 @@ def validate_config(data: Any) -> list[str]:
     pipeline_checks = {f"do_{stage}": _boolean for stage in STAGES}
     for key, value in table("pipeline").items():
         if key not in pipeline_checks:
-            problems.append(
-                f"pipeline.{key}: unknown parameter (known: {', '.join(pipeline_checks)})"
-            )
+            problems.append(f"pipeline.{key}: {unknown_key('parameter', key, pipeline_checks)}")
         elif pipeline_checks[key](value):
             problems.append(f"pipeline.{key}: {pipeline_checks[key](value)}")
 
@@ -294,7 +293,8 @@ def validate_config(data: Any) -> list[str]:
             continue
         if key not in ls_keys:
             problems.append(
-                f"{where}: unknown parameter (known: {', '.join(ba_fields)}, or a"
+                f"{where}: unknown parameter; {did_you_mean(key, [*ba_fields, *ls_keys])}"
+                f"(known: {', '.join(ba_fields)}, or a"
                 f" scipy.optimize.least_squares option: {', '.join(ls_keys)})"
             )
         elif key in _LEAST_SQUARES_CHECKS and _LEAST_SQUARES_CHECKS[key](value):

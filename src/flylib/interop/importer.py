@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ImportFormatError
+from ..errors import ImportFormatError, did_you_mean
 from ..recordings import source_patterns
 from . import views as _views
 from ._h5 import read_budget
@@ -122,6 +122,7 @@ def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
     if not matches:
         raise ImportFormatError(
             f"{recording_dir}: no file matches {pattern!r} for {what}; "
+            f"{_closest_file(recording_dir, pattern)}"
             "set pose2d.import.files to the file's path relative to the recording directory"
         )
     if len(matches) > 1:
@@ -130,6 +131,57 @@ def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
             f"({', '.join(m.name for m in matches[:4])}); make pose2d.import.files select one"
         )
     return matches[0]
+
+
+def _closest_file(recording_dir: Path, pattern: str) -> str:
+    """``"did you mean 'x'? "`` for the existing file named most like ``pattern`` (in the
+    directory the pattern points into), else ``""``."""
+    folder = (recording_dir / pattern).parent
+    try:
+        names = [p.relative_to(recording_dir).as_posix() for p in folder.iterdir() if p.is_file()]
+    except (OSError, ValueError):
+        return ""
+    return did_you_mean(pattern, names)
+
+
+def import_files(config, spec: dict, recording_dir: str | Path) -> dict[str, Path | None]:
+    """The file each view's 2D is read from (``None``: a view mapped to nothing), found
+    as the import will find them, without reading them: what validation checks.
+
+    Parameters
+    ----------
+    config
+        The run's config (views, sources).
+    spec
+        A validated import spec (:func:`import_spec`).
+    recording_dir
+        The recording directory the ``files`` patterns are relative to.
+
+    Raises
+    ------
+    ImportFormatError
+        One line naming the pattern that matches no file (with the closest existing
+        file name) or several.
+    """
+    recording_dir = Path(recording_dir)
+    views = _views.view_names(config)
+    if spec["format"] == "deepfly3d":
+        path = _glob_one(
+            recording_dir, _df3d_pattern(spec, recording_dir), "the DeepFly3D 2D pickle"
+        )
+        return dict.fromkeys(views, path)
+    return _view_files(spec, config, recording_dir, views)
+
+
+def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
+    """The DeepFly3D pickle pattern: ``files``, else the default in the recording
+    directory or its ``df3d/`` folder."""
+    pattern = spec.get("files")
+    if pattern is None:
+        pattern = "df3d_result*.pkl"
+        if not list(recording_dir.glob(pattern)) and list(recording_dir.glob("df3d/" + pattern)):
+            pattern = "df3d/" + pattern
+    return str(pattern)
 
 
 def _view_files(
@@ -223,12 +275,7 @@ def _check_frames(
 
 
 def _import_deepfly3d(spec, config, recording_dir, views, points):
-    pattern = spec.get("files")
-    if pattern is None:
-        pattern = "df3d_result*.pkl"
-        if not list(recording_dir.glob(pattern)) and list(recording_dir.glob("df3d/" + pattern)):
-            pattern = "df3d/" + pattern
-    path = _glob_one(recording_dir, str(pattern), "the DeepFly3D 2D pickle")
+    path = _glob_one(recording_dir, _df3d_pattern(spec, recording_dir), "the DeepFly3D 2D pickle")
     pickle_views = spec.get("views") or views
     known = set(views)
     bad = [v for v in pickle_views if v is not None and v not in known]

@@ -87,8 +87,22 @@ def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered
 def angles_figure(
     kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90
 ) -> Path:
+    """Write angles.png: :func:`angles_plot` saved atomically to ``path``."""
+    fig = angles_plot(kin, fps=fps, dpi=dpi)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
+
+
+def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
-    solid, segment yaw/pitch/roll dashed."""
+    solid, segment yaw/pitch/roll dashed, one colour per angle kind named in a legend
+    beside the panels.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     from matplotlib.figure import Figure
 
     groups: dict[str, list[int]] = {}
@@ -102,22 +116,29 @@ def angles_figure(
     xlabel = "frame"
     if fps:
         t, xlabel = t / fps, "time (s)"
+    # one colour per angle kind (femur_tibia_flex, coxa_yaw, ...) in every panel, named
+    # once in a legend beside the panels: a legend inside a panel covered its traces
+    kinds = list(
+        dict.fromkeys(kin.angle_names[k][len(leg) + 1 :] for leg, cs in groups.items() for k in cs)
+    )
+    colors = {kind: f"C{j % 10}" for j, kind in enumerate(kinds)}
+    handles = {}
     for i, (leg, columns) in enumerate(sorted(groups.items())):
         ax = fig.add_subplot(rows, cols, i + 1)
         for k in columns:
-            name = kin.angle_names[k]
-            style = "-" if name.endswith("_flex") else "--"
-            ax.plot(t, kin.angles[:, k], style, lw=1.2, label=name[len(leg) + 1 :])
+            kind = kin.angle_names[k][len(leg) + 1 :]
+            style = "-" if kind.endswith("flex") else "--"
+            (line,) = ax.plot(t, kin.angles[:, k], style, lw=1.2, color=colors[kind], label=kind)
+            handles.setdefault(kind, line)
         ax.set_title(leg)
         ax.set_xlabel(xlabel)
         ax.set_ylabel("degrees")
-        ax.legend(fontsize=7, ncol=2, loc="upper right")
+    if handles:
+        fig.legend([handles[kind] for kind in kinds], kinds, loc="outside right upper", fontsize=8)
     if not groups:
         fig.add_subplot(1, 1, 1).text(0.5, 0.5, "no angles configured", ha="center")
     fig.suptitle("joint angles (kinematics)")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return Path(path)
+    return fig
 
 
 def run_kinematics(config, results_path: str | Path, outdir: str | Path) -> dict:

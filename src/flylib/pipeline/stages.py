@@ -594,9 +594,11 @@ def run_visualization(
     outdir: str | Path,
     *,
     progress: bool = False,
+    speed: float | None = None,
 ) -> list[Path]:
     """Render the configured videos of one recording into ``outdir`` (points a person
-    corrected, ``triangulation/corrected`` in results.h5, are ringed)."""
+    corrected, ``triangulation/corrected`` in results.h5, are ringed; ``speed``: a
+    multiple of the recording's rate when the config sets none, the demo's slow motion)."""
     from ..corrections import read_corrected
     from ..interop.views import footage_files
     from ..results import PoseResult
@@ -606,5 +608,11 @@ def run_visualization(
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir))
     return render_videos(
-        config, result, footage, outdir, progress=progress, corrected=read_corrected(results_path)
+        config,
+        result,
+        footage,
+        outdir,
+        progress=progress,
+        corrected=read_corrected(results_path),
+        speed=speed,
     )

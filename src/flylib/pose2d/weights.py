@@ -32,22 +32,11 @@ from pathlib import Path
 import torch
 
 from ..errors import WeightsError
-from ..paths import cache_dir
 from .model import HourglassNet
+from .published import PUBLISHED_WEIGHTS, cached_checkpoint, download_url
 
 log = logging.getLogger(__name__)
 
-#: The published DeepFly2D ``sh8`` checkpoint (the DeepFly2D project's download link).
-#: ``sha256`` stays ``None`` until a hash can be pinned from an authoritative source
-#: (neither DeepFly2D/DeepFly3D's sources nor the spec give one); meanwhile the first
-#: download's hash is recorded beside the file (:func:`recorded_sha256_path`).
-PUBLISHED_WEIGHTS = {
-    "hourglass": {
-        "url": "https://www.dropbox.com/s/csgon8uojr3gdd9/sh8_front_j8.tar?dl=1",
-        "filename": "sh8_deepfly.tar",
-        "sha256": None,
-    }
-}
 _PREFIXES = ("module.", "model.")
 _STACK_KEY = re.compile(r"^hg\.(\d+)\.")
 _RES_KEY = re.compile(r"^res\.0\.(\d+)\.")
@@ -199,13 +188,9 @@ def resolve_weights(
             )
         _verify(path, sha256, f"model {model_name!r}")
         return path
-    published = PUBLISHED_WEIGHTS.get(model_class, {})
-    url = url or published.get("url")
-    sha256 = sha256 or published.get("sha256")
-    filename = published.get("filename") or (
-        Path(url.split("?")[0]).name if url else f"{model_name}.tar"
-    )
-    path = cache_dir() / filename
+    path = cached_checkpoint(model_name, model_class, url)
+    url = download_url(model_class, url)
+    sha256 = sha256 or PUBLISHED_WEIGHTS.get(model_class, {}).get("sha256")
     what = f"model {model_name!r}"
     if path.is_file():
         if sha256:

@@ -29,13 +29,21 @@ from ..paths import atomic_path
 from ..resources import usable_cpus
 from .draw import (
     color_tuples,
+    draw_label,
     draw_rings,
     draw_skeleton_2d,
     draw_skeleton_3d,
     skeleton_colors,
     to_panel_coords,
 )
-from .specs import PanelSpec, VideoSpec, read_video_specs, resolve_output_fps, visualization_table
+from .specs import (
+    PLAUSIBLE_FPS,
+    PanelSpec,
+    VideoSpec,
+    read_video_specs,
+    resolve_output_fps,
+    visualization_table,
+)
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +111,11 @@ class Compositor:
         self.panels = [
             _Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background) for p in spec.panels
         ]
+        # one view name per panel area (an imshow panel and the skeleton drawn over it
+        # share one), written last so that nothing covers it
+        self.labelled = list(
+            {(p.slices[0].start, p.slices[1].start): p for p in self.panels}.values()
+        )
 
     def compose(
         self,
@@ -111,6 +124,7 @@ class Compositor:
         points3d: Mapping[str, tuple[np.ndarray, np.ndarray]],
         resized: dict | None = None,
         corrected: np.ndarray | None = None,
+        stamp: str | None = None,
     ) -> np.ndarray:
         """Draw one output frame.
 
@@ -131,6 +145,9 @@ class Compositor:
         corrected
             ``(P,)`` bool: points a person corrected (``flylib gui``), ringed in the
             skeleton panels; ``None``: none.
+        stamp
+            The frame number and time, written in the canvas's lower-left corner when
+            the spec has ``labels`` on.
 
         Returns
         -------
@@ -188,7 +205,19 @@ class Compositor:
                 )
             if corrected is not None and corrected.any():
                 draw_rings(region, xy, corrected, spec.point_radius)
+        if self.spec.labels:
+            for panel in self.labelled:
+                draw_label(canvas[panel.slices], panel.spec.view)
+            if stamp:
+                draw_label(canvas, stamp, "bottom-left")
         return canvas
+
+
+def frame_stamp(t: int, n_frames: int, fps: float | None) -> str:
+    """``"frame 12 / 59   0.120 s"``: a frame's index (from 0, as in results.h5 and
+    the CSV exports) and, when the recording's rate is known, its time."""
+    text = f"frame {t} / {n_frames - 1}"
+    return f"{text}   {t / fps:.3f} s" if fps else text
 
 
 def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -457,6 +486,7 @@ def render_videos(
     *,
     progress: bool = True,
     corrected: np.ndarray | None = None,
+    speed: float | None = None,
 ) -> list[Path]:
     """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
 
@@ -482,6 +512,9 @@ def render_videos(
     corrected
         ``(T, P)`` bool: points a person corrected, drawn with a ring (see
         :mod:`flylib.corrections`); ``None``: no rings.
+    speed
+        Play the videos at this multiple of the recording's rate when the config sets
+        no rate (the workflow's slow motion for the demo).
 
     Returns
     -------
@@ -550,9 +583,13 @@ def render_videos(
         if input_fps is None:
             input_fps = (getattr(result, "meta", None) or {}).get("fps")
         compositors = [Compositor(spec, result.skeleton, image_sizes) for spec in specs]
+        # the stamp's time: the footage's own rate when plausible (not a container's 0.2 fps)
+        recording_fps = (
+            input_fps if input_fps and PLAUSIBLE_FPS[0] <= input_fps <= PLAUSIBLE_FPS[1] else None
+        )
         writers = []
         for spec, comp, path in zip(specs, compositors, paths):
-            fps = resolve_output_fps(spec, table, input_fps)
+            fps = resolve_output_fps(spec, table, input_fps, speed)
             tmp = stack.enter_context(atomic_path(path))
             writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
             stack.callback(writer.close)
@@ -584,6 +621,7 @@ def render_videos(
             points2d = {v: pts2d[i, t] for v, i in index.items()}
             points3d = reprojector.at(t) if reprojector else {}
             resized: dict = {}
+            stamp = frame_stamp(t, n_frames, recording_fps)
             for comp, writer in zip(compositors, writers):
                 writer.write_frame(
                     comp.compose(
@@ -592,6 +630,7 @@ def render_videos(
                         points3d,
                         resized,
                         None if corrected is None else corrected[t],
+                        stamp,
                     )
                 )
             if bar is not None:

@@ -219,3 +219,31 @@ def to_panel_coords(
     out[..., 0] = (xy[..., 0] + 0.5) * sx - 0.5
     out[..., 1] = (xy[..., 1] + 0.5) * sy - 0.5
     return out
+
+
+#: Text of view names and the frame stamp: OpenCV's plain sans-serif, light on a dark
+#: outline so that it reads over bright and dark footage alike.
+LABEL_FONT = cv2.FONT_HERSHEY_SIMPLEX
+LABEL_SCALE = 0.5
+LABEL_MARGIN = 6
+
+
+def draw_label(image: np.ndarray, text: str, corner: str = "top-left") -> None:
+    """Write ``text`` in a corner of ``image`` (in place), white on a black outline.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` uint8 (a panel's region of the canvas).
+    text
+        One line of ASCII text.
+    corner
+        ``"top-left"`` or ``"bottom-left"``.
+    """
+    (width, height), baseline = cv2.getTextSize(text, LABEL_FONT, LABEL_SCALE, 1)
+    x = LABEL_MARGIN
+    y = LABEL_MARGIN + height if corner == "top-left" else image.shape[0] - LABEL_MARGIN - baseline
+    for color, thickness in (((0, 0, 0), 3), ((255, 255, 255), 1)):
+        cv2.putText(
+            image, text, (x, y), LABEL_FONT, LABEL_SCALE, color, thickness, lineType=cv2.LINE_AA
+        )

@@ -19,10 +19,10 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, did_you_mean
 
 PLOTS = ("imshow", "skeleton_2d", "skeleton_3d")
 
@@ -42,7 +42,7 @@ DEFAULT_FPS = 30.0
 #: Container frame rates outside this range are treated as metadata errors.
 PLAUSIBLE_FPS = (1.0, 10_000.0)
 
-_TOP_KEYS = {"background", "kwargs", "videos", "output_fps", "speed", "default_fps"}
+_TOP_KEYS = {"background", "kwargs", "videos", "output_fps", "speed", "default_fps", "labels"}
 _VIDEO_KEYS = {
     "video_name",
     "name",
@@ -174,6 +174,9 @@ class VideoSpec:
         (``None`` both: the recording's own rate).
     where
         The config key of this video, for error messages.
+    labels
+        Write each panel's view name in its corner and the frame number and time in
+        the canvas's lower-left corner (``visualization.labels``, default on).
     """
 
     name: str
@@ -184,6 +187,7 @@ class VideoSpec:
     output_fps: float | None = None
     speed: float | None = None
     where: str = "video"
+    labels: bool = True
 
     @property
     def views(self) -> list[str]:
@@ -263,7 +267,7 @@ def _split_kwargs(table: Any, where: str) -> tuple[dict, dict[str, dict]]:
 def _check_draw_key(key: str, where: str) -> None:
     if key not in DEFAULT_DRAW_KWARGS:
         raise ConfigError(
-            f"{where}: unknown key {key!r}; plot names are {', '.join(PLOTS)} and draw "
+            f"{where}: unknown key {key!r}; {did_you_mean(key, [*PLOTS, *DEFAULT_DRAW_KWARGS])}plot names are {', '.join(PLOTS)} and draw "
             f"kwargs are {', '.join(DEFAULT_DRAW_KWARGS)}"
         )
 
@@ -348,8 +352,13 @@ def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> li
         view_names = _rig_views(data)
     for key in table:
         if key not in _TOP_KEYS:
-            raise ConfigError(f"visualization: unknown key {key!r}; known: {sorted(_TOP_KEYS)}")
+            raise ConfigError(
+                f"visualization: unknown key {key!r}; {did_you_mean(key, _TOP_KEYS)}known: {sorted(_TOP_KEYS)}"
+            )
     background = parse_color(table.get("background", "black"), "visualization.background")
+    labels = table.get("labels", True)
+    if not isinstance(labels, bool):
+        raise ConfigError(f"visualization.labels: expected true or false, got {labels!r}")
     global_flat, global_plot = _split_kwargs(table.get("kwargs"), "visualization.kwargs")
     default_fps(table)  # validate early
     _rate(table, "visualization")
@@ -362,6 +371,7 @@ def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> li
         spec = _read_video(
             video, f"visualization.videos[{i}]", background, global_flat, global_plot, view_names
         )
+        spec = replace(spec, labels=labels)
         if spec.name in seen:
             raise ConfigError(
                 f"{spec.where}: video_name {spec.name!r} is used twice; "
@@ -384,7 +394,9 @@ def _read_video(
         raise ConfigError(f"{where} must be a table with video_name and panels")
     for key in video:
         if key not in _VIDEO_KEYS:
-            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_VIDEO_KEYS)}")
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; {did_you_mean(key, _VIDEO_KEYS)}known: {sorted(_VIDEO_KEYS)}"
+            )
     name = video.get("video_name", video.get("name"))
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
@@ -430,7 +442,9 @@ def _read_panel(
         raise ConfigError(f"{where} must be a table {{plot, view, x0, y0, ...}}")
     for key in raw:
         if key not in _PANEL_KEYS:
-            raise ConfigError(f"{where}: unknown key {key!r}; known: {sorted(_PANEL_KEYS)}")
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; {did_you_mean(key, _PANEL_KEYS)}known: {sorted(_PANEL_KEYS)}"
+            )
     plot = raw.get("plot")
     if plot not in PLOTS:
         raise ConfigError(f"{where}.plot: unknown plot {plot!r}; use one of {', '.join(PLOTS)}")
@@ -501,11 +515,13 @@ def default_fps(table: Mapping) -> float:
     )
 
 
-def resolve_output_fps(video: VideoSpec, table: Mapping, input_fps: float | None) -> float:
+def resolve_output_fps(
+    video: VideoSpec, table: Mapping, input_fps: float | None, speed: float | None = None
+) -> float:
     """The frame rate to encode ``video`` at.
 
-    Precedence: the video's ``output_fps``/``speed``, then the global ones, then the
-    recording's own rate. ``speed`` multiplies the input rate. An input rate outside
+    Precedence: the video's ``output_fps``/``speed``, then the global ones, then
+    ``speed`` (the workflow's slow motion for the demo), then the recording's own rate. ``speed`` multiplies the input rate. An input rate outside
     :data:`PLAUSIBLE_FPS` (the DeepFly3D sample's container says 0.2 fps) or unknown is
     replaced by ``visualization.default_fps`` with a warning.
 
@@ -518,10 +534,15 @@ def resolve_output_fps(video: VideoSpec, table: Mapping, input_fps: float | None
         ``default_fps``).
     input_fps
         The footage's frame rate from its container, or ``None`` when unknown.
+    speed
+        A multiple of the input rate used when the config sets no rate.
     """
+    default_speed = speed
     fps, speed = video.output_fps, video.speed
     if fps is None and speed is None:
         fps, speed = _rate(table, "visualization")
+    if fps is None and speed is None:
+        speed = default_speed
     if fps is not None:
         return fps
     base = input_fps

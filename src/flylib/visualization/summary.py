@@ -106,24 +106,41 @@ def _error_per_view(ax, error, names) -> None:
     missing = [n for n, e in zip(names, per_view) if not e.size]
     if missing:
         ax.set_title(f"Reprojection error per view ({', '.join(missing)}: none, left out)")
+    # each view's median under its name, not beside its box (where it overlapped
+    # the next box and the outliers)
     ax.boxplot(
         [e for _, e in shown],
-        tick_labels=[n for n, _ in shown],
+        tick_labels=[f"{n}\n{np.median(e):.2f} px" for n, e in shown],
         showfliers=True,
         flierprops={"markersize": 2, "alpha": 0.3},
     )
-    for k, (_, e) in enumerate(shown, start=1):
-        ax.annotate(
-            f"{np.median(e):.1f}",
-            (k, np.median(e)),
-            xytext=(12, 0),
-            textcoords="offset points",
-            fontsize=8,
-            va="center",
-        )
-    ax.set_yscale("symlog", linthresh=1.0)
-    ax.set_ylabel("pixels")
-    ax.set_xlabel("view")
+    ax.set_yscale("symlog", linthresh=1.0, linscale=1.0)
+    top = max(float(e.max()) for _, e in shown)
+    ax.set_yticks(error_ticks(top))
+    ax.yaxis.set_major_formatter("{x:g}")
+    ax.yaxis.set_minor_locator(_no_ticks())
+    ax.set_ylim(0, top * 1.15 if top > 0 else 1)
+    ax.grid(axis="y", color="0.9", lw=0.6)
+    ax.set_axisbelow(True)
+    ax.set_ylabel("pixels (linear below 1, log above)")
+    ax.set_xlabel("view, median error")
+
+
+def error_ticks(top: float) -> list[float]:
+    """Tick values for a pixel-error axis that is linear from 0 to 1 and logarithmic
+    above: ``0, 0.25, 0.5, 0.75, 1``, then ``2, 5, 10, 20, 50, ...`` up to ``top``."""
+    ticks = [0.0, 0.25, 0.5, 0.75, 1.0]
+    decade = 1.0
+    while decade * 2 <= top * 1.15:
+        ticks += [v for v in (2 * decade, 5 * decade, 10 * decade) if v <= top * 1.15]
+        decade *= 10
+    return ticks
+
+
+def _no_ticks():
+    from matplotlib.ticker import NullLocator
+
+    return NullLocator()
 
 
 def _coverage(ax, pts2d, pts3d, skeleton, colors) -> None:

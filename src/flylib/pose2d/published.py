@@ -1,0 +1,137 @@
+"""Where a detector model's checkpoint comes from, told without torch: the published
+checkpoints, the per-user cache file each lands in, and whether a model's checkpoint
+is present or can be downloaded (what validation checks before any job runs).
+
+The loader (:mod:`flylib.pose2d.weights`) uses the same table and cache names.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import urllib.parse
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+from ..paths import cache_dir
+
+#: The published DeepFly2D ``sh8`` checkpoint (the DeepFly2D project's download link).
+#: ``sha256`` stays ``None`` until a hash can be pinned from an authoritative source
+#: (neither DeepFly2D/DeepFly3D's sources nor the spec give one); meanwhile the first
+#: download's hash is recorded beside the file (``weights.recorded_sha256_path``).
+PUBLISHED_WEIGHTS = {
+    "hourglass": {
+        "url": "https://www.dropbox.com/s/csgon8uojr3gdd9/sh8_front_j8.tar?dl=1",
+        "filename": "sh8_deepfly.tar",
+        "sha256": None,
+    }
+}
+
+#: Seconds validation waits for the weights host before it calls the checkpoint
+#: not downloadable (name lookup and connection together).
+PROBE_TIMEOUT_S = 3.0
+
+
+def cached_checkpoint(model_name: str, model_class: str, url: str | None = None) -> Path:
+    """The cache file a model without a local ``weights`` path loads (and downloads to).
+
+    Parameters
+    ----------
+    model_name
+        The model's name in the config (names the file when nothing else does).
+    model_class
+        The model class, which selects the published checkpoint.
+    url
+        The model's own download address, when it overrides the published one.
+    """
+    filename = PUBLISHED_WEIGHTS.get(model_class, {}).get("filename") or (
+        Path(url.split("?")[0]).name if url else f"{model_name}.tar"
+    )
+    return cache_dir() / filename
+
+
+def download_url(model_class: str, url: str | None = None) -> str | None:
+    """The address a model's checkpoint downloads from: its own ``url``, else the published one."""
+    return url or PUBLISHED_WEIGHTS.get(model_class, {}).get("url")
+
+
+def host_reachable(url: str, timeout: float = PROBE_TIMEOUT_S) -> tuple[bool, str]:
+    """Whether a TCP connection to ``url``'s host opens within ``timeout`` seconds (for a
+    ``file:`` URL: whether the file exists).
+
+    The name lookup has no timeout of its own, so both run on a daemon thread that
+    is abandoned when the time is up: an offline machine answers in ``timeout``.
+
+    Returns
+    -------
+    reachable, why
+        ``why`` says what failed (empty when reachable).
+    """
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme == "file":
+        path = Path(urllib.request.url2pathname(parts.path))
+        return (True, "") if path.is_file() else (False, f"{path} does not exist")
+    if not parts.hostname:
+        return False, f"{url!r} names no host"
+    port = parts.port or (443 if parts.scheme == "https" else 80)
+    outcome: list[str] = []
+
+    def probe() -> None:
+        try:
+            with socket.create_connection((parts.hostname, port), timeout=timeout):
+                outcome.append("")
+        except OSError as exc:
+            outcome.append(" ".join(str(exc).split()) or type(exc).__name__)
+
+    thread = threading.Thread(target=probe, daemon=True, name="flylib-weights-probe")
+    thread.start()
+    thread.join(timeout)
+    if not outcome:
+        return False, f"no answer from {parts.hostname} within {timeout:g} s"
+    return not outcome[0], outcome[0]
+
+
+def checkpoint_problem(spec: Any, key: str, timeout: float = PROBE_TIMEOUT_S) -> str | None:
+    """Why a model's checkpoint will not be there when the detector starts, else ``None``.
+
+    Parameters
+    ----------
+    spec
+        The model's :class:`flylib.pose2d.plan.ModelSpec` (``name``, ``model_class``,
+        ``weights``, ``url``).
+    key
+        The config key that sets its weights, for the message.
+    timeout
+        Seconds to wait for the download host.
+
+    Returns
+    -------
+    str or None
+        One ``"<key>: <what is wrong; where to put the file>"`` line.
+    """
+    if spec.weights:
+        path = Path(spec.weights).expanduser()
+        if path.is_file():
+            return None
+        return (
+            f"{key}: {spec.weights} does not exist; point it at the checkpoint file "
+            "(or leave it empty for the published weights)"
+        )
+    cached = cached_checkpoint(spec.name, spec.model_class, spec.url)
+    if cached.is_file():
+        return None
+    url = download_url(spec.model_class, spec.url)
+    if not url:
+        return (
+            f"{key}: model {spec.name!r} has no weights and class {spec.model_class!r} no "
+            f"published checkpoint; set pose2d.weights: {{{spec.name}: /path/to/checkpoint.tar}}"
+        )
+    reachable, why = host_reachable(url, timeout)
+    if reachable:
+        return None
+    return (
+        f"{key}: model {spec.name!r} needs its checkpoint, which is not in the cache ({cached}) "
+        f"and cannot be downloaded now ({why}); download {url} on a machine with network "
+        f"and put it at {cached}, or set pose2d.weights: {{{spec.name}: /path/to/the/file}}"
+    )
