@@ -60,9 +60,14 @@ if ! .venv/bin/python -c "import torch" 2>/dev/null; then
 fi
 
 if ! .venv/bin/python -c "import flylib, snakemake, jax, av, pytest" 2>/dev/null \
-   || [ pyproject.toml -nt .venv/.flylib-installed ]; then
+   || [ pyproject.toml -nt .venv/.flylib-installed ] || [ envs/flylib.yaml -nt .venv/.flylib-installed ]; then
   echo "install.sh: installing flylib and its dependencies into .venv"
-  "${pip[@]}" install -e ".[test]"
+  # the dependencies at the versions the tests ran with (envs/flylib.yaml's pins; torch is
+  # chosen above), so a new upstream release cannot change what a fresh install gets
+  constraints=$(mktemp)
+  sed -n 's/^ *- \([A-Za-z0-9_.-]*==[^ ]*\)$/\1/p' envs/flylib.yaml | grep -v '^torch==' >"$constraints"
+  "${pip[@]}" install -c "$constraints" -e ".[test]"
+  rm -f "$constraints"
   touch .venv/.flylib-installed
 fi
 echo "install.sh: ready ($(.venv/bin/python -c 'import flylib, torch, jax; print(f"flylib {flylib.__version__}, torch {torch.__version__}, jax {jax.__version__}")'))"
