@@ -7,11 +7,17 @@ similarity serves every frame, and a recording whose thorax-coxa points do move 
 refused. A fly's leg proportions differ from the model's, and the chains' lengths are
 the model's: as in SeqIKPy's ``AlignPose``, each leg is translated so that its
 thorax-coxa joint sits on the model's and scaled so that its median length (the sum
-of its four segments) is the model's.
+of its four segments) is the model's; the inverse kinematics then fits chains of the
+fly's own segment lengths (SeqIKPy's ``body_size``), so that the angles, not the
+proportions, carry the fit.
+
+The six thorax-coxa points are nearly coplanar, so which side of them is ventral comes
+from the legs: coordinates in which the legs hang dorsally are mirrored first.
 """
 
 from __future__ import annotations
 
+import logging
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -21,12 +27,15 @@ import numpy as np
 
 from ..alignment import similarity_transform
 from ..errors import ConfigError, ResultsError
-from .model import LEGS, leg_lengths, thorax_coxa_template
+from .model import LEGS, leg_lengths, segment_offsets, thorax_coxa_template
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..skeleton import Skeleton
+
+logger = logging.getLogger(__name__)
+_MIRROR = np.array([1.0, 1.0, -1.0])
 
 
 @dataclass
@@ -39,6 +48,12 @@ class TemplateAlignment:
         The similarity ``x -> scale * rotation @ x + translation`` (recording -> model mm).
     leg_scale
         ``(6,)`` each leg's extra scale about its thorax-coxa joint (NaN: too few points).
+    mirrored
+        Whether the recording's coordinates were mirrored first (its legs hung on the
+        dorsal side: a left-handed frame, or left and right swapped).
+    segment_scale
+        ``(6, 4)`` each aligned segment's median length over the model's: the fly's
+        own proportions, which the inverse kinematics' chains take (as SeqIKPy's).
     thorax_motion
         The thorax-coxa points' motion over the recording: the 95th percentile of their
         distance from their median position, in model leg lengths.
@@ -48,7 +63,9 @@ class TemplateAlignment:
     rotation: Float[np.ndarray, "3 3"]
     translation: Float[np.ndarray, " 3"]
     leg_scale: Float[np.ndarray, " 6"]
+    segment_scale: Float[np.ndarray, "6 4"]
     thorax_motion: float
+    mirrored: bool = False
 
 
 def leg_point_indices(skeleton: Skeleton) -> np.ndarray:
@@ -65,7 +82,7 @@ def leg_point_indices(skeleton: Skeleton) -> np.ndarray:
     rows = []
     for leg in LEGS:
         limb = f"{leg.lower()}_leg"
-        chain = skeleton.limb_points.get(limb)
+        chain = skeleton.limbs.get(limb)
         if chain is None or len(chain) != 5:
             raise ConfigError(
                 f"skeleton.limb_points.{limb}: NeuroMechFly needs each leg as five points "
@@ -115,9 +132,22 @@ def align_to_template(
             f"{source}: too few thorax-coxa points to align to NeuroMechFly ({missing} never "
             "reconstructed; at least four of six are needed)"
         )
+    mirrored = _legs_point_dorsal(legs3d, centre)
+    if mirrored:
+        logger.warning(
+            "%s: the legs hang on the dorsal side of the thorax-coxa points in these "
+            "coordinates (a left-handed frame, or left and right swapped): mirrored "
+            "before the NeuroMechFly alignment",
+            source,
+        )
+        legs3d = legs3d * _MIRROR
+        centre = centre * _MIRROR
+        thc = legs3d[:, :, 0]
     fitted = similarity_transform(centre[seen], thorax_coxa_template()[seen])
     if fitted is None:
-        raise ResultsError(f"{source}: the thorax-coxa points coincide; cannot align to NeuroMechFly")
+        raise ResultsError(
+            f"{source}: the thorax-coxa points coincide; cannot align to NeuroMechFly"
+        )
     scale, rotation, translation = fitted
     mean_leg = float(leg_lengths().mean())
     with _quiet_nan_warnings():
@@ -138,13 +168,32 @@ def align_to_template(
     aligned = (moved - moved_centre[None, :, None]) * leg_scale[None, :, None, None] + roots[
         None, :, None
     ]
+    with _quiet_nan_warnings():
+        lengths = np.nanmedian(np.linalg.norm(np.diff(aligned, axis=2), axis=-1), axis=0)
+    segment_scale = lengths / np.linalg.norm(segment_offsets(), axis=-1)
     return aligned, TemplateAlignment(
         scale=float(scale),
         rotation=rotation,
         translation=translation,
         leg_scale=leg_scale,
+        segment_scale=segment_scale,
         thorax_motion=thorax_motion,
+        mirrored=mirrored,
     )
+
+
+def _legs_point_dorsal(legs3d: np.ndarray, centre: np.ndarray) -> bool:
+    # the body frame of flylib.kinematics (x anterior, y left, z = x cross y) from the
+    # thorax-coxa points alone is right-handed only if the legs hang ventrally (-z);
+    # the six points are nearly coplanar, so a fit on them alone cannot tell
+    with _quiet_nan_warnings():
+        front, hind = np.nanmean(centre[[0, 3]], axis=0), np.nanmean(centre[[2, 5]], axis=0)
+        left, right = np.nanmean(centre[:3], axis=0), np.nanmean(centre[3:], axis=0)
+        reach = np.nanmean(legs3d[:, :, -1] - legs3d[:, :, 0], axis=(0, 1))
+    x = front - hind
+    y = left - right
+    y = y - (y @ x) / (x @ x) * x
+    return bool(np.cross(x, y) @ reach > 0)
 
 
 @contextmanager

@@ -13,7 +13,7 @@ growing sub-chains, all seven angles are fitted together against all four points
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -78,7 +78,7 @@ def initial_angles(root: Float[np.ndarray, " 3"], points: Float[np.ndarray, "N 4
     return np.nan_to_num(angles)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _solver(iterations: int):
     import jax
     import jax.numpy as jnp
@@ -117,7 +117,10 @@ def _solver(iterations: int):
 
 
 def solve_leg_angles(
-    aligned: Float[np.ndarray, "T 6 5 3"], *, iterations: int = ITERATIONS
+    aligned: Float[np.ndarray, "T 6 5 3"],
+    *,
+    offsets: Float[np.ndarray, "6 4 3"] | None = None,
+    iterations: int = ITERATIONS,
 ) -> Float[np.ndarray, "T 6 7"]:
     """Each leg's seven joint angles (radians, flygym's order) for aligned leg chains.
 
@@ -127,6 +130,8 @@ def solve_leg_angles(
         ``(T, 6, 5, 3)`` legs in the model's thorax frame (mm), from
         :func:`~flylib.neuromechfly.align.align_to_template`; the thorax-coxa row is
         not fitted (the chain's root is the model's).
+    offsets
+        ``(6, 4, 3)`` the chains' segment offsets; default the model's.
     iterations
         Levenberg-Marquardt steps per start.
 
@@ -140,7 +145,8 @@ def solve_leg_angles(
     n_frames = aligned.shape[0]
     out = np.full((n_frames, len(LEGS), 7), np.nan)
     complete = np.isfinite(aligned[:, :, 1:]).all(axis=(2, 3))
-    roots, offsets = thorax_coxa_template(), segment_offsets()
+    roots = thorax_coxa_template()
+    offsets = segment_offsets() if offsets is None else np.asarray(offsets, dtype=np.float64)
     solve = _solver(int(iterations))
     for k, leg in enumerate(LEGS):
         frames = np.flatnonzero(complete[:, k])

@@ -76,10 +76,7 @@ _CHAINS_MM: dict[str, tuple[tuple[float, float, float], ...]] = {
 }
 # the model is mirror-symmetric about its sagittal (x-z) plane
 _CHAINS_MM.update(
-    {
-        "R" + leg[1]: tuple((x, -y, z) for x, y, z in rows)
-        for leg, rows in list(_CHAINS_MM.items())
-    }
+    {"R" + leg[1]: tuple((x, -y, z) for x, y, z in rows) for leg, rows in list(_CHAINS_MM.items())}
 )
 
 
@@ -150,13 +147,18 @@ def leg_forward(angles, root, offsets, xp=np):
     return xp.stack(points, axis=-2)
 
 
-def forward_kinematics(angles: Float[np.ndarray, "T 42"]) -> Float[np.ndarray, "T 6 5 3"]:
+def forward_kinematics(
+    angles: Float[np.ndarray, "T 42"], offsets: Float[np.ndarray, "6 4 3"] | None = None
+) -> Float[np.ndarray, "T 6 5 3"]:
     """The model's leg joints (mm, thorax frame) for flygym joint angles.
 
     Parameters
     ----------
     angles
         ``(T, 42)`` radians, columns :func:`dof_names`.
+    offsets
+        ``(6, 4, 3)`` segment offsets of the zero pose; default the model's
+        (:func:`segment_offsets`).
 
     Returns
     -------
@@ -164,4 +166,5 @@ def forward_kinematics(angles: Float[np.ndarray, "T 42"]) -> Float[np.ndarray, "
         ``(T, 6, 5, 3)``: legs in :data:`LEGS` order, joints :data:`CHAIN_JOINTS`.
     """
     angles = np.asarray(angles, dtype=np.float64).reshape(-1, len(LEGS), len(DOF_SUFFIXES))
-    return leg_forward(angles, thorax_coxa_template(), segment_offsets())
+    offsets = segment_offsets() if offsets is None else np.asarray(offsets, dtype=np.float64)
+    return leg_forward(angles, thorax_coxa_template(), offsets)
