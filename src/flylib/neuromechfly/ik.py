@@ -148,7 +148,7 @@ def solve_leg_angles(
     roots = thorax_coxa_template()
     offsets = segment_offsets() if offsets is None else np.asarray(offsets, dtype=np.float64)
     solve = _solver(int(iterations))
-    for k, leg in enumerate(LEGS):
+    for k in range(len(LEGS)):
         frames = np.flatnonzero(complete[:, k])
         for begin in range(0, frames.size, CHUNK_FRAMES):
             chunk = frames[begin : begin + CHUNK_FRAMES]
