@@ -33,6 +33,8 @@ from .angles import NmfAngles, compute_nmf_angles
 from .model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 
 if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
     from ..config import Config
 
 
@@ -156,7 +158,9 @@ def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: i
     return Path(path)
 
 
-def nmf_from_config(config: Config, pts3d, skeleton, *, source: str = "3D") -> NmfAngles:
+def nmf_from_config(
+    config: Config, pts3d: Float[np.ndarray, "T P 3"], skeleton, *, source: str = "3D"
+) -> NmfAngles:
     """:func:`compute_nmf_angles` as the config's ``neuromechfly`` table says."""
     params = config.neuromechfly
     return compute_nmf_angles(
