@@ -219,3 +219,23 @@ def test_leg_lengths_are_those_of_the_chain():
     np.testing.assert_allclose(
         np.linalg.norm(np.diff(zero, axis=1), axis=-1).sum(axis=-1), leg_lengths()
     )
+
+
+def test_flygym_replays_the_angles_and_the_simulated_joints_are_reported(capsys):
+    from flylib.neuromechfly.replay import flygym_unavailable, replay_residuals
+
+    reason = flygym_unavailable()
+    if reason:
+        pytest.skip(reason)
+    n_frames = 30
+    truth = _random_angles(1, seed=12)
+    # a leg swinging gently about one pose, as a tethered fly's legs do
+    wave = 0.15 * np.sin(2 * np.pi * 8.0 * np.arange(n_frames) / 100.0)
+    angles = truth + wave[:, None]
+    nmf = compute_nmf_angles(_fly38_from_model(angles, seed=13), Config.default().skeleton())
+    report = replay_residuals(nmf.angles, nmf.aligned, 100.0)
+    print(
+        f"flygym replay: simulated joints vs measured {report['vs_measured']}, vs model {report['vs_model']}"
+    )
+    assert report["vs_model"]["median"] < 0.02
+    assert report["vs_measured"]["median"] < 0.02
