@@ -239,3 +239,37 @@ def test_flygym_replays_the_angles_and_the_simulated_joints_are_reported(capsys)
     )
     assert report["vs_model"]["median"] < 0.02
     assert report["vs_measured"]["median"] < 0.02
+
+
+def test_the_angles_go_in_the_nwb_export(tmp_path):
+    pynwb = pytest.importorskip("pynwb")
+    from flylib.interop.nwb import JOINT_ANGLES_NAME, read_joint_angles, write_nwb
+    from flylib.neuromechfly.stage import write_nmf_h5
+    from flylib.nwb_metadata import DEMO_METADATA
+    from flylib.results import PoseResult
+
+    config = Config.default()
+    truth = _random_angles(12, seed=14)
+    pts3d = _fly38_from_model(truth, seed=15)
+    pts3d[:3, config.skeleton().point_names.index("rf_claw")] = np.nan
+    nmf = compute_nmf_angles(pts3d, config.skeleton())
+    write_nmf_h5(tmp_path / "neuromechfly.h5", nmf, 100.0)
+    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    result = PoseResult(
+        cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)), pts3d=pts3d
+    )
+    path = write_nwb(
+        result,
+        tmp_path / "fly.nwb",
+        DEMO_METADATA,
+        frame_rate=100.0,
+        joint_angles=read_joint_angles(tmp_path / "neuromechfly.h5"),
+    )
+    with pynwb.NWBHDF5IO(str(path), "r") as io:
+        series = io.read().processing["behavior"][JOINT_ANGLES_NAME].time_series
+        assert sorted(series) == sorted(FLYGYM_LEG_DOFS)
+        assert series["joint_LHTibia"].unit == "radians" and series["joint_LHTibia"].rate == 100.0
+        np.testing.assert_allclose(
+            series["joint_LHTibia"].data[:], truth[:, FLYGYM_LEG_DOFS.index("joint_LHTibia")]
+        )
+        assert np.isnan(series["joint_RFTarsus1"].data[:3]).all()
