@@ -273,3 +273,23 @@ def test_the_angles_go_in_the_nwb_export(tmp_path):
             series["joint_LHTibia"].data[:], truth[:, FLYGYM_LEG_DOFS.index("joint_LHTibia")]
         )
         assert np.isnan(series["joint_RFTarsus1"].data[:3]).all()
+
+
+def test_the_solver_agrees_with_seqikpy_on_the_same_legs():
+    from pathlib import Path
+
+    from flylib.neuromechfly.ik import solve_leg_angles
+
+    ref = np.load(
+        Path(__file__).parent / "data" / "interop" / "seqikpy_1.1.0_front_legs.npz",
+        allow_pickle=False,
+    )
+    legs = np.full((ref["legs"].shape[0], 6, 5, 3), np.nan)
+    legs[:, 0], legs[:, 3] = ref["legs"][:, 0], ref["legs"][:, 1]
+    straight = np.zeros((6, 4, 3))
+    straight[..., 2] = -ref["segment_lengths"]  # SeqIKPy's chains: segments along -z
+    ours = solve_leg_angles(legs, offsets=straight)
+    for k, leg in ((0, "LF"), (3, "RF")):
+        difference = np.degrees(np.abs(np.angle(np.exp(1j * (ours[:, k] - ref[f"seqikpy_{leg}"])))))
+        assert difference.max() < 0.01, f"{leg}: {difference.max(axis=0)} deg"
+    assert np.isnan(ours[:, [1, 2, 4, 5]]).all()
