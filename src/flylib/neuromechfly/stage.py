@@ -133,7 +133,7 @@ def read_nmf_angles(path: str | Path) -> tuple[np.ndarray, list[str], float]:
 
 def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: int = 90) -> Path:
     """One panel per leg: its seven angles (degrees) over time, the median
-    forward-kinematics residual in the title."""
+    forward-kinematics residuals (fitted chain, model's chain) in the title."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(15, 6), dpi=dpi, layout="constrained")
@@ -143,9 +143,13 @@ def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: i
         ax = fig.add_subplot(2, 3, k + 1)
         for j, suffix in enumerate(DOF_SUFFIXES):
             ax.plot(t, per_leg[:, k, j], lw=1.1, label=suffix)
-        finite = nmf.residual[:, k][np.isfinite(nmf.residual[:, k])]
+        fitted = nmf.residual[:, k][np.isfinite(nmf.residual[:, k])]
+        model = nmf.model_residual[:, k][np.isfinite(nmf.model_residual[:, k])]
         note = (
-            f"median residual {np.median(finite):.3f} leg lengths" if finite.size else "not solved"
+            f"median FK residual {100 * np.median(fitted):.2f}% of the leg "
+            f"(model's chain {100 * np.median(model):.1f}%)"
+            if fitted.size
+            else "not solved"
         )
         ax.set_title(f"{leg}: {note}", fontsize=9)
         ax.set_xlabel("time (s)")
