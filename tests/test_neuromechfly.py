@@ -293,3 +293,27 @@ def test_the_solver_agrees_with_seqikpy_on_the_same_legs():
         difference = np.degrees(np.abs(np.angle(np.exp(1j * (ours[:, k] - ref[f"seqikpy_{leg}"])))))
         assert difference.max() < 0.01, f"{leg}: {difference.max(axis=0)} deg"
     assert np.isnan(ours[:, [1, 2, 4, 5]]).all()
+
+
+def test_deepfly3ds_real_3d_aligns_and_fits(capsys):
+    """DeepFly3D's own 3D of a real tethered fly (its package example): tethered, in a
+    left-handed frame (mirrored first), and the chains fit it (a truth-free measure)."""
+    from conftest import _shared_subdir
+
+    from flylib.interop.df3d import FLY38_POINT_NAMES, _load_pickle, df3d_joint_to_fly38
+
+    path = _shared_subdir("deepfly3d-package-example") / "df3d_result.pkl"
+    raw = np.asarray(_load_pickle(path, "DeepFly3D result")["points3d"], dtype=np.float64)
+    pts3d = np.full((raw.shape[0], len(FLY38_POINT_NAMES), 3), np.nan)
+    for joint in range(raw.shape[1]):
+        pts3d[:, FLY38_POINT_NAMES.index(df3d_joint_to_fly38(joint))] = raw[:, joint]
+    nmf = compute_nmf_angles(pts3d, Config.default().skeleton(), source=str(path))
+    print(
+        f"DeepFly3D example: thorax motion {nmf.alignment.thorax_motion:.4f} leg lengths; FK "
+        f"residual median {np.nanmedian(nmf.residual):.4f}, p95 "
+        f"{np.nanpercentile(nmf.residual, 95):.4f} (model's chain median "
+        f"{np.nanmedian(nmf.model_residual):.4f})"
+    )
+    assert nmf.alignment.mirrored and not nmf.unsolved
+    assert nmf.alignment.thorax_motion < 0.1 / 3  # the default tolerance has a margin
+    assert np.nanpercentile(nmf.residual, 95) < 0.05
