@@ -38,6 +38,7 @@ include: "workflow/rules/refinement.smk"
 include: "workflow/rules/results.smk"
 include: "workflow/rules/visualization.smk"
 include: "workflow/rules/kinematics.smk"
+include: "workflow/rules/neuromechfly.smk"
 include: "workflow/rules/exports.smk"
 include: "workflow/rules/summary.smk"
 

@@ -78,6 +78,8 @@ def snakemake_argv(job: Any, parser: argparse.ArgumentParser) -> list[str]:
         dest = name.replace("-", "_")
         if dest not in options or value is None or value is False or value == "":
             return
+        if isinstance(value, list) and not value:  # an optional input left out
+            return
         flag = options[dest].option_strings[-1]
         if value is True or options[dest].nargs == 0:
             argv.append(flag)

@@ -18,6 +18,12 @@ def main(argv=None, *, job=None) -> int:
     )
     parser.add_argument("--output", required=True, type=Path, help="destination .nwb file")
     parser.add_argument(
+        "--angles",
+        type=Path,
+        default=None,
+        help="neuromechfly.h5 of the recording: its joint angles go in the NWB file too",
+    )
+    parser.add_argument(
         "--demo",
         action="store_true",
         help="the recording is the embedded demo (its synthetic session metadata applies)",
@@ -26,7 +32,14 @@ def main(argv=None, *, job=None) -> int:
     def run(args, config):
         from flylib.interop.nwb import export_nwb
 
-        export_nwb(config, args.results, args.output, recording_dir=args.recording, demo=args.demo)
+        export_nwb(
+            config,
+            args.results,
+            args.output,
+            recording_dir=args.recording,
+            demo=args.demo,
+            angles_path=args.angles,
+        )
 
     return script_main(parser, run, argv, job=job, outdir=lambda args: args.output.parent)
 

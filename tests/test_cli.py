@@ -164,9 +164,7 @@ def test_inspect_prints_aligned_plain_text_and_imports_no_optional_package(
     header = next(line for line in lines if line.startswith("stage "))
     row = next(line for line in lines if line.startswith("triangulation "))
     # no held-out accuracy in this hand-made file: "-" under both held-out columns
-    assert row.split() == [
-        "triangulation", "3", "5", "93.3%", "93.3%", "0.5", "1.5", "-", "-", "-"
-    ]
+    assert row.split() == ["triangulation", "3", "5", "93.3%", "93.3%", "0.5", "1.5", "-", "-", "-"]
     assert len(header) == len(row)  # columns aligned under their headers
 
 

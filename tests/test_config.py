@@ -83,6 +83,7 @@ def test_stage_flags_default_pictorial_off(default, data):
         "triangulation": True,
         "refinement": True,
         "kinematics": True,
+        "neuromechfly": False,
         "visualization": True,
     }
     del data["pipeline"]
@@ -164,6 +165,7 @@ def test_stage_params_cover_every_workflow_stage_and_are_json(default):
         "refinement",
         "assemble",
         "kinematics",
+        "neuromechfly",
         "visualization",
     }
     for value in params.values():

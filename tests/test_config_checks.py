@@ -109,6 +109,8 @@ VALIDATOR_CASES = [
         "kinematics.angles.a",
         lambda d: edit(d, "kinematics.angles", {"a": ["lf_claw", "lf_femur_tibia"]}),
     ),
+    ("neuromechfly.still_tolerance", lambda d: edit(d, "neuromechfly.still_tolerance", 0)),
+    ("neuromechfly.frame_rate", lambda d: edit(d, "neuromechfly.frame_rate", "fast")),
     ("exports.nwb", lambda d: edit(d, "exports", {"nwb": "yes"})),
     ("nwb.subject.sex", lambda d: edit(d, "nwb", {"subject": {"sex": "Q"}})),
     ("corrections", lambda d: edit(d, "corrections", 3)),

@@ -251,14 +251,28 @@ def base_run(tmp_path_factory):
     files = {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri, "refinement": ref}
     stages.run_assemble(config, files, out, recording_dir=rec)
     stages.run_kinematics(config, out / "results.h5", out)
-    artifacts = {**files, "assemble": out / "results.h5", "kinematics": out / "kinematics.h5"}
+    stages.run_neuromechfly(config, out / "results.h5", out)
+    artifacts = {
+        **files,
+        "assemble": out / "results.h5",
+        "kinematics": out / "kinematics.h5",
+        "neuromechfly": out / "neuromechfly.h5",
+    }
     return data, rec, spec, artifacts
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "stage",
-    ["pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble", "kinematics"],
+    [
+        "pose2d",
+        "bundle_adjustment",
+        "triangulation",
+        "refinement",
+        "assemble",
+        "kinematics",
+        "neuromechfly",
+    ],
 )
 def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, stage, tmp_path):
     data, rec, spec, base = base_run
@@ -294,6 +308,10 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
         "kinematics": lambda: (
             stages.run_kinematics(other, base["assemble"], out),
             out / "kinematics.h5",
+        )[1],
+        "neuromechfly": lambda: (
+            stages.run_neuromechfly(other, base["assemble"], out),
+            out / "neuromechfly.h5",
         )[1],
     }[stage]
     _same(base[stage], run())

@@ -83,6 +83,10 @@ from .io import (
     list_image_files as list_image_files,
     open_reader as open_reader,
 )
+from .neuromechfly import (
+    NmfAngles as NmfAngles,
+    compute_nmf_angles as compute_nmf_angles,
+)
 from .paths import atomic_path as atomic_path
 from .pictorial import (
     Candidates as Candidates,

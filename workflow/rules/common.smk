@@ -15,6 +15,7 @@ from flylib.errors import FlylibError
 from flylib.interop import calibration_inputs as _calibration_files
 from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
+from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 
@@ -157,6 +158,8 @@ def recording_targets(rec) -> list[str]:
         targets += [f"{out}/{name}.mp4" for name in VIDEO_NAMES]
     if FLAGS["kinematics"]:
         targets += [f"{out}/{name}" for name in KINEMATICS_FILES]
+    if FLAGS["neuromechfly"]:
+        targets += [f"{out}/{name}" for name in NEUROMECHFLY_FILES]
     return targets
 
 

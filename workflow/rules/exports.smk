@@ -28,6 +28,9 @@ if EXPORTS.get("nwb"):
             results="{outdir}/results.h5",
             footage=footage_inputs,
             metadata=lambda w: sidecar_inputs(recording(w)),
+            angles=lambda w: (
+                [f"{w.outdir}/{NEUROMECHFLY_FILES[0]}"] if FLAGS["neuromechfly"] else []
+            ),
         output:
             output=f"{{outdir}}/{NWB_FILE}",
         log:

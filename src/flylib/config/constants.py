@@ -12,6 +12,7 @@ STAGES: tuple[str, ...] = (
     "triangulation",
     "refinement",
     "kinematics",
+    "neuromechfly",
     "visualization",
 )
 #: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
@@ -22,6 +23,7 @@ STAGE_DEFAULTS: dict[str, bool] = {
     "triangulation": True,
     "refinement": True,
     "kinematics": True,
+    "neuromechfly": False,
     "visualization": True,
 }
 #: The workflow rules that :meth:`Config.stage_params` describes.
@@ -33,6 +35,7 @@ PARAM_STAGES: tuple[str, ...] = (
     "refinement",
     "assemble",
     "kinematics",
+    "neuromechfly",
     "visualization",
 )
 
@@ -48,6 +51,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "triangulation",
     "refinement",
     "kinematics",
+    "neuromechfly",
     "visualization",
     "calibration",
     "recordings",

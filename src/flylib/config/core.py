@@ -24,6 +24,7 @@ from .constants import (
     STAGES,
 )
 from .loading import _parse_text, _problem_report
+from .neuromechfly import NeuromechflyParams
 from .params import (
     BundleAdjustmentParams,
     IoParams,
@@ -208,6 +209,11 @@ class Config:
         return KinematicsParams.from_table(self.data.get("kinematics") or {})
 
     @property
+    def neuromechfly(self) -> NeuromechflyParams:
+        """The ``neuromechfly`` table."""
+        return _build_params(NeuromechflyParams, self.data.get("neuromechfly") or {})
+
+    @property
     def pictorial(self) -> PictorialParams:
         """The ``pictorial_structures`` table."""
         return _build_params(PictorialParams, self.data.get("pictorial_structures") or {})
@@ -268,6 +274,7 @@ class Config:
         # refinement starts from the triangulation; kinematics needs some 3D
         flags["refinement"] &= flags["triangulation"]
         flags["kinematics"] &= flags["triangulation"] or flags["pictorial_structures"]
+        flags["neuromechfly"] &= flags["triangulation"] or flags["pictorial_structures"]
         return flags
 
     def stage_params(self, stage: str) -> dict:
@@ -289,6 +296,7 @@ class Config:
         - ``refinement``: its table, the skeleton's points and limbs, and the config rig
           when bundle adjustment is off.
         - ``kinematics``: its table and the skeleton's points and limbs.
+        - ``neuromechfly``: its table and the skeleton's points and limbs.
         - ``assemble``: the rig and the whole skeleton (palette included).
         - ``visualization``: the visualization table and the skeleton palette.
 
@@ -360,6 +368,11 @@ class Config:
             }
         elif stage == "kinematics":
             params = {"kinematics": asdict(self.kinematics), "skeleton": self._skeleton_structure()}
+        elif stage == "neuromechfly":
+            params = {
+                "neuromechfly": asdict(self.neuromechfly),
+                "skeleton": self._skeleton_structure(),
+            }
         elif stage == "assemble":
             params = {
                 "rig": self._rig(),

@@ -11,6 +11,7 @@ from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import _boolean, _got, _integer, _is_int, _mapping
 from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
+from .neuromechfly import NeuromechflyParams
 from .params import (
     _LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
@@ -220,6 +221,7 @@ def validate_config(data: Any) -> list[str]:
         "triangulation": _mapping(),
         "refinement": _mapping(),
         "kinematics": _mapping(),
+        "neuromechfly": _mapping(),
         "visualization": _mapping(),
         "calibration": _mapping(nullable=True),
         "demo": _mapping(nullable=True),
@@ -314,6 +316,7 @@ def validate_config(data: Any) -> list[str]:
     )
     problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
     problems += _table_problems(table("refinement"), RefinementParams, "refinement")
+    problems += _table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
     rigid = table("refinement").get("rigid_points")
     if isinstance(rigid, list) and point_names:
         for point in rigid:

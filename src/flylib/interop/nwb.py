@@ -74,6 +74,8 @@ CONFIDENCE_ERROR_SCALE_PX = 5.0
 CONFIDENCE_FULL_VIEWS = 3
 #: Name of the multi-camera container in ``processing/behavior``.
 MULTICAMERA_NAME = "MultiCameraPoseEstimation"
+#: The BehavioralTimeSeries holding NeuroMechFly's joint angles (when the stage ran).
+JOINT_ANGLES_NAME = "NeuroMechFlyJointAngles"
 # Arrays with at least this many elements are written gzip-compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
 
@@ -232,6 +234,7 @@ def write_nwb(
     frame_rate: float | None = None,
     recording: str | Path | None = None,
     config_text: str | None = None,
+    joint_angles: tuple[np.ndarray, Sequence[str]] | None = None,
 ) -> Path:
     """Write one recording's result as an NWB file (atomically).
 
@@ -253,6 +256,10 @@ def write_nwb(
         The recording directory, for the record.
     config_text
         The flylib config that produced the result (stored as text).
+    joint_angles
+        ``(angles (T, J) radians, joint names)``: NeuroMechFly's leg angles
+        (``neuromechfly.h5``), written as one ``TimeSeries`` per joint in a
+        ``BehavioralTimeSeries`` named ``NeuroMechFlyJointAngles``.
 
     Returns
     -------
@@ -437,9 +444,42 @@ def write_nwb(
                 )
             )
 
+    if joint_angles is not None:
+        from pynwb.behavior import BehavioralTimeSeries
+
+        values, joints = joint_angles
+        behavior.add(
+            BehavioralTimeSeries(
+                name=JOINT_ANGLES_NAME,
+                time_series=[
+                    TimeSeries(
+                        name=joint,
+                        description=(
+                            f"NeuroMechFly (flygym) joint {joint}: inverse kinematics of the 3D on the "
+                            "model's leg chains; NaN where the leg was not solved"
+                        ),
+                        data=_data(values[:, j]),
+                        unit="radians",
+                        starting_time=0.0,
+                        rate=rate,
+                    )
+                    for j, joint in enumerate(joints)
+                ],
+            )
+        )
+
     with atomic_path(path) as tmp, NWBHDF5IO(str(tmp), mode="w") as io:
         io.write(nwbfile)
     return path
+
+
+def read_joint_angles(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """``(angles (T, 42) radians, joint names)`` from a ``neuromechfly.h5``."""
+    from ..results import open_hdf5
+
+    with open_hdf5(path, "re-run the neuromechfly stage", "NeuroMechFly angles file") as f:
+        group = f["neuromechfly"]
+        return np.asarray(group["angles"], dtype=np.float64), json.loads(group.attrs["dof_names"])
 
 
 def _version() -> str:
@@ -456,6 +496,7 @@ def export_nwb(
     recording_dir: str | Path | None = None,
     demo: bool = False,
     extra_metadata: Mapping | None = None,
+    angles_path: str | Path | None = None,
 ) -> Path:
     """Export a run's ``results.h5`` as NWB: what the workflow rule and ``flylib export --nwb`` run.
 
@@ -476,6 +517,8 @@ def export_nwb(
         The recording is the embedded demo (its metadata defaults apply).
     extra_metadata
         Overrides of the session metadata.
+    angles_path
+        The recording's ``neuromechfly.h5``: its joint angles go in too.
 
     Raises
     ------
@@ -502,6 +545,7 @@ def export_nwb(
         footage=footage,
         recording=recording_dir,
         config_text=config.snapshot_text(),
+        joint_angles=None if angles_path is None else read_joint_angles(angles_path),
     )
 
 

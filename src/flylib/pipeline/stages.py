@@ -23,6 +23,9 @@ stage                  reads                                       writes
 ``visualization``      ``results.h5``, footage                      ``<video_name>.mp4``
 ``kinematics``         ``results.h5``                               ``kinematics.h5``, ``angles.csv``,
                                                                     ``angles.png``
+``neuromechfly``       ``results.h5``                               ``neuromechfly.h5``,
+                                                                    ``joint_angles.csv``,
+                                                                    ``joint_angles.png``
 =====================  ==========================================  ===============================
 """
 
@@ -419,6 +422,13 @@ def run_kinematics(config, results_path, outdir) -> dict:
 
     with _solving("kinematics", results_path):
         return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
+
+
+def run_neuromechfly(config, results_path, outdir) -> dict:
+    """NeuroMechFly leg angles (see :func:`flylib.neuromechfly.stage.run_neuromechfly`)."""
+    from ..neuromechfly.stage import run_neuromechfly as run
+
+    return run(StageConfig.for_stage(config, "neuromechfly"), results_path, outdir)
 
 
 def run_assemble(

@@ -91,6 +91,8 @@ def stage_reads(config: Config, stage: str) -> tuple[str, ...]:
         return ("refinement", *method, *_SKELETON, *own_rig)
     if stage == "kinematics":
         return ("kinematics", *_SKELETON)
+    if stage == "neuromechfly":
+        return ("neuromechfly", *_SKELETON)
     if stage == "assemble":
         return (
             *rig,

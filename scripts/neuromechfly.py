@@ -1,0 +1,24 @@
+#!/usr/bin/env python
+"""neuromechfly stage: NeuroMechFly leg joint angles from results.h5 -> neuromechfly.h5,
+joint_angles.csv (flygym's kinematic-replay layout) and joint_angles.png."""
+
+from pathlib import Path
+
+from flylib.pipeline.stages import run_neuromechfly
+
+from _cli import run_script, script_main, script_parser
+
+
+def main(argv=None, *, job=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
+
+    def run(args, config):
+        run_neuromechfly(config, args.results, args.outdir)
+
+    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
+
+
+if __name__ == "__main__":
+    run_script(main, globals())

@@ -1,0 +1,208 @@
+"""The neuromechfly workflow stage: ``results.h5`` -> ``neuromechfly.h5``,
+``joint_angles.csv``, ``joint_angles.png``.
+
+``joint_angles.csv``: one row per frame, ``time`` (seconds, ``frame / frame_rate``),
+then flygym's 42 leg joints ``joint_LFCoxa`` ... ``joint_RHTarsus1`` in flygym's order
+(``flygym.preprogrammed.all_leg_dofs``), radians, an empty field where a leg was not
+solved. :func:`replay_data` turns it into the dictionary flygym's kinematic-replay
+examples read (``{"meta": {"timestep": dt}, "joint_LFCoxa": (T,) ...}``).
+
+``neuromechfly.h5``: ``attrs["meta"]`` (format version, ``stage: neuromechfly``) and
+``neuromechfly/`` with ``angles`` ``(T, 42)`` radians, ``residual`` ``(T, 6, 5)`` (leg
+lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain),
+``aligned`` ``(T, 6, 5, 3)`` (model mm), ``similarity_rotation`` ``(3, 3)``,
+``similarity_translation`` ``(3,)``, ``leg_scale`` ``(6,)``, ``segment_scale``
+``(6, 4)`` and attributes
+``dof_names``, ``legs``, ``chain_joints``, ``frame_rate``, ``similarity_scale``,
+``thorax_motion``, ``mirrored``, ``unsolved``, ``residual_summary``,
+``model_residual_summary`` (JSON).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import h5py
+import numpy as np
+
+from ..paths import atomic_path
+from . import FILES
+from .angles import NmfAngles, compute_nmf_angles
+from .model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from ..config import Config
+
+
+def angles_table(nmf: NmfAngles, frame_rate: float):
+    """The replay table (``pandas.DataFrame``): ``time``, then the 42 joints in radians."""
+    import pandas as pd
+
+    table = pd.DataFrame(nmf.angles, columns=dof_names())
+    table.insert(0, "time", np.arange(nmf.angles.shape[0]) / float(frame_rate))
+    return table
+
+
+def write_angles_csv(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
+    """Write ``joint_angles.csv`` atomically (layout in the module docstring)."""
+    with atomic_path(path) as tmp:
+        angles_table(nmf, frame_rate).to_csv(tmp, index=False)
+    return Path(path)
+
+
+def replay_data(path: str | Path) -> dict:
+    """``joint_angles.csv`` as flygym's kinematic replay reads it.
+
+    Returns
+    -------
+    dict
+        ``{"meta": {"timestep": seconds}, "joint_<leg><dof>": (T,) radians, ...}``.
+
+    Raises
+    ------
+    ResultsError
+        If the file lacks a joint column or ``time``.
+    """
+    import pandas as pd
+
+    from ..errors import ResultsError
+
+    table = pd.read_csv(path)
+    missing = [c for c in ("time", *dof_names()) if c not in table.columns]
+    if missing:
+        raise ResultsError(
+            f"{path}: not a NeuroMechFly angles table (missing columns {', '.join(missing[:3])}"
+            f"{' ...' if len(missing) > 3 else ''}); re-run the neuromechfly stage"
+        )
+    time = table["time"].to_numpy(dtype=np.float64)
+    timestep = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    data: dict = {"meta": {"timestep": timestep}}
+    for name in dof_names():
+        data[name] = table[name].to_numpy(dtype=np.float64)
+    return data
+
+
+def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
+    """Write ``neuromechfly.h5`` atomically (layout in the module docstring)."""
+    from ..results import _new_meta, _write_array
+
+    a = nmf.alignment
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta("neuromechfly"))
+        group = f.create_group("neuromechfly")
+        _write_array(group, "angles", nmf.angles)
+        _write_array(group, "residual", nmf.residual)
+        _write_array(group, "model_residual", nmf.model_residual)
+        _write_array(group, "segment_scale", a.segment_scale)
+        _write_array(group, "aligned", nmf.aligned)
+        _write_array(group, "similarity_rotation", a.rotation)
+        _write_array(group, "similarity_translation", a.translation)
+        _write_array(group, "leg_scale", a.leg_scale)
+        for key, value in {
+            "dof_names": dof_names(),
+            "legs": list(LEGS),
+            "chain_joints": list(CHAIN_JOINTS),
+            "frame_rate": float(frame_rate),
+            "similarity_scale": a.scale,
+            "thorax_motion": a.thorax_motion,
+            "mirrored": a.mirrored,
+            "unsolved": nmf.unsolved,
+            "residual_summary": nmf.residual_summary(),
+            "model_residual_summary": nmf.residual_summary(model=True),
+        }.items():
+            group.attrs[key] = json.dumps(value)
+    return Path(path)
+
+
+def read_nmf_angles(path: str | Path) -> tuple[np.ndarray, list[str], float]:
+    """``(angles (T, 42) radians, dof names, frame rate)`` from ``neuromechfly.h5``."""
+    from ..results import open_hdf5
+
+    with open_hdf5(path, "re-run the neuromechfly stage", "NeuroMechFly angles file") as f:
+        group = f["neuromechfly"]
+        return (
+            np.asarray(group["angles"], dtype=np.float64),
+            json.loads(group.attrs["dof_names"]),
+            float(json.loads(group.attrs["frame_rate"])),
+        )
+
+
+def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: int = 90) -> Path:
+    """One panel per leg: its seven angles (degrees) over time, the median
+    forward-kinematics residuals (fitted chain, model's chain) in the title."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(15, 6), dpi=dpi, layout="constrained")
+    t = np.arange(nmf.angles.shape[0]) / frame_rate
+    per_leg = np.degrees(nmf.angles.reshape(len(t), len(LEGS), len(DOF_SUFFIXES)))
+    for k, leg in enumerate(LEGS):
+        ax = fig.add_subplot(2, 3, k + 1)
+        for j, suffix in enumerate(DOF_SUFFIXES):
+            ax.plot(t, per_leg[:, k, j], lw=1.1, label=suffix)
+        fitted = nmf.residual[:, k][np.isfinite(nmf.residual[:, k])]
+        model = nmf.model_residual[:, k][np.isfinite(nmf.model_residual[:, k])]
+        note = (
+            f"median FK residual {100 * np.median(fitted):.2f}% of the leg "
+            f"(model's chain {100 * np.median(model):.1f}%)"
+            if fitted.size
+            else "not solved"
+        )
+        ax.set_title(f"{leg}: {note}", fontsize=9)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("degrees")
+        if k == 0:
+            ax.legend(fontsize=7, ncol=2, loc="upper right")
+    fig.suptitle("NeuroMechFly joint angles (flygym's joints)")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return Path(path)
+
+
+def nmf_from_config(
+    config: Config, pts3d: Float[np.ndarray, "T P 3"], skeleton, *, source: str = "3D"
+) -> NmfAngles:
+    """:func:`compute_nmf_angles` as the config's ``neuromechfly`` table says."""
+    params = config.neuromechfly
+    return compute_nmf_angles(
+        pts3d,
+        skeleton,
+        still_tolerance=params.still_tolerance,
+        iterations=params.iterations,
+        source=source,
+    )
+
+
+def run_neuromechfly(config: Config, results_path: str | Path, outdir: str | Path) -> dict:
+    """NeuroMechFly angles of the recording in ``results.h5``, written as :data:`FILES`
+    into ``outdir``.
+
+    Raises
+    ------
+    ResultsError
+        If ``results.h5`` holds no 3D, its thorax is not still, or too few thorax-coxa
+        points were reconstructed.
+    """
+    from ..errors import ResultsError
+    from ..results import PoseResult
+
+    result = PoseResult.load(results_path)
+    if result.pts3d is None:
+        raise ResultsError(
+            f"{results_path}: holds no 3D points; turn on triangulation "
+            "(or set pipeline.do_neuromechfly: false)"
+        )
+    outdir = Path(outdir)
+    frame_rate = config.neuromechfly.frame_rate
+    nmf = nmf_from_config(config, result.pts3d, result.skeleton, source=str(results_path))
+    write_nmf_h5(outdir / FILES[0], nmf, frame_rate)
+    write_angles_csv(outdir / FILES[1], nmf, frame_rate)
+    angles_figure(nmf, outdir / FILES[2], frame_rate=frame_rate)
+    return {
+        "frames": int(nmf.angles.shape[0]),
+        "unsolved": nmf.unsolved,
+        "residual_median": float(np.nanmedian(nmf.residual)),
+    }
