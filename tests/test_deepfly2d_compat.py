@@ -378,6 +378,10 @@ class _FixedHeatmaps(torch.nn.Module):
     def forward(self, x):
         return [self.hm.expand(x.shape[0], *self.hm.shape[1:])]
 
+    def heatmaps(self, x):
+        """The last stack's heatmaps, as :class:`HourglassNet` gives inference."""
+        return self.forward(x)[-1]
+
     @staticmethod
     def output_stride() -> int:
         return 4

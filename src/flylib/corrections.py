@@ -29,6 +29,7 @@ GUI calls too, for one point at a time, so what it shows is what a re-run comput
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -277,7 +278,11 @@ class Corrections:
             "created_utc": self.created_utc,
             "flylib_revision": int(self.revision),
         }
-        with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
+        # built in memory, then written as plain bytes: a write that fails (full disk)
+        # is then an OSError of Python's, never a half-created file inside libhdf5's
+        # state, which crashed the GUI's process later (at exit or the next close)
+        buffer = io.BytesIO()
+        with h5py.File(buffer, "w", libver=_LIBVER) as f:
             f.attrs["meta"] = json.dumps(meta)
             g2 = f.create_group("pose2d_corrections")
             _write_checksummed(g2, "points", self.points, np.float64)
@@ -286,6 +291,8 @@ class Corrections:
             g3 = f.create_group("pose3d_corrections")
             _write_checksummed(g3, "points3d", self.points3d, np.float64)
             _write_checksummed(g3, "edited", self.edited3d, bool)
+        with atomic_path(path) as tmp:
+            Path(tmp).write_bytes(buffer.getbuffer())
         return Path(path)
 
     # -- edits (the seed GUI's semantics) ----------------------------------------------
