@@ -15,6 +15,7 @@ import logging
 import pytest
 
 from flylib.errors import WeightsError
+from flylib.paths import cache_dir
 from flylib.pose2d import weights
 from flylib.pose2d.model import HourglassNet
 
@@ -55,7 +56,7 @@ def test_first_download_records_its_hash_and_later_uses_check_it(published, capl
 
 
 def test_a_file_put_in_the_cache_by_hand_is_recorded_then_checked(published, caplog):
-    cached = weights.cache_dir() / "sh8_deepfly.tar"
+    cached = cache_dir() / "sh8_deepfly.tar"
     cached.parent.mkdir(parents=True)
     cached.write_bytes(published.read_bytes())
     with caplog.at_level(logging.WARNING, logger="flylib.pose2d.weights"):
@@ -68,7 +69,7 @@ def test_a_file_put_in_the_cache_by_hand_is_recorded_then_checked(published, cap
 
 
 def test_a_new_download_replaces_a_stale_record(published):
-    cached = weights.cache_dir() / "sh8_deepfly.tar"
+    cached = cache_dir() / "sh8_deepfly.tar"
     cached.parent.mkdir(parents=True)
     weights.recorded_sha256_path(cached).write_text(f"{'0' * 64}  sh8_deepfly.tar\n")
     path = weights.resolve_weights("", url=published.as_uri())
