@@ -137,19 +137,10 @@ def mirror_free_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def held_out_error(cameras: CameraGroup, pts2d: np.ndarray) -> np.ndarray:
-    """``(V, T, P)`` leave-one-camera-out reprojection error in pixels: each point
-    triangulated (DLT) from every view but ``v`` that observed it, reprojected into
-    ``v``; NaN where ``v`` has no observation or fewer than two others saw the point.
-    Truth-free (the issue's yardstick for every default); uses every observation, so
-    two rigs are judged on the same ones (compare medians: gross outliers stay in)."""
-    from flylib.triangulation import triangulate
+    """``(V, T, P)`` leave-one-camera-out reprojection error in pixels over every frame:
+    :func:`flylib.accuracy.held_out_errors` with the DLT, so two rigs are judged on the
+    same observations (compare medians: gross outliers stay in)."""
+    from flylib.accuracy import held_out_errors, triangulation_method
 
-    seen = np.isfinite(pts2d).all(-1)
-    out = np.full(pts2d.shape[:3], np.nan)
-    for v in range(pts2d.shape[0]):
-        others = seen.copy()
-        others[v] = False
-        points = np.asarray(triangulate(cameras, np.where(others[..., None], pts2d, np.nan)))
-        points[others.sum(axis=0) < 2] = np.nan
-        out[v] = np.linalg.norm(np.asarray(cameras.project(points))[v] - pts2d[v], axis=-1)
-    return out
+    method = triangulation_method({"triangulation": {"method": "dlt"}}, cameras)
+    return held_out_errors(cameras, pts2d, method, windows=[(0, pts2d.shape[1])])["triangulation"]

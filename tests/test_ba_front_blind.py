@@ -20,8 +20,8 @@ from flylib.bundle_adjustment import bundle_adjust_from_config
 from flylib.bundle_adjustment.parts import (
     align_parts,
     camera_parts,
+    crossing_bones,
     point_parts,
-    split_bones,
 )
 from flylib.config import Config
 from flylib.triangulation import reconstruct_from_config
@@ -56,12 +56,8 @@ def test_cameras_sharing_no_point_form_groups_and_constraints_stay_inside():
     assert camera_parts(np.zeros((2, 6), bool), ids, 6).tolist() == [-1, -1]
     pt_part = point_parts(usable, ids, 6, part)
     assert pt_part.tolist() == [0, 0, 0, 1, 1, 1]  # column 0: two votes against one
-    # a left bone (0-1) and its right twin (3-4) share length group 0; 0-3 crosses
-    keep, groups, dropped = split_bones(
-        np.array([0, 3, 0]), np.array([1, 4, 3]), np.array([0, 0, 1]), pt_part
-    )
-    assert keep.tolist() == [True, True, False] and dropped == 1
-    assert groups[0] != groups[1]  # split by part: the twin no longer shares its length
+    # bones 0-1 and 3-4 stay inside a group, 0-3 joins the two
+    assert crossing_bones(np.array([0, 3, 0]), np.array([1, 4, 3]), pt_part) == 1
 
 
 def test_each_group_is_put_back_where_the_start_had_it():

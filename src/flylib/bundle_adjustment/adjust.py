@@ -35,7 +35,7 @@ from ..errors import ConfigError
 from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
-from .parts import align_parts, camera_parts, point_parts, split_bones
+from .parts import align_parts, camera_parts, crossing_bones, point_parts
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
 from .solver import Problem
 from .unknowns import (
@@ -309,8 +309,7 @@ def bundle_adjust(
         # no image can check a length joining two groups; inside a group its own views
         # fix the shape: on DeepFly3D's sample and the front-blind scene the within-group
         # lengths moved the 3D by < 0.002 bones at 2.6x the solve time, so none are used
-        within, _, _ = split_bones(bone_i, bone_j, bone_g, pt_part)
-        dropped_rows = int((~within).sum())
+        dropped_rows = crossing_bones(bone_i, bone_j, pt_part)
         bone_i, bone_j, bone_t = bone_i[:0], bone_j[:0], bone_t[:0]
         bone_g = None
     if bone_g is not None and bone_i.size:

@@ -8,10 +8,11 @@ side are two parts, and where one side sits, how it is turned and how large it i
 against the other is set by nothing in the images. A constraint joining two parts (a
 left bone asked to equal its right twin, a distance across the thorax asked to stay
 constant) would be the only thing placing them, and the data cannot check it; so
-:func:`~flylib.bundle_adjustment.adjust.bundle_adjust` drops such rows
-(:func:`split_bones`), holds one similarity per part during the fit and maps each part
-back onto where the starting rig put it (:func:`align_parts`): what the data cannot
-determine stays at the start.
+:func:`~flylib.bundle_adjustment.adjust.bundle_adjust` uses no length row when the
+cameras form several parts (:func:`crossing_bones` counts those joining two; inside a
+part its own views fix the shape), holds one similarity per part during the fit and
+maps each part back onto where the starting rig put it (:func:`align_parts`): what the
+data cannot determine stays at the start.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from .gauge import align_gauge
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
-__all__ = ["MIN_SHARED_POINTS", "align_parts", "camera_parts", "point_parts", "split_bones"]
+__all__ = ["MIN_SHARED_POINTS", "align_parts", "camera_parts", "crossing_bones", "point_parts"]
 
 #: two cameras are tied when they both observe at least this many 3D unknowns (fewer
 #: cannot fix a similarity between them, and a stray outlier must not tie two sides)
@@ -75,30 +76,13 @@ def point_parts(
     return out
 
 
-def split_bones(
+def crossing_bones(
     bone_i: Int[np.ndarray, " B"],
     bone_j: Int[np.ndarray, " B"],
-    bone_g: Int[np.ndarray, " B"] | None,
     pt_part: Int[np.ndarray, " U"],
-) -> tuple[Bool[np.ndarray, " B"], Int[np.ndarray, " B"] | None, int]:
-    """Bone rows restricted to one part each.
-
-    Returns
-    -------
-    keep : np.ndarray
-        ``(B,)`` rows whose two ends lie in one part.
-    groups : np.ndarray or None
-        ``(B,)`` the length groups split by part (a left bone no longer shares its
-        length with its right twin when the two sides are different parts).
-    dropped : int
-        How many rows joined two parts.
-    """
-    pi, pj = pt_part[bone_i], pt_part[bone_j]
-    keep = pi == pj
-    if bone_g is None:
-        return keep, None, int((~keep).sum())
-    _, groups = np.unique(np.stack([bone_g, pi]), axis=1, return_inverse=True)
-    return keep, np.asarray(groups).ravel(), int((~keep).sum())
+) -> int:
+    """How many bone rows ``(B,)`` join two parts (no image can check them)."""
+    return int((pt_part[bone_i] != pt_part[bone_j]).sum())
 
 
 def align_parts(
