@@ -62,6 +62,7 @@ __all__ = [
     "read_stage",
     "save_candidates",
     "verify_file",
+    "write_analysis",
     "write_stage",
 ]
 
@@ -953,6 +954,22 @@ class Pose2dData:
 
 
 # -- generic stage artifacts ---------------------------------------------------
+
+
+def write_analysis(
+    path: str | Path, stage: str, arrays: Mapping[str, Any], attrs: Mapping[str, Any]
+) -> Path:
+    """Write a post-processing stage's file (``kinematics.h5``, ``neuromechfly.h5``)
+    atomically: the meta JSON, and a group ``<stage>`` holding ``arrays`` as checksummed
+    float64 datasets and ``attrs`` as JSON group attributes."""
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta(stage))
+        group = f.create_group(stage)
+        for name, value in arrays.items():
+            _write_array(group, name, value)
+        for key, value in attrs.items():
+            group.attrs[key] = json.dumps(value)
+    return Path(path)
 
 
 def write_stage(

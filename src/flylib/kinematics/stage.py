@@ -14,11 +14,9 @@ column, NaN (an empty field) where a point is missing.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import h5py
 import numpy as np
 
 from ..paths import atomic_path
@@ -65,23 +63,21 @@ def write_angles_csv(path: str | Path, kin: Kinematics) -> Path:
 
 def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered: bool) -> Path:
     """Write ``kinematics.h5`` atomically (layout in the module docstring)."""
-    from ..results import _new_meta, _write_array
+    from ..results import write_analysis
 
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta("kinematics"))
-        group = f.create_group("kinematics")
-        _write_array(group, "angles", kin.angles)
-        _write_array(group, "points3d_body", kin.points3d_body)
-        _write_array(group, "body_rotation", kin.rotation)
-        _write_array(group, "body_origin", kin.origin)
-        for key, value in {
-            "angle_names": kin.angle_names,
-            "definitions": kin.definitions,
-            "point_names": list(point_names),
-            "tethered": bool(tethered),
-        }.items():
-            group.attrs[key] = json.dumps(value)
-    return Path(path)
+    arrays = {
+        "angles": kin.angles,
+        "points3d_body": kin.points3d_body,
+        "body_rotation": kin.rotation,
+        "body_origin": kin.origin,
+    }
+    attrs = {
+        "angle_names": kin.angle_names,
+        "definitions": kin.definitions,
+        "point_names": list(point_names),
+        "tethered": bool(tethered),
+    }
+    return write_analysis(path, "kinematics", arrays, attrs)
 
 
 def angles_figure(

@@ -24,7 +24,6 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import h5py
 import numpy as np
 
 from ..paths import atomic_path
@@ -88,34 +87,32 @@ def replay_data(path: str | Path) -> dict:
 
 def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
     """Write ``neuromechfly.h5`` atomically (layout in the module docstring)."""
-    from ..results import _new_meta, _write_array
+    from ..results import write_analysis
 
     a = nmf.alignment
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta("neuromechfly"))
-        group = f.create_group("neuromechfly")
-        _write_array(group, "angles", nmf.angles)
-        _write_array(group, "residual", nmf.residual)
-        _write_array(group, "model_residual", nmf.model_residual)
-        _write_array(group, "segment_scale", a.segment_scale)
-        _write_array(group, "aligned", nmf.aligned)
-        _write_array(group, "similarity_rotation", a.rotation)
-        _write_array(group, "similarity_translation", a.translation)
-        _write_array(group, "leg_scale", a.leg_scale)
-        for key, value in {
-            "dof_names": dof_names(),
-            "legs": list(LEGS),
-            "chain_joints": list(CHAIN_JOINTS),
-            "frame_rate": float(frame_rate),
-            "similarity_scale": a.scale,
-            "thorax_motion": a.thorax_motion,
-            "mirrored": a.mirrored,
-            "unsolved": nmf.unsolved,
-            "residual_summary": nmf.residual_summary(),
-            "model_residual_summary": nmf.residual_summary(model=True),
-        }.items():
-            group.attrs[key] = json.dumps(value)
-    return Path(path)
+    arrays = {
+        "angles": nmf.angles,
+        "residual": nmf.residual,
+        "model_residual": nmf.model_residual,
+        "segment_scale": a.segment_scale,
+        "aligned": nmf.aligned,
+        "similarity_rotation": a.rotation,
+        "similarity_translation": a.translation,
+        "leg_scale": a.leg_scale,
+    }
+    attrs = {
+        "dof_names": dof_names(),
+        "legs": list(LEGS),
+        "chain_joints": list(CHAIN_JOINTS),
+        "frame_rate": float(frame_rate),
+        "similarity_scale": a.scale,
+        "thorax_motion": a.thorax_motion,
+        "mirrored": a.mirrored,
+        "unsolved": nmf.unsolved,
+        "residual_summary": nmf.residual_summary(),
+        "model_residual_summary": nmf.residual_summary(model=True),
+    }
+    return write_analysis(path, "neuromechfly", arrays, attrs)
 
 
 def read_nmf_angles(path: str | Path) -> tuple[np.ndarray, list[str], float]:
