@@ -8,8 +8,11 @@ Every script runs two ways with the same argument parser:
   job: each named input, output and param whose name is one of the script's options
   (``pose2d`` -> ``--pose2d``; an unnamed single output -> ``--out``; a ``True`` param ->
   the bare flag), ``{outdir}`` -> ``--outdir``, the rule's ``threads`` -> ``--threads``,
-  stderr -> the job's log, and the run's :class:`~flylib.config.Config` from the
-  rule's ``params.config``.
+  stderr -> the job's log. A stage script given ``stage=`` runs on that stage's inputs
+  object (:mod:`flylib.pipeline.inputs`), rebuilt from the rule's tracked
+  ``params.stage`` and untracked ``params.runtime``; by hand it is built from
+  ``--config``. (A script without ``stage=`` gets the run's
+  :class:`~flylib.config.Config`: the rule's ``params.config``, or ``--config``.)
 """
 
 from __future__ import annotations
@@ -24,9 +27,9 @@ from typing import Any
 
 from flylib.errors import FlylibError
 
-# Params that are not script options: the tracked config subset (re-run provenance
-# only) and the run's config itself (handed over as an object).
-_NOT_OPTIONS = ("stage", "config")
+# Params that are not script options: the stage's tracked params and untracked runtime
+# (they make its inputs object) and the run's config itself (handed over as an object).
+_NOT_OPTIONS = ("stage", "runtime", "config")
 
 
 def script_parser(description: str) -> argparse.ArgumentParser:
@@ -114,6 +117,7 @@ def script_main(
     *,
     job: Any = None,
     outdir: Callable[[argparse.Namespace], str | Path] | None = None,
+    stage: str | None = None,
 ) -> int:
     """Parse the arguments (from ``argv``, or from the Snakemake ``job``), load the
     config, and run a stage under the thread budget; a user-facing error is printed as
@@ -122,6 +126,8 @@ def script_main(
     With ``outdir`` (the output directory the stage writes, from its arguments) the
     stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
     a second run writing the same directory fails naming the holder.
+
+    With ``stage``, ``run`` gets the stage's inputs object instead of the config.
     """
     if job is not None:
         parser.prog = f"{job.rule}.py"
@@ -136,11 +142,10 @@ def script_main(
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
-    from flylib.config import Config
     from flylib.resources import thread_budget
 
     try:
-        config = job.params.config if job is not None else Config.from_file(args.config)
+        config = _stage_config(args, job, stage)
         with thread_budget(args.threads):
             if outdir is None:
                 run(args, config)
@@ -153,6 +158,20 @@ def script_main(
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def _stage_config(args: argparse.Namespace, job: Any, stage: str | None) -> Any:
+    """What a stage runs on: its inputs object when ``stage`` is given (from the job's
+    params, or built from ``--config``), else the run's config."""
+    from flylib.config import Config
+
+    if stage is None:
+        return job.params.config if job is not None else Config.from_file(args.config)
+    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
+
+    if job is not None:
+        return inputs_from_job(stage, job.params.stage, job.params.runtime)
+    return stage_inputs(Config.from_file(args.config), stage)
 
 
 def run_script(main: Callable[..., int], namespace: dict) -> None:

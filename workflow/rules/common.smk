@@ -17,6 +17,7 @@ from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.pipeline.inputs import stage_params as _stage_params, stage_runtime as _stage_runtime
 from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 
 # envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
@@ -102,9 +103,19 @@ def recording(wildcards):
 
 
 def stage_params(stage: str) -> str:
-    """The rule's `params`: the stage's result-affecting config subset, as canonical JSON
-    (Snakemake re-runs a job when it changes)."""
-    return json.dumps(CONFIG.stage_params(stage), sort_keys=True)
+    """The rule's `params.stage`: the stage's tracked params (its inputs object's,
+    flylib.pipeline.inputs), as canonical JSON (Snakemake re-runs a job when it changes)."""
+    return json.dumps(_stage_params(CONFIG, stage), sort_keys=True)
+
+
+def job_runtime(stage: str):
+    """The rule's `params.runtime`: the untracked, speed-only part of the stage's inputs.
+    A derived param (a function of the job's input), so it re-runs nothing by itself."""
+
+    def runtime(wildcards, input):
+        return _stage_runtime(CONFIG, stage)
+
+    return runtime
 
 
 def artifact(stage: str) -> str:

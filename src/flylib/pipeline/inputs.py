@@ -1,0 +1,329 @@
+"""What each stage reads: one frozen, typed inputs object per stage, built here.
+
+A stage's inputs object holds everything its result depends on (its params, the rig
+and skeleton it needs) plus, in ``runtime``, the knobs that only change how fast it
+runs. :meth:`StageInputs.params` is the stage's *tracked* params: the canonical JSON
+its workflow rule carries as ``params.stage``, hashed into every artifact's
+provenance, so Snakemake re-runs the job exactly when it changes. A job rebuilds its
+inputs object from that JSON (:meth:`StageInputs.from_params`) and the rule's
+untracked ``params.runtime``; a stage therefore reads only what its rule tracks, by
+construction.
+
+Each stage's class lives in the stage's home (``flylib.pipeline.<stage>``) and is
+registered here with :func:`register`; :func:`stage_inputs` builds any stage's inputs
+from a :class:`~flylib.config.Config`, which is the only place below the workflow
+where a config object is read.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, TypeVar
+
+from ..config import PARAM_STAGES, Config
+from ..config.canonical import _canonical
+
+__all__ = [
+    "RigSpec",
+    "SkeletonSpec",
+    "StageInputs",
+    "frozen_mapping",
+    "register",
+    "stage_inputs",
+    "stage_params",
+    "stage_runtime",
+]
+
+#: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.
+INPUTS: dict[str, type[StageInputs]] = {}
+
+#: The module that defines each stage's inputs class (imported on first use).
+HOMES: dict[str, str] = {stage: f"flylib.pipeline.{stage}" for stage in PARAM_STAGES}
+
+
+class FrozenDict(dict):
+    """A dict that refuses changes (an inputs object's nested tables), hashable by
+    its canonical JSON."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a stage's inputs are read-only")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(json.dumps(_canonical(self), sort_keys=True))
+
+    def __deepcopy__(self, memo) -> dict:
+        return {k: copy.deepcopy(v, memo) for k, v in self.items()}
+
+    def __reduce__(self):
+        return (FrozenDict, (dict(self),))
+
+
+def frozen_mapping(value: Any) -> Any:
+    """``value`` with every mapping made a :class:`FrozenDict` and every list a tuple
+    (a deep, read-only copy)."""
+    if isinstance(value, Mapping):
+        return FrozenDict({k: frozen_mapping(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(frozen_mapping(v) for v in value)
+    return value
+
+
+def _json(value: Any) -> Any:
+    """A plain JSON copy of a frozen value (tuples back to lists, FrozenDicts to dicts)."""
+    if isinstance(value, Mapping):
+        return {k: _json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class SkeletonSpec:
+    """The skeleton table a stage reads.
+
+    Attributes
+    ----------
+    point_names
+        The points, in the order of every array's points axis.
+    limbs
+        ``(limb, (point, ...))`` chains, in table order.
+    palette, name
+        The plotting palette and the skeleton's name: only for the stages that draw
+        or name it (``None`` elsewhere, so they are not in those stages' params).
+    """
+
+    point_names: tuple[str, ...]
+    limbs: tuple[tuple[str, tuple[str, ...]], ...]
+    palette: Mapping[str, str] | None = None
+    name: str | None = None
+
+    @classmethod
+    def from_config(cls, config: Config, *, palette: bool = False, name: bool = False):
+        """The config's ``skeleton`` table (the default fly's when it has none)."""
+        from ..skeleton import default_skeleton_table
+
+        table = config.data.get("skeleton") or default_skeleton_table()
+        return cls(
+            point_names=tuple(table["point_names"]),
+            limbs=tuple((k, tuple(v)) for k, v in (table.get("limb_points") or {}).items()),
+            palette=frozen_mapping(dict(table.get("limb_palette") or {})) if palette else None,
+            name=str(table.get("name", "skeleton")) if name else None,
+        )
+
+    @classmethod
+    def from_params(cls, structure: Mapping, *, palette=None, name=None) -> SkeletonSpec:
+        """Inverse of :meth:`structure` (plus the palette and name where tracked)."""
+        return cls(
+            point_names=tuple(structure["point_names"]),
+            limbs=tuple((k, tuple(v)) for k, v in structure["limbs"]),
+            palette=frozen_mapping(dict(palette)) if palette is not None else None,
+            name=name,
+        )
+
+    def structure(self) -> dict:
+        """``{"point_names": [...], "limbs": [[limb, [points]], ...]}``: the part of
+        the skeleton every geometry stage's params hold."""
+        return {
+            "point_names": list(self.point_names),
+            "limbs": [[k, list(v)] for k, v in self.limbs],
+        }
+
+    def skeleton(self):
+        """The :class:`~flylib.skeleton.Skeleton` (palette and name where held)."""
+        from ..skeleton import Skeleton
+
+        table: dict[str, Any] = {
+            "point_names": list(self.point_names),
+            "limb_points": {k: list(v) for k, v in self.limbs},
+        }
+        if self.palette is not None:
+            table["limb_palette"] = dict(self.palette)
+        if self.name is not None:
+            table["name"] = self.name
+        return Skeleton.from_spec(table)
+
+
+@dataclass(frozen=True)
+class RigSpec:
+    """The config rig a stage reads: the ``cameras`` table and the ``calibration``
+    file, in view order.
+
+    Attributes
+    ----------
+    views
+        The camera names: the V axis of every points array.
+    cameras
+        The ``cameras`` table (``defaults`` included).
+    calibration
+        The ``calibration`` table, or ``None`` (an orbit rig from ``cameras``).
+    config_dir
+        Where a relative calibration path is looked up after the recording's folder
+        (the config file's folder). Not tracked: the calibration file itself is an
+        input of the rules that read it.
+    """
+
+    views: tuple[str, ...]
+    cameras: Mapping[str, Any]
+    calibration: Mapping[str, Any] | None
+    config_dir: Path | None = field(default=None, compare=True)
+
+    @classmethod
+    def from_config(cls, config: Config) -> RigSpec:
+        """The config's rig."""
+        calibration = config.data.get("calibration")
+        return cls(
+            views=tuple(config.view_names()),
+            cameras=frozen_mapping(dict(config.data.get("cameras") or {})),
+            calibration=frozen_mapping(dict(calibration)) if calibration else None,
+            config_dir=Path(config.source).parent if config.source else None,
+        )
+
+    @classmethod
+    def from_params(cls, table: Mapping, config_dir: Path | str | None = None) -> RigSpec:
+        """Inverse of :meth:`params`."""
+        calibration = table.get("calibration")
+        return cls(
+            views=tuple(table["views"]),
+            cameras=frozen_mapping(dict(table.get("cameras") or {})),
+            calibration=frozen_mapping(dict(calibration)) if calibration else None,
+            config_dir=Path(config_dir) if config_dir else None,
+        )
+
+    def params(self) -> dict:
+        """``{"views", "cameras", "calibration"}``: the rig as the params hold it."""
+        return {
+            "views": list(self.views),
+            "cameras": _json(self.cameras),
+            "calibration": _json(self.calibration) if self.calibration else None,
+        }
+
+    def _config(self) -> Config:
+        # The rig readers still take a config-shaped table; this is the one place that
+        # makes one, from the tracked rig alone.
+        data = {"cameras": _json(self.cameras)}
+        if self.calibration:
+            data["calibration"] = _json(self.calibration)
+        config = Config.__new__(Config)
+        config.data, config.text, config.format = data, None, "yaml"
+        config.source = self.config_dir / "config.yaml" if self.config_dir else None
+        return config
+
+    def camera_group(
+        self,
+        image_sizes: Mapping[str, tuple[int, int]] | None = None,
+        recording_dir: str | Path | None = None,
+    ):
+        """The :class:`~flylib.cameras.CameraGroup`: the calibration file's when set,
+        else the orbit rig of ``cameras`` (principal points from ``image_sizes``)."""
+        from ..interop.anipose import config_rig
+
+        return config_rig(self._config(), image_sizes, recording_dir)
+
+
+@dataclass(frozen=True)
+class StageInputs:
+    """Base of the per-stage inputs objects (frozen dataclasses).
+
+    Subclasses set :attr:`STAGE`, define :meth:`from_config`, :meth:`from_params` and
+    :meth:`params`, and keep their speed-only knobs in a ``runtime`` field (``None``
+    for a stage that has none), the one part :meth:`params` leaves out.
+    """
+
+    STAGE: ClassVar[str] = ""
+
+    @classmethod
+    def from_config(cls, config: Config) -> StageInputs:
+        """The stage's inputs as ``config`` gives them."""
+        raise NotImplementedError(cls.__name__)
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> StageInputs:
+        """Rebuild the inputs from :meth:`params` (the rule's ``params.stage``) and the
+        untracked ``runtime``."""
+        raise NotImplementedError(cls.__name__)
+
+    def params(self) -> dict:
+        """The tracked params: canonical (sorted keys), JSON-serialisable."""
+        raise NotImplementedError(type(self).__name__)
+
+    @property
+    def runtime_options(self) -> Any:
+        """The untracked part (``runtime`` field, ``None`` when the stage has none)."""
+        return getattr(self, "runtime", None)
+
+    def canonical_params(self) -> dict:
+        """:meth:`params` canonicalised and checked to be JSON."""
+        canonical = _canonical(self.params())
+        json.dumps(canonical)  # fail here, not in the workflow, if something is not JSON-able
+        return canonical
+
+
+T = TypeVar("T", bound=type)
+
+
+def register(cls: T) -> T:
+    """Class decorator: make ``cls`` the inputs class of ``cls.STAGE``."""
+    if cls.STAGE not in PARAM_STAGES:
+        raise ValueError(f"unknown stage {cls.STAGE!r} (known: {', '.join(PARAM_STAGES)})")
+    INPUTS[cls.STAGE] = cls
+    return cls
+
+
+def inputs_class(stage: str) -> type[StageInputs] | None:
+    """The registered inputs class of ``stage`` (importing its home), or ``None``."""
+    if stage not in PARAM_STAGES:
+        raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
+    if stage not in INPUTS:
+        try:
+            importlib.import_module(HOMES[stage])
+        except ModuleNotFoundError as exc:
+            if exc.name != HOMES[stage]:
+                raise
+    return INPUTS.get(stage)
+
+
+def stage_inputs(config: Config, stage: str) -> StageInputs:
+    """``stage``'s inputs object as ``config`` gives them.
+
+    Raises
+    ------
+    ValueError
+        For an unknown stage.
+    """
+    cls = inputs_class(stage)
+    if cls is None:
+        raise ValueError(f"stage {stage!r} has no inputs class yet")
+    return cls.from_config(config)
+
+
+def stage_params(config: Config, stage: str) -> dict:
+    """The params ``stage``'s rule tracks under ``config`` (canonical JSON)."""
+    cls = inputs_class(stage)
+    if cls is None:  # a stage not yet converted: the config's own statement
+        return config.stage_params(stage)
+    return cls.from_config(config).canonical_params()
+
+
+def stage_runtime(config: Config, stage: str) -> Any:
+    """The untracked runtime part of ``stage``'s inputs under ``config``."""
+    cls = inputs_class(stage)
+    if cls is None:
+        return None
+    return cls.from_config(config).runtime_options
+
+
+def inputs_from_job(stage: str, params_json: str | Mapping, runtime: Any) -> StageInputs:
+    """A Snakemake job's inputs: rebuilt from the rule's tracked ``params.stage`` (JSON
+    text) and its untracked ``params.runtime``."""
+    cls = inputs_class(stage)
+    if cls is None:
+        raise ValueError(f"stage {stage!r} has no inputs class yet")
+    params = json.loads(params_json) if isinstance(params_json, str) else params_json
+    return cls.from_params(params, runtime)
