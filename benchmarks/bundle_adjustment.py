@@ -183,20 +183,48 @@ def rough_case(hard: bool, frames: int) -> None:
                 print(f"    warning: {str(w.message)[:160]}")
 
 
+def _stage_calls():
+    """``(adjust, reconstruct)``: ``(config, rig, pts2d, conf)`` -> ``(result, refined
+    rig, pts3d)`` and ``(pts3d, pts2d_clean, error)``, the stages' calls in whichever
+    flylib is importable (this tree's compute steps, else the last release's
+    ``*_from_config`` adapters)."""
+    try:
+        from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
+        from flylib.pipeline.inputs import stage_inputs
+        from flylib.triangulation import reconstruct_with_params
+    except ImportError:  # the last release
+        from flylib.bundle_adjustment import bundle_adjust_from_config
+        from flylib.triangulation import reconstruct_from_config
+
+        return bundle_adjust_from_config, reconstruct_from_config
+
+    def adjust(config, rig, pts2d, conf):
+        adjusted = compute_bundle_adjustment(
+            stage_inputs(config, "bundle_adjustment"), rig, pts2d, conf
+        )
+        return adjusted.solution, adjusted.cameras, adjusted.points3d
+
+    def reconstruct(config, rig, pts2d, conf):
+        return reconstruct_with_params(rig, pts2d, config.triangulation, conf)
+
+    return adjust, reconstruct
+
+
 def fit_child(inputs: str, output: str) -> None:
     """Default-config bundle adjustment + triangulation of the arrays in ``inputs``
     (``.npz``) with whatever flylib is importable; writes ``output`` (``.npz``).
 
-    Only calls both this tree and the last release have: ``Config.default`` /
-    ``from_dict``, ``CameraGroup.from_arrays``, ``bundle_adjust_from_config``,
+    Calls ``Config.default`` / ``from_dict``, ``CameraGroup.from_arrays`` and the
+    stages' bundle adjustment and triangulation: this tree's compute steps
+    (:func:`_stage_calls`), or the last release's ``bundle_adjust_from_config`` and
     ``triangulation.reconstruct_from_config``.
     """
     import warnings
 
-    from flylib.bundle_adjustment import bundle_adjust_from_config
     from flylib.cameras import CameraGroup
     from flylib.config import Config
-    from flylib.triangulation import reconstruct_from_config
+
+    adjust, reconstruct = _stage_calls()
 
     data = np.load(inputs)
     names = [str(n) for n in data["names"]]
@@ -213,14 +241,14 @@ def fit_child(inputs: str, output: str) -> None:
                 "bundle_adjustment": {**config.data["bundle_adjustment"], "max_frames": 10},
             }
         )
-        bundle_adjust_from_config(small, start, pts2d[:, :20], conf[:, :20])
-        reconstruct_from_config(small, start, pts2d[:, :20], conf[:, :20])
+        adjust(small, start, pts2d[:, :20], conf[:, :20])
+        reconstruct(small, start, pts2d[:, :20], conf[:, :20])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        result, refined, _ = bundle_adjust_from_config(config, start, pts2d, conf)
+        result, refined, _ = adjust(config, start, pts2d, conf)
         ba_s = time.perf_counter() - t0
-        pts3d, _, _ = reconstruct_from_config(config, refined, pts2d, conf)
+        pts3d, _, _ = reconstruct(config, refined, pts2d, conf)
         total_s = time.perf_counter() - t0
     report = getattr(result, "report", {}) or {}
     np.savez(

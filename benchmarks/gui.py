@@ -110,7 +110,7 @@ def main(argv=None) -> int:
 
     from flylib.gui import ReviewSession
     from flylib.io import open_reader
-    from flylib.triangulation import reconstruct_from_config
+    from flylib.triangulation import reconstruct_with_params
 
     from gui_fixtures import make_demo_outputs
 
@@ -213,7 +213,9 @@ def main(argv=None) -> int:
         print(f"edit, journal line written and fsync'd:   {stats(journal)} (inside the reply)")
         print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
         begin = time.perf_counter()
-        reconstruct_from_config(session.config, session.cameras, session.base2d, session.conf)
+        reconstruct_with_params(
+            session.cameras, session.base2d, session.triangulation, session.conf
+        )
         whole = (time.perf_counter() - begin) * 1000
         print(
             f"baseline, re-triangulating the recording: {whole:6.1f} ms "

@@ -93,13 +93,18 @@ def bench_planning(n: int) -> dict:
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.triangulation import run_triangulation
 
     p2d = stages.artifact_path(out, "pose2d")
     ba = stages.artifact_path(out, "bundle_adjustment")
     tri = stages.artifact_path(out, "triangulation")
     stages.run_pose2d(config, rec_dir, p2d, import_spec=demo_import_spec(config))
-    stages.run_bundle_adjustment(config, p2d, ba, recording_dir=rec_dir)
-    stages.run_triangulation(config, p2d, tri, ba_path=ba, recording_dir=rec_dir)
+    run_bundle_adjustment(stage_inputs(config, "bundle_adjustment"), p2d, ba, recording_dir=rec_dir)
+    run_triangulation(
+        stage_inputs(config, "triangulation"), p2d, tri, ba_path=ba, recording_dir=rec_dir
+    )
     stages.run_assemble(
         config,
         {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri},

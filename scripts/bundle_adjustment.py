@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_bundle_adjustment
+from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 
 from _cli import output_dir, run_script, script_main, script_parser
 
@@ -21,10 +21,17 @@ def main(argv=None, *, job=None) -> int:
         help="recording directory (resolves a per-session calibration file)",
     )
 
-    def run(args, config):
-        run_bundle_adjustment(config, args.pose2d, args.out, recording_dir=args.recording)
+    def run(args, inputs):
+        run_bundle_adjustment(inputs, args.pose2d, args.out, recording_dir=args.recording)
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
+    return script_main(
+        parser,
+        run,
+        argv,
+        job=job,
+        stage="bundle_adjustment",
+        outdir=lambda args: output_dir(args.out),
+    )
 
 
 if __name__ == "__main__":

@@ -3,7 +3,9 @@
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_pictorial_structures
+from flylib.config import Config
+from flylib.pipeline.pictorial_structures import run_pictorial_structures
+from flylib.pipeline.stages import run_inputs
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -19,9 +21,12 @@ def main(argv=None, *, job=None) -> int:
     )
     add_rig_stage_arguments(parser)
 
-    def run(args, config):
+    def run(args, inputs):
+        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
+            # by hand without --bundle-adjustment: the config rig, as its help says
+            inputs = run_inputs(Config.from_file(args.config), "pictorial_structures")
         run_pictorial_structures(
-            config,
+            inputs,
             args.pose2d,
             args.out,
             candidates_path=args.candidates,
@@ -29,7 +34,14 @@ def main(argv=None, *, job=None) -> int:
             recording_dir=args.recording,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
+    return script_main(
+        parser,
+        run,
+        argv,
+        job=job,
+        stage="pictorial_structures",
+        outdir=lambda args: output_dir(args.out),
+    )
 
 
 if __name__ == "__main__":

@@ -3,7 +3,9 @@
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_triangulation
+from flylib.config import Config
+from flylib.pipeline.stages import run_inputs
+from flylib.pipeline.triangulation import run_triangulation
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -25,9 +27,12 @@ def main(argv=None, *, job=None) -> int:
         help="corrections.h5 sidecar (flylib gui): apply its manual edits",
     )
 
-    def run(args, config):
+    def run(args, inputs):
+        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
+            # by hand without --bundle-adjustment: the config rig, as its help says
+            inputs = run_inputs(Config.from_file(args.config), "triangulation")
         run_triangulation(
-            config,
+            inputs,
             args.pose2d,
             args.out,
             pictorial_path=args.pictorial_structures,
@@ -36,7 +41,9 @@ def main(argv=None, *, job=None) -> int:
             corrections_path=args.corrections,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
+    return script_main(
+        parser, run, argv, job=job, stage="triangulation", outdir=lambda args: output_dir(args.out)
+    )
 
 
 if __name__ == "__main__":

@@ -17,7 +17,9 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
     from flylib.config import Config
     from flylib.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_assemble, run_pose2d, run_triangulation
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.stages import run_assemble, run_pose2d
+    from flylib.pipeline.triangulation import run_triangulation
 
     data = Config.default().data
     data["pipeline"]["do_bundle_adjustment"] = False  # what is run below: the config rig
@@ -28,7 +30,7 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
         config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
     )
     run_triangulation(
-        config,
+        stage_inputs(config, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
         recording_dir=directory,

@@ -284,16 +284,21 @@ def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None, *
 
     Returns ``(result, refined rig, pts3d (T, 38, 3), error in median bones (T, 38))``.
     """
-    from flylib.bundle_adjustment import bundle_adjust_from_config
     from flylib.config import Config
-    from flylib.triangulation import reconstruct_from_config
+    from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.triangulation import reconstruct_with_params
 
     base = Config.default()
     data = dict(base.data)
     data["bundle_adjustment"] = {**(data.get("bundle_adjustment") or {}), **overrides}
     config = Config.from_dict(data)
-    result, refined, _ = bundle_adjust_from_config(
-        config, case.start if start is None else start, case.pts2d, case.conf
+    adjusted = compute_bundle_adjustment(
+        stage_inputs(config, "bundle_adjustment"),
+        case.start if start is None else start,
+        case.pts2d,
+        case.conf,
     )
-    pts3d, _, _ = reconstruct_from_config(config, refined, case.pts2d, case.conf)
+    result, refined = adjusted.solution, adjusted.cameras
+    pts3d, _, _ = reconstruct_with_params(refined, case.pts2d, config.triangulation, case.conf)
     return result, refined, pts3d, similarity_error(pts3d, case.truth) / case.bone

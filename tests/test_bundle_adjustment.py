@@ -361,9 +361,15 @@ def test_points_to_use_restricts_points_by_name(clean_scene):
         bundle_adjust_sequence(rig, pts2d, conf, skeleton, points_to_use=["wing"])
 
 
-def test_from_config_uses_the_table(clean_scene):
-    from flylib.bundle_adjustment import bundle_adjust_from_config
+def test_the_stage_uses_the_bundle_adjustment_table(clean_scene):
     from flylib.config import Config
+    from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+
+    def adjust(config):
+        inputs = stage_inputs(config, "bundle_adjustment")
+        adjusted = compute_bundle_adjustment(inputs, rig, pts2d, conf)
+        return adjusted.solution, adjusted.cameras, adjusted.points3d
 
     rig, _, pts2d, conf = clean_scene
     base = Config.default().data
@@ -382,7 +388,7 @@ def test_from_config_uses_the_table(clean_scene):
     )
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # nothing to warn about: see below
-        result, refined, pts3d = bundle_adjust_from_config(config, rig, pts2d, conf)
+        result, refined, pts3d = adjust(config)
     assert (
         len(result.frames) == 4 and result.nfev <= 4
     )  # max_nfev reaches the solver (the final round)
@@ -394,4 +400,4 @@ def test_from_config_uses_the_table(clean_scene):
     assert np.isfinite(pts3d).all(-1).sum() <= 4 * 4
     bad = Config.from_dict({**base, "bundle_adjustment": {"fixed": ["f.rot"]}})
     with pytest.raises(ConfigError, match="f.rot"):
-        bundle_adjust_from_config(bad, rig, pts2d, conf)
+        adjust(bad)

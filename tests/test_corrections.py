@@ -9,9 +9,10 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
 from flylib.errors import ConfigError, ResultsError
-from flylib.pipeline.stages import run_assemble, run_triangulation
+from flylib.pipeline.stages import run_assemble, run_inputs
+from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, PoseResult, read_stage
-from flylib.triangulation import reconstruct_from_config
+from flylib.triangulation import reconstruct_with_params
 
 from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
@@ -93,12 +94,17 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
         edits3d=[(8, 0, 0.1, 0.2, 0.3)],
     )
     out = tmp_path / "triangulation.h5"
-    run_triangulation(config, outdir / "stages" / "pose2d.h5", out, corrections_path=sidecar)
+    run_triangulation(
+        run_inputs(config, "triangulation"),
+        outdir / "stages" / "pose2d.h5",
+        out,
+        corrections_path=sidecar,
+    )
     tri = read_stage(out, "triangulation")
     expected = pose2d.pts2d.copy()
     expected[views[0], t, p] = moved
     expected[hidden, 6, q] = np.nan
-    want3d, _, _ = reconstruct_from_config(config, cameras, expected, pose2d.conf)
+    want3d, _, _ = reconstruct_with_params(cameras, expected, config.triangulation, pose2d.conf)
     np.testing.assert_allclose(tri["points3d"][t, p], want3d[t, p], atol=1e-9)
     np.testing.assert_allclose(tri["points3d"][6, q], want3d[6, q], atol=1e-9)
     assert not np.isfinite(tri["points"][hidden, 6, q]).any()
@@ -137,7 +143,9 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
                     far = pts[v, 0, 0] + shift
                     plain = Corrections.empty(len(cameras), 1, 1)
                     plain.set_point(v, 0, 0, far)
-                    _, clean, _, _ = reconstruct_corrected(config, cameras, pts, None, plain)
+                    _, clean, _, _ = reconstruct_corrected(
+                        config.triangulation, cameras, pts, None, plain
+                    )
                     if not np.isfinite(clean[v, 0, 0]).all():
                         return pts, v, far
         raise AssertionError("no edit was rejected by ransac")
@@ -145,7 +153,9 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
     pts, v, far = dropped_case()
     fixed = Corrections.empty(len(cameras), 1, 1)
     fixed.set_point(v, 0, 0, far, fixed=True)
-    pts3d, clean, error, corrected = reconstruct_corrected(config, cameras, pts, None, fixed)
+    pts3d, clean, error, corrected = reconstruct_corrected(
+        config.triangulation, cameras, pts, None, fixed
+    )
     np.testing.assert_allclose(clean[v, 0, 0], far)
     assert corrected[0, 0] and np.isfinite(pts3d).all() and error[v, 0, 0] < 60
 
@@ -155,21 +165,27 @@ def test_a_sidecar_of_another_shape_fails_naming_it(outdir, tmp_path):
     sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES + 2, 38))
     with pytest.raises(ResultsError, match=r"corrections\.h5: corrects a result of"):
         run_triangulation(
-            config, outdir / "stages" / "pose2d.h5", tmp_path / "t.h5", corrections_path=sidecar
+            run_inputs(config, "triangulation"),
+            outdir / "stages" / "pose2d.h5",
+            tmp_path / "t.h5",
+            corrections_path=sidecar,
         )
     assert not (tmp_path / "t.h5").exists()
 
 
 def test_corrections_path_default_and_template(tmp_path):
     config = Config.default()
-    assert corrections_path(config, tmp_path) == (tmp_path / "corrections.h5", False)
+    assert corrections_path(config.data.get("corrections"), tmp_path) == (
+        tmp_path / "corrections.h5",
+        False,
+    )
     data = dict(config.data, corrections="fixes/{name}.h5")
-    assert corrections_path(data, tmp_path / "out", tmp_path / "fly1") == (
+    assert corrections_path(data["corrections"], tmp_path / "out", tmp_path / "fly1") == (
         tmp_path / "out" / "fixes" / "fly1.h5",
         True,
     )
     with pytest.raises(ConfigError, match="unknown placeholder"):
-        corrections_path(dict(config.data, corrections="{nope}.h5"), tmp_path)
+        corrections_path("{nope}.h5", tmp_path)
     from flylib.config.validation import validate_config
 
     assert not [m for m in validate_config(data) if "corrections" in m]
@@ -191,7 +207,7 @@ def test_reconstruct_corrected_takes_the_rig_first():
     cameras = config.camera_group(image_sizes={name: (480, 960) for name in config.view_names()})
     pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
     with pytest.raises(TypeError, match="rig before the points"):
-        reconstruct_corrected(config, pts, cameras)
+        reconstruct_corrected(config.triangulation, pts, cameras)
 
 
 # -- integrity (issue 25) ---------------------------------------------------------------
@@ -277,7 +293,7 @@ def test_the_triangulation_stage_refuses_an_out_of_image_sidecar(outdir, tmp_pat
     )
     with pytest.raises(ResultsError, match="lies outside the 960x480 image; nothing was applied"):
         run_triangulation(
-            Config.from_file(outdir / "config.yaml"),
+            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
             outdir / "stages" / "pose2d.h5",
             tmp_path / "triangulation.h5",
             corrections_path=path,

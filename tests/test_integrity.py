@@ -268,7 +268,8 @@ def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig
 def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     """Import the demo's 2D for a 6-frame recording, triangulate, assemble."""
     from flylib.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_assemble, run_pose2d, run_triangulation
+    from flylib.pipeline.stages import run_assemble, run_inputs, run_pose2d
+    from flylib.pipeline.triangulation import run_triangulation
 
     recording = tmp_path / "rec"
     make_demo(config, recording, frames=6, seed=0)
@@ -277,7 +278,7 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
         config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
     )
     run_triangulation(
-        config,
+        run_inputs(config, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
         recording_dir=recording,
@@ -331,10 +332,11 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     edited = _config(
         tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5)
     )
-    from flylib.pipeline.stages import run_triangulation
+    from flylib.pipeline.stages import run_inputs
+    from flylib.pipeline.triangulation import run_triangulation
 
     run_triangulation(
-        edited,
+        run_inputs(edited, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
         recording_dir=recording,

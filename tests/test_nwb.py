@@ -39,6 +39,7 @@ def demo_result(tmp_path_factory):
     """A demo recording run through pose2d (DLC import) and triangulation; its results.h5."""
     from flylib.demo import demo_import_spec, make_demo
     from flylib.pipeline import stages
+    from flylib.pipeline.triangulation import run_triangulation
 
     config = Config.default()
     root = tmp_path_factory.mktemp("nwb")
@@ -48,8 +49,8 @@ def demo_result(tmp_path_factory):
     stages.run_pose2d(
         config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
     )
-    stages.run_triangulation(
-        config,
+    run_triangulation(
+        stages.run_inputs(config, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
         recording_dir=recording,

@@ -148,16 +148,17 @@ def test_candidates_validate_shapes():
         ps.Candidates(np.zeros((2, 3, 4, 2)), np.zeros((2, 3, 4)))
 
 
-def test_reconstruct_from_config(scene):
+def test_the_stage_uses_the_pictorial_structures_table(scene):
     from flylib.config import Config
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.pictorial_structures import compute_pictorial_structures
 
     rig, _, _, pts2d, cand = scene
     config = Config.from_dict(
         {**Config.default().data, "pictorial_structures": {"k": 3, "temporal": True, "lam": 2.0}}
     )
-    pts3d, committed, reproj = ps.reconstruct_from_config(config, rig, cand)
-    np.testing.assert_array_equal(committed, pts2d)
-    assert pts3d.shape == (24, 38, 3) and reproj.shape == (7, 24, 38)
-    # the rig right after the config, as triangulation.reconstruct_from_config takes it
-    with pytest.raises(TypeError, match="rig before the candidates"):
-        ps.reconstruct_from_config(config, cand, rig)
+    inputs = stage_inputs(config, "pictorial_structures")
+    assert inputs.pictorial_structures.solver_kwargs()["lam"] == 2.0
+    result = compute_pictorial_structures(inputs, rig, cand)
+    np.testing.assert_array_equal(result.points, pts2d)
+    assert result.points3d.shape == (24, 38, 3) and result.reproj_error.shape == (7, 24, 38)

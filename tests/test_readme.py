@@ -103,7 +103,9 @@ def test_the_nothing_to_do_heading_is_the_workflows():
 def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pickle, tmp_path):
     import json
 
-    from flylib.pipeline.stages import run_bundle_adjustment, run_pose2d
+    from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.stages import run_pose2d
     from flylib.results import read_stage
 
     quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", README).group(1))
@@ -111,6 +113,8 @@ def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pic
     spec = {"format": "deepfly3d", "files": df3d_pickle.name}
     run_pose2d(config, df3d_sample_dir, tmp_path / "pose2d.h5", import_spec=spec)
     with pytest.warns(RuntimeWarning, match="poorly determined"):  # the README says it warns
-        run_bundle_adjustment(config, tmp_path / "pose2d.h5", tmp_path / "ba.h5")
+        run_bundle_adjustment(
+            stage_inputs(config, "bundle_adjustment"), tmp_path / "pose2d.h5", tmp_path / "ba.h5"
+        )
     summary = json.loads(read_stage(tmp_path / "ba.h5", "bundle_adjustment")["attrs"]["summary"])
     assert summary["report"]["final_median_px"] == pytest.approx(quoted, abs=0.02)

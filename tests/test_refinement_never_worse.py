@@ -14,6 +14,9 @@ import pytest
 
 from flylib.config import Config
 from flylib.pipeline import stages
+from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.triangulation import run_triangulation
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
 
@@ -27,7 +30,12 @@ def _check_never_worse(out, with_ba=True):
     config = Config.default()
     s = out / "stages"
     ba = s / "bundle_adjustment.h5" if with_ba else None
-    stages.run_triangulation(config, s / "pose2d.h5", s / "triangulation.h5", ba_path=ba)
+    run_triangulation(
+        stages.run_inputs(config, "triangulation", ba),
+        s / "pose2d.h5",
+        s / "triangulation.h5",
+        ba_path=ba,
+    )
     stages.run_refinement(
         config, s / "pose2d.h5", s / "triangulation.h5", s / "refinement.h5", ba_path=ba
     )
@@ -62,7 +70,8 @@ def test_real_sample_with_the_workflow_defaults(df3d_sample_dir, tmp_path):
     config = Config.default()
     s = tmp_path / "stages"
     stages.run_pose2d(config, df3d_sample_dir, s / "pose2d.h5", import_spec={"format": "deepfly3d"})
-    stages.run_bundle_adjustment(config, s / "pose2d.h5", s / "bundle_adjustment.h5")
+    ba_inputs = stage_inputs(config, "bundle_adjustment")
+    run_bundle_adjustment(ba_inputs, s / "pose2d.h5", s / "bundle_adjustment.h5")
     acc = _check_never_worse(tmp_path)
     assert acc["frames_evaluated"] == acc["frames_total"] == 15
     # the smoothness is the candidate of lowest held-out error: here a multiple of the
@@ -89,7 +98,8 @@ def test_front_blind_scene_through_bundle_adjustment(tmp_path):
     Pose2dData(case.pts2d, conf, list(case.rig.names), sizes).save(
         s / "pose2d.h5", config.skeleton()
     )
-    stages.run_bundle_adjustment(config, s / "pose2d.h5", s / "bundle_adjustment.h5")
+    ba_inputs = stage_inputs(config, "bundle_adjustment")
+    run_bundle_adjustment(ba_inputs, s / "pose2d.h5", s / "bundle_adjustment.h5")
     acc = _check_never_worse(tmp_path)
     assert acc["triangulation"]["held_out_px"]["median"] < 10  # a usable rig to judge on
 

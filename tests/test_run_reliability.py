@@ -613,7 +613,8 @@ def test_workflow_refuses_yte_and_warns_about_a_copied_outdir(finished_run, tmp_
 
 def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not_ok(tmp_path):
     from flylib.config import Config
-    from flylib.pipeline.stages import run_assemble, run_triangulation
+    from flylib.pipeline.stages import run_assemble, run_inputs
+    from flylib.pipeline.triangulation import run_triangulation
     from flylib.provenance import provenance_report
 
     from gui_fixtures import make_demo_outputs, write_seed_sidecar
@@ -631,7 +632,7 @@ def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not
     ]
     stages = out / "stages"
     run_triangulation(
-        config,
+        run_inputs(config, "triangulation"),
         stages / "pose2d.h5",
         stages / "triangulation.h5",
         recording_dir=tmp_path / "rec",

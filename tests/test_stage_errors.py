@@ -17,6 +17,9 @@ from flylib.config import Config
 from flylib.errors import OutputError, StageError
 from flylib.interop.views import view_names
 from flylib.pipeline import stages
+from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData
 
 
@@ -63,12 +66,14 @@ def test_bundle_adjustment_linalg_error_is_one_line(monkeypatch, config, pose2d,
 
     monkeypatch.setattr(
         ba,
-        "bundle_adjust_from_config",
+        "bundle_adjust_sequence",
         _raise(np.linalg.LinAlgError("Eigenvalues did not converge")),
     )
     out = tmp_path / "stages" / "bundle_adjustment.h5"
     with pytest.raises(StageError) as err:
-        stages.run_bundle_adjustment(config, pose2d, out, recording_dir=tmp_path)
+        run_bundle_adjustment(
+            stage_inputs(config, "bundle_adjustment"), pose2d, out, recording_dir=tmp_path
+        )
     text = _one_line(
         err,
         tmp_path,
@@ -93,8 +98,11 @@ def test_triangulation_failures_are_one_line(monkeypatch, config, pose2d, tmp_pa
 
     monkeypatch.setattr(corrections, "reconstruct_corrected", _raise(exc))
     with pytest.raises(StageError) as err:
-        stages.run_triangulation(
-            config, pose2d, tmp_path / "stages" / "triangulation.h5", recording_dir=tmp_path
+        run_triangulation(
+            stages.run_inputs(config, "triangulation"),
+            pose2d,
+            tmp_path / "stages" / "triangulation.h5",
+            recording_dir=tmp_path,
         )
     _one_line(err, tmp_path, "triangulation failed", type(exc).__name__, "check its 2D")
 
@@ -119,7 +127,8 @@ def test_refinement_and_kinematics_failures_name_the_recording(monkeypatch, conf
 def test_flylib_and_storage_errors_pass_unchanged(monkeypatch, config, pose2d, tmp_path, exc):
     import flylib.bundle_adjustment as ba
 
-    monkeypatch.setattr(ba, "bundle_adjust_from_config", _raise(exc))
+    monkeypatch.setattr(ba, "bundle_adjust_sequence", _raise(exc))
+    inputs = stage_inputs(config, "bundle_adjustment")
     with pytest.raises(type(exc)) as err:
-        stages.run_bundle_adjustment(config, pose2d, tmp_path / "ba.h5", recording_dir=tmp_path)
+        run_bundle_adjustment(inputs, pose2d, tmp_path / "ba.h5", recording_dir=tmp_path)
     assert err.value is exc

@@ -7,7 +7,10 @@ import pytest
 from flylib.config import Config
 from flylib.demo import demo_import_spec, make_demo
 from flylib.errors import ResultsError
-from flylib.pipeline.stages import run_pictorial_structures, run_pose2d
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.pictorial_structures import run_pictorial_structures
+from flylib.pipeline.stages import run_inputs, run_pose2d
+from flylib.pipeline.triangulation import run_triangulation
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +43,21 @@ def test_candidates_for_imported_2d_fail_in_one_line_with_the_fix(imported):
 
 def test_pictorial_structures_without_candidates_names_the_artifact(imported):
     config, root, _, pose2d = imported
+    inputs = run_inputs(config, "pictorial_structures")
     with pytest.raises(ResultsError, match=r"pose2d.h5: holds no candidate peaks"):
-        run_pictorial_structures(config, pose2d, root / "ps.h5")
+        run_pictorial_structures(inputs, pose2d, root / "ps.h5")
     with pytest.raises(ResultsError, match=r"absent.h5"):
-        run_pictorial_structures(config, pose2d, root / "ps.h5", candidates_path=root / "absent.h5")
+        run_pictorial_structures(inputs, pose2d, root / "ps.h5", candidates_path=root / "absent.h5")
     assert not (root / "ps.h5").exists()
+
+
+def test_a_rig_stage_with_bundle_adjustment_on_needs_its_artifact(imported):
+    config, root, _, pose2d = imported
+    inputs = stage_inputs(config, "triangulation")
+    assert inputs.rig is None  # bundle adjustment on: the rig comes from its artifact
+    with pytest.raises(ResultsError, match=r"^triangulation: bundle adjustment is on.*--bundle"):
+        run_triangulation(inputs, pose2d, root / "tri.h5")
+    assert not (root / "tri.h5").exists()
+    # without the artifact a run uses the config rig, and its params track that rig
+    out = run_triangulation(run_inputs(config, "triangulation"), pose2d, root / "tri.h5")
+    assert out.exists() and run_inputs(config, "triangulation").rig is not None

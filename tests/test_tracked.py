@@ -16,6 +16,8 @@ import pytest
 from flylib.config import PARAM_STAGES, Config
 from flylib.errors import ConfigError
 from flylib.pipeline import stages
+from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.tracked import (
     UNTRACKED,
     StageConfig,
@@ -23,6 +25,7 @@ from flylib.pipeline.tracked import (
     stage_reads,
     upstream_reads,
 )
+from flylib.pipeline.triangulation import run_triangulation
 
 _CHOICES = (
     "dlt",
@@ -239,11 +242,18 @@ def base_run(tmp_path_factory):
     spec = demo_import_spec(config)
     (out / "stages").mkdir(parents=True)
     p2d = stages.run_pose2d(config, rec, out / "stages" / "pose2d.h5", import_spec=spec)
-    ba = stages.run_bundle_adjustment(
-        config, p2d, out / "stages" / "bundle_adjustment.h5", recording_dir=rec
+    ba = run_bundle_adjustment(
+        stage_inputs(config, "bundle_adjustment"),
+        p2d,
+        out / "stages" / "bundle_adjustment.h5",
+        recording_dir=rec,
     )
-    tri = stages.run_triangulation(
-        config, p2d, out / "stages" / "triangulation.h5", ba_path=ba, recording_dir=rec
+    tri = run_triangulation(
+        stage_inputs(config, "triangulation"),
+        p2d,
+        out / "stages" / "triangulation.h5",
+        ba_path=ba,
+        recording_dir=rec,
     )
     ref = stages.run_refinement(
         config, p2d, tri, out / "stages" / "refinement.h5", ba_path=ba, recording_dir=rec
@@ -283,11 +293,14 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
     upstream = {k: base[k] for k in ("pose2d", "bundle_adjustment", "triangulation", "refinement")}
     run = {
         "pose2d": lambda: stages.run_pose2d(other, rec, out / "pose2d.h5", import_spec=spec),
-        "bundle_adjustment": lambda: stages.run_bundle_adjustment(
-            other, base["pose2d"], out / "ba.h5", recording_dir=rec
+        "bundle_adjustment": lambda: run_bundle_adjustment(
+            stage_inputs(other, "bundle_adjustment"),
+            base["pose2d"],
+            out / "ba.h5",
+            recording_dir=rec,
         ),
-        "triangulation": lambda: stages.run_triangulation(
-            other,
+        "triangulation": lambda: run_triangulation(
+            stage_inputs(other, "triangulation"),
             base["pose2d"],
             out / "tri.h5",
             ba_path=base["bundle_adjustment"],

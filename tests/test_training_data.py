@@ -11,7 +11,8 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections
 from flylib.errors import ResultsError
-from flylib.pipeline.stages import run_assemble, run_triangulation
+from flylib.pipeline.stages import run_assemble, run_inputs
+from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import PoseResult
 
 from gui_fixtures import make_demo_outputs
@@ -37,7 +38,7 @@ def corrected_run(tmp_path_factory):
     sidecar = corrections.save(out / "corrections.h5")
     stages = out / "stages"
     run_triangulation(
-        config,
+        run_inputs(config, "triangulation"),
         stages / "pose2d.h5",
         stages / "triangulation.h5",
         recording_dir=out.parent,

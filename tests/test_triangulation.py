@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pickle
-from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
@@ -369,29 +369,38 @@ def test_reconstruct_dispatch_shapes(rig, scene):
         tri.reconstruct(rig, pts2d, method="magic")
 
 
-def test_reconstruct_from_config(rig, scene):
+def test_reconstruct_with_params_reads_the_methods_knobs(rig, scene):
     pts3d, pts2d = scene
     corrupted = pts2d.copy()
     corrupted[2] += 60.0
     config = Config.from_dict({"triangulation": {"method": "ransac", "ransac_threshold": 20.0}})
-    got, clean, _ = tri.reconstruct_from_config(config, rig, corrupted)
+    got, clean, _ = tri.reconstruct_with_params(rig, corrupted, config.triangulation)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert np.isnan(clean[2]).all()
     # With a threshold above the outlier's pull, nothing is rejected.
     loose = Config.from_dict({"triangulation": {"method": "greedy", "reproj_threshold": 1000.0}})
-    got, clean, _ = tri.reconstruct_from_config(loose, rig, corrupted)
+    got, clean, _ = tri.reconstruct_with_params(rig, corrupted, loose.triangulation)
     assert np.isfinite(clean).all() and np.abs(got - pts3d).max() > 1e-4
-
-    @dataclass
-    class Params:  # any object with the attributes works
-        method: str = "nonsense"
-
-    @dataclass
-    class Holder:
-        triangulation: Params
-
+    # the method is checked once, where the config is read
     with pytest.raises(ConfigError, match="triangulation.method"):
-        tri.reconstruct_from_config(Holder(Params()), rig, pts2d)
+        Config.from_dict({"triangulation": {"method": "nonsense"}})
+
+
+def test_each_methods_knobs_are_params_fields_and_reconstruct_keywords():
+    import inspect
+
+    from flylib.config.constants import TRIANGULATION_METHODS
+    from flylib.config.params import TRIANGULATION_KNOBS, TriangulationParams
+
+    fields = {f.name for f in dataclasses.fields(TriangulationParams)}
+    keywords = set(inspect.signature(tri.reconstruct).parameters)
+    assert set(TRIANGULATION_KNOBS) == set(TRIANGULATION_METHODS)
+    for method, knobs in TRIANGULATION_KNOBS.items():
+        assert set(knobs) <= fields and set(knobs.values()) <= keywords, method
+        params = TriangulationParams(method=method, ransac_threshold=7.0, max_drops=1)
+        assert set(params.method_params()) == {"method", "weigh_by_confidence", *knobs}
+        kwargs = params.method_kwargs()
+        assert kwargs == {kw: getattr(params, name) for name, kw in knobs.items()}
 
 
 # -- real data ------------------------------------------------------------------------------------------

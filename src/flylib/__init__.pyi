@@ -14,7 +14,6 @@ from .accuracy import (
 )
 from .bundle_adjustment import (
     bundle_adjust as bundle_adjust,
-    bundle_adjust_from_config as bundle_adjust_from_config,
     bundle_adjust_sequence as bundle_adjust_sequence,
     select_frames as select_frames,
 )

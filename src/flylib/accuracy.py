@@ -24,6 +24,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
     from .cameras import CameraGroup
+    from .config.params import TriangulationParams
+    from .config.postprocessing import RefinementParams
+    from .skeleton import Skeleton
 
 #: At most this many frames are held out per recording (in windows of
 #: :data:`EVALUATION_WINDOW` contiguous frames), bounding refinement's re-solves.
@@ -267,26 +270,25 @@ def accuracy_summary(
     return out
 
 
-def triangulation_method(config, cameras: CameraGroup) -> Triangulate:
+def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> Triangulate:
     """The triangulation stage's 3D method as :func:`held_out_errors` calls it (the
-    config's ``triangulation`` table)."""
-    from .triangulation import reconstruct_from_config
+    ``triangulation`` table's method and knobs)."""
+    from .triangulation import reconstruct_with_params
 
     def triangulate(pts2d, conf):
-        pts3d, clean, _ = reconstruct_from_config(config, cameras, pts2d, conf)
+        pts3d, clean, _ = reconstruct_with_params(cameras, pts2d, params, conf)
         return pts3d, np.isfinite(clean).all(-1)
 
     return triangulate
 
 
-def refinement_method(config, cameras: CameraGroup) -> Refine:
+def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
     """The refinement stage's 3D method as :func:`held_out_errors` calls it (the
-    config's ``refinement`` table and skeleton)."""
+    ``refinement`` table and the skeleton's bones and rigid points)."""
     from .refinement.setup import options_from_params, skeleton_terms
     from .refinement.solver import refine_points
 
-    params = config.refinement
-    terms = skeleton_terms(config.skeleton(), params.rigid_points)
+    terms = skeleton_terms(skeleton, params.rigid_points)
     options = options_from_params(params)
 
     def refine(pts2d, conf, start, kept):
@@ -298,19 +300,29 @@ def refinement_method(config, cameras: CameraGroup) -> Refine:
 
 
 def triangulation_accuracy(
-    config,
+    params: TriangulationParams,
     cameras: CameraGroup,
+    skeleton: Skeleton,
     pts2d: Float[np.ndarray, "V T P 2"],
     pts3d: Float[np.ndarray, "T P 3"],
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> dict[str, Any]:
     """The triangulation stage's truth-free accuracy: :func:`accuracy_summary` of its
     held-out-view errors (on :func:`evaluation_windows`) and of ``pts3d`` on the same
-    frames, plus ``frames_evaluated`` and ``frames_total``."""
+    frames, plus ``frames_evaluated`` and ``frames_total``.
+
+    Parameters
+    ----------
+    params
+        The ``triangulation`` table: the method each view is held out from.
+    cameras, skeleton
+        The rig and the skeleton (its bones for the spread and left/right figures).
+    pts2d, pts3d, conf
+        ``(V, T, P, 2)`` the 2D triangulated, ``(T, P, 3)`` its 3D, ``(V, T, P)`` or ``None``.
+    """
     from .refinement.setup import mirror_bones
 
-    held = held_out_errors(cameras, pts2d, triangulation_method(config, cameras), conf=conf)
-    skeleton = config.skeleton()
+    held = held_out_errors(cameras, pts2d, triangulation_method(params, cameras), conf=conf)
     frames = held["frames"]
     return {
         "frames_evaluated": int(len(frames)),

@@ -48,6 +48,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from .cameras import CameraGroup
+    from .config.params import TriangulationParams
 
 __all__ = [
     "CORRECTIONS_FILE",
@@ -446,7 +447,7 @@ def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, n
 
 
 def reconstruct_corrected(
-    config: Any,
+    params: TriangulationParams,
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, "V T P 2"],
     conf: Float[np.ndarray, "V T P"] | None = None,
@@ -457,12 +458,12 @@ def reconstruct_corrected(
     Float[np.ndarray, "V T P"],
     Bool[np.ndarray, "T P"],
 ]:
-    """Triangulate as ``config.triangulation`` says, with manual corrections applied.
+    """Triangulate as the ``triangulation`` table says, with manual corrections applied.
 
     Parameters
     ----------
-    config
-        The run config (its ``triangulation`` table).
+    params
+        The ``triangulation`` table (method, knobs, confidence weighting).
     cameras
         The final rig (first, as in every triangulation function).
     pts2d
@@ -484,16 +485,16 @@ def reconstruct_corrected(
         If the points and the rig are swapped (the order before the rig came first).
     """
     from . import camera_model
-    from .triangulation import reconstruct_from_config, reprojection_error
+    from .triangulation import reconstruct_with_params, reprojection_error
 
     if hasattr(pts2d, "pmats") or not hasattr(cameras, "pmats"):
         raise TypeError(
-            "reconstruct_corrected(config, cameras, pts2d, ...) takes the rig before "
+            "reconstruct_corrected(params, cameras, pts2d, ...) takes the rig before "
             f"the points, got {type(cameras).__name__} for cameras"
         )
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if corrections is None:
-        pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
+        pts3d, clean, error = reconstruct_with_params(cameras, pts2d, params, conf)
         return pts3d, clean, error, np.zeros(pts2d.shape[1:3], bool)
     if corrections.shape != pts2d.shape[:3]:
         raise ResultsError(
@@ -501,7 +502,7 @@ def reconstruct_corrected(
             f"match the 2D points {pts2d.shape[:3]}; save them again from `flylib gui`"
         )
     pts2d, conf = corrections.apply_2d(pts2d, conf)
-    pts3d, clean, error = reconstruct_from_config(config, cameras, pts2d, conf)
+    pts3d, clean, error = reconstruct_with_params(cameras, pts2d, params, conf)
     fixed = corrections.fixed & corrections.edited & np.isfinite(pts2d).all(-1)
     lost = fixed & ~np.isfinite(clean).all(-1)  # fixed views the robust fit left out
     redo = np.argwhere(lost.any(axis=0))  # (n, 2) frame, point
@@ -521,16 +522,16 @@ def reconstruct_corrected(
 
 
 def corrections_path(
-    config: Any,
+    template: str | None,
     outdir: str | Path,
     recording_dir: str | Path | None = None,
     recording_id: str | None = None,
 ) -> tuple[Path, bool]:
     """Where a recording's corrections sidecar is, and whether the config named it.
 
-    ``<outdir>/corrections.h5`` unless the config's ``corrections`` key gives a path
-    template (placeholders ``{outdir}``, ``{recording}``, ``{id}``, ``{name}``; a
-    relative path is relative to the outdir).
+    ``<outdir>/corrections.h5`` unless ``template``, the config's ``corrections`` key,
+    gives a path template (placeholders ``{outdir}``, ``{recording}``, ``{id}``,
+    ``{name}``; a relative path is relative to the outdir).
 
     Returns
     -------
@@ -545,8 +546,6 @@ def corrections_path(
     from .errors import ConfigError
 
     outdir = Path(outdir)
-    data = getattr(config, "data", config) or {}
-    template = data.get("corrections")
     if template is None:
         return outdir / CORRECTIONS_FILE, False
     if not isinstance(template, str) or not template.strip():

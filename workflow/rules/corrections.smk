@@ -14,7 +14,9 @@ def _find_corrections() -> dict[str, str]:
     named_missing = []
     for rec in RECORDINGS:
         try:
-            path, named = _corrections_path(CONFIG, rec.outdir, rec.path, rec.id)
+            path, named = _corrections_path(
+                CONFIG.data.get("corrections"), rec.outdir, rec.path, rec.id
+            )
         except FlylibError as exc:
             stop_run(str(exc))
         if path.is_file():

@@ -23,7 +23,7 @@ if FLAGS["bundle_adjustment"]:
             runtime=60,
         params:
             stage=stage_params("bundle_adjustment"),
-            config=job_config,
+            runtime=job_runtime("bundle_adjustment"),
             recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/bundle_adjustment.py"
@@ -48,7 +48,7 @@ if FLAGS["pictorial_structures"]:
             runtime=60,
         params:
             stage=stage_params("pictorial_structures"),
-            config=job_config,
+            runtime=job_runtime("pictorial_structures"),
             recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/pictorial_structures.py"
@@ -74,7 +74,7 @@ if FLAGS["triangulation"]:
             runtime=30,
         params:
             stage=stage_params("triangulation"),
-            config=job_config,
+            runtime=job_runtime("triangulation"),
             recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/triangulation.py"

@@ -7,7 +7,7 @@ adjust
     report and the poorly-determined warning).
 sequence
     :func:`bundle_adjust_sequence` on a recording's ``(V, T, P, 2)`` detections (frames,
-    bone lengths, rigid points) and :func:`bundle_adjust_from_config`.
+    bone lengths, rigid points).
 unknowns
     Shared 3D unknowns (rigid points) and bone rows of a flattened problem.
 params
@@ -26,12 +26,11 @@ gauge
 
 from .adjust import bundle_adjust, camera_table
 from .sampling import FRAME_SAMPLING, select_frames
-from .sequence import bundle_adjust_from_config, bundle_adjust_sequence
+from .sequence import bundle_adjust_sequence
 
 __all__ = [
     "FRAME_SAMPLING",
     "bundle_adjust",
-    "bundle_adjust_from_config",
     "bundle_adjust_sequence",
     "camera_table",
     "select_frames",

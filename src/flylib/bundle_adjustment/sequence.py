@@ -1,8 +1,10 @@
-"""Bundle adjustment of a recording: frame choice, bones, rigid points, the config table.
+"""Bundle adjustment of a recording: frame choice, bones, rigid points.
 
 :func:`bundle_adjust_sequence` flattens a recording's ``(V, T, P, 2)`` detections into
-one :func:`~flylib.bundle_adjustment.adjust.bundle_adjust` problem;
-:func:`bundle_adjust_from_config` runs it with the config's ``bundle_adjustment`` table.
+one :func:`~flylib.bundle_adjustment.adjust.bundle_adjust` problem. The workflow's
+stage (:mod:`flylib.pipeline.bundle_adjustment`) calls it with the ``bundle_adjustment``
+table's :class:`~flylib.config.params.BundleAdjustmentParams`
+(:meth:`~flylib.config.params.BundleAdjustmentParams.sequence_kwargs`).
 """
 
 from __future__ import annotations
@@ -23,12 +25,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..cameras import CameraGroup
-    from ..config import Config
     from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
-__all__ = ["THORAX_POINTS", "bundle_adjust_from_config", "bundle_adjust_sequence"]
+__all__ = ["THORAX_POINTS", "bundle_adjust_sequence"]
 
 #: where the legs join the thorax: one rigid, left/right mirror-symmetric body in any fly
 THORAX_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
@@ -147,41 +148,10 @@ def bundle_adjust_sequence(
 
     bones = None
     if bone_prior and skeleton is not None:
-        from ..pictorial import bone_length_targets
-
-        bi, bj, targets = bone_length_targets(cameras, pts2d[:, frames], skeleton)
-        position = np.full(n_points, -1)
-        position[point_idx] = np.arange(n_q)
-        ok = (position[bi] >= 0) & (position[bj] >= 0)
-        offsets = (np.arange(n_sel) * n_q)[:, None]
-        bones = (
-            (offsets + position[bi[ok]][None]).ravel(),
-            (offsets + position[bj[ok]][None]).ravel(),
-            np.tile(targets[ok], n_sel),
-        )
-
-    point_ids = None
-    names = list(skeleton.point_names) if skeleton is not None else []
-    rigid_report = None
-    if rigid_points is None:
-        rigid_points = [p for p in THORAX_POINTS if p in names]
-    if rigid_points:
-        if skeleton is None:
-            raise ValueError("rigid_points names points: pass the skeleton too")
-        unknown = [p for p in rigid_points if p not in names]
-        if unknown:
-            raise ConfigError(
-                f"bundle_adjustment.rigid_points: unknown point(s) "
-                f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names"
-            )
-        rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
-        rigid_report = _rigid_decision(
-            cameras, sub, skeleton, point_idx, rigid_q, rigid_tolerance, rigid_px
-        )
-        if rigid_report["used"]:
-            ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
-            ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
-            point_ids = np.unique(ids.ravel(), return_inverse=True)[1]
+        bones = _bone_prior_rows(cameras, pts2d[:, frames], skeleton, point_idx)
+    point_ids, rigid_report = _rigid_point_ids(
+        cameras, sub, skeleton, point_idx, rigid_points, rigid_tolerance, rigid_px
+    )
     if bone_lengths and skeleton is not None:
         if bone_prior:
             log.info("bundle adjustment: bone_lengths replaces bone_prior")
@@ -205,6 +175,52 @@ def bundle_adjust_sequence(
     result.points = point_idx
     result.report["rigid"] = rigid_report
     return result, refined, pts3d
+
+
+def _bone_prior_rows(cameras, pts2d, skeleton, point_idx) -> tuple[np.ndarray, ...]:
+    """Bone rows ``(i, j, target)`` toward the starting rig's bone lengths over the
+    flattened (frame, used point) columns of ``pts2d`` ``(V, F, P, 2)``."""
+    from ..pictorial import bone_length_targets
+
+    n_sel, n_q = pts2d.shape[1], len(point_idx)
+    bi, bj, targets = bone_length_targets(cameras, pts2d, skeleton)
+    position = np.full(pts2d.shape[2], -1)
+    position[point_idx] = np.arange(n_q)
+    ok = (position[bi] >= 0) & (position[bj] >= 0)
+    offsets = (np.arange(n_sel) * n_q)[:, None]
+    return (
+        (offsets + position[bi[ok]][None]).ravel(),
+        (offsets + position[bj[ok]][None]).ravel(),
+        np.tile(targets[ok], n_sel),
+    )
+
+
+def _rigid_point_ids(cameras, sub, skeleton, point_idx, rigid_points, tolerance, tolerance_px):
+    """``(point_ids, report)``: each flattened observation's 3D unknown when the
+    ``rigid_points`` are one point over all frames (``None``: one unknown per
+    observation), and the decision of :func:`_rigid_decision` (``None`` without rigid
+    points). ``sub`` ``(V, F, Q, 2)``: the fitted frames and points."""
+    names = list(skeleton.point_names) if skeleton is not None else []
+    if rigid_points is None:
+        rigid_points = [p for p in THORAX_POINTS if p in names]
+    if not rigid_points:
+        return None, None
+    if skeleton is None:
+        raise ValueError("rigid_points names points: pass the skeleton too")
+    unknown = [p for p in rigid_points if p not in names]
+    if unknown:
+        raise ConfigError(
+            f"bundle_adjustment.rigid_points: unknown point(s) "
+            f"{', '.join(map(repr, unknown))}; use names from skeleton.point_names"
+        )
+    rigid_q = np.isin(point_idx, [names.index(p) for p in rigid_points])
+    report = _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, tolerance_px)
+    if not report["used"]:
+        return None, report
+    n_sel, n_q = sub.shape[1], sub.shape[2]
+    ids = np.arange(n_sel * n_q).reshape(n_sel, n_q)
+    ids[:, rigid_q] = ids[0, rigid_q]  # every frame observes frame 0's unknown
+    return np.unique(ids.ravel(), return_inverse=True)[1], report
 
 
 def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, tolerance_px) -> dict:
@@ -343,50 +359,3 @@ def _point_indices(points_to_use, skeleton, n_points) -> np.ndarray:
             "or remove the key to use all points"
         )
     return np.array(sorted({names.index(p) for p in points_to_use}), int)
-
-
-def bundle_adjust_from_config(
-    config: Config,
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, "V T P 2"],
-    conf: Float[np.ndarray, "V T P"] | None = None,
-) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
-    """Run :func:`bundle_adjust_sequence` with the config's ``bundle_adjustment`` table.
-
-    Every named key of :attr:`Config.bundle_adjustment` (``points_to_use``, ``fixed``,
-    ``shared``, ``solver``, ``distortion``, outlier rounds, ``reseed_px``, bone lengths,
-    ``rigid_points`` ...) is passed on; the remaining flat keys (``max_nfev``, ``loss``,
-    ``f_scale``, ...) go to the solver. Bones come from :meth:`Config.skeleton`.
-
-    Returns
-    -------
-    result, cameras, pts3d
-        As :func:`bundle_adjust_sequence`.
-    """
-    params = config.bundle_adjustment
-    skeleton = config.skeleton()
-    names = set(skeleton.point_names)
-    return bundle_adjust_sequence(
-        cameras,
-        pts2d,
-        conf,
-        skeleton,
-        points_to_use=params.points_to_use,
-        max_frames=params.max_frames,
-        frame_sampling=params.frame_sampling,
-        weigh_by_confidence=params.weigh_by_confidence,
-        fixed=params.fixed,
-        shared=params.shared,
-        solver=params.solver,
-        distortion=params.distortion,
-        max_rounds=params.max_rounds,
-        outlier_factor=params.outlier_factor,
-        outlier_min_px=params.outlier_min_px,
-        reseed_px=params.reseed_px,
-        bone_lengths=params.bone_lengths,
-        symmetric_bones=params.symmetric_bones,
-        length_weight=params.length_weight,
-        rigid_points=[p for p in params.rigid_points if p in names] if params.rigid_points else (),
-        warn_ratio=params.warn_ratio,
-        **dict(params.least_squares),
-    )

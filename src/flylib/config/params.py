@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -57,6 +57,16 @@ class Pose2dParams:
     compile: bool | str = _param("auto", _choice(True, False, "auto"))
 
 
+#: Each triangulation method's own knobs: the ``triangulation`` table's key -> the keyword
+#: of :func:`flylib.triangulation.reconstruct` it becomes. The one map from a method to
+#: what it reads: the stage's params track these keys, the stage passes these keywords.
+TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
+    "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
+    "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
+    "dlt": {},
+}
+
+
 @dataclass(frozen=True)
 class TriangulationParams:
     """The ``triangulation`` table.
@@ -84,15 +94,19 @@ class TriangulationParams:
 
     def method_params(self) -> dict[str, Any]:
         """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``)."""
-        own = {
-            "ransac": ("ransac_threshold", "min_inliers"),
-            "greedy": ("reproj_threshold", "max_drops"),
-            "dlt": (),
-        }[self.method]
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
-            **{name: getattr(self, name) for name in own},
+            **{name: getattr(self, name) for name in TRIANGULATION_KNOBS[self.method]},
+        }
+
+    def method_kwargs(self) -> dict[str, Any]:
+        """The chosen ``method``'s knobs under the keyword names of
+        :func:`flylib.triangulation.reconstruct` (``threshold``, ``min_inliers``,
+        ``reproj_threshold``, ``max_drops``; none for ``dlt``)."""
+        return {
+            keyword: getattr(self, name)
+            for name, keyword in TRIANGULATION_KNOBS[self.method].items()
         }
 
 
@@ -200,6 +214,15 @@ class BundleAdjustmentParams:
     rigid_points: tuple[str, ...] = _param(TETHERED_RIGID_POINTS, _string_list(), kind=tuple)
     warn_ratio: float = _param(1e-9, _number(0))
     least_squares: dict[str, Any] = field(default_factory=dict)
+
+    def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
+        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`:
+        every field under its own name, ``rigid_points`` limited to the skeleton's
+        ``point_names``, the ``least_squares`` options flat (they reach the solver)."""
+        kwargs = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "least_squares"}
+        names = set(point_names)
+        kwargs["rigid_points"] = [p for p in self.rigid_points if p in names]
+        return {**kwargs, **self.least_squares}
 
 
 @dataclass(frozen=True)

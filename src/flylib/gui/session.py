@@ -3,8 +3,9 @@
 The 2D a point is solved from is what triangulation read (pictorial structures' 2D
 when that stage ran, else pose2d's), with the corrections applied; every edit
 re-solves that one (frame, point) with :func:`flylib.corrections.reconstruct_corrected`
-on the final rig and the run's own config, the function the triangulation stage
-runs, so what the page shows is what the workflow computes after saving.
+on the final rig and the run's own ``triangulation`` table, the function the
+triangulation stage runs, so what the page shows is what the workflow computes after
+saving.
 ``results.h5`` is only read; the only files written are the corrections sidecar,
 inside the output directory, and beside it its edit journal and lock
 (:mod:`flylib.gui.journal`): every edit is journaled (fsync'd) before it is applied
@@ -123,6 +124,8 @@ class ReviewSession:
         if config is None:
             config = Config.of_outputs(self.outdir)
         self.config = config
+        # the triangulation table every edit re-solves its point with, as the stage did
+        self.triangulation = config.triangulation
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
             raise ResultsError(f"{self.results_path}: holds no 3D points; run triangulation first")
@@ -196,7 +199,9 @@ class ReviewSession:
     def _sidecar_path(self) -> Path:
         """The configured sidecar if it lies inside the outdir, else ``<outdir>/corrections.h5``."""
         try:
-            path, _ = corrections_path(self.config, self.outdir, self.recording_dir)
+            path, _ = corrections_path(
+                self.config.data.get("corrections"), self.outdir, self.recording_dir
+            )
         except FlylibError:  # a bad key is reported by the workflow; the GUI uses the default
             return self.outdir / CORRECTIONS_FILE
         path = path.resolve()
@@ -266,7 +271,7 @@ class ReviewSession:
             "bone_colors": [
                 sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)
             ],
-            "method": str(getattr(self.config.triangulation, "method", "ransac")),
+            "method": self.triangulation.method,
             # the 3D view draws the rig: each camera's centre and viewing direction
             "rig": [
                 {
@@ -374,7 +379,7 @@ class ReviewSession:
         sub = self.corrections.subset([t], [p])
         conf = None if self.conf is None else self.conf[:, [t]][:, :, [p]]
         pts3d, clean, error, _ = reconstruct_corrected(
-            self.config, self.cameras, self.base2d[:, [t]][:, :, [p]], conf, sub
+            self.triangulation, self.cameras, self.base2d[:, [t]][:, :, [p]], conf, sub
         )
         self.pts3d[t, p] = pts3d[0, 0]
         self.used2d[:, t, p] = clean[:, 0, 0]

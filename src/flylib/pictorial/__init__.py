@@ -21,7 +21,7 @@ Geometry runs in NumPy on undistorted, intrinsics-free coordinates of the rig; e
 step is vectorized over frames and joints, only the optional temporal DP walks frames.
 
 Modules: :mod:`.peaks` (step 1), :mod:`.hypotheses` (step 2), :mod:`.chains` (limb chains,
-bone-length targets, the chain DP of step 3) and :mod:`.solver` (per frame, sequence, config).
+bone-length targets, the chain DP of step 3) and :mod:`.solver` (per frame, sequence).
 """
 
 from .chains import bone_length_targets, skeleton_chains
@@ -40,7 +40,6 @@ from .solver import (
     DEFAULT_LAMBDA,
     DEFAULT_MU,
     reconstruct,
-    reconstruct_from_config,
     solve_frame,
     solve_frames,
 )
@@ -50,7 +49,6 @@ __all__ = [
     "bone_length_targets",
     "peak_candidates",
     "reconstruct",
-    "reconstruct_from_config",
     "skeleton_chains",
     "solve_frame",
     "solve_frames",

@@ -1,4 +1,4 @@
-"""Pictorial-structures solvers: per frame, over a sequence, and from the config."""
+"""Pictorial-structures solvers: per frame and over a sequence."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..cameras import CameraGroup
-    from ..config import Config
     from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -222,32 +221,3 @@ def reconstruct(
         int(np.isfinite(argmax).all(-1).sum()),
     )
     return pts3d, pts2d, reproj
-
-
-def reconstruct_from_config(
-    config: Config,
-    cameras: CameraGroup,
-    candidates: Candidates,
-) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
-    """Run :func:`reconstruct` with the config's ``pictorial_structures`` table and skeleton.
-
-    The rig comes right after the config, as in
-    :func:`flylib.triangulation.reconstruct_from_config` (``config, cameras, pts2d, conf``).
-
-    Returns
-    -------
-    pts3d, pts2d, reproj_error
-        As :func:`reconstruct`.
-
-    Raises
-    ------
-    TypeError
-        If the rig and the candidates are swapped (the order before the rig came first).
-    """
-    if isinstance(cameras, Candidates) or hasattr(candidates, "pmats"):
-        raise TypeError(
-            "reconstruct_from_config(config, cameras, candidates) takes the rig before the "
-            f"candidates, got {type(cameras).__name__} for cameras and "
-            f"{type(candidates).__name__} for candidates"
-        )
-    return reconstruct(cameras, config.skeleton(), candidates, **config.pictorial.solver_kwargs())

@@ -206,8 +206,17 @@ class RigSpec:
 
     def _config(self) -> Config:
         # The rig readers still take a config-shaped table; this is the one place that
-        # makes one, from the tracked rig alone.
-        data = {"cameras": _json(self.cameras)}
+        # makes one, from the tracked rig alone. The tracked tables have their keys
+        # sorted: the views (the V axis) give the cameras' order back.
+        cameras = _json(self.cameras)
+        rank = {name: i for i, name in enumerate(("defaults", *self.views))}
+        data: dict[str, Any] = {
+            "cameras": {
+                k: cameras[k] for k in sorted(cameras, key=lambda k: rank.get(k, len(rank)))
+            }
+        }
+        if not any(view in cameras for view in self.views):  # a calibration rig's views
+            data["pose2d"] = {"output_points": {view: None for view in self.views}}
         if self.calibration:
             data["calibration"] = _json(self.calibration)
         config = Config.__new__(Config)

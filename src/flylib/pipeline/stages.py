@@ -2,10 +2,13 @@
 the library, write the stage's artifact atomically.
 
 These are what the command scripts in ``scripts/`` (and so the Snakemake rules) run,
-and what a library user can call to reproduce one step by hand. Every function takes
-paths and a :class:`~flylib.config.Config`, and runs on the part of it its rule tracks
-(:class:`~flylib.pipeline.tracked.StageConfig`: reading any other key raises); none
-decides *whether* it should run (the workflow does, from the rule's params and inputs).
+and what a library user can call to reproduce one step by hand. The functions here take
+paths and a :class:`~flylib.config.Config`, and run on the part of it their rule tracks
+(:class:`~flylib.pipeline.tracked.StageConfig`: reading any other key raises); the
+geometry stages live in their own homes (:mod:`flylib.pipeline.bundle_adjustment`,
+:mod:`~flylib.pipeline.pictorial_structures`, :mod:`~flylib.pipeline.triangulation`)
+and take their inputs object (:mod:`flylib.pipeline.inputs`) instead. None decides
+*whether* it should run (the workflow does, from the rule's params and inputs).
 
 =====================  ==========================================  ===============================
 stage                  reads                                       writes
@@ -33,9 +36,9 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -97,13 +100,56 @@ def _check_inside_frames(pose2d, recording_dir: Path) -> None:
             )
 
 
-def _rig_for(config, pose2d, ba_path: str | Path | None, recording_dir=None):
-    """The bundle-adjusted rig when that artifact is given, else the config rig."""
+@dataclass(frozen=True)
+class RigRuntime:
+    """The untracked part of a stage that builds the config rig.
+
+    Attributes
+    ----------
+    config_dir
+        Where a relative calibration path is looked up after the recording's folder
+        (the config file's folder; :attr:`~flylib.pipeline.inputs.RigSpec.config_dir`).
+    """
+
+    config_dir: Path | None = None
+
+    @classmethod
+    def from_config(cls, config) -> RigRuntime:
+        """The config file's folder (``None`` for a config made from a dict)."""
+        return cls(config_dir=Path(config.source).parent if config.source else None)
+
+
+def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
+    """The bundle-adjusted rig when that artifact is given, else the config rig
+    (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
+
+    Raises
+    ------
+    ResultsError
+        When the stage's params hold no rig (bundle adjustment on) and no
+        bundle-adjustment artifact is given.
+    """
     if ba_path:
         from ..results import read_stage
 
         return read_stage(ba_path, "bundle_adjustment")["cameras"]
-    return config_rig(config, _image_sizes(pose2d), recording_dir)
+    if rig is None:
+        raise ResultsError(
+            f"{stage.replace('_', ' ')}: bundle adjustment is on, so the rig comes from its "
+            "artifact, and none was given; pass it (--bundle-adjustment) or set "
+            "pipeline.do_bundle_adjustment: false"
+        )
+    return rig.camera_group(_image_sizes(pose2d), recording_dir)
+
+
+def run_inputs(config, stage: str, ba_path: str | Path | None = None):
+    """``stage``'s inputs for a run with or without a bundle-adjustment artifact
+    (``ba_path``): without one the rig is the config's even while bundle adjustment is
+    on, as with it off (so the params track that rig). What a stage script run by hand
+    without ``--bundle-adjustment`` uses, and tests that run a stage on its own."""
+    from .inputs import stage_inputs
+
+    return stage_inputs(_rig_source(config, ba_path), stage)
 
 
 def _rig_source(config, ba_path):
@@ -225,177 +271,6 @@ def run_pose2d(
             candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)}
         )
     data.save(out_path, config.skeleton(), meta=provenance)
-    return Path(out_path)
-
-
-def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
-    if candidates_path is not None:
-        from ..results import load_candidates
-
-        return load_candidates(candidates_path)
-    if pose2d.candidates is None:
-        raise ResultsError(
-            f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
-            "they come only from the detector (set pipeline.do_pictorial_structures: false "
-            "for 2D imported from another tool)"
-        )
-    return pose2d.candidates
-
-
-def run_bundle_adjustment(
-    config,
-    pose2d_path: str | Path,
-    out_path: str | Path,
-    *,
-    recording_dir: str | Path | None = None,
-) -> Path:
-    """Refine the config rig against the recording's 2D keypoints."""
-    from ..bundle_adjustment import bundle_adjust_from_config
-    from ..results import Pose2dData, write_stage
-
-    config = StageConfig.for_stage(config, "bundle_adjustment")
-    pose2d = Pose2dData.load(pose2d_path)
-    cameras = config_rig(config, _image_sizes(pose2d), recording_dir)
-    started = time.perf_counter()
-    with _solving("bundle_adjustment", recording_dir or pose2d_path):
-        result, refined, _ = bundle_adjust_from_config(config, cameras, pose2d.pts2d, pose2d.conf)
-    summary = {
-        "success": bool(getattr(result, "success", True)),
-        "message": str(getattr(result, "message", "")),
-        "cost": float(getattr(result, "cost", np.nan)),
-        "nfev": int(getattr(result, "nfev", 0) or 0),
-        "seconds": round(time.perf_counter() - started, 3),
-    }
-    if hasattr(result, "report"):  # what was free, kept fractions, rounds, warnings
-        summary["report"] = result.report
-    write_stage(
-        out_path,
-        "bundle_adjustment",
-        {},
-        cameras=refined,
-        attrs={"summary": json.dumps(summary)},
-        meta=_provenance(config, "bundle_adjustment", pose2d=pose2d_path),
-    )
-    log.info("bundle adjustment: %s", summary)
-    return Path(out_path)
-
-
-def run_pictorial_structures(
-    config,
-    pose2d_path: str | Path,
-    out_path: str | Path,
-    *,
-    candidates_path: str | Path | None = None,
-    ba_path: str | Path | None = None,
-    recording_dir: str | Path | None = None,
-) -> Path:
-    """Peak recovery over the detector's candidate peaks (pictorial structures).
-
-    The peaks come from ``candidates_path`` (what the pose2d stage writes), else from
-    the 2D artifact itself (a :class:`~flylib.results.Pose2dData` saved with them).
-
-    Raises
-    ------
-    ResultsError
-        If there are no candidate peaks (2D imported from another tool).
-    """
-    from ..pictorial import reconstruct_from_config
-    from ..results import Pose2dData, write_stage
-
-    config = StageConfig.for_stage(_rig_source(config, ba_path), "pictorial_structures")
-    pose2d = Pose2dData.load(pose2d_path)
-    candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
-    cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    with _solving("pictorial_structures", recording_dir or pose2d_path):
-        pts3d, pts2d, error = reconstruct_from_config(config, cameras, candidates)
-    write_stage(
-        out_path,
-        "pictorial_structures",
-        {"points": pts2d, "points3d": pts3d, "reproj_error": error},
-        meta=_provenance(
-            config,
-            "pictorial_structures",
-            pose2d=pose2d_path,
-            candidates=candidates_path,
-            bundle_adjustment=ba_path,
-        ),
-    )
-    return Path(out_path)
-
-
-def run_triangulation(
-    config,
-    pose2d_path: str | Path,
-    out_path: str | Path,
-    *,
-    pictorial_path: str | Path | None = None,
-    ba_path: str | Path | None = None,
-    recording_dir: str | Path | None = None,
-    corrections_path: str | Path | None = None,
-) -> Path:
-    """Lift the 2D keypoints (pictorial-structures-corrected when given, else pose2d's)
-    to 3D with the bundle-adjusted rig when given, else the config rig.
-
-    With ``corrections_path`` (a ``corrections.h5`` sidecar, see
-    :mod:`flylib.corrections`) the manual edits are applied first; the artifact then
-    also holds ``corrected`` ``(T, P)`` and ``corrected_2d`` ``(V, T, P)`` (bool masks of
-    what a person changed) and the sidecar's name and edit count as attribute
-    ``corrections``.
-    """
-    from ..accuracy import triangulation_accuracy
-    from ..corrections import Corrections, reconstruct_corrected
-    from ..results import Pose2dData, read_stage, write_stage
-
-    config = StageConfig.for_stage(_rig_source(config, ba_path), "triangulation")
-    pose2d = Pose2dData.load(pose2d_path)
-    pts2d = pose2d.pts2d
-    if pictorial_path:
-        pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
-    cameras = _rig_for(config, pose2d, ba_path, recording_dir)
-    corrections = (
-        Corrections.load(
-            corrections_path,
-            pts2d.shape[:3],
-            [pose2d.image_sizes.get(name) for name in pose2d.view_names],
-        )
-        if corrections_path
-        else None
-    )
-    with _solving("triangulation", recording_dir or pose2d_path):
-        pts3d, pts2d_clean, error, corrected = reconstruct_corrected(
-            config, cameras, pts2d, pose2d.conf, corrections
-        )
-    arrays = {"points": pts2d_clean, "points3d": pts3d, "reproj_error": error}
-    # truth-free accuracy (flylib.accuracy): each view predicted from the others
-    attrs = {"accuracy": triangulation_accuracy(config, cameras, pts2d, pts3d, pose2d.conf)}
-    if corrections is not None:
-        arrays["corrected"] = corrected
-        arrays["corrected_2d"] = corrections.touched()
-        from ..provenance import file_sha256
-
-        attrs["corrections"] = {
-            "file": str(corrections_path),
-            "count": corrections.count(),
-            "sha256": file_sha256(corrections_path),
-        }
-        log.info(
-            "triangulation: %d manual corrections applied from %s",
-            corrections.count(),
-            corrections_path,
-        )
-    write_stage(
-        out_path,
-        "triangulation",
-        arrays,
-        attrs=attrs,
-        meta=_provenance(
-            config,
-            "triangulation",
-            pose2d=pose2d_path,
-            pictorial_structures=pictorial_path,
-            bundle_adjustment=ba_path,
-        ),
-    )
     return Path(out_path)
 
 

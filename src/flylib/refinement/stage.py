@@ -270,7 +270,7 @@ class HeldOutCheck:
         self.held = held_out_errors(
             cameras,
             source.pts2d,
-            triangulation_method(config, cameras),
+            triangulation_method(config.triangulation, cameras),
             conf=source.conf,
             refine=variants,
             windows=self.windows,

@@ -31,16 +31,13 @@ import numpy as np
 
 from .. import camera_model
 from ..config.constants import TRIANGULATION_METHODS
-from ..errors import ConfigError
 from ..resources import thread_map
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     from jaxtyping import Bool, Float
 
     from ..cameras import CameraGroup
-    from ..config import Config
+    from ..config.params import TriangulationParams
 
 log = logging.getLogger(__name__)
 
@@ -579,24 +576,21 @@ def reconstruct(
     raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
 
 
-def reconstruct_from_config(
-    config: Config | Mapping,
+def reconstruct_with_params(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, "V T P 2"],
+    params: TriangulationParams,
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
-    """Run the triangulation stage as ``config.triangulation`` says.
-
-    Reads ``method``, ``ransac_threshold``, ``min_inliers``, ``weigh_by_confidence``,
-    ``reproj_threshold`` and ``max_drops`` (attributes of the params object, or
-    keys of a mapping); missing ones take the defaults of :func:`reconstruct`.
+    """The triangulation stage's 3D: :func:`reconstruct` with ``params``' method and the
+    knobs that method reads (:meth:`~flylib.config.params.TriangulationParams.method_kwargs`).
 
     Parameters
     ----------
-    config
-        A :class:`~flylib.config.Config` (or a mapping with a ``triangulation`` table).
     cameras, pts2d
         As in :func:`triangulate`: ``(V, T, P, 2)``.
+    params
+        The ``triangulation`` table (its ``method`` already checked by the config).
     conf
         Detector confidences ``(V, T, P)``, the weights when ``weigh_by_confidence``.
 
@@ -604,37 +598,12 @@ def reconstruct_from_config(
     -------
     pts3d, pts2d_clean, reproj_error
         ``(T, P, 3)``, ``(V, T, P, 2)``, ``(V, T, P)``.
-
-    Raises
-    ------
-    ConfigError
-        If ``triangulation.method`` is not one of ``ransac``, ``greedy``, ``dlt``.
     """
-    params = getattr(config, "triangulation", None)
-    if params is None and isinstance(config, dict):
-        params = config.get("triangulation")
-
-    def get(name, default):
-        if params is None:
-            return default
-        if isinstance(params, dict):
-            return params.get(name, default)
-        return getattr(params, name, default)
-
-    method = get("method", "ransac")
-    if method not in TRIANGULATION_METHODS:
-        raise ConfigError(
-            f"triangulation.method must be one of {list(TRIANGULATION_METHODS)}, got {method!r}"
-        )
-    log.info("triangulating with %s", method)
-    weigh = bool(get("weigh_by_confidence", False))
+    log.info("triangulating with %s", params.method)
     return reconstruct(
         cameras,
         pts2d,
-        method=method,
-        weights=conf if (weigh and conf is not None) else None,
-        threshold=float(get("ransac_threshold", 15.0)),
-        min_inliers=int(get("min_inliers", 2)),
-        reproj_threshold=float(get("reproj_threshold", 40.0)),
-        max_drops=int(get("max_drops", 5)),
+        method=params.method,
+        weights=conf if (params.weigh_by_confidence and conf is not None) else None,
+        **params.method_kwargs(),
     )

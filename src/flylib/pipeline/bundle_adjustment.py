@@ -1,0 +1,214 @@
+"""The bundle-adjustment stage: its inputs, the pure compute step, and the run that
+reads and writes its files.
+
+``run_bundle_adjustment`` loads the recording's 2D and the config rig, calls
+:func:`compute_bundle_adjustment` and writes ``<outdir>/stages/bundle_adjustment.h5``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from ..config.constants import _LEAST_SQUARES_PERF
+from ..config.params import BundleAdjustmentParams, _build_params
+from .inputs import RigSpec, SkeletonSpec, StageInputs, frozen_mapping, register
+from .stages import _image_sizes, _solving
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+    from scipy.optimize import OptimizeResult
+
+    from ..cameras import CameraGroup
+    from ..config import Config
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "BundleAdjusted",
+    "BundleAdjustmentInputs",
+    "BundleAdjustmentRuntime",
+    "compute_bundle_adjustment",
+    "run_bundle_adjustment",
+]
+
+
+@dataclass(frozen=True)
+class BundleAdjustmentRuntime:
+    """The untracked part of the bundle-adjustment stage.
+
+    Attributes
+    ----------
+    config_dir
+        Where a relative calibration path is looked up after the recording's folder.
+    solver_options
+        The ``bundle_adjustment`` table's speed/log-only ``least_squares`` options
+        (``verbose``, ``workers``), passed to the solver with the tracked ones.
+    """
+
+    config_dir: Path | None = None
+    solver_options: Mapping[str, Any] = field(default_factory=lambda: frozen_mapping({}))
+
+
+@register
+@dataclass(frozen=True)
+class BundleAdjustmentInputs(StageInputs):
+    """What the bundle-adjustment stage reads.
+
+    Attributes
+    ----------
+    bundle_adjustment
+        The ``bundle_adjustment`` table (its ``least_squares`` without the untracked
+        ``verbose`` and ``workers``, which are in ``runtime``).
+    rig
+        The config rig: the starting point of the fit.
+    skeleton
+        Points and limbs (``points_to_use``, bone lengths, rigid points).
+    runtime
+        Untracked: the config file's folder and the solver's speed/log options.
+    """
+
+    STAGE: ClassVar[str] = "bundle_adjustment"
+
+    bundle_adjustment: BundleAdjustmentParams
+    rig: RigSpec
+    skeleton: SkeletonSpec
+    runtime: BundleAdjustmentRuntime = BundleAdjustmentRuntime()
+
+    @classmethod
+    def from_config(cls, config: Config) -> BundleAdjustmentInputs:
+        """The stage's inputs as ``config`` gives them."""
+        params = config.bundle_adjustment
+        options = params.least_squares
+        tracked = {k: v for k, v in options.items() if k not in _LEAST_SQUARES_PERF}
+        rig = RigSpec.from_config(config)
+        return cls(
+            bundle_adjustment=replace(params, least_squares=tracked),
+            rig=rig,
+            skeleton=SkeletonSpec.from_config(config),
+            runtime=BundleAdjustmentRuntime(
+                config_dir=rig.config_dir,
+                solver_options=frozen_mapping(
+                    {k: v for k, v in options.items() if k in _LEAST_SQUARES_PERF}
+                ),
+            ),
+        )
+
+    @classmethod
+    def from_params(
+        cls, params: Mapping, runtime: BundleAdjustmentRuntime | None = None
+    ) -> BundleAdjustmentInputs:
+        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
+        runtime = runtime or BundleAdjustmentRuntime()
+        table = dict(params["bundle_adjustment"])
+        options = dict(table.pop("least_squares", None) or {})
+        return cls(
+            bundle_adjustment=replace(
+                _build_params(BundleAdjustmentParams, table), least_squares=options
+            ),
+            rig=RigSpec.from_params(params["rig"], runtime.config_dir),
+            skeleton=SkeletonSpec.from_params(params["skeleton"]),
+            runtime=runtime,
+        )
+
+    def params(self) -> dict:
+        """The tracked params: the table, rig and skeleton."""
+        return {
+            "bundle_adjustment": asdict(self.bundle_adjustment),
+            "rig": self.rig.params(),
+            "skeleton": self.skeleton.structure(),
+        }
+
+
+@dataclass(frozen=True)
+class BundleAdjusted:
+    """The bundle-adjustment stage's result.
+
+    Attributes
+    ----------
+    cameras
+        The refined rig.
+    points3d
+        ``(T, P, 3)`` the refined points of the fitted frames and points, NaN elsewhere.
+    summary
+        ``success``, ``message``, ``cost``, ``nfev``, ``seconds`` and the solver's
+        ``report`` (what was free, kept fractions, rounds, warnings): the artifact's
+        ``summary`` attribute.
+    solution
+        The solver's whole result (:func:`~flylib.bundle_adjustment.bundle_adjust_sequence`:
+        fitted ``frames`` and ``points``, ``inliers``, ``report``, ...).
+    """
+
+    cameras: CameraGroup
+    points3d: Float[np.ndarray, "T P 3"]
+    summary: dict[str, Any]
+    solution: OptimizeResult
+
+
+def compute_bundle_adjustment(
+    inputs: BundleAdjustmentInputs,
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V T P 2"],
+    conf: Float[np.ndarray, "V T P"] | None = None,
+) -> BundleAdjusted:
+    """Refine ``cameras`` against the 2D ``pts2d`` ``(V, T, P, 2)`` with the
+    ``bundle_adjustment`` table (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`);
+    no file is read or written."""
+    from ..bundle_adjustment import bundle_adjust_sequence
+
+    skeleton = inputs.skeleton.skeleton()
+    started = time.perf_counter()
+    result, refined, pts3d = bundle_adjust_sequence(
+        cameras,
+        pts2d,
+        conf,
+        skeleton,
+        **inputs.bundle_adjustment.sequence_kwargs(skeleton.point_names),
+        **inputs.runtime.solver_options,
+    )
+    summary = {
+        "success": bool(getattr(result, "success", True)),
+        "message": str(getattr(result, "message", "")),
+        "cost": float(getattr(result, "cost", np.nan)),
+        "nfev": int(getattr(result, "nfev", 0) or 0),
+        "seconds": round(time.perf_counter() - started, 3),
+    }
+    if hasattr(result, "report"):  # what was free, kept fractions, rounds, warnings
+        summary["report"] = result.report
+    return BundleAdjusted(refined, pts3d, summary, result)
+
+
+def run_bundle_adjustment(
+    inputs: BundleAdjustmentInputs,
+    pose2d_path: str | Path,
+    out_path: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+) -> Path:
+    """Refine the config rig against the recording's 2D keypoints."""
+    from ..provenance import stage_provenance
+    from ..results import Pose2dData, write_stage
+
+    pose2d = Pose2dData.load(pose2d_path)
+    cameras = inputs.rig.camera_group(_image_sizes(pose2d), recording_dir)
+    with _solving("bundle_adjustment", recording_dir or pose2d_path):
+        result = compute_bundle_adjustment(inputs, cameras, pose2d.pts2d, pose2d.conf)
+    write_stage(
+        out_path,
+        "bundle_adjustment",
+        {},
+        cameras=result.cameras,
+        attrs={"summary": json.dumps(result.summary)},
+        meta=stage_provenance(
+            inputs.canonical_params(), "bundle_adjustment", {"pose2d": pose2d_path}
+        ),
+    )
+    log.info("bundle adjustment: %s", result.summary)
+    return Path(out_path)

@@ -1,0 +1,185 @@
+"""The pictorial-structures stage: its inputs, the pure compute step, and the run that
+reads and writes its files.
+
+``run_pictorial_structures`` loads the detector's candidate peaks and the rig (the
+bundle-adjusted one when given, else the config rig), calls
+:func:`compute_pictorial_structures` and writes
+``<outdir>/stages/pictorial_structures.h5``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+from ..config.params import PictorialParams, _build_params
+from ..errors import ResultsError
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+from .stages import RigRuntime, _rig_for, _solving
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Mapping
+
+    import numpy as np
+    from jaxtyping import Float
+
+    from ..cameras import CameraGroup
+    from ..config import Config
+    from ..pictorial import Candidates
+
+__all__ = [
+    "PictorialStructuresInputs",
+    "Recovered",
+    "compute_pictorial_structures",
+    "run_pictorial_structures",
+]
+
+
+@register
+@dataclass(frozen=True)
+class PictorialStructuresInputs(StageInputs):
+    """What the pictorial-structures stage reads.
+
+    Attributes
+    ----------
+    pictorial_structures
+        The ``pictorial_structures`` table.
+    skeleton
+        Points and limbs (the chains and bones of the prior).
+    rig
+        The config rig, or ``None`` while bundle adjustment is on (the rig then comes
+        from that stage's artifact).
+    runtime
+        Untracked: the config file's folder (a relative calibration path).
+    """
+
+    STAGE: ClassVar[str] = "pictorial_structures"
+
+    pictorial_structures: PictorialParams
+    skeleton: SkeletonSpec
+    rig: RigSpec | None
+    runtime: RigRuntime = RigRuntime()
+
+    @classmethod
+    def from_config(cls, config: Config) -> PictorialStructuresInputs:
+        """The stage's inputs as ``config`` gives them."""
+        return cls(
+            pictorial_structures=config.pictorial,
+            skeleton=SkeletonSpec.from_config(config),
+            rig=None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config),
+            runtime=RigRuntime.from_config(config),
+        )
+
+    @classmethod
+    def from_params(
+        cls, params: Mapping, runtime: RigRuntime | None = None
+    ) -> PictorialStructuresInputs:
+        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
+        runtime = runtime or RigRuntime()
+        return cls(
+            pictorial_structures=_build_params(PictorialParams, params["pictorial_structures"]),
+            skeleton=SkeletonSpec.from_params(params["skeleton"]),
+            rig=RigSpec.from_params(params["rig"], runtime.config_dir) if params["rig"] else None,
+            runtime=runtime,
+        )
+
+    def params(self) -> dict:
+        """The tracked params: the table, skeleton and rig."""
+        return {
+            "pictorial_structures": asdict(self.pictorial_structures),
+            "skeleton": self.skeleton.structure(),
+            "rig": self.rig.params() if self.rig is not None else None,
+        }
+
+
+@dataclass(frozen=True)
+class Recovered:
+    """The pictorial-structures stage's result.
+
+    Attributes
+    ----------
+    points3d
+        ``(T, P, 3)`` the DLT triangulation of the committed 2D.
+    points
+        ``(V, T, P, 2)`` the committed candidate per (view, frame, point), NaN where
+        no view was kept: what triangulation reads next.
+    reproj_error
+        ``(V, T, P)`` pixels.
+    """
+
+    points3d: Float[np.ndarray, "T P 3"]
+    points: Float[np.ndarray, "V T P 2"]
+    reproj_error: Float[np.ndarray, "V T P"]
+
+
+def compute_pictorial_structures(
+    inputs: PictorialStructuresInputs, cameras: CameraGroup, candidates: Candidates
+) -> Recovered:
+    """Choose one candidate peak per (view, frame, point) on ``cameras``
+    (:func:`flylib.pictorial.reconstruct` with the ``pictorial_structures`` table);
+    no file is read or written."""
+    from ..pictorial import reconstruct
+
+    pts3d, pts2d, error = reconstruct(
+        cameras,
+        inputs.skeleton.skeleton(),
+        candidates,
+        **inputs.pictorial_structures.solver_kwargs(),
+    )
+    return Recovered(pts3d, pts2d, error)
+
+
+def _load_candidates(candidates_path: str | Path | None, pose2d, pose2d_path):
+    if candidates_path is not None:
+        from ..results import load_candidates
+
+        return load_candidates(candidates_path)
+    if pose2d.candidates is None:
+        raise ResultsError(
+            f"{pose2d_path}: holds no candidate peaks, which pictorial structures needs; "
+            "they come only from the detector (set pipeline.do_pictorial_structures: false "
+            "for 2D imported from another tool)"
+        )
+    return pose2d.candidates
+
+
+def run_pictorial_structures(
+    inputs: PictorialStructuresInputs,
+    pose2d_path: str | Path,
+    out_path: str | Path,
+    *,
+    candidates_path: str | Path | None = None,
+    ba_path: str | Path | None = None,
+    recording_dir: str | Path | None = None,
+) -> Path:
+    """Peak recovery over the detector's candidate peaks (pictorial structures).
+
+    The peaks come from ``candidates_path`` (what the pose2d stage writes), else from
+    the 2D artifact itself (a :class:`~flylib.results.Pose2dData` saved with them).
+
+    Raises
+    ------
+    ResultsError
+        If there are no candidate peaks (2D imported from another tool).
+    """
+    from ..provenance import stage_provenance
+    from ..results import Pose2dData, write_stage
+
+    pose2d = Pose2dData.load(pose2d_path)
+    candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
+    cameras = _rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="pictorial_structures")
+    with _solving("pictorial_structures", recording_dir or pose2d_path):
+        result = compute_pictorial_structures(inputs, cameras, candidates)
+    upstream = {
+        "pose2d": pose2d_path,
+        "candidates": candidates_path,
+        "bundle_adjustment": ba_path,
+    }
+    write_stage(
+        out_path,
+        "pictorial_structures",
+        {"points": result.points, "points3d": result.points3d, "reproj_error": result.reproj_error},
+        meta=stage_provenance(inputs.canonical_params(), "pictorial_structures", upstream),
+    )
+    return Path(out_path)
