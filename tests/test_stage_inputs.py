@@ -18,6 +18,7 @@ import json
 import pickle
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from flylib.config import PARAM_STAGES, Config
@@ -66,3 +67,17 @@ def test_a_job_rebuilds_the_same_inputs_from_the_tracked_params(configs, stage):
         rebuilt = cls.from_params(params, inputs.runtime_options)
         assert rebuilt == inputs, name
         assert pickle.loads(pickle.dumps(inputs)) == inputs, name
+
+
+def test_a_rig_rebuilt_from_the_tracked_params_keeps_the_configs_view_order():
+    # the params JSON sorts the cameras table's keys; the V axis must stay the config's
+    from flylib.pipeline.inputs import RigSpec
+
+    config = Config.default()
+    views = config.view_names()
+    assert views != sorted(views)
+    tracked = json.loads(json.dumps(RigSpec.from_config(config).params(), sort_keys=True))
+    sizes = {view: (480, 960) for view in views}
+    rebuilt = RigSpec.from_params(tracked).camera_group(sizes)
+    assert list(rebuilt.names) == views
+    np.testing.assert_array_equal(rebuilt.tvecs, config.camera_group(sizes).tvecs)

@@ -13,7 +13,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -75,7 +75,7 @@ class BundleAdjustmentInputs(StageInputs):
         Untracked: the config file's folder and the solver's speed/log options.
     """
 
-    STAGE: ClassVar[str] = "bundle_adjustment"
+    STAGE = "bundle_adjustment"
 
     bundle_adjustment: BundleAdjustmentParams
     rig: RigSpec

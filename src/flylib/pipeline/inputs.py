@@ -23,7 +23,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
 from ..config import PARAM_STAGES, Config
 from ..config.canonical import _canonical
@@ -245,7 +245,7 @@ class StageInputs:
     for a stage that has none), the one part :meth:`params` leaves out.
     """
 
-    STAGE: ClassVar[str] = ""
+    STAGE = ""  # a class attribute, not a dataclass field (no annotation)
 
     @classmethod
     def from_config(cls, config: Config) -> StageInputs:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 from ..config.params import PictorialParams, _build_params
 from ..errors import ResultsError
@@ -54,7 +54,7 @@ class PictorialStructuresInputs(StageInputs):
         Untracked: the config file's folder (a relative calibration path).
     """
 
-    STAGE: ClassVar[str] = "pictorial_structures"
+    STAGE = "pictorial_structures"
 
     pictorial_structures: PictorialParams
     skeleton: SkeletonSpec

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -55,7 +55,7 @@ class TriangulationInputs(StageInputs):
         Untracked: the config file's folder (a relative calibration path).
     """
 
-    STAGE: ClassVar[str] = "triangulation"
+    STAGE = "triangulation"
 
     triangulation: TriangulationParams
     skeleton: SkeletonSpec
