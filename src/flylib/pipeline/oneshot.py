@@ -7,6 +7,7 @@ so the one-shot and the workflow start from the same settings.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -105,15 +106,16 @@ def run_from_points2d(
     from ..triangulation import reconstruct
 
     defaults = _defaults()
-    tri = defaults.triangulation
-    triangulation = tri.method if triangulation is None else triangulation
-    weigh_by_confidence = (
-        tri.weigh_by_confidence if weigh_by_confidence is None else weigh_by_confidence
-    )
-    ransac_threshold = tri.ransac_threshold if ransac_threshold is None else ransac_threshold
-    min_inliers = tri.min_inliers if min_inliers is None else min_inliers
-    reproj_threshold = tri.reproj_threshold if reproj_threshold is None else reproj_threshold
-    max_drops = tri.max_drops if max_drops is None else max_drops
+    given = {
+        "method": triangulation,
+        "weigh_by_confidence": weigh_by_confidence,
+        "ransac_threshold": ransac_threshold,
+        "min_inliers": min_inliers,
+        "reproj_threshold": reproj_threshold,
+        "max_drops": max_drops,
+    }
+    tri = replace(defaults.triangulation, **{k: v for k, v in given.items() if v is not None})
+    triangulation = tri.method
     if triangulation not in TRIANGULATION_METHODS:
         raise ConfigError(
             f"triangulation: unknown method {triangulation!r}; "
@@ -154,17 +156,12 @@ def run_from_points2d(
 
         _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d, **(ps_kwargs or {}))
 
-    params = {
-        "dlt": {},
-        "ransac": {"threshold": ransac_threshold, "min_inliers": min_inliers},
-        "greedy": {"reproj_threshold": reproj_threshold, "max_drops": max_drops},
-    }
     pts3d, pts2d_out, reproj = reconstruct(
         cameras,
         tri_input,
         method=triangulation,
-        weights=conf if (weigh_by_confidence and conf is not None) else None,
-        **params[triangulation],
+        weights=conf if (tri.weigh_by_confidence and conf is not None) else None,
+        **tri.method_kwargs(),
     )
     return PoseResult(
         cameras=cameras,
