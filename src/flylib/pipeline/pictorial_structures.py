@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from ..config.params import PictorialParams, _build_params
 from ..errors import ResultsError
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stages import RigRuntime, _rig_for, _solving
+from .stages import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -67,7 +67,7 @@ class PictorialStructuresInputs(StageInputs):
         return cls(
             pictorial_structures=config.pictorial,
             skeleton=SkeletonSpec.from_config(config),
-            rig=None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config),
+            rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
 
@@ -80,7 +80,7 @@ class PictorialStructuresInputs(StageInputs):
         return cls(
             pictorial_structures=_build_params(PictorialParams, params["pictorial_structures"]),
             skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=RigSpec.from_params(params["rig"], runtime.config_dir) if params["rig"] else None,
+            rig=rig_from_params(params["rig"], runtime),
             runtime=runtime,
         )
 
@@ -89,7 +89,7 @@ class PictorialStructuresInputs(StageInputs):
         return {
             "pictorial_structures": asdict(self.pictorial_structures),
             "skeleton": self.skeleton.structure(),
-            "rig": self.rig.params() if self.rig is not None else None,
+            "rig": rig_params(self.rig),
         }
 
 

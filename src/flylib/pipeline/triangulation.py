@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config.params import TriangulationParams, _build_params
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stages import RigRuntime, _rig_for, _solving
+from .stages import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -71,7 +71,7 @@ class TriangulationInputs(StageInputs):
             triangulation=_build_params(TriangulationParams, config.triangulation.method_params()),
             skeleton=SkeletonSpec.from_config(config),
             points_from="pictorial_structures" if flags["pictorial_structures"] else "pose2d",
-            rig=None if flags["bundle_adjustment"] else RigSpec.from_config(config),
+            rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
 
@@ -83,7 +83,7 @@ class TriangulationInputs(StageInputs):
             triangulation=_build_params(TriangulationParams, params["triangulation"]),
             skeleton=SkeletonSpec.from_params(params["skeleton"]),
             points_from=params["points_from"],
-            rig=RigSpec.from_params(params["rig"], runtime.config_dir) if params["rig"] else None,
+            rig=rig_from_params(params["rig"], runtime),
             runtime=runtime,
         )
 
@@ -93,7 +93,7 @@ class TriangulationInputs(StageInputs):
             "triangulation": self.triangulation.method_params(),
             "skeleton": self.skeleton.structure(),
             "points_from": self.points_from,
-            "rig": self.rig.params() if self.rig is not None else None,
+            "rig": rig_params(self.rig),
         }
 
 
