@@ -15,9 +15,11 @@ from flylib.accuracy import (
     held_out_errors,
     keep_triangulation,
     left_right_asymmetry,
+    refinement_method,
     triangulation_method,
 )
 from flylib.config.params import TriangulationParams
+from flylib.config.postprocessing import RefinementParams
 from flylib.refinement import mirror_bones
 from flylib.skeleton import Skeleton
 
@@ -113,6 +115,23 @@ def test_a_miscalibrated_camera_stands_out_without_any_truth():
     right = held_out_errors(case.rig, case.pts2d, method)["triangulation"]
     assert np.nanmedian(right) < 3.0  # the right rig: about the noise
     assert summary["held_out_px"]["n"] == np.isfinite(held["triangulation"]).sum()
+
+
+def test_the_refinement_method_held_out_beats_the_dlt_on_a_noisy_tethered_fly():
+    """The refinement stage's method (its table and the fly's bones and rigid thorax),
+    judged by the same held-out views as the triangulation it starts from: on 1 px
+    noise through the real-geometry rig it predicts the held-out cameras better
+    (measured 1.56 against 1.87 px median) and fills points the DLT leaves open."""
+    case = _case(frames=12, noise_px=1.0)
+    held = held_out_errors(
+        case.rig,
+        case.pts2d,
+        triangulation_method(DLT, case.rig),
+        refine=refinement_method(RefinementParams(), case.rig, Skeleton.fly()),
+    )
+    tri, ref = held["triangulation"], held["refinement"]
+    assert ref.shape == tri.shape and np.isfinite(ref).sum() >= np.isfinite(tri).sum()
+    assert np.nanmedian(ref) < 0.95 * np.nanmedian(tri)
 
 
 def test_bone_spread_and_left_right_asymmetry_of_a_known_skeleton():
