@@ -141,6 +141,7 @@ def held_out_error(cameras: CameraGroup, pts2d: np.ndarray) -> np.ndarray:
     :func:`flylib.accuracy.held_out_errors` with the DLT, so two rigs are judged on the
     same observations (compare medians: gross outliers stay in)."""
     from flylib.accuracy import held_out_errors, triangulation_method
+    from flylib.config import TriangulationParams
 
-    method = triangulation_method({"triangulation": {"method": "dlt"}}, cameras)
+    method = triangulation_method(TriangulationParams(method="dlt"), cameras)
     return held_out_errors(cameras, pts2d, method, windows=[(0, pts2d.shape[1])])["triangulation"]

@@ -17,13 +17,14 @@ from flylib.accuracy import (
     left_right_asymmetry,
     triangulation_method,
 )
+from flylib.config import TriangulationParams
 from flylib.refinement import mirror_bones
 from flylib.skeleton import Skeleton
 
 from rough_rig import make_case
 from synthetic import POINT_NAMES, project_opencv
 
-DLT = {"triangulation": {"method": "dlt"}}
+DLT = TriangulationParams(method="dlt")
 
 
 def _kmat(intr):
@@ -93,7 +94,7 @@ def test_a_miscalibrated_camera_stands_out_without_any_truth():
     (the other two right cameras are triangulated through rm's error)."""
     case = _case(frames=40, noise_px=1.0, outlier_frac=0.05)
     wrong = _panned(case.rig, "rm", 0.05)
-    method = triangulation_method({"triangulation": {"method": "ransac"}}, wrong)
+    method = triangulation_method(TriangulationParams(method="ransac"), wrong)
     held = held_out_errors(wrong, case.pts2d, method)
     skeleton = Skeleton.fly()
     summary = accuracy_summary(

@@ -182,7 +182,9 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     import h5py
 
     from flylib.config import Config
-    from flylib.pipeline.stages import run_assemble, run_refinement
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.refinement import run_refinement
+    from flylib.pipeline.stages import run_assemble
     from flylib.results import Pose2dData, PoseResult, write_stage
 
     config = Config.default()
@@ -195,8 +197,13 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
         "triangulation",
         {"points": clean2d, "points3d": start, "reproj_error": err},
     )
+    data = config.data
+    data["pipeline"]["do_bundle_adjustment"] = False  # the config rig
     run_refinement(
-        config, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", tmp_path / "refinement.h5"
+        stage_inputs(Config.from_dict(data), "refinement"),
+        tmp_path / "pose2d.h5",
+        tmp_path / "triangulation.h5",
+        tmp_path / "refinement.h5",
     )
     with h5py.File(tmp_path / "refinement.h5") as f:
         group = f["refinement"]

@@ -14,6 +14,8 @@ import pytest
 
 from flylib.config import Config
 from flylib.pipeline import stages
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.refinement import run_refinement
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
 
@@ -28,9 +30,10 @@ def _check_never_worse(out, with_ba=True):
     s = out / "stages"
     ba = s / "bundle_adjustment.h5" if with_ba else None
     stages.run_triangulation(config, s / "pose2d.h5", s / "triangulation.h5", ba_path=ba)
-    stages.run_refinement(
-        config, s / "pose2d.h5", s / "triangulation.h5", s / "refinement.h5", ba_path=ba
-    )
+    data = config.data
+    data["pipeline"]["do_bundle_adjustment"] = with_ba  # without BA's artifact: the config rig
+    inputs = stage_inputs(Config.from_dict(data), "refinement")
+    run_refinement(inputs, s / "pose2d.h5", s / "triangulation.h5", s / "refinement.h5", ba_path=ba)
     files = {"pose2d": s / "pose2d.h5", "triangulation": s / "triangulation.h5"}
     files["refinement"] = s / "refinement.h5"
     if ba is not None:

@@ -24,6 +24,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
     from .cameras import CameraGroup
+    from .config import TriangulationParams
+    from .config.postprocessing import RefinementParams
+    from .skeleton import Skeleton
 
 #: At most this many frames are held out per recording (in windows of
 #: :data:`EVALUATION_WINDOW` contiguous frames), bounding refinement's re-solves.
@@ -267,26 +270,25 @@ def accuracy_summary(
     return out
 
 
-def triangulation_method(config, cameras: CameraGroup) -> Triangulate:
+def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> Triangulate:
     """The triangulation stage's 3D method as :func:`held_out_errors` calls it (the
-    config's ``triangulation`` table)."""
+    ``triangulation`` table's params)."""
     from .triangulation import reconstruct_from_config
 
     def triangulate(pts2d, conf):
-        pts3d, clean, _ = reconstruct_from_config(config, cameras, pts2d, conf)
+        pts3d, clean, _ = reconstruct_from_config({"triangulation": params}, cameras, pts2d, conf)
         return pts3d, np.isfinite(clean).all(-1)
 
     return triangulate
 
 
-def refinement_method(config, cameras: CameraGroup) -> Refine:
+def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
     """The refinement stage's 3D method as :func:`held_out_errors` calls it (the
-    config's ``refinement`` table and skeleton)."""
+    ``refinement`` table's params and the skeleton)."""
     from .refinement.setup import options_from_params, skeleton_terms
     from .refinement.solver import refine_points
 
-    params = config.refinement
-    terms = skeleton_terms(config.skeleton(), params.rigid_points)
+    terms = skeleton_terms(skeleton, params.rigid_points)
     options = options_from_params(params)
 
     def refine(pts2d, conf, start, kept):
@@ -309,7 +311,9 @@ def triangulation_accuracy(
     frames, plus ``frames_evaluated`` and ``frames_total``."""
     from .refinement.setup import mirror_bones
 
-    held = held_out_errors(cameras, pts2d, triangulation_method(config, cameras), conf=conf)
+    held = held_out_errors(
+        cameras, pts2d, triangulation_method(config.triangulation, cameras), conf=conf
+    )
     skeleton = config.skeleton()
     frames = held["frames"]
     return {
