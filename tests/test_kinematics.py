@@ -156,3 +156,32 @@ def test_angles_figure_names_each_angle_once_beside_the_traces_not_over_them():
         assert colours == {
             t.get_text(): h.get_color() for t, h in zip(legend.get_texts(), legend.legend_handles)
         }
+
+
+def test_a_job_keeps_the_configured_angle_order_which_its_params_do_not_track():
+    """angles.csv's columns come in the config's order; the tracked params hold the
+    angles as a mapping (keys sorted), so the order travels in the untracked runtime."""
+    import json
+
+    from flylib.config import Config
+    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
+    from flylib.pipeline.kinematics import compute_kinematics as compute_stage
+
+    angles = {
+        "z_femur_flex": ["lf_coxa_trochanter", "lf_femur_tibia", "lf_tibia_tarsus"],
+        "a_coxa_flex": ["lf_thorax_coxa", "lf_coxa_trochanter", "lf_femur_tibia"],
+    }
+    configs = []
+    for order in (list(angles), list(reversed(angles))):
+        data = Config.default().data
+        data["kinematics"] = {"angles": {name: angles[name] for name in order}}
+        configs.append(Config.from_dict(data))
+    inputs = [stage_inputs(config, "kinematics") for config in configs]
+    assert inputs[0].canonical_params() == inputs[1].canonical_params()
+    pts = synthetic_fly(6, seed=2)
+    for config, made in zip(configs, inputs):
+        job = inputs_from_job(
+            "kinematics", json.dumps(made.canonical_params(), sort_keys=True), made.runtime
+        )
+        names = compute_stage(job, pts, FLY).angle_names
+        assert names[:2] == list(config.data["kinematics"]["angles"])

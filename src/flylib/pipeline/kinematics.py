@@ -223,6 +223,27 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     return fig
 
 
+def results_3d(results_path: str | Path, stage: str):
+    """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
+    ``stage`` reads (kinematics, neuromechfly).
+
+    Raises
+    ------
+    ResultsError
+        If it holds no 3D.
+    """
+    from ..errors import ResultsError
+    from ..results import PoseResult
+
+    result = PoseResult.load(results_path)
+    if result.pts3d is None:
+        raise ResultsError(
+            f"{results_path}: holds no 3D points; turn on triangulation "
+            f"(or set pipeline.do_{stage}: false)"
+        )
+    return result
+
+
 def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: str | Path) -> dict:
     """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
     into ``outdir``.
@@ -243,17 +264,10 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     StageError
         If the computation fails on the recording's data.
     """
-    from ..errors import ResultsError
-    from ..results import PoseResult
     from .stages import _solving
 
     with _solving(STAGE, results_path):
-        result = PoseResult.load(results_path)
-        if result.pts3d is None:
-            raise ResultsError(
-                f"{results_path}: holds no 3D points; turn on triangulation "
-                "(or set pipeline.do_kinematics: false)"
-            )
+        result = results_3d(results_path, STAGE)
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)
         write_kinematics_h5(

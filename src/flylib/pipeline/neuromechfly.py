@@ -226,15 +226,9 @@ def run_neuromechfly(
         If ``results.h5`` holds no 3D, its thorax is not still, or too few thorax-coxa
         points were reconstructed.
     """
-    from ..errors import ResultsError
-    from ..results import PoseResult
+    from .kinematics import results_3d
 
-    result = PoseResult.load(results_path)
-    if result.pts3d is None:
-        raise ResultsError(
-            f"{results_path}: holds no 3D points; turn on triangulation "
-            "(or set pipeline.do_neuromechfly: false)"
-        )
+    result = results_3d(results_path, STAGE)
     outdir = Path(outdir)
     frame_rate = inputs.neuromechfly.frame_rate
     nmf = compute_neuromechfly(inputs, result.pts3d, result.skeleton, source=str(results_path))

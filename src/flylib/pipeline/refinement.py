@@ -15,23 +15,25 @@ and attributes ``bone_lengths`` (``{"a-b": length}``), ``rigid_centres``
 rejected), ``options`` (the ``refinement`` table in force) and ``accuracy``.
 
 Refinement never makes a recording worse by the truth-free yardstick of
-:mod:`flylib.accuracy` (:class:`~flylib.refinement.held_out.HeldOutCheck`): every view is held out in turn and
-both the triangulation and the refinement are re-solved without it (on at most
-:data:`~flylib.accuracy.EVALUATION_FRAMES` frames), the refinement once per candidate
-smoothness scale (``smooth_scale`` and ``motion_scales`` times the recording's own
-per-frame motion, which carries the frame rate); the whole recording is then solved
-at the scale of lowest held-out error. A point whose refined held-out-view
-error (median or 95th percentile) is higher than the triangulation's keeps the
-triangulation's 3D, 2D and errors in every frame, flagged ``kept_triangulation``; if
-the output is still worse overall, every point does. The ``accuracy`` attribute holds
+:mod:`flylib.accuracy` (:class:`~flylib.refinement.held_out.HeldOutCheck`): every view
+is held out in turn and both the triangulation and the refinement are re-solved
+without it (on at most :data:`~flylib.accuracy.EVALUATION_FRAMES` frames), the
+refinement once per candidate smoothness scale (``smooth_scale`` and ``motion_scales``
+times the recording's own per-frame motion, which carries the frame rate); the whole
+recording is then solved at the scale of lowest held-out error. A point whose refined
+held-out-view error (median or 95th percentile) is higher than the triangulation's
+keeps the triangulation's 3D, 2D and errors in every frame, flagged
+``kept_triangulation``; if the output is still worse overall, every point does. The ``accuracy`` attribute holds
 the three summaries (``triangulation``, ``refinement`` as solved, ``output``), the
 points kept and the frames evaluated.
+
+:class:`RefinementInputs` is what the stage reads; :func:`run_refinement` loads the
+artifacts, runs :func:`compute_refinement` on them and writes the result.
 """
 
 from __future__ import annotations
 
 import json
-import logging
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -53,8 +55,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..config import Config
 
 STAGE = "refinement"
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
