@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class KinematicsInputs(StageInputs):
         :class:`KinematicsRuntime`.
     """
 
-    STAGE: ClassVar[str] = STAGE
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
 
     kinematics: KinematicsParams
     skeleton: SkeletonSpec

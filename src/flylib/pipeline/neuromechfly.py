@@ -27,7 +27,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -61,7 +61,7 @@ class NeuromechflyInputs(StageInputs):
         The skeleton's points and limbs.
     """
 
-    STAGE: ClassVar[str] = STAGE
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
 
     neuromechfly: NeuromechflyParams
     skeleton: SkeletonSpec

@@ -37,7 +37,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -92,7 +92,7 @@ class RefinementInputs(StageInputs):
         :class:`RefinementRuntime`.
     """
 
-    STAGE: ClassVar[str] = STAGE
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
 
     refinement: RefinementParams
     triangulation: TriangulationParams
