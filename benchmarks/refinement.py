@@ -238,12 +238,9 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
 def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
-    from flylib.pipeline.inputs import stage_inputs
-    from flylib.pipeline.refinement import run_refinement
+    from flylib.pipeline.refinement import RefinementInputs, run_refinement
 
-    data = Config.default().data
-    data["pipeline"]["do_bundle_adjustment"] = False  # the config rig
-    inputs = stage_inputs(Config.from_dict(data), "refinement")
+    inputs = RefinementInputs.from_config_rig(Config.default())
     before = _peak_mb()
     started = time.perf_counter()
     run_refinement(

@@ -4,7 +4,8 @@ reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)
 
 from pathlib import Path
 
-from flylib.pipeline.refinement import run_refinement
+from flylib.config import Config
+from flylib.pipeline.refinement import RefinementInputs, run_refinement
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -25,7 +26,7 @@ def main(argv=None, *, job=None) -> int:
     def run(args, inputs):
         if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
             # by hand without bundle adjustment's artifact: the config rig, as documented
-            inputs = _with_config_rig(args.config)
+            inputs = RefinementInputs.from_config_rig(Config.from_file(args.config))
         run_refinement(
             inputs,
             args.pose2d,
@@ -38,15 +39,6 @@ def main(argv=None, *, job=None) -> int:
     return script_main(
         parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="refinement"
     )
-
-
-def _with_config_rig(config_path):
-    """The stage's inputs from ``config_path`` with bundle adjustment off (the config rig)."""
-    from flylib.config import Config
-    from flylib.pipeline.inputs import stage_inputs
-    from flylib.pipeline.stages import _rig_source
-
-    return stage_inputs(_rig_source(Config.from_file(config_path), None), "refinement")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import pytest
 from flylib.config import Config
 from flylib.pipeline import stages
 from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.refinement import run_refinement
+from flylib.pipeline.refinement import RefinementInputs, run_refinement
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
 
@@ -30,9 +30,10 @@ def _check_never_worse(out, with_ba=True):
     s = out / "stages"
     ba = s / "bundle_adjustment.h5" if with_ba else None
     stages.run_triangulation(config, s / "pose2d.h5", s / "triangulation.h5", ba_path=ba)
-    data = config.data
-    data["pipeline"]["do_bundle_adjustment"] = with_ba  # without BA's artifact: the config rig
-    inputs = stage_inputs(Config.from_dict(data), "refinement")
+    if with_ba:
+        inputs = stage_inputs(config, "refinement")
+    else:  # without bundle adjustment's artifact: the config rig
+        inputs = RefinementInputs.from_config_rig(config)
     run_refinement(inputs, s / "pose2d.h5", s / "triangulation.h5", s / "refinement.h5", ba_path=ba)
     files = {"pose2d": s / "pose2d.h5", "triangulation": s / "triangulation.h5"}
     files["refinement"] = s / "refinement.h5"

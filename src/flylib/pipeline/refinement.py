@@ -112,6 +112,14 @@ class RefinementInputs(StageInputs):
         )
 
     @classmethod
+    def from_config_rig(cls, config: Config) -> RefinementInputs:
+        """The inputs on the config rig whatever ``pipeline.do_bundle_adjustment`` says:
+        what a run without bundle adjustment's artifact refines on (its params those of
+        the config with bundle adjustment off)."""
+        rig = RigSpec.from_config(config)
+        return replace(cls.from_config(config), rig=rig, runtime=RefinementRuntime(rig.config_dir))
+
+    @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
         runtime = runtime or RefinementRuntime()
         rig = params.get("rig")
