@@ -238,13 +238,13 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
 def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
-    from flylib.pipeline.stages import run_refinement
+    from flylib.pipeline.refinement import RefinementInputs, run_refinement
 
-    config = Config.default()
+    inputs = RefinementInputs.from_config_rig(Config.default())
     before = _peak_mb()
     started = time.perf_counter()
     run_refinement(
-        config, directory / "pose2d.h5", directory / "triangulation.h5", directory / "refinement.h5"
+        inputs, directory / "pose2d.h5", directory / "triangulation.h5", directory / "refinement.h5"
     )
     seconds = time.perf_counter() - started
     print(json.dumps({"peak_mb": _peak_mb(), "before_mb": before, "seconds": seconds}))

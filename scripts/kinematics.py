@@ -4,7 +4,7 @@ angles.csv (Anipose's angles layout) and angles.png (angle traces per leg)."""
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_kinematics
+from flylib.pipeline.kinematics import run_kinematics
 
 from _cli import run_script, script_main, script_parser
 
@@ -14,10 +14,12 @@ def main(argv=None, *, job=None) -> int:
     parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
     parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
 
-    def run(args, config):
-        run_kinematics(config, args.results, args.outdir)
+    def run(args, inputs):
+        run_kinematics(inputs, args.results, args.outdir)
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
+    return script_main(
+        parser, run, argv, job=job, outdir=lambda args: args.outdir, stage="kinematics"
+    )
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@ reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_refinement
+from flylib.config import Config
+from flylib.pipeline.refinement import RefinementInputs, run_refinement
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -22,9 +23,12 @@ def main(argv=None, *, job=None) -> int:
     )
     add_rig_stage_arguments(parser)
 
-    def run(args, config):
+    def run(args, inputs):
+        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
+            # by hand without bundle adjustment's artifact: the config rig, as documented
+            inputs = RefinementInputs.from_config_rig(Config.from_file(args.config))
         run_refinement(
-            config,
+            inputs,
             args.pose2d,
             args.triangulation,
             args.out,
@@ -32,7 +36,9 @@ def main(argv=None, *, job=None) -> int:
             recording_dir=args.recording,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
+    return script_main(
+        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="refinement"
+    )
 
 
 if __name__ == "__main__":

@@ -77,7 +77,7 @@ def test_shapes_are_for_type_checkers_only():
         "flylib.triangulation",
         "flylib.pictorial",
         "flylib.interop",
-        "flylib.kinematics.stage",
+        "flylib.pipeline.kinematics",
         "flylib.suspects",
         "flylib.corrections",
         "flylib.results",

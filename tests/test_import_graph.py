@@ -95,9 +95,6 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.pipeline",
             "flylib.preflight",
             "flylib.run_summary",
-            "flylib.refinement.stage",
-            "flylib.kinematics.stage",
-            "flylib.neuromechfly.stage",
         ),
     ),
     ("applications", ("flylib.cli", "flylib.gui")),
@@ -348,5 +345,5 @@ def test_layers_take_the_most_specific_prefix():
     assert layer_of("flylib") == layer_of("flylib.errors") == 0
     assert layer_of("flylib.pose2d.plan") == 1 < layer_of("flylib.pose2d.inference") == 4
     assert layer_of("flylib.triangulation.kernels") == 4
-    assert layer_of("flylib.refinement.stage") == 6
+    assert layer_of("flylib.pose2d.stream") == 5
     assert layer_of("flylib.not_a_module") is None

@@ -96,7 +96,7 @@ def test_body_frame_axes_point_anterior_left_and_dorsal():
 
 def test_angles_csv_has_anipose_layout(tmp_path):
     """Anipose's `angles` output: one column per angle (degrees), then `fnum`, no index."""
-    from flylib.kinematics.stage import write_angles_csv
+    from flylib.pipeline.kinematics import write_angles_csv
 
     pts = synthetic_fly(12, seed=4)
     kin = compute_kinematics(pts, FLY)
@@ -114,7 +114,8 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
     import h5py
 
     from flylib.config import Config
-    from flylib.kinematics.stage import run_kinematics
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.kinematics import run_kinematics
     from flylib.results import PoseResult
 
     config = Config.default()
@@ -124,7 +125,7 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
     PoseResult(
         cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)), pts3d=pts3d
     ).save(tmp_path / "results.h5")
-    run_kinematics(config, tmp_path / "results.h5", tmp_path)
+    run_kinematics(stage_inputs(config, "kinematics"), tmp_path / "results.h5", tmp_path)
     with h5py.File(tmp_path / "kinematics.h5") as f:
         names = json.loads(f["kinematics"].attrs["angle_names"])
         assert f["kinematics/angles"].shape == (20, len(names))
@@ -137,7 +138,7 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
 def test_angles_figure_names_each_angle_once_beside_the_traces_not_over_them():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from flylib.kinematics.stage import angles_plot
+    from flylib.pipeline.kinematics import angles_plot
 
     kin = compute_kinematics(synthetic_fly(40, seed=2), FLY)
     fig = angles_plot(kin)
@@ -155,3 +156,32 @@ def test_angles_figure_names_each_angle_once_beside_the_traces_not_over_them():
         assert colours == {
             t.get_text(): h.get_color() for t, h in zip(legend.get_texts(), legend.legend_handles)
         }
+
+
+def test_a_job_keeps_the_configured_angle_order_which_its_params_do_not_track():
+    """angles.csv's columns come in the config's order; the tracked params hold the
+    angles as a mapping (keys sorted), so the order travels in the untracked runtime."""
+    import json
+
+    from flylib.config import Config
+    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
+    from flylib.pipeline.kinematics import compute_kinematics as compute_stage
+
+    angles = {
+        "z_femur_flex": ["lf_coxa_trochanter", "lf_femur_tibia", "lf_tibia_tarsus"],
+        "a_coxa_flex": ["lf_thorax_coxa", "lf_coxa_trochanter", "lf_femur_tibia"],
+    }
+    configs = []
+    for order in (list(angles), list(reversed(angles))):
+        data = Config.default().data
+        data["kinematics"] = {"angles": {name: angles[name] for name in order}}
+        configs.append(Config.from_dict(data))
+    inputs = [stage_inputs(config, "kinematics") for config in configs]
+    assert inputs[0].canonical_params() == inputs[1].canonical_params()
+    pts = synthetic_fly(6, seed=2)
+    for config, made in zip(configs, inputs):
+        job = inputs_from_job(
+            "kinematics", json.dumps(made.canonical_params(), sort_keys=True), made.runtime
+        )
+        names = compute_stage(job, pts, FLY).angle_names
+        assert names[:2] == list(config.data["kinematics"]["angles"])

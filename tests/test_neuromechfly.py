@@ -153,12 +153,8 @@ def test_the_model_is_the_flygym_mjcf_where_flygym_is_installed():
 
 
 def test_stage_files_are_flygyms_replay_layout(tmp_path):
-    from flylib.neuromechfly.stage import (
-        angles_figure,
-        replay_data,
-        write_angles_csv,
-        write_nmf_h5,
-    )
+    from flylib.neuromechfly.replay import replay_data
+    from flylib.pipeline.neuromechfly import angles_figure, write_angles_csv, write_nmf_h5
 
     truth = _random_angles(25, seed=10)
     nmf = compute_nmf_angles(_fly38_from_model(truth, seed=11), Config.default().skeleton())
@@ -188,14 +184,16 @@ def test_stage_files_are_flygyms_replay_layout(tmp_path):
 
 
 def test_forward_kinematics_residual_on_the_demo_is_reported_and_small(tmp_path, capsys):
-    from flylib.pipeline.stages import run_neuromechfly
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.neuromechfly import run_neuromechfly
 
     from gui_fixtures import make_demo_outputs
 
     out = make_demo_outputs(tmp_path, frames=24)
     data = Config.default().data
     data["pipeline"]["do_neuromechfly"] = True
-    summary = run_neuromechfly(Config.from_dict(data), out / "results.h5", out)
+    inputs = stage_inputs(Config.from_dict(data), "neuromechfly")
+    summary = run_neuromechfly(inputs, out / "results.h5", out)
     import h5py
 
     with h5py.File(out / "neuromechfly.h5") as f:
@@ -244,8 +242,8 @@ def test_flygym_replays_the_angles_and_the_simulated_joints_are_reported(capsys)
 def test_the_angles_go_in_the_nwb_export(tmp_path):
     pynwb = pytest.importorskip("pynwb")
     from flylib.interop.nwb import JOINT_ANGLES_NAME, read_joint_angles, write_nwb
-    from flylib.neuromechfly.stage import write_nmf_h5
     from flylib.nwb_metadata import DEMO_METADATA
+    from flylib.pipeline.neuromechfly import write_nmf_h5
     from flylib.results import PoseResult
 
     config = Config.default()

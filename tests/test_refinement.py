@@ -182,21 +182,17 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     import h5py
 
     from flylib.config import Config
-    from flylib.pipeline.stages import run_assemble, run_refinement
-    from flylib.results import Pose2dData, PoseResult, write_stage
+    from flylib.pipeline.refinement import RefinementInputs, run_refinement
+    from flylib.pipeline.stages import run_assemble
+    from flylib.results import PoseResult
 
     config = Config.default()
-    rig, truth, pts2d, conf, _ = _scene(frames=30, seed=5)
-    sizes = {v: (480, 960) for v in rig.names}
-    Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
-    start, clean2d, err = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
-    write_stage(
-        tmp_path / "triangulation.h5",
-        "triangulation",
-        {"points": clean2d, "points3d": start, "reproj_error": err},
-    )
+    rig, truth, _ = _stage_case(tmp_path, frames=30, seed=5)
     run_refinement(
-        config, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", tmp_path / "refinement.h5"
+        RefinementInputs.from_config_rig(config),
+        tmp_path / "pose2d.h5",
+        tmp_path / "triangulation.h5",
+        tmp_path / "refinement.h5",
     )
     with h5py.File(tmp_path / "refinement.h5") as f:
         group = f["refinement"]
@@ -403,3 +399,94 @@ def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
     assert result.info["chunks"] == 4
     assert shapes == [(56, 56)] * 4
     assert np.isfinite(result.points3d).mean() > 0.95
+
+
+def _stage_case(tmp_path, frames=20, seed=7):
+    """pose2d and triangulation artifacts of a synthetic recording seen by the default rig
+    (the rig, the 3D truth and the image sizes returned)."""
+    from flylib.config import Config
+    from flylib.results import Pose2dData, write_stage
+
+    config = Config.default()
+    rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed)
+    sizes = {v: (480, 960) for v in rig.names}
+    Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
+    start, clean2d, err = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    write_stage(
+        tmp_path / "triangulation.h5",
+        "triangulation",
+        {"points": clean2d, "points3d": start, "reproj_error": err},
+    )
+    return rig, truth, sizes
+
+
+def test_the_stage_computes_on_arrays_what_its_script_writes_chunk_by_chunk(tmp_path):
+    """By hand without bundle adjustment's artifact the script refines on the config rig
+    (its params those of the config with bundle adjustment off); compute_refinement on
+    the artifacts' arrays with an in-memory sink gives the same arrays and attributes."""
+    import json
+    import sys
+    from pathlib import Path
+
+    import h5py
+
+    from flylib.config import Config
+    from flylib.pipeline.inputs import stage_inputs, stage_params
+    from flylib.pipeline.refinement import RefinementInputs, compute_refinement
+    from flylib.provenance import params_hash
+    from flylib.refinement.solver import ArraySink
+
+    repo = Path(__file__).resolve().parents[1]
+    _, _, sizes = _stage_case(tmp_path)
+    sys.path.insert(0, str(repo / "scripts"))
+    try:
+        import refinement as script  # scripts/refinement.py
+    finally:
+        sys.path.remove(str(repo / "scripts"))
+    config_path = repo / "config" / "config.yaml"
+    argv = ["--config", str(config_path), "--pose2d", str(tmp_path / "pose2d.h5")]
+    argv += ["--triangulation", str(tmp_path / "triangulation.h5")]
+    assert script.main([*argv, "--out", str(tmp_path / "refinement.h5")]) == 0
+
+    data = Config.from_file(config_path).data
+    data["pipeline"]["do_bundle_adjustment"] = False
+    no_ba = Config.from_dict(data)
+    with h5py.File(tmp_path / "refinement.h5") as f:
+        meta = json.loads(f.attrs["meta"])
+        written = {name: f[f"refinement/{name}"][()] for name in f["refinement"]}
+        written_attrs = {k: json.loads(v) for k, v in f["refinement"].attrs.items()}
+    assert meta["params_sha256"] == params_hash(stage_params(no_ba, "refinement"))
+
+    inputs = RefinementInputs.from_config_rig(Config.from_file(config_path))
+    assert inputs.params() == stage_inputs(no_ba, "refinement").params()
+    with h5py.File(tmp_path / "pose2d.h5") as p, h5py.File(tmp_path / "triangulation.h5") as t:
+        pose2d = {"points": p["pose2d/points"][()], "conf": p["pose2d/conf"][()]}
+        names = ("points3d", "points", "reproj_error")
+        triangulation = {k: t[f"triangulation/{k}"][()] for k in names}
+    sink = ArraySink(*pose2d["points"].shape[:3])
+    cameras = inputs.rig.camera_group(sizes)
+    attrs = compute_refinement(inputs, cameras, pose2d, triangulation, sink)
+    for name, attr in (("points3d", "points3d"), ("reproj_error", "reproj_error")):
+        np.testing.assert_array_equal(getattr(sink, attr), written[name])
+    np.testing.assert_array_equal(sink.points2d, written["points"])
+    np.testing.assert_array_equal(sink.flags, written["flags"])
+    attrs = json.loads(json.dumps(attrs))
+    for key in ("flag_bits", "bone_lengths", "rigid_centres", "options", "accuracy"):
+        assert attrs[key] == written_attrs[key], key
+
+
+def test_the_stage_wants_bundle_adjustments_rig_when_bundle_adjustment_is_on(tmp_path):
+    from flylib.config import Config
+    from flylib.errors import ConfigError
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.refinement import run_refinement
+
+    inputs = stage_inputs(Config.default(), "refinement")
+    assert inputs.rig is None  # the rig arrives in the bundle-adjustment artifact
+    out = tmp_path / "refinement.h5"
+    with pytest.raises(ConfigError) as err:
+        run_refinement(inputs, tmp_path / "pose2d.h5", tmp_path / "triangulation.h5", out)
+    message = str(err.value)
+    assert "\n" not in message and "--bundle-adjustment" in message
+    assert "pipeline.do_bundle_adjustment: false" in message
+    assert not out.exists()

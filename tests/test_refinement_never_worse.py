@@ -16,6 +16,7 @@ from flylib.config import Config
 from flylib.pipeline import stages
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.refinement import run_refinement
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
@@ -36,8 +37,12 @@ def _check_never_worse(out, with_ba=True):
         s / "triangulation.h5",
         ba_path=ba,
     )
-    stages.run_refinement(
-        config, s / "pose2d.h5", s / "triangulation.h5", s / "refinement.h5", ba_path=ba
+    run_refinement(
+        stages.run_inputs(config, "refinement", ba),
+        s / "pose2d.h5",
+        s / "triangulation.h5",
+        s / "refinement.h5",
+        ba_path=ba,
     )
     files = {"pose2d": s / "pose2d.h5", "triangulation": s / "triangulation.h5"}
     files["refinement"] = s / "refinement.h5"

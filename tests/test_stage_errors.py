@@ -108,16 +108,20 @@ def test_triangulation_failures_are_one_line(monkeypatch, config, pose2d, tmp_pa
 
 
 def test_refinement_and_kinematics_failures_name_the_recording(monkeypatch, config, tmp_path):
-    import flylib.kinematics.stage as kinematics
-    import flylib.refinement.stage as refinement
+    import flylib.pipeline.refinement as refinement
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.kinematics import run_kinematics
+    from flylib.results import PoseResult
 
-    monkeypatch.setattr(refinement, "run_refinement", _raise(ZeroDivisionError("float division")))
+    monkeypatch.setattr(refinement, "_rig", _raise(ZeroDivisionError("float division")))
     with pytest.raises(StageError) as err:
-        stages.run_refinement(config, "p.h5", "t.h5", "r.h5", recording_dir=tmp_path)
+        refinement.run_refinement(
+            stage_inputs(config, "refinement"), "p.h5", "t.h5", "r.h5", recording_dir=tmp_path
+        )
     _one_line(err, tmp_path, "refinement failed", "ZeroDivisionError", "do_refinement: false")
-    monkeypatch.setattr(kinematics, "run_kinematics", _raise(np.linalg.LinAlgError("SVD")))
+    monkeypatch.setattr(PoseResult, "load", _raise(np.linalg.LinAlgError("SVD")))
     with pytest.raises(StageError) as err:
-        stages.run_kinematics(config, tmp_path / "results.h5", tmp_path)
+        run_kinematics(stage_inputs(config, "kinematics"), tmp_path / "results.h5", tmp_path)
     _one_line(err, tmp_path / "results.h5", "kinematics failed", "do_kinematics: false")
 
 

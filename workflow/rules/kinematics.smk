@@ -29,6 +29,6 @@ if FLAGS["kinematics"]:
             runtime=15,
         params:
             stage=stage_params("kinematics"),
-            config=job_config,
+            runtime=job_runtime("kinematics"),
         script:
             "../../scripts/kinematics.py"

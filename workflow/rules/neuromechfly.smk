@@ -29,6 +29,6 @@ if FLAGS["neuromechfly"]:
             runtime=30,
         params:
             stage=stage_params("neuromechfly"),
-            config=job_config,
+            runtime=job_runtime("neuromechfly"),
         script:
             "../../scripts/neuromechfly.py"

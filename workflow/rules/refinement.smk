@@ -23,7 +23,7 @@ if FLAGS["refinement"]:
             runtime=60,
         params:
             stage=stage_params("refinement"),
-            config=job_config,
+            runtime=job_runtime("refinement"),
             recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/refinement.py"

@@ -1,7 +1,7 @@
 """Kinematics: the body frame of the fly and its joint angles.
 
 :func:`compute_kinematics` works on a ``(T, P, 3)`` array and a skeleton;
-:mod:`flylib.kinematics.stage` is the workflow stage (``kinematics.h5``,
+:mod:`flylib.pipeline.kinematics` is the workflow stage (``kinematics.h5``,
 ``angles.csv`` in Anipose's angles layout, ``angles.png``).
 """
 

@@ -8,8 +8,10 @@ joint names, order and units (radians), ready for kinematic replay.
 - :mod:`.ik`: the JAX solver.
 - :mod:`.angles`: :func:`compute_nmf_angles`, the three together, with the
   forward-kinematics residual.
-- :mod:`.stage`: the workflow stage's files.
-- :mod:`.replay`: flygym's kinematic replay of the angles (flygym optional).
+- :mod:`.replay`: flygym's kinematic replay of the angles (flygym optional) and the
+  replay table read back from ``joint_angles.csv``.
+
+:mod:`flylib.pipeline.neuromechfly` is the workflow stage (its files).
 """
 
 from importlib import import_module

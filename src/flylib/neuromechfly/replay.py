@@ -1,6 +1,7 @@
 """Kinematic replay in flygym: drive NeuroMechFly's leg joints with the angles (position
 control, the fly tethered in the air, MuJoCo on the CPU, nothing rendered) and read back
-where the simulated joints are.
+where the simulated joints are; :func:`replay_data` reads the stage's
+``joint_angles.csv`` as flygym's replay examples do.
 
 flygym is optional (the ``neuromechfly`` extra): flygym 1.x is the API used here; it
 pins ``numpy < 2.1`` and ``mujoco 3.2.7``, so it lives in its own environment, and
@@ -17,6 +18,8 @@ from ..errors import FlylibError
 from .model import LEGS, dof_names
 
 if TYPE_CHECKING:  # pragma: no cover
+    from pathlib import Path
+
     from jaxtyping import Float
 
 #: flygym's bodies whose origins are the chain's joints (claw: the ``Tarsus5`` origin).
@@ -160,3 +163,35 @@ def replay_residuals(
             "max": float(finite.max()),
         }
     return out
+
+
+def replay_data(path: str | Path) -> dict:
+    """``joint_angles.csv`` as flygym's kinematic replay reads it.
+
+    Returns
+    -------
+    dict
+        ``{"meta": {"timestep": seconds}, "joint_<leg><dof>": (T,) radians, ...}``.
+
+    Raises
+    ------
+    ResultsError
+        If the file lacks a joint column or ``time``.
+    """
+    import pandas as pd
+
+    from ..errors import ResultsError
+
+    table = pd.read_csv(path)
+    missing = [c for c in ("time", *dof_names()) if c not in table.columns]
+    if missing:
+        raise ResultsError(
+            f"{path}: not a NeuroMechFly angles table (missing columns {', '.join(missing[:3])}"
+            f"{' ...' if len(missing) > 3 else ''}); re-run the neuromechfly stage"
+        )
+    time = table["time"].to_numpy(dtype=np.float64)
+    timestep = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    data: dict = {"meta": {"timestep": timestep}}
+    for name in dof_names():
+        data[name] = table[name].to_numpy(dtype=np.float64)
+    return data

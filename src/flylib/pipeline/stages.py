@@ -298,38 +298,6 @@ def run_pose2d(
     return Path(out_path)
 
 
-def run_refinement(
-    config, pose2d_path, triangulation_path, out_path, *, ba_path=None, recording_dir=None
-) -> Path:
-    """Refine the triangulated 3D (see :func:`flylib.refinement.stage.run_refinement`)."""
-    from ..refinement.stage import run_refinement as run
-
-    with _solving("refinement", recording_dir or triangulation_path):
-        return run(
-            StageConfig.for_stage(_rig_source(config, ba_path), "refinement"),
-            pose2d_path,
-            triangulation_path,
-            out_path,
-            ba_path=ba_path,
-            recording_dir=recording_dir,
-        )
-
-
-def run_kinematics(config, results_path, outdir) -> dict:
-    """Body frame and joint angles (see :func:`flylib.kinematics.stage.run_kinematics`)."""
-    from ..kinematics.stage import run_kinematics as run
-
-    with _solving("kinematics", results_path):
-        return run(StageConfig.for_stage(config, "kinematics"), results_path, outdir)
-
-
-def run_neuromechfly(config, results_path, outdir) -> dict:
-    """NeuroMechFly leg angles (see :func:`flylib.neuromechfly.stage.run_neuromechfly`)."""
-    from ..neuromechfly.stage import run_neuromechfly as run
-
-    return run(StageConfig.for_stage(config, "neuromechfly"), results_path, outdir)
-
-
 def run_assemble(
     config,
     stage_files: Mapping[str, str | Path],

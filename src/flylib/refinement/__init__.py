@@ -1,16 +1,18 @@
 """Spatiotemporal 3D refinement: every frame at once, robust reprojection, smoothness,
 bone-length constancy and a rigid (tethered) body.
 
-:func:`refine_points` works on arrays; :func:`refine_from_config` reads the config's
-``refinement`` table and the skeleton; :mod:`flylib.refinement.stage` is the workflow
-stage (``stages/refinement.h5``).
+:func:`refine_points` works on arrays; :func:`skeleton_terms` and
+:func:`options_from_params` make its arguments from a skeleton and the ``refinement``
+table's params; :mod:`flylib.refinement.held_out` keeps a recording from getting worse
+by the held-out-view yardstick; :mod:`flylib.pipeline.refinement` is the workflow stage
+(``stages/refinement.h5``).
 """
 
 from .objective import LOSSES, BlockLayout, chunk_kernel, difference_gram
 from .setup import (
     default_rigid_points,
     mirror_bones,
-    refine_from_config,
+    options_from_params,
     skeleton_terms,
 )
 from .solver import (
@@ -33,7 +35,7 @@ __all__ = [
     "default_rigid_points",
     "difference_gram",
     "mirror_bones",
-    "refine_from_config",
+    "options_from_params",
     "refine_points",
     "rigid_centres",
     "skeleton_terms",

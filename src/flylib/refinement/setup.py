@@ -1,4 +1,4 @@
-"""From a skeleton and the config's ``refinement`` table to :func:`refine_points`'s arguments."""
+"""From a skeleton and the ``refinement`` table's params to :func:`refine_points`'s arguments."""
 
 from __future__ import annotations
 
@@ -8,13 +8,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import ConfigError
-from .solver import RefinementResult, RefineOptions, refine_points
+from .solver import RefineOptions
 
 if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Bool, Float, Int
-
-    from ..cameras import CameraGroup
-    from ..config import Config
+    from jaxtyping import Int
 
 
 def default_rigid_points(skeleton) -> list[str]:
@@ -85,37 +82,6 @@ def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
 
 
 def options_from_params(params) -> RefineOptions:
-    """:class:`RefineOptions` from the config's typed ``refinement`` params (same names)."""
+    """:class:`RefineOptions` from the typed ``refinement`` params (same names)."""
     own = {f.name for f in fields(RefineOptions)}
     return RefineOptions(**{k: v for k, v in vars(params).items() if k in own})
-
-
-def refine_from_config(
-    config: Config,
-    pts2d: Float[np.ndarray, "V T P 2"],
-    cameras: CameraGroup,
-    start: Float[np.ndarray, "T P 3"],
-    *,
-    conf: Float[np.ndarray, "V T P"] | None = None,
-    inliers: Bool[np.ndarray, "V T P"] | None = None,
-) -> RefinementResult:
-    """Run :func:`refine_points` as the config's ``refinement`` table and skeleton say.
-
-    Parameters
-    ----------
-    config
-        The :class:`~flylib.config.Config`.
-    pts2d, cameras, start, conf, inliers
-        As in :func:`refine_points`.
-    """
-    params = config.refinement
-    terms = skeleton_terms(config.skeleton(), params.rigid_points)
-    return refine_points(
-        pts2d,
-        cameras,
-        start,
-        conf=conf,
-        inliers=inliers,
-        options=options_from_params(params),
-        **terms,
-    )

@@ -10,17 +10,24 @@ column, NaN (an empty field) where a point is missing.
 ``body_rotation`` (``(3, 3)`` world -> body rows x, y, z, or ``(T, 3, 3)``),
 ``body_origin`` (``(3,)`` or ``(T, 3)``) and attributes ``angle_names``,
 ``definitions`` (``name -> [a, b, c]``), ``point_names`` and ``tethered`` (JSON).
+
+:class:`KinematicsInputs` is what the stage reads; :func:`run_kinematics` loads
+``results.h5``, runs :func:`compute_kinematics` and writes the files.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..config.postprocessing import KinematicsParams
+from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
-from . import FILES, Kinematics, compute_kinematics
+from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -28,14 +35,93 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..config import Config
     from ..skeleton import Skeleton
 
+STAGE = "kinematics"
 
-def kinematics_from_config(
-    config: Config, pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton | None = None
+
+@dataclass(frozen=True)
+class KinematicsRuntime:
+    """The kinematics stage's untracked part: the order of the configured angles and
+    segments, which is the column order of ``angles.csv`` (the tracked params hold
+    them as mappings, keys sorted, so reordering them re-runs nothing).
+
+    Attributes
+    ----------
+    angles, segments
+        The names in the config's order (``None``: the defaults', or sorted).
+    """
+
+    angles: tuple[str, ...] | None = None
+    segments: tuple[str, ...] | None = None
+
+
+@register
+@dataclass(frozen=True)
+class KinematicsInputs(StageInputs):
+    """What the kinematics stage reads.
+
+    Attributes
+    ----------
+    kinematics
+        The ``kinematics`` table.
+    skeleton
+        The skeleton's points and limbs.
+    runtime
+        :class:`KinematicsRuntime`.
+    """
+
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
+
+    kinematics: KinematicsParams
+    skeleton: SkeletonSpec
+    runtime: KinematicsRuntime = KinematicsRuntime()
+
+    @classmethod
+    def from_config(cls, config: Config) -> KinematicsInputs:
+        params = config.kinematics
+        return cls(
+            kinematics=params,
+            skeleton=SkeletonSpec.from_config(config),
+            runtime=KinematicsRuntime(
+                angles=tuple(params.angles) if params.angles is not None else None,
+                segments=tuple(params.segments) if params.segments is not None else None,
+            ),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> KinematicsInputs:
+        runtime = runtime or KinematicsRuntime()
+        table = dict(params["kinematics"])
+        for key in ("angles", "segments"):
+            order = getattr(runtime, key)
+            if table.get(key) is not None and order is not None:
+                table[key] = {name: table[key][name] for name in order}
+        return cls(
+            kinematics=KinematicsParams.from_table(table),
+            skeleton=SkeletonSpec.from_params(params["skeleton"]),
+            runtime=runtime,
+        )
+
+    def params(self) -> dict:
+        return {"kinematics": asdict(self.kinematics), "skeleton": self.skeleton.structure()}
+
+
+def compute_kinematics(
+    inputs: KinematicsInputs, pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton
 ) -> Kinematics:
-    """:func:`compute_kinematics` as the config's ``kinematics`` table says."""
-    params = config.kinematics
-    skeleton = skeleton or config.skeleton()
-    return compute_kinematics(
+    """The recording's kinematics (:func:`flylib.kinematics.compute_kinematics` as
+    ``inputs.kinematics`` says).
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`KinematicsInputs`.
+    pts3d
+        ``(T, P, 3)`` world points, NaN = missing.
+    skeleton
+        The skeleton naming the P axis (the one ``results.h5`` holds).
+    """
+    params = inputs.kinematics
+    return kinematics_of(
         pts3d,
         skeleton,
         angles=params.angles,
@@ -137,14 +223,14 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     return fig
 
 
-def run_kinematics(config, results_path: str | Path, outdir: str | Path) -> dict:
-    """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
-    into ``outdir``.
+def results_3d(results_path: str | Path, stage: str):
+    """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
+    ``stage`` reads (kinematics, neuromechfly).
 
     Raises
     ------
     ResultsError
-        If ``results.h5`` holds no 3D.
+        If it holds no 3D.
     """
     from ..errors import ResultsError
     from ..results import PoseResult
@@ -153,13 +239,40 @@ def run_kinematics(config, results_path: str | Path, outdir: str | Path) -> dict
     if result.pts3d is None:
         raise ResultsError(
             f"{results_path}: holds no 3D points; turn on triangulation "
-            "(or set pipeline.do_kinematics: false)"
+            f"(or set pipeline.do_{stage}: false)"
         )
-    outdir = Path(outdir)
-    kin = kinematics_from_config(config, result.pts3d, result.skeleton)
-    write_kinematics_h5(
-        outdir / FILES[0], kin, result.skeleton.point_names, config.kinematics.tethered
-    )
-    write_angles_csv(outdir / FILES[1], kin)
-    angles_figure(kin, outdir / FILES[2])
+    return result
+
+
+def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: str | Path) -> dict:
+    """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
+    into ``outdir``.
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`KinematicsInputs`.
+    results_path
+        The recording's ``results.h5``.
+    outdir
+        Where the files go.
+
+    Raises
+    ------
+    ResultsError
+        If ``results.h5`` holds no 3D.
+    StageError
+        If the computation fails on the recording's data.
+    """
+    from .stages import _solving
+
+    with _solving(STAGE, results_path):
+        result = results_3d(results_path, STAGE)
+        outdir = Path(outdir)
+        kin = compute_kinematics(inputs, result.pts3d, result.skeleton)
+        write_kinematics_h5(
+            outdir / FILES[0], kin, result.skeleton.point_names, inputs.kinematics.tethered
+        )
+        write_angles_csv(outdir / FILES[1], kin)
+        angles_figure(kin, outdir / FILES[2])
     return {"angles": kin.angle_names, "frames": int(kin.angles.shape[0])}

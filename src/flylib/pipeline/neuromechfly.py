@@ -4,7 +4,7 @@
 ``joint_angles.csv``: one row per frame, ``time`` (seconds, ``frame / frame_rate``),
 then flygym's 42 leg joints ``joint_LFCoxa`` ... ``joint_RHTarsus1`` in flygym's order
 (``flygym.preprogrammed.all_leg_dofs``), radians, an empty field where a leg was not
-solved. :func:`replay_data` turns it into the dictionary flygym's kinematic-replay
+solved. :func:`flylib.neuromechfly.replay.replay_data` turns it into the dictionary flygym's kinematic-replay
 examples read (``{"meta": {"timestep": dt}, "joint_LFCoxa": (T,) ...}``).
 
 ``neuromechfly.h5``: ``attrs["meta"]`` (format version, ``stage: neuromechfly``) and
@@ -16,25 +16,72 @@ lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain)
 ``dof_names``, ``legs``, ``chain_joints``, ``frame_rate``, ``similarity_scale``,
 ``thorax_motion``, ``mirrored``, ``unsolved``, ``residual_summary``,
 ``model_residual_summary`` (JSON).
+
+:class:`NeuromechflyInputs` is what the stage reads; :func:`run_neuromechfly` loads
+``results.h5``, runs :func:`compute_neuromechfly` and writes the files.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..config.neuromechfly import NeuromechflyParams
+from ..config.params import _build_params
+from ..neuromechfly import FILES
+from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
+from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
-from . import FILES
-from .angles import NmfAngles, compute_nmf_angles
-from .model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
+from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..config import Config
+    from ..skeleton import Skeleton
+
+STAGE = "neuromechfly"
+
+
+@register
+@dataclass(frozen=True)
+class NeuromechflyInputs(StageInputs):
+    """What the neuromechfly stage reads.
+
+    Attributes
+    ----------
+    neuromechfly
+        The ``neuromechfly`` table.
+    skeleton
+        The skeleton's points and limbs.
+    """
+
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
+
+    neuromechfly: NeuromechflyParams
+    skeleton: SkeletonSpec
+
+    @classmethod
+    def from_config(cls, config: Config) -> NeuromechflyInputs:
+        return cls(neuromechfly=config.neuromechfly, skeleton=SkeletonSpec.from_config(config))
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> NeuromechflyInputs:
+        return cls(
+            neuromechfly=_build_params(NeuromechflyParams, params["neuromechfly"]),
+            skeleton=SkeletonSpec.from_params(params["skeleton"]),
+        )
+
+    def params(self) -> dict:
+        return {
+            "neuromechfly": asdict(self.neuromechfly),
+            "skeleton": self.skeleton.structure(),
+        }
 
 
 def angles_table(nmf: NmfAngles, frame_rate: float):
@@ -51,38 +98,6 @@ def write_angles_csv(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Pat
     with atomic_path(path) as tmp:
         angles_table(nmf, frame_rate).to_csv(tmp, index=False)
     return Path(path)
-
-
-def replay_data(path: str | Path) -> dict:
-    """``joint_angles.csv`` as flygym's kinematic replay reads it.
-
-    Returns
-    -------
-    dict
-        ``{"meta": {"timestep": seconds}, "joint_<leg><dof>": (T,) radians, ...}``.
-
-    Raises
-    ------
-    ResultsError
-        If the file lacks a joint column or ``time``.
-    """
-    import pandas as pd
-
-    from ..errors import ResultsError
-
-    table = pd.read_csv(path)
-    missing = [c for c in ("time", *dof_names()) if c not in table.columns]
-    if missing:
-        raise ResultsError(
-            f"{path}: not a NeuroMechFly angles table (missing columns {', '.join(missing[:3])}"
-            f"{' ...' if len(missing) > 3 else ''}); re-run the neuromechfly stage"
-        )
-    time = table["time"].to_numpy(dtype=np.float64)
-    timestep = float(np.median(np.diff(time))) if time.size > 1 else 1.0
-    data: dict = {"meta": {"timestep": timestep}}
-    for name in dof_names():
-        data[name] = table[name].to_numpy(dtype=np.float64)
-    return data
 
 
 def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
@@ -159,11 +174,28 @@ def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: i
     return Path(path)
 
 
-def nmf_from_config(
-    config: Config, pts3d: Float[np.ndarray, "T P 3"], skeleton, *, source: str = "3D"
+def compute_neuromechfly(
+    inputs: NeuromechflyInputs,
+    pts3d: Float[np.ndarray, "T P 3"],
+    skeleton: Skeleton,
+    *,
+    source: str = "3D",
 ) -> NmfAngles:
-    """:func:`compute_nmf_angles` as the config's ``neuromechfly`` table says."""
-    params = config.neuromechfly
+    """The recording's NeuroMechFly angles (:func:`~flylib.neuromechfly.compute_nmf_angles`
+    as ``inputs.neuromechfly`` says).
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`NeuromechflyInputs`.
+    pts3d
+        ``(T, P, 3)`` world points, NaN = missing.
+    skeleton
+        The skeleton naming the P axis (the one ``results.h5`` holds).
+    source
+        What the 3D is, for messages.
+    """
+    params = inputs.neuromechfly
     return compute_nmf_angles(
         pts3d,
         skeleton,
@@ -173,9 +205,20 @@ def nmf_from_config(
     )
 
 
-def run_neuromechfly(config: Config, results_path: str | Path, outdir: str | Path) -> dict:
+def run_neuromechfly(
+    inputs: NeuromechflyInputs, results_path: str | Path, outdir: str | Path
+) -> dict:
     """NeuroMechFly angles of the recording in ``results.h5``, written as :data:`FILES`
     into ``outdir``.
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`NeuromechflyInputs`.
+    results_path
+        The recording's ``results.h5``.
+    outdir
+        Where the files go.
 
     Raises
     ------
@@ -183,18 +226,12 @@ def run_neuromechfly(config: Config, results_path: str | Path, outdir: str | Pat
         If ``results.h5`` holds no 3D, its thorax is not still, or too few thorax-coxa
         points were reconstructed.
     """
-    from ..errors import ResultsError
-    from ..results import PoseResult
+    from .kinematics import results_3d
 
-    result = PoseResult.load(results_path)
-    if result.pts3d is None:
-        raise ResultsError(
-            f"{results_path}: holds no 3D points; turn on triangulation "
-            "(or set pipeline.do_neuromechfly: false)"
-        )
+    result = results_3d(results_path, STAGE)
     outdir = Path(outdir)
-    frame_rate = config.neuromechfly.frame_rate
-    nmf = nmf_from_config(config, result.pts3d, result.skeleton, source=str(results_path))
+    frame_rate = inputs.neuromechfly.frame_rate
+    nmf = compute_neuromechfly(inputs, result.pts3d, result.skeleton, source=str(results_path))
     write_nmf_h5(outdir / FILES[0], nmf, frame_rate)
     write_angles_csv(outdir / FILES[1], nmf, frame_rate)
     angles_figure(nmf, outdir / FILES[2], frame_rate=frame_rate)

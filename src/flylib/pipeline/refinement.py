@@ -1,0 +1,404 @@
+"""The refinement workflow stage: triangulation artifact + 2D + rig -> ``stages/refinement.h5``.
+
+The artifact holds ``refinement/`` with
+
+- ``points3d`` ``(T, P, 3)`` float64: the refined 3D (NaN: no view supports the point
+  for more than ``gap_length`` frames);
+- ``reproj_error`` ``(V, T, P)`` float64: pixel error of every observation kept;
+- ``points`` ``(V, T, P, 2)`` float64: the observations kept (rejected outliers NaN);
+- ``flags`` ``(T, P)`` uint8: per-point bit flags, their meaning in the group's
+  ``flag_bits`` attribute (JSON ``{name: [bit, meaning]}``, see
+  :data:`flylib.refinement.FLAG_BITS`);
+
+and attributes ``bone_lengths`` (``{"a-b": length}``), ``rigid_centres``
+(``{point: [x, y, z]}``), ``summary`` (timings, iterations, observations kept and
+rejected), ``options`` (the ``refinement`` table in force) and ``accuracy``.
+
+Refinement never makes a recording worse by the truth-free yardstick of
+:mod:`flylib.accuracy` (:class:`~flylib.refinement.held_out.HeldOutCheck`): every view
+is held out in turn and both the triangulation and the refinement are re-solved
+without it (on at most :data:`~flylib.accuracy.EVALUATION_FRAMES` frames), the
+refinement once per candidate smoothness scale (``smooth_scale`` and ``motion_scales``
+times the recording's own per-frame motion, which carries the frame rate); the whole
+recording is then solved at the scale of lowest held-out error. A point whose refined
+held-out-view error (median or 95th percentile) is higher than the triangulation's
+keeps the triangulation's 3D, 2D and errors in every frame, flagged
+``kept_triangulation``; if the output is still worse overall, every point does. The ``accuracy`` attribute holds
+the three summaries (``triangulation``, ``refinement`` as solved, ``output``), the
+points kept and the frames evaluated.
+
+:class:`RefinementInputs` is what the stage reads; :func:`run_refinement` loads the
+artifacts, runs :func:`compute_refinement` on them and writes the result.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+from ..config import TriangulationParams
+from ..config.params import _build_params
+from ..config.postprocessing import RefinementParams
+from ..paths import atomic_path
+from ..refinement.setup import options_from_params
+from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+    from ..config import Config
+
+STAGE = "refinement"
+
+
+@dataclass(frozen=True)
+class RefinementRuntime:
+    """The refinement stage's untracked part.
+
+    Attributes
+    ----------
+    config_dir
+        Where the config rig's relative calibration path is looked up (``None``: the
+        recording's folder only).
+    """
+
+    config_dir: Path | None = None
+
+
+@register
+@dataclass(frozen=True)
+class RefinementInputs(StageInputs):
+    """What the refinement stage reads.
+
+    Attributes
+    ----------
+    refinement
+        The ``refinement`` table.
+    triangulation
+        The triangulation's method and the knobs it reads (the held-out-view check
+        re-runs it without each view).
+    skeleton
+        The skeleton's points and limbs.
+    rig
+        The config rig, or ``None`` with bundle adjustment on (the rig comes from its
+        artifact).
+    runtime
+        :class:`RefinementRuntime`.
+    """
+
+    STAGE = STAGE  # not a field: the base declares it a ClassVar
+
+    refinement: RefinementParams
+    triangulation: TriangulationParams
+    skeleton: SkeletonSpec
+    rig: RigSpec | None
+    runtime: RefinementRuntime = RefinementRuntime()
+
+    @classmethod
+    def from_config(cls, config: Config) -> RefinementInputs:
+        rig = None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
+        return cls(
+            refinement=config.refinement,
+            triangulation=_triangulation(config.triangulation.method_params()),
+            skeleton=SkeletonSpec.from_config(config),
+            rig=rig,
+            runtime=RefinementRuntime(rig.config_dir if rig else None),
+        )
+
+    @classmethod
+    def from_config_rig(cls, config: Config) -> RefinementInputs:
+        """The inputs on the config rig whatever ``pipeline.do_bundle_adjustment`` says:
+        what a run without bundle adjustment's artifact refines on (its params those of
+        the config with bundle adjustment off)."""
+        rig = RigSpec.from_config(config)
+        return replace(cls.from_config(config), rig=rig, runtime=RefinementRuntime(rig.config_dir))
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
+        runtime = runtime or RefinementRuntime()
+        rig = params.get("rig")
+        return cls(
+            refinement=_build_params(RefinementParams, params["refinement"]),
+            triangulation=_triangulation(params["triangulation"]),
+            skeleton=SkeletonSpec.from_params(params["skeleton"]),
+            rig=RigSpec.from_params(rig, runtime.config_dir) if rig else None,
+            runtime=runtime,
+        )
+
+    def params(self) -> dict:
+        return {
+            "refinement": asdict(self.refinement),
+            # the held-out-view check re-runs the triangulation without each view
+            "triangulation": self.triangulation.method_params(),
+            "skeleton": self.skeleton.structure(),
+            "rig": self.rig.params() if self.rig else None,
+        }
+
+
+def _triangulation(method_params: Mapping) -> TriangulationParams:
+    """The triangulation params as tracked: the method and the knobs it reads (the
+    others at their defaults, which that method never reads)."""
+    return _build_params(TriangulationParams, method_params)
+
+
+class TriangulationSource:
+    """The refinement's input chunk by chunk: the 2D and its confidences, the
+    triangulation's 3D as the start and its inlier views (its kept 2D), read on demand
+    (h5py datasets, or arrays)."""
+
+    def __init__(self, pose2d: Mapping[str, Any], triangulation: Mapping[str, Any]):
+        self.pts2d = pose2d["points"]
+        self.conf = pose2d.get("conf", None)
+        self.start = triangulation["points3d"]
+        self.inlier_2d = triangulation["points"]
+        self.n_views, self.n_frames, self.n_points = self.pts2d.shape[:3]
+
+    def read(self, lo: int, hi: int):
+        conf = None if self.conf is None else self.conf[:, lo:hi].astype(np.float64)
+        inliers = np.isfinite(self.inlier_2d[:, lo:hi]).all(-1)
+        return (
+            self.pts2d[:, lo:hi].astype(np.float64),
+            conf,
+            self.start[lo:hi].astype(np.float64),
+            inliers,
+        )
+
+
+class H5Sink(ArraySink):
+    """Writes the refinement group chunk by chunk (datasets chunked along time, gzip);
+    :class:`ArraySink`'s methods over HDF5 datasets instead of arrays."""
+
+    def __init__(self, group: h5py.Group, n_views: int, n_frames: int, n_points: int, chunk: int):
+        step = max(1, min(n_frames, chunk))
+
+        from .. import results as results_module
+
+        def make(name, shape, dtype, axis, fill):
+            chunks = list(shape)
+            chunks[axis] = step
+            return group.create_dataset(
+                name,
+                shape=shape,
+                dtype=dtype,
+                chunks=tuple(chunks),
+                compression="gzip",
+                compression_opts=1,
+                fillvalue=fill,
+                fletcher32=results_module._FLETCHER32,
+            )
+
+        self.points3d = make("points3d", (n_frames, n_points, 3), np.float64, 0, np.nan)
+        self.reproj_error = make(
+            "reproj_error", (n_views, n_frames, n_points), np.float64, 1, np.nan
+        )
+        self.points2d = make("points", (n_views, n_frames, n_points, 2), np.float64, 1, np.nan)
+        self.flags = make("flags", (n_frames, n_points), np.uint8, 0, 0)
+
+
+def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dict:
+    names = list(skeleton.point_names)
+    bones = {
+        f"{names[i]}-{names[j]}": (None if not np.isfinite(v) else float(v))
+        for (i, j), v in zip(np.asarray(skeleton.bones), lengths)
+    }
+    centres = {
+        names[p]: [float(c) for c in centre] for p, centre in zip(rigid_points, rigid_centres)
+    }
+    return {
+        "flag_bits": {k: list(v) for k, v in FLAG_BITS.items()},
+        "bone_lengths": bones,
+        "rigid_centres": centres,
+        "summary": info,
+        "options": options,
+    }
+
+
+def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
+    """Write an in-memory :class:`RefinementResult` as the refinement artifact (atomically)."""
+    from ..results import _new_meta, _write_array
+
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta(STAGE))
+        group = f.create_group(STAGE)
+        _write_array(group, "points3d", result.points3d)
+        _write_array(group, "reproj_error", result.reproj_error)
+        _write_array(group, "points", result.points2d)
+        _write_array(group, "flags", result.flags, dtype=np.uint8)
+        attrs = _attrs(
+            skeleton,
+            result.bone_lengths,
+            result.rigid_points,
+            result.rigid_centres,
+            result.info,
+            options,
+        )
+        for key, value in attrs.items():
+            group.attrs[key] = json.dumps(value)
+
+
+def run_refinement(
+    inputs: RefinementInputs,
+    pose2d_path: str | Path,
+    triangulation_path: str | Path,
+    out_path: str | Path,
+    *,
+    ba_path: str | Path | None = None,
+    recording_dir: str | Path | None = None,
+) -> Path:
+    """Refine the triangulated 3D of one recording and write ``stages/refinement.h5``.
+
+    The artifacts are read and the result written chunk by chunk, so memory does not
+    grow with the recording's length.
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`RefinementInputs`.
+    pose2d_path
+        The pose2d artifact: every 2D observation and its confidence.
+    triangulation_path
+        The triangulation artifact: the starting 3D and its inlier views.
+    out_path
+        Where to write.
+    ba_path
+        The bundle-adjustment artifact (its rig); required when ``inputs.rig`` is
+        ``None``.
+    recording_dir
+        The recording (for a calibration file relative to it).
+    """
+    from ..provenance import stage_provenance
+    from ..results import _new_meta, open_checked
+    from .stages import _solving
+
+    with _solving(STAGE, recording_dir or triangulation_path):
+        cameras = _rig(inputs, pose2d_path, ba_path, recording_dir)
+        with (
+            open_checked(pose2d_path, "re-run the pose2d stage") as p2d,
+            open_checked(triangulation_path, "re-run the triangulation stage") as tri,
+        ):
+            _check_shapes(p2d, tri)
+            with atomic_path(out_path) as tmp, h5py.File(tmp, "w") as f:
+                upstream = {
+                    "pose2d": pose2d_path,
+                    "triangulation": triangulation_path,
+                    "bundle_adjustment": ba_path,
+                }
+                f.attrs["meta"] = json.dumps(
+                    _new_meta(STAGE, stage_provenance(inputs.canonical_params(), STAGE, upstream))
+                )
+                group = f.create_group(STAGE)
+                n_views, n_frames, n_points = p2d["pose2d/points"].shape[:3]
+                sink = H5Sink(group, n_views, n_frames, n_points, inputs.refinement.chunk_frames)
+                attrs = compute_refinement(
+                    inputs, cameras, p2d["pose2d"], tri["triangulation"], sink
+                )
+                for key, value in attrs.items():
+                    group.attrs[key] = json.dumps(value)
+    return Path(out_path)
+
+
+def _rig(inputs: RefinementInputs, pose2d_path, ba_path, recording_dir) -> CameraGroup:
+    """The bundle-adjustment artifact's rig when given, else the config rig."""
+    from ..errors import ConfigError
+    from ..results import read_image_sizes, read_stage
+
+    if ba_path:
+        return read_stage(ba_path, "bundle_adjustment")["cameras"]
+    if inputs.rig is None:
+        raise ConfigError(
+            "refinement: pipeline.do_bundle_adjustment is on, so the rig comes from the "
+            "bundle-adjustment artifact: pass it (--bundle-adjustment), or set "
+            "pipeline.do_bundle_adjustment: false"
+        )
+    return inputs.rig.camera_group(read_image_sizes(pose2d_path), recording_dir)
+
+
+def _check_shapes(pose2d: h5py.File, triangulation: h5py.File) -> None:
+    """The triangulation's 3D must be of the 2D's frames and points."""
+    shape = pose2d["pose2d/points"].shape
+    start = triangulation["triangulation/points3d"].shape
+    if start != (shape[1], shape[2], 3):
+        from ..errors import ResultsError
+
+        raise ResultsError(
+            f"{triangulation.filename}: 3D of shape {start} does not match the "
+            f"2D {shape}; re-run the triangulation stage"
+        )
+
+
+def compute_refinement(
+    inputs: RefinementInputs,
+    cameras: CameraGroup,
+    pose2d: Mapping[str, Any],
+    triangulation: Mapping[str, Any],
+    sink: ArraySink,
+) -> dict:
+    """Refine the triangulation's 3D (no file I/O: ``sink`` takes the output).
+
+    Parameters
+    ----------
+    inputs
+        The stage's :class:`RefinementInputs`.
+    cameras
+        The rig.
+    pose2d
+        ``points`` ``(V, T, P, 2)`` and optionally ``conf`` ``(V, T, P)``.
+    triangulation
+        ``points3d`` ``(T, P, 3)`` (the start), ``points`` ``(V, T, P, 2)`` (its inlier
+        views), ``reproj_error`` ``(V, T, P)`` and optionally ``corrected`` ``(T, P)``.
+        Arrays or h5py datasets (read window by window).
+    sink
+        Where the output goes (:class:`~flylib.refinement.solver.ArraySink`, or
+        :class:`H5Sink` writing the artifact chunk by chunk): ``points3d``,
+        ``reproj_error``, ``points2d``, ``flags``.
+
+    Returns
+    -------
+    dict
+        The artifact group's attributes: ``flag_bits``, ``bone_lengths``,
+        ``rigid_centres``, ``summary``, ``options``, ``accuracy``.
+    """
+    from ..accuracy import refinement_method, triangulation_method
+    from ..refinement.held_out import HeldOutCheck, keep_corrected
+    from ..refinement.setup import skeleton_terms
+    from ..refinement.solver import refine_stream
+
+    params = inputs.refinement
+    skeleton = inputs.skeleton.skeleton()
+    terms = skeleton_terms(skeleton, params.rigid_points)
+    options = options_from_params(params)
+    source = TriangulationSource(pose2d, triangulation)
+    check = HeldOutCheck(
+        cameras,
+        source.pts2d,
+        source.conf,
+        source.start,
+        triangulation_method(inputs.triangulation, cameras),
+        lambda scale: refinement_method(replace(params, smooth_scale=scale), cameras, skeleton),
+        options,
+        params.motion_scales,
+        terms,
+        skeleton.point_names,
+    )
+    options = check.options
+    out = refine_stream(source, cameras, sink, options=options, **terms)
+    keep_corrected(triangulation, sink)
+    accuracy = check.apply(sink, triangulation)
+    record = asdict(options)
+    record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
+    attrs = _attrs(
+        skeleton,
+        out["bone_lengths"],
+        out["rigid_points"],
+        out["rigid_centres"],
+        out["info"],
+        record,
+    )
+    attrs["accuracy"] = accuracy
+    return attrs

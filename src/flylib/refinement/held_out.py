@@ -1,0 +1,224 @@
+"""Refinement that never makes a recording worse by the held-out-view yardstick.
+
+:class:`HeldOutCheck` judges, before the whole recording is solved, the triangulation
+and the refinement at each candidate smoothness scale with each view held out (on
+:func:`~flylib.accuracy.evaluation_windows`), picks the scale of lowest held-out error,
+and after the solve keeps the triangulation where the chosen refinement lost
+(:meth:`HeldOutCheck.apply`). :func:`keep_corrected` keeps the points a person
+corrected. Every array here may be an h5py dataset (read and written window by window,
+so memory stays flat) or a NumPy array.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .solver import FLAG_BITS, RefineOptions
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Bool, Float
+
+    from ..accuracy import Refine, Triangulate
+    from ..cameras import CameraGroup
+
+log = logging.getLogger(__name__)
+
+#: The refinement output's arrays (sink attributes) and the triangulation's of the same
+#: layout, with the axis time runs along.
+_KEPT_ARRAYS = (
+    ("points3d", "points3d", 0),
+    ("reproj_error", "reproj_error", 1),
+    ("points2d", "points", 1),
+)
+
+
+class HeldOutCheck:
+    """The held-out-view check around the refinement solve.
+
+    Before the solve it judges, on :func:`~flylib.accuracy.evaluation_windows`, the
+    triangulation and the refinement at each candidate smoothness scale (``options``'
+    ``smooth_scale``, and ``motion_scales`` times the recording's own motion) with each
+    view held out, and picks the scale of lowest held-out error (:attr:`options`);
+    after the solve, :meth:`apply` keeps the triangulation where that refinement lost.
+
+    Parameters
+    ----------
+    cameras
+        The rig.
+    pts2d, conf
+        ``(V, T, P, 2)`` the 2D and ``(V, T, P)`` its confidences (or ``None``).
+    start
+        ``(T, P, 3)`` the triangulation's 3D.
+    triangulate
+        The triangulation stage's method (:func:`flylib.accuracy.triangulation_method`).
+    refine_at
+        ``smooth_scale -> Refine``: the refinement stage's method at a smoothness scale
+        (:func:`flylib.accuracy.refinement_method`).
+    options
+        The configured solver options.
+    motion_scales
+        The smoothness scales to try, in units of the recording's motion.
+    terms
+        :func:`~flylib.refinement.skeleton_terms` (its ``bones`` and ``mirror`` make the
+        summaries' bone figures).
+    point_names
+        The P axis.
+    """
+
+    def __init__(
+        self,
+        cameras: CameraGroup,
+        pts2d: Float[np.ndarray, "V T P 2"],
+        conf: Float[np.ndarray, "V T P"] | None,
+        start: Float[np.ndarray, "T P 3"],
+        triangulate: Triangulate,
+        refine_at: Callable[[float], Refine],
+        options: RefineOptions,
+        motion_scales: Sequence[float],
+        terms: Mapping[str, Any],
+        point_names: Sequence[str],
+    ):
+        from ..accuracy import evaluation_windows, held_out_errors
+        from .solver import recording_motion
+
+        self.cameras, self.terms, self.point_names = cameras, terms, list(point_names)
+        self.n_frames, self.n_points = start.shape[0], start.shape[1]
+        self.windows = evaluation_windows(self.n_frames)
+        motions = [
+            recording_motion(np.asarray(start[lo:hi], np.float64), options.smooth_order)
+            for lo, hi in self.windows
+        ]
+        motions = [m for m in motions if np.isfinite(m) and m > 0]
+        self.motion = float(np.median(motions)) if motions else None
+        scales = {float(options.smooth_scale)}
+        if self.motion:
+            scales |= {float(k * self.motion) for k in motion_scales}
+        variants = {scale: refine_at(scale) for scale in sorted(scales)}
+        self.held = held_out_errors(
+            cameras, pts2d, triangulate, conf=conf, refine=variants, windows=self.windows
+        )
+        common = np.isfinite(self.held["triangulation"])
+        for err in self.held["refinement"].values():
+            common &= np.isfinite(err)
+        self.tried: dict[float, tuple[float, float]] = {}
+        for scale, err in self.held["refinement"].items():
+            values = err[common]
+            self.tried[scale] = (
+                (float(np.median(values)), float(np.percentile(values, 95)))
+                if values.size
+                else (np.inf, np.inf)
+            )
+        # lowest held-out median, then p95; on a tie the configured scale
+        self.scale = min(self.tried, key=lambda k: (*self.tried[k], k != options.smooth_scale))
+        self.options = replace(options, smooth_scale=self.scale)
+        log.info(
+            "refinement: smoothness scale %.4g (motion %s per frame^%d; held-out median px "
+            "by scale %s)",
+            self.scale,
+            f"{self.motion:.4g}" if self.motion else "unknown",
+            options.smooth_order,
+            {f"{k:.4g}": round(v[0], 3) for k, v in self.tried.items()},
+        )
+
+    def apply(self, output, triangulation: Mapping[str, Any]) -> dict:
+        """Keep the triangulation where the chosen refinement lost.
+
+        Parameters
+        ----------
+        output
+            The refinement's output being written (an
+            :class:`~flylib.refinement.solver.ArraySink` or one of its kind):
+            ``points3d``, ``reproj_error``, ``points2d``, ``flags``, changed in place.
+        triangulation
+            The triangulation's ``points3d``, ``reproj_error`` and ``points``.
+
+        Returns
+        -------
+        dict
+            The ``accuracy`` attribute of the refinement artifact.
+        """
+        from ..accuracy import accuracy_summary, keep_triangulation
+
+        tri_err = self.held["triangulation"]
+        ref_err = self.held["refinement"][self.scale]
+        keep, everywhere = keep_triangulation(tri_err, ref_err)
+        n_points = self.n_points
+
+        def on_windows(dataset) -> np.ndarray:  # the evaluated frames only: memory stays flat
+            parts = [np.asarray(dataset[lo:hi], np.float64) for lo, hi in self.windows]
+            return np.concatenate(parts) if parts else np.zeros((0, n_points, 3))
+
+        refined3d = on_windows(output.points3d)
+        tri3d = on_windows(triangulation["points3d"])
+        if keep.any():
+            keep_triangulation_points(triangulation, output, keep, self.options.chunk_frames)
+        both = np.isfinite(tri_err) & np.isfinite(ref_err)
+        chosen = np.where(keep[None, None], tri_err, ref_err)
+        names = dict(view_names=list(self.cameras.names), point_names=self.point_names)
+        shape = dict(bones=self.terms["bones"], mirror=self.terms["mirror"])
+        output3d = np.where(keep[None, :, None], tri3d, refined3d)
+
+        def summary(err, pts3d):
+            return accuracy_summary(np.where(both, err, np.nan), pts3d, **names, **shape)
+
+        return {
+            "frames_evaluated": int(len(self.held["frames"])),
+            "frames_total": int(self.n_frames),
+            "windows": [list(w) for w in self.windows],
+            "compared_on": "observations both methods reconstructed without the view",
+            "triangulation": summary(tri_err, tri3d),
+            "refinement": summary(ref_err, refined3d),
+            "output": summary(chosen, output3d),
+            "kept_triangulation": [self.point_names[p] for p in np.flatnonzero(keep)],
+            "kept_everywhere": bool(everywhere),
+            "smoothness": {
+                "motion_per_frame": self.motion,
+                "scale": self.scale,
+                "tried": {f"{k:.6g}": {"median": v[0], "p95": v[1]} for k, v in self.tried.items()},
+            },
+        }
+
+
+def keep_triangulation_points(
+    triangulation: Mapping[str, Any], output, keep: Bool[np.ndarray, " P"], chunk: int
+) -> None:
+    """Points ``keep`` ``(P,)`` take the triangulation's 3D, 2D and errors in every frame,
+    flagged ``kept_triangulation`` (chunk by chunk along time; ``output`` as in
+    :meth:`HeldOutCheck.apply`)."""
+    bit = np.uint8(FLAG_BITS["kept_triangulation"][0])
+    n_frames = output.points3d.shape[0]
+    step = max(1, int(chunk))
+    for lo in range(0, n_frames, step):
+        hi = min(lo + step, n_frames)
+        for name, source_name, axis in _KEPT_ARRAYS:
+            source, target = triangulation[source_name], getattr(output, name)
+            if axis == 0:
+                values = target[lo:hi]
+                values[:, keep] = source[lo:hi][:, keep]
+                target[lo:hi] = values
+            else:
+                values = target[:, lo:hi]
+                values[:, :, keep] = source[:, lo:hi][:, :, keep]
+                target[:, lo:hi] = values
+        flags = output.flags[lo:hi]
+        flags[:, keep] |= bit
+        output.flags[lo:hi] = flags
+
+
+def keep_corrected(triangulation: Mapping[str, Any], output) -> None:
+    """Points a person corrected (the triangulation's ``corrected`` ``(T, P)``, from a
+    ``corrections.h5``) keep the triangulation's 3D: a person's call is not smoothed
+    away (``output`` as in :meth:`HeldOutCheck.apply`)."""
+    if "corrected" not in triangulation:
+        return
+    corrected = np.asarray(triangulation["corrected"][()], bool)
+    if not corrected.any():
+        return
+    points = np.array(output.points3d[()])
+    points[corrected] = np.asarray(triangulation["points3d"][()], float)[corrected]
+    output.points3d[...] = points
