@@ -284,7 +284,9 @@ def _print_provenance(args) -> int:
     else:
         config_path = snapshot_beside(args.results)
         config = Config.from_file(config_path) if config_path else None
-    rows = provenance_report(args.results, config)
+    from .pipeline.planning import params_of
+
+    rows = provenance_report(args.results, params_of(config) if config is not None else None)
     _print_table(
         f"provenance (params hashes; compared with {config_path or 'no config: pass --config'})",
         [

@@ -137,7 +137,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 
     from .config import Config, validate_config
     from .errors import ConfigError
-    from .recordings import plan_recordings
+    from .pipeline.planning import plan_recordings
 
     problems = validate_config(layers.data)
     if problems:

@@ -176,7 +176,7 @@ def run_refinement(
     recording_dir
         The recording (for a calibration file relative to it).
     """
-    from ..interop.anipose import config_rig
+    from ..pipeline.planning import config_rig, tracked_params
     from ..provenance import stage_provenance
     from ..results import _new_meta, open_checked, read_image_sizes
     from .setup import skeleton_terms
@@ -202,7 +202,7 @@ def run_refinement(
                 _new_meta(
                     STAGE,
                     stage_provenance(
-                        config,
+                        tracked_params(config, STAGE),
                         STAGE,
                         {
                             "pose2d": pose2d_path,
