@@ -351,11 +351,19 @@ def _cmd_export(args) -> int:
     if args.training_data is not None:
         from .config import Config
         from .interop.training_data import export_training_data
+        from .interop.views import footage_files
+
+        config = Config.from_file(args.config) if args.config else None
+
+        def footage_of(recording: Path) -> dict[str, list[Path]]:
+            # the run's config: --config, else the snapshot beside results.h5, else the default
+            run = config if config is not None else Config.of_outputs(Path(args.results).parent)
+            return footage_files(run, recording)
 
         written = export_training_data(
             args.results,
             args.training_data,
-            config=Config.from_file(args.config) if args.config else None,
+            footage_of=footage_of,
             recording=args.recording,
             scorer=args.scorer,
         )
