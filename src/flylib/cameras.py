@@ -412,11 +412,7 @@ class CameraGroup:
         Returns
         -------
         CameraGroup
-
-        Raises
-        ------
-        ConfigError
-            If no cameras are defined or a camera spec is invalid.
+            As :meth:`from_table` (which names what it raises).
         """
         defaults, specs = config.camera_table()
         return cls.from_table(specs, defaults, image_sizes)

@@ -34,14 +34,7 @@ def plan_recordings(config: Config, *, check_frames: bool = True) -> list[Record
     Returns
     -------
     list of Recording
-        In listing order, with unique ids and unique output directories.
-
-    Raises
-    ------
-    ConfigError
-        On a malformed ``recordings`` value or two recordings sharing an output dir.
-    FootageError
-        If the listed inputs hold no valid recording.
+        As :func:`~flylib.recordings.plan_listing` (which names what it raises).
     """
     data = config.data
     return plan_listing(
