@@ -100,9 +100,9 @@ def config_rig(
         that its rule does not track the config rig.
     """
     from ..errors import ConfigError
+    from .tracked import StageConfig
 
-    tracks = getattr(config, "tracks", None)
-    if tracks is not None and not tracks("cameras"):
+    if isinstance(config, StageConfig) and not config.tracks("cameras"):
         raise ConfigError(
             f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
             "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off"
