@@ -34,6 +34,7 @@ def _pose2d(config, path: Path, frames: int) -> tuple[int, int, int]:
     from flylib.cameras import CameraGroup
     from flylib.demo import demo_settings, observe, synthetic_fly, view_visibility
     from flylib.interop.df3d import FLY38_POINT_NAMES
+    from flylib.pipeline.inputs import stage_params
     from flylib.provenance import stage_provenance
     from flylib.results import Pose2dData
 
@@ -48,7 +49,7 @@ def _pose2d(config, path: Path, frames: int) -> tuple[int, int, int]:
     clean = np.asarray(cameras.project(pts3d), dtype=np.float64)
     pts2d, conf = observe(clean, view_visibility(config, views, points), settings, size)
     Pose2dData(pts2d=pts2d, conf=conf, view_names=views, image_sizes={v: size for v in views}).save(
-        path, skeleton, meta=stage_provenance(config, "pose2d")
+        path, skeleton, meta=stage_provenance(stage_params(config, "pose2d"), "pose2d")
     )
     return pts2d.shape[0], frames, pts2d.shape[2]
 

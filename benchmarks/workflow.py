@@ -2,7 +2,7 @@
 
 1. Dry-run planning of N recordings (default 200, tiny 2-frame videos, 7 cameras):
    wall-clock of ``snakemake --dry-run`` against a 1-recording dry run measured in the
-   same session (the fixed start-up cost), and of :func:`flylib.recordings.plan_recordings`
+   same session (the fixed start-up cost), and of :func:`flylib.pipeline.planning.plan_recordings`
    alone. Target: < 10 s for 200 recordings.
 2. Overhead of running the demo through Snakemake (one process per job) over calling
    the stage functions directly in one process. Target: < 30 %.
@@ -69,7 +69,7 @@ def _tiny_recordings(root: Path, count: int, sources: list[dict]) -> list[str]:
 
 def bench_planning(n: int) -> dict:
     from flylib.config import Config
-    from flylib.recordings import plan_recordings
+    from flylib.pipeline.planning import plan_recordings
 
     base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     with tempfile.TemporaryDirectory() as tmp:

@@ -89,8 +89,8 @@ def test_real_sample_meets_the_seed_and_beats_no_bundle_adjustment(df3d_sample_d
     """DeepFly3D's sample, default config: the seed system's 0.084 median bones against
     DeepFly3D's own 3D (the same recording: its 1.x file's 2D matches the sample's to
     the heatmap grid); measured 0.078 (no bundle adjustment 0.219, before 0.263)."""
-    from flylib.interop.anipose import config_rig
     from flylib.interop.importer import import_points2d
+    from flylib.pipeline.planning import config_rig
 
     config = Config.default()
     spec = {"format": "deepfly3d", "files": "df3d_result_2d.pkl"}

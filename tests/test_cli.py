@@ -15,6 +15,7 @@ from flylib.cameras import CameraGroup
 from flylib.cli import main, summarize_results
 from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml
+from flylib.pipeline.planning import params_of
 from flylib.provenance import PARAMS_KEY, params_hash, provenance_report
 from flylib.results import PoseResult
 from flylib.skeleton import Skeleton
@@ -105,7 +106,7 @@ def test_inspect_provenance_covers_refinement(result_file, tmp_path, capsys):
     own = params_hash(config.stage_params("refinement"))
     with h5py.File(path, "a") as f:  # what assemble copies from stages/refinement.h5
         f.create_group("refinement").attrs["meta"] = json.dumps({PARAMS_KEY: own})
-    rows = {row.stage: row for row in provenance_report(path, config)}
+    rows = {row.stage: row for row in provenance_report(path, params_of(config))}
     assert rows["refinement"].status == "ok" and rows["refinement"].recorded == own
     edited = tmp_path / "edited.yaml"
     edited.write_text(default.read_text().replace("scale_px: 3.0", "scale_px: 2.0", 1))
@@ -138,7 +139,7 @@ def test_calibration_writes_reusable_anipose_toml(result_file, tmp_path):
     toml = tmp_path / "rig.toml"
     assert main(["calibration", str(path), "-o", str(toml)]) == 0
     assert read_anipose_toml(toml)["a"]["size"] == (640, 480)
-    cams = load_calibration({"cameras": {v: {} for v in VIEWS}, "calibration": {"file": str(toml)}})
+    cams = load_calibration({"file": str(toml)}, VIEWS)
     pts = np.random.default_rng(0).uniform(-1, 1, size=(7, 3))
     np.testing.assert_allclose(cams.project(pts), result.cameras.project(pts), rtol=0, atol=1e-9)
 

@@ -609,9 +609,7 @@ def test_fuzz_anipose_toml(text):
     path = _write("calibration_fuzz.toml", text)
     _check(read_anipose_toml, path)
     _check(
-        lambda p: load_calibration(
-            {"cameras": {"rh": {}, "rm": {}}, "calibration": {"file": str(p)}}
-        ),
+        lambda p: load_calibration({"file": str(p)}, ["rh", "rm"]),
         path,
     )
 

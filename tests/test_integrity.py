@@ -20,6 +20,7 @@ import yaml
 from flylib.cli import main as flylib_main
 from flylib.config import Config
 from flylib.errors import OutputError, ResultsError
+from flylib.pipeline.planning import params_of
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import (
     Pose2dData,
@@ -324,7 +325,9 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
         assert json.loads(f.attrs["meta"])["params_sha256"] == expected["assemble"]
     assert json.loads((out / "summary.json").read_text())["params_sha256"] == expected
     assert (out / "config.yaml").read_bytes() == (tmp_path / "config.yaml").read_bytes()
-    assert all(row.status == "ok" for row in provenance_report(out / "results.h5", config))
+    assert all(
+        row.status == "ok" for row in provenance_report(out / "results.h5", params_of(config))
+    )
     assert flylib_main(["inspect", str(out / "results.h5")]) == 0  # against the snapshot beside it
     capsys.readouterr()
 
@@ -341,7 +344,7 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
         out / "stages" / "triangulation.h5",
         recording_dir=recording,
     )
-    rows = {row.stage: row for row in provenance_report(out / "results.h5", edited)}
+    rows = {row.stage: row for row in provenance_report(out / "results.h5", params_of(edited))}
     assert rows["triangulation"].status == "stale" and rows["pose2d"].status == "ok"
     assert (
         flylib_main(["inspect", str(out / "results.h5"), "--config", str(tmp_path / "edited.yaml")])
@@ -424,7 +427,9 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     _snakemake(tmp_path, data)
     assert (out / "config.yaml").read_bytes() == (tmp_path / "config.yaml").read_bytes() != first
     snapshot = Config.from_file(out / "config.yaml")
-    assert all(row.status == "ok" for row in provenance_report(out / "results.h5", snapshot))
+    assert all(
+        row.status == "ok" for row in provenance_report(out / "results.h5", params_of(snapshot))
+    )
 
     # A run from another working directory with another config over the same outdir:
     # its Snakemake has no record of these artifacts; the recorded hashes tell.
@@ -459,14 +464,19 @@ def test_foreign_artifacts_are_those_of_another_workdir_with_other_params(tmp_pa
     config = _config(tmp_path, "config.yaml")
     _, out = _small_run(tmp_path, config)
     recordings = [SimpleNamespace(outdir=out)]
-    assert foreign_artifacts(config, recordings, cwd=tmp_path / "elsewhere") == []  # same params
+    assert (
+        foreign_artifacts(params_of(config, run_only=True), recordings, cwd=tmp_path / "elsewhere")
+        == []
+    )  # same params
     edited = _config(
         tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5)
     )
     assert (
-        foreign_artifacts(edited, recordings) == []
+        foreign_artifacts(params_of(edited, run_only=True), recordings) == []
     )  # this workdir: Snakemake's own params tracking
-    lines = foreign_artifacts(edited, recordings, cwd=tmp_path / "elsewhere")
+    lines = foreign_artifacts(
+        params_of(edited, run_only=True), recordings, cwd=tmp_path / "elsewhere"
+    )
     assert [line.split(":")[0] for line in lines] == [str(out / "stages" / "triangulation.h5")]
     assert (
         f"written by a run from {tmp_path} on " in lines[0]

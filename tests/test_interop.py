@@ -352,14 +352,15 @@ adjusted = false
 """
 
 
-def _calib_config(views=("left", "right"), **calibration) -> dict:
-    return {"cameras": {v: {} for v in views}, "calibration": calibration}
+def _calibration_for(views=("left", "right"), **calibration) -> tuple[dict, tuple[str, ...]]:
+    """A ``calibration`` table and the views (the config's cameras) it is read for."""
+    return calibration, tuple(views)
 
 
 def test_anipose_toml_projects_like_opencv(tmp_path):
     path = tmp_path / "calibration.toml"
     path.write_text(ANIPOSE_TOML)
-    cams = load_calibration(_calib_config(file=str(path)))
+    cams = load_calibration(*_calibration_for(file=str(path)))
     assert cams.names == ["left", "right"]
     pts = np.random.default_rng(2).uniform(-3, 3, size=(20, 3))
     ours = cams.project(pts)
@@ -371,7 +372,7 @@ def test_anipose_toml_projects_like_opencv(tmp_path):
 def test_anipose_toml_round_trip(tmp_path):
     src = tmp_path / "in.toml"
     src.write_text(ANIPOSE_TOML)
-    cams = load_calibration(_calib_config(views=("right", "left"), file=str(src)))
+    cams = load_calibration(*_calibration_for(views=("right", "left"), file=str(src)))
     assert cams.names == ["right", "left"]  # matched by name, in config order
     out = write_anipose_toml(cams, tmp_path / "out.toml", {"right": (1024, 1280)})
     first, second = read_anipose_toml(src), read_anipose_toml(out)
@@ -380,7 +381,7 @@ def test_anipose_toml_round_trip(tmp_path):
             np.testing.assert_allclose(second[name][key], first[name][key], rtol=0, atol=1e-12)
     assert second["right"]["size"] == (1280, 1024)
     assert second["left"]["size"] == (1280, 1024)  # no size given: 2 x principal point, rounded
-    again = load_calibration(_calib_config(file=str(out)))
+    again = load_calibration(*_calibration_for(file=str(out)))
     np.testing.assert_allclose(again.rvecs, cams.subset(["left", "right"]).rvecs, atol=1e-12)
 
 
@@ -402,9 +403,9 @@ def test_anipose_toml_errors(tmp_path):
     with pytest.raises(
         ImportFormatError, match=r"no camera for views \['centre'\].*calibration.names"
     ):
-        load_calibration(_calib_config(views=("left", "centre"), file=str(good)))
+        load_calibration(*_calibration_for(views=("left", "centre"), file=str(good)))
     cams = load_calibration(
-        _calib_config(views=("left", "centre"), file=str(good), names={"centre": "right"})
+        *_calibration_for(views=("left", "centre"), file=str(good), names={"centre": "right"})
     )
     assert cams.names == ["left", "centre"] and cams.intrs[1, 0] == 1600.0
 
@@ -425,21 +426,23 @@ def test_calibrations_index_resolves_session(tmp_path):
     assert calibration_from_index(index, "session1") == tmp_path / "calibrations" / "session1.toml"
     recording = tmp_path / "session1"
     recording.mkdir()
-    cams = load_calibration(_calib_config(index=str(index)), recording)
+    cams = load_calibration(*_calibration_for(index=str(index)), recording)
     assert cams.intrs[0, 0] == 1700.0
     with pytest.raises(ImportFormatError, match="no row for session 'session7'"):
         calibration_from_index(index, "session7")
     # what the workflow lists as inputs of the rules that build this rig
-    assert calibration_inputs(_calib_config(index=str(index)), recording) == [
+    assert calibration_inputs(_calibration_for(index=str(index))[0], recording) == [
         index,
         tmp_path / "calibrations" / "session1.toml",
     ]
-    assert calibration_inputs(_calib_config(index=str(index)), tmp_path / "session7") == [index]
-    assert calibration_inputs(_calib_config(file="calibrations/session0.toml"), tmp_path) == [
+    assert calibration_inputs(_calibration_for(index=str(index))[0], tmp_path / "session7") == [
+        index
+    ]
+    assert calibration_inputs(_calibration_for(file="calibrations/session0.toml")[0], tmp_path) == [
         tmp_path / "calibrations" / "session0.toml"
     ]  # relative to the recording
-    assert calibration_inputs(_calib_config(file=str(tmp_path / "absent.toml"))) == []
-    assert calibration_inputs({"cameras": {"a": {}}}) == []
+    assert calibration_inputs(_calibration_for(file=str(tmp_path / "absent.toml"))[0]) == []
+    assert calibration_inputs(None) == []
 
 
 def test_df3d_calibration_pickle_projects_like_opencv(tmp_path):
@@ -457,7 +460,7 @@ def test_df3d_calibration_pickle_projects_like_opencv(tmp_path):
     path = tmp_path / "calib.pkl"
     with path.open("wb") as fh:
         pickle.dump(calib, fh)
-    cams = load_calibration(_calib_config(views=("x", "y", "z"), file=str(path)))
+    cams = load_calibration(*_calibration_for(views=("x", "y", "z"), file=str(path)))
     assert cams.names == ["x", "y", "z"]
     pts = rng.uniform(-1, 1, size=(10, 3))
     ours = cams.project(pts)
@@ -559,7 +562,7 @@ def test_dlc_import_reads_sizes_and_checks_frames_against_footage(deeperfly_exam
 def test_calibration_without_configured_views_takes_the_file_order(tmp_path):
     path = tmp_path / "calibration.toml"
     path.write_text(ANIPOSE_TOML)
-    cams = load_calibration({"calibration": {"file": "calibration.toml"}}, recording_dir=tmp_path)
+    cams = load_calibration({"file": "calibration.toml"}, recording_dir=tmp_path)
     assert cams.names == ["left", "right"]
 
 

@@ -98,7 +98,7 @@ def test_df3d_calibration_pickle_payload_never_runs(tmp_path, protocol):
     with pytest.raises(
         ImportFormatError, match=r"calib\.pkl: refused .*'(builtins|__builtin__|io)\.open'"
     ) as err:
-        load_calibration({"cameras": {"a": {}}, "calibration": {"file": str(path)}})
+        load_calibration({"file": str(path)}, ["a"])
     _one_line(err)
     assert not target.exists()
 
@@ -522,9 +522,7 @@ def test_anipose_bad_value_names_file_section_camera_and_key(tmp_path, old, new,
     path = tmp_path / "calibration.toml"
     path.write_text(_cam2(old, new))
     with pytest.raises(ImportFormatError, match=message) as err:
-        load_calibration(
-            {"cameras": {"rh": {}, "rm": {}, "rf": {}}, "calibration": {"file": str(path)}}
-        )
+        load_calibration({"file": str(path)}, ["rh", "rm", "rf"])
     text = _one_line(err)
     assert text.startswith(f"{path} [cam_2]")
     if "'name'" not in text:
@@ -563,7 +561,7 @@ def test_df3d_calibration_bad_value_names_camera_and_key(tmp_path, key, value, m
     path = tmp_path / "calib.pkl"
     path.write_bytes(pickle.dumps(calib))
     with pytest.raises(ImportFormatError, match=message) as err:
-        load_calibration({"cameras": {"a": {}, "b": {}}, "calibration": {"file": str(path)}})
+        load_calibration({"file": str(path)}, ["a", "b"])
     assert _one_line(err).startswith(str(path))
 
 

@@ -206,7 +206,7 @@ def test_nwbinspector_flags_a_broken_video_link(demo_result, tmp_path):
     path = write_nwb(
         demo_result["result"],
         tmp_path / "x.nwb",
-        recording_metadata({}, demo_result["recording"]),
+        recording_metadata(None, demo_result["recording"]),
         footage=footage,
         frame_rate=FPS,
     )
@@ -282,9 +282,9 @@ def test_a_result_without_confidences_or_errors_still_exports(tmp_path):
 def test_missing_metadata_is_one_error_naming_every_key_before_reading_results(tmp_path):
     recording = tmp_path / "fly1"
     recording.mkdir()
-    config = {"nwb": {"experimenter": "Doe, Jane", "subject": {"sex": "F"}}}
+    table = {"experimenter": "Doe, Jane", "subject": {"sex": "F"}}
     with pytest.raises(ConfigError) as err:
-        recording_metadata(config, recording)
+        recording_metadata(table, recording)
     message = str(err.value)
     assert "\n" not in message and str(recording / SIDECAR) in message
     for key in ("session_start_time", "subject.subject_id", "subject.age or subject.date_of_birth"):
@@ -303,19 +303,17 @@ def test_missing_metadata_is_one_error_naming_every_key_before_reading_results(t
 def test_sidecar_overrides_the_config_table_and_bad_entries_name_the_file(tmp_path):
     recording = tmp_path / "fly2"
     recording.mkdir()
-    config = {
-        "nwb": {
-            "lab": "Fly lab",
-            "experimenter": ["Doe, Jane"],
-            "subject": {"subject_id": "batch", "sex": "F", "age": "P3D"},
-        }
+    table = {
+        "lab": "Fly lab",
+        "experimenter": ["Doe, Jane"],
+        "subject": {"subject_id": "batch", "sex": "F", "age": "P3D"},
     }
     (recording / SIDECAR).write_text(
         yaml.safe_dump(
             {"session_start_time": "2024-05-01T14:03:00+02:00", "subject": {"subject_id": "fly2"}}
         )
     )
-    metadata = recording_metadata(config, recording)
+    metadata = recording_metadata(table, recording)
     assert metadata["lab"] == "Fly lab" and metadata["subject"] == {
         "species": "Drosophila melanogaster",
         "subject_id": "fly2",
@@ -326,7 +324,7 @@ def test_sidecar_overrides_the_config_table_and_bad_entries_name_the_file(tmp_pa
         "session_start_time: 2024-05-01 14:03\nsubject: {sex: female}\n"
     )
     with pytest.raises(ConfigError) as err:
-        recording_metadata(config, recording)
+        recording_metadata(table, recording)
     assert str(recording / SIDECAR) in str(err.value) and "subject.sex" in str(err.value)
     assert "timezone" in str(err.value)
 
@@ -359,7 +357,7 @@ def test_the_default_configs_commented_exports_and_nwb_example_is_valid():
     )
     assert example["exports"] == {"nwb": True} and example["nwb"]["subject"]["sex"] == "F"
     config = Config.from_dict({**Config.default().data, **example})
-    metadata = recording_metadata(config, None)
+    metadata = recording_metadata(config.data["nwb"], None)
     assert metadata["subject"]["species"] == "Drosophila melanogaster"
 
 
@@ -374,7 +372,7 @@ def test_image_sequence_footage_links_every_image_at_the_configured_rate(demo_re
         for path in footage[view]:
             path.parent.mkdir(exist_ok=True)
             cv2.imwrite(str(path), np.zeros((4, 4), np.uint8))
-    metadata = {**recording_metadata({}, demo_result["recording"]), "frame_rate": 50.0}
+    metadata = {**recording_metadata(None, demo_result["recording"]), "frame_rate": 50.0}
     path = write_nwb(result, tmp_path / "out" / "seq.nwb", metadata, footage=footage)
     with pynwb.NWBHDF5IO(str(path), "r") as io:
         nwbfile = io.read()
@@ -392,7 +390,7 @@ def test_no_frame_rate_is_a_clear_error(demo_result, tmp_path):
         write_nwb(
             demo_result["result"],
             tmp_path / "x.nwb",
-            recording_metadata({}, demo_result["recording"]),
+            recording_metadata(None, demo_result["recording"]),
         )
 
 

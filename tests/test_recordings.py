@@ -9,13 +9,20 @@ import cv2
 import numpy as np
 import pytest
 
+from flylib.config import Config
 from flylib.errors import ConfigError, FootageError
 from flylib.io import VideoWriter
-from flylib.recordings import find_recording, plan_recordings, resolve_recordings
+from flylib.pipeline.planning import plan_recordings
+from flylib.recordings import find_recording, resolve_recordings
 
 SOURCES = {
     "sources": [{"name": "left", "filename": "cam_0*"}, {"name": "right", "filename": "cam_1*"}]
 }
+
+
+def plan(data: dict) -> list:
+    """The recordings a run of the config ``data`` plans."""
+    return plan_recordings(Config.from_dict(data))
 
 
 def write_video(path: Path, frames: int) -> Path:
@@ -120,16 +127,16 @@ def test_ids_are_unique_and_outdirs_follow_the_template(tmp_path):
     b = make_video_recording(tmp_path / "y" / "session")
     c = make_video_recording(tmp_path / "y" / "other")
     config = {**SOURCES, "recordings": [str(a), str(b), str(c)]}
-    recs = plan_recordings(config)
+    recs = plan(config)
     assert [r.id for r in recs] == ["x-session", "y-session", "other"]
     assert [r.outdir for r in recs] == [p / "flylib_outputs" for p in (a, b, c)]
-    assert plan_recordings(config) == recs  # stable
+    assert plan(config) == recs  # stable
 
     config["outdir"] = str(tmp_path / "results" / "{id}")
-    assert plan_recordings(config)[1].outdir == tmp_path / "results" / "y-session"
+    assert plan(config)[1].outdir == tmp_path / "results" / "y-session"
     config["outdir"] = str(tmp_path / "results" / "{name}")  # both sessions -> one dir
     with pytest.raises(ConfigError, match="distinct outdirs"):
-        plan_recordings(config)
+        plan(config)
 
 
 def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
@@ -141,7 +148,7 @@ def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
         f"a\t{tmp_path / 'out_a'}\tdlc_csv\tleft=l.csv;right=r.csv\n"
         "b\t\t\t\n"
     )
-    recs = plan_recordings({**SOURCES, "recordings": str(sheet)})
+    recs = plan({**SOURCES, "recordings": str(sheet)})
     assert [r.path for r in recs] == [a, b]
     assert recs[0].outdir == tmp_path / "out_a" and recs[1].outdir == b / "flylib_outputs"
     assert recs[0].import_spec == {
@@ -150,30 +157,24 @@ def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
     }
     assert recs[1].import_spec is None
 
-    recs = plan_recordings(
-        {**SOURCES, "recordings": [{"path": str(a), "import": {"format": "sleap"}}]}
-    )
+    recs = plan({**SOURCES, "recordings": [{"path": str(a), "import": {"format": "sleap"}}]})
     assert recs[0].import_spec == {"format": "sleap"}
     with pytest.raises(ConfigError, match="unknown key"):
-        plan_recordings({**SOURCES, "recordings": [{"path": str(a), "colour": "red"}]})
+        plan({**SOURCES, "recordings": [{"path": str(a), "colour": "red"}]})
     with pytest.raises(ConfigError, match="sheet"):
-        plan_recordings({**SOURCES, "recordings": str(tmp_path / "missing.tsv")})
+        plan({**SOURCES, "recordings": str(tmp_path / "missing.tsv")})
 
 
 def test_demo_entry_needs_no_footage_yet(tmp_path):
-    from flylib.config import Config
-
     config = Config.default().data
     config = {**config, "recordings": [{"path": str(tmp_path / "demo"), "demo": True}]}
-    (rec,) = plan_recordings(config)
+    (rec,) = plan(config)
     assert rec.demo and rec.id == "demo" and rec.sources == {}
     assert rec.import_spec["format"] == "dlc_csv"
     assert set(rec.import_spec["files"]) == {"rh", "rm", "rf", "f", "lf", "lm", "lh"}
 
 
 def test_real_sample_resolves_to_its_videos_or_its_image_sequences(df3d_sample_dir):
-    from flylib.config import Config
-
     config = Config.default()
     sources = find_recording(df3d_sample_dir, config)
     assert sources["vid_rh"] == [df3d_sample_dir / "camera_0.mp4"]
@@ -192,12 +193,12 @@ def test_plan_skips_a_malformed_batch_member_with_a_warning(tmp_path, caplog):
     good = make_video_recording(tmp_path / "good")
     bad = make_video_recording(tmp_path / "bad", frames=(3, 4))
     with caplog.at_level(logging.WARNING):
-        recs = plan_recordings({**SOURCES, "recordings": [str(good), str(bad)]})
+        recs = plan({**SOURCES, "recordings": [str(good), str(bad)]})
     assert [r.path for r in recs] == [good]
     assert f"skipping {bad}" in caplog.text and "frame counts" in caplog.text
     (tmp_path / "empty").mkdir()
     with pytest.raises(FootageError, match="none of"):
-        plan_recordings({**SOURCES, "recordings": [str(bad), str(tmp_path / "empty")]})
+        plan({**SOURCES, "recordings": [str(bad), str(tmp_path / "empty")]})
 
 
 @pytest.mark.parametrize("batch", [False, True])
@@ -205,14 +206,14 @@ def test_a_mistyped_or_file_path_is_one_clear_error_naming_the_entry(tmp_path, b
     good = make_video_recording(tmp_path / "fly_07")
     others = [str(good)] if batch else []
     with pytest.raises(ConfigError) as info:
-        plan_recordings({**SOURCES, "recordings": [*others, str(tmp_path / "fyl_07")]})
+        plan({**SOURCES, "recordings": [*others, str(tmp_path / "fyl_07")]})
     message = str(info.value)
     assert "\n" not in message
     assert message.startswith(f"recordings[{len(others)}]: {tmp_path / 'fyl_07'} does not exist")
     assert f"did you mean {good}?" in message
     with pytest.raises(ConfigError, match="does not exist; fix the path"):
-        plan_recordings({**SOURCES, "recordings": [*others, str(tmp_path / "zzzzzzzz" / "q")]})
+        plan({**SOURCES, "recordings": [*others, str(tmp_path / "zzzzzzzz" / "q")]})
     (tmp_path / "notes.txt").write_text("not a recording")
     with pytest.raises(ConfigError, match=r"notes.txt is a file, not a directory"):
-        plan_recordings({**SOURCES, "recordings": [*others, {"path": str(tmp_path / "notes.txt")}]})
+        plan({**SOURCES, "recordings": [*others, {"path": str(tmp_path / "notes.txt")}]})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fly_07", "notes.txt"]  # nothing created

@@ -24,6 +24,9 @@ import numpy as np
 import pytest
 import yaml
 
+from flylib.pipeline.inputs import stage_params
+from flylib.pipeline.planning import params_of
+
 from workflow_run import snakemake_command
 
 REPO = Path(__file__).resolve().parents[1]
@@ -213,7 +216,7 @@ def _triangulation_artifact(path: Path, config) -> None:
             "points3d": rng.normal(size=(4, 38, 3)),
             "reproj_error": rng.random((7, 4, 38)),
         },
-        meta=stage_provenance(config, "triangulation"),
+        meta=stage_provenance(stage_params(config, "triangulation"), "triangulation"),
     )
 
 
@@ -238,7 +241,7 @@ def test_a_damaged_root_object_header_is_one_line_naming_the_artifact_and_its_re
         read_meta(damaged)
     assert str(err.value).startswith(f"{damaged}: its root attributes is damaged (HDF5: ")
     assert "\n" not in str(err.value)
-    lines = foreign_artifacts(config, recs, cwd=tmp_path)
+    lines = foreign_artifacts(params_of(config, run_only=True), recs, cwd=tmp_path)
     assert len(lines) == 1 and lines[0].startswith(f"{damaged}: ")
     assert lines[0].endswith("(only fly1 is affected)")
 
@@ -263,14 +266,23 @@ def test_a_copied_artifact_with_other_params_is_named_and_an_equal_params_strang
     edited = Config.from_dict(
         {**config.data, "triangulation": {**config.data["triangulation"], "ransac_threshold": 9.0}}
     )
-    lines = foreign_artifacts(edited, [SimpleNamespace(id="copy", outdir=copy)], cwd=tmp_path)
+    lines = foreign_artifacts(
+        params_of(edited, run_only=True), [SimpleNamespace(id="copy", outdir=copy)], cwd=tmp_path
+    )
     assert lines == [
         f"{copy / 'stages' / 'triangulation.h5'}: copied from {original.resolve()} (made there "
         f"with other triangulation params, {_hash(config)}; this config gives {_hash(edited)}); "
         "Snakemake has no record of the copy and takes it as up to date: delete it or re-run "
         "with --forcerun triangulation"
     ]
-    assert foreign_artifacts(config, [SimpleNamespace(id="copy", outdir=copy)], cwd=tmp_path) == []
+    assert (
+        foreign_artifacts(
+            params_of(config, run_only=True),
+            [SimpleNamespace(id="copy", outdir=copy)],
+            cwd=tmp_path,
+        )
+        == []
+    )
 
     # results.h5 assembled from one triangulation, then another with equal params put in
     # its place (from another recording): no longer silent.
@@ -282,9 +294,11 @@ def test_a_copied_artifact_with_other_params_is_named_and_an_equal_params_strang
         {"pose2d": _pose2d, "triangulation": original / "stages" / "triangulation.h5"},
         original,
     )
-    assert all(r.status == "ok" for r in provenance_report(original / "results.h5", config))
+    assert all(
+        r.status == "ok" for r in provenance_report(original / "results.h5", params_of(config))
+    )
     _triangulation_artifact(original / "stages" / "triangulation.h5", config)
-    rows = {r.stage: r for r in provenance_report(original / "results.h5", config)}
+    rows = {r.stage: r for r in provenance_report(original / "results.h5", params_of(config))}
     assert rows["triangulation"].status == "mixed"
     assert (
         "with equal params; results.h5 is not assembled from these artifacts"
@@ -309,7 +323,7 @@ def _pose2d_artifact(path: Path, config) -> Path:
         conf=rng.random((7, 4, 38)),
         view_names=views,
         image_sizes={v: (480, 960) for v in views},
-    ).save(path, config.skeleton(), meta=stage_provenance(config, "pose2d"))
+    ).save(path, config.skeleton(), meta=stage_provenance(stage_params(config, "pose2d"), "pose2d"))
     return path
 
 
@@ -402,7 +416,7 @@ def _anipose_toml(path: Path, views: list[str], size: tuple[int, int]) -> None:
 def test_footage_of_another_size_than_its_calibration_names_the_camera_and_both_sizes(tmp_path):
     from flylib.config import Config
     from flylib.errors import FootageError
-    from flylib.interop.anipose import config_rig
+    from flylib.pipeline.planning import config_rig
 
     config = Config.default()
     views = config.view_names()
@@ -622,9 +636,9 @@ def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not
     out = make_demo_outputs(tmp_path / "rec", frames=6)
     results = out / "results.h5"
     config = Config.from_file(out / "config.yaml")
-    assert all(r.status == "ok" for r in provenance_report(results, config))
+    assert all(r.status == "ok" for r in provenance_report(results, params_of(config)))
     sidecar = write_seed_sidecar(out / "corrections.h5", (7, 6, 38), edits2d=[(0, 2, 5, 40, 50)])
-    rows = {r.stage: r for r in provenance_report(results, config)}
+    rows = {r.stage: r for r in provenance_report(results, params_of(config))}
     assert rows["triangulation"].status == "stale"
     assert rows["triangulation"].problems == [
         f"{sidecar}: manual corrections that the triangulation in results.h5 did not apply; "
@@ -644,9 +658,9 @@ def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not
         out,
         recording_dir=tmp_path / "rec",
     )
-    assert all(r.status == "ok" for r in provenance_report(results, config))
+    assert all(r.status == "ok" for r in provenance_report(results, params_of(config)))
     write_seed_sidecar(sidecar, (7, 6, 38), edits2d=[(0, 2, 5, 40, 50), (1, 3, 6, 60, 70)])
-    rows = {r.stage: r for r in provenance_report(results, config)}
+    rows = {r.stage: r for r in provenance_report(results, params_of(config))}
     assert rows["triangulation"].problems == [
         f"{sidecar}: changed since the triangulation in results.h5 applied it (1 corrections "
         "then); re-run the workflow to apply it"

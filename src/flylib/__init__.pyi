@@ -96,6 +96,7 @@ from .pictorial import (
     solve_frames as solve_frames,
 )
 from .pipeline import run_from_points2d as run_from_points2d
+from .pipeline.planning import plan_recordings as plan_recordings
 from .pose2d import (
     DetectionPlan as DetectionPlan,
     HourglassNet as HourglassNet,
@@ -106,7 +107,7 @@ from .pose2d import (
 from .recordings import (
     Recording as Recording,
     find_recording as find_recording,
-    plan_recordings as plan_recordings,
+    plan_listing as plan_listing,
     resolve_recordings as resolve_recordings,
 )
 from .results import (

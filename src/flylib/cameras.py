@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -31,8 +31,6 @@ from .errors import ConfigError, did_you_mean
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
-
-    from .config import Config
 
 log = logging.getLogger(__name__)
 
@@ -342,6 +340,13 @@ def project_points(
 # -- a rig -----------------------------------------------------------------------
 
 
+class HasCameraTable(Protocol):
+    """What :meth:`CameraGroup.from_config` reads of a config: its ``cameras`` table,
+    split (:meth:`flylib.config.Config.camera_table`)."""
+
+    def camera_table(self) -> tuple[dict, dict]: ...
+
+
 class CameraGroup:
     """An ordered collection of named cameras (the rig; the V axis of every array).
 
@@ -391,13 +396,10 @@ class CameraGroup:
 
     @classmethod
     def from_config(
-        cls, config: Config, image_sizes: Mapping[str, tuple[int, int]] | None = None
+        cls, config: HasCameraTable, image_sizes: Mapping[str, tuple[int, int]] | None = None
     ) -> CameraGroup:
-        """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``.
-
-        Each camera's spec is merged over ``defaults``. A camera that sets its own
-        ``rvec``/``tvec`` ignores orbit keys inherited from the defaults; setting
-        both in the camera's own table is an error.
+        """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``
+        (:meth:`from_table`).
 
         Parameters
         ----------
@@ -410,13 +412,43 @@ class CameraGroup:
         Returns
         -------
         CameraGroup
+            As :meth:`from_table` (which names what it raises).
+        """
+        defaults, specs = config.camera_table()
+        return cls.from_table(specs, defaults, image_sizes)
+
+    @classmethod
+    def from_table(
+        cls,
+        specs: Mapping[str, Mapping | None],
+        defaults: Mapping | None = None,
+        image_sizes: Mapping[str, tuple[int, int]] | None = None,
+    ) -> CameraGroup:
+        """Build the rig from the ``cameras`` table's camera specs and ``defaults``.
+
+        Each camera's spec is merged over ``defaults``. A camera that sets its own
+        ``rvec``/``tvec`` ignores orbit keys inherited from the defaults; setting
+        both in the camera's own table is an error.
+
+        Parameters
+        ----------
+        specs
+            ``camera name -> spec``, in view order (``defaults`` not among them).
+        defaults
+            ``cameras.defaults``: keys every camera inherits.
+        image_sizes
+            ``view name -> (height, width)`` of the raw footage, for principal
+            points the specs leave out.
+
+        Returns
+        -------
+        CameraGroup
 
         Raises
         ------
         ConfigError
             If no cameras are defined or a camera spec is invalid.
         """
-        defaults, specs = config.camera_table()
         defaults = dict(defaults or {})
         image_sizes = image_sizes or {}
         if not specs:

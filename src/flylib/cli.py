@@ -284,7 +284,9 @@ def _print_provenance(args) -> int:
     else:
         config_path = snapshot_beside(args.results)
         config = Config.from_file(config_path) if config_path else None
-    rows = provenance_report(args.results, config)
+    from .pipeline.planning import params_of
+
+    rows = provenance_report(args.results, params_of(config) if config is not None else None)
     _print_table(
         f"provenance (params hashes; compared with {config_path or 'no config: pass --config'})",
         [
@@ -349,11 +351,19 @@ def _cmd_export(args) -> int:
     if args.training_data is not None:
         from .config import Config
         from .interop.training_data import export_training_data
+        from .interop.views import footage_files
+
+        config = Config.from_file(args.config) if args.config else None
+
+        def footage_of(recording: Path) -> dict[str, list[Path]]:
+            # the run's config: --config, else the snapshot beside results.h5, else the default
+            run = config if config is not None else Config.of_outputs(Path(args.results).parent)
+            return footage_files(run, recording)
 
         written = export_training_data(
             args.results,
             args.training_data,
-            config=Config.from_file(args.config) if args.config else None,
+            footage_of=footage_of,
             recording=args.recording,
             scorer=args.scorer,
         )

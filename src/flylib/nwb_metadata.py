@@ -297,7 +297,7 @@ def write_sidecar(path: str | Path, metadata: Mapping) -> Path:
 
 
 def recording_metadata(
-    config: Any,
+    table: Mapping | None,
     recording_dir: str | Path | None,
     *,
     demo: bool = False,
@@ -308,8 +308,8 @@ def recording_metadata(
 
     Parameters
     ----------
-    config
-        A :class:`~flylib.config.Config` or a plain mapping (its ``nwb`` table).
+    table
+        The config's ``nwb`` table, or ``None``.
     recording_dir
         The recording directory (its ``nwb.yaml`` is read), or ``None``.
     demo
@@ -326,8 +326,6 @@ def recording_metadata(
         An invalid table or sidecar, or (``check``) missing required keys, all named
         in one message with where to set them.
     """
-    data = getattr(config, "data", config) or {}
-    table = data.get("nwb")
     problems = metadata_problems(table)
     if problems:
         raise ConfigError("; ".join(problems))
@@ -353,13 +351,13 @@ def recording_metadata(
 # -- what the workflow asks before any job starts (workflow/rules/exports.smk) ----------
 
 
-def recordings_metadata_problems(config: Any, recordings: Sequence[Any]) -> list[str]:
+def recordings_metadata_problems(table: Mapping | None, recordings: Sequence[Any]) -> list[str]:
     """One line per recording whose NWB export would fail for its metadata or frame rate.
 
     Parameters
     ----------
-    config
-        The run's :class:`~flylib.config.Config`.
+    table
+        The run config's ``nwb`` table, or ``None``.
     recordings
         :class:`flylib.recordings.Recording` objects (``path``, ``demo``, ``footage``).
 
@@ -373,7 +371,7 @@ def recordings_metadata_problems(config: Any, recordings: Sequence[Any]) -> list
     problems = []
     for rec in recordings:
         try:
-            metadata = recording_metadata(config, rec.path, demo=rec.demo)
+            metadata = recording_metadata(table, rec.path, demo=rec.demo)
         except ConfigError as exc:
             problems.append(str(exc))
             continue

@@ -13,9 +13,12 @@ user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .errors import FlylibError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .config import Config
 
 
 def _problem(exc: FlylibError, prefix: str | None = None) -> str:
@@ -23,13 +26,13 @@ def _problem(exc: FlylibError, prefix: str | None = None) -> str:
     return f"{prefix}: {text}" if prefix else text
 
 
-def model_weights(config: Any) -> dict[str, str]:
+def model_weights(config: Config) -> dict[str, str]:
     """``model name -> weights path`` in force: ``pose2d.weights`` over each model's own key.
 
     ``pose2d.weights: {deepfly2d: /path/sh8.tar}`` sets one model's checkpoint without
     copying its whole ``pose2d.models`` entry (a ``--configfile`` replaces lists whole).
     """
-    pose2d = getattr(config, "data", config).get("pose2d") or {}
+    pose2d = config.data.get("pose2d") or {}
     out = {}
     for entry in pose2d.get("models") or []:
         if isinstance(entry, dict) and isinstance(entry.get("name"), str):
@@ -137,7 +140,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 
     from .config import Config, validate_config
     from .errors import ConfigError
-    from .recordings import plan_recordings
+    from .pipeline.planning import plan_recordings
 
     problems = validate_config(layers.data)
     if problems:

@@ -1,8 +1,9 @@
 """Which config produced an artifact: params hashes recorded in every flylib HDF5 file.
 
-Each stage artifact's ``meta`` records ``params_sha256``, the hash of the config
-subset that stage's result depends on (:meth:`flylib.config.Config.stage_params`,
-exactly what the workflow rule tracks as its ``params``), and
+Each stage artifact's ``meta`` records ``params_sha256``, the hash of the params
+that stage's result depends on (its inputs object's canonical params,
+:func:`flylib.pipeline.inputs.stage_params`: exactly what the workflow rule tracks as
+its ``params``), and
 ``upstream_params_sha256``, the hashes recorded in the artifacts it was built from.
 ``results.h5`` keeps each stage group's meta (so its hashes) and adds the assemble
 stage's own. From these :func:`provenance_report` tells
@@ -20,7 +21,7 @@ import json
 import os
 import socket
 import uuid
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -64,7 +65,7 @@ def params_hash(params: Mapping[str, Any]) -> str:
     Parameters
     ----------
     params
-        JSON-serialisable parameters, e.g. ``Config.stage_params("triangulation")``.
+        JSON-serialisable parameters, e.g. a stage's tracked params.
 
     Returns
     -------
@@ -76,17 +77,17 @@ def params_hash(params: Mapping[str, Any]) -> str:
 
 
 def stage_provenance(
-    config, stage: str, upstream: Mapping[str, str | Path | None] | None = None
+    params: Mapping[str, Any], stage: str, upstream: Mapping[str, str | Path | None] | None = None
 ) -> dict:
     """The provenance entries of a stage artifact's ``meta``.
 
     Parameters
     ----------
-    config
-        The stage's tracked params (its inputs object's ``canonical_params()``), or the
-        run's :class:`~flylib.config.Config` for a stage that has no inputs object yet.
+    params
+        The stage's tracked params (its inputs object's ``canonical_params()``, or
+        :func:`flylib.pipeline.inputs.stage_params`).
     stage
-        The stage (a :data:`flylib.config.PARAM_STAGES` name).
+        The stage (a :data:`flylib.config.PARAM_STAGES` name) the params are of.
     upstream
         ``upstream stage -> artifact path`` the stage read (``None`` entries skipped).
 
@@ -99,13 +100,17 @@ def stage_provenance(
     from .locking import held_outdir
     from .results import read_meta
 
+    if not isinstance(params, Mapping):
+        raise TypeError(
+            f"stage_provenance(params, {stage!r}, ...) takes the stage's params mapping "
+            f"(flylib.pipeline.inputs.stage_params(config, {stage!r})), not a "
+            f"{type(params).__name__}"
+        )
     writer = {"host": socket.gethostname(), "cwd": os.getcwd()}
     if held_outdir() is not None:
         writer["outdir"] = str(held_outdir())
     out: dict[str, Any] = {
-        PARAMS_KEY: params_hash(
-            config if isinstance(config, Mapping) else config.stage_params(stage)
-        ),
+        PARAMS_KEY: params_hash(params),
         ARTIFACT_ID_KEY: uuid.uuid4().hex[:16],
         WRITER_KEY: writer,
     }
@@ -207,8 +212,12 @@ def snapshot_beside(results: str | Path) -> Path | None:
     return None
 
 
+#: ``stage -> the params a config gives it`` (``None``: nothing to compare with).
+ParamsOf = Callable[[str], "Mapping[str, Any] | None"]
+
+
 def provenance_report(
-    results: str | Path, config=None, stages_dir: str | Path | None = None
+    results: str | Path, params_of: ParamsOf | None = None, stages_dir: str | Path | None = None
 ) -> list[ProvenanceRow]:
     """Check a results file's recorded params hashes for a stale or mixed state.
 
@@ -216,9 +225,11 @@ def provenance_report(
     ----------
     results
         A ``results.h5`` written by the assemble stage.
-    config
-        A :class:`~flylib.config.Config` to compare with (e.g. the snapshot beside the
-        file, or the config a re-run would use); ``None`` checks only consistency.
+    params_of
+        ``stage -> params`` of the config to compare with (e.g. the snapshot beside
+        the file, or the config a re-run would use), asked for each stage in the file
+        and ``assemble``: :func:`flylib.pipeline.planning.params_of`; ``None`` checks
+        only consistency.
     stages_dir
         The ``stages/`` directory the file was assembled from (default: beside it,
         when it exists); each artifact there must carry the hash the file holds.
@@ -241,7 +252,8 @@ def provenance_report(
         own = meta.get(PARAMS_KEY)
         problems: list[str] = []
         status = "unknown" if own is None else "ok"
-        expected = params_hash(config.stage_params(stage)) if config is not None else None
+        params = params_of(stage) if params_of is not None else None
+        expected = params_hash(params) if params is not None else None
         if expected is not None and own is not None and own != expected:
             status = "stale"
             problems.append(
@@ -297,19 +309,23 @@ def provenance_report(
     return rows
 
 
-def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> list[str]:
+def foreign_artifacts(
+    params_of: ParamsOf, recordings, *, cwd: str | Path | None = None
+) -> list[str]:
     """Artifacts another working directory's run wrote with other params.
 
     Snakemake tracks params per working directory: a run from another directory
     that wrote the same output directory with another config leaves artifacts this
     run's Snakemake takes as up to date ("Nothing to be done"). Each such artifact
     (its recorded writer's working directory differs from ``cwd`` and its params
-    hash from what ``config`` gives) is one line naming it and the fix.
+    hash from what the run's config gives) is one line naming it and the fix.
 
     Parameters
     ----------
-    config
-        The run's config.
+    params_of
+        ``stage -> the params the run's config gives it``, ``None`` for a stage the
+        run does not write (:func:`flylib.pipeline.planning.params_of` with
+        ``run_only=True``); asked for each stage artifact and ``assemble``.
     recordings
         The planned recordings (objects with an ``outdir``).
     cwd
@@ -325,13 +341,11 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
     from .results import ARTIFACTS, read_meta
 
     here = str(Path(cwd or os.getcwd()).resolve())
-    flags = config.stage_flags()
+    runs = [stage for stage in ARTIFACTS if params_of(stage) is not None]
     lines = []
     for rec in recordings:
         outdir = Path(rec.outdir)
-        files = {
-            stage: outdir / "stages" / name for stage, name in ARTIFACTS.items() if flags.get(stage)
-        }
+        files = {stage: outdir / "stages" / ARTIFACTS[stage] for stage in runs}
         files["assemble"] = outdir / "results.h5"
         for stage, path in files.items():
             if not path.is_file():
@@ -345,7 +359,7 @@ def foreign_artifacts(config, recordings, *, cwd: str | Path | None = None) -> l
             recorded = meta.get(PARAMS_KEY)
             if not writer.get("cwd") or recorded is None:
                 continue
-            expected = params_hash(config.stage_params(stage))
+            expected = params_hash(params_of(stage))
             written_in = writer.get("outdir")
             if written_in and Path(written_in) != outdir.resolve() and recorded != expected:
                 lines.append(

@@ -13,7 +13,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import yaml
@@ -23,8 +23,6 @@ from .paths import DEFAULT_CONFIG_PATH
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Int
-
-    from .config import Config
 
 _HEX_COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
 _SKELETON_KEYS = ("name", "point_names", "limb_points", "limb_palette")
@@ -110,6 +108,13 @@ def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
     return problems
 
 
+class HasSkeletonTable(Protocol):
+    """What :meth:`Skeleton.from_config` reads of a config: its ``skeleton`` table
+    (:meth:`flylib.config.Config.skeleton_table`)."""
+
+    def skeleton_table(self) -> Mapping: ...
+
+
 @dataclass(frozen=True, eq=False)
 class Skeleton:
     """An ordered set of tracked points with limb chains and a plotting palette.
@@ -157,8 +162,9 @@ class Skeleton:
         return cls.from_spec(default_skeleton_table())
 
     @classmethod
-    def from_config(cls, config: Config) -> Skeleton:
-        """Build the skeleton of a config's ``skeleton`` table.
+    def from_config(cls, config: HasSkeletonTable) -> Skeleton:
+        """Build the skeleton of a config's ``skeleton`` table (:meth:`from_spec` of
+        ``config.skeleton_table()``).
 
         Parameters
         ----------
@@ -175,11 +181,7 @@ class Skeleton:
         ConfigError
             If the config has no ``skeleton`` table or the table is invalid.
         """
-        if "skeleton" not in config.data:
-            raise ConfigError(
-                f"{config.source or 'config'}: no 'skeleton' table; add one or use Skeleton.fly()"
-            )
-        return cls.from_spec(config.data["skeleton"])
+        return cls.from_spec(config.skeleton_table())
 
     @classmethod
     def from_spec(cls, spec: Mapping) -> Skeleton:

@@ -12,7 +12,7 @@ from snakemake.logging import logger
 
 from flylib.config.layers import ConfigLayers
 from flylib.errors import FlylibError
-from flylib.interop import calibration_inputs as _calibration_files
+from flylib.pipeline.planning import calibration_inputs as _calibration_files
 from flylib.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
@@ -87,9 +87,10 @@ BY_OUTDIR = {str(r.outdir): r for r in RECORDINGS}
 
 # Artifacts another working directory's run wrote with other params (issue 13).
 if workflow.is_main_process:
+    from flylib.pipeline.planning import params_of  # noqa: E402
     from flylib.provenance import foreign_artifacts  # noqa: E402
 
-    for _line in foreign_artifacts(CONFIG, RECORDINGS):
+    for _line in foreign_artifacts(params_of(CONFIG, run_only=True), RECORDINGS):
         logger.warning(_line)
 
 

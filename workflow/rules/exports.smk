@@ -19,7 +19,7 @@ EXPORT_TARGETS = (
 )
 
 if EXPORTS.get("nwb"):
-    _nwb_problems = recordings_metadata_problems(CONFIG, EXPORT_RECORDINGS)
+    _nwb_problems = recordings_metadata_problems(CONFIG.data.get("nwb"), EXPORT_RECORDINGS)
     if _nwb_problems:
         stop_run("exports.nwb is on, but:\n  " + "\n  ".join(_nwb_problems))
 

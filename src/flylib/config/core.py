@@ -452,6 +452,20 @@ class Config:
         """
         return source_patterns(self)
 
+    def skeleton_table(self) -> dict:
+        """The ``skeleton`` table.
+
+        Raises
+        ------
+        ConfigError
+            If the config has none.
+        """
+        if "skeleton" not in self.data:
+            raise ConfigError(
+                f"{self.source or 'config'}: no 'skeleton' table; add one or use Skeleton.fly()"
+            )
+        return self.data["skeleton"]
+
     def skeleton(self) -> Skeleton:
         """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
         return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
@@ -472,7 +486,8 @@ class Config:
         """
         from ..cameras import CameraGroup
 
-        return CameraGroup.from_config(self, image_sizes=image_sizes)
+        defaults, specs = self.camera_table()
+        return CameraGroup.from_table(specs, defaults, image_sizes)
 
     # -- snapshot ----------------------------------------------------------------
 

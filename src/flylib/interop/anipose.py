@@ -31,15 +31,14 @@ from __future__ import annotations
 import logging
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
 from ..config.loading import MAX_NESTING, toml_dotted_line
-from ..errors import ConfigError, FootageError, ImportFormatError
+from ..errors import FootageError, ImportFormatError
 from ..paths import atomic_path
-from . import views as _views
 from .calib_checks import camera_value, image_size
 
 log = logging.getLogger(__name__)
@@ -180,16 +179,15 @@ def write_anipose_toml(
     return path
 
 
-def _resolve(path_text: str, recording_dir: Path | None, config) -> Path:
+def _resolve(path_text: str, recording_dir: Path | None, config_dir: Path | None) -> Path:
     path = Path(os.path.expanduser(str(path_text)))
     if path.is_absolute():
         return path
     bases = []
     if recording_dir is not None:
         bases.append(Path(recording_dir))
-    source = getattr(config, "source", None)
-    if source is not None:
-        bases.append(Path(source).parent)
+    if config_dir is not None:
+        bases.append(Path(config_dir))
     for base in bases:
         if (base / path).exists():
             return base / path
@@ -247,16 +245,16 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
     return index_csv.parent / unique[0]
 
 
-def _calibration_file(spec: dict, recording_dir: Path | None, config) -> Path:
+def _calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
     """The calibration file a ``calibration`` table names (through its index if any)."""
     if "index" in spec:
         return calibration_from_index(
-            _resolve(spec["index"], recording_dir, config), _session(spec, recording_dir)
+            _resolve(spec["index"], recording_dir, config_dir), _session(spec, recording_dir)
         )
-    return _resolve(spec["file"], recording_dir, config)
+    return _resolve(spec["file"], recording_dir, config_dir)
 
 
-def _session(spec: dict, recording_dir: Path | None) -> str:
+def _session(spec: Mapping, recording_dir: Path | None) -> str:
     session = spec.get("session") or (Path(recording_dir).name if recording_dir else None)
     if not session:
         raise ImportFormatError(
@@ -265,8 +263,13 @@ def _session(spec: dict, recording_dir: Path | None) -> str:
     return str(session)
 
 
-def calibration_inputs(config, recording_dir: Path | None = None) -> list[Path]:
-    """The files the config's ``calibration`` table reads for one recording.
+def calibration_inputs(
+    calibration: Mapping | None,
+    recording_dir: Path | None = None,
+    *,
+    config_dir: Path | None = None,
+) -> list[Path]:
+    """The files a ``calibration`` table reads for one recording.
 
     The workflow lists them as inputs of the rules that build the config rig, so
     editing a calibration file (or its ``calibrations.csv`` row) re-runs those stages.
@@ -275,10 +278,13 @@ def calibration_inputs(config, recording_dir: Path | None = None) -> list[Path]:
 
     Parameters
     ----------
-    config
-        The run's config.
+    calibration
+        The config's ``calibration`` table, or ``None``.
     recording_dir
         The recording (relative paths and the index session resolve against it).
+    config_dir
+        The config file's folder: where a relative path is looked up after the
+        recording's.
 
     Returns
     -------
@@ -286,30 +292,36 @@ def calibration_inputs(config, recording_dir: Path | None = None) -> list[Path]:
         ``[]`` without a ``calibration`` table; else the index CSV (if any) and the
         calibration file, those that exist.
     """
-    spec = _views.config_data(config).get("calibration")
-    if not isinstance(spec, dict) or not ({"file", "index"} & set(spec)):
+    spec = calibration
+    if not isinstance(spec, Mapping) or not ({"file", "index"} & set(spec)):
         return []
     files = []
     if "index" in spec:
-        files.append(_resolve(spec["index"], recording_dir, config))
+        files.append(_resolve(spec["index"], recording_dir, config_dir))
     try:
-        files.append(_calibration_file(spec, recording_dir, config))
+        files.append(_calibration_file(spec, recording_dir, config_dir))
     except ImportFormatError:
         pass
     return [f for f in dict.fromkeys(files) if f.is_file()]
 
 
 def load_calibration(
-    config,
+    calibration: Mapping | None,
+    views: Sequence[str] = (),
     recording_dir: Path | None = None,
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
+    *,
+    config_dir: Path | None = None,
 ):
-    """The camera rig from the config's ``calibration`` table (module docstring).
+    """The camera rig from a ``calibration`` table (module docstring).
 
     Parameters
     ----------
-    config
-        The run's :class:`flylib.config.Config`; its views are ``cameras`` in order.
+    calibration
+        The config's ``calibration`` table.
+    views
+        The views (the config's ``cameras`` in order); none: the file's cameras, in
+        the file's order.
     recording_dir
         The recording; relative paths may resolve against it, and it names the
         session for ``calibration.index``.
@@ -317,11 +329,14 @@ def load_calibration(
         ``view -> (height, width)`` of the recording's footage, checked against the
         sizes an Anipose file records (a lens calibrated at another resolution does
         not fit the footage).
+    config_dir
+        The config file's folder: where a relative path is looked up after the
+        recording's.
 
     Returns
     -------
     flylib.cameras.CameraGroup
-        One camera per configured view, in config order.
+        One camera per view, in ``views`` order.
 
     Raises
     ------
@@ -332,13 +347,13 @@ def load_calibration(
     """
     from ..cameras import CameraGroup
 
-    spec = _views.config_data(config).get("calibration")
-    if not isinstance(spec, dict) or not ({"file", "index"} & set(spec)):
+    spec = calibration
+    if not isinstance(spec, Mapping) or not ({"file", "index"} & set(spec)):
         raise ImportFormatError(
             f"config 'calibration' is {spec!r}; give {{file: path, format: anipose|deepfly3d}} "
             "or {index: calibrations.csv}"
         )
-    path = _calibration_file(spec, recording_dir, config)
+    path = _calibration_file(spec, recording_dir, config_dir)
     fmt = spec.get("format") or (
         "deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose"
     )
@@ -346,7 +361,7 @@ def load_calibration(
         raise ImportFormatError(
             f"calibration.format is {fmt!r}; use one of {list(CALIBRATION_FORMATS)}"
         )
-    views = _views.view_names(config, required=False)
+    views = list(views)
     names = spec.get("names") or {}
     if fmt == "anipose":
         cams = read_anipose_toml(path)
@@ -398,34 +413,6 @@ def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> 
                 f"{calibrated[0]}x{calibrated[1]} px (width x height); use that camera's "
                 "original footage or a calibration made at this resolution"
             )
-
-
-def config_rig(
-    config,
-    image_sizes: Mapping[str, tuple[int, int]] | None = None,
-    recording_dir: str | Path | None = None,
-):
-    """The rig the config describes: its ``calibration`` file when set, else the orbit
-    parameters of ``cameras`` (principal points from ``image_sizes`` where not given).
-
-    Raises
-    ------
-    ConfigError
-        For a stage's view of the config (:class:`~flylib.pipeline.tracked.StageConfig`)
-        whose rig comes from the bundle-adjustment artifact (bundle adjustment is on), so
-        that its rule does not track the config rig.
-    """
-    tracks = getattr(config, "tracks", None)
-    if tracks is not None and not tracks("cameras"):
-        raise ConfigError(
-            f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
-            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off"
-        )
-    if config.data.get("calibration"):
-        return load_calibration(
-            config, Path(recording_dir) if recording_dir else None, image_sizes=image_sizes
-        )
-    return config.camera_group(image_sizes=dict(image_sizes or {}))
 
 
 def calibration_image_sizes(path: Path) -> dict[str, tuple[int, int]]:

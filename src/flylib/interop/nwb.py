@@ -528,7 +528,9 @@ def export_nwb(
     from ..results import PoseResult
     from .views import footage_files
 
-    metadata = recording_metadata(config, recording_dir, demo=demo, extra=extra_metadata)
+    metadata = recording_metadata(
+        config.data.get("nwb"), recording_dir, demo=demo, extra=extra_metadata
+    )
     result = PoseResult.load(results_path)
     footage = footage_files(config, Path(recording_dir)) if recording_dir is not None else {}
     missing = [v for v in result.cameras.names if not footage.get(v)]

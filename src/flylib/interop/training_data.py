@@ -24,8 +24,9 @@ error, the corrected geometry's answer); empty otherwise (the view does not see 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -97,7 +98,7 @@ def export_training_data(
     results: str | Path,
     directory: str | Path,
     *,
-    config: Any = None,
+    footage_of: Callable[[Path], Mapping[str, Sequence[Path]]] | None = None,
     recording: str | Path | None = None,
     scorer: str = "flylib",
 ) -> list[Path]:
@@ -110,8 +111,10 @@ def export_training_data(
         save in ``flylib gui``).
     directory
         A DeepLabCut project folder (or any folder): ``labeled-data/`` is made in it.
-    config
-        The run's config; default the snapshot beside ``results.h5``, else flylib's default.
+    footage_of
+        ``recording directory -> {view: footage files}`` (the run's sources matched
+        in it: :func:`flylib.interop.views.footage_files` of the run's config); asked
+        only once the result holds corrected frames. ``None``: no footage is found.
     recording
         The recording directory (its footage); default the one ``results.h5`` names.
     scorer
@@ -131,10 +134,8 @@ def export_training_data(
     """
     import cv2
 
-    from ..config import Config
     from ..io import open_reader
     from ..results import PoseResult, open_checked
-    from .views import footage_files
 
     results = Path(results)
     result = PoseResult.load(results)
@@ -154,11 +155,9 @@ def export_training_data(
             f"{results}: no frame was corrected; correct frames in `flylib gui {results}`, "
             "save, run snakemake, then export the training data"
         )
-    if config is None:
-        config = Config.of_outputs(results.parent)
     recording = Path(recording) if recording else Path(result.meta.get("recording") or "")
     views = list(result.cameras.names)
-    footage = footage_files(config, recording) if recording.is_dir() else {}
+    footage = footage_of(recording) if footage_of is not None and recording.is_dir() else {}
     missing = [v for v in views if not footage.get(v)]
     if missing:
         raise FootageError(

@@ -204,36 +204,33 @@ class RigSpec:
             "calibration": _json(self.calibration) if self.calibration else None,
         }
 
-    def _config(self) -> Config:
-        # The rig readers still take a config-shaped table; this is the one place that
-        # makes one, from the tracked rig alone. The tracked tables have their keys
-        # sorted: the views (the V axis) give the cameras' order back.
-        cameras = _json(self.cameras)
-        rank = {name: i for i, name in enumerate(("defaults", *self.views))}
-        data: dict[str, Any] = {
-            "cameras": {
-                k: cameras[k] for k in sorted(cameras, key=lambda k: rank.get(k, len(rank)))
-            }
-        }
-        if not any(view in cameras for view in self.views):  # a calibration rig's views
-            data["pose2d"] = {"output_points": {view: None for view in self.views}}
-        if self.calibration:
-            data["calibration"] = _json(self.calibration)
-        config = Config.__new__(Config)
-        config.data, config.text, config.format = data, None, "yaml"
-        config.source = self.config_dir / "config.yaml" if self.config_dir else None
-        return config
-
     def camera_group(
         self,
         image_sizes: Mapping[str, tuple[int, int]] | None = None,
         recording_dir: str | Path | None = None,
     ):
-        """The :class:`~flylib.cameras.CameraGroup`: the calibration file's when set,
-        else the orbit rig of ``cameras`` (principal points from ``image_sizes``)."""
-        from ..interop.anipose import config_rig
+        """The :class:`~flylib.cameras.CameraGroup`: the calibration file's when set
+        (:func:`flylib.interop.anipose.load_calibration`), else the orbit rig of
+        ``cameras`` (:meth:`~flylib.cameras.CameraGroup.from_table`, principal points
+        from ``image_sizes``), one camera per view in :attr:`views` order."""
+        if self.calibration:
+            from ..interop.anipose import load_calibration
 
-        return config_rig(self._config(), image_sizes, recording_dir)
+            return load_calibration(
+                _json(self.calibration),
+                self.views,
+                Path(recording_dir) if recording_dir else None,
+                image_sizes=image_sizes,
+                config_dir=self.config_dir,
+            )
+        from ..cameras import CameraGroup
+
+        cameras = _json(self.cameras)
+        defaults = cameras.pop("defaults", {}) or {}
+        # the tracked params hold the table with sorted keys: the views give the order back
+        specs = {view: cameras[view] for view in self.views if view in cameras}
+        specs.update({name: spec for name, spec in cameras.items() if name not in specs})
+        return CameraGroup.from_table(specs, defaults, dict(image_sizes or {}))
 
 
 @dataclass(frozen=True)

@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import FlylibError, ResultsError, StageError, one_line
-from ..interop.anipose import config_rig
 from ..paths import atomic_path
+from .planning import config_rig, tracked_params
 from .tracked import StageConfig, UntrackedConfigRead
 
 log = logging.getLogger(__name__)
@@ -190,7 +190,7 @@ def _provenance(config, stage: str, **upstream) -> dict:
     """The params hash of ``stage`` and those of the artifacts it read (meta entries)."""
     from ..provenance import stage_provenance
 
-    return stage_provenance(config, stage, upstream)
+    return stage_provenance(tracked_params(config, stage), stage, upstream)
 
 
 #: What to check when a numerical stage fails on a recording's data, per stage.
@@ -284,9 +284,7 @@ def run_pose2d(
         data = detect_recording(
             config, sources, want_candidates=candidates_path is not None, progress=progress
         )
-    from ..provenance import stage_provenance
-
-    provenance = stage_provenance(config, "pose2d")
+    provenance = _provenance(config, "pose2d")
     candidates, data.candidates = data.candidates, None
     if candidates is not None:
         from ..results import save_candidates
