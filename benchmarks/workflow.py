@@ -93,6 +93,7 @@ def bench_planning(n: int) -> dict:
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.inputs import stage_inputs
 
     p2d = stages.artifact_path(out, "pose2d")
     ba = stages.artifact_path(out, "bundle_adjustment")
@@ -101,13 +102,15 @@ def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     stages.run_bundle_adjustment(config, p2d, ba, recording_dir=rec_dir)
     stages.run_triangulation(config, p2d, tri, ba_path=ba, recording_dir=rec_dir)
     stages.run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri},
         out,
         recording_dir=rec_dir,
         truth_path=truth,
     )
-    stages.run_visualization(config, out / "results.h5", rec_dir, out)
+    stages.run_visualization(
+        stage_inputs(config, "visualization"), out / "results.h5", rec_dir, out
+    )
 
 
 def bench_overhead(frames: int) -> dict:

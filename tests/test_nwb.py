@@ -25,8 +25,10 @@ from flylib.cli import main
 from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.interop.exports import points3d_table, write_dlc_views, write_points3d_csv
-from flylib.interop.nwb import confidence_3d, export_nwb, write_nwb
+from flylib.interop.nwb import confidence_3d, write_nwb
 from flylib.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
+from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
+from flylib.pipeline.inputs import stage_inputs
 from flylib.results import PoseResult
 
 FRAMES = 40  # >= the 38 points, so every (time, point) series is time-major
@@ -37,8 +39,9 @@ BLANKED = [(3, 0), (3, 5), (17, 12), (39, 37)]  # (frame, point) 3D points set t
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
     """A demo recording run through pose2d (DLC import) and triangulation; its results.h5."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.demo import make_demo
 
     config = Config.default()
     root = tmp_path_factory.mktemp("nwb")
@@ -55,7 +58,7 @@ def demo_result(tmp_path_factory):
         recording_dir=recording,
     )
     stages.run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",
             "triangulation": out / "stages" / "triangulation.h5",
@@ -78,8 +81,11 @@ def demo_result(tmp_path_factory):
 @pytest.fixture(scope="module")
 def nwb_file(demo_result):
     path = demo_result["recording"] / "flylib_outputs" / "results.nwb"
-    export_nwb(
-        demo_result["config"], demo_result["results"], path, recording_dir=demo_result["recording"]
+    run_export_nwb(
+        NwbExportInputs.from_config(demo_result["config"]),
+        demo_result["results"],
+        path,
+        recording_dir=demo_result["recording"],
     )
     return path
 
@@ -291,8 +297,8 @@ def test_missing_metadata_is_one_error_naming_every_key_before_reading_results(t
     assert "experimenter" not in message.split("needs:")[1] and "subject.sex" not in message
     # the export checks the metadata before it opens the (here missing) results file
     with pytest.raises(ConfigError, match="session_start_time"):
-        export_nwb(
-            Config.default(),
+        run_export_nwb(
+            NwbExportInputs.from_config(Config.default()),
             tmp_path / "missing_results.h5",
             tmp_path / "x.nwb",
             recording_dir=recording,

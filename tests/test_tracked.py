@@ -16,6 +16,7 @@ import pytest
 from flylib.config import PARAM_STAGES, Config
 from flylib.errors import ConfigError
 from flylib.pipeline import stages
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.tracked import (
     UNTRACKED,
     StageConfig,
@@ -228,7 +229,8 @@ def _same(a, b):
 @pytest.fixture(scope="module")
 def base_run(tmp_path_factory):
     """A tiny demo recording and every stage's artifact from the default config."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
 
     root = tmp_path_factory.mktemp("tracked")
     data = Config.default().data
@@ -249,7 +251,7 @@ def base_run(tmp_path_factory):
         config, p2d, tri, out / "stages" / "refinement.h5", ba_path=ba, recording_dir=rec
     )
     files = {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri, "refinement": ref}
-    stages.run_assemble(config, files, out, recording_dir=rec)
+    stages.run_assemble(stage_inputs(config, "assemble"), files, out, recording_dir=rec)
     stages.run_kinematics(config, out / "results.h5", out)
     stages.run_neuromechfly(config, out / "results.h5", out)
     artifacts = {
@@ -302,7 +304,7 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
             recording_dir=rec,
         ),
         "assemble": lambda: (
-            stages.run_assemble(other, upstream, out, recording_dir=rec),
+            stages.run_assemble(stage_inputs(other, "assemble"), upstream, out, recording_dir=rec),
             out / "results.h5",
         )[1],
         "kinematics": lambda: (
