@@ -152,3 +152,46 @@ def test_demo_settings_are_checked():
         demo_settings({"frame": 10})
     with pytest.raises(ConfigError, match="demo.dropout"):
         demo_settings({"dropout": 1.5})
+
+
+def test_the_demo_job_reads_what_its_rule_tracked_before_and_rebuilds_it_from_that():
+    """The demo rule's params: its settings, sources, the assemble stage's rig and
+    skeleton and the output points, as the rule wrote them before the inputs objects
+    (the assemble params from tests/data/stage_params_golden.json); a job rebuilds the
+    same inputs from that JSON."""
+    import copy
+    import json
+    import pickle
+    from pathlib import Path
+
+    from flylib.pipeline.demo import DemoInputs
+
+    golden = json.loads((Path(__file__).parent / "data" / "stage_params_golden.json").read_text())
+    for name in ("default", "ba_off", "calibration_file", "corrupt_missing"):
+        data = copy.deepcopy(golden["base"])
+        for path, value in golden["variants"][name]["edits"]:
+            node = data
+            *parents, last = path.split(".")
+            for key in parents:
+                node = node.setdefault(key, {})
+            node[last] = value
+        data["demo"] = {"frames": 7, "noise_px": 0.5}
+        assemble = golden["variants"][name]["params"]["assemble"]
+        before = json.dumps(
+            {
+                "demo": {**DEMO_DEFAULTS, "frames": 7, "noise_px": 0.5},
+                "sources": data.get("sources"),
+                "rig": assemble["rig"],
+                "skeleton": assemble["skeleton"],
+                "output_points": data["pose2d"].get("output_points"),
+            },
+            sort_keys=True,
+        )
+        inputs = DemoInputs.from_config(Config.from_dict(data))
+        assert inputs.rule_params() == before, name
+        rebuilt = DemoInputs.from_params(json.loads(inputs.rule_params()), inputs.runtime)
+        assert rebuilt == inputs and pickle.loads(pickle.dumps(inputs)) == inputs, name
+    data = copy.deepcopy(golden["base"])
+    del data["skeleton"]
+    with pytest.raises(ConfigError, match="no 'skeleton' table"):
+        DemoInputs.from_config(Config.from_dict(data))

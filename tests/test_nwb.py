@@ -8,6 +8,7 @@ triangulated by flylib's own stages, with a few 3D points blanked so NaN is exer
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from datetime import UTC, datetime
@@ -644,3 +645,36 @@ def test_demo_needs_no_metadata_to_plan_its_export(tmp_path):
     config = base_config()  # the embedded demo, not generated yet
     config["exports"] = {"nwb": True}
     assert ("export_nwb", "demo") in planned(tmp_path, config)
+
+
+def test_the_export_job_reads_the_session_metadata_its_rule_tracks(tmp_path):
+    """The export rule's params are the exports and nwb tables as JSON (YAML's
+    date-times as text); the job rebuilt from them gets the same session metadata as
+    the config's own tables."""
+    from datetime import timedelta, timezone
+
+    from flylib.pipeline.export_nwb import session_metadata
+
+    data = copy.deepcopy(Config.default().data)
+    data["exports"] = {"nwb": True}
+    data["nwb"] = {
+        "session_start_time": datetime(2024, 5, 1, 14, 3, 7, 250, timezone(timedelta(hours=2))),
+        "experimenter": ["Doe, Jane"],
+        "subject": {"subject_id": "fly7", "sex": "F", "age": "P3D"},
+    }
+    inputs = NwbExportInputs.from_config(Config.from_dict(data))
+    tracked = inputs.rule_params()
+    assert tracked == json.dumps(
+        {"exports": data["exports"], "nwb": data["nwb"]}, sort_keys=True, default=str
+    )
+    rebuilt = NwbExportInputs.from_params(json.loads(tracked), inputs.runtime)
+    assert rebuilt.runtime.config_text == Config.from_dict(data).snapshot_text()
+    recording = tmp_path / "fly7"
+    recording.mkdir()
+    from flylib.nwb_metadata import parse_datetime
+
+    job, direct = session_metadata(rebuilt, recording), session_metadata(inputs, recording)
+    start = data["nwb"]["session_start_time"]
+    assert parse_datetime(job.pop("session_start_time"), "job") == start
+    assert parse_datetime(direct.pop("session_start_time"), "direct") == start
+    assert job == direct
