@@ -38,7 +38,11 @@ from flylib.results import Pose2dData, PoseResult, assemble_results, write_stage
 
 def visibility(config: Config) -> np.ndarray:
     """``(V, P)``: which (view, point) the default detection plan fills."""
-    return view_visibility(config, config.view_names(), list(config.skeleton().point_names))
+    return view_visibility(
+        (config.data.get("pose2d") or {}).get("output_points"),
+        config.view_names(),
+        list(config.skeleton().point_names),
+    )
 
 
 def make_arrays(config: Config, n_frames: int, kind: str, rng: np.random.Generator) -> dict:

@@ -42,12 +42,17 @@ def _pose2d(config, path: Path, frames: int) -> tuple[int, int, int]:
     points = list(skeleton.point_names)
     order = [list(FLY38_POINT_NAMES).index(p) for p in points]
     pts3d = synthetic_fly(frames, 0)[:, order]
-    settings = demo_settings({"demo": {"frames": frames}})
+    settings = demo_settings({"frames": frames})
     size = (settings["height"], settings["width"])
     views = config.view_names()
     cameras = CameraGroup.from_config(config, image_sizes={v: size for v in views})
     clean = np.asarray(cameras.project(pts3d), dtype=np.float64)
-    pts2d, conf = observe(clean, view_visibility(config, views, points), settings, size)
+    pts2d, conf = observe(
+        clean,
+        view_visibility((config.data.get("pose2d") or {}).get("output_points"), views, points),
+        settings,
+        size,
+    )
     Pose2dData(pts2d=pts2d, conf=conf, view_names=views, image_sizes={v: size for v in views}).save(
         path, skeleton, meta=stage_provenance(stage_params(config, "pose2d"), "pose2d")
     )

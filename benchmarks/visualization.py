@@ -88,17 +88,19 @@ def throughput() -> None:
     n_frames = open_reader(footage[views[0]]).count()
     _, result = make_result(n_frames)
     with tempfile.TemporaryDirectory() as tmp:
-        render_videos(config, make_result(4)[1], footage, Path(tmp) / "warm", progress=False)
+        render_videos(
+            config.visualization, make_result(4)[1], footage, Path(tmp) / "warm", progress=False
+        )
         t_decode = decode_only(footage)
         cpu0, start = cpu_seconds(), time.perf_counter()
-        render_videos(config, result, footage, Path(tmp) / "one", progress=False)
+        render_videos(config.visualization, result, footage, Path(tmp) / "one", progress=False)
         t_one = time.perf_counter() - start
         cpu_one = cpu_seconds() - cpu0
         start = time.perf_counter()
         for k in range(len(config.data["visualization"]["videos"])):
             data = copy.deepcopy(config.data)
             data["visualization"]["videos"] = [data["visualization"]["videos"][k]]
-            render_videos(data, result, footage, Path(tmp) / "sep", progress=False)
+            render_videos(data["visualization"], result, footage, Path(tmp) / "sep", progress=False)
         t_sep = time.perf_counter() - start
     n_videos = len(config.data["visualization"]["videos"])
     montage_fps = n_frames * n_videos / t_one
@@ -149,7 +151,7 @@ def memory_child(n_frames: int, clip: Path) -> None:
     with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         start = time.perf_counter()
-        render_videos(config, result, {v: [clip] for v in views}, tmp, progress=False)
+        render_videos(config.visualization, result, {v: [clip] for v in views}, tmp, progress=False)
         seconds = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     print(

@@ -106,13 +106,15 @@ def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
         stage_inputs(config, "triangulation"), p2d, tri, ba_path=ba, recording_dir=rec_dir
     )
     stages.run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri},
         out,
         recording_dir=rec_dir,
         truth_path=truth,
     )
-    stages.run_visualization(config, out / "results.h5", rec_dir, out)
+    stages.run_visualization(
+        stage_inputs(config, "visualization"), out / "results.h5", rec_dir, out
+    )
 
 
 def bench_overhead(frames: int) -> dict:

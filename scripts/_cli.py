@@ -18,6 +18,7 @@ Every script runs two ways with the same argument parser:
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -117,7 +118,7 @@ def script_main(
     *,
     job: Any = None,
     outdir: Callable[[argparse.Namespace], str | Path] | None = None,
-    stage: str | None = None,
+    stage: str | type | None = None,
 ) -> int:
     """Parse the arguments (from ``argv``, or from the Snakemake ``job``), load the
     config, and run a stage under the thread budget; a user-facing error is printed as
@@ -127,7 +128,9 @@ def script_main(
     stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
     a second run writing the same directory fails naming the holder.
 
-    With ``stage``, ``run`` gets the stage's inputs object instead of the config.
+    With ``stage``, ``run`` gets the stage's inputs object instead of the config: a
+    stage name, or the inputs class of a rule outside the params stages (the demo,
+    the NWB export), whose ``params.stage`` is that class's params as JSON.
     """
     if job is not None:
         parser.prog = f"{job.rule}.py"
@@ -160,13 +163,17 @@ def script_main(
     return 0
 
 
-def _stage_config(args: argparse.Namespace, job: Any, stage: str | None) -> Any:
+def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) -> Any:
     """What a stage runs on: its inputs object when ``stage`` is given (from the job's
     params, or built from ``--config``), else the run's config."""
     from flylib.config import Config
 
     if stage is None:
         return job.params.config if job is not None else Config.from_file(args.config)
+    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
+        if job is not None:
+            return stage.from_params(json.loads(job.params.stage), job.params.runtime)
+        return stage.from_config(Config.from_file(args.config))
     from flylib.pipeline.inputs import inputs_from_job, stage_inputs
 
     if job is not None:

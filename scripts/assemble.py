@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from flylib.pipeline.artifacts import ARTIFACTS
-from flylib.pipeline.stages import run_assemble
+from flylib.pipeline.assemble import run_assemble
 
 from _cli import run_script, script_main, script_parser
 
@@ -33,15 +33,26 @@ def main(argv=None, *, job=None) -> int:
         "(e.g. <outdir>/config.yaml)",
     )
 
-    def run(args, config):
+    def snapshot_text(args) -> str | None:
+        """The run's config text: the rule's ``params.config_text``, or --config's."""
+        if args.snapshot is None:
+            return None
+        if job is not None:
+            return job.params.config_text
+        from flylib.config import Config
+
+        return Config.from_file(args.config).snapshot_text()
+
+    def run(args, inputs):
         files = {stage: getattr(args, stage) for stage in ARTIFACTS}
         summary = run_assemble(
-            config,
+            inputs,
             files,
             args.outdir,
             recording_dir=args.recording,
             truth_path=args.truth,
             snapshot_path=args.snapshot,
+            snapshot_text=snapshot_text(args),
         )
         error = summary.get("error_vs_truth")
         if error:
@@ -62,7 +73,9 @@ def main(argv=None, *, job=None) -> int:
                 file=sys.stderr,
             )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
+    return script_main(
+        parser, run, argv, job=job, stage="assemble", outdir=lambda args: args.outdir
+    )
 
 
 if __name__ == "__main__":

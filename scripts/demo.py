@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_demo
+from flylib.pipeline.demo import DemoInputs, run_demo
 
 from _cli import run_script, script_main, script_parser
 
@@ -11,7 +11,9 @@ from _cli import run_script, script_main, script_parser
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--out", required=True, type=Path, help="demo recording directory to write")
-    return script_main(parser, lambda args, config: run_demo(config, args.out), argv, job=job)
+    return script_main(
+        parser, lambda args, inputs: run_demo(inputs, args.out), argv, job=job, stage=DemoInputs
+    )
 
 
 if __name__ == "__main__":

@@ -4,6 +4,8 @@ metadata of the config's nwb table and the recording's nwb.yaml."""
 
 from pathlib import Path
 
+from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
+
 from _cli import run_script, script_main, script_parser
 
 
@@ -29,11 +31,9 @@ def main(argv=None, *, job=None) -> int:
         help="the recording is the embedded demo (its synthetic session metadata applies)",
     )
 
-    def run(args, config):
-        from flylib.interop.nwb import export_nwb
-
-        export_nwb(
-            config,
+    def run(args, inputs):
+        run_export_nwb(
+            inputs,
             args.results,
             args.output,
             recording_dir=args.recording,
@@ -41,7 +41,9 @@ def main(argv=None, *, job=None) -> int:
             angles_path=args.angles,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: args.output.parent)
+    return script_main(
+        parser, run, argv, job=job, stage=NwbExportInputs, outdir=lambda args: args.output.parent
+    )
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from flylib.pipeline.stages import run_visualization
+from flylib.pipeline.visualization import run_visualization
 
 from _cli import run_script, script_main, script_parser
 
@@ -22,9 +22,9 @@ def main(argv=None, *, job=None) -> int:
         help="play the videos at this multiple of the recording's rate when the config sets none",
     )
 
-    def run(args, config):
+    def run(args, inputs):
         run_visualization(
-            config,
+            inputs,
             args.results,
             args.recording,
             args.outdir,
@@ -32,7 +32,9 @@ def main(argv=None, *, job=None) -> int:
             speed=args.speed,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: args.outdir)
+    return script_main(
+        parser, run, argv, job=job, stage="visualization", outdir=lambda args: args.outdir
+    )
 
 
 if __name__ == "__main__":

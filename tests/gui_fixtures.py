@@ -12,12 +12,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from flylib.pipeline.inputs import stage_inputs
+
 
 def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
     from flylib.config import Config
-    from flylib.demo import demo_import_spec, make_demo
-    from flylib.pipeline.inputs import stage_inputs
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.stages import run_assemble, run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
 
@@ -36,7 +38,7 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
         recording_dir=directory,
     )
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",
             "triangulation": out / "stages" / "triangulation.h5",

@@ -27,7 +27,9 @@ def rig_visibility(view_names, point_names=POINT_NAMES) -> np.ndarray:
     """``(V, P)`` bool: which point each view observes in the default rig (its
     ``pose2d.output_points`` tables); a view the default config does not name sees
     every point."""
-    return view_visibility(Config.default(), list(view_names), list(point_names))
+    return view_visibility(
+        Config.default().data["pose2d"].get("output_points"), list(view_names), list(point_names)
+    )
 
 
 def project_opencv(cameras, pts3d: np.ndarray) -> np.ndarray:

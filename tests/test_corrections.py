@@ -9,6 +9,7 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
 from flylib.errors import ConfigError, ResultsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_assemble, run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, PoseResult, read_stage
@@ -119,7 +120,7 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
     )
     # assembled: the marks travel into results.h5
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": outdir / "stages" / "pose2d.h5", "triangulation": out},
         tmp_path / "assembled",
     )

@@ -12,12 +12,12 @@ from flylib.demo import (
     demo_error,
     demo_settings,
     load_truth,
-    make_demo,
     observe,
     synthetic_fly,
     view_visibility,
 )
 from flylib.errors import ConfigError
+from flylib.pipeline.demo import make_demo
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +91,7 @@ def test_observe_adds_the_configured_corruption():
 
 def test_visibility_follows_output_points(config):
     views, points = config.view_names(), list(config.skeleton().point_names)
-    vis = view_visibility(config, views, points)
+    vis = view_visibility((config.data.get("pose2d") or {}).get("output_points"), views, points)
     front = views.index("f")
     assert vis[front].sum() == len(config.data["pose2d"]["output_points"]["f"])
     assert not vis[views.index("rh"), points.index("lf_claw")]
@@ -111,7 +111,11 @@ def test_demo_files_round_trip_through_the_dlc_import(config, demo):
     # imported 2D = truth + noise (+ rare outliers); unobserved points stay NaN
     err = np.linalg.norm(imported.pts2d - truth["points2d"], axis=-1)
     assert np.nanmedian(err) < 3.0
-    visible = view_visibility(config, config.view_names(), list(config.skeleton().point_names))
+    visible = view_visibility(
+        (config.data.get("pose2d") or {}).get("output_points"),
+        config.view_names(),
+        list(config.skeleton().point_names),
+    )
     assert np.isnan(imported.pts2d[~np.broadcast_to(visible[:, None], err.shape)]).all()
 
 
@@ -143,8 +147,51 @@ def test_demo_error_scores_against_the_truth():
 
 
 def test_demo_settings_are_checked():
-    assert demo_settings({"demo": {"frames": 10}})["frames"] == 10
+    assert demo_settings({"frames": 10})["frames"] == 10
     with pytest.raises(ConfigError, match="unknown"):
-        demo_settings({"demo": {"frame": 10}})
+        demo_settings({"frame": 10})
     with pytest.raises(ConfigError, match="demo.dropout"):
-        demo_settings({"demo": {"dropout": 1.5}})
+        demo_settings({"dropout": 1.5})
+
+
+def test_the_demo_job_reads_what_its_rule_tracked_before_and_rebuilds_it_from_that():
+    """The demo rule's params: its settings, sources, the assemble stage's rig and
+    skeleton and the output points, as the rule wrote them before the inputs objects
+    (the assemble params from tests/data/stage_params_golden.json); a job rebuilds the
+    same inputs from that JSON."""
+    import copy
+    import json
+    import pickle
+    from pathlib import Path
+
+    from flylib.pipeline.demo import DemoInputs
+
+    golden = json.loads((Path(__file__).parent / "data" / "stage_params_golden.json").read_text())
+    for name in ("default", "ba_off", "calibration_file", "corrupt_missing"):
+        data = copy.deepcopy(golden["base"])
+        for path, value in golden["variants"][name]["edits"]:
+            node = data
+            *parents, last = path.split(".")
+            for key in parents:
+                node = node.setdefault(key, {})
+            node[last] = value
+        data["demo"] = {"frames": 7, "noise_px": 0.5}
+        assemble = golden["variants"][name]["params"]["assemble"]
+        before = json.dumps(
+            {
+                "demo": {**DEMO_DEFAULTS, "frames": 7, "noise_px": 0.5},
+                "sources": data.get("sources"),
+                "rig": assemble["rig"],
+                "skeleton": assemble["skeleton"],
+                "output_points": data["pose2d"].get("output_points"),
+            },
+            sort_keys=True,
+        )
+        inputs = DemoInputs.from_config(Config.from_dict(data))
+        assert inputs.rule_params() == before, name
+        rebuilt = DemoInputs.from_params(json.loads(inputs.rule_params()), inputs.runtime)
+        assert rebuilt == inputs and pickle.loads(pickle.dumps(inputs)) == inputs, name
+    data = copy.deepcopy(golden["base"])
+    del data["skeleton"]
+    with pytest.raises(ConfigError, match="no 'skeleton' table"):
+        DemoInputs.from_config(Config.from_dict(data))

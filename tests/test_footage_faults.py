@@ -186,8 +186,9 @@ def test_detector_fails_on_a_truncated_video(tmp_path):
 
 def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
     from flylib.config import Config
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
     from flylib.interop import import_points2d
+    from flylib.pipeline.demo import make_demo
 
     config = Config.default()
     make_demo(config, tmp_path, frames=6, seed=0)
@@ -245,5 +246,5 @@ def test_visualization_errors_when_footage_and_result_differ_in_length(tmp_path,
         match=rf"^{tmp_path / 'rm.mp4'}: footage of view 'rm' has "
         rf"{n_footage if n_footage < 6 else 'more'} frames but the result has 6",
     ):
-        render_videos(config, result, footage, tmp_path / "out", progress=False)
+        render_videos(config.visualization, result, footage, tmp_path / "out", progress=False)
     assert not list((tmp_path / "out").glob("*.mp4"))

@@ -20,6 +20,7 @@ import yaml
 from flylib.cli import main as flylib_main
 from flylib.config import Config
 from flylib.errors import OutputError, ResultsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.planning import params_of
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import (
@@ -268,7 +269,8 @@ def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig
 
 def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     """Import the demo's 2D for a 6-frame recording, triangulate, assemble."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.stages import run_assemble, run_inputs, run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
 
@@ -285,7 +287,7 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
         recording_dir=recording,
     )
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",
             "triangulation": out / "stages" / "triangulation.h5",
@@ -293,6 +295,7 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
         out,
         recording_dir=recording,
         snapshot_path=out / "config.yaml",
+        snapshot_text=config.snapshot_text(),
     )
     return recording, out
 
@@ -367,7 +370,7 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
 
     run_pose2d(other, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(other))
     run_assemble(
-        other,
+        stage_inputs(other, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",
             "triangulation": out / "stages" / "triangulation.h5",
@@ -398,7 +401,8 @@ def _snakemake(
 
 @pytest.mark.slow
 def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
 
     data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     data["pipeline"].update(do_bundle_adjustment=False, do_visualization=False)
@@ -498,7 +502,8 @@ _HOLDER = textwrap.dedent("""
 
 def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     config = _config(tmp_path, "config.yaml")
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.stages import run_pose2d
 
     recording = tmp_path / "rec"

@@ -8,6 +8,7 @@ triangulated by flylib's own stages, with a few 3D points blanked so NaN is exer
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from datetime import UTC, datetime
@@ -25,8 +26,10 @@ from flylib.cli import main
 from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.interop.exports import points3d_table, write_dlc_views, write_points3d_csv
-from flylib.interop.nwb import confidence_3d, export_nwb, write_nwb
+from flylib.interop.nwb import confidence_3d, write_nwb
 from flylib.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
+from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
+from flylib.pipeline.inputs import stage_inputs
 from flylib.results import PoseResult
 
 FRAMES = 40  # >= the 38 points, so every (time, point) series is time-major
@@ -37,8 +40,9 @@ BLANKED = [(3, 0), (3, 5), (17, 12), (39, 37)]  # (frame, point) 3D points set t
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
     """A demo recording run through pose2d (DLC import) and triangulation; its results.h5."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.triangulation import run_triangulation
 
     config = Config.default()
@@ -56,7 +60,7 @@ def demo_result(tmp_path_factory):
         recording_dir=recording,
     )
     stages.run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",
             "triangulation": out / "stages" / "triangulation.h5",
@@ -79,8 +83,11 @@ def demo_result(tmp_path_factory):
 @pytest.fixture(scope="module")
 def nwb_file(demo_result):
     path = demo_result["recording"] / "flylib_outputs" / "results.nwb"
-    export_nwb(
-        demo_result["config"], demo_result["results"], path, recording_dir=demo_result["recording"]
+    run_export_nwb(
+        NwbExportInputs.from_config(demo_result["config"]),
+        demo_result["results"],
+        path,
+        recording_dir=demo_result["recording"],
     )
     return path
 
@@ -292,8 +299,8 @@ def test_missing_metadata_is_one_error_naming_every_key_before_reading_results(t
     assert "experimenter" not in message.split("needs:")[1] and "subject.sex" not in message
     # the export checks the metadata before it opens the (here missing) results file
     with pytest.raises(ConfigError, match="session_start_time"):
-        export_nwb(
-            Config.default(),
+        run_export_nwb(
+            NwbExportInputs.from_config(Config.default()),
             tmp_path / "missing_results.h5",
             tmp_path / "x.nwb",
             recording_dir=recording,
@@ -637,3 +644,36 @@ def test_demo_needs_no_metadata_to_plan_its_export(tmp_path):
     config = base_config()  # the embedded demo, not generated yet
     config["exports"] = {"nwb": True}
     assert ("export_nwb", "demo") in planned(tmp_path, config)
+
+
+def test_the_export_job_reads_the_session_metadata_its_rule_tracks(tmp_path):
+    """The export rule's params are the exports and nwb tables as JSON (YAML's
+    date-times as text); the job rebuilt from them gets the same session metadata as
+    the config's own tables."""
+    from datetime import timedelta, timezone
+
+    from flylib.pipeline.export_nwb import session_metadata
+
+    data = copy.deepcopy(Config.default().data)
+    data["exports"] = {"nwb": True}
+    data["nwb"] = {
+        "session_start_time": datetime(2024, 5, 1, 14, 3, 7, 250, timezone(timedelta(hours=2))),
+        "experimenter": ["Doe, Jane"],
+        "subject": {"subject_id": "fly7", "sex": "F", "age": "P3D"},
+    }
+    inputs = NwbExportInputs.from_config(Config.from_dict(data))
+    tracked = inputs.rule_params()
+    assert tracked == json.dumps(
+        {"exports": data["exports"], "nwb": data["nwb"]}, sort_keys=True, default=str
+    )
+    rebuilt = NwbExportInputs.from_params(json.loads(tracked), inputs.runtime)
+    assert rebuilt.runtime.config_text == Config.from_dict(data).snapshot_text()
+    recording = tmp_path / "fly7"
+    recording.mkdir()
+    from flylib.nwb_metadata import parse_datetime
+
+    job, direct = session_metadata(rebuilt, recording), session_metadata(inputs, recording)
+    start = data["nwb"]["session_start_time"]
+    assert parse_datetime(job.pop("session_start_time"), "job") == start
+    assert parse_datetime(direct.pop("session_start_time"), "direct") == start
+    assert job == direct

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from flylib.demo import synthetic_fly
+from flylib.pipeline.inputs import stage_inputs
 from flylib.refinement import (
     RefineOptions,
     difference_gram,
@@ -212,7 +213,7 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
         {},
     )
     summary = run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {
             "pose2d": tmp_path / "pose2d.h5",
             "triangulation": tmp_path / "triangulation.h5",

@@ -48,7 +48,7 @@ def _check_never_worse(out, with_ba=True):
     files["refinement"] = s / "refinement.h5"
     if ba is not None:
         files["bundle_adjustment"] = ba
-    summary = stages.run_assemble(config, files, out)
+    summary = stages.run_assemble(stage_inputs(config, "assemble"), files, out)
     acc = summary["accuracy"]
     assert acc["output_stage"] == "refinement"
     tri, output = acc["triangulation"]["held_out_px"], acc["output"]["held_out_px"]
@@ -110,7 +110,8 @@ def test_front_blind_scene_through_bundle_adjustment(tmp_path):
 
 
 def test_the_demo(tmp_path, capsys):
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
 
     config = Config.default()
     make_demo(config, tmp_path / "demo")

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 import yaml
 
-from flylib.pipeline.inputs import stage_params
+from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.planning import params_of
 
 from workflow_run import snakemake_command
@@ -290,7 +290,7 @@ def test_a_copied_artifact_with_other_params_is_named_and_an_equal_params_strang
 
     _pose2d = _pose2d_artifact(original / "stages" / "pose2d.h5", config)
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": _pose2d, "triangulation": original / "stages" / "triangulation.h5"},
         original,
     )
@@ -339,7 +339,9 @@ def test_inspect_config_merges_the_users_file_over_the_default_and_judges_each_s
     pose2d = _pose2d_artifact(out / "stages" / "pose2d.h5", config)
     _triangulation_artifact(out / "stages" / "triangulation.h5", config)
     run_assemble(
-        config, {"pose2d": pose2d, "triangulation": out / "stages" / "triangulation.h5"}, out
+        stage_inputs(config, "assemble"),
+        {"pose2d": pose2d, "triangulation": out / "stages" / "triangulation.h5"},
+        out,
     )
     mine = tmp_path / "my.yaml"
     mine.write_text("triangulation:\n  ransac_threshold: 9.0\n")
@@ -441,9 +443,10 @@ def test_footage_of_another_size_than_its_calibration_names_the_camera_and_both_
 
 def test_imported_2d_outside_a_reencoded_videos_frame_names_the_camera_and_sizes(tmp_path):
     from flylib.config import Config
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
     from flylib.errors import FootageError
     from flylib.io import VideoWriter, open_reader
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.stages import run_pose2d
 
     config = Config.default()
@@ -493,7 +496,8 @@ def _run(workdir: Path, *args: str, timeout: float = 900) -> subprocess.Complete
 def finished_run(tmp_path_factory):
     """A work directory with two tiny recordings run to completion."""
     from flylib.config import Config
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
 
     root = tmp_path_factory.mktemp("claim")
     data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
@@ -653,7 +657,7 @@ def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not
         corrections_path=sidecar,
     )
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
         out,
         recording_dir=tmp_path / "rec",

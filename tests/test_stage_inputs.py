@@ -81,3 +81,19 @@ def test_a_rig_rebuilt_from_the_tracked_params_keeps_the_configs_view_order():
     rebuilt = RigSpec.from_params(tracked).camera_group(sizes)
     assert list(rebuilt.names) == views
     np.testing.assert_array_equal(rebuilt.tvecs, config.camera_group(sizes).tvecs)
+
+
+@pytest.mark.parametrize("stage", PARAM_STAGES)
+def test_a_jobs_rig_keeps_the_configs_camera_order(configs, stage):
+    # canonical params sort the cameras table by name; the rig a job builds must still
+    # put its cameras in the views' order (the V axis of every 2D array)
+    cls = inputs_class(stage)
+    if cls is None:
+        pytest.skip(f"{stage} has no inputs class yet")
+    config = configs["default"]
+    inputs = stage_inputs(config, stage)
+    if getattr(inputs, "rig", None) is None:
+        pytest.skip(f"{stage}'s inputs hold no config rig")
+    rebuilt = cls.from_params(json.loads(json.dumps(inputs.canonical_params())), inputs.runtime)
+    sizes = {view: (480, 960) for view in config.view_names()}
+    assert list(rebuilt.rig.camera_group(sizes).names) == config.view_names()

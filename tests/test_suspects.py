@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
-from flylib.demo import demo_import_spec, load_truth, make_demo, synthetic_fly
+from flylib.demo import demo_import_spec, load_truth, synthetic_fly
+from flylib.pipeline.demo import make_demo
 from flylib.pipeline.stages import run_inputs, run_pose2d
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, read_stage
@@ -72,7 +73,11 @@ def clean_case(frames=40):
     pts3d = synthetic_fly(frames, seed=2)
     from flylib.demo import view_visibility
 
-    vis = view_visibility(config, views, list(config.skeleton().point_names))
+    vis = view_visibility(
+        (config.data.get("pose2d") or {}).get("output_points"),
+        views,
+        list(config.skeleton().point_names),
+    )
     pts2d = np.where(vis[:, None, :, None], cameras.project(pts3d), np.nan)
     pts2d = pts2d + np.random.default_rng(0).normal(0, 0.5, pts2d.shape)
     error = np.linalg.norm(cameras.project(pts3d) - pts2d, axis=-1)

@@ -82,7 +82,8 @@ def test_thread_map_runs_at_most_workers_items_ahead_of_the_consumer():
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     """A tiny demo recording with its pose2d artifact, and a config rendering one short video."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
     from flylib.pipeline.stages import run_pose2d
 
     root = tmp_path_factory.mktemp("threads")

@@ -234,7 +234,8 @@ def _same(a, b):
 @pytest.fixture(scope="module")
 def base_run(tmp_path_factory):
     """A tiny demo recording and every stage's artifact from the default config."""
-    from flylib.demo import demo_import_spec, make_demo
+    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import make_demo
 
     root = tmp_path_factory.mktemp("tracked")
     data = Config.default().data
@@ -267,7 +268,7 @@ def base_run(tmp_path_factory):
         recording_dir=rec,
     )
     files = {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri, "refinement": ref}
-    stages.run_assemble(config, files, out, recording_dir=rec)
+    stages.run_assemble(stage_inputs(config, "assemble"), files, out, recording_dir=rec)
     run_kinematics(stage_inputs(config, "kinematics"), out / "results.h5", out)
     run_neuromechfly(stage_inputs(config, "neuromechfly"), out / "results.h5", out)
     artifacts = {
@@ -307,7 +308,7 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
             recording_dir=rec,
         ),
         "assemble": lambda: (
-            stages.run_assemble(other, upstream, out, recording_dir=rec),
+            stages.run_assemble(stage_inputs(other, "assemble"), upstream, out, recording_dir=rec),
             out / "results.h5",
         )[1],
     }[stage]

@@ -11,6 +11,7 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections
 from flylib.errors import ResultsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_assemble, run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import PoseResult
@@ -45,7 +46,7 @@ def corrected_run(tmp_path_factory):
         corrections_path=sidecar,
     )
     run_assemble(
-        config,
+        stage_inputs(config, "assemble"),
         {"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
         out,
         recording_dir=out.parent,

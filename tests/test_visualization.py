@@ -86,7 +86,7 @@ def test_specs_merge_kwargs_most_specific_wins_and_canvas_autosizes():
     video = table["videos"][0]
     video["kwargs"] = {"line_thickness": 5, "skeleton_2d": {"point_radius": 4}}
     video["panels"][3].update(point_radius=1, palette={"b": "white"})
-    (spec,) = read_video_specs(config_dict(table))
+    (spec,) = read_video_specs(table, view_names=VIEWS)
     imshow_f, skel_f, _, skel_rf = spec.panels
     assert (imshow_f.point_radius, imshow_f.line_thickness) == (7, 5)
     assert (skel_f.point_radius, skel_f.line_thickness) == (4, 5)
@@ -106,14 +106,14 @@ def test_panel_size_keeps_aspect_when_one_side_is_given():
     panels[1].update(height=100)
     panels[2].update(scale=0.25)
     panels[3].update(width=100, height=100, scale=2.0)
-    p = read_video_specs(config_dict(table))[0].panels
+    p = read_video_specs(table, view_names=VIEWS)[0].panels
     frame = (480, 960)
     assert p[0].size(frame) == (300, 150)
     assert p[1].size(frame) == (200, 100)
     assert p[2].size(frame) == (240, 120)
     assert p[3].size(frame) == (200, 200)
     # the automatic canvas covers every panel and is rounded up to even sizes
-    odd = read_video_specs(config_dict(vis_table(kwargs={"width": 101, "height": 51})))[0]
+    odd = read_video_specs(vis_table(kwargs={"width": 101, "height": 51}), view_names=VIEWS)[0]
     assert odd.canvas_size({"f": (480, 960), "rf": (480, 960)}) == (342, 292)
 
 
@@ -162,13 +162,13 @@ def test_bad_specs_raise_config_error_naming_the_key(mutate, message):
     table = vis_table()
     mutate(table)
     with pytest.raises(ConfigError, match=message):
-        read_video_specs(config_dict(table))
+        read_video_specs(table, view_names=VIEWS)
 
 
 def test_panel_off_an_explicit_canvas_is_caught_once_the_frame_size_is_known():
     table = vis_table(kwargs={})  # panels take the frame size: unknown until render
     table["videos"][0]["width"] = 1000
-    (spec,) = read_video_specs(config_dict(table))
+    (spec,) = read_video_specs(table, view_names=VIEWS)
     with pytest.raises(
         ConfigError,
         match=r"videos\[0\]\.panels\[0\]: panel 960x480 at "
@@ -177,10 +177,10 @@ def test_panel_off_an_explicit_canvas_is_caught_once_the_frame_size_is_known():
         spec.canvas_size({"f": (480, 960), "rf": (480, 960)})
 
 
-def test_specs_accept_the_raw_table_and_config_objects():
+def test_a_configs_videos_are_its_tables_specs_checked_against_its_cameras():
     table = vis_table()
     from_table = read_video_specs(table, view_names=VIEWS)
-    from_config = read_video_specs(Config.from_dict(config_dict(table)))
+    from_config = Config.from_dict(config_dict(table)).videos
     assert from_table == from_config
     assert [p.plot for p in from_table[0].panels] == ["imshow", "skeleton_2d"] * 2
 
@@ -434,7 +434,7 @@ def test_default_videos_render_for_the_deepfly3d_sample(tmp_path, df3d_sample_di
     config, result = df3d_result
     footage = {v: [df3d_sample_dir / f"camera_{i}.mp4"] for i, v in enumerate(VIEWS)}
     with pytest.warns(UserWarning, match=r"0\.2 fps, not plausible.*30 fps"):
-        paths = render_videos(config, result, footage, tmp_path, progress=False)
+        paths = render_videos(config.visualization, result, footage, tmp_path, progress=False)
     assert [p.name for p in paths] == ["pose2d.mp4", "pose3d.mp4"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pose2d.mp4", "pose3d.mp4"]
     frames2d, rate = decoded_video(paths[0])
@@ -471,7 +471,7 @@ def test_views_without_footage_draw_the_background(tmp_path, df3d_sample_dir, df
     data["visualization"]["background"] = [0, 0, 200]
     footage = {"rf": [df3d_sample_dir / "camera_2.mp4"]}
     with pytest.warns(UserWarning, match="no footage for views 'f', 'lf', 'rm', 'lm'"):
-        (path,) = render_videos(data, result, footage, tmp_path, progress=False)
+        (path,) = render_videos(data["visualization"], result, footage, tmp_path, progress=False)
     frames, rate = decoded_video(path)
     assert rate == 7 and frames.shape == (15, 960, 960, 3)
     # the f panel (240..720, 0..240) has no footage and view f has no detections: below
@@ -577,9 +577,7 @@ def test_short_footage_is_an_error_naming_the_file_and_counts(
         match=f"^{df3d_sample_dir / 'camera_2.mp4'}: footage of view 'rf' has 15 "
         "frames but the result has 30",
     ):
-        render_videos(
-            {**config.data, "visualization": table}, longer, footage, tmp_path, progress=False
-        )
+        render_videos(table, longer, footage, tmp_path, progress=False)
     assert not list(tmp_path.glob("*.mp4"))
 
 
@@ -606,7 +604,7 @@ def test_missing_footage_raises_footage_error_and_leaves_no_file(tmp_path, df3d_
     config, result = df3d_result
     footage = {"f": [tmp_path / "nope" / "camera_3.mp4"]}
     with pytest.raises(FootageError, match="camera_3.mp4"):
-        render_videos(config, result, footage, tmp_path / "out", progress=False)
+        render_videos(config.visualization, result, footage, tmp_path / "out", progress=False)
     assert not any((tmp_path / "out").iterdir())
 
 
@@ -629,7 +627,7 @@ def test_image_sequence_footage_renders_at_the_default_rate(tmp_path, df3d_sampl
     }
     with pytest.warns(UserWarning, match="frame rate is unknown.*default_fps = 12"):
         (path,) = render_videos(
-            {**config.data, "visualization": table},
+            table,
             result,
             {"rf": images},
             tmp_path,

@@ -34,7 +34,7 @@ from .config import (
     Pose2dParams as Pose2dParams,
     TriangulationParams as TriangulationParams,
 )
-from .demo import make_demo as make_demo, synthetic_fly as synthetic_fly
+from .demo import synthetic_fly as synthetic_fly
 from .errors import (
     ConfigError as ConfigError,
     FlylibError as FlylibError,
@@ -96,6 +96,7 @@ from .pictorial import (
     solve_frames as solve_frames,
 )
 from .pipeline import run_from_points2d as run_from_points2d
+from .pipeline.demo import make_demo as make_demo
 from .pipeline.planning import plan_recordings as plan_recordings
 from .pose2d import (
     DetectionPlan as DetectionPlan,

@@ -372,7 +372,7 @@ def _cmd_export(args) -> int:
         for folder in labels:
             print(folder)
     if args.nwb is not None:
-        from .interop.nwb import export_nwb_command
+        from .pipeline.export_nwb import export_nwb_command
 
         print(
             export_nwb_command(

@@ -1,7 +1,8 @@
 """The embedded demo: a small synthetic recording generated deterministically.
 
-:func:`make_demo` writes, into one directory, what a real experiment would give
-flylib with the 2D coming from another tool:
+:func:`write_demo` writes, into one directory, what a real experiment would give
+flylib with the 2D coming from another tool (:func:`flylib.pipeline.demo.make_demo`
+gives it a config's rig, skeleton, sources and ``demo`` table):
 
 - one H.264 video per configured source (``camera_N.mp4`` for the default rig),
   rendering a walking fly skeleton through the configured camera rig;
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -43,7 +44,10 @@ from .recordings import (  # noqa: F401  (the demo directory's layout, re-export
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Float
+    from jaxtyping import Bool, Float
+
+    from .cameras import CameraGroup
+    from .skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -151,16 +155,20 @@ def synthetic_fly(
     return out
 
 
-def demo_settings(config: Any) -> dict[str, Any]:
+def demo_settings(table: Mapping[str, Any] | None) -> dict[str, Any]:
     """The demo parameters: :data:`DEMO_DEFAULTS` updated by the config's ``demo`` table.
+
+    Parameters
+    ----------
+    table
+        The ``demo`` table (``None``: the defaults).
 
     Raises
     ------
     ConfigError
         On an unknown ``demo`` key or an out-of-range value.
     """
-    data = getattr(config, "data", config)
-    table = data.get("demo") or {}
+    table = table or {}
     if not isinstance(table, Mapping):
         raise ConfigError(f"demo: must be a mapping of demo parameters, got {table!r}")
     unknown = sorted(set(table) - set(DEMO_DEFAULTS))
@@ -183,13 +191,21 @@ def demo_settings(config: Any) -> dict[str, Any]:
     return settings
 
 
-def view_visibility(config: Any, view_names: list[str], point_names: list[str]) -> np.ndarray:
+def view_visibility(
+    output_points: Mapping[str, Any] | None, view_names: list[str], point_names: list[str]
+) -> Bool[np.ndarray, "V P"]:
     """``(V, P)`` bool: the points each view observes, from ``pose2d.output_points``.
+
+    Parameters
+    ----------
+    output_points
+        The ``pose2d.output_points`` table (``view -> {point: ...}``), or ``None``.
+    view_names, point_names
+        The V and P axes.
 
     A view with no ``output_points`` table observes every point.
     """
-    data = getattr(config, "data", config)
-    tables = (data.get("pose2d") or {}).get("output_points") or {}
+    tables = output_points or {}
     vis = np.ones((len(view_names), len(point_names)), bool)
     for v, view in enumerate(view_names):
         if tables.get(view):
@@ -295,7 +311,7 @@ def _hex_to_rgb(color: str) -> tuple[int, int, int]:
 
 @dataclass
 class DemoRecording:
-    """What :func:`make_demo` wrote."""
+    """What :func:`write_demo` wrote."""
 
     directory: Path
     footage: dict[str, Path]
@@ -305,37 +321,55 @@ class DemoRecording:
     points2d: Float[np.ndarray, "V T P 2"]
 
 
-def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecording:
+def write_demo(
+    directory: str | Path,
+    settings: Mapping[str, Any],
+    skeleton: Skeleton,
+    cameras: CameraGroup,
+    visible: Bool[np.ndarray, "V P"],
+    view_sources: Mapping[str, str],
+    source_files: Mapping[str, str],
+    dlc_files: Sequence[str],
+) -> DemoRecording:
     """Write the demo recording (footage, per-view DeepLabCut CSVs, ``truth.h5``).
 
-    Deterministic: the same config and settings give the same keypoints and truth.
+    Deterministic: the same arguments give the same keypoints and truth.
 
     Parameters
     ----------
-    config
-        The run config (:class:`~flylib.config.Config`): its sources, rig, skeleton
-        and ``demo`` table.
     directory
         Where to write; created if needed.
-    **overrides
-        Demo settings overriding the config's ``demo`` table (e.g. ``frames=10``).
+    settings
+        :func:`demo_settings` (frames, image size, rate, seed, noise, ...).
+    skeleton
+        The fly38 skeleton (any point order): what is animated and drawn.
+    cameras
+        The rig the fly is rendered through (principal points for the settings'
+        image size); its names are the views.
+    visible
+        ``(V, P)``: the points each view observes (:func:`view_visibility`).
+    view_sources
+        ``view -> footage source``; a source feeding several views is rendered once.
+    source_files
+        ``source -> footage file name`` (an ``.mp4`` in ``directory``).
+    dlc_files
+        One DeepLabCut CSV name per view, in view order.
 
     Returns
     -------
     DemoRecording
-    """
-    from .cameras import CameraGroup
-    from .interop.dlc import write_dlc_csv
-    from .interop.views import view_names, view_sources
-    from .io import VideoWriter
-    from .recordings import source_patterns
-    from .skeleton import Skeleton
 
-    data = getattr(config, "data", config)
-    settings = demo_settings({"demo": {**(data.get("demo") or {}), **overrides}})
+    Raises
+    ------
+    ConfigError
+        If the skeleton is not the fly's 38 points, or the fly projects outside a
+        view's frame.
+    """
+    from .interop.dlc import write_dlc_csv
+    from .io import VideoWriter
+
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    skeleton = Skeleton.from_config(config)
     points = list(skeleton.point_names)
     if set(points) != set(FLY38_POINTS):
         raise ConfigError(
@@ -347,16 +381,11 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
         :, order
     ]
     image_size = (settings["height"], settings["width"])
-    views = view_names(config)
-    cameras = CameraGroup.from_config(config, image_sizes={v: image_size for v in views})
+    views = list(cameras.names)
     clean2d = np.asarray(cameras.project(pts3d), dtype=np.float64)  # (V, T, P, 2)
     _check_in_frame(clean2d, image_size, views)
-    visible = view_visibility(config, views, points)
     observed, likelihood = observe(clean2d, visible, settings, image_size)
 
-    files = demo_files(config)
-    by_view = view_sources(config)
-    patterns = source_patterns(config)
     bones = np.asarray(skeleton.bones, dtype=int)
     limb_of_point = np.asarray(skeleton.limb_id, dtype=int)
     limb_names = list(skeleton.limb_names)
@@ -364,10 +393,10 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
 
     footage: dict[str, Path] = {}
     for v, view in enumerate(views):
-        source = by_view[view]
+        source = view_sources[view]
         if source in footage:
             continue  # one source feeding several views is rendered once
-        path = directory / patterns[source]
+        path = directory / source_files[source]
         with (
             atomic_path(path) as tmp,
             VideoWriter(
@@ -383,7 +412,7 @@ def make_demo(config: Any, directory: str | Path, **overrides: Any) -> DemoRecor
             writer.write_frames(render_frames(clean2d[v], bones, colors, image_size))
         footage[source] = path
     dlc: dict[str, Path] = {}
-    for v, (view, name) in enumerate(zip(views, files["dlc"])):
+    for v, (view, name) in enumerate(zip(views, dlc_files)):
         keep = visible[v]
         dlc[view] = write_dlc_csv(
             directory / name,

@@ -98,7 +98,7 @@ def preflight_problems(
         from .demo import demo_settings
 
         try:
-            demo_settings(config)
+            demo_settings(config.data.get("demo"))
         except FlylibError as exc:
             problems.append(_problem(exc))
 

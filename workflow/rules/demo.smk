@@ -2,7 +2,8 @@
 # configured rig, its 2D keypoints as DeepLabCut CSVs, and the 3D truth. Generated
 # only when the recordings list holds a {path: ..., demo: true} entry.
 
-from flylib.demo import demo_files, demo_settings
+from flylib.demo import demo_files
+from flylib.pipeline.demo import DemoInputs
 
 DEMO = next((r for r in RECORDINGS if r.demo), None)
 DEMO_OUTPUTS: list[str] = []
@@ -12,24 +13,14 @@ DEMO_VIDEO_SPEED: float | None = None
 
 if DEMO is not None:
     try:
+        DEMO_INPUTS = DemoInputs.from_config(CONFIG)
         _demo_names = demo_files(CONFIG)
-        _assemble_params = CONFIG.stage_params("assemble")
-        _demo_params = json.dumps(
-            {
-                "demo": demo_settings(CONFIG),
-                "sources": CONFIG.data.get("sources"),
-                "rig": _assemble_params["rig"],
-                "skeleton": _assemble_params["skeleton"],
-                "output_points": (CONFIG.data.get("pose2d") or {}).get("output_points"),
-            },
-            sort_keys=True,
-        )
     except FlylibError as exc:
         stop_run(str(exc))
     DEMO_OUTPUTS = [str(DEMO.path / name) for names in _demo_names.values() for name in names]
     DEMO_FOOTAGE = [str(DEMO.path / name) for name in _demo_names["footage"]]
     DEMO_TRUTH = str(DEMO.path / _demo_names["truth"][0])
-    DEMO_VIDEO_SPEED = demo_settings(CONFIG)["video_speed"]
+    DEMO_VIDEO_SPEED = DEMO_INPUTS.settings["video_speed"]
 
     rule demo:
         output:
@@ -44,8 +35,8 @@ if DEMO is not None:
             mem_mb=2000,
             runtime=15,
         params:
-            demo=_demo_params,
-            config=job_config,
+            stage=DEMO_INPUTS.rule_params(),
+            runtime=lambda wildcards, input: DEMO_INPUTS.runtime,
             out=lambda wildcards, output: str(Path(output[0]).parent),
         script:
             "../../scripts/demo.py"

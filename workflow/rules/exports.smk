@@ -10,6 +10,7 @@
 # here, before any job starts.
 
 from flylib.nwb_metadata import recordings_metadata_problems, sidecar_inputs
+from flylib.pipeline.export_nwb import NwbExportInputs
 
 EXPORTS = CONFIG.data.get("exports") or {}
 NWB_FILE = "results.nwb"
@@ -22,6 +23,7 @@ if EXPORTS.get("nwb"):
     _nwb_problems = recordings_metadata_problems(CONFIG.data.get("nwb"), EXPORT_RECORDINGS)
     if _nwb_problems:
         stop_run("exports.nwb is on, but:\n  " + "\n  ".join(_nwb_problems))
+    NWB_INPUTS = NwbExportInputs.from_config(CONFIG)
 
     rule export_nwb:
         input:
@@ -44,12 +46,8 @@ if EXPORTS.get("nwb"):
             mem_mb=2000,
             runtime=15,
         params:
-            stage=json.dumps(
-                {"exports": EXPORTS, "nwb": CONFIG.data.get("nwb")},
-                sort_keys=True,
-                default=str,
-            ),
-            config=job_config,
+            stage=NWB_INPUTS.rule_params(),
+            runtime=lambda wildcards, input: NWB_INPUTS.runtime,
             recording=lambda w: str(recording(w).path),
             demo=lambda w: recording(w).demo,
         script:

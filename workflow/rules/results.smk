@@ -32,7 +32,9 @@ rule assemble:
         runtime=15,
     params:
         stage=stage_params("assemble"),
-        config=job_config,
+        runtime=job_runtime("assemble"),
+        # the snapshot's text: derived (a function of the input), so it re-runs nothing
+        config_text=lambda wildcards, input: CONFIG.snapshot_text(),
         recording=lambda w: str(recording(w).path),
     script:
         "../../scripts/assemble.py"

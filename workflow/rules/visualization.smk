@@ -30,7 +30,7 @@ if FLAGS["visualization"] and VIDEO_NAMES:
             runtime=60,
         params:
             stage=stage_params("visualization"),
-            config=job_config,
+            runtime=job_runtime("visualization"),
             recording=lambda w: str(recording(w).path),
             speed=lambda w: DEMO_VIDEO_SPEED if recording(w).demo else None,
         script:

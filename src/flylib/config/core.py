@@ -241,10 +241,13 @@ class Config:
 
     @property
     def videos(self) -> list:
-        """The parsed output-video specs (``flylib.visualization.specs.read_video_specs``)."""
+        """The parsed output-video specs (``flylib.visualization.specs.read_video_specs``),
+        their views checked against the ``cameras`` table's (when it has one)."""
         from ..visualization.specs import read_video_specs
 
-        return read_video_specs(self)
+        cameras = self.data.get("cameras")
+        views = [k for k in cameras if k != "defaults"] if isinstance(cameras, Mapping) else None
+        return read_video_specs(self.visualization, view_names=views)
 
     def detection_plan(self) -> Any:
         """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_config``)."""

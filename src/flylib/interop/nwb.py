@@ -60,7 +60,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import ConfigError, ResultsError
-from ..nwb_metadata import parse_datetime, recording_metadata
+from ..nwb_metadata import parse_datetime
 from ..paths import atomic_path
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -489,50 +489,45 @@ def _version() -> str:
 
 
 def export_nwb(
-    config,
     results_path: str | Path,
     out_path: str | Path,
+    metadata: Mapping[str, Any],
     *,
+    footage: Mapping[str, Sequence[Path]] | None = None,
     recording_dir: str | Path | None = None,
-    demo: bool = False,
-    extra_metadata: Mapping | None = None,
+    config_text: str | None = None,
     angles_path: str | Path | None = None,
 ) -> Path:
-    """Export a run's ``results.h5`` as NWB: what the workflow rule and ``flylib export --nwb`` run.
-
-    The session metadata is checked first (before reading anything large); the footage
-    of ``recording_dir`` is found through the config's ``sources`` and linked.
+    """Export a run's ``results.h5`` as NWB (what the workflow rule and ``flylib export
+    --nwb`` run, through :mod:`flylib.pipeline.export_nwb`).
 
     Parameters
     ----------
-    config
-        The run's :class:`~flylib.config.Config` (its ``nwb`` table, sources, snapshot text).
     results_path
         The recording's ``results.h5``.
     out_path
         Destination ``.nwb``.
+    metadata
+        The recording's checked session metadata
+        (:func:`flylib.nwb_metadata.recording_metadata`).
+    footage
+        ``view -> footage files`` of the recording, linked from the file.
     recording_dir
-        The recording directory (footage and ``nwb.yaml``), or ``None`` (no video links).
-    demo
-        The recording is the embedded demo (its metadata defaults apply).
-    extra_metadata
-        Overrides of the session metadata.
+        The recording directory, or ``None`` (no video links).
+    config_text
+        The flylib config that produced the result (stored as text).
     angles_path
         The recording's ``neuromechfly.h5``: its joint angles go in too.
 
     Raises
     ------
     ConfigError
-        Missing or invalid session metadata (all named at once), or no frame rate.
+        No frame rate.
     """
     from ..results import PoseResult
-    from .views import footage_files
 
-    metadata = recording_metadata(
-        config.data.get("nwb"), recording_dir, demo=demo, extra=extra_metadata
-    )
     result = PoseResult.load(results_path)
-    footage = footage_files(config, Path(recording_dir)) if recording_dir is not None else {}
+    footage = footage or {}
     missing = [v for v in result.cameras.names if not footage.get(v)]
     if recording_dir is not None and missing:
         log.warning(
@@ -546,73 +541,6 @@ def export_nwb(
         metadata,
         footage=footage,
         recording=recording_dir,
-        config_text=config.snapshot_text(),
+        config_text=config_text,
         joint_angles=None if angles_path is None else read_joint_angles(angles_path),
     )
-
-
-def export_nwb_command(
-    results_path: str | Path,
-    out_path: str | Path,
-    *,
-    config_path: str | Path | None = None,
-    recording: str | Path | None = None,
-    metadata_path: str | Path | None = None,
-) -> Path:
-    """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
-    :func:`export_nwb`.
-
-    Parameters
-    ----------
-    results_path
-        The recording's ``results.h5``.
-    out_path
-        Destination ``.nwb``.
-    config_path
-        The run's config; default the ``config.yaml`` (or ``.toml``) snapshot every run
-        leaves beside ``results.h5``, else flylib's default config.
-    recording
-        The recording directory; default the one ``results.h5`` records (its footage is
-        linked and its ``nwb.yaml`` read).
-    metadata_path
-        A YAML file of session metadata overriding the config's ``nwb`` table and the
-        recording's ``nwb.yaml``.
-
-    Raises
-    ------
-    ConfigError, ResultsError
-        One line naming what is missing or wrong.
-    """
-    from ..config import Config
-    from ..nwb_metadata import read_sidecar
-    from ..results import open_checked, read_meta_from
-
-    results_path = Path(results_path)
-    with open_checked(results_path, "pass the results.h5 a run wrote") as f:
-        meta = read_meta_from(f)
-    if config_path is None:
-        snapshots = [results_path.parent / f"config.{ext}" for ext in ("yaml", "toml")]
-        config_path = next((p for p in snapshots if p.is_file()), None)
-        if config_path is None:
-            log.warning(
-                "%s: no config snapshot beside it; using flylib's default config "
-                "(pass --config for the run's)",
-                results_path,
-            )
-    config = Config.from_file(config_path) if config_path is not None else Config.default()
-    if recording is None and meta.get("recording"):
-        recording = Path(meta["recording"])
-        if not recording.is_dir():
-            log.warning(
-                "%s names recording %s, which is not a directory here; no video is linked "
-                "(pass --recording)",
-                results_path,
-                recording,
-            )
-            recording = None
-    extra = None
-    if metadata_path is not None:
-        if not Path(metadata_path).is_file():
-            raise ConfigError(f"{metadata_path}: --nwb-metadata file not found")
-        extra = read_sidecar(metadata_path)
-    return export_nwb(config, results_path, out_path, recording_dir=recording, extra_metadata=extra)

@@ -189,9 +189,16 @@ class RigSpec:
     def from_params(cls, table: Mapping, config_dir: Path | str | None = None) -> RigSpec:
         """Inverse of :meth:`params`."""
         calibration = table.get("calibration")
+        views = tuple(table["views"])
+        # canonical params sort the cameras by name; the rig's camera order is the views'
+        cameras = dict(table.get("cameras") or {})
+        cameras = {
+            **{v: cameras[v] for v in views if v in cameras},
+            **{k: v for k, v in cameras.items() if k not in views},
+        }
         return cls(
-            views=tuple(table["views"]),
-            cameras=frozen_mapping(dict(table.get("cameras") or {})),
+            views=views,
+            cameras=frozen_mapping(cameras),
             calibration=frozen_mapping(dict(calibration)) if calibration else None,
             config_dir=Path(config_dir) if config_dir else None,
         )

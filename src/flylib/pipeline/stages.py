@@ -34,21 +34,22 @@ stage                  reads                                       writes
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..errors import FlylibError, ResultsError, StageError, one_line
-from ..paths import atomic_path
-from .planning import config_rig, tracked_params
+
+# the stages with their own home, importable from here as before
+from .assemble import run_assemble, write_snapshot  # noqa: F401
+from .demo import run_demo  # noqa: F401
+from .planning import tracked_params
 from .tracked import StageConfig, UntrackedConfigRead
+from .visualization import run_visualization  # noqa: F401
 
 log = logging.getLogger(__name__)
 
@@ -232,13 +233,6 @@ def _solving(stage: str, recording) -> Iterator[None]:
 # -- stages --------------------------------------------------------------------
 
 
-def run_demo(config, directory: str | Path):
-    """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`)."""
-    from ..demo import make_demo
-
-    return make_demo(config, directory)
-
-
 def run_pose2d(
     config,
     recording_dir: str | Path,
@@ -294,200 +288,3 @@ def run_pose2d(
         )
     data.save(out_path, config.skeleton(), meta=provenance)
     return Path(out_path)
-
-
-def run_assemble(
-    config,
-    stage_files: Mapping[str, str | Path],
-    outdir: str | Path,
-    *,
-    recording_dir: str | Path | None = None,
-    truth_path: str | Path | None = None,
-    snapshot_path: str | Path | None = None,
-) -> dict:
-    """Assemble ``results.h5`` from the stage artifacts, then write the recording's
-    summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format) and
-    ``summary.json``. With ``truth_path`` (the demo) the 3D error against the truth is
-    computed, logged and stored in the summary.
-
-    With ``snapshot_path`` the config's text is written there last, atomically, so
-    the snapshot never describes a config the results beside it were not made with
-    (the workflow's assemble rule is its only writer).
-
-    Returns
-    -------
-    dict
-        The summary written to ``summary.json``.
-    """
-    from ..interop.anipose import write_anipose_toml
-    from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
-    from ..visualization import summary_figure
-
-    snapshot = config.snapshot_text() if snapshot_path is not None else None
-    config = StageConfig.for_stage(config, "assemble")
-    outdir = Path(outdir)
-    stage_files = {k: Path(v) for k, v in stage_files.items() if v}
-    if "pose2d" not in stage_files:
-        raise ResultsError(
-            "assemble: no pose2d artifact given; every result starts from 2D keypoints"
-        )
-    sizes = read_image_sizes(stage_files["pose2d"])  # the arrays are copied, never loaded, here
-    rig = config_rig(config, sizes, recording_dir)
-    meta = {
-        "recording": str(recording_dir) if recording_dir else None,
-        **_provenance(config, "assemble", **stage_files),
-    }
-    results_path = outdir / "results.h5"
-    assemble_results(
-        results_path, skeleton=config.skeleton(), config_rig=rig, stage_files=stage_files, meta=meta
-    )
-    result = PoseResult.load(results_path)
-    summary_figure(result, outdir / "summary.png")
-    write_anipose_toml(
-        result.cameras,
-        outdir / "calibration.toml",
-        image_sizes=sizes,
-        metadata={"recording": str(recording_dir or "")},
-    )
-    summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
-    accuracy = _accuracy(stage_files)
-    if accuracy is not None:
-        summary["accuracy"] = accuracy
-    summary["suspects"] = _write_suspects(results_path, outdir, result)
-    if truth_path:
-        from ..demo import demo_error, load_truth
-
-        truth = load_truth(truth_path)
-        if result.pts3d is not None:
-            summary["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
-        if "refinement" in stage_files and "triangulation" in stage_files:
-            from ..results import read_stage
-
-            tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
-            summary["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
-    summary["params_sha256"] = {
-        **meta.get("upstream_params_sha256", {}),
-        "assemble": meta["params_sha256"],
-    }
-    _write_json(outdir / "summary.json", summary)
-    if snapshot is not None:
-        write_snapshot(snapshot, snapshot_path)
-    return summary
-
-
-def write_snapshot(text: str, path: str | Path) -> Path:
-    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) to ``path``
-    atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(text.encode("utf-8"))
-    return Path(path)
-
-
-def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
-    pts2d = np.asarray(result.pts2d, float)
-    summary: dict[str, Any] = {
-        "recording": str(recording_dir) if recording_dir else None,
-        "outdir": str(outdir),
-        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
-        "format_version": version,
-        "stages": sorted(stage_files),
-        "views": list(result.cameras.names),
-        "frames": int(pts2d.shape[1]),
-        "points": int(pts2d.shape[2]),
-        "observed_2d_fraction": float(np.isfinite(pts2d).all(-1).mean()),
-    }
-    if result.pts3d is not None:
-        pts3d = np.asarray(result.pts3d, float)
-        summary["reconstructed_3d_fraction"] = float(np.isfinite(pts3d).all(-1).mean())
-    error = getattr(result, "reproj_error", None)
-    if error is not None and np.isfinite(error).any():
-        error = np.asarray(error, float)
-        summary["reprojection_error_px"] = {
-            "median": float(np.nanmedian(error)),
-            "p95": float(np.nanpercentile(error, 95)),
-            "per_view_median": {
-                name: (float(np.nanmedian(e)) if np.isfinite(e).any() else None)
-                for name, e in zip(result.cameras.names, error)
-            },
-        }
-    return summary
-
-
-def _accuracy(stage_files: Mapping[str, Path]) -> dict | None:
-    """The truth-free accuracy (:mod:`flylib.accuracy`) the 3D stages recorded:
-    refinement's (triangulation, refinement as solved, and the output side by side)
-    when it ran, else triangulation's (``output`` is then the triangulation)."""
-    from ..results import open_checked
-
-    for stage in ("refinement", "triangulation"):
-        if stage not in stage_files:
-            continue
-        with open_checked(stage_files[stage], f"re-run the {stage} stage") as f:
-            text = f[stage].attrs.get("accuracy") if stage in f else None
-        if text is None:
-            continue
-        found = json.loads(text.decode() if isinstance(text, bytes) else text)
-        if stage == "triangulation":
-            found["output"] = found["triangulation"]
-        found["output_stage"] = stage
-        return found
-    return None
-
-
-def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
-    """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
-    and a header-only file when the result holds no 3D)."""
-    from ..suspects import SUSPECTS_FILE, Suspects, suspects_from_results
-
-    if result.pts3d is None or result.reproj_error is None:
-        empty = np.zeros(0, int)
-        Suspects(empty, empty, np.zeros(0), [], [], np.zeros(result.n_frames)).to_csv(
-            outdir / SUSPECTS_FILE
-        )
-        return None
-    suspects = suspects_from_results(results_path)
-    suspects.to_csv(outdir / SUSPECTS_FILE)
-    log.info(
-        "%d suspect (frame, point) pairs in %d frames, %d items to review: %s",
-        len(suspects),
-        len(suspects.frames),
-        suspects.n_items,
-        outdir / SUSPECTS_FILE,
-    )
-    return len(suspects)
-
-
-def _write_json(path: Path, payload: Mapping) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
-
-
-def run_visualization(
-    config,
-    results_path: str | Path,
-    recording_dir: str | Path,
-    outdir: str | Path,
-    *,
-    progress: bool = False,
-    speed: float | None = None,
-) -> list[Path]:
-    """Render the configured videos of one recording into ``outdir`` (points a person
-    corrected, ``triangulation/corrected`` in results.h5, are ringed; ``speed``: a
-    multiple of the recording's rate when the config sets none, the demo's slow motion)."""
-    from ..corrections import read_corrected
-    from ..interop.views import footage_files
-    from ..results import PoseResult
-    from ..visualization import render_videos
-
-    config = StageConfig.for_stage(config, "visualization")
-    result = PoseResult.load(results_path)
-    footage = footage_files(config, Path(recording_dir))
-    return render_videos(
-        config,
-        result,
-        footage,
-        outdir,
-        progress=progress,
-        corrected=read_corrected(results_path),
-        speed=speed,
-    )

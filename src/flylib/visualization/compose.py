@@ -42,7 +42,6 @@ from .specs import (
     VideoSpec,
     read_video_specs,
     resolve_output_fps,
-    visualization_table,
 )
 
 log = logging.getLogger(__name__)
@@ -473,13 +472,73 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
     return sizes
 
 
-def _on_corrupt(config) -> str:
-    data = getattr(config, "data", config) or {}
-    return (data.get("io") or {}).get("on_corrupt_frame") or "error"
+def _panel_views(specs: Sequence[VideoSpec], plot: str | None = None) -> list[str]:
+    """The views the videos' panels use (those with a ``plot`` panel), in the order
+    any panel first uses them."""
+    used = list(dict.fromkeys(v for s in specs for v in s.views))
+    if plot is None:
+        return used
+    return [v for v in used if any(p.plot == plot and p.view == v for s in specs for p in s.panels)]
+
+
+def _open_footage(
+    stack: contextlib.ExitStack,
+    views: Sequence[str],
+    footage: Mapping[str, Sequence[Path]] | None,
+    on_corrupt: str,
+) -> dict[str, _Footage]:
+    """Open each view's footage (closed with ``stack``); warn about views without any."""
+    sources = {}
+    for view in views:
+        files = footage.get(view) if footage else None
+        if isinstance(files, (str, Path)):
+            files = [files]
+        if files:
+            source = _Footage(view, files, on_corrupt=on_corrupt)
+            stack.callback(source.close)
+            sources[view] = source
+    lacking = [v for v in views if v not in sources]
+    if lacking:
+        warnings.warn(
+            f"no footage for view{'s' * (len(lacking) > 1)} "
+            f"{', '.join(map(repr, lacking))}: imshow panels show the "
+            "background",
+            stacklevel=3,
+        )
+    return sources
+
+
+def _open_writers(
+    stack: contextlib.ExitStack,
+    specs: Sequence[VideoSpec],
+    compositors: Sequence[Compositor],
+    paths: Sequence[Path],
+    rates: tuple[Mapping, float | None, float | None],
+    n_frames: int,
+) -> list[_CanvasEncoder]:
+    """One encoder per video, writing to a temporary file renamed when ``stack`` closes
+    without error; ``rates``: the ``visualization`` table, the footage's rate and the
+    fallback ``speed`` (:func:`resolve_output_fps`)."""
+    writers = []
+    for spec, comp, path in zip(specs, compositors, paths):
+        fps = resolve_output_fps(spec, *rates)
+        tmp = stack.enter_context(atomic_path(path))
+        writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
+        stack.callback(writer.close)
+        writers.append(writer)
+        log.info(
+            "rendering %s: %dx%d, %d frames at %g fps",
+            path.name,
+            comp.width,
+            comp.height,
+            n_frames,
+            fps,
+        )
+    return writers
 
 
 def render_videos(
-    config,
+    table: Mapping[str, Any] | None,
     result,
     footage: Mapping[str, Sequence[Path]],
     outdir,
@@ -487,8 +546,9 @@ def render_videos(
     progress: bool = True,
     corrected: np.ndarray | None = None,
     speed: float | None = None,
+    on_corrupt: str = "error",
 ) -> list[Path]:
-    """Render every ``[[visualization.videos]]`` spec of ``config`` for one recording.
+    """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording.
 
     All videos are rendered in one pass over the footage: each frame of each used
     camera is decoded once, drawn into every video's canvas and streamed to that
@@ -496,8 +556,8 @@ def render_videos(
 
     Parameters
     ----------
-    config
-        A :class:`flylib.Config` (or its data dict) with a ``visualization`` table.
+    table
+        The ``visualization`` table of the config (``Config.visualization``).
     result
         The :class:`flylib.PoseResult` to draw (``cameras``, ``skeleton``, ``pts2d``,
         ``pts3d``).
@@ -515,6 +575,9 @@ def render_videos(
     speed
         Play the videos at this multiple of the recording's rate when the config sets
         no rate (the workflow's slow motion for the demo).
+    on_corrupt
+        What a corrupt footage image becomes (``io.on_corrupt_frame``): ``"error"``
+        or ``"missing"`` (the background).
 
     Returns
     -------
@@ -531,24 +594,15 @@ def render_videos(
     """
     from tqdm.auto import tqdm
 
-    _, table = visualization_table(config)
+    table = {} if table is None else table
     names = list(result.cameras.names)
-    specs = read_video_specs(config, view_names=names)
+    specs = read_video_specs(table, view_names=names)
     if not specs:
         return []
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    used_views = list(dict.fromkeys(v for s in specs for v in s.views))
-    imshow_views = [
-        v
-        for v in used_views
-        if any(p.plot == "imshow" and p.view == v for s in specs for p in s.panels)
-    ]
-    views_3d = [
-        v
-        for v in used_views
-        if any(p.plot == "skeleton_3d" and p.view == v for s in specs for p in s.panels)
-    ]
+    used_views = _panel_views(specs)
+    views_3d = _panel_views(specs, "skeleton_3d")
     pts3d = getattr(result, "pts3d", None)
     if views_3d and pts3d is None:
         warnings.warn(
@@ -561,23 +615,7 @@ def render_videos(
     paths = [outdir / f"{spec.name}.mp4" for spec in specs]
 
     with contextlib.ExitStack() as stack:
-        sources = {}
-        for view in imshow_views:
-            files = footage.get(view) if footage else None
-            if isinstance(files, (str, Path)):
-                files = [files]
-            if files:
-                source = _Footage(view, files, on_corrupt=_on_corrupt(config))
-                stack.callback(source.close)
-                sources[view] = source
-        lacking = [v for v in imshow_views if v not in sources]
-        if lacking:
-            warnings.warn(
-                f"no footage for view{'s' * (len(lacking) > 1)} "
-                f"{', '.join(map(repr, lacking))}: imshow panels show the "
-                "background",
-                stacklevel=2,
-            )
+        sources = _open_footage(stack, _panel_views(specs, "imshow"), footage, on_corrupt)
         image_sizes = _image_sizes(result, sources, used_views)
         input_fps = next((s.fps for s in sources.values() if s.fps), None)
         if input_fps is None:
@@ -587,21 +625,9 @@ def render_videos(
         recording_fps = (
             input_fps if input_fps and PLAUSIBLE_FPS[0] <= input_fps <= PLAUSIBLE_FPS[1] else None
         )
-        writers = []
-        for spec, comp, path in zip(specs, compositors, paths):
-            fps = resolve_output_fps(spec, table, input_fps, speed)
-            tmp = stack.enter_context(atomic_path(path))
-            writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
-            stack.callback(writer.close)
-            writers.append(writer)
-            log.info(
-                "rendering %s: %dx%d, %d frames at %g fps",
-                path.name,
-                comp.width,
-                comp.height,
-                n_frames,
-                fps,
-            )
+        writers = _open_writers(
+            stack, specs, compositors, paths, (table, input_fps, speed), n_frames
+        )
         reprojector = (
             _Reprojector(result.cameras, np.asarray(pts3d, float), views_3d) if views_3d else None
         )

@@ -301,40 +301,17 @@ def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
     return fps, speed
 
 
-def _rig_views(data: Mapping) -> list[str] | None:
-    cameras = data.get("cameras")
-    if not isinstance(cameras, Mapping):
-        return None
-    return [k for k in cameras if k != "defaults"]
-
-
-def visualization_table(config: Any) -> tuple[Mapping, Mapping]:
-    """Return ``(whole config dict, visualization table)`` from a Config, dict or table."""
-    data = getattr(config, "data", config)
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"expected a Config or a config dict, got {type(config).__name__}")
-    if "visualization" in data:
-        table = data["visualization"] or {}
-    elif data and set(data) <= _TOP_KEYS:  # the visualization table itself
-        data, table = {}, data
-    else:
-        table = {}
-    if not isinstance(table, Mapping):
-        raise ConfigError("visualization must be a table")
-    return data, table
-
-
-def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> list[VideoSpec]:
+def read_video_specs(
+    table: Mapping[str, Any] | None, view_names: Sequence[str] | None = None
+) -> list[VideoSpec]:
     """Parse and validate ``[[visualization.videos]]`` into :class:`VideoSpec` objects.
 
     Parameters
     ----------
-    config
-        A :class:`flylib.Config`, its ``data`` dict, or the raw ``visualization`` table.
+    table
+        The raw ``visualization`` table (``None``: no videos).
     view_names
-        Camera names of the rig; by default the views of the config's ``cameras``
-        table (every key but ``defaults``). When neither is known, views are not
-        checked.
+        Camera names of the rig; ``None``: views are not checked.
 
     Returns
     -------
@@ -347,9 +324,9 @@ def read_video_specs(config: Any, view_names: Sequence[str] | None = None) -> li
         Naming ``visualization.videos[i].panels[j]`` for an unknown plot, a view not in
         the rig, a panel off the canvas, or any malformed key.
     """
-    data, table = visualization_table(config)
-    if view_names is None:
-        view_names = _rig_views(data)
+    table = {} if table is None else table
+    if not isinstance(table, Mapping):
+        raise ConfigError("visualization must be a table")
     for key in table:
         if key not in _TOP_KEYS:
             raise ConfigError(

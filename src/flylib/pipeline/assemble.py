@@ -1,0 +1,304 @@
+"""The assemble stage: ``results.h5`` from the stage artifacts, and the recording's
+summary beside it (``summary.json``, ``summary.png``, ``calibration.toml``,
+``suspects.csv``, the config snapshot).
+
+:class:`AssembleInputs` is what the stage reads: the config rig (stored in
+``results.h5`` beside the bundle-adjusted one) and the whole skeleton, palette and
+name included. :func:`run_assemble` copies the stage groups (never loading their
+arrays), then summarises the assembled result.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ResultsError
+from ..paths import atomic_path
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AssembleRuntime:
+    """What the assemble job needs beyond its tracked params.
+
+    Attributes
+    ----------
+    config_dir
+        Where a relative calibration path is looked up after the recording's folder
+        (the config file's folder). Not tracked: the calibration file is an input of
+        the rule.
+    """
+
+    config_dir: Path | None = None
+
+
+@register
+@dataclass(frozen=True)
+class AssembleInputs(StageInputs):
+    """The assemble stage's inputs.
+
+    Attributes
+    ----------
+    rig
+        The config rig, stored in ``results.h5`` as ``config_rig``.
+    skeleton
+        The whole skeleton table (palette and name included: ``results.h5`` and the
+        summary figure carry them).
+    runtime
+        :class:`AssembleRuntime` (untracked).
+    """
+
+    STAGE = "assemble"
+
+    rig: RigSpec
+    skeleton: SkeletonSpec
+    runtime: AssembleRuntime = AssembleRuntime()
+
+    @classmethod
+    def from_config(cls, config) -> AssembleInputs:
+        """The config's rig and skeleton."""
+        rig = RigSpec.from_config(config)
+        return cls(
+            rig=rig,
+            skeleton=SkeletonSpec.from_config(config, palette=True, name=True),
+            runtime=AssembleRuntime(rig.config_dir),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> AssembleInputs:
+        """Inverse of :meth:`params`, with ``runtime`` (an :class:`AssembleRuntime`)."""
+        runtime = runtime or AssembleRuntime()
+        skeleton = params["skeleton"]
+        return cls(
+            rig=RigSpec.from_params(params["rig"], runtime.config_dir),
+            skeleton=SkeletonSpec.from_params(
+                skeleton, palette=skeleton["palette"], name=skeleton["name"]
+            ),
+            runtime=runtime,
+        )
+
+    def params(self) -> dict:
+        """``{"rig", "skeleton": {point_names, limbs, palette, name}}``."""
+        return {
+            "rig": self.rig.params(),
+            "skeleton": {
+                **self.skeleton.structure(),
+                "palette": dict(self.skeleton.palette or {}),
+                "name": self.skeleton.name,
+            },
+        }
+
+
+def _provenance(inputs: StageInputs, **upstream) -> dict:
+    """The provenance meta entries of ``inputs``' stage artifact: its params hash and
+    those of the ``upstream`` artifacts it read."""
+    from ..provenance import stage_provenance
+
+    return stage_provenance(inputs.canonical_params(), inputs.STAGE, upstream)
+
+
+def run_assemble(
+    inputs: AssembleInputs,
+    stage_files: Mapping[str, str | Path],
+    outdir: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+    truth_path: str | Path | None = None,
+    snapshot_path: str | Path | None = None,
+    snapshot_text: str | None = None,
+) -> dict:
+    """Assemble ``results.h5`` from the stage artifacts, then write the recording's
+    summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format),
+    ``suspects.csv`` and ``summary.json``. With ``truth_path`` (the demo) the 3D error
+    against the truth is computed, logged and stored in the summary.
+
+    With ``snapshot_path`` the config's text ``snapshot_text``
+    (:meth:`~flylib.config.Config.snapshot_text`) is written there last, atomically,
+    so the snapshot never describes a config the results beside it were not made with
+    (the workflow's assemble rule is its only writer).
+
+    Parameters
+    ----------
+    inputs
+        The stage's inputs (:class:`AssembleInputs`).
+    stage_files
+        ``stage -> artifact path`` of the stages that ran (``pose2d`` required; empty
+        entries are skipped).
+    outdir
+        The recording's output directory.
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``.
+
+    Raises
+    ------
+    ResultsError
+        Without a pose2d artifact.
+    ValueError
+        With ``snapshot_path`` but no ``snapshot_text``.
+    """
+    from ..interop.anipose import write_anipose_toml
+    from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
+    from ..visualization import summary_figure
+
+    if snapshot_path is not None and snapshot_text is None:
+        raise ValueError("run_assemble: snapshot_path needs the config's snapshot_text")
+    outdir = Path(outdir)
+    stage_files = {k: Path(v) for k, v in stage_files.items() if v}
+    if "pose2d" not in stage_files:
+        raise ResultsError(
+            "assemble: no pose2d artifact given; every result starts from 2D keypoints"
+        )
+    sizes = read_image_sizes(stage_files["pose2d"])  # the arrays are copied, never loaded, here
+    rig = inputs.rig.camera_group(sizes, recording_dir)
+    meta = {
+        "recording": str(recording_dir) if recording_dir else None,
+        **_provenance(inputs, **stage_files),
+    }
+    results_path = outdir / "results.h5"
+    assemble_results(
+        results_path,
+        skeleton=inputs.skeleton.skeleton(),
+        config_rig=rig,
+        stage_files=stage_files,
+        meta=meta,
+    )
+    result = PoseResult.load(results_path)
+    summary_figure(result, outdir / "summary.png")
+    write_anipose_toml(
+        result.cameras,
+        outdir / "calibration.toml",
+        image_sizes=sizes,
+        metadata={"recording": str(recording_dir or "")},
+    )
+    summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
+    accuracy = _accuracy(stage_files)
+    if accuracy is not None:
+        summary["accuracy"] = accuracy
+    summary["suspects"] = _write_suspects(results_path, outdir, result)
+    if truth_path:
+        summary.update(_errors_vs_truth(result, stage_files, truth_path))
+    summary["params_sha256"] = {
+        **meta.get("upstream_params_sha256", {}),
+        "assemble": meta["params_sha256"],
+    }
+    _write_json(outdir / "summary.json", summary)
+    if snapshot_path is not None:
+        write_snapshot(snapshot_text, snapshot_path)
+    return summary
+
+
+def write_snapshot(text: str, path: str | Path) -> Path:
+    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) to ``path``
+    atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(text.encode("utf-8"))
+    return Path(path)
+
+
+def _errors_vs_truth(result, stage_files: Mapping[str, Path], truth_path) -> dict:
+    """The demo's 3D error against its truth: the result's, and the triangulation's
+    alone when refinement ran."""
+    from ..demo import demo_error, load_truth
+
+    truth = load_truth(truth_path)
+    out = {}
+    if result.pts3d is not None:
+        out["error_vs_truth"] = demo_error(result.pts3d, truth["points3d"])
+    if "refinement" in stage_files and "triangulation" in stage_files:
+        from ..results import read_stage
+
+        tri3d = read_stage(stage_files["triangulation"], "triangulation")["points3d"]
+        out["error_vs_truth_triangulation"] = demo_error(tri3d, truth["points3d"])
+    return out
+
+
+def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
+    pts2d = np.asarray(result.pts2d, float)
+    summary: dict[str, Any] = {
+        "recording": str(recording_dir) if recording_dir else None,
+        "outdir": str(outdir),
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "format_version": version,
+        "stages": sorted(stage_files),
+        "views": list(result.cameras.names),
+        "frames": int(pts2d.shape[1]),
+        "points": int(pts2d.shape[2]),
+        "observed_2d_fraction": float(np.isfinite(pts2d).all(-1).mean()),
+    }
+    if result.pts3d is not None:
+        pts3d = np.asarray(result.pts3d, float)
+        summary["reconstructed_3d_fraction"] = float(np.isfinite(pts3d).all(-1).mean())
+    error = getattr(result, "reproj_error", None)
+    if error is not None and np.isfinite(error).any():
+        error = np.asarray(error, float)
+        summary["reprojection_error_px"] = {
+            "median": float(np.nanmedian(error)),
+            "p95": float(np.nanpercentile(error, 95)),
+            "per_view_median": {
+                name: (float(np.nanmedian(e)) if np.isfinite(e).any() else None)
+                for name, e in zip(result.cameras.names, error)
+            },
+        }
+    return summary
+
+
+def _accuracy(stage_files: Mapping[str, Path]) -> dict | None:
+    """The truth-free accuracy (:mod:`flylib.accuracy`) the 3D stages recorded:
+    refinement's (triangulation, refinement as solved, and the output side by side)
+    when it ran, else triangulation's (``output`` is then the triangulation)."""
+    from ..results import open_checked
+
+    for stage in ("refinement", "triangulation"):
+        if stage not in stage_files:
+            continue
+        with open_checked(stage_files[stage], f"re-run the {stage} stage") as f:
+            text = f[stage].attrs.get("accuracy") if stage in f else None
+        if text is None:
+            continue
+        found = json.loads(text.decode() if isinstance(text, bytes) else text)
+        if stage == "triangulation":
+            found["output"] = found["triangulation"]
+        found["output_stage"] = stage
+        return found
+    return None
+
+
+def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
+    """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
+    and a header-only file when the result holds no 3D)."""
+    from ..suspects import SUSPECTS_FILE, Suspects, suspects_from_results
+
+    if result.pts3d is None or result.reproj_error is None:
+        empty = np.zeros(0, int)
+        Suspects(empty, empty, np.zeros(0), [], [], np.zeros(result.n_frames)).to_csv(
+            outdir / SUSPECTS_FILE
+        )
+        return None
+    suspects = suspects_from_results(results_path)
+    suspects.to_csv(outdir / SUSPECTS_FILE)
+    log.info(
+        "%d suspect (frame, point) pairs in %d frames, %d items to review: %s",
+        len(suspects),
+        len(suspects.frames),
+        suspects.n_items,
+        outdir / SUSPECTS_FILE,
+    )
+    return len(suspects)
+
+
+def _write_json(path: Path, payload: Mapping) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")

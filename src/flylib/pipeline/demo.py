@@ -1,0 +1,210 @@
+"""The embedded demo recording, built from a config: what the workflow's ``demo`` rule
+and the tests run.
+
+:class:`DemoInputs` is what the demo reads: its ``demo`` settings, the footage
+sources, the config rig, the whole skeleton and ``pose2d.output_points`` (the demo
+rule's tracked params), plus the demo directory's file layout (:class:`DemoLayout`).
+:func:`run_demo` writes the recording with :func:`flylib.demo.write_demo`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .assemble import AssembleInputs
+from .inputs import RigSpec, SkeletonSpec, StageInputs, _json, frozen_mapping
+
+
+@dataclass(frozen=True)
+class DemoLayout:
+    """The demo directory's files, as the config names them.
+
+    Attributes
+    ----------
+    view_sources
+        ``(view, source)``: the footage source feeding each view (the first
+        ``pose2d.pathways`` source among its output points, else by name or position).
+        Not tracked by the demo rule (its params hold the sources and output points,
+        not the pathways), as before the inputs objects.
+    source_files
+        ``(source, footage file name)``, one ``.mp4`` per source (from ``sources``).
+    dlc_files
+        One DeepLabCut CSV name per view, in view order.
+    """
+
+    view_sources: tuple[tuple[str, str], ...] = ()
+    source_files: tuple[tuple[str, str], ...] = ()
+    dlc_files: tuple[str, ...] = ()
+
+    @classmethod
+    def from_config(cls, config) -> DemoLayout:
+        """The layout ``config`` gives (:func:`flylib.recordings.demo_files`).
+
+        Raises
+        ------
+        ConfigError
+            If a source's filename is not a plain ``<name>.mp4``.
+        """
+        from ..config.sources import source_patterns, view_sources
+        from ..recordings import demo_files
+
+        dlc = demo_files(config)["dlc"]
+        return cls(
+            view_sources=tuple(view_sources(config).items()),
+            source_files=tuple(source_patterns(config).items()),
+            dlc_files=tuple(dlc),
+        )
+
+
+@dataclass(frozen=True)
+class DemoInputs(StageInputs):
+    """The demo recording's inputs.
+
+    Attributes
+    ----------
+    settings
+        :func:`flylib.demo.demo_settings`: the ``demo`` table over the defaults.
+    sources
+        The ``sources`` list.
+    rig
+        The config rig: the demo renders through its cameras' orbit (a calibration
+        file is not read).
+    skeleton
+        The whole skeleton (the fly38 points, limbs and palette drawn).
+    output_points
+        ``pose2d.output_points``: the points each view observes.
+    runtime
+        :class:`DemoLayout`.
+    """
+
+    STAGE = "demo"
+
+    settings: Mapping[str, Any]
+    sources: Any
+    rig: RigSpec
+    skeleton: SkeletonSpec
+    output_points: Mapping[str, Any] | None
+    runtime: DemoLayout = DemoLayout()
+
+    @classmethod
+    def from_config(cls, config) -> DemoInputs:
+        """The demo as ``config`` describes it.
+
+        Raises
+        ------
+        ConfigError
+            An invalid ``demo`` table or demo file layout, or a config without a
+            ``skeleton`` table.
+        """
+        from ..demo import demo_settings
+
+        if "skeleton" not in config.data:
+            raise ConfigError(
+                f"{config.source or 'config'}: no 'skeleton' table; add one or use Skeleton.fly()"
+            )
+        assemble = AssembleInputs.from_config(config)
+        output_points = (config.data.get("pose2d") or {}).get("output_points")
+        return cls(
+            settings=frozen_mapping(demo_settings(config.data.get("demo"))),
+            sources=frozen_mapping(config.data.get("sources")),
+            rig=assemble.rig,
+            skeleton=assemble.skeleton,
+            output_points=frozen_mapping(output_points),
+            runtime=DemoLayout.from_config(config),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> DemoInputs:
+        """Inverse of :meth:`params`, with ``runtime`` (a :class:`DemoLayout`)."""
+        assemble = AssembleInputs.from_params(params)
+        return cls(
+            settings=frozen_mapping(params["demo"]),
+            sources=frozen_mapping(params["sources"]),
+            rig=assemble.rig,
+            skeleton=assemble.skeleton,
+            output_points=frozen_mapping(params["output_points"]),
+            runtime=runtime or DemoLayout(),
+        )
+
+    def params(self) -> dict:
+        """``{"demo", "sources", "rig", "skeleton", "output_points"}``: rig and skeleton
+        as the assemble stage's params hold them."""
+        assemble = AssembleInputs(self.rig, self.skeleton).canonical_params()
+        return {
+            "demo": _json(self.settings),
+            "sources": _json(self.sources),
+            "rig": assemble["rig"],
+            "skeleton": assemble["skeleton"],
+            "output_points": _json(self.output_points),
+        }
+
+    def rule_params(self) -> str:
+        """The demo rule's tracked ``params.stage``: :meth:`params` as sorted JSON."""
+        return json.dumps(self.params(), sort_keys=True)
+
+
+def _orbit_rig(rig: RigSpec, image_size: tuple[int, int]):
+    """The orbit rig of ``rig``'s ``cameras`` table, principal points at the centre of
+    ``image_size`` frames."""
+    from dataclasses import replace
+
+    return replace(rig, calibration=None).camera_group({v: image_size for v in rig.views})
+
+
+def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
+    """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`).
+
+    Parameters
+    ----------
+    inputs
+        The demo's inputs (:class:`DemoInputs`).
+    directory
+        Where to write; created if needed.
+    **overrides
+        Demo settings overriding ``inputs.settings`` (e.g. ``frames=10``).
+
+    Returns
+    -------
+    flylib.demo.DemoRecording
+    """
+    from ..demo import demo_settings, view_visibility, write_demo
+
+    settings = demo_settings({**_json(inputs.settings), **overrides})
+    skeleton = inputs.skeleton.skeleton()
+    cameras = _orbit_rig(inputs.rig, (settings["height"], settings["width"]))
+    layout = inputs.runtime
+    return write_demo(
+        directory,
+        settings,
+        skeleton,
+        cameras,
+        view_visibility(_json(inputs.output_points), list(cameras.names), skeleton.point_names),
+        dict(layout.view_sources),
+        dict(layout.source_files),
+        layout.dlc_files,
+    )
+
+
+def make_demo(config, directory: str | Path, **overrides: Any):
+    """Write the demo recording ``config`` describes into ``directory``.
+
+    Parameters
+    ----------
+    config
+        The run config (:class:`~flylib.config.Config`): its sources, rig, skeleton,
+        ``pose2d.output_points`` and ``demo`` table.
+    directory
+        Where to write; created if needed.
+    **overrides
+        Demo settings overriding the config's ``demo`` table (e.g. ``frames=10``).
+
+    Returns
+    -------
+    flylib.demo.DemoRecording
+    """
+    return run_demo(DemoInputs.from_config(config), directory, **overrides)

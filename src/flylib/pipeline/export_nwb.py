@@ -1,0 +1,240 @@
+"""The NWB export of one recording (rule ``export_nwb``, ``flylib export --nwb``).
+
+:class:`NwbExportInputs` is what the export reads: the ``exports`` and ``nwb`` tables
+(the rule's tracked params), plus the footage lookup and the config's text
+(:class:`NwbExportRuntime`). :func:`run_export_nwb` checks the session metadata
+before reading anything large, then writes the file with
+:func:`flylib.interop.nwb.export_nwb`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .inputs import StageInputs, _json, frozen_mapping
+from .visualization import find_footage, footage_globs
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class NwbExportRuntime:
+    """What the export reads beyond its rule's params, as before the inputs objects.
+
+    Attributes
+    ----------
+    footage
+        ``(view, glob)`` (:func:`~flylib.pipeline.visualization.footage_globs`): the
+        footage linked from the file, a rule input itself.
+    config_text
+        The run's config (:meth:`~flylib.config.Config.snapshot_text`), stored in the
+        file as the config that produced the result.
+    """
+
+    footage: tuple[tuple[str, str | None], ...] = ()
+    config_text: str | None = None
+
+
+@dataclass(frozen=True)
+class NwbExportInputs(StageInputs):
+    """The NWB export's inputs.
+
+    Attributes
+    ----------
+    exports
+        The ``exports`` table.
+    nwb
+        The ``nwb`` table: session metadata (:mod:`flylib.nwb_metadata`). Rebuilt from
+        the rule's JSON, its date-times are ISO 8601 text, which the metadata parser
+        reads back as the same date-times.
+    runtime
+        :class:`NwbExportRuntime`.
+    """
+
+    STAGE = "export_nwb"
+
+    exports: Mapping[str, Any]
+    nwb: Mapping[str, Any] | None
+    runtime: NwbExportRuntime = NwbExportRuntime()
+
+    @classmethod
+    def from_config(cls, config) -> NwbExportInputs:
+        """The config's ``exports`` and ``nwb`` tables, footage lookup and text."""
+        return cls(
+            exports=frozen_mapping(dict(config.data.get("exports") or {})),
+            nwb=frozen_mapping(config.data.get("nwb")),
+            runtime=NwbExportRuntime(footage_globs(config), config.snapshot_text()),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> NwbExportInputs:
+        """Inverse of :meth:`params`, with ``runtime`` (an :class:`NwbExportRuntime`)."""
+        return cls(
+            exports=frozen_mapping(dict(params["exports"])),
+            nwb=frozen_mapping(params["nwb"]),
+            runtime=runtime or NwbExportRuntime(),
+        )
+
+    def params(self) -> dict:
+        """``{"exports", "nwb"}``."""
+        return {"exports": _json(self.exports), "nwb": _json(self.nwb)}
+
+    def rule_params(self) -> str:
+        """The rule's tracked ``params.stage``: :meth:`params` as sorted JSON, values
+        JSON has no type for (YAML's date-times) as text."""
+        return json.dumps(self.params(), sort_keys=True, default=str)
+
+
+def session_metadata(
+    inputs: NwbExportInputs,
+    recording_dir: str | Path | None,
+    *,
+    demo: bool = False,
+    extra: Mapping | None = None,
+) -> dict[str, Any]:
+    """The recording's checked session metadata (:func:`flylib.nwb_metadata.recording_metadata`
+    of the ``nwb`` table).
+
+    Raises
+    ------
+    ConfigError
+        Missing or invalid session metadata, all named at once.
+    """
+    from ..nwb_metadata import recording_metadata
+
+    return recording_metadata(_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
+
+
+def run_export_nwb(
+    inputs: NwbExportInputs,
+    results_path: str | Path,
+    out_path: str | Path,
+    *,
+    recording_dir: str | Path | None = None,
+    demo: bool = False,
+    extra_metadata: Mapping | None = None,
+    angles_path: str | Path | None = None,
+) -> Path:
+    """Export a run's ``results.h5`` as NWB.
+
+    The session metadata is checked first (before reading anything large); the footage
+    of ``recording_dir`` is found through the config's ``sources`` and linked.
+
+    Parameters
+    ----------
+    inputs
+        The export's inputs (:class:`NwbExportInputs`).
+    results_path
+        The recording's ``results.h5``.
+    out_path
+        Destination ``.nwb``.
+    recording_dir
+        The recording directory (footage and ``nwb.yaml``), or ``None`` (no video links).
+    demo
+        The recording is the embedded demo (its metadata defaults apply).
+    extra_metadata
+        Overrides of the session metadata.
+    angles_path
+        The recording's ``neuromechfly.h5``: its joint angles go in too.
+
+    Raises
+    ------
+    ConfigError
+        Missing or invalid session metadata (all named at once), or no frame rate.
+    """
+    from ..interop.nwb import export_nwb
+
+    metadata = session_metadata(inputs, recording_dir, demo=demo, extra=extra_metadata)
+    footage = (
+        find_footage(inputs.runtime.footage, Path(recording_dir))
+        if recording_dir is not None
+        else {}
+    )
+    return export_nwb(
+        results_path,
+        out_path,
+        metadata,
+        footage=footage,
+        recording_dir=recording_dir,
+        config_text=inputs.runtime.config_text,
+        angles_path=angles_path,
+    )
+
+
+def export_nwb_command(
+    results_path: str | Path,
+    out_path: str | Path,
+    *,
+    config_path: str | Path | None = None,
+    recording: str | Path | None = None,
+    metadata_path: str | Path | None = None,
+) -> Path:
+    """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
+    :func:`run_export_nwb`.
+
+    Parameters
+    ----------
+    results_path
+        The recording's ``results.h5``.
+    out_path
+        Destination ``.nwb``.
+    config_path
+        The run's config; default the ``config.yaml`` (or ``.toml``) snapshot every run
+        leaves beside ``results.h5``, else flylib's default config.
+    recording
+        The recording directory; default the one ``results.h5`` records (its footage is
+        linked and its ``nwb.yaml`` read).
+    metadata_path
+        A YAML file of session metadata overriding the config's ``nwb`` table and the
+        recording's ``nwb.yaml``.
+
+    Raises
+    ------
+    ConfigError, ResultsError
+        One line naming what is missing or wrong.
+    """
+    from ..config import Config
+    from ..nwb_metadata import read_sidecar
+    from ..results import open_checked, read_meta_from
+
+    results_path = Path(results_path)
+    with open_checked(results_path, "pass the results.h5 a run wrote") as f:
+        meta = read_meta_from(f)
+    if config_path is None:
+        snapshots = [results_path.parent / f"config.{ext}" for ext in ("yaml", "toml")]
+        config_path = next((p for p in snapshots if p.is_file()), None)
+        if config_path is None:
+            log.warning(
+                "%s: no config snapshot beside it; using flylib's default config "
+                "(pass --config for the run's)",
+                results_path,
+            )
+    config = Config.from_file(config_path) if config_path is not None else Config.default()
+    if recording is None and meta.get("recording"):
+        recording = Path(meta["recording"])
+        if not recording.is_dir():
+            log.warning(
+                "%s names recording %s, which is not a directory here; no video is linked "
+                "(pass --recording)",
+                results_path,
+                recording,
+            )
+            recording = None
+    extra = None
+    if metadata_path is not None:
+        if not Path(metadata_path).is_file():
+            raise ConfigError(f"{metadata_path}: --nwb-metadata file not found")
+        extra = read_sidecar(metadata_path)
+    return run_export_nwb(
+        NwbExportInputs.from_config(config),
+        results_path,
+        out_path,
+        recording_dir=recording,
+        extra_metadata=extra,
+    )

@@ -1,0 +1,172 @@
+"""The visualization stage: the configured overlay videos of one recording, drawn
+over its footage from ``results.h5``.
+
+:class:`VisualizationInputs` is what the stage reads: the ``visualization`` table and
+the skeleton's palette (its tracked params), and, untracked by design, where each
+view's footage is and what to do with a corrupt frame (see
+:class:`VisualizationRuntime`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+
+
+@dataclass(frozen=True)
+class VisualizationRuntime:
+    """What the visualization job reads that is not in its params, by design: each
+    of these fixes the 2D the result was made from, so pose2d's params track it, and
+    a change re-runs pose2d and, through its artifact, everything after it (this
+    stage included).
+
+    Attributes
+    ----------
+    footage
+        ``(view, glob)`` per configured view, in view order: the glob of the source
+        that feeds the view (``sources``, ``pose2d.pathways``,
+        ``pose2d.output_points``), ``None`` for a view no source feeds.
+    on_corrupt_frame
+        ``io.on_corrupt_frame``: ``"error"`` or ``"missing"`` (a corrupt image is
+        drawn as the background).
+    """
+
+    footage: tuple[tuple[str, str | None], ...] = ()
+    on_corrupt_frame: str = "error"
+
+    @classmethod
+    def from_config(cls, config) -> VisualizationRuntime:
+        """Where ``config`` finds each view's footage, and its ``io.on_corrupt_frame``."""
+        return cls(footage=footage_globs(config), on_corrupt_frame=config.io.on_corrupt_frame)
+
+
+@register
+@dataclass(frozen=True)
+class VisualizationInputs(StageInputs):
+    """The visualization stage's inputs.
+
+    Attributes
+    ----------
+    visualization
+        The ``visualization`` table (parsed by
+        :func:`flylib.visualization.read_video_specs`).
+    palette
+        The skeleton's ``limb_palette``.
+    runtime
+        :class:`VisualizationRuntime`: the footage lookup and ``io.on_corrupt_frame``,
+        tracked by pose2d's params instead of this stage's.
+    """
+
+    STAGE = "visualization"
+
+    visualization: Mapping[str, Any]
+    palette: Mapping[str, str]
+    runtime: VisualizationRuntime = VisualizationRuntime()
+
+    @classmethod
+    def from_config(cls, config) -> VisualizationInputs:
+        """The config's ``visualization`` table, palette and footage lookup."""
+        return cls(
+            visualization=frozen_mapping(dict(config.visualization)),
+            palette=SkeletonSpec.from_config(config, palette=True).palette,
+            runtime=VisualizationRuntime.from_config(config),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Any = None) -> VisualizationInputs:
+        """Inverse of :meth:`params`, with ``runtime`` (a :class:`VisualizationRuntime`)."""
+        return cls(
+            visualization=frozen_mapping(dict(params["visualization"])),
+            palette=frozen_mapping(dict(params["palette"])),
+            runtime=runtime or VisualizationRuntime(),
+        )
+
+    def params(self) -> dict:
+        """``{"visualization": table, "palette": limb -> colour}``."""
+        return {"visualization": _json(self.visualization), "palette": _json(self.palette)}
+
+
+def footage_globs(config) -> tuple[tuple[str, str | None], ...]:
+    """``(view, glob)`` per view ``config`` feeds from a footage source (``None``: a
+    source without a pattern), in view order."""
+    from ..config.sources import source_patterns, view_sources
+
+    sources = view_sources(config)
+    patterns = source_patterns(config) if sources else {}
+    return tuple((view, patterns.get(source)) for view, source in sources.items())
+
+
+def find_footage(
+    footage: tuple[tuple[str, str | None], ...], recording_dir: Path
+) -> dict[str, list[Path]]:
+    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if
+    none), found as the pose2d stage finds them (only video and image files count).
+
+    Parameters
+    ----------
+    footage
+        :func:`footage_globs`.
+    recording_dir
+        The recording directory.
+    """
+    from ..recordings import footage_matches, natural_sorted
+
+    return {
+        view: natural_sorted(footage_matches(recording_dir, glob)) if glob is not None else []
+        for view, glob in footage
+    }
+
+
+def run_visualization(
+    inputs: VisualizationInputs,
+    results_path: str | Path,
+    recording_dir: str | Path,
+    outdir: str | Path,
+    *,
+    progress: bool = False,
+    speed: float | None = None,
+) -> list[Path]:
+    """Render the configured videos of one recording into ``outdir``.
+
+    Points a person corrected (``triangulation/corrected`` in results.h5) are ringed.
+
+    Parameters
+    ----------
+    inputs
+        The stage's inputs (:class:`VisualizationInputs`).
+    results_path
+        The recording's ``results.h5``.
+    recording_dir
+        The recording directory (its footage).
+    outdir
+        Where ``<video_name>.mp4`` go.
+    progress
+        Show a progress bar.
+    speed
+        A multiple of the recording's rate when the config sets none (the demo's slow
+        motion).
+
+    Returns
+    -------
+    list of Path
+        The written videos, in config order.
+    """
+    from ..corrections import read_corrected
+    from ..results import PoseResult
+    from ..visualization import render_videos
+
+    result = PoseResult.load(results_path)
+    return render_videos(
+        _json(inputs.visualization),
+        result,
+        find_footage(inputs.runtime.footage, Path(recording_dir)),
+        outdir,
+        progress=progress,
+        corrected=read_corrected(results_path),
+        speed=speed,
+        on_corrupt=inputs.runtime.on_corrupt_frame,
+    )
