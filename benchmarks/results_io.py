@@ -30,10 +30,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from flylib import results as results_module
 from flylib.config import Config
 from flylib.demo import view_visibility
-from flylib.results import Pose2dData, PoseResult, assemble_results, write_stage
+from flylib.results import (
+    Pose2dData,
+    PoseResult,
+    assemble_results,
+    datasets as results_datasets,
+    write_stage,
+)
 
 
 def visibility(config: Config) -> np.ndarray:
@@ -88,7 +93,7 @@ def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) 
         config.skeleton(),
         config.camera_group({v: (480, 960) for v in config.view_names()}),
     )
-    results_module._FLETCHER32 = checksums
+    results_datasets._FLETCHER32 = checksums
     try:
         with _Clock() as write:
             Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(
@@ -114,7 +119,7 @@ def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) 
                 },
             )
     finally:
-        results_module._FLETCHER32 = True
+        results_datasets._FLETCHER32 = True
     with _Clock() as load:
         PoseResult.load(stages / "results.h5")
     return {

@@ -45,7 +45,6 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.paths",
             "flylib.resources",
             "flylib.locking",
-            "flylib.hdf5_files",
         ),
     ),
     (

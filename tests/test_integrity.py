@@ -171,10 +171,10 @@ def test_every_dataset_of_artifacts_and_results_carries_a_checksum(results):
 def test_inspect_notes_a_file_without_checksums_but_does_not_fail_it(
     tmp_path, rig_and_skeleton, capsys, monkeypatch
 ):
-    from flylib import results as results_module
+    from flylib.results import datasets as results_datasets
 
     config, rig, skeleton = rig_and_skeleton
-    monkeypatch.setattr(results_module, "_FLETCHER32", False)  # as an older flylib wrote it
+    monkeypatch.setattr(results_datasets, "_FLETCHER32", False)  # as an older flylib wrote it
     PoseResult(rig, skeleton, np.zeros((7, 500, 38, 2)), pts3d=np.zeros((500, 38, 3))).save(
         tmp_path / "old.h5"
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -463,3 +464,76 @@ def test_hdf5_file_without_flylib_meta_is_rejected(tmp_path):
     with pytest.raises(ResultsError, match="foreign.h5: not a flylib file"):
         PoseResult.load(path)
     assert read_meta(path) == {}
+
+
+# -- the package's interface ---------------------------------------------------------------------
+
+
+def _names_imported_from_results(path) -> set[str]:
+    """Names a file imports from ``flylib.results`` (absolute, or relative from inside
+    ``src/flylib``), not from its submodules."""
+    import ast
+
+    src = Path(flylib.__file__).parent
+    package = None
+    if src in path.parents:
+        package = ".".join(("flylib", *path.relative_to(src).parent.parts))
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        target = node.module or ""
+        if node.level:
+            if package is None:
+                continue
+            base = package.split(".")[: len(package.split(".")) - node.level + 1]
+            target = ".".join([*base, *([node.module] if node.module else [])])
+        if target == "flylib.results":
+            names |= {alias.name for alias in node.names}
+    return names
+
+
+def test_every_name_the_tree_imports_from_flylib_results_is_there():
+    import flylib.results
+
+    repo = Path(__file__).resolve().parents[1]
+    imported: dict[str, set[str]] = {}
+    for folder in ("src", "tests", "scripts", "benchmarks"):
+        for path in (repo / folder).rglob("*.py"):
+            for name in _names_imported_from_results(path):
+                imported.setdefault(name, set()).add(path.name)
+    # the split package keeps the single module's names, private helpers other modules use too
+    assert {"PoseResult", "open_hdf5", "open_checked", "_new_meta", "_write_array"} <= set(imported)
+    missing = {name: files for name, files in imported.items() if not hasattr(flylib.results, name)}
+    assert missing == {}
+
+
+def test_the_checksum_switch_read_through_the_package_is_the_writers_own(monkeypatch):
+    import flylib.results
+    from flylib.results import datasets
+
+    assert flylib.results._FLETCHER32 is True
+    monkeypatch.setattr(datasets, "_FLETCHER32", False)
+    assert flylib.results._FLETCHER32 is False
+    with pytest.raises(AttributeError, match="_FLETCHER33"):
+        flylib.results._FLETCHER33  # noqa: B018
+
+
+def test_one_opener_raises_the_callers_error_class_naming_file_what_and_fix(tmp_path):
+    from flylib.errors import ImportFormatError
+    from flylib.results.hdf5 import open_hdf5
+
+    missing, text = tmp_path / "nope.h5", tmp_path / "text.h5"
+    text.write_text("not hdf5")
+    with pytest.raises(ResultsError) as err:
+        open_hdf5(missing, "re-run the workflow")
+    assert str(err.value) == f"{missing}: no such HDF5 file; re-run the workflow"
+    with pytest.raises(ImportFormatError) as err:
+        open_hdf5(text, "check pose2d.import.files", "DeepLabCut .h5", error=ImportFormatError)
+    message = str(err.value)
+    assert message.startswith(f"{text}: not a readable DeepLabCut .h5 (")
+    assert message.endswith("); check pose2d.import.files") and "\n" not in message
+    with h5py.File(tmp_path / "ok.h5", "w") as f:
+        f.attrs["x"] = 1
+    with open_hdf5(tmp_path / "ok.h5", "unused") as f:
+        assert f.mode == "r" and f.attrs["x"] == 1

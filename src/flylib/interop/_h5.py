@@ -27,14 +27,13 @@ import h5py
 import numpy as np
 
 from ..errors import FlylibError, ImportFormatError, one_line
-from ..hdf5_files import H5_READ_ERRORS, open_h5
+from ..results.hdf5 import H5_READ_ERRORS, open_hdf5
 
 __all__ = [
     "DEFAULT_READ_BUDGET",
     "H5_READ_ERRORS",
     "checked_dataset",
     "foreign_member",
-    "open_foreign_h5",
     "read_budget",
     "read_checked",
     "reading_foreign_h5",
@@ -75,29 +74,16 @@ def read_budget(frames: int | None, points: int) -> int:
     return int(min(DEFAULT_READ_BUDGET, max(_BUDGET_FLOOR, int(frames) * per_frame)))
 
 
-def open_foreign_h5(path: str | Path, what: str, hint: str) -> h5py.File:
-    """Open ``path`` read-only, or raise :class:`ImportFormatError`.
-
-    Parameters
-    ----------
-    path
-        The file to open.
-    what
-        What the file should be, for the message (e.g. ``"DeepLabCut .h5"``).
-    hint
-        What to check when it is missing (e.g. ``"check pose2d.import.files"``).
-    """
-    return open_h5(path, error=ImportFormatError, what=what, fix=hint)
-
-
 @contextmanager
 def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.File]:
-    """:func:`open_foreign_h5` as a context whose h5py read errors become one line.
+    """Open ``path`` read-only (:func:`~flylib.results.hdf5.open_hdf5`, a missing or
+    unreadable file one :class:`ImportFormatError` naming ``what`` and ``hint``), as a
+    context whose h5py read errors become one line.
 
     Errors raised while reading inside the block (:data:`H5_READ_ERRORS`) are re-raised
     as :class:`ImportFormatError` naming ``path``; flylib's own errors pass unchanged.
     """
-    with open_foreign_h5(path, what, hint) as fh:
+    with open_hdf5(path, hint, what, error=ImportFormatError) as fh:
         try:
             yield fh
         except FlylibError:

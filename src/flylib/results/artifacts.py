@@ -1,0 +1,138 @@
+"""The per-stage artifacts: ``<outdir>/stages/<stage>.h5`` and the post-processing files.
+
+Each holds the meta JSON and exactly the group its stage owns in ``results.h5``
+(:data:`STAGE_GROUPS`), so assembly is a group copy; ``kinematics.h5`` and
+``neuromechfly.h5`` are written by :func:`write_analysis` and are not part of it.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+from ..errors import ResultsError
+from ..paths import atomic_path
+from .datasets import _json_attrs, _read, _read_json_attrs, _write_array
+from .groups import _read_cameras, _write_cameras
+from .hdf5 import _create, _new_meta, _read_checked
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+
+#: Stage-artifact file names inside ``<outdir>/stages/``.
+ARTIFACTS: dict[str, str] = {
+    "pose2d": "pose2d.h5",
+    "bundle_adjustment": "bundle_adjustment.h5",
+    "pictorial_structures": "pictorial_structures.h5",
+    "triangulation": "triangulation.h5",
+    "refinement": "refinement.h5",
+}
+#: Stages that own a group in results.h5, in pipeline order.
+STAGE_GROUPS: tuple[str, ...] = (
+    "pose2d",
+    "bundle_adjustment",
+    "pictorial_structures",
+    "triangulation",
+    "refinement",
+)
+
+
+def write_analysis(
+    path: str | Path, stage: str, arrays: Mapping[str, Any], attrs: Mapping[str, Any]
+) -> Path:
+    """Write a post-processing stage's file (``kinematics.h5``, ``neuromechfly.h5``)
+    atomically: the meta JSON, and a group ``<stage>`` holding ``arrays`` as checksummed
+    float64 datasets and ``attrs`` as JSON group attributes."""
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["meta"] = json.dumps(_new_meta(stage))
+        group = f.create_group(stage)
+        for name, value in arrays.items():
+            _write_array(group, name, value)
+        for key, value in attrs.items():
+            group.attrs[key] = json.dumps(value)
+    return Path(path)
+
+
+def write_stage(
+    path: str | Path,
+    stage: str,
+    arrays: Mapping[str, Any],
+    *,
+    cameras: CameraGroup | None = None,
+    attrs: Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
+) -> None:
+    """Write one stage's artifact: ``<stage>/`` with its arrays, rig and attributes.
+
+    Parameters
+    ----------
+    path
+        Destination, e.g. ``<out>/stages/triangulation.h5``; written atomically.
+    stage
+        ``bundle_adjustment``, ``pictorial_structures`` or ``triangulation`` (the
+        pose2d artifact is written by :meth:`Pose2dData.save`).
+    arrays
+        ``name -> array`` stored as float64 datasets (e.g. ``points``, ``points3d``,
+        ``reproj_error``); boolean arrays (masks) stay boolean.
+    cameras
+        A rig to store as ``<stage>/cameras`` (bundle adjustment's refined rig).
+    attrs
+        JSON-serialisable group attributes (e.g. a bundle-adjustment ``summary``).
+    meta
+        Extra entries for the file's meta JSON (e.g. its params hash, see
+        :mod:`flylib.provenance`).
+    """
+    if stage not in STAGE_GROUPS or stage == "pose2d":
+        raise ValueError(
+            f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})"
+        )
+    with atomic_path(path) as tmp, _create(tmp) as f:
+        f.attrs["meta"] = json.dumps(_new_meta(stage, meta))
+        group = f.create_group(stage)
+        for name, value in arrays.items():
+            value = np.asarray(value)
+            _write_array(
+                group, name, value, dtype=np.bool_ if value.dtype == np.bool_ else np.float64
+            )
+        if cameras is not None:
+            _write_cameras(group.create_group("cameras"), cameras)
+        _json_attrs(group, attrs)
+
+
+def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
+    """Read one stage's group: its arrays, plus ``"cameras"`` and ``"attrs"``.
+
+    Parameters
+    ----------
+    path
+        A stage artifact (or results file) holding ``<stage>/``.
+    stage
+        The stage name.
+
+    Returns
+    -------
+    dict
+        ``name -> np.ndarray`` for every dataset of the group, ``"cameras"`` (a
+        ``CameraGroup`` or ``None``) and ``"attrs"`` (the decoded group attributes).
+
+    Raises
+    ------
+    ResultsError
+        If the file is missing, of another version, or lacks the group.
+    """
+    rerun = f"re-run the {stage} stage"
+    with _read_checked(path, rerun) as f:
+        if stage not in f:
+            raise ResultsError(f"{path}: has no {stage} group; {rerun}")
+        group = f[stage]
+        out: dict[str, Any] = {
+            name: _read(item) for name, item in group.items() if isinstance(item, h5py.Dataset)
+        }
+        out["cameras"] = _read_cameras(group["cameras"]) if "cameras" in group else None
+        out["attrs"] = _read_json_attrs(group)
+        return out

@@ -1,0 +1,102 @@
+"""The camera rig and skeleton groups of flylib's HDF5 files.
+
+A rig is stored as ``names``, ``rvecs``, ``tvecs``, ``intrs`` ([fx, fy, cx, cy]) and
+``dists``; a skeleton as ``point_names``, ``limb_names``, ``limb_id``, ``bones`` and a
+``palette`` group of attributes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import h5py
+import numpy as np
+
+from ..errors import ResultsError
+from ..skeleton import Skeleton
+from .datasets import _read, _read_strings, _write_array, _write_strings
+from .hdf5 import _read_checked
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..cameras import CameraGroup
+
+
+def _write_cameras(group: h5py.Group, cameras: CameraGroup) -> None:
+    """Store a rig as ``names``, ``rvecs``, ``tvecs``, ``intrs`` ([fx, fy, cx, cy]), ``dists``."""
+    _write_strings(group, "names", cameras.names)
+    for name in ("rvecs", "tvecs", "intrs", "dists"):
+        _write_array(group, name, getattr(cameras, name))
+
+
+def _read_cameras(group: h5py.Group) -> CameraGroup:
+    from ..cameras import CameraGroup
+
+    return CameraGroup.from_arrays(
+        _read_strings(group["names"]),
+        _read(group["rvecs"]),
+        _read(group["tvecs"]),
+        _read(group["intrs"]),
+        _read(group["dists"]),
+    )
+
+
+def _write_skeleton(group: h5py.Group, skeleton: Skeleton) -> None:
+    group.attrs["name"] = skeleton.name
+    _write_strings(group, "point_names", skeleton.point_names)
+    _write_strings(group, "limb_names", skeleton.limb_names)
+    _write_array(group, "limb_id", skeleton.limb_id, dtype=np.int64)
+    _write_array(group, "bones", skeleton.bones, dtype=np.int64)
+    palette = group.create_group("palette")
+    for limb, color in skeleton.palette.items():
+        palette.attrs[limb] = color
+
+
+def _read_skeleton(group: h5py.Group) -> Skeleton:
+    name = group.attrs.get("name", "skeleton")
+    palette = (
+        {str(k): str(v) for k, v in group["palette"].attrs.items()} if "palette" in group else {}
+    )
+    return Skeleton.from_arrays(
+        _read_strings(group["point_names"]),
+        _read_strings(group["limb_names"]),
+        _read(group["limb_id"]),
+        _read(group["bones"]),
+        palette=palette,
+        name=str(name),
+    )
+
+
+def read_skeleton(path: str | Path) -> Skeleton:
+    """The skeleton stored in a results or stage file's ``skeleton/`` group.
+
+    Raises
+    ------
+    ResultsError
+        If the file is missing, of another version, or has no skeleton.
+    """
+    with _read_checked(path, "re-run the pipeline") as f:
+        if "skeleton" not in f:
+            raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
+        return _read_skeleton(f["skeleton"])
+
+
+def read_cameras(path: str | Path, group: str) -> CameraGroup:
+    """The rig stored in ``<group>/cameras`` of a results or stage file.
+
+    Parameters
+    ----------
+    path
+        The HDF5 file.
+    group
+        The stage group, e.g. ``"bundle_adjustment"``.
+
+    Raises
+    ------
+    ResultsError
+        If the file is missing, of another version, or has no such rig.
+    """
+    with _read_checked(path, f"re-run {group}") as f:
+        if f"{group}/cameras" not in f:
+            raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")
+        return _read_cameras(f[f"{group}/cameras"])

@@ -1,0 +1,200 @@
+"""Opening and creating HDF5 files: the one read-only opener, the version check, the meta.
+
+:func:`open_hdf5` is the one place an HDF5 file is opened for reading with one-line
+errors, flylib's own files (:class:`~flylib.errors.ResultsError`) and other tools'
+(:mod:`flylib.interop._h5`, :class:`~flylib.errors.ImportFormatError`) alike.
+:func:`open_checked` opens a results or stage file and checks its format version, and
+turns damage met while reading it into one line. Every file holds ``attrs["meta"]``
+(JSON: ``deeperfly_format_version``, ``flylib_version``, ``created_utc``, ``stage``);
+new files use HDF5 1.8's checksummed object headers (:func:`_create`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from datetime import UTC, datetime
+from pathlib import Path
+
+import h5py
+
+from ..errors import FlylibError, ResultsError, one_line
+from ..paths import out_of_space
+from .checksums import _damaged
+
+#: The results.h5 schema version this code writes and accepts.
+FORMAT_VERSION = 2
+# HDF5 1.8's file format: object headers, link tables and the superblock carry
+# checksums (readable by any HDF5 >= 1.8, i.e. since 2008).
+_LIBVER = ("v108", "latest")
+
+#: What h5py raises while reading a damaged or unexpected file: OSError for storage-level
+#: damage (a bad B-tree, a failed filter or checksum, a truncated file), KeyError for a
+#: link that does not resolve, ValueError/TypeError for a dtype or selection that does
+#: not convert, RuntimeError for a few low-level HDF5 failures.
+H5_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
+
+
+def _create(path: str | Path) -> h5py.File:
+    """A new HDF5 file in the checksummed metadata format."""
+    return h5py.File(path, "w", libver=_LIBVER)
+
+
+def open_hdf5(
+    path: str | Path,
+    fix: str,
+    what: str = "HDF5 file",
+    *,
+    error: type[FlylibError] = ResultsError,
+) -> h5py.File:
+    """Open ``path`` read-only; a missing or unreadable file is one ``error`` naming it.
+
+    Parameters
+    ----------
+    path
+        The file.
+    fix
+        What the user should do (e.g. ``"re-run the workflow"``).
+    what
+        What the file should be, for the message (e.g. ``"DeepLabCut .h5"``).
+    error
+        The error class to raise: :class:`~flylib.errors.ResultsError` for flylib's
+        files, :class:`~flylib.errors.ImportFormatError` for another tool's.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: no such {what}; {fix}")
+    try:
+        return h5py.File(path, "r")
+    except H5_READ_ERRORS as err:
+        raise error(f"{path}: not a readable {what} ({one_line(err)}); {fix}") from None
+
+
+@contextmanager
+def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterator[h5py.File]:
+    """Open a flylib HDF5 file (results or stage artifact) read-only, checking its version.
+
+    Parameters
+    ----------
+    path
+        The file.
+    rerun
+        What the user should do when the file is missing or stale, for the message.
+
+    Raises
+    ------
+    ResultsError
+        Missing, not HDF5, not a flylib file, or a different format version.
+    """
+    path = Path(path)
+    with open_hdf5(path, rerun) as f:
+        try:
+            version = read_meta_from(f).get("deeperfly_format_version")
+        except (OSError, KeyError, RuntimeError) as err:
+            raise _damaged(path, "its root attributes", err) from None
+        if version is None:
+            raise ResultsError(
+                f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it"
+            )
+        if version != FORMAT_VERSION:
+            raise ResultsError(
+                f"{path}: format version {version!r}, expected {FORMAT_VERSION}; {rerun} to regenerate it"
+            )
+        try:
+            yield f
+        except (OSError, RuntimeError) as err:  # a damaged object header, link table, ...
+            if out_of_space(err) is not None:
+                raise  # a write in the block failed (atomic_path reports it), not this file
+            raise _damaged(path, "an HDF5 object", err) from None
+        except KeyError as err:
+            if "Unable to" not in str(err):  # h5py's words for an object HDF5 could not load
+                raise
+            raise _damaged(path, "an HDF5 object", err) from None
+
+
+#: What reading a damaged file raises below flylib: h5py's OSError (a bad B-tree, a
+#: failed filter or checksum, a truncated file), KeyError (a link that does not resolve),
+#: ValueError/TypeError (a dataset of another dtype or shape), RuntimeError (low-level
+#: HDF5 failures), and IndexError/AttributeError (JSON attributes of an unexpected type).
+_DAMAGE_ERRORS = (
+    OSError,
+    KeyError,
+    ValueError,
+    TypeError,
+    RuntimeError,
+    IndexError,
+    AttributeError,
+)
+
+
+@contextmanager
+def _read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
+    """:func:`open_checked` for the loaders: a read that fails inside the block (the
+    file is damaged) raises :class:`ResultsError` naming the file, not h5py's error."""
+    try:
+        with open_checked(path, rerun) as f:
+            yield f
+    except ResultsError:
+        raise
+    except FlylibError as err:  # stored content a constructor refuses (e.g. a skeleton's limbs)
+        detail = " ".join(str(err).split())[:300]
+        raise ResultsError(f"{path}: invalid content ({detail}); {rerun}") from None
+    except _DAMAGE_ERRORS as err:
+        detail = " ".join(str(err).split())[:300]
+        raise ResultsError(
+            f"{path}: damaged or unreadable ({type(err).__name__}: {detail}); {rerun}"
+        ) from None
+
+
+def read_meta_from(f: h5py.File) -> dict:
+    """The ``meta`` JSON of an open file (empty when absent or unreadable)."""
+    raw = f.attrs.get("meta")
+    if raw is None:
+        return {}
+    try:
+        meta = json.loads(raw.decode() if isinstance(raw, bytes) else raw)
+    except (json.JSONDecodeError, TypeError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def read_meta(path: str | Path) -> dict:
+    """The ``meta`` JSON of a flylib HDF5 file (no version check).
+
+    Parameters
+    ----------
+    path
+        A results or stage-artifact file.
+
+    Returns
+    -------
+    dict
+        The parsed meta; empty if the file has none.
+
+    Raises
+    ------
+    ResultsError
+        Not HDF5, or its root object (header, attributes) damaged: one line naming it.
+    """
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:
+        raise ResultsError(f"{path}: not a readable HDF5 file ({err})") from None
+    with f:
+        try:
+            return read_meta_from(f)
+        except (OSError, KeyError, RuntimeError) as err:  # a damaged root object header
+            raise _damaged(path, "its root attributes", err) from None
+
+
+def _new_meta(stage: str, extra: Mapping | None = None) -> dict:
+    from .. import __version__
+
+    return {
+        **(extra or {}),
+        "deeperfly_format_version": FORMAT_VERSION,
+        "flylib_version": __version__,
+        "created_utc": datetime.now(UTC).isoformat(),
+        "stage": stage,
+    }

@@ -1,0 +1,206 @@
+"""The assembled result of one recording: :class:`PoseResult`.
+
+``results.h5`` (schema version 2, seed 004) is read back preferring the most-derived
+data present (refinement, else triangulation, else pictorial structures, else the 2D
+detections) and the bundle-adjusted rig over the config's.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import ResultsError
+from ..paths import atomic_path
+from ..skeleton import Skeleton
+from .checksums import _check_group
+from .datasets import _json_attrs, _read, _read_json_attrs, _write_array
+from .groups import _read_cameras, _read_skeleton, _write_cameras, _write_skeleton
+from .hdf5 import _create, _new_meta, _read_checked, read_meta_from
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
+
+    from ..cameras import CameraGroup
+
+
+def _float_or_none(value: Any) -> np.ndarray | None:
+    return None if value is None else np.asarray(value, dtype=np.float64)
+
+
+@dataclass
+class PoseResult:
+    """A complete multi-view pose estimate of one recording.
+
+    Attributes
+    ----------
+    cameras
+        The rig (bundle-adjusted when that stage ran).
+    skeleton
+        The tracked skeleton.
+    pts2d
+        ``(V, T, P, 2)`` 2D points in raw-frame pixels, NaN = missing.
+    conf
+        ``(V, T, P)`` detector confidences, or ``None``.
+    pts3d
+        ``(T, P, 3)`` 3D points, NaN = not reconstructed, or ``None``.
+    reproj_error
+        ``(V, T, P)`` reprojection error in pixels, or ``None``.
+    meta
+        Free-form metadata (format version, creation time, ...).
+    image_sizes
+        ``view -> (height, width)`` of the raw footage, when known.
+    """
+
+    cameras: CameraGroup
+    skeleton: Skeleton
+    pts2d: Float[np.ndarray, "V T P 2"]
+    conf: Float[np.ndarray, "V T P"] | None = None
+    pts3d: Float[np.ndarray, "T P 3"] | None = None
+    reproj_error: Float[np.ndarray, "V T P"] | None = None
+    meta: dict = field(default_factory=dict)
+    image_sizes: dict[str, tuple[int, int]] | None = None
+
+    def __post_init__(self) -> None:
+        self.pts2d = np.asarray(self.pts2d, dtype=np.float64)
+        self.conf = _float_or_none(self.conf)
+        self.pts3d = _float_or_none(self.pts3d)
+        self.reproj_error = _float_or_none(self.reproj_error)
+        if self.pts2d.ndim != 4 or self.pts2d.shape[-1] != 2:
+            raise ValueError(f"pts2d must be (V, T, P, 2), got shape {self.pts2d.shape}")
+        v, t, p, _ = self.pts2d.shape
+        expected = {"conf": (v, t, p), "pts3d": (t, p, 3), "reproj_error": (v, t, p)}
+        for name, shape in expected.items():
+            arr = getattr(self, name)
+            if arr is not None and arr.shape != shape:
+                raise ValueError(f"{name} must have shape {shape} to match pts2d, got {arr.shape}")
+        if p != self.skeleton.n_points:
+            raise ValueError(f"pts2d has {p} points but the skeleton has {self.skeleton.n_points}")
+        if v != len(self.cameras):
+            raise ValueError(f"pts2d has {v} views but the rig has {len(self.cameras)} cameras")
+
+    @property
+    def n_views(self) -> int:
+        """Number of views ``V``."""
+        return self.pts2d.shape[0]
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return self.pts2d.shape[1]
+
+    @property
+    def n_points(self) -> int:
+        """Number of points ``P``."""
+        return self.pts2d.shape[2]
+
+    def save(self, path: str | Path) -> None:
+        """Write the result to an HDF5 file, atomically (an existing file is replaced).
+
+        ``pts2d``/``conf`` and the rig go to ``pose2d/``; when a 3D pose is present,
+        ``pts2d``, ``pts3d`` and ``reproj_error`` also go to ``triangulation/``, so
+        :meth:`load` returns the same result.
+
+        Parameters
+        ----------
+        path
+            Destination ``.h5`` file.
+        """
+        # A loaded result keeps its creation time and stage; version fields are this writer's.
+        fresh = _new_meta("result")
+        meta = {**fresh, **self.meta}
+        meta["deeperfly_format_version"] = fresh["deeperfly_format_version"]
+        meta["flylib_version"] = fresh["flylib_version"]
+        with atomic_path(path) as tmp, _create(tmp) as f:
+            f.attrs["meta"] = json.dumps(meta)
+            _write_skeleton(f.create_group("skeleton"), self.skeleton)
+            g2d = f.create_group("pose2d")
+            _write_array(g2d, "points", self.pts2d)
+            if self.conf is not None:
+                _write_array(g2d, "conf", self.conf)
+            _write_cameras(g2d.create_group("cameras"), self.cameras)
+            _json_attrs(g2d, {"view_names": list(self.cameras.names)})
+            if self.image_sizes is not None:
+                _json_attrs(g2d, {"image_sizes": {k: list(v) for k, v in self.image_sizes.items()}})
+            if self.pts3d is not None or self.reproj_error is not None:
+                g3d = f.create_group("triangulation")
+                _write_array(g3d, "points", self.pts2d)
+                if self.pts3d is not None:
+                    _write_array(g3d, "points3d", self.pts3d)
+                if self.reproj_error is not None:
+                    _write_array(g3d, "reproj_error", self.reproj_error)
+
+    @classmethod
+    def load(cls, path: str | Path) -> PoseResult:
+        """Read the assembled result back, preferring the most-derived data present.
+
+        ``pts2d``: refinement, else triangulation, else pictorial_structures, else
+        pose2d. ``pts3d`` and ``reproj_error``: refinement, else triangulation, else
+        pictorial_structures. Cameras:
+        bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d.
+
+        Parameters
+        ----------
+        path
+            A file written by :meth:`save` or :func:`assemble_results`.
+
+        Returns
+        -------
+        PoseResult
+            The assembled result.
+
+        Raises
+        ------
+        ResultsError
+            If the file is missing, of another format version, or has no pose2d data
+            or no rig.
+        """
+        rerun = "re-run the pipeline"
+        with _read_checked(path, rerun) as f:
+            if "pose2d/points" not in f:
+                raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
+            if "skeleton" not in f:
+                raise ResultsError(f"{path}: has no skeleton group; {rerun}")
+            meta = read_meta_from(f)
+            meta.pop("deeperfly_format_version", None)
+            skeleton = _read_skeleton(f["skeleton"])
+            rig = next(
+                (f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f),
+                None,
+            )
+            if rig is None:
+                raise ResultsError(
+                    f"{path}: has no cameras (pose2d/cameras); assemble it with assemble_results"
+                )
+            cameras = _read_cameras(rig)
+
+            read: list[str] = []
+
+            def first(name: str, stages: tuple[str, ...]) -> np.ndarray | None:
+                stage = next((s for s in stages if f"{s}/{name}" in f), None)
+                if stage is None:
+                    return None
+                read.append(f"/{stage}/{name}")
+                return _read(f[f"{stage}/{name}"])
+
+            derived = ("refinement", "triangulation", "pictorial_structures")
+            pts2d = first("points", (*derived, "pose2d"))
+            pts3d = first("points3d", derived)
+            reproj = first("reproj_error", derived)
+            conf = first("conf", ("pose2d",))
+            sizes = _read_json_attrs(f["pose2d"]).get("image_sizes")
+            _check_group(path, f, skip=read)  # damage in what was not loaded is damage too
+            return cls(  # inside the block: a shape mismatch of a damaged file names the file
+                cameras=cameras,
+                skeleton=skeleton,
+                pts2d=pts2d,
+                conf=conf,
+                pts3d=pts3d,
+                reproj_error=reproj,
+                meta=meta,
+                image_sizes=None if sizes is None else {k: tuple(v) for k, v in sizes.items()},
+            )
