@@ -238,9 +238,10 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
 def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
-    from flylib.pipeline.refinement import RefinementInputs, run_refinement
+    from flylib.pipeline.refinement import run_refinement
+    from flylib.pipeline.stages import run_inputs
 
-    inputs = RefinementInputs.from_config_rig(Config.default())
+    inputs = run_inputs(Config.default(), "refinement")
     before = _peak_mb()
     started = time.perf_counter()
     run_refinement(

@@ -165,7 +165,8 @@ def script_main(
 
 def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) -> Any:
     """What a stage runs on: its inputs object when ``stage`` is given (from the job's
-    params, or built from ``--config``), else the run's config."""
+    params, or built from ``--config``: on the config rig when a stage that takes
+    ``--bundle-adjustment`` is run without it), else the run's config."""
     from flylib.config import Config
 
     if stage is None:
@@ -178,7 +179,13 @@ def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) 
 
     if job is not None:
         return inputs_from_job(stage, job.params.stage, job.params.runtime)
-    return stage_inputs(Config.from_file(args.config), stage)
+    config = Config.from_file(args.config)
+    if getattr(args, "bundle_adjustment", False) is None:
+        # a stage after bundle adjustment run by hand without its artifact: the config rig
+        from flylib.pipeline.stages import run_inputs
+
+        return run_inputs(config, stage)
+    return stage_inputs(config, stage)
 
 
 def run_script(main: Callable[..., int], namespace: dict) -> None:

@@ -3,9 +3,7 @@
 
 from pathlib import Path
 
-from flylib.config import Config
 from flylib.pipeline.pictorial_structures import run_pictorial_structures
-from flylib.pipeline.stages import run_inputs
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -22,9 +20,6 @@ def main(argv=None, *, job=None) -> int:
     add_rig_stage_arguments(parser)
 
     def run(args, inputs):
-        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
-            # by hand without --bundle-adjustment: the config rig, as its help says
-            inputs = run_inputs(Config.from_file(args.config), "pictorial_structures")
         run_pictorial_structures(
             inputs,
             args.pose2d,

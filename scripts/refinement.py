@@ -4,8 +4,7 @@ reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)
 
 from pathlib import Path
 
-from flylib.config import Config
-from flylib.pipeline.refinement import RefinementInputs, run_refinement
+from flylib.pipeline.refinement import run_refinement
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
 
@@ -24,9 +23,6 @@ def main(argv=None, *, job=None) -> int:
     add_rig_stage_arguments(parser)
 
     def run(args, inputs):
-        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
-            # by hand without bundle adjustment's artifact: the config rig, as documented
-            inputs = RefinementInputs.from_config_rig(Config.from_file(args.config))
         run_refinement(
             inputs,
             args.pose2d,

@@ -3,8 +3,6 @@
 
 from pathlib import Path
 
-from flylib.config import Config
-from flylib.pipeline.stages import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 
 from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
@@ -28,9 +26,6 @@ def main(argv=None, *, job=None) -> int:
     )
 
     def run(args, inputs):
-        if inputs.rig is None and args.bundle_adjustment is None and args.config is not None:
-            # by hand without --bundle-adjustment: the config rig, as its help says
-            inputs = run_inputs(Config.from_file(args.config), "triangulation")
         run_triangulation(
             inputs,
             args.pose2d,

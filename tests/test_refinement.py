@@ -183,14 +183,14 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     import h5py
 
     from flylib.config import Config
-    from flylib.pipeline.refinement import RefinementInputs, run_refinement
-    from flylib.pipeline.stages import run_assemble
+    from flylib.pipeline.refinement import run_refinement
+    from flylib.pipeline.stages import run_assemble, run_inputs
     from flylib.results import PoseResult
 
     config = Config.default()
     rig, truth, _ = _stage_case(tmp_path, frames=30, seed=5)
     run_refinement(
-        RefinementInputs.from_config_rig(config),
+        run_inputs(config, "refinement"),
         tmp_path / "pose2d.h5",
         tmp_path / "triangulation.h5",
         tmp_path / "refinement.h5",
@@ -433,7 +433,8 @@ def test_the_stage_computes_on_arrays_what_its_script_writes_chunk_by_chunk(tmp_
 
     from flylib.config import Config
     from flylib.pipeline.inputs import stage_inputs, stage_params
-    from flylib.pipeline.refinement import RefinementInputs, compute_refinement
+    from flylib.pipeline.refinement import compute_refinement
+    from flylib.pipeline.stages import run_inputs
     from flylib.provenance import params_hash
     from flylib.refinement.solver import ArraySink
 
@@ -458,7 +459,7 @@ def test_the_stage_computes_on_arrays_what_its_script_writes_chunk_by_chunk(tmp_
         written_attrs = {k: json.loads(v) for k, v in f["refinement"].attrs.items()}
     assert meta["params_sha256"] == params_hash(stage_params(no_ba, "refinement"))
 
-    inputs = RefinementInputs.from_config_rig(Config.from_file(config_path))
+    inputs = run_inputs(Config.from_file(config_path), "refinement")
     assert inputs.params() == stage_inputs(no_ba, "refinement").params()
     with h5py.File(tmp_path / "pose2d.h5") as p, h5py.File(tmp_path / "triangulation.h5") as t:
         pose2d = {"points": p["pose2d/points"][()], "conf": p["pose2d/conf"][()]}

@@ -49,26 +49,13 @@ from ..paths import atomic_path
 from ..refinement.setup import options_from_params
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+from .stages import RigRuntime, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..cameras import CameraGroup
     from ..config import Config
 
 STAGE = "refinement"
-
-
-@dataclass(frozen=True)
-class RefinementRuntime:
-    """The refinement stage's untracked part.
-
-    Attributes
-    ----------
-    config_dir
-        Where the config rig's relative calibration path is looked up (``None``: the
-        recording's folder only).
-    """
-
-    config_dir: Path | None = None
 
 
 @register
@@ -89,7 +76,7 @@ class RefinementInputs(StageInputs):
         The config rig, or ``None`` with bundle adjustment on (the rig comes from its
         artifact).
     runtime
-        :class:`RefinementRuntime`.
+        :class:`RigRuntime`.
     """
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
@@ -98,36 +85,28 @@ class RefinementInputs(StageInputs):
     triangulation: TriangulationParams
     skeleton: SkeletonSpec
     rig: RigSpec | None
-    runtime: RefinementRuntime = RefinementRuntime()
+    runtime: RigRuntime = RigRuntime()
 
     @classmethod
     def from_config(cls, config: Config) -> RefinementInputs:
-        rig = None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
+        rig = tracked_rig(config)
         return cls(
             refinement=config.refinement,
             triangulation=_triangulation(config.triangulation.method_params()),
             skeleton=SkeletonSpec.from_config(config),
             rig=rig,
-            runtime=RefinementRuntime(rig.config_dir if rig else None),
+            runtime=RigRuntime.from_config(config),
         )
 
     @classmethod
-    def from_config_rig(cls, config: Config) -> RefinementInputs:
-        """The inputs on the config rig whatever ``pipeline.do_bundle_adjustment`` says:
-        what a run without bundle adjustment's artifact refines on (its params those of
-        the config with bundle adjustment off)."""
-        rig = RigSpec.from_config(config)
-        return replace(cls.from_config(config), rig=rig, runtime=RefinementRuntime(rig.config_dir))
-
-    @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
-        runtime = runtime or RefinementRuntime()
+        runtime = runtime or RigRuntime()
         rig = params.get("rig")
         return cls(
             refinement=_build_params(RefinementParams, params["refinement"]),
             triangulation=_triangulation(params["triangulation"]),
             skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=RigSpec.from_params(rig, runtime.config_dir) if rig else None,
+            rig=rig_from_params(rig, runtime),
             runtime=runtime,
         )
 
@@ -137,7 +116,7 @@ class RefinementInputs(StageInputs):
             # the held-out-view check re-runs the triangulation without each view
             "triangulation": self.triangulation.method_params(),
             "skeleton": self.skeleton.structure(),
-            "rig": self.rig.params() if self.rig else None,
+            "rig": rig_params(self.rig),
         }
 
 
