@@ -299,129 +299,12 @@ def find_suspects(
     notes: dict[tuple[int, int], list[str]] = {}
     names = [str(n) for n in (point_names or [])]
 
-    def name(p: int) -> str:
-        return names[p] if p < len(names) else str(p)
-
-    def note(mask, text_of):
-        for t, p in np.argwhere(mask):
-            notes.setdefault((int(t), int(p)), []).append(text_of(t, p))
-
-    # reprojection error, per view
-    thr = _robust_threshold(error.reshape(len(error), -1), k_reproj, min_reproj_px, axis=1)[
-        :, :, None
-    ]
-    with np.errstate(invalid="ignore"):
-        excess = np.nanmax(np.where(np.isfinite(error), error / thr.reshape(-1, 1, 1), 0.0), axis=0)
-    mask = (excess > 1.0) & has3d
-    scores["reprojection"][mask] = excess[mask]
-    worst = np.nanargmax(np.where(np.isfinite(error), error, -1.0), axis=0)
-    note(
-        mask,
-        lambda t, p: (
-            f"view {view_label(worst[t, p], view_names)} reprojects "
-            f"{error[worst[t, p], t, p]:.1f} px off"
-        ),
-    )
-
-    # views left out by the robust triangulation, and two-view points
-    used_views = np.isfinite(used).all(-1)  # (V, T, P)
-    if pts2d_input is not None:
-        given = np.isfinite(np.asarray(pts2d_input, dtype=np.float64)).all(-1)
-        dropped = given & ~used_views & has3d[None]
-        mask = dropped.any(axis=0)
-        scores["ransac_drop"][mask] = 1.0
-        note(
-            mask,
-            lambda t, p: (
-                f"{_views(np.flatnonzero(dropped[:, t, p]), view_names)} "
-                "dropped by the robust triangulation"
-            ),
-        )
-        # seen by two or more views that no 3D point fits: every view was dropped
-        unsolved = ~has3d & (given.sum(axis=0) >= 2)
-        scores["ransac_drop"][unsolved] = 1.0
-        note(
-            unsolved,
-            lambda t, p: (
-                f"{_views(np.flatnonzero(given[:, t, p]), view_names)} disagree: "
-                "the robust triangulation found no 3D that fits them"
-            ),
-        )
-    n_used = used_views.sum(axis=0)
-    typical = (
-        np.median(np.where(has3d, n_used, np.nan), axis=0) if has3d.any() else np.zeros(n_points)
-    )
-    mask = has3d & (n_used == 2) & (np.nan_to_num(typical) > 2)
-    scores["two_views"][mask] = 0.5
-    note(mask, lambda t, p: f"from 2 views (usually {typical[p]:g})")
-
-    # jumps: the point far from every prediction of its neighbouring frames
+    _score_reprojection(scores, notes, error, has3d, k_reproj, min_reproj_px, view_names)
+    _score_views_used(scores, notes, used, has3d, pts2d_input, view_names)
     if n_frames >= 2:
-
-        def shifted(k):  # pts3d[t + k] at t, NaN outside the recording
-            out = np.full_like(pts3d, np.nan)
-            if k > 0:
-                out[:-k] = pts3d[k:]
-            else:
-                out[-k:] = pts3d[:k]
-            return out
-
-        # the midpoint of both sides and the straight line through either side's two
-        # frames; a first difference alone would measure speed, not a jump
-        predictions = [
-            0.5 * (shifted(-1) + shifted(1)),
-            2.0 * shifted(-1) - shifted(-2),
-            2.0 * shifted(1) - shifted(2),
-        ]
-        with _quiet():
-            jump = np.nanmin(
-                np.stack([np.linalg.norm(pts3d - q, axis=-1) for q in predictions]), axis=0
-            )  # (T, P), NaN without neighbours
-        with np.errstate(all="ignore"), _quiet():
-            scale = (
-                float(
-                    np.nanmedian(
-                        np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)
-                    )
-                )
-                if len(bones)
-                else np.nan
-            )
-        floor = jump_tolerance * scale if np.isfinite(scale) else 0.0
-        thr = _robust_threshold(jump, k_jump, floor, axis=0)  # (1, P)
-        with np.errstate(invalid="ignore"):
-            ratio = jump / thr
-        mask = np.nan_to_num(ratio) > 1.0
-        scores["jump"][mask] = ratio[mask]
-        note(mask, lambda t, p: f"{jump[t, p]:.3g} off the path of its neighbouring frames")
-
-    # bone lengths: the end with more evidence (more bad bones there, or another
-    # reason) is the suspect, both ends when it is a tie
+        _score_jumps(scores, notes, pts3d, bones, k_jump, jump_tolerance)
     if len(bones):
-        lengths = np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)  # (T, B)
-        with np.errstate(all="ignore"), _quiet():
-            median = np.nanmedian(lengths, axis=0)
-            sigma = _MAD_SCALE * np.nanmedian(np.abs(lengths - median), axis=0)
-            allowed = np.maximum(k_bone * np.nan_to_num(sigma), bone_tolerance * median)
-            ratio = np.abs(lengths - median) / allowed  # (T, B)
-        bad = np.nan_to_num(ratio) > 1.0
-        evidence = np.zeros((n_frames, n_points))
-        np.add.at(evidence.T, bones[:, 0], bad.T)
-        np.add.at(evidence.T, bones[:, 1], bad.T)
-        evidence += sum(scores[r] for r in ("reprojection", "jump", "ransac_drop")) > 0
-        for b in np.flatnonzero(bad.any(axis=0)):
-            i, j = (int(x) for x in bones[b])
-            for end, other in ((i, j), (j, i)):
-                rows = bad[:, b] & (evidence[:, end] >= evidence[:, other])
-                scores["bone_length"][rows, end] = np.maximum(
-                    scores["bone_length"][rows, end], ratio[rows, b]
-                )
-                note(
-                    rows[:, None] & (np.arange(n_points) == end)[None],
-                    lambda t, p, i=i, j=j, b=b: (
-                        f"bone {name(i)}-{name(j)} {lengths[t, b]:.3g} vs median {median[b]:.3g}"
-                    ),
-                )
+        _score_bones(scores, notes, pts3d, bones, k_bone, bone_tolerance, names)
 
     total = sum(scores.values())
     if corrected is not None:
@@ -440,6 +323,144 @@ def find_suspects(
         frame_score=frame_score,
         point_names=names,
     )
+
+
+def _note(notes: dict[tuple[int, int], list[str]], mask, text_of) -> None:
+    """Add ``text_of(t, p)`` to the details of every (frame, point) where ``mask``."""
+    for t, p in np.argwhere(mask):
+        notes.setdefault((int(t), int(p)), []).append(text_of(t, p))
+
+
+def _score_reprojection(scores, notes, error, has3d, k_reproj, min_reproj_px, view_names):
+    """Reason ``reprojection``: a view's error past that view's robust threshold."""
+    thr = _robust_threshold(error.reshape(len(error), -1), k_reproj, min_reproj_px, axis=1)[
+        :, :, None
+    ]
+    with np.errstate(invalid="ignore"):
+        excess = np.nanmax(np.where(np.isfinite(error), error / thr.reshape(-1, 1, 1), 0.0), axis=0)
+    mask = (excess > 1.0) & has3d
+    scores["reprojection"][mask] = excess[mask]
+    worst = np.nanargmax(np.where(np.isfinite(error), error, -1.0), axis=0)
+    _note(
+        notes,
+        mask,
+        lambda t, p: (
+            f"view {view_label(worst[t, p], view_names)} reprojects "
+            f"{error[worst[t, p], t, p]:.1f} px off"
+        ),
+    )
+
+
+def _score_views_used(scores, notes, used, has3d, pts2d_input, view_names):
+    """Reasons ``ransac_drop`` (views left out by the robust triangulation, given
+    ``pts2d_input``) and ``two_views`` (two-view points usually seen by more)."""
+    n_points = has3d.shape[1]
+    used_views = np.isfinite(used).all(-1)  # (V, T, P)
+    if pts2d_input is not None:
+        given = np.isfinite(np.asarray(pts2d_input, dtype=np.float64)).all(-1)
+        dropped = given & ~used_views & has3d[None]
+        mask = dropped.any(axis=0)
+        scores["ransac_drop"][mask] = 1.0
+        _note(
+            notes,
+            mask,
+            lambda t, p: (
+                f"{_views(np.flatnonzero(dropped[:, t, p]), view_names)} "
+                "dropped by the robust triangulation"
+            ),
+        )
+        # seen by two or more views that no 3D point fits: every view was dropped
+        unsolved = ~has3d & (given.sum(axis=0) >= 2)
+        scores["ransac_drop"][unsolved] = 1.0
+        _note(
+            notes,
+            unsolved,
+            lambda t, p: (
+                f"{_views(np.flatnonzero(given[:, t, p]), view_names)} disagree: "
+                "the robust triangulation found no 3D that fits them"
+            ),
+        )
+    n_used = used_views.sum(axis=0)
+    typical = (
+        np.median(np.where(has3d, n_used, np.nan), axis=0) if has3d.any() else np.zeros(n_points)
+    )
+    mask = has3d & (n_used == 2) & (np.nan_to_num(typical) > 2)
+    scores["two_views"][mask] = 0.5
+    _note(notes, mask, lambda t, p: f"from 2 views (usually {typical[p]:g})")
+
+
+def _score_jumps(scores, notes, pts3d, bones, k_jump, jump_tolerance):
+    """Reason ``jump``: the point far from every prediction of its neighbouring frames."""
+
+    def shifted(k):  # pts3d[t + k] at t, NaN outside the recording
+        out = np.full_like(pts3d, np.nan)
+        if k > 0:
+            out[:-k] = pts3d[k:]
+        else:
+            out[-k:] = pts3d[:k]
+        return out
+
+    # the midpoint of both sides and the straight line through either side's two
+    # frames; a first difference alone would measure speed, not a jump
+    predictions = [
+        0.5 * (shifted(-1) + shifted(1)),
+        2.0 * shifted(-1) - shifted(-2),
+        2.0 * shifted(1) - shifted(2),
+    ]
+    with _quiet():
+        jump = np.nanmin(
+            np.stack([np.linalg.norm(pts3d - q, axis=-1) for q in predictions]), axis=0
+        )  # (T, P), NaN without neighbours
+    with np.errstate(all="ignore"), _quiet():
+        scale = (
+            float(
+                np.nanmedian(np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1))
+            )
+            if len(bones)
+            else np.nan
+        )
+    floor = jump_tolerance * scale if np.isfinite(scale) else 0.0
+    thr = _robust_threshold(jump, k_jump, floor, axis=0)  # (1, P)
+    with np.errstate(invalid="ignore"):
+        ratio = jump / thr
+    mask = np.nan_to_num(ratio) > 1.0
+    scores["jump"][mask] = ratio[mask]
+    _note(notes, mask, lambda t, p: f"{jump[t, p]:.3g} off the path of its neighbouring frames")
+
+
+def _score_bones(scores, notes, pts3d, bones, k_bone, bone_tolerance, names):
+    """Reason ``bone_length``: the end with more evidence (more bad bones there, or
+    another reason) is the suspect, both ends when it is a tie."""
+    n_frames, n_points = pts3d.shape[:2]
+
+    def name(p: int) -> str:
+        return names[p] if p < len(names) else str(p)
+
+    lengths = np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)  # (T, B)
+    with np.errstate(all="ignore"), _quiet():
+        median = np.nanmedian(lengths, axis=0)
+        sigma = _MAD_SCALE * np.nanmedian(np.abs(lengths - median), axis=0)
+        allowed = np.maximum(k_bone * np.nan_to_num(sigma), bone_tolerance * median)
+        ratio = np.abs(lengths - median) / allowed  # (T, B)
+    bad = np.nan_to_num(ratio) > 1.0
+    evidence = np.zeros((n_frames, n_points))
+    np.add.at(evidence.T, bones[:, 0], bad.T)
+    np.add.at(evidence.T, bones[:, 1], bad.T)
+    evidence += sum(scores[r] for r in ("reprojection", "jump", "ransac_drop")) > 0
+    for b in np.flatnonzero(bad.any(axis=0)):
+        i, j = (int(x) for x in bones[b])
+        for end, other in ((i, j), (j, i)):
+            rows = bad[:, b] & (evidence[:, end] >= evidence[:, other])
+            scores["bone_length"][rows, end] = np.maximum(
+                scores["bone_length"][rows, end], ratio[rows, b]
+            )
+            _note(
+                notes,
+                rows[:, None] & (np.arange(n_points) == end)[None],
+                lambda t, p, i=i, j=j, b=b: (
+                    f"bone {name(i)}-{name(j)} {lengths[t, b]:.3g} vs median {median[b]:.3g}"
+                ),
+            )
 
 
 def _views(indices, view_names: list[str] | None) -> str:

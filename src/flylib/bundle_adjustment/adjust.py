@@ -26,7 +26,8 @@ from __future__ import annotations
 import logging
 import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import OptimizeResult
@@ -207,8 +208,278 @@ def bundle_adjust(
     ValueError
         For arrays of the wrong shape or no usable observations.
     """
-    pts2d = np.asarray(pts2d, float)
-    n_views = len(cameras)
+    # the arguments as given: a fit whose distortion folds the image is redone with them
+    return _adjust(_Arguments(**locals()))
+
+
+@dataclass(frozen=True, eq=False)
+class _Arguments:
+    """:func:`bundle_adjust`'s arguments, as given."""
+
+    cameras: CameraGroup
+    pts2d: np.ndarray
+    fixed: Sequence[str]
+    shared: Sequence[Sequence[str]]
+    pts3d: np.ndarray | None
+    conf: np.ndarray | None
+    weigh_by_confidence: bool
+    bones: tuple[np.ndarray, ...] | None
+    bone_weight: float
+    reject_outliers: bool
+    init_threshold: float
+    outlier_factor: float
+    outlier_min_px: float
+    max_rounds: int
+    canonical_gauge: bool
+    point_ids: np.ndarray | None
+    solver: str
+    distortion: str
+    reseed_px: float | None
+    warn_ratio: float
+    solver_kwargs: dict
+
+
+@dataclass
+class _Rounds:
+    """Where the outlier rounds of :func:`_fit_rounds` ended."""
+
+    result: OptimizeResult
+    problem: Problem
+    blocks: Any
+    table: np.ndarray
+    pts: np.ndarray
+    keep: np.ndarray
+    active: np.ndarray
+    rounds: int
+    stable: bool
+
+
+def _adjust(args: _Arguments):
+    """:func:`bundle_adjust` of ``args``: its steps."""
+    pts2d = np.asarray(args.pts2d, float)
+    _check_arguments(pts2d, len(args.cameras), args.solver, args.distortion)
+    names = list(args.cameras.names)
+    n_cols = pts2d.shape[1]
+    ids = np.arange(n_cols) if args.point_ids is None else np.asarray(args.point_ids, int)
+    ids = ids.reshape(n_cols)
+    n_unknown = int(ids.max()) + 1 if n_cols else 0
+    uses = np.bincount(ids, minlength=n_unknown)
+    is_shared = uses > 1
+
+    table_user = camera_table(args.cameras)
+    n_dist = table_user.shape[1] - 10
+    held = _held_distortion(table_user, names, args.distortion)
+    layout = build_layout(names, n_dist, [*args.fixed, *held], args.shared)
+    table_user = layout.unpack(layout.pack(table_user), table_user)  # tied entries start equal
+    usable, weight = _usable_observations(pts2d, args.conf, args.weigh_by_confidence)
+
+    def triangulate(table, use):
+        return _ransac_points(_cameras_from_table(names, table), pts2d, use, args.init_threshold)
+
+    table, reseeded, start_median = _reseeded(args, table_user, layout, pts2d, usable, triangulate)
+    # a camera that sees none of the points has nothing to fit: held at its start
+    observed = usable.any(axis=1)
+    unobserved = [n for n, seen in zip(names, observed) if not seen]
+    # sides that share no view: each is fixed by the images only up to its own
+    # similarity, which is held during the fit and put back where the start had it
+    cam_part = camera_parts(usable, ids, n_unknown)
+    n_parts = int(cam_part.max()) + 1
+    movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+    fit_layout = _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movable)
+    n_gauge = open_gauge_directions(table, fit_layout, observed)
+    cols_start = (
+        triangulate(table, usable)
+        if args.pts3d is None
+        else np.asarray(args.pts3d, float).reshape(n_cols, 3).copy()
+    )
+    pts = unknowns_from_columns(cols_start, ids, n_unknown)
+    pts_start = pts.copy()
+    active, initial_median = _first_inliers(args, table, pts[ids], pts2d, usable)
+    pt_part = point_parts(usable, ids, n_unknown, cam_part)
+    bone_rows, dropped_rows = _bone_rows(args.bones, ids, pts, pt_part, n_parts)
+
+    fit = _fit_rounds(
+        args,
+        table,
+        fit_layout,
+        pts2d,
+        weight,
+        usable,
+        active,
+        pts,
+        ids,
+        uses,
+        bone_rows,
+        triangulate,
+    )
+    folded = _folded_cameras(fit.table, layout, names)
+    if folded:
+        message = (
+            f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
+            f"refitting with it held at its starting values"
+        )
+        log.warning(message)
+        return _adjust(replace(args, fixed=[*args.fixed, *(f"{n}.dist" for n in folded)]))
+
+    result, problem, active, rounds = fit.result, fit.problem, fit.active, fit.rounds
+    final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), fit.blocks)
+    ratio, n_weak, direction = weak_directions(final.schur(0.0)[0], n_gauge)
+    warnings_out = _fit_warnings(args, fit, cam_part, dropped_rows, ratio, direction, fit_layout)
+    for message in warnings_out:
+        _warn(message)
+
+    table, pts = fit.table, fit.pts
+    if args.canonical_gauge and n_parts > 1:
+        table, pts = align_parts(table_user, table, pts, pts_start, cam_part, pt_part, movable)
+        table[~observed] = table_user[~observed]
+    elif args.canonical_gauge and layout.extrinsics_free:
+        table, pts = align_gauge(table_user, table, pts, pts_start)
+        table[~observed] = table_user[~observed]
+    moved = _moved_degrees(table_user, table, pts)
+    suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
+    if suspects:
+        message = _moved_message(suspects, [d for d in moved if d > MOVED_DEG])
+        warnings_out.append(message)
+        _warn(message)
+    refined = _cameras_from_table(names, table)
+    out_pts = pts[ids]
+    err = _view_errors(table, out_pts, pts2d, active)
+    result.initial_median_px = initial_median
+    result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
+    result.inliers = active
+    result.rounds = rounds
+    result.warnings = warnings_out
+    result.report = _report(
+        args,
+        layout,
+        held,
+        fit,
+        int(is_shared[fit.keep].sum()),
+        usable,
+        cam_part,
+        dropped_rows,
+        reseeded,
+        unobserved,
+        start_median,
+        (ratio, n_weak),
+        moved,
+        initial_median,
+        result.final_median_px,
+        warnings_out,
+    )
+    _log_summary(result, usable)
+    return result, refined, out_pts
+
+
+def _reseeded(args, table_user, layout, pts2d, usable, triangulate):
+    """``(table, reseeded, start median per camera or None)``: the start with cameras
+    grossly off resected first (only when no 3D start is given)."""
+    if args.pts3d is None and args.reseed_px:
+        movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+        return reseed_gross_cameras(
+            table_user,
+            list(args.cameras.names),
+            pts2d,
+            usable,
+            float(args.reseed_px),
+            triangulate,
+            movable=movable,
+        )
+    return table_user, [], None
+
+
+def _log_summary(result, usable) -> None:
+    active = result.inliers
+    log.info(
+        "bundle adjustment: median reprojection error %.2f px -> %.2f px "
+        "(%d observations, %d set aside, %d round(s), %s)",
+        result.initial_median_px,
+        result.final_median_px,
+        int(active.sum()),
+        int(usable.sum() - active.sum()),
+        result.rounds,
+        result.message,
+    )
+
+
+def _fit_warnings(args, fit: _Rounds, cam_part, dropped_rows, ratio, direction, fit_layout):
+    """What the fit warns of: camera groups sharing no point, else a weakly pinned
+    rig; an inlier set that did not settle."""
+    names = list(args.cameras.names)
+    warnings_out: list[str] = []
+    if int(cam_part.max()) + 1 > 1:
+        warnings_out.append(_parts_message(names, cam_part, dropped_rows))
+    elif ratio < args.warn_ratio:
+        warnings_out.append(
+            _weak_message(_cameras_moving(direction, fit_layout, names), ratio, args.warn_ratio)
+        )
+    if not fit.stable:
+        warnings_out.append(f"the inlier set did not settle within {fit.rounds} rounds")
+    return warnings_out
+
+
+def _report(
+    args,
+    layout,
+    held,
+    fit: _Rounds,
+    n_rigid: int,
+    usable,
+    cam_part,
+    dropped_rows: int,
+    reseeded,
+    unobserved,
+    start_median,
+    weakest: tuple[float, int],
+    moved,
+    initial_median: float,
+    final_median: float,
+    warnings_out: list[str],
+) -> dict:
+    """The result's JSON-able ``report``."""
+    names = list(args.cameras.names)
+    n_parts = int(cam_part.max()) + 1
+    ratio, n_weak = weakest
+    return {
+        "solver": args.solver,
+        "free": _free_report(layout, names, held, fit.problem, n_rigid),
+        "kept_fraction": {
+            n: (round(float(fit.active[v].sum() / usable[v].sum()), 4) if usable[v].any() else None)
+            for v, n in enumerate(names)
+        },
+        "rounds": fit.rounds,
+        "inliers_stable": bool(fit.stable),
+        "reseeded": reseeded,
+        "unobserved": unobserved,
+        # cameras tied by shared points; with more than one group their relative
+        # placement is the starting rig's and constraints across groups are not used
+        "camera_groups": [[n for n, p in zip(names, cam_part) if p == k] for k in range(n_parts)],
+        "constraints_across_groups_dropped": dropped_rows,
+        "start_median_px": None
+        if start_median is None
+        else {
+            n: (None if not np.isfinite(m) else round(float(m), 2))
+            for n, m in zip(names, start_median)
+        },
+        "weakest_direction": ratio if np.isfinite(ratio) else None,
+        "moved_deg": {
+            n: (round(float(d), 1) if np.isfinite(d) else None) for n, d in zip(names, moved)
+        },
+        "weak_directions": n_weak,
+        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
+        "final_median_px": final_median if np.isfinite(final_median) else None,
+        "warnings": warnings_out,
+    }
+
+
+def _warn(message: str) -> None:
+    log.warning("bundle adjustment: %s", message)
+    # stacklevel: this helper, _adjust, bundle_adjust, then bundle_adjust's caller
+    warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=4)
+
+
+def _check_arguments(pts2d: np.ndarray, n_views: int, solver: str, distortion: str) -> None:
+    """The observations' shape, the solver and the distortion mode."""
     if pts2d.ndim != 3 or pts2d.shape[0] != n_views or pts2d.shape[2] != 2:
         raise ValueError(f"pts2d must be (V={n_views}, N, 2), got {pts2d.shape}")
     if solver not in SOLVERS:
@@ -220,79 +491,64 @@ def bundle_adjust(
             f"bundle_adjustment.distortion: unknown mode {distortion!r}; "
             f"use one of {', '.join(DISTORTION_MODES)}"
         )
-    names = list(cameras.names)
-    n_cols = pts2d.shape[1]
-    ids = np.arange(n_cols) if point_ids is None else np.asarray(point_ids, int).reshape(n_cols)
-    n_unknown = int(ids.max()) + 1 if n_cols else 0
-    uses = np.bincount(ids, minlength=n_unknown)
-    is_shared = uses > 1
 
-    table_user = camera_table(cameras)
-    n_dist = table_user.shape[1] - 10
-    held = _held_distortion(table_user, names, distortion)
-    layout = build_layout(names, n_dist, [*fixed, *held], shared)
-    table_user = layout.unpack(layout.pack(table_user), table_user)  # tied entries start equal
 
+def _usable_observations(pts2d, conf, weigh_by_confidence: bool):
+    """``(usable (V, N) bool, weight (V, N))``: finite observations (and, weighing by
+    confidence, positive finite confidences) and their residual weights."""
+    n_views, n_cols = pts2d.shape[:2]
     usable = np.isfinite(pts2d).all(axis=-1)
     weight = np.ones((n_views, n_cols))
     if weigh_by_confidence and conf is not None:
         c = np.asarray(conf, float).reshape(n_views, n_cols)
         usable &= np.isfinite(c) & (c > 0)
         weight = np.sqrt(np.where(usable, c, 0.0))
+    return usable, weight
 
-    def triangulate(table, use):
-        return _ransac_points(_cameras_from_table(names, table), pts2d, use, init_threshold)
 
-    table = table_user
-    reseeded: list[str] = []
-    start_median = None
-    if pts3d is None and reseed_px:
-        movable = (layout.var_index[:, :6] >= 0).all(axis=1)
-        table, reseeded, start_median = reseed_gross_cameras(
-            table_user, names, pts2d, usable, float(reseed_px), triangulate, movable=movable
-        )
+def _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movable):
+    """The layout the fit runs on: ``layout`` with the unobserved cameras held and,
+    for Levenberg-Marquardt, the similarity gauge of each camera group held."""
+    names = list(args.cameras.names)
+    n_dist = table.shape[1] - 10
+    parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
+    fit_fixed = [*args.fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
+    n_parts = int(cam_part.max()) + 1
     # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
     # converge only linearly: hold one camera and one depth during the fit instead; the
-    # canonical frame below makes the result independent of which.
-    # a camera that sees none of the points has nothing to fit: held at its start
-    observed = usable.any(axis=1)
-    unobserved = [n for n, seen in zip(names, observed) if not seen]
-    parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
-    fit_fixed = [*fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
-    # sides that share no view: each is fixed by the images only up to its own
-    # similarity, which is held during the fit and put back where the start had it
-    cam_part = camera_parts(usable, ids, n_unknown)
-    n_parts = int(cam_part.max()) + 1
-    movable = (layout.var_index[:, :6] >= 0).all(axis=1)
-    if solver == "lm" and untied_extrinsics(layout):
+    # canonical frame makes the result independent of which.
+    if args.solver == "lm" and untied_extrinsics(layout):
         if n_parts == 1 and layout.extrinsics_free:
             fit_fixed += gauge_refs(table, names, observed)
         elif n_parts > 1:
             for part in range(n_parts):
                 if movable[cam_part == part].all():
                     fit_fixed += gauge_refs(table, names, cam_part == part)
-    fit_layout = (
-        build_layout(names, n_dist, fit_fixed, shared) if fit_fixed != [*fixed, *held] else layout
+    return (
+        build_layout(names, n_dist, fit_fixed, args.shared)
+        if fit_fixed != [*args.fixed, *held]
+        else layout
     )
-    n_gauge = open_gauge_directions(table, fit_layout, observed)
-    cols_start = (
-        triangulate(table, usable)
-        if pts3d is None
-        else np.asarray(pts3d, float).reshape(n_cols, 3).copy()
-    )
-    pts = unknowns_from_columns(cols_start, ids, n_unknown)
-    pts_start = pts.copy()
 
-    err = _view_errors(table, pts[ids], pts2d, usable)
-    if reject_outliers:
-        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[usable])))
+
+def _first_inliers(args, table, pts_cols, pts2d, usable) -> tuple[np.ndarray, float]:
+    """The first inlier set ``(V, N)``, judged against the starting points, and its
+    median error (the result's ``initial_median_px``)."""
+    err = _view_errors(table, pts_cols, pts2d, usable)
+    if args.reject_outliers:
+        threshold = max(args.outlier_min_px, args.outlier_factor * float(np.nanmedian(err[usable])))
         active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
     else:
         active = usable.copy()
     initial_median = float(np.nanmedian(err[active])) if active.any() else float("nan")
+    return active, initial_median
 
+
+def _bone_rows(bones, ids, pts, pt_part, n_parts: int):
+    """``((bone_i, bone_j, bone_t, bone_g), dropped)``: the bone rows on the unknowns,
+    none when the cameras form several groups (``dropped`` of them joined two groups),
+    grouped lengths started from the starting points."""
     bone_i, bone_j, bone_t, bone_g = bones_on_unknowns(valid_bones(bones), ids)
-    pt_part = point_parts(usable, ids, n_unknown, cam_part)
     if bone_i.size:
         log.info(
             "bundle adjustment: %s",
@@ -314,15 +570,26 @@ def bundle_adjust(
         bone_g = None
     if bone_g is not None and bone_i.size:
         bone_t = start_lengths(pts, bone_i, bone_j, bone_t, bone_g)
+    return (bone_i, bone_j, bone_t, bone_g), dropped_rows
+
+
+def _fit_rounds(
+    args, table, fit_layout, pts2d, weight, usable, active, pts, ids, uses, bone_rows, triangulate
+) -> _Rounds:
+    """Fit, judge every observation again, refit, until the inlier set is stable (or
+    ``max_rounds`` fits were made; one fit without outlier rejection)."""
+    bone_i, bone_j, bone_t, bone_g = bone_rows
+    n_unknown = pts.shape[0]
+    is_shared = uses > 1
     lengths = None
     result = None
-    stable = not reject_outliers
+    stable = not args.reject_outliers
     history = [active]
     rounds = 0
     keep = np.zeros(n_unknown, bool)
     problem = None
     blocks = None
-    for rounds in range(1, max(int(max_rounds), 1) + 1):
+    for rounds in range(1, max(int(args.max_rounds), 1) + 1):
         problem, keep = _make_problem(
             table,
             fit_layout,
@@ -335,35 +602,35 @@ def bundle_adjust(
             bone_j,
             bone_t if lengths is None else lengths,
             bone_g,
-            bone_weight,
+            args.bone_weight,
         )
         if problem is None:
             raise ValueError(
                 "bundle adjustment: no point is seen by two or more views; nothing to fit"
             )
         blocks = block_structure(problem, is_shared[keep])
-        if solver == "lm":
-            options = dict(solver_kwargs)
-            if rounds == 1 and reject_outliers:
+        if args.solver == "lm":
+            options = dict(args.solver_kwargs)
+            if rounds == 1 and args.reject_outliers:
                 # the first inlier set, judged from the start, still holds most gross
                 # outliers: polishing a fit to it only wanders (40+ evaluations from a
                 # rough rig); the next rounds refit on a cleaner set from here
                 options["ftol"] = max(options.get("ftol", 1e-8), FIRST_ROUND_FTOL)
             result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **options)
         else:
-            result = problem.solve(table, pts[keep], **solver_kwargs)
+            result = problem.solve(table, pts[keep], **args.solver_kwargs)
         table, sub = problem.unpack(result.x)
         lengths = lengths_per_row(problem, result.x, bone_i, bone_j, bone_t, bone_g, keep, lengths)
         pts = np.full((n_unknown, 3), np.nan)
         pts[keep] = sub
-        if not reject_outliers:
+        if not args.reject_outliers:
             break
         lost = ~keep & (uses > 0)
         if lost.any():  # judge the observations of points that left the fit too
             again = unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
             pts[lost] = again[lost]
         err = _view_errors(table, pts[ids], pts2d, usable)
-        threshold = max(outlier_min_px, outlier_factor * float(np.nanmedian(err[active])))
+        threshold = max(args.outlier_min_px, args.outlier_factor * float(np.nanmedian(err[active])))
         err_inf = np.nan_to_num(err, nan=np.inf)
         new_active = usable & (err_inf <= np.where(active, 1.0, RETURN_FRACTION) * threshold)
         changed = int((new_active != active).sum())
@@ -384,121 +651,11 @@ def bundle_adjust(
         if min(int((new_active != seen).sum()) for seen in history) <= tolerance:
             stable = True
             break
-        if rounds == max_rounds:
+        if rounds == args.max_rounds:
             break
         active = new_active
         history.append(active)
-
-    folded = _folded_cameras(table, layout, names)
-    if folded:
-        message = (
-            f"bundle adjustment: the distortion of {', '.join(folded)} folds the image; "
-            f"refitting with it held at its starting values"
-        )
-        log.warning(message)
-        return bundle_adjust(
-            cameras,
-            pts2d,
-            fixed=[*fixed, *(f"{n}.dist" for n in folded)],
-            shared=shared,
-            pts3d=pts3d,
-            conf=conf,
-            weigh_by_confidence=weigh_by_confidence,
-            bones=bones,
-            bone_weight=bone_weight,
-            reject_outliers=reject_outliers,
-            init_threshold=init_threshold,
-            outlier_factor=outlier_factor,
-            outlier_min_px=outlier_min_px,
-            max_rounds=max_rounds,
-            canonical_gauge=canonical_gauge,
-            point_ids=point_ids,
-            solver=solver,
-            distortion=distortion,
-            reseed_px=reseed_px,
-            warn_ratio=warn_ratio,
-            **solver_kwargs,
-        )
-
-    final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), blocks)
-    ratio, n_weak, direction = weak_directions(final.schur(0.0)[0], n_gauge)
-    warnings_out: list[str] = []
-    if n_parts > 1:
-        warnings_out.append(_parts_message(names, cam_part, dropped_rows))
-    elif ratio < warn_ratio:
-        warnings_out.append(
-            _weak_message(_cameras_moving(direction, fit_layout, names), ratio, warn_ratio)
-        )
-    if not stable:
-        warnings_out.append(f"the inlier set did not settle within {rounds} rounds")
-    for message in warnings_out:
-        log.warning("bundle adjustment: %s", message)
-        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
-
-    if canonical_gauge and n_parts > 1:
-        table, pts = align_parts(table_user, table, pts, pts_start, cam_part, pt_part, movable)
-        table[~observed] = table_user[~observed]
-    elif canonical_gauge and layout.extrinsics_free:
-        table, pts = align_gauge(table_user, table, pts, pts_start)
-        table[~observed] = table_user[~observed]
-    moved = _moved_degrees(table_user, table, pts)
-    suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
-    if suspects:
-        message = _moved_message(suspects, [d for d in moved if d > MOVED_DEG])
-        warnings_out.append(message)
-        log.warning("bundle adjustment: %s", message)
-        warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=2)
-    refined = _cameras_from_table(names, table)
-    out_pts = pts[ids]
-    err = _view_errors(table, out_pts, pts2d, active)
-    result.initial_median_px = initial_median
-    result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
-    result.inliers = active
-    result.rounds = rounds
-    result.warnings = warnings_out
-    result.report = {
-        "solver": solver,
-        "free": _free_report(layout, names, held, problem, int(is_shared[keep].sum())),
-        "kept_fraction": {
-            n: (round(float(active[v].sum() / usable[v].sum()), 4) if usable[v].any() else None)
-            for v, n in enumerate(names)
-        },
-        "rounds": rounds,
-        "inliers_stable": bool(stable),
-        "reseeded": reseeded,
-        "unobserved": unobserved,
-        # cameras tied by shared points; with more than one group their relative
-        # placement is the starting rig's and constraints across groups are not used
-        "camera_groups": [[n for n, p in zip(names, cam_part) if p == k] for k in range(n_parts)],
-        "constraints_across_groups_dropped": dropped_rows,
-        "start_median_px": None
-        if start_median is None
-        else {
-            n: (None if not np.isfinite(m) else round(float(m), 2))
-            for n, m in zip(names, start_median)
-        },
-        "weakest_direction": ratio if np.isfinite(ratio) else None,
-        "moved_deg": {
-            n: (round(float(d), 1) if np.isfinite(d) else None) for n, d in zip(names, moved)
-        },
-        "weak_directions": n_weak,
-        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
-        "final_median_px": (
-            result.final_median_px if np.isfinite(result.final_median_px) else None
-        ),
-        "warnings": warnings_out,
-    }
-    log.info(
-        "bundle adjustment: median reprojection error %.2f px -> %.2f px "
-        "(%d observations, %d set aside, %d round(s), %s)",
-        result.initial_median_px,
-        result.final_median_px,
-        int(active.sum()),
-        int(usable.sum() - active.sum()),
-        rounds,
-        result.message,
-    )
-    return result, refined, out_pts
+    return _Rounds(result, problem, blocks, table, pts, keep, active, rounds, stable)
 
 
 def _listed(names) -> str:

@@ -210,6 +210,55 @@ def validate_config(data: Any) -> list[str]:
         for key in data
         if key not in TOP_LEVEL_KEYS
     ]
+    bad_tables = _table_kind_problems(data, problems)
+
+    def table(name: str) -> Mapping:
+        return {} if name in bad_tables else (data.get(name) or {})
+
+    if "skeleton" in data and "skeleton" not in bad_tables:
+        skeleton_issues = skeleton_problems(data["skeleton"])
+        problems += skeleton_issues
+        names = data["skeleton"].get("point_names")
+        point_names = tuple(names) if isinstance(names, list) else ()
+    else:
+        point_names = _default_point_names()
+    view_names = _camera_view_names(data, table("cameras"), problems)
+    problems += _pipeline_problems(table("pipeline"))
+
+    pose2d = table("pose2d")
+    problems += _table_problems(pose2d, Pose2dParams, "pose2d", _POSE2D_PLAN_KEYS)
+    if "import" in pose2d and _mapping(nullable=True)(pose2d["import"]):
+        problems.append(f"pose2d.import: {_mapping(nullable=True)(pose2d['import'])}")
+    if "sources" not in bad_tables and "pose2d" not in bad_tables:
+        problems += _plan_problems(data, point_names, view_names)
+
+    problems += _bundle_adjustment_problems(table("bundle_adjustment"), point_names)
+    problems += _table_problems(
+        table("pictorial_structures"), PictorialParams, "pictorial_structures"
+    )
+    problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
+    problems += _table_problems(table("refinement"), RefinementParams, "refinement")
+    problems += _table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
+    rigid = table("refinement").get("rigid_points")
+    if isinstance(rigid, list) and point_names:
+        for point in rigid:
+            if isinstance(point, str) and point not in point_names:
+                problems.append(
+                    f"refinement.rigid_points: unknown point {point!r} (known: {', '.join(point_names)})"
+                )
+    problems += kinematics_problems(table("kinematics"), point_names)
+    problems += _io_problems(table("io"))
+
+    videos = table("visualization").get("videos")
+    if videos is not None and not isinstance(videos, list):
+        problems.append(f"visualization.videos: expected a list of video tables, {_got(videos)}")
+    problems += _export_problems(data)
+    return problems
+
+
+def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
+    """Tables of the wrong kind (a list where a mapping belongs, ...): recorded in
+    ``problems``; returns their names, which the other checks then skip."""
     table_kinds = {
         "io": _mapping(),
         "skeleton": _mapping(),
@@ -252,41 +301,36 @@ def validate_config(data: Any) -> list[str]:
             if why:
                 problems.append(f"{key}: {why}")
                 bad_tables.add(key)
+    return bad_tables
 
-    def table(name: str) -> Mapping:
-        return {} if name in bad_tables else (data.get(name) or {})
 
-    if "skeleton" in data and "skeleton" not in bad_tables:
-        skeleton_issues = skeleton_problems(data["skeleton"])
-        problems += skeleton_issues
-        names = data["skeleton"].get("point_names")
-        point_names = tuple(names) if isinstance(names, list) else ()
-    else:
-        point_names = _default_point_names()
-
-    cameras = table("cameras")
+def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> list[str] | None:
+    """The rig's view names (``None`` when a calibration file names them); camera
+    entries that are not tables are recorded in ``problems``."""
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
         if not isinstance(spec, Mapping):
             problems.append(f"cameras.{name}: expected a table of camera parameters, {_got(spec)}")
     if not view_names and data.get("calibration"):
         view_names = None  # the rig comes from the calibration file: names unknown here
+    return view_names
 
+
+def _pipeline_problems(pipeline: Mapping) -> list[str]:
+    """The ``pipeline`` table: only ``do_<stage>`` booleans."""
+    problems: list[str] = []
     pipeline_checks = {f"do_{stage}": _boolean for stage in STAGES}
-    for key, value in table("pipeline").items():
+    for key, value in pipeline.items():
         if key not in pipeline_checks:
             problems.append(f"pipeline.{key}: {unknown_key('parameter', key, pipeline_checks)}")
         elif pipeline_checks[key](value):
             problems.append(f"pipeline.{key}: {pipeline_checks[key](value)}")
+    return problems
 
-    pose2d = table("pose2d")
-    problems += _table_problems(pose2d, Pose2dParams, "pose2d", _POSE2D_PLAN_KEYS)
-    if "import" in pose2d and _mapping(nullable=True)(pose2d["import"]):
-        problems.append(f"pose2d.import: {_mapping(nullable=True)(pose2d['import'])}")
-    if "sources" not in bad_tables and "pose2d" not in bad_tables:
-        problems += _plan_problems(data, point_names, view_names)
 
-    ba = table("bundle_adjustment")
+def _bundle_adjustment_problems(ba: Mapping, point_names: tuple[str, ...]) -> list[str]:
+    """The ``bundle_adjustment`` table: its parameters, least-squares options and points."""
+    problems: list[str] = []
     ba_fields = tuple(f.name for f in fields(BundleAdjustmentParams) if f.name != "least_squares")
     ls_keys = LEAST_SQUARES_OPTIONS
     for key, value in ba.items():
@@ -310,23 +354,13 @@ def validate_config(data: Any) -> list[str]:
                 problems.append(
                     f"bundle_adjustment.points_to_use: unknown point {point!r} (known: {', '.join(point_names)})"
                 )
+    return problems
 
-    problems += _table_problems(
-        table("pictorial_structures"), PictorialParams, "pictorial_structures"
-    )
-    problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
-    problems += _table_problems(table("refinement"), RefinementParams, "refinement")
-    problems += _table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
-    rigid = table("refinement").get("rigid_points")
-    if isinstance(rigid, list) and point_names:
-        for point in rigid:
-            if isinstance(point, str) and point not in point_names:
-                problems.append(
-                    f"refinement.rigid_points: unknown point {point!r} (known: {', '.join(point_names)})"
-                )
-    problems += kinematics_problems(table("kinematics"), point_names)
 
-    for key, value in table("io").items():
+def _io_problems(io: Mapping) -> list[str]:
+    """The ``io`` table: ``on_corrupt_frame`` and the per-kind reader tables."""
+    problems: list[str] = []
+    for key, value in io.items():
         if key == "on_corrupt_frame":
             if value not in ("error", "missing"):
                 problems.append(
@@ -335,14 +369,9 @@ def validate_config(data: Any) -> list[str]:
             continue
         if not isinstance(value, Mapping):
             problems.append(f"io.{key}: expected a table, {_got(value)}")
-    workers = table("io").get("image", {})
+    workers = io.get("image", {})
     if isinstance(workers, Mapping) and "workers" in workers and _integer(0)(workers["workers"]):
         problems.append(f"io.image.workers: {_integer(0)(workers['workers'])}")
-
-    videos = table("visualization").get("videos")
-    if videos is not None and not isinstance(videos, list):
-        problems.append(f"visualization.videos: expected a list of video tables, {_got(videos)}")
-    problems += _export_problems(data)
     return problems
 
 

@@ -92,10 +92,22 @@ def create_app(
     app = FastAPI(title="flylib gui", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session = session
     app.state.token = token
-    sockets: set[WebSocket] = set()
+    _add_request_checks(app, guard, token)
+    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
+    edits = _Edits(session)
+    _add_read_routes(app, session, token)
+    _add_edit_routes(app, edits)
+    _add_edit_socket(app, guard, edits)
+    return app
 
-    def refused(status: int, message: str) -> JSONResponse:
-        return JSONResponse({"detail": message}, status_code=status, headers=SECURITY_HEADERS)
+
+def _refused(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"detail": message}, status_code=status, headers=SECURITY_HEADERS)
+
+
+def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
+    """Every HTTP request through ``guard`` (Host, Origin, token, JSON body), every
+    response with the security headers, every error one line."""
 
     @app.middleware("http")
     async def check_request(request: Request, call_next):
@@ -118,7 +130,7 @@ def create_app(
                         413, f"refused: the body is larger than {MAX_BODY // 1024} KiB"
                     )
         except RequestRefused as exc:
-            return refused(exc.status, str(exc))
+            return _refused(exc.status, str(exc))
         response = await call_next(request)
         response.headers.update(SECURITY_HEADERS)
         if guard.guard_reads and request.url.path == "/":
@@ -127,9 +139,15 @@ def create_app(
 
     @app.exception_handler(HTTPException)
     async def one_line_error(request: Request, exc: HTTPException) -> JSONResponse:
-        return refused(exc.status_code, str(exc.detail))
+        return _refused(exc.status_code, str(exc.detail))
 
-    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
+
+def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
+    """``GET`` the page, meta, a view's frame, a frame's points and the suspects."""
+
+    def check_frame(frame: int) -> None:
+        if not 0 <= frame < session.n_frames:
+            raise HTTPException(404, f"frame {frame} out of range 0..{session.n_frames - 1}")
 
     @app.get("/", response_class=HTMLResponse)
     def index() -> HTMLResponse:
@@ -147,7 +165,7 @@ def create_app(
     def frame(view: str, frame: int) -> Response:
         if view not in session.view_names:
             raise HTTPException(404, f"unknown camera {view[:80]!r}")
-        _check_frame(frame)
+        check_frame(frame)
         started = time.perf_counter()
         data = session.frames[view].jpeg(frame)
         elapsed = (time.perf_counter() - started) * 1000
@@ -162,7 +180,7 @@ def create_app(
 
     @app.get("/api/points/{frame}")
     def points(frame: int) -> dict:
-        _check_frame(frame)
+        check_frame(frame)
         reply = session.points(frame)
         session.visit(frame)
         return reply
@@ -171,22 +189,30 @@ def create_app(
     def suspects() -> dict:
         return session.suspects_payload()
 
+
+def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
+    """``POST`` one edit and the save (the WebSocket carries the same messages)."""
+
     @app.post("/api/edit")
     async def edit(request: Request) -> JSONResponse:
         message = await _read_json(request)
-        reply = _apply(message)
+        reply = edits.apply(message)
         if reply["op"] != "points":
-            return refused(_STATUS[reply["op"]], reply["error"])
-        await _broadcast(None, reply["revision"], reply["frame"])
+            return _refused(_STATUS[reply["op"]], reply["error"])
+        await edits.broadcast(None, reply["revision"], reply["frame"])
         return JSONResponse(reply)
 
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:
         message = await _read_json(request)
-        reply = _save(message)
+        reply = edits.save(message)
         if reply["op"] != "saved":
-            return refused(_STATUS[reply["op"]], reply["error"])
+            return _refused(_STATUS[reply["op"]], reply["error"])
         return JSONResponse(reply)
+
+
+def _add_edit_socket(app: FastAPI, guard: RequestGuard, edits: _Edits) -> None:
+    """``WS /ws``: edits and saves in, replies out, other pages' edits announced."""
 
     @app.websocket("/ws")
     async def ws(websocket: WebSocket) -> None:
@@ -199,7 +225,7 @@ def create_app(
             await websocket.close(code=1008)
             return
         await websocket.accept(subprotocol=WS_PROTOCOL if WS_PROTOCOL in offered else None)
-        sockets.add(websocket)
+        edits.sockets.add(websocket)
         try:
             while True:
                 raw = await websocket.receive()
@@ -212,43 +238,48 @@ def create_app(
                     await websocket.send_json({"op": "refused", "error": str(exc)})
                     continue
                 if isinstance(message, dict) and message.get("op") == "save":
-                    await websocket.send_json(_save(message))
+                    await websocket.send_json(edits.save(message))
                     continue
-                reply = _apply(message)
+                reply = edits.apply(message)
                 await websocket.send_json(reply)
                 if reply["op"] == "points":
-                    await _broadcast(websocket, reply["revision"], reply["frame"])
+                    await edits.broadcast(websocket, reply["revision"], reply["frame"])
         except WebSocketDisconnect:
             return
         finally:
-            sockets.discard(websocket)
+            edits.sockets.discard(websocket)
 
-    async def _broadcast(origin: WebSocket | None, revision: int, frame: int) -> None:
+
+async def _read_json(request: Request) -> Any:
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise HTTPException(413, f"refused: the body is larger than {MAX_BODY // 1024} KiB")
+    try:
+        return parse_json(bytes(body)) if body else {}
+    except RequestRefused as exc:
+        raise HTTPException(exc.status, str(exc)) from None
+
+
+class _Edits:
+    """The session's edit path shared by REST and the WebSocket, and the open pages."""
+
+    def __init__(self, session: ReviewSession):
+        self.session = session
+        self.sockets: set[WebSocket] = set()
+
+    async def broadcast(self, origin: WebSocket | None, revision: int, frame: int) -> None:
         """Tell every other open page that the edits changed (it refreshes)."""
-        for other in list(sockets):
+        for other in list(self.sockets):
             if other is origin:
                 continue
             try:
                 await other.send_json({"op": "changed", "revision": revision, "frame": frame})
             except (RuntimeError, OSError, WebSocketDisconnect):
-                sockets.discard(other)
+                self.sockets.discard(other)
 
-    async def _read_json(request: Request) -> Any:
-        body = bytearray()
-        async for chunk in request.stream():
-            body += chunk
-            if len(body) > MAX_BODY:
-                raise HTTPException(413, f"refused: the body is larger than {MAX_BODY // 1024} KiB")
-        try:
-            return parse_json(bytes(body)) if body else {}
-        except RequestRefused as exc:
-            raise HTTPException(exc.status, str(exc)) from None
-
-    def _check_frame(frame: int) -> None:
-        if not 0 <= frame < session.n_frames:
-            raise HTTPException(404, f"frame {frame} out of range 0..{session.n_frames - 1}")
-
-    def _apply(message: Any) -> dict:
+    def apply(self, message: Any) -> dict:
         """One edit message -> the frame's points (plus the server time), or an error."""
         if not isinstance(message, dict):
             return {
@@ -257,7 +288,7 @@ def create_app(
             }
         started = time.perf_counter()
         try:
-            reply = session.edit(
+            reply = self.session.edit(
                 message.get("op"),
                 message.get("frame"),
                 message.get("point"),
@@ -277,10 +308,10 @@ def create_app(
         reply["server_ms"] = round((time.perf_counter() - started) * 1000, 2)
         return reply
 
-    def _save(message: Any) -> dict:
+    def save(self, message: Any) -> dict:
         revision = message.get("revision") if isinstance(message, dict) else None
         try:
-            path = session.save(revision=revision)
+            path = self.session.save(revision=revision)
         except StaleRevision as exc:
             return {"op": "stale", "error": str(exc), "revision": exc.current}
         except (FlylibError, OSError) as exc:
@@ -290,11 +321,9 @@ def create_app(
         return {
             "op": "saved",
             "saved": str(path),
-            "edits": session.corrections.count(),
-            "revision": session.revision,
+            "edits": self.session.corrections.count(),
+            "revision": self.session.revision,
         }
-
-    return app
 
 
 def _offered_protocols(websocket: WebSocket) -> list[str]:

@@ -273,11 +273,7 @@ def write_nwb(
     ResultsError
         The result has no 3D points.
     """
-    import ndx_pose
-    from pynwb import NWBHDF5IO, NWBFile, TimeSeries
-    from pynwb.image import ImageSeries
-
-    from ..camera_model import intr_to_kmat_numpy, rvec_to_rmat_numpy
+    from pynwb import NWBHDF5IO, NWBFile
 
     path = Path(path)
     if result.pts3d is None:
@@ -303,6 +299,31 @@ def write_nwb(
         )
     )
     nwbfile.subject = _subject(metadata)
+    cameras = _add_cameras(nwbfile, result, views)
+    videos = _add_videos(nwbfile, result, views, footage, cameras, rate, path.parent)
+
+    behavior = nwbfile.create_processing_module(
+        name="behavior",
+        description=f"keypoints of the fly estimated by flylib from {len(views)} cameras",
+    )
+    skeleton = _add_skeleton(behavior, result, names, nwbfile.subject)
+    per_view = _pose_estimations_2d(result, views, names, skeleton, cameras, videos, rate)
+    _add_pose_3d(behavior, result, metadata, views, names, skeleton, per_view, rate)
+    if result.reproj_error is not None:
+        _add_reprojection_errors(behavior, result.reproj_error, views, names, rate)
+    if joint_angles is not None:
+        _add_joint_angles(behavior, joint_angles, rate)
+
+    with atomic_path(path) as tmp, NWBHDF5IO(str(tmp), mode="w") as io:
+        io.write(nwbfile)
+    return path
+
+
+def _add_cameras(nwbfile, result, views: list[str]) -> dict:
+    """One ``CalibratedCamera`` device per view with the final rig: ``view -> device``."""
+    import ndx_pose
+
+    from ..camera_model import intr_to_kmat_numpy, rvec_to_rmat_numpy
 
     cameras = {}
     for camera, view in zip(result.cameras, views):
@@ -317,6 +338,13 @@ def write_nwb(
         )
         nwbfile.add_device(device)
         cameras[view] = device
+    return cameras
+
+
+def _add_videos(nwbfile, result, views, footage, cameras, rate: float, start: Path) -> dict:
+    """The footage of each view that has files as an external ``ImageSeries`` (paths
+    relative to ``start``, the NWB file's folder): ``view -> series``."""
+    from pynwb.image import ImageSeries
 
     videos = {}
     for view in views:
@@ -327,7 +355,7 @@ def write_nwb(
         videos[view] = ImageSeries(
             name=f"video_{view}",
             description=f"raw footage of camera {view} (external file{'s' if len(files) > 1 else ''}, not copied)",
-            external_file=[_relative(f, path.parent) for f in files],
+            external_file=[_relative(f, start) for f in files],
             starting_frame=[0] if len(files) == 1 else list(range(len(files))),
             format="external",
             num_samples=int(result.n_frames),
@@ -338,11 +366,13 @@ def write_nwb(
             device=cameras[view],
         )
         nwbfile.add_acquisition(videos[view])
+    return videos
 
-    behavior = nwbfile.create_processing_module(
-        name="behavior",
-        description=f"keypoints of the fly estimated by flylib from {len(views)} cameras",
-    )
+
+def _add_skeleton(behavior, result, names: list[str], subject):
+    """The ``ndx_pose.Skeleton`` (point names, bones as edges), added to ``behavior``."""
+    import ndx_pose
+
     n_points = len(names)
     skeleton = ndx_pose.Skeleton(
         name=str(result.skeleton.name or "skeleton"),
@@ -350,9 +380,15 @@ def write_nwb(
         edges=np.asarray(
             result.skeleton.bones, dtype=np.uint8 if n_points < 256 else np.uint32
         ).reshape(-1, 2),
-        subject=nwbfile.subject,
+        subject=subject,
     )
     behavior.add(ndx_pose.Skeletons(skeletons=[skeleton]))
+    return skeleton
+
+
+def _pose_estimations_2d(result, views, names, skeleton, cameras, videos, rate: float) -> list:
+    """One ``PoseEstimation`` per view: its 2D keypoints with the detection confidence."""
+    import ndx_pose
 
     per_view = []
     for v, view in enumerate(views):
@@ -389,6 +425,13 @@ def write_nwb(
                 source_software_version=_version(),
             )
         )
+    return per_view
+
+
+def _add_pose_3d(behavior, result, metadata, views, names, skeleton, per_view, rate) -> None:
+    """The ``MultiCameraPoseEstimation``: the 3D of each point with its confidence, and
+    the views' 2D ``per_view``."""
+    import ndx_pose
 
     confidence = (
         None if result.reproj_error is None else confidence_3d(result.reproj_error, result.pts3d)
@@ -427,50 +470,54 @@ def write_nwb(
             source_software_version=_version(),
         )
     )
-    if result.reproj_error is not None:
-        for v, view in enumerate(views):
-            behavior.add(
-                TimeSeries(
-                    name=f"ReprojectionError_{view}",
-                    description=(
-                        f"distance in pixels between camera {view}'s 2D keypoint and the 3D point's "
-                        f"projection; columns are the skeleton points in order ({', '.join(names)}); "
-                        "NaN where the view was not used"
-                    ),
-                    data=_data(result.reproj_error[v]),
-                    unit="pixels",
-                    starting_time=0.0,
-                    rate=rate,
-                )
-            )
 
-    if joint_angles is not None:
-        from pynwb.behavior import BehavioralTimeSeries
 
-        values, joints = joint_angles
+def _add_reprojection_errors(behavior, reproj_error, views, names, rate: float) -> None:
+    """One ``ReprojectionError_<view>`` time series ``(T, P)`` per view."""
+    from pynwb import TimeSeries
+
+    for v, view in enumerate(views):
         behavior.add(
-            BehavioralTimeSeries(
-                name=JOINT_ANGLES_NAME,
-                time_series=[
-                    TimeSeries(
-                        name=joint,
-                        description=(
-                            f"NeuroMechFly (flygym) joint {joint}: inverse kinematics of the 3D on the "
-                            "model's leg chains; NaN where the leg was not solved"
-                        ),
-                        data=_data(values[:, j]),
-                        unit="radians",
-                        starting_time=0.0,
-                        rate=rate,
-                    )
-                    for j, joint in enumerate(joints)
-                ],
+            TimeSeries(
+                name=f"ReprojectionError_{view}",
+                description=(
+                    f"distance in pixels between camera {view}'s 2D keypoint and the 3D point's "
+                    f"projection; columns are the skeleton points in order ({', '.join(names)}); "
+                    "NaN where the view was not used"
+                ),
+                data=_data(reproj_error[v]),
+                unit="pixels",
+                starting_time=0.0,
+                rate=rate,
             )
         )
 
-    with atomic_path(path) as tmp, NWBHDF5IO(str(tmp), mode="w") as io:
-        io.write(nwbfile)
-    return path
+
+def _add_joint_angles(behavior, joint_angles, rate: float) -> None:
+    """NeuroMechFly's ``(angles (T, J), joint names)`` as one ``TimeSeries`` per joint."""
+    from pynwb import TimeSeries
+    from pynwb.behavior import BehavioralTimeSeries
+
+    values, joints = joint_angles
+    behavior.add(
+        BehavioralTimeSeries(
+            name=JOINT_ANGLES_NAME,
+            time_series=[
+                TimeSeries(
+                    name=joint,
+                    description=(
+                        f"NeuroMechFly (flygym) joint {joint}: inverse kinematics of the 3D on the "
+                        "model's leg chains; NaN where the leg was not solved"
+                    ),
+                    data=_data(values[:, j]),
+                    unit="radians",
+                    starting_time=0.0,
+                    rate=rate,
+                )
+                for j, joint in enumerate(joints)
+            ],
+        )
+    )
 
 
 def read_joint_angles(path: str | Path) -> tuple[np.ndarray, list[str]]:

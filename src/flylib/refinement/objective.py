@@ -37,6 +37,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import camera_model
+
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
@@ -96,150 +98,195 @@ def chunk_kernel(loss: str, order: int, m: int):
     import jax
     import jax.numpy as jnp
 
-    from .. import camera_model, geometry  # noqa: F401  (geometry: float64, CPU, compile cache)
+    from .. import geometry  # noqa: F401  (float64, CPU, compile cache)
 
-    width = 3 * m
     band_width(m, order)
 
-    def pixel(pc, intr, dist):
-        # the model of geometry.project_full_one, camera frame -> pixels, elementwise:
-        # components as sequences (pc 3, intr 4, dist 12) of same-shaped arrays, so that
-        # no op stacks or transposes the large (nb, m, W, T) arrays
-        x, y = pc[0] / pc[2], pc[1] / pc[2]
-        if dist is not None:
-            radial, add_x, add_y = camera_model.distortion_terms(x, y, dist)
-            x, y = x * radial + add_x, y * radial + add_y
-        return intr[0] * x + intr[2], intr[1] * y + intr[3]
-
     def evaluate(xs, data):
-        nb, n_frames = xs.shape[0], xs.shape[1]
         # T-last layouts throughout: every elementwise op runs along frames
         xk = jnp.transpose(xs, (0, 2, 3, 1))  # (nb, m, 3, T)
-        rmat, tvec = data["rmat"], data["tvec"]  # (nb, m, W, 3, 3), (nb, m, W, 3)
-        r = [[rmat[..., i, j, None] for j in range(3)] for i in range(3)]  # each (nb, m, W, 1)
-        xw = [xk[:, :, None, j] for j in range(3)]  # each (nb, m, 1, T)
-        pc = tuple(
-            r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None]
-            for i in range(3)
-        )
-        intr = [data["intr"][..., k, None] for k in range(4)]
-        dist = data.get("dist")
-        dist = None if dist is None else [dist[..., k, None] for k in range(dist.shape[-1])]
-        proj = pixel(pc, intr, dist)  # 2 x (nb, m, W, T)
-        # d pixel / d world point: one JVP per camera-frame axis (through the same
-        # model), chained with the rotation
-        units = [tuple(jnp.full_like(c, float(k == i)) for k, c in enumerate(pc)) for i in range(3)]
-        dpix = [jax.jvp(lambda *p: pixel(p, intr, dist), pc, units[i])[1] for i in range(3)]
-        jac = [
-            [dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
-            for a in range(2)
-        ]  # jac[a][j] (nb, m, W, T)
-        xy = data["xy"]  # (2, nb, m, W, T)
-        e = (proj[0] - xy[0], proj[1] - xy[1])
-        sq = e[0] * e[0] + e[1] * e[1]
-        rho, drho = _loss_jax(sq * data["inv_s2"], loss)
-        w = data["w"]
-        scale = w * drho * data["inv_s2"]
-        # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W
-        # views by ONE variadic reduction: XLA then computes every summand in a single
-        # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
-        sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
-        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
-        summands = (
-            [sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
-            + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)]
-            + [w * rho]
-        )
-        sums = jax.lax.reduce(
-            tuple(summands),
-            (0.0,) * len(summands),
-            lambda a, b: tuple(x + y for x, y in zip(a, b)),
-            (2,),
-        )  # each (nb, m, T)
-        entry = {}
-        for (i, j), value in zip(pairs, sums):
-            entry[i, j] = entry[j, i] = value
-        h = jnp.stack(
-            [jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)]
-        )  # (3, 3, nb, m, T)
-        g = jnp.stack(sums[len(pairs) : len(pairs) + 3])  # (3, nb, m, T)
-        # the cost per block: blocks share no unknown, so the solver accepts or
-        # rejects a step block by block
-        cost = jnp.sum(sums[-1], axis=(1, 2))
-        # -- rigid points: one world position each (T-last layouts from here on)
-        h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
-        g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
-        # padded frames (live 0) carry no term: their unknowns stay where they are
-        live = data["live"]  # (T,)
-        mask = data["rigid_mask"][:, :, None, None] * live  # (nb, m, 1, T)
-        diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
-        g = g + data["rigid_w"] * diff
-        h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[:, :, :, None]
-        cost += data["rigid_w"] * jnp.sum(diff * diff, axis=(1, 2, 3))
-        # -- bones: within-frame blocks on the diagonal (slot k, k) and next to it
-        # (k, k+1); a bone joins neighbouring slots (chains are packed contiguously).
-        # Loops over the few bones per block instead of einsums: XLA's contractions
-        # over these tiny axes were slow.
-        inc = data["incidence"]  # (nb, Kb, m)
-        n_bones = inc.shape[1]
-        d = jnp.sum(inc[:, :, :, None, None] * xk[:, None], axis=2)  # (nb, Kb, 3, T)
-        length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
-        unit = d / length[:, :, None]
-        target = data["length"][..., None]
-        resid = (length - target) * (target > 0) * live
-        grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
-        diag = h
-        nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
-        for q in range(n_bones):
-            outer = (
-                data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]
-            )  # (nb, 3, 3, T)
-            # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
-            diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
-            if m > 1:
-                link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
-                nxt = nxt - link[:, :, None, None, None] * outer[:, None]
-            g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
-        cost += data["bone_w"] * jnp.sum(resid * resid, axis=(1, 2))
+        h, g, cost, sq = _reprojection_terms(xk, data, loss)
+        h, g, cost = _rigid_terms(h, g, cost, xk, data)
+        diag, nxt, g, cost = _bone_terms(h, g, cost, xk, data, m)
         diag = jnp.transpose(diag, (0, 4, 1, 2, 3))  # (nb, T, m, 3, 3)
         nxt = jnp.transpose(nxt, (0, 4, 1, 2, 3))  # (nb, T, m - 1, 3, 3)
         g = jnp.transpose(g, (0, 3, 1, 2))  # (nb, T, m, 3)
-        # -- temporal differences
-        gram = data["gram"]
         if order:
-            sw = data["smooth_w"]
-            dx = jnp.diff(xs, n=order, axis=1) * live[order:, None, None]
-            cost += sw * jnp.sum(dx * dx, axis=(1, 2, 3))
-            smooth = gram[0][None, :, None, None] * xs
-            zero = jnp.zeros_like(xs)
-            for q in range(1, order + 1):
-                c = gram[q][None, :, None, None]
-                # (D^T D)[t - q, t] x[t - q] + (D^T D)[t, t + q] x[t + q]
-                back = jnp.concatenate([zero[:, :q], xs[:, :-q]], axis=1) * c
-                ahead = jnp.concatenate([(c * xs)[:, q:], zero[:, :q]], axis=1)
-                smooth = smooth + back + ahead
-            g = g + sw * smooth
-        # -- the non-zero within-frame rows of the band: row u - delta holds the
-        # delta-th superdiagonal at the column of its lower-right end (delta < 6)
-        rows = []
-        zero = jnp.zeros((nb, n_frames, m))
-        for delta in range(min(6, width)):
-            cols = []
-            for jj in range(3):
-                ii = jj - delta
-                if ii >= 0:
-                    cols.append(diag[..., ii, jj])
-                elif ii + 3 >= 0 and m > 1:
-                    cols.append(
-                        jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1)
-                    )
-                else:
-                    cols.append(zero)
-            rows.append(jnp.stack(cols, axis=-1).reshape(-1))
+            g, cost = _temporal_terms(g, cost, xs, data, order)
+        rows = _band_rows(diag, nxt, m)
         err = jnp.sqrt(sq)  # (nb, m, W, T)
         return cost, jnp.stack(rows), g.reshape(-1), err
 
     return jax.jit(evaluate)
+
+
+# The kernel's terms, traced inside chunk_kernel's evaluate in this order (the jitted
+# computation is the same as one function's).
+
+
+def _pixel(pc, intr, dist):
+    """Camera frame -> pixels, the model of geometry.project_full_one, elementwise."""
+    # components as sequences (pc 3, intr 4, dist 12) of same-shaped arrays, so that
+    # no op stacks or transposes the large (nb, m, W, T) arrays
+    x, y = pc[0] / pc[2], pc[1] / pc[2]
+    if dist is not None:
+        radial, add_x, add_y = camera_model.distortion_terms(x, y, dist)
+        x, y = x * radial + add_x, y * radial + add_y
+    return intr[0] * x + intr[2], intr[1] * y + intr[3]
+
+
+def _reprojection_terms(xk, data, loss: str):
+    """The robust reprojection term summed over the views: Gauss-Newton blocks ``h``
+    ``(nb, m, 3, 3, T)``, gradient ``g`` ``(nb, m, 3, T)``, cost per block ``(nb,)``
+    and the squared pixel errors ``(nb, m, W, T)``."""
+    import jax
+    import jax.numpy as jnp
+
+    rmat, tvec = data["rmat"], data["tvec"]  # (nb, m, W, 3, 3), (nb, m, W, 3)
+    r = [[rmat[..., i, j, None] for j in range(3)] for i in range(3)]  # each (nb, m, W, 1)
+    xw = [xk[:, :, None, j] for j in range(3)]  # each (nb, m, 1, T)
+    pc = tuple(
+        r[i][0] * xw[0] + r[i][1] * xw[1] + r[i][2] * xw[2] + tvec[..., i, None] for i in range(3)
+    )
+    intr = [data["intr"][..., k, None] for k in range(4)]
+    dist = data.get("dist")
+    dist = None if dist is None else [dist[..., k, None] for k in range(dist.shape[-1])]
+    proj = _pixel(pc, intr, dist)  # 2 x (nb, m, W, T)
+    # d pixel / d world point: one JVP per camera-frame axis (through the same
+    # model), chained with the rotation
+    units = [tuple(jnp.full_like(c, float(k == i)) for k, c in enumerate(pc)) for i in range(3)]
+    dpix = [jax.jvp(lambda *p: _pixel(p, intr, dist), pc, units[i])[1] for i in range(3)]
+    jac = [
+        [dpix[0][a] * r[0][j] + dpix[1][a] * r[1][j] + dpix[2][a] * r[2][j] for j in range(3)]
+        for a in range(2)
+    ]  # jac[a][j] (nb, m, W, T)
+    xy = data["xy"]  # (2, nb, m, W, T)
+    e = (proj[0] - xy[0], proj[1] - xy[1])
+    sq = e[0] * e[0] + e[1] * e[1]
+    rho, drho = _loss_jax(sq * data["inv_s2"], loss)
+    w = data["w"]
+    scale = w * drho * data["inv_s2"]
+    # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W
+    # views by ONE variadic reduction: XLA then computes every summand in a single
+    # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
+    sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
+    pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+    summands = (
+        [sj[0][i] * jac[0][j] + sj[1][i] * jac[1][j] for i, j in pairs]
+        + [sj[0][i] * e[0] + sj[1][i] * e[1] for i in range(3)]
+        + [w * rho]
+    )
+    sums = jax.lax.reduce(
+        tuple(summands),
+        (0.0,) * len(summands),
+        lambda a, b: tuple(x + y for x, y in zip(a, b)),
+        (2,),
+    )  # each (nb, m, T)
+    entry = {}
+    for (i, j), value in zip(pairs, sums):
+        entry[i, j] = entry[j, i] = value
+    h = jnp.stack(
+        [jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)]
+    )  # (3, 3, nb, m, T)
+    g = jnp.stack(sums[len(pairs) : len(pairs) + 3])  # (3, nb, m, T)
+    # the cost per block: blocks share no unknown, so the solver accepts or
+    # rejects a step block by block
+    cost = jnp.sum(sums[-1], axis=(1, 2))
+    h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
+    g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
+    return h, g, cost, sq
+
+
+def _rigid_terms(h, g, cost, xk, data):
+    """Rigid points: one world position each; ``h``, ``g``, ``cost`` with the term added."""
+    import jax.numpy as jnp
+
+    # padded frames (live 0) carry no term: their unknowns stay where they are
+    live = data["live"]  # (T,)
+    mask = data["rigid_mask"][:, :, None, None] * live  # (nb, m, 1, T)
+    diff = (xk - data["centre"][..., None]) * mask  # (nb, m, 3, T)
+    g = g + data["rigid_w"] * diff
+    h = h + data["rigid_w"] * jnp.eye(3)[None, None, :, :, None] * mask[:, :, :, None]
+    cost += data["rigid_w"] * jnp.sum(diff * diff, axis=(1, 2, 3))
+    return h, g, cost
+
+
+def _bone_terms(h, g, cost, xk, data, m: int):
+    """Bones: within-frame blocks on the diagonal (slot k, k) and next to it (k, k+1);
+    ``(diag (nb, m, 3, 3, T), nxt (nb, m - 1, 3, 3, T), g, cost)``."""
+    import jax.numpy as jnp
+
+    nb, n_frames = xk.shape[0], xk.shape[3]
+    live = data["live"]  # (T,)
+    # a bone joins neighbouring slots (chains are packed contiguously). Loops over the
+    # few bones per block instead of einsums: XLA's contractions over these tiny axes
+    # were slow.
+    inc = data["incidence"]  # (nb, Kb, m)
+    n_bones = inc.shape[1]
+    d = jnp.sum(inc[:, :, :, None, None] * xk[:, None], axis=2)  # (nb, Kb, 3, T)
+    length = jnp.maximum(jnp.sqrt(jnp.sum(d * d, axis=2)), 1e-12)  # (nb, Kb, T)
+    unit = d / length[:, :, None]
+    target = data["length"][..., None]
+    resid = (length - target) * (target > 0) * live
+    grad_b = data["bone_w"] * resid[:, :, None] * unit  # (nb, Kb, 3, T)
+    diag = h
+    nxt = jnp.zeros((nb, max(m - 1, 1), 3, 3, n_frames))
+    for q in range(n_bones):
+        outer = data["bone_w"] * live * unit[:, q, :, None] * unit[:, q, None, :]  # (nb, 3, 3, T)
+        # slot k gets +outer for each bone touching it, (k, k+1) gets -outer
+        diag = diag + jnp.abs(inc[:, q])[:, :, None, None, None] * outer[:, None]
+        if m > 1:
+            link = -inc[:, q, :-1] * inc[:, q, 1:]  # 1 where bone q joins slots k, k+1
+            nxt = nxt - link[:, :, None, None, None] * outer[:, None]
+        g = g + inc[:, q][:, :, None, None] * grad_b[:, q, None]
+    cost += data["bone_w"] * jnp.sum(resid * resid, axis=(1, 2))
+    return diag, nxt, g, cost
+
+
+def _temporal_terms(g, cost, xs, data, order: int):
+    """Temporal differences of order ``order``: ``g`` ``(nb, T, m, 3)`` and ``cost``
+    with the term added."""
+    import jax.numpy as jnp
+
+    gram = data["gram"]
+    live = data["live"]  # (T,)
+    sw = data["smooth_w"]
+    dx = jnp.diff(xs, n=order, axis=1) * live[order:, None, None]
+    cost += sw * jnp.sum(dx * dx, axis=(1, 2, 3))
+    smooth = gram[0][None, :, None, None] * xs
+    zero = jnp.zeros_like(xs)
+    for q in range(1, order + 1):
+        c = gram[q][None, :, None, None]
+        # (D^T D)[t - q, t] x[t - q] + (D^T D)[t, t + q] x[t + q]
+        back = jnp.concatenate([zero[:, :q], xs[:, :-q]], axis=1) * c
+        ahead = jnp.concatenate([(c * xs)[:, q:], zero[:, :q]], axis=1)
+        smooth = smooth + back + ahead
+    g = g + sw * smooth
+    return g, cost
+
+
+def _band_rows(diag, nxt, m: int) -> list:
+    """The non-zero within-frame rows of the band: row u - delta holds the delta-th
+    superdiagonal at the column of its lower-right end (delta < 6)."""
+    import jax.numpy as jnp
+
+    nb, n_frames = diag.shape[0], diag.shape[1]
+    rows = []
+    zero = jnp.zeros((nb, n_frames, m))
+    for delta in range(min(6, 3 * m)):
+        cols = []
+        for jj in range(3):
+            ii = jj - delta
+            if ii >= 0:
+                cols.append(diag[..., ii, jj])
+            elif ii + 3 >= 0 and m > 1:
+                cols.append(
+                    jnp.concatenate([zero[..., :1], nxt[..., : m - 1, ii + 3, jj]], axis=-1)
+                )
+            else:
+                cols.append(zero)
+        rows.append(jnp.stack(cols, axis=-1).reshape(-1))
+    return rows
 
 
 @dataclass(frozen=True)

@@ -590,130 +590,45 @@ def refine_stream(
         ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
     """
     opts = options or RefineOptions()
-    n_views, n_frames, n_points = source.n_views, source.n_frames, source.n_points
+    n_frames, n_points = source.n_frames, source.n_points
     bones = (
         np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
     )
     rigid = np.asarray(rigid, np.int64).ravel()
-    chains = (
-        [list(map(int, c)) for c in chains]
-        if chains is not None
-        else [list(map(int, b)) for b in bones]
-    )
-    layout = BlockLayout.from_chains(n_points, chains)
-    for i, j in bones:
-        if (
-            layout.block_of[i] != layout.block_of[j]
-            or abs(layout.slot_of[i] - layout.slot_of[j]) != 1
-        ):
-            raise ValueError(
-                f"bone ({i}, {j}) does not join neighbouring points of one chain; "
-                "give the limb chains the bones run along"
-            )
+    layout = _chain_layout(n_points, bones, chains)
     chunk = max(int(opts.chunk_frames), 1)
     overlap = max(int(opts.overlap_frames), 0)
 
     # -- pass 1: which views see which points, and a frame sample for the medians
-    seen = np.zeros((n_views, n_points), bool)
-    stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
-    sample = []
-    for lo in range(0, n_frames, chunk):
-        hi = min(lo + chunk, n_frames)
-        pts2d, conf, start, _ = source.read(lo, hi)
-        seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
-        sample.append(start[(-lo) % stride :: stride])
-    sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
+    seen, sample = _first_pass(source, chunk, opts)
     lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
     centres = rigid_centres(sample, rigid)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            fallback = (
-                np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
-            )
-    centre_all = np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else np.zeros(3)
-    fallback = np.where(np.isfinite(fallback), fallback, centre_all)
-    if len(rigid):
-        ok = np.isfinite(centres).all(-1)
-        fallback[rigid[ok]] = centres[ok]
+    fallback = _fallback_points(sample, rigid, centres, n_points)
     grid = Grid(seen[:, None, :], cameras, layout)
     scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
 
     # -- pass 2: the chunks, two at a time (the JAX kernel and LAPACK release the GIL);
     # results are written in order by this thread
-    supported = np.zeros((n_frames, n_points), bool)
     largest = chunk + 2 * overlap
-    iterations, kept_total, rejected_total = [], 0, 0
-
-    # Every chunk is solved over a window of one length (`largest`, or the whole
-    # recording if shorter): the first and last windows reach further into the
-    # recording instead of being shorter, so the kernel compiles once per recording
-    # and no window is padded.
-    window = min(largest, n_frames)
-    if n_frames <= largest:
-        bounds = [(0, n_frames)] if n_frames else []
-    else:
-        bounds = [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
-
-    def solve_chunk(lo: int, hi: int):
-        a = min(max(lo - overlap, 0), n_frames - window)
-        b = a + window
-        pts2d, conf, start, inliers = source.read(a, b)
-        observed, weight = _weights(pts2d, conf, opts)
-        problem = ChunkProblem(
-            grid,
-            pts2d,
-            weight,
-            layout,
-            bones,
-            lengths,
-            rigid,
-            centres,
-            opts,
-            _bucket(b - a, largest),
-        )
-        first = observed.copy()
-        if inliers is not None:
-            first &= inliers | ~np.isfinite(start).all(-1)[None]
-        problem.set_active(first)
-        xs = problem.to_slots(fill_start(start, fallback))
-        half = max(opts.max_iterations // 2, 1)
-        xs, it1, err = problem.solve(xs, half)
-        problem.set_active(observed & (problem.errors(err) < opts.outlier_px))
-        xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
-        keep = slice(lo - a, hi - a)
-        active = problem.active[:, keep]
-        points3d = problem.from_slots(xs)[keep]
-        flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, scale, opts)
-        return (
-            lo,
-            hi,
-            it1 + it2,
-            active,
-            int((observed[:, keep] & ~active).sum()),
-            points3d,
-            np.where(active, problem.errors(err)[:, keep], np.nan),
-            np.where(active[..., None], pts2d[:, keep], np.nan),
-            flags,
-        )
-
+    solve_chunk = _ChunkSolver(
+        source,
+        grid,
+        layout,
+        bones,
+        lengths,
+        rigid,
+        centres,
+        opts,
+        fallback,
+        scale,
+        overlap,
+        largest,
+    )
+    supported = np.zeros((n_frames, n_points), bool)
     started = time.perf_counter()
-    # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
-    # once, not per chunk: threads entering and leaving it would undo each other). The
-    # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
-    # them ran 10-40x slower on a busy 2-core machine. Two chunk workers at most, each
-    # at most one chunk ahead of the writer (memory flat); inline under one thread.
-    with threadpool_limits(1, user_api="blas"):
-        for lo, hi, its, active, rejected, points3d, err, clean, flags in thread_map(
-            lambda bound: solve_chunk(*bound), bounds, 2
-        ):
-            iterations.append(its)
-            supported[lo:hi] = active.any(axis=0)
-            kept_total += int(active.sum())
-            rejected_total += rejected
-            sink.write(lo, hi, points3d, err, clean, flags)
+    iterations, kept_total, rejected_total = _solve_chunks(
+        solve_chunk, _chunk_bounds(n_frames, chunk, largest), sink, supported
+    )
     solve_seconds = time.perf_counter() - started
 
     # -- gaps longer than gap_length: NaN
@@ -740,6 +655,160 @@ def refine_stream(
         iterations[:8],
     )
     return {"bone_lengths": lengths, "rigid_points": rigid, "rigid_centres": centres, "info": info}
+
+
+def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
+    """The block layout of the limb chains (default: each bone its own chain); every
+    bone must join neighbouring points of one chain."""
+    chains = (
+        [list(map(int, c)) for c in chains]
+        if chains is not None
+        else [list(map(int, b)) for b in bones]
+    )
+    layout = BlockLayout.from_chains(n_points, chains)
+    for i, j in bones:
+        if (
+            layout.block_of[i] != layout.block_of[j]
+            or abs(layout.slot_of[i] - layout.slot_of[j]) != 1
+        ):
+            raise ValueError(
+                f"bone ({i}, {j}) does not join neighbouring points of one chain; "
+                "give the limb chains the bones run along"
+            )
+    return layout
+
+
+def _first_pass(source, chunk: int, opts: RefineOptions) -> tuple[np.ndarray, np.ndarray]:
+    """``seen`` ``(V, P)``: which views observe which points anywhere, and an evenly
+    spread sample ``(S, P, 3)`` of the starting frames, read chunk by chunk."""
+    n_frames, n_points = source.n_frames, source.n_points
+    seen = np.zeros((source.n_views, n_points), bool)
+    stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
+    sample = []
+    for lo in range(0, n_frames, chunk):
+        hi = min(lo + chunk, n_frames)
+        pts2d, conf, start, _ = source.read(lo, hi)
+        seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
+        sample.append(start[(-lo) % stride :: stride])
+    sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
+    return seen, sample
+
+
+def _fallback_points(sample, rigid, centres, n_points: int) -> Float[np.ndarray, "P 3"]:
+    """Where a point starts when the triangulation never had it: its median over the
+    sample (the rigid centre for rigid points), else the centre of all points."""
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fallback = (
+                np.nanmedian(sample, axis=0) if len(sample) else np.full((n_points, 3), np.nan)
+            )
+    centre_all = np.nanmean(fallback, axis=0) if np.isfinite(fallback).any() else np.zeros(3)
+    fallback = np.where(np.isfinite(fallback), fallback, centre_all)
+    if len(rigid):
+        ok = np.isfinite(centres).all(-1)
+        fallback[rigid[ok]] = centres[ok]
+    return fallback
+
+
+def _chunk_bounds(n_frames: int, chunk: int, largest: int) -> list[tuple[int, int]]:
+    """The chunks' ``(lo, hi)`` frames: one chunk when the recording fits one window."""
+    # Every chunk is solved over a window of one length (`largest`, or the whole
+    # recording if shorter): the first and last windows reach further into the
+    # recording instead of being shorter, so the kernel compiles once per recording
+    # and no window is padded.
+    if n_frames <= largest:
+        return [(0, n_frames)] if n_frames else []
+    return [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
+
+
+def _solve_chunks(solve_chunk, bounds, sink, supported) -> tuple[list[int], int, int]:
+    """Solve the chunks, writing each to ``sink`` in order and marking the frames and
+    points some view supports in ``supported`` ``(T, P)``; ``(iterations per chunk,
+    observations kept, observations rejected)``."""
+    iterations, kept_total, rejected_total = [], 0, 0
+    # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
+    # once, not per chunk: threads entering and leaving it would undo each other). The
+    # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
+    # them ran 10-40x slower on a busy 2-core machine. Two chunk workers at most, each
+    # at most one chunk ahead of the writer (memory flat); inline under one thread.
+    with threadpool_limits(1, user_api="blas"):
+        for lo, hi, its, active, rejected, points3d, err, clean, flags in thread_map(
+            lambda bound: solve_chunk(*bound), bounds, 2
+        ):
+            iterations.append(its)
+            supported[lo:hi] = active.any(axis=0)
+            kept_total += int(active.sum())
+            rejected_total += rejected
+            sink.write(lo, hi, points3d, err, clean, flags)
+    return iterations, kept_total, rejected_total
+
+
+@dataclass(frozen=True, eq=False)
+class _ChunkSolver:
+    """Pass 2 of :func:`refine_stream`: one chunk's frames solved over its window."""
+
+    source: Any
+    grid: Grid
+    layout: BlockLayout
+    bones: np.ndarray
+    lengths: np.ndarray
+    rigid: np.ndarray
+    centres: np.ndarray
+    opts: RefineOptions
+    fallback: np.ndarray
+    scale: float
+    overlap: int
+    largest: int
+
+    def __call__(self, lo: int, hi: int):
+        """``(lo, hi, iterations, active, rejected, points3d, err, clean, flags)`` of
+        frames ``lo:hi``."""
+        opts = self.opts
+        n_frames = self.source.n_frames
+        window = min(self.largest, n_frames)
+        a = min(max(lo - self.overlap, 0), n_frames - window)
+        b = a + window
+        pts2d, conf, start, inliers = self.source.read(a, b)
+        observed, weight = _weights(pts2d, conf, opts)
+        problem = ChunkProblem(
+            self.grid,
+            pts2d,
+            weight,
+            self.layout,
+            self.bones,
+            self.lengths,
+            self.rigid,
+            self.centres,
+            opts,
+            _bucket(b - a, self.largest),
+        )
+        first = observed.copy()
+        if inliers is not None:
+            first &= inliers | ~np.isfinite(start).all(-1)[None]
+        problem.set_active(first)
+        xs = problem.to_slots(fill_start(start, self.fallback))
+        half = max(opts.max_iterations // 2, 1)
+        xs, it1, err = problem.solve(xs, half)
+        problem.set_active(observed & (problem.errors(err) < opts.outlier_px))
+        xs, it2, err = problem.solve(xs, max(opts.max_iterations - it1, 1))
+        keep = slice(lo - a, hi - a)
+        active = problem.active[:, keep]
+        points3d = problem.from_slots(xs)[keep]
+        flags = _chunk_flags(points3d, start[keep], observed[:, keep], active, self.scale, opts)
+        return (
+            lo,
+            hi,
+            it1 + it2,
+            active,
+            int((observed[:, keep] & ~active).sum()),
+            points3d,
+            np.where(active, problem.errors(err)[:, keep], np.nan),
+            np.where(active[..., None], pts2d[:, keep], np.nan),
+            flags,
+        )
 
 
 def refine_points(
