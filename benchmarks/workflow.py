@@ -93,11 +93,14 @@ def bench_planning(n: int) -> dict:
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.inputs import stage_inputs
 
     p2d = stages.artifact_path(out, "pose2d")
     ba = stages.artifact_path(out, "bundle_adjustment")
     tri = stages.artifact_path(out, "triangulation")
-    stages.run_pose2d(config, rec_dir, p2d, import_spec=demo_import_spec(config))
+    stages.run_pose2d(
+        stage_inputs(config, "pose2d"), rec_dir, p2d, import_spec=demo_import_spec(config)
+    )
     stages.run_bundle_adjustment(config, p2d, ba, recording_dir=rec_dir)
     stages.run_triangulation(config, p2d, tri, ba_path=ba, recording_dir=rec_dir)
     stages.run_assemble(

@@ -12,6 +12,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from flylib.pipeline.inputs import stage_inputs
+
 
 def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
@@ -25,7 +27,10 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     make_demo(config, directory, frames=frames, **demo)
     out = directory / "flylib_outputs"
     run_pose2d(
-        config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        directory,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     run_triangulation(
         config,

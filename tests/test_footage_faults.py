@@ -15,6 +15,7 @@ import pytest
 from flylib import io
 from flylib.errors import FootageError, ImportFormatError
 from flylib.io.images import image_damage
+from flylib.pipeline.pose2d import import_target
 
 
 def _jpegs(directory: Path, n: int = 6, size=(48, 64), seed: int = 0) -> list[Path]:
@@ -193,7 +194,7 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
     make_demo(config, tmp_path, frames=6, seed=0)
     spec = demo_import_spec(config)
     video = tmp_path / "camera_1.mp4"
-    assert import_points2d(config, tmp_path, spec).pts2d.shape[1] == 6
+    assert import_points2d(import_target(config), tmp_path, spec).pts2d.shape[1] == 6
     data = video.read_bytes()
     moov, mdat = data.find(b"moov"), data.find(b"mdat")
     if moov > mdat:  # index at the end: a cut would lose the header; rebuild it first
@@ -204,7 +205,7 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
         match=rf"{spec['files']['rm']}: 6 frames but view 'rm' footage "
         rf"has [0-5] \({video}\); .*re-copy truncated footage",
     ):
-        import_points2d(config, tmp_path, spec)
+        import_points2d(import_target(config), tmp_path, spec)
 
 
 def _mp4_from(video: Path, tmp: Path) -> None:

@@ -20,6 +20,7 @@ import yaml
 from flylib.cli import main as flylib_main
 from flylib.config import Config
 from flylib.errors import OutputError, ResultsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import (
     Pose2dData,
@@ -274,7 +275,10 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
     run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     run_triangulation(
         config,
@@ -360,7 +364,12 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     from flylib.demo import demo_import_spec
     from flylib.pipeline.stages import run_assemble, run_pose2d
 
-    run_pose2d(other, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(other))
+    run_pose2d(
+        stage_inputs(other, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(other),
+    )
     run_assemble(
         other,
         {
@@ -493,7 +502,10 @@ def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
     run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     return recording, out
 

@@ -27,6 +27,7 @@ from flylib.errors import ConfigError
 from flylib.interop.exports import points3d_table, write_dlc_views, write_points3d_csv
 from flylib.interop.nwb import confidence_3d, export_nwb, write_nwb
 from flylib.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
+from flylib.pipeline.inputs import stage_inputs
 from flylib.results import PoseResult
 
 FRAMES = 40  # >= the 38 points, so every (time, point) series is time-major
@@ -46,7 +47,10 @@ def demo_result(tmp_path_factory):
     out = recording / "flylib_outputs"
     make_demo(config, recording, frames=FRAMES)
     stages.run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     stages.run_triangulation(
         config,

@@ -13,6 +13,7 @@ import pytest
 from flylib.config import Config, validate_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import SUMMARY_FILES
+from flylib.pipeline.inputs import stage_inputs
 from flylib.preflight import preflight_problems
 from flylib.recordings import Recording
 
@@ -109,7 +110,9 @@ def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pic
     quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", README).group(1))
     config = Config.default()
     spec = {"format": "deepfly3d", "files": df3d_pickle.name}
-    run_pose2d(config, df3d_sample_dir, tmp_path / "pose2d.h5", import_spec=spec)
+    run_pose2d(
+        stage_inputs(config, "pose2d"), df3d_sample_dir, tmp_path / "pose2d.h5", import_spec=spec
+    )
     with pytest.warns(RuntimeWarning, match="poorly determined"):  # the README says it warns
         run_bundle_adjustment(config, tmp_path / "pose2d.h5", tmp_path / "ba.h5")
     summary = json.loads(read_stage(tmp_path / "ba.h5", "bundle_adjustment")["attrs"]["summary"])

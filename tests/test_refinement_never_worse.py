@@ -14,6 +14,7 @@ import pytest
 
 from flylib.config import Config
 from flylib.pipeline import stages
+from flylib.pipeline.inputs import stage_inputs
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
 
@@ -61,7 +62,12 @@ def test_real_sample_with_the_workflow_defaults(df3d_sample_dir, tmp_path):
     ransac, refinement (before: reprojection 2.53 -> 3.71 px median, 6.28 -> 11.7 p95)."""
     config = Config.default()
     s = tmp_path / "stages"
-    stages.run_pose2d(config, df3d_sample_dir, s / "pose2d.h5", import_spec={"format": "deepfly3d"})
+    stages.run_pose2d(
+        stage_inputs(config, "pose2d"),
+        df3d_sample_dir,
+        s / "pose2d.h5",
+        import_spec={"format": "deepfly3d"},
+    )
     stages.run_bundle_adjustment(config, s / "pose2d.h5", s / "bundle_adjustment.h5")
     acc = _check_never_worse(tmp_path)
     assert acc["frames_evaluated"] == acc["frames_total"] == 15
@@ -101,7 +107,10 @@ def test_the_demo(tmp_path, capsys):
     make_demo(config, tmp_path / "demo")
     s = tmp_path / "demo" / "flylib_outputs" / "stages"
     stages.run_pose2d(
-        config, tmp_path / "demo", s / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        tmp_path / "demo",
+        s / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     out = tmp_path / "demo" / "flylib_outputs"
     acc = _check_never_worse(out, with_ba=False)

@@ -7,6 +7,7 @@ import pytest
 from flylib.config import Config
 from flylib.demo import demo_import_spec, make_demo
 from flylib.errors import ResultsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_pictorial_structures, run_pose2d
 
 
@@ -17,7 +18,9 @@ def imported(tmp_path_factory):
     config = Config.default()
     make_demo(config, root / "rec", frames=4, seed=0)
     spec = demo_import_spec(config)
-    pose2d = run_pose2d(config, root / "rec", root / "pose2d.h5", import_spec=spec)
+    pose2d = run_pose2d(
+        stage_inputs(config, "pose2d"), root / "rec", root / "pose2d.h5", import_spec=spec
+    )
     return config, root, spec, pose2d
 
 
@@ -29,7 +32,7 @@ def test_candidates_for_imported_2d_fail_in_one_line_with_the_fix(imported):
         r"candidate peaks.*imported \(dlc_csv\).*do_pictorial_structures: false",
     ):
         run_pose2d(
-            config,
+            stage_inputs(config, "pose2d"),
             root / "rec",
             root / "other.h5",
             import_spec=spec,

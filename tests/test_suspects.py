@@ -11,6 +11,7 @@ import pytest
 
 from flylib.config import Config
 from flylib.demo import demo_import_spec, load_truth, make_demo, synthetic_fly
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_pose2d, run_triangulation
 from flylib.results import Pose2dData, read_stage
 from flylib.suspects import SUSPECTS_FILE, find_suspects
@@ -21,7 +22,12 @@ FRAMES = 60
 def triangulated_demo(directory, **settings):
     config = Config.default()
     make_demo(config, directory, frames=FRAMES, **settings)
-    run_pose2d(config, directory, directory / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_pose2d(
+        stage_inputs(config, "pose2d"),
+        directory,
+        directory / "pose2d.h5",
+        import_spec=demo_import_spec(config),
+    )
     run_triangulation(config, directory / "pose2d.h5", directory / "triangulation.h5")
     pose2d = Pose2dData.load(directory / "pose2d.h5")
     tri = read_stage(directory / "triangulation.h5", "triangulation")

@@ -83,7 +83,8 @@ def stage_provenance(
     Parameters
     ----------
     config
-        The run's :class:`~flylib.config.Config`.
+        The stage's params (its inputs object's ``canonical_params()``), or the run's
+        :class:`~flylib.config.Config` for a stage without an inputs object yet.
     stage
         The stage (a :data:`flylib.config.PARAM_STAGES` name).
     upstream
@@ -102,7 +103,9 @@ def stage_provenance(
     if held_outdir() is not None:
         writer["outdir"] = str(held_outdir())
     out: dict[str, Any] = {
-        PARAMS_KEY: params_hash(config.stage_params(stage)),
+        PARAMS_KEY: params_hash(
+            config if isinstance(config, Mapping) else config.stage_params(stage)
+        ),
         ARTIFACT_ID_KEY: uuid.uuid4().hex[:16],
         WRITER_KEY: writer,
     }

@@ -525,12 +525,17 @@ def export_nwb(
     ConfigError
         Missing or invalid session metadata (all named at once), or no frame rate.
     """
+    from ..config.sources import footage_globs
     from ..results import PoseResult
     from .views import footage_files
 
     metadata = recording_metadata(config, recording_dir, demo=demo, extra=extra_metadata)
     result = PoseResult.load(results_path)
-    footage = footage_files(config, Path(recording_dir)) if recording_dir is not None else {}
+    footage = (
+        footage_files(footage_globs(config), Path(recording_dir))
+        if recording_dir is not None
+        else {}
+    )
     missing = [v for v in result.cameras.names if not footage.get(v)]
     if recording_dir is not None and missing:
         log.warning(

@@ -132,6 +132,7 @@ def export_training_data(
     import cv2
 
     from ..config import Config
+    from ..config.sources import footage_globs
     from ..io import open_reader
     from ..results import PoseResult, open_checked
     from .views import footage_files
@@ -158,7 +159,7 @@ def export_training_data(
         config = Config.of_outputs(results.parent)
     recording = Path(recording) if recording else Path(result.meta.get("recording") or "")
     views = list(result.cameras.names)
-    footage = footage_files(config, recording) if recording.is_dir() else {}
+    footage = footage_files(footage_globs(config), recording) if recording.is_dir() else {}
     missing = [v for v in views if not footage.get(v)]
     if missing:
         raise FootageError(
