@@ -16,6 +16,7 @@ import pytest
 from flylib.config import PARAM_STAGES, Config
 from flylib.errors import ConfigError
 from flylib.pipeline import stages
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.tracked import (
     UNTRACKED,
     StageConfig,
@@ -238,7 +239,9 @@ def base_run(tmp_path_factory):
     make_demo(config, rec, frames=4, seed=0)
     spec = demo_import_spec(config)
     (out / "stages").mkdir(parents=True)
-    p2d = stages.run_pose2d(config, rec, out / "stages" / "pose2d.h5", import_spec=spec)
+    p2d = stages.run_pose2d(
+        stage_inputs(config, "pose2d"), rec, out / "stages" / "pose2d.h5", import_spec=spec
+    )
     ba = stages.run_bundle_adjustment(
         config, p2d, out / "stages" / "bundle_adjustment.h5", recording_dir=rec
     )
@@ -282,7 +285,9 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
     other, out = Config.from_dict(perturbed), tmp_path
     upstream = {k: base[k] for k in ("pose2d", "bundle_adjustment", "triangulation", "refinement")}
     run = {
-        "pose2d": lambda: stages.run_pose2d(other, rec, out / "pose2d.h5", import_spec=spec),
+        "pose2d": lambda: stages.run_pose2d(
+            stage_inputs(other, "pose2d"), rec, out / "pose2d.h5", import_spec=spec
+        ),
         "bundle_adjustment": lambda: stages.run_bundle_adjustment(
             other, base["pose2d"], out / "ba.h5", recording_dir=rec
         ),
