@@ -39,6 +39,8 @@ __all__ = [
 
 #: The detection plan's tables in the ``pose2d`` table (``import`` is tracked apart).
 PLAN_KEYS = tuple(key for key in _POSE2D_PLAN_KEYS if key != "import")
+#: The untracked ``pose2d`` settings (:class:`~flylib.config.params.Pose2dParams`).
+DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 
 
 @dataclass(frozen=True)
@@ -69,12 +71,8 @@ class Pose2dRuntime:
     @classmethod
     def from_config(cls, config: Config) -> Pose2dRuntime:
         """The knobs as ``config`` sets them."""
-        pose2d = config.pose2d
         return cls(
-            batch_size=pose2d.batch_size,
-            decode_buffer=pose2d.decode_buffer,
-            device=pose2d.device,
-            compile=pose2d.compile,
+            **{knob: getattr(config.pose2d, knob) for knob in DETECTOR_KNOBS},
             image_workers=config.io.image_workers,
             candidates_k=int(config.pictorial.k),
         )
@@ -169,13 +167,9 @@ class Pose2dInputs(StageInputs):
 
     def detector_params(self) -> Pose2dParams:
         """The detector's settings: the tracked precision and the untracked knobs."""
-        runtime = self.runtime
         return Pose2dParams(
             precision=self.precision,
-            batch_size=runtime.batch_size,
-            decode_buffer=runtime.decode_buffer,
-            device=runtime.device,
-            compile=runtime.compile,
+            **{knob: getattr(self.runtime, knob) for knob in DETECTOR_KNOBS},
         )
 
     def io(self) -> IoParams:
@@ -347,13 +341,7 @@ def run_pose2d(
 
     With ``candidates_path`` (pictorial structures on) the detector's top-K peaks
     (``pictorial_structures.k``) are written there too, as a ``candidates`` stage.
-
-    Raises
-    ------
-    FootageError
-        The recording's footage is missing, unreadable or inconsistent (naming it).
-    ResultsError
-        If candidates are asked for but the 2D is imported (other tools keep no peaks).
+    Raises what :func:`compute_pose2d` raises.
     """
     from ..provenance import stage_provenance
     from ..skeleton import Skeleton

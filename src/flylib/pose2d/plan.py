@@ -446,6 +446,38 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
     )
 
 
+def _parse_preprocessors(pose2d: Mapping) -> dict[str, tuple[Op, ...]]:
+    """``pose2d.preprocessors``: name -> its ops."""
+    pre_entries = _table_list(pose2d.get("preprocessors"), "pose2d.preprocessors")
+    _unique_names(pre_entries, "pose2d.preprocessors")
+    preprocessors = {}
+    for i, entry in enumerate(pre_entries):
+        ops = entry.get("ops") or []
+        if not isinstance(ops, Sequence) or isinstance(ops, (str, bytes)):
+            raise ConfigError(f"pose2d.preprocessors[{i}].ops: expected a list of op tables")
+        preprocessors[str(entry["name"])] = tuple(
+            parse_op(op, f"pose2d.preprocessors[{i}].ops[{j}]") for j, op in enumerate(ops)
+        )
+    return preprocessors
+
+
+def _parse_models(pose2d: Mapping) -> dict[str, ModelSpec]:
+    """``pose2d.models``, with the checkpoints ``pose2d.weights`` sets."""
+    model_entries = _table_list(pose2d.get("models"), "pose2d.models")
+    _unique_names(model_entries, "pose2d.models")
+    models = {
+        str(e["name"]): _parse_model(e, f"pose2d.models[{i}]") for i, e in enumerate(model_entries)
+    }
+    # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
+    for name, path in (pose2d.get("weights") or {}).items():
+        if name not in models:
+            raise ConfigError(
+                f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}"
+            )
+        models[name] = replace(models[name], weights=str(path or ""))
+    return models
+
+
 @dataclass(frozen=True)
 class DetectionPlan:
     """The parsed, validated 2D detection plan.
@@ -510,30 +542,8 @@ class DetectionPlan:
         for entry in source_entries:
             patterns[str(entry["name"])] = str(entry.get("filename") or entry["name"])
 
-        pre_entries = _table_list(pose2d.get("preprocessors"), "pose2d.preprocessors")
-        _unique_names(pre_entries, "pose2d.preprocessors")
-        preprocessors = {}
-        for i, entry in enumerate(pre_entries):
-            ops = entry.get("ops") or []
-            if not isinstance(ops, Sequence) or isinstance(ops, (str, bytes)):
-                raise ConfigError(f"pose2d.preprocessors[{i}].ops: expected a list of op tables")
-            preprocessors[str(entry["name"])] = tuple(
-                parse_op(op, f"pose2d.preprocessors[{i}].ops[{j}]") for j, op in enumerate(ops)
-            )
-
-        model_entries = _table_list(pose2d.get("models"), "pose2d.models")
-        _unique_names(model_entries, "pose2d.models")
-        models = {
-            str(e["name"]): _parse_model(e, f"pose2d.models[{i}]")
-            for i, e in enumerate(model_entries)
-        }
-        # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
-        for name, path in (pose2d.get("weights") or {}).items():
-            if name not in models:
-                raise ConfigError(
-                    f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}"
-                )
-            models[name] = replace(models[name], weights=str(path or ""))
+        preprocessors = _parse_preprocessors(pose2d)
+        models = _parse_models(pose2d)
 
         output_points = pose2d.get("output_points") or {}
         if not isinstance(output_points, Mapping):
