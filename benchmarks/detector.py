@@ -78,6 +78,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from flylib import io  # noqa: E402
+from flylib.config.params import Pose2dParams  # noqa: E402
 from flylib.pose2d import decode, stream  # noqa: E402
 from flylib.pose2d.inference import LoadedModel, load_models, select_device  # noqa: E402
 from flylib.pose2d.model import HourglassNet  # noqa: E402
@@ -154,6 +155,19 @@ def plan_data(checkpoint: Path, batch_size: int, precision: str, device: str) ->
             "output_points": output_points,
         },
     }
+
+
+def plan_of(data: dict) -> DetectionPlan:
+    """The detection plan of :func:`plan_data`'s tables."""
+    return DetectionPlan.from_tables(
+        data["sources"], data["pose2d"], list(data["cameras"]), data["skeleton"]["point_names"]
+    )
+
+
+def settings_of(data: dict) -> Pose2dParams:
+    """The detector settings :func:`plan_data` (or a ``--cold-start`` spec) sets."""
+    keys = ("precision", "batch_size", "decode_buffer", "device", "compile")
+    return Pose2dParams(**{k: data["pose2d"][k] for k in keys if k in data["pose2d"]})
 
 
 # --- measurements -------------------------------------------------------------------
@@ -335,9 +349,9 @@ def one_recording(spec_path: Path) -> None:
 
     spec = json.loads(Path(spec_path).read_text())
     data = spec["config"]
-    plan = DetectionPlan.from_config(data)
+    plan = plan_of(data)
     t = time.perf_counter()
-    models = load_models(plan, data, frames=spec["frames"])
+    models = load_models(plan, settings_of(data), frames=spec["frames"])
     loaded = time.perf_counter() - t
     sources = {s: [Path(spec["clip"])] for s in plan.sources}
     stream.run_detection(
@@ -553,9 +567,7 @@ def main(argv=None) -> None:
     for precision in precisions:
         for batch in batches:
             for compiled in compile_modes:
-                plan = DetectionPlan.from_config(
-                    plan_data(checkpoint, batch, precision, str(device))
-                )
+                plan = plan_of(plan_data(checkpoint, batch, precision, str(device)))
                 aot = compiled and cuda and args.compile_mode == "aot"
                 model = LoadedModel(
                     plan.models["hg"],
@@ -626,7 +638,7 @@ def main(argv=None) -> None:
             clips[n] = make_clip(work / f"mem_{n}.mp4", n, seed=1)
             print(f"memory clip {n} frames written in {time.perf_counter() - t:.1f} s")
         batch = batches[0]
-        plan = DetectionPlan.from_config(plan_data(checkpoint, batch, precisions[0], str(device)))
+        plan = plan_of(plan_data(checkpoint, batch, precisions[0], str(device)))
         model = LoadedModel(
             plan.models["hg"],
             load_hourglass(checkpoint),

@@ -93,14 +93,17 @@ def bench_planning(n: int) -> dict:
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
+    from flylib.pipeline.artifacts import artifact_path
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
     from flylib.pipeline.inputs import stage_inputs
     from flylib.pipeline.triangulation import run_triangulation
 
-    p2d = stages.artifact_path(out, "pose2d")
-    ba = stages.artifact_path(out, "bundle_adjustment")
-    tri = stages.artifact_path(out, "triangulation")
-    stages.run_pose2d(config, rec_dir, p2d, import_spec=demo_import_spec(config))
+    p2d = artifact_path(out, "pose2d")
+    ba = artifact_path(out, "bundle_adjustment")
+    tri = artifact_path(out, "triangulation")
+    stages.run_pose2d(
+        stage_inputs(config, "pose2d"), rec_dir, p2d, import_spec=demo_import_spec(config)
+    )
     run_bundle_adjustment(stage_inputs(config, "bundle_adjustment"), p2d, ba, recording_dir=rec_dir)
     run_triangulation(
         stage_inputs(config, "triangulation"), p2d, tri, ba_path=ba, recording_dir=rec_dir

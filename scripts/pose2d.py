@@ -6,7 +6,7 @@ from pathlib import Path
 
 from flylib.config.loading import parse_json
 from flylib.errors import ConfigError
-from flylib.pipeline.stages import run_pose2d
+from flylib.pipeline.pose2d import run_pose2d
 
 from _cli import output_dir, run_script, script_main, script_parser
 
@@ -37,9 +37,9 @@ def main(argv=None, *, job=None) -> int:
     )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
-    def run(args, config):
+    def run(args, inputs):
         run_pose2d(
-            config,
+            inputs,
             args.recording,
             args.out,
             import_spec=args.import_spec,
@@ -47,7 +47,9 @@ def main(argv=None, *, job=None) -> int:
             candidates_path=args.candidates_out,
         )
 
-    return script_main(parser, run, argv, job=job, outdir=lambda args: output_dir(args.out))
+    return script_main(
+        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="pose2d"
+    )
 
 
 if __name__ == "__main__":

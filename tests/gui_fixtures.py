@@ -29,7 +29,10 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     make_demo(config, directory, frames=frames, **demo)
     out = directory / "flylib_outputs"
     run_pose2d(
-        config, directory, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        directory,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     run_triangulation(
         stage_inputs(config, "triangulation"),

@@ -25,6 +25,7 @@ from flylib.bundle_adjustment.parts import (
 from flylib.config import Config
 from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.pose2d import import_target
 from flylib.triangulation import reconstruct_with_params
 
 from rough_rig import fit_with_default_config, make_case
@@ -96,7 +97,7 @@ def test_real_sample_meets_the_seed_and_beats_no_bundle_adjustment(df3d_sample_d
     spec = {"format": "deepfly3d", "files": "df3d_result_2d.pkl"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the blind front camera is warned about
-        pose2d = import_points2d(config, df3d_sample_dir, spec)
+        pose2d = import_points2d(import_target(config), df3d_sample_dir, spec)
     rig = config_rig(config, pose2d.image_sizes)
     truth = front_blind.recorded_poses()
     bone = front_blind.median_bone(truth)

@@ -16,6 +16,7 @@ from flylib.cli import main, summarize_results
 from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml
 from flylib.pipeline.planning import params_of
+from flylib.pipeline.pose2d import import_target
 from flylib.provenance import PARAMS_KEY, params_hash, provenance_report
 from flylib.results import PoseResult
 from flylib.skeleton import Skeleton
@@ -129,7 +130,11 @@ def test_export_writes_3d_and_dlc_csv_that_import_back(result_file, tmp_path, ca
     )
     assert table.loc[0, "p0_error"] == pytest.approx((1.5 + 0.5 + 0.5) / 3)
     config = {"cameras": {v: {} for v in VIEWS}, "skeleton": {"point_names": ["p0", "p1", "p2"]}}
-    back = import_points2d(config, dlc_dir, {"format": "dlc_csv", "image_size": [480, 640]})
+    back = import_points2d(
+        import_target(Config.from_dict(config)),
+        dlc_dir,
+        {"format": "dlc_csv", "image_size": [480, 640]},
+    )
     np.testing.assert_array_equal(back.pts2d, result.pts2d)
     np.testing.assert_array_equal(back.conf, result.conf)
 

@@ -10,15 +10,21 @@ import logging
 import pytest
 import torch
 
+from flylib.config import Config
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pose2d import compiled
 from flylib.pose2d.inference import LoadedModel, load_models
 from flylib.pose2d.model import Bottleneck, HourglassNet
-from flylib.pose2d.plan import DetectionPlan
 
 # DeepFly2D's layout, narrow: the same module tree as sh8 at a tiny cost
 TINY = dict(num_stacks=2, num_feats=8, inplanes=8, num_classes=19)
 INPUT = (3, 64, 128)
 BATCH = 4
+
+
+def _inputs(data: dict):
+    """The pose2d stage's inputs under the raw config ``data``."""
+    return stage_inputs(Config.from_dict(data), "pose2d")
 
 
 def _tiny_net(seed=0) -> HourglassNet:
@@ -225,9 +231,9 @@ def test_load_models_uses_the_cached_package_and_pads_a_short_batch(cold, tmp_pa
     data = copy.deepcopy(dict(Config.default().data))
     data["pose2d"]["models"][0].update(weights=str(checkpoint), input_size=list(INPUT[1:]))
     data["pose2d"].update(batch_size=BATCH, device="cpu", compile=True)
-    plan = DetectionPlan.from_config(data)
+    plan = _inputs(data).detection_plan()
     with caplog.at_level(logging.INFO, logger="flylib.pose2d.inference"):
-        models = load_models(plan, data, frames=6, cache_root=root)
+        models = load_models(plan, _inputs(data).detector_params(), frames=6, cache_root=root)
     model = next(iter(models.values()))
     assert isinstance(model, LoadedModel) and model.compiled
     assert model.compile_status == "cached" and model.compile_key() == key
@@ -238,7 +244,12 @@ def test_load_models_uses_the_cached_package_and_pads_a_short_batch(cold, tmp_pa
     # auto on the CPU stays eager, and says so
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="flylib.pose2d.inference"):
-        eager = load_models(plan, data, compile="auto", frames=10**6, cache_root=root)
+        eager = load_models(
+            plan,
+            dataclasses.replace(_inputs(data).detector_params(), compile="auto"),
+            frames=10**6,
+            cache_root=root,
+        )
     assert not next(iter(eager.values())).compiled
     assert any("auto: eager on cpu" in r.getMessage() for r in caplog.records)
 
@@ -253,7 +264,7 @@ def test_the_policy_sees_the_recordings_frame_count(tmp_path):
     from flylib.pose2d.stream import _frame_count
 
     data = copy.deepcopy(dict(Config.default().data))
-    plan = DetectionPlan.from_config(data)
+    plan = _inputs(data).detection_plan()
     first = plan.active_sources()[0]
     video = tmp_path / "camera_0.mp4"
     with io.VideoWriter(video, fps=100) as writer:
@@ -277,7 +288,7 @@ def test_on_a_gpu_the_graphed_package_matches_eager_autocast(tmp_path, precision
 
     data = copy.deepcopy(dict(Config.default().data))
     data["pose2d"]["models"][0].update(input_size=list(INPUT[1:]))
-    spec = DetectionPlan.from_config(data).models["deepfly2d"]
+    spec = _inputs(data).detection_plan().models["deepfly2d"]
     cuda = torch.device("cuda")
     eager = LoadedModel(spec, _tiny_net(seed=7), cuda, precision=precision, batch_size=BATCH)
     model = LoadedModel(

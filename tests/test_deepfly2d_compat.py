@@ -27,6 +27,7 @@ from flylib import io
 from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.interop.df3d import read_df3d_points2d
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pose2d import DetectionPlan, HourglassNet, decode, load_models, stream
 from flylib.pose2d.inference import LoadedModel
 from flylib.pose2d.plan import FlipLR
@@ -39,6 +40,11 @@ RAW_SIZE, HM_SIZE = (480, 960), (64, 128)  # the rig's frames; heatmaps of a 256
 # into the features (one fewer: the last stack has none)
 _STACK_KEY = re.compile(r"^(hg|res|fc|score)\.(\d+)\.")
 _MERGE_KEY = re.compile(r"^(fc_|score_)\.(\d+)\.")
+
+
+def _inputs(data: dict):
+    """The pose2d stage's inputs under the raw config ``data``."""
+    return stage_inputs(Config.from_dict(data), "pose2d")
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -190,8 +196,8 @@ def test_the_released_file_in_the_cache_serves_the_default_config(
     (tmp_path / "sh8_deepfly.tar").symlink_to(path)
     data = copy.deepcopy(dict(Config.default().data))
     data["pose2d"]["device"] = "cpu"
-    plan = DetectionPlan.from_config(data)
-    model = load_models(plan, data, allow_download=False)["deepfly2d"]
+    plan = _inputs(data).detection_plan()
+    model = load_models(plan, _inputs(data).detector_params(), allow_download=False)["deepfly2d"]
     _assert_loaded(model.net, state)
     assert model.heatmap_size == HM_SIZE
     frames = torch.randint(
@@ -236,7 +242,7 @@ def test_a_checkpoint_of_the_earlier_non_deepfly2d_stem_is_refused_with_the_reas
 
 @pytest.fixture(scope="module")
 def default_plan() -> DetectionPlan:
-    return DetectionPlan.from_config(Config.default())
+    return stage_inputs(Config.default(), "pose2d").detection_plan()
 
 
 def _expected_raw(cell_xy, flipped: bool) -> np.ndarray:
@@ -361,11 +367,13 @@ def test_an_unknown_subpixel_method_is_a_config_error(default_plan):
     with pytest.raises(
         ConfigError, match=r"pose2d\.models\[0\]\.subpixel: unknown sub-pixel method 'quadratic'"
     ):
-        DetectionPlan.from_config(data)
+        DetectionPlan.from_tables(
+            data["sources"], data["pose2d"], default_plan.view_names, default_plan.point_names
+        )
     with pytest.raises(ConfigError, match=r"pose2d\.models\.deepfly2d\.subpixel"):
         Config.from_dict(data)
     data["pose2d"]["models"][0]["subpixel"] = "taylor"
-    assert DetectionPlan.from_config(data).models["deepfly2d"].subpixel == "taylor"
+    assert _inputs(data).detection_plan().models["deepfly2d"].subpixel == "taylor"
 
 
 class _FixedHeatmaps(torch.nn.Module):

@@ -18,6 +18,7 @@ from flylib.demo import (
 )
 from flylib.errors import ConfigError
 from flylib.pipeline.demo import make_demo
+from flylib.pipeline.pose2d import import_target
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +106,7 @@ def test_demo_files_round_trip_through_the_dlc_import(config, demo):
     truth = load_truth(demo.truth)
     np.testing.assert_array_equal(truth["points3d"], demo.points3d)
     assert truth["points3d"].shape == (5, 38, 3) and truth["views"] == config.view_names()
-    imported = import_points2d(config, demo.directory, demo_import_spec(config))
+    imported = import_points2d(import_target(config), demo.directory, demo_import_spec(config))
     assert imported.pts2d.shape == (7, 5, 38, 2)
     assert imported.image_sizes["rh"] == (480, 960)
     # imported 2D = truth + noise (+ rare outliers); unobserved points stay NaN

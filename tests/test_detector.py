@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from flylib import io
+from flylib.config import Config
 from flylib.errors import FootageError, WeightsError
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pose2d import (
-    DetectionPlan,
     HourglassNet,
     decode,
     detect_2d,
@@ -25,6 +26,11 @@ from flylib.pose2d import (
 from flylib.pose2d.plan import FlipLR
 
 TINY = dict(num_stacks=2, num_feats=8, inplanes=8)
+
+
+def _inputs(data: dict):
+    """The pose2d stage's inputs under the raw config ``data``."""
+    return stage_inputs(Config.from_dict(data), "pose2d")
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -202,9 +208,11 @@ def _sources(root: Path, data, kind: str) -> dict[str, list[Path]]:
 @pytest.mark.parametrize("kind", ["video", "images"])
 def test_detect_2d_on_the_deepfly3d_sample(df3d_sample_dir, default_data, tiny_checkpoint, kind):
     data = _config(default_data, tiny_checkpoint)
-    plan = DetectionPlan.from_config(data)
-    models = load_models(plan, data)
-    pts, conf, cands = detect_2d(data, plan, models, sources=_sources(df3d_sample_dir, data, kind))
+    plan = _inputs(data).detection_plan()
+    models = load_models(plan, _inputs(data).detector_params())
+    pts, conf, cands = detect_2d(
+        _inputs(data).detector_params(), plan, models, sources=_sources(df3d_sample_dir, data, kind)
+    )
     assert pts.shape == (7, 15, 38, 2) and conf.shape == (7, 15, 38) and cands is None
     filled = plan.filled_mask()
     assert np.array_equal(np.isnan(conf), np.broadcast_to(~filled[:, None, :], conf.shape))
@@ -240,12 +248,17 @@ def test_mirrored_pathway_lands_in_the_raw_frame(
         "lf": {p: {"pathway": "lf_flip", "out_channel": c} for c, p in enumerate(points)},
         "lm": {p: {"pathway": "lf_plain", "out_channel": c} for c, p in enumerate(points)},
     }
-    plan = DetectionPlan.from_config(data)
+    plan = _inputs(data).detection_plan()
     sources = {
         "vid_lf": io.list_image_files(tmp_path / "raw_*.png"),
         "vid_lm": io.list_image_files(tmp_path / "mirror_*.png"),
     }
-    pts, conf, _ = detect_2d(data, plan, load_models(plan, data), sources=sources)
+    pts, conf, _ = detect_2d(
+        _inputs(data).detector_params(),
+        plan,
+        load_models(plan, _inputs(data).detector_params()),
+        sources=sources,
+    )
     lf, lm = plan.view_names.index("lf"), plan.view_names.index("lm")
     via_flip, on_mirror = pts[lf, :, :19], pts[lm, :, :19]
     np.testing.assert_allclose(via_flip[..., 0], 960.0 - on_mirror[..., 0], atol=1e-3)
@@ -262,10 +275,15 @@ def test_candidates_agree_with_the_argmax_and_pictorial(default_data, tiny_check
     with io.VideoWriter(tmp_path / "cam.mp4", fps=10) as writer:
         writer.write_frames(frames)
     data = _config(default_data, tiny_checkpoint, batch_size=2)
-    plan = DetectionPlan.from_config(data)
+    plan = _inputs(data).detection_plan()
     sources = {s: [tmp_path / "cam.mp4"] for s in plan.sources}
     pts, conf, cands = detect_2d(
-        data, plan, load_models(plan, data), sources=sources, want_candidates=True, k=3
+        _inputs(data).detector_params(),
+        plan,
+        load_models(plan, _inputs(data).detector_params()),
+        sources=sources,
+        want_candidates=True,
+        k=3,
     )
     assert isinstance(cands, Candidates) and cands.xy.shape == (7, 5, 38, 3, 2)
     seen = conf > 0.05  # pictorial's peak threshold
@@ -303,7 +321,9 @@ def test_detect_recording_returns_pose2d_data_and_never_runs_untrained(
         writer.write_frames(np.full((3, 64, 96, 3), 90, np.uint8))
     data = _config(default_data, tiny_checkpoint)
     sources = {s["name"]: [tmp_path / "cam.mp4"] for s in data["sources"]}
-    result = detect_recording(data, sources, progress=False)
+    result = detect_recording(
+        _inputs(data).detection_plan(), sources, _inputs(data).detector_params(), progress=False
+    )
     assert isinstance(result, Pose2dData)
     assert result.view_names == ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
     assert result.image_sizes == {v: (64, 96) for v in result.view_names}
@@ -312,7 +332,9 @@ def test_detect_recording_returns_pose2d_data_and_never_runs_untrained(
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "empty-cache"))
     data["pose2d"]["models"][0].update(weights="", url="http://127.0.0.1:9/sh8.tar")
     with pytest.raises(WeightsError, match="put it at"):
-        detect_recording(data, sources, progress=False)
+        detect_recording(
+            _inputs(data).detection_plan(), sources, _inputs(data).detector_params(), progress=False
+        )
 
 
 def test_sources_of_different_length_are_a_footage_error(default_data, tiny_checkpoint, tmp_path):
@@ -320,12 +342,22 @@ def test_sources_of_different_length_are_a_footage_error(default_data, tiny_chec
         with io.VideoWriter(tmp_path / f"{name}.mp4", fps=10) as writer:
             writer.write_frames(np.zeros((n, 64, 64, 3), np.uint8))
     data = _config(default_data, tiny_checkpoint, batch_size=4)
-    plan = DetectionPlan.from_config(data)
+    plan = _inputs(data).detection_plan()
     sources = {s: [tmp_path / ("short.mp4" if s == "vid_lh" else "long.mp4")] for s in plan.sources}
     with pytest.raises(FootageError, match=r"sources differ in length"):
-        detect_2d(data, plan, load_models(plan, data), sources=sources)
+        detect_2d(
+            _inputs(data).detector_params(),
+            plan,
+            load_models(plan, _inputs(data).detector_params()),
+            sources=sources,
+        )
     with pytest.raises(FootageError, match="no footage for source"):
-        detect_2d(data, plan, load_models(plan, data), sources={"vid_rh": [tmp_path / "long.mp4"]})
+        detect_2d(
+            _inputs(data).detector_params(),
+            plan,
+            load_models(plan, _inputs(data).detector_params()),
+            sources={"vid_rh": [tmp_path / "long.mp4"]},
+        )
 
 
 def test_prefetch_queue_stays_bounded(tmp_path):
@@ -382,8 +414,8 @@ def test_yuv_streaming_path_gives_the_same_detections(default_data, tiny_checkpo
     with io.VideoWriter(tmp_path / "cam.mp4", fps=10, crf=0) as writer:
         writer.write_frames(frames)
     data = _config(default_data, tiny_checkpoint, batch_size=3)
-    plan = DetectionPlan.from_config(data)
-    models = load_models(plan, data)
+    plan = _inputs(data).detection_plan()
+    models = load_models(plan, _inputs(data).detector_params())
     sources = {s: [tmp_path / "cam.mp4"] for s in plan.sources}
     timings: dict[str, float] = {}
     start = time.perf_counter()

@@ -14,6 +14,7 @@ import pytest
 from flylib.errors import ImportFormatError
 from flylib.interop import import_points2d
 from flylib.interop.df3d import points2d_layout, read_df3d_calibration, read_df3d_points2d
+from flylib.pipeline.pose2d import import_target
 
 SIZE = (480, 960)  # (height, width) of DeepFly3D's frames
 
@@ -66,7 +67,7 @@ def test_real_1x_result_imports_through_the_config(package_example, tmp_path):
 
     shutil.copy(package_example / "df3d_result.pkl", tmp_path / "df3d_result.pkl")
     data = import_points2d(
-        Config.default(), tmp_path, {"format": "deepfly3d", "image_size": list(SIZE)}
+        import_target(Config.default()), tmp_path, {"format": "deepfly3d", "image_size": list(SIZE)}
     )
     assert data.pts2d.shape == (7, 15, 38, 2)
     assert np.nanmax(data.pts2d[..., 0]) <= 960 and np.nanmax(data.pts2d[..., 1]) <= 480

@@ -13,8 +13,16 @@ import numpy as np
 import pytest
 
 from flylib import io
+from flylib.config import Config
 from flylib.errors import FootageError, ImportFormatError
 from flylib.io.images import image_damage
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.pose2d import import_target
+
+
+def _inputs(data: dict):
+    """The pose2d stage's inputs under the raw config ``data``."""
+    return stage_inputs(Config.from_dict(data), "pose2d")
 
 
 def _jpegs(directory: Path, n: int = 6, size=(48, 64), seed: int = 0) -> list[Path]:
@@ -93,20 +101,28 @@ def detector(tmp_path_factory):
 def test_detector_fails_on_a_truncated_jpeg_or_marks_its_frame_missing(tmp_path, detector):
     import torch
 
-    from flylib.pose2d import DetectionPlan, detect_2d, load_models
+    from flylib.pose2d import detect_2d, load_models
 
     torch.set_num_threads(1)
-    plan = DetectionPlan.from_config(detector)
+    plan = _inputs(detector).detection_plan()
     sources = {s: _jpegs(tmp_path / s, n=6, seed=i) for i, s in enumerate(plan.sources)}
     broken = sources["vid_rh"][2]
     _truncate(broken)
-    models = load_models(plan, detector)
+    models = load_models(plan, _inputs(detector).detector_params())
     with pytest.raises(FootageError, match=rf"^{broken}: cannot decode frame 2 \(truncated JPEG"):
-        detect_2d(detector, plan, models, sources=sources)
+        detect_2d(
+            _inputs(detector).detector_params(),
+            plan,
+            models,
+            sources=sources,
+            io=_inputs(detector).io(),
+        )
 
     data = copy.deepcopy(detector)
     data["io"]["on_corrupt_frame"] = "missing"
-    pts, conf, _ = detect_2d(data, plan, models, sources=sources)
+    pts, conf, _ = detect_2d(
+        _inputs(data).detector_params(), plan, models, sources=sources, io=_inputs(data).io()
+    )
     rh = plan.view_names.index("rh")
     assert np.isnan(pts[rh, 2]).all() and np.isnan(conf[rh, 2]).all()
     assert np.isfinite(pts[rh, [0, 1, 3, 4, 5]]).any()  # the other frames are detected
@@ -194,7 +210,7 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
     make_demo(config, tmp_path, frames=6, seed=0)
     spec = demo_import_spec(config)
     video = tmp_path / "camera_1.mp4"
-    assert import_points2d(config, tmp_path, spec).pts2d.shape[1] == 6
+    assert import_points2d(import_target(config), tmp_path, spec).pts2d.shape[1] == 6
     data = video.read_bytes()
     moov, mdat = data.find(b"moov"), data.find(b"mdat")
     if moov > mdat:  # index at the end: a cut would lose the header; rebuild it first
@@ -205,7 +221,7 @@ def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
         match=rf"{spec['files']['rm']}: 6 frames but view 'rm' footage "
         rf"has [0-5] \({video}\); .*re-copy truncated footage",
     ):
-        import_points2d(config, tmp_path, spec)
+        import_points2d(import_target(config), tmp_path, spec)
 
 
 def _mp4_from(video: Path, tmp: Path) -> None:

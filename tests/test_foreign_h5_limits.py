@@ -23,6 +23,7 @@ import pytest
 from flylib.errors import ImportFormatError
 from flylib.interop import read_dlc_h5, read_sleap_analysis
 from flylib.interop._h5 import DEFAULT_READ_BUDGET, read_budget
+from flylib.pipeline.pose2d import import_target
 
 DATA = Path(__file__).resolve().parent / "data" / "interop"
 REPO = Path(__file__).resolve().parents[1]
@@ -302,7 +303,7 @@ def test_import_budget_comes_from_the_recordings_footage(sleap_file, tmp_path, d
     config = Config.default()
     files = {v: None for v in view_names(config)} | {"rh": "rh.analysis.h5"}
     with pytest.raises(ImportFormatError) as err:
-        import_points2d(config, recording, {"format": "sleap", "files": files})
+        import_points2d(import_target(config), recording, {"format": "sleap", "files": files})
     text = str(err.value)
     assert text.startswith(str(target)) and "\n" not in text, text
     assert "declares (1, 2, 3, 10000000)" in text and "more than the 64 MiB" in text, text

@@ -278,7 +278,10 @@ def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
     run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     run_triangulation(
         run_inputs(config, "triangulation"),
@@ -368,7 +371,12 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     from flylib.demo import demo_import_spec
     from flylib.pipeline.stages import run_assemble, run_pose2d
 
-    run_pose2d(other, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(other))
+    run_pose2d(
+        stage_inputs(other, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(other),
+    )
     run_assemble(
         stage_inputs(other, "assemble"),
         {
@@ -510,7 +518,10 @@ def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs"
     run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     return recording, out
 

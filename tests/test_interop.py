@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from flylib.config import Config
 from flylib.errors import ImportFormatError
 from flylib.interop import (
     FLY38_POINT_NAMES,
@@ -26,8 +27,14 @@ from flylib.interop import (
     write_dlc_views,
     write_points3d_csv,
 )
+from flylib.pipeline.pose2d import import_target
 
 RIG_VIEWS = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
+
+
+def _target(data: dict):
+    """What imported 2D is placed on under the raw config ``data``."""
+    return import_target(Config.from_dict(data))
 
 
 def rig_config(views=RIG_VIEWS, points=FLY38_POINT_NAMES, **extra) -> dict:
@@ -56,7 +63,7 @@ def test_df3d_joint_order_is_fly38_shifted_by_19():
 
 
 def test_import_df3d_sample_pickle(df3d_sample_dir, df3d_pickle):
-    data = import_points2d(rig_config(), df3d_sample_dir, {"format": "deepfly3d"})
+    data = import_points2d(_target(rig_config()), df3d_sample_dir, {"format": "deepfly3d"})
     assert data.view_names == RIG_VIEWS
     assert data.pts2d.shape == (7, 15, 38, 2) and data.conf.shape == (7, 15, 38)
     observed = np.isfinite(data.pts2d).all(-1).sum(axis=(1, 2))
@@ -110,7 +117,7 @@ def test_df3d_synthetic_pickle_normalization_and_missing(tmp_path):
     conf = np.full((2, 3, 1), 0.5)
     _write_df3d_pickle(tmp_path / "df3d_result_x.pkl", norm, conf)
     spec = {"format": "deepfly3d", "image_size": [100, 200], "keypoint_map": {0: "p0", 1: "p1"}}
-    data = import_points2d(rig_config(views, points), tmp_path, spec)
+    data = import_points2d(_target(rig_config(views, points)), tmp_path, spec)
     np.testing.assert_array_equal(data.pts2d[0, :, 0], [[100.0, 25.0]] * 3)  # x = col*w, y = row*h
     np.testing.assert_array_equal(data.pts2d[1, :, 1], [[25.0, 50.0]] * 3)
     assert np.isnan(data.pts2d[1, :, 0]).all() and np.isnan(data.pts2d[0, :, 1]).all()
@@ -125,19 +132,19 @@ def test_df3d_import_errors_name_file_and_fix(tmp_path):
     config = rig_config(views, points)
     with pytest.raises(ImportFormatError, match="image_size"):  # no footage, no fallback
         import_points2d(
-            config, tmp_path, {"format": "deepfly3d", "keypoint_map": {0: "p0", 1: "p1"}}
+            _target(config), tmp_path, {"format": "deepfly3d", "keypoint_map": {0: "p0", 1: "p1"}}
         )
     with pytest.raises(ImportFormatError, match=r"keypoint '1' maps to 'nose'.*keypoint_map"):
         import_points2d(
-            config,
+            _target(config),
             tmp_path,
             {"format": "deepfly3d", "image_size": [10, 10], "keypoint_map": {0: "p0", 1: "nose"}},
         )
     _write_df3d_pickle(tmp_path / "df3d_result_2.pkl", np.full((2, 3, 2, 2), 0.5))
     with pytest.raises(ImportFormatError, match="matches 2 files"):
-        import_points2d(config, tmp_path, {"format": "deepfly3d", "image_size": [10, 10]})
+        import_points2d(_target(config), tmp_path, {"format": "deepfly3d", "image_size": [10, 10]})
     with pytest.raises(ImportFormatError, match="format"):
-        import_points2d(config, tmp_path, {"format": "openpose"})
+        import_points2d(_target(config), tmp_path, {"format": "openpose"})
 
 
 # -- DeepLabCut / Lightning Pose CSV -------------------------------------------------
@@ -165,7 +172,7 @@ def test_dlc_csv_import_with_map_and_threshold(tmp_path):
         "likelihood_threshold": 0.1,
         "image_size": [480, 960],
     }
-    data = import_points2d(rig_config(views, ["p0", "p1", "p2"]), tmp_path, spec)
+    data = import_points2d(_target(rig_config(views, ["p0", "p1", "p2"])), tmp_path, spec)
     assert data.pts2d.shape == (2, 3, 3, 2)
     np.testing.assert_array_equal(data.pts2d[1, :2, 0], [[10.5, 20.25], [11.5, 21.25]])
     assert np.isnan(data.pts2d[:, 2, 0]).all()  # likelihood 0.05 < 0.1
@@ -181,13 +188,13 @@ def test_dlc_csv_import_errors(tmp_path):
     config = rig_config(views, ["head", "p1"])
     _write_views_csv(tmp_path, ["a"])
     with pytest.raises(ImportFormatError, match=r"b\.csv.*pose2d\.import\.files"):
-        import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
+        import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
     _write_views_csv(tmp_path, ["b"])
     with pytest.raises(ImportFormatError, match=r"a\.csv: keypoint 'tail' maps to 'tail'"):
-        import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
+        import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
     # a deliberate drop is fine
     ok = import_points2d(
-        config,
+        _target(config),
         tmp_path,
         {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}},
     )
@@ -195,7 +202,7 @@ def test_dlc_csv_import_errors(tmp_path):
     (tmp_path / "b.csv").write_text("\n".join(DLC_CSV.splitlines()[:-1]) + "\n")
     with pytest.raises(ImportFormatError, match="different frame counts"):
         import_points2d(
-            config,
+            _target(config),
             tmp_path,
             {"format": "dlc_csv", "image_size": [4, 4], "keypoint_map": {"tail": None}},
         )
@@ -237,7 +244,9 @@ def test_dlc_export_imports_back_identically(tmp_path):
     assert header[0].startswith("scorer,flylib") and header[1].startswith("bodyparts,p0,p0,p0,p1")
     assert header[2].startswith("coords,x,y,likelihood,x")
     back = import_points2d(
-        rig_config(views, points), tmp_path, {"format": "lightning_pose", "image_size": [480, 960]}
+        _target(rig_config(views, points)),
+        tmp_path,
+        {"format": "lightning_pose", "image_size": [480, 960]},
     )
     np.testing.assert_array_equal(back.pts2d, pts)
     np.testing.assert_array_equal(back.conf, conf)
@@ -253,14 +262,18 @@ def test_dlc_h5_import_without_pytables(tmp_path, name):
     (tmp_path / "a.h5").write_bytes((DATA / name).read_bytes())
     (tmp_path / "a.csv").write_text(DLC_CSV)
     config = rig_config(["a"], ["head", "tail"])
-    from_h5 = import_points2d(config, tmp_path, {"format": "dlc_h5", "image_size": [4, 4]})
-    from_csv = import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": [4, 4]})
+    from_h5 = import_points2d(_target(config), tmp_path, {"format": "dlc_h5", "image_size": [4, 4]})
+    from_csv = import_points2d(
+        _target(config), tmp_path, {"format": "dlc_csv", "image_size": [4, 4]}
+    )
     np.testing.assert_array_equal(from_h5.pts2d, from_csv.pts2d)
     np.testing.assert_array_equal(from_h5.conf, from_csv.conf)
     np.testing.assert_array_equal(from_h5.pts2d[0, 1, 0], [11.5, 21.25])
     assert np.isnan(from_h5.pts2d[0, 1, 1]).all()
     by_suffix = import_points2d(
-        config, tmp_path, {"format": "deeplabcut", "files": "{view}.h5", "image_size": [4, 4]}
+        _target(config),
+        tmp_path,
+        {"format": "deeplabcut", "files": "{view}.h5", "image_size": [4, 4]},
     )
     np.testing.assert_array_equal(by_suffix.pts2d, from_h5.pts2d)
 
@@ -310,7 +323,7 @@ def test_sleap_analysis_import(tmp_path, transpose):
         "image_size": [500, 500],
         "keypoint_map": {"n0": "p0", "n1": "p1", "n2": "p2"},
     }
-    data = import_points2d(rig_config(["a", "b"], ["p0", "p1", "p2"]), tmp_path, spec)
+    data = import_points2d(_target(rig_config(["a", "b"], ["p0", "p1", "p2"])), tmp_path, spec)
     np.testing.assert_array_equal(data.pts2d[1], loc[..., 0])
     expected_conf = np.where(np.isfinite(loc[..., 0]).all(-1), scores[..., 0], np.nan)
     np.testing.assert_array_equal(data.conf[0], expected_conf)
@@ -321,9 +334,9 @@ def test_sleap_several_tracks_need_a_choice(tmp_path):
     _write_sleap(tmp_path / "a.analysis.h5", loc, np.ones((2, 2, 2)), ["p0", "p1"])
     config = rig_config(["a"], ["p0", "p1"])
     with pytest.raises(ImportFormatError, match="pose2d.import.track"):
-        import_points2d(config, tmp_path, {"format": "sleap", "image_size": [9, 9]})
+        import_points2d(_target(config), tmp_path, {"format": "sleap", "image_size": [9, 9]})
     data = import_points2d(
-        config, tmp_path, {"format": "sleap", "image_size": [9, 9], "track": "track_1"}
+        _target(config), tmp_path, {"format": "sleap", "image_size": [9, 9], "track": "track_1"}
     )
     np.testing.assert_array_equal(data.pts2d[0], loc[..., 1])
 
@@ -516,11 +529,10 @@ def test_points3d_csv_one_row_per_frame_nan_when_missing(tmp_path):
 def test_default_config_df3d_import_saves_as_pose2d_artifact(
     df3d_sample_dir, df3d_pickle, tmp_path
 ):
-    from flylib.config import Config
     from flylib.results import Pose2dData
 
     config = Config.default()
-    data = import_points2d(config, df3d_sample_dir, {"format": "deepfly3d"})
+    data = import_points2d(import_target(config), df3d_sample_dir, {"format": "deepfly3d"})
     assert data.view_names == config.view_names()
     data.save(tmp_path / "pose2d.h5", config.skeleton())
     back = Pose2dData.load(tmp_path / "pose2d.h5")
@@ -542,7 +554,7 @@ def test_dlc_import_reads_sizes_and_checks_frames_against_footage(deeperfly_exam
         )
     config = rig_config(views, ["p0", "p1"])
     spec = {"format": "deeplabcut", "files": str(tmp_path / "{stem}DLC_*.csv")}
-    data = import_points2d(config, deeperfly_example_dir, spec)
+    data = import_points2d(_target(config), deeperfly_example_dir, spec)
     assert data.image_sizes == {"rh": (480, 960), "rm": (480, 960)}
     assert data.pts2d.shape == (2, 64, 2, 2)
     for i in range(2):
@@ -556,7 +568,7 @@ def test_dlc_import_reads_sizes_and_checks_frames_against_footage(deeperfly_exam
     with pytest.raises(
         ImportFormatError, match=r"camera_0DLC.*10 frames but view 'rh' footage has 64"
     ):
-        import_points2d(config, deeperfly_example_dir, spec)
+        import_points2d(_target(config), deeperfly_example_dir, spec)
 
 
 def test_calibration_without_configured_views_takes_the_file_order(tmp_path):
@@ -569,18 +581,21 @@ def test_calibration_without_configured_views_takes_the_file_order(tmp_path):
 def test_import_spec_validation(tmp_path):
     config = rig_config(["a"], ["p0"])
     with pytest.raises(ImportFormatError, match=r"pose2d.import must be a mapping"):
-        import_points2d(config, tmp_path)  # no pose2d.import in the config
+        import_points2d(_target(config), tmp_path, None)  # no pose2d.import in the config
     with pytest.raises(ImportFormatError, match=r"unknown keys \['file'\]"):
-        import_points2d(config, tmp_path, {"format": "dlc_csv", "file": "a.csv"})
+        import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "file": "a.csv"})
     with pytest.raises(ImportFormatError, match=r"image_size must be \[height, width\]"):
-        import_points2d(config, tmp_path, {"format": "dlc_csv", "image_size": ["480", 960]})
+        import_points2d(
+            _target(config), tmp_path, {"format": "dlc_csv", "image_size": ["480", 960]}
+        )
     with pytest.raises(ImportFormatError, match=r"placeholder"):
-        import_points2d(config, tmp_path, {"format": "dlc_csv", "files": "camera_*.csv"})
+        import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "files": "camera_*.csv"})
 
 
 def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp_path):
     # a glob source pattern must not pick up DeepLabCut's CSV written beside the video
     from flylib import io
+    from flylib.config.sources import footage_globs
     from flylib.interop.views import footage_files, read_frame_count, read_frame_size
 
     config = rig_config(["a", "b"])
@@ -595,7 +610,7 @@ def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp
     for i in (10, 9, 1):
         cv2.imwrite(str(tmp_path / "cam_b" / f"img{i}.png"), np.zeros((20, 30, 3), np.uint8))
     (tmp_path / "cam_b" / "notes.txt").write_text("not a frame")
-    footage = footage_files(config, tmp_path)
+    footage = footage_files(footage_globs(config), tmp_path)
     assert footage == {
         "a": [tmp_path / "camera_0.mp4"],
         "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (1, 9, 10)],

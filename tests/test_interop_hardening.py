@@ -12,9 +12,11 @@ import h5py
 import numpy as np
 import pytest
 
+from flylib.config import Config
 from flylib.errors import FlylibError, ImportFormatError
 from flylib.interop import (
     FLY38_POINT_NAMES,
+    ImportTarget,
     import_points2d,
     load_calibration,
     read_anipose_toml,
@@ -24,8 +26,14 @@ from flylib.interop import (
     write_dlc_csv,
 )
 from flylib.interop.safe_pickle import ALLOWED_GLOBALS, load_restricted
+from flylib.pipeline.pose2d import import_target
 
 DATA = Path(__file__).parent / "data" / "interop"
+
+
+def _target(data: dict):
+    """What imported 2D is placed on under the raw config ``data``."""
+    return import_target(Config.from_dict(data))
 
 
 def _config(views, points, **extra) -> dict:
@@ -78,7 +86,7 @@ def test_df3d_2d_pickle_payload_never_runs(tmp_path, payload, refused):
     path.write_bytes(pickle.dumps(data))
     with pytest.raises(ImportFormatError) as err:
         import_points2d(
-            _config(["a", "b"], ["p0", "p1"]),
+            _target(_config(["a", "b"], ["p0", "p1"])),
             tmp_path,
             {"format": "deepfly3d", "image_size": [10, 10], "keypoint_map": {0: "p0", 1: "p1"}},
         )
@@ -193,7 +201,7 @@ def _df3d(tmp_path: Path, **payload) -> Path:
 
 def _import_df3d(tmp_path, **spec):
     return import_points2d(
-        _config(["a", "b"], FLY38_POINT_NAMES),
+        _target(_config(["a", "b"], FLY38_POINT_NAMES)),
         tmp_path,
         {"format": "deepfly3d", "image_size": [480, 960], **spec},
     )
@@ -314,7 +322,7 @@ def test_flylib_export_dlc_dir_imports_back_with_empty_first_frame(tmp_path):
     assert main(["export", str(tmp_path / "results.h5"), "--dlc-dir", str(out)]) == 0
     assert (out / "b.csv").read_text().splitlines()[3] == "0,,,,,,"
     back = import_points2d(
-        _config(views, ["p0", "p1"]), out, {"format": "dlc_csv", "image_size": [480, 960]}
+        _target(_config(views, ["p0", "p1"])), out, {"format": "dlc_csv", "image_size": [480, 960]}
     )
     np.testing.assert_array_equal(back.pts2d, pts2d)
     np.testing.assert_array_equal(back.conf, conf)
@@ -339,7 +347,9 @@ def test_dlc_csv_missing_body_parts_warns_naming_file_and_parts(tmp_path, caplog
     (tmp_path / "b.csv").write_text(_dlc_text(["p0", "p4"]))
     with caplog.at_level(logging.WARNING, logger="flylib.interop"):
         data = import_points2d(
-            _config(["a", "b"], parts), tmp_path, {"format": "dlc_csv", "image_size": [9, 9]}
+            _target(_config(["a", "b"], parts)),
+            tmp_path,
+            {"format": "dlc_csv", "image_size": [9, 9]},
         )
     assert np.isnan(data.pts2d[1, :, 1:4]).all()
     message = [r.getMessage() for r in caplog.records if "b.csv" in r.getMessage()]
@@ -355,10 +365,11 @@ def test_dlc_csv_lacking_the_other_side_is_fine_when_the_plan_says_the_view_sees
     parts = ["p0", "p1", "p2", "p3"]
     (tmp_path / "a.csv").write_text(_dlc_text(["p0", "p1"]))
     (tmp_path / "b.csv").write_text(_dlc_text(["p2"]))
-    plan = {"output_points": {"a": {"p0": {}, "p1": {}}, "b": {"p2": {}, "p3": {}}}}
+    plan_points = {"a": ("p0", "p1"), "b": ("p2", "p3")}  # pose2d.output_points' views
+    target = ImportTarget(views=("a", "b"), point_names=tuple(parts), plan_points=plan_points)
     with caplog.at_level(logging.WARNING, logger="flylib.interop"):
         import_points2d(
-            _config(["a", "b"], parts, pose2d=plan),
+            target,
             tmp_path,
             {"format": "dlc_csv", "image_size": [9, 9]},
         )
@@ -442,7 +453,9 @@ def test_sleap_io_analysis_file_with_zero_tracks_imports_as_missing(tmp_path, ca
     sio.save_analysis_h5(full, str(tmp_path / "a.analysis.h5"))
     spec = {"format": "sleap", "image_size": [480, 960]}
     with caplog.at_level(logging.WARNING, logger="flylib.interop"):
-        data = import_points2d(_config(["a", "b"], ["head", "thorax", "abdomen"]), tmp_path, spec)
+        data = import_points2d(
+            _target(_config(["a", "b"], ["head", "thorax", "abdomen"])), tmp_path, spec
+        )
     assert data.pts2d.shape == (2, 5, 3, 2)
     assert np.isnan(data.pts2d[1]).all() and np.isfinite(data.pts2d[0, :, :2]).all()
     assert "b.analysis.h5: holds no tracks" in caplog.text

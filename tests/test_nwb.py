@@ -51,7 +51,10 @@ def demo_result(tmp_path_factory):
     out = recording / "flylib_outputs"
     make_demo(config, recording, frames=FRAMES)
     stages.run_pose2d(
-        config, recording, out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        recording,
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     run_triangulation(
         stages.run_inputs(config, "triangulation"),

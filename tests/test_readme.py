@@ -13,6 +13,7 @@ import pytest
 from flylib.config import Config, validate_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import SUMMARY_FILES
+from flylib.pipeline.inputs import stage_inputs
 from flylib.preflight import preflight_problems
 from flylib.recordings import Recording
 
@@ -104,14 +105,15 @@ def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pic
     import json
 
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
-    from flylib.pipeline.inputs import stage_inputs
     from flylib.pipeline.stages import run_pose2d
     from flylib.results import read_stage
 
     quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", README).group(1))
     config = Config.default()
     spec = {"format": "deepfly3d", "files": df3d_pickle.name}
-    run_pose2d(config, df3d_sample_dir, tmp_path / "pose2d.h5", import_spec=spec)
+    run_pose2d(
+        stage_inputs(config, "pose2d"), df3d_sample_dir, tmp_path / "pose2d.h5", import_spec=spec
+    )
     with pytest.warns(RuntimeWarning, match="poorly determined"):  # the README says it warns
         run_bundle_adjustment(
             stage_inputs(config, "bundle_adjustment"), tmp_path / "pose2d.h5", tmp_path / "ba.h5"

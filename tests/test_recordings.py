@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
+from flylib.config.sources import source_patterns
 from flylib.errors import ConfigError, FootageError
 from flylib.io import VideoWriter
 from flylib.pipeline.planning import plan_recordings
@@ -49,7 +50,7 @@ def make_video_recording(directory: Path, frames=(3, 3)) -> Path:
 def test_image_sequences_are_naturally_sorted(tmp_path):
     write_images(tmp_path, "cam_0", 12)
     write_images(tmp_path, "cam_1", 12)
-    sources = find_recording(tmp_path, SOURCES)
+    sources = find_recording(tmp_path, source_patterns(SOURCES))
     names = [p.name for p in sources["left"]]
     assert names[:3] == ["cam_0_img_0.png", "cam_0_img_1.png", "cam_0_img_2.png"]
     assert names[-2:] == ["cam_0_img_10.png", "cam_0_img_11.png"]
@@ -59,7 +60,7 @@ def test_one_extension_per_source_prefers_the_video(tmp_path):
     make_video_recording(tmp_path)
     write_images(tmp_path, "cam_0", 3)
     write_images(tmp_path, "cam_1", 3)
-    sources = find_recording(tmp_path, SOURCES)
+    sources = find_recording(tmp_path, source_patterns(SOURCES))
     assert sources == {"left": [tmp_path / "cam_0.mp4"], "right": [tmp_path / "cam_1.mp4"]}
 
 
@@ -67,27 +68,27 @@ def test_images_are_used_when_not_every_source_has_a_video(tmp_path):
     write_video(tmp_path / "cam_0.mp4", 3)
     write_images(tmp_path, "cam_0", 3)
     write_images(tmp_path, "cam_1", 3)
-    sources = find_recording(tmp_path, SOURCES)
+    sources = find_recording(tmp_path, source_patterns(SOURCES))
     assert all(p.suffix == ".png" for files in sources.values() for p in files)
 
 
 def test_unequal_frame_counts_are_rejected_with_the_counts(tmp_path, caplog):
     make_video_recording(tmp_path, frames=(3, 5))
     with caplog.at_level(logging.WARNING):
-        assert find_recording(tmp_path, SOURCES) is None
+        assert find_recording(tmp_path, source_patterns(SOURCES)) is None
     assert "different frame counts" in caplog.text and "'right': 5" in caplog.text
     with pytest.raises(FootageError, match="frame counts"):
-        find_recording(tmp_path, SOURCES, strict=True)
-    assert find_recording(tmp_path, SOURCES, check_frames=False) is not None
+        find_recording(tmp_path, source_patterns(SOURCES), strict=True)
+    assert find_recording(tmp_path, source_patterns(SOURCES), check_frames=False) is not None
 
 
 def test_missing_source_and_unreadable_video_are_named(tmp_path):
     write_video(tmp_path / "cam_0.mp4", 3)
     with pytest.raises(FootageError, match=r"no footage for source\(s\) right"):
-        find_recording(tmp_path, SOURCES, strict=True)
+        find_recording(tmp_path, source_patterns(SOURCES), strict=True)
     (tmp_path / "cam_1.mp4").write_bytes(b"garbage")
     with pytest.raises(FootageError, match="cam_1.mp4"):
-        find_recording(tmp_path, SOURCES, strict=True)
+        find_recording(tmp_path, source_patterns(SOURCES), strict=True)
 
 
 def test_batch_skips_malformed_directories_and_an_empty_batch_is_an_error(tmp_path, caplog):
@@ -176,12 +177,12 @@ def test_demo_entry_needs_no_footage_yet(tmp_path):
 
 def test_real_sample_resolves_to_its_videos_or_its_image_sequences(df3d_sample_dir):
     config = Config.default()
-    sources = find_recording(df3d_sample_dir, config)
+    sources = find_recording(df3d_sample_dir, source_patterns(config))
     assert sources["vid_rh"] == [df3d_sample_dir / "camera_0.mp4"]
     images = {
         "sources": [{"name": f"cam{i}", "filename": f"camera_{i}_img_*.jpg"} for i in range(7)]
     }
-    sources = find_recording(df3d_sample_dir, images)
+    sources = find_recording(df3d_sample_dir, source_patterns(images))
     assert len(sources["cam3"]) == 15
     assert (
         sources["cam3"][2].name == "camera_3_img_2.jpg"

@@ -74,7 +74,12 @@ def test_real_sample_with_the_workflow_defaults(df3d_sample_dir, tmp_path):
     ransac, refinement (before: reprojection 2.53 -> 3.71 px median, 6.28 -> 11.7 p95)."""
     config = Config.default()
     s = tmp_path / "stages"
-    stages.run_pose2d(config, df3d_sample_dir, s / "pose2d.h5", import_spec={"format": "deepfly3d"})
+    stages.run_pose2d(
+        stage_inputs(config, "pose2d"),
+        df3d_sample_dir,
+        s / "pose2d.h5",
+        import_spec={"format": "deepfly3d"},
+    )
     ba_inputs = stage_inputs(config, "bundle_adjustment")
     run_bundle_adjustment(ba_inputs, s / "pose2d.h5", s / "bundle_adjustment.h5")
     acc = _check_never_worse(tmp_path)
@@ -117,7 +122,10 @@ def test_the_demo(tmp_path, capsys):
     make_demo(config, tmp_path / "demo")
     s = tmp_path / "demo" / "flylib_outputs" / "stages"
     stages.run_pose2d(
-        config, tmp_path / "demo", s / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        tmp_path / "demo",
+        s / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     out = tmp_path / "demo" / "flylib_outputs"
     acc = _check_never_worse(out, with_ba=False)

@@ -453,7 +453,9 @@ def test_imported_2d_outside_a_reencoded_videos_frame_names_the_camera_and_sizes
     recording = tmp_path / "rec"
     make_demo(config, recording, frames=6, seed=0)
     out = recording / "flylib_outputs" / "stages" / "pose2d.h5"
-    run_pose2d(config, recording, out, import_spec=demo_import_spec(config))  # as made: fine
+    run_pose2d(
+        stage_inputs(config, "pose2d"), recording, out, import_spec=demo_import_spec(config)
+    )  # as made: fine
     out.unlink()
     video = recording / "camera_1.mp4"  # re-encoded at 640x360, as a user's tool might
     frames = open_reader(video)[:]  # (T, H, W, 3)
@@ -464,7 +466,9 @@ def test_imported_2d_outside_a_reencoded_videos_frame_names_the_camera_and_sizes
         writer.write_frames(np.stack([f[rows][:, cols] for f in frames]))
     small.replace(video)
     with pytest.raises(FootageError) as err:
-        run_pose2d(config, recording, out, import_spec=demo_import_spec(config))
+        run_pose2d(
+            stage_inputs(config, "pose2d"), recording, out, import_spec=demo_import_spec(config)
+        )
     view = config.view_names()[1]
     assert str(err.value).startswith(f"{recording}: camera {view}: footage is 640x360 px but "), (
         err.value

@@ -21,7 +21,9 @@ def imported(tmp_path_factory):
     config = Config.default()
     make_demo(config, root / "rec", frames=4, seed=0)
     spec = demo_import_spec(config)
-    pose2d = run_pose2d(config, root / "rec", root / "pose2d.h5", import_spec=spec)
+    pose2d = run_pose2d(
+        stage_inputs(config, "pose2d"), root / "rec", root / "pose2d.h5", import_spec=spec
+    )
     return config, root, spec, pose2d
 
 
@@ -33,7 +35,7 @@ def test_candidates_for_imported_2d_fail_in_one_line_with_the_fix(imported):
         r"candidate peaks.*imported \(dlc_csv\).*do_pictorial_structures: false",
     ):
         run_pose2d(
-            config,
+            stage_inputs(config, "pose2d"),
             root / "rec",
             root / "other.h5",
             import_spec=spec,

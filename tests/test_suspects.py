@@ -12,6 +12,7 @@ import pytest
 from flylib.config import Config
 from flylib.demo import demo_import_spec, load_truth, synthetic_fly
 from flylib.pipeline.demo import make_demo
+from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_inputs, run_pose2d
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, read_stage
@@ -23,7 +24,12 @@ FRAMES = 60
 def triangulated_demo(directory, **settings):
     config = Config.default()
     make_demo(config, directory, frames=FRAMES, **settings)
-    run_pose2d(config, directory, directory / "pose2d.h5", import_spec=demo_import_spec(config))
+    run_pose2d(
+        stage_inputs(config, "pose2d"),
+        directory,
+        directory / "pose2d.h5",
+        import_spec=demo_import_spec(config),
+    )
     run_triangulation(
         run_inputs(config, "triangulation"),
         directory / "pose2d.h5",

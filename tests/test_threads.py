@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
+from flylib.pipeline.inputs import stage_inputs
 from flylib.resources import thread_budget, thread_map, usable_cpus
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,7 +98,10 @@ def recording(tmp_path_factory):
     make_demo(config, root / "rec", frames=4, seed=0)
     out = root / "out"
     run_pose2d(
-        config, root / "rec", out / "stages" / "pose2d.h5", import_spec=demo_import_spec(config)
+        stage_inputs(config, "pose2d"),
+        root / "rec",
+        out / "stages" / "pose2d.h5",
+        import_spec=demo_import_spec(config),
     )
     return root, config_path, out
 

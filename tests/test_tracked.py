@@ -245,7 +245,9 @@ def base_run(tmp_path_factory):
     make_demo(config, rec, frames=4, seed=0)
     spec = demo_import_spec(config)
     (out / "stages").mkdir(parents=True)
-    p2d = stages.run_pose2d(config, rec, out / "stages" / "pose2d.h5", import_spec=spec)
+    p2d = stages.run_pose2d(
+        stage_inputs(config, "pose2d"), rec, out / "stages" / "pose2d.h5", import_spec=spec
+    )
     ba = run_bundle_adjustment(
         stage_inputs(config, "bundle_adjustment"),
         p2d,
@@ -293,7 +295,9 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
     other, out = Config.from_dict(perturbed), tmp_path
     upstream = {k: base[k] for k in ("pose2d", "bundle_adjustment", "triangulation", "refinement")}
     run = {
-        "pose2d": lambda: stages.run_pose2d(other, rec, out / "pose2d.h5", import_spec=spec),
+        "pose2d": lambda: stages.run_pose2d(
+            stage_inputs(other, "pose2d"), rec, out / "pose2d.h5", import_spec=spec
+        ),
         "bundle_adjustment": lambda: run_bundle_adjustment(
             stage_inputs(other, "bundle_adjustment"),
             base["pose2d"],

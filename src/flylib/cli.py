@@ -350,6 +350,7 @@ def _cmd_export(args) -> int:
         )
     if args.training_data is not None:
         from .config import Config
+        from .config.sources import footage_globs
         from .interop.training_data import export_training_data
         from .interop.views import footage_files
 
@@ -358,7 +359,7 @@ def _cmd_export(args) -> int:
         def footage_of(recording: Path) -> dict[str, list[Path]]:
             # the run's config: --config, else the snapshot beside results.h5, else the default
             run = config if config is not None else Config.of_outputs(Path(args.results).parent)
-            return footage_files(run, recording)
+            return footage_files(footage_globs(run), recording)
 
         written = export_training_data(
             args.results,

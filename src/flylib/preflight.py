@@ -164,11 +164,13 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
     from .interop import import_spec
     from .interop.importer import import_files
+    from .pipeline.pose2d import import_target
     from .pose2d.published import checkpoint_problem
     from .recordings import find_recording
 
     problems: list[str] = []
     detector = []
+    target = None
     for rec in recordings:
         if rec.import_spec is None:
             if not rec.demo:
@@ -177,9 +179,10 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
         own = rec.extra.get("own_import") and not rec.demo
         where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
         try:
-            spec = import_spec(config, rec.import_spec)
+            spec = import_spec(rec.import_spec)
             if not rec.demo:  # the demo's files are written by its own rule
-                import_files(config, spec, rec.path)
+                target = target or import_target(config)
+                import_files(target, spec, rec.path)
         except FlylibError as exc:
             text = _problem(exc)
             if not text.startswith("pose2d.import"):
@@ -206,7 +209,7 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
             continue
         where = rec.extra.get("where", "recordings")
         try:
-            find_recording(rec.path, config, check_frames=False, strict=True)
+            find_recording(rec.path, config.source_patterns(), check_frames=False, strict=True)
         except FlylibError as exc:
             problems.append(
                 f"{where}: {_problem(exc)}; or read 2D from another tool with pose2d.import"

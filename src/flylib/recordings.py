@@ -128,7 +128,11 @@ def _pick_extension(per_source: dict[str, list[Path]]) -> str | None:
 
 
 def find_recording(
-    directory: str | Path, config: Any, *, check_frames: bool = True, strict: bool = False
+    directory: str | Path,
+    patterns: Mapping[str, str],
+    *,
+    check_frames: bool = True,
+    strict: bool = False,
 ) -> dict[str, list[Path]] | None:
     """Resolve one directory to its ``source -> footage files`` map.
 
@@ -141,8 +145,9 @@ def find_recording(
     ----------
     directory
         The candidate recording directory.
-    config
-        The config (its ``sources``).
+    patterns
+        Source name -> footage glob, in ``[[sources]]`` order
+        (:func:`flylib.config.sources.patterns_of`).
     check_frames
         Compare frame counts across sources (opens each video's header).
     strict
@@ -156,7 +161,6 @@ def find_recording(
         recording (the reason is logged at warning level).
     """
     directory = Path(directory)
-    patterns = source_patterns(config)
 
     def reject(reason: str) -> None:
         if strict:
@@ -305,7 +309,9 @@ def resolve_recordings(
     if len(candidates) == 1 and not candidates[0][1]:
         path = candidates[0][0]
         try:
-            src = find_recording(path, config, check_frames=check_frames, strict=True)
+            src = find_recording(
+                path, source_patterns(config), check_frames=check_frames, strict=True
+            )
         except FootageError as exc:
             # Not a warning: with imported 2D or an existing pose2d artifact this is
             # fine, and where the detector needs footage the workflow's preflight
@@ -325,7 +331,7 @@ def resolve_recordings(
             src := (
                 _quiet_find(p, config, check_frames)
                 if is_glob
-                else find_recording(p, config, check_frames=check_frames)
+                else find_recording(p, source_patterns(config), check_frames=check_frames)
             )
         )
         is not None
@@ -400,7 +406,7 @@ def _quiet_find(path: Path, config: Any, check_frames: bool) -> dict | None:
     """``find_recording`` for a pattern match: non-directories are dropped silently."""
     if not path.is_dir():
         return None
-    return find_recording(path, config, check_frames=check_frames)
+    return find_recording(path, source_patterns(config), check_frames=check_frames)
 
 
 # -- the workflow's `recordings` key ------------------------------------------------
@@ -644,7 +650,8 @@ def plan_listing(
             check_recording_path(os.path.expanduser(str(entry["path"])), entry["_where"])
         if batch and not rec_recursive and not is_pattern:
             path = Path(os.path.expanduser(str(entry["path"])))
-            src = find_recording(path, config, check_frames=check_frames)  # warns when skipped
+            # warns when skipped
+            src = find_recording(path, source_patterns(config), check_frames=check_frames)
             hits = [(path, src)] if src is not None else []
         elif batch or rec_recursive:
             try:

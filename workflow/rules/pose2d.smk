@@ -25,7 +25,7 @@ if FLAGS["pose2d"]:
             gpu=pose2d_gpus,
         params:
             stage=stage_params("pose2d"),
-            config=job_config,
+            runtime=job_runtime("pose2d"),
             import_spec=pose2d_import,
             recording=lambda w: str(recording(w).path),
         script:

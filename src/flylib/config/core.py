@@ -250,10 +250,15 @@ class Config:
         return read_video_specs(self.visualization, view_names=views)
 
     def detection_plan(self) -> Any:
-        """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_config``)."""
+        """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_tables``)."""
         from ..pose2d.plan import DetectionPlan
 
-        return DetectionPlan.from_config(self)
+        return DetectionPlan.from_tables(
+            self.data.get("sources"),
+            self.data.get("pose2d"),
+            self.view_names(),
+            self._point_names(),
+        )
 
     @property
     def import_spec(self) -> dict | None:

@@ -41,24 +41,40 @@ def view_names(config, *, required: bool = True) -> list[str]:
 
 
 def view_sources(config) -> dict[str, str]:
+    """Map each view to the footage source that feeds it (:func:`feeding_sources` of
+    the config's views, ``sources`` and ``pose2d`` tables)."""
+    data = config_data(config)
+    return feeding_sources(view_names(config), data.get("sources") or [], data.get("pose2d") or {})
+
+
+def feeding_sources(views, sources, pose2d) -> dict[str, str]:
     """Map each view to the footage source that feeds it.
 
     The first pathway listed for the view in ``pose2d.output_points`` decides; a view
     without output points falls back to a source named ``vid_<view>`` or ``<view>``,
     then to the source at the same position in ``sources``.
+
+    Parameters
+    ----------
+    views
+        The view names, in order.
+    sources
+        The ``sources`` list (``{name, filename?}`` entries).
+    pose2d
+        The ``pose2d`` table (its ``pathways`` and ``output_points``).
     """
-    data = config_data(config)
-    pose2d = data.get("pose2d") or {}
     pathway_source = {
-        p.get("name"): p.get("source") for p in pose2d.get("pathways") or [] if isinstance(p, dict)
+        p.get("name"): p.get("source")
+        for p in pose2d.get("pathways") or []
+        if isinstance(p, Mapping)
     }
-    source_names = [s.get("name") for s in data.get("sources") or [] if isinstance(s, dict)]
+    source_names = [s.get("name") for s in sources or [] if isinstance(s, Mapping)]
     out: dict[str, str] = {}
-    for i, view in enumerate(view_names(config)):
+    for i, view in enumerate(views):
         points = (pose2d.get("output_points") or {}).get(view) or {}
         source = None
         for entry in points.values():
-            if isinstance(entry, dict) and pathway_source.get(entry.get("pathway")):
+            if isinstance(entry, Mapping) and pathway_source.get(entry.get("pathway")):
                 source = pathway_source[entry["pathway"]]
                 break
         if source is None:
@@ -87,9 +103,19 @@ def source_patterns(config: Any) -> dict[str, str]:
     dict of str to str
         In config order. A source without ``filename`` uses its name as the pattern.
     """
-    data = getattr(config, "data", config)
+    return patterns_of(getattr(config, "data", config).get("sources") or [])
+
+
+def patterns_of(sources) -> dict[str, str]:
+    """Source name -> footage glob of a ``sources`` list (:func:`source_patterns`).
+
+    Raises
+    ------
+    ConfigError
+        If the list is empty or an entry has no string ``name``.
+    """
     out: dict[str, str] = {}
-    for i, entry in enumerate(data.get("sources") or []):
+    for i, entry in enumerate(sources or []):
         name = entry.get("name") if isinstance(entry, Mapping) else None
         if not isinstance(name, str) or not name:
             raise ConfigError(f"sources[{i}]: needs a string 'name' (got {entry!r})")
@@ -100,3 +126,12 @@ def source_patterns(config: Any) -> dict[str, str]:
             "(entries such as {name: vid_rh, filename: camera_0.mp4}, as in config/config.yaml)"
         )
     return out
+
+
+def footage_globs(config: Any) -> dict[str, str | None]:
+    """``view -> footage glob`` of the source feeding each view (``None``: a source
+    without a pattern), in view order: what :func:`flylib.interop.views.footage_files`
+    matches in a recording directory."""
+    sources = view_sources(config)
+    patterns = source_patterns(config) if sources else {}
+    return {view: patterns.get(source) for view, source in sources.items()}

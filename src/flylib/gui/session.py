@@ -216,6 +216,7 @@ class ReviewSession:
         return path
 
     def _find_footage(self) -> dict[str, list[Path]]:
+        from ..config.sources import footage_globs
         from ..interop.views import footage_files
 
         if not self.recording_dir or not Path(self.recording_dir).is_dir():
@@ -226,7 +227,7 @@ class ReviewSession:
             )
             return {}
         try:
-            return footage_files(self.config, Path(self.recording_dir))
+            return footage_files(footage_globs(self.config), Path(self.recording_dir))
         except (
             FlylibError,
             OSError,

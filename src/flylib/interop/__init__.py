@@ -26,12 +26,13 @@ from .df3d import (
 )
 from .dlc import ViewKeypoints, dlc_frame, read_dlc_csv, read_dlc_h5, write_dlc_csv
 from .exports import export_result, points3d_table, write_dlc_views, write_points3d_csv
-from .importer import FORMATS, import_points2d, import_spec
+from .importer import FORMATS, ImportTarget, import_points2d, import_spec
 from .sleap import read_sleap_analysis
 
 __all__ = [
     "FLY38_POINT_NAMES",
     "FORMATS",
+    "ImportTarget",
     "ViewKeypoints",
     "calibration_from_index",
     "calibration_image_sizes",

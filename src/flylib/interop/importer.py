@@ -42,15 +42,16 @@ frames as their footage when its count is known.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ImportFormatError, did_you_mean
-from ..recordings import source_patterns
 from . import views as _views
 from ._h5 import read_budget
-from .df3d import FLY38_POINT_NAMES, df3d_joint_to_fly38, read_df3d_points2d
+from .df3d import df3d_joint_to_fly38, read_df3d_points2d
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
 
@@ -76,10 +77,58 @@ _KNOWN_KEYS = {
 }
 
 
-def import_spec(config, spec: dict | None = None) -> dict:
-    """The import spec in force: ``spec`` when given, else ``pose2d.import``, validated."""
-    if spec is None:
-        spec = (_views.config_data(config).get("pose2d") or {}).get("import")
+@dataclass(frozen=True)
+class ImportTarget:
+    """What imported 2D is placed on: the run's views and points, and where each view's
+    footage is (its frame size and count).
+
+    Attributes
+    ----------
+    views
+        The V axis, in order (empty: the config names no views, an error at import).
+    point_names
+        The P axis (the skeleton's points).
+    view_sources
+        ``view -> footage source`` (:func:`flylib.config.sources.feeding_sources`).
+    source_patterns
+        ``source -> footage glob`` (empty when no view has a source).
+    plan_points
+        ``view -> skeleton points`` the detection plan's ``pose2d.output_points``
+        gives it (what its file should hold; may be empty).
+    """
+
+    views: tuple[str, ...]
+    point_names: tuple[str, ...]
+    view_sources: Mapping[str, str] = field(default_factory=dict)
+    source_patterns: Mapping[str, str] = field(default_factory=dict)
+    plan_points: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def footage_globs(self) -> dict[str, str | None]:
+        """``view -> glob`` of its footage (:func:`flylib.interop.views.footage_files`)."""
+        return {v: self.source_patterns.get(s) for v, s in self.view_sources.items()}
+
+    def footage(self, recording_dir: Path) -> dict[str, list[Path]]:
+        """Each view's footage files in ``recording_dir``."""
+        return _views.footage_files(self.footage_globs(), recording_dir)
+
+    def checked_views(self) -> list[str]:
+        """The views, refusing none.
+
+        Raises
+        ------
+        ImportFormatError
+            When there are no views.
+        """
+        if not self.views:
+            raise ImportFormatError(
+                "config names no views (no cameras entries, no pose2d.output_points); define the rig's views"
+            )
+        return list(self.views)
+
+
+def import_spec(spec: Mapping | None) -> dict:
+    """The import spec ``spec`` (the recording's, else ``pose2d.import``), validated."""
+    spec = dict(spec) if isinstance(spec, Mapping) else spec
     where = "pose2d.import"
     if not isinstance(spec, dict):
         raise ImportFormatError(f"{where} must be a mapping with at least 'format', got {spec!r}")
@@ -102,12 +151,6 @@ def import_spec(config, spec: dict | None = None) -> dict:
     if threshold is not None and not isinstance(threshold, (int, float)):
         raise ImportFormatError(f"{where}.likelihood_threshold must be a number, got {threshold!r}")
     return dict(spec)
-
-
-def _skeleton_points(config) -> list[str]:
-    skeleton = _views.config_data(config).get("skeleton") or {}
-    names = skeleton.get("point_names")
-    return [str(n) for n in names] if names else list(FLY38_POINT_NAMES)
 
 
 def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
@@ -144,14 +187,16 @@ def _closest_file(recording_dir: Path, pattern: str) -> str:
     return did_you_mean(pattern, names)
 
 
-def import_files(config, spec: dict, recording_dir: str | Path) -> dict[str, Path | None]:
+def import_files(
+    target: ImportTarget, spec: dict, recording_dir: str | Path
+) -> dict[str, Path | None]:
     """The file each view's 2D is read from (``None``: a view mapped to nothing), found
     as the import will find them, without reading them: what validation checks.
 
     Parameters
     ----------
-    config
-        The run's config (views, sources).
+    target
+        The views and their footage sources.
     spec
         A validated import spec (:func:`import_spec`).
     recording_dir
@@ -164,13 +209,13 @@ def import_files(config, spec: dict, recording_dir: str | Path) -> dict[str, Pat
         file name) or several.
     """
     recording_dir = Path(recording_dir)
-    views = _views.view_names(config)
+    views = target.checked_views()
     if spec["format"] == "deepfly3d":
         path = _glob_one(
             recording_dir, _df3d_pattern(spec, recording_dir), "the DeepFly3D 2D pickle"
         )
         return dict.fromkeys(views, path)
-    return _view_files(spec, config, recording_dir, views)
+    return _view_files(spec, target, recording_dir, views)
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
@@ -185,7 +230,7 @@ def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
 
 
 def _view_files(
-    spec: dict, config, recording_dir: Path, views: list[str]
+    spec: dict, target: ImportTarget, recording_dir: Path, views: list[str]
 ) -> dict[str, Path | None]:
     files = spec.get("files", _DEFAULT_FILES[spec["format"]])
     if isinstance(files, dict):
@@ -205,8 +250,8 @@ def _view_files(
             f"pose2d.import.files is {files!r}; give a pattern with a {{view}}, {{index}}, "
             "{source} or {stem} placeholder, or a mapping {view: path}"
         )
-    sources = _views.view_sources(config)
-    patterns = source_patterns(config) if sources else {}
+    sources = target.view_sources
+    patterns = target.source_patterns
     out = {}
     for i, v in enumerate(views):
         source = sources.get(v, v)
@@ -274,7 +319,7 @@ def _check_frames(
     return n_frames
 
 
-def _import_deepfly3d(spec, config, recording_dir, views, points):
+def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
     path = _glob_one(recording_dir, _df3d_pattern(spec, recording_dir), "the DeepFly3D 2D pickle")
     pickle_views = spec.get("views") or views
     known = set(views)
@@ -284,7 +329,7 @@ def _import_deepfly3d(spec, config, recording_dir, views, points):
             f"pose2d.import.views names unknown views {bad}; configured: {views}"
         )
     sized = [v for v in pickle_views if v is not None]
-    footage = _views.footage_files(config, recording_dir)
+    footage = target.footage(recording_dir)
     sizes = _views.image_sizes(
         footage, recording_dir, sized, spec.get("image_size"), origin=str(path)
     )
@@ -365,14 +410,12 @@ def _warn_missing_parts(
             )
 
 
-def _plan_points(config, points: list[str]) -> dict[str, set[int]]:
-    """``view -> point indices`` the config's ``pose2d.output_points`` assigns (may be empty)."""
-    table = (_views.config_data(config).get("pose2d") or {}).get("output_points") or {}
+def _plan_points(target: ImportTarget, points: list[str]) -> dict[str, set[int]]:
+    """``view -> point indices`` the plan's ``pose2d.output_points`` assigns (may be empty)."""
     index = {name: i for i, name in enumerate(points)}
     return {
-        str(view): {index[p] for p in (entries or {}) if p in index}
-        for view, entries in table.items()
-        if isinstance(entries, dict)
+        str(view): {index[p] for p in entries if p in index}
+        for view, entries in target.plan_points.items()
     }
 
 
@@ -425,10 +468,10 @@ def _read_view(fmt: str, path: Path, spec: dict, max_bytes: int) -> ViewKeypoint
     return read_sleap_analysis(path, spec.get("track"), max_bytes=max_bytes)
 
 
-def _import_per_view(spec, config, recording_dir, views, points):
-    files = _view_files(spec, config, recording_dir, views)
+def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
+    files = _view_files(spec, target, recording_dir, views)
     present = [v for v in views if files[v] is not None]
-    footage = _views.footage_files(config, recording_dir)
+    footage = target.footage(recording_dir)
     footage_counts = {v: _views.read_frame_count(footage.get(v, [])) for v in present}
     read = {
         v: _read_view(spec["format"], files[v], spec, read_budget(footage_counts[v], len(points)))
@@ -458,7 +501,7 @@ def _import_per_view(spec, config, recording_dir, views, points):
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
     _warn_missing_parts(
-        filled, {v: files[v] for v in present}, points, _plan_points(config, points)
+        filled, {v: files[v] for v in present}, points, _plan_points(target, points)
     )
     sizes = _views.image_sizes(
         footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
@@ -466,17 +509,18 @@ def _import_per_view(spec, config, recording_dir, views, points):
     return pts, conf, sizes, {v: files[v] for v in present}
 
 
-def import_points2d(config, recording_dir: Path, spec: dict | None = None):
+def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | None):
     """Read another tool's 2D keypoints for one recording as the pose2d stage output.
 
     Parameters
     ----------
-    config
-        The run's :class:`flylib.config.Config` (views, skeleton, sources).
+    target
+        The views, skeleton points and footage the 2D is placed on
+        (:func:`flylib.pipeline.pose2d.import_target`).
     recording_dir
         The recording directory; relative ``files`` resolve against it.
     spec
-        The import spec (module docstring); defaults to the config's ``pose2d.import``.
+        The import spec (module docstring): the recording's, else ``pose2d.import``.
 
     Returns
     -------
@@ -492,14 +536,14 @@ def import_points2d(config, recording_dir: Path, spec: dict | None = None):
     """
     from ..results import Pose2dData
 
-    spec = import_spec(config, spec)
+    spec = import_spec(spec)
     recording_dir = Path(recording_dir)
-    views = _views.view_names(config)
-    points = _skeleton_points(config)
+    views = target.checked_views()
+    points = list(target.point_names)
     if spec["format"] == "deepfly3d":
-        pts, conf, sizes, origin = _import_deepfly3d(spec, config, recording_dir, views, points)
+        pts, conf, sizes, origin = _import_deepfly3d(spec, target, recording_dir, views, points)
     else:
-        pts, conf, sizes, origin = _import_per_view(spec, config, recording_dir, views, points)
+        pts, conf, sizes, origin = _import_per_view(spec, target, recording_dir, views, points)
     threshold = spec.get("likelihood_threshold")
     if threshold is not None:
         low = ~(conf >= float(threshold))  # NaN confidences count as below

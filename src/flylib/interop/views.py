@@ -3,12 +3,14 @@
 Imported 2D keypoints are placed on the configured views (the ``cameras`` table, in
 config order). A view's footage is found through the detection plan: the pathways
 that fill the view (``pose2d.output_points.<view>``) name a source, and the source's
-``filename`` glob is matched in the recording directory. Only the container/image
+``filename`` glob (:func:`footage_files`' ``view_globs``) is matched in the recording
+directory. Only the container/image
 header is read, never the pixels of a whole video.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ..config.sources import config_data, source_patterns, view_names, view_sources  # noqa: F401  (re-exported)
@@ -17,19 +19,25 @@ from ..io import VIDEO_EXTS, open_reader
 from ..recordings import footage_matches, natural_sorted, video_frame_count
 
 
-def footage_files(config, recording_dir: Path) -> dict[str, list[Path]]:
+def footage_files(
+    view_globs: Mapping[str, str | None] | Iterable[tuple[str, str | None]], recording_dir: Path
+) -> dict[str, list[Path]]:
     """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none).
 
     Matched like :func:`flylib.recordings.find_recording` does: only video and image
     files count, so a DeepLabCut CSV beside ``camera_0.mp4`` is not footage.
+
+    Parameters
+    ----------
+    view_globs
+        ``view -> glob`` of the footage source feeding each view (``None``: a source
+        without a pattern), in view order (a mapping or ``(view, glob)`` pairs).
+    recording_dir
+        The recording directory the globs are matched in.
     """
-    sources = view_sources(config)
-    patterns = source_patterns(config) if sources else {}
     return {
-        view: natural_sorted(footage_matches(Path(recording_dir), patterns[source]))
-        if source in patterns
-        else []
-        for view, source in sources.items()
+        view: natural_sorted(footage_matches(Path(recording_dir), glob)) if glob is not None else []
+        for view, glob in dict(view_globs).items()
     }
 
 

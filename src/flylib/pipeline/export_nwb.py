@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..interop.views import footage_files
 from .inputs import StageInputs, _json, frozen_mapping
-from .visualization import find_footage, footage_globs
+from .visualization import footage_globs
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +153,7 @@ def run_export_nwb(
 
     metadata = session_metadata(inputs, recording_dir, demo=demo, extra=extra_metadata)
     footage = (
-        find_footage(inputs.runtime.footage, Path(recording_dir))
+        footage_files(inputs.runtime.footage, Path(recording_dir))
         if recording_dir is not None
         else {}
     )

@@ -35,12 +35,10 @@ stage                  reads                                       writes
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from ..errors import FlylibError, ResultsError, StageError, one_line
 
@@ -48,6 +46,7 @@ from ..errors import FlylibError, ResultsError, StageError, one_line
 from .assemble import run_assemble, write_snapshot  # noqa: F401
 from .demo import run_demo  # noqa: F401
 from .planning import tracked_params
+from .pose2d import run_pose2d  # noqa: F401
 from .tracked import StageConfig, UntrackedConfigRead
 from .visualization import run_visualization  # noqa: F401
 
@@ -59,46 +58,6 @@ log = logging.getLogger(__name__)
 
 def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
     return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
-
-
-# Imported 2D may stray a little past the frame (a detector's edge peaks, sub-pixel
-# refinement); this much of a view's points beyond its frame by more than this fraction
-# of its size says the 2D was made on footage of another resolution.
-_OUTSIDE_MARGIN = 0.02
-_OUTSIDE_FRACTION = 0.01
-
-
-def _check_inside_frames(pose2d, recording_dir: Path) -> None:
-    """Refuse imported 2D whose points lie outside the footage they claim to be on.
-
-    Raises
-    ------
-    FootageError
-        Naming the view, its footage size and the extent of its points.
-    """
-    from ..errors import FootageError
-
-    sizes = _image_sizes(pose2d)
-    for v, view in enumerate(pose2d.view_names):
-        if view not in sizes:
-            continue
-        height, width = sizes[view]
-        xy = pose2d.pts2d[v].reshape(-1, 2)
-        xy = xy[np.isfinite(xy).all(axis=1)]
-        if not len(xy):
-            continue
-        limit = np.array([width, height], dtype=np.float64)
-        outside = ((xy < -_OUTSIDE_MARGIN * limit) | (xy > (1 + _OUTSIDE_MARGIN) * limit)).any(
-            axis=1
-        )
-        if outside.mean() > _OUTSIDE_FRACTION:
-            top = np.max(xy, axis=0)
-            raise FootageError(
-                f"{recording_dir}: camera {view}: footage is {width}x{height} px but "
-                f"{outside.mean():.0%} of its imported 2D lies outside that frame (up to "
-                f"x={top[0]:.0f}, y={top[1]:.0f}); the 2D was made on footage of another size: "
-                "use the footage it was made on, or re-run the 2D tool on this footage"
-            )
 
 
 @dataclass(frozen=True)
@@ -231,60 +190,3 @@ def _solving(stage: str, recording) -> Iterator[None]:
 
 
 # -- stages --------------------------------------------------------------------
-
-
-def run_pose2d(
-    config,
-    recording_dir: str | Path,
-    out_path: str | Path,
-    *,
-    import_spec: Mapping | None = None,
-    progress: bool = False,
-    candidates_path: str | Path | None = None,
-) -> Path:
-    """2D keypoints of one recording: the detector over its footage, or another
-    tool's files when an import spec is in force (``import_spec``, else
-    ``pose2d.import``).
-
-    With ``candidates_path`` (pictorial structures on) the detector's top-K peaks
-    (``pictorial_structures.k``) are written there too, as a ``candidates`` stage.
-
-    Raises
-    ------
-    FootageError
-        The recording's footage is missing, unreadable or inconsistent (naming it).
-    ResultsError
-        If candidates are asked for but the 2D is imported (other tools keep no peaks).
-    """
-    config = StageConfig.for_stage(config, "pose2d")
-    recording_dir = Path(recording_dir)
-    spec = dict(import_spec) if import_spec else config.import_spec
-    if spec:
-        if candidates_path is not None:
-            raise ResultsError(
-                f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
-                f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
-                "which keeps none; set pipeline.do_pictorial_structures: false"
-            )
-        from ..interop import import_points2d
-
-        data = import_points2d(config, recording_dir, spec)
-        _check_inside_frames(data, recording_dir)
-    else:
-        from ..pose2d import detect_recording
-        from ..recordings import find_recording
-
-        sources = find_recording(recording_dir, config, strict=True)
-        data = detect_recording(
-            config, sources, want_candidates=candidates_path is not None, progress=progress
-        )
-    provenance = _provenance(config, "pose2d")
-    candidates, data.candidates = data.candidates, None
-    if candidates is not None:
-        from ..results import save_candidates
-
-        save_candidates(
-            candidates_path, candidates, meta={**provenance, "k": int(config.pictorial.k)}
-        )
-    data.save(out_path, config.skeleton(), meta=provenance)
-    return Path(out_path)

@@ -92,33 +92,11 @@ class VisualizationInputs(StageInputs):
 
 def footage_globs(config) -> tuple[tuple[str, str | None], ...]:
     """``(view, glob)`` per view ``config`` feeds from a footage source (``None``: a
-    source without a pattern), in view order."""
-    from ..config.sources import source_patterns, view_sources
+    source without a pattern), in view order (:func:`flylib.config.sources.footage_globs`
+    as a frozen tuple)."""
+    from ..config.sources import footage_globs as view_globs
 
-    sources = view_sources(config)
-    patterns = source_patterns(config) if sources else {}
-    return tuple((view, patterns.get(source)) for view, source in sources.items())
-
-
-def find_footage(
-    footage: tuple[tuple[str, str | None], ...], recording_dir: Path
-) -> dict[str, list[Path]]:
-    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if
-    none), found as the pose2d stage finds them (only video and image files count).
-
-    Parameters
-    ----------
-    footage
-        :func:`footage_globs`.
-    recording_dir
-        The recording directory.
-    """
-    from ..recordings import footage_matches, natural_sorted
-
-    return {
-        view: natural_sorted(footage_matches(recording_dir, glob)) if glob is not None else []
-        for view, glob in footage
-    }
+    return tuple(view_globs(config).items())
 
 
 def run_visualization(
@@ -156,6 +134,7 @@ def run_visualization(
         The written videos, in config order.
     """
     from ..corrections import read_corrected
+    from ..interop.views import footage_files
     from ..results import PoseResult
     from ..visualization import render_videos
 
@@ -163,7 +142,7 @@ def run_visualization(
     return render_videos(
         _json(inputs.visualization),
         result,
-        find_footage(inputs.runtime.footage, Path(recording_dir)),
+        footage_files(inputs.runtime.footage, Path(recording_dir)),
         outdir,
         progress=progress,
         corrected=read_corrected(results_path),

@@ -11,6 +11,7 @@ from typing import Any
 
 import torch
 
+from ..config.params import Pose2dParams
 from ..errors import ConfigError
 from ..resources import usable_cpus
 from . import compiled, decode
@@ -116,7 +117,7 @@ class LoadedModel:
     net: HourglassNet
     device: torch.device
     precision: str = "float32"
-    batch_size: int = 16
+    batch_size: int = Pose2dParams.batch_size
     compiled: bool = False
     compile_status: str | None = None
     cache_root: Path | None = None
@@ -241,35 +242,23 @@ class LoadedModel:
         return xy, conf, candidates
 
 
-def _pose2d_setting(config, key: str, default):
-    params = getattr(config, "pose2d", None)
-    if params is not None and hasattr(params, key):
-        return getattr(params, key)
-    data = getattr(config, "data", config) or {}
-    return (data.get("pose2d") or {}).get(key, default)
-
-
 def load_models(
     plan: DetectionPlan,
-    config=None,
+    params: Pose2dParams | None = None,
     *,
-    device: str | torch.device | None = None,
-    precision: str | None = None,
-    batch_size: int | None = None,
-    compile: bool | str | None = None,
     frames: int | None = None,
     cache_root: Path | None = None,
     allow_download: bool = True,
 ) -> dict[str, LoadedModel]:
-    """Load every model the plan's active pathways use, with the config's settings.
+    """Load every model the plan's active pathways use, with the given settings.
 
     Parameters
     ----------
     plan
         The detection plan.
-    config
-        The run config (``pose2d.device``, ``precision``, ``batch_size``, ``compile``);
-        the keyword arguments override it.
+    params
+        The ``pose2d`` settings read here: ``device``, ``precision``, ``batch_size``,
+        ``compile`` (default: :class:`~flylib.config.params.Pose2dParams`'s).
     frames
         The recording's frame count, for ``compile: auto`` (the work is frames x the
         model's pathways; :func:`~flylib.pose2d.compiled.decide_compile`).
@@ -283,14 +272,15 @@ def load_models(
     WeightsError
         If a model's weights cannot be found, downloaded or loaded.
     """
-    dev = select_device(device if device is not None else _pose2d_setting(config, "device", "auto"))
+    params = params or Pose2dParams()
+    dev = select_device(params.device)
     if dev.type == "cpu":  # torch's intra-op pool, sized like every other (flylib.resources)
         torch.set_num_threads(usable_cpus())
-    precision = precision or _pose2d_setting(config, "precision", "bfloat16")
+    precision = params.precision
     if precision not in PRECISIONS:
         raise ConfigError(f"pose2d.precision: {precision!r} is not one of {sorted(PRECISIONS)}")
-    batch = int(batch_size or _pose2d_setting(config, "batch_size", 16))
-    want_compile = compile if compile is not None else _pose2d_setting(config, "compile", "auto")
+    batch = int(params.batch_size)
+    want_compile = params.compile
     models = {}
     pathways = plan.active_pathways()
     for name in dict.fromkeys(p.model for p in pathways):

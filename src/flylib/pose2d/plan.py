@@ -381,40 +381,6 @@ class Pathway:
             size = op.out_size(size)
 
 
-def _config_data(config) -> Mapping:
-    data = getattr(config, "data", config)
-    if not isinstance(data, Mapping):
-        raise TypeError(f"expected a flylib Config or a mapping, got {type(config).__name__}")
-    return data
-
-
-def _camera_names(config, data: Mapping, output_points: Mapping) -> list[str]:
-    names = getattr(config, "view_names", None)
-    if callable(names):
-        try:
-            return list(names())
-        except Exception:  # noqa: BLE001 - fall back on the raw table below
-            pass
-    cameras = data.get("cameras")
-    if isinstance(cameras, Mapping):
-        listed = [str(k) for k in cameras if k != "defaults"]
-        if listed:
-            return listed
-    return [str(v) for v in output_points]
-
-
-def _point_names(config, data: Mapping) -> list[str]:
-    skeleton = data.get("skeleton")
-    if isinstance(skeleton, Mapping) and skeleton.get("point_names"):
-        return [str(p) for p in skeleton["point_names"]]
-    make = getattr(config, "skeleton", None)
-    if callable(make):
-        return list(make().point_names)
-    raise ConfigError(
-        "skeleton.point_names: missing; the detection plan needs the skeleton's points"
-    )
-
-
 def _table_list(value, where: str) -> list[Mapping]:
     if value is None:
         return []
@@ -480,6 +446,38 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
     )
 
 
+def _parse_preprocessors(pose2d: Mapping) -> dict[str, tuple[Op, ...]]:
+    """``pose2d.preprocessors``: name -> its ops."""
+    pre_entries = _table_list(pose2d.get("preprocessors"), "pose2d.preprocessors")
+    _unique_names(pre_entries, "pose2d.preprocessors")
+    preprocessors = {}
+    for i, entry in enumerate(pre_entries):
+        ops = entry.get("ops") or []
+        if not isinstance(ops, Sequence) or isinstance(ops, (str, bytes)):
+            raise ConfigError(f"pose2d.preprocessors[{i}].ops: expected a list of op tables")
+        preprocessors[str(entry["name"])] = tuple(
+            parse_op(op, f"pose2d.preprocessors[{i}].ops[{j}]") for j, op in enumerate(ops)
+        )
+    return preprocessors
+
+
+def _parse_models(pose2d: Mapping) -> dict[str, ModelSpec]:
+    """``pose2d.models``, with the checkpoints ``pose2d.weights`` sets."""
+    model_entries = _table_list(pose2d.get("models"), "pose2d.models")
+    _unique_names(model_entries, "pose2d.models")
+    models = {
+        str(e["name"]): _parse_model(e, f"pose2d.models[{i}]") for i, e in enumerate(model_entries)
+    }
+    # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
+    for name, path in (pose2d.get("weights") or {}).items():
+        if name not in models:
+            raise ConfigError(
+                f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}"
+            )
+        models[name] = replace(models[name], weights=str(path or ""))
+    return models
+
+
 @dataclass(frozen=True)
 class DetectionPlan:
     """The parsed, validated 2D detection plan.
@@ -506,8 +504,26 @@ class DetectionPlan:
     preprocessors: dict[str, tuple[Op, ...]]
 
     @classmethod
-    def from_config(cls, config) -> DetectionPlan:
-        """Parse the plan from a :class:`flylib.Config` (or its raw mapping).
+    def from_tables(
+        cls,
+        sources: Sequence[Mapping] | None,
+        pose2d: Mapping | None,
+        view_names: Sequence[str],
+        point_names: Sequence[str],
+    ) -> DetectionPlan:
+        """Parse the plan from the config's tables.
+
+        Parameters
+        ----------
+        sources
+            The ``sources`` list (``{name, filename?}`` entries).
+        pose2d
+            The ``pose2d`` table: its ``preprocessors``, ``models``, ``weights``,
+            ``pathways`` and ``output_points`` are read.
+        view_names
+            The V axis (the rig's views, in order).
+        point_names
+            The P axis (the skeleton's points).
 
         Raises
         ------
@@ -516,49 +532,25 @@ class DetectionPlan:
             preprocessor, view or point; a channel beyond the model's outputs; one
             view fed from two different sources).
         """
-        data = _config_data(config)
-        pose2d = data.get("pose2d") or {}
+        pose2d = pose2d or {}
         if not isinstance(pose2d, Mapping):
             raise ConfigError("pose2d: expected a table")
 
-        source_entries = _table_list(data.get("sources"), "sources")
+        source_entries = _table_list(sources, "sources")
         _unique_names(source_entries, "sources")
-        sources = {}
+        patterns = {}
         for entry in source_entries:
-            sources[str(entry["name"])] = str(entry.get("filename") or entry["name"])
+            patterns[str(entry["name"])] = str(entry.get("filename") or entry["name"])
 
-        pre_entries = _table_list(pose2d.get("preprocessors"), "pose2d.preprocessors")
-        _unique_names(pre_entries, "pose2d.preprocessors")
-        preprocessors = {}
-        for i, entry in enumerate(pre_entries):
-            ops = entry.get("ops") or []
-            if not isinstance(ops, Sequence) or isinstance(ops, (str, bytes)):
-                raise ConfigError(f"pose2d.preprocessors[{i}].ops: expected a list of op tables")
-            preprocessors[str(entry["name"])] = tuple(
-                parse_op(op, f"pose2d.preprocessors[{i}].ops[{j}]") for j, op in enumerate(ops)
-            )
-
-        model_entries = _table_list(pose2d.get("models"), "pose2d.models")
-        _unique_names(model_entries, "pose2d.models")
-        models = {
-            str(e["name"]): _parse_model(e, f"pose2d.models[{i}]")
-            for i, e in enumerate(model_entries)
-        }
-        # pose2d.weights: {model: path} sets a checkpoint without restating the model entry
-        for name, path in (pose2d.get("weights") or {}).items():
-            if name not in models:
-                raise ConfigError(
-                    f"pose2d.weights.{name}: unknown model {name!r}; defined: {sorted(models)}"
-                )
-            models[name] = replace(models[name], weights=str(path or ""))
+        preprocessors = _parse_preprocessors(pose2d)
+        models = _parse_models(pose2d)
 
         output_points = pose2d.get("output_points") or {}
         if not isinstance(output_points, Mapping):
             raise ConfigError(
                 "pose2d.output_points: expected a table of view -> point -> {pathway, out_channel}"
             )
-        view_names = _camera_names(config, data, output_points)
-        point_names = _point_names(config, data)
+        view_names, point_names = [str(v) for v in view_names], [str(p) for p in point_names]
         view_index = {v: i for i, v in enumerate(view_names)}
         point_index = {p: i for i, p in enumerate(point_names)}
 
@@ -572,9 +564,9 @@ class DetectionPlan:
                 entry.get("model"),
                 entry.get("preprocessor") or None,
             )
-            if src not in sources:
+            if src not in patterns:
                 raise ConfigError(
-                    f"{where}.source: unknown source {src!r}; defined: {sorted(sources)}"
+                    f"{where}.source: unknown source {src!r}; defined: {sorted(patterns)}"
                 )
             if model not in models:
                 raise ConfigError(
@@ -647,7 +639,7 @@ class DetectionPlan:
                 )
             )
         return cls(
-            sources=sources,
+            sources=patterns,
             models=models,
             pathways=tuple(pathways),
             view_names=tuple(view_names),

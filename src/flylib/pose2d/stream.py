@@ -26,9 +26,10 @@ import numpy as np
 import torch
 
 from .. import io
+from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..errors import FootageError
 from ..resources import usable_cpus
-from .inference import LoadedModel, _pose2d_setting, load_models, yuv420p_to_rgb
+from .inference import LoadedModel, load_models, yuv420p_to_rgb
 from .plan import DetectionPlan, Pathway
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -292,8 +293,8 @@ def run_detection(
     models: dict[str, LoadedModel],
     sources: dict[str, list[Path] | str | Path],
     *,
-    batch_size: int = 16,
-    decode_buffer: int = 4,
+    batch_size: int = Pose2dParams.batch_size,
+    decode_buffer: int = Pose2dParams.decode_buffer,
     workers: int | None = None,
     k: int | None = None,
     progress=False,
@@ -349,7 +350,6 @@ def run_detection(
             f"(patterns: {[plan.sources[s] for s in missing]})"
         )
     device = next(iter(models.values())).device if models else torch.device("cpu")
-    n_views, n_points = len(plan.view_names), len(plan.point_names)
     pin = device.type == "cuda"
     raw_yuv = device.type != "cpu" if raw_yuv is None else raw_yuv
     prefetchers = {
@@ -366,49 +366,7 @@ def run_detection(
         for s in active
     }
     total = prefetchers[active[0]].reader.count() if active and progress else None
-    bar = _make_progress(progress, total)
-    frame_sizes: dict[str, tuple[int, int]] = {}
-    pts_parts, conf_parts, cxy_parts, cscore_parts = [], [], [], []
-
-    clock = dict.fromkeys(("wait_decode", "launch", "wait_device", "scatter"), 0.0)
-
-    def finalize(pending: _Pending) -> None:
-        t0 = time.perf_counter()
-        if pending.ready is not None:
-            pending.ready.synchronize()
-        t1 = time.perf_counter()
-        clock["wait_device"] += t1 - t0
-        pts = np.full((n_views, pending.n, n_points, 2), np.nan)
-        conf = np.full((n_views, pending.n, n_points), np.nan)
-        cxy = np.full((n_views, pending.n, n_points, k, 2), np.nan) if k else None
-        cscore = np.full((n_views, pending.n, n_points, k), np.nan) if k else None
-        for pathway, source, xy, cf, cand in pending.results:
-            model = models[pathway.model]
-            raw = _to_raw(
-                pathway,
-                xy.to("cpu", torch.float64).numpy()[:, pathway.channels],
-                frame_sizes[source],
-                model,
-            )
-            pts[pathway.views, :, pathway.points] = raw.transpose(1, 0, 2)
-            conf[pathway.views, :, pathway.points] = (
-                cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
-            )
-            if k:
-                cand_xy = cand[0].to("cpu", torch.float64).numpy()[:, pathway.channels]
-                cand_raw = _to_raw(pathway, cand_xy, frame_sizes[source], model)  # NaN stays NaN
-                cxy[pathway.views, :, pathway.points] = cand_raw.transpose(1, 0, 2, 3)
-                cscore[pathway.views, :, pathway.points] = (
-                    cand[1].to("cpu", torch.float64).numpy()[:, pathway.channels].transpose(1, 0, 2)
-                )
-        pts_parts.append(pts)
-        conf_parts.append(conf)
-        if k:
-            cxy_parts.append(cxy)
-            cscore_parts.append(cscore)
-        if bar is not None:
-            bar.update(pending.n)
-        clock["scatter"] += time.perf_counter() - t1
+    gather = _Gather(plan, models, k, _make_progress(progress, total))
 
     for p in prefetchers.values():
         p.start()
@@ -419,66 +377,27 @@ def run_detection(
             t0 = time.perf_counter()
             blocks = {s: prefetchers[s].get() for s in active}
             t1 = time.perf_counter()
-            clock["wait_decode"] += t1 - t0
-            ended = [s for s, b in blocks.items() if b is _END]
-            if ended:
-                if len(ended) != len(blocks):
-                    going = [s for s in blocks if s not in ended]
-                    raise FootageError(
-                        f"sources differ in length: {ended} end after {start} frames while {going} go on; "
-                        "every camera must have the same number of frames"
-                    )
+            gather.clock["wait_decode"] += t1 - t0
+            if _ended(blocks, start):
                 break
-            lengths = {s: int(b.shape[0]) for s, b in blocks.items()}
-            if len(set(lengths.values())) > 1:
-                raise FootageError(
-                    f"sources differ in length around frame {start}: block sizes {lengths}; every camera "
-                    "must have the same number of frames"
-                )
-            n = next(iter(lengths.values()))
-            results = []
-            for source, block in blocks.items():
-                frames = block.to(device, non_blocking=True)
-                if prefetchers[source].yuv:
-                    frames = yuv420p_to_rgb(frames, *prefetchers[source].color)
-                size = (int(frames.shape[1]), int(frames.shape[2]))
-                if frame_sizes.setdefault(source, size) != size:
-                    raise FootageError(
-                        f"source {source}: frame {start} is {size[1]}x{size[0]} but earlier frames are "
-                        f"{frame_sizes[source][1]}x{frame_sizes[source][0]}"
-                    )
-                for pathway in plan.pathways_on(source):
-                    if start == 0:
-                        pathway.check_frame(size)
-                    xy, cf, cand = models[pathway.model].detect(frames, pathway.ops, k=k)
-                    results.append((pathway, source, xy, cf, cand))
+            n, results = _launch(blocks, prefetchers, plan, models, gather.frame_sizes, start, k)
             results, ready = _start_download(results, device)
-            clock["launch"] += time.perf_counter() - t1
+            gather.clock["launch"] += time.perf_counter() - t1
             if pending is not None:
-                finalize(pending)
+                gather.finalize(pending)
             pending = _Pending(start, n, results, ready)
             start += n
             del blocks
         if pending is not None:
-            finalize(pending)
+            gather.finalize(pending)
     finally:
         for p in prefetchers.values():
             p.stop()
-        if bar is not None:
-            bar.close()
+        if gather.bar is not None:
+            gather.bar.close()
         if timings is not None:
-            timings.update(clock)
-    if not pts_parts:
-        raise FootageError(
-            f"the detector received no frames from sources {active}; check the footage"
-        )
-    out = DetectionOutput(
-        pts2d=np.concatenate(pts_parts, axis=1),
-        conf=np.concatenate(conf_parts, axis=1),
-        candidates_xy=np.concatenate(cxy_parts, axis=1) if k else None,
-        candidates_score=np.concatenate(cscore_parts, axis=1) if k else None,
-        frame_sizes=frame_sizes,
-    )
+            timings.update(gather.clock)
+    out = gather.output(active)
     for source, prefetcher in prefetchers.items():
         frames = sorted(prefetcher.corrupt_frames())
         if frames:
@@ -488,6 +407,130 @@ def run_detection(
                 frames,
             )
     return out
+
+
+def _ended(blocks: dict, start: int) -> bool:
+    """Whether every source ended (a source ending before the others is an error).
+
+    Raises
+    ------
+    FootageError
+        If some sources end while others go on, or a block's lengths differ.
+    """
+    ended = [s for s, b in blocks.items() if b is _END]
+    if ended:
+        if len(ended) != len(blocks):
+            going = [s for s in blocks if s not in ended]
+            raise FootageError(
+                f"sources differ in length: {ended} end after {start} frames while {going} go on; "
+                "every camera must have the same number of frames"
+            )
+        return True
+    lengths = {s: int(b.shape[0]) for s, b in blocks.items()}
+    if len(set(lengths.values())) > 1:
+        raise FootageError(
+            f"sources differ in length around frame {start}: block sizes {lengths}; every camera "
+            "must have the same number of frames"
+        )
+    return False
+
+
+def _launch(blocks, prefetchers, plan, models, frame_sizes, start: int, k) -> tuple[int, list]:
+    """Queue one block's forwards on every pathway -> ``(frames, results)``; the first
+    block records each source's frame size, a later one must keep it."""
+    device = next(iter(models.values())).device if models else torch.device("cpu")
+    results = []
+    for source, block in blocks.items():
+        frames = block.to(device, non_blocking=True)
+        if prefetchers[source].yuv:
+            frames = yuv420p_to_rgb(frames, *prefetchers[source].color)
+        size = (int(frames.shape[1]), int(frames.shape[2]))
+        if frame_sizes.setdefault(source, size) != size:
+            raise FootageError(
+                f"source {source}: frame {start} is {size[1]}x{size[0]} but earlier frames are "
+                f"{frame_sizes[source][1]}x{frame_sizes[source][0]}"
+            )
+        for pathway in plan.pathways_on(source):
+            if start == 0:
+                pathway.check_frame(size)
+            xy, cf, cand = models[pathway.model].detect(frames, pathway.ops, k=k)
+            results.append((pathway, source, xy, cf, cand))
+    return next(int(b.shape[0]) for b in blocks.values()), results
+
+
+class _Gather:
+    """A detection run's host side: each finished block's points scattered into the
+    ``(V, n, P)`` arrays in raw-frame pixels, and where the time went."""
+
+    def __init__(self, plan: DetectionPlan, models: dict[str, LoadedModel], k, bar) -> None:
+        self.models, self.k, self.bar = models, k, bar
+        self.n_views, self.n_points = len(plan.view_names), len(plan.point_names)
+        self.frame_sizes: dict[str, tuple[int, int]] = {}
+        self.parts: dict[str, list[np.ndarray]] = {"pts": [], "conf": [], "cxy": [], "cscore": []}
+        self.clock = dict.fromkeys(("wait_decode", "launch", "wait_device", "scatter"), 0.0)
+
+    def finalize(self, pending: _Pending) -> None:
+        """Wait for a block's results and scatter them."""
+        k, models = self.k, self.models
+        t0 = time.perf_counter()
+        if pending.ready is not None:
+            pending.ready.synchronize()
+        t1 = time.perf_counter()
+        self.clock["wait_device"] += t1 - t0
+        pts = np.full((self.n_views, pending.n, self.n_points, 2), np.nan)
+        conf = np.full((self.n_views, pending.n, self.n_points), np.nan)
+        cxy = np.full((self.n_views, pending.n, self.n_points, k, 2), np.nan) if k else None
+        cscore = np.full((self.n_views, pending.n, self.n_points, k), np.nan) if k else None
+        for pathway, source, xy, cf, cand in pending.results:
+            model = models[pathway.model]
+            raw = _to_raw(
+                pathway,
+                xy.to("cpu", torch.float64).numpy()[:, pathway.channels],
+                self.frame_sizes[source],
+                model,
+            )
+            pts[pathway.views, :, pathway.points] = raw.transpose(1, 0, 2)
+            conf[pathway.views, :, pathway.points] = (
+                cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
+            )
+            if k:
+                cand_xy = cand[0].to("cpu", torch.float64).numpy()[:, pathway.channels]
+                cand_raw = _to_raw(
+                    pathway, cand_xy, self.frame_sizes[source], model
+                )  # NaN stays NaN
+                cxy[pathway.views, :, pathway.points] = cand_raw.transpose(1, 0, 2, 3)
+                cscore[pathway.views, :, pathway.points] = (
+                    cand[1].to("cpu", torch.float64).numpy()[:, pathway.channels].transpose(1, 0, 2)
+                )
+        self.parts["pts"].append(pts)
+        self.parts["conf"].append(conf)
+        if k:
+            self.parts["cxy"].append(cxy)
+            self.parts["cscore"].append(cscore)
+        if self.bar is not None:
+            self.bar.update(pending.n)
+        self.clock["scatter"] += time.perf_counter() - t1
+
+    def output(self, active: list[str]) -> DetectionOutput:
+        """The blocks joined along time.
+
+        Raises
+        ------
+        FootageError
+            If no block arrived.
+        """
+        if not self.parts["pts"]:
+            raise FootageError(
+                f"the detector received no frames from sources {active}; check the footage"
+            )
+        k, parts = self.k, self.parts
+        return DetectionOutput(
+            pts2d=np.concatenate(parts["pts"], axis=1),
+            conf=np.concatenate(parts["conf"], axis=1),
+            candidates_xy=np.concatenate(parts["cxy"], axis=1) if k else None,
+            candidates_score=np.concatenate(parts["cscore"], axis=1) if k else None,
+            frame_sizes=self.frame_sizes,
+        )
 
 
 def _mark_missing(out: DetectionOutput, views: list[int], frames: list[int]) -> None:
@@ -516,23 +559,6 @@ def _frame_count(plan: DetectionPlan, sources) -> int | None:
         reader.close()
 
 
-def _on_corrupt(config) -> str:
-    params = getattr(config, "io", None)
-    value = getattr(params, "on_corrupt_frame", None)
-    if value is None:
-        data = getattr(config, "data", config) or {}
-        value = (data.get("io") or {}).get("on_corrupt_frame")
-    return value or "error"
-
-
-def _io_workers(config) -> int | None:
-    params = getattr(config, "io", None)
-    if params is not None and hasattr(params, "image_workers"):
-        return params.image_workers
-    data = getattr(config, "data", config) or {}
-    return ((data.get("io") or {}).get("image") or {}).get("workers") or None
-
-
 def _candidates(xy: np.ndarray, score: np.ndarray):
     from ..pictorial import Candidates
 
@@ -540,11 +566,12 @@ def _candidates(xy: np.ndarray, score: np.ndarray):
 
 
 def detect_2d(
-    config,
+    params: Pose2dParams,
     plan: DetectionPlan,
     models: dict[str, LoadedModel],
     *,
     sources: dict[str, list[Path] | str | Path],
+    io: IoParams | None = None,
     want_candidates: bool = False,
     k: int | None = None,
     progress=False,
@@ -553,19 +580,20 @@ def detect_2d(
 
     Parameters
     ----------
-    config
-        The run config (``pose2d.batch_size``, ``pose2d.decode_buffer``,
-        ``io.image.workers``, ``pictorial_structures.k``).
+    params
+        The ``pose2d`` settings read here: ``batch_size``, ``decode_buffer``.
     plan
-        The detection plan (:meth:`DetectionPlan.from_config`).
+        The detection plan (:meth:`DetectionPlan.from_tables`).
     models
         ``name -> LoadedModel`` (:func:`load_models`).
     sources
         Source name -> footage (the resolved file list of each ``[[sources]]`` entry).
+    io
+        ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults).
     want_candidates
         Also return the top-``k`` heatmap peaks per (view, point) for pictorial structures.
     k
-        Candidates per (view, point); default ``pictorial_structures.k`` (5).
+        Candidates per (view, point); default ``pictorial_structures.k``'s default.
     progress
         Show a progress bar with frames/s.
 
@@ -579,51 +607,64 @@ def detect_2d(
         ``xy (V, T, P, K, 2)`` and ``score (V, T, P, K)`` when ``want_candidates``.
     """
     out = _detect(
-        config, plan, models, sources, want_candidates=want_candidates, k=k, progress=progress
+        params,
+        io or IoParams(),
+        plan,
+        models,
+        sources,
+        k=(k or PictorialParams.k) if want_candidates else None,
+        progress=progress,
     )
     cands = _candidates(out.candidates_xy, out.candidates_score) if want_candidates else None
     return out.pts2d, out.conf, cands
 
 
-def _detect(config, plan, models, sources, *, want_candidates, k, progress) -> DetectionOutput:
-    if want_candidates and not k:
-        pictorial = (getattr(config, "data", config) or {}).get("pictorial_structures") or {}
-        k = int(pictorial.get("k", 5))
+def _detect(
+    params: Pose2dParams, io: IoParams, plan, models, sources, *, k: int | None, progress
+) -> DetectionOutput:
+    """:func:`run_detection` with the settings' knobs (``k``: candidates, or ``None``)."""
     return run_detection(
         plan,
         models,
         sources,
-        batch_size=int(_pose2d_setting(config, "batch_size", 16)),
-        decode_buffer=int(_pose2d_setting(config, "decode_buffer", 4)),
-        workers=_io_workers(config),
-        k=k if want_candidates else None,
+        batch_size=int(params.batch_size),
+        decode_buffer=int(params.decode_buffer),
+        workers=io.image_workers,
+        k=k,
         progress=progress,
-        on_corrupt=_on_corrupt(config),
+        on_corrupt=io.on_corrupt_frame,
     )
 
 
 def detect_recording(
-    config,
+    plan: DetectionPlan,
     sources: dict[str, list[Path]],
+    params: Pose2dParams,
     *,
-    want_candidates: bool = False,
+    io: IoParams | None = None,
+    k: int | None = None,
     progress: bool = True,
     models: dict[str, LoadedModel] | None = None,
 ):
-    """The pose2d stage: run the configured detection plan over one recording.
+    """The pose2d stage's detection: run the detection plan over one recording.
 
     Parameters
     ----------
-    config
-        The run config.
+    plan
+        The detection plan.
     sources
         Source name -> resolved footage files (see :mod:`flylib.recordings`).
-    want_candidates
-        Also keep the top-K peaks (when pictorial structures is enabled).
+    params
+        The ``pose2d`` settings (precision, device, batch size, decode buffer, compile).
+    io
+        ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults).
+    k
+        Also keep the top-``k`` peaks per (view, point) (pictorial structures on);
+        ``None``: none.
     progress
         Show a progress bar.
     models
-        Already-loaded models (default: load them from the config's weights,
+        Already-loaded models (default: load them from the plan's weights,
         downloading the published checkpoint on first use).
 
     Returns
@@ -638,12 +679,9 @@ def detect_recording(
     FootageError
         If the footage is missing, corrupt or inconsistent across cameras.
     """
-    plan = DetectionPlan.from_config(config)
     if models is None:
-        models = load_models(plan, config, frames=_frame_count(plan, sources))
-    out = _detect(
-        config, plan, models, sources, want_candidates=want_candidates, k=None, progress=progress
-    )
+        models = load_models(plan, params, frames=_frame_count(plan, sources))
+    out = _detect(params, io or IoParams(), plan, models, sources, k=k, progress=progress)
     view_sources = plan.view_sources()
     image_sizes = {v: out.frame_sizes[s] for v, s in view_sources.items() if s in out.frame_sizes}
     from ..results import Pose2dData
@@ -653,7 +691,5 @@ def detect_recording(
         conf=out.conf,
         view_names=list(plan.view_names),
         image_sizes=image_sizes,
-        candidates=_candidates(out.candidates_xy, out.candidates_score)
-        if want_candidates
-        else None,
+        candidates=_candidates(out.candidates_xy, out.candidates_score) if k else None,
     )

@@ -1,0 +1,368 @@
+"""The pose2d stage: its inputs, the compute step, and the run that writes its files.
+
+``run_pose2d`` finds the 2D of one recording with :func:`compute_pose2d` (the
+detector over the recording's footage, or another tool's files when an import spec
+is in force) and writes ``<outdir>/stages/pose2d.h5`` and, while pictorial structures
+is on, the detector's candidate peaks beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..config.constants import _POSE2D_PLAN_KEYS
+from ..config.params import IoParams, PictorialParams, Pose2dParams
+from ..config.sources import feeding_sources, patterns_of
+from ..errors import FootageError, ResultsError
+from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
+from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Mapping
+
+    from ..config import Config
+    from ..interop.importer import ImportTarget
+    from ..results import Pose2dData
+
+__all__ = [
+    "Pose2dInputs",
+    "Pose2dRuntime",
+    "compute_pose2d",
+    "detection_plan",
+    "import_target",
+    "run_pose2d",
+]
+
+#: The detection plan's tables in the ``pose2d`` table (``import`` is tracked apart).
+PLAN_KEYS = tuple(key for key in _POSE2D_PLAN_KEYS if key != "import")
+#: The untracked ``pose2d`` settings (:class:`~flylib.config.params.Pose2dParams`).
+DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
+
+
+@dataclass(frozen=True)
+class Pose2dRuntime:
+    """The pose2d stage's untracked knobs: they change how fast it runs, never its
+    2D (defaults: :class:`~flylib.config.params.Pose2dParams`, ``IoParams``,
+    ``PictorialParams``).
+
+    Attributes
+    ----------
+    batch_size, decode_buffer, device, compile
+        ``pose2d.batch_size``, ``decode_buffer``, ``device``, ``compile``.
+    image_workers
+        ``io.image.workers`` (``None``: the reader chooses).
+    candidates_k
+        ``pictorial_structures.k``: the candidate peaks kept per (view, point); the
+        candidates file is named by it (``stages/candidates_k<k>.h5``), so it needs no
+        tracking here.
+    """
+
+    batch_size: int = Pose2dParams.batch_size
+    decode_buffer: int = Pose2dParams.decode_buffer
+    device: str = Pose2dParams.device
+    compile: bool | str = Pose2dParams.compile
+    image_workers: int | None = IoParams.image_workers
+    candidates_k: int = PictorialParams.k
+
+    @classmethod
+    def from_config(cls, config: Config) -> Pose2dRuntime:
+        """The knobs as ``config`` sets them."""
+        return cls(
+            **{knob: getattr(config.pose2d, knob) for knob in DETECTOR_KNOBS},
+            image_workers=config.io.image_workers,
+            candidates_k=int(config.pictorial.k),
+        )
+
+
+@register
+@dataclass(frozen=True)
+class Pose2dInputs(StageInputs):
+    """What the pose2d stage reads.
+
+    Attributes
+    ----------
+    sources
+        The ``sources`` list (``{name, filename?}`` entries, in order).
+    plan
+        The detection plan's ``pose2d`` tables (:data:`PLAN_KEYS`; absent ones ``None``).
+    precision
+        ``pose2d.precision``: the detector's forward precision.
+    import_spec
+        ``pose2d.import`` (``None``: the detector runs, unless the recording has its own).
+    point_names, views
+        The P and V axes.
+    on_corrupt_frame
+        ``io.on_corrupt_frame`` (tracked only when not ``"error"``, so the artifacts
+        made before it existed keep their params).
+    runtime
+        The untracked knobs (:class:`Pose2dRuntime`).
+    """
+
+    STAGE = "pose2d"
+
+    sources: tuple[Mapping[str, Any], ...]
+    plan: Mapping[str, Any]
+    precision: str
+    import_spec: Mapping[str, Any] | None
+    point_names: tuple[str, ...]
+    views: tuple[str, ...]
+    on_corrupt_frame: str = IoParams.on_corrupt_frame
+    runtime: Pose2dRuntime = Pose2dRuntime()
+
+    @classmethod
+    def from_config(cls, config: Config) -> Pose2dInputs:
+        """The stage's inputs as ``config`` gives them."""
+        pose2d = config.data.get("pose2d") or {}
+        return cls(
+            sources=frozen_mapping(config.data.get("sources") or []),
+            plan=frozen_mapping({key: pose2d.get(key) for key in PLAN_KEYS}),
+            precision=config.pose2d.precision,
+            import_spec=frozen_mapping(pose2d.get("import")),
+            point_names=SkeletonSpec.from_config(config).point_names,
+            views=tuple(config.view_names()),
+            on_corrupt_frame=config.io.on_corrupt_frame,
+            runtime=Pose2dRuntime.from_config(config),
+        )
+
+    @classmethod
+    def from_params(cls, params: Mapping, runtime: Pose2dRuntime | None = None) -> Pose2dInputs:
+        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
+        return cls(
+            sources=frozen_mapping(params["sources"]),
+            plan=frozen_mapping(params["plan"]),
+            precision=params["precision"],
+            import_spec=frozen_mapping(params["import"]),
+            point_names=tuple(params["point_names"]),
+            views=tuple(params["views"]),
+            on_corrupt_frame=params.get("on_corrupt_frame", IoParams.on_corrupt_frame),
+            runtime=runtime or Pose2dRuntime(),
+        )
+
+    def params(self) -> dict:
+        """The tracked params: sources, plan, precision, import spec, points, views, the
+        heatmap decoding convention, and ``on_corrupt_frame`` when not the default."""
+        return {
+            "sources": _json(self.sources),
+            "plan": _json(self.plan),
+            "precision": self.precision,
+            "import": _json(self.import_spec),
+            "point_names": list(self.point_names),
+            "views": list(self.views),
+            "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
+            # Present only when not the default, so existing artifacts keep their params.
+            **(
+                {"on_corrupt_frame": self.on_corrupt_frame}
+                if self.on_corrupt_frame != IoParams.on_corrupt_frame
+                else {}
+            ),
+            # Not the candidate peaks pictorial structures asks for: they are a
+            # separate pose2d output named by k (artifacts.candidates_artifact), which
+            # exists only while PS is on, so toggling PS or editing k with it off
+            # re-runs no detection.
+        }
+
+    def detector_params(self) -> Pose2dParams:
+        """The detector's settings: the tracked precision and the untracked knobs."""
+        return Pose2dParams(
+            precision=self.precision,
+            **{knob: getattr(self.runtime, knob) for knob in DETECTOR_KNOBS},
+        )
+
+    def io(self) -> IoParams:
+        """Frame reading: ``io.image.workers`` and ``io.on_corrupt_frame``."""
+        return IoParams(
+            image_workers=self.runtime.image_workers, on_corrupt_frame=self.on_corrupt_frame
+        )
+
+    def detection_plan(self) -> DetectionPlan:
+        """The parsed detection plan."""
+        return DetectionPlan.from_tables(
+            _json(self.sources), _json(self.plan), self.views, self.point_names
+        )
+
+    def source_patterns(self) -> dict[str, str]:
+        """``source -> footage glob`` (:func:`flylib.config.sources.patterns_of`)."""
+        return patterns_of(_json(self.sources))
+
+    def import_target(self) -> ImportTarget:
+        """The views, points and footage imported 2D is placed on."""
+        from ..interop.importer import ImportTarget
+
+        plan = _json(self.plan)
+        view_sources = feeding_sources(self.views, _json(self.sources), plan)
+        output_points = plan.get("output_points") or {}
+        return ImportTarget(
+            views=self.views,
+            point_names=self.point_names,
+            view_sources=view_sources,
+            source_patterns=self.source_patterns() if view_sources else {},
+            plan_points={
+                str(view): tuple(entries)
+                for view, entries in output_points.items()
+                if isinstance(entries, dict)
+            },
+        )
+
+
+def detection_plan(config: Config) -> DetectionPlan:
+    """The detection plan ``config`` gives (:meth:`Pose2dInputs.detection_plan`).
+
+    Raises
+    ------
+    ConfigError
+        Naming the key of any inconsistency in the plan's tables.
+    """
+    return Pose2dInputs.from_config(config).detection_plan()
+
+
+def import_target(config: Config) -> ImportTarget:
+    """What imported 2D is placed on under ``config`` (:meth:`Pose2dInputs.import_target`)."""
+    return Pose2dInputs.from_config(config).import_target()
+
+
+# Imported 2D may stray a little past the frame (a detector's edge peaks, sub-pixel
+# refinement); this much of a view's points beyond its frame by more than this fraction
+# of its size says the 2D was made on footage of another resolution.
+_OUTSIDE_MARGIN = 0.02
+_OUTSIDE_FRACTION = 0.01
+
+
+def _check_inside_frames(pose2d, recording_dir: Path) -> None:
+    """Refuse imported 2D whose points lie outside the footage they claim to be on.
+
+    Raises
+    ------
+    FootageError
+        Naming the view, its footage size and the extent of its points.
+    """
+    sizes = pose2d.image_sizes or {}
+    for v, view in enumerate(pose2d.view_names):
+        if view not in sizes:
+            continue
+        height, width = (int(n) for n in sizes[view])
+        xy = pose2d.pts2d[v].reshape(-1, 2)
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if not len(xy):
+            continue
+        limit = np.array([width, height], dtype=np.float64)
+        outside = ((xy < -_OUTSIDE_MARGIN * limit) | (xy > (1 + _OUTSIDE_MARGIN) * limit)).any(
+            axis=1
+        )
+        if outside.mean() > _OUTSIDE_FRACTION:
+            top = np.max(xy, axis=0)
+            raise FootageError(
+                f"{recording_dir}: camera {view}: footage is {width}x{height} px but "
+                f"{outside.mean():.0%} of its imported 2D lies outside that frame (up to "
+                f"x={top[0]:.0f}, y={top[1]:.0f}); the 2D was made on footage of another size: "
+                "use the footage it was made on, or re-run the 2D tool on this footage"
+            )
+
+
+def compute_pose2d(
+    inputs: Pose2dInputs,
+    recording_dir: str | Path,
+    *,
+    import_spec: Mapping | None = None,
+    candidates: bool = False,
+    progress: bool = False,
+) -> Pose2dData:
+    """The 2D keypoints of one recording: the detector over its footage, or another
+    tool's files when an import spec is in force (``import_spec``, else the inputs'
+    ``pose2d.import``). Reads the recording's files, writes nothing.
+
+    Parameters
+    ----------
+    inputs
+        The stage's inputs.
+    recording_dir
+        The recording directory (its footage, or the files to import).
+    import_spec
+        The recording's own import spec (``None``: the inputs').
+    candidates
+        Also keep the detector's top-K peaks (``runtime.candidates_k``).
+    progress
+        Show a progress bar while detecting.
+
+    Returns
+    -------
+    Pose2dData
+        ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``, view names, raw frame sizes and,
+        with ``candidates``, the peaks.
+
+    Raises
+    ------
+    FootageError
+        The recording's footage is missing, unreadable or inconsistent (naming it).
+    ResultsError
+        If candidates are asked for but the 2D is imported (other tools keep no peaks).
+    """
+    recording_dir = Path(recording_dir)
+    spec = _json(import_spec) if import_spec else _json(inputs.import_spec)
+    if spec:
+        if candidates:
+            raise ResultsError(
+                f"{recording_dir}: pictorial structures needs the detector's candidate peaks, "
+                f"but this recording's 2D is imported ({spec.get('format', 'another tool')}), "
+                "which keeps none; set pipeline.do_pictorial_structures: false"
+            )
+        from ..interop import import_points2d
+
+        data = import_points2d(inputs.import_target(), recording_dir, spec)
+        _check_inside_frames(data, recording_dir)
+        return data
+    from ..pose2d import detect_recording
+    from ..recordings import find_recording
+
+    sources = find_recording(recording_dir, inputs.source_patterns(), strict=True)
+    return detect_recording(
+        inputs.detection_plan(),
+        sources,
+        inputs.detector_params(),
+        io=inputs.io(),
+        k=inputs.runtime.candidates_k if candidates else None,
+        progress=progress,
+    )
+
+
+def run_pose2d(
+    inputs: Pose2dInputs,
+    recording_dir: str | Path,
+    out_path: str | Path,
+    *,
+    import_spec: Mapping | None = None,
+    progress: bool = False,
+    candidates_path: str | Path | None = None,
+) -> Path:
+    """Write one recording's 2D keypoints (:func:`compute_pose2d`) to ``out_path``.
+
+    With ``candidates_path`` (pictorial structures on) the detector's top-K peaks
+    (``pictorial_structures.k``) are written there too, as a ``candidates`` stage.
+    Raises what :func:`compute_pose2d` raises.
+    """
+    from ..provenance import stage_provenance
+    from ..skeleton import Skeleton
+
+    data = compute_pose2d(
+        inputs,
+        recording_dir,
+        import_spec=import_spec,
+        candidates=candidates_path is not None,
+        progress=progress,
+    )
+    provenance = stage_provenance(inputs.canonical_params(), "pose2d")
+    candidates, data.candidates = data.candidates, None
+    if candidates is not None:
+        from ..results import save_candidates
+
+        save_candidates(
+            candidates_path, candidates, meta={**provenance, "k": int(inputs.runtime.candidates_k)}
+        )
+    # the skeleton as this stage tracks it: its points only
+    data.save(
+        out_path, Skeleton.from_spec({"point_names": list(inputs.point_names)}), meta=provenance
+    )
+    return Path(out_path)
