@@ -16,6 +16,7 @@ from flylib.bundle_adjustment.lm import ReducedSystem, block_structure, solve_lm
 from flylib.bundle_adjustment.reseed import radial_folds, reseed_gross_cameras
 from flylib.config import Config
 from flylib.errors import ConfigError
+from flylib.pipeline.inputs import stage_params
 
 from rough_rig import (
     LEG_POINTS,
@@ -260,7 +261,7 @@ def test_new_keys_are_validated_and_reach_stage_params():
             },
         }
     )
-    params = config.stage_params("bundle_adjustment")["bundle_adjustment"]
+    params = stage_params(config, "bundle_adjustment")["bundle_adjustment"]
     assert params["solver"] == "lm" and params["symmetric_bones"] is True
     assert "rigid_points" in params and "distortion" in params
     with pytest.raises(ConfigError, match="bundle_adjustment.solver"):

@@ -15,6 +15,7 @@ from flylib.cameras import CameraGroup
 from flylib.cli import main, summarize_results
 from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml
+from flylib.pipeline.inputs import stage_params
 from flylib.pipeline.planning import params_of
 from flylib.pipeline.pose2d import import_target
 from flylib.provenance import PARAMS_KEY, params_hash, provenance_report
@@ -104,7 +105,7 @@ def test_inspect_provenance_covers_refinement(result_file, tmp_path, capsys):
     path, _ = result_file
     default = REPO / "config" / "config.yaml"
     config = Config.from_file(default)
-    own = params_hash(config.stage_params("refinement"))
+    own = params_hash(stage_params(config, "refinement"))
     with h5py.File(path, "a") as f:  # what assemble copies from stages/refinement.h5
         f.create_group("refinement").attrs["meta"] = json.dumps({PARAMS_KEY: own})
     rows = {row.stage: row for row in provenance_report(path, params_of(config))}

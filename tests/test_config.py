@@ -14,6 +14,7 @@ import tomli_w
 
 from flylib.config import DEFAULT_CONFIG_PATH, PARAM_STAGES, STAGE_DEFAULTS, STAGES, Config
 from flylib.errors import ConfigError
+from flylib.pipeline.inputs import stage_params
 from flylib.skeleton import Skeleton
 
 from rig_constants import DISTANCE, VIEWS
@@ -32,7 +33,7 @@ def data(default) -> dict:
 
 
 def all_params(config: Config) -> dict:
-    return {stage: config.stage_params(stage) for stage in PARAM_STAGES}
+    return {stage: stage_params(config, stage) for stage in PARAM_STAGES}
 
 
 # -- the default config --------------------------------------------------------
@@ -248,7 +249,7 @@ def test_toggling_pictorial_leaves_pose2d_params_alone(default, data):
     # touches pose2d's params
     data["pipeline"]["do_pictorial_structures"] = True
     config = Config.from_dict(data)
-    assert config.stage_params("triangulation")["points_from"] == "pictorial_structures"
+    assert stage_params(config, "triangulation")["points_from"] == "pictorial_structures"
     assert changed_stages(default, config) == {"triangulation"}
     data["pictorial_structures"]["k"] = 8
     assert changed_stages(config, Config.from_dict(data)) == {"pictorial_structures"}
@@ -278,7 +279,7 @@ def test_camera_order_is_part_of_the_params(default, data):
 
 def test_unknown_stage_is_rejected(default):
     with pytest.raises(ValueError, match="unknown stage 'pose3d'"):
-        default.stage_params("pose3d")
+        stage_params(default, "pose3d")
 
 
 # -- validation ------------------------------------------------------------------

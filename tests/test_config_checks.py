@@ -25,6 +25,7 @@ from flylib.config.constants import _POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from flylib.config.layers import ConfigLayers, key_path
 from flylib.config.params import _LEAST_SQUARES_CHECKS
 from flylib.errors import ConfigError
+from flylib.pipeline.inputs import stage_params
 from flylib.preflight import model_weights, preflight_problems
 from flylib.recordings import Recording
 
@@ -228,7 +229,7 @@ def test_weights_key_sets_a_checkpoint_without_restating_the_model(default_data,
     config = Config.from_dict(edit(default_data, "pose2d.weights", {"deepfly2d": str(checkpoint)}))
     assert config.detection_plan().models["deepfly2d"].weights == str(checkpoint)
     assert model_weights(config) == {"deepfly2d": str(checkpoint)}
-    assert config.stage_params("pose2d")["plan"]["weights"] == {"deepfly2d": str(checkpoint)}
+    assert stage_params(config, "pose2d")["plan"]["weights"] == {"deepfly2d": str(checkpoint)}
     assert preflight_problems(config, [recording(tmp_path)], config.stage_flags()) == []
 
 

@@ -16,7 +16,7 @@ from flylib import io
 from flylib.config import Config
 from flylib.errors import FootageError, ImportFormatError
 from flylib.io.images import image_damage
-from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.pose2d import import_target
 
 
@@ -134,9 +134,9 @@ def test_missing_frames_are_part_of_pose2d_params_only_when_asked():
     from flylib.config import Config
 
     data = copy.deepcopy(dict(Config.default().data))
-    assert "on_corrupt_frame" not in Config.from_dict(data).stage_params("pose2d")
+    assert "on_corrupt_frame" not in stage_params(Config.from_dict(data), "pose2d")
     data["io"]["on_corrupt_frame"] = "missing"
-    assert Config.from_dict(data).stage_params("pose2d")["on_corrupt_frame"] == "missing"
+    assert stage_params(Config.from_dict(data), "pose2d")["on_corrupt_frame"] == "missing"
     data["io"]["on_corrupt_frame"] = "skip"
     from flylib.errors import ConfigError
 

@@ -20,7 +20,7 @@ import yaml
 from flylib.cli import main as flylib_main
 from flylib.config import Config
 from flylib.errors import OutputError, ResultsError
-from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.planning import params_of
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import (
@@ -318,7 +318,7 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     config = _config(tmp_path, "config.yaml")
     recording, out = _small_run(tmp_path, config)
     expected = {
-        stage: params_hash(config.stage_params(stage))
+        stage: params_hash(stage_params(config, stage))
         for stage in ("pose2d", "triangulation", "assemble")
     }
     assert read_meta(out / "stages" / "pose2d.h5")["params_sha256"] == expected["pose2d"]
@@ -429,7 +429,7 @@ def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
     data["triangulation"]["ransac_threshold"] = 7.5
     _snakemake(tmp_path, data, "--omit-from", "assemble")
     assert read_meta(out / "stages" / "triangulation.h5")["params_sha256"] == params_hash(
-        Config.from_dict(data).stage_params("triangulation")
+        stage_params(Config.from_dict(data), "triangulation")
     )
     assert (out / "config.yaml").read_bytes() == first
     assert (out / "results.h5").read_bytes() == results_before

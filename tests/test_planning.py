@@ -99,6 +99,6 @@ def test_params_of_gives_each_stages_tracked_params_or_none_for_a_stage_not_run(
 def test_stage_provenance_hashes_the_params_and_refuses_a_config(default):
     params = stage_params(default, "triangulation")
     meta = stage_provenance(params, "triangulation")
-    assert meta[PARAMS_KEY] == params_hash(default.stage_params("triangulation"))
+    assert meta[PARAMS_KEY] == params_hash(stage_params(default, "triangulation"))
     with pytest.raises(TypeError, match=r"stage_params\(config, 'triangulation'\)"):
         stage_provenance(default, "triangulation")

@@ -309,7 +309,7 @@ def test_a_copied_artifact_with_other_params_is_named_and_an_equal_params_strang
 def _hash(config) -> str:
     from flylib.provenance import params_hash
 
-    return params_hash(config.stage_params("triangulation"))
+    return params_hash(stage_params(config, "triangulation"))
 
 
 def _pose2d_artifact(path: Path, config) -> Path:

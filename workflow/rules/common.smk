@@ -73,16 +73,6 @@ if sum(r.demo for r in RECORDINGS) > 1:
     stop_run("recordings: more than one {demo: true} entry; list the demo once")
 
 
-def job_config(wildcards, input):
-    """A rule's `params.config`: the run's Config, handed to the stage script.
-
-    What the job computes from it is tracked by `params.stage`; this is a *derived*
-    param (a function of the job's input), which Snakemake leaves out of its re-run
-    provenance, so it re-runs nothing by itself.
-    """
-    return CONFIG
-
-
 BY_OUTDIR = {str(r.outdir): r for r in RECORDINGS}
 
 # Artifacts another working directory's run wrote with other params (issue 13).

@@ -5,11 +5,9 @@ file, its exact text (:attr:`Config.text`) so the run can snapshot it byte-for-b
 Every constructor validates: all problems are collected and raised together as one
 :class:`~flylib.errors.ConfigError`, one line per problem, each naming its key path.
 
-:meth:`Config.stage_params` gives, per workflow stage, the exact subset of the config
-that affects that stage's result (JSON-serialisable, deterministic), so the workflow
-re-runs a stage exactly when one of its parameters changes. Performance-only knobs
-(``pose2d.batch_size``, ``decode_buffer``, ``device``, ``compile``, ``io.*``) never
-appear in it.
+What each workflow stage reads of a config, and so what re-runs it, is its inputs
+object's params (:mod:`flylib.pipeline.inputs`): the config stops at the pipeline
+layer; below it, algorithms take arrays and the typed ``*Params`` views.
 
 Modules: :mod:`.constants` (stage lists, known keys, :data:`DEFAULT_CONFIG_PATH`),
 :mod:`.checks` (value checks), :mod:`.params` (the ``*Params`` dataclasses),

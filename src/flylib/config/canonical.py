@@ -1,4 +1,4 @@
-"""Canonical forms for ``Config.stage_params`` (JSON) and the snapshot of a dict config (YAML)."""
+"""Canonical forms for a stage's tracked params (JSON, :mod:`flylib.pipeline.inputs`) and the snapshot of a dict config (YAML)."""
 
 from __future__ import annotations
 

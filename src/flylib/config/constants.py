@@ -26,7 +26,7 @@ STAGE_DEFAULTS: dict[str, bool] = {
     "neuromechfly": False,
     "visualization": True,
 }
-#: The workflow rules that :meth:`Config.stage_params` describes.
+#: The workflow rules whose params a stage's inputs object states (:mod:`flylib.pipeline.inputs`).
 PARAM_STAGES: tuple[str, ...] = (
     "pose2d",
     "bundle_adjustment",

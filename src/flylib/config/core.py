@@ -3,23 +3,18 @@
 from __future__ import annotations
 
 import copy
-import json
 from collections.abc import Mapping
-from dataclasses import asdict, fields
+from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
 
 from ..errors import ConfigError
-from ..pose2d.plan import DECODING_CONVENTION
-from ..skeleton import Skeleton, default_skeleton_table
-from .canonical import _canonical, _plain
+from ..skeleton import Skeleton
+from .canonical import _plain
 from .constants import (
-    _LEAST_SQUARES_PERF,
-    _POSE2D_PLAN_KEYS,
     DEFAULT_CONFIG_PATH,
-    PARAM_STAGES,
     STAGE_DEFAULTS,
     STAGES,
 )
@@ -285,145 +280,9 @@ class Config:
         flags["neuromechfly"] &= flags["triangulation"] or flags["pictorial_structures"]
         return flags
 
-    def stage_params(self, stage: str) -> dict:
-        """The exact config subset that affects ``stage``'s result.
-
-        Deterministic and JSON-serialisable; performance-only knobs never appear, so
-        changing them re-runs nothing.
-
-        - ``pose2d``: sources, detection plan, precision, import spec, skeleton point
-          names and view names (the V axis). Not the camera geometry, and nothing of
-          pictorial structures: the candidate peaks it needs are an extra output of
-          the same detection, named by their ``k``.
-        - ``bundle_adjustment``: its table, the rig, the skeleton's points and limbs.
-        - ``pictorial_structures``: its table, the skeleton's points and limbs, and the
-          config rig when bundle adjustment is off (otherwise the rig arrives in the
-          bundle-adjustment artifact).
-        - ``triangulation``: the method and the knobs that method reads, where its 2D
-          comes from, and the config rig when bundle adjustment is off.
-        - ``refinement``: its table, the skeleton's points and limbs, and the config rig
-          when bundle adjustment is off.
-        - ``kinematics``: its table and the skeleton's points and limbs.
-        - ``neuromechfly``: its table and the skeleton's points and limbs.
-        - ``assemble``: the rig and the whole skeleton (palette included).
-        - ``visualization``: the visualization table and the skeleton palette.
-
-        Parameters
-        ----------
-        stage
-            One of :data:`PARAM_STAGES`.
-
-        Returns
-        -------
-        dict
-            The parameters, with mapping keys in sorted order.
-        """
-        flags = self.stage_flags()
-        if stage == "pose2d":
-            pose2d = self.data.get("pose2d") or {}
-            params: dict[str, Any] = {
-                "sources": self.data.get("sources") or [],
-                "plan": {key: pose2d.get(key) for key in _POSE2D_PLAN_KEYS if key != "import"},
-                "precision": self.pose2d.precision,
-                "import": pose2d.get("import"),
-                "point_names": list(self._point_names()),
-                "views": self.view_names(),
-                "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
-                # Present only when not the default, so existing artifacts keep their params.
-                **(
-                    {"on_corrupt_frame": self.io.on_corrupt_frame}
-                    if self.io.on_corrupt_frame != "error"
-                    else {}
-                ),
-                # Not the candidate peaks pictorial structures asks for: they are a
-                # separate pose2d output named by k (stages.candidates_artifact), which
-                # exists only while PS is on, so toggling PS or editing k with it off
-                # re-runs no detection.
-            }
-        elif stage == "bundle_adjustment":
-            ba = asdict(self.bundle_adjustment)
-            ba["least_squares"] = {
-                k: v for k, v in ba["least_squares"].items() if k not in _LEAST_SQUARES_PERF
-            }
-            params = {
-                "bundle_adjustment": ba,
-                "rig": self._rig(),
-                "skeleton": self._skeleton_structure(),
-            }
-        elif stage == "pictorial_structures":
-            params = {
-                "pictorial_structures": asdict(self.pictorial),
-                "skeleton": self._skeleton_structure(),
-                "rig": None if flags["bundle_adjustment"] else self._rig(),
-            }
-        elif stage == "triangulation":
-            params = {
-                "triangulation": self.triangulation.method_params(),
-                # the held-out accuracy's bone spread and left/right figures
-                "skeleton": self._skeleton_structure(),
-                "points_from": "pictorial_structures"
-                if flags["pictorial_structures"]
-                else "pose2d",
-                "rig": None if flags["bundle_adjustment"] else self._rig(),
-            }
-        elif stage == "refinement":
-            params = {
-                "refinement": asdict(self.refinement),
-                # the held-out-view check re-runs the triangulation without each view
-                "triangulation": self.triangulation.method_params(),
-                "skeleton": self._skeleton_structure(),
-                "rig": None if flags["bundle_adjustment"] else self._rig(),
-            }
-        elif stage == "kinematics":
-            params = {"kinematics": asdict(self.kinematics), "skeleton": self._skeleton_structure()}
-        elif stage == "neuromechfly":
-            params = {
-                "neuromechfly": asdict(self.neuromechfly),
-                "skeleton": self._skeleton_structure(),
-            }
-        elif stage == "assemble":
-            params = {
-                "rig": self._rig(),
-                "skeleton": {
-                    **self._skeleton_structure(),
-                    "palette": self._palette(),
-                    "name": self._skeleton_name(),
-                },
-            }
-        elif stage == "visualization":
-            params = {"visualization": self.visualization, "palette": self._palette()}
-        else:
-            raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
-        canonical = _canonical(params)
-        json.dumps(canonical)  # fail here, not in the workflow, if something is not JSON-able
-        return canonical
-
     def _point_names(self) -> tuple[str, ...]:
         spec = self.data.get("skeleton")
         return tuple(spec["point_names"]) if spec else _default_point_names()
-
-    def _skeleton_spec(self) -> Mapping:
-        return self.data.get("skeleton") or default_skeleton_table()
-
-    def _skeleton_structure(self) -> dict:
-        limbs = self._skeleton_spec().get("limb_points") or {}
-        return {
-            "point_names": list(self._point_names()),
-            "limbs": [[k, list(v)] for k, v in limbs.items()],
-        }
-
-    def _palette(self) -> dict:
-        return dict(self._skeleton_spec().get("limb_palette") or {})
-
-    def _skeleton_name(self) -> str:
-        return str(self._skeleton_spec().get("name", "skeleton"))
-
-    def _rig(self) -> dict:
-        return {
-            "views": self.view_names(),
-            "cameras": self.data.get("cameras") or {},
-            "calibration": self.data.get("calibration"),
-        }
 
     # -- structured sections ---------------------------------------------------
 

@@ -20,7 +20,7 @@ import numpy as np
 from ..config.constants import _LEAST_SQUARES_PERF
 from ..config.params import BundleAdjustmentParams, _build_params
 from .inputs import RigSpec, SkeletonSpec, StageInputs, frozen_mapping, register
-from .stages import _image_sizes, _solving
+from .stage_helpers import _image_sizes, _solving
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float

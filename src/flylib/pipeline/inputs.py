@@ -289,17 +289,19 @@ def register(cls: T) -> T:
     return cls
 
 
-def inputs_class(stage: str) -> type[StageInputs] | None:
-    """The registered inputs class of ``stage`` (importing its home), or ``None``."""
+def inputs_class(stage: str) -> type[StageInputs]:
+    """The inputs class of ``stage`` (importing its home on first use).
+
+    Raises
+    ------
+    ValueError
+        For an unknown stage.
+    """
     if stage not in PARAM_STAGES:
         raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
     if stage not in INPUTS:
-        try:
-            importlib.import_module(HOMES[stage])
-        except ModuleNotFoundError as exc:
-            if exc.name != HOMES[stage]:
-                raise
-    return INPUTS.get(stage)
+        importlib.import_module(HOMES[stage])
+    return INPUTS[stage]
 
 
 def stage_inputs(config: Config, stage: str) -> StageInputs:
@@ -310,33 +312,21 @@ def stage_inputs(config: Config, stage: str) -> StageInputs:
     ValueError
         For an unknown stage.
     """
-    cls = inputs_class(stage)
-    if cls is None:
-        raise ValueError(f"stage {stage!r} has no inputs class yet")
-    return cls.from_config(config)
+    return inputs_class(stage).from_config(config)
 
 
 def stage_params(config: Config, stage: str) -> dict:
     """The params ``stage``'s rule tracks under ``config`` (canonical JSON)."""
-    cls = inputs_class(stage)
-    if cls is None:  # a stage not yet converted: the config's own statement
-        return config.stage_params(stage)
-    return cls.from_config(config).canonical_params()
+    return stage_inputs(config, stage).canonical_params()
 
 
 def stage_runtime(config: Config, stage: str) -> Any:
     """The untracked runtime part of ``stage``'s inputs under ``config``."""
-    cls = inputs_class(stage)
-    if cls is None:
-        return None
-    return cls.from_config(config).runtime_options
+    return inputs_class(stage).from_config(config).runtime_options
 
 
 def inputs_from_job(stage: str, params_json: str | Mapping, runtime: Any) -> StageInputs:
     """A Snakemake job's inputs: rebuilt from the rule's tracked ``params.stage`` (JSON
     text) and its untracked ``params.runtime``."""
-    cls = inputs_class(stage)
-    if cls is None:
-        raise ValueError(f"stage {stage!r} has no inputs class yet")
     params = json.loads(params_json) if isinstance(params_json, str) else params_json
-    return cls.from_params(params, runtime)
+    return inputs_class(stage).from_params(params, runtime)

@@ -264,7 +264,7 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     StageError
         If the computation fails on the recording's data.
     """
-    from .stages import _solving
+    from .stage_helpers import _solving
 
     with _solving(STAGE, results_path):
         result = results_3d(results_path, STAGE)

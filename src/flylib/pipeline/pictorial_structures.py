@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from ..config.params import PictorialParams, _build_params
 from ..errors import ResultsError
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stages import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping

@@ -16,7 +16,7 @@ from ..config import Config
 from ..recordings import Recording, demo_import_spec, plan_listing
 from .inputs import RigSpec, stage_params
 
-__all__ = ["calibration_inputs", "config_rig", "params_of", "plan_recordings", "tracked_params"]
+__all__ = ["calibration_inputs", "config_rig", "params_of", "plan_recordings"]
 
 
 def plan_recordings(config: Config, *, check_frames: bool = True) -> list[Recording]:
@@ -71,18 +71,6 @@ def params_of(config: Config, *, run_only: bool = False) -> Callable[[str], dict
     return lookup
 
 
-def tracked_params(config: Config, stage: str) -> dict:
-    """The params ``stage``'s rule tracks under ``config``
-    (:func:`flylib.pipeline.inputs.stage_params`; a stage's view of the config,
-    :class:`~flylib.pipeline.tracked.StageConfig`, holds them computed from the full
-    config), for the stage artifact's provenance."""
-    from .tracked import StageConfig
-
-    if isinstance(config, StageConfig):
-        return config.stage_params(stage)
-    return stage_params(config, stage)
-
-
 def config_rig(
     config: Config,
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
@@ -91,22 +79,7 @@ def config_rig(
     """The rig the config describes: its ``calibration`` file when set, else the orbit
     parameters of ``cameras`` (principal points from ``image_sizes`` where not given);
     :meth:`RigSpec.camera_group` of the config's rig.
-
-    Raises
-    ------
-    ConfigError
-        For a stage's view of the config (:class:`~flylib.pipeline.tracked.StageConfig`)
-        whose rig comes from the bundle-adjustment artifact (bundle adjustment is on), so
-        that its rule does not track the config rig.
     """
-    from ..errors import ConfigError
-    from .tracked import StageConfig
-
-    if isinstance(config, StageConfig) and not config.tracks("cameras"):
-        raise ConfigError(
-            f"{config.stage}: bundle adjustment is on (pipeline.do_bundle_adjustment), so the rig "
-            "comes from its artifact: pass it (--bundle-adjustment) or turn bundle adjustment off"
-        )
     return RigSpec.from_config(config).camera_group(image_sizes, recording_dir)
 
 

@@ -49,7 +49,7 @@ from ..paths import atomic_path
 from ..refinement.setup import options_from_params
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stages import RigRuntime, rig_from_params, rig_params, tracked_rig
+from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..cameras import CameraGroup
@@ -253,7 +253,7 @@ def run_refinement(
     """
     from ..provenance import stage_provenance
     from ..results import _new_meta, open_checked
-    from .stages import _solving
+    from .stage_helpers import _solving
 
     with _solving(STAGE, recording_dir or triangulation_path):
         cameras = _rig(inputs, pose2d_path, ba_path, recording_dir)

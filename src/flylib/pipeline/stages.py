@@ -1,14 +1,12 @@
-"""One function per workflow stage: read the upstream artifact(s) and the config, call
-the library, write the stage's artifact atomically.
+"""Every workflow stage's function, importable from one place.
 
-These are what the command scripts in ``scripts/`` (and so the Snakemake rules) run,
-and what a library user can call to reproduce one step by hand. The functions here take
-paths and a :class:`~flylib.config.Config`, and run on the part of it their rule tracks
-(:class:`~flylib.pipeline.tracked.StageConfig`: reading any other key raises); the
-geometry stages live in their own homes (:mod:`flylib.pipeline.bundle_adjustment`,
-:mod:`~flylib.pipeline.pictorial_structures`, :mod:`~flylib.pipeline.triangulation`)
-and take their inputs object (:mod:`flylib.pipeline.inputs`) instead. None decides
-*whether* it should run (the workflow does, from the rule's params and inputs).
+Each stage has one home, ``flylib.pipeline.<stage>``: its frozen inputs object
+(:mod:`flylib.pipeline.inputs`), ``compute_<stage>`` where it has a pure step (arrays
+and inputs in, a result object out) and ``run_<stage>(inputs, paths...)``, which loads
+the upstream artifact(s), computes and writes the stage's artifact atomically. These are
+what the command scripts in ``scripts/`` (and so the Snakemake rules) run, and what a
+library user calls to reproduce one step by hand; none decides *whether* it should run
+(the workflow does, from the rule's params and inputs).
 
 =====================  ==========================================  ===============================
 stage                  reads                                       writes
@@ -32,161 +30,29 @@ stage                  reads                                       writes
 =====================  ==========================================  ===============================
 """
 
-from __future__ import annotations
+from .assemble import run_assemble, write_snapshot
+from .bundle_adjustment import run_bundle_adjustment
+from .demo import run_demo
+from .kinematics import run_kinematics
+from .neuromechfly import run_neuromechfly
+from .pictorial_structures import run_pictorial_structures
+from .pose2d import run_pose2d
+from .refinement import run_refinement
+from .stage_helpers import run_inputs
+from .triangulation import run_triangulation
+from .visualization import run_visualization
 
-import logging
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
-from pathlib import Path
-
-from ..errors import FlylibError, ResultsError, StageError, one_line
-
-# the stages with their own home, importable from here as before
-from .assemble import run_assemble, write_snapshot  # noqa: F401
-from .demo import run_demo  # noqa: F401
-from .planning import tracked_params
-from .pose2d import run_pose2d  # noqa: F401
-from .tracked import StageConfig, UntrackedConfigRead
-from .visualization import run_visualization  # noqa: F401
-
-log = logging.getLogger(__name__)
-
-
-# -- helpers -------------------------------------------------------------------
-
-
-def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
-    return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
-
-
-@dataclass(frozen=True)
-class RigRuntime:
-    """The untracked part of a stage that builds the config rig.
-
-    Attributes
-    ----------
-    config_dir
-        Where a relative calibration path is looked up after the recording's folder
-        (the config file's folder; :attr:`~flylib.pipeline.inputs.RigSpec.config_dir`).
-    """
-
-    config_dir: Path | None = None
-
-    @classmethod
-    def from_config(cls, config) -> RigRuntime:
-        """The config file's folder (``None`` for a config made from a dict)."""
-        return cls(config_dir=Path(config.source).parent if config.source else None)
-
-
-def tracked_rig(config):
-    """The config rig a stage after bundle adjustment tracks: ``None`` while bundle
-    adjustment is on (the rig is then in that stage's artifact), else a
-    :class:`~flylib.pipeline.inputs.RigSpec`."""
-    from .inputs import RigSpec
-
-    return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
-
-
-def rig_from_params(table, runtime: RigRuntime):
-    """Inverse of :func:`rig_params`: the tracked rig table (or ``None``) as a
-    :class:`~flylib.pipeline.inputs.RigSpec` looking up calibrations in the runtime's
-    ``config_dir``."""
-    from .inputs import RigSpec
-
-    return RigSpec.from_params(table, runtime.config_dir) if table else None
-
-
-def rig_params(rig) -> dict | None:
-    """A stage's tracked ``rig``: the :class:`~flylib.pipeline.inputs.RigSpec`'s params,
-    or ``None`` while the rig comes from the bundle-adjustment artifact."""
-    return rig.params() if rig is not None else None
-
-
-def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
-    """The bundle-adjusted rig when that artifact is given, else the config rig
-    (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
-
-    Raises
-    ------
-    ResultsError
-        When the stage's params hold no rig (bundle adjustment on) and no
-        bundle-adjustment artifact is given.
-    """
-    if ba_path:
-        from ..results import read_stage
-
-        return read_stage(ba_path, "bundle_adjustment")["cameras"]
-    if rig is None:
-        raise ResultsError(
-            f"{stage.replace('_', ' ')}: bundle adjustment is on, so the rig comes from its "
-            "artifact, and none was given; pass it (--bundle-adjustment) or set "
-            "pipeline.do_bundle_adjustment: false"
-        )
-    return rig.camera_group(_image_sizes(pose2d), recording_dir)
-
-
-def run_inputs(config, stage: str, ba_path: str | Path | None = None):
-    """``stage``'s inputs for a run with or without a bundle-adjustment artifact
-    (``ba_path``): without one the rig is the config's even while bundle adjustment is
-    on, as with it off (so the params track that rig). What a stage script run by hand
-    without ``--bundle-adjustment`` uses, and tests that run a stage on its own."""
-    from .inputs import stage_inputs
-
-    return stage_inputs(_rig_source(config, ba_path), stage)
-
-
-def _rig_source(config, ba_path):
-    """``config`` as the stage runs it: without a bundle-adjustment artifact the rig is
-    the config's, as with bundle adjustment off (so the params track that rig)."""
-    if ba_path or isinstance(config, StageConfig) or not config.stage_flags()["bundle_adjustment"]:
-        return config
-    data = dict(config.data)
-    data["pipeline"] = {**(data.get("pipeline") or {}), "do_bundle_adjustment": False}
-    return type(config)(data, text=config.text, source=config.source, format=config.format)
-
-
-def _provenance(config, stage: str, **upstream) -> dict:
-    """The params hash of ``stage`` and those of the artifacts it read (meta entries)."""
-    from ..provenance import stage_provenance
-
-    return stage_provenance(tracked_params(config, stage), stage, upstream)
-
-
-#: What to check when a numerical stage fails on a recording's data, per stage.
-_CHECK = {
-    "bundle_adjustment": "check its 2D (are the views' points of one fly, in raw-frame pixels?) "
-    "and the starting rig (cameras, calibration.file), or set "
-    "pipeline.do_bundle_adjustment: false",
-    "pictorial_structures": "check the detector's 2D and the rig, or set "
-    "pipeline.do_pictorial_structures: false",
-    "triangulation": "check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
-    "result, cameras, calibration.file)",
-    "refinement": "check triangulation's 3D (flylib inspect) and the refinement settings, or "
-    "set pipeline.do_refinement: false",
-    "kinematics": "check the 3D in results.h5 (flylib inspect), or set "
-    "pipeline.do_kinematics: false",
-}
-
-
-@contextmanager
-def _solving(stage: str, recording) -> Iterator[None]:
-    """The stage boundary of a numerical stage: any exception its solver raises on the
-    recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
-    :class:`StageError` line naming the recording and what to check. flylib's own errors,
-    storage errors (``OSError``) and :class:`UntrackedConfigRead` (a bug in the stage,
-    not the data) pass unchanged; the original is kept as the error's cause and its
-    traceback logged at DEBUG."""
-    try:
-        yield
-    except (FlylibError, OSError, UntrackedConfigRead):
-        raise  # flylib's own lines; storage errors; a stage reading a key it does not track
-    except Exception as exc:
-        log.debug("%s failed on %s", stage, recording, exc_info=True)
-        raise StageError(
-            f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
-            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {_CHECK[stage]}"
-        ) from exc
-
-
-# -- stages --------------------------------------------------------------------
+__all__ = [
+    "run_assemble",
+    "run_bundle_adjustment",
+    "run_demo",
+    "run_inputs",
+    "run_kinematics",
+    "run_neuromechfly",
+    "run_pictorial_structures",
+    "run_pose2d",
+    "run_refinement",
+    "run_triangulation",
+    "run_visualization",
+    "write_snapshot",
+]

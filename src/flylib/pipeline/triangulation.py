@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config.params import TriangulationParams, _build_params
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stages import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping

@@ -1,8 +1,11 @@
-"""Tracked = read: a stage reads only config its rule tracks (flylib.pipeline.tracked).
+"""Untracked = unused: a stage's artifact is bit-identical when every config key its
+params do not hold changes at once.
 
-Two halves: every path a stage may read is tracked (changing it changes the stage's
-params, so Snakemake re-runs the stage), and a stage's artifact is bit-identical
-when every config key it may not read changes at once.
+A stage reads only its inputs object (:mod:`flylib.pipeline.inputs`), which a job
+rebuilds from the params its rule tracks plus the untracked, speed-only runtime
+(``tests/test_stage_inputs.py``). Here the other half: change every key of the config
+that leaves the stage's params unchanged (where the config stays valid) and run the
+stage again on the same upstream artifacts; every dataset must come out the same.
 """
 
 from __future__ import annotations
@@ -13,21 +16,14 @@ import h5py
 import numpy as np
 import pytest
 
-from flylib.config import PARAM_STAGES, Config
+from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.pipeline import stages
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
-from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.kinematics import run_kinematics
 from flylib.pipeline.neuromechfly import run_neuromechfly
 from flylib.pipeline.refinement import run_refinement
-from flylib.pipeline.tracked import (
-    UNTRACKED,
-    StageConfig,
-    UntrackedConfigRead,
-    stage_reads,
-    upstream_reads,
-)
 from flylib.pipeline.triangulation import run_triangulation
 
 _CHOICES = (
@@ -92,98 +88,15 @@ def _set(data, path, value):
     return out
 
 
-def _under(path: tuple, declared: str) -> bool:
-    parts = tuple(declared.partition(":")[0].split("."))
-    return path[: len(parts)] == parts
-
-
-def _params(data, stage):
-    """``stage``'s params of ``data``, without validating the whole config (a change to
-    one key need not make a consistent config to show whether the params carry it)."""
-    config = object.__new__(Config)
-    config.data, config.text, config.source, config.format = data, None, None, "yaml"
-    try:
-        return config.stage_params(stage)
-    except (ConfigError, ValueError, TypeError, KeyError, AttributeError):
-        return None
-
-
-def _variants():
-    """``(name, data)``: the default config, with bundle adjustment on and off."""
-    data = Config.default().data
-    off = copy.deepcopy(data)
-    off["pipeline"]["do_bundle_adjustment"] = False
-    return [("ba_on", data), ("ba_off", off)]
-
-
-def _renamed_keys(data, path):
-    """The config with the mapping at ``path`` holding one key renamed."""
-    node = data
-    for key in path:
-        node = node[key]
-    first = next(k for k in node if k != "defaults")
-    renamed = {("renamed" if k == first else k): v for k, v in node.items()}
-    return _set(data, path, renamed)
-
-
-@pytest.mark.parametrize("variant", ["ba_on", "ba_off"])
-@pytest.mark.parametrize("stage", PARAM_STAGES)
-@pytest.mark.slow  # >15 s on the shared 2-core machine
-def test_every_path_a_stage_reads_is_tracked(stage, variant):
-    data = dict(_variants())[variant]
-    config = Config.from_dict(data)
-    upstream = upstream_reads(stage)
-    untracked_why = UNTRACKED.get(stage, {})
-    for declared in stage_reads(config, stage):
-        if declared in untracked_why:
-            continue
-        owner = upstream.get(declared, stage)
-        base = config.stage_params(owner)
-        path = tuple(declared.partition(":")[0].split("."))
-        if declared.endswith(":names"):
-            try:
-                changed = _params(_renamed_keys(data, path), owner)
-            except (KeyError, StopIteration):
-                continue  # not in this config (e.g. no output_points)
-            assert changed != base, f"{stage}: renaming a key of {declared} leaves {owner}'s params"
-            continue
-        leaves = [(p, v) for p, v in _leaves(data) if _under(p, declared)] or [(path, None)]
-        for leaf, value in leaves:
-            if any(_under(leaf, u) for u in untracked_why):
-                continue
-            results = [_params(_set(data, leaf, c), owner) for c in _candidates(value)]
-            results = [r for r in results if r is not None]
-            assert results, f"{stage}: no valid change of {'.'.join(leaf)} to try"
-            assert any(r != base for r in results), (
-                f"{stage} reads {'.'.join(leaf)} (declared {declared}) but {owner}'s params do not track it"
-            )
-
-
-def test_a_stage_cannot_read_an_untracked_key():
-    view = StageConfig.for_stage(Config.default(), "triangulation")
-    with pytest.raises(UntrackedConfigRead, match=r"'triangulation' read config key 'refinement'"):
-        view.data.get("refinement")
-    assert view.triangulation.method == "ransac"
-    with pytest.raises(
-        UntrackedConfigRead, match="max_drops"
-    ):  # greedy's knob, untracked under ransac
-        view.data["triangulation"]["max_drops"]
-    assert view.triangulation.ransac_threshold == Config.default().triangulation.ransac_threshold
-    with pytest.raises(UntrackedConfigRead):
-        StageConfig.for_stage(view, "assemble")
-
-
 # -- artifacts: every untracked key changed at once ------------------------------------
 
 
-def _perturb_untracked(data, config, stage):
-    """``data`` with every leaf ``stage`` may not read changed (where the config stays
-    valid), and how many leaves changed."""
-    declared = stage_reads(config, stage)
+def _perturb_untracked(data, stage):
+    """``data`` with every leaf changed whose change leaves ``stage``'s params as they
+    are (where the config stays valid), and how many leaves changed."""
+    base = stage_params(Config.from_dict(data), stage)
     out, changed = copy.deepcopy(data), 0
     for leaf, value in list(_leaves(data)):
-        if any(_under(leaf, d) for d in declared if not d.endswith(":names")):
-            continue
         if leaf[0] in (
             "recordings",
             "outdir",
@@ -196,14 +109,14 @@ def _perturb_untracked(data, config, stage):
             continue  # which recordings and extra outputs: not an input of a stage function
         if leaf[0] == "pipeline":
             continue  # the stage flags shape the DAG (which artifacts a stage is given)
-        if leaf[0] == "cameras" and any(d.startswith("cameras:names") for d in declared):
-            continue  # the camera names are tracked; their geometry is checked below
         for candidate in _candidates(value):
             trial = _set(out, leaf, candidate)
             try:
-                Config.from_dict(trial)
+                params = stage_params(Config.from_dict(trial), stage)
             except ConfigError:
                 continue
+            if params != base:
+                continue  # tracked: a change re-runs the stage
             out, changed = trial, changed + 1
             break
     return out, changed
@@ -289,7 +202,7 @@ def base_run(tmp_path_factory):
 )
 def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, stage, tmp_path):
     data, rec, spec, base = base_run
-    perturbed, changed = _perturb_untracked(data, Config.from_dict(data), stage)
+    perturbed, changed = _perturb_untracked(data, stage)
     assert changed > 10
     # only the stage under test sees the changed config; its inputs are the base run's
     other, out = Config.from_dict(perturbed), tmp_path

@@ -1,0 +1,146 @@
+"""What the stage homes share: the rig a stage after bundle adjustment runs on
+(bundle adjustment's artifact, else the config rig of its inputs: :func:`_rig_for`,
+:class:`RigRuntime`, the tracked-rig helpers, :func:`run_inputs` for a run without that
+artifact) and the boundary that turns a numerical failure on a recording's data into
+one line (:func:`_solving`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import FlylibError, ResultsError, StageError, one_line
+
+log = logging.getLogger(__name__)
+
+
+def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
+    return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
+
+
+@dataclass(frozen=True)
+class RigRuntime:
+    """The untracked part of a stage that builds the config rig.
+
+    Attributes
+    ----------
+    config_dir
+        Where a relative calibration path is looked up after the recording's folder
+        (the config file's folder; :attr:`~flylib.pipeline.inputs.RigSpec.config_dir`).
+    """
+
+    config_dir: Path | None = None
+
+    @classmethod
+    def from_config(cls, config) -> RigRuntime:
+        """The config file's folder (``None`` for a config made from a dict)."""
+        return cls(config_dir=Path(config.source).parent if config.source else None)
+
+
+def tracked_rig(config):
+    """The config rig a stage after bundle adjustment tracks: ``None`` while bundle
+    adjustment is on (the rig is then in that stage's artifact), else a
+    :class:`~flylib.pipeline.inputs.RigSpec`."""
+    from .inputs import RigSpec
+
+    return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
+
+
+def rig_from_params(table, runtime: RigRuntime):
+    """Inverse of :func:`rig_params`: the tracked rig table (or ``None``) as a
+    :class:`~flylib.pipeline.inputs.RigSpec` looking up calibrations in the runtime's
+    ``config_dir``."""
+    from .inputs import RigSpec
+
+    return RigSpec.from_params(table, runtime.config_dir) if table else None
+
+
+def rig_params(rig) -> dict | None:
+    """A stage's tracked ``rig``: the :class:`~flylib.pipeline.inputs.RigSpec`'s params,
+    or ``None`` while the rig comes from the bundle-adjustment artifact."""
+    return rig.params() if rig is not None else None
+
+
+def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
+    """The bundle-adjusted rig when that artifact is given, else the config rig
+    (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
+
+    Raises
+    ------
+    ResultsError
+        When the stage's params hold no rig (bundle adjustment on) and no
+        bundle-adjustment artifact is given.
+    """
+    if ba_path:
+        from ..results import read_stage
+
+        return read_stage(ba_path, "bundle_adjustment")["cameras"]
+    if rig is None:
+        raise ResultsError(
+            f"{stage.replace('_', ' ')}: bundle adjustment is on, so the rig comes from its "
+            "artifact, and none was given; pass it (--bundle-adjustment) or set "
+            "pipeline.do_bundle_adjustment: false"
+        )
+    return rig.camera_group(_image_sizes(pose2d), recording_dir)
+
+
+def run_inputs(config, stage: str, ba_path: str | Path | None = None):
+    """``stage``'s inputs for a run with or without a bundle-adjustment artifact
+    (``ba_path``): without one the rig is the config's even while bundle adjustment is
+    on, as with it off (so the params track that rig). What a stage script run by hand
+    without ``--bundle-adjustment`` uses, and tests that run a stage on its own."""
+    from .inputs import stage_inputs
+
+    return stage_inputs(_rig_source(config, ba_path), stage)
+
+
+def _rig_source(config, ba_path):
+    """``config`` as the stage runs it: without a bundle-adjustment artifact the rig is
+    the config's, as with bundle adjustment off (so the params track that rig)."""
+    if ba_path or not config.stage_flags()["bundle_adjustment"]:
+        return config
+    data = dict(config.data)
+    data["pipeline"] = {**(data.get("pipeline") or {}), "do_bundle_adjustment": False}
+    return type(config)(data, text=config.text, source=config.source, format=config.format)
+
+
+#: What to check when a numerical stage fails on a recording's data, per stage.
+_CHECK = {
+    "bundle_adjustment": "check its 2D (are the views' points of one fly, in raw-frame pixels?) "
+    "and the starting rig (cameras, calibration.file), or set "
+    "pipeline.do_bundle_adjustment: false",
+    "pictorial_structures": "check the detector's 2D and the rig, or set "
+    "pipeline.do_pictorial_structures: false",
+    "triangulation": "check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
+    "result, cameras, calibration.file)",
+    "refinement": "check triangulation's 3D (flylib inspect) and the refinement settings, or "
+    "set pipeline.do_refinement: false",
+    "kinematics": "check the 3D in results.h5 (flylib inspect), or set "
+    "pipeline.do_kinematics: false",
+}
+
+
+@contextmanager
+def _solving(stage: str, recording) -> Iterator[None]:
+    """The stage boundary of a numerical stage: any exception its solver raises on the
+    recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
+    :class:`StageError` line naming the recording and what to check. flylib's own errors
+    and storage errors (``OSError``) pass unchanged; the original is kept as the error's
+    cause and its traceback logged at DEBUG."""
+    try:
+        yield
+    except (FlylibError, OSError):
+        raise  # flylib's own lines; storage errors
+    except Exception as exc:
+        log.debug("%s failed on %s", stage, recording, exc_info=True)
+        raise StageError(
+            f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
+            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {_CHECK[stage]}"
+        ) from exc
+
+
+# -- stages --------------------------------------------------------------------
