@@ -138,7 +138,7 @@ def rough_case(hard: bool, frames: int) -> None:
     )
     # JIT: compile the Jacobian kernel once, timed apart from the fits
     t0 = time.perf_counter()
-    from flylib.bundle_adjustment.solver import project_rows_with_jac
+    from flylib.bundle_adjustment.problem import project_rows_with_jac
 
     project_rows_with_jac(np.zeros((1, 3)) + [0, 0, 100.0], np.zeros((1, 15)) + 1.0)
     print(
@@ -221,7 +221,7 @@ def fit_child(inputs: str, output: str) -> None:
     """
     import warnings
 
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.config import Config
 
     adjust, reconstruct = _stage_calls()

@@ -31,7 +31,7 @@ SCRIPTS = REPO / "scripts"
 
 def _pose2d(config, path: Path, frames: int) -> tuple[int, int, int]:
     """The synthetic pose2d artifact; returns its (V, T, P)."""
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.demo import demo_settings, observe, synthetic_fly, view_visibility
     from flylib.interop.df3d import FLY38_POINT_NAMES
     from flylib.pipeline.inputs import stage_params

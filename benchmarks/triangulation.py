@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from flylib import camera_model
-from flylib.cameras import CameraGroup
+from flylib.camera import model as camera_model
+from flylib.camera.rig import CameraGroup
 from flylib.triangulation import triangulate, triangulate_greedy, triangulate_ransac
 
 RIG_SPEC = Path(__file__).resolve().parents[2] / "shared" / "spec" / "fly38-rig.yaml"

@@ -36,7 +36,7 @@ TARGET_FPS = 60.0
 
 def make_result(n_frames: int, image_hw=(480, 960)):
     """A PoseResult of the default rig with a walking synthetic fly's 2D and 3D."""
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.config import Config
     from flylib.demo import synthetic_fly
     from flylib.results import PoseResult

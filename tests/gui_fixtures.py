@@ -107,7 +107,7 @@ def write_seed_sidecar(
     return path
 
 
-#: A name that runs script wherever a page builds HTML from data (issue 25's stored XSS).
+#: A name that runs script wherever a page builds HTML from data (a stored XSS).
 HOSTILE_NAME = '<img src=x onerror="window.flylibPwned=1">'
 
 
@@ -117,7 +117,7 @@ def rename_hostile(outdir: Path) -> tuple[str, str]:
     two new names."""
     from dataclasses import replace
 
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.results import PoseResult
 
     result = PoseResult.load(outdir / "results.h5")

@@ -1,6 +1,7 @@
-"""The realistic bundle-adjustment case of issue 12: a tethered fly, a rough starting rig.
+"""The realistic bundle-adjustment case: a tethered fly, a rough starting rig.
 
-Shared by ``tests/test_ba_rough.py`` and ``benchmarks/bundle_adjustment.py --case rough``.
+Shared by ``tests/test_bundle_adjustment_rough_rig.py`` and
+``benchmarks/bundle_adjustment.py --case rough``.
 
 - The fly: thorax fixed (tethered), six legs of four bones of constant length, joint
   angles wandering smoothly so that joints move a few percent of a bone per frame;
@@ -29,7 +30,7 @@ import cv2
 import numpy as np
 
 from flylib.alignment import similarity_aligned
-from flylib.cameras import CameraGroup, orbit_extrinsics
+from flylib.camera.rig import CameraGroup, orbit_extrinsics
 
 from rig_constants import AZIMUTHS as RIG_AZIMUTHS, IMAGE_SIZE, VIEWS
 from synthetic import POINT_NAMES, project_opencv, rig_visibility

@@ -119,7 +119,7 @@ def perturb_rig(cameras, *, rot_deg: float = 3.0, dist_frac: float = 0.03, seed:
     """A copy of ``cameras`` with each camera rotated about the world origin by up to
     ``rot_deg`` (random axis) and its distance to the origin scaled by up to ``dist_frac``,
     its own orientation otherwise following (an orbit-parameter perturbation)."""
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
 
     rng = np.random.default_rng(seed)
     rvecs, tvecs = [], []
@@ -147,7 +147,7 @@ def default_rig(
 ):
     """The default 7-view orbit rig (spec ``fly38-rig.yaml``), principal point at the
     image centre, no distortion; built directly so tests need no config file."""
-    from flylib.cameras import CameraGroup, orbit_extrinsics
+    from flylib.camera.rig import CameraGroup, orbit_extrinsics
 
     height, width = image_size
     rvecs, tvecs = zip(

@@ -34,7 +34,7 @@ def _kmat(intr):
 
 
 def _case(frames=20, **kw):
-    """The front-blind tethered fly of issue 12 (real rig geometry: f ~16,000 px at
+    """The front-blind tethered fly of ``rough_rig`` (real rig geometry: f ~16,000 px at
     ~116 units, one side per camera), exact 2D unless ``noise_px`` says otherwise."""
     kw.setdefault("noise_px", 0.0)
     kw.setdefault("outlier_frac", 0.0)
@@ -79,7 +79,7 @@ def test_held_out_error_matches_an_opencv_two_view_reference():
 
 def _panned(rig, view: str, degrees: float):
     """``rig`` with camera ``view`` turned ``degrees`` about its own vertical axis."""
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
 
     rvecs, tvecs = np.array(rig.rvecs, float), np.array(rig.tvecs, float)
     i = list(rig.names).index(view)

@@ -9,8 +9,8 @@ import pytest
 
 from flylib.bundle_adjustment import bundle_adjust, bundle_adjust_sequence, camera_table
 from flylib.bundle_adjustment.params import build_layout
+from flylib.bundle_adjustment.problem import Problem, project_rows
 from flylib.bundle_adjustment.sampling import select_frames
-from flylib.bundle_adjustment.solver import Problem, project_rows
 from flylib.errors import ConfigError
 
 from rig_constants import DISTANCE, VIEWS
@@ -182,7 +182,7 @@ def test_jacobian_matches_central_differences(bone_group):
 def test_numpy_and_jax_projections_agree_with_opencv():
     import cv2
 
-    from flylib.bundle_adjustment.solver import project_rows, project_rows_with_jac
+    from flylib.bundle_adjustment.problem import project_rows, project_rows_with_jac
 
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(64, 3))
@@ -215,11 +215,11 @@ def test_numpy_and_jax_projections_agree_with_opencv():
 def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
     import jax
 
-    from flylib import geometry
-    from flylib.bundle_adjustment import solver
+    from flylib.bundle_adjustment import problem
+    from flylib.camera import jax_model
 
     rng = np.random.default_rng(1)
-    m = 2 * solver._CHUNK + 37  # two full chunks and a padded remainder
+    m = 2 * problem._CHUNK + 37  # two full chunks and a padded remainder
     pts = rng.normal(size=(m, 3))
     rows = np.concatenate(
         [
@@ -230,13 +230,13 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
         ],
         axis=1,
     )
-    value, jpt, jrow = solver.project_rows_with_jac(pts, rows)
+    value, jpt, jrow = problem.project_rows_with_jac(pts, rows)
     assert value.shape == (m, 2) and jpt.shape == (m, 2, 3) and jrow.shape == (m, 2, 12)
 
     def project(pt, row):
-        return geometry.project_full_one(pt, row[:3], row[3:6], row[6:10], row[10:])
+        return jax_model.project_full_one(pt, row[:3], row[3:6], row[6:10], row[10:])
 
-    for i in (0, solver._CHUNK - 1, solver._CHUNK, 2 * solver._CHUNK, m - 1):
+    for i in (0, problem._CHUNK - 1, problem._CHUNK, 2 * problem._CHUNK, m - 1):
         want_pt, want_row = jax.jacfwd(project, argnums=(0, 1))(pts[i], rows[i])
         np.testing.assert_allclose(
             value[i], project_rows(pts[i : i + 1], rows[i : i + 1])[0], rtol=1e-12

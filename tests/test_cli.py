@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flylib.cameras import CameraGroup
+from flylib.camera.rig import CameraGroup
 from flylib.cli import main, summarize_results
 from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml

@@ -211,7 +211,7 @@ def test_reconstruct_corrected_takes_the_rig_first():
         reconstruct_corrected(config.triangulation, pts, cameras)
 
 
-# -- integrity (issue 25) ---------------------------------------------------------------
+# -- integrity --------------------------------------------------------------------------
 
 
 def _flip_a_byte_of(path, dataset):

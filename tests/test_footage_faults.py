@@ -1,4 +1,4 @@
-"""Damaged footage (issue 13): a truncated JPEG in an image sequence, a truncated MP4
+"""Damaged footage: a truncated JPEG in an image sequence, a truncated MP4
 that still has its header, and frame-count mismatches between footage and results."""
 
 from __future__ import annotations

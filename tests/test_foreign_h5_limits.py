@@ -1,4 +1,4 @@
-"""Foreign HDF5 inputs cannot reach beyond themselves (issue 24).
+"""Foreign HDF5 inputs cannot reach beyond themselves.
 
 Every file here starts from one made by the other tool (a SLEAP analysis file written
 by ``sleap_io``; DeepLabCut's pandas HDF5 files in ``tests/data/interop``) and is then

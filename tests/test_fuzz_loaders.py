@@ -1,4 +1,4 @@
-"""Property-based fuzzing of every loader of an outside file (issue 13).
+"""Property-based fuzzing of every loader of an outside file.
 
 Each test starts from a valid file of one format, damages it at random (bytes flipped,
 overwritten, inserted, deleted or cut off; cells, values, lines and keys of text formats
@@ -647,7 +647,7 @@ def test_config_error_type_is_a_flylib_error():
 
 @lru_cache
 def _results_seeds() -> tuple[bytes, bytes]:
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.results import PoseResult, write_stage
     from flylib.skeleton import Skeleton
 

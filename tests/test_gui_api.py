@@ -375,7 +375,7 @@ def test_the_sidecar_is_never_written_outside_the_outdir(outdir, tmp_path):
 
 
 def test_edit_3d_moves_the_point_onto_the_dragged_pixels_ray(client, outdir):
-    from flylib.geometry import closest_point_on_ray
+    from flylib.camera.jax_model import closest_point_on_ray
 
     before = client.get("/api/points/7").json()
     v, p = visible_point(before)

@@ -1,4 +1,4 @@
-"""``flylib gui`` in headless Chromium when things go wrong (issue 25): the server stops
+"""``flylib gui`` in headless Chromium when things go wrong: the server stops
 in the middle of editing, two tabs edit the same recording, a results.h5 carries
 script in its names.
 

@@ -1,4 +1,4 @@
-"""The review page's working features in headless Chromium (issue 25): a layout that
+"""The review page's working features in headless Chromium: a layout that
 fills the window, the 3D view, undo/redo, the fixed state, the leave warning, a typed
 frame number and ``?frame=`` handling, thumbnails, point names on hover.
 

@@ -1,4 +1,4 @@
-"""``flylib gui`` never loses an edit (issue 25): the journal, revisions, one GUI per
+"""``flylib gui`` never loses an edit: the journal, revisions, one GUI per
 sidecar, save errors.
 
 A real ``flylib gui`` killed with SIGKILL after a few edits comes back with them; a

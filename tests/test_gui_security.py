@@ -1,4 +1,4 @@
-"""``flylib gui`` closed to other web pages (issue 25), request by request.
+"""``flylib gui`` closed to other web pages, request by request.
 
 Each case is one attack a page on another origin (or a DNS-rebinding host name) can
 mount against a server on localhost: its request is refused with one line, and

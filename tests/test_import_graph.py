@@ -51,9 +51,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "primitives",
         (
             "flylib.alignment",
-            "flylib.camera_model",
-            "flylib.geometry",
-            "flylib.cameras",
+            "flylib.camera",
             "flylib.skeleton",
             "flylib.io",
             "flylib.pose2d.plan",

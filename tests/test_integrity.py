@@ -1,4 +1,4 @@
-"""Result integrity (issue 13): checksums, params hashes, the config snapshot's single
+"""Result integrity: checksums, params hashes, the config snapshot's single
 writer, the output-directory lock and writes that run out of space."""
 
 from __future__ import annotations

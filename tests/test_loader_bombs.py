@@ -1,4 +1,4 @@
-"""Small files that would make a loader allocate without bound (issue 24): DeepFly3D
+"""Small files that would make a loader allocate without bound: DeepFly3D
 pickles (shared, deep, cyclic structures; constructors asked for huge sizes; declared
 lengths beyond the file) and DeepLabCut CSVs with millions of columns. Each is one
 ``ImportFormatError`` line naming the file, raised before anything large is built."""

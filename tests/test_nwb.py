@@ -254,7 +254,7 @@ def test_confidence_formula_on_hand_made_errors():
 
 def test_a_result_without_confidences_or_errors_still_exports(tmp_path):
     """Only what the result has is written: no 2D confidence, no 3D confidence, no error series."""
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.skeleton import Skeleton
 
     skeleton = Skeleton(

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from flylib.cameras import CameraGroup
+from flylib.camera.rig import CameraGroup
 from flylib.config import Config
 from flylib.interop.anipose import write_anipose_toml
 from flylib.pipeline.inputs import RigSpec, stage_params

@@ -1,6 +1,6 @@
 """The README's statements that quote behaviour or figures, checked against flylib:
 the outputs table, the commands in its code blocks, the messages it quotes, and the
-DeepFly3D sample's bundle-adjustment figure (issue 27)."""
+DeepFly3D sample's bundle-adjustment figure."""
 
 from __future__ import annotations
 

@@ -42,7 +42,7 @@ def test_difference_gram_is_the_band_of_d_transpose_d(order):
 def _scene(frames=40, seed=0, dist=False):
     rig = default_rig()
     if dist:
-        from flylib.cameras import CameraGroup
+        from flylib.camera.rig import CameraGroup
 
         rig = CameraGroup.from_arrays(
             rig.names,

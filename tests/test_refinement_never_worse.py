@@ -1,4 +1,4 @@
-"""Refinement never makes a recording worse (issue 23 item 3): through the stage
+"""Refinement never makes a recording worse: through the stage
 functions with the workflow's defaults, the held-out-view error of the output the
 results hold is never above the plain triangulation's, on the real DeepFly3D sample,
 a front-blind synthetic scene with a rough rig, and the demo; the points where
@@ -96,7 +96,7 @@ def test_real_sample_with_the_workflow_defaults(df3d_sample_dir, tmp_path):
 
 
 def test_front_blind_scene_through_bundle_adjustment(tmp_path):
-    """Issue 12's hard case: a DeepFly3D-like rig (f ~16,000 px at ~116 units), the
+    """The rough rig's hard case: a DeepFly3D-like rig (f ~16,000 px at ~116 units), the
     front camera blind, 1 px noise and 5 % outliers; the workflow's default bundle
     adjustment starts from the config rig (off in aim and position)."""
     case = make_case(120, hard=True, seed=2)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import flylib
-from flylib.cameras import CameraGroup
+from flylib.camera.rig import CameraGroup
 from flylib.errors import ResultsError
 from flylib.results import (
     FORMAT_VERSION,

@@ -1,4 +1,4 @@
-"""Runs that protect each other (issue 24, the workflow rows), with real processes.
+"""Runs that protect each other, with real processes.
 
 The output-directory claim of a whole run and its jobs, temporary files of killed
 writers, a damaged artifact's root object header, copied and foreign artifacts,

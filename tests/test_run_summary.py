@@ -99,7 +99,7 @@ def test_log_warnings_are_distinct_and_named_by_log(tmp_path):
 
 
 def test_summary_figure_names_the_views_without_2d(tmp_path):
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.results import PoseResult
     from flylib.skeleton import Skeleton
     from flylib.visualization import summary_figure
@@ -181,7 +181,7 @@ def _accuracy(tri, out, raw=None, kept=(), everywhere=False, per_view=None, fram
 
 
 def test_held_out_columns_mark_the_better_method_and_say_what_to_do(tmp_path):
-    """Issue 27 item 2: the table explains when refinement is worse instead of bare numbers."""
+    """The table explains when refinement is worse instead of bare numbers."""
     write_summary(tmp_path / "better", accuracy=_accuracy((5.87, 16.97), (4.1, 9.0)))
     write_summary(
         tmp_path / "partly",

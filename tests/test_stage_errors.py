@@ -1,4 +1,4 @@
-"""A numerical stage that fails on a recording's data is one line (issue 24).
+"""A numerical stage that fails on a recording's data is one line.
 
 The probe's case: a DeepFly3D pickle of uniform random points2d made bundle adjustment
 raise ``LinAlgError: Eigenvalues did not converge`` as a traceback (after 196 s). Each

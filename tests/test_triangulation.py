@@ -9,8 +9,9 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from flylib import camera_model, geometry, triangulation as tri
-from flylib.cameras import CameraGroup, orbit_extrinsics
+from flylib import triangulation as tri
+from flylib.camera import jax_model, model as camera_model
+from flylib.camera.rig import CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
@@ -60,7 +61,7 @@ def test_dlt_chunking_and_jax_path_agree(rig, scene):
     whole = tri.triangulate(rig, noisy)
     np.testing.assert_allclose(tri.triangulate(rig, noisy, chunk_points=7), whole, rtol=1e-12)
     np.testing.assert_allclose(
-        np.asarray(geometry.triangulate_dlt(noisy, rig.pmats)), whole, rtol=1e-10
+        np.asarray(jax_model.triangulate_dlt(noisy, rig.pmats)), whole, rtol=1e-10
     )
     np.testing.assert_array_equal(rig.triangulate(noisy), whole)  # one path behind both
     # the unchunked NumPy DLT (the seed API's path before) agrees to float64 precision

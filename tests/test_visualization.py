@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from flylib.cameras import CameraGroup
+from flylib.camera.rig import CameraGroup
 from flylib.config import Config
 from flylib.errors import ConfigError
 from flylib.results import PoseResult
@@ -542,7 +542,7 @@ def test_trajectory_points_are_the_leg_tips():
 def test_short_footage_is_an_error_naming_the_file_and_counts(
     tmp_path, df3d_sample_dir, df3d_result
 ):
-    """Footage and result of different lengths (issue 13: a truncated MP4 with its
+    """Footage and result of different lengths (a truncated MP4 with its
     header) fail the job instead of drawing the background with a warning."""
     from flylib.errors import FootageError
 

@@ -1,4 +1,4 @@
-"""Detector weights are checked on every use (issue 24).
+"""Detector weights are checked on every use.
 
 No SHA-256 of the published DeepFly2D checkpoint is published or could be established
 (DeepFly2D/DeepFly3D's sources download it without one; the spec lists its layout, not

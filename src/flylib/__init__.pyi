@@ -17,7 +17,23 @@ from .bundle_adjustment import (
     bundle_adjust_sequence as bundle_adjust_sequence,
     select_frames as select_frames,
 )
-from .cameras import (
+from .camera.jax_model import (
+    backproject_ray_one as backproject_ray_one,
+    closest_point_on_ray as closest_point_on_ray,
+    distort as distort,
+    distort_one as distort_one,
+    intr_to_kmat as intr_to_kmat,
+    project_full as project_full,
+    project_full_one as project_full_one,
+    project_pmat as project_pmat,
+    rmat_to_rvec as rmat_to_rvec,
+    rmat_to_rvec_one as rmat_to_rvec_one,
+    rvec_to_rmat as rvec_to_rmat,
+    rvec_to_rmat_one as rvec_to_rmat_one,
+    triangulate_dlt as triangulate_dlt,
+    undistort_one as undistort_one,
+)
+from .camera.rig import (
     Camera as Camera,
     CameraGroup as CameraGroup,
     orbit_extrinsics as orbit_extrinsics,
@@ -43,22 +59,6 @@ from .errors import (
     ResultsError as ResultsError,
     StageError as StageError,
     WeightsError as WeightsError,
-)
-from .geometry import (
-    backproject_ray_one as backproject_ray_one,
-    closest_point_on_ray as closest_point_on_ray,
-    distort as distort,
-    distort_one as distort_one,
-    intr_to_kmat as intr_to_kmat,
-    project_full as project_full,
-    project_full_one as project_full_one,
-    project_pmat as project_pmat,
-    rmat_to_rvec as rmat_to_rvec,
-    rmat_to_rvec_one as rmat_to_rvec_one,
-    rvec_to_rmat as rvec_to_rmat,
-    rvec_to_rmat_one as rvec_to_rmat_one,
-    triangulate_dlt as triangulate_dlt,
-    undistort_one as undistort_one,
 )
 from .interop import (
     export_result as export_result,

@@ -23,7 +23,7 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
-    from .cameras import CameraGroup
+    from .camera.rig import CameraGroup
     from .config.params import TriangulationParams
     from .config.postprocessing import RefinementParams
     from .skeleton import Skeleton

@@ -47,7 +47,7 @@ from .results import open_hdf5, read_meta_from
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
-    from .cameras import CameraGroup
+    from .camera.rig import CameraGroup
     from .config.params import TriangulationParams
 
 __all__ = [
@@ -484,7 +484,7 @@ def reconstruct_corrected(
     TypeError
         If the points and the rig are swapped (the order before the rig came first).
     """
-    from . import camera_model
+    from .camera import model as camera_model
     from .triangulation import reconstruct_with_params, reprojection_error
 
     if hasattr(pts2d, "pmats") or not hasattr(cameras, "pmats"):

@@ -46,7 +46,7 @@ from .recordings import (  # noqa: F401  (the demo directory's layout, re-export
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
-    from .cameras import CameraGroup
+    from .camera.rig import CameraGroup
     from .skeleton import Skeleton
 
 log = logging.getLogger(__name__)

@@ -76,7 +76,7 @@ def preflight_problems(
 
     if flags.get("bundle_adjustment", True) and config.view_names():
         from .bundle_adjustment.params import build_layout
-        from .camera_model import N_DIST_COEFFS
+        from .camera.model import N_DIST_COEFFS
 
         ba = config.bundle_adjustment
         try:  # every distortion slot allowed: the job pads to the rig's own count

@@ -14,7 +14,7 @@ params
     The ``fixed`` / ``shared`` parameter grammar.
 sampling
     ``frame_sampling``: which frames the fit uses.
-solver
+problem
     Residuals, the JAX Jacobian as a sparse matrix, the ``scipy`` path.
 lm
     Levenberg-Marquardt on the reduced camera system (Schur complement).

@@ -2,7 +2,7 @@
 
 Free camera parameters and 3D points (plus, optionally, shared bone lengths) are fitted
 to the observed 2D points by Levenberg-Marquardt on the reduced camera system
-(:mod:`.lm`) or ``scipy.optimize.least_squares`` (:mod:`.solver`), with the analytic
+(:mod:`.lm`) or ``scipy.optimize.least_squares`` (:mod:`.problem`), with the analytic
 JAX Jacobian, float64 throughout. See :mod:`.params` for the ``fixed`` / ``shared``
 grammar.
 
@@ -37,8 +37,8 @@ from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrin
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
 from .params import build_layout, param_slices
 from .parts import align_parts, camera_parts, crossing_bones, point_parts
+from .problem import Problem
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
-from .solver import Problem
 from .unknowns import (
     bones_on_unknowns,
     lengths_per_row,
@@ -50,7 +50,7 @@ from .unknowns import (
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float, Int
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +96,7 @@ def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
 
 
 def _cameras_from_table(names, table: np.ndarray) -> CameraGroup:
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
     return CameraGroup.from_arrays(
         list(names), table[:, 0:3], table[:, 3:6], table[:, 6:10], table[:, 10:]
@@ -694,7 +694,7 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
 def _moved_degrees(table0, table, pts) -> np.ndarray:
     """``(V,)`` the angle in degrees, seen from the fly (median of ``pts``), between each
     camera's starting and final position; NaN without points."""
-    from ..camera_model import rvec_to_rmat_numpy
+    from ..camera.model import rvec_to_rmat_numpy
 
     finite = pts[np.isfinite(pts).all(axis=1)]
     if not len(finite):

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..alignment import similarity_transform
-from ..camera_model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
+from ..camera.model import rmat_to_rvec_numpy, rvec_to_rmat_numpy
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float

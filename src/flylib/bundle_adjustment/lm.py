@@ -1,6 +1,6 @@
 """Levenberg-Marquardt on the reduced camera system (Schur complement).
 
-The unknowns of a :class:`~flylib.bundle_adjustment.solver.Problem` split into
+The unknowns of a :class:`~flylib.bundle_adjustment.problem.Problem` split into
 
 - *global* ones, few and seen by many observations: the free camera parameters, the
   points shared by every frame (a tethered fly's rigid thorax-coxa points) and the
@@ -29,7 +29,7 @@ import scipy.sparse
 from scipy.optimize import OptimizeResult
 from scipy.sparse.csgraph import connected_components
 
-from .solver import Problem
+from .problem import Problem
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from ..camera_model import pad_dist_numpy, rmat_to_rvec_numpy, rvec_to_rmat_numpy
+from ..camera.model import pad_dist_numpy, rmat_to_rvec_numpy, rvec_to_rmat_numpy
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
@@ -31,7 +31,7 @@ def view_errors(
     usable: Bool[np.ndarray, "V N"],
 ) -> Float[np.ndarray, "V N"]:
     """``(V, N)`` reprojection error of every usable observation (NaN elsewhere)."""
-    from .solver import project_rows
+    from .problem import project_rows
 
     n_views, n_cols = usable.shape
     err = np.full((n_views, n_cols), np.nan)

@@ -24,7 +24,7 @@ from .sampling import select_frames
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
@@ -281,7 +281,7 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, toler
 def _pixels_per_unit(cameras, point) -> float:
     """Median over the cameras of focal length / distance to ``point`` ``(3,)``: how
     many pixels one world unit there spans in the images."""
-    from ..camera_model import rvec_to_rmat_numpy
+    from ..camera.model import rvec_to_rmat_numpy
 
     if not np.isfinite(point).all():
         return float("nan")

@@ -33,7 +33,7 @@ from .sources import source_patterns, view_names
 from .validation import _default_point_names, validate_config
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 
 class Config:
@@ -338,7 +338,7 @@ class Config:
         return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
 
     def camera_group(self, image_sizes: Mapping[str, tuple[int, int]] | None = None) -> CameraGroup:
-        """The configured camera rig (see ``flylib.cameras.CameraGroup.from_config``).
+        """The configured camera rig (see ``flylib.camera.rig.CameraGroup.from_config``).
 
         Parameters
         ----------
@@ -351,7 +351,7 @@ class Config:
         CameraGroup
             The rig.
         """
-        from ..cameras import CameraGroup
+        from ..camera.rig import CameraGroup
 
         defaults, specs = self.camera_table()
         return CameraGroup.from_table(specs, defaults, image_sizes)

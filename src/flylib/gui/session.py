@@ -605,7 +605,7 @@ class ReviewSession:
 
     def _onto_ray(self, v: int, t: int, p: int, xy: np.ndarray) -> np.ndarray:
         """The point on pixel ``xy``'s ray in view ``v`` closest to the current 3D point."""
-        from ..geometry import closest_point_on_ray
+        from ..camera.jax_model import closest_point_on_ray
 
         target = self.pts3d[t, p]
         if not np.isfinite(target).all():

@@ -5,7 +5,7 @@ Anipose TOML (seed 003): one ``[cam_N]`` table per camera with ``name``,
 ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to camera) and
 ``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
 ``cv2.projectPoints`` with the same numbers gives the same pixels as
-:meth:`flylib.cameras.CameraGroup.project`.
+:meth:`flylib.camera.rig.CameraGroup.project`.
 
 Config (top-level ``calibration`` table) -- take the rig from a file instead of the
 orbit parameters::
@@ -131,7 +131,7 @@ def write_anipose_toml(
     Parameters
     ----------
     cameras
-        A :class:`flylib.cameras.CameraGroup` (``names``, ``rvecs``, ``tvecs``,
+        A :class:`flylib.camera.rig.CameraGroup` (``names``, ``rvecs``, ``tvecs``,
         ``intrs`` ``[fx, fy, cx, cy]``, ``dists``).
     path
         Destination ``.toml``.
@@ -335,7 +335,7 @@ def load_calibration(
 
     Returns
     -------
-    flylib.cameras.CameraGroup
+    flylib.camera.rig.CameraGroup
         One camera per view, in ``views`` order.
 
     Raises
@@ -345,7 +345,7 @@ def load_calibration(
     FootageError
         A view's footage size differs from the size its camera was calibrated at.
     """
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
     spec = calibration
     if not isinstance(spec, Mapping) or not ({"file", "index"} & set(spec)):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera_model import N_DIST_COEFFS
+from ..camera.model import N_DIST_COEFFS
 from ..errors import ImportFormatError
 
 _DIST_TEXT = (

@@ -323,7 +323,7 @@ def _add_cameras(nwbfile, result, views: list[str]) -> dict:
     """One ``CalibratedCamera`` device per view with the final rig: ``view -> device``."""
     import ndx_pose
 
-    from ..camera_model import intr_to_kmat_numpy, rvec_to_rmat_numpy
+    from ..camera.model import intr_to_kmat_numpy, rvec_to_rmat_numpy
 
     cameras = {}
     for camera, view in zip(result.cameras, views):

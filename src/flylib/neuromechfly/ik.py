@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import geometry  # noqa: F401  (float64 and the CPU for JAX, before jax is used)
+from ..camera import jax_model  # noqa: F401  (float64 and the CPU for JAX, before jax is used)
 from .model import LEGS, leg_forward, segment_offsets, thorax_coxa_template
 
 if TYPE_CHECKING:  # pragma: no cover

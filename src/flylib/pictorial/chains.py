@@ -14,7 +14,7 @@ from .hypotheses import DEFAULT_INLIER_PX
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float, Int
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..skeleton import Skeleton
 
 

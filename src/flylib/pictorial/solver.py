@@ -14,7 +14,7 @@ from .peaks import Candidates
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)

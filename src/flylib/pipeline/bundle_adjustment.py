@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
     from scipy.optimize import OptimizeResult
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..config import Config
 
 log = logging.getLogger(__name__)

@@ -216,9 +216,9 @@ class RigSpec:
         image_sizes: Mapping[str, tuple[int, int]] | None = None,
         recording_dir: str | Path | None = None,
     ):
-        """The :class:`~flylib.cameras.CameraGroup`: the calibration file's when set
+        """The :class:`~flylib.camera.rig.CameraGroup`: the calibration file's when set
         (:func:`flylib.interop.anipose.load_calibration`), else the orbit rig of
-        ``cameras`` (:meth:`~flylib.cameras.CameraGroup.from_table`, principal points
+        ``cameras`` (:meth:`~flylib.camera.rig.CameraGroup.from_table`, principal points
         from ``image_sizes``), one camera per view in :attr:`views` order."""
         if self.calibration:
             from ..interop.anipose import load_calibration
@@ -230,7 +230,7 @@ class RigSpec:
                 image_sizes=image_sizes,
                 config_dir=self.config_dir,
             )
-        from ..cameras import CameraGroup
+        from ..camera.rig import CameraGroup
 
         cameras = _json(self.cameras)
         defaults = cameras.pop("defaults", {}) or {}

@@ -18,7 +18,7 @@ from ..errors import ConfigError
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..pictorial import Candidates
     from ..results import PoseResult
     from ..skeleton import Skeleton

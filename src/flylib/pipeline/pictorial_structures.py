@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
     from jaxtyping import Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..config import Config
     from ..pictorial import Candidates
 

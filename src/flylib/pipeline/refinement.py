@@ -52,7 +52,7 @@ from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..config import Config
 
 STAGE = "refinement"

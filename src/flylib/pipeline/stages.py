@@ -30,29 +30,29 @@ stage                  reads                                       writes
 =====================  ==========================================  ===============================
 """
 
-from .assemble import run_assemble, write_snapshot
-from .bundle_adjustment import run_bundle_adjustment
-from .demo import run_demo
-from .kinematics import run_kinematics
-from .neuromechfly import run_neuromechfly
-from .pictorial_structures import run_pictorial_structures
-from .pose2d import run_pose2d
-from .refinement import run_refinement
-from .stage_helpers import run_inputs
-from .triangulation import run_triangulation
-from .visualization import run_visualization
+from importlib import import_module
 
-__all__ = [
-    "run_assemble",
-    "run_bundle_adjustment",
-    "run_demo",
-    "run_inputs",
-    "run_kinematics",
-    "run_neuromechfly",
-    "run_pictorial_structures",
-    "run_pose2d",
-    "run_refinement",
-    "run_triangulation",
-    "run_visualization",
-    "write_snapshot",
-]
+#: ``name -> the module (under flylib.pipeline) that defines it``; imported on first use,
+#: so a job that runs one stage does not import every stage's libraries (JAX, torch).
+_HOMES = {
+    "run_assemble": "assemble",
+    "write_snapshot": "assemble",
+    "run_bundle_adjustment": "bundle_adjustment",
+    "run_demo": "demo",
+    "run_kinematics": "kinematics",
+    "run_neuromechfly": "neuromechfly",
+    "run_pictorial_structures": "pictorial_structures",
+    "run_pose2d": "pose2d",
+    "run_refinement": "refinement",
+    "run_inputs": "stage_helpers",
+    "run_triangulation": "triangulation",
+    "run_visualization": "visualization",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str):
+    if name in _HOMES:
+        return getattr(import_module(f"{__package__}.{_HOMES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from jaxtyping import Bool, Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..config import Config
     from ..corrections import Corrections
 

@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from ..accuracy import Refine, Triangulate
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 log = logging.getLogger(__name__)
 

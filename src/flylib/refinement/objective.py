@@ -15,7 +15,7 @@ position ``C_p`` for the recording). Every term is dimensionless, so the weights
 ``lambda`` compare like with like.
 
 The reprojection term's Gauss-Newton blocks come from one jitted JAX kernel:
-``jax.jacfwd`` of :func:`flylib.geometry.project_full_one` (the same projection and
+``jax.jacfwd`` of :func:`flylib.camera.jax_model.project_full_one` (the same projection and
 Jacobian machinery bundle adjustment uses), ``vmap``-ed over points and views, with
 the robust loss applied as iteratively reweighted least squares. The other terms are
 quadratic or rank-one and are assembled in NumPy.
@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import camera_model
+from ..camera import model as camera_model
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
@@ -92,13 +92,13 @@ def chunk_kernel(loss: str, order: int, m: int):
     and makes LAPACK's band); ``grad`` ``(n,)`` the gradient (both halved, so the
     step solves ``A d = -grad``); ``err``
     ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
-    of :func:`flylib.geometry.distort_one` plus intrinsics in the camera frame (the
-    model of :func:`flylib.geometry.project_full_one`), chained with the rotation.
+    of :func:`flylib.camera.jax_model.distort_one` plus intrinsics in the camera frame (the
+    model of :func:`flylib.camera.jax_model.project_full_one`), chained with the rotation.
     """
     import jax
     import jax.numpy as jnp
 
-    from .. import geometry  # noqa: F401  (float64, CPU, compile cache)
+    from ..camera import jax_model  # noqa: F401  (float64, CPU, compile cache)
 
     band_width(m, order)
 
@@ -125,7 +125,7 @@ def chunk_kernel(loss: str, order: int, m: int):
 
 
 def _pixel(pc, intr, dist):
-    """Camera frame -> pixels, the model of geometry.project_full_one, elementwise."""
+    """Camera frame -> pixels, the model of jax_model.project_full_one, elementwise."""
     # components as sequences (pc 3, intr 4, dist 12) of same-shaped arrays, so that
     # no op stacks or transposes the large (nb, m, W, T) arrays
     x, y = pc[0] / pc[2], pc[1] / pc[2]

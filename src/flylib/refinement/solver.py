@@ -26,7 +26,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from threadpoolctl import threadpool_limits
 
-from .. import camera_model
+from ..camera import model as camera_model
 from ..resources import thread_map
 from .objective import (
     LOSSES,
@@ -43,7 +43,7 @@ from .objective import (
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int, UInt8
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 log = logging.getLogger(__name__)
 
@@ -831,7 +831,7 @@ def refine_points(
     pts2d
         ``(V, T, P, 2)`` 2D observations in raw-frame pixels, NaN = missing.
     cameras
-        The rig (:class:`~flylib.cameras.CameraGroup`).
+        The rig (:class:`~flylib.camera.rig.CameraGroup`).
     start
         ``(T, P, 3)`` starting 3D (the triangulation), NaN = not reconstructed.
     conf

@@ -22,7 +22,7 @@ from .groups import _read_cameras, _write_cameras
 from .hdf5 import _create, _new_meta, _read_checked
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 #: Stage-artifact file names inside ``<outdir>/stages/``.
 ARTIFACTS: dict[str, str] = {

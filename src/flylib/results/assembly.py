@@ -24,7 +24,7 @@ from .groups import _write_cameras, _write_skeleton
 from .hdf5 import _create, _new_meta, open_checked, read_meta_from
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 
 def assemble_results(

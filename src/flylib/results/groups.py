@@ -19,7 +19,7 @@ from .datasets import _read, _read_strings, _write_array, _write_strings
 from .hdf5 import _read_checked
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 
 def _write_cameras(group: h5py.Group, cameras: CameraGroup) -> None:
@@ -30,7 +30,7 @@ def _write_cameras(group: h5py.Group, cameras: CameraGroup) -> None:
 
 
 def _read_cameras(group: h5py.Group) -> CameraGroup:
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
     return CameraGroup.from_arrays(
         _read_strings(group["names"]),

@@ -25,7 +25,7 @@ from .hdf5 import _create, _new_meta, _read_checked, read_meta_from
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
 
 
 def _float_or_none(value: Any) -> np.ndarray | None:

@@ -2,7 +2,7 @@
 
 Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest
 of a workflow job never import JAX; :func:`~flylib.triangulation.triangulate_greedy`
-imports this module when called (the DLT kernel is :func:`flylib.geometry.dlt_chunk`).
+imports this module when called (the DLT kernel is :func:`flylib.camera.jax_model.dlt_chunk`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import jax
 import jax.numpy as jnp
 
-from .. import geometry
+from ..camera import jax_model
 
 if TYPE_CHECKING:  # pragma: no cover
     from jax import Array
@@ -32,7 +32,7 @@ def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
         cy_ = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
         cz_ = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
         intr = rig["intrs"][k]
-        u, v = geometry.pixels_from_normalized(
+        u, v = jax_model.pixels_from_normalized(
             cx_ / cz_, cy_ / cz_, intr[0], intr[1], intr[2], intr[3], rig["dists"][k]
         )
     else:
@@ -46,7 +46,7 @@ def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
 
 def _view_terms(rig, und, weights):
     """Per-view normal-equation terms ``(9, V, N)`` and the valid mask ``(V, N)``."""
-    feats, valid = geometry.dlt_features(jnp, und, rig["norm"], weights)  # (6, V, N)
+    feats, valid = jax_model.dlt_features(jnp, und, rig["norm"], weights)  # (6, V, N)
     quad = rig["quad"]  # (V, 6, 9)
     terms = sum(feats[f][None] * quad[:, f, :].T[:, :, None] for f in range(6))
     return terms, valid
@@ -54,7 +54,7 @@ def _view_terms(rig, und, weights):
 
 def _solve_kept(terms, kept, min_views=2):
     summed = (terms * kept[None]).sum(axis=1)  # (9, N)
-    return geometry.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
+    return jax_model.dlt_solve_terms(jnp, summed, kept.sum(axis=0), min_views)
 
 
 @jax.jit

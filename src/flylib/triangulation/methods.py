@@ -3,8 +3,8 @@
 All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for a
 recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
 processed in bounded chunks (memory stays bounded on long recordings), all with the
-same closed-form, row-normalized DLT as :func:`flylib.geometry.triangulate_dlt`: DLT
-(:meth:`flylib.cameras.CameraGroup.triangulate`, the one bulk DLT path) and greedy
+same closed-form, row-normalized DLT as :func:`flylib.camera.jax_model.triangulate_dlt`: DLT
+(:meth:`flylib.camera.rig.CameraGroup.triangulate`, the one bulk DLT path) and greedy
 (:mod:`flylib.triangulation.kernels`) by jitted JAX kernels compiled once per chunk
 length and imported only when those methods run, RANSAC in NumPy (no compile, no JAX)
 on runs of points seen by the same views, on a few threads.
@@ -29,19 +29,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import camera_model
+from ..camera import model as camera_model
 from ..config.constants import TRIANGULATION_METHODS
 from ..resources import thread_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
-    from ..cameras import CameraGroup
+    from ..camera.rig import CameraGroup
     from ..config.params import TriangulationParams
 
 log = logging.getLogger(__name__)
 
-DEFAULT_CHUNK_POINTS = 4096  # = flylib.geometry.DLT_CHUNK_POINTS (not imported: no JAX here)
+DEFAULT_CHUNK_POINTS = 4096  # = camera.jax_model.DLT_CHUNK_POINTS (not imported: no JAX here)
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
 _RANSAC_THREADS = 4
 
@@ -263,13 +263,13 @@ def triangulate(
 ) -> Float[np.ndarray, "*pts 3"]:
     """NaN-aware (optionally confidence-weighted) DLT triangulation.
 
-    The same path as :meth:`flylib.cameras.CameraGroup.triangulate` (this forwards to
+    The same path as :meth:`flylib.camera.rig.CameraGroup.triangulate` (this forwards to
     it): undistortion, then fixed-length chunks through one jitted kernel.
 
     Parameters
     ----------
     cameras
-        The rig (:class:`~flylib.cameras.CameraGroup`).
+        The rig (:class:`~flylib.camera.rig.CameraGroup`).
     pts2d
         ``(V, *pts, 2)`` pixels, NaN = missing.
     weights
@@ -422,7 +422,7 @@ def triangulate_greedy(
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
     w = _check_inputs(pts2d, cameras, weights)
-    from ..geometry import run_chunked
+    from ..camera.jax_model import run_chunked
     from .kernels import greedy_chunk
 
     rig = _Rig(cameras)

@@ -70,9 +70,9 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     assert float(row[3]) < 2 and float(row[4]) < 5 and row[-1] == "demo/flylib_outputs"
     assert table[-1].startswith("demo: 3D error against the demo truth: median ")
     # title, header, one row, the held-out-view accuracy (the note, then the demo's
-    # sentence: issue 23), the truth last; the one warning is bundle adjustment's, and
+    # sentence), the truth last; the one warning is bundle adjustment's, and
     # it is right: each camera sees one side, so the two sides share no point and one
-    # side can scale about the front camera without changing an image (issue 12)
+    # side can scale about the front camera without changing an image
     assert table[3].startswith("accuracy: held-out px = ") and table[4].strip().startswith("demo: ")
     assert "refinement is better than triangulation" in table[4]
     warnings = table[5:-1]

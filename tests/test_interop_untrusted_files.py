@@ -1,4 +1,4 @@
-"""Issue 13 (security, 2D import, calibrations): untrusted files never run code, and each
+"""Untrusted files (2D import, calibrations, checkpoints): they never run code, and each
 mistake in another tool's file is one line naming the file (and camera / key) and the fix."""
 
 from __future__ import annotations
@@ -289,7 +289,7 @@ def test_dlc_csv_first_frame_empty_is_kept(tmp_path):
 
 
 def test_flylib_export_dlc_dir_imports_back_with_empty_first_frame(tmp_path):
-    from flylib.cameras import CameraGroup
+    from flylib.camera.rig import CameraGroup
     from flylib.cli import main
     from flylib.results import PoseResult
     from flylib.skeleton import Skeleton

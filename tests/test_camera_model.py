@@ -1,4 +1,5 @@
-"""flylib.geometry against OpenCV, SciPy and finite differences."""
+"""The camera model (flylib.camera.model) and its JAX binding (flylib.camera.jax_model)
+against OpenCV, SciPy and finite differences."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from flylib import geometry as g
+from flylib.camera import jax_model as g
 
 from rig_constants import AZIMUTHS, DISTANCE, FOCAL
 
@@ -64,7 +65,7 @@ def test_numpy_rodrigues_twin_matches_opencv_and_the_jax_kernel(angle):
 
 @pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.7, 2.0, np.pi - 1e-6, np.pi])
 def test_numpy_rmat_to_rvec_twin_matches_the_jax_kernel_and_inverts(angle):
-    from flylib.camera_model import rmat_to_rvec_numpy
+    from flylib.camera.model import rmat_to_rvec_numpy
 
     rng = np.random.default_rng(5)
     for _ in range(4):
@@ -85,7 +86,8 @@ def test_host_side_modules_do_not_import_jax():
     import sys
 
     code = (
-        "import sys, flylib.cameras, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
+        "import sys, flylib.camera.rig, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
+        "flylib.pipeline.triangulation, flylib.pipeline.assemble, "
         "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
         "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "
         "import numpy as np; from flylib.triangulation import triangulate_ransac; "
@@ -250,7 +252,7 @@ _AZIMUTHS = tuple(AZIMUTHS.values())
 
 
 def _orbit_pmats(focal=FOCAL, distance=DISTANCE, azimuths=_AZIMUTHS):
-    """Look-at cameras built here with cv2 (independent of flylib.cameras)."""
+    """Look-at cameras built here with cv2 (independent of flylib.camera.rig)."""
     pmats = []
     for az in np.deg2rad(azimuths):
         out = np.array([np.cos(az), np.sin(az), 0.0])
@@ -336,14 +338,14 @@ def test_backprojected_ray_projects_onto_the_pixel():
 
 
 # -- one formula set, two back-ends ------------------------------------------------------
-# The camera model is written once (flylib.camera_model, generic over the array module):
+# The camera model is written once (flylib.camera.model, generic over the array module):
 # each back-end's binding is checked against OpenCV and against the other.
 
 
 def _backends():
     import jax.numpy as jnp
 
-    from flylib import camera_model as cm
+    from flylib.camera import model as cm
 
     return {
         "numpy": {
@@ -453,7 +455,7 @@ def test_backends_agree_with_each_other(n_dist):
 def test_generic_formulas_stay_jittable_and_differentiable_in_float64():
     import jax.numpy as jnp
 
-    from flylib import camera_model as cm
+    from flylib.camera import model as cm
 
     def loss(rvec, pts, tvec, intr, dist):
         return jnp.sum(

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from flylib import geometry
-from flylib.cameras import Camera, CameraGroup, orbit_extrinsics
+from flylib.camera import jax_model
+from flylib.camera.rig import Camera, CameraGroup, orbit_extrinsics
 from flylib.config import Config
 from flylib.errors import ConfigError
 
@@ -89,7 +89,7 @@ def test_elevation_and_roll():
     # Straight down (elevation 90) is well defined.
     rvec, tvec = orbit_extrinsics(distance=5.0, azimuth_deg=0.0, elevation_deg=90.0)
     assert np.all(np.isfinite(rvec)) and np.allclose(
-        -geometry.rvec_to_rmat_one(rvec).T @ tvec, [0, 0, 5]
+        -jax_model.rvec_to_rmat_one(rvec).T @ tvec, [0, 0, 5]
     )
     # Roll +90: what was above the centre now appears to its right (clockwise).
     rvec, tvec = orbit_extrinsics(distance=10.0, azimuth_deg=0.0, roll_deg=90.0)
@@ -217,7 +217,7 @@ def test_group_projection_matches_jax_and_opencv_with_distortion():
     got = group.project(pts)
     assert got.shape == (3, 4, 5, 2)
     np.testing.assert_allclose(
-        got, np.asarray(geometry.project_full(pts, rvecs, tvecs, intrs, dists)), rtol=1e-12
+        got, np.asarray(jax_model.project_full(pts, rvecs, tvecs, intrs, dists)), rtol=1e-12
     )
     ref = cv2.projectPoints(pts.reshape(-1, 3), rvecs[1], tvecs[1], group[1].kmat, dists[1])[0][
         :, 0
@@ -240,11 +240,11 @@ def test_group_triangulate_handles_distortion_exactly():
         group.triangulate(group.project(pts)[:3])
     # rays through distorted pixels: the NumPy path against the JAX kernel (fixed point
     # + Newton), and back through the lens onto the pixel
-    from flylib import geometry
+    from flylib.camera import jax_model
 
     for cam, pixel in zip(group, group.project(pts[0])):
         origin, direction = cam.backproject_ray(pixel)
-        ref_origin, ref_direction = geometry.backproject_ray_one(
+        ref_origin, ref_direction = jax_model.backproject_ray_one(
             pixel, cam.rvec, cam.tvec, cam.intr, cam.dist
         )
         np.testing.assert_allclose(origin, ref_origin, atol=1e-12)

@@ -3,7 +3,7 @@
 Every formula (Rodrigues both ways, ``K``, OpenCV distortion and its fixed-point
 inverse, projection, the DLT) is a function of an array module ``xp`` (``numpy`` or
 ``jax.numpy``) or uses only arithmetic operators, so one body serves both back-ends:
-:mod:`flylib.geometry` binds them to ``jax.numpy`` (jitted, differentiable, float64)
+:mod:`flylib.camera.jax_model` binds them to ``jax.numpy`` (jitted, differentiable, float64)
 and the ``*_numpy`` names here bind them to NumPy. Importing this module does not
 import JAX, so host-side code (camera properties, projection, undistortion, RANSAC,
 summaries) never pays for it (about 0.7 s per workflow job).
@@ -89,7 +89,7 @@ def rvec_to_rmat_numpy(rvec: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray,
 def rmat_to_rvec_generic(xp: ModuleType, rmat: Float[AnyArray, "3 3"]) -> Float[AnyArray, " 3"]:
     """Axis-angle vector of one rotation matrix, with array module ``xp``.
 
-    The body of :func:`flylib.geometry.rmat_to_rvec_one` (which documents the method)
+    The body of :func:`flylib.camera.jax_model.rmat_to_rvec_one` (which documents the method)
     and of :func:`rmat_to_rvec_numpy`.
     """
     rho = 0.5 * xp.stack(
@@ -305,7 +305,7 @@ def undistort_normalized(
 ) -> Float[np.ndarray, "*pts 2"]:
     """NumPy batch inverse of :func:`distort_normalized` for one camera.
 
-    :func:`undistort_step` (the fixed point :func:`flylib.geometry.undistort_one` starts
+    :func:`undistort_step` (the fixed point :func:`flylib.camera.jax_model.undistort_one` starts
     with), run until no coordinate moves by more than ``tol`` (or ``max_iter`` sweeps).
 
     Parameters
@@ -498,7 +498,7 @@ def dlt_solve(
     pmats: Float[AnyArray, "V 3 4"],
     weights: Float[AnyArray, " V *pts"] | None = None,
 ) -> Float[AnyArray, "*pts 3"]:
-    """Weighted NaN-aware DLT with array module ``xp`` (see :func:`flylib.geometry.triangulate_dlt`)."""
+    """Weighted NaN-aware DLT with array module ``xp`` (see :func:`flylib.camera.jax_model.triangulate_dlt`)."""
     pts2d = xp.asarray(pts2d, dtype=xp.float64)
     n_views = pts2d.shape[0]
     pts_shape = pts2d.shape[1:-1]

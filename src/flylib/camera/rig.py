@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from . import camera_model
-from .errors import ConfigError, did_you_mean
+from ..errors import ConfigError, did_you_mean
+from . import model as camera_model
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -303,7 +303,7 @@ class Camera:
     ) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
         """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre.
 
-        The NumPy counterpart of :func:`flylib.geometry.backproject_ray_one`.
+        The NumPy counterpart of :func:`flylib.camera.jax_model.backproject_ray_one`.
         """
         fx, fy, cx, cy = self.intr
         norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
@@ -318,7 +318,7 @@ def project_points(
     intrs: Float[np.ndarray, "V 4"],
     dists: Float[np.ndarray, "V K"],
 ) -> Float[np.ndarray, "V *pts 2"]:
-    """NumPy projection through stacked cameras (:func:`flylib.camera_model.project_generic`).
+    """NumPy projection through stacked cameras (:func:`flylib.camera.model.project_generic`).
 
     Parameters
     ----------
@@ -574,11 +574,11 @@ class CameraGroup:
         *,
         chunk_points: int | None = None,
     ) -> Float[np.ndarray, "*pts 3"]:
-        """Weighted NaN-aware DLT (see :func:`flylib.geometry.triangulate_dlt`).
+        """Weighted NaN-aware DLT (see :func:`flylib.camera.jax_model.triangulate_dlt`).
 
         Distorted cameras are handled by undistorting the observations first. The
         points run in fixed-length chunks through one jitted kernel
-        (:func:`flylib.geometry.triangulate_dlt_chunked`, JAX imported on the first
+        (:func:`flylib.camera.jax_model.triangulate_dlt_chunked`, JAX imported on the first
         call); :func:`flylib.triangulation.triangulate` is this method.
 
         Parameters
@@ -588,7 +588,7 @@ class CameraGroup:
         weights
             Optional ``(V, *pts)``; a non-positive or non-finite weight drops the view.
         chunk_points
-            Points per chunk (default :data:`flylib.geometry.DLT_CHUNK_POINTS`).
+            Points per chunk (default :data:`flylib.camera.jax_model.DLT_CHUNK_POINTS`).
 
         Returns
         -------
@@ -601,7 +601,7 @@ class CameraGroup:
             If ``pts2d`` is not ``(V, *pts, 2)`` for this rig's ``V`` or ``weights`` is
             not ``(V, *pts)``.
         """
-        from .geometry import DLT_CHUNK_POINTS, triangulate_dlt_chunked
+        from .jax_model import DLT_CHUNK_POINTS, triangulate_dlt_chunked
 
         pts2d = np.asarray(pts2d, dtype=np.float64)
         if pts2d.ndim < 2 or pts2d.shape[-1] != 2:

@@ -3,7 +3,7 @@
 Times, each warm (JIT excluded), best of ``--repeat``:
 
 * ``ba-jacobian``: bundle adjustment's jitted ``vmap(jacfwd(project_full_one))`` over
-  a 2,048-observation chunk with 5 distortion coefficients (``ba.solver``'s kernel);
+  a 2,048-observation chunk with 5 distortion coefficients (``ba.problem``'s kernel);
 * ``project_full``: JAX projection of 10,000 x 38 points through 7 distorted cameras;
 * ``group.project``: the same through ``CameraGroup.project`` (NumPy);
 * ``rodrigues-np``: ``rvec_to_rmat_numpy`` on 100,000 vectors;
@@ -11,10 +11,10 @@ Times, each warm (JIT excluded), best of ``--repeat``:
   undistorted points (frames/s).
 
 To compare two trees, run it on both, alternately, in one session (timings on a
-shared machine drift), e.g. ``PYTHONPATH=<old>/src python benchmarks/geometry.py``
-then ``PYTHONPATH=src python benchmarks/geometry.py``, and again.
+shared machine drift), e.g. ``PYTHONPATH=<old>/src python benchmarks/camera_model.py``
+then ``PYTHONPATH=src python benchmarks/camera_model.py``, and again.
 
-Run: ``.venv/bin/python benchmarks/geometry.py [--repeat 5]``
+Run: ``.venv/bin/python benchmarks/camera_model.py [--repeat 5]``
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ def main() -> None:
 
     import jax
 
-    from flylib import geometry, triangulation
-    from flylib.cameras import CameraGroup, orbit_extrinsics
+    from flylib import triangulation
+    from flylib.camera import jax_model
+    from flylib.camera.rig import CameraGroup, orbit_extrinsics
 
     rng = np.random.default_rng(0)
     azimuths = [-120, -90, -45, 0, 45, 90, 120]
@@ -55,7 +56,7 @@ def main() -> None:
     plain = CameraGroup.from_arrays(rig.names, rvecs, tvecs, intrs, np.zeros((7, 0)))
 
     def project_row(pt, row):
-        return geometry.project_full_one(pt, row[0:3], row[3:6], row[6:10], row[10:])
+        return jax_model.project_full_one(pt, row[0:3], row[3:6], row[6:10], row[10:])
 
     def project_with_jac(pt, row):
         return project_row(pt, row), *jax.jacfwd(project_row, argnums=(0, 1))(pt, row)
@@ -74,11 +75,13 @@ def main() -> None:
             lambda: jax.block_until_ready(jac_kernel(pts, rows)), args.repeat
         ),
         "project_full (JAX, 380k x 7)": _best(
-            lambda: jax.block_until_ready(geometry.project_full(pts3d, rvecs, tvecs, intrs, dists)),
+            lambda: jax.block_until_ready(
+                jax_model.project_full(pts3d, rvecs, tvecs, intrs, dists)
+            ),
             args.repeat,
         ),
         "group.project (NumPy, 380k x 7)": _best(lambda: rig.project(pts3d), args.repeat),
-        "rodrigues-np (100k)": _best(lambda: geometry.rvec_to_rmat_numpy(many_rvecs), args.repeat),
+        "rodrigues-np (100k)": _best(lambda: jax_model.rvec_to_rmat_numpy(many_rvecs), args.repeat),
         "group.triangulate (10k frames)": _best(lambda: plain.triangulate(pts2d), args.repeat),
         "triangulation.triangulate (10k frames)": _best(
             lambda: triangulation.triangulate(plain, pts2d), args.repeat

@@ -11,7 +11,7 @@ Conventions (shared by the whole package):
 * arrays are view-leading: ``(V, *pts, 2)`` for image points;
 * NaN marks a missing observation.
 
-The formulas live once, generic over the array module, in :mod:`flylib.camera_model`;
+The formulas live once, generic over the array module, in :mod:`flylib.camera.model`;
 this module binds them to ``jax.numpy`` (float64). The ``*_one`` functions handle one
 point / one camera and compose with ``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment
 builds its Jacobian from :func:`project_full_one`). The batched functions are jitted.
@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import jax
 import numpy as np
 
-from .paths import cache_dir
+from ..paths import cache_dir
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Callable
@@ -44,7 +44,7 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
 
 import jax.numpy as jnp  # noqa: E402
 
-from .camera_model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
+from .model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
     DLT_TERMS,
     N_DIST_COEFFS,
     distort_normalized,
@@ -516,7 +516,7 @@ def triangulate_dlt_chunked(
 ) -> Float[np.ndarray, "*pts 3"]:
     """:func:`triangulate_dlt` for any number of points, in bounded memory, to NumPy.
 
-    The bulk path behind :meth:`flylib.cameras.CameraGroup.triangulate` and
+    The bulk path behind :meth:`flylib.camera.rig.CameraGroup.triangulate` and
     :func:`flylib.triangulation.triangulate`: one kernel compiled per chunk length.
 
     Parameters

@@ -3,7 +3,7 @@
 Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m``
 (view ``v``, point ``n``) contributes two residual rows
 ``w_m * (project(X_n; camera_v) - xy_m)``; its Jacobian block is ``jax.jacfwd`` of
-:func:`flylib.geometry.project_full_one` with respect to the point and the camera row,
+:func:`flylib.camera.jax_model.project_full_one` with respect to the point and the camera row,
 ``vmap``-ed over observations and jitted once for a fixed chunk of rows (residuals alone
 use a NumPy twin of the same model, so they cost no compilation). Camera columns go
 through :class:`~flylib.bundle_adjustment.params.ParamLayout` (fixed entries dropped, tied entries
@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse
 from scipy.optimize import OptimizeResult, least_squares
 
-from .. import camera_model, geometry  # geometry: JAX, float64 on the CPU, the compile cache
+from ..camera import jax_model, model as camera_model  # jax_model: JAX float64, CPU, compile cache
 from .params import ParamLayout
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -40,7 +40,7 @@ def _jacobian_kernel():
     import jax
 
     def project_row(pt, row):
-        return geometry.project_full_one(pt, row[0:3], row[3:6], row[6:10], row[10:])
+        return jax_model.project_full_one(pt, row[0:3], row[3:6], row[6:10], row[10:])
 
     def project_with_jac(pt, row):
         value = project_row(pt, row)
@@ -62,7 +62,7 @@ def project_rows(
 ) -> Float[np.ndarray, "M 2"]:
     """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``.
 
-    The NumPy twin of :func:`flylib.geometry.project_full_one` (same pinhole + OpenCV
+    The NumPy twin of :func:`flylib.camera.jax_model.project_full_one` (same pinhole + OpenCV
     distortion model): residuals need no JIT compilation, only the Jacobian does.
     """
     if pts.shape[0] == 0:

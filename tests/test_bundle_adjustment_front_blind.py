@@ -1,4 +1,4 @@
-"""Bundle adjustment where the images leave directions open (issue 23 items 2 and 5).
+"""Bundle adjustment where the images leave directions open.
 
 The real DeepFly3D sample (front camera blind, the two sides share no view), the
 front-blind scene made of DeepFly3D's own 3D and calibration (``tests/front_blind.py``),

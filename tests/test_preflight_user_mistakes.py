@@ -1,5 +1,5 @@
 """What a new user trips over, caught at validation (before the DAG) with one line
-that names the key and the fix (issue 27): detector weights neither present nor
+that names the key and the fix: detector weights neither present nor
 downloadable, an import spec whose files do not exist, misspelled keys."""
 
 from __future__ import annotations

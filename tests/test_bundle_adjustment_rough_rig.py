@@ -1,4 +1,4 @@
-"""Bundle adjustment from a realistic rough rig (issue 12), and its building blocks.
+"""Bundle adjustment from a realistic rough rig, and its building blocks.
 
 The case (``tests/rough_rig.py``): tethered fly, DeepFly3D-like long-focal rig with five
 zero distortion coefficients, plan visibility, 1 px noise, 5 % outliers within +-80 px,
@@ -61,7 +61,7 @@ def test_schur_step_equals_the_dense_damped_solve(bone_group, global_point):
 def test_lm_reaches_the_least_squares_minimum_like_scipy():
     from scipy.optimize import least_squares
 
-    from flylib.bundle_adjustment.solver import project_rows
+    from flylib.bundle_adjustment.problem import project_rows
 
     problem, x = _small_problem(fixed=["*.intr", "*.dist", "rh.rvec", "rh.tvec", "rm.tvec[2]"])
     rng = np.random.default_rng(0)
