@@ -91,10 +91,10 @@ def bench_planning(n: int) -> dict:
 
 
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
-    from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
     from flylib.pipeline.artifacts import artifact_path
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+    from flylib.pipeline.demo import demo_import_spec
     from flylib.pipeline.inputs import stage_inputs
     from flylib.pipeline.triangulation import run_triangulation
 

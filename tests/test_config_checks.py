@@ -26,7 +26,7 @@ from flylib.config.layers import ConfigLayers, key_path
 from flylib.config.params import _LEAST_SQUARES_CHECKS
 from flylib.errors import ConfigError
 from flylib.pipeline.inputs import stage_params
-from flylib.preflight import model_weights, preflight_problems
+from flylib.pipeline.preflight import model_weights, preflight_problems
 from flylib.recordings import Recording
 
 REPO = Path(__file__).resolve().parents[1]

@@ -100,8 +100,8 @@ def test_visibility_follows_output_points(config):
 
 
 def test_demo_files_round_trip_through_the_dlc_import(config, demo):
-    from flylib.demo import demo_import_spec
     from flylib.interop import import_points2d
+    from flylib.pipeline.demo import demo_import_spec
 
     truth = load_truth(demo.truth)
     np.testing.assert_array_equal(truth["points3d"], demo.points3d)

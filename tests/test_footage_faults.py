@@ -202,9 +202,8 @@ def test_detector_fails_on_a_truncated_video(tmp_path):
 
 def test_import_against_truncated_footage_names_both_files_and_counts(tmp_path):
     from flylib.config import Config
-    from flylib.demo import demo_import_spec
     from flylib.interop import import_points2d
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     config = Config.default()
     make_demo(config, tmp_path, frames=6, seed=0)

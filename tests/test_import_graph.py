@@ -90,7 +90,6 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "stages",
         (
             "flylib.pipeline",
-            "flylib.preflight",
             "flylib.run_summary",
         ),
     ),

@@ -269,8 +269,7 @@ def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig
 
 def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     """Import the demo's 2D for a 6-frame recording, triangulate, assemble."""
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
     from flylib.pipeline.stages import run_assemble, run_inputs, run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
 
@@ -368,7 +367,7 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
 
     # pose2d re-made with other params beside a triangulation built on the old one: mixed.
     other = _config(tmp_path, "other.yaml", lambda d: d["pose2d"].update(precision="float32"))
-    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import demo_import_spec
     from flylib.pipeline.stages import run_assemble, run_pose2d
 
     run_pose2d(
@@ -409,8 +408,7 @@ def _snakemake(
 
 @pytest.mark.slow
 def test_only_assemble_writes_the_config_snapshot_after_the_results(tmp_path):
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     data["pipeline"].update(do_bundle_adjustment=False, do_visualization=False)
@@ -510,8 +508,7 @@ _HOLDER = textwrap.dedent("""
 
 def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     config = _config(tmp_path, "config.yaml")
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
     from flylib.pipeline.stages import run_pose2d
 
     recording = tmp_path / "rec"

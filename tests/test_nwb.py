@@ -40,9 +40,8 @@ BLANKED = [(3, 0), (3, 5), (17, 12), (39, 37)]  # (frame, point) 3D points set t
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
     """A demo recording run through pose2d (DLC import) and triangulation; its results.h5."""
-    from flylib.demo import demo_import_spec
     from flylib.pipeline import stages
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
     from flylib.pipeline.triangulation import run_triangulation
 
     config = Config.default()

@@ -15,8 +15,8 @@ import pytest
 import yaml
 
 from flylib.config import Config, validate_config
+from flylib.pipeline.preflight import preflight_problems
 from flylib.pose2d import published
-from flylib.preflight import preflight_problems
 from flylib.recordings import Recording
 
 REPO = Path(__file__).resolve().parents[1]

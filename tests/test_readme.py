@@ -14,7 +14,7 @@ from flylib.config import Config, validate_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.pipeline.artifacts import SUMMARY_FILES
 from flylib.pipeline.inputs import stage_inputs
-from flylib.preflight import preflight_problems
+from flylib.pipeline.preflight import preflight_problems
 from flylib.recordings import Recording
 
 REPO = Path(__file__).resolve().parents[1]

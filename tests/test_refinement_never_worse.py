@@ -115,8 +115,7 @@ def test_front_blind_scene_through_bundle_adjustment(tmp_path):
 
 
 def test_the_demo(tmp_path, capsys):
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     config = Config.default()
     make_demo(config, tmp_path / "demo")

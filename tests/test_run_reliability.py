@@ -443,10 +443,9 @@ def test_footage_of_another_size_than_its_calibration_names_the_camera_and_both_
 
 def test_imported_2d_outside_a_reencoded_videos_frame_names_the_camera_and_sizes(tmp_path):
     from flylib.config import Config
-    from flylib.demo import demo_import_spec
     from flylib.errors import FootageError
     from flylib.io import VideoWriter, open_reader
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
     from flylib.pipeline.stages import run_pose2d
 
     config = Config.default()
@@ -500,8 +499,7 @@ def _run(workdir: Path, *args: str, timeout: float = 900) -> subprocess.Complete
 def finished_run(tmp_path_factory):
     """A work directory with two tiny recordings run to completion."""
     from flylib.config import Config
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     root = tmp_path_factory.mktemp("claim")
     data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())

@@ -5,9 +5,8 @@ from __future__ import annotations
 import pytest
 
 from flylib.config import Config
-from flylib.demo import demo_import_spec
 from flylib.errors import ResultsError
-from flylib.pipeline.demo import make_demo
+from flylib.pipeline.demo import demo_import_spec, make_demo
 from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.pictorial_structures import run_pictorial_structures
 from flylib.pipeline.stages import run_inputs, run_pose2d

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
-from flylib.demo import demo_import_spec, load_truth, synthetic_fly
-from flylib.pipeline.demo import make_demo
+from flylib.demo import load_truth, synthetic_fly
+from flylib.pipeline.demo import demo_import_spec, make_demo
 from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.stages import run_inputs, run_pose2d
 from flylib.pipeline.triangulation import run_triangulation

@@ -83,8 +83,7 @@ def test_thread_map_runs_at_most_workers_items_ahead_of_the_consumer():
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     """A tiny demo recording with its pose2d artifact, and a config rendering one short video."""
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
     from flylib.pipeline.stages import run_pose2d
 
     root = tmp_path_factory.mktemp("threads")
@@ -234,7 +233,7 @@ def test_a_one_thread_pose2d_job_starts_no_thread(recording, started, torch_thre
     the calling thread; with two threads the sources decode on their own threads again."""
     import json
 
-    from flylib.demo import demo_import_spec
+    from flylib.pipeline.demo import demo_import_spec
     from flylib.pose2d.model import HourglassNet
     from flylib.pose2d.weights import save_checkpoint
     from flylib.results import Pose2dData

@@ -147,8 +147,7 @@ def _same(a, b):
 @pytest.fixture(scope="module")
 def base_run(tmp_path_factory):
     """A tiny demo recording and every stage's artifact from the default config."""
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     root = tmp_path_factory.mktemp("tracked")
     data = Config.default().data

@@ -66,8 +66,7 @@ def planned(workdir: Path, config: dict) -> set[tuple[str, str]]:
 def make_recording(config: dict, directory: Path, seed: int) -> dict:
     """A tiny synthetic recording (footage + DLC CSVs); returns its recordings entry."""
     from flylib.config import Config
-    from flylib.demo import demo_import_spec
-    from flylib.pipeline.demo import make_demo
+    from flylib.pipeline.demo import demo_import_spec, make_demo
 
     cfg = Config.from_dict(config)
     make_demo(cfg, directory, frames=FRAMES, seed=seed)

@@ -410,7 +410,7 @@ def _cmd_calibration(args) -> int:
 
 def _cmd_check_config(args) -> int:
     from .config.layers import ConfigLayers
-    from .preflight import load_run_config
+    from .pipeline.preflight import load_run_config
 
     layers = ConfigLayers.from_files(args.configfiles)
     _, recordings = load_run_config(layers)

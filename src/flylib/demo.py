@@ -38,8 +38,6 @@ from .paths import atomic_path
 from .recordings import (  # noqa: F401  (the demo directory's layout, re-exported)
     DLC_SCORER,
     TRUTH_FILE,
-    demo_files,
-    demo_import_spec,
     dlc_filename,
 )
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .config.sources import source_patterns, view_names, view_sources
+from .config.sources import source_patterns
 from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
 from .io.images import natural_key
@@ -545,36 +545,6 @@ def _format_outdir(template: str, *, recording: Path, rid: str) -> Path:
 def dlc_filename(footage_name: str) -> str:
     """The DeepLabCut CSV name for a video (DLC's ``<video stem>DLC_<scorer>.csv``)."""
     return f"{Path(footage_name).stem}DLC_{DLC_SCORER}.csv"
-
-
-def demo_files(config: Any) -> dict[str, list[str]]:
-    """File names :func:`flylib.demo.make_demo` writes, relative to the demo directory.
-
-    Returns
-    -------
-    dict
-        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
-        order) and ``truth`` (``[truth.h5]``).
-    """
-    patterns = source_patterns(config)
-    for name, pattern in patterns.items():
-        if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
-            raise ConfigError(
-                f"sources: {name!r} has filename {pattern!r}; the demo writes one "
-                ".mp4 per source, so each source needs a plain '<name>.mp4' filename"
-            )
-    by_view = view_sources(config)
-    return {
-        "footage": list(patterns.values()),
-        "dlc": [dlc_filename(patterns[by_view[v]]) for v in view_names(config)],
-        "truth": [TRUTH_FILE],
-    }
-
-
-def demo_import_spec(config: Any) -> dict[str, Any]:
-    """The ``pose2d.import`` entry that reads the demo's CSVs: ``{format, files}``,
-    ``files`` mapping each view to its CSV (relative to the demo directory)."""
-    return {"format": "dlc_csv", "files": dict(zip(view_names(config), demo_files(config)["dlc"]))}
 
 
 def plan_listing(

@@ -13,7 +13,7 @@ from snakemake.logging import logger
 from flylib.config.layers import ConfigLayers
 from flylib.errors import FlylibError
 from flylib.pipeline.planning import calibration_inputs as _calibration_files
-from flylib.preflight import load_run_config
+from flylib.pipeline.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
 from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact

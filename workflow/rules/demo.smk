@@ -2,7 +2,7 @@
 # configured rig, its 2D keypoints as DeepLabCut CSVs, and the 3D truth. Generated
 # only when the recordings list holds a {path: ..., demo: true} entry.
 
-from flylib.demo import demo_files
+from flylib.pipeline.demo import demo_files
 from flylib.pipeline.demo import DemoInputs
 
 DEMO = next((r for r in RECORDINGS if r.demo), None)

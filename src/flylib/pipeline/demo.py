@@ -15,7 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..config.sources import source_patterns, view_names, view_sources
 from ..errors import ConfigError
+from ..recordings import TRUTH_FILE, dlc_filename
 from .assemble import AssembleInputs
 from .inputs import RigSpec, SkeletonSpec, StageInputs, _json, frozen_mapping
 
@@ -43,16 +45,13 @@ class DemoLayout:
 
     @classmethod
     def from_config(cls, config) -> DemoLayout:
-        """The layout ``config`` gives (:func:`flylib.recordings.demo_files`).
+        """The layout ``config`` gives (:func:`demo_files`).
 
         Raises
         ------
         ConfigError
             If a source's filename is not a plain ``<name>.mp4``.
         """
-        from ..config.sources import source_patterns, view_sources
-        from ..recordings import demo_files
-
         dlc = demo_files(config)["dlc"]
         return cls(
             view_sources=tuple(view_sources(config).items()),
@@ -208,3 +207,33 @@ def make_demo(config, directory: str | Path, **overrides: Any):
     flylib.demo.DemoRecording
     """
     return run_demo(DemoInputs.from_config(config), directory, **overrides)
+
+
+def demo_files(config: Any) -> dict[str, list[str]]:
+    """File names :func:`make_demo` writes, relative to the demo directory.
+
+    Returns
+    -------
+    dict
+        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
+        order) and ``truth`` (``[truth.h5]``).
+    """
+    patterns = source_patterns(config)
+    for name, pattern in patterns.items():
+        if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
+            raise ConfigError(
+                f"sources: {name!r} has filename {pattern!r}; the demo writes one "
+                ".mp4 per source, so each source needs a plain '<name>.mp4' filename"
+            )
+    by_view = view_sources(config)
+    return {
+        "footage": list(patterns.values()),
+        "dlc": [dlc_filename(patterns[by_view[v]]) for v in view_names(config)],
+        "truth": [TRUTH_FILE],
+    }
+
+
+def demo_import_spec(config: Any) -> dict[str, Any]:
+    """The ``pose2d.import`` entry that reads the demo's CSVs: ``{format, files}``,
+    ``files`` mapping each view to its CSV (relative to the demo directory)."""
+    return {"format": "dlc_csv", "files": dict(zip(view_names(config), demo_files(config)["dlc"]))}

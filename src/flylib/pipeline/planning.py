@@ -13,7 +13,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from ..config import Config
-from ..recordings import Recording, demo_import_spec, plan_listing
+from ..recordings import Recording, plan_listing
+from .demo import demo_import_spec
 from .inputs import RigSpec, stage_params
 
 __all__ = ["calibration_inputs", "config_rig", "params_of", "plan_recordings"]

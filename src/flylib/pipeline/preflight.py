@@ -15,10 +15,10 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
-from .errors import FlylibError
+from ..errors import FlylibError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .config import Config
+    from ..config import Config
 
 
 def _problem(exc: FlylibError, prefix: str | None = None) -> str:
@@ -75,8 +75,8 @@ def preflight_problems(
             problems.append(_problem(exc))
 
     if flags.get("bundle_adjustment", True) and config.view_names():
-        from .bundle_adjustment.params import build_layout
-        from .camera.model import N_DIST_COEFFS
+        from ..bundle_adjustment.params import build_layout
+        from ..camera.model import N_DIST_COEFFS
 
         ba = config.bundle_adjustment
         try:  # every distortion slot allowed: the job pads to the rig's own count
@@ -86,7 +86,7 @@ def preflight_problems(
 
     calibration = data.get("calibration")
     if isinstance(calibration, dict) and calibration.get("format") is not None:
-        from .interop.anipose import CALIBRATION_FORMATS
+        from ..interop.anipose import CALIBRATION_FORMATS
 
         if calibration["format"] not in CALIBRATION_FORMATS:
             problems.append(
@@ -95,7 +95,7 @@ def preflight_problems(
             )
 
     if any(rec.demo for rec in recordings):
-        from .demo import demo_settings
+        from ..demo import demo_settings
 
         try:
             demo_settings(config.data.get("demo"))
@@ -138,9 +138,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     """
     import yaml
 
-    from .config import Config, validate_config
-    from .errors import ConfigError
-    from .pipeline.planning import plan_recordings
+    from ..config import Config, validate_config
+    from ..errors import ConfigError
+    from .planning import plan_recordings
 
     problems = validate_config(layers.data)
     if problems:
@@ -162,11 +162,11 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 
 
 def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
-    from .interop import import_spec
-    from .interop.importer import import_files
-    from .pipeline.pose2d import import_target
-    from .pose2d.published import checkpoint_problem
-    from .recordings import find_recording
+    from ..interop import import_spec
+    from ..interop.importer import import_files
+    from ..pose2d.published import checkpoint_problem
+    from ..recordings import find_recording
+    from .pose2d import import_target
 
     problems: list[str] = []
     detector = []
