@@ -646,3 +646,21 @@ def test_videos_and_detection_plan_delegate_to_their_modules(default):
     plan = default.detection_plan()
     assert list(plan.view_names) == default.view_names()
     assert list(plan.point_names) == list(Skeleton.fly().point_names)
+
+
+@pytest.mark.parametrize(
+    "path, value, key",
+    [
+        (("skeleton", "point_names", 0), ["lf_thorax_coxa"], "skeleton.point_names"),
+        (("skeleton", "limb_points", "lf_leg", 0), ["lf_claw"], "skeleton.limb_points.lf_leg"),
+        (("skeleton", "limb_points", "lf_leg", 0), {"a": 1}, "skeleton.limb_points.lf_leg"),
+    ],
+)
+def test_a_point_name_that_is_not_a_string_is_one_line_naming_the_key(data, path, value, key):
+    node = data
+    for part in path[:-1]:
+        node = node[part]
+    node[path[-1]] = value
+    with pytest.raises(ConfigError) as raised:
+        Config.from_dict(data)
+    assert any(line.strip().startswith(f"{key}:") for line in str(raised.value).splitlines())

@@ -85,7 +85,7 @@ def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
             problems.append(f"{where}: expected a non-empty list of point names")
             continue
         for point in points:
-            if point not in seen:
+            if not isinstance(point, str) or point not in seen:
                 problems.append(f"{where}: unknown point {point!r} (known: {', '.join(names)})")
             elif point in owner:
                 problems.append(

@@ -219,7 +219,10 @@ def validate_config(data: Any) -> list[str]:
         skeleton_issues = skeleton_problems(data["skeleton"])
         problems += skeleton_issues
         names = data["skeleton"].get("point_names")
-        point_names = tuple(names) if isinstance(names, list) else ()
+        # only a valid list names the points the other tables refer to (the skeleton
+        # check reports a bad one)
+        valid = isinstance(names, list) and all(isinstance(n, str) for n in names)
+        point_names = tuple(names) if valid else ()
     else:
         point_names = _default_point_names()
     view_names = _camera_view_names(data, table("cameras"), problems)
