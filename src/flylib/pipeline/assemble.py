@@ -23,23 +23,9 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+from .stage_helpers import RigRuntime
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class AssembleRuntime:
-    """What the assemble job needs beyond its tracked params.
-
-    Attributes
-    ----------
-    config_dir
-        Where a relative calibration path is looked up after the recording's folder
-        (the config file's folder). Not tracked: the calibration file is an input of
-        the rule.
-    """
-
-    config_dir: Path | None = None
 
 
 @register
@@ -55,14 +41,14 @@ class AssembleInputs(StageInputs):
         The whole skeleton table (palette and name included: ``results.h5`` and the
         summary figure carry them).
     runtime
-        :class:`AssembleRuntime` (untracked).
+        :class:`~flylib.pipeline.stage_helpers.RigRuntime` (untracked).
     """
 
     STAGE = "assemble"
 
     rig: RigSpec
     skeleton: SkeletonSpec
-    runtime: AssembleRuntime = AssembleRuntime()
+    runtime: RigRuntime = RigRuntime()
 
     @classmethod
     def from_config(cls, config) -> AssembleInputs:
@@ -71,13 +57,13 @@ class AssembleInputs(StageInputs):
         return cls(
             rig=rig,
             skeleton=SkeletonSpec.from_config(config, palette=True, name=True),
-            runtime=AssembleRuntime(rig.config_dir),
+            runtime=RigRuntime(rig.config_dir),
         )
 
     @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> AssembleInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (an :class:`AssembleRuntime`)."""
-        runtime = runtime or AssembleRuntime()
+        """Inverse of :meth:`params`, with ``runtime`` (a :class:`~flylib.pipeline.stage_helpers.RigRuntime`)."""
+        runtime = runtime or RigRuntime()
         skeleton = params["skeleton"]
         return cls(
             rig=RigSpec.from_params(params["rig"], runtime.config_dir),

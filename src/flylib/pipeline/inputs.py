@@ -21,7 +21,7 @@ import copy
 import importlib
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -172,7 +172,7 @@ class RigSpec:
     views: tuple[str, ...]
     cameras: Mapping[str, Any]
     calibration: Mapping[str, Any] | None
-    config_dir: Path | None = field(default=None, compare=True)
+    config_dir: Path | None = None
 
     @classmethod
     def from_config(cls, config: Config) -> RigSpec:
