@@ -20,8 +20,6 @@ from .checks import (
     _string_list,
 )
 from .constants import (
-    BA_DEFAULT_BONE_LENGTHS,
-    BA_DEFAULT_SOLVER,
     BA_DISTORTION_MODES,
     BA_SOLVERS,
     FRAME_SAMPLINGS,
@@ -202,13 +200,13 @@ class BundleAdjustmentParams:
     weigh_by_confidence: bool = _param(False, _boolean)
     max_frames: int | None = _param(200, _integer(1, nullable=True))
     frame_sampling: str = _param("even", _choice(*FRAME_SAMPLINGS))
-    solver: str = _param(BA_DEFAULT_SOLVER, _choice(*BA_SOLVERS))
+    solver: str = _param("lm", _choice(*BA_SOLVERS))
     distortion: str = _param("auto", _choice(*BA_DISTORTION_MODES))
     max_rounds: int = _param(10, _integer(1))
     outlier_factor: float = _param(5.0, _number(0, exclusive=True))
     outlier_min_px: float = _param(3.0, _number(0))
     reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
-    bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
+    bone_lengths: bool = _param(True, _boolean)
     symmetric_bones: bool = _param(True, _boolean)
     length_weight: float = _param(100.0, _number(0, exclusive=True))
     rigid_points: tuple[str, ...] = _param(TETHERED_RIGID_POINTS, _string_list(), kind=tuple)

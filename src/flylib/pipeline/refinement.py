@@ -46,7 +46,6 @@ from ..config import TriangulationParams
 from ..config.params import _build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
-from ..refinement.setup import options_from_params
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
@@ -351,7 +350,6 @@ def compute_refinement(
     params = inputs.refinement
     skeleton = inputs.skeleton.skeleton()
     terms = skeleton_terms(skeleton, params.rigid_points)
-    options = options_from_params(params)
     source = TriangulationSource(pose2d, triangulation)
     check = HeldOutCheck(
         cameras,
@@ -360,7 +358,7 @@ def compute_refinement(
         source.start,
         triangulation_method(inputs.triangulation, cameras),
         lambda scale: refinement_method(replace(params, smooth_scale=scale), cameras, skeleton),
-        options,
+        params,
         params.motion_scales,
         terms,
         skeleton.point_names,
@@ -369,7 +367,11 @@ def compute_refinement(
     out = refine_stream(source, cameras, sink, options=options, **terms)
     keep_corrected(triangulation, sink)
     accuracy = check.apply(sink, triangulation)
-    record = asdict(options)
+    # the artifact's record of the solver's settings, as written before the params and
+    # the solver's options were one class: without motion_scales, rigid_points last
+    record = {
+        k: v for k, v in asdict(options).items() if k not in ("motion_scales", "rigid_points")
+    }
     record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
     attrs = _attrs(
         skeleton,
