@@ -1,4 +1,13 @@
-"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders."""
+"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
+
+Each field is declared once, with :func:`~flylib.config.checks._param`: its default (the
+one place it is written: the algorithms' keyword defaults read it from the class, e.g.
+``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's
+params track every field, except one declared with ``track_default=False``: such a field
+is tracked only when set to something other than its default. Give a new knob that
+marker, so the results made before it existed keep their params hash (a config that
+leaves it at its default re-runs nothing).
+"""
 
 from __future__ import annotations
 
@@ -18,6 +27,7 @@ from .checks import (
     _string,
     _string_groups,
     _string_list,
+    is_tracked,
 )
 from .constants import (
     BA_DISTORTION_MODES,
@@ -91,11 +101,16 @@ class TriangulationParams:
     max_drops: int = _param(5, _integer(0))
 
     def method_params(self) -> dict[str, Any]:
-        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``)."""
+        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``),
+        as the stage tracks them (a ``track_default=False`` knob only when not at its default)."""
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
-            **{name: getattr(self, name) for name in TRIANGULATION_KNOBS[self.method]},
+            **{
+                name: getattr(self, name)
+                for name in TRIANGULATION_KNOBS[self.method]
+                if is_tracked(self, name)
+            },
         }
 
     def method_kwargs(self) -> dict[str, Any]:

@@ -47,8 +47,18 @@ from ..config.params import _build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    TRIANGULATION,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import RigRuntime, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -80,10 +90,10 @@ class RefinementInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    refinement: RefinementParams
-    triangulation: TriangulationParams
-    skeleton: SkeletonSpec
-    rig: RigSpec | None
+    refinement: RefinementParams = tracked(typed_params(RefinementParams))
+    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    skeleton: SkeletonSpec = tracked(SKELETON)
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -96,27 +106,6 @@ class RefinementInputs(StageInputs):
             rig=rig,
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
-        runtime = runtime or RigRuntime()
-        rig = params.get("rig")
-        return cls(
-            refinement=_build_params(RefinementParams, params["refinement"]),
-            triangulation=_triangulation(params["triangulation"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=rig_from_params(rig, runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        return {
-            "refinement": asdict(self.refinement),
-            # the held-out-view check re-runs the triangulation without each view
-            "triangulation": self.triangulation.method_params(),
-            "skeleton": self.skeleton.structure(),
-            "rig": rig_params(self.rig),
-        }
 
 
 def _triangulation(method_params: Mapping) -> TriangulationParams:
