@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from flylib.config.postprocessing import RefinementParams
 from flylib.demo import synthetic_fly
 from flylib.pipeline.inputs import stage_inputs
 from flylib.refinement import (
-    RefineOptions,
     difference_gram,
     refine_points,
     skeleton_terms,
@@ -67,7 +67,7 @@ def test_kernel_gradient_matches_finite_differences(loss, order, dist):
     problem, xs = _tiny_problem(
         padded=8,
         dist=dist,
-        opts=RefineOptions(loss=loss, smooth_order=order),
+        opts=RefinementParams(loss=loss, smooth_order=order),
         rigid_offset=0.003,
     )
     _cost, rows, grad, _ = problem.evaluate(xs)
@@ -134,7 +134,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
         rig,
         start,
         inliers=np.isfinite(clean2d).all(-1),
-        options=RefineOptions(gap_length=5),
+        options=RefinementParams(gap_length=5),
         **terms,
     )
     assert np.isfinite(result.points3d[10:13, p]).all()
@@ -161,7 +161,7 @@ def test_rigid_thorax_points_stay_put_and_chunks_agree_with_one_solve():
         start,
         conf=conf,
         inliers=inliers,
-        options=RefineOptions(chunk_frames=50, overlap_frames=16),
+        options=RefinementParams(chunk_frames=50, overlap_frames=16),
         **terms,
     )
     assert whole.info["chunks"] == 1 and chunked.info["chunks"] == 3
@@ -255,7 +255,7 @@ def test_band_is_the_hessian_at_a_zero_residual_solution(order, smooth):
         bone_lengths(truth, terms["bones"]),
         rigid,
         rigid_centres(truth, rigid),
-        RefineOptions(smooth_order=order, smooth_weight=smooth),
+        RefinementParams(smooth_order=order, smooth_weight=smooth),
         8,
     )
     xs = problem.to_slots(truth)
@@ -299,7 +299,7 @@ def _tiny_problem(frames=6, padded=None, seed=0, dist=False, opts=None, rigid_of
         bone_lengths(truth, terms["bones"]),
         rigid,
         rigid_centres(truth, rigid) + rigid_offset,
-        opts or RefineOptions(),
+        opts or RefinementParams(),
         padded or frames,
     )
     start = truth + np.random.default_rng(seed).normal(0, 0.01, truth.shape)
@@ -394,7 +394,7 @@ def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
         start,
         conf=conf,
         inliers=np.isfinite(clean2d).all(-1),
-        options=RefineOptions(chunk_frames=40, overlap_frames=8),
+        options=RefinementParams(chunk_frames=40, overlap_frames=8),
         **skeleton_terms(Skeleton.fly(), None),
     )
     assert result.info["chunks"] == 4

@@ -285,15 +285,14 @@ def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> T
 def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
     """The refinement stage's 3D method as :func:`held_out_errors` calls it (the
     ``refinement`` table and the skeleton's bones and rigid points)."""
-    from .refinement.setup import options_from_params, skeleton_terms
+    from .refinement.setup import skeleton_terms
     from .refinement.solver import refine_points
 
     terms = skeleton_terms(skeleton, params.rigid_points)
-    options = options_from_params(params)
 
     def refine(pts2d, conf, start, kept):
         return refine_points(
-            pts2d, cameras, start, conf=conf, inliers=kept, options=options, **terms
+            pts2d, cameras, start, conf=conf, inliers=kept, options=params, **terms
         ).points3d
 
     return refine

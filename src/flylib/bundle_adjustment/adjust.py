@@ -32,6 +32,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from ..config.constants import BA_DISTORTION_MODES, BA_SOLVERS
+from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
 from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
@@ -56,15 +58,10 @@ log = logging.getLogger(__name__)
 
 __all__ = ["bundle_adjust", "camera_table"]
 
+# The keyword defaults the ``bundle_adjustment`` table also has are read from its params
+# class (:class:`~flylib.config.params.BundleAdjustmentParams`): one owner per default.
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
-DEFAULT_LENGTH_WEIGHT = 100.0  # px per 100 % deviation from a bone's common length
 DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
-DEFAULT_OUTLIER_FACTOR = 5.0
-DEFAULT_OUTLIER_MIN_PX = 3.0
-DEFAULT_MAX_ROUNDS = 10
-DEFAULT_SOLVER = "lm"
-DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
-DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
 #: a camera whose position around the fly ends this far from where the starting rig put
 #: it is named as possibly swapped or mislabeled (a rough start moves cameras up to
 #: ~8 degrees; neighbouring cameras of the fly rig are 30-45 degrees apart)
@@ -75,8 +72,8 @@ STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this chan
 #: an observation set aside comes back within this fraction of the threshold only: the
 #: band keeps borderline observations from flipping in and out round after round
 RETURN_FRACTION = 0.8
-SOLVERS = ("lm", "scipy")
-DISTORTION_MODES = ("auto", "free", "fixed")
+SOLVERS = BA_SOLVERS
+DISTORTION_MODES = BA_DISTORTION_MODES
 
 
 def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
@@ -111,20 +108,20 @@ def bundle_adjust(
     shared: Sequence[Sequence[str]] = (),
     pts3d: Float[np.ndarray, "N 3"] | None = None,
     conf: Float[np.ndarray, "V N"] | None = None,
-    weigh_by_confidence: bool = False,
+    weigh_by_confidence: bool = BundleAdjustmentParams.weigh_by_confidence,
     bones: tuple[np.ndarray, ...] | None = None,
     bone_weight: float = DEFAULT_BONE_WEIGHT,
     reject_outliers: bool = True,
     init_threshold: float = DEFAULT_INIT_THRESHOLD,
-    outlier_factor: float = DEFAULT_OUTLIER_FACTOR,
-    outlier_min_px: float = DEFAULT_OUTLIER_MIN_PX,
-    max_rounds: int = DEFAULT_MAX_ROUNDS,
+    outlier_factor: float = BundleAdjustmentParams.outlier_factor,
+    outlier_min_px: float = BundleAdjustmentParams.outlier_min_px,
+    max_rounds: int = BundleAdjustmentParams.max_rounds,
     canonical_gauge: bool = True,
     point_ids: Int[np.ndarray, " N"] | None = None,
-    solver: str = DEFAULT_SOLVER,
-    distortion: str = "auto",
-    reseed_px: float | None = DEFAULT_RESEED_PX,
-    warn_ratio: float = DEFAULT_WARN_RATIO,
+    solver: str = BundleAdjustmentParams.solver,
+    distortion: str = BundleAdjustmentParams.distortion,
+    reseed_px: float | None = BundleAdjustmentParams.reseed_px,
+    warn_ratio: float = BundleAdjustmentParams.warn_ratio,
     **solver_kwargs,
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "N 3"]]:
     """Bundle-adjust a camera group against observed 2D points.

@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
-from .adjust import DEFAULT_INIT_THRESHOLD, DEFAULT_LENGTH_WEIGHT, _ransac_points, bundle_adjust
+from .adjust import DEFAULT_INIT_THRESHOLD, _ransac_points, bundle_adjust
 from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -50,15 +51,15 @@ def bundle_adjust_sequence(
     skeleton: Skeleton | None = None,
     *,
     points_to_use: Sequence[str] | None = None,
-    max_frames: int | None = 200,
-    frame_sampling: str = "even",
-    weigh_by_confidence: bool = False,
+    max_frames: int | None = BundleAdjustmentParams.max_frames,
+    frame_sampling: str = BundleAdjustmentParams.frame_sampling,
+    weigh_by_confidence: bool = BundleAdjustmentParams.weigh_by_confidence,
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
     bone_prior: bool = False,
-    bone_lengths: bool = True,
-    symmetric_bones: bool = True,
-    length_weight: float = DEFAULT_LENGTH_WEIGHT,
+    bone_lengths: bool = BundleAdjustmentParams.bone_lengths,
+    symmetric_bones: bool = BundleAdjustmentParams.symmetric_bones,
+    length_weight: float = BundleAdjustmentParams.length_weight,
     rigid_points: Sequence[str] | None = None,
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
     rigid_px: float | None = DEFAULT_RIGID_PX,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping
-from dataclasses import field
+from dataclasses import asdict, field
 from typing import Any
 
 Check = Callable[[Any], "str | None"]
@@ -111,6 +111,32 @@ def _mapping(nullable: bool = False) -> Check:
     return check
 
 
-def _param(default: Any, check: Check, *, kind: type | None = None) -> Any:
-    """A typed-parameter field: its default, its value check, and a conversion."""
-    return field(default=default, metadata={"check": check, "kind": kind})
+def _param(
+    default: Any, check: Check, *, kind: type | None = None, track_default: bool = True
+) -> Any:
+    """A typed-parameter field: its default, its value check, and a conversion.
+
+    ``track_default=False`` is for a field added after results were made without it:
+    the field enters a stage's tracked params (:func:`tracked_table`,
+    :meth:`~flylib.config.params.TriangulationParams.method_params`) only when it differs
+    from its default, so adding it leaves every existing params hash, and the results
+    made under them, as they were. Every field that existed before this marker keeps
+    ``True`` (always tracked), so its hashes stay equal too.
+    """
+    return field(
+        default=default,
+        metadata={"check": check, "kind": kind, "track_default": track_default},
+    )
+
+
+def is_tracked(params: Any, name: str) -> bool:
+    """Whether field ``name`` of the typed params ``params`` enters its tracked params:
+    always, unless marked ``track_default=False`` (:func:`_param`) and at its default."""
+    spec = params.__dataclass_fields__[name]
+    return spec.metadata.get("track_default", True) or getattr(params, name) != spec.default
+
+
+def tracked_table(params: Any) -> dict[str, Any]:
+    """A typed params object as its stage's params track it: :func:`dataclasses.asdict`
+    without the ``track_default=False`` fields that hold their default."""
+    return {k: v for k, v in asdict(params).items() if is_tracked(params, k)}

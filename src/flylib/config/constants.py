@@ -68,8 +68,6 @@ TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
 BA_SOLVERS = ("lm", "scipy")
 BA_DISTORTION_MODES = ("auto", "free", "fixed")
-BA_DEFAULT_SOLVER = "lm"
-BA_DEFAULT_BONE_LENGTHS = True
 # a tethered fly's thorax-coxa joints do not move (what `rigid_points` would list; names
 # missing from a skeleton are ignored)
 TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))

@@ -1,4 +1,13 @@
-"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders."""
+"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
+
+Each field is declared once, with :func:`~flylib.config.checks._param`: its default (the
+one place it is written: the algorithms' keyword defaults read it from the class, e.g.
+``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's
+params track every field, except one declared with ``track_default=False``: such a field
+is tracked only when set to something other than its default. Give a new knob that
+marker, so the results made before it existed keep their params hash (a config that
+leaves it at its default re-runs nothing).
+"""
 
 from __future__ import annotations
 
@@ -18,10 +27,9 @@ from .checks import (
     _string,
     _string_groups,
     _string_list,
+    is_tracked,
 )
 from .constants import (
-    BA_DEFAULT_BONE_LENGTHS,
-    BA_DEFAULT_SOLVER,
     BA_DISTORTION_MODES,
     BA_SOLVERS,
     FRAME_SAMPLINGS,
@@ -93,11 +101,16 @@ class TriangulationParams:
     max_drops: int = _param(5, _integer(0))
 
     def method_params(self) -> dict[str, Any]:
-        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``)."""
+        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``),
+        as the stage tracks them (a ``track_default=False`` knob only when not at its default)."""
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
-            **{name: getattr(self, name) for name in TRIANGULATION_KNOBS[self.method]},
+            **{
+                name: getattr(self, name)
+                for name in TRIANGULATION_KNOBS[self.method]
+                if is_tracked(self, name)
+            },
         }
 
     def method_kwargs(self) -> dict[str, Any]:
@@ -202,13 +215,13 @@ class BundleAdjustmentParams:
     weigh_by_confidence: bool = _param(False, _boolean)
     max_frames: int | None = _param(200, _integer(1, nullable=True))
     frame_sampling: str = _param("even", _choice(*FRAME_SAMPLINGS))
-    solver: str = _param(BA_DEFAULT_SOLVER, _choice(*BA_SOLVERS))
+    solver: str = _param("lm", _choice(*BA_SOLVERS))
     distortion: str = _param("auto", _choice(*BA_DISTORTION_MODES))
     max_rounds: int = _param(10, _integer(1))
     outlier_factor: float = _param(5.0, _number(0, exclusive=True))
     outlier_min_px: float = _param(3.0, _number(0))
     reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
-    bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
+    bone_lengths: bool = _param(True, _boolean)
     symmetric_bones: bool = _param(True, _boolean)
     length_weight: float = _param(100.0, _number(0, exclusive=True))
     rigid_points: tuple[str, ...] = _param(TETHERED_RIGID_POINTS, _string_list(), kind=tuple)

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.params import PictorialParams
 from .chains import _solve_chains, bone_length_targets, skeleton_chains
 from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, _all_hypotheses
 from .peaks import Candidates
@@ -19,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-DEFAULT_LAMBDA = 1.0
+DEFAULT_LAMBDA = PictorialParams.lam
 DEFAULT_HUBER = 0.25  # relative bone-length deviation where the cost turns linear
 DEFAULT_MU = 1.0
 
@@ -54,7 +55,7 @@ def solve_frames(
     lam: float = DEFAULT_LAMBDA,
     huber: float = DEFAULT_HUBER,
     mu: float = DEFAULT_MU,
-    temporal: bool = False,
+    temporal: bool = PictorialParams.temporal,
     prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
     nms: float = DEFAULT_NMS,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
@@ -166,8 +167,8 @@ def reconstruct(
     candidates: Candidates,
     pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
     *,
-    bone_max_frames: int | None = 100,
-    temporal: bool = False,
+    bone_max_frames: int | None = PictorialParams.bone_max_frames,
+    temporal: bool = PictorialParams.temporal,
     max_hyp: int = DEFAULT_MAX_HYP,
     inlier_px: float = DEFAULT_INLIER_PX,
     lam: float = DEFAULT_LAMBDA,

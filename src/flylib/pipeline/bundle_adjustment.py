@@ -11,15 +11,25 @@ import json
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..config.constants import _LEAST_SQUARES_PERF
-from ..config.params import BundleAdjustmentParams, _build_params
-from .inputs import RigSpec, SkeletonSpec, StageInputs, frozen_mapping, register
+from ..config.params import BundleAdjustmentParams
+from .inputs import (
+    RIG,
+    SKELETON,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    frozen_mapping,
+    register,
+    tracked,
+    typed_params,
+)
 from .stage_helpers import _image_sizes, _solving
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -77,9 +87,9 @@ class BundleAdjustmentInputs(StageInputs):
 
     STAGE = "bundle_adjustment"
 
-    bundle_adjustment: BundleAdjustmentParams
-    rig: RigSpec
-    skeleton: SkeletonSpec
+    bundle_adjustment: BundleAdjustmentParams = tracked(typed_params(BundleAdjustmentParams))
+    rig: RigSpec = tracked(RIG)
+    skeleton: SkeletonSpec = tracked(SKELETON)
     runtime: BundleAdjustmentRuntime = BundleAdjustmentRuntime()
 
     @classmethod
@@ -100,31 +110,6 @@ class BundleAdjustmentInputs(StageInputs):
                 ),
             ),
         )
-
-    @classmethod
-    def from_params(
-        cls, params: Mapping, runtime: BundleAdjustmentRuntime | None = None
-    ) -> BundleAdjustmentInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or BundleAdjustmentRuntime()
-        table = dict(params["bundle_adjustment"])
-        options = dict(table.pop("least_squares", None) or {})
-        return cls(
-            bundle_adjustment=replace(
-                _build_params(BundleAdjustmentParams, table), least_squares=options
-            ),
-            rig=RigSpec.from_params(params["rig"], runtime.config_dir),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the table, rig and skeleton."""
-        return {
-            "bundle_adjustment": asdict(self.bundle_adjustment),
-            "rig": self.rig.params(),
-            "skeleton": self.skeleton.structure(),
-        }
 
 
 @dataclass(frozen=True)

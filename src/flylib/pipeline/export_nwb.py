@@ -73,19 +73,6 @@ class NwbExportInputs(StageInputs):
             runtime=NwbExportRuntime(footage_globs(config), config.snapshot_text()),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> NwbExportInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (an :class:`NwbExportRuntime`)."""
-        return cls(
-            exports=frozen_mapping(dict(params["exports"])),
-            nwb=frozen_mapping(params["nwb"]),
-            runtime=runtime or NwbExportRuntime(),
-        )
-
-    def params(self) -> dict:
-        """``{"exports", "nwb"}``."""
-        return {"exports": _json(self.exports), "nwb": _json(self.nwb)}
-
     def rule_params(self) -> str:
         """The rule's tracked ``params.stage``: :meth:`params` as sorted JSON, values
         JSON has no type for (YAML's date-times) as text."""

@@ -20,15 +20,24 @@ from __future__ import annotations
 import copy
 import importlib
 import json
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
 from ..config import PARAM_STAGES, Config
 from ..config.canonical import _canonical
+from ..config.checks import tracked_table
+from ..config.params import TriangulationParams, _build_params
 
 __all__ = [
+    "DATA",
+    "FULL_SKELETON",
+    "OPTIONAL_RIG",
+    "RIG",
+    "SKELETON",
+    "TRIANGULATION",
+    "Codec",
     "RigSpec",
     "SkeletonSpec",
     "StageInputs",
@@ -37,6 +46,8 @@ __all__ = [
     "stage_inputs",
     "stage_params",
     "stage_runtime",
+    "tracked",
+    "typed_params",
 ]
 
 #: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.
@@ -241,12 +252,88 @@ class RigSpec:
 
 
 @dataclass(frozen=True)
+class Codec:
+    """How one field of an inputs object is written into the tracked params and read
+    back: ``load(dump(value), runtime) == value``.
+
+    Attributes
+    ----------
+    dump
+        The field's value -> its JSON value in :meth:`StageInputs.params`.
+    load
+        ``(JSON value, runtime) -> the field's value`` (:meth:`StageInputs.from_params`;
+        ``runtime`` is the inputs' untracked part, e.g. where a calibration is found).
+    """
+
+    dump: Callable[[Any], Any]
+    load: Callable[[Any, Any], Any]
+
+
+def _config_dir(runtime: Any) -> Path | None:
+    return getattr(runtime, "config_dir", None)
+
+
+#: Plain data (strings, names, tables): JSON out, read-only back (FrozenDicts, tuples).
+DATA = Codec(_json, lambda value, runtime: frozen_mapping(value))
+#: A :class:`SkeletonSpec` as its points and limbs (:meth:`SkeletonSpec.structure`).
+SKELETON = Codec(
+    lambda skeleton: skeleton.structure(), lambda table, runtime: SkeletonSpec.from_params(table)
+)
+#: A :class:`SkeletonSpec` with its palette and name (the stages that draw or name it).
+FULL_SKELETON = Codec(
+    lambda skeleton: {
+        **skeleton.structure(),
+        "palette": dict(skeleton.palette or {}),
+        "name": skeleton.name,
+    },
+    lambda table, runtime: SkeletonSpec.from_params(
+        table, palette=table["palette"], name=table["name"]
+    ),
+)
+#: A :class:`RigSpec` (:meth:`RigSpec.params`), its calibration looked up in the
+#: runtime's ``config_dir``.
+RIG = Codec(
+    lambda rig: rig.params(),
+    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)),
+)
+#: A :class:`RigSpec`, or ``None`` while bundle adjustment is on (the rig is then in that
+#: stage's artifact).
+OPTIONAL_RIG = Codec(
+    lambda rig: rig.params() if rig is not None else None,
+    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)) if table else None,
+)
+
+
+def typed_params(cls: type, dump: Callable[[Any], Any] = tracked_table) -> Codec:
+    """A typed params dataclass of :mod:`flylib.config` (``cls``) as its table: every
+    field (:func:`~flylib.config.checks.tracked_table`), or what ``dump`` gives."""
+    return Codec(dump, lambda table, runtime: _build_params(cls, table))
+
+
+#: The triangulation method and the knobs it reads
+#: (:meth:`~flylib.config.params.TriangulationParams.method_params`).
+TRIANGULATION = typed_params(TriangulationParams, dump=TriangulationParams.method_params)
+
+
+def tracked(
+    codec: Codec = DATA, *, key: str | None = None, track_default: bool = True, **kwargs
+) -> Any:
+    """A tracked field of an inputs class: held in :meth:`StageInputs.params` under
+    ``key`` (default: the field's name) as ``codec`` writes it. ``track_default=False``
+    (with a ``default``): only when not at that default, so the params made before the
+    field existed stay equal. ``kwargs`` go to :func:`dataclasses.field`."""
+    return field(metadata={"codec": codec, "key": key, "track_default": track_default}, **kwargs)
+
+
+@dataclass(frozen=True)
 class StageInputs:
     """Base of the per-stage inputs objects (frozen dataclasses).
 
-    Subclasses set :attr:`STAGE`, define :meth:`from_config`, :meth:`from_params` and
-    :meth:`params`, and keep their speed-only knobs in a ``runtime`` field (``None``
-    for a stage that has none), the one part :meth:`params` leaves out.
+    Subclasses set :attr:`STAGE`, define :meth:`from_config`, and keep their speed-only
+    knobs in a ``runtime`` field (absent for a stage that has none), the one field
+    :meth:`params` leaves out. Every other field is tracked: :meth:`params` and its
+    inverse :meth:`from_params` are made from the fields, each written as its
+    :func:`tracked` metadata says (:data:`DATA` when it has none).
     """
 
     STAGE = ""  # a class attribute, not a dataclass field (no annotation)
@@ -257,14 +344,32 @@ class StageInputs:
         raise NotImplementedError(cls.__name__)
 
     @classmethod
+    def _tracked_fields(cls):
+        return [f for f in fields(cls) if f.name != "runtime"]
+
+    @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> StageInputs:
         """Rebuild the inputs from :meth:`params` (the rule's ``params.stage``) and the
-        untracked ``runtime``."""
-        raise NotImplementedError(cls.__name__)
+        untracked ``runtime`` (``None``: the class's default runtime)."""
+        kwargs = {}
+        own = {f.name: f for f in fields(cls)}
+        if "runtime" in own:
+            kwargs["runtime"] = runtime = own["runtime"].default if runtime is None else runtime
+        for f in cls._tracked_fields():
+            key = f.metadata.get("key") or f.name
+            if key in params or f.default is MISSING:  # absent: untracked at its default
+                kwargs[f.name] = f.metadata.get("codec", DATA).load(params[key], runtime)
+        return cls(**kwargs)
 
     def params(self) -> dict:
-        """The tracked params: canonical (sorted keys), JSON-serialisable."""
-        raise NotImplementedError(type(self).__name__)
+        """The tracked params: every field but ``runtime``, as its codec writes it."""
+        out = {}
+        for f in self._tracked_fields():
+            value = getattr(self, f.name)
+            if f.metadata.get("track_default", True) or value != f.default:
+                key = f.metadata.get("key") or f.name
+                out[key] = f.metadata.get("codec", DATA).dump(value)
+        return out
 
     @property
     def runtime_options(self) -> Any:

@@ -24,20 +24,18 @@ lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain)
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config.neuromechfly import NeuromechflyParams
-from ..config.params import _build_params
 from ..neuromechfly import FILES
 from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
 from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
-from .inputs import SkeletonSpec, StageInputs, register
+from .inputs import SKELETON, SkeletonSpec, StageInputs, register, tracked, typed_params
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -63,25 +61,12 @@ class NeuromechflyInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    neuromechfly: NeuromechflyParams
-    skeleton: SkeletonSpec
+    neuromechfly: NeuromechflyParams = tracked(typed_params(NeuromechflyParams))
+    skeleton: SkeletonSpec = tracked(SKELETON)
 
     @classmethod
     def from_config(cls, config: Config) -> NeuromechflyInputs:
         return cls(neuromechfly=config.neuromechfly, skeleton=SkeletonSpec.from_config(config))
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> NeuromechflyInputs:
-        return cls(
-            neuromechfly=_build_params(NeuromechflyParams, params["neuromechfly"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-        )
-
-    def params(self) -> dict:
-        return {
-            "neuromechfly": asdict(self.neuromechfly),
-            "skeleton": self.skeleton.structure(),
-        }
 
 
 def angles_table(nmf: NmfAngles, frame_rate: float):

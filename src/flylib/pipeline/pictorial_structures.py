@@ -9,18 +9,25 @@ bundle-adjusted one when given, else the config rig), calls
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..config.params import PictorialParams, _build_params
+from ..config.params import PictorialParams
 from ..errors import ResultsError
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import RigRuntime, _rig_for, _solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     import numpy as np
     from jaxtyping import Float
 
@@ -56,9 +63,9 @@ class PictorialStructuresInputs(StageInputs):
 
     STAGE = "pictorial_structures"
 
-    pictorial_structures: PictorialParams
-    skeleton: SkeletonSpec
-    rig: RigSpec | None
+    pictorial_structures: PictorialParams = tracked(typed_params(PictorialParams))
+    skeleton: SkeletonSpec = tracked(SKELETON)
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -70,27 +77,6 @@ class PictorialStructuresInputs(StageInputs):
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(
-        cls, params: Mapping, runtime: RigRuntime | None = None
-    ) -> PictorialStructuresInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or RigRuntime()
-        return cls(
-            pictorial_structures=_build_params(PictorialParams, params["pictorial_structures"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=rig_from_params(params["rig"], runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the table, skeleton and rig."""
-        return {
-            "pictorial_structures": asdict(self.pictorial_structures),
-            "skeleton": self.skeleton.structure(),
-            "rig": rig_params(self.rig),
-        }
 
 
 @dataclass(frozen=True)

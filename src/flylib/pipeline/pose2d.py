@@ -19,7 +19,7 @@ from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
-from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register, tracked
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -107,10 +107,10 @@ class Pose2dInputs(StageInputs):
     sources: tuple[Mapping[str, Any], ...]
     plan: Mapping[str, Any]
     precision: str
-    import_spec: Mapping[str, Any] | None
+    import_spec: Mapping[str, Any] | None = tracked(key="import")
     point_names: tuple[str, ...]
     views: tuple[str, ...]
-    on_corrupt_frame: str = IoParams.on_corrupt_frame
+    on_corrupt_frame: str = tracked(default=IoParams.on_corrupt_frame, track_default=False)
     runtime: Pose2dRuntime = Pose2dRuntime()
 
     @classmethod
@@ -128,41 +128,16 @@ class Pose2dInputs(StageInputs):
             runtime=Pose2dRuntime.from_config(config),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Pose2dRuntime | None = None) -> Pose2dInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        return cls(
-            sources=frozen_mapping(params["sources"]),
-            plan=frozen_mapping(params["plan"]),
-            precision=params["precision"],
-            import_spec=frozen_mapping(params["import"]),
-            point_names=tuple(params["point_names"]),
-            views=tuple(params["views"]),
-            on_corrupt_frame=params.get("on_corrupt_frame", IoParams.on_corrupt_frame),
-            runtime=runtime or Pose2dRuntime(),
-        )
-
     def params(self) -> dict:
-        """The tracked params: sources, plan, precision, import spec, points, views, the
-        heatmap decoding convention, and ``on_corrupt_frame`` when not the default."""
+        """The tracked params (:meth:`StageInputs.params`: sources, plan, precision,
+        import spec, points, views, and ``on_corrupt_frame`` when not the default) and
+        the heatmap decoding convention."""
+        # Not the candidate peaks pictorial structures asks for: they are a separate
+        # pose2d output named by k (artifacts.candidates_artifact), which exists only
+        # while PS is on, so toggling PS or editing k with it off re-runs no detection.
         return {
-            "sources": _json(self.sources),
-            "plan": _json(self.plan),
-            "precision": self.precision,
-            "import": _json(self.import_spec),
-            "point_names": list(self.point_names),
-            "views": list(self.views),
+            **super().params(),
             "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
-            # Present only when not the default, so existing artifacts keep their params.
-            **(
-                {"on_corrupt_frame": self.on_corrupt_frame}
-                if self.on_corrupt_frame != IoParams.on_corrupt_frame
-                else {}
-            ),
-            # Not the candidate peaks pictorial structures asks for: they are a
-            # separate pose2d output named by k (artifacts.candidates_artifact), which
-            # exists only while PS is on, so toggling PS or editing k with it off
-            # re-runs no detection.
         }
 
     def detector_params(self) -> Pose2dParams:

@@ -46,10 +46,19 @@ from ..config import TriangulationParams
 from ..config.params import _build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
-from ..refinement.setup import options_from_params
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    TRIANGULATION,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import RigRuntime, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -81,10 +90,10 @@ class RefinementInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    refinement: RefinementParams
-    triangulation: TriangulationParams
-    skeleton: SkeletonSpec
-    rig: RigSpec | None
+    refinement: RefinementParams = tracked(typed_params(RefinementParams))
+    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    skeleton: SkeletonSpec = tracked(SKELETON)
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -97,27 +106,6 @@ class RefinementInputs(StageInputs):
             rig=rig,
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
-        runtime = runtime or RigRuntime()
-        rig = params.get("rig")
-        return cls(
-            refinement=_build_params(RefinementParams, params["refinement"]),
-            triangulation=_triangulation(params["triangulation"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=rig_from_params(rig, runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        return {
-            "refinement": asdict(self.refinement),
-            # the held-out-view check re-runs the triangulation without each view
-            "triangulation": self.triangulation.method_params(),
-            "skeleton": self.skeleton.structure(),
-            "rig": rig_params(self.rig),
-        }
 
 
 def _triangulation(method_params: Mapping) -> TriangulationParams:
@@ -351,7 +339,6 @@ def compute_refinement(
     params = inputs.refinement
     skeleton = inputs.skeleton.skeleton()
     terms = skeleton_terms(skeleton, params.rigid_points)
-    options = options_from_params(params)
     source = TriangulationSource(pose2d, triangulation)
     check = HeldOutCheck(
         cameras,
@@ -360,7 +347,7 @@ def compute_refinement(
         source.start,
         triangulation_method(inputs.triangulation, cameras),
         lambda scale: refinement_method(replace(params, smooth_scale=scale), cameras, skeleton),
-        options,
+        params,
         params.motion_scales,
         terms,
         skeleton.point_names,
@@ -369,7 +356,11 @@ def compute_refinement(
     out = refine_stream(source, cameras, sink, options=options, **terms)
     keep_corrected(triangulation, sink)
     accuracy = check.apply(sink, triangulation)
-    record = asdict(options)
+    # the artifact's record of the solver's settings, as written before the params and
+    # the solver's options were one class: without motion_scales, rigid_points last
+    record = {
+        k: v for k, v in asdict(options).items() if k not in ("motion_scales", "rigid_points")
+    }
     record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
     attrs = _attrs(
         skeleton,

@@ -50,21 +50,6 @@ def tracked_rig(config):
     return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
 
 
-def rig_from_params(table, runtime: RigRuntime):
-    """Inverse of :func:`rig_params`: the tracked rig table (or ``None``) as a
-    :class:`~flylib.pipeline.inputs.RigSpec` looking up calibrations in the runtime's
-    ``config_dir``."""
-    from .inputs import RigSpec
-
-    return RigSpec.from_params(table, runtime.config_dir) if table else None
-
-
-def rig_params(rig) -> dict | None:
-    """A stage's tracked ``rig``: the :class:`~flylib.pipeline.inputs.RigSpec`'s params,
-    or ``None`` while the rig comes from the bundle-adjustment artifact."""
-    return rig.params() if rig is not None else None
-
-
 def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
     """The bundle-adjusted rig when that artifact is given, else the config rig
     (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).

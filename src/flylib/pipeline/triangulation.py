@@ -17,12 +17,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config.params import TriangulationParams, _build_params
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    TRIANGULATION,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+)
+from .stage_helpers import RigRuntime, _rig_for, _solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     from jaxtyping import Bool, Float
 
     from ..camera.rig import CameraGroup
@@ -57,10 +64,10 @@ class TriangulationInputs(StageInputs):
 
     STAGE = "triangulation"
 
-    triangulation: TriangulationParams
-    skeleton: SkeletonSpec
+    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    skeleton: SkeletonSpec = tracked(SKELETON)
     points_from: str
-    rig: RigSpec | None
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -74,27 +81,6 @@ class TriangulationInputs(StageInputs):
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: RigRuntime | None = None) -> TriangulationInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or RigRuntime()
-        return cls(
-            triangulation=_build_params(TriangulationParams, params["triangulation"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            points_from=params["points_from"],
-            rig=rig_from_params(params["rig"], runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the method's knobs, skeleton, 2D source and rig."""
-        return {
-            "triangulation": self.triangulation.method_params(),
-            "skeleton": self.skeleton.structure(),
-            "points_from": self.points_from,
-            "rig": rig_params(self.rig),
-        }
 
 
 @dataclass(frozen=True)

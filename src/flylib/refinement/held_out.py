@@ -18,13 +18,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .solver import FLAG_BITS, RefineOptions
+from .solver import FLAG_BITS
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from ..accuracy import Refine, Triangulate
     from ..camera.rig import CameraGroup
+    from ..config.postprocessing import RefinementParams
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +79,7 @@ class HeldOutCheck:
         start: Float[np.ndarray, "T P 3"],
         triangulate: Triangulate,
         refine_at: Callable[[float], Refine],
-        options: RefineOptions,
+        options: RefinementParams,
         motion_scales: Sequence[float],
         terms: Mapping[str, Any],
         point_names: Sequence[str],

@@ -1,14 +1,12 @@
-"""From a skeleton and the ``refinement`` table's params to :func:`refine_points`'s arguments."""
+"""From a skeleton to :func:`refine_points`'s skeleton arguments (bones, chains, mirror, rigid)."""
 
 from __future__ import annotations
 
-from dataclasses import fields
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ConfigError
-from .solver import RefineOptions
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Int
@@ -79,9 +77,3 @@ def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
         "mirror": mirror_bones(skeleton),
         "rigid": [skeleton.index(n) for n in names],
     }
-
-
-def options_from_params(params) -> RefineOptions:
-    """:class:`RefineOptions` from the typed ``refinement`` params (same names)."""
-    own = {f.name for f in fields(RefineOptions)}
-    return RefineOptions(**{k: v for k, v in vars(params).items() if k in own})

@@ -31,13 +31,13 @@ import numpy as np
 
 from ..camera import model as camera_model
 from ..config.constants import TRIANGULATION_METHODS
+from ..config.params import TriangulationParams
 from ..resources import thread_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from ..camera.rig import CameraGroup
-    from ..config.params import TriangulationParams
 
 log = logging.getLogger(__name__)
 
@@ -334,8 +334,8 @@ def triangulate_ransac(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
+    threshold: float = TriangulationParams.ransac_threshold,
+    min_inliers: int = TriangulationParams.min_inliers,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
@@ -384,8 +384,8 @@ def triangulate_greedy(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    reproj_threshold: float = TriangulationParams.reproj_threshold,
+    max_drops: int = TriangulationParams.max_drops,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
@@ -477,8 +477,8 @@ def reconstruct_ransac(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
+    threshold: float = TriangulationParams.ransac_threshold,
+    min_inliers: int = TriangulationParams.min_inliers,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
 ) -> tuple[
@@ -508,8 +508,8 @@ def reconstruct_greedy(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    reproj_threshold: float = TriangulationParams.reproj_threshold,
+    max_drops: int = TriangulationParams.max_drops,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[
@@ -531,13 +531,13 @@ def reconstruct_greedy(
 def reconstruct(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
-    method: str = "ransac",
+    method: str = TriangulationParams.method,
     *,
     weights: Float[np.ndarray, " V *pts"] | None = None,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    threshold: float = TriangulationParams.ransac_threshold,
+    min_inliers: int = TriangulationParams.min_inliers,
+    reproj_threshold: float = TriangulationParams.reproj_threshold,
+    max_drops: int = TriangulationParams.max_drops,
 ) -> tuple[
     Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
 ]:
