@@ -1,5 +1,5 @@
 """The stage registry (flylib.stages): every stage table is derived from its records,
-and equals what the tables held when they were written by hand."""
+and holds for each stage what the tables held when they were written by hand."""
 
 from __future__ import annotations
 
@@ -98,16 +98,27 @@ def _old_flags(pipeline: dict) -> dict[str, bool]:
     return flags
 
 
-def test_derived_tables_equal_the_old_tables():
-    assert STAGES == OLD_STAGES
-    assert STAGE_DEFAULTS == OLD_STAGE_DEFAULTS
-    assert list(STAGE_DEFAULTS) == list(OLD_STAGE_DEFAULTS)
-    assert PARAM_STAGES == OLD_PARAM_STAGES
-    assert ARTIFACTS == OLD_ARTIFACTS and list(ARTIFACTS) == list(OLD_ARTIFACTS)
-    assert STAGE_GROUPS == OLD_STAGE_GROUPS
-    assert {s.name: s.memory[0] for s in stages.REGISTRY if s.memory} == OLD_FIXED_MB
-    assert {s.name: s.memory[1] for s in stages.REGISTRY if s.memory} == OLD_PER_MILLION_MB
-    assert {s.name: s.hint for s in stages.REGISTRY if s.hint} == OLD_CHECK
+def _old(table, old):
+    """``table`` restricted to the stages ``old`` names (a stage added since is no
+    change to the old ones), in its own order."""
+    if isinstance(table, dict):
+        return {k: v for k, v in table.items() if k in old}
+    return tuple(k for k in table if k in old)
+
+
+def test_derived_tables_keep_the_old_tables():
+    assert _old(STAGES, OLD_STAGES) == OLD_STAGES
+    assert list(_old(STAGE_DEFAULTS, OLD_STAGE_DEFAULTS).items()) == list(
+        OLD_STAGE_DEFAULTS.items()
+    )
+    assert _old(PARAM_STAGES, OLD_PARAM_STAGES) == OLD_PARAM_STAGES
+    assert list(_old(ARTIFACTS, OLD_ARTIFACTS).items()) == list(OLD_ARTIFACTS.items())
+    assert _old(STAGE_GROUPS, OLD_STAGE_GROUPS) == OLD_STAGE_GROUPS
+    fixed = {s.name: s.memory[0] for s in stages.REGISTRY if s.memory}
+    per_million = {s.name: s.memory[1] for s in stages.REGISTRY if s.memory}
+    assert _old(fixed, OLD_FIXED_MB) == OLD_FIXED_MB
+    assert _old(per_million, OLD_PER_MILLION_MB) == OLD_PER_MILLION_MB
+    assert _old({s.name: s.hint for s in stages.REGISTRY if s.hint}, OLD_CHECK) == OLD_CHECK
 
 
 @pytest.mark.parametrize("bits", range(1 << 4))
@@ -115,7 +126,8 @@ def test_stage_flags_keep_the_old_dependencies(bits):
     toggled = ("pose2d", "pictorial_structures", "triangulation", "refinement")
     pipeline = {f"do_{s}": bool(bits >> i & 1) for i, s in enumerate(toggled)}
     pipeline["do_neuromechfly"] = True
-    assert Config.from_dict({"pipeline": pipeline}).stage_flags() == _old_flags(pipeline)
+    flags = Config.from_dict({"pipeline": pipeline}).stage_flags()
+    assert _old(flags, OLD_STAGE_DEFAULTS) == _old_flags(pipeline)
 
 
 @pytest.mark.parametrize("stage", stages.REGISTRY, ids=lambda s: s.name)
