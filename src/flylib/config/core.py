@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..skeleton import Skeleton
 from ..stages import REGISTRY
 from .canonical import _plain
-from .constants import DEFAULT_CONFIG_PATH, STAGE_DEFAULTS
+from .constants import DEFAULT_CONFIG_PATH
 from .loading import _parse_text, _problem_report
 from .neuromechfly import NeuromechflyParams
 from .params import (
@@ -271,7 +271,7 @@ class Config:
         flags: dict[str, bool] = {}
         for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
             if stage.toggled:
-                on = bool(pipeline.get(f"do_{stage.name}", STAGE_DEFAULTS[stage.name]))
+                on = bool(pipeline.get(f"do_{stage.name}", stage.default_on))
                 if stage.needs_one_of:
                     on &= any(flags.get(up, True) for up in stage.needs_one_of)
                 flags[stage.name] = on
