@@ -239,7 +239,7 @@ def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
     from flylib.pipeline.refinement import run_refinement
-    from flylib.pipeline.stages import run_inputs
+    from flylib.pipeline.stage_helpers import run_inputs
 
     inputs = run_inputs(Config.default(), "refinement")
     before = _peak_mb()

@@ -182,7 +182,7 @@ def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) 
     config = Config.from_file(args.config)
     if getattr(args, "bundle_adjustment", False) is None:
         # a stage after bundle adjustment run by hand without its artifact: the config rig
-        from flylib.pipeline.stages import run_inputs
+        from flylib.pipeline.stage_helpers import run_inputs
 
         return run_inputs(config, stage)
     return stage_inputs(config, stage)

@@ -86,7 +86,7 @@ def test_host_side_modules_do_not_import_jax():
     import sys
 
     code = (
-        "import sys, flylib.camera.rig, flylib.triangulation, flylib.results, flylib.pipeline.stages, "
+        "import sys, flylib.camera.rig, flylib.triangulation, flylib.results, flylib.stages, "
         "flylib.pipeline.triangulation, flylib.pipeline.assemble, "
         "flylib.pictorial, flylib.visualization; from flylib.config import Config; "
         "rig = Config.default().camera_group({v: (480, 960) for v in Config.default().view_names()}); "

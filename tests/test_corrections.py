@@ -9,8 +9,9 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
 from flylib.errors import ConfigError, ResultsError
+from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.stages import run_assemble, run_inputs
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, PoseResult, read_stage
 from flylib.triangulation import reconstruct_with_params

@@ -10,7 +10,8 @@ lazily is an edge to the module the stub takes it from.
 The layers, lowest first (:data:`LAYERS`); a module may import its own layer or any
 below it:
 
-0. foundation -- errors, paths, resources, locking; the package root (lazy exports only)
+0. foundation -- errors, paths, resources, locking, the stage registry; the package root
+   (lazy exports only)
 1. primitives -- camera models and geometry, the skeleton, frame readers, the
    detection plan's vocabulary, video specs
 2. config -- :class:`~flylib.config.Config` and its validation (NWB metadata checks)
@@ -45,6 +46,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.paths",
             "flylib.resources",
             "flylib.locking",
+            "flylib.stages",
         ),
     ),
     (

@@ -269,8 +269,10 @@ def test_damaged_stage_artifact_stops_assembly_naming_the_artifact(tmp_path, rig
 
 def _small_run(tmp_path: Path, config: Config) -> tuple[Path, Path]:
     """Import the demo's 2D for a 6-frame recording, triangulate, assemble."""
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_assemble, run_inputs, run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.pipeline.triangulation import run_triangulation
 
     recording = tmp_path / "rec"
@@ -340,7 +342,7 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
     edited = _config(
         tmp_path, "edited.yaml", lambda d: d["triangulation"].update(ransac_threshold=7.5)
     )
-    from flylib.pipeline.stages import run_inputs
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.pipeline.triangulation import run_triangulation
 
     run_triangulation(
@@ -367,8 +369,9 @@ def test_artifacts_record_the_hash_of_their_params_and_inspect_tells_a_stale_mix
 
     # pose2d re-made with other params beside a triangulation built on the old one: mixed.
     other = _config(tmp_path, "other.yaml", lambda d: d["pose2d"].update(precision="float32"))
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.demo import demo_import_spec
-    from flylib.pipeline.stages import run_assemble, run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
 
     run_pose2d(
         stage_inputs(other, "pose2d"),
@@ -509,7 +512,7 @@ _HOLDER = textwrap.dedent("""
 def _pose2d_for_script(tmp_path: Path) -> tuple[Path, Path]:
     config = _config(tmp_path, "config.yaml")
     from flylib.pipeline.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
 
     recording = tmp_path / "rec"
     make_demo(config, recording, frames=6, seed=0)

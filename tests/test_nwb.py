@@ -40,8 +40,10 @@ BLANKED = [(3, 0), (3, 5), (17, 12), (39, 37)]  # (frame, point) 3D points set t
 @pytest.fixture(scope="module")
 def demo_result(tmp_path_factory):
     """A demo recording run through pose2d (DLC import) and triangulation; its results.h5."""
-    from flylib.pipeline import stages
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.demo import demo_import_spec, make_demo
+    from flylib.pipeline.pose2d import run_pose2d
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.pipeline.triangulation import run_triangulation
 
     config = Config.default()
@@ -49,19 +51,19 @@ def demo_result(tmp_path_factory):
     recording = root / "rec"
     out = recording / "flylib_outputs"
     make_demo(config, recording, frames=FRAMES)
-    stages.run_pose2d(
+    run_pose2d(
         stage_inputs(config, "pose2d"),
         recording,
         out / "stages" / "pose2d.h5",
         import_spec=demo_import_spec(config),
     )
     run_triangulation(
-        stages.run_inputs(config, "triangulation"),
+        run_inputs(config, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
         recording_dir=recording,
     )
-    stages.run_assemble(
+    run_assemble(
         stage_inputs(config, "assemble"),
         {
             "pose2d": out / "stages" / "pose2d.h5",

@@ -105,7 +105,7 @@ def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pic
     import json
 
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
-    from flylib.pipeline.stages import run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
     from flylib.results import read_stage
 
     quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", README).group(1))

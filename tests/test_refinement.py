@@ -183,8 +183,9 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
     import h5py
 
     from flylib.config import Config
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.refinement import run_refinement
-    from flylib.pipeline.stages import run_assemble, run_inputs
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.results import PoseResult
 
     config = Config.default()
@@ -434,7 +435,7 @@ def test_the_stage_computes_on_arrays_what_its_script_writes_chunk_by_chunk(tmp_
     from flylib.config import Config
     from flylib.pipeline.inputs import stage_inputs, stage_params
     from flylib.pipeline.refinement import compute_refinement
-    from flylib.pipeline.stages import run_inputs
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.provenance import params_hash
     from flylib.refinement.solver import ArraySink
 

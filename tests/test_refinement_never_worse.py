@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
-from flylib.pipeline import stages
+from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.pose2d import run_pose2d
 from flylib.pipeline.refinement import run_refinement
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.refinement import FLAG_BITS
 from flylib.results import Pose2dData
@@ -32,13 +34,13 @@ def _check_never_worse(out, with_ba=True):
     s = out / "stages"
     ba = s / "bundle_adjustment.h5" if with_ba else None
     run_triangulation(
-        stages.run_inputs(config, "triangulation", ba),
+        run_inputs(config, "triangulation", ba),
         s / "pose2d.h5",
         s / "triangulation.h5",
         ba_path=ba,
     )
     run_refinement(
-        stages.run_inputs(config, "refinement", ba),
+        run_inputs(config, "refinement", ba),
         s / "pose2d.h5",
         s / "triangulation.h5",
         s / "refinement.h5",
@@ -48,7 +50,7 @@ def _check_never_worse(out, with_ba=True):
     files["refinement"] = s / "refinement.h5"
     if ba is not None:
         files["bundle_adjustment"] = ba
-    summary = stages.run_assemble(stage_inputs(config, "assemble"), files, out)
+    summary = run_assemble(stage_inputs(config, "assemble"), files, out)
     acc = summary["accuracy"]
     assert acc["output_stage"] == "refinement"
     tri, output = acc["triangulation"]["held_out_px"], acc["output"]["held_out_px"]
@@ -74,7 +76,7 @@ def test_real_sample_with_the_workflow_defaults(df3d_sample_dir, tmp_path):
     ransac, refinement (before: reprojection 2.53 -> 3.71 px median, 6.28 -> 11.7 p95)."""
     config = Config.default()
     s = tmp_path / "stages"
-    stages.run_pose2d(
+    run_pose2d(
         stage_inputs(config, "pose2d"),
         df3d_sample_dir,
         s / "pose2d.h5",
@@ -120,7 +122,7 @@ def test_the_demo(tmp_path, capsys):
     config = Config.default()
     make_demo(config, tmp_path / "demo")
     s = tmp_path / "demo" / "flylib_outputs" / "stages"
-    stages.run_pose2d(
+    run_pose2d(
         stage_inputs(config, "pose2d"),
         tmp_path / "demo",
         s / "pose2d.h5",

@@ -286,7 +286,7 @@ def test_a_copied_artifact_with_other_params_is_named_and_an_equal_params_strang
 
     # results.h5 assembled from one triangulation, then another with equal params put in
     # its place (from another recording): no longer silent.
-    from flylib.pipeline.stages import run_assemble
+    from flylib.pipeline.assemble import run_assemble
 
     _pose2d = _pose2d_artifact(original / "stages" / "pose2d.h5", config)
     run_assemble(
@@ -332,7 +332,7 @@ def test_inspect_config_merges_the_users_file_over_the_default_and_judges_each_s
 ):
     from flylib.cli import main as flylib_main
     from flylib.config import Config
-    from flylib.pipeline.stages import run_assemble
+    from flylib.pipeline.assemble import run_assemble
 
     config = Config.default()
     out = tmp_path / "fly1" / "flylib_outputs"
@@ -446,7 +446,7 @@ def test_imported_2d_outside_a_reencoded_videos_frame_names_the_camera_and_sizes
     from flylib.errors import FootageError
     from flylib.io import VideoWriter, open_reader
     from flylib.pipeline.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
 
     config = Config.default()
     recording = tmp_path / "rec"
@@ -633,7 +633,8 @@ def test_workflow_refuses_yte_and_warns_about_a_copied_outdir(finished_run, tmp_
 
 def test_corrections_beside_results_that_its_triangulation_did_not_apply_are_not_ok(tmp_path):
     from flylib.config import Config
-    from flylib.pipeline.stages import run_assemble, run_inputs
+    from flylib.pipeline.assemble import run_assemble
+    from flylib.pipeline.stage_helpers import run_inputs
     from flylib.pipeline.triangulation import run_triangulation
     from flylib.provenance import provenance_report
 

@@ -16,9 +16,9 @@ import pytest
 from flylib.config import Config
 from flylib.errors import OutputError, StageError
 from flylib.interop.views import view_names
-from flylib.pipeline import stages
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData
 
@@ -99,7 +99,7 @@ def test_triangulation_failures_are_one_line(monkeypatch, config, pose2d, tmp_pa
     monkeypatch.setattr(corrections, "reconstruct_corrected", _raise(exc))
     with pytest.raises(StageError) as err:
         run_triangulation(
-            stages.run_inputs(config, "triangulation"),
+            run_inputs(config, "triangulation"),
             pose2d,
             tmp_path / "stages" / "triangulation.h5",
             recording_dir=tmp_path,

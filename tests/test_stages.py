@@ -9,7 +9,8 @@ from flylib.errors import ResultsError
 from flylib.pipeline.demo import demo_import_spec, make_demo
 from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.pictorial_structures import run_pictorial_structures
-from flylib.pipeline.stages import run_inputs, run_pose2d
+from flylib.pipeline.pose2d import run_pose2d
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 
 

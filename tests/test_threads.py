@@ -84,7 +84,7 @@ def test_thread_map_runs_at_most_workers_items_ahead_of_the_consumer():
 def recording(tmp_path_factory):
     """A tiny demo recording with its pose2d artifact, and a config rendering one short video."""
     from flylib.pipeline.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
 
     root = tmp_path_factory.mktemp("threads")
     data = Config.default().data

@@ -11,8 +11,9 @@ import pytest
 from flylib.config import Config
 from flylib.corrections import Corrections
 from flylib.errors import ResultsError
+from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.stages import run_assemble, run_inputs
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import PoseResult
 

@@ -18,11 +18,12 @@ import pytest
 
 from flylib.config import Config
 from flylib.errors import ConfigError
-from flylib.pipeline import stages
+from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.kinematics import run_kinematics
 from flylib.pipeline.neuromechfly import run_neuromechfly
+from flylib.pipeline.pose2d import run_pose2d
 from flylib.pipeline.refinement import run_refinement
 from flylib.pipeline.triangulation import run_triangulation
 
@@ -157,7 +158,7 @@ def base_run(tmp_path_factory):
     make_demo(config, rec, frames=4, seed=0)
     spec = demo_import_spec(config)
     (out / "stages").mkdir(parents=True)
-    p2d = stages.run_pose2d(
+    p2d = run_pose2d(
         stage_inputs(config, "pose2d"), rec, out / "stages" / "pose2d.h5", import_spec=spec
     )
     ba = run_bundle_adjustment(
@@ -182,7 +183,7 @@ def base_run(tmp_path_factory):
         recording_dir=rec,
     )
     files = {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri, "refinement": ref}
-    stages.run_assemble(stage_inputs(config, "assemble"), files, out, recording_dir=rec)
+    run_assemble(stage_inputs(config, "assemble"), files, out, recording_dir=rec)
     run_kinematics(stage_inputs(config, "kinematics"), out / "results.h5", out)
     run_neuromechfly(stage_inputs(config, "neuromechfly"), out / "results.h5", out)
     artifacts = {
@@ -207,7 +208,7 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
     other, out = Config.from_dict(perturbed), tmp_path
     upstream = {k: base[k] for k in ("pose2d", "bundle_adjustment", "triangulation", "refinement")}
     run = {
-        "pose2d": lambda: stages.run_pose2d(
+        "pose2d": lambda: run_pose2d(
             stage_inputs(other, "pose2d"), rec, out / "pose2d.h5", import_spec=spec
         ),
         "bundle_adjustment": lambda: run_bundle_adjustment(
@@ -224,7 +225,7 @@ def test_artifact_is_bit_identical_when_every_untracked_key_changes(base_run, st
             recording_dir=rec,
         ),
         "assemble": lambda: (
-            stages.run_assemble(stage_inputs(other, "assemble"), upstream, out, recording_dir=rec),
+            run_assemble(stage_inputs(other, "assemble"), upstream, out, recording_dir=rec),
             out / "results.h5",
         )[1],
     }[stage]

@@ -3,41 +3,14 @@
 from __future__ import annotations
 
 from ..paths import DEFAULT_CONFIG_PATH  # noqa: F401  (re-exported: flylib.config.DEFAULT_CONFIG_PATH)
+from ..stages import REGISTRY
 
 #: The pipeline stages, in run order; each is toggled by ``pipeline.do_<stage>``.
-STAGES: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
-)
+STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.toggled)
 #: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
-STAGE_DEFAULTS: dict[str, bool] = {
-    "pose2d": True,
-    "bundle_adjustment": True,
-    "pictorial_structures": False,
-    "triangulation": True,
-    "refinement": True,
-    "kinematics": True,
-    "neuromechfly": False,
-    "visualization": True,
-}
+STAGE_DEFAULTS: dict[str, bool] = {s.name: bool(s.default_on) for s in REGISTRY if s.toggled}
 #: The workflow rules whose params a stage's inputs object states (:mod:`flylib.pipeline.inputs`).
-PARAM_STAGES: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "assemble",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
-)
+PARAM_STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY)
 
 TOP_LEVEL_KEYS: tuple[str, ...] = (
     "sources",
@@ -45,14 +18,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "skeleton",
     "cameras",
     "pipeline",
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
+    *STAGES,  # each stage's own table
     "calibration",
     "recordings",
     "recursive",

@@ -12,12 +12,9 @@ import yaml
 
 from ..errors import ConfigError
 from ..skeleton import Skeleton
+from ..stages import REGISTRY
 from .canonical import _plain
-from .constants import (
-    DEFAULT_CONFIG_PATH,
-    STAGE_DEFAULTS,
-    STAGES,
-)
+from .constants import DEFAULT_CONFIG_PATH
 from .loading import _parse_text, _problem_report
 from .neuromechfly import NeuromechflyParams
 from .params import (
@@ -271,13 +268,13 @@ class Config:
             ``stage -> enabled`` for every stage in :data:`STAGES`.
         """
         pipeline = self.data.get("pipeline") or {}
-        flags = {
-            stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES
-        }
-        # refinement starts from the triangulation; kinematics needs some 3D
-        flags["refinement"] &= flags["triangulation"]
-        flags["kinematics"] &= flags["triangulation"] or flags["pictorial_structures"]
-        flags["neuromechfly"] &= flags["triangulation"] or flags["pictorial_structures"]
+        flags: dict[str, bool] = {}
+        for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
+            if stage.toggled:
+                on = bool(pipeline.get(f"do_{stage.name}", stage.default_on))
+                if stage.needs_one_of:
+                    on &= any(flags.get(up, True) for up in stage.needs_one_of)
+                flags[stage.name] = on
         return flags
 
     def _point_names(self) -> tuple[str, ...]:

@@ -10,7 +10,8 @@ untracked ``params.runtime``; a stage therefore reads only what its rule tracks,
 construction.
 
 Each stage's class lives in the stage's home (``flylib.pipeline.<stage>``) and is
-registered here with :func:`register`; :func:`stage_inputs` builds any stage's inputs
+registered with :func:`register` (:func:`flylib.stages.register`, re-exported here for
+the homes); :func:`stage_inputs` builds any stage's inputs
 from a :class:`~flylib.config.Config`, which is the only place below the workflow
 where a config object is read.
 """
@@ -18,17 +19,17 @@ where a config object is read.
 from __future__ import annotations
 
 import copy
-import importlib
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-from ..config import PARAM_STAGES, Config
+from ..config import Config
 from ..config.canonical import _canonical
 from ..config.checks import tracked_table
 from ..config.params import TriangulationParams, _build_params
+from ..stages import by_name, register
 
 __all__ = [
     "DATA",
@@ -49,12 +50,6 @@ __all__ = [
     "tracked",
     "typed_params",
 ]
-
-#: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.
-INPUTS: dict[str, type[StageInputs]] = {}
-
-#: The module that defines each stage's inputs class (imported on first use).
-HOMES: dict[str, str] = {stage: f"flylib.pipeline.{stage}" for stage in PARAM_STAGES}
 
 
 class FrozenDict(dict):
@@ -383,30 +378,16 @@ class StageInputs:
         return canonical
 
 
-T = TypeVar("T", bound=type)
-
-
-def register(cls: T) -> T:
-    """Class decorator: make ``cls`` the inputs class of ``cls.STAGE``."""
-    if cls.STAGE not in PARAM_STAGES:
-        raise ValueError(f"unknown stage {cls.STAGE!r} (known: {', '.join(PARAM_STAGES)})")
-    INPUTS[cls.STAGE] = cls
-    return cls
-
-
 def inputs_class(stage: str) -> type[StageInputs]:
-    """The inputs class of ``stage`` (importing its home on first use).
+    """The inputs class of ``stage`` (importing its home on first use;
+    :meth:`flylib.stages.Stage.inputs_class`).
 
     Raises
     ------
     ValueError
         For an unknown stage.
     """
-    if stage not in PARAM_STAGES:
-        raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
-    if stage not in INPUTS:
-        importlib.import_module(HOMES[stage])
-    return INPUTS[stage]
+    return by_name(stage).inputs_class()
 
 
 def stage_inputs(config: Config, stage: str) -> StageInputs:

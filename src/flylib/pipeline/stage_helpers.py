@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import FlylibError, ResultsError, StageError, one_line
+from ..stages import by_name
 
 log = logging.getLogger(__name__)
 
@@ -93,22 +94,6 @@ def _rig_source(config, ba_path):
     return type(config)(data, text=config.text, source=config.source, format=config.format)
 
 
-#: What to check when a numerical stage fails on a recording's data, per stage.
-_CHECK = {
-    "bundle_adjustment": "check its 2D (are the views' points of one fly, in raw-frame pixels?) "
-    "and the starting rig (cameras, calibration.file), or set "
-    "pipeline.do_bundle_adjustment: false",
-    "pictorial_structures": "check the detector's 2D and the rig, or set "
-    "pipeline.do_pictorial_structures: false",
-    "triangulation": "check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
-    "result, cameras, calibration.file)",
-    "refinement": "check triangulation's 3D (flylib inspect) and the refinement settings, or "
-    "set pipeline.do_refinement: false",
-    "kinematics": "check the 3D in results.h5 (flylib inspect), or set "
-    "pipeline.do_kinematics: false",
-}
-
-
 @contextmanager
 def _solving(stage: str, recording) -> Iterator[None]:
     """The stage boundary of a numerical stage: any exception its solver raises on the
@@ -124,7 +109,7 @@ def _solving(stage: str, recording) -> Iterator[None]:
         log.debug("%s failed on %s", stage, recording, exc_info=True)
         raise StageError(
             f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
-            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {_CHECK[stage]}"
+            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {by_name(stage).hint}"
         ) from exc
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
+from ..stages import REGISTRY
 from .datasets import _json_attrs, _read, _read_json_attrs, _write_array
 from .groups import _read_cameras, _write_cameras
 from .hdf5 import _create, _new_meta, _read_checked
@@ -25,21 +26,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
 
 #: Stage-artifact file names inside ``<outdir>/stages/``.
-ARTIFACTS: dict[str, str] = {
-    "pose2d": "pose2d.h5",
-    "bundle_adjustment": "bundle_adjustment.h5",
-    "pictorial_structures": "pictorial_structures.h5",
-    "triangulation": "triangulation.h5",
-    "refinement": "refinement.h5",
-}
+ARTIFACTS: dict[str, str] = {s.name: s.artifact for s in REGISTRY if s.artifact}
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-)
+STAGE_GROUPS: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.results_group)
 
 
 def write_analysis(
