@@ -1,18 +1,17 @@
-"""Command-line plumbing shared by the stage scripts.
+"""The entry point shared by the stage scripts.
 
-Every script runs two ways with the same argument parser:
+A script's ``run(inputs, **arguments)`` calls its stage function with the stage's
+inputs object (:mod:`flylib.pipeline.inputs`) and the files and options it takes, by
+name. :func:`script_main` gets both two ways:
 
+- from the rule's ``script:`` directive (``job``, the script's ``snakemake`` object):
+  the inputs object rebuilt from the rule's tracked ``params.stage`` and untracked
+  ``params.runtime``, the arguments read from ``snakemake.input/output/params/
+  wildcards`` by the script's ``job_arguments``, the rule's ``threads``, and stderr
+  sent to the job's log;
 - by hand, ``python scripts/<stage>.py --config config/config.yaml ... [--threads N]``
-  (see ``--help``);
-- from its Snakemake rule's ``script:`` directive, where the arguments come from the
-  job: each named input, output and param whose name is one of the script's options
-  (``pose2d`` -> ``--pose2d``; an unnamed single output -> ``--out``; a ``True`` param ->
-  the bare flag), ``{outdir}`` -> ``--outdir``, the rule's ``threads`` -> ``--threads``,
-  stderr -> the job's log. A stage script given ``stage=`` runs on that stage's inputs
-  object (:mod:`flylib.pipeline.inputs`), rebuilt from the rule's tracked
-  ``params.stage`` and untracked ``params.runtime``; by hand it is built from
-  ``--config``. (A script without ``stage=`` gets the run's
-  :class:`~flylib.config.Config`: the rule's ``params.config``, or ``--config``.)
+  (see ``--help``): the inputs object built from ``--config`` and the arguments from
+  the script's options, each option's name that of a ``run`` argument.
 """
 
 from __future__ import annotations
@@ -28,9 +27,8 @@ from typing import Any
 
 from flylib.errors import FlylibError
 
-# Params that are not script options: the stage's tracked params and untracked runtime
-# (they make its inputs object) and the run's config itself (handed over as an object).
-_NOT_OPTIONS = ("stage", "runtime", "config")
+# The options every script shares: what runs the stage, not arguments of ``run``.
+_SHARED = ("config", "threads", "verbose")
 
 
 def script_parser(description: str) -> argparse.ArgumentParser:
@@ -66,40 +64,26 @@ def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--recording", type=Path, default=None, help="recording directory")
 
 
+def rig_stage_job_arguments(job: Any) -> dict[str, Path | None]:
+    """The :func:`add_rig_stage_arguments` arguments of a Snakemake job."""
+    return {
+        "bundle_adjustment": path(job.input.get("bundle_adjustment")),
+        "out": path(job.output[0]),
+        "recording": path(job.params.recording),
+    }
+
+
+def path(value: Any) -> Path | None:
+    """A job's file or directory as the by-hand option gives it: a ``Path``, or
+    ``None`` for an optional one left out (absent, an empty list, ``""``)."""
+    return Path(str(value)) if value else None
+
+
 def output_dir(out: str | Path) -> Path:
     """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
     gives ``<outdir>``; any other file its own directory)."""
     parent = Path(out).parent
     return parent.parent if parent.name == "stages" else parent
-
-
-def snakemake_argv(job: Any, parser: argparse.ArgumentParser) -> list[str]:
-    """The command line equivalent to a Snakemake ``script:`` job (see the module doc)."""
-    options = {a.dest: a for a in parser._actions if a.option_strings}
-    argv: list[str] = []
-
-    def add(name: str, value: Any) -> None:
-        dest = name.replace("-", "_")
-        if dest not in options or value is None or value is False or value == "":
-            return
-        if isinstance(value, list) and not value:  # an optional input left out
-            return
-        flag = options[dest].option_strings[-1]
-        if value is True or options[dest].nargs == 0:
-            argv.append(flag)
-        else:
-            argv.extend([flag, str(value)])
-
-    named = dict(job.output.items())
-    if not named and len(job.output) == 1:
-        named = {"out": job.output[0]}
-    for items in (job.input.items(), named.items(), job.params.items()):
-        for name, value in items:
-            if name not in _NOT_OPTIONS:
-                add(name, value)
-    add("outdir", getattr(job.wildcards, "outdir", None))
-    add("threads", job.threads)
-    return argv
 
 
 def _log_to(path: str | Path) -> None:
@@ -113,78 +97,113 @@ def _log_to(path: str | Path) -> None:
 
 def script_main(
     parser: argparse.ArgumentParser,
-    run: Callable[[argparse.Namespace, Any], Any],
+    run: Callable[..., Any],
     argv: list[str] | None = None,
     *,
     job: Any = None,
-    outdir: Callable[[argparse.Namespace], str | Path] | None = None,
-    stage: str | type | None = None,
+    job_arguments: Callable[[Any], dict[str, Any]],
+    stage: str | type,
+    outdir: Callable[[dict[str, Any]], str | Path] | None = None,
+    hand_arguments: Callable[[argparse.Namespace], dict[str, Any]] | None = None,
 ) -> int:
-    """Parse the arguments (from ``argv``, or from the Snakemake ``job``), load the
-    config, and run a stage under the thread budget; a user-facing error is printed as
-    one line on stderr and exits with status 1.
+    """Run a stage script: ``run(inputs, **arguments)`` under the thread budget; a
+    user-facing error is printed as one line on stderr and exits with status 1.
 
-    With ``outdir`` (the output directory the stage writes, from its arguments) the
-    stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
-    a second run writing the same directory fails naming the holder.
-
-    With ``stage``, ``run`` gets the stage's inputs object instead of the config: a
-    stage name, or the inputs class of a rule outside the params stages (the demo,
-    the NWB export), whose ``params.stage`` is that class's params as JSON.
+    Parameters
+    ----------
+    parser
+        The script's options (by hand: parsed from ``argv``).
+    run
+        The script's entry point.
+    argv
+        The command line by hand (``None``: ``sys.argv``); unused with ``job``.
+    job
+        The Snakemake ``script:`` job (``snakemake``), or ``None`` by hand.
+    job_arguments
+        ``run``'s arguments read from the job.
+    stage
+        A stage name, or the inputs class of a rule outside the params stages (the
+        demo, the NWB export), whose ``params.stage`` is that class's params as JSON.
+    outdir
+        The output directory the stage writes, from its arguments: the stage then
+        runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so a
+        second run writing the same directory fails naming the holder.
+    hand_arguments
+        ``run``'s arguments by hand (default: the options other than the shared ones).
     """
     if job is not None:
-        parser.prog = f"{job.rule}.py"
         if job.log:
             _log_to(job.log[0])
-        argv = snakemake_argv(job, parser)
-    args = parser.parse_args(argv)
-    if job is None and args.config is None:
-        parser.error("the following arguments are required: --config")
+        name, threads, verbose = job.rule, job.threads, False
+
+        def inputs() -> Any:
+            return _job_inputs(job, stage)
+
+        def arguments() -> dict[str, Any]:
+            return job_arguments(job)
+
+    else:
+        args = parser.parse_args(argv)
+        if args.config is None:
+            parser.error("the following arguments are required: --config")
+        name, threads, verbose = Path(parser.prog).stem, args.threads, args.verbose
+
+        def inputs() -> Any:
+            return _hand_inputs(args, stage)
+
+        def arguments() -> dict[str, Any]:
+            if hand_arguments is not None:
+                return hand_arguments(args)
+            return {k: v for k, v in vars(args).items() if k not in _SHARED}
+
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
+        level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
     from flylib.resources import thread_budget
 
     try:
-        config = _stage_config(args, job, stage)
-        with thread_budget(args.threads):
+        stage_inputs = inputs()
+        with thread_budget(threads):
+            given = arguments()
             if outdir is None:
-                run(args, config)
+                run(stage_inputs, **given)
             else:
                 from flylib.locking import outdir_lock
 
-                with outdir_lock(outdir(args), job=Path(parser.prog).stem):
-                    run(args, config)
+                with outdir_lock(outdir(given), job=name):
+                    run(stage_inputs, **given)
     except FlylibError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
 
 
-def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) -> Any:
-    """What a stage runs on: its inputs object when ``stage`` is given (from the job's
-    params, or built from ``--config``: on the config rig when a stage that takes
-    ``--bundle-adjustment`` is run without it), else the run's config."""
+def _job_inputs(job: Any, stage: str | type) -> Any:
+    """A job's inputs object, from its rule's ``params.stage`` and ``params.runtime``."""
+    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
+        return stage.from_params(json.loads(job.params.stage), job.params.runtime)
+    from flylib.pipeline.inputs import inputs_from_job
+
+    return inputs_from_job(stage, job.params.stage, job.params.runtime)
+
+
+def _hand_inputs(args: argparse.Namespace, stage: str | type) -> Any:
+    """The inputs object by hand, built from ``--config``: on the config rig when a
+    stage that takes ``--bundle-adjustment`` is run without it."""
     from flylib.config import Config
 
-    if stage is None:
-        return job.params.config if job is not None else Config.from_file(args.config)
-    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
-        if job is not None:
-            return stage.from_params(json.loads(job.params.stage), job.params.runtime)
-        return stage.from_config(Config.from_file(args.config))
-    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
-
-    if job is not None:
-        return inputs_from_job(stage, job.params.stage, job.params.runtime)
     config = Config.from_file(args.config)
+    if not isinstance(stage, str):
+        return stage.from_config(config)
     if getattr(args, "bundle_adjustment", False) is None:
         # a stage after bundle adjustment run by hand without its artifact: the config rig
         from flylib.pipeline.stage_helpers import run_inputs
 
         return run_inputs(config, stage)
+    from flylib.pipeline.inputs import stage_inputs
+
     return stage_inputs(config, stage)
 
 

@@ -5,7 +5,21 @@ from pathlib import Path
 
 from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
 
-from _cli import output_dir, run_script, script_main, script_parser
+from _cli import output_dir, path, run_script, script_main, script_parser
+
+
+def run(inputs, pose2d, out, *, recording=None) -> None:
+    """Bundle-adjust the rig on ``pose2d`` into ``out``."""
+    run_bundle_adjustment(inputs, pose2d, out, recording_dir=recording)
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job."""
+    return {
+        "pose2d": path(job.input.pose2d),
+        "out": path(job.output[0]),
+        "recording": path(job.params.recording),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -20,17 +34,14 @@ def main(argv=None, *, job=None) -> int:
         default=None,
         help="recording directory (resolves a per-session calibration file)",
     )
-
-    def run(args, inputs):
-        run_bundle_adjustment(inputs, args.pose2d, args.out, recording_dir=args.recording)
-
     return script_main(
         parser,
         run,
         argv,
         job=job,
+        job_arguments=job_arguments,
         stage="bundle_adjustment",
-        outdir=lambda args: output_dir(args.out),
+        outdir=lambda a: output_dir(a["out"]),
     )
 
 

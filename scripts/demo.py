@@ -5,14 +5,24 @@ from pathlib import Path
 
 from flylib.pipeline.demo import DemoInputs, run_demo
 
-from _cli import run_script, script_main, script_parser
+from _cli import path, run_script, script_main, script_parser
+
+
+def run(inputs, out) -> None:
+    """Write the demo recording into ``out``."""
+    run_demo(inputs, out)
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument("--out", required=True, type=Path, help="demo recording directory to write")
     return script_main(
-        parser, lambda args, inputs: run_demo(inputs, args.out), argv, job=job, stage=DemoInputs
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=lambda job: {"out": path(job.params.out)},
+        stage=DemoInputs,
     )
 
 

@@ -6,7 +6,23 @@ from pathlib import Path
 
 from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
 
-from _cli import run_script, script_main, script_parser
+from _cli import path, run_script, script_main, script_parser
+
+
+def run(inputs, results, recording, output, *, angles=None, demo=False) -> None:
+    """Export ``results`` (and the joint ``angles``) as the NWB file ``output``."""
+    run_export_nwb(inputs, results, output, recording_dir=recording, demo=demo, angles_path=angles)
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job (``input.angles``: none, or one file)."""
+    return {
+        "results": path(job.input.results),
+        "recording": path(job.params.recording),
+        "output": path(job.output.output),
+        "angles": path(job.input.angles),
+        "demo": bool(job.params.demo),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -30,19 +46,14 @@ def main(argv=None, *, job=None) -> int:
         action="store_true",
         help="the recording is the embedded demo (its synthetic session metadata applies)",
     )
-
-    def run(args, inputs):
-        run_export_nwb(
-            inputs,
-            args.results,
-            args.output,
-            recording_dir=args.recording,
-            demo=args.demo,
-            angles_path=args.angles,
-        )
-
     return script_main(
-        parser, run, argv, job=job, stage=NwbExportInputs, outdir=lambda args: args.output.parent
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=job_arguments,
+        stage=NwbExportInputs,
+        outdir=lambda a: a["output"].parent,
     )
 
 

@@ -5,7 +5,36 @@ from pathlib import Path
 
 from flylib.pipeline.pictorial_structures import run_pictorial_structures
 
-from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
+from _cli import (
+    add_rig_stage_arguments,
+    output_dir,
+    path,
+    rig_stage_job_arguments,
+    run_script,
+    script_main,
+    script_parser,
+)
+
+
+def run(inputs, pose2d, out, *, candidates=None, bundle_adjustment=None, recording=None) -> None:
+    """Recover the joints of ``pose2d`` from the candidate peaks into ``out``."""
+    run_pictorial_structures(
+        inputs,
+        pose2d,
+        out,
+        candidates_path=candidates,
+        ba_path=bundle_adjustment,
+        recording_dir=recording,
+    )
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job."""
+    return {
+        "pose2d": path(job.input.pose2d),
+        "candidates": path(job.input.get("candidates")),
+        **rig_stage_job_arguments(job),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -18,24 +47,14 @@ def main(argv=None, *, job=None) -> int:
         help="the detector's top-K peaks (default: those inside the pose2d artifact)",
     )
     add_rig_stage_arguments(parser)
-
-    def run(args, inputs):
-        run_pictorial_structures(
-            inputs,
-            args.pose2d,
-            args.out,
-            candidates_path=args.candidates,
-            ba_path=args.bundle_adjustment,
-            recording_dir=args.recording,
-        )
-
     return script_main(
         parser,
         run,
         argv,
         job=job,
+        job_arguments=job_arguments,
         stage="pictorial_structures",
-        outdir=lambda args: output_dir(args.out),
+        outdir=lambda a: output_dir(a["out"]),
     )
 
 

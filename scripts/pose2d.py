@@ -8,7 +8,7 @@ from flylib.config.loading import parse_json
 from flylib.errors import ConfigError
 from flylib.pipeline.pose2d import run_pose2d
 
-from _cli import output_dir, run_script, script_main, script_parser
+from _cli import output_dir, path, run_script, script_main, script_parser
 
 
 def _import_spec(text: str):
@@ -17,6 +17,30 @@ def _import_spec(text: str):
         return parse_json(text, "--import-spec")
     except ConfigError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def run(inputs, recording, out, *, import_spec=None, candidates_out=None, progress=False) -> None:
+    """The 2D keypoints of ``recording`` into ``out`` (and the candidate peaks into
+    ``candidates_out``)."""
+    run_pose2d(
+        inputs,
+        recording,
+        out,
+        import_spec=import_spec,
+        progress=progress,
+        candidates_path=candidates_out,
+    )
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job (``params.import_spec``: the
+    recording's own import spec as JSON, ``null`` for the config's)."""
+    return {
+        "recording": path(job.params.recording),
+        "out": path(job.output.out),
+        "import_spec": parse_json(job.params.import_spec, "--import-spec"),
+        "candidates_out": path(job.output.get("candidates_out")),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -36,19 +60,14 @@ def main(argv=None, *, job=None) -> int:
         help="also write the detector's top-K peaks here (for pictorial structures)",
     )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
-
-    def run(args, inputs):
-        run_pose2d(
-            inputs,
-            args.recording,
-            args.out,
-            import_spec=args.import_spec,
-            progress=args.progress,
-            candidates_path=args.candidates_out,
-        )
-
     return script_main(
-        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="pose2d"
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=job_arguments,
+        stage="pose2d",
+        outdir=lambda a: output_dir(a["out"]),
     )
 
 

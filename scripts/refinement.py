@@ -6,7 +6,36 @@ from pathlib import Path
 
 from flylib.pipeline.refinement import run_refinement
 
-from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
+from _cli import (
+    add_rig_stage_arguments,
+    output_dir,
+    path,
+    rig_stage_job_arguments,
+    run_script,
+    script_main,
+    script_parser,
+)
+
+
+def run(inputs, pose2d, triangulation, out, *, bundle_adjustment=None, recording=None) -> None:
+    """Refine ``triangulation``'s 3D against ``pose2d`` into ``out``."""
+    run_refinement(
+        inputs,
+        pose2d,
+        triangulation,
+        out,
+        ba_path=bundle_adjustment,
+        recording_dir=recording,
+    )
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job."""
+    return {
+        "pose2d": path(job.input.pose2d),
+        "triangulation": path(job.input.triangulation),
+        **rig_stage_job_arguments(job),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -21,19 +50,14 @@ def main(argv=None, *, job=None) -> int:
         help="triangulation artifact (.h5): the starting 3D and its inlier views",
     )
     add_rig_stage_arguments(parser)
-
-    def run(args, inputs):
-        run_refinement(
-            inputs,
-            args.pose2d,
-            args.triangulation,
-            args.out,
-            ba_path=args.bundle_adjustment,
-            recording_dir=args.recording,
-        )
-
     return script_main(
-        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="refinement"
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=job_arguments,
+        stage="refinement",
+        outdir=lambda a: output_dir(a["out"]),
     )
 
 

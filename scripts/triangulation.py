@@ -5,7 +5,47 @@ from pathlib import Path
 
 from flylib.pipeline.triangulation import run_triangulation
 
-from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
+from _cli import (
+    add_rig_stage_arguments,
+    output_dir,
+    path,
+    rig_stage_job_arguments,
+    run_script,
+    script_main,
+    script_parser,
+)
+
+
+def run(
+    inputs,
+    pose2d,
+    out,
+    *,
+    pictorial_structures=None,
+    bundle_adjustment=None,
+    recording=None,
+    corrections=None,
+) -> None:
+    """Triangulate ``pose2d`` (or the pictorial-structures 2D) into ``out``."""
+    run_triangulation(
+        inputs,
+        pose2d,
+        out,
+        pictorial_path=pictorial_structures,
+        ba_path=bundle_adjustment,
+        recording_dir=recording,
+        corrections_path=corrections,
+    )
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job."""
+    return {
+        "pose2d": path(job.input.pose2d),
+        "pictorial_structures": path(job.input.get("pictorial_structures")),
+        "corrections": path(job.input.get("corrections")),
+        **rig_stage_job_arguments(job),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -24,20 +64,14 @@ def main(argv=None, *, job=None) -> int:
         default=None,
         help="corrections.h5 sidecar (flylib gui): apply its manual edits",
     )
-
-    def run(args, inputs):
-        run_triangulation(
-            inputs,
-            args.pose2d,
-            args.out,
-            pictorial_path=args.pictorial_structures,
-            ba_path=args.bundle_adjustment,
-            recording_dir=args.recording,
-            corrections_path=args.corrections,
-        )
-
     return script_main(
-        parser, run, argv, job=job, stage="triangulation", outdir=lambda args: output_dir(args.out)
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=job_arguments,
+        stage="triangulation",
+        outdir=lambda a: output_dir(a["out"]),
     )
 
 

@@ -5,7 +5,23 @@ from pathlib import Path
 
 from flylib.pipeline.visualization import run_visualization
 
-from _cli import run_script, script_main, script_parser
+from _cli import path, run_script, script_main, script_parser
+
+
+def run(inputs, results, recording, outdir, *, progress=False, speed=None) -> None:
+    """Render the videos of ``results`` over ``recording``'s footage into ``outdir``."""
+    run_visualization(inputs, results, recording, outdir, progress=progress, speed=speed)
+
+
+def job_arguments(job) -> dict:
+    """``run``'s arguments from the Snakemake job."""
+    speed = job.params.speed
+    return {
+        "results": path(job.input.results),
+        "recording": path(job.params.recording),
+        "outdir": path(job.wildcards.outdir),
+        "speed": None if speed is None else float(speed),
+    }
 
 
 def main(argv=None, *, job=None) -> int:
@@ -21,19 +37,14 @@ def main(argv=None, *, job=None) -> int:
         type=float,
         help="play the videos at this multiple of the recording's rate when the config sets none",
     )
-
-    def run(args, inputs):
-        run_visualization(
-            inputs,
-            args.results,
-            args.recording,
-            args.outdir,
-            progress=args.progress,
-            speed=args.speed,
-        )
-
     return script_main(
-        parser, run, argv, job=job, stage="visualization", outdir=lambda args: args.outdir
+        parser,
+        run,
+        argv,
+        job=job,
+        job_arguments=job_arguments,
+        stage="visualization",
+        outdir=lambda a: a["outdir"],
     )
 
 

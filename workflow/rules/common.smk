@@ -93,10 +93,17 @@ def recording(wildcards):
     return BY_OUTDIR[wildcards.outdir]
 
 
-def stage_params(stage: str) -> str:
+def as_is(value):
+    """A param that Snakemake takes as it is: it formats a plain string param as a
+    wildcard pattern (a `{view}` in a config value would end the run), but not what a
+    function returns. The value, and so the repr its re-run check compares, is kept."""
+    return lambda wildcards: value
+
+
+def stage_params(stage: str):
     """The rule's `params.stage`: the stage's tracked params (its inputs object's,
     flylib.pipeline.inputs), as canonical JSON (Snakemake re-runs a job when it changes)."""
-    return json.dumps(_stage_params(CONFIG, stage), sort_keys=True)
+    return as_is(json.dumps(_stage_params(CONFIG, stage), sort_keys=True))
 
 
 def job_runtime(stage: str):
