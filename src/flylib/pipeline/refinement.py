@@ -50,6 +50,7 @@ from ..refinement.setup import options_from_params
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
+from .triangulation import triangulation_method
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -343,8 +344,7 @@ def compute_refinement(
         The artifact group's attributes: ``flag_bits``, ``bone_lengths``,
         ``rigid_centres``, ``summary``, ``options``, ``accuracy``.
     """
-    from ..accuracy import refinement_method, triangulation_method
-    from ..refinement.held_out import HeldOutCheck, keep_corrected
+    from ..refinement.held_out import HeldOutCheck, keep_corrected, refinement_method
     from ..refinement.setup import skeleton_terms
     from ..refinement.solver import refine_stream
 
