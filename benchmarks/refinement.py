@@ -51,7 +51,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from flylib.demo import synthetic_fly
 from flylib.refinement import refine_points, skeleton_terms
 from flylib.skeleton import Skeleton
-from flylib.triangulation import reconstruct_ransac
+from flylib.triangulation import reconstruct
 
 from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
@@ -70,7 +70,7 @@ def accuracy_and_speed(frames: int) -> None:
     rig, truth, pts2d, conf, kind = scene(frames)
     terms = skeleton_terms(Skeleton.fly(), None)
     started = time.perf_counter()
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     ransac_s = time.perf_counter() - started
     inliers = np.isfinite(clean2d).all(-1)
 
@@ -161,6 +161,8 @@ def timed_refinement(rig, pts2d, start, conf, inliers, terms):
 def speed_child(frames: int) -> None:
     """Time the refinement on the scene (whatever ``flylib`` is importable); print JSON."""
     rig, _truth, pts2d, conf, _kind = scene(frames)
+    from flylib.triangulation import reconstruct_ransac  # the baseline's (points first)
+
     terms = skeleton_terms(Skeleton.fly(), None)
     start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
     _, _, figures = timed_refinement(rig, pts2d, start, conf, np.isfinite(clean2d).all(-1), terms)
@@ -230,7 +232,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
             hi = min(lo + block, frames)
             clean = np.asarray(rig.project(truth[lo:hi]))
             pts, c, _ = detector_errors(clean, vis, rig.names, POINT_NAMES, seed=lo)
-            start, clean2d, _ = reconstruct_ransac(rig, pts, threshold=15.0, min_inliers=2)
+            start, clean2d, _ = reconstruct(rig, pts)
             points[:, lo:hi], conf[:, lo:hi], t2d[:, lo:hi], t3d[lo:hi] = pts, c, clean2d, start
     return p2d_path, tri_path
 

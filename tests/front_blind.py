@@ -140,8 +140,9 @@ def held_out_error(cameras: CameraGroup, pts2d: np.ndarray) -> np.ndarray:
     """``(V, T, P)`` leave-one-camera-out reprojection error in pixels over every frame:
     :func:`flylib.accuracy.held_out_errors` with the DLT, so two rigs are judged on the
     same observations (compare medians: gross outliers stay in)."""
-    from flylib.accuracy import held_out_errors, triangulation_method
+    from flylib.accuracy import held_out_errors
     from flylib.config.params import TriangulationParams
+    from flylib.pipeline.triangulation import triangulation_method
 
     method = triangulation_method(TriangulationParams(method="dlt"), cameras)
     return held_out_errors(cameras, pts2d, method, windows=[(0, pts2d.shape[1])])["triangulation"]

@@ -26,7 +26,7 @@ from flylib.config import Config
 from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
 from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.pose2d import import_target
-from flylib.triangulation import reconstruct_with_params
+from flylib.triangulation import reconstruct
 
 from rough_rig import fit_with_default_config, make_case
 
@@ -44,7 +44,7 @@ def _fit(config, rig, pts2d, conf):
             stage_inputs(config, "bundle_adjustment"), rig, pts2d, conf
         )
     result, refined = adjusted.solution, adjusted.cameras
-    pts3d, _, _ = reconstruct_with_params(refined, pts2d, config.triangulation, conf)
+    pts3d, _, _ = reconstruct(refined, pts2d, config.triangulation, conf)
     return result, refined, pts3d, [str(w.message) for w in caught]
 
 
@@ -101,7 +101,7 @@ def test_real_sample_meets_the_seed_and_beats_no_bundle_adjustment(df3d_sample_d
     rig = config_rig(config, pose2d.image_sizes)
     truth = front_blind.recorded_poses()
     bone = front_blind.median_bone(truth)
-    plain, _, _ = reconstruct_with_params(rig, pose2d.pts2d, config.triangulation, pose2d.conf)
+    plain, _, _ = reconstruct(rig, pose2d.pts2d, config.triangulation, pose2d.conf)
     result, refined, pts3d, caught = _fit(config, rig, pose2d.pts2d, pose2d.conf)
 
     error = np.nanmedian(front_blind.mirror_free_error(pts3d, truth)) / bone
@@ -126,9 +126,7 @@ def test_deepfly3d_front_blind_scene():
     0.061, no bundle adjustment 0.196, before 0.170 with inlier rounds that never
     settled)."""
     case = front_blind.make_case(300)
-    plain, _, _ = reconstruct_with_params(
-        case.start, case.pts2d, Config.default().triangulation, case.conf
-    )
+    plain, _, _ = reconstruct(case.start, case.pts2d, Config.default().triangulation, case.conf)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result, refined, pts3d, _ = fit_with_default_config(case, max_frames=100)
@@ -147,9 +145,7 @@ def test_synthetic_front_blind_rig_keeps_the_sides_where_the_start_had_them():
     Measured 0.126 median bones (no bundle adjustment 0.172; before, with the mirror
     constraints placing one side against the other: 0.450)."""
     case = make_case(120, blind_front=True)
-    plain, _, _ = reconstruct_with_params(
-        case.start, case.pts2d, Config.default().triangulation, case.conf
-    )
+    plain, _, _ = reconstruct(case.start, case.pts2d, Config.default().triangulation, case.conf)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result, refined, pts3d, err = fit_with_default_config(case, max_frames=60)

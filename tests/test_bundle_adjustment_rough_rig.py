@@ -148,8 +148,7 @@ def test_rough_rig_recovers_the_fly(rough):
     from flylib.triangulation import reconstruct
 
     start_err = np.nanmedian(
-        similarity_error(reconstruct(rough.start, rough.pts2d, method="ransac")[0], rough.truth)
-        / rough.bone
+        similarity_error(reconstruct(rough.start, rough.pts2d)[0], rough.truth) / rough.bone
     )
     result, _, _, err = fit_with_default_config(rough)
     assert np.nanmedian(err) <= 0.03

@@ -22,7 +22,7 @@ from flylib.corrections import Corrections
 from flylib.errors import ResultsError
 from flylib.gui import ReviewSession, create_app
 from flylib.results import Pose2dData, PoseResult
-from flylib.triangulation import reconstruct_with_params
+from flylib.triangulation import reconstruct
 
 from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
@@ -90,7 +90,7 @@ def expected_after(outdir, frame, point, change):
     pts = pose2d.pts2d[:, [frame]][:, :, [point]].copy()
     change(pts)
     conf = pose2d.conf[:, [frame]][:, :, [point]]
-    pts3d, _, _ = reconstruct_with_params(result.cameras, pts, config.triangulation, conf)
+    pts3d, _, _ = reconstruct(result.cameras, pts, config.triangulation, conf)
     return pts3d[0, 0], result.cameras.project(pts3d[0, 0])
 
 

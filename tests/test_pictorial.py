@@ -102,7 +102,7 @@ def test_clean_candidates_change_nothing(scene):
 
 @pytest.mark.parametrize("temporal", [False, True])
 def test_swapped_peak_in_two_views_is_recovered(scene, temporal):
-    from flylib.triangulation import reconstruct_ransac
+    from flylib.triangulation import reconstruct
 
     rig, skeleton, truth, pts2d, cand = scene
     frame, joint = 7, POINT_NAMES.index("rf_tibia_tarsus")
@@ -114,7 +114,7 @@ def test_swapped_peak_in_two_views_is_recovered(scene, temporal):
         score[v, frame, joint, [0, 1]] = [0.95, 0.8]
     swapped = ps.Candidates(xy, score)
 
-    ransac3d, ransac2d, _ = reconstruct_ransac(rig, swapped.argmax())
+    ransac3d, ransac2d, _ = reconstruct(rig, swapped.argmax())
     ransac_err = np.linalg.norm(ransac3d[frame, joint] - truth[frame, joint])
     assert (
         not np.isfinite(ransac_err)

@@ -42,12 +42,12 @@ def test_synthetic_fly_truth_is_recovered():
     i, j = skeleton.bone_index_pairs()
     bone = np.median(np.linalg.norm(truth[:, i] - truth[:, j], axis=-1))
     err = _similarity_error(result.pts3d, truth)
-    floor_err = _similarity_error(reconstruct(rig, pts2d, method="ransac")[0], truth)
-    before = _similarity_error(reconstruct(start, pts2d, method="ransac")[0], truth)
+    floor_err = _similarity_error(reconstruct(rig, pts2d)[0], truth)
+    before = _similarity_error(reconstruct(start, pts2d)[0], truth)
     assert np.nanmedian(err) < 0.02 * bone
     assert np.nanmedian(err) < 0.5 * np.nanmedian(before)
     # reprojection error within 20 % of what the true rig gives
-    floor = np.nanmedian(reconstruct(rig, pts2d, method="ransac")[2])
+    floor = np.nanmedian(reconstruct(rig, pts2d)[2])
     assert np.nanmedian(result.reproj_error) < 1.2 * floor
     assert np.isfinite(result.pts3d).all(-1).mean() > 0.95
     assert result.meta["bundle_adjustment"]["final_median_px"] < 1.0

@@ -23,7 +23,7 @@ from flylib.refinement.solver import (
     rigid_centres,
 )
 from flylib.skeleton import Skeleton
-from flylib.triangulation import reconstruct_ransac
+from flylib.triangulation import reconstruct
 
 from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
@@ -97,7 +97,7 @@ def test_refinement_beats_ransac_on_detector_like_errors():
     """1.5 px noise, 5% outliers up to 50 px, 2% left/right swaps in the side views,
     10% missing (the issue's acceptance scene; the benchmark runs it longer)."""
     rig, truth, pts2d, conf, kind = _scene(frames=200, seed=3)
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     terms = skeleton_terms(Skeleton.fly(), None)
     result = refine_points(
         pts2d, rig, start, conf=conf, inliers=np.isfinite(clean2d).all(-1), **terms
@@ -127,7 +127,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
     q = POINT_NAMES.index("lm_claw")
     pts2d[:, 10:13, p] = np.nan  # 3 frames: filled
     pts2d[:, 30:40, q] = np.nan  # 10 frames: missing
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     terms = skeleton_terms(Skeleton.fly(), None)
     result = refine_points(
         pts2d,
@@ -147,7 +147,7 @@ def test_gaps_are_filled_up_to_gap_length_and_longer_ones_stay_nan():
 
 def test_rigid_thorax_points_stay_put_and_chunks_agree_with_one_solve():
     rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     terms = skeleton_terms(Skeleton.fly(), None)
     inliers = np.isfinite(clean2d).all(-1)
     whole = refine_points(pts2d, rig, start, conf=conf, inliers=inliers, **terms)
@@ -388,7 +388,7 @@ def test_every_chunk_window_has_one_length_and_no_padding(monkeypatch):
 
     monkeypatch.setattr(solver.ChunkProblem, "__init__", record)
     rig, _truth, pts2d, conf, _ = _scene(frames=150, seed=4)
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     result = refine_points(
         pts2d,
         rig,
@@ -413,7 +413,7 @@ def _stage_case(tmp_path, frames=20, seed=7):
     rig, truth, pts2d, conf, _ = _scene(frames=frames, seed=seed)
     sizes = {v: (480, 960) for v in rig.names}
     Pose2dData(pts2d, conf, list(rig.names), sizes).save(tmp_path / "pose2d.h5", config.skeleton())
-    start, clean2d, err = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, err = reconstruct(rig, pts2d)
     write_stage(
         tmp_path / "triangulation.h5",
         "triangulation",

@@ -94,9 +94,9 @@ def test_bundle_adjustment_linalg_error_is_one_line(monkeypatch, config, pose2d,
     ],
 )
 def test_triangulation_failures_are_one_line(monkeypatch, config, pose2d, tmp_path, exc):
-    import flylib.corrections as corrections
+    import flylib.triangulation as triangulation
 
-    monkeypatch.setattr(corrections, "reconstruct_corrected", _raise(exc))
+    monkeypatch.setattr(triangulation, "reconstruct", _raise(exc))
     with pytest.raises(StageError) as err:
         run_triangulation(
             run_inputs(config, "triangulation"),

@@ -13,9 +13,12 @@ from flylib import triangulation as tri
 from flylib.camera import jax_model, model as camera_model
 from flylib.camera.rig import CameraGroup, orbit_extrinsics
 from flylib.config import Config
+from flylib.config.params import TriangulationParams
 from flylib.errors import ConfigError
 
 from rig_constants import AZIMUTHS, DISTANCE, FOCAL, IMAGE_SIZE
+
+METHODS = ("ransac", "greedy", "dlt")
 
 
 @pytest.fixture(scope="module")
@@ -126,11 +129,7 @@ def test_one_argument_order(rig, scene):
     calls = [
         (tri.triangulate, (pts2d,)),
         (tri.triangulate_ransac, (pts2d,)),
-        (tri.triangulate_greedy, (pts2d,)),
-        (tri.reconstruct_dlt, (pts2d,)),
-        (tri.reconstruct_ransac, (pts2d,)),
-        (tri.reconstruct_greedy, (pts2d,)),
-        (tri.reconstruct, (pts2d,)),
+        *[(tri.reconstruct, (pts2d, TriangulationParams(method=m))) for m in METHODS],
     ]
     for func, args in calls:
         out = func(rig, *args)
@@ -138,7 +137,7 @@ def test_one_argument_order(rig, scene):
         with pytest.raises(
             TypeError, match=r"\(cameras, pts2d, \.\.\.\) takes the camera rig first"
         ):
-            func(*args, rig)
+            func(args[0], rig, *args[1:])
     np.testing.assert_allclose(tri.reprojection_error(rig, pts3d, pts2d), 0.0, atol=1e-6)
     with pytest.raises(TypeError, match="camera rig first"):
         tri.reprojection_error(pts3d, pts2d, rig)
@@ -147,6 +146,8 @@ def test_one_argument_order(rig, scene):
         tri.triangulate(rig, pts2d, conf=np.ones(pts2d.shape[:-1]))
     with pytest.raises(TypeError):
         tri.reconstruct(rig, pts2d, ransac_threshold=3.0)
+    with pytest.raises(TypeError):
+        tri.reconstruct(rig, pts2d, method="dlt")  # the method is the params'
     with pytest.raises(TypeError):
         tri.triangulate_ransac(rig, pts2d, 15.0)  # knobs are keywords
 
@@ -164,7 +165,7 @@ def test_ransac_rejects_gross_outliers(rig, scene, bad_views):
     expected = np.ones(7, dtype=bool)
     expected[bad_views] = False
     assert (inliers == expected[:, None, None]).all()
-    _, clean, err = tri.reconstruct_ransac(rig, corrupted)
+    _, clean, err = tri.reconstruct(rig, corrupted)
     assert np.isnan(clean[bad_views]).all()
     np.testing.assert_array_equal(
         np.delete(clean, bad_views, axis=0), np.delete(corrupted, bad_views, axis=0)
@@ -183,7 +184,7 @@ def test_ransac_nan_views_never_count_and_min_inliers(rig, scene):
     assert inliers[[1, 2]].all() and not inliers[[0, 3, 4, 5, 6]].any()
     got3, inliers3 = tri.triangulate_ransac(rig, two, min_inliers=3)
     assert np.isnan(got3).all() and not inliers3.any()
-    _, clean, _ = tri.reconstruct_ransac(rig, two, min_inliers=3)
+    _, clean, _ = tri.reconstruct(rig, two, TriangulationParams(min_inliers=3))
     assert np.isnan(clean).all()
 
 
@@ -323,7 +324,7 @@ def test_ransac_with_distorted_cameras(rig, scene):
     # the JAX kernels' distorted paths: DLT on undistorted points, greedy's raw-image errors
     clean = distorted.project(pts3d)
     np.testing.assert_allclose(tri.triangulate(distorted, clean), pts3d, atol=1e-8)
-    greedy, kept = tri.triangulate_greedy(distorted, pts2d, reproj_threshold=20.0)
+    greedy, kept = _greedy(distorted, pts2d, reproj_threshold=20.0)
     np.testing.assert_allclose(greedy, pts3d, atol=1e-8)
     assert not kept[6].any() and kept[:6].all()
 
@@ -331,16 +332,22 @@ def test_ransac_with_distorted_cameras(rig, scene):
 # -- greedy ----------------------------------------------------------------------------------------
 
 
+def _greedy(rig, pts2d, **knobs):
+    """Greedy's 3D and the views it kept (the finite 2D it returns)."""
+    pts3d, clean, _ = tri.reconstruct(rig, pts2d, TriangulationParams(method="greedy", **knobs))
+    return pts3d, np.isfinite(clean).all(-1)
+
+
 def test_greedy_drops_the_outlier(rig, scene):
     pts3d, pts2d = scene
     corrupted = pts2d.copy()
     corrupted[3, :, :, 0] += 400.0
-    got, kept = tri.triangulate_greedy(rig, corrupted, reproj_threshold=40.0)
+    got, kept = _greedy(rig, corrupted, reproj_threshold=40.0)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert not kept[3].any() and kept[[0, 1, 2, 4, 5, 6]].all()
     # max_drops=0 is plain DLT.
     np.testing.assert_allclose(
-        tri.triangulate_greedy(rig, corrupted, max_drops=0)[0],
+        _greedy(rig, corrupted, max_drops=0)[0],
         tri.triangulate(rig, corrupted),
         rtol=1e-12,
     )
@@ -349,7 +356,7 @@ def test_greedy_drops_the_outlier(rig, scene):
     pair = np.full_like(pts2d, np.nan)
     pair[[0, 1]] = pts2d[[0, 1]]
     pair[1, ..., 1] += 400.0
-    got, kept = tri.triangulate_greedy(rig, pair)
+    got, kept = _greedy(rig, pair)
     assert np.isnan(got).all() and not kept.any()
 
 
@@ -358,8 +365,8 @@ def test_greedy_drops_the_outlier(rig, scene):
 
 def test_reconstruct_dispatch_shapes(rig, scene):
     pts3d, pts2d = scene
-    for method in ("ransac", "greedy", "dlt"):
-        out3d, clean, err = tri.reconstruct(rig, pts2d, method=method)
+    for method in METHODS:
+        out3d, clean, err = tri.reconstruct(rig, pts2d, TriangulationParams(method=method))
         assert (
             out3d.shape == pts3d.shape
             and clean.shape == pts2d.shape
@@ -367,41 +374,40 @@ def test_reconstruct_dispatch_shapes(rig, scene):
         )
         np.testing.assert_allclose(out3d, pts3d, atol=1e-9)
     with pytest.raises(ValueError, match="unknown triangulation method"):
-        tri.reconstruct(rig, pts2d, method="magic")
+        tri.reconstruct(rig, pts2d, TriangulationParams(method="magic"))
 
 
-def test_reconstruct_with_params_reads_the_methods_knobs(rig, scene):
+def test_reconstruct_reads_the_methods_knobs(rig, scene):
     pts3d, pts2d = scene
     corrupted = pts2d.copy()
     corrupted[2] += 60.0
     config = Config.from_dict({"triangulation": {"method": "ransac", "ransac_threshold": 20.0}})
-    got, clean, _ = tri.reconstruct_with_params(rig, corrupted, config.triangulation)
+    got, clean, _ = tri.reconstruct(rig, corrupted, config.triangulation)
     np.testing.assert_allclose(got, pts3d, atol=1e-9)
     assert np.isnan(clean[2]).all()
     # With a threshold above the outlier's pull, nothing is rejected.
     loose = Config.from_dict({"triangulation": {"method": "greedy", "reproj_threshold": 1000.0}})
-    got, clean, _ = tri.reconstruct_with_params(rig, corrupted, loose.triangulation)
+    got, clean, _ = tri.reconstruct(rig, corrupted, loose.triangulation)
     assert np.isfinite(clean).all() and np.abs(got - pts3d).max() > 1e-4
     # the method is checked once, where the config is read
     with pytest.raises(ConfigError, match="triangulation.method"):
         Config.from_dict({"triangulation": {"method": "nonsense"}})
 
 
-def test_each_methods_knobs_are_params_fields_and_reconstruct_keywords():
-    import inspect
-
+def test_each_methods_knobs_are_params_fields_and_its_functions_keywords(rig, scene):
     from flylib.config.constants import TRIANGULATION_METHODS
-    from flylib.config.params import TRIANGULATION_KNOBS, TriangulationParams
+    from flylib.config.params import TRIANGULATION_KNOBS
 
+    _, pts2d = scene
     fields = {f.name for f in dataclasses.fields(TriangulationParams)}
-    keywords = set(inspect.signature(tri.reconstruct).parameters)
-    assert set(TRIANGULATION_KNOBS) == set(TRIANGULATION_METHODS)
+    assert set(TRIANGULATION_KNOBS) == set(TRIANGULATION_METHODS) == set(METHODS)
     for method, knobs in TRIANGULATION_KNOBS.items():
-        assert set(knobs) <= fields and set(knobs.values()) <= keywords, method
+        assert set(knobs) <= fields, method
         params = TriangulationParams(method=method, ransac_threshold=7.0, max_drops=1)
         assert set(params.method_params()) == {"method", "weigh_by_confidence", *knobs}
         kwargs = params.method_kwargs()
         assert kwargs == {kw: getattr(params, name) for name, kw in knobs.items()}
+        tri.reconstruct(rig, pts2d[:, :1], params)  # a knob its function lacks: TypeError
 
 
 # -- real data ------------------------------------------------------------------------------------------
@@ -419,10 +425,10 @@ def test_ransac_on_the_deepfly3d_sample(df3d_pickle, rig):
     assert (seen >= 2).any()
     # The uncalibrated default rig is ~10 px off on this recording: 30 px keeps every
     # point seen twice (15 px, the default, keeps > 99%).
-    pts3d, clean, err = tri.reconstruct_ransac(rig, pts2d, threshold=30.0)
+    pts3d, clean, err = tri.reconstruct(rig, pts2d, TriangulationParams(ransac_threshold=30.0))
     assert np.isfinite(pts3d[seen >= 2]).all()
     assert np.nanmedian(err) < 15.0
-    strict, _, _ = tri.reconstruct_ransac(rig, pts2d, threshold=15.0)
+    strict, _, _ = tri.reconstruct(rig, pts2d)
     assert np.isfinite(strict[seen >= 2]).all(axis=-1).mean() > 0.95
     # The orbit convention reconstructs a fly facing +x: its right side (r* points,
     # 19..37) at -y, its left at +y, front legs ahead of hind legs.

@@ -66,8 +66,9 @@ class Pose2dParams:
 
 
 #: Each triangulation method's own knobs: the ``triangulation`` table's key -> the keyword
-#: of :func:`flylib.triangulation.reconstruct` it becomes. The one map from a method to
-#: what it reads: the stage's params track these keys, the stage passes these keywords.
+#: of the method's function it becomes. The one map from a method to what it reads: the
+#: stage's params track these keys, :func:`flylib.triangulation.reconstruct` passes these
+#: keywords.
 TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
     "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
     "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
@@ -114,9 +115,9 @@ class TriangulationParams:
         }
 
     def method_kwargs(self) -> dict[str, Any]:
-        """The chosen ``method``'s knobs under the keyword names of
-        :func:`flylib.triangulation.reconstruct` (``threshold``, ``min_inliers``,
-        ``reproj_threshold``, ``max_drops``; none for ``dlt``)."""
+        """The chosen ``method``'s knobs under its function's keyword names
+        (``threshold``, ``min_inliers`` of :func:`flylib.triangulation.triangulate_ransac`;
+        ``reproj_threshold``, ``max_drops`` of greedy; none for ``dlt``)."""
         return {
             keyword: getattr(self, name)
             for name, keyword in TRIANGULATION_KNOBS[self.method].items()

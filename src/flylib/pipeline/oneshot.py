@@ -156,13 +156,7 @@ def run_from_points2d(
 
         _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d, **(ps_kwargs or {}))
 
-    pts3d, pts2d_out, reproj = reconstruct(
-        cameras,
-        tri_input,
-        method=triangulation,
-        weights=conf if (tri.weigh_by_confidence and conf is not None) else None,
-        **tri.method_kwargs(),
-    )
+    pts3d, pts2d_out, reproj = reconstruct(cameras, tri_input, tri, conf)
     return PoseResult(
         cameras=cameras,
         skeleton=skeleton,

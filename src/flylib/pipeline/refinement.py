@@ -59,6 +59,7 @@ from .inputs import (
     typed_params,
 )
 from .stage_helpers import RigRuntime, tracked_rig
+from .triangulation import triangulation_method
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -331,8 +332,7 @@ def compute_refinement(
         The artifact group's attributes: ``flag_bits``, ``bone_lengths``,
         ``rigid_centres``, ``summary``, ``options``, ``accuracy``.
     """
-    from ..accuracy import refinement_method, triangulation_method
-    from ..refinement.held_out import HeldOutCheck, keep_corrected
+    from ..refinement.held_out import HeldOutCheck, keep_corrected, refinement_method
     from ..refinement.setup import skeleton_terms
     from ..refinement.solver import refine_stream
 

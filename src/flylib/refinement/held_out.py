@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .solver import FLAG_BITS
+from .setup import skeleton_terms
+from .solver import FLAG_BITS, refine_points
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
@@ -26,6 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..accuracy import Refine, Triangulate
     from ..camera.rig import CameraGroup
     from ..config.postprocessing import RefinementParams
+    from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +38,19 @@ _KEPT_ARRAYS = (
     ("reproj_error", "reproj_error", 1),
     ("points2d", "points", 1),
 )
+
+
+def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
+    """The refinement stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls
+    it (the ``refinement`` table and the skeleton's bones and rigid points)."""
+    terms = skeleton_terms(skeleton, params.rigid_points)
+
+    def refine(pts2d, conf, start, kept):
+        return refine_points(
+            pts2d, cameras, start, conf=conf, inliers=kept, options=params, **terms
+        ).points3d
+
+    return refine
 
 
 class HeldOutCheck:
@@ -56,10 +71,10 @@ class HeldOutCheck:
     start
         ``(T, P, 3)`` the triangulation's 3D.
     triangulate
-        The triangulation stage's method (:func:`flylib.accuracy.triangulation_method`).
+        The triangulation stage's method (:func:`flylib.pipeline.triangulation.triangulation_method`).
     refine_at
         ``smooth_scale -> Refine``: the refinement stage's method at a smoothness scale
-        (:func:`flylib.accuracy.refinement_method`).
+        (:func:`refinement_method`).
     options
         The configured solver options.
     motion_scales
