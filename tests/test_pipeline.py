@@ -108,6 +108,33 @@ def test_defaults_are_the_packaged_configs(monkeypatch):
     )
 
 
+def test_one_chain_the_stages_compute_steps():
+    """The one-shot is the stages' compute steps on the default config's inputs: the
+    same rig and 3D as the workflow's bundle adjustment (its leg-joint points_to_use
+    included) and triangulation; an override is checked as a config is."""
+    from flylib.config import Config
+    from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.triangulation import compute_triangulation
+
+    rig, skeleton = default_rig(), Skeleton.fly()
+    pts2d, conf = observe(synthetic_fly(12, seed=4), rig, noise_px=0.5, seed=4)
+    start = perturb_rig(rig, rot_deg=1.0, dist_frac=0.01, seed=4)
+    result = run_from_points2d(start, skeleton, pts2d, conf)
+    config = Config.default()
+    adjusted = compute_bundle_adjustment(
+        stage_inputs(config, "bundle_adjustment"), start, pts2d, conf
+    )
+    stage = compute_triangulation(
+        stage_inputs(config, "triangulation"), adjusted.cameras, pts2d, conf
+    )
+    np.testing.assert_array_equal(result.cameras.pmats, adjusted.cameras.pmats)
+    np.testing.assert_array_equal(result.pts3d, stage.points3d)
+    assert result.meta["bundle_adjustment"]["nfev"] == adjusted.summary["nfev"]
+    with pytest.raises(ConfigError, match="bundle_adjustment.max_frames"):
+        run_from_points2d(start, skeleton, pts2d, conf, bundle_adjust_kwargs={"max_frames": 0})
+
+
 # -- real data: DeepFly3D's own 2D for the sample recording ---------------------------------
 
 

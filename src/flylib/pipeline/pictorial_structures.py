@@ -100,17 +100,26 @@ class Recovered:
 
 
 def compute_pictorial_structures(
-    inputs: PictorialStructuresInputs, cameras: CameraGroup, candidates: Candidates
+    inputs: PictorialStructuresInputs,
+    cameras: CameraGroup,
+    candidates: Candidates,
+    pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
 ) -> Recovered:
     """Choose one candidate peak per (view, frame, point) on ``cameras``
     (:func:`flylib.pictorial.reconstruct` with the ``pictorial_structures`` table);
-    no file is read or written."""
+    no file is read or written.
+
+    The bone-length prior is triangulated from ``pts2d_argmax`` ``(V, T, P, 2)``, the
+    arg-max detections, where given (the library one-shot passes its ``pts2d``), else
+    from the candidates' strongest peaks (what the stage does).
+    """
     from ..pictorial import reconstruct
 
     pts3d, pts2d, error = reconstruct(
         cameras,
         inputs.skeleton.skeleton(),
         candidates,
+        pts2d_argmax,
         **inputs.pictorial_structures.solver_kwargs(),
     )
     return Recovered(pts3d, pts2d, error)
