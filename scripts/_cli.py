@@ -1,17 +1,15 @@
 """The entry point shared by the stage scripts.
 
-A script's ``run(inputs, **arguments)`` calls its stage function with the stage's
-inputs object (:mod:`flylib.pipeline.inputs`) and the files and options it takes, by
-name. :func:`script_main` gets both two ways:
+A script's options are named for its rule's files and params (``--pose2d``: the job's
+``input.pose2d``) and store under the keywords of its stage function (``dest=
+"pose2d_path"``), so :func:`script_main` calls ``run_<stage>(inputs, **arguments)``:
 
-- from the rule's ``script:`` directive (``job``, the script's ``snakemake`` object):
+- run by the rule's ``script:`` directive (``job``, the script's ``snakemake`` object):
+  each option's value read by its name from ``snakemake.input/output/params/wildcards``,
   the inputs object rebuilt from the rule's tracked ``params.stage`` and untracked
-  ``params.runtime``, the arguments read from ``snakemake.input/output/params/
-  wildcards`` by the script's ``job_arguments``, the rule's ``threads``, and stderr
-  sent to the job's log;
-- by hand, ``python scripts/<stage>.py --config config/config.yaml ... [--threads N]``
-  (see ``--help``): the inputs object built from ``--config`` and the arguments from
-  the script's options, each option's name that of a ``run`` argument.
+  ``params.runtime``, the rule's ``threads``, and stderr sent to the job's log;
+- by hand (``python scripts/<stage>.py --config config/config.yaml ...``, see
+  ``--help``): the options parsed, the inputs object built from ``--config``.
 """
 
 from __future__ import annotations
@@ -27,8 +25,8 @@ from typing import Any
 
 from flylib.errors import FlylibError
 
-# The options every script shares: what runs the stage, not arguments of ``run``.
-_SHARED = ("config", "threads", "verbose")
+# The options every script shares: what runs the stage, not arguments of the stage.
+_SHARED = ("help", "config", "threads", "verbose")
 
 
 def script_parser(description: str) -> argparse.ArgumentParser:
@@ -37,14 +35,12 @@ def script_parser(description: str) -> argparse.ArgumentParser:
     parser.add_argument(
         "--config",
         type=Path,
-        default=None,
         help="config file (.yaml/.toml) of the run, e.g. config/config.yaml "
         "(required when run by hand)",
     )
     parser.add_argument(
         "--threads",
         type=int,
-        default=None,
         help="threads the stage may use (default: the CPUs this process may run on)",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -56,33 +52,20 @@ def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
     stage after bundle adjustment that writes one artifact from the final rig."""
     parser.add_argument(
         "--bundle-adjustment",
+        dest="ba_path",
         type=Path,
-        default=None,
         help="bundle-adjustment artifact (its rig); default: the config rig",
     )
-    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
-    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+    parser.add_argument(
+        "--out", dest="out_path", required=True, type=Path, help="artifact to write (.h5)"
+    )
+    parser.add_argument("--recording", dest="recording_dir", type=Path, help="recording directory")
 
 
-def rig_stage_job_arguments(job: Any) -> dict[str, Path | None]:
-    """The :func:`add_rig_stage_arguments` arguments of a Snakemake job."""
-    return {
-        "bundle_adjustment": path(job.input.get("bundle_adjustment")),
-        "out": path(job.output[0]),
-        "recording": path(job.params.recording),
-    }
-
-
-def path(value: Any) -> Path | None:
-    """A job's file or directory as the by-hand option gives it: a ``Path``, or
-    ``None`` for an optional one left out (absent, an empty list, ``""``)."""
-    return Path(str(value)) if value else None
-
-
-def output_dir(out: str | Path) -> Path:
-    """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
-    gives ``<outdir>``; any other file its own directory)."""
-    parent = Path(out).parent
+def artifact_outdir(arguments: dict[str, Any]) -> Path:
+    """The recording's output directory of a stage writing the artifact ``out_path``
+    (``<outdir>/stages/x.h5`` gives ``<outdir>``; any other file its own directory)."""
+    parent = Path(arguments["out_path"]).parent
     return parent.parent if parent.name == "stages" else parent
 
 
@@ -95,16 +78,32 @@ def _log_to(path: str | Path) -> None:
     os.close(fd)
 
 
+def _job_value(job: Any, name: str, action: argparse.Action) -> Any:
+    """Option ``name``'s value in the job, converted as the option converts its text (a
+    file or directory left out, as an empty list or ``""``: ``None``)."""
+    for part in (job.input, job.output, job.params, job.wildcards):
+        if name in part.keys():
+            value = part[name]
+            break
+    else:
+        return action.default
+    if action.type is Path:
+        return Path(str(value)) if value else None
+    if action.type is None:  # a flag
+        return bool(value)
+    return None if value is None else action.type(value)
+
+
 def script_main(
     parser: argparse.ArgumentParser,
     run: Callable[..., Any],
     argv: list[str] | None = None,
     *,
     job: Any = None,
-    job_arguments: Callable[[Any], dict[str, Any]],
     stage: str | type,
-    outdir: Callable[[dict[str, Any]], str | Path] | None = None,
-    hand_arguments: Callable[[argparse.Namespace], dict[str, Any]] | None = None,
+    outdir: Callable[[dict[str, Any]], str | Path | None] = lambda given: given.get("outdir"),
+    job_extra: Callable[[Any], dict[str, Any]] = lambda job: {},
+    hand_extra: Callable[[argparse.Namespace], dict[str, Any]] = lambda args: {},
 ) -> int:
     """Run a stage script: ``run(inputs, **arguments)`` under the thread budget; a
     user-facing error is printed as one line on stderr and exits with status 1.
@@ -114,33 +113,37 @@ def script_main(
     parser
         The script's options (by hand: parsed from ``argv``).
     run
-        The script's entry point.
-    argv
-        The command line by hand (``None``: ``sys.argv``); unused with ``job``.
-    job
-        The Snakemake ``script:`` job (``snakemake``), or ``None`` by hand.
-    job_arguments
-        ``run``'s arguments read from the job.
+        The stage function, or the script's wrapper around it.
+    argv, job
+        The command line by hand (``None``: ``sys.argv``), or the Snakemake ``script:``
+        job (``snakemake``; ``argv`` unused).
     stage
         A stage name, or the inputs class of a rule outside the params stages (the
         demo, the NWB export), whose ``params.stage`` is that class's params as JSON.
     outdir
-        The output directory the stage writes, from its arguments: the stage then
-        runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so a
+        The output directory the stage writes, from its arguments (default: its
+        ``outdir`` argument, if it takes one): the stage then runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so a
         second run writing the same directory fails naming the holder.
-    hand_arguments
-        ``run``'s arguments by hand (default: the options other than the shared ones).
+    job_extra, hand_extra
+        ``run``'s arguments that are no option, from the job and by hand.
     """
+    # the script's own options by their names in the job (--bundle-adjustment: bundle_adjustment)
+    options = {
+        a.option_strings[-1].lstrip("-").replace("-", "_"): a
+        for a in parser._actions
+        if a.dest not in _SHARED
+    }
+    for name, action in options.items():
+        action.metavar = action.metavar or name.upper()  # --help names the option, not dest
     if job is not None:
         if job.log:
             _log_to(job.log[0])
         name, threads, verbose = job.rule, job.threads, False
 
-        def inputs() -> Any:
-            return _job_inputs(job, stage)
-
-        def arguments() -> dict[str, Any]:
-            return job_arguments(job)
+        def prepare() -> tuple[Any, dict[str, Any]]:
+            inputs = _job_inputs(job, stage)
+            given = {a.dest: _job_value(job, n, a) for n, a in options.items()}
+            return inputs, given | job_extra(job)
 
     else:
         args = parser.parse_args(argv)
@@ -148,13 +151,10 @@ def script_main(
             parser.error("the following arguments are required: --config")
         name, threads, verbose = Path(parser.prog).stem, args.threads, args.verbose
 
-        def inputs() -> Any:
-            return _hand_inputs(args, stage)
-
-        def arguments() -> dict[str, Any]:
-            if hand_arguments is not None:
-                return hand_arguments(args)
-            return {k: v for k, v in vars(args).items() if k not in _SHARED}
+        def prepare() -> tuple[Any, dict[str, Any]]:
+            inputs = _hand_inputs(args, stage, options.get("bundle_adjustment"))
+            given = {a.dest: getattr(args, a.dest) for a in options.values()}
+            return inputs, given | hand_extra(args)
 
     logging.basicConfig(
         level=logging.DEBUG if verbose else logging.INFO,
@@ -164,17 +164,17 @@ def script_main(
     from flylib.resources import thread_budget
 
     try:
-        stage_inputs = inputs()
+        inputs, given = prepare()
+        directory = outdir(given)
         with thread_budget(threads):
-            given = arguments()
-            if outdir is None:
-                run(stage_inputs, **given)
+            if directory is None:
+                run(inputs, **given)
             else:
                 from flylib.locking import outdir_lock
 
-                with outdir_lock(outdir(given), job=name):
-                    run(stage_inputs, **given)
-    except FlylibError as exc:
+                with outdir_lock(directory, job=name):
+                    run(inputs, **given)
+    except (FlylibError, argparse.ArgumentTypeError) as exc:  # the latter: a job's value
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
@@ -189,19 +189,18 @@ def _job_inputs(job: Any, stage: str | type) -> Any:
     return inputs_from_job(stage, job.params.stage, job.params.runtime)
 
 
-def _hand_inputs(args: argparse.Namespace, stage: str | type) -> Any:
-    """The inputs object by hand, built from ``--config``: on the config rig when a
-    stage that takes ``--bundle-adjustment`` is run without it."""
+def _hand_inputs(args: argparse.Namespace, stage: str | type, rig: argparse.Action | None) -> Any:
+    """The inputs object by hand, built from ``--config``: for a stage with a
+    ``--bundle-adjustment`` option (``rig``) left out, on the config rig."""
     from flylib.config import Config
 
     config = Config.from_file(args.config)
     if not isinstance(stage, str):
         return stage.from_config(config)
-    if getattr(args, "bundle_adjustment", False) is None:
-        # a stage after bundle adjustment run by hand without its artifact: the config rig
+    if rig is not None:
         from flylib.pipeline.stage_helpers import run_inputs
 
-        return run_inputs(config, stage)
+        return run_inputs(config, stage, getattr(args, rig.dest))
     from flylib.pipeline.inputs import stage_inputs
 
     return stage_inputs(config, stage)

@@ -6,39 +6,32 @@ from pathlib import Path
 
 from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
 
-from _cli import path, run_script, script_main, script_parser
-
-
-def run(inputs, results, recording, output, *, angles=None, demo=False) -> None:
-    """Export ``results`` (and the joint ``angles``) as the NWB file ``output``."""
-    run_export_nwb(inputs, results, output, recording_dir=recording, demo=demo, angles_path=angles)
-
-
-def job_arguments(job) -> dict:
-    """``run``'s arguments from the Snakemake job (``input.angles``: none, or one file)."""
-    return {
-        "results": path(job.input.results),
-        "recording": path(job.params.recording),
-        "output": path(job.output.output),
-        "angles": path(job.input.angles),
-        "demo": bool(job.params.demo),
-    }
+from _cli import run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    parser.add_argument(
+        "--results",
+        dest="results_path",
+        required=True,
+        type=Path,
+        help="results.h5 of the recording",
+    )
     parser.add_argument(
         "--recording",
+        dest="recording_dir",
         required=True,
         type=Path,
         help="recording directory (footage linked from the NWB file, nwb.yaml)",
     )
-    parser.add_argument("--output", required=True, type=Path, help="destination .nwb file")
+    parser.add_argument(
+        "--output", dest="out_path", required=True, type=Path, help="destination .nwb file"
+    )
     parser.add_argument(
         "--angles",
+        dest="angles_path",
         type=Path,
-        default=None,
         help="neuromechfly.h5 of the recording: its joint angles go in the NWB file too",
     )
     parser.add_argument(
@@ -48,12 +41,11 @@ def main(argv=None, *, job=None) -> int:
     )
     return script_main(
         parser,
-        run,
+        run_export_nwb,
         argv,
         job=job,
-        job_arguments=job_arguments,
         stage=NwbExportInputs,
-        outdir=lambda a: a["output"].parent,
+        outdir=lambda a: a["out_path"].parent,
     )
 
 

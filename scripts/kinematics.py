@@ -6,30 +6,20 @@ from pathlib import Path
 
 from flylib.pipeline.kinematics import run_kinematics
 
-from _cli import path, run_script, script_main, script_parser
-
-
-def run(inputs, results, outdir) -> None:
-    """The kinematics of ``results`` into ``outdir``."""
-    run_kinematics(inputs, results, outdir)
+from _cli import run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
-    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
-    return script_main(
-        parser,
-        run,
-        argv,
-        job=job,
-        job_arguments=lambda job: {
-            "results": path(job.input.results),
-            "outdir": path(job.wildcards.outdir),
-        },
-        stage="kinematics",
-        outdir=lambda a: a["outdir"],
+    parser.add_argument(
+        "--results",
+        dest="results_path",
+        required=True,
+        type=Path,
+        help="results.h5 of the recording",
     )
+    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
+    return script_main(parser, run_kinematics, argv, job=job, stage="kinematics")
 
 
 if __name__ == "__main__":

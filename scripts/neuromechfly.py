@@ -6,30 +6,20 @@ from pathlib import Path
 
 from flylib.pipeline.neuromechfly import run_neuromechfly
 
-from _cli import path, run_script, script_main, script_parser
-
-
-def run(inputs, results, outdir) -> None:
-    """The NeuroMechFly joint angles of ``results`` into ``outdir``."""
-    run_neuromechfly(inputs, results, outdir)
+from _cli import run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
-    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
-    return script_main(
-        parser,
-        run,
-        argv,
-        job=job,
-        job_arguments=lambda job: {
-            "results": path(job.input.results),
-            "outdir": path(job.wildcards.outdir),
-        },
-        stage="neuromechfly",
-        outdir=lambda a: a["outdir"],
+    parser.add_argument(
+        "--results",
+        dest="results_path",
+        required=True,
+        type=Path,
+        help="results.h5 of the recording",
     )
+    parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
+    return script_main(parser, run_neuromechfly, argv, job=job, stage="neuromechfly")
 
 
 if __name__ == "__main__":

@@ -5,73 +5,29 @@ from pathlib import Path
 
 from flylib.pipeline.triangulation import run_triangulation
 
-from _cli import (
-    add_rig_stage_arguments,
-    output_dir,
-    path,
-    rig_stage_job_arguments,
-    run_script,
-    script_main,
-    script_parser,
-)
-
-
-def run(
-    inputs,
-    pose2d,
-    out,
-    *,
-    pictorial_structures=None,
-    bundle_adjustment=None,
-    recording=None,
-    corrections=None,
-) -> None:
-    """Triangulate ``pose2d`` (or the pictorial-structures 2D) into ``out``."""
-    run_triangulation(
-        inputs,
-        pose2d,
-        out,
-        pictorial_path=pictorial_structures,
-        ba_path=bundle_adjustment,
-        recording_dir=recording,
-        corrections_path=corrections,
-    )
-
-
-def job_arguments(job) -> dict:
-    """``run``'s arguments from the Snakemake job."""
-    return {
-        "pose2d": path(job.input.pose2d),
-        "pictorial_structures": path(job.input.get("pictorial_structures")),
-        "corrections": path(job.input.get("corrections")),
-        **rig_stage_job_arguments(job),
-    }
+from _cli import add_rig_stage_arguments, artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
+    parser.add_argument(
+        "--pose2d", dest="pose2d_path", required=True, type=Path, help="pose2d artifact (.h5)"
+    )
     parser.add_argument(
         "--pictorial-structures",
+        dest="pictorial_path",
         type=Path,
-        default=None,
         help="pictorial-structures artifact: triangulate its corrected 2D instead",
     )
     add_rig_stage_arguments(parser)
     parser.add_argument(
         "--corrections",
+        dest="corrections_path",
         type=Path,
-        default=None,
         help="corrections.h5 sidecar (flylib gui): apply its manual edits",
     )
     return script_main(
-        parser,
-        run,
-        argv,
-        job=job,
-        job_arguments=job_arguments,
-        stage="triangulation",
-        outdir=lambda a: output_dir(a["out"]),
+        parser, run_triangulation, argv, job=job, stage="triangulation", outdir=artifact_outdir
     )
 
 
