@@ -45,7 +45,7 @@ def main() -> None:
     ]
     xy = np.stack(peaks, axis=3)
     score = np.stack([conf * f for f in np.linspace(1.0, 0.2, K)], axis=3)
-    targets, scale = ps.solver._prior(rig, skeleton, pts2d, 100)
+    targets, scale = ps.solver.prior(rig, skeleton, pts2d, 100)
     chains = ps.skeleton_chains(skeleton)
 
     def timed(label, fn):

@@ -203,7 +203,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
     """pose2d.h5 and triangulation.h5 of the scene, generated and written block by block."""
     import h5py
 
-    from flylib.results import _new_meta
+    from flylib.results import new_meta
 
     rig = default_rig()
     vis = rig_visibility(rig.names)
@@ -211,8 +211,8 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
     n_views, n_points = len(rig.names), len(POINT_NAMES)
     p2d_path, tri_path = directory / "pose2d.h5", directory / "triangulation.h5"
     with h5py.File(p2d_path, "w") as p2d, h5py.File(tri_path, "w") as tri:
-        p2d.attrs["meta"] = json.dumps(_new_meta("pose2d"))
-        tri.attrs["meta"] = json.dumps(_new_meta("triangulation"))
+        p2d.attrs["meta"] = json.dumps(new_meta("pose2d"))
+        tri.attrs["meta"] = json.dumps(new_meta("triangulation"))
         g = p2d.create_group("pose2d")
         g.attrs["view_names"] = json.dumps(list(rig.names))
         g.attrs["image_sizes"] = json.dumps({v: [480, 960] for v in rig.names})

@@ -133,7 +133,7 @@ def test_unknown_sampling_is_a_config_error():
 # -- Jacobian --------------------------------------------------------------------------
 
 
-def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0, bone_group=None):
+def small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0, bone_group=None):
     rig = default_rig()
     table = camera_table(rig)
     table = np.concatenate([table, np.tile([0.05, -0.02], (7, 1))[:, :n_dist]], axis=1)
@@ -160,7 +160,7 @@ def _small_problem(fixed=(), shared=(), n_dist=2, bone_weight=3.0, bone_group=No
 
 @pytest.mark.parametrize("bone_group", [None, np.array([0, 1, 0])])
 def test_jacobian_matches_central_differences(bone_group):
-    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
+    problem, x = small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
     jac = problem.jacobian(x).toarray()
     numeric = np.empty_like(jac)
     # steps that move the residuals by ~1e-3 px: distortion barely acts in this narrow
@@ -219,7 +219,7 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
     from flylib.camera import jax_model
 
     rng = np.random.default_rng(1)
-    m = 2 * problem._CHUNK + 37  # two full chunks and a padded remainder
+    m = 2 * problem.CHUNK + 37  # two full chunks and a padded remainder
     pts = rng.normal(size=(m, 3))
     rows = np.concatenate(
         [
@@ -236,7 +236,7 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
     def project(pt, row):
         return jax_model.project_full_one(pt, row[:3], row[3:6], row[6:10], row[10:])
 
-    for i in (0, problem._CHUNK - 1, problem._CHUNK, 2 * problem._CHUNK, m - 1):
+    for i in (0, problem.CHUNK - 1, problem.CHUNK, 2 * problem.CHUNK, m - 1):
         want_pt, want_row = jax.jacfwd(project, argnums=(0, 1))(pts[i], rows[i])
         np.testing.assert_allclose(
             value[i], project_rows(pts[i : i + 1], rows[i : i + 1])[0], rtol=1e-12
@@ -246,7 +246,7 @@ def test_chunked_jacobian_kernel_is_exact_across_chunk_boundaries():
 
 
 def test_jacobian_sparsity_covers_the_jacobian():
-    problem, x = _small_problem()
+    problem, x = small_problem()
     jac = problem.jacobian(x).toarray()
     pattern = problem.sparsity().toarray() > 0
     assert not (np.abs(jac) > 0)[~pattern].any()

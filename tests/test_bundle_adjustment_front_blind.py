@@ -67,7 +67,7 @@ def test_cameras_sharing_no_point_form_groups_and_constraints_stay_inside():
 
 def test_each_group_is_put_back_where_the_start_had_it():
     from flylib.bundle_adjustment.adjust import camera_table
-    from flylib.bundle_adjustment.gauge import _similarity_table
+    from flylib.bundle_adjustment.gauge import similarity_table
 
     case = make_case(5, blind_front=True)
     table0 = camera_table(case.start)
@@ -77,7 +77,7 @@ def test_each_group_is_put_back_where_the_start_had_it():
     # move group 1 by a similarity: nothing in its images changes
     rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     table = table0.copy()
-    table[4:] = _similarity_table(table0[4:], 1.3, rot, np.array([1.0, 2.0, 3.0]))
+    table[4:] = similarity_table(table0[4:], 1.3, rot, np.array([1.0, 2.0, 3.0]))
     pts = pts0.copy()
     pts[6:] = 1.3 * pts0[6:] @ rot.T + [1.0, 2.0, 3.0]
     back, back_pts = align_parts(table0, table, pts, pts0, cam_part, pt_part, np.ones(7, bool))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_bundle_adjustment import _small_problem
+from test_bundle_adjustment import small_problem
 
 from flylib.bundle_adjustment import bundle_adjust, camera_table
 from flylib.bundle_adjustment.lm import ReducedSystem, block_structure, solve_lm
@@ -35,7 +35,7 @@ from synthetic import project_opencv
 @pytest.mark.parametrize("bone_group", [None, np.array([0, 1, 0])])
 @pytest.mark.parametrize("global_point", [None, 1])
 def test_schur_step_equals_the_dense_damped_solve(bone_group, global_point):
-    problem, x = _small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
+    problem, x = small_problem(fixed=["*.intr[2]"], shared=[["*.dist"]], bone_group=bone_group)
     shared = None if global_point is None else np.arange(problem.n_points) == global_point
     blocks = block_structure(problem, shared)
     jac, res = problem.jacobian(x), problem.residuals(x)
@@ -63,7 +63,7 @@ def test_lm_reaches_the_least_squares_minimum_like_scipy():
 
     from flylib.bundle_adjustment.problem import project_rows
 
-    problem, x = _small_problem(fixed=["*.intr", "*.dist", "rh.rvec", "rh.tvec", "rm.tvec[2]"])
+    problem, x = small_problem(fixed=["*.intr", "*.dist", "rh.rvec", "rh.tvec", "rm.tvec[2]"])
     rng = np.random.default_rng(0)
     table, pts = problem.unpack(x)
     problem.xy = project_rows(pts[problem.point], table[problem.view]) + rng.normal(
@@ -120,9 +120,9 @@ def test_a_camera_aimed_degrees_off_is_resected_by_pnp():
     bad[2] = camera_table(rough_start(rig, orbit_deg=0.0, dist_frac=0.0, aim_deg=3.0, seed=2))[2]
 
     def triangulate(tab, use):
-        from flylib.bundle_adjustment.adjust import _cameras_from_table, _ransac_points
+        from flylib.bundle_adjustment.adjust import cameras_from_table, ransac_points
 
-        return _ransac_points(_cameras_from_table(rig.names, tab), pts2d, use, 40.0)
+        return ransac_points(cameras_from_table(rig.names, tab), pts2d, use, 40.0)
 
     usable = np.isfinite(pts2d).all(-1)
     fixed_table, reseeded, med = reseed_gross_cameras(
@@ -215,13 +215,13 @@ def test_rigid_points_are_used_only_when_the_body_is_still():
 
 
 def test_thorax_distances_pair_mirror_images():
-    from flylib.bundle_adjustment.sequence import THORAX_POINTS, _length_unknowns
+    from flylib.bundle_adjustment.sequence import THORAX_POINTS, length_unknowns
     from flylib.skeleton import Skeleton
 
     skeleton = Skeleton.fly()
     names = list(skeleton.point_names)
     used = np.array(sorted(names.index(p) for p in THORAX_POINTS))
-    bi, bj, _, group = _length_unknowns(skeleton, used, 2, True, THORAX_POINTS)
+    bi, bj, _, group = length_unknowns(skeleton, used, 2, True, THORAX_POINTS)
     assert bi.size == 2 * 15  # every pair of the six, in each of two frames
     pair = {
         frozenset((names[used[i % 6]], names[used[j % 6]])): g for i, j, g in zip(bi, bj, group)
@@ -230,7 +230,7 @@ def test_thorax_distances_pair_mirror_images():
     assert key("lf", "rm") == key("rf", "lm") != key("lf", "lm") == key("rf", "rm")
     assert key("lf", "rf") != key("lm", "rm")
     assert len(set(group)) == 9
-    _, _, _, group = _length_unknowns(skeleton, used, 1, False, THORAX_POINTS)
+    _, _, _, group = length_unknowns(skeleton, used, 1, False, THORAX_POINTS)
     assert len(set(group)) == 15
 
 

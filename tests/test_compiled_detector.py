@@ -204,7 +204,7 @@ def test_a_damaged_package_is_rebuilt_with_a_warning(cold, tmp_path, caplog, mon
         with compiled.atomic_path(path) as tmp:
             tmp.write_bytes(good)
 
-    monkeypatch.setattr(compiled, "_compile_package", compile_package)
+    monkeypatch.setattr(compiled, "compile_package", compile_package)
     with caplog.at_level(logging.WARNING, logger="flylib.pose2d.compiled"):
         forward, status = compiled.load_or_compile(net, key, torch.device("cpu"), root=tmp_path)
     assert status == "rebuilt"
@@ -261,7 +261,7 @@ def test_the_policy_sees_the_recordings_frame_count(tmp_path):
 
     from flylib import io
     from flylib.config import Config
-    from flylib.pose2d.stream import _frame_count
+    from flylib.pose2d.stream import frame_count
 
     data = copy.deepcopy(dict(Config.default().data))
     plan = _inputs(data).detection_plan()
@@ -270,9 +270,9 @@ def test_the_policy_sees_the_recordings_frame_count(tmp_path):
     with io.VideoWriter(video, fps=100) as writer:
         for t in range(7):
             writer.write_frame(np.full((48, 64, 3), 10 * t, np.uint8))
-    assert _frame_count(plan, {first: [video]}) == 7
-    assert _frame_count(plan, {}) is None  # the detection itself names missing footage
-    assert _frame_count(plan, {first: [tmp_path / "nothing.mp4"]}) is None
+    assert frame_count(plan, {first: [video]}) == 7
+    assert frame_count(plan, {}) is None  # the detection itself names missing footage
+    assert frame_count(plan, {first: [tmp_path / "nothing.mp4"]}) is None
 
 
 needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

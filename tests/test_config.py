@@ -615,7 +615,7 @@ def test_least_squares_option_list_matches_scipy():
 
     signature = set(inspect.signature(least_squares).parameters)
     options = set(config_module.LEAST_SQUARES_OPTIONS)
-    assert signature - set(config_module._LEAST_SQUARES_RESERVED) == options & signature
+    assert signature - set(config_module.LEAST_SQUARES_RESERVED) == options & signature
     assert options - signature <= {"workers"}  # only in newer scipy releases
 
 

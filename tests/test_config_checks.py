@@ -21,9 +21,9 @@ from flylib.config import (
     TriangulationParams,
     validate_config,
 )
-from flylib.config.constants import _POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
+from flylib.config.constants import POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from flylib.config.layers import ConfigLayers, key_path
-from flylib.config.params import _LEAST_SQUARES_CHECKS
+from flylib.config.params import LEAST_SQUARES_CHECKS
 from flylib.errors import ConfigError
 from flylib.pipeline.inputs import stage_params
 from flylib.pipeline.preflight import model_weights, preflight_problems
@@ -64,7 +64,7 @@ def param_cases() -> list[tuple[str, object]]:
         cases += [(f"{table}.{f.name}", BAD) for f in fields(cls) if "check" in f.metadata]
     cases += [
         (f"bundle_adjustment.{k}", "text" if k == "tr_options" else BAD)
-        for k in _LEAST_SQUARES_CHECKS
+        for k in LEAST_SQUARES_CHECKS
     ]
     cases += [(f"pipeline.do_{stage}", "yes") for stage in STAGES]
     return cases
@@ -220,7 +220,7 @@ def test_every_key_family_has_a_case():
         for k, *_ in [*VALIDATOR_CASES, *PREFLIGHT_CASES]
         if k.startswith("pose2d.")
     }
-    assert set(_POSE2D_PLAN_KEYS) <= pose2d, set(_POSE2D_PLAN_KEYS) - pose2d
+    assert set(POSE2D_PLAN_KEYS) <= pose2d, set(POSE2D_PLAN_KEYS) - pose2d
 
 
 def test_weights_key_sets_a_checkpoint_without_restating_the_model(default_data, tmp_path):

@@ -372,7 +372,7 @@ def test_prefetch_queue_stays_bounded(tmp_path):
     time.sleep(0.3)  # a slow consumer: the decoder must stop at the queue bound
     assert prefetcher.blocks.qsize() <= 2 and prefetcher.is_alive()
     blocks = []
-    while (block := prefetcher.get()) is not stream._END:
+    while (block := prefetcher.get()) is not stream.END_OF_STREAM:
         blocks.append(block)
     prefetcher.join(timeout=5)
     values = torch.cat(blocks)[:, 0, 0, 0].tolist()

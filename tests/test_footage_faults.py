@@ -188,14 +188,14 @@ def test_detector_fails_on_a_truncated_video(tmp_path):
         match=rf"^{path}: its header says 60 frames but only \d+ decode; "
         "the file is truncated",
     ):
-        while prefetcher.get() is not stream._END:
+        while prefetcher.get() is not stream.END_OF_STREAM:
             pass
     whole = stream.BlockPrefetcher(
         "s", [_mp4(tmp_path / "whole.mp4")], block_size=8, depth=2, workers=1
     )
     whole.start()
     n = 0
-    while (block := whole.get()) is not stream._END:
+    while (block := whole.get()) is not stream.END_OF_STREAM:
         n += len(block)
     assert n == 60
 

@@ -24,7 +24,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
 
 
-def _browser():
+def browser():
     if not CHROMIUM or not CHROMEDRIVER:
         pytest.skip(
             "headless Chromium is not installed: run `bash install.sh --test-system-packages` "
@@ -110,7 +110,7 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
 
     root, config, out = demo_run
     url, session = server
-    driver = _browser()
+    driver = browser()
     try:
         driver.get(url)
         wait_for(driver, "return window.flylib && window.flylib.allDrawn()")

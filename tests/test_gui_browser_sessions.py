@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from test_gui_browser import _browser, drag, wait_for
+from test_gui_browser import browser, drag, wait_for
 
 from flylib.gui.journal import read_journal
 
@@ -82,7 +82,7 @@ def drag_a_point(driver, dx=18, dy=12):
 
 def test_a_stopped_server_mid_edit_loses_nothing_and_the_page_says_so(outdir):
     server = Server(outdir)
-    driver = _browser()
+    driver = browser()
     try:
         open_page(driver, server.url)
         view, point = drag_a_point(driver)
@@ -122,7 +122,7 @@ def test_two_tabs_follow_each_other_and_a_stale_one_is_refused(outdir):
     from selenium.webdriver.common.by import By
 
     server = Server(outdir)
-    driver = _browser()
+    driver = browser()
     try:
         open_page(driver, server.url)
         tab_a = driver.current_window_handle
@@ -174,7 +174,7 @@ def test_two_tabs_follow_each_other_and_a_stale_one_is_refused(outdir):
 def test_names_carrying_html_render_as_text(outdir):
     camera, _ = rename_hostile(outdir)
     server = Server(outdir)
-    driver = _browser()
+    driver = browser()
     try:
         open_page(driver, server.url)
         label = driver.execute_script("return document.querySelector('.view .label').textContent")

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from test_gui_browser import _browser, wait_for
+from test_gui_browser import browser, wait_for
 
 from gui_fixtures import make_demo_outputs, serving
 
@@ -31,7 +31,7 @@ def page(outdir):
     from flylib.gui import ReviewSession
 
     session = ReviewSession(outdir)
-    driver = _browser()
+    driver = browser()
     try:
         with serving(session) as url:
             yield driver, url, session

@@ -174,7 +174,7 @@ def test_inspect_notes_a_file_without_checksums_but_does_not_fail_it(
     from flylib.results import datasets as results_datasets
 
     config, rig, skeleton = rig_and_skeleton
-    monkeypatch.setattr(results_datasets, "_FLETCHER32", False)  # as an older flylib wrote it
+    monkeypatch.setattr(results_datasets, "FLETCHER32", False)  # as an older flylib wrote it
     PoseResult(rig, skeleton, np.zeros((7, 500, 38, 2)), pts3d=np.zeros((500, 38, 3))).save(
         tmp_path / "old.h5"
     )

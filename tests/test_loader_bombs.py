@@ -166,13 +166,13 @@ def test_check_config_on_deep_nesting_is_one_line(tmp_path, capsys, name):
 
 
 def test_a_config_nested_as_deep_as_the_bound_still_loads(tmp_path):
-    from flylib.config.loading import MAX_NESTING, _parse_text
+    from flylib.config.loading import MAX_NESTING, parse_text
 
     inner = "[" * (MAX_NESTING - 1) + "]" * (MAX_NESTING - 1)
-    assert _parse_text(f"a: {inner}\n", "yaml", "x")["a"] is not None
-    assert _parse_text(f"a = {inner}\n", "toml", "x")["a"] is not None
+    assert parse_text(f"a: {inner}\n", "yaml", "x")["a"] is not None
+    assert parse_text(f"a = {inner}\n", "toml", "x")["a"] is not None
     with pytest.raises(Exception, match="nested more than 64"):
-        _parse_text(f"a: [{inner}]\n", "yaml", "x")
+        parse_text(f"a: [{inner}]\n", "yaml", "x")
 
 
 def test_deep_json_argument_is_one_config_error():

@@ -296,12 +296,12 @@ def test_the_solver_agrees_with_seqikpy_on_the_same_legs():
 def test_deepfly3ds_real_3d_aligns_and_fits(capsys):
     """DeepFly3D's own 3D of a real tethered fly (its package example): tethered, in a
     left-handed frame (mirrored first), and the chains fit it (a truth-free measure)."""
-    from conftest import _shared_subdir
+    from conftest import shared_subdir
 
-    from flylib.interop.df3d import FLY38_POINT_NAMES, _load_pickle, df3d_joint_to_fly38
+    from flylib.interop.df3d import FLY38_POINT_NAMES, df3d_joint_to_fly38, load_pickle
 
-    path = _shared_subdir("deepfly3d-package-example") / "df3d_result.pkl"
-    raw = np.asarray(_load_pickle(path, "DeepFly3D result")["points3d"], dtype=np.float64)
+    path = shared_subdir("deepfly3d-package-example") / "df3d_result.pkl"
+    raw = np.asarray(load_pickle(path, "DeepFly3D result")["points3d"], dtype=np.float64)
     pts3d = np.full((raw.shape[0], len(FLY38_POINT_NAMES), 3), np.nan)
     for joint in range(raw.shape[1]):
         pts3d[:, FLY38_POINT_NAMES.index(df3d_joint_to_fly38(joint))] = raw[:, joint]

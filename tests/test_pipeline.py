@@ -99,7 +99,7 @@ def test_defaults_are_the_packaged_configs(monkeypatch):
 
     data = Config.default().data
     data["triangulation"] = {**data["triangulation"], "method": "greedy"}
-    monkeypatch.setattr(oneshot, "_defaults", lambda: Config.from_dict(data))
+    monkeypatch.setattr(oneshot, "packaged_defaults", lambda: Config.from_dict(data))
     rig, skeleton = default_rig(), Skeleton.fly()
     pts2d, conf = observe(synthetic_fly(4, seed=3), rig, noise_px=0.5, seed=3)
     assert (

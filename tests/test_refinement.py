@@ -203,9 +203,9 @@ def test_stage_writes_a_flagged_artifact_that_assemble_prefers(tmp_path):
         assert bits["missing"][0] == 4 and "observed" in bits
         assert json.loads(group.attrs["options"])["rigid_points"][0].endswith("thorax_coxa")
         refined = group["points3d"][()]
-    from flylib.demo import _write_truth
+    from flylib.demo import write_truth
 
-    truth_path = _write_truth(
+    truth_path = write_truth(
         tmp_path / "truth.h5",
         truth,
         np.asarray(rig.project(truth)),

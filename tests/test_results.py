@@ -222,13 +222,13 @@ def test_large_arrays_are_chunked_and_compressed(tmp_path, skeleton):
 def test_threaded_deflate_writes_standard_gzip_chunks_with_a_padded_edge(tmp_path):
     import zlib
 
-    from flylib.results import _write_array, fletcher32
+    from flylib.results import fletcher32, write_array
 
     rng = np.random.default_rng(1)
     arr = rng.normal(size=(3, 50_000))  # 24 bytes per step: two 43,690-column chunks
     arr[:, ::7] = np.nan
     with h5py.File(tmp_path / "a.h5", "w") as f:
-        _write_array(f, "x", arr)
+        write_array(f, "x", arr)
     with h5py.File(tmp_path / "a.h5") as f:
         ds = f["x"]
         assert ds.compression == "gzip" and ds.compression_opts == 1 and ds.chunks == (3, 43690)
@@ -503,7 +503,7 @@ def test_every_name_the_tree_imports_from_flylib_results_is_there():
             for name in _names_imported_from_results(path):
                 imported.setdefault(name, set()).add(path.name)
     # the split package keeps the single module's names, private helpers other modules use too
-    assert {"PoseResult", "open_hdf5", "open_checked", "_new_meta", "_write_array"} <= set(imported)
+    assert {"PoseResult", "open_hdf5", "open_checked", "new_meta", "write_array"} <= set(imported)
     missing = {name: files for name, files in imported.items() if not hasattr(flylib.results, name)}
     assert missing == {}
 
@@ -513,7 +513,7 @@ def test_the_checksum_switch_read_through_the_package_is_the_writers_own(monkeyp
     from flylib.results import datasets
 
     assert flylib.results._FLETCHER32 is True
-    monkeypatch.setattr(datasets, "_FLETCHER32", False)
+    monkeypatch.setattr(datasets, "FLETCHER32", False)
     assert flylib.results._FLETCHER32 is False
     with pytest.raises(AttributeError, match="_FLETCHER33"):
         flylib.results._FLETCHER33  # noqa: B018

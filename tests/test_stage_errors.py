@@ -113,7 +113,7 @@ def test_refinement_and_kinematics_failures_name_the_recording(monkeypatch, conf
     from flylib.pipeline.kinematics import run_kinematics
     from flylib.results import PoseResult
 
-    monkeypatch.setattr(refinement, "_rig", _raise(ZeroDivisionError("float division")))
+    monkeypatch.setattr(refinement, "refinement_rig", _raise(ZeroDivisionError("float division")))
     with pytest.raises(StageError) as err:
         refinement.run_refinement(
             stage_inputs(config, "refinement"), "p.h5", "t.h5", "r.h5", recording_dir=tmp_path

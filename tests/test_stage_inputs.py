@@ -101,15 +101,15 @@ def test_a_jobs_rig_keeps_the_configs_camera_order(configs):
 def test_a_knob_marked_track_default_false_enters_the_params_only_off_its_default():
     from dataclasses import dataclass
 
-    from flylib.config.checks import _integer, _number, _param, tracked_table
-    from flylib.config.params import _build_params
+    from flylib.config.checks import integer, number, param, tracked_table
+    from flylib.config.params import build_params
 
     @dataclass(frozen=True)
     class Knobs:
-        old: float = _param(1.0, _number(0))
-        new: int = _param(3, _integer(1), track_default=False)
+        old: float = param(1.0, number(0))
+        new: int = param(3, integer(1), track_default=False)
 
     assert tracked_table(Knobs()) == {"old": 1.0}  # the hash of results made before `new`
     assert tracked_table(Knobs(new=4)) == {"old": 1.0, "new": 4}
     for knobs in (Knobs(), Knobs(new=4)):
-        assert _build_params(Knobs, tracked_table(knobs)) == knobs
+        assert build_params(Knobs, tracked_table(knobs)) == knobs

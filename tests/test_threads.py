@@ -198,7 +198,7 @@ def test_a_one_thread_budget_decodes_in_the_calling_thread(tmp_path, started):
         prefetcher = stream.BlockPrefetcher("s", files, block_size=3, depth=2, **kwargs)
         prefetcher.start()
         out = []
-        while (block := prefetcher.get()) is not stream._END:
+        while (block := prefetcher.get()) is not stream.END_OF_STREAM:
             out.append(block)
         prefetcher.stop()
         return [len(b) for b in out], torch.cat(out)[:, 0, 0, 0].tolist()

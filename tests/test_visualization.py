@@ -32,7 +32,7 @@ from flylib.visualization.draw import (
     skeleton_colors,
     to_panel_coords,
 )
-from flylib.visualization.summary import _error_per_view, error_ticks, trajectory_points
+from flylib.visualization.summary import error_per_view, error_ticks, trajectory_points
 
 VIEWS = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
 RED, BLUE = "#ff0000", "#0000ff"
@@ -510,7 +510,7 @@ def test_error_axis_has_readable_ticks_and_the_medians_sit_under_the_boxes():
     error[1, :5, 0] = 60.0  # a few gross outliers in one view
     fig = Figure()
     ax = fig.add_subplot()
-    _error_per_view(ax, error, ["rh", "f", "lh"])
+    error_per_view(ax, error, ["rh", "f", "lh"])
     FigureCanvasAgg(fig).draw()
     labels = [t.get_text() for t in ax.get_yticklabels()]
     assert labels[:5] == ["0", "0.25", "0.5", "0.75", "1"] and labels[-2:] == ["20", "50"]
@@ -522,7 +522,7 @@ def test_error_axis_has_readable_ticks_and_the_medians_sit_under_the_boxes():
 
 
 def test_per_frame_median_matches_numpy_nanmedian():
-    from flylib.visualization.summary import _row_nanmedian
+    from flylib.visualization.summary import row_nanmedian
 
     rng = np.random.default_rng(0)
     rows = rng.normal(size=(400, 9))
@@ -530,7 +530,7 @@ def test_per_frame_median_matches_numpy_nanmedian():
     rows[3] = np.nan  # no observation at all in a frame
     with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
         expected = np.nanmedian(rows, axis=1)
-    np.testing.assert_array_equal(_row_nanmedian(rows), expected)
+    np.testing.assert_array_equal(row_nanmedian(rows), expected)
 
 
 def test_trajectory_points_are_the_leg_tips():
@@ -582,12 +582,12 @@ def test_short_footage_is_an_error_naming_the_file_and_counts(
 
 
 def test_canvas_encoder_keeps_colours_and_crops_to_even_size(tmp_path):
-    from flylib.visualization.compose import _CanvasEncoder
+    from flylib.visualization.compose import CanvasEncoder
 
     canvas = np.zeros((65, 97, 3), np.uint8)
     canvas[:, :48] = (186, 30, 49)
     canvas[:, 48:] = (117, 190, 203)
-    encoder = _CanvasEncoder(tmp_path / "c.mp4", 25, 97, 65)
+    encoder = CanvasEncoder(tmp_path / "c.mp4", 25, 97, 65)
     for _ in range(3):
         encoder.write_frame(canvas)
     encoder.close()

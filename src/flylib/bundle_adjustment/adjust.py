@@ -56,7 +56,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-__all__ = ["bundle_adjust", "camera_table"]
+__all__ = ["bundle_adjust", "camera_table", "cameras_from_table", "ransac_points"]
 
 # The keyword defaults the ``bundle_adjustment`` table also has are read from its params
 # class (:class:`~flylib.config.params.BundleAdjustmentParams`): one owner per default.
@@ -92,7 +92,7 @@ def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
     )
 
 
-def _cameras_from_table(names, table: np.ndarray) -> CameraGroup:
+def cameras_from_table(names, table: np.ndarray) -> CameraGroup:
     from ..camera.rig import CameraGroup
 
     return CameraGroup.from_arrays(
@@ -271,7 +271,7 @@ def _adjust(args: _Arguments):
     usable, weight = _usable_observations(pts2d, args.conf, args.weigh_by_confidence)
 
     def triangulate(table, use):
-        return _ransac_points(_cameras_from_table(names, table), pts2d, use, args.init_threshold)
+        return ransac_points(cameras_from_table(names, table), pts2d, use, args.init_threshold)
 
     table, reseeded, start_median = _reseeded(args, table_user, layout, pts2d, usable, triangulate)
     # a camera that sees none of the points has nothing to fit: held at its start
@@ -338,7 +338,7 @@ def _adjust(args: _Arguments):
         message = moved_message(suspects, [d for d in moved if d > MOVED_DEG])
         warnings_out.append(message)
         warn_user(message)
-    refined = _cameras_from_table(names, table)
+    refined = cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
     result.initial_median_px = initial_median
@@ -610,7 +610,7 @@ def _folded_cameras(table, layout, names) -> list[str]:
     ]
 
 
-def _ransac_points(cameras, pts2d, usable, threshold):
+def ransac_points(cameras, pts2d, usable, threshold):
     """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
     from ..triangulation import triangulate_ransac
 

@@ -38,9 +38,9 @@ BA_DISTORTION_MODES = ("auto", "free", "fixed")
 # missing from a skeleton are ignored)
 TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
 PRECISIONS = ("float32", "float16", "bfloat16")
-_POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
+POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
-_LEAST_SQUARES_RESERVED = (
+LEAST_SQUARES_RESERVED = (
     "fun",
     "x0",
     "jac",
@@ -51,4 +51,4 @@ _LEAST_SQUARES_RESERVED = (
     "callback",
 )
 # least_squares arguments that change only speed or logging, never the result.
-_LEAST_SQUARES_PERF = ("verbose", "workers")
+LEAST_SQUARES_PERF = ("verbose", "workers")

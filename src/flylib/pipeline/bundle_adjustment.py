@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.constants import _LEAST_SQUARES_PERF
+from ..config.constants import LEAST_SQUARES_PERF
 from ..config.params import BundleAdjustmentParams
 from .inputs import (
     RIG,
@@ -30,7 +30,7 @@ from .inputs import (
     tracked,
     typed_params,
 )
-from .stage_helpers import _image_sizes, _solving
+from .stage_helpers import image_sizes, solving
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -97,7 +97,7 @@ class BundleAdjustmentInputs(StageInputs):
         """The stage's inputs as ``config`` gives them."""
         params = config.bundle_adjustment
         options = params.least_squares
-        tracked = {k: v for k, v in options.items() if k not in _LEAST_SQUARES_PERF}
+        tracked = {k: v for k, v in options.items() if k not in LEAST_SQUARES_PERF}
         rig = RigSpec.from_config(config)
         return cls(
             bundle_adjustment=replace(params, least_squares=tracked),
@@ -106,7 +106,7 @@ class BundleAdjustmentInputs(StageInputs):
             runtime=BundleAdjustmentRuntime(
                 config_dir=rig.config_dir,
                 solver_options=frozen_mapping(
-                    {k: v for k, v in options.items() if k in _LEAST_SQUARES_PERF}
+                    {k: v for k, v in options.items() if k in LEAST_SQUARES_PERF}
                 ),
             ),
         )
@@ -182,8 +182,8 @@ def run_bundle_adjustment(
     from ..results import Pose2dData, write_stage
 
     pose2d = Pose2dData.load(pose2d_path)
-    cameras = inputs.rig.camera_group(_image_sizes(pose2d), recording_dir)
-    with _solving("bundle_adjustment", recording_dir or pose2d_path):
+    cameras = inputs.rig.camera_group(image_sizes(pose2d), recording_dir)
+    with solving("bundle_adjustment", recording_dir or pose2d_path):
         result = compute_bundle_adjustment(inputs, cameras, pose2d.pts2d, pose2d.conf)
     write_stage(
         out_path,

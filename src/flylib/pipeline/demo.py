@@ -25,8 +25,8 @@ from .inputs import (
     RigSpec,
     SkeletonSpec,
     StageInputs,
-    _json,
     frozen_mapping,
+    plain_json,
     tracked,
 )
 
@@ -157,7 +157,7 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
     """
     from ..demo import demo_settings, view_visibility, write_demo
 
-    settings = demo_settings({**_json(inputs.settings), **overrides})
+    settings = demo_settings({**plain_json(inputs.settings), **overrides})
     skeleton = inputs.skeleton.skeleton()
     cameras = _orbit_rig(inputs.rig, (settings["height"], settings["width"]))
     layout = inputs.runtime
@@ -166,7 +166,9 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
         settings,
         skeleton,
         cameras,
-        view_visibility(_json(inputs.output_points), list(cameras.names), skeleton.point_names),
+        view_visibility(
+            plain_json(inputs.output_points), list(cameras.names), skeleton.point_names
+        ),
         dict(layout.view_sources),
         dict(layout.source_files),
         layout.dlc_files,

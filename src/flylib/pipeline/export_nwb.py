@@ -18,7 +18,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..interop.views import footage_files
-from .inputs import StageInputs, _json, frozen_mapping
+from .inputs import StageInputs, frozen_mapping, plain_json
 from .visualization import footage_globs
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,7 @@ def session_metadata(
     """
     from ..nwb_metadata import recording_metadata
 
-    return recording_metadata(_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
+    return recording_metadata(plain_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
 
 
 def run_export_nwb(

@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from ..config import Config
-from ..config.canonical import _canonical
+from ..config.canonical import canonical as _canonical
 from ..config.checks import tracked_table
-from ..config.params import TriangulationParams, _build_params
+from ..config.params import TriangulationParams, build_params
 from ..stages import by_name, register
 
 __all__ = [
@@ -49,6 +49,7 @@ __all__ = [
     "stage_runtime",
     "tracked",
     "typed_params",
+    "plain_json",
 ]
 
 
@@ -81,12 +82,12 @@ def frozen_mapping(value: Any) -> Any:
     return value
 
 
-def _json(value: Any) -> Any:
+def plain_json(value: Any) -> Any:
     """A plain JSON copy of a frozen value (tuples back to lists, FrozenDicts to dicts)."""
     if isinstance(value, Mapping):
-        return {k: _json(v) for k, v in value.items()}
+        return {k: plain_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
+        return [plain_json(v) for v in value]
     return value
 
 
@@ -213,8 +214,8 @@ class RigSpec:
         """``{"views", "cameras", "calibration"}``: the rig as the params hold it."""
         return {
             "views": list(self.views),
-            "cameras": _json(self.cameras),
-            "calibration": _json(self.calibration) if self.calibration else None,
+            "cameras": plain_json(self.cameras),
+            "calibration": plain_json(self.calibration) if self.calibration else None,
         }
 
     def camera_group(
@@ -230,7 +231,7 @@ class RigSpec:
             from ..interop.anipose import load_calibration
 
             return load_calibration(
-                _json(self.calibration),
+                plain_json(self.calibration),
                 self.views,
                 Path(recording_dir) if recording_dir else None,
                 image_sizes=image_sizes,
@@ -238,7 +239,7 @@ class RigSpec:
             )
         from ..camera.rig import CameraGroup
 
-        cameras = _json(self.cameras)
+        cameras = plain_json(self.cameras)
         defaults = cameras.pop("defaults", {}) or {}
         # the tracked params hold the table with sorted keys: the views give the order back
         specs = {view: cameras[view] for view in self.views if view in cameras}
@@ -269,7 +270,7 @@ def _config_dir(runtime: Any) -> Path | None:
 
 
 #: Plain data (strings, names, tables): JSON out, read-only back (FrozenDicts, tuples).
-DATA = Codec(_json, lambda value, runtime: frozen_mapping(value))
+DATA = Codec(plain_json, lambda value, runtime: frozen_mapping(value))
 #: A :class:`SkeletonSpec` as its points and limbs (:meth:`SkeletonSpec.structure`).
 SKELETON = Codec(
     lambda skeleton: skeleton.structure(), lambda table, runtime: SkeletonSpec.from_params(table)
@@ -302,7 +303,7 @@ OPTIONAL_RIG = Codec(
 def typed_params(cls: type, dump: Callable[[Any], Any] = tracked_table) -> Codec:
     """A typed params dataclass of :mod:`flylib.config` (``cls``) as its table: every
     field (:func:`~flylib.config.checks.tracked_table`), or what ``dump`` gives."""
-    return Codec(dump, lambda table, runtime: _build_params(cls, table))
+    return Codec(dump, lambda table, runtime: build_params(cls, table))
 
 
 #: The triangulation method and the knobs it reads

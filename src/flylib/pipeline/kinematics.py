@@ -262,9 +262,9 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     StageError
         If the computation fails on the recording's data.
     """
-    from .stage_helpers import _solving
+    from .stage_helpers import solving
 
-    with _solving(STAGE, results_path):
+    with solving(STAGE, results_path):
         result = results_3d(results_path, STAGE)
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)

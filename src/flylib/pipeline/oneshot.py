@@ -38,7 +38,7 @@ BUNDLE_ADJUSTMENT_KEYS = frozenset(
 ) | frozenset(LEAST_SQUARES_OPTIONS)
 
 
-def _defaults():
+def packaged_defaults():
     """The packaged default config (read once per call; the file is small)."""
     from ..config import Config
 
@@ -144,7 +144,7 @@ def run_from_points2d(
     conf = None if conf is None else np.asarray(conf, dtype=np.float64)
     ba_kwargs = dict(bundle_adjust_kwargs or {})
     ba_kwargs.update(ba_kwargs.pop("least_squares", None) or {})
-    data = _defaults().data
+    data = packaged_defaults().data
     overrides = {
         "bundle_adjustment": {k: v for k, v in ba_kwargs.items() if k in BUNDLE_ADJUSTMENT_KEYS},
         "pictorial_structures": dict(ps_kwargs or {}),

@@ -25,7 +25,7 @@ from .inputs import (
     tracked,
     typed_params,
 )
-from .stage_helpers import RigRuntime, _rig_for, _solving, tracked_rig
+from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
@@ -163,8 +163,8 @@ def run_pictorial_structures(
 
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
-    cameras = _rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="pictorial_structures")
-    with _solving("pictorial_structures", recording_dir or pose2d_path):
+    cameras = rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="pictorial_structures")
+    with solving("pictorial_structures", recording_dir or pose2d_path):
         result = compute_pictorial_structures(inputs, cameras, candidates)
     upstream = {
         "pose2d": pose2d_path,

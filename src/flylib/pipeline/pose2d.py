@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.constants import _POSE2D_PLAN_KEYS
+from ..config.constants import POSE2D_PLAN_KEYS
 from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
-from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register, tracked
+from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register, tracked
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 #: The detection plan's tables in the ``pose2d`` table (``import`` is tracked apart).
-PLAN_KEYS = tuple(key for key in _POSE2D_PLAN_KEYS if key != "import")
+PLAN_KEYS = tuple(key for key in POSE2D_PLAN_KEYS if key != "import")
 #: The untracked ``pose2d`` settings (:class:`~flylib.config.params.Pose2dParams`).
 DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 
@@ -156,19 +156,19 @@ class Pose2dInputs(StageInputs):
     def detection_plan(self) -> DetectionPlan:
         """The parsed detection plan."""
         return DetectionPlan.from_tables(
-            _json(self.sources), _json(self.plan), self.views, self.point_names
+            plain_json(self.sources), plain_json(self.plan), self.views, self.point_names
         )
 
     def source_patterns(self) -> dict[str, str]:
         """``source -> footage glob`` (:func:`flylib.config.sources.patterns_of`)."""
-        return patterns_of(_json(self.sources))
+        return patterns_of(plain_json(self.sources))
 
     def import_target(self) -> ImportTarget:
         """The views, points and footage imported 2D is placed on."""
         from ..interop.importer import ImportTarget
 
-        plan = _json(self.plan)
-        view_sources = feeding_sources(self.views, _json(self.sources), plan)
+        plan = plain_json(self.plan)
+        view_sources = feeding_sources(self.views, plain_json(self.sources), plan)
         output_points = plan.get("output_points") or {}
         return ImportTarget(
             views=self.views,
@@ -276,7 +276,7 @@ def compute_pose2d(
         If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
     recording_dir = Path(recording_dir)
-    spec = _json(import_spec) if import_spec else _json(inputs.import_spec)
+    spec = plain_json(import_spec) if import_spec else plain_json(inputs.import_spec)
     if spec:
         if candidates:
             raise ResultsError(

@@ -43,7 +43,7 @@ import h5py
 import numpy as np
 
 from ..config import TriangulationParams
-from ..config.params import _build_params
+from ..config.params import build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
 from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
@@ -112,7 +112,7 @@ class RefinementInputs(StageInputs):
 def _triangulation(method_params: Mapping) -> TriangulationParams:
     """The triangulation params as tracked: the method and the knobs it reads (the
     others at their defaults, which that method never reads)."""
-    return _build_params(TriangulationParams, method_params)
+    return build_params(TriangulationParams, method_params)
 
 
 class TriangulationSource:
@@ -189,15 +189,15 @@ def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dic
 
 def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
     """Write an in-memory :class:`RefinementResult` as the refinement artifact (atomically)."""
-    from ..results import _new_meta, _write_array
+    from ..results import new_meta, write_array
 
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta(STAGE))
+        f.attrs["meta"] = json.dumps(new_meta(STAGE))
         group = f.create_group(STAGE)
-        _write_array(group, "points3d", result.points3d)
-        _write_array(group, "reproj_error", result.reproj_error)
-        _write_array(group, "points", result.points2d)
-        _write_array(group, "flags", result.flags, dtype=np.uint8)
+        write_array(group, "points3d", result.points3d)
+        write_array(group, "reproj_error", result.reproj_error)
+        write_array(group, "points", result.points2d)
+        write_array(group, "flags", result.flags, dtype=np.uint8)
         attrs = _attrs(
             skeleton,
             result.bone_lengths,
@@ -241,11 +241,11 @@ def run_refinement(
         The recording (for a calibration file relative to it).
     """
     from ..provenance import stage_provenance
-    from ..results import _new_meta, open_checked
-    from .stage_helpers import _solving
+    from ..results import new_meta, open_checked
+    from .stage_helpers import solving
 
-    with _solving(STAGE, recording_dir or triangulation_path):
-        cameras = _rig(inputs, pose2d_path, ba_path, recording_dir)
+    with solving(STAGE, recording_dir or triangulation_path):
+        cameras = refinement_rig(inputs, pose2d_path, ba_path, recording_dir)
         with (
             open_checked(pose2d_path, "re-run the pose2d stage") as p2d,
             open_checked(triangulation_path, "re-run the triangulation stage") as tri,
@@ -258,7 +258,7 @@ def run_refinement(
                     "bundle_adjustment": ba_path,
                 }
                 f.attrs["meta"] = json.dumps(
-                    _new_meta(STAGE, stage_provenance(inputs.canonical_params(), STAGE, upstream))
+                    new_meta(STAGE, stage_provenance(inputs.canonical_params(), STAGE, upstream))
                 )
                 group = f.create_group(STAGE)
                 n_views, n_frames, n_points = p2d["pose2d/points"].shape[:3]
@@ -271,7 +271,7 @@ def run_refinement(
     return Path(out_path)
 
 
-def _rig(inputs: RefinementInputs, pose2d_path, ba_path, recording_dir) -> CameraGroup:
+def refinement_rig(inputs: RefinementInputs, pose2d_path, ba_path, recording_dir) -> CameraGroup:
     """The bundle-adjustment artifact's rig when given, else the config rig."""
     from ..errors import ConfigError
     from ..results import read_image_sizes, read_stage

@@ -1,8 +1,8 @@
 """What the stage homes share: the rig a stage after bundle adjustment runs on
-(bundle adjustment's artifact, else the config rig of its inputs: :func:`_rig_for`,
+(bundle adjustment's artifact, else the config rig of its inputs: :func:`rig_for`,
 :class:`RigRuntime`, the tracked-rig helpers, :func:`run_inputs` for a run without that
 artifact) and the boundary that turns a numerical failure on a recording's data into
-one line (:func:`_solving`).
+one line (:func:`solving`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from ..stages import by_name
 log = logging.getLogger(__name__)
 
 
-def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
+def image_sizes(pose2d) -> dict[str, tuple[int, int]]:
     return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
 
 
@@ -51,7 +51,7 @@ def tracked_rig(config):
     return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
 
 
-def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
+def rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
     """The bundle-adjusted rig when that artifact is given, else the config rig
     (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
 
@@ -71,7 +71,7 @@ def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, sta
             "artifact, and none was given; pass it (--bundle-adjustment) or set "
             "pipeline.do_bundle_adjustment: false"
         )
-    return rig.camera_group(_image_sizes(pose2d), recording_dir)
+    return rig.camera_group(image_sizes(pose2d), recording_dir)
 
 
 def run_inputs(config, stage: str, ba_path: str | Path | None = None):
@@ -95,7 +95,7 @@ def _rig_source(config, ba_path):
 
 
 @contextmanager
-def _solving(stage: str, recording) -> Iterator[None]:
+def solving(stage: str, recording) -> Iterator[None]:
     """The stage boundary of a numerical stage: any exception its solver raises on the
     recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
     :class:`StageError` line naming the recording and what to check. flylib's own errors

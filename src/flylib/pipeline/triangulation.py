@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.params import TriangulationParams, _build_params
+from ..config.params import TriangulationParams, build_params
 from ..errors import ResultsError
 from .inputs import (
     OPTIONAL_RIG,
@@ -30,7 +30,7 @@ from .inputs import (
     register,
     tracked,
 )
-from .stage_helpers import RigRuntime, _rig_for, _solving, tracked_rig
+from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
@@ -85,7 +85,7 @@ class TriangulationInputs(StageInputs):
         """The stage's inputs as ``config`` gives them."""
         flags = config.stage_flags()
         return cls(
-            triangulation=_build_params(TriangulationParams, config.triangulation.method_params()),
+            triangulation=build_params(TriangulationParams, config.triangulation.method_params()),
             skeleton=SkeletonSpec.from_config(config),
             points_from="pictorial_structures" if flags["pictorial_structures"] else "pose2d",
             rig=tracked_rig(config),
@@ -221,7 +221,7 @@ def run_triangulation(
     pts2d = pose2d.pts2d
     if pictorial_path:
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
-    cameras = _rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="triangulation")
+    cameras = rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="triangulation")
     corrections = (
         Corrections.load(
             corrections_path,
@@ -231,7 +231,7 @@ def run_triangulation(
         if corrections_path
         else None
     )
-    with _solving("triangulation", recording_dir or pose2d_path):
+    with solving("triangulation", recording_dir or pose2d_path):
         log.info("triangulating with %s", inputs.triangulation.method)
         result = compute_triangulation(inputs, cameras, pts2d, pose2d.conf, corrections)
         # truth-free accuracy: each view predicted from the others, by the same method

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,7 @@ def run_visualization(
 
     result = PoseResult.load(results_path)
     return render_videos(
-        _json(inputs.visualization),
+        plain_json(inputs.visualization),
         result,
         footage_files(inputs.runtime.footage, Path(recording_dir)),
         outdir,

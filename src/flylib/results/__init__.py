@@ -39,11 +39,11 @@ from .artifacts import ARTIFACTS, STAGE_GROUPS, read_stage, write_analysis, writ
 from .assembly import assemble_results
 from .candidates import load_candidates, save_candidates
 from .checksums import fletcher32 as fletcher32, verify_file
-from .datasets import _write_array as _write_array
+from .datasets import write_array as write_array
 from .groups import read_cameras, read_skeleton
 from .hdf5 import (
     FORMAT_VERSION,
-    _new_meta as _new_meta,
+    new_meta as new_meta,
     open_checked,
     open_hdf5 as open_hdf5,
     read_meta,
@@ -78,5 +78,5 @@ def __getattr__(name: str):
     # The checksum switch lives in ``datasets`` (benchmarks/results_io.py's baseline and
     # the older-file test set it there); reading it here gives its current value.
     if name == "_FLETCHER32":
-        return _datasets._FLETCHER32
+        return _datasets.FLETCHER32
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
