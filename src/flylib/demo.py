@@ -442,7 +442,30 @@ def _check_in_frame(clean2d: np.ndarray, image_size: tuple[int, int], views: lis
             )
 
 
-def write_truth(path: Path, pts3d, clean2d, views, points, settings) -> Path:
+def write_truth(
+    path: Path,
+    pts3d: Float[np.ndarray, "T P 3"],
+    clean2d: Float[np.ndarray, "V T P 2"],
+    views: Sequence[str],
+    points: Sequence[str],
+    settings: Mapping[str, Any],
+) -> Path:
+    """Write the demo's ground truth (``truth.h5``: the 3D points and their noiseless 2D views).
+
+    Parameters
+    ----------
+    path
+        The file to write (atomically).
+    pts3d, clean2d
+        The synthetic fly's 3D points and their projections before noise.
+    views, points, settings
+        Camera and point names and the demo settings, stored as the file's JSON meta.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     import h5py
 
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:

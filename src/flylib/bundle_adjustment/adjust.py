@@ -50,7 +50,7 @@ from .unknowns import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Float, Int
+    from jaxtyping import Bool, Float, Int
 
     from ..camera.rig import CameraGroup
 
@@ -610,8 +610,30 @@ def _folded_cameras(table, layout, names) -> list[str]:
     ]
 
 
-def ransac_points(cameras, pts2d, usable, threshold):
-    """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
+def ransac_points(
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V N 2"],
+    usable: Bool[np.ndarray, "V N"],
+    threshold: float,
+) -> Float[np.ndarray, "N 3"]:
+    """Consensus-triangulated columns from the usable observations (the BA start).
+
+    Parameters
+    ----------
+    cameras
+        The rig the points are triangulated with.
+    pts2d
+        Observed 2D points per view.
+    usable
+        Which observations may vote; the others are treated as missing.
+    threshold
+        RANSAC inlier threshold in pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        The 3D points, NaN where no consensus was found.
+    """
     from ..triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
