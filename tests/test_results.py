@@ -508,15 +508,18 @@ def test_every_name_the_tree_imports_from_flylib_results_is_there():
     assert missing == {}
 
 
-def test_the_checksum_switch_read_through_the_package_is_the_writers_own(monkeypatch):
-    import flylib.results
+def test_the_refinement_sink_follows_the_writers_checksum_switch(tmp_path, monkeypatch):
+    import h5py
+
+    from flylib.pipeline.refinement import H5Sink
     from flylib.results import datasets
 
-    assert flylib.results._FLETCHER32 is True
-    monkeypatch.setattr(datasets, "FLETCHER32", False)
-    assert flylib.results._FLETCHER32 is False
-    with pytest.raises(AttributeError, match="_FLETCHER33"):
-        flylib.results._FLETCHER33  # noqa: B018
+    for switch in (True, False):
+        monkeypatch.setattr(datasets, "FLETCHER32", switch)
+        with h5py.File(tmp_path / f"{switch}.h5", "w") as f:
+            sink = H5Sink(f.create_group("refinement"), 2, 5, 3, chunk=2)
+            assert sink.points3d.fletcher32 is switch
+            assert sink.flags.fletcher32 is switch
 
 
 def test_one_opener_raises_the_callers_error_class_naming_file_what_and_fix(tmp_path):

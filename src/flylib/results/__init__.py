@@ -34,7 +34,6 @@ The package, by concern (every name is importable from ``flylib.results``):
 from __future__ import annotations
 
 from ..paths import atomic_path
-from . import datasets as _datasets
 from .artifacts import ARTIFACTS, STAGE_GROUPS, read_stage, write_analysis, write_stage
 from .assembly import assemble_results
 from .candidates import load_candidates, save_candidates
@@ -72,11 +71,3 @@ __all__ = [
     "write_analysis",
     "write_stage",
 ]
-
-
-def __getattr__(name: str):
-    # The checksum switch lives in ``datasets`` (benchmarks/results_io.py's baseline and
-    # the older-file test set it there); reading it here gives its current value.
-    if name == "_FLETCHER32":
-        return _datasets.FLETCHER32
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
