@@ -47,7 +47,7 @@ def df3d_pickle(df3d_sample_dir: Path) -> Path:
     return path
 
 
-# Hypothesis profiles (tests/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
+# Hypothesis profiles (tests/interop/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
 # under a minute in all; `pytest --hypothesis-profile=long` runs many more examples.
 try:
     from hypothesis import HealthCheck, settings

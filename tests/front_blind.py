@@ -1,7 +1,7 @@
 """The front-blind case: real DeepFly3D poses, DeepFly3D's rig, the sample's
 visibility, the default config rig as the start.
 
-Shared by ``tests/test_bundle_adjustment_front_blind.py`` and ``benchmarks/bundle_adjustment.py
+Shared by ``tests/bundle_adjustment/test_front_blind.py`` and ``benchmarks/bundle_adjustment.py
 --case front-blind``. Needs ``../shared/data`` (``deepfly3d-package-example``: DeepFly3D
 1.x's ``df3d_result.pkl`` with its ``points3d`` and ``calib.pkl``; ``deepfly3d-sample``:
 the same recording's 2D as DeepFly3D 0.x wrote it).

@@ -1,6 +1,6 @@
 """The realistic bundle-adjustment case: a tethered fly, a rough starting rig.
 
-Shared by ``tests/test_bundle_adjustment_rough_rig.py`` and
+Shared by ``tests/bundle_adjustment/test_rough_rig.py`` and
 ``benchmarks/bundle_adjustment.py --case rough``.
 
 - The fly: thorax fixed (tethered), six legs of four bones of constant length, joint

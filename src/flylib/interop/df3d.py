@@ -30,7 +30,7 @@ points drawn over the decoded H.264 frames): in camera_1 the fly faces right wit
 dorsum up (its right flank toward the camera) and the mapped r_antenna sits on the
 head, r_abdomen0-2 along the abdomen, the rf leg points run down the front leg and
 the rh ones down the hind leg; cameras 4-6 show the mirror image with the l* labels
-on the matching left-side parts. Pinned in ``tests/test_interop.py``.
+on the matching left-side parts. Pinned in ``tests/interop/test_interop.py``.
 
 Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3
 world-to-camera rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5,
