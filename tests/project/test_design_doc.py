@@ -162,3 +162,99 @@ def test_the_doc_names_every_module_script_and_folder():
 def test_every_path_the_doc_names_exists():
     missing = missing_paths(DOC.read_text(encoding="utf-8"))
     assert not missing, f"docs/DESIGN.md names what does not exist: {', '.join(missing)}"
+
+
+# -- names and their modules -----------------------------------------------------------
+
+PACKAGE_HEADING = "## The package"
+IDENTIFIER = re.compile(r"[A-Za-z_]\w*")
+MODULE_HEADER = re.compile(r"`(\w+)`:")
+
+
+def module_names(path: Path, *, imports: bool = False) -> set[str]:
+    """The names ``path`` defines at its top level (functions, classes, assignments),
+    plus the names it imports when ``imports`` (a package's ``__init__`` re-exports)."""
+    import ast
+
+    names: set[str] = set()
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign):
+            for target in node.targets:
+                names |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+        elif imports and isinstance(node, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+    return names
+
+
+def package_rows(text: str) -> list[tuple[str, str]]:
+    """``(first cell, last cell)`` of each row of the package table."""
+    section = text[text.index(PACKAGE_HEADING) :]
+    section = section[: section.index("\n## ", 1)]
+    rows = []
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 3 and cells[0].startswith("`") and not set(cells[0]) <= {"-"}:
+            rows.append((cells[0].strip("`"), cells[-1]))
+    return rows
+
+
+def misplaced_names(text: str) -> list[str]:
+    """Names the package table lists under a module that does not define them.
+
+    A row's first cell is a module (``accuracy.py``) or a package (``camera/``). In a
+    package row, ```module`:`` starts that module's names; a name before any such header
+    belongs to the package's ``__init__`` (defined or re-exported there), and a bare
+    module name is a mention of that module. Paths, dotted names and code are skipped.
+    """
+    wrong = []
+    for first, cell in package_rows(text):
+        target = SRC / first
+        if target.is_file():
+            modules = {None: [target]}
+        elif target.is_dir():
+            modules = {p.stem: [p] for p in target.glob("*.py") if p.stem != "__init__"}
+            init = [p for p in (target / "__init__.py", target / "__init__.pyi") if p.is_file()]
+            modules[None] = modules["__init__"] = init
+        else:
+            wrong.append(f"{first}: no such module or package")
+            continue
+        headers = {m.start(1): m.group(1) for m in MODULE_HEADER.finditer(cell)}
+        current = None
+        for match in TICKED.finditer(cell):
+            token = match.group(1)
+            if match.start(1) in headers:
+                current = token
+                if token not in modules:
+                    wrong.append(f"{first}: no module {token!r}")
+                continue
+            if not IDENTIFIER.fullmatch(token) or (current is None and token in modules):
+                continue
+            files = modules.get(current, [])
+            is_init = current in (None, "__init__")
+            defined = set().union(*(module_names(f, imports=is_init) for f in files))
+            if token not in defined:
+                where = f"{first}{current}.py" if current not in (None, "__init__") else first
+                wrong.append(f"{token} (listed under {where})")
+    return wrong
+
+
+def test_every_name_in_the_package_table_is_defined_in_its_module():
+    wrong = misplaced_names(DOC.read_text(encoding="utf-8"))
+    assert not wrong, f"docs/DESIGN.md places names where they are not defined: {', '.join(wrong)}"
+
+
+def test_the_name_check_sees_a_misplaced_name():
+    """The check is not blind: a name moved to another module of its package is caught."""
+    row = "| `camera/` | primitives | `model`: `CameraGroup`; `rig`: `Camera` |"
+    text = f"{PACKAGE_HEADING}\n\n| module | layer | what |\n|---|---|---|\n{row}\n\n## Next\n"
+    assert misplaced_names(text) == ["CameraGroup (listed under camera/model.py)"]
+
+
+def test_the_paths_in_the_internals_page_exist():
+    text = (REPO / "docs" / "internals.md").read_text(encoding="utf-8")
+    missing = missing_paths(text)
+    assert not missing, f"docs/internals.md names what does not exist: {', '.join(missing)}"
