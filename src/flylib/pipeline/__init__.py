@@ -4,8 +4,8 @@
   (:mod:`flylib.pipeline.inputs`), ``compute_<stage>`` where it has a pure step and
   ``run_<stage>`` (paths in, one artifact out), what the scripts in ``scripts/`` run;
   its record (toggle, artifact, memory...) is in :mod:`flylib.stages`;
-- :mod:`flylib.pipeline.tracked`: the config a stage may read (exactly what its rule
-  tracks);
+- :mod:`flylib.pipeline.inputs`: what a stage reads, its tracked params (the rule's
+  ``params.stage``) and untracked runtime;
 - :mod:`flylib.pipeline.planning`: what a run plans from its config before any stage
   (its recordings, each stage's params for provenance, the config rig);
 - :mod:`flylib.pipeline.artifacts`: the names of the files the workflow writes;
