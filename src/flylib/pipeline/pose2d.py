@@ -133,7 +133,7 @@ class Pose2dInputs(StageInputs):
         import spec, points, views, and ``on_corrupt_frame`` when not the default) and
         the heatmap decoding convention."""
         # Not the candidate peaks pictorial structures asks for: they are a separate
-        # pose2d output named by k (artifacts.candidates_artifact), which exists only
+        # pose2d output named by k (results.candidates_artifact), which exists only
         # while PS is on, so toggling PS or editing k with it off re-runs no detection.
         return {
             **super().params(),
