@@ -91,7 +91,6 @@ def bench_planning(n: int) -> dict:
 
 
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
-    from flylib.pipeline.artifacts import artifact_path
     from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
     from flylib.pipeline.demo import demo_import_spec
@@ -99,6 +98,7 @@ def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
     from flylib.pipeline.pose2d import run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
     from flylib.pipeline.visualization import run_visualization
+    from flylib.results.artifacts import artifact_path
 
     p2d = artifact_path(out, "pose2d")
     ba = artifact_path(out, "bundle_adjustment")

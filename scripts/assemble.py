@@ -5,8 +5,8 @@ calibration.toml (the final rig as an Anipose calibration)."""
 import sys
 from pathlib import Path
 
-from flylib.pipeline.artifacts import ARTIFACTS
 from flylib.pipeline.assemble import run_assemble
+from flylib.results.artifacts import ARTIFACTS
 
 from _cli import run_script, script_main, script_parser
 

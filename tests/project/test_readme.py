@@ -12,10 +12,10 @@ import pytest
 
 from flylib.config import Config, validate_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
-from flylib.pipeline.artifacts import SUMMARY_FILES
 from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.preflight import preflight_problems
 from flylib.recordings import Recording
+from flylib.results.artifacts import SUMMARY_FILES
 
 REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()

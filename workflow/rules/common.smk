@@ -16,7 +16,7 @@ from flylib.pipeline.planning import calibration_inputs as _calibration_files
 from flylib.pipeline.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
-from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from flylib.pipeline.inputs import stage_params as _stage_params, stage_runtime as _stage_runtime
 from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 

@@ -8,7 +8,6 @@
   ``params.stage``) and untracked runtime;
 - :mod:`flylib.pipeline.planning`: what a run plans from its config before any stage
   (its recordings, each stage's params for provenance, the config rig);
-- :mod:`flylib.pipeline.artifacts`: the names of the files the workflow writes;
 - :mod:`flylib.pipeline.oneshot`: :func:`run_from_points2d`, the array-in library
   one-shot of the seed API.
 

@@ -23,7 +23,6 @@ lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain)
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -113,19 +112,6 @@ def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
         "model_residual_summary": nmf.residual_summary(model=True),
     }
     return write_analysis(path, "neuromechfly", arrays, attrs)
-
-
-def read_nmf_angles(path: str | Path) -> tuple[np.ndarray, list[str], float]:
-    """``(angles (T, 42) radians, dof names, frame rate)`` from ``neuromechfly.h5``."""
-    from ..results import open_hdf5
-
-    with open_hdf5(path, "re-run the neuromechfly stage", "NeuroMechFly angles file") as f:
-        group = f["neuromechfly"]
-        return (
-            np.asarray(group["angles"], dtype=np.float64),
-            json.loads(group.attrs["dof_names"]),
-            float(json.loads(group.attrs["frame_rate"])),
-        )
 
 
 def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: int = 90) -> Path:

@@ -32,7 +32,6 @@ __all__ = [
     "Pose2dInputs",
     "Pose2dRuntime",
     "compute_pose2d",
-    "detection_plan",
     "import_target",
     "run_pose2d",
 ]
@@ -133,7 +132,7 @@ class Pose2dInputs(StageInputs):
         import spec, points, views, and ``on_corrupt_frame`` when not the default) and
         the heatmap decoding convention."""
         # Not the candidate peaks pictorial structures asks for: they are a separate
-        # pose2d output named by k (artifacts.candidates_artifact), which exists only
+        # pose2d output named by k (results.candidates_artifact), which exists only
         # while PS is on, so toggling PS or editing k with it off re-runs no detection.
         return {
             **super().params(),
@@ -181,17 +180,6 @@ class Pose2dInputs(StageInputs):
                 if isinstance(entries, dict)
             },
         )
-
-
-def detection_plan(config: Config) -> DetectionPlan:
-    """The detection plan ``config`` gives (:meth:`Pose2dInputs.detection_plan`).
-
-    Raises
-    ------
-    ConfigError
-        Naming the key of any inconsistency in the plan's tables.
-    """
-    return Pose2dInputs.from_config(config).detection_plan()
 
 
 def import_target(config: Config) -> ImportTarget:

@@ -46,7 +46,7 @@ from ..config import TriangulationParams
 from ..config.params import build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
-from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
+from ..refinement.solver import FLAG_BITS, ArraySink
 from .inputs import (
     OPTIONAL_RIG,
     SKELETON,
@@ -187,29 +187,6 @@ def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dic
         "summary": info,
         "options": options,
     }
-
-
-def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
-    """Write an in-memory :class:`RefinementResult` as the refinement artifact (atomically)."""
-    from ..results import new_meta, write_array
-
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(new_meta(STAGE))
-        group = f.create_group(STAGE)
-        write_array(group, "points3d", result.points3d)
-        write_array(group, "reproj_error", result.reproj_error)
-        write_array(group, "points", result.points2d)
-        write_array(group, "flags", result.flags, dtype=np.uint8)
-        attrs = _attrs(
-            skeleton,
-            result.bone_lengths,
-            result.rigid_points,
-            result.rigid_centres,
-            result.info,
-            options,
-        )
-        for key, value in attrs.items():
-            group.attrs[key] = json.dumps(value)
 
 
 def run_refinement(

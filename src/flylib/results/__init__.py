@@ -27,14 +27,25 @@ The package, by concern (every name is importable from ``flylib.results``):
 - ``groups``: the rig and skeleton groups, :func:`read_cameras`, :func:`read_skeleton`
 - ``pose``: :class:`PoseResult`, the assembled result
 - ``pose2d``: :class:`Pose2dData`, the pose2d artifact; ``candidates``: the top-K peaks
-- ``artifacts``: :func:`write_stage` / :func:`read_stage`, :func:`write_analysis`
+- ``artifacts``: :func:`write_stage` / :func:`read_stage`, :func:`write_analysis`, the
+  workflow's file names (:data:`ARTIFACTS`, :data:`SUMMARY_FILES`,
+  :func:`candidates_artifact`)
 - ``assembly``: :func:`assemble_results`
 """
 
 from __future__ import annotations
 
 from ..paths import atomic_path
-from .artifacts import ARTIFACTS, STAGE_GROUPS, read_stage, write_analysis, write_stage
+from .artifacts import (
+    ARTIFACTS,
+    STAGE_GROUPS,
+    SUMMARY_FILES,
+    artifact_path,
+    candidates_artifact,
+    read_stage,
+    write_analysis,
+    write_stage,
+)
 from .assembly import assemble_results
 from .candidates import load_candidates, save_candidates
 from .checksums import fletcher32 as fletcher32, verify_file
@@ -55,10 +66,13 @@ __all__ = [
     "ARTIFACTS",
     "FORMAT_VERSION",
     "STAGE_GROUPS",
+    "SUMMARY_FILES",
     "PoseResult",
     "Pose2dData",
+    "artifact_path",
     "assemble_results",
     "atomic_path",
+    "candidates_artifact",
     "load_candidates",
     "open_checked",
     "read_cameras",

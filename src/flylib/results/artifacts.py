@@ -29,6 +29,23 @@ if TYPE_CHECKING:  # pragma: no cover
 ARTIFACTS: dict[str, str] = {s.name: s.artifact for s in REGISTRY if s.artifact}
 #: Stages that own a group in results.h5, in pipeline order.
 STAGE_GROUPS: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.results_group)
+#: The per-recording summary files the assemble stage writes beside ``results.h5``.
+SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
+
+
+def candidates_artifact(k: int) -> str:
+    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
+
+    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
+    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
+    re-runs no detection, and a new ``k`` while it is on asks for a new file.
+    """
+    return f"candidates_k{int(k)}.h5"
+
+
+def artifact_path(outdir: str | Path, stage: str) -> Path:
+    """``<outdir>/stages/<stage>.h5``."""
+    return Path(outdir) / "stages" / ARTIFACTS[stage]
 
 
 def write_analysis(
