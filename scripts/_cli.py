@@ -47,6 +47,17 @@ def script_parser(description: str) -> argparse.ArgumentParser:
     return parser
 
 
+def add_results_argument(parser: argparse.ArgumentParser) -> None:
+    """``--results``: the recording's ``results.h5``, read by every stage after assembly."""
+    parser.add_argument(
+        "--results",
+        dest="results_path",
+        required=True,
+        type=Path,
+        help="results.h5 of the recording",
+    )
+
+
 def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
     """``--bundle-adjustment``, ``--out`` and ``--recording``: the arguments of every
     stage after bundle adjustment that writes one artifact from the final rig."""

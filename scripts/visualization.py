@@ -5,18 +5,12 @@ from pathlib import Path
 
 from flylib.pipeline.visualization import run_visualization
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument(
-        "--results",
-        dest="results_path",
-        required=True,
-        type=Path,
-        help="results.h5 of the recording",
-    )
+    add_results_argument(parser)
     parser.add_argument(
         "--recording",
         dest="recording_dir",
