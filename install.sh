@@ -9,7 +9,7 @@
 #   bash install.sh --test-system-packages
 #                   also install the system packages two tests use, where that is possible
 #                   (root and apt-get): slurm-wlm and munge (a real single-node SLURM,
-#                   tests/test_slurm.py), chromium and chromium-driver (tests/test_gui_browser.py).
+#                   tests/workflow/test_slurm.py), chromium and chromium-driver (tests/gui/test_browser.py).
 #                   Quiet; where they cannot be installed it says so in one line and goes
 #                   on (those tests then skip with the reason). .ci/run passes it.
 set -euo pipefail

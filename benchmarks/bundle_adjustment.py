@@ -191,7 +191,7 @@ def _stage_calls():
     try:
         from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
         from flylib.pipeline.inputs import stage_inputs
-        from flylib.triangulation import reconstruct_with_params
+        from flylib.triangulation import reconstruct as reconstruct_3d
     except ImportError:  # the last release
         from flylib.bundle_adjustment import bundle_adjust_from_config
         from flylib.triangulation import reconstruct_from_config
@@ -205,7 +205,7 @@ def _stage_calls():
         return adjusted.solution, adjusted.cameras, adjusted.points3d
 
     def reconstruct(config, rig, pts2d, conf):
-        return reconstruct_with_params(rig, pts2d, config.triangulation, conf)
+        return reconstruct_3d(rig, pts2d, config.triangulation, conf)
 
     return adjust, reconstruct
 

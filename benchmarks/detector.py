@@ -227,7 +227,7 @@ def _bench_prefetch(clip: Path, block: int, pin: bool, raw_yuv: bool) -> tuple[f
         p.start()
     total = 0
     for p in prefetchers:
-        while (b := p.get()) is not stream._END:
+        while (b := p.get()) is not stream.END_OF_STREAM:
             total += len(b)
     return total / (time.perf_counter() - t), total
 
@@ -321,7 +321,7 @@ def bench_memory(
                 p.start()
             while True:
                 blocks = {s: p.get() for s, p in prefetchers.items()}
-                if any(b is stream._END for b in blocks.values()):
+                if any(b is stream.END_OF_STREAM for b in blocks.values()):
                     break
                 for s, block in blocks.items():
                     for pathway in plan.pathways_on(s):

@@ -110,7 +110,7 @@ def main(argv=None) -> int:
 
     from flylib.gui import ReviewSession
     from flylib.io import open_reader
-    from flylib.triangulation import reconstruct_with_params
+    from flylib.triangulation import reconstruct
 
     from gui_fixtures import make_demo_outputs
 
@@ -213,8 +213,11 @@ def main(argv=None) -> int:
         print(f"edit, journal line written and fsync'd:   {stats(journal)} (inside the reply)")
         print(f"edit 3D (onto the pixel's ray):           {stats(solve3d)}")
         begin = time.perf_counter()
-        reconstruct_with_params(
-            session.cameras, session.base2d, session.triangulation, session.conf
+        reconstruct(
+            session.cameras,
+            session.base2d,
+            session.triangulation_inputs.triangulation,
+            session.conf,
         )
         whole = (time.perf_counter() - begin) * 1000
         print(

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from flylib import pictorial as ps  # noqa: E402
 from flylib.skeleton import Skeleton  # noqa: E402
-from flylib.triangulation import reconstruct_ransac  # noqa: E402
+from flylib.triangulation import reconstruct  # noqa: E402
 
 from synthetic import default_rig, observe, project_opencv, synthetic_fly  # noqa: E402
 
@@ -45,7 +45,7 @@ def main() -> None:
     ]
     xy = np.stack(peaks, axis=3)
     score = np.stack([conf * f for f in np.linspace(1.0, 0.2, K)], axis=3)
-    targets, scale = ps.solver._prior(rig, skeleton, pts2d, 100)
+    targets, scale = ps.solver.prior(rig, skeleton, pts2d, 100)
     chains = ps.skeleton_chains(skeleton)
 
     def timed(label, fn):
@@ -68,9 +68,7 @@ def main() -> None:
         f"ps.reconstruct (prior + solve + DLT), K={K}",
         lambda: ps.reconstruct(rig, skeleton, ps.Candidates(xy, score)),
     )
-    base = timed(
-        "baseline: RANSAC triangulation of arg-max", lambda: reconstruct_ransac(rig, pts2d)
-    )
+    base = timed("baseline: RANSAC triangulation of arg-max", lambda: reconstruct(rig, pts2d))
     print(
         f"vs target {TARGET_FPS:.0f} frames/s: {plain / TARGET_FPS:.2f}x (temporal "
         f"{temporal / TARGET_FPS:.2f}x, reconstruct {full / TARGET_FPS:.2f}x); "

@@ -51,7 +51,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from flylib.demo import synthetic_fly
 from flylib.refinement import refine_points, skeleton_terms
 from flylib.skeleton import Skeleton
-from flylib.triangulation import reconstruct_ransac
+from flylib.triangulation import reconstruct
 
 from synthetic import POINT_NAMES, default_rig, detector_errors, rig_visibility
 
@@ -70,7 +70,7 @@ def accuracy_and_speed(frames: int) -> None:
     rig, truth, pts2d, conf, kind = scene(frames)
     terms = skeleton_terms(Skeleton.fly(), None)
     started = time.perf_counter()
-    start, clean2d, _ = reconstruct_ransac(rig, pts2d, threshold=15.0, min_inliers=2)
+    start, clean2d, _ = reconstruct(rig, pts2d)
     ransac_s = time.perf_counter() - started
     inliers = np.isfinite(clean2d).all(-1)
 
@@ -161,6 +161,8 @@ def timed_refinement(rig, pts2d, start, conf, inliers, terms):
 def speed_child(frames: int) -> None:
     """Time the refinement on the scene (whatever ``flylib`` is importable); print JSON."""
     rig, _truth, pts2d, conf, _kind = scene(frames)
+    from flylib.triangulation import reconstruct_ransac  # the baseline's (points first)
+
     terms = skeleton_terms(Skeleton.fly(), None)
     start, clean2d, _ = reconstruct_ransac(pts2d, rig, 15.0, 2)
     _, _, figures = timed_refinement(rig, pts2d, start, conf, np.isfinite(clean2d).all(-1), terms)
@@ -201,7 +203,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
     """pose2d.h5 and triangulation.h5 of the scene, generated and written block by block."""
     import h5py
 
-    from flylib.results import _new_meta
+    from flylib.results import new_meta
 
     rig = default_rig()
     vis = rig_visibility(rig.names)
@@ -209,8 +211,8 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
     n_views, n_points = len(rig.names), len(POINT_NAMES)
     p2d_path, tri_path = directory / "pose2d.h5", directory / "triangulation.h5"
     with h5py.File(p2d_path, "w") as p2d, h5py.File(tri_path, "w") as tri:
-        p2d.attrs["meta"] = json.dumps(_new_meta("pose2d"))
-        tri.attrs["meta"] = json.dumps(_new_meta("triangulation"))
+        p2d.attrs["meta"] = json.dumps(new_meta("pose2d"))
+        tri.attrs["meta"] = json.dumps(new_meta("triangulation"))
         g = p2d.create_group("pose2d")
         g.attrs["view_names"] = json.dumps(list(rig.names))
         g.attrs["image_sizes"] = json.dumps({v: [480, 960] for v in rig.names})
@@ -230,7 +232,7 @@ def write_artifacts(directory: Path, frames: int, block: int = 10000) -> tuple[P
             hi = min(lo + block, frames)
             clean = np.asarray(rig.project(truth[lo:hi]))
             pts, c, _ = detector_errors(clean, vis, rig.names, POINT_NAMES, seed=lo)
-            start, clean2d, _ = reconstruct_ransac(rig, pts, threshold=15.0, min_inliers=2)
+            start, clean2d, _ = reconstruct(rig, pts)
             points[:, lo:hi], conf[:, lo:hi], t2d[:, lo:hi], t3d[lo:hi] = pts, c, clean2d, start
     return p2d_path, tri_path
 
@@ -239,7 +241,7 @@ def memory_child(directory: Path) -> None:
     """Run the refinement stage on the artifacts in ``directory``; print JSON figures."""
     from flylib.config import Config
     from flylib.pipeline.refinement import run_refinement
-    from flylib.pipeline.stages import run_inputs
+    from flylib.pipeline.stage_helpers import run_inputs
 
     inputs = run_inputs(Config.default(), "refinement")
     before = _peak_mb()

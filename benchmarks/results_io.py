@@ -93,7 +93,7 @@ def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) 
         config.skeleton(),
         config.camera_group({v: (480, 960) for v in config.view_names()}),
     )
-    results_datasets._FLETCHER32 = checksums
+    results_datasets.FLETCHER32 = checksums
     try:
         with _Clock() as write:
             Pose2dData(arrays["pts2d"], arrays["conf"], config.view_names(), {}).save(
@@ -119,7 +119,7 @@ def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) 
                 },
             )
     finally:
-        results_datasets._FLETCHER32 = True
+        results_datasets.FLETCHER32 = True
     with _Clock() as load:
         PoseResult.load(stages / "results.h5")
     return {

@@ -91,33 +91,31 @@ def bench_planning(n: int) -> dict:
 
 
 def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
-    from flylib.pipeline import stages
-    from flylib.pipeline.artifacts import artifact_path
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
     from flylib.pipeline.demo import demo_import_spec
     from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.pose2d import run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
+    from flylib.pipeline.visualization import run_visualization
+    from flylib.results.artifacts import artifact_path
 
     p2d = artifact_path(out, "pose2d")
     ba = artifact_path(out, "bundle_adjustment")
     tri = artifact_path(out, "triangulation")
-    stages.run_pose2d(
-        stage_inputs(config, "pose2d"), rec_dir, p2d, import_spec=demo_import_spec(config)
-    )
+    run_pose2d(stage_inputs(config, "pose2d"), rec_dir, p2d, import_spec=demo_import_spec(config))
     run_bundle_adjustment(stage_inputs(config, "bundle_adjustment"), p2d, ba, recording_dir=rec_dir)
     run_triangulation(
         stage_inputs(config, "triangulation"), p2d, tri, ba_path=ba, recording_dir=rec_dir
     )
-    stages.run_assemble(
+    run_assemble(
         stage_inputs(config, "assemble"),
         {"pose2d": p2d, "bundle_adjustment": ba, "triangulation": tri},
         out,
         recording_dir=rec_dir,
         truth_path=truth,
     )
-    stages.run_visualization(
-        stage_inputs(config, "visualization"), out / "results.h5", rec_dir, out
-    )
+    run_visualization(stage_inputs(config, "visualization"), out / "results.h5", rec_dir, out)
 
 
 def bench_overhead(frames: int) -> dict:

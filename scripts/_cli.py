@@ -1,18 +1,15 @@
-"""Command-line plumbing shared by the stage scripts.
+"""The entry point shared by the stage scripts.
 
-Every script runs two ways with the same argument parser:
+A script's options are named for its rule's files and params (``--pose2d``: the job's
+``input.pose2d``) and store under the keywords of its stage function (``dest=
+"pose2d_path"``), so :func:`script_main` calls ``run_<stage>(inputs, **arguments)``:
 
-- by hand, ``python scripts/<stage>.py --config config/config.yaml ... [--threads N]``
-  (see ``--help``);
-- from its Snakemake rule's ``script:`` directive, where the arguments come from the
-  job: each named input, output and param whose name is one of the script's options
-  (``pose2d`` -> ``--pose2d``; an unnamed single output -> ``--out``; a ``True`` param ->
-  the bare flag), ``{outdir}`` -> ``--outdir``, the rule's ``threads`` -> ``--threads``,
-  stderr -> the job's log. A stage script given ``stage=`` runs on that stage's inputs
-  object (:mod:`flylib.pipeline.inputs`), rebuilt from the rule's tracked
-  ``params.stage`` and untracked ``params.runtime``; by hand it is built from
-  ``--config``. (A script without ``stage=`` gets the run's
-  :class:`~flylib.config.Config`: the rule's ``params.config``, or ``--config``.)
+- run by the rule's ``script:`` directive (``job``, the script's ``snakemake`` object):
+  each option's value read by its name from ``snakemake.input/output/params/wildcards``,
+  the inputs object rebuilt from the rule's tracked ``params.stage`` and untracked
+  ``params.runtime``, the rule's ``threads``, and stderr sent to the job's log;
+- by hand (``python scripts/<stage>.py --config config/config.yaml ...``, see
+  ``--help``): the options parsed, the inputs object built from ``--config``.
 """
 
 from __future__ import annotations
@@ -28,9 +25,8 @@ from typing import Any
 
 from flylib.errors import FlylibError
 
-# Params that are not script options: the stage's tracked params and untracked runtime
-# (they make its inputs object) and the run's config itself (handed over as an object).
-_NOT_OPTIONS = ("stage", "runtime", "config")
+# The options every script shares: what runs the stage, not arguments of the stage.
+_SHARED = ("help", "config", "threads", "verbose")
 
 
 def script_parser(description: str) -> argparse.ArgumentParser:
@@ -39,18 +35,27 @@ def script_parser(description: str) -> argparse.ArgumentParser:
     parser.add_argument(
         "--config",
         type=Path,
-        default=None,
         help="config file (.yaml/.toml) of the run, e.g. config/config.yaml "
         "(required when run by hand)",
     )
     parser.add_argument(
         "--threads",
         type=int,
-        default=None,
         help="threads the stage may use (default: the CPUs this process may run on)",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
+
+
+def add_results_argument(parser: argparse.ArgumentParser) -> None:
+    """``--results``: the recording's ``results.h5``, read by every stage after assembly."""
+    parser.add_argument(
+        "--results",
+        dest="results_path",
+        required=True,
+        type=Path,
+        help="results.h5 of the recording",
+    )
 
 
 def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,48 +63,21 @@ def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
     stage after bundle adjustment that writes one artifact from the final rig."""
     parser.add_argument(
         "--bundle-adjustment",
+        dest="ba_path",
         type=Path,
-        default=None,
         help="bundle-adjustment artifact (its rig); default: the config rig",
     )
-    parser.add_argument("--out", required=True, type=Path, help="artifact to write (.h5)")
-    parser.add_argument("--recording", type=Path, default=None, help="recording directory")
+    parser.add_argument(
+        "--out", dest="out_path", required=True, type=Path, help="artifact to write (.h5)"
+    )
+    parser.add_argument("--recording", dest="recording_dir", type=Path, help="recording directory")
 
 
-def output_dir(out: str | Path) -> Path:
-    """The recording's output directory of an artifact path (``<outdir>/stages/x.h5``
-    gives ``<outdir>``; any other file its own directory)."""
-    parent = Path(out).parent
+def artifact_outdir(arguments: dict[str, Any]) -> Path:
+    """The recording's output directory of a stage writing the artifact ``out_path``
+    (``<outdir>/stages/x.h5`` gives ``<outdir>``; any other file its own directory)."""
+    parent = Path(arguments["out_path"]).parent
     return parent.parent if parent.name == "stages" else parent
-
-
-def snakemake_argv(job: Any, parser: argparse.ArgumentParser) -> list[str]:
-    """The command line equivalent to a Snakemake ``script:`` job (see the module doc)."""
-    options = {a.dest: a for a in parser._actions if a.option_strings}
-    argv: list[str] = []
-
-    def add(name: str, value: Any) -> None:
-        dest = name.replace("-", "_")
-        if dest not in options or value is None or value is False or value == "":
-            return
-        if isinstance(value, list) and not value:  # an optional input left out
-            return
-        flag = options[dest].option_strings[-1]
-        if value is True or options[dest].nargs == 0:
-            argv.append(flag)
-        else:
-            argv.extend([flag, str(value)])
-
-    named = dict(job.output.items())
-    if not named and len(job.output) == 1:
-        named = {"out": job.output[0]}
-    for items in (job.input.items(), named.items(), job.params.items()):
-        for name, value in items:
-            if name not in _NOT_OPTIONS:
-                add(name, value)
-    add("outdir", getattr(job.wildcards, "outdir", None))
-    add("threads", job.threads)
-    return argv
 
 
 def _log_to(path: str | Path) -> None:
@@ -111,80 +89,131 @@ def _log_to(path: str | Path) -> None:
     os.close(fd)
 
 
+def _job_value(job: Any, name: str, action: argparse.Action) -> Any:
+    """Option ``name``'s value in the job, converted as the option converts its text (a
+    file or directory left out, as an empty list or ``""``: ``None``)."""
+    for part in (job.input, job.output, job.params, job.wildcards):
+        if name in part.keys():
+            value = part[name]
+            break
+    else:
+        return action.default
+    if action.type is Path:
+        return Path(str(value)) if value else None
+    if action.type is None:  # a flag
+        return bool(value)
+    return None if value is None else action.type(value)
+
+
 def script_main(
     parser: argparse.ArgumentParser,
-    run: Callable[[argparse.Namespace, Any], Any],
+    run: Callable[..., Any],
     argv: list[str] | None = None,
     *,
     job: Any = None,
-    outdir: Callable[[argparse.Namespace], str | Path] | None = None,
-    stage: str | type | None = None,
+    stage: str | type,
+    outdir: Callable[[dict[str, Any]], str | Path | None] = lambda given: given.get("outdir"),
+    job_extra: Callable[[Any], dict[str, Any]] = lambda job: {},
+    hand_extra: Callable[[argparse.Namespace], dict[str, Any]] = lambda args: {},
 ) -> int:
-    """Parse the arguments (from ``argv``, or from the Snakemake ``job``), load the
-    config, and run a stage under the thread budget; a user-facing error is printed as
-    one line on stderr and exits with status 1.
+    """Run a stage script: ``run(inputs, **arguments)`` under the thread budget; a
+    user-facing error is printed as one line on stderr and exits with status 1.
 
-    With ``outdir`` (the output directory the stage writes, from its arguments) the
-    stage runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so
-    a second run writing the same directory fails naming the holder.
-
-    With ``stage``, ``run`` gets the stage's inputs object instead of the config: a
-    stage name, or the inputs class of a rule outside the params stages (the demo,
-    the NWB export), whose ``params.stage`` is that class's params as JSON.
+    Parameters
+    ----------
+    parser
+        The script's options (by hand: parsed from ``argv``).
+    run
+        The stage function, or the script's wrapper around it.
+    argv, job
+        The command line by hand (``None``: ``sys.argv``), or the Snakemake ``script:``
+        job (``snakemake``; ``argv`` unused).
+    stage
+        A stage name, or the inputs class of a rule outside the params stages (the
+        demo, the NWB export), whose ``params.stage`` is that class's params as JSON.
+    outdir
+        The output directory the stage writes, from its arguments (default: its
+        ``outdir`` argument, if it takes one): the stage then runs holding that directory's lock (:func:`flylib.locking.outdir_lock`), so a
+        second run writing the same directory fails naming the holder.
+    job_extra, hand_extra
+        ``run``'s arguments that are no option, from the job and by hand.
     """
+    # the script's own options by their names in the job (--bundle-adjustment: bundle_adjustment)
+    options = {
+        a.option_strings[-1].lstrip("-").replace("-", "_"): a
+        for a in parser._actions
+        if a.dest not in _SHARED
+    }
+    for name, action in options.items():
+        action.metavar = action.metavar or name.upper()  # --help names the option, not dest
     if job is not None:
-        parser.prog = f"{job.rule}.py"
         if job.log:
             _log_to(job.log[0])
-        argv = snakemake_argv(job, parser)
-    args = parser.parse_args(argv)
-    if job is None and args.config is None:
-        parser.error("the following arguments are required: --config")
+        name, threads, verbose = job.rule, job.threads, False
+
+        def prepare() -> tuple[Any, dict[str, Any]]:
+            inputs = _job_inputs(job, stage)
+            given = {a.dest: _job_value(job, n, a) for n, a in options.items()}
+            return inputs, given | job_extra(job)
+
+    else:
+        args = parser.parse_args(argv)
+        if args.config is None:
+            parser.error("the following arguments are required: --config")
+        name, threads, verbose = Path(parser.prog).stem, args.threads, args.verbose
+
+        def prepare() -> tuple[Any, dict[str, Any]]:
+            inputs = _hand_inputs(args, stage, options.get("bundle_adjustment"))
+            given = {a.dest: getattr(args, a.dest) for a in options.values()}
+            return inputs, given | hand_extra(args)
+
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
+        level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
     from flylib.resources import thread_budget
 
     try:
-        config = _stage_config(args, job, stage)
-        with thread_budget(args.threads):
-            if outdir is None:
-                run(args, config)
+        inputs, given = prepare()
+        directory = outdir(given)
+        with thread_budget(threads):
+            if directory is None:
+                run(inputs, **given)
             else:
                 from flylib.locking import outdir_lock
 
-                with outdir_lock(outdir(args), job=Path(parser.prog).stem):
-                    run(args, config)
-    except FlylibError as exc:
+                with outdir_lock(directory, job=name):
+                    run(inputs, **given)
+    except (FlylibError, argparse.ArgumentTypeError) as exc:  # the latter: a job's value
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0
 
 
-def _stage_config(args: argparse.Namespace, job: Any, stage: str | type | None) -> Any:
-    """What a stage runs on: its inputs object when ``stage`` is given (from the job's
-    params, or built from ``--config``: on the config rig when a stage that takes
-    ``--bundle-adjustment`` is run without it), else the run's config."""
+def _job_inputs(job: Any, stage: str | type) -> Any:
+    """A job's inputs object, from its rule's ``params.stage`` and ``params.runtime``."""
+    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
+        return stage.from_params(json.loads(job.params.stage), job.params.runtime)
+    from flylib.pipeline.inputs import inputs_from_job
+
+    return inputs_from_job(stage, job.params.stage, job.params.runtime)
+
+
+def _hand_inputs(args: argparse.Namespace, stage: str | type, rig: argparse.Action | None) -> Any:
+    """The inputs object by hand, built from ``--config``: for a stage with a
+    ``--bundle-adjustment`` option (``rig``) left out, on the config rig."""
     from flylib.config import Config
 
-    if stage is None:
-        return job.params.config if job is not None else Config.from_file(args.config)
-    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
-        if job is not None:
-            return stage.from_params(json.loads(job.params.stage), job.params.runtime)
-        return stage.from_config(Config.from_file(args.config))
-    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
-
-    if job is not None:
-        return inputs_from_job(stage, job.params.stage, job.params.runtime)
     config = Config.from_file(args.config)
-    if getattr(args, "bundle_adjustment", False) is None:
-        # a stage after bundle adjustment run by hand without its artifact: the config rig
-        from flylib.pipeline.stages import run_inputs
+    if not isinstance(stage, str):
+        return stage.from_config(config)
+    if rig is not None:
+        from flylib.pipeline.stage_helpers import run_inputs
 
-        return run_inputs(config, stage)
+        return run_inputs(config, stage, getattr(args, rig.dest))
+    from flylib.pipeline.inputs import stage_inputs
+
     return stage_inputs(config, stage)
 
 

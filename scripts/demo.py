@@ -10,10 +10,14 @@ from _cli import run_script, script_main, script_parser
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--out", required=True, type=Path, help="demo recording directory to write")
-    return script_main(
-        parser, lambda args, inputs: run_demo(inputs, args.out), argv, job=job, stage=DemoInputs
+    parser.add_argument(
+        "--out",
+        dest="directory",
+        required=True,
+        type=Path,
+        help="demo recording directory to write",
     )
+    return script_main(parser, run_demo, argv, job=job, stage=DemoInputs)
 
 
 if __name__ == "__main__":

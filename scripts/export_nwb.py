@@ -6,23 +6,26 @@ from pathlib import Path
 
 from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    add_results_argument(parser)
     parser.add_argument(
         "--recording",
+        dest="recording_dir",
         required=True,
         type=Path,
         help="recording directory (footage linked from the NWB file, nwb.yaml)",
     )
-    parser.add_argument("--output", required=True, type=Path, help="destination .nwb file")
+    parser.add_argument(
+        "--output", dest="out_path", required=True, type=Path, help="destination .nwb file"
+    )
     parser.add_argument(
         "--angles",
+        dest="angles_path",
         type=Path,
-        default=None,
         help="neuromechfly.h5 of the recording: its joint angles go in the NWB file too",
     )
     parser.add_argument(
@@ -30,19 +33,13 @@ def main(argv=None, *, job=None) -> int:
         action="store_true",
         help="the recording is the embedded demo (its synthetic session metadata applies)",
     )
-
-    def run(args, inputs):
-        run_export_nwb(
-            inputs,
-            args.results,
-            args.output,
-            recording_dir=args.recording,
-            demo=args.demo,
-            angles_path=args.angles,
-        )
-
     return script_main(
-        parser, run, argv, job=job, stage=NwbExportInputs, outdir=lambda args: args.output.parent
+        parser,
+        run_export_nwb,
+        argv,
+        job=job,
+        stage=NwbExportInputs,
+        outdir=lambda a: a["out_path"].parent,
     )
 
 

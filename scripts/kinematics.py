@@ -6,20 +6,14 @@ from pathlib import Path
 
 from flylib.pipeline.kinematics import run_kinematics
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    add_results_argument(parser)
     parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
-
-    def run(args, inputs):
-        run_kinematics(inputs, args.results, args.outdir)
-
-    return script_main(
-        parser, run, argv, job=job, outdir=lambda args: args.outdir, stage="kinematics"
-    )
+    return script_main(parser, run_kinematics, argv, job=job, stage="kinematics")
 
 
 if __name__ == "__main__":

@@ -6,20 +6,14 @@ from pathlib import Path
 
 from flylib.pipeline.neuromechfly import run_neuromechfly
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    add_results_argument(parser)
     parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")
-
-    def run(args, inputs):
-        run_neuromechfly(inputs, args.results, args.outdir)
-
-    return script_main(
-        parser, run, argv, job=job, outdir=lambda args: args.outdir, stage="neuromechfly"
-    )
+    return script_main(parser, run_neuromechfly, argv, job=job, stage="neuromechfly")
 
 
 if __name__ == "__main__":

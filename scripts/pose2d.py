@@ -8,11 +8,12 @@ from flylib.config.loading import parse_json
 from flylib.errors import ConfigError
 from flylib.pipeline.pose2d import run_pose2d
 
-from _cli import output_dir, run_script, script_main, script_parser
+from _cli import artifact_outdir, run_script, script_main, script_parser
 
 
 def _import_spec(text: str):
-    """The --import-spec JSON, nesting bounded (a ConfigError line, not a traceback)."""
+    """The --import-spec JSON (the job's: ``null`` for the config's), nesting bounded
+    (a ConfigError line, not a traceback)."""
     try:
         return parse_json(text, "--import-spec")
     except ConfigError as exc:
@@ -21,35 +22,25 @@ def _import_spec(text: str):
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--recording", required=True, type=Path, help="recording directory")
-    parser.add_argument("--out", required=True, type=Path, help="pose2d artifact to write (.h5)")
+    parser.add_argument(
+        "--recording", dest="recording_dir", required=True, type=Path, help="recording directory"
+    )
+    parser.add_argument(
+        "--out", dest="out_path", required=True, type=Path, help="pose2d artifact to write (.h5)"
+    )
     parser.add_argument(
         "--import-spec",
         type=_import_spec,
-        default=None,
         help="JSON pose2d.import spec for this recording (default: the config's)",
     )
     parser.add_argument(
         "--candidates-out",
+        dest="candidates_path",
         type=Path,
-        default=None,
         help="also write the detector's top-K peaks here (for pictorial structures)",
     )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
-
-    def run(args, inputs):
-        run_pose2d(
-            inputs,
-            args.recording,
-            args.out,
-            import_spec=args.import_spec,
-            progress=args.progress,
-            candidates_path=args.candidates_out,
-        )
-
-    return script_main(
-        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="pose2d"
-    )
+    return script_main(parser, run_pose2d, argv, job=job, stage="pose2d", outdir=artifact_outdir)
 
 
 if __name__ == "__main__":

@@ -6,34 +6,28 @@ from pathlib import Path
 
 from flylib.pipeline.refinement import run_refinement
 
-from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
+from _cli import add_rig_stage_arguments, artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
     parser.add_argument(
-        "--pose2d", required=True, type=Path, help="pose2d artifact (.h5): 2D and confidences"
+        "--pose2d",
+        dest="pose2d_path",
+        required=True,
+        type=Path,
+        help="pose2d artifact (.h5): 2D and confidences",
     )
     parser.add_argument(
         "--triangulation",
+        dest="triangulation_path",
         required=True,
         type=Path,
         help="triangulation artifact (.h5): the starting 3D and its inlier views",
     )
     add_rig_stage_arguments(parser)
-
-    def run(args, inputs):
-        run_refinement(
-            inputs,
-            args.pose2d,
-            args.triangulation,
-            args.out,
-            ba_path=args.bundle_adjustment,
-            recording_dir=args.recording,
-        )
-
     return script_main(
-        parser, run, argv, job=job, outdir=lambda args: output_dir(args.out), stage="refinement"
+        parser, run_refinement, argv, job=job, stage="refinement", outdir=artifact_outdir
     )
 
 

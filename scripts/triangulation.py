@@ -5,39 +5,29 @@ from pathlib import Path
 
 from flylib.pipeline.triangulation import run_triangulation
 
-from _cli import add_rig_stage_arguments, output_dir, run_script, script_main, script_parser
+from _cli import add_rig_stage_arguments, artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--pose2d", required=True, type=Path, help="pose2d artifact (.h5)")
+    parser.add_argument(
+        "--pose2d", dest="pose2d_path", required=True, type=Path, help="pose2d artifact (.h5)"
+    )
     parser.add_argument(
         "--pictorial-structures",
+        dest="pictorial_path",
         type=Path,
-        default=None,
         help="pictorial-structures artifact: triangulate its corrected 2D instead",
     )
     add_rig_stage_arguments(parser)
     parser.add_argument(
         "--corrections",
+        dest="corrections_path",
         type=Path,
-        default=None,
         help="corrections.h5 sidecar (flylib gui): apply its manual edits",
     )
-
-    def run(args, inputs):
-        run_triangulation(
-            inputs,
-            args.pose2d,
-            args.out,
-            pictorial_path=args.pictorial_structures,
-            ba_path=args.bundle_adjustment,
-            recording_dir=args.recording,
-            corrections_path=args.corrections,
-        )
-
     return script_main(
-        parser, run, argv, job=job, stage="triangulation", outdir=lambda args: output_dir(args.out)
+        parser, run_triangulation, argv, job=job, stage="triangulation", outdir=artifact_outdir
     )
 
 

@@ -5,14 +5,18 @@ from pathlib import Path
 
 from flylib.pipeline.visualization import run_visualization
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument("--results", required=True, type=Path, help="results.h5 of the recording")
+    add_results_argument(parser)
     parser.add_argument(
-        "--recording", required=True, type=Path, help="recording directory (footage)"
+        "--recording",
+        dest="recording_dir",
+        required=True,
+        type=Path,
+        help="recording directory (footage)",
     )
     parser.add_argument("--outdir", required=True, type=Path, help="where the videos go")
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
@@ -21,20 +25,7 @@ def main(argv=None, *, job=None) -> int:
         type=float,
         help="play the videos at this multiple of the recording's rate when the config sets none",
     )
-
-    def run(args, inputs):
-        run_visualization(
-            inputs,
-            args.results,
-            args.recording,
-            args.outdir,
-            progress=args.progress,
-            speed=args.speed,
-        )
-
-    return script_main(
-        parser, run, argv, job=job, stage="visualization", outdir=lambda args: args.outdir
-    )
+    return script_main(parser, run_visualization, argv, job=job, stage="visualization")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("FLYLIB_SHARED_DATA") or REPO_ROOT.parent / "shared" / "data")
 
 
-def _shared_subdir(name: str) -> Path:
+def shared_subdir(name: str) -> Path:
     path = SHARED_DATA / name
     if not path.is_dir():
         pytest.skip(f"{path} is absent: real-data tests need ../shared/data beside the repo")
@@ -22,20 +22,20 @@ def _shared_subdir(name: str) -> Path:
 @pytest.fixture(scope="session")
 def df3d_sample_dir() -> Path:
     """``../shared/data/deepfly3d-sample`` (7 cameras, 960x480, 15 frames), or skip."""
-    return _shared_subdir("deepfly3d-sample")
+    return shared_subdir("deepfly3d-sample")
 
 
 @pytest.fixture(scope="session")
 def deeperfly_example_dir() -> Path:
     """``../shared/data/deeperfly-example`` (7 cameras, 960x480, 64 frames), or skip."""
-    return _shared_subdir("deeperfly-example")
+    return shared_subdir("deeperfly-example")
 
 
 @pytest.fixture(scope="session")
 def df3d_package_example_dir() -> Path:
     """``../shared/data/deepfly3d-package-example`` (DeepFly3D 1.x ``df3d_result.pkl``
     and ``calib.pkl``, 7 cameras, 15 frames), or skip."""
-    return _shared_subdir("deepfly3d-package-example")
+    return shared_subdir("deepfly3d-package-example")
 
 
 @pytest.fixture(scope="session")
@@ -47,7 +47,7 @@ def df3d_pickle(df3d_sample_dir: Path) -> Path:
     return path
 
 
-# Hypothesis profiles (tests/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
+# Hypothesis profiles (tests/interop/test_fuzz_loaders.py): "flylib" by default keeps the fuzz tests
 # under a minute in all; `pytest --hypothesis-profile=long` runs many more examples.
 try:
     from hypothesis import HealthCheck, settings

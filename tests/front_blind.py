@@ -1,7 +1,7 @@
 """The front-blind case: real DeepFly3D poses, DeepFly3D's rig, the sample's
 visibility, the default config rig as the start.
 
-Shared by ``tests/test_bundle_adjustment_front_blind.py`` and ``benchmarks/bundle_adjustment.py
+Shared by ``tests/bundle_adjustment/test_front_blind.py`` and ``benchmarks/bundle_adjustment.py
 --case front-blind``. Needs ``../shared/data`` (``deepfly3d-package-example``: DeepFly3D
 1.x's ``df3d_result.pkl`` with its ``points3d`` and ``calib.pkl``; ``deepfly3d-sample``:
 the same recording's 2D as DeepFly3D 0.x wrote it).
@@ -140,8 +140,9 @@ def held_out_error(cameras: CameraGroup, pts2d: np.ndarray) -> np.ndarray:
     """``(V, T, P)`` leave-one-camera-out reprojection error in pixels over every frame:
     :func:`flylib.accuracy.held_out_errors` with the DLT, so two rigs are judged on the
     same observations (compare medians: gross outliers stay in)."""
-    from flylib.accuracy import held_out_errors, triangulation_method
+    from flylib.accuracy import held_out_errors
     from flylib.config.params import TriangulationParams
+    from flylib.pipeline.triangulation import triangulation_method
 
     method = triangulation_method(TriangulationParams(method="dlt"), cameras)
     return held_out_errors(cameras, pts2d, method, windows=[(0, pts2d.shape[1])])["triangulation"]

@@ -18,8 +18,9 @@ from flylib.pipeline.inputs import stage_inputs
 def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     """Demo recording in ``directory``; returns its output directory (with results.h5)."""
     from flylib.config import Config
+    from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.demo import demo_import_spec, make_demo
-    from flylib.pipeline.stages import run_assemble, run_pose2d
+    from flylib.pipeline.pose2d import run_pose2d
     from flylib.pipeline.triangulation import run_triangulation
 
     data = Config.default().data

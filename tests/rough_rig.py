@@ -1,6 +1,6 @@
 """The realistic bundle-adjustment case: a tethered fly, a rough starting rig.
 
-Shared by ``tests/test_bundle_adjustment_rough_rig.py`` and
+Shared by ``tests/bundle_adjustment/test_rough_rig.py`` and
 ``benchmarks/bundle_adjustment.py --case rough``.
 
 - The fly: thorax fixed (tethered), six legs of four bones of constant length, joint
@@ -288,7 +288,7 @@ def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None, *
     from flylib.config import Config
     from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment
     from flylib.pipeline.inputs import stage_inputs
-    from flylib.triangulation import reconstruct_with_params
+    from flylib.triangulation import reconstruct
 
     base = Config.default()
     data = dict(base.data)
@@ -301,5 +301,5 @@ def fit_with_default_config(case: RoughCase, start: CameraGroup | None = None, *
         case.conf,
     )
     result, refined = adjusted.solution, adjusted.cameras
-    pts3d, _, _ = reconstruct_with_params(refined, case.pts2d, config.triangulation, case.conf)
+    pts3d, _, _ = reconstruct(refined, case.pts2d, config.triangulation, case.conf)
     return result, refined, pts3d, similarity_error(pts3d, case.truth) / case.bone

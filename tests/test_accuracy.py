@@ -15,13 +15,12 @@ from flylib.accuracy import (
     held_out_errors,
     keep_triangulation,
     left_right_asymmetry,
-    refinement_method,
-    triangulation_method,
 )
 from flylib.config.params import TriangulationParams
 from flylib.config.postprocessing import RefinementParams
-from flylib.refinement import mirror_bones
-from flylib.skeleton import Skeleton
+from flylib.pipeline.triangulation import triangulation_method
+from flylib.refinement.held_out import refinement_method
+from flylib.skeleton import Skeleton, mirror_bones
 
 from rough_rig import make_case
 from synthetic import POINT_NAMES, project_opencv

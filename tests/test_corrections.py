@@ -7,13 +7,18 @@ import numpy as np
 import pytest
 
 from flylib.config import Config
-from flylib.corrections import Corrections, corrections_path, reconstruct_corrected
+from flylib.corrections import Corrections, corrections_path
 from flylib.errors import ConfigError, ResultsError
+from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.stages import run_assemble, run_inputs
-from flylib.pipeline.triangulation import run_triangulation
+from flylib.pipeline.stage_helpers import run_inputs
+from flylib.pipeline.triangulation import (
+    TriangulationInputs,
+    compute_triangulation,
+    run_triangulation,
+)
 from flylib.results import Pose2dData, PoseResult, read_stage
-from flylib.triangulation import reconstruct_with_params
+from flylib.triangulation import reconstruct
 
 from gui_fixtures import make_demo_outputs, write_seed_sidecar
 
@@ -105,7 +110,7 @@ def test_triangulation_applies_a_seed_layout_sidecar(outdir, tmp_path):
     expected = pose2d.pts2d.copy()
     expected[views[0], t, p] = moved
     expected[hidden, 6, q] = np.nan
-    want3d, _, _ = reconstruct_with_params(cameras, expected, config.triangulation, pose2d.conf)
+    want3d, _, _ = reconstruct(cameras, expected, config.triangulation, pose2d.conf)
     np.testing.assert_allclose(tri["points3d"][t, p], want3d[t, p], atol=1e-9)
     np.testing.assert_allclose(tri["points3d"][6, q], want3d[6, q], atol=1e-9)
     assert not np.isfinite(tri["points"][hidden, 6, q]).any()
@@ -132,6 +137,7 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
     config = Config.from_file(outdir / "config.yaml")
     pose2d = Pose2dData.load(outdir / "stages" / "pose2d.h5")
     cameras = PoseResult.load(outdir / "results.h5").cameras
+    inputs = TriangulationInputs.from_config(config)
     seen = np.isfinite(pose2d.pts2d).all(-1)
     t = 2
 
@@ -144,9 +150,7 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
                     far = pts[v, 0, 0] + shift
                     plain = Corrections.empty(len(cameras), 1, 1)
                     plain.set_point(v, 0, 0, far)
-                    _, clean, _, _ = reconstruct_corrected(
-                        config.triangulation, cameras, pts, None, plain
-                    )
+                    clean = compute_triangulation(inputs, cameras, pts, None, plain).points
                     if not np.isfinite(clean[v, 0, 0]).all():
                         return pts, v, far
         raise AssertionError("no edit was rejected by ransac")
@@ -154,11 +158,10 @@ def test_a_fixed_view_stays_in_the_solution(outdir):
     pts, v, far = dropped_case()
     fixed = Corrections.empty(len(cameras), 1, 1)
     fixed.set_point(v, 0, 0, far, fixed=True)
-    pts3d, clean, error, corrected = reconstruct_corrected(
-        config.triangulation, cameras, pts, None, fixed
-    )
-    np.testing.assert_allclose(clean[v, 0, 0], far)
-    assert corrected[0, 0] and np.isfinite(pts3d).all() and error[v, 0, 0] < 60
+    solved = compute_triangulation(inputs, cameras, pts, None, fixed)
+    np.testing.assert_allclose(solved.points[v, 0, 0], far)
+    assert solved.corrected[0, 0] and np.isfinite(solved.points3d).all()
+    assert solved.reproj_error[v, 0, 0] < 60
 
 
 def test_a_sidecar_of_another_shape_fails_naming_it(outdir, tmp_path):
@@ -203,12 +206,12 @@ def test_corrected_points_are_ringed_in_the_videos():
     assert img[:20, :20].max() == 0  # not corrected: no ring
 
 
-def test_reconstruct_corrected_takes_the_rig_first():
+def test_the_corrected_triangulation_takes_the_rig_first():
     config = Config.default()
     cameras = config.camera_group(image_sizes={name: (480, 960) for name in config.view_names()})
     pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
-    with pytest.raises(TypeError, match="rig before the points"):
-        reconstruct_corrected(config.triangulation, pts, cameras)
+    with pytest.raises(TypeError, match="takes the camera rig first"):
+        compute_triangulation(TriangulationInputs.from_config(config), pts, cameras)
 
 
 # -- integrity --------------------------------------------------------------------------

@@ -85,6 +85,7 @@ def test_shapes_are_for_type_checkers_only():
         "flylib.bundle_adjustment.adjust",
         "flylib.bundle_adjustment.gauge",
         "flylib.bundle_adjustment.lm",
+        "flylib.bundle_adjustment.messages",
         "flylib.bundle_adjustment.params",
         "flylib.bundle_adjustment.reseed",
         "flylib.bundle_adjustment.sampling",

@@ -10,7 +10,8 @@ lazily is an edge to the module the stub takes it from.
 The layers, lowest first (:data:`LAYERS`); a module may import its own layer or any
 below it:
 
-0. foundation -- errors, paths, resources, locking; the package root (lazy exports only)
+0. foundation -- errors, paths, resources, locking, the stage registry; the package root
+   (lazy exports only)
 1. primitives -- camera models and geometry, the skeleton, frame readers, the
    detection plan's vocabulary, video specs
 2. config -- :class:`~flylib.config.Config` and its validation (NWB metadata checks)
@@ -45,6 +46,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.paths",
             "flylib.resources",
             "flylib.locking",
+            "flylib.stages",
         ),
     ),
     (
@@ -361,3 +363,53 @@ def test_layers_take_the_most_specific_prefix():
     assert layer_of("flylib.triangulation.kernels") == 4
     assert layer_of("flylib.pose2d.stream") == 5
     assert layer_of("flylib.not_a_module") is None
+
+
+# -- privacy and lazy imports ----------------------------------------------------------
+
+
+def private_imports(root: Path) -> list[str]:
+    """``from <flylib module> import _name`` anywhere under ``root``'s code folders: a
+    name another module uses is public (no leading underscore)."""
+    found = []
+    for folder in ("src", "scripts", "tests", "benchmarks"):
+        for path in sorted((root / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            for node in ast.walk(tree):
+                if not isinstance(node, ast.ImportFrom):
+                    continue
+                ours = node.level > 0 or (node.module or "").split(".")[0] in ("flylib", "_cli")
+                for alias in node.names if ours else ():
+                    if alias.name.startswith("_") and not alias.name.startswith("__"):
+                        found.append(f"{path.relative_to(root)}:{node.lineno} {alias.name}")
+    return found
+
+
+def test_no_module_imports_another_modules_private_name():
+    found = private_imports(SRC.parent)
+    assert not found, "make these names public: " + ", ".join(found)
+
+
+def test_one_lazy_import_mechanism():
+    """A package defers its heavy imports only through ``lazy_loader.attach_stub`` over
+    its ``__init__.pyi``: no hand-written module ``__getattr__``."""
+    hand_written = []
+    for path in sorted((SRC / "flylib").rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef) and node.name == "__getattr__":
+                hand_written.append(str(path.relative_to(SRC)))
+    assert not hand_written, f"module __getattr__ written by hand in {hand_written}"
+    stubs = sorted(p.parent.name for p in (SRC / "flylib").rglob("__init__.pyi"))
+    for package in stubs:
+        init = (SRC / "flylib" / package / "__init__.py") if package != "flylib" else None
+        init = init or SRC / "flylib" / "__init__.py"
+        assert "attach_stub" in init.read_text(encoding="utf-8"), init
+
+
+def test_the_privacy_check_sees_a_private_import(tmp_path):
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / "a.py").write_text(
+        "from .b import _helper\nfrom flylib.c import __version__\n"
+    )
+    assert private_imports(tmp_path) == ["src/a.py:1 _helper"]

@@ -13,7 +13,8 @@ from flylib.config import Config
 from flylib.demo import load_truth, synthetic_fly
 from flylib.pipeline.demo import demo_import_spec, make_demo
 from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.stages import run_inputs, run_pose2d
+from flylib.pipeline.pose2d import run_pose2d
+from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import Pose2dData, read_stage
 from flylib.suspects import SUSPECTS_FILE, find_suspects

@@ -121,12 +121,9 @@ from .results import (
 )
 from .skeleton import Skeleton as Skeleton
 from .triangulation import (
-    reconstruct_dlt as reconstruct_dlt,
-    reconstruct_greedy as reconstruct_greedy,
-    reconstruct_ransac as reconstruct_ransac,
+    reconstruct as reconstruct,
     reprojection_error as reprojection_error,
     triangulate as triangulate,
-    triangulate_greedy as triangulate_greedy,
     triangulate_ransac as triangulate_ransac,
 )
 from .visualization import (

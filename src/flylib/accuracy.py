@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .skeleton import mirror_bones
+
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
 
     from .camera.rig import CameraGroup
-    from .config.params import TriangulationParams
-    from .config.postprocessing import RefinementParams
     from .skeleton import Skeleton
 
 #: At most this many frames are held out per recording (in windows of
@@ -270,37 +270,8 @@ def accuracy_summary(
     return out
 
 
-def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> Triangulate:
-    """The triangulation stage's 3D method as :func:`held_out_errors` calls it (the
-    ``triangulation`` table's method and knobs)."""
-    from .triangulation import reconstruct_with_params
-
-    def triangulate(pts2d, conf):
-        pts3d, clean, _ = reconstruct_with_params(cameras, pts2d, params, conf)
-        return pts3d, np.isfinite(clean).all(-1)
-
-    return triangulate
-
-
-def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
-    """The refinement stage's 3D method as :func:`held_out_errors` calls it (the
-    ``refinement`` table and the skeleton's bones and rigid points)."""
-    from .refinement.setup import options_from_params, skeleton_terms
-    from .refinement.solver import refine_points
-
-    terms = skeleton_terms(skeleton, params.rigid_points)
-    options = options_from_params(params)
-
-    def refine(pts2d, conf, start, kept):
-        return refine_points(
-            pts2d, cameras, start, conf=conf, inliers=kept, options=options, **terms
-        ).points3d
-
-    return refine
-
-
 def triangulation_accuracy(
-    params: TriangulationParams,
+    triangulate: Triangulate,
     cameras: CameraGroup,
     skeleton: Skeleton,
     pts2d: Float[np.ndarray, "V T P 2"],
@@ -313,16 +284,15 @@ def triangulation_accuracy(
 
     Parameters
     ----------
-    params
-        The ``triangulation`` table: the method each view is held out from.
+    triangulate
+        The triangulation stage's method (see :data:`Triangulate`), re-run with each
+        view held out.
     cameras, skeleton
         The rig and the skeleton (its bones for the spread and left/right figures).
     pts2d, pts3d, conf
         ``(V, T, P, 2)`` the 2D triangulated, ``(T, P, 3)`` its 3D, ``(V, T, P)`` or ``None``.
     """
-    from .refinement.setup import mirror_bones
-
-    held = held_out_errors(cameras, pts2d, triangulation_method(params, cameras), conf=conf)
+    held = held_out_errors(cameras, pts2d, triangulate, conf=conf)
     frames = held["frames"]
     return {
         "frames_evaluated": int(len(frames)),

@@ -1,4 +1,4 @@
-"""Manual corrections: the ``corrections.h5`` sidecar and how triangulation applies it.
+"""Manual corrections: the ``corrections.h5`` sidecar and its edits.
 
 The sidecar is the seed system's GUI format, version 3
 (``../shared/spec/corrections-h5.md``), written beside ``results.h5`` and never
@@ -16,15 +16,10 @@ ignore both. A file written by the seed (no checksums) still loads; whichever wr
 an ``inf`` coordinate, a non-finite 3D edit or (given the image sizes) a 2D edit
 outside the image is one :class:`~flylib.errors.ResultsError` at load, never applied.
 
-How the triangulation stage applies a sidecar (:func:`reconstruct_corrected`, which the
-GUI calls too, for one point at a time, so what it shows is what a re-run computes):
-
-- an edited 2D point replaces the detection in its view (a NaN edit removes it) and
-  gets confidence 1;
-- an invisible point is dropped from triangulation;
-- a ``fixed`` view is always part of the solution: when the robust method rejected
-  it, the point is re-solved by DLT from the kept views plus the fixed ones;
-- an edited 3D point replaces the triangulated one (reprojection errors follow).
+The triangulation stage applies a sidecar
+(:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too,
+for one point at a time, so what it shows is what a re-run computes): the 2D edits
+through :meth:`Corrections.apply_2d`, then its ``fixed`` views and 3D edits.
 """
 
 from __future__ import annotations
@@ -47,8 +42,6 @@ from .results import open_hdf5, read_meta_from
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
-    from .camera.rig import CameraGroup
-    from .config.params import TriangulationParams
 
 __all__ = [
     "CORRECTIONS_FILE",
@@ -56,7 +49,6 @@ __all__ = [
     "Corrections",
     "corrections_path",
     "read_corrected",
-    "reconstruct_corrected",
 ]
 
 #: The sidecar's file name beside ``results.h5``.
@@ -444,81 +436,6 @@ def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, n
                 f"nothing was applied ({fix})"
             ) from None
     return meta, arrays
-
-
-def reconstruct_corrected(
-    params: TriangulationParams,
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, "V T P 2"],
-    conf: Float[np.ndarray, "V T P"] | None = None,
-    corrections: Corrections | None = None,
-) -> tuple[
-    Float[np.ndarray, "T P 3"],
-    Float[np.ndarray, "V T P 2"],
-    Float[np.ndarray, "V T P"],
-    Bool[np.ndarray, "T P"],
-]:
-    """Triangulate as the ``triangulation`` table says, with manual corrections applied.
-
-    Parameters
-    ----------
-    params
-        The ``triangulation`` table (method, knobs, confidence weighting).
-    cameras
-        The final rig (first, as in every triangulation function).
-    pts2d
-        ``(V, T, P, 2)`` the 2D triangulation reads (pose2d or pictorial structures).
-    conf
-        ``(V, T, P)`` or ``None``.
-    corrections
-        The sidecar's edits for exactly these ``(V, T, P)``, or ``None``.
-
-    Returns
-    -------
-    pts3d, pts2d_clean, reproj_error, corrected
-        ``(T, P, 3)``, ``(V, T, P, 2)`` (the views the points were solved from),
-        ``(V, T, P)`` pixels and ``(T, P)`` bool (points a correction changed).
-
-    Raises
-    ------
-    TypeError
-        If the points and the rig are swapped (the order before the rig came first).
-    """
-    from .camera import model as camera_model
-    from .triangulation import reconstruct_with_params, reprojection_error
-
-    if hasattr(pts2d, "pmats") or not hasattr(cameras, "pmats"):
-        raise TypeError(
-            "reconstruct_corrected(params, cameras, pts2d, ...) takes the rig before "
-            f"the points, got {type(cameras).__name__} for cameras"
-        )
-    pts2d = np.asarray(pts2d, dtype=np.float64)
-    if corrections is None:
-        pts3d, clean, error = reconstruct_with_params(cameras, pts2d, params, conf)
-        return pts3d, clean, error, np.zeros(pts2d.shape[1:3], bool)
-    if corrections.shape != pts2d.shape[:3]:
-        raise ResultsError(
-            f"corrections of shape {corrections.shape} (views, frames, points) do not "
-            f"match the 2D points {pts2d.shape[:3]}; save them again from `flylib gui`"
-        )
-    pts2d, conf = corrections.apply_2d(pts2d, conf)
-    pts3d, clean, error = reconstruct_with_params(cameras, pts2d, params, conf)
-    fixed = corrections.fixed & corrections.edited & np.isfinite(pts2d).all(-1)
-    lost = fixed & ~np.isfinite(clean).all(-1)  # fixed views the robust fit left out
-    redo = np.argwhere(lost.any(axis=0))  # (n, 2) frame, point
-    if len(redo):
-        t, p = redo[:, 0], redo[:, 1]
-        keep = np.isfinite(clean[:, t, p]).all(-1) | fixed[:, t, p]  # (V, n)
-        obs = np.where(keep[..., None], pts2d[:, t, p], np.nan)
-        und = cameras.undistort_points(obs) if np.any(cameras.dists) else obs
-        pts3d[t, p] = camera_model.dlt_solve(np, und, cameras.pmats)
-        clean[:, t, p] = obs
-    if corrections.edited3d.any():
-        pts3d = pts3d.copy()
-        pts3d[corrections.edited3d] = corrections.points3d[corrections.edited3d]
-    if len(redo) or corrections.edited3d.any():
-        error = reprojection_error(cameras, pts3d, clean)
-    return pts3d, clean, error, corrections.corrected_points()
 
 
 def corrections_path(

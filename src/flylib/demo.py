@@ -419,7 +419,7 @@ def write_demo(
             [p for p, k in zip(points, keep) if k],
             scorer=DLC_SCORER,
         )
-    truth = _write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
+    truth = write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
     # The session metadata a lab puts beside its footage for the NWB export (synthetic here).
     from .nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
 
@@ -442,7 +442,30 @@ def _check_in_frame(clean2d: np.ndarray, image_size: tuple[int, int], views: lis
             )
 
 
-def _write_truth(path: Path, pts3d, clean2d, views, points, settings) -> Path:
+def write_truth(
+    path: Path,
+    pts3d: Float[np.ndarray, "T P 3"],
+    clean2d: Float[np.ndarray, "V T P 2"],
+    views: Sequence[str],
+    points: Sequence[str],
+    settings: Mapping[str, Any],
+) -> Path:
+    """Write the demo's ground truth (``truth.h5``: the 3D points and their noiseless 2D views).
+
+    Parameters
+    ----------
+    path
+        The file to write (atomically).
+    pts3d, clean2d
+        The synthetic fly's 3D points and their projections before noise.
+    views, points, settings
+        Camera and point names and the demo settings, stored as the file's JSON meta.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     import h5py
 
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:

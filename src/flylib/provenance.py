@@ -48,16 +48,6 @@ ARTIFACT_ID_KEY = "artifact_id"
 #: meta key of ``{upstream stage: artifact id}`` the artifact was built from.
 UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
-# Where each stage's artifact sits beside results.h5, and the stage the artifact
-# names its params after (the candidate peaks are a pose2d output).
-_STAGE_ORDER = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-)
-
 
 def params_hash(params: Mapping[str, Any]) -> str:
     """A short, stable hash of a params mapping (canonical JSON, SHA-256, 16 hex digits).
@@ -168,11 +158,11 @@ def file_sha256(path: str | Path) -> str:
 def _group_metas(path: Path) -> tuple[dict, dict[str, dict], dict | None]:
     """The root meta, each stage group's meta, and the corrections the triangulation
     group records having applied (``None``: none)."""
-    from .results import open_checked, read_meta_from
+    from .results import STAGE_GROUPS, open_checked, read_meta_from
 
     with open_checked(path, "pass a results.h5 a run wrote") as f:
         root = read_meta_from(f)
-        groups = {stage: read_meta_from(f[stage]) for stage in _STAGE_ORDER if stage in f}
+        groups = {stage: read_meta_from(f[stage]) for stage in STAGE_GROUPS if stage in f}
         applied = f["triangulation"].attrs.get("corrections") if "triangulation" in f else None
     if isinstance(applied, bytes):
         applied = applied.decode()

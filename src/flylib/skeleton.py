@@ -355,3 +355,34 @@ class Skeleton:
     def limb_color(self, limb: str, default: str = "#808080") -> str:
         """The palette colour of ``limb``, or ``default`` when it has none."""
         return self.palette.get(limb, default)
+
+
+def _twin_name(name: str) -> str | None:
+    """``lf_leg`` <-> ``rf_leg``, ``l_antenna`` <-> ``r_antenna``; ``None`` if unsided."""
+    if name[:1] == "l":
+        return "r" + name[1:]
+    if name[:1] == "r":
+        return "l" + name[1:]
+    return None
+
+
+def mirror_bones(skeleton: Skeleton) -> Int[np.ndarray, " B"]:
+    """``(B,)`` the left/right twin of every bone (itself when it has none): bone ``k``
+    of limb ``l...`` and bone ``k`` of limb ``r...`` with equally long chains."""
+    limbs = list(skeleton.limbs.items())
+    index = {}
+    b = 0
+    for name, chain in limbs:
+        for k in range(len(chain) - 1):
+            index[(name, k)] = b
+            b += 1
+    out = np.arange(b)
+    for (name, k), bone in index.items():
+        twin = _twin_name(name)
+        if (
+            twin is not None
+            and (twin, k) in index
+            and len(skeleton.limbs[twin]) == len(skeleton.limbs[name])
+        ):
+            out[bone] = index[(twin, k)]
+    return out

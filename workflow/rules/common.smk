@@ -16,7 +16,7 @@ from flylib.pipeline.planning import calibration_inputs as _calibration_files
 from flylib.pipeline.preflight import load_run_config
 from flylib.kinematics import FILES as KINEMATICS_FILES
 from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
-from flylib.pipeline.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from flylib.results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from flylib.pipeline.inputs import stage_params as _stage_params, stage_runtime as _stage_runtime
 from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
 
@@ -93,10 +93,17 @@ def recording(wildcards):
     return BY_OUTDIR[wildcards.outdir]
 
 
-def stage_params(stage: str) -> str:
+def as_is(value):
+    """A param that Snakemake takes as it is: it formats a plain string param as a
+    wildcard pattern (a `{view}` in a config value would end the run), but not what a
+    function returns. The value, and so the repr its re-run check compares, is kept."""
+    return lambda wildcards: value
+
+
+def stage_params(stage: str):
     """The rule's `params.stage`: the stage's tracked params (its inputs object's,
     flylib.pipeline.inputs), as canonical JSON (Snakemake re-runs a job when it changes)."""
-    return json.dumps(_stage_params(CONFIG, stage), sort_keys=True)
+    return as_is(json.dumps(_stage_params(CONFIG, stage), sort_keys=True))
 
 
 def job_runtime(stage: str):

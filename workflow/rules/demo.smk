@@ -35,7 +35,7 @@ if DEMO is not None:
             mem_mb=2000,
             runtime=15,
         params:
-            stage=DEMO_INPUTS.rule_params(),
+            stage=as_is(DEMO_INPUTS.rule_params()),
             runtime=lambda wildcards, input: DEMO_INPUTS.runtime,
             out=lambda wildcards, output: str(Path(output[0]).parent),
         script:

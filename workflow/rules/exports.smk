@@ -46,7 +46,7 @@ if EXPORTS.get("nwb"):
             mem_mb=2000,
             runtime=15,
         params:
-            stage=NWB_INPUTS.rule_params(),
+            stage=as_is(NWB_INPUTS.rule_params()),
             runtime=lambda wildcards, input: NWB_INPUTS.runtime,
             recording=lambda w: str(recording(w).path),
             demo=lambda w: recording(w).demo,

@@ -19,10 +19,8 @@ def footage_inputs(wildcards) -> list[str]:
 
 
 def assemble_inputs(wildcards) -> dict:
-    files = {"pose2d": artifact("pose2d")}
-    for stage in ("bundle_adjustment", "pictorial_structures", "triangulation", "refinement"):
-        if FLAGS[stage]:
-            files[stage] = artifact(stage)
+    # pose2d's artifact is read even with pose2d off (made by an earlier run)
+    files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
     files["calibration"] = calibration_inputs(wildcards)
     if recording(wildcards).demo:

@@ -10,7 +10,7 @@ if FLAGS["bundle_adjustment"]:
             pose2d=artifact("pose2d"),
             calibration=calibration_inputs,
         output:
-            artifact("bundle_adjustment"),
+            out=artifact("bundle_adjustment"),
         log:
             "{outdir}/logs/bundle_adjustment.log",
         benchmark:
@@ -35,7 +35,7 @@ if FLAGS["pictorial_structures"]:
         input:
             unpack(reconstruction_inputs("pictorial_structures")),
         output:
-            artifact("pictorial_structures"),
+            out=artifact("pictorial_structures"),
         log:
             "{outdir}/logs/pictorial_structures.log",
         benchmark:
@@ -61,7 +61,7 @@ if FLAGS["triangulation"]:
             unpack(reconstruction_inputs("triangulation")),
             unpack(corrections_inputs),
         output:
-            artifact("triangulation"),
+            out=artifact("triangulation"),
         log:
             "{outdir}/logs/triangulation.log",
         benchmark:

@@ -10,7 +10,7 @@ if FLAGS["refinement"]:
         input:
             unpack(refinement_inputs),
         output:
-            artifact("refinement"),
+            out=artifact("refinement"),
         log:
             "{outdir}/logs/refinement.log",
         benchmark:

@@ -3,8 +3,10 @@
 Modules
 -------
 adjust
-    :func:`bundle_adjust` on one flattened problem (outlier rounds, distortion policy,
-    report and the poorly-determined warning).
+    :func:`bundle_adjust` on one flattened problem (outlier rounds, distortion policy).
+messages
+    Its warnings in plain words (the poorly-determined rig, moved cameras), the logged
+    summary and the ``report``.
 sequence
     :func:`bundle_adjust_sequence` on a recording's ``(V, T, P, 2)`` detections (frames,
     bone lengths, rigid points).

@@ -24,7 +24,6 @@ Robustness and gauge, beyond a plain least-squares fit:
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
@@ -32,10 +31,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from ..config.constants import BA_DISTORTION_MODES, BA_SOLVERS
+from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
 from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
-from .params import build_layout, param_slices
+from .messages import fit_report, fit_warnings, log_summary, moved_message, warn_user
+from .params import build_layout
 from .parts import align_parts, camera_parts, crossing_bones, point_parts
 from .problem import Problem
 from .reseed import image_radius, radial_folds, reseed_gross_cameras, view_errors
@@ -48,23 +50,18 @@ from .unknowns import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Float, Int
+    from jaxtyping import Bool, Float, Int
 
     from ..camera.rig import CameraGroup
 
 log = logging.getLogger(__name__)
 
-__all__ = ["bundle_adjust", "camera_table"]
+__all__ = ["bundle_adjust", "camera_table", "cameras_from_table", "ransac_points"]
 
+# The keyword defaults the ``bundle_adjustment`` table also has are read from its params
+# class (:class:`~flylib.config.params.BundleAdjustmentParams`): one owner per default.
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
-DEFAULT_LENGTH_WEIGHT = 100.0  # px per 100 % deviation from a bone's common length
 DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
-DEFAULT_OUTLIER_FACTOR = 5.0
-DEFAULT_OUTLIER_MIN_PX = 3.0
-DEFAULT_MAX_ROUNDS = 10
-DEFAULT_SOLVER = "lm"
-DEFAULT_RESEED_PX = 100.0  # px: a camera this far off at the start is resected first
-DEFAULT_WARN_RATIO = 1e-9  # weakest / strongest non-gauge direction of the reduced Hessian
 #: a camera whose position around the fly ends this far from where the starting rig put
 #: it is named as possibly swapped or mislabeled (a rough start moves cameras up to
 #: ~8 degrees; neighbouring cameras of the fly rig are 30-45 degrees apart)
@@ -75,8 +72,8 @@ STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this chan
 #: an observation set aside comes back within this fraction of the threshold only: the
 #: band keeps borderline observations from flipping in and out round after round
 RETURN_FRACTION = 0.8
-SOLVERS = ("lm", "scipy")
-DISTORTION_MODES = ("auto", "free", "fixed")
+SOLVERS = BA_SOLVERS
+DISTORTION_MODES = BA_DISTORTION_MODES
 
 
 def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
@@ -95,7 +92,7 @@ def camera_table(cameras: CameraGroup) -> Float[np.ndarray, "V C"]:
     )
 
 
-def _cameras_from_table(names, table: np.ndarray) -> CameraGroup:
+def cameras_from_table(names, table: np.ndarray) -> CameraGroup:
     from ..camera.rig import CameraGroup
 
     return CameraGroup.from_arrays(
@@ -111,20 +108,20 @@ def bundle_adjust(
     shared: Sequence[Sequence[str]] = (),
     pts3d: Float[np.ndarray, "N 3"] | None = None,
     conf: Float[np.ndarray, "V N"] | None = None,
-    weigh_by_confidence: bool = False,
+    weigh_by_confidence: bool = BundleAdjustmentParams.weigh_by_confidence,
     bones: tuple[np.ndarray, ...] | None = None,
     bone_weight: float = DEFAULT_BONE_WEIGHT,
     reject_outliers: bool = True,
     init_threshold: float = DEFAULT_INIT_THRESHOLD,
-    outlier_factor: float = DEFAULT_OUTLIER_FACTOR,
-    outlier_min_px: float = DEFAULT_OUTLIER_MIN_PX,
-    max_rounds: int = DEFAULT_MAX_ROUNDS,
+    outlier_factor: float = BundleAdjustmentParams.outlier_factor,
+    outlier_min_px: float = BundleAdjustmentParams.outlier_min_px,
+    max_rounds: int = BundleAdjustmentParams.max_rounds,
     canonical_gauge: bool = True,
     point_ids: Int[np.ndarray, " N"] | None = None,
-    solver: str = DEFAULT_SOLVER,
-    distortion: str = "auto",
-    reseed_px: float | None = DEFAULT_RESEED_PX,
-    warn_ratio: float = DEFAULT_WARN_RATIO,
+    solver: str = BundleAdjustmentParams.solver,
+    distortion: str = BundleAdjustmentParams.distortion,
+    reseed_px: float | None = BundleAdjustmentParams.reseed_px,
+    warn_ratio: float = BundleAdjustmentParams.warn_ratio,
     **solver_kwargs,
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "N 3"]]:
     """Bundle-adjust a camera group against observed 2D points.
@@ -274,7 +271,7 @@ def _adjust(args: _Arguments):
     usable, weight = _usable_observations(pts2d, args.conf, args.weigh_by_confidence)
 
     def triangulate(table, use):
-        return _ransac_points(_cameras_from_table(names, table), pts2d, use, args.init_threshold)
+        return ransac_points(cameras_from_table(names, table), pts2d, use, args.init_threshold)
 
     table, reseeded, start_median = _reseeded(args, table_user, layout, pts2d, usable, triangulate)
     # a camera that sees none of the points has nothing to fit: held at its start
@@ -324,9 +321,9 @@ def _adjust(args: _Arguments):
     result, problem, active, rounds = fit.result, fit.problem, fit.active, fit.rounds
     final = ReducedSystem(problem.jacobian(result.x), problem.residuals(result.x), fit.blocks)
     ratio, n_weak, direction = weak_directions(final.schur(0.0)[0], n_gauge)
-    warnings_out = _fit_warnings(args, fit, cam_part, dropped_rows, ratio, direction, fit_layout)
+    warnings_out = fit_warnings(args, fit, cam_part, dropped_rows, ratio, direction, fit_layout)
     for message in warnings_out:
-        _warn(message)
+        warn_user(message)
 
     table, pts = fit.table, fit.pts
     if args.canonical_gauge and n_parts > 1:
@@ -338,10 +335,10 @@ def _adjust(args: _Arguments):
     moved = _moved_degrees(table_user, table, pts)
     suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
     if suspects:
-        message = _moved_message(suspects, [d for d in moved if d > MOVED_DEG])
+        message = moved_message(suspects, [d for d in moved if d > MOVED_DEG])
         warnings_out.append(message)
-        _warn(message)
-    refined = _cameras_from_table(names, table)
+        warn_user(message)
+    refined = cameras_from_table(names, table)
     out_pts = pts[ids]
     err = _view_errors(table, out_pts, pts2d, active)
     result.initial_median_px = initial_median
@@ -349,7 +346,7 @@ def _adjust(args: _Arguments):
     result.inliers = active
     result.rounds = rounds
     result.warnings = warnings_out
-    result.report = _report(
+    result.report = fit_report(
         args,
         layout,
         held,
@@ -367,7 +364,7 @@ def _adjust(args: _Arguments):
         result.final_median_px,
         warnings_out,
     )
-    _log_summary(result, usable)
+    log_summary(result, usable)
     return result, refined, out_pts
 
 
@@ -386,96 +383,6 @@ def _reseeded(args, table_user, layout, pts2d, usable, triangulate):
             movable=movable,
         )
     return table_user, [], None
-
-
-def _log_summary(result, usable) -> None:
-    active = result.inliers
-    log.info(
-        "bundle adjustment: median reprojection error %.2f px -> %.2f px "
-        "(%d observations, %d set aside, %d round(s), %s)",
-        result.initial_median_px,
-        result.final_median_px,
-        int(active.sum()),
-        int(usable.sum() - active.sum()),
-        result.rounds,
-        result.message,
-    )
-
-
-def _fit_warnings(args, fit: _Rounds, cam_part, dropped_rows, ratio, direction, fit_layout):
-    """What the fit warns of: camera groups sharing no point, else a weakly pinned
-    rig; an inlier set that did not settle."""
-    names = list(args.cameras.names)
-    warnings_out: list[str] = []
-    if int(cam_part.max()) + 1 > 1:
-        warnings_out.append(_parts_message(names, cam_part, dropped_rows))
-    elif ratio < args.warn_ratio:
-        warnings_out.append(
-            _weak_message(_cameras_moving(direction, fit_layout, names), ratio, args.warn_ratio)
-        )
-    if not fit.stable:
-        warnings_out.append(f"the inlier set did not settle within {fit.rounds} rounds")
-    return warnings_out
-
-
-def _report(
-    args,
-    layout,
-    held,
-    fit: _Rounds,
-    n_rigid: int,
-    usable,
-    cam_part,
-    dropped_rows: int,
-    reseeded,
-    unobserved,
-    start_median,
-    weakest: tuple[float, int],
-    moved,
-    initial_median: float,
-    final_median: float,
-    warnings_out: list[str],
-) -> dict:
-    """The result's JSON-able ``report``."""
-    names = list(args.cameras.names)
-    n_parts = int(cam_part.max()) + 1
-    ratio, n_weak = weakest
-    return {
-        "solver": args.solver,
-        "free": _free_report(layout, names, held, fit.problem, n_rigid),
-        "kept_fraction": {
-            n: (round(float(fit.active[v].sum() / usable[v].sum()), 4) if usable[v].any() else None)
-            for v, n in enumerate(names)
-        },
-        "rounds": fit.rounds,
-        "inliers_stable": bool(fit.stable),
-        "reseeded": reseeded,
-        "unobserved": unobserved,
-        # cameras tied by shared points; with more than one group their relative
-        # placement is the starting rig's and constraints across groups are not used
-        "camera_groups": [[n for n, p in zip(names, cam_part) if p == k] for k in range(n_parts)],
-        "constraints_across_groups_dropped": dropped_rows,
-        "start_median_px": None
-        if start_median is None
-        else {
-            n: (None if not np.isfinite(m) else round(float(m), 2))
-            for n, m in zip(names, start_median)
-        },
-        "weakest_direction": ratio if np.isfinite(ratio) else None,
-        "moved_deg": {
-            n: (round(float(d), 1) if np.isfinite(d) else None) for n, d in zip(names, moved)
-        },
-        "weak_directions": n_weak,
-        "initial_median_px": initial_median if np.isfinite(initial_median) else None,
-        "final_median_px": final_median if np.isfinite(final_median) else None,
-        "warnings": warnings_out,
-    }
-
-
-def _warn(message: str) -> None:
-    log.warning("bundle adjustment: %s", message)
-    # stacklevel: this helper, _adjust, bundle_adjust, then bundle_adjust's caller
-    warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=4)
 
 
 def _check_arguments(pts2d: np.ndarray, n_views: int, solver: str, distortion: str) -> None:
@@ -658,39 +565,6 @@ def _fit_rounds(
     return _Rounds(result, problem, blocks, table, pts, keep, active, rounds, stable)
 
 
-def _listed(names) -> str:
-    names = list(names)
-    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
-
-
-def _parts_message(names, cam_part, dropped_rows: int) -> str:
-    """The warning for cameras that fall into groups sharing no point, in plain words."""
-    groups = [
-        "{" + ", ".join(n for n, p in zip(names, cam_part) if p == k) + "}"
-        for k in range(int(cam_part.max()) + 1)
-    ]
-    blind = [n for n, p in zip(names, cam_part) if p < 0]
-    blind_text = (
-        f"; {_listed(blind)} {'sees' if len(blind) == 1 else 'see'} no point" if blind else ""
-    )
-    across = (
-        f"; the {dropped_rows} left/right and across-the-body length constraints that would "
-        f"join them were not used (the images cannot check them)"
-        if dropped_rows
-        else ""
-    )
-    return (
-        f"the rig is poorly determined: the cameras form {len(groups)} groups that see no "
-        f"point in common ({_listed(groups)}{blind_text}), so the images cannot tell where "
-        f"one group and the body parts it sees sit, how they are turned or how large they "
-        f"are relative to the other group. Bundle adjustment refined each group on its own "
-        f"and kept their relative placement as in the starting rig{across}. The 3D is only "
-        f"as good as the starting rig there (e.g. left against right): give a calibration "
-        f"file (config 'calibration'), or film a view that sees both sides (a front "
-        f"camera seeing the legs of both sides)"
-    )
-
-
 def _moved_degrees(table0, table, pts) -> np.ndarray:
     """``(V,)`` the angle in degrees, seen from the fly (median of ``pts``), between each
     camera's starting and final position; NaN without points."""
@@ -709,57 +583,6 @@ def _moved_degrees(table0, table, pts) -> np.ndarray:
             rays.append(ray / np.linalg.norm(ray))
         out.append(np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1.0, 1.0))))
     return np.array(out)
-
-
-def _moved_message(cameras, degrees) -> str:
-    """The warning for cameras the fit moved far around the fly, in plain words."""
-    many = len(cameras) > 1
-    return (
-        f"{'cameras' if many else 'camera'} {_listed(cameras)} ended "
-        f"{_listed([f'{d:.0f}' for d in degrees])} degrees away (around the fly) from where "
-        f"the configured rig puts {'them' if many else 'it'}: {'their' if many else 'its'} "
-        f"videos or 2D may be swapped with another camera's or mislabeled. Check which "
-        f"footage or 2D file belongs to which camera (config 'sources', or "
-        f"pose2d.import.views) and the rig in the config; the 3D may be mirrored or "
-        f"wrong where these cameras were used"
-    )
-
-
-def _cameras_moving(direction, layout, names, share: float = 0.5) -> list[str]:
-    """Cameras whose free parameters carry at least ``share`` of the largest component
-    of a reduced-system direction (its first ``n_free`` entries are camera variables)."""
-    n_free = int(layout.n_free)
-    if direction.size < n_free or n_free == 0:
-        return []
-    size = np.abs(direction[:n_free])
-    per_camera = np.array(
-        [
-            size[var[var >= 0]].max(initial=0.0)
-            for var in layout.var_index  # (V, C) variable index or -1
-        ]
-    )
-    if per_camera.max(initial=0.0) <= 0:
-        return []
-    return [n for n, s in zip(names, per_camera) if s >= share * per_camera.max()]
-
-
-def _weak_message(cameras, ratio: float, warn_ratio: float) -> str:
-    """The warning for a rig the images barely pin, in plain words."""
-    who = (
-        f"cameras {_listed(cameras)}"
-        if len(cameras) > 1
-        else f"camera {cameras[0]}"
-        if cameras
-        else "some cameras"
-    )
-    strength = "not at all" if ratio <= 0 else f"{ratio:.0e} of the best-pinned direction"
-    return (
-        f"the rig is poorly determined: {who} and the points they see can move together "
-        f"with almost no change in the images (pinned {strength}, below {warn_ratio:.0e}), "
-        f"usually because few body points are seen by them and another camera at once. "
-        f"Check the 3D (bone lengths in 'flylib inspect'), hold their parameters fixed "
-        f"(bundle_adjustment.fixed) or give a calibration file (config 'calibration')"
-    )
 
 
 def _held_distortion(table: np.ndarray, names, mode: str) -> list[str]:
@@ -787,25 +610,30 @@ def _folded_cameras(table, layout, names) -> list[str]:
     ]
 
 
-def _free_report(layout, names, held, problem, n_rigid) -> dict:
-    slices = param_slices(layout.var_index.shape[1] - 10)
-    per_camera = {}
-    for v, name in enumerate(names):
-        free = layout.var_index[v] >= 0
-        per_camera[name] = [p for p, (lo, hi) in slices.items() if hi > lo and free[lo:hi].any()]
-    return {
-        "camera_variables": int(layout.n_free),
-        "per_camera": per_camera,
-        "distortion_held_at_zero": len(held),
-        "points": int(problem.n_points),
-        "rigid_points": n_rigid,
-        "bone_lengths": int(problem.n_len),
-        "bone_rows": int(problem.n_bones),
-    }
+def ransac_points(
+    cameras: CameraGroup,
+    pts2d: Float[np.ndarray, "V N 2"],
+    usable: Bool[np.ndarray, "V N"],
+    threshold: float,
+) -> Float[np.ndarray, "N 3"]:
+    """Consensus-triangulated columns from the usable observations (the BA start).
 
+    Parameters
+    ----------
+    cameras
+        The rig the points are triangulated with.
+    pts2d
+        Observed 2D points per view.
+    usable
+        Which observations may vote; the others are treated as missing.
+    threshold
+        RANSAC inlier threshold in pixels.
 
-def _ransac_points(cameras, pts2d, usable, threshold):
-    """Consensus-triangulated columns ``(N, 3)`` from the usable observations."""
+    Returns
+    -------
+    numpy.ndarray
+        The 3D points, NaN where no consensus was found.
+    """
     from ..triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)

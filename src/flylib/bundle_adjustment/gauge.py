@@ -90,10 +90,10 @@ def align_gauge(
     if fitted is None:
         return table, pts
     scale, rot, shift = fitted
-    return _similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
+    return similarity_table(table, scale, rot, shift), (scale * pts @ rot.T + shift)
 
 
-def _similarity_table(
+def similarity_table(
     table: np.ndarray, scale: float, rot: np.ndarray, shift: np.ndarray
 ) -> np.ndarray:
     """The camera table after mapping the world by ``X' = scale rot X + shift``."""
@@ -125,7 +125,7 @@ def open_gauge_directions(
             shift = eps * np.eye(3)[k - 3]
         else:
             scale = 1.0 + eps
-        moved = _similarity_table(table, scale, rot, shift)
+        moved = similarity_table(table, scale, rot, shift)
         # near a half turn the rotation vector can come back on its other branch
         # (|r| -> |r| - 2 pi): take the one next to the start
         r = moved[:, 0:3]

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # pragma: no cover
 # Observations go through the kernel in fixed-size chunks: one compilation serves every
 # problem size (XLA's compile time does not depend on the size, ~0.5 s here), and a
 # 2,048-row chunk runs faster than one large call (it stays in cache).
-_CHUNK = 2048
+CHUNK = 2048
 
 
 @cache
@@ -85,9 +85,9 @@ def project_rows_with_jac(
     value, jpt = np.empty((m, 2)), np.empty((m, 2, 3))
     jrow = np.empty((m, 2, rows.shape[1]))
     project_jac = _jacobian_kernel()
-    for lo in range(0, m, _CHUNK):
-        hi = min(lo + _CHUNK, m)
-        out = project_jac(_pad(pts[lo:hi], _CHUNK), _pad(rows[lo:hi], _CHUNK))
+    for lo in range(0, m, CHUNK):
+        hi = min(lo + CHUNK, m)
+        out = project_jac(_pad(pts[lo:hi], CHUNK), _pad(rows[lo:hi], CHUNK))
         for dst, src in zip((value, jpt, jrow), out):
             dst[lo:hi] = np.asarray(src)[: hi - lo]
     return value, jpt, jrow

@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
-from .adjust import DEFAULT_INIT_THRESHOLD, DEFAULT_LENGTH_WEIGHT, _ransac_points, bundle_adjust
+from .adjust import DEFAULT_INIT_THRESHOLD, bundle_adjust, ransac_points
 from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -29,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-__all__ = ["THORAX_POINTS", "bundle_adjust_sequence"]
+__all__ = ["THORAX_POINTS", "bundle_adjust_sequence", "length_unknowns"]
 
 #: where the legs join the thorax: one rigid, left/right mirror-symmetric body in any fly
 THORAX_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
@@ -50,15 +51,15 @@ def bundle_adjust_sequence(
     skeleton: Skeleton | None = None,
     *,
     points_to_use: Sequence[str] | None = None,
-    max_frames: int | None = 200,
-    frame_sampling: str = "even",
-    weigh_by_confidence: bool = False,
+    max_frames: int | None = BundleAdjustmentParams.max_frames,
+    frame_sampling: str = BundleAdjustmentParams.frame_sampling,
+    weigh_by_confidence: bool = BundleAdjustmentParams.weigh_by_confidence,
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
     bone_prior: bool = False,
-    bone_lengths: bool = True,
-    symmetric_bones: bool = True,
-    length_weight: float = DEFAULT_LENGTH_WEIGHT,
+    bone_lengths: bool = BundleAdjustmentParams.bone_lengths,
+    symmetric_bones: bool = BundleAdjustmentParams.symmetric_bones,
+    length_weight: float = BundleAdjustmentParams.length_weight,
     rigid_points: Sequence[str] | None = None,
     rigid_tolerance: float | None = DEFAULT_RIGID_TOLERANCE,
     rigid_px: float | None = DEFAULT_RIGID_PX,
@@ -155,7 +156,7 @@ def bundle_adjust_sequence(
     if bone_lengths and skeleton is not None:
         if bone_prior:
             log.info("bundle adjustment: bone_lengths replaces bone_prior")
-        bones = _length_unknowns(skeleton, point_idx, n_sel, symmetric_bones, body_points)
+        bones = length_unknowns(skeleton, point_idx, n_sel, symmetric_bones, body_points)
         kwargs["bone_weight"] = length_weight
 
     result, refined, flat = bundle_adjust(
@@ -243,7 +244,7 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, toler
         return out
     n_views, n_sel, n_q, _ = sub.shape
     flat = sub.reshape(n_views, -1, 2)
-    pts = _ransac_points(cameras, flat, np.isfinite(flat).all(-1), DEFAULT_INIT_THRESHOLD).reshape(
+    pts = ransac_points(cameras, flat, np.isfinite(flat).all(-1), DEFAULT_INIT_THRESHOLD).reshape(
         n_sel, n_q, 3
     )
     bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
@@ -292,7 +293,7 @@ def _pixels_per_unit(cameras, point) -> float:
     return float(np.median(focal / np.linalg.norm(centres - point, axis=1)))
 
 
-def _length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
+def length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
     """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one
     group per bone and per pair of ``body_points`` (per left/right mirror pair with
     ``symmetric``)."""

@@ -45,10 +45,8 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
 import jax.numpy as jnp  # noqa: E402
 
 from .model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
-    DLT_TERMS,
     N_DIST_COEFFS,
     distort_normalized,
-    distortion_terms as _distortion_terms,  # noqa: E402,F401
     dlt_camera_constants,
     dlt_features,
     dlt_solve,

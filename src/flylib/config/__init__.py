@@ -18,9 +18,9 @@ Modules: :mod:`.constants` (stage lists, known keys, :data:`DEFAULT_CONFIG_PATH`
 # ``X as X``: importable from here as before the split, though not in ``__all__``.
 from .checks import Check as Check
 from .constants import (
-    _LEAST_SQUARES_RESERVED as _LEAST_SQUARES_RESERVED,
     DEFAULT_CONFIG_PATH,
     FRAME_SAMPLINGS as FRAME_SAMPLINGS,
+    LEAST_SQUARES_RESERVED as LEAST_SQUARES_RESERVED,
     PARAM_STAGES,
     PRECISIONS as PRECISIONS,
     STAGE_DEFAULTS,

@@ -3,41 +3,14 @@
 from __future__ import annotations
 
 from ..paths import DEFAULT_CONFIG_PATH  # noqa: F401  (re-exported: flylib.config.DEFAULT_CONFIG_PATH)
+from ..stages import REGISTRY
 
 #: The pipeline stages, in run order; each is toggled by ``pipeline.do_<stage>``.
-STAGES: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
-)
+STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.toggled)
 #: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
-STAGE_DEFAULTS: dict[str, bool] = {
-    "pose2d": True,
-    "bundle_adjustment": True,
-    "pictorial_structures": False,
-    "triangulation": True,
-    "refinement": True,
-    "kinematics": True,
-    "neuromechfly": False,
-    "visualization": True,
-}
+STAGE_DEFAULTS: dict[str, bool] = {s.name: bool(s.default_on) for s in REGISTRY if s.toggled}
 #: The workflow rules whose params a stage's inputs object states (:mod:`flylib.pipeline.inputs`).
-PARAM_STAGES: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "assemble",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
-)
+PARAM_STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY)
 
 TOP_LEVEL_KEYS: tuple[str, ...] = (
     "sources",
@@ -45,14 +18,7 @@ TOP_LEVEL_KEYS: tuple[str, ...] = (
     "skeleton",
     "cameras",
     "pipeline",
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-    "kinematics",
-    "neuromechfly",
-    "visualization",
+    *STAGES,  # each stage's own table
     "calibration",
     "recordings",
     "recursive",
@@ -68,15 +34,13 @@ TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
 BA_SOLVERS = ("lm", "scipy")
 BA_DISTORTION_MODES = ("auto", "free", "fixed")
-BA_DEFAULT_SOLVER = "lm"
-BA_DEFAULT_BONE_LENGTHS = True
 # a tethered fly's thorax-coxa joints do not move (what `rigid_points` would list; names
 # missing from a skeleton are ignored)
 TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
 PRECISIONS = ("float32", "float16", "bfloat16")
-_POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
+POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
-_LEAST_SQUARES_RESERVED = (
+LEAST_SQUARES_RESERVED = (
     "fun",
     "x0",
     "jac",
@@ -87,4 +51,4 @@ _LEAST_SQUARES_RESERVED = (
     "callback",
 )
 # least_squares arguments that change only speed or logging, never the result.
-_LEAST_SQUARES_PERF = ("verbose", "workers")
+LEAST_SQUARES_PERF = ("verbose", "workers")

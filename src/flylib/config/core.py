@@ -12,13 +12,10 @@ import yaml
 
 from ..errors import ConfigError
 from ..skeleton import Skeleton
-from .canonical import _plain
-from .constants import (
-    DEFAULT_CONFIG_PATH,
-    STAGE_DEFAULTS,
-    STAGES,
-)
-from .loading import _parse_text, _problem_report
+from ..stages import REGISTRY
+from .canonical import plain
+from .constants import DEFAULT_CONFIG_PATH
+from .loading import parse_text, problem_report
 from .neuromechfly import NeuromechflyParams
 from .params import (
     BundleAdjustmentParams,
@@ -26,11 +23,11 @@ from .params import (
     PictorialParams,
     Pose2dParams,
     TriangulationParams,
-    _build_params,
+    build_params,
 )
 from .postprocessing import KinematicsParams, RefinementParams
 from .sources import source_patterns, view_names
-from .validation import _default_point_names, validate_config
+from .validation import default_point_names, validate_config
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -69,7 +66,7 @@ class Config:
         self.format = format
         problems = validate_config(self.data)
         if problems:
-            error = ConfigError(_problem_report(str(source or "<dict>"), problems))
+            error = ConfigError(problem_report(str(source or "<dict>"), problems))
             error.problems = problems  # type: ignore[attr-defined]
             raise error
 
@@ -150,7 +147,7 @@ class Config:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as err:
             raise ConfigError(f"{path}: not UTF-8 text ({err}); save it as UTF-8") from None
-        return cls(_parse_text(text, fmt, str(path)), text=text, source=path, format=fmt)
+        return cls(parse_text(text, fmt, str(path)), text=text, source=path, format=fmt)
 
     @classmethod
     def from_dict(cls, data: Mapping) -> Config:
@@ -186,17 +183,17 @@ class Config:
     @property
     def pose2d(self) -> Pose2dParams:
         """The scalar ``pose2d`` settings."""
-        return _build_params(Pose2dParams, self.data.get("pose2d") or {})
+        return build_params(Pose2dParams, self.data.get("pose2d") or {})
 
     @property
     def triangulation(self) -> TriangulationParams:
         """The ``triangulation`` table."""
-        return _build_params(TriangulationParams, self.data.get("triangulation") or {})
+        return build_params(TriangulationParams, self.data.get("triangulation") or {})
 
     @property
     def refinement(self) -> RefinementParams:
         """The ``refinement`` table."""
-        return _build_params(RefinementParams, self.data.get("refinement") or {})
+        return build_params(RefinementParams, self.data.get("refinement") or {})
 
     @property
     def kinematics(self) -> KinematicsParams:
@@ -206,12 +203,12 @@ class Config:
     @property
     def neuromechfly(self) -> NeuromechflyParams:
         """The ``neuromechfly`` table."""
-        return _build_params(NeuromechflyParams, self.data.get("neuromechfly") or {})
+        return build_params(NeuromechflyParams, self.data.get("neuromechfly") or {})
 
     @property
     def pictorial(self) -> PictorialParams:
         """The ``pictorial_structures`` table."""
-        return _build_params(PictorialParams, self.data.get("pictorial_structures") or {})
+        return build_params(PictorialParams, self.data.get("pictorial_structures") or {})
 
     @property
     def bundle_adjustment(self) -> BundleAdjustmentParams:
@@ -219,7 +216,7 @@ class Config:
         table = dict(self.data.get("bundle_adjustment") or {})
         own = {f.name for f in fields(BundleAdjustmentParams)}
         leftovers = {k: v for k, v in table.items() if k not in own}
-        params = _build_params(BundleAdjustmentParams, {k: v for k, v in table.items() if k in own})
+        params = build_params(BundleAdjustmentParams, {k: v for k, v in table.items() if k in own})
         return BundleAdjustmentParams(**{**params.__dict__, "least_squares": leftovers})
 
     @property
@@ -271,18 +268,18 @@ class Config:
             ``stage -> enabled`` for every stage in :data:`STAGES`.
         """
         pipeline = self.data.get("pipeline") or {}
-        flags = {
-            stage: bool(pipeline.get(f"do_{stage}", STAGE_DEFAULTS[stage])) for stage in STAGES
-        }
-        # refinement starts from the triangulation; kinematics needs some 3D
-        flags["refinement"] &= flags["triangulation"]
-        flags["kinematics"] &= flags["triangulation"] or flags["pictorial_structures"]
-        flags["neuromechfly"] &= flags["triangulation"] or flags["pictorial_structures"]
+        flags: dict[str, bool] = {}
+        for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
+            if stage.toggled:
+                on = bool(pipeline.get(f"do_{stage.name}", stage.default_on))
+                if stage.needs_one_of:
+                    on &= any(flags.get(up, True) for up in stage.needs_one_of)
+                flags[stage.name] = on
         return flags
 
     def _point_names(self) -> tuple[str, ...]:
         spec = self.data.get("skeleton")
-        return tuple(spec["point_names"]) if spec else _default_point_names()
+        return tuple(spec["point_names"]) if spec else default_point_names()
 
     # -- structured sections ---------------------------------------------------
 
@@ -363,7 +360,7 @@ class Config:
         if self.text is not None:
             return self.text
         return yaml.safe_dump(
-            _plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True
+            plain(self.data), sort_keys=False, default_flow_style=None, allow_unicode=True
         )
 
     def save_snapshot(self, outdir: str | Path) -> Path:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from .loading import _parse_text
+from .loading import parse_text
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
@@ -160,7 +160,7 @@ class ConfigLayers:
                 raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
             fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
             try:
-                data = _parse_text(text, fmt, label)
+                data = parse_text(text, fmt, label)
             except ConfigError as err:
                 problems = getattr(err, "problems", None)
                 if not problems:

@@ -209,7 +209,7 @@ def _duplicate_key_problems(
     return problems
 
 
-def _parse_text(text: str, fmt: str, source: str) -> dict:
+def parse_text(text: str, fmt: str, source: str) -> dict:
     if fmt == "toml":
         line = toml_dotted_line(text)
         if line is not None:
@@ -231,7 +231,7 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
             detail = " ".join(str(err).replace(' in "<unicode string>",', " at").split())
             raise ConfigError(f"{source}: not valid YAML ({detail}); fix the syntax") from None
         if duplicates:
-            error = ConfigError(_problem_report(source, duplicates))
+            error = ConfigError(problem_report(source, duplicates))
             error.problems = duplicates  # type: ignore[attr-defined]
             raise error
     if data is None:
@@ -246,7 +246,7 @@ def _parse_text(text: str, fmt: str, source: str) -> dict:
     return data
 
 
-def _problem_report(source: str, problems: list[str]) -> str:
+def problem_report(source: str, problems: list[str]) -> str:
     count = f"{len(problems)} problem{'s' if len(problems) != 1 else ''}"
     return f"invalid config {source} ({count}; fix and re-run):\n" + "\n".join(
         f"  {p}" for p in problems

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .checks import _integer, _number, _param
+from .checks import integer, number, param
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,6 @@ class NeuromechflyParams:
         Levenberg-Marquardt steps per (frame, leg).
     """
 
-    still_tolerance: float = _param(0.1, _number(0, exclusive=True), kind=float)
-    frame_rate: float = _param(100.0, _number(0, exclusive=True), kind=float)
-    iterations: int = _param(20, _integer(1))
+    still_tolerance: float = param(0.1, number(0, exclusive=True), kind=float)
+    frame_rate: float = param(100.0, number(0, exclusive=True), kind=float)
+    iterations: int = param(20, integer(1))

@@ -1,4 +1,13 @@
-"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders."""
+"""Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
+
+Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the
+one place it is written: the algorithms' keyword defaults read it from the class, e.g.
+``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's
+params track every field, except one declared with ``track_default=False``: such a field
+is tracked only when set to something other than its default. Give a new knob that
+marker, so the results made before it existed keep their params hash (a config that
+leaves it at its default re-runs nothing).
+"""
 
 from __future__ import annotations
 
@@ -9,19 +18,18 @@ from typing import Any
 from ..errors import unknown_key
 from .checks import (
     Check,
-    _boolean,
-    _choice,
-    _integer,
-    _mapping,
-    _number,
-    _param,
-    _string,
-    _string_groups,
-    _string_list,
+    boolean,
+    choice,
+    integer,
+    is_tracked,
+    mapping,
+    number,
+    param,
+    string,
+    string_groups,
+    string_list,
 )
 from .constants import (
-    BA_DEFAULT_BONE_LENGTHS,
-    BA_DEFAULT_SOLVER,
     BA_DISTORTION_MODES,
     BA_SOLVERS,
     FRAME_SAMPLINGS,
@@ -50,16 +58,17 @@ class Pose2dParams:
         ``false`` or ``auto`` (when it beats eager for the recording; performance only).
     """
 
-    precision: str = _param("bfloat16", _choice(*PRECISIONS))
-    batch_size: int = _param(16, _integer(1))
-    decode_buffer: int = _param(4, _integer(1))
-    device: str = _param("auto", _string)
-    compile: bool | str = _param("auto", _choice(True, False, "auto"))
+    precision: str = param("bfloat16", choice(*PRECISIONS))
+    batch_size: int = param(16, integer(1))
+    decode_buffer: int = param(4, integer(1))
+    device: str = param("auto", string)
+    compile: bool | str = param("auto", choice(True, False, "auto"))
 
 
 #: Each triangulation method's own knobs: the ``triangulation`` table's key -> the keyword
-#: of :func:`flylib.triangulation.reconstruct` it becomes. The one map from a method to
-#: what it reads: the stage's params track these keys, the stage passes these keywords.
+#: of the method's function it becomes. The one map from a method to what it reads: the
+#: stage's params track these keys, :func:`flylib.triangulation.reconstruct` passes these
+#: keywords.
 TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
     "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
     "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
@@ -85,25 +94,30 @@ class TriangulationParams:
         views dropped per point.
     """
 
-    method: str = _param("ransac", _choice(*TRIANGULATION_METHODS))
-    weigh_by_confidence: bool = _param(False, _boolean)
-    ransac_threshold: float = _param(15.0, _number(0, exclusive=True), kind=float)
-    min_inliers: int = _param(2, _integer(2))
-    reproj_threshold: float = _param(40.0, _number(0, exclusive=True), kind=float)
-    max_drops: int = _param(5, _integer(0))
+    method: str = param("ransac", choice(*TRIANGULATION_METHODS))
+    weigh_by_confidence: bool = param(False, boolean)
+    ransac_threshold: float = param(15.0, number(0, exclusive=True), kind=float)
+    min_inliers: int = param(2, integer(2))
+    reproj_threshold: float = param(40.0, number(0, exclusive=True), kind=float)
+    max_drops: int = param(5, integer(0))
 
     def method_params(self) -> dict[str, Any]:
-        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``)."""
+        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``),
+        as the stage tracks them (a ``track_default=False`` knob only when not at its default)."""
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
-            **{name: getattr(self, name) for name in TRIANGULATION_KNOBS[self.method]},
+            **{
+                name: getattr(self, name)
+                for name in TRIANGULATION_KNOBS[self.method]
+                if is_tracked(self, name)
+            },
         }
 
     def method_kwargs(self) -> dict[str, Any]:
-        """The chosen ``method``'s knobs under the keyword names of
-        :func:`flylib.triangulation.reconstruct` (``threshold``, ``min_inliers``,
-        ``reproj_threshold``, ``max_drops``; none for ``dlt``)."""
+        """The chosen ``method``'s knobs under its function's keyword names
+        (``threshold``, ``min_inliers`` of :func:`flylib.triangulation.triangulate_ransac`;
+        ``reproj_threshold``, ``max_drops`` of greedy; none for ``dlt``)."""
         return {
             keyword: getattr(self, name)
             for name, keyword in TRIANGULATION_KNOBS[self.method].items()
@@ -128,15 +142,15 @@ class PictorialParams:
         Hypothesis pruning and cost knobs; null keeps ``flylib.pictorial``'s defaults.
     """
 
-    k: int = _param(5, _integer(1))
-    temporal: bool = _param(False, _boolean)
-    lam: float = _param(1.0, _number(0), kind=float)
-    bone_max_frames: int | None = _param(100, _integer(1, nullable=True))
-    max_hyp: int | None = _param(None, _integer(1, nullable=True))
-    inlier_px: float | None = _param(None, _number(0, exclusive=True, nullable=True), kind=float)
-    huber: float | None = _param(None, _number(0, exclusive=True, nullable=True), kind=float)
-    mu: float | None = _param(None, _number(0, nullable=True), kind=float)
-    nms: float | None = _param(None, _number(0, nullable=True), kind=float)
+    k: int = param(5, integer(1))
+    temporal: bool = param(False, boolean)
+    lam: float = param(1.0, number(0), kind=float)
+    bone_max_frames: int | None = param(100, integer(1, nullable=True))
+    max_hyp: int | None = param(None, integer(1, nullable=True))
+    inlier_px: float | None = param(None, number(0, exclusive=True, nullable=True), kind=float)
+    huber: float | None = param(None, number(0, exclusive=True, nullable=True), kind=float)
+    mu: float | None = param(None, number(0, nullable=True), kind=float)
+    nms: float | None = param(None, number(0, nullable=True), kind=float)
 
     def solver_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``flylib.pictorial.reconstruct`` (``k`` excluded, nulls dropped)."""
@@ -196,23 +210,23 @@ class BundleAdjustmentParams:
         (e.g. ``max_nfev``, ``loss``, ``f_scale``).
     """
 
-    points_to_use: tuple[str, ...] | None = _param(None, _string_list(nullable=True), kind=tuple)
-    fixed: tuple[str, ...] = _param(("*.intr",), _string_list(), kind=tuple)
-    shared: tuple[tuple[str, ...], ...] = _param((), _string_groups, kind=tuple)
-    weigh_by_confidence: bool = _param(False, _boolean)
-    max_frames: int | None = _param(200, _integer(1, nullable=True))
-    frame_sampling: str = _param("even", _choice(*FRAME_SAMPLINGS))
-    solver: str = _param(BA_DEFAULT_SOLVER, _choice(*BA_SOLVERS))
-    distortion: str = _param("auto", _choice(*BA_DISTORTION_MODES))
-    max_rounds: int = _param(10, _integer(1))
-    outlier_factor: float = _param(5.0, _number(0, exclusive=True))
-    outlier_min_px: float = _param(3.0, _number(0))
-    reseed_px: float | None = _param(100.0, _number(0, exclusive=True, nullable=True))
-    bone_lengths: bool = _param(BA_DEFAULT_BONE_LENGTHS, _boolean)
-    symmetric_bones: bool = _param(True, _boolean)
-    length_weight: float = _param(100.0, _number(0, exclusive=True))
-    rigid_points: tuple[str, ...] = _param(TETHERED_RIGID_POINTS, _string_list(), kind=tuple)
-    warn_ratio: float = _param(1e-9, _number(0))
+    points_to_use: tuple[str, ...] | None = param(None, string_list(nullable=True), kind=tuple)
+    fixed: tuple[str, ...] = param(("*.intr",), string_list(), kind=tuple)
+    shared: tuple[tuple[str, ...], ...] = param((), string_groups, kind=tuple)
+    weigh_by_confidence: bool = param(False, boolean)
+    max_frames: int | None = param(200, integer(1, nullable=True))
+    frame_sampling: str = param("even", choice(*FRAME_SAMPLINGS))
+    solver: str = param("lm", choice(*BA_SOLVERS))
+    distortion: str = param("auto", choice(*BA_DISTORTION_MODES))
+    max_rounds: int = param(10, integer(1))
+    outlier_factor: float = param(5.0, number(0, exclusive=True))
+    outlier_min_px: float = param(3.0, number(0))
+    reseed_px: float | None = param(100.0, number(0, exclusive=True, nullable=True))
+    bone_lengths: bool = param(True, boolean)
+    symmetric_bones: bool = param(True, boolean)
+    length_weight: float = param(100.0, number(0, exclusive=True))
+    rigid_points: tuple[str, ...] = param(TETHERED_RIGID_POINTS, string_list(), kind=tuple)
+    warn_ratio: float = param(1e-9, number(0))
     least_squares: dict[str, Any] = field(default_factory=dict)
 
     def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
@@ -243,18 +257,18 @@ class IoParams:
     on_corrupt_frame: str = "error"
 
 
-_LEAST_SQUARES_CHECKS: dict[str, Check] = {
-    "method": _choice("trf", "dogbox", "lm"),
-    "loss": _choice("linear", "soft_l1", "huber", "cauchy", "arctan"),
-    "f_scale": _number(0, exclusive=True),
-    "max_nfev": _integer(1, nullable=True),
-    "ftol": _number(0, nullable=True),
-    "xtol": _number(0, nullable=True),
-    "gtol": _number(0, nullable=True),
-    "diff_step": _number(0, exclusive=True, nullable=True),
-    "tr_solver": _choice("exact", "lsmr", None),
-    "tr_options": _mapping(),
-    "verbose": _choice(0, 1, 2),
+LEAST_SQUARES_CHECKS: dict[str, Check] = {
+    "method": choice("trf", "dogbox", "lm"),
+    "loss": choice("linear", "soft_l1", "huber", "cauchy", "arctan"),
+    "f_scale": number(0, exclusive=True),
+    "max_nfev": integer(1, nullable=True),
+    "ftol": number(0, nullable=True),
+    "xtol": number(0, nullable=True),
+    "gtol": number(0, nullable=True),
+    "diff_step": number(0, exclusive=True, nullable=True),
+    "tr_solver": choice("exact", "lsmr", None),
+    "tr_options": mapping(),
+    "verbose": choice(0, 1, 2),
 }
 
 
@@ -278,7 +292,7 @@ LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
 )
 
 
-def _table_problems(
+def table_problems(
     table: Mapping, cls: type, path: str, extra_known: tuple[str, ...] = ()
 ) -> list[str]:
     """Problems with a flat parameter table described by a params dataclass."""
@@ -296,7 +310,7 @@ def _table_problems(
     return problems
 
 
-def _build_params(cls: type, table: Mapping) -> Any:
+def build_params(cls: type, table: Mapping) -> Any:
     """Instantiate a params dataclass from an already-validated table."""
     kwargs = {}
     for f in fields(cls):

@@ -8,14 +8,14 @@ from typing import Any
 
 from ..errors import unknown_key
 from .checks import (
-    _boolean,
-    _choice,
-    _got,
-    _integer,
-    _number,
-    _number_list,
-    _param,
-    _string_list,
+    boolean,
+    choice,
+    got,
+    integer,
+    number,
+    number_list,
+    param,
+    string_list,
 )
 
 REFINEMENT_LOSSES = ("linear", "huber", "soft_l1", "cauchy")
@@ -61,34 +61,34 @@ class RefinementParams:
         median bone length.
     """
 
-    loss: str = _param("soft_l1", _choice(*REFINEMENT_LOSSES))
-    scale_px: float = _param(3.0, _number(0, exclusive=True), kind=float)
-    weigh_by_confidence: bool = _param(True, _boolean)
-    smooth_weight: float = _param(1.0, _number(0), kind=float)
-    smooth_order: int = _param(2, _choice(1, 2))
-    smooth_scale: float = _param(0.03, _number(0, exclusive=True), kind=float)
-    motion_scales: tuple[float, ...] = _param(
-        (1.0, 2.0, 4.0), _number_list(0, exclusive=True), kind=tuple
+    loss: str = param("soft_l1", choice(*REFINEMENT_LOSSES))
+    scale_px: float = param(3.0, number(0, exclusive=True), kind=float)
+    weigh_by_confidence: bool = param(True, boolean)
+    smooth_weight: float = param(1.0, number(0), kind=float)
+    smooth_order: int = param(2, choice(1, 2))
+    smooth_scale: float = param(0.03, number(0, exclusive=True), kind=float)
+    motion_scales: tuple[float, ...] = param(
+        (1.0, 2.0, 4.0), number_list(0, exclusive=True), kind=tuple
     )
-    bone_weight: float = _param(1.0, _number(0), kind=float)
-    bone_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
-    symmetric_bones: bool = _param(False, _boolean)
-    rigid_points: tuple[str, ...] | None = _param(None, _string_list(nullable=True), kind=tuple)
-    rigid_weight: float = _param(1.0, _number(0), kind=float)
-    rigid_scale: float = _param(0.005, _number(0, exclusive=True), kind=float)
-    gap_length: int = _param(5, _integer(0))
-    outlier_px: float = _param(20.0, _number(0, exclusive=True), kind=float)
-    max_iterations: int = _param(10, _integer(1))
-    chunk_frames: int = _param(1024, _integer(16))
-    overlap_frames: int = _param(32, _integer(0))
-    moved_fraction: float = _param(0.05, _number(0, exclusive=True), kind=float)
+    bone_weight: float = param(1.0, number(0), kind=float)
+    bone_scale: float = param(0.005, number(0, exclusive=True), kind=float)
+    symmetric_bones: bool = param(False, boolean)
+    rigid_points: tuple[str, ...] | None = param(None, string_list(nullable=True), kind=tuple)
+    rigid_weight: float = param(1.0, number(0), kind=float)
+    rigid_scale: float = param(0.005, number(0, exclusive=True), kind=float)
+    gap_length: int = param(5, integer(0))
+    outlier_px: float = param(20.0, number(0, exclusive=True), kind=float)
+    max_iterations: int = param(10, integer(1))
+    chunk_frames: int = param(1024, integer(16))
+    overlap_frames: int = param(32, integer(0))
+    moved_fraction: float = param(0.05, number(0, exclusive=True), kind=float)
 
 
 def _triples_problems(value: Any, path: str, point_names: tuple[str, ...]) -> list[str]:
     if value is None:
         return []
     if not isinstance(value, Mapping):
-        return [f"{path}: expected a mapping name -> [a, b, c] of point names, {_got(value)}"]
+        return [f"{path}: expected a mapping name -> [a, b, c] of point names, {got(value)}"]
     problems = []
     for name, triple in value.items():
         if not (
@@ -115,22 +115,22 @@ def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[st
             problems.append(f"kinematics.{key}: {unknown_key('parameter', key, known)}")
     problems += _triples_problems(table.get("angles"), "kinematics.angles", point_names)
     problems += _triples_problems(table.get("segments"), "kinematics.segments", point_names)
-    if "tethered" in table and _boolean(table["tethered"]):
-        problems.append(f"kinematics.tethered: {_boolean(table['tethered'])}")
+    if "tethered" in table and boolean(table["tethered"]):
+        problems.append(f"kinematics.tethered: {boolean(table['tethered'])}")
     frame = table.get("body_frame")
     if frame is not None:
         if not isinstance(frame, Mapping):
             problems.append(
-                f"kinematics.body_frame: expected a mapping with {', '.join(BODY_FRAME_KEYS)}, {_got(frame)}"
+                f"kinematics.body_frame: expected a mapping with {', '.join(BODY_FRAME_KEYS)}, {got(frame)}"
             )
         else:
             for key, value in frame.items():
                 where = f"kinematics.body_frame.{key}"
                 if key not in BODY_FRAME_KEYS:
                     problems.append(f"{where}: {unknown_key('key', key, BODY_FRAME_KEYS)}")
-                elif _string_list()(value) or not value:
+                elif string_list()(value) or not value:
                     problems.append(
-                        f"{where}: expected a non-empty list of point names, {_got(value)}"
+                        f"{where}: expected a non-empty list of point names, {got(value)}"
                     )
                 else:
                     unknown = [p for p in value if point_names and p not in point_names]

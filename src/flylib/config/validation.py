@@ -9,17 +9,17 @@ from typing import Any
 from ..errors import did_you_mean, unknown_key
 from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
-from .checks import _boolean, _got, _integer, _is_int, _mapping
-from .constants import _POSE2D_PLAN_KEYS, EXPORT_KEYS, STAGES, TOP_LEVEL_KEYS
+from .checks import boolean, got, integer, is_int, mapping
+from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from .neuromechfly import NeuromechflyParams
 from .params import (
-    _LEAST_SQUARES_CHECKS,
+    LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
     BundleAdjustmentParams,
     PictorialParams,
     Pose2dParams,
     TriangulationParams,
-    _table_problems,
+    table_problems,
 )
 from .postprocessing import RefinementParams, kinematics_problems
 
@@ -29,12 +29,12 @@ def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, di
     if entries is None:
         return {}
     if not isinstance(entries, list):
-        problems.append(f"{path}: expected a list of tables, {_got(entries)}")
+        problems.append(f"{path}: expected a list of tables, {got(entries)}")
         return {}
     out: dict[str, dict] = {}
     for i, entry in enumerate(entries):
         if not isinstance(entry, Mapping):
-            problems.append(f"{path}[{i}]: expected a table, {_got(entry)}")
+            problems.append(f"{path}[{i}]: expected a table, {got(entry)}")
             continue
         name = entry.get("name")
         if not isinstance(name, str) or not name:
@@ -63,7 +63,7 @@ def _plan_problems(
     for name, entry in sources.items():
         if "filename" in entry and not isinstance(entry["filename"], str):
             problems.append(
-                f"sources.{name}.filename: expected a glob string, {_got(entry['filename'])}"
+                f"sources.{name}.filename: expected a glob string, {got(entry['filename'])}"
             )
     preprocessors = _named_entries(pose2d.get("preprocessors"), "pose2d.preprocessors", problems)
     for name, entry in preprocessors.items():
@@ -78,15 +78,15 @@ def _plan_problems(
     n_channels: dict[str, int | None] = {}
     for name, entry in models.items():
         n_out = entry.get("n_out_channels")
-        if n_out is not None and not (_is_int(n_out) and n_out >= 1):
+        if n_out is not None and not (is_int(n_out) and n_out >= 1):
             problems.append(
-                f"pose2d.models.{name}.n_out_channels: expected an integer >= 1, {_got(n_out)}"
+                f"pose2d.models.{name}.n_out_channels: expected an integer >= 1, {got(n_out)}"
             )
             n_out = None
         n_channels[name] = n_out
         size = entry.get("input_size")
         if size is not None and not (
-            isinstance(size, list) and len(size) == 2 and all(_is_int(s) and s > 0 for s in size)
+            isinstance(size, list) and len(size) == 2 and all(is_int(s) and s > 0 for s in size)
         ):
             problems.append(
                 f"pose2d.models.{name}.input_size: expected [height, width] in pixels, got {size!r}"
@@ -103,7 +103,7 @@ def _plan_problems(
     weights = pose2d.get("weights")
     if weights is not None and not isinstance(weights, Mapping):
         problems.append(
-            f"pose2d.weights: expected a mapping model name -> checkpoint path, {_got(weights)}"
+            f"pose2d.weights: expected a mapping model name -> checkpoint path, {got(weights)}"
         )
     elif weights:
         for name, path in weights.items():
@@ -113,7 +113,7 @@ def _plan_problems(
                 )
             elif path is not None and not isinstance(path, str):
                 problems.append(
-                    f"pose2d.weights.{name}: expected a path string ('' for the published weights), {_got(path)}"
+                    f"pose2d.weights.{name}: expected a path string ('' for the published weights), {got(path)}"
                 )
     pathways = _named_entries(pose2d.get("pathways"), "pose2d.pathways", problems)
     pathway_model: dict[str, str | None] = {}
@@ -157,7 +157,7 @@ def _plan_problems(
                 )
             if not isinstance(slot, Mapping):
                 problems.append(
-                    f"{where}: expected {{pathway: ..., out_channel: ...}}, {_got(slot)}"
+                    f"{where}: expected {{pathway: ..., out_channel: ...}}, {got(slot)}"
                 )
                 continue
             extra = sorted(str(k) for k in set(slot) - {"pathway", "out_channel"})
@@ -169,8 +169,8 @@ def _plan_problems(
                 slot.get("pathway"), pathways, "pathway", f"{where}.pathway", problems
             )
             channel = slot.get("out_channel")
-            if not (_is_int(channel) and channel >= 0):
-                problems.append(f"{where}.out_channel: expected an integer >= 0, {_got(channel)}")
+            if not (is_int(channel) and channel >= 0):
+                problems.append(f"{where}.out_channel: expected an integer >= 0, {got(channel)}")
                 continue
             n_out = (
                 n_channels.get(pathway_model.get(slot.get("pathway")) or "")
@@ -186,7 +186,7 @@ def _plan_problems(
     return problems
 
 
-def _default_point_names() -> tuple[str, ...]:
+def default_point_names() -> tuple[str, ...]:
     return tuple(default_skeleton_table()["point_names"])
 
 
@@ -204,7 +204,7 @@ def validate_config(data: Any) -> list[str]:
         The problems; empty when the config is valid.
     """
     if not isinstance(data, Mapping):
-        return [f"<top level>: expected a mapping of tables, {_got(data)}"]
+        return [f"<top level>: expected a mapping of tables, {got(data)}"]
     problems = [
         f"{key}: {unknown_key('top-level table', key, TOP_LEVEL_KEYS)}"
         for key in data
@@ -224,24 +224,24 @@ def validate_config(data: Any) -> list[str]:
         valid = isinstance(names, list) and all(isinstance(n, str) for n in names)
         point_names = tuple(names) if valid else ()
     else:
-        point_names = _default_point_names()
+        point_names = default_point_names()
     view_names = _camera_view_names(data, table("cameras"), problems)
     problems += _pipeline_problems(table("pipeline"))
 
     pose2d = table("pose2d")
-    problems += _table_problems(pose2d, Pose2dParams, "pose2d", _POSE2D_PLAN_KEYS)
-    if "import" in pose2d and _mapping(nullable=True)(pose2d["import"]):
-        problems.append(f"pose2d.import: {_mapping(nullable=True)(pose2d['import'])}")
+    problems += table_problems(pose2d, Pose2dParams, "pose2d", POSE2D_PLAN_KEYS)
+    if "import" in pose2d and mapping(nullable=True)(pose2d["import"]):
+        problems.append(f"pose2d.import: {mapping(nullable=True)(pose2d['import'])}")
     if "sources" not in bad_tables and "pose2d" not in bad_tables:
         problems += _plan_problems(data, point_names, view_names)
 
     problems += _bundle_adjustment_problems(table("bundle_adjustment"), point_names)
-    problems += _table_problems(
+    problems += table_problems(
         table("pictorial_structures"), PictorialParams, "pictorial_structures"
     )
-    problems += _table_problems(table("triangulation"), TriangulationParams, "triangulation")
-    problems += _table_problems(table("refinement"), RefinementParams, "refinement")
-    problems += _table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
+    problems += table_problems(table("triangulation"), TriangulationParams, "triangulation")
+    problems += table_problems(table("refinement"), RefinementParams, "refinement")
+    problems += table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
     rigid = table("refinement").get("rigid_points")
     if isinstance(rigid, list) and point_names:
         for point in rigid:
@@ -254,7 +254,7 @@ def validate_config(data: Any) -> list[str]:
 
     videos = table("visualization").get("videos")
     if videos is not None and not isinstance(videos, list):
-        problems.append(f"visualization.videos: expected a list of video tables, {_got(videos)}")
+        problems.append(f"visualization.videos: expected a list of video tables, {got(videos)}")
     problems += _export_problems(data)
     return problems
 
@@ -263,38 +263,31 @@ def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
     """Tables of the wrong kind (a list where a mapping belongs, ...): recorded in
     ``problems``; returns their names, which the other checks then skip."""
     table_kinds = {
-        "io": _mapping(),
-        "skeleton": _mapping(),
-        "cameras": _mapping(),
-        "pipeline": _mapping(),
-        "pose2d": _mapping(),
-        "bundle_adjustment": _mapping(),
-        "pictorial_structures": _mapping(),
-        "triangulation": _mapping(),
-        "refinement": _mapping(),
-        "kinematics": _mapping(),
-        "neuromechfly": _mapping(),
-        "visualization": _mapping(),
-        "calibration": _mapping(nullable=True),
-        "demo": _mapping(nullable=True),
+        "io": mapping(),
+        "skeleton": mapping(),
+        "cameras": mapping(),
+        "pipeline": mapping(),
+        **{stage: mapping() for stage in STAGES},
+        "calibration": mapping(nullable=True),
+        "demo": mapping(nullable=True),
         "sources": lambda v: (
-            None if isinstance(v, list) else f"expected a list of tables, {_got(v)}"
+            None if isinstance(v, list) else f"expected a list of tables, {got(v)}"
         ),
         "recordings": lambda v: (
             None
             if isinstance(v, (list, str))
-            else f"expected a list of recordings or the path of a .tsv sheet, {_got(v)}"
+            else f"expected a list of recordings or the path of a .tsv sheet, {got(v)}"
         ),
-        "recursive": _boolean,
+        "recursive": boolean,
         "outdir": lambda v: (
             None
             if v is None or isinstance(v, str)
-            else f"expected a path template or null, {_got(v)}"
+            else f"expected a path template or null, {got(v)}"
         ),
         "corrections": lambda v: (
             None
             if v is None or (isinstance(v, str) and v.strip())
-            else f"expected the path (template) of a corrections.h5 sidecar or null, {_got(v)}"
+            else f"expected the path (template) of a corrections.h5 sidecar or null, {got(v)}"
         ),
     }
     bad_tables = set()
@@ -313,7 +306,7 @@ def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> 
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
         if not isinstance(spec, Mapping):
-            problems.append(f"cameras.{name}: expected a table of camera parameters, {_got(spec)}")
+            problems.append(f"cameras.{name}: expected a table of camera parameters, {got(spec)}")
     if not view_names and data.get("calibration"):
         view_names = None  # the rig comes from the calibration file: names unknown here
     return view_names
@@ -322,7 +315,7 @@ def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> 
 def _pipeline_problems(pipeline: Mapping) -> list[str]:
     """The ``pipeline`` table: only ``do_<stage>`` booleans."""
     problems: list[str] = []
-    pipeline_checks = {f"do_{stage}": _boolean for stage in STAGES}
+    pipeline_checks = {f"do_{stage}": boolean for stage in STAGES}
     for key, value in pipeline.items():
         if key not in pipeline_checks:
             problems.append(f"pipeline.{key}: {unknown_key('parameter', key, pipeline_checks)}")
@@ -346,9 +339,9 @@ def _bundle_adjustment_problems(ba: Mapping, point_names: tuple[str, ...]) -> li
                 f"(known: {', '.join(ba_fields)}, or a"
                 f" scipy.optimize.least_squares option: {', '.join(ls_keys)})"
             )
-        elif key in _LEAST_SQUARES_CHECKS and _LEAST_SQUARES_CHECKS[key](value):
-            problems.append(f"{where}: {_LEAST_SQUARES_CHECKS[key](value)}")
-    problems += _table_problems(
+        elif key in LEAST_SQUARES_CHECKS and LEAST_SQUARES_CHECKS[key](value):
+            problems.append(f"{where}: {LEAST_SQUARES_CHECKS[key](value)}")
+    problems += table_problems(
         {k: v for k, v in ba.items() if k in ba_fields}, BundleAdjustmentParams, "bundle_adjustment"
     )
     if isinstance(ba.get("points_to_use"), (list, tuple)) and point_names:
@@ -366,15 +359,13 @@ def _io_problems(io: Mapping) -> list[str]:
     for key, value in io.items():
         if key == "on_corrupt_frame":
             if value not in ("error", "missing"):
-                problems.append(
-                    f"io.on_corrupt_frame: expected 'error' or 'missing', {_got(value)}"
-                )
+                problems.append(f"io.on_corrupt_frame: expected 'error' or 'missing', {got(value)}")
             continue
         if not isinstance(value, Mapping):
-            problems.append(f"io.{key}: expected a table, {_got(value)}")
+            problems.append(f"io.{key}: expected a table, {got(value)}")
     workers = io.get("image", {})
-    if isinstance(workers, Mapping) and "workers" in workers and _integer(0)(workers["workers"]):
-        problems.append(f"io.image.workers: {_integer(0)(workers['workers'])}")
+    if isinstance(workers, Mapping) and "workers" in workers and integer(0)(workers["workers"]):
+        problems.append(f"io.image.workers: {integer(0)(workers['workers'])}")
     return problems
 
 
@@ -385,10 +376,10 @@ def _export_problems(data: Mapping) -> list[str]:
     problems: list[str] = []
     exports = data.get("exports")
     if exports is not None and not isinstance(exports, Mapping):
-        problems.append(f"exports: expected a table such as {{nwb: true}}, {_got(exports)}")
+        problems.append(f"exports: expected a table such as {{nwb: true}}, {got(exports)}")
     for key, value in (exports if isinstance(exports, Mapping) else {}).items():
         if key not in EXPORT_KEYS:
             problems.append(f"exports.{key}: unknown export (known: {', '.join(EXPORT_KEYS)})")
-        elif _boolean(value):
-            problems.append(f"exports.{key}: {_boolean(value)}")
+        elif boolean(value):
+            problems.append(f"exports.{key}: {boolean(value)}")
     return problems + metadata_problems(data.get("nwb"))

@@ -6,18 +6,7 @@ A FastAPI app (:func:`create_app`) over a :class:`ReviewSession` (one recording'
 uvicorn are imported only when the GUI is used.
 """
 
-from .session import ReviewSession, resolve_results
+import lazy_loader as _lazy
 
-__all__ = ["ReviewSession", "create_app", "resolve_results", "serve"]
-
-
-def __getattr__(name):
-    if name == "create_app":
-        from .app import create_app
-
-        return create_app
-    if name == "serve":
-        from .server import serve
-
-        return serve
-    raise AttributeError(name)
+# The names and their modules are listed once, in ``__init__.pyi``.
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)

@@ -2,10 +2,10 @@
 
 The 2D a point is solved from is what triangulation read (pictorial structures' 2D
 when that stage ran, else pose2d's), with the corrections applied; every edit
-re-solves that one (frame, point) with :func:`flylib.corrections.reconstruct_corrected`
-on the final rig and the run's own ``triangulation`` table, the function the
-triangulation stage runs, so what the page shows is what the workflow computes after
-saving.
+re-solves that one (frame, point) with
+:func:`flylib.pipeline.triangulation.compute_triangulation` on the final rig and the
+run's own ``triangulation`` table, the step the triangulation stage runs, so what the
+page shows is what the workflow computes after saving.
 ``results.h5`` is only read; the only files written are the corrections sidecar,
 inside the output directory, and beside it its edit journal and lock
 (:mod:`flylib.gui.journal`): every edit is journaled (fsync'd) before it is applied
@@ -25,13 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from ..corrections import (
-    CORRECTIONS_FILE,
-    Corrections,
-    corrections_path,
-    reconstruct_corrected,
-)
+from ..corrections import CORRECTIONS_FILE, Corrections, corrections_path
 from ..errors import FlylibError, OutputError, ResultsError
+from ..pipeline.triangulation import TriangulationInputs, compute_triangulation
 from .frames import FrameSource
 from .journal import EditJournal, SidecarLock, read_journal
 
@@ -124,8 +120,8 @@ class ReviewSession:
         if config is None:
             config = Config.of_outputs(self.outdir)
         self.config = config
-        # the triangulation table every edit re-solves its point with, as the stage did
-        self.triangulation = config.triangulation
+        # what every edit re-solves its point with: the triangulation stage's inputs
+        self.triangulation_inputs = TriangulationInputs.from_config(config)
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
             raise ResultsError(f"{self.results_path}: holds no 3D points; run triangulation first")
@@ -272,7 +268,7 @@ class ReviewSession:
             "bone_colors": [
                 sk.limb_color(limb_names[int(sk.limb_id[a])]) for a, _ in np.asarray(sk.bones, int)
             ],
-            "method": self.triangulation.method,
+            "method": self.triangulation_inputs.triangulation.method,
             # the 3D view draws the rig: each camera's centre and viewing direction
             "rig": [
                 {
@@ -379,12 +375,12 @@ class ReviewSession:
         """Re-solve one (frame, point) from the base 2D with the current corrections."""
         sub = self.corrections.subset([t], [p])
         conf = None if self.conf is None else self.conf[:, [t]][:, :, [p]]
-        pts3d, clean, error, _ = reconstruct_corrected(
-            self.triangulation, self.cameras, self.base2d[:, [t]][:, :, [p]], conf, sub
+        solved = compute_triangulation(
+            self.triangulation_inputs, self.cameras, self.base2d[:, [t]][:, :, [p]], conf, sub
         )
-        self.pts3d[t, p] = pts3d[0, 0]
-        self.used2d[:, t, p] = clean[:, 0, 0]
-        self.error[:, t, p] = error[:, 0, 0]
+        self.pts3d[t, p] = solved.points3d[0, 0]
+        self.used2d[:, t, p] = solved.points[:, 0, 0]
+        self.error[:, t, p] = solved.reproj_error[:, 0, 0]
         self._suspects_stale = True
 
     def edit(

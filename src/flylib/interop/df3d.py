@@ -30,7 +30,7 @@ points drawn over the decoded H.264 frames): in camera_1 the fly faces right wit
 dorsum up (its right flank toward the camera) and the mapped r_antenna sits on the
 head, r_abdomen0-2 along the abdomen, the rf leg points run down the front leg and
 the rh ones down the hind leg; cameras 4-6 show the mirror image with the l* labels
-on the matching left-side parts. Pinned in ``tests/test_interop.py``.
+on the matching left-side parts. Pinned in ``tests/interop/test_interop.py``.
 
 Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3
 world-to-camera rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5,
@@ -94,7 +94,7 @@ class Df3dPoints2d:
     camera_ordering: Int[np.ndarray, " C"]
 
 
-def _load_pickle(path: Path, what: str) -> dict:
+def load_pickle(path: Path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such {what}; check the path in the config")
@@ -126,7 +126,7 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
     ImportFormatError
         When the pickle lacks ``points2d`` or its shape does not fit.
     """
-    data = _load_pickle(path, "DeepFly3D 2D result")
+    data = load_pickle(path, "DeepFly3D 2D result")
     if "points2d" not in data:
         raise ImportFormatError(
             f"{path}: no 'points2d' key (keys: {sorted(map(str, data))}); "
@@ -276,7 +276,7 @@ def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
     """
     import cv2
 
-    data = _load_pickle(path, "DeepFly3D calibration")
+    data = load_pickle(path, "DeepFly3D calibration")
     out: dict[int, dict[str, np.ndarray]] = {}
     for key, entry in data.items():
         try:

@@ -255,7 +255,7 @@ def _plain_pickle(value) -> object:
         raise pickle.UnpicklingError(f"{type(exc).__name__}: {exc}") from None
 
 
-def _text(values) -> list[str]:
+def as_text(values) -> list[str]:
     return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
 
 
@@ -312,9 +312,9 @@ def _fixed_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
     levels, codes, names = [], [], []
     for i in range(nlevels):
         level = source.dataset(f"{key}/block0_items_level{i}")
-        levels.append(_text(level[()]))
+        levels.append(as_text(level[()]))
         codes.append(np.asarray(source.read(f"{key}/block0_items_label{i}"), dtype=int))
-        names.append(_text([level.attrs["name"]])[0])
+        names.append(as_text([level.attrs["name"]])[0])
     columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
     return pd.DataFrame(_real_block(source.read(f"{key}/block0_values")), columns=columns)
 
@@ -359,7 +359,7 @@ def read_dlc_h5(
     with reading_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:
         source = _ForeignH5(fh, path, max_bytes)
         key = _pandas_group(source)
-        kind = _text([source.member(key).attrs.get("pandas_type", b"")])[0]
+        kind = as_text([source.member(key).attrs.get("pandas_type", b"")])[0]
         try:
             if kind == "frame_table":
                 frame = _table_frame(source, key)

@@ -31,9 +31,6 @@ from .dlc import write_dlc_csv
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-#: Anipose's per-point column suffixes, in its order.
-ANIPOSE_POINT_COLUMNS = ("x", "y", "z", "error", "ncams", "score")
-
 
 def points3d_table(
     pts3d: Float[np.ndarray, "T P 3"],

@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import ImportFormatError
 from ._h5 import DEFAULT_READ_BUDGET, read_checked, reading_foreign_h5
 from .calib_checks import numeric_array
-from .dlc import ViewKeypoints, _text as _decode
+from .dlc import ViewKeypoints, as_text as _decode
 
 log = logging.getLogger(__name__)
 

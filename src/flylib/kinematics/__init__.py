@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.postprocessing import KinematicsParams
 from ..errors import ConfigError
 from .angles import default_angles, default_segments, flexion, segment_orientation
 from .frame import (
@@ -88,7 +89,7 @@ def compute_kinematics(
     *,
     angles: Mapping[str, Sequence[str]] | None = None,
     segments: Mapping[str, Sequence[str]] | None = None,
-    tethered: bool = True,
+    tethered: bool = KinematicsParams.tethered,
     body_frame_points: Mapping[str, Sequence[str]] | None = None,
 ) -> Kinematics:
     """Body frame, body-frame 3D and joint angles.

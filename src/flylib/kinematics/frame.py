@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.postprocessing import KinematicsParams
 from ..errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -97,7 +98,9 @@ def steady_pose(pts: Float[np.ndarray, "T P 3"], indices: list[int]) -> Float[np
 
 
 def body_frame(
-    pts3d: Float[np.ndarray, "T P 3"], groups: dict[str, list[int]], tethered: bool = True
+    pts3d: Float[np.ndarray, "T P 3"],
+    groups: dict[str, list[int]],
+    tethered: bool = KinematicsParams.tethered,
 ) -> tuple[Float[np.ndarray, "*frames 3 3"], Float[np.ndarray, "*frames 3"]]:
     """The body frame of a recording.
 

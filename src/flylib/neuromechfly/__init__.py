@@ -14,26 +14,13 @@ joint names, order and units (radians), ready for kinematic replay.
 :mod:`flylib.pipeline.neuromechfly` is the workflow stage (its files).
 """
 
-from importlib import import_module
+import lazy_loader as _lazy
 
 #: The stage's files in the output directory: HDF5, replay CSV, figure (declared here,
 #: light to import, for the Snakefile).
 FILES: tuple[str, ...] = ("neuromechfly.h5", "joint_angles.csv", "joint_angles.png")
 
-# the rest loads on first use: JAX comes with the solver, not with the Snakefile
-_LAZY = {
-    "NmfAngles": "angles",
-    "compute_nmf_angles": "angles",
-    "DOF_SUFFIXES": "model",
-    "LEGS": "model",
-    "dof_names": "model",
-    "forward_kinematics": "model",
-}
-
-__all__ = ["FILES", *_LAZY]
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(import_module(f".{_LAZY[name]}", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# the rest loads on first use (listed in ``__init__.pyi``): JAX comes with the solver,
+# not with the Snakefile
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)
+__all__ = ["FILES", *__all__]

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..alignment import similarity_transform
+from ..config.neuromechfly import NeuromechflyParams
 from ..errors import ConfigError, ResultsError
 from .model import LEGS, leg_lengths, segment_offsets, thorax_coxa_template
 
@@ -94,7 +95,10 @@ def leg_point_indices(skeleton: Skeleton) -> np.ndarray:
 
 
 def align_to_template(
-    legs3d: Float[np.ndarray, "T 6 5 3"], *, still_tolerance: float = 0.1, source: str = "3D"
+    legs3d: Float[np.ndarray, "T 6 5 3"],
+    *,
+    still_tolerance: float = NeuromechflyParams.still_tolerance,
+    source: str = "3D",
 ) -> tuple[Float[np.ndarray, "T 6 5 3"], TemplateAlignment]:
     """Put a recording's leg chains in the model's thorax frame (mm).
 

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.neuromechfly import NeuromechflyParams
 from .align import TemplateAlignment, align_to_template, leg_point_indices
 from .ik import ITERATIONS, solve_leg_angles
 from .model import CHAIN_JOINTS, LEGS, forward_kinematics, leg_lengths, segment_offsets
@@ -72,7 +73,7 @@ def compute_nmf_angles(
     pts3d: Float[np.ndarray, "T P 3"],
     skeleton: Skeleton,
     *,
-    still_tolerance: float = 0.1,
+    still_tolerance: float = NeuromechflyParams.still_tolerance,
     iterations: int = ITERATIONS,
     source: str = "3D",
 ) -> NmfAngles:

@@ -19,12 +19,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..camera import jax_model  # noqa: F401  (float64 and the CPU for JAX, before jax is used)
+from ..config.neuromechfly import NeuromechflyParams
 from .model import LEGS, leg_forward, segment_offsets, thorax_coxa_template
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
-ITERATIONS = 20
+ITERATIONS = NeuromechflyParams.iterations
 CHUNK_FRAMES = 2048
 
 

@@ -37,16 +37,6 @@ DOF_SUFFIXES: tuple[str, ...] = (
     "Tibia",
     "Tarsus1",
 )
-#: The same seven in SeqIKPy's / df3dPostProcessing's names.
-DOF_ANATOMY: tuple[str, ...] = (
-    "ThC_pitch",
-    "ThC_roll",
-    "ThC_yaw",
-    "CTr_pitch",
-    "CTr_roll",
-    "FTi_pitch",
-    "TiTa_pitch",
-)
 #: The model's joints along a leg chain (ThC is the chain's fixed root).
 CHAIN_JOINTS: tuple[str, ...] = ("ThC", "CTr", "FTi", "TiTa", "Claw")
 

@@ -99,7 +99,7 @@ def _huber(x: np.ndarray, delta: float) -> np.ndarray:
     return np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
 
 
-def _solve_chains(hyp_pos, unary, chains, targets, *, lam, huber, scale):
+def solve_chains(hyp_pos, unary, chains, targets, *, lam, huber, scale):
     """Exact min-cost choice per joint along each chain, batched over frames.
 
     ``hyp_pos`` ``(T, P, S, 3)``, ``unary`` ``(T, P, S)`` (inf = empty slot). A joint

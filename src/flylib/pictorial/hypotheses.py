@@ -178,7 +178,7 @@ def _frame_hypotheses(
     )
 
 
-def _all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_radius):
+def all_hypotheses(cameras, cand_xy, cand_score, *, inlier_px, max_hyp, nms_radius):
     """Hypotheses for every (frame, joint); joints grouped by their number of views."""
     n_v, n_t, n_p, n_k, _ = cand_xy.shape
     norm = _normalized(cameras, cand_xy)  # (V, T, P, K, 2)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.params import PictorialParams
 from ..errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -15,7 +16,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-DEFAULT_K = 5
+DEFAULT_K = PictorialParams.k
 DEFAULT_PEAK_RADIUS = 2
 DEFAULT_PEAK_THRESHOLD = 0.05
 DEFAULT_SUBPIXEL = "taylor"

@@ -7,8 +7,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .chains import _solve_chains, bone_length_targets, skeleton_chains
-from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, _all_hypotheses
+from ..config.params import PictorialParams
+from .chains import bone_length_targets, skeleton_chains, solve_chains
+from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, all_hypotheses
 from .peaks import Candidates
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -19,12 +20,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-DEFAULT_LAMBDA = 1.0
+DEFAULT_LAMBDA = PictorialParams.lam
 DEFAULT_HUBER = 0.25  # relative bone-length deviation where the cost turns linear
 DEFAULT_MU = 1.0
 
 
-def _prior(cameras, skeleton, pts2d_argmax, bone_max_frames):
+def prior(cameras, skeleton, pts2d_argmax, bone_max_frames):
     n_t = pts2d_argmax.shape[1]
     sel = (
         np.arange(n_t)
@@ -54,7 +55,7 @@ def solve_frames(
     lam: float = DEFAULT_LAMBDA,
     huber: float = DEFAULT_HUBER,
     mu: float = DEFAULT_MU,
-    temporal: bool = False,
+    temporal: bool = PictorialParams.temporal,
     prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
     nms: float = DEFAULT_NMS,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
@@ -87,7 +88,7 @@ def solve_frames(
     cand_xy = np.asarray(cand_xy, float)
     cand_score = np.where(np.isfinite(cand_xy).all(-1), np.nan_to_num(cand_score), 0.0)
     n_v, n_t, n_p, n_k, _ = cand_xy.shape
-    hyp = _all_hypotheses(
+    hyp = all_hypotheses(
         cameras, cand_xy, cand_score, inlier_px=inlier_px, max_hyp=max_hyp, nms_radius=nms * scale
     )
     unary = np.where(np.isfinite(hyp.evidence), -hyp.evidence, np.inf)
@@ -99,15 +100,13 @@ def solve_frames(
             if prev is not None and mu > 0:
                 jump = np.linalg.norm(hyp.pos[t] - prev[:, None], axis=-1) / scale  # (P, S)
                 u = u + np.nan_to_num(mu * jump**2, nan=0.0)[None]
-            choice[t] = _solve_chains(
+            choice[t] = solve_chains(
                 hyp.pos[t : t + 1], u, chains, target_map, lam=lam, huber=huber, scale=scale
             )[0]
             picked = _pick(hyp.pos[t : t + 1], choice[t : t + 1])[0]
             prev = np.where(np.isfinite(picked), picked, prev) if prev is not None else picked
     else:
-        choice = _solve_chains(
-            hyp.pos, unary, chains, target_map, lam=lam, huber=huber, scale=scale
-        )
+        choice = solve_chains(hyp.pos, unary, chains, target_map, lam=lam, huber=huber, scale=scale)
     pts3d = _pick(hyp.pos, choice)
     slot = np.minimum(choice, max_hyp - 1)
     assign = np.take_along_axis(hyp.assign, slot[..., None, None], 2)[:, :, 0]  # (T, P, V)
@@ -166,8 +165,8 @@ def reconstruct(
     candidates: Candidates,
     pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
     *,
-    bone_max_frames: int | None = 100,
-    temporal: bool = False,
+    bone_max_frames: int | None = PictorialParams.bone_max_frames,
+    temporal: bool = PictorialParams.temporal,
     max_hyp: int = DEFAULT_MAX_HYP,
     inlier_px: float = DEFAULT_INLIER_PX,
     lam: float = DEFAULT_LAMBDA,
@@ -195,7 +194,7 @@ def reconstruct(
     from ..triangulation import reprojection_error, triangulate
 
     argmax = candidates.argmax() if pts2d_argmax is None else np.asarray(pts2d_argmax, float)
-    target_map, scale = _prior(cameras, skeleton, argmax, bone_max_frames)
+    target_map, scale = prior(cameras, skeleton, argmax, bone_max_frames)
     chains = skeleton_chains(skeleton)
     _, pts2d = solve_frames(
         cameras,

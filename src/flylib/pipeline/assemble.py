@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
+from .inputs import FULL_SKELETON, RIG, RigSpec, SkeletonSpec, StageInputs, register, tracked
 from .stage_helpers import RigRuntime
 
 log = logging.getLogger(__name__)
@@ -46,8 +46,8 @@ class AssembleInputs(StageInputs):
 
     STAGE = "assemble"
 
-    rig: RigSpec
-    skeleton: SkeletonSpec
+    rig: RigSpec = tracked(RIG)
+    skeleton: SkeletonSpec = tracked(FULL_SKELETON)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -59,30 +59,6 @@ class AssembleInputs(StageInputs):
             skeleton=SkeletonSpec.from_config(config, palette=True, name=True),
             runtime=RigRuntime(rig.config_dir),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> AssembleInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (a :class:`~flylib.pipeline.stage_helpers.RigRuntime`)."""
-        runtime = runtime or RigRuntime()
-        skeleton = params["skeleton"]
-        return cls(
-            rig=RigSpec.from_params(params["rig"], runtime.config_dir),
-            skeleton=SkeletonSpec.from_params(
-                skeleton, palette=skeleton["palette"], name=skeleton["name"]
-            ),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """``{"rig", "skeleton": {point_names, limbs, palette, name}}``."""
-        return {
-            "rig": self.rig.params(),
-            "skeleton": {
-                **self.skeleton.structure(),
-                "palette": dict(self.skeleton.palette or {}),
-                "name": self.skeleton.name,
-            },
-        }
 
 
 def _provenance(inputs: StageInputs, **upstream) -> dict:

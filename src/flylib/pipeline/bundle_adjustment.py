@@ -11,16 +11,26 @@ import json
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.constants import _LEAST_SQUARES_PERF
-from ..config.params import BundleAdjustmentParams, _build_params
-from .inputs import RigSpec, SkeletonSpec, StageInputs, frozen_mapping, register
-from .stage_helpers import _image_sizes, _solving
+from ..config.constants import LEAST_SQUARES_PERF
+from ..config.params import BundleAdjustmentParams
+from .inputs import (
+    RIG,
+    SKELETON,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    frozen_mapping,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import image_sizes, solving
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -77,9 +87,9 @@ class BundleAdjustmentInputs(StageInputs):
 
     STAGE = "bundle_adjustment"
 
-    bundle_adjustment: BundleAdjustmentParams
-    rig: RigSpec
-    skeleton: SkeletonSpec
+    bundle_adjustment: BundleAdjustmentParams = tracked(typed_params(BundleAdjustmentParams))
+    rig: RigSpec = tracked(RIG)
+    skeleton: SkeletonSpec = tracked(SKELETON)
     runtime: BundleAdjustmentRuntime = BundleAdjustmentRuntime()
 
     @classmethod
@@ -87,7 +97,7 @@ class BundleAdjustmentInputs(StageInputs):
         """The stage's inputs as ``config`` gives them."""
         params = config.bundle_adjustment
         options = params.least_squares
-        tracked = {k: v for k, v in options.items() if k not in _LEAST_SQUARES_PERF}
+        tracked = {k: v for k, v in options.items() if k not in LEAST_SQUARES_PERF}
         rig = RigSpec.from_config(config)
         return cls(
             bundle_adjustment=replace(params, least_squares=tracked),
@@ -96,35 +106,10 @@ class BundleAdjustmentInputs(StageInputs):
             runtime=BundleAdjustmentRuntime(
                 config_dir=rig.config_dir,
                 solver_options=frozen_mapping(
-                    {k: v for k, v in options.items() if k in _LEAST_SQUARES_PERF}
+                    {k: v for k, v in options.items() if k in LEAST_SQUARES_PERF}
                 ),
             ),
         )
-
-    @classmethod
-    def from_params(
-        cls, params: Mapping, runtime: BundleAdjustmentRuntime | None = None
-    ) -> BundleAdjustmentInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or BundleAdjustmentRuntime()
-        table = dict(params["bundle_adjustment"])
-        options = dict(table.pop("least_squares", None) or {})
-        return cls(
-            bundle_adjustment=replace(
-                _build_params(BundleAdjustmentParams, table), least_squares=options
-            ),
-            rig=RigSpec.from_params(params["rig"], runtime.config_dir),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the table, rig and skeleton."""
-        return {
-            "bundle_adjustment": asdict(self.bundle_adjustment),
-            "rig": self.rig.params(),
-            "skeleton": self.skeleton.structure(),
-        }
 
 
 @dataclass(frozen=True)
@@ -197,8 +182,8 @@ def run_bundle_adjustment(
     from ..results import Pose2dData, write_stage
 
     pose2d = Pose2dData.load(pose2d_path)
-    cameras = inputs.rig.camera_group(_image_sizes(pose2d), recording_dir)
-    with _solving("bundle_adjustment", recording_dir or pose2d_path):
+    cameras = inputs.rig.camera_group(image_sizes(pose2d), recording_dir)
+    with solving("bundle_adjustment", recording_dir or pose2d_path):
         result = compute_bundle_adjustment(inputs, cameras, pose2d.pts2d, pose2d.conf)
     write_stage(
         out_path,

@@ -19,7 +19,16 @@ from ..config.sources import source_patterns, view_names, view_sources
 from ..errors import ConfigError
 from ..recordings import TRUTH_FILE, dlc_filename
 from .assemble import AssembleInputs
-from .inputs import RigSpec, SkeletonSpec, StageInputs, _json, frozen_mapping
+from .inputs import (
+    FULL_SKELETON,
+    RIG,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    frozen_mapping,
+    plain_json,
+    tracked,
+)
 
 
 @dataclass(frozen=True)
@@ -83,10 +92,10 @@ class DemoInputs(StageInputs):
 
     STAGE = "demo"
 
-    settings: Mapping[str, Any]
+    settings: Mapping[str, Any] = tracked(key="demo")
     sources: Any
-    rig: RigSpec
-    skeleton: SkeletonSpec
+    rig: RigSpec = tracked(RIG)
+    skeleton: SkeletonSpec = tracked(FULL_SKELETON)
     output_points: Mapping[str, Any] | None
     runtime: DemoLayout = DemoLayout()
 
@@ -116,31 +125,6 @@ class DemoInputs(StageInputs):
             output_points=frozen_mapping(output_points),
             runtime=DemoLayout.from_config(config),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> DemoInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (a :class:`DemoLayout`)."""
-        assemble = AssembleInputs.from_params(params)
-        return cls(
-            settings=frozen_mapping(params["demo"]),
-            sources=frozen_mapping(params["sources"]),
-            rig=assemble.rig,
-            skeleton=assemble.skeleton,
-            output_points=frozen_mapping(params["output_points"]),
-            runtime=runtime or DemoLayout(),
-        )
-
-    def params(self) -> dict:
-        """``{"demo", "sources", "rig", "skeleton", "output_points"}``: rig and skeleton
-        as the assemble stage's params hold them."""
-        assemble = AssembleInputs(self.rig, self.skeleton).canonical_params()
-        return {
-            "demo": _json(self.settings),
-            "sources": _json(self.sources),
-            "rig": assemble["rig"],
-            "skeleton": assemble["skeleton"],
-            "output_points": _json(self.output_points),
-        }
 
     def rule_params(self) -> str:
         """The demo rule's tracked ``params.stage``: :meth:`params` as sorted JSON."""
@@ -173,7 +157,7 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
     """
     from ..demo import demo_settings, view_visibility, write_demo
 
-    settings = demo_settings({**_json(inputs.settings), **overrides})
+    settings = demo_settings({**plain_json(inputs.settings), **overrides})
     skeleton = inputs.skeleton.skeleton()
     cameras = _orbit_rig(inputs.rig, (settings["height"], settings["width"]))
     layout = inputs.runtime
@@ -182,7 +166,9 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
         settings,
         skeleton,
         cameras,
-        view_visibility(_json(inputs.output_points), list(cameras.names), skeleton.point_names),
+        view_visibility(
+            plain_json(inputs.output_points), list(cameras.names), skeleton.point_names
+        ),
         dict(layout.view_sources),
         dict(layout.source_files),
         layout.dlc_files,

@@ -18,7 +18,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..interop.views import footage_files
-from .inputs import StageInputs, _json, frozen_mapping
+from .inputs import StageInputs, frozen_mapping, plain_json
 from .visualization import footage_globs
 
 log = logging.getLogger(__name__)
@@ -73,19 +73,6 @@ class NwbExportInputs(StageInputs):
             runtime=NwbExportRuntime(footage_globs(config), config.snapshot_text()),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> NwbExportInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (an :class:`NwbExportRuntime`)."""
-        return cls(
-            exports=frozen_mapping(dict(params["exports"])),
-            nwb=frozen_mapping(params["nwb"]),
-            runtime=runtime or NwbExportRuntime(),
-        )
-
-    def params(self) -> dict:
-        """``{"exports", "nwb"}``."""
-        return {"exports": _json(self.exports), "nwb": _json(self.nwb)}
-
     def rule_params(self) -> str:
         """The rule's tracked ``params.stage``: :meth:`params` as sorted JSON, values
         JSON has no type for (YAML's date-times) as text."""
@@ -109,7 +96,7 @@ def session_metadata(
     """
     from ..nwb_metadata import recording_metadata
 
-    return recording_metadata(_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
+    return recording_metadata(plain_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
 
 
 def run_export_nwb(

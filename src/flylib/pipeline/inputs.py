@@ -10,7 +10,8 @@ untracked ``params.runtime``; a stage therefore reads only what its rule tracks,
 construction.
 
 Each stage's class lives in the stage's home (``flylib.pipeline.<stage>``) and is
-registered here with :func:`register`; :func:`stage_inputs` builds any stage's inputs
+registered with :func:`register` (:func:`flylib.stages.register`, re-exported here for
+the homes); :func:`stage_inputs` builds any stage's inputs
 from a :class:`~flylib.config.Config`, which is the only place below the workflow
 where a config object is read.
 """
@@ -18,17 +19,26 @@ where a config object is read.
 from __future__ import annotations
 
 import copy
-import importlib
 import json
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-from ..config import PARAM_STAGES, Config
-from ..config.canonical import _canonical
+from ..config import Config
+from ..config.canonical import canonical as _canonical
+from ..config.checks import tracked_table
+from ..config.params import TriangulationParams, build_params
+from ..stages import by_name, register
 
 __all__ = [
+    "DATA",
+    "FULL_SKELETON",
+    "OPTIONAL_RIG",
+    "RIG",
+    "SKELETON",
+    "TRIANGULATION",
+    "Codec",
     "RigSpec",
     "SkeletonSpec",
     "StageInputs",
@@ -37,13 +47,10 @@ __all__ = [
     "stage_inputs",
     "stage_params",
     "stage_runtime",
+    "tracked",
+    "typed_params",
+    "plain_json",
 ]
-
-#: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.
-INPUTS: dict[str, type[StageInputs]] = {}
-
-#: The module that defines each stage's inputs class (imported on first use).
-HOMES: dict[str, str] = {stage: f"flylib.pipeline.{stage}" for stage in PARAM_STAGES}
 
 
 class FrozenDict(dict):
@@ -75,12 +82,12 @@ def frozen_mapping(value: Any) -> Any:
     return value
 
 
-def _json(value: Any) -> Any:
+def plain_json(value: Any) -> Any:
     """A plain JSON copy of a frozen value (tuples back to lists, FrozenDicts to dicts)."""
     if isinstance(value, Mapping):
-        return {k: _json(v) for k, v in value.items()}
+        return {k: plain_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
+        return [plain_json(v) for v in value]
     return value
 
 
@@ -207,8 +214,8 @@ class RigSpec:
         """``{"views", "cameras", "calibration"}``: the rig as the params hold it."""
         return {
             "views": list(self.views),
-            "cameras": _json(self.cameras),
-            "calibration": _json(self.calibration) if self.calibration else None,
+            "cameras": plain_json(self.cameras),
+            "calibration": plain_json(self.calibration) if self.calibration else None,
         }
 
     def camera_group(
@@ -224,7 +231,7 @@ class RigSpec:
             from ..interop.anipose import load_calibration
 
             return load_calibration(
-                _json(self.calibration),
+                plain_json(self.calibration),
                 self.views,
                 Path(recording_dir) if recording_dir else None,
                 image_sizes=image_sizes,
@@ -232,7 +239,7 @@ class RigSpec:
             )
         from ..camera.rig import CameraGroup
 
-        cameras = _json(self.cameras)
+        cameras = plain_json(self.cameras)
         defaults = cameras.pop("defaults", {}) or {}
         # the tracked params hold the table with sorted keys: the views give the order back
         specs = {view: cameras[view] for view in self.views if view in cameras}
@@ -241,12 +248,88 @@ class RigSpec:
 
 
 @dataclass(frozen=True)
+class Codec:
+    """How one field of an inputs object is written into the tracked params and read
+    back: ``load(dump(value), runtime) == value``.
+
+    Attributes
+    ----------
+    dump
+        The field's value -> its JSON value in :meth:`StageInputs.params`.
+    load
+        ``(JSON value, runtime) -> the field's value`` (:meth:`StageInputs.from_params`;
+        ``runtime`` is the inputs' untracked part, e.g. where a calibration is found).
+    """
+
+    dump: Callable[[Any], Any]
+    load: Callable[[Any, Any], Any]
+
+
+def _config_dir(runtime: Any) -> Path | None:
+    return getattr(runtime, "config_dir", None)
+
+
+#: Plain data (strings, names, tables): JSON out, read-only back (FrozenDicts, tuples).
+DATA = Codec(plain_json, lambda value, runtime: frozen_mapping(value))
+#: A :class:`SkeletonSpec` as its points and limbs (:meth:`SkeletonSpec.structure`).
+SKELETON = Codec(
+    lambda skeleton: skeleton.structure(), lambda table, runtime: SkeletonSpec.from_params(table)
+)
+#: A :class:`SkeletonSpec` with its palette and name (the stages that draw or name it).
+FULL_SKELETON = Codec(
+    lambda skeleton: {
+        **skeleton.structure(),
+        "palette": dict(skeleton.palette or {}),
+        "name": skeleton.name,
+    },
+    lambda table, runtime: SkeletonSpec.from_params(
+        table, palette=table["palette"], name=table["name"]
+    ),
+)
+#: A :class:`RigSpec` (:meth:`RigSpec.params`), its calibration looked up in the
+#: runtime's ``config_dir``.
+RIG = Codec(
+    lambda rig: rig.params(),
+    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)),
+)
+#: A :class:`RigSpec`, or ``None`` while bundle adjustment is on (the rig is then in that
+#: stage's artifact).
+OPTIONAL_RIG = Codec(
+    lambda rig: rig.params() if rig is not None else None,
+    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)) if table else None,
+)
+
+
+def typed_params(cls: type, dump: Callable[[Any], Any] = tracked_table) -> Codec:
+    """A typed params dataclass of :mod:`flylib.config` (``cls``) as its table: every
+    field (:func:`~flylib.config.checks.tracked_table`), or what ``dump`` gives."""
+    return Codec(dump, lambda table, runtime: build_params(cls, table))
+
+
+#: The triangulation method and the knobs it reads
+#: (:meth:`~flylib.config.params.TriangulationParams.method_params`).
+TRIANGULATION = typed_params(TriangulationParams, dump=TriangulationParams.method_params)
+
+
+def tracked(
+    codec: Codec = DATA, *, key: str | None = None, track_default: bool = True, **kwargs
+) -> Any:
+    """A tracked field of an inputs class: held in :meth:`StageInputs.params` under
+    ``key`` (default: the field's name) as ``codec`` writes it. ``track_default=False``
+    (with a ``default``): only when not at that default, so the params made before the
+    field existed stay equal. ``kwargs`` go to :func:`dataclasses.field`."""
+    return field(metadata={"codec": codec, "key": key, "track_default": track_default}, **kwargs)
+
+
+@dataclass(frozen=True)
 class StageInputs:
     """Base of the per-stage inputs objects (frozen dataclasses).
 
-    Subclasses set :attr:`STAGE`, define :meth:`from_config`, :meth:`from_params` and
-    :meth:`params`, and keep their speed-only knobs in a ``runtime`` field (``None``
-    for a stage that has none), the one part :meth:`params` leaves out.
+    Subclasses set :attr:`STAGE`, define :meth:`from_config`, and keep their speed-only
+    knobs in a ``runtime`` field (absent for a stage that has none), the one field
+    :meth:`params` leaves out. Every other field is tracked: :meth:`params` and its
+    inverse :meth:`from_params` are made from the fields, each written as its
+    :func:`tracked` metadata says (:data:`DATA` when it has none).
     """
 
     STAGE = ""  # a class attribute, not a dataclass field (no annotation)
@@ -257,14 +340,32 @@ class StageInputs:
         raise NotImplementedError(cls.__name__)
 
     @classmethod
+    def _tracked_fields(cls):
+        return [f for f in fields(cls) if f.name != "runtime"]
+
+    @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> StageInputs:
         """Rebuild the inputs from :meth:`params` (the rule's ``params.stage``) and the
-        untracked ``runtime``."""
-        raise NotImplementedError(cls.__name__)
+        untracked ``runtime`` (``None``: the class's default runtime)."""
+        kwargs = {}
+        own = {f.name: f for f in fields(cls)}
+        if "runtime" in own:
+            kwargs["runtime"] = runtime = own["runtime"].default if runtime is None else runtime
+        for f in cls._tracked_fields():
+            key = f.metadata.get("key") or f.name
+            if key in params or f.default is MISSING:  # absent: untracked at its default
+                kwargs[f.name] = f.metadata.get("codec", DATA).load(params[key], runtime)
+        return cls(**kwargs)
 
     def params(self) -> dict:
-        """The tracked params: canonical (sorted keys), JSON-serialisable."""
-        raise NotImplementedError(type(self).__name__)
+        """The tracked params: every field but ``runtime``, as its codec writes it."""
+        out = {}
+        for f in self._tracked_fields():
+            value = getattr(self, f.name)
+            if f.metadata.get("track_default", True) or value != f.default:
+                key = f.metadata.get("key") or f.name
+                out[key] = f.metadata.get("codec", DATA).dump(value)
+        return out
 
     @property
     def runtime_options(self) -> Any:
@@ -278,30 +379,16 @@ class StageInputs:
         return canonical
 
 
-T = TypeVar("T", bound=type)
-
-
-def register(cls: T) -> T:
-    """Class decorator: make ``cls`` the inputs class of ``cls.STAGE``."""
-    if cls.STAGE not in PARAM_STAGES:
-        raise ValueError(f"unknown stage {cls.STAGE!r} (known: {', '.join(PARAM_STAGES)})")
-    INPUTS[cls.STAGE] = cls
-    return cls
-
-
 def inputs_class(stage: str) -> type[StageInputs]:
-    """The inputs class of ``stage`` (importing its home on first use).
+    """The inputs class of ``stage`` (importing its home on first use;
+    :meth:`flylib.stages.Stage.inputs_class`).
 
     Raises
     ------
     ValueError
         For an unknown stage.
     """
-    if stage not in PARAM_STAGES:
-        raise ValueError(f"unknown stage {stage!r} (known: {', '.join(PARAM_STAGES)})")
-    if stage not in INPUTS:
-        importlib.import_module(HOMES[stage])
-    return INPUTS[stage]
+    return by_name(stage).inputs_class()
 
 
 def stage_inputs(config: Config, stage: str) -> StageInputs:

@@ -20,14 +20,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config.postprocessing import KinematicsParams
 from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
-from .inputs import SkeletonSpec, StageInputs, register
+from .inputs import SKELETON, Codec, SkeletonSpec, StageInputs, register, tracked
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -54,6 +54,21 @@ class KinematicsRuntime:
     segments: tuple[str, ...] | None = None
 
 
+def _kinematics_from_table(table: Mapping, runtime: KinematicsRuntime) -> KinematicsParams:
+    """The ``kinematics`` params from their tracked table, the ``angles`` and ``segments``
+    back in the config's order (the runtime's; the tracked JSON sorts them by name)."""
+    table = dict(table)
+    for key in ("angles", "segments"):
+        order = getattr(runtime, key)
+        if table.get(key) is not None and order is not None:
+            table[key] = {name: table[key][name] for name in order}
+    return KinematicsParams.from_table(table)
+
+
+#: The ``kinematics`` table as tracked (every field), read back in the config's order.
+KINEMATICS = Codec(asdict, _kinematics_from_table)
+
+
 @register
 @dataclass(frozen=True)
 class KinematicsInputs(StageInputs):
@@ -71,8 +86,8 @@ class KinematicsInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    kinematics: KinematicsParams
-    skeleton: SkeletonSpec
+    kinematics: KinematicsParams = tracked(KINEMATICS)
+    skeleton: SkeletonSpec = tracked(SKELETON)
     runtime: KinematicsRuntime = KinematicsRuntime()
 
     @classmethod
@@ -86,23 +101,6 @@ class KinematicsInputs(StageInputs):
                 segments=tuple(params.segments) if params.segments is not None else None,
             ),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> KinematicsInputs:
-        runtime = runtime or KinematicsRuntime()
-        table = dict(params["kinematics"])
-        for key in ("angles", "segments"):
-            order = getattr(runtime, key)
-            if table.get(key) is not None and order is not None:
-                table[key] = {name: table[key][name] for name in order}
-        return cls(
-            kinematics=KinematicsParams.from_table(table),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        return {"kinematics": asdict(self.kinematics), "skeleton": self.skeleton.structure()}
 
 
 def compute_kinematics(
@@ -264,9 +262,9 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     StageError
         If the computation fails on the recording's data.
     """
-    from .stage_helpers import _solving
+    from .stage_helpers import solving
 
-    with _solving(STAGE, results_path):
+    with solving(STAGE, results_path):
         result = results_3d(results_path, STAGE)
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)

@@ -4,10 +4,18 @@ A job's peak memory is a fixed part (Python, NumPy, JAX, the libraries it import
 a part that grows with the arrays it holds, which are ``frames x points x views``
 elements wide. ``benchmarks/stage_memory.py`` measures each stage script's peak at
 two sizes as a workflow job runs it (its rule's threads) and prints both parts; the
-figures below are those measurements with :data:`MARGIN` on top, so that a cluster
-scheduler (SLURM kills a job that passes its reservation) reserves enough for a
-100,000-frame recording as for the demo. Stages not listed (the detector, import,
-visualization, exports) keep the fixed ``mem_mb`` their rules state.
+figures (each stage's :attr:`flylib.stages.Stage.memory`) are those measurements with
+:data:`MARGIN` on top, so that a cluster scheduler (SLURM kills a job that passes its
+reservation) reserves enough for a 100,000-frame recording as for the demo. Stages
+without a figure (the detector, import, visualization, exports) keep the fixed
+``mem_mb`` their rules state.
+
+The figures are the peak MB measured with ``benchmarks/stage_memory.py`` (7 views x 38
+points, 1,000 and 10,000 frames with the rules' threads; 500 and 5,000 with one
+thread), the larger of the two runs: the fixed part, and the part per million (frame,
+point, view) elements. Refinement's chunked solve grows more slowly past 10,000
+frames (README: ~0.7 GB at 100,000), so its figure over-reserves there rather than
+under.
 """
 
 from __future__ import annotations
@@ -17,31 +25,14 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from ..stages import by_name
+
 __all__ = ["MARGIN", "job_mem_mb", "recording_shape", "stage_mem_mb"]
 
 #: Head-room over the measured peak (allocator fragmentation, other footage, rounding).
 MARGIN = 1.5
 #: The least any job declares.
 FLOOR_MB = 1000
-# Peak MB measured with benchmarks/stage_memory.py (7 views x 38 points, 1,000 and
-# 10,000 frames with the rules' threads; 500 and 5,000 with one thread), the larger of
-# the two runs: the fixed part, and the part per million (frame, point, view)
-# elements. Refinement's chunked solve grows more slowly past 10,000 frames (README:
-# ~0.7 GB at 100,000), so its figure over-reserves there rather than under.
-_FIXED_MB = {
-    "bundle_adjustment": 380,
-    "triangulation": 110,
-    "refinement": 410,
-    "assemble": 160,
-    "kinematics": 130,
-}
-_PER_MILLION_MB = {
-    "bundle_adjustment": 30,
-    "triangulation": 120,
-    "refinement": 140,
-    "assemble": 130,
-    "kinematics": 105,
-}
 
 
 def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
@@ -50,8 +41,7 @@ def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
     Parameters
     ----------
     stage
-        A stage with a measured memory figure (``bundle_adjustment``,
-        ``triangulation``, ``refinement``, ``assemble``, ``kinematics``).
+        A stage with a measured memory figure (:attr:`flylib.stages.Stage.memory`).
     shape
         ``(V, T, P)``: views, frames, points of the recording's 2D.
 
@@ -61,7 +51,11 @@ def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
         Megabytes, a multiple of 100, at least :data:`FLOOR_MB`.
     """
     views, frames, points = (int(n) for n in shape)
-    peak = _FIXED_MB[stage] + _PER_MILLION_MB[stage] * views * frames * points / 1e6
+    memory = by_name(stage).memory
+    if memory is None:
+        raise KeyError(f"{stage}: no measured memory figure (its rule states its mem_mb)")
+    fixed, per_million = memory
+    peak = fixed + per_million * views * frames * points / 1e6
     return max(FLOOR_MB, int(math.ceil(MARGIN * peak / 100.0)) * 100)
 
 

@@ -23,21 +23,18 @@ lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain)
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config.neuromechfly import NeuromechflyParams
-from ..config.params import _build_params
 from ..neuromechfly import FILES
 from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
 from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
-from .inputs import SkeletonSpec, StageInputs, register
+from .inputs import SKELETON, SkeletonSpec, StageInputs, register, tracked, typed_params
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -63,25 +60,12 @@ class NeuromechflyInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    neuromechfly: NeuromechflyParams
-    skeleton: SkeletonSpec
+    neuromechfly: NeuromechflyParams = tracked(typed_params(NeuromechflyParams))
+    skeleton: SkeletonSpec = tracked(SKELETON)
 
     @classmethod
     def from_config(cls, config: Config) -> NeuromechflyInputs:
         return cls(neuromechfly=config.neuromechfly, skeleton=SkeletonSpec.from_config(config))
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> NeuromechflyInputs:
-        return cls(
-            neuromechfly=_build_params(NeuromechflyParams, params["neuromechfly"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-        )
-
-    def params(self) -> dict:
-        return {
-            "neuromechfly": asdict(self.neuromechfly),
-            "skeleton": self.skeleton.structure(),
-        }
 
 
 def angles_table(nmf: NmfAngles, frame_rate: float):
@@ -128,19 +112,6 @@ def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
         "model_residual_summary": nmf.residual_summary(model=True),
     }
     return write_analysis(path, "neuromechfly", arrays, attrs)
-
-
-def read_nmf_angles(path: str | Path) -> tuple[np.ndarray, list[str], float]:
-    """``(angles (T, 42) radians, dof names, frame rate)`` from ``neuromechfly.h5``."""
-    from ..results import open_hdf5
-
-    with open_hdf5(path, "re-run the neuromechfly stage", "NeuroMechFly angles file") as f:
-        group = f["neuromechfly"]
-        return (
-            np.asarray(group["angles"], dtype=np.float64),
-            json.loads(group.attrs["dof_names"]),
-            float(json.loads(group.attrs["frame_rate"])),
-        )
 
 
 def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: int = 90) -> Path:

@@ -1,40 +1,54 @@
 """Library one-shot: 2D detections -> (bundle adjustment) -> (pictorial structures) -> 3D.
 
-Its defaults are the packaged default config's (:meth:`flylib.config.Config.default`),
-so the one-shot and the workflow start from the same settings.
+It is the workflow's chain without files: each stage's inputs from the packaged default
+config (:meth:`flylib.config.Config.default`) with the caller's overrides and skeleton,
+and each stage's pure step (``compute_bundle_adjustment``,
+``compute_pictorial_structures``, ``compute_triangulation``).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import fields, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config.constants import TRIANGULATION_METHODS
+from ..config.params import LEAST_SQUARES_OPTIONS, BundleAdjustmentParams, TriangulationParams
 from ..errors import ConfigError
+from .inputs import SkeletonSpec, frozen_mapping, stage_inputs
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..camera.rig import CameraGroup
+    from ..config import Config
     from ..pictorial import Candidates
     from ..results import PoseResult
     from ..skeleton import Skeleton
+    from .inputs import StageInputs
 
 log = logging.getLogger(__name__)
 
-#: The ``bundle_adjustment`` settings the one-shot takes from the packaged default config
-#: when ``bundle_adjust_kwargs`` does not give them.
-BUNDLE_ADJUST_DEFAULT_KEYS = ("fixed", "max_frames", "frame_sampling")
+#: The keys of the ``bundle_adjustment`` table (its least-squares options flat, as a
+#: config writes them); any other ``bundle_adjust_kwargs`` key goes to the solver as is.
+BUNDLE_ADJUSTMENT_KEYS = frozenset(
+    {f.name for f in fields(BundleAdjustmentParams)} - {"least_squares"}
+) | frozenset(LEAST_SQUARES_OPTIONS)
 
 
-def _defaults():
+def packaged_defaults():
     """The packaged default config (read once per call; the file is small)."""
     from ..config import Config
 
     return Config.default()
+
+
+def _stage(config: Config, stage: str, skeleton: Skeleton) -> StageInputs:
+    """``stage``'s inputs under ``config``, on the caller's ``skeleton``."""
+    spec = SkeletonSpec(point_names=skeleton.point_names, limbs=tuple(skeleton.limbs.items()))
+    return replace(stage_inputs(config, stage), skeleton=spec)
 
 
 def run_from_points2d(
@@ -60,7 +74,9 @@ def run_from_points2d(
     """Run the 2D-to-3D pipeline on detections and return a :class:`PoseResult`.
 
     Steps: optionally bundle-adjust the rig (on the arg-max ``pts2d``), optionally run
-    pictorial structures over the detector's top-K ``candidates``, then triangulate.
+    pictorial structures over the detector's top-K ``candidates``, then triangulate:
+    the stages' compute steps, on the packaged default config's settings with the
+    overrides below.
 
     Parameters
     ----------
@@ -70,11 +86,15 @@ def run_from_points2d(
     do_bundle_adjust
         Refine the rig first (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`).
     bundle_adjust_kwargs
-        Keyword arguments for the adjustment (``fixed``, ``shared``, ``points_to_use``,
-        ``max_frames``, ``frame_sampling``, ``weigh_by_confidence``, ``least_squares``
-        options, ``solver``, ``bone_lengths``, ``rigid_points`` ...); ``fixed``,
-        ``max_frames`` and ``frame_sampling`` default to the packaged config's
-        ``bundle_adjustment`` values (intrinsics fixed, 200 evenly spaced frames).
+        Overrides of the packaged config's ``bundle_adjustment`` table (``fixed``,
+        ``shared``, ``points_to_use``, ``max_frames``, ``frame_sampling``,
+        ``weigh_by_confidence``, ``solver``, ``bone_lengths``, ``rigid_points`` ...;
+        ``least_squares`` options flat or under ``least_squares``), checked as a config
+        is; any other key (e.g. ``rigid_tolerance``) goes to
+        :func:`flylib.bundle_adjustment.bundle_adjust_sequence` as is. Unset keys keep
+        the config's values: intrinsics fixed, 200 evenly spaced frames, the leg joints
+        (``points_to_use``; give ``None`` for every point, or a list for a skeleton
+        without the fly's leg joints).
     triangulation, weigh_by_confidence, ransac_threshold, min_inliers, reproj_threshold, max_drops
         ``None`` takes the packaged default config's ``triangulation`` value.
         ``triangulation``: ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
@@ -84,7 +104,8 @@ def run_from_points2d(
         view).
     do_pictorial, candidates, ps_kwargs
         Pictorial-structures peak recovery (:func:`flylib.pictorial.reconstruct`, with
-        ``ps_kwargs`` such as ``temporal``, ``lam``, ``max_hyp``) over ``candidates``;
+        ``ps_kwargs`` overriding the ``pictorial_structures`` table: ``temporal``,
+        ``lam``, ``max_hyp`` ...) over ``candidates``, its bone prior from ``pts2d``;
         its committed 2D feeds the triangulation.
     fps, meta
         Recorded in the result's ``meta``.
@@ -99,24 +120,17 @@ def run_from_points2d(
     Raises
     ------
     ConfigError
-        For an unknown ``triangulation`` method, or ``do_pictorial`` without
-        ``candidates``.
+        For an unknown ``triangulation`` method, ``do_pictorial`` without
+        ``candidates``, or an override the config's checks reject.
     """
+    from ..config import Config
     from ..results import PoseResult
-    from ..triangulation import reconstruct
+    from .bundle_adjustment import compute_bundle_adjustment
+    from .pictorial_structures import compute_pictorial_structures
+    from .triangulation import compute_triangulation
 
-    defaults = _defaults()
-    given = {
-        "method": triangulation,
-        "weigh_by_confidence": weigh_by_confidence,
-        "ransac_threshold": ransac_threshold,
-        "min_inliers": min_inliers,
-        "reproj_threshold": reproj_threshold,
-        "max_drops": max_drops,
-    }
-    tri = replace(defaults.triangulation, **{k: v for k, v in given.items() if v is not None})
-    triangulation = tri.method
-    if triangulation not in TRIANGULATION_METHODS:
+    knobs = {**locals(), "method": triangulation}  # the triangulation table's, by name
+    if triangulation is not None and triangulation not in TRIANGULATION_METHODS:
         raise ConfigError(
             f"triangulation: unknown method {triangulation!r}; "
             f"use one of {', '.join(TRIANGULATION_METHODS)}"
@@ -128,47 +142,53 @@ def run_from_points2d(
         )
     pts2d = np.asarray(pts2d, dtype=np.float64)
     conf = None if conf is None else np.asarray(conf, dtype=np.float64)
+    ba_kwargs = dict(bundle_adjust_kwargs or {})
+    ba_kwargs.update(ba_kwargs.pop("least_squares", None) or {})
+    data = packaged_defaults().data
+    overrides = {
+        "bundle_adjustment": {k: v for k, v in ba_kwargs.items() if k in BUNDLE_ADJUSTMENT_KEYS},
+        "pictorial_structures": dict(ps_kwargs or {}),
+        "triangulation": {
+            f.name: knobs[f.name] for f in fields(TriangulationParams) if knobs[f.name] is not None
+        },
+    }
+    config = Config.from_dict({**data, **{k: {**data[k], **v} for k, v in overrides.items()}})
+    tri_inputs = _stage(config, "triangulation", skeleton)
     run_meta: dict = {
         "fps": float(fps),
-        "triangulation": triangulation,
+        "triangulation": tri_inputs.triangulation.method,
         "pictorial": bool(do_pictorial),
     }
 
     if do_bundle_adjust:
-        from ..bundle_adjustment import bundle_adjust_sequence
-
-        ba = defaults.data["bundle_adjustment"]
-        kwargs = {**{k: ba[k] for k in BUNDLE_ADJUST_DEFAULT_KEYS}, **(bundle_adjust_kwargs or {})}
-        kwargs.update(kwargs.pop("least_squares", None) or {})
-        result, cameras, _ = bundle_adjust_sequence(cameras, pts2d, conf, skeleton, **kwargs)
+        ba_inputs = _stage(config, "bundle_adjustment", skeleton)
+        passed_on = {k: v for k, v in ba_kwargs.items() if k not in BUNDLE_ADJUSTMENT_KEYS}
+        runtime = replace(
+            ba_inputs.runtime,
+            solver_options=frozen_mapping({**ba_inputs.runtime.solver_options, **passed_on}),
+        )
+        adjusted = compute_bundle_adjustment(
+            replace(ba_inputs, runtime=runtime), cameras, pts2d, conf
+        )
+        cameras = adjusted.cameras
         run_meta["bundle_adjustment"] = {
-            "initial_median_px": result.initial_median_px,
-            "final_median_px": result.final_median_px,
-            "cost": float(result.cost),
-            "nfev": int(result.nfev),
-            "message": str(result.message),
-            **({"report": result.report} if hasattr(result, "report") else {}),
+            "initial_median_px": adjusted.solution.initial_median_px,
+            "final_median_px": adjusted.solution.final_median_px,
+            **adjusted.summary,
         }
 
     tri_input = pts2d
     if do_pictorial:
-        from ..pictorial import reconstruct as ps_reconstruct
+        ps_inputs = _stage(config, "pictorial_structures", skeleton)
+        tri_input = compute_pictorial_structures(ps_inputs, cameras, candidates, pts2d).points
 
-        _, tri_input, _ = ps_reconstruct(cameras, skeleton, candidates, pts2d, **(ps_kwargs or {}))
-
-    pts3d, pts2d_out, reproj = reconstruct(
-        cameras,
-        tri_input,
-        method=triangulation,
-        weights=conf if (tri.weigh_by_confidence and conf is not None) else None,
-        **tri.method_kwargs(),
-    )
+    result = compute_triangulation(tri_inputs, cameras, tri_input, conf)
     return PoseResult(
         cameras=cameras,
         skeleton=skeleton,
-        pts2d=pts2d_out,
+        pts2d=result.points,
         conf=conf,
-        pts3d=pts3d,
-        reproj_error=reproj,
+        pts3d=result.points3d,
+        reproj_error=result.reproj_error,
         meta={**run_meta, **(meta or {})},
     )

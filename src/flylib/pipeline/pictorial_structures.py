@@ -9,18 +9,25 @@ bundle-adjusted one when given, else the config rig), calls
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..config.params import PictorialParams, _build_params
+from ..config.params import PictorialParams
 from ..errors import ResultsError
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     import numpy as np
     from jaxtyping import Float
 
@@ -56,9 +63,9 @@ class PictorialStructuresInputs(StageInputs):
 
     STAGE = "pictorial_structures"
 
-    pictorial_structures: PictorialParams
-    skeleton: SkeletonSpec
-    rig: RigSpec | None
+    pictorial_structures: PictorialParams = tracked(typed_params(PictorialParams))
+    skeleton: SkeletonSpec = tracked(SKELETON)
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -70,27 +77,6 @@ class PictorialStructuresInputs(StageInputs):
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(
-        cls, params: Mapping, runtime: RigRuntime | None = None
-    ) -> PictorialStructuresInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or RigRuntime()
-        return cls(
-            pictorial_structures=_build_params(PictorialParams, params["pictorial_structures"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=rig_from_params(params["rig"], runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the table, skeleton and rig."""
-        return {
-            "pictorial_structures": asdict(self.pictorial_structures),
-            "skeleton": self.skeleton.structure(),
-            "rig": rig_params(self.rig),
-        }
 
 
 @dataclass(frozen=True)
@@ -114,17 +100,26 @@ class Recovered:
 
 
 def compute_pictorial_structures(
-    inputs: PictorialStructuresInputs, cameras: CameraGroup, candidates: Candidates
+    inputs: PictorialStructuresInputs,
+    cameras: CameraGroup,
+    candidates: Candidates,
+    pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
 ) -> Recovered:
     """Choose one candidate peak per (view, frame, point) on ``cameras``
     (:func:`flylib.pictorial.reconstruct` with the ``pictorial_structures`` table);
-    no file is read or written."""
+    no file is read or written.
+
+    The bone-length prior is triangulated from ``pts2d_argmax`` ``(V, T, P, 2)``, the
+    arg-max detections, where given (the library one-shot passes its ``pts2d``), else
+    from the candidates' strongest peaks (what the stage does).
+    """
     from ..pictorial import reconstruct
 
     pts3d, pts2d, error = reconstruct(
         cameras,
         inputs.skeleton.skeleton(),
         candidates,
+        pts2d_argmax,
         **inputs.pictorial_structures.solver_kwargs(),
     )
     return Recovered(pts3d, pts2d, error)
@@ -168,8 +163,8 @@ def run_pictorial_structures(
 
     pose2d = Pose2dData.load(pose2d_path)
     candidates = _load_candidates(candidates_path, pose2d, pose2d_path)
-    cameras = _rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="pictorial_structures")
-    with _solving("pictorial_structures", recording_dir or pose2d_path):
+    cameras = rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="pictorial_structures")
+    with solving("pictorial_structures", recording_dir or pose2d_path):
         result = compute_pictorial_structures(inputs, cameras, candidates)
     upstream = {
         "pose2d": pose2d_path,

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.constants import _POSE2D_PLAN_KEYS
+from ..config.constants import POSE2D_PLAN_KEYS
 from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
-from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register, tracked
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Mapping
@@ -32,13 +32,12 @@ __all__ = [
     "Pose2dInputs",
     "Pose2dRuntime",
     "compute_pose2d",
-    "detection_plan",
     "import_target",
     "run_pose2d",
 ]
 
 #: The detection plan's tables in the ``pose2d`` table (``import`` is tracked apart).
-PLAN_KEYS = tuple(key for key in _POSE2D_PLAN_KEYS if key != "import")
+PLAN_KEYS = tuple(key for key in POSE2D_PLAN_KEYS if key != "import")
 #: The untracked ``pose2d`` settings (:class:`~flylib.config.params.Pose2dParams`).
 DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 
@@ -107,10 +106,10 @@ class Pose2dInputs(StageInputs):
     sources: tuple[Mapping[str, Any], ...]
     plan: Mapping[str, Any]
     precision: str
-    import_spec: Mapping[str, Any] | None
+    import_spec: Mapping[str, Any] | None = tracked(key="import")
     point_names: tuple[str, ...]
     views: tuple[str, ...]
-    on_corrupt_frame: str = IoParams.on_corrupt_frame
+    on_corrupt_frame: str = tracked(default=IoParams.on_corrupt_frame, track_default=False)
     runtime: Pose2dRuntime = Pose2dRuntime()
 
     @classmethod
@@ -128,41 +127,16 @@ class Pose2dInputs(StageInputs):
             runtime=Pose2dRuntime.from_config(config),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Pose2dRuntime | None = None) -> Pose2dInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        return cls(
-            sources=frozen_mapping(params["sources"]),
-            plan=frozen_mapping(params["plan"]),
-            precision=params["precision"],
-            import_spec=frozen_mapping(params["import"]),
-            point_names=tuple(params["point_names"]),
-            views=tuple(params["views"]),
-            on_corrupt_frame=params.get("on_corrupt_frame", IoParams.on_corrupt_frame),
-            runtime=runtime or Pose2dRuntime(),
-        )
-
     def params(self) -> dict:
-        """The tracked params: sources, plan, precision, import spec, points, views, the
-        heatmap decoding convention, and ``on_corrupt_frame`` when not the default."""
+        """The tracked params (:meth:`StageInputs.params`: sources, plan, precision,
+        import spec, points, views, and ``on_corrupt_frame`` when not the default) and
+        the heatmap decoding convention."""
+        # Not the candidate peaks pictorial structures asks for: they are a separate
+        # pose2d output named by k (results.candidates_artifact), which exists only
+        # while PS is on, so toggling PS or editing k with it off re-runs no detection.
         return {
-            "sources": _json(self.sources),
-            "plan": _json(self.plan),
-            "precision": self.precision,
-            "import": _json(self.import_spec),
-            "point_names": list(self.point_names),
-            "views": list(self.views),
+            **super().params(),
             "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
-            # Present only when not the default, so existing artifacts keep their params.
-            **(
-                {"on_corrupt_frame": self.on_corrupt_frame}
-                if self.on_corrupt_frame != IoParams.on_corrupt_frame
-                else {}
-            ),
-            # Not the candidate peaks pictorial structures asks for: they are a
-            # separate pose2d output named by k (artifacts.candidates_artifact), which
-            # exists only while PS is on, so toggling PS or editing k with it off
-            # re-runs no detection.
         }
 
     def detector_params(self) -> Pose2dParams:
@@ -181,19 +155,19 @@ class Pose2dInputs(StageInputs):
     def detection_plan(self) -> DetectionPlan:
         """The parsed detection plan."""
         return DetectionPlan.from_tables(
-            _json(self.sources), _json(self.plan), self.views, self.point_names
+            plain_json(self.sources), plain_json(self.plan), self.views, self.point_names
         )
 
     def source_patterns(self) -> dict[str, str]:
         """``source -> footage glob`` (:func:`flylib.config.sources.patterns_of`)."""
-        return patterns_of(_json(self.sources))
+        return patterns_of(plain_json(self.sources))
 
     def import_target(self) -> ImportTarget:
         """The views, points and footage imported 2D is placed on."""
         from ..interop.importer import ImportTarget
 
-        plan = _json(self.plan)
-        view_sources = feeding_sources(self.views, _json(self.sources), plan)
+        plan = plain_json(self.plan)
+        view_sources = feeding_sources(self.views, plain_json(self.sources), plan)
         output_points = plan.get("output_points") or {}
         return ImportTarget(
             views=self.views,
@@ -206,17 +180,6 @@ class Pose2dInputs(StageInputs):
                 if isinstance(entries, dict)
             },
         )
-
-
-def detection_plan(config: Config) -> DetectionPlan:
-    """The detection plan ``config`` gives (:meth:`Pose2dInputs.detection_plan`).
-
-    Raises
-    ------
-    ConfigError
-        Naming the key of any inconsistency in the plan's tables.
-    """
-    return Pose2dInputs.from_config(config).detection_plan()
 
 
 def import_target(config: Config) -> ImportTarget:
@@ -301,7 +264,7 @@ def compute_pose2d(
         If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
     recording_dir = Path(recording_dir)
-    spec = _json(import_spec) if import_spec else _json(inputs.import_spec)
+    spec = plain_json(import_spec) if import_spec else plain_json(inputs.import_spec)
     if spec:
         if candidates:
             raise ResultsError(

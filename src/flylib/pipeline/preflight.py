@@ -13,33 +13,14 @@ user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..errors import FlylibError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..config import Config
 
 
 def _problem(exc: FlylibError, prefix: str | None = None) -> str:
     text = " ".join(str(exc).split())
     return f"{prefix}: {text}" if prefix else text
-
-
-def model_weights(config: Config) -> dict[str, str]:
-    """``model name -> weights path`` in force: ``pose2d.weights`` over each model's own key.
-
-    ``pose2d.weights: {deepfly2d: /path/sh8.tar}`` sets one model's checkpoint without
-    copying its whole ``pose2d.models`` entry (a ``--configfile`` replaces lists whole).
-    """
-    pose2d = config.data.get("pose2d") or {}
-    out = {}
-    for entry in pose2d.get("models") or []:
-        if isinstance(entry, dict) and isinstance(entry.get("name"), str):
-            out[entry["name"]] = str(entry.get("weights") or "")
-    for name, path in (pose2d.get("weights") or {}).items():
-        out[str(name)] = str(path or "")
-    return out
 
 
 def preflight_problems(

@@ -43,13 +43,23 @@ import h5py
 import numpy as np
 
 from ..config import TriangulationParams
-from ..config.params import _build_params
+from ..config.params import build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
-from ..refinement.setup import options_from_params
-from ..refinement.solver import FLAG_BITS, ArraySink, RefinementResult
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, rig_from_params, rig_params, tracked_rig
+from ..refinement.solver import FLAG_BITS, ArraySink
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    TRIANGULATION,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+    typed_params,
+)
+from .stage_helpers import RigRuntime, tracked_rig
+from .triangulation import triangulation_method
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -81,10 +91,10 @@ class RefinementInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    refinement: RefinementParams
-    triangulation: TriangulationParams
-    skeleton: SkeletonSpec
-    rig: RigSpec | None
+    refinement: RefinementParams = tracked(typed_params(RefinementParams))
+    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    skeleton: SkeletonSpec = tracked(SKELETON)
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -98,32 +108,11 @@ class RefinementInputs(StageInputs):
             runtime=RigRuntime.from_config(config),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> RefinementInputs:
-        runtime = runtime or RigRuntime()
-        rig = params.get("rig")
-        return cls(
-            refinement=_build_params(RefinementParams, params["refinement"]),
-            triangulation=_triangulation(params["triangulation"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            rig=rig_from_params(rig, runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        return {
-            "refinement": asdict(self.refinement),
-            # the held-out-view check re-runs the triangulation without each view
-            "triangulation": self.triangulation.method_params(),
-            "skeleton": self.skeleton.structure(),
-            "rig": rig_params(self.rig),
-        }
-
 
 def _triangulation(method_params: Mapping) -> TriangulationParams:
     """The triangulation params as tracked: the method and the knobs it reads (the
     others at their defaults, which that method never reads)."""
-    return _build_params(TriangulationParams, method_params)
+    return build_params(TriangulationParams, method_params)
 
 
 class TriangulationSource:
@@ -156,7 +145,9 @@ class H5Sink(ArraySink):
     def __init__(self, group: h5py.Group, n_views: int, n_frames: int, n_points: int, chunk: int):
         step = max(1, min(n_frames, chunk))
 
-        from .. import results as results_module
+        # the checksum switch read when the sink is made (benchmarks and the older-file
+        # test turn it off)
+        from ..results import datasets
 
         def make(name, shape, dtype, axis, fill):
             chunks = list(shape)
@@ -169,7 +160,7 @@ class H5Sink(ArraySink):
                 compression="gzip",
                 compression_opts=1,
                 fillvalue=fill,
-                fletcher32=results_module._FLETCHER32,
+                fletcher32=datasets.FLETCHER32,
             )
 
         self.points3d = make("points3d", (n_frames, n_points, 3), np.float64, 0, np.nan)
@@ -196,29 +187,6 @@ def _attrs(skeleton, lengths, rigid_points, rigid_centres, info, options) -> dic
         "summary": info,
         "options": options,
     }
-
-
-def write_refinement(path: str | Path, result: RefinementResult, skeleton, options: dict) -> None:
-    """Write an in-memory :class:`RefinementResult` as the refinement artifact (atomically)."""
-    from ..results import _new_meta, _write_array
-
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta(STAGE))
-        group = f.create_group(STAGE)
-        _write_array(group, "points3d", result.points3d)
-        _write_array(group, "reproj_error", result.reproj_error)
-        _write_array(group, "points", result.points2d)
-        _write_array(group, "flags", result.flags, dtype=np.uint8)
-        attrs = _attrs(
-            skeleton,
-            result.bone_lengths,
-            result.rigid_points,
-            result.rigid_centres,
-            result.info,
-            options,
-        )
-        for key, value in attrs.items():
-            group.attrs[key] = json.dumps(value)
 
 
 def run_refinement(
@@ -252,11 +220,11 @@ def run_refinement(
         The recording (for a calibration file relative to it).
     """
     from ..provenance import stage_provenance
-    from ..results import _new_meta, open_checked
-    from .stage_helpers import _solving
+    from ..results import new_meta, open_checked
+    from .stage_helpers import solving
 
-    with _solving(STAGE, recording_dir or triangulation_path):
-        cameras = _rig(inputs, pose2d_path, ba_path, recording_dir)
+    with solving(STAGE, recording_dir or triangulation_path):
+        cameras = refinement_rig(inputs, pose2d_path, ba_path, recording_dir)
         with (
             open_checked(pose2d_path, "re-run the pose2d stage") as p2d,
             open_checked(triangulation_path, "re-run the triangulation stage") as tri,
@@ -269,7 +237,7 @@ def run_refinement(
                     "bundle_adjustment": ba_path,
                 }
                 f.attrs["meta"] = json.dumps(
-                    _new_meta(STAGE, stage_provenance(inputs.canonical_params(), STAGE, upstream))
+                    new_meta(STAGE, stage_provenance(inputs.canonical_params(), STAGE, upstream))
                 )
                 group = f.create_group(STAGE)
                 n_views, n_frames, n_points = p2d["pose2d/points"].shape[:3]
@@ -282,7 +250,7 @@ def run_refinement(
     return Path(out_path)
 
 
-def _rig(inputs: RefinementInputs, pose2d_path, ba_path, recording_dir) -> CameraGroup:
+def refinement_rig(inputs: RefinementInputs, pose2d_path, ba_path, recording_dir) -> CameraGroup:
     """The bundle-adjustment artifact's rig when given, else the config rig."""
     from ..errors import ConfigError
     from ..results import read_image_sizes, read_stage
@@ -343,15 +311,13 @@ def compute_refinement(
         The artifact group's attributes: ``flag_bits``, ``bone_lengths``,
         ``rigid_centres``, ``summary``, ``options``, ``accuracy``.
     """
-    from ..accuracy import refinement_method, triangulation_method
-    from ..refinement.held_out import HeldOutCheck, keep_corrected
+    from ..refinement.held_out import HeldOutCheck, keep_corrected, refinement_method
     from ..refinement.setup import skeleton_terms
     from ..refinement.solver import refine_stream
 
     params = inputs.refinement
     skeleton = inputs.skeleton.skeleton()
     terms = skeleton_terms(skeleton, params.rigid_points)
-    options = options_from_params(params)
     source = TriangulationSource(pose2d, triangulation)
     check = HeldOutCheck(
         cameras,
@@ -360,7 +326,7 @@ def compute_refinement(
         source.start,
         triangulation_method(inputs.triangulation, cameras),
         lambda scale: refinement_method(replace(params, smooth_scale=scale), cameras, skeleton),
-        options,
+        params,
         params.motion_scales,
         terms,
         skeleton.point_names,
@@ -369,7 +335,11 @@ def compute_refinement(
     out = refine_stream(source, cameras, sink, options=options, **terms)
     keep_corrected(triangulation, sink)
     accuracy = check.apply(sink, triangulation)
-    record = asdict(options)
+    # the artifact's record of the solver's settings, as written before the params and
+    # the solver's options were one class: without motion_scales, rigid_points last
+    record = {
+        k: v for k, v in asdict(options).items() if k not in ("motion_scales", "rigid_points")
+    }
     record["rigid_points"] = [skeleton.point_names[p] for p in out["rigid_points"]]
     attrs = _attrs(
         skeleton,

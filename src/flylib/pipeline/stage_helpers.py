@@ -1,8 +1,8 @@
 """What the stage homes share: the rig a stage after bundle adjustment runs on
-(bundle adjustment's artifact, else the config rig of its inputs: :func:`_rig_for`,
+(bundle adjustment's artifact, else the config rig of its inputs: :func:`rig_for`,
 :class:`RigRuntime`, the tracked-rig helpers, :func:`run_inputs` for a run without that
 artifact) and the boundary that turns a numerical failure on a recording's data into
-one line (:func:`_solving`).
+one line (:func:`solving`).
 """
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import FlylibError, ResultsError, StageError, one_line
+from ..stages import by_name
 
 log = logging.getLogger(__name__)
 
 
-def _image_sizes(pose2d) -> dict[str, tuple[int, int]]:
+def image_sizes(pose2d) -> dict[str, tuple[int, int]]:
     return {str(k): (int(v[0]), int(v[1])) for k, v in (pose2d.image_sizes or {}).items()}
 
 
@@ -50,22 +51,7 @@ def tracked_rig(config):
     return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
 
 
-def rig_from_params(table, runtime: RigRuntime):
-    """Inverse of :func:`rig_params`: the tracked rig table (or ``None``) as a
-    :class:`~flylib.pipeline.inputs.RigSpec` looking up calibrations in the runtime's
-    ``config_dir``."""
-    from .inputs import RigSpec
-
-    return RigSpec.from_params(table, runtime.config_dir) if table else None
-
-
-def rig_params(rig) -> dict | None:
-    """A stage's tracked ``rig``: the :class:`~flylib.pipeline.inputs.RigSpec`'s params,
-    or ``None`` while the rig comes from the bundle-adjustment artifact."""
-    return rig.params() if rig is not None else None
-
-
-def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
+def rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
     """The bundle-adjusted rig when that artifact is given, else the config rig
     (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
 
@@ -85,7 +71,7 @@ def _rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, sta
             "artifact, and none was given; pass it (--bundle-adjustment) or set "
             "pipeline.do_bundle_adjustment: false"
         )
-    return rig.camera_group(_image_sizes(pose2d), recording_dir)
+    return rig.camera_group(image_sizes(pose2d), recording_dir)
 
 
 def run_inputs(config, stage: str, ba_path: str | Path | None = None):
@@ -108,24 +94,8 @@ def _rig_source(config, ba_path):
     return type(config)(data, text=config.text, source=config.source, format=config.format)
 
 
-#: What to check when a numerical stage fails on a recording's data, per stage.
-_CHECK = {
-    "bundle_adjustment": "check its 2D (are the views' points of one fly, in raw-frame pixels?) "
-    "and the starting rig (cameras, calibration.file), or set "
-    "pipeline.do_bundle_adjustment: false",
-    "pictorial_structures": "check the detector's 2D and the rig, or set "
-    "pipeline.do_pictorial_structures: false",
-    "triangulation": "check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
-    "result, cameras, calibration.file)",
-    "refinement": "check triangulation's 3D (flylib inspect) and the refinement settings, or "
-    "set pipeline.do_refinement: false",
-    "kinematics": "check the 3D in results.h5 (flylib inspect), or set "
-    "pipeline.do_kinematics: false",
-}
-
-
 @contextmanager
-def _solving(stage: str, recording) -> Iterator[None]:
+def solving(stage: str, recording) -> Iterator[None]:
     """The stage boundary of a numerical stage: any exception its solver raises on the
     recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
     :class:`StageError` line naming the recording and what to check. flylib's own errors
@@ -139,7 +109,7 @@ def _solving(stage: str, recording) -> Iterator[None]:
         log.debug("%s failed on %s", stage, recording, exc_info=True)
         raise StageError(
             f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
-            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {_CHECK[stage]}"
+            f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {by_name(stage).hint}"
         ) from exc
 
 

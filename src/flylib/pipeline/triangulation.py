@@ -3,8 +3,10 @@ and writes its files.
 
 ``run_triangulation`` loads the 2D (pictorial structures' when that stage ran, else
 pose2d's), the rig (the bundle-adjusted one when given, else the config rig) and a
-corrections sidecar when there is one, calls :func:`compute_triangulation` and writes
-``<outdir>/stages/triangulation.h5``.
+corrections sidecar when there is one, calls :func:`compute_triangulation` (the
+triangulation, corrections applied), judges it by its held-out-view error
+(:func:`flylib.accuracy.triangulation_accuracy` of :func:`triangulation_method`) and
+writes ``<outdir>/stages/triangulation.h5``.
 """
 
 from __future__ import annotations
@@ -16,22 +18,37 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config.params import TriangulationParams, _build_params
-from .inputs import RigSpec, SkeletonSpec, StageInputs, register
-from .stage_helpers import RigRuntime, _rig_for, _solving, rig_from_params, rig_params, tracked_rig
+from ..config.params import TriangulationParams, build_params
+from ..errors import ResultsError
+from .inputs import (
+    OPTIONAL_RIG,
+    SKELETON,
+    TRIANGULATION,
+    RigSpec,
+    SkeletonSpec,
+    StageInputs,
+    register,
+    tracked,
+)
+from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     from jaxtyping import Bool, Float
 
+    from ..accuracy import Triangulate
     from ..camera.rig import CameraGroup
     from ..config import Config
     from ..corrections import Corrections
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Triangulated", "TriangulationInputs", "compute_triangulation", "run_triangulation"]
+__all__ = [
+    "Triangulated",
+    "TriangulationInputs",
+    "compute_triangulation",
+    "run_triangulation",
+    "triangulation_method",
+]
 
 
 @register
@@ -57,10 +74,10 @@ class TriangulationInputs(StageInputs):
 
     STAGE = "triangulation"
 
-    triangulation: TriangulationParams
-    skeleton: SkeletonSpec
+    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    skeleton: SkeletonSpec = tracked(SKELETON)
     points_from: str
-    rig: RigSpec | None
+    rig: RigSpec | None = tracked(OPTIONAL_RIG)
     runtime: RigRuntime = RigRuntime()
 
     @classmethod
@@ -68,33 +85,12 @@ class TriangulationInputs(StageInputs):
         """The stage's inputs as ``config`` gives them."""
         flags = config.stage_flags()
         return cls(
-            triangulation=_build_params(TriangulationParams, config.triangulation.method_params()),
+            triangulation=build_params(TriangulationParams, config.triangulation.method_params()),
             skeleton=SkeletonSpec.from_config(config),
             points_from="pictorial_structures" if flags["pictorial_structures"] else "pose2d",
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),
         )
-
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: RigRuntime | None = None) -> TriangulationInputs:
-        """Inverse of :meth:`params` (plus the untracked ``runtime``)."""
-        runtime = runtime or RigRuntime()
-        return cls(
-            triangulation=_build_params(TriangulationParams, params["triangulation"]),
-            skeleton=SkeletonSpec.from_params(params["skeleton"]),
-            points_from=params["points_from"],
-            rig=rig_from_params(params["rig"], runtime),
-            runtime=runtime,
-        )
-
-    def params(self) -> dict:
-        """The tracked params: the method's knobs, skeleton, 2D source and rig."""
-        return {
-            "triangulation": self.triangulation.method_params(),
-            "skeleton": self.skeleton.structure(),
-            "points_from": self.points_from,
-            "rig": rig_params(self.rig),
-        }
 
 
 @dataclass(frozen=True)
@@ -111,15 +107,12 @@ class Triangulated:
         ``(V, T, P)`` pixels.
     corrected
         ``(T, P)`` bool: the points a manual correction changed.
-    accuracy
-        The truth-free accuracy (:func:`flylib.accuracy.triangulation_accuracy`).
     """
 
     points3d: Float[np.ndarray, "T P 3"]
     points: Float[np.ndarray, "V T P 2"]
     reproj_error: Float[np.ndarray, "V T P"]
     corrected: Bool[np.ndarray, "T P"]
-    accuracy: dict[str, Any]
 
 
 def compute_triangulation(
@@ -129,22 +122,75 @@ def compute_triangulation(
     conf: Float[np.ndarray, "V T P"] | None = None,
     corrections: Corrections | None = None,
 ) -> Triangulated:
-    """Lift ``pts2d`` to 3D on ``cameras`` as ``inputs.triangulation`` says, with the
-    manual ``corrections`` applied (:func:`flylib.corrections.reconstruct_corrected`),
-    and judge the triangulation by its held-out-view error (no file is read or written).
-    """
-    from ..accuracy import triangulation_accuracy
-    from ..corrections import reconstruct_corrected
+    """Lift ``pts2d`` to 3D on ``cameras`` as ``inputs.triangulation`` says
+    (:func:`flylib.triangulation.reconstruct`), with the manual ``corrections`` applied
+    (no file is read or written). The review GUI re-solves each edit with it.
 
-    params = inputs.triangulation
-    pts3d, clean, error, corrected = reconstruct_corrected(
-        params, cameras, pts2d, conf, corrections
-    )
-    # truth-free accuracy (flylib.accuracy): each view predicted from the others
-    accuracy = triangulation_accuracy(
-        params, cameras, inputs.skeleton.skeleton(), pts2d, pts3d, conf
-    )
-    return Triangulated(pts3d, clean, error, corrected, accuracy)
+    Corrections: an edited 2D point replaces the detection in its view (a NaN edit
+    removes it) and gets confidence 1, an invisible one is dropped
+    (:meth:`~flylib.corrections.Corrections.apply_2d`); a ``fixed`` view the robust
+    method rejected is put back, the point re-solved by DLT from the kept views plus
+    the fixed ones; an edited 3D point replaces the triangulated one (its reprojection
+    errors follow).
+
+    Parameters
+    ----------
+    inputs
+        The stage's inputs (its ``triangulation`` table).
+    cameras
+        The final rig.
+    pts2d, conf
+        ``(V, T, P, 2)`` the 2D triangulation reads (pose2d's or pictorial structures')
+        and ``(V, T, P)`` its confidences, or ``None``.
+    corrections
+        The sidecar's edits for exactly these ``(V, T, P)``, or ``None``.
+
+    Raises
+    ------
+    ResultsError
+        If ``corrections`` do not match the shape of ``pts2d``.
+    """
+    from ..camera import model as camera_model
+    from ..triangulation import reconstruct, reprojection_error
+
+    if corrections is not None:
+        if corrections.shape != np.shape(pts2d)[:3]:
+            raise ResultsError(
+                f"corrections of shape {corrections.shape} (views, frames, points) do not "
+                f"match the 2D points {np.shape(pts2d)[:3]}; save them again from `flylib gui`"
+            )
+        pts2d, conf = corrections.apply_2d(pts2d, conf)
+    pts3d, clean, error = reconstruct(cameras, pts2d, inputs.triangulation, conf)
+    if corrections is None:
+        return Triangulated(pts3d, clean, error, np.zeros(clean.shape[1:3], bool))
+    fixed = corrections.fixed & corrections.edited & np.isfinite(pts2d).all(-1)
+    lost = fixed & ~np.isfinite(clean).all(-1)  # fixed views the robust fit left out
+    redo = np.argwhere(lost.any(axis=0))  # (n, 2) frame, point
+    if len(redo):
+        t, p = redo[:, 0], redo[:, 1]
+        keep = np.isfinite(clean[:, t, p]).all(-1) | fixed[:, t, p]  # (V, n)
+        obs = np.where(keep[..., None], pts2d[:, t, p], np.nan)
+        und = cameras.undistort_points(obs) if np.any(cameras.dists) else obs
+        pts3d[t, p] = camera_model.dlt_solve(np, und, cameras.pmats)
+        clean[:, t, p] = obs
+    if corrections.edited3d.any():
+        pts3d = pts3d.copy()
+        pts3d[corrections.edited3d] = corrections.points3d[corrections.edited3d]
+    if len(redo) or corrections.edited3d.any():
+        error = reprojection_error(cameras, pts3d, clean)
+    return Triangulated(pts3d, clean, error, corrections.corrected_points())
+
+
+def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> Triangulate:
+    """The stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls it
+    (:func:`flylib.triangulation.reconstruct` with the ``triangulation`` table)."""
+    from ..triangulation import reconstruct
+
+    def triangulate(pts2d, conf):
+        pts3d, clean, _ = reconstruct(cameras, pts2d, params, conf)
+        return pts3d, np.isfinite(clean).all(-1)
+
+    return triangulate
 
 
 def run_triangulation(
@@ -166,6 +212,7 @@ def run_triangulation(
     what a person changed) and the sidecar's name and edit count as attribute
     ``corrections``.
     """
+    from ..accuracy import triangulation_accuracy
     from ..corrections import Corrections
     from ..provenance import stage_provenance
     from ..results import Pose2dData, read_stage, write_stage
@@ -174,7 +221,7 @@ def run_triangulation(
     pts2d = pose2d.pts2d
     if pictorial_path:
         pts2d = np.asarray(read_stage(pictorial_path, "pictorial_structures")["points"], float)
-    cameras = _rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="triangulation")
+    cameras = rig_for(inputs.rig, pose2d, ba_path, recording_dir, stage="triangulation")
     corrections = (
         Corrections.load(
             corrections_path,
@@ -184,14 +231,24 @@ def run_triangulation(
         if corrections_path
         else None
     )
-    with _solving("triangulation", recording_dir or pose2d_path):
+    with solving("triangulation", recording_dir or pose2d_path):
+        log.info("triangulating with %s", inputs.triangulation.method)
         result = compute_triangulation(inputs, cameras, pts2d, pose2d.conf, corrections)
+        # truth-free accuracy: each view predicted from the others, by the same method
+        accuracy = triangulation_accuracy(
+            triangulation_method(inputs.triangulation, cameras),
+            cameras,
+            inputs.skeleton.skeleton(),
+            pts2d,
+            result.points3d,
+            pose2d.conf,
+        )
     arrays = {
         "points": result.points,
         "points3d": result.points3d,
         "reproj_error": result.reproj_error,
     }
-    attrs: dict[str, Any] = {"accuracy": result.accuracy}
+    attrs: dict[str, Any] = {"accuracy": accuracy}
     if corrections is not None:
         arrays["corrected"] = result.corrected
         arrays["corrected_2d"] = corrections.touched()

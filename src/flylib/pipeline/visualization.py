@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .inputs import SkeletonSpec, StageInputs, _json, frozen_mapping, register
+from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register
 
 
 @dataclass(frozen=True)
@@ -76,19 +76,6 @@ class VisualizationInputs(StageInputs):
             runtime=VisualizationRuntime.from_config(config),
         )
 
-    @classmethod
-    def from_params(cls, params: Mapping, runtime: Any = None) -> VisualizationInputs:
-        """Inverse of :meth:`params`, with ``runtime`` (a :class:`VisualizationRuntime`)."""
-        return cls(
-            visualization=frozen_mapping(dict(params["visualization"])),
-            palette=frozen_mapping(dict(params["palette"])),
-            runtime=runtime or VisualizationRuntime(),
-        )
-
-    def params(self) -> dict:
-        """``{"visualization": table, "palette": limb -> colour}``."""
-        return {"visualization": _json(self.visualization), "palette": _json(self.palette)}
-
 
 def footage_globs(config) -> tuple[tuple[str, str | None], ...]:
     """``(view, glob)`` per view ``config`` feeds from a footage source (``None``: a
@@ -140,7 +127,7 @@ def run_visualization(
 
     result = PoseResult.load(results_path)
     return render_videos(
-        _json(inputs.visualization),
+        plain_json(inputs.visualization),
         result,
         footage_files(inputs.runtime.footage, Path(recording_dir)),
         outdir,

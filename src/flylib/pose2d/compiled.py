@@ -219,7 +219,7 @@ def is_cached(key: CompileKey, root: Path | None = None) -> bool:
 # --- build and load ---------------------------------------------------------------
 
 
-def _compile_package(net: HourglassNet, key: CompileKey, device: torch.device, package: Path):
+def compile_package(net: HourglassNet, key: CompileKey, device: torch.device, package: Path):
     dtype = getattr(torch, key.precision)  # float32 | float16 | bfloat16
     module = LastStack(fold_batchnorm(net), dtype).to(device).eval()
     example = torch.zeros((key.batch_size, *key.input_shape), device=device)
@@ -279,7 +279,7 @@ def load_or_compile(
         "device, precision and batch) into %s; later jobs load it in seconds",
         package,
     )
-    _compile_package(net, key, device, package)
+    compile_package(net, key, device, package)
     with atomic_path(meta) as tmp:
         tmp.write_text(key.as_json())
     log.info("compiled the detector in %.1f s", time.perf_counter() - t)

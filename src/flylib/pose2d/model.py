@@ -11,7 +11,7 @@ without any renaming. With the ``sh8`` hyper-parameters the stem is
 (128 -> 256, projected skip) and ``layer3`` 128 planes on 256 channels (identity
 skip); ``state_dict()`` then has exactly the 2,526 entries of the released file
 (``../shared/spec/deepfly2d-sh8-state-dict.tsv``, checked in
-``tests/test_deepfly2d_compat.py``): 25,606,168 parameters, 112.6 GFLOP
+``tests/pose2d/test_deepfly2d_compat.py``): 25,606,168 parameters, 112.6 GFLOP
 (56.3 G multiply-adds) per 256x512 image.
 """
 

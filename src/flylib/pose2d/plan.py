@@ -69,10 +69,6 @@ class Op:
         """Apply the op to a torch batch ``(N, C, H, W)``."""
         raise NotImplementedError
 
-    def describe(self) -> dict:
-        """The op as a config entry."""
-        raise NotImplementedError
-
 
 @dataclass(frozen=True)
 class FlipLR(Op):
@@ -88,9 +84,6 @@ class FlipLR(Op):
     def apply(self, images):
         return images.flip(-1)
 
-    def describe(self):
-        return {"op": "fliplr"}
-
 
 @dataclass(frozen=True)
 class FlipUD(Op):
@@ -105,9 +98,6 @@ class FlipUD(Op):
 
     def apply(self, images):
         return images.flip(-2)
-
-    def describe(self):
-        return {"op": "flipud"}
 
 
 @dataclass(frozen=True)
@@ -148,9 +138,6 @@ class Rot90(Op):
 
         return torch.rot90(images, self.k % 4, dims=(-2, -1))
 
-    def describe(self):
-        return {"op": "rot90", "k": self.k}
-
 
 @dataclass(frozen=True)
 class Crop(Op):
@@ -180,15 +167,6 @@ class Crop(Op):
 
     def apply(self, images):
         return images[..., self.y0 : self.y0 + self.height, self.x0 : self.x0 + self.width]
-
-    def describe(self):
-        return {
-            "op": "crop",
-            "x0": self.x0,
-            "y0": self.y0,
-            "width": self.width,
-            "height": self.height,
-        }
 
 
 @dataclass(frozen=True)
@@ -223,9 +201,6 @@ class Resize(Op):
             align_corners=False,
             antialias=shrinking,
         )
-
-    def describe(self):
-        return {"op": "resize", "height": self.height, "width": self.width}
 
 
 def _int(spec: Mapping, key: str, where: str, *, minimum: int = 0) -> int:

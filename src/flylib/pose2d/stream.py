@@ -39,7 +39,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-_END = object()
+END_OF_STREAM = object()
 
 
 class _Failure:
@@ -149,7 +149,7 @@ class BlockPrefetcher:
                 yield block[:filled]
             self.decoded = index + 1 if shape is not None else 0
             self._check_complete()
-            yield _END
+            yield END_OF_STREAM
         except GeneratorExit:
             raise
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
@@ -211,7 +211,7 @@ class BlockPrefetcher:
     def get(self):
         """The next block, or the end marker; re-raises a decode error here."""
         if self._inline is not None:
-            item = next(self._inline, _END)
+            item = next(self._inline, END_OF_STREAM)
         else:
             item = self.blocks.get()
         if isinstance(item, _Failure):
@@ -417,7 +417,7 @@ def _ended(blocks: dict, start: int) -> bool:
     FootageError
         If some sources end while others go on, or a block's lengths differ.
     """
-    ended = [s for s, b in blocks.items() if b is _END]
+    ended = [s for s, b in blocks.items() if b is END_OF_STREAM]
     if ended:
         if len(ended) != len(blocks):
             going = [s for s in blocks if s not in ended]
@@ -543,7 +543,7 @@ def _mark_missing(out: DetectionOutput, views: list[int], frames: list[int]) -> 
         out.candidates_score[index] = np.nan
 
 
-def _frame_count(plan: DetectionPlan, sources) -> int | None:
+def frame_count(plan: DetectionPlan, sources) -> int | None:
     """The recording's frame count from its first active source's header (``None`` if
     unknown: the detection itself then reports any problem with the footage)."""
     active = plan.active_sources()
@@ -680,7 +680,7 @@ def detect_recording(
         If the footage is missing, corrupt or inconsistent across cameras.
     """
     if models is None:
-        models = load_models(plan, params, frames=_frame_count(plan, sources))
+        models = load_models(plan, params, frames=frame_count(plan, sources))
     out = _detect(params, io or IoParams(), plan, models, sources, k=k, progress=progress)
     view_sources = plan.view_sources()
     image_sizes = {v: out.frame_sizes[s] for v, s in view_sources.items() if s in out.frame_sizes}

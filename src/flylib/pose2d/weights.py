@@ -375,3 +375,35 @@ def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "modul
     torch.save({"state_dict": state}, tmp)
     os.replace(tmp, path)
     return path
+
+
+def load_detector(
+    checkpoint: str | Path | None = None, *, device=None, num_classes: int | None = None
+):
+    """Load the hourglass detector from a checkpoint (strictly; shape read from the file).
+
+    Parameters
+    ----------
+    checkpoint
+        A DeepFly2D checkpoint (``{"state_dict": ...}``, ``module.``/``model.``
+        prefixes allowed), or ``None`` for a freshly initialised, **untrained**
+        8-stack network (logged as a warning; for training or tests only).
+    device
+        Where to put it (default CPU).
+    num_classes
+        Expected output channels, checked against the checkpoint.
+
+    Returns
+    -------
+    HourglassNet
+        The network in eval mode.
+
+    Raises
+    ------
+    WeightsError
+        If the file is unreadable or does not fit the network.
+    """
+    if checkpoint is None:
+        log.warning("load_detector(None): returning an UNTRAINED hourglass network")
+        return HourglassNet(num_classes=num_classes or 19).to(device or "cpu").eval()
+    return load_hourglass(checkpoint, num_classes=num_classes, device=device or "cpu")

@@ -1,9 +1,9 @@
 """Spatiotemporal 3D refinement: every frame at once, robust reprojection, smoothness,
 bone-length constancy and a rigid (tethered) body.
 
-:func:`refine_points` works on arrays; :func:`skeleton_terms` and
-:func:`options_from_params` make its arguments from a skeleton and the ``refinement``
-table's params; :mod:`flylib.refinement.held_out` keeps a recording from getting worse
+:func:`refine_points` works on arrays and takes the ``refinement`` table's params
+(:class:`~flylib.config.postprocessing.RefinementParams`); :func:`skeleton_terms` makes
+its skeleton arguments; :mod:`flylib.refinement.held_out` keeps a recording from getting worse
 by the held-out-view yardstick; :mod:`flylib.pipeline.refinement` is the workflow stage
 (``stages/refinement.h5``).
 """
@@ -12,13 +12,11 @@ from .objective import LOSSES, BlockLayout, chunk_kernel, difference_gram
 from .setup import (
     default_rigid_points,
     mirror_bones,
-    options_from_params,
     skeleton_terms,
 )
 from .solver import (
     FLAG_BITS,
     RefinementResult,
-    RefineOptions,
     bone_lengths,
     refine_points,
     rigid_centres,
@@ -28,14 +26,12 @@ __all__ = [
     "FLAG_BITS",
     "LOSSES",
     "BlockLayout",
-    "RefineOptions",
     "RefinementResult",
     "bone_lengths",
     "chunk_kernel",
     "default_rigid_points",
     "difference_gram",
     "mirror_bones",
-    "options_from_params",
     "refine_points",
     "rigid_centres",
     "skeleton_terms",

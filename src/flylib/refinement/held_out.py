@@ -18,13 +18,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .solver import FLAG_BITS, RefineOptions
+from .setup import skeleton_terms
+from .solver import FLAG_BITS, refine_points
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from ..accuracy import Refine, Triangulate
     from ..camera.rig import CameraGroup
+    from ..config.postprocessing import RefinementParams
+    from ..skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +38,19 @@ _KEPT_ARRAYS = (
     ("reproj_error", "reproj_error", 1),
     ("points2d", "points", 1),
 )
+
+
+def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
+    """The refinement stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls
+    it (the ``refinement`` table and the skeleton's bones and rigid points)."""
+    terms = skeleton_terms(skeleton, params.rigid_points)
+
+    def refine(pts2d, conf, start, kept):
+        return refine_points(
+            pts2d, cameras, start, conf=conf, inliers=kept, options=params, **terms
+        ).points3d
+
+    return refine
 
 
 class HeldOutCheck:
@@ -55,10 +71,10 @@ class HeldOutCheck:
     start
         ``(T, P, 3)`` the triangulation's 3D.
     triangulate
-        The triangulation stage's method (:func:`flylib.accuracy.triangulation_method`).
+        The triangulation stage's method (:func:`flylib.pipeline.triangulation.triangulation_method`).
     refine_at
         ``smooth_scale -> Refine``: the refinement stage's method at a smoothness scale
-        (:func:`flylib.accuracy.refinement_method`).
+        (:func:`refinement_method`).
     options
         The configured solver options.
     motion_scales
@@ -78,7 +94,7 @@ class HeldOutCheck:
         start: Float[np.ndarray, "T P 3"],
         triangulate: Triangulate,
         refine_at: Callable[[float], Refine],
-        options: RefineOptions,
+        options: RefinementParams,
         motion_scales: Sequence[float],
         terms: Mapping[str, Any],
         point_names: Sequence[str],

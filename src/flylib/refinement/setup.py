@@ -1,53 +1,18 @@
-"""From a skeleton and the ``refinement`` table's params to :func:`refine_points`'s arguments."""
+"""From a skeleton to :func:`refine_points`'s skeleton arguments (bones, chains, mirror, rigid)."""
 
 from __future__ import annotations
 
-from dataclasses import fields
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..errors import ConfigError
-from .solver import RefineOptions
-
-if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Int
+from ..skeleton import mirror_bones
 
 
 def default_rigid_points(skeleton) -> list[str]:
     """The points fixed to a tethered fly's thorax: every ``*thorax_coxa`` point."""
     return [p for p in skeleton.point_names if p.endswith("thorax_coxa")]
-
-
-def _twin_name(name: str) -> str | None:
-    """``lf_leg`` <-> ``rf_leg``, ``l_antenna`` <-> ``r_antenna``; ``None`` if unsided."""
-    if name[:1] == "l":
-        return "r" + name[1:]
-    if name[:1] == "r":
-        return "l" + name[1:]
-    return None
-
-
-def mirror_bones(skeleton) -> Int[np.ndarray, " B"]:
-    """``(B,)`` the left/right twin of every bone (itself when it has none): bone ``k``
-    of limb ``l...`` and bone ``k`` of limb ``r...`` with equally long chains."""
-    limbs = list(skeleton.limbs.items())
-    index = {}
-    b = 0
-    for name, chain in limbs:
-        for k in range(len(chain) - 1):
-            index[(name, k)] = b
-            b += 1
-    out = np.arange(b)
-    for (name, k), bone in index.items():
-        twin = _twin_name(name)
-        if (
-            twin is not None
-            and (twin, k) in index
-            and len(skeleton.limbs[twin]) == len(skeleton.limbs[name])
-        ):
-            out[bone] = index[(twin, k)]
-    return out
 
 
 def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
@@ -79,9 +44,3 @@ def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
         "mirror": mirror_bones(skeleton),
         "rigid": [skeleton.index(n) for n in names],
     }
-
-
-def options_from_params(params) -> RefineOptions:
-    """:class:`RefineOptions` from the typed ``refinement`` params (same names)."""
-    own = {f.name for f in fields(RefineOptions)}
-    return RefineOptions(**{k: v for k, v in vars(params).items() if k in own})

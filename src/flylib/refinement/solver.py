@@ -27,6 +27,7 @@ from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from threadpoolctl import threadpool_limits
 
 from ..camera import model as camera_model
+from ..config.postprocessing import RefinementParams
 from ..resources import thread_map
 from .objective import (
     LOSSES,
@@ -65,35 +66,6 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
         "point, so the output keeps the triangulation's 3D",
     ),
 }
-
-
-@dataclass(frozen=True)
-class RefineOptions:
-    """Weights, scales and limits of the refinement (the config's ``refinement`` table)."""
-
-    loss: str = "soft_l1"
-    scale_px: float = 3.0
-    weigh_by_confidence: bool = True
-    smooth_weight: float = 1.0
-    smooth_order: int = 2
-    smooth_scale: float = 0.03
-    bone_weight: float = 1.0
-    bone_scale: float = 0.005
-    symmetric_bones: bool = False
-    rigid_weight: float = 1.0
-    rigid_scale: float = 0.005
-    gap_length: int = 5
-    outlier_px: float = 20.0
-    max_iterations: int = 10
-    chunk_frames: int = 1024
-    overlap_frames: int = 32
-    moved_fraction: float = 0.05
-
-    def __post_init__(self):
-        if self.loss not in LOSSES:
-            raise ValueError(f"loss must be one of {LOSSES}, got {self.loss!r}")
-        if self.smooth_order not in (1, 2):
-            raise ValueError(f"smooth_order must be 1 or 2, got {self.smooth_order}")
 
 
 @dataclass
@@ -315,7 +287,7 @@ class ChunkProblem:
         lengths,
         rigid,
         centres,
-        opts: RefineOptions,
+        opts: RefinementParams,
         padded: int,
     ):
         self.opts = opts
@@ -564,7 +536,7 @@ def refine_stream(
     chains=None,
     mirror=None,
     rigid=(),
-    options: RefineOptions | None = None,
+    options: RefinementParams | None = None,
 ) -> dict[str, Any]:
     """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``.
 
@@ -589,7 +561,11 @@ def refine_stream(
     dict
         ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
     """
-    opts = options or RefineOptions()
+    opts = options or RefinementParams()
+    if opts.loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {opts.loss!r}")
+    if opts.smooth_order not in (1, 2):
+        raise ValueError(f"smooth_order must be 1 or 2, got {opts.smooth_order}")
     n_frames, n_points = source.n_frames, source.n_points
     bones = (
         np.zeros((0, 2), np.int64) if bones is None else np.asarray(bones, np.int64).reshape(-1, 2)
@@ -678,7 +654,7 @@ def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
     return layout
 
 
-def _first_pass(source, chunk: int, opts: RefineOptions) -> tuple[np.ndarray, np.ndarray]:
+def _first_pass(source, chunk: int, opts: RefinementParams) -> tuple[np.ndarray, np.ndarray]:
     """``seen`` ``(V, P)``: which views observe which points anywhere, and an evenly
     spread sample ``(S, P, 3)`` of the starting frames, read chunk by chunk."""
     n_frames, n_points = source.n_frames, source.n_points
@@ -757,7 +733,7 @@ class _ChunkSolver:
     lengths: np.ndarray
     rigid: np.ndarray
     centres: np.ndarray
-    opts: RefineOptions
+    opts: RefinementParams
     fallback: np.ndarray
     scale: float
     overlap: int
@@ -822,7 +798,7 @@ def refine_points(
     chains: list[list[int]] | None = None,
     mirror: Int[np.ndarray, " B"] | None = None,
     rigid: list[int] | Int[np.ndarray, " R"] = (),
-    options: RefineOptions | None = None,
+    options: RefinementParams | None = None,
 ) -> RefinementResult:
     """Refine a whole recording's 3D jointly over frames and the skeleton.
 
@@ -849,7 +825,8 @@ def refine_points(
     rigid
         Indices of the points held at one world position (the tethered thorax).
     options
-        :class:`RefineOptions`.
+        The ``refinement`` table's :class:`~flylib.config.postprocessing.RefinementParams`
+        (default: its defaults).
 
     Returns
     -------
@@ -916,7 +893,7 @@ def _runs_longer_than(mask: np.ndarray, length: int) -> np.ndarray:
     return out
 
 
-def _chunk_flags(points3d, start, observed, kept, scale, opts: RefineOptions) -> np.ndarray:
+def _chunk_flags(points3d, start, observed, kept, scale, opts: RefinementParams) -> np.ndarray:
     """Per-point flags of one chunk; an unsupported point is flagged ``filled`` until the
     recording-wide gap pass turns long gaps into ``missing``."""
     bit = {k: np.uint8(v[0]) for k, v in FLAG_BITS.items()}

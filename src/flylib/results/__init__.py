@@ -27,23 +27,33 @@ The package, by concern (every name is importable from ``flylib.results``):
 - ``groups``: the rig and skeleton groups, :func:`read_cameras`, :func:`read_skeleton`
 - ``pose``: :class:`PoseResult`, the assembled result
 - ``pose2d``: :class:`Pose2dData`, the pose2d artifact; ``candidates``: the top-K peaks
-- ``artifacts``: :func:`write_stage` / :func:`read_stage`, :func:`write_analysis`
+- ``artifacts``: :func:`write_stage` / :func:`read_stage`, :func:`write_analysis`, the
+  workflow's file names (:data:`ARTIFACTS`, :data:`SUMMARY_FILES`,
+  :func:`candidates_artifact`)
 - ``assembly``: :func:`assemble_results`
 """
 
 from __future__ import annotations
 
 from ..paths import atomic_path
-from . import datasets as _datasets
-from .artifacts import ARTIFACTS, STAGE_GROUPS, read_stage, write_analysis, write_stage
+from .artifacts import (
+    ARTIFACTS,
+    STAGE_GROUPS,
+    SUMMARY_FILES,
+    artifact_path,
+    candidates_artifact,
+    read_stage,
+    write_analysis,
+    write_stage,
+)
 from .assembly import assemble_results
 from .candidates import load_candidates, save_candidates
 from .checksums import fletcher32 as fletcher32, verify_file
-from .datasets import _write_array as _write_array
+from .datasets import write_array as write_array
 from .groups import read_cameras, read_skeleton
 from .hdf5 import (
     FORMAT_VERSION,
-    _new_meta as _new_meta,
+    new_meta as new_meta,
     open_checked,
     open_hdf5 as open_hdf5,
     read_meta,
@@ -56,10 +66,13 @@ __all__ = [
     "ARTIFACTS",
     "FORMAT_VERSION",
     "STAGE_GROUPS",
+    "SUMMARY_FILES",
     "PoseResult",
     "Pose2dData",
+    "artifact_path",
     "assemble_results",
     "atomic_path",
+    "candidates_artifact",
     "load_candidates",
     "open_checked",
     "read_cameras",
@@ -72,11 +85,3 @@ __all__ = [
     "write_analysis",
     "write_stage",
 ]
-
-
-def __getattr__(name: str):
-    # The checksum switch lives in ``datasets`` (benchmarks/results_io.py's baseline and
-    # the older-file test set it there); reading it here gives its current value.
-    if name == "_FLETCHER32":
-        return _datasets._FLETCHER32
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

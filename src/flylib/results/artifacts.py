@@ -17,29 +17,35 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from .datasets import _json_attrs, _read, _read_json_attrs, _write_array
-from .groups import _read_cameras, _write_cameras
-from .hdf5 import _create, _new_meta, _read_checked
+from ..stages import REGISTRY
+from .datasets import json_attrs, read_dataset, read_json_attrs, write_array
+from .groups import cameras_from_group, write_cameras
+from .hdf5 import create_file, new_meta, read_checked
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
 
 #: Stage-artifact file names inside ``<outdir>/stages/``.
-ARTIFACTS: dict[str, str] = {
-    "pose2d": "pose2d.h5",
-    "bundle_adjustment": "bundle_adjustment.h5",
-    "pictorial_structures": "pictorial_structures.h5",
-    "triangulation": "triangulation.h5",
-    "refinement": "refinement.h5",
-}
+ARTIFACTS: dict[str, str] = {s.name: s.artifact for s in REGISTRY if s.artifact}
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = (
-    "pose2d",
-    "bundle_adjustment",
-    "pictorial_structures",
-    "triangulation",
-    "refinement",
-)
+STAGE_GROUPS: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.results_group)
+#: The per-recording summary files the assemble stage writes beside ``results.h5``.
+SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
+
+
+def candidates_artifact(k: int) -> str:
+    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
+
+    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
+    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
+    re-runs no detection, and a new ``k`` while it is on asks for a new file.
+    """
+    return f"candidates_k{int(k)}.h5"
+
+
+def artifact_path(outdir: str | Path, stage: str) -> Path:
+    """``<outdir>/stages/<stage>.h5``."""
+    return Path(outdir) / "stages" / ARTIFACTS[stage]
 
 
 def write_analysis(
@@ -49,10 +55,10 @@ def write_analysis(
     atomically: the meta JSON, and a group ``<stage>`` holding ``arrays`` as checksummed
     float64 datasets and ``attrs`` as JSON group attributes."""
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["meta"] = json.dumps(_new_meta(stage))
+        f.attrs["meta"] = json.dumps(new_meta(stage))
         group = f.create_group(stage)
         for name, value in arrays.items():
-            _write_array(group, name, value)
+            write_array(group, name, value)
         for key, value in attrs.items():
             group.attrs[key] = json.dumps(value)
     return Path(path)
@@ -91,17 +97,17 @@ def write_stage(
         raise ValueError(
             f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})"
         )
-    with atomic_path(path) as tmp, _create(tmp) as f:
-        f.attrs["meta"] = json.dumps(_new_meta(stage, meta))
+    with atomic_path(path) as tmp, create_file(tmp) as f:
+        f.attrs["meta"] = json.dumps(new_meta(stage, meta))
         group = f.create_group(stage)
         for name, value in arrays.items():
             value = np.asarray(value)
-            _write_array(
+            write_array(
                 group, name, value, dtype=np.bool_ if value.dtype == np.bool_ else np.float64
             )
         if cameras is not None:
-            _write_cameras(group.create_group("cameras"), cameras)
-        _json_attrs(group, attrs)
+            write_cameras(group.create_group("cameras"), cameras)
+        json_attrs(group, attrs)
 
 
 def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
@@ -126,13 +132,15 @@ def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
         If the file is missing, of another version, or lacks the group.
     """
     rerun = f"re-run the {stage} stage"
-    with _read_checked(path, rerun) as f:
+    with read_checked(path, rerun) as f:
         if stage not in f:
             raise ResultsError(f"{path}: has no {stage} group; {rerun}")
         group = f[stage]
         out: dict[str, Any] = {
-            name: _read(item) for name, item in group.items() if isinstance(item, h5py.Dataset)
+            name: read_dataset(item)
+            for name, item in group.items()
+            if isinstance(item, h5py.Dataset)
         }
-        out["cameras"] = _read_cameras(group["cameras"]) if "cameras" in group else None
-        out["attrs"] = _read_json_attrs(group)
+        out["cameras"] = cameras_from_group(group["cameras"]) if "cameras" in group else None
+        out["attrs"] = read_json_attrs(group)
         return out

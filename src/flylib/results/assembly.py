@@ -18,10 +18,10 @@ from ..errors import ResultsError
 from ..paths import atomic_path
 from ..skeleton import Skeleton
 from .artifacts import STAGE_GROUPS
-from .checksums import _check_group
-from .datasets import _read_json_attrs, _read_strings
-from .groups import _write_cameras, _write_skeleton
-from .hdf5 import _create, _new_meta, open_checked, read_meta_from
+from .checksums import check_group
+from .datasets import read_json_attrs, read_strings
+from .groups import write_cameras, write_skeleton
+from .hdf5 import create_file, new_meta, open_checked, read_meta_from
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -70,11 +70,11 @@ def assemble_results(
         raise ResultsError(
             f"{out_path}: cannot assemble without the pose2d artifact; run the pose2d stage"
         )
-    with atomic_path(out_path) as tmp, _create(tmp) as dst:
+    with atomic_path(out_path) as tmp, create_file(tmp) as dst:
         dst.attrs["meta"] = json.dumps(
-            _new_meta("assemble", {**(meta or {}), "stages": list(stage_files)})
+            new_meta("assemble", {**(meta or {}), "stages": list(stage_files)})
         )
-        _write_skeleton(dst.create_group("skeleton"), skeleton)
+        write_skeleton(dst.create_group("skeleton"), skeleton)
         for stage in STAGE_GROUPS:
             if stage not in stage_files:
                 continue
@@ -84,7 +84,7 @@ def assemble_results(
                     raise ResultsError(
                         f"{src_path}: has no {stage} group; re-run the {stage} stage"
                     )
-                _check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
+                check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
                 src.copy(src[stage], dst, name=stage)
                 dst[stage].attrs["meta"] = json.dumps(read_meta_from(src))
                 if stage == "pose2d":
@@ -92,14 +92,14 @@ def assemble_results(
         g2d = dst["pose2d"]
         if "cameras" in g2d:
             del g2d["cameras"]
-        _write_cameras(g2d.create_group("cameras"), config_rig)
+        write_cameras(g2d.create_group("cameras"), config_rig)
 
 
 def _check_pose2d_matches(
     src: h5py.File, src_path: str | Path, skeleton: Skeleton, rig: CameraGroup
 ) -> None:
     if "skeleton" in src:
-        detected = _read_strings(src["skeleton/point_names"])
+        detected = read_strings(src["skeleton/point_names"])
         if list(detected) != list(skeleton.point_names):
             raise ResultsError(
                 f"{src_path}: detected with skeleton points {detected[:3]}... which differ from the"
@@ -110,7 +110,7 @@ def _check_pose2d_matches(
         raise ResultsError(
             f"{src_path}: has {n_points} points but the skeleton has {skeleton.n_points}; re-run the pose2d stage"
         )
-    views = _read_json_attrs(src["pose2d"]).get("view_names")
+    views = read_json_attrs(src["pose2d"]).get("view_names")
     if views is not None and list(views) != list(rig.names):
         raise ResultsError(
             f"{src_path}: 2D points are for views {views} but the rig has cameras {list(rig.names)};"

@@ -16,19 +16,19 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from .datasets import _read, _write_array
-from .hdf5 import _create, _new_meta, _read_checked
+from .datasets import read_dataset, write_array
+from .hdf5 import create_file, new_meta, read_checked
 
 
-def _make_candidates(xy: np.ndarray, score: np.ndarray) -> Any:
+def make_candidates(xy: np.ndarray, score: np.ndarray) -> Any:
     from ..pictorial import Candidates
 
     return Candidates(xy=xy, score=score)
 
 
-def _write_candidates(group: h5py.Group, candidates: Any) -> None:
-    _write_array(group, "xy", candidates.xy)
-    _write_array(group, "score", candidates.score)
+def write_candidates(group: h5py.Group, candidates: Any) -> None:
+    write_array(group, "xy", candidates.xy)
+    write_array(group, "score", candidates.score)
 
 
 def save_candidates(
@@ -45,9 +45,9 @@ def save_candidates(
     meta
         Extra entries for the file's meta JSON (e.g. its params hash).
     """
-    with atomic_path(path) as tmp, _create(tmp) as f:
-        f.attrs["meta"] = json.dumps(_new_meta("candidates", meta))
-        _write_candidates(f.create_group("candidates"), candidates)
+    with atomic_path(path) as tmp, create_file(tmp) as f:
+        f.attrs["meta"] = json.dumps(new_meta("candidates", meta))
+        write_candidates(f.create_group("candidates"), candidates)
 
 
 def load_candidates(path: str | Path) -> Any:
@@ -59,7 +59,9 @@ def load_candidates(path: str | Path) -> Any:
         If the file is missing, of another version, or holds no candidates.
     """
     rerun = "re-run the pose2d stage with pictorial structures on"
-    with _read_checked(path, rerun) as f:
+    with read_checked(path, rerun) as f:
         if "candidates/xy" not in f:
             raise ResultsError(f"{path}: holds no candidate peaks; {rerun}")
-        return _make_candidates(_read(f["candidates/xy"]), _read(f["candidates/score"]))
+        return make_candidates(
+            read_dataset(f["candidates/xy"]), read_dataset(f["candidates/score"])
+        )

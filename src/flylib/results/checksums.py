@@ -4,7 +4,7 @@ Every non-empty dataset flylib writes carries HDF5's Fletcher-32 filter: the che
 each stored chunk appended to it. :func:`fletcher32` recomputes it (vectorised, for the
 threaded deflate of :mod:`flylib.results.datasets` and for checking raw chunks);
 :func:`verify_file` checks a whole file, as ``flylib inspect`` does, and the loaders
-name a damaged dataset through :func:`_verify_dataset` and :func:`_check_group`.
+name a damaged dataset through :func:`verify_dataset` and :func:`check_group`.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def fletcher32(data: bytes) -> int:
     return (fold(weighted) << 16) | fold(total)
 
 
-def _damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
+def damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
     return ResultsError(
         f"{path}: {what} is damaged (HDF5: {one_line(err)}); the file is corrupt: delete it "
         "and re-run the workflow to regenerate it"
@@ -83,20 +83,20 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
     try:
         f = h5py.File(path, "r")
     except OSError as err:
-        return [str(_damaged(path, "its HDF5 structure", err))]
+        return [str(damaged(path, "its HDF5 structure", err))]
 
     def visit(group: h5py.Group) -> None:
         try:
             names = list(group.keys())
             dict(group.attrs.items())
         except (OSError, KeyError, RuntimeError) as err:
-            problems.append(str(_damaged(path, f"group {group.name}", err)))
+            problems.append(str(damaged(path, f"group {group.name}", err)))
             return
         for name in names:
             try:
                 item = group[name]
             except (OSError, KeyError, RuntimeError) as err:
-                problems.append(str(_damaged(path, f"object {group.name.rstrip('/')}/{name}", err)))
+                problems.append(str(damaged(path, f"object {group.name.rstrip('/')}/{name}", err)))
                 continue
             if isinstance(item, h5py.Group):
                 visit(item)
@@ -110,11 +110,11 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
                     item[()]
             except (OSError, RuntimeError) as err:
                 try:
-                    _verify_dataset(path, item)  # the chunk whose checksum fails, if one does
+                    verify_dataset(path, item)  # the chunk whose checksum fails, if one does
                 except ResultsError as precise:
                     problems.append(str(precise))
                 else:
-                    problems.append(str(_damaged(path, f"dataset {item.name}", err)))
+                    problems.append(str(damaged(path, f"dataset {item.name}", err)))
                 continue
             if unchecked is not None and item.size and not item.fletcher32:
                 unchecked.append(item.name)
@@ -124,7 +124,7 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
     return problems
 
 
-def _verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
+def verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
     """Check a dataset against its stored checksums without decompressing it.
 
     A Fletcher-32-filtered dataset's chunks are read raw and their checksums
@@ -148,10 +148,10 @@ def _verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
                     f"Fletcher-32 checksum mismatch in the chunk at {tuple(info.chunk_offset)}"
                 )
     except (OSError, RuntimeError, ValueError) as err:
-        raise _damaged(path, f"dataset {dataset.name}", err) from None
+        raise damaged(path, f"dataset {dataset.name}", err) from None
 
 
-def _check_group(path: str | Path, group: h5py.Group, skip: Sequence[str] = ()) -> None:
+def check_group(path: str | Path, group: h5py.Group, skip: Sequence[str] = ()) -> None:
     """Verify every dataset under ``group`` (but those named in ``skip``, already read)."""
     datasets: list[h5py.Dataset] = []
 
@@ -162,6 +162,6 @@ def _check_group(path: str | Path, group: h5py.Group, skip: Sequence[str] = ()) 
     try:
         group.visititems(collect)
     except (OSError, KeyError, RuntimeError) as err:
-        raise _damaged(path, f"group {group.name}", err) from None
+        raise damaged(path, f"group {group.name}", err) from None
     for dataset in datasets:
-        _verify_dataset(path, dataset)
+        verify_dataset(path, dataset)

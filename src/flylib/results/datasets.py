@@ -5,7 +5,7 @@ gzip-compressed once they are large, so a 100k-frame recording stays small; the 
 are deflated on threads and stored with their Fletcher-32 checksum
 (:mod:`flylib.results.checksums`). Names are fixed-length UTF-8 strings inside
 checksummed chunks; group attributes are JSON text. Every read goes through
-:func:`_read`: a damaged dataset is one :class:`~flylib.errors.ResultsError` naming the
+:func:`read_dataset`: a damaged dataset is one :class:`~flylib.errors.ResultsError` naming the
 file and the dataset.
 """
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..resources import thread_map
-from .checksums import _damaged, _verify_dataset, fletcher32
+from .checksums import damaged, fletcher32, verify_dataset
 
 # Arrays with at least this many elements are chunked and compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
@@ -38,17 +38,17 @@ _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
 # chunks deflate on at most this many threads (fewer under a thread budget)
 _DEFLATE_THREADS = 8
 # Fletcher-32 on every dataset; off only for benchmarks/results_io.py's baseline.
-_FLETCHER32 = True
+FLETCHER32 = True
 
 
 def _checksummed(payload: bytes) -> bytes:
     """A filtered chunk as the Fletcher-32 filter stores it: the data, then its checksum."""
-    if not _FLETCHER32:
+    if not FLETCHER32:
         return payload
     return payload + struct.pack("<I", fletcher32(payload))
 
 
-def _read(dataset: h5py.Dataset) -> np.ndarray:
+def read_dataset(dataset: h5py.Dataset) -> np.ndarray:
     """The whole dataset, its checksums verified by HDF5; damage is a ResultsError."""
     if dataset.dtype.kind == "c":  # NumPy would drop the imaginary part with only a warning
         raise ResultsError(
@@ -60,11 +60,11 @@ def _read(dataset: h5py.Dataset) -> np.ndarray:
         return dataset[()]
     except OSError as err:
         path = dataset.file.filename
-        _verify_dataset(path, dataset)  # names the chunk whose checksum fails, if one does
-        raise _damaged(path, f"dataset {dataset.name}", err) from None
+        verify_dataset(path, dataset)  # names the chunk whose checksum fails, if one does
+        raise damaged(path, f"dataset {dataset.name}", err) from None
 
 
-def _write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float64) -> h5py.Dataset:
+def write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float64) -> h5py.Dataset:
     """Write ``data``; big arrays are chunked along their longest axis and compressed."""
     arr = np.asarray(data, dtype=dtype)
     if name in group:
@@ -72,7 +72,7 @@ def _write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float6
     if arr.size == 0 or arr.ndim == 0:  # no chunk to checksum (the header holds a scalar)
         return group.create_dataset(name, data=arr)
     if arr.size < _COMPRESS_MIN_ELEMENTS:
-        if not _FLETCHER32:
+        if not FLETCHER32:
             return group.create_dataset(name, data=arr)
         return group.create_dataset(name, data=arr, chunks=arr.shape, fletcher32=True)
     axis = int(np.argmax(arr.shape))
@@ -85,7 +85,7 @@ def _write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float6
         shape=arr.shape,
         dtype=arr.dtype,
         chunks=tuple(chunks),
-        fletcher32=_FLETCHER32,
+        fletcher32=FLETCHER32,
         **_COMPRESSION,
     )
     _write_deflated_chunks(dataset, arr, axis, step)
@@ -120,29 +120,29 @@ def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, st
         dataset.id.write_direct_chunk(offset, payload)
 
 
-def _write_strings(group: h5py.Group, name: str, values: Sequence[str]) -> None:
+def write_strings(group: h5py.Group, name: str, values: Sequence[str]) -> None:
     if name in group:
         del group[name]
     encoded = [str(v).encode("utf-8") for v in values]
     width = max([1, *map(len, encoded)])
     data = np.array(encoded, dtype=h5py.string_dtype("utf-8", width))
-    kwargs = {"chunks": data.shape, "fletcher32": True} if data.size and _FLETCHER32 else {}
+    kwargs = {"chunks": data.shape, "fletcher32": True} if data.size and FLETCHER32 else {}
     group.create_dataset(name, data=data, **kwargs)
 
 
-def _read_strings(dataset: h5py.Dataset) -> list[str]:
-    values = _read(dataset)
+def read_strings(dataset: h5py.Dataset) -> list[str]:
+    values = read_dataset(dataset)
     return [
         v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()
     ]
 
 
-def _json_attrs(group: h5py.Group, attrs: Mapping | None) -> None:
+def json_attrs(group: h5py.Group, attrs: Mapping | None) -> None:
     for key, value in (attrs or {}).items():
         group.attrs[key] = json.dumps(value)
 
 
-def _read_json_attrs(group: h5py.Group) -> dict:
+def read_json_attrs(group: h5py.Group) -> dict:
     out = {}
     for key, value in group.attrs.items():
         text = value.decode() if isinstance(value, bytes) else value

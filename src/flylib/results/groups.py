@@ -15,53 +15,53 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..skeleton import Skeleton
-from .datasets import _read, _read_strings, _write_array, _write_strings
-from .hdf5 import _read_checked
+from .datasets import read_dataset, read_strings, write_array, write_strings
+from .hdf5 import read_checked
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
 
 
-def _write_cameras(group: h5py.Group, cameras: CameraGroup) -> None:
+def write_cameras(group: h5py.Group, cameras: CameraGroup) -> None:
     """Store a rig as ``names``, ``rvecs``, ``tvecs``, ``intrs`` ([fx, fy, cx, cy]), ``dists``."""
-    _write_strings(group, "names", cameras.names)
+    write_strings(group, "names", cameras.names)
     for name in ("rvecs", "tvecs", "intrs", "dists"):
-        _write_array(group, name, getattr(cameras, name))
+        write_array(group, name, getattr(cameras, name))
 
 
-def _read_cameras(group: h5py.Group) -> CameraGroup:
+def cameras_from_group(group: h5py.Group) -> CameraGroup:
     from ..camera.rig import CameraGroup
 
     return CameraGroup.from_arrays(
-        _read_strings(group["names"]),
-        _read(group["rvecs"]),
-        _read(group["tvecs"]),
-        _read(group["intrs"]),
-        _read(group["dists"]),
+        read_strings(group["names"]),
+        read_dataset(group["rvecs"]),
+        read_dataset(group["tvecs"]),
+        read_dataset(group["intrs"]),
+        read_dataset(group["dists"]),
     )
 
 
-def _write_skeleton(group: h5py.Group, skeleton: Skeleton) -> None:
+def write_skeleton(group: h5py.Group, skeleton: Skeleton) -> None:
     group.attrs["name"] = skeleton.name
-    _write_strings(group, "point_names", skeleton.point_names)
-    _write_strings(group, "limb_names", skeleton.limb_names)
-    _write_array(group, "limb_id", skeleton.limb_id, dtype=np.int64)
-    _write_array(group, "bones", skeleton.bones, dtype=np.int64)
+    write_strings(group, "point_names", skeleton.point_names)
+    write_strings(group, "limb_names", skeleton.limb_names)
+    write_array(group, "limb_id", skeleton.limb_id, dtype=np.int64)
+    write_array(group, "bones", skeleton.bones, dtype=np.int64)
     palette = group.create_group("palette")
     for limb, color in skeleton.palette.items():
         palette.attrs[limb] = color
 
 
-def _read_skeleton(group: h5py.Group) -> Skeleton:
+def skeleton_from_group(group: h5py.Group) -> Skeleton:
     name = group.attrs.get("name", "skeleton")
     palette = (
         {str(k): str(v) for k, v in group["palette"].attrs.items()} if "palette" in group else {}
     )
     return Skeleton.from_arrays(
-        _read_strings(group["point_names"]),
-        _read_strings(group["limb_names"]),
-        _read(group["limb_id"]),
-        _read(group["bones"]),
+        read_strings(group["point_names"]),
+        read_strings(group["limb_names"]),
+        read_dataset(group["limb_id"]),
+        read_dataset(group["bones"]),
         palette=palette,
         name=str(name),
     )
@@ -75,10 +75,10 @@ def read_skeleton(path: str | Path) -> Skeleton:
     ResultsError
         If the file is missing, of another version, or has no skeleton.
     """
-    with _read_checked(path, "re-run the pipeline") as f:
+    with read_checked(path, "re-run the pipeline") as f:
         if "skeleton" not in f:
             raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
-        return _read_skeleton(f["skeleton"])
+        return skeleton_from_group(f["skeleton"])
 
 
 def read_cameras(path: str | Path, group: str) -> CameraGroup:
@@ -96,7 +96,7 @@ def read_cameras(path: str | Path, group: str) -> CameraGroup:
     ResultsError
         If the file is missing, of another version, or has no such rig.
     """
-    with _read_checked(path, f"re-run {group}") as f:
+    with read_checked(path, f"re-run {group}") as f:
         if f"{group}/cameras" not in f:
             raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")
-        return _read_cameras(f[f"{group}/cameras"])
+        return cameras_from_group(f[f"{group}/cameras"])

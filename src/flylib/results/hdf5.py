@@ -6,7 +6,7 @@ errors, flylib's own files (:class:`~flylib.errors.ResultsError`) and other tool
 :func:`open_checked` opens a results or stage file and checks its format version, and
 turns damage met while reading it into one line. Every file holds ``attrs["meta"]``
 (JSON: ``deeperfly_format_version``, ``flylib_version``, ``created_utc``, ``stage``);
-new files use HDF5 1.8's checksummed object headers (:func:`_create`).
+new files use HDF5 1.8's checksummed object headers (:func:`create_file`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import h5py
 
 from ..errors import FlylibError, ResultsError, one_line
 from ..paths import out_of_space
-from .checksums import _damaged
+from .checksums import damaged
 
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
@@ -36,7 +36,7 @@ _LIBVER = ("v108", "latest")
 H5_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
 
 
-def _create(path: str | Path) -> h5py.File:
+def create_file(path: str | Path) -> h5py.File:
     """A new HDF5 file in the checksummed metadata format."""
     return h5py.File(path, "w", libver=_LIBVER)
 
@@ -92,7 +92,7 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
         try:
             version = read_meta_from(f).get("deeperfly_format_version")
         except (OSError, KeyError, RuntimeError) as err:
-            raise _damaged(path, "its root attributes", err) from None
+            raise damaged(path, "its root attributes", err) from None
         if version is None:
             raise ResultsError(
                 f"{path}: not a flylib file (no format version in its meta); {rerun} to regenerate it"
@@ -106,11 +106,11 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
         except (OSError, RuntimeError) as err:  # a damaged object header, link table, ...
             if out_of_space(err) is not None:
                 raise  # a write in the block failed (atomic_path reports it), not this file
-            raise _damaged(path, "an HDF5 object", err) from None
+            raise damaged(path, "an HDF5 object", err) from None
         except KeyError as err:
             if "Unable to" not in str(err):  # h5py's words for an object HDF5 could not load
                 raise
-            raise _damaged(path, "an HDF5 object", err) from None
+            raise damaged(path, "an HDF5 object", err) from None
 
 
 #: What reading a damaged file raises below flylib: h5py's OSError (a bad B-tree, a
@@ -129,7 +129,7 @@ _DAMAGE_ERRORS = (
 
 
 @contextmanager
-def _read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
+def read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
     """:func:`open_checked` for the loaders: a read that fails inside the block (the
     file is damaged) raises :class:`ResultsError` naming the file, not h5py's error."""
     try:
@@ -185,10 +185,10 @@ def read_meta(path: str | Path) -> dict:
         try:
             return read_meta_from(f)
         except (OSError, KeyError, RuntimeError) as err:  # a damaged root object header
-            raise _damaged(path, "its root attributes", err) from None
+            raise damaged(path, "its root attributes", err) from None
 
 
-def _new_meta(stage: str, extra: Mapping | None = None) -> dict:
+def new_meta(stage: str, extra: Mapping | None = None) -> dict:
     from .. import __version__
 
     return {

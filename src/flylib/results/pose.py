@@ -17,10 +17,10 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from ..skeleton import Skeleton
-from .checksums import _check_group
-from .datasets import _json_attrs, _read, _read_json_attrs, _write_array
-from .groups import _read_cameras, _read_skeleton, _write_cameras, _write_skeleton
-from .hdf5 import _create, _new_meta, _read_checked, read_meta_from
+from .checksums import check_group
+from .datasets import json_attrs, read_dataset, read_json_attrs, write_array
+from .groups import cameras_from_group, skeleton_from_group, write_cameras, write_skeleton
+from .hdf5 import create_file, new_meta, read_checked, read_meta_from
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -111,28 +111,28 @@ class PoseResult:
             Destination ``.h5`` file.
         """
         # A loaded result keeps its creation time and stage; version fields are this writer's.
-        fresh = _new_meta("result")
+        fresh = new_meta("result")
         meta = {**fresh, **self.meta}
         meta["deeperfly_format_version"] = fresh["deeperfly_format_version"]
         meta["flylib_version"] = fresh["flylib_version"]
-        with atomic_path(path) as tmp, _create(tmp) as f:
+        with atomic_path(path) as tmp, create_file(tmp) as f:
             f.attrs["meta"] = json.dumps(meta)
-            _write_skeleton(f.create_group("skeleton"), self.skeleton)
+            write_skeleton(f.create_group("skeleton"), self.skeleton)
             g2d = f.create_group("pose2d")
-            _write_array(g2d, "points", self.pts2d)
+            write_array(g2d, "points", self.pts2d)
             if self.conf is not None:
-                _write_array(g2d, "conf", self.conf)
-            _write_cameras(g2d.create_group("cameras"), self.cameras)
-            _json_attrs(g2d, {"view_names": list(self.cameras.names)})
+                write_array(g2d, "conf", self.conf)
+            write_cameras(g2d.create_group("cameras"), self.cameras)
+            json_attrs(g2d, {"view_names": list(self.cameras.names)})
             if self.image_sizes is not None:
-                _json_attrs(g2d, {"image_sizes": {k: list(v) for k, v in self.image_sizes.items()}})
+                json_attrs(g2d, {"image_sizes": {k: list(v) for k, v in self.image_sizes.items()}})
             if self.pts3d is not None or self.reproj_error is not None:
                 g3d = f.create_group("triangulation")
-                _write_array(g3d, "points", self.pts2d)
+                write_array(g3d, "points", self.pts2d)
                 if self.pts3d is not None:
-                    _write_array(g3d, "points3d", self.pts3d)
+                    write_array(g3d, "points3d", self.pts3d)
                 if self.reproj_error is not None:
-                    _write_array(g3d, "reproj_error", self.reproj_error)
+                    write_array(g3d, "reproj_error", self.reproj_error)
 
     @classmethod
     def load(cls, path: str | Path) -> PoseResult:
@@ -160,14 +160,14 @@ class PoseResult:
             or no rig.
         """
         rerun = "re-run the pipeline"
-        with _read_checked(path, rerun) as f:
+        with read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
             if "skeleton" not in f:
                 raise ResultsError(f"{path}: has no skeleton group; {rerun}")
             meta = read_meta_from(f)
             meta.pop("deeperfly_format_version", None)
-            skeleton = _read_skeleton(f["skeleton"])
+            skeleton = skeleton_from_group(f["skeleton"])
             rig = next(
                 (f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f),
                 None,
@@ -176,7 +176,7 @@ class PoseResult:
                 raise ResultsError(
                     f"{path}: has no cameras (pose2d/cameras); assemble it with assemble_results"
                 )
-            cameras = _read_cameras(rig)
+            cameras = cameras_from_group(rig)
 
             read: list[str] = []
 
@@ -185,15 +185,15 @@ class PoseResult:
                 if stage is None:
                     return None
                 read.append(f"/{stage}/{name}")
-                return _read(f[f"{stage}/{name}"])
+                return read_dataset(f[f"{stage}/{name}"])
 
             derived = ("refinement", "triangulation", "pictorial_structures")
             pts2d = first("points", (*derived, "pose2d"))
             pts3d = first("points3d", derived)
             reproj = first("reproj_error", derived)
             conf = first("conf", ("pose2d",))
-            sizes = _read_json_attrs(f["pose2d"]).get("image_sizes")
-            _check_group(path, f, skip=read)  # damage in what was not loaded is damage too
+            sizes = read_json_attrs(f["pose2d"]).get("image_sizes")
+            check_group(path, f, skip=read)  # damage in what was not loaded is damage too
             return cls(  # inside the block: a shape mismatch of a damaged file names the file
                 cameras=cameras,
                 skeleton=skeleton,

@@ -18,10 +18,10 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from ..skeleton import Skeleton
-from .candidates import _make_candidates, _write_candidates
-from .datasets import _json_attrs, _read, _read_json_attrs, _read_strings, _write_array
-from .groups import _write_skeleton
-from .hdf5 import _create, _new_meta, _read_checked
+from .candidates import make_candidates, write_candidates
+from .datasets import json_attrs, read_dataset, read_json_attrs, read_strings, write_array
+from .groups import write_skeleton
+from .hdf5 import create_file, new_meta, read_checked
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -90,13 +90,13 @@ class Pose2dData:
             raise ValueError(
                 f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}"
             )
-        with atomic_path(path) as tmp, _create(tmp) as f:
-            f.attrs["meta"] = json.dumps(_new_meta("pose2d", meta))
-            _write_skeleton(f.create_group("skeleton"), skeleton)
+        with atomic_path(path) as tmp, create_file(tmp) as f:
+            f.attrs["meta"] = json.dumps(new_meta("pose2d", meta))
+            write_skeleton(f.create_group("skeleton"), skeleton)
             group = f.create_group("pose2d")
-            _write_array(group, "points", self.pts2d)
-            _write_array(group, "conf", self.conf)
-            _json_attrs(
+            write_array(group, "points", self.pts2d)
+            write_array(group, "conf", self.conf)
+            json_attrs(
                 group,
                 {
                     "view_names": self.view_names,
@@ -104,7 +104,7 @@ class Pose2dData:
                 },
             )
             if self.candidates is not None:
-                _write_candidates(group.create_group("candidates"), self.candidates)
+                write_candidates(group.create_group("candidates"), self.candidates)
 
     @classmethod
     def load(cls, path: str | Path) -> Pose2dData:
@@ -116,22 +116,22 @@ class Pose2dData:
             If the file is missing, of another version, or has no pose2d group.
         """
         rerun = "re-run the pose2d stage"
-        with _read_checked(path, rerun) as f:
+        with read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group; {rerun}")
             group = f["pose2d"]
-            attrs = _read_json_attrs(group)
+            attrs = read_json_attrs(group)
             candidates = None
             if "candidates" in group:
-                candidates = _make_candidates(
-                    _read(group["candidates/xy"]), _read(group["candidates/score"])
+                candidates = make_candidates(
+                    read_dataset(group["candidates/xy"]), read_dataset(group["candidates/score"])
                 )
             views = attrs.get("view_names")
             if views is None and "cameras" in group:
-                views = _read_strings(group["cameras/names"])
+                views = read_strings(group["cameras/names"])
             return cls(
-                pts2d=_read(group["points"]),
-                conf=_read(group["conf"])
+                pts2d=read_dataset(group["points"]),
+                conf=read_dataset(group["conf"])
                 if "conf" in group
                 else np.ones(group["points"].shape[:3]),
                 view_names=list(views or []),
@@ -149,8 +149,8 @@ def read_image_sizes(path: str | Path) -> dict[str, tuple[int, int]]:
     ResultsError
         If the file is missing, of another version, or has no pose2d group.
     """
-    with _read_checked(path, "re-run the pose2d stage") as f:
+    with read_checked(path, "re-run the pose2d stage") as f:
         if "pose2d" not in f:
             raise ResultsError(f"{path}: has no pose2d group; re-run the pose2d stage")
-        sizes = _read_json_attrs(f["pose2d"]).get("image_sizes") or {}
+        sizes = read_json_attrs(f["pose2d"]).get("image_sizes") or {}
         return {str(k): (int(v[0]), int(v[1])) for k, v in sizes.items()}

@@ -2,6 +2,8 @@
 
 Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...)``,
 view-leading ``(V, *pts, 2)`` pixels with NaN = missing, and returns ``(*pts, 3)``.
+:func:`reconstruct` runs the method a ``triangulation`` table names (its knobs, its
+confidence weighting) and returns the 3D, the 2D it was solved from and the errors.
 
 Modules: :mod:`~flylib.triangulation.methods` (the functions below, NumPy; RANSAC
 runs there) and :mod:`~flylib.triangulation.kernels` (greedy's jitted JAX kernel,
@@ -14,13 +16,8 @@ from .methods import (
     DEFAULT_CHUNK_POINTS,
     RANSAC_CHUNK_POINTS,
     reconstruct,
-    reconstruct_dlt,
-    reconstruct_greedy,
-    reconstruct_ransac,
-    reconstruct_with_params,
     reprojection_error,
     triangulate,
-    triangulate_greedy,
     triangulate_ransac,
 )
 
@@ -28,12 +25,7 @@ __all__ = [
     "DEFAULT_CHUNK_POINTS",
     "RANSAC_CHUNK_POINTS",
     "reconstruct",
-    "reconstruct_dlt",
-    "reconstruct_greedy",
-    "reconstruct_ransac",
-    "reconstruct_with_params",
     "reprojection_error",
     "triangulate",
-    "triangulate_greedy",
     "triangulate_ransac",
 ]

@@ -1,7 +1,7 @@
 """The jitted JAX kernel of greedy triangulation, over one chunk of points.
 
 Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest
-of a workflow job never import JAX; :func:`~flylib.triangulation.triangulate_greedy`
+of a workflow job never import JAX; ``greedy`` (:func:`~flylib.triangulation.reconstruct`)
 imports this module when called (the DLT kernel is :func:`flylib.camera.jax_model.dlt_chunk`).
 """
 
@@ -66,7 +66,7 @@ def greedy_chunk(
     threshold: float,
     max_drops: int,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
-    """Greedy view dropping (:func:`~flylib.triangulation.triangulate_greedy`) on one chunk.
+    """Greedy view dropping (``reconstruct``'s ``greedy``) on one chunk.
 
     ``raw`` pixels, ``und`` the undistorted ones (None: the rig has no distortion),
     ``weights`` or None; returns the points ``(N, 3)`` and the views kept ``(V, N)``.

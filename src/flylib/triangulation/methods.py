@@ -18,12 +18,12 @@ never weighted.
 
 Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...)``
 (``(cameras, pts3d, pts2d)`` for :func:`reprojection_error`); method knobs and
-``weights`` are keywords.
+``weights`` are keywords. :func:`reconstruct` is the one dispatcher: it runs the method
+a :class:`~flylib.config.params.TriangulationParams` names with that method's knobs.
 """
 
 from __future__ import annotations
 
-import logging
 from itertools import combinations, pairwise
 from typing import TYPE_CHECKING
 
@@ -31,15 +31,14 @@ import numpy as np
 
 from ..camera import model as camera_model
 from ..config.constants import TRIANGULATION_METHODS
+from ..config.params import TriangulationParams
 from ..resources import thread_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
     from ..camera.rig import CameraGroup
-    from ..config.params import TriangulationParams
 
-log = logging.getLogger(__name__)
 
 DEFAULT_CHUNK_POINTS = 4096  # = camera.jax_model.DLT_CHUNK_POINTS (not imported: no JAX here)
 RANSAC_CHUNK_POINTS = 16384  # NumPy pieces: large enough to amortize per-call overhead
@@ -334,8 +333,8 @@ def triangulate_ransac(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
+    threshold: float = TriangulationParams.ransac_threshold,
+    min_inliers: int = TriangulationParams.min_inliers,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = RANSAC_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
@@ -380,29 +379,22 @@ def triangulate_ransac(
     return _ransac_numpy(pts2d, cameras, w, chunk_points, float(threshold), int(min_inliers))
 
 
-def triangulate_greedy(
+def _triangulate_greedy(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
     *,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    reproj_threshold: float,
+    max_drops: int,
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
-    """DLT, then repeatedly drop each offending point's worst-reprojecting view.
+    """:func:`reconstruct`'s ``greedy``: DLT, then repeatedly drop each offending
+    point's worst-reprojecting view.
 
-    While a point's largest reprojection error exceeds ``reproj_threshold``, its
+    While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its
     worst view is removed and the point re-triangulated from the rest, at most
-    ``max_drops`` times. A point left with fewer than two views becomes NaN.
-
-    Parameters
-    ----------
-    cameras, pts2d, weights, chunk_points
-        As in :func:`triangulate`.
-    reproj_threshold
-        Pixels.
-    max_drops
-        Most views removed per point.
+    ``max_drops`` times. A point left with fewer than two views becomes NaN. ``cameras``,
+    ``pts2d`` (float64), ``weights`` and ``chunk_points`` as in :func:`triangulate`.
 
     Returns
     -------
@@ -413,12 +405,9 @@ def triangulate_greedy(
 
     Raises
     ------
-    TypeError
-        If ``cameras`` is not a camera rig (arguments swapped).
     ValueError
         If ``max_drops < 0``.
     """
-    cameras, pts2d = _arguments("triangulate_greedy", cameras, pts2d)
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
     w = _check_inputs(pts2d, cameras, weights)
@@ -443,167 +432,64 @@ def triangulate_greedy(
     return pts3d.reshape(*pts_shape, 3), kept.reshape(n_views, *pts_shape)
 
 
-def _finish(cameras, pts3d, pts2d, kept):
-    clean = pts2d if kept is None else np.where(kept[..., None], pts2d, np.nan)
-    return pts3d, clean, reprojection_error(cameras, pts3d, clean)
-
-
-def reconstruct_dlt(
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, " V *pts 2"],
-    *,
-    weights: Float[np.ndarray, " V *pts"] | None = None,
-    chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> tuple[
-    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
-]:
-    """Plain DLT reconstruction (:func:`triangulate` plus reprojection errors).
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(*pts, 3)``.
-    pts2d : np.ndarray
-        The input ``(V, *pts, 2)`` (no view is rejected).
-    reproj_error : np.ndarray
-        ``(V, *pts)`` pixels.
-    """
-    cameras, pts2d = _arguments("reconstruct_dlt", cameras, pts2d)
-    pts3d = triangulate(cameras, pts2d, weights, chunk_points=chunk_points)
-    return _finish(cameras, pts3d, pts2d, None)
-
-
-def reconstruct_ransac(
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, " V *pts 2"],
-    *,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
-    weights: Float[np.ndarray, " V *pts"] | None = None,
-    chunk_points: int = RANSAC_CHUNK_POINTS,
-) -> tuple[
-    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
-]:
-    """:func:`triangulate_ransac` plus cleaned 2D (outlier views NaN) and errors.
-
-    Returns
-    -------
-    pts3d, pts2d_clean, reproj_error
-        ``(*pts, 3)``, ``(V, *pts, 2)`` keeping only the inlier views of accepted
-        points, and ``(V, *pts)`` errors against the cleaned 2D.
-    """
-    cameras, pts2d = _arguments("reconstruct_ransac", cameras, pts2d)
-    pts3d, inliers = triangulate_ransac(
-        cameras,
-        pts2d,
-        threshold=threshold,
-        min_inliers=min_inliers,
-        weights=weights,
-        chunk_points=chunk_points,
-    )
-    return _finish(cameras, pts3d, pts2d, inliers)
-
-
-def reconstruct_greedy(
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, " V *pts 2"],
-    *,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
-    weights: Float[np.ndarray, " V *pts"] | None = None,
-    chunk_points: int = DEFAULT_CHUNK_POINTS,
-) -> tuple[
-    Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
-]:
-    """:func:`triangulate_greedy` plus cleaned 2D (dropped views NaN) and errors."""
-    cameras, pts2d = _arguments("reconstruct_greedy", cameras, pts2d)
-    pts3d, kept = triangulate_greedy(
-        cameras,
-        pts2d,
-        reproj_threshold=reproj_threshold,
-        max_drops=max_drops,
-        weights=weights,
-        chunk_points=chunk_points,
-    )
-    return _finish(cameras, pts3d, pts2d, kept)
-
-
 def reconstruct(
     cameras: CameraGroup,
     pts2d: Float[np.ndarray, " V *pts 2"],
-    method: str = "ransac",
-    *,
-    weights: Float[np.ndarray, " V *pts"] | None = None,
-    threshold: float = 15.0,
-    min_inliers: int = 2,
-    reproj_threshold: float = 40.0,
-    max_drops: int = 5,
+    params: TriangulationParams | None = None,
+    conf: Float[np.ndarray, " V *pts"] | None = None,
 ) -> tuple[
     Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
 ]:
-    """Dispatch to :func:`reconstruct_ransac`, :func:`reconstruct_greedy` or :func:`reconstruct_dlt`.
+    """Triangulate with the method and knobs of ``params``: the one dispatcher.
 
-    Parameters
-    ----------
-    cameras, pts2d, weights
-        As in :func:`triangulate`.
-    method
-        ``"ransac"``, ``"greedy"`` or ``"dlt"``.
-    threshold, min_inliers
-        RANSAC's knobs (ignored by the other methods).
-    reproj_threshold, max_drops
-        Greedy's knobs (ignored by the other methods).
-
-    Returns
-    -------
-    pts3d, pts2d_clean, reproj_error
-
-    Raises
-    ------
-    ValueError
-        If ``method`` is unknown.
-    """
-    if method == "ransac":
-        return reconstruct_ransac(
-            cameras, pts2d, threshold=threshold, min_inliers=min_inliers, weights=weights
-        )
-    if method == "greedy":
-        return reconstruct_greedy(
-            cameras, pts2d, reproj_threshold=reproj_threshold, max_drops=max_drops, weights=weights
-        )
-    if method == "dlt":
-        return reconstruct_dlt(cameras, pts2d, weights=weights)
-    raise ValueError(f"unknown triangulation method {method!r}; use one of {TRIANGULATION_METHODS}")
-
-
-def reconstruct_with_params(
-    cameras: CameraGroup,
-    pts2d: Float[np.ndarray, "V T P 2"],
-    params: TriangulationParams,
-    conf: Float[np.ndarray, "V T P"] | None = None,
-) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
-    """The triangulation stage's 3D: :func:`reconstruct` with ``params``' method and the
-    knobs that method reads (:meth:`~flylib.config.params.TriangulationParams.method_kwargs`).
+    ``ransac`` runs :func:`triangulate_ransac`, ``greedy`` the DLT dropping each
+    point's worst-reprojecting view while its error exceeds ``reproj_threshold`` (at
+    most ``max_drops`` times), ``dlt`` :func:`triangulate`; each reads only its own
+    knobs (:meth:`~flylib.config.params.TriangulationParams.method_kwargs`).
 
     Parameters
     ----------
     cameras, pts2d
-        As in :func:`triangulate`: ``(V, T, P, 2)``.
+        As in :func:`triangulate`.
     params
-        The ``triangulation`` table (its ``method`` already checked by the config).
+        The ``triangulation`` table (default: :class:`~flylib.config.params.TriangulationParams`).
     conf
-        Detector confidences ``(V, T, P)``, the weights when ``weigh_by_confidence``.
+        Detector confidences ``(V, *pts)``, the weights when ``weigh_by_confidence``.
 
     Returns
     -------
-    pts3d, pts2d_clean, reproj_error
-        ``(T, P, 3)``, ``(V, T, P, 2)``, ``(V, T, P)``.
+    pts3d : np.ndarray
+        ``(*pts, 3)``; NaN where the method could not reconstruct the point.
+    pts2d_clean : np.ndarray
+        ``(V, *pts, 2)``: the views each point was solved from (the rejected ones NaN).
+    reproj_error : np.ndarray
+        ``(V, *pts)`` pixels against ``pts2d_clean``.
+
+    Raises
+    ------
+    TypeError
+        If ``cameras`` is not a camera rig (arguments swapped).
+    ValueError
+        If ``params.method`` is unknown.
+
+    Examples
+    --------
+    >>> from flylib.config.params import TriangulationParams
+    >>> pts3d, clean, error = reconstruct(rig, pts2d, TriangulationParams(method="greedy"))
     """
-    log.info("triangulating with %s", params.method)
-    return reconstruct(
-        cameras,
-        pts2d,
-        method=params.method,
-        weights=conf if (params.weigh_by_confidence and conf is not None) else None,
-        **params.method_kwargs(),
-    )
+    cameras, pts2d = _arguments("reconstruct", cameras, pts2d)
+    params = TriangulationParams() if params is None else params
+    if params.method not in TRIANGULATION_METHODS:
+        raise ValueError(
+            f"unknown triangulation method {params.method!r}; use one of {TRIANGULATION_METHODS}"
+        )
+    weights = conf if (params.weigh_by_confidence and conf is not None) else None
+    knobs = params.method_kwargs()
+    if params.method == "ransac":
+        pts3d, kept = triangulate_ransac(cameras, pts2d, weights=weights, **knobs)
+    elif params.method == "greedy":
+        pts3d, kept = _triangulate_greedy(cameras, pts2d, weights=weights, **knobs)
+    else:
+        pts3d, kept = triangulate(cameras, pts2d, weights), None
+    clean = pts2d if kept is None else np.where(kept[..., None], pts2d, np.nan)
+    return pts3d, clean, reprojection_error(cameras, pts3d, clean)

@@ -366,7 +366,7 @@ class _Reprojector:
 # -- output files -------------------------------------------------------------
 
 
-class _CanvasEncoder:
+class CanvasEncoder:
     """Streams RGB canvases into an H.264 MP4 (libx264, :data:`X264_SETTINGS`).
 
     Same container and codec as :class:`flylib.io.VideoWriter`, with two differences
@@ -515,7 +515,7 @@ def _open_writers(
     paths: Sequence[Path],
     rates: tuple[Mapping, float | None, float | None],
     n_frames: int,
-) -> list[_CanvasEncoder]:
+) -> list[CanvasEncoder]:
     """One encoder per video, writing to a temporary file renamed when ``stack`` closes
     without error; ``rates``: the ``visualization`` table, the footage's rate and the
     fallback ``speed`` (:func:`resolve_output_fps`)."""
@@ -523,7 +523,7 @@ def _open_writers(
     for spec, comp, path in zip(specs, compositors, paths):
         fps = resolve_output_fps(spec, *rates)
         tmp = stack.enter_context(atomic_path(path))
-        writer = _CanvasEncoder(tmp, fps, comp.width, comp.height)
+        writer = CanvasEncoder(tmp, fps, comp.width, comp.height)
         stack.callback(writer.close)
         writers.append(writer)
         log.info(

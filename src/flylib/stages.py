@@ -1,0 +1,181 @@
+"""The workflow's stages: one :class:`Stage` record each, in run order (:data:`REGISTRY`).
+
+Every fact the package keeps about a stage as a whole is a field of its record: whether
+``pipeline.do_<stage>`` toggles it and its default, the stages it cannot run without,
+its artifact under ``<outdir>/stages/``, whether it owns a group in ``results.h5``,
+what to check when it fails on a recording's data, and the memory its job declares.
+The tables the config, results and workflow layers read (``flylib.config.STAGES``,
+``STAGE_DEFAULTS``, ``PARAM_STAGES``, ``flylib.results.ARTIFACTS``, ``STAGE_GROUPS``)
+are derived from these records.
+
+A stage's code lives in its home, ``flylib.pipeline.<stage>``: its inputs class (made
+known here by :func:`register` when the home is imported) and ``run_<stage>``. Both are
+looked up by that convention on first use (:meth:`Stage.inputs_class`,
+:func:`run_function`), so importing this module imports nothing heavy (JAX, torch):
+the config and results layers below the stage homes read it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import import_module
+from typing import Any, TypeVar
+
+__all__ = ["REGISTRY", "Stage", "by_name", "register", "run_function"]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One workflow stage.
+
+    Attributes
+    ----------
+    name
+        The stage's name: its rule, its config table, ``pipeline.do_<name>``.
+    default_on
+        Whether the stage runs when ``pipeline.do_<name>`` is absent; ``None`` for a
+        stage no such key toggles (it always runs).
+    needs_one_of
+        Upstream stages it starts from: it runs only while at least one of them runs
+        (empty: no such condition).
+    artifact
+        Its artifact's file name inside ``<outdir>/stages/``, or ``None``.
+    results_group
+        Whether it owns a group in ``results.h5`` (assembly copies it from the artifact).
+    hint
+        What to check when its numerical step fails on a recording's data (the end of
+        the one-line error), or ``None`` for a stage without such a step.
+    memory
+        ``(fixed MB, MB per million (frame, point, view) elements)``: its job's measured
+        peak memory (``benchmarks/stage_memory.py``), or ``None`` where not measured
+        (its rule states a fixed ``mem_mb``).
+    """
+
+    name: str
+    default_on: bool | None
+    needs_one_of: tuple[str, ...] = ()
+    artifact: str | None = None
+    results_group: bool = False
+    hint: str | None = None
+    memory: tuple[int, int] | None = None
+
+    @property
+    def toggled(self) -> bool:
+        """Whether ``pipeline.do_<name>`` turns the stage on and off."""
+        return self.default_on is not None
+
+    @property
+    def home(self) -> str:
+        """The module that defines the stage's inputs class and run function."""
+        return f"flylib.pipeline.{self.name}"
+
+    def inputs_class(self) -> type:
+        """The stage's inputs class (a :class:`~flylib.pipeline.inputs.StageInputs`),
+        importing its home on first use."""
+        if self.name not in _INPUTS:
+            import_module(self.home)
+        return _INPUTS[self.name]
+
+    def run_function(self) -> Any:
+        """``run_<name>`` of the stage's home (importing it on first use)."""
+        return getattr(import_module(self.home), f"run_{self.name}")
+
+
+#: The stages, in run order.
+REGISTRY: tuple[Stage, ...] = (
+    Stage(
+        "pose2d",
+        default_on=True,
+        artifact="pose2d.h5",
+        results_group=True,
+    ),
+    Stage(
+        "bundle_adjustment",
+        default_on=True,
+        artifact="bundle_adjustment.h5",
+        results_group=True,
+        hint="check its 2D (are the views' points of one fly, in raw-frame pixels?) "
+        "and the starting rig (cameras, calibration.file), or set "
+        "pipeline.do_bundle_adjustment: false",
+        memory=(380, 30),
+    ),
+    Stage(
+        "pictorial_structures",
+        default_on=False,
+        artifact="pictorial_structures.h5",
+        results_group=True,
+        hint="check the detector's 2D and the rig, or set pipeline.do_pictorial_structures: false",
+    ),
+    Stage(
+        "triangulation",
+        default_on=True,
+        artifact="triangulation.h5",
+        results_group=True,
+        hint="check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
+        "result, cameras, calibration.file)",
+        memory=(110, 120),
+    ),
+    Stage(
+        "refinement",
+        default_on=True,
+        needs_one_of=("triangulation",),
+        artifact="refinement.h5",
+        results_group=True,
+        hint="check triangulation's 3D (flylib inspect) and the refinement settings, or "
+        "set pipeline.do_refinement: false",
+        memory=(410, 140),
+    ),
+    Stage("assemble", default_on=None, memory=(160, 130)),
+    Stage(
+        "kinematics",
+        default_on=True,
+        needs_one_of=("triangulation", "pictorial_structures"),
+        hint="check the 3D in results.h5 (flylib inspect), or set pipeline.do_kinematics: false",
+        memory=(130, 105),
+    ),
+    Stage(
+        "neuromechfly",
+        default_on=False,
+        needs_one_of=("triangulation", "pictorial_structures"),
+    ),
+    Stage("visualization", default_on=True),
+)
+
+_BY_NAME = {stage.name: stage for stage in REGISTRY}
+#: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.
+_INPUTS: dict[str, type] = {}
+
+
+def by_name(name: str) -> Stage:
+    """The record of stage ``name``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown stage.
+    """
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise ValueError(f"unknown stage {name!r} (known: {', '.join(_BY_NAME)})") from None
+
+
+def run_function(name: str) -> Any:
+    """``run_<name>`` of stage ``name``'s home (:meth:`Stage.run_function`)."""
+    return by_name(name).run_function()
+
+
+T = TypeVar("T", bound=type)
+
+
+def register(cls: T) -> T:
+    """Class decorator: make ``cls`` the inputs class of the stage ``cls.STAGE``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown stage.
+    """
+    by_name(cls.STAGE)  # type: ignore[attr-defined]
+    _INPUTS[cls.STAGE] = cls  # type: ignore[attr-defined]
+    return cls

@@ -1,0 +1,130 @@
+"""Corrected frames exported as DeepLabCut labeled data (``flylib export --training-data``),
+read back with sleap-io's DeepLabCut reader and pandas' HDF5 reader (DeepLabCut's own
+``CollectedData_<scorer>.h5`` key), not with flylib's code."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from flylib.config import Config
+from flylib.corrections import Corrections
+from flylib.errors import ResultsError
+from flylib.pipeline.assemble import run_assemble
+from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.stage_helpers import run_inputs
+from flylib.pipeline.triangulation import run_triangulation
+from flylib.results import PoseResult
+
+from gui_fixtures import make_demo_outputs
+
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def corrected_run(tmp_path_factory):
+    """The demo with a hand-made sidecar applied: a 2D edit at frame 4, a point marked
+    invisible at frame 7, re-triangulated and re-assembled as the workflow does."""
+    out = make_demo_outputs(tmp_path_factory.mktemp("training") / "rec", frames=FRAMES)
+    config = Config.from_file(out / "config.yaml")
+    before = PoseResult.load(out / "results.h5")
+    v, t, p = before.pts2d.shape[:3]
+    seen = np.isfinite(before.pts2d).all(-1)
+    view_a, point_a = map(int, np.argwhere(seen[:, 4])[0])
+    edit_xy = before.pts2d[view_a, 4, point_a] + [6.0, -4.0]
+    view_b, point_b = map(int, np.argwhere(seen[:, 7])[5])
+    corrections = Corrections.empty(v, t, p)
+    corrections.set_point(view_a, 4, point_a, edit_xy, fixed=True)
+    corrections.set_invisible(view_b, 7, point_b)
+    sidecar = corrections.save(out / "corrections.h5")
+    stages = out / "stages"
+    run_triangulation(
+        run_inputs(config, "triangulation"),
+        stages / "pose2d.h5",
+        stages / "triangulation.h5",
+        recording_dir=out.parent,
+        corrections_path=sidecar,
+    )
+    run_assemble(
+        stage_inputs(config, "assemble"),
+        {"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
+        out,
+        recording_dir=out.parent,
+    )
+    return out, (view_a, point_a, edit_xy), (view_b, point_b)
+
+
+def test_export_is_read_back_by_sleap_io_and_pandas(corrected_run, tmp_path, capsys):
+    import pandas as pd
+    import sleap_io
+
+    from flylib.cli import main
+
+    out, (view_a, point_a, edit_xy), (view_b, point_b) = corrected_run
+    result = PoseResult.load(out / "results.h5")
+    views, points = list(result.cameras.names), list(result.skeleton.point_names)
+    assert main(["export", str(out / "results.h5"), "--training-data", str(tmp_path)]) == 0
+    assert "labeled-data folders" in capsys.readouterr().out
+    folders = sorted((tmp_path / "labeled-data").iterdir())
+    assert [f.name for f in folders] == [f"camera_{i}" for i in range(len(views))]
+
+    # DeepLabCut's h5: key df_with_missing, columns (scorer, bodyparts, coords)
+    table = pd.read_hdf(folders[view_a] / "CollectedData_flylib.h5", "df_with_missing")
+    assert list(table.columns.names) == ["scorer", "bodyparts", "coords"]
+    assert list(table.columns.get_level_values("bodyparts")[::2]) == points
+    assert list(table.index) == [
+        ("labeled-data", f"camera_{view_a}", "img0004.png"),
+        ("labeled-data", f"camera_{view_a}", "img0007.png"),
+    ]
+    xy = table.loc[("labeled-data", f"camera_{view_a}", "img0004.png")]
+    assert xy[("flylib", points[point_a], "x")] == pytest.approx(edit_xy[0])
+    assert xy[("flylib", points[point_a], "y")] == pytest.approx(edit_xy[1])
+
+    # sleap-io's DeepLabCut reader: the same labels and the frame images
+    labels = sleap_io.load_dlc(str(folders[view_b] / "CollectedData_flylib.csv"))
+    names = [node.name for node in labels.skeleton.nodes]
+    assert sorted(names) == sorted(points)  # sleap-io orders the nodes its own way
+    frames = sorted(labels.labeled_frames, key=lambda lf: lf.frame_idx)
+    assert len(frames) == 2
+    at7 = frames[1].instances[0].numpy()[[names.index(n) for n in points]]  # (P, 2)
+    assert np.isnan(at7[point_b]).all()  # marked invisible: no label
+    used = result.pts2d[view_b, 7]
+    kept = np.isfinite(used).all(-1)
+    np.testing.assert_allclose(at7[kept], used[kept], atol=1e-6)
+
+    # the PNG is the footage frame
+    png = cv2.imread(str(folders[view_b] / "img0007.png"))
+    video = cv2.VideoCapture(str(out.parent / f"camera_{view_b}.mp4"))
+    video.set(cv2.CAP_PROP_POS_FRAMES, 7)
+    ok, frame = video.read()
+    assert ok and png.shape == frame.shape
+    assert np.abs(png.astype(int) - frame.astype(int)).mean() < 3
+
+
+def test_labels_fill_a_dropped_detection_with_the_corrected_3d():
+    from flylib.interop.training_data import training_labels
+
+    used = np.full((2, 1, 3, 2), np.nan)
+    given = np.full((2, 1, 3, 2), np.nan)
+    ghost = np.zeros((2, 1, 3, 2)) + [[[[10.0, 20.0]]]]
+    touched = np.zeros((2, 1, 3), bool)
+    used[0, 0, 0] = (1.0, 2.0)  # kept: its own 2D
+    given[0, 0, 0] = (1.0, 2.0)
+    given[0, 0, 1] = (400.0, 300.0)  # dropped as an outlier: the reprojection
+    given[1, 0, 0] = (5.0, 5.0)  # marked invisible by a person: nothing
+    touched[1, 0, 0] = True
+    ghost[1, 0, 2] = (-5.0, 3.0)  # outside the frame and never detected: nothing
+    out = training_labels(used, given, ghost, touched, [(48, 64), (48, 64)])
+    np.testing.assert_array_equal(out[0, 0, 0], (1.0, 2.0))
+    np.testing.assert_array_equal(out[0, 0, 1], (10.0, 20.0))
+    assert np.isnan(out[0, 0, 2]).all() and np.isnan(out[1, 0]).all()
+
+
+def test_a_result_without_corrections_is_one_clear_error(tmp_path):
+    from flylib.interop.training_data import export_training_data
+
+    out = make_demo_outputs(tmp_path / "rec", frames=6)
+    with pytest.raises(ResultsError, match="holds no corrections; correct frames in `flylib gui"):
+        export_training_data(out / "results.h5", tmp_path / "dlc")
+    assert not (tmp_path / "dlc").exists()

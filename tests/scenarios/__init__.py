@@ -1,0 +1,1 @@
+"""What a lab meets end to end: user mistakes, damaged footage, failing stages, concurrent runs."""

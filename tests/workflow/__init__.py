@@ -1,0 +1,1 @@
+"""The Snakemake workflow, driven through its command line."""
