@@ -174,14 +174,15 @@ def refuse_overwrite(
     for source, what in inputs.items():
         if same_file(path, source):
             raise OutputError(
-                f"{path} is {what} and would be overwritten by {role}; "
-                "write to another file"
+                f"{path} is {what} and would be overwritten by {role}; write to another file"
             )
     if not force and os.path.lexists(path) and not written_by_flylib(path):
         raise OutputError(
             f"{path} exists and was not written by flylib; {role} would replace it: "
             "choose another file, or pass --force to replace it"
         )
+
+
 # atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (flylib
 # before the host was recorded: .<stem>.<pid>.<8 hex>.tmp<suffix>, taken as this host's).
 _TEMP_NAME = re.compile(

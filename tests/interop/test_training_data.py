@@ -158,10 +158,14 @@ def test_export_into_a_dlc_project_merges_row_by_row_and_keeps_the_labs_labels(
     (folder / "img0004.png").write_bytes(b"the lab's own frame")
     before = (folder / "CollectedData_lab.csv").read_bytes()
 
-    code = main(["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"])
+    code = main(
+        ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+    )
     assert code == 0
     said = capsys.readouterr().out
-    assert f"{folder / 'CollectedData_lab.csv'}: 1 frames added, 1 updated, 1 kept (backup: " in said
+    assert (
+        f"{folder / 'CollectedData_lab.csv'}: 1 frames added, 1 updated, 1 kept (backup: " in said
+    )
 
     for table in (
         pd.read_hdf(folder / "CollectedData_lab.h5", "df_with_missing"),
@@ -174,7 +178,10 @@ def test_export_into_a_dlc_project_merges_row_by_row_and_keeps_the_labs_labels(
         pd.testing.assert_series_equal(
             table.iloc[0], lab.iloc[0], check_names=False, check_exact=True
         )
-        assert table.loc[rows[1], ("lab", "lab_only", "x")] == lab.loc[rows[1], ("lab", "lab_only", "x")]
+        assert (
+            table.loc[rows[1], ("lab", "lab_only", "x")]
+            == lab.loc[rows[1], ("lab", "lab_only", "x")]
+        )
         assert np.isnan(table.iloc[2][("lab", "lab_only", "x")])
         # the corrected frame: flylib's edit
         assert table.loc[rows[1], ("lab", points[point_a], "x")] == pytest.approx(edit_xy[0])
@@ -186,7 +193,12 @@ def test_export_into_a_dlc_project_merges_row_by_row_and_keeps_the_labs_labels(
     assert (folder / "img0007.png").is_file()
 
     # again: nothing changes, nothing is rewritten or backed up again
-    assert main(["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]) == 0
+    assert (
+        main(
+            ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+        )
+        == 0
+    )
     assert "unchanged (3 frames kept)" in capsys.readouterr().out
     assert len(list(folder.glob("CollectedData_lab.csv.*.bak"))) == 1
 
@@ -202,13 +214,20 @@ def test_an_older_projects_single_path_index_is_merged_in_its_own_layout(correct
         [["lab"], points, ["x", "y"]], names=["scorer", "bodyparts", "coords"]
     )
     lab = pd.DataFrame(
-        np.ones((1, 2 * len(points))), index=[f"labeled-data/{folder.name}/img0002.png"], columns=columns
+        np.ones((1, 2 * len(points))),
+        index=[f"labeled-data/{folder.name}/img0002.png"],
+        columns=columns,
     )
     lab.to_csv(folder / "CollectedData_lab.csv")
 
     from flylib.cli import main
 
-    assert main(["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]) == 0
+    assert (
+        main(
+            ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+        )
+        == 0
+    )
     table = pd.read_csv(folder / "CollectedData_lab.csv", header=[0, 1, 2], index_col=0)
     assert list(table.index) == [
         f"labeled-data/{folder.name}/{n}" for n in ("img0002.png", "img0004.png", "img0007.png")

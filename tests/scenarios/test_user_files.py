@@ -97,3 +97,126 @@ def test_an_existing_file_flylib_did_not_write_needs_force_its_own_export_does_n
     assert main(["export", str(results), "--csv3d", str(fresh)]) == 0
     assert main(["export", str(results), "--csv3d", str(mine), "--force"]) == 0
     assert "center_0" in mine.read_text().splitlines()[0]  # the Anipose table
+
+
+# -- cases 2 and 3: an outdir holding the user's files ------------------------------------
+
+
+def _env() -> dict:
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(REPO / "src"), os.environ.get("PYTHONPATH", "")]),
+    }
+    env.pop("FLYLIB_RUN_ID", None)
+    return env
+
+
+def _snakemake(workdir: Path, *args: str, timeout: int = 900) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        snakemake_command(workdir, *args),
+        cwd=workdir,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _recording_run(root: Path, **settings) -> tuple[Path, dict]:
+    """A tiny imported-2D recording in ``root/fly1`` and the work directory's config."""
+    from flylib.config import Config
+    from flylib.pipeline.demo import demo_import_spec, make_demo
+
+    data = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    data["bundle_adjustment"]["max_nfev"] = 20
+    data["pipeline"].update(do_visualization=False, do_refinement=False)
+    cfg = Config.from_dict(data)
+    rec = root / "fly1"
+    make_demo(cfg, rec, frames=6, seed=0)
+    data["recordings"] = [{"path": str(rec), "import": demo_import_spec(cfg)}]
+    data.update(settings)
+    (root / "config.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    return rec, data
+
+
+def _user_files(rec: Path) -> dict[Path, bytes]:
+    files = {
+        rec / "config.yaml": b"# the lab's own notes\nfly: 1\n",
+        rec / "summary.png": b"\x89PNG lab figure",
+    }
+    for path, data in files.items():
+        path.write_bytes(data)
+    return files
+
+
+def test_an_outdir_over_the_users_files_stops_before_any_job(tmp_path):
+    rec, _ = _recording_run(tmp_path, outdir="{recording}")
+    files = _user_files(rec)
+    listing = sorted(p.name for p in rec.iterdir())
+    for args in ((), ("-n",)):
+        proc = _snakemake(tmp_path, *args)
+        assert proc.returncode == 1, proc.stderr[-3000:]
+        for name in ("config.yaml", "summary.png"):
+            assert (
+                f"outdir: {rec / name} exists and was not written by flylib (not in "
+                f".flylib-outputs) and would be overwritten by assemble's {name}; move it away "
+                "or set outdir to another folder, e.g. '{recording}/flylib_outputs'"
+            ) in proc.stderr, proc.stderr[-3000:]
+    check = subprocess.run(
+        [
+            str(Path(os.sys.executable).parent / "flylib"),
+            "check-config",
+            str(tmp_path / "config.yaml"),
+        ],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert (
+        check.returncode == 1
+        and f"{rec / 'summary.png'} exists and was not written" in check.stderr
+    )
+    assert {p: p.read_bytes() for p in files} == files
+    assert sorted(p.name for p in rec.iterdir()) == listing  # nothing created or removed
+
+
+def test_the_runs_calibration_file_in_the_outdir_is_never_deleted(tmp_path):
+    from flylib.config import Config
+    from flylib.interop.anipose import write_anipose_toml
+    from flylib.pipeline.planning import config_rig
+
+    rec, data = _recording_run(tmp_path, outdir="{recording}")
+    calibration = rec / "calibration.toml"
+    cfg = Config.from_dict(data)
+    sizes = {v: (480, 960) for v in cfg.view_names()}
+    write_anipose_toml(config_rig(cfg, sizes), calibration, sizes)
+    data["calibration"] = {"file": "calibration.toml", "format": "anipose"}
+    data["pipeline"]["do_bundle_adjustment"] = False
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    before = calibration.read_bytes()
+    proc = _snakemake(tmp_path)
+    assert proc.returncode == 1
+    assert (
+        f"outdir: {calibration} is the run's calibration file (calibration.file) and would be "
+        "overwritten by assemble's calibration.toml; set outdir to another folder, e.g. "
+        "'{recording}/flylib_outputs'"
+    ) in proc.stderr, proc.stderr[-3000:]
+    assert "CyclicGraphException" not in proc.stderr and "Missing files" not in proc.stderr
+    assert calibration.read_bytes() == before
+    assert not (rec / "stages").exists() and not (rec / "results.h5").exists()
+
+
+@pytest.mark.slow
+def test_files_flylib_wrote_are_replaced_by_the_next_run(tmp_path):
+    rec, data = _recording_run(tmp_path)  # the default outdir: <recording>/flylib_outputs
+    files = _user_files(rec)  # the user's files beside the outputs stay untouched
+    first = _snakemake(tmp_path)
+    assert first.returncode == 0, first.stderr[-4000:]
+    out = rec / "flylib_outputs"
+    assert "config.yaml" in (out / ".flylib-outputs").read_text().split()
+    snapshot = (out / "config.yaml").stat().st_mtime_ns
+    again = _snakemake(tmp_path, "--forcerun", "assemble")
+    assert again.returncode == 0, again.stderr[-4000:]
+    assert (out / "config.yaml").stat().st_mtime_ns != snapshot
+    assert {p: p.read_bytes() for p in files} == files

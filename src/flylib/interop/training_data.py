@@ -103,6 +103,7 @@ def _dlc_frame(labels: np.ndarray, folder: str, images: list[str], points: list[
     index = pd.MultiIndex.from_tuples([("labeled-data", folder, name) for name in images])
     return pd.DataFrame(labels.reshape(len(images), -1), index=index, columns=columns)
 
+
 _HEADER_ROWS = ("scorer", "individuals", "bodyparts", "coords")
 
 
