@@ -335,8 +335,23 @@ def _load_result(path: Path):
     return PoseResult.load(path)
 
 
+def _export_inputs(args) -> dict[str, str]:
+    """``file -> role`` of what ``flylib export`` reads: no output may land on one."""
+    inputs = {str(args.results): "the input RESULTS_H5"}
+    beside = args.results.parent
+    for name in ("config.yaml", "config.toml"):
+        inputs[str(beside / name)] = "the config snapshot beside RESULTS_H5"
+    inputs[str(beside / "corrections.h5")] = "the corrections beside RESULTS_H5"
+    if args.config is not None:
+        inputs[str(args.config)] = "the --config file"
+    if args.nwb_metadata is not None:
+        inputs[str(args.nwb_metadata)] = "the --nwb-metadata file"
+    return inputs
+
+
 def _cmd_export(args) -> int:
     from .interop.exports import export_result
+    from .paths import record_outputs, refuse_overwrite
 
     if (
         args.csv3d is None
@@ -348,6 +363,15 @@ def _cmd_export(args) -> int:
             "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR, --nwb FILE "
             "and/or --training-data DIR"
         )
+    result = _load_result(args.results)
+    # every file this export writes, checked before any is written
+    targets = {args.csv3d: "--csv3d", args.nwb: "--nwb"}
+    if args.dlc_dir is not None:
+        targets |= {args.dlc_dir / f"{view}.csv": "--dlc-dir" for view in result.cameras.names}
+    targets.pop(None, None)
+    inputs = _export_inputs(args)
+    for target, option in targets.items():
+        refuse_overwrite(target, inputs, f"flylib export {option}", force=args.force)
     if args.training_data is not None:
         from .config import Config
         from .config.sources import footage_globs
@@ -367,6 +391,8 @@ def _cmd_export(args) -> int:
             footage_of=footage_of,
             recording=args.recording,
             scorer=args.scorer,
+            protected=inputs,
+            report=print,
         )
         labels = sorted({p.parent for p in written})
         print(f"{len(written)} files in {len(labels)} labeled-data folders:")
@@ -375,26 +401,32 @@ def _cmd_export(args) -> int:
     if args.nwb is not None:
         from .pipeline.export_nwb import export_nwb_command
 
-        print(
-            export_nwb_command(
-                args.results,
-                args.nwb,
-                config_path=args.config,
-                recording=args.recording,
-                metadata_path=args.nwb_metadata,
-            )
+        path = export_nwb_command(
+            args.results,
+            args.nwb,
+            config_path=args.config,
+            recording=args.recording,
+            metadata_path=args.nwb_metadata,
         )
+        record_outputs(Path(path).parent, [Path(path).name])
+        print(path)
     if args.csv3d is not None or args.dlc_dir is not None:
-        for path in export_result(
-            _load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir
-        ):
+        for path in export_result(result, csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+            record_outputs(path.parent, [path.name])
             print(path)
     return 0
 
 
 def _cmd_calibration(args) -> int:
     from .interop.anipose import write_anipose_toml
+    from .paths import record_outputs, refuse_overwrite
 
+    refuse_overwrite(
+        args.output,
+        {str(args.results): "the input RESULTS_H5"},
+        "flylib calibration -o",
+        force=args.force,
+    )
     result = _load_result(args.results)
     with open_checked(args.results) as f:
         stage = "bundle_adjustment" if "bundle_adjustment/cameras" in f else "pose2d"
@@ -404,6 +436,7 @@ def _cmd_calibration(args) -> int:
         result.image_sizes or {},
         metadata={"source": str(args.results), "rig": stage},
     )
+    record_outputs(Path(path).parent, [Path(path).name])
     print(path)
     return 0
 
@@ -481,6 +514,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml",
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing files flylib did not write (never one of the export's inputs)",
+    )
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser(
@@ -498,6 +536,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibration", help="write the run's camera rig as an Anipose TOML")
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("-o", "--output", type=Path, required=True, help="destination .toml")
+    p.add_argument(
+        "--force", action="store_true", help="replace an existing file flylib did not write"
+    )
     p.set_defaults(func=_cmd_calibration)
 
     p = sub.add_parser("gui", help="review and correct a recording's 3D pose in the browser")

@@ -677,7 +677,11 @@ def plan_listing(
                 outdir=outdir,
                 import_spec=dict(spec) if spec else None,
                 demo=bool(entry.get("demo")),
-                extra={"where": entry["_where"], "own_import": entry.get("import") is not None},
+                extra={
+                    "where": entry["_where"],
+                    "own_import": entry.get("import") is not None,
+                    "sheet": entry.get("_sheet"),
+                },
             )
         )
     return recordings

@@ -246,6 +246,10 @@ onstart:
     except FlylibError as exc:
         raise WorkflowError(str(exc)) from None
     atexit.register(release_outdirs, _claimed)
+    # the folders are the run's now: their planned outputs are flylib's (re-runs replace them)
+    from flylib.pipeline.user_files import record_planned
+
+    record_planned(CONFIG, _claimed)
     for _outdir in _claimed:
         for _temp in remove_stale_temps(_outdir, recursive=True):
             logger.info(f"removed {_temp}, left by a writer that was killed")

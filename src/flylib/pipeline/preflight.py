@@ -5,7 +5,9 @@ what needs the whole config or the planned recordings, and would otherwise fail
 minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
 ``shared`` references, each recording's 2D-import spec and the files it names,
 the detection plan and its weights (only where the detector runs), the output videos,
-the calibration format, and footage for recordings the detector must read. Every
+the calibration format, footage for recordings the detector must read, and that no
+planned output lands on an input or a file flylib did not write
+(:mod:`flylib.pipeline.user_files`). Every
 problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
 user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 """
@@ -135,6 +137,10 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         problems = preflight_problems(
             config, recordings, config.stage_flags(), check_weights=check_frames
         )
+        if check_frames:  # the run's main process: no job has started yet
+            from .user_files import output_problems
+
+            problems += output_problems(config, recordings, layers.texts)
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
