@@ -256,7 +256,9 @@ def test_an_outdir_template_takes_only_plain_documented_placeholders(
     assert not (tmp_path / "out").exists()
 
 
-def test_an_outdir_template_fills_its_placeholders_and_literal_braces(tmp_path, capsys, monkeypatch):
+def test_an_outdir_template_fills_its_placeholders_and_literal_braces(
+    tmp_path, capsys, monkeypatch
+):
     from flylib.cli import main
 
     monkeypatch.chdir(tmp_path)
@@ -266,6 +268,10 @@ def test_an_outdir_template_fills_its_placeholders_and_literal_braces(tmp_path, 
     assert "demo -> out/{x}/demo-demo" in capsys.readouterr().out
     (tmp_path / "my.yaml").write_text("outdir: 'out/{id'\n")
     assert main(["check-config", str(default), "my.yaml"]) == 1
-    assert capsys.readouterr().err.strip().startswith(
-        "flylib check-config: invalid config: my.yaml: outdir: 'out/{id' is not a path template"
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .startswith(
+            "flylib check-config: invalid config: my.yaml: outdir: 'out/{id' is not a path template"
+        )
     )

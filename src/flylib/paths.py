@@ -56,9 +56,13 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
         if field is None:
             continue
         if field not in values or spec or conversion:
-            written = "{" + field + (f"!{conversion}" if conversion else "") + (
-                f":{spec}" if spec else ""
-            ) + "}"
+            written = (
+                "{"
+                + field
+                + (f"!{conversion}" if conversion else "")
+                + (f":{spec}" if spec else "")
+                + "}"
+            )
             raise ConfigError(
                 f"{key}: {written} in {template!r} is not a placeholder; use only "
                 f"{allowed}, written plain (e.g. results/{{id}})"

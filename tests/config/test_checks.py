@@ -361,7 +361,9 @@ def test_a_non_finite_number_is_one_line_naming_the_key(
         return
     assert status == 1
     shown = {".inf": "inf", "-.inf": "-inf", ".nan": "nan"}[value]
-    assert err.startswith(f"flylib check-config: invalid config: my.yaml: {where}: expected a finite")
+    assert err.startswith(
+        f"flylib check-config: invalid config: my.yaml: {where}: expected a finite"
+    )
     assert f", got {shown}" in err and len(err.splitlines()) == 1, err
 
 
