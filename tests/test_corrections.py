@@ -188,8 +188,10 @@ def test_corrections_path_default_and_template(tmp_path):
         tmp_path / "out" / "fixes" / "fly1.h5",
         True,
     )
-    with pytest.raises(ConfigError, match="unknown placeholder"):
+    with pytest.raises(ConfigError, match=r"corrections: \{nope\} in .* is not a placeholder"):
         corrections_path("{nope}.h5", tmp_path)
+    with pytest.raises(ConfigError, match=r"corrections: \{id!r\} in '\{id!r\}.h5' is not"):
+        corrections_path("{id!r}.h5", tmp_path)
     from flylib.config.validation import validate_config
 
     assert not [m for m in validate_config(data) if "corrections" in m]

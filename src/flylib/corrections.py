@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError, one_line
-from .paths import atomic_path
+from .paths import atomic_path, fill_template
 from .results import open_hdf5, read_meta_from
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -471,18 +471,13 @@ def corrections_path(
             f"got {template!r}"
         )
     recording = Path(recording_dir) if recording_dir is not None else outdir
-    try:
-        text = template.format(
-            outdir=str(outdir),
-            recording=str(recording),
-            id=recording_id or recording.name,
-            name=recording.name,
-        )
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ConfigError(
-            f"corrections: unknown placeholder {exc} in {template!r}; use {{outdir}}, "
-            "{recording}, {id} or {name}"
-        ) from None
+    values = {
+        "outdir": str(outdir),
+        "recording": str(recording),
+        "id": recording_id or recording.name,
+        "name": recording.name,
+    }
+    text = fill_template(template, values, "corrections")
     path = Path(text).expanduser()
     return (path if path.is_absolute() else outdir / path), True
 

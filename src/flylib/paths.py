@@ -17,6 +17,60 @@ from pathlib import Path
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.yaml")
 
 
+def fill_template(template: str, values: dict[str, str], key: str) -> str:
+    """A path template with its placeholders filled: only plain ``{name}`` of ``values``.
+
+    ``str.format`` would also evaluate conversions (``{id!r}``), format specs,
+    attribute and index access (``{recording.parent}``, ``{id[0]}``); a config's path
+    template may use none of them. ``{{`` and ``}}`` are literal braces.
+
+    Parameters
+    ----------
+    template
+        The template, e.g. ``results/{id}``.
+    values
+        Placeholder name -> text.
+    key
+        The config key the template came from, for the message.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key``, the offending field and the allowed placeholders.
+    """
+    from string import Formatter
+
+    from .errors import ConfigError
+
+    allowed = ", ".join(f"{{{name}}}" for name in values)
+    parts: list[str] = []
+    try:
+        fields = list(Formatter().parse(template))
+    except ValueError as exc:  # a lone { or }
+        raise ConfigError(
+            f"{key}: {template!r} is not a path template ({exc}); use only the placeholders "
+            f"{allowed} (write {{{{ and }}}} for a literal brace)"
+        ) from None
+    for literal, field, spec, conversion in fields:
+        parts.append(literal)
+        if field is None:
+            continue
+        if field not in values or spec or conversion:
+            written = (
+                "{"
+                + field
+                + (f"!{conversion}" if conversion else "")
+                + (f":{spec}" if spec else "")
+                + "}"
+            )
+            raise ConfigError(
+                f"{key}: {written} in {template!r} is not a placeholder; use only "
+                f"{allowed}, written plain (e.g. results/{{id}})"
+            )
+        parts.append(values[field])
+    return "".join(parts)
+
+
 def cache_dir() -> Path:
     """The per-user cache (detector weights, compiled JAX kernels).
 

@@ -27,6 +27,7 @@ from .config.sources import source_patterns
 from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
 from .io.images import natural_key
+from .paths import fill_template
 
 log = logging.getLogger(__name__)
 
@@ -528,14 +529,9 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
     return [ids[i] for i in range(len(paths))]
 
 
-def _format_outdir(template: str, *, recording: Path, rid: str) -> Path:
-    try:
-        text = template.format(recording=str(recording), id=rid, name=recording.name)
-    except (KeyError, IndexError) as exc:
-        raise ConfigError(
-            f"outdir: unknown placeholder {exc} in {template!r}; "
-            "use {recording}, {id} or {name}"
-        ) from exc
+def _format_outdir(template: str, *, recording: Path, rid: str, key: str) -> Path:
+    values = {"recording": str(recording), "id": rid, "name": recording.name}
+    text = fill_template(template, values, key)
     return Path(os.path.normpath(os.path.expanduser(text)))
 
 
@@ -658,7 +654,13 @@ def plan_listing(
     recordings = []
     outdirs: dict[Path, str] = {}
     for (path, src, entry), rid in zip(unique, ids):
-        outdir = _format_outdir(str(entry.get("outdir") or template), recording=path, rid=rid)
+        own = entry.get("outdir")
+        outdir = _format_outdir(
+            str(own or template),
+            recording=path,
+            rid=rid,
+            key=f"{entry['_where']}.outdir" if own else "outdir",
+        )
         if outdir.resolve() in outdirs:
             raise ConfigError(
                 f"outdir: recordings {outdirs[outdir.resolve()]!r} and {rid!r} "
