@@ -12,6 +12,8 @@ import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from .locking import claim_lost, pid_alive
+
 #: The packaged default config, a real file inside the package (the repository's
 #: ``config/config.yaml`` is the user's editable copy; a test keeps the two identical).
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.yaml")
@@ -89,7 +91,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     removed if the block raises, leaving any previous ``path`` untouched: a crash never
     leaves a truncated output under the final name. The parent directory is created
     if missing. Temporary files of ``path`` left by writers that died (killed
-    mid-write on this host) are removed first (:func:`remove_stale_temps`).
+    mid-write on this host) are removed first (:func:`remove_stale_temps`). Inside a
+    run's job, the file is renamed into place only while the run still holds the output
+    directory's claim (:func:`flylib.locking.claim_lost`): a job that outlived its
+    killed run never replaces what the run that took the directory over writes.
 
     Parameters
     ----------
@@ -105,7 +110,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     ------
     OutputError
         When the write fails for want of space (disk full, quota, file-size limit):
-        one line naming ``path`` and saying that nothing was kept.
+        one line naming ``path`` and saying that nothing was kept; or when another
+        run took the output directory over meanwhile (nothing is kept either).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -115,6 +121,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     )
     try:
         yield tmp
+        lost = claim_lost(path)
+        if lost is not None:
+            from .errors import OutputError
+
+            raise OutputError(lost)
         os.replace(tmp, path)
     except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
         cause = out_of_space(err)
@@ -242,17 +253,6 @@ def refuse_overwrite(
 _TEMP_NAME = re.compile(
     r"^\.(?P<stem>.*)\.(?P<pid>\d+)(?:@(?P<host>[^/]+?))?\.[0-9a-f]{8}\.tmp(?P<suffix>\.[^.]*)?$"
 )
-
-
-def pid_alive(pid: int) -> bool:
-    """Whether a process ``pid`` exists on this host (another user's counts)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):  # another user's process; a pid out of range
-        return True
-    return True
 
 
 def _stale_temp(path: str | Path) -> bool:

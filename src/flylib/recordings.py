@@ -225,10 +225,17 @@ def _frame_counts(sources: dict[str, list[Path]], ext: str, reject) -> dict[str,
     return counts
 
 
+def is_pattern(text: str | Path) -> bool:
+    """Whether a listed path is a wildcard pattern: it holds ``*``, ``?`` or ``[`` and
+    names no existing file or folder (a folder named ``fly[1]`` is that folder)."""
+    expanded = os.path.expanduser(str(text))
+    return bool(_GLOB_CHARS.search(expanded)) and not os.path.lexists(expanded)
+
+
 def _expand_pattern(text: str) -> tuple[list[Path], bool]:
     """Expand a literal path or wildcard pattern; returns (paths, was_a_pattern)."""
     expanded = os.path.expanduser(text)
-    if _GLOB_CHARS.search(expanded):
+    if is_pattern(expanded):
         return natural_sorted(Path(p) for p in glob.glob(expanded, recursive=True)), True
     return [Path(expanded)], False
 
@@ -598,11 +605,7 @@ def plan_listing(
     entries = _normalize_entries(listing)
     template = str(outdir or DEFAULT_OUTDIR)
 
-    batch = (
-        len(entries) > 1
-        or recursive
-        or any(_GLOB_CHARS.search(str(e.get("path", ""))) for e in entries)
-    )
+    batch = len(entries) > 1 or recursive or any(is_pattern(e.get("path", "")) for e in entries)
 
     found: list[tuple[Path, dict, dict]] = []  # (dir, sources, entry)
     for entry in entries:
@@ -611,10 +614,10 @@ def plan_listing(
             found.append((path, {}, entry))
             continue
         rec_recursive = bool(entry.get("recursive", recursive))
-        is_pattern = bool(_GLOB_CHARS.search(str(entry["path"])))
-        if not is_pattern:  # a typo is one clear error, before anything is created
+        pattern = is_pattern(entry["path"])
+        if not pattern:  # a typo is one clear error, before anything is created
             check_recording_path(os.path.expanduser(str(entry["path"])), entry["_where"])
-        if batch and not rec_recursive and not is_pattern:
+        if batch and not rec_recursive and not pattern:
             path = Path(os.path.expanduser(str(entry["path"])))
             # warns when skipped
             src = find_recording(path, source_patterns(config), check_frames=check_frames)

@@ -155,7 +155,9 @@ def import_spec(spec: Mapping | None) -> dict:
 
 def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
     path = Path(pattern)
-    if path.is_absolute():
+    if (recording_dir / path).is_file():  # a file named cam[1].csv is that file
+        matches = [recording_dir / path]
+    elif path.is_absolute():
         matches = (
             sorted(path.parent.glob(path.name)) if any(c in path.name for c in "*?[") else [path]
         )
