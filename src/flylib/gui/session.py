@@ -152,6 +152,7 @@ class ReviewSession:
                     self.corrections_path,
                     (v, t, p),
                     [self.image_sizes[name] for name in self.view_names],
+                    self.cameras,
                 )
             else:
                 self.corrections = Corrections.empty(v, t, p)
