@@ -260,12 +260,18 @@ def test_an_outdir_template_fills_its_placeholders_and_literal_braces(
     tmp_path, capsys, monkeypatch
 ):
     from flylib.cli import main
+    from flylib.paths import fill_template
 
     monkeypatch.chdir(tmp_path)
     default = Path(__file__).resolve().parents[1] / "config" / "config.yaml"
-    (tmp_path / "my.yaml").write_text("outdir: 'out/{{x}}/{id}-{name}'\n")
+    (tmp_path / "my.yaml").write_text("outdir: 'out/{id}-{name}'\n")
     assert main(["check-config", str(default), "my.yaml"]) == 0
-    assert "demo -> out/{x}/demo-demo" in capsys.readouterr().out
+    assert "demo -> out/demo-demo" in capsys.readouterr().out
+    assert fill_template("out/{{x}}/{id}", {"id": "a"}, "outdir") == "out/{x}/a"
+    # a literal brace fills, but Snakemake cannot take a folder path holding braces
+    (tmp_path / "my.yaml").write_text("outdir: 'out/{{x}}/{id}-{name}'\n")
+    assert main(["check-config", str(default), "my.yaml"]) == 1
+    assert "the output folder's path holds {x}" in capsys.readouterr().err
     (tmp_path / "my.yaml").write_text("outdir: 'out/{id'\n")
     assert main(["check-config", str(default), "my.yaml"]) == 1
     assert (

@@ -243,7 +243,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         problems = preflight_problems(
             config, recordings, config.stage_flags(), check_weights=check_frames
         )
-        if check_frames:  # the run's main process: no job has started yet
+        if check_frames and not problems:  # the main process, every path usable
             from .user_files import output_problems
 
             problems += output_problems(config, recordings, layers.texts)
