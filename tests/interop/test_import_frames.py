@@ -90,7 +90,9 @@ def test_dlc_h5_labelled_data_index_is_read_as_image_numbers(tmp_path):
         [("labeled-data", "cam", f"img{i:03d}.png") for i in (47, 3, 5)]
     )
     frame.to_hdf(tmp_path / "a.h5", key="df_with_missing")  # DeepLabCut's CollectedData
-    np.testing.assert_array_equal(read_dlc_h5(tmp_path / "a.h5").xy, expected(frame, [47, 3, 5], 48))
+    np.testing.assert_array_equal(
+        read_dlc_h5(tmp_path / "a.h5").xy, expected(frame, [47, 3, 5], 48)
+    )
 
 
 def test_a_frame_given_twice_is_an_error_naming_file_rows_and_index(tmp_path):
@@ -107,7 +109,9 @@ def test_an_index_that_names_no_frame_is_an_error(tmp_path):
     frame = dlc_frame(range(2))
     frame.index = ["first", "second"]
     frame.to_csv(tmp_path / "a.csv")
-    with pytest.raises(ImportFormatError, match=r"a\.csv: data row 1 has index 'first', which names no frame"):
+    with pytest.raises(
+        ImportFormatError, match=r"a\.csv: data row 1 has index 'first', which names no frame"
+    ):
         read_dlc_csv(tmp_path / "a.csv")
 
 
@@ -119,7 +123,7 @@ def test_a_likelihood_outside_0_1_is_refused_naming_the_file(tmp_path, fmt):
     with pytest.raises(ImportFormatError) as raised:
         import_points2d(target(), tmp_path, {"format": fmt, "image_size": [4, 4]})
     assert str(raised.value).startswith(
-        f"{tmp_path / 'a.csv'}: 1 scores outside [0, 1], from 1000 to 1000 (first at frame 1, "
+        f"{tmp_path / 'a.csv'}: 1 score outside [0, 1], from 1000 to 1000 (first at frame 1, "
         "keypoint 'tail'); a DeepLabCut / Lightning Pose likelihood is a probability in [0, 1]"
     )
 

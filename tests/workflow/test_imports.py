@@ -137,6 +137,6 @@ def test_a_likelihood_that_is_no_probability_stops_pose2d_naming_the_file(work):
     assert proc.returncode != 0
     log = (workdir.parent / "out" / "logs" / "pose2d.log").read_text()
     assert (
-        f"{csv}: 1 scores outside [0, 1], from 1000 to 1000 (first at frame 2, keypoint "
+        f"{csv}: 1 score outside [0, 1], from 1000 to 1000 (first at frame 2, keypoint "
         f"{likelihood[0][1]!r}); a DeepLabCut / Lightning Pose likelihood is a probability"
     ) in log

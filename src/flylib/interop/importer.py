@@ -496,7 +496,7 @@ def as_confidences(conf: np.ndarray, fmt: str, path: Path, names: list | None = 
     where = np.argwhere(outside)[0]
     part = f", keypoint {names[where[-1]]!r}" if names is not None else ""
     detail = (
-        f"{outside.sum()} scores outside [0, 1], from {bad.min():g} to {bad.max():g} "
+        f"{bad.size} score{'s' if bad.size > 1 else ''} outside [0, 1], from {bad.min():g} to {bad.max():g} "
         f"(first at frame {where[0] if conf.ndim == 2 else where[-2]}{part})"
     )
     if fmt in _PROBABILITIES:

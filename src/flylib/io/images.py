@@ -56,7 +56,11 @@ def _missing_name(template: Path, number: int) -> str:
     """``template``'s name with its frame number replaced by ``number`` (same zero padding)."""
     found = _LAST_NUMBER.search(template.stem)
     digits = found.group(1)
-    text = str(number).zfill(len(digits)) if digits.startswith("0") and len(digits) > 1 else str(number)
+    text = (
+        str(number).zfill(len(digits))
+        if digits.startswith("0") and len(digits) > 1
+        else str(number)
+    )
     return f"{template.stem[: found.start()]}{text}{template.stem[found.end() :]}{template.suffix}"
 
 
@@ -84,9 +88,7 @@ def sequence_gap(files: list[Path]) -> str | None:
     missing = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
     if not missing:
         return None
-    names = [
-        _missing_name(by_number[max(n for n in numbers if n < m)], m) for m in missing[:5]
-    ]
+    names = [_missing_name(by_number[max(n for n in numbers if n < m)], m) for m in missing[:5]]
     more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
     return (
         f"{files[0].parent}: the image sequence {by_number[numbers[0]].name} .. "

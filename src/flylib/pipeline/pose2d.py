@@ -188,7 +188,9 @@ def import_target(config: Config) -> ImportTarget:
     return Pose2dInputs.from_config(config).import_target()
 
 
-def import_inputs(target: ImportTarget, spec: Mapping | None, recording_dir: str | Path) -> list[Path]:
+def import_inputs(
+    target: ImportTarget, spec: Mapping | None, recording_dir: str | Path
+) -> list[Path]:
     """The files a recording's imported 2D is read from (none without an import spec):
     the pose2d rule's inputs besides the footage, so that editing one re-runs pose2d.
 
