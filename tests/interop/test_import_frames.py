@@ -115,6 +115,32 @@ def test_an_index_that_names_no_frame_is_an_error(tmp_path):
         read_dlc_csv(tmp_path / "a.csv")
 
 
+def test_an_empty_or_fractional_index_is_an_error(tmp_path):
+    frame = dlc_frame(range(2))
+    frame.index = [0.0, 1.5]
+    frame.to_csv(tmp_path / "a.csv")
+    with pytest.raises(
+        ImportFormatError, match=r"a\.csv: data row 2 has index 1\.5, which is no frame"
+    ):
+        read_dlc_csv(tmp_path / "a.csv")
+    frame.index = [0.0, np.nan]
+    frame.to_csv(tmp_path / "a.csv")
+    with pytest.raises(
+        ImportFormatError, match=r"a\.csv: data row 2 has index nan, which is no frame"
+    ):
+        read_dlc_csv(tmp_path / "a.csv")
+
+
+def test_a_frame_index_past_any_recording_is_an_error_not_an_allocation(tmp_path):
+    frame = dlc_frame(range(2))
+    frame.index = ["0", "99999999999999999999999"]
+    frame.to_csv(tmp_path / "a.csv")
+    with pytest.raises(
+        ImportFormatError, match=r"a\.csv: data row 2 names frame 9+, outside 0\.\.10000000"
+    ):
+        read_dlc_csv(tmp_path / "a.csv")
+
+
 @pytest.mark.parametrize("fmt", ["dlc_csv", "lightning_pose", "deeplabcut"])
 def test_a_likelihood_outside_0_1_is_refused_naming_the_file(tmp_path, fmt):
     frame = dlc_frame(range(3))

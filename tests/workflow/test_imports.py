@@ -110,6 +110,7 @@ def test_rows_out_of_frame_order_land_on_the_frame_their_index_names(work):
     csv, workdir = work
     run(workdir)
     ordered = results_2d(workdir)
+    shutil.rmtree(workdir.parent / "out")  # a fresh run: nothing of the first one kept
     frame = read_csv(csv)
     frame.iloc[::-1].to_csv(csv)  # rows 3, 2, 1, 0
     run(workdir)

@@ -173,6 +173,9 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
         ) from exc
 
 
+#: Highest frame index a row may name (28 hours at 100 frames/s): rows are placed at their
+#: frame, so an index is also an allocation.
+MAX_FRAME_INDEX = 10_000_000
 _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
@@ -183,19 +186,27 @@ def _frame_number(value, path: Path, row: int) -> int:
         value = value.decode("utf-8", "replace")
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
         number = int(value)
-    elif isinstance(value, (float, np.floating)) and np.isfinite(value) and value == int(value):
+    elif isinstance(value, (float, np.floating)):
+        if not (np.isfinite(value) and value == int(value)):
+            raise ImportFormatError(
+                f"{path}: data row {row + 1} has index {value!r}, which is no frame number; "
+                "the first column must be the frame number (or the labelled image's path)"
+            )
         number = int(value)
     else:
         text = str(value).strip()
         found = _LAST_NUMBER.search(Path(text.replace("\\", "/")).stem) if text else None
-        if found is None or str(value) == "nan":
+        if found is None:
             raise ImportFormatError(
                 f"{path}: data row {row + 1} has index {value!r}, which names no frame; the first "
                 "column must be the frame number (or the labelled image's path)"
             )
         number = int(found.group(1))
-    if number < 0:
-        raise ImportFormatError(f"{path}: data row {row + 1} has negative frame index {number}")
+    if not 0 <= number <= MAX_FRAME_INDEX:
+        raise ImportFormatError(
+            f"{path}: data row {row + 1} names frame {number}, outside 0..{MAX_FRAME_INDEX}; "
+            "the first column must be the frame number (or the labelled image's path)"
+        )
     return number
 
 
@@ -246,9 +257,14 @@ def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> V
     coords = [str(c) for c in columns.get_level_values("coords")]
     column_of = {(b, c): i for i, (b, c) in enumerate(zip(parts, coords))}
     bodyparts = list(dict.fromkeys(parts))
-    values = np.full((int(rows.max()) + 1 if rows.size else 0, frame.shape[1]), np.nan)
+    n_frames = int(rows.max()) + 1 if rows.size else 0
+    if n_frames * frame.shape[1] * 8 > DEFAULT_READ_BUDGET:
+        raise ImportFormatError(
+            f"{path}: frame index {n_frames - 1} with {frame.shape[1]} value columns would take "
+            f"{n_frames * frame.shape[1] * 8 / 2**30:.1f} GiB; check the file's first column"
+        )
+    values = np.full((n_frames, frame.shape[1]), np.nan)
     values[rows] = _floats(frame.to_numpy(), path)
-    n_frames = len(values)
     xy = np.full((n_frames, len(bodyparts), 2), np.nan)
     conf = np.full((n_frames, len(bodyparts)), np.nan)
     for k, part in enumerate(bodyparts):

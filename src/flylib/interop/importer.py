@@ -34,6 +34,9 @@ joints (keys are joint indices) default to fly38 point ``(j + 19) mod 38``
 (see :mod:`flylib.interop.df3d`). A file keypoint that maps to nothing is an error, so
 a renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
 
+DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`),
+and every tool's scores become confidences in [0, 1] by :func:`as_confidences`.
+
 Frame sizes come from each view's footage header (see :mod:`flylib.interop.views`),
 else ``image_size``. All views must have the same number of frames, and as many
 frames as their footage when its count is known.
