@@ -26,7 +26,7 @@ from typing import Any
 from .config.sources import source_patterns
 from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
-from .io.images import natural_key
+from .io.images import natural_key, sequence_gap
 from .paths import fill_template
 
 log = logging.getLogger(__name__)
@@ -112,9 +112,40 @@ def video_frame_count(path: Path) -> int | None:
 
 
 def footage_matches(directory: Path, pattern: str) -> list[Path]:
-    """Footage files (video or image extensions) matching ``pattern`` in ``directory``."""
+    """Footage files (video or image extensions) matching ``pattern`` in ``directory``.
+
+    Raises
+    ------
+    FootageError
+        A match with a footage extension that is no regular file (a FIFO, a device, a
+        link to one or to nothing), named with what it is.
+    """
     hits = [Path(p) for p in glob.glob(os.path.join(glob.escape(str(directory)), pattern))]
-    return [p for p in hits if p.is_file() and p.suffix.lower() in FOOTAGE_EXTS]
+    hits = [p for p in hits if p.suffix.lower() in FOOTAGE_EXTS and not p.is_dir()]
+    for path in hits:
+        if not path.is_file():
+            raise FootageError(f"{path}: {_not_a_file(path)}; replace it with the footage file")
+    return hits
+
+
+def _not_a_file(path: Path) -> str:
+    """What ``path`` (not a regular file) is, in words: ``"is a named pipe (FIFO), not a
+    video or image file"``."""
+    import stat
+
+    link = f"a link to {os.path.realpath(path)}, " if path.is_symlink() else ""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return f"is {link}which does not exist" if link else "cannot be read"
+    kinds = [
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ]
+    kind = next((text for test, text in kinds if test(mode)), "not a regular file")
+    return f"is {link}{kind}, not a video or image file"
 
 
 def _pick_extension(per_source: dict[str, list[Path]]) -> str | None:
@@ -171,7 +202,11 @@ def find_recording(
     if not directory.is_dir():
         reject(f"{directory}: is not a directory")
         return None
-    matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
+    try:
+        matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
+    except FootageError as exc:
+        reject(str(exc))
+        return None
     missing = [f"{name} ({patterns[name]!r})" for name, files in matched.items() if not files]
     if missing:
         reject(
@@ -190,6 +225,10 @@ def find_recording(
         n: natural_sorted(p for p in files if p.suffix.lower() == ext)
         for n, files in matched.items()
     }
+    gaps = [gap for files in sources.values() if (gap := sequence_gap(files)) is not None]
+    if ext not in VIDEO_EXTS and gaps:
+        reject(gaps[0])
+        return None
     if ext in VIDEO_EXTS:
         several = {n: [p.name for p in f] for n, f in sources.items() if len(f) > 1}
         if several:

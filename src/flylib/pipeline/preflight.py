@@ -283,6 +283,13 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
             if where:
                 text = text.replace("pose2d.import", where)
             problems.append(text)
+        if not rec.demo and not rec.sources:
+            # planning kept it without footage; what it has (frame sizes and counts)
+            # must still be footage: a pipe, a device, a gap in an image sequence
+            try:
+                (target or import_target(config)).footage(rec.path)
+            except FlylibError as exc:
+                problems.append(f"{rec.extra.get('where', 'recordings')}: {_problem(exc)}")
     if not detector:
         return problems
 
