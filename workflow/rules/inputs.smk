@@ -4,6 +4,8 @@
 
 def recording_inputs(wildcards) -> list[str]:
     """What pose2d reads: the footage (for the demo, everything the demo rule writes)."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_OUTPUTS
@@ -12,6 +14,8 @@ def recording_inputs(wildcards) -> list[str]:
 
 def footage_inputs(wildcards) -> list[str]:
     """The recording's footage files (for the demo, the videos the demo rule writes)."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_FOOTAGE
@@ -19,6 +23,8 @@ def footage_inputs(wildcards) -> list[str]:
 
 
 def assemble_inputs(wildcards) -> dict:
+    if unplanned(wildcards):
+        return {"unplanned": unplanned(wildcards)}
     # pose2d's artifact is read even with pose2d off (made by an earlier run)
     files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
