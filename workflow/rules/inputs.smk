@@ -7,6 +7,8 @@ from flylib.pipeline.pose2d import import_inputs as _import_inputs, import_targe
 def recording_inputs(wildcards) -> list[str]:
     """What pose2d reads: the footage and the files imported 2D comes from (for the
     demo, everything the demo rule writes), so an edit of any re-runs pose2d."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_OUTPUTS
@@ -20,6 +22,8 @@ IMPORT_TARGET = import_target(CONFIG) if any(r.import_spec for r in RECORDINGS) 
 
 def footage_inputs(wildcards) -> list[str]:
     """The recording's footage files (for the demo, the videos the demo rule writes)."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_FOOTAGE
@@ -27,6 +31,8 @@ def footage_inputs(wildcards) -> list[str]:
 
 
 def assemble_inputs(wildcards) -> dict:
+    if unplanned(wildcards):
+        return {"unplanned": unplanned(wildcards)}
     # pose2d's artifact is read even with pose2d off (made by an earlier run)
     files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
