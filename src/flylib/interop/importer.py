@@ -48,6 +48,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -57,6 +58,9 @@ from ._h5 import read_budget
 from .df3d import df3d_joint_to_fly38, read_df3d_points2d
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 log = logging.getLogger(__name__)
 
@@ -469,7 +473,9 @@ _PROBABILITIES = ("dlc_csv", "dlc_h5", "deeplabcut", "lightning_pose")
 _ROUNDING = 1e-6
 
 
-def as_confidences(conf: np.ndarray, fmt: str, path: Path, names: list | None = None) -> np.ndarray:
+def as_confidences(
+    conf: Float[np.ndarray, "*batch K"], fmt: str, path: Path, names: list | None = None
+) -> Float[np.ndarray, "*batch K"]:
     """Another tool's scores as confidences in [0, 1] (NaN stays NaN).
 
     DeepLabCut and Lightning Pose likelihoods are probabilities: one outside [0, 1] is an
