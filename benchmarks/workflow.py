@@ -1,27 +1,32 @@
 """Workflow benchmarks: planning time for many recordings, and the workflow's overhead.
 
-1. Dry-run planning of N recordings (default 200, tiny 2-frame videos, 7 cameras):
-   wall-clock of ``snakemake --dry-run`` against a 1-recording dry run measured in the
-   same session (the fixed start-up cost), and of :func:`flylib.pipeline.planning.plan_recordings`
-   alone. Target: < 10 s for 200 recordings.
+1. Dry-run planning of N recordings (default 200; ``--recordings 1000,10000`` for a
+   series): the demo's recording at 2 frames (7 videos, DeepLabCut CSVs) hard-linked N
+   times and listed in a sheet with its 2D imported per recording, as a lab lists a
+   batch (no detector weights needed). Wall-clock and CPU of ``snakemake --dry-run``
+   against a 1-recording dry run measured in the same session (the fixed start-up
+   cost), the ratio between them and the cost per extra recording (constant when the
+   DAG scales linearly), and :func:`flylib.pipeline.planning.plan_recordings` alone.
+   A dry run longer than ``--cap`` seconds is stopped and reported as "> cap".
+   Target: < 10 s for 200 recordings.
 2. Overhead of running the demo through Snakemake (one process per job) over calling
    the stage functions directly in one process. Target: < 30 %.
 
-    python benchmarks/workflow.py [--recordings 200] [--frames 60] [--skip-overhead]
+    python benchmarks/workflow.py [--recordings 200[,1000,...]] [--cap 600] [--frames 60]
+                                  [--skip-overhead]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import resource
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,13 +41,21 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _snakemake(workdir: Path, *args: str, cpu: list | None = None) -> float:
+def _snakemake(
+    workdir: Path, *args: str, cpu: list | None = None, cap: float | None = None
+) -> float:
     """Wall-clock seconds of one snakemake call; its CPU seconds are appended to ``cpu``
-    (a figure that a busy machine inflates much less than the wall clock)."""
+    (a figure that a busy machine inflates much less than the wall clock). A call
+    longer than ``cap`` seconds is stopped: ``inf``."""
     cmd = snakemake_command(workdir, *args)
     cpu_before = _children_cpu()
     start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=cap)
+    except subprocess.TimeoutExpired:
+        if cpu is not None:
+            cpu.append(float("inf"))
+        return float("inf")
     elapsed = time.perf_counter() - start
     if cpu is not None:
         cpu.append(_children_cpu() - cpu_before)
@@ -51,42 +64,53 @@ def _snakemake(workdir: Path, *args: str, cpu: list | None = None) -> float:
     return elapsed
 
 
-def _tiny_recordings(root: Path, count: int, sources: list[dict]) -> list[str]:
-    from flylib.io import VideoWriter
+def _batch(root: Path, count: int, base: dict) -> Path:
+    """A sheet of ``count`` recordings, each the demo's 2-frame recording hard-linked
+    into a folder of its own with its 2D imported from its DeepLabCut CSVs."""
+    from flylib.config import Config
+    from flylib.pipeline.demo import demo_files, demo_import_spec, make_demo
 
+    config = Config.from_dict(base)
     template = root / "template"
-    template.mkdir(parents=True)
-    for s in sources:
-        with VideoWriter(template / s["filename"], fps=10) as writer:
-            writer.write_frames(np.zeros((2, 16, 16, 3), np.uint8))
-    dirs = []
+    if not template.is_dir():
+        make_demo(config, template, frames=2)
+    spec = demo_import_spec(config)
+    names = demo_files(config)
+    files = ";".join(f"{view}={name}" for view, name in spec["files"].items())
+    rows = ["path\timport_format\timport_files"]
     for i in range(count):
-        rec = root / f"rec{i:03d}"
-        shutil.copytree(template, rec)
-        dirs.append(str(rec))
-    return dirs
+        rec = root / "data" / f"rec{i:05d}"
+        if not rec.is_dir():
+            rec.mkdir(parents=True)
+            for name in (*names["footage"], *names["dlc"]):
+                os.link(template / name, rec / name)
+        rows.append(f"{rec}\t{spec['format']}\t{files}")
+    sheet = root / f"recordings_{count}.tsv"
+    sheet.write_text("\n".join(rows) + "\n")
+    return sheet
 
 
-def bench_planning(n: int) -> dict:
+def bench_planning(counts: list[int], cap: float) -> dict:
+    """Dry-run seconds (wall, CPU) of 1 recording (the baseline) and of each count."""
     from flylib.config import Config
     from flylib.pipeline.planning import plan_recordings
 
     base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    results = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        dirs = _tiny_recordings(root / "data", n, base["sources"])
-        results = {}
-        for label, recs in (("1 recording", dirs[:1]), (f"{n} recordings", dirs)):
-            config = {**base, "recordings": recs}
+        for n in [1, *counts]:
+            config = {**base, "recordings": str(_batch(root, n, base))}
             (root / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-            _snakemake(root, "--dry-run")  # warm the file cache and the effective config
             cpu: list[float] = []
-            results[label] = min(_snakemake(root, "--dry-run", cpu=cpu) for _ in range(2))
-            results[f"{label} cpu"] = min(cpu)
-        cfg = Config.from_dict({**base, "recordings": dirs})
-        start = time.perf_counter()
-        plan_recordings(cfg)
-        results["plan_recordings alone"] = time.perf_counter() - start
+            if n == 1:  # warm the imports and the file cache; best of two
+                _snakemake(root, "--dry-run")
+                wall = min(_snakemake(root, "--dry-run", cpu=cpu) for _ in range(2))
+            else:
+                wall = _snakemake(root, "--dry-run", cpu=cpu, cap=cap)
+            start = time.perf_counter()
+            plan_recordings(Config.from_dict(config))
+            results[n] = {"wall": wall, "cpu": min(cpu), "plan": time.perf_counter() - start}
     return results
 
 
@@ -145,7 +169,12 @@ def bench_overhead(frames: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--recordings", type=int, default=200)
+    parser.add_argument(
+        "--recordings", default="200", help="batch sizes, comma-separated (e.g. 1000,10000)"
+    )
+    parser.add_argument(
+        "--cap", type=float, default=600.0, help="stop a dry run after this many seconds"
+    )
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--skip-overhead", action="store_true")
     parser.add_argument("--skip-planning", action="store_true")
@@ -161,20 +190,29 @@ def main() -> None:
         return
 
     if not args.skip_planning:
-        n = args.recordings
-        plan = bench_planning(n)
-        one, many = plan["1 recording"], plan[f"{n} recordings"]
+        counts = [int(n) for n in args.recordings.split(",")]
+        plan = bench_planning(counts, args.cap)
+        one = plan[1]
         print(
-            f"dry run, 1 recording:   {one:6.2f} s wall, {plan['1 recording cpu']:6.2f} s CPU "
+            f"dry run, 1 recording:   {one['wall']:7.2f} s wall, {one['cpu']:7.2f} s CPU "
             "(Snakemake start-up and parse: the baseline)"
         )
-        print(
-            f"dry run, {n} recordings: {many:6.2f} s wall, {plan[f'{n} recordings cpu']:6.2f} s CPU "
-            f"(target < 10 s: {'ok' if many < 10 else 'MISSED'}); "
-            f"{(many - one) / max(n - 1, 1) * 1000:.1f} ms wall per extra recording; "
-            f"ratio to baseline {many / one:.2f}"
-        )
-        print(f"plan_recordings alone ({n} recordings): {plan['plan_recordings alone']:6.2f} s")
+        for n in counts:
+            many = plan[n]
+            if many["wall"] == float("inf"):
+                print(f"dry run, {n} recordings: > {args.cap:.0f} s (stopped)")
+                continue
+            target = (
+                f" (target < 10 s: {'ok' if many['wall'] < 10 else 'MISSED'})" if n <= 200 else ""
+            )
+            print(
+                f"dry run, {n} recordings: {many['wall']:7.2f} s wall, {many['cpu']:7.2f} s CPU"
+                f"{target}; ratio to baseline {many['wall'] / one['wall']:.1f} wall, "
+                f"{many['cpu'] / one['cpu']:.1f} CPU; per extra recording "
+                f"{(many['wall'] - one['wall']) / (n - 1) * 1000:.1f} ms wall, "
+                f"{(many['cpu'] - one['cpu']) / (n - 1) * 1000:.1f} ms CPU; "
+                f"plan_recordings alone {many['plan']:.2f} s"
+            )
     if args.skip_overhead:
         return
     over = bench_overhead(args.frames)

@@ -18,12 +18,14 @@ import argparse
 import json
 import logging
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from flylib.errors import FlylibError
+from flylib.run_summary import JOB_FINISHED, JOB_STOPPED
 
 # The options every script shares: what runs the stage, not arguments of the stage.
 _SHARED = ("help", "config", "threads", "verbose")
@@ -89,6 +91,19 @@ def _log_to(path: str | Path) -> None:
     os.close(fd)
 
 
+class _Stopped(BaseException):
+    """A stop signal (SIGTERM, SIGINT, SIGHUP) arrived: unwind, so temporary files and
+    locks are released, then say so in the log."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _stop(signum: int, frame: Any) -> None:
+    raise _Stopped(signum)
+
+
 def _job_value(job: Any, name: str, action: argparse.Action) -> Any:
     """Option ``name``'s value in the job, converted as the option converts its text (a
     file or directory left out, as an empty list or ``""``: ``None``)."""
@@ -149,6 +164,8 @@ def script_main(
     if job is not None:
         if job.log:
             _log_to(job.log[0])
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            signal.signal(signum, _stop)
         name, threads, verbose = job.rule, job.threads, False
 
         def prepare() -> tuple[Any, dict[str, Any]]:
@@ -188,6 +205,11 @@ def script_main(
     except (FlylibError, argparse.ArgumentTypeError) as exc:  # the latter: a job's value
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except _Stopped as stop:
+        print(f"{JOB_STOPPED}{signal.Signals(stop.signum).name}", file=sys.stderr, flush=True)
+        return 128 + stop.signum
+    if job is not None:
+        print(JOB_FINISHED, file=sys.stderr, flush=True)
     return 0
 
 

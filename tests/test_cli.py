@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from flylib.camera.rig import CameraGroup
 from flylib.cli import main, summarize_results
@@ -194,3 +198,113 @@ def test_inspect_into_a_closed_pipe_exits_quietly(result_file):
     proc.wait(timeout=120)
     assert err == ""
     assert proc.returncode == 141
+
+
+# -- flylib run: a config file never runs code; TOML for snakemake (issue 37, cases 7, 8) --
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _flylib(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    """The real ``flylib`` console script, importing this checkout."""
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    flylib = Path(sys.executable).with_name("flylib")
+    return subprocess.run(
+        [str(flylib), *args], cwd=cwd, capture_output=True, text=True, env=env, timeout=300
+    )
+
+
+@pytest.mark.slow  # runs Snakemake
+def test_flylib_run_refuses_templating_and_never_runs_it(tmp_path):
+    marker = tmp_path / "MARKER"
+    (tmp_path / "yte.yaml").write_text(
+        f"__use_yte__: true\ntriangulation:\n  ransac_threshold: ?open({str(marker)!r}, 'w') and 3\n"
+    )
+    proc = _flylib(tmp_path, "run", "yte.yaml", "-s", str(REPO / "Snakefile"), "-n", "--cores", "1")
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == (
+        "flylib run: invalid config: yte.yaml: __use_yte__: templating is not accepted in a "
+        "flylib config (Snakemake runs the Python inside such a file while reading it, before "
+        "flylib can check it); remove __use_yte__ and write the values out"
+    )
+    assert not marker.exists() and not (tmp_path / ".flylib").exists()
+    # the control: Snakemake itself, given the file, runs its Python
+    snakemake = Path(sys.executable).with_name("snakemake")
+    subprocess.run(
+        [str(snakemake), "-s", str(REPO / "Snakefile"), "-n", "--configfile", "yte.yaml"],
+        cwd=tmp_path,
+        capture_output=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO / "src")),
+        timeout=300,
+    )
+    assert marker.exists()
+
+
+@pytest.mark.slow  # runs Snakemake
+@pytest.mark.parametrize("name", ["my.yaml", "my.toml"])
+def test_flylib_run_hands_snakemake_a_checked_plain_copy(tmp_path, name):
+    text = "outdir: 'res/{id}'\n" if name.endswith(".yaml") else "outdir = 'res/{id}'\n"
+    (tmp_path / name).write_text(text)
+    proc = _flylib(tmp_path, "run", name, "-s", str(REPO / "Snakefile"), "-n", "--cores", "1")
+    assert proc.returncode == 0, proc.stderr
+    (copy,) = (tmp_path / ".flylib" / "run-configs").iterdir()
+    assert yaml.safe_load(copy.read_text()) == {"outdir": "res/{id}"}
+    assert f"flylib run: {name} checked; snakemake reads .flylib/run-configs/{copy.name}" in (
+        proc.stderr
+    )
+    assert "res/demo/stages" in proc.stdout  # Snakemake planned with the copy's outdir
+    assert "This was a dry-run" in proc.stdout and not (tmp_path / "res").exists()
+
+
+def test_flylib_run_takes_no_configfile_of_snakemakes(tmp_path):
+    (tmp_path / "my.yaml").write_text("{}\n")
+    proc = _flylib(tmp_path, "run", "my.yaml", "-n", "--configfile", "other.yaml")
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == (
+        "flylib run: --configfile would hand Snakemake a file flylib did not check; list every "
+        "config file before the snakemake arguments: flylib run a.yaml b.yaml [snakemake args]"
+    )
+
+
+@pytest.mark.slow  # runs Snakemake
+def test_a_toml_config_is_named_as_such_with_its_yaml_equivalent(tmp_path):
+    default = str(REPO / "config" / "config.yaml")
+    (tmp_path / "my.toml").write_text('[triangulation]\nmethod = "dlt"\n')
+    snakemake = Path(sys.executable).with_name("snakemake")
+    proc = subprocess.run(
+        [str(snakemake), "-s", str(REPO / "Snakefile"), "-n", "--configfile", "my.toml"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert (
+        "Config file is not valid JSON or YAML" in proc.stdout + proc.stderr
+    )  # no flylib code ran
+    check = _flylib(tmp_path, "check-config", default, "my.toml")
+    assert check.returncode == 0, check.stderr
+    assert check.stderr.strip() == (
+        'my.toml: TOML, which `snakemake --configfile` cannot read (it stops with "Config file '
+        'is not valid JSON or YAML"); run it with `flylib run my.toml [snakemake args]`, or '
+        f"write its YAML equivalent with `flylib check-config {default} my.toml --to-yaml my.yaml`"
+    )
+    convert = _flylib(tmp_path, "check-config", default, "my.toml", "--to-yaml", "my.yaml")
+    assert convert.returncode == 0 and convert.stdout.strip() == (
+        "my.toml: valid; written as YAML to my.yaml"
+    )
+    assert yaml.safe_load((tmp_path / "my.yaml").read_text()) == {
+        "triangulation": {"method": "dlt"}
+    }
+    again = _flylib(tmp_path, "check-config", default, "my.toml", "--to-yaml", "my.yaml")
+    assert again.returncode == 1 and again.stderr.strip() == (
+        "flylib check-config: my.yaml: already exists; choose another name or delete it"
+    )
+    proc = subprocess.run(
+        [str(snakemake), "-s", str(REPO / "Snakefile"), "-n", "--configfile", "my.yaml"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO / "src")),
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr

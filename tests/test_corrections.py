@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -188,8 +193,10 @@ def test_corrections_path_default_and_template(tmp_path):
         tmp_path / "out" / "fixes" / "fly1.h5",
         True,
     )
-    with pytest.raises(ConfigError, match="unknown placeholder"):
+    with pytest.raises(ConfigError, match=r"corrections: \{nope\} in .* is not a placeholder"):
         corrections_path("{nope}.h5", tmp_path)
+    with pytest.raises(ConfigError, match=r"corrections: \{id!r\} in '\{id!r\}.h5' is not"):
+        corrections_path("{id!r}.h5", tmp_path)
     from flylib.config.validation import validate_config
 
     assert not [m for m in validate_config(data) if "corrections" in m]
@@ -303,3 +310,136 @@ def test_the_triangulation_stage_refuses_an_out_of_image_sidecar(outdir, tmp_pat
             corrections_path=path,
         )
     assert not (tmp_path / "triangulation.h5").exists()
+
+
+# -- a sidecar from elsewhere cannot reach beyond itself (issue 37, case 16) ---------------
+
+
+def _replace_dataset(path, name, make):
+    with h5py.File(path, "r+") as f:
+        group, leaf = f[name.rpartition("/")[0]], name.rpartition("/")[2]
+        shape, dtype = f[name].shape, f[name].dtype
+        del f[name]
+        make(group, leaf, shape, dtype)
+
+
+def _triangulation_script(outdir, tmp_path, sidecar):
+    """``scripts/triangulation.py --corrections``, as the workflow runs it; a hang is a
+    timeout, not a stalled suite."""
+    repo = Path(__file__).resolve().parents[1]
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(repo / "src"), os.environ.get("PYTHONPATH", "")]),
+    }
+    return subprocess.run(
+        [
+            sys.executable,
+            str(repo / "scripts" / "triangulation.py"),
+            "--config",
+            str(outdir / "config.yaml"),
+            "--pose2d",
+            str(outdir / "stages" / "pose2d.h5"),
+            "--out",
+            str(tmp_path / "triangulation.h5"),
+            "--corrections",
+            str(sidecar),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=180,
+        check=False,
+    )
+
+
+def test_a_sidecar_stored_in_a_fifo_stops_the_triangulation_job_at_once(outdir, tmp_path):
+    sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES, 38))
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+
+    def external(group, leaf, shape, dtype):
+        nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        group.create_dataset(leaf, shape=shape, dtype=dtype, external=[(str(fifo), 0, nbytes)])
+
+    _replace_dataset(sidecar, "pose3d_corrections/points3d", external)
+    proc = _triangulation_script(outdir, tmp_path, sidecar)
+    assert proc.returncode == 1, proc.stderr
+    line = proc.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line, line
+    assert f"{sidecar}: 'pose3d_corrections/points3d' stores its data in the external file" in line
+    assert "save the corrections again from `flylib gui`" in line
+    assert not (tmp_path / "triangulation.h5").exists()
+
+
+def test_a_sidecar_declaring_terabytes_is_one_line_in_job_and_gui(outdir, tmp_path):
+    from flylib.gui import ReviewSession
+
+    sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES, 38))
+
+    def bomb(group, leaf, shape, dtype):  # 4.25 TB declared, no chunk written
+        group.create_dataset(
+            leaf, shape=(7, 10**9, 38, 2), dtype="f8", chunks=(1, 10**4, 38, 2), compression="gzip"
+        )
+
+    _replace_dataset(sidecar, "pose2d_corrections/points", bomb)
+    assert sidecar.stat().st_size < 1 << 20
+    message = (
+        rf"^{sidecar}: 'pose2d_corrections/points' declares \(7, 1000000000, 38, 2\) of float64 "
+        r"\(3\.87 TiB\), more than the [0-9.]+ MiB a file of its size can hold"
+    )
+    with pytest.raises(ResultsError, match=message):
+        run_triangulation(
+            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
+            outdir / "stages" / "pose2d.h5",
+            tmp_path / "t.h5",
+            corrections_path=sidecar,
+        )
+    assert not (tmp_path / "t.h5").exists()
+    (outdir / "corrections.h5").write_bytes(sidecar.read_bytes())
+    try:
+        with pytest.raises(
+            ResultsError, match=message.replace(rf"^{sidecar}", f"^{outdir}/corrections.h5")
+        ):
+            ReviewSession(outdir)
+    finally:
+        (outdir / "corrections.h5").unlink()
+
+
+def test_a_3d_edit_far_outside_the_rig_is_refused_by_job_and_gui(outdir, tmp_path):
+    """A 3D edit of 1e300 is finite, but no place on a fly the cameras see: it would
+    flow into kinematics and summaries (and overflow there)."""
+    from flylib.gui import ReviewSession
+
+    sidecar = write_seed_sidecar(
+        tmp_path / "corrections.h5", (7, FRAMES, 38), edits3d=[(1, 2, 1e300, 0.0, 0.0)]
+    )
+    message = (
+        r"the 3D edit of frame 1, point 2 at \(1e\+300, 0, 0\) lies 1e\+300 from the cameras, "
+        r"more than 1000 x the rig's size \([0-9.]+, the largest distance between two camera "
+        r"centres\); nothing was applied"
+    )
+    with pytest.raises(ResultsError, match=message):
+        run_triangulation(
+            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
+            outdir / "stages" / "pose2d.h5",
+            tmp_path / "t.h5",
+            corrections_path=sidecar,
+        )
+    assert not (tmp_path / "t.h5").exists()
+    (outdir / "corrections.h5").write_bytes(sidecar.read_bytes())
+    try:
+        with pytest.raises(ResultsError, match=message):
+            ReviewSession(outdir)
+    finally:
+        (outdir / "corrections.h5").unlink()
+    # the bound: 1000 rig sizes from the cameras' mean centre; an edit inside it loads
+    cameras = PoseResult.load(outdir / "results.h5").cameras
+    centres = cameras.positions
+    span = max(np.linalg.norm(a - b) for a in centres for b in centres)
+    inside = centres.mean(axis=0) + [999 * span, 0.0, 0.0]
+    write_seed_sidecar(sidecar, (7, FRAMES, 38), edits3d=[(1, 2, *inside)])
+    assert Corrections.load(sidecar, (7, FRAMES, 38), cameras=cameras).edited3d[1, 2]
+    outside = centres.mean(axis=0) + [1001 * span, 0.0, 0.0]
+    write_seed_sidecar(sidecar, (7, FRAMES, 38), edits3d=[(1, 2, *outside)])
+    with pytest.raises(ResultsError, match="more than 1000 x the rig's size"):
+        Corrections.load(sidecar, (7, FRAMES, 38), cameras=cameras)

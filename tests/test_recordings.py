@@ -218,3 +218,66 @@ def test_a_mistyped_or_file_path_is_one_clear_error_naming_the_entry(tmp_path, b
     with pytest.raises(ConfigError, match=r"notes.txt is a file, not a directory"):
         plan({**SOURCES, "recordings": [*others, {"path": str(tmp_path / "notes.txt")}]})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fly_07", "notes.txt"]  # nothing created
+
+
+# -- outdir templates: only the documented placeholders (issue 37, case 6) ---------------
+
+
+@pytest.mark.parametrize(
+    ("template", "field"),
+    [
+        ("out/{name!r}", "{name!r}"),
+        ("out/{recording.__class__}", "{recording.__class__}"),
+        ("out/{id[0]}", "{id[0]}"),
+        ("out/{id:>9}", "{id:>9}"),
+        ("out/{foo}", "{foo}"),
+        ("out/{}", "{}"),
+    ],
+)
+def test_an_outdir_template_takes_only_plain_documented_placeholders(
+    tmp_path, capsys, monkeypatch, template, field
+):
+    from flylib.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    default = Path(__file__).resolve().parents[1] / "config" / "config.yaml"
+    (tmp_path / "my.yaml").write_text(f"outdir: '{template}'\n")
+    assert main(["check-config", str(default), "my.yaml"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"flylib check-config: invalid config: my.yaml: outdir: {field} in {template!r} is not "
+        "a placeholder; use only {recording}, {id}, {name}, written plain (e.g. results/{id})"
+    )
+    (tmp_path / "my.yaml").write_text(
+        f"recordings:\n  - {{path: demo, demo: true, outdir: '{template}'}}\n"
+    )
+    assert main(["check-config", str(default), "my.yaml"]) == 1
+    assert "my.yaml: recordings[0].outdir: " in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_outdir_template_fills_its_placeholders_and_literal_braces(
+    tmp_path, capsys, monkeypatch
+):
+    from flylib.cli import main
+    from flylib.paths import fill_template
+
+    monkeypatch.chdir(tmp_path)
+    default = Path(__file__).resolve().parents[1] / "config" / "config.yaml"
+    (tmp_path / "my.yaml").write_text("outdir: 'out/{id}-{name}'\n")
+    assert main(["check-config", str(default), "my.yaml"]) == 0
+    assert "demo -> out/demo-demo" in capsys.readouterr().out
+    assert fill_template("out/{{x}}/{id}", {"id": "a"}, "outdir") == "out/{x}/a"
+    # a literal brace fills, but Snakemake cannot take a folder path holding braces
+    (tmp_path / "my.yaml").write_text("outdir: 'out/{{x}}/{id}-{name}'\n")
+    assert main(["check-config", str(default), "my.yaml"]) == 1
+    assert "the output folder's path holds {x}" in capsys.readouterr().err
+    (tmp_path / "my.yaml").write_text("outdir: 'out/{id'\n")
+    assert main(["check-config", str(default), "my.yaml"]) == 1
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .startswith(
+            "flylib check-config: invalid config: my.yaml: outdir: 'out/{id' is not a path template"
+        )
+    )

@@ -245,3 +245,56 @@ def test_the_cameras_that_disagree_are_named(tmp_path):
     line = run_table([RunRecording("r", tmp_path / "r")]).splitlines()[-1]
     assert "Cameras a 14.00 px, b 19.00 px, c 10.00 px disagree with the others" in line
     assert "mislabeled" in line
+
+
+def test_a_killed_or_stopped_job_is_reported_as_such_never_as_failed_with_an_empty_log(tmp_path):
+    import shutil
+    import time
+
+    from flylib.run_summary import JOB_FINISHED
+
+    start = time.time() - 1
+    logs = {
+        "killed": {"pose2d.log": f"{JOB_FINISHED}\n", "refinement.log": ""},
+        "signal": {"refinement.log": "INFO flylib.refinement: chunk 3 of 9\n"},
+        "stopped": {"refinement.log": "INFO x: started\nstopped by SIGTERM\n"},
+        "failed": {"pose2d.log": "error: x.csv: not a DeepLabCut CSV\n"},
+        "halted": {"pose2d.log": f"{JOB_FINISHED}\n"},
+        "deleted": {},
+    }
+    for name, files in logs.items():
+        (tmp_path / name / "logs").mkdir(parents=True)
+        for log, text in files.items():
+            (tmp_path / name / "logs" / log).write_text(text)
+    shutil.rmtree(tmp_path / "deleted")
+    signal_log = tmp_path / "signal" / "logs" / "refinement.log"
+    snakemake_log = tmp_path / "snakemake.log"
+    snakemake_log.write_text(
+        "CalledProcessError in file refinement.smk, line 29:\n"
+        "Command 'python refinement.py' died with <Signals.SIGKILL: 9>.\n"
+        "Error in rule refinement:\n"
+        f"    log: {signal_log} (check log file(s) for error details)\n"
+        "WorkflowError:\nOutput out/stages/pose2d.h5 has older modification time (2030) than "
+        "input fly/camera_0.mp4 (2031). This could indicate a clock skew problem in your "
+        "network and would trigger a rerun of this job in the next execution\n"
+    )
+    recs = [RunRecording(name, tmp_path / name) for name in logs]
+    text = run_table(recs, failed=True, since=start, snakemake_log=[str(snakemake_log)])
+    rows = dict(line.split(None, 1) for line in text.splitlines()[2:8])
+    killed_log = tmp_path / "killed" / "logs" / "refinement.log"
+    assert rows["killed"].endswith(
+        f"(refinement was killed (SIGKILL or out of memory): its log {killed_log} ends "
+        "without an error; re-run to resume)"
+    )
+    assert rows["signal"].endswith(
+        f"(refinement was killed by SIGKILL: its log {signal_log} ends without an error; "
+        "re-run to resume)"
+    )
+    assert rows["stopped"].endswith("(refinement was stopped by SIGTERM; re-run to resume)")
+    assert rows["failed"].endswith(f"(failed: see {tmp_path / 'failed' / 'logs' / 'pose2d.log'})")
+    assert "not finished: its last job (pose2d) ended well, then the run stopped" in rows["halted"]
+    assert "its output folder was deleted during the run" in rows["deleted"]
+    assert "failed: see" not in text.replace("failed: see " + str(tmp_path / "failed"), "")
+    warnings = text.split("warnings:\n", 1)[1].splitlines()
+    assert warnings[0].startswith("  snakemake: Output out/stages/pose2d.h5 has older")
+    assert "clock skew" in warnings[0]

@@ -4,6 +4,7 @@
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does
+    flylib run CONFIG... [SNAKEMAKE_ARGS]     check, then run snakemake on plain copies
     flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
 
 A user-facing error is printed as one line on stderr and the exit status is 1.
@@ -24,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FlylibError, ResultsError
+from .errors import ConfigError, FlylibError, ResultsError
 from .results import open_checked
 
 _STAGES_2D = ("pose2d", "pictorial_structures", "triangulation", "refinement")
@@ -335,8 +336,23 @@ def _load_result(path: Path):
     return PoseResult.load(path)
 
 
+def _export_inputs(args) -> dict[str, str]:
+    """``file -> role`` of what ``flylib export`` reads: no output may land on one."""
+    inputs = {str(args.results): "the input RESULTS_H5"}
+    beside = args.results.parent
+    for name in ("config.yaml", "config.toml"):
+        inputs[str(beside / name)] = "the config snapshot beside RESULTS_H5"
+    inputs[str(beside / "corrections.h5")] = "the corrections beside RESULTS_H5"
+    if args.config is not None:
+        inputs[str(args.config)] = "the --config file"
+    if args.nwb_metadata is not None:
+        inputs[str(args.nwb_metadata)] = "the --nwb-metadata file"
+    return inputs
+
+
 def _cmd_export(args) -> int:
     from .interop.exports import export_result
+    from .paths import record_outputs, refuse_overwrite
 
     if (
         args.csv3d is None
@@ -348,6 +364,15 @@ def _cmd_export(args) -> int:
             "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR, --nwb FILE "
             "and/or --training-data DIR"
         )
+    result = _load_result(args.results)
+    # every file this export writes, checked before any is written
+    targets = {args.csv3d: "--csv3d", args.nwb: "--nwb"}
+    if args.dlc_dir is not None:
+        targets |= {args.dlc_dir / f"{view}.csv": "--dlc-dir" for view in result.cameras.names}
+    targets.pop(None, None)
+    inputs = _export_inputs(args)
+    for target, option in targets.items():
+        refuse_overwrite(target, inputs, f"flylib export {option}", force=args.force)
     if args.training_data is not None:
         from .config import Config
         from .config.sources import footage_globs
@@ -367,6 +392,8 @@ def _cmd_export(args) -> int:
             footage_of=footage_of,
             recording=args.recording,
             scorer=args.scorer,
+            protected=inputs,
+            report=print,
         )
         labels = sorted({p.parent for p in written})
         print(f"{len(written)} files in {len(labels)} labeled-data folders:")
@@ -375,26 +402,32 @@ def _cmd_export(args) -> int:
     if args.nwb is not None:
         from .pipeline.export_nwb import export_nwb_command
 
-        print(
-            export_nwb_command(
-                args.results,
-                args.nwb,
-                config_path=args.config,
-                recording=args.recording,
-                metadata_path=args.nwb_metadata,
-            )
+        path = export_nwb_command(
+            args.results,
+            args.nwb,
+            config_path=args.config,
+            recording=args.recording,
+            metadata_path=args.nwb_metadata,
         )
+        record_outputs(Path(path).parent, [Path(path).name])
+        print(path)
     if args.csv3d is not None or args.dlc_dir is not None:
-        for path in export_result(
-            _load_result(args.results), csv3d=args.csv3d, dlc_dir=args.dlc_dir
-        ):
+        for path in export_result(result, csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+            record_outputs(path.parent, [path.name])
             print(path)
     return 0
 
 
 def _cmd_calibration(args) -> int:
     from .interop.anipose import write_anipose_toml
+    from .paths import record_outputs, refuse_overwrite
 
+    refuse_overwrite(
+        args.output,
+        {str(args.results): "the input RESULTS_H5"},
+        "flylib calibration -o",
+        force=args.force,
+    )
     result = _load_result(args.results)
     with open_checked(args.results) as f:
         stage = "bundle_adjustment" if "bundle_adjustment/cameras" in f else "pose2d"
@@ -404,8 +437,43 @@ def _cmd_calibration(args) -> int:
         result.image_sizes or {},
         metadata={"source": str(args.results), "rig": stage},
     )
+    record_outputs(Path(path).parent, [Path(path).name])
     print(path)
     return 0
+
+
+def _plain_yaml(data: dict, label: str, header: str) -> str:
+    """A parsed config as plain YAML text (no tags, no templating), checked to read back
+    as the same values with flylib's parser."""
+    import yaml
+
+    from .config.canonical import plain
+    from .config.layers import refuse_templating
+    from .config.loading import parse_text
+
+    refuse_templating(data, label)
+    try:
+        body = yaml.safe_dump(plain(data), sort_keys=False, allow_unicode=True)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{label}: a value has no YAML form ({err}); write it in YAML") from None
+    text = f"# {header}\n" + body
+    if parse_text(text, "yaml", label) != plain(data):
+        raise ConfigError(f"{label}: its values do not survive a YAML round trip; write it in YAML")
+    return text
+
+
+def _toml_hint(configfiles: list[Path]) -> str | None:
+    """The line telling a user that ``snakemake --configfile`` cannot read their TOML."""
+    tomls = [f for f in configfiles if f.suffix.lower() == ".toml"]
+    if not tomls:
+        return None
+    files = " ".join(map(str, configfiles))
+    return (
+        f"{tomls[0]}: TOML, which `snakemake --configfile` cannot read (it stops with "
+        '"Config file is not valid JSON or YAML"); run it with '
+        f"`flylib run {' '.join(map(str, tomls))} [snakemake args]`, or write its YAML "
+        f"equivalent with `flylib check-config {files} --to-yaml {tomls[0].with_suffix('.yaml')}`"
+    )
 
 
 def _cmd_check_config(args) -> int:
@@ -414,11 +482,106 @@ def _cmd_check_config(args) -> int:
 
     layers = ConfigLayers.from_files(args.configfiles)
     _, recordings = load_run_config(layers)
+    if args.to_yaml is not None:
+        tomls = [f for f in args.configfiles if f.suffix.lower() == ".toml"]
+        if len(tomls) != 1:
+            raise ConfigError(
+                f"--to-yaml: converts one TOML config file, got {len(tomls)} among "
+                f"{', '.join(map(str, args.configfiles))}"
+            )
+        _write_new(
+            args.to_yaml,
+            _plain_yaml(
+                dict(layers.layers[args.configfiles.index(tomls[0])][1]),
+                str(tomls[0]),
+                f"{tomls[0]} as YAML, written by flylib check-config --to-yaml",
+            ),
+        )
+        print(f"{tomls[0]}: valid; written as YAML to {args.to_yaml}")
+        return 0
     print(
         f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
     )
+    hint = _toml_hint(args.configfiles)
+    if hint:
+        print(hint, file=sys.stderr)
     return 0
+
+
+def _write_new(path: Path, text: str) -> None:
+    """Write ``text`` to ``path``, which must not exist (a user's file is never replaced)."""
+    try:
+        with open(path, "x", encoding="utf-8") as f:
+            f.write(text)
+    except FileExistsError:
+        raise ConfigError(f"{path}: already exists; choose another name or delete it") from None
+
+
+#: Where ``flylib run`` keeps the checked plain copies it hands to Snakemake (under the
+#: directory it is run from), named by content so a copy never changes under a run.
+RUN_CONFIGS = Path(".flylib") / "run-configs"
+
+
+def _cmd_run(args) -> int:
+    """Validate config files with flylib's safe reader, then run Snakemake on checked
+    plain YAML copies of them: no config file is ever rendered by Snakemake (YTE)."""
+    import hashlib
+    import shutil
+
+    from .config.constants import DEFAULT_CONFIG_PATH
+    from .config.layers import ConfigLayers
+    from .pipeline.preflight import load_run_config
+
+    argv = list(args.argv)
+    split = next((i for i, a in enumerate(argv) if a.startswith("-")), len(argv))
+    configfiles, rest = [Path(a) for a in argv[:split]], argv[split:]
+    if rest[:1] == ["--"]:
+        rest = rest[1:]
+    if not configfiles:
+        raise ConfigError(
+            "name the config file(s) first: flylib run my.yaml [snakemake args], "
+            "e.g. flylib run my.yaml -n"
+        )
+    given = [a for a in rest if a.split("=", 1)[0] in ("--configfile", "--configfiles")]
+    if given:
+        raise ConfigError(
+            f"{given[0]} would hand Snakemake a file flylib did not check; list every "
+            "config file before the snakemake arguments: flylib run a.yaml b.yaml [snakemake args]"
+        )
+    replace = "--replace-workflow-config" in rest
+    base = [] if replace else [DEFAULT_CONFIG_PATH]
+    layers = ConfigLayers.from_files([*base, *configfiles])
+    load_run_config(layers)
+    copies = []
+    RUN_CONFIGS.mkdir(parents=True, exist_ok=True)
+    for label, data in layers.layers[len(base) :]:
+        text = _plain_yaml(
+            data,
+            label,
+            f"{label} as checked plain YAML for flylib run (edit {label}, not this copy)",
+        )
+        digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+        copy = (RUN_CONFIGS / f"{Path(label).stem}-{digest}.yaml").absolute()
+        if not copy.exists():
+            tmp = copy.with_name(f".{copy.name}.{os.getpid()}")
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, copy)
+        copies.append(str(copy))
+    beside = Path(sys.executable).with_name("snakemake")
+    snakemake = str(beside) if beside.exists() else shutil.which("snakemake")
+    if snakemake is None:
+        raise ConfigError("snakemake is not installed in this environment")
+    command = [snakemake, "--configfile", *copies, *rest]
+    print(
+        f"flylib run: {' + '.join(map(str, configfiles))} checked; snakemake reads "
+        + ", ".join(os.path.relpath(c) for c in copies),
+        file=sys.stderr,
+        flush=True,
+    )
+    sys.stdout.flush()
+    os.execv(snakemake, command)
+    return 0  # pragma: no cover (execv does not return)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -481,6 +644,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml",
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing files flylib did not write (never one of the export's inputs)",
+    )
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser(
@@ -493,11 +661,36 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="CONFIG",
         help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml",
     )
+    p.add_argument(
+        "--to-yaml",
+        type=Path,
+        default=None,
+        metavar="OUT",
+        help="write the one TOML config file given as plain YAML to OUT (a new file), "
+        "for snakemake --configfile",
+    )
     p.set_defaults(func=_cmd_check_config)
+
+    p = sub.add_parser(
+        "run",
+        help="check config files with flylib's safe reader, then run snakemake on checked "
+        "plain copies (a config file is never rendered as a template)",
+    )
+    p.add_argument(
+        "argv",
+        nargs=argparse.REMAINDER,
+        metavar="CONFIG... [SNAKEMAKE_ARGS]",
+        help="config files in merge order, then snakemake's own arguments, e.g. "
+        "flylib run my.yaml -n --cores 4",
+    )
+    p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("calibration", help="write the run's camera rig as an Anipose TOML")
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("-o", "--output", type=Path, required=True, help="destination .toml")
+    p.add_argument(
+        "--force", action="store_true", help="replace an existing file flylib did not write"
+    )
     p.set_defaults(func=_cmd_calibration)
 
     p = sub.add_parser("gui", help="review and correct a recording's 3D pose in the browser")

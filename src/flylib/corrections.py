@@ -13,8 +13,13 @@ missing masks all False. flylib writes every dataset with the Fletcher-32 filter
 HDF5 1.8's checksummed object format (like its other artifacts) and adds
 ``flylib_revision`` (the GUI session's edit revision) to the meta; the seed's readers
 ignore both. A file written by the seed (no checksums) still loads; whichever wrote it,
-an ``inf`` coordinate, a non-finite 3D edit or (given the image sizes) a 2D edit
-outside the image is one :class:`~flylib.errors.ResultsError` at load, never applied.
+an ``inf`` coordinate, a non-finite 3D edit, (given the rig) a 3D edit farther from
+the cameras than :data:`EDIT3D_RIG_SPANS` times the rig's size, or (given the image
+sizes) a 2D edit outside the image is one :class:`~flylib.errors.ResultsError` at
+load, never applied. Like every HDF5 file of flylib's, it is checked whole before
+anything is read (:func:`~flylib.results.guard.guard_file`: no data stored in other
+files, no link out of it), and, given the result's shape, every dataset's declared
+shape is checked before it is read.
 
 The triangulation stage applies a sidecar
 (:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too,
@@ -36,16 +41,19 @@ import h5py
 import numpy as np
 
 from .errors import ResultsError, one_line
-from .paths import atomic_path
+from .paths import atomic_path, fill_template
 from .results import open_hdf5, read_meta_from
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
+    from .camera.rig import CameraGroup
+
 
 __all__ = [
     "CORRECTIONS_FILE",
     "CORRECTIONS_FORMAT_VERSION",
+    "EDIT3D_RIG_SPANS",
     "Corrections",
     "corrections_path",
     "read_corrected",
@@ -58,6 +66,10 @@ CORRECTIONS_FORMAT_VERSION = 3
 _META_KEY = "deeperfly_corrections_format_version"
 # HDF5 1.8's file format: checksummed object headers (as results.h5 and the artifacts)
 _LIBVER = ("v108", "latest")
+#: How far a 3D edit may lie from the cameras' mean centre, in rig sizes (the largest
+#: distance between two camera centres): a fly is seen by the cameras, so an edit
+#: 1000 rig sizes away is no place on it (a 1e300 would overflow what follows).
+EDIT3D_RIG_SPANS = 1000.0
 _DATASETS = (
     "pose2d_corrections/points",
     "pose2d_corrections/edited",
@@ -143,6 +155,7 @@ class Corrections:
         path: str | Path,
         shape: tuple[int, int, int] | None = None,
         image_sizes: Sequence[tuple[int, int] | None] | None = None,
+        cameras: CameraGroup | None = None,
     ) -> Corrections:
         """Read a sidecar (format version 1 to 3), its checksums verified.
 
@@ -155,20 +168,24 @@ class Corrections:
         image_sizes
             ``(height, width)`` of each view's frames (``None`` for unknown), in view
             order; when given, a 2D edit outside its image is refused.
+        cameras
+            The rig the result was triangulated with; when given, a 3D edit farther
+            from it than :data:`EDIT3D_RIG_SPANS` rig sizes is refused.
 
         Raises
         ------
         ResultsError
-            Missing or unreadable file, a dataset whose Fletcher-32 checksum fails, a
-            newer format version, missing datasets, infinite or out-of-image
-            coordinates, or a shape that does not match ``shape`` (one line naming the
-            file).
+            Missing or unreadable file, data stored outside it or declared larger than
+            it can hold (:func:`~flylib.results.guard.guard_file`), a dataset whose
+            Fletcher-32 checksum fails, a newer format version, missing datasets,
+            infinite, out-of-image or out-of-rig coordinates, or a shape that does not
+            match ``shape`` (one line naming the file).
         """
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
         with open_hdf5(path, fix, "HDF5 corrections file") as f:
             try:
-                meta, arrays = _read_sidecar(f, path, fix)
+                meta, arrays = _read_sidecar(f, path, fix, shape)
             except (OSError, KeyError, RuntimeError) as err:  # a damaged header or link table
                 raise ResultsError(f"{path}: damaged ({one_line(err)}); {fix}") from None
         points = arrays["pose2d_corrections/points"]
@@ -197,22 +214,24 @@ class Corrections:
             )
         except ValueError as err:
             raise ResultsError(f"{path}: inconsistent shapes ({err}); {fix}") from None
-        if shape is not None and tuple(out.shape) != tuple(shape):
-            raise ResultsError(
-                f"{path}: corrects a result of (views, frames, points) {out.shape}, but this one "
-                f"is {tuple(shape)}; it belongs to another recording or run ({fix})"
-            )
-        problem = out.invalid_values(image_sizes)
+        problem = out.invalid_values(image_sizes, cameras)
         if problem:
             raise ResultsError(f"{path}: {problem}; nothing was applied ({fix})")
         return out
 
-    def invalid_values(self, image_sizes: Sequence[tuple[int, int] | None] | None = None) -> str:
+    def invalid_values(
+        self,
+        image_sizes: Sequence[tuple[int, int] | None] | None = None,
+        cameras: CameraGroup | None = None,
+    ) -> str:
         """What makes these corrections unusable, or ``""``.
 
-        Infinite numbers anywhere, a non-finite edited 3D point, or (with
-        ``image_sizes``, ``(height, width)`` per view) an edited 2D point outside its
-        image. A NaN 2D edit is allowed (the seed's deliberate "remove").
+        Infinite numbers anywhere, a non-finite edited 3D point, (with ``cameras``) an
+        edited 3D point farther from the cameras' mean centre than
+        :data:`EDIT3D_RIG_SPANS` times the largest distance between two camera
+        centres, or (with ``image_sizes``, ``(height, width)`` per view) an edited 2D
+        point outside its image. A NaN 2D edit is allowed (the seed's deliberate
+        "remove").
         """
         for name in ("points", "points3d"):
             bad = np.argwhere(np.isinf(getattr(self, name)))
@@ -222,6 +241,10 @@ class Corrections:
         if len(bad):
             t, p = bad[0].tolist()
             return f"the 3D edit of frame {t}, point {p} is not a finite point"
+        if cameras is not None and self.edited3d.any():
+            problem = _outside_rig(self.points3d, self.edited3d, cameras)
+            if problem:
+                return problem
         for v, size in enumerate(image_sizes or ()):
             if size is None:
                 continue
@@ -404,9 +427,36 @@ def _write_checksummed(group: h5py.Group, name: str, data: np.ndarray, dtype: An
     group.create_dataset(name, data=arr, chunks=arr.shape, fletcher32=True)
 
 
-def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, np.ndarray]]:
+def _outside_rig(points3d: np.ndarray, edited3d: np.ndarray, cameras: CameraGroup) -> str:
+    """The first 3D edit farther from the rig than :data:`EDIT3D_RIG_SPANS` rig sizes."""
+    centres = np.asarray(cameras.positions, dtype=np.float64)
+    span = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=-1)))
+    if not (np.isfinite(span) and span > 0):  # one camera: no size to measure by
+        return ""
+    limit = EDIT3D_RIG_SPANS * span
+    offset = points3d - centres.mean(axis=0)
+    scale = np.max(np.abs(offset), axis=-1, keepdims=True)  # no overflow squaring a 1e300
+    scale = np.where(scale > 0, scale, 1.0)
+    with np.errstate(invalid="ignore"):
+        distance = scale[..., 0] * np.linalg.norm(offset / scale, axis=-1)
+    bad = np.argwhere(edited3d & (distance > limit))
+    if not len(bad):
+        return ""
+    t, p = bad[0].tolist()
+    x, y, z = points3d[t, p].tolist()
+    return (
+        f"the 3D edit of frame {t}, point {p} at ({x:.6g}, {y:.6g}, {z:.6g}) lies "
+        f"{distance[t, p]:.3g} from the cameras, more than {EDIT3D_RIG_SPANS:g} x the rig's "
+        f"size ({span:.3g}, the largest distance between two camera centres)"
+    )
+
+
+def _read_sidecar(
+    f: h5py.File, path: Path, fix: str, shape: tuple[int, int, int] | None = None
+) -> tuple[dict, dict[str, np.ndarray]]:
     """The meta and every dataset of an open sidecar; HDF5 checks each Fletcher-32
-    chunk it reads (seed-written files carry none)."""
+    chunk it reads (seed-written files carry none). With ``shape`` ``(V, T, P)``, each
+    dataset's declared shape is checked before it is read."""
     meta = read_meta_from(f)
     version = meta.get(_META_KEY)
     if not isinstance(version, int) or isinstance(version, bool):
@@ -428,6 +478,18 @@ def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, n
         dataset = f[name]
         if not isinstance(dataset, h5py.Dataset) or dataset.dtype.kind not in "biuf":
             raise ResultsError(f"{path}: {name} is not a numeric or boolean dataset; {fix}")
+        expected = None if shape is None else _expected_shape(name, shape)
+        if expected is not None and dataset.shape != expected:
+            declared = (
+                f"corrects a result of (views, frames, points) {dataset.shape[:3]}, but this "
+                f"one is {tuple(shape)}"
+                if name == "pose2d_corrections/points" and len(dataset.shape) == 4
+                else f"its {name} is {dataset.shape}, not the {expected} of a result of "
+                f"(views, frames, points) {tuple(shape)}"
+            )
+            raise ResultsError(
+                f"{path}: {declared}; it belongs to another recording or run ({fix})"
+            )
         try:
             arrays[name] = np.asarray(dataset[()], dtype=np.float64 if "points" in name else bool)
         except OSError as err:
@@ -436,6 +498,16 @@ def _read_sidecar(f: h5py.File, path: Path, fix: str) -> tuple[dict, dict[str, n
                 f"nothing was applied ({fix})"
             ) from None
     return meta, arrays
+
+
+def _expected_shape(name: str, shape: tuple[int, int, int]) -> tuple[int, ...]:
+    """The shape of sidecar dataset ``name`` for a ``(V, T, P)`` result."""
+    v, t, p = (int(n) for n in shape)
+    return {
+        "pose2d_corrections/points": (v, t, p, 2),
+        "pose3d_corrections/points3d": (t, p, 3),
+        "pose3d_corrections/edited": (t, p),
+    }.get(name, (v, t, p))
 
 
 def corrections_path(
@@ -471,18 +543,13 @@ def corrections_path(
             f"got {template!r}"
         )
     recording = Path(recording_dir) if recording_dir is not None else outdir
-    try:
-        text = template.format(
-            outdir=str(outdir),
-            recording=str(recording),
-            id=recording_id or recording.name,
-            name=recording.name,
-        )
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ConfigError(
-            f"corrections: unknown placeholder {exc} in {template!r}; use {{outdir}}, "
-            "{recording}, {id} or {name}"
-        ) from None
+    values = {
+        "outdir": str(outdir),
+        "recording": str(recording),
+        "id": recording_id or recording.name,
+        "name": recording.name,
+    }
+    text = fill_template(template, values, "corrections")
     path = Path(text).expanduser()
     return (path if path.is_absolute() else outdir / path), True
 

@@ -479,9 +479,9 @@ def write_truth(
 
 def load_truth(path: str | Path) -> dict[str, Any]:
     """Read ``truth.h5``: ``points3d`` ``(T, P, 3)``, ``points2d`` ``(V, T, P, 2)``, meta."""
-    import h5py
+    from .results import open_hdf5
 
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path, "make the demo recording again", "demo truth file") as f:
         meta = json.loads(f.attrs["meta"])
         return {"points3d": f["points3d"][()], "points2d": f["points2d"][()], **meta}
 

@@ -32,15 +32,16 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from .errors import OutputError
-from .paths import pid_alive
 
 __all__ = [
     "LOCK_NAME",
     "RUN_ENV",
+    "claim_lost",
     "claim_outdirs",
     "held_outdir",
     "lock_holder",
     "outdir_lock",
+    "pid_alive",
     "release_outdirs",
 ]
 
@@ -55,10 +56,57 @@ RUN_ENV = "FLYLIB_RUN_ID"
 _HELD: contextvars.ContextVar[Path | None] = contextvars.ContextVar("held_outdir", default=None)
 
 
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this host (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # another user's process; a pid out of range
+        return True
+    return True
+
+
 def held_outdir() -> Path | None:
     """The output directory whose lock the running block holds (:func:`outdir_lock`),
     resolved; ``None`` outside one. Artifacts record it to tell a copied directory."""
     return _HELD.get()
+
+
+def claim_lost(path: str | Path) -> str | None:
+    """Why this job may no longer put ``path`` in place, or ``None`` when it may.
+
+    A job of a run (:data:`RUN_ENV` set) inside :func:`outdir_lock` writes under its
+    run's claim. When the run was killed, its jobs may live on; the next run takes the
+    stale claim over and writes the directory with its own params. From then on an
+    orphan's output would replace the new run's, so it is refused. Outside a run, or
+    for a path outside the held directory, or with no claim file left, nothing is checked.
+
+    Parameters
+    ----------
+    path
+        The file about to be renamed into place.
+
+    Returns
+    -------
+    str or None
+        One line naming ``path``, the run that holds the directory now, and that this
+        job's result was discarded.
+    """
+    run = os.environ.get(RUN_ENV)
+    held = _HELD.get()
+    if not run or held is None:
+        return None
+    if not Path(os.path.abspath(path)).resolve().is_relative_to(held):
+        return None
+    holder = lock_holder(held / LOCK_NAME)
+    if holder is None or holder.get("run") == run:
+        return None
+    return (
+        f"{path}: not written: another run took over {held} while this job ran "
+        f"({_describe(holder)}); this job's run was stopped or killed, so its result "
+        "was discarded and the new run's files are kept"
+    )
 
 
 def lock_holder(path: str | Path) -> dict | None:

@@ -9,12 +9,68 @@ import os
 import re
 import socket
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+
+from .locking import claim_lost, pid_alive
 
 #: The packaged default config, a real file inside the package (the repository's
 #: ``config/config.yaml`` is the user's editable copy; a test keeps the two identical).
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.yaml")
+
+
+def fill_template(template: str, values: dict[str, str], key: str) -> str:
+    """A path template with its placeholders filled: only plain ``{name}`` of ``values``.
+
+    ``str.format`` would also evaluate conversions (``{id!r}``), format specs,
+    attribute and index access (``{recording.parent}``, ``{id[0]}``); a config's path
+    template may use none of them. ``{{`` and ``}}`` are literal braces.
+
+    Parameters
+    ----------
+    template
+        The template, e.g. ``results/{id}``.
+    values
+        Placeholder name -> text.
+    key
+        The config key the template came from, for the message.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key``, the offending field and the allowed placeholders.
+    """
+    from string import Formatter
+
+    from .errors import ConfigError
+
+    allowed = ", ".join(f"{{{name}}}" for name in values)
+    parts: list[str] = []
+    try:
+        fields = list(Formatter().parse(template))
+    except ValueError as exc:  # a lone { or }
+        raise ConfigError(
+            f"{key}: {template!r} is not a path template ({exc}); use only the placeholders "
+            f"{allowed} (write {{{{ and }}}} for a literal brace)"
+        ) from None
+    for literal, field, spec, conversion in fields:
+        parts.append(literal)
+        if field is None:
+            continue
+        if field not in values or spec or conversion:
+            written = (
+                "{"
+                + field
+                + (f"!{conversion}" if conversion else "")
+                + (f":{spec}" if spec else "")
+                + "}"
+            )
+            raise ConfigError(
+                f"{key}: {written} in {template!r} is not a placeholder; use only "
+                f"{allowed}, written plain (e.g. results/{{id}})"
+            )
+        parts.append(values[field])
+    return "".join(parts)
 
 
 def cache_dir() -> Path:
@@ -35,7 +91,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     removed if the block raises, leaving any previous ``path`` untouched: a crash never
     leaves a truncated output under the final name. The parent directory is created
     if missing. Temporary files of ``path`` left by writers that died (killed
-    mid-write on this host) are removed first (:func:`remove_stale_temps`).
+    mid-write on this host) are removed first (:func:`remove_stale_temps`). Inside a
+    run's job, the file is renamed into place only while the run still holds the output
+    directory's claim (:func:`flylib.locking.claim_lost`): a job that outlived its
+    killed run never replaces what the run that took the directory over writes.
 
     Parameters
     ----------
@@ -51,7 +110,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     ------
     OutputError
         When the write fails for want of space (disk full, quota, file-size limit):
-        one line naming ``path`` and saying that nothing was kept.
+        one line naming ``path`` and saying that nothing was kept; or when another
+        run took the output directory over meanwhile (nothing is kept either).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -61,6 +121,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     )
     try:
         yield tmp
+        lost = claim_lost(path)
+        if lost is not None:
+            from .errors import OutputError
+
+            raise OutputError(lost)
         os.replace(tmp, path)
     except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
         cause = out_of_space(err)
@@ -78,22 +143,116 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 _HOST = socket.gethostname()
+
+#: The file in a folder listing the files flylib wrote (or, for a workflow output folder,
+#: owns) there, one name per line relative to the folder: what tells flylib's files
+#: from the user's (:func:`written_by_flylib`).
+OUTPUTS_MANIFEST = ".flylib-outputs"
+
+
+def recorded_outputs(folder: str | Path) -> set[str] | None:
+    """The names in ``folder``'s :data:`OUTPUTS_MANIFEST` (``None``: it has none)."""
+    try:
+        text = (Path(folder) / OUTPUTS_MANIFEST).read_text(encoding="utf-8")
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except (OSError, UnicodeDecodeError):
+        return set()
+    return {line for line in text.splitlines() if line}
+
+
+def record_outputs(folder: str | Path, names: Iterable[str]) -> None:
+    """Add ``names`` (relative to ``folder``) to its :data:`OUTPUTS_MANIFEST`, atomically."""
+    folder = Path(folder)
+    known = recorded_outputs(folder) or set()
+    new = known | {str(n) for n in names}
+    if new == known and (folder / OUTPUTS_MANIFEST).exists():
+        return
+    with atomic_path(folder / OUTPUTS_MANIFEST) as tmp:
+        tmp.write_text("".join(f"{n}\n" for n in sorted(new)), encoding="utf-8")
+
+
+def written_by_flylib(path: str | Path, *, hdf5: bool = False) -> bool:
+    """Whether flylib wrote ``path``: its folder's :data:`OUTPUTS_MANIFEST` names it, or
+    (``hdf5``) it is an HDF5 file carrying flylib's ``meta`` attribute (a stage artifact
+    or ``results.h5`` of any flylib version, which a re-run replaces). Anything else is
+    the user's."""
+    path = Path(path)
+    if path.name in (recorded_outputs(path.parent) or ()):
+        return True
+    return hdf5 and is_flylib_hdf5(path)
+
+
+def is_flylib_hdf5(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file whose ``meta`` attribute flylib wrote."""
+    import json
+
+    try:
+        with open(path, "rb") as f:
+            if f.read(8) != b"\x89HDF\r\n\x1a\n":
+                return False
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            meta = json.loads(f.attrs["meta"])
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError):
+        return False
+    return isinstance(meta, dict) and "deeperfly_format_version" in meta
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether ``a`` and ``b`` are one file: the same resolved path, or (both existing)
+    the same inode, so a link or a second name of a file counts as that file."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def refuse_overwrite(
+    path: str | Path, inputs: dict[str, str], role: str, *, force: bool = False
+) -> None:
+    """Refuse to write ``path`` over an input or over a file flylib did not write.
+
+    Parameters
+    ----------
+    path
+        The file about to be written.
+    inputs
+        ``input file -> its role`` (e.g. ``"the input RESULTS_H5"``).
+    role
+        What would write it (e.g. ``"--csv3d"``), for the message.
+    force
+        Replace an existing file flylib did not write (never an input). Only a file
+        an earlier export recorded (:data:`OUTPUTS_MANIFEST`) is flylib's here: another
+        recording's ``results.h5`` is not replaced without ``force`` either.
+
+    Raises
+    ------
+    OutputError
+        One line naming the file, both roles and the fix.
+    """
+    from .errors import OutputError
+
+    for source, what in inputs.items():
+        if same_file(path, source):
+            raise OutputError(
+                f"{path} is {what} and would be overwritten by {role}; write to another file"
+            )
+    if not force and os.path.lexists(path) and not written_by_flylib(path):
+        raise OutputError(
+            f"{path} exists and was not written by flylib; {role} would replace it: "
+            "choose another file, or pass --force to replace it"
+        )
+
+
 # atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (flylib
 # before the host was recorded: .<stem>.<pid>.<8 hex>.tmp<suffix>, taken as this host's).
 _TEMP_NAME = re.compile(
     r"^\.(?P<stem>.*)\.(?P<pid>\d+)(?:@(?P<host>[^/]+?))?\.[0-9a-f]{8}\.tmp(?P<suffix>\.[^.]*)?$"
 )
-
-
-def pid_alive(pid: int) -> bool:
-    """Whether a process ``pid`` exists on this host (another user's counts)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):  # another user's process; a pid out of range
-        return True
-    return True
 
 
 def _stale_temp(path: str | Path) -> bool:

@@ -26,7 +26,8 @@ from typing import Any
 from .config.sources import source_patterns
 from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
-from .io.images import natural_key
+from .io.images import natural_key, sequence_gap
+from .paths import fill_template
 
 log = logging.getLogger(__name__)
 
@@ -111,9 +112,40 @@ def video_frame_count(path: Path) -> int | None:
 
 
 def footage_matches(directory: Path, pattern: str) -> list[Path]:
-    """Footage files (video or image extensions) matching ``pattern`` in ``directory``."""
+    """Footage files (video or image extensions) matching ``pattern`` in ``directory``.
+
+    Raises
+    ------
+    FootageError
+        A match with a footage extension that is no regular file (a FIFO, a device, a
+        link to one or to nothing), named with what it is.
+    """
     hits = [Path(p) for p in glob.glob(os.path.join(glob.escape(str(directory)), pattern))]
-    return [p for p in hits if p.is_file() and p.suffix.lower() in FOOTAGE_EXTS]
+    hits = [p for p in hits if p.suffix.lower() in FOOTAGE_EXTS and not p.is_dir()]
+    for path in hits:
+        if not path.is_file():
+            raise FootageError(f"{path}: {_not_a_file(path)}; replace it with the footage file")
+    return hits
+
+
+def _not_a_file(path: Path) -> str:
+    """What ``path`` (not a regular file) is, in words: ``"is a named pipe (FIFO), not a
+    video or image file"``."""
+    import stat
+
+    link = f"a link to {os.path.realpath(path)}, " if path.is_symlink() else ""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return f"is {link}which does not exist" if link else "cannot be read"
+    kinds = [
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ]
+    kind = next((text for test, text in kinds if test(mode)), "not a regular file")
+    return f"is {link}{kind}, not a video or image file"
 
 
 def _pick_extension(per_source: dict[str, list[Path]]) -> str | None:
@@ -170,7 +202,11 @@ def find_recording(
     if not directory.is_dir():
         reject(f"{directory}: is not a directory")
         return None
-    matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
+    try:
+        matched = {name: footage_matches(directory, pat) for name, pat in patterns.items()}
+    except FootageError as exc:
+        reject(str(exc))
+        return None
     missing = [f"{name} ({patterns[name]!r})" for name, files in matched.items() if not files]
     if missing:
         reject(
@@ -189,6 +225,10 @@ def find_recording(
         n: natural_sorted(p for p in files if p.suffix.lower() == ext)
         for n, files in matched.items()
     }
+    gaps = [gap for files in sources.values() if (gap := sequence_gap(files)) is not None]
+    if ext not in VIDEO_EXTS and gaps:
+        reject(gaps[0])
+        return None
     if ext in VIDEO_EXTS:
         several = {n: [p.name for p in f] for n, f in sources.items() if len(f) > 1}
         if several:
@@ -224,10 +264,17 @@ def _frame_counts(sources: dict[str, list[Path]], ext: str, reject) -> dict[str,
     return counts
 
 
+def is_pattern(text: str | Path) -> bool:
+    """Whether a listed path is a wildcard pattern: it holds ``*``, ``?`` or ``[`` and
+    names no existing file or folder (a folder named ``fly[1]`` is that folder)."""
+    expanded = os.path.expanduser(str(text))
+    return bool(_GLOB_CHARS.search(expanded)) and not os.path.lexists(expanded)
+
+
 def _expand_pattern(text: str) -> tuple[list[Path], bool]:
     """Expand a literal path or wildcard pattern; returns (paths, was_a_pattern)."""
     expanded = os.path.expanduser(text)
-    if _GLOB_CHARS.search(expanded):
+    if is_pattern(expanded):
         return natural_sorted(Path(p) for p in glob.glob(expanded, recursive=True)), True
     return [Path(expanded)], False
 
@@ -528,14 +575,9 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
     return [ids[i] for i in range(len(paths))]
 
 
-def _format_outdir(template: str, *, recording: Path, rid: str) -> Path:
-    try:
-        text = template.format(recording=str(recording), id=rid, name=recording.name)
-    except (KeyError, IndexError) as exc:
-        raise ConfigError(
-            f"outdir: unknown placeholder {exc} in {template!r}; "
-            "use {recording}, {id} or {name}"
-        ) from exc
+def _format_outdir(template: str, *, recording: Path, rid: str, key: str) -> Path:
+    values = {"recording": str(recording), "id": rid, "name": recording.name}
+    text = fill_template(template, values, key)
     return Path(os.path.normpath(os.path.expanduser(text)))
 
 
@@ -602,11 +644,7 @@ def plan_listing(
     entries = _normalize_entries(listing)
     template = str(outdir or DEFAULT_OUTDIR)
 
-    batch = (
-        len(entries) > 1
-        or recursive
-        or any(_GLOB_CHARS.search(str(e.get("path", ""))) for e in entries)
-    )
+    batch = len(entries) > 1 or recursive or any(is_pattern(e.get("path", "")) for e in entries)
 
     found: list[tuple[Path, dict, dict]] = []  # (dir, sources, entry)
     for entry in entries:
@@ -615,10 +653,10 @@ def plan_listing(
             found.append((path, {}, entry))
             continue
         rec_recursive = bool(entry.get("recursive", recursive))
-        is_pattern = bool(_GLOB_CHARS.search(str(entry["path"])))
-        if not is_pattern:  # a typo is one clear error, before anything is created
+        pattern = is_pattern(entry["path"])
+        if not pattern:  # a typo is one clear error, before anything is created
             check_recording_path(os.path.expanduser(str(entry["path"])), entry["_where"])
-        if batch and not rec_recursive and not is_pattern:
+        if batch and not rec_recursive and not pattern:
             path = Path(os.path.expanduser(str(entry["path"])))
             # warns when skipped
             src = find_recording(path, source_patterns(config), check_frames=check_frames)
@@ -658,7 +696,13 @@ def plan_listing(
     recordings = []
     outdirs: dict[Path, str] = {}
     for (path, src, entry), rid in zip(unique, ids):
-        outdir = _format_outdir(str(entry.get("outdir") or template), recording=path, rid=rid)
+        own = entry.get("outdir")
+        outdir = _format_outdir(
+            str(own or template),
+            recording=path,
+            rid=rid,
+            key=f"{entry['_where']}.outdir" if own else "outdir",
+        )
         if outdir.resolve() in outdirs:
             raise ConfigError(
                 f"outdir: recordings {outdirs[outdir.resolve()]!r} and {rid!r} "
@@ -677,7 +721,11 @@ def plan_listing(
                 outdir=outdir,
                 import_spec=dict(spec) if spec else None,
                 demo=bool(entry.get("demo")),
-                extra={"where": entry["_where"], "own_import": entry.get("import") is not None},
+                extra={
+                    "where": entry["_where"],
+                    "own_import": entry.get("import") is not None,
+                    "sheet": entry.get("_sheet"),
+                },
             )
         )
     return recordings

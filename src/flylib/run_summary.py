@@ -91,39 +91,135 @@ def log_warnings(outdir: Path) -> list[str]:
     return list(dict.fromkeys(found))
 
 
-def _failed_log(outdir: Path, since: float) -> Path | None:
-    """The log of a job of this run that failed: written since ``since`` and ending in an
-    error line (else the newest log written since then), or ``None`` if none was written."""
-    fresh = sorted(
-        (p for p in (Path(outdir) / "logs").glob("*.log") if p.stat().st_mtime >= since),
-        key=lambda p: p.stat().st_mtime,
-    )
-    for log in reversed(fresh):
-        tail = log.read_text(errors="replace").strip().splitlines()[-1:]
-        if tail and (tail[0].startswith("error:") or "Error" in tail[0]):
-            return log
-    return fresh[-1] if fresh else None
+#: The last line a stage script writes to its job's log when the stage returned; a
+#: signal that stops it (SIGTERM, SIGINT, SIGHUP) ends the log with ``JOB_STOPPED`` and
+#: the signal's name, an error with ``error: ...`` or a traceback. A log ending in none
+#: of these was cut off: its job was killed (SIGKILL, out of memory).
+JOB_FINISHED = "flylib: job finished"
+JOB_STOPPED = "stopped by "
 
 
-def recording_row(rec: RunRecording, since: float | None = None) -> dict[str, Any]:
+def job_end(log: Path) -> str:
+    """How the job that wrote ``log`` ended: ``"finished"``, ``"failed"``,
+    ``"stopped by SIG..."`` or ``"killed"`` (its log ends without flylib's last line)."""
+    try:
+        lines = Path(log).read_text(errors="replace").strip().splitlines()
+    except OSError:
+        return "killed"
+    last = lines[-1] if lines else ""
+    if last == JOB_FINISHED:
+        return "finished"
+    if last.startswith(JOB_STOPPED):
+        return last
+    if last.startswith("error:") or "Error" in last:
+        return "failed"
+    return "killed"
+
+
+def _unfinished(outdir: Path, since: float, signals: dict[str, str]) -> str | None:
+    """What ended the recording's jobs in this (failed) run: a status for the table,
+    naming the job and its log, or ``None`` when none of its jobs wrote a log since
+    ``since``. ``signals``: log path -> the signal that ended its job, as Snakemake
+    saw it (:func:`snakemake_report`)."""
+    if not Path(outdir).is_dir():
+        return "its output folder was deleted during the run; re-run to start it again"
+    fresh = []
+    for log in (Path(outdir) / "logs").glob("*.log"):
+        try:
+            if log.stat().st_mtime >= since:
+                fresh.append((log.stat().st_mtime, log))
+        except OSError:
+            continue
+    ends = [(log, job_end(log)) for _, log in sorted(fresh, reverse=True)]
+    for wanted in ("failed", JOB_STOPPED, "killed"):
+        for log, end in ends:
+            if not end.startswith(wanted):
+                continue
+            if end == "failed":
+                return f"failed: see {log}"
+            if end == "killed":
+                how = (
+                    f"by {signals[str(log)]}"
+                    if str(log) in signals
+                    else "(SIGKILL or out of memory)"
+                )
+                return (
+                    f"{log.stem} was killed {how}: its log {log} ends without an error; "
+                    "re-run to resume"
+                )
+            return f"{log.stem} was {end}; re-run to resume"
+    if ends:
+        return (
+            f"not finished: its last job ({ends[0][0].stem}) ended well, then the run "
+            "stopped (see the warnings, or Snakemake's messages above); re-run to resume"
+        )
+    return None
+
+
+# Snakemake's log: a job's process ended by a signal, then the job's error block
+# naming its log file.
+_DIED = re.compile(r"died with <Signals\.(?P<signal>SIG\w+): \d+>")
+_JOB_LOG = re.compile(r"^\s+log: (?P<log>.+?)(?: \(check log file)")
+
+
+def snakemake_report(
+    log: str | Path | Iterable[str | Path] | None,
+) -> tuple[dict[str, str], list[str]]:
+    """What Snakemake's own log of the run says that no job log holds.
+
+    Parameters
+    ----------
+    log
+        Snakemake's log file(s) of the run (what its ``onerror`` hook receives).
+
+    Returns
+    -------
+    signals, warnings
+        Job log path -> the signal that killed its job (``"SIGKILL"``); and the
+        clock-skew errors (an output older than its input), one line each.
+    """
+    files = [log] if isinstance(log, (str, Path)) else list(log or [])
+    signals: dict[str, str] = {}
+    warnings: list[str] = []
+    died = None
+    for file in files:
+        try:
+            lines = Path(file).read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+        for line in lines:
+            if (match := _DIED.search(line)) is not None:
+                died = match.group("signal")
+            elif died and (match := _JOB_LOG.match(line)) is not None:
+                signals[match.group("log")] = died
+                died = None
+            if "clock skew" in line:
+                warnings.append(" ".join(line.split()))
+    return signals, list(dict.fromkeys(warnings))
+
+
+def recording_row(
+    rec: RunRecording, since: float | None = None, signals: dict[str, str] | None = None
+) -> dict[str, Any]:
     """One table row: the recording's ``summary.json`` figures (``None`` where absent).
 
     With ``since`` (the start of a failed run), a summary older than that while one of
     the recording's jobs wrote a log since then is not shown: it describes an earlier
-    run, and ``failed_log`` names the log to read.
+    run, and ``unfinished`` says how its jobs ended (failed, stopped by a signal,
+    killed) and which log to read.
     """
     path = Path(rec.outdir) / "summary.json"
     row: dict[str, Any] = {
         "id": rec.id,
         "outdir": str(rec.outdir),
         "summary": None,
-        "failed_log": None,
+        "unfinished": None,
     }
     if since is not None:
-        row["failed_log"] = _failed_log(rec.outdir, since)
-        if row["failed_log"] is not None and path.is_file() and path.stat().st_mtime >= since:
-            row["failed_log"] = None  # assembled in this run: its jobs finished
-        if row["failed_log"] is not None:
+        row["unfinished"] = _unfinished(rec.outdir, since, signals or {})
+        if row["unfinished"] is not None and path.is_file() and path.stat().st_mtime >= since:
+            row["unfinished"] = None  # assembled in this run: its jobs finished
+        if row["unfinished"] is not None:
             return row
     try:
         summary = json.loads(path.read_text())
@@ -290,7 +386,11 @@ def truth_line(rec_id: str, error: dict, before: dict | None = None) -> str:
 
 
 def run_table(
-    recordings: Iterable[RunRecording], *, failed: bool = False, since: float | None = None
+    recordings: Iterable[RunRecording],
+    *,
+    failed: bool = False,
+    since: float | None = None,
+    snakemake_log: str | Path | Iterable[str | Path] | None = None,
 ) -> str:
     """The end-of-run report: the per-recording table, warnings, then the demo truth.
 
@@ -302,7 +402,11 @@ def run_table(
         The run ended with an error (rows without a summary say so).
     since
         When the failed run started (``time.time()``): a recording whose jobs wrote a
-        log since then but no new summary is shown as failed, naming that log.
+        log since then but no new summary is shown as failed, stopped or killed,
+        naming that log.
+    snakemake_log
+        Snakemake's log file(s) of the run: the signal that killed a job is named,
+        and its clock-skew errors join the warnings.
 
     Returns
     -------
@@ -310,7 +414,8 @@ def run_table(
         Lines joined by newlines; the demo's truth comparison (if any) is the last line.
     """
     recordings = list(recordings)
-    rows = [recording_row(rec, since if failed else None) for rec in recordings]
+    signals, skew = snakemake_report(snakemake_log)
+    rows = [recording_row(rec, since if failed else None, signals) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
     with_accuracy = any(r.get("accuracy") for r in rows)
     header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
@@ -323,8 +428,8 @@ def run_table(
     for r in rows:
         if r["summary"] is None:
             status = "no result"
-            if r["failed_log"] is not None:
-                status = f"failed: see {r['failed_log']}"
+            if r["unfinished"] is not None:
+                status = r["unfinished"]
             elif failed:
                 status = "no result yet: see logs/"
             line = (
@@ -356,6 +461,7 @@ def run_table(
     if sentences:
         lines += [f"accuracy: {HELD_OUT_NOTE}:", *(f"  {s}" for s in sentences)]
     warnings = [f"  {rec.id}: {w}" for rec in recordings for w in log_warnings(rec.outdir)]
+    warnings += [f"  snakemake: {w}" for w in skew]
     if warnings:
         lines += ["warnings:", *warnings]
     lines += [

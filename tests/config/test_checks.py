@@ -299,3 +299,95 @@ def test_exponent_numbers_are_numbers(tmp_path, default_data):
     layers = ConfigLayers.from_files([path])
     assert layers.data["bundle_adjustment"] == {"ftol": 1e-8, "f_scale": 15.0}
     assert validate_config({**default_data, **layers.data}) == []
+
+
+# -- non-finite numbers (issue 37, case 5) ------------------------------------------------
+
+
+def _numeric_fields() -> list[tuple[str, str, bool]]:
+    """``(table, key, is_list)`` of every numeric field of every typed params table and
+    every numeric least-squares option: a new field is covered here without a edit."""
+    from flylib.config.neuromechfly import NeuromechflyParams
+    from flylib.config.postprocessing import RefinementParams
+
+    tables = {
+        "pose2d": Pose2dParams,
+        "triangulation": TriangulationParams,
+        "pictorial_structures": PictorialParams,
+        "bundle_adjustment": BundleAdjustmentParams,
+        "refinement": RefinementParams,
+        "neuromechfly": NeuromechflyParams,
+    }
+    checks = [
+        (table, f.name, f.metadata["check"])
+        for table, cls in tables.items()
+        for f in fields(cls)
+        if "check" in f.metadata
+    ]
+    checks += [("bundle_adjustment", key, check) for key, check in LEAST_SQUARES_CHECKS.items()]
+    out = []
+    for table, key, check in checks:
+        if any(check(v) is None for v in (1, 2, 16, 1.0)):
+            out.append((table, key, False))
+        elif check([1.0]) is None:
+            out.append((table, key, True))
+    return out
+
+
+NUMERIC_FIELDS = _numeric_fields()
+
+
+def test_the_numeric_fields_are_found():
+    keys = {f"{table}.{key}" for table, key, _ in NUMERIC_FIELDS}
+    assert {"refinement.scale_px", "refinement.motion_scales", "triangulation.min_inliers"} <= keys
+    assert "refinement.loss" not in keys and "triangulation.weigh_by_confidence" not in keys
+
+
+@pytest.mark.parametrize("value", [".inf", "-.inf", ".nan"])
+@pytest.mark.parametrize(("table", "key", "is_list"), NUMERIC_FIELDS)
+def test_a_non_finite_number_is_one_line_naming_the_key(
+    tmp_path, capsys, monkeypatch, table, key, is_list, value
+):
+    from flylib.cli import main
+    from flylib.config.checks import INFINITE_OK
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "my.yaml").write_text(f"{table}:\n  {key}: {f'[{value}]' if is_list else value}\n")
+    status = main(["check-config", str(REPO / "config" / "config.yaml"), "my.yaml"])
+    err = capsys.readouterr().err.strip()
+    where = f"{table}.{key}" + ("[0]" if is_list else "")
+    if value == ".inf" and where in INFINITE_OK:
+        assert status == 0, err
+        return
+    assert status == 1
+    shown = {".inf": "inf", "-.inf": "-inf", ".nan": "nan"}[value]
+    assert err.startswith(
+        f"flylib check-config: invalid config: my.yaml: {where}: expected a finite"
+    )
+    assert f", got {shown}" in err and len(err.splitlines()) == 1, err
+
+
+def test_inf_only_where_the_table_allows_it(default_data):
+    from flylib.config.checks import INFINITE_OK
+
+    data = copy.deepcopy(default_data)
+    data["refinement"]["outlier_px"] = float("inf")
+    assert "refinement.outlier_px" in INFINITE_OK and validate_config(data) == []
+    assert Config.from_dict(data).refinement.outlier_px == float("inf")
+    data["refinement"]["scale_px"] = float("inf")
+    assert validate_config(data) == [
+        "refinement.scale_px: expected a finite number (.inf is accepted only by "
+        "refinement.outlier_px), got inf"
+    ]
+
+
+def test_a_non_finite_number_anywhere_in_the_config_is_refused(default_data):
+    data = copy.deepcopy(default_data)
+    data["cameras"]["defaults"]["distance"] = float("nan")
+    data["visualization"]["kwargs"]["imshow"]["width"] = float("-inf")
+    assert validate_config(data) == [
+        "cameras.defaults.distance: expected a finite number (.inf is accepted only by "
+        "refinement.outlier_px), got nan",
+        "visualization.kwargs.imshow.width: expected a finite number (.inf is accepted only "
+        "by refinement.outlier_px), got -inf",
+    ]

@@ -342,6 +342,66 @@ def test_non_finite_coordinates_are_refused(app):
     assert nothing_changed(app)
 
 
+HUGE = "9" * 400  # a 400-digit integer: valid JSON, too large for a float or an index
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [
+        (
+            "xy",
+            f"[{HUGE}, 10.0]",
+            "xy must be finite pixel coordinates, got 999999999999...(400 digits)",
+        ),
+        (
+            "xy",
+            f"[10.0, -{HUGE}]",
+            "xy must be finite pixel coordinates, got -99999999999...(400 digits)",
+        ),
+        ("frame", HUGE, "frame 999999999999...(400 digits) is out of range"),
+        ("point", f"-{HUGE}", "point -99999999999...(400 digits) is out of range"),
+        ("revision", HUGE, "revision must be an integer from 0 to 2**63 - 1, got 999999999999"),
+    ],
+)
+def test_a_huge_integer_is_a_one_line_400_not_a_500(app, key, value, words):
+    """Issue 37 case 15: a 400-digit integer in an edit (REST and WebSocket) is refused
+    with one line naming the field, never an OverflowError (500, a dropped socket)."""
+    body = json.dumps(an_edit(app, **{key: "SLOT"})).replace('"SLOT"', value)
+    with client_for(app, **{"X-Flylib-Token": app.state.token}) as c:
+        response = c.post("/api/edit", content=body, headers={"Content-Type": "application/json"})
+        assert response.status_code == 400, response.text
+        assert words in response.json()["detail"] and one_line(response)
+        with c.websocket_connect(
+            "ws://127.0.0.1:8765/ws",
+            subprotocols=["flylib.v1", f"flylib.token.{app.state.token}"],
+            headers={"Origin": ORIGIN},
+        ) as ws:
+            ws.send_text(body)
+            reply = ws.receive_json()
+            assert reply["op"] == "refused" and words in reply["error"], reply
+    assert nothing_changed(app)
+
+
+def test_a_huge_number_in_a_path_or_a_save_is_one_line(app):
+    with client_for(app, **{"X-Flylib-Token": app.state.token}) as c:
+        view = app.state.session.view_names[0]
+        for url in (f"/api/points/{HUGE}", f"/api/frame/{view}/-{HUGE}"):
+            response = c.get(url)
+            assert response.status_code == 404 and "(400 digits) out of range" in response.text
+            assert one_line(response)
+        response = c.get(f"/api/frame/{view}/1e400")
+        assert response.status_code == 422 and one_line(response)
+        assert response.json()["detail"].startswith("frame: Input should be a valid integer")
+        response = c.post(
+            "/api/save",
+            content=f'{{"revision": {HUGE}}}',
+            headers={"Content-Type": "application/json"},
+        )
+        assert response.status_code == 400 and one_line(response)
+        assert "revision must be an integer" in response.json()["detail"]
+    assert nothing_changed(app)
+
+
 # -- a real server: the Host/Origin path through uvicorn ------------------------------
 
 

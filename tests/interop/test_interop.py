@@ -607,13 +607,13 @@ def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp
         writer.write_frames(np.zeros((3, 32, 48, 3), np.uint8))
     (tmp_path / "camera_0DLC_resnet50_flyJan1shuffle1_1000.csv").write_text("scorer\n")
     (tmp_path / "cam_b").mkdir()
-    for i in (10, 9, 1):
+    for i in (10, 9, 8):  # natural order 8, 9, 10 (by text: 10, 8, 9)
         cv2.imwrite(str(tmp_path / "cam_b" / f"img{i}.png"), np.zeros((20, 30, 3), np.uint8))
     (tmp_path / "cam_b" / "notes.txt").write_text("not a frame")
     footage = footage_files(footage_globs(config), tmp_path)
     assert footage == {
         "a": [tmp_path / "camera_0.mp4"],
-        "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (1, 9, 10)],
+        "b": [tmp_path / "cam_b" / f"img{i}.png" for i in (8, 9, 10)],
     }
     assert read_frame_count(footage["a"]) == 3 and read_frame_count(footage["b"]) == 3
     assert read_frame_size(footage["a"][0]) == (32, 48)

@@ -128,3 +128,109 @@ def test_a_result_without_corrections_is_one_clear_error(tmp_path):
     with pytest.raises(ResultsError, match="holds no corrections; correct frames in `flylib gui"):
         export_training_data(out / "results.h5", tmp_path / "dlc")
     assert not (tmp_path / "dlc").exists()
+
+
+def test_export_into_a_dlc_project_merges_row_by_row_and_keeps_the_labs_labels(
+    corrected_run, tmp_path, capsys
+):
+    """Issue 37 case 4: the lab's hand labels of other frames and body parts survive."""
+    import pandas as pd
+
+    from flylib.cli import main
+
+    out, (view_a, point_a, edit_xy), _ = corrected_run
+    points = list(PoseResult.load(out / "results.h5").skeleton.point_names)
+    folder = tmp_path / "labeled-data" / f"camera_{view_a}"
+    folder.mkdir(parents=True)
+    # laid out as DeepLabCut writes it: scorer/bodyparts/coords rows, a 3-level index
+    parts = [*points, "lab_only"]
+    columns = pd.MultiIndex.from_product(
+        [["lab"], parts, ["x", "y"]], names=["scorer", "bodyparts", "coords"]
+    )
+    rows = pd.MultiIndex.from_tuples(
+        [("labeled-data", folder.name, n) for n in ("img0001.png", "img0004.png")]
+    )
+    lab = pd.DataFrame(
+        np.arange(2 * 2 * len(parts), dtype=np.float64).reshape(2, -1), index=rows, columns=columns
+    )
+    lab.to_csv(folder / "CollectedData_lab.csv")
+    lab.to_hdf(folder / "CollectedData_lab.h5", key="df_with_missing", mode="w")
+    (folder / "img0004.png").write_bytes(b"the lab's own frame")
+    before = (folder / "CollectedData_lab.csv").read_bytes()
+
+    code = main(
+        ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+    )
+    assert code == 0
+    said = capsys.readouterr().out
+    assert (
+        f"{folder / 'CollectedData_lab.csv'}: 1 frames added, 1 updated, 1 kept (backup: " in said
+    )
+
+    for table in (
+        pd.read_hdf(folder / "CollectedData_lab.h5", "df_with_missing"),
+        pd.read_csv(folder / "CollectedData_lab.csv", header=[0, 1, 2], index_col=[0, 1, 2]),
+    ):
+        assert list(table.columns.names) == ["scorer", "bodyparts", "coords"]
+        assert list(table.columns) == list(lab.columns)
+        assert [r[2] for r in table.index] == ["img0001.png", "img0004.png", "img0007.png"]
+        # another frame: every label kept; the lab's own body part: kept in every frame
+        pd.testing.assert_series_equal(
+            table.iloc[0], lab.iloc[0], check_names=False, check_exact=True
+        )
+        assert (
+            table.loc[rows[1], ("lab", "lab_only", "x")]
+            == lab.loc[rows[1], ("lab", "lab_only", "x")]
+        )
+        assert np.isnan(table.iloc[2][("lab", "lab_only", "x")])
+        # the corrected frame: flylib's edit
+        assert table.loc[rows[1], ("lab", points[point_a], "x")] == pytest.approx(edit_xy[0])
+        assert table.loc[rows[1], ("lab", points[point_a], "y")] == pytest.approx(edit_xy[1])
+    backups = sorted(folder.glob("CollectedData_lab.csv.*.bak"))
+    assert len(backups) == 1 and backups[0].read_bytes() == before
+    assert len(list(folder.glob("CollectedData_lab.h5.*.bak"))) == 1
+    assert (folder / "img0004.png").read_bytes() == b"the lab's own frame"
+    assert (folder / "img0007.png").is_file()
+
+    # again: nothing changes, nothing is rewritten or backed up again
+    assert (
+        main(
+            ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+        )
+        == 0
+    )
+    assert "unchanged (3 frames kept)" in capsys.readouterr().out
+    assert len(list(folder.glob("CollectedData_lab.csv.*.bak"))) == 1
+
+
+def test_an_older_projects_single_path_index_is_merged_in_its_own_layout(corrected_run, tmp_path):
+    import pandas as pd
+
+    out, (view_a, point_a, edit_xy), _ = corrected_run
+    points = list(PoseResult.load(out / "results.h5").skeleton.point_names)
+    folder = tmp_path / "labeled-data" / f"camera_{view_a}"
+    folder.mkdir(parents=True)
+    columns = pd.MultiIndex.from_product(
+        [["lab"], points, ["x", "y"]], names=["scorer", "bodyparts", "coords"]
+    )
+    lab = pd.DataFrame(
+        np.ones((1, 2 * len(points))),
+        index=[f"labeled-data/{folder.name}/img0002.png"],
+        columns=columns,
+    )
+    lab.to_csv(folder / "CollectedData_lab.csv")
+
+    from flylib.cli import main
+
+    assert (
+        main(
+            ["export", str(out / "results.h5"), "--training-data", str(tmp_path), "--scorer", "lab"]
+        )
+        == 0
+    )
+    table = pd.read_csv(folder / "CollectedData_lab.csv", header=[0, 1, 2], index_col=0)
+    assert list(table.index) == [
+        f"labeled-data/{folder.name}/{n}" for n in ("img0002.png", "img0004.png", "img0007.png")
+    ]
+    assert (table.iloc[0] == 1.0).all()
+    assert table.iloc[1][("lab", points[point_a], "x")] == pytest.approx(edit_xy[0])

@@ -382,10 +382,11 @@ def test_a_camera_key_set_in_the_users_defaults_names_the_users_file(tmp_path, c
     base = REPO / "config" / "config.yaml"
     assert flylib_main(["check-config", str(base), str(mine)]) == 1
     err = capsys.readouterr().err.strip()
+    # the non-finite value is named where the user wrote it (every number is checked)
     assert err.startswith(
-        f"flylib check-config: invalid config: {mine}: cameras.rh.focal_length_px"
+        f"flylib check-config: invalid config: {mine}: cameras.defaults.focal_length_px[0]: "
+        "expected a finite number"
     )
-    assert str(base) not in err
     # A camera's own key still names the file that set it on the camera.
     mine.write_text("cameras:\n  rm: {azimuth_deg: -90, focal_length_px: [.inf, 1]}\n")
     assert flylib_main(["check-config", str(base), str(mine)]) == 1
@@ -697,3 +698,121 @@ def test_jobs_declare_memory_from_the_recordings_size(tmp_path):
     with pytest.raises(FileNotFoundError) as err:
         mem_mb(None, {"pose2d": str(missing)})
     assert err.value.filename == str(missing)
+
+
+# -- a job that outlived its run; a job killed or stopped (issue 37, cases 13 and 14) ----
+
+
+def test_an_orphan_job_never_renames_into_a_folder_another_run_took_over(
+    tmp_path, monkeypatch, no_run_id
+):
+    from flylib.errors import OutputError
+    from flylib.locking import LOCK_NAME, RUN_ENV, claim_outdirs, lock_holder, outdir_lock
+    from flylib.paths import atomic_path
+
+    out = tmp_path / "out"
+    target = out / "stages" / "refinement.h5"
+    claim_outdirs([out], run="killed-run")  # the run this job belongs to
+    assert os.environ[RUN_ENV] == "killed-run"
+    # While the run holds its claim, its job writes as always.
+    with outdir_lock(out, job="refinement"), atomic_path(target) as tmp:
+        tmp.write_bytes(b"old params")
+    assert target.read_bytes() == b"old params"
+
+    new_run = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        with outdir_lock(out, job="refinement"):
+            with pytest.raises(OutputError) as caught, atomic_path(target) as tmp:
+                tmp.write_bytes(b"old params again")
+                # The run is killed; a new run (another process, other params) takes
+                # the claim over and writes its own result before this job's rename.
+                new = {**lock_holder(out / LOCK_NAME), "pid": new_run.pid, "run": "new-run"}
+                (out / LOCK_NAME).write_text(json.dumps(new))
+                target.write_bytes(b"new params")
+            assert str(caught.value) == (
+                f"{target}: not written: another run took over {out.resolve()} while this "
+                f"job ran (pid {new_run.pid} on {new['host']}, working directory "
+                f"{new['cwd']}, job snakemake run, since {new['since']}); this job's run "
+                "was stopped or killed, so its result was discarded and the new run's "
+                "files are kept"
+            )
+        assert target.read_bytes() == b"new params"
+        assert [p.name for p in target.parent.iterdir()] == ["refinement.h5"]  # no temp left
+        assert lock_holder(out / LOCK_NAME)["run"] == "new-run"  # the new claim stands
+    finally:
+        new_run.kill()
+        new_run.wait()
+
+
+def _descendant(root: int, name: bytes) -> int | None:
+    """A process under ``root`` whose command line holds ``name`` (Linux /proc)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                parents[int(entry.name)] = (int(fields[1]), (entry / "cmdline").read_bytes())
+            except (OSError, IndexError, ValueError):
+                continue
+    for pid, (_, cmdline) in parents.items():
+        if name not in cmdline:
+            continue
+        ancestor = pid
+        while ancestor in parents and ancestor != root:
+            ancestor = parents[ancestor][0]
+        if ancestor == root:
+            return pid
+    return None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the job through /proc")
+@pytest.mark.parametrize(
+    ("signum", "whom", "status"),
+    [
+        (
+            signal.SIGKILL,
+            "job",
+            "refinement was killed by SIGKILL: its log {log} ends without an error",
+        ),
+        (signal.SIGTERM, "run", "refinement was stopped by SIGTERM; re-run to resume"),
+    ],
+)
+def test_workflow_a_killed_or_stopped_job_is_reported_so_in_the_table(
+    finished_run, signum, whom, status
+):
+    root = finished_run.root
+    log = root / "fly1" / "flylib_outputs" / "logs" / "refinement.log"
+    log.unlink()  # the finished run's log ends well: wait for this job's own
+    run = subprocess.Popen(
+        _snakemake(
+            root, str(log.parents[1] / "stages" / "refinement.h5"), "--forcerun", "refinement"
+        ),
+        cwd=root,
+        env=_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while (job := _descendant(run.pid, b"refinement.py")) is None or not log.is_file():
+            assert run.poll() is None and time.monotonic() < deadline, "refinement never ran"
+            time.sleep(0.05)
+        time.sleep(0.2)  # its log redirected and its stop handlers set; still importing
+        if whom == "job":
+            os.kill(job, signum)  # like the kernel's out-of-memory killer
+        else:
+            os.killpg(run.pid, signum)  # the whole run stopped, as a scheduler does
+        output, _ = run.communicate(timeout=600)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+            run.wait()
+    assert run.returncode != 0
+    table = output[output.index("flylib: per-recording results") :]
+    row = next(line for line in table.splitlines() if line.startswith("fly1 "))
+    assert status.format(log=log) in row, table
+    assert "failed: see" not in table
+    assert _run(root).returncode == 0  # the resume is whole

@@ -238,3 +238,15 @@ def test_workflow_config_errors_are_the_lines_alone(tmp_path):
     ), proc.stderr
     assert "WorkflowError" not in proc.stderr and "Traceback" not in proc.stderr
     assert 'File "' not in proc.stderr
+
+
+@pytest.mark.slow  # runs Snakemake
+def test_an_infinite_scale_is_refused_before_the_dag_naming_the_key(tmp_path):
+    (tmp_path / "my.yaml").write_text("refinement:\n  scale_px: .inf\n")
+    proc = _snakemake(tmp_path, "--configfile", "my.yaml")
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "invalid config: my.yaml: refinement.scale_px: expected a finite number (.inf is "
+        "accepted only by refinement.outlier_px), got inf"
+    ), proc.stderr
+    assert "Traceback" not in proc.stderr

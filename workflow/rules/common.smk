@@ -1,9 +1,9 @@
 # Shared set-up: validate the config, resolve the recordings, and the helpers the
 # rules use. Runs once per Snakemake invocation, before any job starts.
 
+import functools
 import json
 import os
-import re
 import sys
 from pathlib import Path
 
@@ -84,13 +84,30 @@ if workflow.is_main_process:
         logger.warning(_line)
 
 
-wildcard_constraints:
-    outdir="|".join(re.escape(o) for o in sorted(BY_OUTDIR, key=len, reverse=True)),
+# Which recording a job's `{outdir}` belongs to is looked up, not matched: a wildcard
+# constraint listing every outdir is a regex as long as the batch, which Snakemake
+# scans for every job and file (planning 10,000 recordings never finished).
 
 
 def recording(wildcards):
     """The Recording whose output directory is this job's ``{outdir}``."""
-    return BY_OUTDIR[wildcards.outdir]
+    try:
+        return BY_OUTDIR[wildcards.outdir]
+    except KeyError:
+        raise WorkflowError(
+            f"{wildcards.outdir} is not the output folder of any recording of this run"
+        ) from None
+
+
+def unplanned(wildcards) -> list[str]:
+    """``[]`` for a recording's output folder; for any other folder one input that
+    cannot exist. A user's file whose path matches an output pattern (a
+    calibration.toml beside the footage, or in another run's outputs) asks for a job in
+    a folder this run does not write; that input makes Snakemake drop the job and read
+    the file as it is, never make it."""
+    if wildcards.outdir in BY_OUTDIR:
+        return []
+    return [f"{wildcards.outdir} (no recording of this run writes to this folder)"]
 
 
 def as_is(value):
@@ -111,9 +128,15 @@ def job_runtime(stage: str):
     A derived param (a function of the job's input), so it re-runs nothing by itself."""
 
     def runtime(wildcards, input):
-        return _stage_runtime(CONFIG, stage)
+        return _runtime_of(stage)
 
     return runtime
+
+
+@functools.cache
+def _runtime_of(stage: str):
+    """The stage's runtime options, once per rule (they depend on the config alone)."""
+    return _stage_runtime(CONFIG, stage)
 
 
 def artifact(stage: str) -> str:
@@ -193,7 +216,12 @@ def pose2d_gpus(wildcards) -> int:
 def calibration_inputs(wildcards) -> list[str]:
     """The calibration file(s) the config rig is read from ([] for an orbit rig), so a
     rule that builds the config rig re-runs when the file changes."""
-    return [str(p) for p in _calibration_files(CONFIG, recording(wildcards).path)]
+    return unplanned(wildcards) or list(_recording_calibration(recording(wildcards).path))
+
+
+@functools.cache
+def _recording_calibration(path: Path) -> tuple[str, ...]:
+    return tuple(str(p) for p in _calibration_files(CONFIG, path))
 
 
 def reconstruction_inputs(stage: str):
@@ -246,6 +274,10 @@ onstart:
     except FlylibError as exc:
         raise WorkflowError(str(exc)) from None
     atexit.register(release_outdirs, _claimed)
+    # the folders are the run's now: their planned outputs are flylib's (re-runs replace them)
+    from flylib.pipeline.user_files import record_planned
+
+    record_planned(CONFIG, _claimed)
     for _outdir in _claimed:
         for _temp in remove_stale_temps(_outdir, recursive=True):
             logger.info(f"removed {_temp}, left by a writer that was killed")

@@ -11,9 +11,9 @@
 
 from flylib.nwb_metadata import recordings_metadata_problems, sidecar_inputs
 from flylib.pipeline.export_nwb import NwbExportInputs
+from flylib.pipeline.user_files import NWB_FILE
 
 EXPORTS = CONFIG.data.get("exports") or {}
-NWB_FILE = "results.nwb"
 EXPORT_RECORDINGS = [rec for rec in RECORDINGS if rec.id not in SKIPPED]
 EXPORT_TARGETS = (
     [f"{rec.outdir}/{NWB_FILE}" for rec in EXPORT_RECORDINGS] if EXPORTS.get("nwb") else []

@@ -1,17 +1,29 @@
 # Input functions that tell the demo (its files come from the demo rule) from a real
 # recording (its files are on disk): they use DEMO* from demo.smk, included above.
 
+from flylib.pipeline.pose2d import import_inputs as _import_inputs, import_target
+
 
 def recording_inputs(wildcards) -> list[str]:
-    """What pose2d reads: the footage (for the demo, everything the demo rule writes)."""
+    """What pose2d reads: the footage and the files imported 2D comes from (for the
+    demo, everything the demo rule writes), so an edit of any re-runs pose2d."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_OUTPUTS
-    return [str(f) for f in rec.footage]
+    imported = _import_inputs(IMPORT_TARGET, rec.import_spec, rec.path) if rec.import_spec else []
+    return [str(f) for f in [*rec.footage, *imported]]
+
+
+#: What imported 2D is placed on (one for the run; only recordings with an import use it).
+IMPORT_TARGET = import_target(CONFIG) if any(r.import_spec for r in RECORDINGS) else None
 
 
 def footage_inputs(wildcards) -> list[str]:
     """The recording's footage files (for the demo, the videos the demo rule writes)."""
+    if unplanned(wildcards):
+        return unplanned(wildcards)
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_FOOTAGE
@@ -19,6 +31,8 @@ def footage_inputs(wildcards) -> list[str]:
 
 
 def assemble_inputs(wildcards) -> dict:
+    if unplanned(wildcards):
+        return {"unplanned": unplanned(wildcards)}
     # pose2d's artifact is read even with pose2d off (made by an earlier run)
     files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}

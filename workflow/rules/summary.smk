@@ -1,7 +1,9 @@
 # The end of every run: one line per recording (frames, fraction reconstructed,
 # reprojection error, suspects when counted, where the outputs are), the warnings the
-# jobs logged, and the demo's error against its truth last. Printed on success and on
-# error alike (not for dry runs), at exit, so that it follows Snakemake's own closing
+# jobs logged (and Snakemake's clock-skew errors), and the demo's error against its
+# truth last. A recording whose jobs did not finish says how they ended: failed (see
+# its log), stopped by a signal, or killed (a log cut off before flylib's last line).
+# Printed on success and on error alike (not for dry runs), at exit, so that it follows Snakemake's own closing
 # lines ("Complete log", "Elapsed time") and is the last thing on screen. A run with
 # nothing to do calls neither hook (Snakemake returns before them): it prints the
 # table of the existing results, after Snakemake's "Nothing to be done".
@@ -21,9 +23,9 @@ _RUN_RECORDINGS = [RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r
 _TABLE_STATE = {"printed": False, "nothing_to_do": False}
 
 
-def _print_run_table(failed: bool, heading: str = "") -> None:
+def _print_run_table(failed: bool, snakemake_log=None) -> None:
     _TABLE_STATE["printed"] = True
-    text = heading + run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START)
+    text = run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START, snakemake_log=snakemake_log)
     atexit.register(lambda: print("\n" + text, file=sys.stderr, flush=True))
 
 
@@ -48,8 +50,8 @@ if workflow.is_main_process:
 
 
 onsuccess:
-    _print_run_table(failed=False)
+    _print_run_table(failed=False, snakemake_log=log)
 
 
 onerror:
-    _print_run_table(failed=True)
+    _print_run_table(failed=True, snakemake_log=log)

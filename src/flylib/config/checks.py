@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, field
 from typing import Any
 
@@ -109,6 +110,52 @@ def mapping(nullable: bool = False) -> Check:
         return f"expected a mapping{' or null' if nullable else ''}, {got(value)}"
 
     return check
+
+
+#: The config keys that accept an infinite number (YAML ``.inf``, TOML ``inf``) and what
+#: it means there. Every other number in a config must be finite: ``.inf``, ``-.inf`` and
+#: ``.nan`` anywhere else (and ``-.inf`` or ``.nan`` here) are refused by
+#: :func:`non_finite_problems`, which :func:`~flylib.config.validation.validate_config` runs
+#: over the whole config.
+INFINITE_OK: dict[str, str] = {
+    "refinement.outlier_px": "no limit: no observation is left out after the first pass",
+}
+
+
+def _numbers(value: Any, path: str) -> Iterator[tuple[str, float]]:
+    """Every float in a parsed config with its key path (``a.b[0].c``), without recursion."""
+    stack: list[tuple[Any, str]] = [(value, path)]
+    seen: set[int] = set()
+    while stack:
+        node, where = stack.pop()
+        if isinstance(node, Mapping | list | tuple):
+            if id(node) in seen:  # a YAML alias: its members are reported where first met
+                continue
+            seen.add(id(node))
+            if isinstance(node, Mapping):
+                members = [(f"{where}.{k}" if where else str(k), v) for k, v in node.items()]
+            else:
+                members = [(f"{where}[{i}]", v) for i, v in enumerate(node)]
+            stack.extend((v, k) for k, v in reversed(members))
+        elif isinstance(node, float):
+            yield where, node
+
+
+def non_finite_problems(data: Any) -> dict[str, str]:
+    """``key path -> problem`` for every number in ``data`` that is not finite, except
+    ``+inf`` at a key of :data:`INFINITE_OK`."""
+    problems: dict[str, str] = {}
+    for where, value in _numbers(data, ""):
+        if math.isfinite(value) or (value > 0 and where in INFINITE_OK):
+            continue
+        if where in INFINITE_OK:
+            expected = f"a finite number or .inf ({INFINITE_OK[where]})"
+        else:
+            expected = "a finite number" + (
+                f" (.inf is accepted only by {', '.join(INFINITE_OK)})" if INFINITE_OK else ""
+            )
+        problems[where] = f"{where}: expected {expected}, got {value!r}"
+    return problems
 
 
 def param(

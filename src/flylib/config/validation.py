@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
@@ -9,7 +10,7 @@ from typing import Any
 from ..errors import did_you_mean, unknown_key
 from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
-from .checks import boolean, got, integer, is_int, mapping
+from .checks import boolean, got, integer, is_int, mapping, non_finite_problems
 from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from .neuromechfly import NeuromechflyParams
 from .params import (
@@ -256,7 +257,19 @@ def validate_config(data: Any) -> list[str]:
     if videos is not None and not isinstance(videos, list):
         problems.append(f"visualization.videos: expected a list of video tables, {got(videos)}")
     problems += _export_problems(data)
-    return problems
+    return _with_non_finite(problems, data)
+
+
+def _with_non_finite(problems: list[str], data: Mapping) -> list[str]:
+    """``problems`` plus one line per non-finite number: that line replaces the other
+    checks' line on the same key (or on the list holding the number), so each key gets
+    one line, and the root cause."""
+    non_finite = non_finite_problems(data)
+    if not non_finite:
+        return problems
+    keys = {re.sub(r"(\[\d+\])+$", "", where) for where in non_finite} | set(non_finite)
+    kept = [p for p in problems if p.split(": ", 1)[0] not in keys]
+    return kept + list(non_finite.values())
 
 
 def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:

@@ -36,6 +36,7 @@ from importlib import resources
 from typing import Any
 
 from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
@@ -50,7 +51,7 @@ from .security import (
     check_json_content_type,
     parse_json,
 )
-from .session import ReviewSession, StaleRevision
+from .session import ReviewSession, StaleRevision, shown
 
 log = logging.getLogger(__name__)
 
@@ -141,13 +142,22 @@ def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
     async def one_line_error(request: Request, exc: HTTPException) -> JSONResponse:
         return _refused(exc.status_code, str(exc.detail))
 
+    @app.exception_handler(RequestValidationError)
+    async def one_line_invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # a path number that is not an integer ("1e400"): one line, not pydantic's list
+        problem = (exc.errors() or [{}])[0]
+        where = ".".join(str(part) for part in problem.get("loc", ())[1:]) or "request"
+        return _refused(
+            422, f"{where}: {problem.get('msg', 'invalid')} ({shown(problem.get('input'))})"
+        )
+
 
 def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
     """``GET`` the page, meta, a view's frame, a frame's points and the suspects."""
 
     def check_frame(frame: int) -> None:
         if not 0 <= frame < session.n_frames:
-            raise HTTPException(404, f"frame {frame} out of range 0..{session.n_frames - 1}")
+            raise HTTPException(404, f"frame {shown(frame)} out of range 0..{session.n_frames - 1}")
 
     @app.get("/", response_class=HTMLResponse)
     def index() -> HTMLResponse:
@@ -302,7 +312,7 @@ class _Edits:
             return {"op": "stale", "error": str(exc), "revision": exc.current}
         except FlylibError as exc:  # the journal cannot be written: not applied
             return {"op": "not_stored", "error": str(exc)}
-        except (KeyError, IndexError, ValueError, TypeError) as exc:
+        except (KeyError, IndexError, ValueError, TypeError, OverflowError) as exc:
             return {"op": "refused", "error": str(exc).strip("'\"")}
         reply["op"] = "points"
         reply["server_ms"] = round((time.perf_counter() - started) * 1000, 2)

@@ -41,7 +41,7 @@ class StaleRevision(ValueError):
 
     def __init__(self, given: int, current: int):
         super().__init__(
-            f"the edits changed since this page loaded them (revision {given}, now "
+            f"the edits changed since this page loaded them (revision {shown(given)}, now "
             f"{current}: another tab or a replayed journal); the page was refreshed, "
             "look and edit again"
         )
@@ -152,6 +152,7 @@ class ReviewSession:
                     self.corrections_path,
                     (v, t, p),
                     [self.image_sizes[name] for name in self.view_names],
+                    self.cameras,
                 )
             else:
                 self.corrections = Corrections.empty(v, t, p)
@@ -362,13 +363,13 @@ class ReviewSession:
     def _check_frame(self, frame: int) -> int:
         t = int(frame)
         if not 0 <= t < self.n_frames:
-            raise IndexError(f"frame {frame} out of range 0..{self.n_frames - 1}")
+            raise IndexError(f"frame {shown(frame)} out of range 0..{self.n_frames - 1}")
         return t
 
     def _check_point(self, point: int) -> int:
         p = int(point)
         if not 0 <= p < self.n_points:
-            raise IndexError(f"point {point} out of range 0..{self.n_points - 1}")
+            raise IndexError(f"point {shown(point)} out of range 0..{self.n_points - 1}")
         return p
 
     def _resolve(self, t: int, p: int) -> None:
@@ -462,8 +463,10 @@ class ReviewSession:
     def _check_revision(self, revision: Any) -> None:
         if revision is None:
             return
-        if type(revision) is not int:
-            raise ValueError(f"revision must be an integer, got {revision!r}")
+        if type(revision) is not int or not 0 <= revision <= _MAX_INT:
+            raise ValueError(
+                f"revision must be an integer from 0 to 2**63 - 1, got {shown(revision)}"
+            )
         if revision != self.revision:
             raise StaleRevision(revision, self.revision)
 
@@ -510,10 +513,8 @@ class ReviewSession:
             or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in xy)
         ):
             raise ValueError(f"xy must be two pixel coordinates [x, y], got {str(xy)[:60]}")
-        x, y = (float(c) for c in xy)
+        x, y = (_finite("xy", c, "pixel coordinates") for c in xy)
         height, width = self.image_sizes[view]
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise ValueError(f"xy must be finite pixel coordinates, got [{x}, {y}]")
         if not (0 <= x <= width and 0 <= y <= height):
             raise ValueError(f"xy [{x:.6g}, {y:.6g}] lies outside {view}'s {width}x{height} image")
         return [x, y]
@@ -594,10 +595,10 @@ class ReviewSession:
         if (
             not isinstance(xyz, list)
             or len(xyz) != 3
-            or not all(isinstance(c, (int, float)) and math.isfinite(c) for c in xyz)
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in xyz)
         ):
             raise ValueError(f"a 3D edit must be three finite numbers, got {str(xyz)[:60]}")
-        return {**checked, "op": "set3d", "xyz": [float(c) for c in xyz]}
+        return {**checked, "op": "set3d", "xyz": [_finite("a 3D edit", c, "numbers") for c in xyz]}
 
     def _onto_ray(self, v: int, t: int, p: int, xy: np.ndarray) -> np.ndarray:
         """The point on pixel ``xy``'s ray in view ``v`` closest to the current 3D point."""
@@ -693,11 +694,38 @@ class ReviewSession:
             source.close()
 
 
+#: The largest integer a request may carry (frames, points and revisions are far below).
+_MAX_INT = 2**63 - 1
+
+
+def shown(value: Any) -> str:
+    """``value`` as a message quotes it: at most 40 characters, a long number as its
+    first digits and its length (a request may carry a 4,000-digit integer)."""
+    text = str(value)
+    if isinstance(value, int) and len(text) > 24:
+        return f"{text[:12]}...({len(text.lstrip('-'))} digits)"
+    return text[:40]
+
+
 def _integer(name: str, value: Any) -> int:
-    """``value`` when it is an integer (JSON ``true`` is not one)."""
+    """``value`` when it is an integer (JSON ``true`` is not one) within +-2**63."""
     if type(value) is not int and not isinstance(value, np.integer):
-        raise ValueError(f"{name} must be an integer, got {str(value)[:40]}")
+        raise ValueError(f"{name} must be an integer, got {shown(value)}")
+    if not -_MAX_INT <= int(value) <= _MAX_INT:
+        raise ValueError(f"{name} {shown(value)} is out of range (at most 2**63 - 1)")
     return int(value)
+
+
+def _finite(name: str, value: int | float, what: str) -> float:
+    """``value`` as a finite float; an integer too large for one (JSON allows any
+    length) or a non-finite number is a ``ValueError``, never an ``OverflowError``."""
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be finite {what}, got {shown(value)}")
+    return number
 
 
 def _raise_key(view: str):

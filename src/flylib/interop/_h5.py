@@ -13,12 +13,13 @@ never through h5py's ``in`` / ``[]`` on a full path (which resolves, and so open
 external links): external and user-defined links are refused without being
 followed, soft links are resolved by the same walk, and a dataset is read only after
 its storage is checked (no external files, not virtual) and its declared size and
-chunk size are under a budget derived from the recording (:func:`read_budget`).
+chunk size are under a budget derived from the recording (:func:`read_budget`). What
+makes a link or a dataset unsafe is :mod:`flylib.results.guard`'s, which checks
+flylib's own files whole.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,7 @@ import h5py
 import numpy as np
 
 from ..errors import FlylibError, ImportFormatError, one_line
+from ..results.guard import dataset_refusal, gib, link_refusal
 from ..results.hdf5 import H5_READ_ERRORS, open_hdf5
 
 __all__ = [
@@ -83,7 +85,7 @@ def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.
     Errors raised while reading inside the block (:data:`H5_READ_ERRORS`) are re-raised
     as :class:`ImportFormatError` naming ``path``; flylib's own errors pass unchanged.
     """
-    with open_hdf5(path, hint, what, error=ImportFormatError) as fh:
+    with open_hdf5(path, hint, what, error=ImportFormatError, guard=False) as fh:
         try:
             yield fh
         except FlylibError:
@@ -140,10 +142,12 @@ def foreign_member(
         links = node.id.links
         if not links.exists(key):
             return None
-        kind = links.get_info(key).type
-        if kind == h5l.TYPE_HARD:
+        refusal = link_refusal(node, key)
+        if refusal is not None:
+            raise _refuse(path, where, refusal, what, hint)
+        if links.get_info(key).type == h5l.TYPE_HARD:
             node = node[part]
-        elif kind == h5l.TYPE_SOFT:
+        else:  # a soft link: resolved by the same walk
             target = links.get_val(key).decode("utf-8", "replace")
             if not target.startswith("/"):
                 target = f"{node.name.rstrip('/')}/{target}"
@@ -151,18 +155,6 @@ def foreign_member(
             if resolved is None:
                 return None
             node = resolved
-        elif kind == h5l.TYPE_EXTERNAL:
-            filename, target = links.get_val(key)
-            raise _refuse(
-                path,
-                where,
-                f"is an external link to {filename.decode('utf-8', 'replace')}:"
-                f"{target.decode('utf-8', 'replace')}",
-                what,
-                hint,
-            )
-        else:
-            raise _refuse(path, where, f"is a user-defined link (type {kind})", what, hint)
     return node
 
 
@@ -193,27 +185,16 @@ def checked_dataset(
         raise ImportFormatError(
             f"{path}: {name!r} is a {type(obj).__name__.lower()}, expected a dataset; {hint}"
         )
-    external = obj.external
-    if external:
-        raise _refuse(
-            path, name, f"stores its data in the external file {external[0][0]!r}", what, hint
-        )
-    if obj.is_virtual:
-        sources = sorted({m.file_name for m in obj.virtual_sources()})
-        raise _refuse(
-            path, name, f"is a virtual dataset mapping {', '.join(sources[:3])}", what, hint
-        )
-    itemsize = max(int(obj.dtype.itemsize), 1)
-    declared = math.prod(int(n) for n in obj.shape or ()) * itemsize
-    chunk = math.prod(int(n) for n in obj.chunks) * itemsize if obj.chunks else 0
-    if max(declared, chunk) > max_bytes:
-        size = obj.shape if declared >= chunk else f"chunks of {obj.chunks}"
-        raise ImportFormatError(
-            f"{path}: {name!r} declares {size} of {obj.dtype} ({_gib(max(declared, chunk))}), "
-            f"more than the {_gib(max_bytes)} a {what} of this recording can need "
-            f"(frames x points x tracks); refusing to read it; {hint}"
-        )
-    return obj
+    refusal = dataset_refusal(obj, max_bytes)
+    if refusal is None:
+        return obj
+    reason, outside = refusal
+    if outside:
+        raise _refuse(path, name, reason, what, hint)
+    raise ImportFormatError(
+        f"{path}: {name!r} {reason}, more than the {gib(max_bytes)} a {what} of this "
+        f"recording can need (frames x points x tracks); refusing to read it; {hint}"
+    )
 
 
 def read_checked(
@@ -222,7 +203,3 @@ def read_checked(
     """The whole dataset at ``name`` (``None`` if absent), after :func:`checked_dataset`."""
     obj = checked_dataset(fh, name, path, what, hint, max_bytes=max_bytes)
     return None if obj is None else obj[()]
-
-
-def _gib(n: int) -> str:
-    return f"{n / (1 << 30):.3g} GiB" if n >= 1 << 30 else f"{n / (1 << 20):.3g} MiB"

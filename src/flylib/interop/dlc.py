@@ -3,8 +3,10 @@
 One file per camera view. The columns are a header MultiIndex
 ``scorer / bodyparts / coords`` (multi-animal files add ``individuals`` between scorer
 and bodyparts) with ``coords`` in ``x, y, likelihood``; the first column is the row
-index (a frame number, or an image path for labelled data). Rows are frames in order.
-Missing detections are empty cells (NaN).
+index: a frame number, or an image path for labelled data (``labeled-data/<video>/img047.png``,
+whose last number is the frame; newer files split it over three index columns). Each row
+is placed at its frame index, whatever the rows' order: frames no row gives are missing,
+a frame given twice is an error. Missing detections are empty cells (NaN).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import pickle
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -170,7 +173,66 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
         ) from exc
 
 
+#: Highest frame index a row may name (28 hours at 100 frames/s): rows are placed at their
+#: frame, so an index is also an allocation.
+MAX_FRAME_INDEX = 10_000_000
+_LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+
+
+def _frame_number(value, path: Path, row: int) -> int:
+    """The frame a row's index names: an integer, or the last number in an image file's
+    name (``labeled-data/video/img047.png`` -> 47)."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        number = int(value)
+    elif isinstance(value, (float, np.floating)):
+        if not (np.isfinite(value) and value == int(value)):
+            raise ImportFormatError(
+                f"{path}: data row {row + 1} has index {value!r}, which is no frame number; "
+                "the first column must be the frame number (or the labelled image's path)"
+            )
+        number = int(value)
+    else:
+        text = str(value).strip()
+        found = _LAST_NUMBER.search(Path(text.replace("\\", "/")).stem) if text else None
+        if found is None:
+            raise ImportFormatError(
+                f"{path}: data row {row + 1} has index {value!r}, which names no frame; the first "
+                "column must be the frame number (or the labelled image's path)"
+            )
+        number = int(found.group(1))
+    if not 0 <= number <= MAX_FRAME_INDEX:
+        raise ImportFormatError(
+            f"{path}: data row {row + 1} names frame {number}, outside 0..{MAX_FRAME_INDEX}; "
+            "the first column must be the frame number (or the labelled image's path)"
+        )
+    return number
+
+
+def frame_rows(index: pd.Index, path: Path) -> np.ndarray:
+    """The frame of each row of a DeepLabCut-layout table, from its row index.
+
+    Raises
+    ------
+    ImportFormatError
+        An index that names no frame, or a frame that two rows give (naming both rows).
+    """
+    values = (index.get_level_values(-1) if isinstance(index, pd.MultiIndex) else index).tolist()
+    frames = np.array([_frame_number(v, path, i) for i, v in enumerate(values)], dtype=np.int64)
+    order = np.argsort(frames, kind="stable")
+    repeated = np.flatnonzero(np.diff(frames[order]) == 0)
+    if repeated.size:
+        first, second = sorted(order[repeated[0] : repeated[0] + 2])
+        raise ImportFormatError(
+            f"{path}: frame {frames[first]} is given twice (data rows {first + 1} and {second + 1}, "
+            f"index {values[first]!r} and {values[second]!r}); keep one row per frame"
+        )
+    return frames
+
+
 def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> ViewKeypoints:
+    rows = frame_rows(frame.index, path)
     columns = frame.columns
     names = list(columns.names)
     if not {"scorer", "bodyparts", "coords"} <= set(names) or len(set(names)) != len(names):
@@ -195,8 +257,14 @@ def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> V
     coords = [str(c) for c in columns.get_level_values("coords")]
     column_of = {(b, c): i for i, (b, c) in enumerate(zip(parts, coords))}
     bodyparts = list(dict.fromkeys(parts))
-    values = _floats(frame.to_numpy(), path)
-    n_frames = len(frame)
+    n_frames = int(rows.max()) + 1 if rows.size else 0
+    if n_frames * frame.shape[1] * 8 > DEFAULT_READ_BUDGET:
+        raise ImportFormatError(
+            f"{path}: frame index {n_frames - 1} with {frame.shape[1]} value columns would take "
+            f"{n_frames * frame.shape[1] * 8 / 2**30:.1f} GiB; check the file's first column"
+        )
+    values = np.full((n_frames, frame.shape[1]), np.nan)
+    values[rows] = _floats(frame.to_numpy(), path)
     xy = np.full((n_frames, len(bodyparts), 2), np.nan)
     conf = np.full((n_frames, len(bodyparts)), np.nan)
     for k, part in enumerate(bodyparts):
@@ -316,7 +384,24 @@ def _fixed_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
         codes.append(np.asarray(source.read(f"{key}/block0_items_label{i}"), dtype=int))
         names.append(as_text([level.attrs["name"]])[0])
     columns = pd.MultiIndex(levels=levels, codes=codes, names=names)
-    return pd.DataFrame(_real_block(source.read(f"{key}/block0_values")), columns=columns)
+    values = _real_block(source.read(f"{key}/block0_values"))
+    return pd.DataFrame(values, columns=columns, index=_fixed_index(source, key, len(values)))
+
+
+def _fixed_index(source: _ForeignH5, key: str, n_rows: int) -> pd.Index:
+    """The row index of a pandas ``format="fixed"`` frame (of a MultiIndex, its last level:
+    the image file name of DeepLabCut's labelled data)."""
+    group = source.member(key)
+    if "axis1_nlevels" in group.attrs:
+        last = int(group.attrs["axis1_nlevels"]) - 1
+        level = source.read(f"{key}/axis1_level{last}")
+        codes = np.asarray(source.read(f"{key}/axis1_label{last}"), dtype=int)
+        values = np.asarray(level)[codes]
+    else:
+        values = np.asarray(source.read(f"{key}/axis1"))
+    if len(values) != n_rows:
+        raise ValueError(f"{len(values)} row labels for {n_rows} rows")
+    return pd.Index(as_text(values) if values.dtype.kind in "SOU" else values)
 
 
 def _table_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
@@ -334,7 +419,9 @@ def _table_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
         blocks.append(values)
         columns += [tuple(c) for c in _plain_pickle(table.attrs[f"{field}_kind"])]
     index = pd.MultiIndex.from_tuples(columns, names=names or None)
-    return pd.DataFrame(np.concatenate(blocks, axis=1), columns=index)
+    rows = data["index"] if "index" in data.dtype.names else np.arange(len(data))
+    rows = pd.Index(as_text(rows) if rows.dtype.kind in "SOU" else rows)
+    return pd.DataFrame(np.concatenate(blocks, axis=1), columns=index, index=rows)
 
 
 def read_dlc_h5(

@@ -34,6 +34,9 @@ joints (keys are joint indices) default to fly38 point ``(j + 19) mod 38``
 (see :mod:`flylib.interop.df3d`). A file keypoint that maps to nothing is an error, so
 a renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
 
+DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`),
+and every tool's scores become confidences in [0, 1] by :func:`as_confidences`.
+
 Frame sizes come from each view's footage header (see :mod:`flylib.interop.views`),
 else ``image_size``. All views must have the same number of frames, and as many
 frames as their footage when its count is known.
@@ -45,6 +48,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,6 +58,9 @@ from ._h5 import read_budget
 from .df3d import df3d_joint_to_fly38, read_df3d_points2d
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
+
+if TYPE_CHECKING:  # pragma: no cover
+    from jaxtyping import Float
 
 log = logging.getLogger(__name__)
 
@@ -155,7 +162,9 @@ def import_spec(spec: Mapping | None) -> dict:
 
 def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
     path = Path(pattern)
-    if path.is_absolute():
+    if (recording_dir / path).is_file():  # a file named cam[1].csv is that file
+        matches = [recording_dir / path]
+    elif path.is_absolute():
         matches = (
             sorted(path.parent.glob(path.name)) if any(c in path.name for c in "*?[") else [path]
         )
@@ -335,6 +344,7 @@ def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
     )
     default_size = next(iter(sizes.values())) if sizes else (480, 960)
     data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
+    data.conf = as_confidences(data.conf, "deepfly3d", path)
     if not np.array_equal(data.camera_ordering, np.arange(len(data.camera_ordering))):
         log.warning(
             "%s: DeepFly3D camera_ordering is %s; its rows are placed on views %s in order "
@@ -457,15 +467,74 @@ def _ranges(indices: list[int]) -> str:
     return ", ".join(parts)
 
 
+#: Formats whose scores are probabilities: a value outside [0, 1] is not the tool's output.
+_PROBABILITIES = ("dlc_csv", "dlc_h5", "deeplabcut", "lightning_pose")
+#: How far rounding may take a probability past [0, 1] (clipped without a word).
+_ROUNDING = 1e-6
+
+
+def as_confidences(
+    conf: Float[np.ndarray, "*batch K"], fmt: str, path: Path, names: list | None = None
+) -> Float[np.ndarray, "*batch K"]:
+    """Another tool's scores as confidences in [0, 1] (NaN stays NaN).
+
+    DeepLabCut and Lightning Pose likelihoods are probabilities: one outside [0, 1] is an
+    error. SLEAP's point scores and DeepFly3D's heatmap peaks are not probabilities and
+    may exceed 1: they are clipped into [0, 1] with a warning naming the file.
+
+    Parameters
+    ----------
+    conf
+        ``(..., K)`` scores as the file gives them.
+    fmt
+        The import format.
+    path
+        The file they came from (for messages).
+    names
+        The file's keypoint names (the last axis), for messages.
+
+    Raises
+    ------
+    ImportFormatError
+        A DeepLabCut or Lightning Pose likelihood outside [0, 1].
+    """
+    conf = np.asarray(conf, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        outside = (conf < -_ROUNDING) | (conf > 1 + _ROUNDING) | np.isinf(conf)
+    if not outside.any():
+        return np.clip(conf, 0.0, 1.0)
+    bad = conf[outside]
+    where = np.argwhere(outside)[0]
+    part = f", keypoint {names[where[-1]]!r}" if names is not None else ""
+    detail = (
+        f"{bad.size} score{'s' if bad.size > 1 else ''} outside [0, 1], from {bad.min():g} to {bad.max():g} "
+        f"(first at frame {where[0] if conf.ndim == 2 else where[-2]}{part})"
+    )
+    if fmt in _PROBABILITIES:
+        raise ImportFormatError(
+            f"{path}: {detail}; a DeepLabCut / Lightning Pose likelihood is a probability in "
+            "[0, 1]: check that the likelihood columns are the tool's own output"
+        )
+    log.warning(
+        "%s: %s; %s scores are not probabilities, so they are clipped into [0, 1] as "
+        "confidences (see README, importing 2D)",
+        path,
+        detail,
+        "SLEAP's point" if fmt == "sleap" else "DeepFly3D's heatmap",
+    )
+    return np.clip(conf, 0.0, 1.0)
+
+
 def _read_view(fmt: str, path: Path, spec: dict, max_bytes: int) -> ViewKeypoints:
     """One view's file; HDF5 datasets may declare at most ``max_bytes`` (see ``read_budget``)."""
-    if fmt in ("dlc_csv", "lightning_pose"):
-        return read_dlc_csv(path, spec.get("individual"))
     if fmt == "dlc_h5" or (fmt == "deeplabcut" and path.suffix.lower() in (".h5", ".hdf5")):
-        return read_dlc_h5(path, spec.get("individual"), max_bytes=max_bytes)
-    if fmt == "deeplabcut":
-        return read_dlc_csv(path, spec.get("individual"))
-    return read_sleap_analysis(path, spec.get("track"), max_bytes=max_bytes)
+        kp = read_dlc_h5(path, spec.get("individual"), max_bytes=max_bytes)
+    elif fmt in ("dlc_csv", "lightning_pose", "deeplabcut"):
+        kp = read_dlc_csv(path, spec.get("individual"))
+    else:
+        kp = read_sleap_analysis(path, spec.get("track"), max_bytes=max_bytes)
+    kp.conf = as_confidences(kp.conf, fmt, path, kp.names)
+    return kp
 
 
 def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):

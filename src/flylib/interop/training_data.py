@@ -19,24 +19,34 @@ invisible; the 2D the corrected 3D was solved from (the person's edit, or a dete
 the robust triangulation kept); the reprojection of the corrected 3D where the detector
 saw the point in that view but the triangulation left the detection out (a detection
 error, the corrected geometry's answer); empty otherwise (the view does not see it).
+
+Into an existing project the labels are merged row by row (:func:`merge_collected`):
+flylib's frames are added or updated, every other label is kept (other frames, other
+body parts and individuals' columns), an image already there is kept, and each
+``CollectedData`` file changed is first copied to ``<name>.<UTC time>.bak``.
 """
 
 from __future__ import annotations
 
+import csv
+import itertools
 import logging
+import shutil
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import FootageError, ResultsError
-from ..paths import atomic_path
+from ..errors import FootageError, OutputError, ResultsError
+from ..paths import atomic_path, refuse_overwrite
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
-__all__ = ["export_training_data", "training_labels"]
+__all__ = ["export_training_data", "merge_collected", "training_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +104,152 @@ def _dlc_frame(labels: np.ndarray, folder: str, images: list[str], points: list[
     return pd.DataFrame(labels.reshape(len(images), -1), index=index, columns=columns)
 
 
+_HEADER_ROWS = ("scorer", "individuals", "bodyparts", "coords")
+
+
+def read_collected_csv(path: Path):
+    """A ``CollectedData_<scorer>.csv`` as DeepLabCut writes it: its header rows
+    (``scorer``, ``individuals`` for a multi-animal project, ``bodyparts``, ``coords``)
+    and index columns (``labeled-data, <video>, img.png``, or one path column in older
+    projects), found from the file itself."""
+    import pandas as pd
+
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(itertools.islice(csv.reader(f), len(_HEADER_ROWS) + 1))
+    headers = sum(1 for _ in itertools.takewhile(lambda r: r and r[0] in _HEADER_ROWS, rows))
+    if not headers:
+        raise OutputError(
+            f"{path}: not a DeepLabCut CollectedData file (no scorer/bodyparts/coords header "
+            "rows); move it away or export to another folder"
+        )
+    first = rows[0]
+    index = 1 + sum(1 for _ in itertools.takewhile(lambda c: c == "", first[1:]))
+    return pd.read_csv(path, header=list(range(headers)), index_col=list(range(index)))
+
+
+@dataclass(frozen=True)
+class MergeCount:
+    """What :func:`merge_collected` did to one file's frames (rows)."""
+
+    added: int
+    updated: int
+    kept: int
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.added or self.updated)
+
+
+def merge_collected(existing, new, cleared: np.ndarray):
+    """Merge flylib's labels ``new`` into a project's ``existing`` CollectedData frame.
+
+    Parameters
+    ----------
+    existing
+        The project's frame, in its own layout (3 or 4 column levels; a 3-level or
+        single-path row index).
+    new
+        flylib's frame (:func:`_dlc_frame`): columns ``(scorer, bodyparts, coords)``.
+    cleared
+        ``new``'s shape, bool: a person marked the point invisible, so the label is
+        removed; elsewhere a NaN of flylib's (no label) keeps the project's value.
+
+    Returns
+    -------
+    merged, MergeCount
+        Every row and column of ``existing`` (new body parts appended as columns, new
+        frames as rows); ``added`` frames new to the file, ``updated`` frames whose
+        labels changed, ``kept`` the file's frames left as they were.
+    """
+    import pandas as pd
+
+    levels = existing.columns.nlevels
+    scorers = list(dict.fromkeys(existing.columns.get_level_values(0)))
+    if levels not in (3, 4) or len(scorers) != 1:
+        raise OutputError("the file's columns are not DeepLabCut's (scorer, bodyparts, coords)")
+    parts = new.columns.get_level_values(1)
+    coords = new.columns.get_level_values(2)
+    if levels == 4:
+        individuals = [
+            i for i in dict.fromkeys(existing.columns.get_level_values(1)) if i != "single"
+        ]
+        if len(individuals) != 1:
+            raise OutputError(
+                f"a multi-animal project with individuals {', '.join(map(str, individuals))}: "
+                "flylib's labels are one fly's; export to a new folder and merge by hand"
+            )
+        columns = [(scorers[0], individuals[0], b, c) for b, c in zip(parts, coords)]
+    else:
+        columns = [(scorers[0], b, c) for b, c in zip(parts, coords)]
+    rows = list(new.index)
+    if existing.index.nlevels == 1:  # an older project: one "labeled-data/<video>/img.png"
+        rows = ["/".join(r) for r in rows]
+    merged = existing.copy()
+    for column in columns:
+        if column not in merged.columns:
+            merged[column] = np.nan
+    values = new.to_numpy(dtype=np.float64)
+    added = updated = 0
+    fresh = [r for r in rows if r not in merged.index]
+    if fresh:
+        merged = pd.concat([merged, pd.DataFrame(np.nan, index=fresh, columns=merged.columns)])
+        merged.index.names = existing.index.names
+    position = {c: i for i, c in enumerate(merged.columns)}
+    where = [position[c] for c in columns]
+    for r, row in enumerate(rows):
+        i = merged.index.get_loc(row)
+        old = merged.iloc[i, where].to_numpy(dtype=np.float64)
+        value = np.where(np.isfinite(values[r]), values[r], np.where(cleared[r], np.nan, old))
+        if row in fresh:
+            added += 1
+        elif not np.array_equal(old, value, equal_nan=True):
+            updated += 1
+        merged.iloc[i, where] = value
+    return merged, MergeCount(added, updated, len(existing.index) - updated)
+
+
+def _write_collected(table, out: Path, scorer: str, cleared, report) -> list[Path]:
+    """Write (or merge into) ``out``'s ``CollectedData_<scorer>`` files; the files written."""
+    import pandas as pd
+
+    csv_path, h5_path = out / f"CollectedData_{scorer}.csv", out / f"CollectedData_{scorer}.h5"
+    existing = None
+    source = h5_path if h5_path.is_file() else csv_path if csv_path.is_file() else None
+    if source is not None:  # DeepLabCut trains from the .h5: it is the project's truth
+        try:
+            existing = (
+                pd.read_hdf(source, DLC_H5_KEY) if source == h5_path else read_collected_csv(source)
+            )
+            table, count = merge_collected(existing, table, cleared)
+        except (OSError, ValueError, KeyError, TypeError, ImportError, OutputError) as exc:
+            raise OutputError(
+                f"{source}: cannot merge flylib's labels into this file "
+                f"({' '.join(str(exc).split())}); nothing was changed; move it away or export "
+                "to another folder"
+            ) from None
+        if not count.changed and csv_path.is_file() and h5_path.is_file():
+            report(f"{source}: unchanged ({count.kept} frames kept)")
+            return []
+    else:
+        count = MergeCount(len(table.index), 0, 0)
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    backups = []
+    for path in (csv_path, h5_path):
+        if path.is_file():
+            backup = path.with_name(f"{path.name}.{stamp}.bak")
+            shutil.copy2(path, backup)
+            backups.append(backup.name)
+    with atomic_path(csv_path) as tmp:
+        table.to_csv(tmp)
+    with atomic_path(h5_path) as tmp:
+        table.to_hdf(tmp, key=DLC_H5_KEY, mode="w")
+    report(
+        f"{csv_path}: {count.added} frames added, {count.updated} updated, {count.kept} kept"
+        + (f" (backup: {', '.join(backups)})" if backups else "")
+    )
+    return [csv_path, h5_path]
+
+
 def export_training_data(
     results: str | Path,
     directory: str | Path,
@@ -101,6 +257,8 @@ def export_training_data(
     footage_of: Callable[[Path], Mapping[str, Sequence[Path]]] | None = None,
     recording: str | Path | None = None,
     scorer: str = "flylib",
+    protected: Mapping[str, str] | None = None,
+    report: Callable[[str], None] = log.info,
 ) -> list[Path]:
     """Write the corrected frames of a ``results.h5`` as DeepLabCut labeled data.
 
@@ -119,11 +277,16 @@ def export_training_data(
         The recording directory (its footage); default the one ``results.h5`` names.
     scorer
         DeepLabCut's scorer name (``CollectedData_<scorer>``; a DLC project's ``scorer``).
+    protected
+        ``file -> role`` of the inputs no written file may land on.
+    report
+        Called with one line per ``CollectedData`` file: frames added, updated, kept.
 
     Returns
     -------
     list of Path
-        The files written (per view: the PNGs, then the CSV and the ``.h5``).
+        The files written (per view: the new PNGs, then the CSV and the ``.h5`` unless
+        nothing in them changed).
 
     Raises
     ------
@@ -172,6 +335,8 @@ def export_training_data(
     labels = training_labels(
         result.pts2d[:, frames], given[:, frames], reprojected, touched[:, frames], sizes
     )
+    # a point a person marked invisible: its label is removed from the project too
+    invisible = touched[:, frames] & ~np.isfinite(result.pts2d[:, frames]).all(-1)
     points = [str(p) for p in result.skeleton.point_names]
     digits = max(4, len(str(result.n_frames - 1)))
     written: list[Path] = []
@@ -186,6 +351,9 @@ def export_training_data(
         except (FootageError, OSError, ValueError, IndexError) as exc:
             raise FootageError(f"{files[0]}: cannot read the corrected frames ({exc})") from None
         for name, rgb in zip(images, pixels):
+            refuse_overwrite(out / name, dict(protected or {}), "the training images", force=True)
+            if (out / name).exists():  # the project's own frame: kept
+                continue
             with atomic_path(out / name) as tmp:
                 ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
                 if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
@@ -193,12 +361,10 @@ def export_training_data(
                 tmp.write_bytes(data.tobytes())
             written.append(out / name)
         table = _dlc_frame(labels[v], folder, images, points, scorer)
-        csv_path, h5_path = out / f"CollectedData_{scorer}.csv", out / f"CollectedData_{scorer}.h5"
-        with atomic_path(csv_path) as tmp:
-            table.to_csv(tmp)
-        with atomic_path(h5_path) as tmp:
-            table.to_hdf(tmp, key=DLC_H5_KEY, mode="w")
-        written += [csv_path, h5_path]
+        for name in (f"CollectedData_{scorer}.csv", f"CollectedData_{scorer}.h5"):
+            refuse_overwrite(out / name, dict(protected or {}), "the training labels", force=True)
+        cleared = np.repeat(invisible[v], 2, axis=-1)  # (F, P * 2): x and y of each point
+        written += _write_collected(table, out, scorer, cleared, report)
     log.info(
         "training data: %d corrected frames x %d views in %s/labeled-data",
         len(frames),

@@ -16,6 +16,7 @@ from pathlib import Path
 from ..config.sources import config_data, source_patterns, view_names, view_sources  # noqa: F401  (re-exported)
 from ..errors import FootageError, ImportFormatError
 from ..io import VIDEO_EXTS, open_reader
+from ..io.images import sequence_gap
 from ..recordings import footage_matches, natural_sorted, video_frame_count
 
 
@@ -34,11 +35,22 @@ def footage_files(
         without a pattern), in view order (a mapping or ``(view, glob)`` pairs).
     recording_dir
         The recording directory the globs are matched in.
+
+    Raises
+    ------
+    FootageError
+        A match that is no regular file, or an image sequence with a gap in its
+        numbering (:func:`flylib.io.images.sequence_gap`), named.
     """
-    return {
+    found = {
         view: natural_sorted(footage_matches(Path(recording_dir), glob)) if glob is not None else []
         for view, glob in dict(view_globs).items()
     }
+    for files in found.values():
+        gap = sequence_gap([f for f in files if f.suffix.lower() not in VIDEO_EXTS])
+        if gap is not None:
+            raise FootageError(gap)
+    return found
 
 
 def read_frame_size(path: Path) -> tuple[int, int]:

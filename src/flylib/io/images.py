@@ -20,6 +20,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import UInt8
 
 _DIGITS = re.compile(r"(\d+)")
+#: The frame number in an image's name: the last number of its stem (``img_007`` -> 7).
+_LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +50,52 @@ def natural_key(path: str | Path) -> tuple:
     """Sort key that orders embedded numbers by value (``img_2`` before ``img_10``)."""
     parts = _DIGITS.split(str(path))
     return tuple((0, int(p), p) if p.isdigit() else (1, 0, p.lower()) for p in parts)
+
+
+def _missing_name(template: Path, number: int) -> str:
+    """``template``'s name with its frame number replaced by ``number`` (same zero padding)."""
+    found = _LAST_NUMBER.search(template.stem)
+    digits = found.group(1)
+    text = (
+        str(number).zfill(len(digits))
+        if digits.startswith("0") and len(digits) > 1
+        else str(number)
+    )
+    return f"{template.stem[: found.start()]}{text}{template.stem[found.end() :]}{template.suffix}"
+
+
+def sequence_gap(files: list[Path]) -> str | None:
+    """Why the frame numbers in an image sequence's file names do not run one by one,
+    or ``None`` when they do (or some name holds no number: then the order is the frame).
+
+    The number in each image's name is its frame (the last number of its stem), so a
+    missing image is a missing frame, never a shift of every later frame by one.
+    """
+    files = [Path(f) for f in files]
+    found = [_LAST_NUMBER.search(f.stem) for f in files]
+    if len(files) < 2 or any(m is None for m in found):
+        return None
+    by_number: dict[int, Path] = {}
+    for path, match in zip(files, found):
+        number = int(match.group(1))
+        if number in by_number:
+            return (
+                f"{path.parent}: images {by_number[number].name} and {path.name} both number "
+                f"frame {number}; keep one image per frame"
+            )
+        by_number[number] = path
+    numbers = sorted(by_number)
+    missing = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
+    if not missing:
+        return None
+    names = [_missing_name(by_number[max(n for n in numbers if n < m)], m) for m in missing[:5]]
+    more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+    return (
+        f"{files[0].parent}: the image sequence {by_number[numbers[0]].name} .. "
+        f"{by_number[numbers[-1]].name} lacks {len(missing)} frame(s): {', '.join(names)}{more} "
+        "(the number in each image's name is its frame); restore the missing images, or "
+        "make the source's filename pattern select the frames before the gap"
+    )
 
 
 def list_image_files(pattern: str | Path) -> list[Path]:
@@ -85,6 +133,9 @@ def _default_workers() -> int:
 class ImageSequenceReader(FrameReader):
     """An ordered image sequence, one frame per file, decoded by OpenCV.
 
+    The number in each file's name is its frame: a sequence whose numbers skip one
+    (or repeat one) is refused (:func:`sequence_gap`), never read shifted.
+
     Gray images are broadcast to three channels and alpha is dropped, so frames are
     always ``(H, W, 3)`` uint8 RGB. Blocks are decoded on a pool of ``workers``
     threads (OpenCV releases the GIL while decoding). Image sequences carry no
@@ -112,6 +163,9 @@ class ImageSequenceReader(FrameReader):
             raise FootageError(
                 "ImageSequenceReader got an empty file list; check the footage pattern"
             )
+        gap = sequence_gap(self.files)
+        if gap is not None:
+            raise FootageError(gap)
         if on_corrupt not in ON_CORRUPT:
             raise ValueError(f"on_corrupt must be one of {ON_CORRUPT}, got {on_corrupt!r}")
         self.workers = min(int(workers), usable_cpus()) if workers else _default_workers()

@@ -32,6 +32,7 @@ __all__ = [
     "Pose2dInputs",
     "Pose2dRuntime",
     "compute_pose2d",
+    "import_inputs",
     "import_target",
     "run_pose2d",
 ]
@@ -185,6 +186,34 @@ class Pose2dInputs(StageInputs):
 def import_target(config: Config) -> ImportTarget:
     """What imported 2D is placed on under ``config`` (:meth:`Pose2dInputs.import_target`)."""
     return Pose2dInputs.from_config(config).import_target()
+
+
+def import_inputs(
+    target: ImportTarget, spec: Mapping | None, recording_dir: str | Path
+) -> list[Path]:
+    """The files a recording's imported 2D is read from (none without an import spec):
+    the pose2d rule's inputs besides the footage, so that editing one re-runs pose2d.
+
+    Parameters
+    ----------
+    target
+        What the 2D is placed on (:func:`import_target`).
+    spec
+        The recording's import spec (``None``: the detector runs).
+    recording_dir
+        The recording directory the spec's ``files`` are relative to.
+
+    Raises
+    ------
+    ImportFormatError
+        A spec or a ``files`` pattern that finds no file, or several, for a view.
+    """
+    if not spec:
+        return []
+    from ..interop.importer import import_files, import_spec
+
+    files = import_files(target, import_spec(spec), recording_dir)
+    return sorted({path for path in files.values() if path is not None})
 
 
 # Imported 2D may stray a little past the frame (a detector's edge peaks, sub-pixel

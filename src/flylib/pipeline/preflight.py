@@ -5,14 +5,19 @@ what needs the whole config or the planned recordings, and would otherwise fail
 minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
 ``shared`` references, each recording's 2D-import spec and the files it names,
 the detection plan and its weights (only where the detector runs), the output videos,
-the calibration format, and footage for recordings the detector must read. Every
+the calibration format, footage for recordings the detector must read, and that no
+planned output lands on an input or a file flylib did not write
+(:mod:`flylib.pipeline.user_files`). Every
 problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
 user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 """
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from ..errors import FlylibError
@@ -91,7 +96,110 @@ def preflight_problems(
             config.videos  # noqa: B018 -- parsing is the check
         except FlylibError as exc:
             problems.append(_problem(exc))
+    problems += path_problems(config, recordings)
     return list(dict.fromkeys(problems))
+
+
+# A Snakemake wildcard, as its file patterns read one: "{name}" or "{name,constraint}".
+# Snakemake has no escape for braces in a file path (input functions' paths are
+# formatted too), so a path holding one cannot be an input or output of a rule.
+_WILDCARD = re.compile(r"\{\s*[.\w]+\s*[,}]")
+
+
+def path_problems(config: Any, recordings: Iterable[Any]) -> list[str]:
+    """Paths of the planned run that no job could use, one line each.
+
+    A recording's folder, footage, calibration or output folder holding a brace group
+    that Snakemake reads as a wildcard (``fly{1}``); an output folder whose name (or
+    one of its parents' names) is longer than its filesystem allows; an output folder
+    that cannot be created or written (a read-only filesystem, no permission).
+
+    Parameters
+    ----------
+    config
+        The validated :class:`flylib.config.Config`.
+    recordings
+        The planned :class:`flylib.recordings.Recording` objects.
+
+    Returns
+    -------
+    list of str
+        One ``"<key>: <path>: <what is wrong>; <the fix>"`` line per problem.
+    """
+    from .planning import calibration_inputs
+
+    problems: list[str] = []
+    for rec in recordings:
+        where = rec.extra.get("where", "recordings")
+        try:
+            calibration = calibration_inputs(config, rec.path)
+        except FlylibError:
+            calibration = []  # the rig's own check names it
+        named = [
+            (where, rec.path, "the recording folder"),
+            *((where, f, "a footage file") for f in rec.footage),
+            *(("calibration", f, "the calibration file") for f in calibration),
+            ("outdir", rec.outdir, "the output folder"),
+        ]
+        for key, path, what in named:
+            match = _WILDCARD.search(str(path))
+            if match:
+                problems.append(
+                    f"{key}: {path}: {what}'s path holds {match.group(0).rstrip(',')}"
+                    f"{'' if match.group(0).endswith('}') else '...}'}, which Snakemake reads "
+                    "as a wildcard in a file path (there is no escape for it); rename it "
+                    "without braces, e.g. ( ) or _"
+                )
+                break  # the folder's name, not each file under it
+        problem = outdir_problem(rec.outdir)
+        if problem:
+            problems.append(f"outdir: {problem}")
+    return problems
+
+
+def outdir_problem(outdir: str | Path) -> str | None:
+    """Why ``outdir`` cannot hold a run's outputs, or ``None`` when it can.
+
+    Each name of the path must fit its filesystem's limit, and the folder (or, when it
+    does not exist yet, its nearest existing parent, where it will be created) must be a
+    writable folder.
+
+    Parameters
+    ----------
+    outdir
+        A recording's output folder.
+
+    Returns
+    -------
+    str or None
+        ``"<outdir>: <what is wrong>; <the fix>"``.
+    """
+    outdir = Path(os.path.abspath(outdir))
+    existing = outdir
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    try:
+        limit = os.pathconf(existing if existing.is_dir() else existing.parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    for name in outdir.parts[1:]:
+        if len(os.fsencode(name)) > limit:
+            return (
+                f"{outdir}: the folder name {name[:40]}... is {len(os.fsencode(name))} bytes, "
+                f"longer than its filesystem allows ({limit}); choose a shorter outdir "
+                "(e.g. outdir: results/{id})"
+            )
+    if not existing.is_dir():
+        return f"{outdir}: {existing} is a file, not a folder; choose another outdir"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        try:
+            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
+        except OSError:
+            read_only = False
+        why = "is on a read-only filesystem" if read_only else "is not writable by you"
+        action = "write into" if existing == outdir else "create the output folder in"
+        return f"{outdir}: cannot {action} {existing}: it {why}; set outdir to a writable folder"
+    return None
 
 
 def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
@@ -135,6 +243,10 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         problems = preflight_problems(
             config, recordings, config.stage_flags(), check_weights=check_frames
         )
+        if check_frames and not problems:  # the main process, every path usable
+            from .user_files import output_problems
+
+            problems += output_problems(config, recordings, layers.texts)
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
@@ -171,6 +283,13 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
             if where:
                 text = text.replace("pose2d.import", where)
             problems.append(text)
+        if not rec.demo and not rec.sources:
+            # planning kept it without footage; what it has (frame sizes and counts)
+            # must still be footage: a pipe, a device, a gap in an image sequence
+            try:
+                (target or import_target(config)).footage(rec.path)
+            except FlylibError as exc:
+                problems.append(f"{rec.extra.get('where', 'recordings')}: {_problem(exc)}")
     if not detector:
         return problems
 

@@ -227,6 +227,7 @@ def run_triangulation(
             corrections_path,
             pts2d.shape[:3],
             [pose2d.image_sizes.get(name) for name in pose2d.view_names],
+            cameras,
         )
         if corrections_path
         else None

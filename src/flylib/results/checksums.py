@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 
 from ..errors import ResultsError, one_line
+from .guard import guard_file
 
 # Word weights n, n-1, ..., 1 (mod 65535), grown on demand: the tail of this array
 # is the weight vector of any shorter buffer. Integer dot products (no BLAS threads
@@ -83,6 +84,14 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
     try:
         f = h5py.File(path, "r")
     except OSError as err:
+        return [str(damaged(path, "its HDF5 structure", err))]
+    try:  # nothing is read from a file that reaches beyond itself
+        guard_file(f, path, "pass the results.h5 a run wrote, or re-run the workflow")
+    except ResultsError as refused:
+        f.close()
+        return [str(refused)]
+    except (OSError, KeyError, RuntimeError, ValueError) as err:
+        f.close()
         return [str(damaged(path, "its HDF5 structure", err))]
 
     def visit(group: h5py.Group) -> None:

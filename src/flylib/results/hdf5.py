@@ -2,7 +2,10 @@
 
 :func:`open_hdf5` is the one place an HDF5 file is opened for reading with one-line
 errors, flylib's own files (:class:`~flylib.errors.ResultsError`) and other tools'
-(:mod:`flylib.interop._h5`, :class:`~flylib.errors.ImportFormatError`) alike.
+(:mod:`flylib.interop._h5`, :class:`~flylib.errors.ImportFormatError`) alike; a file
+of flylib's is checked whole (:func:`~flylib.results.guard.guard_file`: no link out of
+it, no data stored elsewhere, no dataset declaring more than it can hold) before
+anything is read from it.
 :func:`open_checked` opens a results or stage file and checks its format version, and
 turns damage met while reading it into one line. Every file holds ``attrs["meta"]``
 (JSON: ``deeperfly_format_version``, ``flylib_version``, ``created_utc``, ``stage``);
@@ -22,6 +25,7 @@ import h5py
 from ..errors import FlylibError, ResultsError, one_line
 from ..paths import out_of_space
 from .checksums import damaged
+from .guard import guard_file
 
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
@@ -47,6 +51,7 @@ def open_hdf5(
     what: str = "HDF5 file",
     *,
     error: type[FlylibError] = ResultsError,
+    guard: bool = True,
 ) -> h5py.File:
     """Open ``path`` read-only; a missing or unreadable file is one ``error`` naming it.
 
@@ -61,14 +66,30 @@ def open_hdf5(
     error
         The error class to raise: :class:`~flylib.errors.ResultsError` for flylib's
         files, :class:`~flylib.errors.ImportFormatError` for another tool's.
+    guard
+        Check the whole file before returning it (:func:`~flylib.results.guard.guard_file`);
+        ``False`` only for another tool's file, whose readers check each member they
+        read (:mod:`flylib.interop._h5`).
     """
     path = Path(path)
     if not path.is_file():
         raise error(f"{path}: no such {what}; {fix}")
     try:
-        return h5py.File(path, "r")
+        f = h5py.File(path, "r")
     except H5_READ_ERRORS as err:
         raise error(f"{path}: not a readable {what} ({one_line(err)}); {fix}") from None
+    if guard:
+        try:
+            guard_file(f, path, fix, error=error)
+        except FlylibError:
+            f.close()
+            raise
+        except H5_READ_ERRORS as err:  # a link table or object header HDF5 cannot load
+            f.close()
+            if error is ResultsError:
+                raise damaged(path, "an HDF5 object", err) from None
+            raise error(f"{path}: not a readable {what} ({one_line(err)}); {fix}") from None
+    return f
 
 
 @contextmanager

@@ -1,0 +1,122 @@
+"""Planning a batch scales with the batch (issue 37, "Batches of 10,000").
+
+A ``snakemake -n`` over 10,000 recordings never finished: the outdir wildcard
+constraint listed every recording's output folder, so each rule's output pattern
+(which Snakemake scans for every job it makes and matches against every file) grew
+with the batch, and each job recomputed its rule's runtime options from the config.
+These tests check the structure, not the clock: the patterns are the same for 2 and
+for 12 recordings, per-rule values are computed once per rule, and a file in a folder
+that no recording writes to is still read as it is (what the constraint was for).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from workflow_run import REPO
+
+pytestmark = pytest.mark.slow
+
+
+def _batch(root: Path, count: int) -> dict:
+    """A config over ``count`` recordings: one demo recording hard-linked ``count``
+    times, 2D imported per recording from its DeepLabCut CSVs."""
+    from flylib.config import Config
+    from flylib.pipeline.demo import demo_files, demo_import_spec, make_demo
+
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    cfg = Config.from_dict(config)
+    template = root / "template"
+    if not template.is_dir():
+        make_demo(cfg, template, frames=2)
+    names = demo_files(cfg)
+    entries = []
+    for i in range(count):
+        rec = root / f"rec{i:02d}"
+        if not rec.is_dir():
+            rec.mkdir()
+            for name in (*names["footage"], *names["dlc"]):
+                os.link(template / name, rec / name)
+        entries.append({"path": str(rec), "import": demo_import_spec(cfg)})
+    return {**config, "recordings": entries}
+
+
+@contextlib.contextmanager
+def _workflow(workdir: Path, config: dict):
+    """The parsed workflow (Snakemake's API, in this process) over ``config``."""
+    from snakemake.api import SnakemakeApi
+    from snakemake.settings.types import ConfigSettings, OutputSettings, ResourceSettings
+
+    (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    with SnakemakeApi(OutputSettings(quiet={"all"})) as api:
+        yield api.workflow(
+            resource_settings=ResourceSettings(cores=1),
+            config_settings=ConfigSettings(
+                configfiles=[workdir / "config.yaml"], replace_workflow_config=True
+            ),
+            snakefile=REPO / "Snakefile",
+            workdir=workdir,
+        )
+
+
+def _patterns(workdir: Path, config: dict) -> dict[str, list[str]]:
+    """Every rule's output, log and benchmark patterns as Snakemake holds them."""
+    with _workflow(workdir, config) as workflow:
+        return {
+            rule.name: [str(f) for f in (*rule.output, *rule.log, rule.benchmark) if f]
+            for rule in workflow._workflow.rules
+        }
+
+
+def test_output_patterns_do_not_grow_with_the_batch(tmp_path):
+    (tmp_path / "two").mkdir()
+    (tmp_path / "twelve").mkdir()
+    two = _patterns(tmp_path / "two", _batch(tmp_path, 2))
+    twelve = _patterns(tmp_path / "twelve", _batch(tmp_path, 12))
+    assert two == twelve
+    assert not any(str(tmp_path) in p for patterns in twelve.values() for p in patterns)
+
+
+def test_runtime_options_are_computed_once_per_rule_not_per_job(tmp_path, monkeypatch):
+    from snakemake.settings.types import DAGSettings
+
+    import flylib.pipeline.inputs as inputs
+
+    calls: list[str] = []
+    original = inputs.stage_runtime
+
+    def counted(config, stage):
+        calls.append(stage)
+        return original(config, stage)
+
+    monkeypatch.setattr(inputs, "stage_runtime", counted)
+    with _workflow(tmp_path, _batch(tmp_path, 6)) as workflow:
+        workflow.dag(DAGSettings()).execute_workflow(executor="dryrun")
+        rules = {rule.name for rule in workflow._workflow.rules}
+    assert {"pose2d", "assemble"} <= set(calls)  # the 42 jobs did ask for them
+    assert len(calls) == len(set(calls)) <= len(rules)
+
+
+def test_calibration_file_in_another_runs_output_folder_is_read_not_made(tmp_path):
+    """A rig file named like assemble's output, in a folder no recording of this run
+    writes to (another run's outputs): an input of this run, never a job's output."""
+    from flylib.config import Config
+    from flylib.interop.anipose import write_anipose_toml
+    from tests.workflow.test_workflow import planned
+
+    config = _batch(tmp_path, 2)
+    config["pipeline"]["do_visualization"] = False
+    rig_file = tmp_path / "reference" / "flylib_outputs" / "calibration.toml"
+    rig_file.parent.mkdir(parents=True)
+    cfg = Config.from_dict(config)
+    write_anipose_toml(cfg.camera_group({v: (480, 960) for v in cfg.view_names()}), rig_file)
+    config["calibration"] = {"file": str(rig_file), "format": "anipose"}
+    stages = ("pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble")
+    assert planned(tmp_path, config) == {
+        (stage, rec) for stage in (*stages, "kinematics") for rec in ("rec00", "rec01")
+    }
