@@ -371,8 +371,28 @@ def test_a_sidecar_stored_in_a_fifo_stops_the_triangulation_job_at_once(outdir, 
     assert not (tmp_path / "triangulation.h5").exists()
 
 
-def test_a_sidecar_declaring_terabytes_is_one_line_in_job_and_gui(outdir, tmp_path):
+def _refused_by_job_and_gui(outdir, tmp_path, sidecar, job_message, gui_message):
+    """The triangulation job refuses ``sidecar`` (writing nothing) and so does the review
+    GUI opening it as the recording's corrections.h5, each with its one line."""
     from flylib.gui import ReviewSession
+
+    with pytest.raises(ResultsError, match=job_message):
+        run_triangulation(
+            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
+            outdir / "stages" / "pose2d.h5",
+            tmp_path / "t.h5",
+            corrections_path=sidecar,
+        )
+    assert not (tmp_path / "t.h5").exists()
+    (outdir / "corrections.h5").write_bytes(sidecar.read_bytes())
+    try:
+        with pytest.raises(ResultsError, match=gui_message):
+            ReviewSession(outdir)
+    finally:
+        (outdir / "corrections.h5").unlink()
+
+
+def test_a_sidecar_declaring_terabytes_is_one_line_in_job_and_gui(outdir, tmp_path):
 
     sidecar = write_seed_sidecar(tmp_path / "corrections.h5", (7, FRAMES, 38))
 
@@ -387,28 +407,18 @@ def test_a_sidecar_declaring_terabytes_is_one_line_in_job_and_gui(outdir, tmp_pa
         rf"^{sidecar}: 'pose2d_corrections/points' declares \(7, 1000000000, 38, 2\) of float64 "
         r"\(3\.87 TiB\), more than the [0-9.]+ MiB a file of its size can hold"
     )
-    with pytest.raises(ResultsError, match=message):
-        run_triangulation(
-            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
-            outdir / "stages" / "pose2d.h5",
-            tmp_path / "t.h5",
-            corrections_path=sidecar,
-        )
-    assert not (tmp_path / "t.h5").exists()
-    (outdir / "corrections.h5").write_bytes(sidecar.read_bytes())
-    try:
-        with pytest.raises(
-            ResultsError, match=message.replace(rf"^{sidecar}", f"^{outdir}/corrections.h5")
-        ):
-            ReviewSession(outdir)
-    finally:
-        (outdir / "corrections.h5").unlink()
+    _refused_by_job_and_gui(
+        outdir,
+        tmp_path,
+        sidecar,
+        message,
+        message.replace(rf"^{sidecar}", f"^{outdir}/corrections.h5"),
+    )
 
 
 def test_a_3d_edit_far_outside_the_rig_is_refused_by_job_and_gui(outdir, tmp_path):
     """A 3D edit of 1e300 is finite, but no place on a fly the cameras see: it would
     flow into kinematics and summaries (and overflow there)."""
-    from flylib.gui import ReviewSession
 
     sidecar = write_seed_sidecar(
         tmp_path / "corrections.h5", (7, FRAMES, 38), edits3d=[(1, 2, 1e300, 0.0, 0.0)]
@@ -418,20 +428,7 @@ def test_a_3d_edit_far_outside_the_rig_is_refused_by_job_and_gui(outdir, tmp_pat
         r"more than 1000 x the rig's size \([0-9.]+, the largest distance between two camera "
         r"centres\); nothing was applied"
     )
-    with pytest.raises(ResultsError, match=message):
-        run_triangulation(
-            run_inputs(Config.from_file(outdir / "config.yaml"), "triangulation"),
-            outdir / "stages" / "pose2d.h5",
-            tmp_path / "t.h5",
-            corrections_path=sidecar,
-        )
-    assert not (tmp_path / "t.h5").exists()
-    (outdir / "corrections.h5").write_bytes(sidecar.read_bytes())
-    try:
-        with pytest.raises(ResultsError, match=message):
-            ReviewSession(outdir)
-    finally:
-        (outdir / "corrections.h5").unlink()
+    _refused_by_job_and_gui(outdir, tmp_path, sidecar, message, message)
     # the bound: 1000 rig sizes from the cameras' mean centre; an edit inside it loads
     cameras = PoseResult.load(outdir / "results.h5").cameras
     centres = cameras.positions
