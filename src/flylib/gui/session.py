@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..corrections import CORRECTIONS_FILE, Corrections, corrections_path
-from ..errors import FlylibError, OutputError, ResultsError
+from ..errors import FlylibError, FootageError, OutputError, ResultsError
 from ..pipeline.triangulation import TriangulationInputs, compute_triangulation
 from .frames import FrameSource
 from .journal import EditJournal, SidecarLock, read_journal
@@ -102,6 +102,15 @@ class ReviewSession:
     footage
         ``view -> files``; default: found in the recording directory named in the
         result's meta, through the config's ``sources``.
+    footage_dir
+        Where the footage is (``flylib gui --footage-dir``): used instead of the
+        recording directory the result names.
+
+    Attributes
+    ----------
+    footage_missing
+        What the page's banner says when a view has no footage (the directories
+        looked in and the fix), else ``""``.
     """
 
     def __init__(
@@ -110,11 +119,17 @@ class ReviewSession:
         *,
         config: Any = None,
         footage: dict[str, list[Path]] | None = None,
+        footage_dir: str | Path | None = None,
         cache_frames: int = 128,
     ):
         from ..config import Config
         from ..results import PoseResult, open_checked
 
+        if footage_dir is not None and not Path(footage_dir).expanduser().is_dir():
+            raise FootageError(
+                f"--footage-dir {footage_dir}: no such directory; pass the folder holding "
+                "the recording's videos"
+            )
         self.results_path = resolve_results(results)
         self.outdir = self.results_path.parent
         if config is None:
@@ -136,6 +151,7 @@ class ReviewSession:
                 np.asarray(f["pose2d/conf"][()], dtype=np.float64) if "pose2d/conf" in f else None
             )
         self.recording_dir = result.meta.get("recording")
+        self.recording_abspath = result.meta.get("recording_abspath")
         v, t, p = self.base2d.shape[:3]
         self.n_views, self.n_frames, self.n_points = v, t, p
         self.corrections_path = self._sidecar_path()
@@ -177,8 +193,10 @@ class ReviewSession:
         self._replay_journal()
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
             self._resolve(int(tt), int(pp))
+        self.footage_missing = ""
+        self.footage_dir: Path | None = None
         if footage is None:
-            footage = self._find_footage()
+            footage = self._find_footage(footage_dir)
         self.frames = {
             name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
             for name in self.view_names
@@ -212,27 +230,64 @@ class ReviewSession:
             return self.outdir / CORRECTIONS_FILE
         return path
 
-    def _find_footage(self) -> dict[str, list[Path]]:
+    def footage_candidates(self, footage_dir: str | Path | None = None) -> list[Path]:
+        """Where the footage may be, in the order tried: ``footage_dir`` alone when
+        given; else the recording directory as the result names it (a relative one
+        from the current directory), the absolute path recorded beside it when the
+        result was written (``recording_abspath``), and a relative one from the
+        output directory and the directories above it (the run's working directory
+        is usually one of them)."""
+        if footage_dir is not None:
+            return [Path(footage_dir).expanduser()]
+        named = Path(self.recording_dir).expanduser() if self.recording_dir else None
+        candidates = [named] if named is not None else []
+        if self.recording_abspath:
+            candidates.append(Path(self.recording_abspath))
+        if named is not None and not named.is_absolute():
+            candidates += [base / named for base in (self.outdir, *self.outdir.parents[:4])]
+        unique = []
+        for path in candidates:
+            if path not in unique:
+                unique.append(path)
+        return unique
+
+    def _find_footage(self, footage_dir: str | Path | None = None) -> dict[str, list[Path]]:
+        """Each view's footage from the first candidate directory holding any; what is
+        missing is said in :attr:`footage_missing` (and logged)."""
         from ..config.sources import footage_globs
         from ..interop.views import footage_files
 
-        if not self.recording_dir or not Path(self.recording_dir).is_dir():
-            log.warning(
-                "%s: recording directory %r not found; views show no footage",
-                self.results_path,
-                self.recording_dir,
+        tried = self.footage_candidates(footage_dir)
+        found: dict[str, list[Path]] = {}
+        problem = ""
+        for directory in tried:
+            if not directory.is_dir():
+                continue
+            try:
+                found = footage_files(footage_globs(self.config), directory)
+            except (FlylibError, OSError) as exc:  # footage is a nicety: points reviewable
+                problem = f"{directory}: {exc}"
+                continue
+            if any(found.values()):
+                self.footage_dir = directory
+                break
+        missing = [name for name in self.view_names if not found.get(name)]
+        if missing:
+            where = (
+                f"--footage-dir {tried[0]}"
+                if footage_dir is not None
+                else f"the recording directory {self.recording_dir!r} named in "
+                f"{self.results_path.name} (looked in {', '.join(map(str, tried)) or 'nowhere'})"
             )
-            return {}
-        try:
-            return footage_files(footage_globs(self.config), Path(self.recording_dir))
-        except (
-            FlylibError,
-            OSError,
-        ) as exc:  # footage is a nicety: points can be reviewed without it
-            log.warning(
-                "footage of %s not found (%s); views show no footage", self.recording_dir, exc
+            detail = f" ({problem})" if problem and not any(found.values()) else ""
+            views = "every view" if len(missing) == len(self.view_names) else ", ".join(missing)
+            self.footage_missing = (
+                f"no footage for {views}: not found in {where}{detail}; the points are "
+                "shown without it. Start `flylib gui` with --footage-dir DIR (the folder "
+                "holding the videos)"
             )
-            return {}
+            log.warning("flylib gui: %s", self.footage_missing)
+        return found
 
     # -- reading -----------------------------------------------------------------------
 
@@ -253,6 +308,7 @@ class ReviewSession:
             "revision": self.revision,
             "dirty": self.dirty,
             "notice": self.notice,
+            "footage_missing": self.footage_missing,
             "views": [
                 {
                     "name": n,

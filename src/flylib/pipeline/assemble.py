@@ -127,6 +127,9 @@ def run_assemble(
     rig = inputs.rig.camera_group(sizes, recording_dir)
     meta = {
         "recording": str(recording_dir) if recording_dir else None,
+        # a relative recording path is relative to where the run was; the GUI finds the
+        # footage from anywhere through the absolute one
+        "recording_abspath": str(Path(recording_dir).resolve()) if recording_dir else None,
         **_provenance(inputs, **stage_files),
     }
     results_path = outdir / "results.h5"

@@ -5,7 +5,7 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
 import { applyLayout } from "./layout.js";
 import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
-import { neighbourItem, renderItems } from "./suspects.js";
+import { itemPlan, neighbourItem, renderItems } from "./suspects.js";
 import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
@@ -26,6 +26,10 @@ async function start() {
   state.revision = meta.revision;
   $("#recording").textContent = meta.results;
   if (meta.notice) showAlert(meta.notice, "info");
+  if (meta.footage_missing) {
+    $("#footage-banner").textContent = meta.footage_missing;
+    $("#footage-banner").hidden = false;
+  }
   const slider = $("#slider");
   slider.max = meta.frames - 1;
   slider.addEventListener("input", () => goto(Number(slider.value)));
@@ -62,7 +66,9 @@ async function start() {
   buildLegend($("#legend"), meta);
   new ResizeObserver(() => { relayout(); redrawAll(); }).observe(container);
   wireControls();
-  relayout();
+  let panel = null;
+  try { panel = localStorage.getItem("flylib.panel"); } catch { /* private mode */ }
+  setPanel(panel ? panel === "open" : window.innerWidth >= 1500);
   await loadSuspects();
   await goto(initialFrame(new URLSearchParams(location.search).get("frame")));
 }
@@ -200,7 +206,7 @@ async function loadSuspects() {
 
 function renderSuspectTable() {
   renderItems($("#suspects tbody"), state.items, state.sort, state.frame,
-    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point }));
+    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames }));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
     th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
@@ -208,11 +214,13 @@ function renderSuspectTable() {
 }
 
 async function jumpToSuspect(s) {
+  // the item (a point's consecutive suspect frames) stays the one worked on after its
+  // frames are corrected and it leaves the list (a = apply to it)
+  if (s.frames) state.item = { point: s.point, frames: [...s.frames] };
   await goto(s.frame);
   const view = bestViewFor(s.point);
   state.selected = { view: view.name, point: s.point };
-  if (state.layout === "focus") setFocus(view.index);
-  redrawAll();
+  focusOn(view, s.point);
 }
 
 function bestViewFor(point) {
@@ -231,7 +239,7 @@ function stepSuspect(direction) {
   if (!state.items.length) return status("no suspects");
   const point = state.selected ? state.selected.point : null;
   const item = neighbourItem(state.items, state.sort, state.frame, point, direction);
-  return jumpToSuspect({ frame: item.peak_frame, point: item.point });
+  return jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames });
 }
 
 // -- editing ---------------------------------------------------------------------------
@@ -304,6 +312,69 @@ async function toggleFixed() {
   const fixed = !(v.fixed && v.fixed[s.point]);
   await sendEdit({ op: "move", view: s.view, point: s.point, xy: v.points2d[s.point], fixed });
   await refresh();
+}
+
+// -- item-level correction -------------------------------------------------------------
+
+async function snapToGhost() {
+  // c: the selected point onto its 3D ghost in its view (an Edit 2D move, undoable)
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const view = state.views.find((v) => v.name === s.view);
+  const v = state.data.views[view.index];
+  const ghost = v.reprojected[s.point];
+  if (!ghost) return status(`${state.meta.points[s.point]} has no 3D at frame ${state.frame}: nothing to snap to`);
+  const xy = [Math.min(view.width, Math.max(0, ghost[0])), Math.min(view.height, Math.max(0, ghost[1]))];
+  if (await sendEdit({ op: "move", view: s.view, point: s.point, xy, fixed: Boolean(v.fixed && v.fixed[s.point]) })) {
+    await refresh();
+    status(`${state.meta.points[s.point]} in ${s.view} placed on its 3D ghost at frame ${state.frame}`);
+  }
+}
+
+function currentItem(point) {
+  // the item worked on (kept from n / p / a click), else the listed one at this frame
+  if (state.item && state.item.point === point && state.item.frames.includes(state.frame)) return state.item;
+  const listed = state.items.find((it) => it.point === point && it.frames.includes(state.frame));
+  return listed ? { point, frames: [...listed.frames] } : null;
+}
+
+async function applyToItem() {
+  // a: the selected point's edits in its view over the item's other frames, each frame
+  // one journaled move; one undo takes them all back
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const item = currentItem(s.point);
+  if (!item || item.frames.length < 2) return status("a: the selected point is in no suspect item of several frames here (pick one in the list, or n)");
+  const view = state.views.find((v) => v.name === s.view);
+  const data = {};
+  for (const f of item.frames) data[f] = f === state.frame ? state.data : await getJSON(`/api/points/${f}`);
+  const edited = {};
+  for (const f of item.frames) {
+    const v = data[f].views[view.index];
+    if (v.edited[s.point] && v.points2d[s.point]) edited[f] = v.points2d[s.point];
+  }
+  const plan = itemPlan(item.frames, edited);
+  const frames = Object.keys(plan).map(Number);
+  if (!Object.keys(edited).length) return status(`a: correct ${state.meta.points[s.point]} in ${s.view} in at least one frame of the item first (drag it, or c: onto its 3D)`);
+  if (!frames.length) return status("a: every frame of the item is already edited");
+  const undo = [], redo = [];
+  const results = [];
+  for (const f of frames) {
+    const v = data[f].views[view.index];
+    const message = { op: "move", frame: f, view: s.view, point: s.point, xy: plan[f].map((c) => Math.round(c * 100) / 100),
+      fixed: Boolean(v.fixed && v.fixed[s.point]) };
+    const reply = await submit(message);
+    if (!reply) break;
+    undo.push(...restoreMessages(data[f], [s.point]));
+    redo.push({ ...message, durable: true });
+    results.push({ frame: f, error: reply.views[view.index].error[s.point] });
+  }
+  if (redo.length) state.history.record({ frame: state.frame, undo, redo });
+  await refresh();
+  const shown = results.map((r) => `${r.frame}: ${r.error === null ? "dropped" : `${r.error.toFixed(1)} px`}`).join(", ");
+  state.applied = { frames: results.map((r) => r.frame), errors: results.map((r) => r.error) };
+  status(`applied to frames ${item.frames[0]}\u2013${item.frames[item.frames.length - 1]} of ${state.meta.points[s.point]} in ${s.view} ` +
+    `(from edited ${Object.keys(edited).join(", ")}); reprojection error now ${shown}: step through them (\u2190 \u2192), Ctrl+Z undoes all`);
 }
 
 async function refresh() {
@@ -528,6 +599,49 @@ function setLayout(layout) {
   setFocus(state.focus);
 }
 
+const FOCUS_ZOOM = 2.5;  // a focused point's view: the frame magnified around the point
+
+function focusOn(view, point) {
+  // the selected point's view large, zoomed to the point (g, n / p, a click in the list)
+  state.layout = "focus";
+  $("#views").className = "focus";
+  setFocus(view.index);
+  requestAnimationFrame(() => {
+    resize(view);
+    const v = state.data && state.data.views[view.index];
+    const xy = v && (v.points2d[point] || v.reprojected[point]);
+    if (xy) zoomTo(view, xy, FOCUS_ZOOM);
+    redrawAll();
+  });
+}
+
+function zoomTo(view, xy, scale) {
+  // zoom and pan `view` so that image point xy lies at the canvas centre
+  const canvas = view.canvas;
+  const fit = Math.min(canvas.width / view.width, canvas.height / view.height);
+  const z = state.zoom[view.name];
+  z.scale = scale;
+  z.x = canvas.width / 2 - xy[0] * fit * scale - (canvas.width - view.width * fit) / 2 * scale;
+  z.y = canvas.height / 2 - xy[1] * fit * scale - (canvas.height - view.height * fit) / 2 * scale;
+}
+
+function toggleFocus() {
+  // g: the selected point's view, zoomed to it (else view 1); again: back to the grid
+  if (state.layout === "focus") return setLayout("grid");
+  const s = state.selected;
+  const view = s ? state.views.find((v) => v.name === s.view) : state.views[0];
+  if (s) focusOn(view, s.point); else { state.focus = 0; setLayout("focus"); }
+}
+
+function setPanel(open) {
+  // the side panel (selection, suspects, legend, display): hidden, the views take its room
+  document.body.classList.toggle("panel-closed", !open);
+  $("#panel").classList.toggle("active", open);
+  try { localStorage.setItem("flylib.panel", open ? "open" : "closed"); } catch { /* private mode */ }
+  relayout();
+  requestAnimationFrame(redrawAll);
+}
+
 // views, then the 3D view (index = number of views) in the focus layout
 
 function setFocus(index) {
@@ -548,7 +662,8 @@ function wireControls() {
     state.mode = state.offline ? "view" : input.value;
     state.editMode = state.mode !== "view";
   }));
-  $("#layout").addEventListener("click", () => setLayout(state.layout === "grid" ? "focus" : "grid"));
+  $("#layout").addEventListener("click", toggleFocus);
+  $("#panel").addEventListener("click", () => setPanel(document.body.classList.contains("panel-closed")));
   $("#invisible").addEventListener("click", markInvisible);
   $("#reset-point").addEventListener("click", () => resetPoint(false));
   $("#reset-view").addEventListener("click", resetView);
@@ -557,6 +672,8 @@ function wireControls() {
   $("#undo").addEventListener("click", undo);
   $("#redo").addEventListener("click", redo);
   $("#fixed").addEventListener("click", toggleFixed);
+  $("#snap").addEventListener("click", snapToGhost);
+  $("#apply-item").addEventListener("click", applyToItem);
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
     const text = $("#frame-input").value.trim();
@@ -599,12 +716,15 @@ function wireControls() {
     else if (key === "e") setMode("2d");
     else if (key === "d") setMode("3d");
     else if (key === "i") markInvisible();
+    else if (key === "c") snapToGhost();
+    else if (key === "a") applyToItem();
     else if (key === "f") toggleFixed();
     else if (key === "r") resetPoint(false);
     else if (key === "R") resetPoint(true);
     else if (key === "v") resetView();
     else if (key === "x") resetFrame();
-    else if (key === "g") setLayout(state.layout === "grid" ? "focus" : "grid");
+    else if (key === "g") toggleFocus();
+    else if (key === "b") setPanel(document.body.classList.contains("panel-closed"));
     else if (key === "s" || (key === "S" && event.ctrlKey)) save();
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
     else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
@@ -635,6 +755,14 @@ window.flylib = {
       return { name: view.name, fill: (view.width * fit * view.height * fit) / (rect.width * rect.height),
         left: rect.left, top: rect.top, width: rect.width, height: rect.height };
     });
+  },
+  focusFill() {
+    // the large view's frame (unzoomed) as a fraction of the window's area
+    const view = state.views[state.focus];
+    if (state.layout !== "focus" || !view) return 0;
+    const rect = view.canvas.getBoundingClientRect();
+    const fit = Math.min(rect.width / view.width, rect.height / view.height);
+    return (view.width * fit * view.height * fit) / (window.innerWidth * window.innerHeight);
   },
   tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {

@@ -69,3 +69,22 @@ export function neighbourItem(items, sort, frame, point, direction) {
   }
   return list[(here + direction + list.length) % list.length];
 }
+
+export function itemPlan(frames, edited) {
+  // the positions for an item's frames from its edited ones: between two edited frames
+  // interpolated linearly, before the first / after the last the nearest edited one's
+  const keys = frames.filter((f) => edited[f]);
+  const plan = {};
+  if (!keys.length) return plan;
+  for (const f of frames) {
+    if (edited[f]) continue;
+    const after = keys.find((k) => k > f), before = [...keys].reverse().find((k) => k < f);
+    if (before !== undefined && after !== undefined) {
+      const w = (f - before) / (after - before);
+      plan[f] = edited[before].map((c, i) => c + w * (edited[after][i] - c));
+    } else {
+      plan[f] = [...edited[before !== undefined ? before : after]];
+    }
+  }
+  return plan;
+}
