@@ -187,9 +187,9 @@ def serving(session):
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    srv = uvicorn.Server(
-        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
-    )
+    app = create_app(session)
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    app.state.stop = lambda: setattr(srv, "should_exit", True)
     thread = threading.Thread(target=srv.run, daemon=True)
     thread.start()
     deadline = time.time() + 30

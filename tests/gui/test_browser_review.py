@@ -219,3 +219,213 @@ def test_snap_to_ghost_and_apply_to_item_over_3_frames_then_undo(page_1280):
     ActionChains(driver).key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
     until(lambda: edited() == [True, False, False])
     np.testing.assert_allclose(session.corrections.points[v, first, point], placed[first])
+
+
+def test_reviewed_state_survives_a_restart_and_save_says_what_got_worse(outdir):
+    from selenium.webdriver.common.by import By
+
+    from flylib.corrections import Corrections
+    from flylib.gui import ReviewSession
+
+    session = ReviewSession(outdir)
+    total = len(session.review_items)
+    driver = browser((1280, 720))
+    try:
+        with serving(session) as url:
+            driver.get(url)
+            wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
+            progress = driver.find_element(By.ID, "progress")
+            assert progress.text == f"0 / {total} reviewed"
+            body = driver.find_element(By.TAG_NAME, "body")
+            view, point = _pick_item(driver, body)
+            body.send_keys("k")  # reviewed / OK, at frames 12-14; then the next unreviewed
+            wait_for(
+                driver,
+                f"return document.querySelector('#progress').textContent === '1 / {total} reviewed'",
+            )
+            assert session.corrections.reviewed[list(ITEM[2]), point].all()
+            assert session.corrections.reviewed.sum() == 3
+            nxt = wait_for(
+                driver,
+                "const s = window.flylib.state; return !window.flylib.busy() && "
+                f"s.selected && (s.selected.point !== {point} || s.frame < 12 || s.frame > 14) "
+                "&& [s.frame, s.selected.point]",
+            )
+            items = session.review()["items"]
+            here = next(i for i, it in enumerate(items) if it["point"] == point and 12 in it["frames"])
+            item = next(it for it in items[here + 1 :] + items if not it["done"])
+            assert nxt == [item["peak_frame"], item["point"]]
+            # an edit that makes a point worse: dragged far from its 3D
+            sel = driver.execute_script("return window.flylib.state.selected")
+            body.send_keys("e")
+            canvas = driver.find_element(By.CSS_SELECTOR, f'canvas[data-view="{sel["view"]}"]')
+            pos = driver.execute_script(
+                f"return window.flylib.screenPosition({sel['view']!r}, {sel['point']})"
+            )
+            from tests.gui.test_browser import drag
+
+            drag(driver, canvas, pos, 60, 45)
+            wait_for(driver, "return !window.flylib.busy() && window.flylib.state.data.dirty")
+            body.send_keys("s")
+            box = driver.find_element(By.ID, "save-check")
+            wait_for(driver, "return !document.querySelector('#save-check').hidden")
+            name = session.skeleton.point_names[sel["point"]]
+            assert f"error raised: {name} at frame {nxt[0]}: " in box.text
+            assert not (outdir / "corrections.h5").exists()
+            driver.find_element(By.ID, "save-anyway").click()
+            wait_for(driver, "return window.flylib.saved")
+            assert box.is_displayed() is False
+    finally:
+        driver.quit()
+        session.close()
+    saved = Corrections.load(outdir / "corrections.h5")
+    assert saved.reviewed.sum() == 3
+    # a restart: the same progress, the item marked in the list
+    session = ReviewSession(outdir)
+    driver = browser((1600, 1000))
+    try:
+        with serving(session) as url:
+            driver.get(url)
+            wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
+            # the reviewed item, and the dragged point's item (corrected) when it was one
+            done = session.review()["done"]
+            assert done == 1 + any(it["point"] == nxt[1] and nxt[0] in it["frames"] for it in items)
+            text = driver.find_element(By.ID, "progress").text
+            assert text == f"{done} / {total} reviewed"
+            body = driver.find_element(By.TAG_NAME, "body")
+            body.send_keys("u")  # the first item not yet reviewed nor corrected
+            first_open = next(it for it in session.review()["items"] if not it["done"])
+            wait_for(
+                driver,
+                f"return window.flylib.state.frame === {first_open['peak_frame']} && "
+                f"window.flylib.state.selected?.point === {first_open['point']}",
+            )
+    finally:
+        driver.quit()
+        session.close()
+
+
+def _pixels(driver, view):
+    """The sum of a view canvas's RGB values (what it draws, as one number)."""
+    return driver.execute_script(
+        """const c = document.querySelector(`canvas[data-view="${arguments[0]}"]`);
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let s = 0; for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2];
+        return s;""",
+        view,
+    )
+
+
+def test_overlay_controls_and_the_display_kept_for_the_recording(page_1280):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    driver, session = page_1280
+    body = driver.find_element(By.TAG_NAME, "body")
+    view = session.view_names[0]
+    drawn = _pixels(driver, view)
+    body.send_keys("o")  # skeleton and ghost off: less drawn over the footage
+    wait_for(driver, "return window.flylib.state.display.overlay === false")
+    without = _pixels(driver, view)
+    assert without != drawn
+    ActionChains(driver).key_down("h").perform()  # hold h: the footage alone
+    wait_for(driver, "return window.flylib.state.peek")
+    footage = _pixels(driver, view)
+    assert footage != without
+    ActionChains(driver).key_up("h").perform()
+    wait_for(driver, "return !window.flylib.state.peek")
+    assert _pixels(driver, view) == without
+    body.send_keys("o")
+    body.send_keys("l")  # every point's name
+    wait_for(driver, "return window.flylib.state.display.labels")
+    labelled = _pixels(driver, view)
+    assert labelled != drawn
+    body.send_keys("]")  # one limb: the first
+    wait_for(driver, "return window.flylib.state.display.limb === 0")
+    limbs = driver.execute_script("return window.flylib.state.meta.limbs")
+    assert driver.find_element(By.ID, "limb").get_attribute("value") == "0"
+    assert limbs[0] in driver.find_element(By.ID, "status").text
+    # brightness: the footage brighter
+    body.send_keys("b")
+    driver.execute_script(
+        "const s = document.querySelector('#brightness'); s.value = '200';"
+        "s.dispatchEvent(new Event('input'))"
+    )
+    wait_for(driver, "return window.flylib.state.display.brightness === 200")
+    body.send_keys("o")
+    ActionChains(driver).key_down("h").perform()
+    wait_for(driver, "return window.flylib.state.peek")
+    assert _pixels(driver, view) > 1.3 * footage
+    ActionChains(driver).key_up("h").perform()
+    # kept for this recording in this browser: a reload shows the same display
+    driver.refresh()
+    wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
+    display = driver.execute_script("return window.flylib.state.display")
+    assert display == {
+        "overlay": False,
+        "labels": True,
+        "limb": 0,
+        "brightness": 200,
+        "contrast": 100,
+        "gamma": 1,
+    }
+    assert driver.find_element(By.ID, "brightness-value").text == "200%"
+
+
+def test_small_items(page_1280):
+    """Favicon (no console error), the View mode's own tooltip, a press on a point in
+    View mode selects without panning, playback at the chosen fps, timeline labels,
+    the Stop button."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    driver, session = page_1280
+    body = driver.find_element(By.TAG_NAME, "body")
+    view_tip = driver.find_element(By.XPATH, "//input[@id='mode-view']/..").get_attribute("title")
+    edit_tip = driver.find_element(By.XPATH, "//input[@id='edit-mode']/..").get_attribute("title")
+    assert view_tip != edit_tip and "nothing is edited" in view_tip
+    # View mode: a drag that starts on a point selects it and leaves the view where it was
+    view = session.view_names[0]
+    point = driver.execute_script(
+        "return window.flylib.state.data.views[0].points2d.findIndex(p => p !== null)"
+    )
+    pos = driver.execute_script(f"return window.flylib.screenPosition({view!r}, {point})")
+    canvas = driver.find_element(By.CSS_SELECTOR, f'canvas[data-view="{view}"]')
+    ActionChains(driver).move_to_element_with_offset(
+        canvas, round(pos["x"] - pos["width"] / 2), round(pos["y"] - pos["height"] / 2)
+    ).click_and_hold().move_by_offset(30, 20).release().perform()
+    assert driver.execute_script("return window.flylib.state.selected") == {
+        "view": view,
+        "point": point,
+    }
+    assert driver.execute_script(f"return window.flylib.state.zoom[{view!r}]") == {
+        "scale": 1,
+        "x": 0,
+        "y": 0,
+    }
+    assert not session.dirty
+    # the timeline names frames: light label pixels along its top
+    light = driver.execute_script(
+        """const c = document.querySelector('#timeline');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, 12).data;
+        let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 120) n++; return n;"""
+    )
+    assert light > 20
+    # playback at 20 fps for about a second
+    fps = driver.find_element(By.ID, "fps")
+    fps.clear()
+    fps.send_keys("20")
+    driver.execute_script("document.activeElement.blur()")
+    body.send_keys(" ")
+    time.sleep(1.0)
+    body.send_keys(" ")
+    played = driver.execute_script("return window.flylib.state.frame")
+    assert 5 <= played <= 24, played
+    assert driver.execute_script("return window.flylib.state.playing") is None
+    # the favicon is served: no console error at all
+    errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+    assert errors == []
+    # Stop: asked, then the server ends and the page says so
+    driver.find_element(By.ID, "stop-server").click()
+    driver.switch_to.alert.accept()
+    wait_for(driver, "return window.flylib.alert().startsWith('flylib gui has stopped')")

@@ -80,3 +80,39 @@ def test_missing_footage_is_named_and_footage_dir_finds_it(relative_run, tmp_pat
         (root / "rec-away").rename(root / "rec")
     with pytest.raises(FootageError, match=r"^--footage-dir .*nowhere: no such directory"):
         ReviewSession(recording / "flylib_outputs", footage_dir=tmp_path / "nowhere")
+
+
+def test_review_marks_and_a_drag_replayed_counted_as_save_counts(tmp_path):
+    """Unsaved review marks survive a restart (the journal); the replay notice counts
+    the points a drag's many journal lines changed, as the Save button does."""
+    out = make_demo_outputs(tmp_path / "rec", frames=6)
+    session = ReviewSession(out)
+    try:
+        item = session.review_items[0]
+        for frame in item["frames"]:
+            session.edit("reviewed", frame, item["point"])
+        xy = session.points(1)["views"][0]["points2d"]
+        p = next(i for i, v in enumerate(xy) if v is not None)
+        for step in range(5):  # one drag: five positions, one point
+            session.edit("move", 1, p, session.view_names[0], [xy[p][0] + step, xy[p][1]])
+        assert session.review()["done"] >= 1
+    finally:
+        session.close()  # killed before saving: the journal keeps it all
+    session = ReviewSession(out)
+    try:
+        assert session.corrections.reviewed[item["frames"], item["point"]].all()
+        assert session.notice.startswith(
+            f"1 unsaved edit(s) and {len(item['frames'])} review mark(s) replayed from "
+        )
+        steps = 5 + len(item["frames"])
+        assert f"stopped before saving, {steps} journal steps)" in session.notice
+        assert session.meta()["notice"] == session.notice
+        assert session.review()["done"] >= 1
+    finally:
+        session.close()
+    session = ReviewSession(out)
+    try:
+        with pytest.raises(ValueError, match="unknown edit 'approve'; use .* or unreviewed$"):
+            session.edit("approve", 0, 0)
+    finally:
+        session.close()

@@ -107,7 +107,11 @@ def serve(
     if open_browser:
         threading.Timer(1.0, lambda: webbrowser.open(url)).start()
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", ws_max_size=MAX_BODY)
+        server = uvicorn.Server(
+            uvicorn.Config(app, host=host, port=port, log_level="warning", ws_max_size=MAX_BODY)
+        )
+        app.state.stop = lambda: setattr(server, "should_exit", True)  # the page's Stop
+        server.run()
     finally:
         if session.dirty:
             print(

@@ -15,6 +15,9 @@ const state = {
   suspects: [], items: [], frameScore: [], suspectFrames: [], sort: { key: "score", asc: false },
   drawn: {}, lastServerMs: null, requestId: 0, hover: null, history: new EditHistory(), view3d: null,
   revision: 0, offline: false,
+  // the display, kept per recording in this browser (localStorage)
+  display: { overlay: true, labels: false, limb: null, brightness: 100, contrast: 100, gamma: 1 },
+  peek: false, playing: null,
 };
 const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewhere });
 
@@ -64,6 +67,8 @@ async function start() {
     redrawAll();
   });
   buildLegend($("#legend"), meta);
+  loadDisplay();
+  buildDisplayControls();
   new ResizeObserver(() => { relayout(); redrawAll(); }).observe(container);
   wireControls();
   let panel = null;
@@ -139,9 +144,11 @@ function draw(view) {
   resize(view);
   const image = state.images[view.name];
   const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
+  const d = state.display;
   view.transform = drawView(view.canvas, image, view, state.meta, state.data,
-    { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel });
-  drawMarks(view, sel);
+    { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel, overlay: d.overlay,
+      limb: d.limb, peek: state.peek, filter: footageFilter() });
+  if (!state.peek) drawMarks(view, sel);
   const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
     image && image.src.includes(`/${state.frame}?`);
   if (state.data && state.data.frame === state.frame && imageReady) {
@@ -157,11 +164,116 @@ function drawMarks(view, selected) {
     if (isFixed && v.points2d[p]) drawFixedMark(view.canvas, toCanvas(view.transform, v.points2d[p]));
   });
   const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
-  for (const p of new Set([selected, hover])) {
+  const shown = (p) => state.display.limb === null || state.meta.point_limbs[p] === state.display.limb;
+  // labels always on (l): every drawn point's name; else the hovered and the selected one
+  const named = state.display.labels ? state.meta.points.map((_, p) => p).filter(shown) : [];
+  for (const p of new Set([...named, selected, hover])) {
     if (p === null || p === undefined) continue;
     const xy = v.points2d[p] || v.reprojected[p];
     if (!xy) continue;
     drawPointLabel(view.canvas, toCanvas(view.transform, xy), state.meta.points[p], state.meta.point_colors[p]);
+  }
+}
+
+// -- display: overlay, labels, one limb, brightness / contrast / gamma -----------------
+
+function footageFilter() {
+  const d = state.display;
+  if (d.brightness === 100 && d.contrast === 100 && d.gamma === 1) return "none";
+  return `brightness(${d.brightness}%) contrast(${d.contrast}%)` + (d.gamma !== 1 ? " url(#gamma)" : "");
+}
+
+function displayKey() { return `flylib.display:${state.meta.results}`; }
+
+function loadDisplay() {
+  try {
+    const saved = JSON.parse(localStorage.getItem(displayKey()) || "null");
+    if (saved && typeof saved === "object") {
+      for (const key of Object.keys(state.display)) if (key in saved) state.display[key] = saved[key];
+    }
+  } catch { /* private mode or a damaged entry: the defaults */ }
+  if (state.display.limb !== null && !(state.display.limb >= 0 && state.display.limb < state.meta.limbs.length)) state.display.limb = null;
+}
+
+function setDisplay(change) {
+  Object.assign(state.display, change);
+  try { localStorage.setItem(displayKey(), JSON.stringify(state.display)); } catch { /* private mode */ }
+  showDisplay();
+  redrawAll();
+}
+
+function showDisplay() {
+  // the controls show the display's state
+  const d = state.display;
+  $("#overlay").classList.toggle("active", d.overlay);
+  $("#labels").classList.toggle("active", d.labels);
+  $("#limb").value = d.limb === null ? "" : String(d.limb);
+  for (const key of ["brightness", "contrast", "gamma"]) {
+    $(`#${key}`).value = String(d[key]);
+    $(`#${key}-value`).textContent = key === "gamma" ? d.gamma.toFixed(2) : `${d[key]}%`;
+  }
+  // gamma: the SVG filter the footage is drawn through (CSS filters have none)
+  for (const f of document.querySelectorAll("#gamma feFuncR, #gamma feFuncG, #gamma feFuncB")) {
+    f.setAttribute("exponent", String(1 / d.gamma));
+  }
+}
+
+function buildDisplayControls() {
+  const select = $("#limb");
+  const all = document.createElement("option");
+  all.value = "";
+  all.textContent = "all limbs";
+  select.replaceChildren(all, ...state.meta.limbs.map((name, i) => {
+    const option = document.createElement("option");
+    option.value = String(i);
+    option.textContent = name;
+    return option;
+  }));
+  select.addEventListener("change", () => setDisplay({ limb: select.value === "" ? null : Number(select.value) }));
+  $("#overlay").addEventListener("click", () => setDisplay({ overlay: !state.display.overlay }));
+  $("#labels").addEventListener("click", () => setDisplay({ labels: !state.display.labels }));
+  for (const key of ["brightness", "contrast", "gamma"]) {
+    $(`#${key}`).addEventListener("input", () => setDisplay({ [key]: Number($(`#${key}`).value) }));
+  }
+  $("#display-reset").addEventListener("click", () => setDisplay({ brightness: 100, contrast: 100, gamma: 1 }));
+  showDisplay();
+}
+
+function cycleLimb(direction) {
+  // [ / ]: show one limb after another, then all
+  const n = state.meta.limbs.length;
+  const at = state.display.limb === null ? (direction > 0 ? -1 : n) : state.display.limb;
+  const next = at + direction;
+  setDisplay({ limb: next < 0 || next >= n ? null : next });
+  status(state.display.limb === null ? "all limbs shown" : `only ${state.meta.limbs[state.display.limb]} shown ([ ] for another, all after the last)`);
+}
+
+// -- playback --------------------------------------------------------------------------
+
+function togglePlay() {
+  // space: play from here at the chosen frames per second (each frame drawn before the next)
+  if (state.playing) { clearTimeout(state.playing.timer); state.playing = null; $("#play").textContent = "\u25B6"; return; }
+  const fps = Math.max(1, Math.min(120, Number($("#fps").value) || 10));
+  state.playing = { timer: null };
+  $("#play").textContent = "\u275A\u275A";
+  const tick = async () => {
+    if (!state.playing) return;
+    const started = performance.now();
+    if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
+    await goto(state.frame + 1);
+    if (state.playing) state.playing.timer = setTimeout(tick, Math.max(0, 1000 / fps - (performance.now() - started)));
+  };
+  tick();
+}
+
+async function stopServer() {
+  // the page's Stop button: the server exits (unsaved edits stay journaled)
+  const dirty = state.data && state.data.dirty;
+  if (!confirm(dirty ? "Stop flylib gui? The unsaved edits stay in the journal and come back with the next `flylib gui`." : "Stop flylib gui?")) return;
+  try {
+    await postJSON("/api/stop", {});
+  } catch (err) {
+    status(`not stopped: ${err.detail || err.message}`);
   }
 }
 
@@ -175,6 +287,7 @@ function redrawAll() {
   const edits = state.data ? state.data.edits : 0;
   $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
   $("#save").textContent = state.data && state.data.dirty ? `Save (${edits})` : "Save";
+  $("#save").title = `write corrections.h5 (s): ${edits} point edit(s) in all`;
 }
 
 // -- suspects --------------------------------------------------------------------------
@@ -195,6 +308,8 @@ async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
   state.items = payload.items || [];
+  state.review = payload.review || { items: [], done: 0, total: 0 };
+  $("#progress").textContent = `${state.review.done} / ${state.review.total} reviewed`;
   state.frameScore = payload.frame_score;
   state.suspectFrames = [...new Set(state.suspects.map((s) => s.frame))].sort((a, b) => a - b);
   $("#suspect-count").textContent =
@@ -205,7 +320,9 @@ async function loadSuspects() {
 }
 
 function renderSuspectTable() {
-  renderItems($("#suspects tbody"), state.items, state.sort, state.frame,
+  const done = new Set((state.review ? state.review.items : []).filter((it) => it.done)
+    .flatMap((it) => it.frames.map((f) => `${it.point}:${f}`)));
+  renderItems($("#suspects tbody"), state.items, state.sort, state.frame, done,
     (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames }));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
@@ -377,6 +494,49 @@ async function applyToItem() {
     `(from edited ${Object.keys(edited).join(", ")}); reprojection error now ${shown}: step through them (\u2190 \u2192), Ctrl+Z undoes all`);
 }
 
+// -- review progress -------------------------------------------------------------------
+
+function reviewItemHere(point) {
+  // the review item of the selected point at this frame (the item worked on first)
+  if (point === null || point === undefined) return null;
+  const items = state.review ? state.review.items : [];
+  return items.find((it) => it.point === point && it.frames.includes(state.frame)) ||
+    (state.item && state.item.point === point && state.item.frames.includes(state.frame) ? state.item : null);
+}
+
+async function markReviewed() {
+  // k: the selected point's item reviewed / OK at every frame of it (again: unmarked),
+  // journaled and undoable like an edit; then the next unreviewed item
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const item = reviewItemHere(s.point);
+  if (!item) return status(`k: ${state.meta.points[s.point]} is in no suspect item at frame ${state.frame}`);
+  const mark = !(state.data.reviewed && state.data.reviewed[s.point]);
+  const op = mark ? "reviewed" : "unreviewed", back = mark ? "unreviewed" : "reviewed";
+  const redo = [], undo = [];
+  for (const f of item.frames) {
+    const message = { op, frame: f, point: s.point };
+    if (!(await submit(message))) break;
+    redo.push({ ...message, durable: true });
+    undo.push({ op: back, frame: f, point: s.point });
+  }
+  if (redo.length) state.history.record({ frame: state.frame, undo, redo });
+  await refresh();
+  status(`${state.meta.points[s.point]} at frames ${item.frames.join(", ")} ${mark ? "marked reviewed" : "no longer marked reviewed"}` +
+    ` (${state.review.done} / ${state.review.total} reviewed)`);
+  if (mark) await nextUnreviewed(true);
+}
+
+async function nextUnreviewed(quiet = false) {
+  // u: the next item not yet reviewed (nor corrected), best first, after the current one
+  const items = state.review ? state.review.items : [];
+  const open = items.filter((it) => !it.done);
+  if (!open.length) { if (!quiet) status(`every suspect item is reviewed (${state.review.done} / ${state.review.total})`); return; }
+  const here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
+  const next = items.slice(here + 1).find((it) => !it.done) || open[0];
+  await jumpToSuspect({ frame: next.peak_frame, point: next.point, frames: next.frames });
+}
+
 async function refresh() {
   // the server's current state of this frame and the suspects (re-found once an edit is
   // done, not on every drag step)
@@ -447,8 +607,15 @@ async function resetFrame() {
   await refresh();
 }
 
-async function save() {
+async function save(checked = false) {
+  // first what the edits made worse (a point farther from its 3D, new suspects): said
+  // in a dialog, saved only on "Save anyway"
   if (state.offline) return;
+  if (!checked) {
+    const check = await getJSON("/api/save-check");
+    if (check.count > 0) return showSaveCheck(check);
+  }
+  $("#save-check").hidden = true;
   let reply;
   try {
     reply = await postJSON("/api/save", { revision: state.revision });
@@ -467,6 +634,18 @@ async function save() {
   if (state.data) state.data.dirty = false;
   redrawAll();
   window.flylib.saved = reply;
+}
+
+function showSaveCheck(check) {
+  const box = $("#save-check");
+  const list = box.querySelector("ul");
+  const lines = [...check.worse.map((t) => `error raised: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const more = check.count - lines.length;
+  if (more > 0) lines.push(`and ${more} more`);
+  list.replaceChildren(...lines.map((t) => { const li = document.createElement("li"); li.textContent = t; return li; }));
+  box.hidden = false;
+  $("#save-anyway").focus();
+  status(`not saved yet: ${check.count} edit result(s) to look at first`);
 }
 
 function attachMouse(view) {
@@ -491,6 +670,8 @@ function attachMouse(view) {
       if (state.mode !== "view" && event.button === 0 && !state.offline) {
         drag = { kind: "point", point: hit, sending: false, pending: null, before: restoreMessages(state.data, [hit]) };
         state.dragging = true;
+      } else {
+        return;  // a press on a point selects it; it never pans the view
       }
     }
     if (!drag) drag = { kind: "pan", start: [cx, cy], zoom: { ...state.zoom[view.name] } };
@@ -579,6 +760,7 @@ function nearestPoint(view, cx, cy) {
   const dpr = window.devicePixelRatio || 1;
   let best = null, bestD = 12 * dpr;
   v.points2d.forEach((p, i) => {
+    if (state.display.limb !== null && state.meta.point_limbs[i] !== state.display.limb) return;
     // the 2D point, or the 3D ghost (Edit 3D, or where the point is invisible in this view)
     const ghost = state.mode === "3d" || v.invisible[i] || !p ? v.reprojected[i] : null;
     for (const q of [p, ghost]) {
@@ -668,11 +850,15 @@ function wireControls() {
   $("#reset-point").addEventListener("click", () => resetPoint(false));
   $("#reset-view").addEventListener("click", resetView);
   $("#reset-frame").addEventListener("click", resetFrame);
-  $("#save").addEventListener("click", save);
+  $("#save").addEventListener("click", () => save());
+  $("#save-anyway").addEventListener("click", () => save(true));
+  $("#save-cancel").addEventListener("click", () => { $("#save-check").hidden = true; status("not saved"); });
   $("#undo").addEventListener("click", undo);
   $("#redo").addEventListener("click", redo);
   $("#fixed").addEventListener("click", toggleFixed);
   $("#snap").addEventListener("click", snapToGhost);
+  $("#reviewed").addEventListener("click", markReviewed);
+  $("#next-unreviewed").addEventListener("click", () => nextUnreviewed());
   $("#apply-item").addEventListener("click", applyToItem);
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
@@ -698,6 +884,12 @@ function wireControls() {
     goto(Math.floor((event.clientX - rect.left) / rect.width * state.meta.frames));
   });
   window.addEventListener("resize", () => { $("#timeline").width = $("#timeline").clientWidth; redrawAll(); });
+  window.addEventListener("keyup", (event) => {
+    if (event.key === "h" && state.peek) { state.peek = false; redrawAll(); }  // hold h: peek
+  });
+  window.addEventListener("blur", () => { if (state.peek) { state.peek = false; redrawAll(); } });
+  $("#play").addEventListener("click", togglePlay);
+  $("#stop-server").addEventListener("click", stopServer);
   window.addEventListener("keydown", (event) => {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
     if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
@@ -717,6 +909,14 @@ function wireControls() {
     else if (key === "d") setMode("3d");
     else if (key === "i") markInvisible();
     else if (key === "c") snapToGhost();
+    else if (key === "k") markReviewed();
+    else if (key === "o") setDisplay({ overlay: !state.display.overlay });
+    else if (key === "l") setDisplay({ labels: !state.display.labels });
+    else if (key === "h") { if (!state.peek) { state.peek = true; redrawAll(); } }
+    else if (key === "[") cycleLimb(-1);
+    else if (key === "]") cycleLimb(1);
+    else if (key === " ") togglePlay();
+    else if (key === "u") nextUnreviewed();
     else if (key === "a") applyToItem();
     else if (key === "f") toggleFixed();
     else if (key === "r") resetPoint(false);
@@ -729,7 +929,7 @@ function wireControls() {
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
     else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
     else if (key === "?") toggleHelp();
-    else if (key === "Escape") toggleHelp(false);
+    else if (key === "Escape") { toggleHelp(false); $("#save-check").hidden = true; }
     else return;
     event.preventDefault();
   });
