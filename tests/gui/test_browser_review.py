@@ -68,7 +68,9 @@ def test_focus_on_the_selected_point_fills_the_window_at_1280x720(page_1280):
     body.send_keys("n")  # the top suspect item: its view large, zoomed to the point
     wait_for(driver, "return window.flylib.state.layout === 'focus' && window.flylib.allDrawn()")
     selected = driver.execute_script("return window.flylib.state.selected")
-    large = driver.execute_script("return document.querySelector('.view.large canvas').dataset.view")
+    large = driver.execute_script(
+        "return document.querySelector('.view.large canvas').dataset.view"
+    )
     assert large == selected["view"]
     fill = driver.execute_script("return window.flylib.focusFill()")
     assert fill >= 0.6, fill
@@ -159,9 +161,7 @@ def _pick_item(driver, body):
         if r.text.startswith(f"{frames[0]}") and point in r.text
     )
     row.click()
-    selected = wait_for(
-        driver, "return window.flylib.allDrawn() && window.flylib.state.selected"
-    )
+    selected = wait_for(driver, "return window.flylib.allDrawn() && window.flylib.state.selected")
     return selected["view"], selected["point"]
 
 
@@ -209,6 +209,7 @@ def test_snap_to_ghost_and_apply_to_item_over_3_frames_then_undo(page_1280):
     )
     status = driver.find_element(By.ID, "status").text
     assert status.startswith(f"applied to frames {first}\u2013{last} of rf_claw in {view}")
+
     # one undo takes the whole application back, the next the snap at the last frame
     def edited():
         return session.corrections.edited[v, [first, middle, last], point].tolist()
@@ -252,7 +253,9 @@ def test_reviewed_state_survives_a_restart_and_save_says_what_got_worse(outdir):
                 "&& [s.frame, s.selected.point]",
             )
             items = session.review()["items"]
-            here = next(i for i, it in enumerate(items) if it["point"] == point and 12 in it["frames"])
+            here = next(
+                i for i, it in enumerate(items) if it["point"] == point and 12 in it["frames"]
+            )
             item = next(it for it in items[here + 1 :] + items if not it["done"])
             assert nxt == [item["peak_frame"], item["point"]]
             # an edit that makes a point worse: dragged far from its 3D
