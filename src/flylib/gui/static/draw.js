@@ -20,9 +20,10 @@ export function drawView(canvas, image, view, meta, data, options) {
   ctx.fillStyle = "#000";
   ctx.fillRect(0, 0, canvas.width, canvas.height);
   if (image && image.complete && image.naturalWidth) {
-    ctx.filter = options.filter || "none";  // brightness / contrast / gamma of the footage
+    const filter = options.filter && options.filter !== "none";
+    if (filter) ctx.filter = options.filter;  // brightness / contrast / gamma of the footage
     ctx.drawImage(image, t.ox, t.oy, view.width * t.scale, view.height * t.scale);
-    ctx.filter = "none";
+    if (filter) ctx.filter = "none";
   }
   if (!data || options.peek) return t;  // hold h: the footage alone
   const v = data.views[options.viewIndex];
