@@ -442,9 +442,7 @@ def test_stop_needs_the_token_and_a_server_that_can_stop(client):
     assert refused.status_code == 403
     reply = client.post("/api/stop", json={})
     assert reply.status_code == 409
-    assert reply.json() == {
-        "detail": "this server cannot be stopped from the page; press Ctrl+C"
-    }
+    assert reply.json() == {"detail": "this server cannot be stopped from the page; press Ctrl+C"}
     stopped = []
     client.app.state.stop = lambda: stopped.append(True)
     reply = client.post("/api/stop", json={})
