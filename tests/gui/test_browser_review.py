@@ -348,14 +348,21 @@ def test_overlay_controls_and_the_display_kept_for_the_recording(page_1280):
     limbs = driver.execute_script("return window.flylib.state.meta.limbs")
     assert driver.find_element(By.ID, "limb").get_attribute("value") == "0"
     assert limbs[0] in driver.find_element(By.ID, "status").text
-    # brightness: the footage brighter
+    # brightness: the footage brighter (compared in the same layout: the panel open)
     body.send_keys("b")
+    wait_for(driver, "return !document.body.classList.contains('panel-closed')")
+    body.send_keys("o")
+    time.sleep(0.3)
+    ActionChains(driver).key_down("h").perform()
+    wait_for(driver, "return window.flylib.state.peek")
+    footage = _pixels(driver, view)
+    ActionChains(driver).key_up("h").perform()
+    wait_for(driver, "return !window.flylib.state.peek")
     driver.execute_script(
         "const s = document.querySelector('#brightness'); s.value = '200';"
         "s.dispatchEvent(new Event('input'))"
     )
     wait_for(driver, "return window.flylib.state.display.brightness === 200")
-    body.send_keys("o")
     ActionChains(driver).key_down("h").perform()
     wait_for(driver, "return window.flylib.state.peek")
     assert _pixels(driver, view) > 1.3 * footage
