@@ -14,6 +14,7 @@ orbit parameters::
       file: calibration.toml     # or a DeepFly3D calib pickle
       format: anipose            # anipose | deepfly3d (default: from the suffix)
       names: {rh: cam_a, ...}    # optional: view -> camera name (anipose) or index (deepfly3d)
+      mirror: false              # true: mirror the file's world (flylib.handedness.mirror_cameras)
     # or, resolving a recording's file by its session name:
     calibration:
       index: calibrations.csv    # rows "<...>/<session>/<image>,<toml path>"
@@ -388,13 +389,19 @@ def load_calibration(
     for i, c in enumerate(chosen):
         dists[i, : c["dist"].size] = c["dist"]
     log.info("camera rig for %d views from %s (%s)", len(views), path, fmt)
-    return CameraGroup.from_arrays(
+    rig = CameraGroup.from_arrays(
         list(views),
         np.stack([c["rvec"] for c in chosen]),
         np.stack([c["tvec"] for c in chosen]),
         intrs,
         dists,
     )
+    if spec.get("mirror"):  # a calibration whose world is the fly's mirror image
+        from ..handedness import mirror_cameras
+
+        log.info("calibration.mirror: %s's world mirrored (z negated)", path)
+        rig = mirror_cameras(rig)
+    return rig
 
 
 def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> None:

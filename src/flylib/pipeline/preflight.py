@@ -79,6 +79,11 @@ def preflight_problems(
                 f"calibration.format: unknown format {calibration['format']!r}; "
                 f"use one of {', '.join(CALIBRATION_FORMATS)}"
             )
+    if isinstance(calibration, dict) and not isinstance(calibration.get("mirror", False), bool):
+        problems.append(
+            f"calibration.mirror: expected true or false, got {calibration['mirror']!r} "
+            "(true mirrors the calibration file's world; see docs/how-it-works/handedness.md)"
+        )
 
     if any(rec.demo for rec in recordings):
         from ..demo import demo_settings
