@@ -50,8 +50,8 @@ def summarize_results(path: Path) -> dict:
     Returns
     -------
     dict
-        ``{"meta", "stages": [row...], "points": [row...], "bones": [row...],
-        "stage_3d"}``; rows are dicts of plain numbers and strings. Reprojection
+        ``{"meta", "handedness", "stages": [row...], "points": [row...],
+        "bones": [row...], "stage_3d"}``; rows are dicts of plain numbers and strings. Reprojection
         errors are in pixels; the bone spread is the interquartile range of the
         bone's length over frames divided by its median (0 for a rigid bone).
     """
@@ -60,6 +60,9 @@ def summarize_results(path: Path) -> dict:
         if "skeleton/point_names" not in f:
             raise ResultsError(f"{path}: no skeleton/point_names; not a flylib results file")
         names = _decode(f["skeleton/point_names"][()])
+        from .results.groups import skeleton_from_group
+
+        skeleton = skeleton_from_group(f["skeleton"])
         bones = np.zeros((0, 2), int)
         if "skeleton/bones" in f:
             bones = np.asarray(f["skeleton/bones"][()], dtype=int).reshape(-1, 2)
@@ -138,8 +141,14 @@ def summarize_results(path: Path) -> dict:
                     "spread": spread,
                 }
             )
+    handedness = meta.get("handedness")
+    if not isinstance(handedness, dict) and pts3d is not None:  # assembled by an older flylib
+        from .handedness import handedness as judge
+
+        handedness = judge(np.asarray(pts3d, float), skeleton).as_dict()
     return {
         "meta": meta,
+        "handedness": handedness,
         "stages": stages,
         "points": points,
         "bones": bone_rows,
@@ -232,6 +241,7 @@ def _cmd_inspect(args) -> int:
             ("cameras", "cameras"),
         ],
     )
+    _print_handedness(summary["handedness"])
     if summary["accuracy"] is not None:
         from .run_summary import HELD_OUT_NOTE, accuracy_line
 
@@ -269,6 +279,20 @@ def _cmd_inspect(args) -> int:
     if summary["stage_3d"]:
         _print_suspects(args.results)
     return _print_provenance(args)
+
+
+def _print_handedness(entry: dict | None) -> None:
+    """Whether the 3D is a fly or its mirror image (:mod:`flylib.handedness`), and
+    when mirrored, why and the fix."""
+    if not entry:
+        return
+    print(f"handedness: {entry['verdict']}: {entry['reason']}")
+    start = entry.get("starting_rig")
+    if start:
+        print(f"  starting rig ({entry.get('rig')}): {start['verdict']}: {start['reason']}")
+    if entry.get("message"):
+        print(f"  MIRROR IMAGE: {entry['message']}")
+    print()
 
 
 def _print_provenance(args) -> int:

@@ -227,3 +227,121 @@ def mirror_cameras(cameras):
         cameras.intrs,
         cameras.dists,
     )
+
+
+#: The config switch that mirrors a calibration file's world back (documented in
+#: docs/how-it-works/handedness.md).
+MIRROR_SWITCH = "calibration: {mirror: true}"
+DOCS_PAGE = "docs/how-it-works/handedness.md"
+
+
+def rig_check(
+    result: Handedness,
+    *,
+    rig: str,
+    from_file: bool,
+    mirror_set: bool = False,
+    adjusted: bool = False,
+    start: Handedness | None = None,
+) -> dict:
+    """The handedness entry of ``summary.json`` and ``results.h5``: the verdict on the
+    final 3D, and -- when it is a mirror image -- its cause and the one-line message.
+
+    Parameters
+    ----------
+    result
+        :func:`handedness` of the result's 3D.
+    rig
+        The starting rig in words: ``"the calibration file <path>"`` or the cameras
+        table.
+    from_file
+        Whether that rig is a calibration file (then :data:`MIRROR_SWITCH` fixes it).
+    mirror_set
+        Whether the config already mirrors the file (``calibration.mirror: true``).
+    adjusted
+        Whether bundle adjustment moved the cameras from that rig.
+    start
+        With ``adjusted``: :func:`handedness` of the 3D the starting rig gives.
+
+    Returns
+    -------
+    dict
+        ``score``, ``verdict``, ``reason``, ``frames``, ``rig``, ``cause`` (``None``,
+        ``"calibration"``, ``"starting_rig"`` or ``"bundle_adjustment"``), ``message``
+        (``None`` unless mirrored) and ``starting_rig`` (``start``'s entry or ``None``).
+    """
+    out = {
+        **result.as_dict(),
+        "rig": rig,
+        "cause": None,
+        "message": None,
+        "starting_rig": start.as_dict() if start is not None else None,
+    }
+    if not result.mirrored:
+        return out
+    what = f"the 3D is the fly's mirror image ({result.reason})"
+    kept = ", and bundle adjustment started from it" if adjusted else ""
+    if adjusted and start is not None and start.verdict == RIGHT_HANDED:
+        out["cause"] = "bundle_adjustment"
+        out["message"] = (
+            f"{what}: bundle adjustment turned its starting rig ({rig}, which gives a "
+            f"right-handed fly, {start.score:+.2f}) into its depth-reversed twin, which "
+            "near-orthographic cameras cannot tell apart; start it from a rig closer to the "
+            "real one, or set pipeline.do_bundle_adjustment: false"
+        )
+    elif from_file and mirror_set:
+        out["cause"] = "calibration"
+        out["message"] = (
+            f"{what}: {rig} mirrored by calibration.mirror: true gives a mirror-image "
+            f"world{kept}; set calibration.mirror: false (see {DOCS_PAGE})"
+        )
+    elif from_file:
+        out["cause"] = "calibration"
+        out["message"] = (
+            f"{what}: {rig} gives a mirror-image world{kept}; set {MIRROR_SWITCH} in "
+            f"the config to mirror it back (reprojection stays the same; see {DOCS_PAGE})"
+        )
+    else:
+        out["cause"] = "starting_rig"
+        out["message"] = (
+            f"{what}: the starting rig ({rig}) gives a mirror-image world{kept}; check "
+            "which side of the fly each camera films (cameras.<view>.azimuth_deg and the "
+            f"views' order; see {DOCS_PAGE})"
+        )
+    return out
+
+
+def mirrored_refusal(result, results_path, stage: str) -> str | None:
+    """Why ``stage`` (kinematics, neuromechfly) refuses the 3D of ``result``, or ``None``.
+
+    The verdict assemble stored in ``results.h5`` (its meta ``handedness``, naming the
+    cause) is used when present; a file without one is judged here from its 3D.
+
+    Parameters
+    ----------
+    result
+        The :class:`flylib.results.PoseResult` read from ``results_path``.
+    results_path
+        Its file (named in the message).
+    stage
+        The refusing stage: the message names its ``allow_mirrored`` switch.
+
+    Returns
+    -------
+    str or None
+        The one-line refusal when the 3D is a mirror image.
+    """
+    stored = (result.meta or {}).get("handedness")
+    if isinstance(stored, dict) and stored.get("verdict") is not None:
+        if stored["verdict"] != MIRRORED:
+            return None
+        message = stored.get("message") or f"the 3D is the fly's mirror image ({stored.get('reason')})"
+    else:
+        check = handedness(result.pts3d, result.skeleton)
+        if not check.mirrored:
+            return None
+        message = f"the 3D is the fly's mirror image ({check.reason})"
+    return (
+        f"{results_path}: {stage} refuses it: {message}. To run {stage} on the mirrored 3D "
+        f"anyway, set {stage}: {{allow_mirrored: true}}"
+    )

@@ -246,8 +246,9 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
     return index_csv.parent / unique[0]
 
 
-def _calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
-    """The calibration file a ``calibration`` table names (through its index if any)."""
+def calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
+    """The calibration file a ``calibration`` table names (through its index if any),
+    relative paths resolved as :func:`load_calibration` resolves them."""
     if "index" in spec:
         return calibration_from_index(
             _resolve(spec["index"], recording_dir, config_dir), _session(spec, recording_dir)
@@ -300,7 +301,7 @@ def calibration_inputs(
     if "index" in spec:
         files.append(_resolve(spec["index"], recording_dir, config_dir))
     try:
-        files.append(_calibration_file(spec, recording_dir, config_dir))
+        files.append(calibration_file(spec, recording_dir, config_dir))
     except ImportFormatError:
         pass
     return [f for f in dict.fromkeys(files) if f.is_file()]
@@ -354,7 +355,7 @@ def load_calibration(
             f"config 'calibration' is {spec!r}; give {{file: path, format: anipose|deepfly3d}} "
             "or {index: calibrations.csv}"
         )
-    path = _calibration_file(spec, recording_dir, config_dir)
+    path = calibration_file(spec, recording_dir, config_dir)
     fmt = spec.get("format") or (
         "deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose"
     )

@@ -18,12 +18,13 @@ column, NaN (an empty field) where a point is missing.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.checks import tracked_table
 from ..config.postprocessing import KinematicsParams
 from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
@@ -66,7 +67,7 @@ def _kinematics_from_table(table: Mapping, runtime: KinematicsRuntime) -> Kinema
 
 
 #: The ``kinematics`` table as tracked (every field), read back in the config's order.
-KINEMATICS = Codec(asdict, _kinematics_from_table)
+KINEMATICS = Codec(tracked_table, _kinematics_from_table)
 
 
 @register
@@ -221,16 +222,18 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     return fig
 
 
-def results_3d(results_path: str | Path, stage: str):
+def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = False):
     """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
     ``stage`` reads (kinematics, neuromechfly).
 
     Raises
     ------
     ResultsError
-        If it holds no 3D.
+        If it holds no 3D, or its 3D is the fly's mirror image
+        (:func:`flylib.handedness.mirrored_refusal`) and ``allow_mirrored`` is false.
     """
     from ..errors import ResultsError
+    from ..handedness import mirrored_refusal
     from ..results import PoseResult
 
     result = PoseResult.load(results_path)
@@ -239,6 +242,9 @@ def results_3d(results_path: str | Path, stage: str):
             f"{results_path}: holds no 3D points; turn on triangulation "
             f"(or set pipeline.do_{stage}: false)"
         )
+    refusal = None if allow_mirrored else mirrored_refusal(result, results_path, stage)
+    if refusal:
+        raise ResultsError(refusal)
     return result
 
 
@@ -265,7 +271,9 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     from .stage_helpers import solving
 
     with solving(STAGE, results_path):
-        result = results_3d(results_path, STAGE)
+        result = results_3d(
+            results_path, STAGE, allow_mirrored=inputs.kinematics.allow_mirrored
+        )
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)
         write_kinematics_h5(
