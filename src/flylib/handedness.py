@@ -229,6 +229,14 @@ def mirror_cameras(cameras):
     )
 
 
+def mirror_image(result: Handedness) -> str:
+    """``"the 3D is the fly's mirror image ..."``: the verdict and its figures."""
+    return (
+        "the 3D is the fly's mirror image, its left legs on its right (handedness "
+        f"{result.score:+.2f}, median of {result.frames} frames)"
+    )
+
+
 #: The config switch that mirrors a calibration file's world back (documented in
 #: docs/how-it-works/handedness.md).
 MIRROR_SWITCH = "calibration: {mirror: true}"
@@ -279,12 +287,12 @@ def rig_check(
     }
     if not result.mirrored:
         return out
-    what = f"the 3D is the fly's mirror image ({result.reason})"
+    what = mirror_image(result)
     kept = ", and bundle adjustment started from it" if adjusted else ""
     if adjusted and start is not None and start.verdict == RIGHT_HANDED:
         out["cause"] = "bundle_adjustment"
         out["message"] = (
-            f"{what}: bundle adjustment turned its starting rig ({rig}, which gives a "
+            f"{what}; bundle adjustment turned its starting rig ({rig}, which gives a "
             f"right-handed fly, {start.score:+.2f}) into its depth-reversed twin, which "
             "near-orthographic cameras cannot tell apart; start it from a rig closer to the "
             "real one, or set pipeline.do_bundle_adjustment: false"
@@ -292,19 +300,19 @@ def rig_check(
     elif from_file and mirror_set:
         out["cause"] = "calibration"
         out["message"] = (
-            f"{what}: {rig} mirrored by calibration.mirror: true gives a mirror-image "
+            f"{what}; {rig} mirrored by calibration.mirror: true gives a mirror-image "
             f"world{kept}; set calibration.mirror: false (see {DOCS_PAGE})"
         )
     elif from_file:
         out["cause"] = "calibration"
         out["message"] = (
-            f"{what}: {rig} gives a mirror-image world{kept}; set {MIRROR_SWITCH} in "
+            f"{what}; {rig} gives a mirror-image world{kept}; set {MIRROR_SWITCH} in "
             f"the config to mirror it back (reprojection stays the same; see {DOCS_PAGE})"
         )
     else:
         out["cause"] = "starting_rig"
         out["message"] = (
-            f"{what}: the starting rig ({rig}) gives a mirror-image world{kept}; check "
+            f"{what}; the starting rig ({rig}) gives a mirror-image world{kept}; check "
             "which side of the fly each camera films (cameras.<view>.azimuth_deg and the "
             f"views' order; see {DOCS_PAGE})"
         )
@@ -335,13 +343,13 @@ def mirrored_refusal(result, results_path, stage: str) -> str | None:
     if isinstance(stored, dict) and stored.get("verdict") is not None:
         if stored["verdict"] != MIRRORED:
             return None
-        message = stored.get("message") or f"the 3D is the fly's mirror image ({stored.get('reason')})"
+        message = stored.get("message") or stored.get("reason")
     else:
         check = handedness(result.pts3d, result.skeleton)
         if not check.mirrored:
             return None
-        message = f"the 3D is the fly's mirror image ({check.reason})"
+        message = mirror_image(check)
     return (
-        f"{results_path}: {stage} refuses it: {message}. To run {stage} on the mirrored 3D "
+        f"{results_path}: {stage} refused: {message}. To run {stage} on the mirror image "
         f"anyway, set {stage}: {{allow_mirrored: true}}"
     )
