@@ -176,6 +176,11 @@ PREFLIGHT_CASES = [
         {},
     ),
     (
+        "calibration.mirror",
+        lambda d: edit(d, "calibration", {"file": "calib.pkl", "mirror": "yes"}),
+        {},
+    ),
+    (
         "demo.frames",
         lambda d: edit(d, "demo", {"frames": 1}),
         {"demo": True, "spec": {"format": "dlc_csv"}},
