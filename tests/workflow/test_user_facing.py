@@ -68,6 +68,8 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     row = table[2].split()
     assert row[0] == "demo" and row[1] == "60" and row[2].endswith("%")
     assert float(row[3]) < 2 and float(row[4]) < 5 and row[-1] == "demo/flylib_outputs"
+    # the demo fly is a fly, not its mirror image (issue 36)
+    assert table[1].split()[-2:] == ["handedness", "outputs"] and float(row[-2]) > 0.9
     assert table[-1].startswith("demo: 3D error against the demo truth: median ")
     # title, header, one row, the held-out-view accuracy (the note, then the demo's
     # sentence), the truth last; the one warning is bundle adjustment's, and
