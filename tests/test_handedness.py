@@ -48,9 +48,7 @@ def test_a_fly_is_right_handed_and_its_mirror_image_is_mirrored_in_any_pose(seed
 def test_relabelling_left_as_right_is_a_mirror_image():
     """The labels decide, not the geometry: swapping every l*/r* label mirrors the fly."""
     fly = _fly()
-    swap = [
-        SKELETON.index(("r" if n[0] == "l" else "l") + n[1:]) for n in SKELETON.point_names
-    ]
+    swap = [SKELETON.index(("r" if n[0] == "l" else "l") + n[1:]) for n in SKELETON.point_names]
     assert handedness(fly[:, swap], SKELETON).verdict == "mirrored"
 
 
@@ -116,9 +114,7 @@ def test_an_orbit_rig_with_its_sides_swapped_reconstructs_a_mirror_image():
         name: {**spec, "azimuth_deg": -spec["azimuth_deg"]} if name != "defaults" else spec
         for name, spec in table.items()
     }
-    mirrored = Config.from_dict({**config.data, "cameras": swapped}).camera_group(
-        image_sizes=sizes
-    )
+    mirrored = Config.from_dict({**config.data, "cameras": swapped}).camera_group(image_sizes=sizes)
     fly = _fly(frames=5)
     pixels = rig.project(fly)
     assert handedness(rig.triangulate(pixels), SKELETON).verdict == "right-handed"

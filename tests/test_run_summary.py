@@ -329,4 +329,4 @@ def test_a_mirror_image_is_flagged_in_its_row_and_explained_once_under_the_table
     assert lines[3].split()[-2] == "+0.95" and lines[4].split()[-2] == "-"
     at = lines.index("mirror image (the left legs on the fly's right):")
     assert lines[at + 1] == f"  a: {message}"
-    assert lines[at + 2:] == ["warnings:", "  a: assemble: another warning"]
+    assert lines[at + 2 :] == ["warnings:", "  a: assemble: another warning"]

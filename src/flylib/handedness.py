@@ -173,7 +173,9 @@ def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Hand
         f"is {score:+.2f}, median of {measured.size} frames"
     )
     if score > DECISIVE:
-        return Handedness(score, RIGHT_HANDED, f"{facts}: the left legs are on the fly's left", measured.size)
+        return Handedness(
+            score, RIGHT_HANDED, f"{facts}: the left legs are on the fly's left", measured.size
+        )
     if score < -DECISIVE:
         return Handedness(
             score, MIRRORED, f"{facts}: the left legs are on the fly's right", measured.size

@@ -60,9 +60,7 @@ def test_the_package_examples_calibration_is_mirrored_named_and_mirrored_back(
     from flylib.handedness import WORLD_MIRROR
     from flylib.results import PoseResult
 
-    config = _package_config(
-        df3d_package_example_dir, tmp_path / "out", do_bundle_adjustment=False
-    )
+    config = _package_config(df3d_package_example_dir, tmp_path / "out", do_bundle_adjustment=False)
     outdir = tmp_path / "out" / df3d_package_example_dir.name
     proc = _run(tmp_path / "work", config)
     assert proc.returncode != 0  # kinematics refused the mirror image
@@ -113,8 +111,9 @@ def test_bundle_adjustment_from_the_mirrored_file_names_its_starting_rig(
     entry = _summary(outdir)["handedness"]
     assert entry["verdict"] == "mirrored" and entry["cause"] == "calibration"
     assert entry["starting_rig"]["verdict"] == "mirrored"
-    assert "calib.pkl gives a mirror-image world, and bundle adjustment started from it" in (
-        entry["message"]
+    assert (
+        "calib.pkl gives a mirror-image world, and bundle adjustment started from it"
+        in (entry["message"])
     )
     # assemble's warning is in its log; flylib inspect says the same
     assert entry["message"] in (outdir / "logs" / "assemble.log").read_text()

@@ -212,7 +212,8 @@ def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict
         from ..interop.anipose import calibration_file
 
         where = calibration_file(
-            dict(calibration), Path(recording_dir) if recording_dir else None,
+            dict(calibration),
+            Path(recording_dir) if recording_dir else None,
             inputs.rig.config_dir,
         )
         name = f"the calibration file {where}"

@@ -271,9 +271,7 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     from .stage_helpers import solving
 
     with solving(STAGE, results_path):
-        result = results_3d(
-            results_path, STAGE, allow_mirrored=inputs.kinematics.allow_mirrored
-        )
+        result = results_3d(results_path, STAGE, allow_mirrored=inputs.kinematics.allow_mirrored)
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)
         write_kinematics_h5(
