@@ -320,7 +320,9 @@ def load_calibration(
     Parameters
     ----------
     calibration
-        The config's ``calibration`` table.
+        The config's ``calibration`` table; ``mirror: true`` returns the file's rig in
+        mirrored world coordinates (:func:`flylib.handedness.mirror_cameras`: the same
+        pixels, the 3D mirrored), for a file whose world is the fly's mirror image.
     views
         The views (the config's ``cameras`` in order); none: the file's cameras, in
         the file's order.
