@@ -207,7 +207,7 @@ def anipose_lab(tmp_path_factory):
     (root / "fly1" / "truth.h5").rename(root / "truth.h5")  # not the lab's file
     data = Config.default().data
     data["cameras"] = cameras
-    rig = CameraGroup.from_config(Config.from_dict(data))
+    rig = CameraGroup.from_config(Config.from_dict(data), {v: (480, 960) for v in VIEWS})
     _anipose_toml(root / "fly1" / "calibration.toml", rig)
     write_config(
         root / "my.yaml",
