@@ -15,8 +15,6 @@ import shutil
 import numpy as np
 import pytest
 
-from gui_fixtures import write_seed_sidecar
-
 from .lab import (
     assert_self_consistent,
     copy_files,
@@ -26,6 +24,7 @@ from .lab import (
     table_line,
     write_config,
 )
+from gui_fixtures import write_seed_sidecar
 
 pytestmark = [pytest.mark.slow, pytest.mark.shared]
 

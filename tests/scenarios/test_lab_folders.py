@@ -17,7 +17,6 @@ import pytest
 
 from .lab import (
     assert_self_consistent,
-    copy_files,
     env,
     finished,
     lab_run,
@@ -27,7 +26,6 @@ from .lab import (
     table_line,
     write_config,
 )
-
 from workflow_run import REPO
 
 pytestmark = pytest.mark.slow
@@ -83,7 +81,12 @@ def test_relative_paths_are_the_labs_folder_and_nothing_lands_elsewhere(lab):
     # the same config through `flylib run` (how a config someone else wrote is run)
     again = subprocess.run(
         [FLYLIB, "run", "configs/my.yaml", "-s", str(REPO / "Snakefile"), "-n", "--cores", "2"],
-        cwd=root, env=env(), capture_output=True, text=True, timeout=600, check=False,
+        cwd=root,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
     )
     assert again.returncode == 0, (again.stdout + again.stderr)[-4000:]
     assert "Nothing to be done" in again.stdout + again.stderr

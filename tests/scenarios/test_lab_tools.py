@@ -125,14 +125,19 @@ def sleap_lab(filmed, dlc_2d, tmp_path_factory):
                 frame_idx=t,
                 instances=[
                     sio.PredictedInstance.from_numpy(
-                        dlc_2d[i, t], skeleton=skeleton, point_scores=scores[i, t], score=1.0,
+                        dlc_2d[i, t],
+                        skeleton=skeleton,
+                        point_scores=scores[i, t],
+                        score=1.0,
                         track=track,
                     )
                 ],
             )
             for t in range(FRAMES)
         ]
-        labels = sio.Labels(labeled_frames=frames, videos=[video], skeletons=[skeleton], tracks=[track])
+        labels = sio.Labels(
+            labeled_frames=frames, videos=[video], skeletons=[skeleton], tracks=[track]
+        )
         sio.save_analysis_h5(labels, str(recording / f"camera_{i}.analysis.h5"))
     spec = {"format": "sleap", "files": "{stem}.analysis.h5"}
     write_config(root / "my.yaml", {"recordings": [{"path": "fly1", "import": spec}]})
