@@ -156,8 +156,8 @@ def table_line(out: str, recording: str) -> list[str]:
 
 def similarity_error(estimate: np.ndarray, truth: np.ndarray) -> float:
     """Median distance of ``estimate`` to ``truth`` ``(T, P, 3)`` after the best
-    similarity transform, as a fraction of the truth's median bone-free extent (a
-    reconstruction of an unknown scale and pose against a known one)."""
+    similarity transform, as a fraction of the truth's median distance from its centre
+    (a reconstruction in its own gauge against a known one)."""
     from flylib.alignment import similarity_aligned
 
     ok = np.isfinite(estimate).all(-1) & np.isfinite(truth).all(-1)

@@ -49,7 +49,11 @@ def lab(tmp_path_factory):
     (root / "sheets" / "recordings.csv").write_text("\ufeff" + SHEET)  # as Excel saves it
     write_config(
         root / "configs" / "my.yaml",
-        {"recordings": "sheets/recordings.csv", "outdir": "results/{name}"},
+        {
+            "recordings": "sheets/recordings.csv",
+            "outdir": "results/{name}",
+            "pipeline": {"do_visualization": False},
+        },
     )
     return root, lab_run(root, "configs/my.yaml")
 
@@ -98,7 +102,11 @@ def test_a_tab_separated_sheet_plans_the_same_run(lab):
     (root / "sheets" / "recordings.tsv").write_text(SHEET.replace(",", "\t"))
     write_config(
         root / "configs" / "tsv.yaml",
-        {"recordings": "sheets/recordings.tsv", "outdir": "results/{name}"},
+        {
+            "recordings": "sheets/recordings.tsv",
+            "outdir": "results/{name}",
+            "pipeline": {"do_visualization": False},
+        },
     )
     dry = lab_run(root, "configs/tsv.yaml", "-n")
     assert "Nothing to be done" in finished(dry)

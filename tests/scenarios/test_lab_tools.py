@@ -59,45 +59,53 @@ def dlc_2d(filmed) -> np.ndarray:
     )
 
 
-def _dlc_lab(root: Path, filmed, **config) -> tuple[Path, object]:
+#: What the tool scenarios leave out of the lab's run: the videos (nothing here is about them).
+NO_VIDEOS = {"do_visualization": False}
+
+
+@pytest.fixture(scope="module")
+def dlc_lab(filmed, tmp_path_factory):
+    """One run of two copies of the DeepLabCut recording: ``fly1`` finds its CSVs by the
+    pattern in its recordings entry (DeepLabCut's own naming, ``{stem}DLC_*.csv``),
+    ``fly2`` by the top-level ``pose2d.import`` (``camera_{index}DLC_<scorer>.csv``)."""
     source, _ = filmed
-    copy_files(source, root / "fly1", ["camera_*.mp4", "camera_*DLC_*.csv"])
+    root = tmp_path_factory.mktemp("dlc")
+    for name in ("fly1", "fly2"):
+        copy_files(source, root / name, ["camera_*.mp4", "camera_*DLC_*.csv"])
+    entry = {"format": "dlc_csv", "files": "{stem}DLC_*.csv"}
+    top = {"format": "dlc_csv", "files": "camera_{index}DLC_flylibdemo.csv"}
+    config = {
+        "recordings": [{"path": "fly1", "import": entry}, "fly2"],
+        "pose2d": {"import": top},
+        "pipeline": NO_VIDEOS,
+    }
     write_config(root / "my.yaml", config)
     return root, lab_run(root, "my.yaml")
 
 
-@pytest.fixture(scope="module")
-def dlc_per_recording(filmed, tmp_path_factory):
-    spec = {"format": "dlc_csv", "files": "{stem}DLC_*.csv"}
-    root = tmp_path_factory.mktemp("dlc_entry")
-    return _dlc_lab(root, filmed, recordings=[{"path": "fly1", "import": spec}])
-
-
-@pytest.fixture(scope="module")
-def dlc_global(filmed, tmp_path_factory):
-    spec = {"format": "dlc_csv", "files": "camera_{index}DLC_flylibdemo.csv"}
-    root = tmp_path_factory.mktemp("dlc_global")
-    return _dlc_lab(root, filmed, recordings=["fly1"], pose2d={"import": spec})
-
-
-def _check_dlc_run(run, filmed, dlc_2d) -> None:
-    root, proc = run
+@pytest.mark.parametrize(
+    "name", ["fly1", "fly2"], ids=["pattern_in_the_recordings_entry", "top_level_pattern"]
+)
+def test_deeplabcut_csvs_found_by_a_pattern(dlc_lab, filmed, dlc_2d, name):
+    root, proc = dlc_lab
     out = finished(proc)
-    assert table_line(out, "fly1")[1] == str(FRAMES)
-    results = root / "fly1" / "flylib_outputs" / "results.h5"
+    assert table_line(out, name)[1] == str(FRAMES)
+    results = root / name / "flylib_outputs" / "results.h5"
     np.testing.assert_allclose(stored_pose2d(results), dlc_2d, rtol=0, atol=1e-9)
     result = assert_self_consistent(results)
     assert similarity_error(result.pts3d, filmed[1]["points3d"]) < 0.05
 
 
-def test_deeplabcut_csvs_found_by_a_pattern_in_the_recordings_entry(
-    dlc_per_recording, filmed, dlc_2d
-):
-    _check_dlc_run(dlc_per_recording, filmed, dlc_2d)
+def test_both_patterns_read_the_same_files_to_the_same_result(dlc_lab):
+    from flylib.results import PoseResult
 
-
-def test_deeplabcut_csvs_found_by_a_top_level_pattern(dlc_global, filmed, dlc_2d):
-    _check_dlc_run(dlc_global, filmed, dlc_2d)
+    root, proc = dlc_lab
+    finished(proc)
+    one, two = (
+        PoseResult.load(root / n / "flylib_outputs" / "results.h5") for n in ("fly1", "fly2")
+    )
+    np.testing.assert_array_equal(one.pts2d, two.pts2d)
+    np.testing.assert_allclose(one.pts3d, two.pts3d, rtol=1e-9, atol=1e-9)
 
 
 # -- SLEAP -----------------------------------------------------------------------------
@@ -140,7 +148,8 @@ def sleap_lab(filmed, dlc_2d, tmp_path_factory):
         )
         sio.save_analysis_h5(labels, str(recording / f"camera_{i}.analysis.h5"))
     spec = {"format": "sleap", "files": "{stem}.analysis.h5"}
-    write_config(root / "my.yaml", {"recordings": [{"path": "fly1", "import": spec}]})
+    config = {"recordings": [{"path": "fly1", "import": spec}], "pipeline": NO_VIDEOS}
+    write_config(root / "my.yaml", config)
     return root, lab_run(root, "my.yaml"), scores
 
 
@@ -224,7 +233,7 @@ def anipose_lab(tmp_path_factory):
                 "file": "calibration.toml",
                 "names": {view: f"camera_{i}" for i, view in enumerate(VIEWS)},
             },
-            "pipeline": {"do_bundle_adjustment": False},
+            "pipeline": {"do_bundle_adjustment": False, **NO_VIDEOS},
         },
     )
     return root, lab_run(root, "my.yaml"), rig, truth
