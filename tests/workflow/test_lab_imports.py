@@ -109,3 +109,100 @@ def test_deepfly3d_package_example_front_camera_keeps_only_its_planned_points(
     assert front["median"] > 30 and front["n"] == 38 * 15
     assert "Cameras f" in log and "mis-calibrated or mislabeled" in log
     assert "detection plan does not give" not in log
+
+
+# -- 1. every documented placeholder of a top-level import pattern -------------------------
+
+
+@pytest.fixture(scope="module")
+def dlc_recording(tmp_path_factory) -> Path:
+    """A 4-frame synthetic recording with each view's DeepLabCut CSV under the names each
+    placeholder gives: ``camera_{index}DLC_x.csv`` (= ``{stem}DLC_x.csv``),
+    ``{view}_view.csv`` and ``{source}_source.csv``."""
+    from flylib.config import Config
+    from flylib.pipeline.demo import demo_import_spec, make_demo
+
+    root = tmp_path_factory.mktemp("dlc") / "rec"
+    config = Config.default()
+    make_demo(config, root, frames=4, seed=0)
+    for index, (view, name) in enumerate(demo_import_spec(config)["files"].items()):
+        for copy in (f"camera_{index}DLC_x.csv", f"{view}_view.csv", f"vid_{view}_source.csv"):
+            shutil.copy(root / name, root / copy)
+        (root / name).unlink()
+    return root
+
+
+@pytest.mark.parametrize(
+    "files",
+    ["camera_{index}DLC_x.csv", "{stem}DLC_x.csv", "{view}_view.csv", "{source}_source.csv"],
+)
+def test_a_top_level_import_pattern_plans_the_run_and_check_config_agrees(
+    dlc_recording, tmp_path, files
+):
+    mine = {
+        "recordings": [str(dlc_recording)],
+        "outdir": str(tmp_path / "out"),
+        "pose2d": {"import": {"format": "dlc_csv", "files": files}},
+    }
+    proc = snakemake(tmp_path, mine, "--dry-run")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "WildcardError" not in proc.stdout + proc.stderr
+    assert "rule pose2d:" in proc.stdout
+    check = subprocess.run(
+        [str(FLYLIB), "check-config", "my.yaml"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        check=False,
+    )
+    assert check.returncode == 0, check.stderr
+    assert check.stdout.startswith("my.yaml over the default config: valid; 1 recording(s)")
+
+
+# -- 3. a camera's footage missing; imported 2D without footage ------------------------------
+
+
+def test_a_missing_camera_file_is_named_before_the_dag_and_check_config_says_the_same(
+    df3d_sample_dir, tmp_path
+):
+    recording = tmp_path / "rec"
+    recording.mkdir()
+    for path in [*df3d_sample_dir.glob("camera_?.mp4"), df3d_sample_dir / "df3d_result_2d.pkl"]:
+        if path.name != "camera_6.mp4":
+            os.symlink(path, recording / path.name)
+    mine = {
+        "recordings": [str(recording)],
+        "outdir": str(tmp_path / "out"),
+        "pose2d": {"import": {"format": "deepfly3d"}},
+    }
+    line = refused(snakemake(tmp_path, mine, "--dry-run"))
+    assert line == (
+        f"invalid config: my.yaml: pose2d.import: no footage for view 'lh': no file matches "
+        f"{recording / 'camera_6.mp4'}; put the camera's file there (or fix its source's "
+        "filename in sources), or, to import its 2D without footage, set "
+        "pose2d.import.image_size: [height, width]"
+    )
+    assert not (tmp_path / "out").exists()
+    check = subprocess.run(
+        [str(FLYLIB), "check-config", "my.yaml"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        check=False,
+    )
+    assert check.returncode == 1
+    assert check.stderr.strip() == f"flylib check-config: {line}"
+
+
+def test_imported_2d_without_any_footage_says_how_to_set_image_size(
+    df3d_package_example_dir, tmp_path
+):
+    mine = package_example_config(df3d_package_example_dir, tmp_path / "out")
+    del mine["pose2d"]["import"]["image_size"]
+    line = refused(snakemake(tmp_path, mine, "--dry-run"))
+    assert line == (
+        f"invalid config: my.yaml: pose2d.import: no footage for any view in "
+        f"{df3d_package_example_dir} to read the frame size from; imported 2D without "
+        "footage needs the frames' size in pixels: set pose2d.import.image_size: "
+        "[height, width] (e.g. [480, 960])"
+    )

@@ -246,6 +246,36 @@ def import_files(
     return _view_files(spec, target, recording_dir, views)
 
 
+def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path) -> str | None:
+    """Why the import would find no frame size for a view, or ``None``; checked before
+    the workflow builds its DAG, from file names alone (no header is read).
+
+    Parameters
+    ----------
+    target
+        The views and their footage sources.
+    spec
+        A validated import spec (:func:`import_spec`).
+    recording_dir
+        The recording directory.
+
+    Returns
+    -------
+    str or None
+        One line (:func:`flylib.interop.views.missing_footage`).
+    """
+    views = target.checked_views()
+    if spec["format"] == "deepfly3d":
+        views = [v for v in (spec.get("views") or views) if v is not None]
+    return _views.missing_footage(
+        target.footage(Path(recording_dir)),
+        Path(recording_dir),
+        views,
+        spec.get("image_size"),
+        globs=target.footage_globs(),
+    )
+
+
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
     """The DeepFly3D pickle pattern: ``files``, else the default in the recording
     directory or its ``df3d/`` folder."""
@@ -359,7 +389,12 @@ def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
     sized = [v for v in pickle_views if v is not None]
     footage = target.footage(recording_dir)
     sizes = _views.image_sizes(
-        footage, recording_dir, sized, spec.get("image_size"), origin=str(path)
+        footage,
+        recording_dir,
+        sized,
+        spec.get("image_size"),
+        origin=str(path),
+        globs=target.footage_globs(),
     )
     default_size = next(iter(sizes.values())) if sizes else (480, 960)
     data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
@@ -626,7 +661,12 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
         filled, {v: files[v] for v in present}, points, _plan_points(target, points)
     )
     sizes = _views.image_sizes(
-        footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
+        footage,
+        recording_dir,
+        views,
+        spec.get("image_size"),
+        origin="pose2d.import",
+        globs=target.footage_globs(),
     )
     return pts, conf, sizes, {v: files[v] for v in present}
 
