@@ -206,3 +206,24 @@ def test_imported_2d_without_any_footage_says_how_to_set_image_size(
         "footage needs the frames' size in pixels: set pose2d.import.image_size: "
         "[height, width] (e.g. [480, 960])"
     )
+
+
+# -- 9. a junk weights file --------------------------------------------------------------------
+
+
+def test_a_junk_weights_file_is_refused_before_the_dag_naming_it(df3d_sample_dir, tmp_path):
+    junk = tmp_path / "sh8.tar"
+    junk.write_text("<html>Dropbox: this file is no longer available</html>\n")
+    mine = {
+        "recordings": [str(df3d_sample_dir)],
+        "outdir": str(tmp_path / "out"),
+        "pose2d": {"weights": {"deepfly2d": str(junk)}},
+    }
+    line = refused(snakemake(tmp_path, mine, "--dry-run"))
+    assert line == (
+        f"invalid config: my.yaml: pose2d.weights.deepfly2d: {junk} is not a PyTorch "
+        "checkpoint (neither a torch.save zip archive nor torch's legacy format); point it at "
+        "the model's checkpoint (a torch.save file holding {'state_dict': ...}, such as "
+        "DeepFly2D's sh8 .tar)"
+    )
+    assert "weights_only" not in line
