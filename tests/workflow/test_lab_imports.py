@@ -227,3 +227,82 @@ def test_a_junk_weights_file_is_refused_before_the_dag_naming_it(df3d_sample_dir
         "DeepFly2D's sh8 .tar)"
     )
     assert "weights_only" not in line
+
+
+# -- 8. a recording path relative to the config file's folder ----------------------------------
+
+
+def test_a_relative_recording_path_is_read_from_the_working_directory_and_says_so(
+    dlc_recording, tmp_path
+):
+    lab = tmp_path / "lab"
+    shutil.copytree(dlc_recording, lab / "data" / "fly1")
+    mine = {
+        "recordings": ["data/fly1"],
+        "outdir": "results/{name}",
+        "pose2d": {"import": {"format": "dlc_csv", "files": "{stem}DLC_x.csv"}},
+        "pipeline": {"do_visualization": False, "do_kinematics": False, "do_refinement": False},
+    }
+    (lab / "my.yaml").write_text(yaml.safe_dump(mine, sort_keys=False))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    command = [str(SNAKEMAKE), "-s", str(REPO / "Snakefile"), "--cores", "2"]
+    proc = subprocess.run(
+        [*command, "--configfile", str(lab / "my.yaml"), "--dry-run"],
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
+        timeout=600,
+        check=False,
+    )
+    assert refused(proc) == (
+        f"invalid config: {lab / 'my.yaml'}: recordings[0]: data/fly1 does not exist in the "
+        f"working directory {elsewhere} (relative paths in a config are read from the working "
+        "directory, snakemake --directory or where snakemake runs, as Snakemake reads them; "
+        "never from the config file's folder); it is in the config file's folder "
+        f"({lab / 'data' / 'fly1'}): list it as {lab / 'data' / 'fly1'}, or run from {lab} "
+        f"(snakemake --directory {lab})"
+    )
+    # the fix it names: run from the config file's folder; the result records both paths
+    proc = subprocess.run(
+        [*command, "--configfile", str(lab / "my.yaml"), "--directory", str(lab)],
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
+        timeout=900,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    from flylib.results import PoseResult
+
+    meta = PoseResult.load(lab / "results" / "fly1" / "results.h5").meta
+    assert meta["recording"] == "data/fly1"
+    assert meta["recording_abspath"] == str(lab / "data" / "fly1")
+    summary = json.loads((lab / "results" / "fly1" / "summary.json").read_text())
+    assert summary["recording_abspath"] == str(lab / "data" / "fly1")
+
+
+# -- 9. a glob matching nothing ----------------------------------------------------------------
+
+
+def test_a_recordings_pattern_matching_nothing_is_said_once(tmp_path):
+    mine = {"recordings": [str(tmp_path / "no_such_fly*")]}
+    proc = snakemake(tmp_path, mine, "--dry-run")
+    line = refused(proc)
+    assert line == (
+        f"invalid config: my.yaml: recordings[0]: the pattern '{tmp_path / 'no_such_fly*'}' "
+        "matches no path; fix the pattern"
+    )
+    assert (proc.stdout + proc.stderr).count("no_such_fly*") == 1
+
+
+def test_a_typo_inside_pose2d_import_gets_did_you_mean(dlc_recording, tmp_path):
+    mine = {
+        "recordings": [str(dlc_recording)],
+        "pose2d": {"import": {"fromat": "dlc_csv", "files": "{stem}DLC_x.csv"}},
+    }
+    assert refused(snakemake(tmp_path, mine, "--dry-run")) == (
+        "invalid config: my.yaml: pose2d.import.fromat: unknown key; did you mean 'format'? "
+        "(known: files, format, image_size, individual, keypoint_map, likelihood_threshold, "
+        "track, view_points, views)"
+    )

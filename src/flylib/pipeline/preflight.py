@@ -239,7 +239,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         text = yaml.safe_dump(layers.data, sort_keys=False, default_flow_style=None)
     try:
         config = Config(layers.data, text=text, format="yaml")
-        recordings = plan_recordings(config, check_frames=check_frames)
+        recordings = plan_recordings(
+            config, check_frames=check_frames, config_dir=layers.config_dir("recordings")
+        )
         problems = preflight_problems(
             config, recordings, config.stage_flags(), check_weights=check_frames
         )
