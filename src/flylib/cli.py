@@ -3,7 +3,7 @@
     flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
-    flylib check-config CONFIG...             check config files as the workflow does
+    flylib check-config CONFIG...             check config files as the workflow does (over the default)
     flylib run CONFIG... [SNAKEMAKE_ARGS]     check, then run snakemake on plain copies
     flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
 
@@ -504,7 +504,8 @@ def _cmd_check_config(args) -> int:
     from .config.layers import ConfigLayers
     from .pipeline.preflight import load_run_config
 
-    layers = ConfigLayers.from_files(args.configfiles)
+    base = _default_base(args.configfiles, args.replace_workflow_config)
+    layers = ConfigLayers.from_files([*base, *args.configfiles])
     _, recordings = load_run_config(layers)
     if args.to_yaml is not None:
         tomls = [f for f in args.configfiles if f.suffix.lower() == ".toml"]
@@ -516,21 +517,38 @@ def _cmd_check_config(args) -> int:
         _write_new(
             args.to_yaml,
             _plain_yaml(
-                dict(layers.layers[args.configfiles.index(tomls[0])][1]),
+                dict(layers.layers[len(base) + args.configfiles.index(tomls[0])][1]),
                 str(tomls[0]),
                 f"{tomls[0]} as YAML, written by flylib check-config --to-yaml",
             ),
         )
         print(f"{tomls[0]}: valid; written as YAML to {args.to_yaml}")
         return 0
+    over = " over the default config" if base else ""
     print(
-        f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
+        f"{' + '.join(map(str, args.configfiles))}{over}: valid; {len(recordings)} recording(s): "
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
     )
     hint = _toml_hint(args.configfiles)
     if hint:
         print(hint, file=sys.stderr)
     return 0
+
+
+def _default_base(configfiles: list[Path], replace: bool) -> list[Path]:
+    """The default config when the workflow would merge the user's files over it:
+    always, as the Snakefile's ``configfile:`` does, unless ``--replace-workflow-config``
+    or the first file given is the default config itself (its checkout copy included)."""
+    from .config.constants import DEFAULT_CONFIG_PATH
+
+    if replace:
+        return []
+    try:
+        if configfiles[0].read_bytes() == Path(DEFAULT_CONFIG_PATH).read_bytes():
+            return []
+    except OSError:
+        pass  # a missing file is named by the reader
+    return [Path(DEFAULT_CONFIG_PATH)]
 
 
 def _write_new(path: Path, text: str) -> None:
@@ -683,7 +701,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         nargs="+",
         metavar="CONFIG",
-        help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml",
+        help="config files in the order snakemake merges them, over the default config as "
+        "the workflow does, e.g. my.yaml",
+    )
+    p.add_argument(
+        "--replace-workflow-config",
+        action="store_true",
+        help="the files are the whole config, not merged over the default (as snakemake's "
+        "option of that name)",
     )
     p.add_argument(
         "--to-yaml",

@@ -582,7 +582,10 @@ def test_import_spec_validation(tmp_path):
     config = rig_config(["a"], ["p0"])
     with pytest.raises(ImportFormatError, match=r"pose2d.import must be a mapping"):
         import_points2d(_target(config), tmp_path, None)  # no pose2d.import in the config
-    with pytest.raises(ImportFormatError, match=r"unknown keys \['file'\]"):
+    with pytest.raises(
+        ImportFormatError,
+        match=r"pose2d.import.file: unknown key; did you mean 'files'\? \(known: ",
+    ):
         import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "file": "a.csv"})
     with pytest.raises(ImportFormatError, match=r"image_size must be \[height, width\]"):
         import_points2d(

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import checkpoint_layout
 
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
@@ -142,7 +143,7 @@ def test_the_weights_key_passes_the_dry_run(tmp_path):
     recording.mkdir()
     for i in range(7):
         (recording / f"camera_{i}.mp4").write_bytes(b"")
-    (workdir / "sh8.tar").write_bytes(b"checkpoint")
+    checkpoint_layout(workdir / "sh8.tar")
     (workdir / "mine.yaml").write_text(
         f"recordings: [{recording}]\npose2d:\n  weights: {{deepfly2d: sh8.tar}}\n"
         "bundle_adjustment:\n  ftol: 1e-8\n"

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -127,6 +128,8 @@ def run_assemble(
     rig = inputs.rig.camera_group(sizes, recording_dir)
     meta = {
         "recording": str(recording_dir) if recording_dir else None,
+        # the folder a relative path meant, for readers started from elsewhere (the GUI)
+        "recording_abspath": os.path.abspath(recording_dir) if recording_dir else None,
         **_provenance(inputs, **stage_files),
     }
     handedness = _handedness(inputs, stage_files, rig, recording_dir)
@@ -250,6 +253,7 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
     pts2d = np.asarray(result.pts2d, float)
     summary: dict[str, Any] = {
         "recording": str(recording_dir) if recording_dir else None,
+        "recording_abspath": os.path.abspath(recording_dir) if recording_dir else None,
         "outdir": str(outdir),
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "format_version": version,
