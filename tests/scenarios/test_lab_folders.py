@@ -112,7 +112,6 @@ def test_a_tab_separated_sheet_plans_the_same_run(lab):
     assert "Nothing to be done" in finished(dry)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 36 symptom 8")
 def test_a_recording_relative_to_the_configs_folder_is_found_or_the_message_says_where_it_looked(
     lab,
 ):
@@ -123,4 +122,12 @@ def test_a_recording_relative_to_the_configs_folder_is_found_or_the_message_says
         {"recordings": ["../data/fly1"], "outdir": "results/{name}"},
     )
     dry = lab_run(root, "configs/near.yaml", "-n")
-    assert dry.returncode == 0 or str(root) in dry.out, dry.out[-3000:]
+    # Snakemake's rule (relative to the working directory), said with where it looked and
+    # where the path does exist
+    assert dry.returncode != 0
+    assert f"../data/fly1 does not exist in the working directory {root}" in dry.out, dry.out[
+        -3000:
+    ]
+    assert f"list it as {(root / 'configs' / '../data/fly1')}" in dry.out or (
+        f"list it as {root / 'data' / 'fly1'}" in dry.out
+    ), dry.out[-3000:]
