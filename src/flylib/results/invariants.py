@@ -37,6 +37,7 @@ from ..errors import ResultsError
 from .datasets import read_json_attrs, read_strings
 from .groups import cameras_from_group
 from .hdf5 import read_checked
+from .pose import apply_edits
 
 __all__ = ["Violation", "check_results", "require_consistent", "REPROJECTION_TOLERANCE_PX"]
 
@@ -154,21 +155,33 @@ def check_results(path: str | Path) -> list[Violation]:
         return _check_file(f, path)
 
 
-def require_consistent(path: str | Path, *, writer: str = "assemble") -> None:
-    """Raise when ``path`` contradicts itself: the file's writer has a bug.
+def require_consistent(
+    path: str | Path, *, writer: str = "assemble", shown: str | Path | None = None
+) -> None:
+    """Raise when the results file at ``path`` contradicts itself: its writer has a bug.
+
+    Parameters
+    ----------
+    path
+        The file to check.
+    writer
+        Who wrote it, for the message.
+    shown
+        The name the message gives the file (e.g. ``results.h5`` while ``path`` is its
+        temporary name); ``path`` by default.
 
     Raises
     ------
     ResultsError
-        One line per failed invariant, after a line naming the file and the writer.
+        One line naming the file and the writer, then one line per failed invariant.
     """
     found = check_results(path)
     if found:
         views, points = describe(path)
         lines = "\n".join("  " + v.line(views, points) for v in found)
         raise ResultsError(
-            f"{path}: {writer} wrote a result that contradicts itself (a bug in flylib; "
-            f"please report it with this message):\n{lines}"
+            f"{shown or path}: {writer} made a result that contradicts itself, so it was not "
+            f"written (a bug in flylib; please report it with this message):\n{lines}"
         )
 
 
@@ -255,8 +268,8 @@ class _Window:
         if tri is not None and "corrected_2d" in tri:
             touched = np.asarray(tri["corrected_2d"][:, lo:hi], bool)
             edited = np.asarray(tri["edited_2d"][:, lo:hi], np.float64)
-            detected = np.where(touched[..., None], edited, detected)
-            tri_input = np.where(touched[..., None], edited, tri_input)
+            detected = apply_edits(detected, touched, edited)
+            tri_input = apply_edits(tri_input, touched, edited)
         self.detected, self.tri_input = detected, tri_input
 
 
