@@ -215,7 +215,9 @@ def _check_file(f: h5py.File, path) -> list[Violation]:
                 None,
             )
         )
-        tri = None
+        tri, sources_known = None, False
+    else:
+        sources_known = True
     tallies = {}
     for name in _GROUPS_3D:
         if name not in f or "points3d" not in f[name]:
@@ -225,7 +227,7 @@ def _check_file(f: h5py.File, path) -> list[Violation]:
             _Tally("reprojection", f"/{name}/reproj_error", "is NaN where points and points3d are both finite, or finite where either is NaN", False),
             _Tally("reprojection", f"/{name}/reproj_error", "differs from |points - project(points3d)|", True),
         ]
-        if name != "pictorial_structures":
+        if name != "pictorial_structures" and sources_known:
             tallies[name].append(
                 _Tally("solved-from 2D", f"/{name}/points", "differs from the 2D it was solved from (input with corrections applied)", True)
             )
@@ -290,17 +292,9 @@ def _check_group(g: h5py.Group, name: str, window: _Window, cameras, marks, lo: 
     if name == "pictorial_structures":
         return
     flags = np.asarray(g["flags"][lo:hi], np.uint8) if "flags" in g else None
-    if name == "triangulation":
-        expected = window.tri_input
-    else:
-        expected = window.detected
-        if flags is not None:
-            from ..refinement.solver import FLAG_BITS
-
-            kept = (flags & np.uint8(FLAG_BITS["kept_triangulation"][0])) != 0
-            expected = np.where(kept[None, ..., None], window.tri_input, expected)
-    moved = np.linalg.norm(pts2d - expected, axis=-1)
-    marks[2].add(seen2d & ~(moved <= REPROJECTION_TOLERANCE_PX), lo, 1, moved)
+    if len(marks) > 2 and marks[2].invariant == "solved-from 2D":
+        _check_source(name, window, pts2d, seen2d, flags, marks[2], lo)
+        marks = [marks[0], marks[1], *marks[3:]]
     if name != "refinement" or flags is None:
         return
     from ..refinement.solver import FLAG_BITS
@@ -312,6 +306,22 @@ def _check_group(g: h5py.Group, name: str, window: _Window, cameras, marks, lo: 
         "missing": ~seen3d,
         "filled": seen3d & (views == 0),
     }
-    for mark, (bit, _) in zip(marks[3:], _FLAG_RULES):
+    for mark, (bit, _) in zip(marks[2:], _FLAG_RULES):
         has = (flags & np.uint8(FLAG_BITS[bit][0])) != 0
         mark.add(has != expect[bit], lo, 0)
+
+
+def _check_source(name, window: _Window, pts2d, seen2d, flags, mark: _Tally, lo: int) -> None:
+    """Each stored 2D is its input (corrections applied); refinement's kept points, the
+    triangulation's."""
+    if name == "triangulation":
+        expected = window.tri_input
+    else:
+        expected = window.detected
+        if flags is not None:
+            from ..refinement.solver import FLAG_BITS
+
+            kept = (flags & np.uint8(FLAG_BITS["kept_triangulation"][0])) != 0
+            expected = np.where(kept[None, ..., None], window.tri_input, expected)
+    moved = np.linalg.norm(pts2d - expected, axis=-1)
+    mark.add(seen2d & ~(moved <= REPROJECTION_TOLERANCE_PX), lo, 1, moved)
