@@ -308,3 +308,17 @@ def test_a_toml_config_is_named_as_such_with_its_yaml_equivalent(tmp_path):
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
+
+
+def test_export_and_inspect_help_say_which_2d_and_what_verify_checks(capsys):
+    """Issue 36 (7): `--help` says the DLC CSVs are pose2d's detections with the
+    corrections applied; `inspect --help` offers --verify."""
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "pose2d's 2D detections" in text and "manual corrections applied" in text
+    assert "not the 2D a 3D stage kept" in text
+    with pytest.raises(SystemExit):
+        main(["inspect", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--verify" in text and "exit status 1 when one fails" in text

@@ -157,9 +157,7 @@ def test_assemble_writes_suspects_csv_and_count_and_inspect_prints_it(tmp_path, 
 
     cameras = list(PoseResult.load(out / "results.h5").cameras.names)
     named = [
-        (int(i), name)
-        for r in rows
-        for i, name in re.findall(r"(\d+) \((\w+)\)", r["detail"])
+        (int(i), name) for r in rows for i, name in re.findall(r"(\d+) \((\w+)\)", r["detail"])
     ]
     assert named and all(cameras[i] == name for i, name in named)
     assert not re.search(r"view \d+ [a-z]", " ".join(r["detail"] for r in rows))

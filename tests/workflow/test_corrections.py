@@ -144,7 +144,15 @@ def test_after_a_correction_results_h5_agrees_with_itself_and_the_dlc_export_is_
 
     dlc = tmp_path / "dlc"
     proc = subprocess.run(
-        [sys.executable, "-m", "flylib.cli", "export", str(out / "results.h5"), "--dlc-dir", str(dlc)],
+        [
+            sys.executable,
+            "-m",
+            "flylib.cli",
+            "export",
+            str(out / "results.h5"),
+            "--dlc-dir",
+            str(dlc),
+        ],
         capture_output=True,
         text=True,
     )

@@ -207,7 +207,9 @@ def keep_triangulation_points(
     flagged ``kept_triangulation`` (chunk by chunk along time; ``output`` as in
     :meth:`HeldOutCheck.apply`)."""
     keep = np.asarray(keep, bool)
-    take_triangulation(triangulation, output, lambda lo, hi: np.broadcast_to(keep, (hi - lo, keep.size)), chunk)
+    take_triangulation(
+        triangulation, output, lambda lo, hi: np.broadcast_to(keep, (hi - lo, keep.size)), chunk
+    )
 
 
 def keep_corrected(triangulation: Mapping[str, Any], output, chunk: int = 1024) -> None:
@@ -254,6 +256,8 @@ def take_triangulation(
                 values[:, mask] = np.asarray(source[:, lo:hi])[:, mask]
                 target[:, lo:hi] = values
         flags = np.array(output.flags[lo:hi])
-        redone = flags_from_nan(flags, np.asarray(output.points2d[:, lo:hi]), np.asarray(output.points3d[lo:hi]))
+        redone = flags_from_nan(
+            flags, np.asarray(output.points2d[:, lo:hi]), np.asarray(output.points3d[lo:hi])
+        )
         flags = np.where(mask, redone | bit, flags).astype(np.uint8)
         output.flags[lo:hi] = flags

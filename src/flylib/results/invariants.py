@@ -128,9 +128,7 @@ class _Tally:
         if not self.count:
             return None
         amount = self.amount if self.measured and np.isfinite(self.amount) else None
-        return Violation(
-            self.invariant, self.dataset, self.what, self.count, self.worst, amount
-        )
+        return Violation(self.invariant, self.dataset, self.what, self.count, self.worst, amount)
 
 
 def check_results(path: str | Path) -> list[Violation]:
@@ -189,16 +187,16 @@ def describe(path: str | Path) -> tuple[list[str] | None, list[str] | None]:
     """The view and point names of a results file, for the messages."""
     with read_checked(path, "re-run the workflow") as f:
         views = read_json_attrs(f["pose2d"]).get("view_names") if "pose2d" in f else None
-        points = (
-            read_strings(f["skeleton/point_names"]) if "skeleton/point_names" in f else None
-        )
+        points = read_strings(f["skeleton/point_names"]) if "skeleton/point_names" in f else None
         return views, points
 
 
 def _check_file(f: h5py.File, path) -> list[Violation]:
     if "pose2d/points" not in f:
         raise ResultsError(f"{path}: has no pose2d/points; re-run the workflow")
-    rig = next((f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f), None)
+    rig = next(
+        (f[f"{s}/cameras"] for s in ("bundle_adjustment", "pose2d") if f"{s}/cameras" in f), None
+    )
     if rig is None:
         raise ResultsError(f"{path}: has no cameras (pose2d/cameras); re-run the assemble stage")
     cameras = cameras_from_group(rig)
@@ -224,12 +222,27 @@ def _check_file(f: h5py.File, path) -> list[Violation]:
             continue
         g = f[name]
         tallies[name] = [
-            _Tally("reprojection", f"/{name}/reproj_error", "is NaN where points and points3d are both finite, or finite where either is NaN", False),
-            _Tally("reprojection", f"/{name}/reproj_error", "differs from |points - project(points3d)|", True),
+            _Tally(
+                "reprojection",
+                f"/{name}/reproj_error",
+                "is NaN where points and points3d are both finite, or finite where either is NaN",
+                False,
+            ),
+            _Tally(
+                "reprojection",
+                f"/{name}/reproj_error",
+                "differs from |points - project(points3d)|",
+                True,
+            ),
         ]
         if name != "pictorial_structures" and sources_known:
             tallies[name].append(
-                _Tally("solved-from 2D", f"/{name}/points", "differs from the 2D it was solved from (input with corrections applied)", True)
+                _Tally(
+                    "solved-from 2D",
+                    f"/{name}/points",
+                    "differs from the 2D it was solved from (input with corrections applied)",
+                    True,
+                )
             )
         if name == "refinement" and "flags" in g:
             tallies[name] += [

@@ -226,9 +226,7 @@ class Detections:
     corrected: int
 
 
-def apply_edits(
-    values: np.ndarray, touched: np.ndarray, edited: np.ndarray
-) -> np.ndarray:
+def apply_edits(values: np.ndarray, touched: np.ndarray, edited: np.ndarray) -> np.ndarray:
     """``values`` ``(V, T, P, ...)`` with the entries ``touched`` ``(V, T, P)`` replaced
     by ``edited`` (the triangulation's ``corrected_2d`` and ``edited_2d``)."""
     touched = np.asarray(touched, bool).reshape(touched.shape + (1,) * (values.ndim - 3))
