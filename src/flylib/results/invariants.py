@@ -91,7 +91,8 @@ class Violation:
         parts.append(f"point {p}" + (f" ({points[p]})" if points and p < len(points) else ""))
         amount = "" if self.amount is None else f" by {self.amount:.6g} px"
         return (
-            f"{self.invariant}: {self.dataset} {self.what} at {self.count} entries; worst"
+            f"{self.invariant}: {self.dataset} {self.what} at {self.count} "
+            f"{'entry' if self.count == 1 else 'entries'}; worst"
             f"{amount} at {', '.join(parts)}"
         )
 
