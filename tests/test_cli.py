@@ -330,3 +330,17 @@ def test_inspect_judges_the_handedness_of_a_file_assembled_without_a_verdict(tmp
         out = capsys.readouterr().out
         expected = "handedness: right-handed: " if name == "fly" else "handedness: mirrored: "
         assert expected in out
+
+
+def test_export_and_inspect_help_say_which_2d_and_what_verify_checks(capsys):
+    """Issue 36 (7): `--help` says the DLC CSVs are pose2d's detections with the
+    corrections applied; `inspect --help` offers --verify."""
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "pose2d's 2D detections" in text and "manual corrections applied" in text
+    assert "not the 2D a 3D stage kept" in text
+    with pytest.raises(SystemExit):
+        main(["inspect", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--verify" in text and "exit status 1 when one fails" in text

@@ -1,6 +1,7 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
     flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
+    flylib inspect --verify RESULTS_H5        does the result agree with itself? (status 1 if not)
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does (over the default)
@@ -203,6 +204,25 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
     print()
 
 
+def _verify(path: Path) -> int:
+    """``inspect --verify``: one line per failed invariant of :mod:`flylib.results.invariants`
+    (status 1), or one line saying they hold (status 0)."""
+    from .results.invariants import check_results, describe
+
+    found = check_results(path)
+    if not found:
+        print(
+            f"{path}: consistent (stored reprojection errors match the stored 2D, 3D and "
+            "cameras; the 2D is what the 3D was solved from, corrections applied; the "
+            "flags match the NaN patterns)"
+        )
+        return 0
+    views, points = describe(path)
+    for violation in found:
+        print(f"flylib inspect: {path}: {violation.line(views, points)}", file=sys.stderr)
+    return 1
+
+
 def _cmd_inspect(args) -> int:
     from .results import verify_file
 
@@ -219,6 +239,8 @@ def _cmd_inspect(args) -> int:
             "verified; re-run the workflow to regenerate the file",
             file=sys.stderr,
         )
+    if args.verify:
+        return _verify(args.results)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(
@@ -436,7 +458,19 @@ def _cmd_export(args) -> int:
         record_outputs(Path(path).parent, [Path(path).name])
         print(path)
     if args.csv3d is not None or args.dlc_dir is not None:
-        for path in export_result(result, csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+        detections = None
+        if args.dlc_dir is not None:
+            from .results import read_detections
+
+            detections = read_detections(args.results)
+            print(
+                f"--dlc-dir: pose2d's detections, {detections.corrected} observations "
+                "corrected by hand (corrections.h5) applied",
+                file=sys.stderr,
+            )
+        for path in export_result(
+            result, csv3d=args.csv3d, dlc_dir=args.dlc_dir, detections=detections
+        ):
             record_outputs(path.parent, [path.name])
             print(path)
     return 0
@@ -646,6 +680,13 @@ def build_parser() -> argparse.ArgumentParser:
         "over the default config as `snakemake --configfile` merges them (default: the "
         "config.yaml snapshot beside RESULTS_H5)",
     )
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="only check that the result agrees with itself (reprojection errors, the 2D "
+        "the 3D was solved from, flags); one line per failed invariant naming the dataset "
+        "and its worst (view, frame, point), 0-based; exit status 1 when one fails",
+    )
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser(
@@ -653,7 +694,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("--csv3d", type=Path, help="write the 3D points to this CSV")
-    p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
+    p.add_argument(
+        "--dlc-dir",
+        type=Path,
+        help="write <view>.csv DeepLabCut files here: pose2d's 2D detections (as detected "
+        "or imported) with the manual corrections applied, not the 2D a 3D stage kept",
+    )
     p.add_argument("--nwb", type=Path, help="write an NWB file (ndx-pose) here")
     p.add_argument(
         "--training-data",

@@ -158,6 +158,20 @@ def test_angles_figure_names_each_angle_once_beside_the_traces_not_over_them():
         }
 
 
+def test_angles_png_panels_follow_the_skeletons_leg_order_not_the_alphabet():
+    """Issue 36 (9): the panels read lf, lm, lh / rf, rm, rh (the skeleton's order), not
+    lf, lh, lm; without the skeleton, in the order the angles come."""
+    from flylib.pipeline.kinematics import angles_plot
+
+    kin = compute_kinematics(synthetic_fly(20, seed=1), FLY)
+    legs = ["lf", "lm", "lh", "rf", "rm", "rh"]
+    assert [ax.get_title() for ax in angles_plot(kin, point_names=FLY.point_names).axes] == legs
+    assert [ax.get_title() for ax in angles_plot(kin).axes] == legs
+    hind_first = list(reversed(FLY.point_names))
+    titles = [ax.get_title() for ax in angles_plot(kin, point_names=hind_first).axes]
+    assert titles == legs[::-1]
+
+
 def test_a_job_keeps_the_configured_angle_order_which_its_params_do_not_track():
     """angles.csv's columns come in the config's order; the tracked params hold the
     angles as a mapping (keys sorted), so the order travels in the untracked runtime."""

@@ -17,8 +17,8 @@ column, NaN (an empty field) where a point is missing.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -166,19 +166,34 @@ def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered
 
 
 def angles_figure(
-    kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90
+    kin: Kinematics,
+    path: str | Path,
+    *,
+    fps: float | None = None,
+    dpi: int = 90,
+    point_names: Sequence[str] | None = None,
 ) -> Path:
     """Write angles.png: :func:`angles_plot` saved atomically to ``path``."""
-    fig = angles_plot(kin, fps=fps, dpi=dpi)
+    fig = angles_plot(kin, fps=fps, dpi=dpi, point_names=point_names)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     return Path(path)
 
 
-def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
+def angles_plot(
+    kin: Kinematics,
+    *,
+    fps: float | None = None,
+    dpi: int = 90,
+    point_names: Sequence[str] | None = None,
+):
     """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
     solid, segment yaw/pitch/roll dashed, one colour per angle kind named in a legend
     beside the panels.
+
+    The panels come in the skeleton's order (``point_names``: a leg's place is that of
+    the first point its angles are measured at, so the fly's legs read lf, lm, lh /
+    rf, rm, rh), else in the order of ``kin.angle_names``; never alphabetically.
 
     Returns
     -------
@@ -189,6 +204,14 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     groups: dict[str, list[int]] = {}
     for k, name in enumerate(kin.angle_names):
         groups.setdefault(name.split("_")[0], []).append(k)
+    if point_names is not None:
+        place = {name: i for i, name in enumerate(point_names)}
+
+        def first_point(item: tuple[str, list[int]]) -> int:
+            names = (n for k in item[1] for n in kin.definitions.get(kin.angle_names[k], ()))
+            return min((place[n] for n in names if n in place), default=len(place))
+
+        groups = dict(sorted(groups.items(), key=first_point))  # stable: ties keep their order
     n = max(len(groups), 1)
     cols = min(n, 3)
     rows = int(np.ceil(n / cols))
@@ -204,7 +227,7 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     )
     colors = {kind: f"C{j % 10}" for j, kind in enumerate(kinds)}
     handles = {}
-    for i, (leg, columns) in enumerate(sorted(groups.items())):
+    for i, (leg, columns) in enumerate(groups.items()):
         ax = fig.add_subplot(rows, cols, i + 1)
         for k in columns:
             kind = kin.angle_names[k][len(leg) + 1 :]
@@ -278,5 +301,5 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
             outdir / FILES[0], kin, result.skeleton.point_names, inputs.kinematics.tethered
         )
         write_angles_csv(outdir / FILES[1], kin)
-        angles_figure(kin, outdir / FILES[2])
+        angles_figure(kin, outdir / FILES[2], point_names=result.skeleton.point_names)
     return {"angles": kin.angle_names, "frames": int(kin.angles.shape[0])}
