@@ -190,7 +190,6 @@ def test_a_gui_correction_reruns_from_triangulation_and_moves_the_corrected_poin
     np.testing.assert_array_equal(after.cameras.rvecs, before.cameras.rvecs)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 36 symptom 5")
 def test_after_a_correction_results_h5_stores_the_2d_its_3d_was_solved_from(corrected_run):
     from flylib.results import PoseResult
 
