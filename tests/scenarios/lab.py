@@ -123,10 +123,13 @@ def assert_self_consistent(results: Path, bound_px: float = REPROJ_BOUND_PX):
       projection of the stored 3D by the stored cameras, NaN exactly where one is NaN;
     - the 2D the 3D was solved from is the run's 2D (``pose2d/points``) or missing
       (an outlier the triangulation dropped), never another value;
-    - every used 2D point lies within ``bound_px`` of its 3D point's projection.
+    - every used 2D point lies within ``bound_px`` of its 3D point's projection;
+    - and flylib's own check (``flylib inspect --verify``) finds nothing.
     """
     from flylib.results import PoseResult
+    from flylib.results.invariants import check_results
 
+    assert check_results(results) == [], check_results(results)
     result = PoseResult.load(results)
     v, t, p, _ = result.pts2d.shape
     assert result.pts3d.shape == (t, p, 3) and result.reproj_error.shape == (v, t, p)
