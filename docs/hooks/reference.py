@@ -228,10 +228,14 @@ def config_reference() -> str:
         extra = [k for k in typed if k.startswith(table + ".") and k not in seen]
         for key in extra:
             default, what = typed[key]
-            out.append(f"| `{key}` | `{_cell(_shown(default))}` | {_cell(what)} (not in the default config) |")
+            out.append(
+                f"| `{key}` | `{_cell(_shown(default))}` | {_cell(what)} (not in the default config) |"
+            )
         if table == "pose2d":
             for key, example, what in import_keys():
-                out.append(f"| `pose2d.import.{key}` | (unset); e.g. `{_cell(example)}` | {_cell(what)} |")
+                out.append(
+                    f"| `pose2d.import.{key}` | (unset); e.g. `{_cell(example)}` | {_cell(what)} |"
+                )
         out.append("")
     unset = [k for k in TOP_LEVEL_KEYS if k not in data]
     out += [
@@ -314,7 +318,11 @@ def api_reference() -> str:
     for module, names in by_module.items():
         out += [f"## `{module}`", ""]
         for name in names:
-            target = module if name == module.rsplit(".", 1)[-1] and module.endswith(name) else f"{module}.{name}"
+            target = (
+                module
+                if name == module.rsplit(".", 1)[-1] and module.endswith(name)
+                else f"{module}.{name}"
+            )
             out += [f"::: {target}", "    options:", "      heading_level: 3", ""]
     return "\n".join(out)
 
@@ -336,7 +344,9 @@ def stage_table() -> str:
             on += f" (`pipeline.do_{stage.name}`)"
         needs = ", ".join(f"`{s}`" for s in stage.needs_one_of) or "-"
         artifact = f"`{stage.artifact}`" if stage.artifact else "-"
-        out.append(f"| `{stage.name}` | {on} | {needs} | {artifact} | {'yes' if stage.results_group else '-'} |")
+        out.append(
+            f"| `{stage.name}` | {on} | {needs} | {artifact} | {'yes' if stage.results_group else '-'} |"
+        )
     return "\n".join(out)
 
 
@@ -352,14 +362,34 @@ def rule_graph() -> str:
     Mermaid flowchart (``snakemake --rulegraph mermaid-js``)."""
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "all_on.yaml").write_text(ALL_ON)
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO / "src"), os.environ.get("PYTHONPATH")]))}
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(
+                filter(None, [str(REPO / "src"), os.environ.get("PYTHONPATH")])
+            ),
+        }
         done = subprocess.run(
-            [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "-d", tmp,
-             "--configfile", str(Path(tmp) / "all_on.yaml"), "--rulegraph", "mermaid-js",
-             "--cores", "1"],
-            capture_output=True, text=True, env=env, check=True,
+            [
+                sys.executable,
+                "-m",
+                "snakemake",
+                "-s",
+                str(REPO / "Snakefile"),
+                "-d",
+                tmp,
+                "--configfile",
+                str(Path(tmp) / "all_on.yaml"),
+                "--rulegraph",
+                "mermaid-js",
+                "--cores",
+                "1",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            check=True,
         )
-    lines = [l for l in done.stdout.splitlines() if "style id" not in l]
+    lines = [line for line in done.stdout.splitlines() if "style id" not in line]
     body = "\n".join(lines)
     body = re.sub(r"^---\ntitle: DAG\n---\n", "", body)
     return "```mermaid\n" + body.strip() + "\n```"
