@@ -209,6 +209,53 @@ class _Links(HTMLParser):
                 self.links.append(attrs[key])
 
 
+def parse_site(site: Path) -> dict[Path, _Links]:
+    """Every page of a built site (but the 404 page, whose links are site-absolute)."""
+    parsed = {}
+    for html in site.rglob("*.html"):
+        if html.name == "404.html":
+            continue
+        parser = _Links()
+        parser.feed(html.read_text(errors="replace"))
+        parsed[html] = parser
+    return parsed
+
+
+def broken_links(site: Path, parsed: dict[Path, _Links]) -> list[str]:
+    """Internal links (and images) of a built site whose file or anchor does not exist."""
+    broken = []
+    for html, parser in parsed.items():
+        for link in parser.links:
+            parts = urlsplit(link)
+            if parts.scheme or parts.netloc or link.startswith(("mailto:", "data:", "javascript:")):
+                continue
+            path = unquote(parts.path)
+            base = site if path.startswith("/") else html.parent
+            target = (base / path.lstrip("/")).resolve() if path else html
+            if target.is_dir():
+                target = target / "index.html"
+            if not target.exists():
+                broken.append(f"{html.relative_to(site)}: {link}")
+            elif parts.fragment and target.suffix == ".html" and target in parsed:
+                if unquote(parts.fragment) not in parsed[target].ids:
+                    broken.append(f"{html.relative_to(site)}: {link} (no such anchor)")
+    return broken
+
+
+def test_the_link_check_finds_a_missing_page_and_a_missing_anchor(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "index.html").write_text('<h2 id="here">x</h2><a href="#here">ok</a>')
+    (tmp_path / "index.html").write_text(
+        '<a href="a/">ok</a><a href="a/#here">ok</a><a href="a/#gone">x</a>'
+        '<a href="b/">x</a><img src="pic.png"><a href="https://example.org/x">ext</a>'
+    )
+    assert sorted(broken_links(tmp_path, parse_site(tmp_path))) == [
+        "index.html: a/#gone (no such anchor)",
+        "index.html: b/",
+        "index.html: pic.png",
+    ]
+
+
 @pytest.mark.slow
 def test_the_site_builds_strict_with_no_broken_internal_link(tmp_path):
     site = tmp_path / "site"
@@ -220,26 +267,16 @@ def test_the_site_builds_strict_with_no_broken_internal_link(tmp_path):
         timeout=600,
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    parsed = {}
-    for html in site.rglob("*.html"):
-        parser = _Links()
-        parser.feed(html.read_text(errors="replace"))
-        parsed[html] = parser
-    broken = []
-    for html, parser in parsed.items():
-        for link in parser.links:
-            parts = urlsplit(link)
-            if parts.scheme or parts.netloc or link.startswith(("mailto:", "data:", "javascript:")):
-                continue
-            target = (html.parent / unquote(parts.path)).resolve() if parts.path else html
-            if target.is_dir():
-                target = target / "index.html"
-            if not target.exists():
-                broken.append(f"{html.relative_to(site)}: {link}")
-            elif parts.fragment and target.suffix == ".html" and target in parsed:
-                if unquote(parts.fragment) not in parsed[target].ids:
-                    broken.append(f"{html.relative_to(site)}: {link} (no such anchor)")
+    parsed = parse_site(site)
+    broken = broken_links(site, parsed)
     assert not broken, broken
+    api = parsed[site / "reference" / "api" / "index.html"].ids
+    missing = [
+        f"{module}.{name}"
+        for name, module in GEN.public_names().items()
+        if f"{module}.{name}" not in api and module not in api
+    ]
+    assert not missing  # each public name rendered by mkdocstrings, under its own anchor
     for name in (
         "reference/api/index.html",
         "reference/config/index.html",
