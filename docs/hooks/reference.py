@@ -395,6 +395,46 @@ def rule_graph() -> str:
     return "```mermaid\n" + body.strip() + "\n```"
 
 
+# --- the end-of-run table ----------------------------------------------------------------
+
+
+def _held(median: float, p95: float) -> dict:
+    return {"held_out_px": {"median": median, "p95": p95, "n": 3500}, "per_view": {}}
+
+
+def run_table_example() -> str:
+    """The end-of-run table as ``flylib.run_summary.run_table`` prints it, for a recording
+    whose ``summary.json`` holds made-up figures (the format is the code's)."""
+    import json
+
+    from flylib.run_summary import RunRecording, run_table
+
+    points = {f"p{i}": {"median": 5.0, "p95": 15.0, "n": 500} for i in range(30)}
+    summary = {
+        "frames": 9000,
+        "reconstructed_3d_fraction": 0.974,
+        "reprojection_error_px": {"median": 2.31, "p95": 8.9},
+        "suspects": 41,
+        "accuracy": {
+            "frames_evaluated": 500,
+            "frames_total": 9000,
+            "triangulation": _held(5.87, 16.97),
+            "refinement": _held(5.83, 16.71),
+            "output": {**_held(5.78, 16.70), "per_point": points},
+            "kept_triangulation": [f"p{i}" for i in range(8, 30)],
+            "kept_everywhere": False,
+            "output_stage": "refinement",
+        },
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        outdir = Path(tmp) / "fly7"
+        outdir.mkdir()
+        (outdir / "summary.json").write_text(json.dumps(summary))
+        table = run_table([RunRecording("fly7", outdir)])
+        table = table.replace(str(outdir), "/results/fly7")
+    return "```text\n" + table + "\n```"
+
+
 # --- the MkDocs hook -------------------------------------------------------------------
 
 GENERATED = {
@@ -415,6 +455,8 @@ def on_files(files, config):  # noqa: D103 (MkDocs hook)
 def on_page_markdown(markdown, page, config, files):  # noqa: D103 (MkDocs hook)
     if "<!-- stage-table -->" in markdown:
         markdown = markdown.replace("<!-- stage-table -->", stage_table())
+    if "<!-- run-table -->" in markdown:
+        markdown = markdown.replace("<!-- run-table -->", run_table_example())
     if "<!-- rule-graph -->" in markdown:
         markdown = markdown.replace("<!-- rule-graph -->", rule_graph())
     return markdown

@@ -250,6 +250,13 @@ def _fmt(value: Any, kind: str) -> str:
     return str(value)
 
 
+def _spread(median: Any, p95: Any) -> str:
+    """A ``"median / p95"`` cell in px, as the held-out columns show theirs."""
+    if median is None:
+        return "-"
+    return f"{_fmt(median, 'px')} / {_fmt(p95, 'px')}"
+
+
 def _align(rows: Sequence[Sequence[str]]) -> list[str]:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = []
@@ -265,8 +272,9 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
 #: What the held-out-view error is, once under the table that shows it.
 HELD_OUT_NOTE = (
     "held-out px = median / p95 distance from each camera's 2D to the 3D rebuilt without "
-    "that camera (lower is better, * the better method); reproj px only shows how closely "
-    "the 3D fits the 2D it was built from"
+    "that camera, from the triangulation (tri) and the refined output (lower is better, * the "
+    "better method); reproj px (median / p95) only shows how closely the 3D fits the 2D it "
+    "was built from"
 )
 
 
@@ -418,9 +426,10 @@ def run_table(
     rows = [recording_row(rec, since if failed else None, signals) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
     with_accuracy = any(r.get("accuracy") for r in rows)
-    header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
+    # narrow enough for a 100-column terminal: each error is one "median / p95" cell
+    header = ["recording", "frames", "in 3D", "reproj px"]
     if with_accuracy:
-        header += ["held-out px triangulation", "held-out px refined"]
+        header += ["held-out tri", "held-out refined"]
     if with_suspects:
         header.append("suspects")
     header.append("outputs")
@@ -433,7 +442,7 @@ def run_table(
             elif failed:
                 status = "no result yet: see logs/"
             line = (
-                [r["id"], "-", "-", "-", "-"]
+                [r["id"], "-", "-", "-"]
                 + (["-", "-"] if with_accuracy else [])
                 + (["-"] if with_suspects else [])
                 + [f"{r['outdir']}  ({status})"]
@@ -443,8 +452,7 @@ def run_table(
                 r["id"],
                 _fmt(r["frames"], "int"),
                 _fmt(r["reconstructed"], "percent"),
-                _fmt(r["median"], "px"),
-                _fmt(r["p95"], "px"),
+                _spread(r["median"], r["p95"]),
             ]
             if with_accuracy:
                 line += list(held_out_cells(r.get("accuracy")))

@@ -102,6 +102,18 @@ def test_the_rule_graph_is_snakemakes_and_names_every_rule():
     assert drawn == rules - {"all"} | ({"all"} & drawn)
 
 
+def test_every_placeholder_a_page_holds_is_filled():
+    for path in DOCS.rglob("*.md"):
+        text = GEN.on_page_markdown(path.read_text(), None, None, None)
+        assert "<!-- " not in text.replace("<!-- more -->", ""), path
+
+
+def test_the_run_table_example_is_flylibs_own_output():
+    example = GEN.run_table_example()
+    assert example.startswith("```text\nflylib: per-recording results\n")
+    assert "fly7 " in example and "/results/fly7" in example
+
+
 def test_the_stage_table_lists_every_registered_stage():
     from flylib.stages import REGISTRY
 

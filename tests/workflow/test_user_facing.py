@@ -64,10 +64,12 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
         i for i, line in enumerate(lines) if line.startswith("flylib: per-recording results")
     )
     table = lines[title:]
-    assert table[1].split()[:3] == ["recording", "frames", "3D"]
+    assert table[1].split()[:4] == ["recording", "frames", "in", "3D"]
     row = table[2].split()
     assert row[0] == "demo" and row[1] == "60" and row[2].endswith("%")
-    assert float(row[3]) < 2 and float(row[4]) < 5 and row[-1] == "demo/flylib_outputs"
+    assert float(row[3]) < 2 and row[4] == "/" and float(row[5]) < 5
+    assert row[-1] == "demo/flylib_outputs"
+    assert max(len(line) for line in table[:3]) <= 100  # the table fits a normal terminal
     assert table[-1].startswith("demo: 3D error against the demo truth: median ")
     # title, header, one row, the held-out-view accuracy (the note, then the demo's
     # sentence), the truth last; the one warning is bundle adjustment's, and
