@@ -198,12 +198,11 @@ def test_held_out_columns_mark_the_better_method_and_say_what_to_do(tmp_path):
     names = ["better", "partly", "worse", "tri", "none"]
     lines = run_table([RunRecording(n, tmp_path / n) for n in names]).splitlines()
     header = lines[1]
-    assert "held-out tri" in header and "held-out refined" in header
-    col_tri, col_ref = (
-        header.index("held-out tri"),
-        header.index("held-out refined"),
-    )
-    end = header.index("outputs")
+    assert "held-out tri" in header and "held-out ref" in header
+    # the figures are right-aligned: a cell ends where its header ends
+    col_tri = header.index("reproj px") + len("reproj px")
+    col_ref = header.index("held-out tri") + len("held-out tri")
+    end = header.index("held-out ref") + len("held-out ref")
     assert lines[2][col_tri:col_ref].strip() == "5.87 / 16.97"
     assert lines[2][col_ref:end].strip() == "4.10 / 9.00 *"
     assert lines[3][col_ref:end].strip() == "5.78 / 16.70 *"

@@ -272,7 +272,7 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
 #: What the held-out-view error is, once under the table that shows it.
 HELD_OUT_NOTE = (
     "held-out px = median / p95 distance from each camera's 2D to the 3D rebuilt without "
-    "that camera, from the triangulation (tri) and the refined output (lower is better, * the "
+    "that camera, from the triangulation (tri) and the refined output (ref; lower is better, * the "
     "better method); reproj px (median / p95) only shows how closely the 3D fits the 2D it "
     "was built from"
 )
@@ -429,7 +429,7 @@ def run_table(
     # narrow enough for a 100-column terminal: each error is one "median / p95" cell
     header = ["recording", "frames", "in 3D", "reproj px"]
     if with_accuracy:
-        header += ["held-out tri", "held-out refined"]
+        header += ["held-out tri", "held-out ref"]
     if with_suspects:
         header.append("suspects")
     header.append("outputs")
