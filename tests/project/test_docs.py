@@ -319,16 +319,13 @@ def test_the_examples_are_stored_with_their_outputs():
 @pytest.mark.shared
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_the_example_notebook_runs(path, tmp_path):
-    """Executed as nbmake does (nbclient, the notebook's folder as working directory):
-    ``.venv/bin/python -m pytest --nbmake docs/examples`` runs the same."""
+    """Executed by nbmake's runner (what ``pytest --nbmake docs/examples`` runs: a fresh
+    kernel, the notebook's folder as working directory, stored outputs cleared first)."""
     if not (SHARED_DATA / "deepfly3d-sample").is_dir():
         pytest.skip(
             f"{SHARED_DATA / 'deepfly3d-sample'} is absent: the examples read the DeepFly3D sample"
         )
-    import nbformat
-    from nbclient import NotebookClient
+    from nbmake.nb_run import NotebookRun
 
-    nb = nbformat.read(path, as_version=4)
-    NotebookClient(
-        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
-    ).execute()
+    result = NotebookRun(path, default_timeout=600, kernel="python3").execute()
+    assert result.error is None, result.error.summary + "\n" + result.error.trace[-3000:]
