@@ -325,7 +325,40 @@ def test_the_example_notebook_runs(path, tmp_path):
         pytest.skip(
             f"{SHARED_DATA / 'deepfly3d-sample'} is absent: the examples read the DeepFly3D sample"
         )
+    import nbformat
     from nbmake.nb_run import NotebookRun
 
     result = NotebookRun(path, default_timeout=600, kernel="python3").execute()
     assert result.error is None, result.error.summary + "\n" + result.error.trace[-3000:]
+    # the figures the site shows (the stored outputs) are what the code prints now
+    stored = nbformat.read(path, as_version=4)
+    assert _printed(result.nb) == _printed(stored), "re-run the notebook and store its outputs"
+
+
+def _printed(nb) -> list[str]:
+    """What a notebook's code cells print to stdout, cell by cell (figures and logs aside)."""
+    return [
+        "".join(o.get("text", "") for o in cell.outputs if o.get("name") == "stdout")
+        for cell in nb.cells
+        if cell.cell_type == "code"
+    ]
+
+
+# --- figures the pages quote ------------------------------------------------------------
+
+
+def test_the_cluster_pages_memory_figures_are_what_the_jobs_declare():
+    from flylib.pipeline.memory import FLOOR_MB, MARGIN, stage_mem_mb
+
+    page = (DOCS / "guides" / "cluster.md").read_text()
+    said = re.search(
+        r"with ([\d.]+)x head-room and at least (\d+) GB.*?a ([\d,]+)-frame recording gets "
+        r"(\d+) GB for triangulation\s+while the demo asks for (\d+) GB",
+        page,
+        re.S,
+    )
+    assert said, "the cluster page no longer quotes the memory figures this test checks"
+    margin, floor, frames, big, demo = said.groups()
+    assert float(margin) == MARGIN and int(floor) * 1000 == FLOOR_MB
+    assert stage_mem_mb("triangulation", (int(frames.replace(",", "")), 38, 7)) == int(big) * 1000
+    assert stage_mem_mb("triangulation", (60, 38, 7)) == int(demo) * 1000
