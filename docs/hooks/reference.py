@@ -73,16 +73,15 @@ def config_comments(text: str) -> dict[str, str]:
             block = []
             continue
         indent = len(match["indent"]) + (2 if match["dash"] else 0)
+        if match["dash"]:  # a new list item: its keys sit under "<list>[]"
+            while stack and stack[-1][0] >= indent - 1:
+                stack.pop()
+            stack.append((indent - 1, (stack[-1][1] if stack else "") + "[]"))
         while stack and stack[-1][0] >= indent:
             stack.pop()
         parent = stack[-1][1] if stack else ""
-        if match["dash"]:
-            parent += "[]"
         path = f"{parent}.{match['key']}" if parent else match["key"]
-        if match["dash"] and stack and stack[-1][1] + "[]" != parent:
-            pass
         stack.append((indent, path))
-        # a block comment that ends in "e.g." lines or is indented deeper describes what follows
         text_ = " ".join(block + [_inline_comment(match["rest"])]).strip()
         if text_ and path not in comments:
             comments[path] = text_
@@ -164,15 +163,16 @@ def _attributes(doc: str) -> dict[str, str]:
         start = lines.index("Attributes") + 2
     except ValueError:
         return out
-    name = None
+    names: list[str] = []
     for line in lines[start:]:
         if line and not line.startswith(" "):
-            if re.fullmatch(r"[A-Za-z_]\w*(\s*:.*)?", line) is None:
+            if re.fullmatch(r"[A-Za-z_]\w*(,\s*[A-Za-z_]\w*)*(\s*:.*)?", line) is None:
                 break
-            name = line.split(":")[0].strip()
-            out[name] = ""
-        elif name and line.strip():
-            out[name] = (out[name] + " " + line.strip()).strip()
+            names = [n.strip() for n in line.split(":")[0].split(",")]  # "a, b": one text
+            out.update(dict.fromkeys(names, ""))
+        elif names and line.strip():
+            for name in names:
+                out[name] = (out[name] + " " + line.strip()).strip()
     return out
 
 
