@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import inspect
 import os
 import re
@@ -357,6 +358,7 @@ exports: {nwb: true}
 """
 
 
+@functools.cache
 def rule_graph() -> str:
     """Snakemake's rule graph of the workflow on the demo with every stage on, as a
     Mermaid flowchart (``snakemake --rulegraph mermaid-js``)."""
