@@ -14,7 +14,15 @@ def test_doctor_reports_this_installation(capsys, tmp_path, monkeypatch):
     status = main(["doctor"])
     out = capsys.readouterr().out
     assert status == 0, out
-    for what in ("python", "packages", "torch device", "weights deepfly2d", "cache", "slurm", "chromium"):
+    for what in (
+        "python",
+        "packages",
+        "torch device",
+        "weights deepfly2d",
+        "cache",
+        "slurm",
+        "chromium",
+    ):
         assert f"  {what}" in out
     assert "torch" in out and "jax" in out and "snakemake" in out
     assert out.rstrip().endswith("ready to run (notes above are not problems)")
@@ -54,7 +62,10 @@ def test_missing_weights_are_a_note_naming_where_they_go(tmp_path, monkeypatch):
     config.write_text(f"pose2d:\n  weights: {{deepfly2d: {tmp_path / 'absent.tar'}}}\n")
     (line,) = doctor.check_weights([config])
     assert line.status == doctor.NOTE
-    assert "needed only to run the detector" in line.detail and "absent.tar does not exist" in line.detail
+    assert (
+        "needed only to run the detector" in line.detail
+        and "absent.tar does not exist" in line.detail
+    )
 
 
 def test_doctor_console_script():

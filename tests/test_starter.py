@@ -8,11 +8,12 @@ import sys
 
 import pytest
 import yaml
-from workflow_run import REPO, SNAKEMAKE
 
 from flylib.cli import main
 from flylib.config import Config
 from flylib.pipeline.demo import make_demo
+
+from workflow_run import REPO, SNAKEMAKE
 
 
 @pytest.fixture(scope="module")
@@ -38,12 +39,27 @@ def test_init_writes_a_config_the_workflow_runs(lab, tmp_path, capsys):
     data = yaml.safe_load(out.read_text())
     assert data["recordings"] == [str(lab / "fly1" / "trial1"), str(lab / "fly1" / "trial2")]
     # one pattern for every view, found from the files' names
-    assert data["pose2d"]["import"] == {"format": "dlc_csv", "files": "camera_{index}DLC_flylibdemo.csv"}
+    assert data["pose2d"]["import"] == {
+        "format": "dlc_csv",
+        "files": "camera_{index}DLC_flylibdemo.csv",
+    }
     assert "sources" not in data  # the default camera_N.mp4 names matched
     dry = subprocess.run(
-        [str(SNAKEMAKE), "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path),
-         "--configfile", str(out), "-n", "--cores", "1"],
-        capture_output=True, text=True, timeout=600,
+        [
+            str(SNAKEMAKE),
+            "--snakefile",
+            str(REPO / "Snakefile"),
+            "--directory",
+            str(tmp_path),
+            "--configfile",
+            str(out),
+            "-n",
+            "--cores",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert dry.returncode == 0, dry.stderr[-3000:]
     assert dry.stdout.count("rule pose2d:") == 2

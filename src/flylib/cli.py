@@ -763,11 +763,15 @@ def _cmd_init(args) -> int:
         raise ConfigError(f"{args.folder}: not a folder; name the folder holding your recordings")
     found = survey(args.folder)
     _write_new(args.output, starter_yaml(found, args.output.parent))
-    print(f"flylib init: {len(found.recordings)} recording(s) under {found.root}; wrote {args.output}")
+    print(
+        f"flylib init: {len(found.recordings)} recording(s) under {found.root}; wrote {args.output}"
+    )
     for line in found.undecided:
         print(f"  undecided: {line}")
     try:
-        load_run_config(ConfigLayers.from_files([DEFAULT_CONFIG_PATH, args.output]), check_frames=False)
+        load_run_config(
+            ConfigLayers.from_files([DEFAULT_CONFIG_PATH, args.output]), check_frames=False
+        )
     except ConfigError as exc:
         print(f"{args.output} needs editing before a run:\n{exc}")
         return 1

@@ -97,9 +97,7 @@ def check_packages() -> list[Check]:
             lines.append(Check(NOTE, dist, f"not installed: {used_by} will not work"))
     snakemake = Path(sys.executable).with_name("snakemake")
     if not snakemake.exists() and shutil.which("snakemake") is None:
-        lines.append(
-            Check(FAIL, "snakemake", "no snakemake command beside this Python or on PATH")
-        )
+        lines.append(Check(FAIL, "snakemake", "no snakemake command beside this Python or on PATH"))
     return lines
 
 
@@ -189,7 +187,9 @@ def check_caches() -> list[Check]:
     lines = [Check(OK, "cache", f"{root} (writable; FLYLIB_CACHE moves it)")]
     for sub, what in (("detector", "compiled detectors"), ("jax", "JAX kernels")):
         files, size = _folder_size(root / sub)
-        detail = f"{files} files, {size / 2**20:.1f} MiB" if files else "empty (filled by the first run)"
+        detail = (
+            f"{files} files, {size / 2**20:.1f} MiB" if files else "empty (filled by the first run)"
+        )
         lines.append(Check(OK, f"cache {sub}", f"{what}: {detail}"))
     return lines
 
@@ -201,9 +201,7 @@ def check_cluster() -> list[Check]:
     if plugin and sbatch:
         return [Check(OK, "slurm", f"executor plugin {plugin}, sbatch at {sbatch}")]
     missing = [what for what, have in (("executor plugin", plugin), ("sbatch", sbatch)) if not have]
-    return [
-        Check(NOTE, "slurm", f"no {' and no '.join(missing)}: runs stay on this machine")
-    ]
+    return [Check(NOTE, "slurm", f"no {' and no '.join(missing)}: runs stay on this machine")]
 
 
 def check_browser() -> list[Check]:

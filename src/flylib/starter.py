@@ -125,7 +125,9 @@ def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[
     return {}, None
 
 
-def _per_view_pattern(files: Sequence[str], views: Sequence[str], stems: Sequence[str]) -> str | None:
+def _per_view_pattern(
+    files: Sequence[str], views: Sequence[str], stems: Sequence[str]
+) -> str | None:
     """The ``files`` pattern naming one file per view (``{index}``, ``{view}`` or
     ``{stem}`` in place of what differs between them), or ``None``."""
     if len(files) != len(views):
@@ -170,7 +172,12 @@ def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[di
         pickles = sorted((folder / sub).glob("df3d_result*.pkl")) if (folder / sub).is_dir() else []
         for pkl in pickles:
             found.append({"format": "deepfly3d", "files": f"{sub}{pkl.name}"})
-    per_view: dict[str, list[str]] = {"sleap": [], "dlc_h5": [], "dlc_csv": [], "lightning_pose": []}
+    per_view: dict[str, list[str]] = {
+        "sleap": [],
+        "dlc_h5": [],
+        "dlc_csv": [],
+        "lightning_pose": [],
+    }
     for name in names:
         lower = name.lower()
         if lower.endswith(".analysis.h5"):
@@ -274,13 +281,17 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
     per_recording = {tuple(r.calibrations) for r in recordings if r.path != root}
     if top:
         if len(top) > 1:
-            undecided.append(f"{root}: several calibration files {[n for _, n in top]}; using {top[0][1]}")
+            undecided.append(
+                f"{root}: several calibration files {[n for _, n in top]}; using {top[0][1]}"
+            )
         fmt, name = top[0]
         return {"file": str(root / name), "format": fmt}
     if len(per_recording) == 1 and next(iter(per_recording)):
         found = next(iter(per_recording))
         if len(found) > 1:
-            undecided.append(f"several calibration files {[n for _, n in found]}; using {found[0][1]}")
+            undecided.append(
+                f"several calibration files {[n for _, n in found]}; using {found[0][1]}"
+            )
         fmt, name = found[0]
         # a relative file resolves against each recording's folder
         return {"file": name, "format": fmt}
@@ -321,7 +332,9 @@ def starter_yaml(found: Survey, where: Path) -> str:
         "recordings:",
     ]
     firsts = [r.imports[0] if r.imports else None for r in found.recordings]
-    shared_import = firsts[0] if firsts and firsts[0] and all(f == firsts[0] for f in firsts) else None
+    shared_import = (
+        firsts[0] if firsts and firsts[0] and all(f == firsts[0] for f in firsts) else None
+    )
     for rec in found.recordings:
         what = []
         if rec.footage:
@@ -332,7 +345,9 @@ def starter_yaml(found: Survey, where: Path) -> str:
         entry: str | dict = str(rec.path)
         if rec.imports and shared_import is None:
             entry = {"path": str(rec.path), "import": rec.imports[0]}
-        lines.append(f"  - {_flow(entry) if isinstance(entry, dict) else _flow(entry)}   # {'; '.join(what)}")
+        lines.append(
+            f"  - {_flow(entry) if isinstance(entry, dict) else _flow(entry)}   # {'; '.join(what)}"
+        )
     if not found.recordings:
         lines[-1] = "recordings: []   # none found: list recording folders here"
     if any(not _writable(r.path) for r in found.recordings):
@@ -345,7 +360,11 @@ def starter_yaml(found: Survey, where: Path) -> str:
         lines += ["", "# Each camera's footage, in the rig's camera order (check it):", "sources:"]
         lines += [f"  - {_flow({'name': n, 'filename': f})}" for n, f in found.sources.items()]
     if shared_import is not None:
-        lines += ["", "# 2D from another tool instead of the detector (no weights needed):", "pose2d:"]
+        lines += [
+            "",
+            "# 2D from another tool instead of the detector (no weights needed):",
+            "pose2d:",
+        ]
         lines.append("  import:")
         lines += [f"    {key}: {_flow(value)}" for key, value in shared_import.items()]
         if not any(r.footage for r in found.recordings):
@@ -353,7 +372,10 @@ def starter_yaml(found: Survey, where: Path) -> str:
                 "    # image_size: [height, width]   # needed without footage: the frame size in pixels"
             )
     elif not any(r.imports for r in found.recordings):
-        lines += ["", "# No 2D files found: the detector runs (`flylib doctor` says where its weights go)."]
+        lines += [
+            "",
+            "# No 2D files found: the detector runs (`flylib doctor` says where its weights go).",
+        ]
     if found.calibration:
         lines += [
             "",
