@@ -95,10 +95,11 @@ def test_init_says_when_it_finds_nothing(tmp_path, capsys):
 
 
 def test_init_on_the_deepfly3d_sample(df3d_sample_dir, tmp_path, capsys):
-    status, out, printed = _init(tmp_path, df3d_sample_dir, capsys)
+    status, out, printed = _init(tmp_path, df3d_sample_dir, capsys, "--outdir", "df3d/{id}")
     assert status == 0, printed
     data = yaml.safe_load(out.read_text())
     assert data["recordings"] == [str(df3d_sample_dir)]
+    assert data["outdir"] == "df3d/{id}"
     assert data["pose2d"]["import"] == {"format": "deepfly3d", "files": "df3d_result_2d.pkl"}
 
 

@@ -741,6 +741,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("my.yaml"),
         help="the config file to write (a new file; default my.yaml)",
     )
+    p.add_argument(
+        "--outdir",
+        default=None,
+        metavar="TEMPLATE",
+        help="where outputs go, e.g. results/{id} (default: <recording>/flylib_outputs)",
+    )
     p.set_defaults(func=_cmd_init)
     return parser
 
@@ -762,7 +768,7 @@ def _cmd_init(args) -> int:
     if not args.folder.is_dir():
         raise ConfigError(f"{args.folder}: not a folder; name the folder holding your recordings")
     found = survey(args.folder)
-    _write_new(args.output, starter_yaml(found, args.output.parent))
+    _write_new(args.output, starter_yaml(found, args.output.parent, args.outdir))
     print(
         f"flylib init: {len(found.recordings)} recording(s) under {found.root}; wrote {args.output}"
     )

@@ -319,9 +319,10 @@ def _flow(value) -> str:
     return text.strip()[1:-1]
 
 
-def starter_yaml(found: Survey, where: Path) -> str:
-    """The starter config's text for ``found``; outputs of read-only recordings go under
-    ``where`` (the folder the config is written to)."""
+def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
+    """The starter config's text for ``found``: outputs go to ``outdir`` (a path template)
+    when given, else beside each recording, or under ``where`` (the folder the config is
+    written to) when a recording's folder cannot be written."""
     lines = [
         f"# flylib config for the recordings in {found.root}, written by `flylib init`.",
         "# It is merged over the workflow's config/config.yaml (the default rig and skeleton).",
@@ -350,7 +351,13 @@ def starter_yaml(found: Survey, where: Path) -> str:
         )
     if not found.recordings:
         lines[-1] = "recordings: []   # none found: list recording folders here"
-    if any(not _writable(r.path) for r in found.recordings):
+    if outdir is not None:
+        lines += [
+            "",
+            "# Where outputs go ({id}: each recording's name)",
+            f"outdir: {_flow(outdir)}",
+        ]
+    elif any(not _writable(r.path) for r in found.recordings):
         lines += [
             "",
             "# The recordings' folders cannot be written here: outputs go beside this file.",
