@@ -288,10 +288,47 @@ def test_a_killed_or_stopped_job_is_reported_as_such_never_as_failed_with_an_emp
 
 
 def test_the_table_fits_a_100_column_terminal(tmp_path):
-    """Every column a run can show (held-out figures, suspects), the real sample's
+    """Every column a run can show (held-out figures, suspects, handedness), the real sample's
     figures and a short outdir (the table was 170 columns wide before)."""
     out = tmp_path / "fly7"
-    write_summary(out, suspects=12, accuracy=_accuracy((5.87, 16.97), (5.78, 16.70)))
+    write_summary(
+        out,
+        suspects=12,
+        accuracy=_accuracy((5.87, 16.97), (5.78, 16.70)),
+        handedness={"score": -0.96, "verdict": "mirrored", "message": "m"},
+    )
     lines = run_table([RunRecording("fly7", out)]).splitlines()
     width = max(len(line) for line in lines[1:3]) - len(str(out))
     assert width + len("/results/fly7") <= 100, lines[1:3]
+
+
+def test_a_mirror_image_is_flagged_in_its_row_and_explained_once_under_the_table(tmp_path):
+    """Issue 36: the handedness column, and the cause and switch of a mirror image
+    (assemble's warning says the same: it is not repeated among the warnings)."""
+    message = (
+        "the 3D is the fly's mirror image, its left legs on its right (handedness -0.96, "
+        "median of 15 frames); the calibration file /d/calib.pkl gives a mirror-image world; "
+        "set calibration: {mirror: true} in the config to mirror it back"
+    )
+    write_summary(
+        tmp_path / "a",
+        handedness={"score": -0.96, "verdict": "mirrored", "message": message},
+    )
+    write_summary(
+        tmp_path / "b",
+        handedness={"score": 0.95, "verdict": "right-handed", "message": None},
+    )
+    write_summary(tmp_path / "c")  # assembled before the check: no entry
+    (tmp_path / "a" / "logs").mkdir()
+    (tmp_path / "a" / "logs" / "assemble.log").write_text(
+        f"2026-01-01 00:00:00 WARNING flylib.pipeline.assemble: {message}\n"
+        "2026-01-01 00:00:00 WARNING flylib.x: another warning\n"
+    )
+    recordings = [RunRecording(name, tmp_path / name) for name in "abc"]
+    lines = run_table(recordings).splitlines()
+    assert lines[1].split()[-2:] == ["handedness", "outputs"]
+    assert lines[2].split()[-3:-1] == ["-0.96", "MIRRORED"]
+    assert lines[3].split()[-2] == "+0.95" and lines[4].split()[-2] == "-"
+    at = lines.index("mirror image (the left legs on the fly's right):")
+    assert lines[at + 1] == f"  a: {message}"
+    assert lines[at + 2 :] == ["warnings:", "  a: assemble: another warning"]

@@ -79,6 +79,11 @@ def preflight_problems(
                 f"calibration.format: unknown format {calibration['format']!r}; "
                 f"use one of {', '.join(CALIBRATION_FORMATS)}"
             )
+    if isinstance(calibration, dict) and not isinstance(calibration.get("mirror", False), bool):
+        problems.append(
+            f"calibration.mirror: expected true or false, got {calibration['mirror']!r} "
+            "(true mirrors the calibration file's world; see docs/how-it-works/handedness.md)"
+        )
 
     if any(rec.demo for rec in recordings):
         from ..demo import demo_settings
@@ -239,7 +244,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         text = yaml.safe_dump(layers.data, sort_keys=False, default_flow_style=None)
     try:
         config = Config(layers.data, text=text, format="yaml")
-        recordings = plan_recordings(config, check_frames=check_frames)
+        recordings = plan_recordings(
+            config, check_frames=check_frames, config_dir=layers.config_dir("recordings")
+        )
         problems = preflight_problems(
             config, recordings, config.stage_flags(), check_weights=check_frames
         )
@@ -256,7 +263,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
 
 def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
     from ..interop import import_spec
-    from ..interop.importer import import_files
+    from ..interop.importer import footage_problem, import_files
     from ..pose2d.published import checkpoint_problem
     from ..recordings import find_recording
     from .pose2d import import_target
@@ -276,6 +283,9 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
             if not rec.demo:  # the demo's files are written by its own rule
                 target = target or import_target(config)
                 import_files(target, spec, rec.path)
+                problem = footage_problem(target, spec, rec.path)
+                if problem is not None:
+                    problems.append(f"{where or 'pose2d.import'}: {problem}")
         except FlylibError as exc:
             text = _problem(exc)
             if not text.startswith("pose2d.import"):
