@@ -288,14 +288,14 @@ def test_a_killed_or_stopped_job_is_reported_as_such_never_as_failed_with_an_emp
 
 
 def test_the_table_fits_a_100_column_terminal(tmp_path):
-    """Every column a run can show (held-out figures, suspects, handedness), the real sample's
+    """Every column a run can show (held-out figures, suspects; a right-handed fly adds no handedness column), the real sample's
     figures and a short outdir (the table was 170 columns wide before)."""
     out = tmp_path / "fly7"
     write_summary(
         out,
         suspects=12,
         accuracy=_accuracy((5.87, 16.97), (5.78, 16.70)),
-        handedness={"score": -0.96, "verdict": "mirrored", "message": "m"},
+        handedness={"score": 0.96, "verdict": "right-handed", "message": None},
     )
     lines = run_table([RunRecording("fly7", out)]).splitlines()
     width = max(len(line) for line in lines[1:3]) - len(str(out))

@@ -5,9 +5,9 @@ Each row comes from the recording's ``summary.json`` (written by the assemble jo
 frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
 error, the held-out-view error of triangulation and of the refined output side by
 side (the better one marked ``*``) when the summary holds :mod:`flylib.accuracy`'s
-figures, the suspect count when it holds one, the handedness score
-(:mod:`flylib.handedness`; ``MIRRORED`` for a mirror image, whose cause and fix follow the
-table) and where the outputs are. Then one
+figures, the suspect count when it holds one, the handedness score when a recording's
+3D is a mirror image or undetermined (:mod:`flylib.handedness`; ``MIRRORED`` for a mirror
+image, whose cause and fix follow the table) and where the outputs are. Then one
 sentence per recording says what the held-out figures mean for it (refinement better,
 partly kept, or worse and not used; a camera that disagrees with the others), the
 warnings the jobs logged (e.g. an implausible container frame rate) follow, and the
@@ -444,7 +444,10 @@ def run_table(
     with_accuracy = any(r.get("accuracy") for r in rows)
     # narrow enough for a 100-column terminal: each error is one "median / p95" cell
     header = ["recording", "frames", "in 3D", "reproj px"]
-    with_handedness = any(r.get("handedness") for r in rows)
+    # a fly needs no column: it appears when a 3D is a mirror image or undetermined
+    with_handedness = any(
+        (r.get("handedness") or {}).get("verdict") not in (None, "right-handed") for r in rows
+    )
     if with_accuracy:
         header += ["held-out tri", "held-out ref"]
     if with_suspects:
