@@ -207,6 +207,34 @@ def pose2d_import(wildcards) -> str:
     return json.dumps(recording(wildcards).import_spec, sort_keys=True)
 
 
+# -- cluster job groups --------------------------------------------------------------
+# On a cluster (profiles/slurm) each recording's CPU chain is one submission: every
+# per-recording rule is in the group "recording", and Snakemake submits each connected
+# part of a group (one recording's jobs) as one job whose resources it derives from its
+# members (the sum over jobs that run side by side, the most over jobs in a row, runtimes
+# added up). The detector is its own (GPU) job; imported 2D joins its recording's
+# group. Local runs ignore groups. `--group-components recording=N` puts N recordings in
+# one submission; `--groups` renames or splits them.
+
+#: The group of a recording's CPU jobs.
+RECORDING_GROUP = "recording"
+
+
+def pose2d_mem_mb(wildcards) -> int:
+    """The detector's memory; reading imported 2D needs far less (and sets its group's)."""
+    return 8000 if pose2d_gpus(wildcards) else 2000
+
+
+def pose2d_runtime(wildcards) -> int:
+    """Minutes: the detector's, or reading imported 2D's."""
+    return 120 if pose2d_gpus(wildcards) else 15
+
+
+def pose2d_group(wildcards) -> str | None:
+    """Imported 2D (no GPU) runs in its recording's group; the detector on its own."""
+    return RECORDING_GROUP if pose2d_gpus(wildcards) == 0 else None
+
+
 def pose2d_gpus(wildcards) -> int:
     """A GPU only when the detector runs (imported 2D needs none)."""
     rec = recording(wildcards)

@@ -1,6 +1,7 @@
 # Input functions that tell the demo (its files come from the demo rule) from a real
 # recording (its files are on disk): they use DEMO* from demo.smk, included above.
 
+
 def recording_inputs(wildcards) -> list[str]:
     """What pose2d reads: the footage and the files imported 2D comes from (for the
     demo, everything the demo rule writes), so an edit of any re-runs pose2d."""

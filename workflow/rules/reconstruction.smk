@@ -15,6 +15,8 @@ if FLAGS["bundle_adjustment"]:
             "{outdir}/logs/bundle_adjustment.log",
         benchmark:
             "{outdir}/benchmarks/bundle_adjustment.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1
@@ -40,6 +42,8 @@ if FLAGS["pictorial_structures"]:
             "{outdir}/logs/pictorial_structures.log",
         benchmark:
             "{outdir}/benchmarks/pictorial_structures.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1
@@ -66,6 +70,8 @@ if FLAGS["triangulation"]:
             "{outdir}/logs/triangulation.log",
         benchmark:
             "{outdir}/benchmarks/triangulation.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 2
