@@ -25,6 +25,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
+
 from workflow_run import demo_batch, snakemake_command
 
 REPO = Path(__file__).resolve().parents[2]
