@@ -125,7 +125,7 @@ def _workdirs(root: Path, checkouts: dict[str, Path], config: dict) -> dict[str,
     dirs = {}
     for name in checkouts:
         work = root / name
-        work.mkdir(exist_ok=True)
+        work.mkdir(parents=True, exist_ok=True)
         (work / "config.yaml").write_text(
             yaml.safe_dump({**config, "outdir": "results/{id}"}, sort_keys=False)
         )
@@ -168,7 +168,10 @@ def _job_seconds(outdir: Path) -> dict[str, float]:
 
 
 def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
-    """``{checkout: {"job": {stage: s}, "compute": {stage: s}}}`` for one recording."""
+    """``{checkout: {"job": {stage: s}, "compute": {stage: s}, "jobs cpu": s,
+    "compute cpu": s}}`` for one recording: the jobs' wall seconds (median of the runs)
+    and the CPU seconds of all its jobs together (a run's minus its dry run's, the
+    least of the runs: a busy machine inflates CPU time much less than wall time)."""
     base = _base_config()
     base["pipeline"]["do_kinematics"] = True
     with tempfile.TemporaryDirectory() as tmp:
@@ -176,9 +179,12 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
         config = {**base, "recordings": str(demo_batch(root / "batch", 1, base, frames=frames))}
         work = _workdirs(root, checkouts, config)
         jobs: dict[str, list[dict[str, float]]] = {name: [] for name in checkouts}
+        cpu: dict[str, list[float]] = {name: [] for name in checkouts}
         for _, name, repo in _paired(checkouts, repeats):
-            _snakemake(repo, work[name], "--cores", "1", "--forceall")
+            _, planning, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall", "-n")
+            _, run, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall")
             jobs[name].append(_job_seconds(work[name] / "results" / "rec00000"))
+            cpu[name].append(run - planning)
         results = {}
         for name, repo in checkouts.items():
             out = root / f"direct-{name}"
@@ -187,9 +193,12 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
                 check=True,
                 env=_env(repo),
             )
+            compute = json.loads((out / "compute.json").read_text())
             results[name] = {
                 "job": {s: statistics.median(r[s] for r in jobs[name]) for s in jobs[name][0]},
-                "compute": json.loads((out / "compute.json").read_text()),
+                "compute": compute["wall"],
+                "jobs cpu": min(cpu[name]),
+                "compute cpu": compute["cpu"],
             }
     return results
 
@@ -246,8 +255,10 @@ def _direct(workdir: Path, out: Path) -> None:
     config = Config.from_yaml(workdir / "config.yaml")
     (rec,) = plan_recordings(config)
     _direct_stages(config, rec.path, out / "first", rec.import_spec)
+    cpu = time.process_time()
     seconds = _direct_stages(config, rec.path, out / "second", rec.import_spec)
-    (out / "compute.json").write_text(json.dumps(seconds))
+    cpu = time.process_time() - cpu
+    (out / "compute.json").write_text(json.dumps({"wall": seconds, "cpu": cpu}))
 
 
 def bench_submissions(checkouts: dict[str, Path], count: int = 3) -> dict[str, int]:
@@ -361,7 +372,17 @@ def _print_fixed(fixed: dict, frames: int) -> None:
         f"{'all CPU stages':18s}"
         + "".join(f"{t[0]:15.2f}{t[1]:9.2f}{t[2]:8.2f}" for t in totals.values())
     )
+    for n in names:
+        jobs_cpu, compute_cpu = fixed[n]["jobs cpu"], fixed[n]["compute cpu"]
+        print(
+            f"CPU seconds, {n}: all jobs {jobs_cpu:.2f}, compute {compute_cpu:.2f}, "
+            f"fixed {jobs_cpu - compute_cpu:.2f}"
+        )
     if "baseline" in totals:
+        cpu_fixed = {n: fixed[n]["jobs cpu"] - fixed[n]["compute cpu"] for n in names}
+        print(
+            f"fixed CPU, this checkout / baseline: {cpu_fixed['this'] / cpu_fixed['baseline']:.2f}"
+        )
         ratio = totals["this"][2] / totals["baseline"][2]
         print(
             f"fixed cost, this checkout / baseline: {ratio:.2f} "
