@@ -15,7 +15,7 @@ unknowns
 params
     The ``fixed`` / ``shared`` parameter grammar.
 sampling
-    ``frame_sampling``: which frames the fit uses.
+    ``frame_sampling``: which frames the fit uses (one recording's, or a session's).
 problem
     Residuals, the JAX Jacobian as a sparse matrix, the ``scipy`` path.
 lm
@@ -27,7 +27,7 @@ gauge
 """
 
 from .adjust import bundle_adjust, camera_table
-from .sampling import FRAME_SAMPLING, select_frames
+from .sampling import FRAME_SAMPLING, select_frames, select_session_frames
 from .sequence import bundle_adjust_sequence
 
 __all__ = [
@@ -36,4 +36,5 @@ __all__ = [
     "bundle_adjust_sequence",
     "camera_table",
     "select_frames",
+    "select_session_frames",
 ]
