@@ -238,7 +238,7 @@ def run_session_summary(
     for rec, pose2d_path, trial_path in zip(members, pose2d_paths, trial_paths, strict=True):
         pose2d = Pose2dData.load(pose2d_path)
         trial = read_stage(trial_path, "bundle_adjustment")
-        trial_seconds += float(trial["attrs"].get("summary", {}).get("seconds", 0.0))
+        trial_seconds += float(_solve_summary(trial).get("seconds", 0.0))
         row = {}
         for label, cameras in (("per_recording", trial["cameras"]), ("session", rigs["session"])):
             errors = _held_out(inputs, cameras, pose2d, pose2d_path)
@@ -248,9 +248,7 @@ def run_session_summary(
     overall = {label: _stats(np.concatenate(parts)) for label, parts in pooled.items()}
     medians = {k: v["median"] for k, v in overall.items()}
     better = (
-        None
-        if any(m is None for m in medians.values())
-        else min(medians, key=lambda k: medians[k])
+        None if any(m is None for m in medians.values()) else min(medians, key=lambda k: medians[k])
     )
     summary = {
         "session": name,
@@ -260,10 +258,10 @@ def run_session_summary(
         "better": better,
         "recordings": per_recording,
         "seconds": {
-            "session_solve": float(session["attrs"].get("summary", {}).get("seconds", 0.0)),
+            "session_solve": float(_solve_summary(session).get("seconds", 0.0)),
             "per_recording_solves": round(trial_seconds, 3),
         },
-        "frames_per_recording": session["attrs"].get("summary", {}).get("frames_per_recording"),
+        "frames_per_recording": _solve_summary(session).get("frames_per_recording"),
     }
     with atomic_path(out_path) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n")
@@ -291,6 +289,12 @@ def _held_out(inputs: SessionSummaryInputs, cameras, pose2d, where) -> np.ndarra
     return errors[np.isfinite(errors)]
 
 
+def _solve_summary(stage: dict) -> dict:
+    """A bundle-adjustment artifact's ``summary`` attribute (JSON text) as a dict."""
+    text = stage["attrs"].get("summary") or "{}"
+    return json.loads(text) if isinstance(text, str | bytes) else dict(text)
+
+
 def _stats(errors: np.ndarray) -> dict[str, float | int | None]:
     if errors.size == 0:
         return {"median": None, "p95": None, "n": 0}
@@ -299,4 +303,3 @@ def _stats(errors: np.ndarray) -> dict[str, float | int | None]:
         "p95": round(float(np.percentile(errors, 95)), 4),
         "n": int(errors.size),
     }
-
