@@ -90,10 +90,11 @@ def make_session(visibility: np.ndarray, trials: int, frames: int):
 def evaluate(rig, trial, truth_rig) -> dict:
     """3D error (median bones) and held-out-view error (median px) of one trial with ``rig``."""
     import front_blind
-    import rough_rig as rr
 
     from flylib.config import Config
     from flylib.triangulation import reconstruct
+
+    import rough_rig as rr
 
     truth, pts2d, conf = trial
     pts3d, _, _ = reconstruct(rig, pts2d, Config.default().triangulation, conf)

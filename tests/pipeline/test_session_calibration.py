@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import rough_rig as rr
 from flylib.bundle_adjustment import select_session_frames
 from flylib.config import Config
 from flylib.errors import ConfigError
@@ -15,6 +14,8 @@ from flylib.pipeline.session_calibration import (
     SessionCalibrationInputs,
     compute_session_calibration,
 )
+
+import rough_rig as rr
 from rig_constants import VIEWS
 from synthetic import POINT_NAMES, rig_visibility
 
