@@ -22,7 +22,7 @@ from pathlib import Path
 from .errors import ConfigError
 from .recordings import Recording
 
-__all__ = ["SESSIONS_DIR", "Session", "plan_sessions"]
+__all__ = ["SESSIONS_DIR", "Session", "plan_sessions", "session_lines"]
 
 #: The folder, beside the members' output folders, that holds one folder per session.
 SESSIONS_DIR = "flylib_sessions"
@@ -109,3 +109,28 @@ def plan_sessions(recordings: Sequence[Recording]) -> list[Session]:
 
 def _folder(rec: Recording) -> str:
     return os.path.abspath(Path(rec.path).parent)
+
+
+def session_lines(sessions: Sequence[Session]) -> list[str]:
+    """One line per session whose summary exists: the held-out-view error (median px)
+    with the per-recording rigs and with the session's, and where its rig is."""
+    import json
+
+    lines = []
+    for s in sessions:
+        try:
+            summary = json.loads(s.summary.read_text())
+        except (OSError, ValueError):
+            continue
+        held = summary.get("held_out_error_px", {})
+        trial = (held.get("per_recording") or {}).get("median")
+        whole = (held.get("session") or {}).get("median")
+        if trial is None or whole is None:
+            continue
+        better = "session" if summary.get("better") == "session" else "per-recording"
+        lines.append(
+            f"session {s.name} ({len(s.members)} recordings): held-out median "
+            f"{trial:.2f} px with each recording's own rig, {whole:.2f} px with the "
+            f"session's ({better} better); the rig the results use: {s.calibration}"
+        )
+    return lines

@@ -99,6 +99,10 @@ def test_session_summary_sets_per_trial_and_session_rigs_side_by_side(session_ru
     assert summary["better"] in ("session", "per_recording")
     assert summary["better"] == min(pooled, key=lambda k: pooled[k]["median"])
     assert sum(summary["frames_per_recording"]) == 3 * 6  # 6-frame trials, max_frames 200
+    # the end of the run says it too
+    line = next(x for x in session_run["run"].stderr.splitlines() if x.startswith("session day1"))
+    assert f"{pooled['session']['median']:.2f} px with the session's" in line
+    assert str(folder / "calibration.toml") in line
 
 
 def test_session_off_and_on_keep_the_per_trial_solves(session_run):
