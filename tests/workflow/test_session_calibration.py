@@ -86,6 +86,22 @@ def test_provenance_names_the_session_and_its_members(session_run):
     assert toml["metadata"]["recordings"] == list(TRIALS)
 
 
+def test_each_trials_results_are_consistent_with_the_session_rig(session_run):
+    """``flylib inspect``'s provenance check of a member's results.h5 against the
+    snapshot config beside it: every stage ok (the rig is the session's, not stale)."""
+    from flylib.config import Config
+    from flylib.pipeline.planning import params_of
+    from flylib.provenance import provenance_report
+
+    for name in TRIALS:
+        out = session_run["root"] / "day1" / name / "flylib_outputs"
+        config = Config.from_file(out / "config.yaml")
+        rows = provenance_report(out / "results.h5", params_of(config))
+        assert {row.stage: row.status for row in rows} == dict.fromkeys(
+            ("pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble"), "ok"
+        ), [p for row in rows for p in row.problems]
+
+
 def test_session_summary_sets_per_trial_and_session_rigs_side_by_side(session_run):
     folder = _session_dir(session_run["root"])
     summary = json.loads((folder / "session_summary.json").read_text())
@@ -114,3 +130,19 @@ def test_session_off_and_on_keep_the_per_trial_solves(session_run):
     jobs = planned(root, off)
     assert {rule for rule, _ in jobs} == {"triangulation", "refinement", "assemble"}
     assert {rec for _, rec in jobs} == set(TRIALS)
+
+
+@pytest.mark.parametrize("script", ["session_calibration", "session_summary"])
+def test_session_scripts_have_help(script):
+    import subprocess
+    import sys
+
+    from workflow_run import REPO
+
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / f"{script}.py"), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0 and "--members" in proc.stdout and "--config" in proc.stdout
