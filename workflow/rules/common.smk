@@ -217,8 +217,8 @@ def session_unplanned(wildcards) -> list[str]:
 def rig_artifact(wildcards) -> str:
     """The bundle-adjusted rig a recording's later stages read: its session's while
     session calibration is on, else its own bundle-adjustment artifact."""
-    own = recording(wildcards)
-    if own.id in SESSION_OF:
+    own = BY_OUTDIR.get(wildcards.outdir)  # None: a folder no recording writes (unplanned)
+    if own is not None and own.id in SESSION_OF:
         return str(SESSION_OF[own.id].artifact)
     return artifact("bundle_adjustment").format(outdir=wildcards.outdir)
 
@@ -272,14 +272,16 @@ def reconstruction_inputs(stage: str):
     (triangulation) pictorial-structures 2D while that stage is on."""
 
     def inputs(wildcards) -> dict:
-        files = {"pose2d": artifact("pose2d")}
+        def own(name: str) -> str:
+            return artifact(name).format(outdir=wildcards.outdir)
+
+        files = {"pose2d": own("pose2d")}
         if stage == "pictorial_structures":
-            files["candidates"] = artifact("candidates")
-        if stage == "triangulation" and FLAGS["pictorial_structures"]:
-            files["pictorial_structures"] = artifact("pictorial_structures")
-        files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+            files["candidates"] = own("candidates")
         if FLAGS["bundle_adjustment"]:
             files["bundle_adjustment"] = rig_artifact(wildcards)
+        if stage == "triangulation" and FLAGS["pictorial_structures"]:
+            files["pictorial_structures"] = own("pictorial_structures")
         if not FLAGS["bundle_adjustment"]:
             files["calibration"] = calibration_inputs(wildcards)
         return files
