@@ -24,8 +24,8 @@ similarity alignment, median over trials), the held-out-view error the session
 summary reports (median px), and the solve times (sum over trials vs the one session
 solve).
 
-Run: ``.venv/bin/python benchmarks/session_calibration.py`` (about 3 minutes on a quiet
-2-core machine; ``--frames`` fewer to go faster).
+Run: ``.venv/bin/python benchmarks/session_calibration.py`` (about 5 minutes on the
+shared 2-core machine at load 10; ``--frames 20``, short trials, about 2 minutes).
 """
 
 from __future__ import annotations

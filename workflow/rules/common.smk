@@ -193,6 +193,11 @@ try:
     )
 except FlylibError as exc:
     stop_run(str(exc))
+if CONFIG.bundle_adjustment.session and not FLAGS["bundle_adjustment"] and workflow.is_main_process:
+    logger.warning(
+        "bundle_adjustment.session: true does nothing while pipeline.do_bundle_adjustment "
+        "is false (every recording uses the config rig); turn bundle adjustment on"
+    )
 SESSION_OF = {r.id: s for s in SESSIONS for r in s.members}
 BY_SESSIONDIR = {str(s.outdir): s for s in SESSIONS}
 
