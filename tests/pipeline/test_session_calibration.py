@@ -85,3 +85,32 @@ def test_one_solve_over_three_trials_refines_the_rough_rig():
         return np.linalg.norm(similarity_aligned(centres(cameras), truth) - truth, axis=1).max()
 
     assert centre_error(result.cameras) < 0.1 * centre_error(start)
+
+
+def test_a_member_with_other_cameras_is_one_line_naming_it(tmp_path):
+    from flylib.errors import ResultsError
+    from flylib.pipeline.session_calibration import run_session_calibration
+    from flylib.results import Pose2dData
+
+    config = Config.default()
+    skeleton = config.skeleton()
+    views = config.view_names()
+    paths = []
+    for name, sizes in (("t1", (480, 960)), ("t2", (512, 960))):
+        n_points = len(skeleton.point_names)
+        data = Pose2dData(
+            pts2d=np.zeros((len(views), 2, n_points, 2)),
+            conf=np.ones((len(views), 2, n_points)),
+            view_names=list(views),
+            image_sizes={v: sizes for v in views},
+        )
+        data.save(tmp_path / f"{name}.h5", skeleton)
+        paths.append(tmp_path / f"{name}.h5")
+    inputs = SessionCalibrationInputs.from_config(config)
+    with pytest.raises(
+        ResultsError, match=r"t2\.h5: recording 't2' has views .* one session is one rig"
+    ):
+        run_session_calibration(
+            inputs, paths, tmp_path / "s.h5", tmp_path / "c.toml", name="day1", members=["t1", "t2"]
+        )
+    assert not (tmp_path / "s.h5").exists() and not (tmp_path / "c.toml").exists()
