@@ -30,6 +30,8 @@ def assemble_inputs(wildcards) -> dict:
     # pose2d's artifact is read even with pose2d off (made by an earlier run)
     files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+    if FLAGS["bundle_adjustment"]:
+        files["bundle_adjustment"] = rig_artifact(wildcards)
     files["calibration"] = calibration_inputs(wildcards)
     if recording(wildcards).demo:
         files["truth"] = DEMO_TRUTH

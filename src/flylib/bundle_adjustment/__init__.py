@@ -15,7 +15,7 @@ unknowns
 params
     The ``fixed`` / ``shared`` parameter grammar.
 sampling
-    ``frame_sampling``: which frames the fit uses.
+    ``frame_sampling``: which frames the fit uses (one recording's, or a session's).
 problem
     Residuals, the JAX Jacobian as a sparse matrix, the ``scipy`` path.
 lm
