@@ -64,3 +64,16 @@ else:
     settings.register_profile("flylib", max_examples=80, derandomize=True, **_fuzz)
     settings.register_profile("long", max_examples=2000, **_fuzz)
     settings.load_profile("flylib")
+
+
+def checkpoint_layout(path: Path) -> Path:
+    """A file with the layout ``torch.save`` writes (a zip archive holding
+    ``<name>/data.pkl``), for validation tests that need a checkpoint to exist but never
+    load it (:func:`flylib.pose2d.published.container_problem`)."""
+    import pickle
+    import zipfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr(f"{path.stem}/data.pkl", pickle.dumps({"state_dict": {}}, protocol=2))
+    return path

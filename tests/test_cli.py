@@ -308,3 +308,39 @@ def test_a_toml_config_is_named_as_such_with_its_yaml_equivalent(tmp_path):
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
+
+
+def test_inspect_judges_the_handedness_of_a_file_assembled_without_a_verdict(tmp_path, capsys):
+    """Issue 36: a results.h5 from before the check still gets a handedness line."""
+    from flylib.demo import synthetic_fly
+    from flylib.handedness import WORLD_MIRROR
+    from flylib.results import PoseResult
+
+    config = Config.default()
+    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    for name, pts3d in (("fly", synthetic_fly(8)), ("mirror", synthetic_fly(8) @ WORLD_MIRROR)):
+        path = tmp_path / f"{name}.h5"
+        PoseResult(
+            cameras=rig, skeleton=config.skeleton(), pts2d=rig.project(pts3d), pts3d=pts3d
+        ).save(path)
+        assert summarize_results(path)["handedness"]["verdict"] == (
+            "right-handed" if name == "fly" else "mirrored"
+        )
+        main(["inspect", str(path)])
+        out = capsys.readouterr().out
+        expected = "handedness: right-handed: " if name == "fly" else "handedness: mirrored: "
+        assert expected in out
+
+
+def test_export_and_inspect_help_say_which_2d_and_what_verify_checks(capsys):
+    """Issue 36 (7): `--help` says the DLC CSVs are pose2d's detections with the
+    corrections applied; `inspect --help` offers --verify."""
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "pose2d's 2D detections" in text and "manual corrections applied" in text
+    assert "not the 2D a 3D stage kept" in text
+    with pytest.raises(SystemExit):
+        main(["inspect", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--verify" in text and "exit status 1 when one fails" in text

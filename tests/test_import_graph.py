@@ -55,6 +55,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.alignment",
             "flylib.camera",
             "flylib.skeleton",
+            "flylib.handedness",
             "flylib.io",
             "flylib.pose2d.plan",
             "flylib.visualization.specs",

@@ -166,6 +166,21 @@ def test_entries_and_sheet_carry_outdir_and_import(tmp_path):
         plan({**SOURCES, "recordings": str(tmp_path / "missing.tsv")})
 
 
+def test_a_csv_sheet_saved_by_a_spreadsheet_lists_recordings_like_a_tsv_one(tmp_path):
+    a = make_video_recording(tmp_path / "data" / "a")
+    b = make_video_recording(tmp_path / "data" / "b.csv")  # a folder, not a sheet
+    (tmp_path / "sheets").mkdir()
+    sheet = tmp_path / "sheets" / "recordings.csv"
+    sheet.write_text("\ufeffpath,import_format,import_files\n../data/a,dlc_csv,{stem}DLC_*.csv\n")
+    recs = plan({**SOURCES, "recordings": str(sheet)})
+    assert [r.path.resolve() for r in recs] == [a.resolve()]
+    assert recs[0].import_spec == {"format": "dlc_csv", "files": "{stem}DLC_*.csv"}
+    assert [r.path for r in plan({**SOURCES, "recordings": [str(b)]})] == [b]
+    sheet.write_text("path;outdir\n../data/a;out\n")  # a spreadsheet set to ';' separators
+    with pytest.raises(ConfigError, match=r"needs a 'path' column \(has \['path;outdir'\]\)"):
+        plan({**SOURCES, "recordings": str(sheet)})
+
+
 def test_demo_entry_needs_no_footage_yet(tmp_path):
     config = Config.default().data
     config = {**config, "recordings": [{"path": str(tmp_path / "demo"), "demo": True}]}

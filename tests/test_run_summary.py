@@ -298,3 +298,35 @@ def test_a_killed_or_stopped_job_is_reported_as_such_never_as_failed_with_an_emp
     warnings = text.split("warnings:\n", 1)[1].splitlines()
     assert warnings[0].startswith("  snakemake: Output out/stages/pose2d.h5 has older")
     assert "clock skew" in warnings[0]
+
+
+def test_a_mirror_image_is_flagged_in_its_row_and_explained_once_under_the_table(tmp_path):
+    """Issue 36: the handedness column, and the cause and switch of a mirror image
+    (assemble's warning says the same: it is not repeated among the warnings)."""
+    message = (
+        "the 3D is the fly's mirror image, its left legs on its right (handedness -0.96, "
+        "median of 15 frames); the calibration file /d/calib.pkl gives a mirror-image world; "
+        "set calibration: {mirror: true} in the config to mirror it back"
+    )
+    write_summary(
+        tmp_path / "a",
+        handedness={"score": -0.96, "verdict": "mirrored", "message": message},
+    )
+    write_summary(
+        tmp_path / "b",
+        handedness={"score": 0.95, "verdict": "right-handed", "message": None},
+    )
+    write_summary(tmp_path / "c")  # assembled before the check: no entry
+    (tmp_path / "a" / "logs").mkdir()
+    (tmp_path / "a" / "logs" / "assemble.log").write_text(
+        f"2026-01-01 00:00:00 WARNING flylib.pipeline.assemble: {message}\n"
+        "2026-01-01 00:00:00 WARNING flylib.x: another warning\n"
+    )
+    recordings = [RunRecording(name, tmp_path / name) for name in "abc"]
+    lines = run_table(recordings).splitlines()
+    assert lines[1].split()[-2:] == ["handedness", "outputs"]
+    assert lines[2].split()[-3:-1] == ["-0.96", "MIRRORED"]
+    assert lines[3].split()[-2] == "+0.95" and lines[4].split()[-2] == "-"
+    at = lines.index("mirror image (the left legs on the fly's right):")
+    assert lines[at + 1] == f"  a: {message}"
+    assert lines[at + 2 :] == ["warnings:", "  a: assemble: another warning"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -150,7 +151,16 @@ def test_assemble_writes_suspects_csv_and_count_and_inspect_prints_it(tmp_path, 
     items = [int(r["item"]) for r in rows]
     assert items == sorted(items) and items[0] == 0
     assert float(rows[0]["score"]) == max(float(r["score"]) for r in rows)
-    assert not any(" view(s) " in r["detail"] or "view 0 " in r["detail"] for r in rows)
+    assert not any(" view(s) " in r["detail"] for r in rows)
+    # views numbered as frames and points are (0-based, issue 36), each with its camera
+    from flylib.results import PoseResult
+
+    cameras = list(PoseResult.load(out / "results.h5").cameras.names)
+    named = [
+        (int(i), name) for r in rows for i, name in re.findall(r"(\d+) \((\w+)\)", r["detail"])
+    ]
+    assert named and all(cameras[i] == name for i, name in named)
+    assert not re.search(r"view \d+ [a-z]", " ".join(r["detail"] for r in rows))
     assert main(["inspect", str(out / "results.h5")]) == 0
     printed = capsys.readouterr().out
     assert f"suspects: {len(rows)} (frame, point) pairs" in printed
@@ -233,7 +243,8 @@ def test_items_group_a_points_consecutive_frames_and_rank_by_score():
     assert [r["item"] for r in s.records(frame=5)] == [0, 2]
 
 
-def test_details_name_views_as_the_gui_does():
+def test_details_number_views_from_0_as_frames_and_points_with_the_camera_name():
+    """Issue 36 (9): suspects.csv numbered views from 1 but frames and points from 0."""
     config, cameras, pts3d, pts2d, error = clean_case()
     bones = config.skeleton().bones
     views = config.view_names()
@@ -246,7 +257,5 @@ def test_details_name_views_as_the_gui_does():
     used[seen[1], 30, tarsus] = np.nan
     found = find_suspects(pts3d, used, err, bones, pts2d_input=pts2d, view_names=views)
     by_frame = {r["frame"]: r["detail"] for r in found.records()}
-    assert by_frame[20].startswith(f"view {seen[0] + 1} {views[seen[0]]} reprojects 40.0 px")
-    assert (
-        by_frame[30] == f"view {seen[1] + 1} {views[seen[1]]} dropped by the robust triangulation"
-    )
+    assert by_frame[20].startswith(f"view {seen[0]} ({views[seen[0]]}) reprojects 40.0 px")
+    assert by_frame[30] == f"view {seen[1]} ({views[seen[1]]}) dropped by the robust triangulation"

@@ -1,9 +1,10 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
     flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
+    flylib inspect --verify RESULTS_H5        does the result agree with itself? (status 1 if not)
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
-    flylib check-config CONFIG...             check config files as the workflow does
+    flylib check-config CONFIG...             check config files as the workflow does (over the default)
     flylib run CONFIG... [SNAKEMAKE_ARGS]     check, then run snakemake on plain copies
     flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
 
@@ -50,8 +51,8 @@ def summarize_results(path: Path) -> dict:
     Returns
     -------
     dict
-        ``{"meta", "stages": [row...], "points": [row...], "bones": [row...],
-        "stage_3d"}``; rows are dicts of plain numbers and strings. Reprojection
+        ``{"meta", "handedness", "stages": [row...], "points": [row...],
+        "bones": [row...], "stage_3d"}``; rows are dicts of plain numbers and strings. Reprojection
         errors are in pixels; the bone spread is the interquartile range of the
         bone's length over frames divided by its median (0 for a rigid bone).
     """
@@ -60,6 +61,9 @@ def summarize_results(path: Path) -> dict:
         if "skeleton/point_names" not in f:
             raise ResultsError(f"{path}: no skeleton/point_names; not a flylib results file")
         names = _decode(f["skeleton/point_names"][()])
+        from .results.groups import skeleton_from_group
+
+        skeleton = skeleton_from_group(f["skeleton"])
         bones = np.zeros((0, 2), int)
         if "skeleton/bones" in f:
             bones = np.asarray(f["skeleton/bones"][()], dtype=int).reshape(-1, 2)
@@ -138,8 +142,14 @@ def summarize_results(path: Path) -> dict:
                     "spread": spread,
                 }
             )
+    handedness = meta.get("handedness")
+    if not isinstance(handedness, dict) and pts3d is not None:  # assembled by an older flylib
+        from .handedness import handedness as judge
+
+        handedness = judge(np.asarray(pts3d, float), skeleton).as_dict()
     return {
         "meta": meta,
+        "handedness": handedness,
         "stages": stages,
         "points": points,
         "bones": bone_rows,
@@ -194,6 +204,25 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
     print()
 
 
+def _verify(path: Path) -> int:
+    """``inspect --verify``: one line per failed invariant of :mod:`flylib.results.invariants`
+    (status 1), or one line saying they hold (status 0)."""
+    from .results.invariants import check_results, describe
+
+    found = check_results(path)
+    if not found:
+        print(
+            f"{path}: consistent (stored reprojection errors match the stored 2D, 3D and "
+            "cameras; the 2D is what the 3D was solved from, corrections applied; the "
+            "flags match the NaN patterns)"
+        )
+        return 0
+    views, points = describe(path)
+    for violation in found:
+        print(f"flylib inspect: {path}: {violation.line(views, points)}", file=sys.stderr)
+    return 1
+
+
 def _cmd_inspect(args) -> int:
     from .results import verify_file
 
@@ -210,6 +239,8 @@ def _cmd_inspect(args) -> int:
             "verified; re-run the workflow to regenerate the file",
             file=sys.stderr,
         )
+    if args.verify:
+        return _verify(args.results)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(
@@ -232,6 +263,7 @@ def _cmd_inspect(args) -> int:
             ("cameras", "cameras"),
         ],
     )
+    _print_handedness(summary["handedness"])
     if summary["accuracy"] is not None:
         from .run_summary import HELD_OUT_NOTE, accuracy_line
 
@@ -269,6 +301,20 @@ def _cmd_inspect(args) -> int:
     if summary["stage_3d"]:
         _print_suspects(args.results)
     return _print_provenance(args)
+
+
+def _print_handedness(entry: dict | None) -> None:
+    """Whether the 3D is a fly or its mirror image (:mod:`flylib.handedness`), and
+    when mirrored, why and the fix."""
+    if not entry:
+        return
+    print(f"handedness: {entry['verdict']}: {entry['reason']}")
+    start = entry.get("starting_rig")
+    if start:
+        print(f"  starting rig ({entry.get('rig')}): {start['verdict']}: {start['reason']}")
+    if entry.get("message"):
+        print(f"  MIRROR IMAGE: {entry['message']}")
+    print()
 
 
 def _print_provenance(args) -> int:
@@ -412,7 +458,19 @@ def _cmd_export(args) -> int:
         record_outputs(Path(path).parent, [Path(path).name])
         print(path)
     if args.csv3d is not None or args.dlc_dir is not None:
-        for path in export_result(result, csv3d=args.csv3d, dlc_dir=args.dlc_dir):
+        detections = None
+        if args.dlc_dir is not None:
+            from .results import read_detections
+
+            detections = read_detections(args.results)
+            print(
+                f"--dlc-dir: pose2d's detections, {detections.corrected} observations "
+                "corrected by hand (corrections.h5) applied",
+                file=sys.stderr,
+            )
+        for path in export_result(
+            result, csv3d=args.csv3d, dlc_dir=args.dlc_dir, detections=detections
+        ):
             record_outputs(path.parent, [path.name])
             print(path)
     return 0
@@ -480,7 +538,8 @@ def _cmd_check_config(args) -> int:
     from .config.layers import ConfigLayers
     from .pipeline.preflight import load_run_config
 
-    layers = ConfigLayers.from_files(args.configfiles)
+    base = _default_base(args.configfiles, args.replace_workflow_config)
+    layers = ConfigLayers.from_files([*base, *args.configfiles])
     _, recordings = load_run_config(layers)
     if args.to_yaml is not None:
         tomls = [f for f in args.configfiles if f.suffix.lower() == ".toml"]
@@ -492,21 +551,38 @@ def _cmd_check_config(args) -> int:
         _write_new(
             args.to_yaml,
             _plain_yaml(
-                dict(layers.layers[args.configfiles.index(tomls[0])][1]),
+                dict(layers.layers[len(base) + args.configfiles.index(tomls[0])][1]),
                 str(tomls[0]),
                 f"{tomls[0]} as YAML, written by flylib check-config --to-yaml",
             ),
         )
         print(f"{tomls[0]}: valid; written as YAML to {args.to_yaml}")
         return 0
+    over = " over the default config" if base else ""
     print(
-        f"{' + '.join(layers.labels)}: valid; {len(recordings)} recording(s): "
+        f"{' + '.join(map(str, args.configfiles))}{over}: valid; {len(recordings)} recording(s): "
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
     )
     hint = _toml_hint(args.configfiles)
     if hint:
         print(hint, file=sys.stderr)
     return 0
+
+
+def _default_base(configfiles: list[Path], replace: bool) -> list[Path]:
+    """The default config when the workflow would merge the user's files over it:
+    always, as the Snakefile's ``configfile:`` does, unless ``--replace-workflow-config``
+    or the first file given is the default config itself (its checkout copy included)."""
+    from .config.constants import DEFAULT_CONFIG_PATH
+
+    if replace:
+        return []
+    try:
+        if configfiles[0].read_bytes() == Path(DEFAULT_CONFIG_PATH).read_bytes():
+            return []
+    except OSError:
+        pass  # a missing file is named by the reader
+    return [Path(DEFAULT_CONFIG_PATH)]
 
 
 def _write_new(path: Path, text: str) -> None:
@@ -604,6 +680,13 @@ def build_parser() -> argparse.ArgumentParser:
         "over the default config as `snakemake --configfile` merges them (default: the "
         "config.yaml snapshot beside RESULTS_H5)",
     )
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="only check that the result agrees with itself (reprojection errors, the 2D "
+        "the 3D was solved from, flags); one line per failed invariant naming the dataset "
+        "and its worst (view, frame, point), 0-based; exit status 1 when one fails",
+    )
     p.set_defaults(func=_cmd_inspect)
 
     p = sub.add_parser(
@@ -611,7 +694,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("results", type=Path, metavar="RESULTS_H5")
     p.add_argument("--csv3d", type=Path, help="write the 3D points to this CSV")
-    p.add_argument("--dlc-dir", type=Path, help="write <view>.csv DeepLabCut files here")
+    p.add_argument(
+        "--dlc-dir",
+        type=Path,
+        help="write <view>.csv DeepLabCut files here: pose2d's 2D detections (as detected "
+        "or imported) with the manual corrections applied, not the 2D a 3D stage kept",
+    )
     p.add_argument("--nwb", type=Path, help="write an NWB file (ndx-pose) here")
     p.add_argument(
         "--training-data",
@@ -659,7 +747,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         nargs="+",
         metavar="CONFIG",
-        help="config files in the order snakemake merges them, e.g. config/config.yaml my.yaml",
+        help="config files in the order snakemake merges them, over the default config as "
+        "the workflow does, e.g. my.yaml",
+    )
+    p.add_argument(
+        "--replace-workflow-config",
+        action="store_true",
+        help="the files are the whole config, not merged over the default (as snakemake's "
+        "option of that name)",
     )
     p.add_argument(
         "--to-yaml",

@@ -369,6 +369,14 @@ class Corrections:
         """``(V, T, P)`` bool: observations a person edited or marked invisible."""
         return self.edited | self.invisible
 
+    def edited_2d(self) -> Float[np.ndarray, "V T P 2"]:
+        """``(V, T, P, 2)`` the 2D a person gave where :meth:`touched` (NaN elsewhere and
+        where marked invisible): with :meth:`touched`, what :meth:`apply_2d` puts in."""
+        out = np.full((*self.shape, 2), np.nan)
+        out[self.edited] = self.points[self.edited]
+        out[self.invisible] = np.nan
+        return out
+
     def corrected_points(self) -> Bool[np.ndarray, "T P"]:
         """``(T, P)`` bool: 3D points whose input a person changed (any view, or in 3D)."""
         return self.touched().any(axis=0) | self.edited3d

@@ -6,7 +6,7 @@ config: one video per source, or one image sequence per source, all with the sam
 frame count. :func:`find_recording` resolves one directory; :func:`resolve_recordings`
 expands literal paths and wildcard patterns (optionally recursively) into a batch;
 :func:`plan_listing` turns a ``recordings`` listing (paths, patterns, per-recording
-mappings or a ``.tsv`` sheet) into :class:`Recording` objects, each with a stable,
+mappings or a ``.tsv`` / ``.csv`` sheet) into :class:`Recording` objects, each with a stable,
 unique id and its output directory. The Snakemake workflow plans its jobs from
 :func:`flylib.pipeline.planning.plan_recordings`, which hands it the config's keys.
 """
@@ -431,8 +431,12 @@ def _close_path(path: Path) -> Path | None:
     return None
 
 
-def check_recording_path(path: str | Path, where: str) -> None:
+def check_recording_path(path: str | Path, where: str, config_dir: Path | None = None) -> None:
     """Refuse a listed recording path that does not exist or is not a directory.
+
+    A relative path is read from the working directory (Snakemake's ``--directory``, else
+    where it runs), as Snakemake reads every relative path of a config; the message says
+    so, and names the config file's folder too when the path exists there instead.
 
     Parameters
     ----------
@@ -440,6 +444,8 @@ def check_recording_path(path: str | Path, where: str) -> None:
         A literal (non-pattern) recording path from the config.
     where
         The config key it came from, e.g. ``recordings[0]``.
+    config_dir
+        The folder of the config file that listed it (``None``: not known).
 
     Raises
     ------
@@ -457,7 +463,42 @@ def check_recording_path(path: str | Path, where: str) -> None:
         )
     close = _close_path(path)
     hint = f"did you mean {close}?" if close is not None else "fix the path"
-    raise ConfigError(f"{where}: {path} does not exist; {hint}")
+    if path.is_absolute():
+        raise ConfigError(f"{where}: {path} does not exist; {hint}")
+    raise ConfigError(f"{where}: {path} does not exist {relative_lookup(path, config_dir, hint)}")
+
+
+#: How a relative path in a config is read, said in every message about one.
+RELATIVE_RULE = (
+    "relative paths in a config are read from the working directory, snakemake --directory "
+    "or where snakemake runs, as Snakemake reads them; never from the config file's folder"
+)
+
+
+def relative_lookup(path: Path | str, config_dir: Path | None, hint: str) -> str:
+    """The end of a message about a relative ``path`` that found nothing (``"in the
+    working directory ..."``): where it was looked up, the rule, and whether it exists in
+    the config file's folder instead (with the two fixes), else ``hint``."""
+    cwd = Path.cwd()
+    beside = None
+    if config_dir is not None and Path(config_dir).absolute() != cwd:
+        beside = Path(config_dir).absolute() / path
+    looked = f"in the working directory {cwd} ({RELATIVE_RULE})"
+    pattern = is_pattern(str(path))
+    if beside is not None and (glob.glob(str(beside)) if pattern else beside.exists()):
+        there = (
+            "it matches in the config file's folder"
+            if pattern
+            else "it is in the config file's folder"
+        )
+        return (
+            f"{looked}; {there} ({beside}): list it as {beside}, "
+            f"or run from {Path(config_dir).absolute()} (snakemake --directory "
+            f"{Path(config_dir).absolute()})"
+        )
+    if beside is not None:
+        looked += f", nor in the config file's folder {Path(config_dir).absolute()}"
+    return f"{looked}; {hint}"
 
 
 def _quiet_find(path: Path, config: Any, check_frames: bool) -> dict | None:
@@ -470,19 +511,33 @@ def _quiet_find(path: Path, config: Any, check_frames: bool) -> dict | None:
 # -- the workflow's `recordings` key ------------------------------------------------
 
 
+#: A recordings sheet's suffix -> its column separator: a ``.tsv`` sheet, or the ``.csv``
+#: a spreadsheet program saves.
+SHEET_SEPARATORS = {".tsv": "\t", ".csv": ","}
+
+
+def _is_sheet(text: str) -> bool:
+    return Path(text).suffix.lower() in SHEET_SEPARATORS and not Path(text).is_dir()
+
+
 def _read_sheet(path: Path) -> list[dict]:
-    """Entries of a ``.tsv`` sheet: columns ``path`` and optional ``outdir``,
-    ``import_format``, ``import_files`` (``view=file`` pairs separated by ``;``),
-    ``session``."""
+    """Entries of a ``.tsv`` (tab-separated) or ``.csv`` (comma-separated) sheet: columns
+    ``path`` and optional ``outdir``, ``import_format``, ``import_files`` (``view=file``
+    pairs separated by ``;``), ``session``; a relative ``path`` is relative to the sheet's
+    folder."""
     import pandas as pd
 
     if not path.is_file():
         raise ConfigError(f"recordings: sheet {path} does not exist; create it or list directories")
-    try:
-        sheet = pd.read_csv(path, sep="\t", dtype=str, comment="#").fillna("")
+    separator = SHEET_SEPARATORS[path.suffix.lower()]
+    try:  # utf-8-sig: the byte-order mark spreadsheet programs put before the header
+        sheet = pd.read_csv(
+            path, sep=separator, dtype=str, comment="#", encoding="utf-8-sig"
+        ).fillna("")
     except Exception as exc:  # pandas raises several parser error types
+        kind = "tab-separated" if separator == "\t" else "comma-separated"
         raise ConfigError(
-            f"recordings: cannot read sheet {path} ({exc}); it must be tab-separated"
+            f"recordings: cannot read sheet {path} ({exc}); a {path.suffix} sheet must be {kind}"
         ) from exc
     if "path" not in sheet.columns:
         raise ConfigError(
@@ -528,7 +583,7 @@ def _normalize_entries(value: Any) -> list[dict]:
     for i, item in enumerate(items):
         if isinstance(item, (str, os.PathLike)):
             text = str(item)
-            if text.endswith(".tsv"):
+            if _is_sheet(text):
                 entries += [
                     dict(e, _sheet=text, _where=f"recordings (sheet {text})")
                     for e in _read_sheet(Path(text))
@@ -594,6 +649,16 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
     return [ids[i] for i in range(len(paths))]
 
 
+def _no_match(entry: Mapping, config_dir: Path | None) -> str:
+    """The one line for a ``recordings`` pattern that matches no path."""
+    text = os.path.expanduser(str(entry["path"]))
+    hint = "fix the pattern"
+    if Path(text).is_absolute():
+        return f"{entry['_where']}: the pattern {text!r} matches no path; {hint}"
+    tail = relative_lookup(text, config_dir, hint)
+    return f"{entry['_where']}: the pattern {text!r} matches nothing {tail}"
+
+
 def _format_outdir(template: str, *, recording: Path, rid: str, key: str) -> Path:
     values = {"recording": str(recording), "id": rid, "name": recording.name}
     text = fill_template(template, values, key)
@@ -617,13 +682,14 @@ def plan_listing(
     default_import: Mapping | None = None,
     demo_import: Callable[[], Mapping] | None = None,
     check_frames: bool = True,
+    config_dir: Path | None = None,
 ) -> list[Recording]:
     """The recordings a ``recordings`` listing covers.
 
     ``listing`` is a list of directories / wildcard patterns, of mappings
     ``{path, outdir?, import?, recursive?, session?}``, of ``{demo: true}`` (the embedded
-    synthetic recording, generated by the workflow), or the path of a ``.tsv`` sheet
-    (columns ``path``, optional ``outdir``, ``import_format``, ``import_files``,
+    synthetic recording, generated by the workflow), or the path of a ``.tsv`` or ``.csv``
+    sheet (columns ``path``, optional ``outdir``, ``import_format``, ``import_files``,
     ``session``).
     ``recursive`` searches each path's subtree. Output goes to the entry's
     ``outdir``, else the ``outdir`` template (placeholders ``{recording}``, ``{id}``,
@@ -646,6 +712,9 @@ def plan_listing(
         The demo entry's import when it has none of its own (called only then).
     check_frames
         Compare frame counts across sources while resolving.
+    config_dir
+        The folder of the config file that set ``recordings``, named in the message
+        about a relative path that found nothing (:func:`check_recording_path`).
 
     Returns
     -------
@@ -667,6 +736,7 @@ def plan_listing(
     batch = len(entries) > 1 or recursive or any(is_pattern(e.get("path", "")) for e in entries)
 
     found: list[tuple[Path, dict, dict]] = []  # (dir, sources, entry)
+    skipped: list[str] = []  # why an entry gave nothing: said once, as a warning or the error
     for entry in entries:
         if entry.get("demo"):
             path = Path(str(entry.get("path") or DEMO_ID))
@@ -675,7 +745,12 @@ def plan_listing(
         rec_recursive = bool(entry.get("recursive", recursive))
         pattern = is_pattern(entry["path"])
         if not pattern:  # a typo is one clear error, before anything is created
-            check_recording_path(os.path.expanduser(str(entry["path"])), entry["_where"])
+            check_recording_path(
+                os.path.expanduser(str(entry["path"])), entry["_where"], config_dir
+            )
+        elif not rec_recursive and not glob.glob(os.path.expanduser(str(entry["path"]))):
+            skipped.append(_no_match(entry, config_dir))
+            continue
         if batch and not rec_recursive and not pattern:
             path = Path(os.path.expanduser(str(entry["path"])))
             # warns when skipped
@@ -690,7 +765,7 @@ def plan_listing(
                     check_frames=check_frames,
                 )
             except FootageError as exc:
-                log.warning("%s", exc)
+                skipped.append(str(exc))
                 continue
         else:
             hits = resolve_recordings(
@@ -706,10 +781,15 @@ def plan_listing(
             seen.add(key)
             unique.append((path, src, entry))
     if not unique:
+        if len(entries) == 1 and len(skipped) == 1:
+            raise FootageError(skipped[0])
         raise FootageError(
             f"recordings: none of {[e.get('path', 'demo') for e in entries]} is a valid "
-            "recording (a directory with footage for every configured source); fix the paths"
+            "recording (a directory with footage for every configured source)"
+            + (f": {'; '.join(skipped)}" if skipped else "; fix the paths")
         )
+    for reason in skipped:
+        log.warning("%s", reason)
 
     fixed = {i: DEMO_ID for i, (_, _, e) in enumerate(unique) if e.get("demo")}
     ids = _unique_ids([p for p, _, _ in unique], fixed)

@@ -5,7 +5,9 @@ Each row comes from the recording's ``summary.json`` (written by the assemble jo
 frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
 error, the held-out-view error of triangulation and of the refined output side by
 side (the better one marked ``*``) when the summary holds :mod:`flylib.accuracy`'s
-figures, the suspect count when it holds one, and where the outputs are. Then one
+figures, the suspect count when it holds one, the handedness score
+(:mod:`flylib.handedness`; ``MIRRORED`` for a mirror image, whose cause and fix follow the
+table) and where the outputs are. Then one
 sentence per recording says what the held-out figures mean for it (refinement better,
 partly kept, or worse and not used; a camera that disagrees with the others), the
 warnings the jobs logged (e.g. an implausible container frame rate) follow, and the
@@ -236,8 +238,22 @@ def recording_row(
         accuracy=summary.get("accuracy"),
         truth=summary.get("error_vs_truth"),
         truth_before=summary.get("error_vs_truth_triangulation"),
+        handedness=summary.get("handedness"),
     )
     return row
+
+
+def handedness_cell(entry: dict | None) -> str:
+    """The table's handedness cell: the score, and ``MIRRORED`` or ``?`` when the 3D
+    is a mirror image or undetermined (:mod:`flylib.handedness`); ``-`` without one."""
+    if not isinstance(entry, dict) or entry.get("verdict") is None:
+        return "-"
+    score = "-" if entry.get("score") is None else f"{float(entry['score']):+.2f}"
+    if entry["verdict"] == "mirrored":
+        return f"{score} MIRRORED"
+    if entry["verdict"] == "undetermined":
+        return f"{score} ?"
+    return score
 
 
 def _fmt(value: Any, kind: str) -> str:
@@ -418,11 +434,14 @@ def run_table(
     rows = [recording_row(rec, since if failed else None, signals) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
     with_accuracy = any(r.get("accuracy") for r in rows)
+    with_handedness = any(r.get("handedness") for r in rows)
     header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
     if with_accuracy:
         header += ["held-out px triangulation", "held-out px refined"]
     if with_suspects:
         header.append("suspects")
+    if with_handedness:
+        header.append("handedness")
     header.append("outputs")
     cells = [header]
     for r in rows:
@@ -436,6 +455,7 @@ def run_table(
                 [r["id"], "-", "-", "-", "-"]
                 + (["-", "-"] if with_accuracy else [])
                 + (["-"] if with_suspects else [])
+                + (["-"] if with_handedness else [])
                 + [f"{r['outdir']}  ({status})"]
             )
         else:
@@ -450,6 +470,8 @@ def run_table(
                 line += list(held_out_cells(r.get("accuracy")))
             if with_suspects:
                 line.append(_fmt(r["suspects"], "int"))
+            if with_handedness:
+                line.append(handedness_cell(r.get("handedness")))
             line.append(r["outdir"])
         cells.append(line)
     title = "flylib: per-recording results" + (
@@ -460,7 +482,18 @@ def run_table(
     sentences = [s for s in sentences if s]
     if sentences:
         lines += [f"accuracy: {HELD_OUT_NOTE}:", *(f"  {s}" for s in sentences)]
-    warnings = [f"  {rec.id}: {w}" for rec in recordings for w in log_warnings(rec.outdir)]
+    mirror = [(r.get("handedness") or {}).get("message") for r in rows]
+    if any(mirror):
+        lines += [
+            "mirror image (the left legs on the fly's right):",
+            *(f"  {r['id']}: {m}" for r, m in zip(rows, mirror) if m),
+        ]
+    warnings = [  # assemble's warning of a mirror image is the line above
+        f"  {rec.id}: {w}"
+        for rec, m in zip(recordings, mirror)
+        for w in log_warnings(rec.outdir)
+        if not (m and m in w)
+    ]
     warnings += [f"  snakemake: {w}" for w in skew]
     if warnings:
         lines += ["warnings:", *warnings]

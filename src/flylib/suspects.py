@@ -32,8 +32,12 @@ A person works through *items*, not pairs: a point's suspect pairs in consecutiv
 frames are one item (one mistake of the detector usually lasts a few frames), ranked
 by their largest score, so the items that most likely hold a wrong 3D come first
 (gross 3D errors score far above 1; a view the robust triangulation already left out
-scores 1 to 1.5, a 2D label worth fixing but a 3D already right). Views are named as
-the GUI names them: ``"2 lm"`` (1-based number and camera name).
+scores 1 to 1.5, a 2D label worth fixing but a 3D already right).
+
+Every index is 0-based, as in ``results.h5``'s view-leading arrays and the seed's
+``camera_N`` files: ``suspects.csv``'s ``frame`` and ``point`` columns, and the views
+its ``detail`` names, ``"view 1 (lm)"`` (index and camera name; the GUI's tiles
+number them the same way).
 """
 
 from __future__ import annotations
@@ -65,9 +69,10 @@ _MAD_SCALE = 1.4826  # MAD -> standard deviation of a normal distribution
 
 
 def view_label(index: int, view_names: list[str] | None = None) -> str:
-    """How a person reads view ``index``: ``"2 lm"`` (1-based, as the GUI's tiles)."""
+    """How a person reads view ``index``: ``"1 (lm)"`` (0-based, as frames and points
+    and the arrays' V axis; the GUI's tiles number views the same way)."""
     names = view_names or []
-    return f"{index + 1} {names[index]}" if index < len(names) else f"{index + 1}"
+    return f"{index} ({names[index]})" if index < len(names) else f"{index}"
 
 
 @dataclass
@@ -170,7 +175,8 @@ class Suspects:
 
     def to_csv(self, path: str | Path) -> Path:
         """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically, in
-        the order to review them: by item rank (``item`` 0 first), then frame."""
+        the order to review them: by item rank (``item`` 0 first), then frame. Frames,
+        points and the views named in ``detail`` are 0-based, as in ``results.h5``."""
         order = sorted(self.records(), key=lambda rec: (rec["item"], rec["frame"]))
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             writer = csv.writer(fh)
@@ -275,7 +281,7 @@ def find_suspects(
     point_names
         The P axis' names (for :meth:`Suspects.records` and the details).
     view_names
-        The V axis' names (the details name views as ``"2 lm"``).
+        The V axis' names (the details name views as ``"1 (lm)"``, 0-based).
     k_reproj, min_reproj_px
         Reprojection threshold per view: median + ``k_reproj`` MAD-sigmas, at least
         ``min_reproj_px`` above the median.

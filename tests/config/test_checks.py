@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import checkpoint_layout
 
 from flylib.config import (
     BundleAdjustmentParams,
@@ -176,6 +177,11 @@ PREFLIGHT_CASES = [
         {},
     ),
     (
+        "calibration.mirror",
+        lambda d: edit(d, "calibration", {"file": "calib.pkl", "mirror": "yes"}),
+        {},
+    ),
+    (
         "demo.frames",
         lambda d: edit(d, "demo", {"frames": 1}),
         {"demo": True, "spec": {"format": "dlc_csv"}},
@@ -200,11 +206,11 @@ def test_preflight_passes_the_default_config_and_skips_the_detector_for_imported
 ):
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
     (tmp_path / "cache").mkdir()
-    (tmp_path / "cache" / "sh8_deepfly.tar").write_bytes(b"x")  # the published checkpoint, cached
+    checkpoint_layout(tmp_path / "cache" / "sh8_deepfly.tar")  # the published checkpoint, cached
     config = Config.from_dict(default_data)
     assert preflight_problems(config, [recording(tmp_path)], config.stage_flags()) == []
     broken = Config.from_dict(edit(default_data, "pose2d.models", [{"name": "deepfly2d"}]))
-    imported = recording(tmp_path, spec={"format": "dlc_csv"})
+    imported = recording(tmp_path, spec={"format": "dlc_csv", "image_size": [480, 960]})
     for view in broken.view_names():  # validation checks that the import's files exist
         (tmp_path / f"{view}.csv").touch()
     assert preflight_problems(broken, [imported], broken.stage_flags()) == []
@@ -225,7 +231,7 @@ def test_every_key_family_has_a_case():
 
 def test_weights_key_sets_a_checkpoint_without_restating_the_model(default_data, tmp_path):
     checkpoint = tmp_path / "sh8.tar"
-    checkpoint.write_bytes(b"x")
+    checkpoint_layout(checkpoint)
     config = Config.from_dict(edit(default_data, "pose2d.weights", {"deepfly2d": str(checkpoint)}))
     assert config.detection_plan().models["deepfly2d"].weights == str(checkpoint)
     assert stage_params(config, "pose2d")["plan"]["weights"] == {"deepfly2d": str(checkpoint)}

@@ -401,6 +401,8 @@ INVALID = [
     (_set("pose2d.import", "dlc"), "pose2d.import: expected a mapping or null"),
     (_set("calibration", ["a.toml"]), "calibration: expected a mapping or null"),
     (_set("recordings", 5), "recordings: expected a list of recordings"),
+    (_set("kinematics.allow_mirrored", "yes"), "kinematics.allow_mirrored: expected true or false"),
+    (_set("neuromechfly.allow_mirrored", 1), "neuromechfly.allow_mirrored: expected true or false"),
     (_set("demo", "yes"), "demo: expected a mapping or null"),
     (_set("recursive", "no"), "recursive: expected true or false"),
     (_set("outdir", 3), "outdir: expected a path template or null"),

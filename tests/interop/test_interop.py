@@ -582,7 +582,10 @@ def test_import_spec_validation(tmp_path):
     config = rig_config(["a"], ["p0"])
     with pytest.raises(ImportFormatError, match=r"pose2d.import must be a mapping"):
         import_points2d(_target(config), tmp_path, None)  # no pose2d.import in the config
-    with pytest.raises(ImportFormatError, match=r"unknown keys \['file'\]"):
+    with pytest.raises(
+        ImportFormatError,
+        match=r"pose2d.import.file: unknown key; did you mean 'files'\? \(known: ",
+    ):
         import_points2d(_target(config), tmp_path, {"format": "dlc_csv", "file": "a.csv"})
     with pytest.raises(ImportFormatError, match=r"image_size must be \[height, width\]"):
         import_points2d(
@@ -618,3 +621,32 @@ def test_footage_of_a_view_is_only_video_or_images_like_the_detector_sees_it(tmp
     assert read_frame_count(footage["a"]) == 3 and read_frame_count(footage["b"]) == 3
     assert read_frame_size(footage["a"][0]) == (32, 48)
     assert read_frame_size(footage["b"][0]) == (20, 30)
+
+
+def test_calibration_mirror_mirrors_the_files_world_and_keeps_every_pixel(tmp_path):
+    """``calibration: {mirror: true}`` (issue 36): the file's rig in mirrored world
+    coordinates, so the same 2D triangulates to the mirror image."""
+    from flylib.handedness import WORLD_MIRROR
+
+    rng = np.random.default_rng(5)
+    calib = {}
+    for i in range(3):
+        calib[i] = {
+            "R": cv2.Rodrigues(rng.normal(scale=0.5, size=3))[0],
+            "tvec": rng.normal(size=3) + [0, 0, 50],
+            "intr": np.array([[15000.0, 0, 480], [0, 15000.0, 240], [0, 0, 1]]),
+            "distort": np.array([0.1, -0.05, 0.002, 0.001, 0.0]),
+        }
+    path = tmp_path / "calib.pkl"
+    with path.open("wb") as fh:
+        pickle.dump(calib, fh)
+    views = ("x", "y", "z")
+    plain = load_calibration(*_calibration_for(views=views, file=str(path)))
+    mirrored = load_calibration(*_calibration_for(views=views, file=str(path), mirror=True))
+    unset = load_calibration(*_calibration_for(views=views, file=str(path), mirror=False))
+    pts = rng.uniform(-1, 1, size=(10, 3))
+    np.testing.assert_allclose(mirrored.project(pts @ WORLD_MIRROR), plain.project(pts), atol=1e-8)
+    assert not np.allclose(mirrored.project(pts), plain.project(pts), atol=1.0)
+    np.testing.assert_array_equal(unset.rvecs, plain.rvecs)
+    pixels = plain.project(pts)
+    np.testing.assert_allclose(mirrored.triangulate(pixels), pts @ WORLD_MIRROR, atol=1e-6)

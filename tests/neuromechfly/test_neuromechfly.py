@@ -315,3 +315,37 @@ def test_deepfly3ds_real_3d_aligns_and_fits(capsys):
     assert nmf.alignment.mirrored and not nmf.unsolved
     assert nmf.alignment.thorax_motion < 0.1 / 3  # the default tolerance has a margin
     assert np.nanpercentile(nmf.residual, 95) < 0.05
+
+
+def test_the_stage_refuses_a_mirror_image_with_the_cause_assemble_stored(tmp_path):
+    """Issue 36: the refusal repeats the cause stored in results.h5 (its calibration
+    file and the switch), and neuromechfly.allow_mirrored lets the fit run."""
+    from flylib.handedness import WORLD_MIRROR, handedness, rig_check
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.neuromechfly import run_neuromechfly
+    from flylib.results import PoseResult
+
+    config = Config.default()
+    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    pts3d = _fly38_from_model(_random_angles(6, seed=1), seed=2) @ WORLD_MIRROR
+    entry = rig_check(
+        handedness(pts3d, config.skeleton()), rig="the calibration file x/calib.pkl", from_file=True
+    )
+    path = tmp_path / "results.h5"
+    PoseResult(
+        cameras=rig,
+        skeleton=config.skeleton(),
+        pts2d=np.asarray(rig.project(pts3d)),
+        pts3d=pts3d,
+        meta={"handedness": entry},
+    ).save(path)
+    with pytest.raises(ResultsError) as info:
+        run_neuromechfly(stage_inputs(config, "neuromechfly"), path, tmp_path)
+    assert str(info.value) == (
+        f"{path}: neuromechfly refused: {entry['message']}. To run neuromechfly on the mirror "
+        "image anyway, set neuromechfly: {allow_mirrored: true}"
+    )
+    data = config.data
+    data["neuromechfly"]["allow_mirrored"] = True
+    summary = run_neuromechfly(stage_inputs(Config.from_dict(data), "neuromechfly"), path, tmp_path)
+    assert summary["frames"] == 6

@@ -11,8 +11,11 @@ from a ``file://`` URL, the way ``urllib`` fetches the real one.
 from __future__ import annotations
 
 import logging
+import zipfile
+from types import SimpleNamespace
 
 import pytest
+import torch
 
 from flylib.errors import WeightsError
 from flylib.paths import cache_dir
@@ -98,3 +101,32 @@ def test_a_given_sha256_is_checked_on_download_and_on_every_use(published, tmp_p
     assert weights.resolve_weights(own, sha256=digest) == own
     with pytest.raises(WeightsError, match="checksum mismatch"):
         weights.resolve_weights(own, sha256="f" * 64)
+
+
+def test_a_file_that_torch_save_did_not_write_is_told_from_its_layout_alone(tmp_path):
+    """Validation refuses a junk weights file before any job, without unpickling it;
+    every layout torch.save writes passes (issue 36, 9)."""
+    from flylib.pose2d.published import checkpoint_problem, container_problem
+
+    state = {"state_dict": {"module.conv1.weight": torch.ones(2)}}
+    torch.save(state, tmp_path / "zip.tar")
+    torch.save(state, tmp_path / "legacy.tar", _use_new_zipfile_serialization=False)
+    assert container_problem(tmp_path / "zip.tar") is None
+    assert container_problem(tmp_path / "legacy.tar") is None
+    (tmp_path / "junk.tar").write_text("not a checkpoint\n")
+    (tmp_path / "empty.tar").write_bytes(b"")
+    with zipfile.ZipFile(tmp_path / "other.zip", "w") as archive:
+        archive.writestr("readme.txt", "hello")
+    assert container_problem(tmp_path / "junk.tar") == (
+        "neither a torch.save zip archive nor torch's legacy format"
+    )
+    assert container_problem(tmp_path / "empty.tar") == "empty"
+    assert container_problem(tmp_path / "other.zip") == "a zip archive without torch's data.pkl"
+    spec = SimpleNamespace(
+        name="deepfly2d", model_class="hourglass", weights=str(tmp_path / "junk.tar"), url=None
+    )
+    assert checkpoint_problem(spec, "pose2d.weights.deepfly2d") == (
+        f"pose2d.weights.deepfly2d: {tmp_path / 'junk.tar'} is not a PyTorch checkpoint "
+        "(neither a torch.save zip archive nor torch's legacy format); point it at the model's "
+        "checkpoint (a torch.save file holding {'state_dict': ...}, such as DeepFly2D's sh8 .tar)"
+    )

@@ -144,7 +144,8 @@ def results(tmp_path, rig_and_skeleton) -> Path:
     config, rig, skeleton = rig_and_skeleton
     files = _stage_files(tmp_path, config, skeleton)
     out = tmp_path / "results.h5"
-    assemble_results(out, skeleton=skeleton, config_rig=rig, stage_files=files)
+    # random arrays, not a solved pose: these tests are about damage, not agreement
+    assemble_results(out, skeleton=skeleton, config_rig=rig, stage_files=files, verify=False)
     return out
 
 

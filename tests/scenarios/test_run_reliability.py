@@ -207,17 +207,24 @@ def _triangulation_artifact(path: Path, config) -> None:
     from flylib.provenance import stage_provenance
     from flylib.results import write_stage
 
+    # a pose of _pose2d_artifact's 2D that agrees with itself (assemble checks it): any
+    # 3D, its errors those of that 2D on the config rig
     rng = np.random.default_rng(0)
+    points = _pose2d_points()
+    points3d = rng.normal(size=(4, 38, 3)) * 0.3
+    rig = config.camera_group({v: (480, 960) for v in config.view_names()})
+    error = np.linalg.norm(points - rig.project(points3d), axis=-1)
     write_stage(
         path,
         "triangulation",
-        {
-            "points": rng.normal(size=(7, 4, 38, 2)),
-            "points3d": rng.normal(size=(4, 38, 3)),
-            "reproj_error": rng.random((7, 4, 38)),
-        },
+        {"points": points, "points3d": points3d, "reproj_error": error},
         meta=stage_provenance(stage_params(config, "triangulation"), "triangulation"),
     )
+
+
+def _pose2d_points() -> np.ndarray:
+    """``(7, 4, 38, 2)`` the made-up detections of :func:`_pose2d_artifact`."""
+    return np.random.default_rng(1).random((7, 4, 38, 2)) * 400
 
 
 def test_a_damaged_root_object_header_is_one_line_naming_the_artifact_and_its_recording(
@@ -316,10 +323,10 @@ def _pose2d_artifact(path: Path, config) -> Path:
     from flylib.provenance import stage_provenance
     from flylib.results import Pose2dData
 
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(2)
     views = config.view_names()
     Pose2dData(
-        pts2d=rng.random((7, 4, 38, 2)) * 400,
+        pts2d=_pose2d_points(),
         conf=rng.random((7, 4, 38)),
         view_names=views,
         image_sizes={v: (480, 960) for v in views},

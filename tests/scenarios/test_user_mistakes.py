@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import checkpoint_layout
 
 from flylib.config import Config, validate_config
 from flylib.pipeline.preflight import preflight_problems
@@ -65,7 +66,7 @@ def test_a_checkpoint_neither_cached_nor_downloadable_is_one_line_naming_model_a
     assert CLOSED_PORT_URL in line and "pose2d.weights: {deepfly2d:" in line
     # the same file in the cache, or a local path in pose2d.weights: valid
     cache.mkdir()
-    (cache / "sh8_deepfly.tar").write_bytes(b"x")
+    checkpoint_layout(cache / "sh8_deepfly.tar")
     assert preflight_problems(config, [detector_recording(tmp_path)], config.stage_flags()) == []
 
 
@@ -107,7 +108,7 @@ def test_imported_2d_needs_no_checkpoint(default_data, tmp_path, monkeypatch):
     monkeypatch.setenv("FLYLIB_CACHE", str(tmp_path / "cache"))
     config = with_model_url(default_data, CLOSED_PORT_URL)
     (tmp_path / "df3d_result_2d.pkl").write_bytes(b"x")
-    rec = detector_recording(tmp_path, {"format": "deepfly3d"})
+    rec = detector_recording(tmp_path, {"format": "deepfly3d", "image_size": [480, 960]})
     assert preflight_problems(config, [rec], config.stage_flags()) == []
 
 

@@ -100,3 +100,73 @@ def test_the_config_can_name_the_sidecar(runs, tmp_path):
     plan = planned(root, config)
     assert ("triangulation", "recB") in plan and ("pose2d", "recB") not in plan
     assert ("bundle_adjustment", "recB") not in plan
+
+
+def test_after_a_correction_results_h5_agrees_with_itself_and_the_dlc_export_is_the_detections(
+    runs, tmp_path
+):
+    """Issue 36 (5, 7): the re-run stores the corrected 2D (not the detection) where the
+    3D was solved from it, errors that match the stored 2D, 3D and cameras, and
+    `flylib export --dlc-dir` writes pose2d's 2D with the correction applied."""
+    import subprocess
+    import sys
+
+    from flylib.interop.dlc import read_dlc_csv
+    from flylib.results import check_results, read_detections
+
+    root, config = runs
+    out = root / "recA" / "flylib_outputs"
+    pose2d = Pose2dData.load(out / "stages" / "pose2d.h5")
+    seen = np.isfinite(pose2d.pts2d).all(-1)
+    t = 3
+    p = int(np.flatnonzero(seen[:, t].sum(axis=0) >= 3)[2])
+    v = int(np.flatnonzero(seen[:, t, p])[0])
+    edit = pose2d.pts2d[v, t, p] + [12.0, -9.0]
+    corr = Corrections.empty(*seen.shape, source=str(out / "results.h5"))
+    corr.set_point(v, t, p, edit, fixed=True)  # kept whatever the robust fit thinks of it
+    corr.save(out / "corrections.h5")
+    snakemake(root, config=config)
+
+    assert check_results(out / "results.h5") == []
+    verify = subprocess.run(
+        [sys.executable, "-m", "flylib.cli", "inspect", "--verify", str(out / "results.h5")],
+        capture_output=True,
+        text=True,
+    )
+    assert verify.returncode == 0 and "consistent" in verify.stdout, verify.stderr
+    result = PoseResult.load(out / "results.h5")
+    np.testing.assert_array_equal(result.pts2d[v, t, p], edit)
+    projected = result.cameras.project(result.pts3d)
+    distance = np.linalg.norm(result.pts2d - projected, axis=-1)
+    np.testing.assert_allclose(result.reproj_error, distance, atol=1e-6, equal_nan=True)
+    with h5py.File(out / "results.h5") as f:  # the detection itself stays in pose2d/
+        np.testing.assert_array_equal(f["pose2d/points"][v, t, p], pose2d.pts2d[v, t, p])
+
+    dlc = tmp_path / "dlc"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "flylib.cli",
+            "export",
+            str(out / "results.h5"),
+            "--dlc-dir",
+            str(dlc),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "pose2d's detections, 1 observations corrected by hand" in proc.stderr
+    expected = pose2d.pts2d.copy()
+    expected[v, t, p] = edit
+    detections = read_detections(out / "results.h5")
+    np.testing.assert_array_equal(detections.points, expected)
+    for i, view in enumerate(result.cameras.names):
+        back = read_dlc_csv(dlc / f"{view}.csv")
+        assert list(back.names) == list(result.skeleton.point_names)
+        np.testing.assert_array_equal(back.xy, expected[i])
+        present = np.isfinite(back.xy).all(-1)
+        assert not np.isfinite(back.conf[~present]).any()  # no likelihood without x/y
+    # every detection is exported, not only those a 3D stage kept
+    assert np.isfinite(expected).all(-1).sum() > np.isfinite(result.pts2d).all(-1).sum()

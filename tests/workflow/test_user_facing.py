@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import checkpoint_layout
 
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
@@ -68,6 +69,8 @@ def test_demo_run_ends_with_the_table_and_writes_only_outputs_snakemake_and_demo
     row = table[2].split()
     assert row[0] == "demo" and row[1] == "60" and row[2].endswith("%")
     assert float(row[3]) < 2 and float(row[4]) < 5 and row[-1] == "demo/flylib_outputs"
+    # the demo fly is a fly, not its mirror image (issue 36)
+    assert table[1].split()[-2:] == ["handedness", "outputs"] and float(row[-2]) > 0.9
     assert table[-1].startswith("demo: 3D error against the demo truth: median ")
     # title, header, one row, the held-out-view accuracy (the note, then the demo's
     # sentence), the truth last; the one warning is bundle adjustment's, and
@@ -140,7 +143,7 @@ def test_the_weights_key_passes_the_dry_run(tmp_path):
     recording.mkdir()
     for i in range(7):
         (recording / f"camera_{i}.mp4").write_bytes(b"")
-    (workdir / "sh8.tar").write_bytes(b"checkpoint")
+    checkpoint_layout(workdir / "sh8.tar")
     (workdir / "mine.yaml").write_text(
         f"recordings: [{recording}]\npose2d:\n  weights: {{deepfly2d: sh8.tar}}\n"
         "bundle_adjustment:\n  ftol: 1e-8\n"

@@ -238,10 +238,16 @@ class ConfigLayers:
         owner, _ = self._owner(path)
         return owner if owner is not None else " + ".join(self.labels) or "<config>"
 
+    def config_dir(self, key: str) -> Path | None:
+        """The folder of the config file that set top-level ``key`` (``None``: set by a
+        command-line override or by no layer)."""
+        owner = self.origin([key])
+        return Path(owner).absolute().parent if owner in self.texts else None
+
     def _hint(self, problem: str) -> str:
         path = key_path(problem)
         owner, replaced = self._owner(path)
-        if replaced is None:
+        if replaced is None or path[:1] == ["recordings"]:  # a listing is always one's own
             return ""
         lists = [i for i in range(1, len(path)) if isinstance(path[i], int) or i == len(path) - 1]
         key = ".".join(str(t) for t in path[: lists[0]]) if lists else ".".join(map(str, path))

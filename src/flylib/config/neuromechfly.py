@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .checks import integer, number, param
+from .checks import boolean, integer, number, param
 
 
 @dataclass(frozen=True)
@@ -22,8 +22,12 @@ class NeuromechflyParams:
         replay's timestep.
     iterations
         Levenberg-Marquardt steps per (frame, leg).
+    allow_mirrored
+        Fit a 3D that is the fly's mirror image anyway (:mod:`flylib.handedness`);
+        by default such a result is refused, naming its cause.
     """
 
     still_tolerance: float = param(0.1, number(0, exclusive=True), kind=float)
     frame_rate: float = param(100.0, number(0, exclusive=True), kind=float)
     iterations: int = param(20, integer(1))
+    allow_mirrored: bool = param(False, boolean, track_default=False)

@@ -109,14 +109,15 @@ def _triples_problems(value: Any, path: str, point_names: tuple[str, ...]) -> li
 def kinematics_problems(table: Mapping, point_names: tuple[str, ...]) -> list[str]:
     """Problems with the ``kinematics`` table, one ``"kinematics.<key>: ..."`` line each."""
     problems = []
-    known = ("angles", "segments", "tethered", "body_frame")
+    known = ("angles", "segments", "tethered", "body_frame", "allow_mirrored")
     for key in table:
         if key not in known:
             problems.append(f"kinematics.{key}: {unknown_key('parameter', key, known)}")
     problems += _triples_problems(table.get("angles"), "kinematics.angles", point_names)
     problems += _triples_problems(table.get("segments"), "kinematics.segments", point_names)
-    if "tethered" in table and boolean(table["tethered"]):
-        problems.append(f"kinematics.tethered: {boolean(table['tethered'])}")
+    for key in ("tethered", "allow_mirrored"):
+        if key in table and boolean(table[key]):
+            problems.append(f"kinematics.{key}: {boolean(table[key])}")
     frame = table.get("body_frame")
     if frame is not None:
         if not isinstance(frame, Mapping):
@@ -159,12 +160,16 @@ class KinematicsParams:
     body_frame
         ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point lists;
         ``None`` = the fly's thorax-coxa points.
+    allow_mirrored
+        Compute angles from a 3D that is the fly's mirror image anyway
+        (:mod:`flylib.handedness`); by default such a result is refused.
     """
 
     angles: dict[str, tuple[str, str, str]] | None = None
     segments: dict[str, tuple[str, str, str]] | None = None
     tethered: bool = True
     body_frame: dict[str, tuple[str, ...]] | None = None
+    allow_mirrored: bool = param(False, boolean, track_default=False)
 
     @classmethod
     def from_table(cls, table: Mapping) -> KinematicsParams:
@@ -177,4 +182,5 @@ class KinematicsParams:
             segments=triples(table.get("segments")),
             tethered=bool(table.get("tethered", True)),
             body_frame=None if frame is None else {k: tuple(v) for k, v in frame.items()},
+            allow_mirrored=bool(table.get("allow_mirrored", False)),
         )

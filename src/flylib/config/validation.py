@@ -289,7 +289,7 @@ def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
         "recordings": lambda v: (
             None
             if isinstance(v, (list, str))
-            else f"expected a list of recordings or the path of a .tsv sheet, {got(v)}"
+            else f"expected a list of recordings or the path of a .tsv or .csv sheet, {got(v)}"
         ),
         "recursive": boolean,
         "outdir": lambda v: (

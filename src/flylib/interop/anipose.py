@@ -14,6 +14,7 @@ orbit parameters::
       file: calibration.toml     # or a DeepFly3D calib pickle
       format: anipose            # anipose | deepfly3d (default: from the suffix)
       names: {rh: cam_a, ...}    # optional: view -> camera name (anipose) or index (deepfly3d)
+      mirror: false              # true: mirror the file's world (flylib.handedness.mirror_cameras)
     # or, resolving a recording's file by its session name:
     calibration:
       index: calibrations.csv    # rows "<...>/<session>/<image>,<toml path>"
@@ -245,8 +246,9 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
     return index_csv.parent / unique[0]
 
 
-def _calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
-    """The calibration file a ``calibration`` table names (through its index if any)."""
+def calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
+    """The calibration file a ``calibration`` table names (through its index if any),
+    relative paths resolved as :func:`load_calibration` resolves them."""
     if "index" in spec:
         return calibration_from_index(
             _resolve(spec["index"], recording_dir, config_dir), _session(spec, recording_dir)
@@ -299,7 +301,7 @@ def calibration_inputs(
     if "index" in spec:
         files.append(_resolve(spec["index"], recording_dir, config_dir))
     try:
-        files.append(_calibration_file(spec, recording_dir, config_dir))
+        files.append(calibration_file(spec, recording_dir, config_dir))
     except ImportFormatError:
         pass
     return [f for f in dict.fromkeys(files) if f.is_file()]
@@ -318,7 +320,9 @@ def load_calibration(
     Parameters
     ----------
     calibration
-        The config's ``calibration`` table.
+        The config's ``calibration`` table; ``mirror: true`` returns the file's rig in
+        mirrored world coordinates (:func:`flylib.handedness.mirror_cameras`: the same
+        pixels, the 3D mirrored), for a file whose world is the fly's mirror image.
     views
         The views (the config's ``cameras`` in order); none: the file's cameras, in
         the file's order.
@@ -353,7 +357,7 @@ def load_calibration(
             f"config 'calibration' is {spec!r}; give {{file: path, format: anipose|deepfly3d}} "
             "or {index: calibrations.csv}"
         )
-    path = _calibration_file(spec, recording_dir, config_dir)
+    path = calibration_file(spec, recording_dir, config_dir)
     fmt = spec.get("format") or (
         "deepfly3d" if path.suffix.lower() in (".pkl", ".pickle") else "anipose"
     )
@@ -388,13 +392,19 @@ def load_calibration(
     for i, c in enumerate(chosen):
         dists[i, : c["dist"].size] = c["dist"]
     log.info("camera rig for %d views from %s (%s)", len(views), path, fmt)
-    return CameraGroup.from_arrays(
+    rig = CameraGroup.from_arrays(
         list(views),
         np.stack([c["rvec"] for c in chosen]),
         np.stack([c["tvec"] for c in chosen]),
         intrs,
         dists,
     )
+    if spec.get("mirror"):  # a calibration whose world is the fly's mirror image
+        from ..handedness import mirror_cameras
+
+        log.info("calibration.mirror: %s's world mirrored (z negated)", path)
+        rig = mirror_cameras(rig)
+    return rig
 
 
 def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> None:

@@ -475,7 +475,8 @@ def dlc_frame(
 ) -> pd.DataFrame:
     """A DeepLabCut-layout DataFrame of one view's ``(T, K, 2)`` points.
 
-    ``likelihood`` ``(T, K)`` defaults to 1 where a point is present and NaN elsewhere.
+    ``likelihood`` ``(T, K)`` defaults to 1 where a point is present; it is NaN (an
+    empty cell) wherever ``x``/``y`` are.
     """
     xy = np.asarray(xy, dtype=np.float64)
     n_frames, n_parts, _ = xy.shape
@@ -483,7 +484,8 @@ def dlc_frame(
         raise ValueError(f"{len(bodyparts)} body part names for {n_parts} points")
     if likelihood is None:
         likelihood = np.where(np.isfinite(xy).all(-1), 1.0, np.nan)
-    likelihood = np.asarray(likelihood, dtype=np.float64)
+    # a missing point has no likelihood: no row reads as "somewhere, with confidence c"
+    likelihood = np.where(np.isfinite(xy).all(-1), np.asarray(likelihood, np.float64), np.nan)
     values = np.concatenate([xy, likelihood[..., None]], axis=-1).reshape(n_frames, n_parts * 3)
     columns = pd.MultiIndex.from_product(
         [[scorer], list(bodyparts), ["x", "y", "likelihood"]],

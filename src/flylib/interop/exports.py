@@ -13,8 +13,11 @@ resting on fewer than two views has NaN ``_error``, ``_ncams`` and ``_score``, a
 unreconstructed point NaN coordinates.
 
 2D: one ``<view>.csv`` per view in the DeepLabCut layout with the skeleton point names
-as body parts and the detection confidence as ``likelihood``; these import back with
-``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``).
+as body parts and the detection confidence as ``likelihood``: the detections
+(``pose2d/points``, what the detector or the import gave) with the manual corrections
+applied (:func:`flylib.results.read_detections`), never the subset a 3D stage kept; a
+missing point has empty ``x``, ``y`` and ``likelihood``. These import back with
+``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``) as the same 2D.
 """
 
 from __future__ import annotations
@@ -168,7 +171,12 @@ def write_dlc_views(
     ]
 
 
-def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None) -> list[Path]:
+def export_result(
+    result,
+    csv3d: Path | None = None,
+    dlc_dir: Path | None = None,
+    detections=None,
+) -> list[Path]:
     """Export a :class:`flylib.results.PoseResult`: Anipose 3D CSV and/or per-view DLC CSVs.
 
     Parameters
@@ -180,6 +188,9 @@ def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None
         Where to write the 3D CSV, or ``None``.
     dlc_dir
         Folder for the per-view 2D CSVs, or ``None``.
+    detections
+        What the 2D CSVs hold: the result's :class:`~flylib.results.pose.Detections`
+        (:func:`flylib.results.read_detections`); required with ``dlc_dir``.
 
     Returns
     -------
@@ -190,9 +201,13 @@ def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None
     ------
     flylib.errors.ResultsError
         When a 3D CSV is asked for but the result has no 3D points.
+    ValueError
+        With ``dlc_dir`` but no ``detections``.
     """
     from ..errors import ResultsError
 
+    if dlc_dir is not None and detections is None:
+        raise ValueError("export_result: the DLC CSVs need the detections (read_detections)")
     written: list[Path] = []
     names = list(result.skeleton.point_names)
     if csv3d is not None:
@@ -208,6 +223,6 @@ def export_result(result, csv3d: Path | None = None, dlc_dir: Path | None = None
         )
     if dlc_dir is not None:
         written += write_dlc_views(
-            dlc_dir, result.pts2d, result.conf, list(result.cameras.names), names
+            dlc_dir, detections.points, detections.conf, list(result.cameras.names), names
         )
     return written

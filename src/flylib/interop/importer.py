@@ -13,6 +13,7 @@ Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
         keypoint_map: {}         # file keypoint name -> skeleton point name (null = drop)
         likelihood_threshold: 0.0  # confidence below it -> point missing (NaN)
         image_size: [480, 960]   # (height, width) fallback for views without footage
+        view_points: plan        # plan: keep only the points the detection plan gives each view | all
         views: [rh, rm, ...]     # deepfly3d only: the view of each pickle camera (null = skip)
         individual: null         # dlc multi-animal: which individual
         track: null              # sleap: track index or name when several
@@ -34,6 +35,14 @@ joints (keys are joint indices) default to fly38 point ``(j + 19) mod 38``
 (see :mod:`flylib.interop.df3d`). A file keypoint that maps to nothing is an error, so
 a renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
 
+``view_points``: by default (``plan``) a view keeps only the skeleton points the detection
+plan's ``pose2d.output_points`` gives it, as the detector would: the rest of that view's
+2D is set missing (NaN), with one warning per file naming how many it held. DeepFly3D
+1.x writes 2D for all 38 joints in every camera, also where its own detection plan gives
+the camera none of them (the front camera's 24 side points): that junk is never
+triangulated. A view the plan does not list keeps every point. ``all`` keeps every
+point the files hold.
+
 DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`),
 and every tool's scores become confidences in [0, 1] by :func:`as_confidences`.
 
@@ -52,7 +61,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import ImportFormatError, did_you_mean
+from ..errors import ImportFormatError, did_you_mean, unknown_key
 from . import views as _views
 from ._h5 import read_budget
 from .df3d import df3d_joint_to_fly38, read_df3d_points2d
@@ -81,7 +90,10 @@ _KNOWN_KEYS = {
     "views",
     "individual",
     "track",
+    "view_points",
 }
+#: ``pose2d.import.view_points`` values: the detection plan's points per view, or all.
+VIEW_POINTS = ("plan", "all")
 
 
 @dataclass(frozen=True)
@@ -139,9 +151,11 @@ def import_spec(spec: Mapping | None) -> dict:
     where = "pose2d.import"
     if not isinstance(spec, dict):
         raise ImportFormatError(f"{where} must be a mapping with at least 'format', got {spec!r}")
-    unknown = sorted(set(spec) - _KNOWN_KEYS)
+    unknown = sorted(str(k) for k in set(spec) - _KNOWN_KEYS)
     if unknown:
-        raise ImportFormatError(f"{where}: unknown keys {unknown}; allowed: {sorted(_KNOWN_KEYS)}")
+        raise ImportFormatError(
+            f"{where}.{unknown[0]}: {unknown_key('key', unknown[0], sorted(_KNOWN_KEYS))}"
+        )
     fmt = spec.get("format")
     if fmt not in FORMATS:
         raise ImportFormatError(f"{where}.format is {fmt!r}; use one of {list(FORMATS)}")
@@ -153,6 +167,11 @@ def import_spec(spec: Mapping | None) -> dict:
     ):
         raise ImportFormatError(
             f"{where}.image_size must be [height, width] in pixels, got {size!r}"
+        )
+    if spec.get("view_points", "plan") not in VIEW_POINTS:
+        raise ImportFormatError(
+            f"{where}.view_points is {spec['view_points']!r}; use plan (each view keeps the "
+            "points the detection plan gives it) or all (keep every point the files hold)"
         )
     threshold = spec.get("likelihood_threshold")
     if threshold is not None and not isinstance(threshold, (int, float)):
@@ -225,6 +244,36 @@ def import_files(
         )
         return dict.fromkeys(views, path)
     return _view_files(spec, target, recording_dir, views)
+
+
+def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path) -> str | None:
+    """Why the import would find no frame size for a view, or ``None``; checked before
+    the workflow builds its DAG, from file names alone (no header is read).
+
+    Parameters
+    ----------
+    target
+        The views and their footage sources.
+    spec
+        A validated import spec (:func:`import_spec`).
+    recording_dir
+        The recording directory.
+
+    Returns
+    -------
+    str or None
+        One line (:func:`flylib.interop.views.missing_footage`).
+    """
+    views = target.checked_views()
+    if spec["format"] == "deepfly3d":
+        views = [v for v in (spec.get("views") or views) if v is not None]
+    return _views.missing_footage(
+        target.footage(Path(recording_dir)),
+        Path(recording_dir),
+        views,
+        spec.get("image_size"),
+        globs=target.footage_globs(),
+    )
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
@@ -340,7 +389,12 @@ def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
     sized = [v for v in pickle_views if v is not None]
     footage = target.footage(recording_dir)
     sizes = _views.image_sizes(
-        footage, recording_dir, sized, spec.get("image_size"), origin=str(path)
+        footage,
+        recording_dir,
+        sized,
+        spec.get("image_size"),
+        origin=str(path),
+        globs=target.footage_globs(),
     )
     default_size = next(iter(sizes.values())) if sizes else (480, 960)
     data = read_df3d_points2d(path, [sizes.get(v, default_size) for v in pickle_views])
@@ -427,6 +481,40 @@ def _plan_points(target: ImportTarget, points: list[str]) -> dict[str, set[int]]
         str(view): {index[p] for p in entries if p in index}
         for view, entries in target.plan_points.items()
     }
+
+
+def _keep_plan_points(
+    pts: np.ndarray,
+    conf: np.ndarray,
+    views: list[str],
+    plan: dict[str, set[int]],
+    origin: dict[str, Path],
+    points: list[str],
+) -> None:
+    """Set missing, in place, each view's 2D of the points the detection plan does not
+    give that view (a view the plan does not list keeps all), warning once per file."""
+    dropped: dict[str, list[str]] = {}  # file -> "view: n points (names)"
+    for v, view in enumerate(views):
+        if view not in plan:
+            continue
+        outside = np.ones(len(points), bool)
+        outside[sorted(plan[view])] = False
+        held = np.isfinite(pts[v][:, outside]).all(-1).any(axis=0)  # per dropped point
+        pts[v][:, outside] = np.nan
+        conf[v][:, outside] = np.nan
+        if held.any():
+            names = [points[p] for p in np.flatnonzero(outside)[held]]
+            shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+            where = str(origin.get(view, "pose2d.import"))
+            dropped.setdefault(where, []).append(f"view {view!r} {len(names)} ({shown})")
+    for where, views_text in dropped.items():
+        log.warning(
+            "%s: holds 2D for points the detection plan does not give their view: %s; they "
+            "are left missing, as the detector would leave them (set "
+            "pose2d.import.view_points: all to keep them)",
+            where,
+            "; ".join(views_text),
+        )
 
 
 def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
@@ -573,7 +661,12 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
         filled, {v: files[v] for v in present}, points, _plan_points(target, points)
     )
     sizes = _views.image_sizes(
-        footage, recording_dir, views, spec.get("image_size"), origin="pose2d.import"
+        footage,
+        recording_dir,
+        views,
+        spec.get("image_size"),
+        origin="pose2d.import",
+        globs=target.footage_globs(),
     )
     return pts, conf, sizes, {v: files[v] for v in present}
 
@@ -613,6 +706,8 @@ def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | N
         pts, conf, sizes, origin = _import_deepfly3d(spec, target, recording_dir, views, points)
     else:
         pts, conf, sizes, origin = _import_per_view(spec, target, recording_dir, views, points)
+    if spec.get("view_points", "plan") == "plan":
+        _keep_plan_points(pts, conf, views, _plan_points(target, points), origin, points)
     threshold = spec.get("likelihood_threshold")
     if threshold is not None:
         low = ~(conf >= float(threshold))  # NaN confidences count as below

@@ -86,6 +86,7 @@ def image_sizes(
     fallback=None,
     *,
     origin: str,
+    globs: Mapping[str, str | None] | None = None,
 ) -> dict[str, tuple[int, int]]:
     """Raw frame ``(height, width)`` per view: from its footage (:func:`footage_files`),
     else ``fallback``.
@@ -93,19 +94,73 @@ def image_sizes(
     Raises
     ------
     ImportFormatError
-        When a view has no footage in ``recording_dir`` and no fallback size is set.
+        When a view has no footage in ``recording_dir`` and no fallback size is set
+        (:func:`missing_footage`).
     """
-    files = footage
+    problem = missing_footage(footage, recording_dir, views, fallback, globs=globs)
+    if problem is not None:
+        raise ImportFormatError(f"{origin}: {problem}")
     out: dict[str, tuple[int, int]] = {}
     for view in views:
-        if files.get(view):
-            out[view] = read_frame_size(files[view][0])
-        elif fallback is not None:
+        if footage.get(view):
+            out[view] = read_frame_size(footage[view][0])
+        else:
             h, w = (int(v) for v in fallback)
             out[view] = (h, w)
-        else:
-            raise ImportFormatError(
-                f"{origin}: view {view!r} has no footage in {recording_dir} to read its frame "
-                "size from; set pose2d.import.image_size: [height, width]"
-            )
     return out
+
+
+def missing_footage(
+    footage: Mapping[str, list[Path]],
+    recording_dir: Path | None,
+    views: list[str],
+    fallback=None,
+    *,
+    globs: Mapping[str, str | None] | None = None,
+) -> str | None:
+    """Why imported 2D cannot be given frame sizes, or ``None``: a view with no footage
+    when ``pose2d.import.image_size`` (``fallback``) is not set.
+
+    Parameters
+    ----------
+    footage
+        ``view -> footage files`` (:func:`footage_files`).
+    recording_dir
+        The recording directory the footage was looked up in.
+    views
+        The views that need a frame size.
+    fallback
+        ``pose2d.import.image_size``.
+    globs
+        ``view -> footage glob``, to name the missing file.
+
+    Returns
+    -------
+    str or None
+        The problem and its fix: the missing file named when other views have footage
+        (a camera's video missing), else how to set ``image_size`` (no footage at all).
+    """
+    if fallback is not None:
+        return None
+    missing = [v for v in views if not footage.get(v)]
+    if not missing:
+        return None
+    globs = globs or {}
+    where = f" in {recording_dir}" if recording_dir is not None else ""
+    if any(footage.get(v) for v in views):  # a camera's file missing among the others
+        named = "; ".join(
+            f"view {v!r}: no file matches {Path(recording_dir or '.') / globs[v]}"
+            if globs.get(v)
+            else f"view {v!r}: no footage source feeds it"
+            for v in missing
+        )
+        return (
+            f"no footage for {named}; put the camera's file there (or fix its source's "
+            "filename in sources), or, to import its 2D without footage, set "
+            "pose2d.import.image_size: [height, width]"
+        )
+    return (
+        f"no footage for any view{where} to read the frame size from; imported 2D without "
+        "footage needs the frames' size in pixels: set pose2d.import.image_size: [height, width] "
+        "(e.g. [480, 960])"
+    )

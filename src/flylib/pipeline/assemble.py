@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -127,8 +128,15 @@ def run_assemble(
     rig = inputs.rig.camera_group(sizes, recording_dir)
     meta = {
         "recording": str(recording_dir) if recording_dir else None,
+        # the folder a relative path meant, for readers started from elsewhere (the GUI)
+        "recording_abspath": os.path.abspath(recording_dir) if recording_dir else None,
         **_provenance(inputs, **stage_files),
     }
+    handedness = _handedness(inputs, stage_files, rig, recording_dir)
+    if handedness is not None:
+        meta["handedness"] = handedness  # kinematics and neuromechfly read it from results.h5
+        if handedness["message"]:
+            log.warning("%s", handedness["message"])
     results_path = outdir / "results.h5"
     assemble_results(
         results_path,
@@ -146,6 +154,8 @@ def run_assemble(
         metadata={"recording": str(recording_dir or "")},
     )
     summary = _summary(result, stage_files, recording_dir, outdir, FORMAT_VERSION)
+    if handedness is not None:
+        summary["handedness"] = handedness
     accuracy = _accuracy(stage_files)
     if accuracy is not None:
         summary["accuracy"] = accuracy
@@ -170,6 +180,58 @@ def write_snapshot(text: str, path: str | Path) -> Path:
     return Path(path)
 
 
+#: The frames the starting rig's handedness is measured on (evenly spaced): a median
+#: over this many is as decided as over all of them.
+START_FRAMES = 200
+
+
+def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict | None:
+    """The handedness entry (:func:`flylib.handedness.rig_check`) of the result's 3D;
+    ``None`` without a 3D stage. With bundle adjustment, the 2D the 3D was solved from
+    is also triangulated through the starting (config) rig, so a mirror image is
+    blamed on the rig it came from."""
+    from ..handedness import handedness, rig_check
+    from ..results import read_stage
+
+    stage = next(
+        (s for s in ("refinement", "triangulation", "pictorial_structures") if s in stage_files),
+        None,
+    )
+    if stage is None:
+        return None
+    arrays = read_stage(stage_files[stage], stage)
+    skeleton = inputs.skeleton.skeleton()
+    final = handedness(arrays["points3d"], skeleton)
+    adjusted = "bundle_adjustment" in stage_files
+    start = None
+    if adjusted:
+        pts2d = arrays.get("points")
+        if pts2d is None:
+            pts2d = read_stage(stage_files["pose2d"], "pose2d")["points"]
+        frames = np.unique(np.linspace(0, pts2d.shape[1] - 1, START_FRAMES).round().astype(int))
+        start = handedness(rig.triangulate(np.asarray(pts2d, float)[:, frames]), skeleton)
+    calibration = inputs.rig.calibration
+    if calibration:
+        from ..interop.anipose import calibration_file
+
+        where = calibration_file(
+            dict(calibration),
+            Path(recording_dir) if recording_dir else None,
+            inputs.rig.config_dir,
+        )
+        name = f"the calibration file {where}"
+    else:
+        name = "the config's cameras table"
+    return rig_check(
+        final,
+        rig=name,
+        from_file=bool(calibration),
+        mirror_set=bool(calibration and calibration.get("mirror")),
+        adjusted=adjusted,
+        start=start,
+    )
+
+
 def _errors_vs_truth(result, stage_files: Mapping[str, Path], truth_path) -> dict:
     """The demo's 3D error against its truth: the result's, and the triangulation's
     alone when refinement ran."""
@@ -191,6 +253,7 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
     pts2d = np.asarray(result.pts2d, float)
     summary: dict[str, Any] = {
         "recording": str(recording_dir) if recording_dir else None,
+        "recording_abspath": os.path.abspath(recording_dir) if recording_dir else None,
         "outdir": str(outdir),
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "format_version": version,

@@ -185,6 +185,9 @@ class RigSpec:
     def from_config(cls, config: Config) -> RigSpec:
         """The config's rig."""
         calibration = config.data.get("calibration")
+        if calibration and calibration.get("mirror") is False:
+            # a knob added later: its default leaves the params (and their hash) as before
+            calibration = {k: v for k, v in calibration.items() if k != "mirror"}
         return cls(
             views=tuple(config.view_names()),
             cameras=frozen_mapping(dict(config.data.get("cameras") or {})),

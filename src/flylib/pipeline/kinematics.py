@@ -17,13 +17,14 @@ column, NaN (an empty field) where a point is missing.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.checks import tracked_table
 from ..config.postprocessing import KinematicsParams
 from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
@@ -66,7 +67,7 @@ def _kinematics_from_table(table: Mapping, runtime: KinematicsRuntime) -> Kinema
 
 
 #: The ``kinematics`` table as tracked (every field), read back in the config's order.
-KINEMATICS = Codec(asdict, _kinematics_from_table)
+KINEMATICS = Codec(tracked_table, _kinematics_from_table)
 
 
 @register
@@ -165,19 +166,34 @@ def write_kinematics_h5(path: str | Path, kin: Kinematics, point_names, tethered
 
 
 def angles_figure(
-    kin: Kinematics, path: str | Path, *, fps: float | None = None, dpi: int = 90
+    kin: Kinematics,
+    path: str | Path,
+    *,
+    fps: float | None = None,
+    dpi: int = 90,
+    point_names: Sequence[str] | None = None,
 ) -> Path:
     """Write angles.png: :func:`angles_plot` saved atomically to ``path``."""
-    fig = angles_plot(kin, fps=fps, dpi=dpi)
+    fig = angles_plot(kin, fps=fps, dpi=dpi, point_names=point_names)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     return Path(path)
 
 
-def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
+def angles_plot(
+    kin: Kinematics,
+    *,
+    fps: float | None = None,
+    dpi: int = 90,
+    point_names: Sequence[str] | None = None,
+):
     """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
     solid, segment yaw/pitch/roll dashed, one colour per angle kind named in a legend
     beside the panels.
+
+    The panels come in the skeleton's order (``point_names``: a leg's place is that of
+    the first point its angles are measured at, so the fly's legs read lf, lm, lh /
+    rf, rm, rh), else in the order of ``kin.angle_names``; never alphabetically.
 
     Returns
     -------
@@ -188,6 +204,14 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     groups: dict[str, list[int]] = {}
     for k, name in enumerate(kin.angle_names):
         groups.setdefault(name.split("_")[0], []).append(k)
+    if point_names is not None:
+        place = {name: i for i, name in enumerate(point_names)}
+
+        def first_point(item: tuple[str, list[int]]) -> int:
+            names = (n for k in item[1] for n in kin.definitions.get(kin.angle_names[k], ()))
+            return min((place[n] for n in names if n in place), default=len(place))
+
+        groups = dict(sorted(groups.items(), key=first_point))  # stable: ties keep their order
     n = max(len(groups), 1)
     cols = min(n, 3)
     rows = int(np.ceil(n / cols))
@@ -203,7 +227,7 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     )
     colors = {kind: f"C{j % 10}" for j, kind in enumerate(kinds)}
     handles = {}
-    for i, (leg, columns) in enumerate(sorted(groups.items())):
+    for i, (leg, columns) in enumerate(groups.items()):
         ax = fig.add_subplot(rows, cols, i + 1)
         for k in columns:
             kind = kin.angle_names[k][len(leg) + 1 :]
@@ -221,16 +245,18 @@ def angles_plot(kin: Kinematics, *, fps: float | None = None, dpi: int = 90):
     return fig
 
 
-def results_3d(results_path: str | Path, stage: str):
+def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = False):
     """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
     ``stage`` reads (kinematics, neuromechfly).
 
     Raises
     ------
     ResultsError
-        If it holds no 3D.
+        If it holds no 3D, or its 3D is the fly's mirror image
+        (:func:`flylib.handedness.mirrored_refusal`) and ``allow_mirrored`` is false.
     """
     from ..errors import ResultsError
+    from ..handedness import mirrored_refusal
     from ..results import PoseResult
 
     result = PoseResult.load(results_path)
@@ -239,6 +265,9 @@ def results_3d(results_path: str | Path, stage: str):
             f"{results_path}: holds no 3D points; turn on triangulation "
             f"(or set pipeline.do_{stage}: false)"
         )
+    refusal = None if allow_mirrored else mirrored_refusal(result, results_path, stage)
+    if refusal:
+        raise ResultsError(refusal)
     return result
 
 
@@ -265,12 +294,12 @@ def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: s
     from .stage_helpers import solving
 
     with solving(STAGE, results_path):
-        result = results_3d(results_path, STAGE)
+        result = results_3d(results_path, STAGE, allow_mirrored=inputs.kinematics.allow_mirrored)
         outdir = Path(outdir)
         kin = compute_kinematics(inputs, result.pts3d, result.skeleton)
         write_kinematics_h5(
             outdir / FILES[0], kin, result.skeleton.point_names, inputs.kinematics.tethered
         )
         write_angles_csv(outdir / FILES[1], kin)
-        angles_figure(kin, outdir / FILES[2])
+        angles_figure(kin, outdir / FILES[2], point_names=result.skeleton.point_names)
     return {"angles": kin.angle_names, "frames": int(kin.angles.shape[0])}

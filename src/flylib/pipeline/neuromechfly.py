@@ -199,7 +199,7 @@ def run_neuromechfly(
     """
     from .kinematics import results_3d
 
-    result = results_3d(results_path, STAGE)
+    result = results_3d(results_path, STAGE, allow_mirrored=inputs.neuromechfly.allow_mirrored)
     outdir = Path(outdir)
     frame_rate = inputs.neuromechfly.frame_rate
     nmf = compute_neuromechfly(inputs, result.pts3d, result.skeleton, source=str(results_path))

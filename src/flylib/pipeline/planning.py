@@ -20,7 +20,9 @@ from .inputs import RigSpec, stage_params
 __all__ = ["calibration_inputs", "config_rig", "params_of", "plan_recordings"]
 
 
-def plan_recordings(config: Config, *, check_frames: bool = True) -> list[Recording]:
+def plan_recordings(
+    config: Config, *, check_frames: bool = True, config_dir: Path | None = None
+) -> list[Recording]:
     """The recordings a workflow run covers, from the config's ``recordings`` key
     (:func:`flylib.recordings.plan_listing` with the config's ``sources``,
     ``recursive``, ``outdir`` and ``pose2d.import``).
@@ -31,6 +33,8 @@ def plan_recordings(config: Config, *, check_frames: bool = True) -> list[Record
         The run config.
     check_frames
         Compare frame counts across sources while resolving.
+    config_dir
+        The folder of the config file that set ``recordings`` (for messages).
 
     Returns
     -------
@@ -46,6 +50,7 @@ def plan_recordings(config: Config, *, check_frames: bool = True) -> list[Record
         default_import=(data.get("pose2d") or {}).get("import"),
         demo_import=lambda: demo_import_spec(config),
         check_frames=check_frames,
+        config_dir=config_dir,
     )
 
 

@@ -88,6 +88,11 @@ def preflight_problems(
                 f"calibration.format: unknown format {calibration['format']!r}; "
                 f"use one of {', '.join(CALIBRATION_FORMATS)}"
             )
+    if isinstance(calibration, dict) and not isinstance(calibration.get("mirror", False), bool):
+        problems.append(
+            f"calibration.mirror: expected true or false, got {calibration['mirror']!r} "
+            "(true mirrors the calibration file's world; see docs/how-it-works/handedness.md)"
+        )
 
     if any(rec.demo for rec in recordings):
         from ..demo import demo_settings
@@ -248,7 +253,9 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         text = yaml.safe_dump(layers.data, sort_keys=False, default_flow_style=None)
     try:
         config = Config(layers.data, text=text, format="yaml")
-        recordings = plan_recordings(config, check_frames=check_frames)
+        recordings = plan_recordings(
+            config, check_frames=check_frames, config_dir=layers.config_dir("recordings")
+        )
         found: dict[str, tuple[Path, ...]] = {}
         problems = preflight_problems(
             config,
@@ -281,6 +288,7 @@ def _pose2d_problems(
     resolved: dict[str, tuple[Path, ...]] | None,
 ) -> list[str]:
     from ..interop import import_spec
+    from ..interop.importer import footage_problem
     from ..pose2d.published import checkpoint_problem
     from ..recordings import find_recording
     from .pose2d import import_inputs, import_target
@@ -296,12 +304,15 @@ def _pose2d_problems(
         own = rec.extra.get("own_import") and not rec.demo
         where = f"{rec.extra.get('where', 'recordings')}.import" if own else None
         try:
-            import_spec(rec.import_spec)
+            spec = import_spec(rec.import_spec)
             if not rec.demo:  # the demo's files are written by its own rule
                 target = target or import_target(config)
                 files = tuple(import_inputs(target, rec.import_spec, rec.path))
                 if resolved is not None:
                     resolved[rec.id] = files
+                problem = footage_problem(target, spec, rec.path)
+                if problem is not None:
+                    problems.append(f"{where or 'pose2d.import'}: {problem}")
         except FlylibError as exc:
             text = _problem(exc)
             if not text.startswith("pose2d.import"):

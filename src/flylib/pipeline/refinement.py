@@ -116,7 +116,9 @@ def _triangulation(method_params: Mapping) -> TriangulationParams:
 
 
 class TriangulationSource:
-    """The refinement's input chunk by chunk: the 2D and its confidences, the
+    """The refinement's input chunk by chunk: the 2D and its confidences with the
+    manual corrections applied (the triangulation's ``corrected_2d`` and ``edited_2d``,
+    as :meth:`~flylib.corrections.Corrections.apply_2d` applies them), the
     triangulation's 3D as the start and its inlier views (its kept 2D), read on demand
     (h5py datasets, or arrays)."""
 
@@ -126,14 +128,34 @@ class TriangulationSource:
         self.start = triangulation["points3d"]
         self.inlier_2d = triangulation["points"]
         self.n_views, self.n_frames, self.n_points = self.pts2d.shape[:3]
+        self.touched = triangulation["corrected_2d"] if "corrected_2d" in triangulation else None
+        self.edited = None
+        if self.touched is not None:
+            if "edited_2d" not in triangulation:
+                from ..errors import ResultsError
+
+                raise ResultsError(
+                    "the triangulation artifact marks corrected 2D (corrected_2d) but holds "
+                    "no edited_2d (written by an older flylib); re-run the triangulation "
+                    "stage (delete stages/triangulation.h5)"
+                )
+            self.edited = triangulation["edited_2d"]
 
     def read(self, lo: int, hi: int):
-        conf = None if self.conf is None else self.conf[:, lo:hi].astype(np.float64)
+        pts2d = np.asarray(self.pts2d[:, lo:hi], np.float64)
+        conf = None if self.conf is None else np.asarray(self.conf[:, lo:hi], np.float64)
+        if self.touched is not None:
+            touched = np.asarray(self.touched[:, lo:hi], bool)
+            edited = np.asarray(self.edited[:, lo:hi], np.float64)
+            pts2d = np.where(touched[..., None], edited, pts2d)
+            if conf is not None:
+                given = np.isfinite(edited).all(-1)
+                conf = np.where(touched, np.where(given, 1.0, np.nan), conf)
         inliers = np.isfinite(self.inlier_2d[:, lo:hi]).all(-1)
         return (
-            self.pts2d[:, lo:hi].astype(np.float64),
+            pts2d,
             conf,
-            self.start[lo:hi].astype(np.float64),
+            np.asarray(self.start[lo:hi], np.float64),
             inliers,
         )
 
@@ -333,7 +355,7 @@ def compute_refinement(
     )
     options = check.options
     out = refine_stream(source, cameras, sink, options=options, **terms)
-    keep_corrected(triangulation, sink)
+    keep_corrected(triangulation, sink, params.chunk_frames)
     accuracy = check.apply(sink, triangulation)
     # the artifact's record of the solver's settings, as written before the params and
     # the solver's options were one class: without motion_scales, rigid_points last

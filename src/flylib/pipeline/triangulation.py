@@ -209,8 +209,11 @@ def run_triangulation(
     With ``corrections_path`` (a ``corrections.h5`` sidecar, see
     :mod:`flylib.corrections`) the manual edits are applied first; the artifact then
     also holds ``corrected`` ``(T, P)`` and ``corrected_2d`` ``(V, T, P)`` (bool masks of
-    what a person changed) and the sidecar's name and edit count as attribute
-    ``corrections``.
+    what a person changed), ``edited_2d`` ``(V, T, P, 2)`` (the 2D a person gave where
+    ``corrected_2d`` is set, NaN where marked invisible; the refinement and the
+    consistency check read the corrected 2D from it) and the sidecar's name and edit
+    count as attribute ``corrections``. ``points`` holds the 2D the 3D was solved from
+    (corrections applied); the detection stays in the pose2d artifact.
     """
     from ..accuracy import triangulation_accuracy
     from ..corrections import Corrections
@@ -253,6 +256,7 @@ def run_triangulation(
     if corrections is not None:
         arrays["corrected"] = result.corrected
         arrays["corrected_2d"] = corrections.touched()
+        arrays["edited_2d"] = corrections.edited_2d()
         from ..provenance import file_sha256
 
         attrs["corrections"] = {

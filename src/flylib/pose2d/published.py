@@ -8,9 +8,11 @@ The loader (:mod:`flylib.pose2d.weights`) uses the same table and cache names.
 from __future__ import annotations
 
 import socket
+import tarfile
 import threading
 import urllib.parse
 import urllib.request
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +94,40 @@ def host_reachable(url: str, timeout: float = PROBE_TIMEOUT_S) -> tuple[bool, st
     return not outcome[0], outcome[0]
 
 
+#: The start of a checkpoint in torch's legacy (pre-1.6) format: a pickle stream
+#: (``\\x80`` and its protocol) whose first object is torch's magic number as a long.
+_LEGACY_MAGIC = b"\x8a\x0a" + (0x1950A86A20F9469CFC6C).to_bytes(10, "little")
+
+
+def container_problem(path: str | Path) -> str | None:
+    """Why ``path`` is no file ``torch.save`` wrote, or ``None``; told from its layout
+    alone, never unpickled (what validation checks before any job runs).
+
+    Accepted: torch's zip archive (with its ``data.pkl``), the legacy pickle stream (its
+    magic number first), and the old tar layout (with its ``pickle`` member).
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+        if zipfile.is_zipfile(path):
+            with zipfile.ZipFile(path) as archive:
+                names = archive.namelist()
+            if any(name == "data.pkl" or name.endswith("/data.pkl") for name in names):
+                return None
+            return "a zip archive without torch's data.pkl"
+        if head[:1] == b"\x80" and head[2:14] == _LEGACY_MAGIC:
+            return None
+        if tarfile.is_tarfile(path):
+            with tarfile.open(path) as archive:
+                if "pickle" in archive.getnames():
+                    return None
+            return "a tar archive without torch's pickle member"
+    except (OSError, zipfile.BadZipFile, tarfile.TarError, EOFError) as exc:
+        return f"cannot be read ({type(exc).__name__})"
+    return "neither a torch.save zip archive nor torch's legacy format" if head else "empty"
+
+
 def checkpoint_problem(spec: Any, key: str, timeout: float = PROBE_TIMEOUT_S) -> str | None:
     """Why a model's checkpoint will not be there when the detector starts, else ``None``.
 
@@ -113,14 +149,28 @@ def checkpoint_problem(spec: Any, key: str, timeout: float = PROBE_TIMEOUT_S) ->
     if spec.weights:
         path = Path(spec.weights).expanduser()
         if path.is_file():
-            return None
+            why = container_problem(path)
+            if why is None:
+                return None
+            return (
+                f"{key}: {spec.weights} is not a PyTorch checkpoint ({why}); point it at the "
+                "model's checkpoint (a torch.save file holding {'state_dict': ...}, such as "
+                "DeepFly2D's sh8 .tar)"
+            )
         return (
             f"{key}: {spec.weights} does not exist; point it at the checkpoint file "
             "(or leave it empty for the published weights)"
         )
     cached = cached_checkpoint(spec.name, spec.model_class, spec.url)
     if cached.is_file():
-        return None
+        why = container_problem(cached)
+        if why is None:
+            return None
+        return (
+            f"{key}: the cached checkpoint {cached} of model {spec.name!r} is not a PyTorch "
+            f"checkpoint ({why}; a download cut short?); delete it to download it again, or "
+            f"set pose2d.weights: {{{spec.name}: /path/to/checkpoint.tar}}"
+        )
     url = download_url(spec.model_class, spec.url)
     if not url:
         return (

@@ -245,6 +245,21 @@ _CHECKPOINT_PARSE_ERRORS = (
 )
 
 
+def _load_failure(exc: BaseException) -> str:
+    """What ``torch.load(weights_only=True)`` objected to, in a few words: never torch's
+    advice to load with ``weights_only=False``, which would run code from the file."""
+    text = " ".join(str(exc).split())
+    refused = re.search(r"Unsupported global: GLOBAL ([\w.]+)", text)
+    if refused:
+        return (
+            f"it holds an object of class {refused.group(1)}, not only tensors and plain containers"
+        )
+    text = text.split("WeightsUnpickler error:")[-1].strip()
+    sentences = [s for s in re.split(r"(?<=\.) ", text) if "weights_only" not in s]
+    detail = (sentences[0] if sentences else "")[:200].rstrip(".")
+    return f"{type(exc).__name__}: {detail}" if detail else type(exc).__name__
+
+
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     """The network parameters of a checkpoint file, prefixes stripped.
 
@@ -256,10 +271,10 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         # a checkpoint that names any other global is refused, never run.
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except _CHECKPOINT_PARSE_ERRORS as exc:
-        detail = " ".join(str(exc).split())[:300] or "no detail"
         raise WeightsError(
-            f"{path}: cannot read the checkpoint ({type(exc).__name__}: {detail}); "
-            "it must be a torch file holding {'state_dict': ...}"
+            f"{path}: cannot read the checkpoint ({_load_failure(exc)}); it must be a torch "
+            "file holding {'state_dict': ...} of tensors (flylib reads weights only, never "
+            "code from the file)"
         ) from None
     state = payload.get("state_dict", payload) if isinstance(payload, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):

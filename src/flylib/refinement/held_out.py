@@ -206,35 +206,58 @@ def keep_triangulation_points(
     """Points ``keep`` ``(P,)`` take the triangulation's 3D, 2D and errors in every frame,
     flagged ``kept_triangulation`` (chunk by chunk along time; ``output`` as in
     :meth:`HeldOutCheck.apply`)."""
+    keep = np.asarray(keep, bool)
+    take_triangulation(
+        triangulation, output, lambda lo, hi: np.broadcast_to(keep, (hi - lo, keep.size)), chunk
+    )
+
+
+def keep_corrected(triangulation: Mapping[str, Any], output, chunk: int = 1024) -> None:
+    """Points a person corrected (the triangulation's ``corrected`` ``(T, P)``, from a
+    ``corrections.h5``) keep the triangulation's 3D, 2D and errors, flagged
+    ``kept_triangulation``: a person's call is not smoothed away (``output`` as in
+    :meth:`HeldOutCheck.apply`)."""
+    if "corrected" not in triangulation:
+        return
+    corrected = triangulation["corrected"]
+    take_triangulation(
+        triangulation, output, lambda lo, hi: np.asarray(corrected[lo:hi], bool), chunk
+    )
+
+
+def take_triangulation(
+    triangulation: Mapping[str, Any],
+    output,
+    select: Callable[[int, int], Bool[np.ndarray, "T P"]],
+    chunk: int,
+) -> None:
+    """The ``(frame, point)`` entries ``select(lo, hi)`` picks in frames ``lo:hi`` take
+    the triangulation's 3D, 2D and errors together (a result never pairs one stage's
+    3D with another's 2D), flagged ``kept_triangulation``, their NaN-derived flags
+    (:func:`~flylib.refinement.solver.flags_from_nan`) recomputed from what they now hold."""
+    from .solver import flags_from_nan
+
     bit = np.uint8(FLAG_BITS["kept_triangulation"][0])
     n_frames = output.points3d.shape[0]
     step = max(1, int(chunk))
     for lo in range(0, n_frames, step):
         hi = min(lo + step, n_frames)
+        mask = np.asarray(select(lo, hi), bool)
+        if not mask.any():
+            continue
         for name, source_name, axis in _KEPT_ARRAYS:
             source, target = triangulation[source_name], getattr(output, name)
             if axis == 0:
-                values = target[lo:hi]
-                values[:, keep] = source[lo:hi][:, keep]
+                values = np.array(target[lo:hi])
+                values[mask] = np.asarray(source[lo:hi])[mask]
                 target[lo:hi] = values
             else:
-                values = target[:, lo:hi]
-                values[:, :, keep] = source[:, lo:hi][:, :, keep]
+                values = np.array(target[:, lo:hi])
+                values[:, mask] = np.asarray(source[:, lo:hi])[:, mask]
                 target[:, lo:hi] = values
-        flags = output.flags[lo:hi]
-        flags[:, keep] |= bit
+        flags = np.array(output.flags[lo:hi])
+        redone = flags_from_nan(
+            flags, np.asarray(output.points2d[:, lo:hi]), np.asarray(output.points3d[lo:hi])
+        )
+        flags = np.where(mask, redone | bit, flags).astype(np.uint8)
         output.flags[lo:hi] = flags
-
-
-def keep_corrected(triangulation: Mapping[str, Any], output) -> None:
-    """Points a person corrected (the triangulation's ``corrected`` ``(T, P)``, from a
-    ``corrections.h5``) keep the triangulation's 3D: a person's call is not smoothed
-    away (``output`` as in :meth:`HeldOutCheck.apply`)."""
-    if "corrected" not in triangulation:
-        return
-    corrected = np.asarray(triangulation["corrected"][()], bool)
-    if not corrected.any():
-        return
-    points = np.array(output.points3d[()])
-    points[corrected] = np.asarray(triangulation["points3d"][()], float)[corrected]
-    output.points3d[...] = points

@@ -63,7 +63,8 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
     "kept_triangulation": (
         128,
         "refinement's held-out-view error was not better than triangulation's for this "
-        "point, so the output keeps the triangulation's 3D",
+        "point, or a person corrected it, so the output keeps the triangulation's 3D, "
+        "2D and errors",
     ),
 }
 
@@ -474,6 +475,29 @@ class ArraySource:
             np.asarray(self.start[lo:hi], np.float64),
             inl,
         )
+
+
+#: The bits of :data:`FLAG_BITS` that follow from which 2D and 3D a point holds.
+NAN_BITS = ("observed", "filled", "missing", "single_view")
+
+
+def flags_from_nan(
+    flags: UInt8[np.ndarray, "T P"],
+    points2d: Float[np.ndarray, "V T P 2"],
+    points3d: Float[np.ndarray, "T P 3"],
+) -> UInt8[np.ndarray, "T P"]:
+    """``flags`` with the bits of :data:`NAN_BITS` set from the 2D and 3D a point holds:
+    ``observed`` (a view's 2D kept), ``single_view`` (exactly one), ``missing`` (no 3D),
+    ``filled`` (3D with no view's 2D); the other bits as they were."""
+    bit = {k: np.uint8(FLAG_BITS[k][0]) for k in NAN_BITS}
+    views = np.isfinite(points2d).all(-1).sum(0)
+    has3d = np.isfinite(points3d).all(-1)
+    out = np.asarray(flags, np.uint8) & ~np.uint8(sum(bit.values()))
+    out |= np.where(views > 0, bit["observed"], 0).astype(np.uint8)
+    out |= np.where(views == 1, bit["single_view"], 0).astype(np.uint8)
+    out |= np.where(~has3d, bit["missing"], 0).astype(np.uint8)
+    out |= np.where(has3d & (views == 0), bit["filled"], 0).astype(np.uint8)
+    return out.astype(np.uint8)
 
 
 class ArraySink:

@@ -31,6 +31,8 @@ The package, by concern (every name is importable from ``flylib.results``):
   workflow's file names (:data:`ARTIFACTS`, :data:`SUMMARY_FILES`,
   :func:`candidates_artifact`)
 - ``assembly``: :func:`assemble_results`
+- ``invariants``: what ``results.h5`` must never contradict, :func:`check_results`,
+  :func:`require_consistent` (assemble and ``flylib inspect --verify`` run it)
 """
 
 from __future__ import annotations
@@ -59,7 +61,8 @@ from .hdf5 import (
     read_meta,
     read_meta_from as read_meta_from,
 )
-from .pose import PoseResult
+from .invariants import check_results, require_consistent
+from .pose import Detections, PoseResult, read_detections
 from .pose2d import Pose2dData, read_image_sizes
 
 __all__ = [
@@ -67,19 +70,23 @@ __all__ = [
     "FORMAT_VERSION",
     "STAGE_GROUPS",
     "SUMMARY_FILES",
+    "Detections",
     "PoseResult",
     "Pose2dData",
     "artifact_path",
     "assemble_results",
     "atomic_path",
     "candidates_artifact",
+    "check_results",
     "load_candidates",
     "open_checked",
     "read_cameras",
+    "read_detections",
     "read_meta",
     "read_skeleton",
     "read_image_sizes",
     "read_stage",
+    "require_consistent",
     "save_candidates",
     "verify_file",
     "write_analysis",

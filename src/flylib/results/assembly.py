@@ -22,6 +22,7 @@ from .checksums import check_group
 from .datasets import read_json_attrs, read_strings
 from .groups import write_cameras, write_skeleton
 from .hdf5 import create_file, new_meta, open_checked, read_meta_from
+from .invariants import require_consistent
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
@@ -34,6 +35,7 @@ def assemble_results(
     config_rig: CameraGroup,
     stage_files: Mapping[str, str | Path],
     meta: Mapping[str, Any] | None = None,
+    verify: bool = True,
 ) -> None:
     """Assemble ``results.h5`` from the stage artifacts.
 
@@ -54,12 +56,17 @@ def assemble_results(
         ``stage -> artifact path`` for the stages that ran; ``pose2d`` is required.
     meta
         Extra entries for the file's meta JSON.
+    verify
+        Check the assembled file (:func:`~flylib.results.invariants.require_consistent`)
+        before it is put in place; ``False`` only for made-up arrays (tests of the
+        assembly's mechanics, benchmarks).
 
     Raises
     ------
     ResultsError
-        If pose2d is missing, an artifact is unreadable, or the skeleton or rig do not
-        match the detected points.
+        If pose2d is missing, an artifact is unreadable, the skeleton or rig do not
+        match the detected points, or the assembled file contradicts itself
+        (:mod:`flylib.results.invariants`; the file is then not written).
     """
     unknown = sorted(set(stage_files) - set(STAGE_GROUPS))
     if unknown:
@@ -70,29 +77,33 @@ def assemble_results(
         raise ResultsError(
             f"{out_path}: cannot assemble without the pose2d artifact; run the pose2d stage"
         )
-    with atomic_path(out_path) as tmp, create_file(tmp) as dst:
-        dst.attrs["meta"] = json.dumps(
-            new_meta("assemble", {**(meta or {}), "stages": list(stage_files)})
-        )
-        write_skeleton(dst.create_group("skeleton"), skeleton)
-        for stage in STAGE_GROUPS:
-            if stage not in stage_files:
-                continue
-            src_path = stage_files[stage]
-            with open_checked(src_path, f"re-run the {stage} stage") as src:
-                if stage not in src:
-                    raise ResultsError(
-                        f"{src_path}: has no {stage} group; re-run the {stage} stage"
-                    )
-                check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
-                src.copy(src[stage], dst, name=stage)
-                dst[stage].attrs["meta"] = json.dumps(read_meta_from(src))
-                if stage == "pose2d":
-                    _check_pose2d_matches(src, src_path, skeleton, config_rig)
-        g2d = dst["pose2d"]
-        if "cameras" in g2d:
-            del g2d["cameras"]
-        write_cameras(g2d.create_group("cameras"), config_rig)
+    with atomic_path(out_path) as tmp:
+        with create_file(tmp) as dst:
+            dst.attrs["meta"] = json.dumps(
+                new_meta("assemble", {**(meta or {}), "stages": list(stage_files)})
+            )
+            write_skeleton(dst.create_group("skeleton"), skeleton)
+            for stage in STAGE_GROUPS:
+                if stage not in stage_files:
+                    continue
+                src_path = stage_files[stage]
+                with open_checked(src_path, f"re-run the {stage} stage") as src:
+                    if stage not in src:
+                        raise ResultsError(
+                            f"{src_path}: has no {stage} group; re-run the {stage} stage"
+                        )
+                    check_group(src_path, src[stage])  # a raw copy would carry damage over unseen
+                    src.copy(src[stage], dst, name=stage)
+                    dst[stage].attrs["meta"] = json.dumps(read_meta_from(src))
+                    if stage == "pose2d":
+                        _check_pose2d_matches(src, src_path, skeleton, config_rig)
+            g2d = dst["pose2d"]
+            if "cameras" in g2d:
+                del g2d["cameras"]
+            write_cameras(g2d.create_group("cameras"), config_rig)
+        # a contradiction is a bug upstream: refuse it before the file is put in place
+        if verify:
+            require_consistent(tmp, writer="assemble", shown=out_path)
 
 
 def _check_pose2d_matches(

@@ -204,3 +204,64 @@ class PoseResult:
                 meta=meta,
                 image_sizes=None if sizes is None else {k: tuple(v) for k, v in sizes.items()},
             )
+
+
+@dataclass(frozen=True)
+class Detections:
+    """The 2D detections of a result with the manual corrections applied.
+
+    Attributes
+    ----------
+    points
+        ``(V, T, P, 2)`` ``pose2d/points`` (the detector's or the import's 2D) where a
+        person edited a point, that point; where one marked it invisible, NaN.
+    conf
+        ``(V, T, P)`` their confidences (1 for an edit, NaN where invisible), or ``None``.
+    corrected
+        How many observations a person changed.
+    """
+
+    points: Float[np.ndarray, "V T P 2"]
+    conf: Float[np.ndarray, "V T P"] | None
+    corrected: int
+
+
+def apply_edits(values: np.ndarray, touched: np.ndarray, edited: np.ndarray) -> np.ndarray:
+    """``values`` ``(V, T, P, ...)`` with the entries ``touched`` ``(V, T, P)`` replaced
+    by ``edited`` (the triangulation's ``corrected_2d`` and ``edited_2d``)."""
+    touched = np.asarray(touched, bool).reshape(touched.shape + (1,) * (values.ndim - 3))
+    return np.where(touched, edited, values)
+
+
+def read_detections(path: str | Path) -> Detections:
+    """The detections in ``results.h5`` at ``path``, corrections applied.
+
+    The corrections the triangulation applied are in its group (``corrected_2d``, the
+    mask, and ``edited_2d``, a person's 2D, NaN = marked invisible); ``pose2d/points``
+    itself holds the detections as detected.
+
+    Raises
+    ------
+    ResultsError
+        If the file has no ``pose2d/points``, or holds corrections without the 2D
+        they set (written by an older flylib).
+    """
+    rerun = "re-run the pipeline"
+    with read_checked(path, rerun) as f:
+        if "pose2d/points" not in f:
+            raise ResultsError(f"{path}: has no pose2d group (no 2D points); {rerun}")
+        points = read_dataset(f["pose2d/points"])
+        conf = read_dataset(f["pose2d/conf"]) if "pose2d/conf" in f else None
+        if "triangulation/corrected_2d" not in f:
+            return Detections(points, conf, 0)
+        if "triangulation/edited_2d" not in f:
+            raise ResultsError(
+                f"{path}: holds corrections (triangulation/corrected_2d) but not the 2D they "
+                "set (written by an older flylib); re-run the triangulation stage"
+            )
+        touched = np.asarray(read_dataset(f["triangulation/corrected_2d"]), bool)
+        edited = read_dataset(f["triangulation/edited_2d"])
+    points = apply_edits(points, touched, edited)
+    if conf is not None:
+        conf = apply_edits(conf, touched, np.where(np.isfinite(edited).all(-1), 1.0, np.nan))
+    return Detections(points, conf, int(touched.sum()))

@@ -1,0 +1,141 @@
+"""A mirror-image world is caught in every run (issue 36, symptom 6), through the
+workflow on DeepFly3D's own files: the package example with its ``calib.pkl`` (1.x 2D,
+no footage) reconstructs the fly mirrored, and says so naming the file and the one
+switch; with the switch the fly is right-handed and every pixel error is unchanged;
+kinematics refuses the mirror image unless told otherwise; the DeepFly3D sample with
+flylib's default rig is right-handed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from workflow_run import snakemake_command
+
+REPO = Path(__file__).resolve().parents[2]
+
+pytestmark = [pytest.mark.slow, pytest.mark.shared]
+
+
+def _run(workdir: Path, config: dict) -> subprocess.CompletedProcess:
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    return subprocess.run(
+        snakemake_command(workdir), capture_output=True, text=True, timeout=900, cwd=workdir
+    )
+
+
+def _package_config(example: Path, out: Path, **pipeline) -> dict:
+    """The package example as a DeepFly3D 1.x user sets it up: its df3d_result.pkl
+    imported (no footage, so the frame size is given), its calib.pkl as the rig."""
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    config["recordings"] = [
+        {
+            "path": str(example),
+            "import": {
+                "format": "deepfly3d",
+                "files": "df3d_result.pkl",
+                "image_size": [480, 960],
+            },
+        }
+    ]
+    config["calibration"] = {"file": "calib.pkl"}
+    config["outdir"] = str(out / "{id}")  # the shared data is read-only
+    config["pipeline"].update(do_visualization=False, **pipeline)  # no footage to draw on
+    return config
+
+
+def _summary(outdir: Path) -> dict:
+    return json.loads((outdir / "summary.json").read_text())
+
+
+def test_the_package_examples_calibration_is_mirrored_named_and_mirrored_back(
+    tmp_path, df3d_package_example_dir
+):
+    from flylib.handedness import WORLD_MIRROR
+    from flylib.results import PoseResult
+
+    config = _package_config(df3d_package_example_dir, tmp_path / "out", do_bundle_adjustment=False)
+    outdir = tmp_path / "out" / df3d_package_example_dir.name
+    proc = _run(tmp_path / "work", config)
+    assert proc.returncode != 0  # kinematics refused the mirror image
+    entry = _summary(outdir)["handedness"]
+    calib = str(df3d_package_example_dir / "calib.pkl")
+    assert entry["verdict"] == "mirrored" and entry["score"] < -0.9, entry
+    assert entry["cause"] == "calibration" and entry["rig"] == f"the calibration file {calib}"
+    message = entry["message"]
+    assert message.startswith("the 3D is the fly's mirror image, its left legs on its right")
+    assert f"{calib} gives a mirror-image world" in message
+    assert "set calibration: {mirror: true}" in message
+    # the end-of-run table flags the row and gives the cause and the switch once
+    table = proc.stderr[proc.stderr.rindex("flylib: per-recording results") :]
+    assert "MIRRORED" in table.splitlines()[2]
+    assert table.count(message) == 1
+    refusal = (outdir / "logs" / "kinematics.log").read_text().strip().splitlines()[-1]
+    assert refusal.startswith(f"error: {outdir / 'results.h5'}: kinematics refused: ")
+    assert message in refusal and "set kinematics: {allow_mirrored: true}" in refusal
+    assert not (outdir / "angles.csv").exists()
+    before = PoseResult.load(outdir / "results.h5")
+
+    config["calibration"]["mirror"] = True
+    again = _run(tmp_path / "work", config)
+    assert again.returncode == 0, again.stderr[-3000:]
+    entry = _summary(outdir)["handedness"]
+    assert entry["verdict"] == "right-handed" and entry["score"] > 0.9, entry
+    assert entry["message"] is None
+    after = PoseResult.load(outdir / "results.h5")
+    # the same 2D, the same pixel errors, the 3D mirrored
+    np.testing.assert_array_equal(np.isnan(after.reproj_error), np.isnan(before.reproj_error))
+    np.testing.assert_allclose(after.reproj_error, before.reproj_error, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(after.pts3d, before.pts3d @ WORLD_MIRROR, atol=1e-6, rtol=0)
+    assert (outdir / "angles.csv").is_file()
+    assert "MIRRORED" not in again.stderr[again.stderr.rindex("flylib: per-recording") :]
+
+
+def test_bundle_adjustment_from_the_mirrored_file_names_its_starting_rig(
+    tmp_path, df3d_package_example_dir, capsys
+):
+    from flylib.cli import main
+
+    config = _package_config(df3d_package_example_dir, tmp_path / "out")
+    config["kinematics"]["allow_mirrored"] = True
+    outdir = tmp_path / "out" / df3d_package_example_dir.name
+    proc = _run(tmp_path / "work", config)
+    assert proc.returncode == 0, proc.stderr[-3000:]  # told to go on: angles computed
+    assert (outdir / "angles.csv").is_file()
+    entry = _summary(outdir)["handedness"]
+    assert entry["verdict"] == "mirrored" and entry["cause"] == "calibration"
+    assert entry["starting_rig"]["verdict"] == "mirrored"
+    assert (
+        "calib.pkl gives a mirror-image world, and bundle adjustment started from it"
+        in (entry["message"])
+    )
+    # assemble's warning is in its log; flylib inspect says the same
+    assert entry["message"] in (outdir / "logs" / "assemble.log").read_text()
+    main(["inspect", str(outdir / "results.h5")])
+    printed = capsys.readouterr().out
+    assert "handedness: mirrored: " in printed
+    assert f"  MIRROR IMAGE: {entry['message']}" in printed
+    assert "  starting rig (the calibration file " in printed
+
+
+def test_the_deepfly3d_sample_with_the_default_rig_is_right_handed(
+    tmp_path, df3d_sample_dir, df3d_pickle
+):
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    config["recordings"] = [
+        {"path": str(df3d_sample_dir), "import": {"format": "deepfly3d", "files": df3d_pickle.name}}
+    ]
+    config["outdir"] = str(tmp_path / "out" / "{id}")
+    config["pipeline"]["do_visualization"] = False
+    proc = _run(tmp_path / "work", config)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    entry = _summary(tmp_path / "out" / df3d_sample_dir.name)["handedness"]
+    assert entry["verdict"] == "right-handed" and entry["score"] > 0.8, entry
+    assert entry["rig"] == "the config's cameras table"
+    assert entry["starting_rig"]["verdict"] == "right-handed"

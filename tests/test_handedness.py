@@ -1,0 +1,197 @@
+"""flylib.handedness: a fly or its mirror image, from the skeleton's labelled legs; the
+mirrored rig that keeps every pixel; the messages that name the cause and the switch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from flylib.camera.rig import CameraGroup
+from flylib.config import Config
+from flylib.demo import synthetic_fly
+from flylib.handedness import (
+    MIRROR_SWITCH,
+    WORLD_MIRROR,
+    Handedness,
+    handedness,
+    mirror_cameras,
+    mirrored_refusal,
+    rig_check,
+)
+from flylib.skeleton import Skeleton
+
+SKELETON = Skeleton.fly()
+
+
+def _fly(frames: int = 40, seed: int = 0) -> np.ndarray:
+    return synthetic_fly(frames, seed)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_fly_is_right_handed_and_its_mirror_image_is_mirrored_in_any_pose(seed):
+    rng = np.random.default_rng(seed)
+    turn = Rotation.random(random_state=seed).as_matrix()
+    fly = _fly(seed=seed) @ turn.T + rng.normal(size=3) * 10
+    plane = rng.normal(size=3)
+    plane /= np.linalg.norm(plane)
+    reflection = np.eye(3) - 2 * np.outer(plane, plane)  # any mirror, not only an axis
+    right = handedness(fly, SKELETON)
+    mirror = handedness(fly @ reflection.T, SKELETON)
+    assert right.verdict == "right-handed" and right.score > 0.9 and not right.mirrored
+    assert mirror.verdict == "mirrored" and mirror.score < -0.9 and mirror.mirrored
+    assert mirror.score == pytest.approx(-right.score)
+    assert right.frames == mirror.frames == 40
+    assert "left legs are on the fly's right" in mirror.reason
+
+
+def test_relabelling_left_as_right_is_a_mirror_image():
+    """The labels decide, not the geometry: swapping every l*/r* label mirrors the fly."""
+    fly = _fly()
+    swap = [SKELETON.index(("r" if n[0] == "l" else "l") + n[1:]) for n in SKELETON.point_names]
+    assert handedness(fly[:, swap], SKELETON).verdict == "mirrored"
+
+
+def test_missing_points_and_a_minority_of_bad_frames_do_not_decide_it():
+    rng = np.random.default_rng(3)
+    fly = _fly(frames=60).copy()
+    fly[rng.random(fly.shape[:2]) < 0.3] = np.nan  # 30 % of the points missing
+    fly[:5] = fly[:5] * [1, 1, -1]  # 5 frames mirrored (e.g. a mislabelled burst)
+    fly[5:10] = np.nan  # 5 frames with nothing
+    found = handedness(fly, SKELETON)
+    assert found.verdict == "right-handed" and found.score > 0.8
+    assert found.frames <= 55
+
+
+def test_no_measurable_frame_or_no_labelled_legs_is_undetermined_with_the_reason():
+    empty = handedness(np.full((4, 38, 3), np.nan), SKELETON)
+    assert empty.verdict == "undetermined" and np.isnan(empty.score) and empty.frames == 0
+    assert "no frame has 3D" in empty.reason
+    bare = Skeleton(point_names=("a", "b", "c"), limbs={"x": ("a", "b")})
+    unsided = handedness(np.zeros((2, 3, 3)), bare)
+    assert unsided.verdict == "undetermined" and "no legs labelled" in unsided.reason
+    flat = _fly()
+    flat[..., 2] = 0.0  # a flattened fly: no dorsal direction
+    assert handedness(flat, SKELETON).verdict == "undetermined"
+    assert Handedness(float("nan"), "undetermined", "x", 0).as_dict()["score"] is None
+
+
+def _rig(distorted: bool = True) -> CameraGroup:
+    config = Config.default()
+    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    dists = np.zeros((len(rig.names), 5))
+    if distorted:  # every coefficient, tangential ones included
+        dists[:] = [0.3, -2.0, 0.004, -0.006, 5.0]
+    return CameraGroup.from_arrays(rig.names, rig.rvecs, rig.tvecs, rig.intrs, dists)
+
+
+def test_the_mirrored_rig_sees_the_mirror_world_in_the_same_pixels():
+    rig = _rig()
+    fly = _fly(frames=5)
+    mirrored = mirror_cameras(rig)
+    np.testing.assert_allclose(
+        mirrored.project(fly @ WORLD_MIRROR), rig.project(fly), atol=1e-8, rtol=0
+    )
+    np.testing.assert_array_equal(mirrored.intrs, rig.intrs)
+    np.testing.assert_array_equal(mirrored.dists, rig.dists)
+    assert all(np.linalg.det(r) == pytest.approx(1.0) for r in mirrored.rmats)
+    # the same 2D triangulates to the mirror image: a fly becomes mirrored and back
+    pixels = rig.project(fly)
+    np.testing.assert_allclose(mirrored.triangulate(pixels), fly @ WORLD_MIRROR, atol=1e-6)
+    assert handedness(mirrored.triangulate(pixels), SKELETON).verdict == "mirrored"
+    twice = mirror_cameras(mirrored)
+    np.testing.assert_allclose(twice.project(fly), rig.project(fly), atol=1e-8, rtol=0)
+
+
+def test_an_orbit_rig_with_its_sides_swapped_reconstructs_a_mirror_image():
+    """A starting rig mirrored by its cameras table (azimuths negated: the left cameras
+    where the right ones are) gives the same fly mirrored, from the same 2D."""
+    config = Config.default()
+    sizes = {v: (480, 960) for v in config.view_names()}
+    rig = config.camera_group(image_sizes=sizes)
+    table = dict(config.data["cameras"])
+    swapped = {
+        name: {**spec, "azimuth_deg": -spec["azimuth_deg"]} if name != "defaults" else spec
+        for name, spec in table.items()
+    }
+    mirrored = Config.from_dict({**config.data, "cameras": swapped}).camera_group(image_sizes=sizes)
+    fly = _fly(frames=5)
+    pixels = rig.project(fly)
+    assert handedness(rig.triangulate(pixels), SKELETON).verdict == "right-handed"
+    assert handedness(mirrored.triangulate(pixels), SKELETON).verdict == "mirrored"
+
+
+RIGHT = Handedness(0.95, "right-handed", "fine", 15)
+MIRROR = Handedness(-0.96, "mirrored", "left legs on the right", 15)
+
+
+def test_a_mirrored_calibration_file_is_named_with_the_one_switch():
+    entry = rig_check(MIRROR, rig="the calibration file /d/calib.pkl", from_file=True)
+    assert entry["verdict"] == "mirrored" and entry["cause"] == "calibration"
+    assert entry["score"] == -0.96 and entry["starting_rig"] is None
+    message = entry["message"]
+    assert message.startswith("the 3D is the fly's mirror image, its left legs on its right")
+    assert "the calibration file /d/calib.pkl gives a mirror-image world" in message
+    assert MIRROR_SWITCH in message and "docs/how-it-works/handedness.md" in message
+    assert rig_check(RIGHT, rig="x", from_file=True)["message"] is None
+
+
+def test_bundle_adjustment_is_blamed_on_its_starting_rig_or_on_itself():
+    kept = rig_check(
+        MIRROR, rig="the calibration file c.pkl", from_file=True, adjusted=True, start=MIRROR
+    )
+    assert kept["cause"] == "calibration" and "bundle adjustment started from it" in kept["message"]
+    assert kept["starting_rig"]["verdict"] == "mirrored"
+    flipped = rig_check(
+        MIRROR, rig="the config's cameras table", from_file=False, adjusted=True, start=RIGHT
+    )
+    assert flipped["cause"] == "bundle_adjustment"
+    assert "turned its starting rig (the config's cameras table" in flipped["message"]
+    assert "depth-reversed twin" in flipped["message"]
+    table = rig_check(
+        MIRROR, rig="the config's cameras table", from_file=False, adjusted=True, start=MIRROR
+    )
+    assert table["cause"] == "starting_rig" and MIRROR_SWITCH not in table["message"]
+    assert "which side of the fly each camera films" in table["message"]
+    undone = rig_check(MIRROR, rig="the calibration file c.pkl", from_file=True, mirror_set=True)
+    assert "set calibration.mirror: false" in undone["message"]
+
+
+class _Result:
+    def __init__(self, pts3d, meta):
+        self.pts3d, self.meta, self.skeleton = pts3d, meta, SKELETON
+
+
+def test_the_refusal_repeats_the_stored_cause_or_judges_an_older_file_itself():
+    stored = rig_check(MIRROR, rig="the calibration file c.pkl", from_file=True)
+    line = mirrored_refusal(_Result(None, {"handedness": stored}), "r/results.h5", "kinematics")
+    assert line.startswith("r/results.h5: kinematics refused: the 3D is the fly's mirror image")
+    assert "c.pkl" in line and MIRROR_SWITCH in line
+    assert line.endswith("set kinematics: {allow_mirrored: true}")
+    fine = rig_check(RIGHT, rig="x", from_file=False)
+    assert mirrored_refusal(_Result(None, {"handedness": fine}), "r", "kinematics") is None
+    older = _Result(_fly() @ WORLD_MIRROR, {})  # assembled before the check existed
+    line = mirrored_refusal(older, "old.h5", "neuromechfly")
+    assert "mirror image" in line and "neuromechfly: {allow_mirrored: true}" in line
+    assert mirrored_refusal(_Result(_fly(), {}), "old.h5", "neuromechfly") is None
+
+
+def test_the_switches_leave_existing_params_hashes_alone_at_their_defaults():
+    """``calibration.mirror: false`` and ``allow_mirrored: false`` track as absent; set,
+    they re-run the stages they change."""
+    from flylib.pipeline.inputs import stage_params
+
+    base = Config.default().data
+    with_file = {**base, "calibration": {"file": "calib.pkl"}}
+    off = Config.from_dict({**base, "calibration": {"file": "calib.pkl", "mirror": False}})
+    on = Config.from_dict({**base, "calibration": {"file": "calib.pkl", "mirror": True}})
+    assert stage_params(off, "assemble") == stage_params(Config.from_dict(with_file), "assemble")
+    assert stage_params(on, "assemble") != stage_params(off, "assemble")
+    for stage in ("kinematics", "neuromechfly"):
+        default = stage_params(Config.default(), stage)
+        explicit = Config.from_dict({**base, stage: {**base[stage], "allow_mirrored": False}})
+        allowed = Config.from_dict({**base, stage: {**base[stage], "allow_mirrored": True}})
+        assert stage_params(explicit, stage) == default
+        assert "allow_mirrored" not in str(default)
+        assert stage_params(allowed, stage) != default
+        assert getattr(allowed, stage).allow_mirrored is True
