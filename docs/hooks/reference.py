@@ -354,6 +354,7 @@ def stage_table() -> str:
 #: A config turning every stage and export on, so the graph shows every rule.
 ALL_ON = """
 pipeline: {do_pictorial_structures: true, do_neuromechfly: true}
+bundle_adjustment: {session: true}
 exports: {nwb: true}
 """
 

@@ -345,20 +345,3 @@ def _printed(nb) -> list[str]:
 
 
 # --- figures the pages quote ------------------------------------------------------------
-
-
-def test_the_cluster_pages_memory_figures_are_what_the_jobs_declare():
-    from flylib.pipeline.memory import FLOOR_MB, MARGIN, stage_mem_mb
-
-    page = (DOCS / "guides" / "cluster.md").read_text()
-    said = re.search(
-        r"with ([\d.]+)x head-room and at least (\d+) GB.*?a ([\d,]+)-frame recording gets "
-        r"(\d+) GB for triangulation\s+while the demo asks for (\d+) GB",
-        page,
-        re.S,
-    )
-    assert said, "the cluster page no longer quotes the memory figures this test checks"
-    margin, floor, frames, big, demo = said.groups()
-    assert float(margin) == MARGIN and int(floor) * 1000 == FLOOR_MB
-    assert stage_mem_mb("triangulation", (int(frames.replace(",", "")), 38, 7)) == int(big) * 1000
-    assert stage_mem_mb("triangulation", (60, 38, 7)) == int(demo) * 1000
