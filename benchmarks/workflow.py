@@ -1,26 +1,43 @@
-"""Workflow benchmarks: planning time for many recordings, and the workflow's overhead.
+"""Workflow benchmarks: a batch's planning time, each job's fixed cost, the submissions.
 
-1. Dry-run planning of N recordings (default 200; ``--recordings 1000,10000`` for a
-   series): the demo's recording at 2 frames (7 videos, DeepLabCut CSVs) hard-linked N
-   times and listed in a sheet with its 2D imported per recording, as a lab lists a
-   batch (no detector weights needed). Wall-clock and CPU of ``snakemake --dry-run``
-   against a 1-recording dry run measured in the same session (the fixed start-up
-   cost), the ratio between them and the cost per extra recording (constant when the
-   DAG scales linearly), and :func:`flylib.pipeline.planning.plan_recordings` alone.
-   A dry run longer than ``--cap`` seconds is stopped and reported as "> cap".
-   Target: < 10 s for 200 recordings.
-2. Overhead of running the demo through Snakemake (one process per job) over calling
-   the stage functions directly in one process. Target: < 30 %.
+Every figure is measured for this checkout and, with ``--baseline DIR`` (a checkout of
+the last release: ``git worktree add /tmp/rel <commit>``), for that one in the same
+run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order alternates
+(A B, then B A, ...) so that a machine shared with other work loads both alike.
 
-    python benchmarks/workflow.py [--recordings 200[,1000,...]] [--cap 600] [--frames 60]
-                                  [--skip-overhead]
+1. DAG time: ``snakemake --dry-run`` of N recordings (``--recordings 100,1000``): the
+   demo's recording at 2 frames (7 videos, DeepLabCut CSVs) hard-linked N times and
+   listed in a sheet with its 2D imported per recording, as a lab lists a batch (no
+   detector weights needed). Wall clock and CPU, the best of ``--repeats``. A dry run
+   longer than ``--cap`` seconds is stopped and reported as "> cap".
+   Target: <= 20 s for 1,000 recordings.
+2. Fixed cost per recording: one such recording of ``--frames`` frames (60: the demo's)
+   run through ``snakemake --cores 1``; each job's wall time (its Snakemake benchmark
+   file, the median of ``--repeats`` runs) against the stage's compute (the same stage
+   function run a second time in one warm process: no process start, imports or JIT).
+   Fixed cost = job - compute (process start, Snakemake's script preamble, imports,
+   JIT compilation, re-reading the config). Target: the CPU stages' total at most half
+   the baseline's.
+3. SLURM submissions of a batch of 3 recordings: the jobs and job groups that
+   ``snakemake --profile profiles/slurm --dry-run`` would submit (no cluster needed;
+   tests/workflow/test_slurm.py counts the real sbatch calls).
+4. (``--overhead``) The demo through Snakemake (one process per job) against the stage
+   functions called directly in one process.
+
+    python benchmarks/workflow.py [--recordings 100,1000] [--baseline /tmp/rel]
+        [--repeats 3] [--frames 60] [--cap 600] [--skip-planning] [--skip-fixed]
+        [--skip-slurm] [--overhead]
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import os
+import re
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -33,7 +50,18 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 sys.path.insert(0, str(REPO / "tests"))
 
-from workflow_run import snakemake_command
+from workflow_run import SNAKEMAKE, demo_batch
+
+#: The CPU stages of one recording, in the order they run.
+CPU_STAGES = (
+    "pose2d",
+    "bundle_adjustment",
+    "triangulation",
+    "refinement",
+    "assemble",
+    "visualization",
+    "kinematics",
+)
 
 
 def _children_cpu() -> float:
@@ -41,76 +69,214 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def _command(repo: Path, workdir: Path, *args: str) -> list[str]:
+    """``snakemake`` on ``repo``'s Snakefile in ``workdir`` with its ``config.yaml``."""
+    return [
+        str(SNAKEMAKE),
+        "--snakefile",
+        str(repo / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(workdir / "config.yaml"),
+        "--replace-workflow-config",
+        *args,
+    ]
+
+
+def _env(repo: Path) -> dict[str, str]:
+    """The environment that runs ``repo``'s flylib (its own ``src`` first)."""
+    return {**os.environ, "PYTHONPATH": str(repo / "src")}
+
+
 def _snakemake(
-    workdir: Path, *args: str, cpu: list | None = None, cap: float | None = None
-) -> float:
-    """Wall-clock seconds of one snakemake call; its CPU seconds are appended to ``cpu``
-    (a figure that a busy machine inflates much less than the wall clock). A call
-    longer than ``cap`` seconds is stopped: ``inf``."""
-    cmd = snakemake_command(workdir, *args)
+    repo: Path, workdir: Path, *args: str, cap: float | None = None
+) -> tuple[float, float, str]:
+    """Wall-clock and CPU seconds of one snakemake call, and its output. A call longer
+    than ``cap`` seconds is stopped: ``inf``."""
     cpu_before = _children_cpu()
     start = time.perf_counter()
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=cap)
+        proc = subprocess.run(
+            _command(repo, workdir, *args),
+            capture_output=True,
+            text=True,
+            timeout=cap,
+            env=_env(repo),
+        )
     except subprocess.TimeoutExpired:
-        if cpu is not None:
-            cpu.append(float("inf"))
-        return float("inf")
+        return float("inf"), float("inf"), ""
     elapsed = time.perf_counter() - start
-    if cpu is not None:
-        cpu.append(_children_cpu() - cpu_before)
     if proc.returncode != 0:
         raise SystemExit(f"snakemake failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return elapsed
+    return elapsed, _children_cpu() - cpu_before, proc.stdout + proc.stderr
 
 
-def _batch(root: Path, count: int, base: dict) -> Path:
-    """A sheet of ``count`` recordings, each the demo's 2-frame recording hard-linked
-    into a folder of its own with its 2D imported from its DeepLabCut CSVs."""
-    from flylib.config import Config
-    from flylib.pipeline.demo import demo_files, demo_import_spec, make_demo
-
-    config = Config.from_dict(base)
-    template = root / "template"
-    if not template.is_dir():
-        make_demo(config, template, frames=2)
-    spec = demo_import_spec(config)
-    names = demo_files(config)
-    files = ";".join(f"{view}={name}" for view, name in spec["files"].items())
-    rows = ["path\timport_format\timport_files"]
-    for i in range(count):
-        rec = root / "data" / f"rec{i:05d}"
-        if not rec.is_dir():
-            rec.mkdir(parents=True)
-            for name in (*names["footage"], *names["dlc"]):
-                os.link(template / name, rec / name)
-        rows.append(f"{rec}\t{spec['format']}\t{files}")
-    sheet = root / f"recordings_{count}.tsv"
-    sheet.write_text("\n".join(rows) + "\n")
-    return sheet
+def _paired(checkouts: dict[str, Path], repeats: int):
+    """``(repeat, name, repo)`` in pairs whose order alternates."""
+    names = list(checkouts)
+    for i in range(repeats):
+        for name in names if i % 2 == 0 else names[::-1]:
+            yield i, name, checkouts[name]
 
 
-def bench_planning(counts: list[int], cap: float) -> dict:
-    """Dry-run seconds (wall, CPU) of 1 recording (the baseline) and of each count."""
+def _workdirs(root: Path, checkouts: dict[str, Path], config: dict) -> dict[str, Path]:
+    """A working directory per checkout (its outputs under ``results/``)."""
+    dirs = {}
+    for name in checkouts:
+        work = root / name
+        work.mkdir(parents=True, exist_ok=True)
+        (work / "config.yaml").write_text(
+            yaml.safe_dump({**config, "outdir": "results/{id}"}, sort_keys=False)
+        )
+        dirs[name] = work
+    return dirs
+
+
+def _base_config() -> dict:
+    return yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+
+
+def bench_planning(checkouts: dict[str, Path], counts: list[int], cap: float, repeats: int):
+    """``{n: {checkout: (wall, cpu)}}``: the best dry run of each batch size."""
+    base = _base_config()
+    results: dict[int, dict[str, tuple[float, float]]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        for n in counts:
+            config = {**base, "recordings": str(demo_batch(root / "batch", n, base))}
+            work = _workdirs(root / f"plan{n}", checkouts, config)
+            for name, repo in checkouts.items():  # warm the imports and the file cache
+                _snakemake(repo, work[name], "--dry-run", cap=cap)
+            runs: dict[str, list[tuple[float, float]]] = {name: [] for name in checkouts}
+            for _, name, repo in _paired(checkouts, repeats):
+                wall, cpu, _ = _snakemake(repo, work[name], "--dry-run", cap=cap)
+                runs[name].append((wall, cpu))
+            results[n] = {name: min(r) for name, r in runs.items()}
+    return results
+
+
+def _job_seconds(outdir: Path) -> dict[str, float]:
+    """Each job's wall seconds from its Snakemake benchmark file."""
+    seconds = {}
+    for stage in CPU_STAGES:
+        path = outdir / "benchmarks" / f"{stage}.tsv"
+        if path.is_file():
+            rows = list(csv.DictReader(path.open(), delimiter="\t"))
+            seconds[stage] = float(rows[-1]["s"])
+    return seconds
+
+
+def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
+    """``{checkout: {"job": {stage: s}, "compute": {stage: s}, "jobs cpu": s,
+    "compute cpu": s}}`` for one recording: the jobs' wall seconds (median of the runs)
+    and the CPU seconds of all its jobs together (a run's minus its dry run's, the
+    least of the runs: a busy machine inflates CPU time much less than wall time)."""
+    base = _base_config()
+    base["pipeline"]["do_kinematics"] = True
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        config = {**base, "recordings": str(demo_batch(root / "batch", 1, base, frames=frames))}
+        work = _workdirs(root, checkouts, config)
+        jobs: dict[str, list[dict[str, float]]] = {name: [] for name in checkouts}
+        cpu: dict[str, list[float]] = {name: [] for name in checkouts}
+        for _, name, repo in _paired(checkouts, repeats):
+            _, planning, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall", "-n")
+            _, run, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall")
+            jobs[name].append(_job_seconds(work[name] / "results" / "rec00000"))
+            cpu[name].append(run - planning)
+        results = {}
+        for name, repo in checkouts.items():
+            out = root / f"direct-{name}"
+            subprocess.run(
+                [sys.executable, __file__, "--direct", str(work[name]), str(out)],
+                check=True,
+                env=_env(repo),
+            )
+            compute = json.loads((out / "compute.json").read_text())
+            results[name] = {
+                "job": {s: statistics.median(r[s] for r in jobs[name]) for s in jobs[name][0]},
+                "compute": compute["wall"],
+                "jobs cpu": min(cpu[name]),
+                "compute cpu": compute["cpu"],
+            }
+    return results
+
+
+def _direct_stages(config, rec_dir: Path, out: Path, spec: dict) -> dict[str, float]:
+    """Run one recording's CPU stages in this process; each stage's seconds."""
+    from flylib.pipeline.assemble import run_assemble
+    from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.pipeline.kinematics import run_kinematics
+    from flylib.pipeline.pose2d import run_pose2d
+    from flylib.pipeline.refinement import run_refinement
+    from flylib.pipeline.triangulation import run_triangulation
+    from flylib.pipeline.visualization import run_visualization
+    from flylib.results.artifacts import artifact_path
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = {s: artifact_path(out, s) for s in CPU_STAGES[:4]}
+    seconds = {}
+
+    def timed(stage, run, *args, **kwargs):
+        start = time.perf_counter()
+        run(stage_inputs(config, stage), *args, **kwargs)
+        seconds[stage] = time.perf_counter() - start
+
+    timed("pose2d", run_pose2d, rec_dir, path["pose2d"], import_spec=spec)
+    ba = path["bundle_adjustment"]
+    timed("bundle_adjustment", run_bundle_adjustment, path["pose2d"], ba, recording_dir=rec_dir)
+    tri = path["triangulation"]
+    timed(
+        "triangulation", run_triangulation, path["pose2d"], tri, ba_path=ba, recording_dir=rec_dir
+    )
+    timed(
+        "refinement",
+        run_refinement,
+        path["pose2d"],
+        tri,
+        path["refinement"],
+        ba_path=ba,
+        recording_dir=rec_dir,
+    )
+    timed("assemble", run_assemble, {**path}, out, recording_dir=rec_dir)
+    timed("visualization", run_visualization, out / "results.h5", rec_dir, out)
+    timed("kinematics", run_kinematics, out / "results.h5", out)
+    return seconds
+
+
+def _direct(workdir: Path, out: Path) -> None:
+    """The stages of the batch's one recording run twice in this process; the second
+    run's seconds (warm: imports done, JIT compiled) to ``out/compute.json``."""
     from flylib.config import Config
     from flylib.pipeline.planning import plan_recordings
 
-    base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    config = Config.from_yaml(workdir / "config.yaml")
+    (rec,) = plan_recordings(config)
+    _direct_stages(config, rec.path, out / "first", rec.import_spec)
+    cpu = time.process_time()
+    seconds = _direct_stages(config, rec.path, out / "second", rec.import_spec)
+    cpu = time.process_time() - cpu
+    (out / "compute.json").write_text(json.dumps({"wall": seconds, "cpu": cpu}))
+
+
+def bench_submissions(checkouts: dict[str, Path], count: int = 3) -> dict[str, int]:
+    """The SLURM submissions of a batch: jobs and job groups of a dry run through
+    ``profiles/slurm`` (local rules left out)."""
+    base = _base_config()
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        for n in [1, *counts]:
-            config = {**base, "recordings": str(_batch(root, n, base))}
-            (root / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-            cpu: list[float] = []
-            if n == 1:  # warm the imports and the file cache; best of two
-                _snakemake(root, "--dry-run")
-                wall = min(_snakemake(root, "--dry-run", cpu=cpu) for _ in range(2))
-            else:
-                wall = _snakemake(root, "--dry-run", cpu=cpu, cap=cap)
-            start = time.perf_counter()
-            plan_recordings(Config.from_dict(config))
-            results[n] = {"wall": wall, "cpu": min(cpu), "plan": time.perf_counter() - start}
+        config = {**base, "recordings": str(demo_batch(root / "batch", count, base))}
+        work = _workdirs(root, checkouts, config)
+        for name, repo in checkouts.items():
+            _, _, text = _snakemake(
+                repo, work[name], "--profile", str(repo / "profiles" / "slurm"), "--dry-run"
+            )
+            groups = len(re.findall(r"^\[[^\]]*\] Group job", text, re.M))
+            jobs = [r for r in re.findall(r"^rule (\w+):", text, re.M) if r != "all"]
+            results[name] = groups + len(jobs)
     return results
 
 
@@ -143,77 +309,127 @@ def _direct_pipeline(config, rec_dir: Path, out: Path, truth: Path) -> None:
 
 
 def bench_overhead(frames: int) -> dict:
-    base = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    """The demo through ``snakemake --cores 1`` against its stage functions called
+    directly in one fresh process (this checkout only)."""
+    base = _base_config()
     base["demo"] = {**(base.get("demo") or {}), "frames": frames}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        config_path = root / "config.yaml"
-        config_path.write_text(yaml.safe_dump(base, sort_keys=False))
-        _snakemake(root, "--cores", "1", "demo")  # the demo recording, made by its rule
-        # the direct pipeline runs in a fresh process of its own (this one has written
-        # and opened thousands of videos for the planning benchmark)
+        (root / "config.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+        _snakemake(REPO, root, "--cores", "1", "demo")  # the demo recording, made by its rule
         cpu_before = _children_cpu()
         start = time.perf_counter()
-        subprocess.run([sys.executable, __file__, "--direct", str(root)], check=True)
+        subprocess.run([sys.executable, __file__, "--direct-demo", str(root)], check=True)
         direct = time.perf_counter() - start
         direct_cpu = _children_cpu() - cpu_before
-        cpu: list[float] = []
-        workflow = _snakemake(root, "--cores", "1", cpu=cpu)
+        workflow, workflow_cpu, _ = _snakemake(REPO, root, "--cores", "1")
     return {
         "direct": direct,
         "workflow": workflow,
         "direct cpu": direct_cpu,
-        "workflow cpu": cpu[0],
+        "workflow cpu": workflow_cpu,
     }
+
+
+def _print_planning(plan: dict, cap: float) -> None:
+    for n, runs in plan.items():
+        for name, (wall, cpu) in runs.items():
+            if wall == float("inf"):
+                print(f"DAG time, {n} recordings, {name}: > {cap:.0f} s (stopped)")
+                continue
+            target = f" (target <= 20 s: {'ok' if wall <= 20 else 'MISSED'})" if n == 1000 else ""
+            print(
+                f"DAG time (snakemake -n), {n:>5} recordings, {name:>8}: {wall:6.2f} s wall, "
+                f"{cpu:6.2f} s CPU{target}"
+            )
+        if "baseline" in runs and runs["baseline"][0] != float("inf"):
+            print(
+                f"  this checkout / baseline: {runs['this'][0] / runs['baseline'][0]:.2f} wall, "
+                f"{runs['this'][1] / runs['baseline'][1]:.2f} CPU"
+            )
+
+
+def _print_fixed(fixed: dict, frames: int) -> None:
+    names = list(fixed)
+    print(
+        f"per recording ({frames} frames), seconds: job (Snakemake benchmark file, median), "
+        "compute (warm, in one process), fixed = job - compute"
+    )
+    print(
+        f"{'stage':18s}" + "".join(f"{n + ' job':>15s}{'compute':>9s}{'fixed':>8s}" for n in names)
+    )
+    totals = {n: [0.0, 0.0, 0.0] for n in names}
+    for stage in CPU_STAGES:
+        line = f"{stage:18s}"
+        for n in names:
+            job = fixed[n]["job"].get(stage, float("nan"))
+            compute = fixed[n]["compute"].get(stage, float("nan"))
+            line += f"{job:15.2f}{compute:9.2f}{job - compute:8.2f}"
+            for k, v in enumerate((job, compute, job - compute)):
+                totals[n][k] += v
+        print(line)
+    print(
+        f"{'all CPU stages':18s}"
+        + "".join(f"{t[0]:15.2f}{t[1]:9.2f}{t[2]:8.2f}" for t in totals.values())
+    )
+    for n in names:
+        jobs_cpu, compute_cpu = fixed[n]["jobs cpu"], fixed[n]["compute cpu"]
+        print(
+            f"CPU seconds, {n}: all jobs {jobs_cpu:.2f}, compute {compute_cpu:.2f}, "
+            f"fixed {jobs_cpu - compute_cpu:.2f}"
+        )
+    if "baseline" in totals:
+        cpu_fixed = {n: fixed[n]["jobs cpu"] - fixed[n]["compute cpu"] for n in names}
+        print(
+            f"fixed CPU, this checkout / baseline: {cpu_fixed['this'] / cpu_fixed['baseline']:.2f}"
+        )
+        ratio = totals["this"][2] / totals["baseline"][2]
+        print(
+            f"fixed cost, this checkout / baseline: {ratio:.2f} "
+            f"(target <= 0.5: {'ok' if ratio <= 0.5 else 'MISSED'}); jobs' total "
+            f"{totals['this'][0] / totals['baseline'][0]:.2f}"
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--recordings", default="200", help="batch sizes, comma-separated (e.g. 1000,10000)"
-    )
-    parser.add_argument(
-        "--cap", type=float, default=600.0, help="stop a dry run after this many seconds"
-    )
+    parser.add_argument("--recordings", default="100,1000", help="batch sizes, comma-separated")
+    parser.add_argument("--baseline", type=Path, help="a checkout of the last release")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--cap", type=float, default=600.0, help="stop a dry run after this")
     parser.add_argument("--frames", type=int, default=60)
-    parser.add_argument("--skip-overhead", action="store_true")
     parser.add_argument("--skip-planning", action="store_true")
-    parser.add_argument("--direct", type=Path, help=argparse.SUPPRESS)  # internal: one process
+    parser.add_argument("--skip-fixed", action="store_true")
+    parser.add_argument("--skip-slurm", action="store_true")
+    parser.add_argument("--overhead", action="store_true")
+    parser.add_argument("--direct", nargs=2, type=Path, help=argparse.SUPPRESS)  # internal
+    parser.add_argument("--direct-demo", type=Path, help=argparse.SUPPRESS)  # internal
     args = parser.parse_args()
     if args.direct:
+        _direct(*args.direct)
+        return
+    if args.direct_demo:
         from flylib.config import Config
 
-        root = args.direct
+        root = args.direct_demo
         (root / "direct").mkdir()
         config = Config.from_yaml(root / "config.yaml")
         _direct_pipeline(config, root / "demo", root / "direct", root / "demo" / "truth.h5")
         return
 
+    checkouts = {"this": REPO}
+    if args.baseline:
+        checkouts["baseline"] = args.baseline.resolve()
+    print("checkouts: " + ", ".join(f"{n} = {p}" for n, p in checkouts.items()), flush=True)
     if not args.skip_planning:
         counts = [int(n) for n in args.recordings.split(",")]
-        plan = bench_planning(counts, args.cap)
-        one = plan[1]
-        print(
-            f"dry run, 1 recording:   {one['wall']:7.2f} s wall, {one['cpu']:7.2f} s CPU "
-            "(Snakemake start-up and parse: the baseline)"
-        )
-        for n in counts:
-            many = plan[n]
-            if many["wall"] == float("inf"):
-                print(f"dry run, {n} recordings: > {args.cap:.0f} s (stopped)")
-                continue
-            target = (
-                f" (target < 10 s: {'ok' if many['wall'] < 10 else 'MISSED'})" if n <= 200 else ""
-            )
-            print(
-                f"dry run, {n} recordings: {many['wall']:7.2f} s wall, {many['cpu']:7.2f} s CPU"
-                f"{target}; ratio to baseline {many['wall'] / one['wall']:.1f} wall, "
-                f"{many['cpu'] / one['cpu']:.1f} CPU; per extra recording "
-                f"{(many['wall'] - one['wall']) / (n - 1) * 1000:.1f} ms wall, "
-                f"{(many['cpu'] - one['cpu']) / (n - 1) * 1000:.1f} ms CPU; "
-                f"plan_recordings alone {many['plan']:.2f} s"
-            )
-    if args.skip_overhead:
+        _print_planning(bench_planning(checkouts, counts, args.cap, args.repeats), args.cap)
+    if not args.skip_fixed:
+        _print_fixed(bench_fixed(checkouts, args.frames, args.repeats), args.frames)
+    if not args.skip_slurm:
+        for name, count in bench_submissions(checkouts).items():
+            print(f"SLURM submissions for 3 recordings, {name}: {count}")
+    if not args.overhead:
         return
     over = bench_overhead(args.frames)
     ratio = over["workflow"] / over["direct"] - 1

@@ -94,6 +94,16 @@ def sample_visibility() -> np.ndarray:
     return _fly38(seen[..., None])[..., 0]
 
 
+def package_visibility() -> np.ndarray:
+    """``(V, 38)``: which camera DeepFly3D's package example holds 2D for (its
+    ``points2d`` not zero in more than half the frames): each side camera its own side,
+    the front camera both sides."""
+    data = load_restricted(PACKAGE_EXAMPLE / "df3d_result.pkl", "DeepFly3D result")
+    points = np.asarray(data["points2d"], float)[: len(VIEWS)]  # (V, T, J, 2)
+    seen = (np.abs(points).sum(-1) > 0).mean(axis=1) > 0.5  # (V, J)
+    return _fly38(seen[..., None])[..., 0]
+
+
 def default_start() -> CameraGroup:
     """The default config's rig for 960x480 footage."""
     return Config.default().camera_group(image_sizes={v: IMAGE_SIZE for v in VIEWS})

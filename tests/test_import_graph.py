@@ -62,7 +62,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     ("config", ("flylib.config", "flylib.nwb_metadata")),
-    ("recordings", ("flylib.recordings",)),
+    ("recordings", ("flylib.recordings", "flylib.sessions")),
     (
         "algorithms",
         (

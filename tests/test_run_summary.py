@@ -50,20 +50,8 @@ def test_table_rows_warnings_and_the_demo_truth_last(tmp_path):
     ]
     lines = run_table(recs, failed=True).splitlines()
     assert lines[0].startswith("flylib: per-recording results (the run failed")
-    assert lines[1].split() == [
-        "recording",
-        "frames",
-        "3D",
-        "reconstructed",
-        "reproj",
-        "median",
-        "px",
-        "reproj",
-        "p95",
-        "px",
-        "outputs",
-    ]
-    assert lines[2].split() == ["demo", "60", "50.0%", "0.79", "1.77", str(demo)]
+    assert lines[1].split() == ["recording", "frames", "in", "3D", "reproj", "px", "outputs"]
+    assert lines[2].split() == ["demo", "60", "50.0%", "0.79", "/", "1.77", str(demo)]
     assert lines[3].split()[:2] == ["real", "60"]
     assert lines[4].split()[0] == "failed" and "no result yet" in lines[4]
     assert lines[5] == "warnings:"
@@ -85,7 +73,7 @@ def test_suspect_column_appears_when_a_summary_counts_suspects(tmp_path):
     table = run_table([RunRecording(n, tmp_path / n) for n in "abc"]).splitlines()
     assert "suspects" in table[1].split()
     assert table[1].split()[-2:] == ["suspects", "outputs"]
-    assert [row.split()[5] for row in table[2:5]] == ["3", "0", "-"]
+    assert [row.split()[6] for row in table[2:5]] == ["3", "0", "-"]
     assert "suspects" not in run_table([RunRecording("c", tmp_path / "c")])
 
 
@@ -210,18 +198,17 @@ def test_held_out_columns_mark_the_better_method_and_say_what_to_do(tmp_path):
     names = ["better", "partly", "worse", "tri", "none"]
     lines = run_table([RunRecording(n, tmp_path / n) for n in names]).splitlines()
     header = lines[1]
-    assert "held-out px triangulation" in header and "held-out px refined" in header
-    col_tri, col_ref = (
-        header.index("held-out px triangulation"),
-        header.index("held-out px refined"),
-    )
-    end = header.index("outputs")
+    assert "held-out tri" in header and "held-out ref" in header
+    # the figures are right-aligned: a cell ends where its header ends
+    col_tri = header.index("reproj px") + len("reproj px")
+    col_ref = header.index("held-out tri") + len("held-out tri")
+    end = header.index("held-out ref") + len("held-out ref")
     assert lines[2][col_tri:col_ref].strip() == "5.87 / 16.97"
     assert lines[2][col_ref:end].strip() == "4.10 / 9.00 *"
     assert lines[3][col_ref:end].strip() == "5.78 / 16.70 *"
     assert lines[4][col_tri:col_ref].strip() == "5.87 / 16.97"  # a tie marks nothing
     assert "*" not in lines[4] and lines[5][col_tri:col_ref].strip() == "2.00 / 5.00"
-    assert lines[5][col_ref:end].strip() == "-" and lines[6].split()[5:7] == ["-", "-"]
+    assert lines[5][col_ref:end].strip() == "-" and lines[6].split()[6:8] == ["-", "-"]
     assert lines[7].startswith("accuracy: held-out px = median / p95 distance")
     said = dict(line.strip().split(": ", 1) for line in lines[8:12])
     assert said["better"].startswith(
@@ -298,6 +285,21 @@ def test_a_killed_or_stopped_job_is_reported_as_such_never_as_failed_with_an_emp
     warnings = text.split("warnings:\n", 1)[1].splitlines()
     assert warnings[0].startswith("  snakemake: Output out/stages/pose2d.h5 has older")
     assert "clock skew" in warnings[0]
+
+
+def test_the_table_fits_a_100_column_terminal(tmp_path):
+    """Every column a run can show (held-out figures, suspects; a right-handed fly adds no handedness column), the real sample's
+    figures and a short outdir (the table was 170 columns wide before)."""
+    out = tmp_path / "fly7"
+    write_summary(
+        out,
+        suspects=12,
+        accuracy=_accuracy((5.87, 16.97), (5.78, 16.70)),
+        handedness={"score": 0.96, "verdict": "right-handed", "message": None},
+    )
+    lines = run_table([RunRecording("fly7", out)]).splitlines()
+    width = max(len(line) for line in lines[1:3]) - len(str(out))
+    assert width + len("/results/fly7") <= 100, lines[1:3]
 
 
 def test_a_mirror_image_is_flagged_in_its_row_and_explained_once_under_the_table(tmp_path):

@@ -27,3 +27,33 @@ def snakemake_command(workdir: Path, *args: str, cores: int = 2) -> list[str]:
         str(cores),
         *args,
     ]
+
+
+def demo_batch(root: Path, count: int, config: dict, frames: int = 2) -> Path:
+    """A recordings sheet (``root/recordings_<count>.tsv``) of ``count`` recordings, each
+    the demo's recording of ``frames`` frames hard-linked into a folder of its own under
+    ``root/data``, its 2D imported from its DeepLabCut CSVs: a lab's batch without
+    detector weights. The demo is made once (``root/template``)."""
+    import os
+
+    from flylib.config import Config
+    from flylib.pipeline.demo import demo_files, demo_import_spec, make_demo
+
+    parsed = Config.from_dict(config)
+    template = root / "template"
+    if not template.is_dir():
+        make_demo(parsed, template, frames=frames)
+    spec = demo_import_spec(parsed)
+    names = demo_files(parsed)
+    files = ";".join(f"{view}={name}" for view, name in spec["files"].items())
+    rows = ["path\timport_format\timport_files"]
+    for i in range(count):
+        rec = root / "data" / f"rec{i:05d}"
+        if not rec.is_dir():
+            rec.mkdir(parents=True)
+            for name in (*names["footage"], *names["dlc"]):
+                os.link(template / name, rec / name)
+        rows.append(f"{rec}\t{spec['format']}\t{files}")
+    sheet = root / f"recordings_{count}.tsv"
+    sheet.write_text("\n".join(rows) + "\n")
+    return sheet

@@ -7,6 +7,8 @@
     flylib check-config CONFIG...             check config files as the workflow does (over the default)
     flylib run CONFIG... [SNAKEMAKE_ARGS]     check, then run snakemake on plain copies
     flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
+    flylib doctor [--config CONFIG...]        the installation in one screen
+    flylib init DIR [-o my.yaml]              a starter config for a folder of recordings
 
 A user-facing error is printed as one line on stderr and the exit status is 1.
 ``inspect`` first checks every dataset against its checksum (a damaged file: one
@@ -813,7 +815,80 @@ def build_parser() -> argparse.ArgumentParser:
         "directory the result names)",
     )
     p.set_defaults(func=_cmd_gui)
+
+    what = (
+        "the installation in one screen: versions, torch device, detector weights, "
+        "caches, SLURM, Chromium; exit 1 when something blocks a run"
+    )
+    p = sub.add_parser("doctor", help=what, description=what)
+    p.add_argument(
+        "--config",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="CONFIG",
+        help="check the detector weights of these config files' models (merged over the default)",
+    )
+    p.set_defaults(func=_cmd_doctor)
+
+    what = (
+        "write a starter config for a folder of recordings (footage, 2D files and "
+        "calibrations it finds), and say what it could not decide"
+    )
+    p = sub.add_parser("init", help=what, description=what)
+    p.add_argument("folder", type=Path, metavar="DIR", help="the folder holding the recordings")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("my.yaml"),
+        help="the config file to write (a new file; default my.yaml)",
+    )
+    p.add_argument(
+        "--outdir",
+        default=None,
+        metavar="TEMPLATE",
+        help="where outputs go, e.g. results/{id} (default: <recording>/flylib_outputs)",
+    )
+    p.set_defaults(func=_cmd_init)
     return parser
+
+
+def _cmd_doctor(args) -> int:
+    from .doctor import FAIL, format_report, run_checks
+
+    lines = run_checks(args.config or ())
+    print(format_report(lines))
+    return 1 if any(c.status == FAIL for c in lines) else 0
+
+
+def _cmd_init(args) -> int:
+    from .config.constants import DEFAULT_CONFIG_PATH
+    from .config.layers import ConfigLayers
+    from .pipeline.preflight import load_run_config
+    from .starter import starter_yaml, survey
+
+    if not args.folder.is_dir():
+        raise ConfigError(f"{args.folder}: not a folder; name the folder holding your recordings")
+    found = survey(args.folder)
+    _write_new(args.output, starter_yaml(found, args.output.parent, args.outdir))
+    print(
+        f"flylib init: {len(found.recordings)} recording(s) under {found.root}; wrote {args.output}"
+    )
+    for line in found.undecided:
+        print(f"  undecided: {line}")
+    try:
+        load_run_config(
+            ConfigLayers.from_files([DEFAULT_CONFIG_PATH, args.output]), check_frames=False
+        )
+    except ConfigError as exc:
+        print(f"{args.output} needs editing before a run:\n{exc}")
+        return 1
+    print(
+        f"{args.output} is valid. Next: snakemake -n --configfile {args.output} (a dry run), "
+        f"then snakemake --cores 2 --configfile {args.output}"
+    )
+    return 0
 
 
 def _cmd_gui(args) -> int:

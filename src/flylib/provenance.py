@@ -218,8 +218,8 @@ def provenance_report(
     params_of
         ``stage -> params`` of the config to compare with (e.g. the snapshot beside
         the file, or the config a re-run would use), asked for each stage in the file
-        and ``assemble``: :func:`flylib.pipeline.planning.params_of`; ``None`` checks
-        only consistency.
+        and ``assemble`` (``session_calibration`` for a session's rig):
+        :func:`flylib.pipeline.planning.params_of`; ``None`` checks only consistency.
     stages_dir
         The ``stages/`` directory the file was assembled from (default: beside it,
         when it exists); each artifact there must carry the hash the file holds.
@@ -242,7 +242,11 @@ def provenance_report(
         own = meta.get(PARAMS_KEY)
         problems: list[str] = []
         status = "unknown" if own is None else "ok"
-        params = params_of(stage) if params_of is not None else None
+        # a session's rig (bundle_adjustment.session): its params are the session solve's,
+        # and stages/ holds the recording's own solve beside it
+        session_rig = stage == "bundle_adjustment" and bool(meta.get("session"))
+        asked = "session_calibration" if session_rig else stage
+        params = params_of(asked) if params_of is not None else None
         expected = params_hash(params) if params is not None else None
         if expected is not None and own is not None and own != expected:
             status = "stale"
@@ -271,7 +275,7 @@ def provenance_report(
                     f"than the one in this file ({present}), with equal params; the file mixes "
                     "runs or recordings: re-run the workflow"
                 )
-        if stages_dir is not None and stage != "assemble":
+        if stages_dir is not None and stage != "assemble" and not session_rig:
             artifact = Path(stages_dir) / ARTIFACTS[stage]
             if artifact.is_file():
                 disk_meta = read_meta(artifact)

@@ -5,9 +5,9 @@ Each row comes from the recording's ``summary.json`` (written by the assemble jo
 frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
 error, the held-out-view error of triangulation and of the refined output side by
 side (the better one marked ``*``) when the summary holds :mod:`flylib.accuracy`'s
-figures, the suspect count when it holds one, the handedness score
-(:mod:`flylib.handedness`; ``MIRRORED`` for a mirror image, whose cause and fix follow the
-table) and where the outputs are. Then one
+figures, the suspect count when it holds one, the handedness score when a recording's
+3D is a mirror image or undetermined (:mod:`flylib.handedness`; ``MIRRORED`` for a mirror
+image, whose cause and fix follow the table) and where the outputs are. Then one
 sentence per recording says what the held-out figures mean for it (refinement better,
 partly kept, or worse and not used; a camera that disagrees with the others), the
 warnings the jobs logged (e.g. an implausible container frame rate) follow, and the
@@ -266,6 +266,13 @@ def _fmt(value: Any, kind: str) -> str:
     return str(value)
 
 
+def _spread(median: Any, p95: Any) -> str:
+    """A ``"median / p95"`` cell in px, as the held-out columns show theirs."""
+    if median is None:
+        return "-"
+    return f"{_fmt(median, 'px')} / {_fmt(p95, 'px')}"
+
+
 def _align(rows: Sequence[Sequence[str]]) -> list[str]:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = []
@@ -281,8 +288,9 @@ def _align(rows: Sequence[Sequence[str]]) -> list[str]:
 #: What the held-out-view error is, once under the table that shows it.
 HELD_OUT_NOTE = (
     "held-out px = median / p95 distance from each camera's 2D to the 3D rebuilt without "
-    "that camera (lower is better, * the better method); reproj px only shows how closely "
-    "the 3D fits the 2D it was built from"
+    "that camera, from the triangulation (tri) and the refined output (ref; lower is better, * the "
+    "better method); reproj px (median / p95) only shows how closely the 3D fits the 2D it "
+    "was built from"
 )
 
 
@@ -434,10 +442,14 @@ def run_table(
     rows = [recording_row(rec, since if failed else None, signals) for rec in recordings]
     with_suspects = any(r.get("suspects") is not None for r in rows)
     with_accuracy = any(r.get("accuracy") for r in rows)
-    with_handedness = any(r.get("handedness") for r in rows)
-    header = ["recording", "frames", "3D reconstructed", "reproj median px", "reproj p95 px"]
+    # narrow enough for a 100-column terminal: each error is one "median / p95" cell
+    header = ["recording", "frames", "in 3D", "reproj px"]
+    # a fly needs no column: it appears when a 3D is a mirror image or undetermined
+    with_handedness = any(
+        (r.get("handedness") or {}).get("verdict") not in (None, "right-handed") for r in rows
+    )
     if with_accuracy:
-        header += ["held-out px triangulation", "held-out px refined"]
+        header += ["held-out tri", "held-out ref"]
     if with_suspects:
         header.append("suspects")
     if with_handedness:
@@ -452,7 +464,7 @@ def run_table(
             elif failed:
                 status = "no result yet: see logs/"
             line = (
-                [r["id"], "-", "-", "-", "-"]
+                [r["id"], "-", "-", "-"]
                 + (["-", "-"] if with_accuracy else [])
                 + (["-"] if with_suspects else [])
                 + (["-"] if with_handedness else [])
@@ -463,8 +475,7 @@ def run_table(
                 r["id"],
                 _fmt(r["frames"], "int"),
                 _fmt(r["reconstructed"], "percent"),
-                _fmt(r["median"], "px"),
-                _fmt(r["p95"], "px"),
+                _spread(r["median"], r["p95"]),
             ]
             if with_accuracy:
                 line += list(held_out_cells(r.get("accuracy")))

@@ -1,6 +1,6 @@
-"""The README's statements that quote behaviour or figures, checked against flylib:
-the outputs table, the commands in its code blocks, the messages it quotes, and the
-DeepFly3D sample's bundle-adjustment figure."""
+"""The README's and the documentation site's statements that quote behaviour or figures,
+checked against flylib: the outputs table, the commands in their code blocks, the messages
+they quote, and the DeepFly3D sample's bundle-adjustment figure."""
 
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ from flylib.results.artifacts import SUMMARY_FILES
 
 REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
+#: The README and every page of the site (``docs/``): where the quoted messages live.
+DOCS = "\n".join([README, *(p.read_text() for p in sorted((REPO / "docs").rglob("*.md")))])
 
 
 def section(title: str) -> str:
@@ -28,7 +30,7 @@ def section(title: str) -> str:
 
 
 def code_blocks(language: str = "bash") -> list[str]:
-    return re.findall(rf"```{language}\n(.*?)```", README, re.S)
+    return re.findall(rf"```{language}\n(.*?)```", DOCS, re.S)
 
 
 def test_the_outputs_table_lists_every_file_a_run_writes_per_recording():
@@ -38,12 +40,16 @@ def test_the_outputs_table_lists_every_file_a_run_writes_per_recording():
         assert f"`{name}`" in table, name
 
 
+#: The system's own commands a page may show (the cluster's, and a log's last line).
+SYSTEM_COMMANDS = ("squeue ", "sacct ", "scancel ", "grep ", "tail ")
+
+
 def test_every_command_in_a_code_block_runs_from_the_venv_or_is_a_set_up_script():
     for block in code_blocks():
-        for line in block.strip().splitlines():
+        for line in block.strip().replace("\\\n", " ").splitlines():
             command = line.split("#")[0].strip()
             for part in filter(None, (p.strip() for p in re.split(r"&&|\|\|", command))):
-                assert part.startswith((".venv/bin/", "bash ")), line
+                assert part.startswith((".venv/bin/", "bash ", *SYSTEM_COMMANDS)), line
 
 
 def test_the_bare_command_note_is_said_once():
@@ -58,7 +64,7 @@ def test_the_nwb_example_writes_into_the_demo_outputs_not_the_checkout():
 
 
 def test_the_quoted_misspelled_key_message_is_what_validation_says():
-    quoted = re.search(r"`(triangulation\.methd: unknown parameter; [^`]*)`", README).group(1)
+    quoted = re.search(r"`(triangulation\.methd: unknown parameter; [^`]*)`", DOCS).group(1)
     data = copy.deepcopy(Config.default().data)
     data["triangulation"]["methd"] = "dlt"
     (problem,) = validate_config(data)
@@ -66,7 +72,7 @@ def test_the_quoted_misspelled_key_message_is_what_validation_says():
 
 
 def test_the_quoted_import_file_message_is_what_validation_says(tmp_path):
-    quoted = re.search(r"`(pose2d\.import\.files: /data/fly7: [^`]*)`", README).group(1)
+    quoted = re.search(r"`(pose2d\.import\.files: /data/fly7: [^`]*)`", DOCS).group(1)
     (tmp_path / "df3d_result_2d.pkl").write_bytes(b"")
     config = Config.default()
     rec = Recording(
@@ -81,7 +87,7 @@ def test_the_quoted_import_file_message_is_what_validation_says(tmp_path):
 
 
 def test_the_quoted_weights_message_is_what_validation_says(tmp_path, monkeypatch):
-    quoted = re.search(r"`invalid config: config/config\.yaml: (pose2d\.models[^`]*)`", README)
+    quoted = re.search(r"`invalid config: config/config\.yaml: (pose2d\.models[^`]*)`", DOCS)
     head = quoted.group(1).split(" (")[0]  # up to the machine's own cache path
     tail = ", or set pose2d.weights: {deepfly2d: /path/to/the/file}"
     assert quoted.group(1).endswith(tail)
@@ -96,7 +102,7 @@ def test_the_quoted_weights_message_is_what_validation_says(tmp_path, monkeypatc
 
 
 def test_the_nothing_to_do_heading_is_the_workflows():
-    heading = re.search(r"headed `([^`]*)`", README).group(1)
+    heading = re.search(r"headed `([^`]*)`", DOCS).group(1)
     assert f'"\\n{heading}\\n"' in (REPO / "workflow" / "rules" / "summary.smk").read_text()
 
 
@@ -108,7 +114,7 @@ def test_the_deepfly3d_sample_bundle_adjustment_figure(df3d_sample_dir, df3d_pic
     from flylib.pipeline.pose2d import run_pose2d
     from flylib.results import read_stage
 
-    quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", README).group(1))
+    quoted = float(re.search(r"the fit reaches (\d+\.\d+) px", DOCS).group(1))
     config = Config.default()
     spec = {"format": "deepfly3d", "files": df3d_pickle.name}
     run_pose2d(

@@ -120,3 +120,42 @@ def test_calibration_file_in_another_runs_output_folder_is_read_not_made(tmp_pat
     assert planned(tmp_path, config) == {
         (stage, rec) for stage in (*stages, "kinematics") for rec in ("rec00", "rec01")
     }
+
+
+def test_a_dry_run_finds_each_recordings_import_files_once(tmp_path, monkeypatch):
+    """Issue 38: the pose2d rule's inputs are the import files the run's preflight
+    found, not looked up again per job (a 1,000-recording dry run paid for it twice)."""
+    from snakemake.settings.types import DAGSettings
+
+    import flylib.interop.importer as importer
+
+    found: list[Path] = []
+    original = importer.import_files
+
+    def counted(target, spec, recording_dir):
+        found.append(Path(recording_dir))
+        return original(target, spec, recording_dir)
+
+    monkeypatch.setattr(importer, "import_files", counted)
+    with _workflow(tmp_path, _batch(tmp_path, 6)) as workflow:
+        workflow.dag(DAGSettings()).execute_workflow(executor="dryrun")
+    assert len(found) == 6 == len(set(found))
+
+
+def test_the_slurm_profile_submits_one_job_per_recording(tmp_path):
+    """Issue 38: through profiles/slurm each recording's jobs are one group job (imported
+    2D included): 3 recordings, 3 submissions, where every job was one before (21).
+    tests/workflow/test_slurm.py counts the real sbatch calls on a SLURM cluster."""
+    import re
+    import subprocess
+
+    from workflow_run import snakemake_command
+
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(_batch(tmp_path, 3), sort_keys=False))
+    cmd = [*snakemake_command(tmp_path), "--profile", str(REPO / "profiles" / "slurm"), "-n"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    text = proc.stdout + proc.stderr
+    assert proc.returncode == 0, text[-3000:]
+    groups = re.findall(r"^\[[^\]]*\] Group job recording", text, re.M)
+    alone = [r for r in re.findall(r"^rule (\w+):", text, re.M) if r != "all"]
+    assert (len(groups), alone) == (3, []), text[-3000:]

@@ -21,8 +21,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
+import numpy as np
 import pytest
 import yaml
+
+from workflow_run import demo_batch, snakemake_command
 
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
@@ -225,11 +229,79 @@ def test_demo_runs_to_completion_through_the_slurm_profile(slurm_cluster, tmp_pa
     except subprocess.TimeoutExpired:
         pytest.fail("the SLURM run did not finish within 15 minutes")
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
-    # every job went through sbatch (the plugin logs each submission)
-    assert (
-        len(re.findall(r"has been submitted with SLURM jobid \d+", proc.stdout + proc.stderr)) >= 5
-    )
+    # two submissions: the demo rule, then the recording's group (imported 2D ... videos)
+    assert _submissions(proc.stdout + proc.stderr) == 2
     out = tmp_path / "demo" / "flylib_outputs"
     result = PoseResult.load(out / "results.h5")
     assert result.pts3d.shape == (8, 38, 3)
     assert (out / "pose3d.mp4").stat().st_size > 0
+
+
+def _submissions(text: str) -> int:
+    """The sbatch calls of a run (the SLURM executor logs each submission)."""
+    return len(re.findall(r"has been submitted with SLURM jobid \d+", text))
+
+
+def _arrays(path: Path) -> dict[str, np.ndarray]:
+    """Every numeric dataset of an HDF5 file (provenance attributes left out)."""
+    found: dict[str, np.ndarray] = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "fiub":
+            found[name] = obj[()]
+
+    with h5py.File(path, "r") as f:
+        f.visititems(visit)
+    return found
+
+
+def test_a_batch_is_one_submission_per_recording_with_the_results_of_a_local_run(
+    slurm_cluster, tmp_path
+):
+    """Issue 38: each recording's CPU chain (imported 2D, bundle adjustment, ...,
+    kinematics) is one sbatch job, its resources derived from its jobs; the outputs are
+    those of a local run."""
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    config["bundle_adjustment"]["max_nfev"] = 20
+    config["pipeline"]["do_kinematics"] = True
+    config["recordings"] = str(demo_batch(tmp_path / "batch", 3, config, frames=8))
+    config["outdir"] = "results/{id}"
+    runs = {}
+    for name in ("local", "slurm"):
+        work = tmp_path / name
+        work.mkdir()
+        (work / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+        runs[name] = work
+    local = _run(snakemake_command(runs["local"]), 900, cwd=runs["local"])
+    assert local.returncode == 0, local.stdout[-3000:] + local.stderr[-3000:]
+
+    # --cores 2: the test node's CPUs, which bound what a group asks for (Snakemake
+    # runs a group's side-by-side jobs one after another where they would exceed it)
+    cmd = [
+        *snakemake_command(runs["slurm"], cores=2),
+        "--profile",
+        str(REPO / "profiles" / "slurm"),
+        "--jobs",
+        "4",
+    ]
+    env = {**slurm_cluster, "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}"}
+    try:
+        proc = _run(cmd, 900, env=env, cwd=runs["slurm"])
+    except subprocess.TimeoutExpired:
+        pytest.fail("the SLURM run did not finish within 15 minutes")
+    log = proc.stdout + proc.stderr
+    assert proc.returncode == 0, log[-6000:]
+    assert _submissions(log) == 3, log[-6000:]
+
+    for rec in ("rec00000", "rec00001", "rec00002"):
+        mine = runs["slurm"] / "results" / rec
+        theirs = runs["local"] / "results" / rec
+        for name in ("results.h5", "kinematics.h5", "stages/bundle_adjustment.h5"):
+            a, b = _arrays(mine / name), _arrays(theirs / name)
+            assert a.keys() == b.keys(), name
+            for key in a:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{rec}/{name}:{key}")
+        for name in ("angles.csv", "calibration.toml", "suspects.csv"):
+            assert (mine / name).read_bytes() == (theirs / name).read_bytes(), name
+        for name in ("pose3d.mp4", "summary.png", "angles.png"):
+            assert (mine / name).stat().st_size > 0, name

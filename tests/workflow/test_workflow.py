@@ -48,14 +48,21 @@ def snakemake(
     return proc
 
 
-_JOB = re.compile(r"^(?:local)?rule (\w+):\n((?:    .*\n?)*)", re.MULTILINE)
+# A job's block, its lines indented past its `rule` line; a cluster job group's members
+# (workflow/rules/common.smk) are printed indented within the group's block.
+_JOB_PATTERN = r"^( *)(?:local)?rule (\w+):\n((?:\1    .*\n?)*)"
+
+
+def _jobs(text: str) -> list[tuple[str, str]]:
+    """``(rule, body)`` of every job a dry run prints."""
+    return [(rule, body) for _, rule, body in re.findall(_JOB_PATTERN, text, re.MULTILINE)]
 
 
 def planned(workdir: Path, config: dict) -> set[tuple[str, str]]:
     """``(rule, recording directory name)`` of every job a dry run schedules."""
     proc = snakemake(workdir, "--dry-run", config=config)
     jobs = set()
-    for rule, body in _JOB.findall(proc.stdout + proc.stderr):
+    for rule, body in _jobs(proc.stdout + proc.stderr):
         if rule == "all":
             continue
         match = re.search(r"wildcards: outdir=(\S+)", body)
@@ -306,7 +313,7 @@ def test_reconstructing_without_pose2d_skips_recordings_missing_their_2d(workspa
     text = proc.stdout + proc.stderr
     for name in ("recA", "recB"):  # 2D exists, candidates do not (imported 2D keeps none)
         assert f"{name}/flylib_outputs/stages/candidates_k5.h5 missing; skipping" in text
-    assert [rule for rule, _ in _JOB.findall(text) if rule != "all"] == []  # nothing to run
+    assert [rule for rule, _ in _jobs(text) if rule != "all"] == []  # nothing to run
 
 
 def test_report_holds_every_recordings_figure_and_videos(workspace):

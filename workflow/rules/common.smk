@@ -19,6 +19,7 @@ from flylib.neuromechfly import FILES as NEUROMECHFLY_FILES
 from flylib.results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from flylib.pipeline.inputs import stage_params as _stage_params, stage_runtime as _stage_runtime
 from flylib.pipeline.memory import job_mem_mb  # rules: mem_mb from the recording's size
+from flylib.sessions import plan_sessions
 
 # envs/flylib.yaml installs flylib from this checkout: pip expands the variable when
 # --sdm conda creates the environment, which happens in this process, before any job.
@@ -181,6 +182,51 @@ def _skipped_recordings() -> set[str]:
 
 SKIPPED = _skipped_recordings()
 
+# Session calibration (bundle_adjustment.session: true): the recordings of one rig
+# solved together (flylib.sessions). Each member's triangulation, refinement and
+# assembly read the session's rig; its own solve still runs, for the session summary.
+try:
+    SESSIONS = (
+        plan_sessions([r for r in RECORDINGS if r.id not in SKIPPED])
+        if FLAGS["bundle_adjustment"] and CONFIG.bundle_adjustment.session
+        else []
+    )
+except FlylibError as exc:
+    stop_run(str(exc))
+if CONFIG.bundle_adjustment.session and not FLAGS["bundle_adjustment"] and workflow.is_main_process:
+    logger.warning(
+        "bundle_adjustment.session: true does nothing while pipeline.do_bundle_adjustment "
+        "is false (every recording uses the config rig); turn bundle adjustment on"
+    )
+SESSION_OF = {r.id: s for s in SESSIONS for r in s.members}
+BY_SESSIONDIR = {str(s.outdir): s for s in SESSIONS}
+
+
+def session(wildcards):
+    """The Session whose folder is this job's ``{sessiondir}``."""
+    try:
+        return BY_SESSIONDIR[wildcards.sessiondir]
+    except KeyError:
+        raise WorkflowError(
+            f"{wildcards.sessiondir} is not the folder of any session of this run"
+        ) from None
+
+
+def session_unplanned(wildcards) -> list[str]:
+    """As :func:`unplanned`, for a session's folder."""
+    if wildcards.sessiondir in BY_SESSIONDIR:
+        return []
+    return [f"{wildcards.sessiondir} (no session of this run writes to this folder)"]
+
+
+def rig_artifact(wildcards) -> str:
+    """The bundle-adjusted rig a recording's later stages read: its session's while
+    session calibration is on, else its own bundle-adjustment artifact."""
+    own = BY_OUTDIR.get(wildcards.outdir)  # None: a folder no recording writes (unplanned)
+    if own is not None and own.id in SESSION_OF:
+        return str(SESSION_OF[own.id].artifact)
+    return artifact("bundle_adjustment").format(outdir=wildcards.outdir)
+
 
 def recording_targets(rec) -> list[str]:
     """Every final output of one recording."""
@@ -196,7 +242,8 @@ def recording_targets(rec) -> list[str]:
 
 
 def all_targets() -> list[str]:
-    return [t for rec in RECORDINGS if rec.id not in SKIPPED for t in recording_targets(rec)]
+    targets = [t for rec in RECORDINGS if rec.id not in SKIPPED for t in recording_targets(rec)]
+    return targets + [str(s.summary) for s in SESSIONS]
 
 
 # -- per-rule input and argument helpers ---------------------------------------
@@ -205,6 +252,34 @@ def all_targets() -> list[str]:
 def pose2d_import(wildcards) -> str:
     """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
     return json.dumps(recording(wildcards).import_spec, sort_keys=True)
+
+
+# -- cluster job groups --------------------------------------------------------------
+# On a cluster (profiles/slurm) each recording's CPU chain is one submission: every
+# per-recording rule is in the group "recording", and Snakemake submits each connected
+# part of a group (one recording's jobs) as one job whose resources it derives from its
+# members (the sum over jobs that run side by side, the most over jobs in a row, runtimes
+# added up). The detector is its own (GPU) job; imported 2D joins its recording's
+# group. Local runs ignore groups. `--group-components recording=N` puts N recordings in
+# one submission; `--groups` renames or splits them.
+
+#: The group of a recording's CPU jobs.
+RECORDING_GROUP = "recording"
+
+
+def pose2d_mem_mb(wildcards) -> int:
+    """The detector's memory; reading imported 2D needs far less (and sets its group's)."""
+    return 8000 if pose2d_gpus(wildcards) else 2000
+
+
+def pose2d_runtime(wildcards) -> int:
+    """Minutes: the detector's, or reading imported 2D's."""
+    return 120 if pose2d_gpus(wildcards) else 15
+
+
+def pose2d_group(wildcards) -> str | None:
+    """Imported 2D (no GPU) runs in its recording's group; the detector on its own."""
+    return RECORDING_GROUP if pose2d_gpus(wildcards) == 0 else None
 
 
 def pose2d_gpus(wildcards) -> int:
@@ -230,14 +305,16 @@ def reconstruction_inputs(stage: str):
     (triangulation) pictorial-structures 2D while that stage is on."""
 
     def inputs(wildcards) -> dict:
-        files = {"pose2d": artifact("pose2d")}
+        def own(name: str) -> str:
+            return artifact(name).format(outdir=wildcards.outdir)
+
+        files = {"pose2d": own("pose2d")}
         if stage == "pictorial_structures":
-            files["candidates"] = artifact("candidates")
+            files["candidates"] = own("candidates")
         if FLAGS["bundle_adjustment"]:
-            files["bundle_adjustment"] = artifact("bundle_adjustment")
+            files["bundle_adjustment"] = rig_artifact(wildcards)
         if stage == "triangulation" and FLAGS["pictorial_structures"]:
-            files["pictorial_structures"] = artifact("pictorial_structures")
-        files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+            files["pictorial_structures"] = own("pictorial_structures")
         if not FLAGS["bundle_adjustment"]:
             files["calibration"] = calibration_inputs(wildcards)
         return files

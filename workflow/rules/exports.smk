@@ -39,6 +39,8 @@ if EXPORTS.get("nwb"):
             "{outdir}/logs/export_nwb.log",
         benchmark:
             "{outdir}/benchmarks/export_nwb.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1

@@ -1,8 +1,6 @@
 # Input functions that tell the demo (its files come from the demo rule) from a real
 # recording (its files are on disk): they use DEMO* from demo.smk, included above.
 
-from flylib.pipeline.pose2d import import_inputs as _import_inputs, import_target
-
 
 def recording_inputs(wildcards) -> list[str]:
     """What pose2d reads: the footage and the files imported 2D comes from (for the
@@ -12,12 +10,8 @@ def recording_inputs(wildcards) -> list[str]:
     rec = recording(wildcards)
     if rec.demo:
         return DEMO_OUTPUTS
-    imported = _import_inputs(IMPORT_TARGET, rec.import_spec, rec.path) if rec.import_spec else []
-    return [str(f) for f in [*rec.footage, *imported]]
-
-
-#: What imported 2D is placed on (one for the run; only recordings with an import use it).
-IMPORT_TARGET = import_target(CONFIG) if any(r.import_spec for r in RECORDINGS) else None
+    # the import files as the run's preflight found them (load_run_config), not again
+    return [str(f) for f in [*rec.footage, *(rec.import_files or ())]]
 
 
 def footage_inputs(wildcards) -> list[str]:
@@ -36,6 +30,8 @@ def assemble_inputs(wildcards) -> dict:
     # pose2d's artifact is read even with pose2d off (made by an earlier run)
     files = {s: artifact(s) for s in ARTIFACTS if s == "pose2d" or FLAGS[s]}
     files = {k: v.format(outdir=wildcards.outdir) for k, v in files.items()}
+    if FLAGS["bundle_adjustment"]:
+        files["bundle_adjustment"] = rig_artifact(wildcards)
     files["calibration"] = calibration_inputs(wildcards)
     if recording(wildcards).demo:
         files["truth"] = DEMO_TRUTH

@@ -21,6 +21,8 @@ if FLAGS["kinematics"]:
             "{outdir}/logs/kinematics.log",
         benchmark:
             "{outdir}/benchmarks/kinematics.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1

@@ -21,6 +21,8 @@ if FLAGS["neuromechfly"]:
             "{outdir}/logs/neuromechfly.log",
         benchmark:
             "{outdir}/benchmarks/neuromechfly.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1

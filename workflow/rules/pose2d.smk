@@ -16,12 +16,14 @@ if FLAGS["pose2d"]:
             "{outdir}/logs/pose2d.log",
         benchmark:
             "{outdir}/benchmarks/pose2d.tsv"
+        group:
+            pose2d_group
         conda:
             "../../envs/flylib.yaml"
         threads: 2
         resources:
-            mem_mb=8000,
-            runtime=120,
+            mem_mb=pose2d_mem_mb,
+            runtime=pose2d_runtime,
             gpu=pose2d_gpus,
         params:
             stage=stage_params("pose2d"),

@@ -15,6 +15,8 @@ if FLAGS["bundle_adjustment"]:
             "{outdir}/logs/bundle_adjustment.log",
         benchmark:
             "{outdir}/benchmarks/bundle_adjustment.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1
@@ -29,6 +31,78 @@ if FLAGS["bundle_adjustment"]:
             "../../scripts/bundle_adjustment.py"
 
 
+if SESSIONS:
+    from flylib.pipeline.session_calibration import (
+        SessionCalibrationInputs,
+        SessionSummaryInputs,
+    )
+
+    SESSION_INPUTS = SessionCalibrationInputs.from_config(CONFIG)
+    SESSION_SUMMARY_INPUTS = SessionSummaryInputs.from_config(CONFIG)
+
+    # One solve per session over frames sampled from every member; its rig replaces
+    # each member's own in triangulation, refinement and assembly (rig_artifact).
+    rule session_calibration:
+        input:
+            unplanned=session_unplanned,
+            pose2d_files=lambda w: [
+                artifact("pose2d").format(outdir=r.outdir) for r in session(w).members
+            ],
+            rig_files=lambda w: list(_recording_calibration(session(w).members[0].path)),
+        output:
+            out="{sessiondir}/session_calibration.h5",
+            calibration="{sessiondir}/calibration.toml",
+        log:
+            "{sessiondir}/logs/session_calibration.log",
+        benchmark:
+            "{sessiondir}/benchmarks/session_calibration.tsv"
+        conda:
+            "../../envs/flylib.yaml"
+        threads: 1
+        resources:
+            mem_mb=job_mem_mb("bundle_adjustment"),
+            runtime=60,
+        params:
+            stage=as_is(SESSION_INPUTS.rule_params()),
+            runtime=lambda wildcards, input: SESSION_INPUTS.runtime_options,
+            members=lambda w: json.dumps(session(w).ids),
+            recordings=lambda w: json.dumps([str(r.path) for r in session(w).members]),
+            name=lambda w: session(w).name,
+        script:
+            "../../scripts/session_calibration.py"
+
+    # The held-out-view error with each member's own rig and with the session's.
+    rule session_summary:
+        input:
+            unplanned=session_unplanned,
+            session="{sessiondir}/session_calibration.h5",
+            pose2d_files=lambda w: [
+                artifact("pose2d").format(outdir=r.outdir) for r in session(w).members
+            ],
+            trial_files=lambda w: [
+                artifact("bundle_adjustment").format(outdir=r.outdir) for r in session(w).members
+            ],
+        output:
+            out="{sessiondir}/session_summary.json",
+        log:
+            "{sessiondir}/logs/session_summary.log",
+        benchmark:
+            "{sessiondir}/benchmarks/session_summary.tsv"
+        conda:
+            "../../envs/flylib.yaml"
+        threads: 1
+        resources:
+            mem_mb=2000,
+            runtime=30,
+        params:
+            stage=as_is(SESSION_SUMMARY_INPUTS.rule_params()),
+            runtime=lambda wildcards, input: None,
+            members=lambda w: json.dumps(session(w).ids),
+            name=lambda w: session(w).name,
+        script:
+            "../../scripts/session_summary.py"
+
+
 if FLAGS["pictorial_structures"]:
 
     rule pictorial_structures:
@@ -40,6 +114,8 @@ if FLAGS["pictorial_structures"]:
             "{outdir}/logs/pictorial_structures.log",
         benchmark:
             "{outdir}/benchmarks/pictorial_structures.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 1
@@ -66,6 +142,8 @@ if FLAGS["triangulation"]:
             "{outdir}/logs/triangulation.log",
         benchmark:
             "{outdir}/benchmarks/triangulation.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 2

@@ -15,6 +15,8 @@ if FLAGS["refinement"]:
             "{outdir}/logs/refinement.log",
         benchmark:
             "{outdir}/benchmarks/refinement.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 2

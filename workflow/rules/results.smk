@@ -25,6 +25,8 @@ rule assemble:
         "{outdir}/logs/assemble.log",
     benchmark:
         "{outdir}/benchmarks/assemble.tsv"
+    group:
+        RECORDING_GROUP
     conda:
         "../../envs/flylib.yaml"
     resources:

@@ -15,6 +15,7 @@ import time
 from snakemake.common import NOTHING_TO_BE_DONE_MSG
 
 from flylib.run_summary import RunRecording, run_table
+from flylib.sessions import session_lines
 
 _RUN_START = time.time()
 _RUN_RECORDINGS = [RunRecording(r.id, r.outdir, r.demo) for r in RECORDINGS if r.id not in SKIPPED]
@@ -26,6 +27,9 @@ _TABLE_STATE = {"printed": False, "nothing_to_do": False}
 def _print_run_table(failed: bool, snakemake_log=None) -> None:
     _TABLE_STATE["printed"] = True
     text = run_table(_RUN_RECORDINGS, failed=failed, since=_RUN_START, snakemake_log=snakemake_log)
+    text = "\n".join(
+        [text, *session_lines(SESSIONS)]
+    )  # session calibration: its rig vs each trial's
     atexit.register(lambda: print("\n" + text, file=sys.stderr, flush=True))
 
 
@@ -40,7 +44,7 @@ class _NothingToDo(logging.Handler):
 def _table_after_nothing_to_do() -> None:
     if _TABLE_STATE["printed"] or not _TABLE_STATE["nothing_to_do"] or workflow.dryrun:
         return
-    text = run_table(_RUN_RECORDINGS)
+    text = "\n".join([run_table(_RUN_RECORDINGS), *session_lines(SESSIONS)])
     print("\nflylib: nothing to do; the existing results:\n" + text, file=sys.stderr, flush=True)
 
 

@@ -22,6 +22,8 @@ if FLAGS["visualization"] and VIDEO_NAMES:
             "{outdir}/logs/visualization.log",
         benchmark:
             "{outdir}/benchmarks/visualization.tsv"
+        group:
+            RECORDING_GROUP
         conda:
             "../../envs/flylib.yaml"
         threads: 2

@@ -15,7 +15,7 @@ unknowns
 params
     The ``fixed`` / ``shared`` parameter grammar.
 sampling
-    ``frame_sampling``: which frames the fit uses.
+    ``frame_sampling``: which frames the fit uses (one recording's, or a session's).
 problem
     Residuals, the JAX Jacobian as a sparse matrix, the ``scipy`` path.
 lm
@@ -26,14 +26,9 @@ gauge
     The similarity gauge held during a fit and the frame the result is reported in.
 """
 
-from .adjust import bundle_adjust, camera_table
-from .sampling import FRAME_SAMPLING, select_frames
-from .sequence import bundle_adjust_sequence
+import lazy_loader as _lazy
 
-__all__ = [
-    "FRAME_SAMPLING",
-    "bundle_adjust",
-    "bundle_adjust_sequence",
-    "camera_table",
-    "select_frames",
-]
+# The names and their modules are listed once, in ``__init__.pyi``: JAX and SciPy load
+# with the solver, not with the parameter grammar (``params``), which the workflow's
+# planning reads for every run and every cluster job.
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)

@@ -17,6 +17,7 @@ Strategies
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -112,3 +113,33 @@ def _farthest_point_frames(pts2d: np.ndarray, seen: np.ndarray, k: int) -> np.nd
         rest = [i for i in _spread_order(pts2d.shape[1]) if i not in set(chosen)]
         chosen.extend(rest[: k - len(chosen)])
     return np.sort(np.array(chosen, int))
+
+
+def select_session_frames(
+    trials: Sequence[Float[np.ndarray, "V T P 2"]],
+    confs: Sequence[Float[np.ndarray, "V T P"] | None],
+    max_frames: int | None,
+    method: str = "even",
+) -> list[Int[np.ndarray, " F"]]:
+    """Each trial's frames for one solve over a whole session: ``max_frames`` shared
+    evenly between the trials (the first ones get the remainder, every trial at least
+    one frame), each trial's chosen by :func:`select_frames` with ``method``.
+
+    ``max_frames=None`` keeps every frame of every trial. The session's solve then
+    costs about what one trial's does, and sees the postures of every trial.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown ``method`` or a non-positive ``max_frames``.
+    """
+    if max_frames is not None and max_frames < 1:
+        raise ConfigError(
+            f"bundle_adjustment.max_frames must be >= 1 (or null for all frames), got {max_frames}"
+        )
+    n = len(trials)
+    chosen = []
+    for i, (pts2d, conf) in enumerate(zip(trials, confs, strict=True)):
+        quota = None if max_frames is None else max(1, max_frames // n + (i < max_frames % n))
+        chosen.append(select_frames(pts2d, conf, quota, method))
+    return chosen

@@ -205,6 +205,11 @@ class BundleAdjustmentParams:
     warn_ratio
         Warn when the reduced Hessian's weakest non-gauge direction is below this
         fraction of its strongest.
+    session
+        Bundle-adjust the recordings of one session (one rig) together: one solve over
+        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per
+        session that every member's later stages read (:mod:`flylib.sessions`). The
+        per-recording solve is unchanged by it (its params leave this key out).
     least_squares
         Every other key of the table, passed through to ``scipy.optimize.least_squares``
         (e.g. ``max_nfev``, ``loss``, ``f_scale``).
@@ -227,13 +232,18 @@ class BundleAdjustmentParams:
     length_weight: float = param(100.0, number(0, exclusive=True))
     rigid_points: tuple[str, ...] = param(TETHERED_RIGID_POINTS, string_list(), kind=tuple)
     warn_ratio: float = param(1e-9, number(0))
+    session: bool = param(False, boolean, track_default=False)
     least_squares: dict[str, Any] = field(default_factory=dict)
 
     def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
         """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`:
         every field under its own name, ``rigid_points`` limited to the skeleton's
         ``point_names``, the ``least_squares`` options flat (they reach the solver)."""
-        kwargs = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "least_squares"}
+        kwargs = {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if f.name not in ("least_squares", "session")
+        }
         names = set(point_names)
         kwargs["rigid_points"] = [p for p in self.rigid_points if p in names]
         return {**kwargs, **self.least_squares}

@@ -605,7 +605,7 @@ def as_confidences(
         )
     log.warning(
         "%s: %s; %s scores are not probabilities, so they are clipped into [0, 1] as "
-        "confidences (see README, importing 2D)",
+        "confidences (see docs/guides/imports.md)",
         path,
         detail,
         "SLEAP's point" if fmt == "sleap" else "DeepFly3D's heatmap",

@@ -100,7 +100,8 @@ class BundleAdjustmentInputs(StageInputs):
         tracked = {k: v for k, v in options.items() if k not in LEAST_SQUARES_PERF}
         rig = RigSpec.from_config(config)
         return cls(
-            bundle_adjustment=replace(params, least_squares=tracked),
+            # the per-recording solve is the same with or without a session solve
+            bundle_adjustment=replace(params, least_squares=tracked, session=False),
             rig=rig,
             skeleton=SkeletonSpec.from_config(config),
             runtime=BundleAdjustmentRuntime(

@@ -14,7 +14,7 @@ The figures are the peak MB measured with ``benchmarks/stage_memory.py`` (7 view
 points, 1,000 and 10,000 frames with the rules' threads; 500 and 5,000 with one
 thread), the larger of the two runs: the fixed part, and the part per million (frame,
 point, view) elements. Refinement's chunked solve grows more slowly past 10,000
-frames (README: ~0.7 GB at 100,000), so its figure over-reserves there rather than
+frames (`benchmarks/refinement.py` measures 100,000), so its figure over-reserves there rather than
 under.
 """
 

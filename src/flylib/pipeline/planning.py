@@ -56,7 +56,8 @@ def plan_recordings(
 
 def params_of(config: Config, *, run_only: bool = False) -> Callable[[str], dict | None]:
     """``stage -> the params its rule tracks under config`` (each computed once), for
-    :func:`flylib.provenance.provenance_report` and :func:`~flylib.provenance.foreign_artifacts`.
+    :func:`flylib.provenance.provenance_report` and :func:`~flylib.provenance.foreign_artifacts`;
+    ``session_calibration`` too (a session's rig, :mod:`flylib.sessions`).
 
     Parameters
     ----------
@@ -70,6 +71,12 @@ def params_of(config: Config, *, run_only: bool = False) -> Callable[[str], dict
 
     @functools.cache
     def lookup(stage: str) -> dict | None:
+        if stage == "session_calibration":  # a session's rig (flylib.sessions)
+            if not flags.get("bundle_adjustment", True):
+                return None
+            from .session_calibration import SessionCalibrationInputs
+
+            return SessionCalibrationInputs.from_config(config).canonical_params()
         if not flags.get(stage, True):
             return None
         return stage_params(config, stage)

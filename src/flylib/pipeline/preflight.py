@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,12 @@ def _problem(exc: FlylibError, prefix: str | None = None) -> str:
 
 
 def preflight_problems(
-    config: Any, recordings: Iterable[Any], flags: dict[str, bool], *, check_weights: bool = True
+    config: Any,
+    recordings: Iterable[Any],
+    flags: dict[str, bool],
+    *,
+    check_weights: bool = True,
+    import_files: dict[str, tuple[Path, ...]] | None = None,
 ) -> list[str]:
     """Problems the planned run would hit inside a job, found from the config alone.
 
@@ -44,6 +50,9 @@ def preflight_problems(
     check_weights
         Check that every detector model's checkpoint is cached or downloadable (may
         wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
+    import_files
+        Filled with ``recording id -> the files its imported 2D is read from``, as
+        found while checking them (the workflow reads them once, here).
 
     Returns
     -------
@@ -94,7 +103,7 @@ def preflight_problems(
             problems.append(_problem(exc))
 
     if flags.get("pose2d", True):
-        problems += _pose2d_problems(config, recordings, check_weights)
+        problems += _pose2d_problems(config, recordings, check_weights, import_files)
 
     if flags.get("visualization", True):
         try:
@@ -247,9 +256,20 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
         recordings = plan_recordings(
             config, check_frames=check_frames, config_dir=layers.config_dir("recordings")
         )
+        found: dict[str, tuple[Path, ...]] = {}
         problems = preflight_problems(
-            config, recordings, config.stage_flags(), check_weights=check_frames
+            config,
+            recordings,
+            config.stage_flags(),
+            check_weights=check_frames,
+            import_files=found,
         )
+        # the import files, found once: the output check and the pose2d rule's inputs
+        # read them from here
+        recordings = [
+            replace(rec, import_files=found[rec.id]) if rec.id in found else rec
+            for rec in recordings
+        ]
         if check_frames and not problems:  # the main process, every path usable
             from .user_files import output_problems
 
@@ -261,12 +281,17 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
     return config, recordings
 
 
-def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) -> list[str]:
+def _pose2d_problems(
+    config: Any,
+    recordings: list[Any],
+    check_weights: bool,
+    resolved: dict[str, tuple[Path, ...]] | None,
+) -> list[str]:
     from ..interop import import_spec
-    from ..interop.importer import footage_problem, import_files
+    from ..interop.importer import footage_problem
     from ..pose2d.published import checkpoint_problem
     from ..recordings import find_recording
-    from .pose2d import import_target
+    from .pose2d import import_inputs, import_target
 
     problems: list[str] = []
     detector = []
@@ -282,7 +307,9 @@ def _pose2d_problems(config: Any, recordings: list[Any], check_weights: bool) ->
             spec = import_spec(rec.import_spec)
             if not rec.demo:  # the demo's files are written by its own rule
                 target = target or import_target(config)
-                import_files(target, spec, rec.path)
+                files = tuple(import_inputs(target, rec.import_spec, rec.path))
+                if resolved is not None:
+                    resolved[rec.id] = files
                 problem = footage_problem(target, spec, rec.path)
                 if problem is not None:
                     problems.append(f"{where or 'pose2d.import'}: {problem}")

@@ -93,17 +93,16 @@ def _run_inputs(config: Any, rec: Any, config_files: Iterable[str]) -> dict[str,
     except FlylibError:
         pass  # reported by the rig's own check
     if rec.import_spec is not None and not rec.demo:
-        from ..interop import import_spec
-        from ..interop.importer import import_files
-        from .pose2d import import_target
+        files = rec.import_files
+        if files is None:  # not found by the run's preflight yet
+            from .pose2d import import_inputs, import_target
 
-        try:
-            files = import_files(import_target(config), import_spec(rec.import_spec), rec.path)
-        except FlylibError:
-            files = {}  # reported by the import's own check
-        for f in files.values():
-            if f is not None:
-                inputs[str(f)] = "an imported 2D file (pose2d.import)"
+            try:
+                files = import_inputs(import_target(config), rec.import_spec, rec.path)
+            except FlylibError:
+                files = []  # reported by the import's own check
+        for f in files:
+            inputs[str(f)] = "an imported 2D file (pose2d.import)"
     for f in sidecar_inputs(rec):
         inputs[f] = "the recording's nwb.yaml"
     try:

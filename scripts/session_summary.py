@@ -1,0 +1,61 @@
+#!/usr/bin/env python
+"""session_summary: the held-out-view error of each recording of a session with its own
+rig and with the session's rig, side by side (session_summary.json)."""
+
+import json
+from pathlib import Path
+
+from flylib.pipeline.session_calibration import SessionSummaryInputs, run_session_summary
+
+from _cli import run_script, script_main, script_parser
+
+
+def main(argv=None, *, job=None) -> int:
+    parser = script_parser(__doc__)
+    parser.add_argument(
+        "--session",
+        dest="session_path",
+        required=True,
+        type=Path,
+        help="the session's artifact (session_calibration.h5)",
+    )
+    parser.add_argument(
+        "--pose2d",
+        dest="pose2d_paths",
+        nargs="+",
+        required=True,
+        type=Path,
+        help="the members' pose2d artifacts (.h5), in --members order",
+    )
+    parser.add_argument(
+        "--bundle-adjustment",
+        dest="trial_paths",
+        nargs="+",
+        required=True,
+        type=Path,
+        help="the members' own bundle-adjustment artifacts, in --members order",
+    )
+    parser.add_argument(
+        "--members", nargs="+", required=True, type=str, help="the members' recording ids"
+    )
+    parser.add_argument("--name", required=True, type=str, help="the session's name")
+    parser.add_argument(
+        "--out", dest="out_path", required=True, type=Path, help="session_summary.json to write"
+    )
+    return script_main(
+        parser,
+        run_session_summary,
+        argv,
+        job=job,
+        stage=SessionSummaryInputs,
+        outdir=lambda a: a["out_path"].parent,
+        job_extra=lambda job: {
+            "pose2d_paths": [Path(p) for p in job.input.pose2d_files],
+            "trial_paths": [Path(p) for p in job.input.trial_files],
+            "members": json.loads(job.params.members),
+        },
+    )
+
+
+if __name__ == "__main__":
+    run_script(main, globals())

@@ -1,0 +1,136 @@
+"""Sessions: recordings made on one unchanged rig, bundle-adjusted together.
+
+With ``bundle_adjustment.session: true`` the recordings of a batch are grouped into
+sessions: by the ``session`` their entry (or the sheet's ``session`` column) names,
+else by the folder that holds them. Each session is solved once
+(:mod:`flylib.pipeline.session_calibration`) and gets its own folder,
+``<the members' common folder>/flylib_sessions/<name>/``, holding the session's rig
+(``calibration.toml``, Anipose format, and ``session_calibration.h5``) and its
+summary (``session_summary.json``: the held-out-view error of the per-recording and
+session rigs side by side).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import ConfigError
+from .recordings import Recording
+
+__all__ = ["SESSIONS_DIR", "Session", "plan_sessions", "session_lines"]
+
+#: The folder, beside the members' output folders, that holds one folder per session.
+SESSIONS_DIR = "flylib_sessions"
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+@dataclass(frozen=True)
+class Session:
+    """Recordings sharing one rig.
+
+    Attributes
+    ----------
+    name
+        The session's name (its ``session`` key, else its folder's name; a clash
+        between folders of the same name gets a path hash).
+    members
+        The recordings, in the batch's order.
+    outdir
+        The session's folder (:data:`SESSIONS_DIR`).
+    """
+
+    name: str
+    members: tuple[Recording, ...]
+    outdir: Path
+
+    @property
+    def ids(self) -> list[str]:
+        """The members' recording ids."""
+        return [r.id for r in self.members]
+
+    @property
+    def calibration(self) -> Path:
+        """The session's rig in Anipose format."""
+        return self.outdir / "calibration.toml"
+
+    @property
+    def artifact(self) -> Path:
+        """The session's rig as a bundle-adjustment artifact (what the stages read)."""
+        return self.outdir / "session_calibration.h5"
+
+    @property
+    def summary(self) -> Path:
+        """Per-recording and session rigs side by side."""
+        return self.outdir / "session_summary.json"
+
+
+def plan_sessions(recordings: Sequence[Recording]) -> list[Session]:
+    """Group ``recordings`` into sessions: by their ``session`` name, else by the folder
+    that holds them. Sessions come in the order of their first member.
+
+    Raises
+    ------
+    ConfigError
+        When a session's folder would be a recording's output folder.
+    """
+    groups: dict[tuple[str, str], list[Recording]] = {}
+    for rec in recordings:
+        key = ("name", rec.session) if rec.session else ("folder", _folder(rec))
+        groups.setdefault(key, []).append(rec)
+    names: dict[tuple[str, str], str] = {}
+    for kind, value in groups:
+        names[(kind, value)] = value if kind == "name" else (Path(value).name or "session")
+    taken: dict[str, int] = {}
+    for name in names.values():
+        taken[name] = taken.get(name, 0) + 1
+    for key, name in names.items():
+        if key[0] == "folder" and taken[name] > 1:  # two folders of one name
+            names[key] = f"{name}-{hashlib.sha1(key[1].encode()).hexdigest()[:8]}"
+    outdirs = {str(Path(r.outdir).resolve()): r.id for r in recordings}
+    sessions = []
+    for key, members in groups.items():
+        name = names[key]
+        parents = [os.path.abspath(Path(r.outdir).parent) for r in members]
+        common = Path(os.path.commonpath(parents))
+        folder = common / SESSIONS_DIR / (_UNSAFE.sub("_", name).strip("_") or "session")
+        if str(folder.resolve()) in outdirs:
+            raise ConfigError(
+                f"recordings: session {name!r}'s folder {folder} is the output folder of "
+                f"recording {outdirs[str(folder.resolve())]!r}; give that recording another outdir"
+            )
+        sessions.append(Session(name, tuple(members), folder))
+    return sessions
+
+
+def _folder(rec: Recording) -> str:
+    return os.path.abspath(Path(rec.path).parent)
+
+
+def session_lines(sessions: Sequence[Session]) -> list[str]:
+    """One line per session whose summary exists: the held-out-view error (median px)
+    with the per-recording rigs and with the session's, and where its rig is."""
+    import json
+
+    lines = []
+    for s in sessions:
+        try:
+            summary = json.loads(s.summary.read_text())
+        except (OSError, ValueError):
+            continue
+        held = summary.get("held_out_error_px", {})
+        trial = (held.get("per_recording") or {}).get("median")
+        whole = (held.get("session") or {}).get("median")
+        if trial is None or whole is None:
+            continue
+        better = "session" if summary.get("better") == "session" else "per-recording"
+        lines.append(
+            f"session {s.name} ({len(s.members)} recordings): held-out median "
+            f"{trial:.2f} px with each recording's own rig, {whole:.2f} px with the "
+            f"session's ({better} better); the rig the results use: {s.calibration}"
+        )
+    return lines

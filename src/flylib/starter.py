@@ -1,0 +1,392 @@
+"""``flylib init DIR``: a starter config for a folder of recordings.
+
+:func:`survey` looks through ``DIR`` (the folder itself and its sub-folders, a few levels
+deep) for recordings: folders with footage for the default config's cameras, or with 2D
+files of another tool. It recognises each camera's footage (videos or image sequences),
+DeepFly3D / DeepLabCut / Lightning Pose / SLEAP 2D files and DeepFly3D / Anipose
+calibration files beside them. :func:`starter_yaml` writes what it inferred as the
+``recordings``, ``outdir``, ``sources``, ``pose2d.import`` and ``calibration`` entries
+of a config merged over the default one, each commented, and the survey's ``undecided``
+lines say what it could not decide. Files are only listed and their headers read:
+pickles through flylib's safe reader, never executed.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v"})
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp"})
+#: How deep below DIR recordings are looked for.
+MAX_DEPTH = 4
+_SKIP = {"flylib_outputs", ".snakemake", "__pycache__", "labeled-data"}
+_NUMBERED = re.compile(r"^(.*?)(\d+)(\D*)$")
+
+
+@dataclass
+class Recording:
+    """One recording folder found by :func:`survey`.
+
+    Attributes
+    ----------
+    path
+        The folder.
+    footage
+        ``source name -> footage glob`` in the default config's source order, or empty
+        when its cameras were not recognised.
+    imports
+        Import specs (``{"format", "files"}``) of the 2D files found, best first.
+    calibrations
+        ``(format, file name)`` of calibration files found in the folder.
+    """
+
+    path: Path
+    footage: dict[str, str] = field(default_factory=dict)
+    imports: list[dict] = field(default_factory=list)
+    calibrations: list[tuple[str, str]] = field(default_factory=list)
+
+
+@dataclass
+class Survey:
+    """What :func:`survey` found under a folder, and what it could not decide."""
+
+    root: Path
+    recordings: list[Recording]
+    sources: dict[str, str] | None
+    calibration: dict | None
+    undecided: list[str]
+
+
+def _default_sources() -> dict[str, str]:
+    from .config import Config
+
+    return Config.default().source_patterns()
+
+
+def _view_names() -> list[str]:
+    from .config import Config
+
+    return Config.default().view_names()
+
+
+def _candidate_dirs(root: Path) -> Iterable[Path]:
+    for here, dirs, _ in os.walk(root):
+        depth = len(Path(here).relative_to(root).parts)
+        dirs[:] = sorted(
+            d for d in dirs if not d.startswith(".") and d not in _SKIP and depth < MAX_DEPTH
+        )
+        yield Path(here)
+
+
+def _numbered_groups(names: Sequence[str], suffixes: frozenset[str]) -> dict[str, list[str]]:
+    """``glob -> member names`` of numbered files with one of ``suffixes``
+    (``camera_0_img_12.jpg`` joins ``camera_0_img_*.jpg``)."""
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        stem, suffix = os.path.splitext(name)
+        match = _NUMBERED.match(stem)
+        if suffix.lower() in suffixes and match:
+            groups.setdefault(f"{match[1]}*{match[3]}{suffix}", []).append(name)
+    return {g: members for g, members in groups.items() if len(members) > 1}
+
+
+def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[dict, str | None]:
+    """``(source -> glob, note)``: the default names when they all match, else videos or
+    image sequences numbered like the cameras, mapped to the sources in number order."""
+    import fnmatch
+
+    if all(fnmatch.filter(names, pattern) for pattern in defaults.values()):
+        return dict(defaults), None
+    videos = sorted(n for n in names if Path(n).suffix.lower() in VIDEO_SUFFIXES)
+    sequences = sorted(_numbered_groups(names, IMAGE_SUFFIXES))
+    for kind, found in (("videos", videos), ("image sequences", sequences)):
+        if len(found) == len(defaults):
+            numbers = [_NUMBERED.match(Path(f).stem.replace("*", "")) for f in found]
+            order = sorted(
+                range(len(found)),
+                key=lambda i: (int(numbers[i][2]) if numbers[i] else i, found[i]),
+            )
+            return {s: found[i] for s, i in zip(defaults, order, strict=True)}, (
+                f"{folder}: {kind} {', '.join(found[i] for i in order)} taken as cameras "
+                f"{', '.join(defaults)} in that order; check the order"
+            )
+    if videos or sequences:
+        return {}, (
+            f"{folder}: {len(videos)} video(s) and {len(sequences)} image sequence(s), not the "
+            f"{len(defaults)} cameras of the default rig; list them in `sources` and describe "
+            "the rig in `cameras` (or a `calibration` file)"
+        )
+    return {}, None
+
+
+def _per_view_pattern(
+    files: Sequence[str], views: Sequence[str], stems: Sequence[str]
+) -> str | None:
+    """The ``files`` pattern naming one file per view (``{index}``, ``{view}`` or
+    ``{stem}`` in place of what differs between them), or ``None``."""
+    if len(files) != len(views):
+        return None
+    prefix = os.path.commonprefix(list(files))
+    suffix = os.path.commonprefix([f[::-1] for f in files])[::-1]
+    shortest = min(map(len, files))
+    while len(prefix) + len(suffix) > shortest:
+        suffix = suffix[1:]
+    middles = [f[len(prefix) : len(f) - len(suffix)] for f in files]
+    # a common prefix may have taken the start of the stems or of the view names
+    for placeholder, names in (
+        ("{index}", [str(i) for i in range(len(views))]),
+        ("{view}", list(views)),
+        ("{stem}", list(stems)),
+    ):
+        for cut in range(len(prefix) + 1):
+            head, tail = prefix[:cut], prefix[cut:]
+            if sorted(tail + m for m in middles) == sorted(names):
+                return f"{head}{placeholder}{suffix}"
+    return None
+
+
+def _dlc_like(path: Path) -> str | None:
+    """``dlc_csv`` or ``lightning_pose`` for a DeepLabCut-style CSV (scorer/bodyparts/coords
+    header rows), else ``None``."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            head = [f.readline() for _ in range(3)]
+    except OSError:
+        return None
+    if not (head[0].startswith("scorer") and "bodyparts" in head[1] and "coords" in head[2]):
+        return None
+    return "lightning_pose" if "heatmap" in head[0] else "dlc_csv"
+
+
+def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[dict]:
+    views = _view_names()
+    stems = [Path(p).stem for p in footage.values()] if footage else []
+    found: list[dict] = []
+    for sub in ("", "df3d/"):
+        pickles = sorted((folder / sub).glob("df3d_result*.pkl")) if (folder / sub).is_dir() else []
+        for pkl in pickles:
+            found.append({"format": "deepfly3d", "files": f"{sub}{pkl.name}"})
+    per_view: dict[str, list[str]] = {
+        "sleap": [],
+        "dlc_h5": [],
+        "dlc_csv": [],
+        "lightning_pose": [],
+    }
+    for name in names:
+        lower = name.lower()
+        if lower.endswith(".analysis.h5"):
+            per_view["sleap"].append(name)
+        elif lower.endswith(".h5") and "dlc" in lower:
+            per_view["dlc_h5"].append(name)
+        elif lower.endswith(".csv"):
+            fmt = _dlc_like(folder / name)
+            if fmt:
+                per_view[fmt].append(name)
+    for fmt, files in per_view.items():
+        pattern = _per_view_pattern(sorted(files), views, stems) if files else None
+        if pattern:
+            found.append({"format": fmt, "files": pattern})
+    return found
+
+
+def _calibrations(folder: Path, names: list[str]) -> list[tuple[str, str]]:
+    from .errors import FlylibError
+    from .interop.anipose import read_anipose_toml
+    from .interop.df3d import read_df3d_calibration
+
+    found = []
+    for name in names:
+        lower = name.lower()
+        if lower.endswith(".pkl") and not lower.startswith("df3d_result"):
+            reader, fmt = read_df3d_calibration, "deepfly3d"
+        elif lower.endswith(".toml"):
+            reader, fmt = read_anipose_toml, "anipose"
+        else:
+            continue
+        try:
+            reader(folder / name)
+        except (FlylibError, OSError, ValueError):
+            continue
+        found.append((fmt, name))
+    return found
+
+
+def survey(root: str | Path) -> Survey:
+    """Find the recordings under ``root`` and what each holds (module docstring)."""
+    root = Path(root).expanduser().absolute()
+    defaults = _default_sources()
+    recordings: list[Recording] = []
+    undecided: list[str] = []
+    top_calibrations = _calibrations(root, sorted(p.name for p in root.iterdir() if p.is_file()))
+    inside: list[Path] = []
+    for folder in _candidate_dirs(root):
+        if any(folder.is_relative_to(r) and folder != r for r in inside):
+            continue
+        names = sorted(p.name for p in folder.iterdir() if p.is_file())
+        footage, note = _footage(folder, names, defaults)
+        imports = _imports(folder, names, footage)
+        if not footage and not imports:
+            if note:
+                undecided.append(note)
+            continue
+        if note:
+            undecided.append(note)
+        inside.append(folder)
+        calibrations = _calibrations(folder, names) if folder != root else top_calibrations
+        recordings.append(Recording(folder, footage, imports, calibrations))
+    sources = _common_sources(recordings, defaults, undecided)
+    calibration = _common_calibration(root, recordings, top_calibrations, undecided)
+    for rec in recordings:
+        if not rec.footage and not rec.imports:
+            continue
+        if len(rec.imports) > 1:
+            undecided.append(
+                f"{rec.path}: 2D files of several tools ({', '.join(i['files'] for i in rec.imports)}); "
+                f"using {rec.imports[0]['files']}"
+            )
+        if not rec.footage and rec.imports:
+            undecided.append(
+                f"{rec.path}: no footage: set pose2d.import.image_size: [height, width] "
+                "(the cameras' frame size in pixels)"
+            )
+    if not recordings:
+        undecided.append(
+            f"{root}: no recording found (a folder with {', '.join(defaults.values())}, "
+            "or with 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP)"
+        )
+    return Survey(root, recordings, sources, calibration, undecided)
+
+
+def _common_sources(recordings, defaults, undecided) -> dict[str, str] | None:
+    """The ``sources`` entry to write: ``None`` when every recording uses the default names."""
+    seen = {tuple(r.footage.items()) for r in recordings if r.footage}
+    if not seen or seen == {tuple(defaults.items())}:
+        return None
+    if len(seen) > 1:
+        undecided.append(
+            "recordings name their camera files differently; `sources` (one list for all) "
+            "follows the first; run such recordings with a config each"
+        )
+    first = next(r.footage for r in recordings if r.footage)
+    return dict(first)
+
+
+def _common_calibration(root, recordings, top, undecided) -> dict | None:
+    per_recording = {tuple(r.calibrations) for r in recordings if r.path != root}
+    if top:
+        if len(top) > 1:
+            undecided.append(
+                f"{root}: several calibration files {[n for _, n in top]}; using {top[0][1]}"
+            )
+        fmt, name = top[0]
+        return {"file": str(root / name), "format": fmt}
+    if len(per_recording) == 1 and next(iter(per_recording)):
+        found = next(iter(per_recording))
+        if len(found) > 1:
+            undecided.append(
+                f"several calibration files {[n for _, n in found]}; using {found[0][1]}"
+            )
+        fmt, name = found[0]
+        # a relative file resolves against each recording's folder
+        return {"file": name, "format": fmt}
+    having = [r.path.name for r in recordings if r.calibrations]
+    if len(per_recording) > 1 and len(having) < len(recordings):
+        undecided.append(
+            f"only {', '.join(having)} hold(s) a calibration file: run them with a config of "
+            "their own, or add `calibration: {file: NAME}` when every recording shares that rig"
+        )
+    elif len(per_recording) > 1:
+        undecided.append(
+            "recordings hold different calibration files; give each recording's rig with "
+            "`calibration: {index: calibrations.csv}` (see the imports guide)"
+        )
+    return None
+
+
+def _writable(path: Path) -> bool:
+    return os.access(path, os.W_OK | os.X_OK)
+
+
+def _flow(value) -> str:
+    """``value`` as one line of YAML (a flow mapping or list, or a quoted-if-needed scalar)."""
+    text = yaml.safe_dump([value], default_flow_style=True, sort_keys=False, width=10_000)
+    return text.strip()[1:-1]
+
+
+def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
+    """The starter config's text for ``found``: outputs go to ``outdir`` (a path template)
+    when given, else beside each recording, or under ``where`` (the folder the config is
+    written to) when a recording's folder cannot be written."""
+    lines = [
+        f"# flylib config for the recordings in {found.root}, written by `flylib init`.",
+        "# It is merged over the workflow's config/config.yaml (the default rig and skeleton).",
+        "# Check it, then dry-run and run:",
+        "#   flylib check-config THIS_FILE",
+        "#   snakemake -n --configfile THIS_FILE && snakemake --cores 2 --configfile THIS_FILE",
+        "",
+        "recordings:",
+    ]
+    firsts = [r.imports[0] if r.imports else None for r in found.recordings]
+    shared_import = (
+        firsts[0] if firsts and firsts[0] and all(f == firsts[0] for f in firsts) else None
+    )
+    for rec in found.recordings:
+        what = []
+        if rec.footage:
+            globs = list(rec.footage.values())
+            what.append(f"footage {globs[0]} .. {globs[-1]} ({len(globs)} cameras)")
+        if rec.imports:
+            what.append(f"2D {rec.imports[0]['files']} ({rec.imports[0]['format']})")
+        entry: str | dict = str(rec.path)
+        if rec.imports and shared_import is None:
+            entry = {"path": str(rec.path), "import": rec.imports[0]}
+        lines.append(
+            f"  - {_flow(entry) if isinstance(entry, dict) else _flow(entry)}   # {'; '.join(what)}"
+        )
+    if not found.recordings:
+        lines[-1] = "recordings: []   # none found: list recording folders here"
+    if outdir is not None:
+        lines += [
+            "",
+            "# Where outputs go ({id}: each recording's name)",
+            f"outdir: {_flow(outdir)}",
+        ]
+    elif any(not _writable(r.path) for r in found.recordings):
+        lines += [
+            "",
+            "# The recordings' folders cannot be written here: outputs go beside this file.",
+            f"outdir: {_flow(str(where.absolute() / 'flylib_outputs' / '{id}'))}",
+        ]
+    if found.sources:
+        lines += ["", "# Each camera's footage, in the rig's camera order (check it):", "sources:"]
+        lines += [f"  - {_flow({'name': n, 'filename': f})}" for n, f in found.sources.items()]
+    if shared_import is not None:
+        lines += [
+            "",
+            "# 2D from another tool instead of the detector (no weights needed):",
+            "pose2d:",
+        ]
+        lines.append("  import:")
+        lines += [f"    {key}: {_flow(value)}" for key, value in shared_import.items()]
+        if not any(r.footage for r in found.recordings):
+            lines.append(
+                "    # image_size: [height, width]   # needed without footage: the frame size in pixels"
+            )
+    elif not any(r.imports for r in found.recordings):
+        lines += [
+            "",
+            "# No 2D files found: the detector runs (`flylib doctor` says where its weights go).",
+        ]
+    if found.calibration:
+        lines += [
+            "",
+            "# The rig from a calibration file (bundle adjustment still refines it):",
+            f"calibration: {_flow(found.calibration)}",
+        ]
+    return "\n".join(lines) + "\n"
