@@ -15,8 +15,16 @@ import numpy as np
 from flylib.pipeline.inputs import stage_inputs
 
 
-def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
-    """Demo recording in ``directory``; returns its output directory (with results.h5)."""
+def make_demo_outputs(
+    directory: Path, frames: int = 12, displaced=(), recording_dir=None, **demo
+) -> Path:
+    """Demo recording in ``directory``; returns its output directory (with results.h5).
+
+    ``recording_dir``: the recording path the stages are given (default ``directory``;
+    a relative one is relative to the current directory, as in a workflow run there).
+    ``displaced``: ``(camera, point name, frames, (dx, dy))`` detector mistakes written
+    into the demo's DeepLabCut CSVs before the import (a suspect spanning those frames).
+    """
     from flylib.config import Config
     from flylib.pipeline.assemble import run_assemble
     from flylib.pipeline.demo import demo_import_spec, make_demo
@@ -27,6 +35,8 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
     data["pipeline"]["do_bundle_adjustment"] = False  # what is run below: the config rig
     config = Config.from_dict(data)
     make_demo(config, directory, frames=frames, **demo)
+    for camera, point, at, dxy in displaced:
+        displace_dlc(directory / f"{camera}DLC_flylibdemo.csv", point, at, dxy)
     out = directory / "flylib_outputs"
     run_pose2d(
         stage_inputs(config, "pose2d"),
@@ -38,7 +48,7 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
         stage_inputs(config, "triangulation"),
         out / "stages" / "pose2d.h5",
         out / "stages" / "triangulation.h5",
-        recording_dir=directory,
+        recording_dir=recording_dir or directory,
     )
     run_assemble(
         stage_inputs(config, "assemble"),
@@ -47,10 +57,24 @@ def make_demo_outputs(directory: Path, frames: int = 12, **demo) -> Path:
             "triangulation": out / "stages" / "triangulation.h5",
         },
         out,
-        recording_dir=directory,
+        recording_dir=recording_dir or directory,
     )
     config.save_snapshot(out)
     return out
+
+
+def displace_dlc(path: Path, point: str, frames, dxy) -> None:
+    """Move ``point`` by ``dxy`` pixels at ``frames`` in a DeepLabCut CSV (in place)."""
+    import csv
+
+    rows = list(csv.reader(path.read_text().splitlines()))
+    column = rows[1].index(point)
+    for row in rows[3:]:
+        if int(row[0]) in frames:
+            row[column] = str(float(row[column]) + dxy[0])
+            row[column + 1] = str(float(row[column + 1]) + dxy[1])
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
 
 
 def write_seed_sidecar(
@@ -163,9 +187,9 @@ def serving(session):
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    srv = uvicorn.Server(
-        uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
-    )
+    app = create_app(session)
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    app.state.stop = lambda: setattr(srv, "should_exit", True)
     thread = threading.Thread(target=srv.run, daemon=True)
     thread.start()
     deadline = time.time() + 30

@@ -75,6 +75,31 @@ def test_save_writes_the_documented_layout(tmp_path):
     assert back.invisible[0, 1, 0] and back.edited[1, 2, 3]
 
 
+def test_review_marks_ride_in_the_sidecar_beside_the_seed_layout(tmp_path):
+    """``flylib gui``'s reviewed / OK marks: their own group, the format still version 3
+    and every group the seed's reader reads unchanged; a seed file loads with none."""
+    c = Corrections.empty(2, 3, 4)
+    c.set_point(1, 2, 3, (5.5, 6.5))
+    c.reviewed[1, 2] = True
+    path = c.save(tmp_path / "corrections.h5")
+    with h5py.File(path) as f:
+        import json
+
+        assert json.loads(f.attrs["meta"])["deeperfly_corrections_format_version"] == 3
+        assert set(f) == {"pose2d_corrections", "pose3d_corrections", "flylib_review"}
+        assert f["flylib_review/reviewed"].dtype == bool
+        assert f["flylib_review/reviewed"].shape == (3, 4)
+    back = Corrections.load(path, (2, 3, 4))
+    assert back.reviewed.sum() == 1 and back.reviewed[1, 2]
+    assert back.count() == 1  # a mark is not an edit
+    seed = write_seed_sidecar(tmp_path / "seed.h5", (2, 3, 4), edits2d=[(0, 1, 2, 3.0, 4.0)])
+    assert not Corrections.load(seed, (2, 3, 4)).reviewed.any()
+    with h5py.File(seed, "a") as f:
+        f["flylib_review/reviewed"] = np.zeros((3, 5), bool)
+    with pytest.raises(ResultsError, match=r"its flylib_review/reviewed is \(3, 5\), not the"):
+        Corrections.load(seed, (2, 3, 4))
+
+
 def test_a_newer_or_foreign_file_is_one_clear_error(tmp_path):
     path = write_seed_sidecar(tmp_path / "corrections.h5", (2, 3, 4), version=4)
     with pytest.raises(ResultsError, match="corrections format version 4"):

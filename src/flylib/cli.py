@@ -806,6 +806,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--port", type=int, default=8765, help="port (default 8765; a busy one is replaced)"
     )
     p.add_argument("--no-browser", action="store_true", help="only print the URL")
+    p.add_argument(
+        "--footage-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the folder holding the recording's videos (default: the recording "
+        "directory the result names)",
+    )
     p.set_defaults(func=_cmd_gui)
 
     what = (
@@ -886,7 +894,13 @@ def _cmd_init(args) -> int:
 def _cmd_gui(args) -> int:
     from .gui.server import serve
 
-    serve(args.results, host=args.host, port=args.port, open_browser=not args.no_browser)
+    serve(
+        args.results,
+        host=args.host,
+        port=args.port,
+        open_browser=not args.no_browser,
+        footage_dir=args.footage_dir,
+    )
     return 0
 
 

@@ -7,12 +7,15 @@ inside it::
     attrs["meta"]          JSON {"deeperfly_corrections_format_version": 3, "source", "created_utc"}
     pose2d_corrections/    points (V, T, P, 2) float64, edited / fixed / invisible (V, T, P) bool
     pose3d_corrections/    points3d (T, P, 3) float64, edited (T, P) bool
+    flylib_review/         reviewed (T, P) bool (flylib's addition, see below)
 
 A file of version 1 or 2 (no ``invisible``, or no ``fixed`` either) loads with the
 missing masks all False. flylib writes every dataset with the Fletcher-32 filter in
 HDF5 1.8's checksummed object format (like its other artifacts) and adds
-``flylib_revision`` (the GUI session's edit revision) to the meta; the seed's readers
-ignore both. A file written by the seed (no checksums) still loads; whichever wrote it,
+``flylib_revision`` (the GUI session's edit revision) to the meta and the
+``flylib_review/reviewed`` mask (the suspect points a person marked reviewed / OK in
+``flylib gui``, read when present); the seed's readers, which read the groups above by
+name, ignore all three, and the format version stays 3. A file written by the seed (no checksums) still loads; whichever wrote it,
 an ``inf`` coordinate, a non-finite 3D edit, (given the rig) a 3D edit farther from
 the cameras than :data:`EDIT3D_RIG_SPANS` times the rig's size, or (given the image
 sizes) a 2D edit outside the image is one :class:`~flylib.errors.ResultsError` at
@@ -77,6 +80,9 @@ _DATASETS = (
     "pose3d_corrections/edited",
 )
 
+#: flylib's review-progress mask in the sidecar (the seed's readers do not read it).
+_REVIEWED = "flylib_review/reviewed"
+
 
 @dataclass
 class Corrections:
@@ -103,6 +109,9 @@ class Corrections:
         When the file was written (ISO 8601).
     revision
         The GUI session revision the file was saved at (0 for a seed-written file).
+    reviewed
+        ``(T, P)`` bool: points a person marked reviewed / OK (``flylib gui``'s review
+        progress; not an edit, never applied); default all False.
     """
 
     points: Float[np.ndarray, "V T P 2"]
@@ -114,6 +123,7 @@ class Corrections:
     source: str = ""
     created_utc: str = ""
     revision: int = 0
+    reviewed: Any = None
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
@@ -132,6 +142,13 @@ class Corrections:
                 f"points3d / edited must be {(*shape[1:], 3)} / {shape[1:]}, got "
                 f"{self.points3d.shape} / {self.edited3d.shape}"
             )
+        self.reviewed = (
+            np.zeros(shape[1:], bool)
+            if self.reviewed is None
+            else np.asarray(self.reviewed, dtype=bool)
+        )
+        if self.reviewed.shape != shape[1:]:
+            raise ValueError(f"reviewed must be {shape[1:]} (T, P), got {self.reviewed.shape}")
 
     # -- construction and I/O ---------------------------------------------------------
 
@@ -210,6 +227,7 @@ class Corrections:
                 source=str(meta.get("source", "")),
                 created_utc=str(meta.get("created_utc", "")),
                 revision=revision if type(revision) is int and revision >= 0 else 0,
+                reviewed=arrays.get(_REVIEWED),
                 **masks,
             )
         except ValueError as err:
@@ -307,6 +325,9 @@ class Corrections:
             g3 = f.create_group("pose3d_corrections")
             _write_checksummed(g3, "points3d", self.points3d, np.float64)
             _write_checksummed(g3, "edited", self.edited3d, bool)
+            if self.reviewed.any():
+                group, name = _REVIEWED.split("/")
+                _write_checksummed(f.create_group(group), name, self.reviewed, bool)
         with atomic_path(path) as tmp:
             Path(tmp).write_bytes(buffer.getbuffer())
         return Path(path)
@@ -480,7 +501,12 @@ def _read_sidecar(
         if name not in f:
             raise ResultsError(f"{path}: has no {name} dataset; {fix}")
     arrays = {}
-    for name in (*_DATASETS, "pose2d_corrections/fixed", "pose2d_corrections/invisible"):
+    for name in (
+        *_DATASETS,
+        "pose2d_corrections/fixed",
+        "pose2d_corrections/invisible",
+        _REVIEWED,
+    ):
         if name not in f:
             continue
         dataset = f[name]
@@ -515,6 +541,7 @@ def _expected_shape(name: str, shape: tuple[int, int, int]) -> tuple[int, ...]:
         "pose2d_corrections/points": (v, t, p, 2),
         "pose3d_corrections/points3d": (t, p, 3),
         "pose3d_corrections/edited": (t, p),
+        _REVIEWED: (t, p),
     }.get(name, (v, t, p))
 
 

@@ -69,8 +69,9 @@ _MAD_SCALE = 1.4826  # MAD -> standard deviation of a normal distribution
 
 
 def view_label(index: int, view_names: list[str] | None = None) -> str:
-    """How a person reads view ``index``: ``"1 (lm)"`` (0-based, as frames and points
-    and the arrays' V axis; the GUI's tiles number views the same way)."""
+    """How a person reads view ``index``: ``"5 (lm)"`` (0-based, as frames and points
+    and the arrays' V axis; the GUI's tiles and number keys count views from 1, so the
+    view's name is always given too)."""
     names = view_names or []
     return f"{index} ({names[index]})" if index < len(names) else f"{index}"
 

@@ -432,3 +432,34 @@ def test_image_sequence_footage_and_missing_footage(tmp_path):
         40,
         3,
     )
+
+
+def test_stop_needs_the_token_and_a_server_that_can_stop(client):
+    """POST /api/stop (the page's Stop button): refused without the page's token;
+    stops only a server that handed the app a way to stop."""
+    foreign = TestClient(client.app, base_url="http://127.0.0.1:8765")
+    refused = foreign.post("/api/stop", json={})
+    assert refused.status_code == 403
+    reply = client.post("/api/stop", json={})
+    assert reply.status_code == 409
+    assert reply.json() == {"detail": "this server cannot be stopped from the page; press Ctrl+C"}
+    stopped = []
+    client.app.state.stop = lambda: stopped.append(True)
+    reply = client.post("/api/stop", json={})
+    assert reply.status_code == 200 and reply.json() == {"op": "stopping", "dirty": False}
+    assert stopped == [True]
+
+
+def test_save_check_names_an_edit_that_raised_the_error(client):
+    data = client.get("/api/points/3").json()
+    v, p = visible_point(data)
+    assert client.get("/api/save-check").json() == {"worse": [], "new_suspects": [], "count": 0}
+    x, y = data["views"][v]["points2d"][p]
+    view = data["views"][v]["name"]
+    edit = {"op": "move", "frame": 3, "point": p, "view": view, "xy": [x + 80, y + 60]}
+    assert client.post("/api/edit", json={**edit, "fixed": True}).status_code == 200
+    check = client.get("/api/save-check").json()
+    name = client.session.skeleton.point_names[p]
+    assert check["count"] >= 1
+    assert check["worse"][0].startswith(f"{name} at frame 3: ")
+    assert " px from its 3D in " in check["worse"][0]

@@ -25,7 +25,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
 
 
-def browser():
+def browser(size=(1500, 950)):
     if not CHROMIUM or not CHROMEDRIVER:
         pytest.skip(
             "headless Chromium is not installed: run `bash install.sh --test-system-packages` "
@@ -41,14 +41,21 @@ def browser():
         "--no-sandbox",
         "--disable-dev-shm-usage",
         "--disable-gpu",
-        "--window-size=1500,950",
+        f"--window-size={size[0]},{size[1]}",
         "--force-device-scale-factor=1",
     ):
         options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     try:
-        return webdriver.Chrome(options=options, service=webdriver.ChromeService(CHROMEDRIVER))
+        driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(CHROMEDRIVER))
     except WebDriverException as exc:  # a driver that cannot start in this environment
         pytest.skip(f"Chromium did not start: {str(exc).splitlines()[0]}")
+    # the page's viewport exactly `size` (a headless window's chrome varies)
+    driver.execute_cdp_cmd(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": size[0], "height": size[1], "deviceScaleFactor": 1, "mobile": False},
+    )
+    return driver
 
 
 @pytest.fixture(scope="module")
@@ -181,11 +188,15 @@ def test_review_drag_save_and_rerun_plan(demo_run, server):
         if shot:
             driver.save_screenshot(shot)
 
-        # ? lists the shortcuts; g: one large view plus thumbnails; wheel zooms; p goes back
+        # ? lists the shortcuts; n left the selected point's view large, g: the grid, g
+        # again: that view large with thumbnails; wheel zooms; p goes back
         body.send_keys("?")
         assert driver.find_element(By.ID, "help").is_displayed()
         body.send_keys(Keys.ESCAPE)
         assert not driver.find_element(By.ID, "help").is_displayed()
+        assert driver.execute_script("return window.flylib.state.layout") == "focus"
+        body.send_keys("g")
+        wait_for(driver, "return document.querySelector('#views').classList.contains('grid')")
         body.send_keys("g")
         wait_for(
             driver,

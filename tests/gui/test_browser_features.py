@@ -122,10 +122,12 @@ def test_focus_layout_thumbnails_stay_in_order_rendered_and_clickable(page):
     _shot(driver, "focus.png")
     order = driver.execute_script(
         "return [...document.querySelectorAll('.view:not(.large) canvas')]"
-        ".map(c => [c.dataset.view || '3d', c.getBoundingClientRect().left])"
+        ".map(c => [c.dataset.view || '3d', c.getBoundingClientRect().top, "
+        "c.getBoundingClientRect().left])"
     )
-    by_left = [name for name, _ in sorted(order, key=lambda x: x[1])]
-    assert by_left == [*session.view_names[1:], "3d"]
+    # reading order (a row below the large view, or a column beside it)
+    by_place = [name for name, *_ in sorted(order, key=lambda x: (round(x[1]), x[2]))]
+    assert by_place == [*session.view_names[1:], "3d"]
     zoomed = f".view canvas[data-view={session.view_names[2]!r}]".replace("'", '"')
     assert _canvas_spread(driver, zoomed) > 20  # still shows footage, not black
     # a click on a thumbnail makes it the large view

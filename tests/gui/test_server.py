@@ -3,7 +3,9 @@ when bound to anything but localhost."""
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -11,6 +13,7 @@ import time
 import pytest
 
 pytest.importorskip("uvicorn", reason="the GUI needs uvicorn")
+import h5py
 import httpx
 
 from flylib.gui.server import is_loopback
@@ -23,7 +26,7 @@ def outdir(tmp_path_factory):
     return make_demo_outputs(tmp_path_factory.mktemp("gui_cli") / "rec", frames=6)
 
 
-def start(outdir, *args):
+def start(outdir, *args, cwd=None):
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -39,6 +42,7 @@ def start(outdir, *args):
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        cwd=cwd,
     )
     lines = []
     deadline = time.time() + 120
@@ -111,3 +115,51 @@ def test_loopback_detection():
         and not is_loopback("192.168.1.4")
         and not is_loopback("example.org")
     )
+
+
+def test_footage_dir_from_another_directory(outdir, tmp_path):
+    """Started elsewhere, the recording's videos moved: the terminal names what is
+    missing and the fix; ``--footage-dir`` finds them; a wrong one is one line."""
+    recording = tmp_path / "rec"
+    shutil.copytree(outdir.parent, recording)
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for video in recording.glob("*.mp4"):
+        video.rename(videos / video.name)
+    moved = recording / "flylib_outputs"
+    # its results.h5 names the original recording (with its videos): point it here
+    with h5py.File(moved / "results.h5", "a") as f:
+        meta = json.loads(f.attrs["meta"])
+        meta.update(recording="rec", recording_abspath=str(recording))
+        f.attrs["meta"] = json.dumps(meta)
+    proc, url = start(moved, cwd=tmp_path / "videos")
+    try:
+        assert "no footage for every view: not found in the recording directory 'rec'" in (
+            proc.printed
+        )
+        assert "--footage-dir DIR" in proc.printed
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        meta = get(f"http://127.0.0.1:{port}/api/meta").json()
+        assert meta["footage_missing"].startswith("no footage for every view")
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    proc, url = start(moved, "--footage-dir", str(videos), cwd=tmp_path / "videos")
+    try:
+        assert "no footage" not in proc.printed
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        meta = get(f"http://127.0.0.1:{port}/api/meta").json()
+        assert meta["footage_missing"] == "" and all(v["footage"] for v in meta["views"])
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    wrong = subprocess.run(
+        [sys.executable, "-m", "flylib.cli", "gui", str(moved), "--no-browser"]
+        + ["--footage-dir", str(tmp_path / "nowhere")],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert wrong.returncode == 1 and wrong.stderr.strip().count("\n") == 0
+    assert f"--footage-dir {tmp_path / 'nowhere'}: no such directory" in wrong.stderr

@@ -7,13 +7,17 @@ Routes::
     GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
-    GET  /api/suspects              suspect (frame, point) pairs and the per-frame score
+    GET  /api/suspects              suspect (frame, point) pairs and the per-frame score,
+                                    the review progress
+    GET  /api/save-check            what the edits made worse (said before saving)
     POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
     POST /api/save                  write corrections.h5 beside results.h5
+    POST /api/stop                  stop the server (the page's Stop button)
     WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision",
                                     "durable", "fixed"}
                                     -> points (op: move, move3d, invisible, reset_point,
-                                    reset_view, reset_frame; move takes "fixed": true; or
+                                    reset_view, reset_frame, reviewed, unreviewed; move
+                                    takes "fixed": true; or
                                     {"op": "save"}); other pages' edits arrive as
                                     {"op": "changed", "revision"}
 
@@ -93,6 +97,7 @@ def create_app(
     app = FastAPI(title="flylib gui", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session = session
     app.state.token = token
+    app.state.stop = None  # what POST /api/stop calls: set by whoever runs the server
     _add_request_checks(app, guard, token)
     app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
     edits = _Edits(session)
@@ -199,6 +204,10 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
     def suspects() -> dict:
         return session.suspects_payload()
 
+    @app.get("/api/save-check")
+    def save_check() -> dict:
+        return session.save_check()
+
 
 def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
     """``POST`` one edit and the save (the WebSocket carries the same messages)."""
@@ -211,6 +220,14 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
             return _refused(_STATUS[reply["op"]], reply["error"])
         await edits.broadcast(None, reply["revision"], reply["frame"])
         return JSONResponse(reply)
+
+    @app.post("/api/stop")
+    async def stop(request: Request) -> JSONResponse:
+        await _read_json(request)
+        if request.app.state.stop is None:
+            return _refused(409, "this server cannot be stopped from the page; press Ctrl+C")
+        request.app.state.stop()
+        return JSONResponse({"op": "stopping", "dirty": edits.session.dirty})
 
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:

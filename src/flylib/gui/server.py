@@ -45,6 +45,7 @@ def serve(
     port: int = DEFAULT_PORT,
     open_browser: bool = True,
     token: str | None = None,
+    footage_dir: str | Path | None = None,
 ) -> None:
     """Open the recording and serve the GUI until interrupted.
 
@@ -62,6 +63,9 @@ def serve(
         Open the URL in the local browser (if there is one).
     token
         The access token when not on localhost (default: a random one).
+    footage_dir
+        The folder holding the recording's videos, when it is not where the result
+        says (moved, or a relative path from elsewhere).
     """
     import uvicorn
 
@@ -69,7 +73,7 @@ def serve(
     from .security import LOOPBACK_NAMES, MAX_BODY
     from .session import ReviewSession
 
-    session = ReviewSession(results)
+    session = ReviewSession(results, footage_dir=footage_dir)
     loopback = is_loopback(host)
     if not loopback:
         token = token or secrets.token_urlsafe(24)
@@ -89,6 +93,8 @@ def serve(
     )
     if session.notice:
         print(f"flylib gui: {session.notice}")
+    if session.footage_missing:
+        print(f"flylib gui: {session.footage_missing}")
     print(
         f"flylib gui: open {url}  (Ctrl+C stops; every edit is journaled to "
         f"{session.journal_path} until Save writes {session.corrections_path})"
@@ -101,7 +107,11 @@ def serve(
     if open_browser:
         threading.Timer(1.0, lambda: webbrowser.open(url)).start()
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", ws_max_size=MAX_BODY)
+        server = uvicorn.Server(
+            uvicorn.Config(app, host=host, port=port, log_level="warning", ws_max_size=MAX_BODY)
+        )
+        app.state.stop = lambda: setattr(server, "should_exit", True)  # the page's Stop
+        server.run()
     finally:
         if session.dirty:
             print(

@@ -16,6 +16,7 @@ of overwriting what another tab did.
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import threading
@@ -26,14 +27,23 @@ from typing import Any
 import numpy as np
 
 from ..corrections import CORRECTIONS_FILE, Corrections, corrections_path
-from ..errors import FlylibError, OutputError, ResultsError
+from ..errors import FlylibError, FootageError, OutputError, ResultsError
 from ..pipeline.triangulation import TriangulationInputs, compute_triangulation
 from .frames import FrameSource
 from .journal import EditJournal, SidecarLock, read_journal
 
 #: The edit operations a page may send; ``set3d`` (a 3D point) is what the journal
 #: records for ``move3d``, whose result depends on the 3D at the time of the edit.
-EDIT_OPS = ("move", "move3d", "invisible", "reset_point", "reset_view", "reset_frame")
+EDIT_OPS = (
+    "move",
+    "move3d",
+    "invisible",
+    "reset_point",
+    "reset_view",
+    "reset_frame",
+    "reviewed",
+    "unreviewed",
+)
 
 
 class StaleRevision(ValueError):
@@ -102,6 +112,15 @@ class ReviewSession:
     footage
         ``view -> files``; default: found in the recording directory named in the
         result's meta, through the config's ``sources``.
+    footage_dir
+        Where the footage is (``flylib gui --footage-dir``): used instead of the
+        recording directory the result names.
+
+    Attributes
+    ----------
+    footage_missing
+        What the page's banner says when a view has no footage (the directories
+        looked in and the fix), else ``""``.
     """
 
     def __init__(
@@ -110,11 +129,17 @@ class ReviewSession:
         *,
         config: Any = None,
         footage: dict[str, list[Path]] | None = None,
+        footage_dir: str | Path | None = None,
         cache_frames: int = 128,
     ):
         from ..config import Config
         from ..results import PoseResult, open_checked
 
+        if footage_dir is not None and not Path(footage_dir).expanduser().is_dir():
+            raise FootageError(
+                f"--footage-dir {footage_dir}: no such directory; pass the folder holding "
+                "the recording's videos"
+            )
         self.results_path = resolve_results(results)
         self.outdir = self.results_path.parent
         if config is None:
@@ -136,6 +161,7 @@ class ReviewSession:
                 np.asarray(f["pose2d/conf"][()], dtype=np.float64) if "pose2d/conf" in f else None
             )
         self.recording_dir = result.meta.get("recording")
+        self.recording_abspath = result.meta.get("recording_abspath")
         v, t, p = self.base2d.shape[:3]
         self.n_views, self.n_frames, self.n_points = v, t, p
         self.corrections_path = self._sidecar_path()
@@ -169,16 +195,22 @@ class ReviewSession:
             if result.reproj_error is not None
             else np.full((v, t, p), np.nan)
         )
+        self.error_before = self.error.copy()  # the result's, for the save check
         self._lock = threading.RLock()
         self._suspects = None
         self._suspects_stale = True
         self.dirty = False  # edits not yet saved
         self.notice = ""  # what the page and the terminal say on start (a replayed journal)
+        # the items to review: the suspects of the result as written, without this
+        # session's edits, so "12 / 21 reviewed" counts the same after a restart
+        self.review_items = self._find_suspects(self.base2d, None).items()
         self._replay_journal()
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
             self._resolve(int(tt), int(pp))
+        self.footage_missing = ""
+        self.footage_dir: Path | None = None
         if footage is None:
-            footage = self._find_footage()
+            footage = self._find_footage(footage_dir)
         self.frames = {
             name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
             for name in self.view_names
@@ -212,27 +244,64 @@ class ReviewSession:
             return self.outdir / CORRECTIONS_FILE
         return path
 
-    def _find_footage(self) -> dict[str, list[Path]]:
+    def footage_candidates(self, footage_dir: str | Path | None = None) -> list[Path]:
+        """Where the footage may be, in the order tried: ``footage_dir`` alone when
+        given; else the recording directory as the result names it (a relative one
+        from the current directory), the absolute path recorded beside it when the
+        result was written (``recording_abspath``), and a relative one from the
+        output directory and the directories above it (the run's working directory
+        is usually one of them)."""
+        if footage_dir is not None:
+            return [Path(footage_dir).expanduser()]
+        named = Path(self.recording_dir).expanduser() if self.recording_dir else None
+        candidates = [named] if named is not None else []
+        if self.recording_abspath:
+            candidates.append(Path(self.recording_abspath))
+        if named is not None and not named.is_absolute():
+            candidates += [base / named for base in (self.outdir, *self.outdir.parents[:4])]
+        unique = []
+        for path in candidates:
+            if path not in unique:
+                unique.append(path)
+        return unique
+
+    def _find_footage(self, footage_dir: str | Path | None = None) -> dict[str, list[Path]]:
+        """Each view's footage from the first candidate directory holding any; what is
+        missing is said in :attr:`footage_missing` (and logged)."""
         from ..config.sources import footage_globs
         from ..interop.views import footage_files
 
-        if not self.recording_dir or not Path(self.recording_dir).is_dir():
-            log.warning(
-                "%s: recording directory %r not found; views show no footage",
-                self.results_path,
-                self.recording_dir,
+        tried = self.footage_candidates(footage_dir)
+        found: dict[str, list[Path]] = {}
+        problem = ""
+        for directory in tried:
+            if not directory.is_dir():
+                continue
+            try:
+                found = footage_files(footage_globs(self.config), directory)
+            except (FlylibError, OSError) as exc:  # footage is a nicety: points reviewable
+                problem = f"{directory}: {exc}"
+                continue
+            if any(found.values()):
+                self.footage_dir = directory
+                break
+        missing = [name for name in self.view_names if not found.get(name)]
+        if missing:
+            where = (
+                f"--footage-dir {tried[0]}"
+                if footage_dir is not None
+                else f"the recording directory {self.recording_dir!r} named in "
+                f"{self.results_path.name} (looked in {', '.join(map(str, tried)) or 'nowhere'})"
             )
-            return {}
-        try:
-            return footage_files(footage_globs(self.config), Path(self.recording_dir))
-        except (
-            FlylibError,
-            OSError,
-        ) as exc:  # footage is a nicety: points can be reviewed without it
-            log.warning(
-                "footage of %s not found (%s); views show no footage", self.recording_dir, exc
+            detail = f" ({problem})" if problem and not any(found.values()) else ""
+            views = "every view" if len(missing) == len(self.view_names) else ", ".join(missing)
+            self.footage_missing = (
+                f"no footage for {views}: not found in {where}{detail}; the points are "
+                "shown without it. Start `flylib gui` with --footage-dir DIR (the folder "
+                "holding the videos)"
             )
-            return {}
+            log.warning("flylib gui: %s", self.footage_missing)
+        return found
 
     # -- reading -----------------------------------------------------------------------
 
@@ -253,6 +322,7 @@ class ReviewSession:
             "revision": self.revision,
             "dirty": self.dirty,
             "notice": self.notice,
+            "footage_missing": self.footage_missing,
             "views": [
                 {
                     "name": n,
@@ -264,6 +334,8 @@ class ReviewSession:
             ],
             "frames": self.n_frames,
             "points": list(sk.point_names),
+            "limbs": limb_names,
+            "point_limbs": np.asarray(sk.limb_id, int).tolist(),
             "bones": np.asarray(sk.bones, int).tolist(),
             "point_colors": [sk.limb_color(limb_names[i]) for i in np.asarray(sk.limb_id, int)],
             "bone_colors": [
@@ -326,29 +398,50 @@ class ReviewSession:
                 "suspects": suspects,
                 "dirty": self.dirty,
                 "edits": self.corrections.count(),
+                "reviewed": self.corrections.reviewed[t].tolist(),
                 "revision": self.revision,
             }
 
     def suspects(self):
         """Suspects of the current state (recomputed after edits, lazily)."""
-        from ..suspects import find_suspects
-
         with self._lock:
             if self._suspects is None or self._suspects_stale:
                 self._suspects_stale = False
-                self._suspects = find_suspects(
-                    self.pts3d,
-                    self.used2d,
-                    self.error,
-                    self.skeleton.bones,
-                    pts2d_input=np.where(
-                        self.corrections.touched()[..., None], np.nan, self.base2d
-                    ),
-                    corrected=self.corrections.corrected_points(),
-                    point_names=list(self.skeleton.point_names),
-                    view_names=self.view_names,
+                self._suspects = self._find_suspects(
+                    np.where(self.corrections.touched()[..., None], np.nan, self.base2d),
+                    self.corrections.corrected_points(),
                 )
             return self._suspects
+
+    def _find_suspects(self, pts2d_input: np.ndarray, corrected: np.ndarray | None):
+        from ..suspects import find_suspects
+
+        return find_suspects(
+            self.pts3d,
+            self.used2d,
+            self.error,
+            self.skeleton.bones,
+            pts2d_input=pts2d_input,
+            corrected=corrected,
+            point_names=list(self.skeleton.point_names),
+            view_names=self.view_names,
+        )
+
+    def review(self) -> dict:
+        """Review progress: each item of the result's suspects (:attr:`review_items`)
+        with ``done`` (every frame of it marked reviewed / OK or corrected), and the
+        counts ``done`` / ``total``."""
+        with self._lock:
+            settled = self.corrections.reviewed | self.corrections.corrected_points()
+            items = [
+                {**item, "done": bool(settled[item["frames"], item["point"]].all())}
+                for item in self.review_items
+            ]
+        return {
+            "items": items,
+            "done": sum(item["done"] for item in items),
+            "total": len(items),
+        }
 
     def suspects_payload(self) -> dict:
         s = self.suspects()
@@ -356,7 +449,43 @@ class ReviewSession:
             "suspects": s.records(),
             "items": s.items(),
             "frame_score": np.round(s.frame_score, 3).tolist(),
+            "review": self.review(),
         }
+
+    def save_check(self, worse_px: float = 2.0) -> dict:
+        """What the edits made worse, said before saving: corrected points whose
+        largest reprojection error over the views grew by more than ``worse_px``
+        pixels, and suspects that the result did not have.
+
+        Returns
+        -------
+        dict
+            ``worse`` and ``new_suspects``: one line each (at most 10 each), and
+            ``count`` of both in all.
+        """
+        names = self.skeleton.point_names
+        with self._lock:
+            corrected = self.corrections.corrected_points()
+            # the largest error over the views (-1: the point is seen by none)
+            error = np.where(np.isfinite(self.error), self.error, -1.0)
+            now = error.max(axis=0)
+            was = np.where(np.isfinite(self.error_before), self.error_before, -1.0).max(axis=0)
+            worse = np.argwhere(corrected & (now > np.maximum(was, 0.0) + worse_px))
+            lines = []
+            for t, p in worse[:10].tolist():
+                v = int(error[:, t, p].argmax())
+                before = f"{was[t, p]:.1f} px" if was[t, p] >= 0 else "none"
+                lines.append(
+                    f"{names[p]} at frame {t}: {now[t, p]:.1f} px from its 3D in "
+                    f"{self.view_names[v]} (was {before})"
+                )
+            known = {(f, it["point"]) for it in self.review_items for f in it["frames"]}
+            fresh = [r for r in self.suspects().records() if (r["frame"], r["point"]) not in known]
+            new = [
+                f"{r['point_name']} at frame {r['frame']}: {', '.join(r['reasons'])}"
+                for r in fresh[:10]
+            ]
+        return {"worse": lines, "new_suspects": new, "count": len(worse) + len(fresh)}
 
     # -- editing -------------------------------------------------------------------------
 
@@ -405,7 +534,9 @@ class ReviewSession:
             move the 3D point the least so that it projects onto ``xy`` in ``view``, the
             closest point to it on that pixel's ray), ``invisible`` (drop it in ``view``),
             ``reset_point`` (``view`` given: that view only; else every view and its 3D
-            edit), ``reset_view`` or ``reset_frame``.
+            edit), ``reset_view``, ``reset_frame``, or ``reviewed`` / ``unreviewed``
+            (mark the point at this frame reviewed / OK, or clear the mark: review
+            progress, stored in the sidecar, nothing re-solved).
         frame, point, view, xy
             The target; ``frame`` and ``point`` integers (not booleans), ``xy`` two
             finite raw-frame pixel coordinates inside the view's image.
@@ -477,7 +608,7 @@ class ReviewSession:
         if op not in EDIT_OPS:
             raise ValueError(
                 f"unknown edit {str(op)[:40]!r}; use move, move3d, invisible, reset_point, "
-                "reset_view or reset_frame"
+                "reset_view, reset_frame, reviewed or unreviewed"
             )
         if type(fixed) is not bool:
             raise ValueError(f"fixed must be true or false, got {str(fixed)[:40]}")
@@ -488,9 +619,9 @@ class ReviewSession:
             raise ValueError("view must be a camera name")
         v = None if view is None else self.view_index(view)
         record: dict[str, Any] = {"op": op, "frame": t, "view": view}
-        if op in ("move", "move3d", "invisible", "reset_point"):
+        if op in ("move", "move3d", "invisible", "reset_point", "reviewed", "unreviewed"):
             record["point"] = p = self._check_point(_integer("point", point))
-            if op != "reset_point" and v is None:
+            if op in ("move", "move3d", "invisible") and v is None:
                 raise ValueError(f"{op} needs a view")
         elif op == "reset_view" and v is None:
             raise ValueError("reset_view needs a view")
@@ -532,6 +663,9 @@ class ReviewSession:
             self.corrections.set_invisible(v, t, p)
         elif op == "reset_point":
             self.corrections.reset(t, point=p, view=v)
+        elif op in ("reviewed", "unreviewed"):
+            self.corrections.reviewed[t, p] = op == "reviewed"
+            return []
         elif op == "reset_view":
             self.corrections.reset(t, view=v)
             return range(self.n_points)
@@ -545,6 +679,7 @@ class ReviewSession:
         replay = read_journal(self._journal.path)
         if not replay.edits and not replay.damaged:
             return
+        before = copy.deepcopy(self.corrections)
         applied, refused = 0, []
         for record in replay.edits:
             try:
@@ -556,9 +691,14 @@ class ReviewSession:
             applied += 1
         self.revision += applied
         self.dirty = applied > 0
+        # counted as Save counts them (points), not journal lines (a drag journals
+        # each of its positions)
+        changed, marks = _changes(before, self.corrections)
+        steps = f", {applied} journal steps" if applied != changed else ""
+        marks_text = f" and {marks} review mark(s)" if marks else ""
         parts = [
-            f"{applied} unsaved edit(s) replayed from {self._journal.path} "
-            "(a previous session stopped before saving); press Save to keep them"
+            f"{changed} unsaved edit(s){marks_text} replayed from {self._journal.path} "
+            f"(a previous session stopped before saving{steps}); press Save to keep them"
         ]
         if (
             replay.sidecar_revision is not None
@@ -726,6 +866,23 @@ def _finite(name: str, value: int | float, what: str) -> float:
     if not math.isfinite(number):
         raise ValueError(f"{name} must be finite {what}, got {shown(value)}")
     return number
+
+
+def _changes(before: Corrections, after: Corrections) -> tuple[int, int]:
+    """How many point edits (observations and 3D points, as
+    :meth:`~flylib.corrections.Corrections.count` counts them) and review marks differ."""
+
+    def differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return ~((a == b) | (np.isnan(a) & np.isnan(b))).all(-1)
+
+    observations = (
+        (before.edited != after.edited)
+        | (before.fixed != after.fixed)
+        | (before.invisible != after.invisible)
+        | differ(before.points, after.points)
+    )
+    points3d = (before.edited3d != after.edited3d) | differ(before.points3d, after.points3d)
+    return int(observations.sum() + points3d.sum()), int((before.reviewed != after.reviewed).sum())
 
 
 def _raise_key(view: str):

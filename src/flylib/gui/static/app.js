@@ -5,7 +5,7 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
 import { applyLayout } from "./layout.js";
 import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
-import { neighbourItem, renderItems } from "./suspects.js";
+import { itemPlan, neighbourItem, renderItems } from "./suspects.js";
 import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
@@ -15,6 +15,9 @@ const state = {
   suspects: [], items: [], frameScore: [], suspectFrames: [], sort: { key: "score", asc: false },
   drawn: {}, lastServerMs: null, requestId: 0, hover: null, history: new EditHistory(), view3d: null,
   revision: 0, offline: false,
+  // the display, kept per recording in this browser (localStorage)
+  display: { overlay: true, labels: false, limb: null, brightness: 100, contrast: 100, gamma: 1 },
+  peek: false, playing: null,
 };
 const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewhere });
 
@@ -26,6 +29,10 @@ async function start() {
   state.revision = meta.revision;
   $("#recording").textContent = meta.results;
   if (meta.notice) showAlert(meta.notice, "info");
+  if (meta.footage_missing) {
+    $("#footage-banner").textContent = meta.footage_missing;
+    $("#footage-banner").hidden = false;
+  }
   const slider = $("#slider");
   slider.max = meta.frames - 1;
   slider.addEventListener("input", () => goto(Number(slider.value)));
@@ -60,9 +67,13 @@ async function start() {
     redrawAll();
   });
   buildLegend($("#legend"), meta);
+  loadDisplay();
+  buildDisplayControls();
   new ResizeObserver(() => { relayout(); redrawAll(); }).observe(container);
   wireControls();
-  relayout();
+  let panel = null;
+  try { panel = localStorage.getItem("flylib.panel"); } catch { /* private mode */ }
+  setPanel(panel ? panel === "open" : window.innerWidth >= 1500);
   await loadSuspects();
   await goto(initialFrame(new URLSearchParams(location.search).get("frame")));
 }
@@ -133,9 +144,11 @@ function draw(view) {
   resize(view);
   const image = state.images[view.name];
   const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
+  const d = state.display;
   view.transform = drawView(view.canvas, image, view, state.meta, state.data,
-    { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel });
-  drawMarks(view, sel);
+    { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel, overlay: d.overlay,
+      limb: d.limb, peek: state.peek, filter: footageFilter() });
+  if (!state.peek) drawMarks(view, sel);
   const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
     image && image.src.includes(`/${state.frame}?`);
   if (state.data && state.data.frame === state.frame && imageReady) {
@@ -151,11 +164,116 @@ function drawMarks(view, selected) {
     if (isFixed && v.points2d[p]) drawFixedMark(view.canvas, toCanvas(view.transform, v.points2d[p]));
   });
   const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
-  for (const p of new Set([selected, hover])) {
+  const shown = (p) => state.display.limb === null || state.meta.point_limbs[p] === state.display.limb;
+  // labels always on (l): every drawn point's name; else the hovered and the selected one
+  const named = state.display.labels ? state.meta.points.map((_, p) => p).filter(shown) : [];
+  for (const p of new Set([...named, selected, hover])) {
     if (p === null || p === undefined) continue;
     const xy = v.points2d[p] || v.reprojected[p];
     if (!xy) continue;
     drawPointLabel(view.canvas, toCanvas(view.transform, xy), state.meta.points[p], state.meta.point_colors[p]);
+  }
+}
+
+// -- display: overlay, labels, one limb, brightness / contrast / gamma -----------------
+
+function footageFilter() {
+  const d = state.display;
+  if (d.brightness === 100 && d.contrast === 100 && d.gamma === 1) return "none";
+  return `brightness(${d.brightness}%) contrast(${d.contrast}%)` + (d.gamma !== 1 ? " url(#gamma)" : "");
+}
+
+function displayKey() { return `flylib.display:${state.meta.results}`; }
+
+function loadDisplay() {
+  try {
+    const saved = JSON.parse(localStorage.getItem(displayKey()) || "null");
+    if (saved && typeof saved === "object") {
+      for (const key of Object.keys(state.display)) if (key in saved) state.display[key] = saved[key];
+    }
+  } catch { /* private mode or a damaged entry: the defaults */ }
+  if (state.display.limb !== null && !(state.display.limb >= 0 && state.display.limb < state.meta.limbs.length)) state.display.limb = null;
+}
+
+function setDisplay(change) {
+  Object.assign(state.display, change);
+  try { localStorage.setItem(displayKey(), JSON.stringify(state.display)); } catch { /* private mode */ }
+  showDisplay();
+  redrawAll();
+}
+
+function showDisplay() {
+  // the controls show the display's state
+  const d = state.display;
+  $("#overlay").classList.toggle("active", d.overlay);
+  $("#labels").classList.toggle("active", d.labels);
+  $("#limb").value = d.limb === null ? "" : String(d.limb);
+  for (const key of ["brightness", "contrast", "gamma"]) {
+    $(`#${key}`).value = String(d[key]);
+    $(`#${key}-value`).textContent = key === "gamma" ? d.gamma.toFixed(2) : `${d[key]}%`;
+  }
+  // gamma: the SVG filter the footage is drawn through (CSS filters have none)
+  for (const f of document.querySelectorAll("#gamma feFuncR, #gamma feFuncG, #gamma feFuncB")) {
+    f.setAttribute("exponent", String(1 / d.gamma));
+  }
+}
+
+function buildDisplayControls() {
+  const select = $("#limb");
+  const all = document.createElement("option");
+  all.value = "";
+  all.textContent = "all limbs";
+  select.replaceChildren(all, ...state.meta.limbs.map((name, i) => {
+    const option = document.createElement("option");
+    option.value = String(i);
+    option.textContent = name;
+    return option;
+  }));
+  select.addEventListener("change", () => setDisplay({ limb: select.value === "" ? null : Number(select.value) }));
+  $("#overlay").addEventListener("click", () => setDisplay({ overlay: !state.display.overlay }));
+  $("#labels").addEventListener("click", () => setDisplay({ labels: !state.display.labels }));
+  for (const key of ["brightness", "contrast", "gamma"]) {
+    $(`#${key}`).addEventListener("input", () => setDisplay({ [key]: Number($(`#${key}`).value) }));
+  }
+  $("#display-reset").addEventListener("click", () => setDisplay({ brightness: 100, contrast: 100, gamma: 1 }));
+  showDisplay();
+}
+
+function cycleLimb(direction) {
+  // [ / ]: show one limb after another, then all
+  const n = state.meta.limbs.length;
+  const at = state.display.limb === null ? (direction > 0 ? -1 : n) : state.display.limb;
+  const next = at + direction;
+  setDisplay({ limb: next < 0 || next >= n ? null : next });
+  status(state.display.limb === null ? "all limbs shown" : `only ${state.meta.limbs[state.display.limb]} shown ([ ] for another, all after the last)`);
+}
+
+// -- playback --------------------------------------------------------------------------
+
+function togglePlay() {
+  // space: play from here at the chosen frames per second (each frame drawn before the next)
+  if (state.playing) { clearTimeout(state.playing.timer); state.playing = null; $("#play").textContent = "\u25B6"; return; }
+  const fps = Math.max(1, Math.min(120, Number($("#fps").value) || 10));
+  state.playing = { timer: null };
+  $("#play").textContent = "\u275A\u275A";
+  const tick = async () => {
+    if (!state.playing) return;
+    const started = performance.now();
+    if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
+    await goto(state.frame + 1);
+    if (state.playing) state.playing.timer = setTimeout(tick, Math.max(0, 1000 / fps - (performance.now() - started)));
+  };
+  tick();
+}
+
+async function stopServer() {
+  // the page's Stop button: the server exits (unsaved edits stay journaled)
+  const dirty = state.data && state.data.dirty;
+  if (!confirm(dirty ? "Stop flylib gui? The unsaved edits stay in the journal and come back with the next `flylib gui`." : "Stop flylib gui?")) return;
+  try {
+    await postJSON("/api/stop", {});
+  } catch (err) {
+    status(`not stopped: ${err.detail || err.message}`);
   }
 }
 
@@ -169,6 +287,7 @@ function redrawAll() {
   const edits = state.data ? state.data.edits : 0;
   $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
   $("#save").textContent = state.data && state.data.dirty ? `Save (${edits})` : "Save";
+  $("#save").title = `write corrections.h5 (s): ${edits} point edit(s) in all`;
 }
 
 // -- suspects --------------------------------------------------------------------------
@@ -189,6 +308,8 @@ async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
   state.items = payload.items || [];
+  state.review = payload.review || { items: [], done: 0, total: 0 };
+  $("#progress").textContent = `${state.review.done} / ${state.review.total} reviewed`;
   state.frameScore = payload.frame_score;
   state.suspectFrames = [...new Set(state.suspects.map((s) => s.frame))].sort((a, b) => a - b);
   $("#suspect-count").textContent =
@@ -199,8 +320,10 @@ async function loadSuspects() {
 }
 
 function renderSuspectTable() {
-  renderItems($("#suspects tbody"), state.items, state.sort, state.frame,
-    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point }));
+  const done = new Set((state.review ? state.review.items : []).filter((it) => it.done)
+    .flatMap((it) => it.frames.map((f) => `${it.point}:${f}`)));
+  renderItems($("#suspects tbody"), state.items, state.sort, state.frame, done,
+    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames }));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
     th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
@@ -208,11 +331,13 @@ function renderSuspectTable() {
 }
 
 async function jumpToSuspect(s) {
+  // the item (a point's consecutive suspect frames) stays the one worked on after its
+  // frames are corrected and it leaves the list (a = apply to it)
+  if (s.frames) state.item = { point: s.point, frames: [...s.frames] };
   await goto(s.frame);
   const view = bestViewFor(s.point);
   state.selected = { view: view.name, point: s.point };
-  if (state.layout === "focus") setFocus(view.index);
-  redrawAll();
+  focusOn(view, s.point);
 }
 
 function bestViewFor(point) {
@@ -231,7 +356,7 @@ function stepSuspect(direction) {
   if (!state.items.length) return status("no suspects");
   const point = state.selected ? state.selected.point : null;
   const item = neighbourItem(state.items, state.sort, state.frame, point, direction);
-  return jumpToSuspect({ frame: item.peak_frame, point: item.point });
+  return jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames });
 }
 
 // -- editing ---------------------------------------------------------------------------
@@ -306,6 +431,112 @@ async function toggleFixed() {
   await refresh();
 }
 
+// -- item-level correction -------------------------------------------------------------
+
+async function snapToGhost() {
+  // c: the selected point onto its 3D ghost in its view (an Edit 2D move, undoable)
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const view = state.views.find((v) => v.name === s.view);
+  const v = state.data.views[view.index];
+  const ghost = v.reprojected[s.point];
+  if (!ghost) return status(`${state.meta.points[s.point]} has no 3D at frame ${state.frame}: nothing to snap to`);
+  const xy = [Math.min(view.width, Math.max(0, ghost[0])), Math.min(view.height, Math.max(0, ghost[1]))];
+  if (await sendEdit({ op: "move", view: s.view, point: s.point, xy, fixed: Boolean(v.fixed && v.fixed[s.point]) })) {
+    await refresh();
+    status(`${state.meta.points[s.point]} in ${s.view} placed on its 3D ghost at frame ${state.frame}`);
+  }
+}
+
+function currentItem(point) {
+  // the item worked on (kept from n / p / a click), else the listed one at this frame
+  if (state.item && state.item.point === point && state.item.frames.includes(state.frame)) return state.item;
+  const listed = state.items.find((it) => it.point === point && it.frames.includes(state.frame));
+  return listed ? { point, frames: [...listed.frames] } : null;
+}
+
+async function applyToItem() {
+  // a: the selected point's edits in its view over the item's other frames, each frame
+  // one journaled move; one undo takes them all back
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const item = currentItem(s.point);
+  if (!item || item.frames.length < 2) return status("a: the selected point is in no suspect item of several frames here (pick one in the list, or n)");
+  const view = state.views.find((v) => v.name === s.view);
+  const data = {};
+  for (const f of item.frames) data[f] = f === state.frame ? state.data : await getJSON(`/api/points/${f}`);
+  const edited = {};
+  for (const f of item.frames) {
+    const v = data[f].views[view.index];
+    if (v.edited[s.point] && v.points2d[s.point]) edited[f] = v.points2d[s.point];
+  }
+  const plan = itemPlan(item.frames, edited);
+  const frames = Object.keys(plan).map(Number);
+  if (!Object.keys(edited).length) return status(`a: correct ${state.meta.points[s.point]} in ${s.view} in at least one frame of the item first (drag it, or c: onto its 3D)`);
+  if (!frames.length) return status("a: every frame of the item is already edited");
+  const undo = [], redo = [];
+  const results = [];
+  for (const f of frames) {
+    const v = data[f].views[view.index];
+    const message = { op: "move", frame: f, view: s.view, point: s.point, xy: plan[f].map((c) => Math.round(c * 100) / 100),
+      fixed: Boolean(v.fixed && v.fixed[s.point]) };
+    const reply = await submit(message);
+    if (!reply) break;
+    undo.push(...restoreMessages(data[f], [s.point]));
+    redo.push({ ...message, durable: true });
+    results.push({ frame: f, error: reply.views[view.index].error[s.point] });
+  }
+  if (redo.length) state.history.record({ frame: state.frame, undo, redo });
+  await refresh();
+  const shown = results.map((r) => `${r.frame}: ${r.error === null ? "dropped" : `${r.error.toFixed(1)} px`}`).join(", ");
+  state.applied = { frames: results.map((r) => r.frame), errors: results.map((r) => r.error) };
+  status(`applied to frames ${item.frames[0]}\u2013${item.frames[item.frames.length - 1]} of ${state.meta.points[s.point]} in ${s.view} ` +
+    `(from edited ${Object.keys(edited).join(", ")}); reprojection error now ${shown}: step through them (\u2190 \u2192), Ctrl+Z undoes all`);
+}
+
+// -- review progress -------------------------------------------------------------------
+
+function reviewItemHere(point) {
+  // the review item of the selected point at this frame (the item worked on first)
+  if (point === null || point === undefined) return null;
+  const items = state.review ? state.review.items : [];
+  return items.find((it) => it.point === point && it.frames.includes(state.frame)) ||
+    (state.item && state.item.point === point && state.item.frames.includes(state.frame) ? state.item : null);
+}
+
+async function markReviewed() {
+  // k: the selected point's item reviewed / OK at every frame of it (again: unmarked),
+  // journaled and undoable like an edit; then the next unreviewed item
+  const s = selectedOrWarn();
+  if (!s || state.offline) return;
+  const item = reviewItemHere(s.point);
+  if (!item) return status(`k: ${state.meta.points[s.point]} is in no suspect item at frame ${state.frame}`);
+  const mark = !(state.data.reviewed && state.data.reviewed[s.point]);
+  const op = mark ? "reviewed" : "unreviewed", back = mark ? "unreviewed" : "reviewed";
+  const redo = [], undo = [];
+  for (const f of item.frames) {
+    const message = { op, frame: f, point: s.point };
+    if (!(await submit(message))) break;
+    redo.push({ ...message, durable: true });
+    undo.push({ op: back, frame: f, point: s.point });
+  }
+  if (redo.length) state.history.record({ frame: state.frame, undo, redo });
+  await refresh();
+  status(`${state.meta.points[s.point]} at frames ${item.frames.join(", ")} ${mark ? "marked reviewed" : "no longer marked reviewed"}` +
+    ` (${state.review.done} / ${state.review.total} reviewed)`);
+  if (mark) await nextUnreviewed(true);
+}
+
+async function nextUnreviewed(quiet = false) {
+  // u: the next item not yet reviewed (nor corrected), best first, after the current one
+  const items = state.review ? state.review.items : [];
+  const open = items.filter((it) => !it.done);
+  if (!open.length) { if (!quiet) status(`every suspect item is reviewed (${state.review.done} / ${state.review.total})`); return; }
+  const here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
+  const next = items.slice(here + 1).find((it) => !it.done) || open[0];
+  await jumpToSuspect({ frame: next.peak_frame, point: next.point, frames: next.frames });
+}
+
 async function refresh() {
   // the server's current state of this frame and the suspects (re-found once an edit is
   // done, not on every drag step)
@@ -376,8 +607,15 @@ async function resetFrame() {
   await refresh();
 }
 
-async function save() {
+async function save(checked = false) {
+  // first what the edits made worse (a point farther from its 3D, new suspects): said
+  // in a dialog, saved only on "Save anyway"
   if (state.offline) return;
+  if (!checked) {
+    const check = await getJSON("/api/save-check");
+    if (check.count > 0) return showSaveCheck(check);
+  }
+  $("#save-check").hidden = true;
   let reply;
   try {
     reply = await postJSON("/api/save", { revision: state.revision });
@@ -396,6 +634,18 @@ async function save() {
   if (state.data) state.data.dirty = false;
   redrawAll();
   window.flylib.saved = reply;
+}
+
+function showSaveCheck(check) {
+  const box = $("#save-check");
+  const list = box.querySelector("ul");
+  const lines = [...check.worse.map((t) => `error raised: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const more = check.count - lines.length;
+  if (more > 0) lines.push(`and ${more} more`);
+  list.replaceChildren(...lines.map((t) => { const li = document.createElement("li"); li.textContent = t; return li; }));
+  box.hidden = false;
+  $("#save-anyway").focus();
+  status(`not saved yet: ${check.count} edit result(s) to look at first`);
 }
 
 function attachMouse(view) {
@@ -420,6 +670,8 @@ function attachMouse(view) {
       if (state.mode !== "view" && event.button === 0 && !state.offline) {
         drag = { kind: "point", point: hit, sending: false, pending: null, before: restoreMessages(state.data, [hit]) };
         state.dragging = true;
+      } else {
+        return;  // a press on a point selects it; it never pans the view
       }
     }
     if (!drag) drag = { kind: "pan", start: [cx, cy], zoom: { ...state.zoom[view.name] } };
@@ -508,6 +760,7 @@ function nearestPoint(view, cx, cy) {
   const dpr = window.devicePixelRatio || 1;
   let best = null, bestD = 12 * dpr;
   v.points2d.forEach((p, i) => {
+    if (state.display.limb !== null && state.meta.point_limbs[i] !== state.display.limb) return;
     // the 2D point, or the 3D ghost (Edit 3D, or where the point is invisible in this view)
     const ghost = state.mode === "3d" || v.invisible[i] || !p ? v.reprojected[i] : null;
     for (const q of [p, ghost]) {
@@ -526,6 +779,49 @@ function setLayout(layout) {
   state.layout = layout;
   $("#views").className = layout;
   setFocus(state.focus);
+}
+
+const FOCUS_ZOOM = 2.5;  // a focused point's view: the frame magnified around the point
+
+function focusOn(view, point) {
+  // the selected point's view large, zoomed to the point (g, n / p, a click in the list)
+  state.layout = "focus";
+  $("#views").className = "focus";
+  setFocus(view.index);
+  requestAnimationFrame(() => {
+    resize(view);
+    const v = state.data && state.data.views[view.index];
+    const xy = v && (v.points2d[point] || v.reprojected[point]);
+    if (xy) zoomTo(view, xy, FOCUS_ZOOM);
+    redrawAll();
+  });
+}
+
+function zoomTo(view, xy, scale) {
+  // zoom and pan `view` so that image point xy lies at the canvas centre
+  const canvas = view.canvas;
+  const fit = Math.min(canvas.width / view.width, canvas.height / view.height);
+  const z = state.zoom[view.name];
+  z.scale = scale;
+  z.x = canvas.width / 2 - xy[0] * fit * scale - (canvas.width - view.width * fit) / 2 * scale;
+  z.y = canvas.height / 2 - xy[1] * fit * scale - (canvas.height - view.height * fit) / 2 * scale;
+}
+
+function toggleFocus() {
+  // g: the selected point's view, zoomed to it (else view 1); again: back to the grid
+  if (state.layout === "focus") return setLayout("grid");
+  const s = state.selected;
+  const view = s ? state.views.find((v) => v.name === s.view) : state.views[0];
+  if (s) focusOn(view, s.point); else { state.focus = 0; setLayout("focus"); }
+}
+
+function setPanel(open) {
+  // the side panel (selection, suspects, legend, display): hidden, the views take its room
+  document.body.classList.toggle("panel-closed", !open);
+  $("#panel").classList.toggle("active", open);
+  try { localStorage.setItem("flylib.panel", open ? "open" : "closed"); } catch { /* private mode */ }
+  relayout();
+  requestAnimationFrame(redrawAll);
 }
 
 // views, then the 3D view (index = number of views) in the focus layout
@@ -548,15 +844,22 @@ function wireControls() {
     state.mode = state.offline ? "view" : input.value;
     state.editMode = state.mode !== "view";
   }));
-  $("#layout").addEventListener("click", () => setLayout(state.layout === "grid" ? "focus" : "grid"));
+  $("#layout").addEventListener("click", toggleFocus);
+  $("#panel").addEventListener("click", () => setPanel(document.body.classList.contains("panel-closed")));
   $("#invisible").addEventListener("click", markInvisible);
   $("#reset-point").addEventListener("click", () => resetPoint(false));
   $("#reset-view").addEventListener("click", resetView);
   $("#reset-frame").addEventListener("click", resetFrame);
-  $("#save").addEventListener("click", save);
+  $("#save").addEventListener("click", () => save());
+  $("#save-anyway").addEventListener("click", () => save(true));
+  $("#save-cancel").addEventListener("click", () => { $("#save-check").hidden = true; status("not saved"); });
   $("#undo").addEventListener("click", undo);
   $("#redo").addEventListener("click", redo);
   $("#fixed").addEventListener("click", toggleFixed);
+  $("#snap").addEventListener("click", snapToGhost);
+  $("#reviewed").addEventListener("click", markReviewed);
+  $("#next-unreviewed").addEventListener("click", () => nextUnreviewed());
+  $("#apply-item").addEventListener("click", applyToItem);
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
     const text = $("#frame-input").value.trim();
@@ -581,6 +884,12 @@ function wireControls() {
     goto(Math.floor((event.clientX - rect.left) / rect.width * state.meta.frames));
   });
   window.addEventListener("resize", () => { $("#timeline").width = $("#timeline").clientWidth; redrawAll(); });
+  window.addEventListener("keyup", (event) => {
+    if (event.key === "h" && state.peek) { state.peek = false; redrawAll(); }  // hold h: peek
+  });
+  window.addEventListener("blur", () => { if (state.peek) { state.peek = false; redrawAll(); } });
+  $("#play").addEventListener("click", togglePlay);
+  $("#stop-server").addEventListener("click", stopServer);
   window.addEventListener("keydown", (event) => {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
     if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
@@ -599,17 +908,28 @@ function wireControls() {
     else if (key === "e") setMode("2d");
     else if (key === "d") setMode("3d");
     else if (key === "i") markInvisible();
+    else if (key === "c") snapToGhost();
+    else if (key === "k") markReviewed();
+    else if (key === "o") setDisplay({ overlay: !state.display.overlay });
+    else if (key === "l") setDisplay({ labels: !state.display.labels });
+    else if (key === "h") { if (!state.peek) { state.peek = true; redrawAll(); } }
+    else if (key === "[") cycleLimb(-1);
+    else if (key === "]") cycleLimb(1);
+    else if (key === " ") togglePlay();
+    else if (key === "u") nextUnreviewed();
+    else if (key === "a") applyToItem();
     else if (key === "f") toggleFixed();
     else if (key === "r") resetPoint(false);
     else if (key === "R") resetPoint(true);
     else if (key === "v") resetView();
     else if (key === "x") resetFrame();
-    else if (key === "g") setLayout(state.layout === "grid" ? "focus" : "grid");
+    else if (key === "g") toggleFocus();
+    else if (key === "b") setPanel(document.body.classList.contains("panel-closed"));
     else if (key === "s" || (key === "S" && event.ctrlKey)) save();
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
     else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
     else if (key === "?") toggleHelp();
-    else if (key === "Escape") toggleHelp(false);
+    else if (key === "Escape") { toggleHelp(false); $("#save-check").hidden = true; }
     else return;
     event.preventDefault();
   });
@@ -635,6 +955,14 @@ window.flylib = {
       return { name: view.name, fill: (view.width * fit * view.height * fit) / (rect.width * rect.height),
         left: rect.left, top: rect.top, width: rect.width, height: rect.height };
     });
+  },
+  focusFill() {
+    // the large view's frame (unzoomed) as a fraction of the window's area
+    const view = state.views[state.focus];
+    if (state.layout !== "focus" || !view) return 0;
+    const rect = view.canvas.getBoundingClientRect();
+    const fit = Math.min(rect.width / view.width, rect.height / view.height);
+    return (view.width * fit * view.height * fit) / (window.innerWidth * window.innerHeight);
   },
   tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {

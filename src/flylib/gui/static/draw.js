@@ -20,11 +20,17 @@ export function drawView(canvas, image, view, meta, data, options) {
   ctx.fillStyle = "#000";
   ctx.fillRect(0, 0, canvas.width, canvas.height);
   if (image && image.complete && image.naturalWidth) {
+    const filter = options.filter && options.filter !== "none";
+    if (filter) ctx.filter = options.filter;  // brightness / contrast / gamma of the footage
     ctx.drawImage(image, t.ox, t.oy, view.width * t.scale, view.height * t.scale);
+    if (filter) ctx.filter = "none";
   }
-  if (!data) return t;
+  if (!data || options.peek) return t;  // hold h: the footage alone
   const v = data.views[options.viewIndex];
-  const pts = v.points2d, ghost = v.reprojected;
+  // the one-limb filter: the other limbs' points are not drawn
+  const shown = (i) => options.limb === null || options.limb === undefined || meta.point_limbs[i] === options.limb;
+  const pts = v.points2d.map((p, i) => (shown(i) ? p : null));
+  const ghost = options.overlay === false ? pts.map(() => null) : v.reprojected.map((p, i) => (shown(i) ? p : null));
   const r = Math.max(2.5, 3.5 * dpr);
   // ghost: the 3D reprojected, thin lines and crosses
   ctx.lineWidth = 1 * dpr;
@@ -42,10 +48,10 @@ export function drawView(canvas, image, view, meta, data, options) {
     line(ctx, [x - r, y - r], [x + r, y + r]);
     line(ctx, [x - r, y + r], [x + r, y - r]);
   });
-  // the 2D triangulation reads
+  // the 2D triangulation reads (their bones hidden with the overlay)
   ctx.lineWidth = 2 * dpr;
   meta.bones.forEach(([a, b], i) => {
-    if (!pts[a] || !pts[b]) return;
+    if (options.overlay === false || !pts[a] || !pts[b]) return;
     ctx.strokeStyle = meta.bone_colors[i];
     line(ctx, toCanvas(t, pts[a]), toCanvas(t, pts[b]));
   });
@@ -53,8 +59,8 @@ export function drawView(canvas, image, view, meta, data, options) {
   pts.forEach((p, i) => {
     const invisible = v.invisible[i];
     if (!p) {
-      if (invisible && ghost[i]) {  // an invisible point shows where the 3D puts it
-        const [x, y] = toCanvas(t, ghost[i]);
+      if (invisible && v.reprojected[i] && shown(i)) {  // an invisible point shows where the 3D puts it
+        const [x, y] = toCanvas(t, v.reprojected[i]);
         ctx.strokeStyle = "#fff";
         ctx.lineWidth = 1.5 * dpr;
         ctx.strokeRect(x - r * 1.6, y - r * 1.6, r * 3.2, r * 3.2);
@@ -109,4 +115,31 @@ export function drawTimeline(canvas, frameScore, suspectFrames, current) {
   });
   ctx.fillStyle = "rgba(106, 160, 255, 0.45)";  // the current frame, bars still visible
   ctx.fillRect(current * step, 0, Math.max(step, 2), h);
+  drawTicks(ctx, n, step, h);
+}
+
+export function tickEvery(frames, width, minGap = 70) {
+  // a round frame interval (1, 2, 5 x 10^k) whose labels are at least minGap px apart
+  if (!(width > 0) || !(frames > 0)) return Math.max(frames, 1);
+  for (let k = 1; k < frames * 10; k *= 10) {
+    for (const m of [1, 2, 5]) if ((m * k * width) / frames >= minGap) return m * k;
+  }
+  return Math.max(frames, 1);
+}
+
+function drawTicks(ctx, n, step, h) {
+  // frame numbers along the timeline
+  const every = tickEvery(n, step * n);
+  ctx.font = "10px system-ui, sans-serif";
+  ctx.fillStyle = "#aab";
+  ctx.strokeStyle = "#556";
+  ctx.lineWidth = 1;
+  for (let f = 0; f < n; f += every) {
+    const x = Math.round(f * step) + 0.5;
+    ctx.beginPath();
+    ctx.moveTo(x, 0);
+    ctx.lineTo(x, 5);
+    ctx.stroke();
+    ctx.fillText(String(f), x + 2, 11);
+  }
 }

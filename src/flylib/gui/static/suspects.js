@@ -22,14 +22,15 @@ export function framesText(item) {
     : `${item.first_frame}\u2013${item.last_frame}`;
 }
 
-export function renderItems(tbody, items, sort, frame, onPick) {
+export function renderItems(tbody, items, sort, frame, reviewed, onPick) {
   const rows = sortedItems(items, sort).map((item) => {
     const tr = document.createElement("tr");
     const covers = item.frames.includes(frame);
-    tr.className = covers ? "current" : "";
+    const done = item.frames.every((f) => reviewed.has(`${item.point}:${f}`));
+    tr.className = (covers ? "current" : "") + (done ? " reviewed" : "");
     tr.title = `frames ${item.frames.join(", ")}; at ${item.peak_frame}: ${item.detail}`;
     tr.dataset.rank = String(item.rank);
-    for (const text of [framesText(item), item.point_name, item.score.toFixed(2), item.reasons.join(", ")]) {
+    for (const text of [framesText(item), (done ? "\u2713 " : "") + item.point_name, item.score.toFixed(2), item.reasons.join(", ")]) {
       const td = document.createElement("td");
       td.textContent = text;
       tr.appendChild(td);
@@ -38,7 +39,7 @@ export function renderItems(tbody, items, sort, frame, onPick) {
     return tr;
   });
   tbody.replaceChildren(...rows);
-  const current = rows.find((tr) => tr.className === "current");
+  const current = rows.find((tr) => tr.classList.contains("current"));
   if (current && frame !== shownFrame) keepVisible(current);
   shownFrame = frame;
 }
@@ -68,4 +69,23 @@ export function neighbourItem(items, sort, frame, point, direction) {
     return direction > 0 ? list[0] : list[list.length - 1];
   }
   return list[(here + direction + list.length) % list.length];
+}
+
+export function itemPlan(frames, edited) {
+  // the positions for an item's frames from its edited ones: between two edited frames
+  // interpolated linearly, before the first / after the last the nearest edited one's
+  const keys = frames.filter((f) => edited[f]);
+  const plan = {};
+  if (!keys.length) return plan;
+  for (const f of frames) {
+    if (edited[f]) continue;
+    const after = keys.find((k) => k > f), before = [...keys].reverse().find((k) => k < f);
+    if (before !== undefined && after !== undefined) {
+      const w = (f - before) / (after - before);
+      plan[f] = edited[before].map((c, i) => c + w * (edited[after][i] - c));
+    } else {
+      plan[f] = [...edited[before !== undefined ? before : after]];
+    }
+  }
+  return plan;
 }
