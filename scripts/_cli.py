@@ -75,6 +75,23 @@ def add_rig_stage_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--recording", dest="recording_dir", type=Path, help="recording directory")
 
 
+def add_session_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--pose2d``, ``--members`` and ``--name``: a session's recordings (the arguments of
+    the session_calibration and session_summary scripts)."""
+    parser.add_argument(
+        "--pose2d",
+        dest="pose2d_paths",
+        nargs="+",
+        required=True,
+        type=Path,
+        help="the members' pose2d artifacts (.h5), in --members order",
+    )
+    parser.add_argument(
+        "--members", nargs="+", required=True, type=str, help="the members' recording ids"
+    )
+    parser.add_argument("--name", required=True, type=str, help="the session's name")
+
+
 def artifact_outdir(arguments: dict[str, Any]) -> Path:
     """The recording's output directory of a stage writing the artifact ``out_path``
     (``<outdir>/stages/x.h5`` gives ``<outdir>``; any other file its own directory)."""

@@ -7,22 +7,12 @@ from pathlib import Path
 
 from flylib.pipeline.session_calibration import SessionCalibrationInputs, run_session_calibration
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_session_arguments, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
     parser = script_parser(__doc__)
-    parser.add_argument(
-        "--pose2d",
-        dest="pose2d_paths",
-        nargs="+",
-        required=True,
-        type=Path,
-        help="the members' pose2d artifacts (.h5), in --members order",
-    )
-    parser.add_argument(
-        "--members", nargs="+", required=True, type=str, help="the members' recording ids"
-    )
+    add_session_arguments(parser)
     parser.add_argument(
         "--recordings",
         dest="recording_dirs",
@@ -30,7 +20,6 @@ def main(argv=None, *, job=None) -> int:
         type=Path,
         help="the members' recording directories (a per-recording calibration file)",
     )
-    parser.add_argument("--name", required=True, type=str, help="the session's name")
     parser.add_argument(
         "--out", dest="out_path", required=True, type=Path, help="session artifact to write"
     )

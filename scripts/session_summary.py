@@ -7,7 +7,7 @@ from pathlib import Path
 
 from flylib.pipeline.session_calibration import SessionSummaryInputs, run_session_summary
 
-from _cli import run_script, script_main, script_parser
+from _cli import add_session_arguments, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
@@ -19,14 +19,7 @@ def main(argv=None, *, job=None) -> int:
         type=Path,
         help="the session's artifact (session_calibration.h5)",
     )
-    parser.add_argument(
-        "--pose2d",
-        dest="pose2d_paths",
-        nargs="+",
-        required=True,
-        type=Path,
-        help="the members' pose2d artifacts (.h5), in --members order",
-    )
+    add_session_arguments(parser)
     parser.add_argument(
         "--bundle-adjustment",
         dest="trial_paths",
@@ -35,10 +28,6 @@ def main(argv=None, *, job=None) -> int:
         type=Path,
         help="the members' own bundle-adjustment artifacts, in --members order",
     )
-    parser.add_argument(
-        "--members", nargs="+", required=True, type=str, help="the members' recording ids"
-    )
-    parser.add_argument("--name", required=True, type=str, help="the session's name")
     parser.add_argument(
         "--out", dest="out_path", required=True, type=Path, help="session_summary.json to write"
     )
