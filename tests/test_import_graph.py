@@ -96,7 +96,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.run_summary",
         ),
     ),
-    ("applications", ("flylib.cli", "flylib.gui")),
+    ("applications", ("flylib.cli", "flylib.doctor", "flylib.gui", "flylib.starter")),
 )
 
 

@@ -187,7 +187,7 @@ def import_keys() -> list[tuple[str, str, str]]:
         match = re.match(r"^\s{8}(\w+):\s*(.*?)\s+#\s*(.*)$", line)
         if match:
             rows.append((match[1], match[2], match[3]))
-    missing = set(importer._KNOWN_KEYS) - {r[0] for r in rows}
+    missing = set(importer.IMPORT_KEYS) - {r[0] for r in rows}
     if missing:
         raise RuntimeError(f"flylib.interop.importer's docstring does not document {missing}")
     return rows

@@ -63,12 +63,12 @@ def test_the_config_reference_lists_every_key_of_the_default_config():
 
 
 def test_the_config_reference_lists_every_typed_param_and_import_key():
-    from flylib.interop.importer import _KNOWN_KEYS
+    from flylib.interop.importer import IMPORT_KEYS
 
     page = GEN.config_reference()
     for key in GEN.param_docs():
         assert f"`{key}`" in page, key
-    for key in _KNOWN_KEYS:
+    for key in IMPORT_KEYS:
         assert f"| `pose2d.import.{key}` |" in page, key
     (row,) = [line for line in page.splitlines() if "`pose2d.import.image_size`" in line]
     assert "height, width" in row

@@ -81,7 +81,8 @@ _DEFAULT_FILES = {
     "dlc_h5": "{view}.h5",
     "sleap": "{view}.analysis.h5",
 }
-_KNOWN_KEYS = {
+#: The keys a ``pose2d.import`` table may hold (the config reference lists each).
+IMPORT_KEYS = {
     "format",
     "files",
     "keypoint_map",
@@ -151,10 +152,10 @@ def import_spec(spec: Mapping | None) -> dict:
     where = "pose2d.import"
     if not isinstance(spec, dict):
         raise ImportFormatError(f"{where} must be a mapping with at least 'format', got {spec!r}")
-    unknown = sorted(str(k) for k in set(spec) - _KNOWN_KEYS)
+    unknown = sorted(str(k) for k in set(spec) - IMPORT_KEYS)
     if unknown:
         raise ImportFormatError(
-            f"{where}.{unknown[0]}: {unknown_key('key', unknown[0], sorted(_KNOWN_KEYS))}"
+            f"{where}.{unknown[0]}: {unknown_key('key', unknown[0], sorted(IMPORT_KEYS))}"
         )
     fmt = spec.get("format")
     if fmt not in FORMATS:

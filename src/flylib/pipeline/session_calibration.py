@@ -37,6 +37,11 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..camera.rig import CameraGroup
 
+    # the inherited fields' annotations, which the generated __init__ resolves here
+    from ..config.params import BundleAdjustmentParams  # noqa: F401
+    from .bundle_adjustment import BundleAdjustmentRuntime  # noqa: F401
+    from .inputs import RigSpec, SkeletonSpec  # noqa: F401
+
 log = logging.getLogger(__name__)
 
 __all__ = [
