@@ -50,18 +50,13 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 sys.path.insert(0, str(REPO / "tests"))
 
+from flylib.stages import REGISTRY  # noqa: E402
+
 from workflow_run import SNAKEMAKE, demo_batch
 
-#: The CPU stages of one recording, in the order they run.
-CPU_STAGES = (
-    "pose2d",
-    "bundle_adjustment",
-    "triangulation",
-    "refinement",
-    "assemble",
-    "visualization",
-    "kinematics",
-)
+#: The stages of one recording a default run makes jobs of, in registry order (the
+#: registry owns the list; pose2d, bundle adjustment, triangulation, refinement first).
+CPU_STAGES = tuple(s.name for s in REGISTRY if s.default_on is not False)
 
 
 def _children_cpu() -> float:
