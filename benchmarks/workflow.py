@@ -116,20 +116,22 @@ def _paired(checkouts: dict[str, Path], repeats: int):
 
 
 def _workdirs(root: Path, checkouts: dict[str, Path], config: dict) -> dict[str, Path]:
-    """A working directory per checkout (its outputs under ``results/``)."""
+    """A working directory per checkout (its outputs under ``results/``): each checkout's
+    own default config with the tables ``config`` changes from this checkout's (a release
+    may not know a key this checkout added)."""
+    changed = {k: v for k, v in config.items() if _base_config().get(k) != v}
     dirs = {}
-    for name in checkouts:
+    for name, repo in checkouts.items():
         work = root / name
         work.mkdir(parents=True, exist_ok=True)
-        (work / "config.yaml").write_text(
-            yaml.safe_dump({**config, "outdir": "results/{id}"}, sort_keys=False)
-        )
+        own = {**_base_config(repo), **changed, "outdir": "results/{id}"}
+        (work / "config.yaml").write_text(yaml.safe_dump(own, sort_keys=False))
         dirs[name] = work
     return dirs
 
 
-def _base_config() -> dict:
-    return yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+def _base_config(repo: Path = REPO) -> dict:
+    return yaml.safe_load((repo / "config" / "config.yaml").read_text())
 
 
 def bench_planning(checkouts: dict[str, Path], counts: list[int], cap: float, repeats: int):

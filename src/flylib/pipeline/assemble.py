@@ -187,10 +187,10 @@ START_FRAMES = 200
 
 def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict | None:
     """The handedness entry (:func:`flylib.handedness.rig_check`) of the result's 3D;
-    ``None`` without a 3D stage. With bundle adjustment, the 2D the 3D was solved from
-    is also triangulated through the starting (config) rig, so a mirror image is
-    blamed on the rig it came from."""
-    from ..handedness import handedness, rig_check
+    ``None`` without a 3D stage. With bundle adjustment, a 3D that is not a fly's is
+    also triangulated from its 2D through the starting (config) rig, so a mirror image
+    is blamed on the rig it came from."""
+    from ..handedness import RIGHT_HANDED, handedness, rig_check
     from ..results import read_stage
 
     stage = next(
@@ -204,7 +204,9 @@ def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict
     final = handedness(arrays["points3d"], skeleton)
     adjusted = "bundle_adjustment" in stage_files
     start = None
-    if adjusted:
+    # the starting rig only matters to say why a 3D is not a fly (triangulating through
+    # it costs every recording's assemble job a JAX trace otherwise)
+    if adjusted and final.verdict != RIGHT_HANDED:
         pts2d = arrays.get("points")
         if pts2d is None:
             pts2d = read_stage(stage_files["pose2d"], "pose2d")["points"]
