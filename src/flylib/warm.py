@@ -97,6 +97,7 @@ IMPORT_TIME_VARIABLES = (
 _ENABLE = "FLYLIB_WARM"
 _CHILD = "FLYLIB_WARM_CHILD"
 _HEADER = struct.Struct("!I")
+_MAX_SOCKET_PATH = 100  # a Unix socket's path has at most 107 bytes on Linux
 
 
 def enabled() -> bool:
@@ -128,8 +129,11 @@ def socket_path() -> Path:
     for name in sorted(os.environ):
         if any(name.startswith(v) if v.endswith("_") else name == v for v in IMPORT_TIME_VARIABLES):
             digest.update(f"\0{name}={os.environ[name]}".encode())
-    base = os.environ.get("XDG_RUNTIME_DIR") or "/tmp"
-    return Path(base) / f"flylib-warm-{os.getuid()}" / f"{digest.hexdigest()[:20]}.sock"
+    name = Path(f"flylib-warm-{os.getuid()}") / f"{digest.hexdigest()[:20]}.sock"
+    base = Path(os.environ.get("XDG_RUNTIME_DIR") or "/tmp")
+    if len(str(base / name)) > _MAX_SOCKET_PATH:
+        base = Path("/tmp")
+    return base / name
 
 
 def _private_folder(folder: Path) -> bool:
@@ -194,7 +198,8 @@ def forward(script: str | Path) -> int | None:
         return int(words[1])
     if words[:1] == ["signal"]:  # end as the child ended, so Snakemake reads the same
         signum = int(words[1])
-        signal.signal(signum, signal.SIG_DFL)
+        with contextlib.suppress(OSError, ValueError):  # SIGKILL has no handler to reset
+            signal.signal(signum, signal.SIG_DFL)
         os.kill(os.getpid(), signum)
     print(
         f"error: the warm process running this job ended first (set {_ENABLE}=0 to run "
@@ -307,6 +312,13 @@ def serve(path: Path, idle: float = IDLE_SECONDS) -> None:
     lock.write(f"{os.getpid()}\n")  # who serves (benchmarks/workflow.py reads its CPU time)
     lock.flush()
     os.environ[_CHILD] = "1"  # this process never forwards
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    # Listening before importing: a job that connects meanwhile waits for the imports
+    # rather than starting another warm process.
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen(64)
     started = time.perf_counter()
     for name in PRELOAD:
         try:
@@ -315,16 +327,11 @@ def serve(path: Path, idle: float = IDLE_SECONDS) -> None:
             _log(f"not preloaded {name}: {exc}")
     if _backend_started():
         _log("JAX's backend started while importing; not forking")
+        path.unlink()
         return
     gc.collect()
     gc.freeze()  # the children share the imported objects' pages instead of copying them
     _log(f"ready in {time.perf_counter() - started:.2f} s (pid {os.getpid()})")
-
-    with contextlib.suppress(FileNotFoundError):
-        path.unlink()
-    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    listener.bind(str(path))
-    listener.listen(64)
     wake_read, wake_write = os.pipe()
     os.set_blocking(wake_write, False)
     signal.set_wakeup_fd(wake_write)
