@@ -17,7 +17,10 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
    function run a second time in one warm process: no process start, imports or JIT).
    Fixed cost = job - compute (process start, Snakemake's script preamble, imports,
    JIT compilation, re-reading the config). Target: the CPU stages' total at most half
-   the baseline's.
+   the baseline's. The first run starts with no warm process (``flylib.warm``; any left
+   from earlier work are stopped): its jobs' total is printed apart, as a batch's first
+   recording; the table is the median of the later runs, as its later recordings. CPU
+   seconds count the warm processes' too.
 3. SLURM submissions of a batch of 3 recordings: the jobs and job groups that
    ``snakemake --profile profiles/slurm --dry-run`` would submit (no cluster needed;
    tests/workflow/test_slurm.py counts the real sbatch calls).
@@ -32,11 +35,13 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
 import re
 import resource
+import signal
 import statistics
 import subprocess
 import sys
@@ -164,6 +169,41 @@ def _job_seconds(outdir: Path) -> dict[str, float]:
     return seconds
 
 
+def _warm_processes() -> list[int]:
+    """The pids of this user's live warm processes (``flylib.warm``: each writes its pid
+    into the lock file beside its socket)."""
+    pids = []
+    for base in {Path(os.environ.get("XDG_RUNTIME_DIR") or "/tmp"), Path("/tmp")}:
+        for lock in base.glob(f"flylib-warm-{os.getuid()}/*.lock"):
+            words = lock.read_text().split()
+            try:
+                cmdline = Path(f"/proc/{words[0]}/cmdline").read_bytes()
+            except (IndexError, OSError):
+                continue
+            if b"flylib.warm" in cmdline:
+                pids.append(int(words[0]))
+    return pids
+
+
+def _warm_cpu() -> dict[int, float]:
+    """CPU seconds of each live warm process, its ended children's included."""
+    cpu = {}
+    for pid in _warm_processes():
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        cpu[pid] = sum(int(v) for v in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    return cpu
+
+
+def _stop_warm() -> None:
+    for pid in _warm_processes():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    time.sleep(1)
+
+
 def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
     """``{checkout: {"job": {stage: s}, "compute": {stage: s}, "jobs cpu": s,
     "compute cpu": s}}`` for one recording: the jobs' wall seconds (median of the runs)
@@ -177,11 +217,14 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
         work = _workdirs(root, checkouts, config)
         jobs: dict[str, list[dict[str, float]]] = {name: [] for name in checkouts}
         cpu: dict[str, list[float]] = {name: [] for name in checkouts}
+        _stop_warm()
         for _, name, repo in _paired(checkouts, repeats):
             _, planning, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall", "-n")
+            warm = _warm_cpu()
             _, run, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall")
+            warm = sum(v - warm.get(pid, 0.0) for pid, v in _warm_cpu().items())
             jobs[name].append(_job_seconds(work[name] / "results" / "rec00000"))
-            cpu[name].append(run - planning)
+            cpu[name].append(run - planning + warm)
         results = {}
         for name, repo in checkouts.items():
             out = root / f"direct-{name}"
@@ -191,8 +234,10 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
                 env=_env(repo),
             )
             compute = json.loads((out / "compute.json").read_text())
+            later = jobs[name][1:] or jobs[name]
             results[name] = {
-                "job": {s: statistics.median(r[s] for r in jobs[name]) for s in jobs[name][0]},
+                "first": sum(jobs[name][0].values()),
+                "job": {s: statistics.median(r[s] for r in later) for s in jobs[name][0]},
                 "compute": compute["wall"],
                 "jobs cpu": min(cpu[name]),
                 "compute cpu": compute["cpu"],
@@ -349,8 +394,8 @@ def _print_planning(plan: dict, cap: float) -> None:
 def _print_fixed(fixed: dict, frames: int) -> None:
     names = list(fixed)
     print(
-        f"per recording ({frames} frames), seconds: job (Snakemake benchmark file, median), "
-        "compute (warm, in one process), fixed = job - compute"
+        f"per recording ({frames} frames), seconds: job (Snakemake benchmark file, median "
+        "of the runs after the first), compute (warm, in one process), fixed = job - compute"
     )
     print(
         f"{'stage':18s}" + "".join(f"{n + ' job':>15s}{'compute':>9s}{'fixed':>8s}" for n in names)
@@ -368,6 +413,10 @@ def _print_fixed(fixed: dict, frames: int) -> None:
     print(
         f"{'all CPU stages':18s}"
         + "".join(f"{t[0]:15.2f}{t[1]:9.2f}{t[2]:8.2f}" for t in totals.values())
+    )
+    print(
+        "first run (no warm process yet), jobs' total: "
+        + ", ".join(f"{n} {fixed[n]['first']:.2f} s" for n in names)
     )
     for n in names:
         jobs_cpu, compute_cpu = fixed[n]["jobs cpu"], fixed[n]["compute cpu"]

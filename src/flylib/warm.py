@@ -13,7 +13,7 @@ its script, arguments, working directory, environment and its stdin/stdout/stder
 waits: the warm process forks a child that runs the script as ``__main__`` (the job's
 own process, log, lock and signal handling, see ``script_main``) and reports its exit
 status, which the job exits with. A stop signal the job receives is passed on to the
-child; a job that dies takes its child with it. The warm process exits after
+child; a job killed outright (SIGKILL) takes its child with it. The warm process exits after
 :data:`IDLE_SECONDS` without work.
 
 One warm process per code and environment: its socket is named by a hash of the Python,
@@ -97,6 +97,7 @@ IMPORT_TIME_VARIABLES = (
 _ENABLE = "FLYLIB_WARM"
 _CHILD = "FLYLIB_WARM_CHILD"
 _HEADER = struct.Struct("!I")
+_KEEP_LOGS_SECONDS = 7 * 24 * 3600
 _MAX_SOCKET_PATH = 100  # a Unix socket's path has at most 107 bytes on Linux
 
 
@@ -312,6 +313,10 @@ def serve(path: Path, idle: float = IDLE_SECONDS) -> None:
     lock.write(f"{os.getpid()}\n")  # who serves (benchmarks/workflow.py reads its CPU time)
     lock.flush()
     os.environ[_CHILD] = "1"  # this process never forwards
+    for log in path.parent.glob("*.log"):  # of earlier code or environments
+        with contextlib.suppress(OSError):
+            if time.time() - log.stat().st_mtime > _KEEP_LOGS_SECONDS:
+                log.unlink()
     with contextlib.suppress(FileNotFoundError):
         path.unlink()
     # Listening before importing: a job that connects meanwhile waits for the imports
@@ -353,17 +358,19 @@ def serve(path: Path, idle: float = IDLE_SECONDS) -> None:
                     os.read(wake_read, 512)
                     _reap(children, selector)
                     last_work = time.monotonic()
-                else:  # a job's connection readable: it ended (or died) first
+                else:  # a job's connection readable: the job died (SIGKILL) first
                     pid = key.data
-                    if pid in children:
+                    if pid in children:  # as its own process would have: at once
                         with contextlib.suppress(ProcessLookupError):
-                            os.kill(pid, signal.SIGTERM)
+                            os.kill(pid, signal.SIGKILL)
                     selector.unregister(key.fileobj)
             _reap(children, selector)
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()  # this process holds the lock: the socket is its own
+        for own in (path, path.with_suffix(".lock")):  # held by this process: its own
+            with contextlib.suppress(FileNotFoundError):
+                own.unlink()
         listener.close()
+        _log("idle: leaving")
 
 
 def _fork_job(conn: socket.socket, inherited: list, selector, children: dict) -> None:
