@@ -149,12 +149,18 @@ def test_a_job_error_is_printed_and_fails_the_job(warm, env, tmp_path):
     assert "body pid" in out and "RuntimeError: the job's own error" in err
 
 
-def test_a_stop_signal_reaches_the_child_and_the_job_ends_with_its_status(warm, env, tmp_path):
+def _waiting_job(tmp_path: Path, env: dict) -> tuple[subprocess.Popen, Path]:
+    """A job whose child waits (its stop handler set), and the child's marker file."""
     job = _job(tmp_path, env, "wait")
     job.stdin.write("\n")
     job.stdin.flush()
     marker = tmp_path / "marker"
     _wait_for(lambda: marker.exists())
+    return job, marker
+
+
+def test_a_stop_signal_reaches_the_child_and_the_job_ends_with_its_status(warm, env, tmp_path):
+    job, marker = _waiting_job(tmp_path, env)
     job.send_signal(signal.SIGTERM)
     out, _ = job.communicate(timeout=60)
     assert marker.read_text() == "SIGTERM"  # the child's own handler ran
@@ -162,11 +168,7 @@ def test_a_stop_signal_reaches_the_child_and_the_job_ends_with_its_status(warm, 
 
 
 def test_a_job_killed_outright_takes_its_child_with_it(warm, env, tmp_path):
-    job = _job(tmp_path, env, "wait")
-    job.stdin.write("\n")
-    job.stdin.flush()
-    marker = tmp_path / "marker"
-    _wait_for(lambda: marker.exists())
+    job, marker = _waiting_job(tmp_path, env)
     job.kill()  # SIGKILL (the out-of-memory killer's): the job cannot pass anything on
     out, _ = job.communicate(timeout=30)
     child = int(out.split("body pid=")[1].split()[0])
