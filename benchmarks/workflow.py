@@ -8,8 +8,10 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
 1. DAG time: ``snakemake --dry-run`` of N recordings (``--recordings 100,1000``): the
    demo's recording at 2 frames (7 videos, DeepLabCut CSVs) hard-linked N times and
    listed in a sheet with its 2D imported per recording, as a lab lists a batch (no
-   detector weights needed). Wall clock and CPU, the best of ``--repeats``. A dry run
-   longer than ``--cap`` seconds is stopped and reported as "> cap".
+   detector weights needed). Wall clock and CPU, the best of ``--repeats`` after a first
+   dry run, whose wall clock is printed apart: it reads every video's header, later ones
+   find the frame counts in flylib's cache (``flylib.recordings.FrameCountCache``). A
+   dry run longer than ``--cap`` seconds is stopped and reported as "> cap".
    Target: <= 20 s for 1,000 recordings.
 2. Fixed cost per recording: one such recording of ``--frames`` frames (60: the demo's)
    run through ``snakemake --cores 1``; each job's wall time (its Snakemake benchmark
@@ -17,7 +19,10 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
    function run a second time in one warm process: no process start, imports or JIT).
    Fixed cost = job - compute (process start, Snakemake's script preamble, imports,
    JIT compilation, re-reading the config). Target: the CPU stages' total at most half
-   the baseline's.
+   the baseline's. The first run starts with no warm process (``flylib.warm``; any left
+   from earlier work are stopped): its jobs' total is printed apart, as a batch's first
+   recording; the table is the median of the later runs, as its later recordings. CPU
+   seconds count the warm processes' too.
 3. SLURM submissions of a batch of 3 recordings: the jobs and job groups that
    ``snakemake --profile profiles/slurm --dry-run`` would submit (no cluster needed;
    tests/workflow/test_slurm.py counts the real sbatch calls).
@@ -32,11 +37,13 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
 import re
 import resource
+import signal
 import statistics
 import subprocess
 import sys
@@ -85,7 +92,7 @@ def _env(repo: Path) -> dict[str, str]:
 
 
 def _snakemake(
-    repo: Path, workdir: Path, *args: str, cap: float | None = None
+    repo: Path, workdir: Path, *args: str, cap: float | None = None, env: dict | None = None
 ) -> tuple[float, float, str]:
     """Wall-clock and CPU seconds of one snakemake call, and its output. A call longer
     than ``cap`` seconds is stopped: ``inf``."""
@@ -97,7 +104,7 @@ def _snakemake(
             capture_output=True,
             text=True,
             timeout=cap,
-            env=_env(repo),
+            env={**_env(repo), **(env or {})},
         )
     except subprocess.TimeoutExpired:
         return float("inf"), float("inf"), ""
@@ -135,21 +142,25 @@ def _base_config(repo: Path = REPO) -> dict:
 
 
 def bench_planning(checkouts: dict[str, Path], counts: list[int], cap: float, repeats: int):
-    """``{n: {checkout: (wall, cpu)}}``: the best dry run of each batch size."""
+    """``{n: {checkout: (wall, cpu)}}``: the best dry run of each batch size, and under
+    ``"first"`` each checkout's first dry run's wall time (its frame-count cache empty:
+    a cache folder of the benchmark's own)."""
     base = _base_config()
-    results: dict[int, dict[str, tuple[float, float]]] = {}
+    results: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for n in counts:
             config = {**base, "recordings": str(demo_batch(root / "batch", n, base))}
             work = _workdirs(root / f"plan{n}", checkouts, config)
-            for name, repo in checkouts.items():  # warm the imports and the file cache
-                _snakemake(repo, work[name], "--dry-run", cap=cap)
+            cache = {"FLYLIB_CACHE": str(root / f"cache{n}")}
+            first = {}
+            for name, repo in checkouts.items():  # also warms the imports and the file cache
+                first[name] = _snakemake(repo, work[name], "--dry-run", cap=cap, env=cache)[0]
             runs: dict[str, list[tuple[float, float]]] = {name: [] for name in checkouts}
             for _, name, repo in _paired(checkouts, repeats):
-                wall, cpu, _ = _snakemake(repo, work[name], "--dry-run", cap=cap)
+                wall, cpu, _ = _snakemake(repo, work[name], "--dry-run", cap=cap, env=cache)
                 runs[name].append((wall, cpu))
-            results[n] = {name: min(r) for name, r in runs.items()}
+            results[n] = {name: min(r) for name, r in runs.items()} | {"first": first}
     return results
 
 
@@ -162,6 +173,41 @@ def _job_seconds(outdir: Path) -> dict[str, float]:
             rows = list(csv.DictReader(path.open(), delimiter="\t"))
             seconds[stage] = float(rows[-1]["s"])
     return seconds
+
+
+def _warm_processes() -> list[int]:
+    """The pids of this user's live warm processes (``flylib.warm``: each writes its pid
+    into the lock file beside its socket)."""
+    pids = []
+    for base in {Path(os.environ.get("XDG_RUNTIME_DIR") or "/tmp"), Path("/tmp")}:
+        for lock in base.glob(f"flylib-warm-{os.getuid()}/*.lock"):
+            words = lock.read_text().split()
+            try:
+                cmdline = Path(f"/proc/{words[0]}/cmdline").read_bytes()
+            except (IndexError, OSError):
+                continue
+            if b"flylib.warm" in cmdline:
+                pids.append(int(words[0]))
+    return pids
+
+
+def _warm_cpu() -> dict[int, float]:
+    """CPU seconds of each live warm process, its ended children's included."""
+    cpu = {}
+    for pid in _warm_processes():
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        cpu[pid] = sum(int(v) for v in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    return cpu
+
+
+def _stop_warm() -> None:
+    for pid in _warm_processes():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    time.sleep(1)
 
 
 def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
@@ -177,11 +223,14 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
         work = _workdirs(root, checkouts, config)
         jobs: dict[str, list[dict[str, float]]] = {name: [] for name in checkouts}
         cpu: dict[str, list[float]] = {name: [] for name in checkouts}
+        _stop_warm()
         for _, name, repo in _paired(checkouts, repeats):
             _, planning, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall", "-n")
+            warm = _warm_cpu()
             _, run, _ = _snakemake(repo, work[name], "--cores", "1", "--forceall")
+            warm = sum(v - warm.get(pid, 0.0) for pid, v in _warm_cpu().items())
             jobs[name].append(_job_seconds(work[name] / "results" / "rec00000"))
-            cpu[name].append(run - planning)
+            cpu[name].append(run - planning + warm)
         results = {}
         for name, repo in checkouts.items():
             out = root / f"direct-{name}"
@@ -191,8 +240,10 @@ def bench_fixed(checkouts: dict[str, Path], frames: int, repeats: int) -> dict:
                 env=_env(repo),
             )
             compute = json.loads((out / "compute.json").read_text())
+            later = jobs[name][1:] or jobs[name]
             results[name] = {
-                "job": {s: statistics.median(r[s] for r in jobs[name]) for s in jobs[name][0]},
+                "first": sum(jobs[name][0].values()),
+                "job": {s: statistics.median(r[s] for r in later) for s in jobs[name][0]},
                 "compute": compute["wall"],
                 "jobs cpu": min(cpu[name]),
                 "compute cpu": compute["cpu"],
@@ -330,6 +381,7 @@ def bench_overhead(frames: int) -> dict:
 
 def _print_planning(plan: dict, cap: float) -> None:
     for n, runs in plan.items():
+        first = runs.pop("first")
         for name, (wall, cpu) in runs.items():
             if wall == float("inf"):
                 print(f"DAG time, {n} recordings, {name}: > {cap:.0f} s (stopped)")
@@ -339,6 +391,10 @@ def _print_planning(plan: dict, cap: float) -> None:
                 f"DAG time (snakemake -n), {n:>5} recordings, {name:>8}: {wall:6.2f} s wall, "
                 f"{cpu:6.2f} s CPU{target}"
             )
+        print(
+            "  first dry run (video headers read, no frame count cached): "
+            + ", ".join(f"{name} {wall:.2f} s" for name, wall in first.items())
+        )
         if "baseline" in runs and runs["baseline"][0] != float("inf"):
             print(
                 f"  this checkout / baseline: {runs['this'][0] / runs['baseline'][0]:.2f} wall, "
@@ -349,8 +405,8 @@ def _print_planning(plan: dict, cap: float) -> None:
 def _print_fixed(fixed: dict, frames: int) -> None:
     names = list(fixed)
     print(
-        f"per recording ({frames} frames), seconds: job (Snakemake benchmark file, median), "
-        "compute (warm, in one process), fixed = job - compute"
+        f"per recording ({frames} frames), seconds: job (Snakemake benchmark file, median "
+        "of the runs after the first), compute (warm, in one process), fixed = job - compute"
     )
     print(
         f"{'stage':18s}" + "".join(f"{n + ' job':>15s}{'compute':>9s}{'fixed':>8s}" for n in names)
@@ -368,6 +424,10 @@ def _print_fixed(fixed: dict, frames: int) -> None:
     print(
         f"{'all CPU stages':18s}"
         + "".join(f"{t[0]:15.2f}{t[1]:9.2f}{t[2]:8.2f}" for t in totals.values())
+    )
+    print(
+        "first run (no warm process yet), jobs' total: "
+        + ", ".join(f"{n} {fixed[n]['first']:.2f} s" for n in names)
     )
     for n in names:
         jobs_cpu, compute_cpu = fixed[n]["jobs cpu"], fixed[n]["compute cpu"]

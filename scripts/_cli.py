@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from flylib.errors import FlylibError
-from flylib.run_summary import JOB_FINISHED, JOB_STOPPED
 
 # The options every script shares: what runs the stage, not arguments of the stage.
 _SHARED = ("help", "config", "threads", "verbose")
@@ -223,9 +222,13 @@ def script_main(
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except _Stopped as stop:
+        from flylib.run_summary import JOB_STOPPED
+
         print(f"{JOB_STOPPED}{signal.Signals(stop.signum).name}", file=sys.stderr, flush=True)
         return 128 + stop.signum
     if job is not None:
+        from flylib.run_summary import JOB_FINISHED
+
         print(JOB_FINISHED, file=sys.stderr, flush=True)
     return 0
 
@@ -258,6 +261,17 @@ def _hand_inputs(args: argparse.Namespace, stage: str | type, rig: argparse.Acti
 
 def run_script(main: Callable[..., int], namespace: dict) -> None:
     """Run a script's ``main``: with the Snakemake job when ``namespace`` (the script's
-    globals) holds one, else from ``sys.argv``; exits with its status."""
+    globals) holds one, else from ``sys.argv``; exits with its status.
+
+    A job is first offered to a warm process (:mod:`flylib.warm`), which runs
+    this same script in a child that has flylib imported already; that is why scripts
+    import their stage inside ``main``, not before this call."""
     job = namespace.get("snakemake")
+    if job is not None:
+        from flylib.warm import forward
+
+        # the file Snakemake runs: its preamble (the job) and this script
+        status = forward(namespace.get("__real_file__", namespace["__file__"]))
+        if status is not None:
+            sys.exit(status)
     sys.exit(main(job=job) if job is not None else main())

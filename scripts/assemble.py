@@ -5,9 +5,6 @@ calibration.toml (the final rig as an Anipose calibration)."""
 import sys
 from pathlib import Path
 
-from flylib.pipeline.assemble import run_assemble
-from flylib.results.artifacts import ARTIFACTS
-
 from _cli import run_script, script_main, script_parser
 
 
@@ -15,6 +12,9 @@ def run(inputs, outdir, *, recording_dir=None, **arguments) -> None:
     """``run_assemble`` with the stage artifacts (stage -> path, ``None`` for a stage
     that did not run) among ``arguments``; for the demo, print the 3D error against the
     truth."""
+    from flylib.pipeline.assemble import run_assemble
+    from flylib.results.artifacts import ARTIFACTS
+
     files = {stage: arguments.pop(stage) for stage in ARTIFACTS}
     summary = run_assemble(inputs, files, outdir, recording_dir=recording_dir, **arguments)
     where = recording_dir or outdir
@@ -47,6 +47,8 @@ def snapshot_text(args) -> dict:
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.results.artifacts import ARTIFACTS
+
     parser = script_parser(__doc__)
     for stage in ARTIFACTS:
         parser.add_argument(

@@ -3,16 +3,16 @@
 
 from pathlib import Path
 
-# The solver (JAX, SciPy) loads before the job's work, as it did while the package
-# loaded eagerly: loaded inside the fit, the job spent 0.4 s more in the kernel (some
-# 60,000 more mmap/munmap calls from the allocator; benchmarks/workflow.py).
-import flylib.bundle_adjustment.sequence  # noqa: F401
-from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
-
 from _cli import artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    # The solver (JAX, SciPy) loads before the job's work: loaded inside the fit, the job
+    # spent 0.4 s more in the kernel (some 60,000 more mmap/munmap calls from the
+    # allocator; benchmarks/workflow.py).
+    import flylib.bundle_adjustment.sequence  # noqa: F401
+    from flylib.pipeline.bundle_adjustment import run_bundle_adjustment
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--pose2d", dest="pose2d_path", required=True, type=Path, help="pose2d artifact (.h5)"

@@ -3,12 +3,12 @@
 
 from pathlib import Path
 
-from flylib.pipeline.demo import DemoInputs, run_demo
-
 from _cli import run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.demo import DemoInputs, run_demo
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--out",

@@ -4,12 +4,12 @@ metadata of the config's nwb table and the recording's nwb.yaml."""
 
 from pathlib import Path
 
-from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
-
 from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
+
     parser = script_parser(__doc__)
     add_results_argument(parser)
     parser.add_argument(

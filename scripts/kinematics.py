@@ -4,12 +4,12 @@ angles.csv (Anipose's angles layout) and angles.png (angle traces per leg)."""
 
 from pathlib import Path
 
-from flylib.pipeline.kinematics import run_kinematics
-
 from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.kinematics import run_kinematics
+
     parser = script_parser(__doc__)
     add_results_argument(parser)
     parser.add_argument("--outdir", required=True, type=Path, help="recording output directory")

@@ -3,12 +3,12 @@
 
 from pathlib import Path
 
-from flylib.pipeline.pictorial_structures import run_pictorial_structures
-
 from _cli import add_rig_stage_arguments, artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.pictorial_structures import run_pictorial_structures
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--pose2d", dest="pose2d_path", required=True, type=Path, help="pose2d artifact"

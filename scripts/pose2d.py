@@ -4,16 +4,15 @@
 import argparse
 from pathlib import Path
 
-from flylib.config.loading import parse_json
-from flylib.errors import ConfigError
-from flylib.pipeline.pose2d import run_pose2d
-
 from _cli import artifact_outdir, run_script, script_main, script_parser
 
 
 def _import_spec(text: str):
     """The --import-spec JSON (the job's: ``null`` for the config's), nesting bounded
     (a ConfigError line, not a traceback)."""
+    from flylib.config.loading import parse_json
+    from flylib.errors import ConfigError
+
     try:
         return parse_json(text, "--import-spec")
     except ConfigError as exc:
@@ -21,6 +20,8 @@ def _import_spec(text: str):
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.pose2d import run_pose2d
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--recording", dest="recording_dir", required=True, type=Path, help="recording directory"

@@ -4,12 +4,12 @@ reprojection, temporal smoothness, constant bone lengths, rigid tethered thorax)
 
 from pathlib import Path
 
-from flylib.pipeline.refinement import run_refinement
-
 from _cli import add_rig_stage_arguments, artifact_outdir, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.refinement import run_refinement
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--pose2d",

@@ -5,12 +5,15 @@ of a session (one rig); writes the session's rig (.h5 artifact and calibration.t
 import json
 from pathlib import Path
 
-from flylib.pipeline.session_calibration import SessionCalibrationInputs, run_session_calibration
-
 from _cli import add_session_arguments, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.session_calibration import (
+        SessionCalibrationInputs,
+        run_session_calibration,
+    )
+
     parser = script_parser(__doc__)
     add_session_arguments(parser)
     parser.add_argument(

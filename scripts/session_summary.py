@@ -5,12 +5,12 @@ rig and with the session's rig, side by side (session_summary.json)."""
 import json
 from pathlib import Path
 
-from flylib.pipeline.session_calibration import SessionSummaryInputs, run_session_summary
-
 from _cli import add_session_arguments, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.session_calibration import SessionSummaryInputs, run_session_summary
+
     parser = script_parser(__doc__)
     parser.add_argument(
         "--session",

@@ -3,12 +3,12 @@
 
 from pathlib import Path
 
-from flylib.pipeline.visualization import run_visualization
-
 from _cli import add_results_argument, run_script, script_main, script_parser
 
 
 def main(argv=None, *, job=None) -> int:
+    from flylib.pipeline.visualization import run_visualization
+
     parser = script_parser(__doc__)
     add_results_argument(parser)
     parser.add_argument(

@@ -20,7 +20,8 @@ below it:
    refinement, the held-out-view accuracy, kinematics, rendering
 5. data -- stage artifacts and results, provenance, suspects, corrections, file
    formats of other tools, the demo generator
-6. stages -- the stage functions the workflow runs, preflight checks, run summaries
+6. stages -- the stage functions the workflow runs, preflight checks, run summaries,
+   the warm processes its jobs fork from
 7. applications -- the command line and the review GUI
 """
 
@@ -94,6 +95,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "flylib.pipeline",
             "flylib.run_summary",
+            "flylib.warm",
         ),
     ),
     ("applications", ("flylib.cli", "flylib.doctor", "flylib.gui", "flylib.starter")),

@@ -296,3 +296,65 @@ def test_an_outdir_template_fills_its_placeholders_and_literal_braces(
             "flylib check-config: invalid config: my.yaml: outdir: 'out/{id' is not a path template"
         )
     )
+
+
+@pytest.fixture
+def frame_counts(tmp_path, monkeypatch):
+    """A frame-count cache of this test's own, as the process's, and a counter of the
+    videos opened."""
+    import av
+
+    from flylib import recordings
+
+    cache = recordings.FrameCountCache(lambda: tmp_path / "cache")
+    monkeypatch.setattr(recordings, "FRAME_COUNTS", cache)
+    opened = []
+    real_open = av.open
+
+    def counted(path, *args, **kwargs):
+        if (args[0] if args else kwargs.get("mode", "r")) == "r":
+            opened.append(path)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(av, "open", counted)
+    return cache, opened
+
+
+def test_planning_a_batch_again_opens_none_of_its_videos(tmp_path, frame_counts, caplog):
+    """The second plan of a batch reads every frame count from the cache, and still
+    skips the recording whose cameras disagree."""
+    from flylib import recordings
+
+    cache, opened = frame_counts
+    good = make_video_recording(tmp_path / "good")
+    uneven = make_video_recording(tmp_path / "uneven", frames=(3, 4))
+    data = {**SOURCES, "recordings": [str(good), str(uneven)]}
+    for run in range(2):
+        caplog.clear()
+        assert [r.path for r in plan(data)] == [good], run
+        assert "different frame counts {'left': 3, 'right': 4}" in caplog.text, run
+        assert len(opened) == 4, run  # the second run opened none
+        cache.flush()  # as the process's exit does
+        cache = recordings.FrameCountCache(lambda: tmp_path / "cache")  # the next run's
+        recordings.FRAME_COUNTS = cache
+
+
+def test_a_rewritten_video_is_counted_again(tmp_path, frame_counts):
+    from flylib.recordings import video_frame_count
+
+    _, opened = frame_counts
+    video = write_video(tmp_path / "cam_0.mp4", 3)
+    assert video_frame_count(video) == 3 and video_frame_count(video) == 3
+    assert len(opened) == 1
+    write_video(video, 5)  # the same path, another file
+    assert video_frame_count(video) == 5 and len(opened) == 2
+
+
+def test_a_cache_folder_that_cannot_be_made_is_passed_by(tmp_path, monkeypatch):
+    from flylib import recordings
+
+    (tmp_path / "blocker").write_text("a file where the cache folder would be")
+    cache = recordings.FrameCountCache(lambda: tmp_path / "blocker" / "cache")
+    monkeypatch.setattr(recordings, "FRAME_COUNTS", cache)
+    video = write_video(tmp_path / "cam_0.mp4", 4)
+    assert recordings.video_frame_count(video) == 4 and recordings.video_frame_count(video) == 4
