@@ -136,3 +136,26 @@ def test_flylib_and_storage_errors_pass_unchanged(monkeypatch, config, pose2d, t
     with pytest.raises(type(exc)) as err:
         run_bundle_adjustment(inputs, pose2d, tmp_path / "ba.h5", recording_dir=tmp_path)
     assert err.value is exc
+
+
+def test_a_stop_that_c_code_wrapped_is_still_a_stop(monkeypatch, config, pose2d, tmp_path):
+    """A stop signal's exception raised while h5py's Cython lock was held came back as
+    ``SystemError: <cyfunction FastRLock.__exit__> returned a result with an exception
+    set`` and was reported as a failure on the recording's data."""
+    import flylib.bundle_adjustment as ba
+
+    class Stopped(BaseException):  # as scripts/_cli.py's stop handler raises
+        pass
+
+    def stopped_in_c_code(*args, **kwargs):
+        try:
+            raise Stopped
+        except Stopped as stop:  # what CPython does when C code returns with it pending
+            raise SystemError(
+                "<cyfunction FastRLock.__exit__> returned a result with an exception set"
+            ) from stop
+
+    monkeypatch.setattr(ba, "bundle_adjust_sequence", stopped_in_c_code)
+    inputs = stage_inputs(config, "bundle_adjustment")
+    with pytest.raises(Stopped):
+        run_bundle_adjustment(inputs, pose2d, tmp_path / "ba.h5", recording_dir=tmp_path)
