@@ -204,6 +204,23 @@ def check_cluster() -> list[Check]:
     return [Check(NOTE, "slurm", f"no {' and no '.join(missing)}: runs stay on this machine")]
 
 
+def check_jobs() -> list[Check]:
+    """Warm processes (:mod:`flylib.warm`): whether a run's jobs may fork from one."""
+    from .warm import off_because, socket_path
+
+    reason = off_because()
+    if reason:
+        return [Check(NOTE, "warm processes", f"off ({reason}): each job starts its own Python")]
+    return [
+        Check(
+            OK,
+            "warm processes",
+            f"on: a run's later jobs fork from a process with flylib imported "
+            f"(in {socket_path().parent}; FLYLIB_WARM=0 turns this off)",
+        )
+    ]
+
+
 def check_browser() -> list[Check]:
     """Chromium and its driver: the GUI's browser tests (``flylib gui`` needs any browser)."""
     driver = shutil.which("chromedriver")
@@ -230,6 +247,7 @@ def run_checks(config_files: Sequence[Path] = ()) -> list[Check]:
         check_torch,
         lambda: check_weights(config_files),
         check_caches,
+        check_jobs,
         check_cluster,
         check_browser,
     ]

@@ -101,15 +101,23 @@ _KEEP_LOGS_SECONDS = 7 * 24 * 3600
 _MAX_SOCKET_PATH = 100  # a Unix socket's path has at most 107 bytes on Linux
 
 
+def off_because() -> str | None:
+    """Why this process may not hand its job to a warm process (``None``: it may)."""
+    if os.environ.get(_ENABLE, "1") == "0":
+        return f"{_ENABLE}=0"
+    if os.environ.get(_CHILD):
+        return "this process is a warm process's child"
+    if not sys.platform.startswith("linux") or not hasattr(socket, "send_fds"):
+        return f"Linux only (this is {sys.platform})"
+    scheduler = next((name for name in SCHEDULER_VARIABLES if os.environ.get(name)), None)
+    if scheduler:
+        return f"a batch scheduler's node ({scheduler} is set)"
+    return None
+
+
 def enabled() -> bool:
     """Whether this process may hand its job to a warm process."""
-    return (
-        os.environ.get(_ENABLE, "1") != "0"
-        and not os.environ.get(_CHILD)
-        and sys.platform.startswith("linux")
-        and hasattr(socket, "send_fds")
-        and not any(os.environ.get(name) for name in SCHEDULER_VARIABLES)
-    )
+    return off_because() is None
 
 
 def _source_fingerprint() -> str:
