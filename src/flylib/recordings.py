@@ -31,7 +31,6 @@ from .errors import ConfigError, FootageError, did_you_mean
 from .io.base import IMAGE_EXTS, VIDEO_EXTS
 from .io.images import natural_key, sequence_gap
 from .paths import cache_dir, fill_template
-from .resources import thread_map
 
 log = logging.getLogger(__name__)
 
@@ -383,21 +382,14 @@ def find_recording(
 def _frame_counts(sources: dict[str, list[Path]], ext: str, reject) -> dict[str, int | None] | None:
     if ext not in VIDEO_EXTS:
         return {n: len(files) for n, files in sources.items()}
-
-    def count(files: list[Path]) -> int | None | FootageError:
+    counts: dict[str, int | None] = {}
+    for name, files in sources.items():
         try:
-            return video_frame_count(files[0])
+            counts[name] = video_frame_count(files[0])
         except FootageError as exc:
-            return exc
-
-    # The cameras' headers are read side by side: FFmpeg opens a file outside Python's
-    # lock (the first plan of a 1,000-recording batch opens 7,000 of them).
-    found = dict(zip(sources, thread_map(count, list(sources.values()), len(sources))))
-    for value in found.values():
-        if isinstance(value, FootageError):  # the first camera's in the sources' order
-            reject(str(value))
+            reject(str(exc))
             return None
-    return found
+    return counts
 
 
 def is_pattern(text: str | Path) -> bool:
