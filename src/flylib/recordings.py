@@ -115,9 +115,10 @@ def video_frame_count(path: Path) -> int | None:
     FootageError
         If the file cannot be opened as a video.
     """
-    cached = FRAME_COUNTS.get(path)
-    if cached is not FrameCountCache.MISSING:
-        return cached
+    return FRAME_COUNTS.count(path, _header_frame_count)
+
+
+def _header_frame_count(path: Path) -> int | None:
     import av
 
     try:
@@ -127,9 +128,7 @@ def video_frame_count(path: Path) -> int | None:
             n = container.streams.video[0].frames
     except av.error.FFmpegError as exc:
         raise FootageError(f"{path}: cannot be read as a video ({exc}); replace the file") from exc
-    count = int(n) if n and n > 0 else None
-    FRAME_COUNTS.put(path, count)
-    return count
+    return int(n) if n and n > 0 else None
 
 
 class FrameCountCache:
@@ -140,23 +139,12 @@ class FrameCountCache:
     which Snakemake plans again on every call. A cache that cannot be opened, locked or
     written is passed by: the count is then read from the file."""
 
-    MISSING = object()
-
     def __init__(self, folder: Callable[[], Path] = cache_dir) -> None:
         self._folder = folder
         self._lock = threading.Lock()
         self._db: Any = None
         self._pid = -1
         self._pending: dict[str, tuple[str, int | None]] = {}  # written in batches
-
-    @staticmethod
-    def _identity(path: Path) -> tuple[str, str] | None:
-        try:
-            st = os.stat(path)
-        except OSError:
-            return None
-        key = os.path.realpath(path)
-        return key, f"{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}"
 
     def _connection(self):
         """The database of this process (a forked child opens its own), or ``None``."""
@@ -185,36 +173,37 @@ class FrameCountCache:
                 log.debug("frame-count cache not used: %s", exc)
         return self._db
 
-    def get(self, path: Path) -> int | None | object:
-        """The cached count of ``path`` as it is now, or :attr:`MISSING`."""
+    def count(self, path: Path, read: Callable[[Path], int | None]) -> int | None:
+        """``path``'s count: cached for the file as it is now, else ``read(path)``, kept
+        (written with the next few hundred, or at exit: one transaction each, not one per
+        video)."""
         import sqlite3
 
-        identity = self._identity(path)
+        try:
+            st = os.stat(path)
+        except OSError:
+            return read(path)  # it says what is wrong with the path
+        key = os.path.realpath(path)
+        identity = f"{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}"
         with self._lock:
-            db = self._connection() if identity else None
+            db = self._connection()
             if db is None:
-                return self.MISSING
-            row = self._pending.get(identity[0])
+                return read(path)
+            row = self._pending.get(key)
             if row is None:
-                try:
+                with contextlib.suppress(sqlite3.Error):
                     row = db.execute(
-                        "SELECT identity, frames FROM counts WHERE path = ?", (identity[0],)
+                        "SELECT identity, frames FROM counts WHERE path = ?", (key,)
                     ).fetchone()
-                except sqlite3.Error:
-                    return self.MISSING
-        return row[1] if row is not None and row[0] == identity[1] else self.MISSING
-
-    def put(self, path: Path, frames: int | None) -> None:
-        """Keep ``path``'s count (written with the next few hundred, or at exit: one
-        transaction each, not one per video)."""
-        identity = self._identity(path)
-        full = False
+        if row is not None and row[0] == identity:
+            return row[1]
+        frames = read(path)
         with self._lock:
-            if identity and self._connection() is not None:
-                self._pending[identity[0]] = (identity[1], frames)
-                full = len(self._pending) >= 500
+            self._pending[key] = (identity, frames)
+            full = len(self._pending) >= 500
         if full:
             self.flush()
+        return frames
 
     def flush(self) -> None:
         """Write the counts kept since the last write."""
