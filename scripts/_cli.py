@@ -218,19 +218,42 @@ def script_main(
 
                 with outdir_lock(directory, job=name):
                     run(inputs, **given)
-    except (FlylibError, argparse.ArgumentTypeError) as exc:  # the latter: a job's value
+    except Exception as exc:
+        stop = _stop_within(exc)
+        if stop is not None:
+            return _stopped(stop)
+        if not isinstance(exc, (FlylibError, argparse.ArgumentTypeError)):  # a job's value
+            raise
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except _Stopped as stop:
-        from flylib.run_summary import JOB_STOPPED
-
-        print(f"{JOB_STOPPED}{signal.Signals(stop.signum).name}", file=sys.stderr, flush=True)
-        return 128 + stop.signum
+        return _stopped(stop)
     if job is not None:
         from flylib.run_summary import JOB_FINISHED
 
         print(JOB_FINISHED, file=sys.stderr, flush=True)
     return 0
+
+
+def _stop_within(exc: BaseException) -> _Stopped | None:
+    """The stop that ``exc`` was raised from, if any: a stop signal's exception raised
+    while C code ran (h5py's lock) comes back as ``SystemError: ... returned a result
+    with an exception set``, which a stage may turn into its own error in turn."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, _Stopped):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _stopped(stop: _Stopped) -> int:
+    """Say in the job's log which signal stopped it; the job's exit status."""
+    from flylib.run_summary import JOB_STOPPED
+
+    print(f"{JOB_STOPPED}{signal.Signals(stop.signum).name}", file=sys.stderr, flush=True)
+    return 128 + stop.signum
 
 
 def _job_inputs(job: Any, stage: str | type) -> Any:

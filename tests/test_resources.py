@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import threading
 import time
 from pathlib import Path
@@ -14,22 +12,9 @@ import pytest
 from flylib.config import Config
 from flylib.pipeline.inputs import stage_inputs
 from flylib.resources import thread_budget, thread_map, usable_cpus
+from tests.workflow_run import load_script
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def _script(name: str):
-    """Import ``scripts/<name>.py`` as a module (its ``_cli`` import resolved)."""
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        spec = importlib.util.spec_from_file_location(
-            f"flylib_script_{name}", REPO / "scripts" / f"{name}.py"
-        )
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(REPO / "scripts"))
-    return module
 
 
 @pytest.fixture
@@ -111,7 +96,7 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
     common = ["--config", str(config), "--threads", "1"]
     stages = out / "stages"
     assert (
-        _script("triangulation").main(
+        load_script("triangulation").main(
             [
                 *common,
                 "--pose2d",
@@ -125,7 +110,7 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
         == 0
     )
     assert (
-        _script("refinement").main(
+        load_script("refinement").main(
             [
                 *common,
                 "--pose2d",
@@ -141,7 +126,7 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
         == 0
     )
     assert (
-        _script("assemble").main(
+        load_script("assemble").main(
             [
                 *common,
                 "--pose2d",
@@ -159,13 +144,13 @@ def test_a_one_thread_job_starts_no_thread(recording, started):
         == 0
     )
     assert (
-        _script("kinematics").main(
+        load_script("kinematics").main(
             [*common, "--results", str(out / "results.h5"), "--outdir", str(out)]
         )
         == 0
     )
     assert (
-        _script("visualization").main(
+        load_script("visualization").main(
             [
                 *common,
                 "--results",
@@ -239,7 +224,7 @@ def test_a_one_thread_pose2d_job_starts_no_thread(recording, started, torch_thre
     from flylib.results import Pose2dData
 
     root, config_path, out = recording
-    pose2d = _script("pose2d")
+    pose2d = load_script("pose2d")
     recording_args = ["--recording", str(root / "rec")]
     spec = demo_import_spec(Config.from_file(config_path))
     imported = root / "threads1" / "stages" / "pose2d.h5"

@@ -10,6 +10,23 @@ REPO = Path(__file__).resolve().parents[1]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 
 
+def load_script(name: str):
+    """Import ``scripts/<name>.py`` as a module (its ``_cli`` import resolved): a stage
+    script's ``main`` run in this process."""
+    import importlib.util
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            f"flylib_script_{name}", REPO / "scripts" / f"{name}.py"
+        )
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REPO / "scripts"))
+    return module
+
+
 def snakemake_command(workdir: Path, *args: str, cores: int = 2) -> list[str]:
     """``snakemake`` on the repo's Snakefile in ``workdir`` with its ``config.yaml``, a
     whole config that replaces the checkout's (``--replace-workflow-config``), so the

@@ -138,24 +138,35 @@ def test_flylib_and_storage_errors_pass_unchanged(monkeypatch, config, pose2d, t
     assert err.value is exc
 
 
-def test_a_stop_that_c_code_wrapped_is_still_a_stop(monkeypatch, config, pose2d, tmp_path):
+def test_a_stop_that_c_code_wrapped_is_reported_as_the_stop(monkeypatch, pose2d, tmp_path, capsys):
     """A stop signal's exception raised while h5py's Cython lock was held came back as
     ``SystemError: <cyfunction FastRLock.__exit__> returned a result with an exception
-    set`` and was reported as a failure on the recording's data."""
-    import flylib.bundle_adjustment as ba
+    set``; the stage's boundary turned it into "failed on this recording's data". The
+    bundle-adjustment script, as a job runs it, reports the stop."""
+    import signal
+    import sys
 
-    class Stopped(BaseException):  # as scripts/_cli.py's stop handler raises
-        pass
+    import flylib.bundle_adjustment as ba
+    from flylib.paths import DEFAULT_CONFIG_PATH
+    from tests.workflow_run import load_script
+
+    script = load_script("bundle_adjustment")
+    stopped = sys.modules["_cli"]._Stopped
 
     def stopped_in_c_code(*args, **kwargs):
         try:
-            raise Stopped
-        except Stopped as stop:  # what CPython does when C code returns with it pending
+            raise stopped(signal.SIGTERM)  # what the script's stop handler raises
+        except stopped as stop:  # what CPython makes of it when C code returns with it
             raise SystemError(
                 "<cyfunction FastRLock.__exit__> returned a result with an exception set"
             ) from stop
 
     monkeypatch.setattr(ba, "bundle_adjust_sequence", stopped_in_c_code)
-    inputs = stage_inputs(config, "bundle_adjustment")
-    with pytest.raises(Stopped):
-        run_bundle_adjustment(inputs, pose2d, tmp_path / "ba.h5", recording_dir=tmp_path)
+    out = tmp_path / "stages" / "bundle_adjustment.h5"
+    status = script.main(
+        ["--config", str(DEFAULT_CONFIG_PATH), "--pose2d", str(pose2d), "--out", str(out)]
+    )
+    err = capsys.readouterr().err
+    assert status == 128 + signal.SIGTERM, err
+    assert err.rstrip().endswith("stopped by SIGTERM") and "failed on" not in err
+    assert not out.exists()

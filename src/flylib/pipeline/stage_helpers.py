@@ -106,29 +106,11 @@ def solving(stage: str, recording) -> Iterator[None]:
     except (FlylibError, OSError):
         raise  # flylib's own lines; storage errors
     except Exception as exc:
-        stop = _stop_within(exc)
-        if stop is not None:  # a stop signal that C code (h5py's lock) wrapped: still a stop
-            raise stop from None
         log.debug("%s failed on %s", stage, recording, exc_info=True)
         raise StageError(
             f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
             f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {by_name(stage).hint}"
         ) from exc
-
-
-def _stop_within(exc: BaseException) -> BaseException | None:
-    """The stop (an exception outside ``Exception``: a script's stop signal, Ctrl-C)
-    that ``exc`` was raised from, if any: a signal handler's exception raised inside a C
-    extension comes back as ``SystemError: ... returned a result with an exception set``
-    caused by it."""
-    seen = set()
-    cause = exc.__cause__ or exc.__context__
-    while cause is not None and id(cause) not in seen:
-        if not isinstance(cause, Exception):
-            return cause
-        seen.add(id(cause))
-        cause = cause.__cause__ or cause.__context__
-    return None
 
 
 # -- stages --------------------------------------------------------------------
