@@ -818,7 +818,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     what = (
         "the installation in one screen: versions, torch device, detector weights, "
-        "caches, SLURM, Chromium; exit 1 when something blocks a run"
+        "caches, warm processes, SLURM, Chromium; exit 1 when something blocks a run"
     )
     p = sub.add_parser("doctor", help=what, description=what)
     p.add_argument(

@@ -115,11 +115,6 @@ def off_because() -> str | None:
     return None
 
 
-def enabled() -> bool:
-    """Whether this process may hand its job to a warm process."""
-    return off_because() is None
-
-
 def _source_fingerprint() -> str:
     """Paths, sizes and modification times of flylib's Python files."""
     root = Path(__file__).resolve().parents[1]
@@ -162,7 +157,7 @@ def forward(script: str | Path) -> int | None:
     process and return its exit status; ``None`` when there is no warm process to take
     it (one is started for the next jobs) or warm processes are off: the caller runs the
     job itself."""
-    if not enabled():
+    if off_because() is not None:
         return None
     path = socket_path()
     try:

@@ -46,6 +46,17 @@ def snakemake(workdir: Path, mine: dict, *args: str) -> subprocess.CompletedProc
     )
 
 
+def check_config(workdir: Path) -> subprocess.CompletedProcess:
+    """``flylib check-config my.yaml`` in ``workdir`` (the file :func:`snakemake` wrote)."""
+    return subprocess.run(
+        [str(FLYLIB), "check-config", "my.yaml"],
+        capture_output=True,
+        text=True,
+        cwd=workdir,
+        check=False,
+    )
+
+
 def refused(proc: subprocess.CompletedProcess) -> str:
     """The one line a run refused before its DAG printed (stderr's last line)."""
     assert proc.returncode != 0, proc.stdout[-2000:] + proc.stderr[-2000:]
@@ -148,13 +159,7 @@ def test_a_top_level_import_pattern_plans_the_run_and_check_config_agrees(
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "WildcardError" not in proc.stdout + proc.stderr
     assert "rule pose2d:" in proc.stdout
-    check = subprocess.run(
-        [str(FLYLIB), "check-config", "my.yaml"],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        check=False,
-    )
+    check = check_config(tmp_path)
     assert check.returncode == 0, check.stderr
     assert check.stdout.startswith("my.yaml over the default config: valid; 1 recording(s)")
 
@@ -183,13 +188,7 @@ def test_a_missing_camera_file_is_named_before_the_dag_and_check_config_says_the
         "pose2d.import.image_size: [height, width]"
     )
     assert not (tmp_path / "out").exists()
-    check = subprocess.run(
-        [str(FLYLIB), "check-config", "my.yaml"],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        check=False,
-    )
+    check = check_config(tmp_path)
     assert check.returncode == 1
     assert check.stderr.strip() == f"flylib check-config: {line}"
 
