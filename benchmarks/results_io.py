@@ -32,6 +32,7 @@ import numpy as np
 
 from flylib.config import Config
 from flylib.demo import view_visibility
+from flylib.pipeline.planning import config_rig
 from flylib.results import (
     Pose2dData,
     PoseResult,
@@ -91,7 +92,7 @@ def write_and_load(config: Config, arrays: dict, stages: Path, checksums: bool) 
     ``{step: (wall s, cpu s)}``."""
     skeleton, rig = (
         config.skeleton(),
-        config.camera_group({v: (480, 960) for v in config.view_names()}),
+        config_rig(config, {v: (480, 960) for v in config.view_names()}),
     )
     results_datasets.FLETCHER32 = checksums
     try:
@@ -166,7 +167,7 @@ def run(n_frames: int, kind: str, workdir: Path) -> None:
     config = Config.default()
     skeleton, rig = (
         config.skeleton(),
-        config.camera_group({v: (480, 960) for v in config.view_names()}),
+        config_rig(config, {v: (480, 960) for v in config.view_names()}),
     )
     arrays = make_arrays(config, n_frames, kind, np.random.default_rng(0))
     raw_bytes = sum(a.nbytes for a in arrays.values()) + arrays["pts2d"].nbytes  # 2D stored twice

@@ -284,17 +284,6 @@ def _hand_inputs(args: argparse.Namespace, stage: str | type, rig: argparse.Acti
 
 def run_script(main: Callable[..., int], namespace: dict) -> None:
     """Run a script's ``main``: with the Snakemake job when ``namespace`` (the script's
-    globals) holds one, else from ``sys.argv``; exits with its status.
-
-    A job is first offered to a warm process (:mod:`flylib.warm`), which runs
-    this same script in a child that has flylib imported already; that is why scripts
-    import their stage inside ``main``, not before this call."""
+    globals) holds one, else from ``sys.argv``; exits with its status."""
     job = namespace.get("snakemake")
-    if job is not None:
-        from flylib.warm import forward
-
-        # the file Snakemake runs: its preamble (the job) and this script
-        status = forward(namespace.get("__real_file__", namespace["__file__"]))
-        if status is not None:
-            sys.exit(status)
     sys.exit(main(job=job) if job is not None else main())

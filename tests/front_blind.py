@@ -35,6 +35,7 @@ from flylib.camera.rig import CameraGroup
 from flylib.config import Config
 from flylib.interop.df3d import read_df3d_calibration, read_df3d_points2d
 from flylib.interop.safe_pickle import load_restricted
+from flylib.pipeline.planning import config_rig
 
 from rig_constants import IMAGE_SIZE, VIEWS
 from rough_rig import RoughCase, detections, median_bone
@@ -106,7 +107,7 @@ def package_visibility() -> np.ndarray:
 
 def default_start() -> CameraGroup:
     """The default config's rig for 960x480 footage."""
-    return Config.default().camera_group(image_sizes={v: IMAGE_SIZE for v in VIEWS})
+    return config_rig(Config.default(), image_sizes={v: IMAGE_SIZE for v in VIEWS})
 
 
 def make_case(

@@ -16,14 +16,14 @@ import pytest
 import yaml
 
 from flylib.camera.rig import CameraGroup
-from flylib.cli import main, summarize_results
+from flylib.cli import main
 from flylib.config import Config
 from flylib.interop import import_points2d, load_calibration, read_anipose_toml
 from flylib.pipeline.inputs import stage_params
-from flylib.pipeline.planning import params_of
+from flylib.pipeline.planning import config_rig, params_of
 from flylib.pipeline.pose2d import import_target
 from flylib.provenance import PARAMS_KEY, params_hash, provenance_report
-from flylib.results import PoseResult
+from flylib.results import PoseResult, summarize_results
 from flylib.skeleton import Skeleton
 
 REPO = Path(__file__).resolve().parents[1]
@@ -317,7 +317,7 @@ def test_inspect_judges_the_handedness_of_a_file_assembled_without_a_verdict(tmp
     from flylib.results import PoseResult
 
     config = Config.default()
-    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
     for name, pts3d in (("fly", synthetic_fly(8)), ("mirror", synthetic_fly(8) @ WORLD_MIRROR)):
         path = tmp_path / f"{name}.h5"
         PoseResult(

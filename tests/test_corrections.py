@@ -16,6 +16,7 @@ from flylib.corrections import Corrections, corrections_path
 from flylib.errors import ConfigError, ResultsError
 from flylib.pipeline.assemble import run_assemble
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.planning import config_rig
 from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import (
     TriangulationInputs,
@@ -240,7 +241,7 @@ def test_corrected_points_are_ringed_in_the_videos():
 
 def test_the_corrected_triangulation_takes_the_rig_first():
     config = Config.default()
-    cameras = config.camera_group(image_sizes={name: (480, 960) for name in config.view_names()})
+    cameras = config_rig(config, image_sizes={name: (480, 960) for name in config.view_names()})
     pts = np.full((len(cameras.names), 1, 2, 2), np.nan)
     with pytest.raises(TypeError, match="takes the camera rig first"):
         compute_triangulation(TriangulationInputs.from_config(config), pts, cameras)

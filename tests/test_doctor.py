@@ -5,8 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 
-import pytest
-
 from flylib import doctor
 from flylib.cli import main
 
@@ -22,7 +20,6 @@ def test_doctor_reports_this_installation(capsys, tmp_path, monkeypatch):
         "torch device",
         "weights deepfly2d",
         "cache",
-        "warm processes",
         "slurm",
         "chromium",
     ):
@@ -76,23 +73,3 @@ def test_doctor_console_script():
         [sys.executable, "-m", "flylib.cli", "doctor", "--help"], capture_output=True, text=True
     )
     assert done.returncode == 0 and "installation in one screen" in done.stdout
-
-
-@pytest.mark.parametrize(
-    ("setting", "said"),
-    [
-        ({}, "on: a run's later jobs fork from a process with flylib imported"),
-        ({"FLYLIB_WARM": "0"}, "off (FLYLIB_WARM=0)"),
-        ({"SLURM_JOB_ID": "7"}, "off (a batch scheduler's node (SLURM_JOB_ID is set))"),
-    ],
-)
-def test_doctor_says_whether_jobs_fork_from_a_warm_process(monkeypatch, setting, said):
-    from flylib.doctor import check_jobs
-    from flylib.warm import SCHEDULER_VARIABLES
-
-    for name in ("FLYLIB_WARM", "FLYLIB_WARM_CHILD", *SCHEDULER_VARIABLES):
-        monkeypatch.delenv(name, raising=False)
-    for name, value in setting.items():
-        monkeypatch.setenv(name, value)
-    (line,) = check_jobs()
-    assert line.what == "warm processes" and said in line.detail

@@ -19,6 +19,7 @@ from flylib.handedness import (
     mirrored_refusal,
     rig_check,
 )
+from flylib.pipeline.planning import config_rig
 from flylib.skeleton import Skeleton
 
 SKELETON = Skeleton.fly()
@@ -78,7 +79,7 @@ def test_no_measurable_frame_or_no_labelled_legs_is_undetermined_with_the_reason
 
 def _rig(distorted: bool = True) -> CameraGroup:
     config = Config.default()
-    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
     dists = np.zeros((len(rig.names), 5))
     if distorted:  # every coefficient, tangential ones included
         dists[:] = [0.3, -2.0, 0.004, -0.006, 5.0]
@@ -108,13 +109,13 @@ def test_an_orbit_rig_with_its_sides_swapped_reconstructs_a_mirror_image():
     where the right ones are) gives the same fly mirrored, from the same 2D."""
     config = Config.default()
     sizes = {v: (480, 960) for v in config.view_names()}
-    rig = config.camera_group(image_sizes=sizes)
+    rig = config_rig(config, image_sizes=sizes)
     table = dict(config.data["cameras"])
     swapped = {
         name: {**spec, "azimuth_deg": -spec["azimuth_deg"]} if name != "defaults" else spec
         for name, spec in table.items()
     }
-    mirrored = Config.from_dict({**config.data, "cameras": swapped}).camera_group(image_sizes=sizes)
+    mirrored = config_rig(Config.from_dict({**config.data, "cameras": swapped}), image_sizes=sizes)
     fly = _fly(frames=5)
     pixels = rig.project(fly)
     assert handedness(rig.triangulate(pixels), SKELETON).verdict == "right-handed"

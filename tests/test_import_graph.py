@@ -12,16 +12,14 @@ below it:
 
 0. foundation -- errors, paths, resources, locking, the stage registry; the package root
    (lazy exports only)
-1. primitives -- camera models and geometry, the skeleton, frame readers, the
-   detection plan's vocabulary, video specs
+1. primitives -- camera models and geometry, the skeleton, frame readers
 2. config -- :class:`~flylib.config.Config` and its validation (NWB metadata checks)
 3. recordings -- which directories hold footage, and the demo directory's layout
 4. algorithms -- detection, bundle adjustment, pictorial structures, triangulation,
    refinement, the held-out-view accuracy, kinematics, rendering
 5. data -- stage artifacts and results, provenance, suspects, corrections, file
    formats of other tools, the demo generator
-6. stages -- the stage functions the workflow runs, preflight checks, run summaries,
-   the warm processes its jobs fork from
+6. stages -- the stage functions the workflow runs, preflight checks, run summaries
 7. applications -- the command line and the review GUI
 """
 
@@ -58,11 +56,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "flylib.skeleton",
             "flylib.handedness",
             "flylib.io",
-            "flylib.pose2d.plan",
-            "flylib.visualization.specs",
         ),
     ),
-    ("config", ("flylib.config", "flylib.nwb_metadata")),
+    ("config", ("flylib.config",)),
     ("recordings", ("flylib.recordings", "flylib.sessions")),
     (
         "algorithms",
@@ -95,7 +91,6 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "flylib.pipeline",
             "flylib.run_summary",
-            "flylib.warm",
         ),
     ),
     ("applications", ("flylib.cli", "flylib.doctor", "flylib.gui", "flylib.starter")),
@@ -362,9 +357,8 @@ def test_names_from_a_package_and_its_lazy_stub_point_at_their_modules(tmp_path)
 
 def test_layers_take_the_most_specific_prefix():
     assert layer_of("flylib") == layer_of("flylib.errors") == 0
-    assert layer_of("flylib.pose2d.plan") == 1 < layer_of("flylib.pose2d.inference") == 4
+    assert layer_of("flylib.pose2d.inference") == 4 < layer_of("flylib.pose2d.stream") == 5
     assert layer_of("flylib.triangulation.kernels") == 4
-    assert layer_of("flylib.pose2d.stream") == 5
     assert layer_of("flylib.not_a_module") is None
 
 

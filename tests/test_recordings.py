@@ -304,10 +304,10 @@ def frame_counts(tmp_path, monkeypatch):
     videos opened."""
     import av
 
-    from flylib import recordings
+    from flylib.recordings import frame_counts as counts
 
-    cache = recordings.FrameCountCache(lambda: tmp_path / "cache")
-    monkeypatch.setattr(recordings, "FRAME_COUNTS", cache)
+    cache = counts.FrameCountCache(lambda: tmp_path / "cache")
+    monkeypatch.setattr(counts, "FRAME_COUNTS", cache)
     opened = []
     real_open = av.open
 
@@ -323,7 +323,7 @@ def frame_counts(tmp_path, monkeypatch):
 def test_planning_a_batch_again_opens_none_of_its_videos(tmp_path, frame_counts, caplog):
     """The second plan of a batch reads every frame count from the cache, and still
     skips the recording whose cameras disagree."""
-    from flylib import recordings
+    from flylib.recordings import frame_counts as counts
 
     cache, opened = frame_counts
     good = make_video_recording(tmp_path / "good")
@@ -335,12 +335,12 @@ def test_planning_a_batch_again_opens_none_of_its_videos(tmp_path, frame_counts,
         assert "different frame counts {'left': 3, 'right': 4}" in caplog.text, run
         assert len(opened) == 4, run  # the second run opened none
         cache.flush()  # as the process's exit does
-        cache = recordings.FrameCountCache(lambda: tmp_path / "cache")  # the next run's
-        recordings.FRAME_COUNTS = cache
+        cache = counts.FrameCountCache(lambda: tmp_path / "cache")  # the next run's
+        counts.FRAME_COUNTS = cache
 
 
 def test_a_rewritten_video_is_counted_again(tmp_path, frame_counts):
-    from flylib.recordings import video_frame_count
+    from flylib.recordings.frame_counts import video_frame_count
 
     _, opened = frame_counts
     video = write_video(tmp_path / "cam_0.mp4", 3)
@@ -351,10 +351,10 @@ def test_a_rewritten_video_is_counted_again(tmp_path, frame_counts):
 
 
 def test_a_cache_folder_that_cannot_be_made_is_passed_by(tmp_path, monkeypatch):
-    from flylib import recordings
+    from flylib.recordings import frame_counts as counts
 
     (tmp_path / "blocker").write_text("a file where the cache folder would be")
-    cache = recordings.FrameCountCache(lambda: tmp_path / "blocker" / "cache")
-    monkeypatch.setattr(recordings, "FRAME_COUNTS", cache)
+    cache = counts.FrameCountCache(lambda: tmp_path / "blocker" / "cache")
+    monkeypatch.setattr(counts, "FRAME_COUNTS", cache)
     video = write_video(tmp_path / "cam_0.mp4", 4)
-    assert recordings.video_frame_count(video) == 4 and recordings.video_frame_count(video) == 4
+    assert counts.video_frame_count(video) == 4 and counts.video_frame_count(video) == 4

@@ -14,6 +14,7 @@ from flylib.config import Config
 from flylib.demo import load_truth, synthetic_fly
 from flylib.pipeline.demo import demo_import_spec, make_demo
 from flylib.pipeline.inputs import stage_inputs
+from flylib.pipeline.planning import config_rig
 from flylib.pipeline.pose2d import run_pose2d
 from flylib.pipeline.stage_helpers import run_inputs
 from flylib.pipeline.triangulation import run_triangulation
@@ -77,7 +78,7 @@ def clean_case(frames=40):
     """Exact 3D of the synthetic fly and its exact 2D through the default rig."""
     config = Config.default()
     views = config.view_names()
-    cameras = config.camera_group(image_sizes={v: (480, 960) for v in views})
+    cameras = config_rig(config, image_sizes={v: (480, 960) for v in views})
     pts3d = synthetic_fly(frames, seed=2)
     from flylib.demo import view_visibility
 

@@ -189,8 +189,7 @@ def keep_triangulation(
     keep : np.ndarray
         ``(P,)`` bool: the points whose output is the triangulation.
     everywhere : bool
-        True when every point keeps the triangulation (point by point, or because
-        refinement lost overall).
+        Whether every point keeps it (point by point, or because refinement lost overall).
     """
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
@@ -280,17 +279,9 @@ def triangulation_accuracy(
 ) -> dict[str, Any]:
     """The triangulation stage's truth-free accuracy: :func:`accuracy_summary` of its
     held-out-view errors (on :func:`evaluation_windows`) and of ``pts3d`` on the same
-    frames, plus ``frames_evaluated`` and ``frames_total``.
-
-    Parameters
-    ----------
-    triangulate
-        The triangulation stage's method (see :data:`Triangulate`), re-run with each
-        view held out.
-    cameras, skeleton
-        The rig and the skeleton (its bones for the spread and left/right figures).
-    pts2d, pts3d, conf
-        ``(V, T, P, 2)`` the 2D triangulated, ``(T, P, 3)`` its 3D, ``(V, T, P)`` or ``None``.
+    frames, plus ``frames_evaluated`` and ``frames_total``. ``triangulate`` (see
+    :data:`Triangulate`) is re-run with each view held out; the skeleton's bones give the
+    spread and left/right figures.
     """
     held = held_out_errors(cameras, pts2d, triangulate, conf=conf)
     frames = held["frames"]

@@ -32,10 +32,7 @@ def similarity_transform(
     refits
         How many times to refit on the ``keep`` fraction (each needs >= 4 pairs).
 
-    Returns
-    -------
-    tuple or None
-        ``rot`` a proper rotation (det +1); ``None`` when ``src`` has no spread.
+    ``rot`` is a proper rotation (det +1); ``None`` when ``src`` has no spread.
     """
     fitted = _umeyama(src, dst)
     for _ in range(refits):

@@ -20,7 +20,6 @@ mixed file prints one line per problem after the tables, status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -29,148 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError, FlylibError, ResultsError
-from .results import open_checked
-
-_STAGES_2D = ("pose2d", "pictorial_structures", "triangulation", "refinement")
-_STAGES_3D = ("pictorial_structures", "triangulation", "refinement")
-
-
-# -- reading results.h5 (schema v2, seed 004) -------------------------------------
-
-
-def _decode(values) -> list[str]:
-    return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(values).ravel()]
-
-
-def _percentile(values: np.ndarray, q: float) -> float:
-    finite = values[np.isfinite(values)]
-    return float(np.percentile(finite, q)) if finite.size else float("nan")
-
-
-def summarize_results(path: Path) -> dict:
-    """Per-stage and per-point figures of a ``results.h5`` (what ``inspect`` prints).
-
-    Returns
-    -------
-    dict
-        ``{"meta", "handedness", "stages": [row...], "points": [row...],
-        "bones": [row...], "stage_3d"}``; rows are dicts of plain numbers and strings. Reprojection
-        errors are in pixels; the bone spread is the interquartile range of the
-        bone's length over frames divided by its median (0 for a rigid bone).
-    """
-    with open_checked(path, "pass the results.h5 a run wrote") as f:
-        meta = json.loads(f.attrs["meta"]) if "meta" in f.attrs else {}
-        if "skeleton/point_names" not in f:
-            raise ResultsError(f"{path}: no skeleton/point_names; not a flylib results file")
-        names = _decode(f["skeleton/point_names"][()])
-        from .results.groups import skeleton_from_group
-
-        skeleton = skeleton_from_group(f["skeleton"])
-        bones = np.zeros((0, 2), int)
-        if "skeleton/bones" in f:
-            bones = np.asarray(f["skeleton/bones"][()], dtype=int).reshape(-1, 2)
-        stages = []
-        for stage in ("pose2d", "bundle_adjustment", *_STAGES_3D):
-            if stage not in f:
-                continue
-            row: dict = {"stage": stage}
-            group = f[stage]
-            if "points" in group:
-                pts2d = group["points"][()]
-                row["views"], row["frames"] = int(pts2d.shape[0]), int(pts2d.shape[1])
-                row["observed_2d"] = float(np.isfinite(pts2d).all(-1).mean())
-            if "points3d" in group:
-                pts3d = group["points3d"][()]
-                row["frames"] = int(pts3d.shape[0])
-                row["reconstructed"] = float(np.isfinite(pts3d).all(-1).mean())
-            if "reproj_error" in group:
-                err = group["reproj_error"][()]
-                row["err_median"], row["err_p95"] = _percentile(err, 50), _percentile(err, 95)
-            if "cameras/names" in group:
-                row["cameras"] = len(_decode(group["cameras/names"][()]))
-            accuracy = _stage_accuracy(group)
-            if accuracy is not None:
-                row["accuracy"] = accuracy
-                held = accuracy["output" if stage == "refinement" else "triangulation"]
-                row["held_median"] = held["held_out_px"]["median"]
-                row["held_p95"] = held["held_out_px"]["p95"]
-            stages.append(row)
-        stage_3d = next((s for s in reversed(_STAGES_3D) if f"{s}/points3d" in f), None)
-        source_2d = next((s for s in reversed(_STAGES_2D) if f"{s}/points" in f), None)
-        pts2d = f[f"{source_2d}/points"][()] if source_2d else None
-        pts3d = f[f"{stage_3d}/points3d"][()] if stage_3d else None
-        err = (
-            f[f"{stage_3d}/reproj_error"][()]
-            if stage_3d and f"{stage_3d}/reproj_error" in f
-            else None
-        )
-
-    accuracy = next(
-        (s["accuracy"] for s in stages if s["stage"] == stage_3d and "accuracy" in s), None
-    )
-    held_points = {}
-    if accuracy is not None:
-        held_points = accuracy["output" if stage_3d == "refinement" else "triangulation"][
-            "per_point"
-        ]
-    points = []
-    for p, name in enumerate(names):
-        row = {"point": name}
-        if name in held_points:
-            row["held_median"] = held_points[name]["median"]
-            row["held_p95"] = held_points[name]["p95"]
-        if pts2d is not None:
-            row["views_observing"] = float(np.isfinite(pts2d[:, :, p]).all(-1).sum(0).mean())
-        if pts3d is not None:
-            row["reconstructed"] = float(np.isfinite(pts3d[:, p]).all(-1).mean())
-        if err is not None:
-            row["err_median"], row["err_p95"] = (
-                _percentile(err[:, :, p], 50),
-                _percentile(err[:, :, p], 95),
-            )
-        points.append(row)
-    bone_rows = []
-    if pts3d is not None:
-        for a, b in bones:
-            length = np.linalg.norm(pts3d[:, a] - pts3d[:, b], axis=-1)
-            median = _percentile(length, 50)
-            iqr = _percentile(length, 75) - _percentile(length, 25)
-            spread = iqr / median if median > 0 else float("nan")
-            bone_rows.append(
-                {
-                    "bone": f"{names[a]}-{names[b]}",
-                    "frames": int(np.isfinite(length).sum()),
-                    "median_length": median,
-                    "spread": spread,
-                }
-            )
-    handedness = meta.get("handedness")
-    if not isinstance(handedness, dict) and pts3d is not None:  # assembled by an older flylib
-        from .handedness import handedness as judge
-
-        handedness = judge(np.asarray(pts3d, float), skeleton).as_dict()
-    return {
-        "meta": meta,
-        "handedness": handedness,
-        "stages": stages,
-        "points": points,
-        "bones": bone_rows,
-        "stage_3d": stage_3d,
-        "accuracy": accuracy,
-    }
-
-
-def _stage_accuracy(group) -> dict | None:
-    """A 3D stage's truth-free accuracy attrs (:mod:`flylib.accuracy`), or ``None``."""
-    text = group.attrs.get("accuracy")
-    if text is None:
-        return None
-    try:
-        value = json.loads(text.decode() if isinstance(text, bytes) else text)
-    except ValueError:
-        return None
-    return value if isinstance(value, dict) else None
-
+from .results import PoseResult, open_checked, summarize_results
 
 # -- printing ---------------------------------------------------------------------
 
@@ -378,12 +236,6 @@ def _print_suspects(path: Path) -> None:
     )
 
 
-def _load_result(path: Path):
-    from .results import PoseResult
-
-    return PoseResult.load(path)
-
-
 def _export_inputs(args) -> dict[str, str]:
     """``file -> role`` of what ``flylib export`` reads: no output may land on one."""
     inputs = {str(args.results): "the input RESULTS_H5"}
@@ -400,19 +252,14 @@ def _export_inputs(args) -> dict[str, str]:
 
 def _cmd_export(args) -> int:
     from .interop.exports import export_result
-    from .paths import record_outputs, refuse_overwrite
+    from .paths import refuse_overwrite
 
-    if (
-        args.csv3d is None
-        and args.dlc_dir is None
-        and args.nwb is None
-        and args.training_data is None
-    ):
+    if {args.csv3d, args.dlc_dir, args.nwb, args.training_data} == {None}:
         raise FlylibError(
             "export: nothing to do; pass --csv3d FILE, --dlc-dir DIR, --nwb FILE "
             "and/or --training-data DIR"
         )
-    result = _load_result(args.results)
+    result = PoseResult.load(args.results)
     # every file this export writes, checked before any is written
     targets = {args.csv3d: "--csv3d", args.nwb: "--nwb"}
     if args.dlc_dir is not None:
@@ -457,8 +304,7 @@ def _cmd_export(args) -> int:
             recording=args.recording,
             metadata_path=args.nwb_metadata,
         )
-        record_outputs(Path(path).parent, [Path(path).name])
-        print(path)
+        _recorded(path)
     if args.csv3d is not None or args.dlc_dir is not None:
         detections = None
         if args.dlc_dir is not None:
@@ -473,14 +319,13 @@ def _cmd_export(args) -> int:
         for path in export_result(
             result, csv3d=args.csv3d, dlc_dir=args.dlc_dir, detections=detections
         ):
-            record_outputs(path.parent, [path.name])
-            print(path)
+            _recorded(path)
     return 0
 
 
 def _cmd_calibration(args) -> int:
     from .interop.anipose import write_anipose_toml
-    from .paths import record_outputs, refuse_overwrite
+    from .paths import refuse_overwrite
 
     refuse_overwrite(
         args.output,
@@ -488,7 +333,7 @@ def _cmd_calibration(args) -> int:
         "flylib calibration -o",
         force=args.force,
     )
-    result = _load_result(args.results)
+    result = PoseResult.load(args.results)
     with open_checked(args.results) as f:
         stage = "bundle_adjustment" if "bundle_adjustment/cameras" in f else "pose2d"
     path = write_anipose_toml(
@@ -497,9 +342,16 @@ def _cmd_calibration(args) -> int:
         result.image_sizes or {},
         metadata={"source": str(args.results), "rig": stage},
     )
+    _recorded(path)
+    return 0
+
+
+def _recorded(path) -> None:
+    """Record ``path`` as flylib's (:func:`~flylib.paths.record_outputs`), print it."""
+    from .paths import record_outputs
+
     record_outputs(Path(path).parent, [Path(path).name])
     print(path)
-    return 0
 
 
 def _plain_yaml(data: dict, label: str, header: str) -> str:
@@ -818,7 +670,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     what = (
         "the installation in one screen: versions, torch device, detector weights, "
-        "caches, warm processes, SLURM, Chromium; exit 1 when something blocks a run"
+        "caches, SLURM, Chromium; exit 1 when something blocks a run"
     )
     p = sub.add_parser("doctor", help=what, description=what)
     p.add_argument(

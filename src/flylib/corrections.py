@@ -178,8 +178,6 @@ class Corrections:
 
         Parameters
         ----------
-        path
-            The ``corrections.h5``.
         shape
             ``(V, T, P)`` of the result it must correct, checked when given.
         image_sizes
@@ -286,13 +284,8 @@ class Corrections:
         return ""
 
     def save(self, path: str | Path) -> Path:
-        """Write the sidecar atomically (format version 3), every dataset Fletcher-32
-        checksummed.
-
-        Parameters
-        ----------
-        path
-            Destination, normally ``<outdir>/corrections.h5``.
+        """Write the sidecar atomically to ``path`` (normally ``<outdir>/corrections.h5``),
+        format version 3, every dataset Fletcher-32 checksummed.
 
         Raises
         ------
@@ -409,20 +402,9 @@ class Corrections:
     def apply_2d(
         self, pts2d: Float[np.ndarray, "V T P 2"], conf: Float[np.ndarray, "V T P"] | None = None
     ) -> tuple[Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"] | None]:
-        """The 2D triangulation reads: edits replace detections, invisible ones go.
-
-        Parameters
-        ----------
-        pts2d
-            ``(V, T, P, 2)`` detected (or pictorial-structures) 2D.
-        conf
-            ``(V, T, P)`` confidences or ``None``; an edit gets confidence 1.
-
-        Returns
-        -------
-        pts2d, conf
-            Corrected copies.
-        """
+        """Corrected copies of the 2D triangulation reads, ``pts2d`` ``(V, T, P, 2)`` and
+        ``conf`` ``(V, T, P)`` or ``None``: edits replace detections (with confidence 1),
+        invisible ones go."""
         pts2d = np.array(pts2d, dtype=np.float64)
         pts2d[self.edited] = self.points[self.edited]
         pts2d[self.invisible] = np.nan
@@ -557,10 +539,7 @@ def corrections_path(
     gives a path template (placeholders ``{outdir}``, ``{recording}``, ``{id}``,
     ``{name}``; a relative path is relative to the outdir).
 
-    Returns
-    -------
-    path, named
-        The sidecar's path (it may not exist) and whether ``corrections`` named it.
+    The path may not exist.
 
     Raises
     ------

@@ -35,11 +35,7 @@ from .alignment import similarity_aligned
 from .errors import ConfigError, did_you_mean
 from .interop.df3d import FLY38_POINT_NAMES
 from .paths import atomic_path
-from .recordings import (  # noqa: F401  (the demo directory's layout, re-exported)
-    DLC_SCORER,
-    TRUTH_FILE,
-    dlc_filename,
-)
+from .recordings.listing import DLC_SCORER, TRUTH_FILE
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
@@ -83,7 +79,7 @@ _BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the fra
 def synthetic_fly(
     n_frames: int, seed: int = 0, *, fps: float = 100.0
 ) -> Float[np.ndarray, "T 38 3"]:
-    """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` world points.
+    """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` float64 world points.
 
     Points are in :data:`FLY38_POINTS` order. The head points to +x (the default
     rig's front camera ``f``, azimuth 0), the left side to +y (cameras ``lf/lm/lh``),
@@ -93,17 +89,10 @@ def synthetic_fly(
 
     Parameters
     ----------
-    n_frames
-        Number of frames ``T``.
     seed
         Seed of the step frequency and phase.
     fps
         Frame rate the motion is sampled at.
-
-    Returns
-    -------
-    np.ndarray
-        ``(T, 38, 3)`` float64.
     """
     rng = np.random.default_rng(seed)
     t = np.arange(n_frames) / fps
@@ -143,23 +132,16 @@ def synthetic_fly(
         )
         for k, point in enumerate(base):
             rel = point - base[0]
-            out[:, index[f"{side}_abdomen{k}"], 0] = (
-                base[0, 0] + rel[0] * np.cos(pitch) - rel[2] * np.sin(pitch)
-            )
-            out[:, index[f"{side}_abdomen{k}"], 1] = point[1]
-            out[:, index[f"{side}_abdomen{k}"], 2] = (
-                base[0, 2] + rel[0] * np.sin(pitch) + rel[2] * np.cos(pitch)
-            )
+            i = index[f"{side}_abdomen{k}"]
+            out[:, i, 0] = base[0, 0] + rel[0] * np.cos(pitch) - rel[2] * np.sin(pitch)
+            out[:, i, 1] = point[1]
+            out[:, i, 2] = base[0, 2] + rel[0] * np.sin(pitch) + rel[2] * np.cos(pitch)
     return out
 
 
 def demo_settings(table: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The demo parameters: :data:`DEMO_DEFAULTS` updated by the config's ``demo`` table.
-
-    Parameters
-    ----------
-    table
-        The ``demo`` table (``None``: the defaults).
+    """The demo parameters: :data:`DEMO_DEFAULTS` updated by the config's ``demo`` table
+    (``None``: the defaults).
 
     Raises
     ------
@@ -192,17 +174,8 @@ def demo_settings(table: Mapping[str, Any] | None) -> dict[str, Any]:
 def view_visibility(
     output_points: Mapping[str, Any] | None, view_names: list[str], point_names: list[str]
 ) -> Bool[np.ndarray, "V P"]:
-    """``(V, P)`` bool: the points each view observes, from ``pose2d.output_points``.
-
-    Parameters
-    ----------
-    output_points
-        The ``pose2d.output_points`` table (``view -> {point: ...}``), or ``None``.
-    view_names, point_names
-        The V and P axes.
-
-    A view with no ``output_points`` table observes every point.
-    """
+    """``(V, P)`` bool: the points each view observes, from ``pose2d.output_points``
+    (``view -> {point: ...}``, or ``None``); a view with no table observes every point."""
     tables = output_points or {}
     vis = np.ones((len(view_names), len(point_names)), bool)
     for v, view in enumerate(view_names):
@@ -265,20 +238,9 @@ def render_frames(
     colors: list[tuple[int, int, int]],
     image_size: tuple[int, int],
 ):
-    """Yield ``(H, W, 3)`` uint8 frames of one view: the skeleton drawn on a dark,
-    slightly textured background (so the video has something to encode).
-
-    Parameters
-    ----------
-    points2d
-        ``(T, P, 2)`` pixels of the view.
-    bones
-        ``(B, 2)`` point-index pairs.
-    colors
-        One RGB colour per bone.
-    image_size
-        ``(height, width)``.
-    """
+    """Yield ``(H, W, 3)`` uint8 frames of one view's ``points2d`` ``(T, P, 2)``: the
+    skeleton (one RGB colour per bone) drawn on a dark, slightly textured background (so
+    the video has something to encode); ``image_size`` is ``(height, width)``."""
     import cv2
 
     height, width = image_size
@@ -353,10 +315,6 @@ def write_demo(
     dlc_files
         One DeepLabCut CSV name per view, in view order.
 
-    Returns
-    -------
-    DemoRecording
-
     Raises
     ------
     ConfigError
@@ -421,7 +379,7 @@ def write_demo(
         )
     truth = write_truth(directory / TRUTH_FILE, pts3d, clean2d, views, points, settings)
     # The session metadata a lab puts beside its footage for the NWB export (synthetic here).
-    from .nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
+    from .config.nwb_metadata import DEMO_METADATA, SIDECAR, write_sidecar
 
     write_sidecar(directory / SIDECAR, DEMO_METADATA)
     log.info(
@@ -450,22 +408,8 @@ def write_truth(
     points: Sequence[str],
     settings: Mapping[str, Any],
 ) -> Path:
-    """Write the demo's ground truth (``truth.h5``: the 3D points and their noiseless 2D views).
-
-    Parameters
-    ----------
-    path
-        The file to write (atomically).
-    pts3d, clean2d
-        The synthetic fly's 3D points and their projections before noise.
-    views, points, settings
-        Camera and point names and the demo settings, stored as the file's JSON meta.
-
-    Returns
-    -------
-    Path
-        ``path``.
-    """
+    """Write the demo's ground truth atomically to ``path`` (``truth.h5``: the 3D points
+    and their projections before noise; names and settings as the JSON meta)."""
     import h5py
 
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
@@ -487,16 +431,11 @@ def load_truth(path: str | Path) -> dict[str, Any]:
 
 
 def demo_error(points3d: np.ndarray, truth3d: np.ndarray) -> dict[str, float]:
-    """3D error of a reconstruction against the demo truth (world units).
-
-    Returns
-    -------
-    dict
-        ``median``, ``mean``, ``p95`` and ``max`` of the per-point Euclidean error,
-        ``median_aligned`` after the best similarity transform (bundle adjustment
-        may move the rig's gauge), ``reconstructed`` (fraction of finite points)
-        and ``body_length`` (the truth's head-to-tail extent, for scale).
-    """
+    """3D error of a reconstruction against the demo truth (world units): ``median``,
+    ``mean``, ``p95`` and ``max`` of the per-point Euclidean error, ``median_aligned``
+    after the best similarity transform (bundle adjustment may move the rig's gauge),
+    ``reconstructed`` (fraction of finite points) and ``body_length`` (the truth's
+    head-to-tail extent, for scale)."""
     points3d = np.asarray(points3d, float)
     truth3d = np.asarray(truth3d, float)
     if points3d.shape != truth3d.shape:

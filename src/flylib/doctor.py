@@ -128,6 +128,7 @@ def check_weights(config_files: Sequence[Path] = ()) -> list[Check]:
     from .config.constants import DEFAULT_CONFIG_PATH
     from .config.layers import ConfigLayers
     from .errors import ConfigError
+    from .pipeline.pose2d import Pose2dInputs
     from .pose2d.published import cached_checkpoint, checkpoint_problem
 
     layers = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, *config_files])
@@ -135,7 +136,7 @@ def check_weights(config_files: Sequence[Path] = ()) -> list[Check]:
     if problems:
         raise ConfigError(layers.report(problems))
     config = Config(layers.data)
-    plan = config.detection_plan()
+    plan = Pose2dInputs.from_config(config).detection_plan()
     own = (config.data.get("pose2d") or {}).get("weights") or {}
     lines = []
     for name in dict.fromkeys(p.model for p in plan.active_pathways()):
@@ -204,23 +205,6 @@ def check_cluster() -> list[Check]:
     return [Check(NOTE, "slurm", f"no {' and no '.join(missing)}: runs stay on this machine")]
 
 
-def check_jobs() -> list[Check]:
-    """Warm processes (:mod:`flylib.warm`): whether a run's jobs may fork from one."""
-    from .warm import off_because, socket_path
-
-    reason = off_because()
-    if reason:
-        return [Check(NOTE, "warm processes", f"off ({reason}): each job starts its own Python")]
-    return [
-        Check(
-            OK,
-            "warm processes",
-            f"on: a run's later jobs fork from a process with flylib imported "
-            f"(in {socket_path().parent}; FLYLIB_WARM=0 turns this off)",
-        )
-    ]
-
-
 def check_browser() -> list[Check]:
     """Chromium and its driver: the GUI's browser tests (``flylib gui`` needs any browser)."""
     driver = shutil.which("chromedriver")
@@ -247,7 +231,6 @@ def run_checks(config_files: Sequence[Path] = ()) -> list[Check]:
         check_torch,
         lambda: check_weights(config_files),
         check_caches,
-        check_jobs,
         check_cluster,
         check_browser,
     ]

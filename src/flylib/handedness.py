@@ -72,12 +72,8 @@ def side_groups(skeleton: Skeleton) -> dict[str, list[int]] | str:
     Legs are the limbs whose first point is ``<l|r><f|m|h>_thorax_coxa``:
     ``left``/``right`` (every point of the legs of that side), ``front``/``hind``
     (the body-coxa points of the front and hind legs), ``coxa`` (every body-coxa
-    point) and ``tip`` (each leg's last point).
-
-    Returns
-    -------
-    dict or str
-        ``group -> point indices``, or why the skeleton allows no check.
+    point) and ``tip`` (each leg's last point). Returns ``group -> point indices``, or
+    why the skeleton allows no check.
     """
     legs = {}
     for chain in skeleton.limbs.values():
@@ -140,20 +136,12 @@ def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np
 
 
 def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Handedness:
-    """Whether ``points3d`` show a fly or its mirror image.
+    """Whether the world points ``points3d`` ``(T, P, 3)`` (NaN = missing) show a fly or its
+    mirror image.
 
-    Parameters
-    ----------
-    points3d
-        ``(T, P, 3)`` world points, NaN = missing.
-    skeleton
-        Names the legs (:func:`side_groups`).
-
-    Returns
-    -------
-    Handedness
-        ``score`` the median per-frame cosine (module docstring); ``verdict``
-        ``right-handed`` above +0.5, ``mirrored`` below -0.5, else ``undetermined``.
+    The ``skeleton`` names the legs (:func:`side_groups`). The score is the median
+    per-frame cosine (module docstring); the verdict ``right-handed`` above +0.5,
+    ``mirrored`` below -0.5, else ``undetermined``.
     """
     groups = side_groups(skeleton)
     if isinstance(groups, str):
@@ -173,19 +161,12 @@ def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Hand
         f"is {score:+.2f}, median of {measured.size} frames"
     )
     if score > DECISIVE:
-        return Handedness(
-            score, RIGHT_HANDED, f"{facts}: the left legs are on the fly's left", measured.size
-        )
-    if score < -DECISIVE:
-        return Handedness(
-            score, MIRRORED, f"{facts}: the left legs are on the fly's right", measured.size
-        )
-    return Handedness(
-        score,
-        UNDETERMINED,
-        f"{facts}: too close to 0 to tell a fly from its mirror image",
-        measured.size,
-    )
+        verdict, why = RIGHT_HANDED, "the left legs are on the fly's left"
+    elif score < -DECISIVE:
+        verdict, why = MIRRORED, "the left legs are on the fly's right"
+    else:
+        verdict, why = UNDETERMINED, "too close to 0 to tell a fly from its mirror image"
+    return Handedness(score, verdict, f"{facts}: {why}", measured.size)
 
 
 #: The reflection :func:`mirror_cameras` applies to world coordinates: z negated.
@@ -203,16 +184,7 @@ def mirror_cameras(cameras):
     the same 2D through the mirrored rig gives ``S`` times the old 3D, the fly's mirror
     image. The price is the sign of depth: the scene lies behind the mirrored cameras,
     which pinhole projection (and everything flylib computes from it) does not see.
-
-    Parameters
-    ----------
-    cameras
-        A :class:`flylib.camera.rig.CameraGroup`.
-
-    Returns
-    -------
-    flylib.camera.rig.CameraGroup
-        The mirrored rig, same names and order.
+    Names and order stay.
     """
     import cv2
 
@@ -325,21 +297,8 @@ def mirrored_refusal(result, results_path, stage: str) -> str | None:
     """Why ``stage`` (kinematics, neuromechfly) refuses the 3D of ``result``, or ``None``.
 
     The verdict assemble stored in ``results.h5`` (its meta ``handedness``, naming the
-    cause) is used when present; a file without one is judged here from its 3D.
-
-    Parameters
-    ----------
-    result
-        The :class:`flylib.results.PoseResult` read from ``results_path``.
-    results_path
-        Its file (named in the message).
-    stage
-        The refusing stage: the message names its ``allow_mirrored`` switch.
-
-    Returns
-    -------
-    str or None
-        The one-line refusal when the 3D is a mirror image.
+    cause) is used when present; a file without one is judged here from its 3D. The
+    one-line refusal names ``results_path`` and the stage's ``allow_mirrored`` switch.
     """
     stored = (result.meta or {}).get("handedness")
     if isinstance(stored, dict) and stored.get("verdict") is not None:

@@ -2,11 +2,11 @@
 
 Two Snakemake runs started from different working directories do not know about
 each other's jobs (one working directory is locked by Snakemake itself, and the jobs of
-one run share the lock: they run side by side, e.g. visualization and kinematics); both writing one ``outdir`` would interleave artifacts made with
-different configs. Every stage script takes ``<outdir>/.flylib.lock`` (created
-exclusively, holding the holder's host, pid, working directory and job) before it
-writes and removes it when done; a second writer fails at once with one line naming
-the holder. A lock left by a process that died (same host, pid gone) is taken over.
+one run share the lock: they run side by side, e.g. visualization and kinematics); both
+writing one ``outdir`` would interleave artifacts made with different configs. Every
+stage script takes ``<outdir>/.flylib.lock`` (created exclusively, holding the holder's
+host, pid, working directory and job) before it writes and removes it when done; a
+second writer fails at once with one line naming the holder. A lock left by a process that died (same host, pid gone) is taken over.
 
 A job's lock comes too late to protect a whole run: Snakemake deletes a job's old
 outputs before the job starts, so a second run would already have removed the first
@@ -81,17 +81,8 @@ def claim_lost(path: str | Path) -> str | None:
     stale claim over and writes the directory with its own params. From then on an
     orphan's output would replace the new run's, so it is refused. Outside a run, or
     for a path outside the held directory, or with no claim file left, nothing is checked.
-
-    Parameters
-    ----------
-    path
-        The file about to be renamed into place.
-
-    Returns
-    -------
-    str or None
-        One line naming ``path``, the run that holds the directory now, and that this
-        job's result was discarded.
+    The line names ``path``, the run that holds the directory now, and that this job's
+    result was discarded.
     """
     run = os.environ.get(RUN_ENV)
     held = _HELD.get()
@@ -179,13 +170,8 @@ def _me(job: str, run: str | None) -> dict:
 
 
 def _acquire(outdir: Path, me: dict) -> bool:
-    """Take ``outdir``'s lock for ``me``; ``False`` when this run already holds it.
-
-    Raises
-    ------
-    OutputError
-        When another live run (or a process on another host) holds it.
-    """
+    """Take ``outdir``'s lock for ``me``; ``False`` when this run already holds it, an
+    :class:`OutputError` when another live run (or a process on another host) does."""
     outdir.mkdir(parents=True, exist_ok=True)
     path = outdir / LOCK_NAME
     first_unreadable = None
@@ -228,19 +214,9 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
     """Hold ``<outdir>/.flylib.lock`` for the block's duration.
 
     Inside a run that claimed the directory (:data:`RUN_ENV` names the claim's run)
-    the run's claim stands for the job's lock.
-
-    Parameters
-    ----------
-    outdir
-        The recording's output directory (created if missing).
-    job
-        What holds the lock, for the message another writer gets (e.g. ``triangulation``).
-
-    Yields
-    ------
-    Path
-        The lock file.
+    the run's claim stands for the job's lock. ``outdir`` is created if missing; ``job``
+    (e.g. ``triangulation``) is named in the message another writer gets. Yields the lock
+    file.
 
     Raises
     ------
@@ -266,18 +242,9 @@ def claim_outdirs(outdirs: Iterable[str | Path], run: str | None = None) -> list
     Sets :data:`RUN_ENV` to the run's id, so that the jobs this process starts from
     now on (which inherit the environment) pass the claim.
 
-    Parameters
-    ----------
-    outdirs
-        The run's output directories (created if missing).
-    run
-        The run's id (default: a new random one).
-
-    Returns
-    -------
-    list of Path
-        The directories this call claimed (those this run held already are left out);
-        hand them to :func:`release_outdirs` when the run ends.
+    ``outdirs`` are created if missing; ``run`` defaults to :data:`RUN_ENV`, else a new
+    random id. Returns the directories this call claimed (those this run held already are
+    left out), for :func:`release_outdirs` when the run ends.
 
     Raises
     ------

@@ -24,16 +24,8 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
 
     ``str.format`` would also evaluate conversions (``{id!r}``), format specs,
     attribute and index access (``{recording.parent}``, ``{id[0]}``); a config's path
-    template may use none of them. ``{{`` and ``}}`` are literal braces.
-
-    Parameters
-    ----------
-    template
-        The template, e.g. ``results/{id}``.
-    values
-        Placeholder name -> text.
-    key
-        The config key the template came from, for the message.
+    template (e.g. ``results/{id}``) may use none of them. ``{{`` and ``}}`` are literal
+    braces. ``key`` is the config key the template came from, for the message.
 
     Raises
     ------
@@ -74,10 +66,8 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
 
 
 def cache_dir() -> Path:
-    """The per-user cache (detector weights, compiled JAX kernels).
-
-    ``$FLYLIB_CACHE`` when set, else ``~/.cache/flylib``.
-    """
+    """The per-user cache (detector weights, compiled JAX kernels): ``$FLYLIB_CACHE`` when
+    set, else ``~/.cache/flylib``."""
     env = os.environ.get("FLYLIB_CACHE")
     return Path(env).expanduser() if env else Path.home() / ".cache" / "flylib"
 
@@ -95,11 +85,6 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     run's job, the file is renamed into place only while the run still holds the output
     directory's claim (:func:`flylib.locking.claim_lost`): a job that outlived its
     killed run never replaces what the run that took the directory over writes.
-
-    Parameters
-    ----------
-    path
-        The final destination.
 
     Yields
     ------
@@ -218,8 +203,6 @@ def refuse_overwrite(
 
     Parameters
     ----------
-    path
-        The file about to be written.
     inputs
         ``input file -> its role`` (e.g. ``"the input RESULTS_H5"``).
     role
@@ -232,7 +215,7 @@ def refuse_overwrite(
     Raises
     ------
     OutputError
-        One line naming the file, both roles and the fix.
+        Naming the file, both roles and the fix.
     """
     from .errors import OutputError
 
@@ -273,26 +256,15 @@ def _stale_temp(path: str | Path) -> bool:
 def remove_stale_temps(
     directory: str | Path, *, of: str | Path | None = None, recursive: bool = False
 ) -> list[Path]:
-    """Remove the temporary files that killed writers left behind in ``directory``.
+    """Remove (and return) the temporary files that killed writers left in ``directory``.
 
     A writer killed mid-write (``kill -9``, out of memory, a node lost) cannot remove
     its temporary file; the next write of the same file, and the workflow when it
     claims an output directory, remove those whose writer (this host, its pid) no longer
     exists. A live writer's temporary file is never touched.
 
-    Parameters
-    ----------
-    directory
-        Where to look (a missing directory holds nothing).
-    of
-        Only the temporary files of this final path (default: every one).
-    recursive
-        Look in sub-directories too.
-
-    Returns
-    -------
-    list of Path
-        The files removed.
+    A missing ``directory`` holds nothing; ``of`` limits the search to the temporary
+    files of that final path.
     """
     directory = Path(directory)
     if of is not None:

@@ -50,18 +50,8 @@ UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
 
 def params_hash(params: Mapping[str, Any]) -> str:
-    """A short, stable hash of a params mapping (canonical JSON, SHA-256, 16 hex digits).
-
-    Parameters
-    ----------
-    params
-        JSON-serialisable parameters, e.g. a stage's tracked params.
-
-    Returns
-    -------
-    str
-        16 lowercase hex digits.
-    """
+    """A short, stable hash of JSON-serialisable params, e.g. a stage's tracked params
+    (canonical JSON, SHA-256, 16 lowercase hex digits)."""
     text = json.dumps(params, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
@@ -69,7 +59,9 @@ def params_hash(params: Mapping[str, Any]) -> str:
 def stage_provenance(
     params: Mapping[str, Any], stage: str, upstream: Mapping[str, str | Path | None] | None = None
 ) -> dict:
-    """The provenance entries of a stage artifact's ``meta``.
+    """The provenance entries of a stage artifact's ``meta``: ``{"params_sha256": ...,
+    "artifact_id": ..., "writer": {...}, "upstream_params_sha256": {stage: hash},
+    "upstream_artifact_ids": {stage: id}}``.
 
     Parameters
     ----------
@@ -77,15 +69,9 @@ def stage_provenance(
         The stage's tracked params (its inputs object's ``canonical_params()``, or
         :func:`flylib.pipeline.inputs.stage_params`).
     stage
-        The stage (a :data:`flylib.config.PARAM_STAGES` name) the params are of.
+        A :data:`flylib.config.PARAM_STAGES` name.
     upstream
         ``upstream stage -> artifact path`` the stage read (``None`` entries skipped).
-
-    Returns
-    -------
-    dict
-        ``{"params_sha256": ..., "artifact_id": ..., "writer": {...},
-        "upstream_params_sha256": {stage: hash}, "upstream_artifact_ids": {stage: id}}``.
     """
     from .locking import held_outdir
     from .results import read_meta
@@ -125,13 +111,13 @@ class ProvenanceRow:
     Attributes
     ----------
     stage
-        The stage (``assemble`` for the file itself).
+        ``assemble`` for the file itself.
     recorded
         The params hash the stage recorded, or ``None`` (an older flylib).
     expected
         The hash the compared config gives, or ``None`` without a config.
     problems
-        One line per inconsistency (empty when consistent).
+        One line per inconsistency.
     status
         ``ok``, ``stale`` (params differ from the config's, or a corrections sidecar
         beside the file was not applied), ``mixed`` (built from
@@ -209,12 +195,11 @@ ParamsOf = Callable[[str], "Mapping[str, Any] | None"]
 def provenance_report(
     results: str | Path, params_of: ParamsOf | None = None, stages_dir: str | Path | None = None
 ) -> list[ProvenanceRow]:
-    """Check a results file's recorded params hashes for a stale or mixed state.
+    """Check a ``results.h5``'s recorded params hashes for a stale or mixed state: one
+    row per stage in the file, then ``assemble``.
 
     Parameters
     ----------
-    results
-        A ``results.h5`` written by the assemble stage.
     params_of
         ``stage -> params`` of the config to compare with (e.g. the snapshot beside
         the file, or the config a re-run would use), asked for each stage in the file
@@ -223,11 +208,6 @@ def provenance_report(
     stages_dir
         The ``stages/`` directory the file was assembled from (default: beside it,
         when it exists); each artifact there must carry the hash the file holds.
-
-    Returns
-    -------
-    list of ProvenanceRow
-        One row per stage in the file, then ``assemble``.
     """
     from .results import ARTIFACTS, read_meta
 
@@ -325,11 +305,8 @@ def foreign_artifacts(
     cwd
         This run's working directory (default: the current one).
 
-    Returns
-    -------
-    list of str
-        One warning line per foreign artifact, and per artifact too damaged to tell
-        (its recording's stage that reads it fails on it; the others run).
+    An artifact too damaged to tell gets a line too (its recording's stage that reads
+    it fails on it; the others run).
     """
     from .errors import ResultsError
     from .results import ARTIFACTS, read_meta

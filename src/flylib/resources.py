@@ -50,15 +50,7 @@ def thread_budget(threads: int | None) -> Iterator[int]:
     small. Likewise OpenBLAS's pool is started on import; ``threadpool_limits``
     keeps all but one of its threads idle.
 
-    Parameters
-    ----------
-    threads
-        The threads the caller was given (``None``: no budget, the affinity mask).
-
-    Yields
-    ------
-    int
-        The budget in force.
+    ``threads=None`` sets no budget (the affinity mask). Yields the budget in force.
     """
     global _budget
     if threads is None:

@@ -68,18 +68,8 @@ def _suspects(summary: dict) -> int | None:
 
 
 def log_warnings(outdir: Path) -> list[str]:
-    """The distinct warning messages in ``<outdir>/logs/*.log``, in file order.
-
-    Parameters
-    ----------
-    outdir
-        A recording's output directory.
-
-    Returns
-    -------
-    list of str
-        ``"<log stem>: <message>"`` per distinct warning.
-    """
+    """``"<log stem>: <message>"`` per distinct warning in a recording's
+    ``<outdir>/logs/*.log``, in file order."""
     found: list[str] = []
     for log in sorted((Path(outdir) / "logs").glob("*.log")):
         try:
@@ -169,10 +159,7 @@ def snakemake_report(
 ) -> tuple[dict[str, str], list[str]]:
     """What Snakemake's own log of the run says that no job log holds.
 
-    Parameters
-    ----------
-    log
-        Snakemake's log file(s) of the run (what its ``onerror`` hook receives).
+    ``log``: Snakemake's log file(s) of the run (what its ``onerror`` hook receives).
 
     Returns
     -------
@@ -420,8 +407,6 @@ def run_table(
 
     Parameters
     ----------
-    recordings
-        The recordings the run covered, in plan order.
     failed
         The run ended with an error (rows without a summary say so).
     since
@@ -432,10 +417,7 @@ def run_table(
         Snakemake's log file(s) of the run: the signal that killed a job is named,
         and its clock-skew errors join the warnings.
 
-    Returns
-    -------
-    str
-        Lines joined by newlines; the demo's truth comparison (if any) is the last line.
+    The demo's truth comparison (if any) is the last line.
     """
     recordings = list(recordings)
     signals, skew = snakemake_report(snakemake_log)

@@ -41,20 +41,8 @@ def default_skeleton_table() -> dict:
 
 
 def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
-    """Every problem with a ``skeleton`` config table, one line each.
-
-    Parameters
-    ----------
-    spec
-        The parsed ``skeleton`` table.
-    path
-        Key path used to prefix each message.
-
-    Returns
-    -------
-    list of str
-        ``"<key path>: <problem>"`` lines; empty when the table is valid.
-    """
+    """Every problem with a ``skeleton`` config table, one ``"<key path>: <problem>"``
+    line each (``path``: the table's key path)."""
     if not isinstance(spec, Mapping):
         return [f"{path}: expected a mapping, got {type(spec).__name__}"]
     problems = [

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from importlib import import_module
 from typing import Any, TypeVar
 
-__all__ = ["REGISTRY", "Stage", "by_name", "register", "run_function"]
+__all__ = ["FINAL_3D", "REGISTRY", "SOLVES_3D", "Stage", "by_name", "register", "run_function"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,9 @@ class Stage:
         Its artifact's file name inside ``<outdir>/stages/``, or ``None``.
     results_group
         Whether it owns a group in ``results.h5`` (assembly copies it from the artifact).
+    solves_3d
+        Whether it solves a 3D pose: its group holds ``points3d`` and the 2D ``points``
+        it was solved from (:data:`SOLVES_3D`, :data:`FINAL_3D`).
     hint
         What to check when its numerical step fails on a recording's data (the end of
         the one-line error), or ``None`` for a stage without such a step.
@@ -56,6 +59,7 @@ class Stage:
     needs_one_of: tuple[str, ...] = ()
     artifact: str | None = None
     results_group: bool = False
+    solves_3d: bool = False
     hint: str | None = None
     memory: tuple[int, int] | None = None
 
@@ -104,6 +108,7 @@ REGISTRY: tuple[Stage, ...] = (
         default_on=False,
         artifact="pictorial_structures.h5",
         results_group=True,
+        solves_3d=True,
         hint="check the detector's 2D and the rig, or set pipeline.do_pictorial_structures: false",
     ),
     Stage(
@@ -111,6 +116,7 @@ REGISTRY: tuple[Stage, ...] = (
         default_on=True,
         artifact="triangulation.h5",
         results_group=True,
+        solves_3d=True,
         hint="check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
         "result, cameras, calibration.file)",
         memory=(110, 120),
@@ -121,6 +127,7 @@ REGISTRY: tuple[Stage, ...] = (
         needs_one_of=("triangulation",),
         artifact="refinement.h5",
         results_group=True,
+        solves_3d=True,
         hint="check triangulation's 3D (flylib inspect) and the refinement settings, or "
         "set pipeline.do_refinement: false",
         memory=(410, 140),
@@ -140,6 +147,12 @@ REGISTRY: tuple[Stage, ...] = (
     ),
     Stage("visualization", default_on=True),
 )
+
+#: The stages that solve a 3D pose (:attr:`Stage.solves_3d`), in run order.
+SOLVES_3D: tuple[str, ...] = tuple(stage.name for stage in REGISTRY if stage.solves_3d)
+#: Where a result's final 3D comes from: the first of these that ran (the 3D stages,
+#: last in run order first).
+FINAL_3D: tuple[str, ...] = SOLVES_3D[::-1]
 
 _BY_NAME = {stage.name: stage for stage in REGISTRY}
 #: ``stage -> its inputs class``, filled by :func:`register` as the stage homes import.

@@ -173,10 +173,7 @@ def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[di
         for pkl in pickles:
             found.append({"format": "deepfly3d", "files": f"{sub}{pkl.name}"})
     per_view: dict[str, list[str]] = {
-        "sleap": [],
-        "dlc_h5": [],
-        "dlc_csv": [],
-        "lightning_pose": [],
+        fmt: [] for fmt in ("sleap", "dlc_h5", "dlc_csv", "lightning_pose")
     }
     for name in names:
         lower = name.lower()
@@ -231,26 +228,22 @@ def survey(root: str | Path) -> Survey:
         names = sorted(p.name for p in folder.iterdir() if p.is_file())
         footage, note = _footage(folder, names, defaults)
         imports = _imports(folder, names, footage)
-        if not footage and not imports:
-            if note:
-                undecided.append(note)
-            continue
         if note:
             undecided.append(note)
+        if not footage and not imports:
+            continue
         inside.append(folder)
         calibrations = _calibrations(folder, names) if folder != root else top_calibrations
         recordings.append(Recording(folder, footage, imports, calibrations))
     sources = _common_sources(recordings, defaults, undecided)
     calibration = _common_calibration(root, recordings, top_calibrations, undecided)
-    for rec in recordings:
-        if not rec.footage and not rec.imports:
-            continue
+    for rec in recordings:  # each has footage or 2D files
         if len(rec.imports) > 1:
             undecided.append(
                 f"{rec.path}: 2D files of several tools ({', '.join(i['files'] for i in rec.imports)}); "
                 f"using {rec.imports[0]['files']}"
             )
-        if not rec.footage and rec.imports:
+        if not rec.footage:
             undecided.append(
                 f"{rec.path}: no footage: set pose2d.import.image_size: [height, width] "
                 "(the cameras' frame size in pixels)"
@@ -346,9 +339,7 @@ def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
         entry: str | dict = str(rec.path)
         if rec.imports and shared_import is None:
             entry = {"path": str(rec.path), "import": rec.imports[0]}
-        lines.append(
-            f"  - {_flow(entry) if isinstance(entry, dict) else _flow(entry)}   # {'; '.join(what)}"
-        )
+        lines.append(f"  - {_flow(entry)}   # {'; '.join(what)}")
     if not found.recordings:
         lines[-1] = "recordings: []   # none found: list recording folders here"
     if outdir is not None:
@@ -371,8 +362,8 @@ def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
             "",
             "# 2D from another tool instead of the detector (no weights needed):",
             "pose2d:",
+            "  import:",
         ]
-        lines.append("  import:")
         lines += [f"    {key}: {_flow(value)}" for key, value in shared_import.items()]
         if not any(r.footage for r in found.recordings):
             lines.append(

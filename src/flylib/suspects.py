@@ -43,6 +43,7 @@ number them the same way).
 from __future__ import annotations
 
 import csv
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -232,18 +233,9 @@ def _robust_threshold(values: np.ndarray, k: float, floor: float, axis=None) -> 
     return med + np.maximum(k * np.nan_to_num(mad), floor)
 
 
-class _quiet:
+def _quiet() -> warnings.catch_warnings:
     """Silence numpy's all-NaN slice warnings (all-NaN columns simply flag nothing)."""
-
-    def __enter__(self):
-        import warnings
-
-        self._ctx = warnings.catch_warnings()
-        self._ctx.__enter__()
-        warnings.simplefilter("ignore", RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._ctx.__exit__(*exc)
+    return warnings.catch_warnings(action="ignore", category=RuntimeWarning)
 
 
 def find_suspects(
@@ -291,10 +283,6 @@ def find_suspects(
     k_jump, jump_tolerance
         Jump threshold per point: median + ``k_jump`` MAD-sigmas of its jumps, at least
         ``jump_tolerance`` x the median bone length.
-
-    Returns
-    -------
-    Suspects
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     used = np.asarray(pts2d_used, dtype=np.float64)

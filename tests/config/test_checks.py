@@ -26,7 +26,7 @@ from flylib.config.constants import POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from flylib.config.layers import ConfigLayers, key_path
 from flylib.config.params import LEAST_SQUARES_CHECKS
 from flylib.errors import ConfigError
-from flylib.pipeline.inputs import stage_params
+from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.preflight import preflight_problems
 from flylib.recordings import Recording
 
@@ -233,7 +233,9 @@ def test_weights_key_sets_a_checkpoint_without_restating_the_model(default_data,
     checkpoint = tmp_path / "sh8.tar"
     checkpoint_layout(checkpoint)
     config = Config.from_dict(edit(default_data, "pose2d.weights", {"deepfly2d": str(checkpoint)}))
-    assert config.detection_plan().models["deepfly2d"].weights == str(checkpoint)
+    assert stage_inputs(config, "pose2d").detection_plan().models["deepfly2d"].weights == str(
+        checkpoint
+    )
     assert stage_params(config, "pose2d")["plan"]["weights"] == {"deepfly2d": str(checkpoint)}
     assert preflight_problems(config, [recording(tmp_path)], config.stage_flags()) == []
 

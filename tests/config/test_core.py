@@ -15,6 +15,7 @@ import tomli_w
 from flylib.config import DEFAULT_CONFIG_PATH, PARAM_STAGES, STAGE_DEFAULTS, STAGES, Config
 from flylib.errors import ConfigError
 from flylib.pipeline.inputs import stage_params
+from flylib.pipeline.planning import config_rig
 from flylib.skeleton import Skeleton
 
 from rig_constants import DISTANCE, VIEWS
@@ -594,7 +595,7 @@ def test_there_is_no_second_validator_to_drift():
 
 
 def test_camera_group_delegates_to_cameras_module(default):
-    rig = default.camera_group(image_sizes={name: (480, 960) for name in default.view_names()})
+    rig = config_rig(default, image_sizes={name: (480, 960) for name in default.view_names()})
     assert list(rig.names) == default.view_names()
 
 
@@ -644,8 +645,11 @@ def test_pictorial_params_are_keywords_of_the_reconstructor(data):
 
 
 def test_videos_and_detection_plan_delegate_to_their_modules(default):
-    assert [video.name for video in default.videos] == ["pose2d", "pose3d"]
-    plan = default.detection_plan()
+    from flylib.pipeline.inputs import stage_inputs
+    from flylib.visualization.specs import video_specs
+
+    assert [video.name for video in video_specs(default)] == ["pose2d", "pose3d"]
+    plan = stage_inputs(default, "pose2d").detection_plan()
     assert list(plan.view_names) == default.view_names()
     assert list(plan.point_names) == list(Skeleton.fly().point_names)
 

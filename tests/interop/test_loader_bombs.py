@@ -252,8 +252,8 @@ def test_dlc_csv_column_bound_is_exact(tmp_path, monkeypatch):
     ids=["600-deep", "self-alias"],
 )
 def test_deep_nwb_sidecar_is_one_config_error(tmp_path, text):
+    from flylib.config.nwb_metadata import read_sidecar
     from flylib.errors import ConfigError
-    from flylib.nwb_metadata import read_sidecar
 
     path = tmp_path / "nwb.yaml"
     path.write_text(text)

@@ -24,10 +24,10 @@ import yaml
 import flylib
 from flylib.cli import main
 from flylib.config import Config
+from flylib.config.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
 from flylib.errors import ConfigError
 from flylib.interop.exports import points3d_table, write_dlc_views, write_points3d_csv
 from flylib.interop.nwb import confidence_3d, write_nwb
-from flylib.nwb_metadata import DEMO_METADATA, SIDECAR, recording_metadata
 from flylib.pipeline.export_nwb import NwbExportInputs, run_export_nwb
 from flylib.pipeline.inputs import stage_inputs
 from flylib.results import PoseResult
@@ -676,7 +676,7 @@ def test_the_export_job_reads_the_session_metadata_its_rule_tracks(tmp_path):
     assert rebuilt.runtime.config_text == Config.from_dict(data).snapshot_text()
     recording = tmp_path / "fly7"
     recording.mkdir()
-    from flylib.nwb_metadata import parse_datetime
+    from flylib.config.nwb_metadata import parse_datetime
 
     job, direct = session_metadata(rebuilt, recording), session_metadata(inputs, recording)
     start = data["nwb"]["session_start_time"]

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from flylib.demo import synthetic_fly
 from flylib.kinematics import compute_kinematics, default_angles, flexion
+from flylib.pipeline.planning import config_rig
 from flylib.skeleton import Skeleton
 
 FLY = Skeleton.fly()
@@ -120,7 +121,7 @@ def test_stage_writes_h5_csv_and_figure(tmp_path):
 
     config = Config.default()
     sizes = {v: (480, 960) for v in config.view_names()}
-    rig = config.camera_group(image_sizes=sizes)
+    rig = config_rig(config, image_sizes=sizes)
     pts3d = synthetic_fly(20, seed=5)
     PoseResult(
         cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)), pts3d=pts3d
@@ -214,7 +215,7 @@ def test_the_stage_refuses_a_mirror_image_unless_allowed(tmp_path):
 
     config = Config.default()
     rig = mirror_cameras(
-        config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+        config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
     )
     pts3d = synthetic_fly(12, seed=5) @ WORLD_MIRROR
     path = tmp_path / "results.h5"

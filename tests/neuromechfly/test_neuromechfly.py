@@ -15,6 +15,7 @@ from flylib.config import Config
 from flylib.errors import ResultsError
 from flylib.neuromechfly import compute_nmf_angles, dof_names, forward_kinematics
 from flylib.neuromechfly.model import LEGS, leg_lengths
+from flylib.pipeline.planning import config_rig
 
 # flygym's own list (flygym.preprogrammed.all_leg_dofs, 1.x and 2.x), written out here
 # from its published definition, not from flylib's
@@ -241,8 +242,8 @@ def test_flygym_replays_the_angles_and_the_simulated_joints_are_reported(capsys)
 
 def test_the_angles_go_in_the_nwb_export(tmp_path):
     pynwb = pytest.importorskip("pynwb")
+    from flylib.config.nwb_metadata import DEMO_METADATA
     from flylib.interop.nwb import JOINT_ANGLES_NAME, read_joint_angles, write_nwb
-    from flylib.nwb_metadata import DEMO_METADATA
     from flylib.pipeline.neuromechfly import write_nmf_h5
     from flylib.results import PoseResult
 
@@ -252,7 +253,7 @@ def test_the_angles_go_in_the_nwb_export(tmp_path):
     pts3d[:3, config.skeleton().point_names.index("rf_claw")] = np.nan
     nmf = compute_nmf_angles(pts3d, config.skeleton())
     write_nmf_h5(tmp_path / "neuromechfly.h5", nmf, 100.0)
-    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
     result = PoseResult(
         cameras=rig, skeleton=config.skeleton(), pts2d=np.asarray(rig.project(pts3d)), pts3d=pts3d
     )
@@ -326,7 +327,7 @@ def test_the_stage_refuses_a_mirror_image_with_the_cause_assemble_stored(tmp_pat
     from flylib.results import PoseResult
 
     config = Config.default()
-    rig = config.camera_group(image_sizes={v: (480, 960) for v in config.view_names()})
+    rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
     pts3d = _fly38_from_model(_random_angles(6, seed=1), seed=2) @ WORLD_MIRROR
     entry = rig_check(
         handedness(pts3d, config.skeleton()), rig="the calibration file x/calib.pkl", from_file=True

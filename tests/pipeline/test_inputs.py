@@ -23,6 +23,7 @@ import pytest
 
 from flylib.config import PARAM_STAGES, Config
 from flylib.pipeline.inputs import inputs_class, stage_inputs, stage_params
+from flylib.pipeline.planning import config_rig
 
 GOLDEN = json.loads(
     (Path(__file__).resolve().parents[1] / "data" / "stage_params_golden.json").read_text()
@@ -80,7 +81,7 @@ def test_a_rig_rebuilt_from_the_tracked_params_keeps_the_configs_view_order():
     sizes = {view: (480, 960) for view in views}
     rebuilt = RigSpec.from_params(tracked).camera_group(sizes)
     assert list(rebuilt.names) == views
-    np.testing.assert_array_equal(rebuilt.tvecs, config.camera_group(sizes).tvecs)
+    np.testing.assert_array_equal(rebuilt.tvecs, config_rig(config, sizes).tvecs)
 
 
 def test_a_jobs_rig_keeps_the_configs_camera_order(configs):

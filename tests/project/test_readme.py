@@ -16,6 +16,7 @@ from flylib.pipeline.inputs import stage_inputs
 from flylib.pipeline.preflight import preflight_problems
 from flylib.recordings import Recording
 from flylib.results.artifacts import SUMMARY_FILES
+from flylib.visualization.specs import video_specs
 
 REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
@@ -35,7 +36,7 @@ def code_blocks(language: str = "bash") -> list[str]:
 
 def test_the_outputs_table_lists_every_file_a_run_writes_per_recording():
     table = section("## What a run produces")
-    videos = [v.name + ".mp4" for v in Config.default().videos]
+    videos = [v.name + ".mp4" for v in video_specs(Config.default())]
     for name in ["results.h5", "config.yaml", *SUMMARY_FILES, *KINEMATICS_FILES, *videos]:
         assert f"`{name}`" in table, name
 

@@ -132,7 +132,8 @@ def test_the_demo(tmp_path, capsys):
     acc = _check_never_worse(out, with_ba=False)
     assert acc["frames_evaluated"] == 60
     # flylib inspect: the held-out figures per stage and per point, and the sentence
-    from flylib.cli import main, summarize_results
+    from flylib.cli import main
+    from flylib.results import summarize_results
 
     summary = summarize_results(out / "results.h5")
     rows = {r["stage"]: r for r in summary["stages"]}

@@ -21,7 +21,7 @@ from flylib.cli import main as flylib_main
 from flylib.config import Config
 from flylib.errors import OutputError, ResultsError
 from flylib.pipeline.inputs import stage_inputs, stage_params
-from flylib.pipeline.planning import params_of
+from flylib.pipeline.planning import config_rig, params_of
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import (
     Pose2dData,
@@ -110,7 +110,7 @@ def rig_and_skeleton():
     config = Config.default()
     return (
         config,
-        config.camera_group({v: (480, 960) for v in config.view_names()}),
+        config_rig(config, {v: (480, 960) for v in config.view_names()}),
         config.skeleton(),
     )
 
@@ -637,6 +637,7 @@ _WRITE_UNDER_LIMIT = textwrap.dedent("""
     from flylib.errors import FlylibError
     from flylib.results import Pose2dData, assemble_results, write_stage
     from flylib.config import Config
+    from flylib.pipeline.planning import config_rig
 
     def limit():
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -659,7 +660,7 @@ _WRITE_UNDER_LIMIT = textwrap.dedent("""
                        config.view_names(), {}).save(pose2d, config.skeleton())
             limit()
             assemble_results(target, skeleton=config.skeleton(), stage_files={"pose2d": pose2d},
-                             config_rig=config.camera_group({v: (480, 960) for v in config.view_names()}))
+                             config_rig=config_rig(config, {v: (480, 960) for v in config.view_names()}))
     except FlylibError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(1)

@@ -17,6 +17,7 @@ from flylib.config import Config
 from flylib.errors import FootageError, ImportFormatError
 from flylib.io.images import image_damage
 from flylib.pipeline.inputs import stage_inputs, stage_params
+from flylib.pipeline.planning import config_rig
 from flylib.pipeline.pose2d import import_target
 
 
@@ -170,7 +171,7 @@ def _mp4(path: Path, n: int = 60, truncate: float | None = None) -> Path:
 
 
 def test_truncated_mp4_keeps_its_header_count(tmp_path):
-    from flylib.recordings import video_frame_count
+    from flylib.recordings.frame_counts import video_frame_count
 
     path = _mp4(tmp_path / "cam.mp4", truncate=0.6)
     assert video_frame_count(path) == 60  # what the header says...
@@ -248,7 +249,7 @@ def test_visualization_errors_when_footage_and_result_differ_in_length(tmp_path,
 
     config = Config.default()
     views = config.view_names()
-    rig = config.camera_group({v: (48, 64) for v in views})
+    rig = config_rig(config, {v: (48, 64) for v in views})
     skeleton = config.skeleton()
     result = PoseResult(
         rig, skeleton, np.full((7, 6, 38, 2), np.nan), pts3d=np.full((6, 38, 3), np.nan)

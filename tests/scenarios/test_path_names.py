@@ -87,7 +87,7 @@ def test_a_leading_dash_and_literal_brackets_in_folder_names_run_to_the_end(tmp_
 
 
 def test_a_listed_path_that_exists_is_a_path_and_a_missing_one_a_pattern(tmp_path):
-    from flylib.recordings import is_pattern
+    from flylib.recordings.lookup import is_pattern
 
     (tmp_path / "fly[1]").mkdir()
     assert not is_pattern(tmp_path / "fly[1]")

@@ -25,7 +25,7 @@ import pytest
 import yaml
 
 from flylib.pipeline.inputs import stage_inputs, stage_params
-from flylib.pipeline.planning import params_of
+from flylib.pipeline.planning import config_rig, params_of
 
 from workflow_run import snakemake_command
 
@@ -212,7 +212,7 @@ def _triangulation_artifact(path: Path, config) -> None:
     rng = np.random.default_rng(0)
     points = _pose2d_points()
     points3d = rng.normal(size=(4, 38, 3)) * 0.3
-    rig = config.camera_group({v: (480, 960) for v in config.view_names()})
+    rig = config_rig(config, {v: (480, 960) for v in config.view_names()})
     error = np.linalg.norm(points - rig.project(points3d), axis=-1)
     write_stage(
         path,

@@ -32,6 +32,7 @@ from flylib.visualization.draw import (
     skeleton_colors,
     to_panel_coords,
 )
+from flylib.visualization.specs import video_specs
 from flylib.visualization.summary import error_per_view, error_ticks, trajectory_points
 
 VIEWS = ["rh", "rm", "rf", "f", "lf", "lm", "lh"]
@@ -180,7 +181,7 @@ def test_panel_off_an_explicit_canvas_is_caught_once_the_frame_size_is_known():
 def test_a_configs_videos_are_its_tables_specs_checked_against_its_cameras():
     table = vis_table()
     from_table = read_video_specs(table, view_names=VIEWS)
-    from_config = Config.from_dict(config_dict(table)).videos
+    from_config = video_specs(Config.from_dict(config_dict(table)))
     assert from_table == from_config
     assert [p.plot for p in from_table[0].panels] == ["imshow", "skeleton_2d"] * 2
 

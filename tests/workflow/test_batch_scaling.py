@@ -107,6 +107,7 @@ def test_calibration_file_in_another_runs_output_folder_is_read_not_made(tmp_pat
     writes to (another run's outputs): an input of this run, never a job's output."""
     from flylib.config import Config
     from flylib.interop.anipose import write_anipose_toml
+    from flylib.pipeline.planning import config_rig
     from tests.workflow.test_workflow import planned
 
     config = _batch(tmp_path, 2)
@@ -114,7 +115,7 @@ def test_calibration_file_in_another_runs_output_folder_is_read_not_made(tmp_pat
     rig_file = tmp_path / "reference" / "flylib_outputs" / "calibration.toml"
     rig_file.parent.mkdir(parents=True)
     cfg = Config.from_dict(config)
-    write_anipose_toml(cfg.camera_group({v: (480, 960) for v in cfg.view_names()}), rig_file)
+    write_anipose_toml(config_rig(cfg, {v: (480, 960) for v in cfg.view_names()}), rig_file)
     config["calibration"] = {"file": str(rig_file), "format": "anipose"}
     stages = ("pose2d", "bundle_adjustment", "triangulation", "refinement", "assemble")
     assert planned(tmp_path, config) == {

@@ -242,6 +242,7 @@ def test_stage_toggles_shape_the_dag(workspace):
 def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     from flylib.config import Config
     from flylib.interop.anipose import write_anipose_toml
+    from flylib.pipeline.planning import config_rig
 
     config = base_config()
     config["bundle_adjustment"]["max_nfev"] = 5
@@ -249,7 +250,7 @@ def test_calibration_file_edit_reruns_the_stages_that_read_it(tmp_path):
     config["recordings"] = [make_recording(config, tmp_path / "recA", seed=0)]
     rig_file = tmp_path / "rig.toml"
     cfg = Config.from_dict(config)
-    write_anipose_toml(cfg.camera_group({v: (480, 960) for v in cfg.view_names()}), rig_file)
+    write_anipose_toml(config_rig(cfg, {v: (480, 960) for v in cfg.view_names()}), rig_file)
     config["calibration"] = {"file": str(rig_file), "format": "anipose"}
     snakemake(tmp_path, config=config)
     assert planned(tmp_path, config) == set()

@@ -2,14 +2,14 @@
 #
 #   exports: {nwb: true}   ->  {outdir}/results.nwb: the result as NWB (ndx-pose), with
 #                              the session metadata of the `nwb` table and the recording's
-#                              nwb.yaml (see flylib.nwb_metadata)
+#                              nwb.yaml (see flylib.config.nwb_metadata)
 #
 # The rule's params are the `exports` and `nwb` tables, its inputs results.h5, the
 # footage it links and the recording's nwb.yaml, so it re-runs only when one of those
 # changes. Missing session metadata is one error naming every recording and key, raised
 # here, before any job starts.
 
-from flylib.nwb_metadata import recordings_metadata_problems, sidecar_inputs
+from flylib.config.nwb_metadata import recordings_metadata_problems, sidecar_inputs
 from flylib.pipeline.export_nwb import NwbExportInputs
 from flylib.pipeline.user_files import NWB_FILE
 

@@ -30,7 +30,6 @@ if FLAGS["kinematics"]:
             mem_mb=job_mem_mb("kinematics"),
             runtime=15,
         params:
-            stage=stage_params("kinematics"),
-            runtime=job_runtime("kinematics"),
+            **job_params("kinematics", recording_path=False),
         script:
             "../../scripts/kinematics.py"

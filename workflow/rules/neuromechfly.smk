@@ -30,7 +30,6 @@ if FLAGS["neuromechfly"]:
             mem_mb=3000,
             runtime=30,
         params:
-            stage=stage_params("neuromechfly"),
-            runtime=job_runtime("neuromechfly"),
+            **job_params("neuromechfly", recording_path=False),
         script:
             "../../scripts/neuromechfly.py"

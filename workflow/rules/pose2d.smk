@@ -26,9 +26,7 @@ if FLAGS["pose2d"]:
             runtime=pose2d_runtime,
             gpu=pose2d_gpus,
         params:
-            stage=stage_params("pose2d"),
-            runtime=job_runtime("pose2d"),
+            **job_params("pose2d"),
             import_spec=pose2d_import,
-            recording=lambda w: str(recording(w).path),
         script:
             "../../scripts/pose2d.py"

@@ -24,9 +24,7 @@ if FLAGS["bundle_adjustment"]:
             mem_mb=job_mem_mb("bundle_adjustment"),
             runtime=60,
         params:
-            stage=stage_params("bundle_adjustment"),
-            runtime=job_runtime("bundle_adjustment"),
-            recording=lambda w: str(recording(w).path),
+            **job_params("bundle_adjustment"),
         script:
             "../../scripts/bundle_adjustment.py"
 
@@ -48,7 +46,7 @@ if SESSIONS:
             pose2d_files=lambda w: [
                 artifact("pose2d").format(outdir=r.outdir) for r in session(w).members
             ],
-            rig_files=lambda w: list(_recording_calibration(session(w).members[0].path)),
+            rig_files=lambda w: list(PLAN.recording_calibration(session(w).members[0].path)),
         output:
             out="{sessiondir}/session_calibration.h5",
             calibration="{sessiondir}/calibration.toml",
@@ -123,9 +121,7 @@ if FLAGS["pictorial_structures"]:
             mem_mb=2000,
             runtime=60,
         params:
-            stage=stage_params("pictorial_structures"),
-            runtime=job_runtime("pictorial_structures"),
-            recording=lambda w: str(recording(w).path),
+            **job_params("pictorial_structures"),
         script:
             "../../scripts/pictorial_structures.py"
 
@@ -151,8 +147,6 @@ if FLAGS["triangulation"]:
             mem_mb=job_mem_mb("triangulation"),
             runtime=30,
         params:
-            stage=stage_params("triangulation"),
-            runtime=job_runtime("triangulation"),
-            recording=lambda w: str(recording(w).path),
+            **job_params("triangulation"),
         script:
             "../../scripts/triangulation.py"

@@ -24,8 +24,6 @@ if FLAGS["refinement"]:
             mem_mb=job_mem_mb("refinement"),
             runtime=60,
         params:
-            stage=stage_params("refinement"),
-            runtime=job_runtime("refinement"),
-            recording=lambda w: str(recording(w).path),
+            **job_params("refinement"),
         script:
             "../../scripts/refinement.py"

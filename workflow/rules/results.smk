@@ -33,10 +33,8 @@ rule assemble:
         mem_mb=job_mem_mb("assemble"),
         runtime=15,
     params:
-        stage=stage_params("assemble"),
-        runtime=job_runtime("assemble"),
+        **job_params("assemble"),
         # the snapshot's text: derived (a function of the input), so it re-runs nothing
         config_text=lambda wildcards, input: CONFIG.snapshot_text(),
-        recording=lambda w: str(recording(w).path),
     script:
         "../../scripts/assemble.py"

@@ -31,9 +31,7 @@ if FLAGS["visualization"] and VIDEO_NAMES:
             mem_mb=4000,
             runtime=60,
         params:
-            stage=stage_params("visualization"),
-            runtime=job_runtime("visualization"),
-            recording=lambda w: str(recording(w).path),
+            **job_params("visualization"),
             speed=lambda w: DEMO_VIDEO_SPEED if recording(w).demo else None,
         script:
             "../../scripts/visualization.py"

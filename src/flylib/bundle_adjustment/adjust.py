@@ -273,7 +273,8 @@ def _adjust(args: _Arguments):
     def triangulate(table, use):
         return ransac_points(cameras_from_table(names, table), pts2d, use, args.init_threshold)
 
-    table, reseeded, start_median = _reseeded(args, table_user, layout, pts2d, usable, triangulate)
+    movable = (layout.var_index[:, :6] >= 0).all(axis=1)
+    table, reseeded, start_median = _reseeded(args, table_user, movable, pts2d, usable, triangulate)
     # a camera that sees none of the points has nothing to fit: held at its start
     observed = usable.any(axis=1)
     unobserved = [n for n, seen in zip(names, observed) if not seen]
@@ -281,7 +282,6 @@ def _adjust(args: _Arguments):
     # similarity, which is held during the fit and put back where the start had it
     cam_part = camera_parts(usable, ids, n_unknown)
     n_parts = int(cam_part.max()) + 1
-    movable = (layout.var_index[:, :6] >= 0).all(axis=1)
     fit_layout = _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movable)
     n_gauge = open_gauge_directions(table, fit_layout, observed)
     cols_start = (
@@ -340,7 +340,7 @@ def _adjust(args: _Arguments):
         warn_user(message)
     refined = cameras_from_table(names, table)
     out_pts = pts[ids]
-    err = _view_errors(table, out_pts, pts2d, active)
+    err = view_errors(table, out_pts, pts2d, active)
     result.initial_median_px = initial_median
     result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
     result.inliers = active
@@ -368,11 +368,10 @@ def _adjust(args: _Arguments):
     return result, refined, out_pts
 
 
-def _reseeded(args, table_user, layout, pts2d, usable, triangulate):
+def _reseeded(args, table_user, movable, pts2d, usable, triangulate):
     """``(table, reseeded, start median per camera or None)``: the start with cameras
     grossly off resected first (only when no 3D start is given)."""
     if args.pts3d is None and args.reseed_px:
-        movable = (layout.var_index[:, :6] >= 0).all(axis=1)
         return reseed_gross_cameras(
             table_user,
             list(args.cameras.names),
@@ -441,7 +440,7 @@ def _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movab
 def _first_inliers(args, table, pts_cols, pts2d, usable) -> tuple[np.ndarray, float]:
     """The first inlier set ``(V, N)``, judged against the starting points, and its
     median error (the result's ``initial_median_px``)."""
-    err = _view_errors(table, pts_cols, pts2d, usable)
+    err = view_errors(table, pts_cols, pts2d, usable)
     if args.reject_outliers:
         threshold = max(args.outlier_min_px, args.outlier_factor * float(np.nanmedian(err[usable])))
         active = usable & (np.nan_to_num(err, nan=np.inf) <= threshold)
@@ -536,7 +535,7 @@ def _fit_rounds(
         if lost.any():  # judge the observations of points that left the fit too
             again = unknowns_from_columns(triangulate(table, usable), ids, n_unknown)
             pts[lost] = again[lost]
-        err = _view_errors(table, pts[ids], pts2d, usable)
+        err = view_errors(table, pts[ids], pts2d, usable)
         threshold = max(args.outlier_min_px, args.outlier_factor * float(np.nanmedian(err[active])))
         err_inf = np.nan_to_num(err, nan=np.inf)
         new_active = usable & (err_inf <= np.where(active, 1.0, RETURN_FRACTION) * threshold)
@@ -616,24 +615,9 @@ def ransac_points(
     usable: Bool[np.ndarray, "V N"],
     threshold: float,
 ) -> Float[np.ndarray, "N 3"]:
-    """Consensus-triangulated columns from the usable observations (the BA start).
-
-    Parameters
-    ----------
-    cameras
-        The rig the points are triangulated with.
-    pts2d
-        Observed 2D points per view.
-    usable
-        Which observations may vote; the others are treated as missing.
-    threshold
-        RANSAC inlier threshold in pixels.
-
-    Returns
-    -------
-    numpy.ndarray
-        The 3D points, NaN where no consensus was found.
-    """
+    """Consensus-triangulated columns from the usable observations (the BA start), the
+    others treated as missing; RANSAC inlier ``threshold`` in pixels; NaN where no
+    consensus was found."""
     from ..triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)
@@ -672,8 +656,3 @@ def _make_problem(
         bone_group=None if bone_g is None else np.unique(bone_g[bones_ok], return_inverse=True)[1],
     )
     return problem, keep
-
-
-def _view_errors(table, pts_cols, pts2d, usable):
-    """``(V, N)`` reprojection errors of the usable observations, NaN elsewhere."""
-    return view_errors(table, pts_cols, pts2d, usable)

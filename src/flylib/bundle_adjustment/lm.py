@@ -41,15 +41,8 @@ LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 @dataclass
 class BlockStructure:
-    """Column partition of a problem: global columns and padded local blocks.
-
-    Attributes
-    ----------
-    global_cols
-        ``(G,)`` column indices of the global unknowns.
-    block_cols
-        ``(B, S)`` column indices of each local block, ``-1`` where padded.
-    """
+    """Column partition of a problem: ``global_cols`` ``(G,)`` of the global unknowns,
+    ``block_cols`` ``(B, S)`` of each local block, ``-1`` where padded."""
 
     global_cols: np.ndarray
     block_cols: np.ndarray
@@ -212,34 +205,15 @@ def solve_lm(
     max_iter: int = 100,
     **unused,
 ) -> OptimizeResult:
-    """Minimize ``problem``'s (robust) cost from ``x0`` by Levenberg-Marquardt.
+    """Minimize ``problem``'s (robust) cost from ``x0`` (:meth:`Problem.pack`) by
+    Levenberg-Marquardt; ``loss`` and ``f_scale`` as ``scipy.optimize.least_squares``,
+    ``max_nfev`` default ``max_iter + 1``. The result has scipy's ``x``, ``cost``,
+    ``fun``, ``nfev``, ``njev``, ``status``, ``message`` and ``success``.
 
-    Parameters
-    ----------
-    problem, x0
-        The problem and the starting vector (:meth:`Problem.pack`).
-    blocks
-        Its column partition (:func:`block_structure`).
-    loss, f_scale
-        As ``scipy.optimize.least_squares``.
-    max_nfev
-        Cap on residual evaluations (default ``max_iter + 1``).
-    ftol, xtol, gtol
-        Stop when an accepted step lowers the cost by less than ``ftol`` relatively
-        (``1e-6``: tighter only crept on, 0.2 of 30,000 over a dozen steps, with no
-        change in the 3D),
-        moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is below
-        ``gtol``.
-
-    Returns
-    -------
-    OptimizeResult
-        ``x``, ``cost``, ``fun``, ``nfev``, ``njev``, ``status``, ``message``,
-        ``success`` as scipy's.
-
-    Notes
-    -----
-    Directions the data do not pin at all (a gauge) make the damped step wander along
+    It stops when an accepted step lowers the cost by less than ``ftol`` relatively
+    (``1e-6``: tighter only crept on, 0.2 of 30,000 over a dozen steps, with no change in
+    the 3D), moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is
+    below ``gtol``. Directions the data do not pin at all (a gauge) make the damped step wander along
     them; hold the gauge fixed (as :func:`flylib.bundle_adjustment.bundle_adjust` does).
     """
     if unused:
@@ -314,7 +288,7 @@ def solve_lm(
             if not accepted and not status:
                 status, message = 2, "no further decrease (damping at its limit)"
             break
-    result = OptimizeResult(
+    return OptimizeResult(
         x=x,
         cost=float(cost),
         fun=raw,
@@ -324,27 +298,17 @@ def solve_lm(
         message=message,
         success=status > 0,
     )
-    return result
 
 
 def weak_directions(
     hessian: Float[np.ndarray, "G G"], n_gauge: int
 ) -> tuple[float, int, Float[np.ndarray, " G"]]:
-    """How well the reduced Hessian pins its unknowns beyond the gauge.
-
-    The Hessian is first scaled to unit diagonal (Jacobi), so units do not matter.
-
-    Returns
-    -------
-    ratio : float
-        Its ``n_gauge``-th smallest eigenvalue (the weakest non-gauge direction) over
-        its largest.
-    count : int
-        How many eigenvalues beyond the gauge lie below ``1e-9`` of the largest.
-    direction : np.ndarray
-        ``(G,)`` that weakest direction (unit, in the scaled unknowns); empty when
-        there is none beyond the gauge.
-    """
+    """How well the reduced Hessian, scaled to unit diagonal (Jacobi, so units do not
+    matter), pins its unknowns beyond the gauge: ``(ratio, count, direction)``, its
+    ``n_gauge``-th smallest eigenvalue (the weakest non-gauge direction) over its
+    largest, how many eigenvalues beyond the gauge lie below ``1e-9`` of the largest,
+    and that weakest direction ``(G,)`` (unit, in the scaled unknowns; empty when there
+    is none beyond the gauge)."""
     d = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
     eig, vec = np.linalg.eigh(hessian / d[:, None] / d[None, :])
     eig = np.maximum(eig, 0.0)

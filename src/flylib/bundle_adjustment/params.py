@@ -88,15 +88,8 @@ def expand_reference(
 
 @dataclass(frozen=True)
 class ParamLayout:
-    """How the ``(V, C)`` camera table maps onto the solver's free variables.
-
-    Attributes
-    ----------
-    var_index
-        ``(V, C)`` int: the free variable an entry reads, or ``-1`` when fixed.
-    n_free
-        Number of free camera variables.
-    """
+    """How the ``(V, C)`` camera table maps onto the solver's ``n_free`` free variables:
+    ``var_index`` ``(V, C)`` is the free variable an entry reads, or ``-1`` when fixed."""
 
     var_index: Int[np.ndarray, "V C"]
     n_free: int

@@ -194,7 +194,7 @@ class Problem:
         if self.n_bones:
             diff = pts[self.bone_i] - pts[self.bone_j]
             length = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
-            scale = self._lengths(x) if self.n_len else self.bone_target
+            scale = self._lengths(x)
             g = (self.bone_weight / scale / length)[:, None] * diff
             parts += [g.ravel(), (-g).ravel()]
             if self.n_len:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from ..camera.model import pad_dist_numpy, rmat_to_rvec_numpy, rvec_to_rmat_numpy
@@ -66,6 +65,8 @@ def reaim(
 ) -> Float[np.ndarray, " C"]:
     """Turn camera ``row`` about its centre so that ``target`` projects near the
     median of ``observed`` ``(M, 2)`` pixels (distortion ignored: a coarse repair)."""
+    import cv2  # only a repair needs OpenCV, not every bundle-adjustment job
+
     rmat = rvec_to_rmat_numpy(row[0:3])
     centre = -rmat.T @ row[3:6]
     med = np.median(observed, axis=0)
@@ -113,30 +114,14 @@ def reseed_gross_cameras(
 ) -> tuple[Float[np.ndarray, "V C"], list[str], Float[np.ndarray, " V"]]:
     """Resect (or re-aim) every camera whose median error from the start is gross.
 
-    Parameters
-    ----------
-    table
-        ``(V, C)`` camera table.
-    names
-        Camera names (for the report).
-    pts2d, usable
-        ``(V, N, 2)`` observations and ``(V, N)`` which may be used.
-    gross_px
-        A camera is gross when the median reprojection error of its observations
-        against points triangulated by the other cameras exceeds this.
-    triangulate
-        ``(table, usable) -> pts (N, 3)``: a robust triangulation (NaN where impossible).
-    movable
-        ``(V,)`` bool: cameras whose extrinsics may be changed (default all).
+    A camera is gross when the median reprojection error of its observations against
+    points triangulated by the other cameras exceeds ``gross_px``. ``triangulate``:
+    ``(table, usable) -> pts (N, 3)``, a robust triangulation (NaN where impossible);
+    ``movable``: cameras whose extrinsics may be changed (default all).
 
-    Returns
-    -------
-    table : np.ndarray
-        The repaired table.
-    reseeded : list of str
-        ``"<camera>: pnp"`` / ``"<camera>: re-aimed"`` per repaired camera.
-    median_px : np.ndarray
-        ``(V,)`` per-camera median error before the repair.
+    Returns ``(table, reseeded, median_px)``: the repaired table, ``"<camera>: pnp"`` /
+    ``"<camera>: re-aimed"`` per repaired camera, and the ``(V,)`` per-camera median
+    error before the repair.
     """
     table = table.copy()
     has_obs = usable.any(axis=1)
@@ -172,6 +157,8 @@ def reseed_gross_cameras(
         # EPnP inside RANSAC, no extrinsic guess (the guess is what is wrong; OpenCV's
         # iterative solver returned garbage from a 3-degree-off guess), then LM on inliers
         obj, img = pts_good[ok], pts2d[v][ok]
+        import cv2  # only a repair needs OpenCV, not every bundle-adjustment job
+
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
             obj,
             img,

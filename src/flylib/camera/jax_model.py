@@ -45,12 +45,10 @@ if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
 import jax.numpy as jnp  # noqa: E402
 
 from .model import (  # noqa: E402,F401 - the formulas and their NumPy bindings, re-exported
-    N_DIST_COEFFS,
     distort_normalized,
     dlt_camera_constants,
     dlt_features,
     dlt_solve,
-    dlt_solve_components,
     dlt_solve_terms,
     intr_to_kmat_generic,
     intr_to_kmat_numpy,
@@ -58,10 +56,8 @@ from .model import (  # noqa: E402,F401 - the formulas and their NumPy bindings,
     pad_dist_numpy,
     pixels_from_normalized,
     project_generic,
-    project_numpy,
     ray_from_normalized,
     rmat_to_rvec_generic,
-    rmat_to_rvec_numpy,
     rvec_to_rmat_generic,
     rvec_to_rmat_numpy,
     split_intr as _split_intr,  # noqa: E402
@@ -82,14 +78,12 @@ def rvec_to_rmat_one(rvec: Float[Array, " 3"]) -> Float[Array, "3 3"]:
     Parameters
     ----------
     rvec
-        Axis-angle vector of shape ``(3,)`` (direction = axis, norm = angle in
-        radians).
+        ``(3,)``: direction = axis, norm = angle in radians.
 
     Returns
     -------
     jax.Array
-        Rotation matrix of shape ``(3, 3)``; exact and differentiable at
-        ``rvec = 0``.
+        ``(3, 3)``; exact and differentiable at ``rvec = 0``.
     """
     return rvec_to_rmat_generic(jnp, rvec)
 
@@ -104,15 +98,10 @@ def rmat_to_rvec_one(rmat: Float[Array, "3 3"]) -> Float[Array, " 3"]:
     ``(R + R^T) / 2 - cos(theta) I = (1 - cos(theta)) a a^T`` and its sign taken
     from the antisymmetric part.
 
-    Parameters
-    ----------
-    rmat
-        Rotation matrix of shape ``(3, 3)``.
-
     Returns
     -------
     jax.Array
-        Axis-angle vector of shape ``(3,)`` with norm in ``[0, pi]``.
+        ``(3,)``, norm in ``[0, pi]``.
     """
     return rmat_to_rvec_generic(jnp, jnp.asarray(rmat, dtype=jnp.float64))
 
@@ -136,39 +125,18 @@ def rmat_to_rvec(rmat: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3"]:
 
 @jax.jit
 def intr_to_kmat(intr: Float[Array, "*batch P"]) -> Float[Array, "*batch 3 3"]:
-    """Camera matrices from packed intrinsics.
+    """Camera matrices ``K`` ``(..., 3, 3)`` from packed intrinsics.
 
     Parameters
     ----------
     intr
         ``(..., 4)`` as ``[fx, fy, cx, cy]`` or ``(..., 3)`` as ``[f, cx, cy]``.
-
-    Returns
-    -------
-    jax.Array
-        ``K`` of shape ``(..., 3, 3)``.
     """
     return intr_to_kmat_generic(jnp, intr)
 
 
 def pad_dist(dist: Float[Array, "*batch K"]) -> Float[Array, "*batch 12"]:
-    """Zero-pad OpenCV distortion coefficients to the full 12-vector.
-
-    Parameters
-    ----------
-    dist
-        ``(..., K)`` with ``K <= 12``.
-
-    Returns
-    -------
-    jax.Array
-        ``(..., 12)``.
-
-    Raises
-    ------
-    ValueError
-        If more than 12 coefficients are given.
-    """
+    """``(..., K)`` OpenCV distortion coefficients zero-padded to ``(..., 12)``; ``K > 12`` is a ValueError."""
     return pad_dist_generic(jnp, dist)
 
 
@@ -178,14 +146,9 @@ def distort_one(xy: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array
     Parameters
     ----------
     xy
-        Normalized coordinate ``(x, y) = (X / Z, Y / Z)``, shape ``(2,)``.
+        Normalized coordinate ``(x, y) = (X / Z, Y / Z)``.
     dist
         ``(K,)`` coefficients, ``K <= 12`` (missing ones are zero).
-
-    Returns
-    -------
-    jax.Array
-        Distorted normalized coordinate, shape ``(2,)``.
     """
     xy = jnp.asarray(xy, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
@@ -204,14 +167,9 @@ def undistort_one(xy_dist: Float[Array, " 2"], dist: Float[Array, " K"]) -> Floa
     Parameters
     ----------
     xy_dist
-        ``((u - cx) / fx, (v - cy) / fy)``, shape ``(2,)``.
+        ``((u - cx) / fx, (v - cy) / fy)``.
     dist
         ``(K,)`` coefficients, ``K <= 12``; empty is the identity.
-
-    Returns
-    -------
-    jax.Array
-        Undistorted normalized coordinate, shape ``(2,)``.
     """
     xy_dist = jnp.asarray(xy_dist, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
@@ -234,19 +192,12 @@ def undistort_one(xy_dist: Float[Array, " 2"], dist: Float[Array, " K"]) -> Floa
 def distort(
     pts2d: Float[Array, "V *pts 2"], dists: Float[Array, "V K"] | Float[Array, " K"]
 ) -> Float[Array, "V *pts 2"]:
-    """Batched :func:`distort_one`.
+    """Batched :func:`distort_one`: normalized coordinates ``(V, *pts, 2)``, distorted.
 
     Parameters
     ----------
-    pts2d
-        Normalized coordinates ``(V, *pts, 2)``.
     dists
         ``(V, K)`` or shared ``(K,)`` coefficients, ``K <= 12``.
-
-    Returns
-    -------
-    jax.Array
-        Distorted coordinates ``(V, *pts, 2)``.
     """
     pts2d = jnp.asarray(pts2d, dtype=jnp.float64)
     dists = jnp.asarray(dists, dtype=jnp.float64)
@@ -273,10 +224,6 @@ def project_full_one(
 
     Parameters
     ----------
-    pt3d
-        World point, shape ``(3,)``.
-    rvec, tvec
-        Extrinsics, shape ``(3,)`` each.
     intr
         ``[fx, fy, cx, cy]`` (or ``[f, cx, cy]``).
     dist
@@ -285,7 +232,7 @@ def project_full_one(
     Returns
     -------
     jax.Array
-        Pixel ``(u, v)``, shape ``(2,)``; ``v`` grows downwards in the image.
+        Pixel ``(u, v)``; ``v`` grows downwards in the image.
     """
     p_cam = rvec_to_rmat_one(rvec) @ jnp.asarray(pt3d, dtype=jnp.float64) + tvec
     d = pad_dist(dist) if jnp.shape(dist)[-1] else None
@@ -303,23 +250,14 @@ def project_full(
     intrs: Float[Array, "V P"] | Float[Array, " P"],
     dists: Float[Array, "V K"] | Float[Array, " K"],
 ) -> Float[Array, "V *pts 2"]:
-    """Project world points through every camera of a stacked rig.
+    """Project world points ``(*pts, 3)`` through every camera of a stacked rig -> ``(V, *pts, 2)``.
 
     Parameters
     ----------
-    pts3d
-        World points ``(*pts, 3)``.
-    rvecs, tvecs
-        ``(V, 3)`` each.
     intrs
         ``(V, 4)`` (or shared ``(4,)``).
     dists
         ``(V, K)`` (or shared ``(K,)``), ``K <= 12``.
-
-    Returns
-    -------
-    jax.Array
-        Pixels ``(V, *pts, 2)``.
     """
     rvecs = jnp.asarray(rvecs, dtype=jnp.float64)
     n_views = rvecs.shape[0]
@@ -333,20 +271,8 @@ def project_full(
 def project_pmat(
     pts3d: Float[Array, "*pts 3"], pmats: Float[Array, "*cams 3 4"]
 ) -> Float[Array, "... 2"]:  # (*cams, *pts, 2): one variadic dim per shape
-    """Project world points with 3x4 projection matrices (no distortion).
-
-    Parameters
-    ----------
-    pts3d
-        ``(*pts, 3)``.
-    pmats
-        ``(*cams, 3, 4)``, typically ``K @ [R | t]``.
-
-    Returns
-    -------
-    jax.Array
-        ``(*cams, *pts, 2)``.
-    """
+    """Project world points ``(*pts, 3)`` with ``(*cams, 3, 4)`` projection matrices
+    (typically ``K @ [R | t]``, no distortion) -> ``(*cams, *pts, 2)``."""
     pts3d = jnp.asarray(pts3d, dtype=jnp.float64)
     pmats = jnp.asarray(pmats, dtype=jnp.float64)
     flat_p = pmats.reshape(-1, 3, 4)
@@ -379,8 +305,6 @@ def triangulate_dlt(
     ----------
     pts2d
         ``(V, *pts, 2)`` pixels; a NaN coordinate drops that view.
-    pmats
-        ``(V, 3, 4)`` projection matrices.
     weights
         Optional ``(V, *pts)``; non-finite or non-positive drops the view. A
         uniform weight changes nothing.
@@ -406,23 +330,10 @@ def dlt_chunk(
     pts2d: Float[Array, "V N 2"],
     weights: Float[Array, "V N"] | None,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
-    """The DLT of :func:`triangulate_dlt` on one chunk, component-major.
+    """The DLT of :func:`triangulate_dlt` on one chunk -> ``(pts3d (N, 3), valid (V, N))``.
 
-    Parameters
-    ----------
-    consts
-        ``{"quad": (V, 6, 9), "norm": (V, 2, 3)}`` from :func:`dlt_camera_constants`.
-    pts2d
-        ``(V, N, 2)`` pixels (undistorted), NaN = missing.
-    weights
-        ``(V, N)`` or None; a zero or non-finite weight drops the view.
-
-    Returns
-    -------
-    pts3d : jax.Array
-        ``(N, 3)``.
-    valid : jax.Array
-        ``(V, N)`` bool, the views that took part.
+    ``consts`` is ``{"quad", "norm"}`` from :func:`dlt_camera_constants`; ``pts2d`` is
+    undistorted pixels, NaN = missing; a zero or non-finite weight drops the view.
     """
     feats, valid = dlt_features(jnp, pts2d, consts["norm"], weights)
     terms = jnp.einsum("fvn,vfk->kn", feats, consts["quad"])
@@ -441,7 +352,7 @@ def chunk_length(n: int, chunk_points: int) -> int:
 
 
 def _padded(arr: np.ndarray, size: int, fill: float) -> np.ndarray:
-    """``arr`` ``(V, n, ...)`` extended along axis 1 to ``size`` with ``fill``."""
+    """``arr`` ``(V, n, ...)`` padded along axis 1 to ``size``."""
     if arr.shape[1] == size:
         return arr
     out = np.full((arr.shape[0], size, *arr.shape[2:]), fill)
@@ -457,28 +368,12 @@ def run_chunked(
     chunk_points: int = DLT_CHUNK_POINTS,
     **params,
 ) -> tuple[Float[np.ndarray, "N 3"], Bool[np.ndarray, "V N"]]:
-    """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks.
+    """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks
+    (bounded memory on long recordings) -> ``(pts3d (n, 3), kept (V, n))``.
 
-    Parameters
-    ----------
-    kernel
-        ``kernel(consts, *chunks, **params) -> (pts3d (size, 3), kept (V, size))``.
-    consts
-        Per-rig arrays, passed unchanged.
-    inputs
-        ``(array, fill)`` pairs; each array ``(V, n, ...)`` (or None, passed as None) is
-        cut into chunks along axis 1, the last one padded with ``fill``.
-    n_views
-        ``V``.
-    chunk_points
-        Points per chunk (memory stays bounded on long recordings).
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(n, 3)``.
-    kept : np.ndarray
-        ``(V, n)`` bool.
+    ``kernel(consts, *chunks, **params)`` returns ``(pts3d (size, 3), kept (V, size))``.
+    ``inputs`` are ``(array, fill)`` pairs; each array ``(V, n, ...)`` (or None, passed as
+    None) is cut into chunks along axis 1, the last one padded with ``fill``.
     """
     n = next(a.shape[1] for a, _ in inputs if a is not None)
     size = chunk_length(n, chunk_points)
@@ -516,22 +411,7 @@ def triangulate_dlt_chunked(
 
     The bulk path behind :meth:`flylib.camera.rig.CameraGroup.triangulate` and
     :func:`flylib.triangulation.triangulate`: one kernel compiled per chunk length.
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, *pts, 2)`` (undistorted) pixels, NaN = missing.
-    pmats
-        ``(V, 3, 4)``.
-    weights
-        Optional ``(V, *pts)``; non-finite or non-positive drops the view.
-    chunk_points
-        Points per chunk.
-
-    Returns
-    -------
-    np.ndarray
-        ``(*pts, 3)``; NaN below two views or for a degenerate geometry.
+    ``pts2d`` is undistorted pixels; NaN below two views or for a degenerate geometry.
     """
     pts2d = np.asarray(pts2d, dtype=np.float64)
     n_views, pts_shape = pts2d.shape[0], pts2d.shape[1:-1]
@@ -558,8 +438,6 @@ def backproject_ray_one(
 
     Parameters
     ----------
-    pixel
-        ``(u, v)``, shape ``(2,)``.
     rvec, tvec, intr, dist
         One camera, as in :func:`project_full_one`.
 
@@ -580,15 +458,7 @@ def closest_point_on_ray(
 ) -> Float[Array, " 3"]:
     """Orthogonal projection of ``target`` onto the line ``origin + s * direction``.
 
-    Parameters
-    ----------
-    origin, direction, target
-        Shape ``(3,)`` each; ``direction`` need not be normalized.
-
-    Returns
-    -------
-    jax.Array
-        The closest point on the line, shape ``(3,)``.
+    ``direction`` need not be normalized.
     """
     origin = jnp.asarray(origin, dtype=jnp.float64)
     direction = jnp.asarray(direction, dtype=jnp.float64)

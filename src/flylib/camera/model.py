@@ -24,8 +24,6 @@ if TYPE_CHECKING:  # pragma: no cover
     AnyArray = np.ndarray | Array  # the formulas run on either back-end (``xp``)
 
 N_DIST_COEFFS = 12
-# Below this theta^2 the Rodrigues coefficients use their Taylor series: the
-# closed forms lose all precision to cancellation in 1 - cos(theta).
 SMALL_THETA_SQ = 1e-6
 
 
@@ -35,24 +33,12 @@ SMALL_THETA_SQ = 1e-6
 def rvec_to_rmat_generic(
     xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]
 ) -> Float[AnyArray, "*batch 3 3"]:
-    """Rodrigues' formula ``(..., 3) -> (..., 3, 3)`` with array module ``xp``.
+    """Rodrigues' formula: axis-angle ``(..., 3)`` (norm = angle in radians) -> ``(..., 3, 3)``.
 
     ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``,
     ``a = sin(theta) / theta`` and ``b = (1 - cos(theta)) / theta^2``. Below ``theta^2 = SMALL_THETA_SQ`` ``a`` and ``b`` come from their Taylor
     series (the closed forms lose all precision to cancellation there); the untaken
     branch is evaluated at a safe ``theta`` so JAX gradients stay finite at ``r = 0``.
-
-    Parameters
-    ----------
-    xp
-        ``numpy`` or ``jax.numpy``.
-    rvec
-        Axis-angle vectors ``(..., 3)`` (direction = axis, norm = angle in radians).
-
-    Returns
-    -------
-    array
-        Rotation matrices ``(..., 3, 3)``.
     """
     rvec = xp.asarray(rvec, dtype=xp.float64)
     x, y, z = rvec[..., 0], rvec[..., 1], rvec[..., 2]
@@ -87,11 +73,7 @@ def rvec_to_rmat_numpy(rvec: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray,
 
 
 def rmat_to_rvec_generic(xp: ModuleType, rmat: Float[AnyArray, "3 3"]) -> Float[AnyArray, " 3"]:
-    """Axis-angle vector of one rotation matrix, with array module ``xp``.
-
-    The body of :func:`flylib.camera.jax_model.rmat_to_rvec_one` (which documents the method)
-    and of :func:`rmat_to_rvec_numpy`.
-    """
+    """Axis-angle vector of one rotation matrix (method: :func:`flylib.camera.jax_model.rmat_to_rvec_one`)."""
     rho = 0.5 * xp.stack(
         [rmat[2, 1] - rmat[1, 2], rmat[0, 2] - rmat[2, 0], rmat[1, 0] - rmat[0, 1]]
     )  # sin(theta) * axis
@@ -155,13 +137,7 @@ def intr_to_kmat_numpy(intr: Float[np.ndarray, "*batch P"]) -> Float[np.ndarray,
 def pad_dist_generic(
     xp: ModuleType, dist: Float[AnyArray, "*batch K"]
 ) -> Float[AnyArray, "*batch 12"]:
-    """``(..., K)`` distortion coefficients zero-padded to ``(..., 12)``, with array module ``xp``.
-
-    Raises
-    ------
-    ValueError
-        If more than 12 coefficients are given.
-    """
+    """``(..., K)`` distortion coefficients zero-padded to ``(..., 12)``; more than 12 is a ValueError."""
     dist = xp.asarray(dist, dtype=xp.float64)
     k = dist.shape[-1]
     if k > N_DIST_COEFFS:
@@ -224,30 +200,11 @@ def project_generic(
     intrs: Float[AnyArray, "V P"],
     dists: Float[AnyArray, "V K"],
 ) -> Float[AnyArray, "V *pts 2"]:
-    """Project world points through stacked cameras, with array module ``xp``.
+    """World points ``(*pts, 3)`` through ``V`` stacked cameras -> pixels ``(V, *pts, 2)``.
 
     ``X_cam = R X + t``, perspective division, :func:`distort_normalized`, then
-    ``u = fx x + cx``, ``v = fy y + cy``: the model of ``cv2.projectPoints``.
-
-    Parameters
-    ----------
-    xp
-        ``numpy`` or ``jax.numpy``.
-    pts3d
-        World points ``(*pts, 3)``.
-    rmats
-        Rotation matrices ``(V, 3, 3)``.
-    tvecs
-        ``(V, 3)``.
-    intrs
-        ``(V, 4)`` ``[fx, fy, cx, cy]`` or ``(V, 3)`` ``[f, cx, cy]``.
-    dists
-        ``(V, K)``, ``K <= 12``; an all-zero NumPy array skips the lens model.
-
-    Returns
-    -------
-    array
-        Pixels ``(V, *pts, 2)``.
+    ``u = fx x + cx``, ``v = fy y + cy``: the model of ``cv2.projectPoints``. ``intrs`` is
+    ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``; an all-zero NumPy ``dists`` skips the lens model.
     """
     pts3d = xp.asarray(pts3d, dtype=xp.float64)
     flat = xp.reshape(pts3d, (-1, 3))
@@ -303,22 +260,10 @@ def undistort_normalized(
     max_iter: int = 200,
     tol: float = 1e-15,
 ) -> Float[np.ndarray, "*pts 2"]:
-    """NumPy batch inverse of :func:`distort_normalized` for one camera.
+    """NumPy batch inverse of :func:`distort_normalized` for one camera; NaN stays NaN.
 
     :func:`undistort_step` (the fixed point :func:`flylib.camera.jax_model.undistort_one` starts
     with), run until no coordinate moves by more than ``tol`` (or ``max_iter`` sweeps).
-
-    Parameters
-    ----------
-    xy_dist
-        Distorted normalized coordinates ``(..., 2)``; NaN stays NaN.
-    dist
-        ``(K,)`` coefficients, ``K <= 12``.
-
-    Returns
-    -------
-    np.ndarray
-        Undistorted normalized coordinates ``(..., 2)``.
     """
     xy_dist = np.asarray(xy_dist, dtype=np.float64)
     if np.size(dist) == 0 or not np.any(dist):
@@ -357,22 +302,11 @@ _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 def dlt_camera_constants(
     xp: ModuleType, pmats: Float[AnyArray, "V 3 4"]
 ) -> tuple[Float[AnyArray, "V 6 9"], Float[AnyArray, "V 2 3"]]:
-    """Per-view constants of the DLT normal equations.
+    """Per-view constants of the DLT normal equations, ``(quad, norm)``.
 
-    Parameters
-    ----------
-    xp
-        ``numpy`` or ``jax.numpy``.
-    pmats
-        ``(V, 3, 4)``.
-
-    Returns
-    -------
-    quad : array
-        ``(V, 6, 9)``: maps a view's features ``(s u^2, s u, s, s v^2, s v, s)``
-        to its contribution to ``DLT_TERMS``.
-    norm : array
-        ``(V, 2, 3)``: ``|a3|^2 = c0 o^2 + c1 o + c2`` per row.
+    ``quad`` ``(V, 6, 9)`` maps a view's features ``(s u^2, s u, s, s v^2, s v, s)`` to its
+    contribution to ``DLT_TERMS``; ``norm`` ``(V, 2, 3)`` gives ``|a3|^2 = c0 o^2 + c1 o + c2``
+    per row.
     """
     pmats = xp.asarray(pmats, dtype=xp.float64)
     p2 = pmats[:, 2]
@@ -416,23 +350,9 @@ def dlt_features(
     norm: Float[AnyArray, "V 2 3"],
     weights: Float[AnyArray, "V N"] | None = None,
 ) -> tuple[Float[AnyArray, "6 V N"], Bool[AnyArray, "V N"]]:
-    """Per-observation DLT features.
+    """Per-observation DLT features ``(6, V, N)`` (zero for dropped views) and ``valid`` ``(V, N)``.
 
-    Parameters
-    ----------
-    pts2d
-        ``(V, N, 2)`` pixels, NaN = missing.
-    norm
-        ``(V, 2, 3)`` from :func:`dlt_camera_constants`.
-    weights
-        Optional ``(V, N)``; non-finite or non-positive drops the view.
-
-    Returns
-    -------
-    features : array
-        ``(6, V, N)``, zero for dropped views.
-    valid : array
-        ``(V, N)`` bool.
+    ``pts2d`` is pixels, NaN = missing; a non-finite or non-positive weight drops the view.
     """
     pts2d = xp.asarray(pts2d, dtype=xp.float64)
     u, v = pts2d[..., 0], pts2d[..., 1]

@@ -77,16 +77,14 @@ def orbit_extrinsics(
     Parameters
     ----------
     look_at
-        World point on the optical axis, ``(3,)``.
+        World point on the optical axis.
     distance
         Camera centre to ``look_at`` (> 0).
-    azimuth_deg, elevation_deg, roll_deg
-        Orbit angles in degrees.
 
     Returns
     -------
     rvec, tvec : np.ndarray
-        World-to-camera extrinsics, ``(3,)`` each.
+        World-to-camera extrinsics.
     """
     az, el, roll = np.deg2rad([azimuth_deg, elevation_deg, roll_deg])
     outward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -114,10 +112,6 @@ def resolve_extrinsics(
         Camera spec (defaults already merged in).
     where
         Config path used in error messages, e.g. ``"cameras.rh"``.
-
-    Returns
-    -------
-    rvec, tvec : np.ndarray
 
     Raises
     ------
@@ -149,12 +143,8 @@ def resolve_intrinsics(
 
     ``focal_length_px`` is a number or ``[fx, fy]``; ``principal_point_px`` is
     ``[cx, cy]``, or, when absent, the centre ``(w / 2, h / 2)`` of ``image_size``
-    ``(h, w)``; ``distortion_coefficients`` is an OpenCV-ordered list (<= 12).
-
-    Raises
-    ------
-    ConfigError
-        If a key is missing or malformed, or no principal point can be found.
+    ``(h, w)``; ``distortion_coefficients`` is an OpenCV-ordered list (<= 12). A missing
+    or malformed key, or no principal point, is a ConfigError.
     """
     if "focal_length_px" not in spec:
         raise ConfigError(f"{where}.focal_length_px is required (a number or [fx, fy])")
@@ -249,10 +239,6 @@ class Camera:
             Raw-footage ``(height, width)``, used for the principal point when the
             spec has no ``principal_point_px``.
 
-        Returns
-        -------
-        Camera
-
         Raises
         ------
         ConfigError
@@ -290,8 +276,8 @@ class Camera:
 
     def project(self, pts3d: Float[np.ndarray, "*pts 3"]) -> Float[np.ndarray, "*pts 2"]:
         """Project world points ``(*pts, 3)`` to pixels ``(*pts, 2)``."""
-        return project_points(
-            np.asarray(pts3d, dtype=np.float64),
+        return camera_model.project_numpy(
+            pts3d,
             self.rmat[None],
             self.tvec[None],
             self.intr[None],
@@ -309,32 +295,6 @@ class Camera:
         norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
         x, y = camera_model.undistort_normalized(norm, self.dist)
         return camera_model.ray_from_normalized(np, x, y, self.rmat, self.tvec)
-
-
-def project_points(
-    pts3d: Float[np.ndarray, "*pts 3"],
-    rmats: Float[np.ndarray, "V 3 3"],
-    tvecs: Float[np.ndarray, "V 3"],
-    intrs: Float[np.ndarray, "V 4"],
-    dists: Float[np.ndarray, "V K"],
-) -> Float[np.ndarray, "V *pts 2"]:
-    """NumPy projection through stacked cameras (:func:`flylib.camera.model.project_generic`).
-
-    Parameters
-    ----------
-    pts3d
-        ``(*pts, 3)``.
-    rmats
-        ``(V, 3, 3)`` rotation matrices.
-    tvecs, intrs, dists
-        ``(V, 3)``, ``(V, 4)``, ``(V, K)``.
-
-    Returns
-    -------
-    np.ndarray
-        ``(V, *pts, 2)``.
-    """
-    return camera_model.project_numpy(pts3d, rmats, tvecs, intrs, dists)
 
 
 # -- a rig -----------------------------------------------------------------------
@@ -399,7 +359,7 @@ class CameraGroup:
         cls, config: HasCameraTable, image_sizes: Mapping[str, tuple[int, int]] | None = None
     ) -> CameraGroup:
         """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``
-        (:meth:`from_table`).
+        (:meth:`from_table`, which names what it raises).
 
         Parameters
         ----------
@@ -408,11 +368,6 @@ class CameraGroup:
         image_sizes
             ``view name -> (height, width)`` of the raw footage, for principal
             points the config leaves out.
-
-        Returns
-        -------
-        CameraGroup
-            As :meth:`from_table` (which names what it raises).
         """
         defaults, specs = config.camera_table()
         return cls.from_table(specs, defaults, image_sizes)
@@ -439,10 +394,6 @@ class CameraGroup:
         image_sizes
             ``view name -> (height, width)`` of the raw footage, for principal
             points the specs leave out.
-
-        Returns
-        -------
-        CameraGroup
 
         Raises
         ------
@@ -547,7 +498,7 @@ class CameraGroup:
 
     def project(self, pts3d: Float[np.ndarray, "*pts 3"]) -> Float[np.ndarray, "V *pts 2"]:
         """Project world points ``(*pts, 3)`` through every camera -> ``(V, *pts, 2)``."""
-        return project_points(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
+        return camera_model.project_numpy(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
 
     def undistort_points(
         self, pts2d: Float[np.ndarray, "V *pts 2"]
@@ -588,7 +539,7 @@ class CameraGroup:
         weights
             Optional ``(V, *pts)``; a non-positive or non-finite weight drops the view.
         chunk_points
-            Points per chunk (default :data:`flylib.camera.jax_model.DLT_CHUNK_POINTS`).
+            Default :data:`flylib.camera.jax_model.DLT_CHUNK_POINTS`.
 
         Returns
         -------

@@ -38,6 +38,9 @@ BA_DISTORTION_MODES = ("auto", "free", "fixed")
 # missing from a skeleton are ignored)
 TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
 PRECISIONS = ("float32", "float16", "bfloat16")
+#: Sub-pixel refinements of a heatmap peak (``pose2d.models[].subpixel``; see
+#: :mod:`flylib.pose2d.decode`).
+SUBPIXEL_METHODS = ("weighted", "argmax", "taylor", "parabola")
 POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).
 LEAST_SQUARES_RESERVED = (

@@ -6,7 +6,6 @@ import copy
 from collections.abc import Mapping
 from dataclasses import fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -27,10 +26,7 @@ from .params import (
 )
 from .postprocessing import KinematicsParams, RefinementParams
 from .sources import source_patterns, view_names
-from .validation import default_point_names, validate_config
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..camera.rig import CameraGroup
+from .validation import validate_config
 
 
 class Config:
@@ -77,17 +73,7 @@ class Config:
 
     @classmethod
     def from_file(cls, path: str | Path) -> Config:
-        """Load a config, choosing YAML or TOML by the file suffix.
-
-        Parameters
-        ----------
-        path
-            A ``.yaml``, ``.yml`` or ``.toml`` file.
-
-        Returns
-        -------
-        Config
-            The loaded, validated config.
+        """Load a config, choosing YAML or TOML by the suffix (``.yaml``, ``.yml``, ``.toml``).
 
         Raises
         ------
@@ -105,34 +91,12 @@ class Config:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Config:
-        """Load a YAML config file (keeping its text for the snapshot).
-
-        Parameters
-        ----------
-        path
-            The YAML file.
-
-        Returns
-        -------
-        Config
-            The loaded, validated config.
-        """
+        """Load a YAML config file (keeping its text for the snapshot)."""
         return cls._from_path(Path(path), "yaml")
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Config:
-        """Load a TOML config file (keeping its text for the snapshot).
-
-        Parameters
-        ----------
-        path
-            The TOML file.
-
-        Returns
-        -------
-        Config
-            The loaded, validated config.
-        """
+        """Load a TOML config file (keeping its text for the snapshot)."""
         return cls._from_path(Path(path), "toml")
 
     @classmethod
@@ -151,18 +115,8 @@ class Config:
 
     @classmethod
     def from_dict(cls, data: Mapping) -> Config:
-        """Wrap an already-parsed mapping (library use, Snakemake's ``config``).
-
-        Parameters
-        ----------
-        data
-            The parsed config; it is deep-copied.
-
-        Returns
-        -------
-        Config
-            The validated config (no source text).
-        """
+        """Wrap an already-parsed mapping, deep-copied (library use, Snakemake's
+        ``config``); no source text."""
         return cls(copy.deepcopy(dict(data)))
 
     @classmethod
@@ -232,27 +186,6 @@ class Config:
         return self.data.get("visualization") or {}
 
     @property
-    def videos(self) -> list:
-        """The parsed output-video specs (``flylib.visualization.specs.read_video_specs``),
-        their views checked against the ``cameras`` table's (when it has one)."""
-        from ..visualization.specs import read_video_specs
-
-        cameras = self.data.get("cameras")
-        views = [k for k in cameras if k != "defaults"] if isinstance(cameras, Mapping) else None
-        return read_video_specs(self.visualization, view_names=views)
-
-    def detection_plan(self) -> Any:
-        """The parsed 2D detection plan (``flylib.pose2d.plan.DetectionPlan.from_tables``)."""
-        from ..pose2d.plan import DetectionPlan
-
-        return DetectionPlan.from_tables(
-            self.data.get("sources"),
-            self.data.get("pose2d"),
-            self.view_names(),
-            self._point_names(),
-        )
-
-    @property
     def import_spec(self) -> dict | None:
         """The ``pose2d.import`` table (read 2D from another tool), or ``None``."""
         return (self.data.get("pose2d") or {}).get("import")
@@ -260,13 +193,8 @@ class Config:
     # -- pipeline orchestration ---------------------------------------------
 
     def stage_flags(self) -> dict[str, bool]:
-        """Which stages are enabled (``pipeline.do_<stage>``, else :data:`STAGE_DEFAULTS`).
-
-        Returns
-        -------
-        dict of str to bool
-            ``stage -> enabled`` for every stage in :data:`STAGES`.
-        """
+        """``stage -> enabled`` for every stage in :data:`STAGES` (``pipeline.do_<stage>``,
+        else :data:`STAGE_DEFAULTS`)."""
         pipeline = self.data.get("pipeline") or {}
         flags: dict[str, bool] = {}
         for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
@@ -276,10 +204,6 @@ class Config:
                     on &= any(flags.get(up, True) for up in stage.needs_one_of)
                 flags[stage.name] = on
         return flags
-
-    def _point_names(self) -> tuple[str, ...]:
-        spec = self.data.get("skeleton")
-        return tuple(spec["point_names"]) if spec else default_point_names()
 
     # -- structured sections ---------------------------------------------------
 
@@ -293,37 +217,18 @@ class Config:
         return view_names(self, required=False)
 
     def camera_table(self) -> tuple[dict, dict]:
-        """Split ``cameras`` into the shared defaults and the per-camera specs.
-
-        Returns
-        -------
-        defaults, cameras : dict
-            ``cameras.defaults`` and ``name -> spec`` for every real camera.
-        """
+        """``cameras.defaults`` and ``name -> spec`` for every real camera."""
         cameras = dict(self.data.get("cameras") or {})
         defaults = cameras.pop("defaults", {}) or {}
         return dict(defaults), cameras
 
     def source_patterns(self) -> dict[str, str]:
-        """Each footage source's glob (``sources[].name -> filename``), in config order.
-
-        A source without ``filename`` uses its name as the pattern.
-
-        Raises
-        ------
-        ConfigError
-            If the config lists no sources.
-        """
+        """Each footage source's glob (``sources[].name -> filename``, else its name), in
+        config order; a config listing no sources is a ConfigError."""
         return source_patterns(self)
 
     def skeleton_table(self) -> dict:
-        """The ``skeleton`` table.
-
-        Raises
-        ------
-        ConfigError
-            If the config has none.
-        """
+        """The ``skeleton`` table; a ConfigError when the config has none."""
         if "skeleton" not in self.data:
             raise ConfigError(
                 f"{self.source or 'config'}: no 'skeleton' table; add one or use Skeleton.fly()"
@@ -333,25 +238,6 @@ class Config:
     def skeleton(self) -> Skeleton:
         """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
         return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
-
-    def camera_group(self, image_sizes: Mapping[str, tuple[int, int]] | None = None) -> CameraGroup:
-        """The configured camera rig (see ``flylib.camera.rig.CameraGroup.from_config``).
-
-        Parameters
-        ----------
-        image_sizes
-            ``view -> (height, width)`` of the raw footage, used for the principal point
-            where the config gives none.
-
-        Returns
-        -------
-        CameraGroup
-            The rig.
-        """
-        from ..camera.rig import CameraGroup
-
-        defaults, specs = self.camera_table()
-        return CameraGroup.from_table(specs, defaults, image_sizes)
 
     # -- snapshot ----------------------------------------------------------------
 
@@ -368,17 +254,7 @@ class Config:
 
         The source text is copied byte-for-byte, atomically; a config built from a
         dict is written as YAML. A snapshot of the other format left by an earlier
-        run is removed so the directory holds exactly one.
-
-        Parameters
-        ----------
-        outdir
-            The run's output directory (created if needed).
-
-        Returns
-        -------
-        Path
-            The snapshot file.
+        run is removed so the directory holds exactly one. Returns the snapshot file.
         """
         from ..paths import atomic_path
 

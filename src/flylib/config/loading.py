@@ -107,16 +107,8 @@ def shape_problem(
     Without recursion, and each shared member measured once, so the cost is the size of
     the object graph, not of its expansion.
 
-    Parameters
-    ----------
-    value
-        A parsed config, JSON value or unpickled structure.
-    children
-        A node's members (default: a dict's values, a list's or tuple's items).
-    weight
-        How many values a node counts for besides its members (default 1).
-    max_values, max_depth
-        The bounds.
+    ``children``: a node's members; ``weight``: how many values a node counts for
+    besides its members.
     """
     measured: dict[int, tuple[int, int]] = {}  # id -> (depth, expanded values)
     on_path: set[int] = set()
@@ -153,15 +145,8 @@ def shape_problem(
 
 
 def parse_json(text: str, source: str) -> object:
-    """``json.loads`` with bounded nesting: one :class:`ConfigError` naming ``source``.
-
-    Parameters
-    ----------
-    text
-        The JSON text (e.g. a command-line argument).
-    source
-        What it came from, for the message.
-    """
+    """``json.loads`` with bounded nesting: one :class:`ConfigError` naming ``source``
+    (what the text came from, e.g. a command-line argument)."""
     try:
         value = json.loads(text)
     except RecursionError:

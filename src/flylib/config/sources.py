@@ -52,16 +52,8 @@ def feeding_sources(views, sources, pose2d) -> dict[str, str]:
 
     The first pathway listed for the view in ``pose2d.output_points`` decides; a view
     without output points falls back to a source named ``vid_<view>`` or ``<view>``,
-    then to the source at the same position in ``sources``.
-
-    Parameters
-    ----------
-    views
-        The view names, in order.
-    sources
-        The ``sources`` list (``{name, filename?}`` entries).
-    pose2d
-        The ``pose2d`` table (its ``pathways`` and ``output_points``).
+    then to the source at the same position in ``sources`` (the ``{name, filename?}``
+    list).
     """
     pathway_source = {
         p.get("name"): p.get("source")
@@ -72,16 +64,16 @@ def feeding_sources(views, sources, pose2d) -> dict[str, str]:
     out: dict[str, str] = {}
     for i, view in enumerate(views):
         points = (pose2d.get("output_points") or {}).get(view) or {}
-        source = None
-        for entry in points.values():
-            if isinstance(entry, Mapping) and pathway_source.get(entry.get("pathway")):
-                source = pathway_source[entry["pathway"]]
-                break
+        source = next(
+            (
+                pathway_source[entry["pathway"]]
+                for entry in points.values()
+                if isinstance(entry, Mapping) and pathway_source.get(entry.get("pathway"))
+            ),
+            None,
+        )
         if source is None:
-            for candidate in (f"vid_{view}", view):
-                if candidate in source_names:
-                    source = candidate
-                    break
+            source = next((c for c in (f"vid_{view}", view) if c in source_names), None)
         if source is None and i < len(source_names):
             source = source_names[i]
         if source is not None:
@@ -90,30 +82,14 @@ def feeding_sources(views, sources, pose2d) -> dict[str, str]:
 
 
 def source_patterns(config: Any) -> dict[str, str]:
-    """Source name -> footage glob, from a :class:`~flylib.config.Config` or a mapping.
-
-    Parameters
-    ----------
-    config
-        A ``Config`` or a plain config mapping with a
-        ``sources`` list of ``{name, filename?}``.
-
-    Returns
-    -------
-    dict of str to str
-        In config order. A source without ``filename`` uses its name as the pattern.
-    """
+    """Source name -> footage glob (``filename``, else the name), in config order, from a
+    :class:`~flylib.config.Config` or a mapping."""
     return patterns_of(getattr(config, "data", config).get("sources") or [])
 
 
 def patterns_of(sources) -> dict[str, str]:
-    """Source name -> footage glob of a ``sources`` list (:func:`source_patterns`).
-
-    Raises
-    ------
-    ConfigError
-        If the list is empty or an entry has no string ``name``.
-    """
+    """Source name -> footage glob of a ``sources`` list (:func:`source_patterns`); an
+    empty list or an entry without a string ``name`` is a ConfigError."""
     out: dict[str, str] = {}
     for i, entry in enumerate(sources or []):
         name = entry.get("name") if isinstance(entry, Mapping) else None

@@ -8,11 +8,11 @@ from dataclasses import fields
 from typing import Any
 
 from ..errors import did_you_mean, unknown_key
-from ..pose2d.plan import SUBPIXEL_METHODS
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import boolean, got, integer, is_int, mapping, non_finite_problems
-from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
+from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, SUBPIXEL_METHODS, TOP_LEVEL_KEYS
 from .neuromechfly import NeuromechflyParams
+from .nwb_metadata import metadata_problems
 from .params import (
     LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
@@ -192,18 +192,7 @@ def default_point_names() -> tuple[str, ...]:
 
 
 def validate_config(data: Any) -> list[str]:
-    """Every problem with a parsed config mapping, one ``"<key path>: <problem>"`` line each.
-
-    Parameters
-    ----------
-    data
-        The parsed config.
-
-    Returns
-    -------
-    list of str
-        The problems; empty when the config is valid.
-    """
+    """Every problem with a parsed config mapping, one ``"<key path>: <problem>"`` line each."""
     if not isinstance(data, Mapping):
         return [f"<top level>: expected a mapping of tables, {got(data)}"]
     problems = [
@@ -384,8 +373,6 @@ def _io_problems(io: Mapping) -> list[str]:
 
 def _export_problems(data: Mapping) -> list[str]:
     """The ``exports`` table (which extra outputs to write) and the NWB export's ``nwb`` table."""
-    from ..nwb_metadata import metadata_problems
-
     problems: list[str] = []
     exports = data.get("exports")
     if exports is not None and not isinstance(exports, Mapping):

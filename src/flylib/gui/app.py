@@ -214,8 +214,7 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
 
     @app.post("/api/edit")
     async def edit(request: Request) -> JSONResponse:
-        message = await _read_json(request)
-        reply = edits.apply(message)
+        reply = edits.apply(await _read_json(request))
         if reply["op"] != "points":
             return _refused(_STATUS[reply["op"]], reply["error"])
         await edits.broadcast(None, reply["revision"], reply["frame"])
@@ -231,8 +230,7 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
 
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:
-        message = await _read_json(request)
-        reply = edits.save(message)
+        reply = edits.save(await _read_json(request))
         if reply["op"] != "saved":
             return _refused(_STATUS[reply["op"]], reply["error"])
         return JSONResponse(reply)

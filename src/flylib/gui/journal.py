@@ -83,13 +83,8 @@ def read_journal(path: Path) -> Replay:
 
 
 class EditJournal:
-    """Appends edits to ``<sidecar>.journal``, each one durable before it returns.
-
-    Parameters
-    ----------
-    sidecar
-        The ``corrections.h5`` the edits are for.
-    """
+    """Appends edits to ``<sidecar>.journal`` (``sidecar``: their ``corrections.h5``), each
+    one durable before it returns."""
 
     def __init__(self, sidecar: Path):
         self.sidecar = Path(sidecar)
@@ -101,13 +96,9 @@ class EditJournal:
 
         A flushed line survives the server's death (a crash, ``kill -9``); fsync also
         makes it survive the machine's. The page asks for ``durable=False`` only for
-        the intermediate positions of a drag, whose last position comes durable.
-
-        Raises
-        ------
-        OutputError
-            When it cannot be stored (read-only directory, full disk): one line naming
-            the journal and the reason.
+        the intermediate positions of a drag, whose last position comes durable. An edit
+        that cannot be stored (read-only directory, full disk) is an OutputError, one line
+        naming the journal and the reason.
         """
         try:
             if self._file is None:

@@ -106,13 +106,8 @@ class RequestGuard:
         )
 
     def check_origin(self, headers: Any) -> None:
-        """``Host`` is this server, ``Origin`` (when sent) is this server's origin.
-
-        Raises
-        ------
-        RequestRefused
-            403 naming what was wrong.
-        """
+        """``Host`` is this server, ``Origin`` (when sent) is this server's origin; else
+        :class:`RequestRefused` 403 naming what was wrong."""
         host = headers.get("host") or ""
         name, port = split_host(host)
         known = self.hosts is None or name in self.hosts
@@ -149,13 +144,7 @@ class RequestGuard:
 
 
 def check_json_content_type(content_type: str | None) -> None:
-    """Only ``application/json`` (a ``text/plain`` or form POST needs no pre-flight).
-
-    Raises
-    ------
-    RequestRefused
-        415.
-    """
+    """Only ``application/json`` (a ``text/plain`` or form POST needs no pre-flight); else 415."""
     media = (content_type or "").split(";")[0].strip().lower()
     if media != "application/json":
         raise RequestRefused(
@@ -165,13 +154,9 @@ def check_json_content_type(content_type: str | None) -> None:
 
 def parse_json(body: bytes, what: str = "the body") -> Any:
     """``body`` as JSON, refused when larger than :data:`MAX_BODY` or nested deeper
-    than :data:`MAX_DEPTH` (checked before parsing, so no recursion limit is hit).
-
-    Raises
-    ------
-    RequestRefused
-        413 (too large; the body is never echoed) or 400 (not JSON, too deep).
-    """
+    than :data:`MAX_DEPTH` (checked before parsing, so no recursion limit is hit):
+    :class:`RequestRefused` 413 (too large; the body is never echoed) or 400 (not JSON, too
+    deep)."""
     if len(body) > MAX_BODY:
         raise RequestRefused(413, f"refused: {what} is larger than {MAX_BODY // 1024} KiB")
     depth = json_depth(body)

@@ -165,11 +165,8 @@ class ReviewSession:
         v, t, p = self.base2d.shape[:3]
         self.n_views, self.n_frames, self.n_points = v, t, p
         self.corrections_path = self._sidecar_path()
-        self.image_sizes = (
-            {name: tuple(result.image_sizes.get(name, (480, 960))) for name in self.view_names}
-            if result.image_sizes
-            else {name: (480, 960) for name in self.view_names}
-        )
+        sizes = result.image_sizes or {}
+        self.image_sizes = {name: tuple(sizes.get(name, (480, 960))) for name in self.view_names}
         self._sidecar_lock = SidecarLock(self.corrections_path)
         self._sidecar_lock.acquire()
         try:
@@ -259,11 +256,7 @@ class ReviewSession:
             candidates.append(Path(self.recording_abspath))
         if named is not None and not named.is_absolute():
             candidates += [base / named for base in (self.outdir, *self.outdir.parents[:4])]
-        unique = []
-        for path in candidates:
-            if path not in unique:
-                unique.append(path)
-        return unique
+        return list(dict.fromkeys(candidates))
 
     def _find_footage(self, footage_dir: str | Path | None = None) -> dict[str, list[Path]]:
         """Each view's footage from the first candidate directory holding any; what is
@@ -306,8 +299,10 @@ class ReviewSession:
     # -- reading -----------------------------------------------------------------------
 
     def view_index(self, view: str) -> int:
-        """Index of a camera name; ``KeyError`` for an unknown one."""
-        return self.view_names.index(view) if view in self.view_names else _raise_key(view)
+        """Index of a camera name."""
+        if view not in self.view_names:
+            raise KeyError(f"unknown camera {view!r}")
+        return self.view_names.index(view)
 
     def meta(self) -> dict:
         """What the page needs once: views, sizes, skeleton with palette, frame count."""
@@ -354,16 +349,10 @@ class ReviewSession:
         }
 
     def points(self, frame: int) -> dict:
-        """Everything drawn at one frame.
-
-        Returns
-        -------
-        dict
-            ``frame``; per view (in view order) ``points2d`` (the 2D triangulation reads,
-            edits applied), ``used`` (kept by the solver), ``reprojected`` (the 3D ghost),
-            ``error``, ``edited``, ``invisible``; ``points3d``; ``corrected``; the frame's
-            ``suspects``.
-        """
+        """Everything drawn at one frame: ``frame``; per view (in view order) ``points2d``
+        (the 2D triangulation reads, edits applied), ``used`` (kept by the solver),
+        ``reprojected`` (the 3D ghost), ``error``, ``edited``, ``invisible``; ``points3d``;
+        ``corrected``; the frame's ``suspects``."""
         t = self._check_frame(frame)
         with self._lock:
             given, _ = self.corrections.subset([t], slice(None)).apply_2d(self.base2d[:, [t]])
@@ -457,11 +446,8 @@ class ReviewSession:
         largest reprojection error over the views grew by more than ``worse_px``
         pixels, and suspects that the result did not have.
 
-        Returns
-        -------
-        dict
-            ``worse`` and ``new_suspects``: one line each (at most 10 each), and
-            ``count`` of both in all.
+        Returns ``worse`` and ``new_suspects`` (one line each, at most 10 each) and ``count``
+        of both in all.
         """
         names = self.skeleton.point_names
         with self._lock:
@@ -490,16 +476,7 @@ class ReviewSession:
     # -- editing -------------------------------------------------------------------------
 
     def _check_frame(self, frame: int) -> int:
-        t = int(frame)
-        if not 0 <= t < self.n_frames:
-            raise IndexError(f"frame {shown(frame)} out of range 0..{self.n_frames - 1}")
-        return t
-
-    def _check_point(self, point: int) -> int:
-        p = int(point)
-        if not 0 <= p < self.n_points:
-            raise IndexError(f"point {shown(point)} out of range 0..{self.n_points - 1}")
-        return p
+        return _in_range("frame", frame, self.n_frames)
 
     def _resolve(self, t: int, p: int) -> None:
         """Re-solve one (frame, point) from the base 2D with the current corrections."""
@@ -620,7 +597,7 @@ class ReviewSession:
         v = None if view is None else self.view_index(view)
         record: dict[str, Any] = {"op": op, "frame": t, "view": view}
         if op in ("move", "move3d", "invisible", "reset_point", "reviewed", "unreviewed"):
-            record["point"] = p = self._check_point(_integer("point", point))
+            record["point"] = p = _in_range("point", _integer("point", point), self.n_points)
             if op in ("move", "move3d", "invisible") and v is None:
                 raise ValueError(f"{op} needs a view")
         elif op == "reset_view" and v is None:
@@ -815,12 +792,8 @@ class ReviewSession:
                     return
                 try:
                     self.frames[name].prefetch(frame)
-                except (
-                    FlylibError,
-                    OSError,
-                    ValueError,
-                    IndexError,
-                ) as exc:  # reported when asked for
+                # reported when asked for
+                except (FlylibError, OSError, ValueError, IndexError) as exc:
                     log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
 
     def close(self) -> None:
@@ -845,6 +818,14 @@ def shown(value: Any) -> str:
     if isinstance(value, int) and len(text) > 24:
         return f"{text[:12]}...({len(text.lstrip('-'))} digits)"
     return text[:40]
+
+
+def _in_range(name: str, value: Any, n: int) -> int:
+    """``value`` as an index below ``n``; ``IndexError`` outside ``0..n - 1``."""
+    i = int(value)
+    if not 0 <= i < n:
+        raise IndexError(f"{name} {shown(value)} out of range 0..{n - 1}")
+    return i
 
 
 def _integer(name: str, value: Any) -> int:
@@ -883,7 +864,3 @@ def _changes(before: Corrections, after: Corrections) -> tuple[int, int]:
     )
     points3d = (before.edited3d != after.edited3d) | differ(before.points3d, after.points3d)
     return int(observations.sum() + points3d.sum()), int((before.reviewed != after.reviewed).sum())
-
-
-def _raise_key(view: str):
-    raise KeyError(f"unknown camera {view!r}")

@@ -55,21 +55,10 @@ _MAX_SOFT_LINK_HOPS = 16
 
 
 def read_budget(frames: int | None, points: int) -> int:
-    """Bytes one dataset of a per-view foreign file may hold for this recording.
-
-    Parameters
-    ----------
-    frames
-        The view's frame count (from its footage), or ``None`` when unknown.
-    points
-        The configured skeleton's point count.
-
-    Returns
-    -------
-    int
-        ``frames x 3 values x 64 tracks x max(points, 64) x 8 bytes``, at least 64 MiB
-        and at most :data:`DEFAULT_READ_BUDGET`; the latter when ``frames`` is unknown.
-    """
+    """Bytes one dataset of a per-view foreign file may hold for this recording:
+    ``frames x 3 values x 64 tracks x max(points, 64) x 8 bytes``, at least 64 MiB and
+    at most :data:`DEFAULT_READ_BUDGET`; the latter when ``frames`` (the view's frame
+    count, from its footage) is unknown. ``points``: the skeleton's point count."""
     if frames is None:
         return DEFAULT_READ_BUDGET
     per_frame = 3 * _TRACKS_PER_FRAME * max(int(points), 64) * 8
@@ -106,21 +95,9 @@ def _refuse(path, where: str, reason: str, what: str, hint: str) -> ImportFormat
 def foreign_member(
     fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, _hops: int = 0
 ) -> h5py.Group | h5py.Dataset | h5py.Datatype | None:
-    """The object at ``name`` inside ``fh``, reached without leaving the file.
-
-    Parameters
-    ----------
-    fh
-        The open foreign file.
-    name
-        A path inside it (``"tracks"``, ``"df_with_missing/table"``).
-    path, what, hint
-        The file, what it should be and the fix, for messages.
-
-    Returns
-    -------
-    h5py.Group or h5py.Dataset or h5py.Datatype or None
-        The object, or ``None`` when no link of that path exists.
+    """The object at ``name`` (``"df_with_missing/table"``) inside ``fh``, reached
+    without leaving the file; ``None`` when no link of that path exists. ``path``,
+    ``what`` and ``hint`` (the file, what it should be, the fix) are for messages.
 
     Raises
     ------
@@ -161,15 +138,9 @@ def foreign_member(
 def checked_dataset(
     fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, max_bytes: int
 ) -> h5py.Dataset | None:
-    """The dataset at ``name``, checked to be safe to read whole; ``None`` if absent.
-
-    Parameters
-    ----------
-    fh, name, path, what, hint
-        As for :func:`foreign_member`.
-    max_bytes
-        The most bytes the dataset (and any one of its chunks, decompressed) may hold
-        (:func:`read_budget`).
+    """The dataset at ``name`` (as for :func:`foreign_member`), checked to be safe to
+    read whole; ``None`` if absent. ``max_bytes`` (:func:`read_budget`) bounds the
+    dataset and any one of its chunks, decompressed.
 
     Raises
     ------

@@ -127,26 +127,19 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
 def write_anipose_toml(
     cameras, path: Path, image_sizes: dict | None = None, metadata: dict | None = None
 ) -> Path:
-    """Write a camera rig as an Anipose calibration TOML (atomically).
+    """Write a camera rig as an Anipose calibration TOML (atomically); returns ``path``.
 
     Parameters
     ----------
     cameras
         A :class:`flylib.camera.rig.CameraGroup` (``names``, ``rvecs``, ``tvecs``,
         ``intrs`` ``[fx, fy, cx, cy]``, ``dists``).
-    path
-        Destination ``.toml``.
     image_sizes
         ``view -> (height, width)`` of the raw frames; written as ``size = [w, h]``.
         A camera without one gets ``size = [2 cx, 2 cy]`` (the principal point at the
         image centre), the best guess Anipose can use.
     metadata
         Extra ``[metadata]`` entries (TOML-able values).
-
-    Returns
-    -------
-    Path
-        ``path``.
     """
     import tomli_w
 
@@ -184,14 +177,9 @@ def _resolve(path_text: str, recording_dir: Path | None, config_dir: Path | None
     path = Path(os.path.expanduser(str(path_text)))
     if path.is_absolute():
         return path
-    bases = []
-    if recording_dir is not None:
-        bases.append(Path(recording_dir))
-    if config_dir is not None:
-        bases.append(Path(config_dir))
-    for base in bases:
-        if (base / path).exists():
-            return base / path
+    for base in (recording_dir, config_dir):
+        if base is not None and (Path(base) / path).exists():
+            return Path(base) / path
     return path
 
 
@@ -278,15 +266,7 @@ def calibration_inputs(
     Files that do not exist, or an index without a row for the session, are left out:
     the stage itself then fails with the message naming the file and the fix.
 
-    Parameters
-    ----------
-    calibration
-        The config's ``calibration`` table, or ``None``.
-    recording_dir
-        The recording (relative paths and the index session resolve against it).
-    config_dir
-        The config file's folder: where a relative path is looked up after the
-        recording's.
+    Relative paths, and the index's session, resolve as in :func:`load_calibration`.
 
     Returns
     -------

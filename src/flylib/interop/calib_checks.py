@@ -53,20 +53,14 @@ def camera_value(value, kind: str, where: str, key: str) -> np.ndarray:
     kind
         ``"matrix"`` (3x3 K with positive focal lengths, no skew), ``"rotmat"`` (3x3
         rotation), ``"vec3"`` (3 numbers) or ``"dist"`` (0..12 OpenCV coefficients).
-    where
-        The file and camera section, e.g. ``"calib.toml [cam_2] (name 'rh')"``.
-    key
-        The file's key for the value, e.g. ``"distortions"``.
+    where, key
+        The file and camera section (``"calib.toml [cam_2] (name 'rh')"``) and the
+        file's key (``"distortions"``), named in the one-line ImportFormatError.
 
     Returns
     -------
     np.ndarray
         float64, shape ``(3, 3)``, ``(3,)`` or ``(K,)``.
-
-    Raises
-    ------
-    ImportFormatError
-        One line naming ``where`` and ``key``, what is wrong and what it must be.
     """
     what = {
         "matrix": "a 3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",

@@ -107,19 +107,12 @@ def load_pickle(path: Path, what: str) -> dict:
 
 
 def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPoints2d:
-    """Read a DeepFly3D 2D result pickle into raw-frame pixels.
+    """Read a DeepFly3D 2D result pickle (``df3d_result*.pkl``) into raw-frame pixels.
 
     Parameters
     ----------
-    path
-        The ``df3d_result*.pkl`` file.
     image_sizes
         ``(height, width)`` of each camera row's raw frames (the normalization base).
-
-    Returns
-    -------
-    Df3dPoints2d
-        Pixels, confidences and the camera ordering.
 
     Raises
     ------
@@ -182,30 +175,12 @@ def points2d_layout(
     image_sizes: Float[np.ndarray, "C 2"],
     path: Path | str = "points2d",
 ) -> str:
-    """Which DeepFly3D layout ``points2d`` is in, decided from its values.
+    """Which DeepFly3D layout ``points2d`` (as stored) is in, ``"normalized"`` or
+    ``"pixels"``, decided from its values; ``image_sizes`` is ``(height, width)`` per camera.
 
     A camera whose detected coordinates all lie in ``[0, 1]`` is normalized (0.x);
     one with a coordinate above 1 is in pixels (1.x) and must stay within its frame.
-
-    Parameters
-    ----------
-    points2d
-        ``(C, T, J, 2)`` as stored in the pickle.
-    image_sizes
-        ``(C, 2)`` ``(height, width)`` of each camera's frames.
-    path
-        The file, for the error message.
-
-    Returns
-    -------
-    str
-        ``"normalized"`` or ``"pixels"``.
-
-    Raises
-    ------
-    ImportFormatError
-        When cameras disagree (some normalized, some in pixels) or pixel coordinates
-        lie outside the frames.
+    Cameras that disagree, or pixels outside the frames, are an ImportFormatError.
     """
     finite = np.isfinite(points2d).all(-1)
     detected = finite & ~(points2d == 0).all(-1)

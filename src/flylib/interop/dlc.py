@@ -211,13 +211,8 @@ def _frame_number(value, path: Path, row: int) -> int:
 
 
 def frame_rows(index: pd.Index, path: Path) -> np.ndarray:
-    """The frame of each row of a DeepLabCut-layout table, from its row index.
-
-    Raises
-    ------
-    ImportFormatError
-        An index that names no frame, or a frame that two rows give (naming both rows).
-    """
+    """The frame of each row of a DeepLabCut-layout table, from its row index; an index
+    that names no frame, or a frame two rows give (both named), is an ImportFormatError."""
     values = (index.get_level_values(-1) if isinstance(index, pd.MultiIndex) else index).tolist()
     frames = np.array([_frame_number(v, path, i) for i, v in enumerate(values)], dtype=np.int64)
     order = np.argsort(frames, kind="stable")
@@ -284,15 +279,8 @@ def read_dlc_csv(path: Path, individual: str | None = None) -> ViewKeypoints:
 
     Parameters
     ----------
-    path
-        The CSV file.
     individual
         For multi-animal files, which individual to read (required when several).
-
-    Returns
-    -------
-    ViewKeypoints
-        Names, ``(T, K, 2)`` pixels and ``(T, K)`` likelihoods.
 
     Raises
     ------
@@ -302,8 +290,7 @@ def read_dlc_csv(path: Path, individual: str | None = None) -> ViewKeypoints:
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such DeepLabCut CSV; check pose2d.import.files")
-    frame = _read_csv_frame(path)
-    return _frame_to_view(frame, path, individual)
+    return _frame_to_view(_read_csv_frame(path), path, individual)
 
 
 class _PlainUnpickler(pickle.Unpickler):
@@ -482,10 +469,9 @@ def dlc_frame(
     n_frames, n_parts, _ = xy.shape
     if len(bodyparts) != n_parts:
         raise ValueError(f"{len(bodyparts)} body part names for {n_parts} points")
-    if likelihood is None:
-        likelihood = np.where(np.isfinite(xy).all(-1), 1.0, np.nan)
     # a missing point has no likelihood: no row reads as "somewhere, with confidence c"
-    likelihood = np.where(np.isfinite(xy).all(-1), np.asarray(likelihood, np.float64), np.nan)
+    given = 1.0 if likelihood is None else np.asarray(likelihood, np.float64)
+    likelihood = np.where(np.isfinite(xy).all(-1), given, np.nan)
     values = np.concatenate([xy, likelihood[..., None]], axis=-1).reshape(n_frames, n_parts * 3)
     columns = pd.MultiIndex.from_product(
         [[scorer], list(bodyparts), ["x", "y", "likelihood"]],
@@ -501,25 +487,15 @@ def write_dlc_csv(
     bodyparts: list[str],
     scorer: str = "flylib",
 ) -> Path:
-    """Write one view's points as a DeepLabCut CSV (readable by DLC, Lightning Pose, Anipose).
+    """Write one view's points as a DeepLabCut CSV (readable by DLC, Lightning Pose,
+    Anipose), atomically; returns ``path``.
 
     Parameters
     ----------
-    path
-        Destination ``.csv``.
     xy
         ``(T, K, 2)`` pixel ``(x, y)``, NaN = missing (written as empty cells).
     likelihood
         ``(T, K)`` confidences, or ``None`` for 1 where present.
-    bodyparts
-        ``K`` names.
-    scorer
-        The ``scorer`` header value.
-
-    Returns
-    -------
-    Path
-        ``path``.
     """
     path = Path(path)
     with atomic_path(path) as tmp:

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from ..errors import ResultsError
 from ..paths import atomic_path
 from .dlc import write_dlc_csv
 
@@ -42,14 +43,13 @@ def points3d_table(
     pts2d: Float[np.ndarray, "V T P 2"] | None = None,
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> pd.DataFrame:
-    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout.
+    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring):
+    ``T`` rows, six columns per point, then ``M_00..M_22``, ``center_0..2``, ``fnum``.
 
     Parameters
     ----------
     pts3d
         ``(T, P, 3)`` world points, NaN = not reconstructed.
-    point_names
-        ``P`` skeleton point names.
     reproj_error
         ``(V, T, P)`` reprojection errors in pixels, or ``None`` (``_error`` is NaN).
     pts2d
@@ -57,12 +57,6 @@ def points3d_table(
         (``_ncams`` is then the views with a finite reprojection error).
     conf
         ``(V, T, P)`` 2D confidences, or ``None`` (each observation counts as 1).
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``T`` rows: six columns per point, then ``M_00..M_22``, ``center_0..2``,
-        ``fnum``.
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     n_frames, n_points, _ = pts3d.shape
@@ -135,25 +129,15 @@ def write_dlc_views(
     point_names: list[str],
     scorer: str = "flylib",
 ) -> list[Path]:
-    """Write one DeepLabCut CSV per view, ``<directory>/<view>.csv``.
+    """Write one DeepLabCut CSV per view, ``<directory>/<view>.csv`` (the folder is
+    created); returns the files in view order.
 
     Parameters
     ----------
-    directory
-        Output folder (created).
     pts2d
         ``(V, T, P, 2)`` pixels, NaN = missing.
     conf
         ``(V, T, P)`` confidences, or ``None`` (1 where present).
-    view_names, point_names
-        Labels of the V and P axes.
-    scorer
-        DeepLabCut ``scorer`` header value.
-
-    Returns
-    -------
-    list of Path
-        The files written, in view order.
     """
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if len(view_names) != pts2d.shape[0]:
@@ -177,25 +161,19 @@ def export_result(
     dlc_dir: Path | None = None,
     detections=None,
 ) -> list[Path]:
-    """Export a :class:`flylib.results.PoseResult`: Anipose 3D CSV and/or per-view DLC CSVs.
+    """Export a :class:`flylib.results.PoseResult`: Anipose 3D CSV and/or per-view DLC
+    CSVs; returns the files written.
 
     Parameters
     ----------
     result
         The loaded result (``pts2d``, ``conf``, ``pts3d``, ``reproj_error``,
         ``cameras.names``, ``skeleton.point_names``).
-    csv3d
-        Where to write the 3D CSV, or ``None``.
-    dlc_dir
-        Folder for the per-view 2D CSVs, or ``None``.
+    csv3d, dlc_dir
+        The 3D CSV to write, the folder for the per-view 2D CSVs (``None``: not written).
     detections
         What the 2D CSVs hold: the result's :class:`~flylib.results.pose.Detections`
         (:func:`flylib.results.read_detections`); required with ``dlc_dir``.
-
-    Returns
-    -------
-    list of Path
-        Files written.
 
     Raises
     ------
@@ -204,8 +182,6 @@ def export_result(
     ValueError
         With ``dlc_dir`` but no ``detections``.
     """
-    from ..errors import ResultsError
-
     if dlc_dir is not None and detections is None:
         raise ValueError("export_result: the DLC CSVs need the detections (read_detections)")
     written: list[Path] = []

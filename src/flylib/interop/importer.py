@@ -132,13 +132,7 @@ class ImportTarget:
         return _views.footage_files(self.footage_globs(), recording_dir)
 
     def checked_views(self) -> list[str]:
-        """The views, refusing none.
-
-        Raises
-        ------
-        ImportFormatError
-            When there are no views.
-        """
+        """The views; :class:`ImportFormatError` when there are none."""
         if not self.views:
             raise ImportFormatError(
                 "config names no views (no cameras entries, no pose2d.output_points); define the rig's views"
@@ -148,10 +142,10 @@ class ImportTarget:
 
 def import_spec(spec: Mapping | None) -> dict:
     """The import spec ``spec`` (the recording's, else ``pose2d.import``), validated."""
-    spec = dict(spec) if isinstance(spec, Mapping) else spec
     where = "pose2d.import"
-    if not isinstance(spec, dict):
+    if not isinstance(spec, Mapping):
         raise ImportFormatError(f"{where} must be a mapping with at least 'format', got {spec!r}")
+    spec = dict(spec)
     unknown = sorted(str(k) for k in set(spec) - IMPORT_KEYS)
     if unknown:
         raise ImportFormatError(
@@ -177,7 +171,7 @@ def import_spec(spec: Mapping | None) -> dict:
     threshold = spec.get("likelihood_threshold")
     if threshold is not None and not isinstance(threshold, (int, float)):
         raise ImportFormatError(f"{where}.likelihood_threshold must be a number, got {threshold!r}")
-    return dict(spec)
+    return spec
 
 
 def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
@@ -222,20 +216,8 @@ def import_files(
     """The file each view's 2D is read from (``None``: a view mapped to nothing), found
     as the import will find them, without reading them: what validation checks.
 
-    Parameters
-    ----------
-    target
-        The views and their footage sources.
-    spec
-        A validated import spec (:func:`import_spec`).
-    recording_dir
-        The recording directory the ``files`` patterns are relative to.
-
-    Raises
-    ------
-    ImportFormatError
-        One line naming the pattern that matches no file (with the closest existing
-        file name) or several.
+    ``spec`` is validated (:func:`import_spec`). A pattern that matches no file (the
+    closest existing file name is named) or several is one :class:`ImportFormatError`.
     """
     recording_dir = Path(recording_dir)
     views = target.checked_views()
@@ -248,23 +230,9 @@ def import_files(
 
 
 def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path) -> str | None:
-    """Why the import would find no frame size for a view, or ``None``; checked before
-    the workflow builds its DAG, from file names alone (no header is read).
-
-    Parameters
-    ----------
-    target
-        The views and their footage sources.
-    spec
-        A validated import spec (:func:`import_spec`).
-    recording_dir
-        The recording directory.
-
-    Returns
-    -------
-    str or None
-        One line (:func:`flylib.interop.views.missing_footage`).
-    """
+    """Why the import would find no frame size for a view (one line:
+    :func:`flylib.interop.views.missing_footage`), or ``None``; checked before the
+    workflow builds its DAG, from file names alone (no header is read)."""
     views = target.checked_views()
     if spec["format"] == "deepfly3d":
         views = [v for v in (spec.get("views") or views) if v is not None]
@@ -420,10 +388,11 @@ def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
         )
     targets = _point_targets(list(range(n_joints)), keypoint_map, points, str(path), default)
     n_frames = data.xy.shape[1]
+    origin = dict.fromkeys(sized, path)
     _check_frames(
-        {v: n_frames for v in sized},
+        dict.fromkeys(sized, n_frames),
         {v: _views.read_frame_count(footage.get(v, [])) for v in sized},
-        {v: path for v in sized},
+        origin,
         footage,
     )
     pts = np.full((len(views), n_frames, len(points), 2), np.nan)
@@ -437,7 +406,7 @@ def _import_deepfly3d(spec, target: ImportTarget, recording_dir, views, points):
         v = views.index(view)
         pts[v][:, dst_p] = data.xy[row][:, src_j]
         conf[v][:, dst_p] = data.conf[row][:, src_j]
-    return pts, conf, {v: sizes[v] for v in sized}, {v: path for v in sized}
+    return pts, conf, {v: sizes[v] for v in sized}, origin
 
 
 def _warn_missing_parts(
@@ -565,27 +534,12 @@ _ROUNDING = 1e-6
 def as_confidences(
     conf: Float[np.ndarray, "*batch K"], fmt: str, path: Path, names: list | None = None
 ) -> Float[np.ndarray, "*batch K"]:
-    """Another tool's scores as confidences in [0, 1] (NaN stays NaN).
+    """Another tool's scores ``(..., K)`` as confidences in [0, 1] (NaN stays NaN).
 
     DeepLabCut and Lightning Pose likelihoods are probabilities: one outside [0, 1] is an
-    error. SLEAP's point scores and DeepFly3D's heatmap peaks are not probabilities and
-    may exceed 1: they are clipped into [0, 1] with a warning naming the file.
-
-    Parameters
-    ----------
-    conf
-        ``(..., K)`` scores as the file gives them.
-    fmt
-        The import format.
-    path
-        The file they came from (for messages).
-    names
-        The file's keypoint names (the last axis), for messages.
-
-    Raises
-    ------
-    ImportFormatError
-        A DeepLabCut or Lightning Pose likelihood outside [0, 1].
+    :class:`ImportFormatError`. SLEAP's point scores and DeepFly3D's heatmap peaks are
+    not probabilities and may exceed 1: they are clipped into [0, 1] with a warning
+    naming the file. ``path`` and ``names`` (the last axis's keypoints) are for messages.
     """
     conf = np.asarray(conf, dtype=np.float64)
     with np.errstate(invalid="ignore"):
@@ -629,6 +583,7 @@ def _read_view(fmt: str, path: Path, spec: dict, max_bytes: int) -> ViewKeypoint
 def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
     files = _view_files(spec, target, recording_dir, views)
     present = [v for v in views if files[v] is not None]
+    origin = {v: files[v] for v in present}
     footage = target.footage(recording_dir)
     footage_counts = {v: _views.read_frame_count(footage.get(v, [])) for v in present}
     read = {
@@ -637,12 +592,7 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
     }
     keypoint_map = spec.get("keypoint_map") or {}
     n_frames = (
-        _check_frames(
-            {v: read[v].xy.shape[0] for v in present},
-            footage_counts,
-            {v: files[v] for v in present},
-            footage,
-        )
+        _check_frames({v: read[v].xy.shape[0] for v in present}, footage_counts, origin, footage)
         if present
         else 0
     )
@@ -658,9 +608,7 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
             if p is not None:
                 pts[v, :, p] = kp.xy[:, k]
                 conf[v, :, p] = kp.conf[:, k]
-    _warn_missing_parts(
-        filled, {v: files[v] for v in present}, points, _plan_points(target, points)
-    )
+    _warn_missing_parts(filled, origin, points, _plan_points(target, points))
     sizes = _views.image_sizes(
         footage,
         recording_dir,
@@ -669,7 +617,7 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
         origin="pose2d.import",
         globs=target.footage_globs(),
     )
-    return pts, conf, sizes, {v: files[v] for v in present}
+    return pts, conf, sizes, origin
 
 
 def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | None):

@@ -5,7 +5,7 @@ built with ``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4
 describes multi-camera 3D pose:
 
 ``/general``
-    session metadata from :mod:`flylib.nwb_metadata` (subject, session start
+    session metadata from :mod:`flylib.config.nwb_metadata` (subject, session start
     time, experimenter, ...); ``was_generated_by`` = flylib and its version;
     ``data_collection`` = the recording's path and the flylib config that produced the
     result (its snapshot text); ``session_id`` defaults to the recording's name.
@@ -59,8 +59,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .. import __version__
+from ..config.nwb_metadata import parse_datetime
 from ..errors import ConfigError, ResultsError
-from ..nwb_metadata import parse_datetime
 from ..paths import atomic_path
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -89,20 +90,9 @@ CONFIDENCE_DEFINITION = (
 def confidence_3d(
     reproj_error: Float[np.ndarray, "V T P"], pts3d: Float[np.ndarray, "T P 3"]
 ) -> Float[np.ndarray, "T P"]:
-    """The 3D confidence of each point (formula in the module docstring).
-
-    Parameters
-    ----------
-    reproj_error
-        ``(V, T, P)`` reprojection error in pixels, NaN where a view was not used.
-    pts3d
-        ``(T, P, 3)`` 3D points, NaN = not reconstructed.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(T, P)`` float64 in [0, 1]; NaN where the point is not reconstructed.
-    """
+    """The 3D confidence ``(T, P)`` in [0, 1] of each point (formula in the module
+    docstring) from reprojection errors in pixels (NaN: view not used); NaN where
+    ``pts3d`` is not reconstructed."""
     err = np.asarray(reproj_error, dtype=np.float64)
     used = np.isfinite(err)
     n = used.sum(0)
@@ -173,8 +163,6 @@ def _relative(path: Path, start: Path) -> str:
 def _nwbfile_kwargs(
     metadata: Mapping, *, recording: str | None, config_text: str | None, result
 ) -> dict[str, Any]:
-    from .. import __version__
-
     def as_list(value):
         return [value] if isinstance(value, str) else list(value)
 
@@ -236,17 +224,15 @@ def write_nwb(
     config_text: str | None = None,
     joint_angles: tuple[np.ndarray, Sequence[str]] | None = None,
 ) -> Path:
-    """Write one recording's result as an NWB file (atomically).
+    """Write one recording's result as an NWB file (atomically); returns ``path``.
 
     Parameters
     ----------
     result
         The :class:`~flylib.results.PoseResult`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``,
         ``pts3d (T, P, 3)``, ``reproj_error (V, T, P)``, rig, skeleton.
-    path
-        Destination ``.nwb`` file.
     metadata
-        Merged session metadata (:func:`flylib.nwb_metadata.recording_metadata`).
+        Merged session metadata (:func:`flylib.config.nwb_metadata.recording_metadata`).
     footage
         ``view -> files`` of the source footage, linked as external ``ImageSeries``
         (omitted for views without files).
@@ -260,11 +246,6 @@ def write_nwb(
         ``(angles (T, J) radians, joint names)``: NeuroMechFly's leg angles
         (``neuromechfly.h5``), written as one ``TimeSeries`` per joint in a
         ``BehavioralTimeSeries`` named ``NeuroMechFlyJointAngles``.
-
-    Returns
-    -------
-    Path
-        ``path``.
 
     Raises
     ------
@@ -422,7 +403,7 @@ def _pose_estimations_2d(result, views, names, skeleton, cameras, videos, rate: 
                 source_video=videos.get(view),
                 scorer="flylib",
                 source_software="flylib",
-                source_software_version=_version(),
+                source_software_version=__version__,
             )
         )
     return per_view
@@ -467,7 +448,7 @@ def _add_pose_3d(behavior, result, metadata, views, names, skeleton, per_view, r
             skeleton=skeleton,
             scorer="flylib",
             source_software="flylib",
-            source_software_version=_version(),
+            source_software_version=__version__,
         )
     )
 
@@ -529,12 +510,6 @@ def read_joint_angles(path: str | Path) -> tuple[np.ndarray, list[str]]:
         return np.asarray(group["angles"], dtype=np.float64), json.loads(group.attrs["dof_names"])
 
 
-def _version() -> str:
-    from .. import __version__
-
-    return __version__
-
-
 def export_nwb(
     results_path: str | Path,
     out_path: str | Path,
@@ -548,23 +523,9 @@ def export_nwb(
     """Export a run's ``results.h5`` as NWB (what the workflow rule and ``flylib export
     --nwb`` run, through :mod:`flylib.pipeline.export_nwb`).
 
-    Parameters
-    ----------
-    results_path
-        The recording's ``results.h5``.
-    out_path
-        Destination ``.nwb``.
-    metadata
-        The recording's checked session metadata
-        (:func:`flylib.nwb_metadata.recording_metadata`).
-    footage
-        ``view -> footage files`` of the recording, linked from the file.
-    recording_dir
-        The recording directory, or ``None`` (no video links).
-    config_text
-        The flylib config that produced the result (stored as text).
-    angles_path
-        The recording's ``neuromechfly.h5``: its joint angles go in too.
+    ``metadata``, ``footage`` and ``config_text`` are as for :func:`write_nwb`;
+    ``recording_dir`` is the recording directory, or ``None`` (no video links);
+    ``angles_path``, the recording's ``neuromechfly.h5``, adds its joint angles.
 
     Raises
     ------

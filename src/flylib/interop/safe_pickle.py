@@ -155,20 +155,7 @@ def _builtins() -> dict[tuple[str, str], object]:
     import builtins
     from collections import OrderedDict
 
-    plain = (
-        "dict",
-        "list",
-        "tuple",
-        "set",
-        "frozenset",
-        "int",
-        "float",
-        "complex",
-        "bool",
-        "str",
-        "bytes",
-        "bytearray",
-    )
+    plain = ("dict", "list", "tuple", "set", "frozenset", "int", "float", "complex", "bool")
     out: dict[tuple[str, str], object] = {}
     for module in ("builtins", "__builtin__"):  # __builtin__: pickles written by Python 2
         out.update({(module, name): getattr(builtins, name) for name in plain})
@@ -262,17 +249,8 @@ def _measure(value) -> None:
 def load_restricted(path: str | Path, what: str):
     """Unpickle ``path`` admitting only plain data and NumPy arrays, within bounds.
 
-    Parameters
-    ----------
-    path
-        The pickle file.
-    what
-        What the file should be, for messages (e.g. ``"DeepFly3D 2D result"``).
-
-    Returns
-    -------
-    object
-        The unpickled value (dicts, lists, tuples, numbers, strings, NumPy arrays).
+    The value holds only dicts, lists, tuples, numbers, strings and NumPy arrays;
+    ``what`` names what the file should be, for messages (``"DeepFly3D 2D result"``).
 
     Raises
     ------

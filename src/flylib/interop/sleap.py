@@ -33,8 +33,6 @@ def read_sleap_analysis(
 
     Parameters
     ----------
-    path
-        The ``.analysis.h5`` file.
     track
         Track index or name; required when the file holds several tracks.
     max_bytes

@@ -60,7 +60,8 @@ def training_labels(
     touched: Bool[np.ndarray, "V T P"],
     image_sizes: list[tuple[int, int]],
 ) -> Float[np.ndarray, "V T P 2"]:
-    """The training label of every (view, frame, point) (see the module's docstring).
+    """The training label of every (view, frame, point) (see the module's docstring):
+    ``(V, T, P, 2)`` float64 pixels, NaN = no label.
 
     Parameters
     ----------
@@ -74,11 +75,6 @@ def training_labels(
         ``(V, T, P)`` bool: a person edited the point in that view or marked it invisible.
     image_sizes
         ``(height, width)`` per view: a reprojection outside the frame is no label.
-
-    Returns
-    -------
-    np.ndarray
-        ``(V, T, P, 2)`` float64 pixels, NaN = no label.
     """
     used = np.asarray(used2d, dtype=np.float64)
     has_used = np.isfinite(used).all(-1)

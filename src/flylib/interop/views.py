@@ -17,7 +17,7 @@ from ..config.sources import config_data, source_patterns, view_names, view_sour
 from ..errors import FootageError, ImportFormatError
 from ..io import VIDEO_EXTS, open_reader
 from ..io.images import sequence_gap
-from ..recordings import footage_matches, natural_sorted, video_frame_count
+from ..recordings.footage import footage_matches, natural_sorted, video_frame_count
 
 
 def footage_files(
@@ -27,14 +27,8 @@ def footage_files(
 
     Matched like :func:`flylib.recordings.find_recording` does: only video and image
     files count, so a DeepLabCut CSV beside ``camera_0.mp4`` is not footage.
-
-    Parameters
-    ----------
-    view_globs
-        ``view -> glob`` of the footage source feeding each view (``None``: a source
-        without a pattern), in view order (a mapping or ``(view, glob)`` pairs).
-    recording_dir
-        The recording directory the globs are matched in.
+    ``view_globs``: ``view -> glob`` of the source feeding each view (``None``: a source
+    without a pattern), in view order (a mapping or ``(view, glob)`` pairs).
 
     Raises
     ------
@@ -119,26 +113,10 @@ def missing_footage(
     globs: Mapping[str, str | None] | None = None,
 ) -> str | None:
     """Why imported 2D cannot be given frame sizes, or ``None``: a view with no footage
-    when ``pose2d.import.image_size`` (``fallback``) is not set.
+    (:func:`footage_files`) when ``pose2d.import.image_size`` (``fallback``) is not set.
 
-    Parameters
-    ----------
-    footage
-        ``view -> footage files`` (:func:`footage_files`).
-    recording_dir
-        The recording directory the footage was looked up in.
-    views
-        The views that need a frame size.
-    fallback
-        ``pose2d.import.image_size``.
-    globs
-        ``view -> footage glob``, to name the missing file.
-
-    Returns
-    -------
-    str or None
-        The problem and its fix: the missing file named when other views have footage
-        (a camera's video missing), else how to set ``image_size`` (no footage at all).
+    The problem and its fix: the missing file named (from ``globs``) when other views
+    have footage (a camera's video missing), else how to set ``image_size``.
     """
     if fallback is not None:
         return None

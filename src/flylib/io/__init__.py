@@ -45,7 +45,8 @@ def open_reader(
     threads: int | None = None,
     on_corrupt: str = "error",
 ) -> FrameReader:
-    """Open the right :class:`FrameReader` for a footage source.
+    """Open the right :class:`FrameReader` for a footage source: a :class:`VideoReader`
+    or an :class:`ImageSequenceReader`.
 
     Parameters
     ----------
@@ -61,11 +62,6 @@ def open_reader(
         Image sequences: ``"error"`` fails on a corrupt or truncated image naming it,
         ``"missing"`` yields a black frame and records it (see
         :class:`ImageSequenceReader`).
-
-    Returns
-    -------
-    FrameReader
-        A :class:`VideoReader` or an :class:`ImageSequenceReader`.
 
     Raises
     ------

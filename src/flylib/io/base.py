@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..errors import FootageError
+
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import UInt8
 
@@ -65,8 +67,6 @@ class FrameReader(ABC):
         """``(height, width)`` of the frames, from the first frame."""
         first = next(iter(self.stream_frames(stop=1)), None)
         if first is None:
-            from ..errors import FootageError
-
             raise FootageError(f"{self.name}: no frames could be decoded; check the footage")
         return int(first.shape[0]), int(first.shape[1])
 
@@ -78,15 +78,8 @@ class FrameReader(ABC):
         step: int = 1,
         block_size: int = 64,
     ) -> Iterator[UInt8[np.ndarray, "T H W 3"]]:
-        """Yield ``(T, H, W, 3)`` uint8 RGB blocks, ``T <= block_size``, in one forward pass.
-
-        Parameters
-        ----------
-        start, stop, step
-            Frame range, like ``range(start, stop, step)``.
-        block_size
-            Maximum number of frames per block.
-        """
+        """Yield ``(T, H, W, 3)`` uint8 RGB blocks, ``T <= block_size``, of the frames of
+        ``range(start, stop, step)`` in one forward pass."""
         if block_size < 1:
             raise ValueError(f"block_size must be >= 1, got {block_size}")
         buf: list[np.ndarray] = []
@@ -104,8 +97,7 @@ class FrameReader(ABC):
         if isinstance(key, (int, np.integer)):
             index = int(key)
             if index < 0:
-                n = self._length_for_negative_index()
-                index += n
+                index += self._length_for_negative_index()
             if index < 0:
                 raise IndexError(f"{self.name}: frame index {key} is out of range")
             return self._read_indices([index])[0]
@@ -113,8 +105,7 @@ class FrameReader(ABC):
             if key.step is not None and key.step <= 0:
                 raise ValueError(f"{self.name}: only positive slice steps are supported")
             if (key.start or 0) < 0 or (key.stop is not None and key.stop < 0):
-                n = self._length_for_negative_index()
-                start, stop, step = key.indices(n)
+                start, stop, step = key.indices(self._length_for_negative_index())
             else:
                 start, stop, step = key.start or 0, key.stop, key.step or 1
             frames = list(self.stream_frames(start=start, stop=stop, step=step))
@@ -133,9 +124,7 @@ class FrameReader(ABC):
 
     def _length_for_negative_index(self) -> int:
         n = self.count()
-        if n is None:
-            n = sum(1 for _ in self.stream_frames())
-        return n
+        return n if n is not None else sum(1 for _ in self.stream_frames())
 
 
 def is_video_file(path: str | Path) -> bool:

@@ -99,23 +99,8 @@ def sequence_gap(files: list[Path]) -> str | None:
 
 
 def list_image_files(pattern: str | Path) -> list[Path]:
-    """Image files of a directory or glob pattern, in natural order.
-
-    Parameters
-    ----------
-    pattern
-        A directory of images, or a glob pattern such as ``"cam0/*.png"``.
-
-    Returns
-    -------
-    list of Path
-        The matching image files, naturally sorted (``2`` before ``10``).
-
-    Raises
-    ------
-    FootageError
-        If nothing matches.
-    """
+    """Image files of a directory or glob pattern (``"cam0/*.png"``), in natural order
+    (``2`` before ``10``); :class:`~flylib.errors.FootageError` if nothing matches."""
     p = Path(pattern)
     if p.is_dir():
         files = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTS]

@@ -136,14 +136,9 @@ class VideoReader(FrameReader):
     ) -> Iterator[UInt8[np.ndarray, "*frame"]]:
         """Yield frames of ``range(start, stop, step)`` in one forward pass.
 
-        Parameters
-        ----------
-        start, stop, step
-            Frame range, like ``range(start, stop, step)``.
-        format
-            ``"rgb24"``: ``(H, W, 3)`` uint8 RGB. ``"yuv420p"``: the decoder's planes
-            as one ``(3 H / 2, W)`` uint8 array (Y, then U, then V), skipping the
-            colour conversion so it can run on the GPU (see :meth:`color_tags`).
+        ``format="rgb24"``: ``(H, W, 3)`` uint8 RGB. ``"yuv420p"``: the decoder's planes
+        as one ``(3 H / 2, W)`` uint8 array (Y, then U, then V), skipping the colour
+        conversion so it can run on the GPU (see :meth:`color_tags`).
         """
         if step < 1:
             raise ValueError(f"step must be >= 1, got {step}")
@@ -300,14 +295,10 @@ class VideoWriter:
 
     Parameters
     ----------
-    path
-        Output file.
     fps
         Frame rate written to the container.
     codec
         FFmpeg encoder name.
-    pix_fmt
-        Encoded pixel format.
     crf
         Constant rate factor (x264 quality; lower is better, 0 lossless in ``yuv444p``).
     preset

@@ -109,10 +109,6 @@ def compute_kinematics(
     body_frame_points
         ``origin, posterior, anterior, right, left`` point names; ``None`` =
         :func:`default_frame_points`.
-
-    Returns
-    -------
-    Kinematics
     """
     pts3d = np.asarray(pts3d, np.float64)
     groups_names = body_frame_points or default_frame_points(skeleton)

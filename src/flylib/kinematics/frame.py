@@ -60,15 +60,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def frame_from_groups(
     pts: Float[np.ndarray, "*batch P 3"], groups: dict[str, list[int]]
 ) -> tuple[Float[np.ndarray, "*batch 3 3"], Float[np.ndarray, "*batch 3"]]:
-    """Body frame(s) of poses ``(..., P, 3)``.
-
-    Returns
-    -------
-    rotation : np.ndarray
-        ``(..., 3, 3)`` rows ``x, y, z`` (world -> body).
-    origin : np.ndarray
-        ``(..., 3)``.
-    """
+    """Body frame(s) of poses ``(..., P, 3)``: ``(..., 3, 3)`` rotations with rows
+    ``x, y, z`` (world -> body) and ``(..., 3)`` origins."""
 
     def mean(key):
         return pts[..., groups[key], :].mean(axis=-2)

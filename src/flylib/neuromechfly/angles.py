@@ -92,10 +92,6 @@ def compute_nmf_angles(
     source
         The file the points came from, for messages.
 
-    Returns
-    -------
-    NmfAngles
-
     Raises
     ------
     ConfigError

@@ -54,12 +54,7 @@ def initial_angles(root: Float[np.ndarray, " 3"], points: Float[np.ndarray, "N 4
     segment direction, seen in its parent's frame, gives one or two angles. The model's
     segments are within 0.5 degrees of that, so the fit starts in the right basin; the
     branch is the model's range (coxa-trochanter pitch <= 0, femur-tibia pitch >= 0).
-
-    Returns
-    -------
-    np.ndarray
-        ``(N, 7)`` radians in flygym's order.
-    """
+    ``(N, 7)`` radians in flygym's order."""
     chain = np.concatenate([np.broadcast_to(root, points[:, :1].shape), points], axis=1)
     d = _unit(np.diff(chain, axis=1))  # (N, 4, 3) segment directions, thorax frame
     pitch = np.arcsin(np.clip(-d[:, 0, 0], -1, 1))

@@ -103,33 +103,14 @@ def _rotations(xp, angle, axis: int):
 
 
 def leg_forward(angles, root, offsets, xp=np):
-    """Forward kinematics of leg chains.
-
-    Parameters
-    ----------
-    angles : array
-        ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order.
-    root : array
-        ``(..., 3)`` the thorax-coxa joint.
-    offsets : array
-        ``(..., 4, 3)`` the segment offsets of the zero pose.
-    xp : module
-        ``numpy`` or ``jax.numpy``.
-
-    Returns
-    -------
-    array
-        ``(..., 5, 3)``: ThC, CTr, FTi, TiTa, claw.
-    """
+    """Forward kinematics of leg chains, in ``xp`` (``numpy`` or ``jax.numpy``):
+    ``angles`` ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order, ``root`` ``(..., 3)``
+    the thorax-coxa joint, ``offsets`` ``(..., 4, 3)`` the segment offsets of the zero
+    pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa, claw."""
     pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita = (angles[..., k] for k in range(7))
     rot = _rotations(xp, yaw, 0) @ _rotations(xp, pitch, 1) @ _rotations(xp, roll, 2)
     points = [xp.broadcast_to(root, angles.shape[:-1] + (3,))]
-    joint_turns = (
-        (ctr_pitch, ctr_roll),
-        (fti,),
-        (tita,),
-        (),
-    )
+    joint_turns = ((ctr_pitch, ctr_roll), (fti,), (tita,), ())
     for k, turns in enumerate(joint_turns):
         points.append(points[-1] + (rot @ offsets[..., k, :, None])[..., 0])
         for j, angle in enumerate(turns):

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import FlylibError
+from ..errors import FlylibError, ResultsError
 from .model import LEGS, dof_names
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -179,8 +179,6 @@ def replay_data(path: str | Path) -> dict:
         If the file lacks a joint column or ``time``.
     """
     import pandas as pd
-
-    from ..errors import ResultsError
 
     table = pd.read_csv(path)
     missing = [c for c in ("time", *dof_names()) if c not in table.columns]

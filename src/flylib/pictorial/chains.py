@@ -27,12 +27,8 @@ def bone_length_targets(
 
     Parameters
     ----------
-    cameras
-        The rig.
     pts2d
         ``(V, F, P, 2)`` detections.
-    skeleton
-        Supplies the bones.
 
     Returns
     -------

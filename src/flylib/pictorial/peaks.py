@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -12,7 +13,8 @@ from ..config.params import PictorialParams
 from ..errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from jaxtyping import Float
+    from jaxtyping import Float, Int
+    from torch import Tensor
 
 log = logging.getLogger(__name__)
 
@@ -21,6 +23,7 @@ DEFAULT_PEAK_RADIUS = 2
 DEFAULT_PEAK_THRESHOLD = 0.05
 DEFAULT_SUBPIXEL = "taylor"
 SUBPIXEL_METHODS = ("argmax", "weighted", "taylor")
+_EPS = 1e-12
 
 
 @dataclass(frozen=True)
@@ -138,7 +141,10 @@ def peak_candidates(
     order = np.argsort(-top_val, axis=1, kind="stable")
     top, top_val = np.take_along_axis(top, order, 1), np.take_along_axis(top_val, order, 1)
     rows, cols = top // width, top % width
-    dx, dy = _refine(flat_hm, rows, cols, method, radius)
+    dx, dy = subpixel_offsets(flat_hm, rows, cols, method, 2 if method == "taylor" else radius)
+    if method == "taylor":  # a step beyond one cell is dropped (the detector clamps it)
+        far = (np.abs(dx) > 1.0) | (np.abs(dy) > 1.0)
+        dx, dy = np.where(far, 0.0, dx), np.where(far, 0.0, dy)
     valid = np.isfinite(top_val)
     xy = np.where(valid[..., None], np.stack([cols + dx, rows + dy], axis=-1), np.nan)
     score = np.where(valid, top_val, 0.0)
@@ -148,41 +154,79 @@ def peak_candidates(
     return xy.reshape(*lead, k, 2), score.reshape(*lead, k)
 
 
-def _refine(hm: np.ndarray, rows: np.ndarray, cols: np.ndarray, method: str, radius: int):
-    """Sub-pixel offsets ``(dx, dy)`` of peaks at ``(rows, cols)`` of ``hm`` ``(M, H, W)``."""
-    n, height, width = hm.shape
+def subpixel_offsets(
+    heatmaps: Float[np.ndarray, "M H W"] | Float[Tensor, "M H W"],
+    rows: Int[np.ndarray, "M K"] | Int[Tensor, "M K"],
+    cols: Int[np.ndarray, "M K"] | Int[Tensor, "M K"],
+    method: str,
+    radius: int,
+):
+    """Sub-pixel offsets ``(dx, dy)`` of integer peaks at ``(rows, cols)`` ``(M, K)`` of
+    ``heatmaps`` ``(M, H, W)``, in cells: NumPy arrays or torch tensors alike (the
+    detector's decoder and :func:`peak_candidates` share it).
+
+    ``method`` is ``"argmax"`` (0), ``"weighted"`` (the centroid of the ``(2 radius + 1)^2``
+    window, negatives clipped to zero, cells outside ignored), ``"taylor"`` (one Newton
+    step on the log-heatmap, clamped to ``radius``) or ``"parabola"`` (per axis through the
+    peak and its two neighbours, on the log when all three are positive, clamped to half
+    a cell); each is 0 where it does not apply.
+    """
+    xp = np if isinstance(heatmaps, np.ndarray) else sys.modules["torch"]  # else a tensor
+    n, height, width = heatmaps.shape
+    device = heatmaps.device
     if method == "argmax":
-        return np.zeros(rows.shape), np.zeros(rows.shape)
-    chan = np.arange(n)[:, None]
+        zero = xp.zeros(rows.shape, dtype=heatmaps.dtype, device=device)
+        return zero, zero
+
+    def at(r, c):  # the heatmap at integer (r, c) of any shape (M, ...), clipped into it
+        m = xp.arange(n, device=device).reshape((n,) + (1,) * (r.ndim - 1))
+        return heatmaps[m, r.clip(0, height - 1), c.clip(0, width - 1)]
+
     if method == "weighted":
-        offsets = np.arange(-radius, radius + 1)
+        offsets = xp.arange(-radius, radius + 1, device=device)
         r = rows[..., None, None] + offsets[:, None]
         c = cols[..., None, None] + offsets[None, :]
         inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-        w = hm[chan[..., None, None], np.clip(r, 0, height - 1), np.clip(c, 0, width - 1)]
-        w = np.where(inside, np.maximum(w, 0.0), 0.0)
+        w = xp.where(inside, at(r, c).clip(0.0), 0.0)
         total = w.sum(axis=(-1, -2))
-        safe = np.where(total > 0, total, 1.0)
+        safe = xp.where(total > 0, total, 1.0)
+        offsets = xp.asarray(offsets, dtype=heatmaps.dtype, device=device)
         dy = (w * offsets[:, None]).sum(axis=(-1, -2)) / safe
         dx = (w * offsets[None, :]).sum(axis=(-1, -2)) / safe
-        return np.where(total > 0, dx, 0.0), np.where(total > 0, dy, 0.0)
+        return xp.where(total > 0, dx, 0.0), xp.where(total > 0, dy, 0.0)
+    if method == "parabola":
+        centre = at(rows, cols)
+        dx = _parabola(xp, at(rows, cols - 1), centre, at(rows, cols + 1))
+        dy = _parabola(xp, at(rows - 1, cols), centre, at(rows + 1, cols))
+        dx = xp.where((cols > 0) & (cols < width - 1), dx, 0.0)
+        return dx, xp.where((rows > 0) & (rows < height - 1), dy, 0.0)
     # taylor: one Newton step on log(h) with central differences
     inner = (rows >= 1) & (rows < height - 1) & (cols >= 1) & (cols < width - 1)
-    r, c = np.clip(rows, 1, height - 2), np.clip(cols, 1, width - 2)
 
-    def at(dr, dc):
-        return np.log(np.maximum(hm[chan, r + dr, c + dc], 1e-10))
+    def log_at(dr, dc):
+        return xp.log(at(rows + dr, cols + dc).clip(1e-10))
 
-    centre = at(0, 0)
-    gx = 0.5 * (at(0, 1) - at(0, -1))
-    gy = 0.5 * (at(1, 0) - at(-1, 0))
-    hxx = at(0, 1) - 2 * centre + at(0, -1)
-    hyy = at(1, 0) - 2 * centre + at(-1, 0)
-    hxy = 0.25 * (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1))
+    centre = log_at(0, 0)
+    gx = 0.5 * (log_at(0, 1) - log_at(0, -1))
+    gy = 0.5 * (log_at(1, 0) - log_at(-1, 0))
+    hxx = log_at(0, 1) - 2 * centre + log_at(0, -1)
+    hyy = log_at(1, 0) - 2 * centre + log_at(-1, 0)
+    hxy = 0.25 * (log_at(1, 1) - log_at(1, -1) - log_at(-1, 1) + log_at(-1, -1))
     det = hxx * hyy - hxy * hxy
-    ok = inner & (det > 1e-12) & (hxx < 0)
-    safe = np.where(ok, det, 1.0)
-    dx = -(hyy * gx - hxy * gy) / safe
-    dy = -(hxx * gy - hxy * gx) / safe
-    ok &= (np.abs(dx) <= 1.0) & (np.abs(dy) <= 1.0)
-    return np.where(ok, dx, 0.0), np.where(ok, dy, 0.0)
+    ok = inner & (det > _EPS) & (hxx < 0)
+    safe = xp.where(ok, det, 1.0)
+    dx = (-(hyy * gx - hxy * gy) / safe).clip(-radius, radius)
+    dy = (-(hxx * gy - hxy * gx) / safe).clip(-radius, radius)
+    return xp.where(ok, dx, 0.0), xp.where(ok, dy, 0.0)
+
+
+def _parabola(xp, left, centre, right):
+    """The parabola vertex's offset through three samples (``subpixel_offsets``)."""
+    positive = (left > 0) & (centre > 0) & (right > 0)
+    left, centre, right = (
+        xp.where(positive, xp.log(xp.where(positive, v, 1.0).clip(_EPS)), v)
+        for v in (left, centre, right)
+    )
+    curvature = left - 2.0 * centre + right
+    offset = 0.5 * (left - right) / xp.where(curvature < 0, curvature, -1.0)
+    return xp.where(curvature < 0, offset, 0.0).clip(-0.5, 0.5)

@@ -7,7 +7,8 @@
 - :mod:`flylib.pipeline.inputs`: what a stage reads, its tracked params (the rule's
   ``params.stage``) and untracked runtime;
 - :mod:`flylib.pipeline.planning`: what a run plans from its config before any stage
-  (its recordings, each stage's params for provenance, the config rig);
+  (its recordings, each stage's params for provenance, the config rig, and the
+  workflow's ``RunPlan``: every input, param and resource its rules look up);
 - :mod:`flylib.pipeline.oneshot`: :func:`run_from_points2d`, the array-in library
   one-shot of the seed API.
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
+from ..stages import FINAL_3D
 from .inputs import FULL_SKELETON, RIG, RigSpec, SkeletonSpec, StageInputs, register, tracked
 from .stage_helpers import RigRuntime
 
@@ -32,18 +33,9 @@ log = logging.getLogger(__name__)
 @register
 @dataclass(frozen=True)
 class AssembleInputs(StageInputs):
-    """The assemble stage's inputs.
-
-    Attributes
-    ----------
-    rig
-        The config rig, stored in ``results.h5`` as ``config_rig``.
-    skeleton
-        The whole skeleton table (palette and name included: ``results.h5`` and the
-        summary figure carry them).
-    runtime
-        :class:`~flylib.pipeline.stage_helpers.RigRuntime` (untracked).
-    """
+    """The assemble stage's inputs: ``rig`` is stored in ``results.h5`` as
+    ``config_rig``; ``skeleton`` includes palette and name (``results.h5`` and the
+    summary figure carry them)."""
 
     STAGE = "assemble"
 
@@ -53,7 +45,6 @@ class AssembleInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config) -> AssembleInputs:
-        """The config's rig and skeleton."""
         rig = RigSpec.from_config(config)
         return cls(
             rig=rig,
@@ -90,27 +81,9 @@ def run_assemble(
     so the snapshot never describes a config the results beside it were not made with
     (the workflow's assemble rule is its only writer).
 
-    Parameters
-    ----------
-    inputs
-        The stage's inputs (:class:`AssembleInputs`).
-    stage_files
-        ``stage -> artifact path`` of the stages that ran (``pose2d`` required; empty
-        entries are skipped).
-    outdir
-        The recording's output directory.
-
-    Returns
-    -------
-    dict
-        The summary written to ``summary.json``.
-
-    Raises
-    ------
-    ResultsError
-        Without a pose2d artifact.
-    ValueError
-        With ``snapshot_path`` but no ``snapshot_text``.
+    ``stage_files`` maps each stage that ran to its artifact (``pose2d`` required:
+    ResultsError without it; empty entries are skipped). Returns the summary written
+    to ``summary.json``; ValueError with ``snapshot_path`` but no ``snapshot_text``.
     """
     from ..interop.anipose import write_anipose_toml
     from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
@@ -193,10 +166,7 @@ def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict
     from ..handedness import RIGHT_HANDED, handedness, rig_check
     from ..results import read_stage
 
-    stage = next(
-        (s for s in ("refinement", "triangulation", "pictorial_structures") if s in stage_files),
-        None,
-    )
+    stage = next((s for s in FINAL_3D if s in stage_files), None)
     if stage is None:
         return None
     arrays = read_stage(stage_files[stage], stage)

@@ -52,16 +52,10 @@ __all__ = [
 
 @dataclass(frozen=True)
 class BundleAdjustmentRuntime:
-    """The untracked part of the bundle-adjustment stage.
-
-    Attributes
-    ----------
-    config_dir
-        Where a relative calibration path is looked up after the recording's folder.
-    solver_options
-        The ``bundle_adjustment`` table's speed/log-only ``least_squares`` options
-        (``verbose``, ``workers``), passed to the solver with the tracked ones.
-    """
+    """The untracked part of the bundle-adjustment stage: ``config_dir`` (where a
+    relative calibration path is looked up after the recording's folder) and the
+    speed/log-only ``least_squares`` options (``verbose``, ``workers``), passed to the
+    solver with the tracked ones."""
 
     config_dir: Path | None = None
     solver_options: Mapping[str, Any] = field(default_factory=lambda: frozen_mapping({}))
@@ -70,20 +64,10 @@ class BundleAdjustmentRuntime:
 @register
 @dataclass(frozen=True)
 class BundleAdjustmentInputs(StageInputs):
-    """What the bundle-adjustment stage reads.
-
-    Attributes
-    ----------
-    bundle_adjustment
-        The ``bundle_adjustment`` table (its ``least_squares`` without the untracked
-        ``verbose`` and ``workers``, which are in ``runtime``).
-    rig
-        The config rig: the starting point of the fit.
-    skeleton
-        Points and limbs (``points_to_use``, bone lengths, rigid points).
-    runtime
-        Untracked: the config file's folder and the solver's speed/log options.
-    """
+    """What the bundle-adjustment stage reads: the ``bundle_adjustment`` table (its
+    ``least_squares`` without ``verbose`` and ``workers``, which are in ``runtime``),
+    the config rig the fit starts from, and the skeleton (``points_to_use``, bone
+    lengths, rigid points)."""
 
     STAGE = "bundle_adjustment"
 
@@ -94,7 +78,6 @@ class BundleAdjustmentInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config: Config) -> BundleAdjustmentInputs:
-        """The stage's inputs as ``config`` gives them."""
         params = config.bundle_adjustment
         options = params.least_squares
         tracked = {k: v for k, v in options.items() if k not in LEAST_SQUARES_PERF}
@@ -117,19 +100,10 @@ class BundleAdjustmentInputs(StageInputs):
 class BundleAdjusted:
     """The bundle-adjustment stage's result.
 
-    Attributes
-    ----------
-    cameras
-        The refined rig.
-    points3d
-        ``(T, P, 3)`` the refined points of the fitted frames and points, NaN elsewhere.
-    summary
-        ``success``, ``message``, ``cost``, ``nfev``, ``seconds`` and the solver's
-        ``report`` (what was free, kept fractions, rounds, warnings): the artifact's
-        ``summary`` attribute.
-    solution
-        The solver's whole result (:func:`~flylib.bundle_adjustment.bundle_adjust_sequence`:
-        fitted ``frames`` and ``points``, ``inliers``, ``report``, ...).
+    ``points3d`` holds the refined points of the fitted frames and points, NaN
+    elsewhere; ``summary`` (``success``, ``message``, ``cost``, ``nfev``, ``seconds``
+    and the solver's ``report``) is the artifact's ``summary`` attribute; ``solution`` is
+    the solver's whole result (fitted ``frames`` and ``points``, ``inliers``, ...).
     """
 
     cameras: CameraGroup

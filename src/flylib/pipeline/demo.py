@@ -17,7 +17,7 @@ from typing import Any
 
 from ..config.sources import source_patterns, view_names, view_sources
 from ..errors import ConfigError
-from ..recordings import TRUTH_FILE, dlc_filename
+from ..recordings.listing import TRUTH_FILE, dlc_filename
 from .assemble import AssembleInputs
 from .inputs import (
     FULL_SKELETON,

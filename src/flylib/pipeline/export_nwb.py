@@ -26,17 +26,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class NwbExportRuntime:
-    """What the export reads beyond its rule's params, as before the inputs objects.
-
-    Attributes
-    ----------
-    footage
-        ``(view, glob)`` (:func:`~flylib.pipeline.visualization.footage_globs`): the
-        footage linked from the file, a rule input itself.
-    config_text
-        The run's config (:meth:`~flylib.config.Config.snapshot_text`), stored in the
-        file as the config that produced the result.
-    """
+    """What the export reads beyond its rule's params, as before the inputs objects:
+    ``footage`` (linked from the file, a rule input itself) and ``config_text`` (stored
+    in the file as the config that produced the result)."""
 
     footage: tuple[tuple[str, str | None], ...] = ()
     config_text: str | None = None
@@ -44,19 +36,9 @@ class NwbExportRuntime:
 
 @dataclass(frozen=True)
 class NwbExportInputs(StageInputs):
-    """The NWB export's inputs.
-
-    Attributes
-    ----------
-    exports
-        The ``exports`` table.
-    nwb
-        The ``nwb`` table: session metadata (:mod:`flylib.nwb_metadata`). Rebuilt from
-        the rule's JSON, its date-times are ISO 8601 text, which the metadata parser
-        reads back as the same date-times.
-    runtime
-        :class:`NwbExportRuntime`.
-    """
+    """The NWB export's inputs. ``nwb`` rebuilt from the rule's JSON holds its
+    date-times as ISO 8601 text, which the metadata parser reads back as the same
+    date-times."""
 
     STAGE = "export_nwb"
 
@@ -66,7 +48,6 @@ class NwbExportInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config) -> NwbExportInputs:
-        """The config's ``exports`` and ``nwb`` tables, footage lookup and text."""
         return cls(
             exports=frozen_mapping(dict(config.data.get("exports") or {})),
             nwb=frozen_mapping(config.data.get("nwb")),
@@ -86,15 +67,9 @@ def session_metadata(
     demo: bool = False,
     extra: Mapping | None = None,
 ) -> dict[str, Any]:
-    """The recording's checked session metadata (:func:`flylib.nwb_metadata.recording_metadata`
-    of the ``nwb`` table).
-
-    Raises
-    ------
-    ConfigError
-        Missing or invalid session metadata, all named at once.
-    """
-    from ..nwb_metadata import recording_metadata
+    """The recording's checked session metadata (:func:`flylib.config.nwb_metadata.recording_metadata`
+    of the ``nwb`` table); ConfigError names every problem at once."""
+    from ..config.nwb_metadata import recording_metadata
 
     return recording_metadata(plain_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
 
@@ -112,29 +87,10 @@ def run_export_nwb(
     """Export a run's ``results.h5`` as NWB.
 
     The session metadata is checked first (before reading anything large); the footage
-    of ``recording_dir`` is found through the config's ``sources`` and linked.
-
-    Parameters
-    ----------
-    inputs
-        The export's inputs (:class:`NwbExportInputs`).
-    results_path
-        The recording's ``results.h5``.
-    out_path
-        Destination ``.nwb``.
-    recording_dir
-        The recording directory (footage and ``nwb.yaml``), or ``None`` (no video links).
-    demo
-        The recording is the embedded demo (its metadata defaults apply).
-    extra_metadata
-        Overrides of the session metadata.
-    angles_path
-        The recording's ``neuromechfly.h5``: its joint angles go in too.
-
-    Raises
-    ------
-    ConfigError
-        Missing or invalid session metadata (all named at once), or no frame rate.
+    of ``recording_dir`` is found through the config's ``sources`` and linked (none
+    without it). ``demo``: the embedded demo's metadata defaults apply.
+    ``angles_path``: a ``neuromechfly.h5`` whose joint angles go in too. ConfigError for
+    missing or invalid session metadata (all named at once), or no frame rate.
     """
     from ..interop.nwb import export_nwb
 
@@ -166,29 +122,14 @@ def export_nwb_command(
     """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
     :func:`run_export_nwb`.
 
-    Parameters
-    ----------
-    results_path
-        The recording's ``results.h5``.
-    out_path
-        Destination ``.nwb``.
-    config_path
-        The run's config; default the ``config.yaml`` (or ``.toml``) snapshot every run
-        leaves beside ``results.h5``, else flylib's default config.
-    recording
-        The recording directory; default the one ``results.h5`` records (its footage is
-        linked and its ``nwb.yaml`` read).
-    metadata_path
-        A YAML file of session metadata overriding the config's ``nwb`` table and the
-        recording's ``nwb.yaml``.
-
-    Raises
-    ------
-    ConfigError, ResultsError
-        One line naming what is missing or wrong.
+    ``config_path`` defaults to the ``config.yaml`` (or ``.toml``) snapshot every run
+    leaves beside ``results.h5``, else flylib's default config; ``recording`` to the
+    one ``results.h5`` records. ``metadata_path``: session metadata overriding the
+    config's ``nwb`` table and the recording's ``nwb.yaml``. ConfigError or
+    ResultsError: one line naming what is missing or wrong.
     """
     from ..config import Config
-    from ..nwb_metadata import read_sidecar
+    from ..config.nwb_metadata import read_sidecar
     from ..results import open_checked, read_meta_from
 
     results_path = Path(results_path)

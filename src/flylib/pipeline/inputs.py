@@ -93,18 +93,10 @@ def plain_json(value: Any) -> Any:
 
 @dataclass(frozen=True)
 class SkeletonSpec:
-    """The skeleton table a stage reads.
-
-    Attributes
-    ----------
-    point_names
-        The points, in the order of every array's points axis.
-    limbs
-        ``(limb, (point, ...))`` chains, in table order.
-    palette, name
-        The plotting palette and the skeleton's name: only for the stages that draw
-        or name it (``None`` elsewhere, so they are not in those stages' params).
-    """
+    """The skeleton table a stage reads: ``point_names`` in the order of every array's
+    points axis, ``limbs`` in table order. ``palette`` and ``name`` are only for the
+    stages that draw or name it (``None`` elsewhere, so they are not in those stages'
+    params)."""
 
     point_names: tuple[str, ...]
     limbs: tuple[tuple[str, tuple[str, ...]], ...]
@@ -159,21 +151,12 @@ class SkeletonSpec:
 
 @dataclass(frozen=True)
 class RigSpec:
-    """The config rig a stage reads: the ``cameras`` table and the ``calibration``
-    file, in view order.
-
-    Attributes
-    ----------
-    views
-        The camera names: the V axis of every points array.
-    cameras
-        The ``cameras`` table (``defaults`` included).
-    calibration
-        The ``calibration`` table, or ``None`` (an orbit rig from ``cameras``).
-    config_dir
-        Where a relative calibration path is looked up after the recording's folder
-        (the config file's folder). Not tracked: the calibration file itself is an
-        input of the rules that read it.
+    """The config rig a stage reads: the ``cameras`` table (``defaults`` included) and
+    the ``calibration`` table (``None``: an orbit rig from ``cameras``), in the order of
+    ``views``, the V axis of every points array. ``config_dir`` (the config file's
+    folder) is where a relative calibration path is looked up after the recording's
+    folder; not tracked: the calibration file itself is an input of the rules that read
+    it.
     """
 
     views: tuple[str, ...]
@@ -183,7 +166,6 @@ class RigSpec:
 
     @classmethod
     def from_config(cls, config: Config) -> RigSpec:
-        """The config's rig."""
         calibration = config.data.get("calibration")
         if calibration and calibration.get("mirror") is False:
             # a knob added later: its default leaves the params (and their hash) as before
@@ -253,16 +235,8 @@ class RigSpec:
 @dataclass(frozen=True)
 class Codec:
     """How one field of an inputs object is written into the tracked params and read
-    back: ``load(dump(value), runtime) == value``.
-
-    Attributes
-    ----------
-    dump
-        The field's value -> its JSON value in :meth:`StageInputs.params`.
-    load
-        ``(JSON value, runtime) -> the field's value`` (:meth:`StageInputs.from_params`;
-        ``runtime`` is the inputs' untracked part, e.g. where a calibration is found).
-    """
+    back: ``load(dump(value), runtime) == value``, ``runtime`` being the inputs'
+    untracked part (e.g. where a calibration is found)."""
 
     dump: Callable[[Any], Any]
     load: Callable[[Any, Any], Any]
@@ -339,7 +313,6 @@ class StageInputs:
 
     @classmethod
     def from_config(cls, config: Config) -> StageInputs:
-        """The stage's inputs as ``config`` gives them."""
         raise NotImplementedError(cls.__name__)
 
     @classmethod
@@ -383,25 +356,13 @@ class StageInputs:
 
 
 def inputs_class(stage: str) -> type[StageInputs]:
-    """The inputs class of ``stage`` (importing its home on first use;
-    :meth:`flylib.stages.Stage.inputs_class`).
-
-    Raises
-    ------
-    ValueError
-        For an unknown stage.
-    """
+    """The inputs class of ``stage``, importing its home on first use (ValueError for
+    an unknown stage)."""
     return by_name(stage).inputs_class()
 
 
 def stage_inputs(config: Config, stage: str) -> StageInputs:
-    """``stage``'s inputs object as ``config`` gives them.
-
-    Raises
-    ------
-    ValueError
-        For an unknown stage.
-    """
+    """``stage``'s inputs object as ``config`` gives them (ValueError: unknown stage)."""
     return inputs_class(stage).from_config(config)
 
 

@@ -43,12 +43,8 @@ STAGE = "kinematics"
 class KinematicsRuntime:
     """The kinematics stage's untracked part: the order of the configured angles and
     segments, which is the column order of ``angles.csv`` (the tracked params hold
-    them as mappings, keys sorted, so reordering them re-runs nothing).
-
-    Attributes
-    ----------
-    angles, segments
-        The names in the config's order (``None``: the defaults', or sorted).
+    them as mappings, keys sorted, so reordering them re-runs nothing). ``None``: the
+    defaults' order, or sorted.
     """
 
     angles: tuple[str, ...] | None = None
@@ -73,17 +69,7 @@ KINEMATICS = Codec(tracked_table, _kinematics_from_table)
 @register
 @dataclass(frozen=True)
 class KinematicsInputs(StageInputs):
-    """What the kinematics stage reads.
-
-    Attributes
-    ----------
-    kinematics
-        The ``kinematics`` table.
-    skeleton
-        The skeleton's points and limbs.
-    runtime
-        :class:`KinematicsRuntime`.
-    """
+    """What the kinematics stage reads."""
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
@@ -110,14 +96,8 @@ def compute_kinematics(
     """The recording's kinematics (:func:`flylib.kinematics.compute_kinematics` as
     ``inputs.kinematics`` says).
 
-    Parameters
-    ----------
-    inputs
-        The stage's :class:`KinematicsInputs`.
-    pts3d
-        ``(T, P, 3)`` world points, NaN = missing.
-    skeleton
-        The skeleton naming the P axis (the one ``results.h5`` holds).
+    ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (the one
+    ``results.h5`` holds).
     """
     params = inputs.kinematics
     return kinematics_of(
@@ -130,19 +110,23 @@ def compute_kinematics(
     )
 
 
-def angles_table(kin: Kinematics):
-    """The Anipose angles table (``pandas.DataFrame``): angle columns, then ``fnum``."""
-    import pandas as pd
-
-    table = pd.DataFrame({name: kin.angles[:, k] for k, name in enumerate(kin.angle_names)})
-    table["fnum"] = np.arange(kin.angles.shape[0])
-    return table
-
-
 def write_angles_csv(path: str | Path, kin: Kinematics) -> Path:
-    """Write ``angles.csv`` atomically (Anipose's layout)."""
-    with atomic_path(path) as tmp:
-        angles_table(kin).to_csv(tmp, index=False)
+    """Write ``angles.csv`` atomically (Anipose's layout: the angle columns, then
+    ``fnum``), as pandas' ``to_csv(index=False)`` writes it: each value's ``str``, NaN
+    empty (no pandas imported for one table)."""
+    import csv
+
+    columns = {name: kin.angles[:, k] for k, name in enumerate(kin.angle_names)}
+    columns["fnum"] = np.arange(kin.angles.shape[0])
+    text = []
+    for values in columns.values():
+        cells = values.astype(str)
+        cells[np.isnan(values)] = ""
+        text.append(cells)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as file:
+        writer = csv.writer(file, lineterminator="\n")
+        writer.writerow(columns)
+        writer.writerows(zip(*text, strict=True))
     return Path(path)
 
 
@@ -194,10 +178,7 @@ def angles_plot(
     The panels come in the skeleton's order (``point_names``: a leg's place is that of
     the first point its angles are measured at, so the fly's legs read lf, lm, lh /
     rf, rm, rh), else in the order of ``kin.angle_names``; never alphabetically.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
+    Returns a matplotlib Figure.
     """
     from matplotlib.figure import Figure
 
@@ -247,13 +228,9 @@ def angles_plot(
 
 def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = False):
     """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
-    ``stage`` reads (kinematics, neuromechfly).
-
-    Raises
-    ------
-    ResultsError
-        If it holds no 3D, or its 3D is the fly's mirror image
-        (:func:`flylib.handedness.mirrored_refusal`) and ``allow_mirrored`` is false.
+    ``stage`` reads (kinematics, neuromechfly). ResultsError if it holds no 3D, or its
+    3D is the fly's mirror image (:func:`flylib.handedness.mirrored_refusal`) and
+    ``allow_mirrored`` is false.
     """
     from ..errors import ResultsError
     from ..handedness import mirrored_refusal
@@ -273,23 +250,8 @@ def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = F
 
 def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: str | Path) -> dict:
     """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
-    into ``outdir``.
-
-    Parameters
-    ----------
-    inputs
-        The stage's :class:`KinematicsInputs`.
-    results_path
-        The recording's ``results.h5``.
-    outdir
-        Where the files go.
-
-    Raises
-    ------
-    ResultsError
-        If ``results.h5`` holds no 3D.
-    StageError
-        If the computation fails on the recording's data.
+    into ``outdir``. ResultsError if ``results.h5`` holds no 3D; StageError if the
+    computation fails on the recording's data.
     """
     from .stage_helpers import solving
 

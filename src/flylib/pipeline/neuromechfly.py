@@ -48,15 +48,7 @@ STAGE = "neuromechfly"
 @register
 @dataclass(frozen=True)
 class NeuromechflyInputs(StageInputs):
-    """What the neuromechfly stage reads.
-
-    Attributes
-    ----------
-    neuromechfly
-        The ``neuromechfly`` table.
-    skeleton
-        The skeleton's points and limbs.
-    """
+    """What the neuromechfly stage reads."""
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
@@ -155,16 +147,8 @@ def compute_neuromechfly(
     """The recording's NeuroMechFly angles (:func:`~flylib.neuromechfly.compute_nmf_angles`
     as ``inputs.neuromechfly`` says).
 
-    Parameters
-    ----------
-    inputs
-        The stage's :class:`NeuromechflyInputs`.
-    pts3d
-        ``(T, P, 3)`` world points, NaN = missing.
-    skeleton
-        The skeleton naming the P axis (the one ``results.h5`` holds).
-    source
-        What the 3D is, for messages.
+    ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (the one
+    ``results.h5`` holds); ``source`` names the 3D in messages.
     """
     params = inputs.neuromechfly
     return compute_nmf_angles(
@@ -180,22 +164,8 @@ def run_neuromechfly(
     inputs: NeuromechflyInputs, results_path: str | Path, outdir: str | Path
 ) -> dict:
     """NeuroMechFly angles of the recording in ``results.h5``, written as :data:`FILES`
-    into ``outdir``.
-
-    Parameters
-    ----------
-    inputs
-        The stage's :class:`NeuromechflyInputs`.
-    results_path
-        The recording's ``results.h5``.
-    outdir
-        Where the files go.
-
-    Raises
-    ------
-    ResultsError
-        If ``results.h5`` holds no 3D, its thorax is not still, or too few thorax-coxa
-        points were reconstructed.
+    into ``outdir``. ResultsError if ``results.h5`` holds no 3D, its thorax is not
+    still, or too few thorax-coxa points were reconstructed.
     """
     from .kinematics import results_3d
 

@@ -1,5 +1,6 @@
 """What a run plans from its config before any stage: the recordings it covers, the
-params each stage's artifact should carry, and the config rig and its files.
+params each stage's artifact should carry, the config rig and its files, and the
+workflow's :class:`RunPlan` (every input, param and resource its rules look up).
 
 The modules below the pipeline take these as typed values (a ``recordings`` listing
 and ``sources`` list, a ``calibration`` table and views, a ``stage -> params``
@@ -9,15 +10,31 @@ lookup); this is where a :class:`~flylib.config.Config` is read for them.
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from ..config import Config
+from ..errors import ConfigError
+from ..kinematics import FILES as KINEMATICS_FILES
+from ..neuromechfly import FILES as NEUROMECHFLY_FILES
+from ..provenance import foreign_artifacts
 from ..recordings import Recording, plan_listing
+from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from ..sessions import Session, plan_sessions
+from ..visualization.specs import video_specs
 from .demo import demo_import_spec
-from .inputs import RigSpec, stage_params
+from .inputs import RigSpec, stage_params, stage_runtime
 
-__all__ = ["calibration_inputs", "config_rig", "params_of", "plan_recordings"]
+__all__ = [
+    "RECORDING_GROUP",
+    "RunPlan",
+    "calibration_inputs",
+    "config_rig",
+    "params_of",
+    "plan_recordings",
+]
 
 
 def plan_recordings(
@@ -29,8 +46,6 @@ def plan_recordings(
 
     Parameters
     ----------
-    config
-        The run config.
     check_frames
         Compare frame counts across sources while resolving.
     config_dir
@@ -57,15 +72,9 @@ def plan_recordings(
 def params_of(config: Config, *, run_only: bool = False) -> Callable[[str], dict | None]:
     """``stage -> the params its rule tracks under config`` (each computed once), for
     :func:`flylib.provenance.provenance_report` and :func:`~flylib.provenance.foreign_artifacts`;
-    ``session_calibration`` too (a session's rig, :mod:`flylib.sessions`).
-
-    Parameters
-    ----------
-    config
-        The config to compare artifacts with.
-    run_only
-        ``None`` for a stage the run does not write (``pipeline.do_<stage>`` off, or
-        what it needs is off: :meth:`~flylib.config.Config.stage_flags`).
+    ``session_calibration`` too (a session's rig, :mod:`flylib.sessions`). ``run_only``:
+    ``None`` for a stage the run does not write (``pipeline.do_<stage>`` off, or what it
+    needs is off: :meth:`~flylib.config.Config.stage_flags`).
     """
     flags = config.stage_flags() if run_only else {}
 
@@ -89,10 +98,9 @@ def config_rig(
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
     recording_dir: str | Path | None = None,
 ):
-    """The rig the config describes: its ``calibration`` file when set, else the orbit
-    parameters of ``cameras`` (principal points from ``image_sizes`` where not given);
-    :meth:`RigSpec.camera_group` of the config's rig.
-    """
+    """The rig the config describes (:meth:`RigSpec.camera_group`, the one rig builder):
+    its ``calibration`` file when set, else the orbit parameters of ``cameras``
+    (principal points from ``image_sizes`` where not given)."""
     return RigSpec.from_config(config).camera_group(image_sizes, recording_dir)
 
 
@@ -105,3 +113,211 @@ def calibration_inputs(config: Config, recording_dir: str | Path | None = None) 
     return calibration_files(
         rig.calibration, Path(recording_dir) if recording_dir else None, config_dir=rig.config_dir
     )
+
+
+#: The cluster job group of a recording's CPU jobs (profiles/slurm): Snakemake submits
+#: each recording's chain as one job; the detector is its own (GPU) job, imported 2D
+#: joins its recording's group.
+RECORDING_GROUP = "recording"
+
+
+class RunPlan:
+    """A workflow run as planned before its DAG: the config, the recordings and which
+    are skipped, the stage flags, the sessions, and every input, param and resource
+    the rules look up (workflow/rules/common.smk binds them). A rule's ``wildcards``
+    is anything with ``outdir`` (``sessiondir`` for a session's rule); :attr:`warnings`
+    is what the run warns about. A ``ConfigError`` for two demos or a session folder
+    that is a recording's output folder (:func:`flylib.sessions.plan_sessions`).
+    """
+
+    def __init__(self, config: Config, recordings: list[Recording], *, main_process: bool = True):
+        self.config = config
+        self.recordings = recordings
+        self.flags = config.stage_flags()
+        self.video_names = (
+            [v.name for v in video_specs(config)] if self.flags["visualization"] else []
+        )
+        if sum(r.demo for r in recordings) > 1:
+            raise ConfigError("recordings: more than one {demo: true} entry; list the demo once")
+        # a lookup, not a wildcard constraint: a regex listing every outdir is as long as
+        # the batch, which Snakemake scans for every job and file (10,000 never planned)
+        self.by_outdir = {str(r.outdir): r for r in recordings}
+        self.warnings: list[str] = []
+        if main_process:  # artifacts another working directory wrote with other params
+            self.warnings += foreign_artifacts(params_of(config, run_only=True), recordings)
+        self.skipped: set[str] = set()
+        for rec in recordings:
+            absent = self._absent_2d(rec)
+            if absent:
+                self.skipped.add(rec.id)
+                self.warnings.append(
+                    f"{rec.id}: pipeline.do_pose2d is false and {', '.join(absent)} "
+                    "missing; skipping this recording (turn pose2d on to create it)"
+                )
+        session = config.bundle_adjustment.session
+        self.sessions: list[Session] = (
+            plan_sessions(self.planned) if self.flags["bundle_adjustment"] and session else []
+        )
+        if session and not self.flags["bundle_adjustment"] and main_process:
+            self.warnings.append(
+                "bundle_adjustment.session: true does nothing while "
+                "pipeline.do_bundle_adjustment is false (every recording uses the config "
+                "rig); turn bundle adjustment on"
+            )
+        self.session_of = {r.id: s for s in self.sessions for r in s.members}
+        self.by_sessiondir = {str(s.outdir): s for s in self.sessions}
+        self._runtime: dict[str, Any] = {}
+        self._calibration: dict[Path, tuple[str, ...]] = {}
+
+    @property
+    def planned(self) -> list[Recording]:
+        return [r for r in self.recordings if r.id not in self.skipped]
+
+    def _absent_2d(self, rec: Recording) -> list[str]:
+        """With pose2d off: the 2D artifacts the later stages need that do not exist."""
+        if self.flags["pose2d"]:
+            return []
+        needed = [ARTIFACTS["pose2d"]]
+        if self.flags["pictorial_structures"]:
+            needed.append(candidates_artifact(self.config.pictorial.k))
+        stages = rec.outdir / "stages"
+        return [str(stages / n) for n in needed if not (stages / n).is_file()]
+
+    def recording(self, wildcards) -> Recording:
+        try:
+            return self.by_outdir[wildcards.outdir]
+        except KeyError:
+            raise ConfigError(
+                f"{wildcards.outdir} is not the output folder of any recording of this run"
+            ) from None
+
+    def unplanned(self, wildcards) -> list[str]:
+        """``[]`` for a recording's output folder; for any other folder one input that
+        cannot exist. A user's file whose path matches an output pattern (a
+        calibration.toml beside the footage, or in another run's outputs) asks for a job
+        in a folder this run does not write; that input makes Snakemake drop the job and
+        read the file as it is, never make it."""
+        if wildcards.outdir in self.by_outdir:
+            return []
+        return [f"{wildcards.outdir} (no recording of this run writes to this folder)"]
+
+    def session(self, wildcards) -> Session:
+        try:
+            return self.by_sessiondir[wildcards.sessiondir]
+        except KeyError:
+            raise ConfigError(
+                f"{wildcards.sessiondir} is not the folder of any session of this run"
+            ) from None
+
+    def session_unplanned(self, wildcards) -> list[str]:
+        """As :meth:`unplanned`, for a session's folder."""
+        if wildcards.sessiondir in self.by_sessiondir:
+            return []
+        return [f"{wildcards.sessiondir} (no session of this run writes to this folder)"]
+
+    def stage_json(self, stage: str) -> str:
+        """The stage's tracked params (flylib.pipeline.inputs) as canonical JSON: its
+        rule's ``params.stage`` (Snakemake re-runs a job when it changes)."""
+        return json.dumps(stage_params(self.config, stage), sort_keys=True)
+
+    def runtime(self, stage: str) -> Any:
+        """The untracked, speed-only part of the stage's inputs (once per stage)."""
+        if stage not in self._runtime:
+            self._runtime[stage] = stage_runtime(self.config, stage)
+        return self._runtime[stage]
+
+    def pose2d_import(self, wildcards) -> str:
+        """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
+        return json.dumps(self.recording(wildcards).import_spec, sort_keys=True)
+
+    def artifact(self, stage: str) -> str:
+        """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
+        name = candidates_artifact(self.config.pictorial.k) if stage == "candidates" else None
+        return f"{{outdir}}/stages/{name or ARTIFACTS[stage]}"
+
+    def pose2d_outputs(self) -> dict[str, str]:
+        """The 2D points, plus the candidate peaks while pictorial structures is on."""
+        outputs = {"out": self.artifact("pose2d")}
+        if self.flags["pictorial_structures"]:
+            outputs["candidates_out"] = self.artifact("candidates")
+        return outputs
+
+    def rig_artifact(self, wildcards) -> str:
+        """The bundle-adjusted rig a recording's later stages read: its session's while
+        session calibration is on, else its own bundle-adjustment artifact."""
+        own = self.by_outdir.get(wildcards.outdir)  # None: a folder no recording writes
+        if own is not None and own.id in self.session_of:
+            return str(self.session_of[own.id].artifact)
+        return self.artifact("bundle_adjustment").format(outdir=wildcards.outdir)
+
+    def recording_calibration(self, path: Path) -> tuple[str, ...]:
+        """The calibration file(s) the config rig of the recording at ``path`` is read
+        from (none for an orbit rig), once per recording."""
+        if path not in self._calibration:
+            self._calibration[path] = tuple(str(p) for p in calibration_inputs(self.config, path))
+        return self._calibration[path]
+
+    def calibration_inputs(self, wildcards) -> list[str]:
+        """:meth:`recording_calibration` of this job's recording, so a rule that builds
+        the config rig re-runs when the file changes."""
+        return self.unplanned(wildcards) or list(
+            self.recording_calibration(self.recording(wildcards).path)
+        )
+
+    def reconstruction_inputs(self, stage: str) -> Callable[[Any], dict]:
+        """Inputs of a geometry rule: pose2d, plus the bundle-adjusted rig while that
+        stage is on (else the calibration file the config rig comes from, if any), plus
+        (triangulation) pictorial-structures 2D while that stage is on."""
+
+        def inputs(wildcards) -> dict:
+            def own(name: str) -> str:
+                return self.artifact(name).format(outdir=wildcards.outdir)
+
+            files: dict[str, Any] = {"pose2d": own("pose2d")}
+            if stage == "pictorial_structures":
+                files["candidates"] = own("candidates")
+            if self.flags["bundle_adjustment"]:
+                files["bundle_adjustment"] = self.rig_artifact(wildcards)
+            if stage == "triangulation" and self.flags["pictorial_structures"]:
+                files["pictorial_structures"] = own("pictorial_structures")
+            if not self.flags["bundle_adjustment"]:
+                files["calibration"] = self.calibration_inputs(wildcards)
+            return files
+
+        return inputs
+
+    def refinement_inputs(self, wildcards) -> dict:
+        """Inputs of refinement: pose2d (2D, confidences), the triangulation (start,
+        inlier views), and the rig as triangulation reads it."""
+        files = self.reconstruction_inputs("refinement")(wildcards)
+        files["triangulation"] = self.artifact("triangulation").format(outdir=wildcards.outdir)
+        return files
+
+    def targets(self) -> list[str]:
+        """Every final output of the run: each planned recording's, each session's summary."""
+        names = [
+            "results.h5",
+            *SUMMARY_FILES,
+            *(f"{name}.mp4" for name in self.video_names),  # none with visualization off
+            *(KINEMATICS_FILES if self.flags["kinematics"] else ()),
+            *(NEUROMECHFLY_FILES if self.flags["neuromechfly"] else ()),
+        ]
+        targets = [f"{rec.outdir}/{name}" for rec in self.planned for name in names]
+        return targets + [str(s.summary) for s in self.sessions]
+
+    def pose2d_gpus(self, wildcards) -> int:
+        """A GPU only when the detector runs (imported 2D needs none)."""
+        rec = self.recording(wildcards)
+        return 0 if (rec.import_spec or self.config.import_spec) else 1
+
+    def pose2d_mem_mb(self, wildcards) -> int:
+        """The detector's memory; reading imported 2D needs far less (and sets its group's)."""
+        return 8000 if self.pose2d_gpus(wildcards) else 2000
+
+    def pose2d_runtime(self, wildcards) -> int:
+        """Minutes: the detector's, or reading imported 2D's."""
+        return 120 if self.pose2d_gpus(wildcards) else 15
+
+    def pose2d_group(self, wildcards) -> str | None:
+        """Imported 2D (no GPU) runs in its recording's group; the detector on its own."""
+        return RECORDING_GROUP if self.pose2d_gpus(wildcards) == 0 else None

@@ -46,19 +46,9 @@ DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 @dataclass(frozen=True)
 class Pose2dRuntime:
     """The pose2d stage's untracked knobs: they change how fast it runs, never its
-    2D (defaults: :class:`~flylib.config.params.Pose2dParams`, ``IoParams``,
-    ``PictorialParams``).
-
-    Attributes
-    ----------
-    batch_size, decode_buffer, device, compile
-        ``pose2d.batch_size``, ``decode_buffer``, ``device``, ``compile``.
-    image_workers
-        ``io.image.workers`` (``None``: the reader chooses).
-    candidates_k
-        ``pictorial_structures.k``: the candidate peaks kept per (view, point); the
-        candidates file is named by it (``stages/candidates_k<k>.h5``), so it needs no
-        tracking here.
+    2D. ``image_workers`` ``None``: the reader chooses. ``candidates_k``
+    (``pictorial_structures.k``, peaks kept per (view, point)) names the candidates
+    file (``stages/candidates_k<k>.h5``), so it needs no tracking here.
     """
 
     batch_size: int = Pose2dParams.batch_size
@@ -70,7 +60,6 @@ class Pose2dRuntime:
 
     @classmethod
     def from_config(cls, config: Config) -> Pose2dRuntime:
-        """The knobs as ``config`` sets them."""
         return cls(
             **{knob: getattr(config.pose2d, knob) for knob in DETECTOR_KNOBS},
             image_workers=config.io.image_workers,
@@ -83,23 +72,10 @@ class Pose2dRuntime:
 class Pose2dInputs(StageInputs):
     """What the pose2d stage reads.
 
-    Attributes
-    ----------
-    sources
-        The ``sources`` list (``{name, filename?}`` entries, in order).
-    plan
-        The detection plan's ``pose2d`` tables (:data:`PLAN_KEYS`; absent ones ``None``).
-    precision
-        ``pose2d.precision``: the detector's forward precision.
-    import_spec
-        ``pose2d.import`` (``None``: the detector runs, unless the recording has its own).
-    point_names, views
-        The P and V axes.
-    on_corrupt_frame
-        ``io.on_corrupt_frame`` (tracked only when not ``"error"``, so the artifacts
-        made before it existed keep their params).
-    runtime
-        The untracked knobs (:class:`Pose2dRuntime`).
+    ``plan`` holds the detection plan's ``pose2d`` tables (:data:`PLAN_KEYS`; absent
+    ones ``None``); ``import_spec`` ``None``: the detector runs, unless the recording
+    has its own. ``on_corrupt_frame`` is tracked only when not ``"error"``, so the
+    artifacts made before it existed keep their params.
     """
 
     STAGE = "pose2d"
@@ -115,7 +91,6 @@ class Pose2dInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config: Config) -> Pose2dInputs:
-        """The stage's inputs as ``config`` gives them."""
         pose2d = config.data.get("pose2d") or {}
         return cls(
             sources=frozen_mapping(config.data.get("sources") or []),
@@ -154,7 +129,6 @@ class Pose2dInputs(StageInputs):
         )
 
     def detection_plan(self) -> DetectionPlan:
-        """The parsed detection plan."""
         return DetectionPlan.from_tables(
             plain_json(self.sources), plain_json(self.plan), self.views, self.point_names
         )
@@ -194,15 +168,6 @@ def import_inputs(
     """The files a recording's imported 2D is read from (none without an import spec):
     the pose2d rule's inputs besides the footage, so that editing one re-runs pose2d.
 
-    Parameters
-    ----------
-    target
-        What the 2D is placed on (:func:`import_target`).
-    spec
-        The recording's import spec (``None``: the detector runs).
-    recording_dir
-        The recording directory the spec's ``files`` are relative to.
-
     Raises
     ------
     ImportFormatError
@@ -224,13 +189,7 @@ _OUTSIDE_FRACTION = 0.01
 
 
 def _check_inside_frames(pose2d, recording_dir: Path) -> None:
-    """Refuse imported 2D whose points lie outside the footage they claim to be on.
-
-    Raises
-    ------
-    FootageError
-        Naming the view, its footage size and the extent of its points.
-    """
+    """Refuse (FootageError) imported 2D whose points lie outside its footage."""
     sizes = pose2d.image_sizes or {}
     for v, view in enumerate(pose2d.view_names):
         if view not in sizes:
@@ -266,18 +225,7 @@ def compute_pose2d(
     tool's files when an import spec is in force (``import_spec``, else the inputs'
     ``pose2d.import``). Reads the recording's files, writes nothing.
 
-    Parameters
-    ----------
-    inputs
-        The stage's inputs.
-    recording_dir
-        The recording directory (its footage, or the files to import).
-    import_spec
-        The recording's own import spec (``None``: the inputs').
-    candidates
-        Also keep the detector's top-K peaks (``runtime.candidates_k``).
-    progress
-        Show a progress bar while detecting.
+    ``candidates``: also keep the detector's top-K peaks (``runtime.candidates_k``).
 
     Returns
     -------

@@ -37,35 +37,24 @@ def preflight_problems(
     check_weights: bool = True,
     import_files: dict[str, tuple[Path, ...]] | None = None,
 ) -> list[str]:
-    """Problems the planned run would hit inside a job, found from the config alone.
+    """Problems the planned run would hit inside a job, found from the config alone:
+    one line each, starting with the config key it concerns.
 
-    Parameters
-    ----------
-    config
-        The validated :class:`flylib.config.Config`.
-    recordings
-        The planned :class:`flylib.recordings.Recording` objects.
-    flags
-        ``Config.stage_flags()``.
-    check_weights
-        Check that every detector model's checkpoint is cached or downloadable (may
-        wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
-    import_files
-        Filled with ``recording id -> the files its imported 2D is read from``, as
-        found while checking them (the workflow reads them once, here).
-
-    Returns
-    -------
-    list of str
-        One line per problem, each starting with the config key it concerns.
+    ``flags`` is ``Config.stage_flags()``. ``check_weights``: check that every detector
+    model's checkpoint is cached or downloadable (may wait
+    :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
+    ``import_files`` is filled with ``recording id -> the files its imported 2D is read
+    from``, as found while checking them (the workflow reads them once, here).
     """
     recordings = list(recordings)
     problems: list[str] = []
     data = config.data
 
     if data.get("cameras") and any(k != "defaults" for k in data["cameras"]):
+        from ..camera.rig import CameraGroup
+
         try:  # principal points default to the image centre: any size checks the rest
-            config.camera_group(image_sizes={v: (2, 2) for v in config.view_names()})
+            CameraGroup.from_config(config, image_sizes={v: (2, 2) for v in config.view_names()})
         except FlylibError as exc:
             problems.append(_problem(exc))
 
@@ -106,8 +95,10 @@ def preflight_problems(
         problems += _pose2d_problems(config, recordings, check_weights, import_files)
 
     if flags.get("visualization", True):
+        from ..visualization.specs import video_specs
+
         try:
-            config.videos  # noqa: B018 -- parsing is the check
+            video_specs(config)  # parsing is the check
         except FlylibError as exc:
             problems.append(_problem(exc))
     problems += path_problems(config, recordings)
@@ -126,19 +117,8 @@ def path_problems(config: Any, recordings: Iterable[Any]) -> list[str]:
     A recording's folder, footage, calibration or output folder holding a brace group
     that Snakemake reads as a wildcard (``fly{1}``); an output folder whose name (or
     one of its parents' names) is longer than its filesystem allows; an output folder
-    that cannot be created or written (a read-only filesystem, no permission).
-
-    Parameters
-    ----------
-    config
-        The validated :class:`flylib.config.Config`.
-    recordings
-        The planned :class:`flylib.recordings.Recording` objects.
-
-    Returns
-    -------
-    list of str
-        One ``"<key>: <path>: <what is wrong>; <the fix>"`` line per problem.
+    that cannot be created or written (a read-only filesystem, no permission). Each
+    line reads ``"<key>: <path>: <what is wrong>; <the fix>"``.
     """
     from .planning import calibration_inputs
 
@@ -176,17 +156,7 @@ def outdir_problem(outdir: str | Path) -> str | None:
 
     Each name of the path must fit its filesystem's limit, and the folder (or, when it
     does not exist yet, its nearest existing parent, where it will be created) must be a
-    writable folder.
-
-    Parameters
-    ----------
-    outdir
-        A recording's output folder.
-
-    Returns
-    -------
-    str or None
-        ``"<outdir>: <what is wrong>; <the fix>"``.
+    writable folder. The answer reads ``"<outdir>: <what is wrong>; <the fix>"``.
     """
     outdir = Path(os.path.abspath(outdir))
     existing = outdir
@@ -219,25 +189,12 @@ def outdir_problem(outdir: str | Path) -> str | None:
 def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
     """Validate a run's config and plan its recordings, as the workflow does before its DAG.
 
-    Parameters
-    ----------
-    layers
-        The run's :class:`flylib.config.layers.ConfigLayers`.
-    check_frames
-        Compare footage frame counts across cameras while planning, and check the
-        detector's checkpoints (off in a cluster job re-reading the config: the run's
-        main process checked both, and a compute node may have no network).
-
-    Returns
-    -------
-    config, recordings
-        The :class:`flylib.config.Config` (its ``text``: the one file's exact text, or a
-        YAML dump of the merged layers) and the planned recordings.
-
-    Raises
-    ------
-    ConfigError
-        Every problem, one line each, naming the user's file that set the key.
+    ``check_frames``: compare footage frame counts across cameras while planning, and
+    check the detector's checkpoints (off in a cluster job re-reading the config: the
+    run's main process checked both, and a compute node may have no network). Returns
+    the :class:`flylib.config.Config` (its ``text``: the one file's exact text, or a
+    YAML dump of the merged layers) and the planned recordings; raises ConfigError
+    with every problem, one line each, naming the user's file that set the key.
     """
     import yaml
 
@@ -291,7 +248,7 @@ def _pose2d_problems(
     from ..interop.importer import footage_problem
     from ..pose2d.published import checkpoint_problem
     from ..recordings import find_recording
-    from .pose2d import import_inputs, import_target
+    from .pose2d import Pose2dInputs, import_inputs, import_target
 
     problems: list[str] = []
     detector = []
@@ -331,7 +288,7 @@ def _pose2d_problems(
         return problems
 
     try:
-        plan = config.detection_plan()
+        plan = Pose2dInputs.from_config(config).detection_plan()
     except FlylibError as exc:
         return [*problems, _problem(exc)]
     own_weights = (config.data.get("pose2d") or {}).get("weights") or {}

@@ -71,23 +71,9 @@ STAGE = "refinement"
 @register
 @dataclass(frozen=True)
 class RefinementInputs(StageInputs):
-    """What the refinement stage reads.
-
-    Attributes
-    ----------
-    refinement
-        The ``refinement`` table.
-    triangulation
-        The triangulation's method and the knobs it reads (the held-out-view check
-        re-runs it without each view).
-    skeleton
-        The skeleton's points and limbs.
-    rig
-        The config rig, or ``None`` with bundle adjustment on (the rig comes from its
-        artifact).
-    runtime
-        :class:`RigRuntime`.
-    """
+    """What the refinement stage reads. ``triangulation`` is tracked because the
+    held-out-view check re-runs it without each view; ``rig`` is ``None`` with bundle
+    adjustment on (the rig comes from its artifact)."""
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
@@ -110,8 +96,7 @@ class RefinementInputs(StageInputs):
 
 
 def _triangulation(method_params: Mapping) -> TriangulationParams:
-    """The triangulation params as tracked: the method and the knobs it reads (the
-    others at their defaults, which that method never reads)."""
+    """The method and the knobs it reads (the others at defaults it never reads)."""
     return build_params(TriangulationParams, method_params)
 
 
@@ -223,23 +208,9 @@ def run_refinement(
     """Refine the triangulated 3D of one recording and write ``stages/refinement.h5``.
 
     The artifacts are read and the result written chunk by chunk, so memory does not
-    grow with the recording's length.
-
-    Parameters
-    ----------
-    inputs
-        The stage's :class:`RefinementInputs`.
-    pose2d_path
-        The pose2d artifact: every 2D observation and its confidence.
-    triangulation_path
-        The triangulation artifact: the starting 3D and its inlier views.
-    out_path
-        Where to write.
-    ba_path
-        The bundle-adjustment artifact (its rig); required when ``inputs.rig`` is
-        ``None``.
-    recording_dir
-        The recording (for a calibration file relative to it).
+    grow with the recording's length. ``ba_path`` (the bundle-adjustment artifact's
+    rig) is required when ``inputs.rig`` is ``None``; ``recording_dir`` is where a
+    relative calibration file is looked up.
     """
     from ..provenance import stage_provenance
     from ..results import new_meta, open_checked
@@ -312,10 +283,6 @@ def compute_refinement(
 
     Parameters
     ----------
-    inputs
-        The stage's :class:`RefinementInputs`.
-    cameras
-        The rig.
     pose2d
         ``points`` ``(V, T, P, 2)`` and optionally ``conf`` ``(V, T, P)``.
     triangulation

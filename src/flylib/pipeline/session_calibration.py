@@ -62,7 +62,6 @@ class SessionCalibrationInputs(BundleAdjustmentInputs):
 
     @classmethod
     def from_config(cls, config) -> SessionCalibrationInputs:
-        """The ``bundle_adjustment`` table, the config rig and skeleton of ``config``."""
         base = BundleAdjustmentInputs.from_config(config)
         return cls(
             bundle_adjustment=replace(base.bundle_adjustment, session=True),
@@ -78,13 +77,7 @@ class SessionCalibrationInputs(BundleAdjustmentInputs):
 
 @dataclass(frozen=True)
 class SessionSummaryInputs(StageInputs):
-    """What the session summary reads: the triangulation it judges each rig by.
-
-    Attributes
-    ----------
-    triangulation
-        The ``triangulation`` table (the method and the knobs it reads).
-    """
+    """What the session summary reads: the triangulation it judges each rig by."""
 
     STAGE = "session_summary"
 
@@ -92,7 +85,6 @@ class SessionSummaryInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config) -> SessionSummaryInputs:
-        """The ``triangulation`` table of ``config``."""
         return cls(build_params(TriangulationParams, config.triangulation.method_params()))
 
     def rule_params(self) -> str:
@@ -111,13 +103,8 @@ def compute_session_calibration(
     ``max_frames`` is shared between the trials
     (:func:`~flylib.bundle_adjustment.select_session_frames`), the chosen frames are
     solved as one sequence with the ``bundle_adjustment`` table; no file is read or
-    written.
-
-    Returns
-    -------
-    BundleAdjusted, list of ndarray
-        The result (``points3d`` over the chosen frames, trial after trial) and each
-        trial's chosen frame indices.
+    written. Returns the result (``points3d`` over the chosen frames, trial after
+    trial) and each trial's chosen frame indices.
     """
     from ..bundle_adjustment import bundle_adjust_sequence, select_session_frames
 
@@ -164,12 +151,8 @@ def run_session_calibration(
     order) and write it to ``out_path`` (a bundle-adjustment artifact whose provenance
     names the session and its members) and ``calibration_path`` (Anipose).
 
-    The starting rig is the config rig as the first member builds it.
-
-    Raises
-    ------
-    ResultsError
-        When the members' views or image sizes differ (they are no one rig).
+    The starting rig is the config rig as the first member builds it. ResultsError
+    when the members' views or image sizes differ (they are no one rig).
     """
     from ..interop.anipose import write_anipose_toml
     from ..provenance import stage_provenance

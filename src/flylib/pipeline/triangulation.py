@@ -56,20 +56,11 @@ __all__ = [
 class TriangulationInputs(StageInputs):
     """What the triangulation stage reads.
 
-    Attributes
-    ----------
-    triangulation
-        The ``triangulation`` table: the method and the knobs that method reads (the
-        others at their defaults: the stage tracks only those).
-    skeleton
-        Points and limbs (the held-out accuracy's bone spread and left/right figures).
-    points_from
-        ``"pictorial_structures"`` or ``"pose2d"``: where its 2D comes from.
-    rig
-        The config rig, or ``None`` while bundle adjustment is on (the rig then comes
-        from that stage's artifact).
-    runtime
-        Untracked: the config file's folder (a relative calibration path).
+    ``triangulation`` holds the method and the knobs that method reads (the others at
+    their defaults: the stage tracks only those); ``skeleton`` is for the held-out
+    accuracy's bone spread and left/right figures; ``points_from`` is
+    ``"pictorial_structures"`` or ``"pose2d"``; ``rig`` is ``None`` while bundle
+    adjustment is on (the rig then comes from that stage's artifact).
     """
 
     STAGE = "triangulation"
@@ -82,7 +73,6 @@ class TriangulationInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config: Config) -> TriangulationInputs:
-        """The stage's inputs as ``config`` gives them."""
         flags = config.stage_flags()
         return cls(
             triangulation=build_params(TriangulationParams, config.triangulation.method_params()),
@@ -95,19 +85,9 @@ class TriangulationInputs(StageInputs):
 
 @dataclass(frozen=True)
 class Triangulated:
-    """The triangulation stage's result.
-
-    Attributes
-    ----------
-    points3d
-        ``(T, P, 3)`` NaN where not reconstructed.
-    points
-        ``(V, T, P, 2)`` the 2D each point was solved from (outlier views NaN).
-    reproj_error
-        ``(V, T, P)`` pixels.
-    corrected
-        ``(T, P)`` bool: the points a manual correction changed.
-    """
+    """The triangulation stage's result: ``points3d`` NaN where not reconstructed,
+    ``points`` the 2D each point was solved from (outlier views NaN), ``reproj_error``
+    in pixels, ``corrected`` the points a manual correction changed."""
 
     points3d: Float[np.ndarray, "T P 3"]
     points: Float[np.ndarray, "V T P 2"]
@@ -133,22 +113,8 @@ def compute_triangulation(
     the fixed ones; an edited 3D point replaces the triangulated one (its reprojection
     errors follow).
 
-    Parameters
-    ----------
-    inputs
-        The stage's inputs (its ``triangulation`` table).
-    cameras
-        The final rig.
-    pts2d, conf
-        ``(V, T, P, 2)`` the 2D triangulation reads (pose2d's or pictorial structures')
-        and ``(V, T, P)`` its confidences, or ``None``.
-    corrections
-        The sidecar's edits for exactly these ``(V, T, P)``, or ``None``.
-
-    Raises
-    ------
-    ResultsError
-        If ``corrections`` do not match the shape of ``pts2d``.
+    ``pts2d`` is pose2d's or pictorial structures' 2D; ``corrections`` must cover
+    exactly its ``(V, T, P)`` (ResultsError otherwise).
     """
     from ..camera import model as camera_model
     from ..triangulation import reconstruct, reprojection_error

@@ -63,7 +63,9 @@ def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
     # the snapshot of the other format, which assemble removes (Config.save_snapshot)
     out["config.toml"] = "assemble (it deletes an earlier run's config.toml snapshot)"
     if flags.get("visualization", True):
-        for video in config.videos:
+        from ..visualization.specs import video_specs
+
+        for video in video_specs(config):
             out[f"{video.name}.mp4"] = f"visualization's {video.name}.mp4"
     if flags.get("kinematics", True):
         out |= {name: f"kinematics' {name}" for name in KINEMATICS_FILES}
@@ -76,9 +78,9 @@ def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
 
 def _run_inputs(config: Any, rec: Any, config_files: Iterable[str]) -> dict[str, str]:
     """``path -> role`` of the files one recording's run reads."""
+    from ..config.nwb_metadata import sidecar_inputs
     from ..corrections import corrections_path
     from ..errors import FlylibError
-    from ..nwb_metadata import sidecar_inputs
     from .planning import calibration_inputs
 
     inputs = {str(f): f"recording {rec.id}'s footage" for f in rec.footage}

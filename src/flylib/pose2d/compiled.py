@@ -66,22 +66,13 @@ def _fold(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> None:
 
 
 def fold_batchnorm(net: HourglassNet) -> HourglassNet:
-    """Fold every BatchNorm that directly follows a convolution into it (inference only).
+    """An eval-mode copy of ``net`` (left untouched) with every BatchNorm that directly
+    follows a convolution folded into it, now :class:`torch.nn.Identity`: the same
+    heatmaps to float rounding, with fewer layers (inference only).
 
     The network is pre-activation: a bottleneck's ``bn2``/``bn3`` follow ``conv1``/
     ``conv2``, the stem's ``bn1`` follows ``conv1`` and each ``fc`` is conv, BN, ReLU;
     those fold. A bottleneck's ``bn1`` acts on the sum of two branches and stays.
-
-    Parameters
-    ----------
-    net
-        The network (left untouched).
-
-    Returns
-    -------
-    HourglassNet
-        An eval-mode copy computing the same heatmaps (to float rounding) with fewer
-        layers; the folded BatchNorms are :class:`torch.nn.Identity`.
     """
     import copy
 
@@ -141,22 +132,9 @@ def device_tag(device: torch.device) -> str:
 class CompileKey:
     """Everything a compiled detector depends on; its :meth:`digest` names the cache entry.
 
-    Attributes
-    ----------
-    weights
-        SHA-256 of the network's state (:func:`weights_digest`).
-    torch_version
-        ``torch.__version__``.
-    device
-        :func:`device_tag`.
-    precision
-        ``float32``, ``float16`` or ``bfloat16``.
-    batch_size
-        The (fixed) batch of every forward.
-    input_shape
-        ``(channels, height, width)`` of the model input.
-    format
-        :data:`FORMAT`.
+    ``weights`` is :func:`weights_digest`, ``device`` :func:`device_tag`, ``batch_size``
+    the fixed batch of every forward, ``input_shape`` the model input's
+    ``(channels, height, width)``.
     """
 
     weights: str
@@ -237,18 +215,9 @@ def _load_package(package: Path, device: torch.device):
 def load_or_compile(
     net: HourglassNet, key: CompileKey, device: torch.device, *, root: Path | None = None
 ) -> tuple[object, str]:
-    """The compiled detector for ``key``: loaded from the cache, else compiled into it.
-
-    Parameters
-    ----------
-    net
-        The eval-mode network (its BatchNorms are folded in a copy).
-    key
-        The entry's key (:meth:`CompileKey.for_model` of ``net``).
-    device
-        Where the package runs.
-    root
-        The cache directory (default :func:`cache_root`).
+    """The compiled detector for ``key`` (:meth:`CompileKey.for_model` of the eval-mode
+    ``net``): loaded from the cache (``root``, default :func:`cache_root`), else compiled
+    into it.
 
     Returns
     -------
@@ -291,13 +260,7 @@ class CudaGraphForward:
 
     The detection loop's Python threads (decode, scatter) then cannot starve kernel
     launches. Outputs live in a buffer the next replay overwrites: copy them.
-
-    Parameters
-    ----------
-    forward
-        Fixed-shape callable on CUDA tensors.
-    example
-        An input of the shape every call will have.
+    ``forward`` takes a fixed shape, that of ``example``.
     """
 
     def __init__(self, forward, example: torch.Tensor):
@@ -338,18 +301,8 @@ def decide_compile(
     compilation, plus the work at the compiled rate) is below its time eager, so
     ``auto`` never makes a recording slower than eager by its cost model.
 
-    Parameters
-    ----------
-    setting
-        ``pose2d.compile``.
-    device
-        The detection device.
-    batch_size
-        ``pose2d.batch_size``.
-    images
-        Pathway images of the recording (frames x pathways); ``None`` if unknown.
-    cached
-        Whether a compiled package for this key is in the cache.
+    ``setting`` is ``pose2d.compile``; ``images`` the recording's pathway images
+    (frames x pathways), ``None`` if unknown; ``cached`` whether the package is cached.
     """
     if setting is False:
         return False, "pose2d.compile is false"

@@ -3,8 +3,8 @@
 Coordinates are heatmap cells ``(x, y) = (column, row)`` with fractional offsets;
 :meth:`flylib.pose2d.plan.Pathway.heatmap_to_raw` maps them to raw-frame pixels
 with DeepFly2D's convention (cell ``c`` is the normalized point ``c / W_hm``). The
-confidence is the raw peak value. The sub-pixel refinement of the peak cell is one of
-:data:`SUBPIXEL_METHODS`:
+confidence is the raw peak value. The sub-pixel refinement of the peak cell
+(:func:`flylib.pictorial.peaks.subpixel_offsets`) is one of :data:`SUBPIXEL_METHODS`:
 
 - ``weighted`` (default, the seed system's and DeepFly2D's): the intensity-weighted
   centroid of the ``(2 radius + 1)^2`` window around the peak cell (``radius = 2``),
@@ -24,13 +24,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ..errors import ConfigError
-from .plan import DEFAULT_SUBPIXEL, SUBPIXEL_METHODS
+from ..pictorial.peaks import subpixel_offsets
+from .plan import DEFAULT_SUBPIXEL, SUBPIXEL_METHODS, check_subpixel
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float, Int
-
-_EPS = 1e-12
 
 #: Half-width of the refinement window in heatmap cells (5x5).
 SUBPIXEL_RADIUS = 2
@@ -47,85 +45,6 @@ __all__ = [
 ]
 
 
-def _parabola_offset(left: torch.Tensor, centre: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
-    positive = (left > 0) & (centre > 0) & (right > 0)
-    lg = torch.log(torch.where(positive, left, 1.0).clamp_min(_EPS))
-    cg = torch.log(torch.where(positive, centre, 1.0).clamp_min(_EPS))
-    rg = torch.log(torch.where(positive, right, 1.0).clamp_min(_EPS))
-    l_ = torch.where(positive, lg, left)
-    c_ = torch.where(positive, cg, centre)
-    r_ = torch.where(positive, rg, right)
-    curvature = l_ - 2.0 * c_ + r_
-    offset = 0.5 * (l_ - r_) / torch.where(curvature < 0, curvature, -1.0)
-    offset = torch.where(curvature < 0, offset, torch.zeros_like(offset))
-    return offset.clamp(-0.5, 0.5)
-
-
-def _gather(
-    flat: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, h: int, w: int
-) -> torch.Tensor:
-    """``flat (M, H*W)`` at integer ``rows, cols`` of any shape ``(M, ...)`` (clamped into the grid)."""
-    index = rows.clamp(0, h - 1) * w + cols.clamp(0, w - 1)
-    return torch.gather(flat, 1, index.reshape(flat.shape[0], -1)).reshape(index.shape)
-
-
-def _weighted_offsets(flat, rows, cols, h, w, radius):
-    offsets = torch.arange(-radius, radius + 1, device=flat.device)
-    r = rows[..., None, None] + offsets[:, None]  # (M, K, S, 1)
-    c = cols[..., None, None] + offsets[None, :]  # (M, K, 1, S)
-    r, c = torch.broadcast_tensors(r, c)
-    inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-    weight = torch.where(inside, _gather(flat, r, c, h, w).clamp_min(0.0), 0.0)
-    total = weight.sum(dim=(-1, -2))
-    safe = torch.where(total > 0, total, 1.0)
-    off = offsets.to(flat.dtype)
-    dy = (weight * off[:, None]).sum(dim=(-1, -2)) / safe
-    dx = (weight * off[None, :]).sum(dim=(-1, -2)) / safe
-    return torch.where(total > 0, dx, 0.0), torch.where(total > 0, dy, 0.0)
-
-
-def _taylor_offsets(flat, rows, cols, h, w, radius):
-    inner = (rows >= 1) & (rows < h - 1) & (cols >= 1) & (cols < w - 1)
-
-    def at(dr: int, dc: int) -> torch.Tensor:
-        return torch.log(_gather(flat, rows + dr, cols + dc, h, w).clamp_min(1e-10))
-
-    centre = at(0, 0)
-    gx = 0.5 * (at(0, 1) - at(0, -1))
-    gy = 0.5 * (at(1, 0) - at(-1, 0))
-    hxx = at(0, 1) - 2 * centre + at(0, -1)
-    hyy = at(1, 0) - 2 * centre + at(-1, 0)
-    hxy = 0.25 * (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1))
-    det = hxx * hyy - hxy * hxy
-    ok = inner & (det > _EPS) & (hxx < 0)
-    safe = torch.where(ok, det, 1.0)
-    dx = (-(hyy * gx - hxy * gy) / safe).clamp(-radius, radius)
-    dy = (-(hxx * gy - hxy * gx) / safe).clamp(-radius, radius)
-    return torch.where(ok, dx, 0.0), torch.where(ok, dy, 0.0)
-
-
-def _parabola_offsets(flat, rows, cols, h, w):
-    centre = _gather(flat, rows, cols, h, w)
-    dx = _parabola_offset(
-        _gather(flat, rows, cols - 1, h, w), centre, _gather(flat, rows, cols + 1, h, w)
-    )
-    dy = _parabola_offset(
-        _gather(flat, rows - 1, cols, h, w), centre, _gather(flat, rows + 1, cols, h, w)
-    )
-    dx = torch.where((cols > 0) & (cols < w - 1), dx, torch.zeros_like(dx))
-    dy = torch.where((rows > 0) & (rows < h - 1), dy, torch.zeros_like(dy))
-    return dx, dy
-
-
-def check_subpixel(method: str, where: str = "pose2d.models[].subpixel") -> str:
-    """``method`` if it is one of :data:`SUBPIXEL_METHODS`, else a :class:`~flylib.errors.ConfigError`."""
-    if method not in SUBPIXEL_METHODS:
-        raise ConfigError(
-            f"{where}: unknown sub-pixel method {method!r}; use one of {', '.join(SUBPIXEL_METHODS)}"
-        )
-    return method
-
-
 def refine_peaks(
     heatmaps: Float[torch.Tensor, "M H W"],
     rows: Int[torch.Tensor, "M K"],
@@ -133,35 +52,10 @@ def refine_peaks(
     method: str = DEFAULT_SUBPIXEL,
     radius: int = SUBPIXEL_RADIUS,
 ) -> tuple[Float[torch.Tensor, "M K"], Float[torch.Tensor, "M K"]]:
-    """Sub-pixel ``(x, y)`` of integer peaks, in heatmap cells.
-
-    Parameters
-    ----------
-    heatmaps
-        ``(M, H, W)`` float tensor.
-    rows, cols
-        ``(M, K)`` integer peak positions.
-    method
-        One of :data:`SUBPIXEL_METHODS`.
-    radius
-        Half-width of the ``weighted`` window, and the ``taylor`` step's bound, in cells.
-
-    Returns
-    -------
-    x, y : torch.Tensor
-        ``(M, K)`` refined coordinates (``column + dx``, ``row + dy``).
-    """
-    check_subpixel(method)
-    m, h, w = heatmaps.shape
-    flat = heatmaps.reshape(m, h * w)
-    if method == "argmax":
-        dx = dy = torch.zeros(rows.shape, dtype=heatmaps.dtype, device=heatmaps.device)
-    elif method == "weighted":
-        dx, dy = _weighted_offsets(flat, rows, cols, h, w, radius)
-    elif method == "taylor":
-        dx, dy = _taylor_offsets(flat, rows, cols, h, w, radius)
-    else:
-        dx, dy = _parabola_offsets(flat, rows, cols, h, w)
+    """Sub-pixel ``(x, y)`` = ``(column + dx, row + dy)`` of integer peaks, in heatmap
+    cells; ``radius`` is the half-width of the ``weighted`` window and the ``taylor``
+    step's bound, in cells."""
+    dx, dy = subpixel_offsets(heatmaps, rows, cols, check_subpixel(method), radius)
     return cols.to(heatmaps.dtype) + dx, rows.to(heatmaps.dtype) + dy
 
 
@@ -170,22 +64,9 @@ def decode_argmax(
     method: str = DEFAULT_SUBPIXEL,
     radius: int = SUBPIXEL_RADIUS,
 ) -> tuple[Float[torch.Tensor, "N C 2"], Float[torch.Tensor, "N C"]]:
-    """Sub-pixel arg-max of each heatmap channel and its peak value.
-
-    Parameters
-    ----------
-    heatmaps
-        ``(N, C, H, W)`` tensor (any float dtype; decoded in float32).
-    method, radius
-        The sub-pixel refinement (:func:`refine_peaks`).
-
-    Returns
-    -------
-    xy : torch.Tensor
-        ``(N, C, 2)`` float32 heatmap-cell coordinates ``(x, y)``.
-    conf : torch.Tensor
-        ``(N, C)`` float32 peak values.
-    """
+    """Sub-pixel arg-max (:func:`refine_peaks`) of each heatmap channel and its peak
+    value: ``(N, C, 2)`` heatmap-cell ``(x, y)`` and ``(N, C)``, both float32 whatever
+    the heatmaps' float dtype."""
     n, c, h, w = heatmaps.shape
     hm = heatmaps.float().reshape(n * c, h, w)
     conf, flat_index = hm.reshape(n * c, h * w).max(dim=1)
@@ -211,26 +92,11 @@ def topk_peaks(
     A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2``
     neighbourhood and exceeds ``threshold``.
 
-    Parameters
-    ----------
-    heatmaps
-        ``(N, C, H, W)`` tensor.
-    k
-        Peaks kept per channel.
-    radius
-        Non-maximum-suppression half-width in heatmap pixels.
-    threshold
-        Minimum peak value.
-    method, refine_radius
-        The sub-pixel refinement (:func:`refine_peaks`); the same as the arg-max
-        decoder's, so candidate 0 is the arg-max point.
-
-    Returns
-    -------
-    xy : torch.Tensor
-        ``(N, C, K, 2)`` heatmap-cell coordinates, NaN where fewer than ``k`` peaks.
-    score : torch.Tensor
-        ``(N, C, K)`` peak values, NaN where padded.
+    ``radius`` is the non-maximum-suppression half-width in heatmap pixels; ``method``
+    and ``refine_radius`` the sub-pixel refinement (:func:`refine_peaks`), the same as
+    the arg-max decoder's, so candidate 0 is the arg-max point. Returns ``(N, C, K, 2)``
+    heatmap-cell coordinates and ``(N, C, K)`` peak values, NaN where fewer than ``k``
+    peaks.
     """
     n, c, h, w = heatmaps.shape
     hm = heatmaps.float()

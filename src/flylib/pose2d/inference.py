@@ -95,9 +95,7 @@ class LoadedModel:
     spec
         The model's plan entry (input size, normalisation, channels).
     net
-        The network (eval mode, on ``device``).
-    device
-        Where it runs.
+        Eval mode, on ``device``.
     precision
         Forward precision; float32 on the CPU whatever was asked.
     batch_size
@@ -254,8 +252,6 @@ def load_models(
 
     Parameters
     ----------
-    plan
-        The detection plan.
     params
         The ``pose2d`` settings read here: ``device``, ``precision``, ``batch_size``,
         ``compile`` (default: :class:`~flylib.config.params.Pose2dParams`'s).

@@ -31,13 +31,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..config.constants import SUBPIXEL_METHODS
 from ..errors import ConfigError
 
 Size = tuple[int, int]  # (height, width)
 
-#: Sub-pixel refinements of a heatmap peak (``pose2d.models[].subpixel``; see
-#: :mod:`flylib.pose2d.decode`).
-SUBPIXEL_METHODS = ("weighted", "argmax", "taylor", "parabola")
 #: The seed system's default: the intensity-weighted centroid of the 5x5 window.
 DEFAULT_SUBPIXEL = "weighted"
 #: How heatmap cells become raw pixels (part of pose2d's stage parameters, so 2D
@@ -316,8 +314,6 @@ class Pathway:
             ``(..., 2)`` heatmap cells, fractional after sub-pixel refinement.
         raw_size
             ``(height, width)`` of the source's raw frames.
-        model
-            The model (its input size).
         heatmap_size
             ``(H_hm, W_hm)`` of the heatmaps.
 
@@ -402,11 +398,7 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
         raise ConfigError(f"{where}: mean and std must be numbers") from None
     if std <= 0:
         raise ConfigError(f"{where}.std: must be positive, got {std}")
-    subpixel = entry.get("subpixel", DEFAULT_SUBPIXEL)
-    if subpixel not in SUBPIXEL_METHODS:
-        raise ConfigError(
-            f"{where}.subpixel: unknown sub-pixel method {subpixel!r}; use one of {', '.join(SUBPIXEL_METHODS)}"
-        )
+    subpixel = check_subpixel(entry.get("subpixel", DEFAULT_SUBPIXEL), f"{where}.subpixel")
     return ModelSpec(
         name=str(entry["name"]),
         model_class=cls,
@@ -419,6 +411,15 @@ def _parse_model(entry: Mapping, where: str) -> ModelSpec:
         sha256=entry.get("sha256") or None,
         subpixel=subpixel,
     )
+
+
+def check_subpixel(method: str, where: str = "pose2d.models[].subpixel") -> str:
+    """``method`` if it is one of :data:`SUBPIXEL_METHODS`, else a :class:`~flylib.errors.ConfigError`."""
+    if method not in SUBPIXEL_METHODS:
+        raise ConfigError(
+            f"{where}: unknown sub-pixel method {method!r}; use one of {', '.join(SUBPIXEL_METHODS)}"
+        )
+    return method
 
 
 def _parse_preprocessors(pose2d: Mapping) -> dict[str, tuple[Op, ...]]:
@@ -513,9 +514,7 @@ class DetectionPlan:
 
         source_entries = _table_list(sources, "sources")
         _unique_names(source_entries, "sources")
-        patterns = {}
-        for entry in source_entries:
-            patterns[str(entry["name"])] = str(entry.get("filename") or entry["name"])
+        patterns = {str(e["name"]): str(e.get("filename") or e["name"]) for e in source_entries}
 
         preprocessors = _parse_preprocessors(pose2d)
         models = _parse_models(pose2d)
@@ -534,11 +533,8 @@ class DetectionPlan:
         raw: dict[str, dict] = {}
         for i, entry in enumerate(path_entries):
             where = f"pose2d.pathways[{i}] ({entry['name']})"
-            src, model, pre = (
-                entry.get("source"),
-                entry.get("model"),
-                entry.get("preprocessor") or None,
-            )
+            src, model = entry.get("source"), entry.get("model")
+            pre = entry.get("preprocessor") or None
             if src not in patterns:
                 raise ConfigError(
                     f"{where}.source: unknown source {src!r}; defined: {sorted(patterns)}"
@@ -607,7 +603,7 @@ class DetectionPlan:
                     source=info["source"],
                     model=info["model"],
                     preprocessor=info["preprocessor"],
-                    ops=preprocessors.get(info["preprocessor"], ()) if info["preprocessor"] else (),
+                    ops=preprocessors.get(info["preprocessor"], ()),
                     channels=slots[:, 0],
                     views=slots[:, 1],
                     points=slots[:, 2],

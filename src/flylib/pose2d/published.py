@@ -36,17 +36,9 @@ PROBE_TIMEOUT_S = 3.0
 
 
 def cached_checkpoint(model_name: str, model_class: str, url: str | None = None) -> Path:
-    """The cache file a model without a local ``weights`` path loads (and downloads to).
-
-    Parameters
-    ----------
-    model_name
-        The model's name in the config (names the file when nothing else does).
-    model_class
-        The model class, which selects the published checkpoint.
-    url
-        The model's own download address, when it overrides the published one.
-    """
+    """The cache file a model without a local ``weights`` path loads (and downloads to):
+    named by the published checkpoint of ``model_class``, else by the model's own ``url``,
+    else by ``model_name``."""
     filename = PUBLISHED_WEIGHTS.get(model_class, {}).get("filename") or (
         Path(url.split("?")[0]).name if url else f"{model_name}.tar"
     )
@@ -129,22 +121,11 @@ def container_problem(path: str | Path) -> str | None:
 
 
 def checkpoint_problem(spec: Any, key: str, timeout: float = PROBE_TIMEOUT_S) -> str | None:
-    """Why a model's checkpoint will not be there when the detector starts, else ``None``.
+    """Why a model's checkpoint will not be there when the detector starts, as one
+    ``"<key>: <what is wrong; where to put the file>"`` line, else ``None``.
 
-    Parameters
-    ----------
-    spec
-        The model's :class:`flylib.pose2d.plan.ModelSpec` (``name``, ``model_class``,
-        ``weights``, ``url``).
-    key
-        The config key that sets its weights, for the message.
-    timeout
-        Seconds to wait for the download host.
-
-    Returns
-    -------
-    str or None
-        One ``"<key>: <what is wrong; where to put the file>"`` line.
+    ``spec`` is the model's :class:`flylib.pose2d.plan.ModelSpec`; ``key`` the config key
+    that sets its weights; ``timeout`` the seconds to wait for the download host.
     """
     if spec.weights:
         path = Path(spec.weights).expanduser()

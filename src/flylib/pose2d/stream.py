@@ -60,26 +60,10 @@ class BlockPrefetcher:
     is 1) it decodes in the calling thread instead, one block per :meth:`get`, so a
     one-thread job starts no thread (and holds one block, not ``depth``).
 
-    Parameters
-    ----------
-    name
-        The source's name (for messages).
-    files
-        What :func:`flylib.io.open_reader` reads (a video, or an image list).
-    block_size
-        Frames per block.
-    depth
-        Queue depth in blocks (>= 1, so memory stays bounded).
-    workers
-        Image-sequence decode threads.
-    pin
-        Allocate blocks in page-locked memory (fast, asynchronous GPU copies).
-    raw_yuv
-        Hand over YUV planes instead of RGB when the source allows it.
-    on_corrupt
-        Image sequences: ``"error"`` or ``"missing"`` (``io.on_corrupt_frame``).
-    threaded
-        Decode on a background thread (default: unless ``usable_cpus()`` is 1).
+    ``files`` is what :func:`flylib.io.open_reader` reads; ``depth`` is at least 1, so
+    memory stays bounded; ``pin`` allocates blocks in page-locked memory (fast,
+    asynchronous GPU copies); ``on_corrupt`` is ``io.on_corrupt_frame`` for image
+    sequences; ``threaded`` defaults to ``usable_cpus() > 1``.
     """
 
     def __init__(
@@ -288,6 +272,11 @@ def _to_raw(pathway: Pathway, xy: np.ndarray, raw_size, model: LoadedModel) -> n
     return pathway.heatmap_to_raw(xy, raw_size, model.spec, model.heatmap_size)
 
 
+def _host(tensor: torch.Tensor, pathway: Pathway) -> np.ndarray:
+    """A result tensor on the host in float64, the pathway's channels (axis 1) selected."""
+    return tensor.to("cpu", torch.float64).numpy()[:, pathway.channels]
+
+
 def run_detection(
     plan: DetectionPlan,
     models: dict[str, LoadedModel],
@@ -306,8 +295,6 @@ def run_detection(
 
     Parameters
     ----------
-    plan
-        The detection plan.
     models
         ``name -> LoadedModel`` for every model the active pathways use.
     sources
@@ -316,21 +303,17 @@ def run_detection(
         Frames per decoded block (and per forward).
     decode_buffer
         Blocks queued ahead per source.
-    workers
-        Image-sequence decode threads.
     k
         Top-``k`` candidates per (view, point) when given.
-    progress
-        Show a tqdm bar (frames/s).
     raw_yuv
         Convert YUV video to RGB on the device instead of in the decoder
         (default: on a GPU); results agree to within a grey level.
     timings
         When given, receives where the calling thread spent its time, in seconds:
         ``wait_decode`` (blocked on the decode threads; decoding, under a one-thread
-        budget), ``launch`` (preprocessing
-        and forwards; on a GPU only queueing them), ``wait_device`` (blocked on a
-        GPU block's results) and ``scatter`` (points to raw pixels on the host).
+        budget), ``launch`` (preprocessing and forwards; on a GPU only queueing them),
+        ``wait_device`` (blocked on a GPU block's results) and ``scatter`` (points to
+        raw pixels on the host).
         Which one dominates says what bounds the throughput.
     on_corrupt
         A corrupt image in a sequence: ``"error"`` fails naming it, ``"missing"``
@@ -410,13 +393,8 @@ def run_detection(
 
 
 def _ended(blocks: dict, start: int) -> bool:
-    """Whether every source ended (a source ending before the others is an error).
-
-    Raises
-    ------
-    FootageError
-        If some sources end while others go on, or a block's lengths differ.
-    """
+    """Whether every source ended; a source ending before the others, or blocks of
+    different lengths, is a :class:`FootageError`."""
     ended = [s for s, b in blocks.items() if b is END_OF_STREAM]
     if ended:
         if len(ended) != len(blocks):
@@ -482,25 +460,15 @@ class _Gather:
         cxy = np.full((self.n_views, pending.n, self.n_points, k, 2), np.nan) if k else None
         cscore = np.full((self.n_views, pending.n, self.n_points, k), np.nan) if k else None
         for pathway, source, xy, cf, cand in pending.results:
-            model = models[pathway.model]
-            raw = _to_raw(
-                pathway,
-                xy.to("cpu", torch.float64).numpy()[:, pathway.channels],
-                self.frame_sizes[source],
-                model,
-            )
+            model, size = models[pathway.model], self.frame_sizes[source]
+            raw = _to_raw(pathway, _host(xy, pathway), size, model)
             pts[pathway.views, :, pathway.points] = raw.transpose(1, 0, 2)
-            conf[pathway.views, :, pathway.points] = (
-                cf.to("cpu", torch.float64).numpy()[:, pathway.channels].T
-            )
+            conf[pathway.views, :, pathway.points] = _host(cf, pathway).T
             if k:
-                cand_xy = cand[0].to("cpu", torch.float64).numpy()[:, pathway.channels]
-                cand_raw = _to_raw(
-                    pathway, cand_xy, self.frame_sizes[source], model
-                )  # NaN stays NaN
+                cand_raw = _to_raw(pathway, _host(cand[0], pathway), size, model)  # NaN stays NaN
                 cxy[pathway.views, :, pathway.points] = cand_raw.transpose(1, 0, 2, 3)
-                cscore[pathway.views, :, pathway.points] = (
-                    cand[1].to("cpu", torch.float64).numpy()[:, pathway.channels].transpose(1, 0, 2)
+                cscore[pathway.views, :, pathway.points] = _host(cand[1], pathway).transpose(
+                    1, 0, 2
                 )
         self.parts["pts"].append(pts)
         self.parts["conf"].append(conf)
@@ -512,13 +480,7 @@ class _Gather:
         self.clock["scatter"] += time.perf_counter() - t1
 
     def output(self, active: list[str]) -> DetectionOutput:
-        """The blocks joined along time.
-
-        Raises
-        ------
-        FootageError
-            If no block arrived.
-        """
+        """The blocks joined along time (no block at all is a :class:`FootageError`)."""
         if not self.parts["pts"]:
             raise FootageError(
                 f"the detector received no frames from sources {active}; check the footage"
@@ -594,8 +556,6 @@ def detect_2d(
         Also return the top-``k`` heatmap peaks per (view, point) for pictorial structures.
     k
         Candidates per (view, point); default ``pictorial_structures.k``'s default.
-    progress
-        Show a progress bar with frames/s.
 
     Returns
     -------
@@ -650,8 +610,6 @@ def detect_recording(
 
     Parameters
     ----------
-    plan
-        The detection plan.
     sources
         Source name -> resolved footage files (see :mod:`flylib.recordings`).
     params
@@ -661,8 +619,6 @@ def detect_recording(
     k
         Also keep the top-``k`` peaks per (view, point) (pictorial structures on);
         ``None``: none.
-    progress
-        Show a progress bar.
     models
         Already-loaded models (default: load them from the plan's weights,
         downloading the published checkpoint on first use).
@@ -670,7 +626,6 @@ def detect_recording(
     Returns
     -------
     flylib.results.Pose2dData
-        Points, confidences, view names, raw image sizes and optional candidates.
 
     Raises
     ------

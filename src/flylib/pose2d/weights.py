@@ -65,14 +65,6 @@ def recorded_sha256_path(path: str | Path) -> Path:
     return path.with_name(path.name + ".sha256")
 
 
-def _record_sha256(path: Path, digest: str) -> None:
-    """Write ``digest`` in ``sha256sum`` format beside ``path`` (atomically)."""
-    record = recorded_sha256_path(path)
-    tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
-    tmp.write_text(f"{digest}  {path.name}\n")
-    os.replace(tmp, record)
-
-
 def _recorded_sha256(path: Path) -> str | None:
     """The hash recorded beside ``path`` at its first download, or ``None`` if none is."""
     record = recorded_sha256_path(path)
@@ -88,20 +80,24 @@ def _recorded_sha256(path: Path) -> str | None:
 
 
 def _trust_on_first_use(path: Path, digest: str, what: str) -> None:
-    _record_sha256(path, digest)
+    """Record ``digest`` beside ``path`` in ``sha256sum`` format (atomically)."""
+    record = recorded_sha256_path(path)
+    tmp = record.with_name(f"{record.name}.{os.getpid()}.tmp")
+    tmp.write_text(f"{digest}  {path.name}\n")
+    os.replace(tmp, record)
     log.warning(
         "%s: no pinned SHA-256 for %s; recorded its hash %s in %s (trust on first use: later "
         "runs refuse the file if it changes)",
         path,
         what,
         digest,
-        recorded_sha256_path(path),
+        record,
     )
 
 
 def _check_trusted_on_first_use(path: Path, what: str) -> None:
-    """Check a cached checkpoint that has no pinned hash against the hash recorded at its
-    first download; record one now if there is none yet (a file put there by hand)."""
+    """Check an unpinned cached checkpoint against the hash recorded at its first download;
+    record one if there is none (a file put there by hand)."""
     digest = sha256sum(path)
     recorded = _recorded_sha256(path)
     if recorded is None:
@@ -154,7 +150,7 @@ def resolve_weights(
     sha256: str | None = None,
     allow_download: bool = True,
 ) -> Path:
-    """The checkpoint file a model uses, downloading the published one on first use.
+    """The existing checkpoint file a model uses, downloading the published one on first use.
 
     Parameters
     ----------
@@ -163,16 +159,11 @@ def resolve_weights(
     model_name
         The model's name in the config (for messages).
     model_class
-        The model class, which selects the published checkpoint.
+        Selects the published checkpoint.
     url, sha256
         Override the download address / expected checksum.
     allow_download
         Whether an empty cache may be filled from the network.
-
-    Returns
-    -------
-    Path
-        An existing checkpoint file.
 
     Raises
     ------
@@ -312,23 +303,13 @@ def load_hourglass(
     num_stacks: int | None = None,
     device: str | torch.device = "cpu",
 ) -> HourglassNet:
-    """Build the hourglass a checkpoint describes and load it strictly.
+    """Build the hourglass a checkpoint describes and load it strictly, in eval mode.
 
     Parameters
     ----------
-    path
-        Checkpoint file.
-    num_classes
-        Expected output channels (the model's ``n_out_channels``), checked.
-    num_stacks
-        Expected number of stacks, checked when given.
-    device
-        Where to put the network.
-
-    Returns
-    -------
-    HourglassNet
-        The network in eval mode.
+    num_classes, num_stacks
+        Expected output channels (the model's ``n_out_channels``) and stacks, checked
+        when given.
 
     Raises
     ------
@@ -372,14 +353,10 @@ def load_hourglass(
 
 
 def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "module.") -> Path:
-    """Save a network in the published checkpoint format, atomically.
+    """Save a network in the published checkpoint format (``.tar`` by convention), atomically.
 
     Parameters
     ----------
-    net
-        The network.
-    path
-        Output file (``.tar`` by convention).
     prefix
         Key prefix (``"module."`` as DataParallel-trained checkpoints carry; ``""`` for none).
     """
@@ -395,7 +372,8 @@ def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "modul
 def load_detector(
     checkpoint: str | Path | None = None, *, device=None, num_classes: int | None = None
 ):
-    """Load the hourglass detector from a checkpoint (strictly; shape read from the file).
+    """Load the hourglass detector from a checkpoint, in eval mode (strictly; shape read
+    from the file).
 
     Parameters
     ----------
@@ -404,14 +382,9 @@ def load_detector(
         prefixes allowed), or ``None`` for a freshly initialised, **untrained**
         8-stack network (logged as a warning; for training or tests only).
     device
-        Where to put it (default CPU).
+        Default CPU.
     num_classes
         Expected output channels, checked against the checkpoint.
-
-    Returns
-    -------
-    HourglassNet
-        The network in eval mode.
 
     Raises
     ------

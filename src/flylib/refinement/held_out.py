@@ -64,26 +64,18 @@ class HeldOutCheck:
 
     Parameters
     ----------
-    cameras
-        The rig.
-    pts2d, conf
-        ``(V, T, P, 2)`` the 2D and ``(V, T, P)`` its confidences (or ``None``).
     start
-        ``(T, P, 3)`` the triangulation's 3D.
+        The triangulation's 3D.
     triangulate
         The triangulation stage's method (:func:`flylib.pipeline.triangulation.triangulation_method`).
     refine_at
         ``smooth_scale -> Refine``: the refinement stage's method at a smoothness scale
         (:func:`refinement_method`).
-    options
-        The configured solver options.
     motion_scales
         The smoothness scales to try, in units of the recording's motion.
     terms
         :func:`~flylib.refinement.skeleton_terms` (its ``bones`` and ``mirror`` make the
         summaries' bone figures).
-    point_names
-        The P axis.
     """
 
     def __init__(
@@ -142,21 +134,13 @@ class HeldOutCheck:
         )
 
     def apply(self, output, triangulation: Mapping[str, Any]) -> dict:
-        """Keep the triangulation where the chosen refinement lost.
+        """Keep the triangulation where the chosen refinement lost; returns the refinement
+        artifact's ``accuracy`` attribute.
 
-        Parameters
-        ----------
-        output
-            The refinement's output being written (an
-            :class:`~flylib.refinement.solver.ArraySink` or one of its kind):
-            ``points3d``, ``reproj_error``, ``points2d``, ``flags``, changed in place.
-        triangulation
-            The triangulation's ``points3d``, ``reproj_error`` and ``points``.
-
-        Returns
-        -------
-        dict
-            The ``accuracy`` attribute of the refinement artifact.
+        ``output`` is the refinement's output being written (an
+        :class:`~flylib.refinement.solver.ArraySink` or one of its kind): ``points3d``,
+        ``reproj_error``, ``points2d``, ``flags``, changed in place; ``triangulation`` has
+        ``points3d``, ``reproj_error`` and ``points``.
         """
         from ..accuracy import accuracy_summary, keep_triangulation
 
@@ -247,14 +231,11 @@ def take_triangulation(
             continue
         for name, source_name, axis in _KEPT_ARRAYS:
             source, target = triangulation[source_name], getattr(output, name)
-            if axis == 0:
-                values = np.array(target[lo:hi])
-                values[mask] = np.asarray(source[lo:hi])[mask]
-                target[lo:hi] = values
-            else:
-                values = np.array(target[:, lo:hi])
-                values[:, mask] = np.asarray(source[:, lo:hi])[:, mask]
-                target[:, lo:hi] = values
+            frames = (slice(None),) * axis + (slice(lo, hi),)
+            picked = (slice(None),) * axis + (mask,)
+            values = np.array(target[frames])
+            values[picked] = np.asarray(source[frames])[picked]
+            target[frames] = values
         flags = np.array(output.flags[lo:hi])
         redone = flags_from_nan(
             flags, np.asarray(output.points2d[:, lo:hi]), np.asarray(output.points3d[lo:hi])

@@ -315,15 +315,8 @@ class BlockLayout:
 
     @classmethod
     def from_chains(cls, n_points: int, chains: list[list[int]]) -> BlockLayout:
-        """First-fit packing of the chains (longest first), then the loose points.
-
-        Parameters
-        ----------
-        n_points
-            ``P``.
-        chains
-            Point-index chains (limbs); a point appears in at most one.
-        """
+        """First-fit packing of the point-index ``chains`` (limbs; a point in at most one),
+        longest first, then the loose points."""
         chains = [list(c) for c in chains if c]
         seen = {p for c in chains for p in c}
         chains += [[p] for p in range(n_points) if p not in seen]
@@ -347,14 +340,8 @@ class BlockLayout:
 
 
 def difference_gram(n_frames: int, order: int) -> Float[np.ndarray, "order_1 T"]:
-    """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``.
-
-    Returns
-    -------
-    np.ndarray
-        ``(order + 1, n_frames)``: row ``q`` holds ``(D^T D)[t - q, t]`` at column ``t``
-        (zero for ``t < q``).
-    """
+    """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``:
+    row ``q`` holds ``(D^T D)[t - q, t]`` at column ``t`` (zero for ``t < q``)."""
     out = np.zeros((order + 1, n_frames))
     if order == 0 or n_frames <= order:
         return out
@@ -377,15 +364,10 @@ def temporal_band(
     live: Float[np.ndarray, " T"] | None = None,
 ) -> Float[np.ndarray, "order_1 n"]:
     """The constant part of the normal matrix: the temporal term on real slots, and a
-    unit diagonal for empty slots and padded frames (``live`` ``(T,)`` 0), whose
-    unknowns then never move.
-
-    Returns
-    -------
-    np.ndarray
-        ``(order + 1, n)``: row ``q`` is the ``3 m q``-th superdiagonal (row 0 the
-        diagonal), at the column of its lower-right end, i.e. band row ``u - 3 m q``
-        of LAPACK's upper storage (:func:`assemble_band`).
+    unit diagonal for empty slots and padded frames (``live`` 0), whose unknowns then
+    never move. Row ``q`` is the ``3 m q``-th superdiagonal (row 0 the diagonal), at the
+    column of its lower-right end, i.e. band row ``u - 3 m q`` of LAPACK's upper storage
+    (:func:`assemble_band`).
     """
     m = layout.m
     width = 3 * m
@@ -418,9 +400,9 @@ def assemble_band(
     Parameters
     ----------
     rows
-        ``(k, n)`` :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``.
+        :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``.
     temporal
-        ``(order + 1, n)`` :func:`temporal_band`.
+        :func:`temporal_band`.
     width, u
         ``3 m`` and the half-bandwidth (:func:`band_width`).
     columns

@@ -20,8 +20,6 @@ def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
 
     Parameters
     ----------
-    skeleton
-        The :class:`~flylib.skeleton.Skeleton`.
     rigid_names
         Point names of the rigid group; ``None`` = :func:`default_rigid_points`.
 

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from threadpoolctl import threadpool_limits
 
 from ..camera import model as camera_model
@@ -115,11 +114,11 @@ def bone_lengths(
     Parameters
     ----------
     start
-        ``(T, P, 3)`` starting points (NaN = missing).
+        Starting points, NaN = missing.
     bones
-        ``(B, 2)`` point-index pairs.
+        Point-index pairs.
     mirror
-        ``(B,)`` index of each bone's left/right twin (or itself): twins share the
+        Index of each bone's left/right twin (or itself): twins share the
         median of their pooled lengths.
 
     Returns
@@ -382,6 +381,8 @@ class ChunkProblem:
         ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
         definite.
         """
+        from scipy.linalg import cho_solve_banded, cholesky_banded  # not for FLAG_BITS' readers
+
         if self._buffer is None:
             self._buffer = np.empty((grad.size, self.u + 1))
         ab = assemble_band(
@@ -428,7 +429,7 @@ class ChunkProblem:
             columns = None if live.all() else np.repeat(live, per_block)
             try:
                 step = self.step(rows, grad, np.repeat(mu, per_block), floor, columns)
-            except LinAlgError:
+            except np.linalg.LinAlgError:  # scipy.linalg's is NumPy's
                 mu = np.where(live, mu * 10.0, mu)
                 live &= mu < 1e8
                 continue
@@ -567,23 +568,11 @@ def refine_stream(
     Memory is bounded by the chunk size (plus one byte per frame and point for the
     gap bookkeeping), whatever the recording's length.
 
-    Parameters
-    ----------
-    source
-        Has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
-        start, inliers)`` (see :class:`ArraySource`).
-    cameras
-        The rig.
-    sink
-        Has ``write(lo, hi, points3d, reproj_error, points2d, flags)`` and
-        ``mark_missing(lo, hi, missing)`` (see :class:`ArraySink`).
-    bones, chains, mirror, rigid, options
-        As in :func:`refine_points`.
-
-    Returns
-    -------
-    dict
-        ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
+    ``source`` has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d,
+    conf, start, inliers)`` (:class:`ArraySource`); ``sink`` has ``write(lo, hi, points3d,
+    reproj_error, points2d, flags)`` and ``mark_missing(lo, hi, missing)``
+    (:class:`ArraySink`). Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and
+    ``info``.
     """
     opts = options or RefinementParams()
     if opts.loss not in LOSSES:
@@ -829,32 +818,25 @@ def refine_points(
     Parameters
     ----------
     pts2d
-        ``(V, T, P, 2)`` 2D observations in raw-frame pixels, NaN = missing.
-    cameras
-        The rig (:class:`~flylib.camera.rig.CameraGroup`).
+        2D observations in raw-frame pixels, NaN = missing.
     start
-        ``(T, P, 3)`` starting 3D (the triangulation), NaN = not reconstructed.
+        Starting 3D (the triangulation), NaN = not reconstructed.
     conf
-        ``(V, T, P)`` detector confidences (weights when ``weigh_by_confidence``).
+        Detector confidences (weights when ``weigh_by_confidence``).
     inliers
-        ``(V, T, P)`` bool: the views the triangulation kept; the first pass uses only
+        The views the triangulation kept; the first pass uses only
         those (and every view of points it left NaN). ``None``: every observation.
     bones
-        ``(B, 2)`` point-index pairs whose length is constant over the recording.
+        Point-index pairs whose length is constant over the recording.
     chains
         The limb chains (point indices) that bones run along; every bone must join
         neighbouring points of one chain. Default: each bone its own chain.
     mirror
-        ``(B,)`` each bone's left/right twin, for ``symmetric_bones``.
+        Each bone's left/right twin, for ``symmetric_bones``.
     rigid
         Indices of the points held at one world position (the tethered thorax).
     options
-        The ``refinement`` table's :class:`~flylib.config.postprocessing.RefinementParams`
-        (default: its defaults).
-
-    Returns
-    -------
-    RefinementResult
+        The ``refinement`` table's :class:`~flylib.config.postprocessing.RefinementParams`.
     """
     pts2d = np.asarray(pts2d, np.float64)
     start = np.asarray(start, np.float64)

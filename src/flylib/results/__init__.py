@@ -33,6 +33,7 @@ The package, by concern (every name is importable from ``flylib.results``):
 - ``assembly``: :func:`assemble_results`
 - ``invariants``: what ``results.h5`` must never contradict, :func:`check_results`,
   :func:`require_consistent` (assemble and ``flylib inspect --verify`` run it)
+- ``summary``: :func:`summarize_results`, the figures ``flylib inspect`` prints
 """
 
 from __future__ import annotations
@@ -64,6 +65,7 @@ from .hdf5 import (
 from .invariants import check_results, require_consistent
 from .pose import Detections, PoseResult, read_detections
 from .pose2d import Pose2dData, read_image_sizes
+from .summary import summarize_results
 
 __all__ = [
     "ARTIFACTS",
@@ -88,6 +90,7 @@ __all__ = [
     "read_stage",
     "require_consistent",
     "save_candidates",
+    "summarize_results",
     "verify_file",
     "write_analysis",
     "write_stage",

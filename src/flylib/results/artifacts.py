@@ -59,8 +59,7 @@ def write_analysis(
         group = f.create_group(stage)
         for name, value in arrays.items():
             write_array(group, name, value)
-        for key, value in attrs.items():
-            group.attrs[key] = json.dumps(value)
+        json_attrs(group, attrs)
     return Path(path)
 
 
@@ -78,7 +77,7 @@ def write_stage(
     Parameters
     ----------
     path
-        Destination, e.g. ``<out>/stages/triangulation.h5``; written atomically.
+        Destination, written atomically.
     stage
         ``bundle_adjustment``, ``pictorial_structures`` or ``triangulation`` (the
         pose2d artifact is written by :meth:`Pose2dData.save`).
@@ -90,8 +89,7 @@ def write_stage(
     attrs
         JSON-serialisable group attributes (e.g. a bundle-adjustment ``summary``).
     meta
-        Extra entries for the file's meta JSON (e.g. its params hash, see
-        :mod:`flylib.provenance`).
+        Extra entries for the file's meta JSON (e.g. its params hash).
     """
     if stage not in STAGE_GROUPS or stage == "pose2d":
         raise ValueError(
@@ -111,14 +109,7 @@ def write_stage(
 
 
 def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
-    """Read one stage's group: its arrays, plus ``"cameras"`` and ``"attrs"``.
-
-    Parameters
-    ----------
-    path
-        A stage artifact (or results file) holding ``<stage>/``.
-    stage
-        The stage name.
+    """Read one stage's group of a stage artifact (or results file).
 
     Returns
     -------
@@ -129,7 +120,7 @@ def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
     Raises
     ------
     ResultsError
-        If the file is missing, of another version, or lacks the group.
+        If the file is missing, of another version, or lacks ``<stage>/``.
     """
     rerun = f"re-run the {stage} stage"
     with read_checked(path, rerun) as f:

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import h5py
-import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
@@ -20,10 +19,13 @@ from .datasets import read_dataset, write_array
 from .hdf5 import create_file, new_meta, read_checked
 
 
-def make_candidates(xy: np.ndarray, score: np.ndarray) -> Any:
+def read_candidates(group: h5py.Group) -> Any:
+    """The :class:`flylib.pictorial.Candidates` in ``group``'s ``candidates/``."""
     from ..pictorial import Candidates
 
-    return Candidates(xy=xy, score=score)
+    return Candidates(
+        xy=read_dataset(group["candidates/xy"]), score=read_dataset(group["candidates/score"])
+    )
 
 
 def write_candidates(group: h5py.Group, candidates: Any) -> None:
@@ -34,34 +36,19 @@ def write_candidates(group: h5py.Group, candidates: Any) -> None:
 def save_candidates(
     path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None
 ) -> None:
-    """Write the detector's top-K peaks to their own artifact (``candidates/{xy, score}``).
-
-    Parameters
-    ----------
-    path
-        Destination, e.g. ``<out>/stages/candidates.h5``; written atomically.
-    candidates
-        A :class:`flylib.pictorial.Candidates` (``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``).
-    meta
-        Extra entries for the file's meta JSON (e.g. its params hash).
-    """
+    """Write the detector's top-K peaks (a :class:`flylib.pictorial.Candidates`:
+    ``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``) atomically to their own artifact;
+    ``meta``: extra entries for its meta JSON (e.g. its params hash)."""
     with atomic_path(path) as tmp, create_file(tmp) as f:
         f.attrs["meta"] = json.dumps(new_meta("candidates", meta))
         write_candidates(f.create_group("candidates"), candidates)
 
 
 def load_candidates(path: str | Path) -> Any:
-    """Read what :func:`save_candidates` wrote.
-
-    Raises
-    ------
-    ResultsError
-        If the file is missing, of another version, or holds no candidates.
-    """
+    """Read what :func:`save_candidates` wrote; a missing, stale or empty file is a
+    ResultsError."""
     rerun = "re-run the pose2d stage with pictorial structures on"
     with read_checked(path, rerun) as f:
         if "candidates/xy" not in f:
             raise ResultsError(f"{path}: holds no candidate peaks; {rerun}")
-        return make_candidates(
-            read_dataset(f["candidates/xy"]), read_dataset(f["candidates/score"])
-        )
+        return read_candidates(f)

@@ -68,8 +68,6 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
 
     Parameters
     ----------
-    path
-        A results or stage-artifact file.
     unchecked
         When given, receives the names of non-empty datasets that carry no checksum
         (files of an older flylib): readable, but their integrity cannot be verified.
@@ -77,8 +75,7 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
     Returns
     -------
     list of str
-        One line per damaged object (file and dataset or group named); empty when
-        the file is intact.
+        One line per damaged object (file and dataset or group named).
     """
     problems: list[str] = []
     try:
@@ -140,10 +137,7 @@ def verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
     recomputed (a fraction of the cost of decoding them); a dataset without the
     filter has nothing to check.
 
-    Raises
-    ------
-    ResultsError
-        Naming the file and the dataset, when a checksum does not match.
+    A checksum that does not match is a ResultsError naming the file and the dataset.
     """
     if not (dataset.size and dataset.chunks is not None and dataset.fletcher32):
         return  # no checksum to check (an empty array, or a file of an older flylib)

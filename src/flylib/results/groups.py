@@ -68,13 +68,8 @@ def skeleton_from_group(group: h5py.Group) -> Skeleton:
 
 
 def read_skeleton(path: str | Path) -> Skeleton:
-    """The skeleton stored in a results or stage file's ``skeleton/`` group.
-
-    Raises
-    ------
-    ResultsError
-        If the file is missing, of another version, or has no skeleton.
-    """
+    """The skeleton stored in a results or stage file's ``skeleton/`` group; a missing
+    or stale file, or one without it, is a ResultsError."""
     with read_checked(path, "re-run the pipeline") as f:
         if "skeleton" not in f:
             raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
@@ -82,20 +77,8 @@ def read_skeleton(path: str | Path) -> Skeleton:
 
 
 def read_cameras(path: str | Path, group: str) -> CameraGroup:
-    """The rig stored in ``<group>/cameras`` of a results or stage file.
-
-    Parameters
-    ----------
-    path
-        The HDF5 file.
-    group
-        The stage group, e.g. ``"bundle_adjustment"``.
-
-    Raises
-    ------
-    ResultsError
-        If the file is missing, of another version, or has no such rig.
-    """
+    """The rig stored in ``<group>/cameras`` (e.g. ``"bundle_adjustment"``) of a results
+    or stage file; a missing or stale file, or one without it, is a ResultsError."""
     with read_checked(path, f"re-run {group}") as f:
         if f"{group}/cameras" not in f:
             raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")

@@ -117,14 +117,7 @@ def guard_file(
     once each); soft links stay inside the file, so only the objects checked here can
     be reached through them.
 
-    Parameters
-    ----------
-    fh
-        The open file.
-    path, fix
-        The file and what the user should do, for the message.
-    error
-        The class of the refusal.
+    ``path`` and ``fix`` (what the user should do) are for the message.
 
     Raises
     ------
@@ -141,11 +134,9 @@ def guard_file(
 
     budget = file_budget(path)
     found: list[tuple[str, str, bool]] = []
-
     failed: list[BaseException] = []
 
     def check(name: bytes, info) -> bool:
-        """Whether the link ``name`` (and what it leads to) is safe."""
         where = name.decode("utf-8", "replace")
         if info.type == h5l.TYPE_SOFT:
             return True

@@ -57,8 +57,6 @@ def open_hdf5(
 
     Parameters
     ----------
-    path
-        The file.
     fix
         What the user should do (e.g. ``"re-run the workflow"``).
     what
@@ -94,20 +92,9 @@ def open_hdf5(
 
 @contextmanager
 def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterator[h5py.File]:
-    """Open a flylib HDF5 file (results or stage artifact) read-only, checking its version.
-
-    Parameters
-    ----------
-    path
-        The file.
-    rerun
-        What the user should do when the file is missing or stale, for the message.
-
-    Raises
-    ------
-    ResultsError
-        Missing, not HDF5, not a flylib file, or a different format version.
-    """
+    """Open a flylib HDF5 file (results or stage artifact) read-only, checking its
+    version: missing, not HDF5, not flylib's or another format version is a ResultsError
+    that tells the user to ``rerun``."""
     path = Path(path)
     with open_hdf5(path, rerun) as f:
         try:
@@ -134,19 +121,9 @@ def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterat
             raise damaged(path, "an HDF5 object", err) from None
 
 
-#: What reading a damaged file raises below flylib: h5py's OSError (a bad B-tree, a
-#: failed filter or checksum, a truncated file), KeyError (a link that does not resolve),
-#: ValueError/TypeError (a dataset of another dtype or shape), RuntimeError (low-level
-#: HDF5 failures), and IndexError/AttributeError (JSON attributes of an unexpected type).
-_DAMAGE_ERRORS = (
-    OSError,
-    KeyError,
-    ValueError,
-    TypeError,
-    RuntimeError,
-    IndexError,
-    AttributeError,
-)
+#: What reading a damaged file raises below flylib: :data:`H5_READ_ERRORS`, and
+#: IndexError/AttributeError (JSON attributes of an unexpected type).
+_DAMAGE_ERRORS = (*H5_READ_ERRORS, IndexError, AttributeError)
 
 
 @contextmanager
@@ -181,17 +158,7 @@ def read_meta_from(f: h5py.File) -> dict:
 
 
 def read_meta(path: str | Path) -> dict:
-    """The ``meta`` JSON of a flylib HDF5 file (no version check).
-
-    Parameters
-    ----------
-    path
-        A results or stage-artifact file.
-
-    Returns
-    -------
-    dict
-        The parsed meta; empty if the file has none.
+    """The ``meta`` JSON of a flylib HDF5 file (no version check; empty if it has none).
 
     Raises
     ------

@@ -34,6 +34,7 @@ import h5py
 import numpy as np
 
 from ..errors import ResultsError
+from ..stages import SOLVES_3D
 from .datasets import read_json_attrs, read_strings
 from .groups import cameras_from_group
 from .hdf5 import read_checked
@@ -46,7 +47,6 @@ __all__ = ["Violation", "check_results", "require_consistent", "REPROJECTION_TOL
 REPROJECTION_TOLERANCE_PX = 1e-6
 #: Frames read at once: memory stays flat on a long recording.
 _WINDOW = 2048
-_GROUPS_3D = ("pictorial_structures", "triangulation", "refinement")
 
 
 @dataclass(frozen=True)
@@ -133,23 +133,9 @@ class _Tally:
 
 
 def check_results(path: str | Path) -> list[Violation]:
-    """Every invariant of ``results.h5`` at ``path`` (see the module docstring).
-
-    Parameters
-    ----------
-    path
-        An assembled ``results.h5``.
-
-    Returns
-    -------
-    list of Violation
-        One per failed invariant and dataset; empty when the file agrees with itself.
-
-    Raises
-    ------
-    ResultsError
-        If the file cannot be read or lacks the pose2d group or a rig.
-    """
+    """One :class:`Violation` per failed invariant (see the module docstring) and dataset
+    of the assembled ``results.h5`` at ``path``; a file that cannot be read or lacks the
+    pose2d group or a rig is a ResultsError."""
     with read_checked(path, "re-run the workflow") as f:
         return _check_file(f, path)
 
@@ -159,20 +145,9 @@ def require_consistent(
 ) -> None:
     """Raise when the results file at ``path`` contradicts itself: its writer has a bug.
 
-    Parameters
-    ----------
-    path
-        The file to check.
-    writer
-        Who wrote it, for the message.
-    shown
-        The name the message gives the file (e.g. ``results.h5`` while ``path`` is its
-        temporary name); ``path`` by default.
-
-    Raises
-    ------
-    ResultsError
-        One line naming the file and the writer, then one line per failed invariant.
+    The ResultsError names the file (``shown``, e.g. ``results.h5`` while ``path`` is
+    its temporary name; ``path`` by default) and the ``writer``, then one line per failed
+    invariant.
     """
     found = check_results(path)
     if found:
@@ -218,7 +193,7 @@ def _check_file(f: h5py.File, path) -> list[Violation]:
     else:
         sources_known = True
     tallies = {}
-    for name in _GROUPS_3D:
+    for name in SOLVES_3D:
         if name not in f or "points3d" not in f[name]:
             continue
         g = f[name]

@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from ..skeleton import Skeleton
+from ..stages import FINAL_3D
 from .checksums import check_group
 from .datasets import json_attrs, read_dataset, read_json_attrs, write_array
 from .groups import cameras_from_group, skeleton_from_group, write_cameras, write_skeleton
@@ -104,11 +105,6 @@ class PoseResult:
         ``pts2d``/``conf`` and the rig go to ``pose2d/``; when a 3D pose is present,
         ``pts2d``, ``pts3d`` and ``reproj_error`` also go to ``triangulation/``, so
         :meth:`load` returns the same result.
-
-        Parameters
-        ----------
-        path
-            Destination ``.h5`` file.
         """
         # A loaded result keeps its creation time and stage; version fields are this writer's.
         fresh = new_meta("result")
@@ -140,18 +136,8 @@ class PoseResult:
 
         ``pts2d``: refinement, else triangulation, else pictorial_structures, else
         pose2d. ``pts3d`` and ``reproj_error``: refinement, else triangulation, else
-        pictorial_structures. Cameras:
-        bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d.
-
-        Parameters
-        ----------
-        path
-            A file written by :meth:`save` or :func:`assemble_results`.
-
-        Returns
-        -------
-        PoseResult
-            The assembled result.
+        pictorial_structures. Cameras: bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d. ``path``: a
+        file written by :meth:`save` or :func:`assemble_results`.
 
         Raises
         ------
@@ -187,10 +173,9 @@ class PoseResult:
                 read.append(f"/{stage}/{name}")
                 return read_dataset(f[f"{stage}/{name}"])
 
-            derived = ("refinement", "triangulation", "pictorial_structures")
-            pts2d = first("points", (*derived, "pose2d"))
-            pts3d = first("points3d", derived)
-            reproj = first("reproj_error", derived)
+            pts2d = first("points", (*FINAL_3D, "pose2d"))
+            pts3d = first("points3d", FINAL_3D)
+            reproj = first("reproj_error", FINAL_3D)
             conf = first("conf", ("pose2d",))
             sizes = read_json_attrs(f["pose2d"]).get("image_sizes")
             check_group(path, f, skip=read)  # damage in what was not loaded is damage too

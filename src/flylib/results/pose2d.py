@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from ..skeleton import Skeleton
-from .candidates import make_candidates, write_candidates
+from .candidates import read_candidates, write_candidates
 from .datasets import json_attrs, read_dataset, read_json_attrs, read_strings, write_array
 from .groups import write_skeleton
 from .hdf5 import create_file, new_meta, read_checked
@@ -78,13 +78,10 @@ class Pose2dData:
 
         Parameters
         ----------
-        path
-            Destination, e.g. ``<out>/stages/pose2d.h5``.
         skeleton
             The skeleton whose points make up the P axis.
         meta
-            Extra entries for the file's meta JSON (e.g. its params hash, see
-            :mod:`flylib.provenance`).
+            Extra entries for the file's meta JSON (e.g. its params hash).
         """
         if skeleton.n_points != self.pts2d.shape[2]:
             raise ValueError(
@@ -108,24 +105,15 @@ class Pose2dData:
 
     @classmethod
     def load(cls, path: str | Path) -> Pose2dData:
-        """Read a pose2d artifact (or the pose2d group of a results file).
-
-        Raises
-        ------
-        ResultsError
-            If the file is missing, of another version, or has no pose2d group.
-        """
+        """Read a pose2d artifact (or the pose2d group of a results file); a missing or
+        stale file, or one without the group, is a ResultsError."""
         rerun = "re-run the pose2d stage"
         with read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
                 raise ResultsError(f"{path}: has no pose2d group; {rerun}")
             group = f["pose2d"]
             attrs = read_json_attrs(group)
-            candidates = None
-            if "candidates" in group:
-                candidates = make_candidates(
-                    read_dataset(group["candidates/xy"]), read_dataset(group["candidates/score"])
-                )
+            candidates = read_candidates(group) if "candidates" in group else None
             views = attrs.get("view_names")
             if views is None and "cameras" in group:
                 views = read_strings(group["cameras/names"])
@@ -142,13 +130,7 @@ class Pose2dData:
 
 def read_image_sizes(path: str | Path) -> dict[str, tuple[int, int]]:
     """``view -> (height, width)`` of a pose2d artifact or results file, without
-    reading its arrays.
-
-    Raises
-    ------
-    ResultsError
-        If the file is missing, of another version, or has no pose2d group.
-    """
+    reading its arrays (a ResultsError as :meth:`Pose2dData.load`)."""
     with read_checked(path, "re-run the pose2d stage") as f:
         if "pose2d" not in f:
             raise ResultsError(f"{path}: has no pose2d group; re-run the pose2d stage")

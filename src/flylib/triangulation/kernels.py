@@ -66,10 +66,9 @@ def greedy_chunk(
     threshold: float,
     max_drops: int,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
-    """Greedy view dropping (``reconstruct``'s ``greedy``) on one chunk.
+    """Greedy view dropping (``reconstruct``'s ``greedy``) on one chunk -> ``(pts3d, kept)``.
 
-    ``raw`` pixels, ``und`` the undistorted ones (None: the rig has no distortion),
-    ``weights`` or None; returns the points ``(N, 3)`` and the views kept ``(V, N)``.
+    ``und`` is None when the rig has no distortion.
     """
     distorted = und is not None  # the caller undistorts exactly when the rig has distortion
     und = raw if und is None else und

@@ -1,7 +1,6 @@
 """Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
 
-All functions take view-leading 2D points ``(V, *pts, 2)`` (``(V, T, P, 2)`` for a
-recording), NaN = missing, and return ``(*pts, 3)``. The points are flattened and
+The points (``(V, T, P, 2)`` for a recording) are flattened and
 processed in bounded chunks (memory stays bounded on long recordings), all with the
 same closed-form, row-normalized DLT as :func:`flylib.camera.jax_model.triangulate_dlt`: DLT
 (:meth:`flylib.camera.rig.CameraGroup.triangulate`, the one bulk DLT path) and greedy
@@ -14,12 +13,7 @@ before the linear solve, and reprojection errors are measured in the raw image.
 Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's
 confidences) each view's DLT rows are scaled by ``sqrt(weight)`` and observations with
 a non-positive or non-finite weight are treated as missing. RANSAC's inlier vote is
-never weighted.
-
-Every function takes the rig first, as the seed API does: ``(cameras, pts2d, ...)``
-(``(cameras, pts3d, pts2d)`` for :func:`reprojection_error`); method knobs and
-``weights`` are keywords. :func:`reconstruct` is the one dispatcher: it runs the method
-a :class:`~flylib.config.params.TriangulationParams` names with that method's knobs.
+never weighted. Method knobs and ``weights`` are keywords.
 """
 
 from __future__ import annotations
@@ -49,13 +43,7 @@ _RANSAC_THREADS = 4
 
 
 def _arguments(func: str, cameras, pts2d, what: str = "pts2d"):
-    """``cameras`` checked to be a rig and ``pts2d`` as float64, for ``func(cameras, pts2d, ...)``.
-
-    Raises
-    ------
-    TypeError
-        If ``cameras`` is not a camera rig (e.g. the arguments are swapped).
-    """
+    """``cameras`` checked to be a rig (TypeError: e.g. arguments swapped) and ``pts2d`` as float64."""
     if not (hasattr(cameras, "pmats") and hasattr(cameras, "undistort_points")):
         raise TypeError(
             f"{func}(cameras, {what}, ...) takes the camera rig first, got "
@@ -267,16 +255,12 @@ def triangulate(
 
     Parameters
     ----------
-    cameras
-        The rig (:class:`~flylib.camera.rig.CameraGroup`).
     pts2d
         ``(V, *pts, 2)`` pixels, NaN = missing.
     weights
         Optional per-observation weights ``(V, *pts)`` (e.g. confidences): each view's
         rows are scaled by ``sqrt(weight)``; a non-positive or non-finite weight drops
         the view.
-    chunk_points
-        Points per vectorized chunk.
 
     Returns
     -------
@@ -298,15 +282,6 @@ def reprojection_error(
     cameras: CameraGroup, pts3d: Float[np.ndarray, "*pts 3"], pts2d: Float[np.ndarray, " V *pts 2"]
 ) -> Float[np.ndarray, " V *pts"]:
     """Per-observation reprojection error in pixels.
-
-    Parameters
-    ----------
-    cameras
-        The rig.
-    pts3d
-        ``(*pts, 3)``.
-    pts2d
-        ``(V, *pts, 2)``.
 
     Returns
     -------
@@ -393,20 +368,9 @@ def _triangulate_greedy(
 
     While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its
     worst view is removed and the point re-triangulated from the rest, at most
-    ``max_drops`` times. A point left with fewer than two views becomes NaN. ``cameras``,
-    ``pts2d`` (float64), ``weights`` and ``chunk_points`` as in :func:`triangulate`.
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(*pts, 3)``.
-    kept : np.ndarray
-        ``(V, *pts)`` bool, the views the final point was fitted from.
-
-    Raises
-    ------
-    ValueError
-        If ``max_drops < 0``.
+    ``max_drops`` times (``max_drops < 0`` is a ValueError). A point left with fewer than
+    two views becomes NaN. Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final
+    point was fitted from.
     """
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")

@@ -88,8 +88,6 @@ class Compositor:
 
     Parameters
     ----------
-    spec
-        The video spec.
     skeleton
         The :class:`flylib.Skeleton` (bones, limbs, palette).
     image_sizes
@@ -173,35 +171,18 @@ class Compositor:
             if panel.fill is not None:
                 np.copyto(region, panel.fill)
             if spec.plot == "skeleton_2d":
-                xy = points2d.get(spec.view)
-                if xy is None:
-                    continue
-                xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
-                draw_skeleton_2d(
-                    region,
-                    xy,
-                    panel.bones,
-                    panel.point_colors,
-                    panel.bone_colors,
-                    radius=spec.point_radius,
-                    thickness=spec.line_thickness,
-                )
+                xy, depth = points2d.get(spec.view), None
             else:
-                proj = points3d.get(spec.view)
-                if proj is None:
-                    continue
-                xy, depth = proj
-                xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
-                draw_skeleton_3d(
-                    region,
-                    xy,
-                    depth,
-                    panel.bones,
-                    panel.point_colors,
-                    panel.bone_colors,
-                    radius=spec.point_radius,
-                    thickness=spec.line_thickness,
-                )
+                xy, depth = points3d.get(spec.view, (None, None))
+            if xy is None:
+                continue
+            xy = to_panel_coords(xy, panel.image_hw, (panel.width, panel.height))
+            colors = (panel.bones, panel.point_colors, panel.bone_colors)
+            style = {"radius": spec.point_radius, "thickness": spec.line_thickness}
+            if depth is None:
+                draw_skeleton_2d(region, xy, *colors, **style)
+            else:
+                draw_skeleton_3d(region, xy, depth, *colors, **style)
             if corrected is not None and corrected.any():
                 draw_rings(region, xy, corrected, spec.point_radius)
         if self.spec.labels:
@@ -254,14 +235,8 @@ class _Footage:
 
 
 def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
-    """Yield ``{view: frame}`` for frames ``0..n_frames-1``.
-
-    Raises
-    ------
-    FootageError
-        When a view's footage ends before ``n_frames`` or goes on after it (footage
-        and result must cover the same frames), naming the footage and both counts.
-    """
+    """Yield ``{view: frame}`` for frames ``0..n_frames-1``; footage ending before or going
+    on after is a :class:`FootageError` (footage and result must cover the same frames)."""
     iters = {view: iter(src) for view, src in sources.items()}
 
     def mismatch(view: str, count: str) -> FootageError:
@@ -567,8 +542,6 @@ def render_videos(
         warning.
     outdir
         Directory for ``<video_name>.mp4`` (created if needed).
-    progress
-        Show a tqdm progress bar.
     corrected
         ``(T, P)`` bool: points a person corrected, drawn with a ring (see
         :mod:`flylib.corrections`); ``None``: no rings.

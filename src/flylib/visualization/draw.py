@@ -21,20 +21,8 @@ _MAX_COORD = 1e6
 
 
 def limb_colors(skeleton, overrides: dict | None = None) -> np.ndarray:
-    """RGB colour per limb: the skeleton palette, then ``overrides``, then a colormap.
-
-    Parameters
-    ----------
-    skeleton
-        A :class:`flylib.Skeleton` (``limb_names`` and ``palette`` limb -> hex).
-    overrides
-        ``limb -> (r, g, b)`` taking precedence over the skeleton's palette.
-
-    Returns
-    -------
-    np.ndarray
-        ``(n_limbs, 3)`` uint8; limbs without a colour get ``tab10`` colours.
-    """
+    """``(n_limbs, 3)`` uint8 RGB colour per limb: ``overrides`` (``limb -> (r, g, b)``),
+    then the skeleton's ``palette`` (limb -> hex), then ``tab10``."""
     from matplotlib import colormaps
     from matplotlib.colors import to_rgb
 
@@ -134,20 +122,10 @@ def draw_skeleton_2d(
     radius: int = 3,
     thickness: int = 2,
 ) -> None:
-    """Draw a 2D skeleton: bones first, joints on top.
+    """Draw a 2D skeleton ``xy`` ``(P, 2)`` on ``img``: bones ``(B, 2)`` first, joints on top.
 
-    Parameters
-    ----------
-    img
-        ``(H, W, 3)`` uint8 image, drawn in place.
-    xy
-        ``(P, 2)`` point coordinates in ``img`` pixels; NaN = missing.
-    bones
-        ``(B, 2)`` point-index pairs.
-    point_colors, bone_colors
-        ``(P, 3)`` and ``(B, 3)`` colours in ``img``'s channel order.
-    radius, thickness
-        Joint radius (0: no joints) and bone thickness in pixels.
+    ``point_colors`` ``(P, 3)`` and ``bone_colors`` ``(B, 3)``; ``radius`` 0 draws no
+    joints.
     """
     draw_bones(img, xy, bones, bone_colors, thickness)
     draw_points(img, xy, point_colors, radius)
@@ -169,17 +147,8 @@ def draw_skeleton_3d(
     Bones (at the mean depth of their endpoints) and joints (at their own depth) are
     painted in order of decreasing camera-frame depth; a joint is painted after a bone
     at the same depth. Points behind the camera (depth <= 0) are not drawn.
-
-    Parameters
-    ----------
-    img
-        ``(H, W, 3)`` uint8 image, drawn in place.
-    xy
-        ``(P, 2)`` projected coordinates in ``img`` pixels; NaN = missing.
-    depth
-        ``(P,)`` camera-frame z of each point (distance along the optical axis).
-    bones, point_colors, bone_colors, radius, thickness
-        As in :func:`draw_skeleton_2d`.
+    ``depth`` ``(P,)`` is each point's camera-frame z (distance along the optical axis);
+    the other arguments are :func:`draw_skeleton_2d`'s.
     """
     ok = _drawable(xy) & np.isfinite(depth) & (depth > 0)
     fixed = _fixed(xy).tolist()
@@ -229,17 +198,8 @@ LABEL_MARGIN = 6
 
 
 def draw_label(image: np.ndarray, text: str, corner: str = "top-left") -> None:
-    """Write ``text`` in a corner of ``image`` (in place), white on a black outline.
-
-    Parameters
-    ----------
-    image
-        ``(H, W, 3)`` uint8 (a panel's region of the canvas).
-    text
-        One line of ASCII text.
-    corner
-        ``"top-left"`` or ``"bottom-left"``.
-    """
+    """Write one line of ASCII ``text`` in the ``"top-left"`` or ``"bottom-left"``
+    corner of ``image`` (in place), white on a black outline."""
     (width, height), baseline = cv2.getTextSize(text, LABEL_FONT, LABEL_SCALE, 1)
     x = LABEL_MARGIN
     y = LABEL_MARGIN + height if corner == "top-left" else image.shape[0] - LABEL_MARGIN - baseline

@@ -20,9 +20,12 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, did_you_mean
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..config import Config
 
 PLOTS = ("imshow", "skeleton_2d", "skeleton_3d")
 
@@ -60,21 +63,9 @@ RGB = tuple[int, int, int]
 
 
 def parse_color(value: Any, where: str) -> RGB:
-    """Turn a colour name, ``#rrggbb`` string or ``[r, g, b]`` (0-255) into an RGB tuple.
-
-    Parameters
-    ----------
-    value
-        Any colour matplotlib understands (``"black"``, ``"#ba1e31"``, ``"C3"``), or a
-        sequence of three 0-255 numbers.
-    where
-        Config key named in the error message.
-
-    Raises
-    ------
-    ConfigError
-        If the value is not a colour.
-    """
+    """Turn any colour matplotlib understands (``"black"``, ``"#ba1e31"``, ``"C3"``) or
+    ``[r, g, b]`` (0-255) into an RGB tuple; a :class:`ConfigError` naming the config key
+    ``where`` if it is not a colour."""
     if isinstance(value, (list, tuple)):
         if len(value) == 3 and all(isinstance(c, (int, float)) and 0 <= c <= 255 for c in value):
             return tuple(int(round(c)) for c in value)  # type: ignore[return-value]
@@ -195,20 +186,11 @@ class VideoSpec:
         return list(dict.fromkeys(p.view for p in self.panels))
 
     def canvas_size(self, image_sizes: Mapping[str, tuple[int, int]]) -> tuple[int, int]:
-        """Canvas ``(width, height)``, checking every panel lies on it.
+        """Canvas ``(width, height)`` for raw frames of ``view -> (height, width)``;
+        a :class:`ConfigError` if a panel reaches past an explicitly given size.
 
         Without an explicit size the canvas is the union of the panels (from the
         origin), rounded up to even sizes.
-
-        Parameters
-        ----------
-        image_sizes
-            ``view -> (height, width)`` of the raw frames.
-
-        Raises
-        ------
-        ConfigError
-            If a panel reaches past an explicitly given canvas size.
         """
         rects = [(p, *p.size(image_sizes[p.view])) for p in self.panels]
         # an automatic size is rounded up to even: H.264 in 4:2:0 needs even sizes
@@ -272,6 +254,14 @@ def _check_draw_key(key: str, where: str) -> None:
         )
 
 
+def _check_keys(table: Mapping, known: set[str], where: str) -> None:
+    for key in table:
+        if key not in known:
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; {did_you_mean(key, known)}known: {sorted(known)}"
+            )
+
+
 def _check_palette(table: Mapping, where: str) -> None:
     if "palette" in table and not isinstance(table["palette"], Mapping):
         raise ConfigError(f"{where}.palette must be a table limb -> colour")
@@ -301,6 +291,15 @@ def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
     return fps, speed
 
 
+def video_specs(config: Config) -> list[VideoSpec]:
+    """The output videos ``config`` asks for (:func:`read_video_specs` of its
+    ``visualization`` table), their views checked against its ``cameras`` table's
+    (when it has one)."""
+    cameras = config.data.get("cameras")
+    views = [k for k in cameras if k != "defaults"] if isinstance(cameras, Mapping) else None
+    return read_video_specs(config.visualization, view_names=views)
+
+
 def read_video_specs(
     table: Mapping[str, Any] | None, view_names: Sequence[str] | None = None
 ) -> list[VideoSpec]:
@@ -327,11 +326,7 @@ def read_video_specs(
     table = {} if table is None else table
     if not isinstance(table, Mapping):
         raise ConfigError("visualization must be a table")
-    for key in table:
-        if key not in _TOP_KEYS:
-            raise ConfigError(
-                f"visualization: unknown key {key!r}; {did_you_mean(key, _TOP_KEYS)}known: {sorted(_TOP_KEYS)}"
-            )
+    _check_keys(table, _TOP_KEYS, "visualization")
     background = parse_color(table.get("background", "black"), "visualization.background")
     labels = table.get("labels", True)
     if not isinstance(labels, bool):
@@ -369,11 +364,7 @@ def _read_video(
 ) -> VideoSpec:
     if not isinstance(video, Mapping):
         raise ConfigError(f"{where} must be a table with video_name and panels")
-    for key in video:
-        if key not in _VIDEO_KEYS:
-            raise ConfigError(
-                f"{where}: unknown key {key!r}; {did_you_mean(key, _VIDEO_KEYS)}known: {sorted(_VIDEO_KEYS)}"
-            )
+    _check_keys(video, _VIDEO_KEYS, where)
     name = video.get("video_name", video.get("name"))
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
@@ -417,11 +408,7 @@ def _read_panel(
 ) -> PanelSpec:
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where} must be a table {{plot, view, x0, y0, ...}}")
-    for key in raw:
-        if key not in _PANEL_KEYS:
-            raise ConfigError(
-                f"{where}: unknown key {key!r}; {did_you_mean(key, _PANEL_KEYS)}known: {sorted(_PANEL_KEYS)}"
-            )
+    _check_keys(raw, _PANEL_KEYS, where)
     plot = raw.get("plot")
     if plot not in PLOTS:
         raise ConfigError(f"{where}.plot: unknown plot {plot!r}; use one of {', '.join(PLOTS)}")
@@ -502,17 +489,8 @@ def resolve_output_fps(
     :data:`PLAUSIBLE_FPS` (the DeepFly3D sample's container says 0.2 fps) or unknown is
     replaced by ``visualization.default_fps`` with a warning.
 
-    Parameters
-    ----------
-    video
-        The video spec.
-    table
-        The raw ``visualization`` table (for the global ``output_fps``, ``speed`` and
-        ``default_fps``).
-    input_fps
-        The footage's frame rate from its container, or ``None`` when unknown.
-    speed
-        A multiple of the input rate used when the config sets no rate.
+    ``table`` is the raw ``visualization`` table, ``input_fps`` the footage's rate from
+    its container (``None``: unknown).
     """
     default_speed = speed
     fps, speed = video.output_fps, video.speed

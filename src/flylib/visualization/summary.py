@@ -34,7 +34,7 @@ MAX_TRAJECTORY_FRAMES = 2000
 
 
 def summary_figure(result: PoseResult, path: str | Path, *, dpi: int = 100) -> Path:
-    """Write the summary PNG of a pose result.
+    """Write the summary PNG of a pose result to ``path`` and return it.
 
     Parameters
     ----------
@@ -44,13 +44,6 @@ def summary_figure(result: PoseResult, path: str | Path, *, dpi: int = 100) -> P
     path
         Output PNG path (parent directories are created). Written to a temporary
         sibling and renamed, so a crash leaves no truncated file.
-    dpi
-        Resolution of the PNG.
-
-    Returns
-    -------
-    Path
-        ``path``.
     """
     from matplotlib.figure import Figure
 
@@ -97,6 +90,8 @@ def _no_data(ax, message: str) -> None:
 
 
 def error_per_view(ax, error, names) -> None:
+    from matplotlib.ticker import NullLocator
+
     ax.set_title("Reprojection error per view")
     if error is None or not np.isfinite(error).any():
         _no_data(ax, "no reprojection error (no 3D result)")
@@ -118,7 +113,7 @@ def error_per_view(ax, error, names) -> None:
     top = max(float(e.max()) for _, e in shown)
     ax.set_yticks(error_ticks(top))
     ax.yaxis.set_major_formatter("{x:g}")
-    ax.yaxis.set_minor_locator(_no_ticks())
+    ax.yaxis.set_minor_locator(NullLocator())
     ax.set_ylim(0, top * 1.15 if top > 0 else 1)
     ax.grid(axis="y", color="0.9", lw=0.6)
     ax.set_axisbelow(True)
@@ -135,12 +130,6 @@ def error_ticks(top: float) -> list[float]:
         ticks += [v for v in (2 * decade, 5 * decade, 10 * decade) if v <= top * 1.15]
         decade *= 10
     return ticks
-
-
-def _no_ticks():
-    from matplotlib.ticker import NullLocator
-
-    return NullLocator()
 
 
 def _coverage(ax, pts2d, pts3d, skeleton, colors) -> None:

@@ -30,8 +30,8 @@ from typing import Any
 
 import yaml
 
-from .config.loading import MAX_NESTING, shape_problem, yaml_nesting_line
-from .errors import ConfigError, unknown_key
+from ..errors import ConfigError, unknown_key
+from .loading import MAX_NESTING, shape_problem, yaml_nesting_line
 
 #: Name of the per-recording sidecar file.
 SIDECAR = "nwb.yaml"
@@ -193,12 +193,7 @@ def metadata_problems(table: Any, where: str = "nwb") -> list[str]:
     """Every problem with an ``nwb`` table (or sidecar), one line each; missing required
     keys are not problems here (a sidecar may supply them: see :func:`missing_required`).
 
-    Parameters
-    ----------
-    table
-        The parsed table (``None`` counts as empty).
-    where
-        Its name in messages (``nwb`` or the sidecar's path).
+    ``where``: the table's name in messages (``nwb`` or the sidecar's path).
     """
     if table is None:
         return []
@@ -278,15 +273,18 @@ def read_sidecar(path: str | Path) -> dict[str, Any] | None:
         ) from None
     if problem:
         raise ConfigError(f"{path}: {problem}; fix the file")
-    problems = metadata_problems(table, str(path))
+    _refuse(metadata_problems(table, str(path)))
+    return dict(table or {})
+
+
+def _refuse(problems: list[str]) -> None:
     if problems:
         raise ConfigError("; ".join(problems))
-    return dict(table or {})
 
 
 def write_sidecar(path: str | Path, metadata: Mapping) -> Path:
     """Write metadata as a recording's ``nwb.yaml`` (atomically)."""
-    from .paths import atomic_path
+    from ..paths import atomic_path
 
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -308,8 +306,6 @@ def recording_metadata(
 
     Parameters
     ----------
-    table
-        The config's ``nwb`` table, or ``None``.
     recording_dir
         The recording directory (its ``nwb.yaml`` is read), or ``None``.
     demo
@@ -317,8 +313,6 @@ def recording_metadata(
         as its sidecar, which may not exist yet when the workflow starts).
     extra
         Highest-priority overrides (``flylib export --nwb-metadata``).
-    check
-        Raise when required keys are missing.
 
     Raises
     ------
@@ -326,15 +320,11 @@ def recording_metadata(
         An invalid table or sidecar, or (``check``) missing required keys, all named
         in one message with where to set them.
     """
-    problems = metadata_problems(table)
-    if problems:
-        raise ConfigError("; ".join(problems))
+    _refuse(metadata_problems(table))
     sidecar_path = Path(recording_dir) / SIDECAR if recording_dir is not None else None
     sidecar = read_sidecar(sidecar_path) if sidecar_path is not None else None
     if extra is not None:
-        problems = metadata_problems(extra, "--nwb-metadata")
-        if problems:
-            raise ConfigError("; ".join(problems))
+        _refuse(metadata_problems(extra, "--nwb-metadata"))
     metadata = merge_metadata(DEMO_METADATA if demo else None, table, sidecar, extra)
     if check:
         missing = missing_required(metadata)
@@ -354,19 +344,10 @@ def recording_metadata(
 def recordings_metadata_problems(table: Mapping | None, recordings: Sequence[Any]) -> list[str]:
     """One line per recording whose NWB export would fail for its metadata or frame rate.
 
-    Parameters
-    ----------
-    table
-        The run config's ``nwb`` table, or ``None``.
-    recordings
-        :class:`flylib.recordings.Recording` objects (``path``, ``demo``, ``footage``).
-
-    Returns
-    -------
-    list of str
-        Empty when every recording can be exported.
+    ``recordings``: :class:`flylib.recordings.Recording` objects (``path``, ``demo``,
+    ``footage``).
     """
-    from .io import VIDEO_EXTS
+    from ..io import VIDEO_EXTS
 
     problems = []
     for rec in recordings:
