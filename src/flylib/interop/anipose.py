@@ -1,9 +1,9 @@
 """Camera rigs from calibration files: Anipose TOML, DeepFly3D pickle, calibrations.csv.
 
-Anipose TOML (seed 003): one ``[cam_N]`` table per camera with ``name``, ``size = [width, height]``,
-``matrix`` (3x3 K), ``distortions`` (OpenCV order ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues
-vector, world to camera) and ``translation``; an optional ``[metadata]`` table. The camera model is
-OpenCV's, so ``cv2.projectPoints`` with the same numbers gives the same pixels as
+Anipose TOML: one ``[cam_N]`` table per camera with ``name``, ``size = [width, height]``, ``matrix``
+(3x3 K), ``distortions`` (OpenCV order ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to
+camera) and ``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
+``cv2.projectPoints`` with the same numbers gives the same pixels as
 :meth:`flylib.camera.rig.CameraGroup.project`.
 
 Config (top-level ``calibration`` table) -- take the rig from a file instead of the orbit
@@ -342,7 +342,7 @@ def load_calibration(
 
 
 def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> None:
-    """Each view's footage (height, width) against its camera's ``size`` ([width, height]) in the file."""
+    """Each view's footage (height, width) against its camera's ``size`` ([width, height])."""
     for view, cam in zip(views, chosen):
         footage = image_sizes.get(view)
         if cam is None or cam["size"] is None or footage is None:

@@ -166,8 +166,7 @@ _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
 def _frame_number(value, path: Path, row: int) -> int:
-    """The frame a row's index names: an integer, or the last number in an image file's name
-    (``labeled-data/video/img047.png`` -> 47)."""
+    """A row index's frame: an integer, or the last number in an image's name (``img047.png``)."""
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
@@ -353,8 +352,7 @@ def _fixed_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
 
 
 def _fixed_index(source: _ForeignH5, key: str, n_rows: int) -> pd.Index:
-    """The row index of a pandas ``format="fixed"`` frame (of a MultiIndex, its last level: the
-    image file name of DeepLabCut's labelled data)."""
+    """A pandas ``format="fixed"`` frame's row index (a MultiIndex's last level: the image)."""
     group = source.member(key)
     if "axis1_nlevels" in group.attrs:
         last = int(group.attrs["axis1_nlevels"]) - 1

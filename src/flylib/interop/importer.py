@@ -181,8 +181,7 @@ def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
 
 
 def _closest_file(recording_dir: Path, pattern: str) -> str:
-    """``"did you mean 'x'? "`` for the existing file named most like ``pattern`` (in the directory
-    the pattern points into), else ``""``."""
+    """``"did you mean 'x'? "`` for the file in the pattern's folder most like it, else ``""``."""
     folder = (recording_dir / pattern).parent
     try:
         names = [p.relative_to(recording_dir).as_posix() for p in folder.iterdir() if p.is_file()]
@@ -225,8 +224,7 @@ def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path)
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
-    """The DeepFly3D pickle pattern: ``files``, else the default in the recording directory or its
-    ``df3d/`` folder."""
+    """The DeepFly3D pickle pattern: ``files``, else the default (in the recording or ``df3d/``)."""
     pattern = spec.get("files")
     if pattern is None:
         pattern = "df3d_result*.pkl"
@@ -436,8 +434,7 @@ def _keep_plan_points(
     origin: dict[str, Path],
     points: list[str],
 ) -> None:
-    """Set missing, in place, each view's 2D of the points the detection plan does not give that
-    view (a view the plan does not list keeps all), warning once per file."""
+    """Set missing each view's 2D of the points the plan does not give it; warn once per file."""
     dropped: dict[str, list[str]] = {}  # file -> "view: n points (names)"
     for v, view in enumerate(views):
         if view not in plan:
@@ -463,8 +460,7 @@ def _keep_plan_points(
 
 
 def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
-    """Refuse 2D with no observed point at all (no 3D result could come of it, with or without
-    bundle adjustment); warn about views that observe nothing."""
+    """Refuse 2D with no observed point (no 3D can come of it); warn about views observing none."""
     cut = "" if threshold is None else f" at or above likelihood_threshold {threshold}"
     observed = np.isfinite(pts).all(-1).any(axis=(1, 2))  # (V,)
     files = list(dict.fromkeys(str(f) for f in origin.values()))

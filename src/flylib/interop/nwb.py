@@ -39,9 +39,8 @@ views at 0 px score 1, two views 0.5 (two rays always meet near a point, so noth
 them); each 5 px of mean error divides the score by e. Unreconstructed points have NaN confidence.
 
 Readers: ``pynwb.NWBHDF5IO(path, "r", load_namespaces=True).read()`` (the ndx-pose schema is cached
-in the file);
-``movement.io.load_poses.from_nwb_file(path, pose_estimation_key="MultiCameraPoseEstimation")``
-gives the 3D keypoints.
+in the file); ``movement.io.load_poses.from_nwb_file`` with
+``pose_estimation_key="MultiCameraPoseEstimation"`` gives the 3D keypoints.
 """
 
 from __future__ import annotations
@@ -301,8 +300,7 @@ def _add_cameras(nwbfile, result, views: list[str]) -> dict:
 
 
 def _add_videos(nwbfile, result, views, footage, cameras, rate: float, start: Path) -> dict:
-    """Each view's footage as an external ``ImageSeries`` (paths relative to ``start``, the NWB
-    file's folder): ``view -> series``."""
+    """Each view's footage as external ``ImageSeries`` (paths relative to ``start``), by view."""
     from pynwb.image import ImageSeries
 
     videos = {}
@@ -388,8 +386,7 @@ def _pose_estimations_2d(result, views, names, skeleton, cameras, videos, rate: 
 
 
 def _add_pose_3d(behavior, result, metadata, views, names, skeleton, per_view, rate) -> None:
-    """The ``MultiCameraPoseEstimation``: each point's 3D with its confidence, and the views' 2D
-    ``per_view``."""
+    """The ``MultiCameraPoseEstimation``: each point's 3D and confidence, the views' 2D."""
     import ndx_pose
 
     confidence = (

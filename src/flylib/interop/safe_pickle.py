@@ -65,8 +65,7 @@ def _bounded_nbytes(shape, dtype) -> None:
 
 
 class _PickledNdarray(np.ndarray):
-    """What a pickle's ``numpy.ndarray`` global resolves to: the type as an argument of
-    ``_reconstruct``, and when called, an allocation bounded like every other."""
+    """A pickle's ``numpy.ndarray``: the type for ``_reconstruct``; called, a bounded allocation."""
 
     def __new__(cls, shape, dtype=float, *args, **kwargs):
         _bounded_nbytes(shape, dtype)
@@ -137,8 +136,7 @@ def _numpy_helpers() -> dict[tuple[str, str], object]:
 
 
 def _latin1_bytes(text, encoding: str = "latin1") -> bytes:
-    """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, no other codec
-    (compressors, ROT13, unknown names)."""
+    """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, no other codec."""
     if (
         not isinstance(text, str)
         or not isinstance(encoding, str)
@@ -206,8 +204,7 @@ PICKLE_PARSE_ERRORS = (
 
 
 def _prescan(data: bytes) -> None:
-    """Walk the opcodes without building anything: a declared length beyond the file (which the C
-    unpickler would allocate up front) or too many opcodes is refused."""
+    """Refuse, before anything is built, a declared length beyond the file or too many opcodes."""
     for count, _ in enumerate(pickletools.genops(io.BytesIO(data)), 1):
         if count > MAX_PICKLE_OPCODES:
             raise PickleBomb(f"more than {MAX_PICKLE_OPCODES} pickle opcodes")

@@ -1,4 +1,4 @@
-"""Recordings: which directories hold footage for every configured source, and where their results go.
+"""Recordings: which directories hold footage for every configured source, and where results go.
 
 A *recording* is a directory holding footage for every ``[[sources]]`` entry of the config: one
 video, or one image sequence, per source, all with the same frame count. :func:`find_recording`

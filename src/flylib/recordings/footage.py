@@ -38,8 +38,7 @@ def footage_matches(directory: Path, pattern: str) -> list[Path]:
 
 
 def _not_a_file(path: Path) -> str:
-    """What ``path`` (not a regular file) is, in words:
-    ``"is a named pipe (FIFO), not a video or image file"``."""
+    """What ``path`` (not a regular file) is, in words: ``"is a named pipe (FIFO), not a ..."``."""
     link = f"a link to {os.path.realpath(path)}, " if path.is_symlink() else ""
     try:
         mode = path.stat().st_mode
