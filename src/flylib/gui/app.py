@@ -7,26 +7,20 @@ Routes::
     GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
-    GET  /api/suspects              suspect (frame, point) pairs and the per-frame score,
-                                    the review progress
+    GET  /api/suspects              suspect (frame, point) pairs, per-frame score, review progress
     GET  /api/save-check            what the edits made worse (said before saving)
-    POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
+    POST /api/edit                  one edit {"op", "frame", "point", "view", "xy", "revision",
+                                    "durable", "fixed"} (op: one of session.EDIT_OPS) -> points
     POST /api/save                  write corrections.h5 beside results.h5
     POST /api/stop                  stop the server (the page's Stop button)
-    WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision",
-                                    "durable", "fixed"}
-                                    -> points (op: move, move3d, invisible, reset_point,
-                                    reset_view, reset_frame, reviewed, unreviewed; move
-                                    takes "fixed": true; or
-                                    {"op": "save"}); other pages' edits arrive as
-                                    {"op": "changed", "revision"}
+    WS   /ws                        the same edits, or {"op": "save"}; other pages' edits arrive
+                                    as {"op": "changed", "revision"}
 
-Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are
-this server's; POSTs and the WebSocket carry the session token; JSON bodies only,
-size and depth limited) and every response carries a strict Content-Security-Policy.
-Camera names are looked up in the rig (never used to build a path) and frame numbers
-are integers checked against the recording, so no request reaches any other file.
-Errors are one line (``{"detail": ...}``), never a traceback.
+Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are this
+server's; POSTs and the WebSocket carry the session token; JSON bodies only, size and depth
+limited) and every response carries a strict Content-Security-Policy. Camera names are looked up
+in the rig (never used to build a path) and frame numbers are integers checked against the
+recording, so no request reaches any other file. Errors are one line (``{"detail": ...}``).
 """
 
 from __future__ import annotations
@@ -73,22 +67,12 @@ def create_app(
 ) -> FastAPI:
     """The app serving one :class:`ReviewSession`.
 
-    Parameters
-    ----------
-    session
-        The opened recording.
-    token
-        The session token every mutating request must carry (header
-        ``X-Flylib-Token``, or the WebSocket sub-protocol ``flylib.token.<token>``);
-        default: a random one. The page receives it inside its HTML. Available as
-        ``app.state.token``.
-    guard_reads
-        Require the token on reads too (query ``?token=``, header or the cookie the
-        page sets); default: when ``token`` is given (a server bound to anything but
-        localhost).
-    hosts, port
-        The host names (and port) the server answers to; any other ``Host`` header
-        is refused (DNS rebinding). ``hosts=None``: any (with ``guard_reads``).
+    ``token`` (default: random; ``app.state.token``, and inside the page's HTML) must come with
+    every mutating request (header ``X-Flylib-Token`` or WebSocket sub-protocol
+    ``flylib.token.<token>``); ``guard_reads`` (default: when ``token`` is given, i.e. a server
+    bound beyond localhost) requires it on reads too (``?token=``, header or the page's cookie).
+    Any ``Host`` other than ``hosts`` (and ``port``) is refused (DNS rebinding); ``hosts=None``:
+    any, with ``guard_reads``.
     """
     if guard_reads is None:
         guard_reads = token is not None
@@ -112,8 +96,8 @@ def _refused(status: int, message: str) -> JSONResponse:
 
 
 def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
-    """Every HTTP request through ``guard`` (Host, Origin, token, JSON body), every
-    response with the security headers, every error one line."""
+    """Every request through ``guard``, every response with the security headers, every error
+    one line."""
 
     @app.middleware("http")
     async def check_request(request: Request, call_next):
@@ -352,8 +336,7 @@ class _Edits:
 
 
 def _offered_protocols(websocket: WebSocket) -> list[str]:
-    """The sub-protocols a handshake offers (the server puts them in the ASGI scope;
-    the raw header is the fallback)."""
+    """The sub-protocols a handshake offers (ASGI scope, else the raw header)."""
     offered = websocket.scope.get("subprotocols") or (
         websocket.headers.get("sec-websocket-protocol") or ""
     ).split(",")

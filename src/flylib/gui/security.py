@@ -1,18 +1,16 @@
 """What keeps other web pages out of ``flylib gui``: the request checks, free of FastAPI.
 
-A browser lets any page send requests to ``localhost``; these checks make such requests
-fail before they reach the session:
+A browser lets any page send requests to ``localhost``; these checks make such requests fail
+before they reach the session:
 
-- ``Host`` must name the server itself (a loopback name, or the address it was bound
-  to), so a DNS-rebinding page (``Host: evil.example:PORT``) gets nothing;
-- ``Origin``, when sent (browsers always send it on WebSockets and POSTs), must be the
-  server's own origin, and ``Sec-Fetch-Site`` must not be ``cross-site``;
-- every mutating request carries the session's random token in a header (REST) or a
-  WebSocket sub-protocol; the page gets it inside its own HTML, which another origin
-  cannot read (the same-origin policy, and the ``Host`` check for rebinding);
-- bodies are JSON (``Content-Type: application/json``: a form or ``text/plain`` POST,
-  which needs no CORS pre-flight, is refused), at most :data:`MAX_BODY` bytes and
-  :data:`MAX_DEPTH` levels deep, parsed without recursion trouble.
+- ``Host`` must name the server itself (a loopback name, or the address it was bound to), so a
+  DNS-rebinding page (``Host: evil.example:PORT``) gets nothing;
+- ``Origin``, when sent (always on WebSockets and POSTs), must be the server's own origin, and
+  ``Sec-Fetch-Site`` must not be ``cross-site``;
+- every mutating request carries the session's random token in a header (REST) or a WebSocket
+  sub-protocol; the page gets it inside its own HTML, which another origin cannot read;
+- bodies are JSON (a form or ``text/plain`` POST, which needs no CORS pre-flight, is refused), at
+  most :data:`MAX_BODY` bytes and :data:`MAX_DEPTH` levels deep, parsed without recursion trouble.
 """
 
 from __future__ import annotations
@@ -69,19 +67,10 @@ def split_host(host: str) -> tuple[str, int | None]:
 class RequestGuard:
     """The Host / Origin / token checks of one server.
 
-    Parameters
-    ----------
-    token
-        The session's secret (``secrets.token_urlsafe``).
-    hosts
-        The host names the server answers to (loopback names by default); ``None``:
-        any, for a server bound to another interface, whose every request needs the
-        token anyway (``guard_reads``), which a rebinding page does not have.
-    port
-        The port it listens on; when given, ``Host`` must carry it.
-    guard_reads
-        Require the token on reads too (query ``?token=``, header or the cookie the
-        page sets): when bound to anything but localhost.
+    ``hosts``: the names the server answers to; ``None``: any, for a server bound to another
+    interface, whose every request needs the token anyway (``guard_reads``: on reads too, via
+    ``?token=``, header or the page's cookie), which a rebinding page does not have. ``port``,
+    when given, must be in ``Host``.
     """
 
     def __init__(
@@ -106,8 +95,7 @@ class RequestGuard:
         )
 
     def check_origin(self, headers: Any) -> None:
-        """``Host`` is this server, ``Origin`` (when sent) is this server's origin; else
-        :class:`RequestRefused` 403 naming what was wrong."""
+        """``Host`` and ``Origin`` (when sent) are this server's; else :class:`RequestRefused` 403."""
         host = headers.get("host") or ""
         name, port = split_host(host)
         known = self.hosts is None or name in self.hosts
@@ -153,10 +141,8 @@ def check_json_content_type(content_type: str | None) -> None:
 
 
 def parse_json(body: bytes, what: str = "the body") -> Any:
-    """``body`` as JSON, refused when larger than :data:`MAX_BODY` or nested deeper
-    than :data:`MAX_DEPTH` (checked before parsing, so no recursion limit is hit):
-    :class:`RequestRefused` 413 (too large; the body is never echoed) or 400 (not JSON, too
-    deep)."""
+    """``body`` as JSON; :class:`RequestRefused` 413 when larger than :data:`MAX_BODY` (never
+    echoed), 400 when not JSON or deeper than :data:`MAX_DEPTH` (checked before parsing)."""
     if len(body) > MAX_BODY:
         raise RequestRefused(413, f"refused: {what} is larger than {MAX_BODY // 1024} KiB")
     depth = json_depth(body)

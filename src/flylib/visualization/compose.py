@@ -1,12 +1,10 @@
 """Panel compositor and the streaming video renderer.
 
-:class:`Compositor` draws one video's panels, in order, onto a preallocated canvas
-from one frame's worth of inputs (plain NumPy: frames, 2D points, reprojected 3D
-points). :func:`render_videos` streams a whole recording through every video's
-compositor in a single pass: each camera's footage is decoded once per frame (in a
-background thread, a few frames ahead), every video's canvas is drawn and handed to
-its H.264 encoder, and nothing scales with the recording's length except the result
-arrays themselves.
+:class:`Compositor` draws one video's panels, in order, onto a preallocated canvas from one
+frame's inputs (plain NumPy: frames, 2D points, reprojected 3D points). :func:`render_videos`
+streams a recording through every video's compositor in a single pass: each camera's footage is
+decoded once per frame (in a background thread, a few frames ahead), every video's canvas is drawn
+and handed to its H.264 encoder, and nothing but the result arrays scales with the recording.
 """
 
 from __future__ import annotations
@@ -86,18 +84,9 @@ class _Panel:
 class Compositor:
     """Draws the panels of one :class:`VideoSpec` onto a reused canvas.
 
-    Parameters
-    ----------
-    skeleton
-        The :class:`flylib.Skeleton` (bones, limbs, palette).
-    image_sizes
-        ``view -> (height, width)`` of each used view's raw frames: sizes the panels
-        and maps raw-frame pixel coordinates into them.
-
-    Raises
-    ------
-    ConfigError
-        If a panel runs off an explicitly sized canvas.
+    ``image_sizes``: ``view -> (height, width)`` of each used view's raw frames, which size the
+    panels and map raw-frame pixels into them. A panel off an explicitly sized canvas is a
+    ConfigError.
     """
 
     def __init__(self, spec: VideoSpec, skeleton, image_sizes: Mapping[str, tuple[int, int]]):
@@ -108,8 +97,8 @@ class Compositor:
         self.panels = [
             _Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background) for p in spec.panels
         ]
-        # one view name per panel area (an imshow panel and the skeleton drawn over it
-        # share one), written last so that nothing covers it
+        # one view name per panel area (an imshow panel and the skeleton over it share one),
+        # written last so that nothing covers it
         self.labelled = list(
             {(p.slices[0].start, p.slices[1].start): p for p in self.panels}.values()
         )
@@ -123,33 +112,15 @@ class Compositor:
         corrected: np.ndarray | None = None,
         stamp: str | None = None,
     ) -> np.ndarray:
-        """Draw one output frame.
+        """Draw one output frame; the canvas ``(height, width, 3)`` uint8 (reused: copy to keep).
 
-        Parameters
-        ----------
-        frames
-            ``view -> (H, W, 3)`` uint8 RGB frame (any size: resized to the panel), or
-            ``None``/absent (an ``imshow`` panel then shows its background).
-        points2d
-            ``view -> (P, 2)`` 2D points in raw-frame pixels, NaN = missing.
-        points3d
-            ``view -> (xy (P, 2), depth (P,))``: the 3D points projected into the view
-            (raw-frame pixels) and their camera-frame depths.
-        resized
-            Cache of resized frames for this output frame, keyed ``(view, width,
-            height)``; share one dict between compositors drawing the same frame so
-            each view is resized once.
-        corrected
-            ``(P,)`` bool: points a person corrected (``flylib gui``), ringed in the
-            skeleton panels; ``None``: none.
-        stamp
-            The frame number and time, written in the canvas's lower-left corner when
-            the spec has ``labels`` on.
-
-        Returns
-        -------
-        np.ndarray
-            The canvas ``(height, width, 3)`` uint8 (reused: copy it to keep it).
+        ``frames``: ``view -> (H, W, 3)`` uint8 RGB (any size: resized to the panel), ``None`` or
+        absent (an ``imshow`` panel shows its background). ``points2d``: ``view -> (P, 2)``
+        raw-frame pixels, NaN = missing. ``points3d``: ``view -> (xy (P, 2), depth (P,))``, the 3D
+        points projected into the view and their camera-frame depths. ``resized``: resized frames
+        keyed ``(view, width, height)``; share one dict between compositors drawing the same
+        frame so each view is resized once. ``corrected``: ``(P,)`` bool, points a person
+        corrected (ringed). ``stamp``: frame number and time, lower-left when ``labels`` is on.
         """
         canvas = self.canvas
         np.copyto(canvas, self._blank)
@@ -194,8 +165,8 @@ class Compositor:
 
 
 def frame_stamp(t: int, n_frames: int, fps: float | None) -> str:
-    """``"frame 12 / 59   0.120 s"``: a frame's index (from 0, as in results.h5 and
-    the CSV exports) and, when the recording's rate is known, its time."""
+    """``"frame 12 / 59   0.120 s"``: a frame's index (from 0, as in results.h5 and the CSV
+    exports) and, when the recording's rate is known, its time."""
     text = f"frame {t} / {n_frames - 1}"
     return f"{text}   {t / fps:.3f} s" if fps else text
 
@@ -235,8 +206,8 @@ class _Footage:
 
 
 def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
-    """Yield ``{view: frame}`` for frames ``0..n_frames-1``; footage ending before or going
-    on after is a :class:`FootageError` (footage and result must cover the same frames)."""
+    """Yield ``{view: frame}`` for frames ``0..n_frames-1``; footage ending before or going on
+    after is a :class:`FootageError`."""
     iters = {view: iter(src) for view, src in sources.items()}
 
     def mismatch(view: str, count: str) -> FootageError:
@@ -261,8 +232,8 @@ def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
 
 @contextlib.contextmanager
 def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
-    """Iterate ``items`` in a background thread, at most ``depth`` ahead of the consumer
-    (in this thread under a one-thread budget)."""
+    """Iterate ``items`` in a background thread (this one under a one-thread budget), at most
+    ``depth`` ahead of the consumer."""
     if usable_cpus() == 1:
         yield iter(items)
         return
@@ -308,11 +279,8 @@ def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
 
 
 class _Reprojector:
-    """Chunked projection of ``pts3d`` into the views of ``skeleton_3d`` panels.
-
-    Yields raw-frame pixel coordinates and camera-frame depths (z along the optical
-    axis) per view, computing :data:`PROJECT_CHUNK` frames at a time.
-    """
+    """Projection of ``pts3d`` into the views of ``skeleton_3d`` panels, :data:`PROJECT_CHUNK`
+    frames at a time: raw-frame pixels and camera-frame depths (z along the optical axis)."""
 
     def __init__(
         self, cameras, pts3d: np.ndarray, views: Sequence[str], chunk: int = PROJECT_CHUNK
@@ -344,12 +312,10 @@ class _Reprojector:
 class CanvasEncoder:
     """Streams RGB canvases into an H.264 MP4 (libx264, :data:`X264_SETTINGS`).
 
-    Same container and codec as :class:`flylib.io.VideoWriter`, with two differences
-    that matter for throughput. The RGB -> YUV 4:2:0 conversion runs in OpenCV
-    (``COLOR_RGB2YUV_I420``, BT.601 limited range like FFmpeg's own) instead of
-    swscale, about 9x cheaper on a 960x960 canvas. And encoding runs in a worker
-    thread (PyAV releases the GIL inside x264), at most :data:`ENCODE_QUEUE` frames
-    behind, so it overlaps decoding and drawing.
+    Same container and codec as :class:`flylib.io.VideoWriter`, but faster: the RGB -> YUV 4:2:0
+    conversion runs in OpenCV (``COLOR_RGB2YUV_I420``, BT.601 limited range like FFmpeg's own)
+    instead of swscale, and encoding runs in a worker thread (PyAV releases the GIL inside x264),
+    at most :data:`ENCODE_QUEUE` frames behind, overlapping decoding and drawing.
     """
 
     def __init__(self, path: Path, fps: float, width: int, height: int):
@@ -421,8 +387,7 @@ class CanvasEncoder:
 
 
 def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> dict:
-    """``view -> (height, width)``: from footage, the result's stored sizes, or the
-    principal point."""
+    """``view -> (height, width)``: from footage, stored sizes, or the principal point."""
     meta_sizes = {
         **((getattr(result, "meta", None) or {}).get("image_sizes") or {}),
         **(getattr(result, "image_sizes", None) or {}),
@@ -448,8 +413,7 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
 
 
 def _panel_views(specs: Sequence[VideoSpec], plot: str | None = None) -> list[str]:
-    """The views the videos' panels use (those with a ``plot`` panel), in the order
-    any panel first uses them."""
+    """The views the panels use (those with a ``plot`` panel), in first-use order."""
     used = list(dict.fromkeys(v for s in specs for v in s.views))
     if plot is None:
         return used
@@ -491,9 +455,8 @@ def _open_writers(
     rates: tuple[Mapping, float | None, float | None],
     n_frames: int,
 ) -> list[CanvasEncoder]:
-    """One encoder per video, writing to a temporary file renamed when ``stack`` closes
-    without error; ``rates``: the ``visualization`` table, the footage's rate and the
-    fallback ``speed`` (:func:`resolve_output_fps`)."""
+    """One encoder per video, writing to a temporary file renamed when ``stack`` closes without
+    error; ``rates``: :func:`resolve_output_fps`'s table, footage rate and fallback ``speed``."""
     writers = []
     for spec, comp, path in zip(specs, compositors, paths):
         fps = resolve_output_fps(spec, *rates)
@@ -525,45 +488,30 @@ def render_videos(
 ) -> list[Path]:
     """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording.
 
-    All videos are rendered in one pass over the footage: each frame of each used
-    camera is decoded once, drawn into every video's canvas and streamed to that
-    video's encoder, so memory does not grow with the recording's length.
+    All videos are rendered in one pass over the footage: each frame of each used camera is
+    decoded once, drawn into every video's canvas and streamed to its encoder, so memory does not
+    grow with the recording's length. Returns the written videos in spec order. Raises ConfigError
+    for an invalid spec (naming ``visualization.videos[i].panels[j]``) and FootageError for
+    missing or unreadable footage.
 
     Parameters
     ----------
     table
-        The ``visualization`` table of the config (``Config.visualization``).
+        The config's ``visualization`` table.
     result
-        The :class:`flylib.PoseResult` to draw (``cameras``, ``skeleton``, ``pts2d``,
-        ``pts3d``).
+        The :class:`flylib.PoseResult` to draw.
     footage
-        ``view name -> footage files`` (one video file, or an ordered image sequence)
-        for ``imshow`` panels. A view without footage draws the background, with a
-        warning.
+        ``view name -> footage files`` (one video, or an ordered image sequence) for ``imshow``
+        panels; a view without footage draws the background, with a warning.
     outdir
         Directory for ``<video_name>.mp4`` (created if needed).
     corrected
-        ``(T, P)`` bool: points a person corrected, drawn with a ring (see
-        :mod:`flylib.corrections`); ``None``: no rings.
+        ``(T, P)`` bool: points a person corrected, drawn with a ring; ``None``: no rings.
     speed
-        Play the videos at this multiple of the recording's rate when the config sets
-        no rate (the workflow's slow motion for the demo).
+        Multiple of the recording's rate when the config sets no rate (the demo's slow motion).
     on_corrupt
-        What a corrupt footage image becomes (``io.on_corrupt_frame``): ``"error"``
-        or ``"missing"`` (the background).
-
-    Returns
-    -------
-    list of Path
-        The written videos, in spec order.
-
-    Raises
-    ------
-    ConfigError
-        For an invalid video spec (unknown plot, view not in the rig, panel off the
-        canvas), naming ``visualization.videos[i].panels[j]``.
-    FootageError
-        If a footage file is missing or unreadable.
+        What a corrupt footage image becomes (``io.on_corrupt_frame``): ``"error"`` or
+        ``"missing"`` (the background).
     """
     from tqdm.auto import tqdm
 
@@ -606,7 +554,7 @@ def render_videos(
         )
         pts2d = result.pts2d
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
-        # no bar object at all without progress: tqdm starts its monitor thread even disabled
+        # no bar at all without progress: tqdm starts its monitor thread even disabled
         bar = (
             stack.enter_context(
                 tqdm(
