@@ -399,11 +399,7 @@ class ReviewSession:
                 {**item, "done": bool(settled[item["frames"], item["point"]].all())}
                 for item in self.review_items
             ]
-        return {
-            "items": items,
-            "done": sum(item["done"] for item in items),
-            "total": len(items),
-        }
+        return {"items": items, "done": sum(item["done"] for item in items), "total": len(items)}
 
     def suspects_payload(self) -> dict:
         s = self.suspects()

@@ -34,13 +34,7 @@ from .draw import (
     skeleton_colors,
     to_panel_coords,
 )
-from .specs import (
-    PLAUSIBLE_FPS,
-    PanelSpec,
-    VideoSpec,
-    read_video_specs,
-    resolve_output_fps,
-)
+from .specs import PLAUSIBLE_FPS, PanelSpec, VideoSpec, read_video_specs, resolve_output_fps
 
 log = logging.getLogger(__name__)
 
