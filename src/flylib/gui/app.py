@@ -16,11 +16,9 @@ Routes::
     WS   /ws                        the same edits, or {"op": "save"}; other pages' edits arrive
                                     as {"op": "changed", "revision"}
 
-Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are this
-server's; POSTs and the WebSocket carry the session token; JSON bodies only, size and depth
-limited) and every response carries a strict Content-Security-Policy. Camera names are looked up
-in the rig (never used to build a path) and frame numbers are integers checked against the
-recording, so no request reaches any other file. Errors are one line (``{"detail": ...}``).
+Every request passes :class:`~flylib.gui.security.RequestGuard`, every response carries a strict
+Content-Security-Policy. Camera names are looked up in the rig (never used to build a path) and
+frame numbers checked, so no request reaches any other file. Errors are one ``{"detail": ...}``.
 """
 
 from __future__ import annotations
@@ -67,12 +65,9 @@ def create_app(
 ) -> FastAPI:
     """The app serving one :class:`ReviewSession`.
 
-    ``token`` (default: random; ``app.state.token``, and inside the page's HTML) must come with
-    every mutating request (header ``X-Flylib-Token`` or WebSocket sub-protocol
-    ``flylib.token.<token>``); ``guard_reads`` (default: when ``token`` is given, i.e. a server
-    bound beyond localhost) requires it on reads too (``?token=``, header or the page's cookie).
-    Any ``Host`` other than ``hosts`` (and ``port``) is refused (DNS rebinding); ``hosts=None``:
-    any, with ``guard_reads``.
+    ``token`` (default: random; in the page's HTML) must come with every mutating request;
+    ``guard_reads`` (default: when ``token`` is given) requires it on reads too. Any ``Host`` but
+    ``hosts`` (and ``port``) is refused (DNS rebinding); ``hosts=None``: any, with ``guard_reads``.
     """
     if guard_reads is None:
         guard_reads = token is not None
@@ -96,8 +91,7 @@ def _refused(status: int, message: str) -> JSONResponse:
 
 
 def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
-    """Every request through ``guard``, every response with the security headers, every error
-    one line."""
+    """Every request through ``guard``, every response with the security headers."""
 
     @app.middleware("http")
     async def check_request(request: Request, call_next):
@@ -142,7 +136,6 @@ def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
 
 
 def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
-    """``GET`` the page, meta, a view's frame, a frame's points and the suspects."""
 
     def check_frame(frame: int) -> None:
         if not 0 <= frame < session.n_frames:
@@ -194,7 +187,6 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
 
 
 def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
-    """``POST`` one edit and the save (the WebSocket carries the same messages)."""
 
     @app.post("/api/edit")
     async def edit(request: Request) -> JSONResponse:
@@ -221,7 +213,6 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
 
 
 def _add_edit_socket(app: FastAPI, guard: RequestGuard, edits: _Edits) -> None:
-    """``WS /ws``: edits and saves in, replies out, other pages' edits announced."""
 
     @app.websocket("/ws")
     async def ws(websocket: WebSocket) -> None:
@@ -336,7 +327,6 @@ class _Edits:
 
 
 def _offered_protocols(websocket: WebSocket) -> list[str]:
-    """The sub-protocols a handshake offers (ASGI scope, else the raw header)."""
     offered = websocket.scope.get("subprotocols") or (
         websocket.headers.get("sec-websocket-protocol") or ""
     ).split(",")

@@ -1,15 +1,11 @@
 """Edits that survive anything: an fsync'd journal beside ``corrections.h5``, and one GUI per
 sidecar.
 
-Every edit the GUI accepts is appended to ``<sidecar>.journal`` (one JSON line with a CRC-32,
-flushed and fsync'd) *before* it is applied, so a stopped server, a crash or a closed tab loses
-nothing; the next ``flylib gui`` on the recording replays the journal on top of the sidecar and
-says so. Saving writes the sidecar, then removes the journal. The journal is JSON only and each
-replayed line goes through the same checks as an edit from the page.
-
-``<sidecar>.lock`` is held (``fcntl.flock``, released by the kernel when the process dies, even on
-``kill -9``) for a session's life, so a second server on the same output directory is refused
-instead of overwriting the first one's saves.
+Every edit is appended to ``<sidecar>.journal`` (a JSON line with a CRC-32, fsync'd) *before* it
+is applied, so a stopped server, a crash or a closed tab loses nothing: the next ``flylib gui``
+replays the journal on top of the sidecar (each line checked like an edit from the page) and says
+so. Saving writes the sidecar, then removes the journal. ``<sidecar>.lock`` (``fcntl.flock``,
+released by the kernel even on ``kill -9``) refuses a second server on the same output directory.
 """
 
 from __future__ import annotations
@@ -54,8 +50,7 @@ class Replay:
 
 
 def read_journal(path: Path) -> Replay:
-    """The edits of a journal (empty when there is none); a line that is not JSON or fails its
-    CRC-32 (a write cut short by a crash, or damage) is skipped and listed in ``damaged``."""
+    """A journal's edits; a line that is not JSON or fails its CRC-32 is listed in ``damaged``."""
     replay = Replay()
     if not path.is_file():
         return replay
@@ -88,8 +83,7 @@ class EditJournal:
 
     def append(self, record: dict, sidecar_revision: int, *, durable: bool = True) -> None:
         """Write one edit and flush it (survives the server's death); fsync it too when
-        ``durable`` (survives the machine's). The page sends ``durable=False`` only for a drag's
-        intermediate positions. An edit that cannot be stored is an OutputError (one line)."""
+        ``durable`` (survives the machine's: all but a drag's intermediate positions)."""
         try:
             if self._file is None:
                 new = not self.path.exists() or self.path.stat().st_size == 0
@@ -141,12 +135,8 @@ def _fsync_dir(directory: Path) -> None:
 
 
 class SidecarLock:
-    """One ``flylib gui`` per sidecar: an exclusive ``flock`` on ``<sidecar>.lock``.
-
-    :meth:`acquire` raises OutputError when another live process holds it (naming its host and
-    pid); a lock that cannot be created (read-only directory) is not an error: such a session
-    cannot save either, and says so on each edit.
-    """
+    """One ``flylib gui`` per sidecar: an exclusive ``flock`` on ``<sidecar>.lock``; a lock that
+    cannot be created (read-only directory) is no error: such a session cannot save either."""
 
     def __init__(self, sidecar: Path):
         self.path = lock_path(Path(sidecar))

@@ -48,13 +48,8 @@ def serve(
     footage_dir: str | Path | None = None,
 ) -> None:
     """Open the recording (its output directory or ``results.h5``) and serve the GUI until
-    interrupted.
-
-    Bound to localhost by default (from another machine: ``ssh -L 8765:localhost:8765 node``); any
-    other ``host`` requires an access ``token`` (default: random), part of the printed URL. A busy
-    ``port`` is replaced by a free one. ``footage_dir``: the folder holding the videos when it is
-    not where the result says.
-    """
+    interrupted; any ``host`` but localhost requires an access ``token`` (default: random, part of
+    the printed URL). A busy ``port`` is replaced by a free one."""
     import uvicorn
 
     from .app import create_app

@@ -1,14 +1,11 @@
 """The state behind ``flylib gui``: one recording's result, its footage and the edits.
 
-A point is solved from the 2D triangulation read (pictorial structures' when that stage ran, else
-pose2d's) with the corrections applied; every edit re-solves that (frame, point) with
-:func:`flylib.pipeline.triangulation.compute_triangulation` on the final rig and the run's own
-``triangulation`` table, so the page shows what the workflow computes after saving.
-``results.h5`` is only read; the only files written are the corrections sidecar inside the output
-directory and, beside it, its edit journal and lock (:mod:`flylib.gui.journal`): every edit is
-journaled (fsync'd) before it is applied and replayed by the next session when not saved. One
-revision number counts the session's edits, so a page whose revision is behind is told and
-refreshed instead of overwriting what another tab did.
+Every edit re-solves its (frame, point) from the 2D triangulation read (pictorial structures' or
+pose2d's), corrections applied, with :func:`~flylib.pipeline.triangulation.compute_triangulation`
+and the run's ``triangulation`` table: the page shows what the workflow computes after saving.
+``results.h5`` is only read; only the corrections sidecar (inside the output directory), its
+journal and lock (:mod:`flylib.gui.journal`) are written. A revision number counts the edits, so a
+page that is behind is refreshed instead of overwriting what another tab did.
 """
 
 from __future__ import annotations
@@ -29,8 +26,7 @@ from ..pipeline.triangulation import TriangulationInputs, compute_triangulation
 from .frames import FrameSource
 from .journal import EditJournal, SidecarLock, read_journal
 
-#: The edit operations a page may send; the journal records ``move3d`` as ``set3d`` (the 3D point),
-#: since its result depends on the 3D at the time of the edit.
+#: Edit ops a page may send; the journal records ``move3d`` as ``set3d`` (its 3D at edit time).
 EDIT_OPS = (
     "move",
     "move3d",
@@ -91,14 +87,11 @@ def _nan_to_none(arr: np.ndarray, digits: int = 3) -> list:
 
 
 class ReviewSession:
-    """One recording opened for review.
+    """One recording (``results.h5`` or its output directory) opened for review.
 
-    ``results`` is ``results.h5`` or its output directory. ``config`` defaults to the snapshot
-    ``<outdir>/config.yaml`` (``.toml``), else :meth:`flylib.config.Config.default`. ``footage``
-    (``view -> files``) defaults to what the config's ``sources`` find in the recording directory
-    the result names, or in ``footage_dir`` (``flylib gui --footage-dir``) when given.
-    :attr:`footage_missing` is the page's banner when a view has no footage (where it looked and
-    the fix), else ``""``.
+    ``config`` defaults to the run's snapshot in the outdir; ``footage`` (``view -> files``) to
+    what its ``sources`` find in the recording directory (or ``footage_dir``). When a view has no
+    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix).
     """
 
     def __init__(
@@ -123,7 +116,6 @@ class ReviewSession:
         if config is None:
             config = Config.of_outputs(self.outdir)
         self.config = config
-        # what every edit re-solves its point with: the triangulation stage's inputs
         self.triangulation_inputs = TriangulationInputs.from_config(config)
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
@@ -176,8 +168,7 @@ class ReviewSession:
         self._suspects_stale = True
         self.dirty = False  # edits not yet saved
         self.notice = ""  # what the page and the terminal say on start (a replayed journal)
-        # the suspects of the result as written, without this session's edits, so that
-        # "12 / 21 reviewed" counts the same after a restart
+        # the result's own suspects, so that "12 / 21 reviewed" counts the same after a restart
         self.review_items = self._find_suspects(self.base2d, None).items()
         self._replay_journal()
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
@@ -220,10 +211,9 @@ class ReviewSession:
         return path
 
     def footage_candidates(self, footage_dir: str | Path | None = None) -> list[Path]:
-        """Where the footage may be, in the order tried: ``footage_dir`` alone when given; else the
-        recording directory the result names (relative: from the current directory), its
-        ``recording_abspath``, and a relative one from the output directory and those above it (the
-        run's working directory is usually one of them)."""
+        """Where the footage may be, in order: ``footage_dir`` alone when given; else the recording
+        directory the result names, its ``recording_abspath``, and the named (relative) one from
+        the output directory and those above it (the run's working directory is usually one)."""
         if footage_dir is not None:
             return [Path(footage_dir).expanduser()]
         named = Path(self.recording_dir).expanduser() if self.recording_dir else None
@@ -235,8 +225,7 @@ class ReviewSession:
         return list(dict.fromkeys(candidates))
 
     def _find_footage(self, footage_dir: str | Path | None = None) -> dict[str, list[Path]]:
-        """Each view's footage from the first candidate directory holding any; what is missing
-        goes to :attr:`footage_missing` (and the log)."""
+        """Each view's footage from the first candidate holding any; else :attr:`footage_missing`."""
         from ..config.sources import footage_globs
         from ..interop.views import footage_files
 
@@ -349,8 +338,7 @@ class ReviewSession:
                 )
             c = self.corrections
             corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
-            # the last computed suspects (re-finding them is suspects()'s job): an edit's reply
-            # stays cheap on a long recording
+            # the cached suspects (suspects() re-finds them): an edit's reply stays cheap
             cached = self._suspects if self._suspects is not None else self.suspects()
             suspects = cached.records(frame=t)
             return {
@@ -391,8 +379,7 @@ class ReviewSession:
         )
 
     def review(self) -> dict:
-        """Each of :attr:`review_items` with ``done`` (every frame of it reviewed or corrected),
-        and the counts ``done`` / ``total``."""
+        """Each of :attr:`review_items` with ``done`` (all its frames reviewed or corrected)."""
         with self._lock:
             settled = self.corrections.reviewed | self.corrections.corrected_points()
             items = [
@@ -412,9 +399,7 @@ class ReviewSession:
 
     def save_check(self, worse_px: float = 2.0) -> dict:
         """What the edits made worse, said before saving: ``worse`` (corrected points whose largest
-        reprojection error over the views grew by more than ``worse_px`` pixels) and
-        ``new_suspects`` (suspects the result did not have), at most 10 lines each, and ``count``
-        of both in all."""
+        error grew by more than ``worse_px``) and ``new_suspects``, 10 lines each, and ``count``."""
         names = self.skeleton.point_names
         with self._lock:
             corrected = self.corrections.corrected_points()
@@ -468,23 +453,18 @@ class ReviewSession:
         revision: int | None = None,
         durable: bool = True,
     ) -> dict:
-        """Check one edit, journal it (fsync'd), apply it and re-solve what it touched.
+        """Check one edit, journal it, apply it and re-solve what it touched; :meth:`points` of
+        the frame plus ``solve_ms`` and ``journal_ms``.
 
-        ``op``: ``move`` (Edit 2D: place the point at ``xy`` in ``view``), ``move3d`` (Edit 3D:
-        move the 3D point to the closest point on ``xy``'s ray in ``view``), ``invisible`` (drop it
-        in ``view``), ``reset_point`` (``view`` given: that view only; else every view and its 3D
-        edit), ``reset_view``, ``reset_frame``, or ``reviewed`` / ``unreviewed`` (set or clear the
-        review mark, stored in the sidecar, nothing re-solved). ``frame`` and ``point`` are
-        integers (not booleans), ``xy`` two finite raw-frame pixel coordinates inside the view's
-        image. ``fixed`` (``move`` only) marks the placed point always kept by the robust
-        triangulation (the seed GUI's "finalized"). ``revision`` is the one the page last saw: an
-        older one raises :class:`StaleRevision`, so a stale tab never overwrites a newer edit.
-        ``durable=False`` only flushes the journal line (survives a server crash, not a machine
-        crash): the page's intermediate drag positions, whose final one comes durable.
-
-        Returns :meth:`points` of the frame (with the new ``revision``) plus ``solve_ms`` and
-        ``journal_ms``. Raises KeyError / IndexError / ValueError for a bad view, index, op or
-        coordinate, and OutputError when the journal cannot be written (the edit is not applied).
+        ``op``: ``move`` (Edit 2D: place the point at ``xy`` in ``view``), ``move3d`` (Edit 3D: the
+        3D point to the closest point on ``xy``'s ray), ``invisible`` (drop it in ``view``),
+        ``reset_point`` (in ``view``, else everywhere with its 3D edit), ``reset_view``,
+        ``reset_frame``, ``reviewed`` / ``unreviewed`` (the review mark, nothing re-solved).
+        ``xy``: raw-frame pixels inside the view's image. ``fixed`` (``move``): the robust
+        triangulation always keeps the point. ``revision``: the page's; an older one raises
+        :class:`StaleRevision`. ``durable=False`` (a drag's intermediate positions) only flushes
+        the journal line. Bad arguments raise KeyError / IndexError / ValueError; a journal that
+        cannot be written, OutputError (the edit is not applied).
         """
         with self._lock:
             self._check_revision(revision)
@@ -609,8 +589,7 @@ class ReviewSession:
             applied += 1
         self.revision += applied
         self.dirty = applied > 0
-        # counted as Save counts them (points), not journal lines (a drag journals
-        # each of its positions)
+        # counted as Save counts them (points), not journal lines (a drag journals each position)
         changed, marks = _changes(before, self.corrections)
         steps = f", {applied} journal steps" if applied != changed else ""
         marks_text = f" and {marks} review mark(s)" if marks else ""
@@ -672,12 +651,8 @@ class ReviewSession:
         return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
 
     def save(self, *, revision: int | None = None) -> Path:
-        """Write the corrections sidecar atomically inside the outdir, then drop the journal.
-
-        A save from a page whose ``revision`` is behind raises :class:`StaleRevision` (nobody saves
-        what they have not seen); a sidecar that cannot be written raises OutputError (one line),
-        the edits staying in memory and in the journal.
-        """
+        """Write the corrections sidecar atomically, then drop the journal; a page that is
+        behind gets :class:`StaleRevision`, an unwritable sidecar OutputError (edits kept)."""
         with self._lock:
             self._check_revision(revision)
             self.corrections.revision = self.revision
@@ -699,8 +674,7 @@ class ReviewSession:
     # -- background prefetch ---------------------------------------------------------------
 
     def visit(self, frame: int) -> None:
-        """The user is at ``frame``: warm the cache for the neighbouring suspect frames (where
-        ``n`` / ``p`` go next) in the background, with each view's spare decoder."""
+        """The user is at ``frame``: prefetch the neighbouring suspect frames (``n`` / ``p``)."""
         if self._suspects is None:
             return
         frames = self._suspects.frames
@@ -743,8 +717,7 @@ _MAX_INT = 2**63 - 1
 
 
 def shown(value: Any) -> str:
-    """``value`` quoted in a message: at most 40 characters, a long number as its first digits
-    and its length (a request may carry a 4,000-digit integer)."""
+    """``value`` quoted in a message: at most 40 characters, a long number shortened."""
     text = str(value)
     if isinstance(value, int) and len(text) > 24:
         return f"{text[:12]}...({len(text.lstrip('-'))} digits)"
@@ -769,8 +742,7 @@ def _integer(name: str, value: Any) -> int:
 
 
 def _finite(name: str, value: int | float, what: str) -> float:
-    """``value`` as a finite float; too large an integer (JSON allows any length) or a non-finite
-    number is a ``ValueError``, never an ``OverflowError``."""
+    """``value`` as a finite float; else a ``ValueError`` (never an ``OverflowError``)."""
     try:
         number = float(value)
     except OverflowError:
@@ -781,8 +753,7 @@ def _finite(name: str, value: int | float, what: str) -> float:
 
 
 def _changes(before: Corrections, after: Corrections) -> tuple[int, int]:
-    """How many point edits (as :meth:`~flylib.corrections.Corrections.count` counts them) and
-    review marks differ."""
+    """How many point edits (as ``Corrections.count`` counts them) and review marks differ."""
 
     def differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return ~((a == b) | (np.isnan(a) & np.isnan(b))).all(-1)

@@ -1,11 +1,6 @@
-"""Panel compositor and the streaming video renderer.
-
-:class:`Compositor` draws one video's panels, in order, onto a preallocated canvas from one
-frame's inputs (plain NumPy: frames, 2D points, reprojected 3D points). :func:`render_videos`
-streams a recording through every video's compositor in a single pass: each camera's footage is
-decoded once per frame (in a background thread, a few frames ahead), every video's canvas is drawn
-and handed to its H.264 encoder, and nothing but the result arrays scales with the recording.
-"""
+"""Panel compositor (one video's panels onto a reused canvas from plain NumPy inputs) and the
+streaming renderer (footage decoded once per frame a few frames ahead, every video's canvas drawn
+and encoded: nothing but the result arrays scales with the recording)."""
 
 from __future__ import annotations
 
@@ -76,12 +71,8 @@ class _Panel:
 
 
 class Compositor:
-    """Draws the panels of one :class:`VideoSpec` onto a reused canvas.
-
-    ``image_sizes``: ``view -> (height, width)`` of each used view's raw frames, which size the
-    panels and map raw-frame pixels into them. A panel off an explicitly sized canvas is a
-    ConfigError.
-    """
+    """Draws the panels of one :class:`VideoSpec` onto a reused canvas; ``image_sizes``
+    (``view -> (height, width)`` of raw frames) sizes the panels."""
 
     def __init__(self, spec: VideoSpec, skeleton, image_sizes: Mapping[str, tuple[int, int]]):
         self.spec = spec
@@ -91,8 +82,7 @@ class Compositor:
         self.panels = [
             _Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background) for p in spec.panels
         ]
-        # one view name per panel area (an imshow panel and the skeleton over it share one),
-        # written last so that nothing covers it
+        # one view name per panel area, written last so that nothing covers it
         self.labelled = list(
             {(p.slices[0].start, p.slices[1].start): p for p in self.panels}.values()
         )
@@ -108,14 +98,11 @@ class Compositor:
     ) -> np.ndarray:
         """Draw one output frame; the canvas ``(height, width, 3)`` uint8 (reused: copy to keep).
 
-        ``frames``: ``view -> (H, W, 3)`` uint8 RGB (any size: resized to the panel), ``None`` or
-        absent (an ``imshow`` panel shows its background). ``points2d``: ``view -> (P, 2)``
-        raw-frame pixels, NaN = missing. ``points3d``: ``view -> (xy (P, 2), depth (P,))``, the 3D
-        points projected into the view and their camera-frame depths. ``resized``: resized frames
-        keyed ``(view, width, height)``; share one dict between compositors drawing the same
-        frame so each view is resized once. ``corrected``: ``(P,)`` bool, points a person
-        corrected (ringed). ``stamp``: frame number and time, lower-left when ``labels`` is on.
-        """
+        ``frames``: ``view -> (H, W, 3)`` uint8 RGB (any size) or ``None``; ``points2d``:
+        ``view -> (P, 2)`` raw-frame pixels, NaN = missing; ``points3d``: ``view -> (xy (P, 2),
+        depth (P,))``, reprojected with camera-frame depths; ``resized``: a cache keyed ``(view,
+        width, height)``, shared by compositors drawing the same frame; ``corrected``: ``(P,)``
+        bool, ringed; ``stamp``: written lower-left when ``labels`` is on."""
         canvas = self.canvas
         np.copyto(canvas, self._blank)
         if resized is None:
@@ -159,8 +146,7 @@ class Compositor:
 
 
 def frame_stamp(t: int, n_frames: int, fps: float | None) -> str:
-    """``"frame 12 / 59   0.120 s"``: a frame's index (from 0, as in results.h5 and the CSV
-    exports) and, when the recording's rate is known, its time."""
+    """``"frame 12 / 59   0.120 s"`` (from 0, as in results.h5; the time when ``fps`` is known)."""
     text = f"frame {t} / {n_frames - 1}"
     return f"{text}   {t / fps:.3f} s" if fps else text
 
@@ -176,9 +162,6 @@ def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(
         frame, (width, height), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
     )
-
-
-# -- footage ------------------------------------------------------------------
 
 
 class _Footage:
@@ -200,8 +183,7 @@ class _Footage:
 
 
 def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
-    """Yield ``{view: frame}`` for frames ``0..n_frames-1``; footage ending before or going on
-    after is a :class:`FootageError`."""
+    """``{view: frame}`` for each frame; footage shorter or longer is a :class:`FootageError`."""
     iters = {view: iter(src) for view, src in sources.items()}
 
     def mismatch(view: str, count: str) -> FootageError:
@@ -226,8 +208,7 @@ def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
 
 @contextlib.contextmanager
 def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
-    """Iterate ``items`` in a background thread (this one under a one-thread budget), at most
-    ``depth`` ahead of the consumer."""
+    """Iterate ``items`` in a background thread (if CPUs allow), at most ``depth`` ahead."""
     if usable_cpus() == 1:
         yield iter(items)
         return
@@ -269,12 +250,8 @@ def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
         worker.join(timeout=5)
 
 
-# -- 3D reprojection ----------------------------------------------------------
-
-
 class _Reprojector:
-    """Projection of ``pts3d`` into the views of ``skeleton_3d`` panels, :data:`PROJECT_CHUNK`
-    frames at a time: raw-frame pixels and camera-frame depths (z along the optical axis)."""
+    """``pts3d`` projected into views, in chunks: raw-frame pixels and camera-frame depths (z)."""
 
     def __init__(
         self, cameras, pts3d: np.ndarray, views: Sequence[str], chunk: int = PROJECT_CHUNK
@@ -300,17 +277,10 @@ class _Reprojector:
         return {v: (self._xy[i, k], self._depth[i, k]) for i, v in enumerate(self._views)}
 
 
-# -- output files -------------------------------------------------------------
-
-
 class CanvasEncoder:
-    """Streams RGB canvases into an H.264 MP4 (libx264, :data:`X264_SETTINGS`).
-
-    Same container and codec as :class:`flylib.io.VideoWriter`, but faster: the RGB -> YUV 4:2:0
-    conversion runs in OpenCV (``COLOR_RGB2YUV_I420``, BT.601 limited range like FFmpeg's own)
-    instead of swscale, and encoding runs in a worker thread (PyAV releases the GIL inside x264),
-    at most :data:`ENCODE_QUEUE` frames behind, overlapping decoding and drawing.
-    """
+    """Streams RGB canvases into an H.264 MP4, like :class:`flylib.io.VideoWriter` but faster:
+    RGB -> YUV 4:2:0 in OpenCV (BT.601 limited range like FFmpeg's) instead of swscale, and
+    encoding in a worker thread (PyAV releases the GIL in x264) beside decoding and drawing."""
 
     def __init__(self, path: Path, fps: float, width: int, height: int):
         import av
@@ -377,9 +347,6 @@ class CanvasEncoder:
             self._container.close()
 
 
-# -- entry point --------------------------------------------------------------
-
-
 def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> dict:
     """``view -> (height, width)``: from footage, stored sizes, or the principal point."""
     meta_sizes = {
@@ -420,7 +387,6 @@ def _open_footage(
     footage: Mapping[str, Sequence[Path]] | None,
     on_corrupt: str,
 ) -> dict[str, _Footage]:
-    """Open each view's footage (closed with ``stack``); warn about views without any."""
     sources = {}
     for view in views:
         files = footage.get(view) if footage else None
@@ -449,8 +415,7 @@ def _open_writers(
     rates: tuple[Mapping, float | None, float | None],
     n_frames: int,
 ) -> list[CanvasEncoder]:
-    """One encoder per video, writing to a temporary file renamed when ``stack`` closes without
-    error; ``rates``: :func:`resolve_output_fps`'s table, footage rate and fallback ``speed``."""
+    """One encoder per video, into a temporary file renamed when ``stack`` closes cleanly."""
     writers = []
     for spec, comp, path in zip(specs, compositors, paths):
         fps = resolve_output_fps(spec, *rates)
@@ -480,32 +445,13 @@ def render_videos(
     speed: float | None = None,
     on_corrupt: str = "error",
 ) -> list[Path]:
-    """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording.
+    """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording, in one
+    pass over the footage; the written ``<outdir>/<video_name>.mp4`` in spec order.
 
-    All videos are rendered in one pass over the footage: each frame of each used camera is
-    decoded once, drawn into every video's canvas and streamed to its encoder, so memory does not
-    grow with the recording's length. Returns the written videos in spec order. Raises ConfigError
-    for an invalid spec (naming ``visualization.videos[i].panels[j]``) and FootageError for
-    missing or unreadable footage.
-
-    Parameters
-    ----------
-    table
-        The config's ``visualization`` table.
-    result
-        The :class:`flylib.PoseResult` to draw.
-    footage
-        ``view name -> footage files`` (one video, or an ordered image sequence) for ``imshow``
-        panels; a view without footage draws the background, with a warning.
-    outdir
-        Directory for ``<video_name>.mp4`` (created if needed).
-    corrected
-        ``(T, P)`` bool: points a person corrected, drawn with a ring; ``None``: no rings.
-    speed
-        Multiple of the recording's rate when the config sets no rate (the demo's slow motion).
-    on_corrupt
-        What a corrupt footage image becomes (``io.on_corrupt_frame``): ``"error"`` or
-        ``"missing"`` (the background).
+    ``footage``: ``view -> files`` (one video, or an ordered image sequence), a view without any
+    drawing the background (with a warning); ``corrected``: ``(T, P)`` bool, ringed; ``speed``:
+    multiple of the recording's rate when the config sets none; ``on_corrupt``:
+    ``io.on_corrupt_frame``. A bad spec is a ConfigError, unreadable footage a FootageError.
     """
     from tqdm.auto import tqdm
 

@@ -1,9 +1,7 @@
 """Video and panel specs: parsing and validating ``[visualization]``, merging draw kwargs.
 
-A video is an ordered list of panels drawn onto one canvas. Each panel names a ``plot``
-(``imshow``, ``skeleton_2d`` or ``skeleton_3d``), the ``view`` (camera) it shows, its top-left
-corner ``x0, y0`` on the canvas and optional draw kwargs, which merge over five levels, the most
-specific winning::
+A video is an ordered list of panels drawn onto one canvas, each a ``plot`` of a ``view`` at
+``x0, y0`` with optional draw kwargs, which merge over five levels, the most specific winning::
 
     [visualization.kwargs]                 flat keys: every plot
     [visualization.kwargs.<plot>]          one plot type
@@ -11,7 +9,7 @@ specific winning::
     [[visualization.videos]].kwargs.<plot> one plot type in that video
     the panel's own keys
 
-``palette`` tables merge key by key (limb -> colour) instead of replacing each other.
+``palette`` tables (limb -> colour) merge key by key.
 """
 
 from __future__ import annotations
@@ -63,8 +61,7 @@ RGB = tuple[int, int, int]
 
 
 def parse_color(value: Any, where: str) -> RGB:
-    """Any colour matplotlib understands (``"black"``, ``"#ba1e31"``, ``"C3"``) or ``[r, g, b]``
-    (0-255) as an RGB tuple; else a :class:`ConfigError` naming the config key ``where``."""
+    """A matplotlib colour (``"black"``, ``"#ba1e31"``, ``"C3"``) or ``[r, g, b]`` (0-255) as RGB."""
     if isinstance(value, (list, tuple)):
         if len(value) == 3 and all(isinstance(c, (int, float)) and 0 <= c <= 255 for c in value):
             return tuple(int(round(c)) for c in value)  # type: ignore[return-value]
@@ -82,16 +79,10 @@ def parse_color(value: Any, where: str) -> RGB:
 
 @dataclass(frozen=True)
 class PanelSpec:
-    """One panel of a video: what to draw, from which view, where, and how.
-
-    ``plot``: ``"imshow"`` (the view's frame), ``"skeleton_2d"`` (the view's 2D points and bones)
-    or ``"skeleton_3d"`` (the 3D skeleton reprojected into the view). ``x0, y0``: top-left corner
-    on the canvas. ``point_radius`` (0: no joints) and ``line_thickness`` are in canvas pixels;
-    ``width``/``height`` (one alone keeps the view's aspect ratio), then ``scale``, size the panel
-    (:meth:`size`). ``palette``: ``limb -> RGB`` overrides. ``background``: RGB fill before
-    drawing, or ``None`` (transparent overlay; an ``imshow`` panel without footage then uses the
-    video background). ``where``: the panel's config key, for error messages.
-    """
+    """One panel: ``plot`` (``imshow`` the view's frame, ``skeleton_2d`` its 2D, ``skeleton_3d``
+    the 3D reprojected) of ``view`` with its top-left corner at ``x0, y0``, sizes in canvas pixels
+    (:meth:`size`). ``background`` ``None``: a transparent overlay (an ``imshow`` panel without
+    footage uses the video's); ``where``: the config key, for error messages."""
 
     plot: str
     view: str
@@ -130,14 +121,9 @@ class PanelSpec:
 
 @dataclass(frozen=True)
 class VideoSpec:
-    """One output video (``<outdir>/<name>.mp4``): panels in drawing order (later over earlier),
-    canvas and output rate.
-
-    ``width``/``height`` ``None``: the canvas is the union of the panels. ``output_fps``
-    (frames/s) or ``speed`` (a multiple of the input rate): at most one set, neither: the
-    recording's rate. ``labels`` (``visualization.labels``): write each panel's view name in its
-    corner and the frame number and time lower-left. ``where``: the config key, for errors.
-    """
+    """One output video (``<outdir>/<name>.mp4``): panels in drawing order, canvas and rate
+    (``output_fps`` or ``speed``, a multiple of the input rate; neither: the recording's).
+    ``labels``: view names and the frame stamp written on the canvas."""
 
     name: str
     panels: tuple[PanelSpec, ...]
@@ -258,8 +244,7 @@ def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
 
 
 def video_specs(config: Config) -> list[VideoSpec]:
-    """The output videos ``config`` asks for, their views checked against its ``cameras`` table
-    (when it has one)."""
+    """The output videos ``config`` asks for, views checked against its ``cameras`` table."""
     cameras = config.data.get("cameras")
     views = [k for k in cameras if k != "defaults"] if isinstance(cameras, Mapping) else None
     return read_video_specs(config.visualization, view_names=views)
@@ -268,14 +253,9 @@ def video_specs(config: Config) -> list[VideoSpec]:
 def read_video_specs(
     table: Mapping[str, Any] | None, view_names: Sequence[str] | None = None
 ) -> list[VideoSpec]:
-    """Parse and validate ``[[visualization.videos]]`` into :class:`VideoSpec` objects.
-
-    ``table``: the raw ``visualization`` table (``None``: no videos); ``view_names``: the rig's
-    cameras (``None``: views not checked). Returns one spec per video in config order, draw kwargs
-    merged into each panel. Raises :class:`ConfigError` naming
-    ``visualization.videos[i].panels[j]`` for an unknown plot, a view not in the rig, a panel off
-    the canvas, or any malformed key.
-    """
+    """Parse and validate ``[[visualization.videos]]`` (the ``visualization`` table) into one
+    :class:`VideoSpec` per video, draw kwargs merged; views are checked when ``view_names`` is
+    given. A bad key is a :class:`ConfigError` naming ``visualization.videos[i].panels[j]``."""
     table = {} if table is None else table
     if not isinstance(table, Mapping):
         raise ConfigError("visualization must be a table")
@@ -435,14 +415,10 @@ def default_fps(table: Mapping) -> float:
 def resolve_output_fps(
     video: VideoSpec, table: Mapping, input_fps: float | None, speed: float | None = None
 ) -> float:
-    """The frame rate to encode ``video`` at.
-
-    Precedence: the video's ``output_fps``/``speed``, the global ones, the ``speed`` argument (the
-    demo's slow motion), then the recording's rate; ``speed`` multiplies the input rate
-    (``input_fps``: the footage container's, ``None``: unknown). An input rate unknown or outside
-    :data:`PLAUSIBLE_FPS` (the DeepFly3D sample's container says 0.2 fps) is replaced by
-    ``visualization.default_fps`` with a warning. ``table``: the raw ``visualization`` table.
-    """
+    """The frame rate to encode ``video`` at: its ``output_fps``/``speed``, the global ones, the
+    ``speed`` argument, else the recording's rate. ``speed`` multiplies the input rate; one unknown
+    or outside :data:`PLAUSIBLE_FPS` (the DeepFly3D sample says 0.2 fps) is replaced by
+    ``visualization.default_fps`` with a warning."""
     default_speed = speed
     fps, speed = video.output_fps, video.speed
     if fps is None and speed is None:
