@@ -37,6 +37,8 @@ from .constants import (
     TETHERED_RIGID_POINTS,
     TRIANGULATION_METHODS,
 )
+from .neuromechfly import NeuromechflyParams
+from .postprocessing import KinematicsParams, RefinementParams
 
 
 @dataclass(frozen=True)
@@ -54,8 +56,8 @@ class Pose2dParams:
     device
         ``auto`` (CUDA, then Apple MPS, then CPU) or a torch device string (performance only).
     compile
-        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``,
-        ``false`` or ``auto`` (when it beats eager for the recording; performance only).
+        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``, ``false``
+        or ``auto`` (when it beats eager for the recording; performance only).
     """
 
     precision: str = param("bfloat16", choice(*PRECISIONS))
@@ -83,15 +85,15 @@ class TriangulationParams:
     Attributes
     ----------
     method
-        ``ransac`` (largest consistent view set), ``greedy`` (drop the worst view
-        while over ``reproj_threshold``) or ``dlt`` (plain least squares).
+        ``ransac`` (largest consistent view set), ``greedy`` (drop the worst view while over
+        ``reproj_threshold``) or ``dlt`` (plain least squares).
     weigh_by_confidence
         Scale each view's equations by ``sqrt(conf)``.
     ransac_threshold, min_inliers
         ``ransac``: inlier reprojection radius in pixels and minimum agreeing views.
     reproj_threshold, max_drops
-        ``greedy``: reprojection error in pixels that triggers a drop, and the most
-        views dropped per point.
+        ``greedy``: reprojection error in pixels that triggers a drop, and the most views dropped
+        per point.
     """
 
     method: str = param("ransac", choice(*TRIANGULATION_METHODS))
@@ -187,32 +189,29 @@ class BundleAdjustmentParams:
         ``lm`` (Levenberg-Marquardt on the reduced camera system) or ``scipy``
         (``scipy.optimize.least_squares``).
     distortion
-        ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or
-        ``fixed``.
+        ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or ``fixed``.
     max_rounds, outlier_factor, outlier_min_px
-        Outlier rounds: observations beyond ``outlier_factor`` x the median error (at
-        least ``outlier_min_px``) sit out; repeated until the inlier set is stable.
+        Outlier rounds: observations beyond ``outlier_factor`` x the median error (at least
+        ``outlier_min_px``) sit out; repeated until the inlier set is stable.
     reseed_px
-        Cameras whose starting median error exceeds this are resected by PnP first
-        (null: never).
+        Cameras whose starting median error exceeds this are resected by PnP first (null: never).
     bone_lengths, symmetric_bones, length_weight
-        One unknown length per bone over all frames (left = right with
-        ``symmetric_bones``), ``length_weight`` px per 100 % deviation.
+        One unknown length per bone over all frames (left = right with ``symmetric_bones``),
+        ``length_weight`` px per 100 % deviation.
     rigid_points
-        Points that do not move over the recording when the body is fixed (a tethered
-        fly's thorax-coxa joints); used only if the starting triangulation shows them
-        still.
+        Points that do not move over the recording when the body is fixed (a tethered fly's
+        thorax-coxa joints); used only if the starting triangulation shows them still.
     warn_ratio
-        Warn when the reduced Hessian's weakest non-gauge direction is below this
-        fraction of its strongest.
+        Warn when the reduced Hessian's weakest non-gauge direction is below this fraction of its
+        strongest.
     session
         Bundle-adjust the recordings of one session (one rig) together: one solve over
-        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per
-        session that every member's later stages read (:mod:`flylib.sessions`). The
-        per-recording solve is unchanged by it (its params leave this key out).
+        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per session that
+        every member's later stages read (:mod:`flylib.sessions`). The per-recording solve is
+        unchanged by it (its params leave this key out).
     least_squares
-        Every other key of the table, passed through to ``scipy.optimize.least_squares``
-        (e.g. ``max_nfev``, ``loss``, ``f_scale``).
+        Every other key of the table, passed through to ``scipy.optimize.least_squares`` (e.g.
+        ``max_nfev``, ``loss``, ``f_scale``).
     """
 
     points_to_use: tuple[str, ...] | None = param(None, string_list(nullable=True), kind=tuple)
@@ -248,6 +247,14 @@ class BundleAdjustmentParams:
         kwargs["rigid_points"] = [p for p in self.rigid_points if p in names]
         return {**kwargs, **self.least_squares}
 
+    @classmethod
+    def from_table(cls, table: Mapping) -> BundleAdjustmentParams:
+        """The table's own keys as fields; every other key goes to ``least_squares``."""
+        own = {f.name for f in fields(cls)}
+        leftovers = {k: v for k, v in table.items() if k not in own}
+        params = build_params(cls, {k: v for k, v in table.items() if k in own})
+        return cls(**{**params.__dict__, "least_squares": leftovers})
+
 
 @dataclass(frozen=True)
 class IoParams:
@@ -258,13 +265,20 @@ class IoParams:
     image_workers
         Threads decoding image sequences; ``None`` lets the reader choose.
     on_corrupt_frame
-        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's
-        job naming the file; ``"missing"`` warns and marks the frame missing (all its
-        2D NaN). Not performance only: ``missing`` is part of pose2d's params.
+        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's job naming the
+        file; ``"missing"`` warns and marks the frame missing (all its 2D NaN). Not performance
+        only: ``missing`` is part of pose2d's params.
     """
 
     image_workers: int | None = None
     on_corrupt_frame: str = "error"
+
+    @classmethod
+    def from_table(cls, table: Mapping) -> IoParams:
+        """``io.image.workers`` (0 means let the reader choose) and ``io.on_corrupt_frame``."""
+        workers = (table.get("image") or {}).get("workers")
+        on_corrupt = table.get("on_corrupt_frame") or "error"
+        return cls(image_workers=workers or None, on_corrupt_frame=on_corrupt)
 
 
 LEAST_SQUARES_CHECKS: dict[str, Check] = {
@@ -333,3 +347,18 @@ def build_params(cls: type, table: Mapping) -> Any:
             value = tuple(tuple(v) if isinstance(v, (list, tuple)) else v for v in value)
         kwargs[f.name] = value
     return cls(**kwargs)
+
+
+#: Config table name -> its typed params dataclass: what :meth:`Config.params
+#: <flylib.config.Config.params>` builds, :func:`~flylib.config.validate_config` checks and
+#: the docs' config reference describes.
+PARAM_TABLES: dict[str, type] = {
+    "pose2d": Pose2dParams,
+    "io": IoParams,
+    "bundle_adjustment": BundleAdjustmentParams,
+    "pictorial_structures": PictorialParams,
+    "triangulation": TriangulationParams,
+    "refinement": RefinementParams,
+    "kinematics": KinematicsParams,
+    "neuromechfly": NeuromechflyParams,
+}

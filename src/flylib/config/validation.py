@@ -11,18 +11,20 @@ from ..errors import did_you_mean, unknown_key
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import boolean, got, integer, is_int, mapping, non_finite_problems
 from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, SUBPIXEL_METHODS, TOP_LEVEL_KEYS
-from .neuromechfly import NeuromechflyParams
 from .nwb_metadata import metadata_problems
 from .params import (
     LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
+    PARAM_TABLES,
     BundleAdjustmentParams,
-    PictorialParams,
     Pose2dParams,
-    TriangulationParams,
     table_problems,
 )
-from .postprocessing import RefinementParams, kinematics_problems
+from .postprocessing import kinematics_problems
+
+#: The :data:`~.params.PARAM_TABLES` tables checked by their own code below; every other
+#: one is checked by :func:`~.params.table_problems` alone, in that map's order.
+OWN_CHECKS = ("pose2d", "bundle_adjustment", "kinematics", "io")
 
 
 def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, dict]:
@@ -226,12 +228,9 @@ def validate_config(data: Any) -> list[str]:
         problems += _plan_problems(data, point_names, view_names)
 
     problems += _bundle_adjustment_problems(table("bundle_adjustment"), point_names)
-    problems += table_problems(
-        table("pictorial_structures"), PictorialParams, "pictorial_structures"
-    )
-    problems += table_problems(table("triangulation"), TriangulationParams, "triangulation")
-    problems += table_problems(table("refinement"), RefinementParams, "refinement")
-    problems += table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
+    for name, cls in PARAM_TABLES.items():
+        if name not in OWN_CHECKS:
+            problems += table_problems(table(name), cls, name)
     rigid = table("refinement").get("rigid_points")
     if isinstance(rigid, list) and point_names:
         for point in rigid:
