@@ -1,12 +1,11 @@
 """Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
 
-Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the
-one place it is written: the algorithms' keyword defaults read it from the class, e.g.
-``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's
-params track every field, except one declared with ``track_default=False``: such a field
-is tracked only when set to something other than its default. Give a new knob that
-marker, so the results made before it existed keep their params hash (a config that
-leaves it at its default re-runs nothing).
+Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the one place
+it is written: the algorithms' keyword defaults read it from the class, e.g.
+``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's params track
+every field, except one declared with ``track_default=False``, tracked only when not at its
+default. Give a new knob that marker, so the results made before it existed keep their params
+hash (a config that leaves it at its default re-runs nothing).
 """
 
 from __future__ import annotations
@@ -67,10 +66,9 @@ class Pose2dParams:
     compile: bool | str = param("auto", choice(True, False, "auto"))
 
 
-#: Each triangulation method's own knobs: the ``triangulation`` table's key -> the keyword
-#: of the method's function it becomes. The one map from a method to what it reads: the
-#: stage's params track these keys, :func:`flylib.triangulation.reconstruct` passes these
-#: keywords.
+#: Each triangulation method's own knobs: ``triangulation`` table key -> the keyword of the
+#: method's function it becomes. The stage's params track these keys,
+#: :func:`flylib.triangulation.reconstruct` passes these keywords.
 TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
     "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
     "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
@@ -104,8 +102,8 @@ class TriangulationParams:
     max_drops: int = param(5, integer(0))
 
     def method_params(self) -> dict[str, Any]:
-        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``),
-        as the stage tracks them (a ``track_default=False`` knob only when not at its default)."""
+        """The knobs the chosen ``method`` reads (plus ``weigh_by_confidence``), as the stage
+        tracks them (a ``track_default=False`` knob only when not at its default)."""
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
@@ -118,8 +116,7 @@ class TriangulationParams:
 
     def method_kwargs(self) -> dict[str, Any]:
         """The chosen ``method``'s knobs under its function's keyword names
-        (``threshold``, ``min_inliers`` of :func:`flylib.triangulation.triangulate_ransac`;
-        ``reproj_threshold``, ``max_drops`` of greedy; none for ``dlt``)."""
+        (:data:`TRIANGULATION_KNOBS`)."""
         return {
             keyword: getattr(self, name)
             for name, keyword in TRIANGULATION_KNOBS[self.method].items()
@@ -235,9 +232,9 @@ class BundleAdjustmentParams:
     least_squares: dict[str, Any] = field(default_factory=dict)
 
     def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
-        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`:
-        every field under its own name, ``rigid_points`` limited to the skeleton's
-        ``point_names``, the ``least_squares`` options flat (they reach the solver)."""
+        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`: every
+        field under its own name, ``rigid_points`` limited to ``point_names``, the
+        ``least_squares`` options flat (they reach the solver)."""
         kwargs = {
             f.name: getattr(self, f.name)
             for f in fields(self)
@@ -296,9 +293,9 @@ LEAST_SQUARES_CHECKS: dict[str, Check] = {
 }
 
 
-# The scipy.optimize.least_squares options a config may set (its signature minus the
-# arguments the bundle adjuster owns). Listed here rather than read from scipy so that
-# loading a config does not import scipy.optimize; a test checks it against scipy.
+# The scipy.optimize.least_squares options a config may set (its signature minus the arguments the
+# bundle adjuster owns). Listed rather than read from scipy so that loading a config does not
+# import scipy.optimize; a test checks it against scipy.
 LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
     "method",
     "ftol",

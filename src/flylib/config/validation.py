@@ -211,8 +211,7 @@ def validate_config(data: Any) -> list[str]:
         skeleton_issues = skeleton_problems(data["skeleton"])
         problems += skeleton_issues
         names = data["skeleton"].get("point_names")
-        # only a valid list names the points the other tables refer to (the skeleton
-        # check reports a bad one)
+        # only a valid list names the points other tables refer to (skeleton_problems reports)
         valid = isinstance(names, list) and all(isinstance(n, str) for n in names)
         point_names = tuple(names) if valid else ()
     else:
@@ -249,9 +248,8 @@ def validate_config(data: Any) -> list[str]:
 
 
 def _with_non_finite(problems: list[str], data: Mapping) -> list[str]:
-    """``problems`` plus one line per non-finite number: that line replaces the other
-    checks' line on the same key (or on the list holding the number), so each key gets
-    one line, and the root cause."""
+    """``problems`` plus one line per non-finite number, replacing the other checks' line on the
+    same key (or on the list holding the number): each key gets one line, the root cause."""
     non_finite = non_finite_problems(data)
     if not non_finite:
         return problems
@@ -261,8 +259,8 @@ def _with_non_finite(problems: list[str], data: Mapping) -> list[str]:
 
 
 def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
-    """Tables of the wrong kind (a list where a mapping belongs, ...): recorded in
-    ``problems``; returns their names, which the other checks then skip."""
+    """Tables of the wrong kind (a list where a mapping belongs, ...), recorded in ``problems``;
+    returns their names, which the other checks then skip."""
     table_kinds = {
         "io": mapping(),
         "skeleton": mapping(),
@@ -302,8 +300,8 @@ def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
 
 
 def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> list[str] | None:
-    """The rig's view names (``None`` when a calibration file names them); camera
-    entries that are not tables are recorded in ``problems``."""
+    """The rig's view names (``None`` when a calibration file names them); camera entries that
+    are not tables are recorded in ``problems``."""
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
         if not isinstance(spec, Mapping):
