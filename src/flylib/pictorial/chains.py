@@ -36,9 +36,8 @@ def bone_length_targets(
 
 
 def skeleton_chains(skeleton: Skeleton) -> list[list[int]]:
-    """The skeleton's bones as ordered simple chains, each walked from one end (isolated points
-    as singletons). A component of the bone graph that branches or loops is a ConfigError: exact
-    chain DP would not apply."""
+    """The skeleton's bones as simple chains walked from one end (isolated points as singletons);
+    a branch or loop is a ConfigError (exact chain DP would not apply)."""
     adjacency: dict[int, list[int]] = defaultdict(list)
     for a, b in np.asarray(skeleton.bones).reshape(-1, 2):
         adjacency[int(a)].append(int(b))

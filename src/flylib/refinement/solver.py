@@ -613,8 +613,7 @@ def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
 
 
 def _first_pass(source, chunk: int, opts: RefinementParams) -> tuple[np.ndarray, np.ndarray]:
-    """``seen`` ``(V, P)``: which views observe which points anywhere, and an evenly spread
-    sample ``(S, P, 3)`` of the starting frames, read chunk by chunk."""
+    """Which views see which points anywhere ``(V, P)``, and an even sample of ``start``."""
     n_frames, n_points = source.n_frames, source.n_points
     seen = np.zeros((source.n_views, n_points), bool)
     stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))

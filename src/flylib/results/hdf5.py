@@ -1,12 +1,6 @@
-"""Opening and creating HDF5 files: the one read-only opener, the version check, the meta.
-
-:func:`open_hdf5` is the one place an HDF5 file is opened for reading with one-line errors,
-flylib's own files (:class:`~flylib.errors.ResultsError`) and other tools'
-(:class:`~flylib.errors.ImportFormatError`) alike; a file of flylib's is checked whole
-(:func:`~flylib.results.guard.guard_file`) before anything is read from it. :func:`open_checked`
-opens a results or stage file, checks its format version, and turns damage met while reading it
-into one line. New files use HDF5 1.8's checksummed object headers (:func:`create_file`).
-"""
+"""Opening and creating HDF5 files: :func:`open_hdf5`, the one read-only opener (flylib's files
+and other tools', with one-line errors), :func:`open_checked` (the format-version check), the meta
+JSON, and :func:`create_file` (HDF5 1.8's checksummed object headers)."""
 
 from __future__ import annotations
 
