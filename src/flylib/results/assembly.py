@@ -35,10 +35,10 @@ def assemble_results(
     """Assemble ``results.h5`` atomically from ``stage_files`` (``stage -> artifact``; pose2d
     required): each stage group verified and copied verbatim, the config's ``skeleton`` and
     ``config_rig`` written as ``skeleton/`` and ``pose2d/cameras`` (so editing the rig never
-    invalidates detection) once their names match the pose2d artifact's (else a ResultsError,
-    as for a missing pose2d or an unreadable artifact). ``verify``: refuse a
-    file that contradicts itself (:func:`~flylib.results.invariants.require_consistent`);
-    ``False`` only for made-up arrays (tests of the assembly's mechanics, benchmarks)."""
+    invalidates detection) once their names match the pose2d artifact's (else a ResultsError, as
+    for a missing pose2d or an unreadable artifact). ``verify``: refuse a file that contradicts
+    itself (:func:`~flylib.results.invariants.require_consistent`); ``False`` only for made-up
+    arrays (tests of the assembly's mechanics, benchmarks)."""
     unknown = sorted(set(stage_files) - set(STAGE_GROUPS))
     if unknown:
         raise ValueError(
