@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,16 +19,7 @@ from ..config.sources import source_patterns, view_names, view_sources
 from ..errors import ConfigError
 from ..recordings.listing import TRUTH_FILE, dlc_filename
 from .assemble import AssembleInputs
-from .inputs import (
-    FULL_SKELETON,
-    RIG,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    frozen_mapping,
-    plain_json,
-    tracked,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs
 
 
 @dataclass(frozen=True)
@@ -92,10 +83,10 @@ class DemoInputs(StageInputs):
 
     STAGE = "demo"
 
-    settings: Mapping[str, Any] = tracked(key="demo")
+    settings: Mapping[str, Any] = field(metadata={"key": "demo"})
     sources: Any
-    rig: RigSpec = tracked(RIG)
-    skeleton: SkeletonSpec = tracked(FULL_SKELETON)
+    rig: RigSpec
+    skeleton: SkeletonSpec
     output_points: Mapping[str, Any] | None
     runtime: DemoLayout = DemoLayout()
 
@@ -118,11 +109,11 @@ class DemoInputs(StageInputs):
         assemble = AssembleInputs.from_config(config)
         output_points = (config.data.get("pose2d") or {}).get("output_points")
         return cls(
-            settings=frozen_mapping(demo_settings(config.data.get("demo"))),
-            sources=frozen_mapping(config.data.get("sources")),
+            settings=demo_settings(config.data.get("demo")),
+            sources=config.data.get("sources"),
             rig=assemble.rig,
             skeleton=assemble.skeleton,
-            output_points=frozen_mapping(output_points),
+            output_points=output_points,
             runtime=DemoLayout.from_config(config),
         )
 
@@ -157,7 +148,7 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
     """
     from ..demo import demo_settings, view_visibility, write_demo
 
-    settings = demo_settings({**plain_json(inputs.settings), **overrides})
+    settings = demo_settings({**inputs.settings, **overrides})
     skeleton = inputs.skeleton.skeleton()
     cameras = _orbit_rig(inputs.rig, (settings["height"], settings["width"]))
     layout = inputs.runtime
@@ -166,9 +157,7 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
         settings,
         skeleton,
         cameras,
-        view_visibility(
-            plain_json(inputs.output_points), list(cameras.names), skeleton.point_names
-        ),
+        view_visibility(inputs.output_points, list(cameras.names), skeleton.point_names),
         dict(layout.view_sources),
         dict(layout.source_files),
         layout.dlc_files,

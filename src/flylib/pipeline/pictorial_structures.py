@@ -15,16 +15,7 @@ from typing import TYPE_CHECKING
 
 from ..config.params import PictorialParams
 from ..errors import ResultsError
-from .inputs import (
-    OPTIONAL_RIG,
-    SKELETON,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    register,
-    tracked,
-    typed_params,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -63,9 +54,9 @@ class PictorialStructuresInputs(StageInputs):
 
     STAGE = "pictorial_structures"
 
-    pictorial_structures: PictorialParams = tracked(typed_params(PictorialParams))
-    skeleton: SkeletonSpec = tracked(SKELETON)
-    rig: RigSpec | None = tracked(OPTIONAL_RIG)
+    pictorial_structures: PictorialParams
+    skeleton: SkeletonSpec
+    rig: RigSpec | None
     runtime: RigRuntime = RigRuntime()
 
     @classmethod

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register
+from .inputs import SkeletonSpec, StageInputs, register
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class VisualizationInputs(StageInputs):
     def from_config(cls, config) -> VisualizationInputs:
         """The config's ``visualization`` table, palette and footage lookup."""
         return cls(
-            visualization=frozen_mapping(dict(config.visualization)),
+            visualization=dict(config.visualization),
             palette=SkeletonSpec.from_config(config, palette=True).palette,
             runtime=VisualizationRuntime.from_config(config),
         )
@@ -127,7 +127,7 @@ def run_visualization(
 
     result = PoseResult.load(results_path)
     return render_videos(
-        plain_json(inputs.visualization),
+        inputs.visualization,
         result,
         footage_files(inputs.runtime.footage, Path(recording_dir)),
         outdir,
