@@ -62,24 +62,11 @@ class DemoLayout:
 
 @dataclass(frozen=True)
 class DemoInputs(StageInputs):
-    """The demo recording's inputs.
-
-    Attributes
-    ----------
-    settings
-        :func:`flylib.demo.demo_settings`: the ``demo`` table over the defaults.
-    sources
-        The ``sources`` list.
-    rig
-        The config rig: the demo renders through its cameras' orbit (a calibration
-        file is not read).
-    skeleton
-        The whole skeleton (the fly38 points, limbs and palette drawn).
-    output_points
-        ``pose2d.output_points``: the points each view observes.
-    runtime
-        :class:`DemoLayout`.
-    """
+    """The demo recording's inputs: ``settings`` (:func:`flylib.demo.demo_settings`, the
+    ``demo`` table over the defaults), the ``sources`` list, the config ``rig`` (rendered
+    through its cameras' orbit; a calibration file is not read), the whole ``skeleton``
+    (points, limbs and palette drawn) and ``output_points`` (``pose2d.output_points``:
+    the points each view observes)."""
 
     STAGE = "demo"
 
@@ -131,21 +118,9 @@ def _orbit_rig(rig: RigSpec, image_size: tuple[int, int]):
 
 
 def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
-    """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`).
-
-    Parameters
-    ----------
-    inputs
-        The demo's inputs (:class:`DemoInputs`).
-    directory
-        Where to write; created if needed.
-    **overrides
-        Demo settings overriding ``inputs.settings`` (e.g. ``frames=10``).
-
-    Returns
-    -------
-    flylib.demo.DemoRecording
-    """
+    """Generate the embedded demo recording into ``directory`` (created if needed; see
+    :mod:`flylib.demo`), ``overrides`` over ``inputs.settings`` (e.g. ``frames=10``);
+    returns the :class:`flylib.demo.DemoRecording`."""
     from ..demo import demo_settings, view_visibility, write_demo
 
     settings = demo_settings({**inputs.settings, **overrides})
@@ -165,34 +140,16 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
 
 
 def make_demo(config, directory: str | Path, **overrides: Any):
-    """Write the demo recording ``config`` describes into ``directory``.
-
-    Parameters
-    ----------
-    config
-        The run config (:class:`~flylib.config.Config`): its sources, rig, skeleton,
-        ``pose2d.output_points`` and ``demo`` table.
-    directory
-        Where to write; created if needed.
-    **overrides
-        Demo settings overriding the config's ``demo`` table (e.g. ``frames=10``).
-
-    Returns
-    -------
-    flylib.demo.DemoRecording
-    """
+    """Write the demo recording ``config`` describes (its sources, rig, skeleton,
+    ``pose2d.output_points`` and ``demo`` table, ``overrides`` over the latter) into
+    ``directory``: :func:`run_demo` of :meth:`DemoInputs.from_config`."""
     return run_demo(DemoInputs.from_config(config), directory, **overrides)
 
 
 def demo_files(config: Any) -> dict[str, list[str]]:
-    """File names :func:`make_demo` writes, relative to the demo directory.
-
-    Returns
-    -------
-    dict
-        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
-        order) and ``truth`` (``[truth.h5]``).
-    """
+    """File names :func:`make_demo` writes, relative to the demo directory: ``footage``
+    (one video per source), ``dlc`` (one CSV per view, in view order) and ``truth``
+    (``[truth.h5]``)."""
     patterns = source_patterns(config)
     for name, pattern in patterns.items():
         if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":

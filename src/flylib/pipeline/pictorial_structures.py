@@ -37,20 +37,9 @@ __all__ = [
 @register
 @dataclass(frozen=True)
 class PictorialStructuresInputs(StageInputs):
-    """What the pictorial-structures stage reads.
-
-    Attributes
-    ----------
-    pictorial_structures
-        The ``pictorial_structures`` table.
-    skeleton
-        Points and limbs (the chains and bones of the prior).
-    rig
-        The config rig, or ``None`` while bundle adjustment is on (the rig then comes
-        from that stage's artifact).
-    runtime
-        Untracked: the config file's folder (a relative calibration path).
-    """
+    """What the pictorial-structures stage reads: ``skeleton`` gives the chains and bones
+    of the prior; ``rig`` is ``None`` while bundle adjustment is on (the rig then comes
+    from that stage's artifact)."""
 
     STAGE = "pictorial_structures"
 
