@@ -20,7 +20,7 @@ import numpy as np
 
 from ..camera import jax_model  # noqa: F401  (float64 and the CPU for JAX, before jax is used)
 from ..config.neuromechfly import NeuromechflyParams
-from .model import LEGS, _rotations, leg_forward, segment_offsets, thorax_coxa_template
+from .model import LEGS, leg_forward, rotations, segment_offsets, thorax_coxa_template
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -43,15 +43,15 @@ def initial_angles(root: Float[np.ndarray, " 3"], points: Float[np.ndarray, "N 4
     d = _unit(np.diff(chain, axis=1))  # (N, 4, 3) segment directions, thorax frame
     pitch = np.arcsin(np.clip(-d[:, 0, 0], -1, 1))
     yaw = np.arctan2(d[:, 0, 1], -d[:, 0, 2])
-    frame = _rotations(np, yaw, 0) @ _rotations(np, pitch, 1)
+    frame = rotations(np, yaw, 0) @ rotations(np, pitch, 1)
     f = np.einsum("nji,nj->ni", frame, d[:, 1])
     ctr_pitch = -np.arccos(np.clip(-f[:, 2], -1, 1))
     roll = np.arctan2(f[:, 1], f[:, 0])
-    frame = frame @ _rotations(np, roll, 2) @ _rotations(np, ctr_pitch, 1)
+    frame = frame @ rotations(np, roll, 2) @ rotations(np, ctr_pitch, 1)
     g = np.einsum("nji,nj->ni", frame, d[:, 2])
     fti = np.arccos(np.clip(-g[:, 2], -1, 1))
     ctr_roll = np.arctan2(-g[:, 1], -g[:, 0])
-    frame = frame @ _rotations(np, ctr_roll, 2) @ _rotations(np, fti, 1)
+    frame = frame @ rotations(np, ctr_roll, 2) @ rotations(np, fti, 1)
     h = np.einsum("nji,nj->ni", frame, d[:, 3])
     tita = np.arctan2(-h[:, 0], -h[:, 2])
     angles = np.stack([pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita], axis=-1)

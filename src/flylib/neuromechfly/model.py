@@ -89,7 +89,7 @@ def leg_lengths() -> Float[np.ndarray, " 6"]:
     return np.linalg.norm(segment_offsets(), axis=-1).sum(axis=-1)
 
 
-def _rotations(xp, angle, axis: int):
+def rotations(xp, angle, axis: int):
     c, s = xp.cos(angle), xp.sin(angle)
     one, zero = xp.ones_like(angle), xp.zeros_like(angle)
     if axis == 0:
@@ -107,13 +107,13 @@ def leg_forward(angles, root, offsets, xp=np):
     joint, ``offsets`` ``(..., 4, 3)`` of the zero pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa,
     claw."""
     pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita = (angles[..., k] for k in range(7))
-    rot = _rotations(xp, yaw, 0) @ _rotations(xp, pitch, 1) @ _rotations(xp, roll, 2)
+    rot = rotations(xp, yaw, 0) @ rotations(xp, pitch, 1) @ rotations(xp, roll, 2)
     points = [xp.broadcast_to(root, angles.shape[:-1] + (3,))]
     joint_turns = ((ctr_pitch, ctr_roll), (fti,), (tita,), ())
     for k, turns in enumerate(joint_turns):
         points.append(points[-1] + (rot @ offsets[..., k, :, None])[..., 0])
         for j, angle in enumerate(turns):
-            rot = rot @ _rotations(xp, angle, 1 if j == 0 else 2)
+            rot = rot @ rotations(xp, angle, 1 if j == 0 else 2)
     return xp.stack(points, axis=-2)
 
 
