@@ -257,12 +257,13 @@ def _stopped(stop: _Stopped) -> int:
 
 
 def _job_inputs(job: Any, stage: str | type) -> Any:
-    """A job's inputs object, from its rule's ``params.stage`` and ``params.runtime``."""
-    if not isinstance(stage, str):  # an inputs class of a rule that is not a params stage
-        return stage.from_params(json.loads(job.params.stage), job.params.runtime)
-    from flylib.pipeline.inputs import inputs_from_job
+    """A job's inputs object: its rule's ``params.stage`` parsed once, with its untracked
+    ``params.runtime`` (``stage``: a stage's name, or the inputs class of a rule-only step)."""
+    if isinstance(stage, str):
+        from flylib.pipeline.inputs import inputs_class
 
-    return inputs_from_job(stage, job.params.stage, job.params.runtime)
+        stage = inputs_class(stage)
+    return stage.from_params(json.loads(job.params.stage), job.params.runtime)
 
 
 def _hand_inputs(args: argparse.Namespace, stage: str | type, rig: argparse.Action | None) -> Any:

@@ -125,28 +125,10 @@ def param_docs() -> dict[str, tuple[Any, str]]:
     (``flylib.config``'s ``*Params`` dataclasses, descriptions from their docstrings)."""
     from dataclasses import MISSING, fields
 
-    from flylib.config.neuromechfly import NeuromechflyParams
-    from flylib.config.params import (
-        BundleAdjustmentParams,
-        IoParams,
-        PictorialParams,
-        Pose2dParams,
-        TriangulationParams,
-    )
-    from flylib.config.postprocessing import KinematicsParams, RefinementParams
+    from flylib.config.params import PARAM_TABLES
 
-    tables = {
-        "pose2d": Pose2dParams,
-        "io": IoParams,
-        "bundle_adjustment": BundleAdjustmentParams,
-        "pictorial_structures": PictorialParams,
-        "triangulation": TriangulationParams,
-        "refinement": RefinementParams,
-        "kinematics": KinematicsParams,
-        "neuromechfly": NeuromechflyParams,
-    }
     docs: dict[str, tuple[Any, str]] = {}
-    for table, cls in tables.items():
+    for table, cls in PARAM_TABLES.items():
         described = _attributes(inspect.getdoc(cls) or "")
         for f in fields(cls):
             default = f.default if f.default is not MISSING else None

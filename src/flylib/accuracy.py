@@ -1,16 +1,15 @@
 """How accurate a reconstruction is, without a ground truth.
 
-The yardstick is the leave-one-camera-out (held-out-view) reprojection error: each
-point is reconstructed again without view ``v`` (the 3D method re-run from scratch,
-never reusing what ``v`` told it), projected into ``v`` and compared with ``v``'s own
-2D. A method that fits its input more tightly without being closer to the truth (an
-over-smoothing prior, a wrong bone length) shows up here, where the ordinary
-reprojection error would reward it. Beside it: how much each bone's length spreads
-over time and how far left and right twins differ, both zero for a perfect rigid fly.
+The yardstick is the leave-one-camera-out (held-out-view) reprojection error: each point is
+reconstructed again without view ``v`` (the 3D method re-run from scratch, never reusing
+what ``v`` told it), projected into ``v`` and compared with ``v``'s own 2D. A method that
+fits its input more tightly without being closer to the truth (an over-smoothing prior, a
+wrong bone length) shows up here, where the ordinary reprojection error would reward it.
+Beside it: how much each bone's length spreads over time and how far left and right twins
+differ, both zero for a perfect rigid fly.
 
-For triangulation every frame is cheap; refinement is re-solved once per view, so on
-long recordings both are evaluated on the same evenly spread windows of contiguous
-frames (:func:`evaluation_windows`; the summary says how many frames were used).
+Refinement is re-solved once per view, so on long recordings both methods are evaluated on
+the same evenly spread windows of contiguous frames (:func:`evaluation_windows`).
 """
 
 from __future__ import annotations
@@ -42,11 +41,8 @@ Refine = Callable[[np.ndarray, "np.ndarray | None", np.ndarray, np.ndarray], np.
 def evaluation_windows(
     n_frames: int, max_frames: int = EVALUATION_FRAMES, window: int = EVALUATION_WINDOW
 ) -> list[tuple[int, int]]:
-    """Contiguous frame ranges ``[(lo, hi), ...]`` to hold views out on.
-
-    The whole recording when it has at most ``max_frames`` frames; else
-    ``max_frames // window`` windows of ``window`` frames spread evenly over it.
-    """
+    """Contiguous frame ranges ``[(lo, hi), ...]`` to hold views out on: the whole recording
+    up to ``max_frames`` frames, else ``max_frames // window`` windows spread evenly."""
     if n_frames <= max_frames:
         return [(0, n_frames)] if n_frames else []
     count = max(1, max_frames // max(window, 1))
@@ -65,33 +61,16 @@ def held_out_errors(
 ) -> dict[str, Any]:
     """Leave-one-camera-out reprojection errors of triangulation (and refinement).
 
-    For every view ``v`` and window, view ``v``'s 2D is removed, the points are
-    triangulated from the other views, refined from that start with the other views
-    only (when ``refine`` is given), and projected into ``v``.
+    For every view ``v`` and window (default :func:`evaluation_windows`), ``v``'s 2D is
+    removed, the points are triangulated from the other views, refined from that start
+    (with ``refine``), and projected into ``v``. ``pts2d`` ``(V, T, P, 2)``, NaN = missing,
+    may be an h5py dataset (read window by window); ``conf`` ``(V, T, P)`` is handed to the
+    methods. ``refine`` may be a mapping ``label -> Refine`` (variants judged on the same
+    held-out triangulations).
 
-    Parameters
-    ----------
-    cameras
-        The rig the reconstruction used.
-    pts2d
-        ``(V, T, P, 2)`` the 2D the 3D methods read, NaN = missing (h5py datasets are
-        read window by window).
-    triangulate, refine
-        The 3D methods, as the stages run them (see :data:`Triangulate`, :data:`Refine`);
-        ``refine`` may be a mapping ``label -> Refine`` (variants judged on the same
-        held-out triangulations).
-    conf
-        ``(V, T, P)`` detector confidences handed to the methods, or ``None``.
-    windows
-        Frame ranges to evaluate (default :func:`evaluation_windows`).
-
-    Returns
-    -------
-    dict
-        ``frames`` ``(T',)`` the frames evaluated; ``triangulation`` and, with
-        ``refine``, ``refinement``: ``(V, T', P)`` pixel errors (NaN where ``v`` has
-        no 2D or the method could not reconstruct the point without it); a mapping
-        ``label -> (V, T', P)`` when ``refine`` is a mapping.
+    Returns ``frames`` ``(T',)``, the frames evaluated, and ``triangulation`` and (with
+    ``refine``) ``refinement``: ``(V, T', P)`` pixel errors (NaN where ``v`` has no 2D or the
+    method could not reconstruct the point without it), or ``label -> (V, T', P)``.
     """
     variants = dict(refine) if isinstance(refine, Mapping) else {None: refine} if refine else {}
     n_views, n_frames, n_points = pts2d.shape[:3]
@@ -137,8 +116,8 @@ def _view_error(cameras, v: int, pts3d: np.ndarray, observed: np.ndarray) -> np.
 def bone_length_spread(
     pts3d: Float[np.ndarray, "T P 3"], bones: Int[np.ndarray, "B 2"]
 ) -> Float[np.ndarray, " B"]:
-    """Each bone's length spread over time: interquartile range / median ``(B,)``
-    (NaN for a bone never seen whole); 0 for a perfectly rigid skeleton."""
+    """Each bone's length spread over time, interquartile range / median ``(B,)`` (NaN for a
+    bone never seen whole); 0 for a perfectly rigid skeleton."""
     bones = np.asarray(bones, int).reshape(-1, 2)
     length = np.linalg.norm(pts3d[:, bones[:, 0]] - pts3d[:, bones[:, 1]], axis=-1)  # (T, B)
     out = np.full(len(bones), np.nan)
@@ -172,24 +151,12 @@ def left_right_asymmetry(
 def keep_triangulation(
     triangulation: Float[np.ndarray, "V T P"], refinement: Float[np.ndarray, "V T P"]
 ) -> tuple[Bool[np.ndarray, " P"], bool]:
-    """Where refinement's held-out-view error is not better than triangulation's.
+    """Where refinement's held-out-view error ``(V, T, P)`` is not better than triangulation's.
 
-    Both are compared on the observations both reconstructed without the view. A point
-    keeps the triangulation when refinement's median or 95th percentile there is
-    higher; if the output mixed that way is still worse overall (median or p95), every
-    point keeps it.
-
-    Parameters
-    ----------
-    triangulation, refinement
-        ``(V, T, P)`` held-out-view errors (:func:`held_out_errors`).
-
-    Returns
-    -------
-    keep : np.ndarray
-        ``(P,)`` bool: the points whose output is the triangulation.
-    everywhere : bool
-        Whether every point keeps it (point by point, or because refinement lost overall).
+    Both are compared on the observations both reconstructed without the view. A point keeps
+    the triangulation when refinement's median or 95th percentile there is higher; if the
+    output mixed that way is still worse overall (median or p95), every point keeps it.
+    Returns ``keep`` ``(P,)`` bool and whether every point keeps the triangulation.
     """
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
@@ -231,24 +198,10 @@ def accuracy_summary(
 ) -> dict[str, Any]:
     """The truth-free accuracy figures of one reconstruction, as plain JSON-able numbers.
 
-    Parameters
-    ----------
-    errors
-        ``(V, T', P)`` held-out-view errors (:func:`held_out_errors`).
-    pts3d
-        ``(T, P, 3)`` the reconstruction itself (bone figures), or ``None``.
-    view_names, point_names
-        The V and P axes.
-    bones, mirror
-        ``(B, 2)`` the skeleton's bones and ``(B,)`` each one's left/right twin.
-
-    Returns
-    -------
-    dict
-        ``held_out_px`` {``median``, ``p95``, ``n``}, ``per_view`` and ``per_point``
-        (name -> the same), ``bone_length_spread`` (median over bones of
-        :func:`bone_length_spread`) and ``left_right_asymmetry`` (median over twinned
-        bones of :func:`left_right_asymmetry`), both fractions.
+    From ``errors`` ``(V, T', P)`` (:func:`held_out_errors`) and, for the bone figures,
+    ``pts3d`` ``(T, P, 3)`` with ``bones`` ``(B, 2)`` and ``mirror`` ``(B,)``: ``held_out_px``
+    {``median``, ``p95``, ``n``}, ``per_view`` and ``per_point`` (name -> the same),
+    ``bone_length_spread`` and ``left_right_asymmetry`` (medians over bones, fractions).
     """
     errors = np.asarray(errors, np.float64)
     out: dict[str, Any] = {
@@ -278,11 +231,8 @@ def triangulation_accuracy(
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> dict[str, Any]:
     """The triangulation stage's truth-free accuracy: :func:`accuracy_summary` of its
-    held-out-view errors (on :func:`evaluation_windows`) and of ``pts3d`` on the same
-    frames, plus ``frames_evaluated`` and ``frames_total``. ``triangulate`` (see
-    :data:`Triangulate`) is re-run with each view held out; the skeleton's bones give the
-    spread and left/right figures.
-    """
+    held-out-view errors and of ``pts3d`` on the same frames, plus ``frames_evaluated`` and
+    ``frames_total``; the skeleton's bones give the spread and left/right figures."""
     held = held_out_errors(cameras, pts2d, triangulate, conf=conf)
     frames = held["frames"]
     return {

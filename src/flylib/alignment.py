@@ -1,7 +1,6 @@
-"""The least-squares similarity between two point sets (Umeyama 1991): how a
-reconstruction is compared with a truth or another reconstruction whose gauge (scale,
-rotation, translation) is free, and how bundle adjustment puts its result back in the
-starting frame."""
+"""The least-squares similarity between two point sets (Umeyama 1991): how a reconstruction
+is compared with a truth or another reconstruction whose gauge (scale, rotation, translation)
+is free, and how bundle adjustment puts its result back in the starting frame."""
 
 from __future__ import annotations
 
@@ -20,19 +19,11 @@ def similarity_transform(
     keep: float = 1.0,
     refits: int = 0,
 ) -> tuple[float, Float[np.ndarray, "3 3"], Float[np.ndarray, " 3"]] | None:
-    """``(scale, rot, shift)`` minimising ``sum |scale rot src + shift - dst|^2``.
+    """``(scale, rot, shift)`` minimising ``sum |scale rot src + shift - dst|^2`` over finite
+    ``(M, 3)`` pairs; ``rot`` is proper (det +1); ``None`` when ``src`` has no spread.
 
-    Parameters
-    ----------
-    src, dst
-        ``(M, 3)`` corresponding points, all finite.
-    keep
-        With ``refits``: the fraction of best-agreeing pairs each refit uses, so that a
-        few gross errors do not tilt the fit.
-    refits
-        How many times to refit on the ``keep`` fraction (each needs >= 4 pairs).
-
-    ``rot`` is a proper rotation (det +1); ``None`` when ``src`` has no spread.
+    ``refits`` times, the fit is redone on the ``keep`` fraction of best-agreeing pairs (each
+    refit needs >= 4), so that a few gross errors do not tilt it.
     """
     fitted = _umeyama(src, dst)
     for _ in range(refits):
@@ -54,9 +45,8 @@ def similarity_aligned(
     keep: float = 1.0,
     refits: int = 0,
 ) -> Float[np.ndarray, "*pts 3"]:
-    """``points`` mapped onto ``target`` by the similarity fitted on the pairs both hold
-    (:func:`similarity_transform`); NaN stays NaN, and everything is NaN when fewer than
-    three pairs (or no spread) leave the similarity undetermined."""
+    """``points`` mapped onto ``target`` by the similarity fitted on the pairs both hold; NaN
+    stays NaN, and all is NaN when fewer than three pairs (or no spread) leave it undetermined."""
     points = np.asarray(points, float)
     target = np.asarray(target, float)
     ok = np.isfinite(points).all(-1) & np.isfinite(target).all(-1)

@@ -10,11 +10,10 @@
     flylib doctor [--config CONFIG...]        the installation in one screen
     flylib init DIR [-o my.yaml]              a starter config for a folder of recordings
 
-A user-facing error is printed as one line on stderr and the exit status is 1.
-``inspect`` first checks every dataset against its checksum (a damaged file: one
-line per damaged dataset, status 1), then compares the params hashes each stage
-recorded with the config snapshot beside the file (or ``--config``): a stale or
-mixed file prints one line per problem after the tables, status 2.
+A user-facing error is one line on stderr and exit status 1. ``inspect`` first checks every
+dataset against its checksum (a damaged file: one line per damaged dataset, status 1), then
+compares the params hashes each stage recorded with the config snapshot beside the file (or
+``--config``): a stale or mixed file prints one line per problem after the tables, status 2.
 """
 
 from __future__ import annotations
@@ -66,7 +65,7 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
 
 def _verify(path: Path) -> int:
     """``inspect --verify``: one line per failed invariant of :mod:`flylib.results.invariants`
-    (status 1), or one line saying they hold (status 0)."""
+    (status 1), or one saying they hold (status 0)."""
     from .results.invariants import check_results, describe
 
     found = check_results(path)
@@ -164,8 +163,8 @@ def _cmd_inspect(args) -> int:
 
 
 def _print_handedness(entry: dict | None) -> None:
-    """Whether the 3D is a fly or its mirror image (:mod:`flylib.handedness`), and
-    when mirrored, why and the fix."""
+    """Whether the 3D is a fly or its mirror image (:mod:`flylib.handedness`); if mirrored, why
+    and the fix."""
     if not entry:
         return
     print(f"handedness: {entry['verdict']}: {entry['reason']}")
@@ -355,8 +354,8 @@ def _recorded(path) -> None:
 
 
 def _plain_yaml(data: dict, label: str, header: str) -> str:
-    """A parsed config as plain YAML text (no tags, no templating), checked to read back
-    as the same values with flylib's parser."""
+    """A parsed config as plain YAML text (no tags, no templating), checked to read back as the
+    same values with flylib's parser."""
     import yaml
 
     from .config.canonical import plain
@@ -424,9 +423,9 @@ def _cmd_check_config(args) -> int:
 
 
 def _default_base(configfiles: list[Path], replace: bool) -> list[Path]:
-    """The default config when the workflow would merge the user's files over it:
-    always, as the Snakefile's ``configfile:`` does, unless ``--replace-workflow-config``
-    or the first file given is the default config itself (its checkout copy included)."""
+    """The default config when the workflow would merge the user's files over it: always, as the
+    Snakefile's ``configfile:`` does, unless ``--replace-workflow-config`` or the first file given
+    is the default config itself (its checkout copy included)."""
     from .config.constants import DEFAULT_CONFIG_PATH
 
     if replace:
@@ -448,14 +447,14 @@ def _write_new(path: Path, text: str) -> None:
         raise ConfigError(f"{path}: already exists; choose another name or delete it") from None
 
 
-#: Where ``flylib run`` keeps the checked plain copies it hands to Snakemake (under the
-#: directory it is run from), named by content so a copy never changes under a run.
+#: Where ``flylib run`` keeps the checked plain copies it hands to Snakemake (under the directory
+#: it is run from), named by content so a copy never changes under a run.
 RUN_CONFIGS = Path(".flylib") / "run-configs"
 
 
 def _cmd_run(args) -> int:
-    """Validate config files with flylib's safe reader, then run Snakemake on checked
-    plain YAML copies of them: no config file is ever rendered by Snakemake (YTE)."""
+    """Validate config files with flylib's safe reader, then run Snakemake on checked plain YAML
+    copies of them: no config file is ever rendered by Snakemake (YTE)."""
     import hashlib
     import shutil
 
@@ -515,7 +514,7 @@ def _cmd_run(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``flylib`` argument parser (subcommands ``inspect``, ``export``, ``calibration``)."""
+    """The ``flylib`` argument parser, one subcommand per command of the module docstring."""
     parser = argparse.ArgumentParser(prog="flylib", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -770,9 +769,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"flylib {args.command}: {exc}", file=sys.stderr)
         return 1
     except BrokenPipeError:
-        # The reader went away (`flylib inspect ... | head`): stop quietly, as Unix tools
-        # do, with the status a shell reports for SIGPIPE; stdout is pointed at devnull
-        # so the interpreter's final flush does not fail again.
+        # The reader went away (`flylib inspect ... | head`): stop quietly, as Unix tools do, with
+        # the status a shell reports for SIGPIPE; stdout is pointed at devnull so the
+        # interpreter's final flush does not fail again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + 13
 

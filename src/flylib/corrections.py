@@ -1,33 +1,30 @@
 """Manual corrections: the ``corrections.h5`` sidecar and its edits.
 
-The sidecar is the seed system's GUI format, version 3
-(``../shared/spec/corrections-h5.md``), written beside ``results.h5`` and never
-inside it::
+The sidecar is the seed system's GUI format, version 3 (``../shared/spec/corrections-h5.md``),
+written beside ``results.h5`` and never inside it::
 
     attrs["meta"]          JSON {"deeperfly_corrections_format_version": 3, "source", "created_utc"}
     pose2d_corrections/    points (V, T, P, 2) float64, edited / fixed / invisible (V, T, P) bool
     pose3d_corrections/    points3d (T, P, 3) float64, edited (T, P) bool
     flylib_review/         reviewed (T, P) bool (flylib's addition, see below)
 
-A file of version 1 or 2 (no ``invisible``, or no ``fixed`` either) loads with the
-missing masks all False. flylib writes every dataset with the Fletcher-32 filter in
-HDF5 1.8's checksummed object format (like its other artifacts) and adds
-``flylib_revision`` (the GUI session's edit revision) to the meta and the
-``flylib_review/reviewed`` mask (the suspect points a person marked reviewed / OK in
-``flylib gui``, read when present); the seed's readers, which read the groups above by
-name, ignore all three, and the format version stays 3. A file written by the seed (no checksums) still loads; whichever wrote it,
-an ``inf`` coordinate, a non-finite 3D edit, (given the rig) a 3D edit farther from
-the cameras than :data:`EDIT3D_RIG_SPANS` times the rig's size, or (given the image
-sizes) a 2D edit outside the image is one :class:`~flylib.errors.ResultsError` at
-load, never applied. Like every HDF5 file of flylib's, it is checked whole before
-anything is read (:func:`~flylib.results.guard.guard_file`: no data stored in other
-files, no link out of it), and, given the result's shape, every dataset's declared
-shape is checked before it is read.
+A file of version 1 or 2 (no ``invisible``, or no ``fixed`` either) loads with the missing
+masks all False. flylib writes every dataset with the Fletcher-32 filter in HDF5 1.8's
+checksummed object format (like its other artifacts) and adds ``flylib_revision`` (the GUI
+session's edit revision) to the meta and the ``flylib_review/reviewed`` mask (the suspect points
+a person marked reviewed / OK in ``flylib gui``, read when present); the seed's readers, which
+read the groups above by name, ignore all three, and the format version stays 3. A file written
+by the seed (no checksums) still loads; whichever wrote it, values
+:meth:`Corrections.invalid_values` refuses (an ``inf`` coordinate, a 3D edit outside the rig, a
+2D edit outside the image, ...) are one :class:`~flylib.errors.ResultsError` at load, never
+applied. Like every HDF5 file of flylib's, it is checked whole before anything is read
+(:func:`~flylib.results.guard.guard_file`: no data stored in other files, no link out of it),
+and, given the result's shape, every dataset's declared shape is checked before it is read.
 
 The triangulation stage applies a sidecar
-(:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too,
-for one point at a time, so what it shows is what a re-run computes): the 2D edits
-through :meth:`Corrections.apply_2d`, then its ``fixed`` views and 3D edits.
+(:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, for one
+point at a time, so what it shows is what a re-run computes): the 2D edits through
+:meth:`Corrections.apply_2d`, then its ``fixed`` views and 3D edits.
 """
 
 from __future__ import annotations
@@ -69,9 +66,9 @@ CORRECTIONS_FORMAT_VERSION = 3
 _META_KEY = "deeperfly_corrections_format_version"
 # HDF5 1.8's file format: checksummed object headers (as results.h5 and the artifacts)
 _LIBVER = ("v108", "latest")
-#: How far a 3D edit may lie from the cameras' mean centre, in rig sizes (the largest
-#: distance between two camera centres): a fly is seen by the cameras, so an edit
-#: 1000 rig sizes away is no place on it (a 1e300 would overflow what follows).
+#: How far a 3D edit may lie from the cameras' mean centre, in rig sizes (the largest distance
+#: between two camera centres): an edit 1000 rig sizes away is no place on a fly the cameras see
+#: (and a 1e300 would overflow what follows).
 EDIT3D_RIG_SPANS = 1000.0
 _DATASETS = (
     "pose2d_corrections/points",
@@ -88,30 +85,15 @@ _REVIEWED = "flylib_review/reviewed"
 class Corrections:
     """Manual edits of one recording's result (the seed GUI's sidecar).
 
-    Attributes
-    ----------
-    points
-        ``(V, T, P, 2)`` edited 2D pixels; NaN where not edited.
-    edited
-        ``(V, T, P)`` bool: which entries of ``points`` are edits (a NaN edit is an edit).
-    fixed
-        ``(V, T, P)`` bool: finalized 2D points, always used when the point is
-        re-solved; a subset of ``edited``.
-    invisible
-        ``(V, T, P)`` bool: dropped from triangulation; disjoint from ``edited``.
-    points3d
-        ``(T, P, 3)`` edited 3D points; NaN where not edited.
-    edited3d
-        ``(T, P)`` bool.
-    source
-        The ``results.h5`` these corrections apply to (informative).
-    created_utc
-        When the file was written (ISO 8601).
-    revision
-        The GUI session revision the file was saved at (0 for a seed-written file).
-    reviewed
-        ``(T, P)`` bool: points a person marked reviewed / OK (``flylib gui``'s review
-        progress; not an edit, never applied); default all False.
+    ``points`` ``(V, T, P, 2)`` and ``points3d`` ``(T, P, 3)`` are the edited 2D pixels and 3D
+    points (NaN where not edited); the bool masks ``edited`` ``(V, T, P)`` and ``edited3d``
+    ``(T, P)`` say which entries are edits (a NaN edit is an edit). ``fixed`` ``(V, T, P)``:
+    finalized 2D points, always used when the point is re-solved (a subset of ``edited``).
+    ``invisible`` ``(V, T, P)``: dropped from triangulation (disjoint from ``edited``).
+    ``reviewed`` ``(T, P)``: points a person marked reviewed / OK (``flylib gui``'s review
+    progress; not an edit, never applied; default all False). ``source``: the ``results.h5``
+    they apply to (informative); ``created_utc``: when the file was written (ISO 8601);
+    ``revision``: the GUI session revision it was saved at (0 for a seed-written file).
     """
 
     points: Float[np.ndarray, "V T P 2"]
@@ -176,25 +158,16 @@ class Corrections:
     ) -> Corrections:
         """Read a sidecar (format version 1 to 3), its checksums verified.
 
-        Parameters
-        ----------
-        shape
-            ``(V, T, P)`` of the result it must correct, checked when given.
-        image_sizes
-            ``(height, width)`` of each view's frames (``None`` for unknown), in view
-            order; when given, a 2D edit outside its image is refused.
-        cameras
-            The rig the result was triangulated with; when given, a 3D edit farther
-            from it than :data:`EDIT3D_RIG_SPANS` rig sizes is refused.
+        When given, ``shape`` is the ``(V, T, P)`` of the result it must correct;
+        ``image_sizes`` (``(height, width)`` per view, ``None`` for unknown) refuses a 2D edit
+        outside its image; ``cameras`` (the rig the result was triangulated with) refuses a 3D
+        edit farther from it than :data:`EDIT3D_RIG_SPANS` rig sizes.
 
-        Raises
-        ------
-        ResultsError
-            Missing or unreadable file, data stored outside it or declared larger than
-            it can hold (:func:`~flylib.results.guard.guard_file`), a dataset whose
-            Fletcher-32 checksum fails, a newer format version, missing datasets,
-            infinite, out-of-image or out-of-rig coordinates, or a shape that does not
-            match ``shape`` (one line naming the file).
+        Raises :class:`~flylib.errors.ResultsError`, one line naming the file: missing or
+        unreadable, data stored outside it or declared larger than it can hold
+        (:func:`~flylib.results.guard.guard_file`), a failed Fletcher-32 checksum, a newer format
+        version, missing datasets, what :meth:`invalid_values` refuses, or a shape other than
+        ``shape``.
         """
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
@@ -242,12 +215,11 @@ class Corrections:
     ) -> str:
         """What makes these corrections unusable, or ``""``.
 
-        Infinite numbers anywhere, a non-finite edited 3D point, (with ``cameras``) an
-        edited 3D point farther from the cameras' mean centre than
-        :data:`EDIT3D_RIG_SPANS` times the largest distance between two camera
-        centres, or (with ``image_sizes``, ``(height, width)`` per view) an edited 2D
-        point outside its image. A NaN 2D edit is allowed (the seed's deliberate
-        "remove").
+        Infinite numbers anywhere, a non-finite edited 3D point, (with ``cameras``) an edited 3D
+        point farther from the cameras' mean centre than :data:`EDIT3D_RIG_SPANS` times the
+        largest distance between two camera centres, or (with ``image_sizes``, per view
+        ``(height, width)``) an edited 2D point outside its image. A NaN 2D edit is allowed (the
+        seed's deliberate "remove").
         """
         for name in ("points", "points3d"):
             bad = np.argwhere(np.isinf(getattr(self, name)))
@@ -287,13 +259,9 @@ class Corrections:
         """Write the sidecar atomically to ``path`` (normally ``<outdir>/corrections.h5``),
         format version 3, every dataset Fletcher-32 checksummed.
 
-        Raises
-        ------
-        ResultsError
-            When the corrections hold infinite numbers or a non-finite 3D edit
-            (nothing is written).
-        OutputError
-            When the disk is full (from :func:`flylib.paths.atomic_path`).
+        Raises :class:`~flylib.errors.ResultsError` (nothing written) when the corrections hold
+        infinite numbers or a non-finite 3D edit, :class:`~flylib.errors.OutputError` when the disk
+        is full (:func:`flylib.paths.atomic_path`).
         """
         problem = self.invalid_values()
         if problem:
@@ -305,9 +273,9 @@ class Corrections:
             "created_utc": self.created_utc,
             "flylib_revision": int(self.revision),
         }
-        # built in memory, then written as plain bytes: a write that fails (full disk)
-        # is then an OSError of Python's, never a half-created file inside libhdf5's
-        # state, which crashed the GUI's process later (at exit or the next close)
+        # built in memory, then written as plain bytes: a write that fails (full disk) is then
+        # an OSError of Python's, never a half-created file inside libhdf5's state, which
+        # would crash the GUI's process later (at exit or the next close)
         buffer = io.BytesIO()
         with h5py.File(buffer, "w", libver=_LIBVER) as f:
             f.attrs["meta"] = json.dumps(meta)
@@ -362,12 +330,9 @@ class Corrections:
         self.edited3d[frame, point] = True
 
     def reset(self, frame: int, point: int | None = None, view: int | None = None) -> None:
-        """Clear the edits and flags of a point (in one view or all), a view or a frame.
-
-        ``reset(t)``: the whole frame; ``reset(t, point=p)``: point ``p`` in every view and
-        its 3D edit; ``reset(t, point=p, view=v)``: one observation; ``reset(t, view=v)``:
-        every point of one view.
-        """
+        """Clear the edits and flags of a frame (``reset(t)``), of point ``p`` in every view and
+        its 3D edit (``point=p``), of one observation (``point=p, view=v``) or of every point
+        of one view (``view=v``)."""
         vs = slice(None) if view is None else view
         ps = slice(None) if point is None else point
         self.points[vs, frame, ps] = np.nan
@@ -384,8 +349,8 @@ class Corrections:
         return self.edited | self.invisible
 
     def edited_2d(self) -> Float[np.ndarray, "V T P 2"]:
-        """``(V, T, P, 2)`` the 2D a person gave where :meth:`touched` (NaN elsewhere and
-        where marked invisible): with :meth:`touched`, what :meth:`apply_2d` puts in."""
+        """``(V, T, P, 2)`` the 2D a person gave where :meth:`touched` (NaN elsewhere and where
+        marked invisible): with :meth:`touched`, what :meth:`apply_2d` puts in."""
         out = np.full((*self.shape, 2), np.nan)
         out[self.edited] = self.points[self.edited]
         out[self.invisible] = np.nan
@@ -402,9 +367,8 @@ class Corrections:
     def apply_2d(
         self, pts2d: Float[np.ndarray, "V T P 2"], conf: Float[np.ndarray, "V T P"] | None = None
     ) -> tuple[Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"] | None]:
-        """Corrected copies of the 2D triangulation reads, ``pts2d`` ``(V, T, P, 2)`` and
-        ``conf`` ``(V, T, P)`` or ``None``: edits replace detections (with confidence 1),
-        invisible ones go."""
+        """Corrected copies of the 2D triangulation reads, ``pts2d`` ``(V, T, P, 2)`` and ``conf``
+        ``(V, T, P)`` or ``None``: edits replace detections (confidence 1), invisible ones go."""
         pts2d = np.array(pts2d, dtype=np.float64)
         pts2d[self.edited] = self.points[self.edited]
         pts2d[self.invisible] = np.nan
@@ -465,9 +429,9 @@ def _outside_rig(points3d: np.ndarray, edited3d: np.ndarray, cameras: CameraGrou
 def _read_sidecar(
     f: h5py.File, path: Path, fix: str, shape: tuple[int, int, int] | None = None
 ) -> tuple[dict, dict[str, np.ndarray]]:
-    """The meta and every dataset of an open sidecar; HDF5 checks each Fletcher-32
-    chunk it reads (seed-written files carry none). With ``shape`` ``(V, T, P)``, each
-    dataset's declared shape is checked before it is read."""
+    """The meta and every dataset of an open sidecar; HDF5 checks each Fletcher-32 chunk it reads
+    (seed-written files carry none). With ``shape`` ``(V, T, P)``, each dataset's declared shape
+    is checked before it is read."""
     meta = read_meta_from(f)
     version = meta.get(_META_KEY)
     if not isinstance(version, int) or isinstance(version, bool):
@@ -483,12 +447,7 @@ def _read_sidecar(
         if name not in f:
             raise ResultsError(f"{path}: has no {name} dataset; {fix}")
     arrays = {}
-    for name in (
-        *_DATASETS,
-        "pose2d_corrections/fixed",
-        "pose2d_corrections/invisible",
-        _REVIEWED,
-    ):
+    for name in (*_DATASETS, "pose2d_corrections/fixed", "pose2d_corrections/invisible", _REVIEWED):
         if name not in f:
             continue
         dataset = f[name]
@@ -533,19 +492,11 @@ def corrections_path(
     recording_dir: str | Path | None = None,
     recording_id: str | None = None,
 ) -> tuple[Path, bool]:
-    """Where a recording's corrections sidecar is, and whether the config named it.
-
-    ``<outdir>/corrections.h5`` unless ``template``, the config's ``corrections`` key,
-    gives a path template (placeholders ``{outdir}``, ``{recording}``, ``{id}``,
-    ``{name}``; a relative path is relative to the outdir).
-
-    The path may not exist.
-
-    Raises
-    ------
-    ConfigError
-        On an unknown placeholder or a non-string value.
-    """
+    """Where a recording's corrections sidecar is (it may not exist), and whether the config
+    named it: ``<outdir>/corrections.h5`` unless ``template``, the config's ``corrections`` key,
+    gives a path template (placeholders ``{outdir}``, ``{recording}``, ``{id}``, ``{name}``; a
+    relative path is relative to the outdir). ConfigError on an unknown placeholder or a
+    non-string value."""
     from .errors import ConfigError
 
     outdir = Path(outdir)
@@ -569,8 +520,8 @@ def corrections_path(
 
 
 def read_corrected(results_path: str | Path) -> Bool[np.ndarray, "T P"] | None:
-    """``(T, P)`` bool: the points of a ``results.h5`` a person corrected, or ``None``
-    when it was computed without corrections (``triangulation/corrected``)."""
+    """``(T, P)`` bool: the points of a ``results.h5`` a person corrected, or ``None`` when it was
+    computed without corrections (``triangulation/corrected``)."""
     from .results import open_checked
 
     with open_checked(results_path) as f:

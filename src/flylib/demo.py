@@ -1,23 +1,21 @@
 """The embedded demo: a small synthetic recording generated deterministically.
 
-:func:`write_demo` writes, into one directory, what a real experiment would give
-flylib with the 2D coming from another tool (:func:`flylib.pipeline.demo.make_demo`
-gives it a config's rig, skeleton, sources and ``demo`` table):
+:func:`write_demo` writes, into one directory, what a real experiment would give flylib with
+the 2D coming from another tool (:func:`flylib.pipeline.demo.make_demo` gives it a config's rig,
+skeleton, sources and ``demo`` table):
 
-- one H.264 video per configured source (``camera_N.mp4`` for the default rig),
-  rendering a walking fly skeleton through the configured camera rig;
-- one DeepLabCut CSV per view with the 2D keypoints a detector would report: the
-  true projections plus pixel noise, dropouts (missing points) and a few gross
-  outliers, only for the points each view observes (the config's
-  ``pose2d.output_points``);
+- one H.264 video per configured source (``camera_N.mp4`` for the default rig), rendering a
+  walking fly skeleton through the configured camera rig;
+- one DeepLabCut CSV per view with the 2D keypoints a detector would report: the true
+  projections plus pixel noise, dropouts (missing points) and a few gross outliers, only for
+  the points each view observes (the config's ``pose2d.output_points``);
 - ``truth.h5``: the 3D truth ``(T, P, 3)`` and its exact projections;
 - ``nwb.yaml``: the (synthetic) session metadata the NWB export reads.
 
-The workflow imports the CSVs through ``pose2d.import`` (format ``dlc``), so the demo
-needs no detector weights and no network. :func:`demo_error` compares a
-reconstruction with the truth. :func:`synthetic_fly` is the motion model (a
-tethered fly walking in a tripod gait) and is what the test-suite's synthetic data
-builds on too.
+The workflow imports the CSVs through ``pose2d.import`` (format ``dlc``), so the demo needs no
+detector weights and no network. :func:`demo_error` compares a reconstruction with the truth.
+:func:`synthetic_fly` is the motion model (a tethered fly walking in a tripod gait) and is what
+the test-suite's synthetic data builds on too.
 """
 
 from __future__ import annotations
@@ -56,8 +54,8 @@ DEMO_DEFAULTS: dict[str, Any] = {
     "dropout": 0.05,
     "outliers": 0.01,
     "outlier_px": [40.0, 120.0],
-    # the workflow's videos of the demo play at this multiple of fps (slow motion: the
-    # legs step at 6-10 Hz); a rate set in the visualization table wins
+    # the workflow's videos of the demo play at this multiple of fps (slow motion: the legs step
+    # at 6-10 Hz); a rate set in the visualization table wins
     "video_speed": 0.1,
 }
 
@@ -79,20 +77,14 @@ _BODY_Z = 0.60  # lifts the fly so that legs and antennae are centred in the fra
 def synthetic_fly(
     n_frames: int, seed: int = 0, *, fps: float = 100.0
 ) -> Float[np.ndarray, "T 38 3"]:
-    """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` float64 world points.
+    """A tethered fly walking in a tripod gait: ``(n_frames, 38, 3)`` float64 world points,
+    sampled at ``fps``.
 
-    Points are in :data:`FLY38_POINTS` order. The head points to +x (the default
-    rig's front camera ``f``, azimuth 0), the left side to +y (cameras ``lf/lm/lh``),
-    up is +z. Each leg is a chain of four segments of constant length whose yaw and
-    pitches oscillate at a random step frequency around 8 Hz, legs of one tripod in
-    phase; antennae and abdomen move slightly. Every bone keeps its length exactly.
-
-    Parameters
-    ----------
-    seed
-        Seed of the step frequency and phase.
-    fps
-        Frame rate the motion is sampled at.
+    Points are in :data:`FLY38_POINTS` order. The head points to +x (the default rig's front
+    camera ``f``, azimuth 0), the left side to +y (cameras ``lf/lm/lh``), up is +z. Each leg is a
+    chain of four segments of constant length whose yaw and pitches oscillate at a random step
+    frequency (``seed`` draws it and the phase) around 8 Hz, legs of one tripod in phase;
+    antennae and abdomen move slightly. Every bone keeps its length exactly.
     """
     rng = np.random.default_rng(seed)
     t = np.arange(n_frames) / fps
@@ -120,8 +112,8 @@ def synthetic_fly(
                 out[:, index[names[s + 1]]] = joint
         wiggle = 0.03 * np.sin(2 * np.pi * 3.0 * t + sign)[:, None]
         out[:, index[f"{side}_antenna"]] = [0.80, sign * 0.12, _BODY_Z + 0.30] + wiggle
-        # the abdomen pitches as one rigid piece about its first stripe (its "bones" keep
-        # their lengths): the tip rises and falls by about 0.05
+        # the abdomen pitches as one rigid piece about its first stripe (its "bones" keep their
+        # lengths): the tip rises and falls by about 0.05
         pitch = 0.05 / 0.8 * np.sin(2 * np.pi * 1.5 * t + phase0)
         base = np.array(
             [
@@ -141,13 +133,7 @@ def synthetic_fly(
 
 def demo_settings(table: Mapping[str, Any] | None) -> dict[str, Any]:
     """The demo parameters: :data:`DEMO_DEFAULTS` updated by the config's ``demo`` table
-    (``None``: the defaults).
-
-    Raises
-    ------
-    ConfigError
-        On an unknown ``demo`` key or an out-of-range value.
-    """
+    (``None``: the defaults); ConfigError on an unknown key or an out-of-range value."""
     table = table or {}
     if not isinstance(table, Mapping):
         raise ConfigError(f"demo: must be a mapping of demo parameters, got {table!r}")
@@ -190,27 +176,13 @@ def observe(
     settings: Mapping[str, Any],
     image_size: tuple[int, int],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Corrupt true projections like a detector: noise, dropouts, gross outliers.
+    """Corrupt the exact projections ``clean2d`` ``(V, T, P, 2)`` like a detector: noise,
+    dropouts and gross outliers (kept inside the ``(height, width)`` frame), as
+    :func:`demo_settings` says (``noise_px``, ``dropout``, ``outliers``, ``outlier_px``,
+    ``seed``); points a view does not observe (``visible`` ``(V, P)``) are NaN.
 
-    Parameters
-    ----------
-    clean2d
-        ``(V, T, P, 2)`` exact projections.
-    visible
-        ``(V, P)`` which points each view observes (others are NaN).
-    settings
-        :func:`demo_settings` (``noise_px``, ``dropout``, ``outliers``,
-        ``outlier_px``, ``seed``).
-    image_size
-        ``(height, width)``: outliers are kept inside the frame.
-
-    Returns
-    -------
-    pts2d : np.ndarray
-        ``(V, T, P, 2)`` observed pixels, NaN = missing.
-    likelihood : np.ndarray
-        ``(V, T, P)`` in ``[0.7, 1]`` for inliers, ``[0.3, 0.8]`` for outliers,
-        NaN where missing.
+    Returns ``pts2d`` ``(V, T, P, 2)`` observed pixels (NaN = missing) and ``likelihood``
+    ``(V, T, P)``: in ``[0.7, 1]`` for inliers, ``[0.3, 0.8]`` for outliers, NaN where missing.
     """
     rng = np.random.default_rng(int(settings["seed"]) + 1)
     pts2d = clean2d + rng.normal(0.0, float(settings["noise_px"]), clean2d.shape)
@@ -238,9 +210,9 @@ def render_frames(
     colors: list[tuple[int, int, int]],
     image_size: tuple[int, int],
 ):
-    """Yield ``(H, W, 3)`` uint8 frames of one view's ``points2d`` ``(T, P, 2)``: the
-    skeleton (one RGB colour per bone) drawn on a dark, slightly textured background (so
-    the video has something to encode); ``image_size`` is ``(height, width)``."""
+    """Yield ``(H, W, 3)`` uint8 frames of one view's ``points2d`` ``(T, P, 2)``: the skeleton
+    (one RGB colour per bone) drawn on a dark, slightly textured background (so the video has
+    something to encode); ``image_size`` is ``(height, width)``."""
     import cv2
 
     height, width = image_size
@@ -291,35 +263,19 @@ def write_demo(
     source_files: Mapping[str, str],
     dlc_files: Sequence[str],
 ) -> DemoRecording:
-    """Write the demo recording (footage, per-view DeepLabCut CSVs, ``truth.h5``).
+    """Write the demo recording (footage, per-view DeepLabCut CSVs, ``truth.h5``) into
+    ``directory`` (created if needed); the same arguments give the same keypoints and truth.
 
-    Deterministic: the same arguments give the same keypoints and truth.
+    ``settings``: :func:`demo_settings`. ``skeleton``: the fly38 skeleton (any point order),
+    what is animated and drawn. ``cameras``: the rig the fly is rendered through (principal
+    points for the settings' image size); its names are the views. ``visible``: ``(V, P)``, the
+    points each view observes (:func:`view_visibility`). ``view_sources``:
+    ``view -> footage source`` (a source feeding several views is rendered once);
+    ``source_files``: ``source -> footage file name`` (an ``.mp4`` in ``directory``);
+    ``dlc_files``: one DeepLabCut CSV name per view, in view order.
 
-    Parameters
-    ----------
-    directory
-        Where to write; created if needed.
-    settings
-        :func:`demo_settings` (frames, image size, rate, seed, noise, ...).
-    skeleton
-        The fly38 skeleton (any point order): what is animated and drawn.
-    cameras
-        The rig the fly is rendered through (principal points for the settings'
-        image size); its names are the views.
-    visible
-        ``(V, P)``: the points each view observes (:func:`view_visibility`).
-    view_sources
-        ``view -> footage source``; a source feeding several views is rendered once.
-    source_files
-        ``source -> footage file name`` (an ``.mp4`` in ``directory``).
-    dlc_files
-        One DeepLabCut CSV name per view, in view order.
-
-    Raises
-    ------
-    ConfigError
-        If the skeleton is not the fly's 38 points, or the fly projects outside a
-        view's frame.
+    ConfigError if the skeleton is not the fly's 38 points, or the fly projects outside a view's
+    frame.
     """
     from .interop.dlc import write_dlc_csv
     from .io import VideoWriter
@@ -408,8 +364,8 @@ def write_truth(
     points: Sequence[str],
     settings: Mapping[str, Any],
 ) -> Path:
-    """Write the demo's ground truth atomically to ``path`` (``truth.h5``: the 3D points
-    and their projections before noise; names and settings as the JSON meta)."""
+    """Write the demo's ground truth atomically to ``path`` (``truth.h5``: the 3D points and their
+    projections before noise; names and settings as the JSON meta)."""
     import h5py
 
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
@@ -431,11 +387,10 @@ def load_truth(path: str | Path) -> dict[str, Any]:
 
 
 def demo_error(points3d: np.ndarray, truth3d: np.ndarray) -> dict[str, float]:
-    """3D error of a reconstruction against the demo truth (world units): ``median``,
-    ``mean``, ``p95`` and ``max`` of the per-point Euclidean error, ``median_aligned``
-    after the best similarity transform (bundle adjustment may move the rig's gauge),
-    ``reconstructed`` (fraction of finite points) and ``body_length`` (the truth's
-    head-to-tail extent, for scale)."""
+    """3D error of a reconstruction against the demo truth (world units): ``median``, ``mean``,
+    ``p95`` and ``max`` of the per-point Euclidean error, ``median_aligned`` after the best
+    similarity transform (bundle adjustment may move the rig's gauge), ``reconstructed``
+    (fraction of finite points) and ``body_length`` (the truth's head-to-tail extent, for scale)."""
     points3d = np.asarray(points3d, float)
     truth3d = np.asarray(truth3d, float)
     if points3d.shape != truth3d.shape:

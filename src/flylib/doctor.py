@@ -1,8 +1,7 @@
 """``flylib doctor``: the installation in one screen, and what in it blocks a run.
 
-Each check gives one line: ``ok``, ``note`` (works, worth knowing: e.g. no GPU, no
-SLURM) or ``FAIL`` (a run cannot work until it is fixed). :func:`run_checks` returns
-the lines; ``flylib doctor`` prints them and exits 1 when one is ``FAIL``.
+Each check gives one line: ``ok``, ``note`` (works, worth knowing: e.g. no GPU, no SLURM) or
+``FAIL`` (a run cannot work until it is fixed); ``flylib doctor`` exits 1 on a ``FAIL``.
 """
 
 from __future__ import annotations
@@ -122,8 +121,8 @@ def check_torch() -> list[Check]:
 
 
 def check_weights(config_files: Sequence[Path] = ()) -> list[Check]:
-    """The detector checkpoint of every model the detection plan uses: present, or where
-    to put it. Missing weights block only runs that detect (not the demo, not imports)."""
+    """The detector checkpoint of every model the detection plan uses: present, or where to
+    put it. Missing weights block only runs that detect (not the demo, not imports)."""
     from .config import Config, validate_config
     from .config.constants import DEFAULT_CONFIG_PATH
     from .config.layers import ConfigLayers

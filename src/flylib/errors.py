@@ -38,8 +38,7 @@ class StageError(FlylibError, RuntimeError):
 
 
 def one_line(err: BaseException | str, limit: int = 300) -> str:
-    """``err``'s text on one line (whitespace runs collapsed), at most ``limit``
-    characters: for quoting a library's message inside a flylib error."""
+    """``err``'s text on one line (whitespace collapsed), cut at ``limit`` characters."""
     return " ".join(str(err).split())[:limit]
 
 
@@ -54,7 +53,6 @@ def did_you_mean(name: object, known: object) -> str:
 
 
 def unknown_key(kind: str, name: object, known: object) -> str:
-    """The text of an unknown-key problem: ``"unknown parameter; did you mean 'method'?
-    (known: ...)"``, the closest known name first when there is one."""
+    """``"unknown <kind>; did you mean 'x'? (known: ...)"``: an unknown-key problem's text."""
     names = [str(k) for k in known]  # type: ignore[union-attr]
     return f"unknown {kind}; {did_you_mean(name, names)}(known: {', '.join(names)})"

@@ -1,14 +1,13 @@
 """Is the 3D a fly or its mirror image? :func:`handedness`, from the skeleton's labels.
 
-A fly's own axes make a right-handed frame: forward (hind legs to front legs) cross
-left (right legs to left legs) points dorsal. Dorsal is read from the tethered
-posture: a leg's tip (the last point of its chain) hangs ventral of its body-coxa
-point (the first). A reconstruction whose calibration or starting rig is the mirror
-image of the real one (long-focal, near-orthographic cameras cannot tell a scene
-from its depth-reversed twin) puts the left legs on the fly's right: the same
-product then points ventral. Each frame gives the cosine between ``forward x left``
-and ``dorsal``; the score is their median over the frames where every group has a
-point (NaN-tolerant), so a few bad frames do not decide it.
+A fly's own axes make a right-handed frame: forward (hind legs to front legs) cross left
+(right legs to left legs) points dorsal. Dorsal is read from the tethered posture: a leg's
+tip (the last point of its chain) hangs ventral of its body-coxa point (the first). A
+reconstruction whose calibration or starting rig is the mirror image of the real one
+(near-orthographic cameras cannot tell a scene from its depth-reversed twin) puts the left
+legs on the fly's right: the same product then points ventral. Each frame gives the cosine
+between ``forward x left`` and ``dorsal``; the score is their median over the frames where
+every group has a point, so a few bad frames do not decide it.
 """
 
 from __future__ import annotations
@@ -35,18 +34,10 @@ DECISIVE = 0.5
 class Handedness:
     """The verdict of :func:`handedness`.
 
-    Attributes
-    ----------
-    score
-        Median over frames of the cosine between ``forward x left`` and ``dorsal``,
-        in ``[-1, 1]`` (``+1``: a fly; ``-1``: its mirror image); NaN when no frame
-        could be measured.
-    verdict
-        ``"right-handed"``, ``"mirrored"`` or ``"undetermined"``.
-    reason
-        One sentence: what the verdict rests on, or why there is none.
-    frames
-        The number of frames measured.
+    ``score`` is the median cosine in ``[-1, 1]`` (``+1``: a fly; ``-1``: its mirror image;
+    NaN when no frame could be measured); ``verdict`` ``"right-handed"``, ``"mirrored"`` or
+    ``"undetermined"``; ``reason`` one sentence on what it rests on (or why there is none);
+    ``frames`` the number of frames measured.
     """
 
     score: float
@@ -67,13 +58,11 @@ class Handedness:
 
 
 def side_groups(skeleton: Skeleton) -> dict[str, list[int]] | str:
-    """The point groups the check reads, from the skeleton's labelled legs.
+    """``group -> point indices`` the check reads, or why the skeleton allows no check.
 
-    Legs are the limbs whose first point is ``<l|r><f|m|h>_thorax_coxa``:
-    ``left``/``right`` (every point of the legs of that side), ``front``/``hind``
-    (the body-coxa points of the front and hind legs), ``coxa`` (every body-coxa
-    point) and ``tip`` (each leg's last point). Returns ``group -> point indices``, or
-    why the skeleton allows no check.
+    Legs are the limbs whose first point is ``<l|r><f|m|h>_thorax_coxa``: ``left``/``right``
+    (every point of that side's legs), ``front``/``hind`` (the body-coxa points of those
+    legs), ``coxa`` (every body-coxa point) and ``tip`` (each leg's last point).
     """
     legs = {}
     for chain in skeleton.limbs.values():
@@ -120,8 +109,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np.ndarray:
-    """``(T,)`` per-frame cosine between ``forward x left`` and ``dorsal`` (NaN where a
-    group has no finite point in the frame); see :func:`handedness`."""
+    """``(T,)`` per-frame cosine between ``forward x left`` and ``dorsal`` (NaN where a group
+    has no finite point in the frame)."""
     groups = side_groups(skeleton)
     if isinstance(groups, str):
         raise ValueError(groups)
@@ -136,13 +125,9 @@ def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np
 
 
 def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Handedness:
-    """Whether the world points ``points3d`` ``(T, P, 3)`` (NaN = missing) show a fly or its
-    mirror image.
-
-    The ``skeleton`` names the legs (:func:`side_groups`). The score is the median
-    per-frame cosine (module docstring); the verdict ``right-handed`` above +0.5,
-    ``mirrored`` below -0.5, else ``undetermined``.
-    """
+    """Whether world points ``(T, P, 3)`` (NaN = missing) show a fly or its mirror image: the
+    median per-frame cosine, ``right-handed`` above +0.5, ``mirrored`` below -0.5, else
+    ``undetermined``; the ``skeleton`` names the legs (:func:`side_groups`)."""
     groups = side_groups(skeleton)
     if isinstance(groups, str):
         return Handedness(float("nan"), UNDETERMINED, groups, 0)
@@ -174,17 +159,15 @@ WORLD_MIRROR = np.diag([1.0, 1.0, -1.0])
 
 
 def mirror_cameras(cameras):
-    """The same rig in mirrored world coordinates (world ``z`` negated).
+    """The same rig (names and order kept) in mirrored world coordinates (world ``z`` negated).
 
-    A world point ``X`` becomes ``S X`` with ``S = diag(1, 1, -1)``; each camera's
-    rotation becomes ``-R S`` (a proper rotation again, as ``det(-R S) = +1``) and its
-    translation ``-t``. The camera-frame point of ``S X`` is then ``-(R X + t)``, whose
-    ratios ``x / z``, ``y / z`` -- and so every pixel, distortion included -- are those
-    of ``X`` before: intrinsics and distortion are kept as they are, and triangulating
-    the same 2D through the mirrored rig gives ``S`` times the old 3D, the fly's mirror
-    image. The price is the sign of depth: the scene lies behind the mirrored cameras,
-    which pinhole projection (and everything flylib computes from it) does not see.
-    Names and order stay.
+    A world point ``X`` becomes ``S X`` with ``S = diag(1, 1, -1)``; each camera's rotation
+    becomes ``-R S`` (proper again: ``det(-R S) = +1``) and its translation ``-t``. The
+    camera-frame point of ``S X`` is then ``-(R X + t)``, whose ratios ``x / z``, ``y / z``
+    -- so every pixel, distortion included -- are those of ``X`` before: intrinsics and
+    distortion are kept, and triangulating the same 2D gives ``S`` times the old 3D. The
+    price is the sign of depth: the scene lies behind the mirrored cameras, which pinhole
+    projection (and everything flylib computes from it) does not see.
     """
     import cv2
 
@@ -211,8 +194,7 @@ def mirror_image(result: Handedness) -> str:
     )
 
 
-#: The config switch that mirrors a calibration file's world back (documented in
-#: docs/how-it-works/handedness.md).
+#: The config switch that mirrors a calibration file's world back (documented in DOCS_PAGE).
 MIRROR_SWITCH = "calibration: {mirror: true}"
 DOCS_PAGE = "docs/how-it-works/handedness.md"
 
@@ -226,31 +208,17 @@ def rig_check(
     adjusted: bool = False,
     start: Handedness | None = None,
 ) -> dict:
-    """The handedness entry of ``summary.json`` and ``results.h5``: the verdict on the
-    final 3D, and -- when it is a mirror image -- its cause and the one-line message.
+    """The handedness entry of ``summary.json`` and ``results.h5``: the verdict on the final
+    3D (``result``) and, when it is a mirror image, its cause and the one-line message.
 
-    Parameters
-    ----------
-    result
-        :func:`handedness` of the result's 3D.
-    rig
-        The starting rig in words: ``"the calibration file <path>"`` or the cameras
-        table.
-    from_file
-        Whether that rig is a calibration file (then :data:`MIRROR_SWITCH` fixes it).
-    mirror_set
-        Whether the config already mirrors the file (``calibration.mirror: true``).
-    adjusted
-        Whether bundle adjustment moved the cameras from that rig.
-    start
-        With ``adjusted``: :func:`handedness` of the 3D the starting rig gives.
+    ``rig`` is the starting rig in words (``"the calibration file <path>"`` or the cameras
+    table); ``from_file``: it is a calibration file (:data:`MIRROR_SWITCH` fixes it);
+    ``mirror_set``: the config already mirrors it; ``adjusted``: bundle adjustment moved the
+    cameras from it, and ``start`` is the verdict on the 3D the starting rig gives.
 
-    Returns
-    -------
-    dict
-        ``score``, ``verdict``, ``reason``, ``frames``, ``rig``, ``cause`` (``None``,
-        ``"calibration"``, ``"starting_rig"`` or ``"bundle_adjustment"``), ``message``
-        (``None`` unless mirrored) and ``starting_rig`` (``start``'s entry or ``None``).
+    Returns ``score``, ``verdict``, ``reason``, ``frames``, ``rig``, ``cause`` (``None``,
+    ``"calibration"``, ``"starting_rig"`` or ``"bundle_adjustment"``), ``message`` (``None``
+    unless mirrored) and ``starting_rig`` (``start``'s entry or ``None``).
     """
     out = {
         **result.as_dict(),
@@ -296,9 +264,9 @@ def rig_check(
 def mirrored_refusal(result, results_path, stage: str) -> str | None:
     """Why ``stage`` (kinematics, neuromechfly) refuses the 3D of ``result``, or ``None``.
 
-    The verdict assemble stored in ``results.h5`` (its meta ``handedness``, naming the
-    cause) is used when present; a file without one is judged here from its 3D. The
-    one-line refusal names ``results_path`` and the stage's ``allow_mirrored`` switch.
+    The verdict assemble stored in ``results.h5`` (meta ``handedness``, naming the cause) is
+    used when present, else the 3D is judged here. The one-line refusal names
+    ``results_path`` and the stage's ``allow_mirrored`` switch.
     """
     stored = (result.meta or {}).get("handedness")
     if isinstance(stored, dict) and stored.get("verdict") is not None:

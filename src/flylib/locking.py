@@ -1,21 +1,21 @@
 """One writer per output directory: a lock file held for the duration of each job.
 
-Two Snakemake runs started from different working directories do not know about
-each other's jobs (one working directory is locked by Snakemake itself, and the jobs of
-one run share the lock: they run side by side, e.g. visualization and kinematics); both
-writing one ``outdir`` would interleave artifacts made with different configs. Every
-stage script takes ``<outdir>/.flylib.lock`` (created exclusively, holding the holder's
-host, pid, working directory and job) before it writes and removes it when done; a
-second writer fails at once with one line naming the holder. A lock left by a process that died (same host, pid gone) is taken over.
+Two Snakemake runs started from different working directories do not know about each
+other's jobs (Snakemake locks one working directory; the jobs of one run share it and run
+side by side, e.g. visualization and kinematics); both writing one ``outdir`` would
+interleave artifacts made with different configs. Every stage script takes
+``<outdir>/.flylib.lock`` (created exclusively, holding the holder's host, pid, working
+directory and job) before it writes and removes it when done; a second writer fails at once
+with one line naming the holder. A lock left by a process that died (same host, pid gone)
+is taken over.
 
-A job's lock comes too late to protect a whole run: Snakemake deletes a job's old
-outputs before the job starts, so a second run would already have removed the first
-run's files when its job meets the lock. The workflow therefore *claims* every output
-directory of a run (:func:`claim_outdirs`) once its DAG is built and before any job is
-scheduled or any output removed, and releases them when the run ends
-(:func:`release_outdirs`). The claim is the same lock file, held by the Snakemake
-process and naming a run id that the run's jobs inherit through :data:`RUN_ENV` (on a
-cluster node too), so the run's own jobs pass it and every other writer stops.
+A job's lock comes too late to protect a whole run: Snakemake deletes a job's old outputs
+before the job starts. The workflow therefore *claims* every output directory of a run
+(:func:`claim_outdirs`) once its DAG is built, before any job is scheduled or output
+removed, and releases them when the run ends (:func:`release_outdirs`). The claim is the
+same lock file, held by the Snakemake process and naming a run id that the run's jobs
+inherit through :data:`RUN_ENV` (on a cluster node too): they pass it, every other writer
+stops.
 """
 
 from __future__ import annotations
@@ -47,11 +47,11 @@ __all__ = [
 
 #: The lock file's name inside an output directory.
 LOCK_NAME = ".flylib.lock"
-# A lock file found empty or unreadable is being written by its creator; after this
-# many seconds it is taken for the remains of a crash.
+# A lock file found empty or unreadable is being written by its creator; after this many
+# seconds it is taken for the remains of a crash.
 _UNREADABLE_GRACE_S = 2.0
-#: The environment variable that carries a run's id to its jobs (set by the workflow
-#: when it claims the run's output directories; inherited by local and cluster jobs).
+#: Carries a run's id to its jobs (set when the workflow claims the run's output
+#: directories; inherited by local and cluster jobs).
 RUN_ENV = "FLYLIB_RUN_ID"
 _HELD: contextvars.ContextVar[Path | None] = contextvars.ContextVar("held_outdir", default=None)
 
@@ -68,21 +68,18 @@ def pid_alive(pid: int) -> bool:
 
 
 def held_outdir() -> Path | None:
-    """The output directory whose lock the running block holds (:func:`outdir_lock`),
-    resolved; ``None`` outside one. Artifacts record it to tell a copied directory."""
+    """The resolved output directory whose lock the running block holds (:func:`outdir_lock`),
+    else ``None``. Artifacts record it to tell a copied directory."""
     return _HELD.get()
 
 
 def claim_lost(path: str | Path) -> str | None:
-    """Why this job may no longer put ``path`` in place, or ``None`` when it may.
+    """Why this job may no longer put ``path`` in place (one line), or ``None`` when it may.
 
-    A job of a run (:data:`RUN_ENV` set) inside :func:`outdir_lock` writes under its
-    run's claim. When the run was killed, its jobs may live on; the next run takes the
-    stale claim over and writes the directory with its own params. From then on an
-    orphan's output would replace the new run's, so it is refused. Outside a run, or
-    for a path outside the held directory, or with no claim file left, nothing is checked.
-    The line names ``path``, the run that holds the directory now, and that this job's
-    result was discarded.
+    A job of a run (:data:`RUN_ENV` set) inside :func:`outdir_lock` writes under its run's
+    claim. A killed run's jobs may live on while the next run takes the stale claim over;
+    an orphan's output would then replace the new run's, so it is refused. Outside a run,
+    outside the held directory, or with no claim file left, nothing is checked.
     """
     run = os.environ.get(RUN_ENV)
     held = _HELD.get()
@@ -118,10 +115,9 @@ def _is_stale(holder: dict) -> bool:
 
 
 def _same_run(holder: dict, me: dict) -> bool:
-    """Whether the holder belongs to this process's run: its run id (a job of a run
-    that claimed the directory, on any host), or a live process of the same working
-    directory on this host (Snakemake itself refuses a second run in one working
-    directory), e.g. visualization and kinematics of one recording running side by side."""
+    """Whether the holder belongs to this process's run: its run id (on any host), or a live
+    process of the same working directory on this host (Snakemake refuses a second run in
+    one working directory), e.g. visualization and kinematics running side by side."""
     if me.get("run") and holder.get("run") == me["run"]:
         return True
     return (
@@ -139,12 +135,9 @@ def _describe(holder: dict) -> str:
 
 
 def _take_over(path: Path, stale: dict | None) -> None:
-    """Remove a stale lock file, unless another taker replaced it meanwhile.
-
-    The file is first moved aside under a name of our own (of two takers only one
-    move succeeds); if what was moved is no longer the stale holder (another taker
-    already put its live lock there), it is put back.
-    """
+    """Remove a stale lock file, unless another taker replaced it meanwhile: it is moved
+    aside under our own name (of two takers only one move succeeds), and put back if what
+    was moved is no longer the stale holder."""
     aside = path.with_name(f"{LOCK_NAME}.stale.{os.getpid()}")
     try:
         os.replace(path, aside)
@@ -211,18 +204,12 @@ def _release(outdir: Path, me: dict) -> None:
 
 @contextlib.contextmanager
 def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
-    """Hold ``<outdir>/.flylib.lock`` for the block's duration.
+    """Hold ``<outdir>/.flylib.lock`` (yielded) for the block's duration.
 
-    Inside a run that claimed the directory (:data:`RUN_ENV` names the claim's run)
-    the run's claim stands for the job's lock. ``outdir`` is created if missing; ``job``
-    (e.g. ``triangulation``) is named in the message another writer gets. Yields the lock
-    file.
-
-    Raises
-    ------
-    OutputError
-        When a live process of another run (or one on another host) holds the lock:
-        one line naming it, its working directory and the lock file.
+    Inside a run that claimed the directory (:data:`RUN_ENV`) the claim stands for the
+    job's lock. ``outdir`` is created if missing; ``job`` (e.g. ``triangulation``) is named
+    in the message another writer gets. OutputError when a live process of another run (or
+    one on another host) holds the lock.
     """
     outdir = Path(outdir)
     me = _me(job, os.environ.get(RUN_ENV))
@@ -239,18 +226,11 @@ def outdir_lock(outdir: str | Path, job: str) -> Iterator[Path]:
 def claim_outdirs(outdirs: Iterable[str | Path], run: str | None = None) -> list[Path]:
     """Claim every output directory of a run for this process, all or none.
 
-    Sets :data:`RUN_ENV` to the run's id, so that the jobs this process starts from
-    now on (which inherit the environment) pass the claim.
-
-    ``outdirs`` are created if missing; ``run`` defaults to :data:`RUN_ENV`, else a new
-    random id. Returns the directories this call claimed (those this run held already are
-    left out), for :func:`release_outdirs` when the run ends.
-
-    Raises
-    ------
-    OutputError
-        The first directory another live run holds; the ones claimed before it are
-        released again, so nothing is left held.
+    Sets :data:`RUN_ENV` to the run's id (``run``, else :data:`RUN_ENV`, else a new random
+    one), so the jobs started from now on pass the claim. ``outdirs`` are created if
+    missing. Returns those this call claimed (not those the run held already), for
+    :func:`release_outdirs`. OutputError for the first directory another live run holds,
+    after releasing those claimed before it.
     """
     run = run or os.environ.get(RUN_ENV) or uuid.uuid4().hex
     os.environ[RUN_ENV] = run
@@ -267,8 +247,8 @@ def claim_outdirs(outdirs: Iterable[str | Path], run: str | None = None) -> list
 
 
 def release_outdirs(outdirs: Iterable[str | Path]) -> None:
-    """Release the claims :func:`claim_outdirs` took (a claim another process holds by
-    now, after taking over a stale one, is left alone)."""
+    """Release the claims :func:`claim_outdirs` took (one another process took over since is
+    left alone)."""
     me = _me("snakemake run", None)
     for outdir in outdirs:
         _release(Path(outdir), me)

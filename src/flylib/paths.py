@@ -14,23 +14,18 @@ from pathlib import Path
 
 from .locking import claim_lost, pid_alive
 
-#: The packaged default config, a real file inside the package (the repository's
-#: ``config/config.yaml`` is the user's editable copy; a test keeps the two identical).
+#: The packaged default config (the repository's ``config/config.yaml`` is the user's
+#: editable copy; a test keeps the two identical).
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.yaml")
 
 
 def fill_template(template: str, values: dict[str, str], key: str) -> str:
     """A path template with its placeholders filled: only plain ``{name}`` of ``values``.
 
-    ``str.format`` would also evaluate conversions (``{id!r}``), format specs,
-    attribute and index access (``{recording.parent}``, ``{id[0]}``); a config's path
-    template (e.g. ``results/{id}``) may use none of them. ``{{`` and ``}}`` are literal
-    braces. ``key`` is the config key the template came from, for the message.
-
-    Raises
-    ------
-    ConfigError
-        Naming ``key``, the offending field and the allowed placeholders.
+    ``str.format`` would also evaluate conversions (``{id!r}``), format specs, attribute and
+    index access (``{recording.parent}``, ``{id[0]}``); a config's path template may use none
+    of them. ``{{`` and ``}}`` are literal braces. ConfigError names ``key`` (the config key
+    the template came from), the offending field and the allowed placeholders.
     """
     from string import Formatter
 
@@ -66,37 +61,25 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
 
 
 def cache_dir() -> Path:
-    """The per-user cache (detector weights, compiled JAX kernels): ``$FLYLIB_CACHE`` when
-    set, else ``~/.cache/flylib``."""
+    """The per-user cache (weights, JAX kernels): ``$FLYLIB_CACHE``, else ``~/.cache/flylib``."""
     env = os.environ.get("FLYLIB_CACHE")
     return Path(env).expanduser() if env else Path.home() / ".cache" / "flylib"
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path``; rename it to ``path`` on success.
+    """Yield a new temporary sibling of ``path``; rename it to ``path`` on success.
 
-    The temporary file lives in the same directory (so the final ``os.replace`` is
-    atomic), keeps ``path``'s suffix (FFmpeg and pandas pick the format from it) and is
-    removed if the block raises, leaving any previous ``path`` untouched: a crash never
-    leaves a truncated output under the final name. The parent directory is created
-    if missing. Temporary files of ``path`` left by writers that died (killed
-    mid-write on this host) are removed first (:func:`remove_stale_temps`). Inside a
-    run's job, the file is renamed into place only while the run still holds the output
-    directory's claim (:func:`flylib.locking.claim_lost`): a job that outlived its
-    killed run never replaces what the run that took the directory over writes.
+    The temporary file lives in the same directory (so ``os.replace`` is atomic), keeps
+    ``path``'s suffix (FFmpeg and pandas pick the format from it) and is removed if the block
+    raises, leaving any previous ``path`` untouched. The parent directory is created if
+    missing; temporary files of ``path`` left by dead writers on this host are removed first
+    (:func:`remove_stale_temps`). Inside a run's job, the file is renamed into place only
+    while the run still holds the output directory's claim
+    (:func:`flylib.locking.claim_lost`).
 
-    Yields
-    ------
-    Path
-        Where to write; it does not exist yet.
-
-    Raises
-    ------
-    OutputError
-        When the write fails for want of space (disk full, quota, file-size limit):
-        one line naming ``path`` and saying that nothing was kept; or when another
-        run took the output directory over meanwhile (nothing is kept either).
+    OutputError (nothing kept) when the write runs out of space (disk full, quota, file-size
+    limit) or another run took the output directory over meanwhile.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -130,8 +113,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 _HOST = socket.gethostname()
 
 #: The file in a folder listing the files flylib wrote (or, for a workflow output folder,
-#: owns) there, one name per line relative to the folder: what tells flylib's files
-#: from the user's (:func:`written_by_flylib`).
+#: owns) there, one name per line relative to the folder (:func:`written_by_flylib`).
 OUTPUTS_MANIFEST = ".flylib-outputs"
 
 
@@ -159,9 +141,8 @@ def record_outputs(folder: str | Path, names: Iterable[str]) -> None:
 
 def written_by_flylib(path: str | Path, *, hdf5: bool = False) -> bool:
     """Whether flylib wrote ``path``: its folder's :data:`OUTPUTS_MANIFEST` names it, or
-    (``hdf5``) it is an HDF5 file carrying flylib's ``meta`` attribute (a stage artifact
-    or ``results.h5`` of any flylib version, which a re-run replaces). Anything else is
-    the user's."""
+    (``hdf5``) it is an HDF5 file carrying flylib's ``meta`` attribute (a stage artifact or
+    ``results.h5`` of any flylib version). Anything else is the user's."""
     path = Path(path)
     if path.name in (recorded_outputs(path.parent) or ()):
         return True
@@ -186,8 +167,8 @@ def is_flylib_hdf5(path: str | Path) -> bool:
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:
-    """Whether ``a`` and ``b`` are one file: the same resolved path, or (both existing)
-    the same inode, so a link or a second name of a file counts as that file."""
+    """Whether ``a`` and ``b`` are one file: the same resolved path, or (both existing) the
+    same inode, so a link or a second name of a file counts as that file."""
     if os.path.realpath(a) == os.path.realpath(b):
         return True
     try:
@@ -199,23 +180,13 @@ def same_file(a: str | Path, b: str | Path) -> bool:
 def refuse_overwrite(
     path: str | Path, inputs: dict[str, str], role: str, *, force: bool = False
 ) -> None:
-    """Refuse to write ``path`` over an input or over a file flylib did not write.
+    """Refuse (OutputError) to write ``path`` over an input or a file flylib did not write.
 
-    Parameters
-    ----------
-    inputs
-        ``input file -> its role`` (e.g. ``"the input RESULTS_H5"``).
-    role
-        What would write it (e.g. ``"--csv3d"``), for the message.
-    force
-        Replace an existing file flylib did not write (never an input). Only a file
-        an earlier export recorded (:data:`OUTPUTS_MANIFEST`) is flylib's here: another
-        recording's ``results.h5`` is not replaced without ``force`` either.
-
-    Raises
-    ------
-    OutputError
-        Naming the file, both roles and the fix.
+    ``inputs`` maps each input file to its role (e.g. ``"the input RESULTS_H5"``); ``role``
+    is what would write ``path`` (e.g. ``"--csv3d"``). ``force`` replaces an existing file
+    flylib did not write (never an input). Only a file an earlier export recorded
+    (:data:`OUTPUTS_MANIFEST`) is flylib's here: another recording's ``results.h5`` is not
+    replaced without ``force`` either.
     """
     from .errors import OutputError
 
@@ -231,19 +202,16 @@ def refuse_overwrite(
         )
 
 
-# atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (flylib
-# before the host was recorded: .<stem>.<pid>.<8 hex>.tmp<suffix>, taken as this host's).
+# atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (a name without
+# @<host> is taken as this host's).
 _TEMP_NAME = re.compile(
     r"^\.(?P<stem>.*)\.(?P<pid>\d+)(?:@(?P<host>[^/]+?))?\.[0-9a-f]{8}\.tmp(?P<suffix>\.[^.]*)?$"
 )
 
 
 def _stale_temp(path: str | Path) -> bool:
-    """Whether ``path`` is a temporary file of :func:`atomic_path` whose writer is gone.
-
-    Only writers on this host can be told dead (a process of a cluster node writing the
-    same shared directory cannot), so another host's temporary file is never stale.
-    """
+    """Whether ``path`` is a temporary file of :func:`atomic_path` whose writer is gone (only
+    writers on this host can be told dead: another host's temporary file is never stale)."""
     match = _TEMP_NAME.match(Path(path).name)
     if match is None:
         return False
@@ -258,13 +226,10 @@ def remove_stale_temps(
 ) -> list[Path]:
     """Remove (and return) the temporary files that killed writers left in ``directory``.
 
-    A writer killed mid-write (``kill -9``, out of memory, a node lost) cannot remove
-    its temporary file; the next write of the same file, and the workflow when it
-    claims an output directory, remove those whose writer (this host, its pid) no longer
-    exists. A live writer's temporary file is never touched.
-
-    A missing ``directory`` holds nothing; ``of`` limits the search to the temporary
-    files of that final path.
+    A writer killed mid-write (``kill -9``, out of memory) cannot remove its temporary file;
+    the next write of the same file, and the workflow when it claims an output directory,
+    remove those whose writer (this host, its pid) no longer exists. A missing ``directory``
+    holds nothing; ``of`` limits the search to the temporary files of that final path.
     """
     directory = Path(directory)
     if of is not None:

@@ -1,16 +1,14 @@
 """Which config produced an artifact: params hashes recorded in every flylib HDF5 file.
 
-Each stage artifact's ``meta`` records ``params_sha256``, the hash of the params
-that stage's result depends on (its inputs object's canonical params,
-:func:`flylib.pipeline.inputs.stage_params`: exactly what the workflow rule tracks as
-its ``params``), and
-``upstream_params_sha256``, the hashes recorded in the artifacts it was built from.
-``results.h5`` keeps each stage group's meta (so its hashes) and adds the assemble
-stage's own. From these :func:`provenance_report` tells
+Each stage artifact's ``meta`` records ``params_sha256``, the hash of the params that stage's
+result depends on (:func:`flylib.pipeline.inputs.stage_params`: exactly what the workflow
+rule tracks as its ``params``), and ``upstream_params_sha256``, the hashes recorded in the
+artifacts it was built from. ``results.h5`` keeps each stage group's meta and adds the
+assemble stage's own. From these :func:`provenance_report` tells
 
 * a *stale* stage: made with params other than what a config gives now;
-* a *mixed* file: a stage built from an upstream artifact other than the one
-  assembled beside it (e.g. triangulation from an older pose2d);
+* a *mixed* file: a stage built from an upstream artifact other than the one assembled
+  beside it (e.g. triangulation from an older pose2d);
 * a results file assembled from other artifacts than those in ``stages/``.
 """
 
@@ -39,9 +37,9 @@ __all__ = [
 PARAMS_KEY = "params_sha256"
 #: meta key of ``{upstream stage: params hash}`` the artifact was built from.
 UPSTREAM_KEY = "upstream_params_sha256"
-#: meta key of ``{"host", "cwd", "outdir"?}``: where the process that wrote the
-#: artifact ran (a Snakemake job's working directory is its run's) and the output
-#: directory it wrote (when it held that directory's lock), which tells a copy.
+#: meta key of ``{"host", "cwd", "outdir"?}``: where the artifact's writer ran (a Snakemake
+#: job's working directory is its run's) and the output directory it wrote (when it held
+#: that directory's lock), which tells a copy.
 WRITER_KEY = "writer"
 #: meta key of the artifact's own random id (two artifacts with equal params differ).
 ARTIFACT_ID_KEY = "artifact_id"
@@ -50,8 +48,8 @@ UPSTREAM_IDS_KEY = "upstream_artifact_ids"
 
 
 def params_hash(params: Mapping[str, Any]) -> str:
-    """A short, stable hash of JSON-serialisable params, e.g. a stage's tracked params
-    (canonical JSON, SHA-256, 16 lowercase hex digits)."""
+    """A short, stable hash of JSON-serialisable params (canonical JSON, SHA-256, 16 lowercase
+    hex digits)."""
     text = json.dumps(params, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
@@ -63,15 +61,9 @@ def stage_provenance(
     "artifact_id": ..., "writer": {...}, "upstream_params_sha256": {stage: hash},
     "upstream_artifact_ids": {stage: id}}``.
 
-    Parameters
-    ----------
-    params
-        The stage's tracked params (its inputs object's ``canonical_params()``, or
-        :func:`flylib.pipeline.inputs.stage_params`).
-    stage
-        A :data:`flylib.config.PARAM_STAGES` name.
-    upstream
-        ``upstream stage -> artifact path`` the stage read (``None`` entries skipped).
+    ``params`` are the stage's tracked params (:func:`flylib.pipeline.inputs.stage_params`),
+    ``stage`` a :data:`flylib.config.PARAM_STAGES` name, ``upstream`` maps each upstream
+    stage to the artifact path the stage read (``None`` entries skipped).
     """
     from .locking import held_outdir
     from .results import read_meta
@@ -106,23 +98,12 @@ def stage_provenance(
 
 @dataclass
 class ProvenanceRow:
-    """One stage of a results file: what it records and what a config would give.
-
-    Attributes
-    ----------
-    stage
-        ``assemble`` for the file itself.
-    recorded
-        The params hash the stage recorded, or ``None`` (an older flylib).
-    expected
-        The hash the compared config gives, or ``None`` without a config.
-    problems
-        One line per inconsistency.
-    status
-        ``ok``, ``stale`` (params differ from the config's, or a corrections sidecar
-        beside the file was not applied), ``mixed`` (built from
-        other upstream artifacts) or ``unknown`` (no hash recorded).
-    """
+    """One stage of a results file (``assemble`` for the file itself): the params hash it
+    ``recorded`` (``None``: an older flylib), the one the compared config gives
+    (``expected``; ``None`` without a config), one line per inconsistency (``problems``),
+    and ``status``: ``ok``, ``stale`` (params differ from the config's, or a corrections
+    sidecar beside the file was not applied), ``mixed`` (built from other upstream
+    artifacts) or ``unknown`` (no hash recorded)."""
 
     stage: str
     recorded: str | None
@@ -132,8 +113,7 @@ class ProvenanceRow:
 
 
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 of a file's bytes, 16 hex digits (e.g. the corrections sidecar a
-    triangulation applied)."""
+    """SHA-256 of a file's bytes, 16 hex digits (e.g. the corrections sidecar applied)."""
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
@@ -142,8 +122,8 @@ def file_sha256(path: str | Path) -> str:
 
 
 def _group_metas(path: Path) -> tuple[dict, dict[str, dict], dict | None]:
-    """The root meta, each stage group's meta, and the corrections the triangulation
-    group records having applied (``None``: none)."""
+    """The root meta, each stage group's meta, and the corrections the triangulation group
+    records having applied (``None``: none)."""
     from .results import STAGE_GROUPS, open_checked, read_meta_from
 
     with open_checked(path, "pass a results.h5 a run wrote") as f:
@@ -160,8 +140,8 @@ def _group_metas(path: Path) -> tuple[dict, dict[str, dict], dict | None]:
 
 
 def _corrections_problem(results: Path, applied: dict | None) -> str | None:
-    """A line when the corrections sidecar beside ``results`` is not what its
-    triangulation applied (never applied, or edited since)."""
+    """A line when the corrections sidecar beside ``results`` is not what its triangulation
+    applied (never applied, or edited since)."""
     sidecar = results.parent / "corrections.h5"
     if not sidecar.is_file():
         return None
@@ -195,19 +175,14 @@ ParamsOf = Callable[[str], "Mapping[str, Any] | None"]
 def provenance_report(
     results: str | Path, params_of: ParamsOf | None = None, stages_dir: str | Path | None = None
 ) -> list[ProvenanceRow]:
-    """Check a ``results.h5``'s recorded params hashes for a stale or mixed state: one
-    row per stage in the file, then ``assemble``.
+    """Check a ``results.h5``'s recorded params hashes for a stale or mixed state: one row
+    per stage in the file, then ``assemble``.
 
-    Parameters
-    ----------
-    params_of
-        ``stage -> params`` of the config to compare with (e.g. the snapshot beside
-        the file, or the config a re-run would use), asked for each stage in the file
-        and ``assemble`` (``session_calibration`` for a session's rig):
-        :func:`flylib.pipeline.planning.params_of`; ``None`` checks only consistency.
-    stages_dir
-        The ``stages/`` directory the file was assembled from (default: beside it,
-        when it exists); each artifact there must carry the hash the file holds.
+    ``params_of`` (:func:`flylib.pipeline.planning.params_of`) gives the params of the
+    config to compare with, asked for each stage in the file and ``assemble``
+    (``session_calibration`` for a session's rig); ``None`` checks only consistency.
+    ``stages_dir`` (default: ``stages/`` beside the file, when it exists) is where the file
+    was assembled from: each artifact there must carry the hash the file holds.
     """
     from .results import ARTIFACTS, read_meta
 
@@ -222,8 +197,8 @@ def provenance_report(
         own = meta.get(PARAMS_KEY)
         problems: list[str] = []
         status = "unknown" if own is None else "ok"
-        # a session's rig (bundle_adjustment.session): its params are the session solve's,
-        # and stages/ holds the recording's own solve beside it
+        # a session's rig: its params are the session solve's, and stages/ holds the
+        # recording's own solve
         session_rig = stage == "bundle_adjustment" and bool(meta.get("session"))
         asked = "session_calibration" if session_rig else stage
         params = params_of(asked) if params_of is not None else None
@@ -286,27 +261,16 @@ def provenance_report(
 def foreign_artifacts(
     params_of: ParamsOf, recordings, *, cwd: str | Path | None = None
 ) -> list[str]:
-    """Artifacts another working directory's run wrote with other params.
+    """Artifacts another working directory's run wrote with other params, one line each
+    naming it and the fix.
 
-    Snakemake tracks params per working directory: a run from another directory
-    that wrote the same output directory with another config leaves artifacts this
-    run's Snakemake takes as up to date ("Nothing to be done"). Each such artifact
-    (its recorded writer's working directory differs from ``cwd`` and its params
-    hash from what the run's config gives) is one line naming it and the fix.
-
-    Parameters
-    ----------
-    params_of
-        ``stage -> the params the run's config gives it``, ``None`` for a stage the
-        run does not write (:func:`flylib.pipeline.planning.params_of` with
-        ``run_only=True``); asked for each stage artifact and ``assemble``.
-    recordings
-        The planned recordings (objects with an ``outdir``).
-    cwd
-        This run's working directory (default: the current one).
-
-    An artifact too damaged to tell gets a line too (its recording's stage that reads
-    it fails on it; the others run).
+    Snakemake tracks params per working directory: a run from another directory that wrote
+    the same output directory with another config leaves artifacts this run's Snakemake
+    takes as up to date. Flagged: those whose recorded writer's working directory differs
+    from ``cwd`` (default: the current one) and whose params hash differs from what
+    ``params_of`` gives (:func:`flylib.pipeline.planning.params_of` with ``run_only=True``;
+    ``None`` for a stage the run does not write), and copies from another output directory.
+    An artifact too damaged to tell gets a line too. ``recordings`` have an ``outdir``.
     """
     from .errors import ResultsError
     from .results import ARTIFACTS, read_meta

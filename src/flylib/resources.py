@@ -1,9 +1,8 @@
 """What this process may use of the machine.
 
-A workflow job is given a number of threads (the rule's ``threads``, Snakemake's
-``--cores``); :func:`thread_budget` makes that number what every thread pool in
-flylib sizes itself from. Outside a budget (library use) the pools size themselves
-from the CPU affinity mask.
+A workflow job is given a number of threads (the rule's ``threads``, Snakemake's ``--cores``);
+:func:`thread_budget` makes that number what every thread pool in flylib sizes itself from.
+Outside a budget (library use) the pools size themselves from the CPU affinity mask.
 """
 
 from __future__ import annotations
@@ -22,9 +21,9 @@ _budget: int | None = None
 
 
 def usable_cpus() -> int:
-    """CPUs this process may use: the :func:`thread_budget` in force, else its affinity
-    mask where the OS has one (a SLURM job or container bound to 2 cores of a 64-core
-    node gets 2), else the CPU count."""
+    """CPUs this process may use: the :func:`thread_budget` in force, else its affinity mask
+    where the OS has one (a SLURM job bound to 2 cores of a 64-core node gets 2), else the
+    CPU count."""
     if _budget is not None:
         return _budget
     try:
@@ -37,18 +36,14 @@ def usable_cpus() -> int:
 def thread_budget(threads: int | None) -> Iterator[int]:
     """Size every flylib thread pool (and BLAS's) from ``threads`` while in the block.
 
-    Under ``threads=1`` flylib starts no thread: pools run their work inline, the
-    detector decodes its sources in the calling thread, FFmpeg decodes with one
-    thread and torch's CPU pool has one.
+    Under ``threads=1`` flylib starts no thread: pools run their work inline, the detector
+    decodes in the calling thread, FFmpeg decodes with one thread and torch's CPU pool has one.
 
-    Not covered: what native libraries start on their own when loaded. JAX's CPU
-    backend starts its C++ thread pools (about 15 OS threads on a 2-core box, none a
-    Python thread) on the first JAX operation, sized from the machine, not from this
-    budget; ``XLA_FLAGS`` (``--xla_cpu_multi_thread_eigen=false
-    intra_op_parallelism_threads=1``) does not shrink them in jax 0.10, and nothing
-    can once the backend is up. They idle outside JAX calls, which the stages keep
-    small. Likewise OpenBLAS's pool is started on import; ``threadpool_limits``
-    keeps all but one of its threads idle.
+    Not covered: what native libraries start on their own. JAX's CPU backend starts its C++
+    thread pools on the first JAX operation, sized from the machine; ``XLA_FLAGS`` does not
+    shrink them (jax 0.10), and nothing can once the backend is up. They idle outside JAX
+    calls. Likewise OpenBLAS starts its pool on import; ``threadpool_limits`` keeps all but
+    one of its threads idle.
 
     ``threads=None`` sets no budget (the affinity mask). Yields the budget in force.
     """
@@ -67,13 +62,11 @@ def thread_budget(threads: int | None) -> Iterator[int]:
 
 
 def thread_map(fn: Callable[[T], R], items: Sequence[T], workers: int) -> Iterator[R]:
-    """``map(fn, items)`` on at most ``workers`` threads (capped by :func:`usable_cpus`),
-    in order; in the calling thread when that leaves one, so a one-thread job starts
-    no thread.
+    """``map(fn, items)`` in order on at most ``workers`` threads (capped by
+    :func:`usable_cpus`); in the calling thread when that leaves one.
 
-    At most ``workers`` items run ahead of the one the caller is consuming, so results
-    are held only that far ahead: a caller that writes each result out (a chunked
-    stage) keeps its memory flat in the number of items.
+    At most ``workers`` items run ahead of the one being consumed, so a caller that writes
+    each result out (a chunked stage) keeps its memory flat in the number of items.
     """
     workers = max(1, min(int(workers), usable_cpus(), len(items)))
     if workers == 1:

@@ -1,17 +1,16 @@
-"""The end-of-run table: one line per recording, printed by the workflow's
-``onsuccess`` / ``onerror`` handlers so the answer is the last thing a run shows.
+"""The end-of-run table: one line per recording, printed by the workflow's ``onsuccess`` /
+``onerror`` handlers so the answer is the last thing a run shows.
 
-Each row comes from the recording's ``summary.json`` (written by the assemble job):
-frames, fraction of 3D points reconstructed, median and 95th-percentile reprojection
-error, the held-out-view error of triangulation and of the refined output side by
-side (the better one marked ``*``) when the summary holds :mod:`flylib.accuracy`'s
-figures, the suspect count when it holds one, the handedness score when a recording's
-3D is a mirror image or undetermined (:mod:`flylib.handedness`; ``MIRRORED`` for a mirror
-image, whose cause and fix follow the table) and where the outputs are. Then one
-sentence per recording says what the held-out figures mean for it (refinement better,
-partly kept, or worse and not used; a camera that disagrees with the others), the
-warnings the jobs logged (e.g. an implausible container frame rate) follow, and the
-demo's comparison against its 3D truth comes last.
+Each row comes from the recording's ``summary.json`` (written by the assemble job): frames,
+fraction of 3D points reconstructed, median and 95th-percentile reprojection error, the
+held-out-view error of triangulation and of the refined output side by side (the better one
+marked ``*``) when the summary holds :mod:`flylib.accuracy`'s figures, the suspect count when it
+holds one, the handedness score when a recording's 3D is a mirror image or undetermined
+(:mod:`flylib.handedness`; ``MIRRORED`` for a mirror image, whose cause and fix follow the
+table) and where the outputs are. Then one sentence per recording says what the held-out
+figures mean for it (refinement better, partly kept, or worse and not used; a camera that
+disagrees with the others), the warnings the jobs logged (e.g. an implausible container frame
+rate) follow, and the demo's comparison against its 3D truth comes last.
 """
 
 from __future__ import annotations
@@ -25,24 +24,16 @@ from typing import Any
 
 import numpy as np
 
-# A Python warning ("file.py:12: UserWarning: text") or a logging record at WARNING
-# level ("... WARNING name: text") in a job's log.
+# A Python warning ("file.py:12: UserWarning: text") or a logging record at WARNING level
+# ("... WARNING name: text") in a job's log.
 _WARNING = re.compile(r"(?:^|\s)(?:\w*Warning: |WARNING [\w.]+: )(?P<text>.+)$")
 
 
 @dataclass(frozen=True)
 class RunRecording:
-    """What the table needs of a planned recording.
-
-    Attributes
-    ----------
-    id
-        The recording's id (first column).
-    outdir
-        Its output directory (``summary.json``, ``logs/``).
-    demo
-        Whether it is the embedded demo (its truth comparison is printed last).
-    """
+    """What the table needs of a planned recording: its ``id`` (first column), ``outdir``
+    (``summary.json``, ``logs/``) and whether it is the embedded ``demo`` (its truth comparison
+    is printed last)."""
 
     id: str
     outdir: Path
@@ -68,8 +59,8 @@ def _suspects(summary: dict) -> int | None:
 
 
 def log_warnings(outdir: Path) -> list[str]:
-    """``"<log stem>: <message>"`` per distinct warning in a recording's
-    ``<outdir>/logs/*.log``, in file order."""
+    """``"<log stem>: <message>"`` per distinct warning in ``<outdir>/logs/*.log``, in file
+    order."""
     found: list[str] = []
     for log in sorted((Path(outdir) / "logs").glob("*.log")):
         try:
@@ -83,17 +74,17 @@ def log_warnings(outdir: Path) -> list[str]:
     return list(dict.fromkeys(found))
 
 
-#: The last line a stage script writes to its job's log when the stage returned; a
-#: signal that stops it (SIGTERM, SIGINT, SIGHUP) ends the log with ``JOB_STOPPED`` and
-#: the signal's name, an error with ``error: ...`` or a traceback. A log ending in none
-#: of these was cut off: its job was killed (SIGKILL, out of memory).
+#: The last line a stage script writes to its job's log when the stage returned; a signal that
+#: stops it (SIGTERM, SIGINT, SIGHUP) ends the log with ``JOB_STOPPED`` and the signal's name, an
+#: error with ``error: ...`` or a traceback. A log ending in none of these was cut off: its job
+#: was killed (SIGKILL, out of memory).
 JOB_FINISHED = "flylib: job finished"
 JOB_STOPPED = "stopped by "
 
 
 def job_end(log: Path) -> str:
-    """How the job that wrote ``log`` ended: ``"finished"``, ``"failed"``,
-    ``"stopped by SIG..."`` or ``"killed"`` (its log ends without flylib's last line)."""
+    """How the job that wrote ``log`` ended: ``"finished"``, ``"failed"``, ``"stopped by SIG..."``
+    or ``"killed"`` (its log ends without flylib's last line)."""
     try:
         lines = Path(log).read_text(errors="replace").strip().splitlines()
     except OSError:
@@ -109,10 +100,9 @@ def job_end(log: Path) -> str:
 
 
 def _unfinished(outdir: Path, since: float, signals: dict[str, str]) -> str | None:
-    """What ended the recording's jobs in this (failed) run: a status for the table,
-    naming the job and its log, or ``None`` when none of its jobs wrote a log since
-    ``since``. ``signals``: log path -> the signal that ended its job, as Snakemake
-    saw it (:func:`snakemake_report`)."""
+    """What ended the recording's jobs in this (failed) run: a status for the table, naming the
+    job and its log, or ``None`` when none of its jobs wrote a log since ``since``. ``signals``:
+    log path -> the signal that ended its job, as Snakemake saw it (:func:`snakemake_report`)."""
     if not Path(outdir).is_dir():
         return "its output folder was deleted during the run; re-run to start it again"
     fresh = []
@@ -148,8 +138,7 @@ def _unfinished(outdir: Path, since: float, signals: dict[str, str]) -> str | No
     return None
 
 
-# Snakemake's log: a job's process ended by a signal, then the job's error block
-# naming its log file.
+# Snakemake's log: a job's process ended by a signal, then the job's error block naming its log.
 _DIED = re.compile(r"died with <Signals\.(?P<signal>SIG\w+): \d+>")
 _JOB_LOG = re.compile(r"^\s+log: (?P<log>.+?)(?: \(check log file)")
 
@@ -157,16 +146,9 @@ _JOB_LOG = re.compile(r"^\s+log: (?P<log>.+?)(?: \(check log file)")
 def snakemake_report(
     log: str | Path | Iterable[str | Path] | None,
 ) -> tuple[dict[str, str], list[str]]:
-    """What Snakemake's own log of the run says that no job log holds.
-
-    ``log``: Snakemake's log file(s) of the run (what its ``onerror`` hook receives).
-
-    Returns
-    -------
-    signals, warnings
-        Job log path -> the signal that killed its job (``"SIGKILL"``); and the
-        clock-skew errors (an output older than its input), one line each.
-    """
+    """What Snakemake's own log file(s) of the run (what its ``onerror`` hook receives) say that
+    no job log holds: ``(signals, warnings)``, job log path -> the signal that killed its job
+    (``"SIGKILL"``), and the clock-skew errors (an output older than its input), one line each."""
     files = [log] if isinstance(log, (str, Path)) else list(log or [])
     signals: dict[str, str] = {}
     warnings: list[str] = []
@@ -192,10 +174,10 @@ def recording_row(
 ) -> dict[str, Any]:
     """One table row: the recording's ``summary.json`` figures (``None`` where absent).
 
-    With ``since`` (the start of a failed run), a summary older than that while one of
-    the recording's jobs wrote a log since then is not shown: it describes an earlier
-    run, and ``unfinished`` says how its jobs ended (failed, stopped by a signal,
-    killed) and which log to read.
+    With ``since`` (the start of a failed run), a summary older than that while one of the
+    recording's jobs wrote a log since then is not shown: it describes an earlier run, and
+    ``unfinished`` says how its jobs ended (failed, stopped by a signal, killed) and which log to
+    read.
     """
     path = Path(rec.outdir) / "summary.json"
     row: dict[str, Any] = {
@@ -231,8 +213,8 @@ def recording_row(
 
 
 def handedness_cell(entry: dict | None) -> str:
-    """The table's handedness cell: the score, and ``MIRRORED`` or ``?`` when the 3D
-    is a mirror image or undetermined (:mod:`flylib.handedness`); ``-`` without one."""
+    """The table's handedness cell: the score, and ``MIRRORED`` or ``?`` when the 3D is a mirror
+    image or undetermined (:mod:`flylib.handedness`); ``-`` without one."""
     if not isinstance(entry, dict) or entry.get("verdict") is None:
         return "-"
     score = "-" if entry.get("score") is None else f"{float(entry['score']):+.2f}"
@@ -289,8 +271,8 @@ def _held(block: dict | None) -> tuple[float, float] | None:
 
 
 def held_out_cells(accuracy: dict | None) -> tuple[str, str]:
-    """``(triangulation, output)`` cells ``"median / p95"`` of the held-out-view error,
-    the better (lower median, then p95) marked ``*``; ``"-"`` where absent."""
+    """``(triangulation, output)`` cells ``"median / p95"`` of the held-out-view error, the better
+    (lower median, then p95) marked ``*``; ``"-"`` where absent."""
     if not accuracy:
         return "-", "-"
     tri = _held(accuracy.get("triangulation"))
@@ -303,9 +285,9 @@ def held_out_cells(accuracy: dict | None) -> tuple[str, str]:
 
 
 def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
-    """One sentence a biologist can act on: is the refined 3D better than the plain
-    triangulation by the held-out-view error, which points keep the triangulation and
-    why, and which camera (if any) disagrees with the others."""
+    """One sentence a biologist can act on: is the refined 3D better than the plain triangulation
+    by the held-out-view error, which points keep the triangulation and why, and which camera (if
+    any) disagrees with the others."""
     tri = _held(accuracy.get("triangulation"))
     if tri is None:
         return None
@@ -355,9 +337,8 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
 
 
 def _worst_view(block: dict, overall: float) -> str:
-    """Cameras whose held-out error is over twice the typical (better-half median)
-    camera's: named, with the fix. (Three cameras see each side, so one camera's error
-    shows in all three.)"""
+    """Cameras whose held-out error is over twice the typical (better-half median) camera's:
+    named, with the fix. (Three cameras see each side, so one camera's error shows in all three.)"""
     views = {
         name: v["median"]
         for name, v in ((block or {}).get("per_view") or {}).items()
@@ -380,8 +361,8 @@ def _worst_view(block: dict, overall: float) -> str:
 
 
 def truth_line(rec_id: str, error: dict, before: dict | None = None) -> str:
-    """The demo's 3D error against its truth, as one line; with ``before`` (the
-    triangulation's error when the refinement stage ran) that figure follows."""
+    """The demo's 3D error against its truth, as one line; with ``before`` (the triangulation's
+    error when the refinement stage ran) that figure follows."""
     line = (
         f"{rec_id}: 3D error against the demo truth: median {error['median']:.4f}, "
         f"p95 {error['p95']:.4f} world units (body length {error['body_length']:.2f}); "
@@ -403,21 +384,14 @@ def run_table(
     since: float | None = None,
     snakemake_log: str | Path | Iterable[str | Path] | None = None,
 ) -> str:
-    """The end-of-run report: the per-recording table, warnings, then the demo truth.
+    """The end-of-run report: the per-recording table, warnings, then the demo's truth
+    comparison (if any) as the last line.
 
-    Parameters
-    ----------
-    failed
-        The run ended with an error (rows without a summary say so).
-    since
-        When the failed run started (``time.time()``): a recording whose jobs wrote a
-        log since then but no new summary is shown as failed, stopped or killed,
-        naming that log.
-    snakemake_log
-        Snakemake's log file(s) of the run: the signal that killed a job is named,
-        and its clock-skew errors join the warnings.
-
-    The demo's truth comparison (if any) is the last line.
+    ``failed``: the run ended with an error (rows without a summary say so). ``since``: when the
+    failed run started (``time.time()``); a recording whose jobs wrote a log since then but no
+    new summary is shown as failed, stopped or killed, naming that log. ``snakemake_log``:
+    Snakemake's log file(s) of the run; the signal that killed a job is named, and its
+    clock-skew errors join the warnings.
     """
     recordings = list(recordings)
     signals, skew = snakemake_report(snakemake_log)

@@ -1,13 +1,12 @@
 """Sessions: recordings made on one unchanged rig, bundle-adjusted together.
 
-With ``bundle_adjustment.session: true`` the recordings of a batch are grouped into
-sessions: by the ``session`` their entry (or the sheet's ``session`` column) names,
-else by the folder that holds them. Each session is solved once
-(:mod:`flylib.pipeline.session_calibration`) and gets its own folder,
-``<the members' common folder>/flylib_sessions/<name>/``, holding the session's rig
-(``calibration.toml``, Anipose format, and ``session_calibration.h5``) and its
-summary (``session_summary.json``: the held-out-view error of the per-recording and
-session rigs side by side).
+With ``bundle_adjustment.session: true`` the recordings of a batch are grouped into sessions:
+by the ``session`` their entry (or the sheet's ``session`` column) names, else by the folder
+that holds them. Each session is solved once (:mod:`flylib.pipeline.session_calibration`) and
+gets its own folder, ``<the members' common folder>/flylib_sessions/<name>/``, holding the
+session's rig (``calibration.toml``, Anipose format, and ``session_calibration.h5``) and its
+summary (``session_summary.json``: the held-out-view error of the per-recording and session
+rigs side by side).
 """
 
 from __future__ import annotations
@@ -31,18 +30,9 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 @dataclass(frozen=True)
 class Session:
-    """Recordings sharing one rig.
-
-    Attributes
-    ----------
-    name
-        The session's name (its ``session`` key, else its folder's name; a clash
-        between folders of the same name gets a path hash).
-    members
-        The recordings, in the batch's order.
-    outdir
-        The session's folder (:data:`SESSIONS_DIR`).
-    """
+    """Recordings sharing one rig: ``members`` in the batch's order, ``outdir`` the session's
+    folder (:data:`SESSIONS_DIR`). ``name`` is the ``session`` key, else the folder's name
+    (folders of one name get a path hash)."""
 
     name: str
     members: tuple[Recording, ...]
@@ -70,14 +60,9 @@ class Session:
 
 
 def plan_sessions(recordings: Sequence[Recording]) -> list[Session]:
-    """Group ``recordings`` into sessions: by their ``session`` name, else by the folder
-    that holds them. Sessions come in the order of their first member.
-
-    Raises
-    ------
-    ConfigError
-        When a session's folder would be a recording's output folder.
-    """
+    """Group ``recordings`` into sessions (by ``session`` name, else by the folder holding
+    them), in the order of their first member. ConfigError when a session's folder would be
+    a recording's output folder."""
     groups: dict[tuple[str, str], list[Recording]] = {}
     for rec in recordings:
         key = ("name", rec.session) if rec.session else ("folder", _folder(rec))
@@ -112,8 +97,8 @@ def _folder(rec: Recording) -> str:
 
 
 def session_lines(sessions: Sequence[Session]) -> list[str]:
-    """One line per session whose summary exists: the held-out-view error (median px)
-    with the per-recording rigs and with the session's, and where its rig is."""
+    """One line per session whose summary exists: the held-out-view error (median px) with
+    the per-recording rigs and with the session's, and where its rig is."""
     import json
 
     lines = []

@@ -1,10 +1,9 @@
 """The tracked skeleton: ordered point names, limb chains and the plotting palette.
 
-A limb is an ordered chain of points (e.g. the five joints of a leg, body to claw);
-its bones are the consecutive pairs along the chain. Every point belongs to at most
-one limb, so each limb is a simple path and ``limb_id`` is well defined. Which view
-sees which point is not stored here: it lives in the detection plan, and an
-unobserved ``(view, point)`` is simply NaN in the points arrays.
+A limb is an ordered chain of points (e.g. the five joints of a leg, body to claw); its bones
+are the consecutive pairs along the chain. Every point belongs to at most one limb, so each
+limb is a simple path and ``limb_id`` is well defined. Which view sees which point lives in
+the detection plan; an unobserved ``(view, point)`` is NaN in the points arrays.
 """
 
 from __future__ import annotations
@@ -30,19 +29,16 @@ _SKELETON_KEYS = ("name", "point_names", "limb_points", "limb_palette")
 
 @lru_cache(maxsize=1)
 def default_skeleton_table() -> dict:
-    """The packaged default config's ``skeleton`` table (read once; treat as read-only).
-
-    Read here rather than through :class:`~flylib.config.Config`, which validates
-    configs against this skeleton and so sits above it.
-    """
+    """The packaged default config's ``skeleton`` table (read once; treat as read-only), read
+    here because :class:`~flylib.config.Config` validates against it and so sits above."""
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     with open(DEFAULT_CONFIG_PATH, encoding="utf-8") as stream:
         return yaml.load(stream, Loader=loader)["skeleton"]
 
 
 def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
-    """Every problem with a ``skeleton`` config table, one ``"<key path>: <problem>"``
-    line each (``path``: the table's key path)."""
+    """Every problem with the ``skeleton`` table at key ``path``, one
+    ``"<key path>: <problem>"`` line each."""
     if not isinstance(spec, Mapping):
         return [f"{path}: expected a mapping, got {type(spec).__name__}"]
     problems = [
@@ -97,28 +93,16 @@ def skeleton_problems(spec: Any, path: str = "skeleton") -> list[str]:
 
 
 class HasSkeletonTable(Protocol):
-    """What :meth:`Skeleton.from_config` reads of a config: its ``skeleton`` table
-    (:meth:`flylib.config.Config.skeleton_table`)."""
+    """What :meth:`Skeleton.from_config` reads of a config: its ``skeleton`` table."""
 
     def skeleton_table(self) -> Mapping: ...
 
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:
-    """An ordered set of tracked points with limb chains and a plotting palette.
-
-    Attributes
-    ----------
-    point_names
-        Name of each tracked point, in order (length ``n_points``).
-    limbs
-        ``limb name -> ordered chain of point names`` (config order).
-    palette
-        ``limb name -> '#rrggbb'``; limbs absent from it use a default colormap in the
-        plotting code.
-    name
-        Identifier of the skeleton (e.g. ``"fly38"``).
-    """
+    """An ordered set of tracked points (``point_names``) with limb chains (``limbs``:
+    ``limb -> ordered point names``, config order), a plotting ``palette`` (``limb ->
+    '#rrggbb'``; other limbs use a default colormap) and a ``name`` (e.g. ``"fly38"``)."""
 
     point_names: tuple[str, ...]
     limbs: dict[str, tuple[str, ...]] = field(default_factory=dict)
@@ -142,8 +126,6 @@ class Skeleton:
         if problems:
             raise ConfigError("; ".join(problems))
 
-    # -- construction --------------------------------------------------------
-
     @classmethod
     def fly(cls) -> Skeleton:
         """The default 38-point Drosophila skeleton, read from the packaged default config."""
@@ -151,46 +133,14 @@ class Skeleton:
 
     @classmethod
     def from_config(cls, config: HasSkeletonTable) -> Skeleton:
-        """Build the skeleton of a config's ``skeleton`` table (:meth:`from_spec` of
-        ``config.skeleton_table()``).
-
-        Parameters
-        ----------
-        config
-            A :class:`~flylib.config.Config` with a ``skeleton`` table.
-
-        Returns
-        -------
-        Skeleton
-            The configured skeleton.
-
-        Raises
-        ------
-        ConfigError
-            If the config has no ``skeleton`` table or the table is invalid.
-        """
+        """The skeleton of a :class:`~flylib.config.Config`'s ``skeleton`` table (ConfigError
+        when it has none or it is invalid)."""
         return cls.from_spec(config.skeleton_table())
 
     @classmethod
     def from_spec(cls, spec: Mapping) -> Skeleton:
-        """Build a skeleton from a parsed ``skeleton`` table.
-
-        Parameters
-        ----------
-        spec
-            Mapping with ``point_names`` and optional ``name``, ``limb_points``,
-            ``limb_palette``.
-
-        Returns
-        -------
-        Skeleton
-            The skeleton the table describes.
-
-        Raises
-        ------
-        ConfigError
-            Listing every problem with the table.
-        """
+        """The skeleton of a parsed ``skeleton`` table (``point_names`` and optional ``name``,
+        ``limb_points``, ``limb_palette``); ConfigError lists every problem with it."""
         problems = skeleton_problems(spec)
         if problems:
             raise ConfigError("; ".join(problems))
@@ -211,28 +161,11 @@ class Skeleton:
         palette: Mapping[str, str] | None = None,
         name: str = "skeleton",
     ) -> Skeleton:
-        """Rebuild a skeleton from its stored arrays (the ``skeleton/`` HDF5 group).
+        """Rebuild a skeleton from its stored arrays (the ``skeleton/`` HDF5 group): ``limb_id``
+        ``(P,)`` (``-1``: in no limb) and ``bones`` ``(B, 2)`` point-index pairs.
 
-        Each limb's chain order is recovered by walking its bones from the end that
-        no bone points into; a limb without bones keeps its points in index order.
-
-        Parameters
-        ----------
-        point_names, limb_names
-            Point and limb names.
-        limb_id
-            ``(P,)`` limb index per point, ``-1`` for a point in no limb.
-        bones
-            ``(B, 2)`` point-index pairs along the limb chains.
-        palette
-            ``limb -> '#rrggbb'``.
-        name
-            Skeleton identifier.
-
-        Returns
-        -------
-        Skeleton
-            The skeleton the arrays describe.
+        Each limb's chain order is recovered by walking its bones from the end that no bone
+        points into; a limb without bones keeps its points in index order.
         """
         limb_id = np.asarray(limb_id, dtype=int).reshape(-1)
         bones = np.asarray(bones, dtype=int).reshape(-1, 2)
@@ -250,8 +183,6 @@ class Skeleton:
         return cls(
             point_names=tuple(point_names), limbs=limbs, palette=dict(palette or {}), name=name
         )
-
-    # -- basic views ---------------------------------------------------------
 
     @property
     def n_points(self) -> int:
@@ -284,21 +215,13 @@ class Skeleton:
         return tuple(self.limbs)
 
     def index(self, name: str) -> int:
-        """Index of point ``name``.
-
-        Raises
-        ------
-        KeyError
-            If the skeleton has no such point (the message lists the known ones).
-        """
+        """Index of point ``name`` (KeyError listing the known points if there is none)."""
         try:
             return self._index_of[name]
         except KeyError:
             raise KeyError(
                 f"unknown point {name!r} (known: {', '.join(self.point_names)})"
             ) from None
-
-    # -- derived structure ---------------------------------------------------
 
     @cached_property
     def _index_of(self) -> dict[str, int]:
@@ -331,13 +254,7 @@ class Skeleton:
         return int(self.bones.shape[0])
 
     def bone_index_pairs(self) -> tuple[Int[np.ndarray, " B"], Int[np.ndarray, " B"]]:
-        """Endpoint index arrays ``(i, j)`` for vectorised bone-length maths.
-
-        Returns
-        -------
-        i, j : np.ndarray
-            First and second endpoint index of each bone, shape ``(B,)`` each.
-        """
+        """Endpoint index arrays ``(i, j)``, ``(B,)`` each, for vectorised bone-length maths."""
         return self.bones[:, 0], self.bones[:, 1]
 
     def limb_color(self, limb: str, default: str = "#808080") -> str:
@@ -355,8 +272,8 @@ def _twin_name(name: str) -> str | None:
 
 
 def mirror_bones(skeleton: Skeleton) -> Int[np.ndarray, " B"]:
-    """``(B,)`` the left/right twin of every bone (itself when it has none): bone ``k``
-    of limb ``l...`` and bone ``k`` of limb ``r...`` with equally long chains."""
+    """``(B,)`` the left/right twin of every bone (itself when it has none): bone ``k`` of
+    limb ``l...`` and bone ``k`` of limb ``r...`` with equally long chains."""
     limbs = list(skeleton.limbs.items())
     index = {}
     b = 0

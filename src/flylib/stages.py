@@ -1,18 +1,13 @@
 """The workflow's stages: one :class:`Stage` record each, in run order (:data:`REGISTRY`).
 
-Every fact the package keeps about a stage as a whole is a field of its record: whether
-``pipeline.do_<stage>`` toggles it and its default, the stages it cannot run without,
-its artifact under ``<outdir>/stages/``, whether it owns a group in ``results.h5``,
-what to check when it fails on a recording's data, and the memory its job declares.
-The tables the config, results and workflow layers read (``flylib.config.STAGES``,
-``STAGE_DEFAULTS``, ``PARAM_STAGES``, ``flylib.results.ARTIFACTS``, ``STAGE_GROUPS``)
-are derived from these records.
+Every fact the package keeps about a stage as a whole is a field of its record. The tables
+the config, results and workflow layers read (``flylib.config.STAGES``, ``STAGE_DEFAULTS``,
+``PARAM_STAGES``, ``flylib.results.ARTIFACTS``, ``STAGE_GROUPS``) are derived from them.
 
-A stage's code lives in its home, ``flylib.pipeline.<stage>``: its inputs class (made
-known here by :func:`register` when the home is imported) and ``run_<stage>``. Both are
-looked up by that convention on first use (:meth:`Stage.inputs_class`,
-:func:`run_function`), so importing this module imports nothing heavy (JAX, torch):
-the config and results layers below the stage homes read it.
+A stage's code lives in its home, ``flylib.pipeline.<stage>``: its inputs class (made known
+here by :func:`register` when the home is imported) and ``run_<stage>``, both looked up on
+first use, so importing this module imports nothing heavy (JAX, torch): the config and
+results layers below the stage homes read it.
 """
 
 from __future__ import annotations
@@ -31,27 +26,24 @@ class Stage:
     Attributes
     ----------
     name
-        The stage's name: its rule, its config table, ``pipeline.do_<name>``.
+        Its rule, its config table, ``pipeline.do_<name>``.
     default_on
-        Whether the stage runs when ``pipeline.do_<name>`` is absent; ``None`` for a
-        stage no such key toggles (it always runs).
+        Whether it runs when ``pipeline.do_<name>`` is absent; ``None``: no key toggles it.
     needs_one_of
-        Upstream stages it starts from: it runs only while at least one of them runs
-        (empty: no such condition).
+        Upstream stages it starts from: it runs only while one of them runs (empty: no such
+        condition).
     artifact
         Its artifact's file name inside ``<outdir>/stages/``, or ``None``.
     results_group
         Whether it owns a group in ``results.h5`` (assembly copies it from the artifact).
     solves_3d
-        Whether it solves a 3D pose: its group holds ``points3d`` and the 2D ``points``
-        it was solved from (:data:`SOLVES_3D`, :data:`FINAL_3D`).
+        Whether it solves a 3D pose (its group holds ``points3d`` and the 2D ``points``).
     hint
-        What to check when its numerical step fails on a recording's data (the end of
-        the one-line error), or ``None`` for a stage without such a step.
+        What to check when its numerical step fails on a recording's data (the end of the
+        one-line error), or ``None``.
     memory
-        ``(fixed MB, MB per million (frame, point, view) elements)``: its job's measured
-        peak memory (``benchmarks/stage_memory.py``), or ``None`` where not measured
-        (its rule states a fixed ``mem_mb``).
+        ``(fixed MB, MB per million (frame, point, view) elements)``: its job's measured peak
+        (``benchmarks/stage_memory.py``), or ``None`` (its rule states a fixed ``mem_mb``).
     """
 
     name: str
@@ -74,8 +66,7 @@ class Stage:
         return f"flylib.pipeline.{self.name}"
 
     def inputs_class(self) -> type:
-        """The stage's inputs class (a :class:`~flylib.pipeline.inputs.StageInputs`),
-        importing its home on first use."""
+        """The stage's :class:`~flylib.pipeline.inputs.StageInputs` class (imports its home)."""
         if self.name not in _INPUTS:
             import_module(self.home)
         return _INPUTS[self.name]
@@ -87,12 +78,7 @@ class Stage:
 
 #: The stages, in run order.
 REGISTRY: tuple[Stage, ...] = (
-    Stage(
-        "pose2d",
-        default_on=True,
-        artifact="pose2d.h5",
-        results_group=True,
-    ),
+    Stage("pose2d", default_on=True, artifact="pose2d.h5", results_group=True),
     Stage(
         "bundle_adjustment",
         default_on=True,
@@ -140,18 +126,13 @@ REGISTRY: tuple[Stage, ...] = (
         hint="check the 3D in results.h5 (flylib inspect), or set pipeline.do_kinematics: false",
         memory=(130, 105),
     ),
-    Stage(
-        "neuromechfly",
-        default_on=False,
-        needs_one_of=("triangulation", "pictorial_structures"),
-    ),
+    Stage("neuromechfly", default_on=False, needs_one_of=("triangulation", "pictorial_structures")),
     Stage("visualization", default_on=True),
 )
 
 #: The stages that solve a 3D pose (:attr:`Stage.solves_3d`), in run order.
 SOLVES_3D: tuple[str, ...] = tuple(stage.name for stage in REGISTRY if stage.solves_3d)
-#: Where a result's final 3D comes from: the first of these that ran (the 3D stages,
-#: last in run order first).
+#: Where a result's final 3D comes from: the first of these that ran (last in run order first).
 FINAL_3D: tuple[str, ...] = SOLVES_3D[::-1]
 
 _BY_NAME = {stage.name: stage for stage in REGISTRY}
@@ -160,13 +141,7 @@ _INPUTS: dict[str, type] = {}
 
 
 def by_name(name: str) -> Stage:
-    """The record of stage ``name``.
-
-    Raises
-    ------
-    ValueError
-        For an unknown stage.
-    """
+    """The record of stage ``name`` (ValueError for an unknown stage)."""
     try:
         return _BY_NAME[name]
     except KeyError:
@@ -182,13 +157,8 @@ T = TypeVar("T", bound=type)
 
 
 def register(cls: T) -> T:
-    """Class decorator: make ``cls`` the inputs class of the stage ``cls.STAGE``.
-
-    Raises
-    ------
-    ValueError
-        For an unknown stage.
-    """
+    """Class decorator: make ``cls`` the inputs class of stage ``cls.STAGE`` (ValueError for
+    an unknown stage)."""
     by_name(cls.STAGE)  # type: ignore[attr-defined]
     _INPUTS[cls.STAGE] = cls  # type: ignore[attr-defined]
     return cls

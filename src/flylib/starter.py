@@ -1,14 +1,13 @@
 """``flylib init DIR``: a starter config for a folder of recordings.
 
-:func:`survey` looks through ``DIR`` (the folder itself and its sub-folders, a few levels
-deep) for recordings: folders with footage for the default config's cameras, or with 2D
-files of another tool. It recognises each camera's footage (videos or image sequences),
-DeepFly3D / DeepLabCut / Lightning Pose / SLEAP 2D files and DeepFly3D / Anipose
-calibration files beside them. :func:`starter_yaml` writes what it inferred as the
-``recordings``, ``outdir``, ``sources``, ``pose2d.import`` and ``calibration`` entries
-of a config merged over the default one, each commented, and the survey's ``undecided``
-lines say what it could not decide. Files are only listed and their headers read:
-pickles through flylib's safe reader, never executed.
+:func:`survey` looks through ``DIR`` (the folder itself and its sub-folders, a few levels deep)
+for recordings: folders with footage for the default config's cameras, or with 2D files of
+another tool. It recognises each camera's footage (videos or image sequences), DeepFly3D /
+DeepLabCut / Lightning Pose / SLEAP 2D files and DeepFly3D / Anipose calibration files beside
+them. :func:`starter_yaml` writes what it inferred as the ``recordings``, ``outdir``,
+``sources``, ``pose2d.import`` and ``calibration`` entries of a config merged over the default
+one, each commented, and the survey's ``undecided`` lines say what it could not decide. Files are
+only listed and their headers read: pickles through flylib's safe reader, never executed.
 """
 
 from __future__ import annotations
@@ -31,20 +30,11 @@ _NUMBERED = re.compile(r"^(.*?)(\d+)(\D*)$")
 
 @dataclass
 class Recording:
-    """One recording folder found by :func:`survey`.
-
-    Attributes
-    ----------
-    path
-        The folder.
-    footage
-        ``source name -> footage glob`` in the default config's source order, or empty
-        when its cameras were not recognised.
-    imports
-        Import specs (``{"format", "files"}``) of the 2D files found, best first.
-    calibrations
-        ``(format, file name)`` of calibration files found in the folder.
-    """
+    """One recording folder (``path``) found by :func:`survey`: ``footage``,
+    ``source name -> footage glob`` in the default config's source order (empty when its cameras
+    were not recognised); ``imports``, import specs (``{"format", "files"}``) of the 2D files
+    found, best first; ``calibrations``, ``(format, file name)`` of calibration files found in
+    the folder."""
 
     path: Path
     footage: dict[str, str] = field(default_factory=dict)
@@ -85,8 +75,8 @@ def _candidate_dirs(root: Path) -> Iterable[Path]:
 
 
 def _numbered_groups(names: Sequence[str], suffixes: frozenset[str]) -> dict[str, list[str]]:
-    """``glob -> member names`` of numbered files with one of ``suffixes``
-    (``camera_0_img_12.jpg`` joins ``camera_0_img_*.jpg``)."""
+    """``glob -> member names`` of numbered files with one of ``suffixes`` (``camera_0_img_12.jpg``
+    joins ``camera_0_img_*.jpg``)."""
     groups: dict[str, list[str]] = {}
     for name in names:
         stem, suffix = os.path.splitext(name)
@@ -97,8 +87,8 @@ def _numbered_groups(names: Sequence[str], suffixes: frozenset[str]) -> dict[str
 
 
 def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[dict, str | None]:
-    """``(source -> glob, note)``: the default names when they all match, else videos or
-    image sequences numbered like the cameras, mapped to the sources in number order."""
+    """``(source -> glob, note)``: the default names when they all match, else videos or image
+    sequences numbered like the cameras, mapped to the sources in number order."""
     import fnmatch
 
     if all(fnmatch.filter(names, pattern) for pattern in defaults.values()):
@@ -128,8 +118,8 @@ def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[
 def _per_view_pattern(
     files: Sequence[str], views: Sequence[str], stems: Sequence[str]
 ) -> str | None:
-    """The ``files`` pattern naming one file per view (``{index}``, ``{view}`` or
-    ``{stem}`` in place of what differs between them), or ``None``."""
+    """The ``files`` pattern naming one file per view (``{index}``, ``{view}`` or ``{stem}`` in
+    place of what differs between them), or ``None``."""
     if len(files) != len(views):
         return None
     prefix = os.path.commonprefix(list(files))
@@ -152,8 +142,8 @@ def _per_view_pattern(
 
 
 def _dlc_like(path: Path) -> str | None:
-    """``dlc_csv`` or ``lightning_pose`` for a DeepLabCut-style CSV (scorer/bodyparts/coords
-    header rows), else ``None``."""
+    """``dlc_csv`` or ``lightning_pose`` for a DeepLabCut-style CSV (scorer/bodyparts/coords header
+    rows), else ``None``."""
     try:
         with open(path, encoding="utf-8", errors="replace") as f:
             head = [f.readline() for _ in range(3)]
@@ -313,9 +303,9 @@ def _flow(value) -> str:
 
 
 def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
-    """The starter config's text for ``found``: outputs go to ``outdir`` (a path template)
-    when given, else beside each recording, or under ``where`` (the folder the config is
-    written to) when a recording's folder cannot be written."""
+    """The starter config's text for ``found``: outputs go to ``outdir`` (a path template) when
+    given, else beside each recording, or under ``where`` (the folder the config is written to)
+    when a recording's folder cannot be written."""
     lines = [
         f"# flylib config for the recordings in {found.root}, written by `flylib init`.",
         "# It is merged over the workflow's config/config.yaml (the default rig and skeleton).",

@@ -1,43 +1,39 @@
 """Suspect (frame, point) pairs: where a 3D pose most likely needs a person's look.
 
-Five reasons, each measured against the recording's own robust statistics (median and
-scaled median absolute deviation, MAD), so the same settings work on any rig, frame
-rate and fly size:
+Five reasons, each measured against the recording's own robust statistics (median and scaled
+median absolute deviation, MAD), so the same settings work on any rig, frame rate and fly size:
 
 ``reprojection``
     A view's reprojection error far above that view's typical error.
 ``bone_length``
-    A bone's length far from its median over the recording. The end with more evidence
-    is flagged (more bad bones at that frame, or another reason), both ends when
-    neither has more: a wrong claw does not make its tarsus joint a suspect too.
+    A bone's length far from its median over the recording. The end with more evidence is
+    flagged (more bad bones at that frame, or another reason), both ends when neither has more:
+    a wrong claw does not make its tarsus joint a suspect too.
 ``jump``
-    The 3D point far from every prediction its neighbouring frames make: the midpoint
-    of the frames on both sides and the line through the two frames on either side. A
-    point that is wrong in one frame makes no suspects of its neighbours, since each of
-    them has one side that does not use it.
+    The 3D point far from every prediction its neighbouring frames make: the midpoint of the
+    frames on both sides and the line through the two frames on either side. A point that is
+    wrong in one frame makes no suspects of its neighbours, since each of them has one side that
+    does not use it.
 ``ransac_drop``
-    A view detected the point but the robust triangulation left it out (or left out
-    every view: two or more detections that no 3D point fits).
+    A view detected the point but the robust triangulation left it out (or left out every view:
+    two or more detections that no 3D point fits).
 ``two_views``
-    The point was triangulated from two views only although it is usually seen by
-    more. Weak on its own (score 0.5): dropouts make it common, so it makes a suspect
-    only together with another reason.
+    The point was triangulated from two views only although it is usually seen by more. Weak on
+    its own (score 0.5): dropouts make it common, so it makes a suspect only with another reason.
 
-Every other reason scores at least 1 (more the further past its threshold) and a pair
-scoring >= 1 is a suspect. Points a person corrected (``corrected``) are not
-suspects. The per-frame score (for the GUI's timeline) is the largest pair score of
-the frame.
+Every other reason scores at least 1 (more the further past its threshold) and a pair that
+scores >= 1 is a suspect. Points a person corrected (``corrected``) are not suspects. The
+per-frame score (for the GUI's timeline) is the largest pair score of the frame.
 
-A person works through *items*, not pairs: a point's suspect pairs in consecutive
-frames are one item (one mistake of the detector usually lasts a few frames), ranked
-by their largest score, so the items that most likely hold a wrong 3D come first
-(gross 3D errors score far above 1; a view the robust triangulation already left out
-scores 1 to 1.5, a 2D label worth fixing but a 3D already right).
+A person works through *items*, not pairs: a point's suspect pairs in consecutive frames are one
+item (one mistake of the detector usually lasts a few frames), ranked by their largest score, so
+the items that most likely hold a wrong 3D come first (gross 3D errors score far above 1; a view
+the robust triangulation already left out scores 1 to 1.5, a 2D label worth fixing but a 3D
+already right).
 
-Every index is 0-based, as in ``results.h5``'s view-leading arrays and the seed's
-``camera_N`` files: ``suspects.csv``'s ``frame`` and ``point`` columns, and the views
-its ``detail`` names, ``"view 1 (lm)"`` (index and camera name; the GUI's tiles
-number them the same way).
+Every index is 0-based, as in ``results.h5``'s view-leading arrays and the seed's ``camera_N``
+files: ``suspects.csv``'s ``frame`` and ``point`` columns, and the views its ``detail`` names,
+``"view 1 (lm)"`` (index and camera name; the GUI's tiles number them the same way).
 """
 
 from __future__ import annotations
@@ -70,9 +66,8 @@ _MAD_SCALE = 1.4826  # MAD -> standard deviation of a normal distribution
 
 
 def view_label(index: int, view_names: list[str] | None = None) -> str:
-    """How a person reads view ``index``: ``"5 (lm)"`` (0-based, as frames and points
-    and the arrays' V axis; the GUI's tiles and number keys count views from 1, so the
-    view's name is always given too)."""
+    """How a person reads view ``index``: ``"5 (lm)"`` (0-based, as frames and points and the
+    arrays' V axis; the GUI's tiles and number keys count from 1, so the name is given too)."""
     names = view_names or []
     return f"{index} ({names[index]})" if index < len(names) else f"{index}"
 
@@ -81,24 +76,13 @@ def view_label(index: int, view_names: list[str] | None = None) -> str:
 class Suspects:
     """Suspect (frame, point) pairs of one recording.
 
-    Attributes
-    ----------
-    frame, point
-        ``(N,)`` int indices, sorted by frame then point.
-    score
-        ``(N,)`` float, >= 1.
-    reasons
-        ``N`` strings, reason names joined by ``;`` (see :data:`REASONS`).
-    details
-        ``N`` human-readable explanations (numbers behind the reasons).
-    frame_score
-        ``(T,)`` the largest pair score per frame (0 where nothing is odd).
-    point_names
-        The skeleton's point names (the P axis).
-    item
-        ``(N,)`` int: the rank of the item each pair belongs to (0 = look first); an item
-        is one point's suspects in consecutive frames (see :meth:`items`). Computed from
-        the pairs when not given.
+    ``frame``, ``point``: ``(N,)`` int indices, sorted by frame then point; ``score``: ``(N,)``
+    float >= 1; ``reasons``: ``N`` strings, reason names joined by ``;`` (:data:`REASONS`);
+    ``details``: ``N`` human-readable explanations (the numbers behind the reasons);
+    ``frame_score``: ``(T,)`` the largest pair score per frame (0 where nothing is odd);
+    ``point_names``: the P axis; ``item``: ``(N,)`` int, the rank of the item each pair belongs
+    to (0 = look first; one point's suspects in consecutive frames, see :meth:`items`),
+    computed from the pairs when not given.
     """
 
     frame: Int[np.ndarray, " N"]
@@ -123,10 +107,10 @@ class Suspects:
         return int(self.item.max()) + 1 if len(self.item) else 0
 
     def items(self) -> list[dict]:
-        """The items, best first (JSON-able): ``rank`` (0 first), ``point``,
-        ``point_name``, ``first_frame``, ``last_frame``, ``frames``, ``peak_frame`` (the
-        frame of the largest score, where to look), ``score`` (that largest score),
-        ``reasons`` (over all its frames) and ``detail`` (of the peak frame)."""
+        """The items, best first (JSON-able): ``rank`` (0 first), ``point``, ``point_name``,
+        ``first_frame``, ``last_frame``, ``frames``, ``peak_frame`` (the frame of the largest
+        score, where to look), ``score`` (that largest score), ``reasons`` (over all its frames)
+        and ``detail`` (of the peak frame)."""
         out = []
         for rank in range(self.n_items):
             rows = np.flatnonzero(self.item == rank)
@@ -156,8 +140,8 @@ class Suspects:
         return np.unique(self.frame)
 
     def records(self, frame: int | None = None) -> list[dict]:
-        """One dict per suspect (JSON-able): frame, point, point_name, score, reasons,
-        detail, item (its item's rank); only those of ``frame`` when given."""
+        """One dict per suspect (JSON-able): frame, point, point_name, score, reasons, detail,
+        item (its item's rank); only those of ``frame`` when given."""
         rows = range(len(self.frame)) if frame is None else np.flatnonzero(self.frame == frame)
         out = []
         for i in rows:
@@ -176,9 +160,9 @@ class Suspects:
         return out
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically, in
-        the order to review them: by item rank (``item`` 0 first), then frame. Frames,
-        points and the views named in ``detail`` are 0-based, as in ``results.h5``."""
+        """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically, in the
+        order to review them: by item rank (``item`` 0 first), then frame. Frames, points and the
+        views named in ``detail`` are 0-based, as in ``results.h5``."""
         order = sorted(self.records(), key=lambda rec: (rec["item"], rec["frame"]))
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             writer = csv.writer(fh)
@@ -199,8 +183,8 @@ class Suspects:
 
 
 def _rank_items(frame: np.ndarray, point: np.ndarray, score: np.ndarray) -> np.ndarray:
-    """``(N,)`` item rank per pair: runs of consecutive frames of one point, ranked by
-    their largest score (ties: earlier frame, then point)."""
+    """``(N,)`` item rank per pair: runs of consecutive frames of one point, ranked by their
+    largest score (ties: earlier frame, then point)."""
     frame = np.asarray(frame, dtype=int)
     point = np.asarray(point, dtype=int)
     if not len(frame):
@@ -257,32 +241,17 @@ def find_suspects(
 ) -> Suspects:
     """Find the suspect (frame, point) pairs of a reconstruction.
 
-    Parameters
-    ----------
-    pts3d
-        ``(T, P, 3)``, NaN = not reconstructed.
-    pts2d_used
-        ``(V, T, P, 2)`` the 2D the points were solved from (triangulation's cleaned 2D).
-    reproj_error
-        ``(V, T, P)`` pixels.
-    bones
-        ``(B, 2)`` point-index pairs.
-    pts2d_input
-        ``(V, T, P, 2)`` the 2D triangulation was given (for ``ransac_drop``), or None.
-    corrected
-        ``(T, P)`` bool: points a person corrected (never suspects), or None.
-    point_names
-        The P axis' names (for :meth:`Suspects.records` and the details).
-    view_names
-        The V axis' names (the details name views as ``"1 (lm)"``, 0-based).
-    k_reproj, min_reproj_px
-        Reprojection threshold per view: median + ``k_reproj`` MAD-sigmas, at least
-        ``min_reproj_px`` above the median.
-    k_bone, bone_tolerance
-        Bone threshold: ``k_bone`` MAD-sigmas, at least ``bone_tolerance`` x the median length.
-    k_jump, jump_tolerance
-        Jump threshold per point: median + ``k_jump`` MAD-sigmas of its jumps, at least
-        ``jump_tolerance`` x the median bone length.
+    ``pts3d`` ``(T, P, 3)`` (NaN = not reconstructed) was solved from ``pts2d_used``
+    ``(V, T, P, 2)`` (triangulation's cleaned 2D) with ``reproj_error`` ``(V, T, P)`` pixels;
+    ``bones`` is ``(B, 2)`` point-index pairs. Optional: ``pts2d_input`` ``(V, T, P, 2)``, the 2D
+    triangulation was given (for ``ransac_drop``); ``corrected`` ``(T, P)`` bool, points a person
+    corrected (never suspects); ``point_names`` and ``view_names`` for the records and details
+    (views as ``"1 (lm)"``, 0-based).
+
+    Thresholds: per view, reprojection median + ``k_reproj`` MAD-sigmas, at least
+    ``min_reproj_px`` above the median; per bone, ``k_bone`` MAD-sigmas, at least
+    ``bone_tolerance`` x the median length; per point, jump median + ``k_jump`` MAD-sigmas, at
+    least ``jump_tolerance`` x the median bone length.
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     used = np.asarray(pts2d_used, dtype=np.float64)
@@ -347,8 +316,8 @@ def _score_reprojection(scores, notes, error, has3d, k_reproj, min_reproj_px, vi
 
 
 def _score_views_used(scores, notes, used, has3d, pts2d_input, view_names):
-    """Reasons ``ransac_drop`` (views left out by the robust triangulation, given
-    ``pts2d_input``) and ``two_views`` (two-view points usually seen by more)."""
+    """Reasons ``ransac_drop`` (views left out by the robust triangulation, given ``pts2d_input``)
+    and ``two_views`` (two-view points usually seen by more)."""
     n_points = has3d.shape[1]
     used_views = np.isfinite(used).all(-1)  # (V, T, P)
     if pts2d_input is not None:
@@ -395,8 +364,8 @@ def _score_jumps(scores, notes, pts3d, bones, k_jump, jump_tolerance):
             out[-k:] = pts3d[:k]
         return out
 
-    # the midpoint of both sides and the straight line through either side's two
-    # frames; a first difference alone would measure speed, not a jump
+    # the midpoint of both sides and the line through either side's two frames; a first
+    # difference alone would measure speed, not a jump
     predictions = [
         0.5 * (shifted(-1) + shifted(1)),
         2.0 * shifted(-1) - shifted(-2),
@@ -424,8 +393,8 @@ def _score_jumps(scores, notes, pts3d, bones, k_jump, jump_tolerance):
 
 
 def _score_bones(scores, notes, pts3d, bones, k_bone, bone_tolerance, names):
-    """Reason ``bone_length``: the end with more evidence (more bad bones there, or
-    another reason) is the suspect, both ends when it is a tie."""
+    """Reason ``bone_length``: the end with more evidence (more bad bones there, or another
+    reason) is the suspect, both ends when it is a tie."""
     n_frames, n_points = pts3d.shape[:2]
 
     def name(p: int) -> str:
@@ -464,16 +433,10 @@ def _views(indices, view_names: list[str] | None) -> str:
 
 
 def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
-    """:func:`find_suspects` on an assembled ``results.h5``.
-
-    The 2D triangulation was given is pictorial structures' when that stage ran, else
-    pose2d's; points marked ``triangulation/corrected`` are skipped.
-
-    Raises
-    ------
-    ResultsError
-        If the file is not a flylib results file or has no 3D.
-    """
+    """:func:`find_suspects` on an assembled ``results.h5``: the 2D triangulation was given is
+    pictorial structures' when that stage ran, else pose2d's; points marked
+    ``triangulation/corrected`` are skipped. ResultsError if the file is not a flylib results
+    file or has no 3D."""
     from .errors import ResultsError
     from .results import PoseResult, open_checked
 

@@ -14,17 +14,10 @@ import pytest
 import yaml
 from conftest import checkpoint_layout
 
-from flylib.config import (
-    BundleAdjustmentParams,
-    Config,
-    PictorialParams,
-    Pose2dParams,
-    TriangulationParams,
-    validate_config,
-)
+from flylib.config import Config, validate_config
 from flylib.config.constants import POSE2D_PLAN_KEYS, STAGES, TOP_LEVEL_KEYS
 from flylib.config.layers import ConfigLayers, key_path
-from flylib.config.params import LEAST_SQUARES_CHECKS
+from flylib.config.params import LEAST_SQUARES_CHECKS, PARAM_TABLES
 from flylib.errors import ConfigError
 from flylib.pipeline.inputs import stage_inputs, stage_params
 from flylib.pipeline.preflight import preflight_problems
@@ -56,12 +49,7 @@ def edit_at(data: dict, *, path: str, value) -> dict:
 def param_cases() -> list[tuple[str, object]]:
     """One bad value per typed parameter of every table the params dataclasses describe."""
     cases = []
-    for table, cls in (
-        ("pose2d", Pose2dParams),
-        ("triangulation", TriangulationParams),
-        ("pictorial_structures", PictorialParams),
-        ("bundle_adjustment", BundleAdjustmentParams),
-    ):
+    for table, cls in PARAM_TABLES.items():
         cases += [(f"{table}.{f.name}", BAD) for f in fields(cls) if "check" in f.metadata]
     cases += [
         (f"bundle_adjustment.{k}", "text" if k == "tr_options" else BAD)
@@ -315,20 +303,9 @@ def test_exponent_numbers_are_numbers(tmp_path, default_data):
 def _numeric_fields() -> list[tuple[str, str, bool]]:
     """``(table, key, is_list)`` of every numeric field of every typed params table and
     every numeric least-squares option: a new field is covered here without a edit."""
-    from flylib.config.neuromechfly import NeuromechflyParams
-    from flylib.config.postprocessing import RefinementParams
-
-    tables = {
-        "pose2d": Pose2dParams,
-        "triangulation": TriangulationParams,
-        "pictorial_structures": PictorialParams,
-        "bundle_adjustment": BundleAdjustmentParams,
-        "refinement": RefinementParams,
-        "neuromechfly": NeuromechflyParams,
-    }
     checks = [
         (table, f.name, f.metadata["check"])
-        for table, cls in tables.items()
+        for table, cls in PARAM_TABLES.items()
         for f in fields(cls)
         if "check" in f.metadata
     ]

@@ -179,7 +179,7 @@ def test_a_job_keeps_the_configured_angle_order_which_its_params_do_not_track():
     import json
 
     from flylib.config import Config
-    from flylib.pipeline.inputs import inputs_from_job, stage_inputs
+    from flylib.pipeline.inputs import inputs_class, stage_inputs
     from flylib.pipeline.kinematics import compute_kinematics as compute_stage
 
     angles = {
@@ -195,9 +195,8 @@ def test_a_job_keeps_the_configured_angle_order_which_its_params_do_not_track():
     assert inputs[0].canonical_params() == inputs[1].canonical_params()
     pts = synthetic_fly(6, seed=2)
     for config, made in zip(configs, inputs):
-        job = inputs_from_job(
-            "kinematics", json.dumps(made.canonical_params(), sort_keys=True), made.runtime
-        )
+        params = json.loads(json.dumps(made.canonical_params(), sort_keys=True))
+        job = inputs_class("kinematics").from_params(params, made.runtime)
         names = compute_stage(job, pts, FLY).angle_names
         assert names[:2] == list(config.data["kinematics"]["angles"])
 

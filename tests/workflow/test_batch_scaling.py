@@ -85,16 +85,18 @@ def test_output_patterns_do_not_grow_with_the_batch(tmp_path):
 def test_runtime_options_are_computed_once_per_rule_not_per_job(tmp_path, monkeypatch):
     from snakemake.settings.types import DAGSettings
 
-    import flylib.pipeline.inputs as inputs
+    import flylib.pipeline.planning as planning
 
     calls: list[str] = []
-    original = inputs.stage_runtime
+    original = planning.stage_runtime
 
     def counted(config, stage):
         calls.append(stage)
         return original(config, stage)
 
-    monkeypatch.setattr(inputs, "stage_runtime", counted)
+    # where RunPlan looks it up (patching flylib.pipeline.inputs misses it once planning
+    # has been imported by an earlier test)
+    monkeypatch.setattr(planning, "stage_runtime", counted)
     with _workflow(tmp_path, _batch(tmp_path, 6)) as workflow:
         workflow.dag(DAGSettings()).execute_workflow(executor="dryrun")
         rules = {rule.name for rule in workflow._workflow.rules}

@@ -1,24 +1,14 @@
 """Bundle adjustment of one flattened problem: :func:`bundle_adjust`.
 
-Free camera parameters and 3D points (plus, optionally, shared bone lengths) are fitted
-to the observed 2D points by Levenberg-Marquardt on the reduced camera system
-(:mod:`.lm`) or ``scipy.optimize.least_squares`` (:mod:`.problem`), with the analytic
-JAX Jacobian, float64 throughout. See :mod:`.params` for the ``fixed`` / ``shared``
-grammar.
-
-Robustness and gauge, beyond a plain least-squares fit:
-
-- cameras whose start is grossly off are resected by PnP first (:mod:`.reseed`);
-- zero distortion coefficients stay zero on long lenses, and a fit whose radial model
-  folds the image is redone with that camera's distortion held;
-- outlier rounds: the first threshold comes from the errors against the starting
-  consensus triangulation; after every fit every observation is judged again
-  (``outlier_factor`` times the median error, at least ``outlier_min_px``) until the
-  inlier set is stable, so observations dropped from a rough start come back;
-- bone lengths as unknowns (one per bone or left/right pair, shared by all frames) and
-  rigid points (one 3D unknown over all frames) pin what the images alone leave loose;
-- the similarity gauge is held during the fit and the result reported in the frame
-  where the starting rig put the fly (:mod:`.gauge`).
+Free camera parameters and 3D points (and optionally shared bone lengths) are fitted to the
+observed 2D points by Levenberg-Marquardt on the reduced camera system (:mod:`.lm`) or
+``scipy.optimize.least_squares`` (:mod:`.problem`), with the analytic JAX Jacobian, float64
+throughout. Beyond a plain fit: grossly-off starting cameras are resected by PnP
+(:mod:`.reseed`); zero distortion stays zero on long lenses, and distortion that folds the
+image is held; outlier rounds judge every observation again after each fit until the inlier
+set is stable, so observations dropped from a rough start come back; bone lengths and rigid
+points pin what the images leave loose; the similarity gauge is held during the fit and the
+result reported where the starting rig put the fly (:mod:`.gauge`).
 """
 
 from __future__ import annotations
@@ -58,19 +48,17 @@ log = logging.getLogger(__name__)
 
 __all__ = ["bundle_adjust", "camera_table", "cameras_from_table", "ransac_points"]
 
-# The keyword defaults the ``bundle_adjustment`` table also has are read from its params
-# class (:class:`~flylib.config.params.BundleAdjustmentParams`): one owner per default.
+# Defaults the ``bundle_adjustment`` table also has are read from BundleAdjustmentParams.
 DEFAULT_BONE_WEIGHT = 5.0  # px of residual per 100 % bone-length deviation
 DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
-#: a camera whose position around the fly ends this far from where the starting rig put
-#: it is named as possibly swapped or mislabeled (a rough start moves cameras up to
-#: ~8 degrees; neighbouring cameras of the fly rig are 30-45 degrees apart)
+#: a camera ending this far around the fly from its start is named as possibly swapped (a
+#: rough start moves cameras up to ~8 degrees; neighbouring cameras are 30-45 degrees apart)
 MOVED_DEG = 15.0
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
 FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
-#: an observation set aside comes back within this fraction of the threshold only: the
-#: band keeps borderline observations from flipping in and out round after round
+#: an observation set aside comes back within this fraction of the threshold only, so
+#: borderline observations do not flip in and out round after round
 RETURN_FRACTION = 0.8
 SOLVERS = BA_SOLVERS
 DISTORTION_MODES = BA_DISTORTION_MODES
@@ -124,86 +112,70 @@ def bundle_adjust(
     warn_ratio: float = BundleAdjustmentParams.warn_ratio,
     **solver_kwargs,
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "N 3"]]:
-    """Bundle-adjust a camera group against observed 2D points.
+    """Bundle-adjust a camera group (the start) against observed 2D points.
+
+    ConfigError for a bad ``fixed`` / ``shared`` reference, solver or distortion mode;
+    ValueError for arrays of the wrong shape or no usable observations.
 
     Parameters
     ----------
-    cameras
-        Initial rig; its stacked parameters seed the optimization.
     pts2d
         Observations ``(V, N, 2)`` in pixels, NaN for missing.
     fixed, shared
-        Parameter references held constant / tied together (:mod:`flylib.bundle_adjustment.params`).
+        Parameter references held constant / tied together (:mod:`.params`).
     pts3d
         Initial 3D points ``(N, 3)``; robustly triangulated from ``cameras`` if omitted.
     conf, weigh_by_confidence
-        With ``weigh_by_confidence`` and ``conf`` ``(V, N)``, residuals are scaled by
-        ``sqrt(conf)``; non-positive or non-finite confidences drop the observation.
+        With both, residuals are scaled by ``sqrt(conf)`` ``(V, N)``; a non-positive or
+        non-finite confidence drops the observation.
     bones
-        Optional bone-length residuals ``(i, j, target)`` or ``(i, j, target, group)``:
-        point indices into ``N``, reference lengths and, optionally, which rows share one
-        unknown length (the same bone in different frames, or left and right). With
-        groups the lengths are unknowns (started at the group's median length over the
-        starting points, the target where there is none) and the
-        residuals ask only for constancy; without, for the targets themselves. Pairs
-        with a non-finite or non-positive target are ignored.
+        Bone-length rows ``(i, j, target[, group])``: point indices into ``N``, reference lengths
+        and which rows share one unknown length (a bone in every frame, or left and right). With
+        groups the lengths are unknowns (started at the group's median starting length) and the
+        rows ask only for constancy; without, for the targets. Non-finite or non-positive
+        targets are ignored.
     bone_weight
-        Residual scale of the bone rows, pixels per 100 % relative length deviation.
+        Pixels of residual per 100 % relative length deviation.
     reject_outliers, init_threshold, outlier_factor, outlier_min_px, max_rounds
-        Outlier handling: observations farther than ``outlier_factor`` times the
-        median error (at least ``outlier_min_px``) sit out; the threshold is first
-        taken from the errors against the starting triangulation (RANSAC with
-        ``init_threshold`` px), then after each fit from the fitted errors, every
-        observation (also those set aside before) is judged again, and rounds repeat
-        until the inlier set is stable or ``max_rounds`` fits were made.
+        Observations farther than ``outlier_factor`` times the median error (at least
+        ``outlier_min_px``) sit out, judged first against the starting triangulation (RANSAC
+        with ``init_threshold`` px), then all again after each fit, until the inlier set is
+        stable or ``max_rounds`` fits were made.
     canonical_gauge
-        When no extrinsic parameter is fixed, report the result in the similarity frame
-        that maps the refined points onto the starting ones (the fly stays where the
-        starting rig put it; :func:`~flylib.bundle_adjustment.gauge.align_gauge`).
+        With no extrinsic fixed, report the result in the similarity frame that maps the
+        refined points onto the starting ones (:func:`~.gauge.align_gauge`).
     point_ids
-        ``(N,)`` which 3D unknown each column of ``pts2d`` observes (default: its own).
-        Columns sharing an id are one point, e.g. a rigid point seen in every frame.
+        ``(N,)`` the 3D unknown each column of ``pts2d`` observes (default: its own), e.g. one
+        rigid point seen in every frame.
     solver
-        ``"lm"``: Levenberg-Marquardt on the reduced camera system
-        (:mod:`flylib.bundle_adjustment.lm`); ``"scipy"``: ``scipy.optimize.least_squares``.
+        ``"lm"`` (:mod:`.lm`, the reduced camera system) or ``"scipy"`` (``least_squares``).
     distortion
-        ``"auto"``: distortion coefficients that start at zero are held at zero on long
-        lenses (image corner within ``0.2`` of the optical axis in normalized
-        coordinates, where the images cannot tell them from the rig); ``"free"``:
-        free unless in ``fixed``; ``"fixed"``: all held. Whatever is free, a fit whose
-        radial model folds inside the image is redone with that camera's distortion
-        held.
+        ``"auto"``: coefficients starting at zero stay zero on long lenses (image corner within
+        ``0.2`` of the axis in normalized coordinates: the images cannot tell them from the
+        rig); ``"free"``: free unless ``fixed``; ``"fixed"``: all held. A fit whose radial model
+        folds inside the image is redone with that camera's distortion held.
     reseed_px
-        Cameras whose median error from the start exceeds this are resected by PnP
-        from the others (or re-aimed) before the joint fit; ``None`` turns this off.
+        Cameras whose median error from the start exceeds this are resected by PnP from the
+        others (or re-aimed) before the joint fit; ``None``: off.
     warn_ratio
-        Warn (and report) when the weakest direction of the unit-diagonal reduced
-        camera Hessian beyond the gauge is below this fraction of the strongest.
+        Warn (and report) when the weakest non-gauge direction of the unit-diagonal reduced
+        camera Hessian is below this fraction of the strongest.
     **solver_kwargs
-        ``max_nfev``, ``loss``, ``f_scale``, ``ftol``, ``xtol``, ``gtol`` (both solvers);
-        with ``solver="scipy"`` any ``scipy.optimize.least_squares`` option
-        (``jac="2-point"`` swaps the JAX Jacobian for finite differences).
+        ``max_nfev``, ``loss``, ``f_scale``, ``ftol``, ``xtol``, ``gtol``; with ``"scipy"`` any
+        ``least_squares`` option (``jac="2-point"``: finite differences).
 
     Returns
     -------
     result : scipy.optimize.OptimizeResult
-        The last fit's result plus ``initial_median_px`` / ``final_median_px``
-        (median reprojection error before / after), ``inliers`` ``(V, N)``
-        (observations used in the final fit), ``rounds``, ``warnings`` (list of str)
-        and ``report`` (a JSON-able dict: solver, what was free, kept fraction per
-        camera, rounds, repaired cameras, cameras that saw nothing (held), the
-        Hessian's weakest direction).
+        The last fit's result plus ``initial_median_px`` / ``final_median_px`` (median
+        reprojection error before / after), ``inliers`` ``(V, N)`` (of the final fit),
+        ``rounds``, ``warnings`` (list of str) and ``report`` (a JSON-able dict: solver, what
+        was free, kept fraction per camera, rounds, repaired cameras, cameras that saw nothing
+        (held), the Hessian's weakest direction).
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
         Refined points ``(N, 3)``; NaN for points with fewer than two usable views.
-
-    Raises
-    ------
-    ConfigError
-        For a bad ``fixed`` / ``shared`` reference, solver or distortion mode.
-    ValueError
-        For arrays of the wrong shape or no usable observations.
     """
     # the arguments as given: a fit whose distortion folds the image is redone with them
     return _adjust(_Arguments(**locals()))
@@ -278,8 +250,7 @@ def _adjust(args: _Arguments):
     # a camera that sees none of the points has nothing to fit: held at its start
     observed = usable.any(axis=1)
     unobserved = [n for n, seen in zip(names, observed) if not seen]
-    # sides that share no view: each is fixed by the images only up to its own
-    # similarity, which is held during the fit and put back where the start had it
+    # sides sharing no view: each part's own similarity is held, then put back (.parts)
     cam_part = camera_parts(usable, ids, n_unknown)
     n_parts = int(cam_part.max()) + 1
     fit_layout = _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movable)
@@ -369,8 +340,7 @@ def _adjust(args: _Arguments):
 
 
 def _reseeded(args, table_user, movable, pts2d, usable, triangulate):
-    """``(table, reseeded, start median per camera or None)``: the start with cameras
-    grossly off resected first (only when no 3D start is given)."""
+    """``(table, reseeded, start median per camera or None)``, gross cameras resected (no pts3d)."""
     if args.pts3d is None and args.reseed_px:
         return reseed_gross_cameras(
             table_user,
@@ -413,16 +383,14 @@ def _usable_observations(pts2d, conf, weigh_by_confidence: bool):
 
 
 def _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movable):
-    """The layout the fit runs on: ``layout`` with the unobserved cameras held and,
-    for Levenberg-Marquardt, the similarity gauge of each camera group held."""
+    """``layout`` with unobserved cameras held and, for LM, each camera group's gauge held."""
     names = list(args.cameras.names)
     n_dist = table.shape[1] - 10
     parts = ("rvec", "tvec", "intr", "dist") if n_dist else ("rvec", "tvec", "intr")
     fit_fixed = [*args.fixed, *held, *(f"{n}.{part}" for n in unobserved for part in parts)]
     n_parts = int(cam_part.max()) + 1
-    # Levenberg-Marquardt steps along the similarity gauge (7 directions no image sees)
-    # converge only linearly: hold one camera and one depth during the fit instead; the
-    # canonical frame makes the result independent of which.
+    # LM converges only linearly along the similarity gauge: hold one camera and one depth
+    # during the fit instead; the canonical frame makes the result independent of which.
     if args.solver == "lm" and untied_extrinsics(layout):
         if n_parts == 1 and layout.extrinsics_free:
             fit_fixed += gauge_refs(table, names, observed)
@@ -438,8 +406,7 @@ def _fit_layout(args, table, layout, held, unobserved, observed, cam_part, movab
 
 
 def _first_inliers(args, table, pts_cols, pts2d, usable) -> tuple[np.ndarray, float]:
-    """The first inlier set ``(V, N)``, judged against the starting points, and its
-    median error (the result's ``initial_median_px``)."""
+    """The first inlier set ``(V, N)``, judged against the start, and its median error."""
     err = view_errors(table, pts_cols, pts2d, usable)
     if args.reject_outliers:
         threshold = max(args.outlier_min_px, args.outlier_factor * float(np.nanmedian(err[usable])))
@@ -451,9 +418,8 @@ def _first_inliers(args, table, pts_cols, pts2d, usable) -> tuple[np.ndarray, fl
 
 
 def _bone_rows(bones, ids, pts, pt_part, n_parts: int):
-    """``((bone_i, bone_j, bone_t, bone_g), dropped)``: the bone rows on the unknowns,
-    none when the cameras form several groups (``dropped`` of them joined two groups),
-    grouped lengths started from the starting points."""
+    """``((bone_i, bone_j, bone_t, bone_g), dropped)``: bone rows on the unknowns, started from
+    the start's lengths; none when the cameras form several groups (``dropped`` joined two)."""
     bone_i, bone_j, bone_t, bone_g = bones_on_unknowns(valid_bones(bones), ids)
     if bone_i.size:
         log.info(
@@ -468,9 +434,8 @@ def _bone_rows(bones, ids, pts, pt_part, n_parts: int):
         )
     dropped_rows = 0
     if n_parts > 1 and bone_i.size:
-        # no image can check a length joining two groups; inside a group its own views
-        # fix the shape: on DeepFly3D's sample and the front-blind scene the within-group
-        # lengths moved the 3D by < 0.002 bones at 2.6x the solve time, so none are used
+        # no image can check a length joining two groups; inside a group its own views fix
+        # the shape (within-group lengths barely moved the 3D at 2.6x the solve time)
         dropped_rows = crossing_bones(bone_i, bone_j, pt_part)
         bone_i, bone_j, bone_t = bone_i[:0], bone_j[:0], bone_t[:0]
         bone_g = None
@@ -482,8 +447,7 @@ def _bone_rows(bones, ids, pts, pt_part, n_parts: int):
 def _fit_rounds(
     args, table, fit_layout, pts2d, weight, usable, active, pts, ids, uses, bone_rows, triangulate
 ) -> _Rounds:
-    """Fit, judge every observation again, refit, until the inlier set is stable (or
-    ``max_rounds`` fits were made; one fit without outlier rejection)."""
+    """Fit, judge every observation again, refit, until the inlier set is stable."""
     bone_i, bone_j, bone_t, bone_g = bone_rows
     n_unknown = pts.shape[0]
     is_shared = uses > 1
@@ -518,9 +482,8 @@ def _fit_rounds(
         if args.solver == "lm":
             options = dict(args.solver_kwargs)
             if rounds == 1 and args.reject_outliers:
-                # the first inlier set, judged from the start, still holds most gross
-                # outliers: polishing a fit to it only wanders (40+ evaluations from a
-                # rough rig); the next rounds refit on a cleaner set from here
+                # the first inlier set still holds most gross outliers: polishing a fit to it
+                # only wanders; the next rounds refit on a cleaner set from here
                 options["ftol"] = max(options.get("ftol", 1e-8), FIRST_ROUND_FTOL)
             result = solve_lm(problem, problem.pack(table, pts[keep]), blocks, **options)
         else:
@@ -550,9 +513,8 @@ def _fit_rounds(
             threshold,
             changed,
         )
-        # a set (nearly) seen before is a cycle: a few borderline observations flipping
-        # in and out, or a point seen twice that leaves the fit with one observation set
-        # aside and returns when judged alone: as settled as it gets
+        # a set (nearly) seen before is a cycle (borderline observations flipping, or a point
+        # seen twice leaving and returning): as settled as it gets
         tolerance = STABLE_FRACTION * usable.sum()
         if min(int((new_active != seen).sum()) for seen in history) <= tolerance:
             stable = True
@@ -565,8 +527,7 @@ def _fit_rounds(
 
 
 def _moved_degrees(table0, table, pts) -> np.ndarray:
-    """``(V,)`` the angle in degrees, seen from the fly (median of ``pts``), between each
-    camera's starting and final position; NaN without points."""
+    """``(V,)`` degrees, seen from the fly, between each camera's start and end; NaN without pts."""
     from ..camera.model import rvec_to_rmat_numpy
 
     finite = pts[np.isfinite(pts).all(axis=1)]
@@ -615,9 +576,8 @@ def ransac_points(
     usable: Bool[np.ndarray, "V N"],
     threshold: float,
 ) -> Float[np.ndarray, "N 3"]:
-    """Consensus-triangulated columns from the usable observations (the BA start), the
-    others treated as missing; RANSAC inlier ``threshold`` in pixels; NaN where no
-    consensus was found."""
+    """Consensus-triangulated columns of the usable observations (the BA start; others are
+    missing), RANSAC inlier ``threshold`` in pixels; NaN where no consensus was found."""
     from ..triangulation import triangulate_ransac
 
     masked = np.where(usable[..., None], pts2d, np.nan)

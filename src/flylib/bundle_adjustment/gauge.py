@@ -1,11 +1,11 @@
 """The similarity gauge of bundle adjustment: what to hold during a fit, how to report.
 
-With no extrinsic parameter fixed, a similarity of the whole scene (rotation,
-translation, scale: 7 directions) changes no image. Levenberg-Marquardt converges only
-linearly along such directions, so the fit holds one camera's pose and one translation
-entry (:func:`gauge_refs`); afterwards the result is mapped into the similarity frame
-where the starting rig put the fly (:func:`align_gauge`), independent of which were
-held. :func:`open_gauge_directions` counts what held and tied entries leave open.
+With no extrinsic parameter fixed, a similarity of the whole scene (rotation, translation,
+scale: 7 directions) changes no image. Levenberg-Marquardt converges only linearly along such
+directions, so the fit holds one camera's pose and one translation entry (:func:`gauge_refs`);
+afterwards the result is mapped into the similarity frame where the starting rig put the fly
+(:func:`align_gauge`), independent of which were held. :func:`open_gauge_directions` counts
+what held and tied entries leave open.
 """
 
 from __future__ import annotations
@@ -29,9 +29,8 @@ def untied_extrinsics(layout) -> bool:
 def gauge_refs(
     table: Float[np.ndarray, "V C"], names, observed: Bool[np.ndarray, " V"] | None = None
 ) -> list[str]:
-    """References that pin the similarity gauge: the first observed camera's pose and,
-    for scale, the translation entry of the observed camera farthest from it that
-    scaling moves most."""
+    """References pinning the similarity gauge: the first observed camera's pose and, for scale,
+    the translation entry that scaling moves most of the observed camera farthest from it."""
     seen = np.flatnonzero(np.ones(len(table), bool) if observed is None else observed)
     if seen.size == 0:
         return []
@@ -47,10 +46,7 @@ def gauge_refs(
 
 
 def _camera_anchors(table: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """Each camera's centre and the point ``depths[v]`` ahead on its optical axis.
-
-    Returns ``(2V, 3)``: centres first, then the viewing targets.
-    """
+    """``(2V, 3)``: each camera's centre, then the point ``depths[v]`` ahead on its axis."""
     rmats = rvec_to_rmat_numpy(table[:, 0:3])
     centres = -np.einsum("vji,vj->vi", rmats, table[:, 3:6])
     targets = centres + depths[:, None] * rmats[:, 2]
@@ -63,20 +59,14 @@ def align_gauge(
     pts: Float[np.ndarray, "N 3"],
     pts0: Float[np.ndarray, "N 3"] | None = None,
 ) -> tuple[Float[np.ndarray, "V C"], Float[np.ndarray, "N 3"]]:
-    """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start.
-
-    With ``pts0`` (the starting 3D points, ``(N, 3)``, NaN where none): the similarity
-    that best maps the refined points onto them (Umeyama, refitted without the 20 %
-    worst-agreeing), so the fly stays where the starting rig put it: thousands of points
-    pin the frame far better than seven cameras ~100 units away, whose small refinements
-    would otherwise move the fly by several hundredths of a body length. Otherwise (or
-    with fewer than four such points) the camera centres *and* viewing targets (a point
-    at the initial camera distance along each optical axis): centres alone leave a
-    near-gauge free (moving the fly sideways while every camera turns to follow it
-    barely changes any image).
-    ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
-    ``t_c' = s t_c - R_c' t`` (projections are unchanged).
-    """
+    """Map the refined rig + points ``(N, 3)`` into the similarity frame of the start. With ``pts0``
+    (the starting points ``(N, 3)``, NaN where none): the similarity that best maps the refined
+    points onto them (Umeyama, refitted without the 20 % worst), so the fly stays where the starting
+    rig put it (points pin the frame far better than distant cameras). Else (or below four such
+    points) the camera centres *and* viewing targets (a point at the initial camera distance on each
+    optical axis): centres alone leave a near-gauge free (the fly moving sideways while every camera
+    turns to follow). ``X' = s R X + t`` for points, and per camera ``R_c' = R_c R^T``,
+    ``t_c' = s t_c - R_c' t`` (projections are unchanged)."""
     fitted = None
     if pts0 is not None:
         ok = np.isfinite(pts).all(axis=1) & np.isfinite(pts0).all(axis=1)
@@ -108,13 +98,10 @@ def similarity_table(
 def open_gauge_directions(
     table: Float[np.ndarray, "V C"], layout, observed: Bool[np.ndarray, " V"] | None = None
 ) -> int:
-    """How many of the 7 similarity directions the held and tied entries leave open.
-
-    Each direction (3 rotations, 3 translations, scale) moves every camera's
-    ``[rvec, tvec]``; a held entry must not move and tied entries must move alike.
-    The directions that obey both change no image and stay undetermined in a fit.
-    Cameras not ``observed`` ``(V,)`` (no observation ties them to the rest) are left out.
-    """
+    """How many of the 7 similarity directions the held and tied entries leave open. Each direction
+    (3 rotations, 3 translations, scale) moves every camera's ``[rvec, tvec]``; a held entry must
+    not move and tied entries must move alike. The directions that obey both change no image and
+    stay undetermined in a fit. Cameras not ``observed`` ``(V,)`` are left out."""
     eps = 1e-6
     columns = []
     for k in range(7):
@@ -126,8 +113,7 @@ def open_gauge_directions(
         else:
             scale = 1.0 + eps
         moved = similarity_table(table, scale, rot, shift)
-        # near a half turn the rotation vector can come back on its other branch
-        # (|r| -> |r| - 2 pi): take the one next to the start
+        # near a half turn rvec can come back on its other branch (|r| - 2 pi): take the nearer
         r = moved[:, 0:3]
         norm = np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
         other = r * (1.0 - 2.0 * np.pi / norm)

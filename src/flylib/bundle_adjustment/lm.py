@@ -1,20 +1,16 @@
 """Levenberg-Marquardt on the reduced camera system (Schur complement).
 
-The unknowns of a :class:`~flylib.bundle_adjustment.problem.Problem` split into
+The unknowns of a :class:`~.problem.Problem` split into
 
-- *global* ones, few and seen by many observations: the free camera parameters, the
-  points shared by every frame (a tethered fly's rigid thorax-coxa points) and the
-  bone lengths;
-- *local* ones: every other 3D point. Points joined by a bone-length residual are
-  coupled, so the local unknowns form small blocks: one point (3x3) without bones,
-  one frame of a leg chain (e.g. 4 points, 12x12) with them. Blocks never couple to
-  each other except through the global unknowns.
+- *global* ones, few and seen by many observations: the free camera parameters, the points
+  shared by every frame (a tethered fly's rigid thorax-coxa points) and the bone lengths;
+- *local* ones: every other 3D point. Points joined by a bone-length residual are coupled,
+  so the local unknowns form small blocks: one point (3x3) without bones, one frame of a leg
+  chain (e.g. 4 points, 12x12) with them; blocks couple only through the global unknowns.
 
-Each step solves the damped normal equations ``(J^T J + lambda D) dx = -J^T r`` by
-eliminating the local blocks (batched dense inverses), solving the dense reduced
-system of the global unknowns (~100), and back-substituting. The Jacobian is the
-JAX one of :meth:`Problem.jacobian`. Robust losses (scipy's names and definitions)
-are applied by iteratively reweighted least squares.
+Each step solves ``(J^T J + lambda D) dx = -J^T r`` by eliminating the local blocks (batched
+dense inverses), solving the dense reduced system of the global unknowns (~100), and
+back-substituting. Robust losses (scipy's) are applied by iteratively reweighted least squares.
 """
 
 from __future__ import annotations
@@ -51,12 +47,8 @@ class BlockStructure:
 def block_structure(
     problem: Problem, global_points: Bool[np.ndarray, " N"] | None = None
 ) -> BlockStructure:
-    """Global columns and local blocks of ``problem``.
-
-    ``global_points``: ``(N,)`` bool, points kept among the global unknowns (shared by
-    many frames); every other point is local, grouped with the points it shares a
-    bone residual with.
-    """
+    """Global columns and local blocks of ``problem``: points not ``global_points`` ``(N,)`` are
+    local, grouped with the points they share a bone residual with."""
     n_pts = problem.n_points
     is_global = np.zeros(n_pts, bool) if global_points is None else np.asarray(global_points, bool)
     n_cam = problem.n_cam
@@ -119,8 +111,7 @@ class ReducedSystem:
         cols = blocks.block_cols
         n_blocks, width = cols.shape
         padded = cols < 0
-        # a selection matrix, not fancy indexing: padded slots must read nothing (reading
-        # a camera column once per slot cost seconds with wide, mostly padded blocks)
+        # a selection matrix, not fancy indexing: padded slots, most of a wide block, read nothing
         slot = np.flatnonzero(~padded.ravel())
         select = scipy.sparse.csc_matrix(
             (np.ones(slot.size), (cols.ravel()[slot], slot)), shape=(jac.shape[1], cols.size)
@@ -143,8 +134,7 @@ class ReducedSystem:
         self.padded = padded
         self.diag_u = np.maximum(np.diag(self.u).copy(), 1e-12)
         self.diag_v = np.maximum(np.diagonal(self.v, axis1=1, axis2=2).copy(), 1e-12)
-        # blocks of one true width together (a frame of all legs and a lone point differ
-        # 30-fold): inverses and products at their own size, not the widest one's
+        # blocks grouped by true width: inverses and products at their size, not the widest's
         n_used = (~padded).sum(axis=1)
         self.groups = [(np.flatnonzero(n_used == k), int(k)) for k in np.unique(n_used)]
 
@@ -206,16 +196,12 @@ def solve_lm(
     **unused,
 ) -> OptimizeResult:
     """Minimize ``problem``'s (robust) cost from ``x0`` (:meth:`Problem.pack`) by
-    Levenberg-Marquardt; ``loss`` and ``f_scale`` as ``scipy.optimize.least_squares``,
-    ``max_nfev`` default ``max_iter + 1``. The result has scipy's ``x``, ``cost``,
-    ``fun``, ``nfev``, ``njev``, ``status``, ``message`` and ``success``.
-
-    It stops when an accepted step lowers the cost by less than ``ftol`` relatively
-    (``1e-6``: tighter only crept on, 0.2 of 30,000 over a dozen steps, with no change in
-    the 3D), moves ``x`` by less than ``xtol`` relatively, or the scaled gradient is
-    below ``gtol``. Directions the data do not pin at all (a gauge) make the damped step wander along
-    them; hold the gauge fixed (as :func:`flylib.bundle_adjustment.bundle_adjust` does).
-    """
+    Levenberg-Marquardt; ``loss`` and ``f_scale`` as ``scipy.optimize.least_squares``, ``max_nfev``
+    default ``max_iter + 1``. The result has scipy's ``x``, ``cost``, ``fun``, ``nfev``, ``njev``,
+    ``status``, ``message`` and ``success``. It stops when an accepted step lowers the cost by less
+    than ``ftol`` relatively (tighter than ``1e-6`` only creeps on), moves ``x`` by less than
+    ``xtol`` relatively, or the scaled gradient is below ``gtol``. The damped step wanders along a
+    gauge: hold it fixed."""
     if unused:
         log.debug("Levenberg-Marquardt ignores %s", sorted(unused))
     max_nfev = max_iter + 1 if max_nfev is None else int(max_nfev)
@@ -267,8 +253,7 @@ def solve_lm(
                 lam,
             )
             if np.isfinite(cost_new) and rho > 0:
-                # shrink fast on good steps: weak directions of a long-focal rig need
-                # lambda far below their share of the diagonal before they move
+                # shrink fast: a long-focal rig's weak directions move only at a tiny lambda
                 lam = max(lam * (0.1 if rho > 0.75 else max(1 / 3, 1 - (2 * rho - 1) ** 3)), 1e-15)
                 nu = 2.0
                 small_step = np.linalg.norm(dx) <= xtol * (xtol + np.linalg.norm(x))
@@ -303,12 +288,11 @@ def solve_lm(
 def weak_directions(
     hessian: Float[np.ndarray, "G G"], n_gauge: int
 ) -> tuple[float, int, Float[np.ndarray, " G"]]:
-    """How well the reduced Hessian, scaled to unit diagonal (Jacobi, so units do not
-    matter), pins its unknowns beyond the gauge: ``(ratio, count, direction)``, its
-    ``n_gauge``-th smallest eigenvalue (the weakest non-gauge direction) over its
-    largest, how many eigenvalues beyond the gauge lie below ``1e-9`` of the largest,
-    and that weakest direction ``(G,)`` (unit, in the scaled unknowns; empty when there
-    is none beyond the gauge)."""
+    """How well the reduced Hessian, scaled to unit diagonal (units do not matter), pins its
+    unknowns beyond the gauge: ``(ratio, count, direction)``, its ``n_gauge``-th smallest eigenvalue
+    (the weakest non-gauge direction) over its largest, how many eigenvalues beyond the gauge lie
+    below ``1e-9`` of the largest, and that weakest direction ``(G,)`` (unit, in the scaled
+    unknowns; empty when there is none)."""
     d = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
     eig, vec = np.linalg.eigh(hessian / d[:, None] / d[None, :])
     eig = np.maximum(eig, 0.0)

@@ -1,6 +1,5 @@
-"""What bundle adjustment tells the user: its warnings in plain words, the logged
-summary and the result's JSON-able ``report`` (:func:`~flylib.bundle_adjustment.adjust.bundle_adjust`
-builds them from its fit)."""
+"""What bundle adjustment tells the user: its warnings in plain words, the logged summary and
+the result's JSON-able ``report``, built from :func:`~.adjust.bundle_adjust`'s fit."""
 
 from __future__ import annotations
 
@@ -15,8 +14,7 @@ log = logging.getLogger(__name__)
 
 
 def warn_user(message: str) -> None:
-    """Log ``message`` as a warning and raise it as a :class:`RuntimeWarning` at the
-    caller of :func:`~flylib.bundle_adjustment.adjust.bundle_adjust`."""
+    """Log ``message`` and warn it (:class:`RuntimeWarning`) at ``bundle_adjust``'s caller."""
     log.warning("bundle adjustment: %s", message)
     # stacklevel: this helper, _adjust, bundle_adjust, then bundle_adjust's caller
     warnings.warn(f"bundle adjustment: {message}", RuntimeWarning, stacklevel=4)
@@ -38,8 +36,7 @@ def log_summary(result, usable) -> None:
 
 
 def fit_warnings(args, fit, cam_part, dropped_rows, ratio, direction, fit_layout):
-    """What the fit warns of: camera groups sharing no point, else a weakly pinned
-    rig; an inlier set that did not settle."""
+    """Camera groups sharing no point, else a weakly pinned rig; an unsettled inlier set."""
     names = list(args.cameras.names)
     warnings_out: list[str] = []
     if int(cam_part.max()) + 1 > 1:
@@ -86,8 +83,7 @@ def fit_report(
         "inliers_stable": bool(fit.stable),
         "reseeded": reseeded,
         "unobserved": unobserved,
-        # cameras tied by shared points; with more than one group their relative
-        # placement is the starting rig's and constraints across groups are not used
+        # cameras tied by shared points; several groups keep the starting rig's placement
         "camera_groups": [[n for n, p in zip(names, cam_part) if p == k] for k in range(n_parts)],
         "constraints_across_groups_dropped": dropped_rows,
         "start_median_px": None
@@ -172,8 +168,8 @@ def moved_message(cameras, degrees) -> str:
 
 
 def _cameras_moving(direction, layout, names, share: float = 0.5) -> list[str]:
-    """Cameras whose free parameters carry at least ``share`` of the largest component
-    of a reduced-system direction (its first ``n_free`` entries are camera variables)."""
+    """Cameras whose free parameters carry at least ``share`` of the largest component of a
+    reduced-system direction (its first ``n_free`` entries are camera variables)."""
     n_free = int(layout.n_free)
     if direction.size < n_free or n_free == 0:
         return []

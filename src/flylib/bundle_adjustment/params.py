@@ -1,17 +1,15 @@
 """The ``fixed`` / ``shared`` parameter grammar and the free-variable layout.
 
-A camera's parameters form one row ``[rvec(3), tvec(3), intr(4), dist(K)]`` of a
-``(V, C)`` table. A reference names some of its entries:
-
-``<camera>.<param>`` or ``<camera>.<param>[<index>]``, where ``<camera>`` is a camera
-name or ``*`` (every camera) and ``<param>`` is ``rvec``, ``tvec``, ``intr``
-(``fx, fy, cx, cy``) or ``dist`` (OpenCV order).
+A camera's parameters form one row ``[rvec(3), tvec(3), intr(4), dist(K)]`` of a ``(V, C)``
+table. A reference ``<camera>.<param>`` or ``<camera>.<param>[<index>]`` names some of its
+entries: ``<camera>`` is a camera name or ``*`` (every camera), ``<param>`` is ``rvec``,
+``tvec``, ``intr`` (``fx, fy, cx, cy``) or ``dist`` (OpenCV order).
 
 ``fixed`` references stay at their initial values. Each ``shared`` group is a list of
-references that all expand to the same number of entries per camera; the i-th entry of
-every expansion is tied to one free variable (so ``["*.intr"]`` gives the whole rig
-one set of intrinsics and ``["rm.tvec[2]", "lm.tvec[2]"]`` one shared depth). A tied
-slot that contains a fixed entry is fixed as a whole.
+references that all expand to the same number of entries per camera; the i-th entry of every
+expansion is tied to one free variable (so ``["*.intr"]`` gives the whole rig one set of
+intrinsics and ``["rm.tvec[2]", "lm.tvec[2]"]`` one shared depth). A tied slot that contains a
+fixed entry is fixed as a whole.
 """
 
 from __future__ import annotations
@@ -43,14 +41,8 @@ def param_slices(n_dist: int) -> dict[str, tuple[int, int]]:
 def expand_reference(
     ref: str, camera_names: Sequence[str], n_dist: int, key: str = "bundle_adjustment"
 ) -> list[list[tuple[int, int]]]:
-    """Expand one reference to ``[(view, column), ...]`` entries, one list per camera.
-
-    Raises
-    ------
-    ConfigError
-        For a malformed reference, an unknown camera or parameter, or an index out of
-        range, naming the reference.
-    """
+    """Expand one reference to ``[(view, column), ...]`` entries, one list per camera;
+    ConfigError, naming it, for a malformed one or an unknown camera, parameter or index."""
     match = _REF.match(str(ref))
     if match is None:
         raise ConfigError(
@@ -122,14 +114,8 @@ def build_layout(
     fixed: Sequence[str] = (),
     shared: Sequence[Sequence[str]] = (),
 ) -> ParamLayout:
-    """Resolve ``fixed`` / ``shared`` references into a :class:`ParamLayout`.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown camera / parameter, a bad index, or a shared group whose
-        references expand to different numbers of entries.
-    """
+    """Resolve ``fixed`` / ``shared`` references into a :class:`ParamLayout`; ConfigError for a
+    bad reference or a shared group whose references expand to different numbers of entries."""
     if isinstance(fixed, str) or isinstance(shared, str):
         raise ConfigError(
             "bundle_adjustment.fixed must be a list of references and "

@@ -1,18 +1,14 @@
 """What the images tie together: parts of a rig that share no view.
 
-Two cameras are tied when they observe the same 3D unknowns; the cameras tied to one
-another, directly or through others, and the points they see form one *part*. Images
-fix each part's cameras and points only up to a similarity of their own (7
-directions): with the front camera blind on a DeepFly3D rig, the left and the right
-side are two parts, and where one side sits, how it is turned and how large it is
-against the other is set by nothing in the images. A constraint joining two parts (a
-left bone asked to equal its right twin, a distance across the thorax asked to stay
-constant) would be the only thing placing them, and the data cannot check it; so
-:func:`~flylib.bundle_adjustment.adjust.bundle_adjust` uses no length row when the
-cameras form several parts (:func:`crossing_bones` counts those joining two; inside a
-part its own views fix the shape), holds one similarity per part during the fit and
-maps each part back onto where the starting rig put it (:func:`align_parts`): what the
-data cannot determine stays at the start.
+Two cameras are tied when they observe the same 3D unknowns; the cameras tied to one another,
+directly or through others, and the points they see form one *part*. Images fix each part's
+cameras and points only up to a similarity of their own (7 directions): with the front camera
+blind on a DeepFly3D rig, the left and the right side are two parts, placed, turned and scaled
+against each other by nothing in the images. A length joining two parts would be the only
+thing placing them, unchecked by the data; so ``bundle_adjust`` uses no length row when the
+cameras form several parts (:func:`crossing_bones` counts those joining two; inside a part its
+own views fix the shape), holds one similarity per part during the fit and maps each part back
+onto where the starting rig put it (:func:`align_parts`).
 """
 
 from __future__ import annotations
@@ -30,20 +26,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["MIN_SHARED_POINTS", "align_parts", "camera_parts", "crossing_bones", "point_parts"]
 
-#: two cameras are tied when they both observe at least this many 3D unknowns (fewer
-#: cannot fix a similarity between them, and a stray outlier must not tie two sides)
+#: two cameras are tied when both observe at least this many 3D unknowns (fewer cannot fix a
+#: similarity between them, and a stray outlier must not tie two sides)
 MIN_SHARED_POINTS = 3
 
 
 def camera_parts(
     usable: Bool[np.ndarray, "V N"], ids: Int[np.ndarray, " N"], n_unknown: int
 ) -> Int[np.ndarray, " V"]:
-    """Part label per camera ``(V,)``: ``0, 1, ...`` (ordered by first camera), ``-1``
-    for a camera that sees none of the points.
-
-    ``usable`` ``(V, N)``: which observations exist; ``ids`` ``(N,)``: the 3D unknown
-    each column observes.
-    """
+    """Part label per camera ``(V,)``: ``0, 1, ...`` (ordered by first camera), ``-1`` for one
+    that sees none of the points. ``usable`` ``(V, N)``: which observations exist; ``ids``
+    ``(N,)``: the 3D unknown each column observes."""
     n_views = usable.shape[0]
     seen = np.zeros((n_views, n_unknown), bool)
     v, c = np.nonzero(usable)
@@ -94,12 +87,9 @@ def align_parts(
     pt_part: Int[np.ndarray, " U"],
     movable: Bool[np.ndarray, " V"],
 ) -> tuple[Float[np.ndarray, "V C"], Float[np.ndarray, "U 3"]]:
-    """Each part's cameras and points mapped by the similarity that puts its refined
-    points back onto its starting ones (:func:`~flylib.bundle_adjustment.gauge.align_gauge`).
-
-    A part holding a camera whose extrinsics are not all ``movable`` ``(V,)`` (the user
-    fixed them) is already anchored and left as fitted.
-    """
+    """Each part's cameras and points mapped by the similarity that puts its refined points back
+    onto its starting ones (:func:`~flylib.bundle_adjustment.gauge.align_gauge`). A part with a
+    camera whose extrinsics are not all ``movable`` ``(V,)`` is anchored: left as fitted."""
     table, pts = table.copy(), pts.copy()
     for part in range(int(cam_part.max()) + 1 if cam_part.size else 0):
         cams = cam_part == part

@@ -1,15 +1,12 @@
 """The least-squares core: residuals, the JAX Jacobian assembled as a sparse matrix.
 
-Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m``
-(view ``v``, point ``n``) contributes two residual rows
-``w_m * (project(X_n; camera_v) - xy_m)``; its Jacobian block is ``jax.jacfwd`` of
-:func:`flylib.camera.jax_model.project_full_one` with respect to the point and the camera row,
-``vmap``-ed over observations and jitted once for a fixed chunk of rows (residuals alone
-use a NumPy twin of the same model, so they cost no compilation). Camera columns go
-through :class:`~flylib.bundle_adjustment.params.ParamLayout` (fixed entries dropped, tied entries
-summed into one column). An optional bone-length prior adds one row per (frame, bone):
-with ``bone_group`` the lengths are unknowns shared by every frame of a bone (rigid
-segments, no bias from the targets), else the targets are fixed.
+Unknowns are ``[free camera variables, 3D points (N, 3)]``. Each observation ``m`` (view
+``v``, point ``n``) contributes two residual rows ``w_m * (project(X_n; camera_v) - xy_m)``;
+its Jacobian block is ``jax.jacfwd`` of ``project_full_one`` in the point and the camera row,
+``vmap``-ed and jitted once for a fixed chunk of rows (residuals use a NumPy twin: no
+compilation). Camera columns go through :class:`~.params.ParamLayout` (fixed entries dropped,
+tied ones summed). Bone rows add one row per (frame, bone), toward fixed targets or, with
+``bone_group``, unknown lengths shared by every frame of a bone.
 """
 
 from __future__ import annotations
@@ -28,9 +25,7 @@ from .params import ParamLayout
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float, Int
 
-# Observations go through the kernel in fixed-size chunks: one compilation serves every
-# problem size (XLA's compile time does not depend on the size, ~0.5 s here), and a
-# 2,048-row chunk runs faster than one large call (it stays in cache).
+# Fixed-size chunks: one compilation serves every problem size, and a chunk stays in cache.
 CHUNK = 2048
 
 
@@ -60,11 +55,8 @@ def _pad(a: np.ndarray, size: int) -> np.ndarray:
 def project_rows(
     pts: Float[np.ndarray, "M 3"], rows: Float[np.ndarray, "M C"]
 ) -> Float[np.ndarray, "M 2"]:
-    """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``.
-
-    The NumPy twin of :func:`flylib.camera.jax_model.project_full_one` (same pinhole + OpenCV
-    distortion model): residuals need no JIT compilation, only the Jacobian does.
-    """
+    """Project ``pts`` ``(M, 3)`` through per-observation camera rows ``(M, C)``: the NumPy twin
+    of :func:`flylib.camera.jax_model.project_full_one`, so residuals need no compilation."""
     if pts.shape[0] == 0:
         return np.zeros((0, 2))
     cam = np.einsum("mij,mj->mi", camera_model.rvec_to_rmat_numpy(rows[:, 0:3]), pts) + rows[:, 3:6]
@@ -95,33 +87,13 @@ def project_rows_with_jac(
 
 @dataclass
 class Problem:
-    """One bundle-adjustment problem over ``N`` points and ``M`` observations.
-
-    Attributes
-    ----------
-    table0
-        ``(V, C)`` initial camera table (rvec, tvec, intr, dist).
-    layout
-        Which table entries are free / tied.
-    view, point
-        ``(M,)`` observation indices into the views / points.
-    xy
-        ``(M, 2)`` observed pixels.
-    weight
-        ``(M,)`` residual scale (``sqrt(conf)`` or 1).
-    n_points
-        ``N``.
-    bone_i, bone_j, bone_target
-        ``(B,)`` bone-prior endpoints (point indices) and target lengths.
-    bone_weight
-        Residual scale of the prior: pixels per unit of relative length deviation,
-        ``bone_weight * (|Xi - Xj| - target) / target`` for fixed targets and
-        ``bone_weight * (|Xi - Xj| / L - 1)`` for a shared unknown length ``L`` (scale
-        free: a similarity of the whole scene leaves it unchanged).
-    bone_group
-        ``(B,)`` index of the shared length unknown each row uses, or ``None`` for
-        fixed lengths ``L = target``.
-    """
+    """One bundle-adjustment problem over ``N`` points and ``M`` observations. ``table0`` is the
+    initial ``(V, C)`` camera table; ``view``, ``point``, ``weight`` (residual scale, ``sqrt(conf)``
+    or 1) are ``(M,)``, ``xy`` ``(M, 2)`` pixels. Bone rows ``(B,)`` join points ``bone_i``,
+    ``bone_j``; ``bone_weight`` is pixels per unit of relative deviation:
+    ``bone_weight * (|Xi - Xj| - target) / target`` with ``bone_group=None`` (fixed targets), else
+    ``bone_weight * (|Xi - Xj| / L - 1)`` for the shared unknown length ``L`` of the row's group
+    (scale free: a similarity of the whole scene leaves it unchanged)."""
 
     table0: Float[np.ndarray, "V C"]
     layout: ParamLayout
@@ -145,8 +117,6 @@ class Problem:
         self.shape = (2 * self.n_obs + self.n_bones, self.n_cam + 3 * self.n_points + self.n_len)
         self._build_structure()
 
-    # -- packing ------------------------------------------------------------
-
     def pack(
         self, table: Float[np.ndarray, "V C"], pts3d: Float[np.ndarray, "N 3"]
     ) -> Float[np.ndarray, " X"]:
@@ -166,8 +136,6 @@ class Problem:
         if self.n_len:
             return x[self.n_cam + 3 * self.n_points :][self.bone_group]
         return self.bone_target
-
-    # -- residuals and Jacobian ----------------------------------------------
 
     def residuals(self, x: Float[np.ndarray, " X"]) -> Float[np.ndarray, " R"]:
         table, pts = self.unpack(x)
@@ -242,16 +210,11 @@ class Problem:
         counts = np.bincount((unique // self.shape[1]).astype(np.int64), minlength=self.shape[0])
         self._indptr = np.concatenate([[0], np.cumsum(counts)])
 
-    # -- solve ----------------------------------------------------------------
-
     def solve(
         self, table: Float[np.ndarray, "V C"], pts3d: Float[np.ndarray, "N 3"], **kwargs
     ) -> OptimizeResult:
-        """``scipy.optimize.least_squares`` from ``(table, pts3d)``; kwargs pass through.
-
-        ``jac`` defaults to the analytic JAX Jacobian; pass ``jac="2-point"`` (or
-        ``"3-point"``) for finite differences, which then get ``jac_sparsity``.
-        """
+        """``scipy.optimize.least_squares`` from ``(table, pts3d)``; kwargs pass through. ``jac``
+        defaults to the JAX Jacobian; finite differences (``"2-point"``...) get ``jac_sparsity``."""
         options = {"method": "trf", "x_scale": "jac", "tr_solver": "lsmr"}
         options.update(kwargs)
         if options.get("jac", "jax") == "jax":

@@ -1,11 +1,9 @@
 """Starting-rig repairs before the joint fit: gross cameras, distortion that folds.
 
-A camera whose aim is off by degrees puts the fly hundreds of pixels away from its
-detections; a joint least-squares fit from there wanders. Such a camera is resected
-by PnP (OpenCV ``solvePnPRansac``) from points triangulated by the other cameras;
-when too few cameras are trustworthy to triangulate from, each gross camera is first
-re-aimed (turned about its centre) so that its detections' median falls on the point
-the rig looks at.
+A camera aimed off by degrees puts the fly hundreds of pixels from its detections, and a joint
+fit from there wanders: it is resected by PnP (``cv2.solvePnPRansac``) from points the other
+cameras triangulate, or, with too few trustworthy cameras, first re-aimed about its centre so
+that its detections' median falls on the point the rig looks at.
 """
 
 from __future__ import annotations
@@ -63,8 +61,8 @@ def reaim(
     observed: Float[np.ndarray, "M 2"],
     target: Float[np.ndarray, " 3"],
 ) -> Float[np.ndarray, " C"]:
-    """Turn camera ``row`` about its centre so that ``target`` projects near the
-    median of ``observed`` ``(M, 2)`` pixels (distortion ignored: a coarse repair)."""
+    """Turn camera ``row`` about its centre so that ``target`` projects near the median of
+    ``observed`` ``(M, 2)`` pixels (distortion ignored: a coarse repair)."""
     import cv2  # only a repair needs OpenCV, not every bundle-adjustment job
 
     rmat = rvec_to_rmat_numpy(row[0:3])
@@ -90,8 +88,7 @@ def leave_one_out_errors(
     usable: Bool[np.ndarray, "V N"],
     triangulate,
 ) -> Float[np.ndarray, " V"]:
-    """``(V,)`` median error of each camera against points the *other* cameras
-    triangulate (a point triangulated with a camera always fits it)."""
+    """``(V,)`` median error of each camera against points only the *other* cameras triangulate."""
     med = np.full(len(table), np.nan)
     for v in np.flatnonzero(usable.any(axis=1)):
         others = usable.copy()
@@ -112,17 +109,13 @@ def reseed_gross_cameras(
     triangulate,
     movable: Bool[np.ndarray, " V"] | None = None,
 ) -> tuple[Float[np.ndarray, "V C"], list[str], Float[np.ndarray, " V"]]:
-    """Resect (or re-aim) every camera whose median error from the start is gross.
-
-    A camera is gross when the median reprojection error of its observations against
-    points triangulated by the other cameras exceeds ``gross_px``. ``triangulate``:
-    ``(table, usable) -> pts (N, 3)``, a robust triangulation (NaN where impossible);
-    ``movable``: cameras whose extrinsics may be changed (default all).
-
-    Returns ``(table, reseeded, median_px)``: the repaired table, ``"<camera>: pnp"`` /
-    ``"<camera>: re-aimed"`` per repaired camera, and the ``(V,)`` per-camera median
-    error before the repair.
-    """
+    """Resect (or re-aim) every camera whose median error from the start is gross. A camera is gross
+    when the median reprojection error of its observations against points triangulated by the other
+    cameras exceeds ``gross_px``. ``triangulate``: ``(table, usable) -> pts (N, 3)``, robust, NaN
+    where impossible; ``movable``: cameras whose extrinsics may change (default all). Returns
+    ``(table, reseeded, median_px)``: the repaired table, ``"<camera>: pnp"`` /
+    ``"<camera>: re-aimed"`` per repaired camera, and the ``(V,)`` per-camera median error before
+    the repair."""
     table = table.copy()
     has_obs = usable.any(axis=1)
     med = leave_one_out_errors(table, pts2d, usable, triangulate)
@@ -154,8 +147,7 @@ def reseed_gross_cameras(
         if ok.sum() < 8:
             continue
         row = table[v]
-        # EPnP inside RANSAC, no extrinsic guess (the guess is what is wrong; OpenCV's
-        # iterative solver returned garbage from a 3-degree-off guess), then LM on inliers
+        # EPnP inside RANSAC without an extrinsic guess (the guess is what is wrong), then LM
         obj, img = pts_good[ok], pts2d[v][ok]
         import cv2  # only a repair needs OpenCV, not every bundle-adjustment job
 
@@ -193,8 +185,7 @@ def reseed_gross_cameras(
 
 
 def radial_folds(dist: Float[np.ndarray, " K"], r_max: float, n: int = 256) -> bool:
-    """True when the OpenCV radial model ``r * radial(r)`` is not increasing on
-    ``[0, r_max]`` (the image would fold onto itself)."""
+    """True when ``r * radial(r)`` is not increasing on ``[0, r_max]`` (the image would fold)."""
     d = pad_dist_numpy(np.asarray(dist, float)[None])[0]
     k1, k2, k3, k4, k5, k6 = d[0], d[1], d[4], d[5], d[6], d[7]
     r = np.linspace(0.0, r_max, n)
@@ -206,6 +197,6 @@ def radial_folds(dist: Float[np.ndarray, " K"], r_max: float, n: int = 256) -> b
 
 
 def image_radius(row: Float[np.ndarray, " C"]) -> float:
-    """Normalized radius of the farthest image corner, taking the image as twice the
-    principal point (plus a margin): where the distortion model must stay monotonic."""
+    """Normalized radius of the farthest image corner, taking the image as twice the principal
+    point (plus a margin): where the distortion model must stay monotonic."""
     return 1.25 * float(np.hypot(row[8] / row[6], row[9] / row[7]))

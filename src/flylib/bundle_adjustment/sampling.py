@@ -1,18 +1,11 @@
 """Choosing the frames bundle adjustment fits (``max_frames`` / ``frame_sampling``).
 
-Strategies
-----------
-``even``
-    Evenly spaced over the recording.
-``confidence``
-    The frames with the highest mean detector confidence over their observations.
-``coverage``
-    The frames with the most triangulable observations (points seen by two or more
-    views), ties broken towards spreading over the recording.
-``diversity``
-    Farthest-point sampling of per-frame 2D poses (each view centred on its own
-    median), starting from the most complete frame: many different postures, few
-    near-duplicates of a resting fly.
+- ``even``: evenly spaced over the recording;
+- ``confidence``: the highest mean detector confidence over their observations;
+- ``coverage``: the most triangulable observations (points seen by two or more views), ties
+  broken towards spreading over the recording;
+- ``diversity``: farthest-point sampling of per-frame 2D poses (each view centred on its own
+  median) from the most complete frame: many postures, few duplicates of a resting fly.
 """
 
 from __future__ import annotations
@@ -36,15 +29,8 @@ def select_frames(
     max_frames: int | None,
     method: str = "even",
 ) -> Int[np.ndarray, " F"]:
-    """Sorted indices of at most ``max_frames`` frames of ``pts2d`` ``(V, T, P, 2)``.
-
-    ``max_frames=None`` (or at least ``T``) keeps every frame.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown ``method`` or a non-positive ``max_frames``.
-    """
+    """Sorted indices of at most ``max_frames`` frames of ``pts2d`` ``(V, T, P, 2)`` (``None``:
+    all); ConfigError for an unknown ``method`` or a non-positive ``max_frames``."""
     if method not in FRAME_SAMPLING:
         raise ConfigError(
             f"bundle_adjustment.frame_sampling: unknown strategy {method!r}; "
@@ -77,8 +63,8 @@ def select_frames(
 def _top(score: np.ndarray, k: int) -> np.ndarray:
     """The ``k`` best-scoring frames; equal scores go to evenly spread frames first."""
     n = score.size
-    # Secondary key: a bit-reversal-like spread order, so ties don't clump at the start.
-    rank_in_spread = np.argsort(_spread_order(n))  # the spread order is a permutation of frames
+    # Secondary key: a bit-reversal-like spread order (a permutation), so ties don't clump.
+    rank_in_spread = np.argsort(_spread_order(n))
     order = np.lexsort((rank_in_spread, -score))
     return np.sort(order[:k])
 
@@ -121,18 +107,10 @@ def select_session_frames(
     max_frames: int | None,
     method: str = "even",
 ) -> list[Int[np.ndarray, " F"]]:
-    """Each trial's frames for one solve over a whole session: ``max_frames`` shared
-    evenly between the trials (the first ones get the remainder, every trial at least
-    one frame), each trial's chosen by :func:`select_frames` with ``method``.
-
-    ``max_frames=None`` keeps every frame of every trial. The session's solve then
-    costs about what one trial's does, and sees the postures of every trial.
-
-    Raises
-    ------
-    ConfigError
-        For an unknown ``method`` or a non-positive ``max_frames``.
-    """
+    """Each trial's frames for one solve over a whole session: ``max_frames`` (``None``: all) shared
+    evenly between the trials (the first ones get the remainder, every trial at least one), each
+    trial's chosen by :func:`select_frames`. The session's solve then costs about what one trial's
+    does, and sees the postures of every trial."""
     if max_frames is not None and max_frames < 1:
         raise ConfigError(
             f"bundle_adjustment.max_frames must be >= 1 (or null for all frames), got {max_frames}"

@@ -1,10 +1,8 @@
 """Bundle adjustment of a recording: frame choice, bones, rigid points.
 
-:func:`bundle_adjust_sequence` flattens a recording's ``(V, T, P, 2)`` detections into
-one :func:`~flylib.bundle_adjustment.adjust.bundle_adjust` problem. The workflow's
-stage (:mod:`flylib.pipeline.bundle_adjustment`) calls it with the ``bundle_adjustment``
-table's :class:`~flylib.config.params.BundleAdjustmentParams`
-(:meth:`~flylib.config.params.BundleAdjustmentParams.sequence_kwargs`).
+:func:`bundle_adjust_sequence` flattens a recording's ``(V, T, P, 2)`` detections into one
+:func:`~.adjust.bundle_adjust` problem; the workflow's stage calls it with
+:meth:`~flylib.config.params.BundleAdjustmentParams.sequence_kwargs`.
 """
 
 from __future__ import annotations
@@ -34,13 +32,11 @@ __all__ = ["THORAX_POINTS", "bundle_adjust_sequence", "length_unknowns"]
 
 #: where the legs join the thorax: one rigid, left/right mirror-symmetric body in any fly
 THORAX_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
-#: a listed rigid point is merged over time only if its starting triangulation stays
-#: within this many median bone lengths (median distance to its median position)
+#: a listed rigid point is merged over time only if its starting triangulation stays within
+#: this many median bone lengths (median distance to its median position)
 DEFAULT_RIGID_TOLERANCE = 0.15
-#: ... and within this many pixels in the cameras: a still point's triangulation moves by
-#: about the detection noise (1.5 px on the rough-rig scene); DeepFly3D's thorax-coxa
-#: detections on its real sample move 5 px, and holding them as one point costs every
-#: observation that much (issue 23: the inlier rounds never settled)
+#: ... and within this many pixels: a still point moves by about the detection noise (1.5 px),
+#: while merging points that move (DeepFly3D's thorax-coxa, 5 px) keeps the inliers unsettled
 DEFAULT_RIGID_PX = 3.0
 
 
@@ -69,51 +65,39 @@ def bundle_adjust_sequence(
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
     Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
-    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's
-    bone lengths (``bone_lengths``, or the older ``bone_prior``), makes the
-    ``rigid_points`` one 3D point over all frames, and runs :func:`bundle_adjust` on
-    the flattened (frame, point) observations.
+    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's bone
+    lengths, makes the ``rigid_points`` one 3D point over all frames, and runs
+    :func:`bundle_adjust` on the flattened (frame, point) observations.
 
     Parameters
     ----------
     cameras, pts2d, conf
         The rig, detections ``(V, T, P, 2)`` and confidences ``(V, T, P)`` (or ``None``).
     skeleton
-        Supplies point names and bones; without it ``points_to_use`` must be ``None``
-        and there is no bone prior.
+        Point names and bones; without it ``points_to_use`` must be ``None``, and no bone rows.
     points_to_use, max_frames, frame_sampling, weigh_by_confidence, fixed, shared
         As in the ``bundle_adjustment`` config table.
     bone_prior
-        Add the bone-length prior toward fixed targets (off by default: its targets come
-        from the starting rig, whose errors it then reproduces).
+        Pull bone lengths toward the starting rig's (whose errors it then reproduces).
     bone_lengths
-        Each bone of the skeleton (among the used points) has one unknown length over
-        all fitted frames; residual rows ``length_weight * (|Xi - Xj| / L - 1)`` ask
-        every frame for it. The ``body_points`` are one rigid body: every distance
-        between two of them is such a length too. This, not a target, is what pins a
-        long-focal rig's shape.
+        Each used bone (and distance between two ``body_points``, one rigid body) has one unknown
+        length ``L`` over the fitted frames, rows ``length_weight * (|Xi - Xj| / L - 1)`` asking
+        every frame for it: this, not a target, pins a long-focal rig's shape.
     symmetric_bones
-        Left and right bones (names differing only in a leading ``l``/``r``) share one
-        length, and so do mirror-image distances between ``body_points``. When each
-        camera sees one side only, nothing in the images fixes one side's cameras and
-        points against the other's (they can be scaled together about a camera seeing
-        both); the mirror-symmetric thorax does.
+        Left and right bones (names differing only in a leading ``l``/``r``) and mirror-image
+        distances between ``body_points`` share one length: when each camera sees one side
+        only, the symmetric thorax is what fixes one side against the other.
     length_weight
         Pixels of residual per 100 % deviation from the common length.
     rigid_points
-        Point names that do not move over the recording when the body is fixed (a
-        tethered fly's thorax-coxa joints): one 3D unknown each instead of one per
-        frame. Names that are not used points are ignored. ``None``: the
-        :data:`THORAX_POINTS` the skeleton has (none without a skeleton).
-    rigid_tolerance
-        Use ``rigid_points`` only if the data show the body fixed: their starting
-        triangulation (from ``cameras``) stays within this many median bone lengths of
-        its median position (median over frames, worst point). ``None``: always. The
-        decision is in ``result.report["rigid"]``.
-    rigid_px
-        ... and that spread seen from the cameras (focal length over distance, median
-        over cameras) is at most this many pixels: what the images can tell from still.
-        ``None``: no pixel test.
+        Points still when the body is fixed (a tethered fly's thorax-coxa joints): one 3D unknown
+        each over all frames; unused points are ignored. ``None``: the skeleton's THORAX_POINTS.
+    rigid_tolerance, rigid_px
+        Use ``rigid_points`` only if their starting triangulation (from ``cameras``) stays
+        within this many median bone lengths of its median position (median over frames, worst
+        point), and that spread seen from the cameras (focal length over distance, median over
+        cameras) is at most ``rigid_px`` pixels. ``None``: no such test. The decision is in
+        ``result.report["rigid"]``.
     body_points
         Points of one rigid body (default :data:`THORAX_POINTS`), for ``bone_lengths``.
     **kwargs
@@ -122,10 +106,8 @@ def bundle_adjust_sequence(
     Returns
     -------
     result : OptimizeResult
-        As :func:`bundle_adjust`, plus ``frames`` (the fitted frame indices),
-        ``points`` (the fitted point indices) and ``report["rigid"]`` (whether the
-        rigid points were used, their spread in median bones, the tolerance; ``None``
-        without rigid points).
+        As :func:`bundle_adjust`, plus ``frames`` and ``points`` (the fitted indices) and
+        ``report["rigid"]`` (whether the rigid points were used and why; ``None`` without).
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
@@ -179,8 +161,8 @@ def bundle_adjust_sequence(
 
 
 def _bone_prior_rows(cameras, pts2d, skeleton, point_idx) -> tuple[np.ndarray, ...]:
-    """Bone rows ``(i, j, target)`` toward the starting rig's bone lengths over the
-    flattened (frame, used point) columns of ``pts2d`` ``(V, F, P, 2)``."""
+    """Bone rows ``(i, j, target)`` toward the starting rig's bone lengths over the flattened
+    (frame, used point) columns of ``pts2d`` ``(V, F, P, 2)``."""
     from ..pictorial import bone_length_targets
 
     n_sel, n_q = pts2d.shape[1], len(point_idx)
@@ -197,10 +179,9 @@ def _bone_prior_rows(cameras, pts2d, skeleton, point_idx) -> tuple[np.ndarray, .
 
 
 def _rigid_point_ids(cameras, sub, skeleton, point_idx, rigid_points, tolerance, tolerance_px):
-    """``(point_ids, report)``: each flattened observation's 3D unknown when the
-    ``rigid_points`` are one point over all frames (``None``: one unknown per
-    observation), and the decision of :func:`_rigid_decision` (``None`` without rigid
-    points). ``sub`` ``(V, F, Q, 2)``: the fitted frames and points."""
+    """``(point_ids, report)``: each flattened observation's 3D unknown, the ``rigid_points`` one
+    point over all frames (``None``: one per observation), and :func:`_rigid_decision`'s report
+    (``None`` without rigid points); ``sub`` ``(V, F, Q, 2)``: the fitted frames and points."""
     names = list(skeleton.point_names) if skeleton is not None else []
     if rigid_points is None:
         rigid_points = [p for p in THORAX_POINTS if p in names]
@@ -225,13 +206,10 @@ def _rigid_point_ids(cameras, sub, skeleton, point_idx, rigid_points, tolerance,
 
 
 def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, tolerance_px) -> dict:
-    """Whether the data show the rigid points still: ``{"used", "spread_bones", ...}``.
-
-    ``sub`` ``(V, F, Q, 2)``: the fitted frames and points. The spread is each rigid
-    point's median distance to its median position over the frames of its starting
-    triangulation, in median bone lengths of the same triangulation (worst point), and
-    in pixels (times focal length over camera distance, median over the cameras).
-    """
+    """Whether the data show the rigid points still: ``{"used", "spread_bones", ...}``. The
+    spread is each rigid point's median distance to its median position over the frames of its
+    starting triangulation (of ``sub`` ``(V, F, Q, 2)``), in median bone lengths (worst point)
+    and in pixels (times focal length over camera distance, median over the cameras)."""
     out = {
         "used": bool(rigid_q.any()),
         "points": int(rigid_q.sum()),
@@ -280,8 +258,7 @@ def _rigid_decision(cameras, sub, skeleton, point_idx, rigid_q, tolerance, toler
 
 
 def _pixels_per_unit(cameras, point) -> float:
-    """Median over the cameras of focal length / distance to ``point`` ``(3,)``: how
-    many pixels one world unit there spans in the images."""
+    """Median over the cameras of focal length / distance to ``point``: pixels per world unit."""
     from ..camera.model import rvec_to_rmat_numpy
 
     if not np.isfinite(point).all():
@@ -294,9 +271,8 @@ def _pixels_per_unit(cameras, point) -> float:
 
 
 def length_unknowns(skeleton, point_idx, n_frames, symmetric, body_points=()):
-    """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one
-    group per bone and per pair of ``body_points`` (per left/right mirror pair with
-    ``symmetric``)."""
+    """Bone rows ``(i, j, 1, group)`` over flattened (frame, used point) columns: one group per
+    bone and per pair of ``body_points`` (per left/right mirror pair with ``symmetric``)."""
     names = list(skeleton.point_names)
     bi, bj = (np.asarray(a) for a in skeleton.bone_index_pairs())
     body = [names.index(p) for p in body_points if p in names]

@@ -1,9 +1,8 @@
 """The unknowns of a flattened problem beyond the cameras: shared 3D points, bone rows.
 
-A column of the observations is one (frame, point); columns sharing an id are one 3D
-unknown (a rigid point seen in every frame). Bone rows ``(i, j, target[, group])`` join
-two columns; with groups, one unknown length per group (the same bone in every frame,
-or its left/right pair) that the fit finds.
+A column of the observations is one (frame, point); columns sharing an id are one 3D unknown
+(a rigid point seen in every frame). Bone rows ``(i, j, target[, group])`` join two columns;
+a group (a bone in every frame, or its left/right pair) has one unknown length.
 """
 
 from __future__ import annotations
@@ -39,12 +38,9 @@ def unknowns_from_columns(
 
 
 def bones_on_unknowns(bones, ids):
-    """Bone rows re-indexed onto the 3D unknowns.
-
-    A pair of rigid points keeps one row per frame (not one in all), so a length
-    weighs the same whether or not the body was found still; rows whose ends became
-    one unknown are dropped.
-    """
+    """Bone rows re-indexed onto the 3D unknowns. A pair of rigid points keeps one row per
+    frame (not one in all), so a length weighs the same whether or not the body was found
+    still; rows whose ends became one unknown are dropped."""
     bi, bj, bt, bg = bones
     if bi.size == 0:
         return bi, bj, bt, bg

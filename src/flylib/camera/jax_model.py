@@ -2,19 +2,15 @@
 
 Conventions (shared by the whole package):
 
-* rotations are axis-angle vectors ``rvec`` (OpenCV Rodrigues); a camera maps a
-  world point ``X`` to camera coordinates ``R(rvec) @ X + tvec``;
+* rotations are axis-angle vectors ``rvec`` (OpenCV Rodrigues); a camera maps a world point
+  ``X`` to camera coordinates ``R(rvec) @ X + tvec``;
 * intrinsics are packed ``[fx, fy, cx, cy]`` (``[f, cx, cy]`` is accepted too);
-* distortion is OpenCV's 12-coefficient model
-  ``[k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``; shorter vectors mean the
-  missing coefficients are zero, exactly as ``cv2.projectPoints`` reads them;
-* arrays are view-leading: ``(V, *pts, 2)`` for image points;
-* NaN marks a missing observation.
+* distortion is OpenCV's 12 coefficients ``[k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``;
+  missing trailing ones are zero, exactly as ``cv2.projectPoints`` reads them;
+* arrays are view-leading: ``(V, *pts, 2)`` for image points; NaN marks a missing observation.
 
-The formulas live once, generic over the array module, in :mod:`flylib.camera.model`;
-this module binds them to ``jax.numpy`` (float64). The ``*_one`` functions handle one
-point / one camera and compose with ``jax.vmap`` and ``jax.jacfwd`` (bundle adjustment
-builds its Jacobian from :func:`project_full_one`). The batched functions are jitted.
+The formulas of :mod:`flylib.camera.model`, bound to ``jax.numpy``: ``*_one`` functions (one
+point, one camera) compose with ``jax.vmap`` and ``jax.jacfwd``; the batched ones are jitted.
 """
 
 from __future__ import annotations
@@ -37,8 +33,7 @@ if TYPE_CHECKING:  # pragma: no cover
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")
 if not os.environ.get("FLYLIB_NO_JAX_CACHE"):
-    # Every workflow job is a fresh process: keep compiled kernels on disk so only the
-    # first job ever pays for XLA compilation (seconds per kernel on a small machine).
+    # Every workflow job is a fresh process: kernels cached on disk are compiled only once.
     jax.config.update("jax_compilation_cache_dir", str(cache_dir() / "jax"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
@@ -69,40 +64,17 @@ _UNDISTORT_FIXED_POINT_ITERS = 20
 _UNDISTORT_NEWTON_ITERS = 2
 
 
-# -- rotations ---------------------------------------------------------------
-
-
 def rvec_to_rmat_one(rvec: Float[Array, " 3"]) -> Float[Array, "3 3"]:
-    """Rodrigues' formula for one rotation vector.
-
-    Parameters
-    ----------
-    rvec
-        ``(3,)``: direction = axis, norm = angle in radians.
-
-    Returns
-    -------
-    jax.Array
-        ``(3, 3)``; exact and differentiable at ``rvec = 0``.
-    """
+    """Rodrigues: ``(3,)`` axis * angle (radians) -> ``(3, 3)``, exact and differentiable at 0."""
     return rvec_to_rmat_generic(jnp, rvec)
 
 
 def rmat_to_rvec_one(rmat: Float[Array, "3 3"]) -> Float[Array, " 3"]:
-    """Axis-angle vector of one rotation matrix (inverse of :func:`rvec_to_rmat_one`).
-
-    The angle comes from ``atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)``, accurate
-    over the whole range. For angles below 90 degrees the axis is the direction
-    of the antisymmetric part; above, where that part shrinks to zero at
-    ``theta = pi``, the axis is read from the symmetric part
-    ``(R + R^T) / 2 - cos(theta) I = (1 - cos(theta)) a a^T`` and its sign taken
-    from the antisymmetric part.
-
-    Returns
-    -------
-    jax.Array
-        ``(3,)``, norm in ``[0, pi]``.
-    """
+    """Axis-angle ``(3,)``, norm in ``[0, pi]``, of one rotation matrix (inverse of
+    :func:`rvec_to_rmat_one`). The angle is ``atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)``,
+    accurate over the whole range. Below 90 degrees the axis is the direction of the antisymmetric
+    part; above, where that part vanishes at ``theta = pi``, it is read from the symmetric part
+    ``(R + R^T) / 2 - cos(theta) I = (1 - cos(theta)) a a^T``, its sign from the antisymmetric."""
     return rmat_to_rvec_generic(jnp, jnp.asarray(rmat, dtype=jnp.float64))
 
 
@@ -120,18 +92,9 @@ def rmat_to_rvec(rmat: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3"]:
     return jax.vmap(rmat_to_rvec_one)(flat).reshape(*rmat.shape[:-2], 3)
 
 
-# -- intrinsics and distortion ---------------------------------------------------
-
-
 @jax.jit
 def intr_to_kmat(intr: Float[Array, "*batch P"]) -> Float[Array, "*batch 3 3"]:
-    """Camera matrices ``K`` ``(..., 3, 3)`` from packed intrinsics.
-
-    Parameters
-    ----------
-    intr
-        ``(..., 4)`` as ``[fx, fy, cx, cy]`` or ``(..., 3)`` as ``[f, cx, cy]``.
-    """
+    """Camera matrices ``K`` ``(..., 3, 3)`` from ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``."""
     return intr_to_kmat_generic(jnp, intr)
 
 
@@ -141,15 +104,7 @@ def pad_dist(dist: Float[Array, "*batch K"]) -> Float[Array, "*batch 12"]:
 
 
 def distort_one(xy: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array, " 2"]:
-    """Apply OpenCV distortion to one normalized image point (:func:`distort_normalized`).
-
-    Parameters
-    ----------
-    xy
-        Normalized coordinate ``(x, y) = (X / Z, Y / Z)``.
-    dist
-        ``(K,)`` coefficients, ``K <= 12`` (missing ones are zero).
-    """
+    """OpenCV distortion of one normalized point ``(x, y) = (X / Z, Y / Z)``, ``K <= 12``."""
     xy = jnp.asarray(xy, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
         return xy
@@ -157,20 +112,10 @@ def distort_one(xy: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array
 
 
 def undistort_one(xy_dist: Float[Array, " 2"], dist: Float[Array, " K"]) -> Float[Array, " 2"]:
-    """Invert :func:`distort_one`: distorted normalized coordinate -> undistorted.
-
-    Runs OpenCV's fixed-point scheme (the one behind ``cv2.undistortPoints``)
-    from ``xy_dist``, then polishes with Newton steps on ``distort_one(xy) =
-    xy_dist`` so the result is the exact inverse to machine precision wherever the
-    fixed point converges (moderate distortion).
-
-    Parameters
-    ----------
-    xy_dist
-        ``((u - cx) / fx, (v - cy) / fy)``.
-    dist
-        ``(K,)`` coefficients, ``K <= 12``; empty is the identity.
-    """
+    """Invert :func:`distort_one` for ``xy_dist = ((u - cx) / fx, (v - cy) / fy)``: OpenCV's
+    fixed-point scheme (as ``cv2.undistortPoints``), then Newton steps on ``distort_one(xy) =
+    xy_dist``, exact to machine precision wherever the fixed point converges (moderate
+    distortion); an empty ``dist`` is the identity."""
     xy_dist = jnp.asarray(xy_dist, dtype=jnp.float64)
     if jnp.shape(dist)[-1] == 0:
         return xy_dist
@@ -192,13 +137,7 @@ def undistort_one(xy_dist: Float[Array, " 2"], dist: Float[Array, " K"]) -> Floa
 def distort(
     pts2d: Float[Array, "V *pts 2"], dists: Float[Array, "V K"] | Float[Array, " K"]
 ) -> Float[Array, "V *pts 2"]:
-    """Batched :func:`distort_one`: normalized coordinates ``(V, *pts, 2)``, distorted.
-
-    Parameters
-    ----------
-    dists
-        ``(V, K)`` or shared ``(K,)`` coefficients, ``K <= 12``.
-    """
+    """Batched :func:`distort_one` of ``(V, *pts, 2)`` by ``(V, K)`` or shared ``(K,)`` dists."""
     pts2d = jnp.asarray(pts2d, dtype=jnp.float64)
     dists = jnp.asarray(dists, dtype=jnp.float64)
     if dists.shape[-1] == 0:
@@ -210,9 +149,6 @@ def distort(
     return out.reshape(pts2d.shape)
 
 
-# -- projection ----------------------------------------------------------------
-
-
 def project_full_one(
     pt3d: Float[Array, " 3"],
     rvec: Float[Array, " 3"],
@@ -220,20 +156,8 @@ def project_full_one(
     intr: Float[Array, " P"],
     dist: Float[Array, " K"],
 ) -> Float[Array, " 2"]:
-    """Project one world point through one camera (pinhole + distortion + intrinsics).
-
-    Parameters
-    ----------
-    intr
-        ``[fx, fy, cx, cy]`` (or ``[f, cx, cy]``).
-    dist
-        ``(K,)`` distortion coefficients, ``K <= 12``.
-
-    Returns
-    -------
-    jax.Array
-        Pixel ``(u, v)``; ``v`` grows downwards in the image.
-    """
+    """Pixel ``(u, v)`` (``v`` grows downwards) of one world point through one camera:
+    pinhole, ``(K,)`` distortion, ``intr`` ``[fx, fy, cx, cy]`` (or ``[f, cx, cy]``)."""
     p_cam = rvec_to_rmat_one(rvec) @ jnp.asarray(pt3d, dtype=jnp.float64) + tvec
     d = pad_dist(dist) if jnp.shape(dist)[-1] else None
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
@@ -250,15 +174,8 @@ def project_full(
     intrs: Float[Array, "V P"] | Float[Array, " P"],
     dists: Float[Array, "V K"] | Float[Array, " K"],
 ) -> Float[Array, "V *pts 2"]:
-    """Project world points ``(*pts, 3)`` through every camera of a stacked rig -> ``(V, *pts, 2)``.
-
-    Parameters
-    ----------
-    intrs
-        ``(V, 4)`` (or shared ``(4,)``).
-    dists
-        ``(V, K)`` (or shared ``(K,)``), ``K <= 12``.
-    """
+    """World points ``(*pts, 3)`` through every camera of a stacked rig -> ``(V, *pts, 2)``;
+    ``intrs`` ``(V, 4)`` and ``dists`` ``(V, K)`` may be shared ``(4,)`` / ``(K,)``."""
     rvecs = jnp.asarray(rvecs, dtype=jnp.float64)
     n_views = rvecs.shape[0]
     tvecs = jnp.asarray(tvecs, dtype=jnp.float64)
@@ -282,43 +199,24 @@ def project_pmat(
     return out.reshape(*pmats.shape[:-2], *pts3d.shape[:-1], 2)
 
 
-# -- triangulation and rays ----------------------------------------------------------
-
-
 @jax.jit
 def triangulate_dlt(
     pts2d: Float[Array, "V *pts 2"],
     pmats: Float[Array, "V 3 4"],
     weights: Float[Array, " V *pts"] | None = None,
 ) -> Float[Array, "*pts 3"]:
-    """Weighted, NaN-aware linear (DLT) triangulation.
+    """Weighted, NaN-aware linear (DLT) triangulation of ``(V, *pts, 2)`` pixels -> ``(*pts, 3)``.
 
-    Each view contributes the two rows ``u p3 - p1`` and ``v p3 - p2`` of the
-    linear system in ``[X, Y, Z, 1]``. Every row is divided by the norm of its
-    first three entries (so each row's residual is an angle-like error rather than
-    one scaled by the focal length and the depth) and multiplied by
-    ``sqrt(weight)``; the inhomogeneous 3x3 normal equations are then solved in
-    closed form. Unlike an eigen-solve of the raw homogeneous system this keeps
-    full float64 precision with long focal lengths (~2e4 px).
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, *pts, 2)`` pixels; a NaN coordinate drops that view.
-    weights
-        Optional ``(V, *pts)``; non-finite or non-positive drops the view. A
-        uniform weight changes nothing.
-
-    Returns
-    -------
-    jax.Array
-        ``(*pts, 3)``; NaN where fewer than two views remain or the geometry is
-        degenerate.
+    Each view contributes the rows ``u p3 - p1`` and ``v p3 - p2`` of the linear system in
+    ``[X, Y, Z, 1]``. Every row is divided by the norm of its first three entries (an angle-like
+    residual, not one scaled by focal length and depth) and multiplied by ``sqrt(weight)``; the
+    inhomogeneous 3x3 normal equations are solved in closed form, which unlike an eigen-solve of the
+    raw system keeps full float64 precision with long focal lengths (~2e4 px). A NaN coordinate, or
+    a non-finite or non-positive weight ``(V, *pts)``, drops that view; a uniform weight changes
+    nothing. NaN where fewer than two views remain or the geometry is degenerate.
     """
     return dlt_solve(jnp, pts2d, pmats, weights)
 
-
-# -- the bulk DLT: fixed-length chunks through one jitted kernel -------------------------
 
 DLT_CHUNK_POINTS = 4096
 _CHUNKS_IN_FLIGHT = 4
@@ -330,21 +228,16 @@ def dlt_chunk(
     pts2d: Float[Array, "V N 2"],
     weights: Float[Array, "V N"] | None,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
-    """The DLT of :func:`triangulate_dlt` on one chunk -> ``(pts3d (N, 3), valid (V, N))``.
-
-    ``consts`` is ``{"quad", "norm"}`` from :func:`dlt_camera_constants`; ``pts2d`` is
-    undistorted pixels, NaN = missing; a zero or non-finite weight drops the view.
-    """
+    """The DLT of :func:`triangulate_dlt` on one chunk -> ``(pts3d (N, 3), valid (V, N))``;
+    ``consts`` is ``{"quad", "norm"}`` of :func:`dlt_camera_constants`, ``pts2d`` undistorted."""
     feats, valid = dlt_features(jnp, pts2d, consts["norm"], weights)
     terms = jnp.einsum("fvn,vfk->kn", feats, consts["quad"])
     return dlt_solve_terms(jnp, terms, valid.sum(axis=0)), valid
 
 
 def chunk_length(n: int, chunk_points: int) -> int:
-    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it.
-
-    Kernels compile once per input length, so lengths come from a short list.
-    """
+    """Chunk length for ``n`` points: ``chunk_points``, or a power of two >= 64 below it
+    (kernels compile once per input length, so lengths come from a short list)."""
     size = 64
     while size < min(n, chunk_points):
         size *= 2
@@ -368,13 +261,10 @@ def run_chunked(
     chunk_points: int = DLT_CHUNK_POINTS,
     **params,
 ) -> tuple[Float[np.ndarray, "N 3"], Bool[np.ndarray, "V N"]]:
-    """Run a jitted per-chunk triangulation kernel over ``n`` points in fixed-length chunks
-    (bounded memory on long recordings) -> ``(pts3d (n, 3), kept (V, n))``.
-
-    ``kernel(consts, *chunks, **params)`` returns ``(pts3d (size, 3), kept (V, size))``.
-    ``inputs`` are ``(array, fill)`` pairs; each array ``(V, n, ...)`` (or None, passed as
-    None) is cut into chunks along axis 1, the last one padded with ``fill``.
-    """
+    """Run a jitted ``kernel(consts, *chunks, **params)`` -> ``(pts3d (size, 3), kept (V, size))``
+    over ``n`` points in fixed-length chunks (bounded memory) -> ``(pts3d (n, 3), kept (V, n))``.
+    Each ``(array (V, n, ...) or None, fill)`` of ``inputs`` is cut along axis 1, the last chunk
+    padded with ``fill``."""
     n = next(a.shape[1] for a, _ in inputs if a is not None)
     size = chunk_length(n, chunk_points)
     pts3d = np.full((n, 3), np.nan)
@@ -391,8 +281,7 @@ def run_chunked(
         chunks = [
             None if a is None else _padded(a[:, start:stop], size, fill) for a, fill in inputs
         ]
-        # JAX dispatches asynchronously: a few chunks in flight overlap the kernels with
-        # this loop (and with each other on several cores).
+        # JAX dispatches asynchronously: chunks in flight overlap the kernels with this loop.
         in_flight.append((start, stop, kernel(consts, *chunks, **params)))
         if len(in_flight) > _CHUNKS_IN_FLIGHT:
             collect()
@@ -407,12 +296,8 @@ def triangulate_dlt_chunked(
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DLT_CHUNK_POINTS,
 ) -> Float[np.ndarray, "*pts 3"]:
-    """:func:`triangulate_dlt` for any number of points, in bounded memory, to NumPy.
-
-    The bulk path behind :meth:`flylib.camera.rig.CameraGroup.triangulate` and
-    :func:`flylib.triangulation.triangulate`: one kernel compiled per chunk length.
-    ``pts2d`` is undistorted pixels; NaN below two views or for a degenerate geometry.
-    """
+    """:func:`triangulate_dlt` of undistorted pixels for any number of points, in bounded
+    memory, to NumPy: the bulk path behind :meth:`flylib.camera.rig.CameraGroup.triangulate`."""
     pts2d = np.asarray(pts2d, dtype=np.float64)
     n_views, pts_shape = pts2d.shape[0], pts2d.shape[1:-1]
     quad, norm = dlt_camera_constants(np, pmats)
@@ -434,19 +319,8 @@ def backproject_ray_one(
     intr: Float[Array, " P"],
     dist: Float[Array, " K"],
 ) -> tuple[Float[Array, " 3"], Float[Array, " 3"]]:
-    """World-frame viewing ray of one pixel (inverse of :func:`project_full_one`).
-
-    Parameters
-    ----------
-    rvec, tvec, intr, dist
-        One camera, as in :func:`project_full_one`.
-
-    Returns
-    -------
-    origin, direction : jax.Array
-        The camera centre ``-R^T t`` and an unnormalized direction; every point
-        ``origin + s * direction`` with ``s > 0`` projects onto ``pixel``.
-    """
+    """World ray ``(origin, direction)`` of one pixel through one camera (inverse of
+    :func:`project_full_one`): the centre ``-R^T t`` and an unnormalized direction."""
     pixel = jnp.asarray(pixel, dtype=jnp.float64)
     fx, fy, cx, cy = _split_intr(jnp.asarray(intr, dtype=jnp.float64))
     xy = undistort_one(jnp.stack([(pixel[0] - cx) / fx, (pixel[1] - cy) / fy]), dist)
@@ -456,10 +330,7 @@ def backproject_ray_one(
 def closest_point_on_ray(
     origin: Float[Array, " 3"], direction: Float[Array, " 3"], target: Float[Array, " 3"]
 ) -> Float[Array, " 3"]:
-    """Orthogonal projection of ``target`` onto the line ``origin + s * direction``.
-
-    ``direction`` need not be normalized.
-    """
+    """Orthogonal projection of ``target`` onto the line ``origin + s * direction`` (any norm)."""
     origin = jnp.asarray(origin, dtype=jnp.float64)
     direction = jnp.asarray(direction, dtype=jnp.float64)
     s = jnp.dot(jnp.asarray(target) - origin, direction) / jnp.dot(direction, direction)

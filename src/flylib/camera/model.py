@@ -1,12 +1,10 @@
-"""The camera model's formulas, written once for any array module (``xp``).
+"""The camera model's formulas (Rodrigues both ways, ``K``, OpenCV distortion and its
+fixed-point inverse, projection, the DLT), written once for any array module ``xp``
+(``numpy`` or ``jax.numpy``) or with arithmetic operators only.
 
-Every formula (Rodrigues both ways, ``K``, OpenCV distortion and its fixed-point
-inverse, projection, the DLT) is a function of an array module ``xp`` (``numpy`` or
-``jax.numpy``) or uses only arithmetic operators, so one body serves both back-ends:
-:mod:`flylib.camera.jax_model` binds them to ``jax.numpy`` (jitted, differentiable, float64)
-and the ``*_numpy`` names here bind them to NumPy. Importing this module does not
-import JAX, so host-side code (camera properties, projection, undistortion, RANSAC,
-summaries) never pays for it (about 0.7 s per workflow job).
+:mod:`flylib.camera.jax_model` binds them to ``jax.numpy``, the ``*_numpy`` names here to NumPy.
+This module imports no JAX, so host-side code (camera properties, projection, undistortion,
+RANSAC, summaries) never pays for it.
 """
 
 from __future__ import annotations
@@ -27,19 +25,14 @@ N_DIST_COEFFS = 12
 SMALL_THETA_SQ = 1e-6
 
 
-# -- rotations and intrinsics ------------------------------------------------------
-
-
 def rvec_to_rmat_generic(
     xp: ModuleType, rvec: Float[AnyArray, "*batch 3"]
 ) -> Float[AnyArray, "*batch 3 3"]:
     """Rodrigues' formula: axis-angle ``(..., 3)`` (norm = angle in radians) -> ``(..., 3, 3)``.
-
-    ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``,
-    ``a = sin(theta) / theta`` and ``b = (1 - cos(theta)) / theta^2``. Below ``theta^2 = SMALL_THETA_SQ`` ``a`` and ``b`` come from their Taylor
-    series (the closed forms lose all precision to cancellation there); the untaken
-    branch is evaluated at a safe ``theta`` so JAX gradients stay finite at ``r = 0``.
-    """
+    ``R = I + a W + b (r r^T - theta^2 I)`` with ``W = skew(r)``, ``a = sin(theta) / theta``,
+    ``b = (1 - cos(theta)) / theta^2``. Below ``theta^2 = SMALL_THETA_SQ`` ``a`` and ``b`` come from
+    their Taylor series (the closed forms lose all precision to cancellation there); the untaken
+    branch is evaluated at a safe ``theta`` so JAX gradients stay finite at ``r = 0``."""
     rvec = xp.asarray(rvec, dtype=xp.float64)
     x, y, z = rvec[..., 0], rvec[..., 1], rvec[..., 2]
     theta_sq = x * x + y * y + z * z
@@ -54,8 +47,7 @@ def rvec_to_rmat_generic(
     skew = xp.reshape(xp.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1), (*x.shape, 3, 3))
     outer = rvec[..., :, None] * rvec[..., None, :]
     eye = xp.eye(3)
-    # Matrix-valued terms, not nine stacked entries: XLA's forward-mode Jacobian of
-    # the stacked form ran 5x slower inside bundle adjustment's vmap.
+    # Matrix-valued terms, not nine stacked entries: XLA's forward-mode Jacobian of those is slow.
     return (
         eye
         + a[..., None, None] * skew
@@ -64,11 +56,7 @@ def rvec_to_rmat_generic(
 
 
 def rvec_to_rmat_numpy(rvec: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3 3"]:
-    """NumPy :func:`rvec_to_rmat_generic`: ``(..., 3) -> (..., 3, 3)``.
-
-    Host-side code (camera properties, bundle-adjustment residuals) uses this binding so
-    that it never waits for an XLA compilation.
-    """
+    """NumPy :func:`rvec_to_rmat_generic` ``(..., 3) -> (..., 3, 3)``: no XLA compilation."""
     return rvec_to_rmat_generic(np, rvec)
 
 
@@ -131,9 +119,6 @@ def intr_to_kmat_numpy(intr: Float[np.ndarray, "*batch P"]) -> Float[np.ndarray,
     return intr_to_kmat_generic(np, intr)
 
 
-# -- distortion ------------------------------------------------------------------
-
-
 def pad_dist_generic(
     xp: ModuleType, dist: Float[AnyArray, "*batch K"]
 ) -> Float[AnyArray, "*batch 12"]:
@@ -164,16 +149,14 @@ def distortion_terms(x, y, d):
 
 
 def distort_normalized(x, y, d):
-    """Distorted normalized coordinates ``(x_d, y_d)`` of ``(x, y)`` (any array module).
-
-    With ``r^2 = x^2 + y^2`` and ``d = [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``::
+    """Distorted normalized coordinates ``(x_d, y_d)`` of ``(x, y)`` (any array module), with
+    ``r^2 = x^2 + y^2`` and ``d = [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4]``::
 
         x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
               + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
         y_d = y (...) / (...) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
 
-    ``x``, ``y`` broadcast against each ``d[i]`` (``d`` is coefficient-major,
-    ``(12, ...)``).
+    ``x``, ``y`` broadcast against each ``d[i]`` (``d`` is coefficient-major, ``(12, ...)``).
     """
     radial, add_x, add_y = distortion_terms(x, y, d)
     return x * radial + add_x, y * radial + add_y
@@ -200,12 +183,10 @@ def project_generic(
     intrs: Float[AnyArray, "V P"],
     dists: Float[AnyArray, "V K"],
 ) -> Float[AnyArray, "V *pts 2"]:
-    """World points ``(*pts, 3)`` through ``V`` stacked cameras -> pixels ``(V, *pts, 2)``.
-
-    ``X_cam = R X + t``, perspective division, :func:`distort_normalized`, then
-    ``u = fx x + cx``, ``v = fy y + cy``: the model of ``cv2.projectPoints``. ``intrs`` is
-    ``[fx, fy, cx, cy]`` or ``[f, cx, cy]``; an all-zero NumPy ``dists`` skips the lens model.
-    """
+    """World points ``(*pts, 3)`` through ``V`` stacked cameras -> pixels ``(V, *pts, 2)``:
+    ``X_cam = R X + t``, perspective division, :func:`distort_normalized`, then ``u = fx x +
+    cx``, ``v = fy y + cy``, as ``cv2.projectPoints``; an all-zero NumPy ``dists`` skips the
+    lens model."""
     pts3d = xp.asarray(pts3d, dtype=xp.float64)
     flat = xp.reshape(pts3d, (-1, 3))
     cam = xp.einsum("vij,nj->vin", rmats, flat) + tvecs[:, :, None]  # (V, 3, N)
@@ -225,12 +206,8 @@ def ray_from_normalized(
     rmat: Float[AnyArray, "3 3"],
     tvec: Float[AnyArray, " 3"],
 ) -> tuple[Float[AnyArray, " 3"], Float[AnyArray, " 3"]]:
-    """World ray of an undistorted normalized coordinate ``(x, y)`` through one camera.
-
-    Returns ``(origin, direction)``, ``(3,)`` each: the centre ``-R^T t`` and the
-    unnormalized ``R^T (x, y, 1)``; every ``origin + s * direction``, ``s > 0``,
-    projects onto ``(x, y)``.
-    """
+    """World ray ``(origin, direction)``, ``(3,)`` each, of an undistorted normalized ``(x, y)``:
+    the centre ``-R^T t`` and the unnormalized ``R^T (x, y, 1)``."""
     rmat = xp.asarray(rmat, dtype=xp.float64)
     direction = rmat.T @ xp.stack([x, y, xp.ones_like(x)])
     return -rmat.T @ xp.asarray(tvec, dtype=xp.float64), direction
@@ -261,10 +238,7 @@ def undistort_normalized(
     tol: float = 1e-15,
 ) -> Float[np.ndarray, "*pts 2"]:
     """NumPy batch inverse of :func:`distort_normalized` for one camera; NaN stays NaN.
-
-    :func:`undistort_step` (the fixed point :func:`flylib.camera.jax_model.undistort_one` starts
-    with), run until no coordinate moves by more than ``tol`` (or ``max_iter`` sweeps).
-    """
+    :func:`undistort_step` until no coordinate moves by more than ``tol`` (or ``max_iter``)."""
     xy_dist = np.asarray(xy_dist, dtype=np.float64)
     if np.size(dist) == 0 or not np.any(dist):
         return xy_dist.copy()
@@ -280,20 +254,14 @@ def undistort_normalized(
     return np.stack([x, y], axis=-1)
 
 
-# -- triangulation (DLT) -----------------------------------------------------------
-
-# The DLT is written once against the array-API subset NumPy and jax.numpy share
-# (``xp``): the jitted :func:`triangulate_dlt` and the chunked NumPy bulk path in
-# :mod:`flylib.triangulation` run the very same arithmetic.
-#
-# View v's two rows are ``a = o * p2 - pr`` (``o`` = u with ``pr = p0``, v with
-# ``pr = p1``) on ``[X, Y, Z, 1]``. Each row is divided by ``|a[:3]|`` and scaled
-# by ``sqrt(w)``, and the point solves the 3x3 normal equations ``M X = b`` with
-# ``M = sum s a3 a3^T``, ``b = -sum s a3 a[3]``, ``s = w / |a3|^2``. Both are
-# quadratic in ``o``: ``s a3 a3^T = (s o^2) p2 p2^T - (s o)(p2 pr^T + pr p2^T) +
-# s pr pr^T``. So every view's contribution is the feature vector
-# ``(s o^2, s o, s)`` for both rows times a constant (6, 9) matrix of the camera,
-# and the whole system is one matrix product.
+# The DLT (triangulation): ``triangulate_dlt`` and the chunked bulk path run this arithmetic.
+# View v's two rows are ``a = o * p2 - pr`` (``o`` = u with ``pr = p0``, v with ``pr = p1``)
+# on ``[X, Y, Z, 1]``. Each row is divided by ``|a[:3]|`` and scaled by ``sqrt(w)``, and the
+# point solves the 3x3 normal equations ``M X = b`` with ``M = sum s a3 a3^T``,
+# ``b = -sum s a3 a[3]``, ``s = w / |a3|^2``. Both are quadratic in ``o``:
+# ``s a3 a3^T = (s o^2) p2 p2^T - (s o)(p2 pr^T + pr p2^T) + s pr pr^T``. So every view's
+# contribution is the features ``(s o^2, s o, s)`` for both rows times a constant (6, 9)
+# matrix of the camera, and the whole system is one matrix product.
 
 DLT_TERMS = ("m00", "m01", "m02", "m11", "m12", "m22", "b0", "b1", "b2")
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -302,12 +270,9 @@ _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 def dlt_camera_constants(
     xp: ModuleType, pmats: Float[AnyArray, "V 3 4"]
 ) -> tuple[Float[AnyArray, "V 6 9"], Float[AnyArray, "V 2 3"]]:
-    """Per-view constants of the DLT normal equations, ``(quad, norm)``.
-
-    ``quad`` ``(V, 6, 9)`` maps a view's features ``(s u^2, s u, s, s v^2, s v, s)`` to its
-    contribution to ``DLT_TERMS``; ``norm`` ``(V, 2, 3)`` gives ``|a3|^2 = c0 o^2 + c1 o + c2``
-    per row.
-    """
+    """Per-view constants of the DLT normal equations, ``(quad, norm)``: ``quad`` ``(V, 6, 9)``
+    maps a view's features ``(s u^2, s u, s, s v^2, s v, s)`` to its contribution to
+    ``DLT_TERMS``; ``norm`` ``(V, 2, 3)`` gives ``|a3|^2 = c0 o^2 + c1 o + c2`` per row."""
     pmats = xp.asarray(pmats, dtype=xp.float64)
     p2 = pmats[:, 2]
     blocks, norms = [], []
@@ -350,10 +315,7 @@ def dlt_features(
     norm: Float[AnyArray, "V 2 3"],
     weights: Float[AnyArray, "V N"] | None = None,
 ) -> tuple[Float[AnyArray, "6 V N"], Bool[AnyArray, "V N"]]:
-    """Per-observation DLT features ``(6, V, N)`` (zero for dropped views) and ``valid`` ``(V, N)``.
-
-    ``pts2d`` is pixels, NaN = missing; a non-finite or non-positive weight drops the view.
-    """
+    """DLT features ``(6, V, N)`` and ``valid`` ``(V, N)`` (NaN pixel or weight <= 0: zero)."""
     pts2d = xp.asarray(pts2d, dtype=xp.float64)
     u, v = pts2d[..., 0], pts2d[..., 1]
     valid = xp.isfinite(u) & xp.isfinite(v)
@@ -380,11 +342,8 @@ def dlt_solve_terms(
     n_valid: int | Float[AnyArray, "*pts"],
     min_views: int = 2,
 ) -> Float[AnyArray, "*pts 3"]:
-    """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``.
-
-    NaN where fewer than ``min_views`` views took part or the system is
-    (numerically) singular.
-    """
+    """Solve normal equations ``(9, ...)`` (``DLT_TERMS``) in closed form -> ``(..., 3)``; NaN
+    where fewer than ``min_views`` views took part or the system is (numerically) singular."""
     return xp.stack(dlt_solve_components(xp, terms, n_valid, min_views), axis=-1)
 
 

@@ -1,20 +1,20 @@
 """Cameras and camera rigs: building them from the config and using them.
 
-Orbit convention (``look_at``, ``distance``, ``azimuth_deg``, ``elevation_deg``,
-``roll_deg``), world up = +z:
+Orbit convention (``look_at``, ``distance``, ``azimuth_deg``, ``elevation_deg``, ``roll_deg``),
+world up = +z:
 
-* the camera centre is ``look_at + distance * (cos e cos a, cos e sin a, sin e)``:
-  azimuth 0 puts the camera on the +x axis, azimuth +90 on +y (counter-clockwise
-  seen from above), positive elevation above the ``look_at`` plane;
+* the camera centre is ``look_at + distance * (cos e cos a, cos e sin a, sin e)``: azimuth 0
+  puts the camera on the +x axis, azimuth +90 on +y (counter-clockwise seen from above),
+  positive elevation above the ``look_at`` plane;
 * the optical axis (camera +z) points from the centre at ``look_at``;
-* image x (camera +x) is the horizontal ``(-sin a, cos a, 0)``; image y (camera
-  +y, pointing down in the image) is ``z_cam x x_cam``, so world +z appears
-  above the image centre at every azimuth and any elevation below 90 degrees;
-* ``roll_deg`` then rotates the camera frame about its optical axis
-  (``R = Rz(roll) @ R_orbit``): the scene appears turned clockwise on screen.
+* image x (camera +x) is the horizontal ``(-sin a, cos a, 0)``; image y (camera +y, pointing
+  down in the image) is ``z_cam x x_cam``, so world +z appears above the image centre at every
+  azimuth and any elevation below 90 degrees;
+* ``roll_deg`` then rotates the camera frame about its optical axis (``R = Rz(roll) @
+  R_orbit``): the scene appears turned clockwise on screen.
 
-With the fly facing +x, +y is its left: the default rig's right-side cameras
-(rh, rm, rf) sit at negative azimuths, the front camera at azimuth 0.
+With the fly facing +x, +y is its left: the default rig's right-side cameras (rh, rm, rf) sit
+at negative azimuths, the front camera at azimuth 0.
 """
 
 from __future__ import annotations
@@ -38,9 +38,6 @@ ORBIT_KEYS = ("look_at", "distance", "azimuth_deg", "elevation_deg", "roll_deg")
 EXPLICIT_KEYS = ("rvec", "tvec")
 INTRINSIC_KEYS = ("focal_length_px", "principal_point_px", "distortion_coefficients")
 CAMERA_KEYS = frozenset(ORBIT_KEYS + EXPLICIT_KEYS + INTRINSIC_KEYS)
-
-
-# -- config parsing -----------------------------------------------------------------
 
 
 def _vector(spec: Mapping, key: str, size: int | None, where: str) -> np.ndarray:
@@ -72,20 +69,8 @@ def orbit_extrinsics(
     elevation_deg: float = 0.0,
     roll_deg: float = 0.0,
 ) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
-    """``(rvec, tvec)`` of a camera orbiting ``look_at`` (see the module docstring).
-
-    Parameters
-    ----------
-    look_at
-        World point on the optical axis.
-    distance
-        Camera centre to ``look_at`` (> 0).
-
-    Returns
-    -------
-    rvec, tvec : np.ndarray
-        World-to-camera extrinsics.
-    """
+    """World-to-camera ``(rvec, tvec)`` of a camera ``distance`` (> 0) from ``look_at``, the
+    world point on its optical axis (the orbit convention of the module docstring)."""
     az, el, roll = np.deg2rad([azimuth_deg, elevation_deg, roll_deg])
     outward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     centre = np.asarray(look_at, dtype=np.float64) + distance * outward
@@ -95,8 +80,7 @@ def orbit_extrinsics(
     c, s = np.cos(roll), np.sin(roll)
     roll_mat = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     rmat = roll_mat @ np.stack([x_cam, y_cam, z_cam])
-    # NumPy, not the JAX primitive: this runs once per camera at config time, where
-    # JAX's op-by-op dispatch would compile dozens of tiny kernels (seconds per process).
+    # NumPy, not JAX: at config time, op-by-op dispatch would compile dozens of tiny kernels.
     rvec = camera_model.rmat_to_rvec_numpy(rmat)
     return rvec, -rmat @ centre
 
@@ -104,20 +88,8 @@ def orbit_extrinsics(
 def resolve_extrinsics(
     spec: Mapping, where: str = "cameras"
 ) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
-    """``(rvec, tvec)`` from a camera spec: explicit ``rvec``/``tvec`` or orbit keys.
-
-    Parameters
-    ----------
-    spec
-        Camera spec (defaults already merged in).
-    where
-        Config path used in error messages, e.g. ``"cameras.rh"``.
-
-    Raises
-    ------
-    ConfigError
-        On a lone ``rvec`` or ``tvec``, or missing/invalid orbit keys.
-    """
+    """``(rvec, tvec)`` from a camera spec (defaults merged in): ``rvec``/``tvec`` or orbit keys;
+    a lone ``rvec`` or bad orbit keys are a ConfigError naming ``where`` (``"cameras.rh"``)."""
     has_r, has_t = "rvec" in spec, "tvec" in spec
     if has_r != has_t:
         raise ConfigError(f"{where}: give both rvec and tvec, or neither (use the orbit keys)")
@@ -139,13 +111,10 @@ def resolve_extrinsics(
 def resolve_intrinsics(
     spec: Mapping, image_size: tuple[int, int] | None = None, where: str = "cameras"
 ) -> tuple[Float[np.ndarray, " 4"], Float[np.ndarray, " K"]]:
-    """``(intr, dist)`` from a camera spec.
-
-    ``focal_length_px`` is a number or ``[fx, fy]``; ``principal_point_px`` is
-    ``[cx, cy]``, or, when absent, the centre ``(w / 2, h / 2)`` of ``image_size``
-    ``(h, w)``; ``distortion_coefficients`` is an OpenCV-ordered list (<= 12). A missing
-    or malformed key, or no principal point, is a ConfigError.
-    """
+    """``(intr, dist)`` from a camera spec: ``focal_length_px`` is a number or ``[fx, fy]``;
+    ``principal_point_px`` is ``[cx, cy]``, or, when absent, the centre ``(w / 2, h / 2)`` of
+    ``image_size`` ``(h, w)``; ``distortion_coefficients`` is an OpenCV-ordered list (<= 12). A
+    missing or malformed key, or no principal point, is a ConfigError."""
     if "focal_length_px" not in spec:
         raise ConfigError(f"{where}.focal_length_px is required (a number or [fx, fy])")
     focal = np.atleast_1d(np.asarray(spec["focal_length_px"], dtype=object))
@@ -182,24 +151,11 @@ def resolve_intrinsics(
     return np.array([fx, fy, cx, cy], dtype=np.float64), dist
 
 
-# -- one camera ----------------------------------------------------------------
-
-
 @dataclass(eq=False)
 class Camera:
-    """One pinhole camera with OpenCV distortion.
-
-    Attributes
-    ----------
-    rvec, tvec
-        World-to-camera rotation (axis-angle) and translation, ``(3,)`` each.
-    intr
-        ``[fx, fy, cx, cy]`` in raw-footage pixels.
-    dist
-        OpenCV distortion coefficients ``(K,)``, ``K <= 12`` (may be empty).
-    name
-        The view's name, or ``None``.
-    """
+    """One pinhole camera with OpenCV distortion: world-to-camera ``rvec`` (axis-angle) and
+    ``tvec``, ``(3,)`` each; ``intr`` ``[fx, fy, cx, cy]`` in raw-footage pixels; ``dist``
+    ``(K,)``, ``K <= 12`` (may be empty); ``name``, the view's name or ``None``."""
 
     rvec: Float[np.ndarray, " 3"]
     tvec: Float[np.ndarray, " 3"]
@@ -227,23 +183,8 @@ class Camera:
     def from_spec(
         cls, spec: Mapping, name: str | None = None, image_size: tuple[int, int] | None = None
     ) -> Camera:
-        """Build a camera from a config spec (defaults already merged in).
-
-        Parameters
-        ----------
-        spec
-            Extrinsics (orbit keys or ``rvec``/``tvec``) and intrinsics keys.
-        name
-            Stored on the camera and used in error messages.
-        image_size
-            Raw-footage ``(height, width)``, used for the principal point when the
-            spec has no ``principal_point_px``.
-
-        Raises
-        ------
-        ConfigError
-            On an unknown, missing or malformed key.
-        """
+        """Build a camera from a config spec (defaults merged in), ConfigError on a bad key;
+        ``image_size`` ``(height, width)`` centres the principal point if the spec has none."""
         where = f"cameras.{name}" if name else "cameras"
         unknown = sorted(set(spec) - CAMERA_KEYS)
         if unknown:
@@ -287,34 +228,21 @@ class Camera:
     def backproject_ray(
         self, pixel: Float[np.ndarray, " 2"]
     ) -> tuple[Float[np.ndarray, " 3"], Float[np.ndarray, " 3"]]:
-        """World ray ``(origin, direction)`` of a pixel ``(2,)``; origin is the centre.
-
-        The NumPy counterpart of :func:`flylib.camera.jax_model.backproject_ray_one`.
-        """
+        """World ray ``(origin, direction)`` of a pixel ``(2,)`` (NumPy ``backproject_ray_one``)."""
         fx, fy, cx, cy = self.intr
         norm = (np.asarray(pixel, dtype=np.float64) - [cx, cy]) / [fx, fy]
         x, y = camera_model.undistort_normalized(norm, self.dist)
         return camera_model.ray_from_normalized(np, x, y, self.rmat, self.tvec)
 
 
-# -- a rig -----------------------------------------------------------------------
-
-
 class HasCameraTable(Protocol):
-    """What :meth:`CameraGroup.from_config` reads of a config: its ``cameras`` table,
-    split (:meth:`flylib.config.Config.camera_table`)."""
+    """What :meth:`CameraGroup.from_config` reads: :meth:`flylib.config.Config.camera_table`."""
 
     def camera_table(self) -> tuple[dict, dict]: ...
 
 
 class CameraGroup:
-    """An ordered collection of named cameras (the rig; the V axis of every array).
-
-    Parameters
-    ----------
-    cameras
-        ``name -> Camera`` in view order, or an iterable of named cameras.
-    """
+    """The rig: named cameras in view order (the V axis of every array)."""
 
     def __init__(self, cameras: Mapping[str, Camera] | Iterable[Camera]):
         if isinstance(cameras, Mapping):
@@ -352,23 +280,11 @@ class CameraGroup:
         """Camera names in view order."""
         return list(self.cameras)
 
-    # -- construction ------------------------------------------------------------
-
     @classmethod
     def from_config(
         cls, config: HasCameraTable, image_sizes: Mapping[str, tuple[int, int]] | None = None
     ) -> CameraGroup:
-        """Build the rig from ``config.camera_table()`` -> ``(defaults, specs)``
-        (:meth:`from_table`, which names what it raises).
-
-        Parameters
-        ----------
-        config
-            A :class:`flylib.config.Config` (anything with ``camera_table()``).
-        image_sizes
-            ``view name -> (height, width)`` of the raw footage, for principal
-            points the config leaves out.
-        """
+        """:meth:`from_table` of ``config.camera_table()`` -> ``(defaults, specs)``."""
         defaults, specs = config.camera_table()
         return cls.from_table(specs, defaults, image_sizes)
 
@@ -379,27 +295,10 @@ class CameraGroup:
         defaults: Mapping | None = None,
         image_sizes: Mapping[str, tuple[int, int]] | None = None,
     ) -> CameraGroup:
-        """Build the rig from the ``cameras`` table's camera specs and ``defaults``.
-
-        Each camera's spec is merged over ``defaults``. A camera that sets its own
-        ``rvec``/``tvec`` ignores orbit keys inherited from the defaults; setting
-        both in the camera's own table is an error.
-
-        Parameters
-        ----------
-        specs
-            ``camera name -> spec``, in view order (``defaults`` not among them).
-        defaults
-            ``cameras.defaults``: keys every camera inherits.
-        image_sizes
-            ``view name -> (height, width)`` of the raw footage, for principal
-            points the specs leave out.
-
-        Raises
-        ------
-        ConfigError
-            If no cameras are defined or a camera spec is invalid.
-        """
+        """Build the rig from ``camera name -> spec`` in view order, each merged over ``defaults``
+        (``cameras.defaults``); ConfigError without cameras or on a bad spec. A camera that sets its
+        own ``rvec``/``tvec`` ignores orbit keys inherited from the defaults; setting both in the
+        camera's own table is an error. ``image_sizes``: ``view -> (height, width)`` of footage."""
         defaults = dict(defaults or {})
         image_sizes = image_sizes or {}
         if not specs:
@@ -452,8 +351,6 @@ class CameraGroup:
         """A new rig with the cameras ``names``, in that order (cameras are shared)."""
         return CameraGroup({name: self[name] for name in names})
 
-    # -- stacked parameters ------------------------------------------------------
-
     @property
     def rvecs(self) -> Float[np.ndarray, "V 3"]:
         """``(V, 3)``."""
@@ -494,8 +391,6 @@ class CameraGroup:
         """``(V, 3)`` camera centres."""
         return np.stack([c.position for c in self])
 
-    # -- geometry --------------------------------------------------------------------
-
     def project(self, pts3d: Float[np.ndarray, "*pts 3"]) -> Float[np.ndarray, "V *pts 2"]:
         """Project world points ``(*pts, 3)`` through every camera -> ``(V, *pts, 2)``."""
         return camera_model.project_numpy(pts3d, self.rmats, self.tvecs, self.intrs, self.dists)
@@ -525,33 +420,10 @@ class CameraGroup:
         *,
         chunk_points: int | None = None,
     ) -> Float[np.ndarray, "*pts 3"]:
-        """Weighted NaN-aware DLT (see :func:`flylib.camera.jax_model.triangulate_dlt`).
-
-        Distorted cameras are handled by undistorting the observations first. The
-        points run in fixed-length chunks through one jitted kernel
-        (:func:`flylib.camera.jax_model.triangulate_dlt_chunked`, JAX imported on the first
-        call); :func:`flylib.triangulation.triangulate` is this method.
-
-        Parameters
-        ----------
-        pts2d
-            ``(V, *pts, 2)`` pixels, NaN = missing.
-        weights
-            Optional ``(V, *pts)``; a non-positive or non-finite weight drops the view.
-        chunk_points
-            Default :data:`flylib.camera.jax_model.DLT_CHUNK_POINTS`.
-
-        Returns
-        -------
-        np.ndarray
-            ``(*pts, 3)``; NaN below two views.
-
-        Raises
-        ------
-        ValueError
-            If ``pts2d`` is not ``(V, *pts, 2)`` for this rig's ``V`` or ``weights`` is
-            not ``(V, *pts)``.
-        """
+        """Weighted NaN-aware DLT (:func:`flylib.camera.jax_model.triangulate_dlt`) of pixels
+        ``(V, *pts, 2)`` -> ``(*pts, 3)``, NaN below two views; a weight ``(V, *pts)`` <= 0 or
+        non-finite drops the view. Undistorts first, then runs fixed-length chunks through one
+        jitted kernel (JAX imported on the first call); wrong shapes are a ValueError."""
         from .jax_model import DLT_CHUNK_POINTS, triangulate_dlt_chunked
 
         pts2d = np.asarray(pts2d, dtype=np.float64)

@@ -1,16 +1,16 @@
 """The run configuration: loading (YAML or TOML), validation, typed per-stage views.
 
-A :class:`Config` wraps the parsed mapping (:attr:`Config.data`) and, when read from a
-file, its exact text (:attr:`Config.text`) so the run can snapshot it byte-for-byte.
-Every constructor validates: all problems are collected and raised together as one
-:class:`~flylib.errors.ConfigError`, one line per problem, each naming its key path.
+A :class:`Config` wraps the parsed mapping (:attr:`Config.data`) and, when read from a file, its
+exact text (:attr:`Config.text`) so the run can snapshot it byte-for-byte. Every constructor
+validates: all problems are raised together as one :class:`~flylib.errors.ConfigError`, one line
+per problem, each naming its key path.
 
-What each workflow stage reads of a config, and so what re-runs it, is its inputs
-object's params (:mod:`flylib.pipeline.inputs`): the config stops at the pipeline
-layer; below it, algorithms take arrays and the typed ``*Params`` views.
+What each workflow stage reads of a config, and so what re-runs it, is its inputs object's params
+(:mod:`flylib.pipeline.inputs`): the config stops at the pipeline layer; below it, algorithms take
+arrays and the typed ``*Params`` views.
 
-Modules: :mod:`.constants` (stage lists, known keys, :data:`DEFAULT_CONFIG_PATH`),
-:mod:`.checks` (value checks), :mod:`.params` (the ``*Params`` dataclasses),
+Modules: :mod:`.constants` (stage lists, known keys, :data:`DEFAULT_CONFIG_PATH`), :mod:`.checks`
+(value checks), :mod:`.params` (the ``*Params`` dataclasses, :data:`~.params.PARAM_TABLES`),
 :mod:`.loading` (YAML/TOML parsing), :mod:`.validation` (:func:`validate_config`),
 :mod:`.canonical` (canonical forms) and :mod:`.core` (:class:`Config`).
 """

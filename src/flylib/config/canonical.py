@@ -1,4 +1,5 @@
-"""Canonical forms for a stage's tracked params (JSON, :mod:`flylib.pipeline.inputs`) and the snapshot of a dict config (YAML)."""
+"""Canonical forms: a stage's tracked params (JSON, :mod:`flylib.pipeline.inputs`) and the
+snapshot of a dict config (YAML)."""
 
 from __future__ import annotations
 

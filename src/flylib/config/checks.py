@@ -83,7 +83,7 @@ def string_list(nullable: bool = False) -> Check:
 
 
 def number_list(minimum: float, exclusive: bool = False) -> Check:
-    """A list of numbers, each as :func:`_number` checks it."""
+    """A list of numbers, each as :func:`number` checks it."""
     one = number(minimum, exclusive)
 
     def check(value: Any) -> str | None:
@@ -112,11 +112,9 @@ def mapping(nullable: bool = False) -> Check:
     return check
 
 
-#: The config keys that accept an infinite number (YAML ``.inf``, TOML ``inf``) and what
-#: it means there. Every other number in a config must be finite: ``.inf``, ``-.inf`` and
-#: ``.nan`` anywhere else (and ``-.inf`` or ``.nan`` here) are refused by
-#: :func:`non_finite_problems`, which :func:`~flylib.config.validation.validate_config` runs
-#: over the whole config.
+#: The config keys that accept an infinite number (YAML ``.inf``, TOML ``inf``) and what it means
+#: there. ``.inf``, ``-.inf`` and ``.nan`` anywhere else (and ``-.inf`` or ``.nan`` here) are
+#: refused by :func:`non_finite_problems`, which ``validate_config`` runs over the whole config.
 INFINITE_OK: dict[str, str] = {
     "refinement.outlier_px": "no limit: no observation is left out after the first pass",
 }
@@ -142,8 +140,8 @@ def _numbers(value: Any, path: str) -> Iterator[tuple[str, float]]:
 
 
 def non_finite_problems(data: Any) -> dict[str, str]:
-    """``key path -> problem`` for every number in ``data`` that is not finite, except
-    ``+inf`` at a key of :data:`INFINITE_OK`."""
+    """``key path -> problem`` for every non-finite number in ``data``, except ``+inf`` at a key
+    of :data:`INFINITE_OK`."""
     problems: dict[str, str] = {}
     for where, value in _numbers(data, ""):
         if math.isfinite(value) or (value > 0 and where in INFINITE_OK):
@@ -163,12 +161,10 @@ def param(
 ) -> Any:
     """A typed-parameter field: its default, its value check, and a conversion.
 
-    ``track_default=False`` is for a field added after results were made without it:
-    the field enters a stage's tracked params (:func:`tracked_table`,
-    :meth:`~flylib.config.params.TriangulationParams.method_params`) only when it differs
-    from its default, so adding it leaves every existing params hash, and the results
-    made under them, as they were. Every field that existed before this marker keeps
-    ``True`` (always tracked), so its hashes stay equal too.
+    ``track_default=False`` is for a field added after results were made without it: the field
+    enters a stage's tracked params (:func:`tracked_table`, ``TriangulationParams.method_params``)
+    only when it differs from its default, so adding it leaves every existing params hash, and
+    the results made under them, as they were.
     """
     return field(
         default=default,
@@ -177,13 +173,13 @@ def param(
 
 
 def is_tracked(params: Any, name: str) -> bool:
-    """Whether field ``name`` of the typed params ``params`` enters its tracked params:
-    always, unless marked ``track_default=False`` (:func:`param`) and at its default."""
+    """Whether field ``name`` of ``params`` enters its tracked params: always, unless marked
+    ``track_default=False`` (:func:`param`) and at its default."""
     spec = params.__dataclass_fields__[name]
     return spec.metadata.get("track_default", True) or getattr(params, name) != spec.default
 
 
 def tracked_table(params: Any) -> dict[str, Any]:
-    """A typed params object as its stage's params track it: :func:`dataclasses.asdict`
-    without the ``track_default=False`` fields that hold their default."""
+    """:func:`dataclasses.asdict` of typed params without the ``track_default=False`` fields
+    that hold their default: what its stage's params track."""
     return {k: v for k, v in asdict(params).items() if is_tracked(params, k)}

@@ -34,12 +34,10 @@ TRIANGULATION_METHODS = ("ransac", "greedy", "dlt")
 FRAME_SAMPLINGS = ("even", "confidence", "coverage", "diversity")
 BA_SOLVERS = ("lm", "scipy")
 BA_DISTORTION_MODES = ("auto", "free", "fixed")
-# a tethered fly's thorax-coxa joints do not move (what `rigid_points` would list; names
-# missing from a skeleton are ignored)
+# a tethered fly's thorax-coxa joints do not move (names missing from a skeleton are ignored)
 TETHERED_RIGID_POINTS = tuple(f"{leg}_thorax_coxa" for leg in ("lf", "lm", "lh", "rf", "rm", "rh"))
 PRECISIONS = ("float32", "float16", "bfloat16")
-#: Sub-pixel refinements of a heatmap peak (``pose2d.models[].subpixel``; see
-#: :mod:`flylib.pose2d.decode`).
+#: Sub-pixel refinements of a heatmap peak (``pose2d.models[].subpixel``, :mod:`flylib.pose2d.decode`).
 SUBPIXEL_METHODS = ("weighted", "argmax", "taylor", "parabola")
 POSE2D_PLAN_KEYS = ("preprocessors", "models", "pathways", "output_points", "weights", "import")
 # least_squares arguments the bundle adjuster owns itself (the problem definition).

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
-from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -14,9 +14,10 @@ from ..skeleton import Skeleton
 from ..stages import REGISTRY
 from .canonical import plain
 from .constants import DEFAULT_CONFIG_PATH
-from .loading import parse_text, problem_report
+from .loading import parse_text, problem_error, read_config_text
 from .neuromechfly import NeuromechflyParams
 from .params import (
+    PARAM_TABLES,
     BundleAdjustmentParams,
     IoParams,
     PictorialParams,
@@ -30,10 +31,8 @@ from .validation import validate_config
 
 
 class Config:
-    """A loaded, validated flylib run configuration.
-
-    Build one with :meth:`from_file` (``.yaml``/``.yml``/``.toml``), :meth:`from_yaml`,
-    :meth:`from_toml`, :meth:`from_dict` or :meth:`default`.
+    """A loaded, validated flylib run configuration (:meth:`from_file`, :meth:`from_dict`,
+    :meth:`default`, ...).
 
     Attributes
     ----------
@@ -62,24 +61,15 @@ class Config:
         self.format = format
         problems = validate_config(self.data)
         if problems:
-            error = ConfigError(problem_report(str(source or "<dict>"), problems))
-            error.problems = problems  # type: ignore[attr-defined]
-            raise error
+            raise problem_error(str(source or "<dict>"), problems)
 
     def __repr__(self) -> str:
         return f"Config(source={str(self.source) if self.source else None!r})"
 
-    # -- construction --------------------------------------------------------
-
     @classmethod
     def from_file(cls, path: str | Path) -> Config:
-        """Load a config, choosing YAML or TOML by the suffix (``.yaml``, ``.yml``, ``.toml``).
-
-        Raises
-        ------
-        ConfigError
-            If the file is missing, has another suffix, does not parse or is invalid.
-        """
+        """Load a ``.yaml``, ``.yml`` or ``.toml`` config; a ConfigError if the file is missing,
+        has another suffix, does not parse or is invalid."""
         suffix = Path(path).suffix.lower()
         if suffix in (".yaml", ".yml"):
             return cls.from_yaml(path)
@@ -101,22 +91,12 @@ class Config:
 
     @classmethod
     def _from_path(cls, path: Path, fmt: str) -> Config:
-        try:
-            raw = path.read_bytes()
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: config file not found; check the path") from None
-        except IsADirectoryError:
-            raise ConfigError(f"{path}: is a directory, not a config file") from None
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as err:
-            raise ConfigError(f"{path}: not UTF-8 text ({err}); save it as UTF-8") from None
+        text = read_config_text(path, str(path))
         return cls(parse_text(text, fmt, str(path)), text=text, source=path, format=fmt)
 
     @classmethod
     def from_dict(cls, data: Mapping) -> Config:
-        """Wrap an already-parsed mapping, deep-copied (library use, Snakemake's
-        ``config``); no source text."""
+        """Wrap an already-parsed mapping, deep-copied (Snakemake's ``config``); no source text."""
         return cls(copy.deepcopy(dict(data)))
 
     @classmethod
@@ -132,53 +112,53 @@ class Config:
         snapshot = next((p for p in snapshots if p.is_file()), None)
         return cls.from_file(snapshot) if snapshot else cls.default()
 
-    # -- typed per-stage views -------------------------------------------------
+    def params(self, table: str) -> Any:
+        """The typed view of ``table`` (a key of :data:`~flylib.config.params.PARAM_TABLES`):
+        its class's ``from_table`` when it has one, else :func:`~.params.build_params`."""
+        cls = PARAM_TABLES[table]
+        values = self.data.get(table) or {}
+        from_table = getattr(cls, "from_table", None)
+        return from_table(values) if from_table else build_params(cls, values)
 
     @property
     def pose2d(self) -> Pose2dParams:
         """The scalar ``pose2d`` settings."""
-        return build_params(Pose2dParams, self.data.get("pose2d") or {})
+        return self.params("pose2d")
 
     @property
     def triangulation(self) -> TriangulationParams:
         """The ``triangulation`` table."""
-        return build_params(TriangulationParams, self.data.get("triangulation") or {})
+        return self.params("triangulation")
 
     @property
     def refinement(self) -> RefinementParams:
         """The ``refinement`` table."""
-        return build_params(RefinementParams, self.data.get("refinement") or {})
+        return self.params("refinement")
 
     @property
     def kinematics(self) -> KinematicsParams:
         """The ``kinematics`` table."""
-        return KinematicsParams.from_table(self.data.get("kinematics") or {})
+        return self.params("kinematics")
 
     @property
     def neuromechfly(self) -> NeuromechflyParams:
         """The ``neuromechfly`` table."""
-        return build_params(NeuromechflyParams, self.data.get("neuromechfly") or {})
+        return self.params("neuromechfly")
 
     @property
     def pictorial(self) -> PictorialParams:
         """The ``pictorial_structures`` table."""
-        return build_params(PictorialParams, self.data.get("pictorial_structures") or {})
+        return self.params("pictorial_structures")
 
     @property
     def bundle_adjustment(self) -> BundleAdjustmentParams:
         """The ``bundle_adjustment`` table; keys it does not name go to ``least_squares``."""
-        table = dict(self.data.get("bundle_adjustment") or {})
-        own = {f.name for f in fields(BundleAdjustmentParams)}
-        leftovers = {k: v for k, v in table.items() if k not in own}
-        params = build_params(BundleAdjustmentParams, {k: v for k, v in table.items() if k in own})
-        return BundleAdjustmentParams(**{**params.__dict__, "least_squares": leftovers})
+        return self.params("bundle_adjustment")
 
     @property
     def io(self) -> IoParams:
         """Frame-reading settings (``io.image.workers``; 0 means let the reader choose)."""
-        workers = ((self.data.get("io") or {}).get("image") or {}).get("workers")
-        on_corrupt = (self.data.get("io") or {}).get("on_corrupt_frame") or "error"
-        return IoParams(image_workers=workers or None, on_corrupt_frame=on_corrupt)
+        return self.params("io")
 
     @property
     def visualization(self) -> dict:
@@ -190,11 +170,8 @@ class Config:
         """The ``pose2d.import`` table (read 2D from another tool), or ``None``."""
         return (self.data.get("pose2d") or {}).get("import")
 
-    # -- pipeline orchestration ---------------------------------------------
-
     def stage_flags(self) -> dict[str, bool]:
-        """``stage -> enabled`` for every stage in :data:`STAGES` (``pipeline.do_<stage>``,
-        else :data:`STAGE_DEFAULTS`)."""
+        """``stage -> enabled`` for every toggled stage (``pipeline.do_<stage>``, else its default)."""
         pipeline = self.data.get("pipeline") or {}
         flags: dict[str, bool] = {}
         for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
@@ -205,14 +182,11 @@ class Config:
                 flags[stage.name] = on
         return flags
 
-    # -- structured sections ---------------------------------------------------
-
     def view_names(self) -> list[str]:
         """The camera (view) names in config order: the V axis of every points array.
 
-        Taken from the ``cameras`` table (``defaults`` excluded); a config whose rig
-        comes from a calibration file and names no cameras falls back to the
-        ``pose2d.output_points`` views.
+        The ``cameras`` table (``defaults`` excluded), else (a rig from a calibration file)
+        the ``pose2d.output_points`` views.
         """
         return view_names(self, required=False)
 
@@ -223,8 +197,7 @@ class Config:
         return dict(defaults), cameras
 
     def source_patterns(self) -> dict[str, str]:
-        """Each footage source's glob (``sources[].name -> filename``, else its name), in
-        config order; a config listing no sources is a ConfigError."""
+        """``sources[].name -> filename`` (else the name), in config order; none is a ConfigError."""
         return source_patterns(self)
 
     def skeleton_table(self) -> dict:
@@ -239,8 +212,6 @@ class Config:
         """The configured skeleton, or the default fly skeleton when there is no ``skeleton`` table."""
         return Skeleton.from_config(self) if self.data.get("skeleton") else Skeleton.fly()
 
-    # -- snapshot ----------------------------------------------------------------
-
     def snapshot_text(self) -> str:
         """The text :meth:`save_snapshot` writes: the source text, or a YAML dump for a dict."""
         if self.text is not None:
@@ -250,12 +221,9 @@ class Config:
         )
 
     def save_snapshot(self, outdir: str | Path) -> Path:
-        """Write the config that drives this run to ``<outdir>/config.yaml`` (or ``.toml``).
-
-        The source text is copied byte-for-byte, atomically; a config built from a
-        dict is written as YAML. A snapshot of the other format left by an earlier
-        run is removed so the directory holds exactly one. Returns the snapshot file.
-        """
+        """Write ``<outdir>/config.yaml`` (or ``.toml``): the source text byte-for-byte,
+        atomically (a dict config as YAML); removes a snapshot of the other format, so the
+        directory holds exactly one. Returns the snapshot file."""
         from ..paths import atomic_path
 
         fmt = self.format if self.text is not None else "yaml"

@@ -1,13 +1,12 @@
-"""A config assembled from several files, the way Snakemake assembles it, remembering
-which file set each key.
+"""A config assembled from several files, the way Snakemake assembles it, remembering which file
+set each key.
 
-Snakemake merges ``configfile:`` and ``--configfile`` files in order (tables merge key
-by key, anything else -- lists included -- is replaced whole) and then applies
-``--config key=value`` overrides. :class:`ConfigLayers` re-reads the same files with
-flylib's own parser (so ``1e-8`` is a number, a key given twice is an error naming
-both lines, a syntax error names the file and line) and merges them the same way, so
-every problem can be reported against the user's own file and key instead of an
-internal merged copy.
+Snakemake merges ``configfile:`` and ``--configfile`` files in order (tables merge key by key,
+anything else -- lists included -- is replaced whole) and then applies ``--config key=value``
+overrides. :class:`ConfigLayers` re-reads the same files with flylib's own parser (so ``1e-8`` is a
+number, a key given twice is an error naming both lines, a syntax error names the file and line)
+and merges them the same way, so every problem can be reported against the user's own file and key
+instead of an internal merged copy.
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from .loading import parse_text
+from .loading import parse_text, read_config_text
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
@@ -31,10 +30,8 @@ _KEY_HEAD = re.compile(r"([A-Za-z_][\w-]*(?:\.[\w-]+|\[\d+\])*)(?=[:\s(]|$)")
 
 
 def merge_tables(base: dict, update: Mapping) -> dict:
-    """Merge ``update`` into ``base`` in place, as Snakemake's ``update_config`` does.
-
-    Mappings merge recursively; every other value (lists included) replaces the old one.
-    """
+    """Merge ``update`` into ``base`` in place, as Snakemake's ``update_config`` does: mappings
+    merge recursively; every other value (lists included) replaces the old one."""
     for key, value in update.items():
         if isinstance(value, Mapping):
             old = base.get(key)
@@ -84,24 +81,19 @@ def _depth(data: Any, path: list[str | int]) -> int:
     return depth
 
 
-#: Top-level keys that make Snakemake render a config file as a YTE template (running
-#: the Python expressions inside it while it reads ``--configfile``).
+#: Top-level keys that make Snakemake render a config file as a YTE template (running the Python
+#: expressions inside it while it reads ``--configfile``).
 TEMPLATING_KEYS = ("__use_yte__",)
 
 
 def refuse_templating(data: Any, label: str) -> None:
-    """Refuse a config file that asks for templating: a config holds values, not code.
+    """Refuse (a ConfigError naming file and key) a config file that asks for templating: a
+    config holds values, not code.
 
-    Snakemake renders a YAML config file whose top level sets ``__use_yte__`` with YTE,
-    evaluating the Python in its ``?...`` keys and values, and does so for
-    ``--configfile`` before the workflow (and flylib) can look at the file. The
-    workflow and ``flylib check-config`` refuse such a file, so it is caught by the
-    check before it is ever handed to Snakemake.
-
-    Raises
-    ------
-    ConfigError
-        Naming the file and the key.
+    Snakemake renders a YAML config file whose top level sets ``__use_yte__`` with YTE, evaluating
+    the Python in its ``?...`` keys and values, for ``--configfile`` before the workflow (and
+    flylib) can look at the file; the workflow and ``flylib check-config`` refuse such a file
+    before it is ever handed to Snakemake.
     """
     if not isinstance(data, Mapping):
         return
@@ -137,27 +129,14 @@ class ConfigLayers:
     def from_files(
         cls, files: Iterable[str | Path], overrides: Mapping | None = None
     ) -> ConfigLayers:
-        """Read and merge config files (``.yaml``/``.yml``/``.json`` or ``.toml``), then ``overrides``.
-
-        Raises
-        ------
-        ConfigError
-            Naming the file (and line) that is missing, not UTF-8 or does not parse,
-            or a key given twice in one file.
-        """
+        """Read and merge config files (``.yaml``/``.yml``/``.json`` or ``.toml``), then
+        ``overrides``; a ConfigError names the file (and line) that is missing, not UTF-8 or
+        does not parse, or a key given twice in one file."""
         layers: list[tuple[str, dict]] = []
         texts: dict[str, str] = {}
         for f in files:
-            path = Path(f)
-            label = str(f)
-            try:
-                text = path.read_bytes().decode("utf-8")
-            except FileNotFoundError:
-                raise ConfigError(f"{label}: config file not found; check the path") from None
-            except IsADirectoryError:
-                raise ConfigError(f"{label}: is a directory, not a config file") from None
-            except UnicodeDecodeError as err:
-                raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
+            path, label = Path(f), str(f)
+            text = read_config_text(path, label)
             fmt = "toml" if path.suffix.lower() == ".toml" else "yaml"
             try:
                 data = parse_text(text, fmt, label)
@@ -194,9 +173,9 @@ class ConfigLayers:
         return None
 
     def _walk(self, path: list[str | int]) -> tuple[str | None, str | None, int]:
-        """``(owner, replaced, depth)``: the layer that set the value at ``path`` (or at
-        its first ``depth`` keys, the deepest any layer sets), and the earlier layer whose
-        list the owner replaced on the way (``None`` if none)."""
+        """``(owner, replaced, depth)``: the layer that set the value at ``path`` (or at its
+        first ``depth`` keys, the deepest any layer sets), and the earlier layer whose list the
+        owner replaced on the way (``None`` if none)."""
         candidates = list(self.layers)
         owner = replaced = None
         depth = 0
@@ -215,9 +194,8 @@ class ConfigLayers:
         return owner, replaced, depth
 
     def _owner(self, path: list[str | int]) -> tuple[str | None, str | None]:
-        """``(owner, replaced)`` of :meth:`_walk`; a camera's key that no layer sets on
-        the camera itself (``cameras.<name>.<key>``) is owned by whoever set it in
-        ``cameras.defaults``, which every camera inherits."""
+        """``(owner, replaced)`` of :meth:`_walk`; a camera's key that no layer sets on the camera
+        itself is owned by whoever set it in ``cameras.defaults``, which every camera inherits."""
         owner, replaced, depth = self._walk(path)
         if depth < len(path) and len(path) >= 3 and path[0] == "cameras":
             inherited = ["cameras", _CAMERA_DEFAULTS, *path[2:]]
@@ -229,9 +207,9 @@ class ConfigLayers:
     def origin(self, path: list[str | int] | str) -> str:
         """The layer that set the value at ``path`` (a key path or a problem line).
 
-        Walking down the path, the last layer that sets each key owns it; below a list
-        (which a later file replaces whole) only the layer that gave the list counts.
-        With no match, every layer is named.
+        Walking down the path, the last layer that sets each key owns it; below a list (which a
+        later file replaces whole) only the layer that gave the list counts. With no match, every
+        layer is named.
         """
         if isinstance(path, str):
             path = key_path(path)
@@ -239,8 +217,8 @@ class ConfigLayers:
         return owner if owner is not None else " + ".join(self.labels) or "<config>"
 
     def config_dir(self, key: str) -> Path | None:
-        """The folder of the config file that set top-level ``key`` (``None``: set by a
-        command-line override or by no layer)."""
+        """The folder of the config file that set top-level ``key`` (``None``: a command-line
+        override or no layer)."""
         owner = self.origin([key])
         return Path(owner).absolute().parent if owner in self.texts else None
 
@@ -259,10 +237,8 @@ class ConfigLayers:
         return hint + ")"
 
     def report(self, problems: list[str]) -> str:
-        """The problems as one line each, naming the file that set the key.
-
-        One problem is one line; several get a header line naming every file.
-        """
+        """The problems as one line each, naming the file that set the key; several get a header
+        line naming every file."""
         lines = [f"{self.origin(p)}: {p}{self._hint(p)}" for p in problems]
         if len(lines) == 1:
             return f"invalid config: {lines[0]}"

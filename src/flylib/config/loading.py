@@ -1,13 +1,11 @@
-"""YAML / TOML / JSON parsing: exponent floats, duplicate keys, bounded nesting, the
-problem report.
+"""YAML / TOML / JSON parsing: exponent floats, duplicate keys, bounded nesting, the problem report.
 
-Nesting is bounded before and after parsing (:data:`MAX_NESTING`): YAML by walking
-libyaml's event stream (no Python recursion, stops at the first level too deep), TOML
-by counting each line's dotted-key segments (tomllib takes quadratic time on a key
-100,000 segments long) and catching the recursion of its inline arrays and tables,
-JSON by catching the recursion of its decoder; every parsed value is then measured
-without recursion (YAML aliases can make a structure that contains itself), so what
-later walks a config recursively (validation, canonical forms) never meets a depth
+Nesting is bounded before and after parsing (:data:`MAX_NESTING`): YAML by walking libyaml's event
+stream (no Python recursion, stops at the first level too deep), TOML by counting each line's
+dotted-key segments (tomllib takes quadratic time on a key 100,000 segments long) and catching the
+recursion of its inline arrays and tables, JSON by catching the recursion of its decoder; every
+parsed value is then measured without recursion (YAML aliases can make a structure that contains
+itself), so what later walks a config recursively (validation, canonical forms) never meets a depth
 it cannot handle.
 """
 
@@ -17,6 +15,7 @@ import json
 import re
 import tomllib
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -35,8 +34,7 @@ _YamlLoader.add_implicit_resolver(
 )
 
 
-#: Deepest nesting of mappings and lists a config (or JSON argument) may have; flylib's
-#: own config nests 4 deep.
+#: Deepest nesting of mappings and lists a config (or JSON argument) may have; flylib's own nests 4.
 MAX_NESTING = 64
 
 _TOML_QUOTED = re.compile(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'')
@@ -63,8 +61,8 @@ def yaml_nesting_line(text: str) -> int | None:
 
 
 def toml_dotted_line(text: str) -> int | None:
-    """The first line whose key or table header has more than :data:`MAX_NESTING` dotted
-    segments (counted outside quotes; an over-count is harmless at that size)."""
+    """The first line whose key or table header has more than :data:`MAX_NESTING` dotted segments
+    (counted outside quotes; an over-count is harmless at that size)."""
     for number, line in enumerate(text.splitlines(), 1):
         if line.count(".") <= MAX_NESTING:
             continue
@@ -77,8 +75,8 @@ def toml_dotted_line(text: str) -> int | None:
     return None
 
 
-#: Most values (scalars and containers) a config may expand to when its YAML aliases
-#: are followed: a few shared anchors are fine, a "billion laughs" is not.
+#: Most values (scalars and containers) a config may expand to when its YAML aliases are followed:
+#: a few shared anchors are fine, a "billion laughs" is not.
 MAX_EXPANDED_VALUES = 1_000_000
 
 
@@ -100,15 +98,12 @@ def shape_problem(
     max_values: int = MAX_EXPANDED_VALUES,
     max_depth: int = MAX_NESTING,
 ) -> str | None:
-    """Why ``value`` nests deeper than ``max_depth``, contains itself, or expands (walked
-    as a tree, a shared member counted wherever it appears) to more than ``max_values``
-    values; ``None`` when it does none of these.
+    """Why ``value`` nests deeper than ``max_depth``, contains itself, or expands (walked as a
+    tree, a shared member counted wherever it appears) to more than ``max_values`` values; else
+    ``None``. Without recursion, each shared member measured once: the cost is the size of the
+    object graph, not of its expansion.
 
-    Without recursion, and each shared member measured once, so the cost is the size of
-    the object graph, not of its expansion.
-
-    ``children``: a node's members; ``weight``: how many values a node counts for
-    besides its members.
+    ``children``: a node's members; ``weight``: how many values a node counts for besides them.
     """
     measured: dict[int, tuple[int, int]] = {}  # id -> (depth, expanded values)
     on_path: set[int] = set()
@@ -145,8 +140,8 @@ def shape_problem(
 
 
 def parse_json(text: str, source: str) -> object:
-    """``json.loads`` with bounded nesting: one :class:`ConfigError` naming ``source``
-    (what the text came from, e.g. a command-line argument)."""
+    """``json.loads`` with bounded nesting: one :class:`ConfigError` naming ``source`` (what the
+    text came from, e.g. a command-line argument)."""
     try:
         value = json.loads(text)
     except RecursionError:
@@ -162,8 +157,8 @@ def parse_json(text: str, source: str) -> object:
 def _duplicate_key_problems(
     node: yaml.Node | None, path: str = "", seen: set[int] | None = None
 ) -> list[str]:
-    """Keys given twice in one YAML mapping (PyYAML would silently keep the last); each
-    node is visited once (an alias repeats a node, and may point at its own ancestor)."""
+    """Keys given twice in one YAML mapping (PyYAML would silently keep the last); each node is
+    visited once (an alias repeats a node, and may point at its own ancestor)."""
     problems: list[str] = []
     seen = set() if seen is None else seen
     if id(node) in seen:
@@ -194,6 +189,18 @@ def _duplicate_key_problems(
     return problems
 
 
+def read_config_text(path: Path, label: str) -> str:
+    """A config file's text; missing, a directory or not UTF-8 is a ConfigError naming ``label``."""
+    try:
+        return path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{label}: config file not found; check the path") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{label}: is a directory, not a config file") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{label}: not UTF-8 text ({err}); save it as UTF-8") from None
+
+
 def parse_text(text: str, fmt: str, source: str) -> dict:
     if fmt == "toml":
         line = toml_dotted_line(text)
@@ -216,9 +223,7 @@ def parse_text(text: str, fmt: str, source: str) -> dict:
             detail = " ".join(str(err).replace(' in "<unicode string>",', " at").split())
             raise ConfigError(f"{source}: not valid YAML ({detail}); fix the syntax") from None
         if duplicates:
-            error = ConfigError(problem_report(source, duplicates))
-            error.problems = duplicates  # type: ignore[attr-defined]
-            raise error
+            raise problem_error(source, duplicates)
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -231,8 +236,12 @@ def parse_text(text: str, fmt: str, source: str) -> dict:
     return data
 
 
-def problem_report(source: str, problems: list[str]) -> str:
+def problem_error(source: str, problems: list[str]) -> ConfigError:
+    """One :class:`ConfigError` listing ``problems`` (also kept on it as ``.problems``)."""
     count = f"{len(problems)} problem{'s' if len(problems) != 1 else ''}"
-    return f"invalid config {source} ({count}; fix and re-run):\n" + "\n".join(
-        f"  {p}" for p in problems
+    error = ConfigError(
+        f"invalid config {source} ({count}; fix and re-run):\n"
+        + "\n".join(f"  {p}" for p in problems)
     )
+    error.problems = problems  # type: ignore[attr-defined]
+    return error

@@ -14,17 +14,15 @@ class NeuromechflyParams:
     Attributes
     ----------
     still_tolerance
-        The most the thorax-coxa points may move (95th percentile of their distance
-        from their median position, in model leg lengths) before a recording is
-        refused as untethered.
+        The most the thorax-coxa points may move (95th percentile of their distance from their
+        median position, in model leg lengths) before a recording is refused as untethered.
     frame_rate
-        Frames per second: the ``time`` column of ``joint_angles.csv`` and the
-        replay's timestep.
+        Frames per second: the ``time`` column of ``joint_angles.csv`` and the replay's timestep.
     iterations
         Levenberg-Marquardt steps per (frame, leg).
     allow_mirrored
-        Fit a 3D that is the fly's mirror image anyway (:mod:`flylib.handedness`);
-        by default such a result is refused, naming its cause.
+        Fit a 3D that is the fly's mirror image anyway (:mod:`flylib.handedness`); by default such a
+        result is refused, naming its cause.
     """
 
     still_tolerance: float = param(0.1, number(0, exclusive=True), kind=float)

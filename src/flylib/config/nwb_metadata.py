@@ -1,23 +1,22 @@
-"""Session metadata for the NWB export: the config's ``nwb`` table, a recording's
-``nwb.yaml`` sidecar, and the check that everything a lab must supply is there.
+"""Session metadata for the NWB export: the config's ``nwb`` table, a recording's ``nwb.yaml``
+sidecar, and the check that everything a lab must supply is there.
 
-This module imports neither pynwb nor ndx-pose, so config validation and the
-workflow's start-up check stay cheap. The writer is :mod:`flylib.interop.nwb`.
+This module imports neither pynwb nor ndx-pose, so config validation and the workflow's start-up
+check stay cheap. The writer is :mod:`flylib.interop.nwb`.
 
-Where the metadata comes from, later entries overriding earlier ones key by key
-(``subject`` merged key by key too):
+Where the metadata comes from, later entries overriding earlier ones key by key (``subject`` merged
+key by key too):
 
-1. the config's ``nwb`` table (what every recording of a batch shares: lab,
-   institution, experimenter, species, ...);
-2. ``<recording>/nwb.yaml`` (what differs per recording: session start time, subject
-   id, age, sex, ...), a YAML mapping with the same keys;
+1. the config's ``nwb`` table (what every recording of a batch shares: lab, institution,
+   experimenter, species, ...);
+2. ``<recording>/nwb.yaml`` (what differs per recording: session start time, subject id, age,
+   sex, ...), a YAML mapping with the same keys;
 3. for ``flylib export``, a ``--nwb-metadata FILE`` of the same form.
 
-Required (one error names every missing one): ``session_start_time`` (ISO 8601 with
-a timezone, e.g. ``2024-05-01T14:03:00+02:00``), ``experimenter``,
-``subject.subject_id``, ``subject.sex`` (``M``, ``F``, ``U`` or ``O``) and
-``subject.age`` (ISO 8601 duration, e.g. ``P3D``) or ``subject.date_of_birth``.
-``subject.species`` defaults to ``Drosophila melanogaster``.
+Required (one error names every missing one): ``session_start_time`` (ISO 8601 with a timezone,
+e.g. ``2024-05-01T14:03:00+02:00``), ``experimenter``, ``subject.subject_id``, ``subject.sex``
+(``M``, ``F``, ``U`` or ``O``) and ``subject.age`` (ISO 8601 duration, e.g. ``P3D``) or
+``subject.date_of_birth``. ``subject.species`` defaults to ``Drosophila melanogaster``.
 """
 
 from __future__ import annotations
@@ -103,13 +102,8 @@ def _got(value: Any) -> str:
 
 
 def parse_datetime(value: Any, where: str) -> datetime:
-    """An ISO 8601 date-time with a timezone (YAML may already have parsed it).
-
-    Raises
-    ------
-    ConfigError
-        Not a date-time, or without a timezone offset.
-    """
+    """An ISO 8601 date-time with a timezone (YAML may already have parsed it); a ConfigError when
+    not a date-time or without a timezone offset."""
     if isinstance(value, datetime):
         parsed = value
     elif isinstance(value, date):
@@ -190,11 +184,9 @@ def _value_problem(kind: str, value: Any, where: str) -> str | None:
 
 
 def metadata_problems(table: Any, where: str = "nwb") -> list[str]:
-    """Every problem with an ``nwb`` table (or sidecar), one line each; missing required
-    keys are not problems here (a sidecar may supply them: see :func:`missing_required`).
-
-    ``where``: the table's name in messages (``nwb`` or the sidecar's path).
-    """
+    """Every problem with an ``nwb`` table (or sidecar, ``where`` its name in messages), one line
+    each; missing required keys are not problems here (a sidecar may supply them:
+    :func:`missing_required`)."""
     if table is None:
         return []
     if not isinstance(table, Mapping):
@@ -220,8 +212,8 @@ def _key_problems(table: Mapping, known: Mapping, where: str) -> list[str]:
 
 
 def merge_metadata(*tables: Mapping | None) -> dict[str, Any]:
-    """Later tables override earlier ones key by key (``subject`` merged too); ``None``
-    values are absent."""
+    """Later tables override earlier ones key by key (``subject`` merged too); ``None`` values
+    are absent."""
     out: dict[str, Any] = {}
     subject: dict[str, Any] = dict(SUBJECT_DEFAULTS)
     for table in tables:
@@ -252,13 +244,8 @@ def missing_required(metadata: Mapping) -> list[str]:
 
 
 def read_sidecar(path: str | Path) -> dict[str, Any] | None:
-    """A recording's ``nwb.yaml`` (``None`` when absent).
-
-    Raises
-    ------
-    ConfigError
-        Unreadable YAML, not a mapping, or an invalid entry (naming the file and key).
-    """
+    """A recording's ``nwb.yaml`` (``None`` when absent); a ConfigError naming the file and key
+    for unreadable YAML, not a mapping, or an invalid entry."""
     path = Path(path)
     if not path.is_file():
         return None
@@ -309,16 +296,16 @@ def recording_metadata(
     recording_dir
         The recording directory (its ``nwb.yaml`` is read), or ``None``.
     demo
-        The embedded demo: :data:`DEMO_METADATA` comes first (the demo writes the same
-        as its sidecar, which may not exist yet when the workflow starts).
+        The embedded demo: :data:`DEMO_METADATA` comes first (the demo writes the same as its
+        sidecar, which may not exist yet when the workflow starts).
     extra
         Highest-priority overrides (``flylib export --nwb-metadata``).
 
     Raises
     ------
     ConfigError
-        An invalid table or sidecar, or (``check``) missing required keys, all named
-        in one message with where to set them.
+        An invalid table or sidecar, or (``check``) missing required keys, all named in one message
+        with where to set them.
     """
     _refuse(metadata_problems(table))
     sidecar_path = Path(recording_dir) / SIDECAR if recording_dir is not None else None
@@ -342,11 +329,8 @@ def recording_metadata(
 
 
 def recordings_metadata_problems(table: Mapping | None, recordings: Sequence[Any]) -> list[str]:
-    """One line per recording whose NWB export would fail for its metadata or frame rate.
-
-    ``recordings``: :class:`flylib.recordings.Recording` objects (``path``, ``demo``,
-    ``footage``).
-    """
+    """One line per recording (:class:`flylib.recordings.Recording`) whose NWB export would fail
+    for its metadata or frame rate."""
     from ..io import VIDEO_EXTS
 
     problems = []
@@ -366,7 +350,7 @@ def recordings_metadata_problems(table: Mapping | None, recordings: Sequence[Any
 
 
 def sidecar_inputs(rec: Any) -> list[str]:
-    """The recording's ``nwb.yaml`` as a workflow input when it has one, so editing it
-    re-runs the export (the demo's is generated with the demo: none)."""
+    """The recording's ``nwb.yaml`` as a workflow input when it has one, so editing it re-runs
+    the export (the demo's is generated with the demo: none)."""
     path = Path(rec.path) / SIDECAR
     return [str(path)] if not rec.demo and path.is_file() else []

@@ -1,18 +1,17 @@
 """Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
 
-Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the
-one place it is written: the algorithms' keyword defaults read it from the class, e.g.
-``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's
-params track every field, except one declared with ``track_default=False``: such a field
-is tracked only when set to something other than its default. Give a new knob that
-marker, so the results made before it existed keep their params hash (a config that
-leaves it at its default re-runs nothing).
+Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the one place
+it is written: the algorithms' keyword defaults read it from the class, e.g.
+``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's params track
+every field, except one declared with ``track_default=False``, tracked only when not at its
+default. Give a new knob that marker, so the results made before it existed keep their params
+hash (a config that leaves it at its default re-runs nothing).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from ..errors import unknown_key
@@ -37,6 +36,8 @@ from .constants import (
     TETHERED_RIGID_POINTS,
     TRIANGULATION_METHODS,
 )
+from .neuromechfly import NeuromechflyParams
+from .postprocessing import KinematicsParams, RefinementParams
 
 
 @dataclass(frozen=True)
@@ -54,8 +55,8 @@ class Pose2dParams:
     device
         ``auto`` (CUDA, then Apple MPS, then CPU) or a torch device string (performance only).
     compile
-        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``,
-        ``false`` or ``auto`` (when it beats eager for the recording; performance only).
+        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``, ``false``
+        or ``auto`` (when it beats eager for the recording; performance only).
     """
 
     precision: str = param("bfloat16", choice(*PRECISIONS))
@@ -65,10 +66,9 @@ class Pose2dParams:
     compile: bool | str = param("auto", choice(True, False, "auto"))
 
 
-#: Each triangulation method's own knobs: the ``triangulation`` table's key -> the keyword
-#: of the method's function it becomes. The one map from a method to what it reads: the
-#: stage's params track these keys, :func:`flylib.triangulation.reconstruct` passes these
-#: keywords.
+#: Each triangulation method's own knobs: ``triangulation`` table key -> the keyword of the
+#: method's function it becomes. The stage's params track these keys,
+#: :func:`flylib.triangulation.reconstruct` passes these keywords.
 TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
     "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
     "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
@@ -83,15 +83,15 @@ class TriangulationParams:
     Attributes
     ----------
     method
-        ``ransac`` (largest consistent view set), ``greedy`` (drop the worst view
-        while over ``reproj_threshold``) or ``dlt`` (plain least squares).
+        ``ransac`` (largest consistent view set), ``greedy`` (drop the worst view while over
+        ``reproj_threshold``) or ``dlt`` (plain least squares).
     weigh_by_confidence
         Scale each view's equations by ``sqrt(conf)``.
     ransac_threshold, min_inliers
         ``ransac``: inlier reprojection radius in pixels and minimum agreeing views.
     reproj_threshold, max_drops
-        ``greedy``: reprojection error in pixels that triggers a drop, and the most
-        views dropped per point.
+        ``greedy``: reprojection error in pixels that triggers a drop, and the most views dropped
+        per point.
     """
 
     method: str = param("ransac", choice(*TRIANGULATION_METHODS))
@@ -102,8 +102,8 @@ class TriangulationParams:
     max_drops: int = param(5, integer(0))
 
     def method_params(self) -> dict[str, Any]:
-        """The knobs the chosen ``method`` actually reads (plus ``weigh_by_confidence``),
-        as the stage tracks them (a ``track_default=False`` knob only when not at its default)."""
+        """The knobs the chosen ``method`` reads (plus ``weigh_by_confidence``), as the stage
+        tracks them (a ``track_default=False`` knob only when not at its default)."""
         return {
             "method": self.method,
             "weigh_by_confidence": self.weigh_by_confidence,
@@ -116,8 +116,7 @@ class TriangulationParams:
 
     def method_kwargs(self) -> dict[str, Any]:
         """The chosen ``method``'s knobs under its function's keyword names
-        (``threshold``, ``min_inliers`` of :func:`flylib.triangulation.triangulate_ransac`;
-        ``reproj_threshold``, ``max_drops`` of greedy; none for ``dlt``)."""
+        (:data:`TRIANGULATION_KNOBS`)."""
         return {
             keyword: getattr(self, name)
             for name, keyword in TRIANGULATION_KNOBS[self.method].items()
@@ -187,32 +186,29 @@ class BundleAdjustmentParams:
         ``lm`` (Levenberg-Marquardt on the reduced camera system) or ``scipy``
         (``scipy.optimize.least_squares``).
     distortion
-        ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or
-        ``fixed``.
+        ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or ``fixed``.
     max_rounds, outlier_factor, outlier_min_px
-        Outlier rounds: observations beyond ``outlier_factor`` x the median error (at
-        least ``outlier_min_px``) sit out; repeated until the inlier set is stable.
+        Outlier rounds: observations beyond ``outlier_factor`` x the median error (at least
+        ``outlier_min_px``) sit out; repeated until the inlier set is stable.
     reseed_px
-        Cameras whose starting median error exceeds this are resected by PnP first
-        (null: never).
+        Cameras whose starting median error exceeds this are resected by PnP first (null: never).
     bone_lengths, symmetric_bones, length_weight
-        One unknown length per bone over all frames (left = right with
-        ``symmetric_bones``), ``length_weight`` px per 100 % deviation.
+        One unknown length per bone over all frames (left = right with ``symmetric_bones``),
+        ``length_weight`` px per 100 % deviation.
     rigid_points
-        Points that do not move over the recording when the body is fixed (a tethered
-        fly's thorax-coxa joints); used only if the starting triangulation shows them
-        still.
+        Points that do not move over the recording when the body is fixed (a tethered fly's
+        thorax-coxa joints); used only if the starting triangulation shows them still.
     warn_ratio
-        Warn when the reduced Hessian's weakest non-gauge direction is below this
-        fraction of its strongest.
+        Warn when the reduced Hessian's weakest non-gauge direction is below this fraction of its
+        strongest.
     session
         Bundle-adjust the recordings of one session (one rig) together: one solve over
-        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per
-        session that every member's later stages read (:mod:`flylib.sessions`). The
-        per-recording solve is unchanged by it (its params leave this key out).
+        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per session that
+        every member's later stages read (:mod:`flylib.sessions`). The per-recording solve is
+        unchanged by it (its params leave this key out).
     least_squares
-        Every other key of the table, passed through to ``scipy.optimize.least_squares``
-        (e.g. ``max_nfev``, ``loss``, ``f_scale``).
+        Every other key of the table, passed through to ``scipy.optimize.least_squares`` (e.g.
+        ``max_nfev``, ``loss``, ``f_scale``).
     """
 
     points_to_use: tuple[str, ...] | None = param(None, string_list(nullable=True), kind=tuple)
@@ -236,9 +232,9 @@ class BundleAdjustmentParams:
     least_squares: dict[str, Any] = field(default_factory=dict)
 
     def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
-        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`:
-        every field under its own name, ``rigid_points`` limited to the skeleton's
-        ``point_names``, the ``least_squares`` options flat (they reach the solver)."""
+        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`: every
+        field under its own name, ``rigid_points`` limited to ``point_names``, the
+        ``least_squares`` options flat (they reach the solver)."""
         kwargs = {
             f.name: getattr(self, f.name)
             for f in fields(self)
@@ -247,6 +243,16 @@ class BundleAdjustmentParams:
         names = set(point_names)
         kwargs["rigid_points"] = [p for p in self.rigid_points if p in names]
         return {**kwargs, **self.least_squares}
+
+    @classmethod
+    def from_table(cls, table: Mapping) -> BundleAdjustmentParams:
+        """The table's own keys as fields; every other key goes to ``least_squares`` (a stage's
+        tracked params hold them under ``least_squares`` already)."""
+        own = {f.name for f in fields(cls)} - {"least_squares"}
+        leftovers = {k: v for k, v in table.items() if k not in own}
+        nested = leftovers.pop("least_squares", None) or {}
+        params = build_params(cls, {k: v for k, v in table.items() if k in own})
+        return replace(params, least_squares={**nested, **leftovers})
 
 
 @dataclass(frozen=True)
@@ -258,13 +264,20 @@ class IoParams:
     image_workers
         Threads decoding image sequences; ``None`` lets the reader choose.
     on_corrupt_frame
-        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's
-        job naming the file; ``"missing"`` warns and marks the frame missing (all its
-        2D NaN). Not performance only: ``missing`` is part of pose2d's params.
+        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's job naming the
+        file; ``"missing"`` warns and marks the frame missing (all its 2D NaN). Not performance
+        only: ``missing`` is part of pose2d's params.
     """
 
     image_workers: int | None = None
     on_corrupt_frame: str = "error"
+
+    @classmethod
+    def from_table(cls, table: Mapping) -> IoParams:
+        """``io.image.workers`` (0 means let the reader choose) and ``io.on_corrupt_frame``."""
+        workers = (table.get("image") or {}).get("workers")
+        on_corrupt = table.get("on_corrupt_frame") or "error"
+        return cls(image_workers=workers or None, on_corrupt_frame=on_corrupt)
 
 
 LEAST_SQUARES_CHECKS: dict[str, Check] = {
@@ -282,9 +295,9 @@ LEAST_SQUARES_CHECKS: dict[str, Check] = {
 }
 
 
-# The scipy.optimize.least_squares options a config may set (its signature minus the
-# arguments the bundle adjuster owns). Listed here rather than read from scipy so that
-# loading a config does not import scipy.optimize; a test checks it against scipy.
+# The scipy.optimize.least_squares options a config may set (its signature minus the arguments the
+# bundle adjuster owns). Listed rather than read from scipy so that loading a config does not
+# import scipy.optimize; a test checks it against scipy.
 LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
     "method",
     "ftol",
@@ -333,3 +346,18 @@ def build_params(cls: type, table: Mapping) -> Any:
             value = tuple(tuple(v) if isinstance(v, (list, tuple)) else v for v in value)
         kwargs[f.name] = value
     return cls(**kwargs)
+
+
+#: Config table name -> its typed params dataclass: what :meth:`Config.params
+#: <flylib.config.Config.params>` builds, :func:`~flylib.config.validate_config` checks and
+#: the docs' config reference describes.
+PARAM_TABLES: dict[str, type] = {
+    "pose2d": Pose2dParams,
+    "io": IoParams,
+    "bundle_adjustment": BundleAdjustmentParams,
+    "pictorial_structures": PictorialParams,
+    "triangulation": TriangulationParams,
+    "refinement": RefinementParams,
+    "kinematics": KinematicsParams,
+    "neuromechfly": NeuromechflyParams,
+}

@@ -33,32 +33,29 @@ class RefinementParams:
     weigh_by_confidence
         Weight each observation by the detector's confidence.
     smooth_weight, smooth_order, smooth_scale
-        Temporal term: weight, difference order (1 velocity, 2 acceleration) and the
-        per-frame change in world units that costs as much as ``scale_px``.
+        Temporal term: weight, difference order (1 velocity, 2 acceleration) and the per-frame
+        change in world units that costs as much as ``scale_px``.
     motion_scales
-        Smoothness scales the refinement stage tries beside ``smooth_scale``, in units
-        of the recording's own motion (the median per-frame ``smooth_order``-th
-        difference of the triangulated points, which also carries the frame rate);
-        the one whose held-out-view error is lowest is used. ``[]``: ``smooth_scale``
-        only.
+        Smoothness scales the refinement stage tries beside ``smooth_scale``, in units of the
+        recording's own motion (the median per-frame ``smooth_order``-th difference of the
+        triangulated points, which also carries the frame rate); the one whose held-out-view error
+        is lowest is used. ``[]``: ``smooth_scale`` only.
     bone_weight, bone_scale, symmetric_bones
-        Bone-length constancy (one length per bone for the recording): weight, the
-        length deviation in world units that costs as much as ``scale_px``, and
-        whether left and right bones share a length.
+        Bone-length constancy (one length per bone for the recording): weight, the length deviation
+        in world units that costs as much as ``scale_px``, and whether left and right bones share a
+        length.
     rigid_points, rigid_weight, rigid_scale
-        Points held at one world position (null: every ``*thorax_coxa`` point, the
-        tethered thorax; ``[]``: none), weight and scale in world units.
+        Points held at one world position (null: every ``*thorax_coxa`` point, the tethered thorax;
+        ``[]``: none), weight and scale in world units.
     gap_length
-        Frames a point with no supporting view is filled by the temporal term;
-        longer gaps stay NaN.
+        Frames a point with no supporting view is filled by the temporal term; longer gaps stay NaN.
     outlier_px
-        After the first pass, observations further than this from the refined point
-        are left out.
+        After the first pass, observations further than this from the refined point are left out.
     max_iterations, chunk_frames, overlap_frames
         Solver iterations per chunk, frames per chunk, and context frames on each side.
     moved_fraction
-        Flag points moved from the triangulation by more than this fraction of the
-        median bone length.
+        Flag points moved from the triangulation by more than this fraction of the median bone
+        length.
     """
 
     loss: str = param("soft_l1", choice(*REFINEMENT_LOSSES))
@@ -150,19 +147,19 @@ class KinematicsParams:
     Attributes
     ----------
     angles
-        ``name -> (a, b, c)``: the angle at ``b`` between ``b->a`` and ``b->c``
-        (Anipose's flexion angles); ``None`` = the fly default set.
+        ``name -> (a, b, c)``: the angle at ``b`` between ``b->a`` and ``b->c`` (Anipose's flexion
+        angles); ``None`` = the fly default set.
     segments
-        ``name -> (a, b, c)``: yaw, pitch and roll of segment ``a->b`` in the body
-        frame, roll measured from the plane through ``c``; ``None`` = the six coxae.
+        ``name -> (a, b, c)``: yaw, pitch and roll of segment ``a->b`` in the body frame, roll
+        measured from the plane through ``c``; ``None`` = the six coxae.
     tethered
         One body frame for the recording (else one per frame).
     body_frame
-        ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point lists;
-        ``None`` = the fly's thorax-coxa points.
+        ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point lists; ``None`` = the
+        fly's thorax-coxa points.
     allow_mirrored
-        Compute angles from a 3D that is the fly's mirror image anyway
-        (:mod:`flylib.handedness`); by default such a result is refused.
+        Compute angles from a 3D that is the fly's mirror image anyway (:mod:`flylib.handedness`);
+        by default such a result is refused.
     """
 
     angles: dict[str, tuple[str, str, str]] | None = None

@@ -1,9 +1,6 @@
-"""Which footage source feeds which view: pure functions of the config mapping.
-
-They take a :class:`~flylib.config.Config` or its plain mapping and read nothing from
-disk, so the recording resolver (:mod:`flylib.recordings`), the 2D import and the
-demo share them without importing one another.
-"""
+"""Which footage source feeds which view: pure functions of a :class:`~flylib.config.Config` or
+its mapping, reading nothing from disk, so the recording resolver (:mod:`flylib.recordings`), the
+2D import and the demo share them without importing one another."""
 
 from __future__ import annotations
 
@@ -19,16 +16,9 @@ def config_data(config: Any) -> dict:
 
 
 def view_names(config, *, required: bool = True) -> list[str]:
-    """The configured views in config order: ``cameras`` entries except ``defaults``.
-
-    A config whose rig comes from a calibration file may name no cameras; the views
-    are then the ``pose2d.output_points`` keys (as ``Config.view_names`` does).
-
-    Raises
-    ------
-    ImportFormatError
-        When ``required`` and the config names no views at all.
-    """
+    """The configured views in config order: ``cameras`` entries except ``defaults``, else (a rig
+    from a calibration file) the ``pose2d.output_points`` keys. An ImportFormatError when
+    ``required`` and the config names no views at all."""
     data = config_data(config)
     names = [name for name in (data.get("cameras") or {}) if name != "defaults"]
     if not names:
@@ -41,20 +31,15 @@ def view_names(config, *, required: bool = True) -> list[str]:
 
 
 def view_sources(config) -> dict[str, str]:
-    """Map each view to the footage source that feeds it (:func:`feeding_sources` of
-    the config's views, ``sources`` and ``pose2d`` tables)."""
+    """:func:`feeding_sources` of the config's views, ``sources`` and ``pose2d`` tables."""
     data = config_data(config)
     return feeding_sources(view_names(config), data.get("sources") or [], data.get("pose2d") or {})
 
 
 def feeding_sources(views, sources, pose2d) -> dict[str, str]:
-    """Map each view to the footage source that feeds it.
-
-    The first pathway listed for the view in ``pose2d.output_points`` decides; a view
-    without output points falls back to a source named ``vid_<view>`` or ``<view>``,
-    then to the source at the same position in ``sources`` (the ``{name, filename?}``
-    list).
-    """
+    """Map each view to the footage source that feeds it: the first pathway listed for the view in
+    ``pose2d.output_points``, else a source named ``vid_<view>`` or ``<view>``, else the source
+    at the same position in ``sources`` (the ``{name, filename?}`` list)."""
     pathway_source = {
         p.get("name"): p.get("source")
         for p in pose2d.get("pathways") or []
@@ -82,7 +67,7 @@ def feeding_sources(views, sources, pose2d) -> dict[str, str]:
 
 
 def source_patterns(config: Any) -> dict[str, str]:
-    """Source name -> footage glob (``filename``, else the name), in config order, from a
+    """Source name -> footage glob (``filename``, else the name), in config order, of a
     :class:`~flylib.config.Config` or a mapping."""
     return patterns_of(getattr(config, "data", config).get("sources") or [])
 
@@ -105,9 +90,8 @@ def patterns_of(sources) -> dict[str, str]:
 
 
 def footage_globs(config: Any) -> dict[str, str | None]:
-    """``view -> footage glob`` of the source feeding each view (``None``: a source
-    without a pattern), in view order: what :func:`flylib.interop.views.footage_files`
-    matches in a recording directory."""
+    """``view -> footage glob`` of the source feeding each view (``None``: a source without a
+    pattern), in view order: what :func:`flylib.interop.views.footage_files` matches."""
     sources = view_sources(config)
     patterns = source_patterns(config) if sources else {}
     return {view: patterns.get(source) for view, source in sources.items()}

@@ -11,18 +11,20 @@ from ..errors import did_you_mean, unknown_key
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import boolean, got, integer, is_int, mapping, non_finite_problems
 from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, SUBPIXEL_METHODS, TOP_LEVEL_KEYS
-from .neuromechfly import NeuromechflyParams
 from .nwb_metadata import metadata_problems
 from .params import (
     LEAST_SQUARES_CHECKS,
     LEAST_SQUARES_OPTIONS,
+    PARAM_TABLES,
     BundleAdjustmentParams,
-    PictorialParams,
     Pose2dParams,
-    TriangulationParams,
     table_problems,
 )
-from .postprocessing import RefinementParams, kinematics_problems
+from .postprocessing import kinematics_problems
+
+#: The :data:`~.params.PARAM_TABLES` tables checked by their own code below; every other
+#: one is checked by :func:`~.params.table_problems` alone, in that map's order.
+OWN_CHECKS = ("pose2d", "bundle_adjustment", "kinematics", "io")
 
 
 def _named_entries(entries: Any, path: str, problems: list[str]) -> dict[str, dict]:
@@ -209,8 +211,7 @@ def validate_config(data: Any) -> list[str]:
         skeleton_issues = skeleton_problems(data["skeleton"])
         problems += skeleton_issues
         names = data["skeleton"].get("point_names")
-        # only a valid list names the points the other tables refer to (the skeleton
-        # check reports a bad one)
+        # only a valid list names the points other tables refer to (skeleton_problems reports)
         valid = isinstance(names, list) and all(isinstance(n, str) for n in names)
         point_names = tuple(names) if valid else ()
     else:
@@ -226,12 +227,9 @@ def validate_config(data: Any) -> list[str]:
         problems += _plan_problems(data, point_names, view_names)
 
     problems += _bundle_adjustment_problems(table("bundle_adjustment"), point_names)
-    problems += table_problems(
-        table("pictorial_structures"), PictorialParams, "pictorial_structures"
-    )
-    problems += table_problems(table("triangulation"), TriangulationParams, "triangulation")
-    problems += table_problems(table("refinement"), RefinementParams, "refinement")
-    problems += table_problems(table("neuromechfly"), NeuromechflyParams, "neuromechfly")
+    for name, cls in PARAM_TABLES.items():
+        if name not in OWN_CHECKS:
+            problems += table_problems(table(name), cls, name)
     rigid = table("refinement").get("rigid_points")
     if isinstance(rigid, list) and point_names:
         for point in rigid:
@@ -250,9 +248,8 @@ def validate_config(data: Any) -> list[str]:
 
 
 def _with_non_finite(problems: list[str], data: Mapping) -> list[str]:
-    """``problems`` plus one line per non-finite number: that line replaces the other
-    checks' line on the same key (or on the list holding the number), so each key gets
-    one line, and the root cause."""
+    """``problems`` plus one line per non-finite number, replacing the other checks' line on the
+    same key (or on the list holding the number): each key gets one line, the root cause."""
     non_finite = non_finite_problems(data)
     if not non_finite:
         return problems
@@ -262,8 +259,8 @@ def _with_non_finite(problems: list[str], data: Mapping) -> list[str]:
 
 
 def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
-    """Tables of the wrong kind (a list where a mapping belongs, ...): recorded in
-    ``problems``; returns their names, which the other checks then skip."""
+    """Tables of the wrong kind (a list where a mapping belongs, ...), recorded in ``problems``;
+    returns their names, which the other checks then skip."""
     table_kinds = {
         "io": mapping(),
         "skeleton": mapping(),
@@ -303,8 +300,8 @@ def _table_kind_problems(data: Mapping, problems: list[str]) -> set[str]:
 
 
 def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> list[str] | None:
-    """The rig's view names (``None`` when a calibration file names them); camera
-    entries that are not tables are recorded in ``problems``."""
+    """The rig's view names (``None`` when a calibration file names them); camera entries that
+    are not tables are recorded in ``problems``."""
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
         if not isinstance(spec, Mapping):

@@ -1,9 +1,8 @@
 """``flylib gui``: review a recording's 3D pose in the browser, fix it, save the fixes.
 
-A FastAPI app (:func:`create_app`) over a :class:`ReviewSession` (one recording's
-``results.h5``, footage and ``corrections.h5`` sidecar), served by uvicorn
-(:func:`serve`); the front-end is static ES modules in ``static/``. FastAPI and
-uvicorn are imported only when the GUI is used.
+A FastAPI app (:func:`create_app`) over a :class:`ReviewSession` (one recording's ``results.h5``,
+footage and ``corrections.h5`` sidecar), served by uvicorn (:func:`serve`); the front-end is static
+ES modules in ``static/``. FastAPI and uvicorn are imported only when the GUI is used.
 """
 
 import lazy_loader as _lazy

@@ -7,26 +7,18 @@ Routes::
     GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
-    GET  /api/suspects              suspect (frame, point) pairs and the per-frame score,
-                                    the review progress
+    GET  /api/suspects              suspect (frame, point) pairs, per-frame score, review progress
     GET  /api/save-check            what the edits made worse (said before saving)
-    POST /api/edit                  one edit (JSON, as on the WebSocket); returns the frame
+    POST /api/edit                  one edit {"op", "frame", "point", "view", "xy", "revision",
+                                    "durable", "fixed"} (op: one of session.EDIT_OPS) -> points
     POST /api/save                  write corrections.h5 beside results.h5
     POST /api/stop                  stop the server (the page's Stop button)
-    WS   /ws                        edits: {"op", "frame", "point", "view", "xy", "revision",
-                                    "durable", "fixed"}
-                                    -> points (op: move, move3d, invisible, reset_point,
-                                    reset_view, reset_frame, reviewed, unreviewed; move
-                                    takes "fixed": true; or
-                                    {"op": "save"}); other pages' edits arrive as
-                                    {"op": "changed", "revision"}
+    WS   /ws                        the same edits, or {"op": "save"}; other pages' edits arrive
+                                    as {"op": "changed", "revision"}
 
-Every request passes :class:`~flylib.gui.security.RequestGuard` (Host and Origin are
-this server's; POSTs and the WebSocket carry the session token; JSON bodies only,
-size and depth limited) and every response carries a strict Content-Security-Policy.
-Camera names are looked up in the rig (never used to build a path) and frame numbers
-are integers checked against the recording, so no request reaches any other file.
-Errors are one line (``{"detail": ...}``), never a traceback.
+Every request passes :class:`~flylib.gui.security.RequestGuard`, every response carries a strict
+Content-Security-Policy. Camera names are looked up in the rig (never used to build a path) and
+frame numbers checked, so no request reaches any other file. Errors are one ``{"detail": ...}``.
 """
 
 from __future__ import annotations
@@ -73,22 +65,9 @@ def create_app(
 ) -> FastAPI:
     """The app serving one :class:`ReviewSession`.
 
-    Parameters
-    ----------
-    session
-        The opened recording.
-    token
-        The session token every mutating request must carry (header
-        ``X-Flylib-Token``, or the WebSocket sub-protocol ``flylib.token.<token>``);
-        default: a random one. The page receives it inside its HTML. Available as
-        ``app.state.token``.
-    guard_reads
-        Require the token on reads too (query ``?token=``, header or the cookie the
-        page sets); default: when ``token`` is given (a server bound to anything but
-        localhost).
-    hosts, port
-        The host names (and port) the server answers to; any other ``Host`` header
-        is refused (DNS rebinding). ``hosts=None``: any (with ``guard_reads``).
+    ``token`` (default: random; in the page's HTML) must come with every mutating request;
+    ``guard_reads`` (default: when ``token`` is given) requires it on reads too. Any ``Host`` but
+    ``hosts`` (and ``port``) is refused (DNS rebinding); ``hosts=None``: any, with ``guard_reads``.
     """
     if guard_reads is None:
         guard_reads = token is not None
@@ -112,8 +91,7 @@ def _refused(status: int, message: str) -> JSONResponse:
 
 
 def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
-    """Every HTTP request through ``guard`` (Host, Origin, token, JSON body), every
-    response with the security headers, every error one line."""
+    """Every request through ``guard``, every response with the security headers."""
 
     @app.middleware("http")
     async def check_request(request: Request, call_next):
@@ -158,7 +136,6 @@ def _add_request_checks(app: FastAPI, guard: RequestGuard, token: str) -> None:
 
 
 def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
-    """``GET`` the page, meta, a view's frame, a frame's points and the suspects."""
 
     def check_frame(frame: int) -> None:
         if not 0 <= frame < session.n_frames:
@@ -210,7 +187,6 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
 
 
 def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
-    """``POST`` one edit and the save (the WebSocket carries the same messages)."""
 
     @app.post("/api/edit")
     async def edit(request: Request) -> JSONResponse:
@@ -237,7 +213,6 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
 
 
 def _add_edit_socket(app: FastAPI, guard: RequestGuard, edits: _Edits) -> None:
-    """``WS /ws``: edits and saves in, replies out, other pages' edits announced."""
 
     @app.websocket("/ws")
     async def ws(websocket: WebSocket) -> None:
@@ -352,8 +327,6 @@ class _Edits:
 
 
 def _offered_protocols(websocket: WebSocket) -> list[str]:
-    """The sub-protocols a handshake offers (the server puts them in the ASGI scope;
-    the raw header is the fallback)."""
     offered = websocket.scope.get("subprotocols") or (
         websocket.headers.get("sec-websocket-protocol") or ""
     ).split(",")

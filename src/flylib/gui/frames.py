@@ -1,21 +1,14 @@
-"""Footage frames for the GUI, as JPEG: one open decoder per view, a small LRU cache and
-a background decoder that fills a second cache ahead of the user.
+"""Footage frames for the GUI, as JPEG: one open decoder per view, a small LRU cache and a
+background decoder that fills a second cache ahead of the user.
 
-A video keeps one PyAV container open: the next frame (scrubbing forward) costs one
-decode; any other frame is reached by decoding on from the current position or by a
-seek to the keyframe before it, whichever decodes fewer frames (the keyframes and
-presentation timestamps are indexed once from the packets), never by decoding from
-the start. A cold random jump therefore costs up to one keyframe interval (GOP) of
-decoding, which on footage with a single keyframe is the whole video.
-
-So once a view's first frame is asked for, a background thread decodes the video in
-order (one decode per frame, the cheapest way through it) into the fill cache: the
-whole video when its JPEGs fit ``fill_bytes`` (estimated from the first frame), else a
-window of frames ahead of the last requested one. It pauses while a request decodes,
-so it never slows down the frame the user is waiting for; and a request for a frame the
-fill decoder is nearer to (it decodes forward to it, the request decoder would seek back
-to a keyframe) waits for the fill instead of decoding the same frames a second time. Image sequences are read by
-index through :class:`flylib.io.ImageSequenceReader` (already random access).
+A video keeps one PyAV container open: the next frame costs one decode; any other is reached by
+decoding on or by a seek to the keyframe before it, whichever decodes fewer frames (keyframes and
+timestamps are indexed once). A cold random jump thus costs up to one keyframe interval (GOP): the
+whole video on footage with a single keyframe. So from a view's first request on, a background
+thread decodes the video in order into the fill cache: all of it when its JPEGs fit
+``fill_bytes``, else a window around the last requested frame. It pauses while a request decodes,
+and a request for a frame the fill decoder is nearer to waits for it instead of decoding the same
+frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequenceReader`).
 """
 
 from __future__ import annotations
@@ -66,8 +59,7 @@ class _VideoFrames:
         self._next: int | None = None  # index of the frame the iterator yields next
 
     def _index(self) -> tuple[list[int] | None, np.ndarray | None]:
-        """Presentation timestamps in frame order and the frame indices of the keyframes
-        (one demux pass, no decoding); ``(None, None)`` without timestamps."""
+        """Timestamps in frame order and the keyframes' frame indices (one demux pass)."""
         import av
 
         pts, key = [], []
@@ -177,25 +169,10 @@ class _ImageFrames:
 
 
 class FrameSource:
-    """JPEG frames of one view, with an LRU cache of encoded frames and a fill cache.
-
-    Two decoders: one follows the requests (so scrubbing stays one decode per frame),
-    the other fills the caches in the background (:meth:`prefetch`, e.g. the next
-    suspect frame, and the fill thread, see the module's docstring) without moving the
-    first away from where the user is.
-
-    Parameters
-    ----------
-    files
-        The view's footage (one video, or image files in frame order); empty: every
-        frame is a plain dark image of ``size``.
-    size
-        ``(height, width)`` used when there is no footage.
-    cache_frames
-        Encoded frames kept per view in the LRU cache of requested frames.
-    fill_bytes
-        JPEG bytes the background fill may hold (0: no background decoding).
-    """
+    """JPEG frames of one view (``files``: one video or images in frame order; none: dark frames
+    of ``size`` ``(height, width)``), with an LRU cache of ``cache_frames`` and a fill cache of
+    ``fill_bytes`` (0: none). One decoder follows the requests, the other fills the caches
+    (:meth:`prefetch` and the fill thread) without moving the first away from the user."""
 
     def __init__(
         self,
@@ -312,12 +289,8 @@ class FrameSource:
                 self._spare = self._frames.spawn()
             return encode_jpeg(self._spare.read(index))
 
-    # -- the background fill -----------------------------------------------------------
-
     def _fill_is_nearer(self, index: int) -> bool:
-        """The fill decoder reaches ``index`` with fewer decodes than the request decoder
-        (it decodes forward to it, the fill going there next): waiting for it then costs
-        less than a second decoder working through the same frames."""
+        """The fill decoder (decoding forward) reaches ``index`` in fewer decodes than ours."""
         spare, frames = self._spare, self._frames
         if (
             self._fill_thread is None

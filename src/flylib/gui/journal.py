@@ -1,16 +1,11 @@
-"""Edits that survive anything: an fsync'd journal beside ``corrections.h5``, and one
-GUI per sidecar.
+"""Edits that survive anything: an fsync'd journal beside ``corrections.h5``, and one GUI per
+sidecar.
 
-Every edit the GUI accepts is appended to ``<sidecar>.journal`` (one JSON line with a
-CRC-32, flushed and fsync'd) *before* it is applied, so a stopped server, a crash or a
-closed tab loses nothing; the next ``flylib gui`` on the recording replays the journal
-on top of the sidecar and says so. Saving writes the sidecar and then removes the
-journal. The journal is JSON only (no code is ever loaded from it) and each replayed
-line goes through the same checks as an edit from the page.
-
-``<sidecar>.lock`` is held (``fcntl.flock``, released by the kernel when the process
-dies, even on ``kill -9``) for a session's life, so a second server on the same output
-directory is refused instead of overwriting the first one's saves.
+Every edit is appended to ``<sidecar>.journal`` (a JSON line with a CRC-32, fsync'd) *before* it
+is applied, so a stopped server, a crash or a closed tab loses nothing: the next ``flylib gui``
+replays the journal on top of the sidecar (each line checked like an edit from the page) and says
+so. Saving writes the sidecar, then removes the journal. ``<sidecar>.lock`` (``fcntl.flock``,
+released by the kernel even on ``kill -9``) refuses a second server on the same output directory.
 """
 
 from __future__ import annotations
@@ -55,11 +50,7 @@ class Replay:
 
 
 def read_journal(path: Path) -> Replay:
-    """The edits of a journal (empty when there is none).
-
-    A line that is not JSON or whose CRC-32 does not match (a write cut short by a
-    crash, or damage) is skipped and reported in :attr:`Replay.damaged`.
-    """
+    """A journal's edits; a line that is not JSON or fails its CRC-32 is listed in ``damaged``."""
     replay = Replay()
     if not path.is_file():
         return replay
@@ -83,8 +74,7 @@ def read_journal(path: Path) -> Replay:
 
 
 class EditJournal:
-    """Appends edits to ``<sidecar>.journal`` (``sidecar``: their ``corrections.h5``), each
-    one durable before it returns."""
+    """Appends edits to ``<sidecar>.journal``, each one durable before it returns."""
 
     def __init__(self, sidecar: Path):
         self.sidecar = Path(sidecar)
@@ -92,14 +82,8 @@ class EditJournal:
         self._file = None
 
     def append(self, record: dict, sidecar_revision: int, *, durable: bool = True) -> None:
-        """Write one edit and flush it; fsync it too when ``durable``.
-
-        A flushed line survives the server's death (a crash, ``kill -9``); fsync also
-        makes it survive the machine's. The page asks for ``durable=False`` only for
-        the intermediate positions of a drag, whose last position comes durable. An edit
-        that cannot be stored (read-only directory, full disk) is an OutputError, one line
-        naming the journal and the reason.
-        """
+        """Write one edit and flush it (survives the server's death); fsync it too when
+        ``durable`` (survives the machine's: all but a drag's intermediate positions)."""
         try:
             if self._file is None:
                 new = not self.path.exists() or self.path.stat().st_size == 0
@@ -151,15 +135,8 @@ def _fsync_dir(directory: Path) -> None:
 
 
 class SidecarLock:
-    """One ``flylib gui`` per sidecar: an exclusive ``flock`` on ``<sidecar>.lock``.
-
-    Raises
-    ------
-    OutputError
-        From :meth:`acquire` when another live process holds it (naming its host and
-        pid); a lock that cannot be created (read-only directory) is not an error:
-        such a session cannot save either, and says so on each edit.
-    """
+    """One ``flylib gui`` per sidecar: an exclusive ``flock`` on ``<sidecar>.lock``; a lock that
+    cannot be created (read-only directory) is no error: such a session cannot save either."""
 
     def __init__(self, sidecar: Path):
         self.path = lock_path(Path(sidecar))

@@ -1,18 +1,10 @@
 """What keeps other web pages out of ``flylib gui``: the request checks, free of FastAPI.
 
-A browser lets any page send requests to ``localhost``; these checks make such requests
-fail before they reach the session:
-
-- ``Host`` must name the server itself (a loopback name, or the address it was bound
-  to), so a DNS-rebinding page (``Host: evil.example:PORT``) gets nothing;
-- ``Origin``, when sent (browsers always send it on WebSockets and POSTs), must be the
-  server's own origin, and ``Sec-Fetch-Site`` must not be ``cross-site``;
-- every mutating request carries the session's random token in a header (REST) or a
-  WebSocket sub-protocol; the page gets it inside its own HTML, which another origin
-  cannot read (the same-origin policy, and the ``Host`` check for rebinding);
-- bodies are JSON (``Content-Type: application/json``: a form or ``text/plain`` POST,
-  which needs no CORS pre-flight, is refused), at most :data:`MAX_BODY` bytes and
-  :data:`MAX_DEPTH` levels deep, parsed without recursion trouble.
+A browser lets any page send requests to ``localhost``; these checks stop them: ``Host`` must name
+the server itself (against DNS rebinding); ``Origin``, when sent, must be the server's own and
+``Sec-Fetch-Site`` not ``cross-site``; every mutating request carries the session's random token
+(a header, or a WebSocket sub-protocol), which the page gets inside its own HTML; bodies are JSON
+(a form or ``text/plain`` POST needs no CORS pre-flight), of bounded size and depth.
 """
 
 from __future__ import annotations
@@ -40,8 +32,7 @@ SECURITY_HEADERS = {
     "Cross-Origin-Opener-Policy": "same-origin",
     "Cross-Origin-Resource-Policy": "same-origin",
 }
-#: The WebSocket sub-protocol the page speaks; the token travels as a second one,
-#: ``flylib.token.<token>`` (a browser cannot set headers on a WebSocket).
+#: The page's WebSocket sub-protocol; the token travels as a second one (no headers on a WebSocket).
 WS_PROTOCOL = "flylib.v1"
 WS_TOKEN_PREFIX = "flylib.token."
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]", "::1")
@@ -67,22 +58,8 @@ def split_host(host: str) -> tuple[str, int | None]:
 
 
 class RequestGuard:
-    """The Host / Origin / token checks of one server.
-
-    Parameters
-    ----------
-    token
-        The session's secret (``secrets.token_urlsafe``).
-    hosts
-        The host names the server answers to (loopback names by default); ``None``:
-        any, for a server bound to another interface, whose every request needs the
-        token anyway (``guard_reads``), which a rebinding page does not have.
-    port
-        The port it listens on; when given, ``Host`` must carry it.
-    guard_reads
-        Require the token on reads too (query ``?token=``, header or the cookie the
-        page sets): when bound to anything but localhost.
-    """
+    """The Host / Origin / token checks of one server; ``hosts=None`` (any) only with
+    ``guard_reads`` (the token on every request, which a rebinding page does not have)."""
 
     def __init__(
         self,
@@ -106,8 +83,7 @@ class RequestGuard:
         )
 
     def check_origin(self, headers: Any) -> None:
-        """``Host`` is this server, ``Origin`` (when sent) is this server's origin; else
-        :class:`RequestRefused` 403 naming what was wrong."""
+        """``Host`` and ``Origin`` (when sent) are this server's; else :class:`RequestRefused` 403."""
         host = headers.get("host") or ""
         name, port = split_host(host)
         known = self.hosts is None or name in self.hosts
@@ -153,10 +129,7 @@ def check_json_content_type(content_type: str | None) -> None:
 
 
 def parse_json(body: bytes, what: str = "the body") -> Any:
-    """``body`` as JSON, refused when larger than :data:`MAX_BODY` or nested deeper
-    than :data:`MAX_DEPTH` (checked before parsing, so no recursion limit is hit):
-    :class:`RequestRefused` 413 (too large; the body is never echoed) or 400 (not JSON, too
-    deep)."""
+    """``body`` as JSON; refused 413 when too large (never echoed), 400 when bad or too deep."""
     if len(body) > MAX_BODY:
         raise RequestRefused(413, f"refused: {what} is larger than {MAX_BODY // 1024} KiB")
     depth = json_depth(body)

@@ -47,26 +47,9 @@ def serve(
     token: str | None = None,
     footage_dir: str | Path | None = None,
 ) -> None:
-    """Open the recording and serve the GUI until interrupted.
-
-    Bound to localhost by default (reach it from another machine with
-    ``ssh -L 8765:localhost:8765 node``); binding to any other address requires a
-    random access token, which is part of the printed URL.
-
-    Parameters
-    ----------
-    results
-        A recording's output directory or its ``results.h5``.
-    host, port
-        Where to listen; a busy ``port`` is replaced by a free one.
-    open_browser
-        Open the URL in the local browser (if there is one).
-    token
-        The access token when not on localhost (default: a random one).
-    footage_dir
-        The folder holding the recording's videos, when it is not where the result
-        says (moved, or a relative path from elsewhere).
-    """
+    """Open the recording (its output directory or ``results.h5``) and serve the GUI until
+    interrupted; any ``host`` but localhost requires an access ``token`` (default: random, part of
+    the printed URL). A busy ``port`` is replaced by a free one."""
     import uvicorn
 
     from .app import create_app

@@ -1,17 +1,11 @@
 """The state behind ``flylib gui``: one recording's result, its footage and the edits.
 
-The 2D a point is solved from is what triangulation read (pictorial structures' 2D
-when that stage ran, else pose2d's), with the corrections applied; every edit
-re-solves that one (frame, point) with
-:func:`flylib.pipeline.triangulation.compute_triangulation` on the final rig and the
-run's own ``triangulation`` table, the step the triangulation stage runs, so what the
-page shows is what the workflow computes after saving.
-``results.h5`` is only read; the only files written are the corrections sidecar,
-inside the output directory, and beside it its edit journal and lock
-(:mod:`flylib.gui.journal`): every edit is journaled (fsync'd) before it is applied
-and replayed by the next session when it was not saved. One revision number counts
-the session's edits, so a page whose revision is behind is told and refreshed instead
-of overwriting what another tab did.
+Every edit re-solves its (frame, point) from the 2D triangulation read (pictorial structures' or
+pose2d's), corrections applied, with :func:`~flylib.pipeline.triangulation.compute_triangulation`
+and the run's ``triangulation`` table: the page shows what the workflow computes after saving.
+``results.h5`` is only read; only the corrections sidecar (inside the output directory), its
+journal and lock (:mod:`flylib.gui.journal`) are written. A revision number counts the edits, so a
+page that is behind is refreshed instead of overwriting what another tab did.
 """
 
 from __future__ import annotations
@@ -32,8 +26,7 @@ from ..pipeline.triangulation import TriangulationInputs, compute_triangulation
 from .frames import FrameSource
 from .journal import EditJournal, SidecarLock, read_journal
 
-#: The edit operations a page may send; ``set3d`` (a 3D point) is what the journal
-#: records for ``move3d``, whose result depends on the 3D at the time of the edit.
+#: Edit ops a page may send; the journal records ``move3d`` as ``set3d`` (its 3D at edit time).
 EDIT_OPS = (
     "move",
     "move3d",
@@ -62,13 +55,7 @@ log = logging.getLogger(__name__)
 
 
 def resolve_results(path: str | Path) -> Path:
-    """``results.h5`` from a recording's output directory or the file itself.
-
-    Raises
-    ------
-    ResultsError
-        When neither is there (one line naming the path).
-    """
+    """``results.h5`` from a recording's output directory or the file itself; else ResultsError."""
     path = Path(path).expanduser()
     if path.is_dir():
         path = path / "results.h5"
@@ -100,27 +87,11 @@ def _nan_to_none(arr: np.ndarray, digits: int = 3) -> list:
 
 
 class ReviewSession:
-    """One recording opened for review.
+    """One recording (``results.h5`` or its output directory) opened for review.
 
-    Parameters
-    ----------
-    results
-        ``results.h5`` or the output directory holding it.
-    config
-        The run's config; default: the snapshot ``<outdir>/config.yaml`` (``.toml``),
-        else :meth:`flylib.config.Config.default`.
-    footage
-        ``view -> files``; default: found in the recording directory named in the
-        result's meta, through the config's ``sources``.
-    footage_dir
-        Where the footage is (``flylib gui --footage-dir``): used instead of the
-        recording directory the result names.
-
-    Attributes
-    ----------
-    footage_missing
-        What the page's banner says when a view has no footage (the directories
-        looked in and the fix), else ``""``.
+    ``config`` defaults to the run's snapshot in the outdir; ``footage`` (``view -> files``) to
+    what its ``sources`` find in the recording directory (or ``footage_dir``). When a view has no
+    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix).
     """
 
     def __init__(
@@ -145,7 +116,6 @@ class ReviewSession:
         if config is None:
             config = Config.of_outputs(self.outdir)
         self.config = config
-        # what every edit re-solves its point with: the triangulation stage's inputs
         self.triangulation_inputs = TriangulationInputs.from_config(config)
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
@@ -192,14 +162,13 @@ class ReviewSession:
             if result.reproj_error is not None
             else np.full((v, t, p), np.nan)
         )
-        self.error_before = self.error.copy()  # the result's, for the save check
+        self.error_before = self.error.copy()  # for the save check
         self._lock = threading.RLock()
         self._suspects = None
         self._suspects_stale = True
         self.dirty = False  # edits not yet saved
         self.notice = ""  # what the page and the terminal say on start (a replayed journal)
-        # the items to review: the suspects of the result as written, without this
-        # session's edits, so "12 / 21 reviewed" counts the same after a restart
+        # the result's own suspects, so that "12 / 21 reviewed" counts the same after a restart
         self.review_items = self._find_suspects(self.base2d, None).items()
         self._replay_journal()
         for tt, pp in np.argwhere(self.corrections.corrected_points()):
@@ -242,12 +211,9 @@ class ReviewSession:
         return path
 
     def footage_candidates(self, footage_dir: str | Path | None = None) -> list[Path]:
-        """Where the footage may be, in the order tried: ``footage_dir`` alone when
-        given; else the recording directory as the result names it (a relative one
-        from the current directory), the absolute path recorded beside it when the
-        result was written (``recording_abspath``), and a relative one from the
-        output directory and the directories above it (the run's working directory
-        is usually one of them)."""
+        """Where the footage may be, in order: ``footage_dir`` alone when given; else the recording
+        directory the result names, its ``recording_abspath``, and the named (relative) one from
+        the output directory and those above it (the run's working directory is usually one)."""
         if footage_dir is not None:
             return [Path(footage_dir).expanduser()]
         named = Path(self.recording_dir).expanduser() if self.recording_dir else None
@@ -259,8 +225,7 @@ class ReviewSession:
         return list(dict.fromkeys(candidates))
 
     def _find_footage(self, footage_dir: str | Path | None = None) -> dict[str, list[Path]]:
-        """Each view's footage from the first candidate directory holding any; what is
-        missing is said in :attr:`footage_missing` (and logged)."""
+        """Each view's footage from the first candidate holding any; else :attr:`footage_missing`."""
         from ..config.sources import footage_globs
         from ..interop.views import footage_files
 
@@ -299,7 +264,6 @@ class ReviewSession:
     # -- reading -----------------------------------------------------------------------
 
     def view_index(self, view: str) -> int:
-        """Index of a camera name."""
         if view not in self.view_names:
             raise KeyError(f"unknown camera {view!r}")
         return self.view_names.index(view)
@@ -349,10 +313,9 @@ class ReviewSession:
         }
 
     def points(self, frame: int) -> dict:
-        """Everything drawn at one frame: ``frame``; per view (in view order) ``points2d``
-        (the 2D triangulation reads, edits applied), ``used`` (kept by the solver),
-        ``reprojected`` (the 3D ghost), ``error``, ``edited``, ``invisible``; ``points3d``;
-        ``corrected``; the frame's ``suspects``."""
+        """Everything drawn at one frame: per view ``points2d`` (what triangulation reads, edits
+        applied), ``used`` (kept by the solver), ``reprojected`` (the 3D ghost), ``error`` and the
+        edit flags; ``points3d``, ``corrected`` and the frame's ``suspects``."""
         t = self._check_frame(frame)
         with self._lock:
             given, _ = self.corrections.subset([t], slice(None)).apply_2d(self.base2d[:, [t]])
@@ -375,8 +338,7 @@ class ReviewSession:
                 )
             c = self.corrections
             corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
-            # the last computed suspects: re-finding them is left to suspects(), so an
-            # edit's reply stays cheap on a long recording
+            # the cached suspects (suspects() re-finds them): an edit's reply stays cheap
             cached = self._suspects if self._suspects is not None else self.suspects()
             suspects = cached.records(frame=t)
             return {
@@ -392,7 +354,7 @@ class ReviewSession:
             }
 
     def suspects(self):
-        """Suspects of the current state (recomputed after edits, lazily)."""
+        """Suspects of the current state (recomputed lazily after edits)."""
         with self._lock:
             if self._suspects is None or self._suspects_stale:
                 self._suspects_stale = False
@@ -417,20 +379,14 @@ class ReviewSession:
         )
 
     def review(self) -> dict:
-        """Review progress: each item of the result's suspects (:attr:`review_items`)
-        with ``done`` (every frame of it marked reviewed / OK or corrected), and the
-        counts ``done`` / ``total``."""
+        """Each of :attr:`review_items` with ``done`` (all its frames reviewed or corrected)."""
         with self._lock:
             settled = self.corrections.reviewed | self.corrections.corrected_points()
             items = [
                 {**item, "done": bool(settled[item["frames"], item["point"]].all())}
                 for item in self.review_items
             ]
-        return {
-            "items": items,
-            "done": sum(item["done"] for item in items),
-            "total": len(items),
-        }
+        return {"items": items, "done": sum(item["done"] for item in items), "total": len(items)}
 
     def suspects_payload(self) -> dict:
         s = self.suspects()
@@ -442,13 +398,8 @@ class ReviewSession:
         }
 
     def save_check(self, worse_px: float = 2.0) -> dict:
-        """What the edits made worse, said before saving: corrected points whose
-        largest reprojection error over the views grew by more than ``worse_px``
-        pixels, and suspects that the result did not have.
-
-        Returns ``worse`` and ``new_suspects`` (one line each, at most 10 each) and ``count``
-        of both in all.
-        """
+        """What the edits made worse, said before saving: ``worse`` (corrected points whose largest
+        error grew by more than ``worse_px``) and ``new_suspects``, 10 lines each, and ``count``."""
         names = self.skeleton.point_names
         with self._lock:
             corrected = self.corrections.corrected_points()
@@ -502,48 +453,18 @@ class ReviewSession:
         revision: int | None = None,
         durable: bool = True,
     ) -> dict:
-        """Check one edit, journal it (fsync'd), apply it and re-solve what it touched.
+        """Check one edit, journal it, apply it and re-solve what it touched; :meth:`points` of
+        the frame plus ``solve_ms`` and ``journal_ms``.
 
-        Parameters
-        ----------
-        op
-            ``move`` (place the point at ``xy`` in ``view``: Edit 2D), ``move3d`` (Edit 3D:
-            move the 3D point the least so that it projects onto ``xy`` in ``view``, the
-            closest point to it on that pixel's ray), ``invisible`` (drop it in ``view``),
-            ``reset_point`` (``view`` given: that view only; else every view and its 3D
-            edit), ``reset_view``, ``reset_frame``, or ``reviewed`` / ``unreviewed``
-            (mark the point at this frame reviewed / OK, or clear the mark: review
-            progress, stored in the sidecar, nothing re-solved).
-        frame, point, view, xy
-            The target; ``frame`` and ``point`` integers (not booleans), ``xy`` two
-            finite raw-frame pixel coordinates inside the view's image.
-        fixed
-            ``move``: mark the placed point ``fixed`` (always kept by the robust
-            triangulation, the seed GUI's "finalized" state); a boolean, journaled
-            with the edit.
-        revision
-            The revision the page last saw; an edit against an older one is refused
-            (:class:`StaleRevision`), so a stale tab never overwrites a newer edit.
-        durable
-            fsync the journal line (default); ``False`` only flushes it, which
-            survives a crash of the server but not of the machine (the page's
-            intermediate drag positions, whose final one comes durable).
-
-        Returns
-        -------
-        dict
-            :meth:`points` of the frame after the edit (with the new ``revision``),
-            plus ``solve_ms`` (the time spent re-solving) and ``journal_ms`` (writing
-            and fsync-ing the journal line).
-
-        Raises
-        ------
-        KeyError, IndexError, ValueError
-            An unknown view, an index out of range, or a bad operation / coordinate.
-        StaleRevision
-            ``revision`` is behind the session's.
-        OutputError
-            The journal cannot be written (the edit is not applied).
+        ``op``: ``move`` (Edit 2D: place the point at ``xy`` in ``view``), ``move3d`` (Edit 3D: the
+        3D point to the closest point on ``xy``'s ray), ``invisible`` (drop it in ``view``),
+        ``reset_point`` (in ``view``, else everywhere with its 3D edit), ``reset_view``,
+        ``reset_frame``, ``reviewed`` / ``unreviewed`` (the review mark, nothing re-solved).
+        ``xy``: raw-frame pixels inside the view's image. ``fixed`` (``move``): the robust
+        triangulation always keeps the point. ``revision``: the page's; an older one raises
+        :class:`StaleRevision`. ``durable=False`` (a drag's intermediate positions) only flushes
+        the journal line. Bad arguments raise KeyError / IndexError / ValueError; a journal that
+        cannot be written, OutputError (the edit is not applied).
         """
         with self._lock:
             self._check_revision(revision)
@@ -668,8 +589,7 @@ class ReviewSession:
             applied += 1
         self.revision += applied
         self.dirty = applied > 0
-        # counted as Save counts them (points), not journal lines (a drag journals
-        # each of its positions)
+        # counted as Save counts them (points), not journal lines (a drag journals each position)
         changed, marks = _changes(before, self.corrections)
         steps = f", {applied} journal steps" if applied != changed else ""
         marks_text = f" and {marks} review mark(s)" if marks else ""
@@ -731,21 +651,8 @@ class ReviewSession:
         return np.asarray(closest_point_on_ray(origin, direction, target), dtype=np.float64)
 
     def save(self, *, revision: int | None = None) -> Path:
-        """Write the corrections sidecar atomically inside the outdir, then drop the
-        journal; ``results.h5`` is untouched.
-
-        Parameters
-        ----------
-        revision
-            The revision the page shows; a save from a page that is behind is refused
-            (:class:`StaleRevision`), so a person never saves what they have not seen.
-
-        Raises
-        ------
-        OutputError
-            The sidecar cannot be written (full disk, read-only directory: one line
-            with the reason); the edits stay in memory and in the journal.
-        """
+        """Write the corrections sidecar atomically, then drop the journal; a page that is
+        behind gets :class:`StaleRevision`, an unwritable sidecar OutputError (edits kept)."""
         with self._lock:
             self._check_revision(revision)
             self.corrections.revision = self.revision
@@ -767,8 +674,7 @@ class ReviewSession:
     # -- background prefetch ---------------------------------------------------------------
 
     def visit(self, frame: int) -> None:
-        """The user is at ``frame``: warm the cache for the neighbouring suspect frames
-        (where ``n`` / ``p`` go next), in the background with each view's spare decoder."""
+        """The user is at ``frame``: prefetch the neighbouring suspect frames (``n`` / ``p``)."""
         if self._suspects is None:
             return
         frames = self._suspects.frames
@@ -792,8 +698,7 @@ class ReviewSession:
                     return
                 try:
                     self.frames[name].prefetch(frame)
-                # reported when asked for
-                except (FlylibError, OSError, ValueError, IndexError) as exc:
+                except (FlylibError, OSError, ValueError, IndexError) as exc:  # reported on request
                     log.debug("prefetch of %s frame %d failed: %s", name, frame, exc)
 
     def close(self) -> None:
@@ -812,8 +717,7 @@ _MAX_INT = 2**63 - 1
 
 
 def shown(value: Any) -> str:
-    """``value`` as a message quotes it: at most 40 characters, a long number as its
-    first digits and its length (a request may carry a 4,000-digit integer)."""
+    """``value`` quoted in a message: at most 40 characters, a long number shortened."""
     text = str(value)
     if isinstance(value, int) and len(text) > 24:
         return f"{text[:12]}...({len(text.lstrip('-'))} digits)"
@@ -838,8 +742,7 @@ def _integer(name: str, value: Any) -> int:
 
 
 def _finite(name: str, value: int | float, what: str) -> float:
-    """``value`` as a finite float; an integer too large for one (JSON allows any
-    length) or a non-finite number is a ``ValueError``, never an ``OverflowError``."""
+    """``value`` as a finite float; else a ``ValueError`` (never an ``OverflowError``)."""
     try:
         number = float(value)
     except OverflowError:
@@ -850,8 +753,7 @@ def _finite(name: str, value: int | float, what: str) -> float:
 
 
 def _changes(before: Corrections, after: Corrections) -> tuple[int, int]:
-    """How many point edits (observations and 3D points, as
-    :meth:`~flylib.corrections.Corrections.count` counts them) and review marks differ."""
+    """How many point edits (as ``Corrections.count`` counts them) and review marks differ."""
 
     def differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return ~((a == b) | (np.isnan(a) & np.isnan(b))).all(-1)

@@ -1,8 +1,5 @@
-"""flylib.interop's names and the modules they come from.
-
-``flylib/interop/__init__.py`` reads this file (``lazy_loader.attach_stub``) and loads each
-module on first use of one of its names.
-"""
+"""flylib.interop's names and their modules: ``__init__.py`` reads this file
+(``lazy_loader.attach_stub``) and loads each module on first use of one of its names."""
 
 from .anipose import (
     calibration_from_index as calibration_from_index,

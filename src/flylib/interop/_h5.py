@@ -1,21 +1,19 @@
 """Opening another tool's HDF5 file so that it cannot reach beyond itself.
 
-A foreign HDF5 file (a SLEAP analysis file, a DeepLabCut ``.h5``) is untrusted input.
-HDF5 lets a file borrow bytes from elsewhere: a dataset's raw data may live in other
-files (external storage, ``Dataset.external``), a link may name an object in another
-file (``ExternalLink``, which HDF5 opens when the link is followed -- a FIFO there
-blocks forever), a virtual dataset maps other files' datasets, and a soft link may
-route through any of these. And a dataset declares its shape: a sparse or compressed
-dataset of a few hundred bytes on disk can declare terabytes, which a read allocates.
+A foreign HDF5 file (a SLEAP analysis file, a DeepLabCut ``.h5``) is untrusted input. HDF5 lets a
+file borrow bytes from elsewhere: a dataset's raw data may live in other files (external storage,
+``Dataset.external``), a link may name an object in another file (``ExternalLink``, which HDF5 opens
+when the link is followed -- a FIFO there blocks forever), a virtual dataset maps other files'
+datasets, and a soft link may route through any of these. And a dataset declares its shape: a sparse
+or compressed dataset of a few hundred bytes on disk can declare terabytes, which a read allocates.
 
-So members are looked up here one path component at a time from the link table,
-never through h5py's ``in`` / ``[]`` on a full path (which resolves, and so opens,
-external links): external and user-defined links are refused without being
-followed, soft links are resolved by the same walk, and a dataset is read only after
-its storage is checked (no external files, not virtual) and its declared size and
-chunk size are under a budget derived from the recording (:func:`read_budget`). What
-makes a link or a dataset unsafe is :mod:`flylib.results.guard`'s, which checks
-flylib's own files whole.
+So members are looked up one path component at a time from the link table, never through h5py's
+``in`` / ``[]`` on a full path (which resolves, and so opens, external links): external and
+user-defined links are refused without being followed, soft links are resolved by the same walk, and
+a dataset is read only after its storage is checked (no external files, not virtual) and its
+declared size and chunk size are under a budget derived from the recording (:func:`read_budget`).
+What makes a link or a dataset unsafe is :mod:`flylib.results.guard`'s, which checks flylib's own
+files whole.
 """
 
 from __future__ import annotations
@@ -41,14 +39,13 @@ __all__ = [
     "reading_foreign_h5",
 ]
 
-#: Bytes one dataset of a foreign file may hold when the recording's frame count is
-#: unknown (no footage to count): 2 GiB, a 100,000-frame recording of 1,300 points.
+#: Bytes one dataset of a foreign file may hold when the recording's frame count is unknown (no
+#: footage to count): 2 GiB, a 100,000-frame recording of 1,300 points.
 DEFAULT_READ_BUDGET = 2 << 30
 #: The smallest budget, whatever the recording: short recordings still get room.
 _BUDGET_FLOOR = 64 << 20
-#: Values one frame of one view may hold: (x, y, score) of up to 64 tracks or
-#: individuals of the skeleton's points (at least 64 points, as a file may carry
-#: body parts the import maps away).
+#: Values one frame of one view may hold: (x, y, score) of up to 64 tracks or individuals of the
+#: skeleton's points (at least 64 points, as a file may carry body parts the import maps away).
 _TRACKS_PER_FRAME = 64
 #: Soft links followed in one lookup before the chain is refused (a cycle, or a maze).
 _MAX_SOFT_LINK_HOPS = 16
@@ -56,9 +53,9 @@ _MAX_SOFT_LINK_HOPS = 16
 
 def read_budget(frames: int | None, points: int) -> int:
     """Bytes one dataset of a per-view foreign file may hold for this recording:
-    ``frames x 3 values x 64 tracks x max(points, 64) x 8 bytes``, at least 64 MiB and
-    at most :data:`DEFAULT_READ_BUDGET`; the latter when ``frames`` (the view's frame
-    count, from its footage) is unknown. ``points``: the skeleton's point count."""
+    ``frames x 3 values x 64 tracks x max(points, 64) x 8 bytes``, at least 64 MiB and at most
+    :data:`DEFAULT_READ_BUDGET`; the latter when ``frames`` (the view's frame count, from its
+    footage) is unknown. ``points``: the skeleton's point count."""
     if frames is None:
         return DEFAULT_READ_BUDGET
     per_frame = 3 * _TRACKS_PER_FRAME * max(int(points), 64) * 8
@@ -67,13 +64,10 @@ def read_budget(frames: int | None, points: int) -> int:
 
 @contextmanager
 def reading_foreign_h5(path: str | Path, what: str, hint: str) -> Iterator[h5py.File]:
-    """Open ``path`` read-only (:func:`~flylib.results.hdf5.open_hdf5`, a missing or
-    unreadable file one :class:`ImportFormatError` naming ``what`` and ``hint``), as a
-    context whose h5py read errors become one line.
-
-    Errors raised while reading inside the block (:data:`H5_READ_ERRORS`) are re-raised
-    as :class:`ImportFormatError` naming ``path``; flylib's own errors pass unchanged.
-    """
+    """Open ``path`` read-only (:func:`~flylib.results.hdf5.open_hdf5`: a missing or unreadable file
+    is one :class:`ImportFormatError` naming ``what`` and ``hint``); h5py read errors
+    (:data:`H5_READ_ERRORS`) inside the block are re-raised as one-line :class:`ImportFormatError`
+    naming ``path``, flylib's own errors pass unchanged."""
     with open_hdf5(path, hint, what, error=ImportFormatError, guard=False) as fh:
         try:
             yield fh
@@ -95,16 +89,11 @@ def _refuse(path, where: str, reason: str, what: str, hint: str) -> ImportFormat
 def foreign_member(
     fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, _hops: int = 0
 ) -> h5py.Group | h5py.Dataset | h5py.Datatype | None:
-    """The object at ``name`` (``"df_with_missing/table"``) inside ``fh``, reached
-    without leaving the file; ``None`` when no link of that path exists. ``path``,
-    ``what`` and ``hint`` (the file, what it should be, the fix) are for messages.
-
-    Raises
-    ------
-    ImportFormatError
-        A component of the path is an external or user-defined link (not followed),
-        or a chain of soft links is longer than 16 hops.
-    """
+    """The object at ``name`` (``"df_with_missing/table"``) inside ``fh``, reached without leaving
+    the file; ``None`` when no link of that path exists. ``path``, ``what`` and ``hint`` (the file,
+    what it should be, the fix) are for messages. A path component that is an external or
+    user-defined link (not followed), or a chain of more than 16 soft links, is an
+    :class:`ImportFormatError`."""
     from h5py import h5l
 
     if _hops > _MAX_SOFT_LINK_HOPS:
@@ -138,17 +127,11 @@ def foreign_member(
 def checked_dataset(
     fh: h5py.File, name: str, path: str | Path, what: str, hint: str, *, max_bytes: int
 ) -> h5py.Dataset | None:
-    """The dataset at ``name`` (as for :func:`foreign_member`), checked to be safe to
-    read whole; ``None`` if absent. ``max_bytes`` (:func:`read_budget`) bounds the
-    dataset and any one of its chunks, decompressed.
-
-    Raises
-    ------
-    ImportFormatError
-        The member is not a dataset, keeps its data in other files (external storage,
-        a virtual dataset), or declares more than ``max_bytes`` -- a sparse or
-        compressed "bomb" is refused before anything is allocated.
-    """
+    """The dataset at ``name`` (as for :func:`foreign_member`), checked to be safe to read whole;
+    ``None`` if absent. A member that is no dataset, keeps its data in other files (external
+    storage, a virtual dataset), or declares more than ``max_bytes`` (:func:`read_budget`; the
+    dataset or any one chunk, decompressed) is an :class:`ImportFormatError`: a sparse or compressed
+    "bomb" is refused before anything is allocated."""
     obj = foreign_member(fh, name, path, what, hint)
     if obj is None:
         return None

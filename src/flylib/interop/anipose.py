@@ -1,14 +1,13 @@
 """Camera rigs from calibration files: Anipose TOML, DeepFly3D pickle, calibrations.csv.
 
-Anipose TOML (seed 003): one ``[cam_N]`` table per camera with ``name``,
-``size = [width, height]``, ``matrix`` (3x3 K), ``distortions`` (OpenCV order
-``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to camera) and
-``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
+Anipose TOML: one ``[cam_N]`` table per camera with ``name``, ``size = [width, height]``, ``matrix``
+(3x3 K), ``distortions`` (OpenCV order ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to
+camera) and ``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
 ``cv2.projectPoints`` with the same numbers gives the same pixels as
 :meth:`flylib.camera.rig.CameraGroup.project`.
 
-Config (top-level ``calibration`` table) -- take the rig from a file instead of the
-orbit parameters::
+Config (top-level ``calibration`` table) -- take the rig from a file instead of the orbit
+parameters::
 
     calibration:
       file: calibration.toml     # or a DeepFly3D calib pickle
@@ -20,11 +19,10 @@ orbit parameters::
       index: calibrations.csv    # rows "<...>/<session>/<image>,<toml path>"
       session: null              # default: the recording directory's name
 
-Views are matched by name (an Anipose camera whose ``name`` is the view name); a
-DeepFly3D pickle's cameras are matched by index to the views in config order.
-Relative paths resolve against the recording directory when the file is there, else
-against the config file's directory, else the working directory; paths inside
-``calibrations.csv`` are relative to the CSV.
+Views are matched by name (an Anipose camera whose ``name`` is the view name); a DeepFly3D pickle's
+cameras are matched by index to the views in config order. Relative paths resolve against the
+recording directory when the file is there, else against the config file's directory, else the
+working directory; paths inside ``calibrations.csv`` are relative to the CSV.
 """
 
 from __future__ import annotations
@@ -48,19 +46,12 @@ CALIBRATION_FORMATS = ("anipose", "deepfly3d")
 
 
 def read_anipose_toml(path: Path) -> dict[str, dict]:
-    """Read an Anipose calibration TOML.
+    """Read an Anipose calibration TOML: ``camera name -> dict`` in ``cam_N`` order, with ``size``
+    ``(width, height)`` (or ``None``) and float64 ``kmat`` (3, 3), ``dist`` (K,), ``rvec`` (3,),
+    ``tvec`` (3,).
 
-    Returns
-    -------
-    dict
-        ``camera name -> {"size": (width, height), "kmat" (3, 3), "dist" (K,),
-        "rvec" (3,), "tvec" (3,)}`` in ``cam_N`` order (float64).
-
-    Raises
-    ------
-    ImportFormatError
-        A missing key, a wrong shape, a K whose last row is not ``[0, 0, 1]`` or that
-        has skew, or two cameras with the same name.
+    A missing key, a wrong shape, a K whose last row is not ``[0, 0, 1]`` or that has skew, or two
+    cameras with the same name is an :class:`ImportFormatError`.
     """
     path = Path(path)
     if not path.is_file():
@@ -127,19 +118,12 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
 def write_anipose_toml(
     cameras, path: Path, image_sizes: dict | None = None, metadata: dict | None = None
 ) -> Path:
-    """Write a camera rig as an Anipose calibration TOML (atomically); returns ``path``.
+    """Write a camera rig (a :class:`flylib.camera.rig.CameraGroup`) as an Anipose calibration TOML
+    (atomically); returns ``path``.
 
-    Parameters
-    ----------
-    cameras
-        A :class:`flylib.camera.rig.CameraGroup` (``names``, ``rvecs``, ``tvecs``,
-        ``intrs`` ``[fx, fy, cx, cy]``, ``dists``).
-    image_sizes
-        ``view -> (height, width)`` of the raw frames; written as ``size = [w, h]``.
-        A camera without one gets ``size = [2 cx, 2 cy]`` (the principal point at the
-        image centre), the best guess Anipose can use.
-    metadata
-        Extra ``[metadata]`` entries (TOML-able values).
+    ``image_sizes``: ``view -> (height, width)`` of the raw frames, written as ``size = [w, h]``; a
+    camera without one gets ``size = [2 cx, 2 cy]`` (the principal point at the image centre), the
+    best guess Anipose can use. ``metadata``: extra ``[metadata]`` entries (TOML-able values).
     """
     import tomli_w
 
@@ -189,16 +173,12 @@ def _session_parts(text: str) -> tuple[str, ...]:
 
 
 def calibration_from_index(index_csv: Path, session: str) -> Path:
-    """The calibration file ``calibrations.csv`` gives for a recording session.
+    """The calibration file ``calibrations.csv`` gives for a recording session: a row belongs to
+    ``session`` when its first column is the session name or a path with ``session`` as a directory
+    component (``labeled-data/<session>/img.png``).
 
-    A row belongs to ``session`` when its first column is the session name or a path
-    with ``session`` as a directory component (``labeled-data/<session>/img.png``).
-
-    Raises
-    ------
-    ImportFormatError
-        When the index is missing or malformed, or lists no file or several
-        different files for the session.
+    A missing or malformed index, or no file or several different files for the session, is an
+    :class:`ImportFormatError`.
     """
     import pandas as pd
 
@@ -235,8 +215,8 @@ def calibration_from_index(index_csv: Path, session: str) -> Path:
 
 
 def calibration_file(spec: Mapping, recording_dir: Path | None, config_dir: Path | None) -> Path:
-    """The calibration file a ``calibration`` table names (through its index if any),
-    relative paths resolved as :func:`load_calibration` resolves them."""
+    """The calibration file a ``calibration`` table names (through its index if any), relative paths
+    resolved as :func:`load_calibration` resolves them."""
     if "index" in spec:
         return calibration_from_index(
             _resolve(spec["index"], recording_dir, config_dir), _session(spec, recording_dir)
@@ -259,20 +239,13 @@ def calibration_inputs(
     *,
     config_dir: Path | None = None,
 ) -> list[Path]:
-    """The files a ``calibration`` table reads for one recording.
+    """The files a ``calibration`` table reads for one recording: the index CSV (if any) and the
+    calibration file, those that exist (``[]`` without a ``calibration`` table).
 
-    The workflow lists them as inputs of the rules that build the config rig, so
-    editing a calibration file (or its ``calibrations.csv`` row) re-runs those stages.
-    Files that do not exist, or an index without a row for the session, are left out:
-    the stage itself then fails with the message naming the file and the fix.
-
-    Relative paths, and the index's session, resolve as in :func:`load_calibration`.
-
-    Returns
-    -------
-    list of Path
-        ``[]`` without a ``calibration`` table; else the index CSV (if any) and the
-        calibration file, those that exist.
+    The workflow lists them as inputs of the rules that build the config rig, so editing a
+    calibration file (or its ``calibrations.csv`` row) re-runs those stages. Missing files, or an
+    index without a row for the session, are left out: the stage itself then fails naming the file
+    and the fix. Relative paths, and the index's session, resolve as in :func:`load_calibration`.
     """
     spec = calibration
     if not isinstance(spec, Mapping) or not ({"file", "index"} & set(spec)):
@@ -295,39 +268,20 @@ def load_calibration(
     *,
     config_dir: Path | None = None,
 ):
-    """The camera rig from a ``calibration`` table (module docstring).
+    """The camera rig (a :class:`flylib.camera.rig.CameraGroup`, one camera per view in ``views``
+    order) from a ``calibration`` table (module docstring).
 
-    Parameters
-    ----------
-    calibration
-        The config's ``calibration`` table; ``mirror: true`` returns the file's rig in
-        mirrored world coordinates (:func:`flylib.handedness.mirror_cameras`: the same
-        pixels, the 3D mirrored), for a file whose world is the fly's mirror image.
-    views
-        The views (the config's ``cameras`` in order); none: the file's cameras, in
-        the file's order.
-    recording_dir
-        The recording; relative paths may resolve against it, and it names the
-        session for ``calibration.index``.
-    image_sizes
-        ``view -> (height, width)`` of the recording's footage, checked against the
-        sizes an Anipose file records (a lens calibrated at another resolution does
-        not fit the footage).
-    config_dir
-        The config file's folder: where a relative path is looked up after the
-        recording's.
+    ``mirror: true`` in the table returns the file's rig in mirrored world coordinates
+    (:func:`flylib.handedness.mirror_cameras`: the same pixels, the 3D mirrored), for a file whose
+    world is the fly's mirror image. No ``views`` (the config's ``cameras``): the file's cameras, in
+    its order. ``recording_dir`` is where relative paths are looked up first (then ``config_dir``,
+    the config file's folder) and names the session for ``calibration.index``. ``image_sizes``
+    (``view -> (height, width)`` of the footage) are checked against the sizes an Anipose file
+    records: a lens calibrated at another resolution does not fit the footage.
 
-    Returns
-    -------
-    flylib.camera.rig.CameraGroup
-        One camera per view, in ``views`` order.
-
-    Raises
-    ------
-    ImportFormatError
-        No ``calibration`` table, an unknown format, or a view with no camera in the file.
-    FootageError
-        A view's footage size differs from the size its camera was calibrated at.
+    Raises :class:`ImportFormatError` (no ``calibration`` table, an unknown format, a view with no
+    camera in the file) or :class:`FootageError` (a view's footage size differs from its calibrated
+    size).
     """
     from ..camera.rig import CameraGroup
 
@@ -388,8 +342,7 @@ def load_calibration(
 
 
 def _check_calibrated_sizes(path, views, chosen, image_sizes, recording_dir) -> None:
-    """Each view's footage (height, width) against the ``size`` ([width, height]) its
-    camera has in the calibration file."""
+    """Each view's footage (height, width) against its camera's ``size`` ([width, height])."""
     for view, cam in zip(views, chosen):
         footage = image_sizes.get(view)
         if cam is None or cam["size"] is None or footage is None:

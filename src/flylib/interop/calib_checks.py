@@ -1,10 +1,7 @@
-"""Checks every calibration value read from another tool's file, with messages that
-name the file, the camera section and the key.
-
-A calibration value that is text, the wrong shape, NaN or infinite would otherwise
-surface far from the file -- as a solver's "initial guess outside bounds", NaN points
-in the output, or an error naming another camera -- so each is checked where it is read.
-"""
+"""Checks every calibration value read from another tool's file, with messages naming the file, the
+camera section and the key: a value that is text, the wrong shape, NaN or infinite would otherwise
+surface far from the file (a solver's "initial guess outside bounds", NaN points, an error naming
+another camera)."""
 
 from __future__ import annotations
 
@@ -27,11 +24,9 @@ def _describe(value) -> str:
 
 
 def numeric_array(value, where: str, key: str, fix: str) -> np.ndarray:
-    """``value`` as a float64 array, or :class:`ImportFormatError` naming ``where`` and ``key``.
-
-    Accepts NumPy arrays of booleans/integers/floats and (nested) lists of numbers;
-    text, objects or ragged nesting are refused with ``fix`` as the remedy.
-    """
+    """``value`` (a NumPy array of booleans/integers/floats, or nested lists of numbers) as a
+    float64 array; text, objects or ragged nesting are an :class:`ImportFormatError` naming
+    ``where`` and ``key``, with ``fix`` as the remedy."""
     if isinstance(value, (str, bytes, dict)):
         raise ImportFormatError(f"{where}: {key!r} is {_describe(value)}, not numbers; {fix}")
     try:
@@ -44,23 +39,13 @@ def numeric_array(value, where: str, key: str, fix: str) -> np.ndarray:
 
 
 def camera_value(value, kind: str, where: str, key: str) -> np.ndarray:
-    """One camera's calibration value, checked: numbers, its shape or count, all finite.
+    """One camera's calibration value, checked (numbers, its shape or count, all finite) and
+    returned as float64 ``(3, 3)``, ``(3,)`` or ``(K,)``.
 
-    Parameters
-    ----------
-    value
-        The value as the file holds it.
-    kind
-        ``"matrix"`` (3x3 K with positive focal lengths, no skew), ``"rotmat"`` (3x3
-        rotation), ``"vec3"`` (3 numbers) or ``"dist"`` (0..12 OpenCV coefficients).
-    where, key
-        The file and camera section (``"calib.toml [cam_2] (name 'rh')"``) and the
-        file's key (``"distortions"``), named in the one-line ImportFormatError.
-
-    Returns
-    -------
-    np.ndarray
-        float64, shape ``(3, 3)``, ``(3,)`` or ``(K,)``.
+    ``kind``: ``"matrix"`` (3x3 K with positive focal lengths, no skew), ``"rotmat"`` (3x3
+    rotation), ``"vec3"`` (3 numbers) or ``"dist"`` (0..12 OpenCV coefficients). ``where`` (the file
+    and camera section, ``"calib.toml [cam_2] (name 'rh')"``) and ``key`` (the file's key,
+    ``"distortions"``) are named in the one-line :class:`ImportFormatError`.
     """
     what = {
         "matrix": "a 3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",

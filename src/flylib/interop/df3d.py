@@ -1,41 +1,36 @@
 """DeepFly3D files: the 2D result pickle and the calibration pickle.
 
-2D (``df3d_result*.pkl``, a pickled dict). ``points2d`` ``(C, T, J, 2)`` comes in two
-layouts, told apart from the values themselves (:func:`points2d_layout`):
+2D (``df3d_result*.pkl``, a pickled dict). ``points2d`` ``(C, T, J, 2)`` comes in two layouts, told
+apart from the values themselves (:func:`points2d_layout`):
 
-- DeepFly3D 0.x, normalized: ``[..., 0]`` is row / height (y), ``[..., 1]`` is
-  column / width (x), every value in ``[0, 1]``. An undetected joint is stored as
-  ``(0, 0)``, and as ``(0, 1)`` in the mirrored cameras (the flip maps column 0 to 1).
-  Values are quantized to the heatmap grid, so pixels are ``x = col * width``,
-  ``y = row * height`` (no half-cell shift: that is how DeepFly3D scales them back).
-- DeepFly3D 1.x (the ``df3d`` package's ``df3d_result.pkl``), raw-frame pixels
-  ``(x, y)``, an undetected joint ``(0, 0)``; the same pickle also holds the
-  calibration (NumPy-integer camera keys) and ``points3d``.
+- DeepFly3D 0.x, normalized: ``[..., 0]`` is row / height (y), ``[..., 1]`` column / width (x),
+  every value in ``[0, 1]``; an undetected joint is ``(0, 0)``, and ``(0, 1)`` in the mirrored
+  cameras (the flip maps column 0 to 1). Values are quantized to the heatmap grid, so pixels are
+  ``x = col * width``, ``y = row * height`` (no half-cell shift: that is how DeepFly3D scales them
+  back).
+- DeepFly3D 1.x (the ``df3d`` package's ``df3d_result.pkl``): raw-frame pixels ``(x, y)``, an
+  undetected joint ``(0, 0)``; the same pickle also holds the calibration (NumPy-integer camera
+  keys) and ``points3d``.
 
-A file whose values fit neither (pixels beyond the frames, or some cameras
-normalized and others in pixels) is one :class:`ImportFormatError` naming it.
-- ``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per output channel.
-  DeepFly3D's network has ``K = J / 2`` channels, run on one side of the fly at a
-  time, so joint ``j`` takes channel ``j mod K``.
-- ``camera_ordering`` ``(C,)``: DeepFly3D's ``cidread2cid``. Row ``i`` of
-  ``points2d`` is canonical camera ``i``; here it is placed on the ``i``-th
-  configured view (or ``views[i]``), which is right for the default rig.
+A file whose values fit neither (pixels beyond the frames, or some cameras normalized and others in
+pixels) is one :class:`ImportFormatError` naming it.
 
-Joint order. DeepFly3D joints 0-18 are the side seen by cameras 0-2 and joints 19-37
-the side seen by cameras 4-6; within a side: front, middle, hind leg (thorax-coxa,
-coxa-trochanter, femur-tibia, tibia-tarsus, claw), antenna, abdomen 0-2. Cameras 0-2
-(views rh, rm, rf) film the fly's right flank, so DeepFly3D joint ``j`` is fly38
-point ``(j + 19) mod 38``. Checked by eye on the deepfly3d-sample recording (frame 7,
-points drawn over the decoded H.264 frames): in camera_1 the fly faces right with its
-dorsum up (its right flank toward the camera) and the mapped r_antenna sits on the
-head, r_abdomen0-2 along the abdomen, the rf leg points run down the front leg and
-the rh ones down the hind leg; cameras 4-6 show the mirror image with the l* labels
-on the matching left-side parts. Pinned in ``tests/interop/test_interop.py``.
+- ``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per output channel. DeepFly3D's network
+  has ``K = J / 2`` channels, run on one side of the fly at a time, so joint ``j`` takes channel
+  ``j mod K``.
+- ``camera_ordering`` ``(C,)``: DeepFly3D's ``cidread2cid``. Row ``i`` of ``points2d`` is canonical
+  camera ``i``, placed here on the ``i``-th configured view (or ``views[i]``), right for the default
+  rig.
 
-Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3
-world-to-camera rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5,
-OpenCV order); projecting with OpenCV conventions gives raw-frame (x, y) pixels.
-Other keys are ignored.
+Joint order. DeepFly3D joints 0-18 are the side seen by cameras 0-2 and joints 19-37 the side seen
+by cameras 4-6; within a side: front, middle, hind leg (thorax-coxa, coxa-trochanter, femur-tibia,
+tibia-tarsus, claw), antenna, abdomen 0-2. Cameras 0-2 (views rh, rm, rf) film the fly's right
+flank, so DeepFly3D joint ``j`` is fly38 point ``(j + 19) mod 38`` (checked by eye on the
+deepfly3d-sample recording; pinned in ``tests/interop/test_interop.py``).
+
+Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3 world-to-camera
+rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5, OpenCV order); projecting with OpenCV
+conventions gives raw-frame (x, y) pixels. Other keys are ignored.
 """
 
 from __future__ import annotations
@@ -77,17 +72,9 @@ def df3d_joint_to_fly38(joint: int) -> str:
 
 @dataclass
 class Df3dPoints2d:
-    """DeepFly3D 2D output converted to raw-frame pixels.
-
-    Attributes
-    ----------
-    xy
-        ``(C, T, J, 2)`` pixel ``(x, y)``, NaN where the joint was not detected.
-    conf
-        ``(C, T, J)`` heatmap peak of the joint's channel, NaN where not detected.
-    camera_ordering
-        DeepFly3D's ``camera_ordering`` (``cidread2cid``), ``(C,)``.
-    """
+    """DeepFly3D 2D output in raw-frame pixels: ``xy`` ``(C, T, J, 2)`` pixel ``(x, y)`` and
+    ``conf`` ``(C, T, J)`` (the heatmap peak of the joint's channel), NaN where the joint was not
+    detected, and DeepFly3D's ``camera_ordering`` (``cidread2cid``) ``(C,)``."""
 
     xy: Float[np.ndarray, "C T J 2"]
     conf: Float[np.ndarray, "C T J"]
@@ -107,18 +94,10 @@ def load_pickle(path: Path, what: str) -> dict:
 
 
 def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPoints2d:
-    """Read a DeepFly3D 2D result pickle (``df3d_result*.pkl``) into raw-frame pixels.
-
-    Parameters
-    ----------
-    image_sizes
-        ``(height, width)`` of each camera row's raw frames (the normalization base).
-
-    Raises
-    ------
-    ImportFormatError
-        When the pickle lacks ``points2d`` or its shape does not fit.
-    """
+    """Read a DeepFly3D 2D result pickle (``df3d_result*.pkl``) into raw-frame pixels;
+    ``image_sizes`` is the ``(height, width)`` of each camera row's frames (the normalization base).
+    A pickle lacking ``points2d``, or of a shape that does not fit, is an
+    :class:`ImportFormatError`."""
     data = load_pickle(path, "DeepFly3D 2D result")
     if "points2d" not in data:
         raise ImportFormatError(
@@ -165,8 +144,8 @@ def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPo
     return Df3dPoints2d(xy=xy, conf=conf, camera_ordering=ordering)
 
 
-#: How far (as a fraction of the frame) a 1.x pixel coordinate may lie outside its
-#: frame before the file is refused: DeepFly3D's heatmap grid reaches the border.
+#: How far (as a fraction of the frame) a 1.x pixel coordinate may lie outside its frame before the
+#: file is refused: DeepFly3D's heatmap grid reaches the border.
 _PIXEL_MARGIN = 0.05
 
 
@@ -175,12 +154,12 @@ def points2d_layout(
     image_sizes: Float[np.ndarray, "C 2"],
     path: Path | str = "points2d",
 ) -> str:
-    """Which DeepFly3D layout ``points2d`` (as stored) is in, ``"normalized"`` or
-    ``"pixels"``, decided from its values; ``image_sizes`` is ``(height, width)`` per camera.
+    """Which DeepFly3D layout ``points2d`` (as stored) is in, ``"normalized"`` or ``"pixels"``,
+    decided from its values; ``image_sizes`` is ``(height, width)`` per camera.
 
-    A camera whose detected coordinates all lie in ``[0, 1]`` is normalized (0.x);
-    one with a coordinate above 1 is in pixels (1.x) and must stay within its frame.
-    Cameras that disagree, or pixels outside the frames, are an ImportFormatError.
+    A camera whose detected coordinates all lie in ``[0, 1]`` is normalized (0.x); one with a
+    coordinate above 1 is in pixels (1.x) and must stay within its frame. Cameras that disagree, or
+    pixels outside the frames, are an :class:`ImportFormatError`.
     """
     finite = np.isfinite(points2d).all(-1)
     detected = finite & ~(points2d == 0).all(-1)
@@ -236,19 +215,9 @@ def _camera_ordering(data: dict, path: Path, n_cams: int) -> np.ndarray:
 
 
 def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
-    """Read a DeepFly3D calibration pickle.
-
-    Returns
-    -------
-    dict
-        ``camera index -> {"rvec", "tvec", "kmat", "dist"}`` (float64; ``rvec`` from
-        ``R`` by :func:`cv2.Rodrigues`), sorted by index.
-
-    Raises
-    ------
-    ImportFormatError
-        When no camera entry is present or one lacks ``R``/``tvec``/``intr``.
-    """
+    """Read a DeepFly3D calibration pickle: ``camera index -> {"rvec", "tvec", "kmat", "dist"}``
+    (float64; ``rvec`` from ``R`` by :func:`cv2.Rodrigues`), sorted by index. No camera entry, or
+    one lacking ``R``/``tvec``/``intr``, is an :class:`ImportFormatError`."""
     import cv2
 
     data = load_pickle(path, "DeepFly3D calibration")

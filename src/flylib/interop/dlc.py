@@ -1,12 +1,12 @@
 """DeepLabCut-layout 2D keypoints (CSV and HDF5), which Lightning Pose also writes.
 
-One file per camera view. The columns are a header MultiIndex
-``scorer / bodyparts / coords`` (multi-animal files add ``individuals`` between scorer
-and bodyparts) with ``coords`` in ``x, y, likelihood``; the first column is the row
-index: a frame number, or an image path for labelled data (``labeled-data/<video>/img047.png``,
-whose last number is the frame; newer files split it over three index columns). Each row
-is placed at its frame index, whatever the rows' order: frames no row gives are missing,
-a frame given twice is an error. Missing detections are empty cells (NaN).
+One file per camera view. The columns are a header MultiIndex ``scorer / bodyparts / coords``
+(multi-animal files add ``individuals`` between scorer and bodyparts) with ``coords`` in
+``x, y, likelihood``; the first column is the row index: a frame number, or an image path for
+labelled data (``labeled-data/<video>/img047.png``, whose last number is the frame; newer files
+split it over three index columns). Each row is placed at its frame index, whatever the rows' order:
+frames no row gives are missing, a frame given twice is an error. Missing detections are empty cells
+(NaN).
 """
 
 from __future__ import annotations
@@ -40,19 +40,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass
 class ViewKeypoints:
-    """2D keypoints of one camera view as another tool wrote them.
-
-    Attributes
-    ----------
-    names
-        The file's keypoint (body part / node) names, length ``K``.
-    xy
-        ``(T, K, 2)`` pixel ``(x, y)``, NaN = missing.
-    conf
-        ``(T, K)`` likelihood / score, NaN where the file gives none for a missing point.
-    source
-        The file it came from (for error messages).
-    """
+    """2D keypoints of one camera view as another tool wrote them: the file's keypoint (body part /
+    node) ``names`` (K), ``xy`` ``(T, K, 2)`` pixels (NaN = missing), ``conf`` ``(T, K)`` likelihood
+    / score (NaN where the file gives none for a missing point) and the ``source`` file (for
+    messages)."""
 
     names: list[str]
     xy: Float[np.ndarray, "T K 2"]
@@ -60,15 +51,15 @@ class ViewKeypoints:
     source: Path
 
 
-# pandas 3 parses floats exactly by default (and deprecates the option); pandas 2's
-# default parser may be off by an ulp, so ask it for round-trip parsing explicitly.
+# pandas 3 parses floats exactly by default (and deprecates the option); pandas 2's default parser
+# may be off by an ulp, so ask it for round-trip parsing explicitly.
 _EXACT_FLOATS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 
 
 _HEADER_LEVELS = ("scorer", "individuals", "bodyparts", "coords")
 
-#: What reading a CSV's text can raise: undecodable bytes, a malformed row, an
-#: oversized field, no rows at all.
+#: What reading a CSV's text can raise: undecodable bytes, a malformed row, an oversized field, no
+#: rows at all.
 _CSV_ERRORS = (
     UnicodeDecodeError,
     csv.Error,
@@ -79,19 +70,17 @@ _CSV_ERRORS = (
 )
 
 
-#: Most columns a DeepLabCut CSV may have: 3 per body part and individual (33,333
-#: body parts of one animal, or 38 points of 877 individuals).
+#: Most columns a DeepLabCut CSV may have: 3 per body part and individual (33,333 body parts of one
+#: animal, or 38 points of 877 individuals).
 MAX_CSV_COLUMNS = 100_000
 #: Longest header line read (characters): 100,000 cells of about 160 characters.
 _MAX_HEADER_LINE = 16 << 20
 
 
 def _read_header(path: Path) -> list[list[str]]:
-    """The header rows: the leading rows whose first cell is a DeepLabCut level name.
-
-    Each line is read with a length bound and its columns counted before it is split,
-    so a file of millions of columns is one error in milliseconds, not gigabytes of cells.
-    """
+    """The header rows: the leading rows whose first cell is a DeepLabCut level name. Each line is
+    read with a length bound and its columns counted before it is split, so a file of millions of
+    columns is one error in milliseconds, not gigabytes of cells."""
     rows = []
     with path.open(newline="", encoding="utf-8") as fh:
         while True:
@@ -111,12 +100,9 @@ def _read_header(path: Path) -> list[list[str]]:
 
 
 def _read_csv_frame(path: Path) -> pd.DataFrame:
-    """The CSV as a DataFrame with the header rows as a column MultiIndex.
-
-    The header is parsed here, not by pandas: with a multi-row ``header``, pandas takes
-    a first data row whose cells are all empty (a frame with no detections) for the
-    index-name row and drops that frame.
-    """
+    """The CSV as a DataFrame with the header rows as a column MultiIndex. The header is parsed
+    here, not by pandas: with a multi-row ``header``, pandas takes a first data row whose cells are
+    all empty (a frame with no detections) for the index-name row and drops that frame."""
     try:
         header = _read_header(path)
     except _CSV_ERRORS as exc:
@@ -173,15 +159,14 @@ def _floats(values: np.ndarray, path: Path) -> np.ndarray:
         ) from exc
 
 
-#: Highest frame index a row may name (28 hours at 100 frames/s): rows are placed at their
-#: frame, so an index is also an allocation.
+#: Highest frame index a row may name (28 hours at 100 frames/s): rows are placed at their frame, so
+#: an index is also an allocation.
 MAX_FRAME_INDEX = 10_000_000
 _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
 def _frame_number(value, path: Path, row: int) -> int:
-    """The frame a row's index names: an integer, or the last number in an image file's
-    name (``labeled-data/video/img047.png`` -> 47)."""
+    """A row index's frame: an integer, or the last number in an image's name (``img047.png``)."""
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
@@ -211,8 +196,8 @@ def _frame_number(value, path: Path, row: int) -> int:
 
 
 def frame_rows(index: pd.Index, path: Path) -> np.ndarray:
-    """The frame of each row of a DeepLabCut-layout table, from its row index; an index
-    that names no frame, or a frame two rows give (both named), is an ImportFormatError."""
+    """The frame of each row of a DeepLabCut-layout table, from its row index; an index that names
+    no frame, or a frame two rows give (both named), is an ImportFormatError."""
     values = (index.get_level_values(-1) if isinstance(index, pd.MultiIndex) else index).tolist()
     frames = np.array([_frame_number(v, path, i) for i, v in enumerate(values)], dtype=np.int64)
     order = np.argsort(frames, kind="stable")
@@ -275,18 +260,9 @@ def _frame_to_view(frame: pd.DataFrame, path: Path, individual: str | None) -> V
 
 
 def read_dlc_csv(path: Path, individual: str | None = None) -> ViewKeypoints:
-    """Read a DeepLabCut / Lightning Pose per-view CSV.
-
-    Parameters
-    ----------
-    individual
-        For multi-animal files, which individual to read (required when several).
-
-    Raises
-    ------
-    ImportFormatError
-        When the file is missing or its header is not the DeepLabCut layout.
-    """
+    """Read a DeepLabCut / Lightning Pose per-view CSV; ``individual`` picks one of a multi-animal
+    file's (required when several). A missing file or a header not in the DeepLabCut layout is an
+    :class:`ImportFormatError`."""
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such DeepLabCut CSV; check pose2d.import.files")
@@ -376,8 +352,7 @@ def _fixed_frame(source: _ForeignH5, key: str) -> pd.DataFrame:
 
 
 def _fixed_index(source: _ForeignH5, key: str, n_rows: int) -> pd.Index:
-    """The row index of a pandas ``format="fixed"`` frame (of a MultiIndex, its last level:
-    the image file name of DeepLabCut's labelled data)."""
+    """A pandas ``format="fixed"`` frame's row index (a MultiIndex's last level: the image)."""
     group = source.member(key)
     if "axis1_nlevels" in group.attrs:
         last = int(group.attrs["axis1_nlevels"]) - 1
@@ -416,17 +391,13 @@ def read_dlc_h5(
 ) -> ViewKeypoints:
     """Read a DeepLabCut per-view HDF5 (a pandas DataFrame, key ``df_with_missing``).
 
-    Read with h5py (no PyTables needed), for both pandas layouts: ``format="table"``
-    (DeepLabCut's) and ``format="fixed"``. pandas keeps the column names as protocol-0
-    pickles of plain lists/tuples; those are loaded with an unpickler that refuses
-    every class, so a crafted file cannot run code. External storage, external links
-    and virtual datasets are refused (never followed), and each dataset's declared size
-    is checked against ``max_bytes`` before it is read (see :mod:`flylib.interop._h5`).
-
-    Raises
-    ------
-    ImportFormatError
-        When the file is missing or holds no DeepLabCut-layout DataFrame.
+    Read with h5py (no PyTables needed), for both pandas layouts: ``format="table"`` (DeepLabCut's)
+    and ``format="fixed"``. pandas keeps the column names as protocol-0 pickles of plain
+    lists/tuples, loaded with an unpickler that refuses every class, so a crafted file cannot run
+    code. External storage, external links and virtual datasets are refused (never followed), and
+    each dataset's declared size is checked against ``max_bytes`` before it is read
+    (:mod:`flylib.interop._h5`). A missing file, or one holding no DeepLabCut-layout DataFrame, is
+    an :class:`ImportFormatError`.
     """
     path = Path(path)
     hint = "or import the CSV beside it (format: dlc_csv)"
@@ -460,11 +431,8 @@ def dlc_frame(
     bodyparts: list[str],
     scorer: str = "flylib",
 ) -> pd.DataFrame:
-    """A DeepLabCut-layout DataFrame of one view's ``(T, K, 2)`` points.
-
-    ``likelihood`` ``(T, K)`` defaults to 1 where a point is present; it is NaN (an
-    empty cell) wherever ``x``/``y`` are.
-    """
+    """A DeepLabCut-layout DataFrame of one view's ``(T, K, 2)`` points; ``likelihood`` ``(T, K)``
+    defaults to 1 where a point is present and is NaN (an empty cell) wherever ``x``/``y`` are."""
     xy = np.asarray(xy, dtype=np.float64)
     n_frames, n_parts, _ = xy.shape
     if len(bodyparts) != n_parts:
@@ -487,16 +455,9 @@ def write_dlc_csv(
     bodyparts: list[str],
     scorer: str = "flylib",
 ) -> Path:
-    """Write one view's points as a DeepLabCut CSV (readable by DLC, Lightning Pose,
-    Anipose), atomically; returns ``path``.
-
-    Parameters
-    ----------
-    xy
-        ``(T, K, 2)`` pixel ``(x, y)``, NaN = missing (written as empty cells).
-    likelihood
-        ``(T, K)`` confidences, or ``None`` for 1 where present.
-    """
+    """Write one view's points (``xy`` ``(T, K, 2)`` pixels, NaN = missing, written as empty cells;
+    ``likelihood`` ``(T, K)`` or ``None`` for 1 where present) as a DeepLabCut CSV (readable by DLC,
+    Lightning Pose, Anipose), atomically; returns ``path``."""
     path = Path(path)
     with atomic_path(path) as tmp:
         dlc_frame(xy, likelihood, bodyparts, scorer).to_csv(tmp)

@@ -1,23 +1,20 @@
 """Exports for other tools: Anipose's 3D CSV and per-view DeepLabCut CSVs.
 
-3D CSV, exactly Anipose's ``pose-3d`` layout (``anipose triangulate``; what
-``movement``'s Anipose loader and Anipose's own tools read): one row per frame; per
-skeleton point, in skeleton order, ``<point>_x``, ``_y``, ``_z`` (world units),
-``_error`` (mean reprojection error in pixels over the views the point rests on),
-``_ncams`` (how many views' 2D observations it rests on) and ``_score`` (the lowest
-2D confidence among those views); then the alignment ``M_00`` ... ``M_22`` (the
-rotation applied to the points, row-major) and ``center_0..2`` (the offset
-subtracted after it), and last ``fnum`` (the frame number, from 0). flylib applies
-no alignment, so ``M`` is the identity and ``center`` zero. As in Anipose, a point
-resting on fewer than two views has NaN ``_error``, ``_ncams`` and ``_score``, and an
-unreconstructed point NaN coordinates.
+3D CSV, exactly Anipose's ``pose-3d`` layout (``anipose triangulate``; what ``movement``'s Anipose
+loader and Anipose's own tools read): one row per frame; per skeleton point, in skeleton order,
+``<point>_x``, ``_y``, ``_z`` (world units), ``_error`` (mean reprojection error in pixels over the
+views the point rests on), ``_ncams`` (how many views' 2D observations it rests on) and ``_score``
+(the lowest 2D confidence among those views); then the alignment ``M_00`` ... ``M_22`` (the rotation
+applied to the points, row-major) and ``center_0..2`` (the offset subtracted after it), and last
+``fnum`` (the frame number, from 0). flylib applies no alignment, so ``M`` is the identity and
+``center`` zero. As in Anipose, a point resting on fewer than two views has NaN ``_error``,
+``_ncams`` and ``_score``, and an unreconstructed point NaN coordinates.
 
-2D: one ``<view>.csv`` per view in the DeepLabCut layout with the skeleton point names
-as body parts and the detection confidence as ``likelihood``: the detections
-(``pose2d/points``, what the detector or the import gave) with the manual corrections
-applied (:func:`flylib.results.read_detections`), never the subset a 3D stage kept; a
-missing point has empty ``x``, ``y`` and ``likelihood``. These import back with
-``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``) as the same 2D.
+2D: one ``<view>.csv`` per view in the DeepLabCut layout, the skeleton point names as body parts and
+the detection confidence as ``likelihood``: the detections (``pose2d/points``, what the detector or
+the import gave) with the manual corrections applied (:func:`flylib.results.read_detections`), never
+the subset a 3D stage kept; a missing point has empty ``x``, ``y`` and ``likelihood``. These import
+back as the same 2D with ``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``).
 """
 
 from __future__ import annotations
@@ -43,20 +40,13 @@ def points3d_table(
     pts2d: Float[np.ndarray, "V T P 2"] | None = None,
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> pd.DataFrame:
-    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring):
-    ``T`` rows, six columns per point, then ``M_00..M_22``, ``center_0..2``, ``fnum``.
+    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring): ``T`` rows,
+    six columns per point, then ``M_00..M_22``, ``center_0..2``, ``fnum``.
 
-    Parameters
-    ----------
-    pts3d
-        ``(T, P, 3)`` world points, NaN = not reconstructed.
-    reproj_error
-        ``(V, T, P)`` reprojection errors in pixels, or ``None`` (``_error`` is NaN).
-    pts2d
-        ``(V, T, P, 2)`` the 2D observations the 3D rests on, or ``None``
-        (``_ncams`` is then the views with a finite reprojection error).
-    conf
-        ``(V, T, P)`` 2D confidences, or ``None`` (each observation counts as 1).
+    ``pts3d`` ``(T, P, 3)`` world points (NaN = not reconstructed); ``reproj_error`` ``(V, T, P)``
+    pixels, or ``None`` (``_error`` NaN); ``pts2d`` ``(V, T, P, 2)`` the 2D the 3D rests on, or
+    ``None`` (``_ncams`` then counts the views with a finite reprojection error); ``conf``
+    ``(V, T, P)``, or ``None`` (each observation scores 1).
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     n_frames, n_points, _ = pts3d.shape
@@ -129,16 +119,9 @@ def write_dlc_views(
     point_names: list[str],
     scorer: str = "flylib",
 ) -> list[Path]:
-    """Write one DeepLabCut CSV per view, ``<directory>/<view>.csv`` (the folder is
-    created); returns the files in view order.
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, T, P, 2)`` pixels, NaN = missing.
-    conf
-        ``(V, T, P)`` confidences, or ``None`` (1 where present).
-    """
+    """Write one DeepLabCut CSV per view, ``<directory>/<view>.csv`` (the folder is created), from
+    ``pts2d`` ``(V, T, P, 2)`` pixels (NaN = missing) and ``conf`` ``(V, T, P)`` (``None``: 1 where
+    present); returns the files in view order."""
     pts2d = np.asarray(pts2d, dtype=np.float64)
     if len(view_names) != pts2d.shape[0]:
         raise ValueError(f"{len(view_names)} view names for {pts2d.shape[0]} views")
@@ -161,26 +144,12 @@ def export_result(
     dlc_dir: Path | None = None,
     detections=None,
 ) -> list[Path]:
-    """Export a :class:`flylib.results.PoseResult`: Anipose 3D CSV and/or per-view DLC
-    CSVs; returns the files written.
+    """Export a :class:`flylib.results.PoseResult`: the Anipose 3D CSV ``csv3d`` and/or per-view DLC
+    CSVs in ``dlc_dir`` (``None``: not written); returns the files written.
 
-    Parameters
-    ----------
-    result
-        The loaded result (``pts2d``, ``conf``, ``pts3d``, ``reproj_error``,
-        ``cameras.names``, ``skeleton.point_names``).
-    csv3d, dlc_dir
-        The 3D CSV to write, the folder for the per-view 2D CSVs (``None``: not written).
-    detections
-        What the 2D CSVs hold: the result's :class:`~flylib.results.pose.Detections`
-        (:func:`flylib.results.read_detections`); required with ``dlc_dir``.
-
-    Raises
-    ------
-    flylib.errors.ResultsError
-        When a 3D CSV is asked for but the result has no 3D points.
-    ValueError
-        With ``dlc_dir`` but no ``detections``.
+    The 2D CSVs hold ``detections`` (:func:`flylib.results.read_detections`), required with
+    ``dlc_dir`` (else a ValueError). A 3D CSV of a result without 3D points is a
+    :class:`flylib.errors.ResultsError`.
     """
     if dlc_dir is not None and detections is None:
         raise ValueError("export_result: the DLC CSVs need the detections (read_detections)")

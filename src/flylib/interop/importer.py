@@ -1,8 +1,8 @@
 """``pose2d.import``: take 2D keypoints from another tool instead of running the detector.
 
-The result is the same :class:`flylib.results.Pose2dData` the detector produces
-(raw-frame pixels ``(V, T, P, 2)``, confidences ``(V, T, P)``, view names, frame sizes),
-so every later stage and the workflow run unchanged.
+The result is the same :class:`flylib.results.Pose2dData` the detector produces (raw-frame pixels
+``(V, T, P, 2)``, confidences ``(V, T, P)``, view names, frame sizes), so every later stage and the
+workflow run unchanged.
 
 Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
 
@@ -18,37 +18,30 @@ Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
         individual: null         # dlc multi-animal: which individual
         track: null              # sleap: track index or name when several
 
-``files``:
+``files``: for ``deepfly3d``, one pickle for all views: a glob matching one file, default
+``df3d_result*.pkl`` in the recording directory, then in its ``df3d/`` folder. Per-view formats take
+a pattern with ``{view}``, ``{index}`` (its position in the config), ``{source}`` (its footage
+source name) or ``{stem}`` (its footage file name without extension, e.g. ``camera_0``)
+placeholders, globbing allowed (one match per view; DeepLabCut's own naming is
+``"{stem}DLC_*.csv"``), or a mapping ``{view: path}`` with a file for every configured view
+(``null`` for a view observed by nothing). Defaults: ``{view}.csv`` / ``{view}.h5`` /
+``{view}.analysis.h5``; ``deeplabcut`` reads CSV or HDF5 by the suffix.
 
-- ``deepfly3d``: one pickle for all views; a glob, default ``df3d_result*.pkl`` looked
-  up in the recording directory, then in its ``df3d/`` folder. It must match one file.
-- per-view formats: a pattern with ``{view}`` (view name), ``{index}`` (its position
-  in the config), ``{source}`` (its footage source name) or ``{stem}`` (its footage
-  file name without extension, e.g. ``camera_0``) placeholders, globbing allowed (one
-  match per view) -- DeepLabCut's own naming is ``"{stem}DLC_*.csv"``; or a mapping
-  ``{view: path}``. Every configured view needs a file (a view observed by nothing can
-  be mapped to ``null``). Default ``{view}.csv`` / ``{view}.h5`` / ``{view}.analysis.h5``.
-  ``deeplabcut`` reads each file as CSV or HDF5 by its suffix.
+``keypoint_map``: without it a file name must equal a skeleton point name; DeepFly3D joints (keys
+are joint indices) default to fly38 point ``(j + 19) mod 38`` (:mod:`flylib.interop.df3d`). A file
+keypoint that maps to nothing is an error, so a renamed body part is never silently dropped; map it
+to ``null`` to drop it on purpose.
 
-``keypoint_map``: without it a file name must equal a skeleton point name; DeepFly3D
-joints (keys are joint indices) default to fly38 point ``(j + 19) mod 38``
-(see :mod:`flylib.interop.df3d`). A file keypoint that maps to nothing is an error, so
-a renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
+``view_points``: ``plan`` (default) keeps in each view only the points the detection plan's
+``pose2d.output_points`` gives it, as the detector would; the rest is set missing (NaN), with one
+warning per file. DeepFly3D 1.x writes 2D for all 38 joints in every camera, also where its own plan
+gives the camera none of them: that junk is never triangulated. A view the plan does not list keeps
+every point; ``all`` keeps every point the files hold.
 
-``view_points``: by default (``plan``) a view keeps only the skeleton points the detection
-plan's ``pose2d.output_points`` gives it, as the detector would: the rest of that view's
-2D is set missing (NaN), with one warning per file naming how many it held. DeepFly3D
-1.x writes 2D for all 38 joints in every camera, also where its own detection plan gives
-the camera none of them (the front camera's 24 side points): that junk is never
-triangulated. A view the plan does not list keeps every point. ``all`` keeps every
-point the files hold.
-
-DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`),
-and every tool's scores become confidences in [0, 1] by :func:`as_confidences`.
-
-Frame sizes come from each view's footage header (see :mod:`flylib.interop.views`),
-else ``image_size``. All views must have the same number of frames, and as many
-frames as their footage when its count is known.
+DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`), and
+every tool's scores become confidences in [0, 1] (:func:`as_confidences`). Frame sizes come from
+each view's footage header (:mod:`flylib.interop.views`), else ``image_size``. All views must have
+the same number of frames, and as many as their footage when its count is known.
 """
 
 from __future__ import annotations
@@ -99,23 +92,11 @@ VIEW_POINTS = ("plan", "all")
 
 @dataclass(frozen=True)
 class ImportTarget:
-    """What imported 2D is placed on: the run's views and points, and where each view's
-    footage is (its frame size and count).
-
-    Attributes
-    ----------
-    views
-        The V axis, in order (empty: the config names no views, an error at import).
-    point_names
-        The P axis (the skeleton's points).
-    view_sources
-        ``view -> footage source`` (:func:`flylib.config.sources.feeding_sources`).
-    source_patterns
-        ``source -> footage glob`` (empty when no view has a source).
-    plan_points
-        ``view -> skeleton points`` the detection plan's ``pose2d.output_points``
-        gives it (what its file should hold; may be empty).
-    """
+    """What imported 2D is placed on: the run's views (the V axis, in order; none is an error at
+    import) and skeleton points (the P axis), ``view_sources`` (``view -> footage source``,
+    :func:`flylib.config.sources.feeding_sources`), ``source_patterns`` (``source -> footage glob``)
+    and ``plan_points`` (``view -> skeleton points`` the detection plan's ``pose2d.output_points``
+    gives it: what its file should hold)."""
 
     views: tuple[str, ...]
     point_names: tuple[str, ...]
@@ -200,8 +181,7 @@ def _glob_one(recording_dir: Path, pattern: str, what: str) -> Path:
 
 
 def _closest_file(recording_dir: Path, pattern: str) -> str:
-    """``"did you mean 'x'? "`` for the existing file named most like ``pattern`` (in the
-    directory the pattern points into), else ``""``."""
+    """``"did you mean 'x'? "`` for the file in the pattern's folder most like it, else ``""``."""
     folder = (recording_dir / pattern).parent
     try:
         names = [p.relative_to(recording_dir).as_posix() for p in folder.iterdir() if p.is_file()]
@@ -213,12 +193,10 @@ def _closest_file(recording_dir: Path, pattern: str) -> str:
 def import_files(
     target: ImportTarget, spec: dict, recording_dir: str | Path
 ) -> dict[str, Path | None]:
-    """The file each view's 2D is read from (``None``: a view mapped to nothing), found
-    as the import will find them, without reading them: what validation checks.
-
-    ``spec`` is validated (:func:`import_spec`). A pattern that matches no file (the
-    closest existing file name is named) or several is one :class:`ImportFormatError`.
-    """
+    """The file each view's 2D is read from (``None``: a view mapped to nothing), found as the
+    import finds them, without reading them (what validation checks). ``spec`` is validated
+    (:func:`import_spec`); a pattern matching no file (the closest file name is named) or several is
+    an :class:`ImportFormatError`."""
     recording_dir = Path(recording_dir)
     views = target.checked_views()
     if spec["format"] == "deepfly3d":
@@ -231,8 +209,8 @@ def import_files(
 
 def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path) -> str | None:
     """Why the import would find no frame size for a view (one line:
-    :func:`flylib.interop.views.missing_footage`), or ``None``; checked before the
-    workflow builds its DAG, from file names alone (no header is read)."""
+    :func:`flylib.interop.views.missing_footage`), or ``None``; checked before the workflow builds
+    its DAG, from file names alone (no header is read)."""
     views = target.checked_views()
     if spec["format"] == "deepfly3d":
         views = [v for v in (spec.get("views") or views) if v is not None]
@@ -246,8 +224,7 @@ def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path)
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
-    """The DeepFly3D pickle pattern: ``files``, else the default in the recording
-    directory or its ``df3d/`` folder."""
+    """The DeepFly3D pickle pattern: ``files``, else the default (in the recording or ``df3d/``)."""
     pattern = spec.get("files")
     if pattern is None:
         pattern = "df3d_result*.pkl"
@@ -415,14 +392,10 @@ def _warn_missing_parts(
     points: list[str],
     expected: dict[str, set[int]] | None = None,
 ) -> None:
-    """Warn, per file, about skeleton points its view should give and it does not.
-
-    A per-view file lacking body parts (a column dropped, a part renamed and mapped
-    away) leaves those points missing in that view; say so, naming the file. What a view
-    should give is the detection plan's ``pose2d.output_points`` for that view when the
-    config has one (a camera sees one side of the fly: its file rightly lacks the other
-    side), else what the other views' files give.
-    """
+    """Warn, per file, about skeleton points its view should give and it does not (a column dropped,
+    a part renamed and mapped away). What a view should give: the detection plan's
+    ``pose2d.output_points`` for it when the config has one (a camera sees one side of the fly),
+    else what the other views' files give."""
     given = set().union(*filled.values()) if filled else set()
     for view, have in filled.items():
         if expected and view in expected:
@@ -461,8 +434,7 @@ def _keep_plan_points(
     origin: dict[str, Path],
     points: list[str],
 ) -> None:
-    """Set missing, in place, each view's 2D of the points the detection plan does not
-    give that view (a view the plan does not list keeps all), warning once per file."""
+    """Set missing each view's 2D of the points the plan does not give it; warn once per file."""
     dropped: dict[str, list[str]] = {}  # file -> "view: n points (names)"
     for v, view in enumerate(views):
         if view not in plan:
@@ -488,12 +460,7 @@ def _keep_plan_points(
 
 
 def _check_observed(pts: np.ndarray, views: list[str], origin: dict[str, Path], threshold) -> None:
-    """Refuse 2D with no observed point at all; warn about views that observe nothing.
-
-    Decision: an import without a single observed point cannot give a 3D result (bundle
-    adjustment has nothing to fit, triangulation returns only NaN), so it is an error at
-    import, before any later stage runs -- with or without bundle adjustment.
-    """
+    """Refuse 2D with no observed point (no 3D can come of it); warn about views observing none."""
     cut = "" if threshold is None else f" at or above likelihood_threshold {threshold}"
     observed = np.isfinite(pts).all(-1).any(axis=(1, 2))  # (V,)
     files = list(dict.fromkeys(str(f) for f in origin.values()))
@@ -537,9 +504,9 @@ def as_confidences(
     """Another tool's scores ``(..., K)`` as confidences in [0, 1] (NaN stays NaN).
 
     DeepLabCut and Lightning Pose likelihoods are probabilities: one outside [0, 1] is an
-    :class:`ImportFormatError`. SLEAP's point scores and DeepFly3D's heatmap peaks are
-    not probabilities and may exceed 1: they are clipped into [0, 1] with a warning
-    naming the file. ``path`` and ``names`` (the last axis's keypoints) are for messages.
+    :class:`ImportFormatError`. SLEAP's point scores and DeepFly3D's heatmap peaks may exceed 1:
+    they are clipped into [0, 1] with a warning naming the file. ``path`` and ``names`` (the last
+    axis's keypoints) are for messages.
     """
     conf = np.asarray(conf, dtype=np.float64)
     with np.errstate(invalid="ignore"):
@@ -623,27 +590,14 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
 def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | None):
     """Read another tool's 2D keypoints for one recording as the pose2d stage output.
 
-    Parameters
-    ----------
-    target
-        The views, skeleton points and footage the 2D is placed on
-        (:func:`flylib.pipeline.pose2d.import_target`).
-    recording_dir
-        The recording directory; relative ``files`` resolve against it.
-    spec
-        The import spec (module docstring): the recording's, else ``pose2d.import``.
-
-    Returns
-    -------
-    flylib.results.Pose2dData
-        ``pts2d`` ``(V, T, P, 2)`` raw-frame pixels and ``conf`` ``(V, T, P)`` over the
-        configured views and skeleton points, NaN where a view has no observation.
-
-    Raises
-    ------
-    ImportFormatError
-        Unknown format or keys, a missing file, a keypoint that maps to no skeleton
-        point, or mismatched frame counts -- one line naming the file and the fix.
+    ``target``: the views, skeleton points and footage the 2D is placed on
+    (:func:`flylib.pipeline.pose2d.import_target`); relative ``files`` resolve against
+    ``recording_dir``; ``spec``: the recording's import spec (module docstring), else
+    ``pose2d.import``. Returns a :class:`flylib.results.Pose2dData`: ``pts2d`` ``(V, T, P, 2)``
+    raw-frame pixels and ``conf`` ``(V, T, P)`` over the configured views and skeleton points, NaN
+    where a view has no observation. An unknown format or key, a missing file, a keypoint that maps
+    to no skeleton point, or mismatched frame counts is one :class:`ImportFormatError` line naming
+    the file and the fix.
     """
     from ..results import Pose2dData
 

@@ -1,50 +1,46 @@
 """Export a recording's result as Neurodata Without Borders (NWB) with ndx-pose.
 
-:func:`write_nwb` turns a :class:`~flylib.results.PoseResult` into one NWB file,
-built with ``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4)
-describes multi-camera 3D pose:
+:func:`write_nwb` turns a :class:`~flylib.results.PoseResult` into one NWB file, built with
+``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4) describes multi-camera 3D
+pose:
 
 ``/general``
-    session metadata from :mod:`flylib.config.nwb_metadata` (subject, session start
-    time, experimenter, ...); ``was_generated_by`` = flylib and its version;
-    ``data_collection`` = the recording's path and the flylib config that produced the
-    result (its snapshot text); ``session_id`` defaults to the recording's name.
+    session metadata from :mod:`flylib.config.nwb_metadata` (subject, session start time,
+    experimenter, ...); ``was_generated_by`` = flylib and its version; ``data_collection`` = the
+    recording's path and the flylib config snapshot that produced the result; ``session_id``
+    defaults to the recording's name.
 ``/general/devices/camera_<view>``
-    one ``ndx_pose.CalibratedCamera`` (an NWB ``Device``) per view with the final rig
-    (bundle-adjusted when that stage ran): intrinsic matrix ``K``, world-to-camera
-    rotation ``R`` and translation ``t`` (``x_cam = R x_world + t``), OpenCV
-    distortion coefficients; its description holds the same as JSON (flylib's
-    ``rvec``, ``tvec``, ``[fx, fy, cx, cy]``, distortion, raw image size).
+    one ``ndx_pose.CalibratedCamera`` per view with the final rig (bundle-adjusted when that stage
+    ran): intrinsic matrix ``K``, world-to-camera ``R`` and ``t`` (``x_cam = R x_world + t``),
+    OpenCV distortion coefficients; its description holds the same as JSON (flylib's ``rvec``,
+    ``tvec``, ``[fx, fy, cx, cy]``, distortion, raw image size).
 ``/acquisition/video_<view>``
-    the view's source footage as an external ``ImageSeries`` (file paths relative to
-    the NWB file, never copied), linked to its camera.
+    the view's footage as an external ``ImageSeries`` (paths relative to the NWB file, never
+    copied), linked to its camera.
 ``/processing/behavior``
-    ``Skeletons`` with the ``ndx_pose.Skeleton`` (point names, bones as edges);
-    ``MultiCameraPoseEstimation``: one ``PoseEstimationSeries`` per skeleton point
-    with the 3D position ``(T, 3)`` in the calibration's world frame, and one
-    ``PoseEstimation`` per view (``PoseEstimation_<view>``) holding that view's 2D
-    keypoints ``(T, 2)`` in pixels with the detection confidence, linked to its camera,
-    its source video and the skeleton; ``ReprojectionError_<view>`` time series
-    ``(T, P)`` in pixels.
+    ``Skeletons`` (point names, bones as edges); ``MultiCameraPoseEstimation``: one
+    ``PoseEstimationSeries`` per point with the 3D position ``(T, 3)`` in the calibration's world
+    frame, and one ``PoseEstimation_<view>`` per view with its 2D keypoints ``(T, 2)`` in pixels and
+    detection confidence, linked to its camera, video and the skeleton; ``ReprojectionError_<view>``
+    time series ``(T, P)`` in pixels.
 
-Missing values stay NaN. All series share one time base: frame ``i`` is at
-``i / frame_rate`` seconds after ``session_start_time`` (``starting_time`` 0 and
-``rate``), the frame rate being ``nwb.frame_rate`` when configured, else the footage's.
+Missing values stay NaN. All series share one time base: frame ``i`` is at ``i / frame_rate``
+seconds after ``session_start_time``, the frame rate being ``nwb.frame_rate`` when configured, else
+the footage's.
 
-3D confidence (``PoseEstimationSeries.confidence``, in [0, 1]) combines how well the
-views agree with how many support the point::
+3D confidence (``PoseEstimationSeries.confidence``, in [0, 1]) combines how well the views agree
+with how many support the point::
 
     confidence = exp(-e / 5 px) * min(1, (n - 1) / 2)
 
-where ``n`` is the number of views the point was triangulated from (the views with a
-finite reprojection error: RANSAC's inliers) and ``e`` the mean reprojection error over
-them in pixels. A point seen by three or more views with 0 px error scores 1, by two
-views 0.5 (two rays always meet near a point, so nothing cross-checks them); each 5 px of
-mean error divides the score by e. Unreconstructed points have NaN confidence.
+where ``n`` is the number of views the point was triangulated from (those with a finite reprojection
+error: RANSAC's inliers) and ``e`` the mean reprojection error over them in pixels. Three or more
+views at 0 px score 1, two views 0.5 (two rays always meet near a point, so nothing cross-checks
+them); each 5 px of mean error divides the score by e. Unreconstructed points have NaN confidence.
 
-Readers: ``pynwb.NWBHDF5IO(path, "r", load_namespaces=True).read()`` (the ndx-pose
-schema is cached in the file); ``movement``: ``movement.io.load_poses.from_nwb_file(path,
-pose_estimation_key="MultiCameraPoseEstimation")`` gives the 3D keypoints.
+Readers: ``pynwb.NWBHDF5IO(path, "r", load_namespaces=True).read()`` (the ndx-pose schema is cached
+in the file); ``movement.io.load_poses.from_nwb_file`` with
+``pose_estimation_key="MultiCameraPoseEstimation"`` gives the 3D keypoints.
 """
 
 from __future__ import annotations
@@ -90,9 +86,8 @@ CONFIDENCE_DEFINITION = (
 def confidence_3d(
     reproj_error: Float[np.ndarray, "V T P"], pts3d: Float[np.ndarray, "T P 3"]
 ) -> Float[np.ndarray, "T P"]:
-    """The 3D confidence ``(T, P)`` in [0, 1] of each point (formula in the module
-    docstring) from reprojection errors in pixels (NaN: view not used); NaN where
-    ``pts3d`` is not reconstructed."""
+    """The 3D confidence ``(T, P)`` in [0, 1] (module docstring) from reprojection errors in pixels
+    (NaN: view not used); NaN where ``pts3d`` is not reconstructed."""
     err = np.asarray(reproj_error, dtype=np.float64)
     used = np.isfinite(err)
     n = used.sum(0)
@@ -104,10 +99,8 @@ def confidence_3d(
 
 
 def footage_frame_rate(footage: Mapping[str, Sequence[Path]]) -> float | None:
-    """The frame rate in the footage's video headers (the first view that has one).
-
-    Image sequences carry none. Views whose videos disagree are logged.
-    """
+    """The frame rate in the footage's video headers (the first view that has one; image sequences
+    carry none); views whose videos disagree are logged."""
     from ..io import VIDEO_EXTS, open_reader
 
     rates: dict[str, float] = {}
@@ -226,33 +219,17 @@ def write_nwb(
 ) -> Path:
     """Write one recording's result as an NWB file (atomically); returns ``path``.
 
-    Parameters
-    ----------
-    result
-        The :class:`~flylib.results.PoseResult`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``,
-        ``pts3d (T, P, 3)``, ``reproj_error (V, T, P)``, rig, skeleton.
-    metadata
-        Merged session metadata (:func:`flylib.config.nwb_metadata.recording_metadata`).
-    footage
-        ``view -> files`` of the source footage, linked as external ``ImageSeries``
-        (omitted for views without files).
-    frame_rate
-        Frames per second; default ``metadata["frame_rate"]``, else the footage's.
-    recording
-        The recording directory, for the record.
-    config_text
-        The flylib config that produced the result (stored as text).
-    joint_angles
-        ``(angles (T, J) radians, joint names)``: NeuroMechFly's leg angles
-        (``neuromechfly.h5``), written as one ``TimeSeries`` per joint in a
-        ``BehavioralTimeSeries`` named ``NeuroMechFlyJointAngles``.
+    ``result`` is the :class:`~flylib.results.PoseResult` (``pts2d (V, T, P, 2)``,
+    ``conf (V, T, P)``, ``pts3d (T, P, 3)``, ``reproj_error (V, T, P)``, rig, skeleton);
+    ``metadata`` the merged session metadata
+    (:func:`flylib.config.nwb_metadata.recording_metadata`); ``footage`` ``view -> files``, linked
+    as external ``ImageSeries``; ``frame_rate`` defaults to ``metadata["frame_rate"]``, else the
+    footage's; ``recording`` (its directory) and ``config_text`` (the flylib config) are stored for
+    the record; ``joint_angles`` ``(angles (T, J) radians, joint names)`` from ``neuromechfly.h5``
+    become one ``TimeSeries`` per joint in the ``NeuroMechFlyJointAngles`` ``BehavioralTimeSeries``.
 
-    Raises
-    ------
-    ConfigError
-        No frame rate (image-sequence footage or none found, and no ``nwb.frame_rate``).
-    ResultsError
-        The result has no 3D points.
+    Raises :class:`ConfigError` without a frame rate (image-sequence footage or none, and no
+    ``nwb.frame_rate``) and :class:`ResultsError` when the result has no 3D points.
     """
     from pynwb import NWBHDF5IO, NWBFile
 
@@ -323,8 +300,7 @@ def _add_cameras(nwbfile, result, views: list[str]) -> dict:
 
 
 def _add_videos(nwbfile, result, views, footage, cameras, rate: float, start: Path) -> dict:
-    """The footage of each view that has files as an external ``ImageSeries`` (paths
-    relative to ``start``, the NWB file's folder): ``view -> series``."""
+    """Each view's footage as external ``ImageSeries`` (paths relative to ``start``), by view."""
     from pynwb.image import ImageSeries
 
     videos = {}
@@ -410,8 +386,7 @@ def _pose_estimations_2d(result, views, names, skeleton, cameras, videos, rate: 
 
 
 def _add_pose_3d(behavior, result, metadata, views, names, skeleton, per_view, rate) -> None:
-    """The ``MultiCameraPoseEstimation``: the 3D of each point with its confidence, and
-    the views' 2D ``per_view``."""
+    """The ``MultiCameraPoseEstimation``: each point's 3D and confidence, the views' 2D."""
     import ndx_pose
 
     confidence = (
@@ -520,17 +495,12 @@ def export_nwb(
     config_text: str | None = None,
     angles_path: str | Path | None = None,
 ) -> Path:
-    """Export a run's ``results.h5`` as NWB (what the workflow rule and ``flylib export
-    --nwb`` run, through :mod:`flylib.pipeline.export_nwb`).
+    """Export a run's ``results.h5`` as NWB (the workflow rule and ``flylib export --nwb``, through
+    :mod:`flylib.pipeline.export_nwb`).
 
-    ``metadata``, ``footage`` and ``config_text`` are as for :func:`write_nwb`;
-    ``recording_dir`` is the recording directory, or ``None`` (no video links);
-    ``angles_path``, the recording's ``neuromechfly.h5``, adds its joint angles.
-
-    Raises
-    ------
-    ConfigError
-        No frame rate.
+    ``metadata``, ``footage`` and ``config_text`` are as for :func:`write_nwb`; ``recording_dir`` is
+    the recording directory, or ``None`` (no video links); ``angles_path``, the recording's
+    ``neuromechfly.h5``, adds its joint angles. Raises :class:`ConfigError` without a frame rate.
     """
     from ..results import PoseResult
 

@@ -1,23 +1,20 @@
 """Loading another tool's pickle without letting it run code.
 
-A pickle names the callables that rebuild its objects (``module.name`` globals) and
-the unpickler calls them, so a plain :func:`pickle.load` of a downloaded file can run
-anything. DeepFly3D's files (the 2D result and the calibration) only hold dicts,
-lists, numbers, strings and NumPy arrays, so :func:`load_restricted` admits exactly
-the globals those need -- NumPy's array/dtype/scalar reconstruction helpers under
-both their NumPy 1.x (``numpy.core``) and 2.x (``numpy._core``) module paths, and
-the builtin containers and scalars -- and refuses every other global before it is
+A pickle names the callables that rebuild its objects (``module.name`` globals) and the unpickler
+calls them, so a plain :func:`pickle.load` of a downloaded file can run anything. DeepFly3D's files
+(the 2D result and the calibration) only hold dicts, lists, numbers, strings and NumPy arrays, so
+:func:`load_restricted` admits exactly the globals those need -- NumPy's array/dtype/scalar
+reconstruction helpers under both their NumPy 1.x (``numpy.core``) and 2.x (``numpy._core``) module
+paths, and the builtin containers and scalars -- and refuses every other global before it is
 imported, let alone called.
 
-Nor may a small file make the loader allocate without bound (a "bomb"): the file's
-size, its number of pickle opcodes (each object it builds costs at least one) and
-every declared length are checked before anything is built; the admitted callables
-that allocate (NumPy's array constructors, ``bytes(n)``, ``bytearray(n)``, ``str``)
-are wrapped to bound what they allocate; and the loaded value is measured as the
-tree its consumers will walk -- a list holding the same list 16 times, seven levels
-deep, is 290 bytes on disk and 500 million numbers to :func:`numpy.asarray` -- so
-shared, deep or cyclic structures are one clear error in milliseconds
-(:func:`load_restricted`).
+Nor may a small file make the loader allocate without bound (a "bomb"): the file's size, its number
+of pickle opcodes (each object it builds costs at least one) and every declared length are checked
+before anything is built; the admitted callables that allocate (NumPy's array constructors,
+``bytes(n)``, ``bytearray(n)``, ``str``) are wrapped to bound what they allocate; and the loaded
+value is measured as the tree its consumers will walk -- a list holding the same list 16 times,
+seven levels deep, is 290 bytes on disk and 500 million numbers to :func:`numpy.asarray` -- so
+shared, deep or cyclic structures are one clear error in milliseconds.
 """
 
 from __future__ import annotations
@@ -35,17 +32,17 @@ from ..errors import ImportFormatError
 
 #: Largest pickle file read (a 100,000-frame DeepFly3D 2D result is about 0.5 GB).
 MAX_PICKLE_BYTES = 2 << 30
-#: Most pickle opcodes in one file: DeepFly3D's files hold a few hundred (their
-#: arrays are single binary blobs); each built object costs at least one opcode.
+#: Most pickle opcodes in one file: DeepFly3D's files hold a few hundred (their arrays are single
+#: binary blobs); each built object costs at least one opcode.
 MAX_PICKLE_OPCODES = 2_000_000
-#: Most values the loaded structure may expand to when walked as a tree (containers,
-#: array elements and scalars; 2**28, 2 GiB as float64).
+#: Most values the loaded structure may expand to when walked as a tree (containers, array elements
+#: and scalars; 2**28, 2 GiB as float64).
 MAX_EXPANDED_VALUES = 1 << 28
 #: Deepest nesting of containers (DeepFly3D's data nests 3 deep).
 MAX_NESTING = 32
-#: Most bytes one call of an admitted constructor may allocate. A pickle's arrays
-#: carry their data in the file (``_reconstruct`` of an empty array, then its bytes);
-#: only a crafted file asks a constructor for size.
+#: Most bytes one call of an admitted constructor may allocate. A pickle's arrays carry their data
+#: in the file (``_reconstruct`` of an empty array, then its bytes); only a crafted file asks a
+#: constructor for size.
 MAX_ALLOCATION_BYTES = 256 << 20
 
 
@@ -68,8 +65,7 @@ def _bounded_nbytes(shape, dtype) -> None:
 
 
 class _PickledNdarray(np.ndarray):
-    """What a pickle's ``numpy.ndarray`` global resolves to: the type as an argument of
-    ``_reconstruct``, and when called, an allocation bounded like every other."""
+    """A pickle's ``numpy.ndarray``: the type for ``_reconstruct``; called, a bounded allocation."""
 
     def __new__(cls, shape, dtype=float, *args, **kwargs):
         _bounded_nbytes(shape, dtype)
@@ -115,8 +111,8 @@ def _plain_str(*args):
 
 
 def _numpy_helpers() -> dict[tuple[str, str], object]:
-    # Resolved from the running NumPy's private module (1.x: numpy.core, 2.x: numpy._core)
-    # so a file written under either version loads without importing the deprecated alias.
+    # Resolved from the running NumPy's private module (1.x: numpy.core, 2.x: numpy._core) so a file
+    # written under either version loads without importing the deprecated alias.
     try:
         from numpy._core import multiarray, numeric
     except ImportError:  # NumPy 1.x before 1.25 has no numpy._core
@@ -140,8 +136,7 @@ def _numpy_helpers() -> dict[tuple[str, str], object]:
 
 
 def _latin1_bytes(text, encoding: str = "latin1") -> bytes:
-    """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, nothing else
-    (no other codec -- compressors, ROT13, unknown names -- is reachable from a file)."""
+    """``_codecs.encode`` as pickles of bytes use it: latin-1 text to bytes, no other codec."""
     if (
         not isinstance(text, str)
         or not isinstance(encoding, str)
@@ -188,11 +183,11 @@ class _RestrictedUnpickler(pickle.Unpickler):
             raise RefusedGlobal(module, name) from None
 
 
-#: What :mod:`pickle` raises on bytes that are not a well-formed pickle: its own
-#: UnpicklingError, the ones its documentation lists (AttributeError, EOFError,
-#: ImportError, IndexError), and what the opcodes' arguments and the admitted NumPy
-#: constructors raise on bad values (struct sizes, memo keys, dtype strings, text
-#: encodings, absurd lengths, nesting deeper than the interpreter's stack).
+#: What :mod:`pickle` raises on bytes that are not a well-formed pickle: its own UnpicklingError,
+#: the ones its documentation lists (AttributeError, EOFError, ImportError, IndexError), and what
+#: the opcodes' arguments and the admitted NumPy constructors raise on bad values (struct sizes,
+#: memo keys, dtype strings, text encodings, absurd lengths, nesting deeper than the interpreter's
+#: stack).
 PICKLE_PARSE_ERRORS = (
     pickle.UnpicklingError,
     AttributeError,
@@ -209,8 +204,7 @@ PICKLE_PARSE_ERRORS = (
 
 
 def _prescan(data: bytes) -> None:
-    """Walk the opcodes without building anything: a declared length beyond the file
-    (which the C unpickler would allocate up front) or too many opcodes is refused."""
+    """Refuse, before anything is built, a declared length beyond the file or too many opcodes."""
     for count, _ in enumerate(pickletools.genops(io.BytesIO(data)), 1):
         if count > MAX_PICKLE_OPCODES:
             raise PickleBomb(f"more than {MAX_PICKLE_OPCODES} pickle opcodes")
@@ -232,9 +226,9 @@ def _values(obj) -> int:
 
 
 def _measure(value) -> None:
-    """Refuse a loaded value that expands, walked as a tree, beyond
-    :data:`MAX_EXPANDED_VALUES` values, nests deeper than :data:`MAX_NESTING`, or
-    contains itself (:func:`flylib.config.loading.shape_problem`)."""
+    """Refuse a loaded value that, walked as a tree, expands beyond :data:`MAX_EXPANDED_VALUES`
+    values, nests deeper than :data:`MAX_NESTING` or contains itself
+    (:func:`flylib.config.loading.shape_problem`)."""
     problem = shape_problem(
         value,
         children=_members,
@@ -247,21 +241,13 @@ def _measure(value) -> None:
 
 
 def load_restricted(path: str | Path, what: str):
-    """Unpickle ``path`` admitting only plain data and NumPy arrays, within bounds.
+    """Unpickle ``path`` admitting only plain data (dicts, lists, tuples, numbers, strings) and
+    NumPy arrays, within bounds; ``what`` names what the file should be, for messages
+    (``"DeepFly3D 2D result"``).
 
-    The value holds only dicts, lists, tuples, numbers, strings and NumPy arrays;
-    ``what`` names what the file should be, for messages (``"DeepFly3D 2D result"``).
-
-    Raises
-    ------
-    ImportFormatError
-        The file names a global outside :data:`ALLOWED_GLOBALS` (the message names
-        the file and the refused global; nothing of it was imported or called); it
-        is larger than :data:`MAX_PICKLE_BYTES`, holds more than
-        :data:`MAX_PICKLE_OPCODES` opcodes, would allocate more than
-        :data:`MAX_ALLOCATION_BYTES` at once, or its value expands to more than
-        :data:`MAX_EXPANDED_VALUES` values or nests deeper than :data:`MAX_NESTING`
-        (a bomb); or it is not a readable pickle.
+    Raises :class:`ImportFormatError` naming the file when it names a global outside
+    :data:`ALLOWED_GLOBALS` (nothing of it was imported or called), is a bomb beyond the bounds
+    above, or is not a readable pickle.
     """
     path = Path(path)
     try:

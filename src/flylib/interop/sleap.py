@@ -1,10 +1,10 @@
 """SLEAP analysis HDF5 (``sleap-convert --format analysis``), one file per camera view.
 
-Datasets used: ``node_names`` (K,), ``tracks`` and, when present, ``point_scores``.
-SLEAP writes its matrices transposed for MATLAB by default, so ``tracks`` is stored as
-``(n_tracks, 2, K, T)`` and ``point_scores`` as ``(n_tracks, K, T)``; files written
-without the transpose hold ``(T, K, 2, n_tracks)`` and ``(T, K, n_tracks)``. Both are
-accepted (told apart by where the length-2 coordinate axis sits).
+Datasets used: ``node_names`` (K,), ``tracks`` and, when present, ``point_scores``. SLEAP writes its
+matrices transposed for MATLAB by default, so ``tracks`` is stored as ``(n_tracks, 2, K, T)`` and
+``point_scores`` as ``(n_tracks, K, T)``; files written without the transpose hold
+``(T, K, 2, n_tracks)`` and ``(T, K, n_tracks)``. Both are accepted (told apart by where the
+length-2 coordinate axis sits).
 """
 
 from __future__ import annotations
@@ -25,30 +25,14 @@ log = logging.getLogger(__name__)
 def read_sleap_analysis(
     path: Path, track: int | str | None = None, *, max_bytes: int = DEFAULT_READ_BUDGET
 ) -> ViewKeypoints:
-    """Read one track of a SLEAP analysis HDF5.
+    """Read one track (index or name; required when the file holds several) of a SLEAP analysis
+    HDF5: node names, ``(T, K, 2)`` pixels and ``(T, K)`` point scores (1 where the file has no
+    scores and the point is present).
 
-    The file must hold its data itself: external storage, external links and virtual
-    datasets are refused (never followed), and each dataset's declared size is
-    checked against ``max_bytes`` before it is read (see :mod:`flylib.interop._h5`).
-
-    Parameters
-    ----------
-    track
-        Track index or name; required when the file holds several tracks.
-    max_bytes
-        The most bytes one dataset may declare (:func:`~flylib.interop._h5.read_budget`
-        of the recording; the importer passes it).
-
-    Returns
-    -------
-    ViewKeypoints
-        Node names, ``(T, K, 2)`` pixels and ``(T, K)`` point scores (1 where the file
-        has no scores and the point is present).
-
-    Raises
-    ------
-    ImportFormatError
-        When the file is missing, lacks ``tracks``/``node_names``, or the track is ambiguous.
+    The file must hold its data itself: external storage, external links and virtual datasets are
+    refused (never followed), and each dataset's declared size is checked against ``max_bytes`` (the
+    recording's :func:`~flylib.interop._h5.read_budget`) before it is read. A missing file, no
+    ``tracks``/``node_names``, or an ambiguous track is an :class:`ImportFormatError`.
     """
     path = Path(path)
     hint = "export it with sleap-convert --format analysis (or sleap_io.save_analysis_h5)"

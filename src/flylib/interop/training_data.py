@@ -1,29 +1,27 @@
 """Corrected frames as labeled training data, in DeepLabCut's labeled-data layout.
 
-A person's corrections (``flylib gui``, saved, applied by the next workflow run) are the
-first step to fine-tuning a detector on a lab's own footage. For every frame in which a
-point was corrected, every view's frame is written as a PNG with its labels::
+A person's corrections (``flylib gui``, saved, applied by the next workflow run) are the first step
+to fine-tuning a detector on a lab's own footage. For every frame in which a point was corrected,
+every view's frame is written as a PNG with its labels::
 
     <directory>/labeled-data/<video stem>/img0007.png
     <directory>/labeled-data/<video stem>/CollectedData_<scorer>.csv
     <directory>/labeled-data/<video stem>/CollectedData_<scorer>.h5
 
-the layout DeepLabCut's ``create_training_dataset`` reads from a project's
-``labeled-data`` folder (one folder per video, named after the video's stem, rows
-indexed ``("labeled-data", <video stem>, "img0007.png")``, columns
-``(scorer, bodyparts, coords)``, the ``.h5`` a pandas frame under key
-``df_with_missing``); ``sleap_io.load_dlc`` reads the CSV too.
+the layout DeepLabCut's ``create_training_dataset`` reads from a project's ``labeled-data`` folder
+(rows indexed ``("labeled-data", <video stem>, "img0007.png")``, columns
+``(scorer, bodyparts, coords)``, the ``.h5`` a pandas frame under key ``df_with_missing``);
+``sleap_io.load_dlc`` reads the CSV too.
 
-The label of a point in a view is, in this order: empty (NaN) where a person marked it
-invisible; the 2D the corrected 3D was solved from (the person's edit, or a detection
-the robust triangulation kept); the reprojection of the corrected 3D where the detector
-saw the point in that view but the triangulation left the detection out (a detection
-error, the corrected geometry's answer); empty otherwise (the view does not see it).
+A point's label in a view is, in this order: empty (NaN) where a person marked it invisible; the 2D
+the corrected 3D was solved from (the person's edit, or a detection the robust triangulation kept);
+the reprojection of the corrected 3D where the detector saw the point in that view but the
+triangulation left the detection out (a detection error); empty otherwise.
 
-Into an existing project the labels are merged row by row (:func:`merge_collected`):
-flylib's frames are added or updated, every other label is kept (other frames, other
-body parts and individuals' columns), an image already there is kept, and each
-``CollectedData`` file changed is first copied to ``<name>.<UTC time>.bak``.
+Into an existing project the labels are merged row by row (:func:`merge_collected`): flylib's frames
+are added or updated, every other label is kept (other frames, body parts and individuals' columns),
+an image already there is kept, and each ``CollectedData`` file changed is first copied to
+``<name>.<UTC time>.bak``.
 """
 
 from __future__ import annotations
@@ -60,21 +58,14 @@ def training_labels(
     touched: Bool[np.ndarray, "V T P"],
     image_sizes: list[tuple[int, int]],
 ) -> Float[np.ndarray, "V T P 2"]:
-    """The training label of every (view, frame, point) (see the module's docstring):
-    ``(V, T, P, 2)`` float64 pixels, NaN = no label.
+    """The training label of every (view, frame, point) (module docstring): ``(V, T, P, 2)`` float64
+    pixels, NaN = no label.
 
-    Parameters
-    ----------
-    used2d
-        ``(V, T, P, 2)`` the 2D the 3D was solved from (corrections applied), NaN = left out.
-    given2d
-        ``(V, T, P, 2)`` the 2D the triangulation was given (the detector's), NaN = none.
-    reprojected
-        ``(V, T, P, 2)`` the corrected 3D projected into each view, NaN without 3D.
-    touched
-        ``(V, T, P)`` bool: a person edited the point in that view or marked it invisible.
-    image_sizes
-        ``(height, width)`` per view: a reprojection outside the frame is no label.
+    Inputs: ``used2d`` the 2D the 3D was solved from (corrections applied; NaN = left out),
+    ``given2d`` the 2D the triangulation was given (the detector's), ``reprojected`` the corrected
+    3D projected into each view, all ``(V, T, P, 2)``; ``touched`` ``(V, T, P)``: a person edited
+    the point in that view or marked it invisible; ``image_sizes`` ``(height, width)`` per view (a
+    reprojection outside the frame is no label).
     """
     used = np.asarray(used2d, dtype=np.float64)
     has_used = np.isfinite(used).all(-1)
@@ -104,10 +95,10 @@ _HEADER_ROWS = ("scorer", "individuals", "bodyparts", "coords")
 
 
 def read_collected_csv(path: Path):
-    """A ``CollectedData_<scorer>.csv`` as DeepLabCut writes it: its header rows
-    (``scorer``, ``individuals`` for a multi-animal project, ``bodyparts``, ``coords``)
-    and index columns (``labeled-data, <video>, img.png``, or one path column in older
-    projects), found from the file itself."""
+    """A ``CollectedData_<scorer>.csv`` as DeepLabCut writes it, its header rows (``scorer``,
+    ``individuals`` in a multi-animal project, ``bodyparts``, ``coords``) and index columns
+    (``labeled-data, <video>, img.png``, or one path column in older projects) found from the file
+    itself."""
     import pandas as pd
 
     with open(path, newline="", encoding="utf-8") as f:
@@ -137,25 +128,14 @@ class MergeCount:
 
 
 def merge_collected(existing, new, cleared: np.ndarray):
-    """Merge flylib's labels ``new`` into a project's ``existing`` CollectedData frame.
+    """Merge flylib's labels ``new`` (:func:`_dlc_frame`) into a project's ``existing``
+    CollectedData frame (3 or 4 column levels; a 3-level or single-path row index).
 
-    Parameters
-    ----------
-    existing
-        The project's frame, in its own layout (3 or 4 column levels; a 3-level or
-        single-path row index).
-    new
-        flylib's frame (:func:`_dlc_frame`): columns ``(scorer, bodyparts, coords)``.
-    cleared
-        ``new``'s shape, bool: a person marked the point invisible, so the label is
-        removed; elsewhere a NaN of flylib's (no label) keeps the project's value.
-
-    Returns
-    -------
-    merged, MergeCount
-        Every row and column of ``existing`` (new body parts appended as columns, new
-        frames as rows); ``added`` frames new to the file, ``updated`` frames whose
-        labels changed, ``kept`` the file's frames left as they were.
+    Where ``cleared`` (``new``'s shape, bool) a person marked the point invisible and the label is
+    removed; elsewhere a NaN of flylib's keeps the project's value. Returns the merged frame (every
+    row and column of ``existing``, new body parts appended as columns, new frames as rows) and a
+    :class:`MergeCount`: frames ``added`` to the file, ``updated`` (labels changed) and ``kept`` as
+    they were.
     """
     import pandas as pd
 
@@ -256,40 +236,20 @@ def export_training_data(
     protected: Mapping[str, str] | None = None,
     report: Callable[[str], None] = log.info,
 ) -> list[Path]:
-    """Write the corrected frames of a ``results.h5`` as DeepLabCut labeled data.
+    """Write the corrected frames of a ``results.h5`` as DeepLabCut labeled data; returns the files
+    written (per view: the new PNGs, then the CSV and ``.h5`` unless nothing in them changed).
 
-    Parameters
-    ----------
-    results
-        A ``results.h5`` computed with a corrections sidecar (the workflow run after a
-        save in ``flylib gui``).
-    directory
-        A DeepLabCut project folder (or any folder): ``labeled-data/`` is made in it.
-    footage_of
-        ``recording directory -> {view: footage files}`` (the run's sources matched
-        in it: :func:`flylib.interop.views.footage_files` of the run's config); asked
-        only once the result holds corrected frames. ``None``: no footage is found.
-    recording
-        The recording directory (its footage); default the one ``results.h5`` names.
-    scorer
-        DeepLabCut's scorer name (``CollectedData_<scorer>``; a DLC project's ``scorer``).
-    protected
-        ``file -> role`` of the inputs no written file may land on.
-    report
-        Called with one line per ``CollectedData`` file: frames added, updated, kept.
+    ``results`` must have been computed with a corrections sidecar (the workflow run after a save in
+    ``flylib gui``); ``labeled-data/`` is made in ``directory`` (a DeepLabCut project folder, or
+    any). ``footage_of`` maps a recording directory to ``{view: footage files}``
+    (:func:`flylib.interop.views.footage_files` of the run's config), asked only once corrected
+    frames are found; ``recording`` defaults to the one ``results.h5`` names. ``scorer`` is
+    DeepLabCut's (``CollectedData_<scorer>``); ``protected`` ``file -> role`` lists inputs no
+    written file may land on; ``report`` gets one line per ``CollectedData`` file (frames added,
+    updated, kept).
 
-    Returns
-    -------
-    list of Path
-        The files written (per view: the new PNGs, then the CSV and the ``.h5`` unless
-        nothing in them changed).
-
-    Raises
-    ------
-    ResultsError
-        When the result holds no corrected frame.
-    FootageError
-        When a view's footage is not found or a frame cannot be read.
+    Raises :class:`ResultsError` when the result holds no corrected frame, :class:`FootageError`
+    when a view's footage is not found or a frame cannot be read.
     """
     import cv2
 

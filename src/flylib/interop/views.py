@@ -1,11 +1,9 @@
 """Which footage belongs to which configured view, and the raw frame size it has.
 
-Imported 2D keypoints are placed on the configured views (the ``cameras`` table, in
-config order). A view's footage is found through the detection plan: the pathways
-that fill the view (``pose2d.output_points.<view>``) name a source, and the source's
-``filename`` glob (:func:`footage_files`' ``view_globs``) is matched in the recording
-directory. Only the container/image
-header is read, never the pixels of a whole video.
+Imported 2D keypoints are placed on the configured views (the ``cameras`` table, in config order). A
+view's footage is found through the detection plan: the pathways that fill the view
+(``pose2d.output_points.<view>``) name a source, whose ``filename`` glob is matched in the recording
+directory. Only the container/image header is read, never the pixels of a whole video.
 """
 
 from __future__ import annotations
@@ -23,18 +21,14 @@ from ..recordings.footage import footage_matches, natural_sorted, video_frame_co
 def footage_files(
     view_globs: Mapping[str, str | None] | Iterable[tuple[str, str | None]], recording_dir: Path
 ) -> dict[str, list[Path]]:
-    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none).
+    """Each view's footage files in ``recording_dir`` (naturally sorted; empty if none), from
+    ``view_globs`` (``view -> glob`` of the source feeding it, ``None`` for a source without a
+    pattern; a mapping or pairs, in view order).
 
-    Matched like :func:`flylib.recordings.find_recording` does: only video and image
-    files count, so a DeepLabCut CSV beside ``camera_0.mp4`` is not footage.
-    ``view_globs``: ``view -> glob`` of the source feeding each view (``None``: a source
-    without a pattern), in view order (a mapping or ``(view, glob)`` pairs).
-
-    Raises
-    ------
-    FootageError
-        A match that is no regular file, or an image sequence with a gap in its
-        numbering (:func:`flylib.io.images.sequence_gap`), named.
+    Matched like :func:`flylib.recordings.find_recording`: only video and image files count, so a
+    DeepLabCut CSV beside ``camera_0.mp4`` is not footage. A match that is no regular file, or an
+    image sequence with a gap in its numbering (:func:`flylib.io.images.sequence_gap`), is a
+    :class:`FootageError`.
     """
     found = {
         view: natural_sorted(footage_matches(Path(recording_dir), glob)) if glob is not None else []
@@ -56,13 +50,10 @@ def read_frame_size(path: Path) -> tuple[int, int]:
 
 
 def read_frame_count(files: list[Path]) -> int | None:
-    """Frame count of a view's footage: the number of images, or the video's frames.
-
-    A video's frames are counted from its packets (read without decoding), not
-    taken from the header, which a truncated file still carries whole; the header
-    count is the fallback for a stream without timestamps. ``None`` when neither
-    gives a count (it is then not checked).
-    """
+    """Frame count of a view's footage: the number of images, or the video's frames, counted from
+    its packets (read without decoding) since a truncated file still carries its whole header count;
+    the header count is the fallback for a stream without timestamps. ``None`` when neither gives a
+    count (it is then not checked)."""
     if not files:
         return None
     if len(files) > 1 or files[0].suffix.lower() not in VIDEO_EXTS:
@@ -82,15 +73,8 @@ def image_sizes(
     origin: str,
     globs: Mapping[str, str | None] | None = None,
 ) -> dict[str, tuple[int, int]]:
-    """Raw frame ``(height, width)`` per view: from its footage (:func:`footage_files`),
-    else ``fallback``.
-
-    Raises
-    ------
-    ImportFormatError
-        When a view has no footage in ``recording_dir`` and no fallback size is set
-        (:func:`missing_footage`).
-    """
+    """Raw frame ``(height, width)`` per view: from its footage (:func:`footage_files`), else
+    ``fallback``; a view with neither is an :class:`ImportFormatError` (:func:`missing_footage`)."""
     problem = missing_footage(footage, recording_dir, views, fallback, globs=globs)
     if problem is not None:
         raise ImportFormatError(f"{origin}: {problem}")
@@ -113,11 +97,9 @@ def missing_footage(
     globs: Mapping[str, str | None] | None = None,
 ) -> str | None:
     """Why imported 2D cannot be given frame sizes, or ``None``: a view with no footage
-    (:func:`footage_files`) when ``pose2d.import.image_size`` (``fallback``) is not set.
-
-    The problem and its fix: the missing file named (from ``globs``) when other views
-    have footage (a camera's video missing), else how to set ``image_size``.
-    """
+    (:func:`footage_files`) while ``pose2d.import.image_size`` (``fallback``) is not set. The
+    missing file is named (from ``globs``) when other views have footage, else how to set
+    ``image_size`` is said."""
     if fallback is not None:
         return None
     missing = [v for v in views if not footage.get(v)]

@@ -1,15 +1,9 @@
 """Frame I/O: readers for video files and image sequences, and an MP4 writer.
 
-:func:`open_reader` resolves a footage source once to a :class:`VideoReader`
-(PyAV) or an :class:`ImageSequenceReader` (OpenCV); both yield ``(T, H, W, 3)``
-uint8 RGB frames by index (``reader[i]``, ``reader[[0, 3]]``, ``reader[2:8]``) or
-forward streaming (``stream_frames``, ``stream_blocks``). :class:`VideoWriter`
-encodes frames to H.264 MP4 one frame or block at a time.
-
->>> from flylib import io                               # doctest: +SKIP
->>> frames = io.open_reader("camera_0.mp4")[:]           # (T, H, W, 3) uint8
->>> with io.VideoWriter("copy.mp4", fps=100) as writer:
-...     writer.write_frames(frames)
+:func:`open_reader` resolves a footage source once to a :class:`VideoReader` (PyAV) or an
+:class:`ImageSequenceReader` (OpenCV); both yield ``(T, H, W, 3)`` uint8 RGB frames by index
+(``reader[i]``, ``reader[[0, 3]]``, ``reader[2:8]``) or forward streaming (``stream_frames``,
+``stream_blocks``). :class:`VideoWriter` encodes frames to H.264 MP4 one frame or block at a time.
 """
 
 from __future__ import annotations
@@ -45,28 +39,15 @@ def open_reader(
     threads: int | None = None,
     on_corrupt: str = "error",
 ) -> FrameReader:
-    """Open the right :class:`FrameReader` for a footage source: a :class:`VideoReader`
-    or an :class:`ImageSequenceReader`.
+    """Open the right :class:`FrameReader` (:class:`VideoReader` or :class:`ImageSequenceReader`)
+    for a footage source.
 
-    Parameters
-    ----------
-    source
-        A video file; a directory of images; a glob pattern (matching one video, or
-        images); or an explicit list of files (one video, or an image sequence
-        already in frame order, read as given).
-    workers
-        Decode threads for image sequences (``0``/``None``: automatic).
-    threads
-        Decoder threads for videos (``0``/``None``: automatic).
-    on_corrupt
-        Image sequences: ``"error"`` fails on a corrupt or truncated image naming it,
-        ``"missing"`` yields a black frame and records it (see
-        :class:`ImageSequenceReader`).
-
-    Raises
-    ------
-    FootageError
-        If the source does not exist, matches nothing, or mixes several videos.
+    ``source`` is a video file; a directory of images; a glob pattern (matching one video, or
+    images); or an explicit list of files (one video, or an image sequence already in frame order,
+    read as given). ``workers`` (image sequences) and ``threads`` (videos) are decode threads
+    (``0``/``None``: automatic). ``on_corrupt``, for image sequences: ``"error"`` fails on a
+    corrupt or truncated image naming it, ``"missing"`` yields a black frame and records it. Raises
+    :class:`FootageError` if the source does not exist, matches nothing, or mixes several videos.
     """
     if isinstance(source, (list, tuple)):
         files = [Path(f) for f in source]

@@ -24,11 +24,10 @@ IMAGE_EXTS = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp
 class FrameReader(ABC):
     """Reads ``(T, H, W, 3)`` uint8 RGB frames from one footage source.
 
-    Index with ``reader[key]``: ``reader[5]`` gives one ``(H, W, 3)`` frame,
-    ``reader[[0, 3, 5]]`` the listed frames in that order, ``reader[2:8:2]`` and
-    ``reader[:]`` a sequential range, each as ``(T, H, W, 3)``. Use
-    :meth:`stream_frames` / :meth:`stream_blocks` to walk a long source forward
-    without holding it in memory. Readers are context managers.
+    Index with ``reader[key]``: ``reader[5]`` gives one ``(H, W, 3)`` frame, ``reader[[0, 3, 5]]``
+    the listed frames in that order, ``reader[2:8:2]`` and ``reader[:]`` a sequential range, each as
+    ``(T, H, W, 3)``. Use :meth:`stream_frames` / :meth:`stream_blocks` to walk a long source
+    forward without holding it in memory. Readers are context managers.
     """
 
     def __enter__(self) -> FrameReader:

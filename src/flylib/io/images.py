@@ -25,19 +25,18 @@ _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 log = logging.getLogger(__name__)
 
-#: What an image sequence reader does with a corrupt or truncated image:
-#: ``error`` fails naming the file; ``missing`` warns and yields a black frame,
-#: recording its index in :attr:`ImageSequenceReader.corrupt_frames`.
+#: What an image sequence reader does with a corrupt or truncated image: ``error`` fails naming the
+#: file; ``missing`` warns and yields a black frame, its index in ``corrupt_frames``.
 ON_CORRUPT = ("error", "missing")
 
 
 def image_damage(data: bytes) -> str | None:
     """Why an encoded JPEG or PNG is incomplete, or ``None`` when it looks whole.
 
-    OpenCV decodes a truncated JPEG without an error (libjpeg fills the missing
-    rows with grey and only prints "Premature end of JPEG file"), so the encoded
-    bytes are checked: a JPEG must end its last scan with the EOI marker (``FFD9``;
-    it cannot occur inside entropy-coded data), a PNG must hold its ``IEND`` chunk.
+    OpenCV decodes a truncated JPEG without an error (libjpeg fills the missing rows with grey and
+    only prints "Premature end of JPEG file"), so the encoded bytes are checked: a JPEG must end its
+    last scan with the EOI marker (``FFD9``; it cannot occur inside entropy-coded data), a PNG must
+    hold its ``IEND`` chunk.
     """
     if data[:2] == b"\xff\xd8" and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
         return "truncated JPEG: no end-of-image marker after its last scan"
@@ -65,12 +64,10 @@ def _missing_name(template: Path, number: int) -> str:
 
 
 def sequence_gap(files: list[Path]) -> str | None:
-    """Why the frame numbers in an image sequence's file names do not run one by one,
-    or ``None`` when they do (or some name holds no number: then the order is the frame).
-
-    The number in each image's name is its frame (the last number of its stem), so a
-    missing image is a missing frame, never a shift of every later frame by one.
-    """
+    """Why the frame numbers in an image sequence's file names do not run one by one, or ``None``
+    when they do (or some name holds no number: then the order is the frame). The number in each
+    image's name is its frame (the last number of its stem), so a missing image is a missing
+    frame, never a shift of every later frame by one."""
     files = [Path(f) for f in files]
     found = [_LAST_NUMBER.search(f.stem) for f in files]
     if len(files) < 2 or any(m is None for m in found):
@@ -99,8 +96,8 @@ def sequence_gap(files: list[Path]) -> str | None:
 
 
 def list_image_files(pattern: str | Path) -> list[Path]:
-    """Image files of a directory or glob pattern (``"cam0/*.png"``), in natural order
-    (``2`` before ``10``); :class:`~flylib.errors.FootageError` if nothing matches."""
+    """Image files of a directory or glob pattern (``"cam0/*.png"``), in natural order (``2``
+    before ``10``); :class:`~flylib.errors.FootageError` if nothing matches."""
     p = Path(pattern)
     if p.is_dir():
         files = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTS]
@@ -116,30 +113,21 @@ def _default_workers() -> int:
 
 
 class ImageSequenceReader(FrameReader):
-    """An ordered image sequence, one frame per file, decoded by OpenCV.
+    """An ordered image sequence, one frame per file (``files``, in frame order; use
+    :meth:`from_pattern` to list a directory or glob in natural order), decoded by OpenCV.
 
-    The number in each file's name is its frame: a sequence whose numbers skip one
-    (or repeat one) is refused (:func:`sequence_gap`), never read shifted.
+    The number in each file's name is its frame: a sequence whose numbers skip one (or repeat one)
+    is refused (:func:`sequence_gap`), never read shifted. Gray images are broadcast to three
+    channels and alpha is dropped, so frames are always ``(H, W, 3)`` uint8 RGB. Image sequences
+    carry no frame rate, so :meth:`fps` is ``None``.
 
-    Gray images are broadcast to three channels and alpha is dropped, so frames are
-    always ``(H, W, 3)`` uint8 RGB. Blocks are decoded on a pool of ``workers``
-    threads (OpenCV releases the GIL while decoding). Image sequences carry no
-    frame rate, so :meth:`fps` is ``None``.
-
-    Parameters
-    ----------
-    files
-        The image files in frame order (use :meth:`from_pattern` to list a directory
-        or glob in natural order).
-    workers
-        Decode threads; ``0`` or ``None`` picks ``min(8, usable_cpus())``; never more
-        than :func:`~flylib.resources.usable_cpus` (a thread budget caps it). With one,
-        blocks decode in the calling thread: no pool is started.
-    on_corrupt
-        ``"error"`` (default): a corrupt or truncated image raises
-        :class:`~flylib.errors.FootageError` naming it. ``"missing"``: it is logged as
-        a warning, decoded as a black frame and its index added to
-        :attr:`corrupt_frames`, so callers can mark the frame missing.
+    Blocks are decoded on a pool of ``workers`` threads (OpenCV releases the GIL while decoding):
+    ``0`` or ``None`` picks ``min(8, usable_cpus())``; never more than
+    :func:`~flylib.resources.usable_cpus` (a thread budget caps it); with one, blocks decode in the
+    calling thread. ``on_corrupt="error"`` (default): a corrupt or truncated image raises
+    :class:`~flylib.errors.FootageError` naming it; ``"missing"``: it is logged as a warning,
+    decoded as a black frame and its index added to :attr:`corrupt_frames`, so callers can mark
+    the frame missing.
     """
 
     def __init__(self, files, *, workers: int | None = None, on_corrupt: str = "error") -> None:

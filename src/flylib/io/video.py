@@ -19,8 +19,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-# Decoding keeps walking forward instead of seeking when the next wanted frame is
-# at most this many frames ahead: cheaper than a seek back to a keyframe.
+# Decoding keeps walking forward instead of seeking when the next wanted frame is at most this
+# many frames ahead: cheaper than a seek back to a keyframe.
 _SEEK_GAP = 48
 
 
@@ -33,21 +33,14 @@ def _av():
 class VideoReader(FrameReader):
     """Frame-accurate decode of one video file through PyAV (in-process FFmpeg).
 
-    Frames are numbered in presentation order from 0. Random access seeks to the
-    keyframe before the wanted frame and decodes forward, identifying frames by
-    their presentation timestamps (read once from the packet index, without
-    decoding), so neither a wrong frame rate nor a wrong frame count in the
-    container header affects which frame is returned. ``count`` and ``fps`` are
-    header values, used only as hints.
-
-    Parameters
-    ----------
-    path
-        The video file.
-    threads
-        Decoder threads (frame + slice threading); ``0`` or ``None`` lets FFmpeg
-        choose from the CPUs. Never more than :func:`~flylib.resources.usable_cpus`:
-        under a one-thread budget FFmpeg decodes in the calling thread.
+    Frames are numbered in presentation order from 0. Random access seeks to the keyframe before
+    the wanted frame and decodes forward, identifying frames by their presentation timestamps (read
+    once from the packet index, without decoding), so neither a wrong frame rate nor a wrong frame
+    count in the container header affects which frame is returned. ``count`` and ``fps`` are
+    header values, used only as hints. ``threads``: decoder threads (frame + slice threading);
+    ``0`` or ``None`` lets FFmpeg choose from the CPUs; never more than
+    :func:`~flylib.resources.usable_cpus` (under a one-thread budget FFmpeg decodes in the calling
+    thread).
     """
 
     def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
@@ -64,8 +57,6 @@ class VideoReader(FrameReader):
     @property
     def name(self) -> str:
         return str(self.path)
-
-    # -- container access ----------------------------------------------------
 
     def _open(self):
         av = _av()
@@ -85,13 +76,12 @@ class VideoReader(FrameReader):
         return container, stream
 
     def decoder_threads(self) -> int:
-        """FFmpeg's ``thread_count`` for the next open (``0``: FFmpeg's choice), read
-        when the video is opened, so the :func:`~flylib.resources.thread_budget` in
-        force then applies.
+        """FFmpeg's ``thread_count`` for the next open (``0``: FFmpeg's choice), read when the
+        video is opened, so the :func:`~flylib.resources.thread_budget` in force then applies.
 
-        FFmpeg's choice is kept with more than one CPU: the thread count changes how a
-        truncated last packet surfaces (a decode error with one or two threads, a short
-        stream with more; both end in a :class:`~flylib.errors.FootageError`).
+        FFmpeg's choice is kept with more than one CPU: the thread count changes how a truncated
+        last packet surfaces (a decode error with one or two threads, a short stream with more;
+        both end in a :class:`~flylib.errors.FootageError`).
         """
         cpus = usable_cpus()
         if cpus == 1:
@@ -105,11 +95,8 @@ class VideoReader(FrameReader):
         )
 
     def pts_index(self) -> list[int] | None:
-        """Presentation timestamps of every frame in order, read from the packets.
-
-        ``None`` when the container's packets carry no timestamps (raw streams);
-        readers then fall back to counting decoded frames.
-        """
+        """Presentation timestamps of every frame in order, read from the packets; ``None`` when
+        they carry none (raw streams): readers then fall back to counting decoded frames."""
         if not self._pts_index_read:
             av = _av()
             container, stream = self._open()
@@ -129,16 +116,14 @@ class VideoReader(FrameReader):
             self._pts_index_read = True
         return self._pts_index
 
-    # -- decoding --------------------------------------------------------------
-
     def stream_frames(
         self, *, start: int = 0, stop: int | None = None, step: int = 1, format: str = "rgb24"
     ) -> Iterator[UInt8[np.ndarray, "*frame"]]:
         """Yield frames of ``range(start, stop, step)`` in one forward pass.
 
-        ``format="rgb24"``: ``(H, W, 3)`` uint8 RGB. ``"yuv420p"``: the decoder's planes
-        as one ``(3 H / 2, W)`` uint8 array (Y, then U, then V), skipping the colour
-        conversion so it can run on the GPU (see :meth:`color_tags`).
+        ``format="rgb24"``: ``(H, W, 3)`` uint8 RGB. ``"yuv420p"``: the decoder's planes as one
+        ``(3 H / 2, W)`` uint8 array (Y, then U, then V), skipping the colour conversion so it can
+        run on the GPU (see :meth:`color_tags`).
         """
         if step < 1:
             raise ValueError(f"step must be >= 1, got {step}")
@@ -226,8 +211,6 @@ class VideoReader(FrameReader):
                     break  # the decoder could not reach todo[k]
         return picked
 
-    # -- header metadata ---------------------------------------------------------
-
     def _header(self) -> dict:
         """The stream header's values, read in one open of the container (then cached)."""
         if self._header_values is None:
@@ -265,10 +248,8 @@ class VideoReader(FrameReader):
         return self._header()["pix_fmt"]
 
     def color_tags(self) -> tuple[str, str]:
-        """``(matrix, range)`` of the YUV data: ``"bt709"``/``"bt601"``, ``"full"``/``"limited"``.
-
-        Untagged streams are BT.601 limited range, as FFmpeg assumes.
-        """
+        """``(matrix, range)`` of the YUV data: ``"bt709"``/``"bt601"``, ``"full"``/``"limited"``;
+        untagged streams are BT.601 limited range, as FFmpeg assumes."""
         header = self._header()
         matrix = "bt709" if header["colorspace"] == 1 else "bt601"
         return matrix, ("full" if header["color_range"] == 2 else "limited")
@@ -282,29 +263,14 @@ class VideoReader(FrameReader):
 
 
 class VideoWriter:
-    """Incremental H.264 (libx264) MP4 encoder backed by PyAV.
+    """Incremental H.264 (libx264) MP4 encoder backed by PyAV; a context manager.
 
-    The file is opened lazily on the first frame, whose size sets the encode size
-    (rounded down to even, as ``yuv420p`` needs); later frames must be at least that
-    large and are cropped to it. Frames may be NumPy or torch, ``(H, W, 3)`` RGB or
-    ``(H, W)`` gray; non-uint8 values are clipped to ``[0, 255]``.
-
-    >>> with VideoWriter("out.mp4", fps=100) as writer:   # doctest: +SKIP
-    ...     for block in blocks:
-    ...         writer.write_frames(block)
-
-    Parameters
-    ----------
-    fps
-        Frame rate written to the container.
-    codec
-        FFmpeg encoder name.
-    crf
-        Constant rate factor (x264 quality; lower is better, 0 lossless in ``yuv444p``).
-    preset
-        x264 speed preset (``"ultrafast"`` ... ``"veryslow"``).
-    options
-        Further encoder options, passed to FFmpeg as strings.
+    The file is opened lazily on the first frame, whose size sets the encode size (rounded down to
+    even, as ``yuv420p`` needs); later frames must be at least that large and are cropped to it.
+    Frames may be NumPy or torch, ``(H, W, 3)`` RGB or ``(H, W)`` gray; non-uint8 values are
+    clipped to ``[0, 255]``. ``codec`` is the FFmpeg encoder; ``crf`` the x264 constant rate factor
+    (lower is better, 0 lossless in ``yuv444p``); ``preset`` the x264 speed preset
+    (``"ultrafast"`` ... ``"veryslow"``); ``options`` further encoder options, passed as strings.
     """
 
     def __init__(

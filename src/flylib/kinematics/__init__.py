@@ -1,8 +1,8 @@
 """Kinematics: the body frame of the fly and its joint angles.
 
 :func:`compute_kinematics` works on a ``(T, P, 3)`` array and a skeleton;
-:mod:`flylib.pipeline.kinematics` is the workflow stage (``kinematics.h5``,
-``angles.csv`` in Anipose's angles layout, ``angles.png``).
+:mod:`flylib.pipeline.kinematics` is the workflow stage (``kinematics.h5``, ``angles.csv`` in
+Anipose's angles layout, ``angles.png``).
 """
 
 from __future__ import annotations
@@ -16,13 +16,7 @@ import numpy as np
 from ..config.postprocessing import KinematicsParams
 from ..errors import ConfigError
 from .angles import default_angles, default_segments, flexion, segment_orientation
-from .frame import (
-    FRAME_KEYS,
-    body_frame,
-    default_frame_points,
-    frame_from_groups,
-    to_body,
-)
+from .frame import FRAME_KEYS, body_frame, default_frame_points, frame_from_groups, to_body
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -52,18 +46,11 @@ __all__ = [
 class Kinematics:
     """Angles and body-frame 3D of one recording.
 
-    Attributes
-    ----------
-    angle_names
-        Column names, flexion angles first, then ``<segment>_yaw/_pitch/_roll``.
-    angles
-        ``(T, A)`` degrees, NaN where a point is missing.
-    definitions
-        ``name -> [a, b, c]`` point names each angle is computed from.
-    points3d_body
-        ``(T, P, 3)`` the pose in the body frame.
-    rotation, origin
-        The body frame: ``(3, 3)``/``(3,)`` (tethered) or ``(T, 3, 3)``/``(T, 3)``.
+    ``angles`` ``(T, A)`` in degrees (NaN where a point is missing), columns ``angle_names``:
+    flexion angles first, then ``<segment>_yaw/_pitch/_roll``; ``definitions`` maps each to
+    the ``[a, b, c]`` point names it is computed from. ``points3d_body`` ``(T, P, 3)`` is the
+    pose in the body frame ``rotation``, ``origin``: ``(3, 3)``/``(3,)`` (tethered) or
+    ``(T, 3, 3)``/``(T, 3)``.
     """
 
     angle_names: list[str]
@@ -92,23 +79,13 @@ def compute_kinematics(
     tethered: bool = KinematicsParams.tethered,
     body_frame_points: Mapping[str, Sequence[str]] | None = None,
 ) -> Kinematics:
-    """Body frame, body-frame 3D and joint angles.
+    """Body frame, body-frame 3D and joint angles of world points ``(T, P, 3)`` (NaN = missing).
 
-    Parameters
-    ----------
-    pts3d
-        ``(T, P, 3)`` world points, NaN = missing.
-    skeleton
-        The :class:`~flylib.skeleton.Skeleton` naming the P axis.
-    angles
-        ``name -> (a, b, c)`` flexion angles at ``b``; ``None`` = :func:`default_angles`.
-    segments
-        ``name -> (a, b, c)`` segment orientations; ``None`` = :func:`default_segments`.
-    tethered
-        One body frame for the recording, else one per frame.
-    body_frame_points
-        ``origin, posterior, anterior, right, left`` point names; ``None`` =
-        :func:`default_frame_points`.
+    ``angles`` (flexion at ``b``) and ``segments`` (orientations) map ``name -> (a, b, c)``
+    point names; ``body_frame_points`` gives the ``origin, posterior, anterior, right, left``
+    groups; ``None`` takes :func:`default_angles`, :func:`default_segments`,
+    :func:`default_frame_points`. ``tethered``: one body frame for the recording, else one
+    per frame.
     """
     pts3d = np.asarray(pts3d, np.float64)
     groups_names = body_frame_points or default_frame_points(skeleton)

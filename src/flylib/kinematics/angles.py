@@ -1,11 +1,11 @@
 """Joint angles: Anipose's flexion angles and segment orientation in the body frame.
 
-A flexion angle ``[a, b, c]`` is the angle at ``b`` between ``b->a`` and ``b->c`` in
-degrees (Anipose's ``angles`` convention: 180 = straight). A segment ``[a, b, c]``
-gives the orientation of ``a->b`` in the body frame: ``yaw`` (from +x towards +y, in
-the horizontal plane), ``pitch`` (elevation above the body's xy-plane) and ``roll``
-(rotation about the segment of the plane through ``a, b, c``, zero when that plane
-contains the body's z axis, positive counter-clockwise looking from ``a`` to ``b``).
+A flexion angle ``[a, b, c]`` is the angle at ``b`` between ``b->a`` and ``b->c`` in degrees
+(Anipose's ``angles`` convention: 180 = straight). A segment ``[a, b, c]`` gives the
+orientation of ``a->b`` in the body frame: ``yaw`` (from +x towards +y, in the horizontal
+plane), ``pitch`` (elevation above the body's xy-plane) and ``roll`` (rotation about the
+segment of the plane through ``a, b, c``, zero when that plane contains the body's z axis,
+positive counter-clockwise looking from ``a`` to ``b``).
 """
 
 from __future__ import annotations
@@ -45,9 +45,8 @@ def segment_orientation(
 
 
 def default_angles(skeleton) -> dict[str, tuple[str, str, str]]:
-    """Flexion at every inner joint of the legs (chains named ``*_leg``; all chains when
-    none is): for the fly, each leg's coxa-trochanter, femur-tibia and tibia-tarsus,
-    named ``<joint>_flex`` (e.g. ``lf_femur_tibia_flex``)."""
+    """Flexion at every inner joint of the legs (chains named ``*_leg``; all chains when none
+    is), named ``<joint>_flex`` (e.g. ``lf_femur_tibia_flex``)."""
     chains = {k: v for k, v in skeleton.limbs.items() if k.endswith("_leg")} or dict(skeleton.limbs)
     out = {}
     for chain in chains.values():

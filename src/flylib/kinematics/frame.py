@@ -1,15 +1,15 @@
 """The body frame: origin at the thorax-coxa centroid, x anterior, z dorsal, right-handed.
 
-Given point groups (``origin``, ``posterior``, ``anterior``, ``right``, ``left``), the
-axes of a pose are
+Given point groups (``origin``, ``posterior``, ``anterior``, ``right``, ``left``), the axes
+of a pose are
 
 - ``x`` = unit(mean(anterior) - mean(posterior)),
 - ``y`` = the left-pointing ``mean(left) - mean(right)`` made orthogonal to ``x``,
 - ``z`` = ``x`` cross ``y`` (dorsal for a fly whose left is +y when it faces +x),
 
-and body coordinates are ``R (p - origin)`` with ``R = [x; y; z]`` (rows). Everything
-is built from differences and means of the pose's own points, so rotating and
-translating the whole pose leaves the body coordinates unchanged.
+and body coordinates are ``R (p - origin)`` with ``R = [x; y; z]`` (rows). Everything is
+built from differences and means of the pose's own points, so rotating and translating the
+whole pose leaves the body coordinates unchanged.
 """
 
 from __future__ import annotations
@@ -28,13 +28,8 @@ FRAME_KEYS = ("origin", "posterior", "anterior", "right", "left")
 
 
 def default_frame_points(skeleton) -> dict[str, list[str]]:
-    """The fly's body-frame groups from its ``<side><leg>_thorax_coxa`` points.
-
-    Raises
-    ------
-    ConfigError
-        If the skeleton lacks the thorax-coxa points (set ``kinematics.body_frame``).
-    """
+    """The fly's body-frame groups from its ``<side><leg>_thorax_coxa`` points (ConfigError
+    if the skeleton lacks them: set ``kinematics.body_frame``)."""
     tc = [p for p in skeleton.point_names if p.endswith("thorax_coxa") and len(p) > 2]
     groups = {
         "origin": tc,
@@ -75,8 +70,8 @@ def frame_from_groups(
 
 def steady_pose(pts: Float[np.ndarray, "T P 3"], indices: list[int]) -> Float[np.ndarray, "P 3"]:
     """One robust position per point over frames ``(T, P, 3)`` -> ``(P, 3)`` (NaN rows for
-    points never seen): the mean after dropping frames more than 3 median distances
-    from the mean; distances only, so the estimate moves with a rigid motion."""
+    points never seen): the mean after dropping frames more than 3 median distances from the
+    mean; distances only, so the estimate moves with a rigid motion."""
     out = np.full((pts.shape[1], 3), np.nan)
     for p in indices:
         track = pts[:, p]
@@ -95,23 +90,9 @@ def body_frame(
     groups: dict[str, list[int]],
     tethered: bool = KinematicsParams.tethered,
 ) -> tuple[Float[np.ndarray, "*frames 3 3"], Float[np.ndarray, "*frames 3"]]:
-    """The body frame of a recording.
-
-    Parameters
-    ----------
-    pts3d
-        ``(T, P, 3)`` world points, NaN = missing.
-    groups
-        ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point indices.
-    tethered
-        One frame for the recording (from each frame point's robust steady position),
-        else one per frame.
-
-    Returns
-    -------
-    rotation, origin
-        ``(3, 3)`` and ``(3,)`` when tethered, else ``(T, 3, 3)`` and ``(T, 3)``.
-    """
+    """The body frame ``(rotation, origin)`` of world points ``(T, P, 3)`` (NaN = missing)
+    from the ``groups``' point indices: ``(3, 3)`` and ``(3,)`` when ``tethered`` (from each
+    frame point's :func:`steady_pose`), else ``(T, 3, 3)`` and ``(T, 3)``."""
     if tethered:
         used = sorted({p for v in groups.values() for p in v})
         return frame_from_groups(steady_pose(pts3d, used), groups)

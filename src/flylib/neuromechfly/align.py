@@ -1,18 +1,16 @@
-"""A recording's 3D in NeuroMechFly's template body: one similarity from the thorax-coxa
-points, then each leg scaled to the model's leg length about its thorax-coxa joint.
+"""A recording's 3D in NeuroMechFly's template body: one similarity from the thorax-coxa points,
+then each leg scaled to the model's leg length about its thorax-coxa joint.
 
-The similarity (Umeyama) maps the recording's six thorax-coxa points, their median
-over the frames, onto the model's; a tethered fly's thorax does not move, so one
-similarity serves every frame, and a recording whose thorax-coxa points do move is
-refused. A fly's leg proportions differ from the model's, and the chains' lengths are
-the model's: as in SeqIKPy's ``AlignPose``, each leg is translated so that its
-thorax-coxa joint sits on the model's and scaled so that its median length (the sum
-of its four segments) is the model's; the inverse kinematics then fits chains of the
-fly's own segment lengths (SeqIKPy's ``body_size``), so that the angles, not the
-proportions, carry the fit.
+The similarity (Umeyama) maps the recording's six thorax-coxa points, their median over the
+frames, onto the model's; a tethered fly's thorax does not move, so one similarity serves every
+frame, and a recording whose thorax-coxa points do move is refused. As in SeqIKPy's
+``AlignPose``, each leg is then translated so that its thorax-coxa joint sits on the model's and
+scaled so that its median length (the sum of its four segments) is the model's; the inverse
+kinematics fits chains of the fly's own segment lengths (SeqIKPy's ``body_size``), so that the
+angles, not the proportions, carry the fit.
 
-The six thorax-coxa points are nearly coplanar, so which side of them is ventral comes
-from the legs: coordinates in which the legs hang dorsally are mirrored first.
+The six thorax-coxa points are nearly coplanar, so which side of them is ventral comes from the
+legs: coordinates in which the legs hang dorsally are mirrored first.
 """
 
 from __future__ import annotations
@@ -43,21 +41,13 @@ _MIRROR = np.array([1.0, 1.0, -1.0])
 class TemplateAlignment:
     """How a recording was put in the template body.
 
-    Attributes
-    ----------
-    scale, rotation, translation
-        The similarity ``x -> scale * rotation @ x + translation`` (recording -> model mm).
-    leg_scale
-        ``(6,)`` each leg's extra scale about its thorax-coxa joint (NaN: too few points).
-    mirrored
-        Whether the recording's coordinates were mirrored first (its legs hung on the
-        dorsal side: a left-handed frame, or left and right swapped).
-    segment_scale
-        ``(6, 4)`` each aligned segment's median length over the model's: the fly's
-        own proportions, which the inverse kinematics' chains take (as SeqIKPy's).
-    thorax_motion
-        The thorax-coxa points' motion over the recording: the 95th percentile of their
-        distance from their median position, in model leg lengths.
+    The similarity ``x -> scale * rotation @ x + translation`` (recording -> model mm);
+    ``leg_scale``: each leg's extra scale about its thorax-coxa joint (NaN: too few points);
+    ``segment_scale``: each aligned segment's median length over the model's, the fly's own
+    proportions, which the inverse kinematics' chains take; ``thorax_motion``: the 95th percentile
+    of the thorax-coxa points' distance from their median position, in model leg lengths;
+    ``mirrored``: the coordinates were mirrored first (the legs hung on the dorsal side: a
+    left-handed frame, or left and right swapped).
     """
 
     scale: float
@@ -70,16 +60,10 @@ class TemplateAlignment:
 
 
 def leg_point_indices(skeleton: Skeleton) -> np.ndarray:
-    """``(6, 5)`` the skeleton's point indices of each leg chain (ThC, CTr, FTi, TiTa, claw).
-
-    The legs are the limbs ``<side><leg>_leg`` (``lf_leg`` ... ``rh_leg``) of five
-    points each, body to claw, in :data:`~flylib.neuromechfly.model.LEGS` order.
-
-    Raises
-    ------
-    ConfigError
-        If the skeleton lacks one of the six legs or a leg is not five points long.
-    """
+    """``(6, 5)`` the skeleton's point indices of each leg chain (ThC, CTr, FTi, TiTa, claw):
+    the limbs ``lf_leg`` ... ``rh_leg`` of five points each, body to claw, in
+    :data:`~flylib.neuromechfly.model.LEGS` order; a ConfigError if one is missing or not five
+    points long."""
     rows = []
     for leg in LEGS:
         limb = f"{leg.lower()}_leg"
@@ -100,30 +84,14 @@ def align_to_template(
     still_tolerance: float = NeuromechflyParams.still_tolerance,
     source: str = "3D",
 ) -> tuple[Float[np.ndarray, "T 6 5 3"], TemplateAlignment]:
-    """Put a recording's leg chains in the model's thorax frame (mm).
+    """Put a recording's leg chains (legs in ``LEGS`` order, NaN = missing) in the model's
+    thorax frame: each leg in model mm, rooted at the model's thorax-coxa joint, and the
+    :class:`TemplateAlignment`.
 
-    Parameters
-    ----------
-    legs3d
-        ``(T, 6, 5, 3)`` each leg's five points, legs in ``LEGS`` order, NaN = missing.
-    still_tolerance
-        The largest thorax-coxa motion accepted (95th percentile of the distance from
-        the median position, in model leg lengths after scaling).
-    source
-        The file the points came from, for messages.
-
-    Returns
-    -------
-    aligned : np.ndarray
-        ``(T, 6, 5, 3)`` in model millimetres, each leg rooted at the model's
-        thorax-coxa joint.
-    alignment : TemplateAlignment
-
-    Raises
-    ------
-    ResultsError
-        If fewer than four thorax-coxa points were reconstructed, or they move more than
-        ``still_tolerance`` (an untethered fly).
+    ``still_tolerance``: the largest thorax-coxa motion accepted (95th percentile of the distance
+    from the median position, in model leg lengths); ``source``: the file, for messages. A
+    ResultsError if fewer than four thorax-coxa points were reconstructed, or they move more
+    (an untethered fly).
     """
     legs3d = np.asarray(legs3d, dtype=np.float64)
     thc = legs3d[:, :, 0]
@@ -187,9 +155,9 @@ def align_to_template(
 
 
 def _legs_point_dorsal(legs3d: np.ndarray, centre: np.ndarray) -> bool:
-    # the body frame of flylib.kinematics (x anterior, y left, z = x cross y) from the
-    # thorax-coxa points alone is right-handed only if the legs hang ventrally (-z);
-    # the six points are nearly coplanar, so a fit on them alone cannot tell
+    # the body frame of flylib.kinematics (x anterior, y left, z = x cross y) from the thorax-coxa
+    # points is right-handed only if the legs hang ventrally (-z); the six points are nearly
+    # coplanar, so a fit on them alone cannot tell
     with _quiet_nan_warnings():
         front, hind = np.nanmean(centre[[0, 3]], axis=0), np.nanmean(centre[[2, 5]], axis=0)
         left, right = np.nanmean(centre[:3], axis=0), np.nanmean(centre[3:], axis=0)

@@ -25,25 +25,13 @@ logger = logging.getLogger(__name__)
 class NmfAngles:
     """NeuroMechFly's leg angles of a recording.
 
-    Attributes
-    ----------
-    angles
-        ``(T, 42)`` radians, columns :func:`~flylib.neuromechfly.model.dof_names`
-        (flygym's ``joint_<leg><dof>``); NaN where a leg was not solved.
-    residual
-        ``(T, 6, 5)`` distance from each joint of the fitted chain (forward kinematics
-        of ``angles`` on the fly's own segment lengths) to the aligned measured joint,
-        in leg lengths of the model's leg; joints
-        :data:`~flylib.neuromechfly.model.CHAIN_JOINTS`.
-    model_residual
-        The same for the model's own chain (what a replay in flygym reproduces): adds
-        the difference between the fly's and the model's proportions.
-    aligned
-        ``(T, 6, 5, 3)`` the measured legs in the model's thorax frame (mm).
-    alignment
-        The similarity, per-leg scales, thorax motion and mirroring.
-    unsolved
-        ``leg -> number of frames`` left NaN because a point of the leg is missing.
+    ``angles``: radians, columns :func:`~flylib.neuromechfly.model.dof_names` (flygym's
+    ``joint_<leg><dof>``), NaN where a leg was not solved. ``residual``: distance from each joint
+    (:data:`~flylib.neuromechfly.model.CHAIN_JOINTS`) of the fitted chain (forward kinematics of
+    ``angles`` on the fly's own segment lengths) to the aligned measured joint, in model leg
+    lengths; ``model_residual``: the same for the model's own chain (what a replay in flygym
+    reproduces), which adds the difference in proportions. ``aligned``: the measured legs in the
+    model's thorax frame (mm); ``unsolved``: ``leg -> frames`` left NaN for a missing point.
     """
 
     angles: Float[np.ndarray, "T 42"]
@@ -54,8 +42,7 @@ class NmfAngles:
     unsolved: dict[str, int]
 
     def residual_summary(self, model: bool = False) -> dict[str, dict[str, float]]:
-        """Per leg and joint: the median and 95th percentile of :attr:`residual`
-        (``model``: of :attr:`model_residual`)."""
+        """``leg_joint -> {median, p95}`` of :attr:`residual` (``model``: of the model's)."""
         residual = self.model_residual if model else self.residual
         out: dict[str, dict[str, float]] = {}
         for k, leg in enumerate(LEGS):
@@ -77,27 +64,13 @@ def compute_nmf_angles(
     iterations: int = ITERATIONS,
     source: str = "3D",
 ) -> NmfAngles:
-    """Align ``pts3d`` to NeuroMechFly's template and solve each leg's seven angles.
+    """Align ``pts3d`` (NaN = missing) to NeuroMechFly's template and solve each leg's seven
+    angles (``iterations`` Levenberg-Marquardt steps per frame and leg).
 
-    Parameters
-    ----------
-    pts3d
-        ``(T, P, 3)`` the recording's 3D points, NaN = missing.
-    skeleton
-        Names the six legs as limbs ``lf_leg`` ... ``rh_leg`` of five points each.
-    still_tolerance
-        See :func:`~flylib.neuromechfly.align.align_to_template`.
-    iterations
-        Levenberg-Marquardt steps per (frame, leg).
-    source
-        The file the points came from, for messages.
-
-    Raises
-    ------
-    ConfigError
-        If the skeleton does not name the six legs.
-    ResultsError
-        If the thorax is not still or too few thorax-coxa points were reconstructed.
+    The ``skeleton`` names the six legs as limbs ``lf_leg`` ... ``rh_leg`` of five points each
+    (else a ConfigError); a thorax that is not still (``still_tolerance``,
+    :func:`~flylib.neuromechfly.align.align_to_template`) or too few reconstructed thorax-coxa
+    points are a ResultsError naming ``source``.
     """
     legs3d = np.asarray(pts3d, dtype=np.float64)[:, leg_point_indices(skeleton)]
     aligned, alignment = align_to_template(legs3d, still_tolerance=still_tolerance, source=source)

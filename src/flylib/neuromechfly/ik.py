@@ -1,14 +1,14 @@
 """Inverse kinematics on NeuroMechFly's leg chains (JAX, float64, CPU).
 
 Each (frame, leg) is one small least-squares problem: the seven angles of
-:data:`~flylib.neuromechfly.model.DOF_SUFFIXES` that put the model's coxa-trochanter,
-femur-tibia, tibia-tarsus and claw (forward kinematics from the model's thorax-coxa
-joint) nearest the aligned measured points. All problems are solved at once (``vmap``)
-by Levenberg-Marquardt with a forward-mode Jacobian, started from the closed-form
-angles of straight segments (:func:`initial_angles`), which also picks the model's
-branch among the chain's mirror-twin solutions (a thorax-coxa yaw/pitch/roll and its
-``(yaw + pi, pi - pitch, roll + pi)`` twin place the leg identically). Unlike SeqIKPy's stage-by-stage fits of
-growing sub-chains, all seven angles are fitted together against all four points.
+:data:`~flylib.neuromechfly.model.DOF_SUFFIXES` that put the model's coxa-trochanter, femur-tibia,
+tibia-tarsus and claw (forward kinematics from the model's thorax-coxa joint) nearest the aligned
+measured points. All problems are solved at once (``vmap``) by Levenberg-Marquardt with a
+forward-mode Jacobian, started from the closed-form angles of straight segments
+(:func:`initial_angles`), which also picks the model's branch among the chain's mirror-twin
+solutions (a thorax-coxa yaw/pitch/roll and its ``(yaw + pi, pi - pitch, roll + pi)`` twin place
+the leg identically). Unlike SeqIKPy's stage-by-stage fits of growing sub-chains, all seven
+angles are fitted together against all four points.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from ..camera import jax_model  # noqa: F401  (float64 and the CPU for JAX, before jax is used)
 from ..config.neuromechfly import NeuromechflyParams
-from .model import LEGS, leg_forward, segment_offsets, thorax_coxa_template
+from .model import LEGS, leg_forward, rotations, segment_offsets, thorax_coxa_template
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -34,40 +34,24 @@ def _unit(v: np.ndarray) -> np.ndarray:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _about_y(angle: np.ndarray) -> np.ndarray:
-    c, s, o, z = np.cos(angle), np.sin(angle), np.ones_like(angle), np.zeros_like(angle)
-    return np.stack([np.stack(r, -1) for r in ((c, z, s), (z, o, z), (-s, z, c))], -2)
-
-
-def _about_z(angle: np.ndarray) -> np.ndarray:
-    c, s, o, z = np.cos(angle), np.sin(angle), np.ones_like(angle), np.zeros_like(angle)
-    return np.stack([np.stack(r, -1) for r in ((c, -s, z), (s, c, z), (z, z, o))], -2)
-
-
-def _about_x(angle: np.ndarray) -> np.ndarray:
-    c, s, o, z = np.cos(angle), np.sin(angle), np.ones_like(angle), np.zeros_like(angle)
-    return np.stack([np.stack(r, -1) for r in ((o, z, z), (z, c, -s), (z, s, c))], -2)
-
-
 def initial_angles(root: Float[np.ndarray, " 3"], points: Float[np.ndarray, "N 4 3"]) -> np.ndarray:
-    """Closed-form angles of a leg whose segments lie on their local -z axes: each
-    segment direction, seen in its parent's frame, gives one or two angles. The model's
-    segments are within 0.5 degrees of that, so the fit starts in the right basin; the
-    branch is the model's range (coxa-trochanter pitch <= 0, femur-tibia pitch >= 0).
-    ``(N, 7)`` radians in flygym's order."""
+    """Closed-form angles ``(N, 7)`` (radians, flygym's order) of a leg whose segments lie on
+    their local -z axes: each segment direction, seen in its parent's frame, gives one or two
+    angles. The model's segments are within 0.5 degrees of that, so the fit starts in the right
+    basin; the branch is the model's range (coxa-trochanter pitch <= 0, femur-tibia pitch >= 0)."""
     chain = np.concatenate([np.broadcast_to(root, points[:, :1].shape), points], axis=1)
     d = _unit(np.diff(chain, axis=1))  # (N, 4, 3) segment directions, thorax frame
     pitch = np.arcsin(np.clip(-d[:, 0, 0], -1, 1))
     yaw = np.arctan2(d[:, 0, 1], -d[:, 0, 2])
-    frame = _about_x(yaw) @ _about_y(pitch)
+    frame = rotations(np, yaw, 0) @ rotations(np, pitch, 1)
     f = np.einsum("nji,nj->ni", frame, d[:, 1])
     ctr_pitch = -np.arccos(np.clip(-f[:, 2], -1, 1))
     roll = np.arctan2(f[:, 1], f[:, 0])
-    frame = frame @ _about_z(roll) @ _about_y(ctr_pitch)
+    frame = frame @ rotations(np, roll, 2) @ rotations(np, ctr_pitch, 1)
     g = np.einsum("nji,nj->ni", frame, d[:, 2])
     fti = np.arccos(np.clip(-g[:, 2], -1, 1))
     ctr_roll = np.arctan2(-g[:, 1], -g[:, 0])
-    frame = frame @ _about_z(ctr_roll) @ _about_y(fti)
+    frame = frame @ rotations(np, ctr_roll, 2) @ rotations(np, fti, 1)
     h = np.einsum("nji,nj->ni", frame, d[:, 3])
     tita = np.arctan2(-h[:, 0], -h[:, 2])
     angles = np.stack([pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita], axis=-1)
@@ -118,25 +102,10 @@ def solve_leg_angles(
     offsets: Float[np.ndarray, "6 4 3"] | None = None,
     iterations: int = ITERATIONS,
 ) -> Float[np.ndarray, "T 6 7"]:
-    """Each leg's seven joint angles (radians, flygym's order) for aligned leg chains.
-
-    Parameters
-    ----------
-    aligned
-        ``(T, 6, 5, 3)`` legs in the model's thorax frame (mm), from
-        :func:`~flylib.neuromechfly.align.align_to_template`; the thorax-coxa row is
-        not fitted (the chain's root is the model's).
-    offsets
-        ``(6, 4, 3)`` the chains' segment offsets; default the model's.
-    iterations
-        Levenberg-Marquardt steps per start.
-
-    Returns
-    -------
-    np.ndarray
-        ``(T, 6, 7)`` in ``(-pi, pi]``; NaN for a (frame, leg) missing any of its four
-        distal points.
-    """
+    """Each leg's seven joint angles (radians in ``(-pi, pi]``, flygym's order) for ``aligned``
+    legs (mm, :func:`~flylib.neuromechfly.align.align_to_template`; the thorax-coxa row is not
+    fitted: the chain's root is the model's); NaN for a (frame, leg) missing any of its four
+    distal points. ``offsets``: the chains' segment offsets, default the model's."""
     aligned = np.asarray(aligned, dtype=np.float64)
     n_frames = aligned.shape[0]
     out = np.full((n_frames, len(LEGS), 7), np.nan)

@@ -1,18 +1,17 @@
 """NeuroMechFly's leg chains: the template body, the degrees of freedom and forward kinematics.
 
 The numbers are the zero pose of flygym's body model
-(``flygym/data/mjcf/neuromechfly_seqik_kinorder_ypr.xml``, flygym 1.2.1, the model
-SeqIKPy's chains follow), in millimetres, in the model's thorax frame (x anterior,
-y left, z dorsal). Per leg: the thorax-coxa joint's position in the thorax, then the
-offsets coxa -> trochanter (``Femur`` body), trochanter -> femur-tibia (``Tibia``),
-femur-tibia -> tibia-tarsus (``Tarsus1``) and tibia-tarsus -> claw (the sum of the
-``Tarsus2`` ... ``Tarsus5`` offsets; flygym's claw is the ``Tarsus5`` body origin).
+(``flygym/data/mjcf/neuromechfly_seqik_kinorder_ypr.xml``, flygym 1.2.1, the model SeqIKPy's
+chains follow), in millimetres, in the model's thorax frame (x anterior, y left, z dorsal). Per
+leg: the thorax-coxa joint's position in the thorax, then the offsets coxa -> trochanter
+(``Femur`` body), trochanter -> femur-tibia (``Tibia``), femur-tibia -> tibia-tarsus
+(``Tarsus1``) and tibia-tarsus -> claw (the sum of the ``Tarsus2`` ... ``Tarsus5`` offsets;
+flygym's claw is the ``Tarsus5`` body origin).
 
-The hinges, in the order MuJoCo applies them inside each body (each about an axis of
-the frame left by the one before): thorax-coxa yaw (x), pitch (y), roll (z);
-coxa-trochanter pitch (y), roll (z); femur-tibia pitch (y); tibia-tarsus pitch (y).
-An angle here is the angle of flygym's joint of that name, in radians, so the angles
-drive flygym's model as they are.
+The hinges, in the order MuJoCo applies them inside each body (each about an axis of the frame
+left by the one before): thorax-coxa yaw (x), pitch (y), roll (z); coxa-trochanter pitch (y),
+roll (z); femur-tibia pitch (y); tibia-tarsus pitch (y). An angle here is the angle of flygym's
+joint of that name, in radians, so the angles drive flygym's model as they are.
 """
 
 from __future__ import annotations
@@ -90,7 +89,7 @@ def leg_lengths() -> Float[np.ndarray, " 6"]:
     return np.linalg.norm(segment_offsets(), axis=-1).sum(axis=-1)
 
 
-def _rotations(xp, angle, axis: int):
+def rotations(xp, angle, axis: int):
     c, s = xp.cos(angle), xp.sin(angle)
     one, zero = xp.ones_like(angle), xp.zeros_like(angle)
     if axis == 0:
@@ -103,39 +102,27 @@ def _rotations(xp, angle, axis: int):
 
 
 def leg_forward(angles, root, offsets, xp=np):
-    """Forward kinematics of leg chains, in ``xp`` (``numpy`` or ``jax.numpy``):
-    ``angles`` ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order, ``root`` ``(..., 3)``
-    the thorax-coxa joint, ``offsets`` ``(..., 4, 3)`` the segment offsets of the zero
-    pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa, claw."""
+    """Forward kinematics of leg chains, in ``xp`` (``numpy`` or ``jax.numpy``): ``angles``
+    ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order, ``root`` ``(..., 3)`` the thorax-coxa
+    joint, ``offsets`` ``(..., 4, 3)`` of the zero pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa,
+    claw."""
     pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita = (angles[..., k] for k in range(7))
-    rot = _rotations(xp, yaw, 0) @ _rotations(xp, pitch, 1) @ _rotations(xp, roll, 2)
+    rot = rotations(xp, yaw, 0) @ rotations(xp, pitch, 1) @ rotations(xp, roll, 2)
     points = [xp.broadcast_to(root, angles.shape[:-1] + (3,))]
     joint_turns = ((ctr_pitch, ctr_roll), (fti,), (tita,), ())
     for k, turns in enumerate(joint_turns):
         points.append(points[-1] + (rot @ offsets[..., k, :, None])[..., 0])
         for j, angle in enumerate(turns):
-            rot = rot @ _rotations(xp, angle, 1 if j == 0 else 2)
+            rot = rot @ rotations(xp, angle, 1 if j == 0 else 2)
     return xp.stack(points, axis=-2)
 
 
 def forward_kinematics(
     angles: Float[np.ndarray, "T 42"], offsets: Float[np.ndarray, "6 4 3"] | None = None
 ) -> Float[np.ndarray, "T 6 5 3"]:
-    """The model's leg joints (mm, thorax frame) for flygym joint angles.
-
-    Parameters
-    ----------
-    angles
-        ``(T, 42)`` radians, columns :func:`dof_names`.
-    offsets
-        ``(6, 4, 3)`` segment offsets of the zero pose; default the model's
-        (:func:`segment_offsets`).
-
-    Returns
-    -------
-    np.ndarray
-        ``(T, 6, 5, 3)``: legs in :data:`LEGS` order, joints :data:`CHAIN_JOINTS`.
-    """
+    """The model's leg joints (mm, thorax frame; legs :data:`LEGS`, joints :data:`CHAIN_JOINTS`)
+    for flygym joint ``angles`` (radians, columns :func:`dof_names`); ``offsets``: segment offsets
+    of the zero pose, default the model's (:func:`segment_offsets`)."""
     angles = np.asarray(angles, dtype=np.float64).reshape(-1, len(LEGS), len(DOF_SUFFIXES))
     offsets = segment_offsets() if offsets is None else np.asarray(offsets, dtype=np.float64)
     return leg_forward(angles, thorax_coxa_template(), offsets)

@@ -1,11 +1,10 @@
-"""Kinematic replay in flygym: drive NeuroMechFly's leg joints with the angles (position
-control, the fly tethered in the air, MuJoCo on the CPU, nothing rendered) and read back
-where the simulated joints are; :func:`replay_data` reads the stage's
-``joint_angles.csv`` as flygym's replay examples do.
+"""Kinematic replay in flygym: drive NeuroMechFly's leg joints with the angles (position control,
+the fly tethered in the air, MuJoCo on the CPU, nothing rendered) and read back where the
+simulated joints are; :func:`replay_data` reads the stage's ``joint_angles.csv`` as flygym's
+replay examples do.
 
-flygym is optional (the ``neuromechfly`` extra): flygym 1.x is the API used here; it
-pins ``numpy < 2.1`` and ``mujoco 3.2.7``, so it lives in its own environment, and
-flygym 2.x needs Python >= 3.12.
+flygym is optional (the ``neuromechfly`` extra): flygym 1.x is the API used here; it pins
+``numpy < 2.1`` and ``mujoco 3.2.7``, so it lives in its own environment (2.x needs Python >= 3.12).
 """
 
 from __future__ import annotations
@@ -49,32 +48,14 @@ def replay_angles(
     timestep: float = 1e-4,
     settle: float = 0.05,
 ) -> Float[np.ndarray, "T 6 5 3"]:
-    """Run flygym's NeuroMechFly through the recording's angles.
+    """Run flygym's NeuroMechFly through the recording's angles: the simulated ThC, CTr, FTi,
+    TiTa and claw of each leg at each frame's time, in the model's thorax frame (mm).
 
-    Parameters
-    ----------
-    angles
-        ``(T, 42)`` radians, columns :func:`~flylib.neuromechfly.model.dof_names`; a
-        NaN holds the joint's last finite target (zero before the first).
-    frame_rate
-        Frames per second of ``angles``; the targets are linearly interpolated to
-        the physics ``timestep``.
-    timestep
-        MuJoCo's step (seconds).
-    settle
-        Seconds spent holding the first frame's angles before the replay (the model
-        starts stretched out).
-
-    Returns
-    -------
-    np.ndarray
-        ``(T, 6, 5, 3)`` the simulated ThC, CTr, FTi, TiTa and claw of each leg at each
-        frame's time, in the model's thorax frame (mm).
-
-    Raises
-    ------
-    FlylibError
-        If flygym cannot run here (the reason in the message).
+    ``angles``: radians, columns :func:`~flylib.neuromechfly.model.dof_names`; a NaN holds the
+    joint's last finite target (zero before the first). The targets are linearly interpolated
+    from ``frame_rate`` (frames per second) to MuJoCo's ``timestep`` (seconds); ``settle`` seconds
+    hold the first frame's angles before the replay (the model starts stretched out). A
+    FlylibError (with the reason) if flygym cannot run here.
     """
     reason = flygym_unavailable()
     if reason:
@@ -128,26 +109,11 @@ def replay_residuals(
     frame_rate: float,
     **options,
 ) -> dict[str, dict[str, float]]:
-    """Replay ``angles`` in flygym and compare the simulated joints with the measured
-    (aligned) 3D and with the model's forward kinematics of the same angles.
-
-    Parameters
-    ----------
-    angles
-        ``(T, 42)`` radians (:attr:`NmfAngles.angles <flylib.neuromechfly.NmfAngles>`).
-    measured
-        ``(T, 6, 5, 3)`` the aligned measured legs (:attr:`NmfAngles.aligned`).
-    frame_rate
-        Frames per second.
-    **options
-        Passed to :func:`replay_angles`.
-
-    Returns
-    -------
-    dict
-        ``{"vs_measured": {...}, "vs_model": {...}}``, each with ``median``, ``p95`` and
-        ``max`` distances in leg lengths of the model's legs over every finite
-        (frame, leg, joint).
+    """Replay ``angles`` (:attr:`NmfAngles.angles <flylib.neuromechfly.NmfAngles>`) in flygym
+    (``options`` to :func:`replay_angles`) and compare the simulated joints with the ``measured``
+    aligned legs (:attr:`NmfAngles.aligned`) and with the model's forward kinematics of the same
+    angles: ``{"vs_measured": {...}, "vs_model": {...}}``, each the ``median``, ``p95`` and ``max``
+    distance in model leg lengths over every finite (frame, leg, joint).
     """
     from .model import forward_kinematics, leg_lengths
 
@@ -166,18 +132,8 @@ def replay_residuals(
 
 
 def replay_data(path: str | Path) -> dict:
-    """``joint_angles.csv`` as flygym's kinematic replay reads it.
-
-    Returns
-    -------
-    dict
-        ``{"meta": {"timestep": seconds}, "joint_<leg><dof>": (T,) radians, ...}``.
-
-    Raises
-    ------
-    ResultsError
-        If the file lacks a joint column or ``time``.
-    """
+    """``joint_angles.csv`` as flygym's kinematic replay reads it: ``{"meta": {"timestep":
+    seconds}, "joint_<leg><dof>": (T,) radians, ...}``; a ResultsError if a column is missing."""
     import pandas as pd
 
     table = pd.read_csv(path)

@@ -21,22 +21,9 @@ if TYPE_CHECKING:  # pragma: no cover
 def bone_length_targets(
     cameras: CameraGroup, pts2d: Float[np.ndarray, "V F P 2"], skeleton: Skeleton
 ) -> tuple[Int[np.ndarray, " B"], Int[np.ndarray, " B"], Float[np.ndarray, " B"]]:
-    """Median length of every skeleton bone over a RANSAC triangulation of ``pts2d``.
-
-    Shared by bundle adjustment (bone prior) and pictorial structures.
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, F, P, 2)`` detections.
-
-    Returns
-    -------
-    i, j : np.ndarray
-        ``(B,)`` bone endpoint indices (:meth:`Skeleton.bone_index_pairs`).
-    targets : np.ndarray
-        ``(B,)`` median lengths, NaN for a bone never triangulated.
-    """
+    """Median length of every skeleton bone over a RANSAC triangulation of ``pts2d`` (bundle
+    adjustment's bone prior and pictorial structures'): bone endpoints ``i``, ``j``
+    (:meth:`Skeleton.bone_index_pairs`) and the lengths, NaN for a bone never triangulated."""
     from ..triangulation import triangulate_ransac
 
     pts3d, _ = triangulate_ransac(cameras, np.asarray(pts2d, float), threshold=DEFAULT_INLIER_PX)
@@ -49,16 +36,8 @@ def bone_length_targets(
 
 
 def skeleton_chains(skeleton: Skeleton) -> list[list[int]]:
-    """The skeleton's bones as ordered simple chains (isolated points as singletons).
-
-    Each connected component of the bone graph must be a path (the fly's limbs are);
-    it is returned walked from one end.
-
-    Raises
-    ------
-    ConfigError
-        If a component branches or closes a loop (exact chain DP would not apply).
-    """
+    """The skeleton's bones as simple chains walked from one end (isolated points as singletons);
+    a branch or loop is a ConfigError (exact chain DP would not apply)."""
     adjacency: dict[int, list[int]] = defaultdict(list)
     for a, b in np.asarray(skeleton.bones).reshape(-1, 2):
         adjacency[int(a)].append(int(b))
@@ -96,13 +75,9 @@ def _huber(x: np.ndarray, delta: float) -> np.ndarray:
 
 
 def solve_chains(hyp_pos, unary, chains, targets, *, lam, huber, scale):
-    """Exact min-cost choice per joint along each chain, batched over frames.
-
-    ``hyp_pos`` ``(T, P, S, 3)``, ``unary`` ``(T, P, S)`` (inf = empty slot). A joint
-    may also take "none" (slot ``S``) at zero cost and with no bone term.
-
-    Returns ``(T, P)`` chosen slot, ``S`` meaning none.
-    """
+    """Exact min-cost choice per joint along each chain, batched over frames: the chosen slot
+    ``(T, P)`` of ``hyp_pos`` ``(T, P, S, 3)`` with ``unary`` ``(T, P, S)`` (inf = empty slot). A
+    joint may also take "none" (slot ``S``) at zero cost and with no bone term."""
     n_t, n_p, n_s = unary.shape
     none = np.zeros((n_t, n_p, 1))
     cost_all = np.concatenate([unary, none], -1)  # (T, P, S + 1)

@@ -68,25 +68,11 @@ def _frame_hypotheses(
     max_hyp: int,
     nms_radius: float,
 ):
-    """Hypotheses for a group of joints sharing a view count.
-
-    Parameters
-    ----------
-    rt
-        ``(V, 3, 4)`` world-to-camera ``[R | t]``.
-    focal
-        ``(V,)`` pixels per normalized unit (for the pixel threshold).
-    norm, score
-        ``(T, J, n, K, 2)`` normalized candidates and ``(T, J, n, K)`` scores of the
-        group's ``n`` views per joint.
-    views
-        ``(J, n)`` view index of each slot.
-
-    Returns
-    -------
-    pos, evidence, assign
-        ``(T, J, S, 3)``, ``(T, J, S)``, ``(T, J, S, n)``.
-    """
+    """Hypotheses ``pos (T, J, S, 3)``, ``evidence (T, J, S)``, ``assign (T, J, S, n)`` for a
+    group of joints sharing a view count: ``rt`` ``(V, 3, 4)`` world-to-camera ``[R | t]``,
+    ``focal`` ``(V,)`` pixels per normalized unit, ``norm`` ``(T, J, n, K, 2)`` normalized
+    candidates and ``score`` ``(T, J, n, K)`` of the group's ``n`` views per joint, ``views``
+    ``(J, n)`` the view index of each slot."""
     n_t, n_j, n_v, n_k, _ = norm.shape
     proj = rt[views]  # (J, n, 3, 4)
     # Per candidate: two DLT rows (x P3 - P1, y P3 - P2) as normal-equation terms.

@@ -28,15 +28,8 @@ _EPS = 1e-12
 
 @dataclass(frozen=True)
 class Candidates:
-    """Top-K detector peaks per (view, point) for a sequence, in raw-frame pixels.
-
-    Attributes
-    ----------
-    xy
-        ``(V, T, P, K, 2)`` peak positions ``(x, y)``, NaN where padded / unseen.
-    score
-        ``(V, T, P, K)`` peak values, 0 where padded; ``K = 0`` is the arg-max.
-    """
+    """Top-K detector peaks per (view, point) for a sequence, in raw-frame pixels: ``xy`` ``(x,
+    y)`` (NaN where padded / unseen) and ``score`` (0 where padded); ``K = 0`` is the arg-max."""
 
     xy: Float[np.ndarray, "V T P K 2"]
     score: Float[np.ndarray, "V T P K"]
@@ -76,9 +69,6 @@ class Candidates:
         return cls(pts2d[..., None, :], score[..., None])
 
 
-# -- heatmap peaks -----------------------------------------------------------------
-
-
 def peak_candidates(
     heatmaps: Float[np.ndarray, "*batch H W"],
     k: int = DEFAULT_K,
@@ -87,34 +77,14 @@ def peak_candidates(
     threshold: float = DEFAULT_PEAK_THRESHOLD,
     method: str = DEFAULT_SUBPIXEL,
 ) -> tuple[Float[np.ndarray, "*batch k 2"], Float[np.ndarray, "*batch k"]]:
-    """Top-``k`` local-maximum peaks of each heatmap, sub-pixel refined.
+    """Top-``k`` local-maximum peaks of each heatmap, sub-pixel refined, strongest first.
 
-    A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2`` neighbourhood
-    and exceeds ``threshold``; the ``k`` strongest are returned strongest first.
-
-    Parameters
-    ----------
-    heatmaps
-        ``(..., H, W)`` float array.
-    k
-        Peaks kept per heatmap.
-    radius
-        Neighbourhood half-width for the local-maximum test and the ``weighted``
-        refinement window, in heatmap pixels.
-    threshold
-        Peaks at or below this value are ignored.
-    method
-        ``"argmax"`` (integer pixel), ``"weighted"`` (score-weighted centroid of the
-        window) or ``"taylor"`` (Newton step on the log-heatmap: exact for a Gaussian
-        blob).
-
-    Returns
-    -------
-    xy : np.ndarray
-        ``(..., k, 2)`` peak ``(x, y)`` in heatmap pixel coordinates (x = column,
-        y = row, pixel centres at integers); NaN where fewer than ``k`` peaks exist.
-    score : np.ndarray
-        ``(..., k)`` heatmap value at the peak pixel, 0 where padded.
+    A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2`` neighbourhood (also the
+    ``weighted`` window, heatmap pixels) and exceeds ``threshold``. ``method``: ``"argmax"``
+    (integer pixel), ``"weighted"`` (score-weighted centroid of the window) or ``"taylor"`` (Newton
+    step on the log-heatmap: exact for a Gaussian blob). Returns ``xy`` ``(..., k, 2)`` in heatmap
+    pixels (x = column, y = row, pixel centres at integers; NaN where fewer than ``k`` peaks exist)
+    and ``score`` ``(..., k)``, the heatmap value at the peak pixel (0 where padded).
     """
     from scipy.ndimage import maximum_filter
 
@@ -161,15 +131,14 @@ def subpixel_offsets(
     method: str,
     radius: int,
 ):
-    """Sub-pixel offsets ``(dx, dy)`` of integer peaks at ``(rows, cols)`` ``(M, K)`` of
-    ``heatmaps`` ``(M, H, W)``, in cells: NumPy arrays or torch tensors alike (the
-    detector's decoder and :func:`peak_candidates` share it).
+    """Sub-pixel offsets ``(dx, dy)`` in cells of integer peaks at ``(rows, cols)`` of
+    ``heatmaps``: NumPy arrays or torch tensors alike (the detector's decoder shares it).
 
     ``method`` is ``"argmax"`` (0), ``"weighted"`` (the centroid of the ``(2 radius + 1)^2``
-    window, negatives clipped to zero, cells outside ignored), ``"taylor"`` (one Newton
-    step on the log-heatmap, clamped to ``radius``) or ``"parabola"`` (per axis through the
-    peak and its two neighbours, on the log when all three are positive, clamped to half
-    a cell); each is 0 where it does not apply.
+    window, negatives clipped to zero, cells outside ignored), ``"taylor"`` (one Newton step on
+    the log-heatmap, clamped to ``radius``) or ``"parabola"`` (per axis through the peak and its
+    two neighbours, on the log when all three are positive, clamped to half a cell); each is 0
+    where it does not apply.
     """
     xp = np if isinstance(heatmaps, np.ndarray) else sys.modules["torch"]  # else a tensor
     n, height, width = heatmaps.shape

@@ -59,31 +59,15 @@ def solve_frames(
     prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
     nms: float = DEFAULT_NMS,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"]]:
-    """Pictorial structures over a block of frames.
+    """Pictorial structures over a block of frames: the chosen hypotheses ``pts3d`` and the
+    candidate each view committed to ``pts2d`` (NaN where none).
 
-    Parameters
-    ----------
-    cameras
-        The (bundle-adjusted) rig.
-    cand_xy, cand_score
-        ``(V, T, P, K, 2)`` / ``(V, T, P, K)`` candidates in raw pixels.
-    chains, target_map, scale
-        :func:`skeleton_chains`, ``(i, j) -> length`` with ``i < j``, and the bone
-        scale (median bone length).
-    max_hyp, inlier_px, lam, huber, mu, nms
-        Hypotheses kept per joint, inlier radius (pixels), bone-prior weight, Huber
-        corner (relative deviation), temporal weight, NMS radius (fraction of scale).
-    temporal, prev_pts3d
-        With ``temporal``, frames are solved in order and each frame's jump from the
-        previous choice (``prev_pts3d`` ``(P, 3)`` before the first) costs
-        ``mu * (jump / scale)^2``.
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(T, P, 3)`` chosen hypotheses (NaN where none).
-    pts2d : np.ndarray
-        ``(V, T, P, 2)`` the candidate each view committed to (NaN where none).
+    ``cand_xy``/``cand_score`` in raw pixels; ``chains`` (:func:`skeleton_chains`), ``target_map``
+    ``(i, j) -> length`` with ``i < j`` and ``scale`` the median bone length; ``max_hyp``
+    hypotheses kept per joint, ``inlier_px`` radius (pixels), ``lam`` bone-prior weight, ``huber``
+    corner (relative deviation), ``nms`` radius (fraction of scale). With ``temporal``, frames
+    are solved in order and each frame's jump from the previous choice (``prev_pts3d`` before the
+    first) costs ``mu * (jump / scale)^2``.
     """
     cand_xy = np.asarray(cand_xy, float)
     cand_score = np.where(np.isfinite(cand_xy).all(-1), np.nan_to_num(cand_score), 0.0)
@@ -139,8 +123,8 @@ def solve_frame(
     mu: float = DEFAULT_MU,
     prev_pts3d: Float[np.ndarray, "P 3"] | None = None,
 ) -> tuple[Float[np.ndarray, "P 3"], Float[np.ndarray, "V P 2"]]:
-    """Pictorial structures for one frame (seed API): ``(V, P, K, 2)`` candidates in,
-    ``pts3d (P, 3)`` and committed ``pts2d (V, P, 2)`` out. See :func:`solve_frames`."""
+    """Pictorial structures for one frame: ``(V, P, K, 2)`` candidates in, ``pts3d (P, 3)`` and
+    committed ``pts2d (V, P, 2)`` out. See :func:`solve_frames`."""
     pts3d, pts2d = solve_frames(
         cameras,
         np.asarray(cand_xy)[:, None],
@@ -174,22 +158,13 @@ def reconstruct(
     mu: float = DEFAULT_MU,
     nms: float = DEFAULT_NMS,
 ) -> tuple[Float[np.ndarray, "T P 3"], Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"]]:
-    """Pictorial-structures reconstruction of a sequence.
+    """Pictorial-structures reconstruction of a sequence: ``pts3d``, the committed ``pts2d``
+    (NaN where no view was kept) and their reprojection error in pixels.
 
     The bone-length prior comes from a RANSAC triangulation of the arg-max detections
-    (``pts2d_argmax``, default the candidates' ``K = 0``) over up to
-    ``bone_max_frames`` evenly spaced frames. The returned 3D is the DLT triangulation
-    of the committed 2D, so with clean candidates (every arg-max right) the result is
-    exactly the arg-max triangulation.
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(T, P, 3)``.
-    pts2d : np.ndarray
-        ``(V, T, P, 2)`` committed candidates (NaN where no view was kept).
-    reproj_error : np.ndarray
-        ``(V, T, P)`` pixels.
+    (``pts2d_argmax``, default the candidates' ``K = 0``) over up to ``bone_max_frames`` evenly
+    spaced frames. The 3D is the DLT triangulation of the committed 2D, so with clean candidates
+    (every arg-max right) the result is exactly the arg-max triangulation.
     """
     from ..triangulation import reprojection_error, triangulate
 

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import ResultsError
 from ..paths import atomic_path
 from ..stages import FINAL_3D
-from .inputs import FULL_SKELETON, RIG, RigSpec, SkeletonSpec, StageInputs, register, tracked
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime
 
 log = logging.getLogger(__name__)
@@ -39,8 +39,8 @@ class AssembleInputs(StageInputs):
 
     STAGE = "assemble"
 
-    rig: RigSpec = tracked(RIG)
-    skeleton: SkeletonSpec = tracked(FULL_SKELETON)
+    rig: RigSpec
+    skeleton: SkeletonSpec
     runtime: RigRuntime = RigRuntime()
 
     @classmethod

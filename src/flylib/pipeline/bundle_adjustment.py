@@ -19,17 +19,7 @@ import numpy as np
 
 from ..config.constants import LEAST_SQUARES_PERF
 from ..config.params import BundleAdjustmentParams
-from .inputs import (
-    RIG,
-    SKELETON,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    frozen_mapping,
-    register,
-    tracked,
-    typed_params,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import image_sizes, solving
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -58,7 +48,7 @@ class BundleAdjustmentRuntime:
     solver with the tracked ones."""
 
     config_dir: Path | None = None
-    solver_options: Mapping[str, Any] = field(default_factory=lambda: frozen_mapping({}))
+    solver_options: Mapping[str, Any] = field(default_factory=dict)
 
 
 @register
@@ -71,9 +61,9 @@ class BundleAdjustmentInputs(StageInputs):
 
     STAGE = "bundle_adjustment"
 
-    bundle_adjustment: BundleAdjustmentParams = tracked(typed_params(BundleAdjustmentParams))
-    rig: RigSpec = tracked(RIG)
-    skeleton: SkeletonSpec = tracked(SKELETON)
+    bundle_adjustment: BundleAdjustmentParams
+    rig: RigSpec
+    skeleton: SkeletonSpec
     runtime: BundleAdjustmentRuntime = BundleAdjustmentRuntime()
 
     @classmethod
@@ -89,9 +79,7 @@ class BundleAdjustmentInputs(StageInputs):
             skeleton=SkeletonSpec.from_config(config),
             runtime=BundleAdjustmentRuntime(
                 config_dir=rig.config_dir,
-                solver_options=frozen_mapping(
-                    {k: v for k, v in options.items() if k in LEAST_SQUARES_PERF}
-                ),
+                solver_options={k: v for k, v in options.items() if k in LEAST_SQUARES_PERF},
             ),
         )
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,16 +19,7 @@ from ..config.sources import source_patterns, view_names, view_sources
 from ..errors import ConfigError
 from ..recordings.listing import TRUTH_FILE, dlc_filename
 from .assemble import AssembleInputs
-from .inputs import (
-    FULL_SKELETON,
-    RIG,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    frozen_mapping,
-    plain_json,
-    tracked,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs
 
 
 @dataclass(frozen=True)
@@ -71,31 +62,18 @@ class DemoLayout:
 
 @dataclass(frozen=True)
 class DemoInputs(StageInputs):
-    """The demo recording's inputs.
-
-    Attributes
-    ----------
-    settings
-        :func:`flylib.demo.demo_settings`: the ``demo`` table over the defaults.
-    sources
-        The ``sources`` list.
-    rig
-        The config rig: the demo renders through its cameras' orbit (a calibration
-        file is not read).
-    skeleton
-        The whole skeleton (the fly38 points, limbs and palette drawn).
-    output_points
-        ``pose2d.output_points``: the points each view observes.
-    runtime
-        :class:`DemoLayout`.
-    """
+    """The demo recording's inputs: ``settings`` (:func:`flylib.demo.demo_settings`, the
+    ``demo`` table over the defaults), the ``sources`` list, the config ``rig`` (rendered
+    through its cameras' orbit; a calibration file is not read), the whole ``skeleton``
+    (points, limbs and palette drawn) and ``output_points`` (``pose2d.output_points``:
+    the points each view observes)."""
 
     STAGE = "demo"
 
-    settings: Mapping[str, Any] = tracked(key="demo")
+    settings: Mapping[str, Any] = field(metadata={"key": "demo"})
     sources: Any
-    rig: RigSpec = tracked(RIG)
-    skeleton: SkeletonSpec = tracked(FULL_SKELETON)
+    rig: RigSpec
+    skeleton: SkeletonSpec
     output_points: Mapping[str, Any] | None
     runtime: DemoLayout = DemoLayout()
 
@@ -118,11 +96,11 @@ class DemoInputs(StageInputs):
         assemble = AssembleInputs.from_config(config)
         output_points = (config.data.get("pose2d") or {}).get("output_points")
         return cls(
-            settings=frozen_mapping(demo_settings(config.data.get("demo"))),
-            sources=frozen_mapping(config.data.get("sources")),
+            settings=demo_settings(config.data.get("demo")),
+            sources=config.data.get("sources"),
             rig=assemble.rig,
             skeleton=assemble.skeleton,
-            output_points=frozen_mapping(output_points),
+            output_points=output_points,
             runtime=DemoLayout.from_config(config),
         )
 
@@ -140,24 +118,12 @@ def _orbit_rig(rig: RigSpec, image_size: tuple[int, int]):
 
 
 def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
-    """Generate the embedded demo recording into ``directory`` (see :mod:`flylib.demo`).
-
-    Parameters
-    ----------
-    inputs
-        The demo's inputs (:class:`DemoInputs`).
-    directory
-        Where to write; created if needed.
-    **overrides
-        Demo settings overriding ``inputs.settings`` (e.g. ``frames=10``).
-
-    Returns
-    -------
-    flylib.demo.DemoRecording
-    """
+    """Generate the embedded demo recording into ``directory`` (created if needed; see
+    :mod:`flylib.demo`), ``overrides`` over ``inputs.settings`` (e.g. ``frames=10``);
+    returns the :class:`flylib.demo.DemoRecording`."""
     from ..demo import demo_settings, view_visibility, write_demo
 
-    settings = demo_settings({**plain_json(inputs.settings), **overrides})
+    settings = demo_settings({**inputs.settings, **overrides})
     skeleton = inputs.skeleton.skeleton()
     cameras = _orbit_rig(inputs.rig, (settings["height"], settings["width"]))
     layout = inputs.runtime
@@ -166,9 +132,7 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
         settings,
         skeleton,
         cameras,
-        view_visibility(
-            plain_json(inputs.output_points), list(cameras.names), skeleton.point_names
-        ),
+        view_visibility(inputs.output_points, list(cameras.names), skeleton.point_names),
         dict(layout.view_sources),
         dict(layout.source_files),
         layout.dlc_files,
@@ -176,34 +140,16 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
 
 
 def make_demo(config, directory: str | Path, **overrides: Any):
-    """Write the demo recording ``config`` describes into ``directory``.
-
-    Parameters
-    ----------
-    config
-        The run config (:class:`~flylib.config.Config`): its sources, rig, skeleton,
-        ``pose2d.output_points`` and ``demo`` table.
-    directory
-        Where to write; created if needed.
-    **overrides
-        Demo settings overriding the config's ``demo`` table (e.g. ``frames=10``).
-
-    Returns
-    -------
-    flylib.demo.DemoRecording
-    """
+    """Write the demo recording ``config`` describes (its sources, rig, skeleton,
+    ``pose2d.output_points`` and ``demo`` table, ``overrides`` over the latter) into
+    ``directory``: :func:`run_demo` of :meth:`DemoInputs.from_config`."""
     return run_demo(DemoInputs.from_config(config), directory, **overrides)
 
 
 def demo_files(config: Any) -> dict[str, list[str]]:
-    """File names :func:`make_demo` writes, relative to the demo directory.
-
-    Returns
-    -------
-    dict
-        ``footage`` (one video per source), ``dlc`` (one CSV per view, in view
-        order) and ``truth`` (``[truth.h5]``).
-    """
+    """File names :func:`make_demo` writes, relative to the demo directory: ``footage``
+    (one video per source), ``dlc`` (one CSV per view, in view order) and ``truth``
+    (``[truth.h5]``)."""
     patterns = source_patterns(config)
     for name, pattern in patterns.items():
         if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":

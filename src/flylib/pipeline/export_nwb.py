@@ -18,7 +18,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..interop.views import footage_files
-from .inputs import StageInputs, frozen_mapping, plain_json
+from .inputs import StageInputs
 from .visualization import footage_globs
 
 log = logging.getLogger(__name__)
@@ -49,8 +49,8 @@ class NwbExportInputs(StageInputs):
     @classmethod
     def from_config(cls, config) -> NwbExportInputs:
         return cls(
-            exports=frozen_mapping(dict(config.data.get("exports") or {})),
-            nwb=frozen_mapping(config.data.get("nwb")),
+            exports=dict(config.data.get("exports") or {}),
+            nwb=config.data.get("nwb"),
             runtime=NwbExportRuntime(footage_globs(config), config.snapshot_text()),
         )
 
@@ -71,7 +71,7 @@ def session_metadata(
     of the ``nwb`` table); ConfigError names every problem at once."""
     from ..config.nwb_metadata import recording_metadata
 
-    return recording_metadata(plain_json(inputs.nwb), recording_dir, demo=demo, extra=extra)
+    return recording_metadata(inputs.nwb, recording_dir, demo=demo, extra=extra)
 
 
 def run_export_nwb(

@@ -1,27 +1,28 @@
 """What each stage reads: one frozen, typed inputs object per stage, built here.
 
-A stage's inputs object holds everything its result depends on (its params, the rig
-and skeleton it needs) plus, in ``runtime``, the knobs that only change how fast it
-runs. :meth:`StageInputs.params` is the stage's *tracked* params: the canonical JSON
-its workflow rule carries as ``params.stage``, hashed into every artifact's
-provenance, so Snakemake re-runs the job exactly when it changes. A job rebuilds its
-inputs object from that JSON (:meth:`StageInputs.from_params`) and the rule's
-untracked ``params.runtime``; a stage therefore reads only what its rule tracks, by
-construction.
+A stage's inputs object holds everything its result depends on (its params, the rig and
+skeleton it needs) plus, in ``runtime``, the knobs that only change how fast it runs.
+:meth:`StageInputs.params` is the stage's *tracked* params: the canonical JSON its
+workflow rule carries as ``params.stage``, hashed into every artifact's provenance, so
+Snakemake re-runs the job exactly when it changes. A job parses that JSON once and
+rebuilds its inputs object from it (:meth:`StageInputs.from_params`) and the rule's
+untracked ``params.runtime``: a stage reads only what its rule tracks, by construction.
 
-Each stage's class lives in the stage's home (``flylib.pipeline.<stage>``) and is
-registered with :func:`register` (:func:`flylib.stages.register`, re-exported here for
-the homes); :func:`stage_inputs` builds any stage's inputs
-from a :class:`~flylib.config.Config`, which is the only place below the workflow
-where a config object is read.
+Each field is written and read back by its annotated type (:func:`_dump`,
+:func:`_load`); its ``dataclasses.field`` metadata may rename it (``key``) or track it
+only off its default (``track_default=False``). Each stage's class lives in the stage's
+home (``flylib.pipeline.<stage>``) and is registered with :func:`register`;
+:func:`stage_inputs` builds any stage's inputs from a :class:`~flylib.config.Config`,
+the only place below the workflow where a config object is read.
 """
 
 from __future__ import annotations
 
-import copy
 import json
-from collections.abc import Callable, Mapping
-from dataclasses import MISSING, dataclass, field, fields
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,63 +33,15 @@ from ..config.params import TriangulationParams, build_params
 from ..stages import by_name, register
 
 __all__ = [
-    "DATA",
-    "FULL_SKELETON",
-    "OPTIONAL_RIG",
-    "RIG",
-    "SKELETON",
-    "TRIANGULATION",
-    "Codec",
     "RigSpec",
     "SkeletonSpec",
     "StageInputs",
-    "frozen_mapping",
+    "inputs_class",
     "register",
     "stage_inputs",
     "stage_params",
     "stage_runtime",
-    "tracked",
-    "typed_params",
-    "plain_json",
 ]
-
-
-class FrozenDict(dict):
-    """A dict that refuses changes (an inputs object's nested tables), hashable by
-    its canonical JSON."""
-
-    def _refuse(self, *args, **kwargs):
-        raise TypeError("a stage's inputs are read-only")
-
-    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse
-
-    def __hash__(self) -> int:  # type: ignore[override]
-        return hash(json.dumps(_canonical(self), sort_keys=True))
-
-    def __deepcopy__(self, memo) -> dict:
-        return {k: copy.deepcopy(v, memo) for k, v in self.items()}
-
-    def __reduce__(self):
-        return (FrozenDict, (dict(self),))
-
-
-def frozen_mapping(value: Any) -> Any:
-    """``value`` with every mapping made a :class:`FrozenDict` and every list a tuple
-    (a deep, read-only copy)."""
-    if isinstance(value, Mapping):
-        return FrozenDict({k: frozen_mapping(v) for k, v in value.items()})
-    if isinstance(value, (list, tuple)):
-        return tuple(frozen_mapping(v) for v in value)
-    return value
-
-
-def plain_json(value: Any) -> Any:
-    """A plain JSON copy of a frozen value (tuples back to lists, FrozenDicts to dicts)."""
-    if isinstance(value, Mapping):
-        return {k: plain_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [plain_json(v) for v in value]
-    return value
 
 
 @dataclass(frozen=True)
@@ -112,27 +65,30 @@ class SkeletonSpec:
         return cls(
             point_names=tuple(table["point_names"]),
             limbs=tuple((k, tuple(v)) for k, v in (table.get("limb_points") or {}).items()),
-            palette=frozen_mapping(dict(table.get("limb_palette") or {})) if palette else None,
+            palette=dict(table.get("limb_palette") or {}) if palette else None,
             name=str(table.get("name", "skeleton")) if name else None,
         )
 
     @classmethod
-    def from_params(cls, structure: Mapping, *, palette=None, name=None) -> SkeletonSpec:
-        """Inverse of :meth:`structure` (plus the palette and name where tracked)."""
+    def from_params(cls, table: Mapping) -> SkeletonSpec:
+        """Inverse of :meth:`params`."""
         return cls(
-            point_names=tuple(structure["point_names"]),
-            limbs=tuple((k, tuple(v)) for k, v in structure["limbs"]),
-            palette=frozen_mapping(dict(palette)) if palette is not None else None,
-            name=name,
+            point_names=tuple(table["point_names"]),
+            limbs=tuple((k, tuple(v)) for k, v in table["limbs"]),
+            palette=dict(table["palette"]) if "palette" in table else None,
+            name=table.get("name"),
         )
 
-    def structure(self) -> dict:
-        """``{"point_names": [...], "limbs": [[limb, [points]], ...]}``: the part of
-        the skeleton every geometry stage's params hold."""
-        return {
+    def params(self) -> dict:
+        """``{"point_names": [...], "limbs": [[limb, [points]], ...]}``, plus ``palette``
+        and ``name`` where held."""
+        out: dict[str, Any] = {
             "point_names": list(self.point_names),
             "limbs": [[k, list(v)] for k, v in self.limbs],
         }
+        if self.palette is not None:
+            out.update(palette=dict(self.palette), name=self.name)
+        return out
 
     def skeleton(self):
         """The :class:`~flylib.skeleton.Skeleton` (palette and name where held)."""
@@ -172,8 +128,8 @@ class RigSpec:
             calibration = {k: v for k, v in calibration.items() if k != "mirror"}
         return cls(
             views=tuple(config.view_names()),
-            cameras=frozen_mapping(dict(config.data.get("cameras") or {})),
-            calibration=frozen_mapping(dict(calibration)) if calibration else None,
+            cameras=dict(config.data.get("cameras") or {}),
+            calibration=dict(calibration) if calibration else None,
             config_dir=Path(config.source).parent if config.source else None,
         )
 
@@ -190,8 +146,8 @@ class RigSpec:
         }
         return cls(
             views=views,
-            cameras=frozen_mapping(cameras),
-            calibration=frozen_mapping(dict(calibration)) if calibration else None,
+            cameras=cameras,
+            calibration=dict(calibration) if calibration else None,
             config_dir=Path(config_dir) if config_dir else None,
         )
 
@@ -199,8 +155,8 @@ class RigSpec:
         """``{"views", "cameras", "calibration"}``: the rig as the params hold it."""
         return {
             "views": list(self.views),
-            "cameras": plain_json(self.cameras),
-            "calibration": plain_json(self.calibration) if self.calibration else None,
+            "cameras": dict(self.cameras),
+            "calibration": dict(self.calibration) if self.calibration else None,
         }
 
     def camera_group(
@@ -216,7 +172,7 @@ class RigSpec:
             from ..interop.anipose import load_calibration
 
             return load_calibration(
-                plain_json(self.calibration),
+                dict(self.calibration),
                 self.views,
                 Path(recording_dir) if recording_dir else None,
                 image_sizes=image_sizes,
@@ -224,7 +180,7 @@ class RigSpec:
             )
         from ..camera.rig import CameraGroup
 
-        cameras = plain_json(self.cameras)
+        cameras = dict(self.cameras)
         defaults = cameras.pop("defaults", {}) or {}
         # the tracked params hold the table with sorted keys: the views give the order back
         specs = {view: cameras[view] for view in self.views if view in cameras}
@@ -232,70 +188,32 @@ class RigSpec:
         return CameraGroup.from_table(specs, defaults, dict(image_sizes or {}))
 
 
-@dataclass(frozen=True)
-class Codec:
-    """How one field of an inputs object is written into the tracked params and read
-    back: ``load(dump(value), runtime) == value``, ``runtime`` being the inputs'
-    untracked part (e.g. where a calibration is found)."""
-
-    dump: Callable[[Any], Any]
-    load: Callable[[Any, Any], Any]
-
-
-def _config_dir(runtime: Any) -> Path | None:
-    return getattr(runtime, "config_dir", None)
+def _dump(value: Any) -> Any:
+    """A field's value as the tracked params hold it."""
+    if isinstance(value, (RigSpec, SkeletonSpec)):
+        return value.params()
+    if isinstance(value, TriangulationParams):  # only the knobs the method reads
+        return value.method_params()
+    if is_dataclass(value):  # a typed params class of flylib.config
+        return tracked_table(value)
+    return value
 
 
-#: Plain data (strings, names, tables): JSON out, read-only back (FrozenDicts, tuples).
-DATA = Codec(plain_json, lambda value, runtime: frozen_mapping(value))
-#: A :class:`SkeletonSpec` as its points and limbs (:meth:`SkeletonSpec.structure`).
-SKELETON = Codec(
-    lambda skeleton: skeleton.structure(), lambda table, runtime: SkeletonSpec.from_params(table)
-)
-#: A :class:`SkeletonSpec` with its palette and name (the stages that draw or name it).
-FULL_SKELETON = Codec(
-    lambda skeleton: {
-        **skeleton.structure(),
-        "palette": dict(skeleton.palette or {}),
-        "name": skeleton.name,
-    },
-    lambda table, runtime: SkeletonSpec.from_params(
-        table, palette=table["palette"], name=table["name"]
-    ),
-)
-#: A :class:`RigSpec` (:meth:`RigSpec.params`), its calibration looked up in the
-#: runtime's ``config_dir``.
-RIG = Codec(
-    lambda rig: rig.params(),
-    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)),
-)
-#: A :class:`RigSpec`, or ``None`` while bundle adjustment is on (the rig is then in that
-#: stage's artifact).
-OPTIONAL_RIG = Codec(
-    lambda rig: rig.params() if rig is not None else None,
-    lambda table, runtime: RigSpec.from_params(table, _config_dir(runtime)) if table else None,
-)
-
-
-def typed_params(cls: type, dump: Callable[[Any], Any] = tracked_table) -> Codec:
-    """A typed params dataclass of :mod:`flylib.config` (``cls``) as its table: every
-    field (:func:`~flylib.config.checks.tracked_table`), or what ``dump`` gives."""
-    return Codec(dump, lambda table, runtime: build_params(cls, table))
-
-
-#: The triangulation method and the knobs it reads
-#: (:meth:`~flylib.config.params.TriangulationParams.method_params`).
-TRIANGULATION = typed_params(TriangulationParams, dump=TriangulationParams.method_params)
-
-
-def tracked(
-    codec: Codec = DATA, *, key: str | None = None, track_default: bool = True, **kwargs
-) -> Any:
-    """A tracked field of an inputs class: held in :meth:`StageInputs.params` under
-    ``key`` (default: the field's name) as ``codec`` writes it. ``track_default=False``
-    (with a ``default``): only when not at that default, so the params made before the
-    field existed stay equal. ``kwargs`` go to :func:`dataclasses.field`."""
-    return field(metadata={"codec": codec, "key": key, "track_default": track_default}, **kwargs)
+def _load(hint: Any, value: Any, runtime: Any) -> Any:
+    """Inverse of :func:`_dump` for a field annotated ``hint``; a rig's calibration is
+    looked up in the runtime's ``config_dir``."""
+    if value is None:
+        return None
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):  # X | None
+        (hint,) = (arg for arg in typing.get_args(hint) if arg is not type(None))
+    if hint is RigSpec:
+        return RigSpec.from_params(value, getattr(runtime, "config_dir", None))
+    if hint is SkeletonSpec:
+        return SkeletonSpec.from_params(value)
+    if is_dataclass(hint):
+        from_table = getattr(hint, "from_table", None)
+        return from_table(value) if from_table else build_params(hint, value)
+    return tuple(value) if typing.get_origin(hint) is tuple else value
 
 
 @dataclass(frozen=True)
@@ -304,9 +222,9 @@ class StageInputs:
 
     Subclasses set :attr:`STAGE`, define :meth:`from_config`, and keep their speed-only
     knobs in a ``runtime`` field (absent for a stage that has none), the one field
-    :meth:`params` leaves out. Every other field is tracked: :meth:`params` and its
-    inverse :meth:`from_params` are made from the fields, each written as its
-    :func:`tracked` metadata says (:data:`DATA` when it has none).
+    :meth:`params` leaves out. Every other field is tracked, under its metadata's ``key``
+    (default: its name); one with ``track_default: False`` only when off its default, so
+    the params made before it existed stay equal.
     """
 
     STAGE = ""  # a class attribute, not a dataclass field (no annotation)
@@ -321,26 +239,26 @@ class StageInputs:
 
     @classmethod
     def from_params(cls, params: Mapping, runtime: Any = None) -> StageInputs:
-        """Rebuild the inputs from :meth:`params` (the rule's ``params.stage``) and the
-        untracked ``runtime`` (``None``: the class's default runtime)."""
+        """Rebuild the inputs from :meth:`params` (the rule's ``params.stage``, parsed) and
+        the untracked ``runtime`` (``None``: the class's default runtime)."""
         kwargs = {}
         own = {f.name: f for f in fields(cls)}
         if "runtime" in own:
             kwargs["runtime"] = runtime = own["runtime"].default if runtime is None else runtime
+        hints = typing.get_type_hints(cls)
         for f in cls._tracked_fields():
-            key = f.metadata.get("key") or f.name
-            if key in params or f.default is MISSING:  # absent: untracked at its default
-                kwargs[f.name] = f.metadata.get("codec", DATA).load(params[key], runtime)
+            key = f.metadata.get("key", f.name)
+            if key in params:  # absent: a track_default=False field at its default
+                kwargs[f.name] = _load(hints[f.name], params[key], runtime)
         return cls(**kwargs)
 
     def params(self) -> dict:
-        """The tracked params: every field but ``runtime``, as its codec writes it."""
+        """The tracked params: every field but ``runtime``, as :func:`_dump` writes it."""
         out = {}
         for f in self._tracked_fields():
             value = getattr(self, f.name)
             if f.metadata.get("track_default", True) or value != f.default:
-                key = f.metadata.get("key") or f.name
-                out[key] = f.metadata.get("codec", DATA).dump(value)
+                out[f.metadata.get("key", f.name)] = _dump(value)
         return out
 
     @property
@@ -374,10 +292,3 @@ def stage_params(config: Config, stage: str) -> dict:
 def stage_runtime(config: Config, stage: str) -> Any:
     """The untracked runtime part of ``stage``'s inputs under ``config``."""
     return inputs_class(stage).from_config(config).runtime_options
-
-
-def inputs_from_job(stage: str, params_json: str | Mapping, runtime: Any) -> StageInputs:
-    """A Snakemake job's inputs: rebuilt from the rule's tracked ``params.stage`` (JSON
-    text) and its untracked ``params.runtime``."""
-    params = json.loads(params_json) if isinstance(params_json, str) else params_json
-    return inputs_class(stage).from_params(params, runtime)

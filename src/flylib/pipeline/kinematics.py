@@ -24,11 +24,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config.checks import tracked_table
 from ..config.postprocessing import KinematicsParams
 from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
-from .inputs import SKELETON, Codec, SkeletonSpec, StageInputs, register, tracked
+from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -51,21 +50,6 @@ class KinematicsRuntime:
     segments: tuple[str, ...] | None = None
 
 
-def _kinematics_from_table(table: Mapping, runtime: KinematicsRuntime) -> KinematicsParams:
-    """The ``kinematics`` params from their tracked table, the ``angles`` and ``segments``
-    back in the config's order (the runtime's; the tracked JSON sorts them by name)."""
-    table = dict(table)
-    for key in ("angles", "segments"):
-        order = getattr(runtime, key)
-        if table.get(key) is not None and order is not None:
-            table[key] = {name: table[key][name] for name in order}
-    return KinematicsParams.from_table(table)
-
-
-#: The ``kinematics`` table as tracked (every field), read back in the config's order.
-KINEMATICS = Codec(tracked_table, _kinematics_from_table)
-
-
 @register
 @dataclass(frozen=True)
 class KinematicsInputs(StageInputs):
@@ -73,8 +57,8 @@ class KinematicsInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    kinematics: KinematicsParams = tracked(KINEMATICS)
-    skeleton: SkeletonSpec = tracked(SKELETON)
+    kinematics: KinematicsParams
+    skeleton: SkeletonSpec
     runtime: KinematicsRuntime = KinematicsRuntime()
 
     @classmethod
@@ -99,15 +83,20 @@ def compute_kinematics(
     ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (the one
     ``results.h5`` holds).
     """
-    params = inputs.kinematics
+    params, order = inputs.kinematics, inputs.runtime
     return kinematics_of(
         pts3d,
         skeleton,
-        angles=params.angles,
-        segments=params.segments,
+        angles=_in_order(params.angles, order.angles),
+        segments=_in_order(params.segments, order.segments),
         tethered=params.tethered,
         body_frame_points=params.body_frame,
     )
+
+
+def _in_order(table: Mapping | None, order: tuple[str, ...] | None) -> Mapping | None:
+    """``table`` back in the config's order (the runtime's; the tracked JSON sorts it)."""
+    return table if table is None or order is None else {name: table[name] for name in order}
 
 
 def write_angles_csv(path: str | Path, kin: Kinematics) -> Path:

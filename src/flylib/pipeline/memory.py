@@ -36,20 +36,9 @@ FLOOR_MB = 1000
 
 
 def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
-    """The ``mem_mb`` a stage's job declares for a recording of ``shape``.
-
-    Parameters
-    ----------
-    stage
-        A stage with a measured memory figure (:attr:`flylib.stages.Stage.memory`).
-    shape
-        ``(V, T, P)``: views, frames, points of the recording's 2D.
-
-    Returns
-    -------
-    int
-        Megabytes, a multiple of 100, at least :data:`FLOOR_MB`.
-    """
+    """The ``mem_mb`` a stage's job declares for a recording of ``shape`` ``(V, T, P)``
+    (views, frames, points of its 2D): megabytes, a multiple of 100, at least
+    :data:`FLOOR_MB`. ``stage`` has a measured figure (:attr:`flylib.stages.Stage.memory`)."""
     views, frames, points = (int(n) for n in shape)
     memory = by_name(stage).memory
     if memory is None:
@@ -60,14 +49,9 @@ def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
 
 
 def recording_shape(path: str | Path) -> tuple[int, int, int]:
-    """``(V, T, P)`` of the 2D in a pose2d artifact or a ``results.h5``.
-
-    Raises
-    ------
-    FileNotFoundError
-        When ``path`` does not exist yet (with its name: Snakemake then decides the
-        resource once the upstream job has written it).
-    """
+    """``(V, T, P)`` of the 2D in a pose2d artifact or a ``results.h5``; FileNotFoundError
+    (naming it) while ``path`` does not exist yet: Snakemake then decides the resource once
+    the upstream job has written it."""
     import h5py
 
     path = Path(path)

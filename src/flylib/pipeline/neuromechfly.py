@@ -34,7 +34,7 @@ from ..neuromechfly import FILES
 from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
 from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
-from .inputs import SKELETON, SkeletonSpec, StageInputs, register, tracked, typed_params
+from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -52,8 +52,8 @@ class NeuromechflyInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    neuromechfly: NeuromechflyParams = tracked(typed_params(NeuromechflyParams))
-    skeleton: SkeletonSpec = tracked(SKELETON)
+    neuromechfly: NeuromechflyParams
+    skeleton: SkeletonSpec
 
     @classmethod
     def from_config(cls, config: Config) -> NeuromechflyInputs:

@@ -17,7 +17,7 @@ import numpy as np
 from ..config.constants import TRIANGULATION_METHODS
 from ..config.params import LEAST_SQUARES_OPTIONS, BundleAdjustmentParams, TriangulationParams
 from ..errors import ConfigError
-from .inputs import SkeletonSpec, frozen_mapping, stage_inputs
+from .inputs import SkeletonSpec, stage_inputs
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
@@ -165,7 +165,7 @@ def run_from_points2d(
         passed_on = {k: v for k, v in ba_kwargs.items() if k not in BUNDLE_ADJUSTMENT_KEYS}
         runtime = replace(
             ba_inputs.runtime,
-            solver_options=frozen_mapping({**ba_inputs.runtime.solver_options, **passed_on}),
+            solver_options={**ba_inputs.runtime.solver_options, **passed_on},
         )
         adjusted = compute_bundle_adjustment(
             replace(ba_inputs, runtime=runtime), cameras, pts2d, conf

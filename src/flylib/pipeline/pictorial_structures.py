@@ -15,16 +15,7 @@ from typing import TYPE_CHECKING
 
 from ..config.params import PictorialParams
 from ..errors import ResultsError
-from .inputs import (
-    OPTIONAL_RIG,
-    SKELETON,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    register,
-    tracked,
-    typed_params,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -46,26 +37,15 @@ __all__ = [
 @register
 @dataclass(frozen=True)
 class PictorialStructuresInputs(StageInputs):
-    """What the pictorial-structures stage reads.
-
-    Attributes
-    ----------
-    pictorial_structures
-        The ``pictorial_structures`` table.
-    skeleton
-        Points and limbs (the chains and bones of the prior).
-    rig
-        The config rig, or ``None`` while bundle adjustment is on (the rig then comes
-        from that stage's artifact).
-    runtime
-        Untracked: the config file's folder (a relative calibration path).
-    """
+    """What the pictorial-structures stage reads: ``skeleton`` gives the chains and bones
+    of the prior; ``rig`` is ``None`` while bundle adjustment is on (the rig then comes
+    from that stage's artifact)."""
 
     STAGE = "pictorial_structures"
 
-    pictorial_structures: PictorialParams = tracked(typed_params(PictorialParams))
-    skeleton: SkeletonSpec = tracked(SKELETON)
-    rig: RigSpec | None = tracked(OPTIONAL_RIG)
+    pictorial_structures: PictorialParams
+    skeleton: SkeletonSpec
+    rig: RigSpec | None
     runtime: RigRuntime = RigRuntime()
 
     @classmethod

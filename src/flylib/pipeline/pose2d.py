@@ -8,7 +8,8 @@ is on, the detector's candidate peaks beside it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,11 +20,9 @@ from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
-from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register, tracked
+from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
-    from collections.abc import Mapping
-
     from ..config import Config
     from ..interop.importer import ImportTarget
     from ..results import Pose2dData
@@ -83,20 +82,22 @@ class Pose2dInputs(StageInputs):
     sources: tuple[Mapping[str, Any], ...]
     plan: Mapping[str, Any]
     precision: str
-    import_spec: Mapping[str, Any] | None = tracked(key="import")
+    import_spec: Mapping[str, Any] | None = field(metadata={"key": "import"})
     point_names: tuple[str, ...]
     views: tuple[str, ...]
-    on_corrupt_frame: str = tracked(default=IoParams.on_corrupt_frame, track_default=False)
+    on_corrupt_frame: str = field(
+        default=IoParams.on_corrupt_frame, metadata={"track_default": False}
+    )
     runtime: Pose2dRuntime = Pose2dRuntime()
 
     @classmethod
     def from_config(cls, config: Config) -> Pose2dInputs:
         pose2d = config.data.get("pose2d") or {}
         return cls(
-            sources=frozen_mapping(config.data.get("sources") or []),
-            plan=frozen_mapping({key: pose2d.get(key) for key in PLAN_KEYS}),
+            sources=tuple(config.data.get("sources") or []),
+            plan={key: pose2d.get(key) for key in PLAN_KEYS},
             precision=config.pose2d.precision,
-            import_spec=frozen_mapping(pose2d.get("import")),
+            import_spec=pose2d.get("import"),
             point_names=SkeletonSpec.from_config(config).point_names,
             views=tuple(config.view_names()),
             on_corrupt_frame=config.io.on_corrupt_frame,
@@ -129,20 +130,18 @@ class Pose2dInputs(StageInputs):
         )
 
     def detection_plan(self) -> DetectionPlan:
-        return DetectionPlan.from_tables(
-            plain_json(self.sources), plain_json(self.plan), self.views, self.point_names
-        )
+        return DetectionPlan.from_tables(self.sources, self.plan, self.views, self.point_names)
 
     def source_patterns(self) -> dict[str, str]:
         """``source -> footage glob`` (:func:`flylib.config.sources.patterns_of`)."""
-        return patterns_of(plain_json(self.sources))
+        return patterns_of(self.sources)
 
     def import_target(self) -> ImportTarget:
         """The views, points and footage imported 2D is placed on."""
         from ..interop.importer import ImportTarget
 
-        plan = plain_json(self.plan)
-        view_sources = feeding_sources(self.views, plain_json(self.sources), plan)
+        plan = self.plan
+        view_sources = feeding_sources(self.views, self.sources, plan)
         output_points = plan.get("output_points") or {}
         return ImportTarget(
             views=self.views,
@@ -241,7 +240,7 @@ def compute_pose2d(
         If candidates are asked for but the 2D is imported (other tools keep no peaks).
     """
     recording_dir = Path(recording_dir)
-    spec = plain_json(import_spec) if import_spec else plain_json(inputs.import_spec)
+    spec = import_spec or inputs.import_spec
     if spec:
         if candidates:
             raise ResultsError(

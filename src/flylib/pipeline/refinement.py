@@ -47,17 +47,7 @@ from ..config.params import build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
 from ..refinement.solver import FLAG_BITS, ArraySink
-from .inputs import (
-    OPTIONAL_RIG,
-    SKELETON,
-    TRIANGULATION,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    register,
-    tracked,
-    typed_params,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, tracked_rig
 from .triangulation import triangulation_method
 
@@ -77,10 +67,10 @@ class RefinementInputs(StageInputs):
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
-    refinement: RefinementParams = tracked(typed_params(RefinementParams))
-    triangulation: TriangulationParams = tracked(TRIANGULATION)
-    skeleton: SkeletonSpec = tracked(SKELETON)
-    rig: RigSpec | None = tracked(OPTIONAL_RIG)
+    refinement: RefinementParams
+    triangulation: TriangulationParams
+    skeleton: SkeletonSpec
+    rig: RigSpec | None
     runtime: RigRuntime = RigRuntime()
 
     @classmethod

@@ -29,7 +29,7 @@ from ..config.params import TriangulationParams, build_params
 from ..errors import ResultsError
 from ..paths import atomic_path
 from .bundle_adjustment import BundleAdjusted, BundleAdjustmentInputs
-from .inputs import TRIANGULATION, StageInputs, tracked
+from .inputs import StageInputs
 from .stage_helpers import image_sizes, solving
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -81,7 +81,7 @@ class SessionSummaryInputs(StageInputs):
 
     STAGE = "session_summary"
 
-    triangulation: TriangulationParams = tracked(TRIANGULATION)
+    triangulation: TriangulationParams
 
     @classmethod
     def from_config(cls, config) -> SessionSummaryInputs:

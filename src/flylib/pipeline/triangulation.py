@@ -20,16 +20,7 @@ import numpy as np
 
 from ..config.params import TriangulationParams, build_params
 from ..errors import ResultsError
-from .inputs import (
-    OPTIONAL_RIG,
-    SKELETON,
-    TRIANGULATION,
-    RigSpec,
-    SkeletonSpec,
-    StageInputs,
-    register,
-    tracked,
-)
+from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -65,10 +56,10 @@ class TriangulationInputs(StageInputs):
 
     STAGE = "triangulation"
 
-    triangulation: TriangulationParams = tracked(TRIANGULATION)
-    skeleton: SkeletonSpec = tracked(SKELETON)
+    triangulation: TriangulationParams
+    skeleton: SkeletonSpec
     points_from: str
-    rig: RigSpec | None = tracked(OPTIONAL_RIG)
+    rig: RigSpec | None
     runtime: RigRuntime = RigRuntime()
 
     @classmethod

@@ -32,21 +32,9 @@ _FIX = "set outdir to another folder, e.g. '{recording}/flylib_outputs'"
 
 
 def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
-    """``name -> what writes it`` of every file a recording's jobs write in its outdir.
-
-    Parameters
-    ----------
-    config
-        The run's :class:`flylib.config.Config`.
-    flags
-        ``Config.stage_flags()``.
-
-    Returns
-    -------
-    dict
-        Names relative to the outdir (``stages/pose2d.h5``), e.g. ``"assemble's
-        calibration.toml"``.
-    """
+    """``name -> what writes it`` of every file a recording's jobs write in its outdir
+    under ``flags`` (``Config.stage_flags()``): names relative to the outdir
+    (``stages/pose2d.h5``), e.g. ``"assemble's calibration.toml"``."""
     from ..kinematics import FILES as KINEMATICS_FILES
     from ..neuromechfly import FILES as NEUROMECHFLY_FILES
     from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
@@ -129,15 +117,8 @@ def output_problems(
 ) -> list[str]:
     """One ``outdir: ...`` line per planned output that is an input of the run or an
     existing file flylib did not write (nothing is read or written but names and stats).
-
-    Parameters
-    ----------
-    config
-        The run's :class:`flylib.config.Config`.
-    recordings
-        The planned :class:`flylib.recordings.Recording` objects.
-    config_files
-        The config files of the run (their paths).
+    ``recordings``: the planned :class:`flylib.recordings.Recording` objects;
+    ``config_files``: the paths of the run's config files.
     """
     planned = planned_outputs(config, config.stage_flags())
     config_files = [os.path.realpath(f) for f in config_files]

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .inputs import SkeletonSpec, StageInputs, frozen_mapping, plain_json, register
+from .inputs import SkeletonSpec, StageInputs, register
 
 
 @dataclass(frozen=True)
@@ -47,19 +47,9 @@ class VisualizationRuntime:
 @register
 @dataclass(frozen=True)
 class VisualizationInputs(StageInputs):
-    """The visualization stage's inputs.
-
-    Attributes
-    ----------
-    visualization
-        The ``visualization`` table (parsed by
-        :func:`flylib.visualization.read_video_specs`).
-    palette
-        The skeleton's ``limb_palette``.
-    runtime
-        :class:`VisualizationRuntime`: the footage lookup and ``io.on_corrupt_frame``,
-        tracked by pose2d's params instead of this stage's.
-    """
+    """The visualization stage's inputs: the ``visualization`` table (parsed by
+    :func:`flylib.visualization.read_video_specs`) and the skeleton's ``limb_palette``;
+    ``runtime`` (:class:`VisualizationRuntime`) is tracked by pose2d's params instead."""
 
     STAGE = "visualization"
 
@@ -71,7 +61,7 @@ class VisualizationInputs(StageInputs):
     def from_config(cls, config) -> VisualizationInputs:
         """The config's ``visualization`` table, palette and footage lookup."""
         return cls(
-            visualization=frozen_mapping(dict(config.visualization)),
+            visualization=dict(config.visualization),
             palette=SkeletonSpec.from_config(config, palette=True).palette,
             runtime=VisualizationRuntime.from_config(config),
         )
@@ -95,30 +85,12 @@ def run_visualization(
     progress: bool = False,
     speed: float | None = None,
 ) -> list[Path]:
-    """Render the configured videos of one recording into ``outdir``.
+    """Render the configured videos of one recording (``results.h5`` over the footage in
+    ``recording_dir``) as ``<outdir>/<video_name>.mp4``; returns them in config order.
 
     Points a person corrected (``triangulation/corrected`` in results.h5) are ringed.
-
-    Parameters
-    ----------
-    inputs
-        The stage's inputs (:class:`VisualizationInputs`).
-    results_path
-        The recording's ``results.h5``.
-    recording_dir
-        The recording directory (its footage).
-    outdir
-        Where ``<video_name>.mp4`` go.
-    progress
-        Show a progress bar.
-    speed
-        A multiple of the recording's rate when the config sets none (the demo's slow
-        motion).
-
-    Returns
-    -------
-    list of Path
-        The written videos, in config order.
+    ``speed``: a multiple of the recording's rate when the config sets none (the demo's
+    slow motion).
     """
     from ..corrections import read_corrected
     from ..interop.views import footage_files
@@ -127,7 +99,7 @@ def run_visualization(
 
     result = PoseResult.load(results_path)
     return render_videos(
-        plain_json(inputs.visualization),
+        inputs.visualization,
         result,
         footage_files(inputs.runtime.footage, Path(recording_dir)),
         outdir,

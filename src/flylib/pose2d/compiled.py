@@ -2,18 +2,15 @@
 ``pose2d.compile`` policy that decides whether a recording uses it.
 
 A compiled detector is an AOTInductor package (``torch.export`` then
-``torch._inductor.aoti_compile_and_package``) of the network with its BatchNorms
-folded into the convolutions, returning the last stack's heatmaps in float32. It
-lives under ``<flylib cache>/detector/`` (:func:`flylib.paths.cache_dir`), named by
-the digest of a :class:`CompileKey`: the weights' SHA-256, the torch version, the
-device (GPU name and compute capability, or the CPU's architecture and vector
-ISA), the precision, the batch size and the input shape. Any change of one of them
-is another file, so a stale package is never loaded. Packages are written under a
-temporary name and renamed (atomic); a package that fails to load, or lacks its
-key file, is rebuilt with a warning, never a crash.
-
-The first job on a machine pays the compilation (a *cold start*, said so in its
-log); every later job loads the package in seconds.
+``torch._inductor.aoti_compile_and_package``) of the network with its BatchNorms folded into the
+convolutions, returning the last stack's heatmaps in float32. It lives under
+``<flylib cache>/detector/`` (:func:`flylib.paths.cache_dir`), named by the digest of a
+:class:`CompileKey`: the weights' SHA-256, the torch version, the device (GPU name and compute
+capability, or the CPU's architecture and vector ISA), the precision, the batch size and the
+input shape. Any change of one of them is another file, so a stale package is never loaded.
+Packages are written under a temporary name and renamed (atomic); a package that fails to load,
+or lacks its key file, is rebuilt with a warning, never a crash. The first job on a machine pays
+the compilation (a *cold start*, said so in its log); every later job loads it in seconds.
 """
 
 from __future__ import annotations
@@ -37,19 +34,15 @@ log = logging.getLogger(__name__)
 #: Bumped when the package's contents change meaning (its inputs/outputs or folding).
 FORMAT = 1
 
-# The policy's cost model, from one H100 80GB with DeepFly2D's sh8 in bf16 at batch
-# 16, one fresh process per 900-frame, 8-pathway recording (issue 26): eager 185
-# pathway images/s, compiled 863 images/s; compiling cost ~165 s of a cold start;
-# loading a cached package a few seconds.
+# The policy's cost model, from one H100 80GB with DeepFly2D's sh8 in bf16 at batch 16, one fresh
+# process per 900-frame, 8-pathway recording: eager 185 pathway images/s, compiled 863 images/s;
+# compiling cost ~165 s of a cold start; loading a cached package a few seconds.
 EAGER_IMAGES_PER_S = 185.0
 COMPILED_IMAGES_PER_S = 863.0
 COLD_COMPILE_S = 165.0
 CACHED_LOAD_S = 5.0
 #: Below this batch size ``compile: auto`` stays eager (launch-bound either way).
 COMPILE_MIN_BATCH = 8
-
-
-# --- BatchNorm folding ---------------------------------------------------------------
 
 
 def _fold(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> None:
@@ -66,13 +59,13 @@ def _fold(conv: nn.Conv2d, bn: nn.BatchNorm2d) -> None:
 
 
 def fold_batchnorm(net: HourglassNet) -> HourglassNet:
-    """An eval-mode copy of ``net`` (left untouched) with every BatchNorm that directly
-    follows a convolution folded into it, now :class:`torch.nn.Identity`: the same
-    heatmaps to float rounding, with fewer layers (inference only).
+    """An eval-mode copy of ``net`` (left untouched) with every BatchNorm that directly follows a
+    convolution folded into it, now :class:`torch.nn.Identity`: the same heatmaps to float
+    rounding, with fewer layers (inference only).
 
-    The network is pre-activation: a bottleneck's ``bn2``/``bn3`` follow ``conv1``/
-    ``conv2``, the stem's ``bn1`` follows ``conv1`` and each ``fc`` is conv, BN, ReLU;
-    those fold. A bottleneck's ``bn1`` acts on the sum of two branches and stays.
+    The network is pre-activation: a bottleneck's ``bn2``/``bn3`` follow ``conv1``/``conv2``, the
+    stem's ``bn1`` follows ``conv1`` and each ``fc`` is conv, BN, ReLU; those fold. A bottleneck's
+    ``bn1`` acts on the sum of two branches and stays.
     """
     import copy
 
@@ -92,10 +85,8 @@ def fold_batchnorm(net: HourglassNet) -> HourglassNet:
 
 
 class LastStack(nn.Module):
-    """``net`` in ``dtype`` returning the last stack's heatmaps ``(N, C, h, w)`` in float32.
-
-    What is exported: one output tensor, and the precision fixed in the weights
-    (autocast's cast of every convolution's weights, done once).
+    """``net`` in ``dtype`` returning the last stack's heatmaps ``(N, C, h, w)`` in float32: what
+    is exported (one output tensor; the precision fixed in the weights, autocast's cast done once).
     """
 
     def __init__(self, net: HourglassNet, dtype: torch.dtype = torch.float32):
@@ -105,9 +96,6 @@ class LastStack(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net(x.to(self.dtype))[-1].float()
-
-
-# --- the cache key --------------------------------------------------------------------
 
 
 def weights_digest(net: nn.Module) -> str:
@@ -131,11 +119,7 @@ def device_tag(device: torch.device) -> str:
 @dataclass(frozen=True)
 class CompileKey:
     """Everything a compiled detector depends on; its :meth:`digest` names the cache entry.
-
-    ``weights`` is :func:`weights_digest`, ``device`` :func:`device_tag`, ``batch_size``
-    the fixed batch of every forward, ``input_shape`` the model input's
-    ``(channels, height, width)``.
-    """
+    ``batch_size`` is every forward's fixed batch, ``input_shape`` ``(channels, height, width)``."""
 
     weights: str
     torch_version: str
@@ -194,9 +178,6 @@ def is_cached(key: CompileKey, root: Path | None = None) -> bool:
         return False
 
 
-# --- build and load ---------------------------------------------------------------
-
-
 def compile_package(net: HourglassNet, key: CompileKey, device: torch.device, package: Path):
     dtype = getattr(torch, key.precision)  # float32 | float16 | bfloat16
     module = LastStack(fold_batchnorm(net), dtype).to(device).eval()
@@ -215,19 +196,12 @@ def _load_package(package: Path, device: torch.device):
 def load_or_compile(
     net: HourglassNet, key: CompileKey, device: torch.device, *, root: Path | None = None
 ) -> tuple[object, str]:
-    """The compiled detector for ``key`` (:meth:`CompileKey.for_model` of the eval-mode
-    ``net``): loaded from the cache (``root``, default :func:`cache_root`), else compiled
-    into it.
-
-    Returns
-    -------
-    forward
-        Callable ``(batch_size, C, H, W)`` float32 contiguous input on ``device`` ->
-        last-stack heatmaps ``(batch_size, n_out_channels, H/4, W/4)`` float32.
-    status
-        ``"cached"`` (loaded), ``"cold"`` (compiled now: nothing was cached) or
-        ``"rebuilt"`` (the cached entry was damaged and was compiled again).
-    """
+    """``(forward, status)``: the compiled detector for ``key`` (:meth:`CompileKey.for_model` of
+    the eval-mode ``net``), loaded from the cache (``root``, default :func:`cache_root`), else
+    compiled into it. ``forward`` maps a ``(batch_size, C, H, W)`` float32 contiguous input on
+    ``device`` to last-stack heatmaps ``(batch_size, n_out_channels, H/4, W/4)`` float32;
+    ``status`` is ``"cached"`` (loaded), ``"cold"`` (compiled now: nothing was cached) or
+    ``"rebuilt"`` (the cached entry was damaged and was compiled again)."""
     package, meta = entry_paths(key, root)
     status = "cold"
     if package.exists() or meta.exists():
@@ -256,12 +230,9 @@ def load_or_compile(
 
 
 class CudaGraphForward:
-    """Replays one CUDA graph of ``forward`` on a static input buffer (one launch per batch).
-
-    The detection loop's Python threads (decode, scatter) then cannot starve kernel
-    launches. Outputs live in a buffer the next replay overwrites: copy them.
-    ``forward`` takes a fixed shape, that of ``example``.
-    """
+    """Replays one CUDA graph of ``forward`` (fixed shape, that of ``example``) on a static input
+    buffer, one launch per batch, so the detection loop's Python threads (decode, scatter) cannot
+    starve kernel launches. Outputs live in a buffer the next replay overwrites: copy them."""
 
     def __init__(self, forward, example: torch.Tensor):
         self.forward = forward
@@ -282,9 +253,6 @@ class CudaGraphForward:
         return self.static_output
 
 
-# --- the policy ---------------------------------------------------------------------
-
-
 def decide_compile(
     setting: bool | str,
     device: torch.device,
@@ -295,14 +263,12 @@ def decide_compile(
 ) -> tuple[bool, str]:
     """Whether this job compiles the detector, and why (one line for the log).
 
-    ``True`` and ``False`` are obeyed (compiling only on CUDA or the CPU, where
-    AOTInductor builds). ``auto`` compiles on CUDA when the estimated time of the
-    recording with the compiled network (loading a cached package, or a cold
-    compilation, plus the work at the compiled rate) is below its time eager, so
-    ``auto`` never makes a recording slower than eager by its cost model.
-
-    ``setting`` is ``pose2d.compile``; ``images`` the recording's pathway images
-    (frames x pathways), ``None`` if unknown; ``cached`` whether the package is cached.
+    ``setting`` is ``pose2d.compile``: ``True`` and ``False`` are obeyed (compiling only on CUDA or
+    the CPU, where AOTInductor builds); ``auto`` compiles on CUDA when the estimated time of the
+    recording with the compiled network (loading a cached package, or a cold compilation, plus the
+    work at the compiled rate) is below its time eager, so it never makes a recording slower than
+    eager by its cost model. ``images`` is the recording's pathway images (frames x pathways),
+    ``None`` if unknown; ``cached`` whether the package is cached.
     """
     if setting is False:
         return False, "pose2d.compile is false"

@@ -1,20 +1,18 @@
 """Heatmap decoding: arg-max with sub-pixel refinement, confidence, top-K candidates.
 
 Coordinates are heatmap cells ``(x, y) = (column, row)`` with fractional offsets;
-:meth:`flylib.pose2d.plan.Pathway.heatmap_to_raw` maps them to raw-frame pixels
-with DeepFly2D's convention (cell ``c`` is the normalized point ``c / W_hm``). The
-confidence is the raw peak value. The sub-pixel refinement of the peak cell
-(:func:`flylib.pictorial.peaks.subpixel_offsets`) is one of :data:`SUBPIXEL_METHODS`:
+:meth:`flylib.pose2d.plan.Pathway.heatmap_to_raw` maps them to raw-frame pixels with DeepFly2D's
+convention (cell ``c`` is the normalized point ``c / W_hm``). The confidence is the raw peak
+value. The sub-pixel refinement of the peak cell (:func:`flylib.pictorial.peaks.subpixel_offsets`)
+is one of :data:`SUBPIXEL_METHODS`:
 
-- ``weighted`` (default, the seed system's and DeepFly2D's): the intensity-weighted
-  centroid of the ``(2 radius + 1)^2`` window around the peak cell (``radius = 2``),
-  negative values clipped to zero and cells outside the heatmap ignored;
+- ``weighted`` (default, the seed system's and DeepFly2D's): the intensity-weighted centroid of
+  the ``(2 radius + 1)^2`` window around the peak cell (``radius = 2``), negative values clipped
+  to zero and cells outside the heatmap ignored;
 - ``argmax``: the peak cell itself;
-- ``taylor``: one Newton step on the log-heatmap (exact for a Gaussian blob),
-  clamped to the window;
-- ``parabola``: a parabola through the peak and its two neighbours along each axis,
-  on the log of the heatmap when all three are positive and on the values
-  otherwise, clamped to half a cell.
+- ``taylor``: one Newton step on the log-heatmap (exact for a Gaussian blob), clamped to the window;
+- ``parabola``: a parabola through the peak and its two neighbours along each axis, on the log of
+  the heatmap when all three are positive and on the values otherwise, clamped to half a cell.
 """
 
 from __future__ import annotations
@@ -52,9 +50,8 @@ def refine_peaks(
     method: str = DEFAULT_SUBPIXEL,
     radius: int = SUBPIXEL_RADIUS,
 ) -> tuple[Float[torch.Tensor, "M K"], Float[torch.Tensor, "M K"]]:
-    """Sub-pixel ``(x, y)`` = ``(column + dx, row + dy)`` of integer peaks, in heatmap
-    cells; ``radius`` is the half-width of the ``weighted`` window and the ``taylor``
-    step's bound, in cells."""
+    """Sub-pixel ``(x, y)`` = ``(column + dx, row + dy)`` of integer peaks, in heatmap cells;
+    ``radius`` is the half-width of the ``weighted`` window and the ``taylor`` step's bound."""
     dx, dy = subpixel_offsets(heatmaps, rows, cols, check_subpixel(method), radius)
     return cols.to(heatmaps.dtype) + dx, rows.to(heatmaps.dtype) + dy
 
@@ -64,9 +61,8 @@ def decode_argmax(
     method: str = DEFAULT_SUBPIXEL,
     radius: int = SUBPIXEL_RADIUS,
 ) -> tuple[Float[torch.Tensor, "N C 2"], Float[torch.Tensor, "N C"]]:
-    """Sub-pixel arg-max (:func:`refine_peaks`) of each heatmap channel and its peak
-    value: ``(N, C, 2)`` heatmap-cell ``(x, y)`` and ``(N, C)``, both float32 whatever
-    the heatmaps' float dtype."""
+    """Sub-pixel arg-max (:func:`refine_peaks`) of each heatmap channel and its peak value:
+    ``(N, C, 2)`` heatmap-cell ``(x, y)`` and ``(N, C)``, float32 whatever the heatmaps' dtype."""
     n, c, h, w = heatmaps.shape
     hm = heatmaps.float().reshape(n * c, h, w)
     conf, flat_index = hm.reshape(n * c, h * w).max(dim=1)
@@ -87,16 +83,12 @@ def topk_peaks(
 ) -> tuple[Float[torch.Tensor, "N C K 2"], Float[torch.Tensor, "N C K"]]:
     """The ``k`` strongest local maxima per channel, sub-pixel refined, on the device.
 
-    The torch counterpart of :func:`flylib.pictorial.peak_candidates` (same peak
-    test, strongest first), so candidates never leave the GPU as full heatmaps.
-    A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2``
-    neighbourhood and exceeds ``threshold``.
-
-    ``radius`` is the non-maximum-suppression half-width in heatmap pixels; ``method``
-    and ``refine_radius`` the sub-pixel refinement (:func:`refine_peaks`), the same as
-    the arg-max decoder's, so candidate 0 is the arg-max point. Returns ``(N, C, K, 2)``
-    heatmap-cell coordinates and ``(N, C, K)`` peak values, NaN where fewer than ``k``
-    peaks.
+    The torch counterpart of :func:`flylib.pictorial.peak_candidates` (same peak test, strongest
+    first), so candidates never leave the GPU as full heatmaps. A pixel is a peak when it is the
+    maximum of its ``(2 radius + 1)^2`` neighbourhood and exceeds ``threshold``. ``method`` and
+    ``refine_radius`` are the arg-max decoder's refinement (:func:`refine_peaks`), so candidate 0
+    is the arg-max point. Returns ``(N, C, K, 2)`` heatmap-cell coordinates and ``(N, C, K)`` peak
+    values, NaN where fewer than ``k`` peaks.
     """
     n, c, h, w = heatmaps.shape
     hm = heatmaps.float()

@@ -1,5 +1,5 @@
-"""Running a detector model on frames: device and precision choice, torch
-preprocessing, the forward pass and on-device heatmap decoding."""
+"""Running a detector model on frames: device and precision choice, torch preprocessing, the
+forward pass and on-device heatmap decoding."""
 
 from __future__ import annotations
 
@@ -62,9 +62,8 @@ def yuv420p_to_rgb(
 ) -> torch.Tensor:
     """Planar YUV 4:2:0 ``(N, 3H/2, W)`` uint8 -> ``(N, H, W, 3)`` uint8 RGB, on the tensor's device.
 
-    Chroma is upsampled by pixel repetition, as FFmpeg's default converter does;
-    the result matches :meth:`flylib.io.VideoReader` RGB frames to within one grey
-    level.
+    Chroma is upsampled by pixel repetition, as FFmpeg's default converter does; the result
+    matches :meth:`flylib.io.VideoReader` RGB frames to within one grey level.
     """
     n, rows, w = planes.shape
     h = rows * 2 // 3
@@ -88,27 +87,13 @@ def _autocast(device: torch.device, precision: str):
 
 @dataclass
 class LoadedModel:
-    """A detector network ready for inference on one device.
+    """A detector network (``net``, eval mode, on ``device``) ready for inference.
 
-    Attributes
-    ----------
-    spec
-        The model's plan entry (input size, normalisation, channels).
-    net
-        Eval mode, on ``device``.
-    precision
-        Forward precision; float32 on the CPU whatever was asked.
-    batch_size
-        The forward batch; with ``compiled``, shorter batches are padded to it (the
-        compiled network has a fixed shape).
-    compiled
-        Whether the forward is the ahead-of-time compiled network
-        (:mod:`flylib.pose2d.compiled`), from the on-disk cache or compiled into it.
-    compile_status
-        With ``compiled``: ``"cached"``, ``"cold"`` or ``"rebuilt"``
-        (:func:`~flylib.pose2d.compiled.load_or_compile`).
-    cache_root
-        The compiled-detector cache (default ``<cache_dir()>/detector``).
+    ``precision`` is the forward precision, float32 on the CPU whatever was asked. With
+    ``compiled`` the forward is the ahead-of-time compiled network (:mod:`flylib.pose2d.compiled`)
+    from the on-disk cache ``cache_root`` (default ``<cache_dir()>/detector``) or compiled into it
+    (``compile_status``: ``"cached"``, ``"cold"`` or ``"rebuilt"``); it has a fixed shape, so
+    batches shorter than ``batch_size`` are padded to it.
     """
 
     spec: ModelSpec
@@ -159,9 +144,8 @@ class LoadedModel:
         return compiled.is_cached(self.compile_key(), self.cache_root)
 
     def _graphed(self, forward):
-        # One CUDA-graph replay per batch: the Python decode threads competing for the
-        # GIL cannot starve kernel launches. Capture can fail (driver, memory): then the
-        # package runs as is.
+        # One CUDA-graph replay per batch: the Python decode threads competing for the GIL cannot
+        # starve kernel launches. Capture can fail (driver, memory): then the package runs as is.
         example = torch.zeros((self.batch_size, 3, *self.spec.input_size), device=self.device)
         try:
             with torch.inference_mode():
@@ -179,11 +163,8 @@ class LoadedModel:
         return self.spec.input_size[0] // stride, self.spec.input_size[1] // stride
 
     def preprocess(self, frames: torch.Tensor, ops: tuple[Op, ...] = ()) -> torch.Tensor:
-        """``(N, H, W, 3)`` uint8 frames (on ``device``) -> normalised ``(N, 3, h, w)`` model input.
-
-        Applies ``ops`` (the pathway's preprocessor), resizes to the model input,
-        scales to ``[0, 1]`` and subtracts the mean (divides by ``std``).
-        """
+        """``(N, H, W, 3)`` uint8 frames (on ``device``) -> normalised ``(N, 3, h, w)`` model input:
+        ``ops`` (the pathway's preprocessor), resize, scale to ``[0, 1]``, ``(x - mean) / std``."""
         x = frames.permute(0, 3, 1, 2).float()
         for op in ops:
             x = op.apply(x)
@@ -205,8 +186,7 @@ class LoadedModel:
                     chunk = torch.cat(
                         [chunk, chunk[-1:].expand(self.batch_size - short, *chunk.shape[1:])]
                     )
-                # the package was exported for contiguous input; its own layout choice
-                # (channels-last convolutions) is inside it
+                # exported for contiguous input; its layout choice (channels-last) is inside it
                 with torch.inference_mode():
                     hm = self._forward(chunk.contiguous())
             else:
@@ -219,9 +199,8 @@ class LoadedModel:
     def detect(
         self, frames: torch.Tensor, ops: tuple[Op, ...] = (), *, k: int | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
-        """Detect on raw frames: heatmap-cell ``xy (N, C, 2)``, ``conf (N, C)`` and,
-        with ``k``, the top-``k`` candidates ``(xy (N, C, k, 2), score (N, C, k))``,
-        refined with the model's ``subpixel`` method."""
+        """Detect on raw frames: heatmap-cell ``xy (N, C, 2)``, ``conf (N, C)`` and, with ``k``, the
+        top-``k`` candidates ``(xy (N, C, k, 2), score (N, C, k))``; ``spec.subpixel`` refines."""
         method = self.spec.subpixel
         with torch.inference_mode():
             hm = self.heatmaps(self.preprocess(frames, ops))
@@ -248,25 +227,15 @@ def load_models(
     cache_root: Path | None = None,
     allow_download: bool = True,
 ) -> dict[str, LoadedModel]:
-    """Load every model the plan's active pathways use, with the given settings.
+    """Load every model the plan's active pathways use.
 
-    Parameters
-    ----------
-    params
-        The ``pose2d`` settings read here: ``device``, ``precision``, ``batch_size``,
-        ``compile`` (default: :class:`~flylib.config.params.Pose2dParams`'s).
-    frames
-        The recording's frame count, for ``compile: auto`` (the work is frames x the
-        model's pathways; :func:`~flylib.pose2d.compiled.decide_compile`).
-    cache_root
-        The compiled-detector cache (default ``<cache_dir()>/detector``).
-    allow_download
-        Whether an empty weights cache may be filled from the network.
-
-    Raises
-    ------
-    WeightsError
-        If a model's weights cannot be found, downloaded or loaded.
+    ``params`` gives ``device``, ``precision``, ``batch_size`` and ``compile`` (default:
+    :class:`~flylib.config.params.Pose2dParams`'s); ``frames`` is the recording's frame count, for
+    ``compile: auto`` (the work is frames x the model's pathways;
+    :func:`~flylib.pose2d.compiled.decide_compile`); ``cache_root`` the compiled-detector cache
+    (default ``<cache_dir()>/detector``); ``allow_download`` whether an empty weights cache may be
+    filled from the network. Raises :class:`WeightsError` if a model's weights cannot be found,
+    downloaded or loaded.
     """
     params = params or Pose2dParams()
     dev = select_device(params.device)

@@ -1,18 +1,16 @@
 """The DeepFly2D stacked-hourglass network (Newell et al., ECCV 2016) in PyTorch.
 
-A faithful rebuild of the network DeepFly3D/DeepFly2D trained (the pytorch-pose
-``hg`` model): a 7x7 stride-2 stem, pre-activation bottlenecks with expansion 2,
-depth-4 hourglasses, and intermediate supervision whose score maps are merged back
-into the features. Module names, and so ``state_dict`` keys and shapes, are those
-of the published checkpoints (``conv1``, ``bn1``, ``layer1..3``, ``hg.N.hg.L.R.B``,
-``res``, ``fc``, ``score``, ``fc_``, ``score_``), which therefore load strictly
-without any renaming. With the ``sh8`` hyper-parameters the stem is
-``layer1`` 64 planes (64 -> 128, projected skip), ``layer2`` 128 planes
-(128 -> 256, projected skip) and ``layer3`` 128 planes on 256 channels (identity
-skip); ``state_dict()`` then has exactly the 2,526 entries of the released file
-(``../shared/spec/deepfly2d-sh8-state-dict.tsv``, checked in
-``tests/pose2d/test_deepfly2d_compat.py``): 25,606,168 parameters, 112.6 GFLOP
-(56.3 G multiply-adds) per 256x512 image.
+A faithful rebuild of the network DeepFly3D/DeepFly2D trained (the pytorch-pose ``hg`` model): a
+7x7 stride-2 stem, pre-activation bottlenecks with expansion 2, depth-4 hourglasses, and
+intermediate supervision whose score maps are merged back into the features. Module names, and so
+``state_dict`` keys and shapes, are those of the published checkpoints (``conv1``, ``bn1``,
+``layer1..3``, ``hg.N.hg.L.R.B``, ``res``, ``fc``, ``score``, ``fc_``, ``score_``), which
+therefore load strictly without any renaming. With the ``sh8`` hyper-parameters the stem is
+``layer1`` 64 planes (64 -> 128, projected skip), ``layer2`` 128 planes (128 -> 256, projected
+skip) and ``layer3`` 128 planes on 256 channels (identity skip); ``state_dict()`` then has exactly
+the 2,526 entries of the released file (``../shared/spec/deepfly2d-sh8-state-dict.tsv``, checked
+in ``tests/pose2d/test_deepfly2d_compat.py``): 25,606,168 parameters, 112.6 GFLOP (56.3 G
+multiply-adds) per 256x512 image.
 """
 
 from __future__ import annotations
@@ -49,12 +47,9 @@ class Bottleneck(nn.Module):
 
 
 class Hourglass(nn.Module):
-    """One hourglass of ``depth`` levels.
-
-    ``hg[level]`` holds the level's residual branches: ``[0]`` the skip branch,
-    ``[1]`` after pooling, ``[2]`` before upsampling, and, at the innermost level
-    only, ``[3]`` the bottom of the hourglass (the pytorch-pose layout).
-    """
+    """One hourglass of ``depth`` levels. ``hg[level]`` holds the level's residual branches: ``[0]``
+    the skip branch, ``[1]`` after pooling, ``[2]`` before upsampling, and, at the innermost level
+    only, ``[3]`` the bottom of the hourglass (the pytorch-pose layout)."""
 
     def __init__(self, num_blocks: int, planes: int, depth: int):
         super().__init__()
@@ -84,25 +79,11 @@ class Hourglass(nn.Module):
 class HourglassNet(nn.Module):
     """The DeepFly2D stacked hourglass: ``(N, 3, H, W)`` images -> per-stack heatmaps.
 
-    The heatmaps are at a quarter of the input resolution (``H/4 x W/4``); input
-    sides must be multiples of 64 (the stem's /4 and four hourglass poolings).
-
-    Parameters
-    ----------
-    num_stacks
-        Number of stacked hourglasses (the published ``sh8`` checkpoint has 8).
-    num_blocks
-        Residual blocks per hourglass branch.
-    num_classes
-        Output heatmap channels (19 for DeepFly2D).
-    inplanes
-        Stem width.
-    num_feats
-        Hourglass feature width (``2 * num_feats`` channels between blocks).
-    init_stride
-        Stride of the 7x7 stem convolution.
-    depth
-        Levels per hourglass.
+    The heatmaps are at a quarter of the input resolution (``H/4 x W/4``); input sides must be
+    multiples of 64 (the stem's /4 and four hourglass poolings). ``num_stacks`` hourglasses (the
+    published ``sh8`` checkpoint has 8) of ``depth`` levels, ``num_blocks`` residual blocks per
+    branch, ``num_classes`` heatmap channels (19 for DeepFly2D), stem width ``inplanes``, stem
+    convolution stride ``init_stride``, ``2 * num_feats`` channels between hourglass blocks.
     """
 
     def __init__(
@@ -131,10 +112,10 @@ class HourglassNet(nn.Module):
         self.conv1 = nn.Conv2d(3, inplanes, kernel_size=7, stride=init_stride, padding=3, bias=True)
         self.bn1 = nn.BatchNorm2d(inplanes)
         self.relu = nn.ReLU(inplace=True)
-        # DeepFly2D (pytorch-pose ``hg``) passes the *running* width to layer2: after
-        # layer1 (inplanes -> 2 inplanes) it is a 2*inplanes-plane bottleneck
-        # (2 inplanes -> 4 inplanes, with a projection), and layer3 (num_feats planes)
-        # then needs a projection only when 4 inplanes != 2 num_feats (not for sh8).
+        # DeepFly2D (pytorch-pose ``hg``) passes the *running* width to layer2: after layer1
+        # (inplanes -> 2 inplanes) it is a 2*inplanes-plane bottleneck (2 inplanes -> 4 inplanes,
+        # with a projection), and layer3 (num_feats planes) then needs a projection only when
+        # 4 inplanes != 2 num_feats (not for sh8).
         self.layer1 = self._make_residual(self.inplanes, 1)
         self.layer2 = self._make_residual(self.inplanes, 1)
         self.layer3 = self._make_residual(num_feats, 1)
@@ -164,8 +145,8 @@ class HourglassNet(nn.Module):
         )
 
     def _make_residual(self, planes: int, blocks: int) -> nn.Sequential:
-        # The first block changes the width (with a 1x1 projection on the skip path)
-        # when the running width differs from its output; `self.inplanes` tracks it.
+        # The first block changes the width (with a 1x1 projection on the skip path) when the
+        # running width differs from its output; `self.inplanes` tracks it.
         out_channels = planes * Bottleneck.expansion
         downsample = None
         if self.inplanes != out_channels:

@@ -1,27 +1,24 @@
 """The detection plan: sources -> preprocessors -> models -> pathways -> (view, point).
 
-Also the preprocessing ops themselves. Each op transforms both an image batch (in
-torch, so frames stay on the GPU) and 2D points, and inverts exactly on points, so
-a pathway's detections are mapped back into its source's raw frame.
-
-The ops' point methods use the pixel-centre convention: pixel ``(i, j)`` (row,
-column) has centre ``(x, y) = (j, i)``; a ``W``-wide image spans ``x`` in
-``[-0.5, W - 0.5]``. Under it a horizontal mirror is ``x -> W - 1 - x`` and a resize
-by ``s`` is ``x -> (x + 0.5) s - 0.5`` (what ``torch.nn.functional.interpolate`` with
+Also the preprocessing ops: each transforms an image batch (in torch, so frames stay on the GPU)
+and 2D points, and inverts exactly on points, so a pathway's detections map back into its
+source's raw frame. The ops' point methods use the pixel-centre convention: pixel ``(i, j)``
+(row, column) has centre ``(x, y) = (j, i)``; a ``W``-wide image spans ``x`` in
+``[-0.5, W - 0.5]``. Under it a horizontal mirror is ``x -> W - 1 - x`` and a resize by ``s`` is
+``x -> (x + 0.5) s - 0.5`` (what ``torch.nn.functional.interpolate`` with
 ``align_corners=False`` does to pixels).
 
-Heatmap cells map to raw-frame pixels with DeepFly2D's convention, the one the
-published weights were trained with and DeepFly3D stores its 2D in
-(``../shared/spec/deepfly2d-heatmap-decoding.md``): cell ``(r, c)`` of an
-``H_hm x W_hm`` heatmap is the normalized point ``(c / W_hm, r / H_hm)`` of the model
-input, with no half-cell shift, and a normalized point ``u`` of a ``W``-wide image is
-the pixel value ``u W``. That is the edge-based form of the ops above (``u W =
-x + 0.5``): a mirror is ``u -> 1 - u``, a resize keeps ``u``. On a pathway without
-preprocessing, cell ``(r, c)`` is raw ``(c / W_hm W_raw, r / H_hm H_raw)``; through
-the ``fliplr`` preprocessor, ``((1 - c / W_hm) W_raw, r / H_hm H_raw)``.
+Heatmap cells map to raw-frame pixels with DeepFly2D's convention, the one the published weights
+were trained with and DeepFly3D stores its 2D in (``../shared/spec/deepfly2d-heatmap-decoding.md``):
+cell ``(r, c)`` of an ``H_hm x W_hm`` heatmap is the normalized point ``(c / W_hm, r / H_hm)`` of
+the model input, with no half-cell shift, and a normalized point ``u`` of a ``W``-wide image is
+the pixel value ``u W``. That is the edge-based form of the ops above (``u W = x + 0.5``): a
+mirror is ``u -> 1 - u``, a resize keeps ``u``. On a pathway without preprocessing, cell
+``(r, c)`` is raw ``(c / W_hm W_raw, r / H_hm H_raw)``; through the ``fliplr`` preprocessor,
+``((1 - c / W_hm) W_raw, r / H_hm H_raw)``.
 
-This module imports torch only inside the image functions, so the plan can be read
-(e.g. :meth:`DetectionPlan.view_sources`) without it.
+Torch is imported only inside the image functions, so the plan (e.g.
+:meth:`DetectionPlan.view_sources`) can be read without it.
 """
 
 from __future__ import annotations
@@ -38,14 +35,12 @@ Size = tuple[int, int]  # (height, width)
 
 #: The seed system's default: the intensity-weighted centroid of the 5x5 window.
 DEFAULT_SUBPIXEL = "weighted"
-#: How heatmap cells become raw pixels (part of pose2d's stage parameters, so 2D
-#: detected under an earlier convention is recomputed, never reused).
+#: How heatmap cells become raw pixels (part of pose2d's stage parameters, so 2D detected under an
+#: earlier convention is recomputed, never reused).
 DECODING_CONVENTION = "deepfly2d-normalized-cells"
 
 
-# ---------------------------------------------------------------------------
-# preprocessing ops
-# ---------------------------------------------------------------------------
+# --- preprocessing ops ------------------------------------------------------------------
 
 
 class Op:
@@ -211,13 +206,8 @@ def _int(spec: Mapping, key: str, where: str, *, minimum: int = 0) -> int:
 
 
 def parse_op(spec: Mapping, where: str) -> Op:
-    """Build one op from its config entry (``{op: fliplr}``, ``{op: crop, x0, y0, width, height}``...).
-
-    Raises
-    ------
-    ConfigError
-        For an unknown op or a missing/invalid parameter.
-    """
+    """Build one op from its config entry (``{op: fliplr}``, ``{op: crop, x0, y0, width,
+    height}``...); :class:`ConfigError` for an unknown op or a missing/invalid parameter."""
     if not isinstance(spec, Mapping) or "op" not in spec:
         raise ConfigError(f"{where}: each op must be a table with an 'op' key, got {spec!r}")
     kind = str(spec["op"]).lower()
@@ -250,9 +240,7 @@ def parse_op(spec: Mapping, where: str) -> Op:
     return op
 
 
-# ---------------------------------------------------------------------------
-# the plan
-# ---------------------------------------------------------------------------
+# --- the plan -----------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -273,11 +261,8 @@ class ModelSpec:
 
 @dataclass(frozen=True)
 class Pathway:
-    """One ``source -> preprocessor -> model`` run and where its channels land.
-
-    ``channels[i]`` of the model output fills ``(views[i], points[i])`` of the
-    ``(V, T, P)`` arrays.
-    """
+    """One ``source -> preprocessor -> model`` run: ``channels[i]`` of the model output fills
+    ``(views[i], points[i])`` of the ``(V, T, P)`` arrays."""
 
     name: str
     source: str
@@ -302,26 +287,11 @@ class Pathway:
     def heatmap_to_raw(
         self, xy: np.ndarray, raw_size: Size, model: ModelSpec, heatmap_size: Size
     ) -> np.ndarray:
-        """Map heatmap-cell ``(..., 2)`` points ``(x, y) = (column, row)`` into the raw source frame.
-
-        DeepFly2D's convention (module docstring): cell ``c`` is the normalized
-        point ``c / W_hm`` of the model input, and the raw pixel is the normalized
-        raw-frame point times the frame size.
-
-        Parameters
-        ----------
-        xy
-            ``(..., 2)`` heatmap cells, fractional after sub-pixel refinement.
-        raw_size
-            ``(height, width)`` of the source's raw frames.
-        heatmap_size
-            ``(H_hm, W_hm)`` of the heatmaps.
-
-        Returns
-        -------
-        np.ndarray
-            ``(..., 2)`` float64 raw-frame pixels ``(x, y)``.
-        """
+        """Map ``(..., 2)`` heatmap cells ``(x, y) = (column, row)`` (fractional after sub-pixel
+        refinement) of ``(H_hm, W_hm)`` = ``heatmap_size`` heatmaps to float64 pixels ``(x, y)`` of
+        the ``(height, width)`` = ``raw_size`` raw source frame. DeepFly2D's convention (module
+        docstring): cell ``c`` is the normalized point ``c / W_hm`` of the model input, and the raw
+        pixel is the normalized raw-frame point times the frame size."""
         ops, sizes = self._sizes(raw_size, model)
         cells = np.array(heatmap_size[::-1], dtype=np.float64)  # (W_hm, H_hm)
         pixels = np.array(sizes[-1][::-1], dtype=np.float64)  # model input (W, H)
@@ -456,21 +426,9 @@ def _parse_models(pose2d: Mapping) -> dict[str, ModelSpec]:
 
 @dataclass(frozen=True)
 class DetectionPlan:
-    """The parsed, validated 2D detection plan.
-
-    Attributes
-    ----------
-    sources
-        Source name -> footage pattern (``[[sources]]``), in config order.
-    models
-        Model name -> :class:`ModelSpec`.
-    pathways
-        The pathways in config order.
-    view_names
-        The V axis (camera names in config order).
-    point_names
-        The P axis (skeleton points).
-    """
+    """The parsed, validated 2D detection plan: ``sources`` (name -> footage pattern of
+    ``[[sources]]``, config order), ``models`` (name -> :class:`ModelSpec`), ``pathways`` (config
+    order), ``view_names`` (the V axis: cameras in config order), ``point_names`` (the P axis)."""
 
     sources: dict[str, str]
     models: dict[str, ModelSpec]
@@ -487,26 +445,13 @@ class DetectionPlan:
         view_names: Sequence[str],
         point_names: Sequence[str],
     ) -> DetectionPlan:
-        """Parse the plan from the config's tables.
+        """Parse the plan from the config's ``sources`` list (``{name, filename?}`` entries) and
+        ``pose2d`` table (its ``preprocessors``, ``models``, ``weights``, ``pathways`` and
+        ``output_points``), on the rig's views (V) and the skeleton's points (P), in order.
 
-        Parameters
-        ----------
-        sources
-            The ``sources`` list (``{name, filename?}`` entries).
-        pose2d
-            The ``pose2d`` table: its ``preprocessors``, ``models``, ``weights``,
-            ``pathways`` and ``output_points`` are read.
-        view_names
-            The V axis (the rig's views, in order).
-        point_names
-            The P axis (the skeleton's points).
-
-        Raises
-        ------
-        ConfigError
-            Naming the offending key, for any inconsistency (unknown source, model,
-            preprocessor, view or point; a channel beyond the model's outputs; one
-            view fed from two different sources).
+        A :class:`ConfigError` names the offending key for any inconsistency (unknown source,
+        model, preprocessor, view or point; a channel beyond the model's outputs; one view fed from
+        two different sources).
         """
         pose2d = pose2d or {}
         if not isinstance(pose2d, Mapping):

@@ -1,9 +1,6 @@
-"""Where a detector model's checkpoint comes from, told without torch: the published
-checkpoints, the per-user cache file each lands in, and whether a model's checkpoint
-is present or can be downloaded (what validation checks before any job runs).
-
-The loader (:mod:`flylib.pose2d.weights`) uses the same table and cache names.
-"""
+"""Where a detector model's checkpoint comes from, told without torch: the published checkpoints,
+the per-user cache file each lands in, and whether a model's checkpoint is present or can be
+downloaded (what validation checks before any job runs). :mod:`flylib.pose2d.weights` loads them."""
 
 from __future__ import annotations
 
@@ -18,10 +15,8 @@ from typing import Any
 
 from ..paths import cache_dir
 
-#: The published DeepFly2D ``sh8`` checkpoint (the DeepFly2D project's download link).
-#: ``sha256`` stays ``None`` until a hash can be pinned from an authoritative source
-#: (neither DeepFly2D/DeepFly3D's sources nor the spec give one); meanwhile the first
-#: download's hash is recorded beside the file (``weights.recorded_sha256_path``).
+#: The published DeepFly2D ``sh8`` checkpoint (its project's download link); ``sha256`` stays
+#: ``None`` until one can be pinned from an authoritative source (:mod:`flylib.pose2d.weights`).
 PUBLISHED_WEIGHTS = {
     "hourglass": {
         "url": "https://www.dropbox.com/s/csgon8uojr3gdd9/sh8_front_j8.tar?dl=1",
@@ -30,15 +25,14 @@ PUBLISHED_WEIGHTS = {
     }
 }
 
-#: Seconds validation waits for the weights host before it calls the checkpoint
-#: not downloadable (name lookup and connection together).
+#: Seconds validation waits for the weights host (name lookup and connection together) before it
+#: calls the checkpoint not downloadable.
 PROBE_TIMEOUT_S = 3.0
 
 
 def cached_checkpoint(model_name: str, model_class: str, url: str | None = None) -> Path:
-    """The cache file a model without a local ``weights`` path loads (and downloads to):
-    named by the published checkpoint of ``model_class``, else by the model's own ``url``,
-    else by ``model_name``."""
+    """The cache file a model without a local ``weights`` path loads (and downloads to): named by
+    the published checkpoint of ``model_class``, else by the model's own ``url``, else its name."""
     filename = PUBLISHED_WEIGHTS.get(model_class, {}).get("filename") or (
         Path(url.split("?")[0]).name if url else f"{model_name}.tar"
     )
@@ -51,16 +45,11 @@ def download_url(model_class: str, url: str | None = None) -> str | None:
 
 
 def host_reachable(url: str, timeout: float = PROBE_TIMEOUT_S) -> tuple[bool, str]:
-    """Whether a TCP connection to ``url``'s host opens within ``timeout`` seconds (for a
-    ``file:`` URL: whether the file exists).
+    """``(reachable, why)``: whether a TCP connection to ``url``'s host opens within ``timeout``
+    seconds (a ``file:`` URL: whether the file exists), and what failed (empty when reachable).
 
-    The name lookup has no timeout of its own, so both run on a daemon thread that
-    is abandoned when the time is up: an offline machine answers in ``timeout``.
-
-    Returns
-    -------
-    reachable, why
-        ``why`` says what failed (empty when reachable).
+    The name lookup has no timeout of its own, so both run on a daemon thread that is abandoned
+    when the time is up: an offline machine answers in ``timeout``.
     """
     parts = urllib.parse.urlsplit(url)
     if parts.scheme == "file":
@@ -86,18 +75,15 @@ def host_reachable(url: str, timeout: float = PROBE_TIMEOUT_S) -> tuple[bool, st
     return not outcome[0], outcome[0]
 
 
-#: The start of a checkpoint in torch's legacy (pre-1.6) format: a pickle stream
-#: (``\\x80`` and its protocol) whose first object is torch's magic number as a long.
+#: The start of a checkpoint in torch's legacy (pre-1.6) format: a pickle stream (``\\x80`` and
+#: its protocol) whose first object is torch's magic number as a long.
 _LEGACY_MAGIC = b"\x8a\x0a" + (0x1950A86A20F9469CFC6C).to_bytes(10, "little")
 
 
 def container_problem(path: str | Path) -> str | None:
-    """Why ``path`` is no file ``torch.save`` wrote, or ``None``; told from its layout
-    alone, never unpickled (what validation checks before any job runs).
-
-    Accepted: torch's zip archive (with its ``data.pkl``), the legacy pickle stream (its
-    magic number first), and the old tar layout (with its ``pickle`` member).
-    """
+    """Why ``path`` is no file ``torch.save`` wrote, or ``None``; told from its layout alone, never
+    unpickled. Accepted: torch's zip archive (with its ``data.pkl``), the legacy pickle stream (its
+    magic number first), and the old tar layout (with its ``pickle`` member)."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -122,11 +108,8 @@ def container_problem(path: str | Path) -> str | None:
 
 def checkpoint_problem(spec: Any, key: str, timeout: float = PROBE_TIMEOUT_S) -> str | None:
     """Why a model's checkpoint will not be there when the detector starts, as one
-    ``"<key>: <what is wrong; where to put the file>"`` line, else ``None``.
-
-    ``spec`` is the model's :class:`flylib.pose2d.plan.ModelSpec`; ``key`` the config key
-    that sets its weights; ``timeout`` the seconds to wait for the download host.
-    """
+    ``"<key>: <what is wrong; where to put the file>"`` line, else ``None``. ``spec`` is the
+    model's :class:`flylib.pose2d.plan.ModelSpec`; ``key`` the config key that sets its weights."""
     if spec.weights:
         path = Path(spec.weights).expanduser()
         if path.is_file():

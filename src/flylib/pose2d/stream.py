@@ -1,14 +1,11 @@
 """Streaming 2D detection over a recording's sources.
 
-Each source is decoded once, on its own background thread, into a bounded queue
-of ``batch_size``-frame blocks (``decode_buffer`` blocks deep), so decoding runs in
+Each source is decoded once, on its own background thread (:class:`BlockPrefetcher`), into a
+bounded queue of ``batch_size``-frame blocks (``decode_buffer`` blocks deep), so decoding runs in
 parallel with the forward passes and frame memory is bounded by
-``sources x (decode_buffer + 2) x batch_size`` frames whatever the recording length.
-Under a one-thread budget (:func:`flylib.resources.thread_budget`) every source is
-decoded in the calling thread, a block at a time, when the forwards need it.
-Every pathway reading a source is fed from the same block (moved to the device
-once). Results are copied back one block late, so the GPU is never idle waiting
-for the host.
+``sources x (decode_buffer + 2) x batch_size`` frames whatever the recording length. Every pathway
+reading a source is fed from the same block (moved to the device once). Results are copied back
+one block late, so the GPU is never idle waiting for the host.
 """
 
 from __future__ import annotations
@@ -50,20 +47,17 @@ class _Failure:
 class BlockPrefetcher:
     """Decode one source into a bounded queue of uint8 torch blocks of up to ``block_size`` frames.
 
-    Blocks are ``(T, H, W, 3)`` RGB, or, with ``raw_yuv`` on a ``yuv420p`` video,
-    the decoder's planes ``(T, 3H/2, W)`` (:attr:`yuv` tells which; convert with
-    :func:`~flylib.pose2d.inference.yuv420p_to_rgb` and :attr:`color`), which skips
-    the CPU colour conversion, the slowest part of decoding.
+    Blocks are ``(T, H, W, 3)`` RGB, or, with ``raw_yuv`` on a ``yuv420p`` video, the decoder's
+    planes ``(T, 3H/2, W)`` (:attr:`yuv` tells which; convert with
+    :func:`~flylib.pose2d.inference.yuv420p_to_rgb` and :attr:`color`), which skips the CPU colour
+    conversion, the slowest part of decoding.
 
-    The source decodes on its own thread (``flylib-decode-<name>``), ``depth`` blocks
-    ahead of :meth:`get`; under a one-thread budget (:func:`~flylib.resources.usable_cpus`
-    is 1) it decodes in the calling thread instead, one block per :meth:`get`, so a
-    one-thread job starts no thread (and holds one block, not ``depth``).
-
-    ``files`` is what :func:`flylib.io.open_reader` reads; ``depth`` is at least 1, so
-    memory stays bounded; ``pin`` allocates blocks in page-locked memory (fast,
-    asynchronous GPU copies); ``on_corrupt`` is ``io.on_corrupt_frame`` for image
-    sequences; ``threaded`` defaults to ``usable_cpus() > 1``.
+    The source decodes on its own thread (``flylib-decode-<name>``), ``depth`` (at least 1) blocks
+    ahead of :meth:`get`; under a one-thread budget (:func:`~flylib.resources.usable_cpus` is 1) it
+    decodes in the calling thread instead, one block per :meth:`get`, so a one-thread job starts no
+    thread and holds one block. ``files`` is what :func:`flylib.io.open_reader` reads; ``pin``
+    allocates blocks in page-locked memory (fast, asynchronous GPU copies); ``on_corrupt`` is
+    ``io.on_corrupt_frame`` for image sequences; ``threaded`` defaults to ``usable_cpus() > 1``.
     """
 
     def __init__(
@@ -236,11 +230,8 @@ class _Pending:
 
 
 def _start_download(results: list, device: torch.device):
-    """Queue device->host copies of a block's results; return them and an event to wait on.
-
-    Waiting on the event (not on the whole stream) lets the next block's forwards run
-    while this block's points are scattered on the host.
-    """
+    """Queue device->host copies of a block's results; return them and an event to wait on
+    (not the whole stream, so the next block's forwards run while this one is scattered)."""
     if device.type != "cuda":
         return results, None
     host = []
@@ -293,37 +284,22 @@ def run_detection(
 ) -> DetectionOutput:
     """Stream every active source through its pathways and scatter the points.
 
-    Parameters
-    ----------
-    models
-        ``name -> LoadedModel`` for every model the active pathways use.
-    sources
-        Source name -> footage (file list, video, directory or glob).
-    batch_size
-        Frames per decoded block (and per forward).
-    decode_buffer
-        Blocks queued ahead per source.
-    k
-        Top-``k`` candidates per (view, point) when given.
-    raw_yuv
-        Convert YUV video to RGB on the device instead of in the decoder
-        (default: on a GPU); results agree to within a grey level.
-    timings
-        When given, receives where the calling thread spent its time, in seconds:
-        ``wait_decode`` (blocked on the decode threads; decoding, under a one-thread
-        budget), ``launch`` (preprocessing and forwards; on a GPU only queueing them),
-        ``wait_device`` (blocked on a GPU block's results) and ``scatter`` (points to
-        raw pixels on the host).
-        Which one dominates says what bounds the throughput.
-    on_corrupt
-        A corrupt image in a sequence: ``"error"`` fails naming it, ``"missing"``
-        marks every point of that frame in the views it feeds as missing (NaN).
+    ``models``: name -> :class:`LoadedModel` for every model the active pathways use;
+    ``sources``: source name -> footage (file list, video, directory or glob); ``batch_size``:
+    frames per decoded block and per forward; ``decode_buffer``: blocks queued ahead per source;
+    ``k``: top-``k`` candidates per (view, point) when given. ``raw_yuv`` converts YUV video to RGB
+    on the device instead of in the decoder (default: on a GPU); results agree to within a grey
+    level. ``on_corrupt``: a corrupt image in a sequence fails naming it (``"error"``) or marks
+    every point of that frame in the views it feeds missing (NaN, ``"missing"``).
 
-    Raises
-    ------
-    FootageError
-        If a source is missing, unreadable, or the sources differ in length or
-        change frame size.
+    ``timings``, when given, receives where the calling thread spent its time, in seconds:
+    ``wait_decode`` (blocked on the decode threads; decoding, under a one-thread budget),
+    ``launch`` (preprocessing and forwards; on a GPU only queueing them), ``wait_device`` (blocked
+    on a GPU block's results) and ``scatter`` (points to raw pixels on the host); which one
+    dominates says what bounds the throughput.
+
+    Raises :class:`FootageError` if a source is missing or unreadable, or the sources differ in
+    length or change frame size.
     """
     active = plan.active_sources()
     missing = [s for s in active if s not in sources or not sources[s]]
@@ -540,31 +516,16 @@ def detect_2d(
 ) -> tuple[Float[np.ndarray, "V T P 2"], Float[np.ndarray, "V T P"], Candidates | None]:
     """Stream 2D detection over a recording -> ``(pts2d, conf, candidates)``.
 
-    Parameters
-    ----------
-    params
-        The ``pose2d`` settings read here: ``batch_size``, ``decode_buffer``.
-    plan
-        The detection plan (:meth:`DetectionPlan.from_tables`).
-    models
-        ``name -> LoadedModel`` (:func:`load_models`).
-    sources
-        Source name -> footage (the resolved file list of each ``[[sources]]`` entry).
-    io
-        ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults).
-    want_candidates
-        Also return the top-``k`` heatmap peaks per (view, point) for pictorial structures.
-    k
-        Candidates per (view, point); default ``pictorial_structures.k``'s default.
+    ``params`` gives ``batch_size`` and ``decode_buffer``; ``plan`` comes from
+    :meth:`DetectionPlan.from_tables`, ``models`` from :func:`load_models`; ``sources`` maps source
+    name -> footage (the resolved file list of each ``[[sources]]`` entry); ``io`` gives
+    ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults). ``want_candidates``
+    also returns the top-``k`` heatmap peaks per (view, point) for pictorial structures (``k``
+    default: ``pictorial_structures.k``'s default).
 
-    Returns
-    -------
-    pts2d : np.ndarray
-        ``(V, T, P, 2)`` raw-frame pixels, NaN where the plan fills nothing.
-    conf : np.ndarray
-        ``(V, T, P)`` heatmap peak values, NaN likewise.
-    candidates : Candidates or None
-        ``xy (V, T, P, K, 2)`` and ``score (V, T, P, K)`` when ``want_candidates``.
+    ``pts2d`` is ``(V, T, P, 2)`` raw-frame pixels, NaN where the plan fills nothing; ``conf``
+    ``(V, T, P)`` heatmap peak values, NaN likewise; ``candidates`` (``xy (V, T, P, K, 2)``,
+    ``score (V, T, P, K)``) is ``None`` unless ``want_candidates``.
     """
     out = _detect(
         params,
@@ -606,33 +567,19 @@ def detect_recording(
     progress: bool = True,
     models: dict[str, LoadedModel] | None = None,
 ):
-    """The pose2d stage's detection: run the detection plan over one recording.
+    """The pose2d stage's detection: run the plan over one recording -> a
+    :class:`flylib.results.Pose2dData`.
 
-    Parameters
-    ----------
-    sources
-        Source name -> resolved footage files (see :mod:`flylib.recordings`).
-    params
-        The ``pose2d`` settings (precision, device, batch size, decode buffer, compile).
-    io
-        ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults).
-    k
-        Also keep the top-``k`` peaks per (view, point) (pictorial structures on);
-        ``None``: none.
-    models
-        Already-loaded models (default: load them from the plan's weights,
-        downloading the published checkpoint on first use).
+    ``sources`` maps source name -> resolved footage files (:mod:`flylib.recordings`); ``params``
+    are the ``pose2d`` settings (precision, device, batch size, decode buffer, compile); ``io``
+    gives ``io.image.workers`` and ``io.on_corrupt_frame`` (default: their defaults); ``k`` also
+    keeps the top-``k`` peaks per (view, point) (pictorial structures on); ``models`` are
+    already-loaded models (default: load the plan's weights, downloading the published checkpoint
+    on first use).
 
-    Returns
-    -------
-    flylib.results.Pose2dData
-
-    Raises
-    ------
-    WeightsError
-        If the weights cannot be found or downloaded (never runs an untrained network).
-    FootageError
-        If the footage is missing, corrupt or inconsistent across cameras.
+    Raises :class:`WeightsError` if the weights cannot be found or downloaded (never runs an
+    untrained network), :class:`FootageError` if the footage is missing, corrupt or inconsistent
+    across cameras.
     """
     if models is None:
         models = load_models(plan, params, frames=frame_count(plan, sources))

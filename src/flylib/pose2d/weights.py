@@ -1,19 +1,18 @@
 """Detector checkpoints: locate (cache or download), verify, load strictly, save.
 
-A checkpoint is what DeepFly3D publishes: a torch ``.tar`` holding
-``{"state_dict": {...}}`` whose keys may carry ``module.`` (DataParallel) or
-``model.`` (Lightning) prefixes. The network's shape (number of stacks, output
-channels, widths) is read from the checkpoint itself, so an ``sh8`` and an ``sh2``
-both load, and any key or shape mismatch is a :class:`~flylib.errors.WeightsError`
-rather than a silently half-initialised network.
+A checkpoint is what DeepFly3D publishes: a torch ``.tar`` holding ``{"state_dict": {...}}``
+whose keys may carry ``module.`` (DataParallel) or ``model.`` (Lightning) prefixes. The network's
+shape (number of stacks, output channels, widths) is read from the checkpoint itself, so an
+``sh8`` and an ``sh2`` both load, and any key or shape mismatch is a
+:class:`~flylib.errors.WeightsError` rather than a silently half-initialised network.
 
-Integrity. Where a SHA-256 is known (a model's ``sha256`` in the config, or one
-pinned in :data:`PUBLISHED_WEIGHTS`) every download and every use is checked against
-it. No SHA-256 of the published DeepFly2D checkpoint is published by its authors, and
-none could be established here, so none is pinned: instead the first download's hash
-is recorded beside the file (``<file>.sha256``, trust on first use) and every later
-use is checked against that record, so a cached file that changes afterwards
-(corruption, a swapped file) is refused with one line naming it.
+Integrity. Where a SHA-256 is known (a model's ``sha256`` in the config, or one pinned in
+:data:`PUBLISHED_WEIGHTS`) every download and every use is checked against it. No SHA-256 of the
+published DeepFly2D checkpoint is published by its authors, and none could be established here,
+so none is pinned: instead the first download's hash is recorded beside the file
+(``<file>.sha256``, trust on first use) and every later use is checked against that record, so a
+cached file that changes afterwards (corruption, a swapped file) is refused with one line naming
+it.
 """
 
 from __future__ import annotations
@@ -96,8 +95,8 @@ def _trust_on_first_use(path: Path, digest: str, what: str) -> None:
 
 
 def _check_trusted_on_first_use(path: Path, what: str) -> None:
-    """Check an unpinned cached checkpoint against the hash recorded at its first download;
-    record one if there is none (a file put there by hand)."""
+    """Check an unpinned cached checkpoint against the hash recorded at its first download; record
+    one if there is none (a file put there by hand)."""
     digest = sha256sum(path)
     recorded = _recorded_sha256(path)
     if recorded is None:
@@ -111,13 +110,8 @@ def _check_trusted_on_first_use(path: Path, what: str) -> None:
 
 
 def download(url: str, dest: Path, *, sha256: str | None = None, timeout: float = 60.0) -> Path:
-    """Download ``url`` to ``dest`` atomically (temporary sibling, verified, renamed).
-
-    Raises
-    ------
-    WeightsError
-        If the download fails (offline, HTTP error) or the checksum does not match;
-        the message says where to put the file by hand.
+    """Download ``url`` to ``dest`` atomically (temporary sibling, verified, renamed); a failed
+    download or a checksum mismatch is a :class:`WeightsError` saying where to put the file by hand.
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
@@ -152,23 +146,11 @@ def resolve_weights(
 ) -> Path:
     """The existing checkpoint file a model uses, downloading the published one on first use.
 
-    Parameters
-    ----------
-    weights
-        A local checkpoint path, or empty/``None`` for the per-user cache.
-    model_name
-        The model's name in the config (for messages).
-    model_class
-        Selects the published checkpoint.
-    url, sha256
-        Override the download address / expected checksum.
-    allow_download
-        Whether an empty cache may be filled from the network.
-
-    Raises
-    ------
-    WeightsError
-        If a given path does not exist, or the cache is empty and cannot be filled.
+    ``weights`` is a local checkpoint path, or empty/``None`` for the per-user cache;
+    ``model_name`` is for messages; ``model_class`` selects the published checkpoint; ``url`` and
+    ``sha256`` override the download address and expected checksum; ``allow_download`` says whether
+    an empty cache may be filled from the network. Raises :class:`WeightsError` if a given path
+    does not exist, or the cache is empty and cannot be filled.
     """
     if weights:
         path = Path(weights).expanduser()
@@ -215,10 +197,9 @@ def strip_prefixes(state_dict: dict) -> dict:
     return out
 
 
-#: What ``torch.load(weights_only=True)`` raises on a damaged or foreign file (seen by
-#: fuzzing both the zip and the legacy format): the restricted unpickler's
-#: UnpicklingError (also for a refused global), the zip reader's RuntimeError, and the
-#: parse errors of the pickle stream and its struct-packed records.
+#: What ``torch.load(weights_only=True)`` raises on a damaged or foreign file (seen by fuzzing both
+#: the zip and the legacy format): the restricted unpickler's UnpicklingError (also for a refused
+#: global), the zip reader's RuntimeError, and the parse errors of the pickle stream and records.
 _CHECKPOINT_PARSE_ERRORS = (
     pickle.UnpicklingError,
     RuntimeError,
@@ -237,8 +218,8 @@ _CHECKPOINT_PARSE_ERRORS = (
 
 
 def _load_failure(exc: BaseException) -> str:
-    """What ``torch.load(weights_only=True)`` objected to, in a few words: never torch's
-    advice to load with ``weights_only=False``, which would run code from the file."""
+    """What ``torch.load(weights_only=True)`` objected to, in a few words: never torch's advice to
+    load with ``weights_only=False``, which would run code from the file."""
     text = " ".join(str(exc).split())
     refused = re.search(r"Unsupported global: GLOBAL ([\w.]+)", text)
     if refused:
@@ -252,14 +233,12 @@ def _load_failure(exc: BaseException) -> str:
 
 
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
-    """The network parameters of a checkpoint file, prefixes stripped.
-
-    Accepts ``{"state_dict": ...}`` (the published format) or a bare state dict.
-    """
+    """The network parameters of a checkpoint file (``{"state_dict": ...}``, the published format,
+    or a bare state dict), prefixes stripped."""
     path = Path(path)
     try:
-        # weights_only: torch's own restricted unpickler (tensors and plain containers);
-        # a checkpoint that names any other global is refused, never run.
+        # weights_only: torch's own restricted unpickler (tensors and plain containers); a
+        # checkpoint that names any other global is refused, never run.
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except _CHECKPOINT_PARSE_ERRORS as exc:
         raise WeightsError(
@@ -303,18 +282,9 @@ def load_hourglass(
     num_stacks: int | None = None,
     device: str | torch.device = "cpu",
 ) -> HourglassNet:
-    """Build the hourglass a checkpoint describes and load it strictly, in eval mode.
-
-    Parameters
-    ----------
-    num_classes, num_stacks
-        Expected output channels (the model's ``n_out_channels``) and stacks, checked
-        when given.
-
-    Raises
-    ------
-    WeightsError
-        If the file is unreadable, is not an hourglass, or any key/shape differs.
+    """Build the hourglass a checkpoint describes and load it strictly, in eval mode, checking
+    ``num_classes`` (the model's ``n_out_channels``) and ``num_stacks`` when given; a
+    :class:`WeightsError` if the file is unreadable, is not an hourglass, or any key/shape differs.
     """
     state = read_state_dict(path)
     arch = infer_hourglass_config(state, source=str(path))
@@ -334,7 +304,6 @@ def load_hourglass(
         first = next((ln.strip() for ln in str(exc).splitlines()[1:] if ln.strip()), str(exc))
         layer2 = state.get("layer2.0.conv1.weight")
         if layer2 is not None and layer2.shape[0] == arch["inplanes"]:
-            # flylib < issue 11 gave layer2 the stem width instead of the running width
             first += (
                 "; its layer2 has the stem width, the layout of flylib's earlier, non-DeepFly2D "
                 "network, which no DeepFly2D weights fit"
@@ -353,13 +322,8 @@ def load_hourglass(
 
 
 def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "module.") -> Path:
-    """Save a network in the published checkpoint format (``.tar`` by convention), atomically.
-
-    Parameters
-    ----------
-    prefix
-        Key prefix (``"module."`` as DataParallel-trained checkpoints carry; ``""`` for none).
-    """
+    """Save a network in the published checkpoint format (``.tar`` by convention), atomically;
+    ``prefix`` is the key prefix (``"module."`` as DataParallel checkpoints carry; ``""``: none)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {prefix + k: v.detach().cpu() for k, v in net.state_dict().items()}
@@ -372,24 +336,14 @@ def save_checkpoint(net: HourglassNet, path: str | Path, *, prefix: str = "modul
 def load_detector(
     checkpoint: str | Path | None = None, *, device=None, num_classes: int | None = None
 ):
-    """Load the hourglass detector from a checkpoint, in eval mode (strictly; shape read
-    from the file).
+    """Load the hourglass detector from a checkpoint, in eval mode (strictly; shape read from the
+    file), on ``device`` (default CPU).
 
-    Parameters
-    ----------
-    checkpoint
-        A DeepFly2D checkpoint (``{"state_dict": ...}``, ``module.``/``model.``
-        prefixes allowed), or ``None`` for a freshly initialised, **untrained**
-        8-stack network (logged as a warning; for training or tests only).
-    device
-        Default CPU.
-    num_classes
-        Expected output channels, checked against the checkpoint.
-
-    Raises
-    ------
-    WeightsError
-        If the file is unreadable or does not fit the network.
+    ``checkpoint`` is a DeepFly2D checkpoint (``{"state_dict": ...}``, ``module.``/``model.``
+    prefixes allowed), or ``None`` for a freshly initialised, **untrained** 8-stack network
+    (logged as a warning; for training or tests only). ``num_classes``, the expected output
+    channels, is checked against the checkpoint. Raises :class:`WeightsError` if the file is
+    unreadable or does not fit the network.
     """
     if checkpoint is None:
         log.warning("load_detector(None): returning an UNTRAINED hourglass network")

@@ -1,16 +1,14 @@
-"""Recordings: which directories hold footage for every configured source, and where
-their results go.
+"""Recordings: which directories hold footage for every configured source, and where results go.
 
-A *recording* is a directory holding footage for every ``[[sources]]`` entry of the
-config: one video per source, or one image sequence per source, all with the same
-frame count. :func:`find_recording` resolves one directory (:mod:`.footage`; the video
-frame counts it compares are cached, :mod:`.frame_counts`); :func:`resolve_recordings`
-expands literal paths and wildcard patterns (optionally recursively) into a batch;
-:func:`plan_listing` turns a ``recordings`` listing (paths, patterns, per-recording
-mappings or a ``.tsv`` / ``.csv`` sheet, :mod:`.sheets`) into :class:`Recording` objects,
-each with a stable, unique id and its output directory (:mod:`.listing`; a path that finds
-nothing is explained by :mod:`.lookup`). The Snakemake workflow plans its jobs from
-:func:`flylib.pipeline.planning.plan_recordings`, which hands it the config's keys.
+A *recording* is a directory holding footage for every ``[[sources]]`` entry of the config: one
+video, or one image sequence, per source, all with the same frame count. :func:`find_recording`
+resolves one directory (:mod:`.footage`; video frame counts cached by :mod:`.frame_counts`);
+:func:`resolve_recordings` expands literal paths and wildcard patterns (optionally recursively) into
+a batch; :func:`plan_listing` turns a ``recordings`` listing (paths, patterns, per-recording
+mappings or a ``.tsv`` / ``.csv`` sheet, :mod:`.sheets`) into :class:`Recording` objects with
+stable, unique ids and output directories (:mod:`.listing`; a path that finds nothing is explained
+by :mod:`.lookup`). The workflow plans its jobs from
+:func:`flylib.pipeline.planning.plan_recordings`.
 """
 
 from .footage import find_recording

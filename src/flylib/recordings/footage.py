@@ -1,5 +1,5 @@
-"""Footage matching: one directory's footage files per source (:func:`find_recording`),
-one extension shared by every source, naturally sorted, with equal frame counts."""
+"""Footage matching: one directory's footage files per source (:func:`find_recording`), one
+extension shared by every source, naturally sorted, with equal frame counts."""
 
 from __future__ import annotations
 
@@ -26,14 +26,9 @@ def natural_sorted(paths: Iterable[Path]) -> list[Path]:
 
 
 def footage_matches(directory: Path, pattern: str) -> list[Path]:
-    """Footage files (video or image extensions) matching ``pattern`` in ``directory``.
-
-    Raises
-    ------
-    FootageError
-        A match with a footage extension that is no regular file (a FIFO, a device, a
-        link to one or to nothing), named with what it is.
-    """
+    """Footage files (video or image extensions) matching ``pattern`` in ``directory``; a match with
+    a footage extension that is no regular file (a FIFO, a device, a link to one or to nothing) is a
+    :class:`FootageError` saying what it is."""
     hits = [Path(p) for p in glob.glob(os.path.join(glob.escape(str(directory)), pattern))]
     hits = [p for p in hits if p.suffix.lower() in FOOTAGE_EXTS and not p.is_dir()]
     for path in hits:
@@ -43,8 +38,7 @@ def footage_matches(directory: Path, pattern: str) -> list[Path]:
 
 
 def _not_a_file(path: Path) -> str:
-    """What ``path`` (not a regular file) is, in words: ``"is a named pipe (FIFO), not a
-    video or image file"``."""
+    """What ``path`` (not a regular file) is, in words: ``"is a named pipe (FIFO), not a ..."``."""
     link = f"a link to {os.path.realpath(path)}, " if path.is_symlink() else ""
     try:
         mode = path.stat().st_mode
@@ -78,31 +72,15 @@ def find_recording(
     check_frames: bool = True,
     strict: bool = False,
 ) -> dict[str, list[Path]] | None:
-    """Resolve one directory to its ``source -> footage files`` map.
+    """Resolve one directory to its ``source -> footage files`` map, or ``None`` when it is not a
+    valid recording (the reason logged as a warning, or raised as
+    :class:`~flylib.errors.FootageError` with ``strict``).
 
-    Each source's pattern is matched inside ``directory``; the matches are reduced to
-    one footage extension shared by every source (videos preferred), naturally
-    sorted, and checked: a video source holds exactly one file, and every source
-    has the same frame count (video container counts, image-sequence lengths).
-
-    Parameters
-    ----------
-    directory
-        The candidate recording directory.
-    patterns
-        Source name -> footage glob, in ``[[sources]]`` order
-        (:func:`flylib.config.sources.patterns_of`).
-    check_frames
-        Compare frame counts across sources (opens each video's header).
-    strict
-        Raise :class:`~flylib.errors.FootageError` naming the problem instead of
-        logging a warning and returning ``None``.
-
-    Returns
-    -------
-    dict or None
-        Source name -> footage files, or ``None`` when ``directory`` is not a valid
-        recording (the reason is logged at warning level).
+    Each source's pattern (``patterns``: source name -> footage glob in ``[[sources]]`` order,
+    :func:`flylib.config.sources.patterns_of`) is matched inside ``directory``; the matches are
+    reduced to one footage extension shared by every source (videos preferred), naturally sorted,
+    and checked: a video source holds exactly one file, and with ``check_frames`` every source has
+    the same frame count (video container counts, image-sequence lengths).
     """
     directory = Path(directory)
 

@@ -1,5 +1,5 @@
-"""Video frame counts, read from a container's header once and kept in the user's cache
-for as long as the file is unchanged: planning a batch again opens none of its videos."""
+"""Video frame counts, read from a container's header once and kept in the user's cache for as long
+as the file is unchanged: planning a batch again opens none of its videos."""
 
 from __future__ import annotations
 
@@ -20,17 +20,9 @@ log = logging.getLogger(__name__)
 
 
 def video_frame_count(path: Path) -> int | None:
-    """Frame count a video container reports (header only, no decoding), or ``None``.
-
-    ``None`` when the container does not store a count. A count once read is kept in
-    the user's cache (:class:`FrameCountCache`) for as long as the file is unchanged:
-    planning a batch again opens none of its videos.
-
-    Raises
-    ------
-    FootageError
-        If the file cannot be opened as a video.
-    """
+    """Frame count a video container reports (header only, no decoding), or ``None`` when it stores
+    none; kept in the user's cache (:class:`FrameCountCache`) while the file is unchanged. A file
+    that cannot be opened as a video is a :class:`FootageError`."""
     return FRAME_COUNTS.count(path, _header_frame_count)
 
 
@@ -49,11 +41,11 @@ def _header_frame_count(path: Path) -> int | None:
 
 class FrameCountCache:
     """Video frame counts already read, in ``<cache>/frame_counts.sqlite3``
-    (:func:`flylib.paths.cache_dir`), by path and file identity (device, inode, size,
-    modification time): a file rewritten or replaced is read again. Opening a video
-    costs about a millisecond, 7 s for the 7,000 videos of a 1,000-recording batch,
-    which Snakemake plans again on every call. A cache that cannot be opened, locked or
-    written is passed by: the count is then read from the file."""
+    (:func:`flylib.paths.cache_dir`), by path and file identity (device, inode, size, modification
+    time): a file rewritten or replaced is read again. Opening a video costs about a millisecond, 7
+    s for the 7,000 videos of a 1,000-recording batch, which Snakemake plans again on every call. A
+    cache that cannot be opened, locked or written is passed by: the count is then read from the
+    file."""
 
     def __init__(self, folder: Callable[[], Path] = cache_dir) -> None:
         self._folder = folder
@@ -88,9 +80,8 @@ class FrameCountCache:
         return self._db
 
     def count(self, path: Path, read: Callable[[Path], int | None]) -> int | None:
-        """``path``'s count: cached for the file as it is now, else ``read(path)``, kept
-        (written with the next few hundred, or at exit: one transaction each, not one per
-        video)."""
+        """``path``'s count: cached for the file as it is now, else ``read(path)``, kept (written
+        with the next few hundred, or at exit: one transaction each, not one per video)."""
         try:
             st = os.stat(path)
         except OSError:

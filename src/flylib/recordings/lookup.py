@@ -1,6 +1,6 @@
-"""Where a listed recording path is looked up: wildcard patterns, and the one-line
-error for a path that finds nothing (the closest existing folder, or the config file's
-folder when the path is there instead)."""
+"""Where a listed recording path is looked up: wildcard patterns, and the one-line error for a path
+that finds nothing (the closest existing folder, or the config file's folder when the path is there
+instead)."""
 
 from __future__ import annotations
 
@@ -16,18 +16,16 @@ _GLOB_CHARS = re.compile(r"[*?\[]")
 
 
 def is_pattern(text: str | Path) -> bool:
-    """Whether a listed path is a wildcard pattern: it holds ``*``, ``?`` or ``[`` and
-    names no existing file or folder (a folder named ``fly[1]`` is that folder)."""
+    """Whether a listed path is a wildcard pattern: it holds ``*``, ``?`` or ``[`` and names no
+    existing file or folder (a folder named ``fly[1]`` is that folder)."""
     expanded = os.path.expanduser(str(text))
     return bool(_GLOB_CHARS.search(expanded)) and not os.path.lexists(expanded)
 
 
 def _close_path(path: Path) -> Path | None:
-    """An existing directory whose name differs from ``path`` by a likely typo, or ``None``.
-
-    Each missing component (from the deepest existing ancestor down) is replaced by
-    its closest sibling name (:func:`difflib.get_close_matches`).
-    """
+    """An existing directory whose name differs from ``path`` by a likely typo, or ``None``: each
+    missing component (from the deepest existing ancestor down) is replaced by its closest sibling
+    name (:func:`difflib.get_close_matches`)."""
     path = Path(os.path.abspath(path))
     parts = path.parts
     base = Path(parts[0])
@@ -50,26 +48,14 @@ def _close_path(path: Path) -> Path | None:
 
 
 def check_recording_path(path: str | Path, where: str, config_dir: Path | None = None) -> None:
-    """Refuse a listed recording path that does not exist or is not a directory.
+    """Refuse a listed literal (non-pattern) recording ``path`` from config key ``where`` (e.g.
+    ``recordings[0]``) that does not exist or is not a directory: one :class:`ConfigError` line
+    naming the key and the path, with the closest existing directory when there is one ("did you
+    mean ...?").
 
-    A relative path is read from the working directory (Snakemake's ``--directory``, else
-    where it runs), as Snakemake reads every relative path of a config; the message says
-    so, and names the config file's folder too when the path exists there instead.
-
-    Parameters
-    ----------
-    path
-        A literal (non-pattern) recording path from the config.
-    where
-        The config key it came from, e.g. ``recordings[0]``.
-    config_dir
-        The folder of the config file that listed it (``None``: not known).
-
-    Raises
-    ------
-    ConfigError
-        One line naming the key and the path, with the closest existing directory
-        when there is one ("did you mean ...?").
+    A relative path is read from the working directory (Snakemake's ``--directory``, else where it
+    runs), as Snakemake reads every relative path of a config; the message says so, and names
+    ``config_dir`` (the listing config file's folder) too when the path exists there instead.
     """
     path = Path(path)
     if path.is_dir():
@@ -94,8 +80,8 @@ RELATIVE_RULE = (
 
 
 def relative_lookup(path: Path | str, config_dir: Path | None, hint: str) -> str:
-    """The end of a message about a relative ``path`` that found nothing (``"in the
-    working directory ..."``): where it was looked up, the rule, and whether it exists in
+    """The end of a message about a relative ``path`` that found nothing
+    (``"in the working directory ..."``): where it was looked up, the rule, and whether it exists in
     the config file's folder instead (with the two fixes), else ``hint``."""
     cwd = Path.cwd()
     beside = None

@@ -1,5 +1,5 @@
-"""Recordings sheets: a ``recordings`` value that is the path of a ``.tsv`` or ``.csv``
-file, one recording per row."""
+"""Recordings sheets: a ``recordings`` value that is the path of a ``.tsv`` or ``.csv`` file, one
+recording per row."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any
 
 from ..errors import ConfigError
 
-#: A recordings sheet's suffix -> its column separator: a ``.tsv`` sheet, or the ``.csv``
-#: a spreadsheet program saves.
+#: A recordings sheet's suffix -> its column separator: a ``.tsv`` sheet, or the ``.csv`` a
+#: spreadsheet program saves.
 SHEET_SEPARATORS = {".tsv": "\t", ".csv": ","}
 
 
@@ -19,10 +19,9 @@ def is_sheet(text: str) -> bool:
 
 
 def read_sheet(path: Path) -> list[dict]:
-    """Entries of a ``.tsv`` (tab-separated) or ``.csv`` (comma-separated) sheet: columns
-    ``path`` and optional ``outdir``, ``import_format``, ``import_files`` (``view=file``
-    pairs separated by ``;``), ``session``; a relative ``path`` is relative to the sheet's
-    folder."""
+    """Entries of a ``.tsv`` (tab-separated) or ``.csv`` (comma-separated) sheet: columns ``path``
+    and optional ``outdir``, ``import_format``, ``import_files`` (``view=file`` pairs separated by
+    ``;``), ``session``; a relative ``path`` is relative to the sheet's folder."""
     import pandas as pd
 
     if not path.is_file():

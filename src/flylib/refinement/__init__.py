@@ -2,18 +2,13 @@
 bone-length constancy and a rigid (tethered) body.
 
 :func:`refine_points` works on arrays and takes the ``refinement`` table's params
-(:class:`~flylib.config.postprocessing.RefinementParams`); :func:`skeleton_terms` makes
-its skeleton arguments; :mod:`flylib.refinement.held_out` keeps a recording from getting worse
-by the held-out-view yardstick; :mod:`flylib.pipeline.refinement` is the workflow stage
-(``stages/refinement.h5``).
+(:class:`~flylib.config.postprocessing.RefinementParams`); :func:`skeleton_terms` makes its
+skeleton arguments; :mod:`flylib.refinement.held_out` keeps a recording from getting worse by the
+held-out-view yardstick; :mod:`flylib.pipeline.refinement` is the stage (``stages/refinement.h5``).
 """
 
 from .objective import LOSSES, BlockLayout, chunk_kernel, difference_gram
-from .setup import (
-    default_rigid_points,
-    mirror_bones,
-    skeleton_terms,
-)
+from .setup import default_rigid_points, mirror_bones, skeleton_terms
 from .solver import (
     FLAG_BITS,
     RefinementResult,

@@ -1,13 +1,6 @@
-"""Refinement that never makes a recording worse by the held-out-view yardstick.
-
-:class:`HeldOutCheck` judges, before the whole recording is solved, the triangulation
-and the refinement at each candidate smoothness scale with each view held out (on
-:func:`~flylib.accuracy.evaluation_windows`), picks the scale of lowest held-out error,
-and after the solve keeps the triangulation where the chosen refinement lost
-(:meth:`HeldOutCheck.apply`). :func:`keep_corrected` keeps the points a person
-corrected. Every array here may be an h5py dataset (read and written window by window,
-so memory stays flat) or a NumPy array.
-"""
+"""Refinement that never makes a recording worse by the held-out-view yardstick
+(:class:`HeldOutCheck`), nor overrides a person's corrections (:func:`keep_corrected`). Every
+array here may be an h5py dataset (read and written window by window) or a NumPy array."""
 
 from __future__ import annotations
 
@@ -31,8 +24,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-#: The refinement output's arrays (sink attributes) and the triangulation's of the same
-#: layout, with the axis time runs along.
+#: The refinement output's arrays (sink attributes), the triangulation's of the same layout,
+#: and the axis time runs along.
 _KEPT_ARRAYS = (
     ("points3d", "points3d", 0),
     ("reproj_error", "reproj_error", 1),
@@ -41,8 +34,8 @@ _KEPT_ARRAYS = (
 
 
 def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: Skeleton) -> Refine:
-    """The refinement stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls
-    it (the ``refinement`` table and the skeleton's bones and rigid points)."""
+    """The refinement stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls it
+    (the ``refinement`` table and the skeleton's bones and rigid points)."""
     terms = skeleton_terms(skeleton, params.rigid_points)
 
     def refine(pts2d, conf, start, kept):
@@ -56,26 +49,14 @@ def refinement_method(params: RefinementParams, cameras: CameraGroup, skeleton: 
 class HeldOutCheck:
     """The held-out-view check around the refinement solve.
 
-    Before the solve it judges, on :func:`~flylib.accuracy.evaluation_windows`, the
-    triangulation and the refinement at each candidate smoothness scale (``options``'
-    ``smooth_scale``, and ``motion_scales`` times the recording's own motion) with each
-    view held out, and picks the scale of lowest held-out error (:attr:`options`);
-    after the solve, :meth:`apply` keeps the triangulation where that refinement lost.
-
-    Parameters
-    ----------
-    start
-        The triangulation's 3D.
-    triangulate
-        The triangulation stage's method (:func:`flylib.pipeline.triangulation.triangulation_method`).
-    refine_at
-        ``smooth_scale -> Refine``: the refinement stage's method at a smoothness scale
-        (:func:`refinement_method`).
-    motion_scales
-        The smoothness scales to try, in units of the recording's motion.
-    terms
-        :func:`~flylib.refinement.skeleton_terms` (its ``bones`` and ``mirror`` make the
-        summaries' bone figures).
+    Before the solve it judges, on :func:`~flylib.accuracy.evaluation_windows`, the triangulation
+    (``triangulate``, the stage's method; ``start`` its 3D) and the refinement (``refine_at``:
+    ``smooth_scale -> Refine``, :func:`refinement_method`) at each candidate smoothness scale
+    (``options``' ``smooth_scale``, and ``motion_scales`` times the recording's own motion) with
+    each view held out, and picks the scale of lowest held-out error (:attr:`options`); after the
+    solve, :meth:`apply` keeps the triangulation where that refinement lost. ``terms``:
+    :func:`~flylib.refinement.skeleton_terms` (its ``bones`` and ``mirror`` make the summaries'
+    bone figures).
     """
 
     def __init__(
@@ -135,13 +116,9 @@ class HeldOutCheck:
 
     def apply(self, output, triangulation: Mapping[str, Any]) -> dict:
         """Keep the triangulation where the chosen refinement lost; returns the refinement
-        artifact's ``accuracy`` attribute.
-
-        ``output`` is the refinement's output being written (an
-        :class:`~flylib.refinement.solver.ArraySink` or one of its kind): ``points3d``,
-        ``reproj_error``, ``points2d``, ``flags``, changed in place; ``triangulation`` has
-        ``points3d``, ``reproj_error`` and ``points``.
-        """
+        artifact's ``accuracy`` attribute. ``output``: the refinement's output being written (an
+        :class:`~flylib.refinement.solver.ArraySink` or one of its kind), changed in place;
+        ``triangulation`` has ``points3d``, ``reproj_error`` and ``points``."""
         from ..accuracy import accuracy_summary, keep_triangulation
 
         tri_err = self.held["triangulation"]
@@ -187,9 +164,7 @@ class HeldOutCheck:
 def keep_triangulation_points(
     triangulation: Mapping[str, Any], output, keep: Bool[np.ndarray, " P"], chunk: int
 ) -> None:
-    """Points ``keep`` ``(P,)`` take the triangulation's 3D, 2D and errors in every frame,
-    flagged ``kept_triangulation`` (chunk by chunk along time; ``output`` as in
-    :meth:`HeldOutCheck.apply`)."""
+    """Points ``keep`` ``(P,)`` take the triangulation's everywhere (:func:`take_triangulation`)."""
     keep = np.asarray(keep, bool)
     take_triangulation(
         triangulation, output, lambda lo, hi: np.broadcast_to(keep, (hi - lo, keep.size)), chunk
@@ -198,9 +173,8 @@ def keep_triangulation_points(
 
 def keep_corrected(triangulation: Mapping[str, Any], output, chunk: int = 1024) -> None:
     """Points a person corrected (the triangulation's ``corrected`` ``(T, P)``, from a
-    ``corrections.h5``) keep the triangulation's 3D, 2D and errors, flagged
-    ``kept_triangulation``: a person's call is not smoothed away (``output`` as in
-    :meth:`HeldOutCheck.apply`)."""
+    ``corrections.h5``) keep the triangulation's 3D, 2D and errors, flagged ``kept_triangulation``:
+    a person's call is not smoothed away (``output`` as in :meth:`HeldOutCheck.apply`)."""
     if "corrected" not in triangulation:
         return
     corrected = triangulation["corrected"]
@@ -215,9 +189,9 @@ def take_triangulation(
     select: Callable[[int, int], Bool[np.ndarray, "T P"]],
     chunk: int,
 ) -> None:
-    """The ``(frame, point)`` entries ``select(lo, hi)`` picks in frames ``lo:hi`` take
-    the triangulation's 3D, 2D and errors together (a result never pairs one stage's
-    3D with another's 2D), flagged ``kept_triangulation``, their NaN-derived flags
+    """The ``(frame, point)`` entries ``select(lo, hi)`` picks in frames ``lo:hi`` take the
+    triangulation's 3D, 2D and errors together (a result never pairs one stage's 3D with another's
+    2D), flagged ``kept_triangulation``, their NaN-derived flags
     (:func:`~flylib.refinement.solver.flags_from_nan`) recomputed from what they now hold."""
     from .solver import flags_from_nan
 

@@ -9,24 +9,21 @@ Unknowns are every point of every frame of a chunk, ``X (T, P, 3)``. The objecti
          + \\lambda_b \\sum_{t,b} (|X_{t i_b} - X_{t j_b}| - L_b)^2 / s_b^2
          + \\lambda_r \\sum_{t, p \\in R} |X_{tp} - C_p|^2 / s_r^2
 
-(robust reprojection with scale ``s`` px and confidence weights ``w``; ``d``-th
-temporal differences; one length ``L_b`` per bone; rigid points held at one world
-position ``C_p`` for the recording). Every term is dimensionless, so the weights
-``lambda`` compare like with like.
+(robust reprojection with scale ``s`` px and confidence weights ``w``; ``d``-th temporal
+differences; one length ``L_b`` per bone; rigid points held at one world position ``C_p`` for the
+recording). Every term is dimensionless, so the weights ``lambda`` compare like with like.
 
-The reprojection term's Gauss-Newton blocks come from one jitted JAX kernel:
-``jax.jacfwd`` of :func:`flylib.camera.jax_model.project_full_one` (the same projection and
-Jacobian machinery bundle adjustment uses), ``vmap``-ed over points and views, with
-the robust loss applied as iteratively reweighted least squares. The other terms are
-quadratic or rank-one and are assembled in NumPy.
+The reprojection term's Gauss-Newton blocks come from one jitted JAX kernel: forward-mode
+derivatives of the projection model of :func:`flylib.camera.jax_model.project_full_one` (the one
+bundle adjustment uses), with the robust loss applied as iteratively reweighted least squares.
+The other terms are quadratic or rank-one.
 
-Band layout: the points are packed into *blocks* of at most ``m`` points (whole limb
-chains, so that every bone stays inside a block) and the unknowns ordered
-``(block, frame, slot, xyz)``. Within a frame a block couples ``3m`` unknowns; the
-temporal term couples the same unknown ``d`` frames apart, ``3m d`` positions away.
-The normal matrix is therefore banded with half-bandwidth ``3 m d`` (15 for the fly's
-legs with first differences) and is factorized by LAPACK's banded Cholesky
-(``scipy.linalg.cholesky_banded``) in time linear in the number of frames.
+Band layout: the points are packed into *blocks* of at most ``m`` points (whole limb chains, so
+that every bone stays inside a block) and the unknowns ordered ``(block, frame, slot, xyz)``.
+Within a frame a block couples ``3m`` unknowns; the temporal term couples the same unknown ``d``
+frames apart, ``3m d`` positions away. The normal matrix is therefore banded with half-bandwidth
+``3 m d`` (15 for the fly's legs with first differences) and is factorized by LAPACK's banded
+Cholesky (``scipy.linalg.cholesky_banded``) in time linear in the number of frames.
 """
 
 from __future__ import annotations
@@ -67,33 +64,28 @@ def _loss_jax(z, loss: str):
 def chunk_kernel(loss: str, order: int, m: int):
     """The jitted evaluation of one chunk: cost, banded normal matrix and gradient.
 
-    ``evaluate(xs, data) -> (cost, rows, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)``
-    the slotted points and ``data`` a dict of dense arrays (no scatter anywhere: every
-    sum is over a padded axis):
+    ``evaluate(xs, data) -> (cost, rows, grad, err)`` with ``xs`` ``(n_blocks, T, m, 3)`` the
+    slotted points and ``data`` a dict of dense arrays (no scatter: every sum is over a padded
+    axis):
 
-    - observations on a grid ``(n_blocks, m, W)`` of (slot, view) cells, ``W`` the
-      most views any point is seen from: ``rmat`` ``(..., 3, 3)``, ``tvec``
-      ``(..., 3)``, ``intr`` ``(..., 4)``, ``dist`` ``(..., D)``, ``xy``
-      ``(2, n_blocks, m, W, T)``, ``w`` ``(..., T)`` (0 = unused), ``inv_s2``
-      (1 / scale_px^2);
-    - bones as incidence rows ``incidence`` ``(n_blocks, Kb, m)`` (+1 / -1 at the
-      bone's two slots, zero rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
-    - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``,
-      ``rigid_w``;
-    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram` of the live
-      frames, zero over the padding), ``smooth_w``;
-    - ``live`` ``(T,)``: 1 for the chunk's frames, 0 for the padding that rounds ``T``
-      up to a compiled shape (no term reaches a padded frame).
+    - observations on a grid ``(n_blocks, m, W)`` of (slot, view) cells, ``W`` the most views any
+      point is seen from: ``rmat`` ``(..., 3, 3)``, ``tvec`` ``(..., 3)``, ``intr`` ``(..., 4)``,
+      ``dist`` ``(..., D)``, ``xy`` ``(2, n_blocks, m, W, T)``, ``w`` ``(..., T)`` (0 = unused),
+      ``inv_s2`` (1 / scale_px^2);
+    - bones as ``incidence`` rows ``(n_blocks, Kb, m)`` (+1 / -1 at the bone's two slots, zero
+      rows for padding), ``length`` ``(n_blocks, Kb)``, ``bone_w``;
+    - rigid points ``rigid_mask`` ``(n_blocks, m)``, ``centre`` ``(n_blocks, m, 3)``, ``rigid_w``;
+    - temporal ``gram`` ``(order + 1, T)`` (:func:`difference_gram` of the live frames, zero over
+      the padding), ``smooth_w``;
+    - ``live`` ``(T,)``: 1 for the chunk's frames, 0 for the padding that rounds ``T`` up to a
+      compiled shape (no term reaches a padded frame).
 
-    ``cost`` ``(n_blocks,)`` is the objective per block (the blocks share no unknown);
-    ``rows`` ``(6, n)`` the within-frame part of the Gauss-Newton matrix (IRLS weights
-    for the robust loss), row ``delta`` its ``delta``-th superdiagonal at the column
-    of the lower-right end (:func:`assemble_band` adds :func:`temporal_band`'s rows
-    and makes LAPACK's band); ``grad`` ``(n,)`` the gradient (both halved, so the
-    step solves ``A d = -grad``); ``err``
-    ``(n_blocks, m, W, T)`` pixel errors. The projection's Jacobian is ``jax.jacfwd``
-    of :func:`flylib.camera.jax_model.distort_one` plus intrinsics in the camera frame (the
-    model of :func:`flylib.camera.jax_model.project_full_one`), chained with the rotation.
+    ``cost`` ``(n_blocks,)`` is the objective per block (the blocks share no unknown); ``rows``
+    ``(6, n)`` the within-frame part of the Gauss-Newton matrix (IRLS weights for the robust
+    loss), row ``delta`` its ``delta``-th superdiagonal at the column of the lower-right end
+    (:func:`assemble_band` adds :func:`temporal_band`'s rows and makes LAPACK's band); ``grad``
+    ``(n,)`` the gradient (both halved: the step solves ``A d = -grad``); ``err`` ``(n_blocks, m,
+    W, T)`` pixel errors.
     """
     import jax
     import jax.numpy as jnp
@@ -136,9 +128,9 @@ def _pixel(pc, intr, dist):
 
 
 def _reprojection_terms(xk, data, loss: str):
-    """The robust reprojection term summed over the views: Gauss-Newton blocks ``h``
-    ``(nb, m, 3, 3, T)``, gradient ``g`` ``(nb, m, 3, T)``, cost per block ``(nb,)``
-    and the squared pixel errors ``(nb, m, W, T)``."""
+    """The robust reprojection term summed over the views: Gauss-Newton blocks ``h`` ``(nb, m,
+    3, 3, T)``, gradient ``g`` ``(nb, m, 3, T)``, cost per block ``(nb,)`` and the squared pixel
+    errors ``(nb, m, W, T)``."""
     import jax
     import jax.numpy as jnp
 
@@ -166,9 +158,9 @@ def _reprojection_terms(xk, data, loss: str):
     rho, drho = _loss_jax(sq * data["inv_s2"], loss)
     w = data["w"]
     scale = w * drho * data["inv_s2"]
-    # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W
-    # views by ONE variadic reduction: XLA then computes every summand in a single
-    # pass over the (nb, m, W, T) cells instead of materialising the Jacobian
+    # the 6 Gauss-Newton entries, 3 gradient entries and the cost summed over the W views by ONE
+    # variadic reduction: XLA computes every summand in a single pass over the (nb, m, W, T)
+    # cells instead of materialising the Jacobian
     sj = [[scale * jac[a][i] for i in range(3)] for a in range(2)]  # each (nb, m, W, T)
     pairs = [(i, j) for i in range(3) for j in range(i, 3)]
     summands = (
@@ -189,8 +181,7 @@ def _reprojection_terms(xk, data, loss: str):
         [jnp.stack([entry[i, j] for j in range(3)]) for i in range(3)]
     )  # (3, 3, nb, m, T)
     g = jnp.stack(sums[len(pairs) : len(pairs) + 3])  # (3, nb, m, T)
-    # the cost per block: blocks share no unknown, so the solver accepts or
-    # rejects a step block by block
+    # per block: blocks share no unknown, so the solver accepts or rejects a step block by block
     cost = jnp.sum(sums[-1], axis=(1, 2))
     h = jnp.transpose(h, (2, 3, 0, 1, 4))  # (nb, m, 3, 3, T)
     g = jnp.transpose(g, (1, 2, 0, 3))  # (nb, m, 3, T)
@@ -212,15 +203,14 @@ def _rigid_terms(h, g, cost, xk, data):
 
 
 def _bone_terms(h, g, cost, xk, data, m: int):
-    """Bones: within-frame blocks on the diagonal (slot k, k) and next to it (k, k+1);
-    ``(diag (nb, m, 3, 3, T), nxt (nb, m - 1, 3, 3, T), g, cost)``."""
+    """Bones: within-frame blocks on the diagonal (slot k, k) and next to it (k, k+1); ``(diag
+    (nb, m, 3, 3, T), nxt (nb, m - 1, 3, 3, T), g, cost)``."""
     import jax.numpy as jnp
 
     nb, n_frames = xk.shape[0], xk.shape[3]
     live = data["live"]  # (T,)
-    # a bone joins neighbouring slots (chains are packed contiguously). Loops over the
-    # few bones per block instead of einsums: XLA's contractions over these tiny axes
-    # were slow.
+    # a bone joins neighbouring slots (chains are packed contiguously). Loops over the few bones
+    # per block instead of einsums: XLA's contractions over these tiny axes are slow.
     inc = data["incidence"]  # (nb, Kb, m)
     n_bones = inc.shape[1]
     d = jnp.sum(inc[:, :, :, None, None] * xk[:, None], axis=2)  # (nb, Kb, 3, T)
@@ -244,8 +234,7 @@ def _bone_terms(h, g, cost, xk, data, m: int):
 
 
 def _temporal_terms(g, cost, xs, data, order: int):
-    """Temporal differences of order ``order``: ``g`` ``(nb, T, m, 3)`` and ``cost``
-    with the term added."""
+    """Temporal differences of order ``order``: ``g`` ``(nb, T, m, 3)``, ``cost`` with the term."""
     import jax.numpy as jnp
 
     gram = data["gram"]
@@ -266,8 +255,7 @@ def _temporal_terms(g, cost, xs, data, order: int):
 
 
 def _band_rows(diag, nxt, m: int) -> list:
-    """The non-zero within-frame rows of the band: row u - delta holds the delta-th
-    superdiagonal at the column of its lower-right end (delta < 6)."""
+    """The band's non-zero within-frame rows: the delta-th superdiagonals (delta < 6), as above."""
     import jax.numpy as jnp
 
     nb, n_frames = diag.shape[0], diag.shape[1]
@@ -291,15 +279,8 @@ def _band_rows(diag, nxt, m: int) -> list:
 
 @dataclass(frozen=True)
 class BlockLayout:
-    """Points packed into blocks of ``m`` slots (whole limb chains per block).
-
-    Attributes
-    ----------
-    slots
-        ``(n_blocks, m)`` point index of each slot, ``-1`` for an empty slot.
-    block_of, slot_of
-        ``(P,)`` the block and slot of every point.
-    """
+    """Points packed into blocks of ``m`` slots (whole limb chains per block): ``slots`` the
+    point index of each slot (``-1``: empty), ``block_of`` and ``slot_of`` those of every point."""
 
     slots: Int[np.ndarray, "n_blocks m"]
     block_of: Int[np.ndarray, " P"]
@@ -315,8 +296,7 @@ class BlockLayout:
 
     @classmethod
     def from_chains(cls, n_points: int, chains: list[list[int]]) -> BlockLayout:
-        """First-fit packing of the point-index ``chains`` (limbs; a point in at most one),
-        longest first, then the loose points."""
+        """First-fit packing of the (disjoint) ``chains``, longest first, then the loose points."""
         chains = [list(c) for c in chains if c]
         seen = {p for c in chains for p in c}
         chains += [[p] for p in range(n_points) if p not in seen]
@@ -340,8 +320,8 @@ class BlockLayout:
 
 
 def difference_gram(n_frames: int, order: int) -> Float[np.ndarray, "order_1 T"]:
-    """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``:
-    row ``q`` holds ``(D^T D)[t - q, t]`` at column ``t`` (zero for ``t < q``)."""
+    """Diagonals of ``D^T D`` for the ``order``-th difference operator on ``n_frames``: row ``q``
+    holds ``(D^T D)[t - q, t]`` at column ``t`` (zero for ``t < q``)."""
     out = np.zeros((order + 1, n_frames))
     if order == 0 or n_frames <= order:
         return out
@@ -363,12 +343,10 @@ def temporal_band(
     smooth_w: float,
     live: Float[np.ndarray, " T"] | None = None,
 ) -> Float[np.ndarray, "order_1 n"]:
-    """The constant part of the normal matrix: the temporal term on real slots, and a
-    unit diagonal for empty slots and padded frames (``live`` 0), whose unknowns then
-    never move. Row ``q`` is the ``3 m q``-th superdiagonal (row 0 the diagonal), at the
-    column of its lower-right end, i.e. band row ``u - 3 m q`` of LAPACK's upper storage
-    (:func:`assemble_band`).
-    """
+    """The constant part of the normal matrix: the temporal term on real slots, and a unit
+    diagonal for empty slots and padded frames (``live`` 0), whose unknowns then never move. Row
+    ``q`` is the ``3 m q``-th superdiagonal (row 0 the diagonal), at the column of its lower-right
+    end, i.e. band row ``u - 3 m q`` of LAPACK's upper storage (:func:`assemble_band`)."""
     m = layout.m
     width = 3 * m
     n_blocks = layout.n_blocks
@@ -395,39 +373,23 @@ def assemble_band(
     buffer: Float[np.ndarray, "n u_1"] | None = None,
 ) -> Float[np.ndarray, "u_1 n_columns"]:
     """The (damped) normal matrix in LAPACK's upper band storage, Fortran-ordered (what
-    ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place).
+    ``cholesky_banded(..., overwrite_ab=True)`` factorizes in place): ``(u + 1, n_columns)``,
+    entry ``(u + i - j, j)`` is ``A[i, j]`` for ``i <= j``.
 
-    Parameters
-    ----------
-    rows
-        :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``.
-    temporal
-        :func:`temporal_band`.
-    width, u
-        ``3 m`` and the half-bandwidth (:func:`band_width`).
-    columns
-        ``(n,)`` bool: only these unknowns (whole blocks, which share nothing); None:
-        all.
-    mu, floor
-        Levenberg-Marquardt damping: the diagonal becomes ``diag * (1 + mu) + floor``
-        (``mu`` scalar or ``(n,)``).
-    buffer
-        ``(n, u + 1)`` C-ordered float64 to build the band in (the result is a view of
-        it); reusing one spares the page faults of a fresh allocation at every step.
-
-    Returns
-    -------
-    np.ndarray
-        ``(u + 1, n_columns)``; entry ``(u + i - j, j)`` is ``A[i, j]`` for ``i <= j``.
+    ``rows``: :func:`chunk_kernel`'s within-frame superdiagonals ``0 .. k - 1``; ``width`` is
+    ``3 m``, ``u`` the half-bandwidth (:func:`band_width`); ``columns`` ``(n,)`` bool: only these
+    unknowns (whole blocks, which share nothing; None: all); damping makes the diagonal ``diag *
+    (1 + mu) + floor`` (``mu`` scalar or ``(n,)``); ``buffer`` ``(n, u + 1)`` C-ordered float64 to
+    build the band in (the result is a view of it): reusing one spares the page faults of a fresh
+    allocation at every step.
     """
     if columns is not None:
         rows, temporal = rows[:, columns], temporal[:, columns]
         if not np.isscalar(mu):
             mu = mu[columns]
     k = rows.shape[0]
-    # built transposed (C-ordered (n, u + 1): each unknown's band column contiguous)
-    # and returned as its Fortran-ordered view; the kernel's rows land in one block
-    # of adjacent entries
+    # built transposed (C-ordered (n, u + 1): each unknown's band column contiguous) and returned
+    # as its Fortran-ordered view; the kernel's rows land in one block of adjacent entries
     if buffer is None:
         out = np.zeros((rows.shape[1], u + 1))
     else:

@@ -16,18 +16,8 @@ def default_rigid_points(skeleton) -> list[str]:
 
 
 def skeleton_terms(skeleton, rigid_names: list[str] | None) -> dict[str, Any]:
-    """``bones``, ``chains``, ``mirror`` and ``rigid`` (indices) for :func:`refine_points`.
-
-    Parameters
-    ----------
-    rigid_names
-        Point names of the rigid group; ``None`` = :func:`default_rigid_points`.
-
-    Raises
-    ------
-    ConfigError
-        If a rigid point is not a skeleton point.
-    """
+    """``bones``, ``chains``, ``mirror`` and ``rigid`` (indices) for :func:`refine_points`;
+    ``rigid_names`` ``None``: :func:`default_rigid_points`. ConfigError for an unknown point."""
     names = default_rigid_points(skeleton) if rigid_names is None else list(rigid_names)
     unknown = [n for n in names if n not in skeleton.point_names]
     if unknown:

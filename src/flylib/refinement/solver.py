@@ -1,18 +1,16 @@
 """Levenberg-Marquardt over a whole recording, chunk by chunk, with banded solves.
 
-:func:`refine_points` is the entry point. Recording-wide unknowns are settled first
-(one length per bone, one world position per rigid point: robust medians over the
-whole starting reconstruction, left/right bones pooled on request); then the frames
-are solved in chunks of ``chunk_frames`` with ``overlap_frames`` of context on each
-side (only the chunk's own frames are kept), so memory does not grow with the
-recording. In each chunk, Gauss-Newton steps with Levenberg-Marquardt damping solve
-the banded normal equations of :mod:`flylib.refinement.objective` exactly; the
-point blocks (limb chains) share no unknown once the recording-wide unknowns are
-fixed, so each block takes or refuses its steps and is damped on its own. The robust
-reprojection term starts from the triangulation's inlier views (plus every view of a
-point the triangulation could not reconstruct); after the first half of the steps,
-every observation within ``outlier_px`` of the refined point is admitted, the rest
-sit out, and the fit continues.
+:func:`refine_points` is the entry point. Recording-wide unknowns are settled first (one length
+per bone, one world position per rigid point: robust medians over the whole starting
+reconstruction, left/right bones pooled on request); then the frames are solved in chunks of
+``chunk_frames`` with ``overlap_frames`` of context on each side (only the chunk's own frames are
+kept), so memory does not grow with the recording. In each chunk, damped Gauss-Newton steps solve
+the banded normal equations of :mod:`flylib.refinement.objective` exactly; the point blocks (limb
+chains) share no unknown once the recording-wide unknowns are fixed, so each block takes or
+refuses its steps and is damped on its own. The robust reprojection term starts from the
+triangulation's inlier views (plus every view of a point it could not reconstruct); after half
+the steps, every observation within ``outlier_px`` of the refined point is admitted, the rest sit
+out, and the fit continues.
 """
 
 from __future__ import annotations
@@ -70,26 +68,11 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
 
 @dataclass
 class RefinementResult:
-    """What :func:`refine_points` returns.
-
-    Attributes
-    ----------
-    points3d
-        ``(T, P, 3)`` refined points; NaN where no view supports a point for more
-        than ``gap_length`` frames.
-    reproj_error
-        ``(V, T, P)`` pixel error of every observation the fit kept (NaN elsewhere).
-    points2d
-        ``(V, T, P, 2)`` the observations the fit kept (rejected outliers NaN).
-    flags
-        ``(T, P)`` uint8 bit flags, see :data:`FLAG_BITS`.
-    bone_lengths
-        ``(B,)`` the recording's bone lengths (NaN: bone unconstrained).
-    rigid_points, rigid_centres
-        Indices ``(R,)`` and world positions ``(R, 3)`` of the rigid group.
-    info
-        Timings and iteration counts.
-    """
+    """What :func:`refine_points` returns: ``points3d`` refined (NaN where no view supports a
+    point for more than ``gap_length`` frames); ``reproj_error`` (px) and ``points2d`` of the
+    observations the fit kept (NaN elsewhere, rejected outliers included); ``flags``
+    (:data:`FLAG_BITS`); ``bone_lengths`` (NaN: bone unconstrained); the rigid group's indices
+    and world positions; ``info``: timings and iteration counts."""
 
     points3d: Float[np.ndarray, "T P 3"]
     reproj_error: Float[np.ndarray, "V T P"]
@@ -109,23 +92,9 @@ def bone_lengths(
     bones: Int[np.ndarray, "B 2"],
     mirror: Int[np.ndarray, " B"] | None = None,
 ) -> Float[np.ndarray, " B"]:
-    """Robust length of every bone over the recording: the median over frames.
-
-    Parameters
-    ----------
-    start
-        Starting points, NaN = missing.
-    bones
-        Point-index pairs.
-    mirror
-        Index of each bone's left/right twin (or itself): twins share the
-        median of their pooled lengths.
-
-    Returns
-    -------
-    np.ndarray
-        ``(B,)``; NaN for a bone never seen whole.
-    """
+    """Robust length of every bone: its median over the frames of ``start`` (NaN = missing);
+    NaN for a bone never seen whole. ``mirror``: each bone's left/right twin (or itself); twins
+    share the median of their pooled lengths."""
     if len(bones) == 0:
         return np.zeros(0)
     lengths = np.linalg.norm(start[:, bones[:, 0]] - start[:, bones[:, 1]], axis=-1)  # (T, B)
@@ -155,8 +124,7 @@ def rigid_centres(
 def fill_start(
     start: Float[np.ndarray, "T P 3"], fallback: Float[np.ndarray, "P 3"]
 ) -> Float[np.ndarray, "T P 3"]:
-    """Linear interpolation of every point's missing frames (nearest value at the ends);
-    a point with no value at all takes ``fallback`` ``(P, 3)``."""
+    """Each point's gaps interpolated linearly (nearest at the ends; never seen: ``fallback``)."""
     out = start.copy()
     t = np.arange(start.shape[0])
     for p in range(start.shape[1]):
@@ -172,11 +140,10 @@ def fill_start(
 
 
 def recording_motion(start: Float[np.ndarray, "T P 3"], order: int) -> float:
-    """How far the points move per frame: the median length of their ``order``-th
-    differences over consecutive frames (world units per frame^order; NaN when no
-    point is seen in ``order + 1`` consecutive frames). It carries the footage's frame
-    rate (a faster camera sees smaller per-frame changes) and the recording's own
-    motion; the refinement stage tries smoothness scales in units of it."""
+    """How far the points move per frame: the median length of their ``order``-th differences
+    (world units per frame^order; NaN when no point is seen in ``order + 1`` consecutive frames).
+    It carries the frame rate and the recording's own motion; the refinement stage tries
+    smoothness scales in units of it."""
     if start.shape[0] <= order:
         return float("nan")
     step = np.linalg.norm(np.diff(start, n=order, axis=0), axis=-1)
@@ -196,11 +163,8 @@ def _bucket(n: int, largest: int) -> int:
 
 
 class Grid:
-    """Observations as a dense (slot, view) grid: for every point slot, the views that
-    see it anywhere in the recording (at most ``W``; unused cells have weight 0).
-
-    ``W`` is rounded up to keep the kernel's compiled shapes few.
-    """
+    """Observations as a dense (slot, view) grid: for every point slot, the views that see it
+    anywhere in the recording (at most ``W``; unused cells have weight 0)."""
 
     def __init__(self, observed: np.ndarray, cameras, layout: BlockLayout):
         seen = observed.any(axis=1)  # (V, P)
@@ -274,8 +238,7 @@ def _device(value):
 
 
 class ChunkProblem:
-    """The objective over one chunk of frames (padded to ``padded`` for the kernel;
-    no term reaches a padded frame, whose unknowns never move)."""
+    """One chunk's objective, padded to ``padded`` frames (no term reaches a padded frame)."""
 
     def __init__(
         self,
@@ -347,20 +310,16 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
-        """The objective at slotted ``xs``: ``(cost, rows, grad, err)``.
-
-        ``cost`` ``(n_blocks,)`` per block, ``rows`` ``(6, n)`` the within-frame part
-        of the Gauss-Newton matrix (:meth:`band` makes the whole matrix), ``grad``
-        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err``
-        ``(n_blocks, m, W, padded)`` pixel errors.
-        """
+        """The objective at slotted ``xs``: ``cost`` ``(n_blocks,)``, ``rows`` ``(6, n)`` the
+        within-frame part of the Gauss-Newton matrix (:meth:`band` makes the whole), ``grad``
+        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err`` ``(n_blocks, m, W,
+        padded)`` pixel errors."""
         cost, rows, grad, err = self.kernel(xs, self.data)
         return np.asarray(cost), np.asarray(rows), np.asarray(grad), np.asarray(err)
 
     def band(self, rows: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
-        """The Gauss-Newton matrix ``(u + 1, n)`` in LAPACK's upper band storage
-        (Fortran-ordered) from :meth:`evaluate`'s ``rows``; only ``columns`` ``(n,)``
-        bool (whole blocks) when given."""
+        """The Gauss-Newton matrix ``(u + 1, n)`` in LAPACK's upper band storage (Fortran-ordered)
+        from :meth:`evaluate`'s ``rows``; only ``columns`` ``(n,)`` bool (whole blocks) if given."""
         return assemble_band(rows, self.temporal, 3 * self.layout.m, self.u, columns)
 
     def errors(self, err: np.ndarray) -> np.ndarray:
@@ -375,12 +334,9 @@ class ChunkProblem:
         floor: float,
         columns: np.ndarray | None = None,
     ) -> np.ndarray:
-        """The damped Gauss-Newton step ``(n,)``: solves ``(A + diag(mu * diag(A) + floor)) d
-        = -grad`` over ``columns`` (zero elsewhere) by one banded Cholesky.
-
-        ``mu`` ``(n,)`` or scalar. Raises ``LinAlgError`` if the matrix is not positive
-        definite.
-        """
+        """The damped step ``(n,)``: solves ``(A + diag(mu * diag(A) + floor)) d = -grad`` over
+        ``columns`` (zero elsewhere) by one banded Cholesky; ``mu`` ``(n,)`` or scalar.
+        ``LinAlgError`` if the matrix is not positive definite."""
         from scipy.linalg import cho_solve_banded, cholesky_banded  # not for FLAG_BITS' readers
 
         if self._buffer is None:
@@ -402,15 +358,11 @@ class ChunkProblem:
     ):
         """Levenberg-Marquardt from slotted ``xs``; returns ``(xs, steps, err)``.
 
-        The blocks share no unknown, so each keeps its own damping and takes or
-        refuses its part of a step on its own cost: one block's refused step costs the
-        others nothing. A block stops once its cost falls by less than ``ftol`` of
-        itself (or its damping runs away), and leaves the factorization. A step is one
-        banded factorization of the live blocks and one evaluation of the chunk; at
-        most ``max_iterations`` are taken.
-
-        ``trace``, when given, receives ``(cost, mu)`` (per-block arrays) after every
-        evaluation.
+        The blocks share no unknown, so each keeps its own damping and takes or refuses its part
+        of a step on its own cost. A block stops once its cost falls by less than ``ftol`` of
+        itself (or its damping runs away), and leaves the factorization. A step is one banded
+        factorization of the live blocks and one evaluation of the chunk. ``trace``, when given,
+        receives ``(cost, mu)`` (per-block arrays) after every evaluation.
         """
         n_blocks = xs.shape[0]
         per_block = xs[0].size  # unknowns of one block (block-major ordering)
@@ -418,9 +370,8 @@ class ChunkProblem:
         mu = np.full(n_blocks, 1e-4)
         if trace is not None:
             trace.append((cost, np.zeros(n_blocks)))
-        # a ridge far below any real curvature: keeps unknowns that only the temporal
-        # term sees (a point unobserved in the whole chunk) well posed, and the
-        # factorization free of denormal fill-in
+        # a ridge far below any real curvature: keeps unknowns only the temporal term sees (a
+        # point unobserved in the whole chunk) well posed, the factorization free of denormals
         diag = rows[0] + self.temporal[0]
         floor = 1e-6 * float(np.median(diag[diag > 0])) if (diag > 0).any() else 1.0
         live = np.ones(n_blocks, bool)
@@ -458,9 +409,8 @@ class ChunkProblem:
 
 
 class ArraySource:
-    """In-memory inputs of :func:`refine_stream`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``
-    or None, ``start (T, P, 3)``, ``inliers (V, T, P)`` or None (anything sliceable
-    along T works, e.g. h5py datasets)."""
+    """In-memory inputs of :func:`refine_stream`: ``pts2d (V, T, P, 2)``, ``conf (V, T, P)`` or
+    None, ``start (T, P, 3)``, ``inliers (V, T, P)`` or None (anything sliceable along T works)."""
 
     def __init__(self, pts2d, start, conf=None, inliers=None):
         self.pts2d, self.start, self.conf, self.inliers = pts2d, start, conf, inliers
@@ -487,9 +437,9 @@ def flags_from_nan(
     points2d: Float[np.ndarray, "V T P 2"],
     points3d: Float[np.ndarray, "T P 3"],
 ) -> UInt8[np.ndarray, "T P"]:
-    """``flags`` with the bits of :data:`NAN_BITS` set from the 2D and 3D a point holds:
-    ``observed`` (a view's 2D kept), ``single_view`` (exactly one), ``missing`` (no 3D),
-    ``filled`` (3D with no view's 2D); the other bits as they were."""
+    """``flags`` with the :data:`NAN_BITS` set from the 2D and 3D a point holds: ``observed`` (a
+    view's 2D kept), ``single_view`` (exactly one), ``missing`` (no 3D), ``filled`` (3D with no
+    view's 2D); the other bits as they were."""
     bit = {k: np.uint8(FLAG_BITS[k][0]) for k in NAN_BITS}
     views = np.isfinite(points2d).all(-1).sum(0)
     has3d = np.isfinite(points3d).all(-1)
@@ -525,9 +475,8 @@ class ArraySink:
         self.flags[lo:hi] = flags
 
     def mark_missing(self, lo: int, hi: int, missing: Bool[np.ndarray, "T P"]) -> None:
-        """Frames ``lo:hi``: points in a long gap (``(n, P)`` bool) become NaN, flagged missing.
-
-        Read, modify, write back: the same code serves arrays and HDF5 datasets."""
+        """Points in a long gap (``missing`` of frames ``lo:hi``) become NaN, flagged missing (read,
+        modify, write back: the same code serves arrays and HDF5 datasets)."""
         flags = self.flags[lo:hi]
         flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS[
             "missing"
@@ -563,16 +512,13 @@ def refine_stream(
     rigid=(),
     options: RefinementParams | None = None,
 ) -> dict[str, Any]:
-    """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``.
+    """:func:`refine_points` reading chunks from ``source`` and writing them to ``sink``; memory
+    is bounded by the chunk size (plus one byte per frame and point for the gap bookkeeping).
 
-    Memory is bounded by the chunk size (plus one byte per frame and point for the
-    gap bookkeeping), whatever the recording's length.
-
-    ``source`` has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d,
-    conf, start, inliers)`` (:class:`ArraySource`); ``sink`` has ``write(lo, hi, points3d,
-    reproj_error, points2d, flags)`` and ``mark_missing(lo, hi, missing)``
-    (:class:`ArraySink`). Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and
-    ``info``.
+    ``source`` has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
+    start, inliers)`` (:class:`ArraySource`); ``sink`` has ``write(lo, hi, points3d,
+    reproj_error, points2d, flags)`` and ``mark_missing(lo, hi, missing)`` (:class:`ArraySink`).
+    Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
     """
     opts = options or RefinementParams()
     if opts.loss not in LOSSES:
@@ -647,8 +593,7 @@ def refine_stream(
 
 
 def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
-    """The block layout of the limb chains (default: each bone its own chain); every
-    bone must join neighbouring points of one chain."""
+    """The limb chains' block layout (default: one per bone); a bone must join chain neighbours."""
     chains = (
         [list(map(int, c)) for c in chains]
         if chains is not None
@@ -668,8 +613,7 @@ def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
 
 
 def _first_pass(source, chunk: int, opts: RefinementParams) -> tuple[np.ndarray, np.ndarray]:
-    """``seen`` ``(V, P)``: which views observe which points anywhere, and an evenly
-    spread sample ``(S, P, 3)`` of the starting frames, read chunk by chunk."""
+    """Which views see which points anywhere ``(V, P)``, and an even sample of ``start``."""
     n_frames, n_points = source.n_frames, source.n_points
     seen = np.zeros((source.n_views, n_points), bool)
     stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
@@ -684,8 +628,8 @@ def _first_pass(source, chunk: int, opts: RefinementParams) -> tuple[np.ndarray,
 
 
 def _fallback_points(sample, rigid, centres, n_points: int) -> Float[np.ndarray, "P 3"]:
-    """Where a point starts when the triangulation never had it: its median over the
-    sample (the rigid centre for rigid points), else the centre of all points."""
+    """Where a point starts when the triangulation never had it: its median over the sample
+    (the rigid centre for rigid points), else the centre of all points."""
     with np.errstate(all="ignore"):
         import warnings
 
@@ -703,26 +647,25 @@ def _fallback_points(sample, rigid, centres, n_points: int) -> Float[np.ndarray,
 
 
 def _chunk_bounds(n_frames: int, chunk: int, largest: int) -> list[tuple[int, int]]:
-    """The chunks' ``(lo, hi)`` frames: one chunk when the recording fits one window."""
-    # Every chunk is solved over a window of one length (`largest`, or the whole
-    # recording if shorter): the first and last windows reach further into the
-    # recording instead of being shorter, so the kernel compiles once per recording
-    # and no window is padded.
+    """The chunks' ``(lo, hi)`` frames: one chunk when the recording fits one window.
+
+    Every chunk is solved over a window of one length (``largest``, or the whole recording if
+    shorter): the first and last windows reach further into the recording instead of being
+    shorter, so the kernel compiles once per recording and no window is padded."""
     if n_frames <= largest:
         return [(0, n_frames)] if n_frames else []
     return [(lo, min(lo + chunk, n_frames)) for lo in range(0, n_frames, chunk)]
 
 
 def _solve_chunks(solve_chunk, bounds, sink, supported) -> tuple[list[int], int, int]:
-    """Solve the chunks, writing each to ``sink`` in order and marking the frames and
-    points some view supports in ``supported`` ``(T, P)``; ``(iterations per chunk,
-    observations kept, observations rejected)``."""
+    """Solve the chunks, writing each to ``sink`` in order and marking the frames and points
+    some view supports in ``supported`` ``(T, P)``; ``(iterations per chunk, observations kept,
+    observations rejected)``."""
     iterations, kept_total, rejected_total = [], 0, 0
-    # One BLAS thread for the whole solve (the limit is process-wide, so it is set here,
-    # once, not per chunk: threads entering and leaving it would undo each other). The
-    # banded factorization's blocked kernels are tiny; OpenBLAS threads spinning on
-    # them ran 10-40x slower on a busy 2-core machine. Two chunk workers at most, each
-    # at most one chunk ahead of the writer (memory flat); inline under one thread.
+    # One BLAS thread for the whole solve (process-wide, so set once, not per chunk: threads
+    # entering and leaving it would undo each other): the banded factorization's kernels are
+    # tiny, and spinning OpenBLAS threads slow them many times over. Two chunk workers at most,
+    # each at most one chunk ahead of the writer (memory flat); inline under one thread.
     with threadpool_limits(1, user_api="blas"):
         for lo, hi, its, active, rejected, points3d, err, clean, flags in thread_map(
             lambda bound: solve_chunk(*bound), bounds, 2
@@ -753,8 +696,7 @@ class _ChunkSolver:
     largest: int
 
     def __call__(self, lo: int, hi: int):
-        """``(lo, hi, iterations, active, rejected, points3d, err, clean, flags)`` of
-        frames ``lo:hi``."""
+        """``(lo, hi, iterations, active, rejected, points3d, err, clean, flags)`` of ``lo:hi``."""
         opts = self.opts
         n_frames = self.source.n_frames
         window = min(self.largest, n_frames)
@@ -815,28 +757,13 @@ def refine_points(
 ) -> RefinementResult:
     """Refine a whole recording's 3D jointly over frames and the skeleton.
 
-    Parameters
-    ----------
-    pts2d
-        2D observations in raw-frame pixels, NaN = missing.
-    start
-        Starting 3D (the triangulation), NaN = not reconstructed.
-    conf
-        Detector confidences (weights when ``weigh_by_confidence``).
-    inliers
-        The views the triangulation kept; the first pass uses only
-        those (and every view of points it left NaN). ``None``: every observation.
-    bones
-        Point-index pairs whose length is constant over the recording.
-    chains
-        The limb chains (point indices) that bones run along; every bone must join
-        neighbouring points of one chain. Default: each bone its own chain.
-    mirror
-        Each bone's left/right twin, for ``symmetric_bones``.
-    rigid
-        Indices of the points held at one world position (the tethered thorax).
-    options
-        The ``refinement`` table's :class:`~flylib.config.postprocessing.RefinementParams`.
+    ``pts2d`` in raw-frame pixels, NaN = missing; ``start`` the triangulation, NaN = not
+    reconstructed; ``conf`` weights when ``weigh_by_confidence``; ``inliers`` the views the
+    triangulation kept, which the first pass uses alone (plus every view of points it left NaN;
+    ``None``: every observation). ``bones``: point-index pairs of constant length, along the limb
+    ``chains`` (every bone joins neighbouring points of one chain; default: each bone its own
+    chain); ``mirror``: each bone's left/right twin, for ``symmetric_bones``; ``rigid``: points
+    held at one world position (the tethered thorax); ``options``: the ``refinement`` table.
     """
     pts2d = np.asarray(pts2d, np.float64)
     start = np.asarray(start, np.float64)

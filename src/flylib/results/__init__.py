@@ -1,22 +1,18 @@
 """HDF5 results (schema version 2) and the per-stage artifacts they are assembled from.
 
-Every file holds ``attrs["meta"]`` (JSON: ``deeperfly_format_version``,
-``flylib_version``, ``created_utc``, ``stage``) and the group of each stage that
-produced it; ``results.h5`` is the union of the stage files plus ``skeleton/`` and the
-config rig as ``pose2d/cameras``. Group attributes are stored as JSON text. Arrays are
-float64 (NaN = missing), chunked along their longest axis (time) and gzip-compressed
-once they are large, so a 100k-frame recording stays small.
+Every file holds ``attrs["meta"]`` (JSON: ``deeperfly_format_version``, ``flylib_version``,
+``created_utc``, ``stage``) and the group of each stage that produced it; ``results.h5`` is the
+union of the stage files plus ``skeleton/`` and the config rig as ``pose2d/cameras``. Group
+attributes are JSON text; arrays are float64 (NaN = missing), chunked along their longest axis
+(time) and gzip-compressed once they are large. Every write goes to a temporary sibling renamed
+into place on success (:func:`atomic_path`), so an interrupted run never leaves a truncated file.
 
-Every write goes to a temporary sibling first and is renamed into place on success
-(:func:`atomic_path`), so an interrupted run never leaves a truncated file.
-
-Integrity: every non-empty dataset carries HDF5's Fletcher-32 checksum filter, and
-files are written with HDF5 1.8's object-header format, whose metadata (object
-headers with their attributes, link tables, the superblock) carries checksums too;
-HDF5 verifies both on every read, so a damaged file fails to load with a
-:class:`~flylib.errors.ResultsError` naming the file and the dataset
-(:func:`verify_file` checks a whole file, as ``flylib inspect`` does). Names are
-stored as fixed-length UTF-8 strings, inside the checksummed chunks.
+Integrity: every non-empty dataset carries HDF5's Fletcher-32 checksum filter, and files are
+written with HDF5 1.8's object-header format, whose metadata (object headers with their
+attributes, link tables, the superblock) carries checksums too; HDF5 verifies both on every read,
+so a damaged file fails to load with a :class:`~flylib.errors.ResultsError` naming the file and
+the dataset (:func:`verify_file` checks a whole file, as ``flylib inspect`` does). Names are
+fixed-length UTF-8 strings, inside the checksummed chunks.
 
 The package, by concern (every name is importable from ``flylib.results``):
 
@@ -28,8 +24,7 @@ The package, by concern (every name is importable from ``flylib.results``):
 - ``pose``: :class:`PoseResult`, the assembled result
 - ``pose2d``: :class:`Pose2dData`, the pose2d artifact; ``candidates``: the top-K peaks
 - ``artifacts``: :func:`write_stage` / :func:`read_stage`, :func:`write_analysis`, the
-  workflow's file names (:data:`ARTIFACTS`, :data:`SUMMARY_FILES`,
-  :func:`candidates_artifact`)
+  workflow's file names (:data:`ARTIFACTS`, :data:`SUMMARY_FILES`, :func:`candidates_artifact`)
 - ``assembly``: :func:`assemble_results`
 - ``invariants``: what ``results.h5`` must never contradict, :func:`check_results`,
   :func:`require_consistent` (assemble and ``flylib inspect --verify`` run it)

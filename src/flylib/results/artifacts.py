@@ -1,8 +1,8 @@
 """The per-stage artifacts: ``<outdir>/stages/<stage>.h5`` and the post-processing files.
 
 Each holds the meta JSON and exactly the group its stage owns in ``results.h5``
-(:data:`STAGE_GROUPS`), so assembly is a group copy; ``kinematics.h5`` and
-``neuromechfly.h5`` are written by :func:`write_analysis` and are not part of it.
+(:data:`STAGE_GROUPS`), so assembly is a group copy; ``kinematics.h5`` and ``neuromechfly.h5``
+(:func:`write_analysis`) are not part of it.
 """
 
 from __future__ import annotations
@@ -34,12 +34,9 @@ SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.cs
 
 
 def candidates_artifact(k: int) -> str:
-    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``.
-
-    Kept beside ``pose2d.h5`` while pictorial structures is on, as a file of its own
-    named by ``k``: turning pictorial structures off (or editing ``k`` while it is off)
-    re-runs no detection, and a new ``k`` while it is on asks for a new file.
-    """
+    """File name of the detector's top-``k`` peaks inside ``<outdir>/stages/``: a file of its own
+    named by ``k``, so turning pictorial structures off (or editing ``k`` while it is off) re-runs
+    no detection, and a new ``k`` while it is on asks for a new file."""
     return f"candidates_k{int(k)}.h5"
 
 
@@ -51,9 +48,9 @@ def artifact_path(outdir: str | Path, stage: str) -> Path:
 def write_analysis(
     path: str | Path, stage: str, arrays: Mapping[str, Any], attrs: Mapping[str, Any]
 ) -> Path:
-    """Write a post-processing stage's file (``kinematics.h5``, ``neuromechfly.h5``)
-    atomically: the meta JSON, and a group ``<stage>`` holding ``arrays`` as checksummed
-    float64 datasets and ``attrs`` as JSON group attributes."""
+    """Write a post-processing stage's file (``kinematics.h5``, ``neuromechfly.h5``) atomically:
+    the meta JSON, and a group ``<stage>`` holding ``arrays`` as checksummed float64 datasets and
+    ``attrs`` as JSON group attributes."""
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["meta"] = json.dumps(new_meta(stage))
         group = f.create_group(stage)
@@ -72,24 +69,13 @@ def write_stage(
     attrs: Mapping[str, Any] | None = None,
     meta: Mapping[str, Any] | None = None,
 ) -> None:
-    """Write one stage's artifact: ``<stage>/`` with its arrays, rig and attributes.
+    """Write one stage's artifact atomically: ``<stage>/`` with its arrays, rig and attributes.
 
-    Parameters
-    ----------
-    path
-        Destination, written atomically.
-    stage
-        ``bundle_adjustment``, ``pictorial_structures`` or ``triangulation`` (the
-        pose2d artifact is written by :meth:`Pose2dData.save`).
-    arrays
-        ``name -> array`` stored as float64 datasets (e.g. ``points``, ``points3d``,
-        ``reproj_error``); boolean arrays (masks) stay boolean.
-    cameras
-        A rig to store as ``<stage>/cameras`` (bundle adjustment's refined rig).
-    attrs
-        JSON-serialisable group attributes (e.g. a bundle-adjustment ``summary``).
-    meta
-        Extra entries for the file's meta JSON (e.g. its params hash).
+    ``stage``: any stage of :data:`STAGE_GROUPS` but pose2d (:meth:`Pose2dData.save`);
+    ``arrays``: ``name -> array`` stored as float64 datasets (e.g. ``points``, ``points3d``,
+    ``reproj_error``; boolean masks stay boolean); ``cameras``: a rig to store as
+    ``<stage>/cameras`` (bundle adjustment's); ``attrs``: JSON-serialisable group attributes;
+    ``meta``: extra entries for the file's meta JSON (e.g. its params hash).
     """
     if stage not in STAGE_GROUPS or stage == "pose2d":
         raise ValueError(
@@ -109,19 +95,9 @@ def write_stage(
 
 
 def read_stage(path: str | Path, stage: str) -> dict[str, Any]:
-    """Read one stage's group of a stage artifact (or results file).
-
-    Returns
-    -------
-    dict
-        ``name -> np.ndarray`` for every dataset of the group, ``"cameras"`` (a
-        ``CameraGroup`` or ``None``) and ``"attrs"`` (the decoded group attributes).
-
-    Raises
-    ------
-    ResultsError
-        If the file is missing, of another version, or lacks ``<stage>/``.
-    """
+    """Read one stage's group of a stage artifact (or results file): ``name -> np.ndarray`` for
+    every dataset, ``"cameras"`` (a ``CameraGroup`` or ``None``) and ``"attrs"`` (decoded). A
+    ResultsError if the file is missing, of another version, or lacks ``<stage>/``."""
     rerun = f"re-run the {stage} stage"
     with read_checked(path, rerun) as f:
         if stage not in f:

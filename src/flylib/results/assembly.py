@@ -1,9 +1,4 @@
-"""Assembling ``results.h5`` from the stage artifacts: :func:`assemble_results`.
-
-Each stage group is verified against its checksums and copied raw (compression kept);
-the config's skeleton and rig are written beside them, after checking that they match
-the detected points.
-"""
+"""Assembling ``results.h5`` from the stage artifacts: :func:`assemble_results`."""
 
 from __future__ import annotations
 
@@ -37,37 +32,13 @@ def assemble_results(
     meta: Mapping[str, Any] | None = None,
     verify: bool = True,
 ) -> None:
-    """Assemble ``results.h5`` from the stage artifacts.
-
-    Each stage group is copied verbatim (HDF5 group copy, compression kept); the
-    current config's skeleton and rig are written as ``skeleton/`` and
-    ``pose2d/cameras`` (the pose2d artifact holds no rig, so editing the rig never
-    invalidates detection).
-
-    Parameters
-    ----------
-    out_path
-        Destination ``results.h5``; written atomically.
-    skeleton
-        The config's skeleton; its point names must match the pose2d artifact's.
-    config_rig
-        The config's rig; its camera names must match the pose2d view names.
-    stage_files
-        ``stage -> artifact path`` for the stages that ran; ``pose2d`` is required.
-    meta
-        Extra entries for the file's meta JSON.
-    verify
-        Check the assembled file (:func:`~flylib.results.invariants.require_consistent`)
-        before it is put in place; ``False`` only for made-up arrays (tests of the
-        assembly's mechanics, benchmarks).
-
-    Raises
-    ------
-    ResultsError
-        If pose2d is missing, an artifact is unreadable, the skeleton or rig do not
-        match the detected points, or the assembled file contradicts itself
-        (:mod:`flylib.results.invariants`; the file is then not written).
-    """
+    """Assemble ``results.h5`` atomically from ``stage_files`` (``stage -> artifact``; pose2d
+    required): each stage group verified and copied verbatim, the config's ``skeleton`` and
+    ``config_rig`` written as ``skeleton/`` and ``pose2d/cameras`` (so editing the rig never
+    invalidates detection) once their names match the pose2d artifact's (else a ResultsError, as
+    for a missing pose2d or an unreadable artifact). ``verify``: refuse a file that contradicts
+    itself (:func:`~flylib.results.invariants.require_consistent`); ``False`` only for made-up
+    arrays (tests of the assembly's mechanics, benchmarks)."""
     unknown = sorted(set(stage_files) - set(STAGE_GROUPS))
     if unknown:
         raise ValueError(

@@ -1,8 +1,6 @@
-"""The detector's top-K peaks per (view, frame, point), kept for pictorial structures.
-
-Stored as ``candidates/{xy, score}``, in their own artifact
-(``stages/candidates_k<k>.h5``, :func:`save_candidates`) or inside the pose2d group.
-"""
+"""The detector's top-K peaks per (view, frame, point), kept for pictorial structures: stored as
+``candidates/{xy, score}``, in their own artifact (``stages/candidates_k<k>.h5``) or inside the
+pose2d group."""
 
 from __future__ import annotations
 
@@ -36,17 +34,15 @@ def write_candidates(group: h5py.Group, candidates: Any) -> None:
 def save_candidates(
     path: str | Path, candidates: Any, meta: Mapping[str, Any] | None = None
 ) -> None:
-    """Write the detector's top-K peaks (a :class:`flylib.pictorial.Candidates`:
-    ``xy (V, T, P, K, 2)``, ``score (V, T, P, K)``) atomically to their own artifact;
-    ``meta``: extra entries for its meta JSON (e.g. its params hash)."""
+    """Write the detector's top-K peaks (a :class:`flylib.pictorial.Candidates`) atomically to
+    their own artifact; ``meta``: extra entries for its meta JSON (e.g. its params hash)."""
     with atomic_path(path) as tmp, create_file(tmp) as f:
         f.attrs["meta"] = json.dumps(new_meta("candidates", meta))
         write_candidates(f.create_group("candidates"), candidates)
 
 
 def load_candidates(path: str | Path) -> Any:
-    """Read what :func:`save_candidates` wrote; a missing, stale or empty file is a
-    ResultsError."""
+    """Read what :func:`save_candidates` wrote; a missing, stale or empty file is a ResultsError."""
     rerun = "re-run the pose2d stage with pictorial structures on"
     with read_checked(path, rerun) as f:
         if "candidates/xy" not in f:

@@ -1,11 +1,6 @@
-"""HDF5's Fletcher-32 checksum and the integrity checks built on it.
-
-Every non-empty dataset flylib writes carries HDF5's Fletcher-32 filter: the checksum of
-each stored chunk appended to it. :func:`fletcher32` recomputes it (vectorised, for the
-threaded deflate of :mod:`flylib.results.datasets` and for checking raw chunks);
-:func:`verify_file` checks a whole file, as ``flylib inspect`` does, and the loaders
-name a damaged dataset through :func:`verify_dataset` and :func:`check_group`.
-"""
+"""HDF5's Fletcher-32 checksum (:func:`fletcher32`, for the threaded deflate of
+:mod:`flylib.results.datasets` and for checking raw chunks) and the integrity checks built on it:
+:func:`verify_file` (a whole file), :func:`verify_dataset` and :func:`check_group` (the loaders)."""
 
 from __future__ import annotations
 
@@ -19,19 +14,18 @@ import numpy as np
 from ..errors import ResultsError, one_line
 from .guard import guard_file
 
-# Word weights n, n-1, ..., 1 (mod 65535), grown on demand: the tail of this array
-# is the weight vector of any shorter buffer. Integer dot products (no BLAS threads
-# competing with the deflate threads) stay exact in int64.
+# Word weights n, n-1, ..., 1 (mod 65535), grown on demand: the tail of this array is the weight
+# vector of any shorter buffer. Integer dot products (no BLAS threads competing with the deflate
+# threads) stay exact in int64.
 _WEIGHTS = np.zeros(0, np.int64)
 
 
 def fletcher32(data: bytes) -> int:
     """HDF5's Fletcher-32 checksum of ``data`` (``H5_checksum_fletcher32``).
 
-    Sums big-endian 16-bit words (an odd last byte is the high byte of a last word)
-    in ones'-complement arithmetic modulo 65535, where a non-zero sum is represented
-    in ``1..65535``; returns ``(sum2 << 16) | sum1``. The filter appends it to each
-    filtered chunk as 4 little-endian bytes.
+    Sums big-endian 16-bit words (an odd last byte is the high byte of a last word) in
+    ones'-complement arithmetic modulo 65535, a non-zero sum represented in ``1..65535``; returns
+    ``(sum2 << 16) | sum1``. The filter appends it to each chunk as 4 little-endian bytes.
     """
     global _WEIGHTS
     raw = np.frombuffer(data, np.uint8)
@@ -61,21 +55,12 @@ def damaged(path: str | Path, what: str, err: BaseException) -> ResultsError:
 
 
 def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list[str]:
-    """Check every dataset and attribute of an HDF5 file against its checksums.
+    """Check every dataset and attribute of an HDF5 file against its checksums: one line per
+    damaged object (file and dataset or group named).
 
-    Reads each dataset chunk by chunk (HDF5 verifies the Fletcher-32 checksum of
-    every chunk and the checksum of every object header it loads).
-
-    Parameters
-    ----------
-    unchecked
-        When given, receives the names of non-empty datasets that carry no checksum
-        (files of an older flylib): readable, but their integrity cannot be verified.
-
-    Returns
-    -------
-    list of str
-        One line per damaged object (file and dataset or group named).
+    Reads each dataset chunk by chunk (HDF5 verifies the Fletcher-32 checksum of every chunk and
+    the checksum of every object header it loads). ``unchecked``, when given, receives the names
+    of non-empty datasets that carry no checksum (readable, but not verifiable).
     """
     problems: list[str] = []
     try:
@@ -131,14 +116,9 @@ def verify_file(path: str | Path, *, unchecked: list[str] | None = None) -> list
 
 
 def verify_dataset(path: str | Path, dataset: h5py.Dataset) -> None:
-    """Check a dataset against its stored checksums without decompressing it.
-
-    A Fletcher-32-filtered dataset's chunks are read raw and their checksums
-    recomputed (a fraction of the cost of decoding them); a dataset without the
-    filter has nothing to check.
-
-    A checksum that does not match is a ResultsError naming the file and the dataset.
-    """
+    """Check a dataset against its stored checksums without decompressing it: its chunks are
+    read raw and their checksums recomputed (a fraction of the cost of decoding them). A
+    mismatch is a ResultsError naming the file and the dataset."""
     if not (dataset.size and dataset.chunks is not None and dataset.fletcher32):
         return  # no checksum to check (an empty array, or a file of an older flylib)
     try:

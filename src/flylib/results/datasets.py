@@ -1,13 +1,6 @@
-"""Writing and reading the datasets and attributes of flylib's HDF5 files.
-
-Arrays are float64 (NaN = missing), chunked along their longest axis (time) and
-gzip-compressed once they are large, so a 100k-frame recording stays small; the chunks
-are deflated on threads and stored with their Fletcher-32 checksum
-(:mod:`flylib.results.checksums`). Names are fixed-length UTF-8 strings inside
-checksummed chunks; group attributes are JSON text. Every read goes through
-:func:`read_dataset`: a damaged dataset is one :class:`~flylib.errors.ResultsError` naming the
-file and the dataset.
-"""
+"""Writing and reading the datasets and attributes of flylib's HDF5 files (the layout:
+:mod:`flylib.results`); big arrays' chunks are deflated on threads. Every read goes through
+:func:`read_dataset`: a damaged dataset is one ResultsError naming the file and the dataset."""
 
 from __future__ import annotations
 
@@ -26,14 +19,12 @@ from .checksums import damaged, fletcher32, verify_dataset
 
 # Arrays with at least this many elements are chunked and compressed.
 _COMPRESS_MIN_ELEMENTS = 4096
-# Target size of one chunk: big enough for fast whole-array reads, within h5py's
-# default 1 MiB chunk cache for cheap partial reads of a long recording.
+# Target size of one chunk: big enough for fast whole-array reads, within h5py's default 1 MiB
+# chunk cache for cheap partial reads of a long recording.
 _CHUNK_BYTES = 1024 * 1024
-# gzip level 1 without the shuffle filter: measured smallest and fastest on detector
-# output (NaN runs, heatmap-grid coordinates) and on continuous floats alike
-# (benchmarks/results_io.py); any HDF5 reader (MATLAB, R, h5py) can decode it. The
-# chunks are deflated on threads (see _write_deflated_chunks): LZF would write faster
-# on one core but only h5py reads it.
+# gzip level 1 without the shuffle filter: smallest and fastest on detector output (NaN runs,
+# heatmap-grid coordinates) and on continuous floats alike (benchmarks/results_io.py); any HDF5
+# reader (MATLAB, R, h5py) decodes it. LZF would write faster on one core but only h5py reads it.
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1}
 # chunks deflate on at most this many threads (fewer under a thread budget)
 _DEFLATE_THREADS = 8
@@ -95,13 +86,11 @@ def write_array(group: h5py.Group, name: str, data: Any, dtype: Any = np.float64
 def _write_deflated_chunks(dataset: h5py.Dataset, arr: np.ndarray, axis: int, step: int) -> None:
     """Fill a gzip-filtered dataset chunked in slabs of ``step`` along ``axis``.
 
-    HDF5 compresses chunk by chunk on one core (most of the write time of a long
-    recording's arrays); here zlib compresses the slabs on threads (it releases the
-    GIL) and HDF5 stores the finished chunks as they are. The file is the one
-    ``create_dataset(data=..., compression="gzip", fletcher32=True)`` writes: the same
-    deflate filter and zlib stream followed by the Fletcher-32 checksum of the
-    deflated bytes (what HDF5's filter appends), readable and verified by any HDF5
-    reader.
+    HDF5 compresses chunk by chunk on one core (most of the write time of a long recording's
+    arrays); here zlib compresses the slabs on threads (it releases the GIL) and HDF5 stores the
+    finished chunks as they are. The file is the one ``create_dataset(data=...,
+    compression="gzip", fletcher32=True)`` writes: the same zlib stream followed by the
+    Fletcher-32 checksum of the deflated bytes, readable and verified by any HDF5 reader.
     """
     starts = range(0, arr.shape[axis], step)
 

@@ -1,9 +1,6 @@
-"""The camera rig and skeleton groups of flylib's HDF5 files.
-
-A rig is stored as ``names``, ``rvecs``, ``tvecs``, ``intrs`` ([fx, fy, cx, cy]) and
-``dists``; a skeleton as ``point_names``, ``limb_names``, ``limb_id``, ``bones`` and a
-``palette`` group of attributes.
-"""
+"""The camera rig and skeleton groups of flylib's HDF5 files: a rig is ``names``, ``rvecs``,
+``tvecs``, ``intrs`` ([fx, fy, cx, cy]) and ``dists``; a skeleton ``point_names``, ``limb_names``,
+``limb_id``, ``bones`` and a ``palette`` group of attributes."""
 
 from __future__ import annotations
 
@@ -68,8 +65,7 @@ def skeleton_from_group(group: h5py.Group) -> Skeleton:
 
 
 def read_skeleton(path: str | Path) -> Skeleton:
-    """The skeleton stored in a results or stage file's ``skeleton/`` group; a missing
-    or stale file, or one without it, is a ResultsError."""
+    """The ``skeleton/`` of a results or stage file; missing, stale or none: a ResultsError."""
     with read_checked(path, "re-run the pipeline") as f:
         if "skeleton" not in f:
             raise ResultsError(f"{path}: has no skeleton/ group; re-run pose2d")
@@ -77,8 +73,8 @@ def read_skeleton(path: str | Path) -> Skeleton:
 
 
 def read_cameras(path: str | Path, group: str) -> CameraGroup:
-    """The rig stored in ``<group>/cameras`` (e.g. ``"bundle_adjustment"``) of a results
-    or stage file; a missing or stale file, or one without it, is a ResultsError."""
+    """The rig in ``<group>/cameras`` (e.g. ``"bundle_adjustment"``) of a results or stage file;
+    a missing or stale file, or one without it, is a ResultsError."""
     with read_checked(path, f"re-run {group}") as f:
         if f"{group}/cameras" not in f:
             raise ResultsError(f"{path}: has no {group}/cameras group; re-run {group}")

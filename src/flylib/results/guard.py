@@ -1,18 +1,15 @@
 """What keeps an HDF5 file, flylib's own or another tool's, from reaching beyond itself.
 
-HDF5 lets a file borrow bytes from elsewhere: a dataset's raw data may live in other
-files (external storage, ``Dataset.external``: a FIFO there blocks a read forever, a
-local file there is read as if it were the dataset), a link may name an object in
-another file (``ExternalLink``, which HDF5 opens when the link is followed), a virtual
-dataset maps other files' datasets, and a user-defined link runs a plug-in's code. And
-a dataset declares its shape: a sparse or compressed dataset of a few hundred bytes on
-disk can declare terabytes, which a read allocates.
+HDF5 lets a file borrow bytes from elsewhere: a dataset's raw data may live in other files
+(external storage, ``Dataset.external``: a FIFO there blocks a read forever, a local file there is
+read as if it were the dataset), a link may name an object in another file (``ExternalLink``,
+which HDF5 opens when the link is followed), a virtual dataset maps other files' datasets, and a
+user-defined link runs a plug-in's code. And a dataset declares its shape: a sparse or compressed
+dataset of a few hundred bytes on disk can declare terabytes, which a read allocates.
 
-One owner of these facts for every reader: :func:`link_refusal` and
-:func:`dataset_refusal` say what is wrong with one link or dataset;
-:func:`guard_file` checks a whole file before anything is read from it (flylib's own
-files: results.h5, the stage artifacts, corrections.h5, the analysis files, through
-:func:`~flylib.results.hdf5.open_hdf5`); :mod:`flylib.interop._h5` walks to single
+:func:`link_refusal` and :func:`dataset_refusal` say what is wrong with one link or dataset;
+:func:`guard_file` checks a whole file before anything is read from it (flylib's own files,
+through :func:`~flylib.results.hdf5.open_hdf5`); :mod:`flylib.interop._h5` walks to single
 members of another tool's file with the same checks.
 """
 
@@ -38,15 +35,13 @@ __all__ = [
 
 #: The smallest per-dataset budget, whatever the file: small files still get room.
 BUDGET_FLOOR = 64 << 20
-#: How many bytes one stored byte of a dataset may declare in flylib's files: gzip
-#: (deflate) expands at most ~1032 times, the ceiling flylib's writer can reach (an
-#: all-NaN array compresses ~190 times at flylib's level 1).
+#: How many bytes one stored byte of a dataset may declare in flylib's files: deflate expands at
+#: most ~1032 times (an all-NaN array compresses ~190 times at flylib's level 1).
 MAX_EXPANSION = 1100
 
 
 def file_budget(path: str | Path) -> int:
-    """Bytes one dataset of a flylib file may declare: :data:`MAX_EXPANSION` times the
-    file's size on disk, at least :data:`BUDGET_FLOOR`."""
+    """Bytes a dataset may declare: :data:`MAX_EXPANSION` x file size, >= :data:`BUDGET_FLOOR`."""
     try:
         size = os.stat(path).st_size
     except OSError:
@@ -62,8 +57,8 @@ def gib(n: int) -> str:
 
 
 def link_refusal(group: h5py.Group, key: bytes) -> str | None:
-    """Why the link ``key`` of ``group`` must not be followed (``None``: a hard or soft
-    link, which stays inside the file). The link is inspected, never followed."""
+    """Why the link ``key`` of ``group`` must not be followed (``None``: a hard or soft link,
+    which stays inside the file). The link is inspected, never followed."""
     from h5py import h5l
 
     links = group.id.links
@@ -80,15 +75,10 @@ def link_refusal(group: h5py.Group, key: bytes) -> str | None:
 
 
 def dataset_refusal(dataset: h5py.Dataset, max_bytes: int) -> tuple[str, bool] | None:
-    """Why ``dataset`` must not be read, or ``None``.
-
-    Returns
-    -------
-    (reason, outside) or None
-        ``reason`` completes "<file>: '<name>' ..."; ``outside`` is true when the data
-        lives outside the file (external storage, a virtual dataset), false when the
-        dataset (or one of its chunks, decompressed) declares more than ``max_bytes``.
-    """
+    """Why ``dataset`` must not be read, or ``None``: ``(reason, outside)``, ``reason`` completing
+    "<file>: '<name>' ..."; ``outside`` true when the data lives outside the file (external
+    storage, a virtual dataset), false when the dataset (or one of its chunks, decompressed)
+    declares more than ``max_bytes``."""
     external = dataset.external
     if external:
         return f"stores its data in the external file {external[0][0]!r}", True
@@ -111,24 +101,13 @@ def guard_file(
     *,
     error: type[FlylibError] = ResultsError,
 ) -> None:
-    """Check a whole open file before anything is read from it.
+    """Check a whole open file before anything is read from it: every link is visited without
+    being followed (soft links stay inside the file, so only objects checked here are reachable).
 
-    Every link is visited without being followed (hard links to groups are descended
-    once each); soft links stay inside the file, so only the objects checked here can
-    be reached through them.
-
-    ``path`` and ``fix`` (what the user should do) are for the message.
-
-    Raises
-    ------
-    OSError, KeyError, RuntimeError
-        What h5py raises on a damaged link table or object header.
-    error
-        One line naming the file, the object and ``fix``: an external or
-        user-defined link, a dataset stored in other files (external storage, a
-        virtual dataset), or one (or one of its chunks, decompressed) declaring more
-        than :func:`file_budget` of ``path``: a file flylib wrote holds what its
-        datasets declare, compressed at most :data:`MAX_EXPANSION` times.
+    Raises ``error``, one line naming ``path``, the object and ``fix`` (what the user should do),
+    for an external or user-defined link, a dataset stored in other files, or one (or one of its
+    chunks, decompressed) declaring more than :func:`file_budget`; a damaged link table or object
+    header raises what h5py raises (OSError, KeyError, RuntimeError).
     """
     from h5py import h5l
 

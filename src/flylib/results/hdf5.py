@@ -1,16 +1,6 @@
-"""Opening and creating HDF5 files: the one read-only opener, the version check, the meta.
-
-:func:`open_hdf5` is the one place an HDF5 file is opened for reading with one-line
-errors, flylib's own files (:class:`~flylib.errors.ResultsError`) and other tools'
-(:mod:`flylib.interop._h5`, :class:`~flylib.errors.ImportFormatError`) alike; a file
-of flylib's is checked whole (:func:`~flylib.results.guard.guard_file`: no link out of
-it, no data stored elsewhere, no dataset declaring more than it can hold) before
-anything is read from it.
-:func:`open_checked` opens a results or stage file and checks its format version, and
-turns damage met while reading it into one line. Every file holds ``attrs["meta"]``
-(JSON: ``deeperfly_format_version``, ``flylib_version``, ``created_utc``, ``stage``);
-new files use HDF5 1.8's checksummed object headers (:func:`create_file`).
-"""
+"""Opening and creating HDF5 files: :func:`open_hdf5`, the one read-only opener (flylib's files
+and other tools', with one-line errors), :func:`open_checked` (the format-version check), the meta
+JSON, and :func:`create_file` (HDF5 1.8's checksummed object headers)."""
 
 from __future__ import annotations
 
@@ -29,14 +19,14 @@ from .guard import guard_file
 
 #: The results.h5 schema version this code writes and accepts.
 FORMAT_VERSION = 2
-# HDF5 1.8's file format: object headers, link tables and the superblock carry
-# checksums (readable by any HDF5 >= 1.8, i.e. since 2008).
+# HDF5 1.8's file format: object headers, link tables and the superblock carry checksums
+# (readable by any HDF5 >= 1.8, i.e. since 2008).
 _LIBVER = ("v108", "latest")
 
-#: What h5py raises while reading a damaged or unexpected file: OSError for storage-level
-#: damage (a bad B-tree, a failed filter or checksum, a truncated file), KeyError for a
-#: link that does not resolve, ValueError/TypeError for a dtype or selection that does
-#: not convert, RuntimeError for a few low-level HDF5 failures.
+#: What h5py raises while reading a damaged or unexpected file: OSError for storage-level damage
+#: (a bad B-tree, a failed filter or checksum, a truncated file), KeyError for a link that does not
+#: resolve, ValueError/TypeError for a dtype or selection that does not convert, RuntimeError for
+#: a few low-level HDF5 failures.
 H5_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
 
 
@@ -53,21 +43,13 @@ def open_hdf5(
     error: type[FlylibError] = ResultsError,
     guard: bool = True,
 ) -> h5py.File:
-    """Open ``path`` read-only; a missing or unreadable file is one ``error`` naming it.
+    """Open ``path`` read-only; a missing or unreadable file is one ``error`` naming it, ``what``
+    it should be (e.g. ``"DeepLabCut .h5"``) and the ``fix`` (e.g. ``"re-run the workflow"``).
 
-    Parameters
-    ----------
-    fix
-        What the user should do (e.g. ``"re-run the workflow"``).
-    what
-        What the file should be, for the message (e.g. ``"DeepLabCut .h5"``).
-    error
-        The error class to raise: :class:`~flylib.errors.ResultsError` for flylib's
-        files, :class:`~flylib.errors.ImportFormatError` for another tool's.
-    guard
-        Check the whole file before returning it (:func:`~flylib.results.guard.guard_file`);
-        ``False`` only for another tool's file, whose readers check each member they
-        read (:mod:`flylib.interop._h5`).
+    ``error``: :class:`~flylib.errors.ResultsError` for flylib's files,
+    :class:`~flylib.errors.ImportFormatError` for another tool's. ``guard``: check the whole file
+    first (:func:`~flylib.results.guard.guard_file`); ``False`` only for another tool's file,
+    whose readers check each member they read (:mod:`flylib.interop._h5`).
     """
     path = Path(path)
     if not path.is_file():
@@ -92,9 +74,8 @@ def open_hdf5(
 
 @contextmanager
 def open_checked(path: str | Path, rerun: str = "re-run the workflow") -> Iterator[h5py.File]:
-    """Open a flylib HDF5 file (results or stage artifact) read-only, checking its
-    version: missing, not HDF5, not flylib's or another format version is a ResultsError
-    that tells the user to ``rerun``."""
+    """Open a results or stage file read-only, checking its version: missing, not HDF5, not
+    flylib's or another format version is a ResultsError that tells the user to ``rerun``."""
     path = Path(path)
     with open_hdf5(path, rerun) as f:
         try:
@@ -128,8 +109,8 @@ _DAMAGE_ERRORS = (*H5_READ_ERRORS, IndexError, AttributeError)
 
 @contextmanager
 def read_checked(path: str | Path, rerun: str) -> Iterator[h5py.File]:
-    """:func:`open_checked` for the loaders: a read that fails inside the block (the
-    file is damaged) raises :class:`ResultsError` naming the file, not h5py's error."""
+    """:func:`open_checked` for the loaders: a read that fails inside the block (the file is
+    damaged) raises :class:`ResultsError` naming the file, not h5py's error."""
     try:
         with open_checked(path, rerun) as f:
             yield f
@@ -158,13 +139,8 @@ def read_meta_from(f: h5py.File) -> dict:
 
 
 def read_meta(path: str | Path) -> dict:
-    """The ``meta`` JSON of a flylib HDF5 file (no version check; empty if it has none).
-
-    Raises
-    ------
-    ResultsError
-        Not HDF5, or its root object (header, attributes) damaged: one line naming it.
-    """
+    """The ``meta`` JSON of a flylib HDF5 file (no version check; empty if it has none); a file
+    that is not HDF5, or whose root object is damaged, is a ResultsError naming it."""
     try:
         f = h5py.File(path, "r")
     except OSError as err:

@@ -1,28 +1,26 @@
 """What ``results.h5`` must never contradict: :func:`check_results`, :func:`require_consistent`.
 
 A result agrees with itself when, in every group holding 3D (``pictorial_structures``,
-``triangulation``, ``refinement``), with the stored rig (``bundle_adjustment/cameras``,
-else ``pose2d/cameras``):
+``triangulation``, ``refinement``), with the stored rig (``bundle_adjustment/cameras``, else
+``pose2d/cameras``):
 
-- ``reproj_error`` is finite exactly where both the group's 2D ``points`` and its
-  ``points3d`` are, and equals the distance between the stored 2D and the projection of
-  the stored 3D (``reprojection``);
-- the stored 2D is the 2D the 3D was solved from (``solved-from 2D``): each finite
-  entry of ``triangulation/points`` is its input (pictorial structures' points when
-  that group is present, else ``pose2d/points``) with the manual corrections applied
-  (``triangulation/corrected_2d`` marks them, ``triangulation/edited_2d`` holds a
-  person's 2D, NaN = marked invisible); ``refinement/points`` likewise over
-  ``pose2d/points``, except at the points it kept from the triangulation (flag
-  ``kept_triangulation``), which hold the triangulation's;
-- refinement's ``flags`` agree with its NaN patterns (``flags``): ``observed`` where at
-  least one view's 2D is kept, ``single_view`` where exactly one, ``missing`` exactly
-  where the 3D is NaN, ``filled`` where the 3D is finite with no 2D kept.
+- ``reproj_error`` is finite exactly where both the group's 2D ``points`` and its ``points3d``
+  are, and equals the distance between the stored 2D and the projection of the stored 3D
+  (``reprojection``);
+- the stored 2D is the 2D the 3D was solved from (``solved-from 2D``): each finite entry of
+  ``triangulation/points`` is its input (pictorial structures' points when that group is present,
+  else ``pose2d/points``) with the manual corrections applied (``triangulation/corrected_2d``
+  marks them, ``triangulation/edited_2d`` holds a person's 2D, NaN = marked invisible);
+  ``refinement/points`` likewise over ``pose2d/points``, except at the points it kept from the
+  triangulation (flag ``kept_triangulation``), which hold the triangulation's;
+- refinement's ``flags`` agree with its NaN patterns (``flags``): ``observed`` where at least one
+  view's 2D is kept, ``single_view`` where exactly one, ``missing`` exactly where the 3D is NaN,
+  ``filled`` where the 3D is finite with no 2D kept.
 
-``pose2d/points`` is the detection as the detector or the import gave it (no
-corrections applied). Indices in the messages are 0-based, as in the arrays.
-
-The assemble stage checks the file it writes (a failure is a bug in flylib, reported
-before the file is put in place); ``flylib inspect --verify RESULT`` checks any file.
+``pose2d/points`` is the detection as the detector or the import gave it (no corrections
+applied). Indices in the messages are 0-based. The assemble stage checks the file it writes (a
+failure is a bug in flylib, reported before the file is put in place); ``flylib inspect --verify
+RESULT`` checks any file.
 """
 
 from __future__ import annotations
@@ -42,8 +40,8 @@ from .pose import apply_edits
 
 __all__ = ["Violation", "check_results", "require_consistent", "REPROJECTION_TOLERANCE_PX"]
 
-#: Largest accepted difference (pixels) between a stored reprojection error and the
-#: one recomputed from the stored 2D, 3D and rig (float64 round-off is ~1e-10 px).
+#: Largest accepted difference (pixels) between a stored reprojection error and the one
+#: recomputed from the stored 2D, 3D and rig (float64 round-off is ~1e-10 px).
 REPROJECTION_TOLERANCE_PX = 1e-6
 #: Frames read at once: memory stays flat on a long recording.
 _WINDOW = 2048
@@ -51,24 +49,11 @@ _WINDOW = 2048
 
 @dataclass(frozen=True)
 class Violation:
-    """One failed invariant: where it failed most.
-
-    Attributes
-    ----------
-    invariant
-        ``reprojection``, ``solved-from 2D`` or ``flags``.
-    dataset
-        The dataset that disagrees, e.g. ``/refinement/reproj_error``.
-    what
-        What disagrees, in words.
-    count
-        How many entries disagree.
-    worst
-        The worst entry's index: ``(view, frame, point)`` or ``(frame, point)``
-        (0-based), or ``None`` when the invariant could not be checked.
-    amount
-        The worst entry's discrepancy in pixels, when the invariant measures one.
-    """
+    """One failed invariant (``reprojection``, ``solved-from 2D`` or ``flags``) of a ``dataset``
+    (e.g. ``/refinement/reproj_error``): ``what`` disagrees, in words, at ``count`` entries; the
+    ``worst`` entry's index ``(view, frame, point)`` or ``(frame, point)`` (``None`` when the
+    invariant could not be checked) and its discrepancy in pixels, when the invariant measures
+    one."""
 
     invariant: str
     dataset: str
@@ -133,9 +118,8 @@ class _Tally:
 
 
 def check_results(path: str | Path) -> list[Violation]:
-    """One :class:`Violation` per failed invariant (see the module docstring) and dataset
-    of the assembled ``results.h5`` at ``path``; a file that cannot be read or lacks the
-    pose2d group or a rig is a ResultsError."""
+    """One :class:`Violation` per failed invariant and dataset of the ``results.h5`` at ``path``;
+    a file that cannot be read or lacks the pose2d group or a rig is a ResultsError."""
     with read_checked(path, "re-run the workflow") as f:
         return _check_file(f, path)
 
@@ -143,12 +127,9 @@ def check_results(path: str | Path) -> list[Violation]:
 def require_consistent(
     path: str | Path, *, writer: str = "assemble", shown: str | Path | None = None
 ) -> None:
-    """Raise when the results file at ``path`` contradicts itself: its writer has a bug.
-
-    The ResultsError names the file (``shown``, e.g. ``results.h5`` while ``path`` is
-    its temporary name; ``path`` by default) and the ``writer``, then one line per failed
-    invariant.
-    """
+    """Raise when the results file at ``path`` contradicts itself: its writer has a bug. The
+    ResultsError names the file (``shown``, e.g. ``results.h5`` while ``path`` is its temporary
+    name; ``path`` by default) and the ``writer``, then one line per failed invariant."""
     found = check_results(path)
     if found:
         views, points = describe(path)
@@ -246,8 +227,7 @@ _FLAG_RULES = (
 
 
 class _Window:
-    """The inputs of one frame window: the detections, the triangulation's input and
-    the corrections overlay."""
+    """The inputs of one frame window: the detections and the triangulation's input, corrected."""
 
     def __init__(self, f: h5py.File, tri: h5py.Group | None, lo: int, hi: int):
         detected = np.asarray(f["pose2d/points"][:, lo:hi], np.float64)
@@ -301,8 +281,7 @@ def _check_group(g: h5py.Group, name: str, window: _Window, cameras, marks, lo: 
 
 
 def _check_source(name, window: _Window, pts2d, seen2d, flags, mark: _Tally, lo: int) -> None:
-    """Each stored 2D is its input (corrections applied); refinement's kept points, the
-    triangulation's."""
+    """Stored 2D is its input, corrected; at refinement's kept points, the triangulation's."""
     if name == "triangulation":
         expected = window.tri_input
     else:

@@ -1,9 +1,4 @@
-"""The assembled result of one recording: :class:`PoseResult`.
-
-``results.h5`` (schema version 2, seed 004) is read back preferring the most-derived
-data present (refinement, else triangulation, else pictorial structures, else the 2D
-detections) and the bundle-adjusted rig over the config's.
-"""
+"""The assembled result of one recording, :class:`PoseResult`, and its corrected detections."""
 
 from __future__ import annotations
 
@@ -35,27 +30,10 @@ def _float_or_none(value: Any) -> np.ndarray | None:
 
 @dataclass
 class PoseResult:
-    """A complete multi-view pose estimate of one recording.
-
-    Attributes
-    ----------
-    cameras
-        The rig (bundle-adjusted when that stage ran).
-    skeleton
-        The tracked skeleton.
-    pts2d
-        ``(V, T, P, 2)`` 2D points in raw-frame pixels, NaN = missing.
-    conf
-        ``(V, T, P)`` detector confidences, or ``None``.
-    pts3d
-        ``(T, P, 3)`` 3D points, NaN = not reconstructed, or ``None``.
-    reproj_error
-        ``(V, T, P)`` reprojection error in pixels, or ``None``.
-    meta
-        Free-form metadata (format version, creation time, ...).
-    image_sizes
-        ``view -> (height, width)`` of the raw footage, when known.
-    """
+    """A complete multi-view pose estimate of one recording: the rig (bundle-adjusted when that
+    stage ran), the skeleton, ``pts2d`` in raw-frame pixels (NaN = missing), ``conf``, ``pts3d``
+    (NaN = not reconstructed), ``reproj_error`` in pixels, ``meta`` (format version, creation
+    time, ...) and ``image_sizes`` (``view -> (height, width)`` of the raw footage, if known)."""
 
     cameras: CameraGroup
     skeleton: Skeleton
@@ -100,12 +78,9 @@ class PoseResult:
         return self.pts2d.shape[2]
 
     def save(self, path: str | Path) -> None:
-        """Write the result to an HDF5 file, atomically (an existing file is replaced).
-
-        ``pts2d``/``conf`` and the rig go to ``pose2d/``; when a 3D pose is present,
-        ``pts2d``, ``pts3d`` and ``reproj_error`` also go to ``triangulation/``, so
-        :meth:`load` returns the same result.
-        """
+        """Write the result to an HDF5 file, atomically: ``pts2d``/``conf`` and the rig to
+        ``pose2d/``; with a 3D pose, ``pts2d``, ``pts3d`` and ``reproj_error`` also to
+        ``triangulation/``, so :meth:`load` returns the same result."""
         # A loaded result keeps its creation time and stage; version fields are this writer's.
         fresh = new_meta("result")
         meta = {**fresh, **self.meta}
@@ -132,19 +107,11 @@ class PoseResult:
 
     @classmethod
     def load(cls, path: str | Path) -> PoseResult:
-        """Read the assembled result back, preferring the most-derived data present.
-
-        ``pts2d``: refinement, else triangulation, else pictorial_structures, else
-        pose2d. ``pts3d`` and ``reproj_error``: refinement, else triangulation, else
-        pictorial_structures. Cameras: bundle_adjustment, else the config rig in pose2d. ``conf``: pose2d. ``path``: a
-        file written by :meth:`save` or :func:`assemble_results`.
-
-        Raises
-        ------
-        ResultsError
-            If the file is missing, of another format version, or has no pose2d data
-            or no rig.
-        """
+        """Read a file :meth:`save` or :func:`assemble_results` wrote, preferring the most-derived
+        data present: ``pts2d`` from refinement, else triangulation, else pictorial_structures,
+        else pose2d; ``pts3d`` and ``reproj_error`` likewise but for pose2d; the rig from
+        bundle_adjustment, else pose2d's (the config's). A ResultsError if the file is missing,
+        of another format version, or has no pose2d data or no rig."""
         rerun = "re-run the pipeline"
         with read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
@@ -193,18 +160,10 @@ class PoseResult:
 
 @dataclass(frozen=True)
 class Detections:
-    """The 2D detections of a result with the manual corrections applied.
-
-    Attributes
-    ----------
-    points
-        ``(V, T, P, 2)`` ``pose2d/points`` (the detector's or the import's 2D) where a
-        person edited a point, that point; where one marked it invisible, NaN.
-    conf
-        ``(V, T, P)`` their confidences (1 for an edit, NaN where invisible), or ``None``.
-    corrected
-        How many observations a person changed.
-    """
+    """The 2D detections of a result with the manual corrections applied: ``points`` is
+    ``pose2d/points`` but where a person edited a point (that point) or marked it invisible
+    (NaN); ``conf`` their confidences (1 for an edit, NaN where invisible) or ``None``;
+    ``corrected`` how many observations a person changed."""
 
     points: Float[np.ndarray, "V T P 2"]
     conf: Float[np.ndarray, "V T P"] | None
@@ -221,15 +180,10 @@ def apply_edits(values: np.ndarray, touched: np.ndarray, edited: np.ndarray) -> 
 def read_detections(path: str | Path) -> Detections:
     """The detections in ``results.h5`` at ``path``, corrections applied.
 
-    The corrections the triangulation applied are in its group (``corrected_2d``, the
-    mask, and ``edited_2d``, a person's 2D, NaN = marked invisible); ``pose2d/points``
-    itself holds the detections as detected.
-
-    Raises
-    ------
-    ResultsError
-        If the file has no ``pose2d/points``, or holds corrections without the 2D
-        they set (written by an older flylib).
+    The corrections the triangulation applied are in its group (``corrected_2d``, the mask, and
+    ``edited_2d``, a person's 2D, NaN = marked invisible); ``pose2d/points`` itself holds the
+    detections as detected. A ResultsError if the file has no ``pose2d/points``, or holds
+    corrections without the 2D they set.
     """
     rerun = "re-run the pipeline"
     with read_checked(path, rerun) as f:

@@ -1,8 +1,7 @@
 """The pose2d stage's output, from the detector or another tool's files: :class:`Pose2dData`.
 
-The artifact ``stages/pose2d.h5`` holds ``skeleton/`` and ``pose2d/{points, conf}`` with
-the view names and raw image sizes as JSON attributes; no rig (editing the rig must not
-re-run detection).
+The artifact ``stages/pose2d.h5`` holds ``skeleton/`` and ``pose2d/{points, conf}`` with the view
+names and raw image sizes as JSON attributes; no rig (editing the rig must not re-run detection).
 """
 
 from __future__ import annotations
@@ -29,22 +28,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass
 class Pose2dData:
-    """The pose2d stage's output, from the detector or imported from another tool.
-
-    Attributes
-    ----------
-    pts2d
-        ``(V, T, P, 2)`` raw-frame pixels, NaN = missing.
-    conf
-        ``(V, T, P)`` confidences.
-    view_names
-        The V axis: camera names in config order.
-    image_sizes
-        ``view -> (height, width)`` of the raw footage.
-    candidates
-        Top-K peaks (``xy`` ``(V, T, P, K, 2)``, ``score`` ``(V, T, P, K)``) when
-        pictorial structures is on, else ``None``.
-    """
+    """The pose2d stage's output, from the detector or imported from another tool: ``pts2d`` in
+    raw-frame pixels (NaN = missing), ``conf``, ``view_names`` (the V axis, config order),
+    ``image_sizes`` (``view -> (height, width)`` of the raw footage) and the top-K peaks
+    (:class:`~flylib.pictorial.Candidates`) when pictorial structures is on, else ``None``."""
 
     pts2d: Float[np.ndarray, "V T P 2"]
     conf: Float[np.ndarray, "V T P"]
@@ -74,15 +61,8 @@ class Pose2dData:
     def save(
         self, path: str | Path, skeleton: Skeleton, meta: Mapping[str, Any] | None = None
     ) -> None:
-        """Write ``skeleton/`` and ``pose2d/`` to ``path`` atomically.
-
-        Parameters
-        ----------
-        skeleton
-            The skeleton whose points make up the P axis.
-        meta
-            Extra entries for the file's meta JSON (e.g. its params hash).
-        """
+        """Write ``skeleton/`` (the P axis) and ``pose2d/`` to ``path`` atomically; ``meta``: extra
+        entries for the file's meta JSON (e.g. its params hash)."""
         if skeleton.n_points != self.pts2d.shape[2]:
             raise ValueError(
                 f"pts2d has {self.pts2d.shape[2]} points but the skeleton has {skeleton.n_points}"
@@ -105,8 +85,7 @@ class Pose2dData:
 
     @classmethod
     def load(cls, path: str | Path) -> Pose2dData:
-        """Read a pose2d artifact (or the pose2d group of a results file); a missing or
-        stale file, or one without the group, is a ResultsError."""
+        """Read a pose2d artifact or results file; missing, stale or no group: a ResultsError."""
         rerun = "re-run the pose2d stage"
         with read_checked(path, rerun) as f:
             if "pose2d/points" not in f:
@@ -129,8 +108,8 @@ class Pose2dData:
 
 
 def read_image_sizes(path: str | Path) -> dict[str, tuple[int, int]]:
-    """``view -> (height, width)`` of a pose2d artifact or results file, without
-    reading its arrays (a ResultsError as :meth:`Pose2dData.load`)."""
+    """``view -> (height, width)`` of a pose2d artifact or results file, without reading its
+    arrays (a ResultsError as :meth:`Pose2dData.load`)."""
     with read_checked(path, "re-run the pose2d stage") as f:
         if "pose2d" not in f:
             raise ResultsError(f"{path}: has no pose2d group; re-run the pose2d stage")

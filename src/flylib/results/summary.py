@@ -1,5 +1,5 @@
-"""The per-stage, per-point and per-bone figures of a ``results.h5`` (what ``flylib
-inspect`` prints): :func:`summarize_results`."""
+"""The per-stage, per-point and per-bone figures of a ``results.h5`` (what ``flylib inspect``
+prints): :func:`summarize_results`."""
 
 from __future__ import annotations
 
@@ -23,16 +23,15 @@ def _percentile(values: np.ndarray, q: float) -> float:
 
 
 def _held_out(accuracy: dict, stage: str) -> dict:
-    """The held-out-view figures of a 3D stage's accuracy attrs (:mod:`flylib.accuracy`):
-    refinement's output, else the triangulation."""
+    """Held-out figures of a 3D stage's accuracy attrs: refinement's output, else triangulation."""
     return accuracy["output" if stage == "refinement" else "triangulation"]
 
 
 def summarize_results(path: Path) -> dict:
-    """``{"meta", "handedness", "stages": [row...], "points": [row...], "bones":
-    [row...], "stage_3d", "accuracy"}``; rows are dicts of plain numbers and strings.
-    Reprojection errors are in pixels; the bone spread is the interquartile range of the
-    bone's length over frames divided by its median (0 for a rigid bone)."""
+    """``{"meta", "handedness", "stages": [row...], "points": [row...], "bones": [row...],
+    "stage_3d", "accuracy"}``; rows are dicts of plain numbers and strings. Reprojection errors
+    are in pixels; the bone spread is the interquartile range of the bone's length over frames
+    divided by its median (0 for a rigid bone)."""
     with open_checked(path, "pass the results.h5 a run wrote") as f:
         meta = read_meta_from(f)
         if "skeleton/point_names" not in f:

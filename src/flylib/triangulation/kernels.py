@@ -1,8 +1,8 @@
 """The jitted JAX kernel of greedy triangulation, over one chunk of points.
 
-Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest
-of a workflow job never import JAX; ``greedy`` (:func:`~flylib.triangulation.reconstruct`)
-imports this module when called (the DLT kernel is :func:`flylib.camera.jax_model.dlt_chunk`).
+Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest of a
+workflow job never import JAX; ``greedy`` imports it when called (the DLT kernel is
+:func:`flylib.camera.jax_model.dlt_chunk`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
 
-# -- jitted kernels over one chunk: raw / und (V, N, 2), weights (V, N) ----------------
-# Arrays are component-major with the point axis last, so XLA fuses each kernel into
-# vectorized loops over points.
+# Over one chunk: raw / und (V, N, 2), weights (V, N). Arrays are component-major with the
+# point axis last, so XLA fuses each kernel into vectorized loops over points.
 
 
 def _view_sq_error(rig, k, x, y, z, raw_u, raw_v, distorted):
@@ -66,10 +65,8 @@ def greedy_chunk(
     threshold: float,
     max_drops: int,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, "V N"]]:
-    """Greedy view dropping (``reconstruct``'s ``greedy``) on one chunk -> ``(pts3d, kept)``.
-
-    ``und`` is None when the rig has no distortion.
-    """
+    """Greedy view dropping on one chunk -> ``(pts3d, kept)``; ``und`` is None when the rig
+    has no distortion."""
     distorted = und is not None  # the caller undistorts exactly when the rig has distortion
     und = raw if und is None else und
     terms, kept = _view_terms(rig, und, weights)

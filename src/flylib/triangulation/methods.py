@@ -1,19 +1,19 @@
 """Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
 
-The points (``(V, T, P, 2)`` for a recording) are flattened and
-processed in bounded chunks (memory stays bounded on long recordings), all with the
-same closed-form, row-normalized DLT as :func:`flylib.camera.jax_model.triangulate_dlt`: DLT
+The points (``(V, T, P, 2)`` for a recording) are flattened and processed in bounded chunks,
+all with the same closed-form, row-normalized DLT as
+:func:`flylib.camera.jax_model.triangulate_dlt`: DLT
 (:meth:`flylib.camera.rig.CameraGroup.triangulate`, the one bulk DLT path) and greedy
-(:mod:`flylib.triangulation.kernels`) by jitted JAX kernels compiled once per chunk
-length and imported only when those methods run, RANSAC in NumPy (no compile, no JAX)
-on runs of points seen by the same views, on a few threads.
-Cameras with lens distortion are handled exactly: observations are undistorted
-before the linear solve, and reprojection errors are measured in the raw image.
+(:mod:`flylib.triangulation.kernels`) by jitted JAX kernels compiled once per chunk length
+and imported only when those methods run, RANSAC in NumPy (no compile, no JAX) on runs of
+points seen by the same views, on a few threads. Lens distortion is handled exactly:
+observations are undistorted before the linear solve, and reprojection errors are measured
+in the raw image.
 
-Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's
-confidences) each view's DLT rows are scaled by ``sqrt(weight)`` and observations with
-a non-positive or non-finite weight are treated as missing. RANSAC's inlier vote is
-never weighted. Method knobs and ``weights`` are keywords.
+Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's confidences) each
+view's DLT rows are scaled by ``sqrt(weight)`` and observations with a non-positive or
+non-finite weight are treated as missing. RANSAC's inlier vote is never weighted. Method
+knobs and ``weights`` are keywords.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ _RANSAC_THREADS = 4
 
 
 def _arguments(func: str, cameras, pts2d, what: str = "pts2d"):
-    """``cameras`` checked to be a rig (TypeError: e.g. arguments swapped) and ``pts2d`` as float64."""
+    """``cameras`` checked to be a rig (TypeError: e.g. arguments swapped), ``pts2d`` float64."""
     if not (hasattr(cameras, "pmats") and hasattr(cameras, "undistort_points")):
         raise TypeError(
             f"{func}(cameras, {what}, ...) takes the camera rig first, got "
@@ -91,12 +91,11 @@ class _Rig:
 
 
 # -- RANSAC in NumPy: each hypothesis only where both its views see the point ---------
-# Real recordings see each point in only 2-4 of the views (the default rig's side
-# cameras see one side of the fly), so most of the C(V, 2) pairs have nothing to do
-# for most points. The points are sorted by the set of views observing them; a run
-# of points with one set is a dense block in which every pair of its views is tried
-# and errors are measured in its views only: no wasted pairs, no gathers in the inner
-# loop, and no XLA compile per input size (short workflow jobs pay nothing up front).
+# Real recordings see each point in only 2-4 of the views, so most of the C(V, 2) pairs have
+# nothing to do for most points. The points are sorted by the set of views observing them; a
+# run of points with one set is a dense block in which every pair of its views is tried and
+# errors are measured in its views only: no wasted pairs, no gathers in the inner loop, and
+# no XLA compile per input size.
 
 
 class _RansacViews:
@@ -117,7 +116,8 @@ class _RansacViews:
         self.rows = np.ascontiguousarray(rows.transpose(1, 0, 2).reshape(3 * self.n_sel, 4))
 
     def sq_errors(self, pts4, raw_u, raw_v):
-        """Squared pixel errors ``(K, n)`` of homogeneous points ``(4, n)`` against ``raw_u/v`` ``(K, n)``."""
+        """Squared pixel errors ``(K, n)`` of homogeneous points ``(4, n)`` against
+        ``raw_u/v`` ``(K, n)``."""
         k = self.n_sel
         hom = np.einsum("rc,cn->rn", self.rows, pts4)  # no multi-threaded BLAS call
         inv_depth = 1.0 / hom[2 * k :]
@@ -138,8 +138,8 @@ class _RansacViews:
 def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inliers):
     """Exhaustive-pair RANSAC for points observed in (at most) ``views`` ``(K,)``.
 
-    ``raw`` / ``und`` ``(K, n, 2)``: raw and undistorted pixels in those views (NaN =
-    missing); ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
+    ``raw`` / ``und`` ``(K, n, 2)``: raw and undistorted pixels in those views (NaN = missing);
+    ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
     """
     n_sel, n = raw.shape[:2]
     quad, norm = camera_model.dlt_camera_constants(np, pmats[views])
@@ -149,9 +149,8 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     raw_u, raw_v = np.ascontiguousarray(raw[..., 0]), np.ascontiguousarray(raw[..., 1])
     project = _RansacViews(cameras, pmats, views)
     threshold_sq = threshold * threshold
-    # Lexicographic (most inliers, then least total inlier error) as one number,
-    # count - total * scale: the total is below count * threshold, so the scaled
-    # total stays under 1 and never flips a count.
+    # Lexicographic (most inliers, then least total inlier error) as one number, count -
+    # total * scale: the total is below count * threshold, so the scaled total stays under 1.
     scale = 1.0 / (len(cameras) * threshold + 1.0)
     bits = np.exp2(np.arange(n_sel))[:, None]
     pts4 = np.ones((4, n))
@@ -197,10 +196,10 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
     vote = _finite(raw_all) & usable
     valid = vote if und_all is raw_all else _finite(und_all) & usable
     valid_count = valid.sum(axis=0)
-    # Points with fewer than two usable views stay NaN. The rest are sorted by the set
-    # of views observing them and processed in runs of one set, in pieces of at most
-    # ``chunk_points`` (beyond 62 views the key ignores the later ones: runs are then
-    # less uniform, which costs time, not correctness).
+    # Points with fewer than two usable views stay NaN. The rest are sorted by the set of
+    # views observing them and processed in runs of one set, in pieces of at most
+    # ``chunk_points`` (beyond 62 views the key ignores the later ones: less uniform runs
+    # cost time, not correctness).
     key_views = min(n_views, 62)
     key = np.zeros(n, dtype=np.min_scalar_type((1 << key_views) - 1))
     for v in range(key_views):
@@ -248,31 +247,12 @@ def triangulate(
     *,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> Float[np.ndarray, "*pts 3"]:
-    """NaN-aware (optionally confidence-weighted) DLT triangulation.
+    """NaN-aware (optionally confidence-weighted) DLT triangulation of ``(V, *pts, 2)`` pixels.
 
-    The same path as :meth:`flylib.camera.rig.CameraGroup.triangulate` (this forwards to
-    it): undistortion, then fixed-length chunks through one jitted kernel.
-
-    Parameters
-    ----------
-    pts2d
-        ``(V, *pts, 2)`` pixels, NaN = missing.
-    weights
-        Optional per-observation weights ``(V, *pts)`` (e.g. confidences): each view's
-        rows are scaled by ``sqrt(weight)``; a non-positive or non-finite weight drops
-        the view.
-
-    Returns
-    -------
-    np.ndarray
-        ``(*pts, 3)``; NaN where fewer than two views observe the point.
-
-    Raises
-    ------
-    TypeError
-        If ``cameras`` is not a camera rig (arguments swapped).
-    ValueError
-        If the shapes do not match the rig.
+    Forwards to :meth:`flylib.camera.rig.CameraGroup.triangulate`. ``weights`` ``(V, *pts)``
+    scale each view's rows by ``sqrt(weight)``; a non-positive or non-finite weight drops
+    the view. Returns ``(*pts, 3)``, NaN where fewer than two views observe the point.
+    TypeError if ``cameras`` is not a rig (arguments swapped), ValueError on a shape mismatch.
     """
     cameras, pts2d = _arguments("triangulate", cameras, pts2d)
     return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
@@ -281,20 +261,9 @@ def triangulate(
 def reprojection_error(
     cameras: CameraGroup, pts3d: Float[np.ndarray, "*pts 3"], pts2d: Float[np.ndarray, " V *pts 2"]
 ) -> Float[np.ndarray, " V *pts"]:
-    """Per-observation reprojection error in pixels.
-
-    Returns
-    -------
-    np.ndarray
-        ``(V, *pts)``; NaN where the observation or the 3D point is missing.
-
-    Raises
-    ------
-    TypeError
-        If ``cameras`` is not a camera rig (arguments swapped).
-    ValueError
-        If the shapes do not match each other or the rig.
-    """
+    """Per-observation reprojection error in pixels ``(V, *pts)``, NaN where the observation
+    or the 3D point is missing. TypeError if ``cameras`` is not a rig, ValueError on a
+    shape mismatch."""
     cameras, pts2d = _arguments("reprojection_error", cameras, pts2d, "pts3d, pts2d")
     pts3d = np.asarray(pts3d, dtype=np.float64)
     _check_inputs(pts2d, cameras, None)
@@ -315,35 +284,15 @@ def triangulate_ransac(
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
     """Robust triangulation from the largest set of mutually consistent views.
 
-    Every two-view hypothesis (all ``C(V, 2)`` pairs: the deterministic limit of
-    RANSAC for a handful of cameras) is triangulated and scored by the number of
-    views that reproject within ``threshold`` pixels (unweighted; NaN views never
-    count); ties go to the smaller total inlier error. The point is refitted from
-    the winning inliers (weighted when ``weights`` are given).
+    Every two-view hypothesis (all ``C(V, 2)`` pairs: the deterministic limit of RANSAC for a
+    handful of cameras) is triangulated and scored by the number of views that reproject
+    within ``threshold`` pixels (unweighted; NaN views never count); ties go to the smaller
+    total inlier error. The point is refitted from the winning inliers (weighted when
+    ``weights`` are given) if there are at least ``min_inliers`` (>= 2).
 
-    Parameters
-    ----------
-    cameras, pts2d, weights, chunk_points
-        As in :func:`triangulate`.
-    threshold
-        Inlier reprojection-error cutoff in pixels.
-    min_inliers
-        Fewest agreeing views to accept a point (>= 2).
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(*pts, 3)``; NaN below ``min_inliers``.
-    inliers : np.ndarray
-        ``(V, *pts)`` bool, the views the accepted point was fitted from (all
-        False for a rejected point).
-
-    Raises
-    ------
-    TypeError
-        If ``cameras`` is not a camera rig (arguments swapped).
-    ValueError
-        If ``min_inliers < 2`` or ``threshold <= 0``.
+    Returns ``pts3d`` ``(*pts, 3)`` (NaN for a rejected point) and ``inliers`` ``(V, *pts)``
+    bool, the views the point was fitted from. TypeError if ``cameras`` is not a rig,
+    ValueError if ``min_inliers < 2`` or ``threshold <= 0``.
     """
     cameras, pts2d = _arguments("triangulate_ransac", cameras, pts2d)
     if int(min_inliers) < 2:
@@ -363,14 +312,13 @@ def _triangulate_greedy(
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
-    """:func:`reconstruct`'s ``greedy``: DLT, then repeatedly drop each offending
-    point's worst-reprojecting view.
+    """:func:`reconstruct`'s ``greedy``: DLT, then repeatedly drop each offending point's
+    worst-reprojecting view.
 
-    While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its
-    worst view is removed and the point re-triangulated from the rest, at most
-    ``max_drops`` times (``max_drops < 0`` is a ValueError). A point left with fewer than
-    two views becomes NaN. Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final
-    point was fitted from.
+    While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its worst
+    view is removed and the point re-triangulated from the rest, at most ``max_drops`` times
+    (``max_drops < 0`` is a ValueError). A point left with fewer than two views becomes NaN.
+    Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final point was fitted from.
     """
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
@@ -404,42 +352,19 @@ def reconstruct(
 ) -> tuple[
     Float[np.ndarray, "*pts 3"], Float[np.ndarray, " V *pts 2"], Float[np.ndarray, " V *pts"]
 ]:
-    """Triangulate with the method and knobs of ``params``: the one dispatcher.
+    """Triangulate with the method and knobs of ``params`` (a ``triangulation`` table,
+    default :class:`~flylib.config.params.TriangulationParams`): the one dispatcher.
 
-    ``ransac`` runs :func:`triangulate_ransac`, ``greedy`` the DLT dropping each
-    point's worst-reprojecting view while its error exceeds ``reproj_threshold`` (at
-    most ``max_drops`` times), ``dlt`` :func:`triangulate`; each reads only its own
-    knobs (:meth:`~flylib.config.params.TriangulationParams.method_kwargs`).
+    ``ransac`` runs :func:`triangulate_ransac`, ``greedy`` the DLT dropping each point's
+    worst-reprojecting view while its error exceeds ``reproj_threshold`` (at most
+    ``max_drops`` times), ``dlt`` :func:`triangulate`; each reads only its own knobs
+    (:meth:`~flylib.config.params.TriangulationParams.method_kwargs`). ``conf`` ``(V, *pts)``
+    are the weights when ``weigh_by_confidence``.
 
-    Parameters
-    ----------
-    cameras, pts2d
-        As in :func:`triangulate`.
-    params
-        The ``triangulation`` table (default: :class:`~flylib.config.params.TriangulationParams`).
-    conf
-        Detector confidences ``(V, *pts)``, the weights when ``weigh_by_confidence``.
-
-    Returns
-    -------
-    pts3d : np.ndarray
-        ``(*pts, 3)``; NaN where the method could not reconstruct the point.
-    pts2d_clean : np.ndarray
-        ``(V, *pts, 2)``: the views each point was solved from (the rejected ones NaN).
-    reproj_error : np.ndarray
-        ``(V, *pts)`` pixels against ``pts2d_clean``.
-
-    Raises
-    ------
-    TypeError
-        If ``cameras`` is not a camera rig (arguments swapped).
-    ValueError
-        If ``params.method`` is unknown.
-
-    Examples
-    --------
-    >>> from flylib.config.params import TriangulationParams
-    >>> pts3d, clean, error = reconstruct(rig, pts2d, TriangulationParams(method="greedy"))
+    Returns ``pts3d`` ``(*pts, 3)`` (NaN where the method could not reconstruct the point),
+    ``pts2d_clean`` ``(V, *pts, 2)`` (the views each point was solved from; the rejected ones
+    NaN) and the reprojection error ``(V, *pts)`` in pixels against it. TypeError if
+    ``cameras`` is not a rig, ValueError for an unknown ``params.method``.
     """
     cameras, pts2d = _arguments("reconstruct", cameras, pts2d)
     params = TriangulationParams() if params is None else params

@@ -1,9 +1,5 @@
-"""Visualization: pose-overlay videos composed from panels, and a static summary figure.
-
-- :func:`read_video_specs` parses and validates ``[[visualization.videos]]``.
-- :func:`render_videos` streams a recording through every video spec to MP4s.
-- :func:`summary_figure` writes the per-recording summary PNG.
-"""
+"""Visualization: pose-overlay videos composed from panels (:func:`read_video_specs`,
+:func:`render_videos`), and the per-recording summary PNG (:func:`summary_figure`)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,6 @@
-"""Panel compositor and the streaming video renderer.
-
-:class:`Compositor` draws one video's panels, in order, onto a preallocated canvas
-from one frame's worth of inputs (plain NumPy: frames, 2D points, reprojected 3D
-points). :func:`render_videos` streams a whole recording through every video's
-compositor in a single pass: each camera's footage is decoded once per frame (in a
-background thread, a few frames ahead), every video's canvas is drawn and handed to
-its H.264 encoder, and nothing scales with the recording's length except the result
-arrays themselves.
-"""
+"""Panel compositor (one video's panels onto a reused canvas from plain NumPy inputs) and the
+streaming renderer (footage decoded once per frame a few frames ahead, every video's canvas drawn
+and encoded: nothing but the result arrays scales with the recording)."""
 
 from __future__ import annotations
 
@@ -36,13 +29,7 @@ from .draw import (
     skeleton_colors,
     to_panel_coords,
 )
-from .specs import (
-    PLAUSIBLE_FPS,
-    PanelSpec,
-    VideoSpec,
-    read_video_specs,
-    resolve_output_fps,
-)
+from .specs import PLAUSIBLE_FPS, PanelSpec, VideoSpec, read_video_specs, resolve_output_fps
 
 log = logging.getLogger(__name__)
 
@@ -84,21 +71,8 @@ class _Panel:
 
 
 class Compositor:
-    """Draws the panels of one :class:`VideoSpec` onto a reused canvas.
-
-    Parameters
-    ----------
-    skeleton
-        The :class:`flylib.Skeleton` (bones, limbs, palette).
-    image_sizes
-        ``view -> (height, width)`` of each used view's raw frames: sizes the panels
-        and maps raw-frame pixel coordinates into them.
-
-    Raises
-    ------
-    ConfigError
-        If a panel runs off an explicitly sized canvas.
-    """
+    """Draws the panels of one :class:`VideoSpec` onto a reused canvas; ``image_sizes``
+    (``view -> (height, width)`` of raw frames) sizes the panels."""
 
     def __init__(self, spec: VideoSpec, skeleton, image_sizes: Mapping[str, tuple[int, int]]):
         self.spec = spec
@@ -108,8 +82,7 @@ class Compositor:
         self.panels = [
             _Panel(p, tuple(image_sizes[p.view]), skeleton, spec.background) for p in spec.panels
         ]
-        # one view name per panel area (an imshow panel and the skeleton drawn over it
-        # share one), written last so that nothing covers it
+        # one view name per panel area, written last so that nothing covers it
         self.labelled = list(
             {(p.slices[0].start, p.slices[1].start): p for p in self.panels}.values()
         )
@@ -123,34 +96,13 @@ class Compositor:
         corrected: np.ndarray | None = None,
         stamp: str | None = None,
     ) -> np.ndarray:
-        """Draw one output frame.
+        """Draw one output frame; the canvas ``(height, width, 3)`` uint8 (reused: copy to keep).
 
-        Parameters
-        ----------
-        frames
-            ``view -> (H, W, 3)`` uint8 RGB frame (any size: resized to the panel), or
-            ``None``/absent (an ``imshow`` panel then shows its background).
-        points2d
-            ``view -> (P, 2)`` 2D points in raw-frame pixels, NaN = missing.
-        points3d
-            ``view -> (xy (P, 2), depth (P,))``: the 3D points projected into the view
-            (raw-frame pixels) and their camera-frame depths.
-        resized
-            Cache of resized frames for this output frame, keyed ``(view, width,
-            height)``; share one dict between compositors drawing the same frame so
-            each view is resized once.
-        corrected
-            ``(P,)`` bool: points a person corrected (``flylib gui``), ringed in the
-            skeleton panels; ``None``: none.
-        stamp
-            The frame number and time, written in the canvas's lower-left corner when
-            the spec has ``labels`` on.
-
-        Returns
-        -------
-        np.ndarray
-            The canvas ``(height, width, 3)`` uint8 (reused: copy it to keep it).
-        """
+        ``frames``: ``view -> (H, W, 3)`` uint8 RGB (any size) or ``None``; ``points2d``:
+        ``view -> (P, 2)`` raw-frame pixels, NaN = missing; ``points3d``: ``view -> (xy (P, 2),
+        depth (P,))``, reprojected with camera-frame depths; ``resized``: a cache keyed ``(view,
+        width, height)``, shared by compositors drawing the same frame; ``corrected``: ``(P,)``
+        bool, ringed; ``stamp``: written lower-left when ``labels`` is on."""
         canvas = self.canvas
         np.copyto(canvas, self._blank)
         if resized is None:
@@ -194,8 +146,7 @@ class Compositor:
 
 
 def frame_stamp(t: int, n_frames: int, fps: float | None) -> str:
-    """``"frame 12 / 59   0.120 s"``: a frame's index (from 0, as in results.h5 and
-    the CSV exports) and, when the recording's rate is known, its time."""
+    """``"frame 12 / 59   0.120 s"`` (from 0, as in results.h5; the time when ``fps`` is known)."""
     text = f"frame {t} / {n_frames - 1}"
     return f"{text}   {t / fps:.3f} s" if fps else text
 
@@ -211,9 +162,6 @@ def _fit(frame: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(
         frame, (width, height), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
     )
-
-
-# -- footage ------------------------------------------------------------------
 
 
 class _Footage:
@@ -235,8 +183,7 @@ class _Footage:
 
 
 def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
-    """Yield ``{view: frame}`` for frames ``0..n_frames-1``; footage ending before or going
-    on after is a :class:`FootageError` (footage and result must cover the same frames)."""
+    """``{view: frame}`` for each frame; footage shorter or longer is a :class:`FootageError`."""
     iters = {view: iter(src) for view, src in sources.items()}
 
     def mismatch(view: str, count: str) -> FootageError:
@@ -261,8 +208,7 @@ def _frame_bundles(sources: Mapping[str, Any], n_frames: int) -> Iterator[dict]:
 
 @contextlib.contextmanager
 def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
-    """Iterate ``items`` in a background thread, at most ``depth`` ahead of the consumer
-    (in this thread under a one-thread budget)."""
+    """Iterate ``items`` in a background thread (if CPUs allow), at most ``depth`` ahead."""
     if usable_cpus() == 1:
         yield iter(items)
         return
@@ -304,15 +250,8 @@ def _prefetched(items: Iterable, depth: int = PREFETCH_FRAMES):
         worker.join(timeout=5)
 
 
-# -- 3D reprojection ----------------------------------------------------------
-
-
 class _Reprojector:
-    """Chunked projection of ``pts3d`` into the views of ``skeleton_3d`` panels.
-
-    Yields raw-frame pixel coordinates and camera-frame depths (z along the optical
-    axis) per view, computing :data:`PROJECT_CHUNK` frames at a time.
-    """
+    """``pts3d`` projected into views, in chunks: raw-frame pixels and camera-frame depths (z)."""
 
     def __init__(
         self, cameras, pts3d: np.ndarray, views: Sequence[str], chunk: int = PROJECT_CHUNK
@@ -338,19 +277,10 @@ class _Reprojector:
         return {v: (self._xy[i, k], self._depth[i, k]) for i, v in enumerate(self._views)}
 
 
-# -- output files -------------------------------------------------------------
-
-
 class CanvasEncoder:
-    """Streams RGB canvases into an H.264 MP4 (libx264, :data:`X264_SETTINGS`).
-
-    Same container and codec as :class:`flylib.io.VideoWriter`, with two differences
-    that matter for throughput. The RGB -> YUV 4:2:0 conversion runs in OpenCV
-    (``COLOR_RGB2YUV_I420``, BT.601 limited range like FFmpeg's own) instead of
-    swscale, about 9x cheaper on a 960x960 canvas. And encoding runs in a worker
-    thread (PyAV releases the GIL inside x264), at most :data:`ENCODE_QUEUE` frames
-    behind, so it overlaps decoding and drawing.
-    """
+    """Streams RGB canvases into an H.264 MP4, like :class:`flylib.io.VideoWriter` but faster:
+    RGB -> YUV 4:2:0 in OpenCV (BT.601 limited range like FFmpeg's) instead of swscale, and
+    encoding in a worker thread (PyAV releases the GIL in x264) beside decoding and drawing."""
 
     def __init__(self, path: Path, fps: float, width: int, height: int):
         import av
@@ -417,12 +347,8 @@ class CanvasEncoder:
             self._container.close()
 
 
-# -- entry point --------------------------------------------------------------
-
-
 def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> dict:
-    """``view -> (height, width)``: from footage, the result's stored sizes, or the
-    principal point."""
+    """``view -> (height, width)``: from footage, stored sizes, or the principal point."""
     meta_sizes = {
         **((getattr(result, "meta", None) or {}).get("image_sizes") or {}),
         **(getattr(result, "image_sizes", None) or {}),
@@ -448,8 +374,7 @@ def _image_sizes(result, sources: Mapping[str, Any], views: Iterable[str]) -> di
 
 
 def _panel_views(specs: Sequence[VideoSpec], plot: str | None = None) -> list[str]:
-    """The views the videos' panels use (those with a ``plot`` panel), in the order
-    any panel first uses them."""
+    """The views the panels use (those with a ``plot`` panel), in first-use order."""
     used = list(dict.fromkeys(v for s in specs for v in s.views))
     if plot is None:
         return used
@@ -462,7 +387,6 @@ def _open_footage(
     footage: Mapping[str, Sequence[Path]] | None,
     on_corrupt: str,
 ) -> dict[str, _Footage]:
-    """Open each view's footage (closed with ``stack``); warn about views without any."""
     sources = {}
     for view in views:
         files = footage.get(view) if footage else None
@@ -491,9 +415,7 @@ def _open_writers(
     rates: tuple[Mapping, float | None, float | None],
     n_frames: int,
 ) -> list[CanvasEncoder]:
-    """One encoder per video, writing to a temporary file renamed when ``stack`` closes
-    without error; ``rates``: the ``visualization`` table, the footage's rate and the
-    fallback ``speed`` (:func:`resolve_output_fps`)."""
+    """One encoder per video, into a temporary file renamed when ``stack`` closes cleanly."""
     writers = []
     for spec, comp, path in zip(specs, compositors, paths):
         fps = resolve_output_fps(spec, *rates)
@@ -523,47 +445,13 @@ def render_videos(
     speed: float | None = None,
     on_corrupt: str = "error",
 ) -> list[Path]:
-    """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording.
+    """Render every ``[[visualization.videos]]`` spec of ``table`` for one recording, in one
+    pass over the footage; the written ``<outdir>/<video_name>.mp4`` in spec order.
 
-    All videos are rendered in one pass over the footage: each frame of each used
-    camera is decoded once, drawn into every video's canvas and streamed to that
-    video's encoder, so memory does not grow with the recording's length.
-
-    Parameters
-    ----------
-    table
-        The ``visualization`` table of the config (``Config.visualization``).
-    result
-        The :class:`flylib.PoseResult` to draw (``cameras``, ``skeleton``, ``pts2d``,
-        ``pts3d``).
-    footage
-        ``view name -> footage files`` (one video file, or an ordered image sequence)
-        for ``imshow`` panels. A view without footage draws the background, with a
-        warning.
-    outdir
-        Directory for ``<video_name>.mp4`` (created if needed).
-    corrected
-        ``(T, P)`` bool: points a person corrected, drawn with a ring (see
-        :mod:`flylib.corrections`); ``None``: no rings.
-    speed
-        Play the videos at this multiple of the recording's rate when the config sets
-        no rate (the workflow's slow motion for the demo).
-    on_corrupt
-        What a corrupt footage image becomes (``io.on_corrupt_frame``): ``"error"``
-        or ``"missing"`` (the background).
-
-    Returns
-    -------
-    list of Path
-        The written videos, in spec order.
-
-    Raises
-    ------
-    ConfigError
-        For an invalid video spec (unknown plot, view not in the rig, panel off the
-        canvas), naming ``visualization.videos[i].panels[j]``.
-    FootageError
-        If a footage file is missing or unreadable.
+    ``footage``: ``view -> files`` (one video, or an ordered image sequence), a view without any
+    drawing the background (with a warning); ``corrected``: ``(T, P)`` bool, ringed; ``speed``:
+    multiple of the recording's rate when the config sets none; ``on_corrupt``:
+    ``io.on_corrupt_frame``. A bad spec is a ConfigError, unreadable footage a FootageError.
     """
     from tqdm.auto import tqdm
 
@@ -606,7 +494,7 @@ def render_videos(
         )
         pts2d = result.pts2d
         bundles = stack.enter_context(_prefetched(_frame_bundles(sources, n_frames)))
-        # no bar object at all without progress: tqdm starts its monitor thread even disabled
+        # no bar at all without progress: tqdm starts its monitor thread even disabled
         bar = (
             stack.enter_context(
                 tqdm(

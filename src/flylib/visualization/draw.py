@@ -1,10 +1,7 @@
 """Drawing primitives: 2D skeleton overlays and depth-ordered 3D skeletons, with OpenCV.
 
-All functions draw in place on an ``(H, W, 3)`` uint8 image (a panel's region of the
-canvas, which may be a strided view) in that image's pixel coordinates, where an
-integer coordinate is a pixel centre (OpenCV's convention). Colours are given in
-the image's channel order (RGB throughout flylib). Points with a NaN coordinate,
-and bones with a NaN endpoint, are skipped.
+All draw in place on an ``(H, W, 3)`` uint8 image (maybe a strided view) in its pixels, integers
+being pixel centres, colours in its channel order (RGB in flylib); NaN points and bones are skipped.
 """
 
 from __future__ import annotations
@@ -15,14 +12,12 @@ import numpy as np
 #: Fractional bits of the fixed-point coordinates passed to OpenCV (1/16 px).
 _SHIFT = 4
 _ONE = 1 << _SHIFT
-#: Coordinates beyond this (degenerate projections) are not drawn: they would
-#: overflow OpenCV's fixed-point integers.
+#: Coordinates beyond this (degenerate projections) would overflow OpenCV's fixed point: not drawn.
 _MAX_COORD = 1e6
 
 
 def limb_colors(skeleton, overrides: dict | None = None) -> np.ndarray:
-    """``(n_limbs, 3)`` uint8 RGB colour per limb: ``overrides`` (``limb -> (r, g, b)``),
-    then the skeleton's ``palette`` (limb -> hex), then ``tab10``."""
+    """``(n_limbs, 3)`` uint8 RGB per limb: ``overrides``, the skeleton's ``palette``, ``tab10``."""
     from matplotlib import colormaps
     from matplotlib.colors import to_rgb
 
@@ -41,15 +36,8 @@ def limb_colors(skeleton, overrides: dict | None = None) -> np.ndarray:
 
 
 def skeleton_colors(skeleton, overrides: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Per-point and per-bone RGB colours from the limb palette.
-
-    Returns
-    -------
-    point_colors : np.ndarray
-        ``(P, 3)`` uint8, the colour of each point's limb (grey for a point in no limb).
-    bone_colors : np.ndarray
-        ``(B, 3)`` uint8, the colour of the limb of each bone's first endpoint.
-    """
+    """``(P, 3)`` and ``(B, 3)`` uint8 RGB: each point's limb colour (grey for no limb), and the
+    colour of each bone's first endpoint's limb."""
     # a point in no limb (limb_id -1) indexes the grey row appended last
     limbs = np.vstack([limb_colors(skeleton, overrides), [[128, 128, 128]]]).astype(np.uint8)
     limb_id = np.asarray(skeleton.limb_id, dtype=int)
@@ -64,13 +52,11 @@ def _fixed(xy: np.ndarray) -> np.ndarray:
 
 
 def _drawable(xy: np.ndarray) -> np.ndarray:
-    """Mask of points with finite, non-degenerate coordinates."""
     return np.isfinite(xy).all(axis=-1) & (np.abs(xy) < _MAX_COORD).all(axis=-1)
 
 
 def color_tuples(colors) -> list[tuple[int, int, int]]:
-    """``(N, 3)`` colours as the list of int tuples OpenCV takes (a list passes through,
-    so callers drawing many frames convert once)."""
+    """``(N, 3)`` colours as the int tuples OpenCV takes (a list passes through)."""
     if isinstance(colors, list):
         return colors
     return [(int(c[0]), int(c[1]), int(c[2])) for c in np.asarray(colors)]
@@ -124,9 +110,7 @@ def draw_skeleton_2d(
 ) -> None:
     """Draw a 2D skeleton ``xy`` ``(P, 2)`` on ``img``: bones ``(B, 2)`` first, joints on top.
 
-    ``point_colors`` ``(P, 3)`` and ``bone_colors`` ``(B, 3)``; ``radius`` 0 draws no
-    joints.
-    """
+    ``point_colors`` ``(P, 3)`` and ``bone_colors`` ``(B, 3)``; ``radius`` 0 draws no joints."""
     draw_bones(img, xy, bones, bone_colors, thickness)
     draw_points(img, xy, point_colors, radius)
 
@@ -142,22 +126,16 @@ def draw_skeleton_3d(
     radius: int = 3,
     thickness: int = 2,
 ) -> None:
-    """Draw a reprojected 3D skeleton back to front, so nearer parts cover farther ones.
-
-    Bones (at the mean depth of their endpoints) and joints (at their own depth) are
-    painted in order of decreasing camera-frame depth; a joint is painted after a bone
-    at the same depth. Points behind the camera (depth <= 0) are not drawn.
-    ``depth`` ``(P,)`` is each point's camera-frame z (distance along the optical axis);
-    the other arguments are :func:`draw_skeleton_2d`'s.
-    """
+    """Draw a reprojected 3D skeleton back to front by camera-frame ``depth`` ``(P,)`` (a bone at
+    its endpoints' mean), so nearer parts cover farther ones; nothing behind the camera is drawn.
+    The other arguments are :func:`draw_skeleton_2d`'s."""
     ok = _drawable(xy) & np.isfinite(depth) & (depth > 0)
     fixed = _fixed(xy).tolist()
     point_colors, bone_colors = color_tuples(point_colors), color_tuples(bone_colors)
     bones = np.asarray(bones, dtype=int).reshape(-1, 2)
     visible_bones = np.flatnonzero(ok[bones[:, 0]] & ok[bones[:, 1]])
     joints = np.flatnonzero(ok) if radius > 0 else np.zeros(0, int)
-    # one list of primitives, bones (kind 0) then joints (kind 1); a stable sort on
-    # decreasing depth paints far to near and, at equal depth, bones before joints
+    # bones then joints: a stable sort on decreasing depth paints bones first at equal depth
     depths = np.concatenate(
         [0.5 * (depth[bones[visible_bones, 0]] + depth[bones[visible_bones, 1]]), depth[joints]]
     )
@@ -176,11 +154,7 @@ def draw_skeleton_3d(
 def to_panel_coords(
     xy: np.ndarray, image_hw: tuple[int, int], panel_wh: tuple[int, int]
 ) -> np.ndarray:
-    """Map raw-frame pixel coordinates into a panel showing that frame resized.
-
-    With pixel centres at integer coordinates, resizing a ``W``-wide frame to ``w``
-    pixels maps ``x`` to ``(x + 0.5) * w / W - 0.5`` (the alignment ``cv2.resize`` uses).
-    """
+    """Raw-frame pixels into a panel showing the frame resized (``cv2.resize``'s alignment)."""
     img_h, img_w = image_hw
     w, h = panel_wh
     sx, sy = w / img_w, h / img_h
@@ -190,16 +164,14 @@ def to_panel_coords(
     return out
 
 
-#: Text of view names and the frame stamp: OpenCV's plain sans-serif, light on a dark
-#: outline so that it reads over bright and dark footage alike.
+#: View names and the frame stamp: light on a dark outline, readable over any footage.
 LABEL_FONT = cv2.FONT_HERSHEY_SIMPLEX
 LABEL_SCALE = 0.5
 LABEL_MARGIN = 6
 
 
 def draw_label(image: np.ndarray, text: str, corner: str = "top-left") -> None:
-    """Write one line of ASCII ``text`` in the ``"top-left"`` or ``"bottom-left"``
-    corner of ``image`` (in place), white on a black outline."""
+    """Write one line of ASCII ``text`` in a corner of ``image``, white on a black outline."""
     (width, height), baseline = cv2.getTextSize(text, LABEL_FONT, LABEL_SCALE, 1)
     x = LABEL_MARGIN
     y = LABEL_MARGIN + height if corner == "top-left" else image.shape[0] - LABEL_MARGIN - baseline

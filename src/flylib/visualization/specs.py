@@ -1,9 +1,7 @@
 """Video and panel specs: parsing and validating ``[visualization]``, merging draw kwargs.
 
-A video is an ordered list of panels drawn onto one canvas. Each panel names a
-``plot`` (``imshow``, ``skeleton_2d`` or ``skeleton_3d``), the ``view`` (camera) it
-shows, its top-left corner ``x0, y0`` on the canvas and optional draw kwargs. The
-draw kwargs merge over five levels, the most specific winning::
+A video is an ordered list of panels drawn onto one canvas, each a ``plot`` of a ``view`` at
+``x0, y0`` with optional draw kwargs, which merge over five levels, the most specific winning::
 
     [visualization.kwargs]                 flat keys: every plot
     [visualization.kwargs.<plot>]          one plot type
@@ -11,7 +9,7 @@ draw kwargs merge over five levels, the most specific winning::
     [[visualization.videos]].kwargs.<plot> one plot type in that video
     the panel's own keys
 
-``palette`` tables merge key by key (limb -> colour) instead of replacing each other.
+``palette`` tables (limb -> colour) merge key by key.
 """
 
 from __future__ import annotations
@@ -63,9 +61,7 @@ RGB = tuple[int, int, int]
 
 
 def parse_color(value: Any, where: str) -> RGB:
-    """Turn any colour matplotlib understands (``"black"``, ``"#ba1e31"``, ``"C3"``) or
-    ``[r, g, b]`` (0-255) into an RGB tuple; a :class:`ConfigError` naming the config key
-    ``where`` if it is not a colour."""
+    """A matplotlib colour (``"black"``, ``"#ba1e31"``, ``"C3"``) or ``[r, g, b]`` (0-255) as RGB."""
     if isinstance(value, (list, tuple)):
         if len(value) == 3 and all(isinstance(c, (int, float)) and 0 <= c <= 255 for c in value):
             return tuple(int(round(c)) for c in value)  # type: ignore[return-value]
@@ -83,31 +79,10 @@ def parse_color(value: Any, where: str) -> RGB:
 
 @dataclass(frozen=True)
 class PanelSpec:
-    """One panel of a video: what to draw, from which view, where, and how.
-
-    Attributes
-    ----------
-    plot
-        ``"imshow"`` (the view's frame), ``"skeleton_2d"`` (the view's 2D points and
-        bones) or ``"skeleton_3d"`` (the 3D skeleton reprojected into the view).
-    view
-        Camera name in the rig.
-    x0, y0
-        Top-left corner on the canvas, in pixels.
-    point_radius, line_thickness
-        Joint disc radius (0 draws no joints) and bone thickness, in canvas pixels.
-    scale
-        Zoom applied after ``width``/``height`` are resolved (see :meth:`size`).
-    width, height
-        Panel size in pixels; one alone keeps the view's aspect ratio.
-    palette
-        ``limb -> RGB`` overrides of the skeleton's palette.
-    background
-        RGB fill of the panel rectangle before drawing, or ``None`` (transparent
-        overlay; an ``imshow`` panel without footage then uses the video background).
-    where
-        The config key of this panel, for error messages.
-    """
+    """One panel: ``plot`` (``imshow`` the view's frame, ``skeleton_2d`` its 2D, ``skeleton_3d``
+    the 3D reprojected) of ``view`` with its top-left corner at ``x0, y0``, sizes in canvas pixels
+    (:meth:`size`). ``background`` ``None``: a transparent overlay (an ``imshow`` panel without
+    footage uses the video's); ``where``: the config key, for error messages."""
 
     plot: str
     view: str
@@ -123,11 +98,9 @@ class PanelSpec:
     where: str = "panel"
 
     def size(self, image_hw: tuple[int, int]) -> tuple[int, int]:
-        """Panel ``(width, height)`` in pixels for a view whose frames are ``image_hw``.
-
-        ``width`` and ``height`` both given: that size. One given: the other follows the
-        frame's aspect ratio. Neither: the frame size. ``scale`` then multiplies both.
-        """
+        """Panel ``(width, height)`` in pixels for frames of ``image_hw``: ``width`` and
+        ``height``, the frame's aspect ratio filling in a missing one (neither: the frame size),
+        then times ``scale``."""
         img_h, img_w = image_hw
         if self.width is not None and self.height is not None:
             w, h = float(self.width), float(self.height)
@@ -148,27 +121,9 @@ class PanelSpec:
 
 @dataclass(frozen=True)
 class VideoSpec:
-    """One output video: its panels in drawing order, canvas and output rate.
-
-    Attributes
-    ----------
-    name
-        File stem of the video (``<outdir>/<name>.mp4``).
-    panels
-        Panels in drawing order (later panels draw over earlier ones).
-    width, height
-        Canvas size; ``None`` sizes the canvas to the union of the panels.
-    background
-        RGB canvas fill.
-    output_fps, speed
-        Output rate in frames/s, or a multiple of the input rate; at most one is set
-        (``None`` both: the recording's own rate).
-    where
-        The config key of this video, for error messages.
-    labels
-        Write each panel's view name in its corner and the frame number and time in
-        the canvas's lower-left corner (``visualization.labels``, default on).
-    """
+    """One output video (``<outdir>/<name>.mp4``): panels in drawing order, canvas and rate
+    (``output_fps`` or ``speed``, a multiple of the input rate; neither: the recording's).
+    ``labels``: view names and the frame stamp written on the canvas."""
 
     name: str
     panels: tuple[PanelSpec, ...]
@@ -186,12 +141,9 @@ class VideoSpec:
         return list(dict.fromkeys(p.view for p in self.panels))
 
     def canvas_size(self, image_sizes: Mapping[str, tuple[int, int]]) -> tuple[int, int]:
-        """Canvas ``(width, height)`` for raw frames of ``view -> (height, width)``;
-        a :class:`ConfigError` if a panel reaches past an explicitly given size.
-
-        Without an explicit size the canvas is the union of the panels (from the
-        origin), rounded up to even sizes.
-        """
+        """Canvas ``(width, height)`` for raw frames of ``view -> (height, width)``: the explicit
+        size (a panel past it is a :class:`ConfigError`), else the union of the panels from the
+        origin, rounded up to even sizes."""
         rects = [(p, *p.size(image_sizes[p.view])) for p in self.panels]
         # an automatic size is rounded up to even: H.264 in 4:2:0 needs even sizes
         width = self.width or _even_up(max((p.x0 + w for p, w, _ in rects), default=2))
@@ -292,9 +244,7 @@ def _rate(table: Mapping, where: str) -> tuple[float | None, float | None]:
 
 
 def video_specs(config: Config) -> list[VideoSpec]:
-    """The output videos ``config`` asks for (:func:`read_video_specs` of its
-    ``visualization`` table), their views checked against its ``cameras`` table's
-    (when it has one)."""
+    """The output videos ``config`` asks for, views checked against its ``cameras`` table."""
     cameras = config.data.get("cameras")
     views = [k for k in cameras if k != "defaults"] if isinstance(cameras, Mapping) else None
     return read_video_specs(config.visualization, view_names=views)
@@ -303,26 +253,9 @@ def video_specs(config: Config) -> list[VideoSpec]:
 def read_video_specs(
     table: Mapping[str, Any] | None, view_names: Sequence[str] | None = None
 ) -> list[VideoSpec]:
-    """Parse and validate ``[[visualization.videos]]`` into :class:`VideoSpec` objects.
-
-    Parameters
-    ----------
-    table
-        The raw ``visualization`` table (``None``: no videos).
-    view_names
-        Camera names of the rig; ``None``: views are not checked.
-
-    Returns
-    -------
-    list of VideoSpec
-        One per video, in config order, with draw kwargs merged into each panel.
-
-    Raises
-    ------
-    ConfigError
-        Naming ``visualization.videos[i].panels[j]`` for an unknown plot, a view not in
-        the rig, a panel off the canvas, or any malformed key.
-    """
+    """Parse and validate ``[[visualization.videos]]`` (the ``visualization`` table) into one
+    :class:`VideoSpec` per video, draw kwargs merged; views are checked when ``view_names`` is
+    given. A bad key is a :class:`ConfigError` naming ``visualization.videos[i].panels[j]``."""
     table = {} if table is None else table
     if not isinstance(table, Mapping):
         raise ConfigError("visualization must be a table")
@@ -482,16 +415,10 @@ def default_fps(table: Mapping) -> float:
 def resolve_output_fps(
     video: VideoSpec, table: Mapping, input_fps: float | None, speed: float | None = None
 ) -> float:
-    """The frame rate to encode ``video`` at.
-
-    Precedence: the video's ``output_fps``/``speed``, then the global ones, then
-    ``speed`` (the workflow's slow motion for the demo), then the recording's own rate. ``speed`` multiplies the input rate. An input rate outside
-    :data:`PLAUSIBLE_FPS` (the DeepFly3D sample's container says 0.2 fps) or unknown is
-    replaced by ``visualization.default_fps`` with a warning.
-
-    ``table`` is the raw ``visualization`` table, ``input_fps`` the footage's rate from
-    its container (``None``: unknown).
-    """
+    """The frame rate to encode ``video`` at: its ``output_fps``/``speed``, the global ones, the
+    ``speed`` argument, else the recording's rate. ``speed`` multiplies the input rate; one unknown
+    or outside :data:`PLAUSIBLE_FPS` (the DeepFly3D sample says 0.2 fps) is replaced by
+    ``visualization.default_fps`` with a warning."""
     default_speed = speed
     fps, speed = video.output_fps, video.speed
     if fps is None and speed is None:

@@ -1,12 +1,7 @@
 """Static summary figure of one recording's result: the first thing to look at after a run.
 
-Four panels (matplotlib, Agg backend, no pyplot state):
-
-- reprojection error per view (box plots of the per-point pixel error, median printed),
-- fraction of frames with a reconstructed 3D point, per keypoint, coloured by limb
-  (the fraction of views with a 2D detection when there is no 3D result),
-- median reprojection error per frame over time (where in the recording it went wrong),
-- 3D trajectories of the leg tips, over a faint skeleton at the middle frame.
+Four panels (matplotlib Agg, no pyplot): reprojection error per view; per keypoint, the fraction
+of frames with 3D (or of views with 2D); median error per frame over time; leg-tip trajectories.
 """
 
 from __future__ import annotations
@@ -27,24 +22,13 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Leg tips and other chain ends drawn in the trajectory panel, at most this many.
 MAX_TRAJECTORIES = 6
-#: The trajectory panel shows at most this many consecutive frames, centred on the
-#: middle reconstructed frame: a long recording's full tracks are an unreadable tangle
-#: (and drawing 100k-point 3D lines took most of the figure's time).
+#: Consecutive frames of the trajectory panel, around the middle one: more are an unreadable tangle.
 MAX_TRAJECTORY_FRAMES = 2000
 
 
 def summary_figure(result: PoseResult, path: str | Path, *, dpi: int = 100) -> Path:
-    """Write the summary PNG of a pose result to ``path`` and return it.
-
-    Parameters
-    ----------
-    result
-        A :class:`flylib.PoseResult` (``pts2d`` is required; ``pts3d`` and
-        ``reproj_error`` are used when present).
-    path
-        Output PNG path (parent directories are created). Written to a temporary
-        sibling and renamed, so a crash leaves no truncated file.
-    """
+    """Write the summary PNG of a :class:`flylib.PoseResult` to ``path`` (atomically) and return
+    it; ``pts3d`` and ``reproj_error`` are used when present."""
     from matplotlib.figure import Figure
 
     from ..paths import atomic_path
@@ -101,8 +85,7 @@ def error_per_view(ax, error, names) -> None:
     missing = [n for n, e in zip(names, per_view) if not e.size]
     if missing:
         ax.set_title(f"Reprojection error per view ({', '.join(missing)}: none, left out)")
-    # each view's median under its name, not beside its box (where it overlapped
-    # the next box and the outliers)
+    # each view's median under its name: beside its box it overlaps the next box and outliers
     ax.boxplot(
         [e for _, e in shown],
         tick_labels=[f"{n}\n{np.median(e):.2f} px" for n, e in shown],
@@ -122,8 +105,7 @@ def error_per_view(ax, error, names) -> None:
 
 
 def error_ticks(top: float) -> list[float]:
-    """Tick values for a pixel-error axis that is linear from 0 to 1 and logarithmic
-    above: ``0, 0.25, 0.5, 0.75, 1``, then ``2, 5, 10, 20, 50, ...`` up to ``top``."""
+    """Ticks of an error axis linear to 1, then log: ``0, 0.25, ..., 1, 2, 5, 10, 20, ...``."""
     ticks = [0.0, 0.25, 0.5, 0.75, 1.0]
     decade = 1.0
     while decade * 2 <= top * 1.15:
@@ -158,8 +140,7 @@ def _error_over_time(ax, error) -> None:
 
 
 def row_nanmedian(rows: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(rows, axis=1)`` (NaN for an all-NaN row) by one sort, without
-    NumPy's slow masked path (seconds on a 100k-frame recording)."""
+    """``np.nanmedian(rows, axis=1)`` by one sort, without NumPy's slow masked path."""
     ordered = np.sort(rows, axis=1)  # NaN sorts last
     count = np.isfinite(rows).sum(axis=1)
     lo = np.take_along_axis(ordered, np.maximum(count - 1, 0)[:, None] // 2, axis=1)[:, 0]
@@ -168,9 +149,7 @@ def row_nanmedian(rows: np.ndarray) -> np.ndarray:
 
 
 def trajectory_points(skeleton) -> list[int]:
-    """Indices of the points whose 3D trajectories the summary draws: the last point of
-    each of the longest limb chains (the leg tips of the fly), at most
-    :data:`MAX_TRAJECTORIES`, spread over the limbs."""
+    """The points whose trajectories are drawn: the longest limb chains' tips (the leg tips)."""
     chains = [chain for chain in skeleton.limbs.values() if len(chain) >= 2]
     if not chains:
         return []
