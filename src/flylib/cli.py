@@ -389,11 +389,13 @@ def _toml_hint(configfiles: list[Path]) -> str | None:
 
 def _cmd_check_config(args) -> int:
     from .config.layers import ConfigLayers
+    from .pipeline.planning import RunPlan
     from .pipeline.preflight import load_run_config
 
     base = _default_base(args.configfiles, args.replace_workflow_config)
     layers = ConfigLayers.from_files([*base, *args.configfiles])
-    _, recordings = load_run_config(layers)
+    plan = RunPlan(*load_run_config(layers), main_process=False)  # as the workflow plans
+    recordings = plan.recordings
     if args.to_yaml is not None:
         tomls = [f for f in args.configfiles if f.suffix.lower() == ".toml"]
         if len(tomls) != 1:
@@ -415,6 +417,7 @@ def _cmd_check_config(args) -> int:
     print(
         f"{' + '.join(map(str, args.configfiles))}{over}: valid; {len(recordings)} recording(s): "
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
+        + "".join(f"; session {s.name} ({', '.join(s.ids)}) -> {s.outdir}" for s in plan.sessions)
     )
     hint = _toml_hint(args.configfiles)
     if hint:

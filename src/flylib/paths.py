@@ -8,6 +8,7 @@ import glob
 import os
 import re
 import socket
+import unicodedata
 import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -58,6 +59,34 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
             )
         parts.append(values[field])
     return "".join(parts)
+
+
+#: What a name keeps as a file name: letters and digits of any script, ``_``, ``.``, ``-``.
+_NAME_UNSAFE = re.compile(r"[^\w.-]+")
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a folder name (dots only, a path separator, a control
+    character), or ``None``."""
+    if not name.strip("."):
+        return "it is made of dots only (. and .. are folders that exist)"
+    if "/" in name or "\\" in name:
+        return "it holds a path separator (/ or \\)"
+    if any(unicodedata.category(c) == "Cc" for c in name):
+        return "it holds a control character"
+    return None
+
+
+def file_name(name: str, fallback: str) -> str:
+    """``name`` (NFC) as one file name: each run of other ASCII characters becomes ``_``,
+    any other character its code point (``u1f41d``); ``fallback`` when nothing is left."""
+
+    def encode(run: re.Match) -> str:
+        codes = "".join("_" if c.isascii() else f"_u{ord(c):04x}_" for c in run.group())
+        return re.sub("_+", "_", codes)
+
+    safe = _NAME_UNSAFE.sub(encode, unicodedata.normalize("NFC", name)).strip("_")
+    return safe if safe.strip(".") else fallback
 
 
 def cache_dir() -> Path:

@@ -74,7 +74,6 @@ SKIPPED, SESSIONS, VIDEO_NAMES = PLAN.skipped, PLAN.sessions, PLAN.video_names
 all_targets = PLAN.targets
 artifact = PLAN.artifact
 unplanned = PLAN.unplanned
-session_unplanned = PLAN.session_unplanned
 rig_artifact = PLAN.rig_artifact
 calibration_inputs = PLAN.calibration_inputs
 reconstruction_inputs = PLAN.reconstruction_inputs

@@ -215,6 +215,28 @@ class RunPlan:
             return []
         return [f"{wildcards.sessiondir} (no session of this run writes to this folder)"]
 
+    def session_inputs(self, rule: str) -> Callable[[Any], dict]:
+        """Inputs of a session's rule: each member's 2D, and the config rig's files (the
+        solve) or the session's rig and each member's own (the summary). A folder no
+        session writes gets only :meth:`session_unplanned` (the job is dropped)."""
+
+        def inputs(wildcards) -> dict:
+            unplanned = self.session_unplanned(wildcards)
+            if unplanned:
+                return {"unplanned": unplanned}
+            session = self.session(wildcards)
+            members = [str(r.outdir) for r in session.members]
+            files = {"pose2d_files": [self.artifact("pose2d").format(outdir=o) for o in members]}
+            if rule == "session_calibration":
+                files["rig_files"] = list(self.recording_calibration(session.members[0].path))
+            else:
+                files["session"] = str(session.artifact)
+                ba = self.artifact("bundle_adjustment")
+                files["trial_files"] = [ba.format(outdir=o) for o in members]
+            return files
+
+        return inputs
+
     def stage_json(self, stage: str) -> str:
         """The stage's tracked params (flylib.pipeline.inputs) as canonical JSON: its
         rule's ``params.stage`` (Snakemake re-runs a job when it changes)."""
@@ -319,5 +341,10 @@ class RunPlan:
         return 120 if self.pose2d_gpus(wildcards) else 15
 
     def pose2d_group(self, wildcards) -> str | None:
-        """Imported 2D (no GPU) runs in its recording's group; the detector on its own."""
-        return RECORDING_GROUP if self.pose2d_gpus(wildcards) == 0 else None
+        """Imported 2D (no GPU) runs in its recording's group; the detector, and the 2D
+        of a session's member (its session's solve, outside the group, reads it), on
+        their own."""
+        own = self.by_outdir.get(wildcards.outdir)
+        if self.pose2d_gpus(wildcards) or (own is not None and own.id in self.session_of):
+            return None
+        return RECORDING_GROUP
