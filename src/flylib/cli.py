@@ -443,11 +443,15 @@ def _default_base(configfiles: list[Path], replace: bool) -> list[Path]:
 
 def _write_new(path: Path, text: str) -> None:
     """Write ``text`` to ``path``, which must not exist (a user's file is never replaced)."""
+    from .paths import cannot_write
+
     try:
         with open(path, "x", encoding="utf-8") as f:
             f.write(text)
     except FileExistsError:
         raise ConfigError(f"{path}: already exists; choose another name or delete it") from None
+    except OSError as err:
+        raise cannot_write(path, err) from None
 
 
 #: Where ``flylib run`` keeps the checked plain copies it hands to Snakemake (under the directory
@@ -463,6 +467,7 @@ def _cmd_run(args) -> int:
 
     from .config.constants import DEFAULT_CONFIG_PATH
     from .config.layers import ConfigLayers
+    from .paths import atomic_path
     from .pipeline.preflight import load_run_config
 
     argv = list(args.argv)
@@ -486,7 +491,6 @@ def _cmd_run(args) -> int:
     layers = ConfigLayers.from_files([*base, *configfiles])
     load_run_config(layers)
     copies = []
-    RUN_CONFIGS.mkdir(parents=True, exist_ok=True)
     for label, data in layers.layers[len(base) :]:
         text = _plain_yaml(
             data,
@@ -496,9 +500,8 @@ def _cmd_run(args) -> int:
         digest = hashlib.sha256(text.encode()).hexdigest()[:12]
         copy = (RUN_CONFIGS / f"{Path(label).stem}-{digest}.yaml").absolute()
         if not copy.exists():
-            tmp = copy.with_name(f".{copy.name}.{os.getpid()}")
-            tmp.write_text(text, encoding="utf-8")
-            os.replace(tmp, copy)
+            with atomic_path(copy) as tmp:
+                tmp.write_text(text, encoding="utf-8")
         copies.append(str(copy))
     beside = Path(sys.executable).with_name("snakemake")
     snakemake = str(beside) if beside.exists() else shutil.which("snakemake")
@@ -777,6 +780,11 @@ def main(argv: list[str] | None = None) -> int:
         # interpreter's final flush does not fail again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + 13
+    except OSError as exc:  # a file no writer or reader above named: still one line
+        if exc.filename is None:
+            raise
+        print(f"flylib {args.command}: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -108,14 +108,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     (:func:`flylib.locking.claim_lost`).
 
     OutputError (nothing kept) when the write runs out of space (disk full, quota, file-size
-    limit) or another run took the output directory over meanwhile.
+    limit), when ``path`` cannot be created (:func:`cannot_write`) or another run took the
+    output directory over meanwhile.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(path.parent, of=path)
-    tmp = path.with_name(
-        f".{path.stem}.{os.getpid()}@{_HOST}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
-    )
+    tmp = _new_temp(path)
     try:
         yield tmp
         lost = claim_lost(path)
@@ -123,7 +120,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             from .errors import OutputError
 
             raise OutputError(lost)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:
+            raise cannot_write(path, err) from None
     except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
         cause = out_of_space(err)
         if cause is None:
@@ -140,6 +140,38 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 _HOST = socket.gethostname()
+
+
+def _new_temp(path: Path) -> Path:
+    """A name for a temporary sibling of ``path``, once its folder (created if missing) has
+    taken a file of that name; :func:`cannot_write` when it cannot."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent, of=path)
+        tmp = path.with_name(
+            f".{path.stem}.{os.getpid()}@{_HOST}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
+        )
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        tmp.unlink()
+    except OSError as err:
+        raise cannot_write(path, err) from None
+    return tmp
+
+
+def cannot_write(path: str | Path, err: OSError):
+    """The :class:`~flylib.errors.OutputError` saying in one line why ``path`` cannot be written."""
+    from .errors import OutputError, one_line
+
+    path = Path(path)
+    above = next((p for p in path.parents if os.path.lexists(p)), None)
+    if above is not None and not above.is_dir():
+        reason = f"{above} is a file, not a folder"
+    elif isinstance(err, FileNotFoundError):
+        reason = f"its folder {path.parent} does not exist"
+    else:
+        reason = (err.strerror or one_line(err)).lower()
+    return OutputError(f"{path}: cannot be written ({reason}); nothing was written")
+
 
 #: The file in a folder listing the files flylib wrote (or, for a workflow output folder,
 #: owns) there, one name per line relative to the folder (:func:`written_by_flylib`).
@@ -209,7 +241,8 @@ def same_file(a: str | Path, b: str | Path) -> bool:
 def refuse_overwrite(
     path: str | Path, inputs: dict[str, str], role: str, *, force: bool = False
 ) -> None:
-    """Refuse (OutputError) to write ``path`` over an input or a file flylib did not write.
+    """Refuse (OutputError) to write ``path`` over an input, over a file flylib did not write,
+    or where it cannot be written (its folders are created).
 
     ``inputs`` maps each input file to its role (e.g. ``"the input RESULTS_H5"``); ``role``
     is what would write ``path`` (e.g. ``"--csv3d"``). ``force`` replaces an existing file
@@ -229,6 +262,7 @@ def refuse_overwrite(
             f"{path} exists and was not written by flylib; {role} would replace it: "
             "choose another file, or pass --force to replace it"
         )
+    _new_temp(Path(path))
 
 
 # atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (a name without

@@ -323,7 +323,10 @@ def test_a_save_that_cannot_be_written_says_why_and_keeps_the_edits(outdir):
             response = c.post("/api/save", json={"revision": 1})
             assert response.status_code == 507
             detail = response.json()["detail"]
-            assert "corrections.h5: cannot save" in detail and "journal" in detail
+            assert (
+                "corrections.h5: cannot be written (is a directory)" in detail
+                and "journal" in detail
+            )
             assert "\n" not in detail
             assert session.dirty and session.corrections.edited[0, 1, 3]
             assert len(read_journal(session.journal_path).edits) == 1

@@ -658,13 +658,15 @@ class ReviewSession:
             self.corrections.revision = self.revision
             try:
                 path = self.corrections.save(self.corrections_path)
-            except OSError as err:
-                if isinstance(err, OutputError):
-                    raise
+            except OSError as err:  # atomic_path's OutputError already names the file and why
+                said = (
+                    err
+                    if isinstance(err, OutputError)
+                    else f"{self.corrections_path}: cannot save ({err.strerror or err})"
+                )
                 raise OutputError(
-                    f"{self.corrections_path}: cannot save ({err.strerror or err}); the "
-                    f"edits are kept in {self._journal.path.name} and in this session: make "
-                    "the directory writable or free space, then save again"
+                    f"{said}; the edits are kept in {self._journal.path.name} and in this "
+                    "session: make the directory writable or free space, then save again"
                 ) from None
             self._journal.discard()
             self.dirty = False

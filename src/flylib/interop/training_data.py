@@ -300,7 +300,6 @@ def export_training_data(
         files = footage[view]
         folder = files[0].stem if len(files) == 1 else view
         out = Path(directory) / "labeled-data" / folder
-        out.mkdir(parents=True, exist_ok=True)
         images = [f"img{int(t):0{digits}d}.png" for t in frames]
         try:
             pixels = readers[view][[int(t) for t in frames]]
