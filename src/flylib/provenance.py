@@ -30,7 +30,9 @@ __all__ = [
     "foreign_artifacts",
     "params_hash",
     "provenance_report",
+    "refuse_stale_inputs",
     "stage_provenance",
+    "stale_artifacts",
 ]
 
 #: meta key of an artifact's own params hash.
@@ -256,6 +258,71 @@ def provenance_report(
                 problems.append(unapplied)
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
+
+
+def _other_settings(path, stage: str, recorded, expected: str, against: str) -> str | None:
+    """The start of a line when an artifact (or group) ``path`` of ``stage`` records another
+    params hash than ``expected``; ``None`` when equal or unrecorded (an older flylib)."""
+    if recorded is None or recorded == expected:
+        return None
+    return (
+        f"{path}: made with other {stage} settings (params {recorded}) than {against} ({expected})"
+    )
+
+
+def refuse_stale_inputs(inputs: Mapping[str, Any], expected: Mapping[str, str]) -> None:
+    """Before a workflow job reads its inputs: a ResultsError naming the first one made with
+    other params than ``expected`` (input name -> hash; ``results`` is assemble's) gives, set
+    aside first so that the next run makes it again (Snakemake would take it as up to date).
+
+    Such a file comes from outside this run: a job of an earlier, killed run that finished
+    late, or a copy; assembling from it would mix settings."""
+    from .errors import ResultsError
+    from .results import read_meta
+
+    for name, hash_ in expected.items():
+        path = Path(str(inputs[name])) if name in inputs.keys() and inputs[name] else None
+        if path is None or not path.is_file():
+            continue
+        recorded = read_meta(path).get(PARAMS_KEY)
+        stage = "assemble" if name == "results" else name
+        line = _other_settings(path, stage, recorded, hash_, "this run's config")
+        if line is not None:
+            aside = path.with_name(f"{path.stem}.stale-{recorded}{path.suffix}")
+            os.replace(path, aside)
+            raise ResultsError(
+                f"{line}, e.g. by a job of an earlier run that finished late; set aside as "
+                f"{aside.name}: re-run the workflow to make it again"
+            )
+
+
+def stale_artifacts(
+    results: str | Path, params_of: ParamsOf, against: str, stages_dir: str | Path | None = None
+) -> list[str]:
+    """One line per stage group of ``results`` and per stage artifact in ``stages_dir``
+    (default: ``stages/`` beside it) made with other params than ``params_of`` gives
+    (``against`` names that config): the check a workflow job makes of its inputs."""
+    from .results import ARTIFACTS, read_meta
+
+    results = Path(results)
+    _, groups, _ = _group_metas(results)
+    stages_dir = Path(stages_dir or results.parent / "stages")
+    lines = []
+    for stage in ARTIFACTS:
+        session = bool(groups.get(stage, {}).get("session"))  # a session's rig, not stages/
+        params = params_of("session_calibration" if session else stage)
+        if params is None:
+            continue
+        found = [(f"{results}: its {stage} group", groups.get(stage), results.name)]
+        artifact = stages_dir / ARTIFACTS[stage]
+        if not session and artifact.is_file():
+            found.append((artifact, read_meta(artifact), "it"))
+        for where, meta, fix in found:
+            recorded = (meta or {}).get(PARAMS_KEY)
+            line = _other_settings(where, stage, recorded, params_hash(params), against)
+            if line:
+                lines.append(f"{line}; delete {fix} and re-run the workflow to make it again")
+    return lines
 
 
 def foreign_artifacts(
