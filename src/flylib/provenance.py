@@ -271,9 +271,9 @@ def _other_settings(path, stage: str, recorded, expected: str, against: str) -> 
 
 
 def refuse_stale_inputs(inputs: Mapping[str, Any], expected: Mapping[str, str]) -> None:
-    """Before a workflow job reads its inputs: a ResultsError naming the first one made with
-    other params than ``expected`` (input name -> hash; ``results`` is assemble's) gives, set
-    aside first so that the next run makes it again (Snakemake would take it as up to date).
+    """Before a workflow job reads its ``inputs``: a ResultsError naming the first whose params
+    hash is not the ``expected`` one (input name -> hash; ``results``: assemble's), after
+    setting it aside so that the next run makes it again (Snakemake takes it as up to date).
 
     Such a file comes from outside this run: a job of an earlier, killed run that finished
     late, or a copy; assembling from it would mix settings."""

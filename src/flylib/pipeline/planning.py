@@ -168,6 +168,7 @@ class RunPlan:
         self.session_of = {r.id: s for s in self.sessions for r in s.members}
         self.by_sessiondir = {str(s.outdir): s for s in self.sessions}
         self._runtime: dict[str, Any] = {}
+        self._expects: dict[str, str] | None = None
         self._calibration: dict[Path, tuple[str, ...]] = {}
 
     @property
@@ -231,15 +232,17 @@ class RunPlan:
         """Input name -> the params hash its artifact must record in this run, for a job
         to refuse another (:func:`flylib.provenance.refuse_stale_inputs`): each stage the
         run writes, ``results`` (assemble's), a session member's rig the session's."""
-        hashes = {
-            name: params_hash(params)
-            for name, stage in [*((s, s) for s in ARTIFACTS), ("results", "assemble")]
-            if (params := self.params_of(stage)) is not None
-        }
+        if self._expects is None:
+            self._expects = {
+                name: params_hash(params)
+                for name, stage in [*((s, s) for s in ARTIFACTS), ("results", "assemble")]
+                if (params := self.params_of(stage)) is not None
+            }
         own = self.by_outdir.get(getattr(wildcards, "outdir", None))
         if own is not None and own.id in self.session_of:
-            hashes["bundle_adjustment"] = params_hash(self.params_of("session_calibration"))
-        return hashes
+            session = params_hash(self.params_of("session_calibration"))
+            return {**self._expects, "bundle_adjustment": session}
+        return self._expects
 
     def pose2d_import(self, wildcards) -> str:
         """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
