@@ -261,9 +261,9 @@ def provenance_report(
 
 
 def _other_settings(path, stage: str, recorded, expected: str, against: str) -> str | None:
-    """The start of a line when an artifact (or group) ``path`` of ``stage`` records another
-    params hash than ``expected``; ``None`` when equal or unrecorded (an older flylib)."""
-    if recorded is None or recorded == expected:
+    """A line's start when ``path`` of ``stage`` records a params hash other than ``expected``
+    (``None`` too when it records none: an older flylib)."""
+    if recorded in (None, expected):
         return None
     return (
         f"{path}: made with other {stage} settings (params {recorded}) than {against} ({expected})"
@@ -271,20 +271,15 @@ def _other_settings(path, stage: str, recorded, expected: str, against: str) -> 
 
 
 def refuse_stale_inputs(inputs: Mapping[str, Any], expected: Mapping[str, str]) -> None:
-    """Before a workflow job reads its ``inputs``: a ResultsError naming the first whose params
-    hash is not the ``expected`` one (input name -> hash; ``results``: assemble's), after
-    setting it aside so that the next run makes it again (Snakemake takes it as up to date).
-
-    Such a file comes from outside this run: a job of an earlier, killed run that finished
-    late, or a copy; assembling from it would mix settings."""
+    """A ResultsError naming the first of a workflow job's ``inputs`` whose params hash is not
+    ``expected`` (input name -> hash; ``results``: assemble's), e.g. written late by a killed
+    run's job; it is set aside first, so that the next run makes it again."""
     from .errors import ResultsError
     from .results import read_meta
 
     for name, hash_ in expected.items():
         path = Path(str(inputs[name])) if name in inputs.keys() and inputs[name] else None
-        if path is None or not path.is_file():
-            continue
-        recorded = read_meta(path).get(PARAMS_KEY)
+        recorded = read_meta(path).get(PARAMS_KEY) if path and path.is_file() else None
         stage = "assemble" if name == "results" else name
         line = _other_settings(path, stage, recorded, hash_, "this run's config")
         if line is not None:
@@ -296,30 +291,25 @@ def refuse_stale_inputs(inputs: Mapping[str, Any], expected: Mapping[str, str]) 
             )
 
 
-def stale_artifacts(
-    results: str | Path, params_of: ParamsOf, against: str, stages_dir: str | Path | None = None
-) -> list[str]:
-    """One line per stage group of ``results`` and per stage artifact in ``stages_dir``
-    (default: ``stages/`` beside it) made with other params than ``params_of`` gives
-    (``against`` names that config): the check a workflow job makes of its inputs."""
+def stale_artifacts(results: str | Path, params_of: ParamsOf, against: str) -> list[str]:
+    """One line per stage group of ``results`` and stage artifact in ``stages/`` beside it made
+    with other params than ``params_of`` gives (``against``: that config's name)."""
     from .results import ARTIFACTS, read_meta
 
     results = Path(results)
     _, groups, _ = _group_metas(results)
-    stages_dir = Path(stages_dir or results.parent / "stages")
     lines = []
-    for stage in ARTIFACTS:
+    for stage, name in ARTIFACTS.items():
         session = bool(groups.get(stage, {}).get("session"))  # a session's rig, not stages/
         params = params_of("session_calibration" if session else stage)
-        if params is None:
-            continue
+        artifact = results.parent / "stages" / name
         found = [(f"{results}: its {stage} group", groups.get(stage), results.name)]
-        artifact = stages_dir / ARTIFACTS[stage]
         if not session and artifact.is_file():
             found.append((artifact, read_meta(artifact), "it"))
-        for where, meta, fix in found:
-            recorded = (meta or {}).get(PARAMS_KEY)
-            line = _other_settings(where, stage, recorded, params_hash(params), against)
+        for where, meta, fix in found if params is not None else []:
+            line = _other_settings(
+                where, stage, (meta or {}).get(PARAMS_KEY), params_hash(params), against
+            )
             if line:
                 lines.append(f"{line}; delete {fix} and re-run the workflow to make it again")
     return lines
