@@ -1,7 +1,7 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
     flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
-    flylib inspect --verify RESULTS_H5        does the result agree with itself? (status 1 if not)
+    flylib inspect --verify RESULTS_H5        self-consistent, made with its config? (status 1 if not)
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does (over the default)
@@ -63,22 +63,29 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
     print()
 
 
-def _verify(path: Path) -> int:
+def _verify(args) -> int:
     """``inspect --verify``: one line per failed invariant of :mod:`flylib.results.invariants`
-    (status 1), or one saying they hold (status 0)."""
+    and per artifact made with other settings than the config (status 1), or one saying
+    they hold (status 0)."""
+    from .pipeline.planning import params_of
+    from .provenance import stale_artifacts
     from .results.invariants import check_results, describe
 
+    path = args.results
     found = check_results(path)
-    if not found:
+    config, config_path = _compared_config(args)
+    stale = stale_artifacts(path, params_of(config, run_only=True), config_path) if config else []
+    if not found and not stale:
         print(
             f"{path}: consistent (stored reprojection errors match the stored 2D, 3D and "
             "cameras; the 2D is what the 3D was solved from, corrections applied; the "
-            "flags match the NaN patterns)"
+            "flags match the NaN patterns"
+            + (f"; every artifact made with {config_path}'s settings)" if config else ")")
         )
         return 0
     views, points = describe(path)
-    for violation in found:
-        print(f"flylib inspect: {path}: {violation.line(views, points)}", file=sys.stderr)
+    for line in [f"{path}: {v.line(views, points)}" for v in found] + stale:
+        print(f"flylib inspect: {line}", file=sys.stderr)
     return 1
 
 
@@ -99,7 +106,7 @@ def _cmd_inspect(args) -> int:
             file=sys.stderr,
         )
     if args.verify:
-        return _verify(args.results)
+        return _verify(args)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(
@@ -176,21 +183,28 @@ def _print_handedness(entry: dict | None) -> None:
     print()
 
 
-def _print_provenance(args) -> int:
-    """The provenance table; status 2 when the file is stale or mixes runs."""
+def _compared_config(args):
+    """The config ``inspect`` compares params hashes with and its name: ``--config``'s, else
+    the snapshot beside the file (``None`` without either)."""
     from .config import Config
-    from .provenance import provenance_report, snapshot_beside
+    from .provenance import snapshot_beside
 
     if args.config:  # the user's files, merged over the default config as the workflow does
         from .config.layers import ConfigLayers
         from .paths import DEFAULT_CONFIG_PATH
 
         layers = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, *args.config])
-        config, config_path = Config.from_dict(layers.data), " + ".join(map(str, args.config))
-    else:
-        config_path = snapshot_beside(args.results)
-        config = Config.from_file(config_path) if config_path else None
+        return Config.from_dict(layers.data), " + ".join(map(str, args.config))
+    config_path = snapshot_beside(args.results)
+    return (Config.from_file(config_path) if config_path else None), config_path
+
+
+def _print_provenance(args) -> int:
+    """The provenance table; status 2 when the file is stale or mixes runs."""
     from .pipeline.planning import params_of
+    from .provenance import provenance_report
+
+    config, config_path = _compared_config(args)
 
     rows = provenance_report(args.results, params_of(config) if config is not None else None)
     _print_table(
@@ -543,8 +557,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--verify",
         action="store_true",
         help="only check that the result agrees with itself (reprojection errors, the 2D "
-        "the 3D was solved from, flags); one line per failed invariant naming the dataset "
-        "and its worst (view, frame, point), 0-based; exit status 1 when one fails",
+        "the 3D was solved from, flags) and that it and the stage artifacts beside it were "
+        "made with the compared config's settings; one line per failed invariant naming the "
+        "dataset and its worst (view, frame, point), 0-based, and per artifact of other "
+        "settings; exit status 1 when one fails",
     )
     p.set_defaults(func=_cmd_inspect)
 

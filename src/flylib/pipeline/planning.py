@@ -19,7 +19,7 @@ from ..config import Config
 from ..errors import ConfigError
 from ..kinematics import FILES as KINEMATICS_FILES
 from ..neuromechfly import FILES as NEUROMECHFLY_FILES
-from ..provenance import foreign_artifacts
+from ..provenance import foreign_artifacts, params_hash
 from ..recordings import Recording, plan_listing
 from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from ..sessions import Session, plan_sessions
@@ -143,8 +143,9 @@ class RunPlan:
         # the batch, which Snakemake scans for every job and file (10,000 never planned)
         self.by_outdir = {str(r.outdir): r for r in recordings}
         self.warnings: list[str] = []
+        self.params_of = params_of(config, run_only=True)
         if main_process:  # artifacts another working directory wrote with other params
-            self.warnings += foreign_artifacts(params_of(config, run_only=True), recordings)
+            self.warnings += foreign_artifacts(self.params_of, recordings)
         self.skipped: set[str] = set()
         for rec in recordings:
             absent = self._absent_2d(rec)
@@ -167,6 +168,7 @@ class RunPlan:
         self.session_of = {r.id: s for s in self.sessions for r in s.members}
         self.by_sessiondir = {str(s.outdir): s for s in self.sessions}
         self._runtime: dict[str, Any] = {}
+        self._expects: dict[str, str] | None = None
         self._calibration: dict[Path, tuple[str, ...]] = {}
 
     @property
@@ -247,6 +249,22 @@ class RunPlan:
         if stage not in self._runtime:
             self._runtime[stage] = stage_runtime(self.config, stage)
         return self._runtime[stage]
+
+    def expects(self, wildcards) -> dict[str, str]:
+        """Input name -> the params hash its artifact must record in this run, for a job
+        to refuse another (:func:`flylib.provenance.refuse_stale_inputs`): each stage the
+        run writes, ``results`` (assemble's), a session member's rig the session's."""
+        if self._expects is None:
+            self._expects = {
+                name: params_hash(params)
+                for name, stage in [*((s, s) for s in ARTIFACTS), ("results", "assemble")]
+                if (params := self.params_of(stage)) is not None
+            }
+        own = self.by_outdir.get(getattr(wildcards, "outdir", None))
+        if own is not None and own.id in self.session_of:
+            session = params_hash(self.params_of("session_calibration"))
+            return {**self._expects, "bundle_adjustment": session}
+        return self._expects
 
     def pose2d_import(self, wildcards) -> str:
         """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
