@@ -106,8 +106,8 @@ def _av_frame_count(path: Path) -> int | None:
 class FrameCountCache:
     """Video frame counts already read, in ``<cache>/frame_counts.sqlite3``
     (:func:`flylib.paths.cache_dir`), by path and file identity (device, inode, size, modification
-    time): a file rewritten or replaced is read again. Opening a video costs about a millisecond, 7
-    s for the 7,000 videos of a 1,000-recording batch, which Snakemake plans again on every call. A
+    time): a file rewritten or replaced is read again. Opening a video with av costs some 3 ms, 20 s
+    for the 7,000 videos of a 1,000-recording batch, which Snakemake plans again on every call. A
     cache that cannot be opened, locked or written is passed by: the count is then read from the
     file."""
 
@@ -150,7 +150,7 @@ class FrameCountCache:
             st = os.stat(path)
         except OSError:
             return read(path)  # it says what is wrong with the path
-        key = os.path.realpath(path)
+        key = os.path.abspath(path)  # the identity below tells a replaced or relinked file
         identity = f"{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}"
         with self._lock:
             db = self._connection()
