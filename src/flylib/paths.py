@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import glob
 import os
 import re
 import socket
 import unicodedata
 import uuid
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from .locking import claim_lost, pid_alive
@@ -225,6 +226,20 @@ def is_flylib_hdf5(path: str | Path) -> bool:
     except (OSError, KeyError, ValueError, TypeError, RuntimeError):
         return False
     return isinstance(meta, dict) and "deeperfly_format_version" in meta
+
+
+def real_paths() -> Callable[[str | Path], str]:
+    """:func:`os.path.realpath` for many files in few folders: each folder is resolved once (a file
+    that is itself a link, whole), not one ``lstat`` per path component per file."""
+    folder = functools.lru_cache(maxsize=None)(os.path.realpath)
+
+    def real(path: str | Path) -> str:
+        head, name = os.path.split(os.fspath(path))
+        if name in ("", ".", "..") or os.path.islink(path):
+            return os.path.realpath(path)
+        return os.path.join(folder(head or "."), name)
+
+    return real
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:

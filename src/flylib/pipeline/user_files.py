@@ -22,7 +22,13 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from ..paths import OUTPUTS_MANIFEST, record_outputs, recorded_outputs, written_by_flylib
+from ..paths import (
+    OUTPUTS_MANIFEST,
+    real_paths,
+    record_outputs,
+    recorded_outputs,
+    written_by_flylib,
+)
 
 __all__ = ["NWB_FILE", "output_problems", "planned_outputs", "record_planned"]
 
@@ -121,13 +127,12 @@ def output_problems(
     ``config_files``: the paths of the run's config files.
     """
     planned = planned_outputs(config, config.stage_flags())
-    config_files = [os.path.realpath(f) for f in config_files]
+    real = real_paths()
+    config_files = [real(f) for f in config_files]
     problems: list[str] = []
     for rec in recordings:
         outdir = Path(os.path.realpath(rec.outdir))
-        inputs = {
-            os.path.realpath(p): role for p, role in _run_inputs(config, rec, config_files).items()
-        }
+        inputs = {real(p): role for p, role in _run_inputs(config, rec, config_files).items()}
         for name, writer in planned.items():
             role = inputs.get(str(outdir / name))
             if role is not None:
