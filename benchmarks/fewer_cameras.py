@@ -25,18 +25,17 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from front_blind import (  # noqa: E402
     PACKAGE_EXAMPLE,
-    _fly38,
     default_start,
     held_out_error,
     mirror_free_error,
+    package_points2d,
     recorded_poses,
 )
 
 from flylib import run_from_points2d  # noqa: E402
-from flylib.interop.df3d import read_df3d_points2d  # noqa: E402
 from flylib.skeleton import Skeleton  # noqa: E402
 
-from rig_constants import IMAGE_SIZE, VIEWS  # noqa: E402
+from rig_constants import VIEWS  # noqa: E402
 
 #: the subsets of the issue's table (issue 46)
 SUBSETS = {
@@ -45,12 +44,6 @@ SUBSETS = {
     5: ("rh", "rf", "f", "lf", "lh"),
     4: ("rh", "rf", "lf", "lh"),
 }
-
-
-def package_points2d() -> np.ndarray:
-    """``(7, 15, 38, 2)`` DeepFly3D's 2D of its example, raw pixels, fly38 order, NaN missing."""
-    data = read_df3d_points2d(PACKAGE_EXAMPLE / "df3d_result.pkl", [IMAGE_SIZE] * len(VIEWS))
-    return _fly38(np.asarray(data.xy, float)[: len(VIEWS)])
 
 
 def reconstruct(views, bundle_adjust: bool):

@@ -65,6 +65,8 @@ MOVED_DEG = 15.0
 #: a camera moved that far is trusted only if this fraction of its observations is checked by
 #: a held-out view (the point seen by two other cameras too)
 CHECKED_FRACTION = 0.1
+#: ... and kept unless its held-out-view error is more than this (px) above the starting rig's
+WORSE_PX = 0.05
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
 FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
@@ -384,7 +386,7 @@ def _held_out_verdict(names, table_start, table, pts2d, active, moved) -> str | 
         return None
     start_px, fit_px = (float(np.nanmedian(e)) for e in errors)
     log.info("bundle adjustment: held-out-view error %.2f px -> %.2f px", start_px, fit_px)
-    return worse_message(start_px, fit_px) if fit_px > start_px else None
+    return worse_message(start_px, fit_px) if fit_px > start_px + WORSE_PX else None
 
 
 def _reseeded(args, table_user, movable, pts2d, usable, triangulate):
