@@ -8,7 +8,9 @@ throughout. Beyond a plain fit: grossly-off starting cameras are resected by PnP
 image is held; outlier rounds judge every observation again after each fit until the inlier
 set is stable, so observations dropped from a rough start come back; bone lengths and rigid
 points pin what the images leave loose; the similarity gauge is held during the fit and the
-result reported where the starting rig put the fly (:mod:`.gauge`).
+result reported where the starting rig put the fly (:mod:`.gauge`); the configured rig is kept
+where the fit's held-out-view error is higher, or it moved a camera far that no held-out view
+checks.
 """
 
 from __future__ import annotations
