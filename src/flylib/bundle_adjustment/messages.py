@@ -167,6 +167,27 @@ def moved_message(cameras, degrees) -> str:
     )
 
 
+def unchecked_message(cameras, degrees) -> str:
+    """Why the configured rig was kept: the fit moved cameras that no held-out view checks."""
+    many = len(cameras) > 1
+    return (
+        f"kept the configured rig: the fit moved {'cameras' if many else 'camera'} "
+        f"{_listed(cameras)} {_listed([f'{d:.0f}' for d in degrees])} degrees around the fly, "
+        f"but few of the points {'they see' if many else 'it sees'} are seen by two other "
+        f"cameras, so no held-out view can check the move (two views of a point fit almost any "
+        f"rig). For a refined rig give a calibration file (config 'calibration') or add a "
+        f"camera that sees what two others see"
+    )
+
+
+def worse_message(start_px: float, fit_px: float) -> str:
+    """Why the configured rig was kept: the fit's held-out-view error is higher."""
+    return (
+        f"kept the configured rig: its held-out-view error ({start_px:.1f} px median) is lower "
+        f"than the adjusted rig's ({fit_px:.1f} px)"
+    )
+
+
 def _cameras_moving(direction, layout, names, share: float = 0.5) -> list[str]:
     """Cameras whose free parameters carry at least ``share`` of the largest component of a
     reduced-system direction (its first ``n_free`` entries are camera variables)."""
