@@ -304,7 +304,13 @@ def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> 
     are not tables are recorded in ``problems``."""
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
-        if not isinstance(spec, Mapping):
+        if spec is None:  # a table a null deleted would be gone: there was none
+            known = ", ".join(n for n in view_names if cameras[n] is not None)
+            problems.append(
+                f"cameras.{name}: null removes a camera, and the rig has no camera {name!r} "
+                f"(cameras: {known}); check the name"
+            )
+        elif not isinstance(spec, Mapping):
             problems.append(f"cameras.{name}: expected a table of camera parameters, {got(spec)}")
     if not view_names and data.get("calibration"):
         view_names = None  # the rig comes from the calibration file: names unknown here
