@@ -246,10 +246,13 @@ def survey(root: str | Path) -> Survey:
         calibrations = _calibrations(folder, names) if folder != root else top_calibrations
         recordings.append(Recording(folder, footage, imports, calibrations))
     sources = _common_sources(recordings, defaults, undecided)
-    first = next((r.footage for r in recordings if r.footage), {})
-    removed = [v for v in _view_sources() if v not in _views_of(first)]
+    view_sources, kept = (
+        _view_sources(),
+        _views_of(next((r.footage for r in recordings if r.footage), {})),
+    )
+    removed = [v for v in view_sources if v not in kept]
     if removed:
-        unused = ", ".join(defaults[_view_sources()[v]] for v in removed)
+        unused = ", ".join(defaults[view_sources[v]] for v in removed)
         undecided.append(
             f"the default rig's camera(s) {', '.join(removed)} have no footage ({unused}): "
             f"removed (cameras: {_flow(dict.fromkeys(removed))}); check that your rig has none there"
