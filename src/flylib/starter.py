@@ -51,6 +51,7 @@ class Survey:
     sources: dict[str, str] | None
     calibration: dict | None
     undecided: list[str]
+    removed: list[str] = field(default_factory=list)
 
 
 def _default_sources() -> dict[str, str]:
@@ -59,10 +60,16 @@ def _default_sources() -> dict[str, str]:
     return Config.default().source_patterns()
 
 
-def _view_names() -> list[str]:
+def _view_sources() -> dict[str, str]:
     from .config import Config
+    from .config.sources import view_sources
 
-    return Config.default().view_names()
+    return view_sources(Config.default())
+
+
+def _views_of(footage: dict[str, str]) -> list[str]:
+    """The default rig's cameras ``footage`` feeds (every camera when it is empty)."""
+    return [v for v, s in _view_sources().items() if s in footage or not footage]
 
 
 def _candidate_dirs(root: Path) -> Iterable[Path]:
@@ -87,17 +94,21 @@ def _numbered_groups(names: Sequence[str], suffixes: frozenset[str]) -> dict[str
 
 
 def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[dict, str | None]:
-    """``(source -> glob, note)``: the default names when they all match, else videos or image
-    sequences numbered like the cameras, mapped to the sources in number order."""
+    """``(source -> glob, note)``: the default names that match (at least two of them), else
+    videos or image sequences numbered like the cameras: as many as the default rig has, mapped to
+    its sources in number order; fewer, each to the source of its number."""
     import fnmatch
 
-    if all(fnmatch.filter(names, pattern) for pattern in defaults.values()):
-        return dict(defaults), None
+    matched = {s: p for s, p in defaults.items() if fnmatch.filter(names, p)}
+    if len(matched) == len(defaults):
+        return matched, None
     videos = sorted(n for n in names if Path(n).suffix.lower() in VIDEO_SUFFIXES)
     sequences = sorted(_numbered_groups(names, IMAGE_SUFFIXES))
     for kind, found in (("videos", videos), ("image sequences", sequences)):
+        numbers = [_NUMBERED.match(Path(f).stem.replace("*", "")) for f in found]
+        if len(matched) == len(found) > 1:
+            return matched, None
         if len(found) == len(defaults):
-            numbers = [_NUMBERED.match(Path(f).stem.replace("*", "")) for f in found]
             order = sorted(
                 range(len(found)),
                 key=lambda i: (int(numbers[i][2]) if numbers[i] else i, found[i]),
@@ -105,6 +116,15 @@ def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[
             return {s: found[i] for s, i in zip(defaults, order, strict=True)}, (
                 f"{folder}: {kind} {', '.join(found[i] for i in order)} taken as cameras "
                 f"{', '.join(defaults)} in that order; check the order"
+            )
+        taken = sorted({int(m[2]) for m in numbers if m})
+        if 1 < len(found) == len(taken) and taken[-1] < len(defaults):
+            sources = list(defaults)
+            by_number = {sources[int(m[2])]: f for m, f in zip(numbers, found, strict=True)}
+            mapping = {s: by_number[s] for s in sources if s in by_number}
+            return mapping, (
+                f"{folder}: {kind} {', '.join(mapping.values())} taken as cameras "
+                f"{', '.join(mapping)} by their numbers; check the order"
             )
     if videos or sequences:
         return {}, (
@@ -155,7 +175,7 @@ def _dlc_like(path: Path) -> str | None:
 
 
 def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[dict]:
-    views = _view_names()
+    views = _views_of(footage)
     stems = [Path(p).stem for p in footage.values()] if footage else []
     found: list[dict] = []
     for sub in ("", "df3d/"):
@@ -226,6 +246,17 @@ def survey(root: str | Path) -> Survey:
         calibrations = _calibrations(folder, names) if folder != root else top_calibrations
         recordings.append(Recording(folder, footage, imports, calibrations))
     sources = _common_sources(recordings, defaults, undecided)
+    view_sources, kept = (
+        _view_sources(),
+        _views_of(next((r.footage for r in recordings if r.footage), {})),
+    )
+    removed = [v for v in view_sources if v not in kept]
+    if removed:
+        unused = ", ".join(defaults[view_sources[v]] for v in removed)
+        undecided.append(
+            f"the default rig's camera(s) {', '.join(removed)} have no footage ({unused}): "
+            f"removed (cameras: {_flow(dict.fromkeys(removed))}); check that your rig has none there"
+        )
     calibration = _common_calibration(root, recordings, top_calibrations, undecided)
     for rec in recordings:  # each has footage or 2D files
         if len(rec.imports) > 1:
@@ -243,21 +274,19 @@ def survey(root: str | Path) -> Survey:
             f"{root}: no recording found (a folder with {', '.join(defaults.values())}, "
             "or with 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP)"
         )
-    return Survey(root, recordings, sources, calibration, undecided)
+    return Survey(root, recordings, sources, calibration, undecided, removed)
 
 
 def _common_sources(recordings, defaults, undecided) -> dict[str, str] | None:
-    """The ``sources`` entry to write: ``None`` when every recording uses the default names."""
+    """The ``sources`` entry to write: ``None`` when the (first) recording uses default names."""
     seen = {tuple(r.footage.items()) for r in recordings if r.footage}
-    if not seen or seen == {tuple(defaults.items())}:
-        return None
     if len(seen) > 1:
         undecided.append(
-            "recordings name their camera files differently; `sources` (one list for all) "
-            "follows the first; run such recordings with a config each"
+            "recordings name their camera files (or have cameras) differently; `sources` (one "
+            "list for all) follows the first; run such recordings with a config each"
         )
-    first = next(r.footage for r in recordings if r.footage)
-    return dict(first)
+    first = next((r.footage for r in recordings if r.footage), {})
+    return dict(first) if set(first.items()) - set(defaults.items()) else None
 
 
 def _common_calibration(root, recordings, top, undecided) -> dict | None:
@@ -343,6 +372,12 @@ def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
             "",
             "# The recordings' folders cannot be written here: outputs go beside this file.",
             f"outdir: {_flow(str(where.absolute() / 'flylib_outputs' / '{id}'))}",
+        ]
+    if found.removed:
+        lines += [
+            "",
+            "# The default rig's cameras without footage here, removed with their detection plan:",
+            f"cameras: {_flow(dict.fromkeys(found.removed))}",
         ]
     if found.sources:
         lines += ["", "# Each camera's footage, in the rig's camera order (check it):", "sources:"]

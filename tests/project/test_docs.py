@@ -5,7 +5,6 @@ example notebooks run."""
 
 from __future__ import annotations
 
-import copy
 import importlib.util
 import re
 import subprocess
@@ -17,8 +16,9 @@ from urllib.parse import unquote, urlsplit
 import pytest
 import yaml
 
-from flylib.config import Config, validate_config
-from flylib.config.layers import merge_tables
+from flylib.config import validate_config
+from flylib.config.layers import ConfigLayers
+from flylib.paths import DEFAULT_CONFIG_PATH
 
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
@@ -157,10 +157,12 @@ def test_the_pages_show_config_snippets():
 
 
 @pytest.mark.parametrize("where,snippet", yaml_snippets(), ids=lambda v: str(v)[:40])
-def test_every_config_snippet_is_valid_over_the_default(where, snippet):
-    data = yaml.safe_load(snippet)
-    assert isinstance(data, dict), f"{where}: a snippet must be a config table"
-    merged = merge_tables(copy.deepcopy(Config.default().data), data)
+def test_every_config_snippet_is_valid_over_the_default(tmp_path, where, snippet):
+    """Merged over the default as the workflow merges a user's file (ConfigLayers)."""
+    assert isinstance(yaml.safe_load(snippet), dict), f"{where}: a snippet must be a config table"
+    mine = tmp_path / "my.yaml"
+    mine.write_text(snippet)
+    merged = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, mine]).data
     assert validate_config(merged) == [], (where, snippet)
 
 

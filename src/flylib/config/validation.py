@@ -309,7 +309,13 @@ def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> 
             problems.append(
                 f"cameras.{name}: cannot be a view name: {name_problem(str(name))}; rename it"
             )
-        if not isinstance(spec, Mapping):
+        if spec is None:  # a table a null deleted would be gone: there was none
+            known = ", ".join(n for n in view_names if cameras[n] is not None)
+            problems.append(
+                f"cameras.{name}: null removes a camera, and the rig has no camera {name!r} "
+                f"(cameras: {known}); check the name"
+            )
+        elif not isinstance(spec, Mapping):
             problems.append(f"cameras.{name}: expected a table of camera parameters, {got(spec)}")
     if not view_names and data.get("calibration"):
         view_names = None  # the rig comes from the calibration file: names unknown here
