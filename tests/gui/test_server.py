@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import time
@@ -16,7 +17,7 @@ pytest.importorskip("uvicorn", reason="the GUI needs uvicorn")
 import h5py
 import httpx
 
-from flylib.gui.server import is_loopback
+from flylib.gui.server import free_port, is_loopback
 
 from gui_fixtures import make_demo_outputs
 
@@ -163,3 +164,34 @@ def test_footage_dir_from_another_directory(outdir, tmp_path):
     )
     assert wrong.returncode == 1 and wrong.stderr.strip().count("\n") == 0
     assert f"--footage-dir {tmp_path / 'nowhere'}: no such directory" in wrong.stderr
+
+
+def test_restart_after_stop_keeps_the_port(outdir):
+    """The page's Stop, then ``flylib gui`` again with the port it had: the same port, so
+    the stopped page's reload finds it, though the closed connections hold it in TIME_WAIT;
+    a port another server listens on is still replaced."""
+    proc, url = start(outdir)
+    port = int(url.rsplit(":", 1)[1].strip("/"))
+    try:
+        # a page's connections stay open through Stop: the server closes them (TIME_WAIT)
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as page:
+            get(f"http://127.0.0.1:{port}/api/meta")
+            html = page.get("/").text
+            token = re.search(r'name="flylib-token" content="([^"]+)"', html).group(1)
+            stop = page.post("/api/stop", json={}, headers={"X-Flylib-Token": token})
+            assert stop.status_code == 200
+            proc.wait(30)
+    finally:
+        proc.kill()
+    proc, url = start(outdir, "--port", str(port))
+    try:
+        assert url == f"http://localhost:{port}/"
+        with socket.socket() as busy:  # listening as uvicorn does
+            busy.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            busy.bind(("127.0.0.1", 0))
+            busy.listen()
+            taken = busy.getsockname()[1]
+            assert free_port("127.0.0.1", taken) != taken
+    finally:
+        proc.terminate()
+        proc.wait(20)

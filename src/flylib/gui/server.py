@@ -6,6 +6,7 @@ import ipaddress
 import logging
 import secrets
 import socket
+import sys
 import threading
 import webbrowser
 from pathlib import Path
@@ -27,9 +28,12 @@ def is_loopback(host: str) -> bool:
 
 
 def free_port(host: str, preferred: int) -> int:
-    """``preferred`` if it can be bound on ``host``, else a free port the OS picks."""
+    """``preferred`` if it can be bound on ``host`` (kept after a Stop), else a free port the OS
+    picks."""
     for port in (preferred, 0):
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+            if sys.platform != "win32":  # a stopped server's port in TIME_WAIT (uvicorn's too)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
                 sock.bind((host, port))
             except OSError:

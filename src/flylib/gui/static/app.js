@@ -23,6 +23,35 @@ const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewher
 
 function status(text) { $("#status").textContent = text; }
 
+// Keys and buttons act in the order pressed, each once the one before finished its round
+// trips: typed ahead, a key acts on the frame, item and point the keys before it left.
+const actions = { pending: [], running: false, sending: 0 };
+
+function act(run, step = 0) {
+  const last = actions.pending[actions.pending.length - 1];
+  if (step && last && last.step) last.step += step;  // a held arrow key: one jump
+  else actions.pending.push({ run, step });
+  if (!actions.running) drain();
+  showBusy();
+}
+
+async function drain() {
+  actions.running = true;
+  while (actions.pending.length) {
+    const { run, step } = actions.pending.shift();
+    showBusy();
+    try { await (step ? goto(state.frame + step) : run()); } catch (err) { status(err.message); console.error(err); }
+  }
+  actions.running = false;
+  showBusy();
+}
+
+function showBusy() {
+  const waiting = actions.pending.length;
+  $("#busy").hidden = !actions.running && !actions.sending;
+  $("#busy").textContent = waiting ? `working\u2026 (${waiting} queued)` : "working\u2026";
+}
+
 async function start() {
   state.meta = await getJSON("/api/meta");
   const meta = state.meta;
@@ -323,7 +352,7 @@ function renderSuspectTable() {
   const done = new Set((state.review ? state.review.items : []).filter((it) => it.done)
     .flatMap((it) => it.frames.map((f) => `${it.point}:${f}`)));
   renderItems($("#suspects tbody"), state.items, state.sort, state.frame, done,
-    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames }));
+    (item) => act(() => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames })));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
     th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
@@ -737,6 +766,8 @@ function attachMouse(view) {
 async function flushDrag(view, drag) {
   // one move in flight at a time; the latest position wins
   drag.sending = true;
+  actions.sending++;
+  showBusy();
   while (drag.pending) {
     const xy = drag.pending;
     drag.pending = null;
@@ -752,6 +783,8 @@ async function flushDrag(view, drag) {
     await refresh();
     state.dragging = false;
   }
+  actions.sending--;
+  showBusy();
 }
 
 function nearestPoint(view, cx, cy) {
@@ -846,20 +879,20 @@ function wireControls() {
   }));
   $("#layout").addEventListener("click", toggleFocus);
   $("#panel").addEventListener("click", () => setPanel(document.body.classList.contains("panel-closed")));
-  $("#invisible").addEventListener("click", markInvisible);
-  $("#reset-point").addEventListener("click", () => resetPoint(false));
-  $("#reset-view").addEventListener("click", resetView);
-  $("#reset-frame").addEventListener("click", resetFrame);
-  $("#save").addEventListener("click", () => save());
-  $("#save-anyway").addEventListener("click", () => save(true));
+  $("#invisible").addEventListener("click", () => act(markInvisible));
+  $("#reset-point").addEventListener("click", () => act(() => resetPoint(false)));
+  $("#reset-view").addEventListener("click", () => act(resetView));
+  $("#reset-frame").addEventListener("click", () => act(resetFrame));
+  $("#save").addEventListener("click", () => act(save));
+  $("#save-anyway").addEventListener("click", () => act(() => save(true)));
   $("#save-cancel").addEventListener("click", () => { $("#save-check").hidden = true; status("not saved"); });
-  $("#undo").addEventListener("click", undo);
-  $("#redo").addEventListener("click", redo);
-  $("#fixed").addEventListener("click", toggleFixed);
-  $("#snap").addEventListener("click", snapToGhost);
-  $("#reviewed").addEventListener("click", markReviewed);
-  $("#next-unreviewed").addEventListener("click", () => nextUnreviewed());
-  $("#apply-item").addEventListener("click", applyToItem);
+  $("#undo").addEventListener("click", () => act(undo));
+  $("#redo").addEventListener("click", () => act(redo));
+  $("#fixed").addEventListener("click", () => act(toggleFixed));
+  $("#snap").addEventListener("click", () => act(snapToGhost));
+  $("#reviewed").addEventListener("click", () => act(markReviewed));
+  $("#next-unreviewed").addEventListener("click", () => act(() => nextUnreviewed()));
+  $("#apply-item").addEventListener("click", () => act(applyToItem));
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
     const text = $("#frame-input").value.trim();
@@ -872,8 +905,8 @@ function wireControls() {
     if (state.data && state.data.dirty) { event.preventDefault(); event.returnValue = ""; }
   });
   $("#help-button").addEventListener("click", () => toggleHelp());
-  $("#next-suspect").addEventListener("click", () => stepSuspect(1));
-  $("#prev-suspect").addEventListener("click", () => stepSuspect(-1));
+  $("#next-suspect").addEventListener("click", () => act(() => stepSuspect(1)));
+  $("#prev-suspect").addEventListener("click", () => act(() => stepSuspect(-1)));
   document.querySelectorAll("#suspects th").forEach((th) => th.addEventListener("click", () => {
     const key = th.dataset.key;
     state.sort = { key, asc: state.sort.key === key ? !state.sort.asc : key !== "score" };
@@ -894,40 +927,31 @@ function wireControls() {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
     if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
       event.preventDefault();
-      if (event.key === "y" || event.shiftKey) redo(); else undo();
+      act(event.key === "y" || event.shiftKey ? redo : undo);
       return;
     }
     const big = event.shiftKey ? 10 : 1;
     const key = event.key;
-    if (key === "ArrowRight") goto(state.frame + big);
-    else if (key === "ArrowLeft") goto(state.frame - big);
-    else if (key === "Home") goto(0);
-    else if (key === "End") goto(state.meta.frames - 1);
-    else if (key === "n") stepSuspect(1);
-    else if (key === "p") stepSuspect(-1);
-    else if (key === "e") setMode("2d");
-    else if (key === "d") setMode("3d");
-    else if (key === "i") markInvisible();
-    else if (key === "c") snapToGhost();
-    else if (key === "k") markReviewed();
+    // what reads or changes the frame, the selection or the edits waits its turn
+    const queued = {
+      Home: () => goto(0), End: () => goto(state.meta.frames - 1),
+      n: () => stepSuspect(1), p: () => stepSuspect(-1), e: () => setMode("2d"), d: () => setMode("3d"),
+      i: markInvisible, c: snapToGhost, k: markReviewed, u: () => nextUnreviewed(), a: applyToItem,
+      f: toggleFixed, r: () => resetPoint(false), R: () => resetPoint(true), v: resetView, x: resetFrame,
+      g: toggleFocus, s: () => save(),
+    };
+    if (key === "ArrowRight" || key === "ArrowLeft") act(null, key === "ArrowRight" ? big : -big);
+    else if (Object.hasOwn(queued, key)) act(queued[key]);
+    else if (key === "S" && event.ctrlKey) act(queued.s);
+    else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) act(() => { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); });
     else if (key === "o") setDisplay({ overlay: !state.display.overlay });
     else if (key === "l") setDisplay({ labels: !state.display.labels });
     else if (key === "h") { if (!state.peek) { state.peek = true; redrawAll(); } }
     else if (key === "[") cycleLimb(-1);
     else if (key === "]") cycleLimb(1);
     else if (key === " ") togglePlay();
-    else if (key === "u") nextUnreviewed();
-    else if (key === "a") applyToItem();
-    else if (key === "f") toggleFixed();
-    else if (key === "r") resetPoint(false);
-    else if (key === "R") resetPoint(true);
-    else if (key === "v") resetView();
-    else if (key === "x") resetFrame();
-    else if (key === "g") toggleFocus();
     else if (key === "b") setPanel(document.body.classList.contains("panel-closed"));
-    else if (key === "s" || (key === "S" && event.ctrlKey)) save();
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
-    else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
     else if (key === "?") toggleHelp();
     else if (key === "Escape") { toggleHelp(false); $("#save-check").hidden = true; }
     else return;
@@ -942,7 +966,7 @@ window.flylib = {
   goto,
   stepSuspect,
   alert: alertText,
-  busy: () => channel.busy || state.dragging,
+  busy: () => actions.running || channel.busy || state.dragging,
   allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
   undo,
   redo,
