@@ -19,6 +19,7 @@ from flylib.pipeline.planning import params_of
 from flylib.provenance import params_hash, provenance_report
 from flylib.results import read_meta
 from tests.scenarios.lab import env
+
 from workflow_run import REPO, snakemake_command
 
 pytestmark = pytest.mark.slow
@@ -75,9 +76,10 @@ def test_a_late_writers_artifact_of_other_settings_is_refused_named_and_made_aga
     assert refused and "re-run the workflow" in refused[0], said[-4000:]
     assert not artifact.exists() and (out / "stages" / f"refinement.stale-{stale}.h5").is_file()
     # nothing was assembled from it
-    assert not results.exists() or read_meta(results)["upstream_params_sha256"][
-        "refinement"
-    ] == expected
+    assert (
+        not results.exists()
+        or read_meta(results)["upstream_params_sha256"]["refinement"] == expected
+    )
 
     fourth = _run(tmp_path)
     assert fourth.returncode == 0, fourth.stderr[-4000:]
