@@ -11,7 +11,7 @@ hash (a config that leaves it at its default re-runs nothing).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from ..errors import unknown_key
@@ -246,11 +246,13 @@ class BundleAdjustmentParams:
 
     @classmethod
     def from_table(cls, table: Mapping) -> BundleAdjustmentParams:
-        """The table's own keys as fields; every other key goes to ``least_squares``."""
-        own = {f.name for f in fields(cls)}
+        """The table's own keys as fields; every other key goes to ``least_squares`` (a stage's
+        tracked params hold them under ``least_squares`` already)."""
+        own = {f.name for f in fields(cls)} - {"least_squares"}
         leftovers = {k: v for k, v in table.items() if k not in own}
+        nested = leftovers.pop("least_squares", None) or {}
         params = build_params(cls, {k: v for k, v in table.items() if k in own})
-        return cls(**{**params.__dict__, "least_squares": leftovers})
+        return replace(params, least_squares={**nested, **leftovers})
 
 
 @dataclass(frozen=True)
