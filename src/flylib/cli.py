@@ -757,11 +757,23 @@ def _cmd_init(args) -> int:
     except ConfigError as exc:
         print(f"{args.output} needs editing before a run:\n{exc}")
         return 1
-    print(
-        f"{args.output} is valid. Next: snakemake -n --configfile {args.output} (a dry run), "
-        f"then snakemake --cores 2 --configfile {args.output}"
-    )
+    run = f"{_snakemake_here(DEFAULT_CONFIG_PATH.parents[2] / 'Snakefile')} --configfile {args.output}"
+    print(f"{args.output} is valid. Next: {run} -n (a dry run), then {run} --cores 2")
     return 0
+
+
+def _snakemake_here(snakefile: Path) -> str:
+    """Snakemake as typed here: the one beside this Python (``.venv/bin/snakemake`` after
+    install.sh, bare when it is the one on PATH), with the checkout's Snakefile unless here."""
+    import shutil
+
+    exe = Path(sys.executable).with_name("snakemake")
+    on_path = shutil.which("snakemake")
+    cmd = os.path.relpath(exe) if exe.is_relative_to(Path.cwd()) else str(exe)
+    if not exe.exists() or on_path and Path(on_path).resolve() == exe.resolve():
+        cmd = "snakemake"
+    here = Path("Snakefile").resolve() == snakefile.resolve()
+    return cmd if here or not snakefile.is_file() else f"{cmd} -s {snakefile}"
 
 
 def _cmd_gui(args) -> int:

@@ -72,6 +72,12 @@ class Df3dPoints2d:
     camera_ordering: Int[np.ndarray, " C"]
 
 
+def result_folders(recording_dir: Path) -> tuple[str, ...]:
+    """Where DeepFly3D's result pickles of a recording may lie, relative to it: beside the footage,
+    in ``df3d/`` (DeepFly3D 0.x) or in ``<name>_df3d`` (``df3d-cli``'s default output folder)."""
+    return ("", "df3d/", f"../{recording_dir.name}_df3d/")
+
+
 def load_pickle(path: Path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():

@@ -18,10 +18,11 @@ Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
         track: null              # sleap: track index or name when several
 
 ``files``: ``deepfly3d`` takes one pickle for all views (a glob matching one file; default
-``df3d_result*.pkl`` in the recording directory, then in ``df3d/``). Per-view formats take a pattern
-with ``{view}``, ``{index}`` (position in the config), ``{source}`` (footage source) or ``{stem}``
-(footage file name without extension) placeholders, globbing allowed (one match per view), or a
-mapping ``{view: path}`` for every configured view (``null``: observed by nothing).
+``df3d_result*.pkl`` in the recording directory, its ``df3d/`` folder, then ``../<name>_df3d/``,
+DeepFly3D's own output folder). Per-view formats take a pattern with ``{view}``, ``{index}``
+(position in the config), ``{source}`` (footage source) or ``{stem}`` (footage file name without
+extension) placeholders, globbing allowed (one match per view), or a mapping ``{view: path}`` for
+every configured view (``null``: observed by nothing).
 
 ``keypoint_map``: without it a file name must equal a skeleton point name (DeepFly3D joint ``j``
 defaults to fly38 point ``(j + 19) mod 38``). A file keypoint that maps to nothing is an error, so a
@@ -47,7 +48,7 @@ import numpy as np
 from ..errors import ImportFormatError, did_you_mean, unknown_key
 from . import views as _views
 from ._h5 import read_budget
-from .df3d import df3d_joint_to_fly38, read_df3d_points2d
+from .df3d import df3d_joint_to_fly38, read_df3d_points2d, result_folders
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
 
@@ -208,13 +209,11 @@ def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path)
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
-    """The DeepFly3D pickle pattern: ``files``, else the default (in the recording or ``df3d/``)."""
-    pattern = spec.get("files")
-    if pattern is None:
-        pattern = "df3d_result*.pkl"
-        if not list(recording_dir.glob(pattern)) and list(recording_dir.glob("df3d/" + pattern)):
-            pattern = "df3d/" + pattern
-    return str(pattern)
+    """The DeepFly3D pickle pattern: ``files``, else the default in the first of
+    :func:`flylib.interop.df3d.result_folders` holding one."""
+    patterns = [f"{sub}df3d_result*.pkl" for sub in result_folders(recording_dir)]
+    found = (p for p in patterns if list(recording_dir.glob(p)))
+    return str(spec.get("files") or next(found, patterns[0]))
 
 
 def _view_files(
