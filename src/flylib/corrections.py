@@ -367,6 +367,7 @@ class Corrections:
             invisible=self.invisible[:, ix[0], ix[1]],
             points3d=self.points3d[ix],
             edited3d=self.edited3d[ix],
+            reviewed=self.reviewed[ix],
             source=self.source,
         )
 

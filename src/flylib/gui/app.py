@@ -13,6 +13,7 @@ Routes::
                                     "durable", "fixed"} (op: one of session.EDIT_OPS) -> points
     POST /api/save                  write corrections.h5 beside results.h5
     POST /api/stop                  stop the server (the page's Stop button)
+    POST /api/reload                read results.h5 again (a re-run rewrote it; edits replayed)
     WS   /ws                        the same edits, or {"op": "save"}; other pages' edits arrive
                                     as {"op": "changed", "revision"}
 
@@ -203,6 +204,15 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
             return _refused(409, "this server cannot be stopped from the page; press Ctrl+C")
         request.app.state.stop()
         return JSONResponse({"op": "stopping", "dirty": edits.session.dirty})
+
+    @app.post("/api/reload")
+    async def reload(request: Request) -> JSONResponse:
+        await _read_json(request)
+        try:
+            edits.session.reload()
+        except FlylibError as exc:
+            return _refused(409, f"{exc}; stop and start `flylib gui` again")
+        return JSONResponse({"op": "reloaded", "revision": edits.session.revision})
 
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:

@@ -102,7 +102,7 @@ def serve(
     finally:
         if session.dirty:
             print(
-                f"flylib gui: {session.corrections.count()} edit(s) not saved to "
+                f"flylib gui: {sum(session.unsaved())} edit(s) not saved to "
                 f"{session.corrections_path} are kept in {session.journal_path}; the next "
                 "`flylib gui` on this recording replays them"
             )

@@ -10,7 +10,6 @@ page that is behind is refreshed instead of overwriting what another tab did.
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import threading
@@ -106,6 +105,7 @@ class ReviewSession:
         from ..config import Config
         from ..results import PoseResult, open_checked
 
+        self._opened = (results, config, footage, footage_dir, cache_frames)  # for reload()
         if footage_dir is not None and not Path(footage_dir).expanduser().is_dir():
             raise FootageError(
                 f"--footage-dir {footage_dir}: no such directory; pass the folder holding "
@@ -117,6 +117,7 @@ class ReviewSession:
             config = Config.of_outputs(self.outdir)
         self.config = config
         self.triangulation_inputs = TriangulationInputs.from_config(config)
+        self._results_stat = self._stat()
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
             raise ResultsError(f"{self.results_path}: holds no 3D points; run triangulation first")
@@ -154,6 +155,7 @@ class ReviewSession:
             raise
         self.corrections.source = str(self.results_path)
         self.revision = self.corrections.revision
+        self._unsaved: dict[int, Corrections] = {}  # each edited frame as last loaded or saved
         self._journal = EditJournal(self.corrections_path)
         self.pts3d = np.array(result.pts3d)
         self.used2d = np.array(result.pts2d)
@@ -181,6 +183,7 @@ class ReviewSession:
             name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
             for name in self.view_names
         }
+        self._refuse_other_footage(cache_frames)
         self._prefetch_todo: list[int] = []
         self._prefetch_wake = threading.Condition()
         self._closed = False
@@ -261,6 +264,32 @@ class ReviewSession:
             log.warning("flylib gui: %s", self.footage_missing)
         return found
 
+    def _refuse_other_footage(self, cache_frames: int) -> None:
+        """Footage of another frame count or image size is another recording's: dark views
+        and a banner naming both, never shown as this recording's."""
+        wrong = []
+        for name, source in self.frames.items():
+            try:
+                size = source.frame_size()
+            except (FlylibError, OSError) as exc:
+                size = exc
+            if size is not None and (len(source), size) != (self.n_frames, self.image_sizes[name]):
+                had = f"{size[1]}x{size[0]}" if isinstance(size, tuple) else f"unreadable ({size})"
+                wrong.append((name, f"{name} has {len(source)} frames of {had}"))
+                source.close()
+                self.frames[name] = FrameSource([], self.image_sizes[name], cache_frames)
+        if wrong:
+            h, w = self.image_sizes[wrong[0][0]]
+            more = f" (and {len(wrong) - 1} other view(s))" if len(wrong) > 1 else ""
+            refused = (
+                f"footage in {self.footage_dir or 'the footage given'} does not match "
+                f"{self.results_path.name}: {wrong[0][1]}{more}, the result {self.n_frames} "
+                f"frames of {w}x{h}; it is not shown. Start `flylib gui` with --footage-dir DIR "
+                "(the folder holding this recording's videos)"
+            )
+            self.footage_missing = "; ".join(filter(None, [self.footage_missing, refused]))
+            log.warning("flylib gui: %s", refused)
+
     # -- reading -----------------------------------------------------------------------
 
     def view_index(self, view: str) -> int:
@@ -274,6 +303,7 @@ class ReviewSession:
         limb_names = list(sk.limb_names)
         return {
             "results": str(self.results_path),
+            "results_changed": self._stat() != self._results_stat,
             "outdir": str(self.outdir),
             "corrections_file": str(self.corrections_path),
             "corrections_loaded": self.corrections.count(),
@@ -349,6 +379,7 @@ class ReviewSession:
                 "suspects": suspects,
                 "dirty": self.dirty,
                 "edits": self.corrections.count(),
+                "unsaved": sum(self.unsaved()),
                 "reviewed": self.corrections.reviewed[t].tolist(),
                 "revision": self.revision,
             }
@@ -551,6 +582,7 @@ class ReviewSession:
     def _apply_record(self, record: dict) -> range | list[int]:
         """Change the corrections as a checked record says; the points to re-solve."""
         op, t = record["op"], record["frame"]
+        self._unsaved.setdefault(t, self.corrections.subset([t], slice(None)))
         view, p = record.get("view"), record.get("point")
         v = None if view is None else self.view_index(view)
         if op == "move":
@@ -577,7 +609,6 @@ class ReviewSession:
         replay = read_journal(self._journal.path)
         if not replay.edits and not replay.damaged:
             return
-        before = copy.deepcopy(self.corrections)
         applied, refused = 0, []
         for record in replay.edits:
             try:
@@ -590,7 +621,7 @@ class ReviewSession:
         self.revision += applied
         self.dirty = applied > 0
         # counted as Save counts them (points), not journal lines (a drag journals each position)
-        changed, marks = _changes(before, self.corrections)
+        changed, marks = self.unsaved()
         steps = f", {applied} journal steps" if applied != changed else ""
         marks_text = f" and {marks} review mark(s)" if marks else ""
         parts = [
@@ -670,8 +701,35 @@ class ReviewSession:
                 ) from None
             self._journal.discard()
             self.dirty = False
+            self._unsaved.clear()
+            self.notice = ""  # a replayed journal's: saved now
         log.info("corrections saved to %s (%d edits)", path, self.corrections.count())
         return path
+
+    def unsaved(self) -> tuple[int, int]:
+        """Point edits and review marks changed since the sidecar was loaded or saved."""
+        counts = [
+            _changes(before, self.corrections.subset([t], slice(None)))
+            for t, before in self._unsaved.items()
+        ]
+        return tuple(map(sum, zip((0, 0), *counts)))
+
+    def _stat(self) -> tuple | None:
+        """What tells a rewritten results.h5 (a re-run) from the one this session read."""
+        try:
+            st = self.results_path.stat()
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns, st.st_size
+
+    def reload(self) -> None:
+        """Read results.h5 again (a re-run rewrote it); unsaved edits come back from the journal."""
+        with self._lock:
+            self.close()
+            results, config, footage, footage_dir, cache = self._opened
+            self.__init__(
+                results, config=config, footage=footage, footage_dir=footage_dir, cache_frames=cache
+            )
 
     # -- background prefetch ---------------------------------------------------------------
 

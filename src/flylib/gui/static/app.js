@@ -105,6 +105,34 @@ async function start() {
   setPanel(panel ? panel === "open" : window.innerWidth >= 1500);
   await loadSuspects();
   await goto(initialFrame(new URLSearchParams(location.search).get("frame")));
+  watchResults();
+}
+
+function watchResults() {
+  // a re-run rewrote results.h5: this page shows the old result until reloaded
+  const check = setInterval(async () => {
+    if (state.offline) return;
+    let meta;
+    try { meta = await getJSON("/api/meta"); } catch { return; }
+    if (!meta.results_changed) return;
+    clearInterval(check);
+    const dirty = state.data && state.data.dirty;
+    $("#results-banner span").textContent = `${meta.results} was rewritten on disk (the workflow ` +
+      "ran again?): the views still show the result this page opened. Reload reads the new one" +
+      (dirty ? "; the unsaved edits are journaled and replayed onto it." : ".");
+    $("#results-banner").hidden = false;
+  }, RESULTS_CHECK_MS);
+}
+
+const RESULTS_CHECK_MS = 3000;
+
+async function reloadResults() {
+  try {
+    await postJSON("/api/reload", {});
+  } catch (err) {
+    return showAlert(`not reloaded: ${err.detail || err.message}`);
+  }
+  location.reload();
 }
 
 function initialFrame(asked) {
@@ -241,6 +269,10 @@ function showDisplay() {
     $(`#${key}`).value = String(d[key]);
     $(`#${key}-value`).textContent = key === "gamma" ? d.gamma.toFixed(2) : `${d[key]}%`;
   }
+  // what hides points, said in the header too (the panel may be closed)
+  const hiding = [!d.overlay && "overlay off (o)", d.limb !== null && `only ${state.meta.limbs[d.limb]} ([ ])`].filter(Boolean);
+  $("#display-state").textContent = hiding.join(", ");
+  $("#display-state").hidden = !hiding.length;
   // gamma: the SVG filter the footage is drawn through (CSS filters have none)
   for (const f of document.querySelectorAll("#gamma feFuncR, #gamma feFuncG, #gamma feFuncB")) {
     f.setAttribute("exponent", String(1 / d.gamma));
@@ -282,7 +314,7 @@ function cycleLimb(direction) {
 function togglePlay() {
   // space: play from here at the chosen frames per second (each frame drawn before the next)
   if (state.playing) { clearTimeout(state.playing.timer); state.playing = null; $("#play").textContent = "\u25B6"; return; }
-  const fps = Math.max(1, Math.min(120, Number($("#fps").value) || 10));
+  const fps = Number($("#fps").value);  // kept within 1..120 as typed
   state.playing = { timer: null };
   $("#play").textContent = "\u275A\u275A";
   const tick = async () => {
@@ -313,10 +345,11 @@ function redrawAll() {
   $("#undo").disabled = !state.history.canUndo;
   $("#redo").disabled = !state.history.canRedo;
   drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
-  const edits = state.data ? state.data.edits : 0;
+  // the count on Save: what the next save adds (edits and review marks since the last one)
+  const edits = state.data ? state.data.edits : 0, unsaved = state.data ? state.data.unsaved : 0;
   $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
-  $("#save").textContent = state.data && state.data.dirty ? `Save (${edits})` : "Save";
-  $("#save").title = `write corrections.h5 (s): ${edits} point edit(s) in all`;
+  $("#save").textContent = unsaved ? `Save (${unsaved})` : "Save";
+  $("#save").title = `write corrections.h5 (s): ${unsaved} unsaved change(s); ${edits} point edit(s) in all`;
 }
 
 // -- suspects --------------------------------------------------------------------------
@@ -657,10 +690,11 @@ async function save(checked = false) {
     }
     return;
   }
-  if (alertText().startsWith("not saved")) clearAlert();
+  // a failed save's alert, or the replayed journal's "press Save": said and done
+  if (alertText().startsWith("not saved") || alertText() === state.meta.notice) clearAlert();
   state.revision = reply.revision;
   status(`saved ${reply.edits} edits to ${reply.saved}; run snakemake to apply them`);
-  if (state.data) state.data.dirty = false;
+  if (state.data) Object.assign(state.data, { dirty: false, unsaved: 0 });
   redrawAll();
   window.flylib.saved = reply;
 }
@@ -896,7 +930,9 @@ function wireControls() {
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
     const text = $("#frame-input").value.trim();
-    if (!/^\d+$/.test(text)) { status(`"${text}" is not a frame number (0..${state.meta.frames - 1})`); return; }
+    const last = state.meta.frames - 1;
+    if (!/^\d+$/.test(text)) { status(`"${text}" is not a frame number (0..${last})`); return; }
+    if (Number(text) > last) status(`frame ${text} is past the last frame; showing frame ${last}`);
     goto(Number(text));
   });
   $("#frame-input").addEventListener("keydown", (event) => { if (event.key === "Enter") $("#frame-input").blur(); });
@@ -922,7 +958,13 @@ function wireControls() {
   });
   window.addEventListener("blur", () => { if (state.peek) { state.peek = false; redrawAll(); } });
   $("#play").addEventListener("click", togglePlay);
+  $("#fps").addEventListener("change", () => {
+    const raw = $("#fps").value, fps = Math.max(1, Math.min(120, Math.round(Number(raw) || 10)));
+    if (String(fps) !== raw) status(`fps "${raw}" is not a whole number from 1 to 120; playing at ${fps}`);
+    $("#fps").value = String(fps);
+  });
   $("#stop-server").addEventListener("click", stopServer);
+  $("#reload-results").addEventListener("click", () => act(reloadResults));
   window.addEventListener("keydown", (event) => {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
     if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
