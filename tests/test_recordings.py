@@ -307,13 +307,13 @@ def frame_counts(tmp_path, monkeypatch):
     cache = counts.FrameCountCache(lambda: tmp_path / "cache")
     monkeypatch.setattr(counts, "FRAME_COUNTS", cache)
     opened = []
-    real_read = counts._header_frame_count
+    real_read = counts.header_frame_count
 
     def counted(path):
         opened.append(path)
         return real_read(path)
 
-    monkeypatch.setattr(counts, "_header_frame_count", counted)
+    monkeypatch.setattr(counts, "header_frame_count", counted)
     return cache, opened
 
 
@@ -374,7 +374,7 @@ def test_a_videos_frame_count_is_the_one_av_reports(tmp_path, codec, name, optio
     any file that reader is not sure of is counted by av."""
     import av
 
-    from flylib.recordings.frame_counts import _header_frame_count, _mp4_frame_count
+    from flylib.recordings.frame_counts import header_frame_count, mp4_frame_count
 
     path = tmp_path / name
     with av.open(str(path), "w", options=options) as container:
@@ -388,6 +388,6 @@ def test_a_videos_frame_count_is_the_one_av_reports(tmp_path, codec, name, optio
         container.mux(stream.encode())
     with av.open(str(path)) as container:
         reported = container.streams.video[0].frames or None
-    assert _header_frame_count(path) == reported
+    assert header_frame_count(path) == reported
     read_by_av = name.endswith(".mkv") or "frag" in options.get("movflags", "")
-    assert _mp4_frame_count(path) == (None if read_by_av else 37)
+    assert mp4_frame_count(path) == (None if read_by_av else 37)

@@ -22,7 +22,7 @@ from typing import Any
 from ..errors import ConfigError
 from ..paths import DEFAULT_CONFIG_PATH
 from .loading import parse_text, read_config_text
-from .sources import _pathways_of, drop_views
+from .sources import drop_views, pathways_of
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
@@ -287,7 +287,7 @@ class ConfigLayers:
         where = ".".join(map(str, path[:3]))
         points = (self.data.get("pose2d") or {}).get("output_points") or {}
         views = [path[2]] if where.startswith("pose2d.output_points.") else []
-        views = views or [v for v, t in points.items() if path[2] in _pathways_of([t])]
+        views = views or [v for v, t in points.items() if path[2] in pathways_of([t])]
         fix = f"add it back to {table}"
         if views:
             fix += (

@@ -97,7 +97,7 @@ def footage_globs(config: Any) -> dict[str, str | None]:
     return {view: patterns.get(source) for view, source in sources.items()}
 
 
-def _pathways_of(tables) -> set:
+def pathways_of(tables) -> set:
     return {
         slot.get("pathway")
         for table in tables
@@ -116,7 +116,7 @@ def drop_views(data: dict, views: set[str]) -> None:
     pose2d = data.get("pose2d") if isinstance(data.get("pose2d"), dict) else {}
     points = pose2d.get("output_points") if isinstance(pose2d.get("output_points"), dict) else {}
     kept_points = {v: t for v, t in points.items() if v not in views}
-    gone = _pathways_of(t for v, t in points.items() if v in views) - _pathways_of(
+    gone = pathways_of(t for v, t in points.items() if v in views) - pathways_of(
         kept_points.values()
     )
     if points:

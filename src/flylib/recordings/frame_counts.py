@@ -24,11 +24,11 @@ def video_frame_count(path: Path) -> int | None:
     """Frame count a video container reports (header only, no decoding), or ``None`` when it stores
     none; kept in the user's cache (:class:`FrameCountCache`) while the file is unchanged. A file
     that cannot be opened as a video is a :class:`FootageError`."""
-    return FRAME_COUNTS.count(path, _header_frame_count)
+    return FRAME_COUNTS.count(path, header_frame_count)
 
 
-def _header_frame_count(path: Path) -> int | None:
-    return _mp4_frame_count(path) or _av_frame_count(path)
+def header_frame_count(path: Path) -> int | None:
+    return mp4_frame_count(path) or _av_frame_count(path)
 
 
 def _mp4_boxes(data: bytes, start: int, end: int):
@@ -43,7 +43,7 @@ def _mp4_boxes(data: bytes, start: int, end: int):
         start += size
 
 
-def _mp4_frame_count(path: Path) -> int | None:
+def mp4_frame_count(path: Path) -> int | None:
     """Sample count of an MP4/QuickTime file's first video track, summed from its ``stts`` table as
     FFmpeg does (a 60th of the time of opening it with av, which decodes); ``None`` for any other
     file, a fragmented one or anything unexpected: av reads those."""
