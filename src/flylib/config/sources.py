@@ -98,6 +98,7 @@ def footage_globs(config: Any) -> dict[str, str | None]:
 
 
 def pathways_of(tables) -> set:
+    """The detector pathways the ``output_points`` tables name."""
     return {
         slot.get("pathway")
         for table in tables

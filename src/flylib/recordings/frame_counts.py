@@ -28,6 +28,7 @@ def video_frame_count(path: Path) -> int | None:
 
 
 def header_frame_count(path: Path) -> int | None:
+    """A video's frame count from its header (MP4 sample table, else av)."""
     return mp4_frame_count(path) or _av_frame_count(path)
 
 
