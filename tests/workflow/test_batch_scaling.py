@@ -175,7 +175,7 @@ def test_the_cluster_guides_archive_recipe_plans_every_recording_once(tmp_path):
 
     guide = (REPO / "docs" / "guides" / "cluster.md").read_text()
     section = guide.split("## An archive of 10,000 recordings")[1].split("\n## ")[0]
-    script = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    script = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
     config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     sheet = demo_batch(tmp_path / "batch", 5, config)
     (tmp_path / "archive.tsv").write_text(sheet.read_text())
