@@ -72,10 +72,18 @@ def preflight_problems(
                 f"calibration.format: unknown format {calibration['format']!r}; "
                 f"use one of {', '.join(CALIBRATION_FORMATS)}"
             )
-    if isinstance(calibration, dict) and not isinstance(calibration.get("mirror", False), bool):
+    mirror = calibration.get("mirror", False) if isinstance(calibration, dict) else False
+    if not isinstance(mirror, bool):
         problems.append(
-            f"calibration.mirror: expected true or false, got {calibration['mirror']!r} "
+            f"calibration.mirror: expected true or false, got {mirror!r} "
             "(true mirrors the calibration file's world; see docs/how-it-works/handedness.md)"
+        )
+    elif mirror and not {"file", "index"} & set(calibration):
+        from ..handedness import MIRROR_OFF
+
+        problems.append(
+            "calibration.mirror: true mirrors a calibration file's world, but calibration names "
+            f"no file (the rig is the cameras table); set {MIRROR_OFF}, or give calibration.file"
         )
 
     if any(rec.demo for rec in recordings):
