@@ -129,6 +129,13 @@ def _cmd_inspect(args) -> int:
             ("cameras", "cameras"),
         ],
     )
+    session = summary["session"]
+    if session:  # as the run's session line names the rig the results use
+        folder = session["folder"]
+        where = f": {Path(folder) / 'calibration.toml'}" if folder else ""
+        print(
+            f"rig: session {session['name']}'s, solved over {', '.join(session['members'])}{where}\n"
+        )
     _print_handedness(summary["handedness"])
     if summary["accuracy"] is not None:
         from .run_summary import HELD_OUT_NOTE, accuracy_line

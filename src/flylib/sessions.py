@@ -126,10 +126,12 @@ def session_lines(sessions: Sequence[Session]) -> list[str]:
         whole = (held.get("session") or {}).get("median")
         if trial is None or whole is None:
             continue
-        better = "session" if summary.get("better") == "session" else "per-recording"
+        better = {"session": "session better", "per_recording": "per-recording better"}
+        n = len(s.members)
         lines.append(
-            f"session {s.name} ({len(s.members)} recordings): held-out median "
+            f"session {s.name} ({n} recording{'s' * (n != 1)}): held-out median "
             f"{trial:.2f} px with each recording's own rig, {whole:.2f} px with the "
-            f"session's ({better} better); the rig the results use: {s.calibration}"
+            f"session's ({better.get(summary.get('better'), 'equal')}); the rig the results "
+            f"use: {s.calibration}"
         )
     return lines

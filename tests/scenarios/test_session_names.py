@@ -1,16 +1,20 @@
-"""Session names from a recordings sheet, through the real workflow (issue 45): a name
-is a folder name, or refused before the DAG in one line; names that differ stay two
-sessions; the dry run plans what the run does, and a good run prints no error text."""
+"""Sessions from a recordings sheet, through the real workflow (issue 45): a name is a
+folder name, or refused before the DAG in one line; names that differ stay two sessions;
+members of two frame sizes are refused by the dry run, the run and check-config alike; a
+session of one recording runs; the dry run plans what the run does, a good run prints no
+error text, and `flylib inspect` names the rig the run says the results use."""
 
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
-from tests.scenarios.test_path_names import REPO, _refused, _run
+from tests.scenarios.test_path_names import REPO, _env, _refused, _run
 
 pytestmark = pytest.mark.slow  # runs Snakemake
 
@@ -105,3 +109,65 @@ def test_japanese_and_chinese_sessions_are_two_solves_planned_as_run(tmp_path):
         "refinement",
         "assemble",
     }
+
+
+def _flylib(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "flylib.cli", *args],
+        cwd=cwd,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_members_of_two_frame_sizes_are_refused_before_any_work(tmp_path):
+    from flylib.config import Config
+    from flylib.pipeline.demo import make_demo
+
+    root = _sheet_workdir(tmp_path, ["rig", "rig"])
+    # r2 filmed at half the resolution (a camera setting changed): a camera of half the
+    # focal length in pixels keeps the fly in its 480x240 frames
+    data = yaml.safe_load((root / "config.yaml").read_text())
+    data["cameras"]["defaults"]["focal_length_px"] = [11194.0625, 11194.0625]
+    for path in (root / "day" / "r2").iterdir():
+        path.unlink()
+    make_demo(Config.from_dict(data), root / "day" / "r2", frames=6, seed=2, height=240, width=480)
+    line = (
+        "invalid config: config.yaml: recordings (sheet recordings.tsv): session 'rig' is one "
+        "rig, but r1's frames are 960x480 and r2's 480x240 (width x height); give r2 another "
+        "session (its session key or sheet column), or footage of one size"
+    )
+    assert _refused(_run(root, "-n")) == line
+    assert _refused(_run(root)) == line
+    check = _flylib(root, "check-config", "config.yaml")
+    assert check.returncode == 1, check.stdout + check.stderr
+    assert check.stderr.strip() == f"flylib check-config: {line}"
+    assert not list((root / "day").glob("*/flylib_*"))  # nothing started
+    assert not (root / "day" / "flylib_sessions").exists()
+
+
+def test_a_session_of_one_recording_runs_and_inspect_names_its_rig(tmp_path):
+    root = _sheet_workdir(tmp_path, ["solo"])
+    dry = _run(root, "-n")
+    assert dry.returncode == 0, dry.stderr[-3000:]
+    folder = root / "day" / "r1" / "flylib_sessions" / "solo"
+    assert [f for rule, f in _jobs(dry) if rule == "session_calibration"] == [str(folder)]
+    run = _run(root)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert not re.search(r"Exception|Error", run.stdout + run.stderr)
+    # its rig is its own solve: the two rigs' held-out errors are equal, not one "better"
+    said = re.search(r"^session solo .*$", run.stdout + run.stderr, re.M)
+    assert said and re.fullmatch(
+        r"session solo \(1 recording\): held-out median (\d+\.\d\d) px with each recording's "
+        r"own rig, \1 px with the session's \(equal\); the rig the results use: "
+        + re.escape(str(folder / "calibration.toml")),
+        said[0],
+    ), said
+    results = root / "day" / "r1" / "flylib_outputs" / "results.h5"
+    shown = _flylib(root, "inspect", str(results))
+    assert shown.returncode == 0, shown.stderr[-3000:]
+    assert f"rig: session solo's, solved over r1: {folder / 'calibration.toml'}" in (
+        shown.stdout.splitlines()
+    )

@@ -222,11 +222,55 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
             from .user_files import output_problems
 
             problems += output_problems(config, recordings, layers.texts)
+            problems += session_problems(config, recordings)
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
         raise ConfigError(layers.report(problems))
     return config, recordings
+
+
+def session_problems(config: Any, recordings: list[Any]) -> list[str]:
+    """A session whose recordings' frames differ in size (a session is one rig), one line each;
+    the sizes pose2d will give: each view's footage header, else ``image_size``."""
+    from ..interop.views import read_frame_size
+    from ..sessions import plan_sessions
+    from .pose2d import import_target
+
+    if not (config.stage_flags()["bundle_adjustment"] and config.bundle_adjustment.session):
+        return []
+    try:
+        sessions = plan_sessions(recordings)
+    except FlylibError:
+        return []  # RunPlan names it
+    target = import_target(config)
+
+    def sizes(rec) -> dict[str, tuple[int, ...]]:
+        footage = target.footage(Path(rec.path))
+        fallback = (rec.import_spec or {}).get("image_size")
+        found = {
+            v: read_frame_size(footage[v][0]) if footage.get(v) else fallback for v in target.views
+        }
+        return {v: tuple(map(int, size)) for v, size in found.items() if size is not None}
+
+    def wxh(size: dict) -> str:
+        return "/".join(dict.fromkeys(f"{w}x{h}" for h, w in size.values()))
+
+    problems = []
+    for session in sessions:
+        first, *rest = session.members
+        own = sizes(first)
+        for rec in rest:
+            other = sizes(rec)
+            if any(other[v] != own[v] for v in other.keys() & own.keys()):
+                problems.append(
+                    f"{rec.extra.get('where', 'recordings')}: session {session.name!r} is one "
+                    f"rig, but {first.id}'s frames are {wxh(own)} and {rec.id}'s {wxh(other)} "
+                    f"(width x height); give {rec.id} another session (its session key or "
+                    "sheet column), or footage of one size"
+                )
+                break
+    return problems
 
 
 def _pose2d_problems(

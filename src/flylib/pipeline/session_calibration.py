@@ -198,7 +198,7 @@ def run_session_summary(
 ) -> dict[str, Any]:
     """Held-out-view error of each member's 2D triangulated with the session's rig and with its
     own, per recording and pooled, written to ``out_path`` (JSON); ``better`` names the rig
-    with the lower pooled median (``session`` or ``per_recording``)."""
+    with the lower pooled median (``session`` or ``per_recording``; ``None`` when equal)."""
     from ..results import Pose2dData, read_stage
 
     session = read_stage(session_path, "bundle_adjustment")
@@ -218,8 +218,10 @@ def run_session_summary(
         per_recording[rec] = row
     overall = {label: _stats(np.concatenate(parts)) for label, parts in pooled.items()}
     medians = {k: v["median"] for k, v in overall.items()}
-    better = (
-        None if any(m is None for m in medians.values()) else min(medians, key=lambda k: medians[k])
+    better = (  # None: a median missing, or equal (a session of one recording is its own solve)
+        None
+        if None in medians.values() or len(set(medians.values())) == 1
+        else min(medians, key=lambda k: medians[k])
     )
     summary = {
         "session": name,
