@@ -87,7 +87,7 @@ def run_from_points2d(
         ``points_to_use``, ``max_frames``, ``solver`` ...; ``least_squares`` options flat or
         nested), checked as a config is; any other key (e.g. ``rigid_tolerance``) goes to
         :func:`flylib.bundle_adjustment.bundle_adjust_sequence` as is. Unset keys keep the
-        config's: intrinsics fixed, 200 evenly spaced frames, the leg joints
+        config's: intrinsics fixed, 200 evenly spaced frames, the leg joints and antennae
         (``points_to_use``: ``None`` for every point, or a list for a non-fly skeleton).
     triangulation, weigh_by_confidence, ransac_threshold, min_inliers, reproj_threshold, max_drops
         ``None`` takes the config's ``triangulation`` value. Methods: ``"ransac"`` (largest
