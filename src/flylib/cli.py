@@ -409,8 +409,10 @@ def _toml_hint(configfiles: list[Path]) -> str | None:
 
 
 def _cmd_check_config(args) -> int:
+    from .bundle_adjustment.messages import rig_report
     from .config.layers import ConfigLayers
     from .pipeline.planning import RunPlan
+    from .pipeline.pose2d import Pose2dInputs
     from .pipeline.preflight import load_run_config
 
     base = _default_base(args.configfiles, args.replace_workflow_config)
@@ -440,6 +442,8 @@ def _cmd_check_config(args) -> int:
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
         + "".join(f"; session {s.name} ({', '.join(s.ids)}) -> {s.outdir}" for s in plan.sessions)
     )
+    rig = Pose2dInputs.from_config(plan.config).detection_plan()
+    print("\n".join(rig_report(rig, plan.config.skeleton())))
     hint = _toml_hint(args.configfiles)
     if hint:
         print(hint, file=sys.stderr)

@@ -205,6 +205,32 @@ def test_every_whole_run_config_snippet_plans_on_the_demo(tmp_path, where, snipp
     assert done.returncode == 0, (where, done.stderr[-2000:])
 
 
+def test_the_fewer_cameras_report_is_flylibs_own_output(tmp_path):
+    """The rig report the recordings guide shows under its snippet, and the last line it
+    quotes for the default rig, are what `flylib check-config` prints (recordings: the demo)."""
+    page = (DOCS / "guides" / "recordings.md").read_text()
+    section = page.split("### Fewer cameras")[1].split("\n## ")[0]
+    (snippet,) = re.findall(r"^```yaml\n(.*?)^```", section, re.S | re.M)
+    (shown,) = re.findall(r"^```text\n(.*?)^```", section, re.S | re.M)
+    default_line = " ".join(re.search(r"the last line is `(.*?)`", section, re.S)[1].split())
+    data = yaml.safe_load(snippet)
+    data["recordings"] = [{"path": "demo", "demo": True}]
+    reports = []
+    for mine in (data, {"recordings": data["recordings"]}):
+        (tmp_path / "my.yaml").write_text(yaml.safe_dump(mine))
+        done = subprocess.run(
+            [sys.executable, "-m", "flylib.cli", "check-config", "my.yaml"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        reports.append(done.stdout.splitlines()[1:])
+    assert reports[0] == shown.splitlines()
+    assert reports[1][-1] == default_line
+
+
 # --- the built site -----------------------------------------------------------------
 
 

@@ -157,3 +157,46 @@ def test_a_half_edited_rig_is_blamed_on_my_yaml_with_the_fix(six_videos, tmp_pat
     default = REPO / "config" / "config.yaml"
     assert expected.replace("(config/config.yaml)", f"({default})") in dry.out
     assert f"{default}:" not in dry.out  # never blamed on the file the user never wrote
+
+
+def test_check_config_says_what_each_camera_sees_and_whether_the_sides_are_joined(
+    six_videos, tmp_path
+):
+    """`flylib check-config` reports the rig: each camera's planned legs and points, the
+    cameras sharing points, and whether left and right are joined: on the default seven
+    cameras only through the front camera f; on the six-camera folder's config `flylib init`
+    wrote (imported DeepLabCut 2D, `cameras: {f: null}`) not at all."""
+    write_config(tmp_path / "seven.yaml", {"recordings": [{"path": "demo", "demo": True}]})
+    seven = flylib(tmp_path, "check-config", "seven.yaml")
+    assert seven.returncode == 0, seven.out
+    lines = seven.stdout.splitlines()
+    assert lines[1:] == [
+        "rig: 7 camera(s), the 2D points each is planned to see:",
+        "  rh: rf_leg, rm_leg, rh_leg, r_antenna, r_abdomen",
+        "  rm: rf_leg, rm_leg, rh_leg, r_antenna, r_abdomen",
+        "  rf: rf_leg, rm_leg, rh_leg, r_antenna",
+        "  f: lf_leg (3 of 5 points), lm_leg (3 of 5 points), l_antenna, rf_leg (3 of 5 "
+        "points), rm_leg (3 of 5 points), r_antenna",
+        "  lf: lf_leg, lm_leg, lh_leg, l_antenna",
+        "  lm: lf_leg, lm_leg, lh_leg, l_antenna, l_abdomen",
+        "  lh: lf_leg, lm_leg, lh_leg, l_antenna, l_abdomen",
+        "cameras sharing points: {rh, rm, rf, f, lf, lm, lh}",
+        "left and right are joined only by camera f: where it sees too few points of both "
+        "sides, 3D left against right is only as good as the starting rig",
+    ]
+
+    init = flylib(tmp_path, "init", str(six_videos), "-o", "my.yaml")
+    assert init.returncode == 0, init.out
+    six = flylib(tmp_path, "check-config", "my.yaml")
+    assert six.returncode == 0, six.out
+    lines = six.stdout.splitlines()
+    assert lines[1] == "rig: 6 camera(s), the 2D points each is planned to see:"
+    assert [line.split(":")[0].strip() for line in lines[2:8]] == SIX
+    assert lines[8:] == [
+        "cameras sharing points: 2 groups that see no point in common, {rh, rm, rf} and "
+        "{lf, lm, lh}",
+        "left and right are not joined (no camera, nor chain of cameras sharing points, sees "
+        "both sides): 3D left against right is only as good as the starting rig; give a "
+        "calibration file (config 'calibration'), or film a view that sees the legs of both "
+        "sides",
+    ]
