@@ -453,13 +453,14 @@ class ReviewSession:
                     f"{self.view_names[v]} (was {before})"
                 )
                 frames.append(t)
-            edited = self.corrections.edited & ~np.isfinite(self.used2d).all(-1)
-            dropped = [(v, t, p, self._off(v, t, p)) for v, t, p in np.argwhere(edited).tolist()]
-            dropped = [d for d in dropped if d[3] is not None]
-            for v, t, p, off in dropped[:10]:
+            c, finite = self.corrections, lambda a: np.isfinite(a).all(-1)
+            dropped = np.argwhere(
+                c.edited & finite(c.points) & ~finite(self.used2d) & finite(self.pts3d)
+            )
+            for v, t, p in dropped[:10].tolist():
                 lines.append(
                     f"{names[p]} at frame {t}: the edit in {self.view_names[v]} is dropped by "
-                    f"the robust triangulation ({off:.1f} px from its 3D)"
+                    f"the robust triangulation ({self._off(v, t, p):.1f} px from its 3D)"
                 )
                 frames.append(t)
             known = {(f, it["point"]) for it in self.review_items for f in it["frames"]}
@@ -468,12 +469,9 @@ class ReviewSession:
                 f"{r['point_name']} at frame {r['frame']}: {', '.join(r['reasons'])}"
                 for r in fresh[:10]
             ]
-        return {
-            "worse": lines,
-            "new_suspects": new,
-            "frames": frames + [r["frame"] for r in fresh[:10]],
-            "count": len(worse) + len(dropped) + len(fresh),
-        }
+        frames += [r["frame"] for r in fresh[:10]]
+        count = len(worse) + len(dropped) + len(fresh)
+        return {"worse": lines, "new_suspects": new, "frames": frames, "count": count}
 
     # -- editing -------------------------------------------------------------------------
 
@@ -546,10 +544,10 @@ class ReviewSession:
         """What an edit of point ``p`` in view ``v`` did: ``rose``, the other views whose error
         grew by more than :data:`WORSE_PX` (``after`` None: now dropped), and ``dropped``, how
         far its own 2D lies from the 3D that the robust triangulation solved without it."""
-        after = self.error[:, t, p]
+        pairs = zip(before.round(1).tolist(), self.error[:, t, p].round(1).tolist())
         rose = [
-            {"view": self.view_names[u], "before": round(b, 1), "after": _rounded(a)}
-            for u, (b, a) in enumerate(zip(before.tolist(), after.tolist()))
+            {"view": self.view_names[u], "before": b, "after": None if math.isnan(a) else a}
+            for u, (b, a) in enumerate(pairs)
             if u != v and math.isfinite(b) and not a <= b + WORSE_PX
         ]
         return {"point": p, "view": self.view_names[v], "rose": rose, "dropped": self._off(v, t, p)}
@@ -560,7 +558,7 @@ class ReviewSession:
         xy, xyz = self.corrections.points[v, t, p], self.pts3d[t, p]
         if np.isfinite(self.used2d[v, t, p]).all() or not np.isfinite([*xy, *xyz]).all():
             return None
-        return _rounded(np.linalg.norm(self.cameras[v].project(xyz) - xy))
+        return round(float(np.linalg.norm(self.cameras[v].project(xyz) - xy)), 1)
 
     @property
     def journal_path(self) -> Path:
@@ -829,11 +827,6 @@ def shown(value: Any) -> str:
     if isinstance(value, int) and len(text) > 24:
         return f"{text[:12]}...({len(text.lstrip('-'))} digits)"
     return text[:40]
-
-
-def _rounded(value: float) -> float | None:
-    """``value`` to 0.1 px for a reply; None for NaN (JSON has no NaN)."""
-    return round(float(value), 1) if math.isfinite(value) else None
 
 
 def _in_range(name: str, value: Any, n: int) -> int:
