@@ -273,7 +273,7 @@ def test_reviewed_state_survives_a_restart_and_save_says_what_got_worse(outdir):
             box = driver.find_element(By.ID, "save-check")
             wait_for(driver, "return !document.querySelector('#save-check').hidden")
             name = session.skeleton.point_names[sel["point"]]
-            assert f"error raised: {name} at frame {nxt[0]}: " in box.text
+            assert f"made worse: {name} at frame {nxt[0]}: " in box.text
             assert not (outdir / "corrections.h5").exists()
             driver.find_element(By.ID, "save-anyway").click()
             wait_for(driver, "return window.flylib.saved")

@@ -231,6 +231,16 @@ def test_footage_of_another_recording_is_refused(outdir, tmp_path):
             proc.wait(20)
 
 
+def page(url):
+    """GET-as-JSON and POST (with the page's token) against the server at ``url``."""
+    base = url.rstrip("/")
+    token = re.search(r'name="flylib-token" content="([^"]+)"', get(base + "/").text)[1]
+    post = lambda path, body: httpx.post(  # noqa: E731
+        base + path, json=body, headers={"X-Flylib-Token": token}, timeout=60
+    )
+    return (lambda path: get(base + path).json()), post
+
+
 def test_counts_and_notices_describe_the_state_now(outdir, tmp_path):
     """Issue 47: after Save the replayed journal's "press Save" is gone (on reload too),
     Save's count and the Ctrl+C line count the edits since the last save, not all of them,
@@ -241,14 +251,6 @@ def test_counts_and_notices_describe_the_state_now(outdir, tmp_path):
 
     shutil.copytree(outdir.parent, tmp_path / "rec")
     out = tmp_path / "rec" / "flylib_outputs"
-
-    def page(url):
-        base = url.rstrip("/")
-        token = re.search(r'name="flylib-token" content="([^"]+)"', get(base + "/").text)[1]
-        post = lambda path, body: httpx.post(  # noqa: E731
-            base + path, json=body, headers={"X-Flylib-Token": token}, timeout=60
-        )
-        return (lambda path: get(base + path).json()), post
 
     def move(post, frame, dx):
         view = get_json("/api/meta")["views"][0]["name"]
@@ -295,3 +297,42 @@ def test_counts_and_notices_describe_the_state_now(outdir, tmp_path):
     finally:
         proc.kill()
     assert "flylib gui: 1 edit(s) not saved to" in said, said
+
+
+def test_an_edit_says_at_once_what_it_made_worse(outdir, tmp_path):
+    """Issue 47: an edit's reply says which other view's error it raised (before and after,
+    a drag compared with the state before it) and how far from its 3D an edit lies that the
+    robust triangulation dropped; Save's check lists the dropped edit with its frame."""
+    shutil.copytree(outdir.parent, tmp_path / "rec")
+    proc, url = start(tmp_path / "rec" / "flylib_outputs")
+    try:
+        get_json, post = page(url)
+        point = get_json("/api/meta")["points"].index("lf_tibia_tarsus")
+        views = get_json("/api/points/3")["views"]
+        lm = next(i for i, v in enumerate(views) if v["name"] == "lm")
+        x, y = views[lm]["points2d"][point]
+
+        def move(dx, durable=True):
+            edit = {"op": "move", "frame": 3, "point": point, "view": "lm", "xy": [x + dx, y]}
+            reply = post("/api/edit", {**edit, "durable": durable})
+            assert reply.status_code == 200, reply.text
+            return reply.json()
+
+        move(4.0, durable=False)  # a drag: its steps, then its end
+        reply = move(10.0)
+        rose = {r["view"]: (r["before"], r["after"]) for r in reply["consequence"]["rose"]}
+        assert rose and "lm" not in rose and reply["consequence"]["dropped"] is None
+        for view, (before, after) in rose.items():
+            i = next(i for i, v in enumerate(views) if v["name"] == view)
+            assert before == round(views[i]["error"][point], 1)
+            assert after == round(reply["views"][i]["error"][point], 1) > before + 2
+        reply = move(400.0)
+        assert reply["views"][lm]["used"][point] is False
+        assert 390 < reply["consequence"]["dropped"] < 410
+        check = get_json("/api/save-check")
+        said = "lf_tibia_tarsus at frame 3: the edit in lm is dropped by the robust triangulation"
+        assert check["count"] == 1 and check["frames"] == [3]
+        assert check["worse"][0].startswith(said), check
+    finally:
+        proc.terminate()
+        proc.wait(20)

@@ -37,6 +37,9 @@ EDIT_OPS = (
     "unreviewed",
 )
 
+#: How much (px) an edit may raise a view's reprojection error before the page says so.
+WORSE_PX = 2.0
+
 
 class StaleRevision(ValueError):
     """An edit or save made against an older revision than the session's."""
@@ -165,6 +168,7 @@ class ReviewSession:
             else np.full((v, t, p), np.nan)
         )
         self.error_before = self.error.copy()  # for the save check
+        self._drag_before: tuple | None = None  # ((frame, point, view), errors) at a drag's start
         self._lock = threading.RLock()
         self._suspects = None
         self._suspects_stale = True
@@ -428,9 +432,10 @@ class ReviewSession:
             "review": self.review(),
         }
 
-    def save_check(self, worse_px: float = 2.0) -> dict:
+    def save_check(self, worse_px: float = WORSE_PX) -> dict:
         """What the edits made worse, said before saving: ``worse`` (corrected points whose largest
-        error grew by more than ``worse_px``) and ``new_suspects``, 10 lines each, and ``count``."""
+        error grew by more than ``worse_px``, edits the robust triangulation drops) and
+        ``new_suspects``, 10 lines each, their ``frames`` (to jump to), and ``count``."""
         names = self.skeleton.point_names
         with self._lock:
             corrected = self.corrections.corrected_points()
@@ -439,7 +444,7 @@ class ReviewSession:
             now = error.max(axis=0)
             was = np.where(np.isfinite(self.error_before), self.error_before, -1.0).max(axis=0)
             worse = np.argwhere(corrected & (now > np.maximum(was, 0.0) + worse_px))
-            lines = []
+            lines, frames = [], []
             for t, p in worse[:10].tolist():
                 v = int(error[:, t, p].argmax())
                 before = f"{was[t, p]:.1f} px" if was[t, p] >= 0 else "none"
@@ -447,13 +452,26 @@ class ReviewSession:
                     f"{names[p]} at frame {t}: {now[t, p]:.1f} px from its 3D in "
                     f"{self.view_names[v]} (was {before})"
                 )
+                frames.append(t)
+            c, finite = self.corrections, lambda a: np.isfinite(a).all(-1)
+            dropped = np.argwhere(
+                c.edited & finite(c.points) & ~finite(self.used2d) & finite(self.pts3d)
+            )
+            for v, t, p in dropped[:10].tolist():
+                lines.append(
+                    f"{names[p]} at frame {t}: the edit in {self.view_names[v]} is dropped by "
+                    f"the robust triangulation ({self._off(v, t, p):.1f} px from its 3D)"
+                )
+                frames.append(t)
             known = {(f, it["point"]) for it in self.review_items for f in it["frames"]}
             fresh = [r for r in self.suspects().records() if (r["frame"], r["point"]) not in known]
             new = [
                 f"{r['point_name']} at frame {r['frame']}: {', '.join(r['reasons'])}"
                 for r in fresh[:10]
             ]
-        return {"worse": lines, "new_suspects": new, "count": len(worse) + len(fresh)}
+        frames += [r["frame"] for r in fresh[:10]]
+        count = len(worse) + len(dropped) + len(fresh)
+        return {"worse": lines, "new_suspects": new, "frames": frames, "count": count}
 
     # -- editing -------------------------------------------------------------------------
 
@@ -504,16 +522,43 @@ class ReviewSession:
             planned = time.perf_counter()
             self._journal.append(record, self.corrections.revision, durable=durable)
             journaled = time.perf_counter()
+            t, p, view = record["frame"], record.get("point"), record.get("view")
+            # a drag's steps (durable only at its end) are compared with the state before it
+            same = self._drag_before and self._drag_before[0] == (t, p, view)
+            before = self._drag_before[1] if same else self.error[:, t, p].copy()
+            self._drag_before = None if durable else ((t, p, view), before)
             points = self._apply_record(record)
             self.revision += 1
-            for p in points:
-                self._resolve(record["frame"], p)
+            for q in points:
+                self._resolve(t, q)
             solve_ms = (time.perf_counter() - journaled + planned - started) * 1000
             self.dirty = True
-            reply = self.points(record["frame"])
+            reply = self.points(t)
+            if record["op"] in ("move", "set3d"):
+                reply["consequence"] = self._consequence(t, p, self.view_index(view), before)
             reply["solve_ms"] = round(solve_ms, 2)
             reply["journal_ms"] = round((journaled - planned) * 1000, 2)
             return reply
+
+    def _consequence(self, t: int, p: int, v: int, before: np.ndarray) -> dict:
+        """What an edit of point ``p`` in view ``v`` did: ``rose``, the other views whose error
+        grew by more than :data:`WORSE_PX` (``after`` None: now dropped), and ``dropped``, how
+        far its own 2D lies from the 3D that the robust triangulation solved without it."""
+        pairs = zip(before.round(1).tolist(), self.error[:, t, p].round(1).tolist())
+        rose = [
+            {"view": self.view_names[u], "before": b, "after": None if math.isnan(a) else a}
+            for u, (b, a) in enumerate(pairs)
+            if u != v and math.isfinite(b) and not a <= b + WORSE_PX
+        ]
+        return {"point": p, "view": self.view_names[v], "rose": rose, "dropped": self._off(v, t, p)}
+
+    def _off(self, v: int, t: int, p: int) -> float | None:
+        """How far the edited 2D of ``p`` in view ``v`` lies from its 3D when the robust
+        triangulation left it out; None when it is used, not edited, or has no 3D."""
+        xy, xyz = self.corrections.points[v, t, p], self.pts3d[t, p]
+        if np.isfinite(self.used2d[v, t, p]).all() or not np.isfinite([*xy, *xyz]).all():
+            return None
+        return round(float(np.linalg.norm(self.cameras[v].project(xyz) - xy)), 1)
 
     @property
     def journal_path(self) -> Path:

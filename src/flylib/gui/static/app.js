@@ -455,8 +455,25 @@ async function sendEdit(message, drag = null) {
   if (drag) drag.recorded = true;
   state.lastServerMs = reply.server_ms;
   status(`${message.op}: re-solved in ${reply.server_ms} ms on the server`);
+  if (message.durable !== false) sayConsequences([reply]);  // a drag: once, at its end
   redrawAll();
   return reply;
+}
+
+function sayConsequences(replies) {
+  // at once, what edits made worse: another view's error raised, or the edited view left
+  // out by the robust triangulation; the next edit or undo replaces the line
+  const lines = replies.map((r) => r.consequence && consequenceText(r.consequence, r.frame)).filter(Boolean);
+  $("#consequence").textContent = lines.length ? `${lines.join("; ")} \u2014 Ctrl+Z to undo` : "";
+  $("#consequence").hidden = !lines.length;
+}
+
+function consequenceText(c, frame) {
+  const said = c.rose.map((r) => r.after === null
+    ? `view ${r.view} dropped by the robust triangulation (was ${r.before.toFixed(1)} px)`
+    : `view ${r.view}'s error rose ${r.before.toFixed(1)} \u2192 ${r.after.toFixed(1)} px`);
+  if (c.dropped !== null) said.unshift(`dropped by the robust triangulation (${c.dropped.toFixed(1)} px from its 3D)`);
+  return said.length ? `${state.meta.points[c.point]} in ${c.view} at frame ${frame}: ${said.join(", ")}` : "";
 }
 
 async function replay(entry, which) {
@@ -468,6 +485,7 @@ async function replay(entry, which) {
     if (!(await submit(message))) { status(`${which} stopped: ${$("#status").textContent}`); return; }
   }
   await refresh();
+  sayConsequences([]);
   status(`${which}: ${entry.redo.map((m) => m.op).join(", ")} at frame ${entry.frame}`);
 }
 
@@ -546,10 +564,11 @@ async function applyToItem() {
     if (!reply) break;
     undo.push(...restoreMessages(data[f], [s.point]));
     redo.push({ ...message, durable: true });
-    results.push({ frame: f, error: reply.views[view.index].error[s.point] });
+    results.push({ frame: f, error: reply.views[view.index].error[s.point], reply });
   }
   if (redo.length) state.history.record({ frame: state.frame, undo, redo });
   await refresh();
+  sayConsequences(results.map((r) => r.reply));
   const shown = results.map((r) => `${r.frame}: ${r.error === null ? "dropped" : `${r.error.toFixed(1)} px`}`).join(", ");
   state.applied = { frames: results.map((r) => r.frame), errors: results.map((r) => r.error) };
   status(`applied to frames ${item.frames[0]}\u2013${item.frames[item.frames.length - 1]} of ${state.meta.points[s.point]} in ${s.view} ` +
@@ -702,10 +721,19 @@ async function save(checked = false) {
 function showSaveCheck(check) {
   const box = $("#save-check");
   const list = box.querySelector("ul");
-  const lines = [...check.worse.map((t) => `error raised: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const lines = [...check.worse.map((t) => `made worse: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const items = lines.map((text, i) => {
+    // a click goes to the line's frame (the dialog closes; s asks again)
+    const li = document.createElement("li");
+    li.textContent = text;
+    li.className = "clickable";
+    li.title = `go to frame ${check.frames[i]}`;
+    li.addEventListener("click", () => { box.hidden = true; act(() => goto(check.frames[i])); });
+    return li;
+  });
   const more = check.count - lines.length;
-  if (more > 0) lines.push(`and ${more} more`);
-  list.replaceChildren(...lines.map((t) => { const li = document.createElement("li"); li.textContent = t; return li; }));
+  if (more > 0) items.push(Object.assign(document.createElement("li"), { textContent: `and ${more} more` }));
+  list.replaceChildren(...items);
   box.hidden = false;
   $("#save-anyway").focus();
   status(`not saved yet: ${check.count} edit result(s) to look at first`);
