@@ -132,10 +132,13 @@ def test_one_line_under_the_frames_tells_the_item_and_the_footage_fills_the_wind
     item = items[0]
     large = at_item(driver, item)
     line = driver.execute_script(
-        "const e = document.querySelector('#item-line'), r = e.getBoundingClientRect();"
+        "const e = document.querySelector('#item-line'); if (!e) return null;"
+        "const r = e.getBoundingClientRect();"
         "return {text: e.textContent, top: r.top, bottom: r.bottom, height: r.height,"
         " frames: document.querySelector('.view.large').getBoundingClientRect().bottom}"
     )
+    fill = driver.execute_script("return window.flylib.focusFill()")
+    assert line is not None and fill >= 0.8, f"no item line; the footage fills {fill:.0%}"
     error = served[1].points(item["peak_frame"])["views"]
     v = served[1].view_names.index(large)
     frames = f"{item['first_frame']}\u2013{item['last_frame']}"
@@ -145,5 +148,3 @@ def test_one_line_under_the_frames_tells_the_item_and_the_footage_fills_the_wind
     assert f"{error[v]['error'][item['point']]:.1f} px" in text, text
     # one line, under the frames, inside the window
     assert line["top"] >= line["frames"] and line["bottom"] <= 720 and line["height"] < 24, line
-    fill = driver.execute_script("return window.flylib.focusFill()")
-    assert fill >= 0.8, f"the focused footage fills {fill:.0%} of the window"

@@ -361,6 +361,7 @@ function redrawAll() {
   state.views.forEach(draw);
   if (state.view3d) state.view3d.update(state.data, state.selected ? state.selected.point : null);
   showSelection();
+  showItemLine();
   $("#undo").disabled = !state.history.canUndo;
   $("#redo").disabled = !state.history.canRedo;
   drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
@@ -385,6 +386,22 @@ function showSelection() {
     (flags.length ? ` (${flags.join(", ")})` : "");
 }
 
+function showItemLine() {
+  // the item worked on, one line under the frames: rank, reason here, frames, error here
+  const item = state.item, s = state.selected, line = $("#item-line");
+  if (!item) { line.textContent = `${state.items.length} suspect items: n / u go to them`; line.title = ""; return; }
+  const live = state.items.find((it) => sameItem(it, item));
+  const here = state.suspects.find((r) => r.point === item.point && r.frame === state.frame);
+  const view = s && s.point === item.point ? state.views.find((v) => v.name === s.view) : null;
+  const error = view && state.data ? state.data.views[view.index].error[item.point] : null;
+  line.textContent = [live ? `#${live.rank + 1} of ${state.items.length}` : "no longer suspect", item.point_name,
+    `frames ${framesText(live || item)}`, !item.frames.includes(state.frame) ? `frame ${state.frame} is outside it`
+      : here ? here.detail : "not suspect at this frame",
+    view && `error here ${error === null ? "none (not used)" : `${error.toFixed(1)} px`} in ${view.name}`,
+  ].filter(Boolean).join(" \u00b7 ");
+  line.title = line.textContent;
+}
+
 async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
@@ -397,6 +414,7 @@ async function loadSuspects() {
     `(${state.items.length} items: ${state.suspects.length} points in ${state.suspectFrames.length} frames)`;
   const timeline = $("#timeline");
   timeline.width = timeline.clientWidth || 800;
+  timeline.height = timeline.clientHeight || 36;
   renderSuspectTable();
 }
 
@@ -1042,12 +1060,18 @@ window.flylib = {
     });
   },
   focusFill() {
-    // the large view's frame (unzoomed) as a fraction of the window's area
+    // the large view's frame (unzoomed) less what the thumbnails cover, as a fraction of the window
     const view = state.views[state.focus];
     if (state.layout !== "focus" || !view) return 0;
-    const rect = view.canvas.getBoundingClientRect();
-    const fit = Math.min(rect.width / view.width, rect.height / view.height);
-    return (view.width * fit * view.height * fit) / (window.innerWidth * window.innerHeight);
+    const r = view.canvas.getBoundingClientRect();
+    const fit = Math.min(r.width / view.width, r.height / view.height);
+    const w = view.width * fit, h = view.height * fit, left = r.left + (r.width - w) / 2, top = r.top + (r.height - h) / 2;
+    let covered = 0;
+    for (const tile of [...state.views.map((v) => v.div), state.tile3d]) {
+      const t = tile === view.div ? null : tile.getBoundingClientRect();
+      if (t) covered += Math.max(0, Math.min(t.right, left + w) - Math.max(t.left, left)) * Math.max(0, Math.min(t.bottom, top + h) - Math.max(t.top, top));
+    }
+    return (w * h - covered) / (window.innerWidth * window.innerHeight);
   },
   tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {
