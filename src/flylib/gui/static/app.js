@@ -5,7 +5,7 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
 import { applyLayout } from "./layout.js";
 import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
-import { itemPlan, neighbourItem, renderItems } from "./suspects.js";
+import { framesText, itemPlan, neighbourItem, renderItems, sameItem } from "./suspects.js";
 import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
@@ -175,10 +175,25 @@ async function goto(frame) {
   }
   const data = await getJSON(`/api/points/${frame}`);
   if (id !== state.requestId) return;
+  followPoint(state.data, data);
   state.data = data;
   state.revision = data.revision;
   redrawAll();
   renderSuspectTable();
+}
+
+const pointAt = (data, view, point) => data && (data.views[view.index].points2d[point] || data.views[view.index].reprojected[point]);
+
+function followPoint(before, after) {
+  // focused on a point, each zoomed view pans with it from frame to frame (it stays where it was)
+  if (state.layout !== "focus" || !state.selected) return;
+  for (const view of state.views) {
+    const a = pointAt(before, view, state.selected.point), b = pointAt(after, view, state.selected.point);
+    const z = state.zoom[view.name];
+    if (!a || !b || z.scale <= 1 || !view.transform) continue;
+    z.x -= (b[0] - a[0]) * view.transform.scale;
+    z.y -= (b[1] - a[1]) * view.transform.scale;
+  }
 }
 
 function resize(view) {
@@ -222,12 +237,16 @@ function drawMarks(view, selected) {
   });
   const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
   const shown = (p) => state.display.limb === null || state.meta.point_limbs[p] === state.display.limb;
-  // labels always on (l): every drawn point's name; else the hovered and the selected one
+  // labels always on (l): every drawn point's name; else the hovered and the selected one;
+  // a thumbnail names the selected point only
   const named = state.display.labels ? state.meta.points.map((_, p) => p).filter(shown) : [];
-  for (const p of new Set([...named, selected, hover])) {
+  const thumbnail = state.layout === "focus" && view.index !== state.focus;
+  view.labelled = [];  // the names drawn (the browser test reads them)
+  for (const p of new Set(thumbnail ? [state.selected && state.selected.point] : [...named, selected, hover])) {
     if (p === null || p === undefined) continue;
     const xy = v.points2d[p] || v.reprojected[p];
     if (!xy) continue;
+    view.labelled.push(p);
     drawPointLabel(view.canvas, toCanvas(view.transform, xy), state.meta.points[p], state.meta.point_colors[p]);
   }
 }
@@ -342,6 +361,7 @@ function redrawAll() {
   state.views.forEach(draw);
   if (state.view3d) state.view3d.update(state.data, state.selected ? state.selected.point : null);
   showSelection();
+  showItemLine();
   $("#undo").disabled = !state.history.canUndo;
   $("#redo").disabled = !state.history.canRedo;
   drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
@@ -366,6 +386,22 @@ function showSelection() {
     (flags.length ? ` (${flags.join(", ")})` : "");
 }
 
+function showItemLine() {
+  // the item worked on, one line under the frames: rank, reason here, frames, error here
+  const item = state.item, s = state.selected, line = $("#item-line");
+  if (!item) { line.textContent = `${state.items.length} suspect items: n / u go to them`; line.title = ""; return; }
+  const live = state.items.find((it) => sameItem(it, item));
+  const here = state.suspects.find((r) => r.point === item.point && r.frame === state.frame);
+  const view = s && s.point === item.point ? state.views.find((v) => v.name === s.view) : null;
+  const error = view && state.data ? state.data.views[view.index].error[item.point] : null;
+  line.textContent = [live ? `#${live.rank + 1} of ${state.items.length}` : "no longer suspect", item.point_name,
+    `frames ${framesText(live || item)}`, !item.frames.includes(state.frame) ? `frame ${state.frame} is outside it`
+      : here ? here.detail : "not suspect at this frame",
+    view && `error here ${error === null ? "none (not used)" : `${error.toFixed(1)} px`} in ${view.name}`,
+  ].filter(Boolean).join(" \u00b7 ");
+  line.title = line.textContent;
+}
+
 async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
@@ -378,6 +414,7 @@ async function loadSuspects() {
     `(${state.items.length} items: ${state.suspects.length} points in ${state.suspectFrames.length} frames)`;
   const timeline = $("#timeline");
   timeline.width = timeline.clientWidth || 800;
+  timeline.height = timeline.clientHeight || 36;
   renderSuspectTable();
 }
 
@@ -385,21 +422,21 @@ function renderSuspectTable() {
   const done = new Set((state.review ? state.review.items : []).filter((it) => it.done)
     .flatMap((it) => it.frames.map((f) => `${it.point}:${f}`)));
   renderItems($("#suspects tbody"), state.items, state.sort, state.frame, done,
-    (item) => act(() => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames })));
+    (item) => act(() => jumpToSuspect(item)));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
     th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
   });
 }
 
-async function jumpToSuspect(s) {
+async function jumpToSuspect(item) {
   // the item (a point's consecutive suspect frames) stays the one worked on after its
-  // frames are corrected and it leaves the list (a = apply to it)
-  if (s.frames) state.item = { point: s.point, frames: [...s.frames] };
-  await goto(s.frame);
-  const view = bestViewFor(s.point);
-  state.selected = { view: view.name, point: s.point };
-  focusOn(view, s.point);
+  // frames are corrected and it leaves the list (a = apply to it; n / p go on from it)
+  state.item = { ...item, frames: [...item.frames] };
+  await goto(item.peak_frame);
+  const view = bestViewFor(item.point);
+  state.selected = { view: view.name, point: item.point };
+  focusOn(view, item.point);
 }
 
 function bestViewFor(point) {
@@ -417,8 +454,7 @@ function stepSuspect(direction) {
   // n / p: the next / previous item in the list's order, at its worst frame
   if (!state.items.length) return status("no suspects");
   const point = state.selected ? state.selected.point : null;
-  const item = neighbourItem(state.items, state.sort, state.frame, point, direction);
-  return jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames });
+  return jumpToSuspect(neighbourItem(state.items, state.sort, state.frame, point, direction, state.item));
 }
 
 // -- editing ---------------------------------------------------------------------------
@@ -613,9 +649,9 @@ async function nextUnreviewed(quiet = false) {
   const items = state.review ? state.review.items : [];
   const open = items.filter((it) => !it.done);
   if (!open.length) { if (!quiet) status(`every suspect item is reviewed (${state.review.done} / ${state.review.total})`); return; }
-  const here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
-  const next = items.slice(here + 1).find((it) => !it.done) || open[0];
-  await jumpToSuspect({ frame: next.peak_frame, point: next.point, frames: next.frames });
+  let here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
+  if (here < 0 && state.item) here = items.findIndex((it) => sameItem(it, state.item));  // off it: after it
+  await jumpToSuspect(items.slice(here + 1).find((it) => !it.done) || open[0]);
 }
 
 async function refresh() {
@@ -879,15 +915,16 @@ function setLayout(layout) {
 const FOCUS_ZOOM = 2.5;  // a focused point's view: the frame magnified around the point
 
 function focusOn(view, point) {
-  // the selected point's view large, zoomed to the point (g, n / p, a click in the list)
+  // the selected point's view large, every view zoomed to the point (g, n / p, a click in the list)
   state.layout = "focus";
   $("#views").className = "focus";
   setFocus(view.index);
   requestAnimationFrame(() => {
-    resize(view);
-    const v = state.data && state.data.views[view.index];
-    const xy = v && (v.points2d[point] || v.reprojected[point]);
-    if (xy) zoomTo(view, xy, FOCUS_ZOOM);
+    for (const v of state.views) {
+      resize(v);
+      const xy = pointAt(state.data, v, point);
+      if (xy) zoomTo(v, xy, FOCUS_ZOOM); else state.zoom[v.name] = { scale: 1, x: 0, y: 0 };
+    }
     redrawAll();
   });
 }
@@ -1051,12 +1088,18 @@ window.flylib = {
     });
   },
   focusFill() {
-    // the large view's frame (unzoomed) as a fraction of the window's area
+    // the large view's frame (unzoomed) less what the thumbnails cover, as a fraction of the window
     const view = state.views[state.focus];
     if (state.layout !== "focus" || !view) return 0;
-    const rect = view.canvas.getBoundingClientRect();
-    const fit = Math.min(rect.width / view.width, rect.height / view.height);
-    return (view.width * fit * view.height * fit) / (window.innerWidth * window.innerHeight);
+    const r = view.canvas.getBoundingClientRect();
+    const fit = Math.min(r.width / view.width, r.height / view.height);
+    const w = view.width * fit, h = view.height * fit, left = r.left + (r.width - w) / 2, top = r.top + (r.height - h) / 2;
+    let covered = 0;
+    for (const tile of [...state.views.map((v) => v.div), state.tile3d]) {
+      const t = tile === view.div ? null : tile.getBoundingClientRect();
+      if (t) covered += Math.max(0, Math.min(t.right, left + w) - Math.max(t.left, left)) * Math.max(0, Math.min(t.bottom, top + h) - Math.max(t.top, top));
+    }
+    return (w * h - covered) / (window.innerWidth * window.innerHeight);
   },
   tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {
