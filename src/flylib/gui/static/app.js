@@ -5,7 +5,8 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
 import { applyLayout } from "./layout.js";
 import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
-import { framesText, itemPlan, neighbourItem, renderItems, sameItem } from "./suspects.js";
+import { FramesAhead } from "./ahead.js";
+import { framesText, itemPlan, markCurrent, neighbourItem, renderItems, sameItem } from "./suspects.js";
 import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
@@ -157,6 +158,7 @@ function relayout() {
 // -- frames --------------------------------------------------------------------------
 
 async function goto(frame) {
+  // the frame's images and points drawn together, once all are here (fetched ahead: at once)
   const meta = state.meta;
   frame = Math.max(0, Math.min(meta.frames - 1, Math.round(frame)));
   state.frame = frame;
@@ -164,22 +166,28 @@ async function goto(frame) {
   $("#slider").value = frame;
   $("#frame-label").textContent = `/ ${meta.frames - 1}`;
   if (document.activeElement !== $("#frame-input")) $("#frame-input").value = String(frame);
-  for (const view of state.views) {
-    const image = new Image();
-    image.onload = () => {
-      if (id !== state.requestId) return;
-      state.images[view.name] = image;
-      draw(view);
-    };
-    image.src = apiUrl(`/api/frame/${encodeURIComponent(view.name)}/${frame}`);
-  }
-  const data = await getJSON(`/api/points/${frame}`);
+  state.ahead ||= new FramesAhead(state.views.map((v) => v.name));
+  const entry = state.ahead.get(frame);
+  const bitmaps = await Promise.all(state.views.map((view) => entry.images[view.name]));
+  let data = await entry.points;
+  if (data.revision !== state.revision) data = await getJSON(`/api/points/${frame}`);  // edited since
   if (id !== state.requestId) return;
   followPoint(state.data, data);
+  state.views.forEach((view, i) => { if (bitmaps[i]) state.images[view.name] = { bitmap: bitmaps[i], frame }; });
   state.data = data;
   state.revision = data.revision;
   redrawAll();
-  renderSuspectTable();
+  markCurrent($("#suspects tbody"), frame);
+  state.ahead.want(framesAhead(frame));
+}
+
+function framesAhead(frame) {
+  // the next frames (half a second's while playing), the previous one, the next / previous item
+  const n = state.playing ? Math.max(4, Math.ceil(state.playing.fps / 2)) : 4;
+  const point = state.selected ? state.selected.point : null;
+  const items = state.items.length ? [1, -1].map((d) => neighbourItem(state.items, state.sort, frame, point, d).peak_frame) : [];
+  return [...Array.from({ length: n }, (_, i) => frame + 1 + i), frame - 1, ...items]
+    .filter((f) => f >= 0 && f < state.meta.frames);
 }
 
 const pointAt = (data, view, point) => data && (data.views[view.index].points2d[point] || data.views[view.index].reprojected[point]);
@@ -217,13 +225,11 @@ function draw(view) {
   const image = state.images[view.name];
   const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
   const d = state.display;
-  view.transform = drawView(view.canvas, image, view, state.meta, state.data,
+  view.transform = drawView(view.canvas, image && image.bitmap, view, state.meta, state.data,
     { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel, overlay: d.overlay,
       limb: d.limb, peek: state.peek, filter: footageFilter() });
   if (!state.peek) drawMarks(view, sel);
-  const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
-    image && image.src.includes(`/${state.frame}?`);
-  if (state.data && state.data.frame === state.frame && imageReady) {
+  if (state.data && state.data.frame === state.frame && image && image.frame === state.frame) {
     view.canvas.dataset.drawnFrame = String(state.frame);
   }
 }
@@ -331,19 +337,25 @@ function cycleLimb(direction) {
 // -- playback --------------------------------------------------------------------------
 
 function togglePlay() {
-  // space: play from here at the chosen frames per second (each frame drawn before the next)
-  if (state.playing) { clearTimeout(state.playing.timer); state.playing = null; $("#play").textContent = "\u25B6"; return; }
-  const fps = Number($("#fps").value);  // kept within 1..120 as typed
-  state.playing = { timer: null };
+  // space: play from here at the chosen frames per second; frames not fetched in time are
+  // skipped (the one shown is the one due, or the latest fetched before it): the rate holds
+  if (state.playing) { state.playing = null; $("#play").textContent = "\u25B6"; return; }
+  const playing = { fps: Number($("#fps").value) };  // kept within 1..120 as typed
+  state.playing = playing;
   $("#play").textContent = "\u275A\u275A";
-  const tick = async () => {
-    if (!state.playing) return;
-    const started = performance.now();
-    if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
-    await goto(state.frame + 1);
-    if (state.playing) state.playing.timer = setTimeout(tick, Math.max(0, 1000 / fps - (performance.now() - started)));
-  };
-  tick();
+  const from = state.frame, started = performance.now();
+  const due = (frame) => started + ((frame - from - 1) * 1000) / playing.fps;
+  (async () => {
+    while (state.playing === playing) {
+      if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
+      const late = 1 + Math.floor(((performance.now() - started) * playing.fps) / 1000);
+      let next = Math.min(state.meta.frames - 1, Math.max(state.frame + 1, from + late));
+      // fetching the due frame now would also delay the fetches ahead
+      if (!state.ahead.isReady(next)) next = [...Array(next - state.frame - 1).keys()].map((i) => next - 1 - i).find((f) => state.ahead.isReady(f)) ?? next;
+      await goto(next);
+      await new Promise((done) => setTimeout(done, Math.max(0, due(next + 1) - performance.now())));
+    }
+  })().catch((err) => { status(err.message); if (state.playing === playing) togglePlay(); });
 }
 
 async function stopServer() {

@@ -31,11 +31,11 @@ export function framesText(item) {
 export function renderItems(tbody, items, sort, frame, reviewed, onPick) {
   const rows = sortedItems(items, sort).map((item) => {
     const tr = document.createElement("tr");
-    const covers = item.frames.includes(frame);
     const done = item.frames.every((f) => reviewed.has(`${item.point}:${f}`));
-    tr.className = (covers ? "current" : "") + (done ? " reviewed" : "");
+    tr.className = done ? "reviewed" : "";
     tr.title = `frames ${item.frames.join(", ")}; at ${item.peak_frame}: ${item.detail}`;
     tr.dataset.rank = String(item.rank);
+    tr.frames = item.frames;
     for (const text of [framesText(item), (done ? "\u2713 " : "") + item.point_name, item.score.toFixed(2), item.reasons.join(", ")]) {
       const td = document.createElement("td");
       td.textContent = text;
@@ -45,8 +45,19 @@ export function renderItems(tbody, items, sort, frame, reviewed, onPick) {
     return tr;
   });
   tbody.replaceChildren(...rows);
-  const current = rows.find((tr) => tr.classList.contains("current"));
-  if (current && frame !== shownFrame) keepVisible(current);
+  markCurrent(tbody, frame);
+}
+
+export function markCurrent(tbody, frame) {
+  // the rows of the frame's items marked, the first scrolled into view once per frame
+  // (a frame step touches only these classes: rebuilding a long list took most of a step)
+  let first = null;
+  for (const tr of tbody.rows) {
+    const covers = tr.frames.includes(frame);
+    tr.classList.toggle("current", covers);
+    if (covers) first ||= tr;
+  }
+  if (first && frame !== shownFrame) keepVisible(first);
   shownFrame = frame;
 }
 
