@@ -88,7 +88,7 @@ def build_problem():
 
     rig = default_rig()
     truth = synthetic_fly(200, seed=0)
-    # the 30 leg points (both sides), as in the default points_to_use
+    # the 30 leg points (both sides)
     legs = np.array([p for p in range(38) if p % 19 < 15])
     pts2d, _ = observe(truth[:, legs], rig, noise_px=1.0, outlier_frac=0.0, visibility=None, seed=0)
     vis = rig_visibility(rig.names, [POINT_NAMES[p] for p in legs])
@@ -133,7 +133,7 @@ def rough_case(hard: bool, frames: int) -> None:
     case = make_case(frames, hard=hard)
     print(
         f"rough case{' (hard)' if hard else ''}: {frames} frames, median bone "
-        f"{case.bone:.3f} units; fitting 200 frames of the 30 leg points",
+        f"{case.bone:.3f} units; fitting 200 frames of the default points_to_use",
         flush=True,
     )
     # JIT: compile the Jacobian kernel once, timed apart from the fits

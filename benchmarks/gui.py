@@ -14,7 +14,14 @@ H.264) opened as the GUI does, random jumps timed right after opening (the backg
 fill still running) and once it is done, against the same sources with the fill off
 (``fill_bytes=0``: keyframe seek + decode on, as before) in the same run.
 
+In a browser (issue 47, ``--browser``: headless Chromium, as tests/gui): a frame step
+(-> until every view shows the frame) on a just-opened recording, the next frames fetched
+ahead by the page, against the baseline of fetching a frame's 7 JPEGs and points cold in
+the same page (what a step waited for without that); playback's drawn frames per second
+at 10 and 30 fps asked (target: step <= 60 ms, playback at the asked rate up to 30 fps).
+
     python benchmarks/gui.py [--frames 200] [--repeats 60] [--footage DIR ...]
+    python benchmarks/gui.py --browser --frames 900
 """
 
 from __future__ import annotations
@@ -88,6 +95,74 @@ def random_access(directory: Path, repeats: int) -> None:
     pool.shutdown()
 
 
+STEP_JS = """
+const [n, done] = [arguments[0], arguments[arguments.length - 1]];
+const f = window.flylib, ms = [], cold = [], sleep = (t) => new Promise((r) => setTimeout(r, t));
+(async () => {
+  for (let i = 0; i < n; i++) {  // a step every 100 ms or so, as a user tapping ->
+    const t = performance.now();
+    f.goto(f.state.frame + 1);
+    while (!f.allDrawn()) await sleep(2);
+    ms.push(performance.now() - t);
+    await sleep(100);
+  }
+  for (let i = 0; i < Math.min(n, 20); i++) {  // baseline: a frame not fetched before, cold
+    const frame = f.state.meta.frames - 1 - i, t = performance.now();
+    await Promise.all([fetch(`/api/points/${frame}`).then((r) => r.json()),
+      ...f.state.views.map((v) => { const im = new Image(); im.src = `/api/frame/${v.name}/${frame}?cold`; return im.decode(); })]);
+    cold.push(performance.now() - t);
+  }
+  done([ms, cold]);
+})();
+"""
+PLAY_JS = """
+const [fps, seconds, done] = [arguments[0], arguments[1], arguments[arguments.length - 1]];
+const f = window.flylib, from = f.state.frame, drawn = new Set();
+const canvas = f.state.views[f.state.views.length - 1].canvas;  // drawn last of a frame
+new MutationObserver(() => drawn.add(canvas.dataset.drawnFrame)).observe(canvas, { attributes: true });
+document.querySelector("#fps").value = String(fps);
+const key = () => document.body.dispatchEvent(new KeyboardEvent("keydown", { key: " ", bubbles: true }));
+key();
+setTimeout(() => { key(); done([drawn.size / seconds, (f.state.frame - from) / seconds]); }, seconds * 1000);
+"""
+
+
+def browser_figures(frames: int, repeats: int) -> None:
+    """Frame steps and playback in headless Chromium on a just-opened demo recording."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from flylib.gui import ReviewSession
+    from tests.gui.test_browser import browser
+
+    from gui_fixtures import make_demo_outputs, serving
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = make_demo_outputs(Path(tmp) / "rec", frames=frames)
+        session = ReviewSession(out)
+        driver = browser()
+        driver.set_script_timeout(600)
+        try:
+            with serving(session) as url:
+                driver.get(url)
+                while not driver.execute_script("return window.flylib && window.flylib.allDrawn()"):
+                    time.sleep(0.05)
+                steps, cold = driver.execute_async_script(STEP_JS, min(repeats, frames // 3))
+                print(
+                    f"browser, {frames} frames x 7 views, just opened (the server's fill running):"
+                )
+                print(f"  baseline, a frame fetched cold (7 JPEGs + points): {stats(cold)}")
+                print(f"  frame step (fetched ahead), until drawn:          {stats(steps)}")
+                for fps in (10, 30):
+                    shown, moved = driver.execute_async_script(PLAY_JS, fps, 3)
+                    print(
+                        f"  playback at {fps:2d} fps asked: {shown:4.1f} frames drawn per s, "
+                        f"{moved:4.1f} frames advanced per s"
+                    )
+        finally:
+            driver.quit()
+            session.close()
+    print("targets: step <= 60 ms, playback at the asked rate up to 30 fps")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200, help="demo recording length")
@@ -101,7 +176,13 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--footage-only", action="store_true", help="only the real-footage random-access figures"
     )
+    parser.add_argument(
+        "--browser", action="store_true", help="only the browser figures (needs chromium)"
+    )
     args = parser.parse_args(argv)
+    if args.browser:
+        browser_figures(args.frames, args.repeats)
+        return 0
     footage = args.footage or [d for d in SHARED_FOOTAGE if d.is_dir()]
     for directory in footage:
         random_access(directory, args.repeats)

@@ -185,6 +185,10 @@ def script_main(
         name, threads, verbose = job.rule, job.threads, False
 
         def prepare() -> tuple[Any, dict[str, Any]]:
+            from flylib.provenance import refuse_stale_inputs
+
+            if "expects" in job.params.keys():  # an input of other settings is never read
+                refuse_stale_inputs(job.input, job.params.expects)
             inputs = _job_inputs(job, stage)
             given = {a.dest: _job_value(job, n, a) for n, a in options.items()}
             return inputs, given | job_extra(job)

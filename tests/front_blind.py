@@ -105,6 +105,12 @@ def package_visibility() -> np.ndarray:
     return _fly38(seen[..., None])[..., 0]
 
 
+def package_points2d() -> np.ndarray:
+    """``(7, 15, 38, 2)``: DeepFly3D's 2D of its package example, raw pixels, fly38 order."""
+    data = read_df3d_points2d(PACKAGE_EXAMPLE / "df3d_result.pkl", [IMAGE_SIZE] * len(VIEWS))
+    return _fly38(np.asarray(data.xy, float)[: len(VIEWS)])
+
+
 def default_start() -> CameraGroup:
     """The default config's rig for 960x480 footage."""
     return config_rig(Config.default(), image_sizes={v: IMAGE_SIZE for v in VIEWS})

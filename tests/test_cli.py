@@ -318,7 +318,7 @@ def test_inspect_judges_the_handedness_of_a_file_assembled_without_a_verdict(tmp
 
     config = Config.default()
     rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
-    for name, pts3d in (("fly", synthetic_fly(8)), ("mirror", synthetic_fly(8) @ WORLD_MIRROR)):
+    for name, pts3d in (("fly", synthetic_fly(10)), ("mirror", synthetic_fly(10) @ WORLD_MIRROR)):
         path = tmp_path / f"{name}.h5"
         PoseResult(
             cameras=rig, skeleton=config.skeleton(), pts2d=rig.project(pts3d), pts3d=pts3d

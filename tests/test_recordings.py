@@ -300,23 +300,20 @@ def test_an_outdir_template_fills_its_placeholders_and_literal_braces(
 
 @pytest.fixture
 def frame_counts(tmp_path, monkeypatch):
-    """A frame-count cache of this test's own, as the process's, and a counter of the
-    videos opened."""
-    import av
-
+    """A frame-count cache of this test's own, as the process's, and a list of the
+    videos whose headers were read."""
     from flylib.recordings import frame_counts as counts
 
     cache = counts.FrameCountCache(lambda: tmp_path / "cache")
     monkeypatch.setattr(counts, "FRAME_COUNTS", cache)
     opened = []
-    real_open = av.open
+    real_read = counts.header_frame_count
 
-    def counted(path, *args, **kwargs):
-        if (args[0] if args else kwargs.get("mode", "r")) == "r":
-            opened.append(path)
-        return real_open(path, *args, **kwargs)
+    def counted(path):
+        opened.append(path)
+        return real_read(path)
 
-    monkeypatch.setattr(av, "open", counted)
+    monkeypatch.setattr(counts, "header_frame_count", counted)
     return cache, opened
 
 
@@ -358,3 +355,39 @@ def test_a_cache_folder_that_cannot_be_made_is_passed_by(tmp_path, monkeypatch):
     monkeypatch.setattr(counts, "FRAME_COUNTS", cache)
     video = write_video(tmp_path / "cam_0.mp4", 4)
     assert counts.video_frame_count(video) == 4 and counts.video_frame_count(video) == 4
+
+
+@pytest.mark.parametrize(
+    "codec, name, options",
+    [
+        ("libx264", "cam.mp4", {}),  # B-frames: an edit list
+        ("libx264", "cam.mov", {}),  # QuickTime: a second hdlr, the data handler's
+        ("libx264", "cam.mp4", {"movflags": "faststart"}),  # moov before mdat
+        ("mpeg4", "cam.mp4", {}),
+        ("mjpeg", "cam.mov", {}),
+        ("libx264", "cam.mp4", {"movflags": "frag_keyframe+empty_moov"}),  # fragmented: av
+        ("libx264", "cam.mkv", {}),  # not MP4: av
+    ],
+)
+def test_a_videos_frame_count_is_the_one_av_reports(tmp_path, codec, name, options):
+    """The frame count read from an MP4's sample table (no decoder opened) is av's, and
+    any file that reader is not sure of is counted by av."""
+    import av
+
+    from flylib.recordings.frame_counts import header_frame_count, mp4_frame_count
+
+    path = tmp_path / name
+    with av.open(str(path), "w", options=options) as container:
+        stream = container.add_stream(codec, rate=30)
+        stream.width, stream.height = 64, 48
+        stream.pix_fmt = "yuvj420p" if codec == "mjpeg" else "yuv420p"
+        rng = np.random.default_rng(0)
+        for _ in range(37):
+            image = rng.integers(0, 255, (48, 64, 3), np.uint8)
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
+        container.mux(stream.encode())
+    with av.open(str(path)) as container:
+        reported = container.streams.video[0].frames or None
+    assert header_frame_count(path) == reported
+    read_by_av = name.endswith(".mkv") or "frag" in options.get("movflags", "")
+    assert mp4_frame_count(path) == (None if read_by_av else 37)

@@ -3,6 +3,7 @@ folder; the ``session`` key of a recordings entry and of the sheet."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -81,3 +82,13 @@ def test_sheet_and_mapping_name_the_session(tmp_path):
     assert [r.session for r in recs] == ["fly4", None]
     with pytest.raises(ConfigError, match=r"recordings\[0\]\.session: must be a name"):
         plan_listing([{"path": str(tmp_path / "t1"), "session": ["a"]}], SOURCES)
+
+
+def test_a_session_folder_is_its_name_as_a_file_name(tmp_path):
+    names = ["fly 3", "a__b", "日本", "Cafe\u0301", "fly 🐝"]
+    recs = [_rec(tmp_path / "day" / f"t{i}", f"t{i}", n) for i, n in enumerate(names * 2)]
+    folders = [s.outdir.name for s in plan_sessions(recs)]
+    assert folders == ["fly_3", "a__b", "日本", "Caf\u00e9", "fly_u1f41d"]
+    for bad in ("..", "a/b", "a\\b", "x\ny"):
+        with pytest.raises(ConfigError, match=f"session {re.escape(repr(bad))} cannot be"):
+            plan_sessions([_rec(tmp_path / "t", "t", bad)])

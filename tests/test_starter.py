@@ -109,7 +109,12 @@ def test_init_on_the_package_example_names_its_calibration_and_the_missing_frame
     folder = df3d_package_example_dir
     _, out, printed = _init(tmp_path, folder, capsys)
     data = yaml.safe_load(out.read_text())
-    assert data["calibration"] == {"file": str(folder / "calib.pkl"), "format": "deepfly3d"}
+    # its world is the fly's mirror image, decided from the 2D beside it, and mirrored back
+    assert data["calibration"] == {
+        "file": str(folder / "calib.pkl"),
+        "format": "deepfly3d",
+        "mirror": True,
+    }
     assert data["pose2d"]["import"]["format"] == "deepfly3d"
     assert "image_size: [height, width]" in printed  # undecided: no footage
 

@@ -1,7 +1,7 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
     flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
-    flylib inspect --verify RESULTS_H5        does the result agree with itself? (status 1 if not)
+    flylib inspect --verify RESULTS_H5        self-consistent, made with its config? (status 1 if not)
     flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
     flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
     flylib check-config CONFIG...             check config files as the workflow does (over the default)
@@ -63,22 +63,29 @@ def _print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -
     print()
 
 
-def _verify(path: Path) -> int:
+def _verify(args) -> int:
     """``inspect --verify``: one line per failed invariant of :mod:`flylib.results.invariants`
-    (status 1), or one saying they hold (status 0)."""
+    and per artifact made with other settings than the config (status 1), or one saying
+    they hold (status 0)."""
+    from .pipeline.planning import params_of
+    from .provenance import stale_artifacts
     from .results.invariants import check_results, describe
 
+    path = args.results
     found = check_results(path)
-    if not found:
+    config, config_path = _compared_config(args)
+    stale = stale_artifacts(path, params_of(config, run_only=True), config_path) if config else []
+    if not found and not stale:
         print(
             f"{path}: consistent (stored reprojection errors match the stored 2D, 3D and "
             "cameras; the 2D is what the 3D was solved from, corrections applied; the "
-            "flags match the NaN patterns)"
+            "flags match the NaN patterns"
+            + (f"; every artifact made with {config_path}'s settings)" if config else ")")
         )
         return 0
     views, points = describe(path)
-    for violation in found:
-        print(f"flylib inspect: {path}: {violation.line(views, points)}", file=sys.stderr)
+    for line in [f"{path}: {v.line(views, points)}" for v in found] + stale:
+        print(f"flylib inspect: {line}", file=sys.stderr)
     return 1
 
 
@@ -99,7 +106,7 @@ def _cmd_inspect(args) -> int:
             file=sys.stderr,
         )
     if args.verify:
-        return _verify(args.results)
+        return _verify(args)
     summary = summarize_results(args.results)
     meta = summary["meta"]
     print(
@@ -122,6 +129,13 @@ def _cmd_inspect(args) -> int:
             ("cameras", "cameras"),
         ],
     )
+    session = summary["session"]
+    if session:  # as the run's session line names the rig the results use
+        folder = session["folder"]
+        where = f": {Path(folder) / 'calibration.toml'}" if folder else ""
+        print(
+            f"rig: session {session['name']}'s, solved over {', '.join(session['members'])}{where}\n"
+        )
     _print_handedness(summary["handedness"])
     if summary["accuracy"] is not None:
         from .run_summary import HELD_OUT_NOTE, accuracy_line
@@ -176,21 +190,28 @@ def _print_handedness(entry: dict | None) -> None:
     print()
 
 
-def _print_provenance(args) -> int:
-    """The provenance table; status 2 when the file is stale or mixes runs."""
+def _compared_config(args):
+    """The config ``inspect`` compares params hashes with and its name: ``--config``'s, else
+    the snapshot beside the file (``None`` without either)."""
     from .config import Config
-    from .provenance import provenance_report, snapshot_beside
+    from .provenance import snapshot_beside
 
     if args.config:  # the user's files, merged over the default config as the workflow does
         from .config.layers import ConfigLayers
         from .paths import DEFAULT_CONFIG_PATH
 
         layers = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, *args.config])
-        config, config_path = Config.from_dict(layers.data), " + ".join(map(str, args.config))
-    else:
-        config_path = snapshot_beside(args.results)
-        config = Config.from_file(config_path) if config_path else None
+        return Config.from_dict(layers.data), " + ".join(map(str, args.config))
+    config_path = snapshot_beside(args.results)
+    return (Config.from_file(config_path) if config_path else None), config_path
+
+
+def _print_provenance(args) -> int:
+    """The provenance table; status 2 when the file is stale or mixes runs."""
     from .pipeline.planning import params_of
+    from .provenance import provenance_report
+
+    config, config_path = _compared_config(args)
 
     rows = provenance_report(args.results, params_of(config) if config is not None else None)
     _print_table(
@@ -388,12 +409,16 @@ def _toml_hint(configfiles: list[Path]) -> str | None:
 
 
 def _cmd_check_config(args) -> int:
+    from .bundle_adjustment.messages import rig_report
     from .config.layers import ConfigLayers
+    from .pipeline.planning import RunPlan
+    from .pipeline.pose2d import Pose2dInputs
     from .pipeline.preflight import load_run_config
 
     base = _default_base(args.configfiles, args.replace_workflow_config)
     layers = ConfigLayers.from_files([*base, *args.configfiles])
-    _, recordings = load_run_config(layers)
+    plan = RunPlan(*load_run_config(layers), main_process=False)  # as the workflow plans
+    recordings = plan.recordings
     if args.to_yaml is not None:
         tomls = [f for f in args.configfiles if f.suffix.lower() == ".toml"]
         if len(tomls) != 1:
@@ -415,7 +440,10 @@ def _cmd_check_config(args) -> int:
     print(
         f"{' + '.join(map(str, args.configfiles))}{over}: valid; {len(recordings)} recording(s): "
         + ", ".join(f"{r.id} -> {r.outdir}" for r in recordings)
+        + "".join(f"; session {s.name} ({', '.join(s.ids)}) -> {s.outdir}" for s in plan.sessions)
     )
+    rig = Pose2dInputs.from_config(plan.config).detection_plan()
+    print("\n".join(rig_report(rig, plan.config.skeleton())))
     hint = _toml_hint(args.configfiles)
     if hint:
         print(hint, file=sys.stderr)
@@ -440,11 +468,15 @@ def _default_base(configfiles: list[Path], replace: bool) -> list[Path]:
 
 def _write_new(path: Path, text: str) -> None:
     """Write ``text`` to ``path``, which must not exist (a user's file is never replaced)."""
+    from .paths import cannot_write
+
     try:
         with open(path, "x", encoding="utf-8") as f:
             f.write(text)
     except FileExistsError:
         raise ConfigError(f"{path}: already exists; choose another name or delete it") from None
+    except OSError as err:
+        raise cannot_write(path, err) from None
 
 
 #: Where ``flylib run`` keeps the checked plain copies it hands to Snakemake (under the directory
@@ -460,6 +492,7 @@ def _cmd_run(args) -> int:
 
     from .config.constants import DEFAULT_CONFIG_PATH
     from .config.layers import ConfigLayers
+    from .paths import atomic_path
     from .pipeline.preflight import load_run_config
 
     argv = list(args.argv)
@@ -483,7 +516,6 @@ def _cmd_run(args) -> int:
     layers = ConfigLayers.from_files([*base, *configfiles])
     load_run_config(layers)
     copies = []
-    RUN_CONFIGS.mkdir(parents=True, exist_ok=True)
     for label, data in layers.layers[len(base) :]:
         text = _plain_yaml(
             data,
@@ -493,9 +525,8 @@ def _cmd_run(args) -> int:
         digest = hashlib.sha256(text.encode()).hexdigest()[:12]
         copy = (RUN_CONFIGS / f"{Path(label).stem}-{digest}.yaml").absolute()
         if not copy.exists():
-            tmp = copy.with_name(f".{copy.name}.{os.getpid()}")
-            tmp.write_text(text, encoding="utf-8")
-            os.replace(tmp, copy)
+            with atomic_path(copy) as tmp:
+                tmp.write_text(text, encoding="utf-8")
         copies.append(str(copy))
     beside = Path(sys.executable).with_name("snakemake")
     snakemake = str(beside) if beside.exists() else shutil.which("snakemake")
@@ -537,8 +568,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--verify",
         action="store_true",
         help="only check that the result agrees with itself (reprojection errors, the 2D "
-        "the 3D was solved from, flags); one line per failed invariant naming the dataset "
-        "and its worst (view, frame, point), 0-based; exit status 1 when one fails",
+        "the 3D was solved from, flags) and that it and the stage artifacts beside it were "
+        "made with the compared config's settings; one line per failed invariant naming the "
+        "dataset and its worst (view, frame, point), 0-based, and per artifact of other "
+        "settings; exit status 1 when one fails",
     )
     p.set_defaults(func=_cmd_inspect)
 
@@ -735,11 +768,23 @@ def _cmd_init(args) -> int:
     except ConfigError as exc:
         print(f"{args.output} needs editing before a run:\n{exc}")
         return 1
-    print(
-        f"{args.output} is valid. Next: snakemake -n --configfile {args.output} (a dry run), "
-        f"then snakemake --cores 2 --configfile {args.output}"
-    )
+    run = f"{_snakemake_here(DEFAULT_CONFIG_PATH.parents[2] / 'Snakefile')} --configfile {args.output}"
+    print(f"{args.output} is valid. Next: {run} -n (a dry run), then {run} --cores 2")
     return 0
+
+
+def _snakemake_here(snakefile: Path) -> str:
+    """Snakemake as typed here: the one beside this Python (``.venv/bin/snakemake`` after
+    install.sh, bare when it is the one on PATH), with the checkout's Snakefile unless here."""
+    import shutil
+
+    exe = Path(sys.executable).with_name("snakemake")
+    on_path = shutil.which("snakemake")
+    cmd = os.path.relpath(exe) if exe.is_relative_to(Path.cwd()) else str(exe)
+    if not exe.exists() or on_path and Path(on_path).resolve() == exe.resolve():
+        cmd = "snakemake"
+    here = Path("Snakefile").resolve() == snakefile.resolve()
+    return cmd if here or not snakefile.is_file() else f"{cmd} -s {snakefile}"
 
 
 def _cmd_gui(args) -> int:
@@ -774,6 +819,11 @@ def main(argv: list[str] | None = None) -> int:
         # interpreter's final flush does not fail again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + 13
+    except OSError as exc:  # a file no writer or reader above named: still one line
+        if exc.filename is None:
+            raise
+        print(f"flylib {args.command}: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,23 +8,18 @@ written beside ``results.h5`` and never inside it::
     pose3d_corrections/    points3d (T, P, 3) float64, edited (T, P) bool
     flylib_review/         reviewed (T, P) bool (flylib's addition, see below)
 
-A file of version 1 or 2 (no ``invisible``, or no ``fixed`` either) loads with the missing
-masks all False. flylib writes every dataset with the Fletcher-32 filter in HDF5 1.8's
-checksummed object format (like its other artifacts) and adds ``flylib_revision`` (the GUI
-session's edit revision) to the meta and the ``flylib_review/reviewed`` mask (the suspect points
-a person marked reviewed / OK in ``flylib gui``, read when present); the seed's readers, which
-read the groups above by name, ignore all three, and the format version stays 3. A file written
-by the seed (no checksums) still loads; whichever wrote it, values
-:meth:`Corrections.invalid_values` refuses (an ``inf`` coordinate, a 3D edit outside the rig, a
-2D edit outside the image, ...) are one :class:`~flylib.errors.ResultsError` at load, never
-applied. Like every HDF5 file of flylib's, it is checked whole before anything is read
-(:func:`~flylib.results.guard.guard_file`: no data stored in other files, no link out of it),
-and, given the result's shape, every dataset's declared shape is checked before it is read.
+Versions 1 and 2 (no ``invisible``, or no ``fixed`` either) load with those masks all False.
+flylib writes every dataset Fletcher-32 checksummed and adds ``flylib_revision`` (the GUI session's
+edit revision) to the meta and the ``flylib_review/reviewed`` mask; the seed's readers ignore all
+three, so the version stays 3. A seed-written file (no checksums) still loads. Values
+:meth:`Corrections.invalid_values` refuses are one :class:`~flylib.errors.ResultsError` at load,
+never applied; the file is guarded whole (:func:`~flylib.results.guard.guard_file`) and, given the
+result's shape, every dataset's declared shape is checked before it is read.
 
 The triangulation stage applies a sidecar
-(:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, for one
-point at a time, so what it shows is what a re-run computes): the 2D edits through
-:meth:`Corrections.apply_2d`, then its ``fixed`` views and 3D edits.
+(:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, so what it
+shows is what a re-run computes): 2D edits through :meth:`Corrections.apply_2d`, then its ``fixed``
+views and 3D edits.
 """
 
 from __future__ import annotations
@@ -85,15 +80,11 @@ _REVIEWED = "flylib_review/reviewed"
 class Corrections:
     """Manual edits of one recording's result (the seed GUI's sidecar).
 
-    ``points`` ``(V, T, P, 2)`` and ``points3d`` ``(T, P, 3)`` are the edited 2D pixels and 3D
-    points (NaN where not edited); the bool masks ``edited`` ``(V, T, P)`` and ``edited3d``
-    ``(T, P)`` say which entries are edits (a NaN edit is an edit). ``fixed`` ``(V, T, P)``:
-    finalized 2D points, always used when the point is re-solved (a subset of ``edited``).
-    ``invisible`` ``(V, T, P)``: dropped from triangulation (disjoint from ``edited``).
-    ``reviewed`` ``(T, P)``: points a person marked reviewed / OK (``flylib gui``'s review
-    progress; not an edit, never applied; default all False). ``source``: the ``results.h5``
-    they apply to (informative); ``created_utc``: when the file was written (ISO 8601);
-    ``revision``: the GUI session revision it was saved at (0 for a seed-written file).
+    ``points`` (2D pixels) and ``points3d`` are NaN where not edited; ``edited`` / ``edited3d`` say
+    which entries are edits (a NaN edit is an edit). ``fixed``: finalized 2D points, always used
+    when re-solved (subset of ``edited``); ``invisible``: dropped from triangulation (disjoint from
+    ``edited``); ``reviewed`` ``(T, P)``: marked OK in ``flylib gui``, never applied (default all
+    False); ``revision``: the GUI session revision saved (0 for a seed-written file).
     """
 
     points: Float[np.ndarray, "V T P 2"]
@@ -158,16 +149,10 @@ class Corrections:
     ) -> Corrections:
         """Read a sidecar (format version 1 to 3), its checksums verified.
 
-        When given, ``shape`` is the ``(V, T, P)`` of the result it must correct;
-        ``image_sizes`` (``(height, width)`` per view, ``None`` for unknown) refuses a 2D edit
-        outside its image; ``cameras`` (the rig the result was triangulated with) refuses a 3D
-        edit farther from it than :data:`EDIT3D_RIG_SPANS` rig sizes.
-
-        Raises :class:`~flylib.errors.ResultsError`, one line naming the file: missing or
-        unreadable, data stored outside it or declared larger than it can hold
-        (:func:`~flylib.results.guard.guard_file`), a failed Fletcher-32 checksum, a newer format
-        version, missing datasets, what :meth:`invalid_values` refuses, or a shape other than
-        ``shape``.
+        ``shape``: the ``(V, T, P)`` it must correct; ``image_sizes`` (``(height, width)`` or
+        ``None`` per view) refuses 2D edits outside the image; ``cameras`` refuses 3D edits farther
+        than :data:`EDIT3D_RIG_SPANS` rig sizes. Any problem is one
+        :class:`~flylib.errors.ResultsError` line naming the file.
         """
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
@@ -213,13 +198,9 @@ class Corrections:
         image_sizes: Sequence[tuple[int, int] | None] | None = None,
         cameras: CameraGroup | None = None,
     ) -> str:
-        """What makes these corrections unusable, or ``""``.
-
-        Infinite numbers anywhere, a non-finite edited 3D point, (with ``cameras``) an edited 3D
-        point farther from the cameras' mean centre than :data:`EDIT3D_RIG_SPANS` times the
-        largest distance between two camera centres, or (with ``image_sizes``, per view
-        ``(height, width)``) an edited 2D point outside its image. A NaN 2D edit is allowed (the
-        seed's deliberate "remove").
+        """What makes these corrections unusable, or ``""``: an infinite number, a non-finite 3D
+        edit, a 3D edit farther from the cameras' mean centre than :data:`EDIT3D_RIG_SPANS` x the
+        rig's span, a 2D edit outside its image. A NaN 2D edit is the seed's deliberate "remove".
         """
         for name in ("points", "points3d"):
             bad = np.argwhere(np.isinf(getattr(self, name)))
@@ -256,13 +237,9 @@ class Corrections:
         return ""
 
     def save(self, path: str | Path) -> Path:
-        """Write the sidecar atomically to ``path`` (normally ``<outdir>/corrections.h5``),
-        format version 3, every dataset Fletcher-32 checksummed.
-
-        Raises :class:`~flylib.errors.ResultsError` (nothing written) when the corrections hold
-        infinite numbers or a non-finite 3D edit, :class:`~flylib.errors.OutputError` when the disk
-        is full (:func:`flylib.paths.atomic_path`).
-        """
+        """Write the sidecar atomically, format version 3, every dataset Fletcher-32 checksummed;
+        :class:`~flylib.errors.ResultsError` (nothing written) on infinite numbers or a non-finite
+        3D edit."""
         problem = self.invalid_values()
         if problem:
             raise ResultsError(f"{path}: not saved, {problem}")
@@ -390,6 +367,7 @@ class Corrections:
             invisible=self.invisible[:, ix[0], ix[1]],
             points3d=self.points3d[ix],
             edited3d=self.edited3d[ix],
+            reviewed=self.reviewed[ix],
             source=self.source,
         )
 
@@ -492,11 +470,9 @@ def corrections_path(
     recording_dir: str | Path | None = None,
     recording_id: str | None = None,
 ) -> tuple[Path, bool]:
-    """Where a recording's corrections sidecar is (it may not exist), and whether the config
-    named it: ``<outdir>/corrections.h5`` unless ``template``, the config's ``corrections`` key,
-    gives a path template (placeholders ``{outdir}``, ``{recording}``, ``{id}``, ``{name}``; a
-    relative path is relative to the outdir). ConfigError on an unknown placeholder or a
-    non-string value."""
+    """Where a recording's sidecar is (may not exist), and whether the config named it:
+    ``<outdir>/corrections.h5`` unless ``template`` (config ``corrections``: ``{outdir}``,
+    ``{recording}``, ``{id}``, ``{name}``; relative to the outdir) says otherwise."""
     from .errors import ConfigError
 
     outdir = Path(outdir)

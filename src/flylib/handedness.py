@@ -7,7 +7,8 @@ reconstruction whose calibration or starting rig is the mirror image of the real
 (near-orthographic cameras cannot tell a scene from its depth-reversed twin) puts the left
 legs on the fly's right: the same product then points ventral. Each frame gives the cosine
 between ``forward x left`` and ``dorsal``; the score is their median over the frames where
-every group has a point, so a few bad frames do not decide it.
+every group has a point, so a few bad frames do not decide it: a verdict needs
+:data:`MIN_FRAMES` such frames.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ UNDETERMINED = "undetermined"
 
 #: A median cosine beyond this (either sign) decides the verdict.
 DECISIVE = 0.5
+#: Fewest measured frames (each with 3D for :data:`MEASURED`) for a verdict: with 10, five
+#: bad frames cannot flip the median. DeepFly3D's sample and package example measure all
+#: their 15 frames; a verdict from 2 of 60 frames rests on one frame against one.
+MIN_FRAMES = 10
+MEASURED = "a front and a hind body-coxa point, a left and a right leg point and a leg tip"
 
 
 @dataclass(frozen=True)
@@ -126,26 +132,26 @@ def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np
 
 def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Handedness:
     """Whether world points ``(T, P, 3)`` (NaN = missing) show a fly or its mirror image: the
-    median per-frame cosine, ``right-handed`` above +0.5, ``mirrored`` below -0.5, else
-    ``undetermined``; the ``skeleton`` names the legs (:func:`side_groups`)."""
+    median per-frame cosine over at least :data:`MIN_FRAMES` frames, ``right-handed`` above
+    +0.5, ``mirrored`` below -0.5, else ``undetermined``; the ``skeleton`` names the legs
+    (:func:`side_groups`)."""
     groups = side_groups(skeleton)
     if isinstance(groups, str):
         return Handedness(float("nan"), UNDETERMINED, groups, 0)
     scores = frame_scores(points3d, skeleton)
     measured = scores[np.isfinite(scores)]
+    few = f"{measured.size} of {scores.size} frames have 3D for {MEASURED}"
+    few += f"; a verdict needs {MIN_FRAMES}"
     if measured.size == 0:
-        return Handedness(
-            float("nan"),
-            UNDETERMINED,
-            "no frame has 3D for the front, hind, left and right legs and the leg tips",
-            0,
-        )
+        return Handedness(float("nan"), UNDETERMINED, few, 0)
     score = float(np.clip(np.median(measured), -1.0, 1.0))
     facts = (
         f"forward x left against dorsal (leg tips below the body-coxa points) "
         f"is {score:+.2f}, median of {measured.size} frames"
     )
-    if score > DECISIVE:
+    if measured.size < MIN_FRAMES:
+        verdict, why = UNDETERMINED, f"too few to tell ({few})"
+    elif score > DECISIVE:
         verdict, why = RIGHT_HANDED, "the left legs are on the fly's left"
     elif score < -DECISIVE:
         verdict, why = MIRRORED, "the left legs are on the fly's right"
@@ -196,6 +202,7 @@ def mirror_image(result: Handedness) -> str:
 
 #: The config switch that mirrors a calibration file's world back (documented in DOCS_PAGE).
 MIRROR_SWITCH = "calibration: {mirror: true}"
+MIRROR_OFF = "calibration: {mirror: false}"
 DOCS_PAGE = "docs/how-it-works/handedness.md"
 
 
@@ -243,7 +250,7 @@ def rig_check(
         out["cause"] = "calibration"
         out["message"] = (
             f"{what}; {rig} mirrored by calibration.mirror: true gives a mirror-image "
-            f"world{kept}; set calibration.mirror: false (see {DOCS_PAGE})"
+            f"world{kept}; set {MIRROR_OFF} (see {DOCS_PAGE})"
         )
     elif from_file:
         out["cause"] = "calibration"

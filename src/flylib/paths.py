@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import glob
 import os
 import re
 import socket
+import unicodedata
 import uuid
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from .locking import claim_lost, pid_alive
@@ -60,6 +62,34 @@ def fill_template(template: str, values: dict[str, str], key: str) -> str:
     return "".join(parts)
 
 
+#: What a name keeps as a file name: letters and digits of any script, ``_``, ``.``, ``-``.
+_NAME_UNSAFE = re.compile(r"[^\w.-]+")
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a folder name (dots only, a path separator, a control
+    character), or ``None``."""
+    if not name.strip("."):
+        return "it is made of dots only (. and .. are folders that exist)"
+    if "/" in name or "\\" in name:
+        return "it holds a path separator (/ or \\)"
+    if any(unicodedata.category(c) == "Cc" for c in name):
+        return "it holds a control character"
+    return None
+
+
+def file_name(name: str, fallback: str) -> str:
+    """``name`` (NFC) as one file name: each run of other ASCII characters becomes ``_``,
+    any other character its code point (``u1f41d``); ``fallback`` when nothing is left."""
+
+    def encode(run: re.Match) -> str:
+        codes = "".join("_" if c.isascii() else f"_u{ord(c):04x}_" for c in run.group())
+        return re.sub("_+", "_", codes)
+
+    safe = _NAME_UNSAFE.sub(encode, unicodedata.normalize("NFC", name)).strip("_")
+    return safe if safe.strip(".") else fallback
+
+
 def cache_dir() -> Path:
     """The per-user cache (weights, JAX kernels): ``$FLYLIB_CACHE``, else ``~/.cache/flylib``."""
     env = os.environ.get("FLYLIB_CACHE")
@@ -79,14 +109,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     (:func:`flylib.locking.claim_lost`).
 
     OutputError (nothing kept) when the write runs out of space (disk full, quota, file-size
-    limit) or another run took the output directory over meanwhile.
+    limit), when ``path`` cannot be created (:func:`cannot_write`) or another run took the
+    output directory over meanwhile.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(path.parent, of=path)
-    tmp = path.with_name(
-        f".{path.stem}.{os.getpid()}@{_HOST}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
-    )
+    tmp = _new_temp(path)
     try:
         yield tmp
         lost = claim_lost(path)
@@ -94,7 +121,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             from .errors import OutputError
 
             raise OutputError(lost)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as err:
+            raise cannot_write(path, err) from None
     except (OSError, RuntimeError) as err:  # h5py's close after a failed write: RuntimeError
         cause = out_of_space(err)
         if cause is None:
@@ -111,6 +141,38 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 _HOST = socket.gethostname()
+
+
+def _new_temp(path: Path) -> Path:
+    """A name for a temporary sibling of ``path``, once its folder (created if missing) has
+    taken a file of that name; :func:`cannot_write` when it cannot."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent, of=path)
+        tmp = path.with_name(
+            f".{path.stem}.{os.getpid()}@{_HOST}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}"
+        )
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        tmp.unlink()
+    except OSError as err:
+        raise cannot_write(path, err) from None
+    return tmp
+
+
+def cannot_write(path: str | Path, err: OSError):
+    """The :class:`~flylib.errors.OutputError` saying in one line why ``path`` cannot be written."""
+    from .errors import OutputError, one_line
+
+    path = Path(path)
+    above = next((p for p in path.parents if os.path.lexists(p)), None)
+    if above is not None and not above.is_dir():
+        reason = f"{above} is a file, not a folder"
+    elif isinstance(err, FileNotFoundError):
+        reason = f"its folder {path.parent} does not exist"
+    else:
+        reason = (err.strerror or one_line(err)).lower()
+    return OutputError(f"{path}: cannot be written ({reason}); nothing was written")
+
 
 #: The file in a folder listing the files flylib wrote (or, for a workflow output folder,
 #: owns) there, one name per line relative to the folder (:func:`written_by_flylib`).
@@ -166,6 +228,20 @@ def is_flylib_hdf5(path: str | Path) -> bool:
     return isinstance(meta, dict) and "deeperfly_format_version" in meta
 
 
+def real_paths() -> Callable[[str | Path], str]:
+    """:func:`os.path.realpath` for many files in few folders: each folder is resolved once (a file
+    that is itself a link, whole), not one ``lstat`` per path component per file."""
+    folder = functools.lru_cache(maxsize=None)(os.path.realpath)
+
+    def real(path: str | Path) -> str:
+        head, name = os.path.split(os.fspath(path))
+        if name in ("", ".", "..") or os.path.islink(path):
+            return os.path.realpath(path)
+        return os.path.join(folder(head or "."), name)
+
+    return real
+
+
 def same_file(a: str | Path, b: str | Path) -> bool:
     """Whether ``a`` and ``b`` are one file: the same resolved path, or (both existing) the
     same inode, so a link or a second name of a file counts as that file."""
@@ -180,7 +256,8 @@ def same_file(a: str | Path, b: str | Path) -> bool:
 def refuse_overwrite(
     path: str | Path, inputs: dict[str, str], role: str, *, force: bool = False
 ) -> None:
-    """Refuse (OutputError) to write ``path`` over an input or a file flylib did not write.
+    """Refuse (OutputError) to write ``path`` over an input, over a file flylib did not write,
+    or where it cannot be written (its folders are created).
 
     ``inputs`` maps each input file to its role (e.g. ``"the input RESULTS_H5"``); ``role``
     is what would write ``path`` (e.g. ``"--csv3d"``). ``force`` replaces an existing file
@@ -200,6 +277,7 @@ def refuse_overwrite(
             f"{path} exists and was not written by flylib; {role} would replace it: "
             "choose another file, or pass --force to replace it"
         )
+    _new_temp(Path(path))
 
 
 # atomic_path's temporary names: .<stem>.<pid>@<host>.<8 hex>.tmp<suffix> (a name without

@@ -30,7 +30,9 @@ __all__ = [
     "foreign_artifacts",
     "params_hash",
     "provenance_report",
+    "refuse_stale_inputs",
     "stage_provenance",
+    "stale_artifacts",
 ]
 
 #: meta key of an artifact's own params hash.
@@ -256,6 +258,61 @@ def provenance_report(
                 problems.append(unapplied)
         rows.append(ProvenanceRow(stage, own, expected, problems, status))
     return rows
+
+
+def _other_settings(path, stage: str, recorded, expected: str, against: str) -> str | None:
+    """A line's start when ``path`` of ``stage`` records a params hash other than ``expected``
+    (``None`` too when it records none: an older flylib)."""
+    if recorded in (None, expected):
+        return None
+    return (
+        f"{path}: made with other {stage} settings (params {recorded}) than {against} ({expected})"
+    )
+
+
+def refuse_stale_inputs(inputs: Mapping[str, Any], expected: Mapping[str, str]) -> None:
+    """A ResultsError naming the first of a workflow job's ``inputs`` whose params hash is not
+    ``expected`` (input name -> hash; ``results``: assemble's), e.g. written late by a killed
+    run's job; it is set aside first, so that the next run makes it again."""
+    from .errors import ResultsError
+    from .results import read_meta
+
+    for name, hash_ in expected.items():
+        path = Path(str(inputs[name])) if name in inputs.keys() and inputs[name] else None
+        recorded = read_meta(path).get(PARAMS_KEY) if path and path.is_file() else None
+        stage = "assemble" if name == "results" else name
+        line = _other_settings(path, stage, recorded, hash_, "this run's config")
+        if line is not None:
+            aside = path.with_name(f"{path.stem}.stale-{recorded}{path.suffix}")
+            os.replace(path, aside)
+            raise ResultsError(
+                f"{line}, e.g. by a job of an earlier run that finished late; set aside as "
+                f"{aside.name}: re-run the workflow to make it again"
+            )
+
+
+def stale_artifacts(results: str | Path, params_of: ParamsOf, against: str) -> list[str]:
+    """One line per stage group of ``results`` and stage artifact in ``stages/`` beside it made
+    with other params than ``params_of`` gives (``against``: that config's name)."""
+    from .results import ARTIFACTS, read_meta
+
+    results = Path(results)
+    _, groups, _ = _group_metas(results)
+    lines = []
+    for stage, name in ARTIFACTS.items():
+        session = bool(groups.get(stage, {}).get("session"))  # a session's rig, not stages/
+        params = params_of("session_calibration" if session else stage)
+        artifact = results.parent / "stages" / name
+        found = [(f"{results}: its {stage} group", groups.get(stage), results.name)]
+        if not session and artifact.is_file():
+            found.append((artifact, read_meta(artifact), "it"))
+        for where, meta, fix in found if params is not None else []:
+            line = _other_settings(
+                where, stage, (meta or {}).get(PARAMS_KEY), params_hash(params), against
+            )
+            if line:
+                lines.append(f"{line}; delete {fix} and re-run the workflow to make it again")
+    return lines
 
 
 def foreign_artifacts(

@@ -13,19 +13,18 @@ from __future__ import annotations
 
 import hashlib
 import os
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import ConfigError
+from .paths import file_name, name_problem
 from .recordings import Recording
 
 __all__ = ["SESSIONS_DIR", "Session", "plan_sessions", "session_lines"]
 
 #: The folder, beside the members' output folders, that holds one folder per session.
 SESSIONS_DIR = "flylib_sessions"
-_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
 @dataclass(frozen=True)
@@ -61,35 +60,50 @@ class Session:
 
 def plan_sessions(recordings: Sequence[Recording]) -> list[Session]:
     """Group ``recordings`` into sessions (by ``session`` name, else by the folder holding
-    them), in the order of their first member. ConfigError when a session's folder would be
-    a recording's output folder."""
+    them), in the order of their first member. ConfigError for a name that is no folder name,
+    two sessions of one folder (names compared as file names, ignoring case) or a session
+    folder that is a recording's output folder."""
     groups: dict[tuple[str, str], list[Recording]] = {}
     for rec in recordings:
+        problem = rec.session and name_problem(rec.session)
+        if problem:
+            raise ConfigError(
+                f"{rec.extra.get('where', 'recordings')}: session {rec.session!r} cannot "
+                f"be a folder name: {problem}; rename it (e.g. day1)"
+            )
         key = ("name", rec.session) if rec.session else ("folder", _folder(rec))
         groups.setdefault(key, []).append(rec)
-    names: dict[tuple[str, str], str] = {}
-    for kind, value in groups:
-        names[(kind, value)] = value if kind == "name" else (Path(value).name or "session")
+    names = {k: k[1] if k[0] == "name" else (Path(k[1]).name or "session") for k in groups}
     taken: dict[str, int] = {}
     for name in names.values():
-        taken[name] = taken.get(name, 0) + 1
+        taken[_fold(name)] = taken.get(_fold(name), 0) + 1
     for key, name in names.items():
-        if key[0] == "folder" and taken[name] > 1:  # two folders of one name
+        if key[0] == "folder" and taken[_fold(name)] > 1:  # two folders of one name
             names[key] = f"{name}-{hashlib.sha1(key[1].encode()).hexdigest()[:8]}"
     outdirs = {str(Path(r.outdir).resolve()): r.id for r in recordings}
-    sessions = []
+    sessions: dict[str, Session] = {}
     for key, members in groups.items():
         name = names[key]
         parents = [os.path.abspath(Path(r.outdir).parent) for r in members]
         common = Path(os.path.commonpath(parents))
-        folder = common / SESSIONS_DIR / (_UNSAFE.sub("_", name).strip("_") or "session")
+        folder = common / SESSIONS_DIR / file_name(name, "session")
         if str(folder.resolve()) in outdirs:
             raise ConfigError(
                 f"recordings: session {name!r}'s folder {folder} is the output folder of "
                 f"recording {outdirs[str(folder.resolve())]!r}; give that recording another outdir"
             )
-        sessions.append(Session(name, tuple(members), folder))
-    return sessions
+        other = sessions.setdefault(str(folder).casefold(), Session(name, tuple(members), folder))
+        if other.members != tuple(members):
+            raise ConfigError(
+                f"recordings: sessions {other.name!r} and {name!r} would both be solved in "
+                f"{folder} (a session's name is its folder's, as a file name and ignoring "
+                "case); rename one of them"
+            )
+    return list(sessions.values())
+
+
+def _fold(name: str) -> str:
+    return file_name(name, "session").casefold()
 
 
 def _folder(rec: Recording) -> str:
@@ -112,10 +126,12 @@ def session_lines(sessions: Sequence[Session]) -> list[str]:
         whole = (held.get("session") or {}).get("median")
         if trial is None or whole is None:
             continue
-        better = "session" if summary.get("better") == "session" else "per-recording"
+        better = {"session": "session better", "per_recording": "per-recording better"}
+        n = len(s.members)
         lines.append(
-            f"session {s.name} ({len(s.members)} recordings): held-out median "
+            f"session {s.name} ({n} recording{'s' * (n != 1)}): held-out median "
             f"{trial:.2f} px with each recording's own rig, {whole:.2f} px with the "
-            f"session's ({better} better); the rig the results use: {s.calibration}"
+            f"session's ({better.get(summary.get('better'), 'equal')}); the rig the results "
+            f"use: {s.calibration}"
         )
     return lines

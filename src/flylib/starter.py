@@ -51,6 +51,7 @@ class Survey:
     sources: dict[str, str] | None
     calibration: dict | None
     undecided: list[str]
+    removed: list[str] = field(default_factory=list)
 
 
 def _default_sources() -> dict[str, str]:
@@ -59,10 +60,16 @@ def _default_sources() -> dict[str, str]:
     return Config.default().source_patterns()
 
 
-def _view_names() -> list[str]:
+def _view_sources() -> dict[str, str]:
     from .config import Config
+    from .config.sources import view_sources
 
-    return Config.default().view_names()
+    return view_sources(Config.default())
+
+
+def _views_of(footage: dict[str, str]) -> list[str]:
+    """The default rig's cameras ``footage`` feeds (every camera when it is empty)."""
+    return [v for v, s in _view_sources().items() if s in footage or not footage]
 
 
 def _candidate_dirs(root: Path) -> Iterable[Path]:
@@ -87,17 +94,21 @@ def _numbered_groups(names: Sequence[str], suffixes: frozenset[str]) -> dict[str
 
 
 def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[dict, str | None]:
-    """``(source -> glob, note)``: the default names when they all match, else videos or image
-    sequences numbered like the cameras, mapped to the sources in number order."""
+    """``(source -> glob, note)``: the default names that match (at least two of them), else
+    videos or image sequences numbered like the cameras: as many as the default rig has, mapped to
+    its sources in number order; fewer, each to the source of its number."""
     import fnmatch
 
-    if all(fnmatch.filter(names, pattern) for pattern in defaults.values()):
-        return dict(defaults), None
+    matched = {s: p for s, p in defaults.items() if fnmatch.filter(names, p)}
+    if len(matched) == len(defaults):
+        return matched, None
     videos = sorted(n for n in names if Path(n).suffix.lower() in VIDEO_SUFFIXES)
     sequences = sorted(_numbered_groups(names, IMAGE_SUFFIXES))
     for kind, found in (("videos", videos), ("image sequences", sequences)):
+        numbers = [_NUMBERED.match(Path(f).stem.replace("*", "")) for f in found]
+        if len(matched) == len(found) > 1:
+            return matched, None
         if len(found) == len(defaults):
-            numbers = [_NUMBERED.match(Path(f).stem.replace("*", "")) for f in found]
             order = sorted(
                 range(len(found)),
                 key=lambda i: (int(numbers[i][2]) if numbers[i] else i, found[i]),
@@ -105,6 +116,15 @@ def _footage(folder: Path, names: list[str], defaults: dict[str, str]) -> tuple[
             return {s: found[i] for s, i in zip(defaults, order, strict=True)}, (
                 f"{folder}: {kind} {', '.join(found[i] for i in order)} taken as cameras "
                 f"{', '.join(defaults)} in that order; check the order"
+            )
+        taken = sorted({int(m[2]) for m in numbers if m})
+        if 1 < len(found) == len(taken) and taken[-1] < len(defaults):
+            sources = list(defaults)
+            by_number = {sources[int(m[2])]: f for m, f in zip(numbers, found, strict=True)}
+            mapping = {s: by_number[s] for s in sources if s in by_number}
+            return mapping, (
+                f"{folder}: {kind} {', '.join(mapping.values())} taken as cameras "
+                f"{', '.join(mapping)} by their numbers; check the order"
             )
     if videos or sequences:
         return {}, (
@@ -155,13 +175,9 @@ def _dlc_like(path: Path) -> str | None:
 
 
 def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[dict]:
-    views = _view_names()
+    views = _views_of(footage)
     stems = [Path(p).stem for p in footage.values()] if footage else []
-    found: list[dict] = []
-    for sub in ("", "df3d/"):
-        pickles = sorted((folder / sub).glob("df3d_result*.pkl")) if (folder / sub).is_dir() else []
-        for pkl in pickles:
-            found.append({"format": "deepfly3d", "files": f"{sub}{pkl.name}"})
+    found = [{"format": "deepfly3d", "files": f} for f in _df3d_2d(folder)]
     per_view: dict[str, list[str]] = {
         fmt: [] for fmt in ("sleap", "dlc_h5", "dlc_csv", "lightning_pose")
     }
@@ -182,7 +198,23 @@ def _imports(folder: Path, names: list[str], footage: dict[str, str]) -> list[di
     return found
 
 
-def _calibrations(folder: Path, names: list[str]) -> list[tuple[str, str]]:
+def _df3d_2d(folder: Path) -> list[str]:
+    """The DeepFly3D pickles holding 2D in ``folder``'s result folders, newest first."""
+    from .errors import FlylibError
+    from .interop.df3d import load_pickle, result_folders
+
+    found = []
+    for order, sub in enumerate(result_folders(folder)):
+        for pkl in sorted((folder / sub).glob("df3d_result*.pkl")):
+            try:
+                if "points2d" in load_pickle(pkl, "DeepFly3D result"):
+                    found.append((-pkl.stat().st_mtime, order, f"{sub}{pkl.name}"))
+            except (FlylibError, OSError, ValueError):
+                continue
+    return [name for *_, name in sorted(found)]
+
+
+def _calibrations(folder: Path, names: list[str], results: bool = False) -> list[tuple[str, str]]:
     from .errors import FlylibError
     from .interop.anipose import read_anipose_toml
     from .interop.df3d import read_df3d_calibration
@@ -190,7 +222,7 @@ def _calibrations(folder: Path, names: list[str]) -> list[tuple[str, str]]:
     found = []
     for name in names:
         lower = name.lower()
-        if lower.endswith(".pkl") and not lower.startswith("df3d_result"):
+        if lower.endswith(".pkl") and (results or not lower.startswith("df3d_result")):
             reader, fmt = read_df3d_calibration, "deepfly3d"
         elif lower.endswith(".toml"):
             reader, fmt = read_anipose_toml, "anipose"
@@ -213,8 +245,10 @@ def survey(root: str | Path) -> Survey:
     top_calibrations = _calibrations(root, sorted(p.name for p in root.iterdir() if p.is_file()))
     inside: list[Path] = []
     for folder in _candidate_dirs(root):
-        if any(folder.is_relative_to(r) and folder != r for r in inside):
-            continue
+        if any(folder.is_relative_to(r) and folder != r for r in inside) or (
+            folder.name.endswith("_df3d") and folder.with_name(folder.name[:-5]).is_dir()
+        ):
+            continue  # inside a recording, or DeepFly3D's results of the one beside it
         names = sorted(p.name for p in folder.iterdir() if p.is_file())
         footage, note = _footage(folder, names, defaults)
         imports = _imports(folder, names, footage)
@@ -224,15 +258,32 @@ def survey(root: str | Path) -> Survey:
             continue
         inside.append(folder)
         calibrations = _calibrations(folder, names) if folder != root else top_calibrations
+        if imports and imports[0]["format"] == "deepfly3d":  # a 1.x result holds its calibration
+            calibrations = [*calibrations, *_calibrations(folder, [imports[0]["files"]], True)]
         recordings.append(Recording(folder, footage, imports, calibrations))
     sources = _common_sources(recordings, defaults, undecided)
+    view_sources, kept = (
+        _view_sources(),
+        _views_of(next((r.footage for r in recordings if r.footage), {})),
+    )
+    removed = [v for v in view_sources if v not in kept]
+    if removed:
+        unused = ", ".join(defaults[view_sources[v]] for v in removed)
+        undecided.append(
+            f"the default rig's camera(s) {', '.join(removed)} have no footage ({unused}): "
+            f"removed (cameras: {_flow(dict.fromkeys(removed))}); check that your rig has none there"
+        )
     calibration = _common_calibration(root, recordings, top_calibrations, undecided)
     for rec in recordings:  # each has footage or 2D files
+        first = rec.imports[0]["files"] if rec.imports else ""
         if len(rec.imports) > 1:
+            df3d = all(i["format"] == "deepfly3d" for i in rec.imports)
             undecided.append(
-                f"{rec.path}: 2D files of several tools ({', '.join(i['files'] for i in rec.imports)}); "
-                f"using {rec.imports[0]['files']}"
+                f"{rec.path}: {len(rec.imports)} {'DeepFly3D pickles with 2D' if df3d else '2D files of several tools'} "
+                f"({', '.join(i['files'] for i in rec.imports)}); using "
+                f"{'the newest, ' if df3d else ''}{first}; set pose2d.import.files to take another"
             )
+
         if not rec.footage:
             undecided.append(
                 f"{rec.path}: no footage: set pose2d.import.image_size: [height, width] "
@@ -243,21 +294,19 @@ def survey(root: str | Path) -> Survey:
             f"{root}: no recording found (a folder with {', '.join(defaults.values())}, "
             "or with 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP)"
         )
-    return Survey(root, recordings, sources, calibration, undecided)
+    return Survey(root, recordings, sources, calibration, undecided, removed)
 
 
 def _common_sources(recordings, defaults, undecided) -> dict[str, str] | None:
-    """The ``sources`` entry to write: ``None`` when every recording uses the default names."""
+    """The ``sources`` entry to write: ``None`` when the (first) recording uses default names."""
     seen = {tuple(r.footage.items()) for r in recordings if r.footage}
-    if not seen or seen == {tuple(defaults.items())}:
-        return None
     if len(seen) > 1:
         undecided.append(
-            "recordings name their camera files differently; `sources` (one list for all) "
-            "follows the first; run such recordings with a config each"
+            "recordings name their camera files (or have cameras) differently; `sources` (one "
+            "list for all) follows the first; run such recordings with a config each"
         )
-    first = next(r.footage for r in recordings if r.footage)
-    return dict(first)
+    first = next((r.footage for r in recordings if r.footage), {})
+    return dict(first) if set(first.items()) - set(defaults.items()) else None
 
 
 def _common_calibration(root, recordings, top, undecided) -> dict | None:
@@ -268,7 +317,9 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
                 f"{root}: several calibration files {[n for _, n in top]}; using {top[0][1]}"
             )
         fmt, name = top[0]
-        return {"file": str(root / name), "format": fmt}
+        return _handed(
+            {"file": str(root / name), "format": fmt}, recordings[0] if recordings else None
+        )
     if len(per_recording) == 1 and next(iter(per_recording)):
         found = next(iter(per_recording))
         if len(found) > 1:
@@ -277,7 +328,7 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
             )
         fmt, name = found[0]
         # a relative file resolves against each recording's folder
-        return {"file": name, "format": fmt}
+        return _handed({"file": name, "format": fmt}, recordings[0])
     having = [r.path.name for r in recordings if r.calibrations]
     if len(per_recording) > 1 and len(having) < len(recordings):
         undecided.append(
@@ -290,6 +341,36 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
             "`calibration: {index: calibrations.csv}` (see the imports guide)"
         )
     return None
+
+
+def _handed(calibration: dict, rec: Recording | None) -> dict:
+    """``calibration`` with ``mirror: true`` when it is DeepFly3D's and gives ``rec``'s DeepFly3D 2D
+    the fly's mirror image (:mod:`flylib.handedness`), and ``why``: the verdict in words."""
+    import numpy as np
+
+    from .config import Config
+    from .errors import FlylibError
+    from .handedness import handedness
+    from .interop.anipose import load_calibration
+    from .interop.df3d import df3d_joint_to_fly38, read_df3d_calibration, read_df3d_points2d
+
+    if calibration["format"] != "deepfly3d" or not rec or not rec.imports:
+        return calibration
+    path = rec.path / calibration["file"]
+    try:
+        # no frame size: only 1.x results (pixels) hold a calibration; 0.x 2D gives no verdict
+        sizes = [(np.inf, np.inf)] * len(read_df3d_calibration(path))
+        xy = read_df3d_points2d(rec.path / rec.imports[0]["files"], sizes).xy
+        skeleton = Config.default().skeleton()
+        points = np.full(xy.shape, np.nan)
+        points[:, :, [skeleton.index(df3d_joint_to_fly38(j)) for j in range(xy.shape[2])]] = xy
+        rig = load_calibration({"file": str(path), "format": "deepfly3d"})
+        verdict = handedness(rig.triangulate(points), skeleton)
+    except (FlylibError, ValueError, IndexError):
+        return calibration
+    if verdict.mirrored:
+        return {**calibration, "mirror": True, "why": verdict.reason}
+    return calibration
 
 
 def _writable(path: Path) -> bool:
@@ -344,6 +425,12 @@ def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
             "# The recordings' folders cannot be written here: outputs go beside this file.",
             f"outdir: {_flow(str(where.absolute() / 'flylib_outputs' / '{id}'))}",
         ]
+    if found.removed:
+        lines += [
+            "",
+            "# The default rig's cameras without footage here, removed with their detection plan:",
+            f"cameras: {_flow(dict.fromkeys(found.removed))}",
+        ]
     if found.sources:
         lines += ["", "# Each camera's footage, in the rig's camera order (check it):", "sources:"]
         lines += [f"  - {_flow({'name': n, 'filename': f})}" for n, f in found.sources.items()]
@@ -365,9 +452,10 @@ def starter_yaml(found: Survey, where: Path, outdir: str | None = None) -> str:
             "# No 2D files found: the detector runs (`flylib doctor` says where its weights go).",
         ]
     if found.calibration:
-        lines += [
-            "",
-            "# The rig from a calibration file (bundle adjustment still refines it):",
-            f"calibration: {_flow(found.calibration)}",
-        ]
+        calibration = dict(found.calibration)
+        why = calibration.pop("why", None)
+        lines += ["", "# The rig from a calibration file (bundle adjustment still refines it):"]
+        if why:
+            lines.append(f"# mirror: its world is the fly's mirror image ({why}); mirrored back")
+        lines.append(f"calibration: {_flow(calibration)}")
     return "\n".join(lines) + "\n"

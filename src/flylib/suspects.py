@@ -1,39 +1,32 @@
 """Suspect (frame, point) pairs: where a 3D pose most likely needs a person's look.
 
-Five reasons, each measured against the recording's own robust statistics (median and scaled
-median absolute deviation, MAD), so the same settings work on any rig, frame rate and fly size:
+Five reasons, each against the recording's own robust statistics (median and MAD-sigma), so the
+same settings work on any rig, frame rate and fly size:
 
 ``reprojection``
     A view's reprojection error far above that view's typical error.
 ``bone_length``
-    A bone's length far from its median over the recording. The end with more evidence is
-    flagged (more bad bones at that frame, or another reason), both ends when neither has more:
-    a wrong claw does not make its tarsus joint a suspect too.
+    A bone's length far from its median. The end with more evidence (more bad bones at that frame,
+    or another reason) is flagged, both on a tie: a wrong claw does not make its tarsus a suspect.
 ``jump``
-    The 3D point far from every prediction its neighbouring frames make: the midpoint of the
-    frames on both sides and the line through the two frames on either side. A point that is
-    wrong in one frame makes no suspects of its neighbours, since each of them has one side that
-    does not use it.
+    The 3D point far from every prediction of its neighbouring frames (the midpoint of both sides,
+    the line through either side's two frames), so one wrong frame makes no suspect of its
+    neighbours.
 ``ransac_drop``
-    A view detected the point but the robust triangulation left it out (or left out every view:
-    two or more detections that no 3D point fits).
+    A view detected the point but the robust triangulation left it out (or left out every view).
 ``two_views``
-    The point was triangulated from two views only although it is usually seen by more. Weak on
-    its own (score 0.5): dropouts make it common, so it makes a suspect only with another reason.
+    Triangulated from two views though usually seen by more. Scores 0.5: dropouts make it common,
+    so it makes a suspect only with another reason.
 
-Every other reason scores at least 1 (more the further past its threshold) and a pair that
-scores >= 1 is a suspect. Points a person corrected (``corrected``) are not suspects. The
-per-frame score (for the GUI's timeline) is the largest pair score of the frame.
+Other reasons score at least 1 (more the further past the threshold); a pair scoring >= 1 is a
+suspect, unless a person corrected it. A frame's score is its largest pair score.
 
-A person works through *items*, not pairs: a point's suspect pairs in consecutive frames are one
-item (one mistake of the detector usually lasts a few frames), ranked by their largest score, so
-the items that most likely hold a wrong 3D come first (gross 3D errors score far above 1; a view
-the robust triangulation already left out scores 1 to 1.5, a 2D label worth fixing but a 3D
-already right).
+A person works through *items*: a point's suspect pairs in consecutive frames (one detector mistake
+usually lasts a few frames), ranked by their largest score, so a wrong 3D comes first (gross 3D
+errors score far above 1; a view RANSAC already left out scores 1 to 1.5).
 
-Every index is 0-based, as in ``results.h5``'s view-leading arrays and the seed's ``camera_N``
-files: ``suspects.csv``'s ``frame`` and ``point`` columns, and the views its ``detail`` names,
-``"view 1 (lm)"`` (index and camera name; the GUI's tiles number them the same way).
+Every index is 0-based, as in ``results.h5``'s view-leading arrays: ``suspects.csv``'s ``frame`` and
+``point`` columns and the views its ``detail`` names, ``"view 1 (lm)"``.
 """
 
 from __future__ import annotations
@@ -74,15 +67,11 @@ def view_label(index: int, view_names: list[str] | None = None) -> str:
 
 @dataclass
 class Suspects:
-    """Suspect (frame, point) pairs of one recording.
+    """Suspect (frame, point) pairs of one recording, sorted by frame then point.
 
-    ``frame``, ``point``: ``(N,)`` int indices, sorted by frame then point; ``score``: ``(N,)``
-    float >= 1; ``reasons``: ``N`` strings, reason names joined by ``;`` (:data:`REASONS`);
-    ``details``: ``N`` human-readable explanations (the numbers behind the reasons);
-    ``frame_score``: ``(T,)`` the largest pair score per frame (0 where nothing is odd);
-    ``point_names``: the P axis; ``item``: ``(N,)`` int, the rank of the item each pair belongs
-    to (0 = look first; one point's suspects in consecutive frames, see :meth:`items`),
-    computed from the pairs when not given.
+    ``score`` ``(N,)`` >= 1; ``reasons``: names joined by ``;``; ``details``: the numbers behind
+    them; ``frame_score`` ``(T,)`` (0 where nothing is odd); ``item`` ``(N,)``: the rank of each
+    pair's item (0 = look first), computed from the pairs when not given.
     """
 
     frame: Int[np.ndarray, " N"]
@@ -107,10 +96,8 @@ class Suspects:
         return int(self.item.max()) + 1 if len(self.item) else 0
 
     def items(self) -> list[dict]:
-        """The items, best first (JSON-able): ``rank`` (0 first), ``point``, ``point_name``,
-        ``first_frame``, ``last_frame``, ``frames``, ``peak_frame`` (the frame of the largest
-        score, where to look), ``score`` (that largest score), ``reasons`` (over all its frames)
-        and ``detail`` (of the peak frame)."""
+        """The items, best first (JSON-able); ``peak_frame`` holds the largest ``score`` (where
+        to look), ``reasons`` cover all frames, ``detail`` is the peak frame's."""
         out = []
         for rank in range(self.n_items):
             rows = np.flatnonzero(self.item == rank)
@@ -160,9 +147,8 @@ class Suspects:
         return out
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically, in the
-        order to review them: by item rank (``item`` 0 first), then frame. Frames, points and the
-        views named in ``detail`` are 0-based, as in ``results.h5``."""
+        """Write ``item,frame,point,point_name,score,reasons,detail`` rows atomically in review
+        order (item rank, then frame); every index is 0-based."""
         order = sorted(self.records(), key=lambda rec: (rec["item"], rec["frame"]))
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             writer = csv.writer(fh)
@@ -241,17 +227,14 @@ def find_suspects(
 ) -> Suspects:
     """Find the suspect (frame, point) pairs of a reconstruction.
 
-    ``pts3d`` ``(T, P, 3)`` (NaN = not reconstructed) was solved from ``pts2d_used``
-    ``(V, T, P, 2)`` (triangulation's cleaned 2D) with ``reproj_error`` ``(V, T, P)`` pixels;
-    ``bones`` is ``(B, 2)`` point-index pairs. Optional: ``pts2d_input`` ``(V, T, P, 2)``, the 2D
-    triangulation was given (for ``ransac_drop``); ``corrected`` ``(T, P)`` bool, points a person
-    corrected (never suspects); ``point_names`` and ``view_names`` for the records and details
-    (views as ``"1 (lm)"``, 0-based).
+    ``pts3d`` (NaN = not reconstructed) was solved from ``pts2d_used`` (triangulation's cleaned 2D);
+    ``pts2d_input``: the 2D triangulation was given (for ``ransac_drop``); ``corrected``: points a
+    person corrected (never suspects).
 
     Thresholds: per view, reprojection median + ``k_reproj`` MAD-sigmas, at least
-    ``min_reproj_px`` above the median; per bone, ``k_bone`` MAD-sigmas, at least
-    ``bone_tolerance`` x the median length; per point, jump median + ``k_jump`` MAD-sigmas, at
-    least ``jump_tolerance`` x the median bone length.
+    ``min_reproj_px`` above it; per bone, ``k_bone`` MAD-sigmas, at least ``bone_tolerance`` x the
+    median length; per point, jump median + ``k_jump`` MAD-sigmas, at least ``jump_tolerance`` x
+    the median bone length.
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     used = np.asarray(pts2d_used, dtype=np.float64)
@@ -433,10 +416,8 @@ def _views(indices, view_names: list[str] | None) -> str:
 
 
 def suspects_from_results(path: str | Path, **thresholds) -> Suspects:
-    """:func:`find_suspects` on an assembled ``results.h5``: the 2D triangulation was given is
-    pictorial structures' when that stage ran, else pose2d's; points marked
-    ``triangulation/corrected`` are skipped. ResultsError if the file is not a flylib results
-    file or has no 3D."""
+    """:func:`find_suspects` on an assembled ``results.h5`` (input 2D: pictorial structures' if it
+    ran, else pose2d's; ``triangulation/corrected`` points skipped; ResultsError without 3D)."""
     from .errors import ResultsError
     from .results import PoseResult, open_checked
 

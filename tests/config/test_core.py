@@ -127,7 +127,7 @@ def test_typed_views(default, data):
     ba = default.bundle_adjustment
     assert ba.least_squares == {"max_nfev": 2000, "loss": "linear"}
     assert ba.fixed == ("*.intr",) and ba.max_frames == 200 and ba.frame_sampling == "even"
-    assert len(ba.points_to_use) == 30
+    assert len(ba.points_to_use) == 32
     assert default.pose2d.precision == "bfloat16" and default.pose2d.batch_size == 16
     assert default.io.image_workers is None
     assert default.pictorial.k == 5 and default.pictorial.solver_kwargs() == {

@@ -453,7 +453,12 @@ def test_stop_needs_the_token_and_a_server_that_can_stop(client):
 def test_save_check_names_an_edit_that_raised_the_error(client):
     data = client.get("/api/points/3").json()
     v, p = visible_point(data)
-    assert client.get("/api/save-check").json() == {"worse": [], "new_suspects": [], "count": 0}
+    assert client.get("/api/save-check").json() == {
+        "worse": [],
+        "new_suspects": [],
+        "frames": [],
+        "count": 0,
+    }
     x, y = data["views"][v]["points2d"][p]
     view = data["views"][v]["name"]
     edit = {"op": "move", "frame": 3, "point": p, "view": view, "xy": [x + 80, y + 60]}

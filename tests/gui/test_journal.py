@@ -271,12 +271,16 @@ def test_a_stale_tab_is_refused_and_told_and_the_other_tab_is_notified(outdir):
                 tab_a.send_json({**move(session), "revision": 0})
                 reply = tab_a.receive_json()
                 assert reply["op"] == "points" and reply["revision"] == 1
-                # tab B hears of it ...
+                # A's next edit sent before that reply (keys typed ahead): only A edited since
+                tab_a.send_json({**move(session, dx=1.0), "revision": 0})
+                assert tab_a.receive_json()["revision"] == 2
+                # tab B hears of them ...
                 assert tab_b.receive_json() == {"op": "changed", "revision": 1, "frame": 1}
+                assert tab_b.receive_json() == {"op": "changed", "revision": 2, "frame": 1}
                 # ... and an edit B sends from what it showed before is refused, not applied
                 tab_b.send_json({"op": "reset_frame", "frame": 1, "revision": 0})
                 stale = tab_b.receive_json()
-                assert stale["op"] == "stale" and stale["revision"] == 1
+                assert stale["op"] == "stale" and stale["revision"] == 2
                 assert "another tab" in stale["error"]
                 assert session.corrections.edited[0, 1, 3]  # A's edit is still there
                 # a save from the stale page is refused too; from the current one it works
@@ -284,9 +288,9 @@ def test_a_stale_tab_is_refused_and_told_and_the_other_tab_is_notified(outdir):
                 assert tab_b.receive_json()["op"] == "stale"
                 assert not session.corrections_path.exists()
             response = c.post("/api/edit", json={**move(session, dx=3.0), "revision": 0})
-            assert response.status_code == 409 and "revision 0, now 1" in response.json()["detail"]
-            response = c.post("/api/save", json={"revision": 1})
-            assert response.status_code == 200 and response.json()["revision"] == 1
+            assert response.status_code == 409 and "revision 0, now 2" in response.json()["detail"]
+            response = c.post("/api/save", json={"revision": 2})
+            assert response.status_code == 200 and response.json()["revision"] == 2
     finally:
         session.close()
 
@@ -323,7 +327,10 @@ def test_a_save_that_cannot_be_written_says_why_and_keeps_the_edits(outdir):
             response = c.post("/api/save", json={"revision": 1})
             assert response.status_code == 507
             detail = response.json()["detail"]
-            assert "corrections.h5: cannot save" in detail and "journal" in detail
+            assert (
+                "corrections.h5: cannot be written (is a directory)" in detail
+                and "journal" in detail
+            )
             assert "\n" not in detail
             assert session.dirty and session.corrections.edited[0, 1, 3]
             assert len(read_journal(session.journal_path).edits) == 1

@@ -8,51 +8,17 @@ import cv2
 import numpy as np
 import pytest
 
-from flylib.config import Config
-from flylib.corrections import Corrections
 from flylib.errors import ResultsError
-from flylib.pipeline.assemble import run_assemble
-from flylib.pipeline.inputs import stage_inputs
-from flylib.pipeline.stage_helpers import run_inputs
-from flylib.pipeline.triangulation import run_triangulation
 from flylib.results import PoseResult
 
-from gui_fixtures import make_demo_outputs
+from gui_fixtures import make_corrected_outputs, make_demo_outputs
 
 FRAMES = 12
 
 
 @pytest.fixture(scope="module")
 def corrected_run(tmp_path_factory):
-    """The demo with a hand-made sidecar applied: a 2D edit at frame 4, a point marked
-    invisible at frame 7, re-triangulated and re-assembled as the workflow does."""
-    out = make_demo_outputs(tmp_path_factory.mktemp("training") / "rec", frames=FRAMES)
-    config = Config.from_file(out / "config.yaml")
-    before = PoseResult.load(out / "results.h5")
-    v, t, p = before.pts2d.shape[:3]
-    seen = np.isfinite(before.pts2d).all(-1)
-    view_a, point_a = map(int, np.argwhere(seen[:, 4])[0])
-    edit_xy = before.pts2d[view_a, 4, point_a] + [6.0, -4.0]
-    view_b, point_b = map(int, np.argwhere(seen[:, 7])[5])
-    corrections = Corrections.empty(v, t, p)
-    corrections.set_point(view_a, 4, point_a, edit_xy, fixed=True)
-    corrections.set_invisible(view_b, 7, point_b)
-    sidecar = corrections.save(out / "corrections.h5")
-    stages = out / "stages"
-    run_triangulation(
-        run_inputs(config, "triangulation"),
-        stages / "pose2d.h5",
-        stages / "triangulation.h5",
-        recording_dir=out.parent,
-        corrections_path=sidecar,
-    )
-    run_assemble(
-        stage_inputs(config, "assemble"),
-        {"pose2d": stages / "pose2d.h5", "triangulation": stages / "triangulation.h5"},
-        out,
-        recording_dir=out.parent,
-    )
-    return out, (view_a, point_a, edit_xy), (view_b, point_b)
+    return make_corrected_outputs(tmp_path_factory.mktemp("training") / "rec", frames=FRAMES)
 
 
 def test_export_is_read_back_by_sleap_io_and_pandas(corrected_run, tmp_path, capsys):

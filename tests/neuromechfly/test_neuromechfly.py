@@ -328,7 +328,7 @@ def test_the_stage_refuses_a_mirror_image_with_the_cause_assemble_stored(tmp_pat
 
     config = Config.default()
     rig = config_rig(config, image_sizes={v: (480, 960) for v in config.view_names()})
-    pts3d = _fly38_from_model(_random_angles(6, seed=1), seed=2) @ WORLD_MIRROR
+    pts3d = _fly38_from_model(_random_angles(10, seed=1), seed=2) @ WORLD_MIRROR
     entry = rig_check(
         handedness(pts3d, config.skeleton()), rig="the calibration file x/calib.pkl", from_file=True
     )
@@ -349,4 +349,4 @@ def test_the_stage_refuses_a_mirror_image_with_the_cause_assemble_stored(tmp_pat
     data = config.data
     data["neuromechfly"]["allow_mirrored"] = True
     summary = run_neuromechfly(stage_inputs(Config.from_dict(data), "neuromechfly"), path, tmp_path)
-    assert summary["frames"] == 6
+    assert summary["frames"] == 10

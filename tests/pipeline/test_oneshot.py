@@ -110,7 +110,7 @@ def test_defaults_are_the_packaged_configs(monkeypatch):
 
 def test_one_chain_the_stages_compute_steps():
     """The one-shot is the stages' compute steps on the default config's inputs: the
-    same rig and 3D as the workflow's bundle adjustment (its leg-joint points_to_use
+    same rig and 3D as the workflow's bundle adjustment (its legs-and-antennae points_to_use
     included) and triangulation; an override is checked as a config is."""
     from flylib.config import Config
     from flylib.pipeline.bundle_adjustment import compute_bundle_adjustment

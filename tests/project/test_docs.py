@@ -5,7 +5,6 @@ example notebooks run."""
 
 from __future__ import annotations
 
-import copy
 import importlib.util
 import re
 import subprocess
@@ -17,8 +16,9 @@ from urllib.parse import unquote, urlsplit
 import pytest
 import yaml
 
-from flylib.config import Config, validate_config
-from flylib.config.layers import merge_tables
+from flylib.config import validate_config
+from flylib.config.layers import ConfigLayers
+from flylib.paths import DEFAULT_CONFIG_PATH
 
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
@@ -157,10 +157,12 @@ def test_the_pages_show_config_snippets():
 
 
 @pytest.mark.parametrize("where,snippet", yaml_snippets(), ids=lambda v: str(v)[:40])
-def test_every_config_snippet_is_valid_over_the_default(where, snippet):
-    data = yaml.safe_load(snippet)
-    assert isinstance(data, dict), f"{where}: a snippet must be a config table"
-    merged = merge_tables(copy.deepcopy(Config.default().data), data)
+def test_every_config_snippet_is_valid_over_the_default(tmp_path, where, snippet):
+    """Merged over the default as the workflow merges a user's file (ConfigLayers)."""
+    assert isinstance(yaml.safe_load(snippet), dict), f"{where}: a snippet must be a config table"
+    mine = tmp_path / "my.yaml"
+    mine.write_text(snippet)
+    merged = ConfigLayers.from_files([DEFAULT_CONFIG_PATH, mine]).data
     assert validate_config(merged) == [], (where, snippet)
 
 
@@ -201,6 +203,32 @@ def test_every_whole_run_config_snippet_plans_on_the_demo(tmp_path, where, snipp
     data.pop("recursive", None)
     done = _dry_run(tmp_path, data)
     assert done.returncode == 0, (where, done.stderr[-2000:])
+
+
+def test_the_fewer_cameras_report_is_flylibs_own_output(tmp_path):
+    """The rig report the recordings guide shows under its snippet, and the last line it
+    quotes for the default rig, are what `flylib check-config` prints (recordings: the demo)."""
+    page = (DOCS / "guides" / "recordings.md").read_text()
+    section = page.split("### Fewer cameras")[1].split("\n## ")[0]
+    (snippet,) = re.findall(r"^```yaml\n(.*?)^```", section, re.S | re.M)
+    (shown,) = re.findall(r"^```text\n(.*?)^```", section, re.S | re.M)
+    default_line = " ".join(re.search(r"the last line is `(.*?)`", section, re.S)[1].split())
+    data = yaml.safe_load(snippet)
+    data["recordings"] = [{"path": "demo", "demo": True}]
+    reports = []
+    for mine in (data, {"recordings": data["recordings"]}):
+        (tmp_path / "my.yaml").write_text(yaml.safe_dump(mine))
+        done = subprocess.run(
+            [sys.executable, "-m", "flylib.cli", "check-config", "my.yaml"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        reports.append(done.stdout.splitlines()[1:])
+    assert reports[0] == shown.splitlines()
+    assert reports[1][-1] == default_line
 
 
 # --- the built site -----------------------------------------------------------------

@@ -3,7 +3,9 @@ workflow on DeepFly3D's own files: the package example with its ``calib.pkl`` (1
 no footage) reconstructs the fly mirrored, and says so naming the file and the one
 switch; with the switch the fly is right-handed and every pixel error is unchanged;
 kinematics refuses the mirror image unless told otherwise; the DeepFly3D sample with
-flylib's default rig is right-handed."""
+flylib's default rig is right-handed. Issue 45: a verdict needs enough frames (2 of 60 is
+undetermined, and the run goes on), and ``calibration: {mirror: true}`` where it does not
+belong names ``calibration: {mirror: false}``."""
 
 from __future__ import annotations
 
@@ -12,14 +14,16 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
+from .lab import finished, lab_run, synthetic_recording, table_line, write_config
 from workflow_run import snakemake_command
 
 REPO = Path(__file__).resolve().parents[2]
 
-pytestmark = [pytest.mark.slow, pytest.mark.shared]
+pytestmark = pytest.mark.slow
 
 
 def _run(workdir: Path, config: dict) -> subprocess.CompletedProcess:
@@ -54,6 +58,7 @@ def _summary(outdir: Path) -> dict:
     return json.loads((outdir / "summary.json").read_text())
 
 
+@pytest.mark.shared
 def test_the_package_examples_calibration_is_mirrored_named_and_mirrored_back(
     tmp_path, df3d_package_example_dir
 ):
@@ -97,6 +102,7 @@ def test_the_package_examples_calibration_is_mirrored_named_and_mirrored_back(
     assert "MIRRORED" not in again.stderr[again.stderr.rindex("flylib: per-recording") :]
 
 
+@pytest.mark.shared
 def test_bundle_adjustment_from_the_mirrored_file_names_its_starting_rig(
     tmp_path, df3d_package_example_dir, capsys
 ):
@@ -124,6 +130,7 @@ def test_bundle_adjustment_from_the_mirrored_file_names_its_starting_rig(
     assert "  starting rig (the calibration file " in printed
 
 
+@pytest.mark.shared
 def test_the_deepfly3d_sample_with_the_default_rig_is_right_handed(
     tmp_path, df3d_sample_dir, df3d_pickle
 ):
@@ -139,3 +146,80 @@ def test_the_deepfly3d_sample_with_the_default_rig_is_right_handed(
     assert entry["verdict"] == "right-handed" and entry["score"] > 0.8, entry
     assert entry["rig"] == "the config's cameras table"
     assert entry["starting_rig"] is None  # a fly: no cause to look for
+
+
+LAB_IMPORT = {"format": "dlc_csv", "files": "{stem}DLC_flylibdemo.csv"}
+
+
+def test_a_verdict_from_2_of_60_frames_is_undetermined_and_the_run_goes_on(tmp_path):
+    """Issue 45: a fly filmed by the default rig whose detector lost both hind body-coxa
+    points in 58 of 60 frames and turned every leg upside down (claw and body-coxa labels
+    swapped) in the other 2: those 2 frames alone look like a mirror image."""
+    rec = tmp_path / "fly1"
+    synthetic_recording(rec, 60)
+    kept = [20, 40]
+    for csv in sorted(rec.glob("*DLC_flylibdemo.csv")):
+        table = pd.read_csv(csv, header=[0, 1, 2], index_col=0)
+        part = table.columns.get_level_values(1)
+        table.loc[~table.index.isin(kept), part.str.match("[lr]h_thorax_coxa")] = np.nan
+        for leg in ("lf", "lm", "lh", "rf", "rm", "rh"):
+            coxa, claw = part == f"{leg}_thorax_coxa", part == f"{leg}_claw"
+            if coxa.any() and claw.any():
+                both = table.loc[kept, coxa].to_numpy(), table.loc[kept, claw].to_numpy()
+                table.loc[kept, claw], table.loc[kept, coxa] = both
+        table.to_csv(csv)
+    config = {"recordings": [{"path": "fly1", "import": LAB_IMPORT}]}
+    config["pipeline"] = {"do_visualization": False}
+    out = finished(lab_run(tmp_path, write_config(tmp_path / "my.yaml", config)))
+    outdir = rec / "flylib_outputs"
+    entry = _summary(outdir)["handedness"]
+    assert entry["verdict"] == "undetermined" and entry["frames"] == 2, entry
+    assert entry["score"] < -0.5 and entry["message"] is None  # alone, they would say mirrored
+    assert entry["reason"].endswith(
+        "median of 2 frames: too few to tell (2 of 60 frames have 3D for a front and a hind "
+        "body-coxa point, a left and a right leg point and a leg tip; a verdict needs 10)"
+    )
+    assert table_line(out, "fly1")[-3:-1] == [f"{entry['score']:+.2f}", "?"]
+    assert "mirror image" not in out and (outdir / "angles.csv").is_file()
+
+
+def test_calibration_mirror_true_on_a_right_handed_rig_names_mirror_false(tmp_path):
+    """Issue 45: ``calibration: {mirror: true}`` on the cameras table (no file to mirror) is
+    one line before any work; on a right-handed calibration file it makes the 3D a mirror
+    image, and the refusal names ``calibration: {mirror: false}``."""
+    from flylib.config import Config
+    from flylib.interop.anipose import write_anipose_toml
+    from flylib.pipeline.planning import config_rig
+
+    synthetic_recording(tmp_path / "fly1", 12)
+    config = {
+        "recordings": [{"path": "fly1", "import": LAB_IMPORT}],
+        "calibration": {"mirror": True},
+        "pipeline": {"do_visualization": False},
+    }
+    my_yaml = write_config(tmp_path / "my.yaml", config)
+    proc = lab_run(tmp_path, my_yaml)
+    assert proc.returncode != 0
+    assert (
+        "my.yaml: calibration.mirror: true mirrors a calibration file's world, but calibration "
+        "names no file (the rig is the cameras table); set calibration: {mirror: false}, or "
+        "give calibration.file\n" in proc.out
+    )
+    assert not (tmp_path / "fly1" / "flylib_outputs").exists()  # nothing started
+
+    default = Config.default()
+    sizes = {view: (480, 960) for view in default.view_names()}
+    write_anipose_toml(
+        config_rig(default, image_sizes=sizes), tmp_path / "rig.toml", image_sizes=sizes
+    )
+    config["calibration"]["file"] = str(tmp_path / "rig.toml")  # the demo's own rig
+    proc = lab_run(tmp_path, write_config(my_yaml, config))
+    assert proc.returncode != 0
+    entry = _summary(tmp_path / "fly1" / "flylib_outputs")["handedness"]
+    assert entry["verdict"] == "mirrored" and entry["cause"] == "calibration", entry
+    assert entry["message"].endswith(
+        f"the calibration file {tmp_path / 'rig.toml'} mirrored by calibration.mirror: true "
+        "gives a mirror-image world, and bundle adjustment started from it; set "
+        "calibration: {mirror: false} (see docs/how-it-works/handedness.md)"
+    )
+    assert f"kinematics refused: {entry['message']}" in proc.out

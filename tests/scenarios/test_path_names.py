@@ -135,3 +135,12 @@ def test_a_fresh_outdir_in_a_folder_that_cannot_be_written_is_refused_in_one_lin
     )
     assert line.endswith("; set outdir to a writable folder")
     assert not (parent / "flylib").exists()
+
+
+@pytest.mark.slow  # runs Snakemake
+def test_folders_named_in_other_scripts_keep_their_names_as_recording_ids(tmp_path):
+    root = _workdir(tmp_path, ["日本", "中国"], outdir=f"{tmp_path}/results/{{id}}")
+    proc = _run(root, "-n")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for name in ("日本", "中国"):
+        assert f"wildcards: outdir={tmp_path / 'results' / name}\n" in proc.stdout

@@ -220,3 +220,20 @@ def test_files_flylib_wrote_are_replaced_by_the_next_run(tmp_path):
     assert again.returncode == 0, again.stderr[-4000:]
     assert (out / "config.yaml").stat().st_mtime_ns != snapshot
     assert {p: p.read_bytes() for p in files} == files
+
+
+def test_the_outdir_check_resolves_paths_as_the_file_system_does(tmp_path, monkeypatch):
+    """The folder-at-a-time resolution the outdir check uses (flylib.paths.real_paths)
+    is os.path.realpath: through a linked folder, a linked file, '..' after a link."""
+    from flylib.paths import real_paths
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    (tmp_path / "a" / "b" / "f").write_text("")
+    os.symlink("a/b", "d")
+    os.symlink("a/b/f", "lf")
+    os.symlink("../nothing", "a/dangling")
+    real = real_paths()
+    for path in ("d/f", "lf", "a/dangling", "d/../x", "d/..", "d/", ".", "./a//b/f", "/"):
+        assert real(path) == os.path.realpath(path), path
+        assert real(tmp_path / path) == os.path.realpath(tmp_path / path), path

@@ -162,3 +162,38 @@ def test_the_slurm_profile_submits_one_job_per_recording(tmp_path):
     groups = re.findall(r"^\[[^\]]*\] Group job recording", text, re.M)
     alone = [r for r in re.findall(r"^rule (\w+):", text, re.M) if r != "all"]
     assert (len(groups), alone) == (3, []), text[-3000:]
+
+
+def test_the_cluster_guides_archive_recipe_plans_every_recording_once(tmp_path):
+    """docs/guides/cluster.md, "An archive of 10,000 recordings": its script, run as
+    written on a sheet of 5 recordings in parts of 2 (each part's `snakemake` a dry
+    run), plans each recording in exactly one part."""
+    import re
+    import subprocess
+
+    from workflow_run import demo_batch, snakemake_command
+
+    guide = (REPO / "docs" / "guides" / "cluster.md").read_text()
+    section = guide.split("## An archive of 10,000 recordings")[1].split("\n## ")[0]
+    script = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    sheet = demo_batch(tmp_path / "batch", 5, config)
+    (tmp_path / "archive.tsv").write_text(sheet.read_text())
+    (tmp_path / "config.yaml").write_text(
+        yaml.safe_dump({**config, "outdir": "results/{id}"}, sort_keys=False)
+    )
+    script = script.replace("rows=1000", "rows=2")
+    dry_run = " ".join(snakemake_command(tmp_path, "--dry-run"))
+    assert ".venv/bin/snakemake --profile profiles/slurm" in script
+    script = script.replace(".venv/bin/snakemake --profile profiles/slurm", dry_run)
+    proc = subprocess.run(
+        ["bash", "-euc", script], cwd=tmp_path, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert sorted(p.name for p in (tmp_path / "parts").iterdir()) == [
+        "part_000.tsv",
+        "part_001.tsv",
+        "part_002.tsv",
+    ]
+    planned = re.findall(r"rule pose2d:.*?wildcards: outdir=results/(rec\d+)", proc.stdout, re.S)
+    assert sorted(planned) == [f"rec{i:05d}" for i in range(5)], proc.stdout[-3000:]

@@ -74,7 +74,6 @@ SKIPPED, SESSIONS, VIDEO_NAMES = PLAN.skipped, PLAN.sessions, PLAN.video_names
 all_targets = PLAN.targets
 artifact = PLAN.artifact
 unplanned = PLAN.unplanned
-session_unplanned = PLAN.session_unplanned
 rig_artifact = PLAN.rig_artifact
 calibration_inputs = PLAN.calibration_inputs
 reconstruction_inputs = PLAN.reconstruction_inputs
@@ -115,11 +114,13 @@ def as_is(value):
 def job_params(stage: str, recording_path: bool = True) -> dict:
     """A stage rule's shared params: `stage`, its tracked params as canonical JSON
     (Snakemake re-runs a job when they change); `runtime`, the untracked, speed-only
-    part, a derived param (a function of the job's input) that re-runs nothing by
-    itself; and (unless told not to) `recording`, the job's recording folder."""
+    part, and `expects`, the params hashes its input artifacts must record (the job
+    refuses others), derived params (functions of the job's input) that re-run nothing
+    by themselves; and (unless told not to) `recording`, the job's recording folder."""
     return {
         "stage": as_is(PLAN.stage_json(stage)),
         "runtime": lambda wildcards, input: PLAN.runtime(stage),
+        "expects": lambda wildcards, input: PLAN.expects(wildcards),
         **({"recording": lambda w: str(recording(w).path)} if recording_path else {}),
     }
 

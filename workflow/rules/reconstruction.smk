@@ -42,11 +42,7 @@ if SESSIONS:
     # each member's own in triangulation, refinement and assembly (rig_artifact).
     rule session_calibration:
         input:
-            unplanned=session_unplanned,
-            pose2d_files=lambda w: [
-                artifact("pose2d").format(outdir=r.outdir) for r in session(w).members
-            ],
-            rig_files=lambda w: list(PLAN.recording_calibration(session(w).members[0].path)),
+            unpack(PLAN.session_inputs("session_calibration")),
         output:
             out="{sessiondir}/session_calibration.h5",
             calibration="{sessiondir}/calibration.toml",
@@ -72,14 +68,7 @@ if SESSIONS:
     # The held-out-view error with each member's own rig and with the session's.
     rule session_summary:
         input:
-            unplanned=session_unplanned,
-            session="{sessiondir}/session_calibration.h5",
-            pose2d_files=lambda w: [
-                artifact("pose2d").format(outdir=r.outdir) for r in session(w).members
-            ],
-            trial_files=lambda w: [
-                artifact("bundle_adjustment").format(outdir=r.outdir) for r in session(w).members
-            ],
+            unpack(PLAN.session_inputs("session_summary")),
         output:
             out="{sessiondir}/session_summary.json",
         log:

@@ -8,7 +8,9 @@ throughout. Beyond a plain fit: grossly-off starting cameras are resected by PnP
 image is held; outlier rounds judge every observation again after each fit until the inlier
 set is stable, so observations dropped from a rough start come back; bone lengths and rigid
 points pin what the images leave loose; the similarity gauge is held during the fit and the
-result reported where the starting rig put the fly (:mod:`.gauge`).
+result reported where the starting rig put the fly (:mod:`.gauge`); the configured rig is kept
+where the fit's held-out-view error is higher, or it moved a camera far that no held-out view
+checks.
 """
 
 from __future__ import annotations
@@ -26,7 +28,15 @@ from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
 from .gauge import align_gauge, gauge_refs, open_gauge_directions, untied_extrinsics
 from .lm import ReducedSystem, block_structure, solve_lm, weak_directions
-from .messages import fit_report, fit_warnings, log_summary, moved_message, warn_user
+from .messages import (
+    fit_report,
+    fit_warnings,
+    log_summary,
+    moved_message,
+    unchecked_message,
+    warn_user,
+    worse_message,
+)
 from .params import build_layout
 from .parts import align_parts, camera_parts, crossing_bones, point_parts
 from .problem import Problem
@@ -54,6 +64,11 @@ DEFAULT_INIT_THRESHOLD = 40.0  # px, inlier radius of the starting triangulation
 #: a camera ending this far around the fly from its start is named as possibly swapped (a
 #: rough start moves cameras up to ~8 degrees; neighbouring cameras are 30-45 degrees apart)
 MOVED_DEG = 15.0
+#: a camera moved that far is trusted only if this fraction of its observations is checked by
+#: a held-out view (the point seen by two other cameras too)
+CHECKED_FRACTION = 0.1
+#: ... and kept unless its held-out-view error is more than this (px) above the starting rig's
+WORSE_PX = 0.05
 LONG_LENS_RADIUS = 0.2  # normalized image-corner radius below which zero distortion stays zero
 FIRST_ROUND_FTOL = 1e-3  # relative cost decrease that ends the first (sorting) round
 STABLE_FRACTION = 1e-3  # inlier set "stable": fewer observations than this changed
@@ -305,12 +320,21 @@ def _adjust(args: _Arguments):
         table[~observed] = table_user[~observed]
     moved = _moved_degrees(table_user, table, pts)
     suspects = [n for n, deg in zip(names, moved) if deg > MOVED_DEG]
+    out_pts = pts[ids]
+    kept_start = _held_out_verdict(names, table_user, table, pts2d, active, moved)
+    if kept_start:
+        # the configured rig, and the points, inliers and errors it gives
+        table, suspects, moved = table_user, [], np.zeros(len(names))
+        out_pts = cols_start if args.pts3d is not None else triangulate(table, usable)
+        active, _ = _first_inliers(args, table, out_pts, pts2d, usable)
+        fit = replace(fit, active=active)
+        warnings_out.append(kept_start)
+        warn_user(kept_start)
     if suspects:
         message = moved_message(suspects, [d for d in moved if d > MOVED_DEG])
         warnings_out.append(message)
         warn_user(message)
     refined = cameras_from_table(names, table)
-    out_pts = pts[ids]
     err = view_errors(table, out_pts, pts2d, active)
     result.initial_median_px = initial_median
     result.final_median_px = float(np.nanmedian(err[active])) if active.any() else float("nan")
@@ -335,8 +359,36 @@ def _adjust(args: _Arguments):
         result.final_median_px,
         warnings_out,
     )
+    if kept_start:
+        result.report["kept_start"] = kept_start
     log_summary(result, usable)
     return result, refined, out_pts
+
+
+def _held_out_verdict(names, table_start, table, pts2d, active, moved) -> str | None:
+    """Why the configured rig is kept instead of the fit (``None``: the fit is kept): the fit's
+    held-out-view error is higher, or it moved a camera far that no held-out view can check."""
+    from ..accuracy import held_out_errors
+
+    seen = np.where(active[..., None], pts2d, np.nan)[:, None]  # (V, 1, N, 2)
+    errors = []
+    for rig in (table_start, table):
+        cameras = cameras_from_table(names, rig)
+        held = held_out_errors(cameras, seen, lambda p, _c, c=cameras: (c.triangulate(p), None))
+        errors.append(held["triangulation"][:, 0])
+    checked = np.isfinite(errors[0]).sum(axis=1)
+    unchecked = [
+        (n, d)
+        for n, d, c, a in zip(names, moved, checked, active.sum(axis=1))
+        if d > MOVED_DEG and c < CHECKED_FRACTION * a
+    ]
+    if unchecked:
+        return unchecked_message(*zip(*unchecked))
+    if not checked.any():
+        return None
+    start_px, fit_px = (float(np.nanmedian(e)) for e in errors)
+    log.info("bundle adjustment: held-out-view error %.2f px -> %.2f px", start_px, fit_px)
+    return worse_message(start_px, fit_px) if fit_px > start_px + WORSE_PX else None
 
 
 def _reseeded(args, table_user, movable, pts2d, usable, triangulate):

@@ -125,8 +125,8 @@ def _listed(names) -> str:
     return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
-def _parts_message(names, cam_part, dropped_rows: int) -> str:
-    """The warning for cameras that fall into groups sharing no point, in plain words."""
+def _groups(names, cam_part) -> tuple[list[str], str]:
+    """``{a, b}`` per camera group of ``cam_part``, and the text naming the blind cameras."""
     groups = [
         "{" + ", ".join(n for n, p in zip(names, cam_part) if p == k) + "}"
         for k in range(int(cam_part.max()) + 1)
@@ -135,6 +135,12 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
     blind_text = (
         f"; {_listed(blind)} {'sees' if len(blind) == 1 else 'see'} no point" if blind else ""
     )
+    return groups, blind_text
+
+
+def _parts_message(names, cam_part, dropped_rows: int) -> str:
+    """The warning for cameras that fall into groups sharing no point, in plain words."""
+    groups, blind_text = _groups(names, cam_part)
     across = (
         f"; the {dropped_rows} left/right and across-the-body length constraints that would "
         f"join them were not used (the images cannot check them)"
@@ -153,6 +159,56 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
     )
 
 
+def rig_report(plan, skeleton) -> list[str]:
+    """What a rig's 2D ``plan`` (a DetectionPlan) gives each camera, in plain words: its limbs,
+    the camera groups sharing points (as the fit ties them), whether left and right are joined."""
+    from ..handedness import side_groups
+    from .parts import camera_parts, point_parts
+
+    names, seen = plan.view_names, plan.filled_mask()
+    ids, at = np.arange(seen.shape[1]), plan.point_names.index
+    limbed = {p for chain in skeleton.limbs.values() for p in chain}
+    chains = {**skeleton.limbs, **{p: (p,) for p in plan.point_names if p not in limbed}}
+    lines = [f"rig: {len(names)} camera(s), the 2D points each is planned to see:"]
+    for v, name in enumerate(names):
+        counts = [(k, int(seen[v, [at(p) for p in c]].sum()), len(c)) for k, c in chains.items()]
+        shown = [k if n == m else f"{k} ({n} of {m} points)" for k, n, m in counts if n]
+        lines.append(f"  {name}: {', '.join(shown) or 'none'}")
+    groups, blind = _groups(names, camera_parts(seen, ids, ids.size))
+    count = f"{len(groups)} groups that see no point in common, " if len(groups) > 1 else ""
+    lines.append(f"cameras sharing points: {count}{_listed(groups) if groups else 'none'}{blind}")
+    sides = side_groups(skeleton)
+    if isinstance(sides, str):
+        return [*lines, f"left and right: not checked, {sides}"]
+
+    def sides_seen(mask) -> tuple[set, set]:  # the parts holding left and right leg points
+        part = point_parts(mask, ids, ids.size, camera_parts(mask, ids, ids.size))
+        return tuple(set(part[sides[s]]) - {-1} for s in ("left", "right"))
+
+    left, right = sides_seen(seen)
+    if not (left and right):
+        unseen = [s for s, p in (("left", left), ("right", right)) if not p]
+        return [*lines, f"left and right: no camera is planned to see the {_listed(unseen)} legs"]
+    if not left & right:
+        return [
+            *lines,
+            "left and right are not joined (no camera, nor chain of cameras sharing points, "
+            "sees both sides): 3D left against right is only as good as the starting rig; give "
+            "a calibration file (config 'calibration'), or film a view that sees the legs of "
+            "both sides",
+        ]
+    without = [seen & (np.arange(len(names)) != v)[:, None] for v in range(len(names))]
+    only = [n for n, mask in zip(names, without) if not set.intersection(*sides_seen(mask))]
+    if not only:
+        return [*lines, "left and right are joined by several cameras (none alone is needed)"]
+    return [
+        *lines,
+        f"left and right are joined only by camera{'s' if len(only) > 1 else ''} "
+        f"{_listed(only)}: where {'it sees' if len(only) == 1 else 'they see'} too few points "
+        "of both sides, 3D left against right is only as good as the starting rig",
+    ]
+
+
 def moved_message(cameras, degrees) -> str:
     """The warning for cameras the fit moved far around the fly, in plain words."""
     many = len(cameras) > 1
@@ -164,6 +220,27 @@ def moved_message(cameras, degrees) -> str:
         f"footage or 2D file belongs to which camera (config 'sources', or "
         f"pose2d.import.views) and the rig in the config; the 3D may be mirrored or "
         f"wrong where these cameras were used"
+    )
+
+
+def unchecked_message(cameras, degrees) -> str:
+    """Why the configured rig was kept: the fit moved cameras that no held-out view checks."""
+    many = len(cameras) > 1
+    return (
+        f"kept the configured rig: the fit moved {'cameras' if many else 'camera'} "
+        f"{_listed(cameras)} {_listed([f'{d:.0f}' for d in degrees])} degrees around the fly, "
+        f"but few of the points {'they see' if many else 'it sees'} are seen by two other "
+        f"cameras, so no held-out view can check the move (two views of a point fit almost any "
+        f"rig). For a refined rig give a calibration file (config 'calibration') or add a "
+        f"camera that sees what two others see"
+    )
+
+
+def worse_message(start_px: float, fit_px: float) -> str:
+    """Why the configured rig was kept: the fit's held-out-view error is higher."""
+    return (
+        f"kept the configured rig: its held-out-view error ({start_px:.1f} px median) is lower "
+        f"than the adjusted rig's ({fit_px:.1f} px)"
     )
 
 

@@ -119,8 +119,10 @@ def reseed_gross_cameras(
     table = table.copy()
     has_obs = usable.any(axis=1)
     med = leave_one_out_errors(table, pts2d, usable, triangulate)
-    # no consensus among the others within the RANSAC radius: as bad as gross
-    gross = has_obs & (np.nan_to_num(med, nan=np.inf) > gross_px)
+    # no consensus among the others within the RANSAC radius: as bad as gross; a camera none of
+    # whose points two others see cannot be judged, and is left as configured
+    judged = (usable & (usable.sum(axis=0) - usable >= 2)).any(axis=1)
+    gross = judged & (np.nan_to_num(med, nan=np.inf) > gross_px)
     if movable is not None:
         gross &= np.asarray(movable, bool)
     reseeded: list[str] = []
@@ -135,7 +137,7 @@ def reseed_gross_cameras(
         good = np.zeros_like(good)
         # the re-aimed rig is roughly consistent: judge again, resect what is still off
         after = leave_one_out_errors(table, pts2d, usable, triangulate)
-        gross = has_obs & (np.nan_to_num(after, nan=np.inf) > gross_px)
+        gross = judged & (np.nan_to_num(after, nan=np.inf) > gross_px)
         if movable is not None:
             gross &= np.asarray(movable, bool)
         good = ~gross & has_obs

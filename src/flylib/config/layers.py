@@ -5,12 +5,14 @@ Snakemake merges ``configfile:`` and ``--configfile`` files in order (tables mer
 anything else -- lists included -- is replaced whole) and then applies ``--config key=value``
 overrides. :class:`ConfigLayers` re-reads the same files with flylib's own parser (so ``1e-8`` is a
 number, a key given twice is an error naming both lines, a syntax error names the file and line)
-and merges them the same way, so every problem can be reported against the user's own file and key
-instead of an internal merged copy.
+and merges them the same way, plus one rule: ``null`` in place of a table deletes it, and a camera
+deleted so (``cameras: {f: null}``) takes its detection plan and video panels with it. Every
+problem is reported against the user's own file and key, never the packaged default.
 """
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -18,27 +20,50 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..paths import DEFAULT_CONFIG_PATH
 from .loading import parse_text, read_config_text
+from .sources import drop_views, pathways_of
 
 #: The label of values given on the command line with ``--config key=value``.
 OVERRIDES_LABEL = "--config"
 # The table of ``cameras`` every camera inherits its unset keys from.
 _CAMERA_DEFAULTS = "defaults"
 
+# "unknown source 'vid_f'" in a problem line, and the table such a name is defined in
+_UNKNOWN = re.compile(r"unknown (\w+) ('[^']*')")
+_REFERENCED = {
+    "source": "sources",
+    "preprocessor": "pose2d.preprocessors",
+    "model": "pose2d.models",
+    "pathway": "pose2d.pathways",
+}
 _KEY_TOKEN = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
 _KEY_HEAD = re.compile(r"([A-Za-z_][\w-]*(?:\.[\w-]+|\[\d+\])*)(?=[:\s(]|$)")
 
 
 def merge_tables(base: dict, update: Mapping) -> dict:
     """Merge ``update`` into ``base`` in place, as Snakemake's ``update_config`` does: mappings
-    merge recursively; every other value (lists included) replaces the old one."""
+    merge recursively; ``null`` in place of a table deletes it; every other value (lists
+    included) replaces the old one."""
     for key, value in update.items():
-        if isinstance(value, Mapping):
-            old = base.get(key)
+        old = base.get(key)
+        if value is None and isinstance(old, Mapping):
+            del base[key]
+        elif isinstance(value, Mapping):
             base[key] = merge_tables(dict(old) if isinstance(old, Mapping) else {}, value)
         else:
             base[key] = value
     return base
+
+
+def _cameras(data: Mapping) -> Mapping:
+    cameras = data.get("cameras")
+    return cameras if isinstance(cameras, Mapping) else {}
+
+
+@functools.cache
+def _default_text() -> str:
+    return DEFAULT_CONFIG_PATH.read_text(encoding="utf-8")
 
 
 def key_path(problem: str) -> list[str | int]:
@@ -157,8 +182,12 @@ class ConfigLayers:
         if overrides:
             layers.append((OVERRIDES_LABEL, dict(overrides)))
         data: dict = {}
+        removed: set[str] = set()
         for _, layer in layers:
+            before = _cameras(data)
+            removed |= {n for n, v in _cameras(layer).items() if v is None and n in before}
             merge_tables(data, layer)
+        drop_views(data, removed - set(_cameras(data)))
         return cls(layers=layers, data=data, texts=texts)
 
     @property
@@ -236,13 +265,49 @@ class ConfigLayers:
             hint += ", or set only the checkpoint with pose2d.weights: {<model>: <path>}"
         return hint + ")"
 
+    def _users(self) -> list[str]:
+        """The layers the user wrote: every one but a copy of the packaged default config."""
+        default = _default_text()
+        return [label for label in self.labels if self.texts.get(label) != default]
+
+    def _line(self, problem: str) -> str:
+        """``problem`` naming the user's file that set its key; a key of the packaged default
+        that the user's files broke is blamed on them, with the fix."""
+        owner, users = self.origin(problem), self._users()
+        if owner not in self.texts or owner in users or not users:
+            return f"{owner}: {problem}{self._hint(problem)}"
+        path = key_path(problem)
+        key = ".".join(map(str, path))
+        unknown = _UNKNOWN.search(problem)
+        if not unknown or unknown[1] not in _REFERENCED:
+            return f"{users[-1]}: {problem} ({owner}, the default config, sets {key}: set it in {users[-1]})"
+        table = _REFERENCED[unknown[1]]
+        user = self.origin(table.split("."))
+        user = user if user in users else users[-1]
+        where = ".".join(map(str, path[:3]))
+        points = (self.data.get("pose2d") or {}).get("output_points") or {}
+        views = [path[2]] if where.startswith("pose2d.output_points.") else []
+        views = views or [v for v, t in points.items() if path[2] in pathways_of([t])]
+        fix = f"add it back to {table}"
+        if views:
+            fix += (
+                f", or remove camera {' and '.join(views)} with cameras: "
+                f"{{{', '.join(f'{v}: null' for v in views)}}} (its pathways, output_points and "
+                "sources go with it)"
+            )
+        return (
+            f"{user}: {table}: no {unknown[1]} {unknown[2]}, which {where} of the default config "
+            f"({owner}) reads; {fix}"
+        )
+
     def report(self, problems: list[str]) -> str:
-        """The problems as one line each, naming the file that set the key; several get a header
-        line naming every file."""
-        lines = [f"{self.origin(p)}: {p}{self._hint(p)}" for p in problems]
+        """The problems as one line each, naming the user's file that set (or broke) the key;
+        several get a header line naming the user's files."""
+        lines = list(dict.fromkeys(self._line(p) for p in problems))
         if len(lines) == 1:
             return f"invalid config: {lines[0]}"
         count = f"{len(lines)} problems"
-        return f"invalid config {' + '.join(self.labels)} ({count}; fix and re-run):\n" + "\n".join(
-            f"  {line}" for line in lines
+        return (
+            f"invalid config {' + '.join(self._users() or self.labels)} ({count}; fix and re-run):\n"
+            + "\n".join(f"  {line}" for line in lines)
         )

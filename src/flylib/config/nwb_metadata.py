@@ -1,16 +1,11 @@
 """Session metadata for the NWB export: the config's ``nwb`` table, a recording's ``nwb.yaml``
 sidecar, and the check that everything a lab must supply is there.
 
-This module imports neither pynwb nor ndx-pose, so config validation and the workflow's start-up
-check stay cheap. The writer is :mod:`flylib.interop.nwb`.
+Imports neither pynwb nor ndx-pose, so config checks stay cheap (the writer:
+:mod:`flylib.interop.nwb`). Later sources override earlier ones key by key (``subject`` too):
 
-Where the metadata comes from, later entries overriding earlier ones key by key (``subject`` merged
-key by key too):
-
-1. the config's ``nwb`` table (what every recording of a batch shares: lab, institution,
-   experimenter, species, ...);
-2. ``<recording>/nwb.yaml`` (what differs per recording: session start time, subject id, age,
-   sex, ...), a YAML mapping with the same keys;
+1. the config's ``nwb`` table (what a batch shares: lab, institution, experimenter, ...);
+2. ``<recording>/nwb.yaml``, same keys (per recording: session start time, subject id, age, ...);
 3. for ``flylib export``, a ``--nwb-metadata FILE`` of the same form.
 
 Required (one error names every missing one): ``session_start_time`` (ISO 8601 with a timezone,
@@ -289,23 +284,11 @@ def recording_metadata(
     extra: Mapping | None = None,
     check: bool = True,
 ) -> dict[str, Any]:
-    """The merged session metadata of one recording (config table, sidecar, ``extra``).
+    """The merged session metadata of one recording (config table, its ``nwb.yaml``, ``extra``).
 
-    Parameters
-    ----------
-    recording_dir
-        The recording directory (its ``nwb.yaml`` is read), or ``None``.
-    demo
-        The embedded demo: :data:`DEMO_METADATA` comes first (the demo writes the same as its
-        sidecar, which may not exist yet when the workflow starts).
-    extra
-        Highest-priority overrides (``flylib export --nwb-metadata``).
-
-    Raises
-    ------
-    ConfigError
-        An invalid table or sidecar, or (``check``) missing required keys, all named in one message
-        with where to set them.
+    ``demo``: :data:`DEMO_METADATA` comes first (the demo's sidecar may not exist yet when the
+    workflow starts). :class:`ConfigError` names every problem (with ``check``: every missing
+    required key) in one message with where to set it.
     """
     _refuse(metadata_problems(table))
     sidecar_path = Path(recording_dir) / SIDECAR if recording_dir is not None else None

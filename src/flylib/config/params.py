@@ -1,11 +1,9 @@
 """Typed per-stage views: the ``*Params`` dataclasses, their table checks and builders.
 
-Each field is declared once, with :func:`~flylib.config.checks.param`: its default (the one place
-it is written: the algorithms' keyword defaults read it from the class, e.g.
-``TriangulationParams.ransac_threshold``), its check and its conversion. A stage's params track
-every field, except one declared with ``track_default=False``, tracked only when not at its
-default. Give a new knob that marker, so the results made before it existed keep their params
-hash (a config that leaves it at its default re-runs nothing).
+Each field is declared once with :func:`~flylib.config.checks.param`: its default (the one place it
+is written; the algorithms' keyword defaults read it from the class), check and conversion. A
+stage's params track every field except a ``track_default=False`` one at its default: give a new
+knob that marker so results made before it existed keep their params hash.
 """
 
 from __future__ import annotations
@@ -55,8 +53,8 @@ class Pose2dParams:
     device
         ``auto`` (CUDA, then Apple MPS, then CPU) or a torch device string (performance only).
     compile
-        The compiled detector (:mod:`flylib.pose2d.compiled`, cached on disk): ``true``, ``false``
-        or ``auto`` (when it beats eager for the recording; performance only).
+        The compiled detector (:mod:`flylib.pose2d.compiled`): ``true``, ``false`` or ``auto``
+        (when it beats eager; performance only).
     """
 
     precision: str = param("bfloat16", choice(*PRECISIONS))
@@ -66,9 +64,8 @@ class Pose2dParams:
     compile: bool | str = param("auto", choice(True, False, "auto"))
 
 
-#: Each triangulation method's own knobs: ``triangulation`` table key -> the keyword of the
-#: method's function it becomes. The stage's params track these keys,
-#: :func:`flylib.triangulation.reconstruct` passes these keywords.
+#: Each triangulation method's own knobs: ``triangulation`` key -> its function's keyword
+#: (the stage's params track the keys, :func:`flylib.triangulation.reconstruct` passes keywords).
 TRIANGULATION_KNOBS: dict[str, dict[str, str]] = {
     "ransac": {"ransac_threshold": "threshold", "min_inliers": "min_inliers"},
     "greedy": {"reproj_threshold": "reproj_threshold", "max_drops": "max_drops"},
@@ -115,8 +112,7 @@ class TriangulationParams:
         }
 
     def method_kwargs(self) -> dict[str, Any]:
-        """The chosen ``method``'s knobs under its function's keyword names
-        (:data:`TRIANGULATION_KNOBS`)."""
+        """The chosen ``method``'s knobs under its function's keyword names."""
         return {
             keyword: getattr(self, name)
             for name, keyword in TRIANGULATION_KNOBS[self.method].items()
@@ -183,8 +179,7 @@ class BundleAdjustmentParams:
     frame_sampling
         How frames are sampled: ``even``, ``confidence``, ``coverage`` or ``diversity``.
     solver
-        ``lm`` (Levenberg-Marquardt on the reduced camera system) or ``scipy``
-        (``scipy.optimize.least_squares``).
+        ``lm`` (Levenberg-Marquardt, reduced camera system) or ``scipy`` (``least_squares``).
     distortion
         ``auto`` (coefficients that start at zero stay zero on long lenses), ``free`` or ``fixed``.
     max_rounds, outlier_factor, outlier_min_px
@@ -199,16 +194,12 @@ class BundleAdjustmentParams:
         Points that do not move over the recording when the body is fixed (a tethered fly's
         thorax-coxa joints); used only if the starting triangulation shows them still.
     warn_ratio
-        Warn when the reduced Hessian's weakest non-gauge direction is below this fraction of its
-        strongest.
+        Warn when the reduced Hessian's weakest non-gauge direction is below this x its strongest.
     session
-        Bundle-adjust the recordings of one session (one rig) together: one solve over
-        ``max_frames`` frames sampled from all of them, one ``calibration.toml`` per session that
-        every member's later stages read (:mod:`flylib.sessions`). The per-recording solve is
-        unchanged by it (its params leave this key out).
+        One solve over the recordings of one session (one rig), one ``calibration.toml`` they all
+        read (:mod:`flylib.sessions`); not in the per-recording solve's params.
     least_squares
-        Every other key of the table, passed through to ``scipy.optimize.least_squares`` (e.g.
-        ``max_nfev``, ``loss``, ``f_scale``).
+        Every other key, passed to ``scipy.optimize.least_squares`` (e.g. ``max_nfev``, ``loss``).
     """
 
     points_to_use: tuple[str, ...] | None = param(None, string_list(nullable=True), kind=tuple)
@@ -232,9 +223,8 @@ class BundleAdjustmentParams:
     least_squares: dict[str, Any] = field(default_factory=dict)
 
     def sequence_kwargs(self, point_names: Sequence[str]) -> dict[str, Any]:
-        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`: every
-        field under its own name, ``rigid_points`` limited to ``point_names``, the
-        ``least_squares`` options flat (they reach the solver)."""
+        """Keyword arguments for :func:`flylib.bundle_adjustment.bundle_adjust_sequence`
+        (``rigid_points`` limited to ``point_names``, ``least_squares`` options flat)."""
         kwargs = {
             f.name: getattr(self, f.name)
             for f in fields(self)
@@ -264,9 +254,8 @@ class IoParams:
     image_workers
         Threads decoding image sequences; ``None`` lets the reader choose.
     on_corrupt_frame
-        A corrupt or truncated image in a sequence: ``"error"`` fails the recording's job naming the
-        file; ``"missing"`` warns and marks the frame missing (all its 2D NaN). Not performance
-        only: ``missing`` is part of pose2d's params.
+        A corrupt image in a sequence: ``"error"`` fails the job naming the file; ``"missing"``
+        warns and marks the frame missing (2D NaN), and is part of pose2d's params.
     """
 
     image_workers: int | None = None
@@ -295,9 +284,8 @@ LEAST_SQUARES_CHECKS: dict[str, Check] = {
 }
 
 
-# The scipy.optimize.least_squares options a config may set (its signature minus the arguments the
-# bundle adjuster owns). Listed rather than read from scipy so that loading a config does not
-# import scipy.optimize; a test checks it against scipy.
+# scipy.optimize.least_squares options a config may set (minus those the bundle adjuster owns);
+# listed so loading a config does not import scipy.optimize; a test checks it against scipy.
 LEAST_SQUARES_OPTIONS: tuple[str, ...] = (
     "method",
     "ftol",

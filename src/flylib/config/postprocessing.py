@@ -36,14 +36,12 @@ class RefinementParams:
         Temporal term: weight, difference order (1 velocity, 2 acceleration) and the per-frame
         change in world units that costs as much as ``scale_px``.
     motion_scales
-        Smoothness scales the refinement stage tries beside ``smooth_scale``, in units of the
-        recording's own motion (the median per-frame ``smooth_order``-th difference of the
-        triangulated points, which also carries the frame rate); the one whose held-out-view error
-        is lowest is used. ``[]``: ``smooth_scale`` only.
+        Smoothness scales tried beside ``smooth_scale``, in units of the recording's own motion
+        (median per-frame ``smooth_order``-th difference of the triangulation); the one with the
+        lowest held-out-view error is used. ``[]``: ``smooth_scale`` only.
     bone_weight, bone_scale, symmetric_bones
-        Bone-length constancy (one length per bone for the recording): weight, the length deviation
-        in world units that costs as much as ``scale_px``, and whether left and right bones share a
-        length.
+        One length per bone: weight, the deviation in world units that costs as much as
+        ``scale_px``, and whether left and right bones share a length.
     rigid_points, rigid_weight, rigid_scale
         Points held at one world position (null: every ``*thorax_coxa`` point, the tethered thorax;
         ``[]``: none), weight and scale in world units.
@@ -54,8 +52,7 @@ class RefinementParams:
     max_iterations, chunk_frames, overlap_frames
         Solver iterations per chunk, frames per chunk, and context frames on each side.
     moved_fraction
-        Flag points moved from the triangulation by more than this fraction of the median bone
-        length.
+        Flag points moved more than this fraction of the median bone length from the triangulation.
     """
 
     loss: str = param("soft_l1", choice(*REFINEMENT_LOSSES))
@@ -158,8 +155,7 @@ class KinematicsParams:
         ``origin``, ``posterior``, ``anterior``, ``right``, ``left`` point lists; ``None`` = the
         fly's thorax-coxa points.
     allow_mirrored
-        Compute angles from a 3D that is the fly's mirror image anyway (:mod:`flylib.handedness`);
-        by default such a result is refused.
+        Compute angles from a mirror-image 3D anyway (:mod:`flylib.handedness`); by default refused.
     """
 
     angles: dict[str, tuple[str, str, str]] | None = None

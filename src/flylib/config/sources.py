@@ -95,3 +95,56 @@ def footage_globs(config: Any) -> dict[str, str | None]:
     sources = view_sources(config)
     patterns = source_patterns(config) if sources else {}
     return {view: patterns.get(source) for view, source in sources.items()}
+
+
+def pathways_of(tables) -> set:
+    """The detector pathways the ``output_points`` tables name."""
+    return {
+        slot.get("pathway")
+        for table in tables
+        if isinstance(table, Mapping)
+        for slot in table.values()
+        if isinstance(slot, Mapping)
+    }
+
+
+def drop_views(data: dict, views: set[str]) -> None:
+    """Remove what only ``views`` used from a merged config mapping, in place: their
+    ``pose2d.output_points``, the pathways only they read, the sources only those pathways (or
+    the views by name) read, and the ``visualization`` panels showing them."""
+    if not views:
+        return
+    pose2d = data.get("pose2d") if isinstance(data.get("pose2d"), dict) else {}
+    points = pose2d.get("output_points") if isinstance(pose2d.get("output_points"), dict) else {}
+    kept_points = {v: t for v, t in points.items() if v not in views}
+    gone = pathways_of(t for v, t in points.items() if v in views) - pathways_of(
+        kept_points.values()
+    )
+    if points:
+        pose2d["output_points"] = kept_points
+    pathways = pose2d.get("pathways")
+    if isinstance(pathways, list):
+        pose2d["pathways"] = [p for p in pathways if not _named(p, gone)]
+        read = {p.get("source") for p in pathways if _named(p, gone)}
+        read |= {n for v in views for n in (f"vid_{v}", v)}
+        read -= {p.get("source") for p in pose2d["pathways"] if isinstance(p, Mapping)}
+        if isinstance(data.get("sources"), list):
+            data["sources"] = [s for s in data["sources"] if not _named(s, read)]
+    videos = (data.get("visualization") or {}).get("videos")
+    if isinstance(videos, list):
+        kept = []
+        for video in videos:
+            panels = video.get("panels") if isinstance(video, Mapping) else None
+            if isinstance(panels, list):
+                left = [
+                    p for p in panels if not (isinstance(p, Mapping) and p.get("view") in views)
+                ]
+                if not left:
+                    continue
+                video = {**video, "panels": left}
+            kept.append(video)
+        data["visualization"] = {**data["visualization"], "videos": kept}
+
+
+def _named(entry: Any, names: set) -> bool:
+    return isinstance(entry, Mapping) and entry.get("name") in names

@@ -8,6 +8,7 @@ from dataclasses import fields
 from typing import Any
 
 from ..errors import did_you_mean, unknown_key
+from ..paths import name_problem
 from ..skeleton import default_skeleton_table, skeleton_problems
 from .checks import boolean, got, integer, is_int, mapping, non_finite_problems
 from .constants import EXPORT_KEYS, POSE2D_PLAN_KEYS, STAGES, SUBPIXEL_METHODS, TOP_LEVEL_KEYS
@@ -304,7 +305,17 @@ def _camera_view_names(data: Mapping, cameras: Mapping, problems: list[str]) -> 
     are not tables are recorded in ``problems``."""
     view_names = [name for name in cameras if name != "defaults"]
     for name, spec in cameras.items():
-        if not isinstance(spec, Mapping):
+        if name_problem(str(name)):  # a view names files (exports write <view>.csv)
+            problems.append(
+                f"cameras.{name}: cannot be a view name: {name_problem(str(name))}; rename it"
+            )
+        if spec is None:  # a table a null deleted would be gone: there was none
+            known = ", ".join(n for n in view_names if cameras[n] is not None)
+            problems.append(
+                f"cameras.{name}: null removes a camera, and the rig has no camera {name!r} "
+                f"(cameras: {known}); check the name"
+            )
+        elif not isinstance(spec, Mapping):
             problems.append(f"cameras.{name}: expected a table of camera parameters, {got(spec)}")
     if not view_names and data.get("calibration"):
         view_names = None  # the rig comes from the calibration file: names unknown here

@@ -13,6 +13,7 @@ Routes::
                                     "durable", "fixed"} (op: one of session.EDIT_OPS) -> points
     POST /api/save                  write corrections.h5 beside results.h5
     POST /api/stop                  stop the server (the page's Stop button)
+    POST /api/reload                read results.h5 again (a re-run rewrote it; edits replayed)
     WS   /ws                        the same edits, or {"op": "save"}; other pages' edits arrive
                                     as {"op": "changed", "revision"}
 
@@ -204,6 +205,15 @@ def _add_edit_routes(app: FastAPI, edits: _Edits) -> None:
         request.app.state.stop()
         return JSONResponse({"op": "stopping", "dirty": edits.session.dirty})
 
+    @app.post("/api/reload")
+    async def reload(request: Request) -> JSONResponse:
+        await _read_json(request)
+        try:
+            edits.session.reload()
+        except FlylibError as exc:
+            return _refused(409, f"{exc}; stop and start `flylib gui` again")
+        return JSONResponse({"op": "reloaded", "revision": edits.session.revision})
+
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:
         reply = edits.save(await _read_json(request))
@@ -225,7 +235,7 @@ def _add_edit_socket(app: FastAPI, guard: RequestGuard, edits: _Edits) -> None:
             await websocket.close(code=1008)
             return
         await websocket.accept(subprotocol=WS_PROTOCOL if WS_PROTOCOL in offered else None)
-        edits.sockets.add(websocket)
+        edits.sockets[websocket] = edits.session.revision
         try:
             while True:
                 raw = await websocket.receive()
@@ -240,14 +250,14 @@ def _add_edit_socket(app: FastAPI, guard: RequestGuard, edits: _Edits) -> None:
                 if isinstance(message, dict) and message.get("op") == "save":
                     await websocket.send_json(edits.save(message))
                     continue
-                reply = edits.apply(message)
+                reply = edits.apply(message, websocket)
                 await websocket.send_json(reply)
                 if reply["op"] == "points":
                     await edits.broadcast(websocket, reply["revision"], reply["frame"])
         except WebSocketDisconnect:
             return
         finally:
-            edits.sockets.discard(websocket)
+            edits.sockets.pop(websocket, None)
 
 
 async def _read_json(request: Request) -> Any:
@@ -267,7 +277,9 @@ class _Edits:
 
     def __init__(self, session: ReviewSession):
         self.session = session
-        self.sockets: set[WebSocket] = set()
+        # each open page: the revision after the latest edit from anywhere else; its own edits
+        # since then are not stale (typed-ahead keys send before the previous reply arrives)
+        self.sockets: dict[WebSocket, int] = {}
 
     async def broadcast(self, origin: WebSocket | None, revision: int, frame: int) -> None:
         """Tell every other open page that the edits changed (it refreshes)."""
@@ -277,16 +289,21 @@ class _Edits:
             try:
                 await other.send_json({"op": "changed", "revision": revision, "frame": frame})
             except (RuntimeError, OSError, WebSocketDisconnect):
-                self.sockets.discard(other)
+                self.sockets.pop(other, None)
 
-    def apply(self, message: Any) -> dict:
-        """One edit message -> the frame's points (plus the server time), or an error."""
+    def apply(self, message: Any, origin: WebSocket | None = None) -> dict:
+        """One edit message (from page ``origin``) -> the frame's points (plus the server
+        time), or an error."""
         if not isinstance(message, dict):
             return {
                 "op": "refused",
                 "error": "an edit is a JSON object with op, frame, point, view, xy",
             }
         started = time.perf_counter()
+        revision = message.get("revision")
+        mine = self.sockets.get(origin)  # None: REST, or not a page
+        if type(revision) is int and mine is not None and mine <= revision < self.session.revision:
+            revision = self.session.revision  # only this page edited since
         try:
             reply = self.session.edit(
                 message.get("op"),
@@ -295,7 +312,7 @@ class _Edits:
                 message.get("view"),
                 message.get("xy"),
                 fixed=message.get("fixed", False),
-                revision=message.get("revision"),
+                revision=revision,
                 durable=message.get("durable", True) is not False,
             )
         except StaleRevision as exc:
@@ -305,6 +322,9 @@ class _Edits:
         except (KeyError, IndexError, ValueError, TypeError, OverflowError) as exc:
             return {"op": "refused", "error": str(exc).strip("'\"")}
         reply["op"] = "points"
+        for other in self.sockets:
+            if other is not origin:
+                self.sockets[other] = reply["revision"]
         reply["server_ms"] = round((time.perf_counter() - started) * 1000, 2)
         return reply
 

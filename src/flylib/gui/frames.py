@@ -221,6 +221,10 @@ class FrameSource:
     def __len__(self) -> int:
         return 0 if self._frames is None else len(self._frames)
 
+    def frame_size(self) -> tuple[int, int] | None:
+        """``(height, width)`` of the footage (None without)."""
+        return None if self._frames is None else tuple(self._frames.reader.frame_size())
+
     def _cached(self, index: int) -> bytes | None:
         with self._cache_lock:
             data = self._filled.get(index)

@@ -6,6 +6,7 @@ import ipaddress
 import logging
 import secrets
 import socket
+import sys
 import threading
 import webbrowser
 from pathlib import Path
@@ -27,9 +28,12 @@ def is_loopback(host: str) -> bool:
 
 
 def free_port(host: str, preferred: int) -> int:
-    """``preferred`` if it can be bound on ``host``, else a free port the OS picks."""
+    """``preferred`` if it can be bound on ``host`` (kept after a Stop), else a free port the OS
+    picks."""
     for port in (preferred, 0):
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as sock:
+            if sys.platform != "win32":  # a stopped server's port in TIME_WAIT (uvicorn's too)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
                 sock.bind((host, port))
             except OSError:
@@ -98,7 +102,7 @@ def serve(
     finally:
         if session.dirty:
             print(
-                f"flylib gui: {session.corrections.count()} edit(s) not saved to "
+                f"flylib gui: {sum(session.unsaved())} edit(s) not saved to "
                 f"{session.corrections_path} are kept in {session.journal_path}; the next "
                 "`flylib gui` on this recording replays them"
             )

@@ -10,7 +10,6 @@ page that is behind is refreshed instead of overwriting what another tab did.
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import threading
@@ -37,6 +36,9 @@ EDIT_OPS = (
     "reviewed",
     "unreviewed",
 )
+
+#: How much (px) an edit may raise a view's reprojection error before the page says so.
+WORSE_PX = 2.0
 
 
 class StaleRevision(ValueError):
@@ -106,6 +108,7 @@ class ReviewSession:
         from ..config import Config
         from ..results import PoseResult, open_checked
 
+        self._opened = (results, config, footage, footage_dir, cache_frames)  # for reload()
         if footage_dir is not None and not Path(footage_dir).expanduser().is_dir():
             raise FootageError(
                 f"--footage-dir {footage_dir}: no such directory; pass the folder holding "
@@ -117,6 +120,7 @@ class ReviewSession:
             config = Config.of_outputs(self.outdir)
         self.config = config
         self.triangulation_inputs = TriangulationInputs.from_config(config)
+        self._results_stat = self._stat()
         result = PoseResult.load(self.results_path)
         if result.pts3d is None:
             raise ResultsError(f"{self.results_path}: holds no 3D points; run triangulation first")
@@ -154,6 +158,7 @@ class ReviewSession:
             raise
         self.corrections.source = str(self.results_path)
         self.revision = self.corrections.revision
+        self._unsaved: dict[int, Corrections] = {}  # each edited frame as last loaded or saved
         self._journal = EditJournal(self.corrections_path)
         self.pts3d = np.array(result.pts3d)
         self.used2d = np.array(result.pts2d)
@@ -163,6 +168,7 @@ class ReviewSession:
             else np.full((v, t, p), np.nan)
         )
         self.error_before = self.error.copy()  # for the save check
+        self._drag_before: tuple | None = None  # ((frame, point, view), errors) at a drag's start
         self._lock = threading.RLock()
         self._suspects = None
         self._suspects_stale = True
@@ -181,6 +187,7 @@ class ReviewSession:
             name: FrameSource(footage.get(name, []), self.image_sizes[name], cache_frames)
             for name in self.view_names
         }
+        self._refuse_other_footage(cache_frames)
         self._prefetch_todo: list[int] = []
         self._prefetch_wake = threading.Condition()
         self._closed = False
@@ -261,6 +268,32 @@ class ReviewSession:
             log.warning("flylib gui: %s", self.footage_missing)
         return found
 
+    def _refuse_other_footage(self, cache_frames: int) -> None:
+        """Footage of another frame count or image size is another recording's: dark views
+        and a banner naming both, never shown as this recording's."""
+        wrong = []
+        for name, source in self.frames.items():
+            try:
+                size = source.frame_size()
+            except (FlylibError, OSError) as exc:
+                size = exc
+            if size is not None and (len(source), size) != (self.n_frames, self.image_sizes[name]):
+                had = f"{size[1]}x{size[0]}" if isinstance(size, tuple) else f"unreadable ({size})"
+                wrong.append((name, f"{name} has {len(source)} frames of {had}"))
+                source.close()
+                self.frames[name] = FrameSource([], self.image_sizes[name], cache_frames)
+        if wrong:
+            h, w = self.image_sizes[wrong[0][0]]
+            more = f" (and {len(wrong) - 1} other view(s))" if len(wrong) > 1 else ""
+            refused = (
+                f"footage in {self.footage_dir or 'the footage given'} does not match "
+                f"{self.results_path.name}: {wrong[0][1]}{more}, the result {self.n_frames} "
+                f"frames of {w}x{h}; it is not shown. Start `flylib gui` with --footage-dir DIR "
+                "(the folder holding this recording's videos)"
+            )
+            self.footage_missing = "; ".join(filter(None, [self.footage_missing, refused]))
+            log.warning("flylib gui: %s", refused)
+
     # -- reading -----------------------------------------------------------------------
 
     def view_index(self, view: str) -> int:
@@ -274,6 +307,7 @@ class ReviewSession:
         limb_names = list(sk.limb_names)
         return {
             "results": str(self.results_path),
+            "results_changed": self._stat() != self._results_stat,
             "outdir": str(self.outdir),
             "corrections_file": str(self.corrections_path),
             "corrections_loaded": self.corrections.count(),
@@ -349,6 +383,7 @@ class ReviewSession:
                 "suspects": suspects,
                 "dirty": self.dirty,
                 "edits": self.corrections.count(),
+                "unsaved": sum(self.unsaved()),
                 "reviewed": self.corrections.reviewed[t].tolist(),
                 "revision": self.revision,
             }
@@ -397,9 +432,10 @@ class ReviewSession:
             "review": self.review(),
         }
 
-    def save_check(self, worse_px: float = 2.0) -> dict:
+    def save_check(self, worse_px: float = WORSE_PX) -> dict:
         """What the edits made worse, said before saving: ``worse`` (corrected points whose largest
-        error grew by more than ``worse_px``) and ``new_suspects``, 10 lines each, and ``count``."""
+        error grew by more than ``worse_px``, edits the robust triangulation drops) and
+        ``new_suspects``, 10 lines each, their ``frames`` (to jump to), and ``count``."""
         names = self.skeleton.point_names
         with self._lock:
             corrected = self.corrections.corrected_points()
@@ -408,7 +444,7 @@ class ReviewSession:
             now = error.max(axis=0)
             was = np.where(np.isfinite(self.error_before), self.error_before, -1.0).max(axis=0)
             worse = np.argwhere(corrected & (now > np.maximum(was, 0.0) + worse_px))
-            lines = []
+            lines, frames = [], []
             for t, p in worse[:10].tolist():
                 v = int(error[:, t, p].argmax())
                 before = f"{was[t, p]:.1f} px" if was[t, p] >= 0 else "none"
@@ -416,13 +452,26 @@ class ReviewSession:
                     f"{names[p]} at frame {t}: {now[t, p]:.1f} px from its 3D in "
                     f"{self.view_names[v]} (was {before})"
                 )
+                frames.append(t)
+            c, finite = self.corrections, lambda a: np.isfinite(a).all(-1)
+            dropped = np.argwhere(
+                c.edited & finite(c.points) & ~finite(self.used2d) & finite(self.pts3d)
+            )
+            for v, t, p in dropped[:10].tolist():
+                lines.append(
+                    f"{names[p]} at frame {t}: the edit in {self.view_names[v]} is dropped by "
+                    f"the robust triangulation ({self._off(v, t, p):.1f} px from its 3D)"
+                )
+                frames.append(t)
             known = {(f, it["point"]) for it in self.review_items for f in it["frames"]}
             fresh = [r for r in self.suspects().records() if (r["frame"], r["point"]) not in known]
             new = [
                 f"{r['point_name']} at frame {r['frame']}: {', '.join(r['reasons'])}"
                 for r in fresh[:10]
             ]
-        return {"worse": lines, "new_suspects": new, "count": len(worse) + len(fresh)}
+        frames += [r["frame"] for r in fresh[:10]]
+        count = len(worse) + len(dropped) + len(fresh)
+        return {"worse": lines, "new_suspects": new, "frames": frames, "count": count}
 
     # -- editing -------------------------------------------------------------------------
 
@@ -473,16 +522,43 @@ class ReviewSession:
             planned = time.perf_counter()
             self._journal.append(record, self.corrections.revision, durable=durable)
             journaled = time.perf_counter()
+            t, p, view = record["frame"], record.get("point"), record.get("view")
+            # a drag's steps (durable only at its end) are compared with the state before it
+            same = self._drag_before and self._drag_before[0] == (t, p, view)
+            before = self._drag_before[1] if same else self.error[:, t, p].copy()
+            self._drag_before = None if durable else ((t, p, view), before)
             points = self._apply_record(record)
             self.revision += 1
-            for p in points:
-                self._resolve(record["frame"], p)
+            for q in points:
+                self._resolve(t, q)
             solve_ms = (time.perf_counter() - journaled + planned - started) * 1000
             self.dirty = True
-            reply = self.points(record["frame"])
+            reply = self.points(t)
+            if record["op"] in ("move", "set3d"):
+                reply["consequence"] = self._consequence(t, p, self.view_index(view), before)
             reply["solve_ms"] = round(solve_ms, 2)
             reply["journal_ms"] = round((journaled - planned) * 1000, 2)
             return reply
+
+    def _consequence(self, t: int, p: int, v: int, before: np.ndarray) -> dict:
+        """What an edit of point ``p`` in view ``v`` did: ``rose``, the other views whose error
+        grew by more than :data:`WORSE_PX` (``after`` None: now dropped), and ``dropped``, how
+        far its own 2D lies from the 3D that the robust triangulation solved without it."""
+        pairs = zip(before.round(1).tolist(), self.error[:, t, p].round(1).tolist())
+        rose = [
+            {"view": self.view_names[u], "before": b, "after": None if math.isnan(a) else a}
+            for u, (b, a) in enumerate(pairs)
+            if u != v and math.isfinite(b) and not a <= b + WORSE_PX
+        ]
+        return {"point": p, "view": self.view_names[v], "rose": rose, "dropped": self._off(v, t, p)}
+
+    def _off(self, v: int, t: int, p: int) -> float | None:
+        """How far the edited 2D of ``p`` in view ``v`` lies from its 3D when the robust
+        triangulation left it out; None when it is used, not edited, or has no 3D."""
+        xy, xyz = self.corrections.points[v, t, p], self.pts3d[t, p]
+        if np.isfinite(self.used2d[v, t, p]).all() or not np.isfinite([*xy, *xyz]).all():
+            return None
+        return round(float(np.linalg.norm(self.cameras[v].project(xyz) - xy)), 1)
 
     @property
     def journal_path(self) -> Path:
@@ -551,6 +627,7 @@ class ReviewSession:
     def _apply_record(self, record: dict) -> range | list[int]:
         """Change the corrections as a checked record says; the points to re-solve."""
         op, t = record["op"], record["frame"]
+        self._unsaved.setdefault(t, self.corrections.subset([t], slice(None)))
         view, p = record.get("view"), record.get("point")
         v = None if view is None else self.view_index(view)
         if op == "move":
@@ -577,7 +654,6 @@ class ReviewSession:
         replay = read_journal(self._journal.path)
         if not replay.edits and not replay.damaged:
             return
-        before = copy.deepcopy(self.corrections)
         applied, refused = 0, []
         for record in replay.edits:
             try:
@@ -590,7 +666,7 @@ class ReviewSession:
         self.revision += applied
         self.dirty = applied > 0
         # counted as Save counts them (points), not journal lines (a drag journals each position)
-        changed, marks = _changes(before, self.corrections)
+        changed, marks = self.unsaved()
         steps = f", {applied} journal steps" if applied != changed else ""
         marks_text = f" and {marks} review mark(s)" if marks else ""
         parts = [
@@ -658,18 +734,47 @@ class ReviewSession:
             self.corrections.revision = self.revision
             try:
                 path = self.corrections.save(self.corrections_path)
-            except OSError as err:
-                if isinstance(err, OutputError):
-                    raise
+            except OSError as err:  # atomic_path's OutputError already names the file and why
+                said = (
+                    err
+                    if isinstance(err, OutputError)
+                    else f"{self.corrections_path}: cannot save ({err.strerror or err})"
+                )
                 raise OutputError(
-                    f"{self.corrections_path}: cannot save ({err.strerror or err}); the "
-                    f"edits are kept in {self._journal.path.name} and in this session: make "
-                    "the directory writable or free space, then save again"
+                    f"{said}; the edits are kept in {self._journal.path.name} and in this "
+                    "session: make the directory writable or free space, then save again"
                 ) from None
             self._journal.discard()
             self.dirty = False
+            self._unsaved.clear()
+            self.notice = ""  # a replayed journal's: saved now
         log.info("corrections saved to %s (%d edits)", path, self.corrections.count())
         return path
+
+    def unsaved(self) -> tuple[int, int]:
+        """Point edits and review marks changed since the sidecar was loaded or saved."""
+        counts = [
+            _changes(before, self.corrections.subset([t], slice(None)))
+            for t, before in self._unsaved.items()
+        ]
+        return tuple(map(sum, zip((0, 0), *counts)))
+
+    def _stat(self) -> tuple | None:
+        """What tells a rewritten results.h5 (a re-run) from the one this session read."""
+        try:
+            st = self.results_path.stat()
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns, st.st_size
+
+    def reload(self) -> None:
+        """Read results.h5 again (a re-run rewrote it); unsaved edits come back from the journal."""
+        with self._lock:
+            self.close()
+            results, config, footage, footage_dir, cache = self._opened
+            self.__init__(
+                results, config=config, footage=footage, footage_dir=footage_dir, cache_frames=cache
+            )
 
     # -- background prefetch ---------------------------------------------------------------
 

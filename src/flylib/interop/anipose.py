@@ -1,13 +1,10 @@
 """Camera rigs from calibration files: Anipose TOML, DeepFly3D pickle, calibrations.csv.
 
 Anipose TOML: one ``[cam_N]`` table per camera with ``name``, ``size = [width, height]``, ``matrix``
-(3x3 K), ``distortions`` (OpenCV order ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues vector, world to
-camera) and ``translation``; an optional ``[metadata]`` table. The camera model is OpenCV's, so
-``cv2.projectPoints`` with the same numbers gives the same pixels as
-:meth:`flylib.camera.rig.CameraGroup.project`.
+(3x3 K), ``distortions`` (OpenCV ``k1 k2 p1 p2 k3``), ``rotation`` (Rodrigues, world to camera) and
+``translation``; optional ``[metadata]``. OpenCV's camera model, as flylib's.
 
-Config (top-level ``calibration`` table) -- take the rig from a file instead of the orbit
-parameters::
+Config (top-level ``calibration`` table), the rig from a file instead of the orbit parameters::
 
     calibration:
       file: calibration.toml     # or a DeepFly3D calib pickle
@@ -19,10 +16,9 @@ parameters::
       index: calibrations.csv    # rows "<...>/<session>/<image>,<toml path>"
       session: null              # default: the recording directory's name
 
-Views are matched by name (an Anipose camera whose ``name`` is the view name); a DeepFly3D pickle's
-cameras are matched by index to the views in config order. Relative paths resolve against the
-recording directory when the file is there, else against the config file's directory, else the
-working directory; paths inside ``calibrations.csv`` are relative to the CSV.
+Anipose cameras match views by ``name``, DeepFly3D cameras by index in config order. Relative paths
+resolve against the recording directory, else the config file's directory, else the working
+directory; paths inside ``calibrations.csv`` are relative to the CSV.
 """
 
 from __future__ import annotations
@@ -47,12 +43,8 @@ CALIBRATION_FORMATS = ("anipose", "deepfly3d")
 
 def read_anipose_toml(path: Path) -> dict[str, dict]:
     """Read an Anipose calibration TOML: ``camera name -> dict`` in ``cam_N`` order, with ``size``
-    ``(width, height)`` (or ``None``) and float64 ``kmat`` (3, 3), ``dist`` (K,), ``rvec`` (3,),
-    ``tvec`` (3,).
-
-    A missing key, a wrong shape, a K whose last row is not ``[0, 0, 1]`` or that has skew, or two
-    cameras with the same name is an :class:`ImportFormatError`.
-    """
+    ``(width, height)`` (or ``None``) and float64 ``kmat`` (3, 3), ``dist`` (K,), ``rvec``, ``tvec``;
+    a K with skew or a last row other than ``[0, 0, 1]`` is an :class:`ImportFormatError`."""
     path = Path(path)
     if not path.is_file():
         raise ImportFormatError(f"{path}: no such Anipose calibration file; check calibration.file")
@@ -118,12 +110,10 @@ def read_anipose_toml(path: Path) -> dict[str, dict]:
 def write_anipose_toml(
     cameras, path: Path, image_sizes: dict | None = None, metadata: dict | None = None
 ) -> Path:
-    """Write a camera rig (a :class:`flylib.camera.rig.CameraGroup`) as an Anipose calibration TOML
-    (atomically); returns ``path``.
+    """Write a :class:`flylib.camera.rig.CameraGroup` as an Anipose calibration TOML (atomically).
 
-    ``image_sizes``: ``view -> (height, width)`` of the raw frames, written as ``size = [w, h]``; a
-    camera without one gets ``size = [2 cx, 2 cy]`` (the principal point at the image centre), the
-    best guess Anipose can use. ``metadata``: extra ``[metadata]`` entries (TOML-able values).
+    ``image_sizes``: ``view -> (height, width)``; a camera without one gets ``size = [2 cx, 2 cy]``,
+    the best guess Anipose can use. ``metadata``: extra ``[metadata]`` entries.
     """
     import tomli_w
 
@@ -173,13 +163,8 @@ def _session_parts(text: str) -> tuple[str, ...]:
 
 
 def calibration_from_index(index_csv: Path, session: str) -> Path:
-    """The calibration file ``calibrations.csv`` gives for a recording session: a row belongs to
-    ``session`` when its first column is the session name or a path with ``session`` as a directory
-    component (``labeled-data/<session>/img.png``).
-
-    A missing or malformed index, or no file or several different files for the session, is an
-    :class:`ImportFormatError`.
-    """
+    """The calibration file ``calibrations.csv`` gives ``session``: rows whose first column is the
+    session or has it as a directory (``labeled-data/<session>/img.png``); there must be one file."""
     import pandas as pd
 
     index_csv = Path(index_csv)
@@ -239,14 +224,9 @@ def calibration_inputs(
     *,
     config_dir: Path | None = None,
 ) -> list[Path]:
-    """The files a ``calibration`` table reads for one recording: the index CSV (if any) and the
-    calibration file, those that exist (``[]`` without a ``calibration`` table).
-
-    The workflow lists them as inputs of the rules that build the config rig, so editing a
-    calibration file (or its ``calibrations.csv`` row) re-runs those stages. Missing files, or an
-    index without a row for the session, are left out: the stage itself then fails naming the file
-    and the fix. Relative paths, and the index's session, resolve as in :func:`load_calibration`.
-    """
+    """The existing files a ``calibration`` table reads for one recording (index CSV, calibration
+    file): workflow inputs, so editing them re-runs the rig's stages. Missing ones are left out
+    (the stage then fails naming the fix)."""
     spec = calibration
     if not isinstance(spec, Mapping) or not ({"file", "index"} & set(spec)):
         return []
@@ -268,20 +248,12 @@ def load_calibration(
     *,
     config_dir: Path | None = None,
 ):
-    """The camera rig (a :class:`flylib.camera.rig.CameraGroup`, one camera per view in ``views``
-    order) from a ``calibration`` table (module docstring).
+    """The :class:`flylib.camera.rig.CameraGroup` (one camera per view, ``views`` order; none: the
+    file's) from a ``calibration`` table (module docstring).
 
-    ``mirror: true`` in the table returns the file's rig in mirrored world coordinates
-    (:func:`flylib.handedness.mirror_cameras`: the same pixels, the 3D mirrored), for a file whose
-    world is the fly's mirror image. No ``views`` (the config's ``cameras``): the file's cameras, in
-    its order. ``recording_dir`` is where relative paths are looked up first (then ``config_dir``,
-    the config file's folder) and names the session for ``calibration.index``. ``image_sizes``
-    (``view -> (height, width)`` of the footage) are checked against the sizes an Anipose file
-    records: a lens calibrated at another resolution does not fit the footage.
-
-    Raises :class:`ImportFormatError` (no ``calibration`` table, an unknown format, a view with no
-    camera in the file) or :class:`FootageError` (a view's footage size differs from its calibrated
-    size).
+    ``mirror: true`` mirrors the file's world (same pixels, 3D mirrored). ``recording_dir`` names
+    the session for ``calibration.index``. ``image_sizes`` (footage ``(height, width)``) must match
+    an Anipose file's sizes, else :class:`FootageError`: a lens calibrated at another resolution.
     """
     from ..camera.rig import CameraGroup
 

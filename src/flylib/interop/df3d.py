@@ -1,36 +1,27 @@
 """DeepFly3D files: the 2D result pickle and the calibration pickle.
 
 2D (``df3d_result*.pkl``, a pickled dict). ``points2d`` ``(C, T, J, 2)`` comes in two layouts, told
-apart from the values themselves (:func:`points2d_layout`):
+apart by its values (:func:`points2d_layout`):
 
-- DeepFly3D 0.x, normalized: ``[..., 0]`` is row / height (y), ``[..., 1]`` column / width (x),
-  every value in ``[0, 1]``; an undetected joint is ``(0, 0)``, and ``(0, 1)`` in the mirrored
-  cameras (the flip maps column 0 to 1). Values are quantized to the heatmap grid, so pixels are
-  ``x = col * width``, ``y = row * height`` (no half-cell shift: that is how DeepFly3D scales them
-  back).
-- DeepFly3D 1.x (the ``df3d`` package's ``df3d_result.pkl``): raw-frame pixels ``(x, y)``, an
-  undetected joint ``(0, 0)``; the same pickle also holds the calibration (NumPy-integer camera
-  keys) and ``points3d``.
+- 0.x, normalized: ``[..., 0]`` is row / height (y), ``[..., 1]`` column / width (x), in ``[0, 1]``;
+  undetected is ``(0, 0)``, or ``(0, 1)`` in mirrored cameras. Pixels are ``x = col * width``,
+  ``y = row * height`` (no half-cell shift: how DeepFly3D scales its heatmap grid back).
+- 1.x (the ``df3d`` package): raw-frame pixels ``(x, y)``, undetected ``(0, 0)``; the pickle also
+  holds the calibration (NumPy-integer camera keys) and ``points3d``.
 
-A file whose values fit neither (pixels beyond the frames, or some cameras normalized and others in
-pixels) is one :class:`ImportFormatError` naming it.
+``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per channel; the network has ``K = J / 2``
+channels, run on one side of the fly at a time, so joint ``j`` takes channel ``j mod K``.
+``camera_ordering`` ``(C,)``: DeepFly3D's ``cidread2cid``; row ``i`` of ``points2d`` goes on the
+``i``-th configured view (or ``views[i]``).
 
-- ``heatmap_confidence`` ``(C, T, K, 1)``: the heatmap peak per output channel. DeepFly3D's network
-  has ``K = J / 2`` channels, run on one side of the fly at a time, so joint ``j`` takes channel
-  ``j mod K``.
-- ``camera_ordering`` ``(C,)``: DeepFly3D's ``cidread2cid``. Row ``i`` of ``points2d`` is canonical
-  camera ``i``, placed here on the ``i``-th configured view (or ``views[i]``), right for the default
-  rig.
+Joint order: joints 0-18 are the side seen by cameras 0-2, 19-37 the side seen by cameras 4-6;
+within a side: front, middle, hind leg (thorax-coxa, coxa-trochanter, femur-tibia, tibia-tarsus,
+claw), antenna, abdomen 0-2. Cameras 0-2 (rh, rm, rf) film the right flank, so joint ``j`` is fly38
+point ``(j + 19) mod 38`` (pinned in ``tests/interop/test_interop.py``).
 
-Joint order. DeepFly3D joints 0-18 are the side seen by cameras 0-2 and joints 19-37 the side seen
-by cameras 4-6; within a side: front, middle, hind leg (thorax-coxa, coxa-trochanter, femur-tibia,
-tibia-tarsus, claw), antenna, abdomen 0-2. Cameras 0-2 (views rh, rm, rf) film the fly's right
-flank, so DeepFly3D joint ``j`` is fly38 point ``(j + 19) mod 38`` (checked by eye on the
-deepfly3d-sample recording; pinned in ``tests/interop/test_interop.py``).
-
-Calibration (a pickled dict): per integer camera index, a dict with ``R`` (3x3 world-to-camera
-rotation), ``tvec`` (3,), ``intr`` (3x3 K) and ``distort`` (5, OpenCV order); projecting with OpenCV
-conventions gives raw-frame (x, y) pixels. Other keys are ignored.
+Calibration (a pickled dict): per integer camera index, ``R`` (3x3 world-to-camera), ``tvec`` (3,),
+``intr`` (3x3 K) and ``distort`` (5, OpenCV order), projecting to raw-frame (x, y) pixels; other
+keys are ignored.
 """
 
 from __future__ import annotations
@@ -81,6 +72,12 @@ class Df3dPoints2d:
     camera_ordering: Int[np.ndarray, " C"]
 
 
+def result_folders(recording_dir: Path) -> tuple[str, ...]:
+    """Where DeepFly3D's result pickles of a recording may lie, relative to it: beside the footage,
+    in ``df3d/`` (DeepFly3D 0.x) or in ``<name>_df3d`` (``df3d-cli``'s default output folder)."""
+    return ("", "df3d/", f"../{recording_dir.name}_df3d/")
+
+
 def load_pickle(path: Path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
@@ -94,10 +91,8 @@ def load_pickle(path: Path, what: str) -> dict:
 
 
 def read_df3d_points2d(path: Path, image_sizes: list[tuple[int, int]]) -> Df3dPoints2d:
-    """Read a DeepFly3D 2D result pickle (``df3d_result*.pkl``) into raw-frame pixels;
-    ``image_sizes`` is the ``(height, width)`` of each camera row's frames (the normalization base).
-    A pickle lacking ``points2d``, or of a shape that does not fit, is an
-    :class:`ImportFormatError`."""
+    """Read a DeepFly3D 2D result pickle into raw-frame pixels; ``image_sizes``: ``(height,
+    width)`` of each camera row's frames (the normalization base)."""
     data = load_pickle(path, "DeepFly3D 2D result")
     if "points2d" not in data:
         raise ImportFormatError(
@@ -154,13 +149,9 @@ def points2d_layout(
     image_sizes: Float[np.ndarray, "C 2"],
     path: Path | str = "points2d",
 ) -> str:
-    """Which DeepFly3D layout ``points2d`` (as stored) is in, ``"normalized"`` or ``"pixels"``,
-    decided from its values; ``image_sizes`` is ``(height, width)`` per camera.
-
-    A camera whose detected coordinates all lie in ``[0, 1]`` is normalized (0.x); one with a
-    coordinate above 1 is in pixels (1.x) and must stay within its frame. Cameras that disagree, or
-    pixels outside the frames, are an :class:`ImportFormatError`.
-    """
+    """``"normalized"`` (0.x: every detected coordinate in ``[0, 1]``) or ``"pixels"`` (1.x, which
+    must lie within each camera's ``(height, width)``); cameras that disagree are an
+    :class:`ImportFormatError`."""
     finite = np.isfinite(points2d).all(-1)
     detected = finite & ~(points2d == 0).all(-1)
     pixel_cams = [
@@ -216,8 +207,7 @@ def _camera_ordering(data: dict, path: Path, n_cams: int) -> np.ndarray:
 
 def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
     """Read a DeepFly3D calibration pickle: ``camera index -> {"rvec", "tvec", "kmat", "dist"}``
-    (float64; ``rvec`` from ``R`` by :func:`cv2.Rodrigues`), sorted by index. No camera entry, or
-    one lacking ``R``/``tvec``/``intr``, is an :class:`ImportFormatError`."""
+    (float64), sorted by index."""
     import cv2
 
     data = load_pickle(path, "DeepFly3D calibration")

@@ -1,7 +1,7 @@
 """Exports for other tools: Anipose's 3D CSV and per-view DeepLabCut CSVs.
 
-3D CSV, exactly Anipose's ``pose-3d`` layout (``anipose triangulate``; what ``movement``'s Anipose
-loader and Anipose's own tools read): one row per frame; per skeleton point, in skeleton order,
+3D CSV, exactly Anipose's ``pose-3d`` layout (as ``movement`` and Anipose read it): per frame a row;
+per skeleton point, in skeleton order,
 ``<point>_x``, ``_y``, ``_z`` (world units), ``_error`` (mean reprojection error in pixels over the
 views the point rests on), ``_ncams`` (how many views' 2D observations it rests on) and ``_score``
 (the lowest 2D confidence among those views); then the alignment ``M_00`` ... ``M_22`` (the rotation
@@ -40,13 +40,10 @@ def points3d_table(
     pts2d: Float[np.ndarray, "V T P 2"] | None = None,
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> pd.DataFrame:
-    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring): ``T`` rows,
-    six columns per point, then ``M_00..M_22``, ``center_0..2``, ``fnum``.
+    """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring).
 
-    ``pts3d`` ``(T, P, 3)`` world points (NaN = not reconstructed); ``reproj_error`` ``(V, T, P)``
-    pixels, or ``None`` (``_error`` NaN); ``pts2d`` ``(V, T, P, 2)`` the 2D the 3D rests on, or
-    ``None`` (``_ncams`` then counts the views with a finite reprojection error); ``conf``
-    ``(V, T, P)``, or ``None`` (each observation scores 1).
+    Without ``reproj_error`` ``_error`` is NaN; without ``pts2d`` (the 2D the 3D rests on)
+    ``_ncams`` counts views with a finite error; without ``conf`` each observation scores 1.
     """
     pts3d = np.asarray(pts3d, dtype=np.float64)
     n_frames, n_points, _ = pts3d.shape
@@ -145,12 +142,8 @@ def export_result(
     detections=None,
 ) -> list[Path]:
     """Export a :class:`flylib.results.PoseResult`: the Anipose 3D CSV ``csv3d`` and/or per-view DLC
-    CSVs in ``dlc_dir`` (``None``: not written); returns the files written.
-
-    The 2D CSVs hold ``detections`` (:func:`flylib.results.read_detections`), required with
-    ``dlc_dir`` (else a ValueError). A 3D CSV of a result without 3D points is a
-    :class:`flylib.errors.ResultsError`.
-    """
+    CSVs of ``detections`` (:func:`flylib.results.read_detections`, required) in ``dlc_dir``
+    (``None``: not written); returns the files written."""
     if dlc_dir is not None and detections is None:
         raise ValueError("export_result: the DLC CSVs need the detections (read_detections)")
     written: list[Path] = []

@@ -1,8 +1,7 @@
 """``pose2d.import``: take 2D keypoints from another tool instead of running the detector.
 
-The result is the same :class:`flylib.results.Pose2dData` the detector produces (raw-frame pixels
-``(V, T, P, 2)``, confidences ``(V, T, P)``, view names, frame sizes), so every later stage and the
-workflow run unchanged.
+The result is the same :class:`flylib.results.Pose2dData` the detector produces, so every later
+stage runs unchanged.
 
 Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
 
@@ -18,30 +17,22 @@ Config keys (``pose2d.import``, or the ``import`` of a ``recordings`` entry)::
         individual: null         # dlc multi-animal: which individual
         track: null              # sleap: track index or name when several
 
-``files``: for ``deepfly3d``, one pickle for all views: a glob matching one file, default
-``df3d_result*.pkl`` in the recording directory, then in its ``df3d/`` folder. Per-view formats take
-a pattern with ``{view}``, ``{index}`` (its position in the config), ``{source}`` (its footage
-source name) or ``{stem}`` (its footage file name without extension, e.g. ``camera_0``)
-placeholders, globbing allowed (one match per view; DeepLabCut's own naming is
-``"{stem}DLC_*.csv"``), or a mapping ``{view: path}`` with a file for every configured view
-(``null`` for a view observed by nothing). Defaults: ``{view}.csv`` / ``{view}.h5`` /
-``{view}.analysis.h5``; ``deeplabcut`` reads CSV or HDF5 by the suffix.
+``files``: ``deepfly3d`` takes one pickle for all views (a glob matching one file; default
+``df3d_result*.pkl`` in the recording directory, its ``df3d/`` folder, then ``../<name>_df3d/``,
+DeepFly3D's own output folder). Per-view formats take a pattern with ``{view}``, ``{index}``
+(position in the config), ``{source}`` (footage source) or ``{stem}`` (footage file name without
+extension) placeholders, globbing allowed (one match per view), or a mapping ``{view: path}`` for
+every configured view (``null``: observed by nothing).
 
-``keypoint_map``: without it a file name must equal a skeleton point name; DeepFly3D joints (keys
-are joint indices) default to fly38 point ``(j + 19) mod 38`` (:mod:`flylib.interop.df3d`). A file
-keypoint that maps to nothing is an error, so a renamed body part is never silently dropped; map it
-to ``null`` to drop it on purpose.
+``keypoint_map``: without it a file name must equal a skeleton point name (DeepFly3D joint ``j``
+defaults to fly38 point ``(j + 19) mod 38``). A file keypoint that maps to nothing is an error, so a
+renamed body part is never silently dropped; map it to ``null`` to drop it on purpose.
 
-``view_points``: ``plan`` (default) keeps in each view only the points the detection plan's
-``pose2d.output_points`` gives it, as the detector would; the rest is set missing (NaN), with one
-warning per file. DeepFly3D 1.x writes 2D for all 38 joints in every camera, also where its own plan
-gives the camera none of them: that junk is never triangulated. A view the plan does not list keeps
-every point; ``all`` keeps every point the files hold.
-
-DeepLabCut-layout rows are placed by their frame index (:func:`flylib.interop.dlc.frame_rows`), and
-every tool's scores become confidences in [0, 1] (:func:`as_confidences`). Frame sizes come from
-each view's footage header (:mod:`flylib.interop.views`), else ``image_size``. All views must have
-the same number of frames, and as many as their footage when its count is known.
+``view_points: plan`` sets missing (NaN) the points the plan's ``pose2d.output_points`` does not
+give a view, warning once per file (DeepFly3D 1.x writes all 38 joints in every camera); a view the
+plan does not list keeps every point. Scores become confidences in [0, 1] (:func:`as_confidences`);
+frame sizes come from the footage header, else ``image_size``; all views must have the same number
+of frames, and as many as their footage when its count is known.
 """
 
 from __future__ import annotations
@@ -57,7 +48,7 @@ import numpy as np
 from ..errors import ImportFormatError, did_you_mean, unknown_key
 from . import views as _views
 from ._h5 import read_budget
-from .df3d import df3d_joint_to_fly38, read_df3d_points2d
+from .df3d import df3d_joint_to_fly38, read_df3d_points2d, result_folders
 from .dlc import ViewKeypoints, read_dlc_csv, read_dlc_h5
 from .sleap import read_sleap_analysis
 
@@ -92,11 +83,8 @@ VIEW_POINTS = ("plan", "all")
 
 @dataclass(frozen=True)
 class ImportTarget:
-    """What imported 2D is placed on: the run's views (the V axis, in order; none is an error at
-    import) and skeleton points (the P axis), ``view_sources`` (``view -> footage source``,
-    :func:`flylib.config.sources.feeding_sources`), ``source_patterns`` (``source -> footage glob``)
-    and ``plan_points`` (``view -> skeleton points`` the detection plan's ``pose2d.output_points``
-    gives it: what its file should hold)."""
+    """What imported 2D is placed on: views (the V axis, in order), skeleton points (the P axis),
+    ``view -> footage source``, ``source -> footage glob`` and ``view -> plan points``."""
 
     views: tuple[str, ...]
     point_names: tuple[str, ...]
@@ -193,10 +181,8 @@ def _closest_file(recording_dir: Path, pattern: str) -> str:
 def import_files(
     target: ImportTarget, spec: dict, recording_dir: str | Path
 ) -> dict[str, Path | None]:
-    """The file each view's 2D is read from (``None``: a view mapped to nothing), found as the
-    import finds them, without reading them (what validation checks). ``spec`` is validated
-    (:func:`import_spec`); a pattern matching no file (the closest file name is named) or several is
-    an :class:`ImportFormatError`."""
+    """The file each view's 2D is read from (``None``: mapped to nothing), without reading it;
+    no match or several is an :class:`ImportFormatError`."""
     recording_dir = Path(recording_dir)
     views = target.checked_views()
     if spec["format"] == "deepfly3d":
@@ -208,9 +194,8 @@ def import_files(
 
 
 def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path) -> str | None:
-    """Why the import would find no frame size for a view (one line:
-    :func:`flylib.interop.views.missing_footage`), or ``None``; checked before the workflow builds
-    its DAG, from file names alone (no header is read)."""
+    """Why the import would find no frame size for a view (one line), or ``None``; from file
+    names alone, before the workflow builds its DAG."""
     views = target.checked_views()
     if spec["format"] == "deepfly3d":
         views = [v for v in (spec.get("views") or views) if v is not None]
@@ -224,13 +209,11 @@ def footage_problem(target: ImportTarget, spec: dict, recording_dir: str | Path)
 
 
 def _df3d_pattern(spec: dict, recording_dir: Path) -> str:
-    """The DeepFly3D pickle pattern: ``files``, else the default (in the recording or ``df3d/``)."""
-    pattern = spec.get("files")
-    if pattern is None:
-        pattern = "df3d_result*.pkl"
-        if not list(recording_dir.glob(pattern)) and list(recording_dir.glob("df3d/" + pattern)):
-            pattern = "df3d/" + pattern
-    return str(pattern)
+    """The DeepFly3D pickle pattern: ``files``, else the default in the first of
+    :func:`flylib.interop.df3d.result_folders` holding one."""
+    patterns = [f"{sub}df3d_result*.pkl" for sub in result_folders(recording_dir)]
+    found = (p for p in patterns if list(recording_dir.glob(p)))
+    return str(spec.get("files") or next(found, patterns[0]))
 
 
 def _view_files(
@@ -392,10 +375,8 @@ def _warn_missing_parts(
     points: list[str],
     expected: dict[str, set[int]] | None = None,
 ) -> None:
-    """Warn, per file, about skeleton points its view should give and it does not (a column dropped,
-    a part renamed and mapped away). What a view should give: the detection plan's
-    ``pose2d.output_points`` for it when the config has one (a camera sees one side of the fly),
-    else what the other views' files give."""
+    """Warn, per file, about points its view should give and does not: the plan's
+    ``pose2d.output_points`` for it if any (a camera sees one side of the fly), else the others'."""
     given = set().union(*filled.values()) if filled else set()
     for view, have in filled.items():
         if expected and view in expected:
@@ -503,10 +484,8 @@ def as_confidences(
 ) -> Float[np.ndarray, "*batch K"]:
     """Another tool's scores ``(..., K)`` as confidences in [0, 1] (NaN stays NaN).
 
-    DeepLabCut and Lightning Pose likelihoods are probabilities: one outside [0, 1] is an
-    :class:`ImportFormatError`. SLEAP's point scores and DeepFly3D's heatmap peaks may exceed 1:
-    they are clipped into [0, 1] with a warning naming the file. ``path`` and ``names`` (the last
-    axis's keypoints) are for messages.
+    DeepLabCut / Lightning Pose likelihoods outside [0, 1] are an :class:`ImportFormatError`;
+    SLEAP scores and DeepFly3D heatmap peaks may exceed 1 and are clipped with a warning.
     """
     conf = np.asarray(conf, dtype=np.float64)
     with np.errstate(invalid="ignore"):
@@ -588,16 +567,11 @@ def _import_per_view(spec, target: ImportTarget, recording_dir, views, points):
 
 
 def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | None):
-    """Read another tool's 2D keypoints for one recording as the pose2d stage output.
+    """Read another tool's 2D keypoints for one recording as a :class:`flylib.results.Pose2dData`:
+    ``pts2d`` ``(V, T, P, 2)`` raw-frame pixels, ``conf`` ``(V, T, P)``, NaN where unobserved.
 
-    ``target``: the views, skeleton points and footage the 2D is placed on
-    (:func:`flylib.pipeline.pose2d.import_target`); relative ``files`` resolve against
-    ``recording_dir``; ``spec``: the recording's import spec (module docstring), else
-    ``pose2d.import``. Returns a :class:`flylib.results.Pose2dData`: ``pts2d`` ``(V, T, P, 2)``
-    raw-frame pixels and ``conf`` ``(V, T, P)`` over the configured views and skeleton points, NaN
-    where a view has no observation. An unknown format or key, a missing file, a keypoint that maps
-    to no skeleton point, or mismatched frame counts is one :class:`ImportFormatError` line naming
-    the file and the fix.
+    ``spec``: the recording's import spec, else ``pose2d.import``; relative ``files`` resolve
+    against ``recording_dir``. Any problem is one :class:`ImportFormatError` line naming the fix.
     """
     from ..results import Pose2dData
 

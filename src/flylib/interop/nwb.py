@@ -1,46 +1,26 @@
-"""Export a recording's result as Neurodata Without Borders (NWB) with ndx-pose.
-
-:func:`write_nwb` turns a :class:`~flylib.results.PoseResult` into one NWB file, built with
-``pynwb`` and ``ndx-pose`` (never by hand), laid out as ndx-pose (0.4) describes multi-camera 3D
-pose:
+"""Export a recording's result as Neurodata Without Borders (NWB) with ndx-pose (0.4) layout for
+multi-camera 3D pose, built with ``pynwb`` and ``ndx-pose`` (never by hand):
 
 ``/general``
-    session metadata from :mod:`flylib.config.nwb_metadata` (subject, session start time,
-    experimenter, ...); ``was_generated_by`` = flylib and its version; ``data_collection`` = the
-    recording's path and the flylib config snapshot that produced the result; ``session_id``
-    defaults to the recording's name.
+    session metadata (:mod:`flylib.config.nwb_metadata`); ``was_generated_by`` = flylib and its
+    version; ``data_collection`` = the recording's path and the config snapshot.
 ``/general/devices/camera_<view>``
-    one ``ndx_pose.CalibratedCamera`` per view with the final rig (bundle-adjusted when that stage
-    ran): intrinsic matrix ``K``, world-to-camera ``R`` and ``t`` (``x_cam = R x_world + t``),
-    OpenCV distortion coefficients; its description holds the same as JSON (flylib's ``rvec``,
-    ``tvec``, ``[fx, fy, cx, cy]``, distortion, raw image size).
+    ``ndx_pose.CalibratedCamera`` with the final rig: ``K``, world-to-camera ``R``, ``t``
+    (``x_cam = R x_world + t``), OpenCV distortion; its description holds flylib's camera as JSON.
 ``/acquisition/video_<view>``
-    the view's footage as an external ``ImageSeries`` (paths relative to the NWB file, never
-    copied), linked to its camera.
+    the footage as an external ``ImageSeries`` (paths relative to the NWB file, never copied).
 ``/processing/behavior``
-    ``Skeletons`` (point names, bones as edges); ``MultiCameraPoseEstimation``: one
-    ``PoseEstimationSeries`` per point with the 3D position ``(T, 3)`` in the calibration's world
-    frame, and one ``PoseEstimation_<view>`` per view with its 2D keypoints ``(T, 2)`` in pixels and
-    detection confidence, linked to its camera, video and the skeleton; ``ReprojectionError_<view>``
-    time series ``(T, P)`` in pixels.
+    ``Skeletons``; ``MultiCameraPoseEstimation``: one ``PoseEstimationSeries`` per point (3D
+    ``(T, 3)`` in the world frame) and one ``PoseEstimation_<view>`` per view (2D ``(T, 2)`` pixels
+    and confidence); ``ReprojectionError_<view>`` ``(T, P)`` pixels.
 
-Missing values stay NaN. All series share one time base: frame ``i`` is at ``i / frame_rate``
-seconds after ``session_start_time``, the frame rate being ``nwb.frame_rate`` when configured, else
-the footage's.
-
-3D confidence (``PoseEstimationSeries.confidence``, in [0, 1]) combines how well the views agree
-with how many support the point::
+Missing values stay NaN. Frame ``i`` is at ``i / frame_rate`` s after ``session_start_time``
+(``nwb.frame_rate``, else the footage's). 3D confidence, in [0, 1]::
 
     confidence = exp(-e / 5 px) * min(1, (n - 1) / 2)
 
-where ``n`` is the number of views the point was triangulated from (those with a finite reprojection
-error: RANSAC's inliers) and ``e`` the mean reprojection error over them in pixels. Three or more
-views at 0 px score 1, two views 0.5 (two rays always meet near a point, so nothing cross-checks
-them); each 5 px of mean error divides the score by e. Unreconstructed points have NaN confidence.
-
-Readers: ``pynwb.NWBHDF5IO(path, "r", load_namespaces=True).read()`` (the ndx-pose schema is cached
-in the file); ``movement.io.load_poses.from_nwb_file`` with
-``pose_estimation_key="MultiCameraPoseEstimation"`` gives the 3D keypoints.
+``n``: views the point was triangulated from (finite reprojection error), ``e``: their mean error
+in pixels. Two views score at most 0.5: two rays always meet near a point; nothing cross-checks.
 """
 
 from __future__ import annotations
@@ -217,19 +197,12 @@ def write_nwb(
     config_text: str | None = None,
     joint_angles: tuple[np.ndarray, Sequence[str]] | None = None,
 ) -> Path:
-    """Write one recording's result as an NWB file (atomically); returns ``path``.
+    """Write one recording's :class:`~flylib.results.PoseResult` as an NWB file (atomically).
 
-    ``result`` is the :class:`~flylib.results.PoseResult` (``pts2d (V, T, P, 2)``,
-    ``conf (V, T, P)``, ``pts3d (T, P, 3)``, ``reproj_error (V, T, P)``, rig, skeleton);
-    ``metadata`` the merged session metadata
-    (:func:`flylib.config.nwb_metadata.recording_metadata`); ``footage`` ``view -> files``, linked
-    as external ``ImageSeries``; ``frame_rate`` defaults to ``metadata["frame_rate"]``, else the
-    footage's; ``recording`` (its directory) and ``config_text`` (the flylib config) are stored for
-    the record; ``joint_angles`` ``(angles (T, J) radians, joint names)`` from ``neuromechfly.h5``
-    become one ``TimeSeries`` per joint in the ``NeuroMechFlyJointAngles`` ``BehavioralTimeSeries``.
-
-    Raises :class:`ConfigError` without a frame rate (image-sequence footage or none, and no
-    ``nwb.frame_rate``) and :class:`ResultsError` when the result has no 3D points.
+    ``metadata``: :func:`flylib.config.nwb_metadata.recording_metadata`; ``footage``: ``view ->
+    files``; ``frame_rate`` defaults to ``metadata["frame_rate"]``, else the footage's;
+    ``joint_angles``: ``(angles (T, J) radians, joint names)``, one ``TimeSeries`` per joint.
+    :class:`ConfigError` without a frame rate, :class:`ResultsError` without 3D points.
     """
     from pynwb import NWBHDF5IO, NWBFile
 
@@ -495,13 +468,8 @@ def export_nwb(
     config_text: str | None = None,
     angles_path: str | Path | None = None,
 ) -> Path:
-    """Export a run's ``results.h5`` as NWB (the workflow rule and ``flylib export --nwb``, through
-    :mod:`flylib.pipeline.export_nwb`).
-
-    ``metadata``, ``footage`` and ``config_text`` are as for :func:`write_nwb`; ``recording_dir`` is
-    the recording directory, or ``None`` (no video links); ``angles_path``, the recording's
-    ``neuromechfly.h5``, adds its joint angles. Raises :class:`ConfigError` without a frame rate.
-    """
+    """Export a run's ``results.h5`` as NWB (arguments as for :func:`write_nwb`); ``recording_dir
+    =None`` links no video, ``angles_path`` (``neuromechfly.h5``) adds joint angles."""
     from ..results import PoseResult
 
     result = PoseResult.load(results_path)

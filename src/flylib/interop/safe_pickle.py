@@ -241,14 +241,9 @@ def _measure(value) -> None:
 
 
 def load_restricted(path: str | Path, what: str):
-    """Unpickle ``path`` admitting only plain data (dicts, lists, tuples, numbers, strings) and
-    NumPy arrays, within bounds; ``what`` names what the file should be, for messages
-    (``"DeepFly3D 2D result"``).
-
-    Raises :class:`ImportFormatError` naming the file when it names a global outside
-    :data:`ALLOWED_GLOBALS` (nothing of it was imported or called), is a bomb beyond the bounds
-    above, or is not a readable pickle.
-    """
+    """Unpickle ``path`` admitting only plain data and NumPy arrays, within bounds (``what``: the
+    file's kind, for messages); a global outside :data:`ALLOWED_GLOBALS` (never imported), a bomb
+    or an unreadable pickle is an :class:`ImportFormatError` naming the file."""
     path = Path(path)
     try:
         size = path.stat().st_size

@@ -1,26 +1,22 @@
 """Corrected frames as labeled training data, in DeepLabCut's labeled-data layout.
 
-A person's corrections (``flylib gui``, saved, applied by the next workflow run) are the first step
-to fine-tuning a detector on a lab's own footage. For every frame in which a point was corrected,
-every view's frame is written as a PNG with its labels::
+For fine-tuning a detector on a lab's own footage: for every frame in which a point was corrected
+(``flylib gui``, then a workflow run), every view's frame is written as a PNG with its labels::
 
     <directory>/labeled-data/<video stem>/img0007.png
     <directory>/labeled-data/<video stem>/CollectedData_<scorer>.csv
     <directory>/labeled-data/<video stem>/CollectedData_<scorer>.h5
 
-the layout DeepLabCut's ``create_training_dataset`` reads from a project's ``labeled-data`` folder
-(rows indexed ``("labeled-data", <video stem>, "img0007.png")``, columns
-``(scorer, bodyparts, coords)``, the ``.h5`` a pandas frame under key ``df_with_missing``);
-``sleap_io.load_dlc`` reads the CSV too.
+as DeepLabCut's ``create_training_dataset`` reads it (rows ``("labeled-data", <video stem>,
+"img0007.png")``, columns ``(scorer, bodyparts, coords)``, ``.h5`` key ``df_with_missing``).
 
 A point's label in a view is, in this order: empty (NaN) where a person marked it invisible; the 2D
 the corrected 3D was solved from (the person's edit, or a detection the robust triangulation kept);
 the reprojection of the corrected 3D where the detector saw the point in that view but the
 triangulation left the detection out (a detection error); empty otherwise.
 
-Into an existing project the labels are merged row by row (:func:`merge_collected`): flylib's frames
-are added or updated, every other label is kept (other frames, body parts and individuals' columns),
-an image already there is kept, and each ``CollectedData`` file changed is first copied to
+Into an existing project the labels are merged row by row (:func:`merge_collected`): every other
+label and image is kept, and each ``CollectedData`` file changed is first copied to
 ``<name>.<UTC time>.bak``.
 """
 
@@ -58,14 +54,11 @@ def training_labels(
     touched: Bool[np.ndarray, "V T P"],
     image_sizes: list[tuple[int, int]],
 ) -> Float[np.ndarray, "V T P 2"]:
-    """The training label of every (view, frame, point) (module docstring): ``(V, T, P, 2)`` float64
-    pixels, NaN = no label.
+    """The training label of every (view, frame, point) (module docstring), NaN = no label.
 
-    Inputs: ``used2d`` the 2D the 3D was solved from (corrections applied; NaN = left out),
-    ``given2d`` the 2D the triangulation was given (the detector's), ``reprojected`` the corrected
-    3D projected into each view, all ``(V, T, P, 2)``; ``touched`` ``(V, T, P)``: a person edited
-    the point in that view or marked it invisible; ``image_sizes`` ``(height, width)`` per view (a
-    reprojection outside the frame is no label).
+    ``used2d``: the 2D the 3D was solved from (NaN = left out); ``given2d``: the detector's;
+    ``touched``: a person edited the point in that view or marked it invisible. A reprojection
+    outside the frame is no label.
     """
     used = np.asarray(used2d, dtype=np.float64)
     has_used = np.isfinite(used).all(-1)
@@ -95,10 +88,8 @@ _HEADER_ROWS = ("scorer", "individuals", "bodyparts", "coords")
 
 
 def read_collected_csv(path: Path):
-    """A ``CollectedData_<scorer>.csv`` as DeepLabCut writes it, its header rows (``scorer``,
-    ``individuals`` in a multi-animal project, ``bodyparts``, ``coords``) and index columns
-    (``labeled-data, <video>, img.png``, or one path column in older projects) found from the file
-    itself."""
+    """A ``CollectedData_<scorer>.csv``, its header rows (with ``individuals`` or not) and index
+    columns (3, or one path column in older projects) found from the file itself."""
     import pandas as pd
 
     with open(path, newline="", encoding="utf-8") as f:
@@ -128,14 +119,11 @@ class MergeCount:
 
 
 def merge_collected(existing, new, cleared: np.ndarray):
-    """Merge flylib's labels ``new`` (:func:`_dlc_frame`) into a project's ``existing``
-    CollectedData frame (3 or 4 column levels; a 3-level or single-path row index).
+    """Merge flylib's labels ``new`` into a project's ``existing`` CollectedData frame; returns the
+    merged frame (new body parts and frames appended) and a :class:`MergeCount`.
 
-    Where ``cleared`` (``new``'s shape, bool) a person marked the point invisible and the label is
-    removed; elsewhere a NaN of flylib's keeps the project's value. Returns the merged frame (every
-    row and column of ``existing``, new body parts appended as columns, new frames as rows) and a
-    :class:`MergeCount`: frames ``added`` to the file, ``updated`` (labels changed) and ``kept`` as
-    they were.
+    Where ``cleared`` (bool, ``new``'s shape) a person marked the point invisible and the label is
+    removed; elsewhere a NaN of flylib's keeps the project's value.
     """
     import pandas as pd
 
@@ -236,20 +224,13 @@ def export_training_data(
     protected: Mapping[str, str] | None = None,
     report: Callable[[str], None] = log.info,
 ) -> list[Path]:
-    """Write the corrected frames of a ``results.h5`` as DeepLabCut labeled data; returns the files
-    written (per view: the new PNGs, then the CSV and ``.h5`` unless nothing in them changed).
+    """Write the corrected frames of a ``results.h5`` (computed with a corrections sidecar) as
+    DeepLabCut labeled data in ``directory``; returns the files written.
 
-    ``results`` must have been computed with a corrections sidecar (the workflow run after a save in
-    ``flylib gui``); ``labeled-data/`` is made in ``directory`` (a DeepLabCut project folder, or
-    any). ``footage_of`` maps a recording directory to ``{view: footage files}``
-    (:func:`flylib.interop.views.footage_files` of the run's config), asked only once corrected
-    frames are found; ``recording`` defaults to the one ``results.h5`` names. ``scorer`` is
-    DeepLabCut's (``CollectedData_<scorer>``); ``protected`` ``file -> role`` lists inputs no
-    written file may land on; ``report`` gets one line per ``CollectedData`` file (frames added,
-    updated, kept).
-
-    Raises :class:`ResultsError` when the result holds no corrected frame, :class:`FootageError`
-    when a view's footage is not found or a frame cannot be read.
+    ``footage_of``: recording directory -> ``{view: footage files}``, asked only once corrected
+    frames are found; ``protected`` ``file -> role``: inputs no written file may land on;
+    ``report`` gets one line per ``CollectedData`` file. :class:`ResultsError` without a corrected
+    frame, :class:`FootageError` when footage is missing or unreadable.
     """
     import cv2
 
@@ -300,7 +281,6 @@ def export_training_data(
         files = footage[view]
         folder = files[0].stem if len(files) == 1 else view
         out = Path(directory) / "labeled-data" / folder
-        out.mkdir(parents=True, exist_ok=True)
         images = [f"img{int(t):0{digits}d}.png" for t in frames]
         try:
             pixels = readers[view][[int(t) for t in frames]]

@@ -1,12 +1,6 @@
-"""The assemble stage: ``results.h5`` from the stage artifacts, and the recording's
-summary beside it (``summary.json``, ``summary.png``, ``calibration.toml``,
-``suspects.csv``, the config snapshot).
-
-:class:`AssembleInputs` is what the stage reads: the config rig (stored in
-``results.h5`` beside the bundle-adjusted one) and the whole skeleton, palette and
-name included. :func:`run_assemble` copies the stage groups (never loading their
-arrays), then summarises the assembled result.
-"""
+"""The assemble stage: ``results.h5`` from the stage artifacts (groups copied, arrays never
+loaded), and the recording's summary beside it (``summary.json``, ``summary.png``,
+``calibration.toml``, ``suspects.csv``, the config snapshot)."""
 
 from __future__ import annotations
 
@@ -33,9 +27,8 @@ log = logging.getLogger(__name__)
 @register
 @dataclass(frozen=True)
 class AssembleInputs(StageInputs):
-    """The assemble stage's inputs: ``rig`` is stored in ``results.h5`` as
-    ``config_rig``; ``skeleton`` includes palette and name (``results.h5`` and the
-    summary figure carry them)."""
+    """The assemble stage's inputs: ``rig`` is stored in ``results.h5`` as ``config_rig``;
+    ``skeleton`` includes palette and name (``results.h5`` and the summary figure carry them)."""
 
     STAGE = "assemble"
 
@@ -54,8 +47,7 @@ class AssembleInputs(StageInputs):
 
 
 def _provenance(inputs: StageInputs, **upstream) -> dict:
-    """The provenance meta entries of ``inputs``' stage artifact: its params hash and
-    those of the ``upstream`` artifacts it read."""
+    """Provenance meta of ``inputs``' artifact: its params hash and its ``upstream``'s."""
     from ..provenance import stage_provenance
 
     return stage_provenance(inputs.canonical_params(), inputs.STAGE, upstream)
@@ -71,19 +63,14 @@ def run_assemble(
     snapshot_path: str | Path | None = None,
     snapshot_text: str | None = None,
 ) -> dict:
-    """Assemble ``results.h5`` from the stage artifacts, then write the recording's
-    summary: ``summary.png``, ``calibration.toml`` (the final rig, Anipose format),
-    ``suspects.csv`` and ``summary.json``. With ``truth_path`` (the demo) the 3D error
-    against the truth is computed, logged and stored in the summary.
+    """Assemble ``results.h5`` from ``stage_files`` (stage -> artifact; ``pose2d`` required,
+    empty entries skipped), then write ``summary.png``, ``calibration.toml`` (the final rig,
+    Anipose format), ``suspects.csv`` and ``summary.json`` (returned). With ``truth_path``
+    (the demo) the 3D error against the truth goes in the summary.
 
-    With ``snapshot_path`` the config's text ``snapshot_text``
-    (:meth:`~flylib.config.Config.snapshot_text`) is written there last, atomically,
-    so the snapshot never describes a config the results beside it were not made with
-    (the workflow's assemble rule is its only writer).
-
-    ``stage_files`` maps each stage that ran to its artifact (``pose2d`` required:
-    ResultsError without it; empty entries are skipped). Returns the summary written
-    to ``summary.json``; ValueError with ``snapshot_path`` but no ``snapshot_text``.
+    ``snapshot_text`` (:meth:`~flylib.config.Config.snapshot_text`, required with
+    ``snapshot_path``) is written to ``snapshot_path`` last, atomically, so the snapshot never
+    describes a config the results beside it were not made with.
     """
     from ..interop.anipose import write_anipose_toml
     from ..results import FORMAT_VERSION, PoseResult, assemble_results, read_image_sizes
@@ -146,23 +133,20 @@ def run_assemble(
 
 
 def write_snapshot(text: str, path: str | Path) -> Path:
-    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) to ``path``
-    atomically."""
+    """Write a config's text (:meth:`~flylib.config.Config.snapshot_text`) atomically."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(text.encode("utf-8"))
     return Path(path)
 
 
-#: The frames the starting rig's handedness is measured on (evenly spaced): a median
-#: over this many is as decided as over all of them.
+#: The frames (evenly spaced) the starting rig's handedness is measured on: enough to decide.
 START_FRAMES = 200
 
 
 def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict | None:
-    """The handedness entry (:func:`flylib.handedness.rig_check`) of the result's 3D;
-    ``None`` without a 3D stage. With bundle adjustment, a 3D that is not a fly's is
-    also triangulated from its 2D through the starting (config) rig, so a mirror image
-    is blamed on the rig it came from."""
+    """The handedness entry (:func:`flylib.handedness.rig_check`) of the result's 3D (``None``
+    without one). After bundle adjustment, a 3D that is not a fly's is also triangulated
+    through the starting rig, so a mirror image is blamed on the rig it came from."""
     from ..handedness import RIGHT_HANDED, handedness, rig_check
     from ..results import read_stage
 
@@ -174,8 +158,7 @@ def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict
     final = handedness(arrays["points3d"], skeleton)
     adjusted = "bundle_adjustment" in stage_files
     start = None
-    # the starting rig only matters to say why a 3D is not a fly (triangulating through
-    # it costs every recording's assemble job a JAX trace otherwise)
+    # only to say why a 3D is not a fly (else every assemble job pays a JAX trace)
     if adjusted and final.verdict != RIGHT_HANDED:
         pts2d = arrays.get("points")
         if pts2d is None:
@@ -205,8 +188,7 @@ def _handedness(inputs: AssembleInputs, stage_files, rig, recording_dir) -> dict
 
 
 def _errors_vs_truth(result, stage_files: Mapping[str, Path], truth_path) -> dict:
-    """The demo's 3D error against its truth: the result's, and the triangulation's
-    alone when refinement ran."""
+    """The demo's 3D error against its truth (and the triangulation's, when refinement ran)."""
     from ..demo import demo_error, load_truth
 
     truth = load_truth(truth_path)
@@ -253,9 +235,8 @@ def _summary(result, stage_files, recording_dir, outdir, version) -> dict:
 
 
 def _accuracy(stage_files: Mapping[str, Path]) -> dict | None:
-    """The truth-free accuracy (:mod:`flylib.accuracy`) the 3D stages recorded:
-    refinement's (triangulation, refinement as solved, and the output side by side)
-    when it ran, else triangulation's (``output`` is then the triangulation)."""
+    """The truth-free accuracy (:mod:`flylib.accuracy`) recorded by refinement when it ran,
+    else by triangulation (``output`` is then the triangulation)."""
     from ..results import open_checked
 
     for stage in ("refinement", "triangulation"):
@@ -274,8 +255,7 @@ def _accuracy(stage_files: Mapping[str, Path]) -> dict | None:
 
 
 def _write_suspects(results_path: Path, outdir: Path, result) -> int | None:
-    """``suspects.csv`` (see :mod:`flylib.suspects`); returns their number (``None``
-    and a header-only file when the result holds no 3D)."""
+    """Write ``suspects.csv`` (:mod:`flylib.suspects`); their number, ``None`` without 3D."""
     from ..suspects import SUSPECTS_FILE, Suspects, suspects_from_results
 
     if result.pts3d is None or result.reproj_error is None:

@@ -1,9 +1,4 @@
-"""The bundle-adjustment stage: its inputs, the pure compute step, and the run that
-reads and writes its files.
-
-``run_bundle_adjustment`` loads the recording's 2D and the config rig, calls
-:func:`compute_bundle_adjustment` and writes ``<outdir>/stages/bundle_adjustment.h5``.
-"""
+"""The bundle-adjustment stage: 2D + config rig -> ``<outdir>/stages/bundle_adjustment.h5``."""
 
 from __future__ import annotations
 
@@ -42,10 +37,9 @@ __all__ = [
 
 @dataclass(frozen=True)
 class BundleAdjustmentRuntime:
-    """The untracked part of the bundle-adjustment stage: ``config_dir`` (where a
-    relative calibration path is looked up after the recording's folder) and the
-    speed/log-only ``least_squares`` options (``verbose``, ``workers``), passed to the
-    solver with the tracked ones."""
+    """Untracked: ``config_dir`` (where a relative calibration path is looked up after the
+    recording's folder) and the speed/log-only ``least_squares`` options (``verbose``,
+    ``workers``), passed to the solver with the tracked ones."""
 
     config_dir: Path | None = None
     solver_options: Mapping[str, Any] = field(default_factory=dict)
@@ -54,10 +48,8 @@ class BundleAdjustmentRuntime:
 @register
 @dataclass(frozen=True)
 class BundleAdjustmentInputs(StageInputs):
-    """What the bundle-adjustment stage reads: the ``bundle_adjustment`` table (its
-    ``least_squares`` without ``verbose`` and ``workers``, which are in ``runtime``),
-    the config rig the fit starts from, and the skeleton (``points_to_use``, bone
-    lengths, rigid points)."""
+    """What the bundle-adjustment stage reads: the ``bundle_adjustment`` table (less the
+    runtime's options), the config rig the fit starts from, and the skeleton."""
 
     STAGE = "bundle_adjustment"
 
@@ -86,13 +78,9 @@ class BundleAdjustmentInputs(StageInputs):
 
 @dataclass(frozen=True)
 class BundleAdjusted:
-    """The bundle-adjustment stage's result.
-
-    ``points3d`` holds the refined points of the fitted frames and points, NaN
-    elsewhere; ``summary`` (``success``, ``message``, ``cost``, ``nfev``, ``seconds``
-    and the solver's ``report``) is the artifact's ``summary`` attribute; ``solution`` is
-    the solver's whole result (fitted ``frames`` and ``points``, ``inliers``, ...).
-    """
+    """The bundle-adjustment result: ``points3d`` of the fitted frames and points (NaN
+    elsewhere), ``summary`` (the artifact's attribute: ``success``, ``message``, ``cost``,
+    ``nfev``, ``seconds``, ``report``), ``solution`` (the solver's whole result)."""
 
     cameras: CameraGroup
     points3d: Float[np.ndarray, "T P 3"]
@@ -106,9 +94,7 @@ def compute_bundle_adjustment(
     pts2d: Float[np.ndarray, "V T P 2"],
     conf: Float[np.ndarray, "V T P"] | None = None,
 ) -> BundleAdjusted:
-    """Refine ``cameras`` against the 2D ``pts2d`` ``(V, T, P, 2)`` with the
-    ``bundle_adjustment`` table (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`);
-    no file is read or written."""
+    """Refine ``cameras`` against ``pts2d`` with the ``bundle_adjustment`` table (no file I/O)."""
     from ..bundle_adjustment import bundle_adjust_sequence
 
     skeleton = inputs.skeleton.skeleton()

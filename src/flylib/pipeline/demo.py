@@ -1,11 +1,5 @@
-"""The embedded demo recording, built from a config: what the workflow's ``demo`` rule
-and the tests run.
-
-:class:`DemoInputs` is what the demo reads: its ``demo`` settings, the footage
-sources, the config rig, the whole skeleton and ``pose2d.output_points`` (the demo
-rule's tracked params), plus the demo directory's file layout (:class:`DemoLayout`).
-:func:`run_demo` writes the recording with :func:`flylib.demo.write_demo`.
-"""
+"""The embedded demo recording, built from a config: what the workflow's ``demo`` rule and
+the tests run (:func:`flylib.demo.write_demo` with the config's settings, rig and skeleton)."""
 
 from __future__ import annotations
 
@@ -24,20 +18,10 @@ from .inputs import RigSpec, SkeletonSpec, StageInputs
 
 @dataclass(frozen=True)
 class DemoLayout:
-    """The demo directory's files, as the config names them.
-
-    Attributes
-    ----------
-    view_sources
-        ``(view, source)``: the footage source feeding each view (the first
-        ``pose2d.pathways`` source among its output points, else by name or position).
-        Not tracked by the demo rule (its params hold the sources and output points,
-        not the pathways), as before the inputs objects.
-    source_files
-        ``(source, footage file name)``, one ``.mp4`` per source (from ``sources``).
-    dlc_files
-        One DeepLabCut CSV name per view, in view order.
-    """
+    """The demo directory's files, as the config names them (untracked): ``view_sources``
+    ``(view, source)``, the source feeding each view (the first ``pose2d.pathways`` source
+    among its output points, else by name or position); ``source_files`` ``(source, file)``,
+    one ``.mp4`` per source; ``dlc_files``, one DeepLabCut CSV name per view, in view order."""
 
     view_sources: tuple[tuple[str, str], ...] = ()
     source_files: tuple[tuple[str, str], ...] = ()
@@ -45,13 +29,7 @@ class DemoLayout:
 
     @classmethod
     def from_config(cls, config) -> DemoLayout:
-        """The layout ``config`` gives (:func:`demo_files`).
-
-        Raises
-        ------
-        ConfigError
-            If a source's filename is not a plain ``<name>.mp4``.
-        """
+        """The layout ``config`` gives; ConfigError if a source's file is not ``<name>.mp4``."""
         dlc = demo_files(config)["dlc"]
         return cls(
             view_sources=tuple(view_sources(config).items()),
@@ -62,11 +40,9 @@ class DemoLayout:
 
 @dataclass(frozen=True)
 class DemoInputs(StageInputs):
-    """The demo recording's inputs: ``settings`` (:func:`flylib.demo.demo_settings`, the
-    ``demo`` table over the defaults), the ``sources`` list, the config ``rig`` (rendered
-    through its cameras' orbit; a calibration file is not read), the whole ``skeleton``
-    (points, limbs and palette drawn) and ``output_points`` (``pose2d.output_points``:
-    the points each view observes)."""
+    """The demo's inputs: ``settings`` (the ``demo`` table over the defaults), ``sources``,
+    the config ``rig`` (its cameras' orbit; a calibration file is not read), the whole
+    ``skeleton`` (drawn) and ``output_points`` (``pose2d.output_points``: what each view sees)."""
 
     STAGE = "demo"
 
@@ -79,14 +55,8 @@ class DemoInputs(StageInputs):
 
     @classmethod
     def from_config(cls, config) -> DemoInputs:
-        """The demo as ``config`` describes it.
-
-        Raises
-        ------
-        ConfigError
-            An invalid ``demo`` table or demo file layout, or a config without a
-            ``skeleton`` table.
-        """
+        """The demo as ``config`` describes it; ConfigError for an invalid ``demo`` table or
+        file layout, or a config without a ``skeleton`` table."""
         from ..demo import demo_settings
 
         if "skeleton" not in config.data:
@@ -110,17 +80,15 @@ class DemoInputs(StageInputs):
 
 
 def _orbit_rig(rig: RigSpec, image_size: tuple[int, int]):
-    """The orbit rig of ``rig``'s ``cameras`` table, principal points at the centre of
-    ``image_size`` frames."""
+    """The orbit rig of ``rig``'s ``cameras``, principal points at ``image_size``'s centre."""
     from dataclasses import replace
 
     return replace(rig, calibration=None).camera_group({v: image_size for v in rig.views})
 
 
 def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
-    """Generate the embedded demo recording into ``directory`` (created if needed; see
-    :mod:`flylib.demo`), ``overrides`` over ``inputs.settings`` (e.g. ``frames=10``);
-    returns the :class:`flylib.demo.DemoRecording`."""
+    """Generate the demo recording into ``directory`` (created if needed), ``overrides`` over
+    ``inputs.settings`` (e.g. ``frames=10``); returns the :class:`flylib.demo.DemoRecording`."""
     from ..demo import demo_settings, view_visibility, write_demo
 
     settings = demo_settings({**inputs.settings, **overrides})
@@ -140,16 +108,14 @@ def run_demo(inputs: DemoInputs, directory: str | Path, **overrides: Any):
 
 
 def make_demo(config, directory: str | Path, **overrides: Any):
-    """Write the demo recording ``config`` describes (its sources, rig, skeleton,
-    ``pose2d.output_points`` and ``demo`` table, ``overrides`` over the latter) into
-    ``directory``: :func:`run_demo` of :meth:`DemoInputs.from_config`."""
+    """Write the demo recording ``config`` describes into ``directory``, ``overrides`` over its
+    ``demo`` table (e.g. ``frames=10``)."""
     return run_demo(DemoInputs.from_config(config), directory, **overrides)
 
 
 def demo_files(config: Any) -> dict[str, list[str]]:
-    """File names :func:`make_demo` writes, relative to the demo directory: ``footage``
-    (one video per source), ``dlc`` (one CSV per view, in view order) and ``truth``
-    (``[truth.h5]``)."""
+    """File names :func:`make_demo` writes, relative to the demo directory: ``footage`` (one
+    video per source), ``dlc`` (one CSV per view, in view order) and ``truth``."""
     patterns = source_patterns(config)
     for name, pattern in patterns.items():
         if any(c in pattern for c in "*?[") or Path(pattern).suffix.lower() != ".mp4":
@@ -166,6 +132,5 @@ def demo_files(config: Any) -> dict[str, list[str]]:
 
 
 def demo_import_spec(config: Any) -> dict[str, Any]:
-    """The ``pose2d.import`` entry that reads the demo's CSVs: ``{format, files}``,
-    ``files`` mapping each view to its CSV (relative to the demo directory)."""
+    """The ``pose2d.import`` entry reading the demo's CSVs (``files``: view -> relative CSV)."""
     return {"format": "dlc_csv", "files": dict(zip(view_names(config), demo_files(config)["dlc"]))}

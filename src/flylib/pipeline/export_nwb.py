@@ -1,11 +1,5 @@
-"""The NWB export of one recording (rule ``export_nwb``, ``flylib export --nwb``).
-
-:class:`NwbExportInputs` is what the export reads: the ``exports`` and ``nwb`` tables
-(the rule's tracked params), plus the footage lookup and the config's text
-(:class:`NwbExportRuntime`). :func:`run_export_nwb` checks the session metadata
-before reading anything large, then writes the file with
-:func:`flylib.interop.nwb.export_nwb`.
-"""
+"""The NWB export of one recording (rule ``export_nwb``, ``flylib export --nwb``): the
+``exports`` and ``nwb`` tables tracked, the footage lookup and config text not."""
 
 from __future__ import annotations
 
@@ -26,9 +20,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class NwbExportRuntime:
-    """What the export reads beyond its rule's params, as before the inputs objects:
-    ``footage`` (linked from the file, a rule input itself) and ``config_text`` (stored
-    in the file as the config that produced the result)."""
+    """Untracked: ``footage`` (linked from the file, itself a rule input) and ``config_text``
+    (stored in the file as the config that produced the result)."""
 
     footage: tuple[tuple[str, str | None], ...] = ()
     config_text: str | None = None
@@ -36,9 +29,8 @@ class NwbExportRuntime:
 
 @dataclass(frozen=True)
 class NwbExportInputs(StageInputs):
-    """The NWB export's inputs. ``nwb`` rebuilt from the rule's JSON holds its
-    date-times as ISO 8601 text, which the metadata parser reads back as the same
-    date-times."""
+    """The NWB export's inputs. ``nwb`` rebuilt from the rule's JSON holds date-times as
+    ISO 8601 text, which the metadata parser reads back as the same date-times."""
 
     STAGE = "export_nwb"
 
@@ -55,8 +47,7 @@ class NwbExportInputs(StageInputs):
         )
 
     def rule_params(self) -> str:
-        """The rule's tracked ``params.stage``: :meth:`params` as sorted JSON, values
-        JSON has no type for (YAML's date-times) as text."""
+        """The rule's ``params.stage``: sorted JSON, YAML's date-times as text."""
         return json.dumps(self.params(), sort_keys=True, default=str)
 
 
@@ -67,8 +58,8 @@ def session_metadata(
     demo: bool = False,
     extra: Mapping | None = None,
 ) -> dict[str, Any]:
-    """The recording's checked session metadata (:func:`flylib.config.nwb_metadata.recording_metadata`
-    of the ``nwb`` table); ConfigError names every problem at once."""
+    """The recording's checked session metadata from the ``nwb`` table; ConfigError names every
+    problem at once."""
     from ..config.nwb_metadata import recording_metadata
 
     return recording_metadata(inputs.nwb, recording_dir, demo=demo, extra=extra)
@@ -84,13 +75,9 @@ def run_export_nwb(
     extra_metadata: Mapping | None = None,
     angles_path: str | Path | None = None,
 ) -> Path:
-    """Export a run's ``results.h5`` as NWB.
-
-    The session metadata is checked first (before reading anything large); the footage
-    of ``recording_dir`` is found through the config's ``sources`` and linked (none
-    without it). ``demo``: the embedded demo's metadata defaults apply.
-    ``angles_path``: a ``neuromechfly.h5`` whose joint angles go in too. ConfigError for
-    missing or invalid session metadata (all named at once), or no frame rate.
+    """Export a run's ``results.h5`` as NWB, checking the session metadata first (ConfigError
+    naming every problem, or no frame rate). ``recording_dir``'s footage is linked;
+    ``demo``: the demo's metadata defaults; ``angles_path``: a ``neuromechfly.h5`` to include.
     """
     from ..interop.nwb import export_nwb
 
@@ -119,15 +106,10 @@ def export_nwb_command(
     recording: str | Path | None = None,
     metadata_path: str | Path | None = None,
 ) -> Path:
-    """``flylib export RESULTS_H5 --nwb OUT``: find the run's config and recording, then
-    :func:`run_export_nwb`.
-
-    ``config_path`` defaults to the ``config.yaml`` (or ``.toml``) snapshot every run
-    leaves beside ``results.h5``, else flylib's default config; ``recording`` to the
-    one ``results.h5`` records. ``metadata_path``: session metadata overriding the
-    config's ``nwb`` table and the recording's ``nwb.yaml``. ConfigError or
-    ResultsError: one line naming what is missing or wrong.
-    """
+    """``flylib export RESULTS_H5 --nwb OUT``: :func:`run_export_nwb` with ``config_path``
+    defaulting to the snapshot beside ``results.h5`` (else the default config) and
+    ``recording`` to the one it records. ``metadata_path`` overrides the ``nwb`` table and the
+    recording's ``nwb.yaml``."""
     from ..config import Config
     from ..config.nwb_metadata import read_sidecar
     from ..results import open_checked, read_meta_from

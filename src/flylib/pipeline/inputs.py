@@ -1,18 +1,16 @@
 """What each stage reads: one frozen, typed inputs object per stage, built here.
 
-A stage's inputs object holds everything its result depends on (its params, the rig and
-skeleton it needs) plus, in ``runtime``, the knobs that only change how fast it runs.
-:meth:`StageInputs.params` is the stage's *tracked* params: the canonical JSON its
-workflow rule carries as ``params.stage``, hashed into every artifact's provenance, so
-Snakemake re-runs the job exactly when it changes. A job parses that JSON once and
-rebuilds its inputs object from it (:meth:`StageInputs.from_params`) and the rule's
-untracked ``params.runtime``: a stage reads only what its rule tracks, by construction.
+An inputs object holds everything a stage's result depends on (params, rig, skeleton) plus, in
+``runtime``, knobs that only change its speed. :meth:`StageInputs.params` is the *tracked*
+part: the canonical JSON the rule carries as ``params.stage``, hashed into every artifact's
+provenance, so Snakemake re-runs the job exactly when it changes. A job rebuilds its inputs
+from that JSON (:meth:`StageInputs.from_params`) and the untracked ``params.runtime``: a stage
+reads only what its rule tracks, by construction.
 
-Each field is written and read back by its annotated type (:func:`_dump`,
-:func:`_load`); its ``dataclasses.field`` metadata may rename it (``key``) or track it
-only off its default (``track_default=False``). Each stage's class lives in the stage's
-home (``flylib.pipeline.<stage>``) and is registered with :func:`register`;
-:func:`stage_inputs` builds any stage's inputs from a :class:`~flylib.config.Config`,
+Each field is written and read back by its annotated type (:func:`_dump`, :func:`_load`); its
+``dataclasses.field`` metadata may rename it (``key``) or track it only off its default
+(``track_default=False``). Each stage's class lives in ``flylib.pipeline.<stage>``, registered
+with :func:`register`; :func:`stage_inputs` builds one from a :class:`~flylib.config.Config`,
 the only place below the workflow where a config object is read.
 """
 
@@ -46,10 +44,9 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SkeletonSpec:
-    """The skeleton table a stage reads: ``point_names`` in the order of every array's
-    points axis, ``limbs`` in table order. ``palette`` and ``name`` are only for the
-    stages that draw or name it (``None`` elsewhere, so they are not in those stages'
-    params)."""
+    """The skeleton table a stage reads: ``point_names`` in every array's points-axis order,
+    ``limbs`` in table order; ``palette`` and ``name`` only for stages that draw or name it
+    (``None`` elsewhere, so not in those stages' params)."""
 
     point_names: tuple[str, ...]
     limbs: tuple[tuple[str, tuple[str, ...]], ...]
@@ -80,8 +77,7 @@ class SkeletonSpec:
         )
 
     def params(self) -> dict:
-        """``{"point_names": [...], "limbs": [[limb, [points]], ...]}``, plus ``palette``
-        and ``name`` where held."""
+        """``{"point_names": [...], "limbs": [[limb, [points]], ...]}`` (+ palette, name)."""
         out: dict[str, Any] = {
             "point_names": list(self.point_names),
             "limbs": [[k, list(v)] for k, v in self.limbs],
@@ -107,13 +103,10 @@ class SkeletonSpec:
 
 @dataclass(frozen=True)
 class RigSpec:
-    """The config rig a stage reads: the ``cameras`` table (``defaults`` included) and
-    the ``calibration`` table (``None``: an orbit rig from ``cameras``), in the order of
-    ``views``, the V axis of every points array. ``config_dir`` (the config file's
-    folder) is where a relative calibration path is looked up after the recording's
-    folder; not tracked: the calibration file itself is an input of the rules that read
-    it.
-    """
+    """The config rig a stage reads: the ``cameras`` table (``defaults`` included) and the
+    ``calibration`` table (``None``: an orbit rig from ``cameras``), in the order of ``views``,
+    the V axis of every points array. ``config_dir`` (where a relative calibration path is
+    looked up after the recording's folder) is untracked: the file is itself a rule input."""
 
     views: tuple[str, ...]
     cameras: Mapping[str, Any]
@@ -164,10 +157,9 @@ class RigSpec:
         image_sizes: Mapping[str, tuple[int, int]] | None = None,
         recording_dir: str | Path | None = None,
     ):
-        """The :class:`~flylib.camera.rig.CameraGroup`: the calibration file's when set
-        (:func:`flylib.interop.anipose.load_calibration`), else the orbit rig of
-        ``cameras`` (:meth:`~flylib.camera.rig.CameraGroup.from_table`, principal points
-        from ``image_sizes``), one camera per view in :attr:`views` order."""
+        """The :class:`~flylib.camera.rig.CameraGroup`, one camera per view in order: the
+        calibration file's when set, else the orbit rig of ``cameras`` (principal points from
+        ``image_sizes``)."""
         if self.calibration:
             from ..interop.anipose import load_calibration
 
@@ -218,14 +210,11 @@ def _load(hint: Any, value: Any, runtime: Any) -> Any:
 
 @dataclass(frozen=True)
 class StageInputs:
-    """Base of the per-stage inputs objects (frozen dataclasses).
-
-    Subclasses set :attr:`STAGE`, define :meth:`from_config`, and keep their speed-only
-    knobs in a ``runtime`` field (absent for a stage that has none), the one field
-    :meth:`params` leaves out. Every other field is tracked, under its metadata's ``key``
-    (default: its name); one with ``track_default: False`` only when off its default, so
-    the params made before it existed stay equal.
-    """
+    """Base of the per-stage inputs objects (frozen dataclasses). Subclasses set
+    :attr:`STAGE`, define :meth:`from_config`, and keep speed-only knobs in a ``runtime``
+    field, the one field :meth:`params` leaves out; every other is tracked under its
+    metadata's ``key`` (default: its name), a ``track_default: False`` one only off its default
+    (so params made before it existed stay equal)."""
 
     STAGE = ""  # a class attribute, not a dataclass field (no annotation)
 
@@ -274,8 +263,7 @@ class StageInputs:
 
 
 def inputs_class(stage: str) -> type[StageInputs]:
-    """The inputs class of ``stage``, importing its home on first use (ValueError for
-    an unknown stage)."""
+    """``stage``'s inputs class, importing its home on first use (ValueError: unknown stage)."""
     return by_name(stage).inputs_class()
 
 

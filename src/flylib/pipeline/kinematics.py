@@ -1,18 +1,13 @@
-"""The kinematics workflow stage: ``results.h5`` -> ``kinematics.h5``, ``angles.csv``,
-``angles.png``.
+"""The kinematics stage: ``results.h5`` -> ``kinematics.h5``, ``angles.csv``, ``angles.png``.
 
-``angles.csv`` follows Anipose's ``angles`` output (``anipose angles``): one column per
-angle, named as configured, in degrees, then ``fnum`` (the frame number), no index
-column, NaN (an empty field) where a point is missing.
+``angles.csv`` follows Anipose's ``angles`` output: one column per angle, named as configured,
+in degrees, then ``fnum`` (the frame number), no index column, empty where a point is missing.
 
 ``kinematics.h5`` holds ``attrs["meta"]`` (format version, ``stage: kinematics``) and
-``kinematics/`` with ``angles`` ``(T, A)``, ``points3d_body`` ``(T, P, 3)``,
-``body_rotation`` (``(3, 3)`` world -> body rows x, y, z, or ``(T, 3, 3)``),
-``body_origin`` (``(3,)`` or ``(T, 3)``) and attributes ``angle_names``,
-``definitions`` (``name -> [a, b, c]``), ``point_names`` and ``tethered`` (JSON).
-
-:class:`KinematicsInputs` is what the stage reads; :func:`run_kinematics` loads
-``results.h5``, runs :func:`compute_kinematics` and writes the files.
+``kinematics/`` with ``angles`` ``(T, A)``, ``points3d_body`` ``(T, P, 3)``, ``body_rotation``
+(``(3, 3)`` world -> body rows x, y, z, or ``(T, 3, 3)``), ``body_origin`` (``(3,)`` or
+``(T, 3)``) and attributes ``angle_names``, ``definitions`` (``name -> [a, b, c]``),
+``point_names`` and ``tethered`` (JSON).
 """
 
 from __future__ import annotations
@@ -40,11 +35,9 @@ STAGE = "kinematics"
 
 @dataclass(frozen=True)
 class KinematicsRuntime:
-    """The kinematics stage's untracked part: the order of the configured angles and
-    segments, which is the column order of ``angles.csv`` (the tracked params hold
-    them as mappings, keys sorted, so reordering them re-runs nothing). ``None``: the
-    defaults' order, or sorted.
-    """
+    """The untracked order of the configured angles and segments: ``angles.csv``'s column
+    order (the tracked params sort them, so reordering re-runs nothing). ``None``: the
+    defaults' order, or sorted."""
 
     angles: tuple[str, ...] | None = None
     segments: tuple[str, ...] | None = None
@@ -77,12 +70,8 @@ class KinematicsInputs(StageInputs):
 def compute_kinematics(
     inputs: KinematicsInputs, pts3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton
 ) -> Kinematics:
-    """The recording's kinematics (:func:`flylib.kinematics.compute_kinematics` as
-    ``inputs.kinematics`` says).
-
-    ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (the one
-    ``results.h5`` holds).
-    """
+    """:func:`flylib.kinematics.compute_kinematics` as ``inputs.kinematics`` says. ``pts3d``:
+    world points, NaN = missing; ``skeleton`` names the P axis (``results.h5``'s)."""
     params, order = inputs.kinematics, inputs.runtime
     return kinematics_of(
         pts3d,
@@ -100,9 +89,8 @@ def _in_order(table: Mapping | None, order: tuple[str, ...] | None) -> Mapping |
 
 
 def write_angles_csv(path: str | Path, kin: Kinematics) -> Path:
-    """Write ``angles.csv`` atomically (Anipose's layout: the angle columns, then
-    ``fnum``), as pandas' ``to_csv(index=False)`` writes it: each value's ``str``, NaN
-    empty (no pandas imported for one table)."""
+    """Write ``angles.csv`` atomically, byte for byte as pandas' ``to_csv(index=False)`` would
+    (each value's ``str``, NaN empty) without importing pandas."""
     import csv
 
     columns = {name: kin.angles[:, k] for k, name in enumerate(kin.angle_names)}
@@ -160,15 +148,10 @@ def angles_plot(
     dpi: int = 90,
     point_names: Sequence[str] | None = None,
 ):
-    """Angle traces per leg: one panel per leg (names ``<leg>_...``), flexion angles
-    solid, segment yaw/pitch/roll dashed, one colour per angle kind named in a legend
-    beside the panels.
-
-    The panels come in the skeleton's order (``point_names``: a leg's place is that of
-    the first point its angles are measured at, so the fly's legs read lf, lm, lh /
-    rf, rm, rh), else in the order of ``kin.angle_names``; never alphabetically.
-    Returns a matplotlib Figure.
-    """
+    """A matplotlib Figure, one panel per leg (names ``<leg>_...``): flexion angles solid,
+    segment yaw/pitch/roll dashed, one colour per angle kind in a legend beside the panels.
+    Panels follow ``point_names`` (a leg's first measured point, so the fly reads lf, lm, lh /
+    rf, rm, rh), else ``kin.angle_names``' order; never alphabetical."""
     from matplotlib.figure import Figure
 
     groups: dict[str, list[int]] = {}
@@ -190,8 +173,7 @@ def angles_plot(
     xlabel = "frame"
     if fps:
         t, xlabel = t / fps, "time (s)"
-    # one colour per angle kind (femur_tibia_flex, coxa_yaw, ...) in every panel, named
-    # once in a legend beside the panels: a legend inside a panel covered its traces
+    # one colour per angle kind, named once beside the panels (inside, it covered traces)
     kinds = list(
         dict.fromkeys(kin.angle_names[k][len(leg) + 1 :] for leg, cs in groups.items() for k in cs)
     )
@@ -216,11 +198,9 @@ def angles_plot(
 
 
 def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = False):
-    """The :class:`~flylib.results.PoseResult` in ``results.h5`` a post-processing
-    ``stage`` reads (kinematics, neuromechfly). ResultsError if it holds no 3D, or its
-    3D is the fly's mirror image (:func:`flylib.handedness.mirrored_refusal`) and
-    ``allow_mirrored`` is false.
-    """
+    """The :class:`~flylib.results.PoseResult` a post-processing ``stage`` reads. ResultsError
+    if it holds no 3D, or a mirrored fly (:func:`flylib.handedness.mirrored_refusal`) unless
+    ``allow_mirrored``."""
     from ..errors import ResultsError
     from ..handedness import mirrored_refusal
     from ..results import PoseResult
@@ -238,10 +218,8 @@ def results_3d(results_path: str | Path, stage: str, *, allow_mirrored: bool = F
 
 
 def run_kinematics(inputs: KinematicsInputs, results_path: str | Path, outdir: str | Path) -> dict:
-    """Compute the recording's kinematics from ``results.h5`` and write :data:`FILES`
-    into ``outdir``. ResultsError if ``results.h5`` holds no 3D; StageError if the
-    computation fails on the recording's data.
-    """
+    """Kinematics of ``results.h5``, written as :data:`FILES` into ``outdir``. ResultsError
+    without 3D; StageError if the computation fails on the recording's data."""
     from .stage_helpers import solving
 
     with solving(STAGE, results_path):

@@ -1,21 +1,14 @@
 """How much memory a workflow job declares (its rule's ``mem_mb``), from the recording's size.
 
-A job's peak memory is a fixed part (Python, NumPy, JAX, the libraries it imports) plus
-a part that grows with the arrays it holds, which are ``frames x points x views``
-elements wide. ``benchmarks/stage_memory.py`` measures each stage script's peak at
-two sizes as a workflow job runs it (its rule's threads) and prints both parts; the
-figures (each stage's :attr:`flylib.stages.Stage.memory`) are those measurements with
-:data:`MARGIN` on top, so that a cluster scheduler (SLURM kills a job that passes its
-reservation) reserves enough for a 100,000-frame recording as for the demo. Stages
-without a figure (the detector, import, visualization, exports) keep the fixed
-``mem_mb`` their rules state.
-
-The figures are the peak MB measured with ``benchmarks/stage_memory.py`` (7 views x 38
-points, 1,000 and 10,000 frames with the rules' threads; 500 and 5,000 with one
-thread), the larger of the two runs: the fixed part, and the part per million (frame,
-point, view) elements. Refinement's chunked solve grows more slowly past 10,000
-frames (`benchmarks/refinement.py` measures 100,000), so its figure over-reserves there rather than
-under.
+A job's peak is a fixed part (Python, NumPy, JAX, its libraries) plus a part growing with its
+``frames x points x views`` arrays. Each stage's figures (:attr:`flylib.stages.Stage.memory`)
+are the peak MB ``benchmarks/stage_memory.py`` measures as a workflow job runs the stage
+(7 views x 38 points, 1,000 and 10,000 frames with the rules' threads; 500 and 5,000 with one;
+the larger): the fixed part and the part per million (frame, point, view) elements. With
+:data:`MARGIN` on top, a scheduler (SLURM kills a job past its reservation) reserves enough for
+a 100,000-frame recording as for the demo. Refinement's chunked solve grows more slowly past
+10,000 frames, so its figure over-reserves there. Stages without a figure (the detector,
+import, visualization, exports) keep the fixed ``mem_mb`` their rules state.
 """
 
 from __future__ import annotations
@@ -36,9 +29,8 @@ FLOOR_MB = 1000
 
 
 def stage_mem_mb(stage: str, shape: tuple[int, int, int]) -> int:
-    """The ``mem_mb`` a stage's job declares for a recording of ``shape`` ``(V, T, P)``
-    (views, frames, points of its 2D): megabytes, a multiple of 100, at least
-    :data:`FLOOR_MB`. ``stage`` has a measured figure (:attr:`flylib.stages.Stage.memory`)."""
+    """The ``mem_mb`` (a multiple of 100, at least :data:`FLOOR_MB`) a stage with a measured
+    figure declares for a recording whose 2D is ``shape`` ``(V, T, P)``."""
     views, frames, points = (int(n) for n in shape)
     memory = by_name(stage).memory
     if memory is None:
@@ -64,11 +56,8 @@ def recording_shape(path: str | Path) -> tuple[int, int, int]:
 
 def job_mem_mb(stage: str, fallback_mb: int = 4000) -> Callable[..., int]:
     """A rule's ``mem_mb``: :func:`stage_mem_mb` of the job's pose2d (or results) input,
-    doubled on each retry after a failure (``attempt``).
-
-    ``fallback_mb`` is declared when the input cannot be read (a damaged file: the job
-    fails on it with its own message).
-    """
+    doubled on each retry (``attempt``); ``fallback_mb`` when the input cannot be read (a
+    damaged file: the job fails on it with its own message)."""
 
     def mem_mb(wildcards, input, attempt: int = 1) -> int:
         source = input.get("pose2d") or input.get("results")

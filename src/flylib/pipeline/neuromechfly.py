@@ -1,24 +1,18 @@
-"""The neuromechfly workflow stage: ``results.h5`` -> ``neuromechfly.h5``,
-``joint_angles.csv``, ``joint_angles.png``.
+"""The neuromechfly stage: ``results.h5`` -> ``neuromechfly.h5``, ``joint_angles.{csv,png}``.
 
-``joint_angles.csv``: one row per frame, ``time`` (seconds, ``frame / frame_rate``),
-then flygym's 42 leg joints ``joint_LFCoxa`` ... ``joint_RHTarsus1`` in flygym's order
-(``flygym.preprogrammed.all_leg_dofs``), radians, an empty field where a leg was not
-solved. :func:`flylib.neuromechfly.replay.replay_data` turns it into the dictionary flygym's kinematic-replay
-examples read (``{"meta": {"timestep": dt}, "joint_LFCoxa": (T,) ...}``).
+``joint_angles.csv``: one row per frame, ``time`` (seconds, ``frame / frame_rate``), then
+flygym's 42 leg joints ``joint_LFCoxa`` ... ``joint_RHTarsus1`` in flygym's order
+(``flygym.preprogrammed.all_leg_dofs``), radians, an empty field where a leg was not solved.
+:func:`flylib.neuromechfly.replay.replay_data` turns it into the dictionary flygym's
+kinematic-replay examples read (``{"meta": {"timestep": dt}, "joint_LFCoxa": (T,) ...}``).
 
 ``neuromechfly.h5``: ``attrs["meta"]`` (format version, ``stage: neuromechfly``) and
-``neuromechfly/`` with ``angles`` ``(T, 42)`` radians, ``residual`` ``(T, 6, 5)`` (leg
-lengths; the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain),
-``aligned`` ``(T, 6, 5, 3)`` (model mm), ``similarity_rotation`` ``(3, 3)``,
-``similarity_translation`` ``(3,)``, ``leg_scale`` ``(6,)``, ``segment_scale``
-``(6, 4)`` and attributes
-``dof_names``, ``legs``, ``chain_joints``, ``frame_rate``, ``similarity_scale``,
-``thorax_motion``, ``mirrored``, ``unsolved``, ``residual_summary``,
-``model_residual_summary`` (JSON).
-
-:class:`NeuromechflyInputs` is what the stage reads; :func:`run_neuromechfly` loads
-``results.h5``, runs :func:`compute_neuromechfly` and writes the files.
+``neuromechfly/`` with ``angles`` ``(T, 42)`` radians, ``residual`` ``(T, 6, 5)`` (leg lengths;
+the fitted chain), ``model_residual`` ``(T, 6, 5)`` (the model's chain), ``aligned``
+``(T, 6, 5, 3)`` (model mm), ``similarity_rotation`` ``(3, 3)``, ``similarity_translation``
+``(3,)``, ``leg_scale`` ``(6,)``, ``segment_scale`` ``(6, 4)`` and attributes ``dof_names``,
+``legs``, ``chain_joints``, ``frame_rate``, ``similarity_scale``, ``thorax_motion``,
+``mirrored``, ``unsolved``, ``residual_summary``, ``model_residual_summary`` (JSON).
 """
 
 from __future__ import annotations
@@ -107,8 +101,8 @@ def write_nmf_h5(path: str | Path, nmf: NmfAngles, frame_rate: float) -> Path:
 
 
 def angles_figure(nmf: NmfAngles, path: str | Path, *, frame_rate: float, dpi: int = 90) -> Path:
-    """One panel per leg: its seven angles (degrees) over time, the median
-    forward-kinematics residuals (fitted chain, model's chain) in the title."""
+    """One panel per leg: its seven angles (degrees) over time, the median forward-kinematics
+    residuals (fitted chain, model's chain) in the title."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(15, 6), dpi=dpi, layout="constrained")
@@ -144,12 +138,9 @@ def compute_neuromechfly(
     *,
     source: str = "3D",
 ) -> NmfAngles:
-    """The recording's NeuroMechFly angles (:func:`~flylib.neuromechfly.compute_nmf_angles`
-    as ``inputs.neuromechfly`` says).
-
-    ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (the one
-    ``results.h5`` holds); ``source`` names the 3D in messages.
-    """
+    """:func:`~flylib.neuromechfly.compute_nmf_angles` as ``inputs.neuromechfly`` says.
+    ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (``results.h5``'s);
+    ``source`` names the 3D in messages."""
     params = inputs.neuromechfly
     return compute_nmf_angles(
         pts3d,
@@ -163,10 +154,8 @@ def compute_neuromechfly(
 def run_neuromechfly(
     inputs: NeuromechflyInputs, results_path: str | Path, outdir: str | Path
 ) -> dict:
-    """NeuroMechFly angles of the recording in ``results.h5``, written as :data:`FILES`
-    into ``outdir``. ResultsError if ``results.h5`` holds no 3D, its thorax is not
-    still, or too few thorax-coxa points were reconstructed.
-    """
+    """NeuroMechFly angles of ``results.h5``, written as :data:`FILES` into ``outdir``.
+    ResultsError if it holds no 3D, its thorax is not still, or too few thorax-coxa points."""
     from .kinematics import results_3d
 
     result = results_3d(results_path, STAGE, allow_mirrored=inputs.neuromechfly.allow_mirrored)

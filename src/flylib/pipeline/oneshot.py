@@ -73,55 +73,39 @@ def run_from_points2d(
 ) -> PoseResult:
     """Run the 2D-to-3D pipeline on detections and return a :class:`PoseResult`.
 
-    Steps: optionally bundle-adjust the rig (on the arg-max ``pts2d``), optionally run
-    pictorial structures over the detector's top-K ``candidates``, then triangulate:
-    the stages' compute steps, on the packaged default config's settings with the
-    overrides below.
+    Optionally bundle-adjust the rig (on the arg-max ``pts2d``), optionally run pictorial
+    structures over the detector's top-K ``candidates``, then triangulate: the stages' compute
+    steps on the packaged default config with the overrides below.
 
     Parameters
     ----------
     cameras, skeleton, pts2d, conf
         The rig, skeleton, detections ``(V, T, P, 2)`` (NaN = missing) and confidences
         ``(V, T, P)`` or ``None``.
-    do_bundle_adjust
-        Refine the rig first (:func:`flylib.bundle_adjustment.bundle_adjust_sequence`).
     bundle_adjust_kwargs
-        Overrides of the packaged config's ``bundle_adjustment`` table (``fixed``,
-        ``shared``, ``points_to_use``, ``max_frames``, ``frame_sampling``,
-        ``weigh_by_confidence``, ``solver``, ``bone_lengths``, ``rigid_points`` ...;
-        ``least_squares`` options flat or under ``least_squares``), checked as a config
-        is; any other key (e.g. ``rigid_tolerance``) goes to
-        :func:`flylib.bundle_adjustment.bundle_adjust_sequence` as is. Unset keys keep
-        the config's values: intrinsics fixed, 200 evenly spaced frames, the leg joints
-        (``points_to_use``; give ``None`` for every point, or a list for a skeleton
-        without the fly's leg joints).
+        Overrides of the config's ``bundle_adjustment`` table (``fixed``, ``shared``,
+        ``points_to_use``, ``max_frames``, ``solver`` ...; ``least_squares`` options flat or
+        nested), checked as a config is; any other key (e.g. ``rigid_tolerance``) goes to
+        :func:`flylib.bundle_adjustment.bundle_adjust_sequence` as is. Unset keys keep the
+        config's: intrinsics fixed, 200 evenly spaced frames, the leg joints and antennae
+        (``points_to_use``: ``None`` for every point, or a list for a non-fly skeleton).
     triangulation, weigh_by_confidence, ransac_threshold, min_inliers, reproj_threshold, max_drops
-        ``None`` takes the packaged default config's ``triangulation`` value.
-        ``triangulation``: ``"ransac"`` (largest consistent view set; ``ransac_threshold``,
-        ``min_inliers``), ``"greedy"`` (drop the worst view; ``reproj_threshold``,
-        ``max_drops``) or ``"dlt"`` (plain least squares).
-        ``weigh_by_confidence``: confidence-weighted triangulation (``sqrt(conf)`` per
-        view).
+        ``None`` takes the config's ``triangulation`` value. Methods: ``"ransac"`` (largest
+        consistent view set), ``"greedy"`` (drop the worst view) or ``"dlt"``;
+        ``weigh_by_confidence`` weighs each view by ``sqrt(conf)``.
     do_pictorial, candidates, ps_kwargs
-        Pictorial-structures peak recovery (:func:`flylib.pictorial.reconstruct`, with
-        ``ps_kwargs`` overriding the ``pictorial_structures`` table: ``temporal``,
-        ``lam``, ``max_hyp`` ...) over ``candidates``, its bone prior from ``pts2d``;
-        its committed 2D feeds the triangulation.
+        Pictorial-structures peak recovery (:func:`flylib.pictorial.reconstruct`,
+        ``ps_kwargs`` overriding the ``pictorial_structures`` table) over ``candidates``, its
+        bone prior from ``pts2d``; its committed 2D feeds the triangulation.
     fps, meta
-        Recorded in the result's ``meta``.
-
-    Returns
-    -------
-    PoseResult
-        Refined rig, committed 2D, 3D points and reprojection errors; ``meta`` holds
-        ``fps``, ``triangulation``, ``pictorial`` and, after bundle adjustment, its
-        ``bundle_adjustment`` summary.
+        Recorded in the result's ``meta``, with ``triangulation``, ``pictorial`` and, after
+        bundle adjustment, its ``bundle_adjustment`` summary.
 
     Raises
     ------
     ConfigError
-        For an unknown ``triangulation`` method, ``do_pictorial`` without
-        ``candidates``, or an override the config's checks reject.
+        For an unknown ``triangulation`` method, ``do_pictorial`` without ``candidates``, or
+        an override the config's checks reject.
     """
     from ..config import Config
     from ..results import PoseResult

@@ -1,11 +1,5 @@
-"""The pictorial-structures stage: its inputs, the pure compute step, and the run that
-reads and writes its files.
-
-``run_pictorial_structures`` loads the detector's candidate peaks and the rig (the
-bundle-adjusted one when given, else the config rig), calls
-:func:`compute_pictorial_structures` and writes
-``<outdir>/stages/pictorial_structures.h5``.
-"""
+"""The pictorial-structures stage: the detector's candidate peaks + rig ->
+``<outdir>/stages/pictorial_structures.h5``."""
 
 from __future__ import annotations
 
@@ -37,9 +31,8 @@ __all__ = [
 @register
 @dataclass(frozen=True)
 class PictorialStructuresInputs(StageInputs):
-    """What the pictorial-structures stage reads: ``skeleton`` gives the chains and bones
-    of the prior; ``rig`` is ``None`` while bundle adjustment is on (the rig then comes
-    from that stage's artifact)."""
+    """What the PS stage reads: ``skeleton`` gives the prior's chains and bones; ``rig`` is
+    ``None`` while bundle adjustment is on (the rig comes from its artifact)."""
 
     STAGE = "pictorial_structures"
 
@@ -61,18 +54,9 @@ class PictorialStructuresInputs(StageInputs):
 
 @dataclass(frozen=True)
 class Recovered:
-    """The pictorial-structures stage's result.
-
-    Attributes
-    ----------
-    points3d
-        ``(T, P, 3)`` the DLT triangulation of the committed 2D.
-    points
-        ``(V, T, P, 2)`` the committed candidate per (view, frame, point), NaN where
-        no view was kept: what triangulation reads next.
-    reproj_error
-        ``(V, T, P)`` pixels.
-    """
+    """The PS result: ``points3d`` the DLT triangulation of the committed 2D; ``points`` the
+    committed candidate per (view, frame, point), NaN where no view was kept (what
+    triangulation reads next); ``reproj_error`` in pixels."""
 
     points3d: Float[np.ndarray, "T P 3"]
     points: Float[np.ndarray, "V T P 2"]
@@ -85,14 +69,9 @@ def compute_pictorial_structures(
     candidates: Candidates,
     pts2d_argmax: Float[np.ndarray, "V T P 2"] | None = None,
 ) -> Recovered:
-    """Choose one candidate peak per (view, frame, point) on ``cameras``
-    (:func:`flylib.pictorial.reconstruct` with the ``pictorial_structures`` table);
-    no file is read or written.
-
-    The bone-length prior is triangulated from ``pts2d_argmax`` ``(V, T, P, 2)``, the
-    arg-max detections, where given (the library one-shot passes its ``pts2d``), else
-    from the candidates' strongest peaks (what the stage does).
-    """
+    """Choose one candidate peak per (view, frame, point) on ``cameras`` (no file I/O). The
+    bone-length prior is triangulated from the arg-max detections ``pts2d_argmax`` where given
+    (the one-shot passes its ``pts2d``), else from the candidates' strongest peaks."""
     from ..pictorial import reconstruct
 
     pts3d, pts2d, error = reconstruct(
@@ -128,16 +107,8 @@ def run_pictorial_structures(
     ba_path: str | Path | None = None,
     recording_dir: str | Path | None = None,
 ) -> Path:
-    """Peak recovery over the detector's candidate peaks (pictorial structures).
-
-    The peaks come from ``candidates_path`` (what the pose2d stage writes), else from
-    the 2D artifact itself (a :class:`~flylib.results.Pose2dData` saved with them).
-
-    Raises
-    ------
-    ResultsError
-        If there are no candidate peaks (2D imported from another tool).
-    """
+    """Peak recovery over the detector's candidate peaks, from ``candidates_path`` (pose2d's)
+    else the 2D artifact itself; ResultsError without any (2D imported from another tool)."""
     from ..provenance import stage_provenance
     from ..results import Pose2dData, write_stage
 

@@ -1,10 +1,7 @@
-"""What a run plans from its config before any stage: the recordings it covers, the
-params each stage's artifact should carry, the config rig and its files, and the
-workflow's :class:`RunPlan` (every input, param and resource its rules look up).
-
-The modules below the pipeline take these as typed values (a ``recordings`` listing
-and ``sources`` list, a ``calibration`` table and views, a ``stage -> params``
-lookup); this is where a :class:`~flylib.config.Config` is read for them.
+"""What a run plans from its config before any stage: the recordings it covers, the params
+each stage's artifact should carry, the config rig and its files, and the workflow's
+:class:`RunPlan`. The modules below take these as typed values; this is where a
+:class:`~flylib.config.Config` is read for them.
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ from ..config import Config
 from ..errors import ConfigError
 from ..kinematics import FILES as KINEMATICS_FILES
 from ..neuromechfly import FILES as NEUROMECHFLY_FILES
-from ..provenance import foreign_artifacts
+from ..provenance import foreign_artifacts, params_hash
 from ..recordings import Recording, plan_listing
 from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
 from ..sessions import Session, plan_sessions
@@ -40,22 +37,10 @@ __all__ = [
 def plan_recordings(
     config: Config, *, check_frames: bool = True, config_dir: Path | None = None
 ) -> list[Recording]:
-    """The recordings a workflow run covers, from the config's ``recordings`` key
-    (:func:`flylib.recordings.plan_listing` with the config's ``sources``,
-    ``recursive``, ``outdir`` and ``pose2d.import``).
-
-    Parameters
-    ----------
-    check_frames
-        Compare frame counts across sources while resolving.
-    config_dir
-        The folder of the config file that set ``recordings`` (for messages).
-
-    Returns
-    -------
-    list of Recording
-        As :func:`~flylib.recordings.plan_listing` (which names what it raises).
-    """
+    """The recordings a workflow run covers: :func:`flylib.recordings.plan_listing` of the
+    config's ``recordings``, ``sources``, ``recursive``, ``outdir`` and ``pose2d.import``.
+    ``check_frames``: compare frame counts across sources; ``config_dir``: the folder of the
+    config file that set ``recordings`` (for messages)."""
     data = config.data
     return plan_listing(
         data.get("recordings"),
@@ -70,12 +55,9 @@ def plan_recordings(
 
 
 def params_of(config: Config, *, run_only: bool = False) -> Callable[[str], dict | None]:
-    """``stage -> the params its rule tracks under config`` (each computed once), for
-    :func:`flylib.provenance.provenance_report` and :func:`~flylib.provenance.foreign_artifacts`;
-    ``session_calibration`` too (a session's rig, :mod:`flylib.sessions`). ``run_only``:
-    ``None`` for a stage the run does not write (``pipeline.do_<stage>`` off, or what it
-    needs is off: :meth:`~flylib.config.Config.stage_flags`).
-    """
+    """``stage -> the params its rule tracks under config`` (each computed once; also
+    ``session_calibration``). ``run_only``: ``None`` for a stage the run does not write
+    (:meth:`~flylib.config.Config.stage_flags`)."""
     flags = config.stage_flags() if run_only else {}
 
     @functools.cache
@@ -98,15 +80,12 @@ def config_rig(
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
     recording_dir: str | Path | None = None,
 ):
-    """The rig the config describes (:meth:`RigSpec.camera_group`, the one rig builder):
-    its ``calibration`` file when set, else the orbit parameters of ``cameras``
-    (principal points from ``image_sizes`` where not given)."""
+    """The rig the config describes (:meth:`RigSpec.camera_group`, the one rig builder)."""
     return RigSpec.from_config(config).camera_group(image_sizes, recording_dir)
 
 
 def calibration_inputs(config: Config, recording_dir: str | Path | None = None) -> list[Path]:
-    """The files the config's ``calibration`` table reads for one recording
-    (:func:`flylib.interop.anipose.calibration_inputs` of the config's table)."""
+    """The files the config's ``calibration`` table reads for one recording."""
     from ..interop.anipose import calibration_inputs as calibration_files
 
     rig = RigSpec.from_config(config)
@@ -115,20 +94,17 @@ def calibration_inputs(config: Config, recording_dir: str | Path | None = None) 
     )
 
 
-#: The cluster job group of a recording's CPU jobs (profiles/slurm): Snakemake submits
-#: each recording's chain as one job; the detector is its own (GPU) job, imported 2D
-#: joins its recording's group.
+#: The cluster job group of a recording's CPU jobs (profiles/slurm), submitted as one job;
+#: the detector is its own (GPU) job, imported 2D joins its recording's group.
 RECORDING_GROUP = "recording"
 
 
 class RunPlan:
-    """A workflow run as planned before its DAG: the config, the recordings and which
-    are skipped, the stage flags, the sessions, and every input, param and resource
-    the rules look up (workflow/rules/common.smk binds them). A rule's ``wildcards``
-    is anything with ``outdir`` (``sessiondir`` for a session's rule); :attr:`warnings`
-    is what the run warns about. A ``ConfigError`` for two demos or a session folder
-    that is a recording's output folder (:func:`flylib.sessions.plan_sessions`).
-    """
+    """A workflow run as planned before its DAG: the recordings (and which are skipped), the
+    stage flags, the sessions, and every input, param and resource the rules look up
+    (workflow/rules/common.smk binds them). A rule's ``wildcards`` is anything with ``outdir``
+    (``sessiondir`` for a session's rule). ConfigError for two demos or a session folder that
+    is a recording's output folder."""
 
     def __init__(self, config: Config, recordings: list[Recording], *, main_process: bool = True):
         self.config = config
@@ -143,8 +119,9 @@ class RunPlan:
         # the batch, which Snakemake scans for every job and file (10,000 never planned)
         self.by_outdir = {str(r.outdir): r for r in recordings}
         self.warnings: list[str] = []
+        self.params_of = params_of(config, run_only=True)
         if main_process:  # artifacts another working directory wrote with other params
-            self.warnings += foreign_artifacts(params_of(config, run_only=True), recordings)
+            self.warnings += foreign_artifacts(self.params_of, recordings)
         self.skipped: set[str] = set()
         for rec in recordings:
             absent = self._absent_2d(rec)
@@ -167,6 +144,7 @@ class RunPlan:
         self.session_of = {r.id: s for s in self.sessions for r in s.members}
         self.by_sessiondir = {str(s.outdir): s for s in self.sessions}
         self._runtime: dict[str, Any] = {}
+        self._expects: dict[str, str] | None = None
         self._calibration: dict[Path, tuple[str, ...]] = {}
 
     @property
@@ -192,11 +170,10 @@ class RunPlan:
             ) from None
 
     def unplanned(self, wildcards) -> list[str]:
-        """``[]`` for a recording's output folder; for any other folder one input that
-        cannot exist. A user's file whose path matches an output pattern (a
-        calibration.toml beside the footage, or in another run's outputs) asks for a job
-        in a folder this run does not write; that input makes Snakemake drop the job and
-        read the file as it is, never make it."""
+        """``[]`` for a recording's output folder, else one input that cannot exist: a user's
+        file matching an output pattern (a calibration.toml beside the footage) asks for a job
+        in a folder this run does not write; that input makes Snakemake drop the job and read
+        the file as it is."""
         if wildcards.outdir in self.by_outdir:
             return []
         return [f"{wildcards.outdir} (no recording of this run writes to this folder)"]
@@ -215,9 +192,29 @@ class RunPlan:
             return []
         return [f"{wildcards.sessiondir} (no session of this run writes to this folder)"]
 
+    def session_inputs(self, rule: str) -> Callable[[Any], dict]:
+        """Inputs of a session's rule: each member's 2D, and the config rig's files (the solve)
+        or the session's rig and each member's own (the summary)."""
+
+        def inputs(wildcards) -> dict:
+            unplanned = self.session_unplanned(wildcards)
+            if unplanned:
+                return {"unplanned": unplanned}
+            session = self.session(wildcards)
+            members = [str(r.outdir) for r in session.members]
+            files = {"pose2d_files": [self.artifact("pose2d").format(outdir=o) for o in members]}
+            if rule == "session_calibration":
+                files["rig_files"] = list(self.recording_calibration(session.members[0].path))
+            else:
+                files["session"] = str(session.artifact)
+                ba = self.artifact("bundle_adjustment")
+                files["trial_files"] = [ba.format(outdir=o) for o in members]
+            return files
+
+        return inputs
+
     def stage_json(self, stage: str) -> str:
-        """The stage's tracked params (flylib.pipeline.inputs) as canonical JSON: its
-        rule's ``params.stage`` (Snakemake re-runs a job when it changes)."""
+        """The stage's tracked params as canonical JSON: its rule's ``params.stage``."""
         return json.dumps(stage_params(self.config, stage), sort_keys=True)
 
     def runtime(self, stage: str) -> Any:
@@ -225,6 +222,21 @@ class RunPlan:
         if stage not in self._runtime:
             self._runtime[stage] = stage_runtime(self.config, stage)
         return self._runtime[stage]
+
+    def expects(self, wildcards) -> dict[str, str]:
+        """Input name -> the params hash its artifact must record in this run (for
+        :func:`flylib.provenance.refuse_stale_inputs`); a session member's rig: the session's."""
+        if self._expects is None:
+            self._expects = {
+                name: params_hash(params)
+                for name, stage in [*((s, s) for s in ARTIFACTS), ("results", "assemble")]
+                if (params := self.params_of(stage)) is not None
+            }
+        own = self.by_outdir.get(getattr(wildcards, "outdir", None))
+        if own is not None and own.id in self.session_of:
+            session = params_hash(self.params_of("session_calibration"))
+            return {**self._expects, "bundle_adjustment": session}
+        return self._expects
 
     def pose2d_import(self, wildcards) -> str:
         """The recording's own import spec as JSON ("null": the config's pose2d.import)."""
@@ -243,31 +255,27 @@ class RunPlan:
         return outputs
 
     def rig_artifact(self, wildcards) -> str:
-        """The bundle-adjusted rig a recording's later stages read: its session's while
-        session calibration is on, else its own bundle-adjustment artifact."""
+        """The bundle-adjusted rig a recording's later stages read: its session's, else its own."""
         own = self.by_outdir.get(wildcards.outdir)  # None: a folder no recording writes
         if own is not None and own.id in self.session_of:
             return str(self.session_of[own.id].artifact)
         return self.artifact("bundle_adjustment").format(outdir=wildcards.outdir)
 
     def recording_calibration(self, path: Path) -> tuple[str, ...]:
-        """The calibration file(s) the config rig of the recording at ``path`` is read
-        from (none for an orbit rig), once per recording."""
+        """The calibration file(s) the config rig of the recording at ``path`` reads (cached)."""
         if path not in self._calibration:
             self._calibration[path] = tuple(str(p) for p in calibration_inputs(self.config, path))
         return self._calibration[path]
 
     def calibration_inputs(self, wildcards) -> list[str]:
-        """:meth:`recording_calibration` of this job's recording, so a rule that builds
-        the config rig re-runs when the file changes."""
+        """:meth:`recording_calibration` of this job's recording (re-runs on its change)."""
         return self.unplanned(wildcards) or list(
             self.recording_calibration(self.recording(wildcards).path)
         )
 
     def reconstruction_inputs(self, stage: str) -> Callable[[Any], dict]:
-        """Inputs of a geometry rule: pose2d, plus the bundle-adjusted rig while that
-        stage is on (else the calibration file the config rig comes from, if any), plus
-        (triangulation) pictorial-structures 2D while that stage is on."""
+        """Inputs of a geometry rule: pose2d, the bundle-adjusted rig (else the config rig's
+        calibration file, if any) and, for triangulation, PS's 2D while PS is on."""
 
         def inputs(wildcards) -> dict:
             def own(name: str) -> str:
@@ -287,8 +295,7 @@ class RunPlan:
         return inputs
 
     def refinement_inputs(self, wildcards) -> dict:
-        """Inputs of refinement: pose2d (2D, confidences), the triangulation (start,
-        inlier views), and the rig as triangulation reads it."""
+        """Inputs of refinement: as a geometry rule's, plus the triangulation."""
         files = self.reconstruction_inputs("refinement")(wildcards)
         files["triangulation"] = self.artifact("triangulation").format(outdir=wildcards.outdir)
         return files
@@ -319,5 +326,9 @@ class RunPlan:
         return 120 if self.pose2d_gpus(wildcards) else 15
 
     def pose2d_group(self, wildcards) -> str | None:
-        """Imported 2D (no GPU) runs in its recording's group; the detector on its own."""
-        return RECORDING_GROUP if self.pose2d_gpus(wildcards) == 0 else None
+        """Imported 2D runs in its recording's group; the detector, and a session member's 2D
+        (read by the session's solve, outside the group), on their own."""
+        own = self.by_outdir.get(wildcards.outdir)
+        if self.pose2d_gpus(wildcards) or (own is not None and own.id in self.session_of):
+            return None
+        return RECORDING_GROUP

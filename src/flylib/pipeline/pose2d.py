@@ -1,10 +1,5 @@
-"""The pose2d stage: its inputs, the compute step, and the run that writes its files.
-
-``run_pose2d`` finds the 2D of one recording with :func:`compute_pose2d` (the
-detector over the recording's footage, or another tool's files when an import spec
-is in force) and writes ``<outdir>/stages/pose2d.h5`` and, while pictorial structures
-is on, the detector's candidate peaks beside it.
-"""
+"""The pose2d stage: footage (or another tool's 2D) -> ``<outdir>/stages/pose2d.h5`` and,
+while pictorial structures is on, the detector's candidate peaks beside it."""
 
 from __future__ import annotations
 
@@ -44,11 +39,9 @@ DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 
 @dataclass(frozen=True)
 class Pose2dRuntime:
-    """The pose2d stage's untracked knobs: they change how fast it runs, never its
-    2D. ``image_workers`` ``None``: the reader chooses. ``candidates_k``
-    (``pictorial_structures.k``, peaks kept per (view, point)) names the candidates
-    file (``stages/candidates_k<k>.h5``), so it needs no tracking here.
-    """
+    """The pose2d stage's untracked knobs: they change its speed, never its 2D.
+    ``image_workers`` ``None``: the reader chooses. ``candidates_k`` (``pictorial_structures.k``)
+    names the candidates file (``stages/candidates_k<k>.h5``), so it needs no tracking."""
 
     batch_size: int = Pose2dParams.batch_size
     decode_buffer: int = Pose2dParams.decode_buffer
@@ -69,13 +62,10 @@ class Pose2dRuntime:
 @register
 @dataclass(frozen=True)
 class Pose2dInputs(StageInputs):
-    """What the pose2d stage reads.
-
-    ``plan`` holds the detection plan's ``pose2d`` tables (:data:`PLAN_KEYS`; absent
-    ones ``None``); ``import_spec`` ``None``: the detector runs, unless the recording
-    has its own. ``on_corrupt_frame`` is tracked only when not ``"error"``, so the
-    artifacts made before it existed keep their params.
-    """
+    """What the pose2d stage reads. ``plan``: the ``pose2d`` plan tables (:data:`PLAN_KEYS`,
+    absent ones ``None``); ``import_spec`` ``None``: the detector runs, unless the recording has
+    its own. ``on_corrupt_frame`` is tracked only when not ``"error"`` (older artifacts'
+    params stay valid)."""
 
     STAGE = "pose2d"
 
@@ -105,12 +95,9 @@ class Pose2dInputs(StageInputs):
         )
 
     def params(self) -> dict:
-        """The tracked params (:meth:`StageInputs.params`: sources, plan, precision,
-        import spec, points, views, and ``on_corrupt_frame`` when not the default) and
-        the heatmap decoding convention."""
-        # Not the candidate peaks pictorial structures asks for: they are a separate
-        # pose2d output named by k (results.candidates_artifact), which exists only
-        # while PS is on, so toggling PS or editing k with it off re-runs no detection.
+        """The tracked params (:meth:`StageInputs.params`) and the heatmap decoding convention."""
+        # Not PS's candidate peaks: a separate output named by k, existing only while PS is
+        # on, so toggling PS or editing k with it off re-runs no detection.
         return {
             **super().params(),
             "decoding": DECODING_CONVENTION,  # heatmap cell -> pixel (flylib.pose2d.plan)
@@ -164,14 +151,9 @@ def import_target(config: Config) -> ImportTarget:
 def import_inputs(
     target: ImportTarget, spec: Mapping | None, recording_dir: str | Path
 ) -> list[Path]:
-    """The files a recording's imported 2D is read from (none without an import spec):
-    the pose2d rule's inputs besides the footage, so that editing one re-runs pose2d.
-
-    Raises
-    ------
-    ImportFormatError
-        A spec or a ``files`` pattern that finds no file, or several, for a view.
-    """
+    """The files a recording's imported 2D is read from (none without an import spec): the
+    pose2d rule's inputs besides the footage, so editing one re-runs pose2d. ImportFormatError
+    for a bad spec or a ``files`` pattern that finds no file, or several, for a view."""
     if not spec:
         return []
     from ..interop.importer import import_files, import_spec
@@ -180,9 +162,9 @@ def import_inputs(
     return sorted({path for path in files.values() if path is not None})
 
 
-# Imported 2D may stray a little past the frame (a detector's edge peaks, sub-pixel
-# refinement); this much of a view's points beyond its frame by more than this fraction
-# of its size says the 2D was made on footage of another resolution.
+# Imported 2D may stray a little past the frame (edge peaks, sub-pixel refinement); more than
+# _OUTSIDE_FRACTION of a view's points beyond it by over _OUTSIDE_MARGIN of its size says the
+# 2D was made on footage of another resolution.
 _OUTSIDE_MARGIN = 0.02
 _OUTSIDE_FRACTION = 0.01
 
@@ -220,24 +202,13 @@ def compute_pose2d(
     candidates: bool = False,
     progress: bool = False,
 ) -> Pose2dData:
-    """The 2D keypoints of one recording: the detector over its footage, or another
-    tool's files when an import spec is in force (``import_spec``, else the inputs'
-    ``pose2d.import``). Reads the recording's files, writes nothing.
+    """One recording's 2D keypoints (writes nothing): the detector over its footage, or another
+    tool's files under an import spec (``import_spec``, else the inputs' ``pose2d.import``).
 
-    ``candidates``: also keep the detector's top-K peaks (``runtime.candidates_k``).
-
-    Returns
-    -------
-    Pose2dData
-        ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``, view names, raw frame sizes and,
-        with ``candidates``, the peaks.
-
-    Raises
-    ------
-    FootageError
-        The recording's footage is missing, unreadable or inconsistent (naming it).
-    ResultsError
-        If candidates are asked for but the 2D is imported (other tools keep no peaks).
+    Returns ``pts2d (V, T, P, 2)``, ``conf (V, T, P)``, view names, raw frame sizes and, with
+    ``candidates``, the detector's top-K peaks (``runtime.candidates_k``). FootageError: the
+    footage is missing, unreadable or inconsistent; ResultsError: candidates asked of imported
+    2D (other tools keep no peaks).
     """
     recording_dir = Path(recording_dir)
     spec = import_spec or inputs.import_spec
@@ -276,12 +247,8 @@ def run_pose2d(
     progress: bool = False,
     candidates_path: str | Path | None = None,
 ) -> Path:
-    """Write one recording's 2D keypoints (:func:`compute_pose2d`) to ``out_path``.
-
-    With ``candidates_path`` (pictorial structures on) the detector's top-K peaks
-    (``pictorial_structures.k``) are written there too, as a ``candidates`` stage.
-    Raises what :func:`compute_pose2d` raises.
-    """
+    """Write one recording's 2D keypoints (:func:`compute_pose2d`) to ``out_path``; with
+    ``candidates_path`` (PS on), the detector's top-K peaks there too, as a ``candidates`` stage."""
     from ..provenance import stage_provenance
     from ..skeleton import Skeleton
 

@@ -1,15 +1,12 @@
 """Everything the workflow can check before it builds its DAG.
 
-:func:`flylib.config.validate_config` checks each key on its own; this module checks
-what needs the whole config or the planned recordings, and would otherwise fail
-minutes or hours later inside a job: the camera rig, bundle adjustment's ``fixed`` /
-``shared`` references, each recording's 2D-import spec and the files it names,
-the detection plan and its weights (only where the detector runs), the output videos,
-the calibration format, footage for recordings the detector must read, and that no
-planned output lands on an input or a file flylib did not write
-(:mod:`flylib.pipeline.user_files`). Every
-problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the
-user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
+:func:`flylib.config.validate_config` checks each key on its own; this module checks what
+needs the whole config or the planned recordings and would otherwise fail hours later in a
+job: the rig, bundle adjustment's ``fixed``/``shared``, each import spec and its files, the
+detection plan and its weights, the videos, the calibration format, footage the detector must
+read, and that no output lands on an input or a user's file (:mod:`flylib.pipeline.user_files`).
+Every problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the user's
+file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 """
 
 from __future__ import annotations
@@ -37,14 +34,12 @@ def preflight_problems(
     check_weights: bool = True,
     import_files: dict[str, tuple[Path, ...]] | None = None,
 ) -> list[str]:
-    """Problems the planned run would hit inside a job, found from the config alone:
-    one line each, starting with the config key it concerns.
+    """Problems the planned run would hit inside a job, one line each, starting with its key.
 
-    ``flags`` is ``Config.stage_flags()``. ``check_weights``: check that every detector
-    model's checkpoint is cached or downloadable (may wait
-    :data:`flylib.pose2d.published.PROBE_TIMEOUT_S` for the weights host).
-    ``import_files`` is filled with ``recording id -> the files its imported 2D is read
-    from``, as found while checking them (the workflow reads them once, here).
+    ``flags``: ``Config.stage_flags()``. ``check_weights``: check every detector checkpoint is
+    cached or downloadable (may wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S`).
+    ``import_files`` is filled with ``recording id -> its imported 2D's files`` as found here
+    (the workflow reads them once).
     """
     recordings = list(recordings)
     problems: list[str] = []
@@ -77,10 +72,18 @@ def preflight_problems(
                 f"calibration.format: unknown format {calibration['format']!r}; "
                 f"use one of {', '.join(CALIBRATION_FORMATS)}"
             )
-    if isinstance(calibration, dict) and not isinstance(calibration.get("mirror", False), bool):
+    mirror = calibration.get("mirror", False) if isinstance(calibration, dict) else False
+    if not isinstance(mirror, bool):
         problems.append(
-            f"calibration.mirror: expected true or false, got {calibration['mirror']!r} "
+            f"calibration.mirror: expected true or false, got {mirror!r} "
             "(true mirrors the calibration file's world; see docs/how-it-works/handedness.md)"
+        )
+    elif mirror and not {"file", "index"} & set(calibration):
+        from ..handedness import MIRROR_OFF
+
+        problems.append(
+            "calibration.mirror: true mirrors a calibration file's world, but calibration names "
+            f"no file (the rig is the cameras table); set {MIRROR_OFF}, or give calibration.file"
         )
 
     if any(rec.demo for rec in recordings):
@@ -105,21 +108,15 @@ def preflight_problems(
     return list(dict.fromkeys(problems))
 
 
-# A Snakemake wildcard, as its file patterns read one: "{name}" or "{name,constraint}".
-# Snakemake has no escape for braces in a file path (input functions' paths are
-# formatted too), so a path holding one cannot be an input or output of a rule.
+# A Snakemake wildcard: "{name}" or "{name,constraint}". Snakemake has no escape for braces in
+# a file path (input functions' paths are formatted too), so such a path cannot be a rule's.
 _WILDCARD = re.compile(r"\{\s*[.\w]+\s*[,}]")
 
 
 def path_problems(config: Any, recordings: Iterable[Any]) -> list[str]:
-    """Paths of the planned run that no job could use, one line each.
-
-    A recording's folder, footage, calibration or output folder holding a brace group
-    that Snakemake reads as a wildcard (``fly{1}``); an output folder whose name (or
-    one of its parents' names) is longer than its filesystem allows; an output folder
-    that cannot be created or written (a read-only filesystem, no permission). Each
-    line reads ``"<key>: <path>: <what is wrong>; <the fix>"``.
-    """
+    """Paths of the planned run no job could use, one ``"<key>: <path>: <problem>; <fix>"``
+    line each: a brace group Snakemake reads as a wildcard (``fly{1}``) in a recording's
+    folder, footage, calibration or outdir, and each :func:`outdir_problem`."""
     from .planning import calibration_inputs
 
     problems: list[str] = []
@@ -152,12 +149,9 @@ def path_problems(config: Any, recordings: Iterable[Any]) -> list[str]:
 
 
 def outdir_problem(outdir: str | Path) -> str | None:
-    """Why ``outdir`` cannot hold a run's outputs, or ``None`` when it can.
-
-    Each name of the path must fit its filesystem's limit, and the folder (or, when it
-    does not exist yet, its nearest existing parent, where it will be created) must be a
-    writable folder. The answer reads ``"<outdir>: <what is wrong>; <the fix>"``.
-    """
+    """Why ``outdir`` cannot hold a run's outputs (``"<outdir>: <problem>; <fix>"``), or
+    ``None``: each name must fit its filesystem's limit, and the folder (or its nearest
+    existing parent) must be a writable folder."""
     outdir = Path(os.path.abspath(outdir))
     existing = outdir
     while not os.path.lexists(existing) and existing != existing.parent:
@@ -189,12 +183,10 @@ def outdir_problem(outdir: str | Path) -> str | None:
 def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
     """Validate a run's config and plan its recordings, as the workflow does before its DAG.
 
-    ``check_frames``: compare footage frame counts across cameras while planning, and
-    check the detector's checkpoints (off in a cluster job re-reading the config: the
-    run's main process checked both, and a compute node may have no network). Returns
-    the :class:`flylib.config.Config` (its ``text``: the one file's exact text, or a
-    YAML dump of the merged layers) and the planned recordings; raises ConfigError
-    with every problem, one line each, naming the user's file that set the key.
+    ``check_frames``: compare footage frame counts and check the detector's checkpoints (off
+    in a cluster job: the main process checked both, and a node may have no network). Returns
+    the :class:`flylib.config.Config` (``text``: the one file's text, or a YAML dump of the
+    merged layers) and the recordings; ConfigError lists every problem, naming its file.
     """
     import yaml
 
@@ -221,8 +213,7 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
             check_weights=check_frames,
             import_files=found,
         )
-        # the import files, found once: the output check and the pose2d rule's inputs
-        # read them from here
+        # the import files, found once, for the output check and the pose2d rule's inputs
         recordings = [
             replace(rec, import_files=found[rec.id]) if rec.id in found else rec
             for rec in recordings
@@ -231,11 +222,55 @@ def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, lis
             from .user_files import output_problems
 
             problems += output_problems(config, recordings, layers.texts)
+            problems += session_problems(config, recordings)
     except FlylibError as exc:
         problems = [" ".join(str(exc).split())]
     if problems:
         raise ConfigError(layers.report(problems))
     return config, recordings
+
+
+def session_problems(config: Any, recordings: list[Any]) -> list[str]:
+    """A session whose recordings' frames differ in size (a session is one rig), one line each;
+    the sizes pose2d will give: each view's footage header, else ``image_size``."""
+    from ..interop.views import read_frame_size
+    from ..sessions import plan_sessions
+    from .pose2d import import_target
+
+    if not (config.stage_flags()["bundle_adjustment"] and config.bundle_adjustment.session):
+        return []
+    try:
+        sessions = plan_sessions(recordings)
+    except FlylibError:
+        return []  # RunPlan names it
+    target = import_target(config)
+
+    def sizes(rec) -> dict[str, tuple[int, ...]]:
+        footage = target.footage(Path(rec.path))
+        fallback = (rec.import_spec or {}).get("image_size")
+        found = {
+            v: read_frame_size(footage[v][0]) if footage.get(v) else fallback for v in target.views
+        }
+        return {v: tuple(map(int, size)) for v, size in found.items() if size is not None}
+
+    def wxh(size: dict) -> str:
+        return "/".join(dict.fromkeys(f"{w}x{h}" for h, w in size.values()))
+
+    problems = []
+    for session in sessions:
+        first, *rest = session.members
+        own = sizes(first)
+        for rec in rest:
+            other = sizes(rec)
+            if any(other[v] != own[v] for v in other.keys() & own.keys()):
+                problems.append(
+                    f"{rec.extra.get('where', 'recordings')}: session {session.name!r} is one "
+                    f"rig, but {first.id}'s frames are {wxh(own)} and {rec.id}'s {wxh(other)} "
+                    f"(width x height); give {rec.id} another session (its session key or "
+                    "sheet column), or footage of one size"
+                )
+                break
+    return problems
 
 
 def _pose2d_problems(
@@ -278,8 +313,8 @@ def _pose2d_problems(
                 text = text.replace("pose2d.import", where)
             problems.append(text)
         if not rec.demo and not rec.sources:
-            # planning kept it without footage; what it has (frame sizes and counts)
-            # must still be footage: a pipe, a device, a gap in an image sequence
+            # kept without footage; what it has must still be footage (not a pipe, a device,
+            # an image sequence with a gap)
             try:
                 (target or import_target(config)).footage(rec.path)
             except FlylibError as exc:

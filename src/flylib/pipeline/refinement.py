@@ -2,33 +2,27 @@
 
 The artifact holds ``refinement/`` with
 
-- ``points3d`` ``(T, P, 3)`` float64: the refined 3D (NaN: no view supports the point
-  for more than ``gap_length`` frames);
+- ``points3d`` ``(T, P, 3)`` float64: the refined 3D (NaN: no view supports the point for more
+  than ``gap_length`` frames);
 - ``reproj_error`` ``(V, T, P)`` float64: pixel error of every observation kept;
 - ``points`` ``(V, T, P, 2)`` float64: the observations kept (rejected outliers NaN);
-- ``flags`` ``(T, P)`` uint8: per-point bit flags, their meaning in the group's
-  ``flag_bits`` attribute (JSON ``{name: [bit, meaning]}``, see
-  :data:`flylib.refinement.FLAG_BITS`);
+- ``flags`` ``(T, P)`` uint8: per-point bit flags, their meaning in the group's ``flag_bits``
+  attribute (JSON ``{name: [bit, meaning]}``, see :data:`flylib.refinement.FLAG_BITS`);
 
 and attributes ``bone_lengths`` (``{"a-b": length}``), ``rigid_centres``
-(``{point: [x, y, z]}``), ``summary`` (timings, iterations, observations kept and
-rejected), ``options`` (the ``refinement`` table in force) and ``accuracy``.
+(``{point: [x, y, z]}``), ``summary`` (timings, iterations, observations kept and rejected),
+``options`` (the ``refinement`` table in force) and ``accuracy``.
 
-Refinement never makes a recording worse by the truth-free yardstick of
-:mod:`flylib.accuracy` (:class:`~flylib.refinement.held_out.HeldOutCheck`): every view
-is held out in turn and both the triangulation and the refinement are re-solved
-without it (on at most :data:`~flylib.accuracy.EVALUATION_FRAMES` frames), the
-refinement once per candidate smoothness scale (``smooth_scale`` and ``motion_scales``
-times the recording's own per-frame motion, which carries the frame rate); the whole
-recording is then solved at the scale of lowest held-out error. A point whose refined
-held-out-view error (median or 95th percentile) is higher than the triangulation's
-keeps the triangulation's 3D, 2D and errors in every frame, flagged
-``kept_triangulation``; if the output is still worse overall, every point does. The ``accuracy`` attribute holds
-the three summaries (``triangulation``, ``refinement`` as solved, ``output``), the
-points kept and the frames evaluated.
-
-:class:`RefinementInputs` is what the stage reads; :func:`run_refinement` loads the
-artifacts, runs :func:`compute_refinement` on them and writes the result.
+Refinement never makes a recording worse by the truth-free yardstick of :mod:`flylib.accuracy`
+(:class:`~flylib.refinement.held_out.HeldOutCheck`): each view is held out in turn and both
+solves re-run without it (on at most :data:`~flylib.accuracy.EVALUATION_FRAMES` frames), the
+refinement once per smoothness scale (``smooth_scale`` and ``motion_scales`` times the
+recording's per-frame motion); the recording is solved at the scale of lowest held-out error.
+A point whose refined held-out error (median or 95th percentile) is higher than the
+triangulation's keeps the triangulation's 3D, 2D and errors, flagged ``kept_triangulation``;
+if the output is still worse overall, every point does. The ``accuracy`` attribute holds the
+three summaries (``triangulation``, ``refinement`` as solved, ``output``), the points kept and
+the frames evaluated.
 """
 
 from __future__ import annotations
@@ -61,9 +55,8 @@ STAGE = "refinement"
 @register
 @dataclass(frozen=True)
 class RefinementInputs(StageInputs):
-    """What the refinement stage reads. ``triangulation`` is tracked because the
-    held-out-view check re-runs it without each view; ``rig`` is ``None`` with bundle
-    adjustment on (the rig comes from its artifact)."""
+    """What the refinement stage reads. ``triangulation`` is tracked because the held-out
+    check re-runs it; ``rig`` is ``None`` with bundle adjustment on (rig from its artifact)."""
 
     STAGE = STAGE  # not a field: the base declares it a ClassVar
 
@@ -91,11 +84,10 @@ def _triangulation(method_params: Mapping) -> TriangulationParams:
 
 
 class TriangulationSource:
-    """The refinement's input chunk by chunk: the 2D and its confidences with the
-    manual corrections applied (the triangulation's ``corrected_2d`` and ``edited_2d``,
-    as :meth:`~flylib.corrections.Corrections.apply_2d` applies them), the
-    triangulation's 3D as the start and its inlier views (its kept 2D), read on demand
-    (h5py datasets, or arrays)."""
+    """The refinement's input, read on demand (h5py datasets or arrays): the 2D and
+    confidences with the manual corrections applied (``corrected_2d``/``edited_2d``, as
+    :meth:`~flylib.corrections.Corrections.apply_2d` does), the triangulation's 3D as the
+    start and its inlier views (its kept 2D)."""
 
     def __init__(self, pose2d: Mapping[str, Any], triangulation: Mapping[str, Any]):
         self.pts2d = pose2d["points"]
@@ -136,15 +128,11 @@ class TriangulationSource:
 
 
 class H5Sink(ArraySink):
-    """Writes the refinement group chunk by chunk (datasets chunked along time, gzip);
-    :class:`ArraySink`'s methods over HDF5 datasets instead of arrays."""
+    """:class:`ArraySink` over HDF5 datasets (chunked along time, gzip), written chunk by chunk."""
 
     def __init__(self, group: h5py.Group, n_views: int, n_frames: int, n_points: int, chunk: int):
         step = max(1, min(n_frames, chunk))
-
-        # the checksum switch read when the sink is made (benchmarks and the older-file
-        # test turn it off)
-        from ..results import datasets
+        from ..results import datasets  # its checksum switch, read now (tests turn it off)
 
         def make(name, shape, dtype, axis, fill):
             chunks = list(shape)
@@ -195,13 +183,9 @@ def run_refinement(
     ba_path: str | Path | None = None,
     recording_dir: str | Path | None = None,
 ) -> Path:
-    """Refine the triangulated 3D of one recording and write ``stages/refinement.h5``.
-
-    The artifacts are read and the result written chunk by chunk, so memory does not
-    grow with the recording's length. ``ba_path`` (the bundle-adjustment artifact's
-    rig) is required when ``inputs.rig`` is ``None``; ``recording_dir`` is where a
-    relative calibration file is looked up.
-    """
+    """Refine one recording's triangulated 3D into ``stages/refinement.h5``, chunk by chunk
+    (memory does not grow with length). ``ba_path`` (its rig) is required when ``inputs.rig``
+    is ``None``; ``recording_dir`` is where a relative calibration file is looked up."""
     from ..provenance import stage_provenance
     from ..results import new_meta, open_checked
     from .stage_helpers import solving
@@ -269,26 +253,13 @@ def compute_refinement(
     triangulation: Mapping[str, Any],
     sink: ArraySink,
 ) -> dict:
-    """Refine the triangulation's 3D (no file I/O: ``sink`` takes the output).
+    """Refine the triangulation's 3D (no file I/O: ``sink`` takes ``points3d``,
+    ``reproj_error``, ``points2d``, ``flags``) and return the group's attributes.
 
-    Parameters
-    ----------
-    pose2d
-        ``points`` ``(V, T, P, 2)`` and optionally ``conf`` ``(V, T, P)``.
-    triangulation
-        ``points3d`` ``(T, P, 3)`` (the start), ``points`` ``(V, T, P, 2)`` (its inlier
-        views), ``reproj_error`` ``(V, T, P)`` and optionally ``corrected`` ``(T, P)``.
-        Arrays or h5py datasets (read window by window).
-    sink
-        Where the output goes (:class:`~flylib.refinement.solver.ArraySink`, or
-        :class:`H5Sink` writing the artifact chunk by chunk): ``points3d``,
-        ``reproj_error``, ``points2d``, ``flags``.
-
-    Returns
-    -------
-    dict
-        The artifact group's attributes: ``flag_bits``, ``bone_lengths``,
-        ``rigid_centres``, ``summary``, ``options``, ``accuracy``.
+    ``pose2d``: ``points`` ``(V, T, P, 2)``, optionally ``conf`` ``(V, T, P)``;
+    ``triangulation``: ``points3d`` ``(T, P, 3)`` (the start), ``points`` ``(V, T, P, 2)``
+    (its inlier views), ``reproj_error`` ``(V, T, P)``, optionally ``corrected`` ``(T, P)``;
+    arrays or h5py datasets (read window by window).
     """
     from ..refinement.held_out import HeldOutCheck, keep_corrected, refinement_method
     from ..refinement.setup import skeleton_terms
@@ -314,8 +285,8 @@ def compute_refinement(
     out = refine_stream(source, cameras, sink, options=options, **terms)
     keep_corrected(triangulation, sink, params.chunk_frames)
     accuracy = check.apply(sink, triangulation)
-    # the artifact's record of the solver's settings, as written before the params and
-    # the solver's options were one class: without motion_scales, rigid_points last
+    # the artifact's record of the solver's settings, kept in its old layout: without
+    # motion_scales, rigid_points last
     record = {
         k: v for k, v in asdict(options).items() if k not in ("motion_scales", "rigid_points")
     }

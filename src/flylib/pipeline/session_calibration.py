@@ -1,16 +1,11 @@
 """Session calibration (``bundle_adjustment.session: true``): one bundle adjustment over
 frames sampled from every recording of a session (one rig), and the session's summary.
 
-:func:`run_session_calibration` reads the members' 2D, solves once
-(:func:`compute_session_calibration`) and writes the session's rig twice: as a
-bundle-adjustment artifact (``session_calibration.h5``, what each member's
-triangulation, refinement and assembly read in place of its own solve) and in Anipose
-format (``calibration.toml``). Its provenance names the session and its members.
-
-:func:`run_session_summary` judges the session's rig against the per-recording ones by
-the held-out-view error (:func:`flylib.accuracy.held_out_errors`, the same triangulation
-for both) and writes ``session_summary.json``. A rule-only step: no ``pipeline.do_*``
-key, sessions are planned by :func:`flylib.sessions.plan_sessions`.
+The rig is written as a bundle-adjustment artifact (``session_calibration.h5``, read by each
+member's later stages in place of its own solve) and in Anipose format (``calibration.toml``).
+The summary judges it against the per-recording rigs by held-out-view error
+(``session_summary.json``). Rule-only: no ``pipeline.do_*`` key; sessions are planned by
+:func:`flylib.sessions.plan_sessions`.
 """
 
 from __future__ import annotations
@@ -55,8 +50,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SessionCalibrationInputs(BundleAdjustmentInputs):
-    """What the session solve reads: the bundle-adjustment stage's inputs with
-    ``session: true`` (so its params hash tells it from a per-recording solve)."""
+    """The bundle-adjustment inputs with ``session: true`` (its params hash tells it apart)."""
 
     STAGE = "session_calibration"
 
@@ -98,14 +92,10 @@ def compute_session_calibration(
     trials: Sequence[Float[np.ndarray, "V T P 2"]],
     confs: Sequence[Float[np.ndarray, "V T P"] | None] | None = None,
 ) -> tuple[BundleAdjusted, list[Int[np.ndarray, " F"]]]:
-    """One bundle adjustment of ``cameras`` over every trial of a session.
-
-    ``max_frames`` is shared between the trials
-    (:func:`~flylib.bundle_adjustment.select_session_frames`), the chosen frames are
-    solved as one sequence with the ``bundle_adjustment`` table; no file is read or
-    written. Returns the result (``points3d`` over the chosen frames, trial after
-    trial) and each trial's chosen frame indices.
-    """
+    """One bundle adjustment of ``cameras`` over every trial of a session (no file I/O), its
+    ``max_frames`` shared (:func:`~flylib.bundle_adjustment.select_session_frames`). Returns
+    the result (``points3d`` over the chosen frames, trial after trial) and each trial's
+    chosen frame indices."""
     from ..bundle_adjustment import bundle_adjust_sequence, select_session_frames
 
     confs = list(confs) if confs is not None else [None] * len(trials)
@@ -147,13 +137,9 @@ def run_session_calibration(
     members: Sequence[str],
     recording_dirs: Sequence[str | Path] | None = None,
 ) -> Path:
-    """Solve a session's rig from its members' 2D (``pose2d_paths``, in ``members``'
-    order) and write it to ``out_path`` (a bundle-adjustment artifact whose provenance
-    names the session and its members) and ``calibration_path`` (Anipose).
-
-    The starting rig is the config rig as the first member builds it. ResultsError
-    when the members' views or image sizes differ (they are no one rig).
-    """
+    """Solve a session's rig from its members' 2D (in ``members``' order), starting from the
+    first member's config rig, and write it to ``out_path`` (provenance naming the session and
+    members) and ``calibration_path`` (Anipose). ResultsError when views or image sizes differ."""
     from ..interop.anipose import write_anipose_toml
     from ..provenance import stage_provenance
     from ..results import Pose2dData, write_stage
@@ -210,12 +196,9 @@ def run_session_summary(
     name: str,
     members: Sequence[str],
 ) -> dict[str, Any]:
-    """The session's rig and each member's own rig side by side: the held-out-view
-    error of each member's 2D triangulated with either rig (the ``triangulation``
-    table's method), per recording and pooled; written to ``out_path`` (JSON).
-
-    ``better`` names the rig with the lower pooled median (``session`` or
-    ``per_recording``); ``seconds`` the solves' times."""
+    """Held-out-view error of each member's 2D triangulated with the session's rig and with its
+    own, per recording and pooled, written to ``out_path`` (JSON); ``better`` names the rig
+    with the lower pooled median (``session`` or ``per_recording``; ``None`` when equal)."""
     from ..results import Pose2dData, read_stage
 
     session = read_stage(session_path, "bundle_adjustment")
@@ -235,8 +218,10 @@ def run_session_summary(
         per_recording[rec] = row
     overall = {label: _stats(np.concatenate(parts)) for label, parts in pooled.items()}
     medians = {k: v["median"] for k, v in overall.items()}
-    better = (
-        None if any(m is None for m in medians.values()) else min(medians, key=lambda k: medians[k])
+    better = (  # None: a median missing, or equal (a session of one recording is its own solve)
+        None
+        if None in medians.values() or len(set(medians.values())) == 1
+        else min(medians, key=lambda k: medians[k])
     )
     summary = {
         "session": name,

@@ -1,9 +1,6 @@
 """What the stage homes share: the rig a stage after bundle adjustment runs on
-(bundle adjustment's artifact, else the config rig of its inputs: :func:`rig_for`,
-:class:`RigRuntime`, the tracked-rig helpers, :func:`run_inputs` for a run without that
-artifact) and the boundary that turns a numerical failure on a recording's data into
-one line (:func:`solving`).
-"""
+(:func:`rig_for`, :func:`run_inputs`) and the boundary turning a numerical failure on a
+recording's data into one line (:func:`solving`)."""
 
 from __future__ import annotations
 
@@ -25,14 +22,8 @@ def image_sizes(pose2d) -> dict[str, tuple[int, int]]:
 
 @dataclass(frozen=True)
 class RigRuntime:
-    """The untracked part of a stage that builds the config rig.
-
-    Attributes
-    ----------
-    config_dir
-        Where a relative calibration path is looked up after the recording's folder
-        (the config file's folder; :attr:`~flylib.pipeline.inputs.RigSpec.config_dir`).
-    """
+    """Untracked part of a stage building the config rig: ``config_dir``, where a relative
+    calibration path is looked up after the recording's folder (the config file's folder)."""
 
     config_dir: Path | None = None
 
@@ -43,24 +34,16 @@ class RigRuntime:
 
 
 def tracked_rig(config):
-    """The config rig a stage after bundle adjustment tracks: ``None`` while bundle
-    adjustment is on (the rig is then in that stage's artifact), else a
-    :class:`~flylib.pipeline.inputs.RigSpec`."""
+    """The config rig (a :class:`~flylib.pipeline.inputs.RigSpec`) a later stage tracks;
+    ``None`` while bundle adjustment is on (the rig is in its artifact)."""
     from .inputs import RigSpec
 
     return None if config.stage_flags()["bundle_adjustment"] else RigSpec.from_config(config)
 
 
 def rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stage: str):
-    """The bundle-adjusted rig when that artifact is given, else the config rig
-    (``rig``, a :class:`~flylib.pipeline.inputs.RigSpec`).
-
-    Raises
-    ------
-    ResultsError
-        When the stage's params hold no rig (bundle adjustment on) and no
-        bundle-adjustment artifact is given.
-    """
+    """The bundle-adjusted rig when ``ba_path`` is given, else the config ``rig``
+    (ResultsError when that is ``None`` too)."""
     if ba_path:
         from ..results import read_stage
 
@@ -75,18 +58,16 @@ def rig_for(rig, pose2d, ba_path: str | Path | None, recording_dir=None, *, stag
 
 
 def run_inputs(config, stage: str, ba_path: str | Path | None = None):
-    """``stage``'s inputs for a run with or without a bundle-adjustment artifact
-    (``ba_path``): without one the rig is the config's even while bundle adjustment is
-    on, as with it off (so the params track that rig). What a stage script run by hand
-    without ``--bundle-adjustment`` uses, and tests that run a stage on its own."""
+    """``stage``'s inputs with or without a bundle-adjustment artifact (``ba_path``); without
+    one, the config rig even while bundle adjustment is on (so the params track it). For a
+    stage script run by hand, and tests running a stage on its own."""
     from .inputs import stage_inputs
 
     return stage_inputs(_rig_source(config, ba_path), stage)
 
 
 def _rig_source(config, ba_path):
-    """``config`` as the stage runs it: without a bundle-adjustment artifact the rig is
-    the config's, as with bundle adjustment off (so the params track that rig)."""
+    """``config``, with bundle adjustment off when no artifact is given (see :func:`run_inputs`)."""
     if ba_path or not config.stage_flags()["bundle_adjustment"]:
         return config
     data = dict(config.data)
@@ -96,11 +77,10 @@ def _rig_source(config, ba_path):
 
 @contextmanager
 def solving(stage: str, recording) -> Iterator[None]:
-    """The stage boundary of a numerical stage: any exception its solver raises on the
-    recording's data (``LinAlgError``, overflow, a NaN-filled system, memory) becomes one
-    :class:`StageError` line naming the recording and what to check. flylib's own errors
-    and storage errors (``OSError``) pass unchanged; the original is kept as the error's
-    cause and its traceback logged at DEBUG."""
+    """A numerical stage's boundary: any exception its solver raises on the recording's data
+    (``LinAlgError``, overflow, NaNs, memory) becomes one :class:`StageError` line naming the
+    recording and what to check (cause kept, traceback at DEBUG); flylib's own errors and
+    ``OSError`` pass unchanged."""
     try:
         yield
     except (FlylibError, OSError):
@@ -111,6 +91,3 @@ def solving(stage: str, recording) -> Iterator[None]:
             f"{recording}: {stage.replace('_', ' ')} failed on this recording's data "
             f"({type(exc).__name__}: {one_line(exc, 200) or 'no detail'}); {by_name(stage).hint}"
         ) from exc
-
-
-# -- stages --------------------------------------------------------------------

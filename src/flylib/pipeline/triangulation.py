@@ -1,13 +1,6 @@
-"""The triangulation stage: its inputs, the pure compute step, and the run that reads
-and writes its files.
-
-``run_triangulation`` loads the 2D (pictorial structures' when that stage ran, else
-pose2d's), the rig (the bundle-adjusted one when given, else the config rig) and a
-corrections sidecar when there is one, calls :func:`compute_triangulation` (the
-triangulation, corrections applied), judges it by its held-out-view error
-(:func:`flylib.accuracy.triangulation_accuracy` of :func:`triangulation_method`) and
-writes ``<outdir>/stages/triangulation.h5``.
-"""
+"""The triangulation stage: 2D (PS's when it ran, else pose2d's) + rig + manual corrections ->
+3D, judged by its held-out-view error (:func:`flylib.accuracy.triangulation_accuracy`), in
+``<outdir>/stages/triangulation.h5``."""
 
 from __future__ import annotations
 
@@ -45,14 +38,10 @@ __all__ = [
 @register
 @dataclass(frozen=True)
 class TriangulationInputs(StageInputs):
-    """What the triangulation stage reads.
-
-    ``triangulation`` holds the method and the knobs that method reads (the others at
-    their defaults: the stage tracks only those); ``skeleton`` is for the held-out
-    accuracy's bone spread and left/right figures; ``points_from`` is
-    ``"pictorial_structures"`` or ``"pose2d"``; ``rig`` is ``None`` while bundle
-    adjustment is on (the rig then comes from that stage's artifact).
-    """
+    """What the triangulation stage reads. ``triangulation``: the method and only the knobs it
+    reads (tracked); ``skeleton``: for the held-out accuracy's bone and left/right figures;
+    ``points_from``: ``"pictorial_structures"`` or ``"pose2d"``; ``rig``: ``None`` while
+    bundle adjustment is on (the rig comes from its artifact)."""
 
     STAGE = "triangulation"
 
@@ -76,9 +65,9 @@ class TriangulationInputs(StageInputs):
 
 @dataclass(frozen=True)
 class Triangulated:
-    """The triangulation stage's result: ``points3d`` NaN where not reconstructed,
-    ``points`` the 2D each point was solved from (outlier views NaN), ``reproj_error``
-    in pixels, ``corrected`` the points a manual correction changed."""
+    """The triangulation's result: ``points3d`` NaN where not reconstructed, ``points`` the 2D
+    each was solved from (outlier views NaN), ``reproj_error`` in pixels, ``corrected`` the
+    points a manual correction changed."""
 
     points3d: Float[np.ndarray, "T P 3"]
     points: Float[np.ndarray, "V T P 2"]
@@ -93,19 +82,14 @@ def compute_triangulation(
     conf: Float[np.ndarray, "V T P"] | None = None,
     corrections: Corrections | None = None,
 ) -> Triangulated:
-    """Lift ``pts2d`` to 3D on ``cameras`` as ``inputs.triangulation`` says
-    (:func:`flylib.triangulation.reconstruct`), with the manual ``corrections`` applied
-    (no file is read or written). The review GUI re-solves each edit with it.
+    """Lift ``pts2d`` to 3D on ``cameras`` (:func:`flylib.triangulation.reconstruct`), with the
+    manual ``corrections`` (exactly ``pts2d``'s ``(V, T, P)``, else ResultsError) applied; no
+    file I/O. The review GUI re-solves each edit with it.
 
-    Corrections: an edited 2D point replaces the detection in its view (a NaN edit
-    removes it) and gets confidence 1, an invisible one is dropped
-    (:meth:`~flylib.corrections.Corrections.apply_2d`); a ``fixed`` view the robust
-    method rejected is put back, the point re-solved by DLT from the kept views plus
-    the fixed ones; an edited 3D point replaces the triangulated one (its reprojection
-    errors follow).
-
-    ``pts2d`` is pose2d's or pictorial structures' 2D; ``corrections`` must cover
-    exactly its ``(V, T, P)`` (ResultsError otherwise).
+    An edited 2D point replaces the detection (a NaN edit removes it) with confidence 1
+    (:meth:`~flylib.corrections.Corrections.apply_2d`); a ``fixed`` view the robust method
+    rejected is put back and the point re-solved by DLT from the kept and fixed views; an
+    edited 3D point replaces the triangulated one (its reprojection errors follow).
     """
     from ..camera import model as camera_model
     from ..triangulation import reconstruct, reprojection_error
@@ -139,8 +123,7 @@ def compute_triangulation(
 
 
 def triangulation_method(params: TriangulationParams, cameras: CameraGroup) -> Triangulate:
-    """The stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls it
-    (:func:`flylib.triangulation.reconstruct` with the ``triangulation`` table)."""
+    """The stage's 3D method as :func:`flylib.accuracy.held_out_errors` calls it."""
     from ..triangulation import reconstruct
 
     def triangulate(pts2d, conf):
@@ -160,17 +143,14 @@ def run_triangulation(
     recording_dir: str | Path | None = None,
     corrections_path: str | Path | None = None,
 ) -> Path:
-    """Lift the 2D keypoints (pictorial-structures-corrected when given, else pose2d's)
-    to 3D with the bundle-adjusted rig when given, else the config rig.
+    """Lift the 2D (PS's when given, else pose2d's) to 3D with the bundle-adjusted rig when
+    given, else the config rig. ``points`` holds the 2D the 3D was solved from.
 
-    With ``corrections_path`` (a ``corrections.h5`` sidecar, see
-    :mod:`flylib.corrections`) the manual edits are applied first; the artifact then
-    also holds ``corrected`` ``(T, P)`` and ``corrected_2d`` ``(V, T, P)`` (bool masks of
-    what a person changed), ``edited_2d`` ``(V, T, P, 2)`` (the 2D a person gave where
-    ``corrected_2d`` is set, NaN where marked invisible; the refinement and the
-    consistency check read the corrected 2D from it) and the sidecar's name and edit
-    count as attribute ``corrections``. ``points`` holds the 2D the 3D was solved from
-    (corrections applied); the detection stays in the pose2d artifact.
+    With ``corrections_path`` (a ``corrections.h5`` sidecar, :mod:`flylib.corrections`) the
+    edits are applied first; the artifact then also holds bool masks ``corrected`` ``(T, P)``
+    and ``corrected_2d`` ``(V, T, P)``, ``edited_2d`` ``(V, T, P, 2)`` (the 2D a person gave
+    where ``corrected_2d``, NaN where marked invisible; refinement reads it) and attribute
+    ``corrections`` (the sidecar's name, edit count, sha256).
     """
     from ..accuracy import triangulation_accuracy
     from ..corrections import Corrections

@@ -1,18 +1,15 @@
 """Inputs are never outputs: a run's planned files checked against the user's, before any job.
 
-Every file a recording's jobs would write (the stage artifacts, ``results.h5``, the
-summaries, the config snapshot, videos, kinematics and NeuroMechFly files, the NWB
-export: :func:`planned_outputs`, named where each is owned) is compared with every
-file the run reads (footage, imported 2D, calibration files, config files, recording
-sheets, corrections, ``nwb.yaml``) and with the files already in the output folder.
-A planned output that is an input, or an existing file flylib did not write, stops the
-run with one line naming the file, both roles and the fix.
+Every file a recording's jobs would write (:func:`planned_outputs`) is compared with every
+file the run reads (footage, imported 2D, calibration, config files, recording sheets,
+corrections, ``nwb.yaml``) and with the files already in the output folder. A planned output
+that is an input, or an existing file flylib did not write, stops the run with one line
+naming the file, both roles and the fix.
 
-How flylib knows its own files: an output folder's :data:`flylib.paths.OUTPUTS_MANIFEST`
-lists the planned outputs once a run has claimed the folder (:func:`record_planned`),
-so a re-run replaces them; an HDF5 file carrying flylib's ``meta`` attribute is
-flylib's anywhere; and a folder without a manifest but with flylib's stage artifacts
-(written before the manifest existed) is flylib's whole.
+flylib's own files: those listed in an output folder's :data:`flylib.paths.OUTPUTS_MANIFEST`
+(written once a run claims the folder, :func:`record_planned`); any HDF5 file carrying
+flylib's ``meta`` attribute; and all of a folder without a manifest but with flylib's stage
+artifacts (written before the manifest existed).
 """
 
 from __future__ import annotations
@@ -22,7 +19,13 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from ..paths import OUTPUTS_MANIFEST, record_outputs, recorded_outputs, written_by_flylib
+from ..paths import (
+    OUTPUTS_MANIFEST,
+    real_paths,
+    record_outputs,
+    recorded_outputs,
+    written_by_flylib,
+)
 
 __all__ = ["NWB_FILE", "output_problems", "planned_outputs", "record_planned"]
 
@@ -32,9 +35,8 @@ _FIX = "set outdir to another folder, e.g. '{recording}/flylib_outputs'"
 
 
 def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
-    """``name -> what writes it`` of every file a recording's jobs write in its outdir
-    under ``flags`` (``Config.stage_flags()``): names relative to the outdir
-    (``stages/pose2d.h5``), e.g. ``"assemble's calibration.toml"``."""
+    """``name`` (relative to the outdir) ``-> what writes it`` (e.g. ``"assemble's
+    calibration.toml"``) of every file a recording's jobs write under ``flags``."""
     from ..kinematics import FILES as KINEMATICS_FILES
     from ..neuromechfly import FILES as NEUROMECHFLY_FILES
     from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
@@ -115,19 +117,15 @@ def _adopted(outdir: Path) -> bool:
 def output_problems(
     config: Any, recordings: Iterable[Any], config_files: Iterable[str] = ()
 ) -> list[str]:
-    """One ``outdir: ...`` line per planned output that is an input of the run or an
-    existing file flylib did not write (nothing is read or written but names and stats).
-    ``recordings``: the planned :class:`flylib.recordings.Recording` objects;
-    ``config_files``: the paths of the run's config files.
-    """
+    """One ``outdir: ...`` line per planned output that is an input of the run or an existing
+    file flylib did not write (only names and stats are read)."""
     planned = planned_outputs(config, config.stage_flags())
-    config_files = [os.path.realpath(f) for f in config_files]
+    real = real_paths()
+    config_files = [real(f) for f in config_files]
     problems: list[str] = []
     for rec in recordings:
         outdir = Path(os.path.realpath(rec.outdir))
-        inputs = {
-            os.path.realpath(p): role for p, role in _run_inputs(config, rec, config_files).items()
-        }
+        inputs = {real(p): role for p, role in _run_inputs(config, rec, config_files).items()}
         for name, writer in planned.items():
             role = inputs.get(str(outdir / name))
             if role is not None:
@@ -156,8 +154,8 @@ def output_problems(
 
 
 def record_planned(config: Any, outdirs: Iterable[str | Path]) -> None:
-    """Record the planned outputs in each claimed output folder's manifest, so the next
-    run replaces them as flylib's (called once the run holds the folders)."""
+    """Record the planned outputs in each claimed output folder's manifest (the next run
+    replaces them as flylib's)."""
     names = list(planned_outputs(config, config.stage_flags()))
     for outdir in outdirs:
         Path(outdir).mkdir(parents=True, exist_ok=True)

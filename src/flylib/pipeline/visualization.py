@@ -1,11 +1,5 @@
-"""The visualization stage: the configured overlay videos of one recording, drawn
-over its footage from ``results.h5``.
-
-:class:`VisualizationInputs` is what the stage reads: the ``visualization`` table and
-the skeleton's palette (its tracked params), and, untracked by design, where each
-view's footage is and what to do with a corrupt frame (see
-:class:`VisualizationRuntime`).
-"""
+"""The visualization stage: the configured overlay videos of one recording, drawn over its
+footage from ``results.h5``."""
 
 from __future__ import annotations
 
@@ -19,21 +13,10 @@ from .inputs import SkeletonSpec, StageInputs, register
 
 @dataclass(frozen=True)
 class VisualizationRuntime:
-    """What the visualization job reads that is not in its params, by design: each
-    of these fixes the 2D the result was made from, so pose2d's params track it, and
-    a change re-runs pose2d and, through its artifact, everything after it (this
-    stage included).
-
-    Attributes
-    ----------
-    footage
-        ``(view, glob)`` per configured view, in view order: the glob of the source
-        that feeds the view (``sources``, ``pose2d.pathways``,
-        ``pose2d.output_points``), ``None`` for a view no source feeds.
-    on_corrupt_frame
-        ``io.on_corrupt_frame``: ``"error"`` or ``"missing"`` (a corrupt image is
-        drawn as the background).
-    """
+    """Untracked by design: each fixes the 2D the result was made from, so pose2d's params
+    track it and a change re-runs everything after (this stage included). ``footage``:
+    ``(view, glob)`` per view in order, the glob of the source feeding it (``None``: none);
+    ``on_corrupt_frame``: ``"error"`` or ``"missing"`` (a corrupt image drawn as background)."""
 
     footage: tuple[tuple[str, str | None], ...] = ()
     on_corrupt_frame: str = "error"
@@ -47,9 +30,8 @@ class VisualizationRuntime:
 @register
 @dataclass(frozen=True)
 class VisualizationInputs(StageInputs):
-    """The visualization stage's inputs: the ``visualization`` table (parsed by
-    :func:`flylib.visualization.read_video_specs`) and the skeleton's ``limb_palette``;
-    ``runtime`` (:class:`VisualizationRuntime`) is tracked by pose2d's params instead."""
+    """The visualization stage's inputs: the ``visualization`` table and the skeleton's
+    ``limb_palette``; ``runtime`` is tracked by pose2d's params instead."""
 
     STAGE = "visualization"
 
@@ -68,9 +50,7 @@ class VisualizationInputs(StageInputs):
 
 
 def footage_globs(config) -> tuple[tuple[str, str | None], ...]:
-    """``(view, glob)`` per view ``config`` feeds from a footage source (``None``: a
-    source without a pattern), in view order (:func:`flylib.config.sources.footage_globs`
-    as a frozen tuple)."""
+    """:func:`flylib.config.sources.footage_globs` as a frozen ``(view, glob)`` tuple."""
     from ..config.sources import footage_globs as view_globs
 
     return tuple(view_globs(config).items())
@@ -85,13 +65,9 @@ def run_visualization(
     progress: bool = False,
     speed: float | None = None,
 ) -> list[Path]:
-    """Render the configured videos of one recording (``results.h5`` over the footage in
-    ``recording_dir``) as ``<outdir>/<video_name>.mp4``; returns them in config order.
-
-    Points a person corrected (``triangulation/corrected`` in results.h5) are ringed.
-    ``speed``: a multiple of the recording's rate when the config sets none (the demo's
-    slow motion).
-    """
+    """Render one recording's configured videos as ``<outdir>/<video_name>.mp4`` (returned in
+    config order); corrected points are ringed. ``speed``: a multiple of the recording's rate
+    when the config sets none (the demo's slow motion)."""
     from ..corrections import read_corrected
     from ..interop.views import footage_files
     from ..results import PoseResult

@@ -8,6 +8,7 @@ import contextlib
 import logging
 import os
 import sqlite3
+import struct
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -23,10 +24,74 @@ def video_frame_count(path: Path) -> int | None:
     """Frame count a video container reports (header only, no decoding), or ``None`` when it stores
     none; kept in the user's cache (:class:`FrameCountCache`) while the file is unchanged. A file
     that cannot be opened as a video is a :class:`FootageError`."""
-    return FRAME_COUNTS.count(path, _header_frame_count)
+    return FRAME_COUNTS.count(path, header_frame_count)
 
 
-def _header_frame_count(path: Path) -> int | None:
+def header_frame_count(path: Path) -> int | None:
+    """A video's frame count from its header (MP4 sample table, else av)."""
+    return mp4_frame_count(path) or _av_frame_count(path)
+
+
+def _mp4_boxes(data: bytes, start: int, end: int):
+    """``(type, payload start, end)`` of the MP4 boxes in ``data[start:end]``."""
+    while start + 8 <= end:
+        size, kind = struct.unpack_from(">I4s", data, start)
+        head = 16 if size == 1 else 8
+        size = struct.unpack_from(">Q", data, start + 8)[0] if size == 1 else size or end - start
+        if size < head or start + size > end:
+            return
+        yield kind, start + head, start + size
+        start += size
+
+
+def mp4_frame_count(path: Path) -> int | None:
+    """Sample count of an MP4/QuickTime file's first video track, summed from its ``stts`` table as
+    FFmpeg does (a 60th of the time of opening it with av, which decodes); ``None`` for any other
+    file, a fragmented one or anything unexpected: av reads those."""
+    if path.suffix.lower() not in (".mp4", ".mov", ".m4v"):
+        return None
+    try:
+        with open(path, "rb") as f:
+            size, pos = os.fstat(f.fileno()).st_size, 0
+            while pos + 16 <= size:  # the top level, to the moov box, without reading mdat
+                f.seek(pos)
+                kind, start, end = next(_mp4_boxes(f.read(16) + bytes(8), 0, 1 << 62))
+                if kind == b"moov":
+                    f.seek(pos)
+                    moov = f.read(min(end, size - pos))
+                    break
+                pos += end
+            else:
+                return None
+    except (OSError, StopIteration):
+        return None
+    for kind, start, end in _mp4_boxes(moov, 8, len(moov)):
+        if kind == b"mvex":
+            return None
+        if kind == b"trak":
+            boxes: dict = {}  # the first of each: a QuickTime minf has a data-handler hdlr too
+            for kind_, span in _nested(moov, start, end):
+                boxes.setdefault(kind_, span)
+            hdlr, stts = boxes.get(b"hdlr"), boxes.get(b"stts")
+            if hdlr and moov[hdlr[0] + 8 : hdlr[0] + 12] == b"vide":
+                if not stts or stts[1] - stts[0] < 8:
+                    return None
+                n = struct.unpack_from(">I", moov, stts[0] + 4)[0]
+                if stts[0] + 8 + 8 * n > stts[1]:
+                    return None
+                return sum(struct.unpack_from(f">{2 * n}I", moov, stts[0] + 8)[::2]) or None
+    return None
+
+
+def _nested(data: bytes, start: int, end: int):
+    """``(type, (payload start, end))`` of every box under a ``trak``'s media boxes."""
+    for kind, s, e in _mp4_boxes(data, start, end):
+        yield kind, (s, e)
+        if kind in (b"mdia", b"minf", b"stbl"):
+            yield from _nested(data, s, e)
+
+
+def _av_frame_count(path: Path) -> int | None:
     import av
 
     try:
@@ -42,8 +107,8 @@ def _header_frame_count(path: Path) -> int | None:
 class FrameCountCache:
     """Video frame counts already read, in ``<cache>/frame_counts.sqlite3``
     (:func:`flylib.paths.cache_dir`), by path and file identity (device, inode, size, modification
-    time): a file rewritten or replaced is read again. Opening a video costs about a millisecond, 7
-    s for the 7,000 videos of a 1,000-recording batch, which Snakemake plans again on every call. A
+    time): a file rewritten or replaced is read again. Opening a video with av costs some 3 ms, 20 s
+    for the 7,000 videos of a 1,000-recording batch, which Snakemake plans again on every call. A
     cache that cannot be opened, locked or written is passed by: the count is then read from the
     file."""
 
@@ -86,7 +151,7 @@ class FrameCountCache:
             st = os.stat(path)
         except OSError:
             return read(path)  # it says what is wrong with the path
-        key = os.path.realpath(path)
+        key = os.path.abspath(path)  # the identity below tells a replaced or relinked file
         identity = f"{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}"
         with self._lock:
             db = self._connection()

@@ -9,7 +9,6 @@ import glob
 import hashlib
 import logging
 import os
-import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,7 +16,7 @@ from typing import Any
 
 from ..config.sources import source_patterns
 from ..errors import ConfigError, FootageError, did_you_mean
-from ..paths import fill_template
+from ..paths import file_name, fill_template
 from .footage import find_recording, natural_sorted
 from .lookup import check_recording_path, is_pattern, relative_lookup
 from .sheets import is_sheet, read_sheet
@@ -30,7 +29,6 @@ DEMO_ID = "demo"
 TRUTH_FILE = "truth.h5"
 DLC_SCORER = "flylibdemo"
 
-_ID_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 #: The keys of a ``recordings`` entry that is a table.
 _ENTRY_KEYS = ("path", "outdir", "import", "demo", "recursive", "session")
 
@@ -209,7 +207,7 @@ def _unique_ids(paths: list[Path], fixed: dict[int, str]) -> list[str]:
 
     def name(i: int) -> str:
         parts = resolved[i].parts[-depth[i] :]
-        return _ID_UNSAFE.sub("_", "-".join(parts)).strip("_") or "recording"
+        return file_name("-".join(parts), "recording")
 
     ids = dict(fixed)
     for _ in range(64):

@@ -29,8 +29,8 @@ def _held_out(accuracy: dict, stage: str) -> dict:
 
 def summarize_results(path: Path) -> dict:
     """``{"meta", "handedness", "stages": [row...], "points": [row...], "bones": [row...],
-    "stage_3d", "accuracy"}``; rows are dicts of plain numbers and strings. Reprojection errors
-    are in pixels; the bone spread is the interquartile range of the bone's length over frames
+    "stage_3d", "accuracy", "session"}``; rows are dicts of plain numbers and strings. Reprojection
+    errors are in pixels; the bone spread is the interquartile range of the bone's length over frames
     divided by its median (0 for a rigid bone)."""
     with open_checked(path, "pass the results.h5 a run wrote") as f:
         meta = read_meta_from(f)
@@ -66,6 +66,7 @@ def summarize_results(path: Path) -> dict:
                 held = _held_out(accuracy, stage)["held_out_px"]
                 row["held_median"], row["held_p95"] = held["median"], held["p95"]
             stages.append(row)
+        rig = read_meta_from(f["bundle_adjustment"]) if "bundle_adjustment" in f else {}
         stage_3d = next((s for s in FINAL_3D if f"{s}/points3d" in f), None)
         source_2d = next((s for s in (*FINAL_3D, "pose2d") if f"{s}/points" in f), None)
         pts2d = f[f"{source_2d}/points"][()] if source_2d else None
@@ -119,4 +120,7 @@ def summarize_results(path: Path) -> dict:
         "bones": bone_rows,
         "stage_3d": stage_3d,
         "accuracy": accuracy,
+        # the session whose rig the results use ({name, members}) and the folder it was solved in
+        "session": rig.get("session")
+        and {**rig["session"], "folder": rig.get("writer", {}).get("outdir")},
     }

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, did_you_mean
+from ..paths import name_problem
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..config import Config
@@ -299,7 +300,7 @@ def _read_video(
         raise ConfigError(f"{where} must be a table with video_name and panels")
     _check_keys(video, _VIDEO_KEYS, where)
     name = video.get("video_name", video.get("name"))
-    if not isinstance(name, str) or not name or "/" in name or "\\" in name:
+    if not isinstance(name, str) or not name or name_problem(name):
         raise ConfigError(f"{where}.video_name must be a non-empty file stem, got {name!r}")
     width = _number(video.get("width"), f"{where}.width", integer=True, minimum=2, allow_none=True)
     height = _number(

@@ -5,7 +5,8 @@ import { drawTimeline, drawView, fitTransform, toCanvas, toImage } from "./draw.
 import { EditHistory, restoreMessages, touchedPoints } from "./history.js";
 import { applyLayout } from "./layout.js";
 import { buildLegend, drawFixedMark, drawPointLabel } from "./legend.js";
-import { itemPlan, neighbourItem, renderItems } from "./suspects.js";
+import { FramesAhead } from "./ahead.js";
+import { framesText, itemPlan, markCurrent, neighbourItem, renderItems, sameItem } from "./suspects.js";
 import { View3D } from "./view3d.js";
 
 const $ = (sel) => document.querySelector(sel);
@@ -22,6 +23,35 @@ const state = {
 const channel = new EditChannel({ onLost: serverLost, onChanged: changedElsewhere });
 
 function status(text) { $("#status").textContent = text; }
+
+// Keys and buttons act in the order pressed, each once the one before finished its round
+// trips: typed ahead, a key acts on the frame, item and point the keys before it left.
+const actions = { pending: [], running: false, sending: 0 };
+
+function act(run, step = 0) {
+  const last = actions.pending[actions.pending.length - 1];
+  if (step && last && last.step) last.step += step;  // a held arrow key: one jump
+  else actions.pending.push({ run, step });
+  if (!actions.running) drain();
+  showBusy();
+}
+
+async function drain() {
+  actions.running = true;
+  while (actions.pending.length) {
+    const { run, step } = actions.pending.shift();
+    showBusy();
+    try { await (step ? goto(state.frame + step) : run()); } catch (err) { status(err.message); console.error(err); }
+  }
+  actions.running = false;
+  showBusy();
+}
+
+function showBusy() {
+  const waiting = actions.pending.length;
+  $("#busy").hidden = !actions.running && !actions.sending;
+  $("#busy").textContent = waiting ? `working\u2026 (${waiting} queued)` : "working\u2026";
+}
 
 async function start() {
   state.meta = await getJSON("/api/meta");
@@ -76,6 +106,34 @@ async function start() {
   setPanel(panel ? panel === "open" : window.innerWidth >= 1500);
   await loadSuspects();
   await goto(initialFrame(new URLSearchParams(location.search).get("frame")));
+  watchResults();
+}
+
+function watchResults() {
+  // a re-run rewrote results.h5: this page shows the old result until reloaded
+  const check = setInterval(async () => {
+    if (state.offline) return;
+    let meta;
+    try { meta = await getJSON("/api/meta"); } catch { return; }
+    if (!meta.results_changed) return;
+    clearInterval(check);
+    const dirty = state.data && state.data.dirty;
+    $("#results-banner span").textContent = `${meta.results} was rewritten on disk (the workflow ` +
+      "ran again?): the views still show the result this page opened. Reload reads the new one" +
+      (dirty ? "; the unsaved edits are journaled and replayed onto it." : ".");
+    $("#results-banner").hidden = false;
+  }, RESULTS_CHECK_MS);
+}
+
+const RESULTS_CHECK_MS = 3000;
+
+async function reloadResults() {
+  try {
+    await postJSON("/api/reload", {});
+  } catch (err) {
+    return showAlert(`not reloaded: ${err.detail || err.message}`);
+  }
+  location.reload();
 }
 
 function initialFrame(asked) {
@@ -100,6 +158,7 @@ function relayout() {
 // -- frames --------------------------------------------------------------------------
 
 async function goto(frame) {
+  // the frame's images and points drawn together, once all are here (fetched ahead: at once)
   const meta = state.meta;
   frame = Math.max(0, Math.min(meta.frames - 1, Math.round(frame)));
   state.frame = frame;
@@ -107,21 +166,42 @@ async function goto(frame) {
   $("#slider").value = frame;
   $("#frame-label").textContent = `/ ${meta.frames - 1}`;
   if (document.activeElement !== $("#frame-input")) $("#frame-input").value = String(frame);
-  for (const view of state.views) {
-    const image = new Image();
-    image.onload = () => {
-      if (id !== state.requestId) return;
-      state.images[view.name] = image;
-      draw(view);
-    };
-    image.src = apiUrl(`/api/frame/${encodeURIComponent(view.name)}/${frame}`);
-  }
-  const data = await getJSON(`/api/points/${frame}`);
+  state.ahead ||= new FramesAhead(state.views.map((v) => v.name));
+  const entry = state.ahead.get(frame);
+  const bitmaps = await Promise.all(state.views.map((view) => entry.images[view.name]));
+  let data = await entry.points;
+  if (data.revision !== state.revision) data = await getJSON(`/api/points/${frame}`);  // edited since
   if (id !== state.requestId) return;
+  followPoint(state.data, data);
+  state.views.forEach((view, i) => { if (bitmaps[i]) state.images[view.name] = { bitmap: bitmaps[i], frame }; });
   state.data = data;
   state.revision = data.revision;
   redrawAll();
-  renderSuspectTable();
+  markCurrent($("#suspects tbody"), frame);
+  state.ahead.want(framesAhead(frame));
+}
+
+function framesAhead(frame) {
+  // the next frames (half a second's while playing), the previous one, the next / previous item
+  const n = state.playing ? Math.max(4, Math.ceil(state.playing.fps / 2)) : 4;
+  const point = state.selected ? state.selected.point : null;
+  const items = state.items.length ? [1, -1].map((d) => neighbourItem(state.items, state.sort, frame, point, d).peak_frame) : [];
+  return [...Array.from({ length: n }, (_, i) => frame + 1 + i), frame - 1, ...items]
+    .filter((f) => f >= 0 && f < state.meta.frames);
+}
+
+const pointAt = (data, view, point) => data && (data.views[view.index].points2d[point] || data.views[view.index].reprojected[point]);
+
+function followPoint(before, after) {
+  // focused on a point, each zoomed view pans with it from frame to frame (it stays where it was)
+  if (state.layout !== "focus" || !state.selected) return;
+  for (const view of state.views) {
+    const a = pointAt(before, view, state.selected.point), b = pointAt(after, view, state.selected.point);
+    const z = state.zoom[view.name];
+    if (!a || !b || z.scale <= 1 || !view.transform) continue;
+    z.x -= (b[0] - a[0]) * view.transform.scale;
+    z.y -= (b[1] - a[1]) * view.transform.scale;
+  }
 }
 
 function resize(view) {
@@ -145,13 +225,11 @@ function draw(view) {
   const image = state.images[view.name];
   const sel = state.selected && state.selected.view === view.name ? state.selected.point : null;
   const d = state.display;
-  view.transform = drawView(view.canvas, image, view, state.meta, state.data,
+  view.transform = drawView(view.canvas, image && image.bitmap, view, state.meta, state.data,
     { zoom: state.zoom[view.name], viewIndex: view.index, selected: sel, overlay: d.overlay,
       limb: d.limb, peek: state.peek, filter: footageFilter() });
   if (!state.peek) drawMarks(view, sel);
-  const imageReady = image && image.complete && image.src.endsWith(`/${state.frame}`) ||
-    image && image.src.includes(`/${state.frame}?`);
-  if (state.data && state.data.frame === state.frame && imageReady) {
+  if (state.data && state.data.frame === state.frame && image && image.frame === state.frame) {
     view.canvas.dataset.drawnFrame = String(state.frame);
   }
 }
@@ -165,12 +243,16 @@ function drawMarks(view, selected) {
   });
   const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
   const shown = (p) => state.display.limb === null || state.meta.point_limbs[p] === state.display.limb;
-  // labels always on (l): every drawn point's name; else the hovered and the selected one
+  // labels always on (l): every drawn point's name; else the hovered and the selected one;
+  // a thumbnail names the selected point only
   const named = state.display.labels ? state.meta.points.map((_, p) => p).filter(shown) : [];
-  for (const p of new Set([...named, selected, hover])) {
+  const thumbnail = state.layout === "focus" && view.index !== state.focus;
+  view.labelled = [];  // the names drawn (the browser test reads them)
+  for (const p of new Set(thumbnail ? [state.selected && state.selected.point] : [...named, selected, hover])) {
     if (p === null || p === undefined) continue;
     const xy = v.points2d[p] || v.reprojected[p];
     if (!xy) continue;
+    view.labelled.push(p);
     drawPointLabel(view.canvas, toCanvas(view.transform, xy), state.meta.points[p], state.meta.point_colors[p]);
   }
 }
@@ -212,6 +294,10 @@ function showDisplay() {
     $(`#${key}`).value = String(d[key]);
     $(`#${key}-value`).textContent = key === "gamma" ? d.gamma.toFixed(2) : `${d[key]}%`;
   }
+  // what hides points, said in the header too (the panel may be closed)
+  const hiding = [!d.overlay && "overlay off (o)", d.limb !== null && `only ${state.meta.limbs[d.limb]} ([ ])`].filter(Boolean);
+  $("#display-state").textContent = hiding.join(", ");
+  $("#display-state").hidden = !hiding.length;
   // gamma: the SVG filter the footage is drawn through (CSS filters have none)
   for (const f of document.querySelectorAll("#gamma feFuncR, #gamma feFuncG, #gamma feFuncB")) {
     f.setAttribute("exponent", String(1 / d.gamma));
@@ -251,19 +337,25 @@ function cycleLimb(direction) {
 // -- playback --------------------------------------------------------------------------
 
 function togglePlay() {
-  // space: play from here at the chosen frames per second (each frame drawn before the next)
-  if (state.playing) { clearTimeout(state.playing.timer); state.playing = null; $("#play").textContent = "\u25B6"; return; }
-  const fps = Math.max(1, Math.min(120, Number($("#fps").value) || 10));
-  state.playing = { timer: null };
+  // space: play from here at the chosen frames per second; frames not fetched in time are
+  // skipped (the one shown is the one due, or the latest fetched before it): the rate holds
+  if (state.playing) { state.playing = null; $("#play").textContent = "\u25B6"; return; }
+  const playing = { fps: Number($("#fps").value) };  // kept within 1..120 as typed
+  state.playing = playing;
   $("#play").textContent = "\u275A\u275A";
-  const tick = async () => {
-    if (!state.playing) return;
-    const started = performance.now();
-    if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
-    await goto(state.frame + 1);
-    if (state.playing) state.playing.timer = setTimeout(tick, Math.max(0, 1000 / fps - (performance.now() - started)));
-  };
-  tick();
+  const from = state.frame, started = performance.now();
+  const due = (frame) => started + ((frame - from - 1) * 1000) / playing.fps;
+  (async () => {
+    while (state.playing === playing) {
+      if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
+      const late = 1 + Math.floor(((performance.now() - started) * playing.fps) / 1000);
+      let next = Math.min(state.meta.frames - 1, Math.max(state.frame + 1, from + late));
+      // fetching the due frame now would also delay the fetches ahead
+      if (!state.ahead.isReady(next)) next = [...Array(next - state.frame - 1).keys()].map((i) => next - 1 - i).find((f) => state.ahead.isReady(f)) ?? next;
+      await goto(next);
+      await new Promise((done) => setTimeout(done, Math.max(0, due(next + 1) - performance.now())));
+    }
+  })().catch((err) => { status(err.message); if (state.playing === playing) togglePlay(); });
 }
 
 async function stopServer() {
@@ -281,13 +373,15 @@ function redrawAll() {
   state.views.forEach(draw);
   if (state.view3d) state.view3d.update(state.data, state.selected ? state.selected.point : null);
   showSelection();
+  showItemLine();
   $("#undo").disabled = !state.history.canUndo;
   $("#redo").disabled = !state.history.canRedo;
   drawTimeline($("#timeline"), state.frameScore, new Set(state.suspectFrames), state.frame);
-  const edits = state.data ? state.data.edits : 0;
+  // the count on Save: what the next save adds (edits and review marks since the last one)
+  const edits = state.data ? state.data.edits : 0, unsaved = state.data ? state.data.unsaved : 0;
   $("#save").classList.toggle("dirty", Boolean(state.data && state.data.dirty));
-  $("#save").textContent = state.data && state.data.dirty ? `Save (${edits})` : "Save";
-  $("#save").title = `write corrections.h5 (s): ${edits} point edit(s) in all`;
+  $("#save").textContent = unsaved ? `Save (${unsaved})` : "Save";
+  $("#save").title = `write corrections.h5 (s): ${unsaved} unsaved change(s); ${edits} point edit(s) in all`;
 }
 
 // -- suspects --------------------------------------------------------------------------
@@ -304,6 +398,22 @@ function showSelection() {
     (flags.length ? ` (${flags.join(", ")})` : "");
 }
 
+function showItemLine() {
+  // the item worked on, one line under the frames: rank, reason here, frames, error here
+  const item = state.item, s = state.selected, line = $("#item-line");
+  if (!item) { line.textContent = `${state.items.length} suspect items: n / u go to them`; line.title = ""; return; }
+  const live = state.items.find((it) => sameItem(it, item));
+  const here = state.suspects.find((r) => r.point === item.point && r.frame === state.frame);
+  const view = s && s.point === item.point ? state.views.find((v) => v.name === s.view) : null;
+  const error = view && state.data ? state.data.views[view.index].error[item.point] : null;
+  line.textContent = [live ? `#${live.rank + 1} of ${state.items.length}` : "no longer suspect", item.point_name,
+    `frames ${framesText(live || item)}`, !item.frames.includes(state.frame) ? `frame ${state.frame} is outside it`
+      : here ? here.detail : "not suspect at this frame",
+    view && `error here ${error === null ? "none (not used)" : `${error.toFixed(1)} px`} in ${view.name}`,
+  ].filter(Boolean).join(" \u00b7 ");
+  line.title = line.textContent;
+}
+
 async function loadSuspects() {
   const payload = await getJSON("/api/suspects");
   state.suspects = payload.suspects;
@@ -316,6 +426,7 @@ async function loadSuspects() {
     `(${state.items.length} items: ${state.suspects.length} points in ${state.suspectFrames.length} frames)`;
   const timeline = $("#timeline");
   timeline.width = timeline.clientWidth || 800;
+  timeline.height = timeline.clientHeight || 36;
   renderSuspectTable();
 }
 
@@ -323,21 +434,21 @@ function renderSuspectTable() {
   const done = new Set((state.review ? state.review.items : []).filter((it) => it.done)
     .flatMap((it) => it.frames.map((f) => `${it.point}:${f}`)));
   renderItems($("#suspects tbody"), state.items, state.sort, state.frame, done,
-    (item) => jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames }));
+    (item) => act(() => jumpToSuspect(item)));
   document.querySelectorAll("#suspects th").forEach((th) => {
     th.classList.toggle("sorted", th.dataset.key === state.sort.key);
     th.classList.toggle("asc", th.dataset.key === state.sort.key && state.sort.asc);
   });
 }
 
-async function jumpToSuspect(s) {
+async function jumpToSuspect(item) {
   // the item (a point's consecutive suspect frames) stays the one worked on after its
-  // frames are corrected and it leaves the list (a = apply to it)
-  if (s.frames) state.item = { point: s.point, frames: [...s.frames] };
-  await goto(s.frame);
-  const view = bestViewFor(s.point);
-  state.selected = { view: view.name, point: s.point };
-  focusOn(view, s.point);
+  // frames are corrected and it leaves the list (a = apply to it; n / p go on from it)
+  state.item = { ...item, frames: [...item.frames] };
+  await goto(item.peak_frame);
+  const view = bestViewFor(item.point);
+  state.selected = { view: view.name, point: item.point };
+  focusOn(view, item.point);
 }
 
 function bestViewFor(point) {
@@ -355,8 +466,7 @@ function stepSuspect(direction) {
   // n / p: the next / previous item in the list's order, at its worst frame
   if (!state.items.length) return status("no suspects");
   const point = state.selected ? state.selected.point : null;
-  const item = neighbourItem(state.items, state.sort, state.frame, point, direction);
-  return jumpToSuspect({ frame: item.peak_frame, point: item.point, frames: item.frames });
+  return jumpToSuspect(neighbourItem(state.items, state.sort, state.frame, point, direction, state.item));
 }
 
 // -- editing ---------------------------------------------------------------------------
@@ -393,8 +503,25 @@ async function sendEdit(message, drag = null) {
   if (drag) drag.recorded = true;
   state.lastServerMs = reply.server_ms;
   status(`${message.op}: re-solved in ${reply.server_ms} ms on the server`);
+  if (message.durable !== false) sayConsequences([reply]);  // a drag: once, at its end
   redrawAll();
   return reply;
+}
+
+function sayConsequences(replies) {
+  // at once, what edits made worse: another view's error raised, or the edited view left
+  // out by the robust triangulation; the next edit or undo replaces the line
+  const lines = replies.map((r) => r.consequence && consequenceText(r.consequence, r.frame)).filter(Boolean);
+  $("#consequence").textContent = lines.length ? `${lines.join("; ")} \u2014 Ctrl+Z to undo` : "";
+  $("#consequence").hidden = !lines.length;
+}
+
+function consequenceText(c, frame) {
+  const said = c.rose.map((r) => r.after === null
+    ? `view ${r.view} dropped by the robust triangulation (was ${r.before.toFixed(1)} px)`
+    : `view ${r.view}'s error rose ${r.before.toFixed(1)} \u2192 ${r.after.toFixed(1)} px`);
+  if (c.dropped !== null) said.unshift(`dropped by the robust triangulation (${c.dropped.toFixed(1)} px from its 3D)`);
+  return said.length ? `${state.meta.points[c.point]} in ${c.view} at frame ${frame}: ${said.join(", ")}` : "";
 }
 
 async function replay(entry, which) {
@@ -406,6 +533,7 @@ async function replay(entry, which) {
     if (!(await submit(message))) { status(`${which} stopped: ${$("#status").textContent}`); return; }
   }
   await refresh();
+  sayConsequences([]);
   status(`${which}: ${entry.redo.map((m) => m.op).join(", ")} at frame ${entry.frame}`);
 }
 
@@ -484,10 +612,11 @@ async function applyToItem() {
     if (!reply) break;
     undo.push(...restoreMessages(data[f], [s.point]));
     redo.push({ ...message, durable: true });
-    results.push({ frame: f, error: reply.views[view.index].error[s.point] });
+    results.push({ frame: f, error: reply.views[view.index].error[s.point], reply });
   }
   if (redo.length) state.history.record({ frame: state.frame, undo, redo });
   await refresh();
+  sayConsequences(results.map((r) => r.reply));
   const shown = results.map((r) => `${r.frame}: ${r.error === null ? "dropped" : `${r.error.toFixed(1)} px`}`).join(", ");
   state.applied = { frames: results.map((r) => r.frame), errors: results.map((r) => r.error) };
   status(`applied to frames ${item.frames[0]}\u2013${item.frames[item.frames.length - 1]} of ${state.meta.points[s.point]} in ${s.view} ` +
@@ -532,9 +661,9 @@ async function nextUnreviewed(quiet = false) {
   const items = state.review ? state.review.items : [];
   const open = items.filter((it) => !it.done);
   if (!open.length) { if (!quiet) status(`every suspect item is reviewed (${state.review.done} / ${state.review.total})`); return; }
-  const here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
-  const next = items.slice(here + 1).find((it) => !it.done) || open[0];
-  await jumpToSuspect({ frame: next.peak_frame, point: next.point, frames: next.frames });
+  let here = items.findIndex((it) => state.selected && it.point === state.selected.point && it.frames.includes(state.frame));
+  if (here < 0 && state.item) here = items.findIndex((it) => sameItem(it, state.item));  // off it: after it
+  await jumpToSuspect(items.slice(here + 1).find((it) => !it.done) || open[0]);
 }
 
 async function refresh() {
@@ -628,10 +757,11 @@ async function save(checked = false) {
     }
     return;
   }
-  if (alertText().startsWith("not saved")) clearAlert();
+  // a failed save's alert, or the replayed journal's "press Save": said and done
+  if (alertText().startsWith("not saved") || alertText() === state.meta.notice) clearAlert();
   state.revision = reply.revision;
   status(`saved ${reply.edits} edits to ${reply.saved}; run snakemake to apply them`);
-  if (state.data) state.data.dirty = false;
+  if (state.data) Object.assign(state.data, { dirty: false, unsaved: 0 });
   redrawAll();
   window.flylib.saved = reply;
 }
@@ -639,10 +769,19 @@ async function save(checked = false) {
 function showSaveCheck(check) {
   const box = $("#save-check");
   const list = box.querySelector("ul");
-  const lines = [...check.worse.map((t) => `error raised: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const lines = [...check.worse.map((t) => `made worse: ${t}`), ...check.new_suspects.map((t) => `new suspect: ${t}`)];
+  const items = lines.map((text, i) => {
+    // a click goes to the line's frame (the dialog closes; s asks again)
+    const li = document.createElement("li");
+    li.textContent = text;
+    li.className = "clickable";
+    li.title = `go to frame ${check.frames[i]}`;
+    li.addEventListener("click", () => { box.hidden = true; act(() => goto(check.frames[i])); });
+    return li;
+  });
   const more = check.count - lines.length;
-  if (more > 0) lines.push(`and ${more} more`);
-  list.replaceChildren(...lines.map((t) => { const li = document.createElement("li"); li.textContent = t; return li; }));
+  if (more > 0) items.push(Object.assign(document.createElement("li"), { textContent: `and ${more} more` }));
+  list.replaceChildren(...items);
   box.hidden = false;
   $("#save-anyway").focus();
   status(`not saved yet: ${check.count} edit result(s) to look at first`);
@@ -737,6 +876,8 @@ function attachMouse(view) {
 async function flushDrag(view, drag) {
   // one move in flight at a time; the latest position wins
   drag.sending = true;
+  actions.sending++;
+  showBusy();
   while (drag.pending) {
     const xy = drag.pending;
     drag.pending = null;
@@ -752,6 +893,8 @@ async function flushDrag(view, drag) {
     await refresh();
     state.dragging = false;
   }
+  actions.sending--;
+  showBusy();
 }
 
 function nearestPoint(view, cx, cy) {
@@ -784,15 +927,16 @@ function setLayout(layout) {
 const FOCUS_ZOOM = 2.5;  // a focused point's view: the frame magnified around the point
 
 function focusOn(view, point) {
-  // the selected point's view large, zoomed to the point (g, n / p, a click in the list)
+  // the selected point's view large, every view zoomed to the point (g, n / p, a click in the list)
   state.layout = "focus";
   $("#views").className = "focus";
   setFocus(view.index);
   requestAnimationFrame(() => {
-    resize(view);
-    const v = state.data && state.data.views[view.index];
-    const xy = v && (v.points2d[point] || v.reprojected[point]);
-    if (xy) zoomTo(view, xy, FOCUS_ZOOM);
+    for (const v of state.views) {
+      resize(v);
+      const xy = pointAt(state.data, v, point);
+      if (xy) zoomTo(v, xy, FOCUS_ZOOM); else state.zoom[v.name] = { scale: 1, x: 0, y: 0 };
+    }
     redrawAll();
   });
 }
@@ -846,24 +990,26 @@ function wireControls() {
   }));
   $("#layout").addEventListener("click", toggleFocus);
   $("#panel").addEventListener("click", () => setPanel(document.body.classList.contains("panel-closed")));
-  $("#invisible").addEventListener("click", markInvisible);
-  $("#reset-point").addEventListener("click", () => resetPoint(false));
-  $("#reset-view").addEventListener("click", resetView);
-  $("#reset-frame").addEventListener("click", resetFrame);
-  $("#save").addEventListener("click", () => save());
-  $("#save-anyway").addEventListener("click", () => save(true));
+  $("#invisible").addEventListener("click", () => act(markInvisible));
+  $("#reset-point").addEventListener("click", () => act(() => resetPoint(false)));
+  $("#reset-view").addEventListener("click", () => act(resetView));
+  $("#reset-frame").addEventListener("click", () => act(resetFrame));
+  $("#save").addEventListener("click", () => act(save));
+  $("#save-anyway").addEventListener("click", () => act(() => save(true)));
   $("#save-cancel").addEventListener("click", () => { $("#save-check").hidden = true; status("not saved"); });
-  $("#undo").addEventListener("click", undo);
-  $("#redo").addEventListener("click", redo);
-  $("#fixed").addEventListener("click", toggleFixed);
-  $("#snap").addEventListener("click", snapToGhost);
-  $("#reviewed").addEventListener("click", markReviewed);
-  $("#next-unreviewed").addEventListener("click", () => nextUnreviewed());
-  $("#apply-item").addEventListener("click", applyToItem);
+  $("#undo").addEventListener("click", () => act(undo));
+  $("#redo").addEventListener("click", () => act(redo));
+  $("#fixed").addEventListener("click", () => act(toggleFixed));
+  $("#snap").addEventListener("click", () => act(snapToGhost));
+  $("#reviewed").addEventListener("click", () => act(markReviewed));
+  $("#next-unreviewed").addEventListener("click", () => act(() => nextUnreviewed()));
+  $("#apply-item").addEventListener("click", () => act(applyToItem));
   state.tile3d.addEventListener("mousedown", () => { if (state.layout === "focus" && state.focus !== state.views.length) setFocus(state.views.length); });
   $("#frame-input").addEventListener("change", () => {
     const text = $("#frame-input").value.trim();
-    if (!/^\d+$/.test(text)) { status(`"${text}" is not a frame number (0..${state.meta.frames - 1})`); return; }
+    const last = state.meta.frames - 1;
+    if (!/^\d+$/.test(text)) { status(`"${text}" is not a frame number (0..${last})`); return; }
+    if (Number(text) > last) status(`frame ${text} is past the last frame; showing frame ${last}`);
     goto(Number(text));
   });
   $("#frame-input").addEventListener("keydown", (event) => { if (event.key === "Enter") $("#frame-input").blur(); });
@@ -872,8 +1018,8 @@ function wireControls() {
     if (state.data && state.data.dirty) { event.preventDefault(); event.returnValue = ""; }
   });
   $("#help-button").addEventListener("click", () => toggleHelp());
-  $("#next-suspect").addEventListener("click", () => stepSuspect(1));
-  $("#prev-suspect").addEventListener("click", () => stepSuspect(-1));
+  $("#next-suspect").addEventListener("click", () => act(() => stepSuspect(1)));
+  $("#prev-suspect").addEventListener("click", () => act(() => stepSuspect(-1)));
   document.querySelectorAll("#suspects th").forEach((th) => th.addEventListener("click", () => {
     const key = th.dataset.key;
     state.sort = { key, asc: state.sort.key === key ? !state.sort.asc : key !== "score" };
@@ -889,45 +1035,42 @@ function wireControls() {
   });
   window.addEventListener("blur", () => { if (state.peek) { state.peek = false; redrawAll(); } });
   $("#play").addEventListener("click", togglePlay);
+  $("#fps").addEventListener("change", () => {
+    const raw = $("#fps").value, fps = Math.max(1, Math.min(120, Math.round(Number(raw) || 10)));
+    if (String(fps) !== raw) status(`fps "${raw}" is not a whole number from 1 to 120; playing at ${fps}`);
+    $("#fps").value = String(fps);
+  });
   $("#stop-server").addEventListener("click", stopServer);
+  $("#reload-results").addEventListener("click", () => act(reloadResults));
   window.addEventListener("keydown", (event) => {
     if (event.target.tagName === "INPUT" && event.target.type !== "range" && event.target.type !== "checkbox") return;
     if ((event.ctrlKey || event.metaKey) && (event.key === "z" || event.key === "Z" || event.key === "y")) {
       event.preventDefault();
-      if (event.key === "y" || event.shiftKey) redo(); else undo();
+      act(event.key === "y" || event.shiftKey ? redo : undo);
       return;
     }
     const big = event.shiftKey ? 10 : 1;
     const key = event.key;
-    if (key === "ArrowRight") goto(state.frame + big);
-    else if (key === "ArrowLeft") goto(state.frame - big);
-    else if (key === "Home") goto(0);
-    else if (key === "End") goto(state.meta.frames - 1);
-    else if (key === "n") stepSuspect(1);
-    else if (key === "p") stepSuspect(-1);
-    else if (key === "e") setMode("2d");
-    else if (key === "d") setMode("3d");
-    else if (key === "i") markInvisible();
-    else if (key === "c") snapToGhost();
-    else if (key === "k") markReviewed();
+    // what reads or changes the frame, the selection or the edits waits its turn
+    const queued = {
+      Home: () => goto(0), End: () => goto(state.meta.frames - 1),
+      n: () => stepSuspect(1), p: () => stepSuspect(-1), e: () => setMode("2d"), d: () => setMode("3d"),
+      i: markInvisible, c: snapToGhost, k: markReviewed, u: () => nextUnreviewed(), a: applyToItem,
+      f: toggleFixed, r: () => resetPoint(false), R: () => resetPoint(true), v: resetView, x: resetFrame,
+      g: toggleFocus, s: () => save(),
+    };
+    if (key === "ArrowRight" || key === "ArrowLeft") act(null, key === "ArrowRight" ? big : -big);
+    else if (Object.hasOwn(queued, key)) act(queued[key]);
+    else if (key === "S" && event.ctrlKey) act(queued.s);
+    else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) act(() => { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); });
     else if (key === "o") setDisplay({ overlay: !state.display.overlay });
     else if (key === "l") setDisplay({ labels: !state.display.labels });
     else if (key === "h") { if (!state.peek) { state.peek = true; redrawAll(); } }
     else if (key === "[") cycleLimb(-1);
     else if (key === "]") cycleLimb(1);
     else if (key === " ") togglePlay();
-    else if (key === "u") nextUnreviewed();
-    else if (key === "a") applyToItem();
-    else if (key === "f") toggleFixed();
-    else if (key === "r") resetPoint(false);
-    else if (key === "R") resetPoint(true);
-    else if (key === "v") resetView();
-    else if (key === "x") resetFrame();
-    else if (key === "g") toggleFocus();
     else if (key === "b") setPanel(document.body.classList.contains("panel-closed"));
-    else if (key === "s" || (key === "S" && event.ctrlKey)) save();
     else if (key === "0") { for (const v of state.views) state.zoom[v.name] = { scale: 1, x: 0, y: 0 }; redrawAll(); }
-    else if (key >= "1" && key <= "9" && Number(key) <= state.views.length + 1) { if (state.layout !== "focus") setLayout("focus"); setFocus(Number(key) - 1); }
     else if (key === "?") toggleHelp();
     else if (key === "Escape") { toggleHelp(false); $("#save-check").hidden = true; }
     else return;
@@ -942,7 +1085,7 @@ window.flylib = {
   goto,
   stepSuspect,
   alert: alertText,
-  busy: () => channel.busy || state.dragging,
+  busy: () => actions.running || channel.busy || state.dragging,
   allDrawn: () => state.views.length > 0 && state.views.every((v) => v.canvas.dataset.drawnFrame === String(state.frame)),
   undo,
   redo,
@@ -957,12 +1100,18 @@ window.flylib = {
     });
   },
   focusFill() {
-    // the large view's frame (unzoomed) as a fraction of the window's area
+    // the large view's frame (unzoomed) less what the thumbnails cover, as a fraction of the window
     const view = state.views[state.focus];
     if (state.layout !== "focus" || !view) return 0;
-    const rect = view.canvas.getBoundingClientRect();
-    const fit = Math.min(rect.width / view.width, rect.height / view.height);
-    return (view.width * fit * view.height * fit) / (window.innerWidth * window.innerHeight);
+    const r = view.canvas.getBoundingClientRect();
+    const fit = Math.min(r.width / view.width, r.height / view.height);
+    const w = view.width * fit, h = view.height * fit, left = r.left + (r.width - w) / 2, top = r.top + (r.height - h) / 2;
+    let covered = 0;
+    for (const tile of [...state.views.map((v) => v.div), state.tile3d]) {
+      const t = tile === view.div ? null : tile.getBoundingClientRect();
+      if (t) covered += Math.max(0, Math.min(t.right, left + w) - Math.max(t.left, left)) * Math.max(0, Math.min(t.bottom, top + h) - Math.max(t.top, top));
+    }
+    return (w * h - covered) / (window.innerWidth * window.innerHeight);
   },
   tile3d: () => { const r = state.tile3d.getBoundingClientRect(); return { left: r.left, top: r.top, width: r.width, height: r.height, drawnFrame: state.tile3d.querySelector("canvas").dataset.drawnFrame }; },
   screenPosition(viewName, point) {

@@ -19,7 +19,7 @@ export function drawView(canvas, image, view, meta, data, options) {
   ctx.setTransform(1, 0, 0, 1, 0, 0);
   ctx.fillStyle = "#000";
   ctx.fillRect(0, 0, canvas.width, canvas.height);
-  if (image && image.complete && image.naturalWidth) {
+  if (image) {  // an ImageBitmap
     const filter = options.filter && options.filter !== "none";
     if (filter) ctx.filter = options.filter;  // brightness / contrast / gamma of the footage
     ctx.drawImage(image, t.ox, t.oy, view.width * t.scale, view.height * t.scale);

@@ -8,14 +8,20 @@ const KEYS = {
   reasons: (it) => it.reasons.join(),
 };
 
-export function sortedItems(items, sort) {
+function order(sort) {
   const get = KEYS[sort.key] || KEYS.score;
-  return [...items].sort((a, b) => {
+  return (a, b) => {
     const x = get(a), y = get(b);
     const c = x < y ? -1 : x > y ? 1 : 0;
     return (sort.asc ? c : -c) || a.rank - b.rank;  // ties: the better item first
-  });
+  };
 }
+
+export function sortedItems(items, sort) {
+  return [...items].sort(order(sort));
+}
+
+export const sameItem = (a, b) => a.point === b.point && a.frames.some((f) => b.frames.includes(f));
 
 export function framesText(item) {
   return item.first_frame === item.last_frame ? String(item.first_frame)
@@ -25,11 +31,11 @@ export function framesText(item) {
 export function renderItems(tbody, items, sort, frame, reviewed, onPick) {
   const rows = sortedItems(items, sort).map((item) => {
     const tr = document.createElement("tr");
-    const covers = item.frames.includes(frame);
     const done = item.frames.every((f) => reviewed.has(`${item.point}:${f}`));
-    tr.className = (covers ? "current" : "") + (done ? " reviewed" : "");
+    tr.className = done ? "reviewed" : "";
     tr.title = `frames ${item.frames.join(", ")}; at ${item.peak_frame}: ${item.detail}`;
     tr.dataset.rank = String(item.rank);
+    tr.frames = item.frames;
     for (const text of [framesText(item), (done ? "\u2713 " : "") + item.point_name, item.score.toFixed(2), item.reasons.join(", ")]) {
       const td = document.createElement("td");
       td.textContent = text;
@@ -39,8 +45,19 @@ export function renderItems(tbody, items, sort, frame, reviewed, onPick) {
     return tr;
   });
   tbody.replaceChildren(...rows);
-  const current = rows.find((tr) => tr.classList.contains("current"));
-  if (current && frame !== shownFrame) keepVisible(current);
+  markCurrent(tbody, frame);
+}
+
+export function markCurrent(tbody, frame) {
+  // the rows of the frame's items marked, the first scrolled into view once per frame
+  // (a frame step touches only these classes: rebuilding a long list took most of a step)
+  let first = null;
+  for (const tr of tbody.rows) {
+    const covers = tr.frames.includes(frame);
+    tr.classList.toggle("current", covers);
+    if (covers) first ||= tr;
+  }
+  if (first && frame !== shownFrame) keepVisible(first);
   shownFrame = frame;
 }
 
@@ -55,20 +72,24 @@ function keepVisible(row) {
   else if (r.bottom > b.bottom) box.scrollTop += r.bottom - b.bottom;
 }
 
-export function neighbourItem(items, sort, frame, point, direction) {
-  // the item after / before the one at (frame, point) in the list's order
-  const list = sortedItems(items, sort);
-  if (!list.length) return null;
-  let here = list.findIndex((it) => it.point === point && it.frames.includes(frame));
-  if (here < 0) {
-    // not on an item: in time order the next (previous) item in time, else the list's ends
-    if (sort.key === "frame" && sort.asc) {
-      if (direction > 0) return list.find((it) => it.first_frame > frame) ?? list[0];
-      return [...list].reverse().find((it) => it.last_frame < frame) ?? list[list.length - 1];
-    }
-    return direction > 0 ? list[0] : list[list.length - 1];
+export function neighbourItem(items, sort, frame, point, direction, last = null) {
+  // the item after / before the one at (frame, point) in the list's order; off every item,
+  // the one after / before the item last gone to (`last`, where it sorts if it left the list)
+  const list = sortedItems(items, sort), n = list.length;
+  if (!n) return null;
+  const here = list.findIndex((it) => it.point === point && it.frames.includes(frame));
+  if (here >= 0) return list[(here + direction + n) % n];
+  if (sort.key === "frame" && sort.asc) {
+    // in time order: the next (previous) item in time, else the list's ends
+    if (direction > 0) return list.find((it) => it.first_frame > frame) ?? list[0];
+    return [...list].reverse().find((it) => it.last_frame < frame) ?? list[n - 1];
   }
-  return list[(here + direction + list.length) % list.length];
+  if (!last) return direction > 0 ? list[0] : list[n - 1];
+  const at = list.findIndex((it) => sameItem(it, last));
+  if (at >= 0) return list[(at + direction + n) % n];
+  const after = list.findIndex((it) => order(sort)(it, last) > 0);
+  const next = after < 0 ? n : after;
+  return list[((direction > 0 ? next : next - 1) + n) % n];
 }
 
 export function itemPlan(frames, edited) {

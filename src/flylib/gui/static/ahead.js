@@ -1,0 +1,56 @@
+// Frames fetched ahead of the user: each view's image (decoded) and the frame's points, two
+// frames at a time after the shown one's requests, so a step or a playback tick finds them.
+
+import { apiUrl, getJSON } from "./api.js";
+
+const PARALLEL = 2;  // frames fetched ahead at once (8 requests each; Chrome opens 6 per host)
+const KEEP = 32;  // frames held (7 views x 1.8 MB decoded each at 960 x 480)
+
+export class FramesAhead {
+  constructor(views) {
+    this.views = views;  // view names
+    this.frames = new Map();  // frame -> {images: {view: Promise of an ImageBitmap}, points, ready}
+    this.queue = [];
+    this.loading = 0;  // frames being fetched ahead
+  }
+
+  get(frame) {
+    // the frame's entry, fetched now unless it is already here
+    const entry = this.frames.get(frame) || this.load(frame);
+    this.frames.delete(frame);
+    this.frames.set(frame, entry);  // most recently used last
+    return entry;
+  }
+
+  isReady(frame) {
+    return Boolean(this.frames.get(frame)?.done);
+  }
+
+  load(frame) {
+    // decoded into ImageBitmaps: an Image's decoded pixels may be dropped until drawn,
+    // and decoding seven again took most of a step
+    const images = {};
+    for (const view of this.views) {
+      images[view] = fetch(apiUrl(`/api/frame/${encodeURIComponent(view)}/${frame}`))
+        .then((r) => (r.ok ? r.blob() : null)).then((b) => b && createImageBitmap(b)).catch(() => null);
+    }
+    const points = getJSON(`/api/points/${frame}`);
+    points.catch(() => this.frames.delete(frame));  // a failed read is asked again
+    const entry = { images, points, ready: Promise.all([...Object.values(images), points.catch(() => {})]) };
+    entry.ready.then(() => { entry.done = true; });
+    this.frames.set(frame, entry);
+    while (this.frames.size > KEEP) this.frames.delete(this.frames.keys().next().value);
+    return entry;
+  }
+
+  want(frames) {
+    // fetch these frames, nearest first, PARALLEL at a time (the rest of an older list dropped)
+    this.queue = frames.filter((f) => !this.frames.has(f));
+    const next = () => {
+      const f = this.queue.shift();
+      if (f === undefined) { this.loading--; return; }
+      (this.frames.has(f) ? Promise.resolve() : this.load(f).ready).then(next);
+    };
+    while (this.loading < PARALLEL && this.queue.length) { this.loading++; next(); }
+  }
+}
