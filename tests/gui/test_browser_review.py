@@ -9,6 +9,7 @@ and ``chromium-driver`` and ``selenium`` (skips with the apt command).
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 
@@ -425,6 +426,14 @@ def test_small_items(page_1280):
     # stepping: the next frames' images and points were fetched before they are asked for
     body.send_keys(Keys.ARROW_RIGHT)
     wait_for(driver, "return window.flylib.state.frame === 1 && window.flylib.allDrawn()")
+    # (fetched ahead two frames at a time: wait for the four, nobody asking for them)
+    views = json.dumps([f"/api/frame/{v}/{f}" for v in session.view_names for f in (2, 3, 4, 5)])
+    wait_for(
+        driver,
+        "const asked = performance.getEntriesByType('resource').map(e => new URL(e.name).pathname);"
+        f"return {views}.concat([2, 3, 4, 5].map(f => `/api/points/${{f}}`))"
+        ".every(u => asked.includes(u))",
+    )
     asked = driver.execute_script(
         "return performance.getEntriesByType('resource').map(e => new URL(e.name).pathname)"
     )
