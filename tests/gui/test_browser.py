@@ -10,6 +10,7 @@ Set ``FLYLIB_GUI_SCREENSHOT=path.png`` to keep a screenshot of the page.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import time
@@ -80,6 +81,24 @@ def server(demo_run):
     with serving(session) as url:
         yield url, session
     session.close()
+
+
+@contextlib.contextmanager
+def opened(session, size=(1500, 950), query: str | None = ""):
+    """``(driver, url)``: Chromium at ``size`` on ``session`` served, the page at ``url + query``
+    loaded and drawn (``query=None``: not loaded); the window and the session closed after."""
+    from gui_fixtures import serving
+
+    driver = browser(size)
+    try:
+        with serving(session) as url:
+            if query is not None:
+                driver.get(url + query)
+                wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
+            yield driver, url
+    finally:
+        driver.quit()
+        session.close()
 
 
 def wait_for(driver, script, timeout=60.0):

@@ -9,9 +9,9 @@ import re
 
 import pytest
 
-from tests.gui.test_browser import browser, drag, wait_for
+from tests.gui.test_browser import drag, opened, wait_for
 
-from gui_fixtures import make_demo_outputs, serving
+from gui_fixtures import make_demo_outputs
 
 pytestmark = pytest.mark.slow
 
@@ -25,15 +25,8 @@ def page(tmp_path):
     from flylib.gui import ReviewSession
 
     session = ReviewSession(make_demo_outputs(tmp_path / "rec", frames=6))
-    driver = browser((1280, 720))
-    try:
-        with serving(session) as url:
-            driver.get(url + f"?frame={FRAME}")
-            wait_for(driver, "return window.flylib && window.flylib.allDrawn()")
-            yield driver, session
-    finally:
-        driver.quit()
-        session.close()
+    with opened(session, (1280, 720), query=f"?frame={FRAME}") as (driver, url):
+        yield driver, session
 
 
 def test_an_edit_says_what_it_made_worse_and_undo_takes_it_back(page):

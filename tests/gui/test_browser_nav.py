@@ -15,9 +15,9 @@ import math
 
 import pytest
 
-from tests.gui.test_browser import browser, wait_for
+from tests.gui.test_browser import opened, wait_for
 
-from gui_fixtures import make_demo_outputs, serving
+from gui_fixtures import make_demo_outputs
 
 pytestmark = pytest.mark.slow
 
@@ -40,13 +40,8 @@ def served(tmp_path_factory):
         displaced=[(camera, point, frames, (45.0, -35.0)) for camera, point, frames in ITEMS],
     )
     session = ReviewSession(outdir)
-    driver = browser((1280, 720))
-    try:
-        with serving(session) as url:
-            yield driver, session, url
-    finally:
-        driver.quit()
-        session.close()
+    with opened(session, (1280, 720), query=None) as (driver, url):
+        yield driver, session, url
 
 
 def open_page(served):
