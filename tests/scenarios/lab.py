@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -30,6 +31,22 @@ def env() -> dict:
     environ = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), extra])}
     environ.pop("FLYLIB_RUN_ID", None)
     return environ
+
+
+def flylib_cli(cwd: Path, *args: str, **environ: str) -> subprocess.CompletedProcess:
+    """``python -m flylib.cli *args`` in ``cwd`` under :func:`env` (plus ``environ``);
+    ``proc.out`` holds stdout then stderr."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "flylib.cli", *args],
+        cwd=cwd,
+        env={**env(), **environ},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    proc.out = proc.stdout + proc.stderr
+    return proc
 
 
 def write_config(path: Path, config: dict) -> Path:

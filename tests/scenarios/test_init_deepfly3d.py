@@ -9,30 +9,19 @@ import os
 import pickle
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
-from .lab import copy_files, env
+from .lab import copy_files, env, flylib_cli
 
 pytestmark = pytest.mark.shared
 
 
 def _init(cwd: Path, folder: Path) -> subprocess.CompletedProcess:
     """``flylib init folder -o my.yaml`` from ``cwd``, with a PATH that holds no snakemake."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "flylib.cli", "init", str(folder), "-o", "my.yaml"],
-        cwd=cwd,
-        env={**env(), "PATH": "/usr/bin:/bin"},
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
-    proc.out = proc.stdout + proc.stderr
-    return proc
+    return flylib_cli(cwd, "init", str(folder), "-o", "my.yaml", PATH="/usr/bin:/bin")
 
 
 def _dry_run_as_printed(cwd: Path, printed: str) -> subprocess.CompletedProcess:

@@ -6,7 +6,6 @@ a user sees when the config is edited half-way (they name my.yaml, never the def
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -16,7 +15,14 @@ import yaml
 from flylib.config import Config
 from flylib.pipeline.demo import make_demo
 
-from .lab import assert_self_consistent, env, finished, lab_run, table_line, write_config
+from .lab import (
+    assert_self_consistent,
+    finished,
+    flylib_cli,
+    lab_run,
+    table_line,
+    write_config,
+)
 from workflow_run import REPO
 
 SIX = ["rh", "rm", "rf", "lf", "lm", "lh"]  # the default rig without the front camera f
@@ -34,17 +40,7 @@ def six_videos(tmp_path_factory) -> Path:
 
 
 def flylib(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    proc = subprocess.run(
-        [sys.executable, "-m", "flylib.cli", *args],
-        cwd=cwd,
-        env=env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
-    proc.out = proc.stdout + proc.stderr
-    return proc
+    return flylib_cli(cwd, *args)
 
 
 def test_init_on_six_videos_writes_a_config_that_runs_to_the_end(six_videos, tmp_path):

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
-from tests.scenarios.test_path_names import REPO, _env, _refused, _run
+from tests.scenarios.lab import flylib_cli
+from tests.scenarios.test_path_names import REPO, _refused, _run
 
 pytestmark = pytest.mark.slow  # runs Snakemake
 
@@ -112,14 +112,7 @@ def test_japanese_and_chinese_sessions_are_two_solves_planned_as_run(tmp_path):
 
 
 def _flylib(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "flylib.cli", *args],
-        cwd=cwd,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return flylib_cli(cwd, *args)
 
 
 def test_members_of_two_frame_sizes_are_refused_before_any_work(tmp_path):
