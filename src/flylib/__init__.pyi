@@ -98,6 +98,7 @@ from .pictorial import (
 from .pipeline import run_from_points2d as run_from_points2d
 from .pipeline.demo import make_demo as make_demo
 from .pipeline.planning import plan_recordings as plan_recordings
+from .pipeline.pose2d import import_target as import_target
 from .pose2d import (
     DetectionPlan as DetectionPlan,
     HourglassNet as HourglassNet,

@@ -206,12 +206,12 @@ def test_every_whole_run_config_snippet_plans_on_the_demo(tmp_path, where, snipp
 
 
 def test_the_fewer_cameras_report_is_flylibs_own_output(tmp_path):
-    """The rig report the recordings guide shows under its snippet, and the last line it
+    """The rig report the rig guide shows under its first snippet, and the last line it
     quotes for the default rig, are what `flylib check-config` prints (recordings: the demo)."""
-    page = (DOCS / "guides" / "recordings.md").read_text()
+    page = (DOCS / "guides" / "cameras.md").read_text()
     section = page.split("### Fewer cameras")[1].split("\n## ")[0]
-    (snippet,) = re.findall(r"^```yaml\n(.*?)^```", section, re.S | re.M)
-    (shown,) = re.findall(r"^```text\n(.*?)^```", section, re.S | re.M)
+    snippet = re.findall(r"^```yaml\n(.*?)^```", section, re.S | re.M)[0]
+    shown = re.findall(r"^```text\n(.*?)^```", section, re.S | re.M)[0]
     default_line = " ".join(re.search(r"the last line is `(.*?)`", section, re.S)[1].split())
     data = yaml.safe_load(snippet)
     data["recordings"] = [{"path": "demo", "demo": True}]
@@ -229,6 +229,73 @@ def test_the_fewer_cameras_report_is_flylibs_own_output(tmp_path):
         reports.append(done.stdout.splitlines()[1:])
     assert reports[0] == shown.splitlines()
     assert reports[1][-1] == default_line
+
+
+# --- Python snippets and pictures ----------------------------------------------------
+
+
+def python_snippets(page: Path) -> list[str]:
+    return re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M)
+
+
+@pytest.mark.slow
+@pytest.mark.shared
+def test_every_python_block_of_the_library_guide_runs_in_order(tmp_path, monkeypatch):
+    """The library guide's blocks, one after the other in one namespace, in an empty folder,
+    as a reader pastes them; its DeepFly3D folder (`fly1_df3d`) is DeepFly3D's package example."""
+    example = SHARED_DATA / "deepfly3d-package-example"
+    if not example.is_dir():
+        pytest.skip(f"{example} is absent: the guide's last block reads DeepFly3D's example")
+    page = DOCS / "guides" / "library.md"
+    blocks = python_snippets(page)
+    assert len(blocks) >= 8
+    (tmp_path / "fly1_df3d").symlink_to(example)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for number, block in enumerate(blocks, 1):
+        exec(compile(block, f"{page.name}, block {number}", "exec"), namespace)
+    assert (tmp_path / "results.h5").is_file() and (tmp_path / "calibration.toml").is_file()
+
+
+def test_the_library_guide_imports_only_public_names():
+    import flylib
+
+    code = "\n".join(python_snippets(DOCS / "guides" / "library.md"))
+    imported = re.findall(r"^from flylib import \(?([^)]*?)\)?$", code, re.M | re.S)
+    names = {n.strip() for group in imported for n in group.split(",") if n.strip()}
+    assert names and names <= set(flylib.__all__), names - set(flylib.__all__)
+    assert not re.search(r"^(from|import) flylib\.", code, re.M)
+
+
+def test_the_keypoints_page_lists_the_skeletons_points_limbs_and_cameras():
+    from flylib import Config, Skeleton
+
+    page = (DOCS / "reference" / "keypoints.md").read_text()
+    rows = re.findall(r"^\| (\d+) \| `(\w+)` \| `(\w+)` \| [^|]+ \| ([^|]*) \|$", page, re.M)
+    skeleton, config = Skeleton.fly(), Config.default()
+    limb_of = {p: limb for limb, points in skeleton.limbs.items() for p in points}
+    plan = config.data["pose2d"]["output_points"]
+    assert [(int(i), name) for i, name, _, _ in rows] == list(enumerate(skeleton.point_names))
+    for _, name, limb, cameras in rows:
+        assert limb == limb_of[name], name
+        assert cameras.strip() == ", ".join(v for v in config.view_names() if name in plan[v])
+
+
+def test_the_pictures_are_drawn_by_their_script(tmp_path):
+    """docs/images/make_figures.py draws both pictures from flylib's facts; the committed
+    ones have the size it draws and stay small."""
+    from matplotlib.image import imread
+
+    spec = importlib.util.spec_from_file_location(
+        "make_figures", DOCS / "images" / "make_figures.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for drawn in module.main(tmp_path):
+        committed = DOCS / "images" / drawn.name
+        assert committed.stat().st_size < 200_000, committed
+        assert imread(committed).shape == imread(drawn).shape, "re-run docs/images/make_figures.py"
+        assert f"images/{drawn.name})" in "".join(pages().values()), drawn.name
 
 
 # --- the built site -----------------------------------------------------------------

@@ -144,7 +144,8 @@ class Pose2dInputs(StageInputs):
 
 
 def import_target(config: Config) -> ImportTarget:
-    """What imported 2D is placed on under ``config`` (:meth:`Pose2dInputs.import_target`)."""
+    """What :func:`flylib.import_points2d` places 2D on under ``config``: its views, points,
+    footage and each view's planned points (:meth:`Pose2dInputs.import_target`)."""
     return Pose2dInputs.from_config(config).import_target()
 
 
