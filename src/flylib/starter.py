@@ -346,29 +346,14 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
 def _handed(calibration: dict, rec: Recording | None) -> dict:
     """``calibration`` with ``mirror: true`` when it is DeepFly3D's and gives ``rec``'s DeepFly3D 2D
     the fly's mirror image (:mod:`flylib.handedness`), and ``why``: the verdict in words."""
-    import numpy as np
-
-    from .config import Config
-    from .errors import FlylibError
-    from .handedness import handedness
-    from .interop.anipose import load_calibration
-    from .interop.df3d import df3d_joint_to_fly38, read_df3d_calibration, read_df3d_points2d
+    from .interop.df3d import calibration_handedness
 
     if calibration["format"] != "deepfly3d" or not rec or not rec.imports:
         return calibration
-    path = rec.path / calibration["file"]
-    try:
-        # no frame size: only 1.x results (pixels) hold a calibration; 0.x 2D gives no verdict
-        sizes = [(np.inf, np.inf)] * len(read_df3d_calibration(path))
-        xy = read_df3d_points2d(rec.path / rec.imports[0]["files"], sizes).xy
-        skeleton = Config.default().skeleton()
-        points = np.full(xy.shape, np.nan)
-        points[:, :, [skeleton.index(df3d_joint_to_fly38(j)) for j in range(xy.shape[2])]] = xy
-        rig = load_calibration({"file": str(path), "format": "deepfly3d"})
-        verdict = handedness(rig.triangulate(points), skeleton)
-    except (FlylibError, ValueError, IndexError):
-        return calibration
-    if verdict.mirrored:
+    verdict = calibration_handedness(
+        rec.path / calibration["file"], rec.path / rec.imports[0]["files"]
+    )
+    if verdict is not None and verdict.mirrored:
         return {**calibration, "mirror": True, "why": verdict.reason}
     return calibration
 

@@ -94,8 +94,11 @@ def preflight_problems(
         except FlylibError as exc:
             problems.append(_problem(exc))
 
+    found = {} if import_files is None else import_files
     if flags.get("pose2d", True):
-        problems += _pose2d_problems(config, recordings, check_weights, import_files)
+        problems += _pose2d_problems(config, recordings, check_weights, found)
+    if not problems and isinstance(calibration, dict) and "mirror" not in calibration:
+        problems += _mirror_image(config, calibration, recordings, found)
 
     if flags.get("visualization", True):
         from ..visualization.specs import video_specs
@@ -106,6 +109,33 @@ def preflight_problems(
             problems.append(_problem(exc))
     problems += path_problems(config, recordings)
     return list(dict.fromkeys(problems))
+
+
+def _mirror_image(config, calibration: dict, recordings, found) -> list[str]:
+    """A DeepFly3D calibration whose world is the fly's mirror image, decided as `flylib init`
+    decides it, on the first recording with DeepFly3D 2D: one line, before any job."""
+    from ..handedness import DOCS_PAGE
+    from ..interop.df3d import calibration_handedness
+    from .planning import calibration_inputs
+
+    pickle = str(calibration.get("file")).lower().endswith((".pkl", ".pickle"))
+    deepfly3d = [r for r in recordings if r.id in found and r.import_spec["format"] == "deepfly3d"]
+    if (
+        calibration.get("format") or ("deepfly3d" if pickle else "")
+    ) != "deepfly3d" or not deepfly3d:
+        return []
+    files, twod = calibration_inputs(config, deepfly3d[0].path), found[deepfly3d[0].id]
+    verdict = calibration_handedness(files[-1], twod[0]) if files and len(twod) == 1 else None
+    if verdict is None or not verdict.mirrored:
+        return []
+    key = "file" if "file" in calibration else "index"
+    return [
+        f"calibration: {files[-1]} is the mirror image of the fly's world: DeepFly3D's 2D "
+        f"{twod[0]} triangulated through it puts the left legs on the fly's right "
+        f"({verdict.score:+.2f}, median of {verdict.frames} frames); set calibration: "
+        f"{{{key}: {calibration[key]}, mirror: true}} to mirror it back (the pixels stay "
+        f"the same), or mirror: false to run it as it is (see {DOCS_PAGE})"
+    ]
 
 
 # A Snakemake wildcard: "{name}" or "{name,constraint}". Snakemake has no escape for braces in
