@@ -289,8 +289,11 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
     by the held-out-view error, which points keep the triangulation and why, and which camera (if
     any) disagrees with the others."""
     tri = _held(accuracy.get("triangulation"))
-    if tri is None:
-        return None
+    if tri is None:  # held out, a camera leaves a point in at least 2 others
+        return (
+            f"{rec_id}: no held-out error: no point is seen by 3 cameras, so none can be rebuilt "
+            "without one of them and checked against it; the images cannot measure the 3D's error"
+        )
     frames = ""
     if accuracy.get("frames_evaluated", 0) < accuracy.get("frames_total", 0):
         frames = (
