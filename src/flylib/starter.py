@@ -1,13 +1,10 @@
 """``flylib init DIR``: a starter config for a folder of recordings.
 
-:func:`survey` looks through ``DIR`` (the folder itself and its sub-folders, a few levels deep)
-for recordings: folders with footage for the default config's cameras, or with 2D files of
-another tool. It recognises each camera's footage (videos or image sequences), DeepFly3D /
-DeepLabCut / Lightning Pose / SLEAP 2D files and DeepFly3D / Anipose calibration files beside
-them. :func:`starter_yaml` writes what it inferred as the ``recordings``, ``outdir``,
-``sources``, ``pose2d.import`` and ``calibration`` entries of a config merged over the default
-one, each commented, and the survey's ``undecided`` lines say what it could not decide. Files are
-only listed and their headers read: pickles through flylib's safe reader, never executed.
+:func:`survey` finds recordings under ``DIR`` (a few levels deep): each camera's footage (videos
+or image sequences), 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP, and DeepFly3D /
+Anipose calibrations. :func:`starter_yaml` writes them as a commented config merged over the
+default, with ``undecided`` lines for what it could not decide. Files are only listed and their
+headers read (pickles through flylib's safe reader, never executed).
 """
 
 from __future__ import annotations

@@ -256,10 +256,9 @@ def test_a_hand_written_deepfly3d_calibration_that_mirrors_the_fly_stops_before_
     assert proc.returncode == 1
     assert proc.out.strip().splitlines()[-1:] == [
         "invalid config: my.yaml: calibration: fly1/calib.pkl is the mirror image of the fly's "
-        "world: DeepFly3D's 2D fly1/df3d_result.pkl triangulated through it puts the left legs "
-        "on the fly's right (-0.95, median of 15 frames); set calibration: {file: calib.pkl, "
-        "mirror: true} to mirror it back (the pixels stay the same), or mirror: false to run "
-        "it as it is (see docs/how-it-works/handedness.md)"
+        "world: DeepFly3D's 2D fly1/df3d_result.pkl through it puts the left legs on the fly's "
+        "right (-0.95, median of 15 frames); set calibration: {file: calib.pkl, mirror: true}, "
+        "or mirror: false to run it as it is (docs/how-it-works/handedness.md)"
     ], proc.out[-3000:]
     assert not (fly / "flylib_outputs").exists()  # nothing started
 

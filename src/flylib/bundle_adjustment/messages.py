@@ -160,9 +160,8 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
 
 
 def rig_report(plan, skeleton, whole=()) -> list[str]:
-    """What a rig's 2D ``plan`` (a DetectionPlan) gives each camera, in plain words: its limbs,
-    the camera groups sharing points (as the fit ties them), whether left and right are joined.
-    ``whole``: cameras whose imported 2D keeps every point (as :mod:`flylib.interop.importer`)."""
+    """What a rig's 2D ``plan`` (a DetectionPlan; ``whole``: cameras keeping every imported point)
+    gives each camera: its limbs, the camera groups sharing points, whether left and right join."""
     from ..handedness import side_groups
     from .parts import camera_parts, point_parts
 

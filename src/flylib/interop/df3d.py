@@ -252,8 +252,7 @@ def calibration_handedness(calibration: Path, points2d: Path):
         cameras = read_df3d_calibration(calibration)
         xy = read_df3d_points2d(points2d, [(np.inf, np.inf)] * len(cameras)).xy
         xy = xy[:, :: max(1, xy.shape[1] // 200)]
-        skeleton = Config.default().skeleton()
-        points = np.full(xy.shape, np.nan)
+        skeleton, points = Config.default().skeleton(), np.full(xy.shape, np.nan)
         points[:, :, [skeleton.index(df3d_joint_to_fly38(j)) for j in range(xy.shape[2])]] = xy
         rig = load_calibration({"file": str(calibration), "format": "deepfly3d"})
         return handedness(rig.triangulate(points), skeleton)
