@@ -443,7 +443,12 @@ def _cmd_check_config(args) -> int:
         + "".join(f"; session {s.name} ({', '.join(s.ids)}) -> {s.outdir}" for s in plan.sessions)
     )
     rig = Pose2dInputs.from_config(plan.config).detection_plan()
-    print("\n".join(rig_report(rig, plan.config.skeleton())))
+    specs = [r.import_spec for r in recordings if r.import_spec]  # a demo's 2D is imported too
+    every = all(s.get("view_points") == "all" for s in specs)
+    tables = plan.config.data["pose2d"].get("output_points") or {}
+    imported = len(specs) == len(recordings) > 0
+    whole = [v for v in rig.view_names if imported and (every or not tables.get(v))]
+    print("\n".join(rig_report(rig, plan.config.skeleton(), whole)))
     hint = _toml_hint(args.configfiles)
     if hint:
         print(hint, file=sys.stderr)

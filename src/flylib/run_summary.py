@@ -1,16 +1,7 @@
-"""The end-of-run table: one line per recording, printed by the workflow's ``onsuccess`` /
-``onerror`` handlers so the answer is the last thing a run shows.
-
-Each row comes from the recording's ``summary.json`` (written by the assemble job): frames,
-fraction of 3D points reconstructed, median and 95th-percentile reprojection error, the
-held-out-view error of triangulation and of the refined output side by side (the better one
-marked ``*``) when the summary holds :mod:`flylib.accuracy`'s figures, the suspect count when it
-holds one, the handedness score when a recording's 3D is a mirror image or undetermined
-(:mod:`flylib.handedness`; ``MIRRORED`` for a mirror image, whose cause and fix follow the
-table) and where the outputs are. Then one sentence per recording says what the held-out
-figures mean for it (refinement better, partly kept, or worse and not used; a camera that
-disagrees with the others), the warnings the jobs logged (e.g. an implausible container frame
-rate) follow, and the demo's comparison against its 3D truth comes last.
+"""The end-of-run table, printed by the workflow's ``onsuccess`` / ``onerror`` handlers so the
+answer is the last thing a run shows: one row per recording from its ``summary.json`` (frames, 3D
+fraction, reprojection and held-out-view errors, suspects, handedness unless a fly, outputs), then
+a sentence per recording on its held-out figures, the jobs' warnings, and the demo's truth line.
 """
 
 from __future__ import annotations
@@ -172,13 +163,9 @@ def snakemake_report(
 def recording_row(
     rec: RunRecording, since: float | None = None, signals: dict[str, str] | None = None
 ) -> dict[str, Any]:
-    """One table row: the recording's ``summary.json`` figures (``None`` where absent).
-
-    With ``since`` (the start of a failed run), a summary older than that while one of the
-    recording's jobs wrote a log since then is not shown: it describes an earlier run, and
-    ``unfinished`` says how its jobs ended (failed, stopped by a signal, killed) and which log to
-    read.
-    """
+    """One table row: the recording's ``summary.json`` figures (``None`` where absent). With
+    ``since`` (a failed run's start), a summary older than a log a job wrote since is an earlier
+    run's: not shown, and ``unfinished`` says how the jobs ended and which log to read."""
     path = Path(rec.outdir) / "summary.json"
     row: dict[str, Any] = {
         "id": rec.id,
@@ -289,8 +276,11 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
     by the held-out-view error, which points keep the triangulation and why, and which camera (if
     any) disagrees with the others."""
     tri = _held(accuracy.get("triangulation"))
-    if tri is None:
-        return None
+    if tri is None:  # held out, a camera leaves a point in at least 2 others
+        return (
+            f"{rec_id}: no held-out error: no point is seen by 3 cameras, so none can be rebuilt "
+            "without one of them and checked against it; the images cannot measure the 3D's error"
+        )
     frames = ""
     if accuracy.get("frames_evaluated", 0) < accuracy.get("frames_total", 0):
         frames = (
@@ -384,15 +374,9 @@ def run_table(
     since: float | None = None,
     snakemake_log: str | Path | Iterable[str | Path] | None = None,
 ) -> str:
-    """The end-of-run report: the per-recording table, warnings, then the demo's truth
-    comparison (if any) as the last line.
-
-    ``failed``: the run ended with an error (rows without a summary say so). ``since``: when the
-    failed run started (``time.time()``); a recording whose jobs wrote a log since then but no
-    new summary is shown as failed, stopped or killed, naming that log. ``snakemake_log``:
-    Snakemake's log file(s) of the run; the signal that killed a job is named, and its
-    clock-skew errors join the warnings.
-    """
+    """The end-of-run report: the table, warnings, then the demo's truth line. ``failed``: the
+    run ended with an error; ``since``: when it started (:func:`recording_row`);
+    ``snakemake_log``: its log file(s), for the signal that killed a job and clock-skew errors."""
     recordings = list(recordings)
     signals, skew = snakemake_report(snakemake_log)
     rows = [recording_row(rec, since if failed else None, signals) for rec in recordings]

@@ -1,13 +1,10 @@
 """``flylib init DIR``: a starter config for a folder of recordings.
 
-:func:`survey` looks through ``DIR`` (the folder itself and its sub-folders, a few levels deep)
-for recordings: folders with footage for the default config's cameras, or with 2D files of
-another tool. It recognises each camera's footage (videos or image sequences), DeepFly3D /
-DeepLabCut / Lightning Pose / SLEAP 2D files and DeepFly3D / Anipose calibration files beside
-them. :func:`starter_yaml` writes what it inferred as the ``recordings``, ``outdir``,
-``sources``, ``pose2d.import`` and ``calibration`` entries of a config merged over the default
-one, each commented, and the survey's ``undecided`` lines say what it could not decide. Files are
-only listed and their headers read: pickles through flylib's safe reader, never executed.
+:func:`survey` finds recordings under ``DIR`` (a few levels deep): each camera's footage (videos
+or image sequences), 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP, and DeepFly3D /
+Anipose calibrations. :func:`starter_yaml` writes them as a commented config merged over the
+default, with ``undecided`` lines for what it could not decide. Files are only listed and their
+headers read (pickles through flylib's safe reader, never executed).
 """
 
 from __future__ import annotations
@@ -346,29 +343,14 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
 def _handed(calibration: dict, rec: Recording | None) -> dict:
     """``calibration`` with ``mirror: true`` when it is DeepFly3D's and gives ``rec``'s DeepFly3D 2D
     the fly's mirror image (:mod:`flylib.handedness`), and ``why``: the verdict in words."""
-    import numpy as np
-
-    from .config import Config
-    from .errors import FlylibError
-    from .handedness import handedness
-    from .interop.anipose import load_calibration
-    from .interop.df3d import df3d_joint_to_fly38, read_df3d_calibration, read_df3d_points2d
+    from .interop.df3d import calibration_handedness
 
     if calibration["format"] != "deepfly3d" or not rec or not rec.imports:
         return calibration
-    path = rec.path / calibration["file"]
-    try:
-        # no frame size: only 1.x results (pixels) hold a calibration; 0.x 2D gives no verdict
-        sizes = [(np.inf, np.inf)] * len(read_df3d_calibration(path))
-        xy = read_df3d_points2d(rec.path / rec.imports[0]["files"], sizes).xy
-        skeleton = Config.default().skeleton()
-        points = np.full(xy.shape, np.nan)
-        points[:, :, [skeleton.index(df3d_joint_to_fly38(j)) for j in range(xy.shape[2])]] = xy
-        rig = load_calibration({"file": str(path), "format": "deepfly3d"})
-        verdict = handedness(rig.triangulate(points), skeleton)
-    except (FlylibError, ValueError, IndexError):
-        return calibration
-    if verdict.mirrored:
+    verdict = calibration_handedness(
+        rec.path / calibration["file"], rec.path / rec.imports[0]["files"]
+    )
+    if verdict is not None and verdict.mirrored:
         return {**calibration, "mirror": True, "why": verdict.reason}
     return calibration
 

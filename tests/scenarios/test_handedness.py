@@ -18,7 +18,14 @@ import pandas as pd
 import pytest
 import yaml
 
-from .lab import finished, lab_run, synthetic_recording, table_line, write_config
+from .lab import (
+    copy_files,
+    finished,
+    lab_run,
+    synthetic_recording,
+    table_line,
+    write_config,
+)
 from workflow_run import snakemake_command
 
 REPO = Path(__file__).resolve().parents[2]
@@ -48,7 +55,9 @@ def _package_config(example: Path, out: Path, **pipeline) -> dict:
             },
         }
     ]
-    config["calibration"] = {"file": "calib.pkl"}
+    # mirror: false runs the file's world as it is (without the key the run stops before any job,
+    # see the last test): what follows is the later check, on the result
+    config["calibration"] = {"file": "calib.pkl", "mirror": False}
     config["outdir"] = str(out / "{id}")  # the shared data is read-only
     config["pipeline"].update(do_visualization=False, **pipeline)  # no footage to draw on
     return config
@@ -223,3 +232,37 @@ def test_calibration_mirror_true_on_a_right_handed_rig_names_mirror_false(tmp_pa
         "calibration: {mirror: false} (see docs/how-it-works/handedness.md)"
     )
     assert f"kinematics refused: {entry['message']}" in proc.out
+
+
+@pytest.mark.shared
+def test_a_hand_written_deepfly3d_calibration_that_mirrors_the_fly_stops_before_any_job(
+    tmp_path, df3d_package_example_dir
+):
+    """Issue 46: my.yaml naming DeepFly3D's calib.pkl without ``mirror`` ran every stage and
+    stopped at kinematics; the verdict `flylib init` reaches is now reached when the run is
+    planned, and stops it in one line naming the file and the fix. An explicit
+    ``mirror: false`` is the user's decision: the run is planned as before."""
+    fly = copy_files(df3d_package_example_dir, tmp_path / "fly1", ["*.pkl"])
+    config = {
+        "recordings": ["fly1"],
+        "pose2d": {
+            "import": {"format": "deepfly3d", "files": "df3d_result.pkl", "image_size": [480, 960]}
+        },
+        "calibration": {"file": "calib.pkl"},
+        "pipeline": {"do_visualization": False},  # no footage to draw on
+    }
+    my_yaml = write_config(tmp_path / "my.yaml", config)
+    proc = lab_run(tmp_path, my_yaml)
+    assert proc.returncode == 1
+    assert proc.out.strip().splitlines()[-1:] == [
+        "invalid config: my.yaml: calibration: fly1/calib.pkl is the mirror image of the fly's "
+        "world: DeepFly3D's 2D fly1/df3d_result.pkl through it puts the left legs on the fly's "
+        "right (-0.95, median of 15 frames); set calibration: {file: calib.pkl, mirror: true}, "
+        "or mirror: false to run it as it is (docs/how-it-works/handedness.md)"
+    ], proc.out[-3000:]
+    assert not (fly / "flylib_outputs").exists()  # nothing started
+
+    config["calibration"]["mirror"] = False
+    dry = lab_run(tmp_path, write_config(my_yaml, config), "-n")
+    assert dry.returncode == 0 and "rule kinematics:" in dry.out, dry.out[-3000:]
+    assert "mirror" not in dry.out

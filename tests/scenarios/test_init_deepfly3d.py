@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from .lab import copy_files, env, flylib_cli
+from .lab import assert_self_consistent, copy_files, env, finished, flylib_cli, table_line
 
 pytestmark = pytest.mark.shared
 
@@ -103,3 +103,42 @@ def test_init_among_several_deepfly3d_pickles_takes_the_newest_2d_and_says_why(
         "format": "deepfly3d",
         "files": "../fly1_df3d/df3d_result.pkl",
     }
+
+
+@pytest.mark.slow
+def test_init_on_deepfly3ds_image_sequences_runs_as_printed(df3d_sample_dir, tmp_path):
+    """DeepFly3D reads a recording as images ``camera_<N>_img_<M>.jpg`` (camera N = 0..6 in its
+    rig order) and writes its results to ``<name>_df3d``: init maps the sequences to the
+    default rig's cameras by their numbers, and the two commands it prints run to the end."""
+    fly = copy_files(df3d_sample_dir, tmp_path / "lab" / "fly1", ["camera_*_img_*.jpg"])
+    (tmp_path / "lab" / "fly1_df3d").mkdir()
+    pkl = tmp_path / "lab" / "fly1_df3d" / "df3d_result_{}.pkl".format(str(fly).replace("/", "_"))
+    pkl.write_bytes((df3d_sample_dir / "df3d_result_2d.pkl").read_bytes())
+    init = _init(tmp_path, tmp_path / "lab")
+    assert init.returncode == 0 and "1 recording(s)" in init.out, init.out
+    data = yaml.safe_load((tmp_path / "my.yaml").read_text())
+    views = ("rh", "rm", "rf", "f", "lf", "lm", "lh")
+    assert data["sources"] == [
+        {"name": f"vid_{v}", "filename": f"camera_{i}_img_*.jpg"} for i, v in enumerate(views)
+    ]
+    assert data["pose2d"]["import"] == {"format": "deepfly3d", "files": f"../fly1_df3d/{pkl.name}"}
+    dry = _dry_run_as_printed(tmp_path, init.stdout)
+    assert dry.returncode == 0, dry.stdout[-2000:] + dry.stderr[-3000:]
+    (run,) = re.findall(r", then (.+ --cores 2)\n", init.stdout)
+    proc = subprocess.run(
+        run,
+        shell=True,
+        cwd=tmp_path,
+        env={**env(), "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
+    proc.out = proc.stdout + proc.stderr
+    out = finished(proc)
+    cells = table_line(out, "fly1")
+    assert cells[1] == "15" and float(cells[2].rstrip("%")) > 95, cells
+    result = assert_self_consistent(fly / "flylib_outputs" / "results.h5")
+    assert result.pts3d.shape == (15, 38, 3) and result.cameras.names == list(views)
+    assert (fly / "flylib_outputs" / "pose2d.mp4").stat().st_size > 0  # drawn on the images

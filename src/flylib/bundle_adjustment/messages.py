@@ -159,13 +159,13 @@ def _parts_message(names, cam_part, dropped_rows: int) -> str:
     )
 
 
-def rig_report(plan, skeleton) -> list[str]:
-    """What a rig's 2D ``plan`` (a DetectionPlan) gives each camera, in plain words: its limbs,
-    the camera groups sharing points (as the fit ties them), whether left and right are joined."""
+def rig_report(plan, skeleton, whole=()) -> list[str]:
+    """What a rig's 2D ``plan`` (a DetectionPlan; ``whole``: cameras keeping every imported point)
+    gives each camera: its limbs, the camera groups sharing points, whether left and right join."""
     from ..handedness import side_groups
     from .parts import camera_parts, point_parts
 
-    names, seen = plan.view_names, plan.filled_mask()
+    names, seen = plan.view_names, plan.filled_mask() | np.isin(plan.view_names, whole)[:, None]
     ids, at = np.arange(seen.shape[1]), plan.point_names.index
     limbed = {p for chain in skeleton.limbs.values() for p in chain}
     chains = {**skeleton.limbs, **{p: (p,) for p in plan.point_names if p not in limbed}}

@@ -1,12 +1,8 @@
-"""Everything the workflow can check before it builds its DAG.
-
-:func:`flylib.config.validate_config` checks each key on its own; this module checks what
-needs the whole config or the planned recordings and would otherwise fail hours later in a
-job: the rig, bundle adjustment's ``fixed``/``shared``, each import spec and its files, the
-detection plan and its weights, the videos, the calibration format, footage the detector must
-read, and that no output lands on an input or a user's file (:mod:`flylib.pipeline.user_files`).
-Every problem is one ``"<key>: <what is wrong; the fix>"`` line; the workflow names the user's
-file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
+"""Everything the workflow can check before it builds its DAG, beyond each key on its own
+(:func:`flylib.config.validate_config`): the rig, imports and their files, the detection plan and
+its weights, footage, a DeepFly3D calibration's handedness, and outputs that would land on inputs
+(:mod:`flylib.pipeline.user_files`). One ``"<key>: <problem; fix>"`` line each; the workflow names
+the user's file that set the key (:meth:`flylib.config.layers.ConfigLayers.report`).
 """
 
 from __future__ import annotations
@@ -35,12 +31,9 @@ def preflight_problems(
     import_files: dict[str, tuple[Path, ...]] | None = None,
 ) -> list[str]:
     """Problems the planned run would hit inside a job, one line each, starting with its key.
-
-    ``flags``: ``Config.stage_flags()``. ``check_weights``: check every detector checkpoint is
-    cached or downloadable (may wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S`).
-    ``import_files`` is filled with ``recording id -> its imported 2D's files`` as found here
-    (the workflow reads them once).
-    """
+    ``flags``: ``Config.stage_flags()``; ``check_weights``: every detector checkpoint cached or
+    downloadable (may wait :data:`flylib.pose2d.published.PROBE_TIMEOUT_S`); ``import_files`` is
+    filled with ``recording id -> its imported 2D's files`` (the workflow reads them once)."""
     recordings = list(recordings)
     problems: list[str] = []
     data = config.data
@@ -94,8 +87,11 @@ def preflight_problems(
         except FlylibError as exc:
             problems.append(_problem(exc))
 
+    found = {} if import_files is None else import_files
     if flags.get("pose2d", True):
-        problems += _pose2d_problems(config, recordings, check_weights, import_files)
+        problems += _pose2d_problems(config, recordings, check_weights, found)
+    if not problems and isinstance(calibration, dict) and "mirror" not in calibration:
+        problems += _mirror_image(config, calibration, recordings, found)
 
     if flags.get("visualization", True):
         from ..visualization.specs import video_specs
@@ -106,6 +102,31 @@ def preflight_problems(
             problems.append(_problem(exc))
     problems += path_problems(config, recordings)
     return list(dict.fromkeys(problems))
+
+
+def _mirror_image(config, calibration: dict, recordings, found) -> list[str]:
+    """A DeepFly3D calibration whose world is the fly's mirror image, decided as `flylib init`
+    decides it, on the first recording with DeepFly3D 2D: one line, before any job."""
+    from ..handedness import DOCS_PAGE
+    from ..interop.df3d import calibration_handedness
+    from .planning import calibration_inputs
+
+    pkl = str(calibration.get("file")).lower().endswith((".pkl", ".pickle"))
+    if (calibration.get("format") or ("deepfly3d" if pkl else "")) != "deepfly3d":
+        return []
+    recs = [r for r in recordings if r.id in found and r.import_spec["format"] == "deepfly3d"]
+    twod = found[recs[0].id] if recs else ()
+    files = calibration_inputs(config, recs[0].path) if len(twod) == 1 else []
+    verdict = calibration_handedness(files[-1], twod[0]) if files else None
+    if verdict is None or not verdict.mirrored:
+        return []
+    key = "file" if "file" in calibration else "index"
+    return [
+        f"calibration: {files[-1]} is the mirror image of the fly's world: DeepFly3D's 2D "
+        f"{twod[0]} through it puts the left legs on the fly's right ("
+        f"{verdict.score:+.2f}, median of {verdict.frames} frames); set calibration: {{{key}: "
+        f"{calibration[key]}, mirror: true}}, or mirror: false to run it as it is ({DOCS_PAGE})"
+    ]
 
 
 # A Snakemake wildcard: "{name}" or "{name,constraint}". Snakemake has no escape for braces in
@@ -181,13 +202,10 @@ def outdir_problem(outdir: str | Path) -> str | None:
 
 
 def load_run_config(layers: Any, *, check_frames: bool = True) -> tuple[Any, list[Any]]:
-    """Validate a run's config and plan its recordings, as the workflow does before its DAG.
-
-    ``check_frames``: compare footage frame counts and check the detector's checkpoints (off
-    in a cluster job: the main process checked both, and a node may have no network). Returns
-    the :class:`flylib.config.Config` (``text``: the one file's text, or a YAML dump of the
-    merged layers) and the recordings; ConfigError lists every problem, naming its file.
-    """
+    """Validate a run's config and plan its recordings, as the workflow does before its DAG:
+    the :class:`flylib.config.Config` (``text``: the one file's, or the merged layers as YAML) and
+    the recordings, else a ConfigError naming each problem's file. ``check_frames``: footage frame
+    counts and detector checkpoints (off in a cluster job: checked already; maybe no network)."""
     import yaml
 
     from ..config import Config, validate_config
@@ -277,7 +295,7 @@ def _pose2d_problems(
     config: Any,
     recordings: list[Any],
     check_weights: bool,
-    resolved: dict[str, tuple[Path, ...]] | None,
+    resolved: dict[str, tuple[Path, ...]],
 ) -> list[str]:
     from ..interop import import_spec
     from ..interop.importer import footage_problem
@@ -299,9 +317,7 @@ def _pose2d_problems(
             spec = import_spec(rec.import_spec)
             if not rec.demo:  # the demo's files are written by its own rule
                 target = target or import_target(config)
-                files = tuple(import_inputs(target, rec.import_spec, rec.path))
-                if resolved is not None:
-                    resolved[rec.id] = files
+                resolved[rec.id] = tuple(import_inputs(target, rec.import_spec, rec.path))
                 problem = footage_problem(target, spec, rec.path)
                 if problem is not None:
                     problems.append(f"{where or 'pose2d.import'}: {problem}")

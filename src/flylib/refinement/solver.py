@@ -49,7 +49,7 @@ log = logging.getLogger(__name__)
 FLAG_BITS: dict[str, tuple[int, str]] = {
     "observed": (1, "at least one view's 2D supports the point in this frame"),
     "filled": (2, "no view supports it; filled by the temporal term (gap <= gap_length)"),
-    "missing": (4, "no view supports it for more than gap_length frames: NaN"),
+    "missing": (4, "no view supports it for over gap_length frames, or none gives depth: NaN"),
     "single_view": (8, "supported by exactly one view (depth from the priors)"),
     "outlier_views": (16, "one or more of its 2D observations were rejected as outliers"),
     "moved": (
@@ -475,16 +475,12 @@ class ArraySink:
         self.flags[lo:hi] = flags
 
     def mark_missing(self, lo: int, hi: int, missing: Bool[np.ndarray, "T P"]) -> None:
-        """Points in a long gap (``missing`` of frames ``lo:hi``) become NaN, flagged missing (read,
-        modify, write back: the same code serves arrays and HDF5 datasets)."""
-        flags = self.flags[lo:hi]
-        flags[missing] = (flags[missing] & ~np.uint8(FLAG_BITS["filled"][0])) | FLAG_BITS[
-            "missing"
-        ][0]
-        self.flags[lo:hi] = flags
-        points = self.points3d[lo:hi]
-        points[missing] = np.nan
-        self.points3d[lo:hi] = points
+        """Points ``missing`` (of frames ``lo:hi``) become NaN with their 2D and errors, flagged
+        missing (read, modify, write back: the same code serves arrays and HDF5 datasets)."""
+        p3, p2, err = self.points3d[lo:hi], self.points2d[:, lo:hi], self.reproj_error[:, lo:hi]
+        p3[missing], p2[:, missing], err[:, missing] = np.nan, np.nan, np.nan
+        self.points3d[lo:hi], self.points2d[:, lo:hi], self.reproj_error[:, lo:hi] = p3, p2, err
+        self.flags[lo:hi] = flags_from_nan(self.flags[lo:hi], p2, p3)
 
 
 def _weights(pts2d, conf, opts):
@@ -535,9 +531,11 @@ def refine_stream(
     overlap = max(int(opts.overlap_frames), 0)
 
     # -- pass 1: which views see which points, and a frame sample for the medians
-    seen, sample = _first_pass(source, chunk, opts)
+    seen, twice, sample = _first_pass(source, chunk, opts)
     lengths = bone_lengths(sample, bones, mirror if opts.symmetric_bones else None)
+    # a point no two views see at once, nor a rigid centre or measured bone places, has no depth
     centres = rigid_centres(sample, rigid)
+    twice[rigid[np.isfinite(centres).all(-1)]], twice[bones[np.isfinite(lengths)]] = True, True
     fallback = _fallback_points(sample, rigid, centres, n_points)
     grid = Grid(seen[:, None, :], cameras, layout)
     scale = np.nanmedian(lengths) if np.isfinite(lengths).any() else np.inf
@@ -566,8 +564,8 @@ def refine_stream(
     )
     solve_seconds = time.perf_counter() - started
 
-    # -- gaps longer than gap_length: NaN
-    long_gap = _runs_longer_than(~supported, int(opts.gap_length))
+    # -- gaps longer than gap_length, and points without depth: NaN
+    long_gap = _runs_longer_than(~supported, int(opts.gap_length)) | ~twice
     for lo in range(0, n_frames, chunk):
         hi = min(lo + chunk, n_frames)
         if long_gap[lo:hi].any():
@@ -612,19 +610,21 @@ def _chain_layout(n_points: int, bones: np.ndarray, chains) -> BlockLayout:
     return layout
 
 
-def _first_pass(source, chunk: int, opts: RefinementParams) -> tuple[np.ndarray, np.ndarray]:
-    """Which views see which points anywhere ``(V, P)``, and an even sample of ``start``."""
+def _first_pass(source, chunk: int, opts: RefinementParams):
+    """Which views see which points anywhere ``(V, P)``, which points two views see in some frame
+    ``(P,)``, and an even sample of ``start``."""
     n_frames, n_points = source.n_frames, source.n_points
-    seen = np.zeros((source.n_views, n_points), bool)
+    seen, twice = np.zeros((source.n_views, n_points), bool), np.zeros(n_points, bool)
     stride = max(1, -(-n_frames // GLOBAL_SAMPLE_FRAMES))
     sample = []
     for lo in range(0, n_frames, chunk):
         hi = min(lo + chunk, n_frames)
         pts2d, conf, start, _ = source.read(lo, hi)
-        seen |= _weights(pts2d, conf, opts)[0].any(axis=1)
+        observed = _weights(pts2d, conf, opts)[0]
+        seen, twice = seen | observed.any(axis=1), twice | (observed.sum(0) > 1).any(0)
         sample.append(start[(-lo) % stride :: stride])
     sample = np.concatenate(sample) if sample else np.zeros((0, n_points, 3))
-    return seen, sample
+    return seen, twice, sample
 
 
 def _fallback_points(sample, rigid, centres, n_points: int) -> Float[np.ndarray, "P 3"]:
