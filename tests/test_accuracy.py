@@ -188,6 +188,11 @@ def test_keep_triangulation_point_by_point_and_everywhere():
     # worse everywhere: every point keeps the triangulation
     keep, everywhere = keep_triangulation(tri, tri * 1.2)
     assert keep.all() and everywhere
-    # nothing comparable: nothing kept, nothing claimed
+    # a point no held-out view can check (seen by two cameras at most: its triangulation
+    # without one view is NaN) is never trusted to refinement (issue 46: 4 cameras)
+    tri[:, :, 2] = np.nan
+    keep, everywhere = keep_triangulation(tri, ref)
+    assert keep.tolist() == [False, True, True] and not everywhere
+    # nothing comparable: every point keeps the triangulation
     keep, everywhere = keep_triangulation(tri, np.full_like(tri, np.nan))
-    assert not keep.any() and not everywhere
+    assert keep.all() and everywhere

@@ -224,6 +224,38 @@ def test_held_out_columns_mark_the_better_method_and_say_what_to_do(tmp_path):
     assert len(lines) == 12
 
 
+def test_points_no_held_out_camera_can_check_are_named_apart_from_the_worse_ones(tmp_path):
+    """Issue 46: on a rig where points are seen by two cameras at most, nothing checks
+    refinement there; the run says so instead of nothing (4 cameras) or "worse" (5)."""
+    unchecked = {
+        "frames_evaluated": 15,
+        "frames_total": 15,
+        "triangulation": {"held_out_px": {"median": None, "p95": None, "n": 0}},
+        "output": {"held_out_px": {"median": None, "p95": None, "n": 0}, "per_point": {}},
+        "kept_triangulation": ["p0", "p1"],
+        "kept_everywhere": True,
+        "output_stage": "refinement",
+    }
+    write_summary(tmp_path / "four", accuracy=unchecked)
+    mixed = _accuracy((5.87, 16.97), (5.78, 16.70), kept=["p1", "p2", "q0", "q1"])
+    mixed["output"]["per_point"] |= {"q0": {"median": None, "p95": None, "n": 0}}
+    mixed["output"]["per_point"] |= {"q1": {"median": None, "p95": None, "n": 0}}
+    write_summary(tmp_path / "five", accuracy=mixed)
+    lines = run_table([RunRecording(n, tmp_path / n) for n in ("four", "five")]).splitlines()
+    said = dict(line.strip().split(": ", 1) for line in lines[-2:])
+    assert said["four"] == (
+        "no held-out error: no point is seen by 3 cameras, so none can be rebuilt without one "
+        "of them and checked against it; the images cannot measure the 3D's error, nor "
+        "refinement's: the results keep the triangulation for every point"
+    )
+    assert "used for 8 of the 10 points that could be checked" in said["five"]
+    assert "for 2 (p1, p2) it predicted the held-out cameras worse" in said["five"]
+    assert said["five"].endswith(
+        "2 points (q0, q1) are never seen by three cameras at once, so no held-out camera "
+        "can check them: they keep their triangulation."
+    )
+
+
 def test_the_cameras_that_disagree_are_named(tmp_path):
     views = {
         v: {"median": m, "p95": 2 * m, "n": 9} for v, m in zip("abcdef", (14, 19, 10, 2, 1.6, 2))

@@ -154,26 +154,22 @@ def keep_triangulation(
     """Where refinement's held-out-view error ``(V, T, P)`` is not better than triangulation's.
 
     Both are compared on the observations both reconstructed without the view. A point keeps
-    the triangulation when refinement's median or 95th percentile there is higher; if the
-    output mixed that way is still worse overall (median or p95), every point keeps it.
-    Returns ``keep`` ``(P,)`` bool and whether every point keeps the triangulation.
+    the triangulation when refinement's median or 95th percentile there is higher, or when
+    there is nothing to compare (a point never seen by three cameras at once: unchecked, never
+    trusted); if the output mixed that way is still worse overall (median or p95), every point
+    keeps it. Returns ``keep`` ``(P,)`` bool and whether every point keeps the triangulation.
     """
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
     both = np.isfinite(tri) & np.isfinite(ref)
-    keep = np.zeros(tri.shape[2], bool)
-    for p in range(tri.shape[2]):
-        a, b = tri[:, :, p][both[:, :, p]], ref[:, :, p][both[:, :, p]]
-        if a.size:
-            keep[p] = np.median(b) > np.median(a) or np.percentile(b, 95) > np.percentile(a, 95)
-    if not both.any():
-        return keep, False
-    mixed = np.where(keep[None, None], tri, ref)[both]
-    base = tri[both]
-    worse = np.median(mixed) > np.median(base) or np.percentile(mixed, 95) > np.percentile(base, 95)
-    if worse:
-        return np.ones(tri.shape[2], bool), True
-    return keep, bool(keep.all())
+
+    def worse(b, a) -> bool:  # b's median or p95 higher than a's (a never empty)
+        return np.median(b) > np.median(a) or np.percentile(b, 95) > np.percentile(a, 95)
+
+    keep = np.array([not w.any() or worse(r[w], t[w]) for t, r, w in zip(tri.T, ref.T, both.T)])
+    if both.any() and worse(np.where(keep[None, None], tri, ref)[both], tri[both]):
+        keep[:] = True
+    return keep.astype(bool), bool(keep.all())
 
 
 def _stats(values: np.ndarray) -> dict[str, float | int | None]:

@@ -276,25 +276,29 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
     by the held-out-view error, which points keep the triangulation and why, and which camera (if
     any) disagrees with the others."""
     tri = _held(accuracy.get("triangulation"))
+    refined = accuracy.get("output_stage") == "refinement"
     if tri is None:  # held out, a camera leaves a point in at least 2 others
         return (
             f"{rec_id}: no held-out error: no point is seen by 3 cameras, so none can be rebuilt "
             "without one of them and checked against it; the images cannot measure the 3D's error"
+            + (
+                ", nor refinement's: the results keep the triangulation for every point"
+                if refined
+                else ""
+            )
         )
-    frames = ""
-    if accuracy.get("frames_evaluated", 0) < accuracy.get("frames_total", 0):
-        frames = (
-            f" Held out on {accuracy['frames_evaluated']} of {accuracy['frames_total']} frames."
-        )
+    evaluated, total = accuracy.get("frames_evaluated", 0), accuracy.get("frames_total", 0)
+    frames = f" Held out on {evaluated} of {total} frames." if evaluated < total else ""
     figures = f"median {tri[0]:.2f} px, p95 {tri[1]:.2f} px"
-    if accuracy.get("output_stage") != "refinement":
+    if not refined:
         line = f"{rec_id}: each camera is predicted from the others to {figures} (triangulation)."
     else:
         out = _held(accuracy.get("output")) or tri
         raw = _held(accuracy.get("refinement")) or tri
-        kept = list(accuracy.get("kept_triangulation") or [])
         per_point = (accuracy.get("output") or {}).get("per_point") or {}
-        n_points = sum(1 for v in per_point.values() if v.get("n")) or None
+        checked = {k for k, v in per_point.items() if v.get("n")}
+        kept = [k for k in accuracy.get("kept_triangulation") or [] if k in checked]
+        unchecked = [k for k in accuracy.get("kept_triangulation") or [] if k not in checked]
         compare = (
             f"held-out median {tri[0]:.2f} -> {out[0]:.2f} px, p95 {tri[1]:.2f} -> {out[1]:.2f} px"
         )
@@ -308,22 +312,27 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
                 "or set pipeline.do_refinement: false."
             )
         elif kept:
-            names = ", ".join(kept[:6]) + (f" and {len(kept) - 6} more" if len(kept) > 6 else "")
-            helped = f"{n_points - len(kept)} of the {n_points}" if n_points else "some of the"
             line = (
-                f"{rec_id}: the refined 3D is used for {helped} points that could be checked "
-                f"({compare}); for {len(kept)} "
-                f"({names}) it predicted the held-out cameras worse than triangulation, so the "
-                "results keep their triangulation (flag kept_triangulation in "
+                f"{rec_id}: the refined 3D is used for {len(checked) - len(kept)} of the "
+                f"{len(checked)} points that could be checked ({compare}); for {len(kept)} "
+                f"({_named(kept)}) it predicted the held-out cameras worse than triangulation, "
+                "so the results keep their triangulation (flag kept_triangulation in "
                 "stages/refinement.h5)."
             )
         else:
             line = f"{rec_id}: refinement is better than triangulation ({compare}); the results use it."
-    line += frames
-    worst = _worst_view(accuracy.get("output") or accuracy.get("triangulation"), tri[0])
-    if worst:
-        line += worst
-    return line
+        if unchecked and not accuracy.get("kept_everywhere"):
+            line += (
+                f" {len(unchecked)} points ({_named(unchecked)}) are never seen by three "
+                "cameras at once, so no held-out camera can check them: they keep their triangulation."
+            )
+    return (
+        line + frames + _worst_view(accuracy.get("output") or accuracy.get("triangulation"), tri[0])
+    )
+
+
+def _named(points: list[str]) -> str:
+    return ", ".join(points[:6]) + (f" and {len(points) - 6} more" if len(points) > 6 else "")
 
 
 def _worst_view(block: dict, overall: float) -> str:

@@ -59,9 +59,9 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
     "no_start": (64, "the starting triangulation had no 3D for it in this frame"),
     "kept_triangulation": (
         128,
-        "refinement's held-out-view error was not better than triangulation's for this "
-        "point, or a person corrected it, so the output keeps the triangulation's 3D, "
-        "2D and errors",
+        "refinement's held-out-view error was not better than triangulation's for this point "
+        "(or could not be measured), or a person corrected it, so the output keeps the "
+        "triangulation's 3D, 2D and errors",
     ),
 }
 
