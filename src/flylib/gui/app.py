@@ -163,14 +163,7 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
         if view not in session.view_names:
             raise HTTPException(404, f"unknown camera {view[:80]!r}")
         check_frame(frame)
-        started = time.perf_counter()
-        data = session.frames[view].jpeg(frame)
-        elapsed = (time.perf_counter() - started) * 1000
-        return Response(
-            data,
-            media_type="image/jpeg",
-            headers={**CACHED, "Server-Timing": f"decode;dur={elapsed:.1f}"},
-        )
+        return Response(session.frames[view].jpeg(frame), media_type="image/jpeg", headers=CACHED)
 
     @app.get("/api/frames/{frame}")
     async def frames(frame: int) -> Response:

@@ -27,9 +27,8 @@ export class FramesAhead {
   }
 
   load(frame) {
-    // decoded into ImageBitmaps: an Image's decoded pixels may be dropped until drawn,
-    // and decoding seven again took most of a step
-    // all views' JPEGs in one response (a request cost the browser more than a decode)
+    // the views' JPEGs in one response (a request cost the browser more than a decode), decoded
+    // into ImageBitmaps (an Image's pixels may be dropped until drawn, and decoded again)
     const parts = fetch(apiUrl(`/api/frames/${frame}`)).then(async (r) => {
       const lengths = r.ok ? r.headers.get("X-Lengths").split(",").map(Number) : [], blob = await r.blob();
       let at = 0;
