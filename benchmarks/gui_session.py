@@ -106,7 +106,8 @@ def serving(session):
     server = uvicorn.Server(
         uvicorn.Config(create_app(session), host="127.0.0.1", port=port, log_level="warning")
     )
-    threading.Thread(target=server.run, daemon=True).start()
+    server.thread = threading.Thread(target=server.run, daemon=True)
+    server.thread.start()
     while not server.started:
         time.sleep(0.05)
     return server, f"http://127.0.0.1:{port}/"
@@ -146,6 +147,7 @@ class Page:
     def close(self):
         self.driver.quit()
         self.server.should_exit = True
+        self.server.thread.join(10)  # its requests answered before the decoders close
         self.session.close()
 
 

@@ -169,8 +169,8 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
     async def frames(frame: int) -> Response:
         # one request a frame, not one per view: each costs the browser more than its decode
         check_frame(frame)
-        jpeg = session.frames
-        jpegs = await gather(*(run_in_threadpool(jpeg[v].jpeg, frame) for v in session.view_names))
+        views = session.frames
+        jpegs = await gather(*(run_in_threadpool(views[v].jpeg, frame) for v in session.view_names))
         lengths = ",".join(str(len(j)) for j in jpegs)
         return Response(b"".join(jpegs), headers={**CACHED, "X-Lengths": lengths})
 

@@ -416,7 +416,7 @@ class FrameSource:
             self._fill_wake.notify_all()
         if self._fill_thread is not None:
             self._fill_thread.join(timeout=5)
-        with self._spare_lock:
+        with self._lock, self._spare_lock:  # a decoder closed under a request crashes PyAV
             for frames in (self._frames, self._spare):
                 if frames is not None:
                     frames.close()
