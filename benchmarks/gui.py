@@ -19,6 +19,8 @@ In a browser (issue 47, ``--browser``: headless Chromium, as tests/gui): a frame
 ahead by the page, against the baseline of fetching a frame's 7 JPEGs and points cold in
 the same page (what a step waited for without that); playback's drawn frames per second
 at 10 and 30 fps asked (target: step <= 60 ms, playback at the asked rate up to 30 fps).
+The same figures before and after (a baseline checkout's GUI in the same run), with the
+keyboard session and the footage fraction: ``benchmarks/gui_session.py --baseline CHECKOUT``.
 
     python benchmarks/gui.py [--frames 200] [--repeats 60] [--footage DIR ...]
     python benchmarks/gui.py --browser --frames 900

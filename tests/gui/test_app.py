@@ -125,6 +125,18 @@ def test_frames_are_the_footage_frames_as_jpeg_in_any_order(client, outdir):
         assert int(np.argmin(diffs)) == frame and diffs[frame] < 3.0
 
 
+def test_one_request_gives_every_view_of_a_frame_in_view_order(client):
+    views = [v["name"] for v in client.get("/api/meta").json()["views"]]
+    response = client.get("/api/frames/5")
+    assert response.status_code == 200
+    lengths = [int(n) for n in response.headers["x-lengths"].split(",")]
+    assert len(lengths) == len(views) and sum(lengths) == len(response.content)
+    at = np.cumsum([0, *lengths])
+    for v, view in enumerate(views):  # each part is that view's own JPEG
+        assert response.content[at[v] : at[v + 1]] == client.get(f"/api/frame/{view}/5").content
+    assert client.get(f"/api/frames/{FRAMES}").status_code == 404
+
+
 def test_points_are_the_triangulation_input_and_the_reprojected_3d(client, outdir):
     result = PoseResult.load(outdir / "results.h5")
     pose2d = Pose2dData.load(outdir / "results.h5")

@@ -107,3 +107,28 @@ def test_a_jump_the_fill_is_nearer_to_waits_for_it(one_keyframe_video, monkeypat
         assert source._frames._next == position  # served by the fill
     finally:
         source.close()
+
+
+def test_closing_while_requests_decode_does_not_crash(one_keyframe_video):
+    # the GUI's session closed (Ctrl+C, a test's teardown) with frame requests still decoding:
+    # PyAV crashed the process when the container was closed under a decode
+    import random
+    import threading
+    import time
+
+    for _ in range(20):
+        source = FrameSource([one_keyframe_video], (64, 96), 2, fill_bytes=0)
+        stop = threading.Event()
+
+        def requests(source=source, stop=stop):
+            while not stop.is_set():
+                source.jpeg(random.randrange(FRAMES))  # mostly seeks: no cache to help
+
+        threads = [threading.Thread(target=requests) for _ in range(2)]
+        for thread in threads:
+            thread.start()
+        time.sleep(0.1)
+        source.close()
+        stop.set()
+        for thread in threads:
+            thread.join()

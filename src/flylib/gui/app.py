@@ -6,6 +6,7 @@ Routes::
     GET  /static/{file}             the front-end's ES modules and CSS (package data)
     GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
+    GET  /api/frames/{frame}        every view's JPEG, one after another (lengths: X-Lengths)
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
     GET  /api/suspects              suspect (frame, point) pairs, per-frame score, review progress
     GET  /api/save-check            what the edits made worse (said before saving)
@@ -28,6 +29,7 @@ import html
 import logging
 import secrets
 import time
+from asyncio import gather
 from collections.abc import Iterable
 from importlib import resources
 from typing import Any
@@ -36,6 +38,7 @@ from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconn
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
 
 from ..errors import FlylibError
 from .security import (
@@ -53,6 +56,7 @@ from .session import ReviewSession, StaleRevision, shown
 log = logging.getLogger(__name__)
 
 STATIC = resources.files("flylib.gui") / "static"
+CACHED = {"Cache-Control": "private, max-age=3600"}
 _TOKEN_SLOT = '<meta name="flylib-token" content="">'
 
 
@@ -159,17 +163,16 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
         if view not in session.view_names:
             raise HTTPException(404, f"unknown camera {view[:80]!r}")
         check_frame(frame)
-        started = time.perf_counter()
-        data = session.frames[view].jpeg(frame)
-        elapsed = (time.perf_counter() - started) * 1000
-        return Response(
-            data,
-            media_type="image/jpeg",
-            headers={
-                "Cache-Control": "private, max-age=3600",
-                "Server-Timing": f"decode;dur={elapsed:.1f}",
-            },
-        )
+        return Response(session.frames[view].jpeg(frame), media_type="image/jpeg", headers=CACHED)
+
+    @app.get("/api/frames/{frame}")
+    async def frames(frame: int) -> Response:
+        # one request a frame, not one per view: each costs the browser more than its decode
+        check_frame(frame)
+        views = session.frames
+        jpegs = await gather(*(run_in_threadpool(views[v].jpeg, frame) for v in session.view_names))
+        lengths = ",".join(str(len(j)) for j in jpegs)
+        return Response(b"".join(jpegs), headers={**CACHED, "X-Lengths": lengths})
 
     @app.get("/api/points/{frame}")
     def points(frame: int) -> dict:

@@ -14,6 +14,8 @@ frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequence
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -378,6 +380,8 @@ class FrameSource:
             return next((i for i in wanted if i not in self._filled), None)
 
     def _fill_loop(self) -> None:
+        if sys.platform == "linux":  # a thread's own nice: the page's requests and browser first
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
         while True:
             with self._fill_wake:
                 while not self._closed and (self._requests or self._next_to_fill() is None):
@@ -412,7 +416,7 @@ class FrameSource:
             self._fill_wake.notify_all()
         if self._fill_thread is not None:
             self._fill_thread.join(timeout=5)
-        with self._spare_lock:
+        with self._lock, self._spare_lock:  # a decoder closed under a request crashes PyAV
             for frames in (self._frames, self._spare):
                 if frames is not None:
                     frames.close()

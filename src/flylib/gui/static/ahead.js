@@ -3,7 +3,7 @@
 
 import { apiUrl, getJSON } from "./api.js";
 
-const PARALLEL = 2;  // frames fetched ahead at once (8 requests each; Chrome opens 6 per host)
+const PARALLEL = 2;  // frames fetched ahead at once (2 requests each)
 const KEEP = 32;  // frames held (7 views x 1.8 MB decoded each at 960 x 480)
 
 export class FramesAhead {
@@ -27,13 +27,15 @@ export class FramesAhead {
   }
 
   load(frame) {
-    // decoded into ImageBitmaps: an Image's decoded pixels may be dropped until drawn,
-    // and decoding seven again took most of a step
+    // the views' JPEGs in one response (a request cost the browser more than a decode), decoded
+    // into ImageBitmaps (an Image's pixels may be dropped until drawn, and decoded again)
+    const parts = fetch(apiUrl(`/api/frames/${frame}`)).then(async (r) => {
+      const lengths = r.ok ? r.headers.get("X-Lengths").split(",").map(Number) : [], blob = await r.blob();
+      let at = 0;
+      return lengths.map((n) => blob.slice(at, (at += n), "image/jpeg"));
+    });
     const images = {};
-    for (const view of this.views) {
-      images[view] = fetch(apiUrl(`/api/frame/${encodeURIComponent(view)}/${frame}`))
-        .then((r) => (r.ok ? r.blob() : null)).then((b) => b && createImageBitmap(b)).catch(() => null);
-    }
+    this.views.forEach((view, i) => { images[view] = parts.then((p) => p[i] && createImageBitmap(p[i])).catch(() => null); });
     const points = getJSON(`/api/points/${frame}`);
     points.catch(() => this.frames.delete(frame));  // a failed read is asked again
     const entry = { images, points, ready: Promise.all([...Object.values(images), points.catch(() => {})]) };
