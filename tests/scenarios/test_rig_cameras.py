@@ -245,9 +245,11 @@ def test_a_four_camera_rig_from_a_rough_start_runs_and_agrees_with_the_truth(tmp
 
     out = finished(lab_run(tmp_path, my))
     cells = table_line(out, "fly1")
-    # 32 of 38 points: each side's abdomen is seen by one camera alone (rh, lh), so it has no
-    # depth and no 3D (refinement once placed it by its priors, 15-25 % of the body off)
-    assert cells[1:3] == ["30", "84.2%"], cells
+    # at most 32 of 38 points (84.2 %): each side's abdomen is seen by one camera alone (rh, lh),
+    # so it has no depth and no 3D (refinement once placed it by its priors, 15-25 % of the body
+    # off); no point is seen by three cameras, so none can check refinement and the results are
+    # the triangulation's (without refinement's filling, fewer points have 3D)
+    assert cells[1] == "30" and 70 < float(cells[2].rstrip("%")) <= 84.2, cells
     outdir = tmp_path / "fly1" / "flylib_outputs"
     result = assert_self_consistent(outdir / "results.h5")
     assert list(result.cameras.names) == ["rh", "rf", "lf", "lh"]
