@@ -244,11 +244,11 @@ function drawMarks(view, selected) {
   const hover = state.hover && state.hover.view === view.name ? state.hover.point : null;
   const shown = (p) => state.display.limb === null || state.meta.point_limbs[p] === state.display.limb;
   // labels always on (l): every drawn point's name; else the hovered and the selected one;
-  // a thumbnail names the selected point only
+  // a thumbnail names none (at ~100 px the name covers its view's label; the item line names it)
   const named = state.display.labels ? state.meta.points.map((_, p) => p).filter(shown) : [];
   const thumbnail = state.layout === "focus" && view.index !== state.focus;
   view.labelled = [];  // the names drawn (the browser test reads them)
-  for (const p of new Set(thumbnail ? [state.selected && state.selected.point] : [...named, selected, hover])) {
+  for (const p of new Set(thumbnail ? [] : [...named, selected, hover])) {
     if (p === null || p === undefined) continue;
     const xy = v.points2d[p] || v.reprojected[p];
     if (!xy) continue;
