@@ -277,6 +277,26 @@ def test_a_four_camera_rig_from_a_rough_start_runs_and_agrees_with_the_truth(tmp
 BELOW = {"azimuth_deg": 0, "elevation_deg": -80, "distance": 160}  # under the fly, looking up
 
 
+def test_a_camera_added_without_footage_is_named_with_the_fix(tmp_path):
+    """An eighth camera added in my.yaml while `sources` (a list, replaced whole) still lists
+    seven videos: `check-config` and the dry run say, in one line naming the camera, what to
+    add; before, the dry run ended in a `KeyError: 'v'` traceback from the demo's file list."""
+    write_config(
+        tmp_path / "my.yaml",
+        {"recordings": [{"path": "demo", "demo": True}], "cameras": {"v": BELOW}},
+    )
+    line = (
+        "my.yaml: cameras: v: no footage source feeds it (the demo films one video per source); "
+        "add e.g. {name: vid_v, filename: camera_7.mp4} to sources (a list is replaced whole: "
+        "give every entry), or remove the camera (null)"
+    )
+    check = flylib(tmp_path, "check-config", "my.yaml")
+    assert check.returncode != 0 and line in check.out, check.out
+    dry = lab_run(tmp_path, "my.yaml", "-n")
+    assert dry.returncode != 0 and line in dry.out, dry.out
+    assert "Traceback" not in dry.out and "KeyError" not in dry.out, dry.out
+
+
 def test_a_camera_added_below_the_fly_is_run_with_the_rest(tmp_path):
     """An eighth camera `v` under the fly, added in my.yaml (its pose in `cameras`, its footage
     as an eighth `sources` entry: a list is restated whole) and tried on the demo fly, whose

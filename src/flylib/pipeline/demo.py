@@ -123,10 +123,16 @@ def demo_files(config: Any) -> dict[str, list[str]]:
                 f"sources: {name!r} has filename {pattern!r}; the demo writes one "
                 ".mp4 per source, so each source needs a plain '<name>.mp4' filename"
             )
-    by_view = view_sources(config)
+    by_view, views = view_sources(config), view_names(config)
+    if missing := [v for v in views if v not in by_view]:
+        raise ConfigError(
+            f"cameras: {', '.join(missing)}: no footage source feeds it (the demo films one video "
+            f"per source); add e.g. {{name: vid_{missing[0]}, filename: camera_{len(patterns)}.mp4}} "
+            "to sources (a list is replaced whole: give every entry), or remove the camera (null)"
+        )
     return {
         "footage": list(patterns.values()),
-        "dlc": [dlc_filename(patterns[by_view[v]]) for v in view_names(config)],
+        "dlc": [dlc_filename(patterns[by_view[v]]) for v in views],
         "truth": [TRUTH_FILE],
     }
 
