@@ -5,14 +5,19 @@ the last release: ``git worktree add /tmp/rel <commit>``), for that one in the s
 run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order alternates
 (A B, then B A, ...) so that a machine shared with other work loads both alike.
 
-1. DAG time: ``snakemake --dry-run`` of N recordings (``--recordings 100,1000``): the
-   demo's recording at 2 frames (7 videos, DeepLabCut CSVs) hard-linked N times and
-   listed in a sheet with its 2D imported per recording, as a lab lists a batch (no
-   detector weights needed). Wall clock and CPU, the best of ``--repeats`` after a first
-   dry run, whose wall clock is printed apart: it reads every video's header, later ones
-   find the frame counts in flylib's cache (``flylib.recordings.frame_counts.FrameCountCache``). A
-   dry run longer than ``--cap`` seconds is stopped and reported as "> cap".
-   Target: <= 20 s for 1,000 recordings.
+1. Planning table: ``snakemake --dry-run`` of N recordings (``--recordings
+   100,1000,10000``): the demo's recording at 2 frames (7 videos, DeepLabCut CSVs)
+   hard-linked N times and listed in a sheet with its 2D imported per recording, as a
+   lab lists a batch (no detector weights needed). Per checkout its first dry run
+   (cold: flylib's frame-count cache empty, every video's header read) and the best of
+   ``--repeats`` later ones (warm: the counts cached; one run above 1,000 recordings):
+   wall clock, CPU and peak memory of the whole run and of its part up to Snakemake's
+   "Building DAG of jobs..." (Snakemake's start, the Snakefile, flylib's planning:
+   flylib's part; the rest, the DAG and the job listing, Snakemake's, flylib's input
+   functions included). "snakemake alone" is a Snakefile of the same shape (seven plain
+   ``shell:`` jobs per recording, no flylib): Snakemake's own floor. A dry run longer
+   than ``--cap`` (the baseline's: ``--baseline-cap``) seconds is stopped ("> cap").
+   Targets: 1,000 recordings <= 20 s cold; 10,000 <= 120 s and <= 2 GB cold.
 2. Fixed cost per recording: one such recording of ``--frames`` frames (60: the demo's)
    run through ``snakemake --cores 1``; each job's wall time (its Snakemake benchmark
    file, the median of ``--repeats`` runs) against the stage's compute (the same stage
@@ -29,7 +34,8 @@ run, each with its own ``PYTHONPATH`` and Snakefile, in pairs whose order altern
    functions called directly in one process.
 
     python benchmarks/workflow.py [--recordings 100,1000] [--baseline /tmp/rel]
-        [--repeats 3] [--frames 60] [--cap 600] [--skip-planning] [--skip-fixed]
+        [--repeats 3] [--frames 60] [--cap 600] [--baseline-cap S] [--skip-planning]
+        [--skip-fixed]
         [--skip-slurm] [--overhead]
 """
 
@@ -45,7 +51,9 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from math import inf
 from pathlib import Path
 
 import yaml
@@ -138,10 +146,77 @@ def _base_config(repo: Path = REPO) -> dict:
     return yaml.safe_load((repo / "config" / "config.yaml").read_text())
 
 
-def bench_planning(checkouts: dict[str, Path], counts: list[int], cap: float, repeats: int):
-    """``{n: {checkout: (wall, cpu)}}``: the best dry run of each batch size, and under
-    ``"first"`` each checkout's first dry run's wall time (its frame-count cache empty:
-    a cache folder of the benchmark's own)."""
+#: Snakemake prints this once the Snakefile is read, flylib's planning done, and the DAG begins.
+DAG_LINE = "Building DAG of jobs..."
+
+
+def _cpu_rss(pid: int) -> tuple[float, float]:
+    """CPU seconds and peak resident GB of a running process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    status = Path(f"/proc/{pid}/status").read_text()
+    return cpu, int(re.search(r"VmHWM:\s+(\d+)", status)[1]) / 1e6
+
+
+def _plan(command: list[str], env: dict, cap: float) -> dict:
+    """One dry run: ``{"wall", "cpu", "gb"}`` of the whole of it and, under ``"flylib"``, of
+    its start up to :data:`DAG_LINE` (Snakemake's start, the Snakefile and flylib's planning:
+    flylib's part; the rest is Snakemake's DAG and job listing). All ``inf``: stopped at ``cap``."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+    )
+    timer = threading.Timer(cap, proc.kill)
+    timer.start()
+    flylib, tail = None, []
+    for line in proc.stdout:
+        if flylib is None and line.startswith(DAG_LINE):
+            cpu, gb = _cpu_rss(proc.pid)
+            flylib = {"wall": time.perf_counter() - start, "cpu": cpu, "gb": gb}
+        tail = [*tail[-40:], line]
+    _, status, usage = os.wait4(proc.pid, 0)
+    timer.cancel()
+    if os.waitstatus_to_exitcode(status) == -9:
+        return {"wall": inf, "cpu": inf, "gb": inf, "flylib": None}
+    if status != 0 or flylib is None:
+        raise SystemExit("snakemake failed:\n" + "".join(tail))
+    return {
+        "wall": time.perf_counter() - start,
+        "cpu": usage.ru_utime + usage.ru_stime,
+        "gb": usage.ru_maxrss / 1e6,
+        "flylib": flylib,
+    }
+
+
+def _floor_snakefile(root: Path, count: int) -> Path:
+    """Snakemake alone: a Snakefile of the plan's shape (``count`` recordings, one job per
+    stage of a default run, each reading the artifacts made before it, the last two
+    assemble's) with plain ``shell:`` rules: no input functions, params, resources, scripts,
+    groups or flylib."""
+    final = ["assemble", "kinematics", "visualization"]
+    rules = [f"rule all:\n    input: expand('out/{{i}}/{{f}}', i=range({count}), f={final})\n"]
+    done: list[str] = []
+    for stage in CPU_STAGES:
+        inputs = ["assemble"] if stage in final[1:] else done
+        rules.append(
+            f"rule {stage}:\n    input: {[f'out/{{i}}/{d}' for d in inputs] or ['src']}\n"
+            f"    output: 'out/{{i}}/{stage}'\n    shell: 'touch {{output}}'\n"
+        )
+        done.append(stage)
+    snakefile = root / "Snakefile"
+    snakefile.write_text("\n".join(rules))
+    (root / "src").touch()
+    return snakefile
+
+
+def bench_planning(
+    checkouts: dict[str, Path], counts: list[int], caps: dict[str, float], repeats: int
+):
+    """Yields ``{n: {checkout: {"cold": run, "warm": run}, "snakemake alone": run}}`` (runs as
+    :func:`_plan`): each checkout's first dry run of ``n`` recordings (its frame-count cache
+    empty: a cache folder of the benchmark's own), the best (CPU) of ``repeats`` later ones
+    (one above 1,000 recordings), and Snakemake alone on a DAG of that shape. A checkout's
+    dry runs stop at its ``caps`` seconds."""
     base = _base_config()
     results: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -149,16 +224,25 @@ def bench_planning(checkouts: dict[str, Path], counts: list[int], cap: float, re
         for n in counts:
             config = {**base, "recordings": str(demo_batch(root / "batch", n, base))}
             work = _workdirs(root / f"plan{n}", checkouts, config)
-            cache = {"FLYLIB_CACHE": str(root / f"cache{n}")}
-            first = {}
-            for name, repo in checkouts.items():  # also warms the imports and the file cache
-                first[name] = _snakemake(repo, work[name], "--dry-run", cap=cap, env=cache)[0]
-            runs: dict[str, list[tuple[float, float]]] = {name: [] for name in checkouts}
-            for _, name, repo in _paired(checkouts, repeats):
-                wall, cpu, _ = _snakemake(repo, work[name], "--dry-run", cap=cap, env=cache)
-                runs[name].append((wall, cpu))
-            results[n] = {name: min(r) for name, r in runs.items()} | {"first": first}
-    return results
+            results[n] = {name: {"cold": None, "warm": []} for name in checkouts}
+            for name, repo in checkouts.items():
+                env = {**_env(repo), "FLYLIB_CACHE": str(root / f"cache{n}-{name}")}
+                command = _command(repo, work[name], "--dry-run")
+                results[n][name]["cold"] = _plan(command, env, caps[name])
+            for _, name, repo in _paired(checkouts, repeats if n <= 1000 else 1):
+                if results[n][name]["cold"]["wall"] == inf:
+                    continue
+                env = {**_env(repo), "FLYLIB_CACHE": str(root / f"cache{n}-{name}")}
+                command = _command(repo, work[name], "--dry-run")
+                results[n][name]["warm"].append(_plan(command, env, caps[name]))
+            for runs in results[n].values():
+                runs["warm"] = min(runs["warm"], key=lambda r: r["cpu"], default=None)
+            floor = root / f"floor{n}"
+            floor.mkdir()
+            command = [str(SNAKEMAKE), "-s", str(_floor_snakefile(floor, n)), "-d", str(floor)]
+            alone = _plan([*command, "--dry-run"], dict(os.environ), caps["this"])
+            results[n]["snakemake alone"] = alone
+            yield {n: results[n]}
 
 
 def _job_seconds(outdir: Path) -> dict[str, float]:
@@ -338,26 +422,47 @@ def bench_overhead(frames: int) -> dict:
     }
 
 
-def _print_planning(plan: dict, cap: float) -> None:
-    for n, runs in plan.items():
-        first = runs.pop("first")
-        for name, (wall, cpu) in runs.items():
-            if wall == float("inf"):
-                print(f"DAG time, {n} recordings, {name}: > {cap:.0f} s (stopped)")
-                continue
-            target = f" (target <= 20 s: {'ok' if wall <= 20 else 'MISSED'})" if n == 1000 else ""
-            print(
-                f"DAG time (snakemake -n), {n:>5} recordings, {name:>8}: {wall:6.2f} s wall, "
-                f"{cpu:6.2f} s CPU{target}"
-            )
+def _print_planning(plan: dict, caps: dict[str, float], header: bool = True) -> None:
+    """The planning table: per batch size and checkout, the first (cold) and a later (warm)
+    dry run: wall, CPU, peak memory, and flylib's part of each (up to the DAG line)."""
+    if header:
         print(
-            "  first dry run (video headers read, no frame count cached): "
-            + ", ".join(f"{name} {wall:.2f} s" for name, wall in first.items())
+            "planning (snakemake --dry-run; cold: the frame-count cache empty, warm: filled); "
+            "flylib = Snakemake's start, the Snakefile and flylib's planning, up to "
+            f"'{DAG_LINE}'; Snakemake = the DAG and the job listing after it"
         )
-        if "baseline" in runs and runs["baseline"][0] != float("inf"):
+        print(f"{'':32}{'whole dry run':>26}{'flylib':>24}{'Snakemake':>16}")
+        print(
+            f"{'recordings':>10} {'checkout':>15} {'cache':>5}"
+            + f"{'wall s':>8}{'CPU s':>8}{'peak GB':>10}" * 2
+            + f"{'wall s':>8}{'CPU s':>8}"
+        )
+    for n, runs in plan.items():
+        for name, run in runs.items():
+            for cache, r in [("", run)] if name == "snakemake alone" else run.items():
+                line = f"{n:>10} {name:>15} {cache:>5}"
+                if r is None or r["wall"] == inf:
+                    cap = caps.get(name, caps["this"])
+                    print(f"{line}{'> ' + format(cap, '.0f'):>8} (stopped at the cap)")
+                    continue
+                f = r["flylib"]
+                print(
+                    line
+                    + "".join(f"{x['wall']:8.1f}{x['cpu']:8.1f}{x['gb']:10.2f}" for x in (r, f))
+                    + f"{r['wall'] - f['wall']:8.1f}{r['cpu'] - f['cpu']:8.1f}"
+                )
+        if n == 1000 and runs["this"]["cold"]["wall"] != inf:
+            wall = runs["this"]["cold"]["wall"]
             print(
-                f"  this checkout / baseline: {runs['this'][0] / runs['baseline'][0]:.2f} wall, "
-                f"{runs['this'][1] / runs['baseline'][1]:.2f} CPU"
+                f"  1,000 cold: {wall:.1f} s wall (target <= 20 s: "
+                f"{'ok' if wall <= 20 else 'MISSED'})"
+            )
+        if n == 10000 and runs["this"]["cold"]["wall"] != inf:
+            r = runs["this"]["cold"]
+            ok = r["wall"] <= 120 and r["gb"] <= 2
+            print(
+                f"  10,000 cold: {r['wall']:.1f} s wall, {r['gb']:.2f} GB (target <= 120 s, "
+                f"<= 2 GB: {'ok' if ok else 'MISSED'})"
             )
 
 
@@ -410,6 +515,7 @@ def main() -> None:
     parser.add_argument("--baseline", type=Path, help="a checkout of the last release")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--cap", type=float, default=600.0, help="stop a dry run after this")
+    parser.add_argument("--baseline-cap", type=float, help="the baseline's (default: --cap)")
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--skip-planning", action="store_true")
     parser.add_argument("--skip-fixed", action="store_true")
@@ -436,7 +542,9 @@ def main() -> None:
     print("checkouts: " + ", ".join(f"{n} = {p}" for n, p in checkouts.items()), flush=True)
     if not args.skip_planning:
         counts = [int(n) for n in args.recordings.split(",")]
-        _print_planning(bench_planning(checkouts, counts, args.cap, args.repeats), args.cap)
+        caps = {"this": args.cap, "baseline": args.baseline_cap or args.cap}
+        for n, plan in enumerate(bench_planning(checkouts, counts, caps, args.repeats)):
+            _print_planning(plan, caps, header=n == 0)
     if not args.skip_fixed:
         _print_fixed(bench_fixed(checkouts, args.frames, args.repeats), args.frames)
     if not args.skip_slurm:
