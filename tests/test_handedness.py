@@ -188,7 +188,7 @@ def test_a_calibration_that_does_not_match_the_cameras_table_is_undetermined():
     line = _table_rig({f"c{i}": {"azimuth_deg": 0, "distance": 100.0 + 50 * i} for i in range(3)})
     verdict = rig_handedness(line, line)
     assert verdict.verdict == "undetermined" and verdict.score == 0.0, verdict
-    assert verdict.reason.endswith(": too poor a fit to tell")
+    assert verdict.reason.endswith(": the other handedness fits about as well")
     # one camera upside down (its image up against the table's)
     _, table = Config.default().camera_table()
     rolled = _table_rig({**table, "lf": {"azimuth_deg": 45, "roll_deg": 180}})

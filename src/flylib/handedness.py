@@ -120,10 +120,9 @@ def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np
 
 
 def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Handedness:
-    """Whether world points ``(T, P, 3)`` (NaN = missing) show a fly or its mirror image: the
-    median per-frame cosine over at least :data:`MIN_FRAMES` frames, ``right-handed`` above
-    +0.5, ``mirrored`` below -0.5, else ``undetermined``; the ``skeleton`` names the legs
-    (:func:`side_groups`)."""
+    """Whether world points ``(T, P, 3)`` (NaN = missing; legs named by ``skeleton``) show a fly
+    or its mirror image: the median per-frame cosine over at least :data:`MIN_FRAMES` frames,
+    ``right-handed`` above +0.5, ``mirrored`` below -0.5, else ``undetermined``."""
     groups = side_groups(skeleton)
     if isinstance(groups, str):
         return Handedness(float("nan"), UNDETERMINED, groups, 0)
@@ -163,7 +162,8 @@ def _rig_vectors(rig, names: list[str]) -> np.ndarray:
     scene = np.linalg.lstsq(off_axis.sum(0), np.einsum("vij,vj->i", off_axis, centres))[0]
     ahead = np.sign(np.einsum("vi,vi->v", scene - centres, axes))[:, None]
     centred = centres - centres.mean(0)
-    return np.vstack([centred / np.sqrt((centred**2).sum(1).mean()), -rmats[:, 1] * ahead])
+    scale = max(np.sqrt((centred**2).sum(1).mean()), np.finfo(float).tiny)  # 0: one place
+    return np.vstack([centred / scale, -rmats[:, 1] * ahead])
 
 
 def rig_handedness(rig, typed) -> Handedness:
@@ -185,8 +185,9 @@ def rig_handedness(rig, typed) -> Handedness:
         + ("only mirrored" if det < 0 else "unmirrored")
         + f" (residual {best:.2f}, {other:.2f} {'un' if det < 0 else ''}mirrored)"
     )
-    if not (best <= FIT and abs(score) >= DECISIVE):  # NaN: centres all in one place
-        return Handedness(score, UNDETERMINED, f"{facts}: too poor a fit to tell", 0)
+    if best > FIT or abs(score) < DECISIVE:
+        why = "too poor a fit to tell" if best > FIT else "the other handedness fits about as well"
+        return Handedness(score, UNDETERMINED, f"{facts}: {why}", 0)
     return Handedness(score, MIRRORED if det < 0 else RIGHT_HANDED, facts, 0)
 
 
