@@ -189,6 +189,10 @@ def test_a_calibration_that_does_not_match_the_cameras_table_is_undetermined():
     verdict = rig_handedness(line, line)
     assert verdict.verdict == "undetermined" and verdict.score == 0.0, verdict
     assert verdict.reason.endswith(": the other handedness fits about as well")
+    # every camera in one place: no centres to fit
+    ahead = np.tile([0.0, 0.0, 100.0], (3, 1))
+    same = CameraGroup.from_arrays("abc", 0 * ahead, ahead, typed.intrs[:3], typed.dists[:3])
+    assert rig_handedness(same, same).verdict == "undetermined"
     # one camera upside down (its image up against the table's)
     _, table = Config.default().camera_table()
     rolled = _table_rig({**table, "lf": {"azimuth_deg": 45, "roll_deg": 180}})
