@@ -18,6 +18,7 @@ from flylib.handedness import (
     mirror_cameras,
     mirrored_refusal,
     rig_check,
+    rig_handedness,
 )
 from flylib.pipeline.planning import config_rig
 from flylib.skeleton import Skeleton
@@ -137,6 +138,103 @@ def test_an_orbit_rig_with_its_sides_swapped_reconstructs_a_mirror_image():
     pixels = rig.project(fly)
     assert handedness(rig.triangulate(pixels), SKELETON).verdict == "right-handed"
     assert handedness(mirrored.triangulate(pixels), SKELETON).verdict == "mirrored"
+
+
+def _table_rig(specs: dict | None = None, defaults: dict | None = None) -> CameraGroup:
+    """The rig a cameras table types (the default config's, or ``specs`` over its defaults)."""
+    base_defaults, base = Config.default().camera_table()
+    specs = base if specs is None else specs
+    sizes = dict.fromkeys(specs, (480, 960))
+    return CameraGroup.from_table(specs, base_defaults if defaults is None else defaults, sizes)
+
+
+def _moved(rig: CameraGroup, rotation: np.ndarray, scale: float, shift: np.ndarray) -> CameraGroup:
+    """The same cameras in the world ``X' = scale * rotation @ X + shift`` (same pixels)."""
+    rmats = np.asarray(rig.rmats) @ rotation.T
+    tvecs = scale * np.asarray(rig.tvecs) - rmats @ shift
+    rvecs = Rotation.from_matrix(rmats).as_rotvec()
+    return CameraGroup.from_arrays(rig.names, rvecs, tvecs, rig.intrs, rig.dists)
+
+
+def test_a_calibrations_handedness_from_its_cameras_against_the_cameras_table():
+    """Issue 46: decided from geometry alone (camera centres and image-up directions),
+    whatever the calibration's world axes, origin and unit."""
+    typed = _table_rig()
+    assert rig_handedness(typed, typed).verdict == "right-handed"
+    assert rig_handedness(typed, typed).score == pytest.approx(1.0)
+    turned = Rotation.from_euler("zyx", [40, -70, 15], degrees=True).as_matrix()
+    moved = _moved(typed, turned, 0.01, np.array([3.0, -2.0, 50.0]))  # mm to m, elsewhere
+    assert rig_handedness(moved, typed).verdict == "right-handed"
+    fly = _fly(frames=3)
+    np.testing.assert_allclose(  # the same cameras: the same pixels of the moved fly
+        moved.project(0.01 * fly @ turned.T + [3.0, -2.0, 50.0]), typed.project(fly), atol=1e-6
+    )
+    # one world axis flipped: y (the left cameras where the right ones are), or z (the
+    # switch calibration.mirror applies, which mirrors it back)
+    _, table = Config.default().camera_table()
+    swapped = {name: {"azimuth_deg": -spec["azimuth_deg"]} for name, spec in table.items()}
+    for mirrored in (_table_rig(swapped), mirror_cameras(typed), mirror_cameras(moved)):
+        verdict = rig_handedness(mirrored, typed)
+        assert verdict.verdict == "mirrored" and verdict.score == pytest.approx(-1.0), verdict
+        assert "fit the cameras table's only mirrored (residual 0.00" in verdict.reason
+    assert rig_handedness(mirror_cameras(mirror_cameras(typed)), typed).verdict == "right-handed"
+
+
+def test_a_calibration_that_does_not_match_the_cameras_table_is_undetermined():
+    typed = _table_rig()
+    two = rig_handedness(typed, _table_rig({"f": {"azimuth_deg": 0}, "lf": {"azimuth_deg": 45}}))
+    assert two.verdict == "undetermined" and two.reason == "2 cameras shared; needs 3"
+    # three cameras in a row, looking the same way: its mirror image fits as well
+    line = _table_rig({f"c{i}": {"azimuth_deg": 0, "distance": 100.0 + 50 * i} for i in range(3)})
+    verdict = rig_handedness(line, line)
+    assert verdict.verdict == "undetermined" and verdict.score == 0.0, verdict
+    assert verdict.reason.endswith(": the other handedness fits about as well")
+    # every camera in one place: no centres to fit
+    ahead = np.tile([0.0, 0.0, 100.0], (3, 1))
+    same = CameraGroup.from_arrays("abc", 0 * ahead, ahead, typed.intrs[:3], typed.dists[:3])
+    assert rig_handedness(same, same).verdict == "undetermined"
+    # one camera upside down (its image up against the table's)
+    _, table = Config.default().camera_table()
+    rolled = _table_rig({**table, "lf": {"azimuth_deg": 45, "roll_deg": 180}})
+    verdict = rig_handedness(rolled, typed)
+    assert verdict.verdict == "undetermined" and "too poor a fit" in verdict.reason, verdict
+    # the cameras in another order than the table's: no rigid fit either way
+    shuffled = _table_rig()
+    shuffled = CameraGroup.from_arrays(
+        typed.names,
+        *(
+            np.asarray(a)[[3, 0, 6, 1, 5, 2, 4]]
+            for a in (shuffled.rvecs, shuffled.tvecs, shuffled.intrs, shuffled.dists)
+        ),
+    )
+    verdict = rig_handedness(shuffled, typed)
+    assert verdict.verdict == "undetermined" and "too poor a fit" in verdict.reason, verdict
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("name", ["calib.pkl", "df3d_result.pkl"])
+def test_the_package_examples_calibration_is_a_mirror_image_as_its_own_3d(
+    df3d_package_example_dir, name
+):
+    """DeepFly3D's package example: its calibration (alone, and inside its result) is the
+    mirror image of flylib's default rig, as the fly DeepFly3D triangulated with it is."""
+    import pickle
+
+    from flylib.interop.anipose import load_calibration
+    from flylib.interop.df3d import df3d_joint_to_fly38
+
+    typed = _table_rig()
+    spec = {"file": str(df3d_package_example_dir / name), "format": "deepfly3d"}
+    rig = load_calibration(spec, typed.names)
+    verdict = rig_handedness(rig, typed)
+    assert verdict.verdict == "mirrored" and verdict.score < -0.95, verdict
+    assert rig_handedness(mirror_cameras(rig), typed).verdict == "right-handed"
+    with (df3d_package_example_dir / "df3d_result.pkl").open("rb") as fh:
+        points3d = pickle.load(fh)["points3d"]  # the test's own trusted copy
+    fly = np.full((len(points3d), SKELETON.n_points, 3), np.nan)
+    for j in range(points3d.shape[1]):
+        fly[:, SKELETON.index(df3d_joint_to_fly38(j))] = points3d[:, j]
+    assert handedness(fly, SKELETON).verdict == "mirrored"
 
 
 RIGHT = Handedness(0.95, "right-handed", "fine", 15)

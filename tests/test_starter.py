@@ -109,7 +109,7 @@ def test_init_on_the_package_example_names_its_calibration_and_the_missing_frame
     folder = df3d_package_example_dir
     _, out, printed = _init(tmp_path, folder, capsys)
     data = yaml.safe_load(out.read_text())
-    # its world is the fly's mirror image, decided from the 2D beside it, and mirrored back
+    # its world is the fly's mirror image, decided from its cameras, and mirrored back
     assert data["calibration"] == {
         "file": str(folder / "calib.pkl"),
         "format": "deepfly3d",
@@ -117,6 +117,30 @@ def test_init_on_the_package_example_names_its_calibration_and_the_missing_frame
     }
     assert data["pose2d"]["import"]["format"] == "deepfly3d"
     assert "image_size: [height, width]" in printed  # undecided: no footage
+
+
+def test_init_mirrors_a_deepfly3d_calibration_beside_footage_for_the_detector(
+    lab, df3d_package_example_dir, tmp_path, capsys
+):
+    """Issue 46: no 2D to triangulate (flylib's detector runs): the calibration's cameras
+    against the default rig decide, and the starter says why."""
+    folder = shutil.copytree(lab / "fly1" / "trial1", tmp_path / "fly1")
+    for csv in folder.glob("*.csv"):
+        csv.unlink()
+    shutil.copy(df3d_package_example_dir / "calib.pkl", folder / "calib.pkl")
+    _, out, _ = _init(tmp_path, folder, capsys)
+    data = yaml.safe_load(out.read_text())
+    assert "import" not in data.get("pose2d", {})
+    assert data["calibration"] == {
+        "file": str(folder / "calib.pkl"),
+        "format": "deepfly3d",
+        "mirror": True,
+    }
+    assert (
+        "# mirror: its world is the fly's mirror image (the centres and image-up directions of its "
+        "7 cameras fit the cameras table's only mirrored (residual 0.02, 0.81 unmirrored)); "
+        "mirrored back" in out.read_text()
+    )
 
 
 def test_init_cli_entry_point(tmp_path):

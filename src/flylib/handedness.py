@@ -1,14 +1,10 @@
-"""Is the 3D a fly or its mirror image? :func:`handedness`, from the skeleton's labels.
+"""Is the 3D a fly or its mirror image (:func:`handedness`, from the skeleton's labels)? Is a
+calibration's world the mirror image of the cameras table's (:func:`rig_handedness`)?
 
-A fly's own axes make a right-handed frame: forward (hind legs to front legs) cross left
-(right legs to left legs) points dorsal. Dorsal is read from the tethered posture: a leg's
-tip (the last point of its chain) hangs ventral of its body-coxa point (the first). A
-reconstruction whose calibration or starting rig is the mirror image of the real one
-(near-orthographic cameras cannot tell a scene from its depth-reversed twin) puts the left
-legs on the fly's right: the same product then points ventral. Each frame gives the cosine
-between ``forward x left`` and ``dorsal``; the score is their median over the frames where
-every group has a point, so a few bad frames do not decide it: a verdict needs
-:data:`MIN_FRAMES` such frames.
+A fly's axes make a right-handed frame: forward (hind to front legs) cross left (right to left
+legs) points dorsal, read from the tethered posture (a leg's tip hangs ventral of its body-coxa
+point). A mirror-image calibration or starting rig (near-orthographic cameras cannot tell a scene
+from its depth-reversed twin) puts the left legs on the fly's right: the product points ventral.
 """
 
 from __future__ import annotations
@@ -38,13 +34,9 @@ MEASURED = "a front and a hind body-coxa point, a left and a right leg point and
 
 @dataclass(frozen=True)
 class Handedness:
-    """The verdict of :func:`handedness`.
-
-    ``score`` is the median cosine in ``[-1, 1]`` (``+1``: a fly; ``-1``: its mirror image;
-    NaN when no frame could be measured); ``verdict`` ``"right-handed"``, ``"mirrored"`` or
-    ``"undetermined"``; ``reason`` one sentence on what it rests on (or why there is none);
-    ``frames`` the number of frames measured.
-    """
+    """A verdict: ``score`` in ``[-1, 1]`` (``+1`` a fly, ``-1`` its mirror image, NaN: none
+    measured), ``verdict`` (``"right-handed"``, ``"mirrored"`` or ``"undetermined"``), ``reason``
+    (what it rests on, or why none) and ``frames`` measured (0 from :func:`rig_handedness`)."""
 
     score: float
     verdict: str
@@ -64,12 +56,9 @@ class Handedness:
 
 
 def side_groups(skeleton: Skeleton) -> dict[str, list[int]] | str:
-    """``group -> point indices`` the check reads, or why the skeleton allows no check.
-
-    Legs are the limbs whose first point is ``<l|r><f|m|h>_thorax_coxa``: ``left``/``right``
-    (every point of that side's legs), ``front``/``hind`` (the body-coxa points of those
-    legs), ``coxa`` (every body-coxa point) and ``tip`` (each leg's last point).
-    """
+    """``group -> point indices`` the check reads, or why the skeleton allows none. Legs are
+    limbs from ``<l|r><f|m|h>_thorax_coxa``: ``left``/``right`` (all their points), ``front``,
+    ``hind``, ``coxa`` (front, hind, all legs' body-coxa points), ``tip`` (each leg's last point)."""
     legs = {}
     for chain in skeleton.limbs.values():
         first = chain[0]
@@ -131,10 +120,9 @@ def frame_scores(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> np
 
 
 def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Handedness:
-    """Whether world points ``(T, P, 3)`` (NaN = missing) show a fly or its mirror image: the
-    median per-frame cosine over at least :data:`MIN_FRAMES` frames, ``right-handed`` above
-    +0.5, ``mirrored`` below -0.5, else ``undetermined``; the ``skeleton`` names the legs
-    (:func:`side_groups`)."""
+    """Whether world points ``(T, P, 3)`` (NaN = missing; legs named by ``skeleton``) show a fly
+    or its mirror image: the median per-frame cosine over at least :data:`MIN_FRAMES` frames,
+    ``right-handed`` above +0.5, ``mirrored`` below -0.5, else ``undetermined``."""
     groups = side_groups(skeleton)
     if isinstance(groups, str):
         return Handedness(float("nan"), UNDETERMINED, groups, 0)
@@ -160,21 +148,58 @@ def handedness(points3d: Float[np.ndarray, "T P 3"], skeleton: Skeleton) -> Hand
     return Handedness(score, verdict, f"{facts}: {why}", measured.size)
 
 
+#: The largest relative residual of a calibration's fit to the cameras table that decides.
+FIT = 0.2
+
+
+def _rig_vectors(rig, names: list[str]) -> np.ndarray:
+    """``(2V, 3)``: the cameras' centres (centred, RMS 1) over their image-up directions in the
+    world, negated where the scene (nearest all optical axes) lies behind (:func:`mirror_cameras`)."""
+    pick = [rig.names.index(n) for n in names]
+    rmats, centres = np.asarray(rig.rmats, float)[pick], np.asarray(rig.positions, float)[pick]
+    axes = rmats[:, 2]
+    off_axis = np.eye(3) - axes[:, :, None] * axes[:, None, :]
+    scene = np.linalg.lstsq(off_axis.sum(0), np.einsum("vij,vj->i", off_axis, centres))[0]
+    ahead = np.sign(np.einsum("vi,vi->v", scene - centres, axes))[:, None]
+    centred = centres - centres.mean(0)
+    scale = max(np.sqrt((centred**2).sum(1).mean()), np.finfo(float).tiny)  # 0: one place
+    return np.vstack([centred / scale, -rmats[:, 1] * ahead])
+
+
+def rig_handedness(rig, typed) -> Handedness:
+    """Whether calibration ``rig``'s world is the mirror image of ``typed``'s (the cameras table:
+    +x towards camera f, +y the fly's left, +z up), from geometry alone: the orthogonal map that
+    best fits ``rig``'s :func:`_rig_vectors` to ``typed``'s (cameras matched by name). ``score``:
+    its determinant times ``1 - residual / residual of the other handedness``; undetermined under
+    3 shared cameras, a residual over :data:`FIT` or a ``|score|`` under :data:`DECISIVE`."""
+    names = [n for n in typed.names if n in rig.names]
+    if len(names) < 3:
+        return Handedness(np.nan, UNDETERMINED, f"{len(names)} cameras shared; needs 3", 0)
+    a, b = _rig_vectors(rig, names), _rig_vectors(typed, names)
+    u, _, vt = np.linalg.svd(a.T @ b)  # u @ vt fits best, a reflection allowed
+    best, other = (np.linalg.norm(a @ u @ np.diag([1, 1, s]) @ vt - b) for s in (1, -1))
+    det, best, other = np.linalg.det(u @ vt), best / np.linalg.norm(b), other / np.linalg.norm(b)
+    score = float(np.sign(det) * (1 - best / other)) if other > 0 else 0.0
+    facts = (
+        f"the centres and image-up directions of its {len(names)} cameras fit the cameras table's "
+        + ("only mirrored" if det < 0 else "unmirrored")
+        + f" (residual {best:.2f}, {other:.2f} {'un' if det < 0 else ''}mirrored)"
+    )
+    if best > FIT or abs(score) < DECISIVE:
+        why = "too poor a fit to tell" if best > FIT else "the other handedness fits about as well"
+        return Handedness(score, UNDETERMINED, f"{facts}: {why}", 0)
+    return Handedness(score, MIRRORED if det < 0 else RIGHT_HANDED, facts, 0)
+
+
 #: The reflection :func:`mirror_cameras` applies to world coordinates: z negated.
 WORLD_MIRROR = np.diag([1.0, 1.0, -1.0])
 
 
 def mirror_cameras(cameras):
-    """The same rig (names and order kept) in mirrored world coordinates (world ``z`` negated).
-
-    A world point ``X`` becomes ``S X`` with ``S = diag(1, 1, -1)``; each camera's rotation
-    becomes ``-R S`` (proper again: ``det(-R S) = +1``) and its translation ``-t``. The
-    camera-frame point of ``S X`` is then ``-(R X + t)``, whose ratios ``x / z``, ``y / z``
-    -- so every pixel, distortion included -- are those of ``X`` before: intrinsics and
-    distortion are kept, and triangulating the same 2D gives ``S`` times the old 3D. The
-    price is the sign of depth: the scene lies behind the mirrored cameras, which pinhole
-    projection (and everything flylib computes from it) does not see.
-    """
+    """The same rig (names and order kept) in the world ``S X`` (:data:`WORLD_MIRROR`): rotations
+    ``-R S`` (proper), translations ``-t``. The camera-frame point of ``S X`` is ``-(R X + t)``:
+    every pixel (distortion included) is kept, and the scene lies behind the cameras, which
+    pinhole projection (and all flylib computes from it) does not see."""
     import cv2
 
     from .camera.rig import CameraGroup
@@ -215,18 +240,12 @@ def rig_check(
     adjusted: bool = False,
     start: Handedness | None = None,
 ) -> dict:
-    """The handedness entry of ``summary.json`` and ``results.h5``: the verdict on the final
-    3D (``result``) and, when it is a mirror image, its cause and the one-line message.
-
-    ``rig`` is the starting rig in words (``"the calibration file <path>"`` or the cameras
-    table); ``from_file``: it is a calibration file (:data:`MIRROR_SWITCH` fixes it);
-    ``mirror_set``: the config already mirrors it; ``adjusted``: bundle adjustment moved the
-    cameras from it, and ``start`` is the verdict on the 3D the starting rig gives.
-
-    Returns ``score``, ``verdict``, ``reason``, ``frames``, ``rig``, ``cause`` (``None``,
-    ``"calibration"``, ``"starting_rig"`` or ``"bundle_adjustment"``), ``message`` (``None``
-    unless mirrored) and ``starting_rig`` (``start``'s entry or ``None``).
-    """
+    """The handedness entry of ``summary.json`` and ``results.h5``: ``result`` (the final 3D's
+    verdict) with ``rig`` (the starting rig in words), ``cause`` (``None``, ``"calibration"``,
+    ``"starting_rig"`` or ``"bundle_adjustment"``), ``message`` (``None`` unless mirrored) and
+    ``starting_rig`` (``start``'s entry: the starting rig's 3D, when bundle adjustment
+    ``adjusted`` the cameras). ``from_file``: the rig is a calibration file (:data:`MIRROR_SWITCH`
+    fixes it); ``mirror_set``: the config already mirrors it."""
     out = {
         **result.as_dict(),
         "rig": rig,
@@ -269,12 +288,9 @@ def rig_check(
 
 
 def mirrored_refusal(result, results_path, stage: str) -> str | None:
-    """Why ``stage`` (kinematics, neuromechfly) refuses the 3D of ``result``, or ``None``.
-
-    The verdict assemble stored in ``results.h5`` (meta ``handedness``, naming the cause) is
-    used when present, else the 3D is judged here. The one-line refusal names
-    ``results_path`` and the stage's ``allow_mirrored`` switch.
-    """
+    """Why ``stage`` (kinematics, neuromechfly) refuses ``result``'s 3D (one line naming
+    ``results_path`` and ``allow_mirrored``), or ``None``: the verdict assemble stored in its
+    meta ``handedness`` (naming the cause), else the 3D judged here."""
     stored = (result.meta or {}).get("handedness")
     if isinstance(stored, dict) and stored.get("verdict") is not None:
         if stored["verdict"] != MIRRORED:

@@ -341,15 +341,13 @@ def _common_calibration(root, recordings, top, undecided) -> dict | None:
 
 
 def _handed(calibration: dict, rec: Recording | None) -> dict:
-    """``calibration`` with ``mirror: true`` when it is DeepFly3D's and gives ``rec``'s DeepFly3D 2D
-    the fly's mirror image (:mod:`flylib.handedness`), and ``why``: the verdict in words."""
-    from .interop.df3d import calibration_handedness
+    """``calibration`` with ``mirror: true`` and ``why`` when it is DeepFly3D's and mirrors the
+    default rig (:func:`flylib.pipeline.preflight.calibration_handedness`)."""
+    from .config import Config
+    from .pipeline.preflight import calibration_handedness
 
-    if calibration["format"] != "deepfly3d" or not rec or not rec.imports:
-        return calibration
-    verdict = calibration_handedness(
-        rec.path / calibration["file"], rec.path / rec.imports[0]["files"]
-    )
+    config = Config.from_dict({**Config.default().data, "calibration": calibration})
+    verdict = calibration_handedness(config, rec.path if rec else None)
     if verdict is not None and verdict.mirrored:
         return {**calibration, "mirror": True, "why": verdict.reason}
     return calibration

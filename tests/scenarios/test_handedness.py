@@ -21,6 +21,7 @@ import yaml
 from .lab import (
     copy_files,
     finished,
+    flylib_cli,
     lab_run,
     synthetic_recording,
     table_line,
@@ -234,6 +235,16 @@ def test_calibration_mirror_true_on_a_right_handed_rig_names_mirror_false(tmp_pa
     assert f"kinematics refused: {entry['message']}" in proc.out
 
 
+#: The line that stops a run on DeepFly3D's package example calib.pkl, decided from the
+#: file's cameras against the default cameras table (:func:`flylib.handedness.rig_handedness`).
+MIRRORED_LINE = (
+    "calibration: fly1/calib.pkl is the mirror image of the fly's world: the centres and "
+    "image-up directions of its 7 cameras fit the cameras table's only mirrored (residual "
+    "0.02, 0.81 unmirrored); set calibration: {file: calib.pkl, mirror: true}, or mirror: "
+    "false to run it as it is (docs/how-it-works/handedness.md)"
+)
+
+
 @pytest.mark.shared
 def test_a_hand_written_deepfly3d_calibration_that_mirrors_the_fly_stops_before_any_job(
     tmp_path, df3d_package_example_dir
@@ -254,15 +265,50 @@ def test_a_hand_written_deepfly3d_calibration_that_mirrors_the_fly_stops_before_
     my_yaml = write_config(tmp_path / "my.yaml", config)
     proc = lab_run(tmp_path, my_yaml)
     assert proc.returncode == 1
-    assert proc.out.strip().splitlines()[-1:] == [
-        "invalid config: my.yaml: calibration: fly1/calib.pkl is the mirror image of the fly's "
-        "world: DeepFly3D's 2D fly1/df3d_result.pkl through it puts the left legs on the fly's "
-        "right (-0.95, median of 15 frames); set calibration: {file: calib.pkl, mirror: true}, "
-        "or mirror: false to run it as it is (docs/how-it-works/handedness.md)"
-    ], proc.out[-3000:]
+    assert proc.out.strip().splitlines()[-1:] == [f"invalid config: my.yaml: {MIRRORED_LINE}"], (
+        proc.out[-3000:]
+    )
     assert not (fly / "flylib_outputs").exists()  # nothing started
 
     config["calibration"]["mirror"] = False
     dry = lab_run(tmp_path, write_config(my_yaml, config), "-n")
     assert dry.returncode == 0 and "rule kinematics:" in dry.out, dry.out[-3000:]
     assert "mirror" not in dry.out
+
+
+@pytest.mark.shared
+def test_the_mirrored_calibration_with_the_detector_stops_before_any_job(
+    tmp_path, df3d_package_example_dir
+):
+    """Issue 46: with footage for flylib's detector (no 2D imported), DeepFly3D's calib.pkl
+    was planned and would only have been refused at kinematics, after every other stage;
+    its geometry now decides when it is read: `flylib check-config` and the dry run stop in
+    the one line. ``mirror: true`` is the user's decision: the detector's run is planned."""
+    import torch
+
+    synthetic_recording(tmp_path / "fly1", 12)
+    copy_files(df3d_package_example_dir, tmp_path / "fly1", ["calib.pkl"])
+    torch.save({"state_dict": {}}, tmp_path / "sh8.tar")  # the lab's checkpoint (not loaded)
+    config = {
+        "recordings": ["fly1"],
+        "pose2d": {"weights": {"deepfly2d": str(tmp_path / "sh8.tar")}},
+        "calibration": {"file": "calib.pkl"},
+    }
+    my_yaml = write_config(tmp_path / "my.yaml", config)
+    check = flylib_cli(tmp_path, "check-config", "my.yaml")
+    assert check.returncode != 0 and f"my.yaml: {MIRRORED_LINE}" in check.out, check.out[-3000:]
+    dry = lab_run(tmp_path, my_yaml, "-n")
+    assert dry.returncode == 1
+    assert dry.out.strip().splitlines()[-1:] == [f"invalid config: my.yaml: {MIRRORED_LINE}"], (
+        dry.out[-3000:]
+    )
+
+    # the line the docs show is this one
+    page = (REPO / "docs" / "how-it-works" / "handedness.md").read_text()
+    shown = page[page.index("```text\ncalibration: fly1/") + 8 :].split("```")[0]
+    assert " ".join(shown.split()) == MIRRORED_LINE
+
+    config["calibration"]["mirror"] = True
+    dry = lab_run(tmp_path, write_config(my_yaml, config), "-n")
+    assert dry.returncode == 0 and "rule pose2d:" in dry.out, dry.out[-3000:]
+    assert "rule kinematics:" in dry.out and "mirror image" not in dry.out

@@ -93,9 +93,9 @@ def test_init_among_several_deepfly3d_pickles_takes_the_newest_2d_and_says_why(
     ) in init.out, init.out
     text = (tmp_path / "my.yaml").read_text()
     assert (
-        "# mirror: its world is the fly's mirror image (forward x left against dorsal (leg tips "
-        "below the body-coxa points) is -0.95, median of 15 frames: the left legs are on the "
-        "fly's right); mirrored back\n"
+        "# mirror: its world is the fly's mirror image (the centres and image-up directions of "
+        "its 7 cameras fit the cameras table's only mirrored (residual 0.02, 0.81 unmirrored)); "
+        "mirrored back\n"
         "calibration: {file: ../fly1_df3d/df3d_result.pkl, format: deepfly3d, mirror: true}\n"
     ) in text, text
     data = yaml.safe_load(text)

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import FlylibError, ImportFormatError
+from ..errors import ImportFormatError
 from .calib_checks import camera_value, numeric_array
 from .safe_pickle import load_restricted
 
@@ -239,22 +239,3 @@ def read_df3d_calibration(path: Path) -> dict[int, dict[str, np.ndarray]]:
             f"{path}: no per-camera entries (integer keys) in the calibration pickle"
         )
     return dict(sorted(out.items()))
-
-
-def calibration_handedness(calibration: Path, points2d: Path):
-    """:func:`flylib.handedness.handedness` of DeepFly3D's 2D ``points2d`` (1.x, pixels) through its
-    calibration file, on at most 200 evenly spaced frames; ``None`` if the files give none."""
-    from ..config import Config
-    from ..handedness import handedness
-    from .anipose import load_calibration
-
-    try:  # no frame size: only 1.x results (pixels) hold a calibration; 0.x 2D gives no verdict
-        cameras = read_df3d_calibration(calibration)
-        xy = read_df3d_points2d(points2d, [(np.inf, np.inf)] * len(cameras)).xy
-        xy = xy[:, :: max(1, xy.shape[1] // 200)]
-        skeleton, points = Config.default().skeleton(), np.full(xy.shape, np.nan)
-        points[:, :, [skeleton.index(df3d_joint_to_fly38(j)) for j in range(xy.shape[2])]] = xy
-        rig = load_calibration({"file": str(calibration), "format": "deepfly3d"})
-        return handedness(rig.triangulate(points), skeleton)
-    except (FlylibError, ValueError, IndexError):
-        return None

@@ -90,8 +90,20 @@ def preflight_problems(
     found = {} if import_files is None else import_files
     if flags.get("pose2d", True):
         problems += _pose2d_problems(config, recordings, check_weights, found)
-    if not problems and isinstance(calibration, dict) and "mirror" not in calibration:
-        problems += _mirror_image(config, calibration, recordings, found)
+    # a mirror-image calibration (its first recording's), decided as `flylib init` does
+    where = recordings[0].path if recordings else None
+    if isinstance(calibration, dict) and "mirror" not in calibration:
+        verdict = calibration_handedness(config, where)
+        if verdict is not None and verdict.mirrored:
+            from ..handedness import DOCS_PAGE
+            from .planning import calibration_inputs
+
+            key = "file" if "file" in calibration else "index"
+            problems.append(
+                f"calibration: {calibration_inputs(config, where)[-1]} is the mirror image of the "
+                f"fly's world: {verdict.reason}; set calibration: {{{key}: {calibration[key]}, "
+                f"mirror: true}}, or mirror: false to run it as it is ({DOCS_PAGE})"
+            )
 
     if flags.get("visualization", True):
         from ..visualization.specs import video_specs
@@ -104,29 +116,22 @@ def preflight_problems(
     return list(dict.fromkeys(problems))
 
 
-def _mirror_image(config, calibration: dict, recordings, found) -> list[str]:
-    """A DeepFly3D calibration whose world is the fly's mirror image, decided as `flylib init`
-    decides it, on the first recording with DeepFly3D 2D: one line, before any job."""
-    from ..handedness import DOCS_PAGE
-    from ..interop.df3d import calibration_handedness
-    from .planning import calibration_inputs
+def calibration_handedness(config, recording_dir: Path | None = None):
+    """:func:`flylib.handedness.rig_handedness` of the config's DeepFly3D calibration (for
+    ``recording_dir``) against its ``cameras``; ``None`` for another rig or one not built."""
+    from ..camera.rig import CameraGroup
+    from ..handedness import rig_handedness
+    from .planning import config_rig
 
+    calibration = config.data.get("calibration") or {}
     pkl = str(calibration.get("file")).lower().endswith((".pkl", ".pickle"))
     if (calibration.get("format") or ("deepfly3d" if pkl else "")) != "deepfly3d":
-        return []
-    recs = [r for r in recordings if r.id in found and r.import_spec["format"] == "deepfly3d"]
-    twod = found[recs[0].id] if recs else ()
-    files = calibration_inputs(config, recs[0].path) if len(twod) == 1 else []
-    verdict = calibration_handedness(files[-1], twod[0]) if files else None
-    if verdict is None or not verdict.mirrored:
-        return []
-    key = "file" if "file" in calibration else "index"
-    return [
-        f"calibration: {files[-1]} is the mirror image of the fly's world: DeepFly3D's 2D "
-        f"{twod[0]} through it puts the left legs on the fly's right ("
-        f"{verdict.score:+.2f}, median of {verdict.frames} frames); set calibration: {{{key}: "
-        f"{calibration[key]}, mirror: true}}, or mirror: false to run it as it is ({DOCS_PAGE})"
-    ]
+        return None
+    try:
+        typed = CameraGroup.from_config(config, {v: (2, 2) for v in config.view_names()})
+        return rig_handedness(config_rig(config, recording_dir=recording_dir), typed)
+    except FlylibError:
+        return None
 
 
 # A Snakemake wildcard: "{name}" or "{name,constraint}". Snakemake has no escape for braces in
