@@ -189,10 +189,12 @@ def test_keep_triangulation_point_by_point_and_everywhere():
     keep, everywhere = keep_triangulation(tri, tri * 1.2)
     assert keep.all() and everywhere
     # a point no held-out view can check (seen by two cameras at most: its triangulation
-    # without one view is NaN) is never trusted to refinement (issue 46: 4 cameras)
+    # without one view is NaN) follows the points that can be checked (issue 46)
     tri[:, :, 2] = np.nan
-    keep, everywhere = keep_triangulation(tri, ref)
-    assert keep.tolist() == [False, True, True] and not everywhere
+    keep, everywhere = keep_triangulation(tri, tri * [0.5, 0.8, 1.0])
+    assert keep.tolist() == [False, False, False] and not everywhere  # better where checked
+    keep, everywhere = keep_triangulation(tri, tri * [0.5, 1.5, 1.0])
+    assert keep.tolist() == [False, True, True] and not everywhere  # worse over the points checked
     # nothing comparable: every point keeps the triangulation
     keep, everywhere = keep_triangulation(tri, np.full_like(tri, np.nan))
     assert keep.all() and everywhere

@@ -154,10 +154,11 @@ def keep_triangulation(
     """Where refinement's held-out-view error ``(V, T, P)`` is not better than triangulation's.
 
     Both are compared on the observations both reconstructed without the view. A point keeps
-    the triangulation when refinement's median or 95th percentile there is higher, or when
-    there is nothing to compare (a point never seen by three cameras at once: unchecked, never
-    trusted); if the output mixed that way is still worse overall (median or p95), every point
-    keeps it. Returns ``keep`` ``(P,)`` bool and whether every point keeps the triangulation.
+    the triangulation when refinement's median or 95th percentile there is higher; a point with
+    nothing to compare (never seen by three cameras at once) when refinement is worse over all
+    the points compared, or nothing can be compared. If the output mixed that way is still
+    worse overall (median or p95), every point keeps it. Returns ``keep`` ``(P,)``
+    bool and whether every point keeps the triangulation.
     """
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
@@ -166,7 +167,10 @@ def keep_triangulation(
     def worse(b, a) -> bool:  # b's median or p95 higher than a's (a never empty)
         return np.median(b) > np.median(a) or np.percentile(b, 95) > np.percentile(a, 95)
 
-    keep = np.array([not w.any() or worse(r[w], t[w]) for t, r, w in zip(tri.T, ref.T, both.T)])
+    unchecked = not both.any() or worse(ref[both], tri[both])  # refinement's verdict where checked
+    keep = np.array(
+        [worse(r[w], t[w]) if w.any() else unchecked for t, r, w in zip(tri.T, ref.T, both.T)]
+    )
     if both.any() and worse(np.where(keep[None, None], tri, ref)[both], tri[both]):
         keep[:] = True
     return keep.astype(bool), bool(keep.all())

@@ -298,7 +298,7 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
         per_point = (accuracy.get("output") or {}).get("per_point") or {}
         checked = {k for k, v in per_point.items() if v.get("n")}
         kept = [k for k in accuracy.get("kept_triangulation") or [] if k in checked]
-        unchecked = [k for k in accuracy.get("kept_triangulation") or [] if k not in checked]
+        unchecked = [k for k in per_point if k not in checked]
         compare = (
             f"held-out median {tri[0]:.2f} -> {out[0]:.2f} px, p95 {tri[1]:.2f} -> {out[1]:.2f} px"
         )
@@ -324,7 +324,7 @@ def accuracy_line(rec_id: str, accuracy: dict) -> str | None:
         if unchecked and not accuracy.get("kept_everywhere"):
             line += (
                 f" {len(unchecked)} points ({_named(unchecked)}) are never seen by three "
-                "cameras at once, so no held-out camera can check them: they keep their triangulation."
+                "cameras at once: no held-out camera checks them."
             )
     return (
         line + frames + _worst_view(accuracy.get("output") or accuracy.get("triangulation"), tri[0])

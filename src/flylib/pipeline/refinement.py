@@ -19,8 +19,8 @@ solves re-run without it (on at most :data:`~flylib.accuracy.EVALUATION_FRAMES` 
 refinement once per smoothness scale (``smooth_scale`` and ``motion_scales`` times the
 recording's per-frame motion); the recording is solved at the scale of lowest held-out error.
 A point whose refined held-out error (median or 95th percentile) is higher than the
-triangulation's, or that no held-out view checks (never seen by three cameras at once), keeps
-the triangulation's 3D, 2D and errors, flagged ``kept_triangulation``; if the output is still
+triangulation's (one no held-out view checks: over the points checked) keeps the
+triangulation's 3D, 2D and errors, flagged ``kept_triangulation``; if the output is still
 worse overall, every point does. The ``accuracy`` attribute holds the three summaries
 (``triangulation``, ``refinement`` as solved, ``output``), the points kept and the frames.
 """
