@@ -184,9 +184,10 @@ async function goto(frame) {
 function framesAhead(frame) {
   // the next frames (half a second's while playing), the previous one, the next / previous item
   const n = state.playing ? Math.max(4, Math.ceil(state.playing.fps / 2)) : 4;
+  const first = state.playing ? Math.max(frame, state.playing.due() - 1) : frame;
   const point = state.selected ? state.selected.point : null;
   const items = state.items.length ? [1, -1].map((d) => neighbourItem(state.items, state.sort, frame, point, d).peak_frame) : [];
-  return [...Array.from({ length: n }, (_, i) => frame + 1 + i), frame - 1, ...items]
+  return [...Array.from({ length: n }, (_, i) => first + 1 + i), frame - 1, ...items]
     .filter((f) => f >= 0 && f < state.meta.frames);
 }
 
@@ -337,23 +338,23 @@ function cycleLimb(direction) {
 // -- playback --------------------------------------------------------------------------
 
 function togglePlay() {
-  // space: play from here at the chosen frames per second; frames not fetched in time are
-  // skipped (the one shown is the one due, or the latest fetched before it): the rate holds
+  // space: play from here at the chosen frames per second, showing the latest frame fetched
+  // of those due: frames not fetched in time are skipped (the rate holds), and the fetches
+  // ahead start at the due frame (awaiting a late frame, frames between were fetched unseen)
   if (state.playing) { state.playing = null; $("#play").textContent = "\u25B6"; return; }
   const playing = { fps: Number($("#fps").value) };  // kept within 1..120 as typed
   state.playing = playing;
   $("#play").textContent = "\u275A\u275A";
-  const from = state.frame, started = performance.now();
-  const due = (frame) => started + ((frame - from - 1) * 1000) / playing.fps;
+  const from = state.frame, started = performance.now(), last = state.meta.frames - 1;
+  playing.due = () => Math.min(last, from + 1 + Math.floor(((performance.now() - started) * playing.fps) / 1000));
   (async () => {
     while (state.playing === playing) {
-      if (state.frame >= state.meta.frames - 1) { togglePlay(); return; }
-      const late = 1 + Math.floor(((performance.now() - started) * playing.fps) / 1000);
-      let next = Math.min(state.meta.frames - 1, Math.max(state.frame + 1, from + late));
-      // fetching the due frame now would also delay the fetches ahead
-      if (!state.ahead.isReady(next)) next = [...Array(next - state.frame - 1).keys()].map((i) => next - 1 - i).find((f) => state.ahead.isReady(f)) ?? next;
-      await goto(next);
-      await new Promise((done) => setTimeout(done, Math.max(0, due(next + 1) - performance.now())));
+      if (state.frame >= last) { togglePlay(); return; }
+      const due = Math.max(state.frame + 1, playing.due());
+      const next = [...Array(due - state.frame).keys()].map((i) => due - i).find((f) => state.ahead.isReady(f));
+      if (next === undefined) state.ahead.want(framesAhead(state.frame)); else await goto(next);
+      const wait = next === undefined ? 10 : started + ((next - from) * 1000) / playing.fps - performance.now();
+      await new Promise((done) => setTimeout(done, Math.max(0, wait)));
     }
   })().catch((err) => { status(err.message); if (state.playing === playing) togglePlay(); });
 }
