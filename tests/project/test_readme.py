@@ -42,7 +42,7 @@ def test_the_outputs_table_lists_every_file_a_run_writes_per_recording():
 
 
 #: The system's own commands a page may show (the cluster's, and a log's last line).
-SYSTEM_COMMANDS = ("squeue ", "sacct ", "scancel ", "grep ", "tail ")
+SYSTEM_COMMANDS = ("squeue ", "sacct ", "scancel ", "grep ", "tail ", "git clone ")  # + the sample
 
 
 def test_every_command_in_a_code_block_runs_from_the_venv_or_is_a_set_up_script():
