@@ -297,6 +297,35 @@ def test_a_camera_added_without_footage_is_named_with_the_fix(tmp_path):
     assert "Traceback" not in dry.out and "KeyError" not in dry.out, dry.out
 
 
+def test_a_camera_added_for_the_detector_is_asked_for_its_plan(tmp_path):
+    """An eighth camera with footage but no detection plan (the detector's pathways are the
+    default rig's; which one fits a camera below the fly cannot be derived): `check-config`
+    asks for it by key instead of saying only that it sees nothing."""
+    import torch
+
+    torch.save({"state_dict": {}}, tmp_path / "w.tar")  # not loaded by check-config
+    (tmp_path / "fly1").mkdir()
+    names = ["rh", "rm", "rf", "f", "lf", "lm", "lh", "v"]
+    for i in range(8):
+        (tmp_path / "fly1" / f"camera_{i}.mp4").write_bytes(b"")
+    write_config(
+        tmp_path / "my.yaml",
+        {
+            "recordings": ["fly1"],
+            "cameras": {"v": BELOW},
+            "sources": [
+                {"name": f"vid_{v}", "filename": f"camera_{i}.mp4"} for i, v in enumerate(names)
+            ],
+            "pose2d": {"weights": {"deepfly2d": "w.tar"}},
+        },
+    )
+    check = flylib(tmp_path, "check-config", "my.yaml")
+    assert (
+        "  v: none (give pose2d.output_points.v, the pathway and channel of each point, or "
+        "import its 2D)\n" in check.stdout
+    ), check.out
+
+
 def test_a_camera_added_below_the_fly_is_run_with_the_rest(tmp_path):
     """An eighth camera `v` under the fly, added in my.yaml (its pose in `cameras`, its footage
     as an eighth `sources` entry: a list is restated whole) and tried on the demo fly, whose

@@ -173,7 +173,8 @@ def rig_report(plan, skeleton, whole=()) -> list[str]:
     for v, name in enumerate(names):
         counts = [(k, int(seen[v, [at(p) for p in c]].sum()), len(c)) for k, c in chains.items()]
         shown = [k if n == m else f"{k} ({n} of {m} points)" for k, n, m in counts if n]
-        lines.append(f"  {name}: {', '.join(shown) or 'none'}")
+        ask = f"none (give pose2d.output_points.{name}, the pathway and channel of each point, or import its 2D)"
+        lines.append(f"  {name}: {', '.join(shown) or ask}")
     groups, blind = _groups(names, camera_parts(seen, ids, ids.size))
     count = f"{len(groups)} groups that see no point in common, " if len(groups) > 1 else ""
     lines.append(f"cameras sharing points: {count}{_listed(groups) if groups else 'none'}{blind}")
