@@ -24,20 +24,24 @@ def _init(cwd: Path, folder: Path) -> subprocess.CompletedProcess:
     return flylib_cli(cwd, "init", str(folder), "-o", "my.yaml", PATH="/usr/bin:/bin")
 
 
-def _dry_run_as_printed(cwd: Path, printed: str) -> subprocess.CompletedProcess:
-    """The 'Next:' dry run ``flylib init`` printed, run by a shell as the user would."""
-    command = re.search(r"Next: (.+?) \(a dry run\)", printed)
+def _as_printed(cwd: Path, printed: str, run: bool = False) -> subprocess.CompletedProcess:
+    """The 'Next:' dry run ``flylib init`` printed (or, with ``run``, the run after it), run by
+    a shell as the user would; ``proc.out`` holds stdout then stderr."""
+    pattern = r", then (.+ --cores 2)\n" if run else r"Next: (.+?) \(a dry run\)"
+    command = re.search(pattern, printed)
     assert command, printed
-    return subprocess.run(
+    proc = subprocess.run(
         command[1],
         shell=True,
         cwd=cwd,
         env={**env(), "PATH": "/usr/bin:/bin"},
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=900,
         check=False,
     )
+    proc.out = proc.stdout + proc.stderr
+    return proc
 
 
 def _df3d_lab(root: Path, sample: Path) -> tuple[Path, Path]:
@@ -61,7 +65,7 @@ def test_init_finds_deepfly3ds_results_folder_and_the_dry_run_it_prints_runs(
     data = yaml.safe_load((tmp_path / "my.yaml").read_text())
     assert data["recordings"] == [str(fly)]
     assert data["pose2d"]["import"] == {"format": "deepfly3d", "files": f"../fly1_df3d/{pkl.name}"}
-    dry = _dry_run_as_printed(tmp_path, init.stdout)
+    dry = _as_printed(tmp_path, init.stdout)
     assert dry.returncode == 0, dry.stdout[-2000:] + dry.stderr[-3000:]
     assert "rule pose2d:" in dry.stdout and "weights" not in dry.stderr
 
@@ -122,21 +126,9 @@ def test_init_on_deepfly3ds_image_sequences_runs_as_printed(df3d_sample_dir, tmp
         {"name": f"vid_{v}", "filename": f"camera_{i}_img_*.jpg"} for i, v in enumerate(views)
     ]
     assert data["pose2d"]["import"] == {"format": "deepfly3d", "files": f"../fly1_df3d/{pkl.name}"}
-    dry = _dry_run_as_printed(tmp_path, init.stdout)
+    dry = _as_printed(tmp_path, init.stdout)
     assert dry.returncode == 0, dry.stdout[-2000:] + dry.stderr[-3000:]
-    (run,) = re.findall(r", then (.+ --cores 2)\n", init.stdout)
-    proc = subprocess.run(
-        run,
-        shell=True,
-        cwd=tmp_path,
-        env={**env(), "PATH": "/usr/bin:/bin"},
-        capture_output=True,
-        text=True,
-        timeout=900,
-        check=False,
-    )
-    proc.out = proc.stdout + proc.stderr
-    out = finished(proc)
+    out = finished(_as_printed(tmp_path, init.stdout, run=True))
     cells = table_line(out, "fly1")
     assert cells[1] == "15" and float(cells[2].rstrip("%")) > 95, cells
     result = assert_self_consistent(fly / "flylib_outputs" / "results.h5")
