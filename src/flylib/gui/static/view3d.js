@@ -115,8 +115,10 @@ export class View3D {
       ctx.strokeStyle = color;
       line(ctx, a, b);
     });
-    // cameras: a dot, a line towards where they look, the tile's name
+    // cameras: a dot, a line towards where they look, the tile's name (no names in a thumbnail:
+    // at ~100 px they cover its title and each other)
     ctx.font = `${11 * dpr}px system-ui, sans-serif`;
+    const named = w >= 200 * dpr;
     cams.forEach((c, i) => {
       const a = toScreen(c.at);
       const look = [0, 1, 2].map((k) => c.at[k] + c.axis[k] * extent * 0.25);
@@ -126,7 +128,7 @@ export class View3D {
       ctx.beginPath();
       ctx.arc(a[0], a[1], 3.5 * dpr, 0, 2 * Math.PI);
       ctx.fill();
-      ctx.fillText(`${i + 1} ${c.name}`, a[0] + 5 * dpr, a[1] - 5 * dpr);
+      if (named) ctx.fillText(`${i + 1} ${c.name}`, a[0] + 5 * dpr, a[1] - 5 * dpr);
     });
     // the skeleton, far bones first
     const scr = pts.map((p) => p ? toScreen(p) : null);
@@ -151,7 +153,7 @@ export class View3D {
         ctx.arc(s[0], s[1], 7 * dpr, 0, 2 * Math.PI);
         ctx.stroke();
         ctx.fillStyle = "#fff";
-        ctx.fillText(meta.points[p], s[0] + 9 * dpr, s[1] + 4 * dpr);
+        if (named) ctx.fillText(meta.points[p], s[0] + 9 * dpr, s[1] + 4 * dpr);
       }
     });
     if (!have.length) {
