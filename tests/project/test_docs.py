@@ -267,6 +267,25 @@ def test_the_library_guide_imports_only_public_names():
     assert not re.search(r"^(from|import) flylib\.", code, re.M)
 
 
+@pytest.mark.slow
+def test_the_developer_pages_block_runs_on_a_demo_result_with_public_names(tmp_path, monkeypatch):
+    """docs/developers/bundle-adjustment.md's block, pasted in a folder holding a demo run's
+    results.h5 (where the README's run writes it), imports only public names and runs."""
+    import flylib
+
+    from gui_fixtures import make_demo_outputs
+
+    (block,) = python_snippets(DOCS / "developers" / "bundle-adjustment.md")
+    assert not re.search(r"^(from|import) flylib\.", block, re.M)
+    names = re.findall(r"^from flylib import (.*)$", block, re.M)[0].split(", ")
+    assert set(names) <= set(flylib.__all__), set(names) - set(flylib.__all__)
+    make_demo_outputs(tmp_path / "demo", frames=4)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(block, "bundle-adjustment.md", "exec"), namespace)
+    assert namespace["pts3d"].shape == (4, 38, 3) and len(namespace["cameras"].names) == 7
+
+
 def test_the_keypoints_page_lists_the_skeletons_points_limbs_and_cameras():
     from flylib import Config, Skeleton
 
