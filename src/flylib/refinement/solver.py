@@ -60,8 +60,8 @@ FLAG_BITS: dict[str, tuple[int, str]] = {
     "kept_triangulation": (
         128,
         "refinement's held-out-view error was not better than triangulation's for this point "
-        "(or could not be measured), or a person corrected it, so the output keeps the "
-        "triangulation's 3D, 2D and errors",
+        "(one no held-out view checks: over the points checked), or a person corrected it, so "
+        "the output keeps the triangulation's 3D, 2D and errors",
     ),
 }
 
