@@ -11,7 +11,7 @@ import yaml
 
 from ..errors import ConfigError
 from ..skeleton import Skeleton
-from ..stages import REGISTRY
+from ..stages import registry
 from .canonical import plain
 from .constants import DEFAULT_CONFIG_PATH
 from .loading import parse_text, problem_error, read_config_text
@@ -174,7 +174,7 @@ class Config:
         """``stage -> enabled`` for every toggled stage (``pipeline.do_<stage>``, else its default)."""
         pipeline = self.data.get("pipeline") or {}
         flags: dict[str, bool] = {}
-        for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
+        for stage in registry():  # run order: a stage's upstream flags are final before it
             if stage.toggled:
                 on = bool(pipeline.get(f"do_{stage.name}", stage.default_on))
                 if stage.needs_one_of:

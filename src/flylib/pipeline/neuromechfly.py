@@ -28,6 +28,7 @@ from ..neuromechfly import FILES
 from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
 from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -35,6 +36,15 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..config import Config
     from ..skeleton import Skeleton
+
+RECORD = Stage(
+    "neuromechfly",
+    default_on=False,
+    after=("kinematics",),
+    needs_one_of=("triangulation", "pictorial_structures"),
+    params=NeuromechflyParams,
+    outputs=FILES,
+)
 
 STAGE = "neuromechfly"
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from ..config.params import PictorialParams
 from ..errors import ResultsError
+from ..stages import Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
@@ -26,6 +27,18 @@ __all__ = [
     "compute_pictorial_structures",
     "run_pictorial_structures",
 ]
+
+
+RECORD = Stage(
+    "pictorial_structures",
+    default_on=False,
+    after=("bundle_adjustment",),
+    params=PictorialParams,
+    artifact="pictorial_structures.h5",
+    results_group=True,
+    solves_3d=True,
+    hint="check the detector's 2D and the rig, or set pipeline.do_pictorial_structures: false",
+)
 
 
 @register

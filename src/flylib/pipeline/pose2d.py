@@ -15,6 +15,7 @@ from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -35,6 +36,11 @@ __all__ = [
 PLAN_KEYS = tuple(key for key in POSE2D_PLAN_KEYS if key != "import")
 #: The untracked ``pose2d`` settings (:class:`~flylib.config.params.Pose2dParams`).
 DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
+
+
+RECORD = Stage(
+    "pose2d", default_on=True, params=Pose2dParams, artifact="pose2d.h5", results_group=True
+)
 
 
 @dataclass(frozen=True)
