@@ -4,6 +4,7 @@ and holds for each stage what the tables held when they were written by hand."""
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 import subprocess
 import sys
 
@@ -101,7 +102,7 @@ def _old_flags(pipeline: dict) -> dict[str, bool]:
 def _old(table, old):
     """``table`` restricted to the stages ``old`` names (a stage added since is no
     change to the old ones), in its own order."""
-    if isinstance(table, dict):
+    if isinstance(table, Mapping):
         return {k: v for k, v in table.items() if k in old}
     return tuple(k for k in table if k in old)
 
@@ -145,6 +146,7 @@ def test_upstream_stages_exist_and_run_earlier():
     order = [s.name for s in stages.REGISTRY]
     assert len(set(order)) == len(order)
     for index, stage in enumerate(stages.REGISTRY):
+        assert set(stage.after) <= set(order[:index]), (stage.name, stage.after)
         for upstream in stage.needs_one_of:
             assert upstream in order[:index], (stage.name, upstream)
             assert stages.by_name(upstream).toggled  # an always-on stage is no condition

@@ -163,7 +163,9 @@ T = TypeVar("T", bound=type)
 
 
 def register(cls: T) -> T:
-    """Class decorator: make ``cls`` the inputs class of stage ``cls.STAGE``."""
+    """Class decorator: make ``cls`` the inputs class of stage ``cls.STAGE`` (ValueError for
+    an unknown stage)."""
+    by_name(cls.STAGE)  # type: ignore[attr-defined]
     _INPUTS[cls.STAGE] = cls  # type: ignore[attr-defined]
     return cls
 
