@@ -4,9 +4,9 @@ and holds for each stage what the tables held when they were written by hand."""
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
 import subprocess
 import sys
+from collections.abc import Mapping
 
 import pytest
 

@@ -58,7 +58,7 @@ class PictorialStructuresInputs(StageInputs):
     def from_config(cls, config: Config) -> PictorialStructuresInputs:
         """The stage's inputs as ``config`` gives them."""
         return cls(
-            pictorial_structures=config.pictorial,
+            pictorial_structures=config.pictorial_structures,
             skeleton=SkeletonSpec.from_config(config),
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),

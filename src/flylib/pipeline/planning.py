@@ -156,7 +156,7 @@ class RunPlan:
             return []
         needed = [ARTIFACTS["pose2d"]]
         if self.flags["pictorial_structures"]:
-            needed.append(candidates_artifact(self.config.pictorial.k))
+            needed.append(candidates_artifact(self.config.pictorial_structures.k))
         stages = rec.outdir / "stages"
         return [str(stages / n) for n in needed if not (stages / n).is_file()]
 
@@ -243,7 +243,7 @@ class RunPlan:
 
     def artifact(self, stage: str) -> str:
         """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
-        name = candidates_artifact(self.config.pictorial.k) if stage == "candidates" else None
+        name = candidates_artifact(self.config.pictorial_structures.k) if stage == "candidates" else None
         return f"{{outdir}}/stages/{name or ARTIFACTS[stage]}"
 
     def pose2d_outputs(self) -> dict[str, str]:

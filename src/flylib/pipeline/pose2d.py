@@ -61,7 +61,7 @@ class Pose2dRuntime:
         return cls(
             **{knob: getattr(config.pose2d, knob) for knob in DETECTOR_KNOBS},
             image_workers=config.io.image_workers,
-            candidates_k=int(config.pictorial.k),
+            candidates_k=int(config.pictorial_structures.k),
         )
 
 

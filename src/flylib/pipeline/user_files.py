@@ -45,7 +45,7 @@ def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
         if flags.get(stage, True):
             out[f"stages/{name}"] = f"{stage}'s stages/{name}"
     if flags.get("pose2d", True) and flags.get("pictorial_structures", False):
-        name = candidates_artifact(config.pictorial.k)
+        name = candidates_artifact(config.pictorial_structures.k)
         out[f"stages/{name}"] = f"pose2d's stages/{name}"
     for name in ("results.h5", *SUMMARY_FILES, "config.yaml"):
         out[name] = f"assemble's {name}"
