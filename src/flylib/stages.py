@@ -7,8 +7,9 @@ the config, results and workflow layers read (``flylib.config.STAGES``, ``STAGE_
 :data:`SOLVES_3D`, :data:`FINAL_3D`) are derived from them on first use (:func:`derived`):
 the homes import those layers, so the tables cannot be computed while they load.
 
-A home is found by importing ``flylib.pipeline``'s modules (:func:`registry`, the planning
-process); a job looks up its own stage alone (:func:`by_name` imports one home).
+:func:`registry` imports each module of ``flylib.pipeline`` that declares ``RECORD =
+Stage(`` (the planner, a job reading ``results.h5``); a job looks up its own stage alone
+(:func:`by_name` imports one home).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pkgutil
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import import_module
+from pathlib import Path
 from typing import Any, TypeVar
 
 __all__ = [
@@ -121,6 +123,8 @@ def registry() -> tuple[Stage, ...]:
         package = import_module(_HOMES)
         found = {}
         for module in sorted(m.name for m in pkgutil.iter_modules(package.__path__)):
+            if not _declares_record(Path(package.__path__[0], f"{module}.py")):
+                continue  # the planner, the helpers: not imported by a job that reads tables
             record = getattr(import_module(f"{_HOMES}.{module}"), "RECORD", None)
             if isinstance(record, Stage):
                 found[record.name] = record
@@ -138,6 +142,15 @@ def registry() -> tuple[Stage, ...]:
             )
         order.append(ready[0])
     return tuple(order)
+
+
+def _declares_record(path: Path) -> bool:
+    """Whether the module at ``path`` declares a stage record (``RECORD = Stage(`` at the start
+    of a line)."""
+    try:
+        return "\nRECORD = Stage(" in path.read_text(encoding="utf-8")
+    except OSError:
+        return False
 
 
 def by_name(name: str) -> Stage:

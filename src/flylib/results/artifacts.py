@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from ..stages import derived, registry
+from ..stages import by_name, derived, registry
 from .datasets import json_attrs, read_dataset, read_json_attrs, write_array
 from .groups import cameras_from_group, write_cameras
 from .hdf5 import create_file, new_meta, read_checked
@@ -79,7 +79,11 @@ def write_stage(
     ``<stage>/cameras`` (bundle adjustment's); ``attrs``: JSON-serialisable group attributes;
     ``meta``: extra entries for the file's meta JSON (e.g. its params hash).
     """
-    if stage not in STAGE_GROUPS or stage == "pose2d":
+    try:  # its own record only: a job finds no other stage's home
+        owns = stage != "pose2d" and by_name(stage).results_group
+    except ValueError:
+        owns = False
+    if not owns:
         raise ValueError(
             f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})"
         )
