@@ -13,8 +13,7 @@
 A user-facing error is one line on stderr and exit status 1. ``inspect`` first checks every
 dataset against its checksum (a damaged file: one line per damaged dataset, status 1), then
 compares the params hashes each stage recorded with the config snapshot beside the file (or
-``--config``): a stale or mixed file prints one line per problem after the tables, status 2.
-"""
+``--config``): a stale or mixed file prints one line per problem after the tables, status 2."""
 
 from __future__ import annotations
 

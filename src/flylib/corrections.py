@@ -19,8 +19,7 @@ result's shape, every dataset's declared shape is checked before it is read.
 The triangulation stage applies a sidecar
 (:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, so what it
 shows is what a re-run computes): 2D edits through :meth:`Corrections.apply_2d`, then its ``fixed``
-views and 3D edits.
-"""
+views and 3D edits."""
 
 from __future__ import annotations
 
@@ -84,8 +83,7 @@ class Corrections:
     which entries are edits (a NaN edit is an edit). ``fixed``: finalized 2D points, always used
     when re-solved (subset of ``edited``); ``invisible``: dropped from triangulation (disjoint from
     ``edited``); ``reviewed`` ``(T, P)``: marked OK in ``flylib gui``, never applied (default all
-    False); ``revision``: the GUI session revision saved (0 for a seed-written file).
-    """
+    False); ``revision``: the GUI session revision saved (0 for a seed-written file)."""
 
     points: Float[np.ndarray, "V T P 2"]
     edited: Bool[np.ndarray, "V T P"]
@@ -152,8 +150,7 @@ class Corrections:
         ``shape``: the ``(V, T, P)`` it must correct; ``image_sizes`` (``(height, width)`` or
         ``None`` per view) refuses 2D edits outside the image; ``cameras`` refuses 3D edits farther
         than :data:`EDIT3D_RIG_SPANS` rig sizes. Any problem is one
-        :class:`~flylib.errors.ResultsError` line naming the file.
-        """
+        :class:`~flylib.errors.ResultsError` line naming the file."""
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
         with open_hdf5(path, fix, "HDF5 corrections file") as f:
@@ -200,8 +197,7 @@ class Corrections:
     ) -> str:
         """What makes these corrections unusable, or ``""``: an infinite number, a non-finite 3D
         edit, a 3D edit farther from the cameras' mean centre than :data:`EDIT3D_RIG_SPANS` x the
-        rig's span, a 2D edit outside its image. A NaN 2D edit is the seed's deliberate "remove".
-        """
+        rig's span, a 2D edit outside its image. A NaN 2D edit is the seed's deliberate "remove"."""
         for name in ("points", "points3d"):
             bad = np.argwhere(np.isinf(getattr(self, name)))
             if len(bad):

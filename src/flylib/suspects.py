@@ -26,8 +26,7 @@ usually lasts a few frames), ranked by their largest score, so a wrong 3D comes 
 errors score far above 1; a view RANSAC already left out scores 1 to 1.5).
 
 Every index is 0-based, as in ``results.h5``'s view-leading arrays: ``suspects.csv``'s ``frame`` and
-``point`` columns and the views its ``detail`` names, ``"view 1 (lm)"``.
-"""
+``point`` columns and the views its ``detail`` names, ``"view 1 (lm)"``."""
 
 from __future__ import annotations
 
@@ -71,8 +70,7 @@ class Suspects:
 
     ``score`` ``(N,)`` >= 1; ``reasons``: names joined by ``;``; ``details``: the numbers behind
     them; ``frame_score`` ``(T,)`` (0 where nothing is odd); ``item`` ``(N,)``: the rank of each
-    pair's item (0 = look first), computed from the pairs when not given.
-    """
+    pair's item (0 = look first), computed from the pairs when not given."""
 
     frame: Int[np.ndarray, " N"]
     point: Int[np.ndarray, " N"]
@@ -234,8 +232,7 @@ def find_suspects(
     Thresholds: per view, reprojection median + ``k_reproj`` MAD-sigmas, at least
     ``min_reproj_px`` above it; per bone, ``k_bone`` MAD-sigmas, at least ``bone_tolerance`` x the
     median length; per point, jump median + ``k_jump`` MAD-sigmas, at least ``jump_tolerance`` x
-    the median bone length.
-    """
+    the median bone length."""
     pts3d = np.asarray(pts3d, dtype=np.float64)
     used = np.asarray(pts2d_used, dtype=np.float64)
     error = np.asarray(reproj_error, dtype=np.float64)

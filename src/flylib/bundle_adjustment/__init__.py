@@ -11,8 +11,7 @@
 - ``lm``: Levenberg-Marquardt on the reduced camera system (Schur complement);
 - ``reseed``: PnP re-seeding of grossly-off cameras, the radial-fold check;
 - ``gauge``: the similarity gauge held during a fit and the frame the result is reported in;
-- ``parts``: camera groups that share no view.
-"""
+- ``parts``: camera groups that share no view."""
 
 import lazy_loader as _lazy
 

@@ -10,8 +10,7 @@ set is stable, so observations dropped from a rough start come back; bone length
 points pin what the images leave loose; the similarity gauge is held during the fit and the
 result reported where the starting rig put the fly (:mod:`.gauge`); the configured rig is kept
 where the fit's held-out-view error is higher, or it moved a camera far that no held-out view
-checks.
-"""
+checks."""
 
 from __future__ import annotations
 
@@ -190,8 +189,7 @@ def bundle_adjust(
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
-        Refined points ``(N, 3)``; NaN for points with fewer than two usable views.
-    """
+        Refined points ``(N, 3)``; NaN for points with fewer than two usable views."""
     # the arguments as given: a fit whose distortion folds the image is redone with them
     return _adjust(_Arguments(**locals()))
 

@@ -10,8 +10,7 @@ The unknowns of a :class:`~.problem.Problem` split into
 
 Each step solves ``(J^T J + lambda D) dx = -J^T r`` by eliminating the local blocks (batched
 dense inverses), solving the dense reduced system of the global unknowns (~100), and
-back-substituting. Robust losses (scipy's) are applied by iteratively reweighted least squares.
-"""
+back-substituting. Robust losses (scipy's) are applied by iteratively reweighted least squares."""
 
 from __future__ import annotations
 

@@ -8,8 +8,7 @@ against each other by nothing in the images. A length joining two parts would be
 thing placing them, unchecked by the data; so ``bundle_adjust`` uses no length row when the
 cameras form several parts (:func:`crossing_bones` counts those joining two; inside a part its
 own views fix the shape), holds one similarity per part during the fit and maps each part back
-onto where the starting rig put it (:func:`align_parts`).
-"""
+onto where the starting rig put it (:func:`align_parts`)."""
 
 from __future__ import annotations
 

@@ -6,5 +6,4 @@ never loads JAX).
 - ``jax_model``: the same bound to ``jax.numpy`` (jit/grad-able) and the bulk DLT; importing
   it sets JAX to float64 on the CPU with the persistent compile cache;
 - ``rig``: ``Camera`` and ``CameraGroup`` resolved from their specs (orbit or explicit
-  extrinsics, intrinsics): stacked views, projection, triangulation, back-projection.
-"""
+  extrinsics, intrinsics): stacked views, projection, triangulation, back-projection."""

@@ -5,8 +5,7 @@ pose2d's), corrections applied, with :func:`~flylib.pipeline.triangulation.compu
 and the run's ``triangulation`` table: the page shows what the workflow computes after saving.
 ``results.h5`` is only read; only the corrections sidecar (inside the output directory), its
 journal and lock (:mod:`flylib.gui.journal`) are written. A revision number counts the edits, so a
-page that is behind is refreshed instead of overwriting what another tab did.
-"""
+page that is behind is refreshed instead of overwriting what another tab did."""
 
 from __future__ import annotations
 
@@ -93,8 +92,7 @@ class ReviewSession:
 
     ``config`` defaults to the run's snapshot in the outdir; ``footage`` (``view -> files``) to
     what its ``sources`` find in the recording directory (or ``footage_dir``). When a view has no
-    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix).
-    """
+    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix)."""
 
     def __init__(
         self,
@@ -513,8 +511,7 @@ class ReviewSession:
         triangulation always keeps the point. ``revision``: the page's; an older one raises
         :class:`StaleRevision`. ``durable=False`` (a drag's intermediate positions) only flushes
         the journal line. Bad arguments raise KeyError / IndexError / ValueError; a journal that
-        cannot be written, OutputError (the edit is not applied).
-        """
+        cannot be written, OutputError (the edit is not applied)."""
         with self._lock:
             self._check_revision(revision)
             started = time.perf_counter()

@@ -13,8 +13,7 @@ user-defined links are refused without being followed, soft links are resolved b
 a dataset is read only after its storage is checked (no external files, not virtual) and its
 declared size and chunk size are under a budget derived from the recording (:func:`read_budget`).
 What makes a link or a dataset unsafe is :mod:`flylib.results.guard`'s, which checks flylib's own
-files whole.
-"""
+files whole."""
 
 from __future__ import annotations
 

@@ -6,8 +6,7 @@ One file per camera view. The columns are a header MultiIndex ``scorer / bodypar
 labelled data (``labeled-data/<video>/img047.png``, whose last number is the frame; newer files
 split it over three index columns). Each row is placed at its frame index, whatever the rows' order:
 frames no row gives are missing, a frame given twice is an error. Missing detections are empty cells
-(NaN).
-"""
+(NaN)."""
 
 from __future__ import annotations
 
@@ -397,8 +396,7 @@ def read_dlc_h5(
     code. External storage, external links and virtual datasets are refused (never followed), and
     each dataset's declared size is checked against ``max_bytes`` before it is read
     (:mod:`flylib.interop._h5`). A missing file, or one holding no DeepLabCut-layout DataFrame, is
-    an :class:`ImportFormatError`.
-    """
+    an :class:`ImportFormatError`."""
     path = Path(path)
     hint = "or import the CSV beside it (format: dlc_csv)"
     with reading_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:

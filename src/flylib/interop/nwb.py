@@ -20,8 +20,7 @@ Missing values stay NaN. Frame ``i`` is at ``i / frame_rate`` s after ``session_
     confidence = exp(-e / 5 px) * min(1, (n - 1) / 2)
 
 ``n``: views the point was triangulated from (finite reprojection error), ``e``: their mean error
-in pixels. Two views score at most 0.5: two rays always meet near a point; nothing cross-checks.
-"""
+in pixels. Two views score at most 0.5: two rays always meet near a point; nothing cross-checks."""
 
 from __future__ import annotations
 
@@ -202,8 +201,7 @@ def write_nwb(
     ``metadata``: :func:`flylib.config.nwb_metadata.recording_metadata`; ``footage``: ``view ->
     files``; ``frame_rate`` defaults to ``metadata["frame_rate"]``, else the footage's;
     ``joint_angles``: ``(angles (T, J) radians, joint names)``, one ``TimeSeries`` per joint.
-    :class:`ConfigError` without a frame rate, :class:`ResultsError` without 3D points.
-    """
+    :class:`ConfigError` without a frame rate, :class:`ResultsError` without 3D points."""
     from pynwb import NWBHDF5IO, NWBFile
 
     path = Path(path)

@@ -5,8 +5,7 @@ and units (radians), ready for kinematic replay.
 :mod:`.model` (leg chains, joint names, forward kinematics), :mod:`.align` (the similarity, per-leg
 scale, the tethered check), :mod:`.ik` (the JAX solver), :mod:`.angles` (the three together,
 :func:`compute_nmf_angles`), :mod:`.replay` (flygym's replay, ``joint_angles.csv`` read back);
-:mod:`flylib.pipeline.neuromechfly` is the workflow stage.
-"""
+:mod:`flylib.pipeline.neuromechfly` is the workflow stage."""
 
 import lazy_loader as _lazy
 

@@ -10,8 +10,7 @@ kinematics fits chains of the fly's own segment lengths (SeqIKPy's ``body_size``
 angles, not the proportions, carry the fit.
 
 The six thorax-coxa points are nearly coplanar, so which side of them is ventral comes from the
-legs: coordinates in which the legs hang dorsally are mirrored first.
-"""
+legs: coordinates in which the legs hang dorsally are mirrored first."""
 
 from __future__ import annotations
 
@@ -47,8 +46,7 @@ class TemplateAlignment:
     proportions, which the inverse kinematics' chains take; ``thorax_motion``: the 95th percentile
     of the thorax-coxa points' distance from their median position, in model leg lengths;
     ``mirrored``: the coordinates were mirrored first (the legs hung on the dorsal side: a
-    left-handed frame, or left and right swapped).
-    """
+    left-handed frame, or left and right swapped)."""
 
     scale: float
     rotation: Float[np.ndarray, "3 3"]
@@ -91,8 +89,7 @@ def align_to_template(
     ``still_tolerance``: the largest thorax-coxa motion accepted (95th percentile of the distance
     from the median position, in model leg lengths); ``source``: the file, for messages. A
     ResultsError if fewer than four thorax-coxa points were reconstructed, or they move more
-    (an untethered fly).
-    """
+    (an untethered fly)."""
     legs3d = np.asarray(legs3d, dtype=np.float64)
     thc = legs3d[:, :, 0]
     with _quiet_nan_warnings():

@@ -11,8 +11,7 @@ flygym's claw is the ``Tarsus5`` body origin).
 The hinges, in the order MuJoCo applies them inside each body (each about an axis of the frame
 left by the one before): thorax-coxa yaw (x), pitch (y), roll (z); coxa-trochanter pitch (y),
 roll (z); femur-tibia pitch (y); tibia-tarsus pitch (y). An angle here is the angle of flygym's
-joint of that name, in radians, so the angles drive flygym's model as they are.
-"""
+joint of that name, in radians, so the angles drive flygym's model as they are."""
 
 from __future__ import annotations
 

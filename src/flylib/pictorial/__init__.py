@@ -19,8 +19,7 @@ top-K heatmap peaks per (view, point) (DeepFly3D, Gunel et al. 2019):
 Geometry runs in NumPy on undistorted, intrinsics-free coordinates of the rig; every step is
 vectorized over frames and joints, only the optional temporal DP walks frames. Modules:
 :mod:`.peaks` (step 1), :mod:`.hypotheses` (step 2), :mod:`.chains` (limb chains, bone-length
-targets, the chain DP of step 3) and :mod:`.solver` (per frame, sequence).
-"""
+targets, the chain DP of step 3) and :mod:`.solver` (per frame, sequence)."""
 
 from .chains import bone_length_targets, skeleton_chains
 from .hypotheses import DEFAULT_INLIER_PX, DEFAULT_MAX_HYP, DEFAULT_NMS, SEED_K

@@ -10,8 +10,7 @@ chains) share no unknown once the recording-wide unknowns are fixed, so each blo
 refuses its steps and is damped on its own. The robust reprojection term starts from the
 triangulation's inlier views (plus every view of a point it could not reconstruct); after half
 the steps, every observation within ``outlier_px`` of the refined point is admitted, the rest sit
-out, and the fit continues.
-"""
+out, and the fit continues."""
 
 from __future__ import annotations
 
@@ -362,8 +361,7 @@ class ChunkProblem:
         of a step on its own cost. A block stops once its cost falls by less than ``ftol`` of
         itself (or its damping runs away), and leaves the factorization. A step is one banded
         factorization of the live blocks and one evaluation of the chunk. ``trace``, when given,
-        receives ``(cost, mu)`` (per-block arrays) after every evaluation.
-        """
+        receives ``(cost, mu)`` (per-block arrays) after every evaluation."""
         n_blocks = xs.shape[0]
         per_block = xs[0].size  # unknowns of one block (block-major ordering)
         cost, rows, grad, err = self.evaluate(xs)
@@ -514,8 +512,7 @@ def refine_stream(
     ``source`` has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
     start, inliers)`` (:class:`ArraySource`); ``sink`` has ``write(lo, hi, points3d,
     reproj_error, points2d, flags)`` and ``mark_missing(lo, hi, missing)`` (:class:`ArraySink`).
-    Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
-    """
+    Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``."""
     opts = options or RefinementParams()
     if opts.loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {opts.loss!r}")
@@ -763,8 +760,7 @@ def refine_points(
     ``None``: every observation). ``bones``: point-index pairs of constant length, along the limb
     ``chains`` (every bone joins neighbouring points of one chain; default: each bone its own
     chain); ``mirror``: each bone's left/right twin, for ``symmetric_bones``; ``rigid``: points
-    held at one world position (the tethered thorax); ``options``: the ``refinement`` table.
-    """
+    held at one world position (the tethered thorax); ``options``: the ``refinement`` table."""
     pts2d = np.asarray(pts2d, np.float64)
     start = np.asarray(start, np.float64)
     n_views, n_frames, n_points, _ = pts2d.shape

@@ -7,8 +7,7 @@ pixels with NaN = missing, and returns ``(*pts, 3)``. :func:`reconstruct` runs t
 
 Modules: :mod:`~flylib.triangulation.methods` (the functions below, NumPy; RANSAC runs
 there) and :mod:`~flylib.triangulation.kernels` (greedy's jitted JAX kernel, imported only
-when greedy runs). The DLT is :meth:`flylib.camera.rig.CameraGroup.triangulate`.
-"""
+when greedy runs). The DLT is :meth:`flylib.camera.rig.CameraGroup.triangulate`."""
 
 from __future__ import annotations
 

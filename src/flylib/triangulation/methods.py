@@ -13,8 +13,7 @@ in the raw image.
 Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's confidences) each
 view's DLT rows are scaled by ``sqrt(weight)`` and observations with a non-positive or
 non-finite weight are treated as missing. RANSAC's inlier vote is never weighted. Method
-knobs and ``weights`` are keywords.
-"""
+knobs and ``weights`` are keywords."""
 
 from __future__ import annotations
 
@@ -139,8 +138,7 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     """Exhaustive-pair RANSAC for points observed in (at most) ``views`` ``(K,)``.
 
     ``raw`` / ``und`` ``(K, n, 2)``: raw and undistorted pixels in those views (NaN = missing);
-    ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
-    """
+    ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``."""
     n_sel, n = raw.shape[:2]
     quad, norm = camera_model.dlt_camera_constants(np, pmats[views])
     feats, valid = camera_model.dlt_features(np, und, norm, weights)  # (6, K, n)
@@ -252,8 +250,7 @@ def triangulate(
     Forwards to :meth:`flylib.camera.rig.CameraGroup.triangulate`. ``weights`` ``(V, *pts)``
     scale each view's rows by ``sqrt(weight)``; a non-positive or non-finite weight drops
     the view. Returns ``(*pts, 3)``, NaN where fewer than two views observe the point.
-    TypeError if ``cameras`` is not a rig (arguments swapped), ValueError on a shape mismatch.
-    """
+    TypeError if ``cameras`` is not a rig (arguments swapped), ValueError on a shape mismatch."""
     cameras, pts2d = _arguments("triangulate", cameras, pts2d)
     return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
 
@@ -292,8 +289,7 @@ def triangulate_ransac(
 
     Returns ``pts3d`` ``(*pts, 3)`` (NaN for a rejected point) and ``inliers`` ``(V, *pts)``
     bool, the views the point was fitted from. TypeError if ``cameras`` is not a rig,
-    ValueError if ``min_inliers < 2`` or ``threshold <= 0``.
-    """
+    ValueError if ``min_inliers < 2`` or ``threshold <= 0``."""
     cameras, pts2d = _arguments("triangulate_ransac", cameras, pts2d)
     if int(min_inliers) < 2:
         raise ValueError(f"min_inliers must be >= 2, got {min_inliers}")
@@ -318,8 +314,7 @@ def _triangulate_greedy(
     While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its worst
     view is removed and the point re-triangulated from the rest, at most ``max_drops`` times
     (``max_drops < 0`` is a ValueError). A point left with fewer than two views becomes NaN.
-    Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final point was fitted from.
-    """
+    Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final point was fitted from."""
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
     w = _check_inputs(pts2d, cameras, weights)
@@ -364,8 +359,7 @@ def reconstruct(
     Returns ``pts3d`` ``(*pts, 3)`` (NaN where the method could not reconstruct the point),
     ``pts2d_clean`` ``(V, *pts, 2)`` (the views each point was solved from; the rejected ones
     NaN) and the reprojection error ``(V, *pts)`` in pixels against it. TypeError if
-    ``cameras`` is not a rig, ValueError for an unknown ``params.method``.
-    """
+    ``cameras`` is not a rig, ValueError for an unknown ``params.method``."""
     cameras, pts2d = _arguments("reconstruct", cameras, pts2d)
     params = TriangulationParams() if params is None else params
     if params.method not in TRIANGULATION_METHODS:
