@@ -1,14 +1,12 @@
 """How accurate a reconstruction is, without a ground truth.
 
 The yardstick is the leave-one-camera-out (held-out-view) reprojection error: each point is
-reconstructed again without view ``v`` (the 3D method re-run from scratch, never reusing
-what ``v`` told it), projected into ``v`` and compared with ``v``'s own 2D. A method that
-fits its input more tightly without being closer to the truth (an over-smoothing prior, a
-wrong bone length) shows up here, where the ordinary reprojection error would reward it.
-Beside it: how much each bone's length spreads over time and how far left and right twins
-differ, both zero for a perfect rigid fly.
-
-Refinement is re-solved once per view, so on long recordings both methods are evaluated on
+reconstructed again without view ``v`` (the 3D method re-run from scratch, never reusing what ``v``
+told it), projected into ``v`` and compared with ``v``'s own 2D. A method that fits its input more
+tightly without being closer to the truth (an over-smoothing prior, a wrong bone length) shows up
+here, where the ordinary reprojection error would reward it. Beside it: how much each bone's
+length spreads over time and how far left and right twins differ, both zero for a perfect rigid
+fly. Refinement is re-solved once per view, so on long recordings both methods are evaluated on
 the same evenly spread windows of contiguous frames (:func:`evaluation_windows`)."""
 
 from __future__ import annotations
@@ -60,12 +58,11 @@ def held_out_errors(
 ) -> dict[str, Any]:
     """Leave-one-camera-out reprojection errors of triangulation (and refinement).
 
-    For every view ``v`` and window (default :func:`evaluation_windows`), ``v``'s 2D is
-    removed, the points are triangulated from the other views, refined from that start
-    (with ``refine``), and projected into ``v``. ``pts2d`` ``(V, T, P, 2)``, NaN = missing,
-    may be an h5py dataset (read window by window); ``conf`` ``(V, T, P)`` is handed to the
-    methods. ``refine`` may be a mapping ``label -> Refine`` (variants judged on the same
-    held-out triangulations).
+    For every view ``v`` and window (default :func:`evaluation_windows`), ``v``'s 2D is removed, the
+    points are triangulated from the other views, refined from that start (with ``refine``), and
+    projected into ``v``. ``pts2d`` ``(V, T, P, 2)``, NaN = missing, may be an h5py dataset (read
+    window by window); ``conf`` ``(V, T, P)`` is handed to the methods. ``refine`` may be a mapping
+    ``label -> Refine`` (variants judged on the same held-out triangulations).
 
     Returns ``frames`` ``(T',)``, the frames evaluated, and ``triangulation`` and (with
     ``refine``) ``refinement``: ``(V, T', P)`` pixel errors (NaN where ``v`` has no 2D or the

@@ -11,10 +11,8 @@ written beside ``results.h5`` and never inside it::
 Versions 1 and 2 (no ``invisible``, or no ``fixed`` either) load with those masks all False.
 flylib writes every dataset Fletcher-32 checksummed and adds ``flylib_revision`` (the GUI session's
 edit revision) to the meta and the ``flylib_review/reviewed`` mask; the seed's readers ignore all
-three, so the version stays 3. A seed-written file (no checksums) still loads. Values
-:meth:`Corrections.invalid_values` refuses are one :class:`~flylib.errors.ResultsError` at load,
-never applied; the file is guarded whole (:func:`~flylib.results.guard.guard_file`) and, given the
-result's shape, every dataset's declared shape is checked before it is read.
+three, so the version stays 3. A seed-written file (no checksums) still loads; the file is guarded
+whole (:func:`~flylib.results.guard.guard_file`) before :meth:`Corrections.load` reads it.
 
 The triangulation stage applies a sidecar
 (:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, so what it

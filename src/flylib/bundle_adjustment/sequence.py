@@ -63,10 +63,7 @@ def bundle_adjust_sequence(
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
-    Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
-    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's bone
-    lengths, makes the ``rigid_points`` one 3D point over all frames, and runs
-    :func:`bundle_adjust` on the flattened (frame, point) observations.
+    Runs :func:`bundle_adjust` on the flattened (frame, point) observations of the chosen frames.
 
     Parameters
     ----------

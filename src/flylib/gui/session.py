@@ -354,20 +354,19 @@ class ReviewSession:
             given = given[:, 0]
             reproj = self.cameras.project(self.pts3d[t])  # (V, P, 2)
             used = np.isfinite(self.used2d[:, t]).all(-1)
-            views = []
-            for v, name in enumerate(self.view_names):
-                views.append(
-                    {
-                        "name": name,
-                        "points2d": _xy_list(given[v]),
-                        "used": used[v].tolist(),
-                        "reprojected": _xy_list(reproj[v]),
-                        "error": _nan_to_none(self.error[v, t], 2),
-                        "edited": self.corrections.edited[v, t].tolist(),
-                        "fixed": self.corrections.fixed[v, t].tolist(),
-                        "invisible": self.corrections.invisible[v, t].tolist(),
-                    }
-                )
+            views = [
+                {
+                    "name": name,
+                    "points2d": _xy_list(given[v]),
+                    "used": used[v].tolist(),
+                    "reprojected": _xy_list(reproj[v]),
+                    "error": _nan_to_none(self.error[v, t], 2),
+                    "edited": self.corrections.edited[v, t].tolist(),
+                    "fixed": self.corrections.fixed[v, t].tolist(),
+                    "invisible": self.corrections.invisible[v, t].tolist(),
+                }
+                for v, name in enumerate(self.view_names)
+            ]
             c = self.corrections
             corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
             # the cached suspects (suspects() re-finds them): an edit's reply stays cheap

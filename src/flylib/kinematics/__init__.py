@@ -79,11 +79,10 @@ def compute_kinematics(
 ) -> Kinematics:
     """Body frame, body-frame 3D and joint angles of world points ``(T, P, 3)`` (NaN = missing).
 
-    ``angles`` (flexion at ``b``) and ``segments`` (orientations) map ``name -> (a, b, c)``
-    point names; ``body_frame_points`` gives the ``origin, posterior, anterior, right, left``
-    groups; ``None`` takes :func:`default_angles`, :func:`default_segments`,
-    :func:`default_frame_points`. ``tethered``: one body frame for the recording, else one
-    per frame."""
+    ``angles`` (flexion at ``b``) and ``segments`` (orientations) map ``name -> (a, b, c)`` point
+    names; ``body_frame_points`` gives the ``origin, posterior, anterior, right, left`` groups;
+    ``None`` takes :func:`default_angles`, :func:`default_segments`, :func:`default_frame_points`.
+    ``tethered``: one body frame for the recording, else one per frame."""
     pts3d = np.asarray(pts3d, np.float64)
     groups_names = body_frame_points or default_frame_points(skeleton)
     groups = {k: _indices(skeleton, groups_names[k], f"body_frame.{k}") for k in FRAME_KEYS}

@@ -1,16 +1,13 @@
 """Levenberg-Marquardt over a whole recording, chunk by chunk, with banded solves.
 
-:func:`refine_points` is the entry point. Recording-wide unknowns are settled first (one length
-per bone, one world position per rigid point: robust medians over the whole starting
-reconstruction, left/right bones pooled on request); then the frames are solved in chunks of
-``chunk_frames`` with ``overlap_frames`` of context on each side (only the chunk's own frames are
-kept), so memory does not grow with the recording. In each chunk, damped Gauss-Newton steps solve
-the banded normal equations of :mod:`flylib.refinement.objective` exactly; the point blocks (limb
-chains) share no unknown once the recording-wide unknowns are fixed, so each block takes or
-refuses its steps and is damped on its own. The robust reprojection term starts from the
-triangulation's inlier views (plus every view of a point it could not reconstruct); after half
-the steps, every observation within ``outlier_px`` of the refined point is admitted, the rest sit
-out, and the fit continues."""
+:func:`refine_points` is the entry point. Recording-wide unknowns are settled first (one length per
+bone, one world position per rigid point: robust medians over the whole starting reconstruction,
+left/right bones pooled on request); then the frames are solved in chunks of ``chunk_frames`` with
+``overlap_frames`` of context on each side (only the chunk's own frames are kept), so memory does
+not grow with the recording, by damped Gauss-Newton steps on the banded normal equations of
+:mod:`flylib.refinement.objective` (:meth:`ChunkProblem.solve`). The reprojection term starts from
+the triangulation's inlier views (:func:`refine_points`); after half the steps, every observation
+within ``outlier_px`` of the refined point is admitted, the rest sit out."""
 
 from __future__ import annotations
 
