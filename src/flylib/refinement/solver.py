@@ -306,10 +306,8 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
-        """The objective at slotted ``xs``: ``cost`` ``(n_blocks,)``, ``rows`` ``(6, n)`` the
-        within-frame part of the Gauss-Newton matrix (:meth:`band` makes the whole), ``grad``
-        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err`` ``(n_blocks, m, W,
-        padded)`` pixel errors."""
+        """The objective at slotted ``xs``: :func:`~flylib.refinement.objective.chunk_kernel`'s
+        ``(cost, rows, grad, err)`` as NumPy arrays (:meth:`band` makes the whole matrix)."""
         cost, rows, grad, err = self.kernel(xs, self.data)
         return np.asarray(cost), np.asarray(rows), np.asarray(grad), np.asarray(err)
 
