@@ -6,8 +6,7 @@ its Jacobian block is ``jax.jacfwd`` of ``project_full_one`` in the point and th
 ``vmap``-ed and jitted once for a fixed chunk of rows (residuals use a NumPy twin: no
 compilation). Camera columns go through :class:`~.params.ParamLayout` (fixed entries dropped,
 tied ones summed). Bone rows add one row per (frame, bone), toward fixed targets or, with
-``bone_group``, unknown lengths shared by every frame of a bone.
-"""
+``bone_group``, unknown lengths shared by every frame of a bone."""
 
 from __future__ import annotations
 

@@ -9,8 +9,7 @@ A video is an ordered list of panels drawn onto one canvas, each a ``plot`` of a
     [[visualization.videos]].kwargs.<plot> one plot type in that video
     the panel's own keys
 
-``palette`` tables (limb -> colour) merge key by key.
-"""
+``palette`` tables (limb -> colour) merge key by key."""
 
 from __future__ import annotations
 
