@@ -171,3 +171,24 @@ def test_importing_the_registry_imports_no_stage_home():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_run_order_follows_after_and_a_cycle_is_named(tmp_path, monkeypatch):
+    homes = tmp_path / "fake_homes"
+    homes.mkdir()
+    (homes / "__init__.py").write_text("")
+
+    def home(name: str, after: tuple[str, ...]) -> None:
+        record = f"RECORD = Stage({name!r}, default_on=True, after={after!r})"
+        (homes / f"{name}.py").write_text(f"from flylib.stages import Stage\n\n{record}\n")
+        sys.modules.pop(f"fake_homes.{name}", None)
+
+    for name, after in (("b", ("a",)), ("a", ()), ("c", ("a",)), ("d", ("b", "c"))):
+        home(name, after)
+    (homes / "helper.py").write_text("RECORD = 'not a stage'\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(stages, "_HOMES", "fake_homes")
+    assert [s.name for s in stages.registry.__wrapped__()] == ["a", "b", "c", "d"]
+    home("a", ("d",))
+    with pytest.raises(ValueError, match="stages a, b, c, d: their 'after'"):
+        stages.registry.__wrapped__()

@@ -243,7 +243,11 @@ class RunPlan:
 
     def artifact(self, stage: str) -> str:
         """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
-        name = candidates_artifact(self.config.pictorial_structures.k) if stage == "candidates" else None
+        name = (
+            candidates_artifact(self.config.pictorial_structures.k)
+            if stage == "candidates"
+            else None
+        )
         return f"{{outdir}}/stages/{name or ARTIFACTS[stage]}"
 
     def pose2d_outputs(self) -> dict[str, str]:
