@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from ..config.constants import BA_DISTORTION_MODES, BA_SOLVERS
 from ..config.params import BundleAdjustmentParams
@@ -51,6 +50,7 @@ from .unknowns import (
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
+    from scipy.optimize import OptimizeResult
 
     from ..camera.rig import CameraGroup
 

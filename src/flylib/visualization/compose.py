@@ -453,7 +453,7 @@ def render_videos(
     multiple of the recording's rate when the config sets none; ``on_corrupt``:
     ``io.on_corrupt_frame``. A bad spec is a ConfigError, unreadable footage a FootageError.
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     table = {} if table is None else table
     names = list(result.cameras.names)
