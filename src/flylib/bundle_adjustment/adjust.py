@@ -15,7 +15,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from ..config.constants import BA_DISTORTION_MODES, BA_SOLVERS
 from ..config.params import BundleAdjustmentParams
@@ -45,6 +44,7 @@ from .unknowns import (
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
+    from scipy.optimize import OptimizeResult
 
     from ..camera.rig import CameraGroup
 

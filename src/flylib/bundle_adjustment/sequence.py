@@ -12,7 +12,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
@@ -21,6 +20,7 @@ from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
+    from scipy.optimize import OptimizeResult
 
     from ..camera.rig import CameraGroup
     from ..skeleton import Skeleton
