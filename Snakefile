@@ -9,10 +9,10 @@
 # Each rule runs one thin command script from scripts/ through `script:` (each is also
 # runnable by hand, see --help) and writes one artifact; a rule's `params` is exactly the config subset that
 # affects its result, so after editing the config a plain re-run recomputes only
-# what changed and everything downstream of it. Each file under workflow/rules/ uses
-# only what the files included before it define.
+# what changed and everything downstream of it.
 
 import os
+from pathlib import Path
 
 from snakemake.utils import min_version
 
@@ -28,19 +28,28 @@ configfile: os.path.join(workflow.basedir, "config", "config.yaml")
 report: "workflow/report/workflow.rst"
 
 
-include: "workflow/rules/common.smk"
-include: "workflow/rules/demo.smk"
-include: "workflow/rules/inputs.smk"
-include: "workflow/rules/pose2d.smk"
-include: "workflow/rules/corrections.smk"
-include: "workflow/rules/reconstruction.smk"
-include: "workflow/rules/refinement.smk"
-include: "workflow/rules/results.smk"
-include: "workflow/rules/visualization.smk"
-include: "workflow/rules/kinematics.smk"
-include: "workflow/rules/neuromechfly.smk"
-include: "workflow/rules/exports.smk"
-include: "workflow/rules/summary.smk"
+# In order: each file uses only what the files before it define. A stage added since (its
+# home flylib/pipeline/<stage>.py and its rule file) is included after them.
+RULE_FILES = [
+    "common.smk",
+    "demo.smk",
+    "inputs.smk",
+    "pose2d.smk",
+    "corrections.smk",
+    "reconstruction.smk",
+    "refinement.smk",
+    "results.smk",
+    "visualization.smk",
+    "kinematics.smk",
+    "neuromechfly.smk",
+    "exports.smk",
+    "summary.smk",
+]
+_added = Path(workflow.basedir, "workflow", "rules").glob("*.smk")
+RULE_FILES += sorted(p.name for p in _added if p.name not in RULE_FILES)
+for _name in RULE_FILES:
+
+    include: f"workflow/rules/{_name}"
 
 
 localrules:

@@ -15,6 +15,7 @@ A script's options are named for its rule's files and params (``--pose2d``: the 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import logging
 import os
@@ -25,6 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from flylib.errors import FlylibError
+
+# Snakemake's script preamble appends the job's import path to sys.path again: keep each folder
+# once, so an import that scans sys.path (JAX's reads every installed package's metadata per
+# folder, ~0.2 s each) scans each folder once.
+sys.path[:] = dict.fromkeys(sys.path)
 
 # The options every script shares: what runs the stage, not arguments of the stage.
 _SHARED = ("help", "config", "threads", "verbose")
@@ -213,6 +219,9 @@ def script_main(
 
     try:
         inputs, given = prepare()
+        if not gc.isenabled():  # run_script's imports done: their objects out of its way
+            gc.freeze()
+            gc.enable()
         directory = outdir(given)
         with thread_budget(threads):
             if directory is None:
@@ -291,4 +300,5 @@ def run_script(main: Callable[..., int], namespace: dict) -> None:
     """Run a script's ``main``: with the Snakemake job when ``namespace`` (the script's
     globals) holds one, else from ``sys.argv``; exits with its status."""
     job = namespace.get("snakemake")
+    gc.disable()  # a job's imports make ~250,000 objects and no garbage: collecting them is waste
     sys.exit(main(job=job) if job is not None else main())

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
+from collections.abc import Mapping
 
 import pytest
 
@@ -101,7 +102,7 @@ def _old_flags(pipeline: dict) -> dict[str, bool]:
 def _old(table, old):
     """``table`` restricted to the stages ``old`` names (a stage added since is no
     change to the old ones), in its own order."""
-    if isinstance(table, dict):
+    if isinstance(table, Mapping):
         return {k: v for k, v in table.items() if k in old}
     return tuple(k for k in table if k in old)
 
@@ -145,6 +146,7 @@ def test_upstream_stages_exist_and_run_earlier():
     order = [s.name for s in stages.REGISTRY]
     assert len(set(order)) == len(order)
     for index, stage in enumerate(stages.REGISTRY):
+        assert set(stage.after) <= set(order[:index]), (stage.name, stage.after)
         for upstream in stage.needs_one_of:
             assert upstream in order[:index], (stage.name, upstream)
             assert stages.by_name(upstream).toggled  # an always-on stage is no condition
@@ -169,3 +171,24 @@ def test_importing_the_registry_imports_no_stage_home():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_run_order_follows_after_and_a_cycle_is_named(tmp_path, monkeypatch):
+    homes = tmp_path / "fake_homes"
+    homes.mkdir()
+    (homes / "__init__.py").write_text("")
+
+    def home(name: str, after: tuple[str, ...]) -> None:
+        record = f"RECORD = Stage({name!r}, default_on=True, after={after!r})"
+        (homes / f"{name}.py").write_text(f"from flylib.stages import Stage\n\n{record}\n")
+        sys.modules.pop(f"fake_homes.{name}", None)
+
+    for name, after in (("b", ("a",)), ("a", ()), ("c", ("a",)), ("d", ("b", "c"))):
+        home(name, after)
+    (homes / "helper.py").write_text("RECORD = 'not a stage'\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(stages, "_HOMES", "fake_homes")
+    assert [s.name for s in stages.registry.__wrapped__()] == ["a", "b", "c", "d"]
+    home("a", ("d",))
+    with pytest.raises(ValueError, match="stages a, b, c, d: their 'after'"):
+        stages.registry.__wrapped__()

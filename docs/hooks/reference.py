@@ -314,7 +314,7 @@ def api_reference() -> str:
 
 
 def stage_table() -> str:
-    """The stage registry as a Markdown table."""
+    """The stage records as a Markdown table."""
     from flylib.stages import REGISTRY
 
     out = [

@@ -1,16 +1,13 @@
 """How accurate a reconstruction is, without a ground truth.
 
 The yardstick is the leave-one-camera-out (held-out-view) reprojection error: each point is
-reconstructed again without view ``v`` (the 3D method re-run from scratch, never reusing
-what ``v`` told it), projected into ``v`` and compared with ``v``'s own 2D. A method that
-fits its input more tightly without being closer to the truth (an over-smoothing prior, a
-wrong bone length) shows up here, where the ordinary reprojection error would reward it.
-Beside it: how much each bone's length spreads over time and how far left and right twins
-differ, both zero for a perfect rigid fly.
-
-Refinement is re-solved once per view, so on long recordings both methods are evaluated on
-the same evenly spread windows of contiguous frames (:func:`evaluation_windows`).
-"""
+reconstructed again without view ``v`` (the 3D method re-run from scratch, never reusing what ``v``
+told it), projected into ``v`` and compared with ``v``'s own 2D. A method that fits its input more
+tightly without being closer to the truth (an over-smoothing prior, a wrong bone length) shows up
+here, where the ordinary reprojection error would reward it. Beside it: how much each bone's
+length spreads over time and how far left and right twins differ, both zero for a perfect rigid
+fly. Refinement is re-solved once per view, so on long recordings both methods are evaluated on
+the same evenly spread windows of contiguous frames (:func:`evaluation_windows`)."""
 
 from __future__ import annotations
 
@@ -61,17 +58,15 @@ def held_out_errors(
 ) -> dict[str, Any]:
     """Leave-one-camera-out reprojection errors of triangulation (and refinement).
 
-    For every view ``v`` and window (default :func:`evaluation_windows`), ``v``'s 2D is
-    removed, the points are triangulated from the other views, refined from that start
-    (with ``refine``), and projected into ``v``. ``pts2d`` ``(V, T, P, 2)``, NaN = missing,
-    may be an h5py dataset (read window by window); ``conf`` ``(V, T, P)`` is handed to the
-    methods. ``refine`` may be a mapping ``label -> Refine`` (variants judged on the same
-    held-out triangulations).
+    For every view ``v`` and window (default :func:`evaluation_windows`), ``v``'s 2D is removed, the
+    points are triangulated from the other views, refined from that start (with ``refine``), and
+    projected into ``v``. ``pts2d`` ``(V, T, P, 2)``, NaN = missing, may be an h5py dataset (read
+    window by window); ``conf`` ``(V, T, P)`` is handed to the methods. ``refine`` may be a mapping
+    ``label -> Refine`` (variants judged on the same held-out triangulations).
 
     Returns ``frames`` ``(T',)``, the frames evaluated, and ``triangulation`` and (with
     ``refine``) ``refinement``: ``(V, T', P)`` pixel errors (NaN where ``v`` has no 2D or the
-    method could not reconstruct the point without it), or ``label -> (V, T', P)``.
-    """
+    method could not reconstruct the point without it), or ``label -> (V, T', P)``."""
     variants = dict(refine) if isinstance(refine, Mapping) else {None: refine} if refine else {}
     n_views, n_frames, n_points = pts2d.shape[:3]
     windows = evaluation_windows(n_frames) if windows is None else list(windows)
@@ -158,8 +153,7 @@ def keep_triangulation(
     nothing to compare (never seen by three cameras at once) when refinement is worse over all
     the points compared, or nothing can be compared. If the output mixed that way is still
     worse overall (median or p95), every point keeps it. Returns ``keep`` ``(P,)``
-    bool and whether every point keeps the triangulation.
-    """
+    bool and whether every point keeps the triangulation."""
     tri = np.asarray(triangulation, np.float64)
     ref = np.asarray(refinement, np.float64)
     both = np.isfinite(tri) & np.isfinite(ref)
@@ -201,8 +195,7 @@ def accuracy_summary(
     From ``errors`` ``(V, T', P)`` (:func:`held_out_errors`) and, for the bone figures,
     ``pts3d`` ``(T, P, 3)`` with ``bones`` ``(B, 2)`` and ``mirror`` ``(B,)``: ``held_out_px``
     {``median``, ``p95``, ``n``}, ``per_view`` and ``per_point`` (name -> the same),
-    ``bone_length_spread`` and ``left_right_asymmetry`` (medians over bones, fractions).
-    """
+    ``bone_length_spread`` and ``left_right_asymmetry`` (medians over bones, fractions)."""
     errors = np.asarray(errors, np.float64)
     out: dict[str, Any] = {
         "held_out_px": _stats(errors),

@@ -1,20 +1,9 @@
 """The ``flylib`` console script: look at, export and reuse a run's ``results.h5``.
 
-    flylib inspect RESULTS_H5                 integrity, per-stage and per-point summary, provenance
-    flylib inspect --verify RESULTS_H5        self-consistent, made with its config? (status 1 if not)
-    flylib export RESULTS_H5 --csv3d out.csv --dlc-dir DIR --nwb out.nwb
-    flylib calibration RESULTS_H5 -o rig.toml  the run's (bundle-adjusted) rig as Anipose TOML
-    flylib check-config CONFIG...             check config files as the workflow does (over the default)
-    flylib run CONFIG... [SNAKEMAKE_ARGS]     check, then run snakemake on plain copies
-    flylib gui OUTDIR|RESULTS_H5               review and correct in the browser
-    flylib doctor [--config CONFIG...]        the installation in one screen
-    flylib init DIR [-o my.yaml]              a starter config for a folder of recordings
-
 A user-facing error is one line on stderr and exit status 1. ``inspect`` first checks every
 dataset against its checksum (a damaged file: one line per damaged dataset, status 1), then
 compares the params hashes each stage recorded with the config snapshot beside the file (or
-``--config``): a stale or mixed file prints one line per problem after the tables, status 2.
-"""
+``--config``): a stale or mixed file prints one line per problem after the tables, status 2."""
 
 from __future__ import annotations
 
@@ -550,7 +539,7 @@ def _cmd_run(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``flylib`` argument parser, one subcommand per command of the module docstring."""
+    """The ``flylib`` argument parser, one subcommand per command."""
     parser = argparse.ArgumentParser(prog="flylib", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -563,7 +552,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         type=Path,
         nargs="+",
-        default=None,
         metavar="CONFIG",
         help="config file(s) to compare the recorded params hashes with, merged in order "
         "over the default config as `snakemake --configfile` merges them (default: the "
@@ -606,21 +594,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
-        default=None,
         help="NWB, training data: the run's config (default: the config.yaml snapshot "
         "beside RESULTS_H5)",
     )
     p.add_argument(
         "--recording",
         type=Path,
-        default=None,
         help="NWB, training data: the recording directory (footage, nwb.yaml; default: the "
         "one results.h5 names)",
     )
     p.add_argument(
         "--nwb-metadata",
         type=Path,
-        default=None,
         help="NWB: a YAML file of session metadata overriding the config's nwb table and nwb.yaml",
     )
     p.add_argument(
@@ -650,7 +635,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--to-yaml",
         type=Path,
-        default=None,
         metavar="OUT",
         help="write the one TOML config file given as plain YAML to OUT (a new file), "
         "for snakemake --configfile",
@@ -698,7 +682,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--footage-dir",
         type=Path,
-        default=None,
         metavar="DIR",
         help="the folder holding the recording's videos (default: the recording "
         "directory the result names)",
@@ -714,7 +697,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         type=Path,
         nargs="+",
-        default=None,
         metavar="CONFIG",
         help="check the detector weights of these config files' models (merged over the default)",
     )
@@ -735,7 +717,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--outdir",
-        default=None,
         metavar="TEMPLATE",
         help="where outputs go, e.g. results/{id} (default: <recording>/flylib_outputs)",
     )

@@ -11,16 +11,13 @@ written beside ``results.h5`` and never inside it::
 Versions 1 and 2 (no ``invisible``, or no ``fixed`` either) load with those masks all False.
 flylib writes every dataset Fletcher-32 checksummed and adds ``flylib_revision`` (the GUI session's
 edit revision) to the meta and the ``flylib_review/reviewed`` mask; the seed's readers ignore all
-three, so the version stays 3. A seed-written file (no checksums) still loads. Values
-:meth:`Corrections.invalid_values` refuses are one :class:`~flylib.errors.ResultsError` at load,
-never applied; the file is guarded whole (:func:`~flylib.results.guard.guard_file`) and, given the
-result's shape, every dataset's declared shape is checked before it is read.
+three, so the version stays 3. A seed-written file (no checksums) still loads; the file is guarded
+whole (:func:`~flylib.results.guard.guard_file`) before :meth:`Corrections.load` reads it.
 
 The triangulation stage applies a sidecar
 (:func:`flylib.pipeline.triangulation.compute_triangulation`, which the GUI calls too, so what it
 shows is what a re-run computes): 2D edits through :meth:`Corrections.apply_2d`, then its ``fixed``
-views and 3D edits.
-"""
+views and 3D edits."""
 
 from __future__ import annotations
 
@@ -84,8 +81,7 @@ class Corrections:
     which entries are edits (a NaN edit is an edit). ``fixed``: finalized 2D points, always used
     when re-solved (subset of ``edited``); ``invisible``: dropped from triangulation (disjoint from
     ``edited``); ``reviewed`` ``(T, P)``: marked OK in ``flylib gui``, never applied (default all
-    False); ``revision``: the GUI session revision saved (0 for a seed-written file).
-    """
+    False); ``revision``: the GUI session revision saved (0 for a seed-written file)."""
 
     points: Float[np.ndarray, "V T P 2"]
     edited: Bool[np.ndarray, "V T P"]
@@ -152,8 +148,7 @@ class Corrections:
         ``shape``: the ``(V, T, P)`` it must correct; ``image_sizes`` (``(height, width)`` or
         ``None`` per view) refuses 2D edits outside the image; ``cameras`` refuses 3D edits farther
         than :data:`EDIT3D_RIG_SPANS` rig sizes. Any problem is one
-        :class:`~flylib.errors.ResultsError` line naming the file.
-        """
+        :class:`~flylib.errors.ResultsError` line naming the file."""
         path = Path(path)
         fix = "delete or move it aside, or save the corrections again from `flylib gui`"
         with open_hdf5(path, fix, "HDF5 corrections file") as f:
@@ -200,8 +195,7 @@ class Corrections:
     ) -> str:
         """What makes these corrections unusable, or ``""``: an infinite number, a non-finite 3D
         edit, a 3D edit farther from the cameras' mean centre than :data:`EDIT3D_RIG_SPANS` x the
-        rig's span, a 2D edit outside its image. A NaN 2D edit is the seed's deliberate "remove".
-        """
+        rig's span, a 2D edit outside its image. A NaN 2D edit is the seed's deliberate "remove"."""
         for name in ("points", "points3d"):
             bad = np.argwhere(np.isinf(getattr(self, name)))
             if len(bad):

@@ -1,8 +1,7 @@
 """``flylib doctor``: the installation in one screen, and what in it blocks a run.
 
 Each check gives one line: ``ok``, ``note`` (works, worth knowing: e.g. no GPU, no SLURM) or
-``FAIL`` (a run cannot work until it is fixed); ``flylib doctor`` exits 1 on a ``FAIL``.
-"""
+``FAIL`` (a run cannot work until it is fixed); ``flylib doctor`` exits 1 on a ``FAIL``."""
 
 from __future__ import annotations
 

@@ -4,8 +4,7 @@ calibration's world the mirror image of the cameras table's (:func:`rig_handedne
 A fly's axes make a right-handed frame: forward (hind to front legs) cross left (right to left
 legs) points dorsal, read from the tethered posture (a leg's tip hangs ventral of its body-coxa
 point). A mirror-image calibration or starting rig (near-orthographic cameras cannot tell a scene
-from its depth-reversed twin) puts the left legs on the fly's right: the product points ventral.
-"""
+from its depth-reversed twin) puts the left legs on the fly's right: the product points ventral."""
 
 from __future__ import annotations
 

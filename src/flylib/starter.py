@@ -4,8 +4,7 @@
 or image sequences), 2D files of DeepFly3D, DeepLabCut, Lightning Pose or SLEAP, and DeepFly3D /
 Anipose calibrations. :func:`starter_yaml` writes them as a commented config merged over the
 default, with ``undecided`` lines for what it could not decide. Files are only listed and their
-headers read (pickles through flylib's safe reader, never executed).
-"""
+headers read (pickles through flylib's safe reader, never executed)."""
 
 from __future__ import annotations
 

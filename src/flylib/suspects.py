@@ -9,9 +9,8 @@ same settings work on any rig, frame rate and fly size:
     A bone's length far from its median. The end with more evidence (more bad bones at that frame,
     or another reason) is flagged, both on a tie: a wrong claw does not make its tarsus a suspect.
 ``jump``
-    The 3D point far from every prediction of its neighbouring frames (the midpoint of both sides,
-    the line through either side's two frames), so one wrong frame makes no suspect of its
-    neighbours.
+    The 3D point far from every prediction of its neighbouring frames, so one wrong frame makes no
+    suspect of its neighbours.
 ``ransac_drop``
     A view detected the point but the robust triangulation left it out (or left out every view).
 ``two_views``
@@ -19,15 +18,13 @@ same settings work on any rig, frame rate and fly size:
     so it makes a suspect only with another reason.
 
 Other reasons score at least 1 (more the further past the threshold); a pair scoring >= 1 is a
-suspect, unless a person corrected it. A frame's score is its largest pair score.
-
-A person works through *items*: a point's suspect pairs in consecutive frames (one detector mistake
-usually lasts a few frames), ranked by their largest score, so a wrong 3D comes first (gross 3D
-errors score far above 1; a view RANSAC already left out scores 1 to 1.5).
+suspect, unless a person corrected it. A frame's score is its largest pair score. A person works
+through *items*: a point's suspect pairs in consecutive frames (one detector mistake usually lasts
+a few frames), ranked by their largest score, so a wrong 3D comes first (gross 3D errors score far
+above 1; a view RANSAC already left out scores 1 to 1.5).
 
 Every index is 0-based, as in ``results.h5``'s view-leading arrays: ``suspects.csv``'s ``frame`` and
-``point`` columns and the views its ``detail`` names, ``"view 1 (lm)"``.
-"""
+``point`` columns and the views its ``detail`` names, ``"view 1 (lm)"``."""
 
 from __future__ import annotations
 
@@ -71,8 +68,7 @@ class Suspects:
 
     ``score`` ``(N,)`` >= 1; ``reasons``: names joined by ``;``; ``details``: the numbers behind
     them; ``frame_score`` ``(T,)`` (0 where nothing is odd); ``item`` ``(N,)``: the rank of each
-    pair's item (0 = look first), computed from the pairs when not given.
-    """
+    pair's item (0 = look first), computed from the pairs when not given."""
 
     frame: Int[np.ndarray, " N"]
     point: Int[np.ndarray, " N"]
@@ -234,8 +230,7 @@ def find_suspects(
     Thresholds: per view, reprojection median + ``k_reproj`` MAD-sigmas, at least
     ``min_reproj_px`` above it; per bone, ``k_bone`` MAD-sigmas, at least ``bone_tolerance`` x the
     median length; per point, jump median + ``k_jump`` MAD-sigmas, at least ``jump_tolerance`` x
-    the median bone length.
-    """
+    the median bone length."""
     pts3d = np.asarray(pts3d, dtype=np.float64)
     used = np.asarray(pts2d_used, dtype=np.float64)
     error = np.asarray(reproj_error, dtype=np.float64)

@@ -130,7 +130,7 @@ def test_typed_views(default, data):
     assert len(ba.points_to_use) == 32
     assert default.pose2d.precision == "bfloat16" and default.pose2d.batch_size == 16
     assert default.io.image_workers is None
-    assert default.pictorial.k == 5 and default.pictorial.solver_kwargs() == {
+    assert default.pictorial_structures.k == 5 and default.pictorial_structures.solver_kwargs() == {
         "temporal": False,
         "lam": 1.0,
         "bone_max_frames": 100,
@@ -147,7 +147,7 @@ def test_typed_views(default, data):
         "reproj_threshold": 30.0,
         "max_drops": 2,
     }
-    assert config.pictorial.solver_kwargs()["huber"] == 3.0
+    assert config.pictorial_structures.solver_kwargs()["huber"] == 3.0
     assert config.io.image_workers == 4
     # a table left out falls back to the dataclass defaults
     del data["triangulation"]
@@ -630,7 +630,7 @@ def test_pictorial_params_are_keywords_of_the_reconstructor(data):
     data["pictorial_structures"].update(
         max_hyp=50, inlier_px=20.0, huber=3.0, mu=0.5, nms=2.0, bone_max_frames=None
     )
-    kwargs = Config.from_dict(data).pictorial.solver_kwargs()
+    kwargs = Config.from_dict(data).pictorial_structures.solver_kwargs()
     assert set(kwargs) == {
         "temporal",
         "lam",

@@ -102,7 +102,7 @@ def test_reconstruction_inputs_follow_the_stage_flags(tmp_path):
     }
 
     plan = _plan(tmp_path, "a", pipeline={"do_pictorial_structures": True})
-    k = plan.config.pictorial.k
+    k = plan.config.pictorial_structures.k
     assert plan.reconstruction_inputs("pictorial_structures")(_w(outdir))["candidates"] == (
         f"{stages}/candidates_k{k}.h5"
     )

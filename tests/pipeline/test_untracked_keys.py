@@ -80,13 +80,11 @@ def _leaves(data, prefix=()):
             yield (*prefix, key), value
 
 
-def _set(data, path, value):
-    out = copy.deepcopy(data)
-    node = out
+def _holder(data, path):
+    """The mapping or list that holds the leaf at ``path`` (under its last key)."""
     for key in path[:-1]:
-        node = node[key] if isinstance(node, list) else node.setdefault(key, {})
-    node[path[-1]] = value
-    return out
+        data = data[key]
+    return data
 
 
 # -- artifacts: every untracked key changed at once ------------------------------------
@@ -110,16 +108,21 @@ def _perturb_untracked(data, stage):
             continue  # which recordings and extra outputs: not an input of a stage function
         if leaf[0] == "pipeline":
             continue  # the stage flags shape the DAG (which artifacts a stage is given)
+        # each candidate tried in place (Config.from_dict validates a deep copy of it, so no
+        # trial needs a copy of its own) and put back unless it is kept
+        holder, key = _holder(out, leaf), leaf[-1]
+        kept = holder[key]
         for candidate in _candidates(value):
-            trial = _set(out, leaf, candidate)
+            holder[key] = candidate
             try:
-                params = stage_params(Config.from_dict(trial), stage)
+                params = stage_params(Config.from_dict(out), stage)
             except ConfigError:
                 continue
             if params != base:
                 continue  # tracked: a change re-runs the stage
-            out, changed = trial, changed + 1
+            kept, changed = candidate, changed + 1
             break
+        holder[key] = kept
     return out, changed
 
 

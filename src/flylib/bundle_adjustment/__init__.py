@@ -1,18 +1,7 @@
 """Bundle adjustment: refine the camera rig against the fly's own detected joints.
 
-- ``adjust``: :func:`bundle_adjust` on one flattened problem (outlier rounds, distortion policy);
-- ``messages``: its warnings in plain words, the logged summary and the ``report``;
-- ``sequence``: :func:`bundle_adjust_sequence` on a recording's ``(V, T, P, 2)`` detections
-  (frames, bone lengths, rigid points);
-- ``unknowns``: shared 3D unknowns (rigid points) and bone rows of a flattened problem;
-- ``params``: the ``fixed`` / ``shared`` parameter grammar;
-- ``sampling``: ``frame_sampling``, which frames the fit uses (a recording's or a session's);
-- ``problem``: residuals, the JAX Jacobian as a sparse matrix, the ``scipy`` path;
-- ``lm``: Levenberg-Marquardt on the reduced camera system (Schur complement);
-- ``reseed``: PnP re-seeding of grossly-off cameras, the radial-fold check;
-- ``gauge``: the similarity gauge held during a fit and the frame the result is reported in;
-- ``parts``: camera groups that share no view.
-"""
+:func:`bundle_adjust` (``adjust``) fits one flattened problem, :func:`bundle_adjust_sequence`
+(``sequence``) a recording's ``(V, T, P, 2)`` detections; each module's docstring says its part."""
 
 import lazy_loader as _lazy
 

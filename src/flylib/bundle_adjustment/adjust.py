@@ -3,15 +3,9 @@
 Free camera parameters and 3D points (and optionally shared bone lengths) are fitted to the
 observed 2D points by Levenberg-Marquardt on the reduced camera system (:mod:`.lm`) or
 ``scipy.optimize.least_squares`` (:mod:`.problem`), with the analytic JAX Jacobian, float64
-throughout. Beyond a plain fit: grossly-off starting cameras are resected by PnP
-(:mod:`.reseed`); zero distortion stays zero on long lenses, and distortion that folds the
-image is held; outlier rounds judge every observation again after each fit until the inlier
-set is stable, so observations dropped from a rough start come back; bone lengths and rigid
-points pin what the images leave loose; the similarity gauge is held during the fit and the
-result reported where the starting rig put the fly (:mod:`.gauge`); the configured rig is kept
-where the fit's held-out-view error is higher, or it moved a camera far that no held-out view
-checks.
-"""
+throughout; :func:`bundle_adjust`'s parameters say what it does beyond a plain fit. The
+configured rig is kept where the fit's held-out-view error is higher, or it moved a camera far
+that no held-out view checks."""
 
 from __future__ import annotations
 
@@ -21,7 +15,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from ..config.constants import BA_DISTORTION_MODES, BA_SOLVERS
 from ..config.params import BundleAdjustmentParams
@@ -51,6 +44,7 @@ from .unknowns import (
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float, Int
+    from scipy.optimize import OptimizeResult
 
     from ..camera.rig import CameraGroup
 
@@ -190,8 +184,7 @@ def bundle_adjust(
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
-        Refined points ``(N, 3)``; NaN for points with fewer than two usable views.
-    """
+        Refined points ``(N, 3)``; NaN for points with fewer than two usable views."""
     # the arguments as given: a fit whose distortion folds the image is redone with them
     return _adjust(_Arguments(**locals()))
 

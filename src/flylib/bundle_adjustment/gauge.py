@@ -5,8 +5,7 @@ scale: 7 directions) changes no image. Levenberg-Marquardt converges only linear
 directions, so the fit holds one camera's pose and one translation entry (:func:`gauge_refs`);
 afterwards the result is mapped into the similarity frame where the starting rig put the fly
 (:func:`align_gauge`), independent of which were held. :func:`open_gauge_directions` counts
-what held and tied entries leave open.
-"""
+what held and tied entries leave open."""
 
 from __future__ import annotations
 

@@ -1,17 +1,13 @@
 """Levenberg-Marquardt on the reduced camera system (Schur complement).
 
-The unknowns of a :class:`~.problem.Problem` split into
-
-- *global* ones, few and seen by many observations: the free camera parameters, the points
-  shared by every frame (a tethered fly's rigid thorax-coxa points) and the bone lengths;
-- *local* ones: every other 3D point. Points joined by a bone-length residual are coupled,
-  so the local unknowns form small blocks: one point (3x3) without bones, one frame of a leg
-  chain (e.g. 4 points, 12x12) with them; blocks couple only through the global unknowns.
-
-Each step solves ``(J^T J + lambda D) dx = -J^T r`` by eliminating the local blocks (batched
-dense inverses), solving the dense reduced system of the global unknowns (~100), and
-back-substituting. Robust losses (scipy's) are applied by iteratively reweighted least squares.
-"""
+The unknowns of a :class:`~.problem.Problem` split into *global* ones, few and seen by many
+observations (the free camera parameters, the points shared by every frame such as a tethered fly's
+rigid thorax-coxa points, the bone lengths), and *local* ones: every other 3D point. Points joined
+by a bone-length residual are coupled, so the local unknowns form small blocks (one point, 3x3,
+without bones; one frame of a leg chain, e.g. 12x12, with them) coupled only through the global
+unknowns. Each step solves ``(J^T J + lambda D) dx = -J^T r`` by eliminating the local blocks
+(batched dense inverses), solving the dense reduced system of the global unknowns (~100), and
+back-substituting. Robust losses (scipy's) are applied by iteratively reweighted least squares."""
 
 from __future__ import annotations
 
@@ -22,7 +18,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.linalg
 import scipy.sparse
-from scipy.optimize import OptimizeResult
 from scipy.sparse.csgraph import connected_components
 
 from .problem import Problem
@@ -31,6 +26,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Bool, Float
 
 log = logging.getLogger(__name__)
+
+
+class OptimizeResult(dict):
+    """scipy.optimize's result, a dict read by attribute (importing scipy.optimize: ~0.4 s a job)."""
+
+    def __getattr__(self, name: str):  # a missing key: AttributeError, as scipy's
+        return self[name] if name in self else super().__getattribute__(name)
+
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
@@ -139,9 +142,8 @@ class ReducedSystem:
         self.groups = [(np.flatnonzero(n_used == k), int(k)) for k in np.unique(n_used)]
 
     def schur(self, lam: float) -> tuple[Float[np.ndarray, "G G"], list, list]:
-        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` and
-        ``V^-1`` per group of blocks of one width (``W_g V_g^-1`` as ``(G, B_g * k)``
-        and ``(B_g, k, k)``)."""
+        """``(S, Y, V^-1)`` for damping ``lam`` (Marquardt: ``lam * diag``); ``Y`` and ``V^-1`` per
+        group of blocks of one width (``W_g V_g^-1`` as ``(G, B_g * k)`` and ``(B_g, k, k)``)."""
         s = self.u + np.diag(lam * self.diag_u)
         ys, vinvs = [], []
         for idx, k in self.groups:

@@ -9,8 +9,7 @@ entries: ``<camera>`` is a camera name or ``*`` (every camera), ``<param>`` is `
 references that all expand to the same number of entries per camera; the i-th entry of every
 expansion is tied to one free variable (so ``["*.intr"]`` gives the whole rig one set of
 intrinsics and ``["rm.tvec[2]", "lm.tvec[2]"]`` one shared depth). A tied slot that contains a
-fixed entry is fixed as a whole.
-"""
+fixed entry is fixed as a whole."""
 
 from __future__ import annotations
 

@@ -4,12 +4,10 @@ Two cameras are tied when they observe the same 3D unknowns; the cameras tied to
 directly or through others, and the points they see form one *part*. Images fix each part's
 cameras and points only up to a similarity of their own (7 directions): with the front camera
 blind on a DeepFly3D rig, the left and the right side are two parts, placed, turned and scaled
-against each other by nothing in the images. A length joining two parts would be the only
-thing placing them, unchecked by the data; so ``bundle_adjust`` uses no length row when the
-cameras form several parts (:func:`crossing_bones` counts those joining two; inside a part its
-own views fix the shape), holds one similarity per part during the fit and maps each part back
-onto where the starting rig put it (:func:`align_parts`).
-"""
+against each other by nothing in the images (a length joining two parts would place them,
+unchecked by the data). So ``bundle_adjust`` uses no length row when the cameras form several
+parts (:func:`crossing_bones`), holds one similarity per part during the fit and maps each part
+back onto where the starting rig put it (:func:`align_parts`)."""
 
 from __future__ import annotations
 

@@ -6,8 +6,7 @@ its Jacobian block is ``jax.jacfwd`` of ``project_full_one`` in the point and th
 ``vmap``-ed and jitted once for a fixed chunk of rows (residuals use a NumPy twin: no
 compilation). Camera columns go through :class:`~.params.ParamLayout` (fixed entries dropped,
 tied ones summed). Bone rows add one row per (frame, bone), toward fixed targets or, with
-``bone_group``, unknown lengths shared by every frame of a bone.
-"""
+``bone_group``, unknown lengths shared by every frame of a bone."""
 
 from __future__ import annotations
 
@@ -17,13 +16,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse
-from scipy.optimize import OptimizeResult, least_squares
 
 from ..camera import jax_model, model as camera_model  # jax_model: JAX float64, CPU, compile cache
 from .params import ParamLayout
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float, Int
+    from scipy.optimize import OptimizeResult
 
 # Fixed-size chunks: one compilation serves every problem size, and a chunk stays in cache.
 CHUNK = 2048
@@ -226,4 +225,6 @@ class Problem:
             jac = options["jac"]
             if callable(jac):
                 options["jac"] = lambda x: jac(x).toarray()
+        from scipy.optimize import least_squares  # only this solver: its import costs ~0.4 s
+
         return least_squares(self.residuals, self.pack(table, pts3d), **options)

@@ -3,8 +3,7 @@
 A camera aimed off by degrees puts the fly hundreds of pixels from its detections, and a joint
 fit from there wanders: it is resected by PnP (``cv2.solvePnPRansac``) from points the other
 cameras triangulate, or, with too few trustworthy cameras, first re-aimed about its centre so
-that its detections' median falls on the point the rig looks at.
-"""
+that its detections' median falls on the point the rig looks at."""
 
 from __future__ import annotations
 

@@ -5,8 +5,7 @@
 - ``coverage``: the most triangulable observations (points seen by two or more views), ties
   broken towards spreading over the recording;
 - ``diversity``: farthest-point sampling of per-frame 2D poses (each view centred on its own
-  median) from the most complete frame: many postures, few duplicates of a resting fly.
-"""
+  median) from the most complete frame: many postures, few duplicates of a resting fly."""
 
 from __future__ import annotations
 

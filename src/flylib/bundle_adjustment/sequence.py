@@ -2,8 +2,7 @@
 
 :func:`bundle_adjust_sequence` flattens a recording's ``(V, T, P, 2)`` detections into one
 :func:`~.adjust.bundle_adjust` problem; the workflow's stage calls it with
-:meth:`~flylib.config.params.BundleAdjustmentParams.sequence_kwargs`.
-"""
+:meth:`~flylib.config.params.BundleAdjustmentParams.sequence_kwargs`."""
 
 from __future__ import annotations
 
@@ -13,7 +12,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from ..config.params import BundleAdjustmentParams
 from ..errors import ConfigError
@@ -22,6 +20,7 @@ from .sampling import select_frames
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
+    from scipy.optimize import OptimizeResult
 
     from ..camera.rig import CameraGroup
     from ..skeleton import Skeleton
@@ -64,10 +63,7 @@ def bundle_adjust_sequence(
 ) -> tuple[OptimizeResult, CameraGroup, Float[np.ndarray, "T P 3"]]:
     """Bundle-adjust the rig on a recording's 2D detections ``(V, T, P, 2)``.
 
-    Chooses up to ``max_frames`` frames (``frame_sampling``), keeps the points named in
-    ``points_to_use`` (all when ``None``; names need ``skeleton``), adds the skeleton's bone
-    lengths, makes the ``rigid_points`` one 3D point over all frames, and runs
-    :func:`bundle_adjust` on the flattened (frame, point) observations.
+    Runs :func:`bundle_adjust` on the flattened (frame, point) observations of the chosen frames.
 
     Parameters
     ----------
@@ -111,8 +107,7 @@ def bundle_adjust_sequence(
     cameras : CameraGroup
         The refined rig.
     pts3d : np.ndarray
-        ``(T, P, 3)``: the refined points of the fitted frames/points, NaN elsewhere.
-    """
+        ``(T, P, 3)``: the refined points of the fitted frames/points, NaN elsewhere."""
     pts2d = np.asarray(pts2d, float)
     if pts2d.ndim != 4 or pts2d.shape[-1] != 2:
         raise ValueError(f"pts2d must be (V, T, P, 2), got {pts2d.shape}")

@@ -2,8 +2,7 @@
 
 A column of the observations is one (frame, point); columns sharing an id are one 3D unknown
 (a rigid point seen in every frame). Bone rows ``(i, j, target[, group])`` join two columns;
-a group (a bone in every frame, or its left/right pair) has one unknown length.
-"""
+a group (a bone in every frame, or its left/right pair) has one unknown length."""
 
 from __future__ import annotations
 

@@ -10,8 +10,7 @@ Conventions (shared by the whole package):
 * arrays are view-leading: ``(V, *pts, 2)`` for image points; NaN marks a missing observation.
 
 The formulas of :mod:`flylib.camera.model`, bound to ``jax.numpy``: ``*_one`` functions (one
-point, one camera) compose with ``jax.vmap`` and ``jax.jacfwd``; the batched ones are jitted.
-"""
+point, one camera) compose with ``jax.vmap`` and ``jax.jacfwd``; the batched ones are jitted."""
 
 from __future__ import annotations
 
@@ -213,8 +212,7 @@ def triangulate_dlt(
     inhomogeneous 3x3 normal equations are solved in closed form, which unlike an eigen-solve of the
     raw system keeps full float64 precision with long focal lengths (~2e4 px). A NaN coordinate, or
     a non-finite or non-positive weight ``(V, *pts)``, drops that view; a uniform weight changes
-    nothing. NaN where fewer than two views remain or the geometry is degenerate.
-    """
+    nothing. NaN where fewer than two views remain or the geometry is degenerate."""
     return dlt_solve(jnp, pts2d, pmats, weights)
 
 

@@ -4,8 +4,7 @@ fixed-point inverse, projection, the DLT), written once for any array module ``x
 
 :mod:`flylib.camera.jax_model` binds them to ``jax.numpy``, the ``*_numpy`` names here to NumPy.
 This module imports no JAX, so host-side code (camera properties, projection, undistortion,
-RANSAC, summaries) never pays for it.
-"""
+RANSAC, summaries) never pays for it."""
 
 from __future__ import annotations
 
@@ -156,8 +155,7 @@ def distort_normalized(x, y, d):
               + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
         y_d = y (...) / (...) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
 
-    ``x``, ``y`` broadcast against each ``d[i]`` (``d`` is coefficient-major, ``(12, ...)``).
-    """
+    ``x``, ``y`` broadcast against each ``d[i]`` (``d`` is coefficient-major, ``(12, ...)``)."""
     radial, add_x, add_y = distortion_terms(x, y, d)
     return x * radial + add_x, y * radial + add_y
 

@@ -14,8 +14,7 @@ world up = +z:
   R_orbit``): the scene appears turned clockwise on screen.
 
 With the fly facing +x, +y is its left: the default rig's right-side cameras (rh, rm, rf) sit
-at negative azimuths, the front camera at azimuth 0.
-"""
+at negative azimuths, the front camera at azimuth 0."""
 
 from __future__ import annotations
 

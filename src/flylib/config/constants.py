@@ -3,30 +3,24 @@
 from __future__ import annotations
 
 from ..paths import DEFAULT_CONFIG_PATH  # noqa: F401  (re-exported: flylib.config.DEFAULT_CONFIG_PATH)
-from ..stages import REGISTRY
+from ..stages import derived, registry
 
 #: The pipeline stages, in run order; each is toggled by ``pipeline.do_<stage>``.
-STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.toggled)
+STAGES: tuple[str, ...] = derived(lambda: [s.name for s in registry() if s.toggled])
 #: Whether each stage runs when its ``pipeline.do_<stage>`` key is absent.
-STAGE_DEFAULTS: dict[str, bool] = {s.name: bool(s.default_on) for s in REGISTRY if s.toggled}
+STAGE_DEFAULTS: dict[str, bool] = derived(
+    lambda: {s.name: bool(s.default_on) for s in registry() if s.toggled}, mapping=True
+)
 #: The workflow rules whose params a stage's inputs object states (:mod:`flylib.pipeline.inputs`).
-PARAM_STAGES: tuple[str, ...] = tuple(s.name for s in REGISTRY)
+PARAM_STAGES: tuple[str, ...] = derived(lambda: [s.name for s in registry()])
 
-TOP_LEVEL_KEYS: tuple[str, ...] = (
-    "sources",
-    "io",
-    "skeleton",
-    "cameras",
-    "pipeline",
-    *STAGES,  # each stage's own table
-    "calibration",
-    "recordings",
-    "recursive",
-    "outdir",
-    "demo",
-    "exports",
-    "nwb",
-    "corrections",
+TOP_LEVEL_KEYS: tuple[str, ...] = derived(
+    lambda: (
+        *("sources", "io", "skeleton", "cameras", "pipeline"),
+        *STAGES,  # each stage's own table
+        *("calibration", "recordings", "recursive", "outdir", "demo", "exports", "nwb"),
+        "corrections",
+    )
 )
 #: Keys of the ``exports`` table: extra per-recording outputs the workflow writes.
 EXPORT_KEYS: tuple[str, ...] = ("nwb",)

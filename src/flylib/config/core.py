@@ -11,21 +11,11 @@ import yaml
 
 from ..errors import ConfigError
 from ..skeleton import Skeleton
-from ..stages import REGISTRY
+from ..stages import registry
 from .canonical import plain
 from .constants import DEFAULT_CONFIG_PATH
 from .loading import parse_text, problem_error, read_config_text
-from .neuromechfly import NeuromechflyParams
-from .params import (
-    PARAM_TABLES,
-    BundleAdjustmentParams,
-    IoParams,
-    PictorialParams,
-    Pose2dParams,
-    TriangulationParams,
-    build_params,
-)
-from .postprocessing import KinematicsParams, RefinementParams
+from .params import PARAM_TABLES, build_params
 from .sources import source_patterns, view_names
 from .validation import validate_config
 
@@ -120,45 +110,12 @@ class Config:
         from_table = getattr(cls, "from_table", None)
         return from_table(values) if from_table else build_params(cls, values)
 
-    @property
-    def pose2d(self) -> Pose2dParams:
-        """The scalar ``pose2d`` settings."""
-        return self.params("pose2d")
-
-    @property
-    def triangulation(self) -> TriangulationParams:
-        """The ``triangulation`` table."""
-        return self.params("triangulation")
-
-    @property
-    def refinement(self) -> RefinementParams:
-        """The ``refinement`` table."""
-        return self.params("refinement")
-
-    @property
-    def kinematics(self) -> KinematicsParams:
-        """The ``kinematics`` table."""
-        return self.params("kinematics")
-
-    @property
-    def neuromechfly(self) -> NeuromechflyParams:
-        """The ``neuromechfly`` table."""
-        return self.params("neuromechfly")
-
-    @property
-    def pictorial(self) -> PictorialParams:
-        """The ``pictorial_structures`` table."""
-        return self.params("pictorial_structures")
-
-    @property
-    def bundle_adjustment(self) -> BundleAdjustmentParams:
-        """The ``bundle_adjustment`` table; keys it does not name go to ``least_squares``."""
-        return self.params("bundle_adjustment")
-
-    @property
-    def io(self) -> IoParams:
-        """Frame-reading settings (``io.image.workers``; 0 means let the reader choose)."""
-        return self.params("io")
+    def __getattr__(self, name: str) -> Any:
+        """A params table by its name, :meth:`params` (``config.triangulation``: a
+        :class:`~.params.TriangulationParams`); every stage's from its record."""
+        if not name.startswith("_") and name in PARAM_TABLES:
+            return self.params(name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def visualization(self) -> dict:
@@ -174,7 +131,7 @@ class Config:
         """``stage -> enabled`` for every toggled stage (``pipeline.do_<stage>``, else its default)."""
         pipeline = self.data.get("pipeline") or {}
         flags: dict[str, bool] = {}
-        for stage in REGISTRY:  # run order: a stage's upstream flags are final before it
+        for stage in registry():  # run order: a stage's upstream flags are final before it
             if stage.toggled:
                 on = bool(pipeline.get(f"do_{stage.name}", stage.default_on))
                 if stage.needs_one_of:

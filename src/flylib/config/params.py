@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from ..errors import unknown_key
+from ..stages import derived, registry
 from .checks import (
     Check,
     boolean,
@@ -34,8 +35,6 @@ from .constants import (
     TETHERED_RIGID_POINTS,
     TRIANGULATION_METHODS,
 )
-from .neuromechfly import NeuromechflyParams
-from .postprocessing import KinematicsParams, RefinementParams
 
 
 @dataclass(frozen=True)
@@ -336,16 +335,13 @@ def build_params(cls: type, table: Mapping) -> Any:
     return cls(**kwargs)
 
 
-#: Config table name -> its typed params dataclass: what :meth:`Config.params
-#: <flylib.config.Config.params>` builds, :func:`~flylib.config.validate_config` checks and
-#: the docs' config reference describes.
-PARAM_TABLES: dict[str, type] = {
-    "pose2d": Pose2dParams,
-    "io": IoParams,
-    "bundle_adjustment": BundleAdjustmentParams,
-    "pictorial_structures": PictorialParams,
-    "triangulation": TriangulationParams,
-    "refinement": RefinementParams,
-    "kinematics": KinematicsParams,
-    "neuromechfly": NeuromechflyParams,
-}
+def _param_tables() -> dict[str, type]:
+    tables = {s.name: s.params for s in registry() if s.params}
+    first = next(iter(tables.items()), None)  # io after the first stage's: the reference's order
+    return dict([first, ("io", IoParams)] if first else [("io", IoParams)]) | tables
+
+
+#: Config table name -> its typed params dataclass (a stage's from its record, and ``io``):
+#: what :meth:`Config.params <flylib.config.Config.params>` builds,
+#: :func:`~flylib.config.validate_config` checks and the docs' config reference describes.
+PARAM_TABLES: dict[str, type] = derived(_param_tables, mapping=True)

@@ -2,8 +2,7 @@
 
 A FastAPI app (:func:`create_app`) over a :class:`ReviewSession` (one recording's ``results.h5``,
 footage and ``corrections.h5`` sidecar), served by uvicorn (:func:`serve`); the front-end is static
-ES modules in ``static/``. FastAPI and uvicorn are imported only when the GUI is used.
-"""
+ES modules in ``static/``. FastAPI and uvicorn are imported only when the GUI is used."""
 
 import lazy_loader as _lazy
 

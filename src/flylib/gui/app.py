@@ -20,8 +20,7 @@ Routes::
 
 Every request passes :class:`~flylib.gui.security.RequestGuard`, every response carries a strict
 Content-Security-Policy. Camera names are looked up in the rig (never used to build a path) and
-frame numbers checked, so no request reaches any other file. Errors are one ``{"detail": ...}``.
-"""
+frame numbers checked, so no request reaches any other file. Errors are one ``{"detail": ...}``."""
 
 from __future__ import annotations
 

@@ -8,8 +8,7 @@ whole video on footage with a single keyframe. So from a view's first request on
 thread decodes the video in order into the fill cache: all of it when its JPEGs fit
 ``fill_bytes``, else a window around the last requested frame. It pauses while a request decodes,
 and a request for a frame the fill decoder is nearer to waits for it instead of decoding the same
-frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequenceReader`).
-"""
+frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequenceReader`)."""
 
 from __future__ import annotations
 

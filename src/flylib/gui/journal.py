@@ -5,8 +5,7 @@ Every edit is appended to ``<sidecar>.journal`` (a JSON line with a CRC-32, fsyn
 is applied, so a stopped server, a crash or a closed tab loses nothing: the next ``flylib gui``
 replays the journal on top of the sidecar (each line checked like an edit from the page) and says
 so. Saving writes the sidecar, then removes the journal. ``<sidecar>.lock`` (``fcntl.flock``,
-released by the kernel even on ``kill -9``) refuses a second server on the same output directory.
-"""
+released by the kernel even on ``kill -9``) refuses a second server on the same output directory."""
 
 from __future__ import annotations
 

@@ -4,8 +4,7 @@ A browser lets any page send requests to ``localhost``; these checks stop them: 
 the server itself (against DNS rebinding); ``Origin``, when sent, must be the server's own and
 ``Sec-Fetch-Site`` not ``cross-site``; every mutating request carries the session's random token
 (a header, or a WebSocket sub-protocol), which the page gets inside its own HTML; bodies are JSON
-(a form or ``text/plain`` POST needs no CORS pre-flight), of bounded size and depth.
-"""
+(a form or ``text/plain`` POST needs no CORS pre-flight), of bounded size and depth."""
 
 from __future__ import annotations
 

@@ -5,8 +5,7 @@ pose2d's), corrections applied, with :func:`~flylib.pipeline.triangulation.compu
 and the run's ``triangulation`` table: the page shows what the workflow computes after saving.
 ``results.h5`` is only read; only the corrections sidecar (inside the output directory), its
 journal and lock (:mod:`flylib.gui.journal`) are written. A revision number counts the edits, so a
-page that is behind is refreshed instead of overwriting what another tab did.
-"""
+page that is behind is refreshed instead of overwriting what another tab did."""
 
 from __future__ import annotations
 
@@ -93,8 +92,7 @@ class ReviewSession:
 
     ``config`` defaults to the run's snapshot in the outdir; ``footage`` (``view -> files``) to
     what its ``sources`` find in the recording directory (or ``footage_dir``). When a view has no
-    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix).
-    """
+    footage, :attr:`footage_missing` is the page's banner (where it looked, the fix)."""
 
     def __init__(
         self,
@@ -356,20 +354,19 @@ class ReviewSession:
             given = given[:, 0]
             reproj = self.cameras.project(self.pts3d[t])  # (V, P, 2)
             used = np.isfinite(self.used2d[:, t]).all(-1)
-            views = []
-            for v, name in enumerate(self.view_names):
-                views.append(
-                    {
-                        "name": name,
-                        "points2d": _xy_list(given[v]),
-                        "used": used[v].tolist(),
-                        "reprojected": _xy_list(reproj[v]),
-                        "error": _nan_to_none(self.error[v, t], 2),
-                        "edited": self.corrections.edited[v, t].tolist(),
-                        "fixed": self.corrections.fixed[v, t].tolist(),
-                        "invisible": self.corrections.invisible[v, t].tolist(),
-                    }
-                )
+            views = [
+                {
+                    "name": name,
+                    "points2d": _xy_list(given[v]),
+                    "used": used[v].tolist(),
+                    "reprojected": _xy_list(reproj[v]),
+                    "error": _nan_to_none(self.error[v, t], 2),
+                    "edited": self.corrections.edited[v, t].tolist(),
+                    "fixed": self.corrections.fixed[v, t].tolist(),
+                    "invisible": self.corrections.invisible[v, t].tolist(),
+                }
+                for v, name in enumerate(self.view_names)
+            ]
             c = self.corrections
             corrected = ((c.edited[:, t] | c.invisible[:, t]).any(axis=0) | c.edited3d[t]).tolist()
             # the cached suspects (suspects() re-finds them): an edit's reply stays cheap
@@ -513,8 +510,7 @@ class ReviewSession:
         triangulation always keeps the point. ``revision``: the page's; an older one raises
         :class:`StaleRevision`. ``durable=False`` (a drag's intermediate positions) only flushes
         the journal line. Bad arguments raise KeyError / IndexError / ValueError; a journal that
-        cannot be written, OutputError (the edit is not applied).
-        """
+        cannot be written, OutputError (the edit is not applied)."""
         with self._lock:
             self._check_revision(revision)
             started = time.perf_counter()

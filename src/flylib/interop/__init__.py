@@ -5,8 +5,7 @@
 - Calibrations: Anipose TOML read/write, DeepFly3D calibration pickles, the ``calibrations.csv``
   session index (:func:`load_calibration`).
 - Exports: Anipose's pose-3d CSV and per-view DeepLabCut CSVs (:func:`export_result`); NWB with
-  ndx-pose in :mod:`flylib.interop.nwb` (imported on demand: it loads pynwb).
-"""
+  ndx-pose in :mod:`flylib.interop.nwb` (imported on demand: it loads pynwb)."""
 
 import lazy_loader as _lazy
 

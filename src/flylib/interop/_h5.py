@@ -7,14 +7,10 @@ when the link is followed -- a FIFO there blocks forever), a virtual dataset map
 datasets, and a soft link may route through any of these. And a dataset declares its shape: a sparse
 or compressed dataset of a few hundred bytes on disk can declare terabytes, which a read allocates.
 
-So members are looked up one path component at a time from the link table, never through h5py's
-``in`` / ``[]`` on a full path (which resolves, and so opens, external links): external and
-user-defined links are refused without being followed, soft links are resolved by the same walk, and
-a dataset is read only after its storage is checked (no external files, not virtual) and its
-declared size and chunk size are under a budget derived from the recording (:func:`read_budget`).
-What makes a link or a dataset unsafe is :mod:`flylib.results.guard`'s, which checks flylib's own
-files whole.
-"""
+So members are looked up one path component at a time from the link table (:func:`foreign_member`),
+never through h5py's ``in`` / ``[]`` on a full path (which resolves, and so opens, external links),
+and a dataset is read only once :func:`checked_dataset` passes it. What makes a link or a dataset
+unsafe is :mod:`flylib.results.guard`'s, which checks flylib's own files whole."""
 
 from __future__ import annotations
 

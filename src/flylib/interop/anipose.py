@@ -18,8 +18,7 @@ Config (top-level ``calibration`` table), the rig from a file instead of the orb
 
 Anipose cameras match views by ``name``, DeepFly3D cameras by index in config order. Relative paths
 resolve against the recording directory, else the config file's directory, else the working
-directory; paths inside ``calibrations.csv`` are relative to the CSV.
-"""
+directory; paths inside ``calibrations.csv`` are relative to the CSV."""
 
 from __future__ import annotations
 
@@ -113,8 +112,7 @@ def write_anipose_toml(
     """Write a :class:`flylib.camera.rig.CameraGroup` as an Anipose calibration TOML (atomically).
 
     ``image_sizes``: ``view -> (height, width)``; a camera without one gets ``size = [2 cx, 2 cy]``,
-    the best guess Anipose can use. ``metadata``: extra ``[metadata]`` entries.
-    """
+    the best guess Anipose can use. ``metadata``: extra ``[metadata]`` entries."""
     import tomli_w
 
     image_sizes = image_sizes or {}
@@ -253,8 +251,7 @@ def load_calibration(
 
     ``mirror: true`` mirrors the file's world (same pixels, 3D mirrored). ``recording_dir`` names
     the session for ``calibration.index``. ``image_sizes`` (footage ``(height, width)``) must match
-    an Anipose file's sizes, else :class:`FootageError`: a lens calibrated at another resolution.
-    """
+    an Anipose file's sizes, else :class:`FootageError`: a lens calibrated at another resolution."""
     from ..camera.rig import CameraGroup
 
     spec = calibration

@@ -45,8 +45,7 @@ def camera_value(value, kind: str, where: str, key: str) -> np.ndarray:
     ``kind``: ``"matrix"`` (3x3 K with positive focal lengths, no skew), ``"rotmat"`` (3x3
     rotation), ``"vec3"`` (3 numbers) or ``"dist"`` (0..12 OpenCV coefficients). ``where`` (the file
     and camera section, ``"calib.toml [cam_2] (name 'rh')"``) and ``key`` (the file's key,
-    ``"distortions"``) are named in the one-line :class:`ImportFormatError`.
-    """
+    ``"distortions"``) are named in the one-line :class:`ImportFormatError`."""
     what = {
         "matrix": "a 3x3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
         "rotmat": "a 3x3 rotation matrix",

@@ -21,8 +21,7 @@ point ``(j + 19) mod 38`` (pinned in ``tests/interop/test_interop.py``).
 
 Calibration (a pickled dict): per integer camera index, ``R`` (3x3 world-to-camera), ``tvec`` (3,),
 ``intr`` (3x3 K) and ``distort`` (5, OpenCV order), projecting to raw-frame (x, y) pixels; other
-keys are ignored.
-"""
+keys are ignored."""
 
 from __future__ import annotations
 

@@ -6,8 +6,7 @@ One file per camera view. The columns are a header MultiIndex ``scorer / bodypar
 labelled data (``labeled-data/<video>/img047.png``, whose last number is the frame; newer files
 split it over three index columns). Each row is placed at its frame index, whatever the rows' order:
 frames no row gives are missing, a frame given twice is an error. Missing detections are empty cells
-(NaN).
-"""
+(NaN)."""
 
 from __future__ import annotations
 
@@ -393,12 +392,9 @@ def read_dlc_h5(
 
     Read with h5py (no PyTables needed), for both pandas layouts: ``format="table"`` (DeepLabCut's)
     and ``format="fixed"``. pandas keeps the column names as protocol-0 pickles of plain
-    lists/tuples, loaded with an unpickler that refuses every class, so a crafted file cannot run
-    code. External storage, external links and virtual datasets are refused (never followed), and
-    each dataset's declared size is checked against ``max_bytes`` before it is read
-    (:mod:`flylib.interop._h5`). A missing file, or one holding no DeepLabCut-layout DataFrame, is
-    an :class:`ImportFormatError`.
-    """
+    lists/tuples, loaded with an unpickler that refuses every class. Read as
+    :mod:`flylib.interop._h5` reads a foreign file (``max_bytes`` per dataset). A missing file, or
+    one holding no DeepLabCut-layout DataFrame, is an :class:`ImportFormatError`."""
     path = Path(path)
     hint = "or import the CSV beside it (format: dlc_csv)"
     with reading_foreign_h5(path, "DeepLabCut .h5", "check pose2d.import.files") as fh:

@@ -14,8 +14,7 @@ applied to the points, row-major) and ``center_0..2`` (the offset subtracted aft
 the detection confidence as ``likelihood``: the detections (``pose2d/points``, what the detector or
 the import gave) with the manual corrections applied (:func:`flylib.results.read_detections`), never
 the subset a 3D stage kept; a missing point has empty ``x``, ``y`` and ``likelihood``. These import
-back as the same 2D with ``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``).
-"""
+back as the same 2D with ``pose2d.import: {format: dlc_csv}`` (default ``files: "{view}.csv"``)."""
 
 from __future__ import annotations
 
@@ -43,8 +42,7 @@ def points3d_table(
     """The per-frame 3D table in Anipose's ``pose-3d`` CSV layout (module docstring).
 
     Without ``reproj_error`` ``_error`` is NaN; without ``pts2d`` (the 2D the 3D rests on)
-    ``_ncams`` counts views with a finite error; without ``conf`` each observation scores 1.
-    """
+    ``_ncams`` counts views with a finite error; without ``conf`` each observation scores 1."""
     pts3d = np.asarray(pts3d, dtype=np.float64)
     n_frames, n_points, _ = pts3d.shape
     if len(point_names) != n_points:

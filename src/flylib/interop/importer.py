@@ -485,8 +485,7 @@ def as_confidences(
     """Another tool's scores ``(..., K)`` as confidences in [0, 1] (NaN stays NaN).
 
     DeepLabCut / Lightning Pose likelihoods outside [0, 1] are an :class:`ImportFormatError`;
-    SLEAP scores and DeepFly3D heatmap peaks may exceed 1 and are clipped with a warning.
-    """
+    SLEAP scores and DeepFly3D heatmap peaks may exceed 1 and are clipped with a warning."""
     conf = np.asarray(conf, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         outside = (conf < -_ROUNDING) | (conf > 1 + _ROUNDING) | np.isinf(conf)
@@ -571,8 +570,7 @@ def import_points2d(target: ImportTarget, recording_dir: Path, spec: Mapping | N
     ``pts2d`` ``(V, T, P, 2)`` raw-frame pixels, ``conf`` ``(V, T, P)``, NaN where unobserved.
 
     ``spec``: the recording's import spec, else ``pose2d.import``; relative ``files`` resolve
-    against ``recording_dir``. Any problem is one :class:`ImportFormatError` line naming the fix.
-    """
+    against ``recording_dir``. Any problem is one :class:`ImportFormatError` line naming the fix."""
     from ..results import Pose2dData
 
     spec = import_spec(spec)

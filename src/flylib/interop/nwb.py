@@ -15,13 +15,8 @@ multi-camera 3D pose, built with ``pynwb`` and ``ndx-pose`` (never by hand):
     and confidence); ``ReprojectionError_<view>`` ``(T, P)`` pixels.
 
 Missing values stay NaN. Frame ``i`` is at ``i / frame_rate`` s after ``session_start_time``
-(``nwb.frame_rate``, else the footage's). 3D confidence, in [0, 1]::
-
-    confidence = exp(-e / 5 px) * min(1, (n - 1) / 2)
-
-``n``: views the point was triangulated from (finite reprojection error), ``e``: their mean error
-in pixels. Two views score at most 0.5: two rays always meet near a point; nothing cross-checks.
-"""
+(``nwb.frame_rate``, else the footage's). 3D confidence, in [0, 1]: :data:`CONFIDENCE_DEFINITION`;
+two views score at most 0.5: two rays always meet near a point; nothing cross-checks."""
 
 from __future__ import annotations
 
@@ -66,8 +61,8 @@ CONFIDENCE_DEFINITION = (
 def confidence_3d(
     reproj_error: Float[np.ndarray, "V T P"], pts3d: Float[np.ndarray, "T P 3"]
 ) -> Float[np.ndarray, "T P"]:
-    """The 3D confidence ``(T, P)`` in [0, 1] (module docstring) from reprojection errors in pixels
-    (NaN: view not used); NaN where ``pts3d`` is not reconstructed."""
+    """The 3D confidence ``(T, P)`` in [0, 1] (:data:`CONFIDENCE_DEFINITION`) from reprojection
+    errors in pixels (NaN: view not used); NaN where ``pts3d`` is not reconstructed."""
     err = np.asarray(reproj_error, dtype=np.float64)
     used = np.isfinite(err)
     n = used.sum(0)
@@ -202,8 +197,7 @@ def write_nwb(
     ``metadata``: :func:`flylib.config.nwb_metadata.recording_metadata`; ``footage``: ``view ->
     files``; ``frame_rate`` defaults to ``metadata["frame_rate"]``, else the footage's;
     ``joint_angles``: ``(angles (T, J) radians, joint names)``, one ``TimeSeries`` per joint.
-    :class:`ConfigError` without a frame rate, :class:`ResultsError` without 3D points.
-    """
+    :class:`ConfigError` without a frame rate, :class:`ResultsError` without 3D points."""
     from pynwb import NWBHDF5IO, NWBFile
 
     path = Path(path)

@@ -14,8 +14,7 @@ before anything is built; the admitted callables that allocate (NumPy's array co
 ``bytes(n)``, ``bytearray(n)``, ``str``) are wrapped to bound what they allocate; and the loaded
 value is measured as the tree its consumers will walk -- a list holding the same list 16 times,
 seven levels deep, is 290 bytes on disk and 500 million numbers to :func:`numpy.asarray` -- so
-shared, deep or cyclic structures are one clear error in milliseconds.
-"""
+shared, deep or cyclic structures are one clear error in milliseconds."""
 
 from __future__ import annotations
 

@@ -4,8 +4,7 @@ Datasets used: ``node_names`` (K,), ``tracks`` and, when present, ``point_scores
 matrices transposed for MATLAB by default, so ``tracks`` is stored as ``(n_tracks, 2, K, T)`` and
 ``point_scores`` as ``(n_tracks, K, T)``; files written without the transpose hold
 ``(T, K, 2, n_tracks)`` and ``(T, K, n_tracks)``. Both are accepted (told apart by where the
-length-2 coordinate axis sits).
-"""
+length-2 coordinate axis sits)."""
 
 from __future__ import annotations
 
@@ -29,11 +28,9 @@ def read_sleap_analysis(
     HDF5: node names, ``(T, K, 2)`` pixels and ``(T, K)`` point scores (1 where the file has no
     scores and the point is present).
 
-    The file must hold its data itself: external storage, external links and virtual datasets are
-    refused (never followed), and each dataset's declared size is checked against ``max_bytes`` (the
-    recording's :func:`~flylib.interop._h5.read_budget`) before it is read. A missing file, no
-    ``tracks``/``node_names``, or an ambiguous track is an :class:`ImportFormatError`.
-    """
+    Read as :mod:`flylib.interop._h5` reads a foreign file (``max_bytes`` per dataset: its
+    :func:`~flylib.interop._h5.read_budget`). A missing file, no ``tracks``/``node_names``, or an
+    ambiguous track is an :class:`ImportFormatError`."""
     path = Path(path)
     hint = "export it with sleap-convert --format analysis (or sleap_io.save_analysis_h5)"
     what = "SLEAP analysis file"

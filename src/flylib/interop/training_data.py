@@ -17,8 +17,7 @@ triangulation left the detection out (a detection error); empty otherwise.
 
 Into an existing project the labels are merged row by row (:func:`merge_collected`): every other
 label and image is kept, and each ``CollectedData`` file changed is first copied to
-``<name>.<UTC time>.bak``.
-"""
+``<name>.<UTC time>.bak``."""
 
 from __future__ import annotations
 
@@ -58,8 +57,7 @@ def training_labels(
 
     ``used2d``: the 2D the 3D was solved from (NaN = left out); ``given2d``: the detector's;
     ``touched``: a person edited the point in that view or marked it invisible. A reprojection
-    outside the frame is no label.
-    """
+    outside the frame is no label."""
     used = np.asarray(used2d, dtype=np.float64)
     has_used = np.isfinite(used).all(-1)
     seen = np.isfinite(np.asarray(given2d, dtype=np.float64)).all(-1)
@@ -123,8 +121,7 @@ def merge_collected(existing, new, cleared: np.ndarray):
     merged frame (new body parts and frames appended) and a :class:`MergeCount`.
 
     Where ``cleared`` (bool, ``new``'s shape) a person marked the point invisible and the label is
-    removed; elsewhere a NaN of flylib's keeps the project's value.
-    """
+    removed; elsewhere a NaN of flylib's keeps the project's value."""
     import pandas as pd
 
     levels = existing.columns.nlevels
@@ -230,8 +227,7 @@ def export_training_data(
     ``footage_of``: recording directory -> ``{view: footage files}``, asked only once corrected
     frames are found; ``protected`` ``file -> role``: inputs no written file may land on;
     ``report`` gets one line per ``CollectedData`` file. :class:`ResultsError` without a corrected
-    frame, :class:`FootageError` when footage is missing or unreadable.
-    """
+    frame, :class:`FootageError` when footage is missing or unreadable."""
     import cv2
 
     from ..io import open_reader

@@ -3,8 +3,7 @@
 Imported 2D keypoints are placed on the configured views (the ``cameras`` table, in config order). A
 view's footage is found through the detection plan: the pathways that fill the view
 (``pose2d.output_points.<view>``) name a source, whose ``filename`` glob is matched in the recording
-directory. Only the container/image header is read, never the pixels of a whole video.
-"""
+directory. Only the container/image header is read, never the pixels of a whole video."""
 
 from __future__ import annotations
 
@@ -28,8 +27,7 @@ def footage_files(
     Matched like :func:`flylib.recordings.find_recording`: only video and image files count, so a
     DeepLabCut CSV beside ``camera_0.mp4`` is not footage. A match that is no regular file, or an
     image sequence with a gap in its numbering (:func:`flylib.io.images.sequence_gap`), is a
-    :class:`FootageError`.
-    """
+    :class:`FootageError`."""
     found = {
         view: natural_sorted(footage_matches(Path(recording_dir), glob)) if glob is not None else []
         for view, glob in dict(view_globs).items()

@@ -2,8 +2,7 @@
 
 :func:`compute_kinematics` works on a ``(T, P, 3)`` array and a skeleton;
 :mod:`flylib.pipeline.kinematics` is the workflow stage (``kinematics.h5``, ``angles.csv`` in
-Anipose's angles layout, ``angles.png``).
-"""
+Anipose's angles layout, ``angles.png``)."""
 
 from __future__ import annotations
 
@@ -50,8 +49,7 @@ class Kinematics:
     flexion angles first, then ``<segment>_yaw/_pitch/_roll``; ``definitions`` maps each to
     the ``[a, b, c]`` point names it is computed from. ``points3d_body`` ``(T, P, 3)`` is the
     pose in the body frame ``rotation``, ``origin``: ``(3, 3)``/``(3,)`` (tethered) or
-    ``(T, 3, 3)``/``(T, 3)``.
-    """
+    ``(T, 3, 3)``/``(T, 3)``."""
 
     angle_names: list[str]
     angles: Float[np.ndarray, "T A"]
@@ -81,12 +79,10 @@ def compute_kinematics(
 ) -> Kinematics:
     """Body frame, body-frame 3D and joint angles of world points ``(T, P, 3)`` (NaN = missing).
 
-    ``angles`` (flexion at ``b``) and ``segments`` (orientations) map ``name -> (a, b, c)``
-    point names; ``body_frame_points`` gives the ``origin, posterior, anterior, right, left``
-    groups; ``None`` takes :func:`default_angles`, :func:`default_segments`,
-    :func:`default_frame_points`. ``tethered``: one body frame for the recording, else one
-    per frame.
-    """
+    ``angles`` (flexion at ``b``) and ``segments`` (orientations) map ``name -> (a, b, c)`` point
+    names; ``body_frame_points`` gives the ``origin, posterior, anterior, right, left`` groups;
+    ``None`` takes :func:`default_angles`, :func:`default_segments`, :func:`default_frame_points`.
+    ``tethered``: one body frame for the recording, else one per frame."""
     pts3d = np.asarray(pts3d, np.float64)
     groups_names = body_frame_points or default_frame_points(skeleton)
     groups = {k: _indices(skeleton, groups_names[k], f"body_frame.{k}") for k in FRAME_KEYS}

@@ -5,8 +5,7 @@ A flexion angle ``[a, b, c]`` is the angle at ``b`` between ``b->a`` and ``b->c`
 orientation of ``a->b`` in the body frame: ``yaw`` (from +x towards +y, in the horizontal
 plane), ``pitch`` (elevation above the body's xy-plane) and ``roll`` (rotation about the
 segment of the plane through ``a, b, c``, zero when that plane contains the body's z axis,
-positive counter-clockwise looking from ``a`` to ``b``).
-"""
+positive counter-clockwise looking from ``a`` to ``b``)."""
 
 from __future__ import annotations
 

@@ -9,8 +9,7 @@ of a pose are
 
 and body coordinates are ``R (p - origin)`` with ``R = [x; y; z]`` (rows). Everything is
 built from differences and means of the pose's own points, so rotating and translating the
-whole pose leaves the body coordinates unchanged.
-"""
+whole pose leaves the body coordinates unchanged."""
 
 from __future__ import annotations
 

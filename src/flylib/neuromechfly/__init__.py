@@ -1,12 +1,7 @@
 """NeuroMechFly joint angles: a recording's 3D aligned to the body model's template and its 42
 leg degrees of freedom by inverse kinematics on the model's chains, in flygym's joint names, order
-and units (radians), ready for kinematic replay.
-
-:mod:`.model` (leg chains, joint names, forward kinematics), :mod:`.align` (the similarity, per-leg
-scale, the tethered check), :mod:`.ik` (the JAX solver), :mod:`.angles` (the three together,
-:func:`compute_nmf_angles`), :mod:`.replay` (flygym's replay, ``joint_angles.csv`` read back);
-:mod:`flylib.pipeline.neuromechfly` is the workflow stage.
-"""
+and units (radians), ready for kinematic replay (:func:`compute_nmf_angles`, in :mod:`.angles`);
+:mod:`flylib.pipeline.neuromechfly` is the workflow stage."""
 
 import lazy_loader as _lazy
 

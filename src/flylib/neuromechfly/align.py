@@ -1,17 +1,13 @@
 """A recording's 3D in NeuroMechFly's template body: one similarity from the thorax-coxa points,
 then each leg scaled to the model's leg length about its thorax-coxa joint.
 
-The similarity (Umeyama) maps the recording's six thorax-coxa points, their median over the
-frames, onto the model's; a tethered fly's thorax does not move, so one similarity serves every
-frame, and a recording whose thorax-coxa points do move is refused. As in SeqIKPy's
-``AlignPose``, each leg is then translated so that its thorax-coxa joint sits on the model's and
-scaled so that its median length (the sum of its four segments) is the model's; the inverse
-kinematics fits chains of the fly's own segment lengths (SeqIKPy's ``body_size``), so that the
-angles, not the proportions, carry the fit.
-
-The six thorax-coxa points are nearly coplanar, so which side of them is ventral comes from the
-legs: coordinates in which the legs hang dorsally are mirrored first.
-"""
+The similarity (Umeyama) maps the recording's six thorax-coxa points, their median over the frames,
+onto the model's; a tethered fly's thorax does not move, so one similarity serves every frame, and a
+recording whose thorax-coxa points do move is refused. As in SeqIKPy's ``AlignPose``, each leg is
+then translated so that its thorax-coxa joint sits on the model's and scaled so that its median
+length (the sum of its four segments) is the model's; the inverse kinematics fits chains of the
+fly's own segment lengths (SeqIKPy's ``body_size``), so that the angles, not the proportions, carry
+the fit. Coordinates in which the legs hang dorsally are mirrored first."""
 
 from __future__ import annotations
 
@@ -47,8 +43,7 @@ class TemplateAlignment:
     proportions, which the inverse kinematics' chains take; ``thorax_motion``: the 95th percentile
     of the thorax-coxa points' distance from their median position, in model leg lengths;
     ``mirrored``: the coordinates were mirrored first (the legs hung on the dorsal side: a
-    left-handed frame, or left and right swapped).
-    """
+    left-handed frame, or left and right swapped)."""
 
     scale: float
     rotation: Float[np.ndarray, "3 3"]
@@ -91,8 +86,7 @@ def align_to_template(
     ``still_tolerance``: the largest thorax-coxa motion accepted (95th percentile of the distance
     from the median position, in model leg lengths); ``source``: the file, for messages. A
     ResultsError if fewer than four thorax-coxa points were reconstructed, or they move more
-    (an untethered fly).
-    """
+    (an untethered fly)."""
     legs3d = np.asarray(legs3d, dtype=np.float64)
     thc = legs3d[:, :, 0]
     with _quiet_nan_warnings():

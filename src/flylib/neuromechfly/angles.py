@@ -31,8 +31,7 @@ class NmfAngles:
     ``angles`` on the fly's own segment lengths) to the aligned measured joint, in model leg
     lengths; ``model_residual``: the same for the model's own chain (what a replay in flygym
     reproduces), which adds the difference in proportions. ``aligned``: the measured legs in the
-    model's thorax frame (mm); ``unsolved``: ``leg -> frames`` left NaN for a missing point.
-    """
+    model's thorax frame (mm); ``unsolved``: ``leg -> frames`` left NaN for a missing point."""
 
     angles: Float[np.ndarray, "T 42"]
     residual: Float[np.ndarray, "T 6 5"]
@@ -70,8 +69,7 @@ def compute_nmf_angles(
     The ``skeleton`` names the six legs as limbs ``lf_leg`` ... ``rh_leg`` of five points each
     (else a ConfigError); a thorax that is not still (``still_tolerance``,
     :func:`~flylib.neuromechfly.align.align_to_template`) or too few reconstructed thorax-coxa
-    points are a ResultsError naming ``source``.
-    """
+    points are a ResultsError naming ``source``."""
     legs3d = np.asarray(pts3d, dtype=np.float64)[:, leg_point_indices(skeleton)]
     aligned, alignment = align_to_template(legs3d, still_tolerance=still_tolerance, source=source)
     own = segment_offsets() * np.nan_to_num(alignment.segment_scale, nan=1.0)[..., None]

@@ -8,8 +8,7 @@ forward-mode Jacobian, started from the closed-form angles of straight segments
 (:func:`initial_angles`), which also picks the model's branch among the chain's mirror-twin
 solutions (a thorax-coxa yaw/pitch/roll and its ``(yaw + pi, pi - pitch, roll + pi)`` twin place
 the leg identically). Unlike SeqIKPy's stage-by-stage fits of growing sub-chains, all seven
-angles are fitted together against all four points.
-"""
+angles are fitted together against all four points."""
 
 from __future__ import annotations
 

@@ -11,8 +11,7 @@ flygym's claw is the ``Tarsus5`` body origin).
 The hinges, in the order MuJoCo applies them inside each body (each about an axis of the frame
 left by the one before): thorax-coxa yaw (x), pitch (y), roll (z); coxa-trochanter pitch (y),
 roll (z); femur-tibia pitch (y); tibia-tarsus pitch (y). An angle here is the angle of flygym's
-joint of that name, in radians, so the angles drive flygym's model as they are.
-"""
+joint of that name, in radians, so the angles drive flygym's model as they are."""
 
 from __future__ import annotations
 
@@ -103,9 +102,8 @@ def rotations(xp, angle, axis: int):
 
 def leg_forward(angles, root, offsets, xp=np):
     """Forward kinematics of leg chains, in ``xp`` (``numpy`` or ``jax.numpy``): ``angles``
-    ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order, ``root`` ``(..., 3)`` the thorax-coxa
-    joint, ``offsets`` ``(..., 4, 3)`` of the zero pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa,
-    claw."""
+    ``(..., 7)`` radians in :data:`DOF_SUFFIXES` order, ``root`` ``(..., 3)`` the thorax-coxa joint,
+    ``offsets`` ``(..., 4, 3)`` of the zero pose -> ``(..., 5, 3)``: ThC, CTr, FTi, TiTa, claw."""
     pitch, roll, yaw, ctr_pitch, ctr_roll, fti, tita = (angles[..., k] for k in range(7))
     rot = rotations(xp, yaw, 0) @ rotations(xp, pitch, 1) @ rotations(xp, roll, 2)
     points = [xp.broadcast_to(root, angles.shape[:-1] + (3,))]

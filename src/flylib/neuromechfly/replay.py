@@ -55,8 +55,7 @@ def replay_angles(
     joint's last finite target (zero before the first). The targets are linearly interpolated
     from ``frame_rate`` (frames per second) to MuJoCo's ``timestep`` (seconds); ``settle`` seconds
     hold the first frame's angles before the replay (the model starts stretched out). A
-    FlylibError (with the reason) if flygym cannot run here.
-    """
+    FlylibError (with the reason) if flygym cannot run here."""
     reason = flygym_unavailable()
     if reason:
         raise FlylibError(f"NeuroMechFly replay: {reason}")
@@ -113,8 +112,7 @@ def replay_residuals(
     (``options`` to :func:`replay_angles`) and compare the simulated joints with the ``measured``
     aligned legs (:attr:`NmfAngles.aligned`) and with the model's forward kinematics of the same
     angles: ``{"vs_measured": {...}, "vs_model": {...}}``, each the ``median``, ``p95`` and ``max``
-    distance in model leg lengths over every finite (frame, leg, joint).
-    """
+    distance in model leg lengths over every finite (frame, leg, joint)."""
     from .model import forward_kinematics, leg_lengths
 
     simulated = replay_angles(angles, frame_rate, **options)

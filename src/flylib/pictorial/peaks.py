@@ -80,12 +80,10 @@ def peak_candidates(
     """Top-``k`` local-maximum peaks of each heatmap, sub-pixel refined, strongest first.
 
     A pixel is a peak when it is the maximum of its ``(2 radius + 1)^2`` neighbourhood (also the
-    ``weighted`` window, heatmap pixels) and exceeds ``threshold``. ``method``: ``"argmax"``
-    (integer pixel), ``"weighted"`` (score-weighted centroid of the window) or ``"taylor"`` (Newton
-    step on the log-heatmap: exact for a Gaussian blob). Returns ``xy`` ``(..., k, 2)`` in heatmap
+    ``weighted`` window, heatmap pixels) and exceeds ``threshold``; ``method``: one of
+    :data:`SUBPIXEL_METHODS` (:func:`subpixel_offsets`). Returns ``xy`` ``(..., k, 2)`` in heatmap
     pixels (x = column, y = row, pixel centres at integers; NaN where fewer than ``k`` peaks exist)
-    and ``score`` ``(..., k)``, the heatmap value at the peak pixel (0 where padded).
-    """
+    and ``score`` ``(..., k)``, the heatmap value at the peak pixel (0 where padded)."""
     from scipy.ndimage import maximum_filter
 
     if method not in SUBPIXEL_METHODS:
@@ -138,8 +136,7 @@ def subpixel_offsets(
     window, negatives clipped to zero, cells outside ignored), ``"taylor"`` (one Newton step on
     the log-heatmap, clamped to ``radius``) or ``"parabola"`` (per axis through the peak and its
     two neighbours, on the log when all three are positive, clamped to half a cell); each is 0
-    where it does not apply.
-    """
+    where it does not apply."""
     xp = np if isinstance(heatmaps, np.ndarray) else sys.modules["torch"]  # else a tensor
     n, height, width = heatmaps.shape
     device = heatmaps.device

@@ -67,8 +67,7 @@ def solve_frames(
     hypotheses kept per joint, ``inlier_px`` radius (pixels), ``lam`` bone-prior weight, ``huber``
     corner (relative deviation), ``nms`` radius (fraction of scale). With ``temporal``, frames
     are solved in order and each frame's jump from the previous choice (``prev_pts3d`` before the
-    first) costs ``mu * (jump / scale)^2``.
-    """
+    first) costs ``mu * (jump / scale)^2``."""
     cand_xy = np.asarray(cand_xy, float)
     cand_score = np.where(np.isfinite(cand_xy).all(-1), np.nan_to_num(cand_score), 0.0)
     n_v, n_t, n_p, n_k, _ = cand_xy.shape
@@ -164,8 +163,7 @@ def reconstruct(
     The bone-length prior comes from a RANSAC triangulation of the arg-max detections
     (``pts2d_argmax``, default the candidates' ``K = 0``) over up to ``bone_max_frames`` evenly
     spaced frames. The 3D is the DLT triangulation of the committed 2D, so with clean candidates
-    (every arg-max right) the result is exactly the arg-max triangulation.
-    """
+    (every arg-max right) the result is exactly the arg-max triangulation."""
     from ..triangulation import reprojection_error, triangulate
 
     argmax = candidates.argmax() if pts2d_argmax is None else np.asarray(pts2d_argmax, float)

@@ -1,8 +1,8 @@
 """The stages of the pose pipeline, one module each.
 
-- ``flylib.pipeline.<stage>``: its inputs object, ``compute_<stage>`` (the pure step, where
-  there is one) and ``run_<stage>`` (paths in, one artifact out; what ``scripts/`` run); its
-  record (toggle, artifact, memory...) is in :mod:`flylib.stages`;
+- ``flylib.pipeline.<stage>``: its record (``RECORD``, a :class:`flylib.stages.Stage`), its
+  inputs object, ``compute_<stage>`` (the pure step, where there is one) and ``run_<stage>``
+  (paths in, one artifact out; what ``scripts/`` run);
 - :mod:`flylib.pipeline.inputs`: what a stage reads, its tracked params and untracked runtime;
 - :mod:`flylib.pipeline.planning`: what a run plans from its config before any stage;
 - :mod:`flylib.pipeline.oneshot`: :func:`run_from_points2d`, the array-in one-shot.

@@ -17,11 +17,21 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from ..stages import FINAL_3D
+from ..results.artifacts import SUMMARY_FILES
+from ..stages import FINAL_3D, Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime
 
 log = logging.getLogger(__name__)
+
+
+RECORD = Stage(
+    "assemble",
+    default_on=None,
+    after=("refinement",),
+    outputs=("results.h5", *SUMMARY_FILES),
+    memory=(160, 130),
+)
 
 
 @register

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..config.constants import LEAST_SQUARES_PERF
 from ..config.params import BundleAdjustmentParams
+from ..stages import Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import image_sizes, solving
 
@@ -33,6 +34,20 @@ __all__ = [
     "compute_bundle_adjustment",
     "run_bundle_adjustment",
 ]
+
+
+RECORD = Stage(
+    "bundle_adjustment",
+    default_on=True,
+    after=("pose2d",),
+    params=BundleAdjustmentParams,
+    artifact="bundle_adjustment.h5",
+    results_group=True,
+    hint="check its 2D (are the views' points of one fly, in raw-frame pixels?) "
+    "and the starting rig (cameras, calibration.file), or set "
+    "pipeline.do_bundle_adjustment: false",
+    memory=(380, 30),
+)
 
 
 @dataclass(frozen=True)

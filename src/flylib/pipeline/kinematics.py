@@ -22,6 +22,7 @@ import numpy as np
 from ..config.postprocessing import KinematicsParams
 from ..kinematics import FILES, Kinematics, compute_kinematics as kinematics_of
 from ..paths import atomic_path
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -29,6 +30,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..config import Config
     from ..skeleton import Skeleton
+
+RECORD = Stage(
+    "kinematics",
+    default_on=True,
+    after=("assemble",),
+    needs_one_of=("triangulation", "pictorial_structures"),
+    params=KinematicsParams,
+    outputs=FILES,
+    hint="check the 3D in results.h5 (flylib inspect), or set pipeline.do_kinematics: false",
+    memory=(130, 105),
+)
 
 STAGE = "kinematics"
 

@@ -25,16 +25,26 @@ import numpy as np
 
 from ..config.neuromechfly import NeuromechflyParams
 from ..neuromechfly import FILES
-from ..neuromechfly.angles import NmfAngles, compute_nmf_angles
 from ..neuromechfly.model import CHAIN_JOINTS, DOF_SUFFIXES, LEGS, dof_names
 from ..paths import atomic_path
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
     from jaxtyping import Float
 
     from ..config import Config
+    from ..neuromechfly.angles import NmfAngles
     from ..skeleton import Skeleton
+
+RECORD = Stage(
+    "neuromechfly",
+    default_on=False,
+    after=("kinematics",),
+    needs_one_of=("triangulation", "pictorial_structures"),
+    params=NeuromechflyParams,
+    outputs=FILES,
+)
 
 STAGE = "neuromechfly"
 
@@ -141,6 +151,8 @@ def compute_neuromechfly(
     """:func:`~flylib.neuromechfly.compute_nmf_angles` as ``inputs.neuromechfly`` says.
     ``pts3d``: world points, NaN = missing; ``skeleton`` names the P axis (``results.h5``'s);
     ``source`` names the 3D in messages."""
+    from ..neuromechfly.angles import compute_nmf_angles  # JAX: not while the homes are found
+
     params = inputs.neuromechfly
     return compute_nmf_angles(
         pts3d,

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from ..config.params import PictorialParams
 from ..errors import ResultsError
+from ..stages import Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
@@ -28,6 +29,18 @@ __all__ = [
 ]
 
 
+RECORD = Stage(
+    "pictorial_structures",
+    default_on=False,
+    after=("bundle_adjustment",),
+    params=PictorialParams,
+    artifact="pictorial_structures.h5",
+    results_group=True,
+    solves_3d=True,
+    hint="check the detector's 2D and the rig, or set pipeline.do_pictorial_structures: false",
+)
+
+
 @register
 @dataclass(frozen=True)
 class PictorialStructuresInputs(StageInputs):
@@ -45,7 +58,7 @@ class PictorialStructuresInputs(StageInputs):
     def from_config(cls, config: Config) -> PictorialStructuresInputs:
         """The stage's inputs as ``config`` gives them."""
         return cls(
-            pictorial_structures=config.pictorial,
+            pictorial_structures=config.pictorial_structures,
             skeleton=SkeletonSpec.from_config(config),
             rig=tracked_rig(config),
             runtime=RigRuntime.from_config(config),

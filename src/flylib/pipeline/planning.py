@@ -14,12 +14,11 @@ from typing import Any
 
 from ..config import Config
 from ..errors import ConfigError
-from ..kinematics import FILES as KINEMATICS_FILES
-from ..neuromechfly import FILES as NEUROMECHFLY_FILES
 from ..provenance import foreign_artifacts, params_hash
 from ..recordings import Recording, plan_listing
-from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+from ..results.artifacts import ARTIFACTS, candidates_artifact
 from ..sessions import Session, plan_sessions
+from ..stages import registry
 from ..visualization.specs import video_specs
 from .demo import demo_import_spec
 from .inputs import RigSpec, stage_params, stage_runtime
@@ -157,7 +156,7 @@ class RunPlan:
             return []
         needed = [ARTIFACTS["pose2d"]]
         if self.flags["pictorial_structures"]:
-            needed.append(candidates_artifact(self.config.pictorial.k))
+            needed.append(candidates_artifact(self.config.pictorial_structures.k))
         stages = rec.outdir / "stages"
         return [str(stages / n) for n in needed if not (stages / n).is_file()]
 
@@ -244,7 +243,11 @@ class RunPlan:
 
     def artifact(self, stage: str) -> str:
         """The `{outdir}` pattern of a stage artifact (or of the detector's candidates)."""
-        name = candidates_artifact(self.config.pictorial.k) if stage == "candidates" else None
+        name = (
+            candidates_artifact(self.config.pictorial_structures.k)
+            if stage == "candidates"
+            else None
+        )
         return f"{{outdir}}/stages/{name or ARTIFACTS[stage]}"
 
     def pose2d_outputs(self) -> dict[str, str]:
@@ -302,13 +305,8 @@ class RunPlan:
 
     def targets(self) -> list[str]:
         """Every final output of the run: each planned recording's, each session's summary."""
-        names = [
-            "results.h5",
-            *SUMMARY_FILES,
-            *(f"{name}.mp4" for name in self.video_names),  # none with visualization off
-            *(KINEMATICS_FILES if self.flags["kinematics"] else ()),
-            *(NEUROMECHFLY_FILES if self.flags["neuromechfly"] else ()),
-        ]
+        names = [n for s in registry() if self.flags.get(s.name, True) for n in s.outputs]
+        names += [f"{name}.mp4" for name in self.video_names]  # none with visualization off
         targets = [f"{rec.outdir}/{name}" for rec in self.planned for name in names]
         return targets + [str(s.summary) for s in self.sessions]
 

@@ -15,6 +15,7 @@ from ..config.params import IoParams, PictorialParams, Pose2dParams
 from ..config.sources import feeding_sources, patterns_of
 from ..errors import FootageError, ResultsError
 from ..pose2d.plan import DECODING_CONVENTION, DetectionPlan
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -37,6 +38,11 @@ PLAN_KEYS = tuple(key for key in POSE2D_PLAN_KEYS if key != "import")
 DETECTOR_KNOBS = ("batch_size", "decode_buffer", "device", "compile")
 
 
+RECORD = Stage(
+    "pose2d", default_on=True, params=Pose2dParams, artifact="pose2d.h5", results_group=True
+)
+
+
 @dataclass(frozen=True)
 class Pose2dRuntime:
     """The pose2d stage's untracked knobs: they change its speed, never its 2D.
@@ -55,7 +61,7 @@ class Pose2dRuntime:
         return cls(
             **{knob: getattr(config.pose2d, knob) for knob in DETECTOR_KNOBS},
             image_workers=config.io.image_workers,
-            candidates_k=int(config.pictorial.k),
+            candidates_k=int(config.pictorial_structures.k),
         )
 
 

@@ -41,6 +41,7 @@ from ..config.params import build_params
 from ..config.postprocessing import RefinementParams
 from ..paths import atomic_path
 from ..refinement.solver import FLAG_BITS, ArraySink
+from ..stages import Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, tracked_rig
 from .triangulation import triangulation_method
@@ -48,6 +49,20 @@ from .triangulation import triangulation_method
 if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
     from ..config import Config
+
+RECORD = Stage(
+    "refinement",
+    default_on=True,
+    after=("triangulation",),
+    needs_one_of=("triangulation",),
+    params=RefinementParams,
+    artifact="refinement.h5",
+    results_group=True,
+    solves_3d=True,
+    hint="check triangulation's 3D (flylib inspect) and the refinement settings, or "
+    "set pipeline.do_refinement: false",
+    memory=(410, 140),
+)
 
 STAGE = "refinement"
 

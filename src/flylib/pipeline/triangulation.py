@@ -13,6 +13,7 @@ import numpy as np
 
 from ..config.params import TriangulationParams, build_params
 from ..errors import ResultsError
+from ..stages import Stage
 from .inputs import RigSpec, SkeletonSpec, StageInputs, register
 from .stage_helpers import RigRuntime, rig_for, solving, tracked_rig
 
@@ -33,6 +34,20 @@ __all__ = [
     "run_triangulation",
     "triangulation_method",
 ]
+
+
+RECORD = Stage(
+    "triangulation",
+    default_on=True,
+    after=("pictorial_structures",),
+    params=TriangulationParams,
+    artifact="triangulation.h5",
+    results_group=True,
+    solves_3d=True,
+    hint="check its 2D (pose2d, corrections) and the rig (bundle adjustment's "
+    "result, cameras, calibration.file)",
+    memory=(110, 120),
+)
 
 
 @register

@@ -37,16 +37,15 @@ _FIX = "set outdir to another folder, e.g. '{recording}/flylib_outputs'"
 def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
     """``name`` (relative to the outdir) ``-> what writes it`` (e.g. ``"assemble's
     calibration.toml"``) of every file a recording's jobs write under ``flags``."""
-    from ..kinematics import FILES as KINEMATICS_FILES
-    from ..neuromechfly import FILES as NEUROMECHFLY_FILES
     from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+    from ..stages import registry
 
     out: dict[str, str] = {}
     for stage, name in ARTIFACTS.items():
         if flags.get(stage, True):
             out[f"stages/{name}"] = f"{stage}'s stages/{name}"
     if flags.get("pose2d", True) and flags.get("pictorial_structures", False):
-        name = candidates_artifact(config.pictorial.k)
+        name = candidates_artifact(config.pictorial_structures.k)
         out[f"stages/{name}"] = f"pose2d's stages/{name}"
     for name in ("results.h5", *SUMMARY_FILES, "config.yaml"):
         out[name] = f"assemble's {name}"
@@ -57,10 +56,10 @@ def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
 
         for video in video_specs(config):
             out[f"{video.name}.mp4"] = f"visualization's {video.name}.mp4"
-    if flags.get("kinematics", True):
-        out |= {name: f"kinematics' {name}" for name in KINEMATICS_FILES}
-    if flags.get("neuromechfly", False):
-        out |= {name: f"neuromechfly's {name}" for name in NEUROMECHFLY_FILES}
+    for stage in registry():
+        if stage.name != "assemble" and flags.get(stage.name, True):
+            owner = stage.name + ("'" if stage.name.endswith("s") else "'s")
+            out |= {name: f"{owner} {name}" for name in stage.outputs}
     if (config.data.get("exports") or {}).get("nwb"):
         out[NWB_FILE] = f"export_nwb's {NWB_FILE}"
     return out

@@ -8,7 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..stages import Stage
 from .inputs import SkeletonSpec, StageInputs, register
+
+RECORD = Stage("visualization", default_on=True, after=("neuromechfly",))
 
 
 @dataclass(frozen=True)

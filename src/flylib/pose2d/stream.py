@@ -254,7 +254,7 @@ def _start_download(results: list, device: torch.device):
 def _make_progress(progress, total: int | None):
     if not progress:
         return None
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     return tqdm(total=total, desc="detect 2D", unit="frame", dynamic_ncols=True)
 

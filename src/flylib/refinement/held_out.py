@@ -56,8 +56,7 @@ class HeldOutCheck:
     each view held out, and picks the scale of lowest held-out error (:attr:`options`); after the
     solve, :meth:`apply` keeps the triangulation where that refinement lost. ``terms``:
     :func:`~flylib.refinement.skeleton_terms` (its ``bones`` and ``mirror`` make the summaries'
-    bone figures).
-    """
+    bone figures)."""
 
     def __init__(
         self,

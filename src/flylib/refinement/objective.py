@@ -23,8 +23,7 @@ that every bone stays inside a block) and the unknowns ordered ``(block, frame, 
 Within a frame a block couples ``3m`` unknowns; the temporal term couples the same unknown ``d``
 frames apart, ``3m d`` positions away. The normal matrix is therefore banded with half-bandwidth
 ``3 m d`` (15 for the fly's legs with first differences) and is factorized by LAPACK's banded
-Cholesky (``scipy.linalg.cholesky_banded``) in time linear in the number of frames.
-"""
+Cholesky (``scipy.linalg.cholesky_banded``) in time linear in the number of frames."""
 
 from __future__ import annotations
 
@@ -85,8 +84,7 @@ def chunk_kernel(loss: str, order: int, m: int):
     loss), row ``delta`` its ``delta``-th superdiagonal at the column of the lower-right end
     (:func:`assemble_band` adds :func:`temporal_band`'s rows and makes LAPACK's band); ``grad``
     ``(n,)`` the gradient (both halved: the step solves ``A d = -grad``); ``err`` ``(n_blocks, m,
-    W, T)`` pixel errors.
-    """
+    W, T)`` pixel errors."""
     import jax
     import jax.numpy as jnp
 
@@ -381,8 +379,7 @@ def assemble_band(
     unknowns (whole blocks, which share nothing; None: all); damping makes the diagonal ``diag *
     (1 + mu) + floor`` (``mu`` scalar or ``(n,)``); ``buffer`` ``(n, u + 1)`` C-ordered float64 to
     build the band in (the result is a view of it): reusing one spares the page faults of a fresh
-    allocation at every step.
-    """
+    allocation at every step."""
     if columns is not None:
         rows, temporal = rows[:, columns], temporal[:, columns]
         if not np.isscalar(mu):

@@ -1,17 +1,13 @@
 """Levenberg-Marquardt over a whole recording, chunk by chunk, with banded solves.
 
-:func:`refine_points` is the entry point. Recording-wide unknowns are settled first (one length
-per bone, one world position per rigid point: robust medians over the whole starting
-reconstruction, left/right bones pooled on request); then the frames are solved in chunks of
-``chunk_frames`` with ``overlap_frames`` of context on each side (only the chunk's own frames are
-kept), so memory does not grow with the recording. In each chunk, damped Gauss-Newton steps solve
-the banded normal equations of :mod:`flylib.refinement.objective` exactly; the point blocks (limb
-chains) share no unknown once the recording-wide unknowns are fixed, so each block takes or
-refuses its steps and is damped on its own. The robust reprojection term starts from the
-triangulation's inlier views (plus every view of a point it could not reconstruct); after half
-the steps, every observation within ``outlier_px`` of the refined point is admitted, the rest sit
-out, and the fit continues.
-"""
+:func:`refine_points` is the entry point. Recording-wide unknowns are settled first (one length per
+bone, one world position per rigid point: robust medians over the whole starting reconstruction,
+left/right bones pooled on request); then the frames are solved in chunks of ``chunk_frames`` with
+``overlap_frames`` of context on each side (only the chunk's own frames are kept), so memory does
+not grow with the recording, by damped Gauss-Newton steps on the banded normal equations of
+:mod:`flylib.refinement.objective` (:meth:`ChunkProblem.solve`). The reprojection term starts from
+the triangulation's inlier views (:func:`refine_points`); after half the steps, every observation
+within ``outlier_px`` of the refined point is admitted, the rest sit out."""
 
 from __future__ import annotations
 
@@ -310,10 +306,8 @@ class ChunkProblem:
         return from_slots(xs, self.layout.slots, self.n_points)[: self.n_frames]
 
     def evaluate(self, xs: np.ndarray):
-        """The objective at slotted ``xs``: ``cost`` ``(n_blocks,)``, ``rows`` ``(6, n)`` the
-        within-frame part of the Gauss-Newton matrix (:meth:`band` makes the whole), ``grad``
-        ``(n,)`` (both halved: the step solves ``A d = -grad``), ``err`` ``(n_blocks, m, W,
-        padded)`` pixel errors."""
+        """The objective at slotted ``xs``: :func:`~flylib.refinement.objective.chunk_kernel`'s
+        ``(cost, rows, grad, err)`` as NumPy arrays (:meth:`band` makes the whole matrix)."""
         cost, rows, grad, err = self.kernel(xs, self.data)
         return np.asarray(cost), np.asarray(rows), np.asarray(grad), np.asarray(err)
 
@@ -362,8 +356,7 @@ class ChunkProblem:
         of a step on its own cost. A block stops once its cost falls by less than ``ftol`` of
         itself (or its damping runs away), and leaves the factorization. A step is one banded
         factorization of the live blocks and one evaluation of the chunk. ``trace``, when given,
-        receives ``(cost, mu)`` (per-block arrays) after every evaluation.
-        """
+        receives ``(cost, mu)`` (per-block arrays) after every evaluation."""
         n_blocks = xs.shape[0]
         per_block = xs[0].size  # unknowns of one block (block-major ordering)
         cost, rows, grad, err = self.evaluate(xs)
@@ -514,8 +507,7 @@ def refine_stream(
     ``source`` has ``n_views``, ``n_frames``, ``n_points`` and ``read(lo, hi) -> (pts2d, conf,
     start, inliers)`` (:class:`ArraySource`); ``sink`` has ``write(lo, hi, points3d,
     reproj_error, points2d, flags)`` and ``mark_missing(lo, hi, missing)`` (:class:`ArraySink`).
-    Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``.
-    """
+    Returns ``bone_lengths``, ``rigid_points``, ``rigid_centres`` and ``info``."""
     opts = options or RefinementParams()
     if opts.loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {opts.loss!r}")
@@ -763,8 +755,7 @@ def refine_points(
     ``None``: every observation). ``bones``: point-index pairs of constant length, along the limb
     ``chains`` (every bone joins neighbouring points of one chain; default: each bone its own
     chain); ``mirror``: each bone's left/right twin, for ``symmetric_bones``; ``rigid``: points
-    held at one world position (the tethered thorax); ``options``: the ``refinement`` table.
-    """
+    held at one world position (the tethered thorax); ``options``: the ``refinement`` table."""
     pts2d = np.asarray(pts2d, np.float64)
     start = np.asarray(start, np.float64)
     n_views, n_frames, n_points, _ = pts2d.shape

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import ResultsError
 from ..paths import atomic_path
-from ..stages import REGISTRY
+from ..stages import by_name, derived, registry
 from .datasets import json_attrs, read_dataset, read_json_attrs, write_array
 from .groups import cameras_from_group, write_cameras
 from .hdf5 import create_file, new_meta, read_checked
@@ -26,9 +26,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..camera.rig import CameraGroup
 
 #: Stage-artifact file names inside ``<outdir>/stages/``.
-ARTIFACTS: dict[str, str] = {s.name: s.artifact for s in REGISTRY if s.artifact}
+ARTIFACTS: dict[str, str] = derived(
+    lambda: {s.name: s.artifact for s in registry() if s.artifact}, mapping=True
+)
 #: Stages that own a group in results.h5, in pipeline order.
-STAGE_GROUPS: tuple[str, ...] = tuple(s.name for s in REGISTRY if s.results_group)
+STAGE_GROUPS: tuple[str, ...] = derived(lambda: [s.name for s in registry() if s.results_group])
 #: The per-recording summary files the assemble stage writes beside ``results.h5``.
 SUMMARY_FILES = ("summary.json", "summary.png", "calibration.toml", "suspects.csv")
 
@@ -77,7 +79,11 @@ def write_stage(
     ``<stage>/cameras`` (bundle adjustment's); ``attrs``: JSON-serialisable group attributes;
     ``meta``: extra entries for the file's meta JSON (e.g. its params hash).
     """
-    if stage not in STAGE_GROUPS or stage == "pose2d":
+    try:  # its own record only: a job finds no other stage's home
+        owns = stage != "pose2d" and by_name(stage).results_group
+    except ValueError:
+        owns = False
+    if not owns:
         raise ValueError(
             f"unknown stage {stage!r} (write_stage takes {', '.join(STAGE_GROUPS[1:])})"
         )

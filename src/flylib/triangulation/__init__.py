@@ -3,12 +3,7 @@
 Every function takes the rig first, ``(cameras, pts2d, ...)``, view-leading ``(V, *pts, 2)``
 pixels with NaN = missing, and returns ``(*pts, 3)``. :func:`reconstruct` runs the method a
 ``triangulation`` table names (its knobs, its confidence weighting) and returns the 3D, the
-2D it was solved from and the errors.
-
-Modules: :mod:`~flylib.triangulation.methods` (the functions below, NumPy; RANSAC runs
-there) and :mod:`~flylib.triangulation.kernels` (greedy's jitted JAX kernel, imported only
-when greedy runs). The DLT is :meth:`flylib.camera.rig.CameraGroup.triangulate`.
-"""
+2D it was solved from and the errors. DLT: :meth:`flylib.camera.rig.CameraGroup.triangulate`."""
 
 from __future__ import annotations
 

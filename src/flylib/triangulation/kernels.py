@@ -2,8 +2,7 @@
 
 Separate from :mod:`flylib.triangulation.methods` so that RANSAC (NumPy) and the rest of a
 workflow job never import JAX; ``greedy`` imports it when called (the DLT kernel is
-:func:`flylib.camera.jax_model.dlt_chunk`).
-"""
+:func:`flylib.camera.jax_model.dlt_chunk`)."""
 
 from __future__ import annotations
 

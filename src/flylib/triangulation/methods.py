@@ -1,20 +1,12 @@
 """Triangulation of whole recordings: DLT, exhaustive-pair RANSAC and greedy view dropping.
 
 The points (``(V, T, P, 2)`` for a recording) are flattened and processed in bounded chunks,
-all with the same closed-form, row-normalized DLT as
-:func:`flylib.camera.jax_model.triangulate_dlt`: DLT
-(:meth:`flylib.camera.rig.CameraGroup.triangulate`, the one bulk DLT path) and greedy
-(:mod:`flylib.triangulation.kernels`) by jitted JAX kernels compiled once per chunk length
-and imported only when those methods run, RANSAC in NumPy (no compile, no JAX) on runs of
-points seen by the same views, on a few threads. Lens distortion is handled exactly:
-observations are undistorted before the linear solve, and reprojection errors are measured
-in the raw image.
-
-Confidence weighting: with ``weights`` (``(V, *pts)``, e.g. the detector's confidences) each
-view's DLT rows are scaled by ``sqrt(weight)`` and observations with a non-positive or
-non-finite weight are treated as missing. RANSAC's inlier vote is never weighted. Method
-knobs and ``weights`` are keywords.
-"""
+all with the closed-form, row-normalized DLT of :func:`flylib.camera.jax_model.triangulate_dlt`:
+DLT (:meth:`flylib.camera.rig.CameraGroup.triangulate`) and greedy (:mod:`.kernels`) by jitted
+JAX kernels compiled once per chunk length and imported only when those methods run, RANSAC in
+NumPy (no compile, no JAX) on runs of points seen by the same views, on a few threads. Lens
+distortion is handled exactly: observations are undistorted before the linear solve, and
+reprojection errors are measured in the raw image."""
 
 from __future__ import annotations
 
@@ -91,11 +83,10 @@ class _Rig:
 
 
 # -- RANSAC in NumPy: each hypothesis only where both its views see the point ---------
-# Real recordings see each point in only 2-4 of the views, so most of the C(V, 2) pairs have
-# nothing to do for most points. The points are sorted by the set of views observing them; a
-# run of points with one set is a dense block in which every pair of its views is tried and
-# errors are measured in its views only: no wasted pairs, no gathers in the inner loop, and
-# no XLA compile per input size.
+# Real recordings see each point in only 2-4 of the views, so most of the C(V, 2) pairs have nothing
+# to do for most points. The points are sorted by the set of views observing them; a run of points
+# with one set is a dense block in which every pair of its views is tried and errors are measured in
+# its views only: no wasted pairs, no gathers in the inner loop, and no XLA compile per input size.
 
 
 class _RansacViews:
@@ -139,8 +130,7 @@ def _ransac_block(cameras, pmats, raw, und, weights, views, threshold, min_inlie
     """Exhaustive-pair RANSAC for points observed in (at most) ``views`` ``(K,)``.
 
     ``raw`` / ``und`` ``(K, n, 2)``: raw and undistorted pixels in those views (NaN = missing);
-    ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``.
-    """
+    ``weights`` ``(K, n)`` or None. Returns ``(pts3d (n, 3), inliers (K, n))``."""
     n_sel, n = raw.shape[:2]
     quad, norm = camera_model.dlt_camera_constants(np, pmats[views])
     feats, valid = camera_model.dlt_features(np, und, norm, weights)  # (6, K, n)
@@ -196,10 +186,9 @@ def _ransac_numpy(pts2d, cameras, weights, chunk_points, threshold, min_inliers)
     vote = _finite(raw_all) & usable
     valid = vote if und_all is raw_all else _finite(und_all) & usable
     valid_count = valid.sum(axis=0)
-    # Points with fewer than two usable views stay NaN. The rest are sorted by the set of
-    # views observing them and processed in runs of one set, in pieces of at most
-    # ``chunk_points`` (beyond 62 views the key ignores the later ones: less uniform runs
-    # cost time, not correctness).
+    # Points with fewer than two usable views stay NaN. The rest are sorted by the set of views
+    # observing them and processed in runs of one set, in pieces of at most ``chunk_points`` (beyond
+    # 62 views the key ignores the later ones: less uniform runs cost time, not correctness).
     key_views = min(n_views, 62)
     key = np.zeros(n, dtype=np.min_scalar_type((1 << key_views) - 1))
     for v in range(key_views):
@@ -252,8 +241,7 @@ def triangulate(
     Forwards to :meth:`flylib.camera.rig.CameraGroup.triangulate`. ``weights`` ``(V, *pts)``
     scale each view's rows by ``sqrt(weight)``; a non-positive or non-finite weight drops
     the view. Returns ``(*pts, 3)``, NaN where fewer than two views observe the point.
-    TypeError if ``cameras`` is not a rig (arguments swapped), ValueError on a shape mismatch.
-    """
+    TypeError if ``cameras`` is not a rig (arguments swapped), ValueError on a shape mismatch."""
     cameras, pts2d = _arguments("triangulate", cameras, pts2d)
     return cameras.triangulate(pts2d, weights, chunk_points=chunk_points)  # checks the shapes
 
@@ -261,9 +249,8 @@ def triangulate(
 def reprojection_error(
     cameras: CameraGroup, pts3d: Float[np.ndarray, "*pts 3"], pts2d: Float[np.ndarray, " V *pts 2"]
 ) -> Float[np.ndarray, " V *pts"]:
-    """Per-observation reprojection error in pixels ``(V, *pts)``, NaN where the observation
-    or the 3D point is missing. TypeError if ``cameras`` is not a rig, ValueError on a
-    shape mismatch."""
+    """Per-observation reprojection error in pixels ``(V, *pts)``, NaN where the observation or the
+    3D point is missing. TypeError if ``cameras`` is not a rig, ValueError on a shape mismatch."""
     cameras, pts2d = _arguments("reprojection_error", cameras, pts2d, "pts3d, pts2d")
     pts3d = np.asarray(pts3d, dtype=np.float64)
     _check_inputs(pts2d, cameras, None)
@@ -292,8 +279,7 @@ def triangulate_ransac(
 
     Returns ``pts3d`` ``(*pts, 3)`` (NaN for a rejected point) and ``inliers`` ``(V, *pts)``
     bool, the views the point was fitted from. TypeError if ``cameras`` is not a rig,
-    ValueError if ``min_inliers < 2`` or ``threshold <= 0``.
-    """
+    ValueError if ``min_inliers < 2`` or ``threshold <= 0``."""
     cameras, pts2d = _arguments("triangulate_ransac", cameras, pts2d)
     if int(min_inliers) < 2:
         raise ValueError(f"min_inliers must be >= 2, got {min_inliers}")
@@ -312,14 +298,8 @@ def _triangulate_greedy(
     weights: Float[np.ndarray, " V *pts"] | None = None,
     chunk_points: int = DEFAULT_CHUNK_POINTS,
 ) -> tuple[Float[np.ndarray, "*pts 3"], Bool[np.ndarray, " V *pts"]]:
-    """:func:`reconstruct`'s ``greedy``: DLT, then repeatedly drop each offending point's
-    worst-reprojecting view.
-
-    While a point's largest reprojection error exceeds ``reproj_threshold`` pixels, its worst
-    view is removed and the point re-triangulated from the rest, at most ``max_drops`` times
-    (``max_drops < 0`` is a ValueError). A point left with fewer than two views becomes NaN.
-    Returns ``pts3d`` and ``kept`` ``(V, *pts)``, the views the final point was fitted from.
-    """
+    """:func:`reconstruct`'s ``greedy`` (``max_drops < 0`` is a ValueError): ``pts3d`` (NaN below
+    two views) and ``kept`` ``(V, *pts)``, the views the final point was fitted from."""
     if int(max_drops) < 0:
         raise ValueError(f"max_drops must be >= 0, got {max_drops}")
     w = _check_inputs(pts2d, cameras, weights)
@@ -364,8 +344,7 @@ def reconstruct(
     Returns ``pts3d`` ``(*pts, 3)`` (NaN where the method could not reconstruct the point),
     ``pts2d_clean`` ``(V, *pts, 2)`` (the views each point was solved from; the rejected ones
     NaN) and the reprojection error ``(V, *pts)`` in pixels against it. TypeError if
-    ``cameras`` is not a rig, ValueError for an unknown ``params.method``.
-    """
+    ``cameras`` is not a rig, ValueError for an unknown ``params.method``."""
     cameras, pts2d = _arguments("reconstruct", cameras, pts2d)
     params = TriangulationParams() if params is None else params
     if params.method not in TRIANGULATION_METHODS:

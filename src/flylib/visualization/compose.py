@@ -451,9 +451,8 @@ def render_videos(
     ``footage``: ``view -> files`` (one video, or an ordered image sequence), a view without any
     drawing the background (with a warning); ``corrected``: ``(T, P)`` bool, ringed; ``speed``:
     multiple of the recording's rate when the config sets none; ``on_corrupt``:
-    ``io.on_corrupt_frame``. A bad spec is a ConfigError, unreadable footage a FootageError.
-    """
-    from tqdm.auto import tqdm
+    ``io.on_corrupt_frame``. A bad spec is a ConfigError, unreadable footage a FootageError."""
+    from tqdm import tqdm
 
     table = {} if table is None else table
     names = list(result.cameras.names)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .specs import parse_color
+
 #: Fractional bits of the fixed-point coordinates passed to OpenCV (1/16 px).
 _SHIFT = 4
 _ONE = 1 << _SHIFT
@@ -18,20 +20,18 @@ _MAX_COORD = 1e6
 
 def limb_colors(skeleton, overrides: dict | None = None) -> np.ndarray:
     """``(n_limbs, 3)`` uint8 RGB per limb: ``overrides``, the skeleton's ``palette``, ``tab10``."""
-    from matplotlib import colormaps
-    from matplotlib.colors import to_rgb
-
     overrides = overrides or {}
     palette = dict(getattr(skeleton, "palette", {}) or {})
-    cmap = colormaps["tab10"]
     out = np.zeros((len(skeleton.limb_names), 3), np.uint8)
     for i, limb in enumerate(skeleton.limb_names):
         if limb in overrides:
             out[i] = overrides[limb]
         elif limb in palette:
-            out[i] = np.round(np.array(to_rgb(palette[limb])) * 255)
-        else:
-            out[i] = np.round(np.array(cmap(i % 10)[:3]) * 255)
+            out[i] = parse_color(palette[limb], f"skeleton.limb_palette.{limb}")
+        else:  # only here matplotlib: a job pays ~0.2 s to import it
+            from matplotlib import colormaps
+
+            out[i] = np.round(np.array(colormaps["tab10"](i % 10)[:3]) * 255)
     return out
 
 

@@ -9,12 +9,12 @@ A video is an ordered list of panels drawn onto one canvas, each a ``plot`` of a
     [[visualization.videos]].kwargs.<plot> one plot type in that video
     the panel's own keys
 
-``palette`` tables (limb -> colour) merge key by key.
-"""
+``palette`` tables (limb -> colour) merge key by key."""
 
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -67,6 +67,9 @@ def parse_color(value: Any, where: str) -> RGB:
         if len(value) == 3 and all(isinstance(c, (int, float)) and 0 <= c <= 255 for c in value):
             return tuple(int(round(c)) for c in value)  # type: ignore[return-value]
         raise ConfigError(f"{where}: {value!r} is not a colour; give [r, g, b] with values 0-255")
+    if isinstance(value, str) and re.fullmatch("#[0-9a-fA-F]{6}|black|white", value):
+        value = {"black": "#000000", "white": "#ffffff"}.get(value, value)  # no matplotlib: ~0.2 s
+        return tuple(int(value[i : i + 2], 16) for i in (1, 3, 5))  # type: ignore[return-value]
     from matplotlib.colors import to_rgb
 
     try:

@@ -1,8 +1,7 @@
 """Static summary figure of one recording's result: the first thing to look at after a run.
 
 Four panels (matplotlib Agg, no pyplot): reprojection error per view; per keypoint, the fraction
-of frames with 3D (or of views with 2D); median error per frame over time; leg-tip trajectories.
-"""
+of frames with 3D (or of views with 2D); median error per frame over time; leg-tip trajectories."""
 
 from __future__ import annotations
 
