@@ -183,40 +183,17 @@ def register(cls: T) -> T:
     return cls
 
 
-class _DerivedNames(Sequence):
-    """A tuple made from the records on first use."""
+class _Derived:
+    """A table made from the records on first use (``kind``: tuple or dict)."""
 
-    def __init__(self, make: Callable[[], Sequence]) -> None:
+    kind: type = tuple
+
+    def __init__(self, make: Callable[[], Any]) -> None:
         self._make = make
 
     @functools.cached_property
-    def _value(self) -> tuple:
-        return tuple(self._make())
-
-    def __getitem__(self, index):  # type: ignore[override]
-        return self._value[index]
-
-    def __len__(self) -> int:
-        return len(self._value)
-
-    def __eq__(self, other: object) -> bool:
-        return self._value == (tuple(other) if isinstance(other, _DerivedNames) else other)
-
-    __hash__ = None  # type: ignore[assignment]
-
-    def __repr__(self) -> str:
-        return repr(self._value)
-
-
-class _DerivedMap(Mapping):
-    """A dict made from the records on first use."""
-
-    def __init__(self, make: Callable[[], Mapping]) -> None:
-        self._make = make
-
-    @functools.cached_property
-    def _value(self) -> dict:
-        return dict(self._make())
+    def _value(self) -> Any:
+        return self.kind(self._make())
 
     def __getitem__(self, key):
         return self._value[key]
@@ -229,6 +206,17 @@ class _DerivedMap(Mapping):
 
     def __repr__(self) -> str:
         return repr(self._value)
+
+
+class _DerivedNames(_Derived, Sequence):
+    def __eq__(self, other: object) -> bool:
+        return self._value == (tuple(other) if isinstance(other, _DerivedNames) else other)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+class _DerivedMap(_Derived, Mapping):
+    kind = dict
 
 
 def derived(make: Callable[[], Any], *, mapping: bool = False) -> Any:

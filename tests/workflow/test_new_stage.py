@@ -9,6 +9,7 @@ import csv
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -143,6 +144,20 @@ def test_a_stage_written_as_one_home_and_one_rule_file_runs_through_snakemake(tm
 
     expected = np.round(np.nanmean(PoseResult.load(out / "results.h5").pts3d, axis=1), 3)
     np.testing.assert_array_equal(np.array(rows[1:], dtype=float), expected)
+    # by hand, the shared script runs it from the config and the files by their rule names
+    by_hand = subprocess.run(
+        [
+            sys.executable,
+            str(checkout / "scripts" / "stage.py"),
+            *("--rule", "centroid", "--config", str(tmp_path / "config.yaml")),
+            *("--file", f"results={out / 'results.h5'}", "--file", f"table={tmp_path / 'h.csv'}"),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(checkout / "src")},
+    )
+    assert by_hand.returncode == 0, by_hand.stderr[-2000:]
+    assert (tmp_path / "h.csv").read_text() == (out / "centroid.csv").read_text()
 
     # its knob re-runs it alone; its table is checked by its params class before any work
     config["centroid"] = {"decimals": 1}

@@ -40,7 +40,7 @@ class AssembleInputs(StageInputs):
     """The assemble stage's inputs: ``rig`` is stored in ``results.h5`` as ``config_rig``;
     ``skeleton`` includes palette and name (``results.h5`` and the summary figure carry them)."""
 
-    STAGE = "assemble"
+    STAGE = RECORD.name
 
     rig: RigSpec
     skeleton: SkeletonSpec

@@ -66,7 +66,7 @@ class BundleAdjustmentInputs(StageInputs):
     """What the bundle-adjustment stage reads: the ``bundle_adjustment`` table (less the
     runtime's options), the config rig the fit starts from, and the skeleton."""
 
-    STAGE = "bundle_adjustment"
+    STAGE = RECORD.name
 
     bundle_adjustment: BundleAdjustmentParams
     rig: RigSpec

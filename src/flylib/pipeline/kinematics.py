@@ -42,7 +42,7 @@ RECORD = Stage(
     memory=(130, 105),
 )
 
-STAGE = "kinematics"
+STAGE = RECORD.name
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ RECORD = Stage(
     outputs=FILES,
 )
 
-STAGE = "neuromechfly"
+STAGE = RECORD.name
 
 
 @register

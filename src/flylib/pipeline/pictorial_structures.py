@@ -47,7 +47,7 @@ class PictorialStructuresInputs(StageInputs):
     """What the PS stage reads: ``skeleton`` gives the prior's chains and bones; ``rig`` is
     ``None`` while bundle adjustment is on (the rig comes from its artifact)."""
 
-    STAGE = "pictorial_structures"
+    STAGE = RECORD.name
 
     pictorial_structures: PictorialParams
     skeleton: SkeletonSpec

@@ -73,7 +73,7 @@ class Pose2dInputs(StageInputs):
     its own. ``on_corrupt_frame`` is tracked only when not ``"error"`` (older artifacts'
     params stay valid)."""
 
-    STAGE = "pose2d"
+    STAGE = RECORD.name
 
     sources: tuple[Mapping[str, Any], ...]
     plan: Mapping[str, Any]

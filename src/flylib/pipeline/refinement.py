@@ -64,7 +64,7 @@ RECORD = Stage(
     memory=(410, 140),
 )
 
-STAGE = "refinement"
+STAGE = RECORD.name
 
 
 @register

@@ -58,7 +58,7 @@ class TriangulationInputs(StageInputs):
     ``points_from``: ``"pictorial_structures"`` or ``"pose2d"``; ``rig``: ``None`` while
     bundle adjustment is on (the rig comes from its artifact)."""
 
-    STAGE = "triangulation"
+    STAGE = RECORD.name
 
     triangulation: TriangulationParams
     skeleton: SkeletonSpec

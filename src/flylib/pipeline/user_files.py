@@ -37,18 +37,19 @@ _FIX = "set outdir to another folder, e.g. '{recording}/flylib_outputs'"
 def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
     """``name`` (relative to the outdir) ``-> what writes it`` (e.g. ``"assemble's
     calibration.toml"``) of every file a recording's jobs write under ``flags``."""
-    from ..results.artifacts import ARTIFACTS, SUMMARY_FILES, candidates_artifact
+    from ..results.artifacts import candidates_artifact
     from ..stages import registry
 
     out: dict[str, str] = {}
-    for stage, name in ARTIFACTS.items():
-        if flags.get(stage, True):
-            out[f"stages/{name}"] = f"{stage}'s stages/{name}"
+    for stage in registry():  # each stage's artifact and outputs (assemble's results.h5, ...)
+        if flags.get(stage.name, True):
+            owner = stage.name + ("'" if stage.name.endswith("s") else "'s")
+            names = [f"stages/{stage.artifact}"] if stage.artifact else []
+            out |= {name: f"{owner} {name}" for name in [*names, *stage.outputs]}
     if flags.get("pose2d", True) and flags.get("pictorial_structures", False):
         name = candidates_artifact(config.pictorial_structures.k)
         out[f"stages/{name}"] = f"pose2d's stages/{name}"
-    for name in ("results.h5", *SUMMARY_FILES, "config.yaml"):
-        out[name] = f"assemble's {name}"
+    out["config.yaml"] = "assemble's config.yaml"
     # the snapshot of the other format, which assemble removes (Config.save_snapshot)
     out["config.toml"] = "assemble (it deletes an earlier run's config.toml snapshot)"
     if flags.get("visualization", True):
@@ -56,10 +57,6 @@ def planned_outputs(config: Any, flags: Mapping[str, bool]) -> dict[str, str]:
 
         for video in video_specs(config):
             out[f"{video.name}.mp4"] = f"visualization's {video.name}.mp4"
-    for stage in registry():
-        if stage.name != "assemble" and flags.get(stage.name, True):
-            owner = stage.name + ("'" if stage.name.endswith("s") else "'s")
-            out |= {name: f"{owner} {name}" for name in stage.outputs}
     if (config.data.get("exports") or {}).get("nwb"):
         out[NWB_FILE] = f"export_nwb's {NWB_FILE}"
     return out

@@ -36,7 +36,7 @@ class VisualizationInputs(StageInputs):
     """The visualization stage's inputs: the ``visualization`` table and the skeleton's
     ``limb_palette``; ``runtime`` is tracked by pose2d's params instead."""
 
-    STAGE = "visualization"
+    STAGE = RECORD.name
 
     visualization: Mapping[str, Any]
     palette: Mapping[str, str]
