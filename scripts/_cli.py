@@ -36,9 +36,26 @@ sys.path[:] = dict.fromkeys(sys.path)
 _SHARED = ("help", "config", "threads", "verbose")
 
 
-def script_parser(description: str) -> argparse.ArgumentParser:
+class ScriptParser(argparse.ArgumentParser):
+    """An argument parser that keeps a script's own options (``options``) by their names in
+    the job (``--bundle-adjustment``: ``bundle_adjustment``), the names ``--help`` shows."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.options: dict[str, argparse.Action] = {}
+        super().__init__(**kwargs)
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        if action.dest not in _SHARED:
+            name = action.option_strings[-1].lstrip("-").replace("-", "_")
+            action.metavar = action.metavar or name.upper()
+            self.options[name] = action
+        return action
+
+
+def script_parser(description: str) -> ScriptParser:
     """An argument parser with the options every stage script shares."""
-    parser = argparse.ArgumentParser(description=description)
+    parser = ScriptParser(description=description)
     parser.add_argument(
         "--config",
         type=Path,
@@ -143,7 +160,7 @@ def _job_value(job: Any, name: str, action: argparse.Action) -> Any:
 
 
 def script_main(
-    parser: argparse.ArgumentParser,
+    parser: ScriptParser,
     run: Callable[..., Any],
     argv: list[str] | None = None,
     *,
@@ -175,14 +192,7 @@ def script_main(
     job_extra, hand_extra
         ``run``'s arguments that are no option, from the job and by hand.
     """
-    # the script's own options by their names in the job (--bundle-adjustment: bundle_adjustment)
-    options = {
-        a.option_strings[-1].lstrip("-").replace("-", "_"): a
-        for a in parser._actions
-        if a.dest not in _SHARED
-    }
-    for name, action in options.items():
-        action.metavar = action.metavar or name.upper()  # --help names the option, not dest
+    options = parser.options
     if job is not None:
         if job.log:
             _log_to(job.log[0])
