@@ -16,6 +16,9 @@ process of its own, the two interleaved ``--repeats`` times in one run):
   the focus view at 1280x720 and 1600x1000 as JPEG.
 
     python benchmarks/gui_session.py --baseline ../base [--repeats 2] [--screenshots docs/images]
+
+``--playback``: frame step and playback only (a few minutes less a run); ``--data DIR`` keeps the
+recordings made for the next run.
 """
 
 from __future__ import annotations
@@ -226,12 +229,15 @@ def focus_view(outdir: Path, shots: Path | None, label: str) -> dict:
     return figures
 
 
-def one(data: Path, label: str, shots: Path | None) -> dict:
-    figures = {"keys60": keyboard_session(data / "keys" / "rec", 0.06)}
-    figures["keys_idle"] = keyboard_session(data / "keys" / "rec", None)
+def one(data: Path, label: str, shots: Path | None, playback: bool = False) -> dict:
+    figures = {}
+    if not playback:
+        figures["keys60"] = keyboard_session(data / "keys" / "rec", 0.06)
+        figures["keys_idle"] = keyboard_session(data / "keys" / "rec", None)
     figures["sample"] = stepping(data / "sample", 28)
     figures["rec900"] = stepping(data / "rec900" / "flylib_outputs", 30)
-    figures.update(focus_view(data / "sample", shots, label))
+    if not playback:
+        figures.update(focus_view(data / "sample", shots, label))
     return figures
 
 
@@ -280,10 +286,12 @@ def make_data(data: Path, frames: int) -> None:
         (data / "sample").symlink_to(next(work.glob("sample_outputs/*/results.h5")).parent)
 
 
-def run_one(checkout: Path, data: Path, label: str, shots: Path | None) -> dict:
+def run_one(checkout: Path, data: Path, label: str, shots: Path | None, playback: bool) -> dict:
     command = [sys.executable, __file__, "--one", label, "--data", str(data)]
     if shots is not None:
         command += ["--screenshots", str(shots)]
+    if playback:
+        command += ["--playback"]
     env = {**os.environ, "PYTHONPATH": str(checkout / "src")}
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
     if done.returncode:
@@ -315,7 +323,7 @@ def report(runs: dict[str, list[dict]]) -> None:
         print(line)
 
     print(f"medians over {len(runs[labels[0]])} run(s) each, interleaved:")
-    for pace in ("keys60", "keys_idle"):
+    for pace in [p for p in ("keys60", "keys_idle") if p in runs[labels[0]][0]]:
         for key, unit in (
             ("landed", " /20"),
             ("marked", " /10"),
@@ -332,7 +340,8 @@ def report(runs: dict[str, list[dict]]) -> None:
             )
         row(f"{rec} playback 10 fps asked, drawn", rec, "play10", unit=" fps")
         row(f"{rec} playback 30 fps asked, drawn", rec, "play30", unit=" fps")
-    row("footage fraction 1280x720 (focus)", "footage")
+    if "footage" in runs[labels[0]][0]:
+        row("footage fraction 1280x720 (focus)", "footage")
 
 
 def main(argv=None) -> int:
@@ -343,11 +352,14 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=Path, help="where the recordings are made (kept)")
     parser.add_argument("--screenshots", type=Path, help="focus-view JPEGs of this checkout")
     parser.add_argument("--json", type=Path, help="every run's figures written here")
+    parser.add_argument(
+        "--playback", action="store_true", help="only frame step and playback (no keys, no focus)"
+    )
     parser.add_argument("--one", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:
         shots = args.screenshots if args.one == "after" else None
-        print(json.dumps(one(args.data, args.one, shots)))
+        print(json.dumps(one(args.data, args.one, shots, args.playback)))
         return 0
     data = args.data or Path(tempfile.mkdtemp(prefix="gui-session-"))
     data.mkdir(parents=True, exist_ok=True)
@@ -356,9 +368,10 @@ def main(argv=None) -> int:
     runs = {label: [] for label in checkouts}
     for i in range(args.repeats):
         for label, checkout in checkouts.items():
-            runs[label].append(run_one(checkout.resolve(), data, label, args.screenshots))
-            keys = runs[label][-1]["keys60"]
-            print(f"run {i + 1} {label}: at 60 ms {keys['landed']}/20 edits landed", flush=True)
+            run = run_one(checkout.resolve(), data, label, args.screenshots, args.playback)
+            runs[label].append(run)
+            said = f"at 60 ms {run['keys60']['landed']}/20 edits landed" if "keys60" in run else ""
+            print(f"run {i + 1} {label}: {said or 'done'}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(runs, indent=1))
     report(runs)

@@ -441,11 +441,23 @@ def test_small_items(page_1280):
     driver.execute_script("document.activeElement.blur()")
     assert fps.get_attribute("value") == "20"
     last = session.n_frames - 1
+    assert all(source.wait_filled(len(source), 60) for source in session.frames.values())
     started = time.perf_counter()
     body.send_keys(" ")
     wait_for(driver, f"return !window.flylib.state.playing && window.flylib.state.frame === {last}")
     assert time.perf_counter() - started >= (last - 2) / 20 * 0.9
     wait_for(driver, "return window.flylib.allDrawn()")
+    # frames fetched at half size while playing; one of them, shown paused: at full size
+    played = driver.execute_script(
+        "return [...window.flylib.state.ahead.frames].filter(([f, e]) => e.small).map(([f]) => f)"
+    )
+    assert played, "playback fetched no frame at half size"
+    driver.execute_script(f"window.flylib.goto({played[-1]})")
+    wait_for(
+        driver,
+        f"const s = window.flylib.state; return s.frame === {played[-1]} && window.flylib.allDrawn()"
+        " && s.views.every(v => s.images[v.name].bitmap.width === v.width)",
+    )
     # the favicon is served: no console error at all
     errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
     assert errors == []

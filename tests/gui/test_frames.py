@@ -52,14 +52,18 @@ def test_the_fill_holds_every_frame_and_jumps_give_the_right_frame(one_keyframe_
         for i in np.random.default_rng(0).permutation(FRAMES):
             image = _decoded(source.jpeg(int(i)))
             assert np.abs(image - _frame_image(int(i))).mean() < 4, f"frame {i}"
+            # playback's at half size, made by the fill (frame 0 too, requested before)
+            small = _decoded(source.jpeg(int(i), small=True))
+            half = cv2.resize(_frame_image(int(i)), (48, 32), interpolation=cv2.INTER_AREA)
+            assert small.shape == half.shape and np.abs(small - half).mean() < 4, f"frame {i}"
         assert source._frames._next in (None, 1)  # the request decoder never had to move
     finally:
         source.close()
 
 
 def test_a_small_budget_fills_a_window_that_follows_the_user(one_keyframe_video):
-    one = len(FrameSource([one_keyframe_video], (64, 96), fill_bytes=0).jpeg(0))
-    budget = int(one * 1.25 * 10)  # about ten frames
+    one = FrameSource([one_keyframe_video], (64, 96), fill_bytes=0)._spare_read(0)
+    budget = int(len(b"".join(one)) * 1.25 * 10)  # about ten frames (each at full and half size)
     source = FrameSource([one_keyframe_video], (64, 96), cache_frames=2, fill_bytes=budget)
     try:
         source.jpeg(20)

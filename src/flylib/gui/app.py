@@ -6,7 +6,8 @@ Routes::
     GET  /static/{file}             the front-end's ES modules and CSS (package data)
     GET  /api/meta                  views, sizes, skeleton + palette, frame count, revision
     GET  /api/frame/{view}/{frame}  the view's footage frame as JPEG
-    GET  /api/frames/{frame}        every view's JPEG, one after another (lengths: X-Lengths)
+    GET  /api/frames/{frame}        every view's JPEG, one after another (lengths: X-Lengths),
+                                    ?small=1: at half size where made (playback)
     GET  /api/points/{frame}        2D (edits applied), used flags, reprojected 3D, errors
     GET  /api/suspects              suspect (frame, point) pairs, per-frame score, review progress
     GET  /api/save-check            what the edits made worse (said before saving)
@@ -165,11 +166,11 @@ def _add_read_routes(app: FastAPI, session: ReviewSession, token: str) -> None:
         return Response(session.frames[view].jpeg(frame), media_type="image/jpeg", headers=CACHED)
 
     @app.get("/api/frames/{frame}")
-    async def frames(frame: int) -> Response:
+    async def frames(frame: int, small: bool = False) -> Response:
         # one request a frame, not one per view: each costs the browser more than its decode
         check_frame(frame)
-        views = session.frames
-        jpegs = await gather(*(run_in_threadpool(views[v].jpeg, frame) for v in session.view_names))
+        views, names = session.frames, session.view_names
+        jpegs = await gather(*(run_in_threadpool(views[v].jpeg, frame, small) for v in names))
         lengths = ",".join(str(len(j)) for j in jpegs)
         return Response(b"".join(jpegs), headers={**CACHED, "X-Lengths": lengths})
 

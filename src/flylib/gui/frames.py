@@ -5,10 +5,10 @@ A video keeps one PyAV container open: the next frame costs one decode; any othe
 decoding on or by a seek to the keyframe before it, whichever decodes fewer frames (keyframes and
 timestamps are indexed once). A cold random jump thus costs up to one keyframe interval (GOP): the
 whole video on footage with a single keyframe. So from a view's first request on, a background
-thread decodes the video in order into the fill cache: all of it when its JPEGs fit
-``fill_bytes``, else a window around the last requested frame. It pauses while a request decodes,
-and a request for a frame the fill decoder is nearer to waits for it instead of decoding the same
-frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequenceReader`)."""
+thread decodes the video in order into the fill cache (each frame also at half size, for playback):
+all of it when its JPEGs fit ``fill_bytes``, else a window around the last requested frame. It
+pauses while a request decodes, and a request for a frame the fill decoder is nearer to waits for
+it instead of decoding the same frames twice. Image sequences are read by index (:class:`flylib.io.ImageSequenceReader`)."""
 
 from __future__ import annotations
 
@@ -193,7 +193,7 @@ class FrameSource:
         self._blank: bytes | None = None
         self._spare = None
         self.fill_bytes = int(fill_bytes)
-        self._filled: dict[int, bytes] = {}
+        self._filled: dict[int, tuple[bytes, bytes]] = {}  # frame -> (JPEG, half-size JPEG)
         self._fill_window: int | None = None  # None: undecided; else frames the fill may hold
         self._anchor = 0  # the last requested frame
         self._requests = 0  # requests decoding now (the fill waits for them)
@@ -226,11 +226,11 @@ class FrameSource:
         """``(height, width)`` of the footage (None without)."""
         return None if self._frames is None else tuple(self._frames.reader.frame_size())
 
-    def _cached(self, index: int) -> bytes | None:
+    def _cached(self, index: int, small: bool = False) -> bytes | None:
         with self._cache_lock:
-            data = self._filled.get(index)
-            if data is not None:
-                return data
+            both = self._filled.get(index)
+            if both is not None:
+                return both[small]
             data = self._cache.get(index)
             if data is not None:
                 self._cache.move_to_end(index)
@@ -243,10 +243,11 @@ class FrameSource:
             while len(self._cache) > self.cache_frames:
                 self._cache.popitem(last=False)
 
-    def jpeg(self, index: int) -> bytes:
-        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end)."""
+    def jpeg(self, index: int, small: bool = False) -> bytes:
+        """Frame ``index`` as JPEG bytes (a dark placeholder without footage or past its end);
+        ``small``: at half size if the fill made it (for playback: a quarter of the pixels)."""
         self._follow(index)
-        cached = self._cached(index)
+        cached = self._cached(index, small)
         if cached is not None:
             return cached
         if self._frames is None or index >= len(self._frames):
@@ -282,17 +283,20 @@ class FrameSource:
             return
         data = self._spare_read(index)
         if data is not None:
-            self._store(index, data)
+            self._store(index, data[0])
 
-    def _spare_read(self, index: int) -> bytes | None:
+    def _spare_read(self, index: int) -> tuple[bytes, bytes] | None:
+        """Frame ``index`` from the spare decoder as JPEG at full and at half size."""
+        import cv2
+
         with self._spare_lock:
-            if self._closed:
-                return None
-            if self._cached(index) is not None:
+            if self._closed or index in self._filled:  # (the fill decodes past the cache's frames)
                 return None
             if self._spare is None:
                 self._spare = self._frames.spawn()
-            return encode_jpeg(self._spare.read(index))
+            image = self._spare.read(index)
+        half = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        return encode_jpeg(image), encode_jpeg(half)
 
     def _fill_is_nearer(self, index: int) -> bool:
         """The fill decoder (decoding forward) reaches ``index`` in fewer decodes than ours."""
@@ -391,21 +395,17 @@ class FrameSource:
             if index is None:
                 continue
             try:
-                data = self._spare_read(index)
+                made = self._spare_read(index)
             except (FootageError, OSError, ValueError) as exc:  # the request reports it
                 log.debug("%s: background decode of frame %d failed: %s", self, index, exc)
                 return
-            if data is None:
-                if self._closed:
-                    return
-                data = self._cached(index)
-                if data is None:
-                    continue
+            if made is None:
+                continue
             if self._fill_window is None:
-                frames = max(1, self.fill_bytes // max(1, int(len(data) * 1.25)))
+                frames = max(1, self.fill_bytes // max(1, int(len(b"".join(made)) * 1.25)))
                 self._fill_window = min(frames, len(self._frames))
             with self._cache_lock:
-                self._filled[index] = data
+                self._filled[index] = made
             with self._filled_wake:
                 self._filled_wake.notify_all()
 

@@ -14,9 +14,14 @@ export class FramesAhead {
     this.loading = 0;  // frames being fetched ahead
   }
 
-  get(frame) {
+  usable(frame, small) {
+    // the frame's entry if here, at full size unless small (playback) will do
+    return small || !this.frames.get(frame)?.small ? this.frames.get(frame) : undefined;
+  }
+
+  get(frame, small) {
     // the frame's entry, fetched now unless it is already here
-    const entry = this.frames.get(frame) || this.load(frame);
+    const entry = this.usable(frame, small) || this.load(frame, small);
     this.frames.delete(frame);
     this.frames.set(frame, entry);  // most recently used last
     return entry;
@@ -26,10 +31,11 @@ export class FramesAhead {
     return Boolean(this.frames.get(frame)?.done);
   }
 
-  load(frame) {
+  load(frame, small) {
     // the views' JPEGs in one response (a request cost the browser more than a decode), decoded
-    // into ImageBitmaps (an Image's pixels may be dropped until drawn, and decoded again)
-    const parts = fetch(apiUrl(`/api/frames/${frame}`)).then(async (r) => {
+    // into ImageBitmaps (an Image's pixels may be dropped until drawn, and decoded again);
+    // small: at half size where the server has it (playback: a quarter of the pixels to decode)
+    const parts = fetch(apiUrl(`/api/frames/${frame}${small ? "?small=1" : ""}`)).then(async (r) => {
       const lengths = r.ok ? r.headers.get("X-Lengths").split(",").map(Number) : [], blob = await r.blob();
       let at = 0;
       return lengths.map((n) => blob.slice(at, (at += n), "image/jpeg"));
@@ -38,20 +44,20 @@ export class FramesAhead {
     this.views.forEach((view, i) => { images[view] = parts.then((p) => p[i] && createImageBitmap(p[i])).catch(() => null); });
     const points = getJSON(`/api/points/${frame}`);
     points.catch(() => this.frames.delete(frame));  // a failed read is asked again
-    const entry = { images, points, ready: Promise.all([...Object.values(images), points.catch(() => {})]) };
+    const entry = { images, points, small, ready: Promise.all([...Object.values(images), points.catch(() => {})]) };
     entry.ready.then(() => { entry.done = true; });
     this.frames.set(frame, entry);
     while (this.frames.size > KEEP) this.frames.delete(this.frames.keys().next().value);
     return entry;
   }
 
-  want(frames) {
+  want(frames, small) {
     // fetch these frames, nearest first, PARALLEL at a time (the rest of an older list dropped)
-    this.queue = frames.filter((f) => !this.frames.has(f));
+    [this.queue, this.small] = [frames.filter((f) => !this.usable(f, small)), small];
     const next = () => {
       const f = this.queue.shift();
       if (f === undefined) { this.loading--; return; }
-      (this.frames.has(f) ? Promise.resolve() : this.load(f).ready).then(next);
+      (this.usable(f, this.small) ? Promise.resolve() : this.load(f, this.small).ready).then(next);
     };
     while (this.loading < PARALLEL && this.queue.length) { this.loading++; next(); }
   }

@@ -167,7 +167,7 @@ async function goto(frame) {
   $("#frame-label").textContent = `/ ${meta.frames - 1}`;
   if (document.activeElement !== $("#frame-input")) $("#frame-input").value = String(frame);
   state.ahead ||= new FramesAhead(state.views.map((v) => v.name));
-  const entry = state.ahead.get(frame);
+  const entry = state.ahead.get(frame, Boolean(state.playing));
   const bitmaps = await Promise.all(state.views.map((view) => entry.images[view.name]));
   let data = await entry.points;
   if (data.revision !== state.revision) data = await getJSON(`/api/points/${frame}`);  // edited since
@@ -178,7 +178,7 @@ async function goto(frame) {
   state.revision = data.revision;
   redrawAll();
   markCurrent($("#suspects tbody"), frame);
-  state.ahead.want(framesAhead(frame));
+  state.ahead.want(framesAhead(frame), Boolean(state.playing));
 }
 
 function framesAhead(frame) {
@@ -340,8 +340,9 @@ function cycleLimb(direction) {
 function togglePlay() {
   // space: play from here at the chosen frames per second, showing the latest frame fetched
   // of those due: frames not fetched in time are skipped (the rate holds), and the fetches
-  // ahead start at the due frame (awaiting a late frame, frames between were fetched unseen)
-  if (state.playing) { state.playing = null; $("#play").textContent = "\u25B6"; return; }
+  // ahead start at the due frame (awaiting a late frame, frames between were fetched unseen);
+  // frames at half size while playing (a quarter of the pixels), the one it stops at at full size
+  if (state.playing) { state.playing = null; $("#play").textContent = "\u25B6"; return act(() => goto(state.frame)); }
   const playing = { fps: Number($("#fps").value) };  // kept within 1..120 as typed
   state.playing = playing;
   $("#play").textContent = "\u275A\u275A";
@@ -352,7 +353,7 @@ function togglePlay() {
       if (state.frame >= last) { togglePlay(); return; }
       const due = Math.max(state.frame + 1, playing.due());
       const next = [...Array(due - state.frame).keys()].map((i) => due - i).find((f) => state.ahead.isReady(f));
-      if (next === undefined) state.ahead.want(framesAhead(state.frame)); else await goto(next);
+      if (next === undefined) state.ahead.want(framesAhead(state.frame), true); else await goto(next);
       const wait = next === undefined ? 10 : started + ((next - from) * 1000) / playing.fps - performance.now();
       await new Promise((done) => setTimeout(done, Math.max(0, wait)));
     }
