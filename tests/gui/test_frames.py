@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from flylib.gui.frames import FrameSource
+from flylib.gui.frames import FrameSource, encode_jpeg, half_size
 
 FRAMES = 40
 
@@ -62,8 +62,9 @@ def test_the_fill_holds_every_frame_and_jumps_give_the_right_frame(one_keyframe_
 
 
 def test_a_small_budget_fills_a_window_that_follows_the_user(one_keyframe_video):
-    one = FrameSource([one_keyframe_video], (64, 96), fill_bytes=0)._spare_read(0)
-    budget = int(len(b"".join(one)) * 1.25 * 10)  # about ten frames (each at full and half size)
+    image = FrameSource([one_keyframe_video], (64, 96), fill_bytes=0)._spare_read(0)
+    one = len(encode_jpeg(image)) + len(encode_jpeg(half_size(image)))
+    budget = int(one * 1.25 * 10)  # about ten frames (each at full and half size)
     source = FrameSource([one_keyframe_video], (64, 96), cache_frames=2, fill_bytes=budget)
     try:
         source.jpeg(20)

@@ -37,6 +37,13 @@ FILL_WAIT_S = 10.0
 _WINDOW_BEHIND = 0.25
 
 
+def half_size(image: np.ndarray) -> np.ndarray:
+    """``image`` at half its width and height (area-averaged: playback's copy)."""
+    import cv2
+
+    return cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+
+
 def encode_jpeg(image_bgr: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     """``(H, W, 3)`` uint8 BGR -> JPEG bytes."""
     import cv2
@@ -255,7 +262,7 @@ class FrameSource:
                 self._blank = encode_jpeg(np.full((*self.size, 3), 24, np.uint8))
             return self._blank
         if self._fill_is_nearer(index):
-            data = self._await_fill(index, FILL_WAIT_S)
+            data = self._await_fill(index, FILL_WAIT_S, small)
             if data is not None:
                 return data
         with self._fill_wake:
@@ -281,22 +288,18 @@ class FrameSource:
             or self._cached(index) is not None
         ):
             return
-        data = self._spare_read(index)
-        if data is not None:
-            self._store(index, data[0])
+        image = self._spare_read(index)
+        if image is not None:
+            self._store(index, encode_jpeg(image))
 
-    def _spare_read(self, index: int) -> tuple[bytes, bytes] | None:
-        """Frame ``index`` from the spare decoder as JPEG at full and at half size."""
-        import cv2
-
+    def _spare_read(self, index: int) -> np.ndarray | None:
+        """Frame ``index`` decoded by the spare decoder (None once closed or filled)."""
         with self._spare_lock:
             if self._closed or index in self._filled:  # (the fill decodes past the cache's frames)
                 return None
             if self._spare is None:
                 self._spare = self._frames.spawn()
-            image = self._spare.read(index)
-        half = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-        return encode_jpeg(image), encode_jpeg(half)
+            return self._spare.read(index)
 
     def _fill_is_nearer(self, index: int) -> bool:
         """The fill decoder (decoding forward) reaches ``index`` in fewer decodes than ours."""
@@ -319,14 +322,15 @@ class FrameSource:
         )
         return ahead < own
 
-    def _await_fill(self, index: int, timeout: float) -> bytes | None:
-        """Frame ``index`` once the fill has it, or None after ``timeout`` s."""
+    def _await_fill(self, index: int, timeout: float, small: bool = False) -> bytes | None:
+        """Frame ``index`` (at half size with ``small``) once the fill has it, or None after
+        ``timeout`` s."""
         import time
 
         deadline = time.monotonic() + timeout
         with self._filled_wake:
             while True:
-                data = self._cached(index)
+                data = self._cached(index, small)
                 if data is not None or self._closed or time.monotonic() > deadline:
                     return data
                 if self._fill_thread is None or not self._fill_thread.is_alive():
@@ -395,12 +399,13 @@ class FrameSource:
             if index is None:
                 continue
             try:
-                made = self._spare_read(index)
+                image = self._spare_read(index)
             except (FootageError, OSError, ValueError) as exc:  # the request reports it
                 log.debug("%s: background decode of frame %d failed: %s", self, index, exc)
                 return
-            if made is None:
+            if image is None:
                 continue
+            made = encode_jpeg(image), encode_jpeg(half_size(image))
             if self._fill_window is None:
                 frames = max(1, self.fill_bytes // max(1, int(len(b"".join(made)) * 1.25)))
                 self._fill_window = min(frames, len(self._frames))
